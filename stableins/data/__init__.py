@@ -1,0 +1,1 @@
+"""File formats, metadata and input validation (see ``docs/formats.md``)."""

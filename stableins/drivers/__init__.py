@@ -1,0 +1,1 @@
+"""Platform drivers: one interface to the simulated, networked or replayed platform."""

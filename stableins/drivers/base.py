@@ -1,0 +1,70 @@
+"""The platform interface used by the procedures, the zero-offset iteration and the runner.
+
+A driver commands gimbal angle-sensor *readings* (never actual angles: the zero offsets
+are unknown to it) and acquires blocks of samples.  The simulated platform, the TCP
+driver and the replay driver all implement :class:`PlatformDriver`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.data.metadata import SiteMetadata
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive samples from the platform.
+
+    Attributes
+    ----------
+    time : ndarray (n,)
+        Session time [s].
+    specific_force : ndarray (n, 3)
+        Accelerometer outputs f^a [m/s²].
+    angles : ndarray (n, 3)
+        Angle-sensor readings (platform, inner, middle) [rad].
+    temperature : ndarray (n,)
+        Instrument temperature [°C].
+    """
+
+    time: NDArray[np.float64]
+    specific_force: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    temperature: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+
+@runtime_checkable
+class PlatformDriver(Protocol):
+    """What a calibration procedure needs from a platform."""
+
+    @property
+    def metadata(self) -> SiteMetadata: ...
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        """Slew to the commanded angle-sensor readings (platform, inner, middle) [rad].
+
+        Returns the session time [s] at which the command was issued.
+        """
+        ...
+
+    def read_angles(self) -> NDArray[np.float64]:
+        """Current angle-sensor readings [rad]."""
+        ...
+
+    def acquire(self, duration: float) -> SampleBlock:
+        """Record ``duration`` seconds of samples at the platform's sample rate."""
+        ...
+
+    def status(self) -> dict[str, object]:
+        """Driver state for logs and error messages."""
+        ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,1 @@
+"""Estimators: coarse and fine device-level stages, system-level stage; all return frozen results."""
