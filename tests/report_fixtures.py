@@ -92,11 +92,27 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
         {"id": t.id, "value": float(v), "unit": t.si_unit, "sigma": float(s), "status": st}
         for t, v, s, st in zip(result.terms, result.values, result.sigma, result.status, strict=True)
     ]
-    params.append({"id": GIMBAL_TERMS[0].id, "value": 0.0, "unit": "rad", "sigma": 0.0, "status": "gauge",
-                   "note": "a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)"})
+    params.append(
+        {
+            "id": GIMBAL_TERMS[0].id,
+            "value": 0.0,
+            "unit": "rad",
+            "sigma": 0.0,
+            "status": "gauge",
+            "note": "a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)",
+        }
+    )
     for term in GIMBAL_TERMS[1:]:
-        params.append({"id": term.id, "value": None, "unit": "rad", "sigma": None, "status": "unidentifiable",
-                       "note": "positions were given as platform-frame specific force: the data carry no angle-sensor information"})
+        params.append(
+            {
+                "id": term.id,
+                "value": None,
+                "unit": "rad",
+                "sigma": None,
+                "status": "unidentifiable",
+                "note": "positions were given as platform-frame specific force: the data carry no angle-sensor information",
+            }
+        )
     return {
         "schema_version": 1,
         "serial_number": SITE["serial_number"],
@@ -105,8 +121,15 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
         "provenance": {
             "software_version": "0.1.0",
             "inputs": inputs or {},
-            "procedure": {"name": "wu2018-18-position", "version": "1", "positions": 18, "dwell": 600, "settle": 30, "passes": 2,
-                          "stages": ["coarse", "fine"]},
+            "procedure": {
+                "name": "wu2018-18-position",
+                "version": "1",
+                "positions": 18,
+                "dwell": 600,
+                "settle": 30,
+                "passes": 2,
+                "stages": ["coarse", "fine"],
+            },
             "started": started,
             "finished": started.replace("08:00", "14:30"),
         },

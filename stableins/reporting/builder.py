@@ -133,12 +133,21 @@ def write_report(
 
     inputs = collect_inputs(view, data)
     if previous_view is not None:
-        inputs.append(sections.InputFile("previous record", Path(previous_view.path).name if previous_view.path else "in memory", previous_view.sha256 or "—", "read by this report"))
+        inputs.append(
+            sections.InputFile(
+                "previous record",
+                Path(previous_view.path).name if previous_view.path else "in memory",
+                previous_view.sha256 or "—",
+                "read by this report",
+            )
+        )
     if tolerances is None:
         if procedure is not None:
             tolerances = Tolerances.from_procedure_file(str(procedure))
         else:
-            tolerances = Tolerances.from_mapping(view.procedure.get("tolerances"), source=f"{Path(where).name}, provenance.procedure.tolerances")
+            tolerances = Tolerances.from_mapping(
+                view.procedure.get("tolerances"), source=f"{Path(where).name}, provenance.procedure.tolerances"
+            )
     if procedure is not None:
         inputs.append(sections.InputFile("procedure", Path(procedure).name, sha256_file(procedure), "tolerances read from it"))
 

@@ -220,7 +220,9 @@ def conformity(
                 checks.append(Check("stability", row.id, math.nan, math.nan, limit, row.unit, "not assessed", reason))
             else:
                 expanded = k * change.u_delta
-                checks.append(Check("stability", row.id, change.delta, expanded, limit, row.unit, decide(change.delta, expanded, limit, rule)))
+                checks.append(
+                    Check("stability", row.id, change.delta, expanded, limit, row.unit, decide(change.delta, expanded, limit, rule))
+                )
     if tolerances.chi2_red_max is not None:
         if not stages:
             checks.append(Check("fit", "χ²_ν", math.nan, math.nan, tolerances.chi2_red_max, "", "not assessed", "no residual evidence"))

@@ -65,7 +65,12 @@ def register_fonts() -> None:
     import matplotlib
 
     folder = os.path.join(matplotlib.get_data_path(), "fonts", "ttf")
-    for name, file in ((FONT, "DejaVuSans.ttf"), (FONT_BOLD, "DejaVuSans-Bold.ttf"), (FONT_ITALIC, "DejaVuSans-Oblique.ttf"), (FONT_MONO, "DejaVuSansMono.ttf")):
+    for name, file in (
+        (FONT, "DejaVuSans.ttf"),
+        (FONT_BOLD, "DejaVuSans-Bold.ttf"),
+        (FONT_ITALIC, "DejaVuSans-Oblique.ttf"),
+        (FONT_MONO, "DejaVuSansMono.ttf"),
+    ):
         pdfmetrics.registerFont(TTFont(name, os.path.join(folder, file)))
     pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD, italic=FONT_ITALIC, boldItalic=FONT_BOLD)
 
@@ -77,14 +82,22 @@ def styles() -> dict[str, ParagraphStyle]:
     return {
         "title": ParagraphStyle("title", parent=body, fontName=FONT_BOLD, fontSize=17, leading=21, textColor=ACCENT, spaceAfter=2),
         "subtitle": ParagraphStyle("subtitle", parent=body, fontSize=10, leading=13, textColor=RULE, spaceAfter=10),
-        "h1": ParagraphStyle("h1", parent=body, fontName=FONT_BOLD, fontSize=12, leading=15, textColor=ACCENT, spaceBefore=10, spaceAfter=5),
+        "h1": ParagraphStyle(
+            "h1", parent=body, fontName=FONT_BOLD, fontSize=12, leading=15, textColor=ACCENT, spaceBefore=10, spaceAfter=5
+        ),
         "h2": ParagraphStyle("h2", parent=body, fontName=FONT_BOLD, fontSize=10, leading=13, spaceBefore=6, spaceAfter=3),
         "body": body,
         "small": ParagraphStyle("small", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceAfter=2),
-        "caption": ParagraphStyle("caption", parent=body, fontName=FONT_ITALIC, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceBefore=2, spaceAfter=8),
+        "caption": ParagraphStyle(
+            "caption", parent=body, fontName=FONT_ITALIC, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceBefore=2, spaceAfter=8
+        ),
         "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
-        "cell_mono": ParagraphStyle("cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0),
-        "head": ParagraphStyle("head", parent=body, fontName=FONT_BOLD, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
+        "cell_mono": ParagraphStyle(
+            "cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0
+        ),
+        "head": ParagraphStyle(
+            "head", parent=body, fontName=FONT_BOLD, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0
+        ),
         "verdict": ParagraphStyle("verdict", parent=body, fontName=FONT_BOLD, fontSize=13, leading=17, spaceBefore=4, spaceAfter=6),
     }
 
@@ -145,7 +158,10 @@ def table(
         ("LINEBELOW", (0, -1), (-1, -1), 0.8, ACCENT),
     ]
     if header_rows:
-        commands += [("BACKGROUND", (0, 0), (-1, header_rows - 1), SHADE), ("LINEBELOW", (0, header_rows - 1), (-1, header_rows - 1), 0.5, ACCENT)]
+        commands += [
+            ("BACKGROUND", (0, 0), (-1, header_rows - 1), SHADE),
+            ("LINEBELOW", (0, header_rows - 1), (-1, header_rows - 1), 0.5, ACCENT),
+        ]
     for r in range(header_rows, len(data)):
         if (r - header_rows) % 2 == 1:
             commands.append(("BACKGROUND", (0, r), (-1, r), ZEBRA))
@@ -226,7 +242,9 @@ def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial
         subject=subject,
         creator="stableins (reportlab)",
     )
-    frame = Frame(doc.leftMargin, doc.bottomMargin, doc.width, doc.height, id="body", leftPadding=0, rightPadding=0, topPadding=0, bottomPadding=0)
+    frame = Frame(
+        doc.leftMargin, doc.bottomMargin, doc.width, doc.height, id="body", leftPadding=0, rightPadding=0, topPadding=0, bottomPadding=0
+    )
     doc.addPageTemplates([PageTemplate(id="page", frames=[frame])])
     furniture = {"title": title, "report_id": report_id, "serial": serial, "footer": footer}
     canvas_class = type("ReportCanvas", (NumberedCanvas,), {"furniture": furniture})

@@ -88,7 +88,8 @@ def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]]) ->
             for i in range(n):
                 for j in range(n):
                     value = rho[i, j]
-                    ax.text(j, i, f"{value:.2f}".replace("-", "\u2212"), ha="center", va="center", fontsize=5.0, color="white" if abs(value) > 0.6 else "black")
+                    text = "0.00" if abs(value) < 0.005 else f"{value:.2f}".replace("-", "\u2212")
+                    ax.text(j, i, text, ha="center", va="center", fontsize=5.0, color="white" if abs(value) > 0.6 else "black")
         bar = fig.colorbar(image, ax=ax, shrink=0.8, pad=0.02)
         bar.set_label("correlation coefficient ρ (dimensionless)")
         return _png(fig)
@@ -119,7 +120,18 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
                 if same.size > 1:
                     offsets[same] = np.linspace(-0.2, 0.2, same.size)
             ax.fill_between(position + offsets, -sigma, sigma, step="mid", color="0.85", label="noise floor (±1σ)", linewidth=0)
-            ax.errorbar(position + offsets, residual, yerr=sigma, fmt="o", ms=2.8, color=AXIS_COLOURS[axis], ecolor=AXIS_COLOURS[axis], elinewidth=0.6, capsize=1.5, label=f"f_{axis} residual")
+            ax.errorbar(
+                position + offsets,
+                residual,
+                yerr=sigma,
+                fmt="o",
+                ms=2.8,
+                color=AXIS_COLOURS[axis],
+                ecolor=AXIS_COLOURS[axis],
+                elinewidth=0.6,
+                capsize=1.5,
+                label=f"f_{axis} residual",
+            )
             ax.axhline(0.0, color="black", linewidth=0.6)
             ax.set_ylabel(f"f_{axis} residual [{unit}]")
             ax.legend(loc="upper right", ncols=2, frameon=False)
@@ -129,7 +141,9 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
         positions = sorted({p[0] for axis in groups.values() for p in axis})
         if positions and len(positions) <= 40:
             axes[-1].set_xticks(positions)
-        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) per position and axis; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
+        axes[0].set_title(
+            f"{stage.stage} stage: residual (observed − model) per position and axis; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}"
+        )
         return _png(fig)
 
 
@@ -206,6 +220,11 @@ def changes(items: Sequence[Any]) -> tuple[bytes, float]:
         ax.axhspan(-1, 1, color="0.88", linewidth=0, label="|E_n| ≤ 1: not significant")
         ax.axhline(0, color="black", linewidth=0.6)
         ax.set_xticks(range(len(values)), labels, rotation=90)
+        from matplotlib.ticker import FuncFormatter
+
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
         ax.set_ylabel("Δ / U(Δ), signed E_n")
-        ax.legend(loc="upper right", frameon=False)
+        ax.set_xlim(-0.6, len(values) - 0.4)
+        ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
         return _png(fig)

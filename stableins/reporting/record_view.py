@@ -267,7 +267,7 @@ def _covariance(value: Any, where: str, ids: set[str]) -> tuple[tuple[str, ...],
         if rows[i][i] < 0:
             raise InputError(f"negative variance for {order[i]}", path=where, field="covariance.matrix")
         for j in range(i):
-            if not math.isclose(rows[i][j], rows[j][i], rel_tol=1e-6, abs_tol=1e-300):
+            if abs(rows[i][j] - rows[j][i]) > 1e-9 * math.sqrt(abs(rows[i][i] * rows[j][j])):
                 raise InputError(f"covariance is not symmetric at ({order[i]}, {order[j]})", path=where, field="covariance.matrix")
     return tuple(str(o) for o in order), rows
 

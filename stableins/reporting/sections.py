@@ -76,7 +76,11 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
         ["Location of calibration", str(extra.get("location", "on the system, at the site described in section 2"))],
         ["Calibration performed", _period(r.times)],
         ["Date of issue", ctx.issued],
-        ["Software", f"stableins {ctx.software_version} (calibration record written by stableins {r.software_version or NOT_RECORDED}, schema {r.schema_version})"],
+        [
+            "Software",
+            f"stableins {ctx.software_version} (calibration record written by stableins "
+            f"{r.software_version or NOT_RECORDED}, schema {r.schema_version})",
+        ],
     ]
     return [
         _p("Calibration certificate", "title"),
@@ -124,7 +128,12 @@ def site_environment(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [_p("2  Site and environment", "h1")]
     site = ctx.record.site
     if site is None:
-        out.append(_p("Site metadata: not recorded in the calibration record. Local gravity, the reference of this calibration, is therefore not stated."))
+        out.append(
+            _p(
+                "Site metadata: not recorded in the calibration record. "
+                "Local gravity, the reference of this calibration, is therefore not stated."
+            )
+        )
         return out
     env = ctx.record.environment
     temperature = env.get("temperature")
@@ -164,7 +173,12 @@ def inputs(ctx: ReportContext) -> list[Flowable]:
     for f in ctx.inputs:
         rows.append([f.role, f.name, f.sha256, f.check])
     out: list[Flowable] = [_p("3  Inputs and their integrity", "h1")]
-    out.append(_p("SHA-256 digests of every file this calibration and this report were made from. A file whose digest differs is not the file used."))
+    out.append(
+        _p(
+            "SHA-256 digests of every file this calibration and this report were made from. "
+            "A file whose digest differs is not the file used."
+        )
+    )
     out.append(document.table(rows, [0.14, 0.27, 0.41, 0.18], mono=(2,)))
     return out
 
@@ -198,13 +212,16 @@ def results(ctx: ReportContext) -> list[Flowable]:
         out.append(_p("Combinations the data determine", "h2"))
         out.append(document.table([["Stage", "Combination"]] + [list(d) for d in determined], [0.14, 0.86]))
     ids, matrix = content.correlation(ctx.record)
-    out.append(_p("Correlation of the estimates", "h2"))
+    heading = _p("Correlation of the estimates", "h2")
     if len(ids) >= 2:
         png, aspect = figures.correlation_matrix(ids, matrix)
-        width = min(1.0, (1.6 + 0.28 * len(ids) + 0.9) / figures.FULL_WIDTH)
-        out.append(document.figure(png, width, aspect, f"Figure 1. Correlation coefficients of the {len(ids)} estimated parameters, from the covariance in the calibration record."))
+        width = 0.85 * min(1.0, (1.6 + 0.28 * len(ids) + 0.9) / figures.FULL_WIDTH)
+        caption = (
+            f"Figure 1. Correlation coefficients of the {len(ids)} estimated parameters, from the covariance in the calibration record."
+        )
+        out.append(KeepTogether([heading, document.figure(png, width, aspect, caption)]))
     else:
-        out.append(_p("Not shown: the calibration record carries no covariance of two or more estimated parameters."))
+        out += [heading, _p("Not shown: the calibration record carries no covariance of two or more estimated parameters.")]
     return out
 
 
@@ -212,7 +229,7 @@ def _uncertainty_statement(ctx: ReportContext) -> str:
     text = (
         "Uncertainty evaluation (GUM, JCGM 100:2008): u is the square root of the diagonal of the parameter covariance, propagated "
         "by least squares from the noise measured in the calibration data (Type A, GUM 4.2). U = 2u gives a coverage probability of "
-        "about 95 % for a normal distribution (GUM 6.2, 6.3). Uncertainties are reported as estimated, not scaled by χ²_ν; "
+        "about 95\u00a0% for a normal distribution (GUM 6.2, 6.3). Uncertainties are reported as estimated, not scaled by χ²_ν; "
     )
     high = [s for s in ctx.stages if s.dof > 0 and s.chi2_red > s.chi2_red_interval()[1]]
     if high:
@@ -233,14 +250,24 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
     if not ctx.stages:
         out.append(_p("Device-level residual analysis: <b>not performed</b>; the calibration record carries no stage residuals."))
     else:
-        rows: list[list[Any]] = [["Stage", "Observations", "Rank / parameters", "χ²_ν", "ν", "95 % interval for noise alone", "Verdict"]]
+        rows: list[list[Any]] = [["Stage", "Obs.", "Rank / param.", "χ²_ν", "ν", "95\u00a0% interval, noise alone", "Verdict"]]
         colours = {}
         for i, s in enumerate(ctx.stages, start=1):
             low, high = s.chi2_red_interval()
             ok = low <= s.chi2_red <= high
             verdict = "consistent with noise" if ok else ("residuals exceed noise" if s.chi2_red > high else "residuals below noise")
             colours[(i, 6)] = document.VERDICT_COLOURS["pass" if ok else "conditional fail"]
-            rows.append([s.stage, str(len(s.residuals)), f"{s.rank} / {s.n_parameters}", f"{s.chi2_red:.3f}", str(s.dof), f"{low:.3f} to {high:.3f}", verdict])
+            rows.append(
+                [
+                    s.stage,
+                    str(len(s.residuals)),
+                    f"{s.rank} / {s.n_parameters}",
+                    f"{s.chi2_red:.3f}",
+                    str(s.dof),
+                    f"{low:.3f} to {high:.3f}",
+                    verdict,
+                ]
+            )
         out.append(document.table(rows, [0.10, 0.13, 0.15, 0.09, 0.07, 0.24, 0.22], align_right=(1, 3, 4), cell_colours=colours))
         out.append(
             _p(
@@ -252,15 +279,17 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
         for number, s in enumerate(ctx.stages, start=2):
             if s.labels and s.unlabelled == 0:
                 png, aspect = figures.residuals_by_position(s)
-                caption = f"Figure {number}. {s.stage.capitalize()} stage: residual of each position and axis with ±1σ error bars; the grey band is the noise floor (±1σ) measured in the data."
+                caption = (
+                    f"Figure {number}. {s.stage.capitalize()} stage: residual of each position and axis with ±1σ error bars; "
+                    "the grey band is the noise floor (±1σ) measured in the data."
+                )
             else:
                 png, aspect = figures.normalized_residuals(s)
                 caption = f"Figure {number}. {s.stage.capitalize()} stage: residual of each observation divided by its 1σ noise floor."
             out.append(document.figure(png, 1.0, aspect, caption))
             if s.notes:
                 out.append(_p(f"Notes of the {escape(s.stage)} stage: " + "; ".join(escape(n) for n in s.notes), "small"))
-    out.append(_p("System-level harmonic fits", "h2"))
-    out += _system(ctx)
+    out.append(KeepTogether([_p("System-level harmonic fits", "h2"), *_system(ctx)]))
     return out
 
 
@@ -295,7 +324,12 @@ def discovery(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("6  Model discovery", "h1")]
     steps = ctx.record.discovery.get("steps", [])
     if not steps:
-        out.append(_p("<b>Not performed</b>: the calibration record carries no model-discovery history. The error model is the one named by the procedure."))
+        out.append(
+            _p(
+                "<b>Not performed</b>: the calibration record carries no model-discovery history. "
+                "The error model is the one named by the procedure."
+            )
+        )
         return out
     rows: list[list[Any]] = [["Step", "Candidate", "Statistic", "Value", "Decision", "Residual RMS"]]
     for i, step in enumerate(steps):
@@ -327,23 +361,46 @@ def change(ctx: ReportContext) -> list[Flowable]:
     prev = ctx.previous
     out.append(
         _p(
-            f"Previous record: {escape(prev.path or 'in memory')} (serial number {escape(prev.serial_number)}, calibrated {escape(_period(prev.times))}). "
+            f"Previous record: {escape(prev.path or 'in memory')} (serial number {escape(prev.serial_number)}, "
+            f"calibrated {escape(_period(prev.times))}). "
             "Δ = new − previous; U(Δ) = 2·sqrt(u_new² + u_prev²), the two calibrations taken as independent; E_n = |Δ| / U(Δ). "
-            "A change with E_n > 1 is significant at about 95 %."
+            "A change with E_n > 1 is significant at about 95\u00a0%."
         )
     )
     if prev.serial_number != ctx.record.serial_number:
-        out.append(_p(f"<b>Warning</b>: the previous record is of unit {escape(prev.serial_number)}, not {escape(ctx.record.serial_number)}."))
+        out.append(
+            _p(f"<b>Warning</b>: the previous record is of unit {escape(prev.serial_number)}, not {escape(ctx.record.serial_number)}.")
+        )
     if ctx.changes:
         rows: list[list[Any]] = [["Parameter", "Previous", "Now", "Δ", "U(Δ)", "E_n", "Significant", "Unit"]]
         colours = {}
         for i, c in enumerate(ctx.changes, start=1):
-            rows.append([c.id, _fmt(c.old, 5), _fmt(c.new, 5), _fmt(c.delta, 3), _fmt(2 * c.u_delta, 2), f"{c.normalized_error:.2f}", "yes" if c.significant else "no", c.unit])
+            rows.append(
+                [
+                    c.id,
+                    _fmt(c.old, 5),
+                    _fmt(c.new, 5),
+                    _fmt(c.delta, 3),
+                    _fmt(2 * c.u_delta, 2),
+                    f"{c.normalized_error:.2f}",
+                    "yes" if c.significant else "no",
+                    c.unit,
+                ]
+            )
             if c.significant:
                 colours[(i, 6)] = document.VERDICT_COLOURS["fail"]
-        out.append(document.table(rows, [0.13, 0.13, 0.13, 0.12, 0.11, 0.09, 0.14, 0.15], align_right=(1, 2, 3, 4, 5), cell_colours=colours))
+        out.append(
+            document.table(rows, [0.13, 0.13, 0.13, 0.12, 0.11, 0.09, 0.14, 0.15], align_right=(1, 2, 3, 4, 5), cell_colours=colours)
+        )
         png, aspect = figures.changes(ctx.changes)
-        out.append(document.figure(png, 1.0, aspect, "Change of each parameter divided by its expanded uncertainty (signed E_n); bars outside the grey band are significant."))
+        out.append(
+            document.figure(
+                png,
+                1.0,
+                aspect,
+                "Change of each parameter divided by its expanded uncertainty (signed E_n); bars outside the grey band are significant.",
+            )
+        )
     if ctx.skipped_changes:
         out.append(_p("Not compared: " + "; ".join(escape(s) for s in ctx.skipped_changes) + ".", "small"))
     return out
@@ -353,11 +410,18 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("8  Statement of conformity", "h1")]
     t = ctx.tolerances
     if t.empty:
-        out.append(_p("<b>No statement of conformity</b>: the procedure defines no tolerances ([tolerances] table absent), so none is made."))
+        out.append(
+            _p("<b>No statement of conformity</b>: the procedure defines no tolerances ([tolerances] table absent), so none is made.")
+        )
         return out
     verdict = content.overall_verdict(ctx.checks)
     colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
-    out.append(_p(f"Tolerances: {escape(t.source)}. Decision rule: {escape(RULE_TEXT[t.decision_rule])} Coverage factor of U: k = {t.coverage_factor:g}."))
+    out.append(
+        _p(
+            f"Tolerances: {escape(t.source)}. Decision rule: {escape(RULE_TEXT[t.decision_rule])} "
+            f"Coverage factor of U: k = {t.coverage_factor:g}."
+        )
+    )
     rows: list[list[Any]] = [["Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result"]]
     colours = {}
     kind_text = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
@@ -373,7 +437,11 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
         KeepTogether(
             [
                 _p(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>', "verdict"),
-                _p(f"{summary}. Checks marked 'not assessed' concern parameters without a stated value or evidence and do not enter the verdict.", "small"),
+                _p(
+                    f"{summary}. Checks marked 'not assessed' concern parameters without a stated value or evidence "
+                    "and do not enter the verdict.",
+                    "small",
+                ),
             ]
         )
     )
@@ -389,7 +457,9 @@ def closing(ctx: ReportContext) -> list[Flowable]:
     out.append(document.spacer(6))
     rows = [["", "Name", "Function", "Signature and date"], ["Performed by", "", "", ""], ["Authorized by", "", "", ""]]
     signature = document.table(rows, [0.18, 0.30, 0.22, 0.30])
-    signature.setStyle([("ROWBACKGROUNDS", (0, 1), (-1, -1), [None]), ("TOPPADDING", (0, 1), (-1, -1), 14), ("GRID", (0, 0), (-1, -1), 0.4, document.RULE)])
+    signature.setStyle(
+        [("ROWBACKGROUNDS", (0, 1), (-1, -1), [None]), ("TOPPADDING", (0, 1), (-1, -1), 14), ("GRID", (0, 0), (-1, -1), 0.4, document.RULE)]
+    )
     out.append(KeepTogether([_p("Persons authorizing the report (ISO/IEC 17025 7.8.2.1 o)", "h2"), signature]))
     out.append(document.spacer(4))
     out.append(_p("End of report.", "small"))

@@ -99,7 +99,9 @@ class Tolerances:
             raise InputError(f"unknown keys {unknown}", path=source, field="tolerances", expected=", ".join(sorted(known)))
         rule = table.get("decision_rule", "guarded")
         if rule not in DECISION_RULES:
-            raise InputError(f"unknown decision rule {rule!r}", path=source, field="tolerances.decision_rule", expected=" or ".join(DECISION_RULES))
+            raise InputError(
+                f"unknown decision rule {rule!r}", path=source, field="tolerances.decision_rule", expected=" or ".join(DECISION_RULES)
+            )
         k = _positive(table.get("coverage_factor", 2.0), source, "tolerances.coverage_factor")
         fit = table.get("fit", {})
         if not isinstance(fit, Mapping) or set(fit) - {"chi2_red_max"}:
