@@ -1,0 +1,227 @@
+r"""Horizontal error dynamics of a damped INS on a static base, and its transfer function.
+
+The steady-state relation "attitude error = horizontal specific-force error / g" of
+Wu et al. 2018 (Eq. 28) is the zero-frequency limit of a damped Schuler loop.  At the
+Earth-rate harmonics the loop has gain and phase: for the uncoupled channel
+
+.. math:: \frac{\delta\theta}{\Delta f_N/g} = \frac{\omega_s^2}{s^2 + 2\zeta\omega_s s + \omega_s^2},
+          \qquad \arg = -\arctan\frac{2\zeta r}{1-r^2},\quad r = k\,\omega_{ie}/\omega_s
+
+(3.4° at ζ = 0.5 for the 24 h harmonic, 6.8° for the 12 h one), which moves 6–12 % of
+every sine coefficient into its cosine partner.  The Earth-rate and Coriolis couplings
+change the lag by a further ~0.4° and add a 0.4 % cross-coupling between the channels,
+so this module keeps them.
+
+Model (phi-angle, true-frame error equations, Titterton & Weston 2004 §12.2, static
+base ``v = 0``, NED, ``C_n^{n'} = I − [φ×]``, horizontal velocity damping ``−c δv``)::
+
+    φ̇   = −ω_ie^n × φ + δω_ie^n + δω_en^n              (gyro errors left out: they are not an input here)
+    δv̇_h = (f^n × φ)_h + Δf^n_h − (2 ω_ie^n × δv)_h − c δv_h
+    δL̇  = δv_N / R
+
+with ``f^n = (0, 0, −g)``, ``δω_ie^n = ω(−sinL δL, 0, −cosL δL)``,
+``δω_en^n = (δv_E/R, −δv_N/R, −tanL δv_E/R)``, ``c = 2ζω_s``, ``ω_s = sqrt(g/R)``.
+States ``(φ_N, φ_E, φ_D, δv_N, δv_E, δL)``.  The vertical channel (k1..k3 loop) enters the
+horizontal ones only through ``2ω cosL δv_D`` and is left out (its effect on the tilts is
+below 1e-9 rad for the residuals considered here).
+
+For a level, north-pointing body the attitude errors are ``δpitch = −φ_E``,
+``δroll = −φ_N`` (:mod:`stableins.conventions`); the quasi-static limit is
+``δpitch = Δf_N/g``, ``δroll = −Δf_E/g``.  The transfer matrix returned here maps the
+*quasi-static* attitude errors ``(Δf_N/g, −Δf_E/g)`` to the observed ones, so it is the
+identity at low frequency.
+
+The Earth-rate mode (eigenvalues ``±jω_ie``) of this model is not controllable from the
+specific-force input, so the response at exactly the Earth rate is finite; it is computed
+from the modal expansion over the controllable modes only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RADIUS, EARTH_RATE
+from stableins.data.errors import InputError
+
+#: Names of the loop states, in order.
+LOOP_STATES = ("phi_north", "phi_east", "phi_down", "velocity_north", "velocity_east", "latitude")
+
+
+@dataclass(frozen=True)
+class DampingLoop:
+    """Linear horizontal error dynamics of a velocity-damped INS on a static base.
+
+    Attributes
+    ----------
+    latitude : float
+        Geodetic latitude [rad].
+    gravity : float
+        Local gravity [m/s²].
+    zeta : float
+        Damping ratio of the horizontal loop (0 = undamped Schuler loop).
+    earth_radius : float
+        Radius used in the error dynamics [m].
+    schuler_frequency : float
+        ω_s [rad/s]; the damping gain is ``c = 2 ζ ω_s``.
+    earth_rate : float
+        ω_ie [rad/s].
+    couplings : bool
+        Keep the Earth-rate and Coriolis couplings (default).  ``False`` gives two
+        independent second-order channels.
+    """
+
+    latitude: float
+    gravity: float
+    zeta: float
+    earth_radius: float = EARTH_RADIUS
+    schuler_frequency: float = float("nan")
+    earth_rate: float = EARTH_RATE
+    couplings: bool = True
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.schuler_frequency):
+            object.__setattr__(self, "schuler_frequency", float(np.sqrt(self.gravity / self.earth_radius)))
+        if not (0.0 <= self.zeta < 10.0):
+            raise ValueError(f"damping ratio zeta must be in [0, 10), got {self.zeta}")
+
+    @classmethod
+    def from_metadata(cls, damping: Mapping[str, float], latitude: float, gravity: float, couplings: bool = True) -> DampingLoop:
+        """Build the loop from ``SiteMetadata.damping``.
+
+        Keys: ``zeta`` (required), ``schuler_frequency`` [rad/s] and ``earth_radius`` [m]
+        (optional: ``ω_s = sqrt(g/R)`` with ``R = conventions.EARTH_RADIUS``).  A
+        ``damping_coefficient`` ``c`` [1/s] may be given instead of ``zeta``.
+        """
+        if damping is None or ("zeta" not in damping and "damping_coefficient" not in damping):
+            raise InputError(
+                "the system record's metadata has no damping parameters; the attitude harmonics cannot be "
+                "compensated for the damping loop's gain and phase",
+                field="damping.zeta",
+                expected="the horizontal damping ratio 'zeta' (and optionally 'schuler_frequency', 'earth_radius')",
+            )
+        radius = float(damping.get("earth_radius", EARTH_RADIUS))
+        omega_s = float(damping.get("schuler_frequency", np.sqrt(gravity / radius)))
+        if "zeta" in damping:
+            zeta = float(damping["zeta"])
+        else:
+            zeta = float(damping["damping_coefficient"]) / (2.0 * omega_s)
+        if not np.isfinite(zeta) or zeta < 0:
+            raise InputError(f"damping ratio must be a finite non-negative number, got {zeta}", field="damping.zeta")
+        return cls(
+            latitude=float(latitude), gravity=float(gravity), zeta=zeta, earth_radius=radius, schuler_frequency=omega_s, couplings=couplings
+        )
+
+    # ------------------------------------------------------------------ model
+    @property
+    def damping_coefficient(self) -> float:
+        """``c = 2 ζ ω_s`` [1/s]."""
+        return 2.0 * self.zeta * self.schuler_frequency
+
+    def state_matrix(self) -> NDArray[np.float64]:
+        """``A`` of ``ẋ = A x + B u`` for the states :data:`LOOP_STATES`."""
+        w = self.earth_rate if self.couplings else 0.0
+        s, c = np.sin(self.latitude), np.cos(self.latitude)
+        r = self.earth_radius
+        g = self.schuler_frequency**2 * r  # so that ω_s² = g/R exactly as configured
+        k = 1.0 if self.couplings else 0.0
+        a = np.zeros((6, 6))
+        # φ̇ = −ω×φ + δω_ie + δω_en,  ω×φ = ω(s φ_E, −s φ_N − c φ_D, c φ_E)
+        a[0, 1], a[0, 5], a[0, 4] = -w * s, -w * s, 1.0 / r
+        a[1, 0], a[1, 2], a[1, 3] = w * s, w * c, -1.0 / r
+        a[2, 1], a[2, 5], a[2, 4] = -w * c, -w * c, -k * np.tan(self.latitude) / r
+        # δv̇ = f×φ + Δf − 2ω×δv − c δv,  f×φ = (g φ_E, −g φ_N, 0)
+        a[3, 1], a[3, 4], a[3, 3] = g, -2.0 * w * s, -self.damping_coefficient
+        a[4, 0], a[4, 3], a[4, 4] = -g, 2.0 * w * s, -self.damping_coefficient
+        a[5, 3] = 1.0 / r
+        return a
+
+    def input_matrix(self) -> NDArray[np.float64]:
+        """``B`` for the input ``u = (Δf_N/g, −Δf_E/g)`` (the quasi-static pitch and roll errors)."""
+        g = self.schuler_frequency**2 * self.earth_radius
+        b = np.zeros((6, 2))
+        b[3, 0] = g
+        b[4, 1] = -g
+        return b
+
+    def output_matrix(self) -> NDArray[np.float64]:
+        """``C`` for the output ``(δpitch, δroll) = (−φ_E, −φ_N)``."""
+        c = np.zeros((2, 6))
+        c[0, 1] = -1.0
+        c[1, 0] = -1.0
+        return c
+
+    def _controllable_modes(self) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]:
+        a, b, c = self.state_matrix(), self.input_matrix(), self.output_matrix()
+        # Balance the states (angles ~ 1, velocities ~ R ω, latitude ~ 1) for a well-conditioned eigenproblem.
+        scale = np.array([1.0, 1.0, 1.0, self.earth_radius * self.schuler_frequency, self.earth_radius * self.schuler_frequency, 1.0])
+        a_s = a * scale[None, :] / scale[:, None]
+        b_s, c_s = b / scale[:, None], c * scale[None, :]
+        eigenvalues, right = np.linalg.eig(a_s)
+        left = np.linalg.inv(right)
+        residue_in = left @ b_s  # (modes, inputs)
+        residue_out = c_s @ right  # (outputs, modes)
+        strength = np.linalg.norm(residue_in, axis=1) * np.linalg.norm(residue_out, axis=0)
+        keep = strength > 1e-9 * strength.max()
+        return eigenvalues[keep], residue_out[:, keep], residue_in[keep]
+
+    def frequency_response(self, omega: float) -> NDArray[np.complex128]:
+        r"""Transfer matrix ``G(jω)`` from ``(Δf_N/g, −Δf_E/g)`` to ``(δpitch, δroll)``.
+
+        ``G(jω) = Σ_i (C v_i)(w_i^H B) / (jω − λ_i)`` over the controllable and
+        observable modes ``i``; ``G(0) = I`` for a damped loop.
+        """
+        eigenvalues, out, inp = self._controllable_modes()
+        return np.einsum("om,mi->oi", out / (1j * omega - eigenvalues)[None, :], inp)
+
+    def harmonic_matrix(self, harmonic: int) -> NDArray[np.float64]:
+        r"""Real 4×4 map from quasi-static to observed harmonic coefficients.
+
+        With ``u_j(t) = a_j cos(kS) + b_j sin(kS) = Re{(a_j − i b_j) e^{ikS}}`` and
+        ``S = S_0 + ω_ie t``, the steady response is ``Re{G(ikω_ie)(a − ib) e^{ikS}}``.
+        Ordering of both vectors: ``(pitch cos, pitch sin, roll cos, roll sin)``.
+        """
+        g = self.frequency_response(harmonic * self.earth_rate)
+        m = np.zeros((4, 4))
+        for o in range(2):
+            for i in range(2):
+                re, im = g[o, i].real, g[o, i].imag
+                # (re + i im)(a − i b) = (re a + im b) − i (re b − im a)
+                m[2 * o : 2 * o + 2, 2 * i : 2 * i + 2] = [[re, im], [-im, re]]
+        return m
+
+    def schuler_modes(self) -> NDArray[np.complex128]:
+        """Eigenvalues (upper half plane) of the controllable oscillatory modes (the Schuler modes)."""
+        eigenvalues, _, _ = self._controllable_modes()
+        modes = eigenvalues[eigenvalues.imag > 2.5 * self.earth_rate]
+        return np.sort_complex(modes)
+
+    def simulate(
+        self, time: NDArray[np.float64], forcing: NDArray[np.float64], initial_state: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """Exact response to ``(Δf_N/g, −Δf_E/g)`` sampled on a uniform grid, linear between samples.
+
+        First-order-hold discretization (``expm`` of the augmented matrix).  Used by the
+        tests of this module (the truth simulator has its own integrator).
+        Returns ``(n, 2)``: ``(δpitch, δroll)``.
+        """
+        from scipy.linalg import expm
+
+        dt = float(time[1] - time[0])
+        a, b, c = self.state_matrix(), self.input_matrix(), self.output_matrix()
+        n, m = a.shape[0], b.shape[1]
+        big = np.zeros((n + 2 * m, n + 2 * m))
+        big[:n, :n], big[:n, n : n + m] = a * dt, b * dt
+        big[n : n + m, n + m :] = np.eye(m)
+        e = expm(big)
+        phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + m], e[:n, n + m :]
+        x = np.zeros(n) if initial_state is None else np.asarray(initial_state, dtype=float)
+        out = np.empty((len(time), 2))
+        for k in range(len(time)):
+            out[k] = c @ x
+            if k + 1 < len(time):
+                x = phi @ x + gamma0 @ forcing[k] + gamma1 @ (forcing[k + 1] - forcing[k])
+        return out
