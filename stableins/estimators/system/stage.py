@@ -1,0 +1,854 @@
+r"""The system-level stage over a whole record, streaming in bounded memory.
+
+One pass over the record (chunks of ``chunk_rows`` samples):
+
+* specific force: raw outputs compensated with the installed calibration (Wu et al.
+  2018 Eq. 8, :meth:`stableins.errormodel.ErrorModel.inverse` in closed form), the
+  squared-amplitude observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz``
+  (:mod:`.harmonics`) accumulated at full rate.  The Earth-rate angle moves by
+  ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
+  ``cos k(S_c + δ)`` is expanded to third order in ``δ``: the trigonometric functions are
+  evaluated once per block and the per-sample work is a few multiply-adds.  The
+  truncation (``(4δ)⁴/24 < 1e-15``) is far below double-precision round-off of the sums;
+  :func:`harmonic_information` is the per-sample reference it is tested against;
+* noise: per-axis variance from second differences of the raw outputs on the first
+  samples of each chunk (insensitive to the Earth-rate signal);
+* attitude, velocity and time at a decimated rate (``attitude_decimation_seconds``):
+  block means of pitch and roll (:class:`.attitude.AttitudeBlocks`), the static-base
+  checks and the platform-rate check;
+* Kalman-filter bins: ``Σz``, ``ΣH`` over ``filter_block_seconds`` for the convergence
+  curves of filterpy's filter (decimated, ``R/n`` per bin).
+
+Then the harmonic states, the loop-compensated attitude coefficients and their
+separation into accelerometer corrections (:mod:`.separation`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.errormodel import CORE_TERMS, ErrorModel, Term
+from stableins.estimators.result import FitResult
+from stableins.estimators.system import harmonics as hm
+from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
+from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+
+FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
+SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Variance-inflation factor above which a coefficient counts as not observable in a short record.
+VIF_LIMIT = 30.0
+
+
+class ChunkSource(Protocol):
+    """What the stage reads: ``iter_chunks(columns, rows)`` yielding ``{column: ndarray}``."""
+
+    path: str
+
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = ...) -> Iterator[dict[str, Any]]: ...
+
+
+@dataclass(frozen=True)
+class ArraySource:
+    """In-memory columns as a :class:`ChunkSource` (tests, small records).  Checks NaN/inf."""
+
+    columns: Mapping[str, NDArray[np.float64]]
+    path: str = "<arrays>"
+
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16) -> Iterator[dict[str, Any]]:
+        names = list(self.columns if columns is None else columns)
+        for name in names:
+            if name not in self.columns:
+                raise InputError("missing column", path=self.path, field=name, expected="the system-record columns")
+        n = len(self.columns[names[0]])
+        for start in range(0, n, rows):
+            chunk = {name: np.asarray(self.columns[name][start : start + rows], dtype=float) for name in names}
+            for name, values in chunk.items():
+                bad = ~np.isfinite(values)
+                if bad.any():
+                    row = start + int(np.flatnonzero(bad)[0]) + 1
+                    raise InputError("value is NaN or infinite", path=self.path, field=name, row=row, expected="finite numbers")
+            yield chunk
+
+
+@dataclass(frozen=True)
+class SystemOptions:
+    """Settings of the system stage (defaults follow docs/system-calibration.md)."""
+
+    chunk_rows: int = 1 << 18
+    attitude_decimation_seconds: float = 1.0
+    attitude_block_seconds: float = 10.0
+    filter_block_seconds: float = 600.0
+    case_rotation_period: float | None = 480.0
+    couplings: bool = True
+    compensate_loop: bool = True
+    velocity_limit: float = 1.0  # [m/s] horizontal velocity output beyond which the base is not static
+    attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
+    rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
+    minimum_duration: float = 4 * 3600.0  # [s]
+    noise_samples_per_chunk: int = 8192
+    run_filter: bool = True
+
+
+@dataclass(frozen=True)
+class SystemCalibration:
+    """Everything the system stage found.
+
+    Attributes
+    ----------
+    result : FitResult
+        Stage ``"system"`` over the accelerometer terms of the prior: updated values
+        (prior + correction), covariance of the updated values, status
+        (``estimated`` when a parameter is determined by itself, ``gauge`` when only
+        combinations are, ``fixed`` for terms this stage does not touch).
+    combined : FitResult
+        The fifteen combined coefficients (``x1..x5``, pitch and roll) [rad].
+    separation : Separation
+        The weighted least-squares separation (residual space).
+    attitude : AttitudeFit
+        The Fourier fit of pitch and roll.
+    history : hm.FilterHistory or None
+        Kalman-filter convergence on the decimated bins (``history_time`` gives the bin ends).
+    """
+
+    result: FitResult
+    combined: FitResult
+    separation: Separation
+    attitude: AttitudeFit
+    history: hm.FilterHistory | None
+    history_time: NDArray[np.float64]
+    corrections: dict[str, float]
+    notes: tuple[str, ...] = ()
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- harmonic information
+def harmonic_information(earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float) -> hm.InformationAccumulator:
+    """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
+    acc = hm.InformationAccumulator()
+    acc.add(hm.observation_rows(earth_angle, latitude), z)
+    return acc
+
+
+@dataclass
+class _BlockHarmonics:
+    """Block-Taylor accumulation of the harmonic information (see the module docstring)."""
+
+    latitude: float
+    sense: float  # dS/d(reading) = −s1
+    offset: float  # S = sense·(reading + theta10)
+    block: int
+    trig_sums: NDArray[np.float64] = field(default_factory=lambda: np.zeros(9))  # N, C1..C4, S1..S4
+    z_sums: NDArray[np.float64] = field(default_factory=lambda: np.zeros(5))  # Z0, ZC1, ZC2, ZS1, ZS2
+    sum_z2: float = 0.0
+    count: int = 0
+
+    def add(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate; returns per-block ``(Σz, ΣH (nb,5), n)`` for the filter bins."""
+        n = z.size
+        b = self.block
+        nb = n // b
+        outs = []
+        if nb:
+            outs.append(self._blocks(angle[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b)))
+        if n - nb * b:
+            outs.append(self._blocks(angle[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1)))
+        self.sum_z2 += float(z @ z)
+        self.count += n
+        zs = np.concatenate([o[0] for o in outs])
+        hs = np.concatenate([o[1] for o in outs])
+        counts = np.concatenate([o[2] for o in outs])
+        return zs, hs, counts
+
+    def _blocks(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+        m = angle.shape[1]
+        centre = angle[:, m // 2]
+        d = angle - centre[:, None]
+        if np.abs(d).max() > 0.5:  # the reading wrapped inside a block
+            d = d - 2.0 * np.pi * np.round(d / (2.0 * np.pi))
+        sd = self.sense
+        d2 = d * d
+        d3 = d2 * d
+        m1, m2, m3 = d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd
+        n0 = z.sum(1)
+        zd = z * d
+        n1 = zd.sum(1) * sd
+        n2 = (zd * d).sum(1)
+        n3 = (zd * d2).sum(1) * sd
+        s_c = sd * (centre + self.offset)
+        count = float(m)
+        trig = np.zeros((angle.shape[0], 9))
+        trig[:, 0] = count
+        zk = np.zeros((angle.shape[0], 5))
+        zk[:, 0] = n0
+        for k in range(1, 5):
+            ck, sk = np.cos(k * s_c), np.sin(k * s_c)
+            even = count - 0.5 * k * k * m2
+            odd = k * m1 - k**3 * m3 / 6.0
+            trig[:, k] = ck * even - sk * odd
+            trig[:, 4 + k] = sk * even + ck * odd
+            if k <= 2:
+                zeven = n0 - 0.5 * k * k * n2
+                zodd = k * n1 - k**3 * n3 / 6.0
+                zk[:, k] = ck * zeven - sk * zodd
+                zk[:, 2 + k] = sk * zeven + ck * zodd
+        self.trig_sums += trig.sum(0)
+        self.z_sums += zk.sum(0)
+        a = math.cos(self.latitude)
+        h = np.stack([trig[:, 0], a * trig[:, 1], a * trig[:, 5], a * a * trig[:, 2], a * a * trig[:, 6]], axis=1)
+        zsum = zk[:, 0]
+        return zsum, h, np.full(angle.shape[0], count)
+
+    def accumulator(self) -> hm.InformationAccumulator:
+        n, c1, c2, c3, c4, s1, s2, s3, s4 = self.trig_sums
+        a = math.cos(self.latitude)
+        lam = np.empty((5, 5))
+        lam[0] = [n, a * c1, a * s1, a * a * c2, a * a * s2]
+        lam[1, 1:] = [a * a * (n + c2) / 2, a * a * s2 / 2, a**3 * (c1 + c3) / 2, a**3 * (s3 + s1) / 2]
+        lam[2, 2:] = [a * a * (n - c2) / 2, a**3 * (s3 - s1) / 2, a**3 * (c1 - c3) / 2]
+        lam[3, 3:] = [a**4 * (n + c4) / 2, a**4 * s4 / 2]
+        lam[4, 4] = a**4 * (n - c4) / 2
+        lam = np.triu(lam) + np.triu(lam, 1).T
+        z0, zc1, zc2, zs1, zs2 = self.z_sums
+        acc = hm.InformationAccumulator()
+        acc.information = lam
+        acc.projection = np.array([z0, a * zc1, a * zs1, a * a * zc2, a * a * zs2])
+        acc.sum_squares = self.sum_z2
+        acc.count = self.count
+        return acc
+
+
+def block_length(sample_rate: float, limit: float = 2e-4) -> int:
+    """Largest power of two ``B`` with ``B·ω_ie/rate ≤ limit`` (at least 1)."""
+    b = max(1.0, limit * sample_rate / EARTH_RATE)
+    return 1 << int(math.floor(math.log2(b)))
+
+
+# --------------------------------------------------------------------------- compensation
+@dataclass(frozen=True)
+class _Compensation:
+    """Closed-form Eq. 8 for constant core parameters: ``f^p = M (u − K u²)``, ``u = f^a − δb``."""
+
+    matrix: NDArray[np.float64]
+    bias: NDArray[np.float64]
+    quadratic: NDArray[np.float64]
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, float]) -> _Compensation:
+        model = ErrorModel.standard(nonlinear=True)
+        known = {k: v for k, v in values.items() if k in model.ids}
+        # M from the model's own inverse applied to unit vectors (no re-derivation of Eq. 8 here)
+        zero_bias = dict(known, bias_x=0.0, bias_y=0.0, bias_z=0.0, K2_x=0.0, K2_y=0.0, K2_z=0.0)
+        matrix = model.inverse(np.eye(3), zero_bias).T
+        bias = np.array([known.get(f"bias_{a}", 0.0) for a in "xyz"])
+        quadratic = np.array([known.get(f"K2_{a}", 0.0) for a in "xyz"])
+        return cls(matrix, bias, quadratic)
+
+    def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
+        w = np.stack([fx, fy, fz], axis=1)
+        w -= self.bias
+        if np.any(self.quadratic):
+            w -= self.quadratic * w * w
+        p = w @ self.matrix.T
+        return np.einsum("ij,ij->i", p, p)
+
+
+# --------------------------------------------------------------------------- the stage
+def _residual_scale(values: Mapping[str, float], gravity: float) -> dict[str, float]:
+    """d(record value)/d(residual): sf = sf/(1 − D) → sf; bias = g·b → g; beta → 1."""
+    out = {}
+    for name in hm.RESIDUAL_NAMES:
+        if name.startswith("D_"):
+            out[name] = float(values.get(f"sf_{name[2]}", 1.0))
+        elif name.startswith("b_"):
+            out[name] = gravity
+        else:
+            out[name] = 1.0
+    return out
+
+
+def _term_id(residual: str) -> str:
+    if residual.startswith("D_"):
+        return f"sf_{residual[2]}"
+    if residual.startswith("b_"):
+        return f"bias_{residual[2]}"
+    return residual
+
+
+def residuals_from_parameters(true: Mapping[str, float], installed: Mapping[str, float], gravity: float) -> NDArray[np.float64]:
+    """Residual vector (:data:`harmonics.RESIDUAL_NAMES`) for true and installed parameters (reference values)."""
+    out = []
+    for name in hm.RESIDUAL_NAMES:
+        tid = _term_id(name)
+        t, i = float(true.get(tid, 1.0 if tid.startswith("sf") else 0.0)), float(installed.get(tid, 1.0 if tid.startswith("sf") else 0.0))
+        if name.startswith("D_"):
+            out.append((t - i) / t)
+        elif name.startswith("b_"):
+            out.append((t - i) / gravity)
+        else:
+            out.append(t - i)
+    return np.array(out)
+
+
+def _combined_terms() -> tuple[Term, ...]:
+    meaning = dict(zip(hm.STATE_NAMES, hm.STATE_MEANING, strict=True))
+    terms = []
+    for name in COMBINED_COEFFICIENTS:
+        terms.append(
+            Term(
+                name,
+                "combined",
+                "rad",
+                "urad",
+                1e-6,
+                1e-4,
+                meaning.get(name, f"quasi-static {'pitch' if name.startswith('theta') else 'roll'} coefficient {name}"),
+                source="Wu et al. 2018 Eqs. 21-25, 29-38 (signs derived in docs/system-calibration.md)",
+            )
+        )
+    return tuple(terms)
+
+
+def run_system_stage(
+    source: ChunkSource,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None = None,
+    options: SystemOptions = SystemOptions(),
+) -> SystemCalibration:
+    """Run the system-level stage on a static, polar-aligned record.
+
+    Parameters
+    ----------
+    source : ChunkSource
+        The record (``stableins.data`` reader or :class:`ArraySource`).
+    metadata : SiteMetadata
+        Latitude, gravity, sample rate, gimbal senses, base attitude, damping.
+    prior : mapping
+        Installed calibration the INS compensates with (record values) [SI].
+    prior_covariance : mapping, optional
+        ``{(id_i, id_j): cov}`` of the prior; sets the gauge metric and the
+        uncertainty carried into directions the data do not see.  Default: nominal
+        magnitudes of the terms.
+    options : SystemOptions
+    """
+    path = getattr(source, "path", "<record>")
+    latitude, gravity, rate = _check_metadata(metadata, path)
+    loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
+    config = GimbalConfiguration(tuple(metadata.gimbal_senses))
+    sense = -float(config.senses[0])
+    theta10 = float(prior.get("theta10", 0.0))
+    yaw = float(metadata.base_attitude[0]) if metadata.base_attitude else 0.0
+    compensation = _Compensation.from_values(prior)
+    block = block_length(rate)
+    chunk_rows = max(block, (options.chunk_rows // block) * block)
+    decimation = max(1, int(round(options.attitude_decimation_seconds * rate)))
+    filter_samples = max(block, int(round(options.filter_block_seconds * rate / block)) * block)
+
+    accumulator = _BlockHarmonics(latitude, sense, theta10, block)
+    attitude_blocks: AttitudeBlocks | None = None
+    noise_sums = np.zeros(3)
+    noise_count = 0
+    filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 5)), "n": np.zeros(0)}
+    checks = _StaticChecks(options, rate, path)
+    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+    seen = 0
+    first_time = None
+    for chunk in source.iter_chunks(list(FAST_COLUMNS + SLOW_COLUMNS), rows=chunk_rows):
+        n = len(chunk["f_x"])
+        if n == 0:
+            continue
+        time = chunk["time"]
+        checks.time(time, seen)
+        if first_time is None:
+            first_time = float(time[0])
+            attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
+        fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
+        angle = chunk["angle_platform"]
+        z = 0.5 * (compensation.squared_norm(fx, fy, fz) / gravity**2 - 1.0)
+        zs, hs, counts = accumulator.add(angle, z)
+        # filter bins by global sample index
+        starts = seen + np.arange(len(counts)) * block
+        bins = starts // filter_samples
+        _grow_bins(filter_bins, int(bins[-1]) + 1)
+        np.add.at(filter_bins["z"], bins, zs)
+        np.add.at(filter_bins["h"], bins, hs)
+        np.add.at(filter_bins["n"], bins, counts)
+        # noise from second differences of the raw outputs
+        m = min(options.noise_samples_per_chunk, n)
+        if m >= 3:
+            for k, f in enumerate((fx, fy, fz)):
+                d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
+                noise_sums[k] += float(d2 @ d2)
+            noise_count += m - 2
+        # decimated slow channels
+        phase = (-seen) % decimation
+        sel = slice(phase, None, decimation)
+        t_d = time[sel]
+        s_d = sense * (angle[sel] + theta10)
+        pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
+        # rotate to the north-pointing frame: (p0, r0) = R(−yaw)(pitch, roll)
+        p0 = cos_yaw * pitch_d + sin_yaw * roll_d
+        r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
+        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
+        checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
+        seen += n
+
+    if seen == 0 or attitude_blocks is None:
+        raise InputError("the record has no samples", path=path)
+    notes: list[str] = []
+    checks.finish(seen, notes)
+    duration = checks.duration
+    if duration < options.minimum_duration:
+        raise InputError(
+            f"the record lasts {duration / 3600:.2f} h; the Earth-rate harmonics cannot be separated from the mean and the Schuler "
+            f"transient in less than {options.minimum_duration / 3600:.1f} h",
+            path=path,
+            field="time",
+            expected=f"at least {options.minimum_duration / 3600:.1f} h, ideally one sidereal day ({SIDEREAL_DAY / 3600:.2f} h) or more",
+        )
+
+    # ---------------------------------------------------------------- noise
+    if noise_count < 10:
+        raise InputError("too few samples to measure the accelerometer noise", path=path)
+    axis_variance = noise_sums / noise_count / 6.0  # E[(Δ²n)²] = 6σ² for white noise
+    sin_l, cos_l = math.sin(latitude), math.cos(latitude)
+    var_xy = 0.5 * (axis_variance[0] + axis_variance[1])
+    sigma_pitch = math.sqrt(sin_l**2 * var_xy + cos_l**2 * axis_variance[2]) / gravity
+    sigma_roll = math.sqrt(var_xy) / gravity
+
+    # ---------------------------------------------------------------- harmonics
+    info = accumulator.accumulator()
+    x_ls, cov_unit = info.solve(1.0)  # LS estimate is independent of R
+    r_var = info.residual_variance(x_ls)
+    noise_bias = float(axis_variance.sum()) / (2.0 * gravity**2)
+    x_hat = x_ls.copy()
+    x_hat[0] -= noise_bias
+    cov_x = cov_unit * r_var
+    harmonic_vif = np.diag(cov_unit) * np.diag(info.information)
+
+    # ---------------------------------------------------------------- filter convergence
+    history = None
+    history_time = np.zeros(0)
+    prior_res_cov = _prior_residual_covariance(prior, prior_covariance, gravity)
+    if options.run_filter:
+        keep = filter_bins["n"] > 0
+        nn = filter_bins["n"][keep]
+        zb = filter_bins["z"][keep] / nn - noise_bias
+        hb = filter_bins["h"][keep] / nn[:, None]
+        m_x = hm.state_combinations(latitude)
+        p0 = m_x @ prior_res_cov @ m_x.T
+        history = hm.kalman_filter(hb, zb, r_var / nn, np.zeros(5), p0)
+        history_time = (np.cumsum(nn)) / rate
+
+    # ---------------------------------------------------------------- attitude
+    blocks = attitude_blocks.means()
+    att = fit_attitude(
+        blocks,
+        loop,
+        (sigma_pitch / math.sqrt(decimation), sigma_roll / math.sqrt(decimation)),
+        case_rotation_period=options.case_rotation_period,
+        compensate_loop=options.compensate_loop,
+    )
+    notes += list(att.notes)
+    checks.attitude_residuals(att, notes)
+
+    # ---------------------------------------------------------------- observability (short records)
+    combined_values = np.concatenate([x_hat, att.values])
+    combined_cov = np.zeros((15, 15))
+    combined_cov[:5, :5] = cov_x
+    combined_cov[5:, 5:] = att.covariance
+    attitude_vif = _attitude_vif(blocks, loop, options.case_rotation_period)
+    vif = np.concatenate([harmonic_vif, attitude_vif])
+    observable = vif < VIF_LIMIT
+    if duration < 0.98 * SIDEREAL_DAY or not observable.all():
+        hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
+        notes.append(
+            f"record of {duration / 3600:.2f} h (< one sidereal day): "
+            + (
+                f"not observable (variance inflation > {VIF_LIMIT:g}) and left out of the separation: {', '.join(hidden)}"
+                if hidden
+                else "all fifteen coefficients remain observable, with larger uncertainty than over a full day"
+            )
+        )
+        if hidden:
+            warnings.warn(f"{path}: {notes[-1]}", UserWarning, stacklevel=2)
+    names_used = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if ok]
+    idx = [COMBINED_COEFFICIENTS.index(n) for n in names_used]
+
+    # ---------------------------------------------------------------- separation
+    scale = _residual_scale(prior, gravity)
+    prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
+    sep = separate(names_used, combined_values[idx], combined_cov[np.ix_(idx, idx)], latitude, prior_sigma=prior_sigma)
+    result, corrections = _fit_result(
+        sep,
+        prior,
+        prior_res_cov,
+        scale,
+        latitude,
+        gravity,
+        names_used,
+        combined_values,
+        combined_cov,
+        notes,
+        _fixed_variance(prior_covariance),
+    )
+
+    status = tuple("estimated" if ok else "unidentifiable" for ok in observable)
+    combined = FitResult(
+        stage="system-combined",
+        terms=_combined_terms(),
+        values=combined_values,
+        covariance=combined_cov,
+        status=status,
+        residuals=np.zeros(0),
+        residual_sigma=np.zeros(0),
+        rank=int(observable.sum()),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {noise_bias:.3e}",),
+        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "vif": vif},
+    )
+    diagnostics = {
+        "duration": duration,
+        "samples": seen,
+        "block_length": block,
+        "axis_noise_sigma": np.sqrt(axis_variance),
+        "z_residual_sigma": math.sqrt(r_var),
+        "noise_bias_x1": noise_bias,
+        "attitude_noise_sigma": (sigma_pitch, sigma_roll),
+        "attitude_residual_rms": att.residual_rms,
+        "attitude_noise_ratio": att.residual_noise_ratio,
+        "platform_rate_ratio": checks.rate_ratio,
+        "max_velocity": checks.max_velocity,
+        "attitude_excursion": checks.excursion,
+        "loop": loop,
+        "sampling": checks.summary(),
+    }
+    return SystemCalibration(
+        result=result,
+        combined=combined,
+        separation=sep,
+        attitude=att,
+        history=history,
+        history_time=history_time,
+        corrections=corrections,
+        notes=tuple(notes),
+        diagnostics=diagnostics,
+    )
+
+
+def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, float]:
+    lat = metadata.latitude
+    if lat is None or not np.isfinite(lat) or abs(lat) > np.pi / 2:
+        raise InputError("latitude is missing or not a latitude", path=path, field="metadata.latitude", expected="geodetic latitude in rad")
+    if abs(lat) > np.radians(89.0):
+        raise InputError("polar-aligned system calibration is degenerate within 1° of a pole", path=path, field="metadata.latitude")
+    g = metadata.gravity
+    if g is None or not np.isfinite(g) or not (9.7 < g < 9.9):
+        raise InputError(f"gravity {g!r} is missing or implausible", path=path, field="metadata.gravity", expected="local gravity in m/s^2")
+    rate = metadata.sample_rate
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        raise InputError("sample rate is missing", path=path, field="metadata.sample_rate", expected="a positive rate in Hz")
+    return float(lat), float(g), float(rate)
+
+
+def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> dict[str, float]:
+    """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
+    out = {}
+    for t in CORE_TERMS:
+        if t.kind == "nonlinearity":
+            v = None if prior_covariance is None else prior_covariance.get((t.id, t.id))
+            out[t.id] = float(v) if v is not None and np.isfinite(v) and v > 0 else t.nominal**2
+    return out
+
+
+def _grow_bins(bins: dict[str, NDArray[np.float64]], size: int) -> None:
+    if bins["n"].size >= size:
+        return
+    new = max(size, 2 * bins["n"].size)
+    for key in ("z", "n"):
+        bins[key] = np.concatenate([bins[key], np.zeros(new - bins[key].size)])
+    bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], 5))])
+
+
+def _attitude_vif(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop, period: float | None) -> NDArray[np.float64]:
+    from stableins.estimators.system.attitude import _design
+
+    x, _, _ = _design(blocks, loop, period)
+    w = blocks["count"]
+    xtwx = x.T @ (x * w[:, None])
+    d = np.sqrt(np.diag(xtwx))
+    corr = xtwx / np.outer(d, d)
+    inv = np.linalg.pinv(corr, rcond=1e-14)
+    v = np.diag(inv)[:5]
+    v = np.where(v > 0, v, np.inf)
+    order = [0, 1, 2, 3, 4, 0, 2, 1, 4, 3]  # roll in paper order (mean, 1s, 1c, 2s, 2c)
+    return v[order]
+
+
+def _prior_residual_covariance(
+    prior: Mapping[str, float], prior_covariance: Mapping[tuple[str, str], float] | None, gravity: float
+) -> NDArray[np.float64]:
+    """Prior covariance of the residuals (:data:`harmonics.RESIDUAL_NAMES`); nominal term magnitudes where unknown."""
+    scale = _residual_scale(prior, gravity)
+    nominal = {t.id: t.nominal for t in CORE_TERMS}
+    n = len(hm.RESIDUAL_NAMES)
+    cov = np.zeros((n, n))
+    for i, a in enumerate(hm.RESIDUAL_NAMES):
+        for j, b in enumerate(hm.RESIDUAL_NAMES):
+            ta, tb = _term_id(a), _term_id(b)
+            value = None if prior_covariance is None else prior_covariance.get((ta, tb))
+            if value is not None and np.isfinite(value):
+                cov[i, j] = value / (scale[a] * scale[b])
+            elif i == j:
+                cov[i, j] = (nominal[ta] / scale[a]) ** 2
+        if not (cov[i, i] > 0):
+            cov[i, i] = (nominal[_term_id(a)] / scale[a]) ** 2
+    return 0.5 * (cov + cov.T)
+
+
+def _fit_result(
+    sep: Separation,
+    prior: Mapping[str, float],
+    prior_res_cov: NDArray[np.float64],
+    scale: Mapping[str, float],
+    latitude: float,
+    gravity: float,
+    names_used: list[str],
+    combined_values: NDArray[np.float64],
+    combined_cov: NDArray[np.float64],
+    notes: list[str],
+    fixed_variance: Mapping[str, float],
+) -> tuple[FitResult, dict[str, float]]:
+    from stableins.estimators.system.separation import combination_matrix
+
+    n = len(hm.RESIDUAL_NAMES)
+    p = sep.values[:n]
+    # new − true = (I − K G)(prior − true) + K e, with K the gauge-fixed solution map
+    rows = [COMBINED_COEFFICIENTS.index(c) for c in names_used]
+    g_full = combination_matrix(latitude)[rows]
+    k_map = _solution_map(sep, g_full, combined_cov[np.ix_(rows, rows)], prior_res_cov)
+    kg = (k_map @ g_full)[:n, :n]
+    ikg = np.eye(n) - kg
+    cov_res = ikg @ prior_res_cov @ ikg.T + sep.covariance[:n, :n]
+    j = np.array([scale[r] for r in hm.RESIDUAL_NAMES])
+    model_ids = [t.id for t in CORE_TERMS]
+    terms = tuple(t for t in CORE_TERMS)
+    values = []
+    corrections = {}
+    for t in terms:
+        if t.kind == "nonlinearity":
+            values.append(float(prior.get(t.id, 0.0)))
+            continue
+        r = next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)
+        k = hm.RESIDUAL_NAMES.index(r)
+        base = float(prior.get(t.id, t.reference))
+        if t.kind == "scale_factor":
+            new = base / (1.0 - p[k])
+        elif t.kind == "bias":
+            new = base + gravity * p[k]
+        else:
+            new = base + p[k]
+        corrections[t.id] = new - base
+        values.append(new)
+    cov = np.zeros((len(terms), len(terms)))
+    res_index = [
+        hm.RESIDUAL_NAMES.index(next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)) if t.kind != "nonlinearity" else -1
+        for t in terms
+    ]
+    for a, ia in enumerate(res_index):
+        for b, ib in enumerate(res_index):
+            if ia >= 0 and ib >= 0:
+                cov[a, b] = cov_res[ia, ib] * j[ia] * j[ib]
+    status = []
+    for t, ia in zip(terms, res_index, strict=True):
+        if ia < 0:
+            status.append("fixed")
+            k = model_ids.index(t.id)
+            cov[k, k] = fixed_variance.get(t.id, t.nominal**2)
+        else:
+            status.append("estimated" if sep.determined[ia] else "gauge")
+    determined = tuple(
+        f"{name} = {value:.4e} ± {sigma:.2e}" + ("" if ok else " (NOT determined by these data)")
+        for name, (value, sigma, ok) in sep.combinations.items()
+    )
+    null_terms = np.zeros((len(terms), sep.null_space.shape[1]))
+    for a, ia in enumerate(res_index):
+        if ia >= 0:
+            null_terms[a] = sep.null_space[ia] * j[ia]
+    if null_terms.size:
+        null_terms /= np.linalg.norm(null_terms, axis=0, keepdims=True)
+    notes = list(notes) + [
+        "gauge: corrections along combinations the data determine are shared among the parameters in proportion to their prior "
+        "variances; directions the data do not see keep the prior values (and their prior uncertainty)",
+        "b_x and beta_xy act only through b_x/g - beta_xy*sinL, b_y and beta_yx only through b_y/g + beta_yx*sinL "
+        "(paper Eq. 41 is singular); (beta_xz+beta_yz)/2 is indistinguishable from the platform-axis zero offset; the scale factors "
+        "and b_z enter only through x1",
+        "K2 terms are not observed by this stage and keep their prior values and variances (nominal magnitude when the prior has none)",
+    ]
+    result = FitResult(
+        stage="system",
+        terms=terms,
+        values=np.array(values),
+        covariance=0.5 * (cov + cov.T),
+        status=tuple(status),
+        residuals=sep.residuals,
+        residual_sigma=sep.residual_sigma,
+        residual_labels=tuple(names_used),
+        rank=sep.rank,
+        singular_values=sep.singular_values,
+        null_space=null_terms,
+        determined=determined,
+        notes=tuple(notes),
+        extra={"residual_corrections": dict(zip(hm.RESIDUAL_NAMES, map(float, p), strict=True)), "nuisance": sep.values[n:]},
+    )
+    return result, corrections
+
+
+def _solution_map(sep: Separation, g: NDArray, cov: NDArray, prior_res_cov: NDArray) -> NDArray[np.float64]:
+    """Linear map K from coefficients to the gauge-fixed solution (same SVD as :func:`separate`)."""
+    scale = np.concatenate([np.sqrt(np.diag(prior_res_cov)), [1e-4, 1e-4]])
+    sd = np.sqrt(np.diag(cov))
+    chol = np.linalg.cholesky(cov / np.outer(sd, sd))
+    whiten = np.linalg.solve(chol, np.diag(1.0 / sd))
+    a = whiten @ g * scale[None, :]
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    r = sep.rank
+    return (scale[:, None] * (vt[:r].T / sv[:r]) @ u[:, :r].T) @ whiten
+
+
+# --------------------------------------------------------------------------- checks
+class _StaticChecks:
+    """Sampling, static-base and platform-rate checks on the streamed record."""
+
+    def __init__(self, options: SystemOptions, rate: float, path: str) -> None:
+        self.options = options
+        self.rate = rate
+        self.path = path
+        self.period = 1.0 / rate
+        self.last_time: float | None = None
+        self.first_time: float | None = None
+        self.gaps: list[tuple[int, float]] = []
+        self.gap_time = 0.0
+        self.jitter = 0
+        self.max_velocity = 0.0
+        self.pitch_range = [np.inf, -np.inf]
+        self.roll_range = [np.inf, -np.inf]
+        self.excursion = 0.0
+        self.rate_sums = np.zeros(5)  # n, Σt, Σt², ΣS, ΣtS (unwrapped)
+        self.last_angle: float | None = None
+        self.angle_offset = 0.0
+        self.moving_at: float | None = None
+        self.rate_ratio = float("nan")
+        self.duration = 0.0
+
+    def time(self, t: NDArray[np.float64], seen: int) -> None:
+        series = t if self.last_time is None else np.concatenate([[self.last_time], t])
+        step = np.diff(series)
+        if step.size and not (step > 0).all():
+            k = int(np.flatnonzero(~(step > 0))[0])
+            row = seen + k + (1 if self.last_time is None else 0) + 1
+            raise InputError("time does not increase", path=self.path, field="time", row=row, expected="strictly increasing time")
+        if step.size:
+            gap = step > 1.5 * self.period
+            if gap.any():
+                for k in np.flatnonzero(gap)[:100]:
+                    self.gaps.append((seen + int(k) + (1 if self.last_time is None else 0) + 1, float(step[k])))
+                self.gap_time += float(step[gap].sum() - gap.sum() * self.period)
+            self.jitter += int(((np.abs(step - self.period) > 0.01 * self.period) & ~gap).sum())
+        if self.first_time is None:
+            self.first_time = float(t[0])
+        self.last_time = float(t[-1])
+
+    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> None:
+        if t.size == 0:
+            return
+        speed = np.hypot(vn, ve)
+        vmax = float(speed.max())
+        if vmax > self.options.velocity_limit and self.moving_at is None:
+            self.moving_at = float(t[int(np.argmax(speed > self.options.velocity_limit))])
+        self.max_velocity = max(self.max_velocity, vmax)
+        self.pitch_range = [min(self.pitch_range[0], float(pitch.min())), max(self.pitch_range[1], float(pitch.max()))]
+        self.roll_range = [min(self.roll_range[0], float(roll.min())), max(self.roll_range[1], float(roll.max()))]
+        # unwrap the Earth-rate angle across chunks
+        prev = self.last_angle if self.last_angle is not None else float(s[0])
+        series = np.unwrap(np.concatenate([[prev], s]))
+        series = series[1:] + self.angle_offset
+        self.angle_offset = float(series[-1] - s[-1])
+        self.last_angle = float(s[-1])
+        tt = t - (self.first_time or 0.0)
+        self.rate_sums += [t.size, tt.sum(), (tt * tt).sum(), series.sum(), (tt * series).sum()]
+
+    def finish(self, seen: int, notes: list[str]) -> None:
+        self.duration = (self.last_time or 0.0) - (self.first_time or 0.0)
+        n, st, stt, ss, sts = self.rate_sums
+        denominator = n * stt - st * st
+        if n > 2 and denominator > 0:
+            slope = (n * sts - st * ss) / denominator
+            self.rate_ratio = slope / EARTH_RATE
+        excursion = max(self.pitch_range[1] - self.pitch_range[0], self.roll_range[1] - self.roll_range[0])
+        self.excursion = excursion
+        if self.moving_at is not None:
+            raise InputError(
+                f"the base is not static: horizontal velocity output reaches {self.max_velocity:.3g} m/s "
+                f"(first beyond {self.options.velocity_limit:g} m/s at t = {self.moving_at:.1f} s)",
+                path=self.path,
+                field="velocity_north/velocity_east",
+                expected="a static base (velocity outputs are then navigation errors well below 1 m/s)",
+            )
+        if excursion > self.options.attitude_limit:
+            raise InputError(
+                f"the base is not static or not level: pitch/roll vary by {excursion:.3g} rad over the record",
+                path=self.path,
+                field="pitch/roll",
+                expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base",
+            )
+        if np.isfinite(self.rate_ratio) and abs(self.rate_ratio - 1.0) > self.options.rate_tolerance:
+            raise InputError(
+                f"the platform-axis angle turns at {self.rate_ratio:.4f} x the Earth rate",
+                path=self.path,
+                field="angle_platform",
+                expected="a platform fixed in inertial space on a static base (angle rate = Earth rate, correct sense s1)",
+            )
+        if self.gaps:
+            first = self.gaps[0]
+            text = (
+                f"{len(self.gaps)} gap(s) in the time column (first at row {first[0]}: step {first[1]:.6g} s; {self.gap_time:.1f} s "
+                "missing in all); the fits use the samples present (the INS kept running), the Earth-rate angle is read per sample"
+            )
+            notes.append(text)
+            warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=3)
+        if self.jitter:
+            text = (
+                f"{self.jitter} time step(s) off the nominal {self.period:.6g} s by more than 1 %; the fits do not assume uniform sampling"
+            )
+            notes.append(text)
+            warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=3)
+
+    def attitude_residuals(self, att: AttitudeFit, notes: list[str]) -> None:
+        return None
+
+    def summary(self) -> dict[str, Any]:
+        return {"gaps": list(self.gaps[:10]), "gap_count": len(self.gaps), "missing_seconds": self.gap_time, "jitter_steps": self.jitter}
+
+
+__all__ = [
+    "ATTITUDE_COEFFICIENTS",
+    "ArraySource",
+    "SystemCalibration",
+    "SystemOptions",
+    "block_length",
+    "harmonic_information",
+    "residuals_from_parameters",
+    "run_system_stage",
+]
