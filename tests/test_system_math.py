@@ -185,7 +185,7 @@ def test_separation_rank_and_singular_directions():
     sep = separate(COMBINED_COEFFICIENTS, c, np.eye(15) * 1e-14, LAT)
     assert sep.rank == 9
     assert sep.null_space.shape == (14, 5)
-    for name, (value, sigma, determined) in sep.combinations.items():
+    for name, (value, _sigma, determined) in sep.combinations.items():
         assert determined, name
         assert value == pytest.approx(float(sep_vector(name) @ np.r_[p, 0, 0]), abs=1e-12)
     # b_x and beta_xy act only together: moving along (b_x, beta_xy) = (sinL, 1) changes nothing

@@ -104,13 +104,14 @@ def separate(
     latitude: float,
     prior_sigma: Mapping[str, float] | None = None,
     rank_tolerance: float = 1e-8,
+    transform: ArrayLike | None = None,
 ) -> Separation:
     """Solve the combined coefficients for the residuals (rank-revealing, prior-metric gauge).
 
     Parameters
     ----------
     coefficient_names : sequence of str
-        Which of :data:`COMBINED_COEFFICIENTS` are supplied (a short record may lack some).
+        Which of :data:`COMBINED_COEFFICIENTS` are supplied.
     coefficients, covariance : array_like
         Their values and full covariance.
     latitude : float
@@ -118,11 +119,17 @@ def separate(
     prior_sigma : mapping, optional
         Prior 1σ of each residual (:data:`RESIDUAL_NAMES`; biases divided by g) — the gauge
         metric.  Default: 1e-4 for every residual.
+    transform : array_like (m, k), optional
+        Use only the combinations ``T c`` of the supplied coefficients (a short record
+        determines some combinations of them, not each one).
     """
     rows = [COMBINED_COEFFICIENTS.index(n) for n in coefficient_names]
     g = combination_matrix(latitude)[rows]
     c = np.asarray(coefficients, dtype=float)
     cov = np.asarray(covariance, dtype=float)
+    if transform is not None:
+        t = np.asarray(transform, dtype=float)
+        g, c, cov = t @ g, t @ c, t @ cov @ t.T
     names = RESIDUAL_NAMES + NUISANCE_NAMES
     scale = np.array([float((prior_sigma or {}).get(n, 1e-4)) for n in RESIDUAL_NAMES] + [1e-4, 1e-4])
     # whiten with the coefficient covariance
@@ -167,5 +174,5 @@ def separate(
         residuals=resid,
         residual_sigma=sd,
         chi2=chi2,
-        dof=len(rows) - rank,
+        dof=len(c) - rank,
     )

@@ -436,7 +436,6 @@ def run_system_stage(
     x_hat = x_ls.copy()
     x_hat[0] -= noise_bias
     cov_x = cov_unit * r_var
-    harmonic_vif = np.diag(cov_unit) * np.diag(info.information)
 
     # ---------------------------------------------------------------- filter convergence
     history = None
@@ -469,28 +468,27 @@ def run_system_stage(
     combined_cov = np.zeros((15, 15))
     combined_cov[:5, :5] = cov_x
     combined_cov[5:, 5:] = att.covariance
-    attitude_vif = _attitude_vif(blocks, loop, options.case_rotation_period)
-    vif = np.concatenate([harmonic_vif, attitude_vif])
-    observable = vif < VIF_LIMIT
+    transform, observable, kept = _observable_directions(combined_cov)
     if duration < 0.98 * SIDEREAL_DAY or not observable.all():
         hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
         notes.append(
-            f"record of {duration / 3600:.2f} h (< one sidereal day): "
+            f"record of {duration / 3600:.2f} h (< one sidereal day): the data determine {kept} of 15 combinations of the combined "
+            f"coefficients (variance inflation ≤ {VIF_LIMIT:g}); "
             + (
-                f"not observable (variance inflation > {VIF_LIMIT:g}) and left out of the separation: {', '.join(hidden)}"
+                f"not observable on their own and reported as unidentifiable: {', '.join(hidden)}; the separation uses only the "
+                "determined combinations"
                 if hidden
-                else "all fifteen coefficients remain observable, with larger uncertainty than over a full day"
+                else "every coefficient remains observable, with larger uncertainty than over a full day"
             )
         )
         if hidden:
             warnings.warn(f"{path}: {notes[-1]}", UserWarning, stacklevel=2)
-    names_used = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if ok]
-    idx = [COMBINED_COEFFICIENTS.index(n) for n in names_used]
+    names_used = list(COMBINED_COEFFICIENTS)
 
     # ---------------------------------------------------------------- separation
     scale = _residual_scale(prior, gravity)
     prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
-    sep = separate(names_used, combined_values[idx], combined_cov[np.ix_(idx, idx)], latitude, prior_sigma=prior_sigma)
+    sep = separate(names_used, combined_values, combined_cov, latitude, prior_sigma=prior_sigma, transform=transform)
     result, corrections = _fit_result(
         sep,
         prior,
@@ -498,7 +496,7 @@ def run_system_stage(
         scale,
         latitude,
         gravity,
-        names_used,
+        transform,
         combined_values,
         combined_cov,
         notes,
@@ -516,7 +514,7 @@ def run_system_stage(
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
         notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {noise_bias:.3e}",),
-        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "vif": vif},
+        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "transform": transform},
     )
     diagnostics = {
         "duration": duration,
@@ -581,19 +579,35 @@ def _grow_bins(bins: dict[str, NDArray[np.float64]], size: int) -> None:
     bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], 5))])
 
 
-def _attitude_vif(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop, period: float | None) -> NDArray[np.float64]:
-    from stableins.estimators.system.attitude import _design
+def _observable_directions(covariance: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], int]:
+    """Combinations of the combined coefficients that the record determines.
 
-    x, _, _ = _design(blocks, loop, period)
-    w = blocks["count"]
-    xtwx = x.T @ (x * w[:, None])
-    d = np.sqrt(np.diag(xtwx))
-    corr = xtwx / np.outer(d, d)
-    inv = np.linalg.pinv(corr, rcond=1e-14)
-    v = np.diag(inv)[:5]
-    v = np.where(v > 0, v, np.inf)
-    order = [0, 1, 2, 3, 4, 0, 2, 1, 4, 3]  # roll in paper order (mean, 1s, 1c, 2s, 2c)
-    return v[order]
+    Per group (the five harmonic states; the ten attitude coefficients) the information
+    matrix in correlation form ``Λ_s`` has unit eigenvalues for an orthogonal design (a
+    whole number of days).  Directions with eigenvalue ``< 1/VIF_LIMIT`` (variance inflated
+    more than ``VIF_LIMIT`` times) are not observable.  Returns the transform ``T`` whose
+    rows are the kept combinations (``T c`` has covariance ``diag(1/λ)``), which coefficients
+    remain individually observable, and the number of kept combinations.
+    """
+    rows = []
+    observable = np.zeros(15, bool)
+    for group in (slice(0, 5), slice(5, 15)):
+        idx = np.arange(15)[group]
+        info = np.linalg.pinv(covariance[np.ix_(idx, idx)], rcond=1e-15, hermitian=True)
+        d = np.sqrt(np.clip(np.diag(info), 1e-300, None))
+        eigenvalues, vectors = np.linalg.eigh(info / np.outer(d, d))
+        keep = eigenvalues >= 1.0 / VIF_LIMIT
+        v = vectors[:, keep]
+        for column in v.T:
+            row = np.zeros(15)
+            row[idx] = column * d
+            rows.append(row)
+        inside = np.linalg.norm(v.T, axis=0)  # |projection of each unit coefficient direction on the kept span|
+        observable[idx] = inside > 0.99
+    transform = np.array(rows) if rows else np.zeros((0, 15))
+    if transform.shape[0] == 15:
+        transform = np.eye(15)  # everything is determined: use the coefficients themselves
+    return transform, observable, len(rows)
 
 
 def _prior_residual_covariance(
@@ -624,7 +638,7 @@ def _fit_result(
     scale: Mapping[str, float],
     latitude: float,
     gravity: float,
-    names_used: list[str],
+    transform: NDArray[np.float64],
     combined_values: NDArray[np.float64],
     combined_cov: NDArray[np.float64],
     notes: list[str],
@@ -635,9 +649,8 @@ def _fit_result(
     n = len(hm.RESIDUAL_NAMES)
     p = sep.values[:n]
     # new − true = (I − K G)(prior − true) + K e, with K the gauge-fixed solution map
-    rows = [COMBINED_COEFFICIENTS.index(c) for c in names_used]
-    g_full = combination_matrix(latitude)[rows]
-    k_map = _solution_map(sep, g_full, combined_cov[np.ix_(rows, rows)], prior_res_cov)
+    g_full = transform @ combination_matrix(latitude)
+    k_map = _solution_map(sep, g_full, transform @ combined_cov @ transform.T, prior_res_cov)
     kg = (k_map @ g_full)[:n, :n]
     ikg = np.eye(n) - kg
     cov_res = ikg @ prior_res_cov @ ikg.T + sep.covariance[:n, :n]
@@ -704,7 +717,9 @@ def _fit_result(
         status=tuple(status),
         residuals=sep.residuals,
         residual_sigma=sep.residual_sigma,
-        residual_labels=tuple(names_used),
+        residual_labels=tuple(COMBINED_COEFFICIENTS)
+        if transform.shape[0] == 15
+        else tuple(f"combination {k + 1}" for k in range(transform.shape[0])),
         rank=sep.rank,
         singular_values=sep.singular_values,
         null_space=null_terms,
