@@ -165,6 +165,7 @@ class AttitudeFit:
     residual_noise_ratio: tuple[float, float]
     residual_rms: tuple[float, float]
     block_residuals: NDArray[np.float64]
+    vertical_jacobian: NDArray[np.float64]
     notes: tuple[str, ...] = ()
 
 
@@ -186,11 +187,23 @@ def _design(
         columns += [envelope * np.cos(m.imag * t), envelope * np.sin(m.imag * t)]
         names += [f"schuler{i}_c", f"schuler{i}_s"]
         freqs += [m.imag, m.imag]
+    for i, m in enumerate(loop.transient_modes()):  # vertical channel, decays in minutes
+        envelope = np.exp(m.real * t)
+        if abs(m.imag) < 1e-12:
+            columns.append(envelope)
+            names.append(f"vertical{i}")
+            freqs.append(0.0)
+        else:
+            columns += [envelope * np.cos(m.imag * t), envelope * np.sin(m.imag * t)]
+            names += [f"vertical{i}_c", f"vertical{i}_s"]
+            freqs += [m.imag, m.imag]
     if case_rotation_period:
-        w = 2.0 * np.pi / case_rotation_period
-        columns += [np.cos(w * t), np.sin(w * t)]
-        names += ["case_c", "case_s"]
-        freqs += [w, w]
+        # a drift vector turning at 2π/P in the platform frame appears in the n-frame at 2π/P and 2π/P ± ω_ie
+        base = 2.0 * np.pi / case_rotation_period
+        for j, w in enumerate((base - loop.earth_rate, base, base + loop.earth_rate)):
+            columns += [np.cos(w * t), np.sin(w * t)]
+            names += [f"case{j}_c", f"case{j}_s"]
+            freqs += [w, w]
     return np.stack(columns, axis=1), names, np.array(freqs)
 
 
@@ -200,6 +213,7 @@ def fit_attitude(
     noise_sigma: tuple[float, float],
     case_rotation_period: float | None = CASE_ROTATION_PERIOD,
     compensate_loop: bool = True,
+    vertical: NDArray[np.float64] | None = None,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -217,6 +231,10 @@ def fit_attitude(
     compensate_loop : bool
         Map the harmonics through ``M_k⁻¹`` (default).  ``False`` reproduces the
         paper's quasi-static reading (biased by the loop's gain and phase).
+    vertical : ndarray (5,), optional
+        Mean and harmonics ``(mean, cos S, sin S, cos 2S, sin 2S)`` of ``Δf_D/g``; their
+        response through the vertical channel is removed before the compensation.  The
+        result's ``vertical_jacobian`` is ``∂values/∂vertical`` for the covariance.
     """
     x, names, freqs = _design(blocks, loop, case_rotation_period)
     w = blocks["count"]
@@ -236,26 +254,34 @@ def fit_attitude(
 
     # loop compensation of the harmonics: vectors (pitch c, pitch s, roll c, roll s)
     transform = np.eye(10)
+    vertical_map = np.zeros((10, 5))  # observed ← Δf_D/g coefficients
     if compensate_loop:
         for k, (ic, is_) in ((1, (1, 2)), (2, (3, 4))):
             m_inv = np.linalg.inv(loop.harmonic_matrix(k))
             idx = [ic, is_, 5 + ic, 5 + is_]
             transform[np.ix_(idx, idx)] = m_inv
-    qs = transform @ observed
+            vertical_map[np.ix_(idx, [ic, is_])] = loop.vertical_harmonic_matrix(k)
+        dc = loop.dc_gain()
+        vertical_map[0, 0], vertical_map[5, 0] = dc[0, 2], dc[1, 2]
+    v = np.zeros(5) if vertical is None else np.asarray(vertical, dtype=float)
+    qs = transform @ (observed - vertical_map @ v)
     cov_qs = transform @ cov_obs @ transform.T
+    jac_vertical = -transform @ vertical_map
     # reorder roll into the paper order (mean, 1s, 1c, 2s, 2c)
     order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
     values, covariance = qs[order], cov_qs[np.ix_(order, order)]
+    jac_vertical = jac_vertical[order]
     observed_out, cov_obs_out = observed[order], cov_obs[np.ix_(order, order)]
 
     ratio = _periodogram_check(blocks, residuals, loop, noise_sigma)
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
+    inflate = np.ones(10)
     notes = []
     for ch, r in zip(("pitch", "roll"), ratio, strict=True):
-        if np.isfinite(r) and r > 3.0:
+        if np.isfinite(r) and r > 2.0:
             notes.append(
                 f"{ch} residuals between 3 and 8 cycles/day are {r:.1f}x the noise predicted from the accelerometer noise; "
-                "the attitude coefficients' sigma was scaled up accordingly"
+                "the attitude coefficients' sigma was scaled up by the square root of that ratio"
             )
     if notes:
         inflate = np.repeat(np.sqrt(np.maximum(np.nan_to_num(ratio, nan=1.0), 1.0)), 5)
@@ -271,6 +297,7 @@ def fit_attitude(
         residual_noise_ratio=(float(ratio[0]), float(ratio[1])),
         residual_rms=tuple(float(v) for v in np.sqrt(np.mean(residuals**2, axis=0))),
         block_residuals=residuals,
+        vertical_jacobian=jac_vertical,
         notes=tuple(notes),
     )
 

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration
+from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, ErrorModel, Term
@@ -45,7 +45,7 @@ from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
 FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
-SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+SLOW_COLUMNS = ("time", "pitch", "roll", "heading", "velocity_north", "velocity_east")
 
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
 VIF_LIMIT = 30.0
@@ -349,7 +349,8 @@ def run_system_stage(
     config = GimbalConfiguration(tuple(metadata.gimbal_senses))
     sense = -float(config.senses[0])
     theta10 = float(prior.get("theta10", 0.0))
-    yaw = float(metadata.base_attitude[0]) if metadata.base_attitude else 0.0
+    base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
+    base_dcm_t = dcm_nav_to_body(*base).T  # C_b^n of the surveyed base
     compensation = _Compensation.from_values(prior)
     block = block_length(rate)
     chunk_rows = max(block, (options.chunk_rows // block) * block)
@@ -362,7 +363,6 @@ def run_system_stage(
     noise_count = 0
     filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 5)), "n": np.zeros(0)}
     checks = _StaticChecks(options, rate, path)
-    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
     seen = 0
     first_time = None
     for chunk in source.iter_chunks(list(FAST_COLUMNS + SLOW_COLUMNS), rows=chunk_rows):
@@ -398,10 +398,12 @@ def run_system_stage(
         t_d = time[sel]
         s_d = sense * (angle[sel] + theta10)
         pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
-        # rotate to the north-pointing frame: (p0, r0) = R(−yaw)(pitch, roll)
-        p0 = cos_yaw * pitch_d + sin_yaw * roll_d
-        r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
-        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
+        # misalignment φ from the attitude outputs: C_n^b' = C_n^b (I + [φ×]) (conventions), exact in φ;
+        # (δpitch, δroll) of a level north-pointing body are (−φ_E, −φ_N)
+        rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
+        phi_n = 0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
+        phi_e = 0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
+        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), -phi_e, -phi_n)
         checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
         seen += n
 
@@ -453,12 +455,16 @@ def run_system_stage(
 
     # ---------------------------------------------------------------- attitude
     blocks = attitude_blocks.means()
+    cos_l = math.cos(latitude)
+    along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
+    vertical = -along * x_hat  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
     att = fit_attitude(
         blocks,
         loop,
         (sigma_pitch / math.sqrt(decimation), sigma_roll / math.sqrt(decimation)),
         case_rotation_period=options.case_rotation_period,
         compensate_loop=options.compensate_loop,
+        vertical=vertical,
     )
     notes += list(att.notes)
     checks.attitude_residuals(att, notes)
@@ -467,7 +473,10 @@ def run_system_stage(
     combined_values = np.concatenate([x_hat, att.values])
     combined_cov = np.zeros((15, 15))
     combined_cov[:5, :5] = cov_x
-    combined_cov[5:, 5:] = att.covariance
+    jac_x = att.vertical_jacobian @ np.diag(-along)  # ∂attitude/∂x through the vertical channel
+    combined_cov[5:, 5:] = att.covariance + jac_x @ cov_x @ jac_x.T
+    combined_cov[5:, :5] = jac_x @ cov_x
+    combined_cov[:5, 5:] = combined_cov[5:, :5].T
     transform, observable, kept = _observable_directions(combined_cov)
     if duration < 0.98 * SIDEREAL_DAY or not observable.all():
         hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
