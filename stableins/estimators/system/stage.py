@@ -439,6 +439,20 @@ def run_system_stage(
     x_hat[0] -= noise_bias
     cov_x = cov_unit * r_var
 
+    # ---------------------------------------------------------------- low-frequency noise check on the filter bins
+    keep_bins = filter_bins["n"] > 0
+    nn_all = filter_bins["n"][keep_bins]
+    bin_residual = filter_bins["z"][keep_bins] / nn_all - (filter_bins["h"][keep_bins] / nn_all[:, None]) @ x_ls
+    n_bins = int(keep_bins.sum())
+    low_frequency_ratio = float(np.mean(bin_residual**2 * nn_all / r_var)) if n_bins > 5 else float("nan")
+    if np.isfinite(low_frequency_ratio) and low_frequency_ratio > 1.0 + 4.0 * math.sqrt(2.0 / n_bins):
+        cov_x = cov_x * low_frequency_ratio
+        notes.append(
+            f"the specific-force residuals averaged over {options.filter_block_seconds:g} s scatter {low_frequency_ratio:.2f}x more "
+            "than white noise predicts (bias instability, random walk or temperature): the harmonic states' covariance was scaled "
+            "up by that factor"
+        )
+
     # ---------------------------------------------------------------- filter convergence
     history = None
     history_time = np.zeros(0)
@@ -531,6 +545,7 @@ def run_system_stage(
         "block_length": block,
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
+        "z_low_frequency_ratio": low_frequency_ratio,
         "noise_bias_x1": noise_bias,
         "attitude_noise_sigma": (sigma_pitch, sigma_roll),
         "attitude_residual_rms": att.residual_rms,
