@@ -35,7 +35,9 @@ class Progress:
         Bar width in characters.
     """
 
-    def __init__(self, total: float | None = None, label: str = "", stream: TextIO | None = None, enabled: bool | None = None, width: int = 30) -> None:
+    def __init__(
+        self, total: float | None = None, label: str = "", stream: TextIO | None = None, enabled: bool | None = None, width: int = 30
+    ) -> None:
         self.total = total
         self.label = label
         self.stream = sys.stderr if stream is None else stream

@@ -27,7 +27,7 @@ from typing import IO, Any
 
 from stableins.data.errors import InputError
 from stableins.data.schema import Column
-from stableins.data.validation import check_header_document, match_columns, parse_header
+from stableins.data.validation import check_finite, check_header_document, match_columns, parse_header
 
 BEGIN = "# BEGIN HEADER"
 END = "# END HEADER"
@@ -258,6 +258,8 @@ class CsvReader:
                         f"{raw[k]!r} is not an integer", path=self.path, row=first_row + k, field=c.name, expected="an integer"
                     )
                 values = values.astype(np.int32)
+            else:
+                check_finite(c.name, values, self.path, first_row=first_row)
             out[c.name] = values
         return out
 

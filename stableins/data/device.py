@@ -167,7 +167,7 @@ def validate_device_columns(columns: Mapping[str, Any], path: str | None) -> tup
     bad = ~np.isin(stage, STAGES)
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(f"unknown stage {stage[k]!r}", path=path, row=k + 1, field="stage", expected="'coarse' or 'fine'")
+        raise InputError(f"unknown stage {str(stage[k])!r}", path=path, row=k + 1, field="stage", expected="'coarse' or 'fine'")
     for name in ("pass", "position"):
         bad = columns[name] < 1
         if bad.any():

@@ -86,7 +86,7 @@ def check_finite(name: str, values: Any, path: Any, first_row: int = 1) -> None:
     bad = ~np.isfinite(values)
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(f"value {values[k]!r} is not finite", path=path, row=first_row + k, field=name, expected="a finite number")
+        raise InputError(f"value {values[k].item()!r} is not finite", path=path, row=first_row + k, field=name, expected="a finite number")
 
 
 def check_increasing(time: Any, path: Any, first_row: int = 1, previous: float | None = None, field: str = "time") -> None:
@@ -103,9 +103,58 @@ def check_increasing(time: Any, path: Any, first_row: int = 1, previous: float |
     if bad.any():
         k = int(np.argmax(bad)) + 1
         raise InputError(
-            f"time does not increase: {time[k]!r} s follows {time[k - 1]!r} s",
+            f"time does not increase: {float(time[k])!r} s follows {float(time[k - 1])!r} s",
             path=path,
             row=first_row + k,
             field=field,
             expected="strictly increasing time",
         )
+
+
+def read_format_tag(path: Any) -> str:
+    """The ``format`` entry of a stableins data file's header (``.csv`` or ``.h5``), without reading the data.
+
+    Returns ``"stableins-device"``, ``"stableins-system"`` or whatever the file says.
+    """
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        import h5py
+
+        try:
+            with h5py.File(path, "r") as f:
+                header = f.attrs.get("header")
+        except FileNotFoundError:
+            raise InputError("no such file", path=path) from None
+        except OSError as error:
+            raise InputError(f"cannot be read as HDF5 ({error}); the file is truncated or corrupt", path=path) from None
+        try:
+            return str(json.loads(header).get("format"))
+        except (TypeError, ValueError, AttributeError):
+            raise InputError("no valid 'header' attribute: not a stableins HDF5 file", path=path, field="header") from None
+    from stableins.data.csvformat import BEGIN, END
+
+    lines: list[str] = []
+    inside = False
+    try:
+        with open(path, encoding="utf-8") as handle:
+            for line in handle:
+                if not line.startswith("#"):
+                    break
+                if line.strip() == BEGIN:
+                    inside = True
+                elif line.strip() == END:
+                    break
+                elif inside:
+                    lines.append(line[1:])
+    except FileNotFoundError:
+        raise InputError("no such file", path=path) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"cannot read: {error}", path=path) from None
+    try:
+        document = json.loads("".join(lines))
+    except ValueError:
+        raise InputError("no valid JSON header block", path=path, expected="the header of docs/formats.md") from None
+    return str(document.get("format")) if isinstance(document, dict) else "unknown"
