@@ -350,7 +350,7 @@ class CalibrationRecord:
         """Write the record atomically (a reader sees the old file or the whole new one)."""
         from stableins.data.atomic import atomic_write
 
-        text = json.dumps(self.to_document(), indent=1, allow_nan=False) + "\n"
+        text = _layout(self.to_document())
         with atomic_write(path) as handle:
             handle.write(text)
         return Path(path)
@@ -482,6 +482,42 @@ class CalibrationRecord:
 
     def __str__(self) -> str:
         return self.report()
+
+
+def _layout(document: dict[str, Any]) -> str:
+    """JSON for people and diffs: one parameter, one covariance row, one input per line."""
+
+    def dump(value: Any) -> str:
+        return json.dumps(value, allow_nan=False)
+
+    def block(items: list[str], indent: str) -> str:
+        return "[\n" + ",\n".join(indent + "  " + i for i in items) + "\n" + indent + "]" if items else "[]"
+
+    lines = []
+    for key, value in document.items():
+        if key == "parameters":
+            text = block([dump(p) for p in value], "  ")
+        elif key == "covariance":
+            text = (
+                "{\n"
+                + ",\n".join(
+                    f"    {dump(k)}: " + (block([dump(row) for row in v], "    ") if k == "matrix" else dump(v)) for k, v in value.items()
+                )
+                + "\n  }"
+            )
+        elif isinstance(value, dict) and value:
+            inner = [
+                f"    {dump(k)}: "
+                + (block([dump(x) for x in v], "    ") if isinstance(v, list) and v and isinstance(v[0], dict) else dump(v))
+                for k, v in value.items()
+            ]
+            text = "{\n" + ",\n".join(inner) + "\n  }"
+        elif isinstance(value, list):
+            text = block([dump(x) for x in value], "  ")
+        else:
+            text = dump(value)
+        lines.append(f"  {dump(key)}: {text}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
 def _number(value: Any, path: str | None, key: str) -> float:
