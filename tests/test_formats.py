@@ -499,3 +499,29 @@ def test_system_h5_nan_found_when_reading_chunks(tmp_path):
 def test_open_system_record_refuses_device_file(device_h5):
     with warnings.catch_warnings():
         expect_input_error(device_h5, "format 'stableins-device' found", "'stableins-system'", loader=open_system_record)
+
+
+def test_formats_doc_lists_every_column():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    for column in DEVICE_COLUMNS + SYSTEM_COLUMNS:
+        assert f"| `{column.header}` | {column.dtype} |" in text, column.header
+
+
+def test_csv_column_order_is_free_and_extra_columns_ignored(device_csv):
+    def reorder(lines):
+        out = []
+        for line in lines:
+            if line.startswith("#"):
+                out.append(line)
+            else:
+                fields = line.rstrip("\n").split(",")
+                out.append(",".join(fields[::-1] + ["extra[V]" if fields[0] == "time[s]" else "1.5"]) + "\n")
+        return out
+
+    original = load_device(device_csv)
+    edit_lines(device_csv, reorder)
+    again = load_device(device_csv)
+    for c in DEVICE_COLUMNS:
+        np.testing.assert_array_equal(again.columns[c.name], original.columns[c.name])
