@@ -67,8 +67,19 @@ QUANTITY_UNITS: dict[str, dict[str, float]] = {
     "base_attitude": ANGLE_UNITS,
     "reference_temperature": {"degC": 1.0},
 }
-#: Units of the known damping-loop parameters (others are written with unit "SI").
-DAMPING_UNITS: dict[str, str] = {"zeta": "1"}
+#: Units of the known damping-loop parameters (see ``stableins.simulator.truth.damping_parameters``);
+#: others are written with unit "SI".
+DAMPING_UNITS: dict[str, str] = {
+    "zeta": "1",
+    "omega_s": "rad/s",
+    "R": "m",
+    "gravity": "m/s^2",
+    "horizontal_gain": "1/s",
+    "vertical_time_constant": "s",
+    "k1": "1/s",
+    "k2": "1/s^2",
+    "k3": "1/s^3",
+}
 _REQUIRED = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
 
 
