@@ -63,7 +63,7 @@ class H5Writer:
         self._atomic = atomic_path(self.path)
         tmp = self._atomic.__enter__()
         try:
-            self._file = h5py.File(tmp, "w")
+            self._file = h5py.File(tmp, "w", rdcc_nbytes=0)  # whole-chunk writes: a chunk cache only copies
             f = self._file
             f.attrs["format"] = FORMAT_TAGS[self.kind]
             f.attrs["schema_version"] = self.document["schema_version"]
@@ -94,31 +94,40 @@ class H5Writer:
         if self._buffered >= self.chunk_samples:
             self._flush()
 
-    def _flush(self) -> None:
+    def _flush(self, final: bool = False) -> None:
+        """Write the whole chunks buffered (everything if ``final``); keep the remainder.
+
+        Writes then always cover whole HDF5 chunks, so no chunk is read back and rewritten.
+        """
         import numpy as np
 
         if not self._buffer:
             return
-        n = self._buffered
+        n = self._buffered if final else self._buffered - self._buffered % self.chunk_samples
+        if n == 0:
+            return
         group = self._file[GROUP]
+        rest: dict[str, Any] = {}
         for c in self.schema:
             parts = [np.asarray(ch[c.name]) for ch in self._buffer]
             values = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            rest[c.name] = values[n:].copy()
+            values = values[:n]
             if c.dtype == "str":
                 values = np.char.encode(values.astype(str), "ascii")
             d = group[c.name]
             d.resize((self.rows + n,))
             d[self.rows :] = values
         self.rows += n
-        self._buffer.clear()
-        self._buffered = 0
+        self._buffered -= n
+        self._buffer[:] = [rest] if self._buffered else []
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is not None:
             self._abort(exc)
             return
         try:
-            self._flush()
+            self._flush(final=True)
             self._file.attrs["rows"] = self.rows
             self._file.attrs["complete"] = True
             self._file.close()
