@@ -108,7 +108,7 @@ def test_gaps_and_jitter_warn_and_still_fit(day):
 def test_moving_base_detected_from_velocity(day):
     _, _, cols, meta = day
     moving = dict(cols)
-    moving["velocity_north"] = cols["velocity_north"] + np.where(cols["time"] > 40000, 3.0, 0.0)
+    moving["velocity_north"] = cols["velocity_north"] + np.where(cols["time"] > 40000, 12.0, 0.0)
     with pytest.raises(InputError, match="not static"):
         run(moving, meta)
 
