@@ -93,7 +93,7 @@ class SystemOptions:
     case_rotation_period: float | None = 480.0
     couplings: bool = True
     compensate_loop: bool = True
-    velocity_limit: float = 5.0  # [m/s] horizontal velocity output beyond which the base is not static (a 3e-3 m/s² residual gives ~2.5 m/s of Schuler transient)
+    velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
     attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
     rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
     minimum_duration: float = 4 * 3600.0  # [s]
