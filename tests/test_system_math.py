@@ -232,3 +232,15 @@ def test_vertical_channel_from_metadata_moves_roll():
     np.testing.assert_allclose(loop.dc_gain(), np.c_[np.eye(2), np.zeros(2)], atol=1e-9)
     horizontal = DampingLoop.from_metadata({"zeta": 0.5}, LAT, G)
     np.testing.assert_allclose(horizontal.frequency_response(cv.EARTH_RATE)[:, 2], 0.0)
+
+
+def test_stage_compensation_equals_error_model_inverse():
+    """The stage's closed-form |f^p|² (column arithmetic) equals |ErrorModel.inverse(f^a)|², K2 included."""
+    from stableins.estimators.system.stage import _Compensation
+
+    rng = np.random.default_rng(4)
+    installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
+    f_a = platform_force(rng.uniform(0, 6, 1000)) + rng.normal(0, 1e-2, (1000, 3))
+    expected = np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1)
+    got = _Compensation.from_values(installed).squared_norm(f_a[:, 0].copy(), f_a[:, 1].copy(), f_a[:, 2].copy())
+    np.testing.assert_allclose(got, expected, rtol=1e-14)

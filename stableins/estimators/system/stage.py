@@ -256,12 +256,21 @@ class _Compensation:
         return cls(matrix, bias, quadratic)
 
     def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
-        w = np.stack([fx, fy, fz], axis=1)
-        w -= self.bias
+        """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
+        q = self.matrix.T @ self.matrix
+        w0, w1, w2 = fx - self.bias[0], fy - self.bias[1], fz - self.bias[2]
         if np.any(self.quadratic):
-            w -= self.quadratic * w * w
-        p = w @ self.matrix.T
-        return np.einsum("ij,ij->i", p, p)
+            w0 -= self.quadratic[0] * w0 * w0
+            w1 -= self.quadratic[1] * w1 * w1
+            w2 -= self.quadratic[2] * w2 * w2
+        out = q[0, 0] * w0 * w0
+        out += q[1, 1] * w1 * w1
+        out += q[2, 2] * w2 * w2
+        w0 *= 2.0
+        out += (q[0, 1] * w0) * w1
+        out += (q[0, 2] * w0) * w2
+        out += (2.0 * q[1, 2] * w1) * w2
+        return out
 
 
 # --------------------------------------------------------------------------- the stage
