@@ -63,7 +63,7 @@ def test_yawed_base_and_chunking_give_same_answer(day):
     # x1 carries the noise-bias correction, measured on the first samples of each chunk: chunking changes it slightly
     np.testing.assert_allclose(b.combined.values[1:], a.combined.values[1:], rtol=1e-9, atol=1e-13)
     assert abs(b.combined.values[0] - a.combined.values[0]) < 0.05 * a.diagnostics["noise_bias_x1"]
-    cols_y, meta_y = record(true, installed, rate=1.0, seed=11, yaw=0.6)
+    cols_y, meta_y = record(true, installed, rate=1.0, seed=11, yaw=0.6)  # level base, heading 0.6 rad
     c = run_system_stage(ArraySource(cols_y), meta_y, installed)
     np.testing.assert_allclose(c.combined.values, a.combined.values, atol=1e-11)
 

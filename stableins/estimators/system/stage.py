@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_nav_to_body
+from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, ErrorModel, Term
@@ -45,7 +45,7 @@ from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
 FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
-SLOW_COLUMNS = ("time", "pitch", "roll", "heading", "velocity_north", "velocity_east")
+SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
 
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
 VIF_LIMIT = 30.0
@@ -358,8 +358,8 @@ def run_system_stage(
     config = GimbalConfiguration(tuple(metadata.gimbal_senses))
     sense = -float(config.senses[0])
     theta10 = float(prior.get("theta10", 0.0))
-    base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
-    base_dcm_t = dcm_nav_to_body(*base).T  # C_b^n of the surveyed base
+    yaw = float(metadata.base_attitude[0]) if metadata.base_attitude else 0.0
+    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
     compensation = _Compensation.from_values(prior)
     block = block_length(rate)
     chunk_rows = max(block, (options.chunk_rows // block) * block)
@@ -374,7 +374,7 @@ def run_system_stage(
     checks = _StaticChecks(options, rate, path)
     seen = 0
     first_time = None
-    for chunk in source.iter_chunks(list(FAST_COLUMNS + SLOW_COLUMNS), rows=chunk_rows):
+    for chunk in _prefetch(source.iter_chunks(list(FAST_COLUMNS + SLOW_COLUMNS), rows=chunk_rows)):
         n = len(chunk["f_x"])
         if n == 0:
             continue
@@ -407,12 +407,11 @@ def run_system_stage(
         t_d = time[sel]
         s_d = sense * (angle[sel] + theta10)
         pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
-        # misalignment φ from the attitude outputs: C_n^b' = C_n^b (I + [φ×]) (conventions), exact in φ;
-        # (δpitch, δroll) of a level north-pointing body are (−φ_E, −φ_N)
-        rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
-        phi_n = 0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
-        phi_e = 0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
-        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), -phi_e, -phi_n)
+        # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
+        # rotate back to the north-pointing pair the loop model outputs
+        p0 = cos_yaw * pitch_d + sin_yaw * roll_d
+        r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
+        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
         checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
         seen += n
 
@@ -576,6 +575,53 @@ def run_system_stage(
         notes=tuple(notes),
         diagnostics=diagnostics,
     )
+
+
+def _prefetch(chunks: Iterator[dict[str, Any]], depth: int = 2) -> Iterator[dict[str, Any]]:
+    """Read the next chunks in a background thread while this one is processed (bounded: ``depth`` chunks ahead).
+
+    Exceptions of the reader (an InputError naming a bad row) are re-raised here, in order.
+    """
+    import queue
+    import threading
+
+    box: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def worker() -> None:
+        try:
+            for chunk in chunks:
+                while not stop.is_set():
+                    try:
+                        box.put(("chunk", chunk), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            box.put(("done", done))
+        except BaseException as error:  # handed to the consumer
+            box.put(("error", error))
+
+    thread = threading.Thread(target=worker, name="stableins-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, item = box.get()
+            if kind == "chunk":
+                yield item
+            elif kind == "error":
+                raise item
+            else:
+                return
+    finally:
+        stop.set()
+        while thread.is_alive():
+            try:
+                box.get_nowait()
+            except queue.Empty:
+                thread.join(timeout=0.05)
 
 
 def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, float]:
@@ -801,17 +847,25 @@ class _StaticChecks:
         self.duration = 0.0
 
     def time(self, t: NDArray[np.float64], seen: int) -> None:
-        series = t if self.last_time is None else np.concatenate([[self.last_time], t])
-        step = np.diff(series)
-        if step.size and not (step > 0).all():
-            k = int(np.flatnonzero(~(step > 0))[0])
-            row = seen + k + (1 if self.last_time is None else 0) + 1
-            raise InputError("time does not increase", path=self.path, field="time", row=row, expected="strictly increasing time")
-        if step.size:
+        # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
+        step = np.diff(t)
+        if self.last_time is not None and t.size:
+            step = np.concatenate([[t[0] - self.last_time], step]) if (t[0] - self.last_time) != self.period else step
+        lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
+        if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
+            offset = seen + (1 if self.last_time is None else 0)
+            series = t if self.last_time is None else np.concatenate([[self.last_time], t])
+            step = np.diff(series)
+            offset = seen + (1 if self.last_time is None else 0)
+            if not (step > 0).all():
+                k = int(np.flatnonzero(~(step > 0))[0])
+                raise InputError(
+                    "time does not increase", path=self.path, field="time", row=offset + k + 1, expected="strictly increasing time"
+                )
             gap = step > 1.5 * self.period
             if gap.any():
                 for k in np.flatnonzero(gap)[:100]:
-                    self.gaps.append((seen + int(k) + (1 if self.last_time is None else 0) + 1, float(step[k])))
+                    self.gaps.append((offset + int(k) + 1, float(step[k])))
                 self.gap_time += float(step[gap].sum() - gap.sum() * self.period)
             self.jitter += int(((np.abs(step - self.period) > 0.01 * self.period) & ~gap).sum())
         if self.first_time is None:
