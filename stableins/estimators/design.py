@@ -68,7 +68,7 @@ class DesignAnalysis:
     def deficiency(self) -> int:
         return len(self.ids) - self.rank
 
-    def involved(self, tol: float = 1e-6) -> list[tuple[str, ...]]:
+    def involved(self, tol: float = 1e-2) -> list[tuple[str, ...]]:
         """Per null vector, the ids it moves (component above ``tol`` of its largest)."""
         out = []
         for v in self.scaled_null_space.T:
@@ -130,7 +130,7 @@ class Gauge:
     coefficients: dict[str, dict[str, float]]
     significance: dict[str, dict[str, float]] = field(default_factory=dict)
 
-    def combination(self, term_id: str, tol: float = 1e-3) -> str:
+    def combination(self, term_id: str, tol: float = 1e-2) -> str:
         """Human-readable combination determined by the estimate of ``term_id``.
 
         Coefficients whose effect ``|c_kg| d_g / d_k`` (typical gauge value relative to
@@ -145,7 +145,7 @@ class Gauge:
             parts.append(f"{sign} {g}" if abs(mag - 1.0) < 1e-6 else f"{sign} {mag:.6g}·{g}")
         return " ".join(parts)
 
-    def describe(self, tol: float = 1e-3) -> tuple[str, ...]:
+    def describe(self, tol: float = 1e-2) -> tuple[str, ...]:
         """One line per estimated parameter that a null direction moves at first order."""
         out = []
         for k in self.coefficients:
