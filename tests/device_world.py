@@ -82,3 +82,61 @@ class ExactPlatform:
 
     def close(self):
         pass
+
+
+def device_columns(
+    truth,
+    procedure,
+    sigma=1e-3,
+    seed=0,
+    stage="coarse",
+    pass_number=1,
+    offsets=(0.0, 0.0, 0.0),
+    senses=(1, 1, 1, 1),
+    rate=100.0,
+    dwell=None,
+    settle=None,
+):
+    """Samples of one pass as DEVICE_COLUMNS arrays (settle samples included, tagged by time_since_command)."""
+    rng = np.random.default_rng(seed)
+    cols = {
+        k: []
+        for k in (
+            "time",
+            "stage",
+            "pass",
+            "position",
+            "time_since_command",
+            "command_platform",
+            "command_inner",
+            "command_middle",
+            "angle_platform",
+            "angle_inner",
+            "angle_middle",
+            "f_x",
+            "f_y",
+            "f_z",
+            "temperature",
+        )
+    }
+    t0 = 0.0
+    for step in procedure.steps:
+        command = np.array([step.command[0], step.command[1] - offsets[1], step.command[2] - offsets[2]])
+        s = step.settle if settle is None else settle
+        d = step.dwell if dwell is None else dwell
+        n = int(round((s + d) * rate))
+        since = np.arange(n) / rate
+        f = outputs(truth, command, senses=senses) + sigma * rng.normal(size=(n, 3))
+        cols["time"].append(t0 + since)
+        cols["time_since_command"].append(since)
+        cols["stage"].append(np.full(n, stage))
+        cols["pass"].append(np.full(n, pass_number))
+        cols["position"].append(np.full(n, step.position))
+        for i, g in enumerate(("platform", "inner", "middle")):
+            cols[f"command_{g}"].append(np.full(n, command[i]))
+            cols[f"angle_{g}"].append(np.full(n, command[i]))
+        for i, a in enumerate("xyz"):
+            cols[f"f_{a}"].append(f[:, i])
+        cols["temperature"].append(np.full(n, 25.0))
+        t0 += n / rate + 3.0
+    return {k: np.concatenate(v) for k, v in cols.items()}

@@ -105,7 +105,9 @@ def test_recovery_within_k_sigma_and_honest_covariance_over_seeds():
     trials, sigma = 400, 3e-5
     truths = [draw_truth(rng, quadratic=False) for _ in range(trials)]
     means = _batch_means(truths, sigma, rng)
-    problem = CoarseProblem(np.broadcast_to(READINGS, means.shape).copy(), means, np.full(means.shape, sigma), GRAVITY, np.eye(3), DEFAULT_GIMBALS, MODEL)
+    problem = CoarseProblem(
+        np.broadcast_to(READINGS, means.shape).copy(), means, np.full(means.shape, sigma), GRAVITY, np.eye(3), DEFAULT_GIMBALS, MODEL
+    )
     sol = solve_coarse(problem)
     free = np.array([k != "theta10" for k in MODEL.ids])
     truth_vec = np.stack([_vector(gauge_equivalent(t)) for t in truths])

@@ -22,7 +22,10 @@ def _vector(values):
 
 
 def _dwells(means, sigma, stage):
-    return [DwellSummary(p + 1, stage, 1, r, r, m, np.full(3, sigma), np.full(3, 1e-3), 1000, 600.0) for p, (r, m) in enumerate(zip(READINGS, means))]
+    return [
+        DwellSummary(p + 1, stage, 1, r, r, m, np.full(3, sigma), np.full(3, 1e-3), 1000, 600.0)
+        for p, (r, m) in enumerate(zip(READINGS, means))
+    ]
 
 
 def _coarse_and_fine(truth, rng, sigma_coarse, sigma_fine):

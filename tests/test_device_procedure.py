@@ -112,8 +112,10 @@ sample_rate = 100.0
 @pytest.mark.parametrize(
     "body, field",
     [
-        ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n",
-         "step.position"),
+        (
+            "[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n",
+            "step.position",
+        ),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\n", "step.middle"),
         ("[[step]]\nposition = 1\nplatform = 'a'\ninner = 0.0\nmiddle = 0.0\n", "platform"),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 1e4\nmiddle = 0.0\n", "step.inner"),

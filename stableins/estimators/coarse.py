@@ -264,12 +264,15 @@ def check_orientation(
         miss = np.abs(means - pred).max(axis=1) > tolerance
         scores.append((int(miss.sum()), name, miss))
     configured = scores[0]
-    best = min(scores, key=lambda s: s[0])
-    if best[0] < configured[0] and configured[0] > 0:
+    best = min(s[0] for s in scores)
+    if best < configured[0] and configured[0] > 0:
         bad = [d.position for d, m in zip(dwells, configured[2], strict=True) if m]
+        # Several explanations can fit equally well (e.g. a y sign flip and senses (-1, -1, 1)
+        # give the same outputs for this sequence): name them all.
+        names = " or ".join(s[1] for s in scores if s[0] == best)
         raise InputError(
-            f"the data do not match the commanded orientations at positions {bad}; they fit {best[1]} "
-            f"({len(dwells) - best[0]} of {len(dwells)} positions). Check the axis wiring and the gimbal_senses metadata",
+            f"the data do not match the commanded orientations at positions {bad}; they fit {names} "
+            f"({len(dwells) - best} of {len(dwells)} positions). Check the axis wiring and the gimbal_senses metadata",
             path=source,
             field="f_x, f_y, f_z",
             expected=f"outputs within {tolerance:.3g} m/s^2 of the ideal instrument at the commanded orientation",

@@ -160,7 +160,9 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     acc_table = data.get("acceptance", {})
     acc_fields = {"min_samples", "noise_blocks", "saturation", "max_angle_span", "orientation_tolerance"}
     if set(acc_table) - acc_fields:
-        raise InputError(f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}")
+        raise InputError(
+            f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}"
+        )
     acc_values: dict[str, Any] = {k: _number(acc_table, k, spath, "acceptance", positive=True) for k in acc_table}
     for k in ("min_samples", "noise_blocks"):
         if k in acc_values:
@@ -198,7 +200,9 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         for key in ("platform", "inner", "middle"):
             deg = _number(raw, key, spath, where)
             if abs(deg) > 720.0:
-                raise InputError(f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees")
+                raise InputError(
+                    f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees"
+                )
             angles.append(math.radians(deg))
         timing = dict(base)
         for key in ("settle", "dwell", "sample_rate"):
@@ -210,7 +214,9 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         if expect:
             words = [w.strip().split() for w in str(expect).split(",")]
             if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
-                raise InputError(f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'")
+                raise InputError(
+                    f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'"
+                )
         steps.append(Step(position, tuple(angles), timing["settle"], timing["dwell"], timing["sample_rate"], str(expect)))
     positions = [s.position for s in steps]
     if sorted(positions) != list(range(1, len(steps) + 1)) or positions != sorted(positions):
