@@ -86,6 +86,26 @@ def repointed_command(nominal: tuple[float, float, float], offsets: NDArray[np.f
     return (float(nominal[0]), float(nominal[1] - offsets[1]), float(nominal[2] - offsets[2]))
 
 
+def wait_until_arrived(
+    driver: PlatformDriver, command: tuple[float, float, float], tolerance: float, timeout: float = 300.0, poll: float = 0.5
+) -> float:
+    """Let time pass (``acquire(poll)``, discarded) until the readings are within ``tolerance`` of ``command``.
+
+    Returns the time waited [s]; raises ``RuntimeError`` after ``timeout`` seconds.
+    """
+    waited = 0.0
+    target = np.asarray(command, dtype=float)
+    while np.max(np.abs(np.asarray(driver.read_angles(), dtype=float) - target)) > tolerance:
+        if waited >= timeout:
+            raise RuntimeError(
+                f"the platform did not reach the commanded readings {np.degrees(target).round(4).tolist()} deg within {timeout:g} s "
+                f"(driver status {driver.status()})"
+            )
+        driver.acquire(poll)
+        waited += poll
+    return waited
+
+
 def measure_pass(
     driver: PlatformDriver,
     procedure: ProcedureDefinition,
@@ -94,12 +114,13 @@ def measure_pass(
     stage: str = "coarse",
     pass_number: int = 1,
 ) -> list[DwellSummary]:
-    """Command every step (re-pointed by ``offsets``), settle, dwell and summarize."""
+    """Command every step (re-pointed by ``offsets``), wait for the slew, settle, dwell and summarize."""
     checks = procedure.acceptance.dwell_checks()
     dwells = []
     for step in procedure.steps:
         command = repointed_command(step.command, offsets) if procedure.repoint else step.command
         driver.command(command)
+        wait_until_arrived(driver, command, procedure.acceptance.max_angle_span)
         if step.settle > 0:
             driver.acquire(step.settle)
         block = driver.acquire(step.dwell)
