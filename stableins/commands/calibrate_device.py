@@ -25,6 +25,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--allow-missing", action="store_true", help="leave out missing positions (noted in the record) instead of stopping with an error"
     )
     parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
+    parser.add_argument(
+        "--bias-instability",
+        type=float,
+        metavar="UG",
+        help="instrument bias instability B [ug] (Allan floor 0.664 B), from a datasheet or a long static record; "
+        "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
+    )
+    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
 
 
 def _same_site(datasets) -> None:
@@ -46,7 +54,9 @@ def _same_site(datasets) -> None:
 def run(args: argparse.Namespace) -> int:
     from stableins.data.atomic import atomic_write
     from stableins.data.device import load_device
+    from stableins.data.errors import InputError
     from stableins.estimators.device import calibrate_device, summarize_dwells
+    from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
 
@@ -60,12 +70,19 @@ def run(args: argparse.Namespace) -> int:
         summaries += summarize_dwells(dataset.dwells(), procedures, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
+    slow_noise = None
+    if args.bias_instability is not None or args.random_walk:
+        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
+            if not value >= 0 or value != value or value == float("inf"):
+                raise InputError("must be a finite non-negative number", field=name)
+        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
     calibration = calibrate_device(
         summaries,
         site,
         coarse_procedure=coarse_procedure,
         fine_procedure=fine_procedure,
         allow_missing=args.allow_missing,
+        slow_noise=slow_noise,
         source=source,
     )
     record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")

@@ -62,6 +62,7 @@ from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
@@ -181,12 +182,30 @@ class CoarseProblem:
             jac[..., model.index(gid)] = jac_theta[..., i]
         return out, jac
 
+    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    slow_covariance: NDArray[np.float64] | None = None
+
+    def whitening(self) -> NDArray[np.float64] | None:
+        """``L⁻¹`` per trial and axis ``(T, 3, m, m)`` with ``L Lᵀ = diag(σ_a²) + C_slow``."""
+        if self.slow_covariance is None:
+            return None
+        sig2 = np.moveaxis(self.sigma, -1, 1) ** 2  # (T, 3, m)
+        cov = self.slow_covariance[:, None] + sig2[..., None] * np.eye(sig2.shape[-1])
+        chol = np.linalg.cholesky(cov)
+        return np.linalg.inv(chol)
+
     def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         out, jac = self.predict(x)
         t = x.shape[0]
-        r = ((self.means - out) / self.sigma).reshape(t, -1)
-        a = (jac / self.sigma[..., None]).reshape(t, -1, jac.shape[-1])
-        return r, a
+        w = self.whitening()
+        if w is None:
+            r = ((self.means - out) / self.sigma).reshape(t, -1)
+            a = (jac / self.sigma[..., None]).reshape(t, -1, jac.shape[-1])
+            return r, a
+        resid = np.moveaxis(self.means - out, -1, 1)  # (T, 3, m)
+        r = np.einsum("tamk,tak->tam", w, resid)
+        a = np.einsum("tamk,tkan->tamn", w, jac)
+        return np.moveaxis(r, 1, 2).reshape(t, -1), np.moveaxis(a, 1, 2).reshape(t, -1, jac.shape[-1])
 
 
 def solve_coarse(
@@ -296,6 +315,16 @@ def check_orientation(
     return out
 
 
+def slow_covariance(dwells: Sequence[DwellSummary], slow_noise: SlowNoise | None, source: str) -> NDArray[np.float64] | None:
+    """``C_slow (1, m, m)`` for the dwells, or None without slow noise."""
+    if slow_noise is None or slow_noise.is_zero:
+        return None
+    starts = np.array([d.start for d in dwells])
+    if not np.all(np.isfinite(starts)):
+        raise InputError("dwell start times are needed for the slow-noise covariance", path=source, field="time")
+    return dwell_mean_covariance(starts, np.array([d.duration for d in dwells]), slow_noise)[None]
+
+
 def calibrate_coarse(
     dwells: Sequence[DwellSummary],
     *,
@@ -306,6 +335,7 @@ def calibrate_coarse(
     allow_missing: bool = False,
     nonlinear: bool = False,
     orientation_tolerance: float = 0.02 * 9.80665,
+    slow_noise: SlowNoise | None = None,
     source: str = "data",
 ) -> FitResult:
     """Coarse stage: fit the 15 parameters to one pass of dwell summaries.
@@ -327,6 +357,9 @@ def calibrate_coarse(
         Also estimate ``K2_*`` (the paper ignores them in this stage).
     orientation_tolerance : float
         Largest allowed difference between a dwell mean and the ideal output [m/s²].
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk: adds the correlated covariance of the dwell
+        means (:mod:`stableins.estimators.noise_model`); white noise only when None.
 
     Returns
     -------
@@ -376,7 +409,10 @@ def calibrate_coarse(
         base_dcm=base_dcm,
         configuration=configuration,
         model=model,
+        slow_covariance=slow_covariance(usable, slow_noise, source),
     )
+    if slow_noise is not None:
+        notes.append(slow_noise.describe())
     scales = np.array([t.nominal for t in model])
     # Null space of the design at the starting point decides the gauge.
     x_start = model.vector({})[None]
@@ -405,6 +441,10 @@ def calibrate_coarse(
     for p, why in sorted(left_out.items()):
         notes.append(f"position {p} left out: {why}")
     residuals = (problem.means[0] - problem.predict(solution.x)[0][0]).reshape(-1)
+    variance = problem.sigma[0] ** 2
+    if problem.slow_covariance is not None:
+        variance = variance + np.diagonal(problem.slow_covariance[0])[:, None]
+    residual_sigma = np.sqrt(variance).reshape(-1)
     labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
     status = tuple("gauge" if k in fixed else "estimated" for k in model.ids)
     determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed)
@@ -414,6 +454,7 @@ def calibrate_coarse(
         "positions_used": [d.position for d in usable],
         "left_out": {int(k): v for k, v in sorted(left_out.items())},
         "iterations": solution.iterations,
+        "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
         "gravity": float(gravity),
         "base_attitude": [float(a) for a in base_attitude],
         "gimbal_senses": list(configuration.senses),
@@ -427,7 +468,7 @@ def calibrate_coarse(
         covariance=solution.covariance[0].copy(),
         status=status,
         residuals=residuals,
-        residual_sigma=problem.sigma[0].reshape(-1).copy(),
+        residual_sigma=residual_sigma,
         residual_labels=labels,
         rank=design.rank,
         singular_values=design.singular_values,

@@ -17,8 +17,9 @@ from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
-from stableins.estimators.dwell import DwellChecks, DwellSummary, summarize_dwell
+from stableins.estimators.dwell import DwellChecks, DwellSummary, pooled_allan_excess, summarize_dwell
 from stableins.estimators.fine import calibrate_fine
+from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
 from stableins.estimators.result import FitResult
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
 
@@ -124,6 +125,17 @@ def summarize_dwells(dwells: Sequence[object], procedures: dict[str, ProcedureDe
     return out
 
 
+def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.0) -> SlowNoise:
+    """Bias instability from the pooled Allan excess of the longest dwells (weak; see dwell.pooled_allan_excess)."""
+    longest = max((d.duration for d in dwells if d.usable), default=0.0)
+    chosen = [d for d in dwells if d.usable and d.duration >= 0.5 * longest]
+    mean, stderr, count = pooled_allan_excess(chosen)
+    if count >= 3 and np.any(mean > significance * stderr):
+        return slow_noise_from_allan_excess(mean, source=f"estimated from the pooled Allan excess of {count} dwells (weak estimate)")
+    bound = np.sqrt(np.max(np.clip(mean, 0.0, None) + significance * stderr)) / 0.664 if count >= 3 else float("inf")
+    return SlowNoise(0.0, 0.0, source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)")
+
+
 def calibrate_device(
     dwells: Sequence[DwellSummary],
     site: SiteMetadata,
@@ -131,12 +143,20 @@ def calibrate_device(
     coarse_procedure: ProcedureDefinition | None = None,
     fine_procedure: ProcedureDefinition | None = None,
     allow_missing: bool = False,
+    slow_noise: SlowNoise | None = None,
     source: str = "data",
 ) -> DeviceCalibration:
-    """Coarse stage on every coarse pass, then the fine stage if fine dwells are present."""
+    """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
+
+    ``slow_noise`` is the instrument's bias instability / random walk (datasheet or a long
+    static record).  Without it, the pooled Allan excess of the fine dwells is used when it
+    is significant (2 standard errors); otherwise the stages use white noise only and say so.
+    """
     coarse_procedure = coarse_procedure or load_procedure("device-coarse")
     fine_procedure = fine_procedure or load_procedure("device-fine")
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
+    if slow_noise is None:
+        slow_noise = estimate_slow_noise(dwells)
     coarse_dwells = [d for d in dwells if d.stage == "coarse"]
     if not coarse_dwells:
         raise InputError("no coarse-stage dwells in the data", path=source, field="stage", expected="rows with stage 'coarse'")
@@ -151,6 +171,7 @@ def calibrate_device(
                 expected_positions=coarse_procedure.positions,
                 allow_missing=allow_missing,
                 orientation_tolerance=coarse_procedure.acceptance.orientation_tolerance,
+                slow_noise=slow_noise,
                 source=f"{source} (coarse pass {p})",
             )
         )
@@ -168,6 +189,7 @@ def calibrate_device(
             gravity=site.gravity,
             expected_positions=fine_procedure.positions,
             allow_missing=allow_missing,
+            slow_noise=slow_noise,
             source=f"{source} (fine)",
         )
     return DeviceCalibration(coarse, fine, tuple(passes))

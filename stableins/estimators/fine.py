@@ -39,9 +39,11 @@ from numpy.typing import NDArray
 
 from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel
+from stableins.estimators.coarse import slow_covariance
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.result import FitResult
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
@@ -77,11 +79,33 @@ class FineProblem:
         sigma_h = np.sqrt(np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2))
         return f_p, half_norm, d_h_d_p, sigma_h
 
+    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    slow_covariance: NDArray[np.float64] | None = None
+
+    def observation_covariance(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``Cov(z) = Σ_a (d_a d_aᵀ) ∘ (diag σ_a² + C_slow)`` with ``d_a = ∂z/∂ȳ_a``, ``(T, m, m)``."""
+        *_, d_h_d_y = self._with_output_derivative(x)
+        white = np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2)
+        cov = white[..., None] * np.eye(white.shape[-1])
+        if self.slow_covariance is not None:
+            cov = cov + np.einsum("tia,tja->tij", d_h_d_y, d_h_d_y) * self.slow_covariance
+        return cov
+
+    def _with_output_derivative(self, x: NDArray[np.float64]):
+        model = self.model
+        values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
+        f_p = model.inverse(self.means, values)
+        d_fp_d_fa = np.linalg.inv(model.jacobian_specific_force(f_p, values))
+        return f_p, values, d_fp_d_fa, np.einsum("...i,...ik->...k", f_p, d_fp_d_fa)
+
     def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         _, h, d_h, sigma_h = self.evaluate(x)
         g = np.asarray(self.gravity, dtype=float)
         g = g[..., None] if g.ndim else g
-        return (0.5 * g**2 - h) / sigma_h, d_h / sigma_h[..., None]
+        if self.slow_covariance is None:
+            return (0.5 * g**2 - h) / sigma_h, d_h / sigma_h[..., None]
+        w = np.linalg.inv(np.linalg.cholesky(self.observation_covariance(x)))
+        return np.einsum("tij,tj->ti", w, 0.5 * g**2 - h), np.einsum("tij,tjn->tin", w, d_h)
 
 
 def solve_fine(problem: FineProblem, x0: NDArray[np.float64], fixed: Sequence[str] = GAUGE_PREFERENCE, max_iterations: int = 12):
@@ -108,6 +132,7 @@ def calibrate_fine(
     gravity: float,
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
+    slow_noise: SlowNoise | None = None,
     source: str = "data",
 ) -> FitResult:
     """Fine stage: 12 determined combinations from the squared-amplitude observation.
@@ -120,6 +145,9 @@ def calibrate_fine(
         Coarse estimate (start values; the installation-angle sums are carried from it).
     gravity : float
         Local gravity [m/s²]; an error ``δg`` scales all three scale factors by ``1 + δg/g``.
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk of the instrument: correlated covariance of the
+        dwell means.  Without it a 10 min stage understates its 1σ when the bias wanders.
     """
     positions = [d.position for d in dwells]
     duplicates = sorted({p for p in positions if positions.count(p) > 1})
@@ -152,7 +180,10 @@ def calibrate_fine(
         sigma=np.array([d.sem for d in usable])[None] if usable else np.zeros((1, 0, 3)),
         gravity=float(gravity),
         model=model,
+        slow_covariance=slow_covariance(usable, slow_noise, source) if usable else None,
     )
+    if slow_noise is not None:
+        notes.append(slow_noise.describe())
     if len(usable) <= 12:
         raise InputError(f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13", path=source, field="position")
     scales = np.array([t.nominal for t in model])
@@ -198,6 +229,8 @@ def calibrate_fine(
     for p, why in sorted(left_out.items()):
         notes.append(f"position {p} left out: {why}")
     f_p, h, _, sigma_h = problem.evaluate(solution.x)
+    if problem.slow_covariance is not None:
+        sigma_h = np.sqrt(np.diagonal(problem.observation_covariance(solution.x), axis1=-2, axis2=-1))
     g = float(gravity)
     residuals = ((0.5 * g**2 - h) / g)[0]  # ≈ g − |f^p| [m/s²]
     return FitResult(
@@ -220,6 +253,7 @@ def calibrate_fine(
             "positions_used": [d.position for d in usable],
             "left_out": {int(k): v for k, v in sorted(left_out.items())},
             "iterations": solution.iterations,
+            "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
             "gravity": g,
         },
     )
