@@ -24,6 +24,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--allow-missing", action="store_true", help="leave out missing positions (noted in the record) instead of stopping with an error"
     )
+    parser.add_argument(
+        "--coarse-linear",
+        action="store_true",
+        help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
+    )
     parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
     parser.add_argument(
         "--bias-instability",
@@ -83,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         fine_procedure=fine_procedure,
         allow_missing=args.allow_missing,
         slow_noise=slow_noise,
+        coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
     record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
