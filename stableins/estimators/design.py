@@ -206,3 +206,15 @@ def choose_gauge(analysis: DesignAnalysis, preference: Sequence[str] = (), scale
             coefficients[kid] = terms
             significance[kid] = {g: abs(c) * d[ids.index(g)] / d[r] for g, c in terms.items()}
     return Gauge(tuple(fixed), coefficients, significance)
+
+
+def describe_design(ids: Sequence[str], singular_values: ArrayLike, null_space: ArrayLike, tol: float = 1e-3) -> list[str]:
+    """Lines for a report: singular values (nominal-scaled, in noise σ) and each null vector's components."""
+    s = np.asarray(singular_values, dtype=float)
+    lines = ["singular values of the nominal-scaled weighted design: " + ", ".join(f"{v:.3g}" for v in s)]
+    n = np.asarray(null_space, dtype=float)
+    for k, v in enumerate(n.T if n.size else []):
+        big = np.abs(v) > tol * np.abs(v).max()
+        parts = ", ".join(f"{i} {c:+.4f}" for i, c, b in zip(ids, v, big, strict=True) if b)
+        lines.append(f"null direction {k + 1} (unit vector, SI): {parts}")
+    return lines

@@ -17,6 +17,7 @@ from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
+from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellChecks, DwellSummary, pooled_allan_excess, summarize_dwell
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
@@ -56,11 +57,13 @@ class DeviceCalibration:
         return lines
 
     def report(self) -> str:
-        parts = ["== device-level coarse stage ==", self.coarse.report()]
+        parts = ["== device-level coarse stage ==", self.coarse.report(), ""]
+        parts += describe_design(self.coarse.ids, self.coarse.singular_values, self.coarse.null_space)
         if len(self.passes) > 1:
             parts += ["", "zero-offset passes:"] + [f"  {line}" for line in self.offset_history()]
         if self.fine is not None:
-            parts += ["", "== device-level fine stage ==", self.fine.report()]
+            parts += ["", "== device-level fine stage ==", self.fine.report(), ""]
+            parts += describe_design(self.fine.ids, self.fine.singular_values, self.fine.null_space)
         return "\n".join(parts)
 
     def __str__(self) -> str:

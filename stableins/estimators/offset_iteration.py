@@ -147,6 +147,7 @@ def iterate_offsets(
     max_passes: int | None = None,
     noise_sigmas: float | None = None,
     initial_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    nonlinear: bool = True,
     progress: Callable[[PassRecord], None] | None = None,
 ) -> OffsetIterationResult:
     """Run coarse passes through ``driver`` until the re-estimated offsets are negligible.
@@ -162,6 +163,9 @@ def iterate_offsets(
         Override the procedure's ``[offset_iteration]`` table (threshold in rad).
     initial_offsets : (θ10, θ20, θ30)
         Offsets already known (e.g. from the last record) [rad].
+    nonlinear : bool
+        Estimate ``K2_*`` in each coarse pass (default); ``False`` is the paper's
+        15-parameter stage, whose offsets absorb part of the quadratic terms.
     """
     cfg = procedure.offset_iteration
     threshold = cfg.threshold if threshold is None else threshold
@@ -182,6 +186,7 @@ def iterate_offsets(
             configuration=configuration,
             expected_positions=procedure.positions,
             orientation_tolerance=procedure.acceptance.orientation_tolerance,
+            nonlinear=nonlinear,
             source=f"coarse pass {k}",
         )
         estimate = np.array([fit["theta10"][0], fit["theta20"][0], fit["theta30"][0]])
