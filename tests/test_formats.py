@@ -9,6 +9,8 @@ import warnings
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stableins.data.device import DeviceDataset, load_device, save_device
 from stableins.data.errors import InputError
@@ -525,3 +527,39 @@ def test_csv_column_order_is_free_and_extra_columns_ignored(device_csv):
     again = load_device(device_csv)
     for c in DEVICE_COLUMNS:
         np.testing.assert_array_equal(again.columns[c.name], original.columns[c.name])
+
+
+@pytest.mark.parametrize("rows", [100, 600, 601, 65536])
+def test_sampling_issue_rows_do_not_depend_on_chunking(tmp_path, rows):
+    time = np.arange(1000) / RATE
+    time[600:] += 1.0  # gap before row 601
+    time[200] += 0.1 / RATE  # jitter at rows 201 and 202
+    record = write_record(tmp_path / "r.h5", time)
+    with pytest.warns(SamplingWarning):
+        report = record.check_sampling(allow_gaps=True, rows=rows)
+    assert [g.row for g in report.gaps] == [601]
+    assert [j.row for j in report.jitter] == [201, 202]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=30))
+def test_csv_float_round_trip_is_exact(tmp_path_factory, values):
+    path = tmp_path_factory.mktemp("rt") / "s.csv"
+    n = len(values)
+    columns = make_device_columns(positions=(1,), per_dwell=n, stages=("coarse",))
+    columns["f_x"] = np.array(values)
+    save_device(path, columns, make_metadata())
+    np.testing.assert_array_equal(load_device(path).columns["f_x"], columns["f_x"])
+
+
+def test_package_exports_are_lazy():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, stableins.data as d\n"
+        "assert d.load_device.__module__ == 'stableins.data.device' and d.SystemRecordWriter.__module__ == 'stableins.data.system'\n"
+        "assert not {'numpy', 'h5py'} & set(sys.modules), sorted({'numpy', 'h5py'} & set(sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
