@@ -99,6 +99,10 @@ def fake_commands(tmp_path, monkeypatch):
         "def run(args):\n    from stableins.data.errors import InputError\n"
         "    raise InputError('bad thing', path='f.csv', row=3, field='f_x', expected='a number')\n"
     )
+    (package / "disk_full.py").write_text(
+        "def configure(parser):\n    pass\n\ndef run(args):\n    import errno, os\n"
+        "    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'out/system.h5')\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     table = {
         "calibrate": cli.Group(
@@ -110,6 +114,7 @@ def fake_commands(tmp_path, monkeypatch):
         ),
         "interrupt": cli.Command("fakecmds.interrupt", "raises KeyboardInterrupt"),
         "crash": cli.Command("fakecmds.crash_input", "raises InputError"),
+        "disk-full": cli.Command("fakecmds.disk_full", "raises OSError(ENOSPC)"),
     }
     monkeypatch.setattr(cli, "COMMANDS", table)
     return table
@@ -140,6 +145,10 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     err = capsys.readouterr().err
     assert err.strip() == "stableins: error: f.csv, row 3, field 'f_x': bad thing (expected a number)"
     assert cli.main(["interrupt"]) == 130
+    assert cli.main(["disk-full"]) == 1
+    assert (
+        capsys.readouterr().err.strip() == "stableins: interrupted\nstableins: error: [Errno 28] No space left on device: 'out/system.h5'"
+    )
 
 
 # --------------------------------------------------------------------------- bad input through the CLI
