@@ -6,7 +6,8 @@
     stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
 
-The directory receives the data (``device-<procedure>.csv`` or ``system.h5``) and
+The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
+per procedure, or ``system.h5``) and
 ``truth.json``, the simulated world (parameters, injected effects, noise, seed).  The data
 files carry only what a real site would know (site metadata), never the truth.
 """
@@ -24,6 +25,8 @@ from stableins.data.errors import InputError
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
+#: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).
+CSV_ROW_LIMIT = 100_000
 
 
 def parse_duration(text: str) -> float:
@@ -84,7 +87,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="ID=VALUE",
         help="inject an effect of the catalogue, value in SI (repeatable; see --list-effects)",
     )
-    parser.add_argument("--format", choices=("csv", "h5"), help="data format (default: csv for device, h5 for system)")
+    parser.add_argument(
+        "--format",
+        choices=("csv", "h5"),
+        help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
+    )
     parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
     parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
     parser.add_argument(
@@ -164,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
-    """One file per procedure: ``device-<name>.<format>``."""
+    """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``)."""
     from dataclasses import replace
 
     from stableins.data.device import save_device
@@ -172,7 +179,6 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     from stableins.progress import Progress
     from stableins.simulator.device import simulate_dwells
 
-    suffix = args.format or "csv"
     rate = args.rate or truth.site.sample_rate
     files = []
     names = args.procedure or list(DEFAULT_PROCEDURES)
@@ -193,8 +199,10 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
                 pass_number=1,
             )
             metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name})
-            path = save_device(out / f"device-{procedure.name}.{suffix}", columns, metadata)
-            files.append({"path": str(path), "rows": len(columns["time"]), "procedure": procedure.name, "stage": procedure.stage})
+            n = len(columns["time"])
+            suffix = args.format or ("csv" if n <= CSV_ROW_LIMIT else "h5")
+            path = save_device(out / f"{procedure.name}.{suffix}", columns, metadata)
+            files.append({"path": str(path), "rows": n, "procedure": procedure.name, "stage": procedure.stage})
             progress.update()
     return files
 
