@@ -154,16 +154,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--procedure, --dwell and --settle apply to device-level simulation only", field="--procedure")
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
-    out = prepare_directory(args.out)
     truth = build_truth(args)
+    out = prepare_directory(args.out)
     seed = truth.seed if args.seed is None else args.seed
+    truth_path = out / "truth.json"
+    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+    note(f"truth written to {truth_path}")
     if args.level == "device":
         files = simulate_device(truth, out, seed, args)
     else:
         files = [simulate_system(truth, out, seed, args)]
-    truth_path = out / "truth.json"
-    truth.write(truth_path)
-    note(f"truth written to {truth_path}")
     result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
@@ -181,10 +181,9 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
 
     rate = args.rate or truth.site.sample_rate
     files = []
-    names = args.procedure or list(DEFAULT_PROCEDURES)
-    with Progress(total=len(names), label="simulate device") as progress:
-        for k, name in enumerate(names):
-            procedure = load_procedure(name)
+    procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
+    with Progress(total=len(procedures), label="simulate device") as progress:
+        for k, procedure in enumerate(procedures):
             steps = procedure.steps
             dwell = args.dwell if args.dwell is not None else steps[0].dwell
             settle = args.settle if args.settle is not None else steps[0].settle
