@@ -220,7 +220,7 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     chunk_samples = 65536
     metadata = replace(truth.site, sample_rate=rate)  # the truth puts its damping-loop parameters in site.damping
     path = out / f"system.{suffix}"
-    total = math.ceil(duration * rate)
+    total = int(round(duration * rate))
     with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:
         with Progress(total=total, label="simulate system") as progress:
             for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
