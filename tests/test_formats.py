@@ -563,3 +563,26 @@ def test_package_exports_are_lazy():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
+
+
+def test_h5_written_by_another_tool(tmp_path):
+    """Only the header attribute and unit-tagged datasets are needed (docs/formats.md)."""
+    columns = make_device_columns()
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["header"] = json.dumps(
+            {"format": "stableins-device", "schema_version": 1, "metadata": metadata_to_document(make_metadata())}
+        )
+        for c in DEVICE_COLUMNS:
+            values = columns[c.name].astype("S") if c.dtype == "str" else columns[c.name]
+            d = f.create_dataset(f"columns/{c.name}", data=values)
+            if c.unit:
+                d.attrs["unit"] = c.unit
+    dataset = load_device(path)
+    np.testing.assert_array_equal(dataset.columns["f_y"], columns["f_y"])
+    assert len(dataset.dwells()) == 6
+    with h5py.File(path, "a") as f:
+        del f["columns/f_y"]
+        f["columns/f_y"] = columns["f_y"][:-1]
+        f["columns/f_y"].attrs["unit"] = "m/s^2"
+    expect_input_error(path, "field 'f_y'", "shape (119,)")
