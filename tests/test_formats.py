@@ -586,3 +586,37 @@ def test_h5_written_by_another_tool(tmp_path):
         f["columns/f_y"] = columns["f_y"][:-1]
         f["columns/f_y"].attrs["unit"] = "m/s^2"
     expect_input_error(path, "field 'f_y'", "shape (119,)")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_damaged_csv_gives_input_error_or_loads(tmp_path_factory, data):
+    """Any cut, deletion or overwrite of a CSV file: a clean load or an InputError, nothing else."""
+    path = tmp_path_factory.mktemp("fuzz") / "s.csv"
+    save_device(path, make_device_columns(per_dwell=5), make_metadata())
+    raw = bytearray(path.read_bytes())
+    for _ in range(data.draw(st.integers(1, 3))):
+        start = data.draw(st.integers(0, len(raw) - 1))
+        stop = data.draw(st.integers(start, min(len(raw), start + 40)))
+        action = data.draw(st.sampled_from(["cut", "delete", "overwrite"]))
+        if action == "cut":
+            raw = raw[:start]
+        elif action == "delete":
+            del raw[start:stop]
+        else:
+            raw[start:stop] = data.draw(st.binary(min_size=stop - start, max_size=stop - start))
+        if not raw:
+            break
+    path.write_bytes(bytes(raw))
+    try:
+        load_device(path)
+    except InputError as error:
+        assert str(path) in str(error)
+
+
+@pytest.mark.parametrize("fraction", [0.01, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99])
+def test_truncated_h5_at_any_length_gives_input_error(tmp_path, fraction):
+    path = save_device(tmp_path / "s.h5", make_device_columns(per_dwell=200), make_metadata())
+    raw = path.read_bytes()
+    path.write_bytes(raw[: int(len(raw) * fraction)])
+    expect_input_error(path, "truncated or corrupt")
