@@ -76,3 +76,26 @@ def test_without_loop_compensation_the_attitude_coefficients_are_biased():
     attitude = [i for i in HARMONIC if i >= 5]
     assert np.abs(good.combined.values - ref)[attitude].max() < 3e-7
     assert np.abs(naive.combined.values - ref)[attitude].max() > 2e-6
+
+
+def test_monte_carlo_sigma():
+    """The reported σ matches the scatter of the errors over several simulated days."""
+    normalized = []
+    for seed in range(5, 11):
+        truth, cols = simulated_day(seed)
+        out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
+        _, ref = reference(truth)
+        normalized.append(((out.combined.values - ref) / out.combined.sigma)[HARMONIC])
+    z = np.array(normalized)
+    assert np.abs(z).max() < 4.0
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert 0.7 < rms < 1.35, rms  # 78 normalized errors
+
+
+def test_platform_not_polar_aligned_is_refused():
+    """The simulator aligns the platform for a level base; on a tilted base z_p misses the pole by the tilt."""
+    from stableins.data.errors import InputError
+
+    truth, cols = simulated_day(12, base_attitude=(0.0, 0.01, -0.006))
+    with pytest.raises(InputError, match="polar aligned|Earth rate"):
+        run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)

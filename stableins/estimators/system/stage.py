@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration
+from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, ErrorModel, Term
@@ -46,6 +46,9 @@ from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separa
 
 FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
 SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
+LEVEL_TOLERANCE = 1e-4
 
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
 VIF_LIMIT = 30.0
@@ -96,6 +99,7 @@ class SystemOptions:
     velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
     attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
     rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
+    polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
     minimum_duration: float = 4 * 3600.0  # [s]
     noise_samples_per_chunk: int = 8192
     run_filter: bool = True
@@ -358,23 +362,37 @@ def run_system_stage(
     config = GimbalConfiguration(tuple(metadata.gimbal_senses))
     sense = -float(config.senses[0])
     theta10 = float(prior.get("theta10", 0.0))
-    yaw = float(metadata.base_attitude[0]) if metadata.base_attitude else 0.0
-    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+    base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
+    cos_yaw, sin_yaw = math.cos(base[0]), math.sin(base[0])
+    # level base: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) exactly to first order.  A tilted base mixes the azimuth
+    # error φ_D into pitch and roll (tilt × φ_D, 1e-6 rad per degree): then φ comes from the full output DCM.
+    tilted = max(abs(base[1]), abs(base[2])) > LEVEL_TOLERANCE
+    base_dcm_t = dcm_nav_to_body(*base).T
+    columns = list(FAST_COLUMNS + SLOW_COLUMNS) + (["heading"] if tilted else [])
+    # Earth-rate angle: on a level, north-pointing base S = −s1·α1 (conventions.earth_rate_angle).  Otherwise the
+    # gimbal angles no longer separate that way: S = atan2(u_y, u_x) with u = f^p/g = −C_n^p e_D from the exact
+    # kinematics C_n^p = C_b^p(α) C_n^b(base), evaluated on the decimated samples and interpolated (S is smooth).
+    general = tilted or abs(base[0]) > LEVEL_TOLERANCE
+    offsets = np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")])
+    nav_to_body = dcm_nav_to_body(*base)
+    if general:
+        columns += ["angle_inner", "angle_middle"]
     compensation = _Compensation.from_values(prior)
     block = block_length(rate)
     chunk_rows = max(block, (options.chunk_rows // block) * block)
     decimation = max(1, int(round(options.attitude_decimation_seconds * rate)))
     filter_samples = max(block, int(round(options.filter_block_seconds * rate / block)) * block)
 
-    accumulator = _BlockHarmonics(latitude, sense, theta10, block)
+    accumulator = _BlockHarmonics(latitude, 1.0, 0.0, block) if general else _BlockHarmonics(latitude, sense, theta10, block)
     attitude_blocks: AttitudeBlocks | None = None
     noise_sums = np.zeros(3)
     noise_count = 0
     filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 5)), "n": np.zeros(0)}
     checks = _StaticChecks(options, rate, path)
+    checks.latitude = latitude
     seen = 0
     first_time = None
-    for chunk in _prefetch(source.iter_chunks(list(FAST_COLUMNS + SLOW_COLUMNS), rows=chunk_rows)):
+    for chunk in _prefetch(source.iter_chunks(columns, rows=chunk_rows)):
         n = len(chunk["f_x"])
         if n == 0:
             continue
@@ -385,6 +403,15 @@ def run_system_stage(
             attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
         fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
         angle = chunk["angle_platform"]
+        phase = (-seen) % decimation
+        sel = slice(phase, None, decimation)
+        if general:
+            knots = np.unique(np.concatenate([[0], np.arange(n)[sel], [n - 1]]))
+            s_knots = _earth_angle_from_kinematics(chunk, knots, offsets, nav_to_body, config)
+            angle = np.interp(np.arange(n), knots, s_knots)  # linear: error (ω_ie·decimation/rate)²/8 < 1e-9 rad
+            s_d = angle[sel]
+        else:
+            s_d = sense * (angle[sel] + theta10)
         z = 0.5 * (compensation.squared_norm(fx, fy, fz) / gravity**2 - 1.0)
         zs, hs, counts = accumulator.add(angle, z)
         # filter bins by global sample index
@@ -402,17 +429,20 @@ def run_system_stage(
                 noise_sums[k] += float(d2 @ d2)
             noise_count += m - 2
         # decimated slow channels
-        phase = (-seen) % decimation
-        sel = slice(phase, None, decimation)
         t_d = time[sel]
-        s_d = sense * (angle[sel] + theta10)
         pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
         # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
         # rotate back to the north-pointing pair the loop model outputs
-        p0 = cos_yaw * pitch_d + sin_yaw * roll_d
-        r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
+        if tilted:  # C_n^b' = C_n^b (I + [φ×]) (conventions): φ from the antisymmetric part
+            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
+            p0 = -0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
+            r0 = -0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
+        else:
+            p0 = cos_yaw * pitch_d + sin_yaw * roll_d
+            r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
         attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
         checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
+        checks.polar(fx[sel], fy[sel], fz[sel])
         seen += n
 
     if seen == 0 or attitude_blocks is None:
@@ -575,6 +605,20 @@ def run_system_stage(
         notes=tuple(notes),
         diagnostics=diagnostics,
     )
+
+
+def _earth_angle_from_kinematics(
+    chunk: Mapping[str, NDArray[np.float64]],
+    sel: NDArray[np.int64],
+    offsets: NDArray[np.float64],
+    nav_to_body: NDArray,
+    config: GimbalConfiguration,
+) -> NDArray[np.float64]:
+    """Unwrapped Earth-rate angle ``S = atan2(u_y, u_x)``, ``u = −C_b^p(α) C_n^b e_D`` on the selected samples."""
+    alpha = [chunk[name][sel] + offsets[k] for k, name in enumerate(("angle_platform", "angle_inner", "angle_middle"))]
+    c_bp = dcm_body_to_platform(alpha[0], alpha[1], alpha[2], 0.0, config)
+    u = -(c_bp @ nav_to_body[:, 2])
+    return np.unwrap(np.arctan2(u[:, 1], u[:, 0]))
 
 
 def _prefetch(chunks: Iterator[dict[str, Any]], depth: int = 2) -> Iterator[dict[str, Any]]:
@@ -845,6 +889,8 @@ class _StaticChecks:
         self.moving_at: float | None = None
         self.rate_ratio = float("nan")
         self.duration = 0.0
+        self.polar_sums = np.zeros(2)
+        self.latitude = 0.0
 
     def time(self, t: NDArray[np.float64], seen: int) -> None:
         # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
@@ -891,6 +937,11 @@ class _StaticChecks:
         tt = t - (self.first_time or 0.0)
         self.rate_sums += [t.size, tt.sum(), (tt * tt).sum(), series.sum(), (tt * series).sum()]
 
+    def polar(self, fx: NDArray, fy: NDArray, fz: NDArray) -> None:
+        """Accumulate the direction cosine of gravity with z_p (sin L on a polar-aligned platform)."""
+        norm = np.sqrt(fx * fx + fy * fy + fz * fz)
+        self.polar_sums += [fz.size, float(np.sum(fz / norm))]
+
     def finish(self, seen: int, notes: list[str]) -> None:
         self.duration = (self.last_time or 0.0) - (self.first_time or 0.0)
         n, st, stt, ss, sts = self.rate_sums
@@ -915,6 +966,17 @@ class _StaticChecks:
                 field="pitch/roll",
                 expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base",
             )
+        if self.polar_sums[0] > 0:
+            mean_uz = self.polar_sums[1] / self.polar_sums[0]
+            polar_error = math.asin(max(-1.0, min(1.0, mean_uz))) - self.latitude
+            if abs(polar_error) > self.options.polar_tolerance:
+                raise InputError(
+                    f"the platform is not polar aligned: gravity makes {math.degrees(math.asin(max(-1.0, min(1.0, mean_uz)))):.3f}° "
+                    f"with the platform's x-y plane, the latitude is {math.degrees(self.latitude):.3f}°",
+                    path=self.path,
+                    field="f_z",
+                    expected="z_p on the Earth's spin axis (f_z/g = sin L), as the system-level method requires",
+                )
         if np.isfinite(self.rate_ratio) and abs(self.rate_ratio - 1.0) > self.options.rate_tolerance:
             raise InputError(
                 f"the platform-axis angle turns at {self.rate_ratio:.4f} x the Earth rate",
