@@ -85,7 +85,8 @@ def baseline(path: Path, rows: int) -> float:
     return time.perf_counter() - start
 
 
-def stage(path: Path, rows: int, limit_days: float | None = None) -> tuple[float, float, int]:
+def stage(path: Path, rows: int, limit_days: float | None = None, trace: bool = False) -> tuple[float, float, int]:
+    """Run the stage; time it (``trace=False``) or measure its peak traced memory (``trace=True``, slower)."""
     record = open_system_record(path)
     source = record
     if limit_days is not None:
@@ -103,12 +104,15 @@ def stage(path: Path, rows: int, limit_days: float | None = None) -> tuple[float
                     seen += len(next(iter(chunk.values())))
 
         source = First()
-    tracemalloc.start()
+    if trace:
+        tracemalloc.start()
     start = time.perf_counter()
     out = run_system_stage(source, record.metadata, {}, options=SystemOptions(chunk_rows=rows))
     elapsed = time.perf_counter() - start
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    peak = 0
+    if trace:
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
     return elapsed, peak, int(out.diagnostics["samples"])
 
 
@@ -123,10 +127,15 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         write_record(path, args.days)
         print(f"wrote {path} ({path.stat().st_size / 1e9:.2f} GB) in {time.perf_counter() - t0:.0f} s")
+    import filterpy.kalman  # noqa: F401  one-time import cost (about 1-3 s), not part of the per-sample cost
+    import scipy.linalg  # noqa: F401
+
     baseline(path, args.rows)  # warm the page cache so both passes read from memory
     t_base = min(baseline(path, args.rows) for _ in range(2))
-    t_stage, peak, n = stage(path, args.rows)
-    t_day, peak_day, n_day = stage(path, args.rows, limit_days=1.0)
+    t_stage, _, n = min(stage(path, args.rows) for _ in range(2))
+    t_day, _, n_day = stage(path, args.rows, limit_days=1.0)
+    _, peak, _ = stage(path, args.rows, trace=True)
+    _, peak_day, _ = stage(path, args.rows, limit_days=1.0, trace=True)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"record: {n:.3e} samples ({n / RATE / 86400:.2f} days at {RATE:g} Hz), chunks of {args.rows} rows")
     print(f"baseline np.sum over f_x, f_y, f_z : {t_base:7.2f} s  ({t_base / n * 1e9:5.1f} ns/sample)")
@@ -134,7 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"system stage                       : {t_stage:7.2f} s  ({t_stage / n * 1e9:5.1f} ns/sample)  ratio {ratio:.2f} (target <= 2)")
     print(f"peak traced memory: week {peak / 2**20:.1f} MiB, first day {peak_day / 2**20:.1f} MiB (target <= 256 MiB, flat)")
     print(f"process max RSS (whole benchmark, includes the writer if it ran): {rss:.0f} MiB")
-    print(f"first day alone: {t_day:.2f} s for {n_day:.3e} samples")
+    print(f"first day alone: {t_day:.2f} s for {n_day:.3e} samples ({t_day / n_day * 1e9:.1f} ns/sample)")
+    print("the stage reads 9 columns (f_x, f_y, f_z, angle_platform, time, pitch, roll, velocity_north, velocity_east) where the")
+    print("baseline reads 3; with one HDF5 dataset per column the read alone is ~3x the baseline's")
     return 0
 
 

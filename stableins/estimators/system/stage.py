@@ -168,7 +168,7 @@ class _BlockHarmonics:
             outs.append(self._blocks(angle[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b)))
         if n - nb * b:
             outs.append(self._blocks(angle[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1)))
-        self.sum_z2 += float(z @ z)
+        self.sum_z2 += float(np.einsum("i,i->", z, z))  # not BLAS: its threads stall on a loaded machine
         self.count += n
         zs = np.concatenate([o[0] for o in outs])
         hs = np.concatenate([o[1] for o in outs])
@@ -261,7 +261,7 @@ class _Compensation:
 
     def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
         """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
-        q = self.matrix.T @ self.matrix
+        q = np.einsum("ki,kj->ij", self.matrix, self.matrix)
         w0, w1, w2 = fx - self.bias[0], fy - self.bias[1], fz - self.bias[2]
         if np.any(self.quadratic):
             w0 -= self.quadratic[0] * w0 * w0
@@ -426,7 +426,7 @@ def run_system_stage(
         if m >= 3:
             for k, f in enumerate((fx, fy, fz)):
                 d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
-                noise_sums[k] += float(d2 @ d2)
+                noise_sums[k] += float(np.einsum("i,i->", d2, d2))
             noise_count += m - 2
         # decimated slow channels
         t_d = time[sel]
