@@ -130,8 +130,8 @@ def test_block_taylor_information_equals_per_sample():
     z = rng.normal(0, 5e-4, n) + 1e-4
     theta10 = 2e-5
     s = -(reading + theta10)
-    ref = harmonic_information(s, z, LAT)
-    block = _BlockHarmonics(LAT, -1.0, theta10, 256)
+    ref = harmonic_information(s, z, LAT, order=3)
+    block = _BlockHarmonics(LAT, -1.0, theta10, 256, order=3)
     for start in range(0, n, 65536):
         block.add(reading[start : start + 65536], z[start : start + 65536])
     acc = block.accumulator()

@@ -37,6 +37,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--no-couplings", action="store_true", help="loop model without Earth-rate/Coriolis couplings (for comparison only)"
     )
     parser.add_argument("--chunk-rows", type=int, default=1 << 18, metavar="N", help="samples per streamed chunk (memory ~ 100 bytes x N)")
+    parser.add_argument(
+        "--estimate-k2",
+        action="store_true",
+        help="also estimate the residual quadratic coefficients K2_x, K2_y from the third harmonic, remove their bias (not in the paper)",
+    )
     parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
 
 
@@ -67,6 +72,7 @@ def run(args: Any) -> int:
         case_rotation_period=args.case_rotation_period or None,
         compensate_loop=not args.no_loop_compensation,
         couplings=not args.no_couplings,
+        estimate_k2=args.estimate_k2,
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

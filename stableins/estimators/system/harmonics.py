@@ -57,17 +57,29 @@ STATE_MEANING = (
     "cos 2S second harmonic: −(D_x − D_y)/2",
     "sin 2S second harmonic: (Δβxz − Δβyz)/2",
 )
+#: Third-harmonic states, not in the paper: a residual quadratic coefficient ΔK (output += K u²) adds
+#: ``g ΔK_i u_i³`` to z, and ``cos³S = (3 cos S + cos 3S)/4``: x6 = g ΔK_x/4, x7 = −g ΔK_y/4 (H columns
+#: ``cos³L cos 3S``, ``cos³L sin 3S``), while x2 gains ``3 cos²L x6``, x3 gains ``−3 cos²L x7`` and x1 gains
+#: ``g ΔK_z sin³L``.
+THIRD_HARMONIC_NAMES = ("x6", "x7")
 
 #: Order of the residual parameters used by the combination matrices of this package:
 #: relative scale-factor residuals D_i = ΔSF_i/SF_i, bias residuals / g, angle residuals [rad].
 RESIDUAL_NAMES = ("D_x", "D_y", "D_z", "b_x", "b_y", "b_z", "beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
 
 
-def observation_rows(earth_angle: ArrayLike, latitude: float) -> NDArray[np.float64]:
-    """Rows of ``H`` (Wu et al. 2018 Eq. 27) for Earth-rate angles ``S``, shape ``(n, 5)``."""
+def observation_rows(earth_angle: ArrayLike, latitude: float, order: int = 2) -> NDArray[np.float64]:
+    """Rows of ``H`` (Wu et al. 2018 Eq. 27) for Earth-rate angles ``S``, shape ``(n, 5)``.
+
+    ``order=3`` appends the third-harmonic columns ``cos³L (cos 3S, sin 3S)`` (shape ``(n, 7)``).
+    """
     s = np.asarray(earth_angle, dtype=float)
     c1, s1 = np.cos(s), np.sin(s)
-    return _rows_from_trig(c1, s1, np.cos(latitude))
+    rows = _rows_from_trig(c1, s1, np.cos(latitude))
+    if order >= 3:
+        a3 = np.cos(latitude) ** 3
+        rows = np.concatenate([rows, np.stack([a3 * np.cos(3 * s), a3 * np.sin(3 * s)], axis=-1)], axis=-1)
+    return rows
 
 
 def _rows_from_trig(c1: NDArray[np.float64], s1: NDArray[np.float64], cos_lat: float) -> NDArray[np.float64]:

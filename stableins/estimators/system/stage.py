@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
-from stableins.errormodel import CORE_TERMS, ErrorModel, Term
+from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
@@ -103,6 +103,7 @@ class SystemOptions:
     minimum_duration: float = 4 * 3600.0  # [s]
     noise_samples_per_chunk: int = 8192
     run_filter: bool = True
+    estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
 
 
 @dataclass(frozen=True)
@@ -138,10 +139,12 @@ class SystemCalibration:
 
 
 # --------------------------------------------------------------------------- harmonic information
-def harmonic_information(earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float) -> hm.InformationAccumulator:
+def harmonic_information(
+    earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float, order: int = 3
+) -> hm.InformationAccumulator:
     """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
-    acc = hm.InformationAccumulator()
-    acc.add(hm.observation_rows(earth_angle, latitude), z)
+    acc = hm.InformationAccumulator(n_states=2 * order + 1)
+    acc.add(hm.observation_rows(earth_angle, latitude, order=order), z)
     return acc
 
 
@@ -153,13 +156,25 @@ class _BlockHarmonics:
     sense: float  # dS/d(reading) = −s1
     offset: float  # S = sense·(reading + theta10)
     block: int
-    trig_sums: NDArray[np.float64] = field(default_factory=lambda: np.zeros(9))  # N, C1..C4, S1..S4
-    z_sums: NDArray[np.float64] = field(default_factory=lambda: np.zeros(5))  # Z0, ZC1, ZC2, ZS1, ZS2
+    order: int = 3  # highest harmonic of S in H
+    trig_sums: NDArray[np.float64] = field(init=False)  # C_0..C_2m, S_0..S_2m
+    z_sums: NDArray[np.float64] = field(init=False)  # ZC_0..ZC_m, ZS_0..ZS_m
     sum_z2: float = 0.0
     count: int = 0
 
-    def add(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Accumulate; returns per-block ``(Σz, ΣH (nb,5), n)`` for the filter bins."""
+    def __post_init__(self) -> None:
+        self.trig_sums = np.zeros(2 * (2 * self.order + 1))
+        self.z_sums = np.zeros(2 * (self.order + 1))
+
+    @property
+    def columns(self) -> list[tuple[int, int]]:
+        """``(k, kind)`` of the H columns, kind 0 = cos, 1 = sin: 1, cos S, sin S, cos 2S, ..."""
+        return [(0, 0)] + [(k, t) for k in range(1, self.order + 1) for t in (0, 1)]
+
+    def add(
+        self, angle: NDArray[np.float64], z: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate; returns per-block ``(Σz, ΣH (nb, 2·order+1), n)`` for the filter bins."""
         n = z.size
         b = self.block
         nb = n // b
@@ -192,42 +207,61 @@ class _BlockHarmonics:
         n3 = (zd * d2).sum(1) * sd
         s_c = sd * (centre + self.offset)
         count = float(m)
-        trig = np.zeros((angle.shape[0], 9))
+        top = 2 * self.order
+        nk = top + 1
+        trig = np.zeros((angle.shape[0], 2 * nk))  # C_k, then S_k
         trig[:, 0] = count
-        zk = np.zeros((angle.shape[0], 5))
+        zk = np.zeros((angle.shape[0], 2 * (self.order + 1)))
         zk[:, 0] = n0
-        for k in range(1, 5):
+        for k in range(1, top + 1):
             ck, sk = np.cos(k * s_c), np.sin(k * s_c)
+            # Σ cos k(S_c + δ) = cos kS_c Σ cos kδ − sin kS_c Σ sin kδ, third order in δ
             even = count - 0.5 * k * k * m2
             odd = k * m1 - k**3 * m3 / 6.0
             trig[:, k] = ck * even - sk * odd
-            trig[:, 4 + k] = sk * even + ck * odd
-            if k <= 2:
+            trig[:, nk + k] = sk * even + ck * odd
+            if k <= self.order:
                 zeven = n0 - 0.5 * k * k * n2
                 zodd = k * n1 - k**3 * n3 / 6.0
                 zk[:, k] = ck * zeven - sk * zodd
-                zk[:, 2 + k] = sk * zeven + ck * zodd
+                zk[:, self.order + 1 + k] = sk * zeven + ck * zodd
         self.trig_sums += trig.sum(0)
         self.z_sums += zk.sum(0)
         a = math.cos(self.latitude)
-        h = np.stack([trig[:, 0], a * trig[:, 1], a * trig[:, 5], a * a * trig[:, 2], a * a * trig[:, 6]], axis=1)
-        zsum = zk[:, 0]
-        return zsum, h, np.full(angle.shape[0], count)
+        h = np.stack([a**k * trig[:, k + t * nk] for k, t in self.columns], axis=1)
+        return zk[:, 0], h, np.full(angle.shape[0], count)
 
     def accumulator(self) -> hm.InformationAccumulator:
-        n, c1, c2, c3, c4, s1, s2, s3, s4 = self.trig_sums
+        """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
+        nk = 2 * self.order + 1
+        c_sum = self.trig_sums[:nk]
+        s_sum = self.trig_sums[nk:]
+
+        def cos_sum(k: int) -> float:
+            return float(c_sum[abs(k)])
+
+        def sin_sum(k: int) -> float:
+            return float(np.sign(k) * s_sum[abs(k)])
+
         a = math.cos(self.latitude)
-        lam = np.empty((5, 5))
-        lam[0] = [n, a * c1, a * s1, a * a * c2, a * a * s2]
-        lam[1, 1:] = [a * a * (n + c2) / 2, a * a * s2 / 2, a**3 * (c1 + c3) / 2, a**3 * (s3 + s1) / 2]
-        lam[2, 2:] = [a * a * (n - c2) / 2, a**3 * (s3 - s1) / 2, a**3 * (c1 - c3) / 2]
-        lam[3, 3:] = [a**4 * (n + c4) / 2, a**4 * s4 / 2]
-        lam[4, 4] = a**4 * (n - c4) / 2
-        lam = np.triu(lam) + np.triu(lam, 1).T
-        z0, zc1, zc2, zs1, zs2 = self.z_sums
-        acc = hm.InformationAccumulator()
-        acc.information = lam
-        acc.projection = np.array([z0, a * zc1, a * zs1, a * a * zc2, a * a * zs2])
+        cols = self.columns
+        lam = np.empty((len(cols), len(cols)))
+        for i, (ki, ti) in enumerate(cols):
+            for j, (kj, tj) in enumerate(cols):
+                if ti == 0 and tj == 0:
+                    v = 0.5 * (cos_sum(ki - kj) + cos_sum(ki + kj))
+                elif ti == 1 and tj == 1:
+                    v = 0.5 * (cos_sum(ki - kj) - cos_sum(ki + kj))
+                elif ti == 0:  # cos ki · sin kj
+                    v = 0.5 * (sin_sum(ki + kj) - sin_sum(ki - kj))
+                else:  # sin ki · cos kj
+                    v = 0.5 * (sin_sum(ki + kj) + sin_sum(ki - kj))
+                lam[i, j] = a ** (ki + kj) * v
+        zc = self.z_sums[: self.order + 1]
+        zs = self.z_sums[self.order + 1 :]
+        acc = hm.InformationAccumulator(n_states=len(cols))
+        acc.information = 0.5 * (lam + lam.T)
+        acc.projection = np.array([a**k * (zc[k] if t == 0 else zs[k]) for k, t in cols])
         acc.sum_squares = self.sum_z2
         acc.count = self.count
         return acc
@@ -387,7 +421,7 @@ def run_system_stage(
     attitude_blocks: AttitudeBlocks | None = None
     noise_sums = np.zeros(3)
     noise_count = 0
-    filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 5)), "n": np.zeros(0)}
+    filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 7)), "n": np.zeros(0)}
     checks = _StaticChecks(options, rate, path)
     checks.latitude = latitude
     seen = 0
@@ -501,15 +535,18 @@ def run_system_stage(
         zb = filter_bins["z"][keep] / nn - noise_bias
         hb = filter_bins["h"][keep] / nn[:, None]
         m_x = hm.state_combinations(latitude)
-        p0 = m_x @ prior_res_cov @ m_x.T
-        history = hm.kalman_filter(hb, zb, r_var / nn, np.zeros(5), p0)
+        p0 = np.zeros((7, 7))
+        p0[:5, :5] = m_x @ prior_res_cov @ m_x.T
+        k2_var = _fixed_variance(prior_covariance)
+        p0[5, 5], p0[6, 6] = (gravity**2 / 16.0) * k2_var["K2_x"], (gravity**2 / 16.0) * k2_var["K2_y"]
+        history = hm.kalman_filter(hb, zb, r_var / nn, np.zeros(7), p0)
         history_time = (np.cumsum(nn)) / rate
 
     # ---------------------------------------------------------------- attitude
     blocks = attitude_blocks.means()
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
-    vertical = -along * x_hat  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
+    vertical = -along * x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
     att = fit_attitude(
         blocks,
         loop,
@@ -522,13 +559,32 @@ def run_system_stage(
     checks.attitude_residuals(att, notes)
 
     # ---------------------------------------------------------------- observability (short records)
-    combined_values = np.concatenate([x_hat, att.values])
-    combined_cov = np.zeros((15, 15))
-    combined_cov[:5, :5] = cov_x
-    jac_x = att.vertical_jacobian @ np.diag(-along)  # ∂attitude/∂x through the vertical channel
-    combined_cov[5:, 5:] = att.covariance + jac_x @ cov_x @ jac_x.T
-    combined_cov[5:, :5] = jac_x @ cov_x
-    combined_cov[:5, 5:] = combined_cov[5:, :5].T
+    # v = (x1..x7, ten attitude coefficients) with its covariance; cross terms from the vertical path
+    cov_v = np.zeros((17, 17))
+    cov_v[:7, :7] = cov_x
+    jac_x = np.zeros((10, 7))
+    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-along)  # ∂attitude/∂x through the vertical channel
+    cov_v[7:, 7:] = att.covariance + jac_x @ cov_x @ jac_x.T
+    cov_v[7:, :7] = jac_x @ cov_x
+    cov_v[:7, 7:] = cov_v[7:, :7].T
+    v = np.concatenate([x_hat, att.values])
+    # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
+    k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
+    k2_sigma = 4.0 * np.sqrt(np.diag(cov_x)[5:7]) / gravity
+    k2_significant = np.abs(k2_values) > 3.0 * k2_sigma
+    to_combined = _k2_map(latitude, options.estimate_k2)
+    if k2_significant.any() and not options.estimate_k2:
+        text = (
+            "third harmonic of Earth rate in the specific-force error: residual quadratic coefficients "
+            f"ΔK2_x = {k2_values[0] / MICRO_G_PER_G2:.1f} ± {k2_sigma[0] / MICRO_G_PER_G2:.1f} µg/g², "
+            f"ΔK2_y = {k2_values[1] / MICRO_G_PER_G2:.1f} ± {k2_sigma[1] / MICRO_G_PER_G2:.1f} µg/g²; they bias x2, x3 and the "
+            f"fundamentals of pitch and roll by up to {3 * cos_l**2 * np.abs(x_hat[5:7]).max():.2e} rad (the paper's model has no K2); "
+            "rerun with the K2 estimation on (--estimate-k2) to remove them"
+        )
+        notes.append(text)
+        warnings.warn(f"{path}: {text}", UserWarning, stacklevel=2)
+    combined_values = to_combined @ v
+    combined_cov = to_combined @ cov_v @ to_combined.T
     transform, observable, kept = _observable_directions(combined_cov)
     if duration < 0.98 * SIDEREAL_DAY or not observable.all():
         hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
@@ -562,6 +618,9 @@ def run_system_stage(
         combined_cov,
         notes,
         _fixed_variance(prior_covariance),
+        k2_estimate=(k2_values, cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity]))
+        if options.estimate_k2
+        else None,
     )
 
     status = tuple("estimated" if ok else "unidentifiable" for ok in observable)
@@ -585,6 +644,9 @@ def run_system_stage(
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
         "noise_bias_x1": noise_bias,
+        "k2_residual": k2_values,
+        "k2_residual_sigma": k2_sigma,
+        "third_harmonic": x_hat[5:7],
         "attitude_noise_sigma": (sigma_pitch, sigma_roll),
         "attitude_residual_rms": att.residual_rms,
         "attitude_noise_ratio": att.residual_noise_ratio,
@@ -683,6 +745,29 @@ def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, fl
     return float(lat), float(g), float(rate)
 
 
+def _k2_map(latitude: float, estimate_k2: bool) -> NDArray[np.float64]:
+    """Matrix ``(15, 17)`` from ``(x1..x7, attitude)`` to the combined coefficients.
+
+    With ``estimate_k2`` the residual-K2 parts are removed: ``δ_i += gΔK_i u_i²`` gives
+    ``x2 += 3cos²L x6``, ``x3 −= 3cos²L x7``, ``θ1c −= 3 sinL cos²L x6``, ``θ1s += 3 sinL cos²L x7``,
+    ``φ1s += cos²L x6``, ``φ1c += cos²L x7`` (docs/system-calibration.md §8).
+    """
+    m = np.zeros((15, 17))
+    m[:5, :5] = np.eye(5)
+    m[5:, 7:] = np.eye(10)
+    if estimate_k2:
+        s, c2 = math.sin(latitude), math.cos(latitude) ** 2
+        x6, x7 = 5, 6
+        row = {n: i for i, n in enumerate(COMBINED_COEFFICIENTS)}
+        m[row["x2"], x6] = -3.0 * c2
+        m[row["x3"], x7] = 3.0 * c2
+        m[row["theta_1c"], x6] = 3.0 * s * c2
+        m[row["theta_1s"], x7] = -3.0 * s * c2
+        m[row["phi_1s"], x6] = -c2
+        m[row["phi_1c"], x7] = -c2
+    return m
+
+
 def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> dict[str, float]:
     """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
     out = {}
@@ -699,7 +784,7 @@ def _grow_bins(bins: dict[str, NDArray[np.float64]], size: int) -> None:
     new = max(size, 2 * bins["n"].size)
     for key in ("z", "n"):
         bins[key] = np.concatenate([bins[key], np.zeros(new - bins[key].size)])
-    bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], 5))])
+    bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], bins["h"].shape[1]))])
 
 
 def _observable_directions(covariance: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], int]:
@@ -766,6 +851,7 @@ def _fit_result(
     combined_cov: NDArray[np.float64],
     notes: list[str],
     fixed_variance: Mapping[str, float],
+    k2_estimate: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
     from stableins.estimators.system.separation import combination_matrix
 
@@ -782,9 +868,15 @@ def _fit_result(
     terms = tuple(t for t in CORE_TERMS)
     values = []
     corrections = {}
+    k2_index = {"K2_x": 0, "K2_y": 1}
     for t in terms:
         if t.kind == "nonlinearity":
-            values.append(float(prior.get(t.id, 0.0)))
+            base = float(prior.get(t.id, 0.0))
+            if k2_estimate is not None and t.id in k2_index:
+                corrections[t.id] = float(k2_estimate[0][k2_index[t.id]])
+                values.append(base + corrections[t.id])
+            else:
+                values.append(base)
             continue
         r = next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)
         k = hm.RESIDUAL_NAMES.index(r)
@@ -809,9 +901,13 @@ def _fit_result(
     status = []
     for t, ia in zip(terms, res_index, strict=True):
         if ia < 0:
-            status.append("fixed")
             k = model_ids.index(t.id)
-            cov[k, k] = fixed_variance.get(t.id, t.nominal**2)
+            if k2_estimate is not None and t.id in k2_index:
+                status.append("estimated")
+                cov[k, k] = float(k2_estimate[1][k2_index[t.id], k2_index[t.id]])
+            else:
+                status.append("fixed")
+                cov[k, k] = fixed_variance.get(t.id, t.nominal**2)
         else:
             status.append("estimated" if sep.determined[ia] else "gauge")
     determined = tuple(
@@ -830,7 +926,13 @@ def _fit_result(
         "b_x and beta_xy act only through b_x/g - beta_xy*sinL, b_y and beta_yx only through b_y/g + beta_yx*sinL "
         "(paper Eq. 41 is singular); (beta_xz+beta_yz)/2 is indistinguishable from the platform-axis zero offset; the scale factors "
         "and b_z enter only through x1",
-        "K2 terms are not observed by this stage and keep their prior values and variances (nominal magnitude when the prior has none)",
+        (
+            "K2_x, K2_y corrected from the third harmonic of Earth rate in z (not in the paper's model); their covariance with "
+            "the other terms is not carried (set to zero); K2_z is not observed and keeps its prior"
+            if k2_estimate is not None
+            else "K2 terms are not corrected by this stage and keep their prior values and variances (nominal magnitude when the prior "
+            "has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, --estimate-k2)"
+        ),
     ]
     result = FitResult(
         stage="system",
