@@ -26,12 +26,14 @@ WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)
 
 def _session(truth, seed, fine_rate=10.0, fine_dwell=600.0):
     coarse = simulate_dwells(truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, seed=seed, stage="coarse")
-    fine = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=fine_dwell, settle=5.0, rate=fine_rate, seed=seed + 1, stage="fine")
+    commands = [s.command for s in FINE.steps]
+    fine = simulate_dwells(truth, commands, dwell=fine_dwell, settle=5.0, rate=fine_rate, seed=seed + 1, stage="fine")
     return coarse, fine
 
 
 def _dwells(coarse, fine):
-    return dwells_from_columns(coarse, checks=COARSE.acceptance.dwell_checks()) + dwells_from_columns(fine, checks=FINE.acceptance.dwell_checks())
+    coarse_dwells = dwells_from_columns(coarse, checks=COARSE.acceptance.dwell_checks())
+    return coarse_dwells + dwells_from_columns(fine, checks=FINE.acceptance.dwell_checks())
 
 
 def test_offset_iteration_converges_from_60_arcsec_through_the_simulated_platform():
