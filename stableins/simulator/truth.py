@@ -48,23 +48,24 @@ DEFAULT_RESIDUAL = {
 def damping_parameters(zeta: float, vertical_time_constant: float, gravity: float) -> dict[str, float]:
     r"""Full damping description stored in ``SiteMetadata.damping``.
 
-    Horizontal: ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``.  Vertical third-order loop with a
-    triple pole at ``-1/τ``: ``k1 = 3/τ``, ``k2 = 3/τ² + 2 ω_s²``, ``k3 = 1/τ³``, so that
-    the height error obeys ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = s u`` (see
-    :mod:`stableins.simulator.system`).
+    Horizontal: ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``.  Vertical third-order loop: the
+    height error obeys ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = s u`` (see
+    :mod:`stableins.simulator.system`); the gains put its poles at ``-a`` and
+    ``-a/2 ± i a √3/2`` with ``a = 1/τ`` (third-order Butterworth,
+    ``(s + a)(s² + a s + a²)``): ``k1 = 2a``, ``k2 = 2a² + 2ω_s²``, ``k3 = a³``.
     """
     omega_s = math.sqrt(gravity / EARTH_RADIUS)
-    tau = vertical_time_constant
+    a = 1.0 / vertical_time_constant
     return {
         "zeta": float(zeta),
         "omega_s": omega_s,
         "R": EARTH_RADIUS,
         "gravity": float(gravity),
         "horizontal_gain": 2.0 * zeta * omega_s,
-        "vertical_time_constant": float(tau),
-        "k1": 3.0 / tau,
-        "k2": 3.0 / tau**2 + 2.0 * omega_s**2,
-        "k3": 1.0 / tau**3,
+        "vertical_time_constant": float(vertical_time_constant),
+        "k1": 2.0 * a,
+        "k2": 2.0 * a**2 + 2.0 * omega_s**2,
+        "k3": a**3,
     }
 
 

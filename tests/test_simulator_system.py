@@ -1,0 +1,187 @@
+"""System-level world: Earth-rate kinematics, INS error dynamics, damping, reproducibility."""
+
+import ast
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from stableins import conventions as cv
+from stableins.data.schema import SYSTEM_COLUMNS
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.system import ModalRecursion, SystemWorld, error_dynamics, simulate_system
+from stableins.simulator.truth import Truth
+
+DEG_H = np.pi / 180 / 3600
+
+
+def ideal(seed=3, senses=(1, 1, 1, 1), **changes):
+    """Noise-free truth whose installed calibration equals the truth."""
+    t = Truth.draw(seed, noise=NoiseSettings.quiet(), gimbal_senses=senses)
+    return t.with_changes(installed_calibration=dict(t.parameters), **changes)
+
+
+def with_residual(truth, **residual):
+    installed = dict(truth.parameters)
+    for key, value in residual.items():
+        installed[key] = truth.parameters[key] - value
+    return truth.with_changes(installed_calibration=installed)
+
+
+def harmonic(t, y):
+    """Mean and 24 h cosine/sine coefficients by least squares."""
+    w = cv.EARTH_RATE
+    x = np.column_stack([np.ones_like(t), np.cos(w * t), np.sin(w * t)])
+    return np.linalg.lstsq(x, y, rcond=None)[0]
+
+
+@pytest.mark.parametrize("senses", [(1, 1, 1, 1), (-1, 1, -1, 1)])
+def test_platform_reading_follows_earth_rate_and_specific_force_is_eq19(senses):
+    base = ideal(senses=senses)
+    offsets = {k: v for k, v in base.parameters.items() if k.startswith("theta")}
+    truth = base.with_changes(parameters=offsets, installed_calibration=offsets)  # ideal accelerometers
+    d = simulate_system(truth, 6 * 3600, rate=0.05, earth_angle=0.3)
+    slope = np.polyfit(d["time"], d["angle_platform"], 1)[0]
+    assert slope == pytest.approx(-senses[0] * cv.EARTH_RATE, rel=1e-9)
+    earth_angle = cv.earth_rate_angle(d["angle_platform"] + offsets["theta10"], cv.GimbalConfiguration(senses))
+    np.testing.assert_allclose(earth_angle, 0.3 + cv.EARTH_RATE * d["time"], atol=1e-12)
+    g, lat = truth.site.gravity, truth.site.latitude
+    expected = g * np.column_stack(
+        [np.cos(earth_angle) * np.cos(lat), np.sin(earth_angle) * np.cos(lat), np.full_like(earth_angle, np.sin(lat))]
+    )
+    np.testing.assert_allclose(np.column_stack([d["f_x"], d["f_y"], d["f_z"]]), expected, atol=1e-13)
+    # inner and middle gimbals hold the polar alignment
+    np.testing.assert_allclose(d["angle_inner"] + offsets["theta20"], 0.0, atol=1e-14)
+    np.testing.assert_allclose(d["angle_middle"] + offsets["theta30"], senses[2] * (np.pi / 2 + lat), atol=1e-14)
+
+
+def test_perfectly_calibrated_ins_shows_no_errors():
+    truth = ideal()
+    d = simulate_system(truth, 86400, rate=0.02)
+    assert list(d) == [c.name for c in SYSTEM_COLUMNS]
+    for name in ("velocity_north", "velocity_east", "velocity_down", "roll", "pitch", "heading"):
+        assert np.abs(d[name]).max() < 1e-12, name
+    assert {"zeta", "omega_s", "R", "k1", "k2", "k3"} <= set(truth.site.damping)
+
+
+def test_constant_bias_residual_gives_pitch_plus_df_north_over_g():
+    b = 1e-4  # true minus installed z bias [m/s^2]; on the polar axis it is constant in NED
+    truth = with_residual(ideal(), bias_z=b)
+    d = simulate_system(truth, 2 * 86400, rate=0.02, include_truth=True)
+    g, lat = truth.site.gravity, truth.site.latitude
+    late = d["time"] > 86400
+    df_north = d["truth_df_north"][late]
+    np.testing.assert_allclose(df_north, b * np.cos(lat), rtol=1e-3)  # SF, K2, beta of the instrument: ~1e-4
+    np.testing.assert_allclose(d["pitch"][late], df_north / g, rtol=2e-3)  # pitch error = +Δf_N/g
+    assert np.abs(d["roll"][late]).max() < 1e-3 * b / g
+    # vertical damping: Δf_D is absorbed, the vertical velocity error dies out
+    vd = d["velocity_down"]
+    assert np.abs(vd).max() > 1e-3 and np.abs(vd[late]).max() < 1e-5 * np.abs(vd).max()
+
+
+def test_24h_harmonic_lags_by_the_damped_schuler_loop():
+    truth = with_residual(ideal(), bias_x=1e-4)
+    d = simulate_system(truth, 3 * 86400, rate=0.05, include_truth=True)
+    g = truth.site.gravity
+    late = d["time"] > 86400
+    t = d["time"][late]
+    damping = truth.site.damping
+    r = cv.EARTH_RATE / damping["omega_s"]
+    lag = np.arctan2(2 * damping["zeta"] * r, 1 - r**2)
+    gain = 1 / np.hypot(1 - r**2, 2 * damping["zeta"] * r)
+    assert np.degrees(lag) == pytest.approx(3.38, abs=0.05)
+    for attitude, force in (("pitch", d["truth_df_north"] / g), ("roll", -d["truth_df_east"] / g)):
+        _, fc, fs = harmonic(t, force[late])
+        _, ac, as_ = harmonic(t, d[attitude][late])
+        measured_lag = np.angle((fc - 1j * fs) / (ac - 1j * as_))
+        assert measured_lag == pytest.approx(lag, abs=np.radians(0.1)), attitude
+        assert np.hypot(ac, as_) / np.hypot(fc, fs) == pytest.approx(gain, rel=1e-2), attitude
+
+
+def test_equatorial_gyro_drift_makes_heading_error_grow():
+    eps = 0.001 * DEG_H
+    truth = ideal().with_changes(gyro_drift={"x": eps})
+    d = simulate_system(truth, 3 * 86400, rate=0.01, include_truth=True)
+    t, heading = d["time"], d["heading"]
+    day = [np.abs(heading[(t >= k * 86400) & (t < (k + 1) * 86400)]).max() for k in range(3)]
+    assert day[0] < day[1] < day[2]  # resonance of the 24 h mode: grows like t sin(Ω t)
+    assert day[2] > 2 * day[0]
+    # heading output of a level north base is -phi_D (conventions.attitude_error_from_misalignment)
+    phi = np.column_stack([d["truth_phi_north"], d["truth_phi_east"], d["truth_phi_down"]])
+    expected = cv.attitude_error_from_misalignment(phi)
+    np.testing.assert_allclose(np.column_stack([heading, d["pitch"], d["roll"]]), expected, atol=1e-12 + 1e-6 * np.abs(expected).max())
+    twice = simulate_system(ideal().with_changes(gyro_drift={"x": 2 * eps}), 3 * 86400, rate=0.01)
+    np.testing.assert_allclose(twice["heading"], 2 * heading, atol=1e-3 * np.abs(heading).max())
+
+
+def test_gimbal_offset_residual_is_a_constant_attitude_error():
+    d_theta = 5e-6
+    truth = with_residual(ideal(), theta20=d_theta)
+    d = simulate_system(truth, 86400, rate=0.01)
+    # computer thinks the inner angle is smaller than it is: a constant rotation, not growing
+    errors = np.column_stack([d["roll"], d["pitch"], d["heading"]])
+    assert np.ptp(errors, axis=0).max() < 1e-3 * d_theta
+    assert np.linalg.norm(errors[0]) == pytest.approx(d_theta, rel=1e-3)
+
+
+def test_modal_recursion_matches_direct_zoh_recursion():
+    truth = ideal()
+    A, B = error_dynamics(truth.site.latitude, truth.site.damping)
+    dt = 0.5
+    m = expm(np.block([[A, B], [np.zeros((6, 15))]]) * dt)
+    phi, gamma = m[:9, :9], m[:9, 9:]
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal((3000, 6)) * [1e-4, 1e-4, 1e-4, 1e-8, 1e-8, 1e-8]
+    x0 = rng.standard_normal(9) * 1e-6
+    rec = ModalRecursion.discretize(A, B, dt)
+    x_modal, _ = rec.run(u, rec.to_modes @ x0)
+    x, direct = x0.copy(), []
+    for k in range(len(u)):
+        direct.append(x)
+        x = phi @ x + gamma @ u[k]
+    direct = np.array(direct)
+    assert np.all(np.abs(x_modal - direct) <= 1e-9 * np.abs(direct).max(axis=0))
+
+
+def test_record_does_not_depend_on_chunk_size():
+    truth = Truth.draw(5, gyro_drift={"x": 1e-9, "case_amplitude": 1e-8}, effects={"Dg_x": 1e-9, "Kt_bias_x": 1e-5, "nonorth_12": 2e-5})
+    a = simulate_system(truth, 200, rate=100, chunk_samples=1 << 16)
+    b = simulate_system(truth, 200, rate=100, chunk_samples=7777)
+    for name in a:
+        assert np.array_equal(a[name], b[name]), name
+    c = simulate_system(truth, 200, rate=100, seed=99)
+    assert not np.array_equal(a["f_x"], c["f_x"])
+
+
+def test_world_reports_the_damping_it_uses():
+    truth = Truth.draw(1, damping={"zeta": 0.7})
+    world = SystemWorld(truth)
+    d = truth.site.damping
+    assert d["zeta"] == 0.7 and world.damping["horizontal_gain"] == pytest.approx(2 * 0.7 * np.sqrt(truth.site.gravity / cv.EARTH_RADIUS))
+    # vertical loop poles: -a and -a/2 ± i a√3/2
+    poles = np.sort_complex(np.roots([1, d["k1"], d["k2"] - 2 * d["omega_s"] ** 2, d["k3"]]))
+    a = 1 / d["vertical_time_constant"]
+    np.testing.assert_allclose(
+        np.sort_complex(np.array([-a, -a / 2 + 1j * a * np.sqrt(3) / 2, -a / 2 - 1j * a * np.sqrt(3) / 2])), poles, atol=1e-12
+    )
+
+
+def test_simulator_never_imports_estimators_or_discovery():
+    root = pathlib.Path(__file__).resolve().parents[1] / "stableins"
+    files = list((root / "simulator").glob("*.py")) + [root / "platform.py"]
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            for name in names:
+                assert not name.startswith(("stableins.estimators", "stableins.discovery")), f"{path.name} imports {name}"
+    code = (
+        "import sys, stableins.simulator.system, stableins.simulator.device, stableins.simulator.effects;"
+        "print(any(m.startswith(('stableins.estimators', 'stableins.discovery')) for m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root.parent, check=True)
+    assert out.stdout.strip() == "False"
