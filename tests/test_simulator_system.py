@@ -157,7 +157,7 @@ def test_record_does_not_depend_on_chunk_size():
 
 
 def test_world_reports_the_damping_it_uses():
-    truth = Truth.draw(1, damping={"zeta": 0.7})
+    truth = Truth.draw(1).with_changes(damping={"zeta": 0.7})
     world = SystemWorld(truth)
     d = truth.site.damping
     assert d["zeta"] == 0.7 and world.damping["horizontal_gain"] == pytest.approx(2 * 0.7 * np.sqrt(truth.site.gravity / cv.EARTH_RADIUS))

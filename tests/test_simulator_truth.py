@@ -78,3 +78,11 @@ def test_catalogue_has_units_nominals_and_meanings():
     for eid, unit, nominal, meaning in catalogue_table():
         assert unit and nominal > 0 and len(meaning) > 10, eid
     assert not set(PARAMETER_IDS) & ids
+
+
+def test_docs_list_every_effect():
+    import pathlib
+
+    text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "simulator.md").read_text()
+    missing = [e for e in CATALOGUE if f"`{e}`" not in text]
+    assert not missing, f"docs/simulator.md does not list {missing}"

@@ -144,8 +144,10 @@ class Truth:
                 field="gyro_drift",
                 expected="x, y, z, case_amplitude, case_period, case_phase",
             )
-        if not self.site.damping:
-            object.__setattr__(self, "site", replace(self.site, damping=self.damping_parameters()))
+        # the site carries the damping the world uses (derived from ``damping`` and the site's gravity)
+        derived = self.damping_parameters()
+        if self.site.damping != derived:
+            object.__setattr__(self, "site", replace(self.site, damping=derived))
 
     # ----------------------------------------------------------------- derived
     def damping_parameters(self) -> dict[str, float]:
