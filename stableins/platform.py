@@ -22,9 +22,10 @@ Gimbal chain with non-orthogonal axes
     With ``nu = 0`` this is :func:`stableins.conventions.dcm_body_to_platform`.
 
 Base
-    ``C_n^b = dcm_nav_to_body(yaw, pitch, roll) @ R2(t_E) @ R1(t_N)``: the true base
-    is the surveyed one turned right-handedly by ``t_N`` (``tilt_north``) about North,
-    then by ``t_E`` (``tilt_east``) about East (frame rotations, as in conventions).
+    ``C_n^b = dcm_nav_to_body(yaw, pitch, roll) @ R2(t_E) @ R1(t_N) @ R3(ψ_e)``: the
+    true base is the surveyed one turned right-handedly by ``ψ_e`` (``azimuth_error``)
+    about Down, by ``t_N`` (``tilt_north``) about North, then by ``t_E``
+    (``tilt_east``) about East (frame rotations, as in conventions).
 
 Everything is vectorized over leading dimensions of the readings.
 """
@@ -71,6 +72,8 @@ class GimbalPlatform:
     base_tilt : tuple of float
         ``(tilt_north, tilt_east)`` [rad]: unknown small rotation of the true base
         about North then East relative to the surveyed attitude.
+    base_azimuth : float
+        Unknown azimuth error of the base about Down [rad].
     nonorthogonality : tuple of float
         ``(nu12, nu23)`` [rad], see the module docstring.
     angle_sensor_errors : mapping
@@ -83,6 +86,7 @@ class GimbalPlatform:
     configuration: GimbalConfiguration = DEFAULT_GIMBALS
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
     base_tilt: tuple[float, float] = (0.0, 0.0)
+    base_azimuth: float = 0.0
     nonorthogonality: tuple[float, float] = (0.0, 0.0)
     angle_sensor_errors: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     outer_angle: float = 0.0
@@ -137,12 +141,12 @@ class GimbalPlatform:
         return self.dcm_body_to_platform_actual(self.actual_angles(readings))
 
     def dcm_nav_to_body(self) -> NDArray[np.float64]:
-        """True ``C_n^b`` of the base: surveyed attitude, then the tilt (module docstring)."""
+        """True ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
         yaw, pitch, roll = self.base_attitude
         c = dcm_nav_to_body(yaw, pitch, roll)
         t_north, t_east = self.base_tilt
-        if t_north or t_east:
-            c = c @ R2(t_east) @ R1(t_north)
+        if t_north or t_east or self.base_azimuth:
+            c = c @ R2(t_east) @ R1(t_north) @ R3(self.base_azimuth)
         return c
 
     def dcm_nav_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:

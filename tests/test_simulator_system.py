@@ -185,3 +185,15 @@ def test_simulator_never_imports_estimators_or_discovery():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root.parent, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_perfect_ins_reports_the_true_base_attitude_with_tilt_and_azimuth_error():
+    effects = {"azimuth_error": 1e-4, "tilt_north": 2e-5, "tilt_east": -3e-5}
+    truth = ideal().with_changes(effects=effects)
+    d = simulate_system(truth, 6 * 3600, rate=0.01)
+    true_yaw, true_pitch, true_roll = cv.euler_from_dcm(truth.platform().dcm_nav_to_body())
+    np.testing.assert_allclose(d["heading"], true_yaw, atol=1e-12)
+    np.testing.assert_allclose(d["pitch"], true_pitch, atol=1e-12)
+    np.testing.assert_allclose(d["roll"], true_roll, atol=1e-12)
+    # the platform, aligned for a level north base, is off the pole: f_z now varies over the day
+    assert np.ptp(d["f_z"]) > 1e-5 * truth.site.gravity

@@ -168,6 +168,7 @@ class Truth:
             configuration=self.configuration,
             base_attitude=tuple(self.site.base_attitude),
             base_tilt=(e.get("tilt_north", 0.0), e.get("tilt_east", 0.0)),
+            base_azimuth=e.get("azimuth_error", 0.0),
             nonorthogonality=(e.get("nonorth_12", 0.0), e.get("nonorth_23", 0.0)),
             angle_sensor_errors={k: v for k, v in e.items() if k.startswith("ang1_")},
         )
