@@ -176,7 +176,7 @@ class GimbalPlatform:
 
     # ------------------------------------------------------------------ inverse kinematics
     def actual_from_dcm(
-        self, dcm_body_to_platform_: ArrayLike, initial: ArrayLike | None = None, iterations: int = 3
+        self, dcm_body_to_platform_: ArrayLike, initial: ArrayLike | None = None, iterations: int = 2
     ) -> NDArray[np.float64]:
         """Actual gimbal angles that produce a given ``C_b^p`` (outer angle held).
 
@@ -198,15 +198,11 @@ class GimbalPlatform:
                 return alpha
         else:
             alpha = np.array(np.broadcast_to(np.asarray(initial, dtype=float), target.shape[:-2] + (3,)))
-        step = 1e-6
+        eye = np.eye(3)
         for _ in range(iterations):
             residual = _rotation_vector(target @ self.dcm_body_to_platform_actual(alpha).swapaxes(-1, -2))
-            jac = np.empty(alpha.shape + (3,))
-            base = self.dcm_body_to_platform_actual(alpha)
-            for k in range(3):
-                shifted = alpha.copy()
-                shifted[..., k] += step
-                jac[..., :, k] = _rotation_vector(self.dcm_body_to_platform_actual(shifted) @ base.swapaxes(-1, -2)) / step
+            # d(C_b^p) = -[(J dalpha) x] C_b^p with the columns of J the angular rates for unit gimbal rates
+            jac = np.stack([self.angular_rate(alpha, np.broadcast_to(eye[k], alpha.shape)) for k in range(3)], axis=-1)
             alpha = alpha + np.linalg.solve(jac, residual[..., None])[..., 0]
         return alpha
 

@@ -1,7 +1,9 @@
 r"""Device level: a simulated gimbaled platform that slews, settles and records.
 
 :class:`SimulatedPlatform` implements :class:`stableins.drivers.base.PlatformDriver`.
-Every sample is computed from first principles:
+The gimbal servos hold the angle-sensor readings at the command (the platform is
+slaved to the base during device-level calibration), so the Earth's rotation does not
+move it within a dwell.  Every sample is computed from first principles:
 
 1. Gimbal readings follow the command: a cosine-profile slew from the readings at
    the command to the commanded readings (peak rate ``settling['slew_rate']``),

@@ -299,11 +299,8 @@ class SystemWorld:
         s1 = self.configuration.senses[0]
         guess = self.initial_actual + np.outer(time, [-s1 * EARTH_RATE, 0.0, 0.0])
         body_to_platform = nav_to_platform @ self.nav_to_body.T
-        if self.platform.nonorthogonality == (0.0, 0.0):
-            actual = self.platform.actual_from_dcm(body_to_platform)
-            actual += 2 * np.pi * np.round((guess - actual) / (2 * np.pi))
-        else:
-            actual = self.platform.actual_from_dcm(body_to_platform, initial=guess)
+        actual = self.platform.actual_from_dcm(body_to_platform)  # closed form (+ Newton for non-orthogonal axes)
+        actual += 2 * np.pi * np.round((guess - actual) / (2 * np.pi))  # continuous, not wrapped
         return self.platform.readings_from_actual(actual)
 
     # --------------------------------------------------------------- generation
