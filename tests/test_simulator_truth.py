@@ -47,6 +47,8 @@ def test_round_trip_through_a_file(tmp_path):
         (lambda d: d["effects"].update(K9_x=1.0), "effects"),
         (lambda d: d.update(schema_version=99), "schema_version"),
         (lambda d: d["site"].update(gimbal_senses=[1, 2, 1, 1]), "site"),
+        (lambda d: d.update(paramters={}), "paramters"),
+        (lambda d: d["gyro_drift"].update(w=1.0), "gyro_drift"),
     ],
 )
 def test_bad_truth_files_name_file_and_field(tmp_path, mutate, field):

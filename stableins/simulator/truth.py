@@ -270,6 +270,24 @@ class Truth:
         for key in ("parameters", "site"):
             if key not in d:
                 raise InputError("missing field", path=source, field=key)
+        known = {
+            "schema_version",
+            "kind",
+            "parameters",
+            "effects",
+            "site",
+            "noise",
+            "seed",
+            "installed_calibration",
+            "gyro_drift",
+            "damping",
+            "settling",
+        }
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise InputError(
+                f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
+            )
         parameters = _float_dict(d["parameters"], "parameters", source)
         _check_parameter_ids(parameters, "parameters", source)
         installed = _float_dict(d.get("installed_calibration", {}), "installed_calibration", source)
