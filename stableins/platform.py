@@ -165,14 +165,21 @@ class GimbalPlatform:
                             + R_1(s_2\alpha_2)R_3(\nu_{23})\,s_3\dot\alpha_3 e_2\big]
         """
         alpha = np.asarray(actual, dtype=float)
-        rate = np.asarray(actual_rate, dtype=float)
+        rate = np.broadcast_to(np.asarray(actual_rate, dtype=float), alpha.shape)
         s1, s2, s3, _ = self.configuration.senses
         nu12, nu23 = self.nonorthogonality
-        e1, e2 = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
-        inner = s2 * rate[..., 1, None] * e1 + np.einsum("...ij,j->...i", R1(s2 * alpha[..., 1]) @ R3(nu23), e2) * (s3 * rate[..., 2, None])
-        outer = np.einsum("...ij,...j->...i", R3(s1 * alpha[..., 0]) @ R2(nu12), inner)
-        outer[..., 2] += s1 * rate[..., 0]
-        return outer
+        a, b = s1 * alpha[..., 0], s2 * alpha[..., 1]
+        r1, r2, r3 = s1 * rate[..., 0], s2 * rate[..., 1], s3 * rate[..., 2]
+        cb, sb = np.cos(b), np.sin(b)
+        # inner = s2 a2' e1 + R1(b) R3(nu23) e2 s3 a3',  R3(nu) e2 = (sin nu, cos nu, 0)
+        v0 = r2 + r3 * np.sin(nu23)
+        v1 = r3 * cb * np.cos(nu23)
+        v2 = -r3 * sb * np.cos(nu23)
+        # R2(nu12) v = (c v0 - s v2, v1, s v0 + c v2); then R3(a) w = (ca w0 + sa w1, -sa w0 + ca w1, w2)
+        c12, s12 = np.cos(nu12), np.sin(nu12)
+        w0, w2 = c12 * v0 - s12 * v2, s12 * v0 + c12 * v2
+        ca, sa = np.cos(a), np.sin(a)
+        return np.stack([ca * w0 + sa * v1, -sa * w0 + ca * v1, w2 + r1], axis=-1)
 
     # ------------------------------------------------------------------ inverse kinematics
     def actual_from_dcm(
