@@ -228,3 +228,15 @@ def test_white_noise_drives_the_damped_velocity_error_as_theory_says():
     expected = vrw**2 / (2 * truth.site.damping["horizontal_gain"])
     variances = np.array(variances)
     assert abs(variances.mean() - expected) < 4 * variances.std(ddof=1) / np.sqrt(len(variances))
+
+
+def test_system_quantization_error_does_not_accumulate():
+    lsb = 1e-4
+    base = ideal()
+    quantized = base.with_changes(noise=NoiseSettings(quantization=lsb))
+    a = simulate_system(base, 1000.0, rate=100, chunk_samples=9999)
+    b = simulate_system(quantized, 1000.0, rate=100, chunk_samples=9999)
+    assert len(a["f_x"]) > 5 * 16384  # several noise blocks
+    for axis in ("f_x", "f_y", "f_z"):
+        velocity_error = np.cumsum(b[axis] - a[axis]) / 100.0
+        assert np.abs(velocity_error).max() <= lsb * (1 + 1e-6), axis

@@ -23,9 +23,10 @@ quantization
     velocity-increment LSB ``q`` [m/s].  The instrument accumulates the exact
     velocity increment and outputs whole LSBs; the remainder is carried to the next
     sample, so the quantization error of the *integrated* output stays below one LSB.
-    The accumulator restarts with a seeded uniform remainder at each noise block
-    (every :data:`BLOCK_SAMPLES` samples) so that any sample can be recomputed from
-    the seed alone (the restart adds at most one LSB per block to a velocity sum).
+    At device level the accumulator restarts with a seeded uniform remainder at each
+    noise block (every :data:`BLOCK_SAMPLES` samples) so that any sample can be
+    recomputed from the seed and the commands alone (the restart adds at most one LSB
+    per block to a velocity sum); system-level records carry the remainder throughout.
 
 Temperature
     deterministic profile ``T(t) = T_ref + offset + ramp·t + A sin(2π t/P + φ)``
@@ -283,17 +284,25 @@ class Quantizer:
     Call it with consecutive pieces of the unquantized output; a piece that does not
     continue the previous one must start at a block boundary (the accumulator then
     restarts from the seeded dither of that block), so the result is the same however
-    the samples are split.
+    the samples are split.  With ``restart_each_block=True`` (device level: any sample
+    can be recomputed from the seed and the commands) the accumulator also restarts at
+    every block boundary; with ``False`` (system level, always generated from the start)
+    the remainder is carried through the whole record.
     """
 
-    def __init__(self, noise: NoiseGenerator) -> None:
+    def __init__(self, noise: NoiseGenerator, restart_each_block: bool = True) -> None:
         self.noise = noise
         self.lsb = noise.settings.quantization
+        self.restart_each_block = restart_each_block
         self._carry: tuple[int, NDArray[np.float64]] | None = None
 
     def continues(self, start: int) -> bool:
         """Whether ``start`` can be quantized now (continues the last piece or starts a block)."""
         return start % BLOCK_SAMPLES == 0 or (self._carry is not None and self._carry[0] == start)
+
+    def _restart(self, k: int) -> bool:
+        continuing = self._carry is not None and self._carry[0] == k
+        return k % BLOCK_SAMPLES == 0 and (self.restart_each_block or not continuing)
 
     def __call__(self, start: int, specific_force: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.lsb <= 0:
@@ -305,7 +314,7 @@ class Quantizer:
         while done < len(specific_force):
             block = k // BLOCK_SAMPLES
             n = min(len(specific_force) - done, (block + 1) * BLOCK_SAMPLES - k)
-            if k % BLOCK_SAMPLES == 0:
+            if self._restart(k):
                 accumulator = self.noise.dither(block)
             elif self._carry is not None and self._carry[0] == k:
                 accumulator = self._carry[1]

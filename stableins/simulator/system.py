@@ -251,7 +251,7 @@ class SystemWorld:
         self._case = (drift.get("case_amplitude", 0.0), drift.get("case_period", 480.0), drift.get("case_phase", 0.0))
         # noise and dynamics
         self.noise = NoiseGenerator(truth.noise, self.rate, self.seed)
-        self.quantizer = Quantizer(self.noise)
+        self.quantizer = Quantizer(self.noise, restart_each_block=False)
         A, B = error_dynamics(self.latitude, self.damping)
         self.A, self.B = A, B
         self.recursion = ModalRecursion.discretize(A, B, 1.0 / self.rate)
