@@ -240,3 +240,21 @@ def test_system_quantization_error_does_not_accumulate():
     for axis in ("f_x", "f_y", "f_z"):
         velocity_error = np.cumsum(b[axis] - a[axis]) / 100.0
         assert np.abs(velocity_error).max() <= lsb * (1 + 1e-6), axis
+
+
+def test_platform_drift_integrates_the_gyro_drift_including_case_rotation():
+    drift = {"x": 2e-9, "y": -1e-9, "z": 3e-9, "case_amplitude": 1e-7, "case_period": 480.0, "case_phase": 0.4}
+    world = SystemWorld(ideal().with_changes(gyro_drift=drift), rate=10.0)
+    t = np.linspace(0.0, 2000.0, 4001)
+    h = 1e-3
+    rate = (world._drift_angle(t + h) - world._drift_angle(t - h)) / (2 * h)
+    np.testing.assert_allclose(rate, -world.gyro_drift(t), atol=1e-15)  # the platform turns at -ε^p
+    np.testing.assert_allclose(world._drift_angle(np.array([0.0])), 0.0, atol=0)
+    # the case-rotation residual is a drift vector of the given amplitude turning about z_p once per period
+    eps = world.gyro_drift(t)
+    np.testing.assert_allclose(np.hypot(eps[:, 0] - 2e-9, eps[:, 1] + 1e-9), 1e-7, rtol=1e-12)
+    # and the gimbal readings follow the drifting platform: a 480 s wobble of about a·P/(2π)
+    d = simulate_system(ideal().with_changes(gyro_drift={"case_amplitude": 1e-7}), 1920.0, rate=1.0)
+    amplitude = 1e-7 * 480.0 / (2 * np.pi)
+    for name in ("angle_inner", "angle_middle"):  # the Earth turns the platform by only 8° in 32 min
+        assert np.ptp(d[name]) / 2 == pytest.approx(amplitude, rel=0.1), name
