@@ -258,3 +258,35 @@ def test_platform_drift_integrates_the_gyro_drift_including_case_rotation():
     amplitude = 1e-7 * 480.0 / (2 * np.pi)
     for name in ("angle_inner", "angle_middle"):  # the Earth turns the platform by only 8° in 32 min
         assert np.ptp(d[name]) / 2 == pytest.approx(amplitude, rel=0.1), name
+
+
+def test_specific_force_error_matches_the_first_order_system_level_states():
+    # Independent first-order derivation (docs/paper-notes, Wu et al. 2018 Eqs. 21-27 with signs restored):
+    # z = (|f̂^p|² − |f^p|²)/(2g²) = H x,  H = [1, f_x/g, f_y/g, (f_x² − f_y²)/g², 2 f_x f_y/g²]
+    from stableins.errormodel import ErrorModel
+
+    truth = Truth.draw(11, noise=NoiseSettings.quiet(), nonlinear=False)
+    installed = dict(truth.installed_calibration)
+    installed.update({k: truth.parameters[k] for k in ("theta10", "theta20", "theta30")})
+    truth = truth.with_changes(installed_calibration=installed)
+    d = simulate_system(truth, 86400, rate=0.02)
+    g, lat = truth.site.gravity, truth.site.latitude
+    f_hat = ErrorModel.standard(nonlinear=False).inverse(np.column_stack([d["f_x"], d["f_y"], d["f_z"]]), installed)
+    st = cv.earth_rate_angle(d["angle_platform"] + truth.parameters["theta10"])
+    fx, fy = np.cos(st) * np.cos(lat), np.sin(st) * np.cos(lat)
+    z = 0.5 * (np.sum(f_hat**2, axis=1) / g**2 - 1.0)
+    h = np.column_stack([np.ones_like(st), fx, fy, fx**2 - fy**2, 2 * fx * fy])
+    x = np.linalg.lstsq(h, z, rcond=None)[0]
+    r = truth.calibration_residual()
+    dsf = {a: r[f"sf_{a}"] / truth.parameters[f"sf_{a}"] for a in "xyz"}
+    b = {a: r[f"bias_{a}"] / g for a in "xyz"}
+    sl, cl = np.sin(lat), np.cos(lat)
+    expected = [
+        -(dsf["x"] + dsf["y"]) / 2 * cl**2 - dsf["z"] * sl**2 + b["z"] * sl,
+        b["x"] - r["beta_xy"] * sl + r["beta_zy"] * sl,
+        b["y"] + r["beta_yx"] * sl - r["beta_zx"] * sl,
+        -(dsf["x"] - dsf["y"]) / 2,
+        (r["beta_xz"] - r["beta_yz"]) / 2,
+    ]
+    assert np.max(np.abs(expected)) > 1e-6  # a real residual
+    np.testing.assert_allclose(x, expected, atol=1e-8)  # second-order terms ~ residual × parameters
