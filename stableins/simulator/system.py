@@ -159,6 +159,22 @@ class ModalRecursion:
     modes: NDArray[np.complex128]
     to_modes: NDArray[np.complex128]
 
+    @property
+    def _partner(self) -> NDArray[np.int64]:
+        """Index of each complex mode's conjugate partner (−1 for real modes); the real
+        system's response is the sum over one mode of each pair, doubled, so only half
+        of the complex modes are filtered."""
+        cached = self.__dict__.get("_partner_cache")
+        if cached is None:
+            lam = self.eigenvalues
+            cached = np.full(len(lam), -1)
+            for i in range(len(lam)):
+                if lam[i].imag != 0 and cached[i] < 0:
+                    j = int(np.argmin(np.abs(lam - np.conj(lam[i])) + np.where(np.arange(len(lam)) == i, np.inf, 0)))
+                    cached[i], cached[j] = j, i
+            self.__dict__["_partner_cache"] = cached
+        return cached
+
     @classmethod
     def discretize(cls, A: NDArray[np.float64], B: NDArray[np.float64], dt: float) -> ModalRecursion:
         mu, v = np.linalg.eig(A)
@@ -177,18 +193,23 @@ class ModalRecursion:
 
         n, p = u.shape
         m = len(self.eigenvalues)
-        z = np.empty((n, m), dtype=complex)
+        x = np.zeros((n, m))
         z_end = np.empty(m, dtype=complex)
         for i in range(m):
+            lam = self.eigenvalues[i]
+            if lam.imag < 0 and self._partner[i] >= 0:
+                continue  # the conjugate of its partner's mode: filled in below
             w = np.zeros(n, dtype=complex)
             for j in range(p):  # fixed summation order: identical results for any chunking
                 if self.input_gain[i, j] != 0:
                     w += self.input_gain[i, j] * u[:, j]
-            z[:, i], zf = lfilter([0.0, 1.0], [1.0, -self.eigenvalues[i]], w, zi=[z0[i]])
+            z, zf = lfilter([0.0, 1.0], [1.0, -lam], w, zi=[z0[i]])
             z_end[i] = zf[0]
-        x = np.zeros((n, m))
-        for i in range(m):
-            x += (self.modes[None, :, i] * z[:, i, None]).real
+            partner = self._partner[i]
+            weight = 2.0 if partner >= 0 else 1.0  # a conjugate pair adds up to twice the real part
+            x += weight * (self.modes[None, :, i] * z[:, None]).real
+            if partner >= 0:
+                z_end[partner] = np.conj(zf[0])
         return x, z_end
 
 
