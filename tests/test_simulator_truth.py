@@ -88,3 +88,11 @@ def test_docs_list_every_effect():
     text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "simulator.md").read_text()
     missing = [e for e in CATALOGUE if f"`{e}`" not in text]
     assert not missing, f"docs/simulator.md does not list {missing}"
+
+
+def test_truth_is_immutable():
+    truth = Truth.draw(2)
+    with pytest.raises(TypeError):
+        truth.parameters["bias_x"] = 0.0
+    changed = truth.with_changes(parameters={**truth.parameters, "bias_x": 0.0})
+    assert changed.parameters["bias_x"] == 0.0 and truth.parameters["bias_x"] != 0.0

@@ -12,6 +12,7 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Any
 
 from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
@@ -91,7 +92,7 @@ def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None) 
 
 @dataclass(frozen=True)
 class Truth:
-    """The simulated world.
+    """The simulated world (immutable: the mappings are read-only views; use :meth:`with_changes`).
 
     Attributes
     ----------
@@ -119,24 +120,26 @@ class Truth:
         Slew and settling behaviour (:data:`DEFAULT_SETTLING`).
     """
 
-    parameters: dict[str, float]
+    parameters: Mapping[str, float]
     site: SiteMetadata
-    effects: dict[str, float] = field(default_factory=dict)
+    effects: Mapping[str, float] = field(default_factory=dict)
     noise: NoiseSettings = field(default_factory=NoiseSettings)
     seed: int = 0
-    installed_calibration: dict[str, float] = field(default_factory=dict)
-    gyro_drift: dict[str, float] = field(default_factory=dict)
-    damping: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_DAMPING))
-    settling: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTLING))
+    installed_calibration: Mapping[str, float] = field(default_factory=dict)
+    gyro_drift: Mapping[str, float] = field(default_factory=dict)
+    damping: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_DAMPING))
+    settling: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTLING))
 
     def __post_init__(self) -> None:
         _check_parameter_ids(self.parameters, "parameters", None)
         _check_parameter_ids(self.installed_calibration, "installed_calibration", None)
-        object.__setattr__(self, "parameters", dict(self.parameters))
-        object.__setattr__(self, "installed_calibration", dict(self.installed_calibration))
-        object.__setattr__(self, "effects", validate_effects(self.effects))
-        object.__setattr__(self, "damping", {**DEFAULT_DAMPING, **self.damping})
-        object.__setattr__(self, "settling", {**DEFAULT_SETTLING, **self.settling})
+        # read-only views: a Truth is immutable (use with_changes for a modified copy)
+        object.__setattr__(self, "parameters", MappingProxyType(dict(self.parameters)))
+        object.__setattr__(self, "installed_calibration", MappingProxyType(dict(self.installed_calibration)))
+        object.__setattr__(self, "effects", MappingProxyType(validate_effects(self.effects)))
+        object.__setattr__(self, "damping", MappingProxyType({**DEFAULT_DAMPING, **self.damping}))
+        object.__setattr__(self, "settling", MappingProxyType({**DEFAULT_SETTLING, **self.settling}))
+        object.__setattr__(self, "gyro_drift", MappingProxyType(dict(self.gyro_drift)))
         unknown = set(self.gyro_drift) - {"x", "y", "z", "case_amplitude", "case_period", "case_phase"}
         if unknown:
             raise InputError(
