@@ -166,6 +166,8 @@ class AttitudeFit:
     residual_rms: tuple[float, float]
     block_residuals: NDArray[np.float64]
     vertical_jacobian: NDArray[np.float64]
+    drift_estimate: NDArray[np.float64]
+    drift_sigma: NDArray[np.float64]
     notes: tuple[str, ...] = ()
 
 
@@ -214,6 +216,8 @@ def fit_attitude(
     case_rotation_period: float | None = CASE_ROTATION_PERIOD,
     compensate_loop: bool = True,
     vertical: NDArray[np.float64] | None = None,
+    gyro_drift: str = "ignore",
+    known_drift: NDArray[np.float64] | None = None,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -235,22 +239,53 @@ def fit_attitude(
         Mean and harmonics ``(mean, cos S, sin S, cos 2S, sin 2S)`` of ``Δf_D/g``; their
         response through the vertical channel is removed before the compensation.  The
         result's ``vertical_jacobian`` is ``∂values/∂vertical`` for the covariance.
+    gyro_drift : {"check", "fit", "ignore"}
+        The loop's response to a constant gyro drift along each platform axis
+        (:meth:`DampingLoop.drift_responses`, from rest at the record start).  The equatorial
+        components turn at the Earth rate in the n-frame and drive the undamped Earth-rate mode
+        at resonance: 0.001°/h moves the attitude coefficients by ~2e-5 rad.  Over one day the
+        response is nearly collinear with the fundamentals (fitting it as a nuisance, ``"fit"``,
+        inflates their σ about tenfold; ``"check"`` fits it only to warn, which at 0.001°/h and 1 Hz is not
+        significant either), so by default (``"ignore"``) it is left out: pass ``known_drift``.
+    known_drift : array (3,), optional
+        Gyro drift in the platform frame [rad/s] known from elsewhere: its response is removed.
     """
-    x, names, freqs = _design(blocks, loop, case_rotation_period)
+    x_common, names, freqs = _design(blocks, loop, case_rotation_period)
     w = blocks["count"]
-    xtwx = x.T @ (x * w[:, None])
-    scale = np.sqrt(np.diag(xtwx))
-    xtwx_inv = np.linalg.pinv(xtwx / np.outer(scale, scale), rcond=1e-13) / np.outer(scale, scale)
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
-    beta = xtwx_inv @ (x.T @ (y * w[:, None]))  # (columns, 2)
-    residuals = y - x @ beta
-
-    observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
+    drift = _drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
+    if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
+        y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
+    drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
+    n_common = x_common.shape[1]
+    beta = np.zeros((n_common, 2))
+    residuals = np.zeros_like(y)
     cov_obs = np.zeros((10, 10))
+    notes: list[str] = []
     for ch in range(2):
         gains = np.array([np.abs(loop.frequency_response(f)).max(axis=1)[ch] if f > 0 else 1.0 for f in freqs[:5]])
         d = noise_sigma[ch] * gains
-        cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * xtwx_inv[:5, :5] * d[None, :]
+        coef, res, inv = _weighted_fit(x_common, y[:, ch], w)
+        if drift is not None and gyro_drift in ("fit", "check"):
+            # the same fit with the drift responses of this channel as three more columns
+            coef_d, res_d, inv_d = _weighted_fit(np.concatenate([x_common, drift[:, ch, :]], axis=1), y[:, ch], w)
+            sigma_d = noise_sigma[ch] * np.abs(loop.frequency_response(loop.earth_rate)).max(axis=1)[ch] * np.sqrt(np.diag(inv_d)[-3:])
+            drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * _DRIFT_SCALE, sigma_d * _DRIFT_SCALE
+            if gyro_drift == "fit":
+                coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
+        beta[:, ch] = coef
+        residuals[:, ch] = res
+        cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
+    if gyro_drift == "check" and np.isfinite(drift_estimate).all():
+        z = np.abs(drift_estimate / drift_sigma)
+        if z.max() > 5.0:
+            notes.append(
+                "the attitude errors carry the signature of a gyro drift (the Earth-rate resonance of the loop): fitted drift "
+                f"{np.round(drift_estimate.mean(axis=0) / (np.pi / 180 / 3600), 5).tolist()} °/h (x, y, z, up to {z.max():.0f} sigma); "
+                "over one day it cannot be told from the accelerometer harmonics of pitch and roll, which are biased (0.001 °/h gives "
+                "~2e-5 rad); give the known drift, or rely on the specific-force states"
+            )
+    observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
 
     # loop compensation of the harmonics: vectors (pitch c, pitch s, roll c, roll s)
     transform = np.eye(10)
@@ -275,15 +310,15 @@ def fit_attitude(
 
     ratio = _periodogram_check(blocks, residuals, loop, noise_sigma)
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
-    inflate = np.ones(10)
-    notes = []
+    excess = False
     for ch, r in zip(("pitch", "roll"), ratio, strict=True):
         if np.isfinite(r) and r > 2.0:
+            excess = True
             notes.append(
                 f"{ch} residuals between 3 and 8 cycles/day are {r:.1f}x the noise predicted from the accelerometer noise; "
                 "the attitude coefficients' sigma was scaled up by the square root of that ratio"
             )
-    if notes:
+    if excess:
         inflate = np.repeat(np.sqrt(np.maximum(np.nan_to_num(ratio, nan=1.0), 1.0)), 5)
         covariance = covariance * np.outer(inflate, inflate)
     return AttitudeFit(
@@ -298,8 +333,38 @@ def fit_attitude(
         residual_rms=tuple(float(v) for v in np.sqrt(np.mean(residuals**2, axis=0))),
         block_residuals=residuals,
         vertical_jacobian=jac_vertical,
+        drift_estimate=drift_estimate,
+        drift_sigma=drift_sigma,
         notes=tuple(notes),
     )
+
+
+def _drift_columns(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
+    """Drift responses ``(n_blocks, 2, 3)`` on the block times (simulated on a uniform grid, interpolated over gaps)."""
+    t = blocks["time"]
+    angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
+    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    grid = np.arange(0.0, t[-1] + step, step)
+    responses = loop.drift_responses(grid, np.interp(grid, t, angle))
+    out = np.empty((t.size, 2, 3))
+    for ch in range(2):
+        for j in range(3):
+            out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
+    return out * _DRIFT_SCALE  # columns of the order of the others
+
+
+#: Unit of the drift columns [rad/s] (about 0.002 °/h).
+_DRIFT_SCALE = 1e-8
+
+
+def _weighted_fit(x: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+    """Weighted least squares ``(coefficients, residuals, (XᵀWX)⁻¹)`` with column scaling."""
+    xtwx = x.T @ (x * w[:, None])
+    scale = np.sqrt(np.diag(xtwx))
+    scale = np.where(scale > 0, scale, 1.0)
+    inv = np.linalg.pinv(xtwx / np.outer(scale, scale), rcond=1e-13) / np.outer(scale, scale)
+    coef = inv @ (x.T @ (y * w))
+    return coef, y - x @ coef, inv
 
 
 def _periodogram_check(

@@ -191,6 +191,45 @@ class DampingLoop:
             b[7, 2] = g
         return b
 
+    def drift_input_matrix(self) -> NDArray[np.float64]:
+        """``B_ε`` for a gyro drift ``ε^n`` [rad/s] in the n-frame: ``φ̇ = … − ε^n``."""
+        b = np.zeros((self.n_states, 3))
+        b[0, 0] = b[1, 1] = b[2, 2] = -1.0
+        return b
+
+    def drift_responses(self, time: NDArray[np.float64], earth_angle: NDArray[np.float64]) -> NDArray[np.float64]:
+        r"""Pitch and roll responses ``(n, 2, 3)`` to a unit constant gyro drift along each platform axis, from rest at ``time[0]``.
+
+        On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
+        polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
+        Earth-rate mode at resonance (a ``t·sin`` growth in the tilts).  Exact first-order-hold
+        discretization on the given (uniform) grid.
+        """
+        from scipy.linalg import expm
+
+        from stableins.conventions import dcm_body_to_platform
+
+        t = np.asarray(time, dtype=float)
+        dt = float(np.median(np.diff(t)))
+        nav_to_platform = dcm_body_to_platform(-np.asarray(earth_angle, dtype=float), 0.0, np.pi / 2 + self.latitude)
+        a, b, c = self.state_matrix(), self.drift_input_matrix(), self.output_matrix()
+        n = a.shape[0]
+        big = np.zeros((n + 6, n + 6))
+        big[:n, :n], big[:n, n : n + 3] = a * dt, b * dt
+        big[n : n + 3, n + 3 :] = np.eye(3)
+        e = expm(big)
+        phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + 3], e[:n, n + 3 :]
+        out = np.zeros((t.size, 2, 3))
+        for j in range(3):
+            eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
+            x = np.zeros(n)
+            for k in range(t.size):
+                out[k, :, j] = c @ x
+                if k + 1 < t.size:
+                    step = (t[k + 1] - t[k]) / dt
+                    x = phi @ x + step * (gamma0 @ eps_n[k] + gamma1 @ (eps_n[k + 1] - eps_n[k]))
+        return out
+
     def output_matrix(self) -> NDArray[np.float64]:
         """``C`` for the output ``(δpitch, δroll) = (−φ_E, −φ_N)``."""
         c = np.zeros((2, self.n_states))

@@ -103,6 +103,8 @@ class SystemOptions:
     minimum_duration: float = 4 * 3600.0  # [s]
     noise_samples_per_chunk: int = 8192
     run_filter: bool = True
+    gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
+    known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
 
 
@@ -554,6 +556,8 @@ def run_system_stage(
         case_rotation_period=options.case_rotation_period,
         compensate_loop=options.compensate_loop,
         vertical=vertical,
+        gyro_drift=options.gyro_drift,
+        known_drift=options.known_gyro_drift,
     )
     notes += list(att.notes)
     checks.attitude_residuals(att, notes)
