@@ -42,10 +42,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also estimate the residual quadratic coefficients K2_x, K2_y from the third harmonic, remove their bias (not in the paper)",
     )
+    parser.add_argument(
+        "--gyro-drift",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="known constant gyro drift in the platform frame [deg/h]; its response is removed from pitch and roll",
+    )
     parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
 
 
 def run(args: Any) -> int:
+    import math
     import warnings
 
     from stableins.data.errors import InputError
@@ -73,6 +81,7 @@ def run(args: Any) -> int:
         compensate_loop=not args.no_loop_compensation,
         couplings=not args.no_couplings,
         estimate_k2=args.estimate_k2,
+        known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
