@@ -560,7 +560,6 @@ def run_system_stage(
         known_drift=options.known_gyro_drift,
     )
     notes += list(att.notes)
-    checks.attitude_residuals(att, notes)
 
     # ---------------------------------------------------------------- observability (short records)
     # v = (x1..x7, ten attitude coefficients) with its covariance; cross terms from the vertical path
@@ -1005,7 +1004,6 @@ class _StaticChecks:
             step = np.concatenate([[t[0] - self.last_time], step]) if (t[0] - self.last_time) != self.period else step
         lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
         if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
-            offset = seen + (1 if self.last_time is None else 0)
             series = t if self.last_time is None else np.concatenate([[self.last_time], t])
             step = np.diff(series)
             offset = seen + (1 if self.last_time is None else 0)
@@ -1104,9 +1102,6 @@ class _StaticChecks:
             )
             notes.append(text)
             warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=3)
-
-    def attitude_residuals(self, att: AttitudeFit, notes: list[str]) -> None:
-        return None
 
     def summary(self) -> dict[str, Any]:
         return {"gaps": list(self.gaps[:10]), "gap_count": len(self.gaps), "missing_seconds": self.gap_time, "jitter_steps": self.jitter}
