@@ -73,3 +73,10 @@ def test_cli_serial_mismatch_is_a_user_error(files):
     with pytest.raises(InputError, match="serial"):
         calibrate_system.run(parse([str(path), "--prior", str(other), "--out", str(out)]))
     assert not out.exists()
+
+
+def test_cli_plot(files):
+    tmp, path, prior, _, _ = files
+    png = tmp / "conv.png"
+    assert calibrate_system.run(parse([str(path), "--prior", str(prior), "--out", str(tmp / "cal4.json"), "--plot", str(png)])) == 0
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
