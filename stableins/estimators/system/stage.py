@@ -19,8 +19,13 @@ One pass over the record (chunks of ``chunk_rows`` samples):
 * Kalman-filter bins: ``Σz``, ``ΣH`` over ``filter_block_seconds`` for the convergence
   curves of filterpy's filter (decimated, ``R/n`` per bin).
 
-Then the harmonic states, the loop-compensated attitude coefficients and their
-separation into accelerometer corrections (:mod:`.separation`).
+Then the harmonic states (x1..x5 of the paper plus the third harmonic x6, x7 that measures a
+residual K2), the loop-compensated attitude coefficients and their separation into
+accelerometer corrections (:mod:`.separation`).  On a turned or tilted base the Earth-rate
+angle comes from the full gimbal kinematics; a known gyro drift's response is removed from
+pitch and roll.  Checks: sampling (gaps, jitter, order), static base (velocity, attitude
+excursion), platform turning at the Earth rate, polar alignment, record length (short records
+keep only the combinations they determine).  See docs/system-calibration.md.
 """
 
 from __future__ import annotations
