@@ -308,19 +308,32 @@ def fit_attitude(
     jac_vertical = jac_vertical[order]
     observed_out, cov_obs_out = observed[order], cov_obs[np.ix_(order, order)]
 
-    ratio = _periodogram_check(blocks, residuals, loop, noise_sigma)
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
-    excess = False
-    for ch, r in zip(("pitch", "roll"), ratio, strict=True):
-        if np.isfinite(r) and r > 2.0:
-            excess = True
+    # coloured (low-frequency) noise: scale the covariance by the residual spectrum extrapolated to 1 and 2 cycles/day
+    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
+
+    ratio = np.full(2, np.nan)
+    factors = np.ones(10)
+    grid = np.linspace(0.5, 20.0, 80) * EARTH_FREQUENCY
+    for ch in range(2):
+        gain = np.array([np.abs(loop.frequency_response(2 * np.pi * f)).max(axis=1)[ch] for f in grid])
+        freqs, rho = spectral_ratios(
+            blocks["time"], residuals[:, ch], w, noise_sigma[ch] ** 2, (3.5 * EARTH_FREQUENCY, 12.0 * EARTH_FREQUENCY), gain, grid
+        )
+        if rho.size:
+            ratio[ch] = float(np.mean(rho))
+        at = np.array([1.0, 1.0, 1.0, 2.0, 2.0]) * EARTH_FREQUENCY
+        factors[5 * ch : 5 * ch + 5] = inflation(freqs, rho, at)
+        if factors[5 * ch + 1] > 2.0:
             notes.append(
-                f"{ch} residuals between 3 and 8 cycles/day are {r:.1f}x the noise predicted from the accelerometer noise; "
-                "the attitude coefficients' sigma was scaled up by the square root of that ratio"
+                f"{ch and 'roll' or 'pitch'} residuals carry low-frequency noise (bias instability / random walk): the spectrum "
+                f"extrapolated to one cycle per day is {factors[5 * ch + 1]:.1f}x the white level; the covariance was scaled accordingly"
             )
-    if excess:
-        inflate = np.repeat(np.sqrt(np.maximum(np.nan_to_num(ratio, nan=1.0), 1.0)), 5)
-        covariance = covariance * np.outer(inflate, inflate)
+    scale_obs = np.sqrt(factors)  # in the observed (mean, 1c, 1s, 2c, 2s) order of each channel
+    cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
+    cov_qs = transform @ cov_obs @ transform.T
+    covariance = cov_qs[np.ix_(order, order)]
+    cov_obs_out = cov_obs[np.ix_(order, order)]
     return AttitudeFit(
         names=ATTITUDE_COEFFICIENTS,
         values=values,
@@ -365,31 +378,3 @@ def _weighted_fit(x: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.
     inv = np.linalg.pinv(xtwx / np.outer(scale, scale), rcond=1e-13) / np.outer(scale, scale)
     coef = inv @ (x.T @ (y * w))
     return coef, y - x @ coef, inv
-
-
-def _periodogram_check(
-    blocks: dict[str, NDArray[np.float64]], residuals: NDArray[np.float64], loop: DampingLoop, noise_sigma: tuple[float, float]
-) -> NDArray[np.float64]:
-    """Ratio of the residual power between 3 and 8 cycles/day to the power predicted from ``noise_sigma``."""
-    t, w = blocks["time"], blocks["count"]
-    span = t[-1] - t[0]
-    if span <= 0:
-        return np.array([np.nan, np.nan])
-    n_total = w.sum()
-    f0 = 2.0 * np.pi / span
-    ks = np.arange(max(1, int(np.ceil(3.0 * loop.earth_rate / f0))), int(np.floor(8.0 * loop.earth_rate / f0)) + 1)
-    if ks.size < 3:
-        return np.array([np.nan, np.nan])
-    ratios = []
-    for ch in range(2):
-        acc = []
-        for k in ks:
-            om = k * f0
-            c, s = np.cos(om * t), np.sin(om * t)
-            a = 2.0 * np.sum(w * residuals[:, ch] * c) / n_total
-            b = 2.0 * np.sum(w * residuals[:, ch] * s) / n_total
-            gain = np.abs(loop.frequency_response(om)).max(axis=1)[ch]
-            predicted = 2.0 * noise_sigma[ch] ** 2 * gain**2 / n_total  # var of a (and of b) for the filtered white noise
-            acc.append(0.5 * (a * a + b * b) / predicted)
-        ratios.append(float(np.mean(acc)))
-    return np.array(ratios)

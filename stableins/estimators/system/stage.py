@@ -523,13 +523,19 @@ def run_system_stage(
     nn_all = filter_bins["n"][keep_bins]
     bin_residual = filter_bins["z"][keep_bins] / nn_all - (filter_bins["h"][keep_bins] / nn_all[:, None]) @ x_ls
     n_bins = int(keep_bins.sum())
-    low_frequency_ratio = float(np.mean(bin_residual**2 * nn_all / r_var)) if n_bins > 5 else float("nan")
-    if np.isfinite(low_frequency_ratio) and low_frequency_ratio > 1.0 + 4.0 * math.sqrt(2.0 / n_bins):
-        cov_x = cov_x * low_frequency_ratio
+    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
+
+    bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
+    high = min(40.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
+    freqs, rho = spectral_ratios(bin_time, bin_residual, nn_all, r_var, (3.5 * EARTH_FREQUENCY, high)) if n_bins > 8 else (np.zeros(0),) * 2
+    z_factors = inflation(freqs, rho, np.array([1, 1, 1, 2, 2, 3, 3]) * EARTH_FREQUENCY)
+    low_frequency_ratio = float(z_factors[1])
+    cov_x = cov_x * np.outer(np.sqrt(z_factors), np.sqrt(z_factors))
+    if low_frequency_ratio > 2.0:
         notes.append(
-            f"the specific-force residuals averaged over {options.filter_block_seconds:g} s scatter {low_frequency_ratio:.2f}x more "
-            "than white noise predicts (bias instability, random walk or temperature): the harmonic states' covariance was scaled "
-            "up by that factor"
+            f"the specific-force residuals carry low-frequency noise (bias instability, random walk or temperature): their spectrum "
+            f"extrapolated to one cycle per day is {low_frequency_ratio:.1f}x the white level; the harmonic states' covariance was "
+            "scaled accordingly"
         )
 
     # ---------------------------------------------------------------- filter convergence
