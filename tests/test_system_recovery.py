@@ -139,3 +139,11 @@ def test_gyro_drift_biases_attitude_unless_known():
     known = SystemOptions(known_gyro_drift=(drift["x"], drift["y"], drift["z"]))
     fixed = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=known)
     assert np.abs(((fixed.combined.values - ref) / fixed.combined.sigma)[HARMONIC]).max() < 4.0
+
+
+@pytest.mark.parametrize(("senses", "latitude_deg"), [((-1, 1, -1, 1), 40.0), ((1, 1, 1, 1), -35.0), ((-1, -1, 1, -1), 60.0)])
+def test_other_gimbal_senses_and_latitudes(senses, latitude_deg):
+    truth, cols = simulated_day(7, gimbal_senses=senses, latitude=math.radians(latitude_deg))
+    out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
+    _, ref = reference(truth)
+    assert np.abs(((out.combined.values - ref) / out.combined.sigma)[HARMONIC]).max() < 4.0
