@@ -314,11 +314,11 @@ def fit_attitude(
 
     ratio = np.full(2, np.nan)
     factors = np.ones(10)
-    grid = np.linspace(0.5, 20.0, 80) * EARTH_FREQUENCY
+    grid = np.linspace(0.5, 40.0, 160) * EARTH_FREQUENCY
     for ch in range(2):
         gain = np.array([np.abs(loop.frequency_response(2 * np.pi * f)).max(axis=1)[ch] for f in grid])
         freqs, rho = spectral_ratios(
-            blocks["time"], residuals[:, ch], w, noise_sigma[ch] ** 2, (3.5 * EARTH_FREQUENCY, 12.0 * EARTH_FREQUENCY), gain, grid
+            blocks["time"], residuals[:, ch], w, noise_sigma[ch] ** 2, (3.5 * EARTH_FREQUENCY, 30.0 * EARTH_FREQUENCY), gain, grid
         )
         if rho.size:
             ratio[ch] = float(np.mean(rho))

@@ -526,7 +526,7 @@ def run_system_stage(
     from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
 
     bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
-    high = min(40.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
+    high = min(70.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
     freqs, rho = spectral_ratios(bin_time, bin_residual, nn_all, r_var, (3.5 * EARTH_FREQUENCY, high)) if n_bins > 8 else (np.zeros(0),) * 2
     z_factors = inflation(freqs, rho, np.array([1, 1, 1, 2, 2, 3, 3]) * EARTH_FREQUENCY)
     low_frequency_ratio = float(z_factors[1])
