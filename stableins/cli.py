@@ -45,6 +45,9 @@ class Group(NamedTuple):
 #: name -> Command or Group.  Register a command by adding one line.
 COMMANDS: dict[str, Command | Group] = {
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "calibrate": Group(
+        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+    ),
 }
 
 EXIT_FAILURE = 1
