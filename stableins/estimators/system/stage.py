@@ -433,7 +433,7 @@ def run_system_stage(
     checks.latitude = latitude
     seen = 0
     first_time = None
-    for chunk in _prefetch(source.iter_chunks(columns, rows=chunk_rows)):
+    for chunk in source.iter_chunks(columns, rows=chunk_rows):
         n = len(chunk["f_x"])
         if n == 0:
             continue
@@ -695,53 +695,6 @@ def _earth_angle_from_kinematics(
     c_bp = dcm_body_to_platform(alpha[0], alpha[1], alpha[2], 0.0, config)
     u = -(c_bp @ nav_to_body[:, 2])
     return np.unwrap(np.arctan2(u[:, 1], u[:, 0]))
-
-
-def _prefetch(chunks: Iterator[dict[str, Any]], depth: int = 2) -> Iterator[dict[str, Any]]:
-    """Read the next chunks in a background thread while this one is processed (bounded: ``depth`` chunks ahead).
-
-    Exceptions of the reader (an InputError naming a bad row) are re-raised here, in order.
-    """
-    import queue
-    import threading
-
-    box: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    done = object()
-
-    def worker() -> None:
-        try:
-            for chunk in chunks:
-                while not stop.is_set():
-                    try:
-                        box.put(("chunk", chunk), timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            box.put(("done", done))
-        except BaseException as error:  # handed to the consumer
-            box.put(("error", error))
-
-    thread = threading.Thread(target=worker, name="stableins-reader", daemon=True)
-    thread.start()
-    try:
-        while True:
-            kind, item = box.get()
-            if kind == "chunk":
-                yield item
-            elif kind == "error":
-                raise item
-            else:
-                return
-    finally:
-        stop.set()
-        while thread.is_alive():
-            try:
-                box.get_nowait()
-            except queue.Empty:
-                thread.join(timeout=0.05)
 
 
 def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, float]:
