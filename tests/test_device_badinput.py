@@ -31,6 +31,17 @@ def _rows(cols, mask):
 def test_clean_data_pass():
     fit = _calibrate(_columns())
     assert fit.extra["left_out"] == {} and fit.rank == 14
+    assert not any(n.startswith("warning:") for n in fit.notes)
+
+
+def test_a_position_off_within_the_orientation_tolerance_is_not_silent():
+    # 0.01 m/s^2 (about 1 mg) is far inside the 0.196 m/s^2 orientation check but 30σ of a dwell mean
+    cols = _columns()
+    cols["f_x"][cols["position"] == 4] += 0.01
+    fit = _calibrate(cols)
+    warnings = [n for n in fit.notes if n.startswith("warning:")]
+    assert len(warnings) == 1 and "exceeds its 99.9 % quantile" in warnings[0]
+    assert "largest normalized residuals: pos 4 f_x" in warnings[0]
 
 
 def test_missing_position_is_an_error_naming_it():
@@ -124,8 +135,9 @@ def test_too_many_positions_left_out_is_an_error():
     cols = _columns()
     for p in (1, 7, 3, 9, 5, 11, 2, 4, 6, 8, 10, 12, 13):
         cols["f_x"][cols["position"] == p] = np.nan
-    with pytest.raises(InputError, match="usable positions"):
+    with pytest.raises(InputError, match="usable positions") as info:
         _calibrate(cols)
+    assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13)" in str(info.value)
 
 
 def test_missing_column_names_the_field():
