@@ -163,6 +163,7 @@ def test_offset_iteration_failure_reports_history():
     with pytest.raises(OffsetIterationError) as info:
         iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=10), PROCEDURE, max_passes=2, noise_sigmas=0.0, threshold=1e-3 * ARCSEC)
     assert len(info.value.history) == 2 and "pass 1" in str(info.value) and "pass 2" in str(info.value)
+    assert str(info.value).count("limit (0.001, 0.001)″ = max(threshold, noise_sigmas·σ): not converged") == 2
 
 
 def test_report_and_result_are_frozen():
