@@ -175,3 +175,57 @@ def test_white_noise_uses_the_sample_scatter():
     np.testing.assert_allclose(d.sem, f.std(axis=0, ddof=1) / np.sqrt(2000))
     assert d.notes == () and d.flags == ()
     assert d.sem.min() > 0 and ARCSEC > 0
+
+
+FINE = load_procedure("device-fine")
+
+
+def _fine_session(change=None, keep=None):
+    """Coarse and fine dwells of one unit (fine dwells shortened to 60 s to keep the test fast)."""
+    from device_world import ExactPlatform
+
+    site = ExactPlatform(TRUTH).metadata
+    coarse = dwells_from_columns(_columns(), settle=5.0, checks=CHECKS, source="coarse.csv")
+    cols = device_columns(TRUTH, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0)
+    if change is not None:
+        change(cols)
+    if keep is not None:
+        cols = _rows(cols, keep(cols))
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks(), source="fine.csv")
+    return coarse + fine, site
+
+
+def test_fine_position_off_its_orientation_is_flagged_and_left_out():
+    from stableins.estimators.device import calibrate_device
+
+    def flip(cols):
+        cols["f_y"][cols["position"] == 9] *= -1.0  # y up reads as y down: same |f|, wrong orientation
+
+    dwells, site = _fine_session(flip)
+    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    assert "does not match the commanded orientation" in result.fine.extra["left_out"][9]
+    assert 9 not in result.fine.extra["positions_used"] and len(result.fine.extra["positions_used"]) == 17
+
+
+def test_fine_positions_missing_are_an_error_unless_allowed():
+    from stableins.estimators.device import calibrate_device
+
+    dwells, site = _fine_session(keep=lambda c: ~np.isin(c["position"], (4, 14)))
+    with pytest.raises(InputError, match=r"fine-stage positions \[4, 14\] are missing"):
+        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, allow_missing=True, source="fine.csv")
+    assert result.fine.extra["left_out"] == {4: "missing from the data", 14: "missing from the data"}
+    assert result.fine.rank == 12
+
+
+def test_too_few_usable_fine_positions_is_an_error_saying_why():
+    from stableins.estimators.device import calibrate_device
+
+    def clip(cols):
+        for p in range(1, 7):
+            cols["f_z"][(cols["position"] == p) & (cols["time_since_command"] > 10)] = np.nan
+
+    dwells, site = _fine_session(clip)
+    with pytest.raises(InputError, match="only 12 usable fine-stage positions") as info:
+        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6)" in str(info.value)
