@@ -136,7 +136,37 @@ def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.
     if count >= 3 and np.any(mean > significance * stderr):
         return slow_noise_from_allan_excess(mean, source=f"estimated from the pooled Allan excess of {count} dwells (weak estimate)")
     bound = np.sqrt(np.max(np.clip(mean, 0.0, None) + significance * stderr)) / 0.664 if count >= 3 else float("inf")
-    return SlowNoise(0.0, 0.0, source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)")
+    return SlowNoise(
+        0.0,
+        0.0,
+        source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)",
+        undetected_bound=float(bound),
+    )
+
+
+def hidden_slow_noise_warning(slow_noise: SlowNoise, dwells: Sequence[DwellSummary]) -> str | None:
+    """A warning when undetected bias instability could be comparable to the white noise of the dwell means.
+
+    The pooled Allan excess of 10 min dwells cannot see a bias instability of a few µg, which
+    is already comparable to the white noise of such a dwell mean; the fine-stage 1σ are then
+    too small (on the simulator's quartz instrument, B = 2 µg, its NEES is about twice χ²).
+    Warn when the largest hidden Allan floor ``0.664 B`` exceeds half the median white 1σ.
+    """
+    if slow_noise.undetected_bound <= 0.0:
+        return None
+    sems = [float(np.median(d.sem)) for d in dwells if d.usable]
+    if not sems:
+        return None
+    white = float(np.median(sems))
+    hidden = 0.664 * slow_noise.undetected_bound
+    if hidden <= 0.5 * white:
+        return None
+    ug = 9.80665e-6
+    return (
+        f"warning: no bias instability given and none detectable in these dwells, but an Allan floor up to about {hidden / ug:.2g} ug "
+        f"could hide in them, against {white / ug:.2g} ug white noise of a dwell mean: the {dwells[0].stage}-stage 1σ may be too small. "
+        "Give the instrument's value (--bias-instability, --random-walk)"
+    )
 
 
 def calibrate_device(
@@ -202,4 +232,7 @@ def calibrate_device(
             slow_noise=slow_noise,
             source=f"{source} (fine)",
         )
+        warning = hidden_slow_noise_warning(slow_noise, [d for d in fine_dwells if d.usable])
+        if warning is not None:
+            fine = replace(fine, notes=fine.notes + (warning,))
     return DeviceCalibration(coarse, fine, tuple(passes))
