@@ -229,3 +229,12 @@ def test_too_few_usable_fine_positions_is_an_error_saying_why():
     with pytest.raises(InputError, match="only 12 usable fine-stage positions") as info:
         calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
     assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6)" in str(info.value)
+
+
+def test_procedure_of_the_wrong_stage_is_an_error():
+    from stableins.estimators.device import calibrate_device
+
+    dwells, site = _fine_session()
+    with pytest.raises(InputError, match="is a 'fine' procedure, given for the coarse stage") as info:
+        calibrate_device(dwells, site, coarse_procedure=FINE, fine_procedure=FINE)
+    assert info.value.field == "procedure.stage" and "device-fine.toml" in str(info.value)

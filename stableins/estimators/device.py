@@ -193,6 +193,14 @@ def calibrate_device(
     """
     coarse_procedure = coarse_procedure or load_procedure("device-coarse")
     fine_procedure = fine_procedure or load_procedure("device-fine")
+    for procedure, stage in ((coarse_procedure, "coarse"), (fine_procedure, "fine")):
+        if procedure.stage != stage:
+            raise InputError(
+                f"procedure {procedure.name!r} is a {procedure.stage!r} procedure, given for the {stage} stage",
+                path=procedure.path or None,
+                field="procedure.stage",
+                expected=repr(stage),
+            )
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     if slow_noise is None:
         slow_noise = estimate_slow_noise(dwells)
