@@ -238,3 +238,24 @@ def test_procedure_of_the_wrong_stage_is_an_error():
     with pytest.raises(InputError, match="is a 'fine' procedure, given for the coarse stage") as info:
         calibrate_device(dwells, site, coarse_procedure=FINE, fine_procedure=FINE)
     assert info.value.field == "procedure.stage" and "device-fine.toml" in str(info.value)
+
+
+def test_unit_of_the_other_handedness_is_warned_about_and_its_weak_terms_named():
+    from device_world import ExactPlatform
+
+    from stableins.estimators.device import calibrate_device
+
+    senses = (1, -1, 1, 1)  # handedness −1, correctly described by the metadata: y never points down
+    site = ExactPlatform(TRUTH, senses=senses).metadata
+    coarse = dwells_from_columns(device_columns(TRUTH, PROCEDURE, sigma=1e-3, seed=1, senses=senses), settle=5.0, checks=CHECKS)
+    cols = device_columns(TRUTH, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses)
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks())
+    result = calibrate_device(coarse + fine, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    for fit in (result.coarse, result.fine):
+        assert any("designed for gimbal handedness +1" in n and "give -1" in n for n in fit.notes)
+    weak = [n for n in result.fine.notes if n.startswith("warning: weakly determined")]
+    assert len(weak) == 1 and all(k in weak[0] for k in ("sf_y", "bias_y", "K2_y"))
+    # the default handedness gets neither warning
+    dwells, site = _fine_session()
+    clean = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    assert not any("handedness" in n or "weakly determined" in n for fit in (clean.coarse, clean.fine) for n in fit.notes)

@@ -454,6 +454,8 @@ def calibrate_coarse(
     warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / residual_sigma, labels)
     if warning is not None:
         notes.append(warning)
+    if design.weak:
+        notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
     status = tuple("gauge" if k in fixed else "estimated" for k in model.ids)
     determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed)
     extra = {

@@ -224,6 +224,15 @@ def calibrate_device(
             )
         )
     coarse = passes[-1]
+    mismatch = None
+    if coarse_procedure.handedness != configuration.handedness:
+        mismatch = (
+            f"warning: procedure {coarse_procedure.name!r} is designed for gimbal handedness {coarse_procedure.handedness:+d}, "
+            f"the unit's gimbal_senses {tuple(configuration.senses)} give {configuration.handedness:+d}: the sequence does not point "
+            "every axis both up and down (docs/conventions.md), so scale factors, biases and K2 of some axes are poorly determined"
+        )
+        coarse = replace(coarse, notes=coarse.notes + (mismatch,))
+        passes[-1] = coarse
     fine_dwells = [d for d in dwells if d.stage == "fine"]
     fine = None
     if fine_dwells:
@@ -243,4 +252,6 @@ def calibrate_device(
         warning = hidden_slow_noise_warning(slow_noise, [d for d in fine_dwells if d.usable])
         if warning is not None:
             fine = replace(fine, notes=fine.notes + (warning,))
+        if mismatch is not None:
+            fine = replace(fine, notes=fine.notes + (mismatch,))
     return DeviceCalibration(coarse, fine, tuple(passes))

@@ -243,6 +243,12 @@ def calibrate_fine(
     warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / (sigma_h / g)[0], labels)
     if warning is not None:
         notes.append(warning)
+    weak = [k for k in design.weak if k not in BETA_IDS]
+    if weak:
+        notes.append(
+            f"warning: weakly determined (1σ above the typical magnitude): {', '.join(weak)}; "
+            "the positions used do not excite these terms (an axis that never points both up and down?)"
+        )
     return FitResult(
         stage="fine",
         terms=model.terms,
