@@ -61,7 +61,7 @@ from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out
-from stableins.estimators.gauss_newton import gauss_newton, goodness_of_fit_warning
+from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult
 
@@ -451,6 +451,8 @@ def calibrate_coarse(
     residual_sigma = np.sqrt(variance).reshape(-1)
     labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
+    if (stalled := convergence_warning(solution)) is not None:
+        notes.append(stalled)
     warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / residual_sigma, labels)
     if warning is not None:
         notes.append(warning)

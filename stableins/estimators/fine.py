@@ -42,7 +42,7 @@ from stableins.errormodel import BETA_IDS, ErrorModel
 from stableins.estimators.coarse import slow_covariance
 from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out
-from stableins.estimators.gauss_newton import gauss_newton, goodness_of_fit_warning
+from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.result import FitResult
 
@@ -240,6 +240,8 @@ def calibrate_fine(
     residuals = ((0.5 * g**2 - h) / g)[0]  # ≈ g − |f^p| [m/s²]
     labels = tuple(f"pos {d.position} |f|" for d in usable)
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
+    if (stalled := convergence_warning(solution)) is not None:
+        notes.append(stalled)
     warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / (sigma_h / g)[0], labels)
     if warning is not None:
         notes.append(warning)

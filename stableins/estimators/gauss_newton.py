@@ -29,7 +29,7 @@ Evaluate = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np
 class GaussNewtonSolution:
     """Batched solution: ``x (T, n)``, ``covariance (T, n, n)`` (zero rows for fixed
     parameters), weighted residuals ``(T, m)``, weighted Jacobian ``(T, m, n)``,
-    iterations used and the last scaled step."""
+    iterations used, the last scaled step and whether it fell below the tolerance ``(T,)``."""
 
     x: NDArray[np.float64]
     covariance: NDArray[np.float64]
@@ -37,6 +37,7 @@ class GaussNewtonSolution:
     weighted_jacobian: NDArray[np.float64]
     iterations: int
     last_step: NDArray[np.float64]
+    converged: NDArray[np.bool_] | None = None
 
 
 def gauss_newton(
@@ -80,7 +81,17 @@ def gauss_newton(
     inv = np.linalg.inv(normal) * d[:, None] * d[None, :]
     idx = np.flatnonzero(free)
     covariance[..., idx[:, None], idx[None, :]] = inv
-    return GaussNewtonSolution(x, covariance, r, a, iterations, step)
+    return GaussNewtonSolution(x, covariance, r, a, iterations, step, step < tolerance)
+
+
+def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:
+    """A warning when Gauss-Newton stopped at its iteration limit without converging, else None."""
+    if solution.converged is None or bool(solution.converged[trial]):
+        return None
+    return (
+        f"warning: Gauss-Newton did not converge in {solution.iterations} iterations (last step {solution.last_step[trial]:.3g} "
+        "of the typical parameter magnitudes): the estimates may not be the least-squares solution"
+    )
 
 
 def goodness_of_fit_warning(
