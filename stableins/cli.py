@@ -48,7 +48,11 @@ COMMANDS: dict[str, Command | Group] = {
     "demo": Command("stableins.commands.demo", "simulate a platform end to end and write everything to a directory"),
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
     "calibrate": Group(
-        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+        "calibrate from recorded data",
+        {
+            "device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration"),
+            "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
+        },
     ),
 }
 
