@@ -1,0 +1,1 @@
+"""Calibration procedures: definitions (TOML), step-by-step execution, the run journal."""
