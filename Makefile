@@ -18,11 +18,11 @@ demo: setup
 	$(BIN)/stableins demo --out $(OUT)
 
 test: setup
-	$(BIN)/ruff check stableins tests benchmarks
+	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
 	MPLBACKEND=Agg $(BIN)/python -m pytest
 
 lint: setup
-	$(BIN)/ruff check stableins tests benchmarks
+	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
 
 bench: setup
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done
