@@ -15,7 +15,9 @@ def is_deterministic(driver: Any) -> bool:
     return bool(getattr(driver, "deterministic", False))
 
 
-def open_driver(spec: str, *, seed: int | None = None, unit: str | None = None, sample_rate: float | None = None, timeout: float = 10.0) -> PlatformDriver:
+def open_driver(
+    spec: str, *, seed: int | None = None, unit: str | None = None, sample_rate: float | None = None, timeout: float = 10.0
+) -> PlatformDriver:
     """The driver named by ``spec``.
 
     ``sim`` builds the embedded simulated platform (:mod:`stableins.simulator`) with a truth
@@ -41,7 +43,9 @@ def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | 
         from stableins.simulator.device import SimulatedPlatform
         from stableins.simulator.truth import Truth
     except ImportError as error:  # pragma: no cover - the simulator ships with stableins
-        raise InputError(f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH") from None
+        raise InputError(
+            f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH"
+        ) from None
     options: dict[str, Any] = {}
     if unit is not None:
         options["serial_number"] = unit

@@ -25,7 +25,7 @@ from stableins.drivers.replay import JOURNAL_NAME, metadata_from_start
 from stableins.drivers.select import is_deterministic, open_driver
 from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
-from stableins.procedures.runner import Console, RunOptions, Runner, Session, accepted_columns, resume_script
+from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
 
 DATASET_NAME = "device.csv"
 PLAN_NAME = "procedure.json"
@@ -58,7 +58,9 @@ def start_run(
     console = console or Console()
     journal_file = rundir / JOURNAL_NAME
     if journal_file.exists():
-        raise InputError("this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'")
+        raise InputError(
+            "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
+        )
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate)
     try:
         metadata = driver.metadata
@@ -106,24 +108,39 @@ def resume_run(
     journal = Journal.open(rundir / JOURNAL_NAME)
     with journal:
         if not journal.records or journal.records[0].kind != "start":
-            raise InputError("the journal holds no start record: nothing to resume", path=journal.path, expected="a run started with 'stableins run'")
+            raise InputError(
+                "the journal holds no start record: nothing to resume", path=journal.path, expected="a run started with 'stableins run'"
+            )
         start = journal.records[0]
         plan = Plan.from_dict(start["plan"])
         spec = start["driver"]
         if driver_spec is not None and driver_spec != spec:
             if not (driver_spec.startswith("tcp://") and spec.startswith("tcp://")):
-                raise InputError(f"this run was made with --driver {spec}", field="--driver", expected=f"{spec} (only a tcp:// address may change on resume)")
+                raise InputError(
+                    f"this run was made with --driver {spec}",
+                    field="--driver",
+                    expected=f"{spec} (only a tcp:// address may change on resume)",
+                )
             spec = driver_spec
         if journal.recovered is not None:
-            console.say(f"journal: dropped a torn last record ({journal.recovered.torn_bytes} bytes, {journal.recovered.torn_reason}) left by the interruption")
-        driver = driver_factory(start.fields) if driver_factory else open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate)
+            torn = journal.recovered
+            console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
+        driver = (
+            driver_factory(start.fields)
+            if driver_factory
+            else open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate)
+        )
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
-                raise InputError(f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver")
+                raise InputError(
+                    f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
+                )
             deterministic = is_deterministic(driver)
             script, superseded = resume_script(journal.records, deterministic)
-            journal.append("resume", {"superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec})
+            journal.append(
+                "resume", {"superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec}
+            )
             how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
             console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
             runner = Runner(plan, Session(journal, script, driver, forward=deterministic), console, RunOptions(**start.get("options", {})))
@@ -137,14 +154,17 @@ def resume_run(
 
 def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
     """Write the accepted dwells in the device-level data format (atomically); ``None`` if there are none."""
-    columns = accepted_columns(runner)
+    columns = accepted_columns(runner.accepted)
     if not len(columns["time"]):
         return None
     extra = dict(metadata.extra)
     extra.update(procedure=runner.plan.name, inputs=dict(runner.inputs))
     metadata = SiteMetadata(**{**metadata.__dict__, "extra": extra})
-    from stableins.data.device import save_device
-
+    try:
+        from stableins.data.device import save_device
+    except ImportError:  # the data-format writers are not installed: the samples stay in the journal only
+        runner.console.say("note: no device-level data writer in this installation; the accepted samples are in journal.bin")
+        return None
     return save_device(rundir / DATASET_NAME, columns, metadata)
 
 

@@ -121,7 +121,9 @@ class Console:
             return self.values[step.key]
         if self.yes:
             if step.default is None:
-                raise RunStopped(f"step {step.name!r} needs a person to enter {step.key!r}; unattended, give it with --set {step.key}=VALUE")
+                raise RunStopped(
+                    f"step {step.name!r} needs a person to enter {step.key!r}; unattended, give it with --set {step.key}=VALUE"
+                )
             self.say(f"  {step.prompt}: {step.default} {step.unit} (default, --yes)")
             return str(step.default)
         self._end_bar()
@@ -134,7 +136,9 @@ def _ask(prompt: str) -> str:
     try:
         return input(prompt)
     except EOFError:
-        raise RunStopped("a person must answer a prompt but standard input is closed; run with --yes (and --set) for unattended runs") from None
+        raise RunStopped(
+            "a person must answer a prompt but standard input is closed; run with --yes (and --set) for unattended runs"
+        ) from None
 
 
 # --------------------------------------------------------------------------- session
@@ -168,7 +172,9 @@ class Session:
     def _next(self, kind: str, describe: str) -> Record:
         record = self.script.pop(0)
         if record.kind != kind:
-            raise JournalMismatch(f"resuming: the procedure reaches {describe} but the journal has a {record.kind!r} record (seq {record.seq})")
+            raise JournalMismatch(
+                f"resuming: the procedure reaches {describe} but the journal has a {record.kind!r} record (seq {record.seq})"
+            )
         self.replayed += 1
         return record
 
@@ -182,7 +188,9 @@ class Session:
         if self.script:
             record = self._next("op", f"{operation} {arguments}")
             if record["operation"] != operation or not np.allclose(record["arguments"], arguments, rtol=0, atol=1e-12):
-                raise JournalMismatch(f"resuming: the procedure asks for {operation} {arguments}, the journal has {record['operation']} {record['arguments']}")
+                raise JournalMismatch(
+                    f"resuming: the procedure asks for {operation} {arguments}, the journal has {record['operation']} {record['arguments']}"
+                )
             if record.get("error"):
                 raise _ERROR_TYPES.get(record["error_type"], DriverError)(record["error"])
             result = _result_of(record)
@@ -192,7 +200,10 @@ class Session:
         try:
             result = call()
         except DriverError as error:
-            self.journal.append("op", {**self.context, "operation": operation, "arguments": arguments, "error": str(error), "error_type": type(error).__name__})
+            self.journal.append(
+                "op",
+                {**self.context, "operation": operation, "arguments": arguments, "error": str(error), "error_type": type(error).__name__},
+            )
             raise
         fields: dict[str, Any] = {**self.context, "operation": operation, "arguments": arguments}
         arrays: dict[str, Any] = {}
@@ -202,7 +213,12 @@ class Session:
             arrays["angles"] = np.asarray(result, dtype=float)
         else:
             _validate_block(result)
-            arrays = {"time": result.time, "specific_force": result.specific_force, "angles": result.angles, "temperature": result.temperature}
+            arrays = {
+                "time": result.time,
+                "specific_force": result.specific_force,
+                "angles": result.angles,
+                "temperature": result.temperature,
+            }
         record = self.journal.append("op", fields, arrays)
         return _result_of(record)
 
@@ -240,7 +256,9 @@ def _check_same(operation: str, journaled: Any, live: Any, seq: int) -> None:
     else:
         same = bool(np.array_equal(np.asarray(journaled), np.asarray(live)))
     if not same:
-        raise JournalMismatch(f"resuming: the platform does not reproduce journal record {seq} ({operation}); it is not the same seed or version")
+        raise JournalMismatch(
+            f"resuming: the platform does not reproduce journal record {seq} ({operation}); it is not the same seed or version"
+        )
 
 
 def _validate_block(block: SampleBlock) -> None:
@@ -414,7 +432,8 @@ class Runner:
             rejections += 1
             self.console.say(f"  rejected: {'; '.join(result.reasons)}")
             if rejections > self.plan.retries:
-                message = f"step {step.name!r} rejected {rejections} times (retries = {self.plan.retries}); last reason: {'; '.join(result.reasons)}"
+                last = "; ".join(result.reasons)
+                message = f"step {step.name!r} rejected {rejections} times (retries = {self.plan.retries}); last reason: {last}"
                 _, replayed = self.session.decide("stop", {"step": index, "reason": message})
                 if replayed:  # stopped here before and was resumed: fresh retries
                     self.console.say("  (the run had stopped here; resumed with fresh retries)")
@@ -461,7 +480,11 @@ def _parse_value(step: PersonStep, text: str) -> Any:
         raise InputError(f"step {step.name!r}: {text!r} is not a number", field=step.key, expected=f"a number in {step.unit}")
     value = float(text)
     if (step.minimum is not None and value < step.minimum) or (step.maximum is not None and value > step.maximum):
-        raise InputError(f"step {step.name!r}: {value:g} {step.unit} is out of range", field=step.key, expected=f"{step.minimum} to {step.maximum} {step.unit}")
+        raise InputError(
+            f"step {step.name!r}: {value:g} {step.unit} is out of range",
+            field=step.key,
+            expected=f"{step.minimum} to {step.maximum} {step.unit}",
+        )
     return value
 
 
@@ -495,11 +518,11 @@ def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Reco
     return script[:cut], (script[cut].seq, script[-1].seq)
 
 
-def accepted_columns(runner: Runner) -> dict[str, NDArray[Any]]:
+def accepted_columns(accepted: dict[int, dict[str, Any]]) -> dict[str, NDArray[Any]]:
     """The accepted dwells as device-level columns (:data:`stableins.data.schema.DEVICE_COLUMNS`)."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
-    for index in sorted(runner.accepted):
-        entry = runner.accepted[index]
+    for index in sorted(accepted):
+        entry = accepted[index]
         step: DwellStep = entry["step"]
         block = _concatenate(entry["blocks"])
         n = len(block)
@@ -515,6 +538,36 @@ def accepted_columns(runner: Runner) -> dict[str, NDArray[Any]]:
             parts[f"f_{axis}"].append(block.specific_force[:, k])
         parts["temperature"].append(block.temperature)
     return {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in parts.items()}
+
+
+def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
+    """The accepted dwells straight from a journal (no driver, no re-execution): an independent check.
+
+    Collects, for every accepted verdict, the dwell pieces of that step and attempt that no
+    resume superseded; raises if a step was accepted twice (exactly-once).
+    """
+    plan = Plan.from_dict(records[0]["plan"])
+    operations = live_operations(records)
+    accepted: dict[int, dict[str, Any]] = {}
+    for record in records:
+        if record.kind == "verdict" and record["accepted"]:
+            if record["step"] in accepted:
+                raise JournalMismatch(f"step {record['step']} accepted twice in the journal")
+            accepted[record["step"]] = {"attempt": record["attempt"], "command": record["command"], "command_time": record["command_time"]}
+    collected: dict[int, dict[str, Any]] = {}
+    for index, entry in accepted.items():
+        blocks = [
+            block_from_record(r)
+            for r in operations
+            if r.get("step") == index and r.get("attempt") == entry["attempt"] and r.get("phase") == "dwell" and not r.get("error")
+        ]
+        collected[index] = {
+            "step": plan.steps[index],
+            "command": np.asarray(entry["command"]),
+            "command_time": entry["command_time"],
+            "blocks": blocks,
+        }
+    return accepted_columns(collected)
 
 
 _DEVICE_NAMES = tuple(c.name for c in DEVICE_COLUMNS)
