@@ -1,1 +1,1 @@
-"""Calibration procedures: definitions (TOML), step-by-step execution, the run journal."""
+"""Calibration procedures: TOML definitions (``procedures/`` at the top level) and their execution."""
