@@ -129,7 +129,7 @@ def test_fusion_change_significance_matches_the_independent_form_and_is_calibrat
             expected = (x0 / SIGMA**2 + xd / (0.7 * SIGMA) ** 2) / (1 / SIGMA**2 + 1 / (0.7 * SIGMA) ** 2)
             np.testing.assert_allclose([fused[i].value for i in IDS], expected, rtol=1e-12)
             assert "recal" in fused.provenance.stages
-            assert "significant" in format_changes(changes) or True
+            assert format_changes(changes).count("\n") == 3
     z = np.array(z_fused)
     assert np.all(np.abs(z.mean(axis=0)) < 3 / math.sqrt(400))
     assert np.all(np.abs(z.std(axis=0) - 1) < 3 / math.sqrt(800))
@@ -145,7 +145,7 @@ def test_fusion_carries_prior_correlations_and_keeps_what_the_data_do_not_see():
     gain = p0[0, 0] / (p0[0, 0] + 1e-10)
     assert fused["bias_x"].value == pytest.approx(TRUTH[0] + gain * 2e-5, rel=1e-9)
     assert fused["bias_y"].value == pytest.approx(TRUTH[1] + p0[1, 0] / (p0[0, 0] + 1e-10) * 2e-5, rel=1e-9)
-    assert fused["sf_x"].value == TRUTH[2] and fused["sf_x"].sigma == pytest.approx(5e-6)
+    assert fused["sf_x"].value == pytest.approx(TRUTH[2], rel=1e-13) and fused["sf_x"].sigma == pytest.approx(5e-6)
     assert fused["bias_x"].sigma == pytest.approx(math.sqrt(p0[0, 0] * (1 - gain)), rel=1e-9)
 
 
