@@ -63,7 +63,9 @@ def parse_date(text: str, field: str = "date") -> datetime:
     try:
         value = datetime.fromisoformat(text.replace("Z", "+00:00"))
     except (ValueError, AttributeError):
-        raise InputError(f"cannot read {text!r} as a date", field=field, expected="ISO 8601, e.g. 2026-03-01 or 2026-03-01T12:00:00Z") from None
+        raise InputError(
+            f"cannot read {text!r} as a date", field=field, expected="ISO 8601, e.g. 2026-03-01 or 2026-03-01T12:00:00Z"
+        ) from None
     return value if value.tzinfo else value.replace(tzinfo=UTC)
 
 
@@ -153,16 +155,27 @@ def format_changes(changes: list[Change]) -> str:
     lines = [f"{'parameter':<12} {'old':>14} {'new':>14} {'change':>12} {'σ(change)':>10} {'unit':<8} {'z':>6}"]
     for c in changes:
         term = terms.get(c.id)
-        scale = (lambda v: float(term.to_engineering(v))) if term else (lambda v: v)
-        dscale = (lambda v: float(term.sigma_to_engineering(v))) if term else (lambda v: v)
         unit = term.unit if term else c.unit
         z = c.significance
         flag = "  <-- significant" if abs(z) >= 3 else ""
-        lines.append(
-            f"{c.id:<12} {scale(c.old):>14.4f} {scale(c.new):>14.4f} {dscale(c.difference):>12.4f} {dscale(c.sigma_difference):>10.4f} "
-            f"{unit:<8} {z:>6.2f}{flag}"
-        )
+        old, new = _value(term, c.old), _value(term, c.new)
+        difference, sigma = _spread(term, c.difference), _spread(term, c.sigma_difference)
+        lines.append(f"{c.id:<12} {old:>14.4f} {new:>14.4f} {difference:>12.4f} {sigma:>10.4f} {unit:<8} {z:>6.2f}{flag}")
     return "\n".join(lines)
+
+
+def _value(term: Any, value: Any) -> Any:
+    """SI → engineering unit for a known term (arrays too); unchanged otherwise."""
+    import numpy as np
+
+    return term.to_engineering(value) if term is not None else np.asarray(value, dtype=float)
+
+
+def _spread(term: Any, value: Any) -> Any:
+    """SI σ or difference → engineering unit for a known term; unchanged otherwise."""
+    import numpy as np
+
+    return term.sigma_to_engineering(value) if term is not None else np.asarray(value, dtype=float)
 
 
 def _known_terms() -> dict[str, Any]:
@@ -190,7 +203,9 @@ def trend(points: list[tuple[datetime, float, float]], parameter: str = "", unit
     if sxx <= 0:
         return Trend(parameter, unit, tuple(times), tuple(x), tuple(s), math.nan, math.nan, chi2_constant)
     slope = float(np.sum(w * dt * (x - mean_x)) / sxx)
-    return Trend(parameter, unit, tuple(times), tuple(map(float, x)), tuple(map(float, s)), slope, float(1.0 / math.sqrt(sxx)), chi2_constant)
+    return Trend(
+        parameter, unit, tuple(times), tuple(map(float, x)), tuple(map(float, s)), slope, float(1.0 / math.sqrt(sxx)), chi2_constant
+    )
 
 
 # --------------------------------------------------------------------------- store
@@ -252,7 +267,9 @@ class HistoryStore:
             evidence_name = f"{stamp}-{digest[:8]}.evidence.json"
             with atomic_write(directory / evidence_name, "wb") as handle:
                 handle.write(evidence_bytes)
-        entry = Entry(name, valid_from, record.provenance.created, digest, record.provenance.procedure, record.provenance.stages, prior, evidence_name)
+        entry = Entry(
+            name, valid_from, record.provenance.created, digest, record.provenance.procedure, record.provenance.stages, prior, evidence_name
+        )
         self._write_index(record.serial_number, entries + [entry])
         return entry
 
@@ -281,11 +298,14 @@ class HistoryStore:
         date = date or datetime.now(UTC)
         entries = self.entries(serial)
         if not entries:
-            raise InputError(f"no calibration records for unit {serial!r}", path=self.root, expected="records added with 'stableins history add'")
+            raise InputError(
+                f"no calibration records for unit {serial!r}", path=self.root, expected="records added with 'stableins history add'"
+            )
         earlier = [e for e in entries if e.time <= date]
         if not earlier:
             raise InputError(
-                f"unit {serial!r} had no calibration in force on {date.isoformat()}; its first record is valid from {entries[0].valid_from}",
+                f"unit {serial!r} had no calibration in force on {date.isoformat()}; "
+                f"its first record is valid from {entries[0].valid_from}",
                 field="--at",
             )
         return earlier[-1]
@@ -326,11 +346,11 @@ def format_trends(trends: list[Trend]) -> str:
     lines = [f"{'parameter':<12} {'records':>7} {'drift / year':>14} {'σ':>10} {'unit':<8} {'z':>6} {'χ²_ν const':>10}"]
     for t in trends:
         term = terms.get(t.id)
-        scale = (lambda v: float(term.sigma_to_engineering(v))) if term else (lambda v: v)
         unit = term.unit if term else t.unit
         z = t.significance
         flag = "  <-- drifting" if abs(z) >= 3 else ""
-        lines.append(f"{t.id:<12} {len(t.values):>7} {scale(t.slope):>14.4f} {scale(t.slope_sigma):>10.4f} {unit:<8} {z:>6.2f} {t.chi2_red_constant:>10.2f}{flag}")
+        slope, sigma = float(_spread(term, t.slope)), float(_spread(term, t.slope_sigma))
+        lines.append(f"{t.id:<12} {len(t.values):>7} {slope:>14.4f} {sigma:>10.4f} {unit:<8} {z:>6.2f} {t.chi2_red_constant:>10.2f}{flag}")
     return "\n".join(lines)
 
 
@@ -347,16 +367,14 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     fig, axes = plt.subplots(rows, columns, figsize=(4.5 * columns, 2.8 * rows), squeeze=False)
     for ax, t in zip(axes.flat, trends):
         term = terms.get(t.id)
-        value = (lambda v: np.asarray(term.to_engineering(np.asarray(v)))) if term else (lambda v: np.asarray(v))
-        spread = (lambda v: np.asarray(term.sigma_to_engineering(np.asarray(v)))) if term else (lambda v: np.asarray(v))
-        ax.errorbar(t.times, value(t.values), yerr=spread(t.sigmas), fmt="o", ms=4, capsize=2)
+        ax.errorbar(t.times, _value(term, t.values), yerr=_spread(term, t.sigmas), fmt="o", ms=4, capsize=2)
         if math.isfinite(t.slope):
             years = np.array([(d - t.times[0]).total_seconds() / SECONDS_PER_YEAR for d in t.times])
             w = 1.0 / np.asarray(t.sigmas) ** 2
             mean_t = np.sum(w * years) / np.sum(w)
             mean_x = np.sum(w * np.asarray(t.values)) / np.sum(w)
             line = mean_x + t.slope * (years - mean_t)
-            ax.plot(t.times, value(line), "-", lw=1, label=f"{t.significance:+.1f}σ drift")
+            ax.plot(t.times, _value(term, line), "-", lw=1, label=f"{t.significance:+.1f}σ drift")
             ax.legend(fontsize=7)
         ax.set_title(f"{t.id} [{term.unit if term else t.unit}]", fontsize=9)
         ax.tick_params(axis="x", labelrotation=30, labelsize=7)

@@ -113,7 +113,9 @@ def _inverse(matrix, what: str):
     try:
         inverse = np.linalg.inv(matrix)
     except np.linalg.LinAlgError:
-        raise InputError(f"the covariance of the {what} is singular", field="covariance", expected="a positive-definite block for 'estimated' parameters") from None
+        raise InputError(
+            f"the covariance of the {what} is singular", field="covariance", expected="a positive-definite block for 'estimated' parameters"
+        ) from None
     if not np.all(np.isfinite(inverse)):
         raise InputError(f"the covariance of the {what} is not finite", field="covariance")
     return inverse

@@ -116,7 +116,7 @@ def test_stop_after_retries_then_resume_with_fresh_retries(tmp_path):
     assert "fresh retries" in out.getvalue()
     records = scan(tmp_path / "run" / "journal.bin").records
     assert [r.kind for r in records].count("stop") == 1
-    assert len(outcome.runner.accepted) == 6
+    assert len(outcome.runner.entries) == 6
 
 
 def test_prompts_without_yes(tmp_path, monkeypatch):

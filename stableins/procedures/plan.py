@@ -80,11 +80,19 @@ class PersonStep:
 
 @dataclass(frozen=True)
 class OffsetIterationStep:
-    """Run the device-level zero-offset iteration through the driver (Wu et al. 2018 Section 3)."""
+    """Run the device-level zero-offset iteration through the driver (Wu et al. 2018 Section 3).
+
+    The iteration (:func:`stableins.estimators.offset_iteration.iterate_offsets`) runs passes of
+    the procedure's positions; per position it commands, records ``settle`` seconds (discarded)
+    and then the dwell.  ``positions`` and ``settles`` are kept here so that the journal alone
+    says which samples belong to which pass and position.
+    """
 
     name: str
-    iterations: int = 3
-    why: str = "the angle sensors' zero offsets bias every commanded position; re-command with the estimate"
+    positions: tuple[int, ...] = ()
+    settles: tuple[float, ...] = ()
+    stage: str = "coarse"
+    why: str = "the angle sensors' zero offsets bias every commanded position; re-command with the estimate until they converge"
     kind: str = "offset_iteration"
 
 
@@ -155,6 +163,9 @@ class Plan:
             if kind == "dwell":
                 s["readings"] = tuple(s["readings"])
                 s["checks"] = Checks(**s["checks"])
+            if kind == "offset_iteration":
+                s["positions"] = tuple(s["positions"])
+                s["settles"] = tuple(s["settles"])
             steps.append(_STEP_TYPES[kind](**s))
         return cls(
             name=d["name"],

@@ -154,7 +154,7 @@ def resume_run(
 
 def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
     """Write the accepted dwells in the device-level data format (atomically); ``None`` if there are none."""
-    columns = accepted_columns(runner.accepted)
+    columns = accepted_columns(runner.entries)
     if not len(columns["time"]):
         return None
     extra = dict(metadata.extra)

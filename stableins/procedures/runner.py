@@ -164,6 +164,8 @@ class Session:
         self.forward = forward
         self.context: dict[str, Any] = {}
         self.replayed = 0
+        #: when a list, every operation record (replayed or new) is also appended to it
+        self.trace: list[Record] | None = None
 
     @property
     def replaying(self) -> bool:
@@ -196,6 +198,8 @@ class Session:
             result = _result_of(record)
             if self.forward:
                 _check_same(operation, result, call(), record.seq)
+            if self.trace is not None:
+                self.trace.append(record)
             return result
         try:
             result = call()
@@ -220,6 +224,8 @@ class Session:
                 "temperature": result.temperature,
             }
         record = self.journal.append("op", fields, arrays)
+        if self.trace is not None:
+            self.trace.append(record)
         return _result_of(record)
 
     # ------------------------------------------------------------------ decisions
@@ -239,6 +245,32 @@ class Session:
         value = ask()
         self.journal.append(kind, {"step": step, "value": value})
         return value
+
+
+class SessionDriver:
+    """The session seen as a :class:`~stableins.drivers.base.PlatformDriver`, for estimators that drive the platform themselves."""
+
+    def __init__(self, session: Session) -> None:
+        self.session = session
+
+    @property
+    def metadata(self) -> Any:
+        return self.session.driver.metadata
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        return self.session.operate("command", [float(r) for r in readings])
+
+    def read_angles(self) -> NDArray[np.float64]:
+        return self.session.operate("read_angles", [])
+
+    def acquire(self, duration: float) -> SampleBlock:
+        return self.session.operate("acquire", [float(duration)])
+
+    def status(self) -> dict[str, object]:
+        return self.session.driver.status()
+
+    def close(self) -> None:
+        pass
 
 
 def _result_of(record: Record) -> Any:
@@ -338,15 +370,28 @@ class Runner:
     the device-level data set.
     """
 
-    def __init__(self, plan: Plan, session: Session, console: Console, options: RunOptions | None = None) -> None:
+    def __init__(
+        self,
+        plan: Plan,
+        session: Session,
+        console: Console,
+        options: RunOptions | None = None,
+        *,
+        definition: Any = None,
+        offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
         self.plan = plan
         self.session = session
         self.console = console
         self.options = options or RunOptions()
+        self.definition = definition
         self.rate = float(session.driver.metadata.sample_rate)
-        self.offsets = np.zeros(3)
+        self.offsets = np.asarray(offsets, dtype=float)
         self.inputs: dict[str, Any] = {}
-        self.accepted: dict[int, dict[str, Any]] = {}
+        #: accepted dwells in the order they were recorded (see :func:`accepted_columns`)
+        self.entries: list[dict[str, Any]] = []
+        #: result of the zero-offset iteration, if the plan has one
+        self.iteration: Any = None
 
     def execute(self) -> None:
         total = len(self.plan.steps)
@@ -427,7 +472,7 @@ class Runner:
             self.session.decide("verdict", verdict)
             if result.accepted:
                 self.console.say(f"  accepted: {result.describe()}")
-                self.accepted[index] = {"step": step, "command": readings, "command_time": command_time, "blocks": blocks}
+                self.entries.append(_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
                 return
             rejections += 1
             self.console.say(f"  rejected: {'; '.join(result.reasons)}")
@@ -456,10 +501,94 @@ class Runner:
         return blocks
 
     def _offset_iteration(self, index: int, step: OffsetIterationStep, label: str) -> None:
-        raise RunStopped(
-            f"{label}: the zero-offset iteration needs the device-level estimator (stableins.estimators.offset_iteration), "
-            "which this installation does not have"
-        )
+        from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets
+
+        if self.definition is None:
+            raise RunStopped(f"{label}: the procedure definition is not available to the zero-offset iteration")
+        link_failures = 0
+        attempt = 0
+        while True:
+            attempt += 1
+            self.console.say(f"{label}{f' (attempt {attempt})' if attempt > 1 else ''}: zero-offset iteration — {step.why}")
+            self.session.context = {"step": index, "attempt": attempt, "phase": "iteration"}
+            self.session.trace = []
+            try:
+                result = iterate_offsets(
+                    SessionDriver(self.session),
+                    self.definition,
+                    initial_offsets=tuple(float(o) for o in self.offsets),
+                    progress=lambda record: self.console.say(f"  {record.describe()}"),
+                )
+            except OffsetIterationError as error:
+                message = f"step {step.name!r}: {error}"
+                _, replayed = self.session.decide("stop", {"step": index, "reason": message})
+                if replayed:
+                    continue
+                raise RunStopped(message) from None
+            except (DriverConnectionError, DriverProtocolError) as error:
+                link_failures += 1
+                self.session.decide("interrupted", {"step": index, "attempt": attempt, "reason": str(error)})
+                self.console.say(f"  link failure: {error}; the iteration starts again (its samples so far stay in the journal)")
+                if link_failures >= self.options.link_failures:
+                    message = f"step {step.name!r}: the link to the platform failed {link_failures} times in a row (last: {error})"
+                    _, replayed = self.session.decide("stop", {"step": index, "reason": message})
+                    if not replayed:
+                        raise RunStopped(message) from None
+                    link_failures = 0
+                continue
+            finally:
+                trace, self.session.trace = self.session.trace, None
+            self.offsets = np.asarray(result.offsets, dtype=float)
+            self.iteration = result
+            self.session.decide(
+                "iteration", {"step": index, "attempt": attempt, "offsets": list(self.offsets), "passes": len(result.history)}
+            )
+            self.entries += iteration_entries(step, trace)
+            seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
+            self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
+            return
+
+
+def _entry(stage: str, pass_number: int, position: int, command: Any, command_time: float, blocks: list[SampleBlock]) -> dict[str, Any]:
+    return {
+        "stage": stage,
+        "pass": pass_number,
+        "position": position,
+        "command": np.asarray(command, dtype=float),
+        "command_time": command_time,
+        "blocks": blocks,
+    }
+
+
+def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> list[dict[str, Any]]:
+    """Dwells of a zero-offset iteration from its operations: per position ``command``, ``settle`` piece, dwell piece."""
+    entries = []
+    commands = 0
+    current: dict[str, Any] | None = None
+    pending_settle = False
+    n = len(step.positions)
+    for record in operations:
+        if record.get("error"):
+            continue
+        if record["operation"] == "command":
+            k = commands % n
+            current = {
+                "pass": commands // n + 1,
+                "position": step.positions[k],
+                "command": record["arguments"],
+                "time": float(record["result"]),
+            }
+            pending_settle = step.settles[k] > 0
+            commands += 1
+        elif record["operation"] == "acquire" and current is not None:
+            if pending_settle:
+                pending_settle = False
+                continue
+            entries.append(
+                _entry(step.stage, current["pass"], current["position"], current["command"], current["time"], [block_from_record(record)])
+            )
+            current = None
+    return entries
 
 
 def _concatenate(blocks: list[SampleBlock]) -> SampleBlock:
@@ -518,18 +647,16 @@ def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Reco
     return script[:cut], (script[cut].seq, script[-1].seq)
 
 
-def accepted_columns(accepted: dict[int, dict[str, Any]]) -> dict[str, NDArray[Any]]:
-    """The accepted dwells as device-level columns (:data:`stableins.data.schema.DEVICE_COLUMNS`)."""
+def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
+    """Accepted dwells as device-level columns (:data:`stableins.data.schema.DEVICE_COLUMNS`), in recording order."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
-    for index in sorted(accepted):
-        entry = accepted[index]
-        step: DwellStep = entry["step"]
+    for entry in entries:
         block = _concatenate(entry["blocks"])
         n = len(block)
         parts["time"].append(block.time)
-        parts["stage"].append(np.full(n, step.stage, dtype=object))
-        parts["pass"].append(np.full(n, step.pass_number, dtype=np.int32))
-        parts["position"].append(np.full(n, step.position, dtype=np.int32))
+        parts["stage"].append(np.full(n, entry["stage"], dtype=object))
+        parts["pass"].append(np.full(n, entry["pass"], dtype=np.int32))
+        parts["position"].append(np.full(n, entry["position"], dtype=np.int32))
         parts["time_since_command"].append(block.time - entry["command_time"])
         for k, name in enumerate(("platform", "inner", "middle")):
             parts[f"command_{name}"].append(np.full(n, entry["command"][k]))
@@ -543,31 +670,29 @@ def accepted_columns(accepted: dict[int, dict[str, Any]]) -> dict[str, NDArray[A
 def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
     """The accepted dwells straight from a journal (no driver, no re-execution): an independent check.
 
-    Collects, for every accepted verdict, the dwell pieces of that step and attempt that no
-    resume superseded; raises if a step was accepted twice (exactly-once).
+    Collects, for every accepted verdict (and every converged iteration), the dwell pieces of
+    that step and attempt that no resume superseded; raises if a step was accepted twice.
     """
     plan = Plan.from_dict(records[0]["plan"])
     operations = live_operations(records)
-    accepted: dict[int, dict[str, Any]] = {}
+    entries: list[tuple[float, dict[str, Any]]] = []
+    done: set[int] = set()
     for record in records:
-        if record.kind == "verdict" and record["accepted"]:
-            if record["step"] in accepted:
-                raise JournalMismatch(f"step {record['step']} accepted twice in the journal")
-            accepted[record["step"]] = {"attempt": record["attempt"], "command": record["command"], "command_time": record["command_time"]}
-    collected: dict[int, dict[str, Any]] = {}
-    for index, entry in accepted.items():
-        blocks = [
-            block_from_record(r)
-            for r in operations
-            if r.get("step") == index and r.get("attempt") == entry["attempt"] and r.get("phase") == "dwell" and not r.get("error")
-        ]
-        collected[index] = {
-            "step": plan.steps[index],
-            "command": np.asarray(entry["command"]),
-            "command_time": entry["command_time"],
-            "blocks": blocks,
-        }
-    return accepted_columns(collected)
+        if not ((record.kind == "verdict" and record["accepted"]) or record.kind == "iteration"):
+            continue
+        index = record["step"]
+        if index in done:
+            raise JournalMismatch(f"step {index} accepted twice in the journal")
+        done.add(index)
+        mine = [r for r in operations if r.get("step") == index and r.get("attempt") == record["attempt"] and not r.get("error")]
+        step = plan.steps[index]
+        if record.kind == "iteration":
+            new = iteration_entries(step, mine)
+        else:
+            blocks = [block_from_record(r) for r in mine if r.get("phase") == "dwell"]
+            new = [_entry(step.stage, step.pass_number, step.position, record["command"], record["command_time"], blocks)]
+        entries += [(e["command_time"], e) for e in new]
+    return accepted_columns([e for _, e in sorted(entries, key=lambda pair: pair[0])])
 
 
 _DEVICE_NAMES = tuple(c.name for c in DEVICE_COLUMNS)
