@@ -4,8 +4,11 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
 
     journal.bin       every operation and decision, append-only (the ground truth of the run)
     procedure.json    the plan that runs (also in the journal's start record)
+    procedure.toml    copy of the procedure definition the run was started with (if any)
+    prior.json        copy of the record used as prior / for the zero offsets (if any)
     device.csv        accepted dwells in the device-level data format read by ``stableins calibrate``
-    record.json       the calibration record, once the estimation has run
+    estimate.json     what this run's data alone say (data-only calibration record)
+    record.json       the unit's calibration record after this run (estimate merged onto the prior)
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +25,7 @@ from stableins import __version__
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
-from stableins.drivers.replay import JOURNAL_NAME, metadata_from_start
+from stableins.drivers.replay import JOURNAL_NAME
 from stableins.drivers.select import is_deterministic, open_driver
 from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
@@ -29,6 +33,10 @@ from stableins.procedures.runner import Console, Runner, RunOptions, Session, ac
 
 DATASET_NAME = "device.csv"
 PLAN_NAME = "procedure.json"
+DEFINITION_NAME = "procedure.toml"
+PRIOR_NAME = "prior.json"
+ESTIMATE_NAME = "estimate.json"
+RECORD_NAME = "record.json"
 
 
 @dataclass
@@ -40,6 +48,12 @@ class RunOutcome:
     dataset: Path | None
     replayed: int
     superseded: tuple[int, int] | None = None
+    estimate: Path | None = None
+    record: Path | None = None
+
+
+def _utc() -> str:
+    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 def start_run(
@@ -52,8 +66,15 @@ def start_run(
     console: Console | None = None,
     options: RunOptions | None = None,
     driver: PlatformDriver | None = None,
+    definition_file: str | os.PathLike[str] | None = None,
+    prior_file: str | os.PathLike[str] | None = None,
 ) -> RunOutcome:
-    """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet)."""
+    """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
+
+    ``definition_file`` (the procedure TOML) and ``prior_file`` (a calibration record whose
+    zero offsets re-point the gimbals and which a fine stage builds on) are copied into the
+    run directory first, so that a resumed run needs nothing from outside it.
+    """
     rundir = Path(rundir)
     console = console or Console()
     journal_file = rundir / JOURNAL_NAME
@@ -61,17 +82,25 @@ def start_run(
         raise InputError(
             "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
         )
+    prior = _load_record(prior_file) if prior_file is not None else None
+    if prior is not None and unit is not None and prior.serial_number != unit:
+        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate)
     try:
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="--unit", expected=repr(unit))
+        for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
+            if source is not None:
+                _copy(Path(source), rundir / name)
+        _write_plan(rundir, plan)
         journal = Journal.create(journal_file)
         with journal:
             journal.append(
                 "start",
                 {
                     "version": __version__,
+                    "utc": _utc(),
                     "plan": plan.to_dict(),
                     "driver": driver_spec,
                     "seed": seed,
@@ -79,14 +108,14 @@ def start_run(
                     "metadata": metadata.to_dict(),
                     "deterministic": is_deterministic(driver),
                     "options": vars(options or RunOptions()),
+                    "definition": DEFINITION_NAME if definition_file is not None else None,
+                    "prior": PRIOR_NAME if prior_file is not None else None,
                 },
             )
-            _write_plan(rundir, plan)
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
-            runner = Runner(plan, Session(journal, [], driver, forward=False), console, options)
+            runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options, journal.records[0])
             runner.execute()
-            dataset = export(rundir, runner, metadata)
-        return RunOutcome(rundir, runner, dataset, 0)
+            return finish(rundir, runner, metadata, journal.records[0], replayed=0)
     finally:
         driver.close()
 
@@ -125,11 +154,10 @@ def resume_run(
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        driver = (
-            driver_factory(start.fields)
-            if driver_factory
-            else open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate)
-        )
+        if driver_factory is not None:
+            driver = driver_factory(start.fields)
+        else:
+            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate)
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
@@ -139,17 +167,102 @@ def resume_run(
             deterministic = is_deterministic(driver)
             script, superseded = resume_script(journal.records, deterministic)
             journal.append(
-                "resume", {"superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec}
+                "resume",
+                {"utc": _utc(), "superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec},
             )
             how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
             console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
-            runner = Runner(plan, Session(journal, script, driver, forward=deterministic), console, RunOptions(**start.get("options", {})))
+            session = Session(journal, script, driver, forward=deterministic)
+            runner = _runner(rundir, plan, session, console, RunOptions(**start.get("options", {})), start)
             runner.execute()
-            replayed = runner.session.replayed
-            dataset = export(rundir, runner, metadata_from_start(start) if not hasattr(metadata, "to_dict") else metadata)
+            outcome = finish(rundir, runner, metadata, start, replayed=session.replayed)
+            outcome.superseded = superseded
+            return outcome
         finally:
             driver.close()
-    return RunOutcome(rundir, runner, dataset, replayed, superseded)
+
+
+def _runner(rundir: Path, plan: Plan, session: Session, console: Console, options: RunOptions | None, start: Any) -> Runner:
+    definition = None
+    if start.get("definition"):
+        from stableins.procedures.definition import load_procedure
+
+        definition = load_procedure(rundir / start["definition"])
+    offsets = (0.0, 0.0, 0.0)
+    if start.get("prior"):
+        prior = _load_record(rundir / start["prior"])
+        values = prior.values()
+        offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
+    return Runner(plan, session, console, options, definition=definition, offsets=offsets)
+
+
+def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
+    """After the last step: write the data set, run the stage's estimation, write the records."""
+    complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
+    data_end = complete.get("utc", "") if complete is not None else ""
+    dataset = export(rundir, runner, metadata)
+    outcome = RunOutcome(rundir, runner, dataset, replayed)
+    fit = _estimate(rundir, runner, metadata, dataset, start)
+    if fit is None:
+        return outcome
+    from stableins.records import CalibrationRecord
+
+    estimate = CalibrationRecord.from_fit_result(
+        fit,
+        site=metadata,
+        inputs=[dataset] if dataset else [],
+        procedure=runner.plan.name,
+        data_start=start.get("utc", ""),
+        data_end=data_end,
+    )
+    outcome.estimate = estimate.save(rundir / ESTIMATE_NAME)
+    record = estimate
+    if start.get("prior") and runner.iteration is None:
+        record = _load_record(rundir / start["prior"]).update(estimate)
+    outcome.record = record.save(rundir / RECORD_NAME)
+    runner.console.say(f"calibration record written: {outcome.record}")
+    runner.console.say(fit.report())
+    return outcome
+
+
+def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Path | None, start: Any) -> Any:
+    """The stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
+    if runner.iteration is not None:
+        return runner.iteration.fit
+    definition = runner.definition
+    if definition is None or definition.stage != "fine":
+        return None
+    if not start.get("prior"):
+        raise InputError(
+            "the fine stage starts from a coarse estimate", field="--prior", expected="the unit's coarse record (--prior RECORD or --store)"
+        )
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.fine import calibrate_fine
+
+    columns = accepted_columns(runner.entries)
+    source = str(dataset or rundir / JOURNAL_NAME)
+    dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
+    prior = _load_record(rundir / start["prior"])
+    return calibrate_fine(dwells, prior.values(), gravity=metadata.gravity, expected_positions=definition.positions, source=source)
+
+
+def _load_record(path: str | os.PathLike[str]) -> Any:
+    from stableins.records import CalibrationRecord
+
+    return CalibrationRecord.load(path)
+
+
+def _copy(source: Path, target: Path) -> None:
+    from stableins.data.atomic import atomic_write
+
+    try:
+        data = source.read_bytes()
+    except OSError as error:
+        raise InputError(f"cannot read: {error.strerror}", path=source) from None
+    if source.resolve() == target.resolve():
+        return
+    with atomic_write(target, "wb") as handle:
+        handle.write(data)
 
 
 def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:

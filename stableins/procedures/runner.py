@@ -31,6 +31,7 @@ import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any, TextIO
 
 import numpy as np
@@ -405,7 +406,7 @@ class Runner:
             elif isinstance(step, OffsetIterationStep):
                 self._offset_iteration(index, step, label)
         self.session.context = {}
-        self.session.decide("complete", {"step": total})
+        self.session.decide("complete", {"step": total, "utc": datetime.now(UTC).replace(microsecond=0).isoformat()})
 
     # ------------------------------------------------------------------ steps
     def _person(self, index: int, step: PersonStep, label: str) -> None:
