@@ -6,7 +6,7 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
     procedure.json    the plan that runs (also in the journal's start record)
     procedure.toml    copy of the procedure definition the run was started with (if any)
     prior.json        copy of the record used as prior / for the zero offsets (if any)
-    device.csv        accepted dwells in the device-level data format read by ``stableins calibrate``
+    device.h5         accepted dwells in the device-level data format read by ``stableins calibrate`` (HDF5)
     estimate.json     what this run's data alone say (data-only calibration record)
     record.json       the unit's calibration record after this run (estimate merged onto the prior)
 """
@@ -31,7 +31,7 @@ from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
 from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
 
-DATASET_NAME = "device.csv"
+DATASET_NAME = "device.h5"
 PLAN_NAME = "procedure.json"
 DEFINITION_NAME = "procedure.toml"
 PRIOR_NAME = "prior.json"
