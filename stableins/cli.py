@@ -44,6 +44,10 @@ class Group(NamedTuple):
 #: name -> Command or Group.  Register a command by adding one line.
 COMMANDS: dict[str, Command | Group] = {
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
+    "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
+    "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
 }
 
 EXIT_USAGE = 2

@@ -71,24 +71,32 @@ def test_checks():
 
 
 class ShakyDouble(PlatformDouble):
-    """Creeps during the first ``bad`` acquisitions of one position."""
+    """Creeps (output ramps at 5e-3 m/s² per s) after each of the first ``bad_commands`` commands of one position."""
 
-    def __init__(self, seed, bad_dwells, position=(0.0, 0.0, 0.0)):
+    def __init__(self, seed, bad_commands, position=(0.0, 0.0, 0.0)):
         super().__init__(seed)
-        self.bad_dwells = bad_dwells
+        self.bad_commands = bad_commands
         self.position = np.asarray(position)
+        self.creeping_since = None
+
+    def command(self, readings):
+        t = super().command(readings)
+        self.creeping_since = None
+        if self.bad_commands > 0 and np.allclose(readings, self.position):
+            self.bad_commands -= 1
+            self.creeping_since = self.time
+        return t
 
     def acquire(self, duration):
-        creeping = self.bad_dwells > 0 and np.allclose(self.readings, self.position) and duration == 0.5
-        self.drift = 5e-3 if creeping else 0.0
         block = super().acquire(duration)
-        self.bad_dwells -= creeping
+        if self.creeping_since is not None:
+            block.specific_force[:] += 5e-3 * (block.time - self.creeping_since)[:, None]
         return block
 
 
 def test_rejected_step_is_repeated_with_the_reason(tmp_path):
-    # first dwell at position 1 creeps for 4 pieces (one attempt: settle 1 + dwell 4 pieces): rejected once, accepted next
-    outcome, text = _run(tmp_path, driver=ShakyDouble(3, bad_dwells=4), plan=short_plan(person=False))
+    # position 1 creeps after its first command: rejected once, accepted at the next attempt
+    outcome, text = _run(tmp_path, driver=ShakyDouble(3, bad_commands=1), plan=short_plan(person=False))
     assert "rejected: not still: slope" in text and "(attempt 2)" in text
     verdicts = [r for r in scan(tmp_path / "run" / "journal.bin").records if r.kind == "verdict"]
     assert [v["accepted"] for v in verdicts[:2]] == [False, True]
@@ -106,11 +114,11 @@ def test_stop_after_retries_then_resume_with_fresh_retries(tmp_path):
             driver_spec="double",
             seed=1,
             console=Console(yes=True, out=out),
-            driver=ShakyDouble(1, bad_dwells=10**6),
+            driver=ShakyDouble(1, bad_commands=10**6),
         )
     # the fault is fixed; resume: the journal replays the two rejections and the stop, then tries again
     # (a repaired platform is a different platform: it is resumed like real hardware, not re-simulated)
-    repaired = ShakyDouble(1, bad_dwells=5)
+    repaired = ShakyDouble(1, bad_commands=1)
     repaired.deterministic = False
     outcome = resume_run(tmp_path / "run", console=Console(yes=True, out=out), driver_factory=lambda start: repaired)
     assert "fresh retries" in out.getvalue()

@@ -46,10 +46,7 @@ def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | 
         raise InputError(
             f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH"
         ) from None
-    options: dict[str, Any] = {}
-    if unit is not None:
-        options["serial_number"] = unit
-    if sample_rate is not None:
-        options["sample_rate"] = sample_rate
-    driver = SimulatedPlatform(Truth.draw(seed), seed, **options)
+    truth = Truth.draw(seed, **({"sample_rate": sample_rate} if sample_rate else {}), serial_number=unit)
+    driver = SimulatedPlatform(truth, seed=seed)
+    driver.deterministic = True  # the same seed and operations give the same samples
     return driver

@@ -29,12 +29,15 @@ class Checks:
         Largest |slope| of that fit on any axis [m/s² per s] ("still": no drift, no creep).
     min_fraction : float
         Smallest fraction of the expected number of samples (``dwell × rate``) accepted (gaps).
+    max_slew : float
+        Longest wait for the platform to arrive after a command [s]; the settle time starts on arrival.
     """
 
     angle_tolerance: float = math.radians(0.01)
     scatter_max: float = 1e-3
     slope_max: float = 1e-5
     min_fraction: float = 0.98
+    max_slew: float = 120.0
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,10 @@ goes live.  Nothing is asked twice, nothing is written twice, nothing already jo
 Acceptance checks of a dwell (SI; thresholds in the procedure)
 --------------------------------------------------------------
 reached : :math:`\max_i |\bar r_i - r_i^{cmd}| \le` ``angle_tolerance`` (wrapped to ±π).
-still   : per accelerometer axis, the least-squares line :math:`f(t) = a + b (t - \bar t)`;
-          :math:`|b| \le` ``slope_max`` and the residual standard deviation :math:`\le` ``scatter_max``.
+still   : per accelerometer axis, the least-squares line :math:`f(t) = a + b (t - \bar t)` with residual
+          standard deviation :math:`s \le` ``scatter_max``; the slope fails only when it exceeds the limit
+          beyond its own noise, :math:`|b| - 3\sigma_b >` ``slope_max`` with
+          :math:`\sigma_b = s / \sqrt{\sum (t - \bar t)^2}` (a short, noisy dwell is not rejected for noise).
 complete: all samples finite and at least ``min_fraction`` of ``dwell × rate`` of them.
 """
 
@@ -45,6 +47,8 @@ from stableins.drivers.replay import block_from_record, live_operations
 from stableins.procedures.journal import Journal, Record
 from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan
 
+#: A slope counts against the limit only beyond this many σ of its own noise (short dwells are noisy).
+SLOPE_SIGMAS = 3.0
 #: Exit status of a run that stopped and can be resumed (2 is reserved for bad input).
 EXIT_STOPPED = 3
 _ERROR_TYPES: dict[str, type[DriverError]] = {
@@ -80,8 +84,7 @@ class Console:
         self.values = dict(values or {})
         self.out = out or sys.stderr
         self.quiet = quiet
-        self._bar_open = False
-        self._tty = hasattr(self.out, "isatty") and self.out.isatty()
+        self._bar: Any = None
 
     def say(self, text: str) -> None:
         self._end_bar()
@@ -89,24 +92,22 @@ class Console:
             print(text, file=self.out, flush=True)
 
     def progress(self, label: str, done: float, total: float) -> None:
+        """Progress of a dwell (a bar on a terminal, :class:`stableins.progress.Progress`); closed when done."""
         if self.quiet:
             return
-        fraction = min(1.0, done / total) if total > 0 else 1.0
-        width = 30
-        bar = "#" * int(round(fraction * width))
-        text = f"  {label} [{bar:<{width}}] {done:6.1f}/{total:.1f} s"
-        if self._tty:
-            print("\r" + text, end="", file=self.out, flush=True)
-            self._bar_open = True
-            if fraction >= 1.0:
-                self._end_bar()
-        elif fraction >= 1.0:
-            print(text, file=self.out, flush=True)
+        from stableins.progress import Progress
+
+        if self._bar is None or self._bar.label != f"  {label}":
+            self._end_bar()
+            self._bar = Progress(total=total, label=f"  {label}", stream=self.out)
+        self._bar.update(done - self._bar.done)
+        if done >= total:
+            self._end_bar()
 
     def _end_bar(self) -> None:
-        if self._bar_open:
-            print(file=self.out, flush=True)
-            self._bar_open = False
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
     def confirm(self, prompt: str) -> bool:
         if self.yes:
@@ -345,13 +346,20 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Che
     design = np.column_stack([np.ones(n), t])
     coefficients, *_ = np.linalg.lstsq(design, block.specific_force, rcond=None)
     residual = block.specific_force - design @ coefficients
-    scatter = float(np.max(np.std(residual, axis=0, ddof=2)))
-    slope = float(np.max(np.abs(coefficients[1])))
+    deviation = np.std(residual, axis=0, ddof=2)
+    scatter = float(np.max(deviation))
+    slope_sigma = deviation / math.sqrt(float(np.sum(t**2))) if np.any(t) else np.full(3, math.inf)
+    excess = np.abs(coefficients[1]) - SLOPE_SIGMAS * slope_sigma
+    worst = int(np.argmax(excess))
+    slope = float(abs(coefficients[1][worst]))
     micro_g = 9.80665e-6
     if scatter > checks.scatter_max:
         reasons.append(f"not still: scatter {scatter / micro_g:.1f} µg (limit {checks.scatter_max / micro_g:.1f})")
-    if slope > checks.slope_max:
-        reasons.append(f"not still: slope {slope / micro_g:.2f} µg/s (limit {checks.slope_max / micro_g:.2f})")
+    if excess[worst] > checks.slope_max:
+        reasons.append(
+            f"not still: slope {slope / micro_g:.2f} ± {slope_sigma[worst] / micro_g:.2f} µg/s on {'xyz'[worst]} "
+            f"(limit {checks.slope_max / micro_g:.2f} µg/s beyond {SLOPE_SIGMAS:g}σ)"
+        )
     return CheckResult(not reasons, tuple(reasons), angle_error, scatter, slope, n, expected)
 
 
@@ -442,9 +450,10 @@ class Runner:
             self.console.say(f"{label}{again}: command readings ({degrees}) deg, settle {step.settle:g} s, dwell {step.dwell:g} s{why}")
             try:
                 command_time = self.session.operate("command", [float(r) for r in readings])
-                if step.settle > 0:
+                arrived = self._wait_until_reached(readings, step.checks)
+                if arrived is None and step.settle > 0:
                     self._record(step.settle, "settling", "settle")
-                blocks = self._record(step.dwell, "dwell", "dwell")
+                blocks = self._record(step.dwell, "dwell", "dwell") if arrived is None else []
             except (DriverConnectionError, DriverProtocolError) as error:
                 link_failures += 1
                 self.session.decide("interrupted", {"step": index, "attempt": attempt, "reason": str(error)})
@@ -456,8 +465,10 @@ class Runner:
                         raise RunStopped(message) from None
                     link_failures = 0
                 continue
-            block = _concatenate(blocks)
-            result = evaluate_dwell(readings, block, step.checks, step.dwell, self.rate)
+            if arrived is None:
+                result = evaluate_dwell(readings, _concatenate(blocks), step.checks, step.dwell, self.rate)
+            else:
+                result = CheckResult(False, (arrived,), math.inf, math.inf, math.inf, 0, int(round(step.dwell * self.rate)))
             verdict = {
                 "step": index,
                 "attempt": attempt,
@@ -487,6 +498,30 @@ class Runner:
                     continue
                 raise RunStopped(message)
             self.console.say(f"  repeating the step ({rejections} of {self.plan.retries} retries used)")
+
+    def _wait_until_reached(self, readings: NDArray[np.float64], checks: Checks) -> str | None:
+        """Record (and discard) short pieces until the platform is at the commanded readings.
+
+        Returns ``None`` on arrival, else why it did not arrive within ``checks.max_slew``.
+        The settle time counts from arrival: slews take as long as they take (10°/s is typical).
+        """
+        piece = min(1.0, self.plan.chunk)
+        waited = 0.0
+        context = dict(self.session.context, phase="slew")
+        error = math.inf
+        while waited < checks.max_slew - 1e-9:
+            self.session.context = context
+            block = self.session.operate("acquire", [piece])
+            waited += piece
+            if len(block) == 0 or not np.all(np.isfinite(block.angles)):
+                continue
+            offsets = np.angle(np.exp(1j * (block.angles - readings)))
+            error = float(max(np.max(np.abs(np.mean(offsets, axis=0))), np.max(np.abs(offsets[-1]))))
+            if error <= checks.angle_tolerance:
+                self.session.context = {k: v for k, v in context.items() if k != "phase"}
+                return None
+        self.session.context = {k: v for k, v in context.items() if k != "phase"}
+        return f"platform did not reach the commanded angles within {checks.max_slew:g} s (still {math.degrees(error):.4f} deg off)"
 
     def _record(self, duration: float, label: str, phase: str) -> list[SampleBlock]:
         blocks = []
