@@ -19,7 +19,24 @@ POSITIONS = [
 LOOSE = Checks(angle_tolerance=math.radians(0.01), scatter_max=5e-3, slope_max=2e-4, min_fraction=0.98)
 
 
-def short_plan(retries: int = 2, dwell: float = 2.0, chunk: float = 0.5, person: bool = True) -> Plan:
+#: Checks for the simulated platform's quartz-like noise (~500 µg per sample at 100 Hz).
+SIM_CHECKS = Checks(angle_tolerance=math.radians(0.01), scatter_max=2e-2, slope_max=2e-4, min_fraction=0.98)
+
+
+#: Small moves (10°): the simulated platform slews at 10°/s, so a kill test run stays short.
+SMALL_MOVES = [
+    (0.0, 0.0, 0.0),
+    (0.0, 0.1745, 0.0),
+    (0.1745, 0.1745, 0.0),
+    (0.1745, 0.1745, 0.1745),
+    (0.0, 0.1745, 0.1745),
+    (0.0, 0.0, 0.1745),
+]
+
+
+def short_plan(
+    retries: int = 2, dwell: float = 2.0, chunk: float = 0.5, person: bool = True, checks: Checks = LOOSE, positions=POSITIONS
+) -> Plan:
     steps: list = []
     if person:
         steps.append(PersonStep("confirm mounting", "confirm", "Is the unit mounted and powered?"))
@@ -28,8 +45,8 @@ def short_plan(retries: int = 2, dwell: float = 2.0, chunk: float = 0.5, person:
                 "lab temperature", "enter", "Lab temperature", key="lab_temperature", unit="degC", minimum=-20, maximum=60, default=21.5
             )
         )
-    for k, readings in enumerate(POSITIONS, start=1):
-        steps.append(DwellStep(f"position {k}", "coarse", 1, k, readings, settle=0.5, dwell=dwell, checks=LOOSE, why="test position"))
+    for k, readings in enumerate(positions, start=1):
+        steps.append(DwellStep(f"position {k}", "coarse", 1, k, readings, settle=0.5, dwell=dwell, checks=checks, why="test position"))
     return Plan("short test procedure", "device", tuple(steps), retries=retries, chunk=chunk)
 
 

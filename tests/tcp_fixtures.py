@@ -21,10 +21,17 @@ serve(PlatformDouble(seed={seed}), 0, ready=lambda port: print(port, flush=True)
 
 
 class ServerProcess:
-    """A platform server in its own process on 127.0.0.1 (killed on exit)."""
+    """A platform server in its own process on 127.0.0.1 (killed on exit).
 
-    def __init__(self, seed: int = 0, command: list[str] | None = None) -> None:
-        argv = command or [sys.executable, "-c", SERVER_SCRIPT.format(root=str(ROOT), seed=seed)]
+    ``simulator=True`` runs ``stableins serve-sim`` (the simulated platform); otherwise the
+    test double is served (exact, simple outputs for bit-for-bit comparisons).
+    """
+
+    def __init__(self, seed: int = 0, simulator: bool = False, unit: str = "NET-1") -> None:
+        if simulator:
+            argv = [sys.executable, "-m", "stableins.cli", "serve-sim", "--port", "0", "--seed", str(seed), "--unit", unit, "--quiet"]
+        else:
+            argv = [sys.executable, "-c", SERVER_SCRIPT.format(root=str(ROOT), seed=seed)]
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         self.process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         line = self.process.stdout.readline()
