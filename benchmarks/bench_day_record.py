@@ -58,6 +58,7 @@ def synthetic_chunks(duration: float, rate: float, chunk: int = CHUNK):
 
 def simulator_chunks(duration: float, rate: float, chunk: int = CHUNK):
     from stableins.simulator.system import system_record_chunks
+
     from stableins.simulator.truth import Truth
 
     truth = Truth.draw(1, sample_rate=rate)

@@ -13,7 +13,8 @@ Conventions shared by every command:
   to stderr), see :func:`stableins.output.emit`;
 - a user error (:class:`~stableins.data.errors.InputError`, bad arguments) prints
   ``stableins: error: <message>`` and exits with status 2, never a traceback;
-- Ctrl-C exits with status 130.
+- Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
+  prints ``stableins: error: <message>`` and exits with status 1.
 """
 
 from __future__ import annotations
@@ -44,12 +45,16 @@ class Group(NamedTuple):
 #: name -> Command or Group.  Register a command by adding one line.
 COMMANDS: dict[str, Command | Group] = {
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "calibrate": Group(
+        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+    ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
     "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
     "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
 }
 
+EXIT_FAILURE = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
@@ -121,8 +126,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:  # e.g. `stableins ... --json | head`
-        return 0
+    except OSError as error:  # disk full, permission denied ... on a file the user named: no traceback
+        if isinstance(error, BrokenPipeError):
+            return 0
+        print(f"stableins: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
     except SystemExit as exit_:  # argparse: --help, --version, usage errors
         code = exit_.code
         return code if isinstance(code, int) else (0 if code is None else 1)

@@ -99,6 +99,10 @@ def fake_commands(tmp_path, monkeypatch):
         "def run(args):\n    from stableins.data.errors import InputError\n"
         "    raise InputError('bad thing', path='f.csv', row=3, field='f_x', expected='a number')\n"
     )
+    (package / "disk_full.py").write_text(
+        "def configure(parser):\n    pass\n\ndef run(args):\n    import errno, os\n"
+        "    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'out/system.h5')\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     table = {
         "calibrate": cli.Group(
@@ -110,6 +114,7 @@ def fake_commands(tmp_path, monkeypatch):
         ),
         "interrupt": cli.Command("fakecmds.interrupt", "raises KeyboardInterrupt"),
         "crash": cli.Command("fakecmds.crash_input", "raises InputError"),
+        "disk-full": cli.Command("fakecmds.disk_full", "raises OSError(ENOSPC)"),
     }
     monkeypatch.setattr(cli, "COMMANDS", table)
     return table
@@ -140,6 +145,10 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     err = capsys.readouterr().err
     assert err.strip() == "stableins: error: f.csv, row 3, field 'f_x': bad thing (expected a number)"
     assert cli.main(["interrupt"]) == 130
+    assert cli.main(["disk-full"]) == 1
+    assert (
+        capsys.readouterr().err.strip() == "stableins: interrupted\nstableins: error: [Errno 28] No space left on device: 'out/system.h5'"
+    )
 
 
 # --------------------------------------------------------------------------- bad input through the CLI
@@ -253,3 +262,99 @@ def test_emit_json_handles_numpy_and_non_finite(capsys):
 
     emit(SimpleNamespace(json=True), {"a": np.arange(3), "b": np.float64(np.nan), "c": (1, Path("x"))})
     assert json.loads(capsys.readouterr().out) == {"a": [0, 1, 2], "b": None, "c": [1, "x"]}
+
+
+# --------------------------------------------------------------------------- simulate
+def _simulate_available() -> bool:
+    import importlib.util
+
+    return "simulate" in cli.COMMANDS and importlib.util.find_spec("stableins.procedures") is not None
+
+
+#: ``simulate device`` needs the procedure definitions (branch device); registered once they are on main.
+requires_simulate = pytest.mark.skipif(not _simulate_available(), reason="simulate is registered once stableins.procedures is on main")
+
+
+def simulate(tmp_path: Path, *extra: str, name: str = "sim") -> tuple[int, Path]:
+    out = tmp_path / name
+    argv = ["simulate", "device", "--out", str(out), "--procedure", "device-coarse", "--dwell", "1", "--settle", "0.5", *extra]
+    return cli.main(argv), out
+
+
+@requires_simulate
+def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
+    from stableins.data.device import load_device
+    from stableins.simulator.truth import Truth
+
+    status, out = simulate(tmp_path, "--seed", "4", "--json")
+    assert status == 0
+    result = json.loads(capsys.readouterr().out)
+    assert sorted(p.name for p in out.iterdir()) == ["device-coarse.csv", "truth.json"]
+    assert result["files"][0]["rows"] == 18 * 100 and result["seed"] == 4
+    session = load_device(out / "device-coarse.csv")
+    dwells = session.dwells(stage="coarse", pass_number=1)
+    assert [d.position for d in dwells] == list(range(1, 19)) and all(len(d) == 100 for d in dwells)
+    truth = Truth.read(out / "truth.json")
+    assert truth.seed == 4 and session.metadata.serial_number == truth.site.serial_number
+    text = (out / "device-coarse.csv").read_text()
+    assert "installed_calibration" not in text and "bias_x" not in text  # the data never carry the truth
+    # |f| is gravity at every dwell (to the 1e-3 of the instrument errors)
+    g = np.linalg.norm(np.array([d.specific_force.mean(axis=0) for d in dwells]), axis=1)
+    np.testing.assert_allclose(g, truth.site.gravity, rtol=2e-3)
+
+
+@requires_simulate
+def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, capsys):
+    from stableins.data.device import load_device
+    from stableins.simulator.truth import Truth
+
+    assert simulate(tmp_path, "--seed", "9", name="a")[0] == 0
+    assert simulate(tmp_path, "--seed", "9", name="b")[0] == 0
+    k3 = 1e-6  # s^4/m^2: 1e-3 m/s^2 at 1 g, far above the noise
+    assert simulate(tmp_path, "--truth", str(tmp_path / "a" / "truth.json"), "--seed", "9", "--hidden", f"K3_x={k3}", name="c")[0] == 0
+    a, b, c = (load_device(tmp_path / n / "device-coarse.csv") for n in "abc")
+    np.testing.assert_array_equal(a.columns["f_x"], b.columns["f_x"])
+    assert Truth.read(tmp_path / "c" / "truth.json").effects == {"K3_x": k3}
+    # same seed, same noise: the dwell means differ by the cubic term, to the quantizer's
+    # resolution (its carry moves a dwell mean by at most one LSB / 100 samples = 1e-5 m/s^2)
+    change = [(dc.specific_force[:, 0] - da.specific_force[:, 0]).mean() for da, dc in zip(a.dwells(), c.dwells())]
+    expected = [(k3 * da.specific_force[:, 0] ** 3).mean() for da in a.dwells()]
+    assert max(map(abs, expected)) > 9e-4
+    np.testing.assert_allclose(change, expected, rtol=0, atol=2.5e-5)
+    np.testing.assert_array_equal(c.columns["f_y"], a.columns["f_y"])
+
+
+@requires_simulate
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        (["--hidden", "K3_x"], "is not ID=VALUE"),
+        (["--hidden", "K3_x=big"], "'big' is not a number"),
+        (["--hidden", "K3_q=1e-6"], "unknown effect id 'K3_q'"),
+        (["--duration", "1h"], "--duration applies to system-level simulation only"),
+        (["--dwell", "-1"], "must be a positive number"),
+        (["--procedure", "no-such-procedure"], "no-such-procedure"),
+        (["--truth", "missing.json"], "missing.json"),
+    ],
+)
+def test_simulate_bad_arguments_exit_2(tmp_path, capsys, argv, fragment):
+    status, out = simulate(tmp_path, *argv)
+    err = capsys.readouterr().err
+    assert status == 2 and "stableins: error:" in err and fragment in err, err
+    assert not (out / "device-coarse.csv").exists()
+
+
+@requires_simulate
+def test_simulate_into_an_unwritable_place_exits_2(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    status = cli.main(["simulate", "device", "--out", str(blocker / "sub"), "--procedure", "device-coarse", "--dwell", "1"])
+    err = capsys.readouterr().err
+    assert status == 2 and "field '--out'" in err and "cannot create the output directory" in err
+
+
+@requires_simulate
+def test_simulate_list_effects(capsys):
+    assert cli.main(["simulate", "device", "--list-effects", "--json"]) == 0
+    effects = {e["id"]: e for e in json.loads(capsys.readouterr().out)["effects"]}
+    assert effects["K3_x"]["unit"] == "s^4/m^2"

@@ -9,6 +9,8 @@ import warnings
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stableins.data.device import DeviceDataset, load_device, save_device
 from stableins.data.errors import InputError
@@ -525,3 +527,96 @@ def test_csv_column_order_is_free_and_extra_columns_ignored(device_csv):
     again = load_device(device_csv)
     for c in DEVICE_COLUMNS:
         np.testing.assert_array_equal(again.columns[c.name], original.columns[c.name])
+
+
+@pytest.mark.parametrize("rows", [100, 600, 601, 65536])
+def test_sampling_issue_rows_do_not_depend_on_chunking(tmp_path, rows):
+    time = np.arange(1000) / RATE
+    time[600:] += 1.0  # gap before row 601
+    time[200] += 0.1 / RATE  # jitter at rows 201 and 202
+    record = write_record(tmp_path / "r.h5", time)
+    with pytest.warns(SamplingWarning):
+        report = record.check_sampling(allow_gaps=True, rows=rows)
+    assert [g.row for g in report.gaps] == [601]
+    assert [j.row for j in report.jitter] == [201, 202]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=30))
+def test_csv_float_round_trip_is_exact(tmp_path_factory, values):
+    path = tmp_path_factory.mktemp("rt") / "s.csv"
+    n = len(values)
+    columns = make_device_columns(positions=(1,), per_dwell=n, stages=("coarse",))
+    columns["f_x"] = np.array(values)
+    save_device(path, columns, make_metadata())
+    np.testing.assert_array_equal(load_device(path).columns["f_x"], columns["f_x"])
+
+
+def test_package_exports_are_lazy():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, stableins.data as d\n"
+        "assert d.load_device.__module__ == 'stableins.data.device' and d.SystemRecordWriter.__module__ == 'stableins.data.system'\n"
+        "assert not {'numpy', 'h5py'} & set(sys.modules), sorted({'numpy', 'h5py'} & set(sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+
+
+def test_h5_written_by_another_tool(tmp_path):
+    """Only the header attribute and unit-tagged datasets are needed (docs/formats.md)."""
+    columns = make_device_columns()
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["header"] = json.dumps(
+            {"format": "stableins-device", "schema_version": 1, "metadata": metadata_to_document(make_metadata())}
+        )
+        for c in DEVICE_COLUMNS:
+            values = columns[c.name].astype("S") if c.dtype == "str" else columns[c.name]
+            d = f.create_dataset(f"columns/{c.name}", data=values)
+            if c.unit:
+                d.attrs["unit"] = c.unit
+    dataset = load_device(path)
+    np.testing.assert_array_equal(dataset.columns["f_y"], columns["f_y"])
+    assert len(dataset.dwells()) == 6
+    with h5py.File(path, "a") as f:
+        del f["columns/f_y"]
+        f["columns/f_y"] = columns["f_y"][:-1]
+        f["columns/f_y"].attrs["unit"] = "m/s^2"
+    expect_input_error(path, "field 'f_y'", "shape (119,)")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_damaged_csv_gives_input_error_or_loads(tmp_path_factory, data):
+    """Any cut, deletion or overwrite of a CSV file: a clean load or an InputError, nothing else."""
+    path = tmp_path_factory.mktemp("fuzz") / "s.csv"
+    save_device(path, make_device_columns(per_dwell=5), make_metadata())
+    raw = bytearray(path.read_bytes())
+    for _ in range(data.draw(st.integers(1, 3))):
+        start = data.draw(st.integers(0, len(raw) - 1))
+        stop = data.draw(st.integers(start, min(len(raw), start + 40)))
+        action = data.draw(st.sampled_from(["cut", "delete", "overwrite"]))
+        if action == "cut":
+            raw = raw[:start]
+        elif action == "delete":
+            del raw[start:stop]
+        else:
+            raw[start:stop] = data.draw(st.binary(min_size=stop - start, max_size=stop - start))
+        if not raw:
+            break
+    path.write_bytes(bytes(raw))
+    try:
+        load_device(path)
+    except InputError as error:
+        assert str(path) in str(error)
+
+
+@pytest.mark.parametrize("fraction", [0.01, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99])
+def test_truncated_h5_at_any_length_gives_input_error(tmp_path, fraction):
+    path = save_device(tmp_path / "s.h5", make_device_columns(per_dwell=200), make_metadata())
+    raw = path.read_bytes()
+    path.write_bytes(raw[: int(len(raw) * fraction)])
+    expect_input_error(path, "truncated or corrupt")

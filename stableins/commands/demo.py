@@ -28,9 +28,9 @@ def run(args: argparse.Namespace) -> int:
         truth=None, hidden=[], seed=args.seed, rate=None, format=None, procedure=None, dwell=None, settle=None, duration=args.duration
     )
     truth = build_truth(options)
+    truth.write(out / "truth.json")
     files = simulate_device(truth, out, args.seed, options)
     files.append(simulate_system(truth, out, args.seed, options))
-    truth.write(out / "truth.json")
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {out / 'truth.json'}"]
     emit(args, {"out": str(out), "files": files, "truth": str(out / "truth.json")}, "\n".join(lines))
     return 0

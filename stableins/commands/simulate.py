@@ -6,7 +6,8 @@
     stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
 
-The directory receives the data (``device-<procedure>.csv`` or ``system.h5``) and
+The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
+per procedure, or ``system.h5``) and
 ``truth.json``, the simulated world (parameters, injected effects, noise, seed).  The data
 files carry only what a real site would know (site metadata), never the truth.
 """
@@ -24,6 +25,8 @@ from stableins.data.errors import InputError
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
+#: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).
+CSV_ROW_LIMIT = 100_000
 
 
 def parse_duration(text: str) -> float:
@@ -84,7 +87,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="ID=VALUE",
         help="inject an effect of the catalogue, value in SI (repeatable; see --list-effects)",
     )
-    parser.add_argument("--format", choices=("csv", "h5"), help="data format (default: csv for device, h5 for system)")
+    parser.add_argument(
+        "--format",
+        choices=("csv", "h5"),
+        help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
+    )
     parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
     parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
     parser.add_argument(
@@ -147,16 +154,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--procedure, --dwell and --settle apply to device-level simulation only", field="--procedure")
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
-    out = prepare_directory(args.out)
     truth = build_truth(args)
+    out = prepare_directory(args.out)
     seed = truth.seed if args.seed is None else args.seed
+    truth_path = out / "truth.json"
+    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+    note(f"truth written to {truth_path}")
     if args.level == "device":
         files = simulate_device(truth, out, seed, args)
     else:
         files = [simulate_system(truth, out, seed, args)]
-    truth_path = out / "truth.json"
-    truth.write(truth_path)
-    note(f"truth written to {truth_path}")
     result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
@@ -164,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
-    """One file per procedure: ``device-<name>.<format>``."""
+    """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``)."""
     from dataclasses import replace
 
     from stableins.data.device import save_device
@@ -172,13 +179,11 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     from stableins.progress import Progress
     from stableins.simulator.device import simulate_dwells
 
-    suffix = args.format or "csv"
     rate = args.rate or truth.site.sample_rate
     files = []
-    names = args.procedure or list(DEFAULT_PROCEDURES)
-    with Progress(total=len(names), label="simulate device") as progress:
-        for k, name in enumerate(names):
-            procedure = load_procedure(name)
+    procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
+    with Progress(total=len(procedures), label="simulate device") as progress:
+        for k, procedure in enumerate(procedures):
             steps = procedure.steps
             dwell = args.dwell if args.dwell is not None else steps[0].dwell
             settle = args.settle if args.settle is not None else steps[0].settle
@@ -193,8 +198,10 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
                 pass_number=1,
             )
             metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name})
-            path = save_device(out / f"device-{procedure.name}.{suffix}", columns, metadata)
-            files.append({"path": str(path), "rows": len(columns["time"]), "procedure": procedure.name, "stage": procedure.stage})
+            n = len(columns["time"])
+            suffix = args.format or ("csv" if n <= CSV_ROW_LIMIT else "h5")
+            path = save_device(out / f"{procedure.name}.{suffix}", columns, metadata)
+            files.append({"path": str(path), "rows": n, "procedure": procedure.name, "stage": procedure.stage})
             progress.update()
     return files
 
@@ -213,7 +220,7 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     chunk_samples = 65536
     metadata = replace(truth.site, sample_rate=rate)  # the truth puts its damping-loop parameters in site.damping
     path = out / f"system.{suffix}"
-    total = math.ceil(duration * rate)
+    total = int(round(duration * rate))
     with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:
         with Progress(total=total, label="simulate system") as progress:
             for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):

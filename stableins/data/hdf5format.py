@@ -173,7 +173,7 @@ class H5Reader:
             except (TypeError, json.JSONDecodeError) as error:
                 raise InputError(f"'header' attribute is not valid JSON ({error})", path=self.path, field="header") from None
             check_header_document(self.document, kind, self.path)
-            if not bool(f.attrs.get("complete", False)):
+            if not bool(f.attrs.get("complete", True)):  # absent in files made by other tools
                 raise InputError(
                     "the writer did not finish this file (attribute complete is false)", path=self.path, expected="a complete file"
                 )
@@ -182,7 +182,7 @@ class H5Reader:
             group = f[GROUP]
             found = [(name, _unit_attr(group[name])) for name in group]
             match_columns(found, self.schema, self.path)
-            self.rows = int(f.attrs.get("rows", -1))
+            self.rows = int(f.attrs["rows"]) if "rows" in f.attrs else int(group[self.schema[0].name].shape[0])
             for c in self.schema:
                 d = group[c.name]
                 if d.ndim != 1 or d.shape[0] != self.rows:
