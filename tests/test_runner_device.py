@@ -10,15 +10,14 @@ import pytest
 pytest.importorskip("stableins.estimators.offset_iteration")
 pytest.importorskip("stableins.records")
 
-from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure  # noqa: E402
-from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
-
 from stableins.data.device import load_device  # noqa: E402
+from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure  # noqa: E402
 from stableins.procedures.journal import scan  # noqa: E402
 from stableins.procedures.planning import plan_from_definition  # noqa: E402
 from stableins.procedures.rundir import resume_run, start_run  # noqa: E402
 from stableins.procedures.runner import Console, journal_columns  # noqa: E402
 from stableins.records import CalibrationRecord  # noqa: E402
+from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
 
 
 def short_definition(tmp_path, name):
@@ -54,6 +53,12 @@ class CrashingPlatform(ExactPlatform):
     def acquire(self, duration):
         self._tick()
         return super().acquire(duration)
+
+
+@pytest.fixture(autouse=True)
+def no_fsync(monkeypatch):
+    """Durability is tested in test_runner_journal/test_runner_kill; here fsync (~5 ms each) would only cost time."""
+    monkeypatch.setattr("os.fsync", lambda fd: None)
 
 
 @pytest.fixture(scope="module")

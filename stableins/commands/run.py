@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         if args.resume:
             if args.procedure or args.out:
                 raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
-            outcome = resume_run(args.resume, console=console, driver_spec=args.driver)
+            outcome = resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout)
         else:
             missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
             if missing:
@@ -128,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
                 options=RunOptions(link_failures=args.link_failures),
                 definition_file=definition_file,
                 prior_file=prior_file(args),
+                timeout=args.timeout,
             )
     except RunStopped as stop:
         print(

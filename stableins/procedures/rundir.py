@@ -68,6 +68,7 @@ def start_run(
     driver: PlatformDriver | None = None,
     definition_file: str | os.PathLike[str] | None = None,
     prior_file: str | os.PathLike[str] | None = None,
+    timeout: float = 10.0,
 ) -> RunOutcome:
     """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
 
@@ -85,7 +86,7 @@ def start_run(
     prior = _load_record(prior_file) if prior_file is not None else None
     if prior is not None and unit is not None and prior.serial_number != unit:
         raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
-    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate)
+    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
     try:
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
@@ -126,6 +127,7 @@ def resume_run(
     console: Console | None = None,
     driver_spec: str | None = None,
     driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None = None,
+    timeout: float = 10.0,
 ) -> RunOutcome:
     """Continue the run in ``rundir`` where it stopped.
 
@@ -157,7 +159,7 @@ def resume_run(
         if driver_factory is not None:
             driver = driver_factory(start.fields)
         else:
-            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate)
+            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
