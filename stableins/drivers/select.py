@@ -40,13 +40,57 @@ def open_driver(
 def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
     """The embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
     try:
-        from stableins.simulator.device import SimulatedPlatform
         from stableins.simulator.truth import Truth
     except ImportError as error:  # pragma: no cover - the simulator ships with stableins
         raise InputError(
             f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH"
         ) from None
     truth = Truth.draw(seed, **({"sample_rate": sample_rate} if sample_rate else {}), serial_number=unit)
-    driver = SimulatedPlatform(truth, seed=seed)
-    driver.deterministic = True  # the same seed and operations give the same samples
-    return driver
+    return SimulatedDriver(truth, seed)
+
+
+class SimulatedDriver:
+    """The simulated platform as a driver, plus the system-level recorder of the same truth.
+
+    Device-level operations go to :class:`stableins.simulator.device.SimulatedPlatform`;
+    :meth:`static_record` streams a system-level static record (INS outputs included) from
+    :func:`stableins.simulator.system.system_record_chunks`.  Deterministic: the same seed and
+    the same operations give the same samples.
+    """
+
+    deterministic = True
+
+    def __init__(self, truth: Any, seed: int) -> None:
+        from stableins.simulator.device import SimulatedPlatform
+
+        self.truth = truth
+        self.seed = seed
+        self.platform = SimulatedPlatform(truth, seed=seed)
+
+    @property
+    def metadata(self) -> Any:
+        return self.platform.metadata
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        return self.platform.command(readings)
+
+    def read_angles(self) -> Any:
+        return self.platform.read_angles()
+
+    def acquire(self, duration: float) -> Any:
+        return self.platform.acquire(duration)
+
+    def status(self) -> dict[str, object]:
+        return self.platform.status()
+
+    def close(self) -> None:
+        self.platform.close()
+
+    def static_record(self, duration: float, chunk: float) -> Any:
+        """Chunks (dicts of :data:`~stableins.data.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s."""
+        try:
+            from stableins.simulator.system import system_record_chunks
+        except ImportError as error:
+            raise InputError(f"the simulated system-level recorder is not available ({error})", field="--driver") from None
+        rate = self.platform.rate
+        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=max(1, int(round(chunk * rate))))

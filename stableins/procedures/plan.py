@@ -99,8 +99,26 @@ class OffsetIterationStep:
     kind: str = "offset_iteration"
 
 
-Step = DwellStep | PersonStep | OffsetIterationStep
-_STEP_TYPES: dict[str, type] = {"dwell": DwellStep, "person": PersonStep, "offset_iteration": OffsetIterationStep}
+@dataclass(frozen=True)
+class StaticRecordStep:
+    """System-level static record: hold ``readings`` [rad], settle [s], record ``duration`` [s] with the INS outputs."""
+
+    name: str
+    readings: tuple[float, float, float]
+    settle: float
+    duration: float
+    checks: Checks = field(default_factory=Checks)
+    why: str = "the platform stays fixed in inertial space while the INS error dynamics are recorded"
+    kind: str = "static_record"
+
+
+Step = DwellStep | PersonStep | OffsetIterationStep | StaticRecordStep
+_STEP_TYPES: dict[str, type] = {
+    "dwell": DwellStep,
+    "person": PersonStep,
+    "offset_iteration": OffsetIterationStep,
+    "static_record": StaticRecordStep,
+}
 
 
 @dataclass(frozen=True)
@@ -163,7 +181,7 @@ class Plan:
         for s in d["steps"]:
             s = dict(s)
             kind = s["kind"]
-            if kind == "dwell":
+            if kind in ("dwell", "static_record"):
                 s["readings"] = tuple(s["readings"])
                 s["checks"] = Checks(**s["checks"])
             if kind == "offset_iteration":

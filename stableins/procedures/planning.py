@@ -12,30 +12,41 @@ definition's ``[acceptance]`` table) still apply when the data are estimated.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, Plan
-
-#: Online checks for device-level dwells: 20″ of pointing, 5 mg of scatter (vibration), 20 µg/s of creep.
-DEVICE_CHECKS = Checks(angle_tolerance=math.radians(20.0 / 3600.0), scatter_max=5e-3 * 9.80665, slope_max=20e-6 * 9.80665)
+from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 
 
-def plan_from_definition(definition: Any, *, retries: int = 2, chunk: float = 10.0, checks: Checks = DEVICE_CHECKS) -> Plan:
-    """The plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`)."""
+def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: float | None = None) -> Plan:
+    """The plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`).
+
+    ``[runner]`` gives the online checks, retries and journal chunk (``retries``/``chunk``
+    override it); ``[[person]]`` entries are placed before the position they name.
+    """
+    settings = definition.runner
+    checks = Checks(
+        angle_tolerance=settings.angle_tolerance,
+        scatter_max=settings.scatter_max,
+        slope_max=settings.slope_max,
+        max_slew=settings.max_slew,
+    )
     rates = {s.sample_rate for s in definition.steps}
     sample_rate = rates.pop() if len(rates) == 1 else None
-    if definition.stage == "coarse" and definition.repoint:
-        steps: tuple = (
+    if definition.stage == "system":
+        record = definition.record
+        sample_rate = record.sample_rate
+        work: list = [StaticRecordStep(f"{definition.name}: static record", record.command, record.settle, record.duration, checks)]
+    elif definition.stage == "coarse" and definition.repoint:
+        work = [
             OffsetIterationStep(
                 name=f"{definition.name}: zero-offset iteration over {len(definition.steps)} positions",
                 positions=tuple(s.position for s in definition.steps),
                 settles=tuple(float(s.settle) for s in definition.steps),
                 stage=definition.stage,
-            ),
-        )
+            )
+        ]
     else:
-        steps = tuple(
+        work = [
             DwellStep(
                 name=f"{definition.stage} position {s.position}",
                 stage=definition.stage,
@@ -49,13 +60,38 @@ def plan_from_definition(definition: Any, *, retries: int = 2, chunk: float = 10
                 offset_corrected=bool(definition.repoint),
             )
             for s in definition.steps
-        )
+        ]
+    steps: list = []
+    positions = [getattr(w, "position", 1) for w in work]
+    for index, step in enumerate(work):
+        here = positions[index] if isinstance(step, DwellStep) else 1
+        if index == 0:
+            steps += [_person(p) for p in definition.people if p.before <= here]
+        else:
+            steps += [_person(p) for p in definition.people if positions[index - 1] < p.before <= here]
+        steps.append(step)
+    last = positions[-1] if work and isinstance(work[-1], DwellStep) else 1
+    steps += [_person(p) for p in definition.people if p.before > last]
     return Plan(
         name=definition.name,
-        level="device",
-        steps=steps,
-        retries=retries,
-        chunk=chunk,
+        level="system" if definition.stage == "system" else "device",
+        steps=tuple(steps),
+        retries=settings.retries if retries is None else retries,
+        chunk=settings.chunk if chunk is None else chunk,
         sample_rate=sample_rate,
         description=definition.source,
+    )
+
+
+def _person(action: Any) -> PersonStep:
+    name = action.key or action.prompt[:40]
+    return PersonStep(
+        name=name,
+        action=action.action,
+        prompt=action.prompt,
+        key=action.key,
+        unit=action.unit,
+        minimum=action.minimum,
+        maximum=action.maximum,
+        default=action.default,
     )

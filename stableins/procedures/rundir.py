@@ -32,6 +32,7 @@ from stableins.procedures.plan import Plan
 from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
 
 DATASET_NAME = "device.h5"
+SYSTEM_NAME = "system.h5"
 PLAN_NAME = "procedure.json"
 DEFINITION_NAME = "procedure.toml"
 PRIOR_NAME = "prior.json"
@@ -268,7 +269,14 @@ def _copy(source: Path, target: Path) -> None:
 
 
 def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
-    """Write the accepted dwells in the device-level data format (atomically); ``None`` if there are none."""
+    """Write the accepted data (atomically): dwells in the device-level format, a static record in the system format."""
+    if runner.static_chunks:
+        from stableins.data.system import SystemRecordWriter
+
+        with SystemRecordWriter(rundir / SYSTEM_NAME, metadata) as writer:
+            for record in runner.static_chunks:
+                writer.append(record.arrays)
+        return rundir / SYSTEM_NAME
     columns = accepted_columns(runner.entries)
     if not len(columns["time"]):
         return None

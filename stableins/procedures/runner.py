@@ -45,7 +45,7 @@ from stableins.drivers.base import PlatformDriver, SampleBlock
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.replay import block_from_record, live_operations
 from stableins.procedures.journal import Journal, Record
-from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan
+from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 
 #: A slope counts against the limit only beyond this many σ of its own noise (short dwells are noisy).
 SLOPE_SIGMAS = 3.0
@@ -183,12 +183,18 @@ class Session:
         return record
 
     # ------------------------------------------------------------------ driver operations
-    def operate(self, operation: str, arguments: list[float]) -> Any:
-        call: Callable[[], Any] = {
-            "command": lambda: self.driver.command(tuple(arguments)),  # type: ignore[arg-type]
-            "read_angles": self.driver.read_angles,
-            "acquire": lambda: self.driver.acquire(arguments[0]),
-        }[operation]
+    def operate(self, operation: str, arguments: list[float], call: Callable[[], Any] | None = None) -> Any:
+        """One driver operation, journaled (live) or answered from the journal (replay).
+
+        ``call`` performs operations other than command / read_angles / acquire (e.g. the next
+        chunk of a static record, ``static_chunk``).
+        """
+        if call is None:
+            call = {
+                "command": lambda: self.driver.command(tuple(arguments)),  # type: ignore[arg-type]
+                "read_angles": self.driver.read_angles,
+                "acquire": lambda: self.driver.acquire(arguments[0]),
+            }[operation]
         if self.script:
             record = self._next("op", f"{operation} {arguments}")
             if record["operation"] != operation or not np.allclose(record["arguments"], arguments, rtol=0, atol=1e-12):
@@ -217,6 +223,8 @@ class Session:
             fields["result"] = float(result)
         elif operation == "read_angles":
             arrays["angles"] = np.asarray(result, dtype=float)
+        elif operation == "static_chunk":
+            arrays = {name: np.asarray(values) for name, values in result.items()}
         else:
             _validate_block(result)
             arrays = {
@@ -281,12 +289,16 @@ def _result_of(record: Record) -> Any:
         return float(record["result"])
     if operation == "read_angles":
         return np.array(record.arrays["angles"])
+    if operation == "static_chunk":
+        return dict(record.arrays)
     return block_from_record(record)
 
 
 def _check_same(operation: str, journaled: Any, live: Any, seq: int) -> None:
     if operation == "acquire":
         same = all(np.array_equal(getattr(journaled, n), getattr(live, n)) for n in ("time", "specific_force", "angles", "temperature"))
+    elif operation == "static_chunk":
+        same = set(journaled) == set(live) and all(np.array_equal(journaled[n], live[n]) for n in journaled)
     else:
         same = bool(np.array_equal(np.asarray(journaled), np.asarray(live)))
     if not same:
@@ -401,6 +413,8 @@ class Runner:
         self.entries: list[dict[str, Any]] = []
         #: result of the zero-offset iteration, if the plan has one
         self.iteration: Any = None
+        #: journal records of the system-level static record, in order (if the plan has one)
+        self.static_chunks: list[Record] = []
 
     def execute(self) -> None:
         total = len(self.plan.steps)
@@ -413,6 +427,8 @@ class Runner:
                 self._person(index, step, label)
             elif isinstance(step, OffsetIterationStep):
                 self._offset_iteration(index, step, label)
+            elif isinstance(step, StaticRecordStep):
+                self._static_record(index, step, label)
         self.session.context = {}
         self.session.decide("complete", {"step": total, "utc": datetime.now(UTC).replace(microsecond=0).isoformat()})
 
@@ -498,6 +514,42 @@ class Runner:
                     continue
                 raise RunStopped(message)
             self.console.say(f"  repeating the step ({rejections} of {self.plan.retries} retries used)")
+
+    def _static_record(self, index: int, step: StaticRecordStep, label: str) -> None:
+        """Command the position, wait for arrival, settle, then stream the static record chunk by chunk into the journal."""
+        recorder = getattr(self.session.driver, "static_record", None)
+        if recorder is None:
+            raise RunStopped(
+                f"{label}: this platform driver does not record the INS outputs a system-level static record needs "
+                "(the simulated platform does; the network protocol does not yet)"
+            )
+        hours = step.duration / 3600.0
+        self.console.say(f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}")
+        self.session.context = {"step": index, "attempt": 1}
+        readings = np.asarray(step.readings, dtype=float)
+        self.session.operate("command", [float(r) for r in readings])
+        arrived = self._wait_until_reached(readings, step.checks)
+        if arrived is not None:
+            self.session.decide("stop", {"step": index, "reason": arrived})
+            raise RunStopped(f"{label}: {arrived}")
+        if step.settle > 0:
+            self._record(step.settle, "settling", "settle")
+        chunks = recorder(step.duration, self.plan.chunk)
+        total = int(round(step.duration * self.rate))
+        done = 0
+        context = {"step": index, "attempt": 1, "phase": "static"}
+        self.static_chunks = []
+        while done < total:
+            self.session.context = dict(context)
+            self.session.trace = []
+            chunk = self.session.operate("static_chunk", [float(len(self.static_chunks))], call=lambda: next(chunks))
+            self.static_chunks += self.session.trace
+            self.session.trace = None
+            done += len(chunk["time"])
+            self.console.progress("static record", done / self.rate, total / self.rate)
+        self.session.context = {"step": index}
+        self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
+        self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)")
 
     def _wait_until_reached(self, readings: NDArray[np.float64], checks: Checks) -> str | None:
         """Record (and discard) short pieces until the platform is at the commanded readings.
