@@ -85,6 +85,13 @@ def start_run(
             "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
         )
     prior = _load_record(prior_file) if prior_file is not None else None
+    fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
+    if definition_file is not None and fine and prior is None:
+        raise InputError(
+            "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
+            field="--prior",
+            expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
+        )
     if prior is not None and unit is not None and prior.serial_number != unit:
         raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
