@@ -138,7 +138,7 @@ def compare(old: CalibrationRecord, new: CalibrationRecord, prior_used: bool = F
         if p.id not in old.ids:
             continue
         q = old[p.id]
-        if "unidentifiable" in (p.status, q.status):
+        if p.status != "estimated" or q.status != "estimated":  # gauge, fixed or unidentifiable: not an estimate to compare
             continue
         if prior_used:
             variance = q.sigma**2 - p.sigma**2

@@ -175,3 +175,53 @@ def test_history_changes_trends_and_plot(tmp_path):
     fig.savefig(out)
     assert out.stat().st_size > 1000
     assert len([ax for ax in fig.axes if ax.get_visible()]) == 3
+
+
+def _cli(*argv):
+    import os
+    import subprocess
+    import sys
+
+    from tests.tcp_fixtures import ROOT
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+
+
+def test_cli_history_and_recal_with_an_estimate(tmp_path):
+    import json
+
+    rng = np.random.default_rng(21)
+    store = tmp_path / "store"
+    first = tmp_path / "first.json"
+    make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00").save(first)
+    result = _cli("history", "INS-7", "--store", str(store), "--add", str(first), "--at", "2026-01-01", "--max-age", "180")
+    assert result.returncode == 0, result.stderr
+    assert "WARNING: the record in force is 365 days old" in result.stdout
+    # a field recalibration whose data show a real 10σ change of bias_x
+    shifted = TRUTH + np.array([10 * SIGMA[0], 0, 0])
+    estimate = tmp_path / "estimate.json"
+    make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00", stages=("system",)).save(
+        estimate
+    )
+    result = _cli(
+        "recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(estimate), "--out", str(tmp_path / "recal"), "--json"
+    )
+    assert result.returncode == 0, result.stderr
+    document = json.loads(result.stdout)
+    assert document["significant"] == ["bias_x"]
+    z = {c["id"]: c["significance"] for c in document["changes"]}
+    assert z["bias_x"] > 5 and abs(z["bias_y"]) < 3
+    # the store now holds both; the second is marked as built on the first
+    entries = HistoryStore(store).entries("INS-7")
+    assert len(entries) == 2 and entries[1].prior == entries[0].sha256 and entries[1].evidence
+    result = _cli("history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"))
+    assert result.returncode == 0, result.stderr
+    assert "prior-based recalibration" in result.stdout and (tmp_path / "drift.png").stat().st_size > 1000
+    # bad input: another unit's record, an unknown unit
+    other = tmp_path / "other.json"
+    make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00", serial="INS-8").save(other)
+    result = _cli("history", "INS-7", "--store", str(store), "--add", str(other))
+    assert result.returncode == 2 and "INS-8" in result.stderr and "Traceback" not in result.stderr
+    result = _cli("recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(estimate))
+    assert result.returncode == 2 and "no calibration records for unit 'NOPE'" in result.stderr
