@@ -147,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         "dataset": outcome.dataset,
         "estimate": outcome.estimate,
         "record": outcome.record,
+        "report": outcome.report,
         "dwells": len(outcome.runner.entries),
         "replayed_records": outcome.replayed,
     }

@@ -9,6 +9,7 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
     device.h5         accepted dwells in the device-level data format read by ``stableins calibrate`` (HDF5)
     estimate.json     what this run's data alone say (data-only calibration record)
     record.json       the unit's calibration record after this run (estimate merged onto the prior)
+    report.pdf        the calibration report (when the report writer is installed)
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ DEFINITION_NAME = "procedure.toml"
 PRIOR_NAME = "prior.json"
 ESTIMATE_NAME = "estimate.json"
 RECORD_NAME = "record.json"
+REPORT_NAME = "report.pdf"
 
 
 @dataclass
@@ -51,6 +53,7 @@ class RunOutcome:
     superseded: tuple[int, int] | None = None
     estimate: Path | None = None
     record: Path | None = None
+    report: Path | None = None
 
 
 def _utc() -> str:
@@ -232,7 +235,28 @@ def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, 
     outcome.record = record.save(rundir / RECORD_NAME)
     runner.console.say(f"calibration record written: {outcome.record}")
     runner.console.say(fit.report())
+    outcome.report = _write_report(rundir, runner, outcome, start, fit)
     return outcome
+
+
+def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any, fit: Any) -> Path | None:
+    """The PDF calibration report (``stableins.reporting``), if that part of stableins is installed."""
+    try:
+        from stableins.reporting import write_report
+    except ImportError:
+        runner.console.say("note: no report writer in this installation; the record is complete without it")
+        return None
+    target = rundir / REPORT_NAME
+    write_report(
+        target,
+        outcome.record,
+        data=[outcome.dataset] if outcome.dataset else [],
+        previous=rundir / start["prior"] if start.get("prior") else None,
+        procedure=rundir / start["definition"] if start.get("definition") else None,
+        fits=[fit],
+    )
+    runner.console.say(f"report written: {target}")
+    return target
 
 
 def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Path | None, start: Any) -> Any:
