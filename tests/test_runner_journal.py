@@ -31,6 +31,7 @@ def test_round_trip_is_exact(tmp_path):
     assert [r.seq for r in result.records] == list(range(6))
     assert result.records[0]["seed"] == 3
     for block, record in zip(blocks, result.records[1:]):
+        assert record.loaded is None  # headers only in memory; arrays read back on demand (bounded memory)
         np.testing.assert_array_equal(record.arrays["f"], block)
         assert record.arrays["n"].dtype == np.int64
 

@@ -46,13 +46,27 @@ ArrayLikeOrNone = Any
 
 @dataclass(frozen=True)
 class Record:
-    """One journal record: a JSON-able header and named arrays."""
+    """One journal record: a JSON-able header and named arrays.
+
+    The arrays of a record read from (or written to) a file are not kept in memory: they are
+    read back from ``path`` at ``offset`` (CRC checked) each time :attr:`arrays` is used, so a
+    run of any length is resumed and exported in bounded memory.
+    """
 
     seq: int
     kind: str
     fields: dict[str, Any]
-    arrays: dict[str, NDArray[Any]] = field(default_factory=dict)
     offset: int = 0
+    path: str | None = None
+    loaded: dict[str, NDArray[Any]] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def arrays(self) -> dict[str, NDArray[Any]]:
+        if self.loaded is not None:
+            return self.loaded
+        if self.path is None or not self.fields.get("_has_arrays"):
+            return {}
+        return _read_arrays(self.path, self.offset)
 
     def __getitem__(self, key: str) -> Any:
         return self.fields[key]
@@ -100,29 +114,45 @@ def _canonical_dtype(dtype: np.dtype, name: str) -> str:
     raise TypeError(f"journal array {name!r}: unsupported dtype {dtype}")
 
 
-def _decode(payload: bytes, offset: int) -> Record:
+def _decode(payload: bytes, offset: int, path: str | None = None, with_arrays: bool = True) -> Record:
     (n,) = _HEADER_LENGTH.unpack_from(payload, 0)
     header = json.loads(payload[4 : 4 + n].decode("utf-8"))
     position = 4 + n
     arrays: dict[str, NDArray[Any]] = {}
-    for name, dtype, shape in header.pop("arrays"):
+    specs = header.pop("arrays")
+    for name, dtype, shape in specs:
         count = int(np.prod(shape)) if shape else 1
-        a = np.frombuffer(payload, dtype=_DTYPES[dtype], count=count, offset=position).reshape(shape)
-        position += a.nbytes
-        arrays[name] = a.astype(a.dtype.newbyteorder("="), copy=True)
+        size = count * np.dtype(_DTYPES[dtype]).itemsize
+        if with_arrays:
+            a = np.frombuffer(payload, dtype=_DTYPES[dtype], count=count, offset=position).reshape(shape)
+            arrays[name] = a.astype(a.dtype.newbyteorder("="), copy=True)
+        position += size
     if position != len(payload):
         raise ValueError("payload length does not match its arrays")
     seq = int(header.pop("seq"))
     kind = str(header.pop("kind"))
-    return Record(seq=seq, kind=kind, fields=header, arrays=arrays, offset=offset)
+    header["_has_arrays"] = bool(specs)
+    return Record(seq=seq, kind=kind, fields=header, offset=offset, path=path, loaded=arrays if with_arrays and path is None else None)
+
+
+def _read_arrays(path: str, offset: int) -> dict[str, NDArray[Any]]:
+    """The arrays of the record at ``offset`` (read back and CRC-checked)."""
+    with open(path, "rb") as handle:
+        handle.seek(offset)
+        magic, length, crc = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
+        payload = handle.read(length)
+    if magic != RECORD_MAGIC or len(payload) != length or zlib.crc32(payload) != crc:
+        raise InputError(f"journal record at byte {offset} changed on disk since it was read", path=path)
+    return _decode(payload, offset).arrays
 
 
 def scan(path: str | os.PathLike[str]) -> ScanResult:
-    """Read every whole record of a journal; detect a torn tail.
+    """Read every whole record of a journal (headers; arrays on demand); detect a torn tail.
 
     A record that is cut short, or whose checksum fails while it is the last thing in the
     file, is the write a crash interrupted: it is reported as torn (``torn_bytes``) and
-    not returned.  Damage anywhere else is not explainable by a crash and raises.
+    not returned.  Damage anywhere else is not explainable by a crash and raises.  The file
+    is read one record at a time (bounded memory).
 
     Raises
     ------
@@ -131,49 +161,58 @@ def scan(path: str | os.PathLike[str]) -> ScanResult:
     """
     path = Path(path)
     try:
-        data = path.read_bytes()
+        handle = open(path, "rb")
     except FileNotFoundError:
         raise InputError("no run journal here", path=path, expected="a run directory made by 'stableins run'") from None
-    if not data.startswith(FILE_MAGIC):
-        if FILE_MAGIC.startswith(data):  # the crash hit while the file header was written
-            return ScanResult([], 0, len(data), "file header incomplete")
-        raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
-    records: list[Record] = []
-    position = len(FILE_MAGIC)
-    torn_reason = None
-    while position < len(data):
-        head = data[position : position + _RECORD_HEAD.size]
-        if len(head) < _RECORD_HEAD.size:
-            torn_reason = "record head incomplete"
-            break
-        magic, length, crc = _RECORD_HEAD.unpack(head)
-        end = position + _RECORD_HEAD.size + length
-        if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
-            _damaged(path, position, "bad record marker", data, end)
-            torn_reason = "bad record marker"
-            break
-        if end > len(data):
-            torn_reason = "record cut short"
-            break
-        payload = data[position + _RECORD_HEAD.size : end]
-        if zlib.crc32(payload) != crc:
-            _damaged(path, position, "checksum mismatch", data, end)
-            torn_reason = "checksum mismatch"
-            break
-        try:
-            record = _decode(payload, position)
-        except (ValueError, KeyError, UnicodeDecodeError) as error:
-            raise InputError(f"journal record at byte {position} cannot be decoded ({error})", path=path) from None
-        if record.seq != len(records):
-            raise InputError(f"journal record at byte {position} has sequence number {record.seq}", path=path, expected=str(len(records)))
-        records.append(record)
-        position = end
-    return ScanResult(records, position, len(data) - position, torn_reason)
+    with handle:
+        size = os.fstat(handle.fileno()).st_size
+        start = handle.read(len(FILE_MAGIC))
+        if start != FILE_MAGIC:
+            if FILE_MAGIC.startswith(start):  # the crash hit while the file header was written
+                return ScanResult([], 0, len(start), "file header incomplete")
+            raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
+        records: list[Record] = []
+        position = len(FILE_MAGIC)
+        torn_reason = None
+        while position < size:
+            head = handle.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                torn_reason = "record head incomplete"
+                break
+            magic, length, crc = _RECORD_HEAD.unpack(head)
+            end = position + _RECORD_HEAD.size + length
+            if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
+                _damaged(path, handle, position, "bad record marker", size, end)
+                torn_reason = "bad record marker"
+                break
+            if end > size:
+                torn_reason = "record cut short"
+                break
+            payload = handle.read(length)
+            if zlib.crc32(payload) != crc:
+                _damaged(path, handle, position, "checksum mismatch", size, end)
+                torn_reason = "checksum mismatch"
+                break
+            try:
+                record = _decode(payload, position, str(path), with_arrays=False)
+            except (ValueError, KeyError, UnicodeDecodeError) as error:
+                raise InputError(f"journal record at byte {position} cannot be decoded ({error})", path=path) from None
+            if record.seq != len(records):
+                raise InputError(
+                    f"journal record at byte {position} has sequence number {record.seq}", path=path, expected=str(len(records))
+                )
+            records.append(record)
+            position = end
+    return ScanResult(records, position, size - position, torn_reason)
 
 
-def _damaged(path: Path, position: int, reason: str, data: bytes, end: int) -> None:
+def _damaged(path: Path, handle: Any, position: int, reason: str, size: int, end: int) -> None:
     """Raise unless the bad record is the last thing in the file (then it is a torn write)."""
-    if end < len(data) and data.find(RECORD_MAGIC, position + 1) != -1:
+    if end >= size:
+        return
+    handle.seek(position + 1)
+    rest = handle.read()
+    if rest.find(RECORD_MAGIC) != -1:
         raise InputError(f"journal damaged at byte {position} ({reason}) with whole records after it; not a torn last write", path=path)
 
 
@@ -233,7 +272,7 @@ class Journal:
         while written < len(blob):
             written += os.write(self._fd, view[written:])
         os.fsync(self._fd)
-        record = _decode(blob[_RECORD_HEAD.size :], offset)
+        record = _decode(blob[_RECORD_HEAD.size :], offset, str(self.path), with_arrays=False)
         self.records.append(record)
         return record
 
