@@ -11,6 +11,7 @@ import pytest
 
 from stableins.data.errors import InputError
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
+from stableins.drivers.select import simulated_platform
 from stableins.drivers.tcp import TcpDriver, connect, parse_address
 from tests.platform_double import PlatformDouble
 from tests.tcp_fixtures import FaultyRelay, ServerProcess
@@ -18,17 +19,14 @@ from tests.tcp_fixtures import FaultyRelay, ServerProcess
 
 @pytest.fixture(scope="module")
 def server():
-    with ServerProcess(seed=11) as s:
+    """'stableins serve-sim' in its own process: the simulated platform at 20 Hz on loopback."""
+    with ServerProcess(seed=11, simulator=True, rate=20.0) as s:
         yield s
 
 
-def _fresh_server(seed=5):
-    return ServerProcess(seed=seed)
-
-
-def test_samples_cross_the_wire_bit_for_bit():
-    local = PlatformDouble(seed=5)
-    with _fresh_server(5) as s:
+def test_simulator_samples_cross_the_wire_bit_for_bit():
+    local = simulated_platform(5, "NET-1", 20.0)  # the same simulated platform, in this process
+    with ServerProcess(seed=5, simulator=True, rate=20.0) as s:
         driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=5)
         assert driver.metadata == local.metadata
         for readings in [(0.1, 0.2, -0.3), (1.0, -0.5, 0.25)]:
@@ -37,7 +35,17 @@ def test_samples_cross_the_wire_bit_for_bit():
             remote, here = driver.acquire(0.6), local.acquire(0.6)
             for name in ("time", "specific_force", "angles", "temperature"):
                 np.testing.assert_array_equal(getattr(remote, name), getattr(here, name))
-        assert driver.status()["platform"]["driver"] == "double"
+        assert driver.status()["address"] == f"tcp://127.0.0.1:{s.port}"
+        driver.close()
+
+
+def test_the_test_double_crosses_the_wire_bit_for_bit():
+    local = PlatformDouble(seed=5)
+    with ServerProcess(seed=5) as s:
+        driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=5)
+        driver.command((0.1, 0.2, -0.3))
+        local.command((0.1, 0.2, -0.3))
+        np.testing.assert_array_equal(driver.acquire(0.6).specific_force, local.acquire(0.6).specific_force)
         driver.close()
 
 
@@ -61,6 +69,7 @@ def test_idempotent_requests_are_resent_after_a_disconnect(server):
     with FaultyRelay(server.port, fault=("cut", len("STABLEINS-PLATFORM 1\n") + 3)) as relay:
         driver = TcpDriver("127.0.0.1", relay.port, timeout=5, reconnect_delay=0.05)
         driver.command((0.3, 0.0, 0.0))  # its reply is cut; sent again on a new connection
+        driver.acquire(4.0)  # the slew (17° at 10°/s)
         np.testing.assert_allclose(driver.read_angles(), [0.3, 0.0, 0.0], atol=1e-5)
         assert driver.reconnects == 1
         driver.close()
