@@ -166,3 +166,12 @@ def test_a_run_directory_is_never_reused(tmp_path):
     with pytest.raises(InputError, match="already holds a run"):
         _run(tmp_path)
     assert (tmp_path / "run" / "journal.bin").read_bytes() == before
+
+
+def test_a_start_that_died_before_its_first_record_can_start_again(tmp_path):
+    from stableins.procedures.journal import FILE_MAGIC
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "journal.bin").write_bytes(FILE_MAGIC)
+    outcome, _ = _run(tmp_path)
+    assert len(outcome.runner.entries) == 6

@@ -120,3 +120,15 @@ def test_append_is_on_disk_when_it_returns(tmp_path):
     finally:
         os.close(fd)
         journal.close()
+
+
+def test_one_writer_at_a_time(tmp_path):
+    path = tmp_path / "journal.bin"
+    first = Journal.create(path)
+    first.append("start", {"a": 1})
+    with pytest.raises(InputError, match="another stableins process"):
+        Journal.open(path)
+    first.close()
+    with Journal.open(path) as again:  # the lock went with the writer
+        again.append("op", {"b": 2})
+    assert [r.kind for r in scan(path).records] == ["start", "op"]

@@ -238,6 +238,11 @@ class Journal:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
         except FileExistsError:
             raise InputError("a run journal already exists here", path=path, expected="a new run directory, or --resume") from None
+        try:
+            _lock(fd, path)
+        except BaseException:
+            os.close(fd)
+            raise
         os.write(fd, FILE_MAGIC)
         os.fsync(fd)
         _fsync_directory(path.parent)
@@ -246,8 +251,13 @@ class Journal:
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Journal:
         path = Path(path)
-        result = scan(path)
         fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+        try:
+            _lock(fd, path)
+            result = scan(path)
+        except BaseException:
+            os.close(fd)
+            raise
         if result.torn_bytes:
             os.ftruncate(fd, result.valid_length)
             if result.valid_length == 0:
@@ -292,6 +302,21 @@ class Journal:
 
     def __len__(self) -> int:
         return len(self.records)
+
+
+def _lock(fd: int, path: Path) -> None:
+    """Exclusive advisory lock for the writer's lifetime: two processes never append to one journal.
+
+    The lock dies with the process (also on ``kill -9``), so a crashed run can always be resumed.
+    """
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise InputError(
+            "another stableins process is running this run right now", path=path, expected="that process to finish or stop"
+        ) from None
 
 
 def _fsync_directory(directory: Path) -> None:

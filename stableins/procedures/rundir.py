@@ -28,7 +28,7 @@ from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
 from stableins.drivers.replay import JOURNAL_NAME
 from stableins.drivers.select import is_deterministic, open_driver
-from stableins.procedures.journal import Journal
+from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import Plan
 from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
 
@@ -84,9 +84,11 @@ def start_run(
     console = console or Console()
     journal_file = rundir / JOURNAL_NAME
     if journal_file.exists():
-        raise InputError(
-            "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
-        )
+        if scan(journal_file).records:
+            raise InputError(
+                "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
+            )
+        journal_file.unlink()  # a start that died before its first record: nothing happened, start afresh
     prior = _load_record(prior_file) if prior_file is not None else None
     fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
     if definition_file is not None and fine and prior is None:
