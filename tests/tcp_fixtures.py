@@ -27,10 +27,13 @@ class ServerProcess:
     test double is served (exact, simple outputs for bit-for-bit comparisons).
     """
 
-    def __init__(self, seed: int = 0, simulator: bool = False, unit: str = "NET-1", rate: float | None = None) -> None:
+    def __init__(
+        self, seed: int = 0, simulator: bool = False, unit: str = "NET-1", rate: float | None = None, realtime: float = 0.0
+    ) -> None:
         if simulator:
             argv = [sys.executable, "-m", "stableins.cli", "serve-sim", "--port", "0", "--seed", str(seed), "--unit", unit, "--quiet"]
             argv += ["--rate", str(rate)] if rate else []
+            argv += ["--realtime", str(realtime)] if realtime else []
         else:
             argv = [sys.executable, "-c", SERVER_SCRIPT.format(root=str(ROOT), seed=seed)]
         env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -145,3 +145,17 @@ def test_platform_errors_are_reported_not_fatal(server):
 def test_bad_addresses(spec):
     with pytest.raises(InputError, match="--driver"):
         parse_address(spec)
+
+
+def test_the_timeout_counts_silence_not_the_length_of_a_dwell():
+    # a platform streaming in real time: a 1.5 s acquisition with a 0.4 s timeout arrives whole
+    with ServerProcess(seed=2, simulator=True, rate=20.0, realtime=1.0) as s:
+        warm = TcpDriver("127.0.0.1", s.port, timeout=30)
+        warm.acquire(0.1)  # the simulator's first call sets itself up (seconds of silence)
+        warm.close()
+        driver = TcpDriver("127.0.0.1", s.port, timeout=0.4)
+        start = time.monotonic()
+        block = driver.acquire(1.5)
+        elapsed = time.monotonic() - start
+        assert len(block) == 30 and elapsed > 1.2  # it really streamed for ~1.5 s
+        driver.close()

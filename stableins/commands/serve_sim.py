@@ -16,6 +16,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--unit", help="serial number the simulated unit reports")
     parser.add_argument("--rate", type=float, help="sample rate [Hz] (default: the simulator's)")
     parser.add_argument("--connections", type=int, help="stop after this many client connections (default: serve until interrupted)")
+    parser.add_argument(
+        "--realtime", type=float, default=0.0, metavar="FACTOR", help="stream samples at FACTOR x real time (1: like hardware; 0: at once)"
+    )
     parser.add_argument("--quiet", action="store_true", help="do not log connections")
 
 
@@ -36,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"serve-sim: {message}", file=sys.stderr, flush=True)
 
     try:
-        serve(driver, args.port, ready=ready, log=log, max_connections=args.connections)
+        serve(driver, args.port, ready=ready, log=log, max_connections=args.connections, realtime=max(0.0, args.realtime))
     except OSError as error:
         raise InputError(f"cannot listen on {LOOPBACK}:{args.port}: {error.strerror}", field="--port") from None
     return 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import time
 import zlib
 from collections.abc import Callable
 from typing import Any, TextIO
@@ -48,11 +49,12 @@ def checksum(lines: list[str]) -> str:
 class _Session:
     """One client connection: reads requests, answers them from the driver."""
 
-    def __init__(self, driver: PlatformDriver, reader: TextIO, writer: TextIO, log: Callable[[str], None]) -> None:
+    def __init__(self, driver: PlatformDriver, reader: TextIO, writer: TextIO, log: Callable[[str], None], realtime: float = 0.0) -> None:
         self.driver = driver
         self.reader = reader
         self.writer = writer
         self.log = log
+        self.realtime = realtime
 
     def send(self, text: str) -> None:
         self.writer.write(text)
@@ -85,8 +87,8 @@ class _Session:
             if len(arguments) != 3:
                 raise ValueError("expected three angle-sensor readings [rad]")
             readings = tuple(_finite(a) for a in arguments)
-            time = self.driver.command(readings)  # type: ignore[arg-type]
-            self.send(f"{request_id} OK {format_float(time)}\n")
+            issued = self.driver.command(readings)  # type: ignore[arg-type]
+            self.send(f"{request_id} OK {format_float(issued)}\n")
         elif verb == "ANG":
             angles = self.driver.read_angles()
             self.send(f"{request_id} OK {' '.join(format_float(a) for a in angles)}\n")
@@ -99,8 +101,22 @@ class _Session:
             block = self.driver.acquire(duration)
             lines = sample_lines(block)
             self.send(f"{request_id} OK {len(lines)}\n")
-            for line in lines:
-                self.writer.write(line)
+            try:
+                if self.realtime > 0:  # stream as a real platform would: each sample when it is measured
+                    start, first = time.monotonic(), float(block.time[0]) if len(lines) else 0.0
+                    for k, line in enumerate(lines):
+                        delay = (float(block.time[k]) - first) / self.realtime - (time.monotonic() - start)
+                        if delay > 0:
+                            self.writer.flush()
+                            time.sleep(delay)
+                        self.writer.write(line)
+                else:
+                    for line in lines:
+                        self.writer.write(line)
+            except OSError:
+                raise
+            except Exception as error:  # after OK only samples may follow: a failure drops the connection
+                raise ConnectionAbortedError(f"acquisition failed while streaming: {error}") from error
             self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
         elif verb == "STATUS":
             self.send(f"{request_id} OK {json.dumps(_jsonable(self.driver.status()))}\n")
@@ -137,6 +153,7 @@ def serve(
     ready: Callable[[int], None] | None = None,
     log: Callable[[str], None] = print,
     max_connections: int | None = None,
+    realtime: float = 0.0,
 ) -> None:
     """Serve ``driver`` on ``127.0.0.1:port``, one client at a time, until interrupted.
 
@@ -150,6 +167,8 @@ def serve(
         Called with the bound port once the server accepts connections.
     max_connections : int, optional
         Stop after this many client connections (tests); ``None`` serves forever.
+    realtime : float
+        Stream samples paced at ``realtime`` × real time (1: like hardware); 0: as fast as possible.
     """
     with socket.create_server((LOOPBACK, port), backlog=4) as listener:
         bound = listener.getsockname()[1]
@@ -165,7 +184,7 @@ def serve(
                 reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
                 writer = connection.makefile("w", encoding="ascii", newline="\n")
                 try:
-                    _Session(driver, reader, writer, log).run()
+                    _Session(driver, reader, writer, log, realtime).run()
                 except (ConnectionError, BrokenPipeError, OSError) as error:
                     log(f"client {peer[0]}:{peer[1]} lost: {error}")
                 else:
