@@ -175,3 +175,34 @@ def test_a_start_that_died_before_its_first_record_can_start_again(tmp_path):
     (tmp_path / "run" / "journal.bin").write_bytes(FILE_MAGIC)
     outcome, _ = _run(tmp_path)
     assert len(outcome.runner.entries) == 6
+
+
+class CrashAfter(PlatformDouble):
+    def __init__(self, seed, limit):
+        super().__init__(seed)
+        self.limit = limit
+
+    def acquire(self, duration):
+        self.limit -= 1
+        if self.limit < 0:
+            raise KeyboardInterrupt  # stands for the process dying here
+        return super().acquire(duration)
+
+
+@pytest.mark.parametrize("cut", [1, 37, 300])
+def test_a_torn_last_record_is_dropped_and_redone(tmp_path, cut):
+    reference, _ = _run(tmp_path, seed=6, name="ref")
+    with pytest.raises(KeyboardInterrupt):
+        _run(tmp_path, seed=6, name="run", driver=CrashAfter(6, 17))
+    journal = tmp_path / "run" / "journal.bin"
+    last = scan(journal).records[-1]
+    with open(journal, "r+b") as handle:  # the crash hit in the middle of writing the last record
+        handle.truncate(max(last.offset + 1, journal.stat().st_size - cut))
+    out = io.StringIO()
+    again = resume_run(tmp_path / "run", console=Console(yes=True, out=out), driver_factory=lambda start: PlatformDouble(6))
+    assert "dropped a torn last record" in out.getvalue()
+    a = journal_columns(scan(tmp_path / "ref" / "journal.bin").records)
+    b = journal_columns(scan(journal).records)
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name])
+    assert len(again.runner.entries) == len(reference.runner.entries) == 6
