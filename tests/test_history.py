@@ -201,7 +201,7 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     # a field recalibration whose data show a real 10σ change of bias_x
     shifted = TRUTH + np.array([10 * SIGMA[0], 0, 0])
     estimate = tmp_path / "estimate.json"
-    make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00", stages=("system",)).save(
+    make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00", stages=("fine",)).save(
         estimate
     )
     result = _cli(

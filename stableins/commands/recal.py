@@ -4,8 +4,9 @@
 
     # run a short device-level set on the platform, then combine it with the record in force
     stableins recal device-fine --unit INS-7 --store cal/ --driver tcp://127.0.0.1:5025 --out runs/recal-2026-06
-    # or combine a data-only estimate made elsewhere (e.g. 'stableins calibrate system')
-    stableins recal --unit INS-7 --store cal/ --estimate system-estimate.json --out runs/recal-2026-06
+    # or combine an estimate made elsewhere: a data-only device-level estimate (estimate.json of a run),
+    # or a system-level correction ('stableins calibrate system' with the record in force as --prior)
+    stableins recal --unit INS-7 --store cal/ --estimate estimate.json --out runs/recal-2026-06
 
 Every parameter's change is printed with its significance (change / σ of the change, where
 σ² = P_prior − P_new because the new record is built on the old one; see
@@ -60,15 +61,24 @@ def run(args: argparse.Namespace) -> int:
             )
     estimate = CalibrationRecord.load(estimate_path)
     digest = file_sha256(prior_path)
-    fused = fuse_with_prior(prior, estimate, prior_sha256=digest)
+    if "system" in estimate.provenance.stages:
+        # the system-level stage already starts from the installed (prior) calibration and estimates
+        # the correction to it from the data: fusing it with the prior again would count the prior twice
+        fused = prior.update(estimate)
+        prior_used = False
+        how = "system-level correction applied to the previous record (the stage used it as its prior); σ² of a change = σ²_old + σ²_new"
+    else:
+        fused = fuse_with_prior(prior, estimate, prior_sha256=digest)
+        prior_used = True
+        how = "data-only estimate combined with the previous record as prior; σ² of a change = σ²_old − σ²_new"
     record_path = fused.save(out / "recal.json")
-    changes = compare(prior, fused, prior_used=True)
+    changes = compare(prior, fused, prior_used=prior_used)
     significant = [c.id for c in changes if abs(c.significance) >= 3]
-    text = [f"field recalibration of {args.unit}: {prior_path} -> {record_path}", "", format_changes(changes)]
+    text = [f"field recalibration of {args.unit}: {prior_path} -> {record_path}", how, "", format_changes(changes)]
     if significant:
         text += ["", f"changed beyond 3σ: {', '.join(significant)}"]
     if args.store and not args.no_file:
-        entry = HistoryStore(args.store).add(record_path, prior=digest, evidence=estimate_path)
+        entry = HistoryStore(args.store).add(record_path, prior=digest if prior_used else "", evidence=estimate_path)
         note(f"filed in {args.store} as {entry.file}")
     with atomic_write(out / "recal-changes.txt") as handle:
         handle.write("\n".join(text) + "\n")
