@@ -142,6 +142,12 @@ def run(args: argparse.Namespace) -> int:
     except JournalMismatch as error:
         print(f"stableins: error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(
+            f"stableins: interrupted; everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}",
+            file=sys.stderr,
+        )
+        return 130
     data = {
         "rundir": str(outcome.rundir),
         "dataset": outcome.dataset,
