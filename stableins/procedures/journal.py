@@ -251,7 +251,10 @@ class Journal:
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Journal:
         path = Path(path)
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+        except FileNotFoundError:
+            raise InputError("no run journal here", path=path, expected="a run directory made by 'stableins run'") from None
         try:
             _lock(fd, path)
             result = scan(path)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -161,7 +162,7 @@ class Session:
 
     def __init__(self, journal: Journal, script: list[Record], driver: PlatformDriver, forward: bool) -> None:
         self.journal = journal
-        self.script = list(script)
+        self.script = deque(script)
         self.driver = driver
         self.forward = forward
         self.context: dict[str, Any] = {}
@@ -174,7 +175,7 @@ class Session:
         return bool(self.script)
 
     def _next(self, kind: str, describe: str) -> Record:
-        record = self.script.pop(0)
+        record = self.script.popleft()
         if record.kind != kind:
             raise JournalMismatch(
                 f"resuming: the procedure reaches {describe} but the journal has a {record.kind!r} record (seq {record.seq})"
@@ -202,6 +203,11 @@ class Session:
                     f"resuming: the procedure asks for {operation} {arguments}, the journal has {record['operation']} {record['arguments']}"
                 )
             if record.get("error"):
+                if self.forward:  # keep the fresh platform in step: it did this operation too
+                    try:
+                        call()
+                    except DriverError:
+                        pass
                 raise _ERROR_TYPES.get(record["error_type"], DriverError)(record["error"])
             result = _result_of(record)
             if self.forward:
@@ -211,6 +217,8 @@ class Session:
             return result
         try:
             result = call()
+            if operation == "acquire":
+                _validate_block(result)
         except DriverError as error:
             self.journal.append(
                 "op",
@@ -226,7 +234,6 @@ class Session:
         elif operation == "static_chunk":
             arrays = {name: np.asarray(values) for name, values in result.items()}
         else:
-            _validate_block(result)
             arrays = {
                 "time": result.time,
                 "specific_force": result.specific_force,
@@ -542,7 +549,9 @@ class Runner:
         while done < total:
             self.session.context = dict(context)
             self.session.trace = []
-            chunk = self.session.operate("static_chunk", [float(len(self.static_chunks))], call=lambda: next(chunks))
+            chunk = self.session.operate(
+                "static_chunk", [float(len(self.static_chunks))], call=lambda done=done: _next_chunk(chunks, done, total)
+            )
             self.static_chunks += self.session.trace
             self.session.trace = None
             done += len(chunk["time"])
@@ -635,6 +644,13 @@ class Runner:
             seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
             return
+
+
+def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
+    try:
+        return next(chunks)
+    except StopIteration:
+        raise DriverError(f"the platform's recorder stopped after {done} of {total} samples") from None
 
 
 def _entry(stage: str, pass_number: int, position: int, command: Any, command_time: float, blocks: list[SampleBlock]) -> dict[str, Any]:
