@@ -91,6 +91,12 @@ def start_run(
         journal_file.unlink()  # a start that died before its first record: nothing happened, start afresh
     prior = _load_record(prior_file) if prior_file is not None else None
     fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
+    if definition_file is not None and plan.level == "system" and prior is None:
+        raise InputError(
+            "the system-level stage estimates corrections to the calibration the INS navigates with",
+            field="--prior",
+            expected="--prior RECORD (the unit's record in force) or --store DIR",
+        )
     if definition_file is not None and fine and prior is None:
         raise InputError(
             "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
@@ -265,6 +271,8 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     """The stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
     if runner.iteration is not None:
         return runner.iteration.fit
+    if runner.static_chunks:
+        return _estimate_system(rundir, runner, dataset, start)
     definition = runner.definition
     if definition is None or definition.stage != "fine":
         return None
@@ -280,6 +288,23 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
     prior = _load_record(rundir / start["prior"])
     return calibrate_fine(dwells, prior.values(), gravity=metadata.gravity, expected_positions=definition.positions, source=source)
+
+
+def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
+    """The system-level stage on the static record, starting from the installed calibration (the prior record)."""
+    try:
+        from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    except ImportError:
+        runner.console.say(
+            "note: no system-level estimator in this installation; the record is in system.h5 for 'stableins calibrate system'"
+        )
+        return None
+    from stableins.data.system import open_system_record
+
+    prior = _load_record(rundir / start["prior"])
+    record = open_system_record(dataset)
+    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
+    return run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions()).result
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:
