@@ -39,9 +39,7 @@ def test_static_record_and_resume(tmp_path):
     path = tmp_path / "system.toml"
     path.write_text(SHORT)
     plan = plan_from_definition(load_procedure(path))
-    reference = start_run(
-        plan, tmp_path / "ref", driver_spec="sim", seed=2, unit="SYS-1", console=Console(yes=True, quiet=True), definition_file=path
-    )
+    reference = start_run(plan, tmp_path / "ref", driver_spec="sim", seed=2, unit="SYS-1", console=Console(yes=True, quiet=True))
     record = open_system_record(reference.dataset)
     data = record.read()
     assert len(data["time"]) == 1200 and record.sample_rate == 10.0
@@ -66,7 +64,6 @@ def test_static_record_and_resume(tmp_path):
             unit="SYS-1",
             console=Console(yes=True, quiet=True),
             driver=driver,
-            definition_file=path,
         )
     again = resume_run(tmp_path / "run", console=Console(yes=True, quiet=True))
     assert again.replayed > 4
