@@ -301,6 +301,9 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         return None
     from stableins.data.system import open_system_record
 
+    if not start.get("prior"):
+        runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
+        return None
     prior = _load_record(rundir / start["prior"])
     record = open_system_record(dataset)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
