@@ -155,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         "record": outcome.record,
         "report": outcome.report,
         "dwells": len(outcome.runner.entries),
+        "static_record_chunks": len(outcome.runner.static_chunks),
         "replayed_records": outcome.replayed,
     }
     emit(args, data, "\n".join(f"{k}: {v}" for k, v in data.items() if v is not None))
