@@ -20,9 +20,9 @@ from stableins.records import CalibrationRecord  # noqa: E402
 from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
 
 
-def short_definition(tmp_path, name):
+def short_definition(tmp_path, name, settle=0.5):
     text = (PROCEDURE_DIRECTORY / f"{name}.toml").read_text()
-    text = text.replace("dwell = 20.0", "dwell = 2.0").replace("settle = 5.0", "settle = 0.5")
+    text = text.replace("dwell = 20.0", "dwell = 2.0").replace("settle = 5.0", f"settle = {settle}")
     path = tmp_path / f"{name}-short.toml"
     path.write_text(text)
     return path
@@ -89,6 +89,9 @@ def test_coarse_iteration_then_fine_on_the_prior(tmp_path, truth):
         assert abs(record[gimbal].value - truth[gimbal]) < 5 * record[gimbal].sigma
     data = load_device(coarse.dataset)
     assert len(data.dwells()) == 18 * len(passes)
+    for dwell in data.dwells():  # the dwells proper: after arrival and settling, whole, still
+        assert dwell.time_since_command[0] >= 0.5 and len(dwell) == 200
+        assert np.ptp(dwell.angles, axis=0).max() < definition.acceptance.max_angle_span
     assert {d.pass_number for d in data.dwells()} == set(range(1, len(passes) + 1))
     # the journal alone gives the same data set (exactly once, in order)
     from_journal = journal_columns(scan(tmp_path / "coarse" / "journal.bin").records)
@@ -145,3 +148,41 @@ def test_crash_inside_the_iteration_resumes_to_the_same_result(tmp_path, truth):
         np.testing.assert_array_equal(a[name], b[name])
     ra, rb = CalibrationRecord.load(reference.record), CalibrationRecord.load(again.record)
     assert ra.values() == rb.values()
+
+
+def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_path):
+    from stableins.conventions import GimbalConfiguration
+    from stableins.estimators.coarse import calibrate_coarse
+    from stableins.estimators.dwell import dwells_from_columns
+
+    coarse_file = short_definition(tmp_path, "device-coarse", settle=5.0)  # the simulator's gimbals ring ~2 s after a slew
+    definition = load_procedure(coarse_file)
+    outcome = start_run(
+        plan_from_definition(definition),
+        tmp_path / "run",
+        driver_spec="sim",
+        seed=9,
+        unit="SIM-9",
+        console=Console(yes=True, quiet=True),
+        definition_file=coarse_file,
+    )
+    data = load_device(outcome.dataset)
+    last = len(outcome.runner.iteration.history)
+    for dwell in data.dwells():  # after arrival (slews of up to 180° at 10°/s) and the 5 s settle
+        assert dwell.time_since_command[0] >= 5.0 and len(dwell) == 200
+        assert np.ptp(dwell.angles, axis=0).max() < definition.acceptance.max_angle_span
+    assert max(d.time_since_command[0] for d in data.dwells()) > 5.0
+    # re-estimating the last pass from the exported file gives the iteration's own fit
+    site = data.metadata
+    columns = {k: np.asarray(v) for k, v in data.columns.items()}
+    dwells = [d for d in dwells_from_columns(columns, checks=definition.acceptance.dwell_checks()) if d.pass_number == last]
+    fit = calibrate_coarse(
+        dwells,
+        gravity=site.gravity,
+        base_attitude=site.base_attitude,
+        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        expected_positions=definition.positions,
+        orientation_tolerance=definition.acceptance.orientation_tolerance,
+        nonlinear=True,  # as the iteration does
+    )
+    np.testing.assert_allclose(fit.values, outcome.runner.iteration.fit.values, rtol=0, atol=1e-12)

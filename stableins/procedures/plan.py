@@ -86,14 +86,15 @@ class OffsetIterationStep:
     """Run the device-level zero-offset iteration through the driver (Wu et al. 2018 Section 3).
 
     The iteration (:func:`stableins.estimators.offset_iteration.iterate_offsets`) runs passes of
-    the procedure's positions; per position it commands, records ``settle`` seconds (discarded)
-    and then the dwell.  ``positions`` and ``settles`` are kept here so that the journal alone
-    says which samples belong to which pass and position.
+    the procedure's positions; per position it commands, waits for arrival and settles (samples
+    discarded) and records the dwell last.  ``positions``, ``settles`` and ``dwells`` are kept
+    here so that the journal alone says which samples belong to which pass and position.
     """
 
     name: str
     positions: tuple[int, ...] = ()
     settles: tuple[float, ...] = ()
+    dwells: tuple[float, ...] = ()
     stage: str = "coarse"
     why: str = "the angle sensors' zero offsets bias every commanded position; re-command with the estimate until they converge"
     kind: str = "offset_iteration"
@@ -187,6 +188,7 @@ class Plan:
             if kind == "offset_iteration":
                 s["positions"] = tuple(s["positions"])
                 s["settles"] = tuple(s["settles"])
+                s["dwells"] = tuple(s.get("dwells", ()))
             steps.append(_STEP_TYPES[kind](**s))
         return cls(
             name=d["name"],

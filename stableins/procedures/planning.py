@@ -42,6 +42,7 @@ def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: 
                 name=f"{definition.name}: zero-offset iteration over {len(definition.steps)} positions",
                 positions=tuple(s.position for s in definition.steps),
                 settles=tuple(float(s.settle) for s in definition.steps),
+                dwells=tuple(float(s.dwell) for s in definition.steps),
                 stage=definition.stage,
             )
         ]

@@ -665,33 +665,38 @@ def _entry(stage: str, pass_number: int, position: int, command: Any, command_ti
 
 
 def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> list[dict[str, Any]]:
-    """Dwells of a zero-offset iteration from its operations: per position ``command``, ``settle`` piece, dwell piece."""
-    entries = []
-    commands = 0
-    current: dict[str, Any] | None = None
-    pending_settle = False
+    """Dwells of a zero-offset iteration from its operations.
+
+    Per position the iteration commands, lets time pass until arrival and settling (acquisitions
+    whose samples are discarded) and records the dwell last: the dwell of a command is its last
+    acquisition before the next command, and its length must be the position's dwell.
+    """
     n = len(step.positions)
+    groups: list[tuple[Record, list[Record]]] = []
     for record in operations:
         if record.get("error"):
             continue
         if record["operation"] == "command":
-            k = commands % n
-            current = {
-                "pass": commands // n + 1,
-                "position": step.positions[k],
-                "command": record["arguments"],
-                "time": float(record["result"]),
-            }
-            pending_settle = step.settles[k] > 0
-            commands += 1
-        elif record["operation"] == "acquire" and current is not None:
-            if pending_settle:
-                pending_settle = False
-                continue
-            entries.append(
-                _entry(step.stage, current["pass"], current["position"], current["command"], current["time"], [block_from_record(record)])
+            groups.append((record, []))
+        elif record["operation"] == "acquire" and groups:
+            groups[-1][1].append(record)
+    entries = []
+    for k, (command, acquisitions) in enumerate(groups):
+        if not acquisitions:
+            continue
+        position = k % n
+        dwell = acquisitions[-1]
+        expected = step.dwells[position] if step.dwells else None
+        if expected is not None and abs(float(dwell["arguments"][0]) - expected) > 1e-9:
+            raise JournalMismatch(
+                f"zero-offset iteration: the last acquisition after command {k + 1} lasts {dwell['arguments'][0]} s, "
+                f"position {step.positions[position]} dwells {expected} s"
             )
-            current = None
+        entries.append(
+            _entry(
+                step.stage, k // n + 1, step.positions[position], command["arguments"], float(command["result"]), [block_from_record(dwell)]
+            )
+        )
     return entries
 
 
