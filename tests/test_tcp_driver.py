@@ -159,3 +159,16 @@ def test_the_timeout_counts_silence_not_the_length_of_a_dwell():
         elapsed = time.monotonic() - start
         assert len(block) == 30 and elapsed > 1.2  # it really streamed for ~1.5 s
         driver.close()
+
+
+def test_a_new_client_takes_over_from_one_that_vanished(server):
+    # a client whose host lost power never closes its connection; the next client must not wait for it
+    stale = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+    assert stale.recv(100).startswith(b"STABLEINS-PLATFORM 1")
+    start = time.monotonic()
+    driver = TcpDriver("127.0.0.1", server.port, timeout=5)
+    assert len(driver.acquire(0.5)) == 10
+    assert time.monotonic() - start < 3
+    driver.close()
+    assert stale.recv(100) == b""  # the stale connection was closed by the platform
+    stale.close()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import threading
 import time
 import zlib
 from collections.abc import Callable
@@ -157,6 +158,10 @@ def serve(
 ) -> None:
     """Serve ``driver`` on ``127.0.0.1:port``, one client at a time, until interrupted.
 
+    The latest client wins: a new connection closes the previous one (whose host may have
+    lost power without closing it), then takes the platform over once that session has
+    let go of it.
+
     Parameters
     ----------
     driver : PlatformDriver
@@ -166,32 +171,53 @@ def serve(
     ready : callable, optional
         Called with the bound port once the server accepts connections.
     max_connections : int, optional
-        Stop after this many client connections (tests); ``None`` serves forever.
+        Stop after this many client connections have ended (tests); ``None`` serves forever.
     realtime : float
         Stream samples paced at ``realtime`` × real time (1: like hardware); 0: as fast as possible.
     """
+    platform = threading.Lock()  # one session talks to the driver at a time
+    state: dict[str, Any] = {"current": None}
+    sessions: list[threading.Thread] = []
+
+    def session(connection: socket.socket, peer: tuple[str, int]) -> None:
+        with platform, connection:
+            if state["current"] is not connection:  # replaced before it started
+                return
+            connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
+            writer = connection.makefile("w", encoding="ascii", newline="\n")
+            try:
+                _Session(driver, reader, writer, log, realtime).run()
+            except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
+                log(f"client {peer[0]}:{peer[1]} lost: {error}")
+            else:
+                log(f"client {peer[0]}:{peer[1]} disconnected")
+            finally:
+                for stream in (reader, writer):
+                    try:
+                        stream.close()
+                    except (OSError, ValueError):
+                        pass
+
     with socket.create_server((LOOPBACK, port), backlog=4) as listener:
         bound = listener.getsockname()[1]
         if ready is not None:
             ready(bound)
-        served = 0
-        while max_connections is None or served < max_connections:
+        accepted = 0
+        while max_connections is None or accepted < max_connections:
             connection, peer = listener.accept()
-            served += 1
-            log(f"client {peer[0]}:{peer[1]} connected")
-            with connection:
-                connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
-                writer = connection.makefile("w", encoding="ascii", newline="\n")
+            accepted += 1
+            previous, state["current"] = state["current"], connection
+            if previous is not None:
+                log(f"client {peer[0]}:{peer[1]} connected; it replaces the previous client")
                 try:
-                    _Session(driver, reader, writer, log, realtime).run()
-                except (ConnectionError, BrokenPipeError, OSError) as error:
-                    log(f"client {peer[0]}:{peer[1]} lost: {error}")
-                else:
-                    log(f"client {peer[0]}:{peer[1]} disconnected")
-                finally:
-                    for stream in (reader, writer):
-                        try:
-                            stream.close()
-                        except OSError:
-                            pass
+                    previous.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            else:
+                log(f"client {peer[0]}:{peer[1]} connected")
+            thread = threading.Thread(target=session, args=(connection, peer), daemon=True)
+            thread.start()
+            sessions.append(thread)
+        for thread in sessions:
+            thread.join()
