@@ -93,3 +93,53 @@ def test_kill_9_resume_equals_uninterrupted(tmp_path):
     np.testing.assert_array_equal(from_journal["f_z"], expected["f_z"])
     accepted = [r["step"] for r in records if r.kind == "verdict" and r["accepted"]]
     assert sorted(accepted) == sorted(set(accepted))
+
+
+def test_kill_9_over_the_network_loses_and_duplicates_nothing(tmp_path):
+    """A real platform cannot be rewound: the killed attempt is repeated, never stitched, never counted twice."""
+    from stableins.data.device import load_device
+    from tests.tcp_fixtures import ServerProcess
+
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(short_plan(chunk=0.5, checks=SIM_CHECKS, positions=SMALL_MOVES, person=False).to_dict()))
+    rundir = tmp_path / "net"
+    journal = rundir / "journal.bin"
+    rng = np.random.default_rng(7)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    with ServerProcess(seed=3, simulator=True, unit="NET-K") as server:
+        spec = f"tcp://127.0.0.1:{server.port}"
+        kills = 0
+        for _ in range(20):
+            if journal.exists():
+                argv = ["run", "--resume", str(rundir), "--yes", "--quiet"]
+            else:
+                argv = ["run", str(plan), "--driver", spec, "--unit", "NET-K", "--out", str(rundir), "--yes", "--quiet"]
+            before = _count(journal)
+            process = subprocess.Popen(
+                [sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+            )
+            target = before + int(rng.integers(3, 20))
+            deadline = time.monotonic() + 60
+            while process.poll() is None and _count(journal) < target and time.monotonic() < deadline:
+                time.sleep(0.001)
+            if process.poll() is None and kills < 4:
+                os.kill(process.pid, signal.SIGKILL)
+                process.wait(timeout=10)
+                process.stderr.close()
+                kills += 1
+                continue
+            assert process.wait(timeout=120) == 0, process.stderr.read()
+            process.stderr.close()
+            break
+        else:
+            raise AssertionError("the run never finished")
+    assert kills >= 2
+    records = scan(journal).records
+    resumes = [r for r in records if r.kind == "resume"]
+    assert resumes and all(not r["deterministic"] for r in resumes)
+    data = load_device(rundir / "device.h5")
+    dwells = data.dwells()
+    assert [d.position for d in dwells] == [1, 2, 3, 4, 5, 6]  # each position once
+    assert all(len(d) == 200 for d in dwells)  # whole dwells, never stitched across a kill
+    assert all(np.all(np.diff(d.time) > 0) and np.ptp(np.diff(d.time)) < 1e-9 for d in dwells)  # contiguous
+    np.testing.assert_array_equal(journal_columns(records)["f_x"], data.columns["f_x"])
