@@ -175,7 +175,9 @@ def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_p
     # re-estimating the last pass from the exported file gives the iteration's own fit
     site = data.metadata
     columns = {k: np.asarray(v) for k, v in data.columns.items()}
-    dwells = [d for d in dwells_from_columns(columns, checks=definition.acceptance.dwell_checks()) if d.pass_number == last]
+    # (with the settle cut 'stableins calibrate device' applies: every exported sample is after settling)
+    settle = definition.steps[0].settle
+    dwells = [d for d in dwells_from_columns(columns, settle=settle, checks=definition.acceptance.dwell_checks()) if d.pass_number == last]
     fit = calibrate_coarse(
         dwells,
         gravity=site.gravity,
