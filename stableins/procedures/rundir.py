@@ -307,7 +307,14 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     prior = _load_record(rundir / start["prior"])
     record = open_system_record(dataset)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
-    return run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions()).result
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
+    for warning in caught:
+        runner.console.say(f"warning: {warning.message}")
+    return outcome.result
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:
