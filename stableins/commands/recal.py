@@ -77,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
     text = [f"field recalibration of {args.unit}: {prior_path} -> {record_path}", how, "", format_changes(changes)]
     if significant:
         text += ["", f"changed beyond 3σ: {', '.join(significant)}"]
+    if not prior_used and estimate.determined:
+        # the system-level stage determines combinations of parameters; per-parameter changes along
+        # directions it does not see are the prior's (gauge), so its own summary is the evidence
+        text += ["", "what the new data determine (system-level stage):"] + [f"  {line}" for line in estimate.determined]
     if args.store and not args.no_file:
         entry = HistoryStore(args.store).add(record_path, prior=digest if prior_used else "", evidence=estimate_path)
         note(f"filed in {args.store} as {entry.file}")
