@@ -267,14 +267,17 @@ class Session:
 class SessionDriver:
     """The session seen as a :class:`~stableins.drivers.base.PlatformDriver`, for estimators that drive the platform themselves."""
 
-    def __init__(self, session: Session) -> None:
+    def __init__(self, session: Session, on_command: Callable[[tuple[float, ...]], None] | None = None) -> None:
         self.session = session
+        self.on_command = on_command
 
     @property
     def metadata(self) -> Any:
         return self.session.driver.metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        if self.on_command is not None:
+            self.on_command(tuple(float(r) for r in readings))
         return self.session.operate("command", [float(r) for r in readings])
 
     def read_angles(self) -> NDArray[np.float64]:
@@ -609,9 +612,18 @@ class Runner:
             self.console.say(f"{label}{f' (attempt {attempt})' if attempt > 1 else ''}: zero-offset iteration — {step.why}")
             self.session.context = {"step": index, "attempt": attempt, "phase": "iteration"}
             self.session.trace = []
+            commands = [0]
+            n = len(step.positions)
+
+            def announce(readings: tuple[float, ...]) -> None:
+                k = commands[0]
+                commands[0] += 1
+                degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
+                self.console.say(f"  pass {k // n + 1}, position {step.positions[k % n]}: command readings ({degrees}) deg")
+
             try:
                 result = iterate_offsets(
-                    SessionDriver(self.session),
+                    SessionDriver(self.session, announce),
                     self.definition,
                     initial_offsets=tuple(float(o) for o in self.offsets),
                     progress=lambda record: self.console.say(f"  {record.describe()}"),
