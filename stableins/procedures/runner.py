@@ -612,18 +612,9 @@ class Runner:
             self.console.say(f"{label}{f' (attempt {attempt})' if attempt > 1 else ''}: zero-offset iteration — {step.why}")
             self.session.context = {"step": index, "attempt": attempt, "phase": "iteration"}
             self.session.trace = []
-            commands = [0]
-            n = len(step.positions)
-
-            def announce(readings: tuple[float, ...]) -> None:
-                k = commands[0]
-                commands[0] += 1
-                degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
-                self.console.say(f"  pass {k // n + 1}, position {step.positions[k % n]}: command readings ({degrees}) deg")
-
             try:
                 result = iterate_offsets(
-                    SessionDriver(self.session, announce),
+                    SessionDriver(self.session, _Announcer(self.console, step.positions)),
                     self.definition,
                     initial_offsets=tuple(float(o) for o in self.offsets),
                     progress=lambda record: self.console.say(f"  {record.describe()}"),
@@ -656,6 +647,21 @@ class Runner:
             seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
             return
+
+
+class _Announcer:
+    """Says which pass and position each command of the zero-offset iteration is."""
+
+    def __init__(self, console: Console, positions: tuple[int, ...]) -> None:
+        self.console = console
+        self.positions = positions
+        self.count = 0
+
+    def __call__(self, readings: tuple[float, ...]) -> None:
+        k, n = self.count, len(self.positions)
+        self.count += 1
+        degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
+        self.console.say(f"  pass {k // n + 1}, position {self.positions[k % n]}: command readings ({degrees}) deg")
 
 
 def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
