@@ -48,7 +48,11 @@ COMMANDS: dict[str, Command | Group] = {
     "demo": Command("stableins.commands.demo", "simulate a platform end to end and write everything to a directory"),
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
     "calibrate": Group(
-        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+        "calibrate from recorded data",
+        {
+            "device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration"),
+            "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
+        },
     ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
