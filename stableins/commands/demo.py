@@ -117,9 +117,8 @@ def run(args: argparse.Namespace) -> int:
     (out / "verdict.json").write_text(json.dumps(rows, indent=1) + "\n")
     lines = ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",
              f"{'parameter':<10} {'truth':>12} {'estimate':>12} {'error':>10} {'1σ':>9} {'error/σ':>8}  unit"]  # fmt: skip
-    lines += [
-        f"{r['id']:<10} {r['truth']:>12.3f} {r['estimate']:>12.3f} {r['error']:>10.3f} {r['sigma']:>9.3f} {r['z']:>8.2f}  {r['unit']}" for r in rows
-    ]
+    row = "{id:<10} {truth:>12.3f} {estimate:>12.3f} {error:>10.3f} {sigma:>9.3f} {z:>8.2f}  {unit}"
+    lines += [row.format(**r) for r in rows]
     worst = max((abs(r["z"]) for r in rows), default=float("nan"))
     lines.append(f"largest |error|/σ = {worst:.2f} over {len(rows)} estimated parameters; files in {out}/")
     emit(args, {"out": str(out), "verdict": rows}, "\n".join(lines))
