@@ -1,1 +1,1 @@
-"""CLI subcommands: one module per command, each with ``configure(parser)`` and ``run(args) -> int``."""
+"""CLI subcommands, one module each (``configure(parser)`` and ``run(args) -> int``); see :mod:`stableins.cli`."""

@@ -1,0 +1,127 @@
+r"""Batched weighted Gauss-Newton with fixed (gauge) parameters.
+
+Solves many independent least-squares problems at once (a leading trial axis ``T``),
+so that a Monte Carlo of thousands of calibrations is one vectorized loop.  Each step
+solves the column-scaled normal equations
+
+.. math::
+    (A_s^T A_s)\,\delta z = A_s^T r,\qquad A_s = A\,\mathrm{diag}(d),\qquad
+    \delta p = \mathrm{diag}(d)\,\delta z
+
+with ``r = (y − h(p))/σ`` and ``A = ∂h/∂p / σ`` on the free parameters only; fixed
+parameters keep their value.  The covariance of the free parameters is
+``diag(d) (A_s^T A_s)^{-1} diag(d)`` at the solution: the Cramér-Rao bound of the
+linearized problem with the σ given (absolute, never scaled by χ²_ν).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+Evaluate = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+
+@dataclass(frozen=True)
+class GaussNewtonSolution:
+    """Batched solution: ``x (T, n)``, ``covariance (T, n, n)`` (zero rows for fixed
+    parameters), weighted residuals ``(T, m)``, weighted Jacobian ``(T, m, n)``,
+    iterations used, the last scaled step and whether it fell below the tolerance ``(T,)``."""
+
+    x: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    weighted_residuals: NDArray[np.float64]
+    weighted_jacobian: NDArray[np.float64]
+    iterations: int
+    last_step: NDArray[np.float64]
+    converged: NDArray[np.bool_] | None = None
+
+
+def gauss_newton(
+    evaluate: Evaluate,
+    x0: NDArray[np.float64],
+    free: NDArray[np.bool_],
+    scales: NDArray[np.float64],
+    *,
+    max_iterations: int = 12,
+    tolerance: float = 1e-9,
+) -> GaussNewtonSolution:
+    """Iterate until the largest scaled step is below ``tolerance`` (in nominal units).
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``x (T, n) -> (r (T, m), A (T, m, n))``, weighted residuals and Jacobian.
+    x0 : ndarray (T, n)
+    free : ndarray of bool (n,)
+    scales : ndarray (n,)
+        Typical magnitude of each parameter (column scaling).
+    """
+    x = np.array(x0, dtype=float, copy=True)
+    d = np.asarray(scales, dtype=float)[free]
+    step = np.full(x.shape[:-1], np.inf)
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007
+        r, a = evaluate(x)
+        a_s = a[..., free] * d
+        normal = np.einsum("tmi,tmj->tij", a_s, a_s)
+        rhs = np.einsum("tmi,tm->ti", a_s, r)
+        dz = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        x[..., free] += dz * d
+        step = np.abs(dz).max(axis=-1)
+        if np.all(step < tolerance):
+            break
+    r, a = evaluate(x)
+    a_s = a[..., free] * d
+    normal = np.einsum("tmi,tmj->tij", a_s, a_s)
+    covariance = np.zeros(x.shape + (x.shape[-1],))
+    inv = np.linalg.inv(normal) * d[:, None] * d[None, :]
+    idx = np.flatnonzero(free)
+    covariance[..., idx[:, None], idx[None, :]] = inv
+    return GaussNewtonSolution(x, covariance, r, a, iterations, step, step < tolerance)
+
+
+def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:
+    """A warning when Gauss-Newton stopped at its iteration limit without converging, else None."""
+    if solution.converged is None or bool(solution.converged[trial]):
+        return None
+    return (
+        f"warning: Gauss-Newton did not converge in {solution.iterations} iterations (last step {solution.last_step[trial]:.3g} "
+        "of the typical parameter magnitudes): the estimates may not be the least-squares solution"
+    )
+
+
+def goodness_of_fit_warning(
+    chi2: float,
+    dof: int,
+    normalized_residuals: NDArray[np.float64],
+    labels: tuple[str, ...],
+    quantile: float = 0.999,
+    worst: int = 3,
+) -> str | None:
+    r"""A warning when :math:`\chi^2` exceeds its ``quantile`` under the measured noise, else None.
+
+    With the covariance built on the measured noise (never scaled by χ²_ν), a χ² far
+    beyond :math:`\chi^2_\nu` means the data do not fit the model (a position off its
+    orientation, an unmodelled effect, noise that is not white): the 1σ then understate
+    the errors, and the user must be told.  The message names the observations with the
+    largest normalized residuals (``residual / 1σ``).
+    """
+    from scipy.stats import chi2 as chi2_distribution
+
+    if dof <= 0 or not np.isfinite(chi2):
+        return None
+    limit = float(chi2_distribution.ppf(quantile, dof))
+    if chi2 <= limit:
+        return None
+    z = np.asarray(normalized_residuals, dtype=float)
+    order = np.argsort(-np.abs(z))[:worst]
+    largest = ", ".join(f"{labels[k]} {z[k]:+.1f}" for k in order) if len(labels) == z.size else ""
+    return (
+        f"warning: chi2 = {chi2:.4g} for nu = {dof} (chi2_red {chi2 / dof:.3g}) exceeds its {100 * quantile:g} % quantile "
+        f"({limit / dof:.3g}·nu): the data do not fit the model within the measured noise and the 1σ understate the errors"
+        + (f"; largest normalized residuals: {largest}" if largest else "")
+    )
