@@ -11,7 +11,9 @@ import numpy as np
 
 from stableins.conventions import MICRO_G
 from stableins.errormodel import GIMBAL_TERMS, ErrorModel
+from stableins.data.metadata import metadata_from_document
 from stableins.estimators.result import FitResult
+from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import fit_to_dict
 
 GRAVITY = 9.8015
@@ -71,70 +73,57 @@ def fit(seed: int = 1, noise_ug: float = 3.0, values: dict[str, float] | None = 
     )
 
 
-SITE = {
+SITE_DOCUMENT = {
     "serial_number": "ACC-0042",
-    "latitude": np.radians(45.7733),
-    "height": 212.0,
-    "gravity": GRAVITY,
+    "latitude": {"value": 45.7733, "unit": "deg"},
+    "height": {"value": 212.0, "unit": "m"},
+    "gravity": {"value": GRAVITY, "unit": "m/s^2"},
     "gravity_source": "WGS-84 normal gravity (NIMA TR8350.2 Eq. 4-1, 4-3)",
-    "sample_rate": 200.0,
+    "sample_rate": {"value": 200.0, "unit": "Hz"},
     "gimbal_senses": [1, 1, 1, 1],
-    "base_attitude": [0.0, 0.0, 0.0],
-    "reference_temperature": 25.0,
+    "base_attitude": {"value": [0.0, 0.0, 0.0], "unit": "deg", "order": ["yaw", "pitch", "roll"]},
+    "reference_temperature": {"value": 25.0, "unit": "degC"},
     "damping": {},
     "extra": {"laboratory": "Inertial Sensor Laboratory, Building 4", "customer": "Navigation Systems Division"},
 }
 
 
-def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: dict[str, str] | None = None) -> dict:
-    """A calibration record (JSON mapping) carrying ``result`` and three gimbal offsets not estimated."""
-    params = [
-        {"id": t.id, "value": float(v), "unit": t.si_unit, "sigma": float(s), "status": st}
-        for t, v, s, st in zip(result.terms, result.values, result.sigma, result.status, strict=True)
-    ]
-    params.append(
-        {
-            "id": GIMBAL_TERMS[0].id,
-            "value": 0.0,
-            "unit": "rad",
-            "sigma": 0.0,
-            "status": "gauge",
-            "note": "a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)",
-        }
+def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: tuple = ()) -> dict:
+    """A calibration record document (stableins.records format) of ``result`` plus three gimbal offsets not estimated.
+
+    Two keys beyond the record format carry the report's evidence: ``stages`` (residuals,
+    :func:`fit_to_dict`) and ``environment``.
+    """
+    n = len(result.terms)
+    covariance = np.zeros((n + 3, n + 3))
+    covariance[:n, :n] = result.covariance
+    full = FitResult(
+        stage=result.stage,
+        terms=result.terms + GIMBAL_TERMS,
+        values=np.concatenate([result.values, np.zeros(3)]),
+        covariance=covariance,
+        status=result.status + ("gauge", "unidentifiable", "unidentifiable"),
+        residuals=result.residuals,
+        residual_sigma=result.residual_sigma,
+        residual_labels=result.residual_labels,
+        rank=result.rank,
+        notes=(
+            "theta10: a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)",
+            "theta20, theta30: positions were given as platform-frame specific force, so the data carry no angle-sensor information",
+        ),
     )
-    for term in GIMBAL_TERMS[1:]:
-        params.append(
-            {
-                "id": term.id,
-                "value": None,
-                "unit": "rad",
-                "sigma": None,
-                "status": "unidentifiable",
-                "note": "positions were given as platform-frame specific force: the data carry no angle-sensor information",
-            }
-        )
-    return {
-        "schema_version": 1,
-        "serial_number": SITE["serial_number"],
-        "parameters": params,
-        "covariance": {"ids": list(result.ids), "matrix": result.covariance.tolist()},
-        "provenance": {
-            "software_version": "0.1.0",
-            "inputs": inputs or {},
-            "procedure": {
-                "name": "wu2018-18-position",
-                "version": "1",
-                "positions": 18,
-                "dwell": 600,
-                "settle": 30,
-                "passes": 2,
-                "stages": ["coarse", "fine"],
-            },
-            "started": started,
-            "finished": started.replace("08:00", "14:30"),
-        },
-        "site": SITE,
-        "environment": {"temperature": {"mean": 24.81, "min": 24.62, "max": 25.07}},
-        "notes": ["Platform warmed up for 2 h before the first position."],
-        "stages": [fit_to_dict(result)],
-    }
+    rec = CalibrationRecord.from_fit_result(
+        full,
+        site=metadata_from_document(SITE_DOCUMENT),
+        inputs=inputs,
+        procedure="wu2018-18-position",
+        data_start=started,
+        data_end=started.replace("08:00", "14:30"),
+        notes=["Platform warmed up for 2 h before the first position."],
+        created=started.replace("08:00", "14:35"),
+    )
+    document = rec.to_document()
+    document["provenance"]["stages"] = ["coarse", "fine"]
+    document["stages"] = [fit_to_dict(result)]
+    document["environment"] = {"temperature": {"mean": 24.81, "min": 24.62, "max": 25.07}}
+    return document

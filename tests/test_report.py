@@ -51,7 +51,7 @@ def files(tmp_path_factory):
     data = folder / "device.csv"
     data.write_text("time[s],f_x[m/s^2]\n0.0,0.1\n")  # stands for the session data: only its digest is used
     result = rf.fit(1)
-    (folder / "record.json").write_text(json.dumps(rf.record(result, inputs={"device.csv": sha256_file(data)})))
+    (folder / "record.json").write_text(json.dumps(rf.record(result, inputs=(data,))))
     values = rf.truth(1)
     values["bias_x"] -= BIAS_STEP_UG * MICRO_G  # the unit's bias moved by +60 µg since the previous calibration
     (folder / "old.json").write_text(json.dumps(rf.record(rf.fit(2, values=values), started="2025-11-20T08:00:00Z")))
@@ -123,7 +123,7 @@ def test_sections_without_evidence_say_so(files, tmp_path):
     record = json.loads((files / "record.json").read_text())
     record.pop("stages")
     record.pop("environment")
-    record["provenance"]["inputs"] = {}
+    record["provenance"]["inputs"] = []
     (tmp_path / "bare.json").write_text(json.dumps(record))
     out = tmp_path / "bare.pdf"
     assert report_command.main([str(tmp_path / "bare.json"), "--out", str(out)]) == 0
@@ -181,7 +181,7 @@ def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
     record["parameters"][0]["status"] = "guessed"
     (tmp_path / "status.json").write_text(json.dumps(record))
     assert report_command.main([str(tmp_path / "status.json"), "--out", str(out)]) == 2
-    assert "parameters.sf_x.status" in capsys.readouterr().err
+    assert "parameters[0].status" in capsys.readouterr().err
 
     # A data file the calibration did not use is refused, and an existing report is left untouched.
     out.write_bytes(b"old report")

@@ -14,6 +14,7 @@ r"""The numbers a report states, computed from the record (no layout here).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -100,7 +101,10 @@ def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COV
             unit, meaning = _unit_text(term.unit), term.meaning
         else:
             value, u, unit, meaning = p.value, p.sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
-        why = p.note or STATUS_WHY.get(p.status, "")
+        why = p.note
+        if not why and p.status != "estimated":
+            mentions = [n for n in record.notes if re.search(rf"\b{re.escape(p.id)}\b", n)]
+            why = "; ".join(mentions) or STATUS_WHY.get(p.status, "")
         rows.append(ParameterRow(p.id, meaning, unit, value, u, k * u if math.isfinite(u) else math.nan, p.status, why))
     return rows
 
@@ -114,7 +118,11 @@ def correlation(record: RecordView) -> tuple[tuple[str, ...], list[list[float]]]
     if not record.covariance_ids:
         return (), []
     status = {p.id: p.status for p in record.parameters}
-    keep = [i for i, pid in enumerate(record.covariance_ids) if status.get(pid) == "estimated" and record.covariance[i][i] > 0]
+    keep = [
+        i
+        for i, pid in enumerate(record.covariance_ids)
+        if status.get(pid) == "estimated" and math.isfinite(record.covariance[i][i]) and record.covariance[i][i] > 0
+    ]
     ids = tuple(record.covariance_ids[i] for i in keep)
     sigma = [math.sqrt(record.covariance[i][i]) for i in keep]
     matrix = [[record.covariance[i][j] / (sigma[a] * sigma[b]) for b, j in enumerate(keep)] for a, i in enumerate(keep)]

@@ -90,6 +90,7 @@ class RecordView:
     site: SiteMetadata | None
     environment: dict[str, Any]
     notes: tuple[str, ...]
+    determined: tuple[str, ...] = ()
     stages: tuple[dict[str, Any], ...] = ()
     system: dict[str, Any] = field(default_factory=dict)
     discovery: dict[str, Any] = field(default_factory=dict)
@@ -131,9 +132,10 @@ class RecordView:
             return cls.load(record)
         if isinstance(record, Mapping):
             return cls.from_mapping(record)
-        to_dict = getattr(record, "to_dict", None)
-        if callable(to_dict):
-            return cls.from_mapping(to_dict())
+        for name in ("to_document", "to_dict"):
+            method = getattr(record, name, None)
+            if callable(method):
+                return cls.from_mapping(method())
         raise TypeError(f"cannot read a calibration record from {type(record).__name__}")
 
     @classmethod
@@ -142,6 +144,11 @@ class RecordView:
         where = path or "calibration record"
         if not isinstance(data, Mapping):
             raise InputError("the top level is not a JSON object", path=where, expected="a calibration record")
+        if "format" in data:
+            # The record format's own validation (schema, σ vs covariance, symmetry, PSD ...).
+            from stableins.records import CalibrationRecord
+
+            CalibrationRecord.from_document(dict(data), where)
         version = data.get("schema_version")
         if not isinstance(version, int):
             raise InputError("missing or non-integer schema version", path=where, field="schema_version", expected="an integer")
@@ -154,12 +161,17 @@ class RecordView:
         cov_ids, cov = _covariance(data.get("covariance"), where, {p.id for p in parameters})
         procedure = provenance.get("procedure", data.get("procedure", {}))
         if isinstance(procedure, str):
-            procedure = {"name": procedure}
+            procedure = {"name": procedure} if procedure else {}
         procedure = dict(_mapping(procedure, where, "provenance.procedure"))
+        if provenance.get("stages") and "stages" not in procedure:
+            procedure["stages"] = list(provenance["stages"])
         times = {k: str(provenance[k]) for k in ("started", "finished", "created", "issued") if provenance.get(k)}
-        notes = data.get("notes", [])
-        if isinstance(notes, str):
-            notes = [notes]
+        times.setdefault("started", str(provenance.get("data_start") or ""))
+        times.setdefault("finished", str(provenance.get("data_end") or ""))
+        times = {k: v for k, v in times.items() if v}
+        software = str(provenance.get("software_version", provenance.get("software", data.get("software_version", ""))))
+        software = software.removeprefix("stableins ").strip()
+        notes = list(data.get("notes", [])) if not isinstance(data.get("notes"), str) else [data["notes"]]
         stages = data.get("stages", [])
         if not isinstance(stages, Sequence) or isinstance(stages, str) or not all(isinstance(s, Mapping) for s in stages):
             raise InputError("stages must be a list of objects", path=where, field="stages")
@@ -171,13 +183,14 @@ class RecordView:
             parameters=parameters,
             covariance_ids=cov_ids,
             covariance=cov,
-            software_version=str(provenance.get("software_version", data.get("software_version", ""))),
+            software_version=software,
             inputs=_inputs(provenance.get("inputs", provenance.get("input_sha256", {})), where),
             procedure=procedure,
             times=times,
             site=site,
             environment=dict(_mapping(data.get("environment", {}), where, "environment")),
             notes=tuple(str(n) for n in notes),
+            determined=tuple(str(d) for d in data.get("determined", [])),
             stages=tuple(dict(s) for s in stages),
             system=dict(_mapping(data.get("system", {}), where, "system")),
             discovery=dict(_mapping(data.get("discovery", {}), where, "discovery")),
@@ -203,6 +216,10 @@ def _site(value: Any, where: str) -> SiteMetadata | None:
     if value is None:
         return None
     value = _mapping(value, where, "site")
+    if isinstance(value.get("latitude"), Mapping):  # the record format: quantities with explicit units
+        from stableins.data.metadata import metadata_from_document
+
+        return metadata_from_document(dict(value), where)
     required = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
     missing = [k for k in required if k not in value]
     if missing:
@@ -262,11 +279,15 @@ def _covariance(value: Any, where: str, ids: set[str]) -> tuple[tuple[str, ...],
         raise InputError(f"covariance names parameters not in the record: {unknown}", path=where, field="covariance.ids")
     if len(matrix) != n or any(not isinstance(row, Sequence) or len(row) != n for row in matrix):
         raise InputError(f"covariance matrix is not {n}×{n}", path=where, field="covariance.matrix")
-    rows = tuple(tuple(_number(x, where, "covariance.matrix") for x in row) for row in matrix)
+    rows = tuple(tuple(_number(x, where, "covariance.matrix", allow_none=True) for x in row) for row in matrix)
     for i in range(n):
+        if not math.isfinite(rows[i][i]):
+            continue
         if rows[i][i] < 0:
             raise InputError(f"negative variance for {order[i]}", path=where, field="covariance.matrix")
         for j in range(i):
+            if not math.isfinite(rows[j][j]):
+                continue
             if abs(rows[i][j] - rows[j][i]) > 1e-9 * math.sqrt(abs(rows[i][i] * rows[j][j])):
                 raise InputError(f"covariance is not symmetric at ({order[i]}, {order[j]})", path=where, field="covariance.matrix")
     return tuple(str(o) for o in order), rows

@@ -208,6 +208,7 @@ def results(ctx: ReportContext) -> list[Flowable]:
     else:
         out.append(_p("None: every parameter of the model was estimated from the data."))
     determined = [(s.stage, d) for s in ctx.stages for d in s.determined]
+    determined += [("record", d) for d in ctx.record.determined if all(d != x for _, x in determined)]
     if determined:
         out.append(_p("Combinations the data determine", "h2"))
         out.append(document.table([["Stage", "Combination"]] + [list(d) for d in determined], [0.14, 0.86]))
