@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from stableins.conventions import MICRO_G
-from stableins.errormodel import GIMBAL_TERMS, ErrorModel
 from stableins.data.metadata import metadata_from_document
+from stableins.errormodel import GIMBAL_TERMS, ErrorModel
 from stableins.estimators.result import FitResult
 from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import fit_to_dict
