@@ -16,7 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 import report_fixtures as rf  # noqa: E402
 
-from stableins.commands import report as report_command  # noqa: E402
+from stableins import cli  # noqa: E402
 from stableins.conventions import MICRO_G  # noqa: E402
 from stableins.data.errors import InputError  # noqa: E402
 from stableins.reporting import content  # noqa: E402
@@ -69,8 +69,9 @@ def _render(pdf: Path) -> tuple[list[Path], str]:
 @needs_poppler
 def test_full_report_pages_and_required_fields(files, capsys):
     out = files / "full.pdf"
-    status = report_command.main(
+    status = cli.main(
         [
+            "report",
             str(files / "record.json"),
             "--data",
             str(files / "device.csv"),
@@ -126,7 +127,7 @@ def test_sections_without_evidence_say_so(files, tmp_path):
     record["provenance"]["inputs"] = []
     (tmp_path / "bare.json").write_text(json.dumps(record))
     out = tmp_path / "bare.pdf"
-    assert report_command.main([str(tmp_path / "bare.json"), "--out", str(out)]) == 0
+    assert cli.main(["report", str(tmp_path / "bare.json"), "--out", str(out)]) == 0
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert f"page {len(pages)} of {len(pages)}" in text
@@ -174,19 +175,19 @@ def test_gum_rounding():
 def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
     out = tmp_path / "r.pdf"
     (tmp_path / "broken.json").write_text('{"schema_version": 1, "serial_number": "X", "parameters": [')
-    assert report_command.main([str(tmp_path / "broken.json"), "--out", str(out)]) == 2
+    assert cli.main(["report", str(tmp_path / "broken.json"), "--out", str(out)]) == 2
     assert "broken.json" in capsys.readouterr().err and not out.exists()
 
     record = json.loads((files / "record.json").read_text())
     record["parameters"][0]["status"] = "guessed"
     (tmp_path / "status.json").write_text(json.dumps(record))
-    assert report_command.main([str(tmp_path / "status.json"), "--out", str(out)]) == 2
+    assert cli.main(["report", str(tmp_path / "status.json"), "--out", str(out)]) == 2
     assert "parameters[0].status" in capsys.readouterr().err
 
     # A data file the calibration did not use is refused, and an existing report is left untouched.
     out.write_bytes(b"old report")
     (tmp_path / "other.csv").write_text("time[s]\n1\n")
-    assert report_command.main([str(files / "record.json"), "--data", str(tmp_path / "other.csv"), "--out", str(out)]) == 2
+    assert cli.main(["report", str(files / "record.json"), "--data", str(tmp_path / "other.csv"), "--out", str(out)]) == 2
     assert "other.csv" in capsys.readouterr().err
     assert out.read_bytes() == b"old report"
     assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".partial")] == []

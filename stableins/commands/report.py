@@ -7,7 +7,6 @@ Heavy imports (reportlab, matplotlib, numpy) happen inside :func:`run`.
 from __future__ import annotations
 
 import argparse
-import sys
 
 HELP = "write the PDF calibration report of a calibration record"
 
@@ -30,27 +29,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.errors import InputError
+    """Write the report; an :class:`~stableins.data.errors.InputError` reaches the CLI (message, exit status 2)."""
+    from stableins.output import emit
+    from stableins.reporting.builder import write_report
 
-    try:
-        from stableins.reporting.builder import write_report
-
-        summary = write_report(
-            args.out, args.record, data=args.data, previous=args.previous, procedure=args.procedure, report_id=args.report_id
-        )
-    except InputError as error:
-        print(f"stableins report: {error.describe()}", file=sys.stderr)
-        return InputError.exit_status
-    print(f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}")
+    summary = write_report(
+        args.out, args.record, data=args.data, previous=args.previous, procedure=args.procedure, report_id=args.report_id
+    )
+    data = {
+        "path": summary.path,
+        "report_id": summary.report_id,
+        "pages": summary.pages,
+        "verdict": summary.verdict,
+        "sha256": summary.sha256,
+    }
+    emit(args, data, f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the command on its own (until it is registered in stableins/cli.py)."""
-    parser = argparse.ArgumentParser(prog="stableins report")
-    configure(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())
