@@ -126,12 +126,16 @@ def write_report(
     view = RecordView.from_any(record)
     previous_view = RecordView.from_any(previous) if previous is not None else None
     where = view.path or "calibration record"
+    inputs = collect_inputs(view, data)
+    evidence_notes: list[str] = []
+    if not fits and not view.stages and data:
+        from stableins.reporting.replay import device_fits
+
+        fits, evidence_notes = device_fits(data)
     stages: list[StageEvidence] = [stage_evidence(f, where) for f in (fits or view.stages)]
     extra_terms = [t for f in fits if not isinstance(f, dict) for t in getattr(f, "terms", ())]
     terms = content.known_terms(extra_terms)
     rows = content.parameter_rows(view, terms)
-
-    inputs = collect_inputs(view, data)
     if previous_view is not None:
         inputs.append(
             sections.InputFile(
@@ -170,6 +174,7 @@ def write_report(
         changes=changes,
         skipped_changes=skipped or [],
         software_version=stableins.__version__,
+        evidence_notes=evidence_notes,
     )
     story = [flowable for section in sections.SECTIONS for flowable in section(ctx)]
     buffer = io.BytesIO()

@@ -16,8 +16,9 @@ from typing import Any
 
 from stableins.data.errors import InputError
 
-#: "pos 3 f_y", "position 12 y", "p3 f_x" → (3, "y")
+#: "pos 3 f_y", "position 12 y", "p3 f_x" → (3, "y"); "pos 3 |f|" → (3, "|f|") (squared-amplitude stage)
 _LABEL = re.compile(r"p(?:os(?:ition)?)?\s*(\d+)\D*?(?:f_)?([xyz])\b", re.IGNORECASE)
+_MAGNITUDE = re.compile(r"p(?:os(?:ition)?)?\s*(\d+)\s*\|f\|", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -75,18 +76,24 @@ class StageEvidence:
         """Residuals grouped by axis: ``{"x": [(position, residual, sigma), ...], ...}``.
 
         Observations whose label names no position and axis are left out; see
-        :attr:`unlabelled`.
+        :attr:`unlabelled`.  Only keys with observations are present (``"|f|"`` for the
+        fine stage's specific-force magnitude).
         """
-        out: dict[str, list[tuple[int, float, float]]] = {"x": [], "y": [], "z": []}
+        out: dict[str, list[tuple[int, float, float]]] = {"x": [], "y": [], "z": [], "|f|": []}
         for label, r, s in zip(self.labels, self.residuals, self.sigma, strict=True):
+            magnitude = _MAGNITUDE.search(label)
             match = _LABEL.search(label)
-            if match:
+            if magnitude:
+                out["|f|"].append((int(magnitude.group(1)), r, s))
+            elif match:
                 out[match.group(2).lower()].append((int(match.group(1)), r, s))
-        return out
+        return {k: v for k, v in out.items() if v}
 
     @property
     def unlabelled(self) -> int:
-        return sum(1 for label in self.labels if not _LABEL.search(label)) if self.labels else len(self.residuals)
+        if not self.labels:
+            return len(self.residuals)
+        return sum(1 for label in self.labels if not (_LABEL.search(label) or _MAGNITUDE.search(label)))
 
 
 def fit_to_dict(fit: Any) -> dict[str, Any]:

@@ -101,15 +101,14 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
 
     scale, unit = residual_scale(stage.unit)
     groups = stage.by_position_axis()
+    keys = [k for k in ("x", "y", "z", "|f|") if k in groups]
+    colours = dict(AXIS_COLOURS, **{"|f|": "#1f3a5f"})
     with _style():
-        fig = _figure(FULL_WIDTH, 4.6)
-        axes = fig.subplots(3, 1, sharex=True)
-        for ax, axis in zip(axes, ("x", "y", "z"), strict=True):
+        fig = _figure(FULL_WIDTH, 0.9 + 1.25 * len(keys))
+        axes = np.atleast_1d(fig.subplots(len(keys), 1, sharex=True))
+        for ax, axis in zip(axes, keys, strict=True):
+            name = "|f|" if axis == "|f|" else f"f_{axis}"
             points = sorted(groups[axis])
-            if not points:
-                ax.text(0.5, 0.5, f"no residuals labelled for the {axis} axis", transform=ax.transAxes, ha="center", va="center")
-                ax.set_ylabel(f"{axis}: residual [{unit}]")
-                continue
             position = np.array([p[0] for p in points], dtype=float)
             residual = np.array([p[1] for p in points]) / scale
             sigma = np.array([p[2] for p in points]) / scale
@@ -119,31 +118,22 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
                 same = np.flatnonzero(position == value)
                 if same.size > 1:
                     offsets[same] = np.linspace(-0.2, 0.2, same.size)
-            ax.fill_between(position + offsets, -sigma, sigma, step="mid", color="0.85", label="noise floor (±1σ)", linewidth=0)
+            x = position + offsets
+            ax.fill_between(x, -sigma, sigma, step="mid", color="0.85", label="noise floor (±1σ)", linewidth=0)
             ax.errorbar(
-                position + offsets,
-                residual,
-                yerr=sigma,
-                fmt="o",
-                ms=2.8,
-                color=AXIS_COLOURS[axis],
-                ecolor=AXIS_COLOURS[axis],
-                elinewidth=0.6,
-                capsize=1.5,
-                label=f"f_{axis} residual",
+                x, residual, yerr=sigma, fmt="o", ms=2.8, color=colours[axis], elinewidth=0.6, capsize=1.5, label=f"{name} residual"
             )
             ax.axhline(0.0, color="black", linewidth=0.6)
-            ax.set_ylabel(f"f_{axis} residual [{unit}]")
+            ax.set_ylabel(f"{name} residual [{unit}]")
             ax.legend(loc="upper right", ncols=2, frameon=False)
             limit = max(float(np.max(np.abs(residual) + sigma)), 1e-12) * 1.35
             ax.set_ylim(-limit, limit)
         axes[-1].set_xlabel("position number")
-        positions = sorted({p[0] for axis in groups.values() for p in axis})
+        positions = sorted({p[0] for points in groups.values() for p in points})
         if positions and len(positions) <= 40:
             axes[-1].set_xticks(positions)
-        axes[0].set_title(
-            f"{stage.stage} stage: residual (observed − model) per position and axis; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}"
-        )
+        per = "per position" if "|f|" in groups else "per position and axis"
+        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) {per}; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
         return _png(fig)
 
 

@@ -49,6 +49,7 @@ class ReportContext:
     changes: list[Change] | None = None
     skipped_changes: list[str] = field(default_factory=list)
     software_version: str = ""
+    evidence_notes: list[str] = field(default_factory=list)
 
 
 def _p(text: str, style: str = "body") -> Paragraph:
@@ -98,7 +99,11 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
 def _period(times: dict[str, str]) -> str:
     if times.get("started") and times.get("finished"):
         return f"{times['started']} to {times['finished']}"
-    return times.get("started") or times.get("finished") or times.get("created") or NOT_RECORDED
+    if times.get("started") or times.get("finished"):
+        return times.get("started") or times.get("finished")
+    if times.get("created"):
+        return f"record created {times['created']} (times of the data not recorded)"
+    return NOT_RECORDED
 
 
 def method(ctx: ReportContext) -> list[Flowable]:
@@ -248,8 +253,15 @@ def _uncertainty_statement(ctx: ReportContext) -> str:
 
 def evidence(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(150), _p("5  Evidence that the model fits", "h1")]
+    for note in ctx.evidence_notes:
+        out.append(_p(escape(note[0].upper() + note[1:]) + ".", "small"))
     if not ctx.stages:
-        out.append(_p("Device-level residual analysis: <b>not performed</b>; the calibration record carries no stage residuals."))
+        out.append(
+            _p(
+                "Device-level residual analysis: <b>not performed</b>; the calibration record carries no stage residuals "
+                "and no device-level data file was given (--data)."
+            )
+        )
     else:
         rows: list[list[Any]] = [["Stage", "Obs.", "Rank / param.", "χ²_ν", "ν", "95\u00a0% interval, noise alone", "Verdict"]]
         colours = {}
@@ -281,7 +293,8 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
             if s.labels and s.unlabelled == 0:
                 png, aspect = figures.residuals_by_position(s)
                 caption = (
-                    f"Figure {number}. {s.stage.capitalize()} stage: residual of each position and axis with ±1σ error bars; "
+                    f"Figure {number}. {s.stage.capitalize()} stage: residual of each position (per axis, or of the specific-force "
+                    "magnitude |f|) with ±1σ error bars; "
                     "the grey band is the noise floor (±1σ) measured in the data."
                 )
             else:
@@ -299,6 +312,13 @@ def _system(ctx: ReportContext) -> list[Flowable]:
     harmonics = system.get("harmonics", [])
     records = [r for r in system.get("records", []) if {"time", "observed", "model"} <= set(r)]
     if not harmonics and not records:
+        if "system" in ctx.record.procedure.get("stages", []):
+            return [
+                _p(
+                    "<b>Not shown</b>: the system-level stage ran (record provenance), but the record carries neither its harmonic "
+                    "fits nor its residuals, so this report cannot show them."
+                )
+            ]
         return [_p("<b>Not performed</b>: the calibration record carries no system-level stage.")]
     out: list[Flowable] = []
     if harmonics:
