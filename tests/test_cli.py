@@ -277,7 +277,21 @@ requires_simulate = pytest.mark.skipif(not _simulate_available(), reason="simula
 
 def simulate(tmp_path: Path, *extra: str, name: str = "sim") -> tuple[int, Path]:
     out = tmp_path / name
-    argv = ["simulate", "device", "--out", str(out), "--procedure", "device-coarse", "--dwell", "1", "--settle", "0.5", *extra]
+    # one pass at the nominal commands: these tests are about the files, not the zero-offset iteration
+    argv = [
+        "simulate",
+        "device",
+        "--out",
+        str(out),
+        "--procedure",
+        "device-coarse",
+        "--dwell",
+        "1",
+        "--settle",
+        "0.5",
+        "--no-iteration",
+        *extra,
+    ]
     return cli.main(argv), out
 
 
@@ -379,3 +393,31 @@ def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
     assert g == pytest.approx(truth.site.gravity, rel=2e-3)  # a static platform measures gravity
     assert cli.main(["simulate", "system", "--out", str(out), "--procedure", "device-coarse"]) == 2
     assert "device-level simulation only" in capsys.readouterr().err
+
+
+@requires_simulate
+def test_simulate_device_runs_the_zero_offset_iteration_then_fine_at_repointed_positions(tmp_path, capsys):
+    from stableins.conventions import ARCSEC
+    from stableins.data.device import load_device
+    from stableins.simulator.truth import Truth
+
+    out = tmp_path / "session"
+    argv = ["simulate", "device", "--out", str(out), "--seed", "11", "--dwell", "5", "--settle", "1", "--json"]
+    assert cli.main(argv) == 0
+    files = {f["procedure"]: f for f in json.loads(capsys.readouterr().out)["files"]}
+    assert files["device-coarse"]["passes"] >= 2 and files["device-fine"]["passes"] == 1
+    coarse = load_device(files["device-coarse"]["path"])
+    fine = load_device(files["device-fine"]["path"])
+    truth = Truth.read(out / "truth.json")
+    first = coarse.dwells(stage="coarse", pass_number=1)
+    last = coarse.dwells(stage="coarse", pass_number=files["device-coarse"]["passes"])
+    assert [d.position for d in first] == [d.position for d in last] == list(range(1, 19))
+    # pass 1 is commanded at the nominal readings; later passes and the fine dwells are re-pointed by
+    # -theta20_hat, -theta30_hat, which must approach the true offsets (60 arcsec class) to a few arcsec
+    nominal = np.array([d.command for d in first])
+    for dwells in (last, fine.dwells(stage="fine")):
+        shift = np.array([d.command for d in dwells]) - nominal
+        np.testing.assert_allclose(shift[:, 0], 0.0, atol=1e-12)
+        for column, offset_id in ((1, "theta20"), (2, "theta30")):
+            assert np.ptp(shift[:, column]) < 1e-12
+            assert abs(shift[0, column] + truth.parameters[offset_id]) < 5 * ARCSEC

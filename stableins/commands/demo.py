@@ -45,6 +45,15 @@ def _step(title: str, argv: list[str]) -> None:
         raise SystemExit(status)
 
 
+def _datasheet(truth_path: Path) -> list[str]:
+    """``--bias-instability`` / ``--random-walk`` from the instrument's Allan parameters (its datasheet)."""
+    from stableins.conventions import MICRO_G
+    from stableins.simulator.truth import Truth
+
+    noise = Truth.read(truth_path).noise
+    return ["--bias-instability", f"{noise.bias_instability / MICRO_G:.6g}", "--random-walk", f"{noise.acceleration_random_walk:.6g}"]
+
+
 def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     """Final record against the truth: error and error/σ of every estimated parameter.
 
@@ -92,7 +101,11 @@ def run(args: argparse.Namespace) -> int:
     seed = str(args.seed)
     _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out)])
     coarse, fine = out / "device-coarse.csv", out / "device-fine.h5"
-    _step("device-level calibration", ["calibrate", "device", str(coarse), str(fine), "--out", str(out / "cal-device.json")])
+    datasheet = _datasheet(out / "truth.json")  # what a user knows of the instrument: its Allan parameters
+    _step(
+        "device-level calibration",
+        ["calibrate", "device", str(coarse), str(fine), "--out", str(out / "cal-device.json"), *datasheet],
+    )
     _step(
         "system-level record",
         ["simulate", "system", "--truth", str(out / "truth.json"), "--seed", seed, "--installed", str(out / "cal-device.json"),

@@ -115,6 +115,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="CAL.json",
         help="system: the INS compensates with this calibration record (default: the truth's installed calibration)",
     )
+    parser.add_argument(
+        "--no-iteration",
+        action="store_true",
+        help="device: one pass of every procedure at its nominal commands (default: the coarse zero-offset iteration, "
+        "then fine dwells at the re-pointed positions)",
+    )
     parser.add_argument("--list-effects", action="store_true", help="list the injectable effects (id, SI unit, meaning) and exit")
 
 
@@ -205,39 +211,99 @@ def run(args: argparse.Namespace) -> int:
 
 
 def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
-    """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``)."""
+    """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``).
+
+    By default the session is what the device-level procedure does on a real platform,
+    through the same driver interface: the coarse passes of the zero-offset iteration
+    (the gimbals re-commanded by −θ̂20, −θ̂30 after each pass until the offsets vanish,
+    :func:`stableins.estimators.offset_iteration.iterate_offsets`), then the fine dwells
+    at the re-pointed positions.  ``--no-iteration`` records one pass of every procedure
+    at its nominal commands instead.
+    """
     from dataclasses import replace
 
     from stableins.data.device import save_device
     from stableins.procedures.definition import load_procedure
     from stableins.progress import Progress
-    from stableins.simulator.device import simulate_dwells
 
     rate = args.rate or truth.site.sample_rate
-    files = []
     procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
-    with Progress(total=len(procedures), label="simulate device") as progress:
-        for k, procedure in enumerate(procedures):
-            steps = procedure.steps
-            dwell = args.dwell if args.dwell is not None else steps[0].dwell
-            settle = args.settle if args.settle is not None else steps[0].settle
-            columns = simulate_dwells(
-                truth,
-                [s.command for s in steps],
-                dwell=dwell,
-                settle=settle,
-                rate=rate,
-                seed=seed + k,
-                stage=procedure.stage,
-                pass_number=1,
-            )
+    procedures = [_with_timing(p, args.dwell, args.settle) for p in procedures]
+    if getattr(args, "no_iteration", False):
+        sessions = _single_passes(truth, procedures, rate, seed)
+    else:
+        sessions = _iterated_session(truth, procedures, rate, seed)
+    files = []
+    with Progress(total=len(sessions), label="write device data") as progress:
+        for procedure, columns in sessions:
             metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name})
             n = len(columns["time"])
             suffix = args.format or ("csv" if n <= CSV_ROW_LIMIT else "h5")
             path = save_device(out / f"{procedure.name}.{suffix}", columns, metadata)
-            files.append({"path": str(path), "rows": n, "procedure": procedure.name, "stage": procedure.stage})
+            passes = int(columns["pass"].max()) if n else 0
+            files.append({"path": str(path), "rows": n, "procedure": procedure.name, "stage": procedure.stage, "passes": passes})
             progress.update()
     return files
+
+
+def _with_timing(procedure: Any, dwell: float | None, settle: float | None) -> Any:
+    """The procedure with ``--dwell`` / ``--settle`` applied to every step."""
+    from dataclasses import replace
+
+    if dwell is None and settle is None:
+        return procedure
+    steps = tuple(
+        replace(s, dwell=s.dwell if dwell is None else dwell, settle=s.settle if settle is None else settle) for s in procedure.steps
+    )
+    return replace(procedure, steps=steps)
+
+
+def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
+    from stableins.simulator.device import simulate_dwells
+
+    sessions = []
+    for k, procedure in enumerate(procedures):
+        steps = procedure.steps
+        columns = simulate_dwells(
+            truth,
+            [s.command for s in steps],
+            dwell=steps[0].dwell,
+            settle=steps[0].settle,
+            rate=rate,
+            seed=seed + k,
+            stage=procedure.stage,
+            pass_number=1,
+        )
+        sessions.append((procedure, columns))
+    return sessions
+
+
+def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
+    """Coarse zero-offset iteration, then fine dwells, on one simulated platform session."""
+    from stableins.drivers.recording import RecordingDriver
+    from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets, measure_pass
+    from stableins.simulator.device import SimulatedPlatform
+
+    driver = RecordingDriver(SimulatedPlatform(truth, rate=rate, seed=seed))
+    offsets = (0.0, 0.0, 0.0)
+    sessions = []
+    for procedure in procedures:
+        positions = [s.position for s in procedure.steps]
+        if procedure.stage == "coarse" and procedure.repoint:
+            try:
+                iteration = iterate_offsets(driver, procedure)
+            except OffsetIterationError as error:
+                raise InputError(
+                    f"the zero-offset iteration did not converge on the simulated platform:\n{error}",
+                    path=procedure.path or procedure.name,
+                    field="offset_iteration",
+                    expected="longer dwells or more passes",
+                ) from None
+            offsets = iteration.offsets
+        else:
+            measure_pass(driver, procedure, offsets, stage=procedure.stage, pass_number=1)
+        sessions.append((procedure, driver.take(procedure.stage, positions)))
+    return sessions
 
 
 def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
