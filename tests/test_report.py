@@ -117,6 +117,8 @@ def test_change_recovers_the_injected_bias_step(files):
     # Parameters that did not move: E_n is |N(0,1)|/2, so rarely above 1 (≈5 %); allow two of the others.
     assert sum(c.significant for c in changes if c.id != "bias_x") <= 2
     assert any(s.startswith("theta20") for s in skipped)
+    rows = {r.id: r for r in content.parameter_rows(now, terms)}
+    assert math.isnan(rows["theta20"].value) and rows["theta20"].formatted()[0] == "not stated"  # prior value never shown
 
 
 @needs_poppler

@@ -101,6 +101,8 @@ def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COV
             unit, meaning = _unit_text(term.unit), term.meaning
         else:
             value, u, unit, meaning = p.value, p.sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
+        if p.status == "unidentifiable":  # the record may carry the prior value: never show it as a result
+            value = u = math.nan
         why = p.note
         if not why and p.status != "estimated":
             mentions = [n for n in record.notes if re.search(rf"\b{re.escape(p.id)}\b", n)]

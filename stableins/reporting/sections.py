@@ -447,7 +447,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     colours = {}
     kind_text = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
     for i, c in enumerate(ctx.checks, start=1):
-        measured = _fmt(abs(c.measured), 4) if math.isfinite(c.measured) else "—"
+        measured = _fmt(abs(c.measured), 4) if math.isfinite(c.measured) and c.verdict != "not assessed" else "—"
         result = c.verdict + (f" ({c.reason})" if c.reason else "")
         rows.append([kind_text[c.kind], c.subject, measured, _fmt(c.expanded, 2), _fmt(c.limit, 4), c.unit, result])
         colours[(i, 6)] = document.VERDICT_COLOURS[c.verdict]
