@@ -227,3 +227,56 @@ def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys)
     assert set(chi2) == {"coarse", "fine"}
     assert 0.3 < chi2["coarse"] < 2.0  # the coarse model explains the simulated data to the noise
     assert text.count("verified:") == 2  # both data files match the record's SHA-256
+
+
+@needs_poppler
+def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path):
+    """System-level fits and a discovery history render as tables and figures; nothing runs off the page."""
+    record = json.loads((files / "record.json").read_text())
+    time = np.linspace(0.0, 86164.0, 400)
+    rng = np.random.default_rng(4)
+    model = 2e-3 * np.sin(2 * np.pi * time / 5064.0 + 0.3)
+    record["system"] = {
+        "harmonics": [{"channel": "velocity_north", "period": 5064.0, "amplitude": 2e-3, "sigma": 4e-5, "phase": 0.3, "unit": "m/s"}],
+        "records": [
+            {
+                "channel": "velocity_north",
+                "unit": "m/s",
+                "time": time.tolist(),
+                "observed": (model + 1e-4 * rng.normal(size=400)).tolist(),
+                "model": model.tolist(),
+                "chi2_red": 1.02,
+            }
+        ],
+    }
+    record["discovery"] = {
+        "steps": [
+            {"label": "core model", "residual_rms": 42.0, "noise_floor": 3.0, "unit": "µg", "candidates": []},
+            {
+                "label": "+ K3_x",
+                "residual_rms": 3.2,
+                "noise_floor": 3.0,
+                "unit": "µg",
+                "candidates": [
+                    {"term": "K3_x", "statistic": "ΔBIC", "value": -310.0, "decision": "accepted"},
+                    {"term": "hysteresis_y", "statistic": "ΔBIC", "value": 4.1, "decision": "rejected"},
+                ],
+            },
+        ]
+    }
+    (tmp_path / "rich.json").write_text(json.dumps(record))
+    out = tmp_path / "rich.pdf"
+    assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
+    pages, text = _render(out)
+    flat = " ".join(text.split())
+    assert "velocity_north" in text and "K3_x" in text and "hysteresis_y" in text and "accepted" in text
+    numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 4  # correlation, residuals, system, discovery
+    bbox = subprocess.run(["pdftotext", "-bbox", str(out), "-"], check=True, capture_output=True, text=True, timeout=60).stdout
+    page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', bbox)
+    width, height = float(page.group(1)), float(page.group(2))
+    words = re.findall(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" yMax="([\d.]+)">', bbox)
+    assert len(words) > 500
+    side = 18 * 72 / 25.4 - 1.0  # text frame: 18 mm side margins; header and footer stay 7 mm from the edge
+    for x0, y0, x1, y1 in ((float(a), float(b), float(c), float(d)) for a, b, c, d in words):
+        assert side < x0 and x1 < width - side and 20.0 < y0 and y1 < height - 20.0

@@ -50,6 +50,12 @@ class ReportContext:
     skipped_changes: list[str] = field(default_factory=list)
     software_version: str = ""
     evidence_notes: list[str] = field(default_factory=list)
+    figures: int = 0
+
+    def figure_label(self) -> str:
+        """ "Figure n." with n counting the figures in the order they are laid out."""
+        self.figures += 1
+        return f"Figure {self.figures}."
 
 
 def _p(text: str, style: str = "body") -> Paragraph:
@@ -223,7 +229,8 @@ def results(ctx: ReportContext) -> list[Flowable]:
         png, aspect = figures.correlation_matrix(ids, matrix)
         width = 0.85 * min(1.0, (1.6 + 0.28 * len(ids) + 0.9) / figures.FULL_WIDTH)
         caption = (
-            f"Figure 1. Correlation coefficients of the {len(ids)} estimated parameters, from the covariance in the calibration record."
+            f"{ctx.figure_label()} Correlation coefficients of the {len(ids)} estimated parameters, "
+            "from the covariance in the calibration record."
         )
         out.append(KeepTogether([heading, document.figure(png, width, aspect, caption)]))
     else:
@@ -289,17 +296,17 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
                 "small",
             )
         )
-        for number, s in enumerate(ctx.stages, start=2):
+        for s in ctx.stages:
             if s.labels and s.unlabelled == 0:
                 png, aspect = figures.residuals_by_position(s)
                 caption = (
-                    f"Figure {number}. {s.stage.capitalize()} stage: residual of each position (per axis, or of the specific-force "
+                    f"{ctx.figure_label()} {s.stage.capitalize()} stage: residual of each position (per axis, or of the specific-force "
                     "magnitude |f|) with ±1σ error bars; "
                     "the grey band is the noise floor (±1σ) measured in the data."
                 )
             else:
                 png, aspect = figures.normalized_residuals(s)
-                caption = f"Figure {number}. {s.stage.capitalize()} stage: residual of each observation divided by its 1σ noise floor."
+                caption = f"{ctx.figure_label()} {s.stage.capitalize()} stage: residual of each observation divided by its 1σ noise floor."
             out.append(document.figure(png, 1.0, aspect, caption))
             if s.notes:
                 out.append(_p(f"Notes of the {escape(s.stage)} stage: " + "; ".join(escape(n) for n in s.notes), "small"))
@@ -337,7 +344,7 @@ def _system(ctx: ReportContext) -> list[Flowable]:
         out.append(document.table(rows, [0.24, 0.14, 0.16, 0.14, 0.14, 0.18], align_right=(1, 2, 3, 4)))
     if records:
         png, aspect = figures.harmonic_fits(records)
-        out.append(document.figure(png, 1.0, aspect, "System-level records with the fitted harmonic model."))
+        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} System-level records with the fitted harmonic model."))
     return out
 
 
@@ -370,7 +377,7 @@ def discovery(ctx: ReportContext) -> list[Flowable]:
     out.append(document.table(rows, [0.07, 0.25, 0.16, 0.14, 0.22, 0.16], align_right=(3, 5)))
     if all("residual_rms" in s for s in steps):
         png, aspect = figures.discovery_steps(steps)
-        out.append(document.figure(png, 1.0, aspect, "Residual RMS after each model-discovery step."))
+        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} Residual RMS after each model-discovery step."))
     return out
 
 
@@ -419,7 +426,8 @@ def change(ctx: ReportContext) -> list[Flowable]:
                 png,
                 1.0,
                 aspect,
-                "Change of each parameter divided by its expanded uncertainty (signed E_n); bars outside the grey band are significant.",
+                f"{ctx.figure_label()} Change of each parameter divided by its expanded uncertainty (signed E_n); "
+                "bars outside the grey band are significant.",
             )
         )
     if ctx.skipped_changes:
