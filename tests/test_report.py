@@ -241,6 +241,7 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
         "records": [
             {
                 "channel": "velocity_north",
+                "quantity": "north velocity error",
                 "unit": "m/s",
                 "time": time.tolist(),
                 "observed": (model + 1e-4 * rng.normal(size=400)).tolist(),

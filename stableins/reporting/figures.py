@@ -171,7 +171,7 @@ def harmonic_fits(records: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
             if "chi2_red" in record:
                 title += f"  (χ²_ν = {float(record['chi2_red']):.2f})"
             ax.set_title(title, loc="left")
-            ax.set_ylabel(f"[{record.get('unit', '')}]")
+            ax.set_ylabel(f"{record.get('quantity', 'value')} [{record.get('unit', '')}]")
             ax.legend(loc="upper right", frameon=False, ncols=2)
         axes[-1].set_xlabel("time since start of record [h]")
         return _png(fig)
@@ -191,7 +191,12 @@ def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
             ax.plot(range(len(rms)), [float(f) for f in floor], "--", color="0.4", label="noise floor")
             ax.legend(frameon=False)
         ax.set_xticks(range(len(rms)), labels, rotation=20, ha="right")
+        from matplotlib.ticker import FuncFormatter
+
         ax.set_yscale("log")
+        plain = FuncFormatter(lambda v, _: f"{v:g}")
+        ax.yaxis.set_major_formatter(plain)
+        ax.yaxis.set_minor_formatter(plain)
         ax.set_ylabel(f"residual RMS [{unit}]")
         ax.set_xlabel("model after step")
         return _png(fig)
