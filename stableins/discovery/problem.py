@@ -1,0 +1,462 @@
+r"""Least-squares problems that model discovery works on.
+
+Discovery needs four things from a fitted stage: the weighted residuals, their 1σ from
+noise measured in the data, the design (∂prediction/∂parameter at the estimate) and the
+column of any candidate term.  :class:`Problem` is that interface; two implementations:
+
+* :class:`DwellProblem` — device level.  Observations are dwell means of the three
+  accelerometer outputs per position; the prediction is the exact forward model
+  ``f^a = forward(f^p(readings, θ_0, base), p)`` (Wu et al. 2018 Eq. 6 with the exact gimbal
+  kinematics of :mod:`stableins.discovery.kinematics`).  The fit is Gauss–Newton; the
+  zero offset ``θ10`` (and anything else in the null space of the design) is held at its
+  prior value as an explicit gauge, marked ``"gauge"``.
+* :class:`LinearProblem` — any linear(ized) problem given as observations, 1σ, model
+  columns and candidate columns (system-level harmonics, user problems).
+
+Both return a frozen :class:`~stableins.estimators.result.FitResult`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
+from stableins.estimators.result import FitResult
+
+
+class Problem(Protocol):
+    """What discovery needs from a fitted stage."""
+
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult: ...
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        """``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
+        ...
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        """``∂prediction/∂p`` of terms not in the model (at value 0), shape (m, len(terms))."""
+        ...
+
+
+# ----------------------------------------------------------------------------- device dwells
+@dataclass(frozen=True)
+class DwellSet:
+    """Dwell means of a device-level procedure (one row per position).
+
+    Attributes
+    ----------
+    readings : ndarray (P, 3)
+        Mean angle-sensor readings (platform, inner, middle) during the dwell [rad].
+    output : ndarray (P, 3)
+        Dwell-mean accelerometer outputs ``f^a`` [m/s²].
+    sigma : ndarray (P, 3)
+        1σ of each dwell mean, from noise measured in the data [m/s²].
+    gravity : float
+        Local gravity [m/s²].
+    time : ndarray (P,)
+        Mid-dwell session time [s].
+    time_since_command : ndarray (P,)
+        Mean time since the position was commanded [s].
+    temperature : ndarray (P,)
+        Mean temperature minus the reference temperature [K].
+    slew_direction : ndarray (P, 3)
+        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged/first).
+    labels : tuple of str
+        Name of each position.
+    base_attitude : tuple
+        Nominal (yaw, pitch, roll) of the base [rad].
+    configuration : GimbalConfiguration
+        Gimbal rotation senses.
+    noise : dict
+        How ``sigma`` was measured (method, per-axis floors ...).
+    """
+
+    readings: NDArray[np.float64]
+    output: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    gravity: float
+    time: NDArray[np.float64]
+    time_since_command: NDArray[np.float64]
+    temperature: NDArray[np.float64]
+    slew_direction: NDArray[np.float64]
+    labels: tuple[str, ...]
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS
+    noise: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        p = self.readings.shape[0]
+        for name in ("readings", "output", "sigma", "slew_direction"):
+            if getattr(self, name).shape != (p, 3):
+                raise ValueError(f"DwellSet.{name} must have shape ({p}, 3), got {getattr(self, name).shape}")
+        for name in ("time", "time_since_command", "temperature"):
+            if getattr(self, name).shape != (p,):
+                raise ValueError(f"DwellSet.{name} must have shape ({p},), got {getattr(self, name).shape}")
+        if len(self.labels) != p:
+            raise ValueError("DwellSet.labels must name every position")
+        if not np.all(np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
+            raise ValueError("DwellSet.sigma must be finite and positive")
+
+    @property
+    def n_positions(self) -> int:
+        return self.readings.shape[0]
+
+    def subset(self, index: ArrayLike) -> DwellSet:
+        """The dwells at ``index`` (positions to leave out, cross-validation)."""
+        i = np.asarray(index)
+        return DwellSet(
+            self.readings[i],
+            self.output[i],
+            self.sigma[i],
+            self.gravity,
+            self.time[i],
+            self.time_since_command[i],
+            self.temperature[i],
+            self.slew_direction[i],
+            tuple(np.asarray(self.labels, dtype=object)[i]),
+            self.base_attitude,
+            self.configuration,
+            dict(self.noise),
+        )
+
+
+def slew_directions(specific_force_platform: ArrayLike, tolerance: float = 1e-3) -> NDArray[np.float64]:
+    """Sign of the change of each axis' input from the previous position (first position: 0).
+
+    Changes below ``tolerance`` [m/s²] count as no slew of that axis' input.
+    """
+    f = np.asarray(specific_force_platform, dtype=float)
+    d = np.diff(f, axis=0, prepend=f[:1])
+    return np.where(np.abs(d) > tolerance, np.sign(d), 0.0)
+
+
+def dwell_means(
+    time: ArrayLike,
+    output: ArrayLike,
+    readings: ArrayLike,
+    temperature: ArrayLike,
+    position: ArrayLike,
+    time_since_command: ArrayLike,
+    *,
+    gravity: float,
+    reference_temperature: float = 25.0,
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    batches: int = 8,
+    labels: Sequence[str] | None = None,
+) -> DwellSet:
+    r"""Reduce samples to dwell means with a measured noise floor.
+
+    The 1σ of a dwell mean comes from the data: each dwell and axis is detrended (a
+    linear fit: a drift is signal, not noise), cut into ``batches`` contiguous batches, and
+    the batch means' scatter is pooled over all dwells of the axis,
+
+    .. math:: \hat\sigma^2_{eff} = \frac{\sum_d \sum_k n_{d}\,\bar e_{dk}^2}{\sum_d (K-2)},\qquad
+              \sigma(\bar f_d) = \hat\sigma_{eff}/\sqrt{N_d}
+
+    (batch means, e.g. Flegal & Jones 2010), which follows correlated noise up to the batch
+    length, unlike the sample standard deviation.  The white-noise floor from first
+    differences and the ratio of the two are kept in ``noise`` as a check (ratio ≈ 1 for
+    white noise).  Platform pointing errors are not in the within-dwell scatter; they enter
+    the fit through the measured angle readings, whose averaging error is negligible.
+    """
+    t = np.asarray(time, dtype=float)
+    f = np.asarray(output, dtype=float)
+    r = np.asarray(readings, dtype=float)
+    temp = np.asarray(temperature, dtype=float)
+    pos = np.asarray(position)
+    since = np.asarray(time_since_command, dtype=float)
+    order = list(dict.fromkeys(pos.tolist()))
+    n_pos = len(order)
+    means = np.zeros((n_pos, 3))
+    angle_means = np.zeros((n_pos, 3))
+    counts = np.zeros(n_pos)
+    numerator = np.zeros(3)
+    dof = 0.0
+    white = np.zeros(3)
+    white_n = 0
+    mid, tau, dtemp = np.zeros(n_pos), np.zeros(n_pos), np.zeros(n_pos)
+    for k, p in enumerate(order):
+        sel = pos == p
+        n = int(sel.sum())
+        if n < 4 * batches:
+            raise ValueError(f"position {p}: {n} samples, need at least {4 * batches} to measure the noise floor")
+        ts, fs = t[sel], f[sel]
+        means[k] = fs.mean(axis=0)
+        angle_means[k] = r[sel].mean(axis=0)
+        mid[k], tau[k], dtemp[k] = ts.mean(), since[sel].mean(), temp[sel].mean() - reference_temperature
+        counts[k] = n
+        x = ts - ts.mean()
+        slope = (x @ (fs - fs.mean(axis=0))) / (x @ x)
+        e = fs - fs.mean(axis=0) - np.outer(x, slope)
+        nb = n // batches
+        b = e[: nb * batches].reshape(batches, nb, 3).mean(axis=1)
+        numerator += nb * (b**2).sum(axis=0)
+        dof += batches - 2
+        d = np.diff(fs, axis=0)
+        white += (d**2).sum(axis=0) / 2.0
+        white_n += d.shape[0]
+    sigma_eff = np.sqrt(numerator / dof)
+    sigma_white = np.sqrt(white / white_n)
+    sigma = sigma_eff[None, :] / np.sqrt(counts)[:, None]
+    from stableins.discovery.kinematics import platform_specific_force
+
+    nominal = platform_specific_force(angle_means, gravity, base_attitude=base_attitude, configuration=configuration)
+    return DwellSet(
+        readings=angle_means,
+        output=means,
+        sigma=sigma,
+        gravity=float(gravity),
+        time=mid,
+        time_since_command=tau,
+        temperature=dtemp,
+        slew_direction=slew_directions(nominal),
+        labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        noise={
+            "method": f"batch means ({batches} batches per dwell, detrended), pooled over {n_pos} dwells per axis",
+            "sigma_per_sample": sigma_eff,
+            "sigma_white": sigma_white,
+            "dof": dof,
+            "colour_ratio": sigma_eff / sigma_white,
+        },
+    )
+
+
+class DwellProblem:
+    """Device-level dwell means under the exact forward model (see module docstring).
+
+    Parameters
+    ----------
+    dwells : DwellSet
+        The observations.
+    fixed : mapping, optional
+        Parameters held at a given value (status ``"fixed"``), e.g. from a record.
+    """
+
+    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None) -> None:
+        self.dwells = dwells
+        self.fixed = dict(fixed or {})
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(f"{p} f_{a}" for p in self.dwells.labels for a in AXES)
+
+    @property
+    def position_index(self) -> NDArray[np.int64]:
+        return np.repeat(np.arange(self.dwells.n_positions), 3)
+
+    @property
+    def axis_index(self) -> NDArray[np.int64]:
+        return np.tile(np.arange(3), self.dwells.n_positions)
+
+    def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
+        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS
+
+        return tuple(i for i in OFFSET_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in OFFSET_IDS)
+
+    def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> tuple:
+        """Prediction (P, 3), Jacobian (P, 3, n) over ``model + extra_terms``, ``f^p`` and inputs.
+
+        Zero offsets and kinematic (test-equipment) effects act through the exact kinematics:
+        ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
+        every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
+        """
+        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
+
+        d = self.dwells
+        full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
+        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in OFFSET_IDS])
+        effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
+        f_p = platform_specific_force(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration)
+        kin_ids = self._kinematic_ids(full.terms)
+        d_fp = platform_jacobian(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration, ids=kin_ids)
+        inputs = TermInputs(
+            f_p,
+            temperature=d.temperature,
+            time=d.time,
+            slew_direction=d.slew_direction,
+            angular_rate=np.zeros_like(f_p),
+            angular_acceleration=np.zeros_like(f_p),
+            extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": kin_ids},
+        )
+        through_kinematics = [k for k, t in enumerate(full.terms) if t.id in kin_ids]
+        dynamic = {k: v for k, v in values.items() if k not in effects}  # kinematic effects are already in f^p
+        prediction = full.forward(f_p, dynamic, inputs)
+        jac = full.jacobian(f_p, dynamic, inputs)
+        if through_kinematics:
+            j_fp = full.jacobian_specific_force(f_p, dynamic, inputs)
+            for k in through_kinematics:
+                jac[..., k] = np.einsum("...ij,...j->...i", j_fp, d_fp[..., kin_ids.index(full.terms[k].id)])
+        return prediction, jac, f_p, inputs
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:
+        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ²)."""
+        d = self.dwells
+        values = model.nominal_values()
+        if start:
+            values.update({k: float(v) for k, v in start.items() if k in model})
+        values.update({k: float(v) for k, v in self.fixed.items() if k in model})
+        y = d.output.reshape(-1)
+        s = d.sigma.reshape(-1)
+        free = [t.id not in self.fixed for t in model.terms]
+        gauge: list[str] = []
+        notes: list[str] = []
+        for _ in range(iterations):
+            prediction, jac, _, _ = self.evaluate(model, values)
+            a = jac.reshape(-1, len(model))[:, :] / s[:, None]
+            r = (y - prediction.reshape(-1)) / s
+            cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
+            cols, new_gauge = _gauge(a, cols, model.terms)
+            for gid in new_gauge:
+                gauge.append(gid)
+                notes.append(f"{gid} held at {values[gid]:.6g} (gauge): it is not separable from the other parameters with these positions")
+            step, *_ = np.linalg.lstsq(a[:, cols], r, rcond=None)
+            for k, dv in zip(cols, step, strict=True):
+                values[model.terms[k].id] += float(dv)
+            scale = np.linalg.norm(a[:, cols], axis=0)
+            if np.max(np.abs(step) * scale) < 1e-6:
+                break
+        prediction, jac, f_p, _ = self.evaluate(model, values)
+        a = jac.reshape(-1, len(model)) / s[:, None]
+        cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
+        normal = a[:, cols].T @ a[:, cols]
+        cov_free = np.linalg.inv(normal)
+        cov = np.zeros((len(model), len(model)))
+        cov[np.ix_(cols, cols)] = cov_free
+        status = tuple("estimated" if k in cols else ("gauge" if model.terms[k].id in gauge else "fixed") for k in range(len(model)))
+        scaled = a[:, cols] / np.linalg.norm(a[:, cols], axis=0)
+        sv = np.linalg.svd(scaled, compute_uv=False)
+        residuals = y - prediction.reshape(-1)
+        return FitResult(
+            stage="device dwells",
+            terms=model.terms,
+            values=np.array([values[t.id] for t in model.terms]),
+            covariance=cov,
+            status=status,
+            residuals=residuals,
+            residual_sigma=s.copy(),
+            residual_labels=self.labels,
+            rank=len(cols),
+            singular_values=sv,
+            null_space=np.zeros((len(model), 0)),
+            notes=tuple(notes),
+            extra={"specific_force_platform": f_p, "prediction": prediction, "noise": d.noise},
+        )
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        model = ErrorModel(result.terms)
+        _, jac, _, _ = self.evaluate(model, result.as_dict())
+        cols = [k for k, st in enumerate(result.status) if st == "estimated"]
+        return jac.reshape(-1, len(model))[:, cols]
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        model = ErrorModel(result.terms)
+        _, jac, _, _ = self.evaluate(model, result.as_dict(), extra_terms=tuple(terms))
+        return jac.reshape(-1, len(model) + len(terms))[:, len(model) :]
+
+    def orientation(self, result: FitResult | None = None) -> NDArray[np.float64]:
+        """``f^p/g`` per observation, shape (m, 3) (residuals against orientation)."""
+        d = self.dwells
+        from stableins.discovery.kinematics import platform_specific_force
+
+        f_p = platform_specific_force(d.readings, d.gravity, base_attitude=d.base_attitude, configuration=d.configuration)
+        return np.repeat(f_p / d.gravity, 3, axis=0)
+
+
+def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
+    """Drop columns until the column-scaled design has full rank; prefer gimbal offsets, then additive terms."""
+    cols = list(cols)
+    dropped: list[str] = []
+    preference = {"gimbal": 0, "additive": 1}
+    while cols:
+        sub = a[:, cols]
+        norms = np.linalg.norm(sub, axis=0)
+        zero = [c for c, n in zip(cols, norms, strict=True) if n == 0.0]
+        if zero:
+            dropped += [terms[c].id for c in zero]
+            cols = [c for c in cols if c not in zero]
+            continue
+        _, sv, vt = np.linalg.svd(sub / norms, full_matrices=False)
+        if sv[-1] > tolerance * sv[0]:
+            break
+        null = np.abs(vt[-1])
+        involved = [(preference.get(terms[c].kind, 2), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
+        _, _, c = min(involved)
+        dropped.append(terms[c].id)
+        cols.remove(c)
+    return cols, dropped
+
+
+# ----------------------------------------------------------------------------- generic linear problem
+class LinearProblem:
+    """A linear least-squares problem ``y = X p + e``, ``e ~ N(0, diag σ²)``.
+
+    Parameters
+    ----------
+    observations, sigma : array_like (m,)
+        Observations and their 1σ (measured independently).
+    terms : sequence of Term
+        Model parameters; ``columns[term.id]`` is its column.
+    columns : mapping id → array (m,)
+        Design columns of model parameters *and* candidates.
+    labels : sequence of str, optional
+        Names of the observations.
+    """
+
+    def __init__(
+        self,
+        observations: ArrayLike,
+        sigma: ArrayLike,
+        columns: Mapping[str, ArrayLike],
+        labels: Sequence[str] | None = None,
+        stage: str = "linear",
+    ) -> None:
+        self.y = np.asarray(observations, dtype=float)
+        self.s = np.broadcast_to(np.asarray(sigma, dtype=float), self.y.shape).copy()
+        self.columns = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
+        self.labels = tuple(labels) if labels is not None else tuple(f"obs {i}" for i in range(self.y.size))
+        self.stage = stage
+
+    def _column(self, term: Term) -> NDArray:
+        if term.id not in self.columns:
+            raise KeyError(f"no design column for {term.id!r}")
+        return self.columns[term.id]
+
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult:
+        x = np.stack([self._column(t) for t in model.terms], axis=1) / self.s[:, None]
+        cols, gauge = _gauge(x, list(range(len(model))), model.terms)
+        p = np.zeros(len(model))
+        sol, *_ = np.linalg.lstsq(x[:, cols], self.y / self.s, rcond=None)
+        p[cols] = sol
+        cov = np.zeros((len(model), len(model)))
+        cov[np.ix_(cols, cols)] = np.linalg.inv(x[:, cols].T @ x[:, cols])
+        residuals = self.y - (x * self.s[:, None]) @ p
+        status = tuple("estimated" if k in cols else "gauge" for k in range(len(model)))
+        return FitResult(
+            stage=self.stage,
+            terms=model.terms,
+            values=p,
+            covariance=cov,
+            status=status,
+            residuals=residuals,
+            residual_sigma=self.s.copy(),
+            residual_labels=self.labels,
+            rank=len(cols),
+            notes=tuple(f"{g} held at 0 (gauge)" for g in gauge),
+        )
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        return np.stack([self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"], axis=1)
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))
