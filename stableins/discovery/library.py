@@ -147,7 +147,7 @@ def _kinematic(term_id: str) -> Callable[[TermInputs], NDArray]:
 
 
 # ----------------------------------------------------------------------------- library
-_STATIC_SEPARATION = "positions with the axis at intermediate inputs (45° tumble positions, e.g. the 12 tilted positions of Wu et al. Table 1)"
+_STATIC_SEPARATION = "positions with the axis at intermediate inputs (45° positions, e.g. the 12 tilted positions of Wu et al. Table 1)"
 
 
 def _instrument() -> list[Candidate]:

@@ -277,9 +277,7 @@ def rank(
     for k, t in enumerate(terms):
         contrib = np.abs(coef_alias[:, k]) * x_norm
         total = np.linalg.norm(columns[:, k])
-        aliases = tuple(
-            (est_ids[j], float(coef_alias[j, k])) for j in np.argsort(-contrib) if total > 0 and contrib[j] > 0.1 * total
-        )[:4]
+        aliases = tuple((est_ids[j], float(coef_alias[j, k])) for j in np.argsort(-contrib) if total > 0 and contrib[j] > 0.1 * total)[:4]
         confused = tuple(terms[j].id for j in np.flatnonzero(corr[k] > CONFUSION_CORRELATION) if j != k) if identifiable[k] else ()
         advice = separation.get(t.id, t.excitation)
         stat, p, dbic = _statistics(delta[k], rss0, nu, m) if identifiable[k] else (0.0, 1.0, float(np.log(m)))
@@ -311,9 +309,7 @@ def rank(
     by_id = {c.id: c for c in refits}
     scores = [by_id.get(c.id, c) for c in scores]
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
-    flagged = [
-        CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores
-    ]
+    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
     return Ranking(result, tuple(flagged), alpha, n_tested)
 
 
