@@ -66,7 +66,8 @@ class DwellSet:
     temperature : ndarray (P,)
         Mean temperature minus the reference temperature [K].
     slew_direction : ndarray (P, 3)
-        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged/first).
+        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged) from
+        the nominal geometry; :class:`DwellProblem` recomputes it from the fitted ``f^p``.
     labels : tuple of str
         Name of each position.
     base_attitude : tuple
@@ -75,6 +76,9 @@ class DwellSet:
         Gimbal rotation senses.
     noise : dict
         How ``sigma`` was measured (method, per-axis floors ...).
+    initial_readings : tuple or None
+        Angle-sensor readings before the first command (for the slew into the first
+        position); None: unknown, no slew direction for the first position.
     """
 
     readings: NDArray[np.float64]
@@ -89,6 +93,7 @@ class DwellSet:
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
     configuration: GimbalConfiguration = DEFAULT_GIMBALS
     noise: dict = field(default_factory=dict)
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -123,17 +128,28 @@ class DwellSet:
             self.base_attitude,
             self.configuration,
             dict(self.noise),
+            None,
         )
 
 
-def slew_directions(specific_force_platform: ArrayLike, tolerance: float = 1e-3) -> NDArray[np.float64]:
-    """Sign of the change of each axis' input from the previous position (first position: 0).
+def slew_directions(specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = 1e-2) -> NDArray[np.float64]:
+    """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
 
-    Changes below ``tolerance`` [m/s²] count as no slew of that axis' input.
+    A slew that changes an axis' input by less than ``tolerance`` [m/s²] leaves its state
+    as it was (the input did not travel; nothing reverses the hysteresis loop).  This
+    makes the state independent of arcsecond-level geometry such as the unobservable
+    zero offset ``θ10``.  ``initial`` is ``f^p`` before the first command (default: state 0).
     """
     f = np.asarray(specific_force_platform, dtype=float)
-    d = np.diff(f, axis=0, prepend=f[:1])
-    return np.where(np.abs(d) > tolerance, np.sign(d), 0.0)
+    before = f[:1] if initial is None else np.asarray(initial, dtype=float).reshape(1, 3)
+    d = np.diff(f, axis=0, prepend=before)
+    state = np.zeros_like(f)
+    current = np.zeros(f.shape[1:])
+    for k in range(f.shape[0]):
+        moved = np.abs(d[k]) > tolerance
+        current = np.where(moved, np.sign(d[k]), current)
+        state[k] = current
+    return state
 
 
 def dwell_means(
@@ -150,6 +166,7 @@ def dwell_means(
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
     batches: int = 8,
     labels: Sequence[str] | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
 ) -> DwellSet:
     r"""Reduce samples to dwell means with a measured noise floor.
 
@@ -216,7 +233,9 @@ def dwell_means(
         time=mid,
         time_since_command=tau,
         temperature=dtemp,
-        slew_direction=slew_directions(nominal),
+        slew_direction=slew_directions(
+            nominal, None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
+        ),
         labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
         base_attitude=tuple(base_attitude),
         configuration=configuration,
@@ -227,7 +246,14 @@ def dwell_means(
             "dof": dof,
             "colour_ratio": sigma_eff / sigma_white,
         },
+        initial_readings=initial_readings,
     )
+
+
+def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
+    from stableins.discovery.kinematics import platform_specific_force
+
+    return platform_specific_force(np.asarray(readings, dtype=float), gravity, offsets, base_attitude, configuration=configuration)
 
 
 class DwellProblem:
@@ -279,11 +305,16 @@ class DwellProblem:
         f_p = platform_specific_force(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration)
         kin_ids = self._kinematic_ids(full.terms)
         d_fp = platform_jacobian(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration, ids=kin_ids)
+        initial = None
+        if d.initial_readings is not None:
+            initial = platform_specific_force(
+                np.asarray(d.initial_readings, dtype=float), d.gravity, offsets, d.base_attitude, effects, d.configuration
+            )
         inputs = TermInputs(
             f_p,
             temperature=d.temperature,
             time=d.time,
-            slew_direction=d.slew_direction,
+            slew_direction=slew_directions(f_p, initial),
             angular_rate=np.zeros_like(f_p),
             angular_acceleration=np.zeros_like(f_p),
             extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": kin_ids},
