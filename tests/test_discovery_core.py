@@ -1,0 +1,211 @@
+"""Model discovery without the simulator: kinematic Jacobians, library, ranking statistics, false alarms, history."""
+
+import json
+
+import numpy as np
+import pytest
+
+from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration
+from stableins.discovery.history import Discovery, History, make_step
+from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
+from stableins.discovery.library import LIBRARY, Library, custom_effect
+from stableins.discovery.problem import DwellProblem, DwellSet, LinearProblem, slew_directions
+from stableins.discovery.ranking import rank
+from stableins.errormodel import ErrorModel, Term, TermInputs
+
+G = 9.80170
+
+
+@pytest.mark.parametrize("senses", [(1, 1, 1, 1), (1, -1, 1, 1), (-1, 1, -1, 1)])
+def test_platform_jacobian_matches_central_differences(senses):
+    rng = np.random.default_rng(11)
+    cfg = GimbalConfiguration(senses)
+    readings = rng.uniform(-np.pi, np.pi, (6, 3))
+    offsets = rng.normal(0, 1e-3, 3)
+    base = rng.normal(0, 0.05, 3)
+    effects = {k: rng.normal(0, 1e-3) for k in KINEMATIC_IDS}
+    jac = platform_jacobian(readings, G, offsets, base, effects, cfg)
+    h = 1e-6
+    for k, pid in enumerate(OFFSET_IDS + KINEMATIC_IDS):
+
+        def f(d, pid=pid):
+            o, e = offsets.copy(), dict(effects)
+            if pid in OFFSET_IDS:
+                o[OFFSET_IDS.index(pid)] += d
+            else:
+                e[pid] += d
+            return platform_specific_force(readings, G, o, base, e, cfg)
+
+        fd = (f(h) - f(-h)) / (2 * h)
+        np.testing.assert_allclose(jac[..., k], fd, atol=1e-8, err_msg=pid)
+
+
+def test_kinematics_reduce_to_conventions_without_effects():
+    from stableins.conventions import dcm_body_to_platform, dcm_nav_to_body
+
+    rng = np.random.default_rng(2)
+    r = rng.uniform(-3, 3, (5, 3))
+    base = (0.1, -0.02, 0.03)
+    expected = np.einsum("...ij,j->...i", dcm_body_to_platform(r[:, 0], r[:, 1], r[:, 2]) @ dcm_nav_to_body(*base), [0, 0, -G])
+    np.testing.assert_allclose(platform_specific_force(r, G, base_attitude=base), expected, atol=1e-12)
+
+
+def test_library_ids_units_and_regressors():
+    ids = LIBRARY.ids
+    for a in "xyz":
+        for stem in ("K3", "Koq", "Ksa", "Kt_bias", "Kt_sf", "Kd_bias", "Kh", "Dg"):
+            assert f"{stem}_{a}" in ids
+    assert {"Kcc_xxy", "Kcq_xy", "lever_x_y", "nonorth_12", "tilt_east", "ang1_middle_s"} <= set(ids)
+    f = np.array([[1.0, 2.0, -3.0]])
+    inputs = TermInputs(f)
+    np.testing.assert_allclose(LIBRARY["Kcc_xxy"].term.regressor(inputs), [[2.0, 0, 0]])
+    np.testing.assert_allclose(LIBRARY["Kcq_zx"].term.regressor(inputs), [[0, 0, 1.0]])
+    np.testing.assert_allclose(LIBRARY["Koq_z"].term.regressor(inputs), [[0, 0, -9.0]])
+    np.testing.assert_allclose(LIBRARY["Ksa_z"].term.regressor(inputs), [[0, 0, 3.0]])
+    # size effect of Cai et al. 2016 Eq. 9: -(w_y^2 + w_z^2) r_x on x
+    rot = TermInputs(f, angular_rate=np.array([[0.1, 0.2, 0.3]]), angular_acceleration=np.zeros((1, 3)))
+    assert LIBRARY["lever_x_x"].term.regressor(rot)[0, 0] == pytest.approx(-(0.2**2 + 0.3**2))
+    with pytest.raises(ValueError, match="temperature"):
+        LIBRARY["Kt_bias_x"].term.regressor(inputs)
+    for c in LIBRARY:
+        assert c.term.kind == "additive" and c.term.unit and c.term.meaning and c.separation
+
+
+def test_hysteresis_state_keeps_memory_across_small_slews():
+    f = np.array([[0, 0, -G], [0, -G, 0], [0, -G + 1e-4, 0], [0, 0, G]])
+    state = slew_directions(f, initial=[0, 0, G])
+    np.testing.assert_array_equal(state[:, 1], [0, -1, -1, 1])
+    np.testing.assert_array_equal(state[:, 2], [-1, 1, 1, 1])
+
+
+# ----------------------------------------------------------------------------- linear problems
+def _linear_world(rng, hidden=0.0, m=120):
+    x = np.linspace(-1, 1, m)
+    columns = {"a": np.ones(m), "b": x, "c": x**2, "cubic": x**3, "step": (x > 0.3).astype(float), "copy_b": 2 * x}
+    y = 1.0 + 0.5 * x - 0.2 * x**2 + hidden * x**3 + rng.normal(0, 0.01, m)
+    terms = [Term(k, "additive", "1", "1", 1.0, 0.01, k, regressor=lambda i: i.specific_force) for k in columns]
+    return LinearProblem(y, 0.01, columns), {t.id: t for t in terms}
+
+
+def test_added_variable_statistic_equals_refit_for_linear_problem():
+    rng = np.random.default_rng(5)
+    problem, terms = _linear_world(rng, hidden=0.03)
+    model = ErrorModel((terms["a"], terms["b"], terms["c"]))
+    result = problem.fit(model)
+    ranking = rank(problem, result, [terms["cubic"], terms["step"], terms["copy_b"]], refit_top=0)
+    one_step = ranking["cubic"].statistic
+    refit = problem.fit(model + terms["cubic"])
+    assert one_step == pytest.approx(result.chi2 - refit.chi2, rel=1e-9)
+    assert ranking.best.id == "cubic" and ranking.best.flagged
+    assert ranking["cubic"].estimate == pytest.approx(refit["cubic"][0], rel=1e-9)
+    # an exact copy of a model column is not identifiable and says what it aliases
+    copy = ranking["copy_b"]
+    assert not copy.identifiable and copy.aliases[0][0] == "b" and copy.aliases[0][1] == pytest.approx(2.0)
+
+
+def test_false_alarm_rate_on_clean_linear_data():
+    rng = np.random.default_rng(99)
+    alarms = 0
+    pvalues = []
+    for _ in range(200):
+        problem, terms = _linear_world(rng)
+        result = problem.fit(ErrorModel((terms["a"], terms["b"], terms["c"])))
+        ranking = rank(problem, result, [terms["cubic"], terms["step"]], refit_top=0)
+        alarms += bool(ranking.flagged)
+        pvalues.append(ranking["cubic"].p_value)
+    # Bonferroni family-wise level 5 %: binomial(200, <=0.05) exceeds 20 with probability < 1 %
+    assert alarms <= 20
+    # p-values of a true null are uniform: mean 0.5 ± 3σ (σ = 0.289/sqrt(200))
+    assert abs(np.mean(pvalues) - 0.5) < 3 * 0.289 / np.sqrt(200)
+
+
+def test_custom_effect_is_ranked_like_library_effects():
+    def fourth(inputs):
+        out = np.zeros_like(inputs.specific_force)
+        out[..., 0] = inputs.specific_force[..., 0] ** 4
+        return out
+
+    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / 9.80665**4, meaning="quartic x")
+    library = Library.default()
+    library.register(term, separation="many tilt angles")
+    assert "K4_x" in library and library["K4_x"].group == "custom"
+    with pytest.raises(ValueError, match="already"):
+        library.register(term)
+    # dwell problem from exact outputs with the quartic term hidden
+    rng = np.random.default_rng(4)
+    angles = np.deg2rad(np.arange(0, 360, 15.0))
+    readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
+    model = ErrorModel.standard(gimbals=True)
+    truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
+    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS])
+    sigma = 2e-6
+    f_a = (model + term).forward(f_p, {**truth, "K4_x": 200 * term.scale}) + rng.normal(0, sigma, f_p.shape)
+    n = len(readings)
+    dwells = DwellSet(
+        readings,
+        f_a,
+        np.full((n, 3), sigma),
+        G,
+        np.arange(n) * 60.0,
+        np.full(n, 30.0),
+        np.zeros(n),
+        np.zeros((n, 3)),
+        tuple(f"p{k}" for k in range(n)),
+    )
+    session = Discovery(DwellProblem(dwells), model, library=library)
+    ranking = session.rank()
+    assert ranking.best.id == "K4_x" and ranking.best.flagged
+    session.add("K4_x")
+    assert 0.6 < session.result.chi2_red < 1.5
+    value, sig, _ = session.result["K4_x"]
+    assert abs(value / term.scale - 200) < 4 * sig / term.scale
+    # history: the error falls and the new term and the shifts are reported
+    assert len(session.history) == 2 and session.history[1].bic < session.history[0].bic
+    text = session.history.report()
+    assert "K4_x" in text and "shifts" in text
+    json.dumps(session.history.to_json())
+
+
+def test_history_step_from_fit_and_plot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    rng = np.random.default_rng(1)
+    problem, terms = _linear_world(rng, hidden=0.05)
+    r0 = problem.fit(ErrorModel((terms["a"], terms["b"])))
+    r1 = problem.fit(ErrorModel((terms["a"], terms["b"], terms["c"])))
+    history = History([make_step(r0, "a + b"), make_step(r1, "+ c", r0)])
+    assert history[1].added[0][0] == "c" and "b" in history[1].shifts
+    assert history[1].rms[0] < history[0].rms[0]
+    fig = history.plot()
+    assert len(fig.axes) == 2
+
+
+def test_tilt_east_is_reported_as_theta30_alias():
+    rng = np.random.default_rng(8)
+    angles = np.deg2rad(np.arange(0, 360, 45.0))
+    readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
+    model = ErrorModel.standard(gimbals=True)
+    truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
+    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS], effects={"tilt_east": 20 * ARCSEC})
+    f_a = model.forward(f_p, truth) + rng.normal(0, 1e-5, f_p.shape)
+    n = len(readings)
+    dwells = DwellSet(
+        readings,
+        f_a,
+        np.full((n, 3), 1e-5),
+        G,
+        np.arange(n) * 60.0,
+        np.full(n, 30.0),
+        np.zeros(n),
+        np.zeros((n, 3)),
+        tuple(f"p{k}" for k in range(n)),
+    )
+    problem = DwellProblem(dwells)
+    result = problem.fit(model)
+    assert 0.5 < result.chi2_red < 1.6  # the tilt is absorbed, not seen
+    score = rank(problem, result, [LIBRARY["tilt_east"].term, LIBRARY["lever_x_y"].term], refit_top=0)
+    tilt = score["tilt_east"]
+    assert not tilt.identifiable and tilt.excited and tilt.aliases[0][0] == "theta30"
+    assert not score["lever_x_y"].excited  # static dwells do not excite the size effect
+    assert "azimuth" in tilt.advice
