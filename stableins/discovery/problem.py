@@ -178,10 +178,12 @@ def dwell_means(
               \sigma(\bar f_d) = \hat\sigma_{eff}/\sqrt{N_d}
 
     (batch means, e.g. Flegal & Jones 2010), which follows correlated noise up to the batch
-    length, unlike the sample standard deviation.  The white-noise floor from first
-    differences and the ratio of the two are kept in ``noise`` as a check (ratio ≈ 1 for
-    white noise).  Platform pointing errors are not in the within-dwell scatter; they enter
-    the fit through the measured angle readings, whose averaging error is negligible.
+    length.  The white-noise floor from first differences, ``σ_w² = Σ(Δf)²/(2 n)``, has far
+    more degrees of freedom; it is used unless the batch estimate exceeds it beyond the
+    99.9 % quantile of ``χ²_dof/dof`` (correlated noise), in which case the batch estimate is
+    used.  Both, the ratio and the choice are kept in ``noise``.  Platform pointing errors are
+    not in the within-dwell scatter; they enter the fit through the measured angle readings,
+    whose averaging error is negligible.
     """
     t = np.asarray(time, dtype=float)
     f = np.asarray(output, dtype=float)
@@ -219,8 +221,12 @@ def dwell_means(
         d = np.diff(fs, axis=0)
         white += (d**2).sum(axis=0) / 2.0
         white_n += d.shape[0]
-    sigma_eff = np.sqrt(numerator / dof)
+    from scipy.stats import chi2
+
+    sigma_batch = np.sqrt(numerator / dof)
     sigma_white = np.sqrt(white / white_n)
+    correlated = (sigma_batch / sigma_white) ** 2 > chi2.ppf(0.999, dof) / dof
+    sigma_eff = np.where(correlated, sigma_batch, sigma_white)
     sigma = sigma_eff[None, :] / np.sqrt(counts)[:, None]
     from stableins.discovery.kinematics import platform_specific_force
 
@@ -240,11 +246,14 @@ def dwell_means(
         base_attitude=tuple(base_attitude),
         configuration=configuration,
         noise={
-            "method": f"batch means ({batches} batches per dwell, detrended), pooled over {n_pos} dwells per axis",
+            "method": "per axis: white noise from first differences unless batch means "
+            f"({batches} per dwell, detrended, pooled over {n_pos} dwells) show correlated noise",
             "sigma_per_sample": sigma_eff,
             "sigma_white": sigma_white,
+            "sigma_batch": sigma_batch,
+            "correlated": correlated,
             "dof": dof,
-            "colour_ratio": sigma_eff / sigma_white,
+            "colour_ratio": sigma_batch / sigma_white,
         },
         initial_readings=initial_readings,
     )
