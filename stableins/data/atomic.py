@@ -10,6 +10,13 @@ from pathlib import Path
 from typing import IO
 
 
+def _umask_mode() -> int:
+    """Permissions a plain ``open(path, "w")`` would give (0o666 minus the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike[str], mode: str = "w", encoding: str | None = "utf-8") -> Iterator[IO]:
     """Write to a temporary file beside ``path``; fsync and rename over ``path`` on success.
@@ -20,6 +27,7 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w", encoding: str | 
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
     os.close(fd)
+    os.chmod(tmp, _umask_mode())  # mkstemp makes 0600; the final file gets the usual permissions
     try:
         with open(tmp, mode, encoding=None if "b" in mode else encoding) as handle:
             yield handle
@@ -46,6 +54,7 @@ def atomic_path(path: str | os.PathLike[str]) -> contextlib.AbstractContextManag
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
         os.close(fd)
+        os.chmod(tmp, _umask_mode())
         try:
             yield Path(tmp)
             with open(tmp, "rb+") as handle:

@@ -53,3 +53,144 @@ class SiteMetadata:
         d["gimbal_senses"] = list(self.gimbal_senses)
         d["base_attitude"] = list(self.base_attitude)
         return d
+
+
+# --------------------------------------------------------------------------- file documents
+#: Units accepted in files for each physical quantity of :class:`SiteMetadata`, with the
+#: factor that converts the file value to SI (the first unit is the one written).
+ANGLE_UNITS: dict[str, float] = {"deg": 0.017453292519943295, "rad": 1.0}
+QUANTITY_UNITS: dict[str, dict[str, float]] = {
+    "latitude": ANGLE_UNITS,
+    "height": {"m": 1.0},
+    "gravity": {"m/s^2": 1.0},
+    "sample_rate": {"Hz": 1.0},
+    "base_attitude": ANGLE_UNITS,
+    "reference_temperature": {"degC": 1.0},
+}
+#: Units of the known damping-loop parameters (see ``stableins.simulator.truth.damping_parameters``);
+#: others are written with unit "SI".
+DAMPING_UNITS: dict[str, str] = {
+    "zeta": "1",
+    "omega_s": "rad/s",
+    "R": "m",
+    "gravity": "m/s^2",
+    "horizontal_gain": "1/s",
+    "vertical_time_constant": "s",
+    "k1": "1/s",
+    "k2": "1/s^2",
+    "k3": "1/s^3",
+}
+_REQUIRED = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
+
+
+def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
+    """JSON-ready document with every physical quantity as ``{"value": ..., "unit": ...}``.
+
+    Angles are written in degrees (people read files), everything else in SI.
+    """
+    deg = ANGLE_UNITS["deg"]
+    return {
+        "serial_number": metadata.serial_number,
+        "latitude": {"value": metadata.latitude / deg, "unit": "deg"},
+        "height": {"value": metadata.height, "unit": "m"},
+        "gravity": {"value": metadata.gravity, "unit": "m/s^2"},
+        "gravity_source": metadata.gravity_source,
+        "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
+        "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
+        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": ["yaw", "pitch", "roll"]},
+        "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
+        "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
+        "extra": dict(metadata.extra),
+    }
+
+
+def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
+    """Inverse of :func:`metadata_to_document`, validating keys, units and ranges.
+
+    Raises
+    ------
+    InputError
+        Naming the file and the key, and what was expected.
+    """
+    from stableins.data.errors import InputError
+
+    def fail(message: str, key: str, expected: str | None = None) -> InputError:
+        return InputError(message, path=path, field=f"metadata.{key}", expected=expected)
+
+    if not isinstance(document, dict):
+        raise InputError("metadata is not a JSON object", path=path, expected="an object with the keys of docs/formats.md")
+    missing = [k for k in _REQUIRED if k not in document]
+    if missing:
+        raise fail(f"missing metadata key(s) {missing}", missing[0], "the keys " + ", ".join(_REQUIRED))
+
+    def number(value: Any, key: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise fail(f"not a number: {value!r}", key, "a number")
+        if value != value or value in (float("inf"), float("-inf")):
+            raise fail(f"not finite: {value!r}", key, "a finite number")
+        return float(value)
+
+    def quantity(key: str, vector: int = 0) -> Any:
+        item = document[key]
+        if not isinstance(item, dict) or "value" not in item or "unit" not in item:
+            raise fail(f"{item!r} has no explicit unit", key, '{"value": ..., "unit": ...}')
+        units = QUANTITY_UNITS[key]
+        if item["unit"] not in units:
+            raise fail(f"unit {item['unit']!r} found", key, "unit " + " or ".join(repr(u) for u in units))
+        factor = units[item["unit"]]
+        if vector:
+            value = item["value"]
+            if not isinstance(value, list) or len(value) != vector:
+                raise fail(f"{value!r} is not a list of {vector} numbers", key, f"{vector} numbers")
+            return tuple(number(v, key) * factor for v in value)
+        return number(item["value"], key) * factor
+
+    import math
+
+    latitude = quantity("latitude")
+    if abs(latitude) > math.pi / 2:
+        raise fail(f"latitude {math.degrees(latitude):g} deg is outside ±90 deg", "latitude", "a geodetic latitude in [-90, 90] deg")
+    gravity = quantity("gravity")
+    if not 9.7 < gravity < 9.9:
+        raise fail(f"gravity {gravity:g} m/s^2 is not a terrestrial gravity value", "gravity", "a value in m/s^2 between 9.7 and 9.9")
+    sample_rate = quantity("sample_rate")
+    if sample_rate <= 0:
+        raise fail(f"sample rate {sample_rate:g} Hz", "sample_rate", "a positive rate in Hz")
+    senses = document.get("gimbal_senses", [1, 1, 1, 1])
+    if not isinstance(senses, list) or len(senses) != 4 or any(s not in (1, -1) or isinstance(s, bool) for s in senses):
+        raise fail(f"gimbal senses {senses!r}", "gimbal_senses", "four values, each +1 or -1")
+    base_attitude = quantity("base_attitude", vector=3) if "base_attitude" in document else (0.0, 0.0, 0.0)
+    reference_temperature = quantity("reference_temperature") if "reference_temperature" in document else 25.0
+    damping_doc = document.get("damping", {})
+    if not isinstance(damping_doc, dict):
+        raise fail("damping is not an object", "damping", '{"name": {"value": ..., "unit": ...}}')
+    damping = {}
+    for name, item in damping_doc.items():
+        if not isinstance(item, dict) or "value" not in item or "unit" not in item:
+            raise fail(f"{item!r} has no explicit unit", f"damping.{name}", '{"value": ..., "unit": ...}')
+        expected_unit = DAMPING_UNITS.get(name, "SI")
+        if item["unit"] != expected_unit:
+            raise fail(f"unit {item['unit']!r} found", f"damping.{name}", f"unit {expected_unit!r}")
+        damping[name] = number(item["value"], f"damping.{name}")
+    extra = document.get("extra", {})
+    if not isinstance(extra, dict):
+        raise fail("extra is not an object", "extra", "a JSON object")
+    serial = document["serial_number"]
+    if not isinstance(serial, str) or not serial:
+        raise fail(f"serial number {serial!r}", "serial_number", "a non-empty string")
+    source = document["gravity_source"]
+    if not isinstance(source, str):
+        raise fail(f"gravity source {source!r}", "gravity_source", "a string")
+    return SiteMetadata(
+        serial_number=serial,
+        latitude=latitude,
+        height=quantity("height"),
+        gravity=gravity,
+        gravity_source=source,
+        sample_rate=sample_rate,
+        gimbal_senses=tuple(int(s) for s in senses),  # type: ignore[arg-type]
+        base_attitude=base_attitude,
+        reference_temperature=reference_temperature,
+        damping=damping,
+        extra=extra,
+    )

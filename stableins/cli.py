@@ -1,0 +1,136 @@
+"""Command-line interface: ``stableins <command> [<subcommand>] [options]``.
+
+Subcommands live in ``stableins/commands/<name>.py``; each defines
+``configure(parser)`` (adds its arguments; no heavy imports at module top) and
+``run(args) -> int``.  :data:`COMMANDS` maps names to those modules; a group (a nested
+mapping) gives two-word commands such as ``stableins calibrate device``.  Only the
+module of the command actually invoked is imported, so ``stableins --help`` and
+``stableins --version`` never import numpy, scipy, filterpy or matplotlib.
+
+Conventions shared by every command:
+
+- ``--json``: the result goes to stdout as one JSON document (progress and messages go
+  to stderr), see :func:`stableins.output.emit`;
+- a user error (:class:`~stableins.data.errors.InputError`, bad arguments) prints
+  ``stableins: error: <message>`` and exits with status 2, never a traceback;
+- Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
+  prints ``stableins: error: <message>`` and exits with status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple
+
+from stableins import __version__
+
+
+class Command(NamedTuple):
+    """A leaf command: the module implementing it and a one-line help."""
+
+    module: str
+    help: str
+
+
+class Group(NamedTuple):
+    """A command group: one-line help and its subcommands (leaves or groups)."""
+
+    help: str
+    commands: Mapping[str, Command | Group]
+
+
+#: name -> Command or Group.  Register a command by adding one line.
+COMMANDS: dict[str, Command | Group] = {
+    "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "calibrate": Group(
+        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+    ),
+}
+
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors use the CLI's one-line format and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USAGE, f"stableins: error: {message}\n")
+
+
+def _first_positional(argv: Sequence[str]) -> str | None:
+    for token in argv:
+        if token == "--":
+            return None
+        if not token.startswith("-"):
+            return token
+    return None
+
+
+def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | Group], argv: Sequence[str], path: tuple[str, ...]) -> None:
+    """Add ``table`` to ``subparsers``; configure only the entry named next in ``argv``."""
+    selected = _first_positional(argv)
+    for name, entry in table.items():
+        parser = subparsers.add_parser(name, help=entry.help, description=entry.help)
+        if name != selected:
+            continue
+        rest = list(argv[list(argv).index(name) + 1 :])
+        if isinstance(entry, Group):
+            nested = parser.add_subparsers(dest="_".join(("command",) + path + (name,)), metavar="SUBCOMMAND", required=True)
+            _add(nested, entry.commands, rest, path + (name,))
+        else:
+            module = importlib.import_module(entry.module)
+            module.configure(parser)
+            if not any(action.dest == "json" for action in parser._actions):
+                parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+            parser.set_defaults(_run=module.run)
+
+
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The parser, with the command named in ``argv`` (if any) fully configured."""
+    parser = _Parser(
+        prog="stableins",
+        description="On-system calibration of the accelerometer triad of a space-stable inertial navigation system.",
+        epilog="Run 'stableins COMMAND --help' for a command's options.  Exit status: 0 ok, 1 failure, 2 bad input, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"stableins {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    _add(subparsers, COMMANDS, argv, ())
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``stableins`` console script; returns the exit status."""
+    from stableins.data.errors import InputError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        parser = build_parser(argv)
+        args = parser.parse_args(argv)
+        if getattr(args, "_run", None) is None:
+            parser.print_help(sys.stderr)
+            return EXIT_USAGE
+        return int(args._run(args) or 0)
+    except InputError as error:
+        print(f"stableins: error: {error}", file=sys.stderr)
+        return error.exit_status
+    except KeyboardInterrupt:
+        print("stableins: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except OSError as error:  # disk full, permission denied ... on a file the user named: no traceback
+        if isinstance(error, BrokenPipeError):
+            return 0
+        print(f"stableins: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
+    except SystemExit as exit_:  # argparse: --help, --version, usage errors
+        code = exit_.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""``stableins calibrate device``: coarse (and fine) device-level calibration from data files.
+
+::
+
+    stableins calibrate device sim/device-device-coarse.csv sim/device-device-fine.csv --out record.json
+    stableins calibrate device session.h5 --out record.json --json
+
+Runs the coarse stage on every coarse pass in the data (the last pass is the coarse
+result), then the fine stage when fine dwells are present, prints the report and writes
+the calibration record (atomically: a failed run never leaves a half-written record).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
+    parser.add_argument("--out", type=Path, required=True, metavar="RECORD.json", help="calibration record to write")
+    parser.add_argument("--coarse-procedure", default="device-coarse", metavar="NAME", help="coarse procedure name or TOML file")
+    parser.add_argument("--fine-procedure", default="device-fine", metavar="NAME", help="fine procedure name or TOML file")
+    parser.add_argument(
+        "--allow-missing", action="store_true", help="leave out missing positions (noted in the record) instead of stopping with an error"
+    )
+    parser.add_argument(
+        "--coarse-linear",
+        action="store_true",
+        help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
+    )
+    parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
+    parser.add_argument(
+        "--bias-instability",
+        type=float,
+        metavar="UG",
+        help="instrument bias instability B [ug] (Allan floor 0.664 B), from a datasheet or a long static record; "
+        "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
+    )
+    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+
+
+def _same_site(datasets) -> None:
+    from stableins.data.errors import InputError
+
+    first = datasets[0]
+    for other in datasets[1:]:
+        for name in ("serial_number", "gravity", "gimbal_senses", "base_attitude"):
+            a, b = getattr(first.metadata, name), getattr(other.metadata, name)
+            if a != b:
+                raise InputError(
+                    f"metadata differ between {first.path} and {other.path}: {a!r} vs {b!r}",
+                    path=other.path,
+                    field=name,
+                    expected="all files of one calibration from the same unit and site",
+                )
+
+
+def run(args: argparse.Namespace) -> int:
+    from stableins.data.atomic import atomic_write
+    from stableins.data.device import load_device
+    from stableins.data.errors import InputError
+    from stableins.estimators.device import calibrate_device, summarize_dwells
+    from stableins.estimators.noise_model import SlowNoise
+    from stableins.output import emit, note
+    from stableins.procedures.definition import load_procedure
+
+    coarse_procedure = load_procedure(args.coarse_procedure)
+    fine_procedure = load_procedure(args.fine_procedure)
+    procedures = {"coarse": coarse_procedure, "fine": fine_procedure}
+    datasets = [load_device(path) for path in args.data]
+    _same_site(datasets)
+    summaries = []
+    for dataset in datasets:
+        summaries += summarize_dwells(dataset.dwells(), procedures, source=str(dataset.path))
+    site = datasets[0].metadata
+    source = ", ".join(str(p) for p in args.data)
+    slow_noise = None
+    if args.bias_instability is not None or args.random_walk:
+        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
+            if not value >= 0 or value != value or value == float("inf"):
+                raise InputError("must be a finite non-negative number", field=name)
+        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    calibration = calibrate_device(
+        summaries,
+        site,
+        coarse_procedure=coarse_procedure,
+        fine_procedure=fine_procedure,
+        allow_missing=args.allow_missing,
+        slow_noise=slow_noise,
+        coarse_nonlinear=not args.coarse_linear,
+        source=source,
+    )
+    record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
+    record.save(args.out)
+    note(f"calibration record written to {args.out}")
+    text = calibration.report()
+    if args.report is not None:
+        with atomic_write(args.report) as handle:
+            handle.write(text + "\n")
+    result = {
+        "record": str(args.out),
+        "stages": ["coarse"] + (["fine"] if calibration.fine is not None else []),
+        "coarse": _summary(calibration.coarse),
+        "fine": None if calibration.fine is None else _summary(calibration.fine),
+        "passes": len(calibration.passes),
+    }
+    emit(args, result, text)
+    return 0
+
+
+def _summary(fit) -> dict:
+    return {
+        "chi2_red": fit.chi2_red,
+        "rank": fit.rank,
+        "parameters": {
+            i: {"value": None, "sigma": None, "status": st}
+            if st == "unidentifiable"
+            else {"value": float(v), "sigma": float(s), "status": st}
+            for i, v, s, st in zip(fit.ids, fit.values, fit.sigma, fit.status, strict=True)
+        },
+        "determined": list(fit.determined),
+        "notes": list(fit.notes),
+    }

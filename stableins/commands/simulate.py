@@ -1,0 +1,229 @@
+"""``stableins simulate device|system``: data with a known truth, written to a directory.
+
+::
+
+    stableins simulate device --seed 3 --out sim/ [--procedure device-coarse --procedure device-fine]
+    stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
+    stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
+
+The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
+per procedure, or ``system.h5``) and
+``truth.json``, the simulated world (parameters, injected effects, noise, seed).  The data
+files carry only what a real site would know (site metadata), never the truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from stableins.data.errors import InputError
+
+#: Suffixes accepted by ``--duration`` and their length in seconds.
+DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
+DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
+#: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).
+CSV_ROW_LIMIT = 100_000
+
+
+def parse_duration(text: str) -> float:
+    """``"90"``, ``"90s"``, ``"30min"``, ``"6h"``, ``"1d"`` → seconds (argparse type)."""
+    text = text.strip()
+    for unit in sorted(DURATION_UNITS, key=len, reverse=True):
+        if text.endswith(unit):
+            number, factor = text[: -len(unit)], DURATION_UNITS[unit]
+            break
+    else:
+        number, factor = text, 1.0
+    try:
+        value = float(number) * factor
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration (expected e.g. 600, 600s, 30min, 6h, 1d)") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a duration must be positive")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    return value
+
+
+def parse_hidden(text: str) -> tuple[str, float]:
+    """``"ID=VALUE"`` → ``(ID, VALUE)``; VALUE in SI (argparse type)."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"{text!r} is not ID=VALUE (e.g. --hidden cross_xz=2e-5)")
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number (values are SI)") from None
+    if not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"{text!r}: the value must be finite")
+    return key, number
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("level", choices=("device", "system"), help="device-level dwells or a system-level static record")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="output directory (created if needed)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
+    )
+    parser.add_argument("--truth", type=Path, metavar="FILE", help="simulate this truth (a truth.json) instead of drawing one")
+    parser.add_argument(
+        "--hidden",
+        type=parse_hidden,
+        action="append",
+        default=[],
+        metavar="ID=VALUE",
+        help="inject an effect of the catalogue, value in SI (repeatable; see --list-effects)",
+    )
+    parser.add_argument(
+        "--format",
+        choices=("csv", "h5"),
+        help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
+    )
+    parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
+    parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
+    parser.add_argument(
+        "--procedure",
+        action="append",
+        metavar="NAME",
+        help="device: procedure name or TOML file, repeatable (default: device-coarse and device-fine)",
+    )
+    parser.add_argument("--dwell", type=positive_float, metavar="S", help="device: override the procedure's dwell time [s]")
+    parser.add_argument("--settle", type=float, metavar="S", help="device: override the procedure's settling time [s]")
+    parser.add_argument("--list-effects", action="store_true", help="list the injectable effects (id, SI unit, meaning) and exit")
+
+
+def prepare_directory(out: Path | None) -> Path:
+    """Create ``out`` and check it is writable (InputError naming ``--out`` otherwise)."""
+    if out is None:
+        raise InputError("no output directory given", field="--out", expected="--out DIR")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"cannot create the output directory: {error.strerror}", path=out, field="--out") from None
+    if not out.is_dir() or not os.access(out, os.W_OK | os.X_OK):
+        raise InputError("the output directory is not writable", path=out, field="--out", expected="a writable directory")
+    return out
+
+
+def build_truth(args: argparse.Namespace) -> Any:
+    """The truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
+    from stableins.simulator.effects import validate_effects
+    from stableins.simulator.truth import Truth
+
+    if args.truth is not None:
+        truth = Truth.read(args.truth)
+    else:
+        kwargs: dict[str, Any] = {}
+        if args.rate is not None:
+            kwargs["sample_rate"] = args.rate
+        truth = Truth.draw(0 if args.seed is None else args.seed, **kwargs)
+    if args.hidden:
+        effects = dict(truth.effects)
+        effects.update(dict(args.hidden))
+        truth = truth.with_changes(effects=validate_effects(effects, source="--hidden"))
+    return truth
+
+
+def run(args: argparse.Namespace) -> int:
+    from stableins.output import emit, note
+
+    if args.list_effects:
+        from stableins.simulator.effects import catalogue_table
+
+        rows = catalogue_table()
+        emit(
+            args,
+            {"effects": [{"id": i, "unit": u, "nominal": n, "meaning": m} for i, u, n, m in rows]},
+            "\n".join(f"{i:<24} {u:<12} nominal {n:<10.3g} {m}" for i, u, n, m in rows),
+        )
+        return 0
+    if args.level == "system" and (args.procedure or args.dwell is not None or args.settle is not None):
+        raise InputError("--procedure, --dwell and --settle apply to device-level simulation only", field="--procedure")
+    if args.level == "device" and args.duration is not None:
+        raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
+    truth = build_truth(args)
+    out = prepare_directory(args.out)
+    seed = truth.seed if args.seed is None else args.seed
+    truth_path = out / "truth.json"
+    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+    note(f"truth written to {truth_path}")
+    if args.level == "device":
+        files = simulate_device(truth, out, seed, args)
+    else:
+        files = [simulate_system(truth, out, seed, args)]
+    result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
+    lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
+    emit(args, result, "\n".join(lines))
+    return 0
+
+
+def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``)."""
+    from dataclasses import replace
+
+    from stableins.data.device import save_device
+    from stableins.procedures.definition import load_procedure
+    from stableins.progress import Progress
+    from stableins.simulator.device import simulate_dwells
+
+    rate = args.rate or truth.site.sample_rate
+    files = []
+    procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
+    with Progress(total=len(procedures), label="simulate device") as progress:
+        for k, procedure in enumerate(procedures):
+            steps = procedure.steps
+            dwell = args.dwell if args.dwell is not None else steps[0].dwell
+            settle = args.settle if args.settle is not None else steps[0].settle
+            columns = simulate_dwells(
+                truth,
+                [s.command for s in steps],
+                dwell=dwell,
+                settle=settle,
+                rate=rate,
+                seed=seed + k,
+                stage=procedure.stage,
+                pass_number=1,
+            )
+            metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name})
+            n = len(columns["time"])
+            suffix = args.format or ("csv" if n <= CSV_ROW_LIMIT else "h5")
+            path = save_device(out / f"{procedure.name}.{suffix}", columns, metadata)
+            files.append({"path": str(path), "rows": n, "procedure": procedure.name, "stage": procedure.stage})
+            progress.update()
+    return files
+
+
+def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """``system.<format>``, streamed chunk by chunk."""
+    from dataclasses import replace
+
+    from stableins.data.system import SystemRecordWriter
+    from stableins.progress import Progress
+    from stableins.simulator.system import system_record_chunks
+
+    suffix = args.format or "h5"
+    rate = args.rate or truth.site.sample_rate
+    duration = args.duration or 6 * 3600.0
+    chunk_samples = 65536
+    metadata = replace(truth.site, sample_rate=rate)  # the truth puts its damping-loop parameters in site.damping
+    path = out / f"system.{suffix}"
+    total = int(round(duration * rate))
+    with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:
+        with Progress(total=total, label="simulate system") as progress:
+            for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
+                writer.append(chunk)
+                progress.update(len(chunk["time"]))
+    return {"path": str(path), "rows": writer.n_samples, "duration_s": duration, "rate_hz": rate}

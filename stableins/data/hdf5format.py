@@ -1,0 +1,256 @@
+"""HDF5 files for long records (see ``docs/formats.md``).
+
+Layout::
+
+    /                      attrs: format, schema_version, rows, complete, serial_number,
+                                  header (JSON: format, schema_version, metadata with units)
+    /columns/<name>        1-D chunked dataset per column, attrs: unit (physical columns), meaning
+
+Written through a temporary file renamed on success (:mod:`stableins.data.atomic`), in
+chunks, so a day-long record never has to be in memory and a crash never leaves a
+half-written file under the final name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+from stableins.data.errors import InputError
+from stableins.data.schema import Column
+from stableins.data.validation import FORMAT_TAGS, check_finite, check_header_document, match_columns
+
+GROUP = "columns"
+STRING_DTYPE = "S16"
+DEFAULT_CHUNK = 65536
+
+
+class H5Writer:
+    """Streaming, atomic writer of one stableins HDF5 file.
+
+    Rows appended with :meth:`append` are buffered up to ``chunk_samples`` and then
+    written, so memory stays bounded whatever the record length.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        kind: str,
+        schema: Sequence[Column],
+        document: Mapping[str, Any],
+        chunk_samples: int = DEFAULT_CHUNK,
+        compression: str | None = None,
+    ) -> None:
+        self.path = str(path)
+        self.kind = kind
+        self.schema = tuple(schema)
+        self.document = dict(document)
+        self.chunk_samples = int(chunk_samples)
+        self.compression = compression
+        self.rows = 0
+        self._buffer: list[Mapping[str, Any]] = []
+        self._buffered = 0
+        self._file: Any = None
+        self._atomic: Any = None
+
+    def __enter__(self) -> H5Writer:
+        import h5py
+
+        from stableins.data.atomic import atomic_path
+
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
+        try:
+            self._file = h5py.File(tmp, "w", rdcc_nbytes=0)  # whole-chunk writes: a chunk cache only copies
+            f = self._file
+            f.attrs["format"] = FORMAT_TAGS[self.kind]
+            f.attrs["schema_version"] = self.document["schema_version"]
+            f.attrs["header"] = json.dumps(self.document, allow_nan=False)
+            serial = self.document.get("metadata", {}).get("serial_number")
+            if serial is not None:
+                f.attrs["serial_number"] = serial
+            f.attrs["complete"] = False
+            group = f.create_group(GROUP)
+            for c in self.schema:
+                dtype = STRING_DTYPE if c.dtype == "str" else c.dtype
+                d = group.create_dataset(
+                    c.name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(self.chunk_samples,), compression=self.compression
+                )
+                if c.unit is not None:
+                    d.attrs["unit"] = c.unit
+                d.attrs["meaning"] = c.meaning
+        except BaseException as error:
+            self._abort(error)
+            raise
+        return self
+
+    def append(self, chunk: Mapping[str, Any]) -> None:
+        """Queue rows (dict of equal-length 1-D arrays, one per schema column)."""
+        n = len(chunk[self.schema[0].name])
+        self._buffer.append(chunk)
+        self._buffered += n
+        if self._buffered >= self.chunk_samples:
+            self._flush()
+
+    def _flush(self, final: bool = False) -> None:
+        """Write the whole chunks buffered (everything if ``final``); keep the remainder.
+
+        Writes then always cover whole HDF5 chunks, so no chunk is read back and rewritten.
+        """
+        import numpy as np
+
+        if not self._buffer:
+            return
+        n = self._buffered if final else self._buffered - self._buffered % self.chunk_samples
+        if n == 0:
+            return
+        group = self._file[GROUP]
+        rest: dict[str, Any] = {}
+        for c in self.schema:
+            parts = [np.asarray(ch[c.name]) for ch in self._buffer]
+            values = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            rest[c.name] = values[n:].copy()
+            values = values[:n]
+            if c.dtype == "str":
+                values = np.char.encode(values.astype(str), "ascii")
+            d = group[c.name]
+            d.resize((self.rows + n,))
+            d[self.rows :] = values
+        self.rows += n
+        self._buffered -= n
+        self._buffer[:] = [rest] if self._buffered else []
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            self._abort(exc)
+            return
+        try:
+            self._flush(final=True)
+            self._file.attrs["rows"] = self.rows
+            self._file.attrs["complete"] = True
+            self._file.close()
+            self._file = None
+        except BaseException as error:
+            self._abort(error)
+            raise
+        self._atomic.__exit__(None, None, None)
+
+    def _abort(self, error: BaseException | None) -> None:
+        if self._file is not None:
+            try:
+                self._file.close()
+            except Exception:  # noqa: BLE001 - already failing; the temporary file is removed below
+                pass
+            self._file = None
+        if self._atomic is not None:
+            err = error if error is not None else RuntimeError("aborted")
+            try:
+                self._atomic.__exit__(type(err), err, None)
+            except BaseException as raised:  # atomic_path re-raises the error it was given
+                if raised is not err:
+                    raise
+            self._atomic = None
+
+
+class H5Reader:
+    """Validating reader of one stableins HDF5 file; opens the file only while reading."""
+
+    def __init__(self, path: str | os.PathLike[str], kind: str, schema: Sequence[Column]) -> None:
+        import numpy as np
+
+        self.path = str(path)
+        self.kind = kind
+        self.schema = tuple(schema)
+        with self._open() as f:
+            try:
+                header = f.attrs["header"]
+            except KeyError:
+                raise InputError("no 'header' attribute: not a stableins HDF5 file", path=self.path, field="header") from None
+            try:
+                self.document = json.loads(header)
+            except (TypeError, json.JSONDecodeError) as error:
+                raise InputError(f"'header' attribute is not valid JSON ({error})", path=self.path, field="header") from None
+            check_header_document(self.document, kind, self.path)
+            if not bool(f.attrs.get("complete", True)):  # absent in files made by other tools
+                raise InputError(
+                    "the writer did not finish this file (attribute complete is false)", path=self.path, expected="a complete file"
+                )
+            if GROUP not in f:
+                raise InputError(f"no group '/{GROUP}'", path=self.path, expected=f"one dataset per column in /{GROUP}")
+            group = f[GROUP]
+            found = [(name, _unit_attr(group[name])) for name in group]
+            match_columns(found, self.schema, self.path)
+            self.rows = int(f.attrs["rows"]) if "rows" in f.attrs else int(group[self.schema[0].name].shape[0])
+            for c in self.schema:
+                d = group[c.name]
+                if d.ndim != 1 or d.shape[0] != self.rows:
+                    raise InputError(
+                        f"dataset has shape {d.shape} but the file has {self.rows} rows; the file is damaged",
+                        path=self.path,
+                        field=c.name,
+                        expected=f"shape ({self.rows},)",
+                    )
+                if c.dtype != "str" and not np.issubdtype(d.dtype, np.number):
+                    raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="a numeric dataset")
+
+    def _open(self) -> Any:
+        import h5py
+
+        try:
+            return h5py.File(self.path, "r")
+        except FileNotFoundError:
+            raise InputError("no such file", path=self.path) from None
+        except OSError as error:
+            raise InputError(f"cannot be read as HDF5 ({error}); the file is truncated or corrupt", path=self.path) from None
+
+    def read(self, names: Sequence[str] | None = None, start: int = 0, stop: int | None = None) -> dict[str, Any]:
+        """Rows ``start:stop`` of the named columns, validated (finite floats)."""
+        with self._open() as f:
+            return self._read(f, names, start, stop)
+
+    def _read(self, f: Any, names: Sequence[str] | None, start: int, stop: int | None) -> dict[str, Any]:
+        import numpy as np
+
+        stop = self.rows if stop is None else min(stop, self.rows)
+        out: dict[str, Any] = {}
+        for c in self._columns(names):
+            try:
+                values = f[GROUP][c.name][start:stop]
+            except (OSError, RuntimeError) as error:
+                raise InputError(
+                    f"rows {start + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=c.name
+                ) from None
+            if c.dtype == "str":
+                values = np.char.decode(values, "ascii") if values.dtype.kind == "S" else values.astype(str)
+            else:
+                values = values.astype(c.dtype, copy=False)
+                check_finite(c.name, values, self.path, first_row=start + 1)
+            out[c.name] = values
+        return out
+
+    def iter_chunks(
+        self, names: Sequence[str] | None = None, rows: int = DEFAULT_CHUNK, start: int = 0, stop: int | None = None
+    ) -> Iterator[dict[str, Any]]:
+        """Yield validated dicts of ``rows`` rows at a time (bounded memory)."""
+        stop = self.rows if stop is None else min(stop, self.rows)
+        with self._open() as f:
+            for k in range(start, stop, rows):
+                yield self._read(f, names, k, min(k + rows, stop))
+
+    def _columns(self, names: Sequence[str] | None) -> list[Column]:
+        if names is None:
+            return list(self.schema)
+        by_name = {c.name: c for c in self.schema}
+        unknown = [n for n in names if n not in by_name]
+        if unknown:
+            raise InputError(f"unknown column(s) {unknown}", path=self.path, field=unknown[0], expected="one of " + ", ".join(by_name))
+        return [by_name[n] for n in names]
+
+
+def _unit_attr(dataset: Any) -> str | None:
+    unit = dataset.attrs.get("unit")
+    if unit is None:
+        return None
+    return unit.decode() if isinstance(unit, bytes) else str(unit)

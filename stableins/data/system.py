@@ -1,0 +1,397 @@
+"""System-level records: streaming writer, bounded-memory reader, sampling checks.
+
+A system-level record (columns :data:`~stableins.data.schema.SYSTEM_COLUMNS`) is hours to
+days of samples at the INS rate: 8.6 million rows per day at 100 Hz.  It is written and
+read in chunks, never held in memory whole.  HDF5 (``.h5``) is the format for real
+records; CSV (``.csv``) is accepted for small ones.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stableins.data.device import CSV_SUFFIXES, H5_SUFFIXES, header_document
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata, metadata_from_document
+from stableins.data.schema import SYSTEM_COLUMNS
+from stableins.data.validation import check_finite, check_increasing
+
+DEFAULT_CHUNK = 65536
+NAMES = tuple(c.name for c in SYSTEM_COLUMNS)
+
+
+def _kind_of(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix in H5_SUFFIXES:
+        return "h5"
+    if suffix in CSV_SUFFIXES:
+        return "csv"
+    raise InputError(f"unknown file type {suffix!r}", path=path, expected="a .h5 (or, for small records, .csv) file")
+
+
+class SystemRecordWriter:
+    """Write a system-level record chunk by chunk, atomically.
+
+    Use as a context manager; :meth:`append` takes a dict with one equal-length 1-D array
+    per column of :data:`SYSTEM_COLUMNS` [SI].  The data go to a temporary file beside
+    ``path`` that is renamed to ``path`` only when the ``with`` block ends without an
+    exception; otherwise it is deleted and an existing ``path`` is left untouched.
+
+    Each chunk is checked (all columns present, equal lengths, finite, time strictly
+    increasing across chunks) before it is written.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.h5`` (chunked HDF5) or ``.csv``.
+    metadata : SiteMetadata
+        Site and unit; ``sample_rate`` is the record's nominal rate.
+    chunk_samples : int
+        HDF5 chunk length and write-buffer size [samples].
+    compression : str, optional
+        HDF5 filter (``"gzip"``, ``"lzf"``); none by default (noisy float64 barely compresses).
+
+    Examples
+    --------
+    >>> with SystemRecordWriter("day.h5", metadata) as writer:   # doctest: +SKIP
+    ...     for chunk in system_record_chunks(truth, 86400.0, 100.0, seed=1):
+    ...         writer.append(chunk)
+    """
+
+    def __init__(
+        self, path: str | os.PathLike[str], metadata: SiteMetadata, chunk_samples: int = DEFAULT_CHUNK, compression: str | None = None
+    ) -> None:
+        self.path = Path(path)
+        self.metadata = metadata
+        self.kind = _kind_of(self.path)
+        self.chunk_samples = int(chunk_samples)
+        self.compression = compression
+        self.n_samples = 0
+        self._last_time: float | None = None
+        self._inner: Any = None
+        self._rows_written = 0
+
+    def __enter__(self) -> SystemRecordWriter:
+        document = header_document("system", self.metadata)
+        if self.kind == "h5":
+            from stableins.data.hdf5format import H5Writer
+
+            self._inner = H5Writer(self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression)
+            self._inner.__enter__()
+        else:
+            from stableins.data.atomic import atomic_write
+            from stableins.data.csvformat import header_text
+
+            self._atomic = atomic_write(self.path)
+            self._handle = self._atomic.__enter__()
+            self._handle.write(header_text("system", document, SYSTEM_COLUMNS))
+        return self
+
+    def append(self, chunk: Mapping[str, Any]) -> None:
+        """Check and write one chunk of rows."""
+        import numpy as np
+
+        where = f"chunk starting at sample {self.n_samples + 1}"
+        missing = [n for n in NAMES if n not in chunk]
+        if missing:
+            raise InputError(f"{where} has no column {missing[0]!r}", path=self.path, field=missing[0], expected="every system column")
+        extra = [n for n in chunk if n not in NAMES]
+        if extra:
+            raise InputError(f"{where} has an unknown column {extra[0]!r}", path=self.path, field=extra[0], expected="system columns only")
+        arrays = {n: np.array(chunk[n], dtype=float) for n in NAMES}  # copies: the caller may reuse its buffers
+        n = len(arrays["time"])
+        for name, values in arrays.items():
+            if values.shape != (n,):
+                raise InputError(f"{where}: shape {values.shape}", path=self.path, field=name, expected=f"shape ({n},) like 'time'")
+            check_finite(name, values, self.path, first_row=self.n_samples + 1)
+        check_increasing(arrays["time"], self.path, first_row=self.n_samples + 1, previous=self._last_time)
+        if n == 0:
+            return
+        if self.kind == "h5":
+            self._inner.append(arrays)
+        else:
+            from stableins.data.csvformat import format_rows
+
+            self._handle.write(format_rows(arrays, SYSTEM_COLUMNS))
+        self.n_samples += n
+        self._last_time = float(arrays["time"][-1])
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if self.kind == "h5":
+            self._inner.__exit__(exc_type, exc, tb)
+            return
+        if exc_type is None:
+            from stableins.data.csvformat import trailer_text
+
+            self._handle.write(trailer_text(self.n_samples))
+        self._atomic.__exit__(exc_type, exc, tb)
+
+
+@dataclass(frozen=True)
+class SamplingIssue:
+    """One irregularity of the time column.
+
+    Attributes
+    ----------
+    kind : str
+        ``"gap"`` (a step longer than ``gap_factor`` sample periods) or ``"jitter"``
+        (a step off the nominal period by more than the tolerance).
+    row : int
+        1-based row of the sample after the irregular step.
+    step : float
+        The step [s].
+    expected : float
+        Nominal period 1/rate [s].
+    """
+
+    kind: str
+    row: int
+    step: float
+    expected: float
+
+    def describe(self, path: str) -> str:
+        return f"{path}: row {self.row}: {self.kind}: time step {self.step:.6g} s (nominal {self.expected:.6g} s)"
+
+
+class SamplingWarning(UserWarning):
+    """Sampling irregularities that do not stop processing; ``.issues`` and ``.path`` say what and where."""
+
+    def __init__(self, message: str, path: str, issues: Sequence[SamplingIssue]) -> None:
+        super().__init__(message)
+        self.path = path
+        self.issues = tuple(issues)
+
+
+@dataclass(frozen=True)
+class SamplingReport:
+    """Result of :meth:`SystemRecord.check_sampling`.
+
+    Attributes
+    ----------
+    n_samples : int
+        Samples checked.
+    mean_rate : float
+        (n − 1) / (t_last − t_first) [Hz].
+    gaps, jitter : tuple of SamplingIssue
+        Issues found (jitter capped at the first 100; ``n_jitter`` counts all).
+    n_jitter : int
+        Number of off-nominal steps.
+    max_step_error : float
+        Largest |step − 1/rate| [s].
+    """
+
+    n_samples: int
+    mean_rate: float
+    gaps: tuple[SamplingIssue, ...] = ()
+    jitter: tuple[SamplingIssue, ...] = ()
+    n_jitter: int = 0
+    max_step_error: float = 0.0
+
+    @property
+    def uniform(self) -> bool:
+        return not self.gaps and not self.n_jitter
+
+
+class SamplingChecker:
+    """Streaming check of a time column against a nominal rate.
+
+    Non-increasing time raises :class:`InputError` at once; gaps and jitter are
+    collected.  Feed chunks in order with :meth:`update`, then call :meth:`finish`.
+
+    Parameters
+    ----------
+    rate : float
+        Nominal sample rate [Hz].
+    path : str
+        File name for messages.
+    tolerance : float
+        Allowed relative deviation of a step from 1/rate before it counts as jitter.
+    gap_factor : float
+        A step longer than ``gap_factor / rate`` is a gap (missing samples).
+    """
+
+    def __init__(self, rate: float, path: str, tolerance: float = 0.01, gap_factor: float = 1.5) -> None:
+        self.rate = float(rate)
+        self.period = 1.0 / self.rate
+        self.path = path
+        self.tolerance = tolerance
+        self.gap_factor = gap_factor
+        self.n = 0
+        self.first: float | None = None
+        self.last: float | None = None
+        self.gaps: list[SamplingIssue] = []
+        self.jitter: list[SamplingIssue] = []
+        self.n_jitter = 0
+        self.max_step_error = 0.0
+
+    def update(self, time: Any) -> None:
+        import numpy as np
+
+        time = np.asarray(time, dtype=float)
+        if time.size == 0:
+            return
+        check_finite("time", time, self.path, first_row=self.n + 1)
+        check_increasing(time, self.path, first_row=self.n + 1, previous=self.last)
+        series = time if self.last is None else np.concatenate([[self.last], time])
+        row0 = self.n + 1 if self.last is None else self.n
+        steps = np.diff(series)
+        if steps.size:
+            error = np.abs(steps - self.period)
+            self.max_step_error = max(self.max_step_error, float(error.max()))
+            gap = steps > self.gap_factor * self.period
+            for k in np.flatnonzero(gap)[:100]:
+                self.gaps.append(SamplingIssue("gap", row0 + int(k) + 1, float(steps[k]), self.period))
+            off = (error > self.tolerance * self.period) & ~gap
+            self.n_jitter += int(off.sum())
+            for k in np.flatnonzero(off)[: max(0, 100 - len(self.jitter))]:
+                self.jitter.append(SamplingIssue("jitter", row0 + int(k) + 1, float(steps[k]), self.period))
+        if self.first is None:
+            self.first = float(time[0])
+        self.last = float(time[-1])
+        self.n += time.size
+
+    def finish(self) -> SamplingReport:
+        span = (self.last or 0.0) - (self.first or 0.0)
+        mean_rate = (self.n - 1) / span if self.n > 1 and span > 0 else float("nan")
+        return SamplingReport(self.n, mean_rate, tuple(self.gaps), tuple(self.jitter), self.n_jitter, self.max_step_error)
+
+
+@dataclass(frozen=True)
+class SystemRecord:
+    """An opened (validated) system-level record; reads happen chunk by chunk.
+
+    Attributes
+    ----------
+    path : str
+        The file.
+    metadata : SiteMetadata
+        Site and unit.
+    n_samples : int
+        Number of rows.
+    """
+
+    path: str
+    metadata: SiteMetadata
+    n_samples: int
+    _reader: Any = field(repr=False, compare=False)
+
+    @property
+    def sample_rate(self) -> float:
+        """Nominal sample rate [Hz] (from the metadata)."""
+        return self.metadata.sample_rate
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return NAMES
+
+    @property
+    def duration(self) -> float:
+        """Nominal duration n / rate [s]."""
+        return self.n_samples / self.sample_rate
+
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = DEFAULT_CHUNK) -> Iterator[dict[str, Any]]:
+        """Yield dicts ``{column: ndarray}`` of up to ``rows`` rows, in order, each checked for NaN/inf.
+
+        Memory is bounded by ``rows`` × number of columns, whatever the record length.
+        """
+        names = list(NAMES if columns is None else columns)
+        unknown = [n for n in names if n not in NAMES]
+        if unknown:
+            raise InputError(f"unknown column {unknown[0]!r}", path=self.path, field=unknown[0], expected="one of " + ", ".join(NAMES))
+        if self._reader is None:  # CSV: parse again, streaming
+            from stableins.data.csvformat import CsvReader
+
+            with CsvReader(self.path, "system", SYSTEM_COLUMNS) as reader:
+                first = 1
+                for chunk in reader.iter_chunks(rows):
+                    for n in names:
+                        check_finite(n, chunk[n], self.path, first_row=first)
+                    first += len(chunk["time"])
+                    yield {n: chunk[n] for n in names}
+        else:
+            yield from self._reader.iter_chunks(names, rows)
+
+    def read(self, columns: Sequence[str] | None = None) -> dict[str, Any]:
+        """Whole columns at once (for short records or a few columns)."""
+        import numpy as np
+
+        chunks = list(self.iter_chunks(columns, rows=1 << 20))
+        names = list(NAMES if columns is None else columns)
+        if not chunks:
+            return {n: np.zeros(0) for n in names}
+        return {n: np.concatenate([c[n] for c in chunks]) for n in names}
+
+    def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
+        """Check the time column against the metadata rate (streaming).
+
+        Raises
+        ------
+        InputError
+            Non-increasing time (row named); a gap unless ``allow_gaps``; a mean rate
+            that disagrees with the metadata sample rate by more than 1 %.
+
+        Warns
+        -----
+        SamplingWarning
+            Jitter (steps off 1/rate by more than ``tolerance``), and gaps when allowed.
+        """
+        checker = SamplingChecker(self.sample_rate, self.path, tolerance=tolerance)
+        for chunk in self.iter_chunks(["time"], rows=rows):
+            checker.update(chunk["time"])
+        report = checker.finish()
+        if report.gaps and not allow_gaps:
+            g = report.gaps[0]
+            raise InputError(
+                f"gap in the record: time step {g.step:.6g} s ({len(report.gaps)} gap(s) in all)",
+                path=self.path,
+                row=g.row,
+                field="time",
+                expected=f"uniform sampling at {self.sample_rate:g} Hz (step {g.expected:.6g} s)",
+            )
+        if report.n_samples > 1 and abs(report.mean_rate / self.sample_rate - 1.0) > 0.01 and not report.gaps:
+            raise InputError(
+                f"time stamps give {report.mean_rate:.6g} Hz but the metadata say {self.sample_rate:g} Hz",
+                path=self.path,
+                field="time",
+                expected="time stamps consistent with metadata.sample_rate",
+            )
+        issues = report.gaps + report.jitter
+        if issues:
+            text = "; ".join(i.describe(self.path) for i in issues[:3])
+            more = f" (and {len(report.gaps) + report.n_jitter - 3} more)" if len(report.gaps) + report.n_jitter > 3 else ""
+            warnings.warn(SamplingWarning(f"irregular sampling: {text}{more}", self.path, issues), stacklevel=2)
+        return report
+
+
+def open_system_record(path: str | os.PathLike[str]) -> SystemRecord:
+    """Open and validate a system-level record (``.h5`` or ``.csv``, by suffix).
+
+    The structure (header, schema version, metadata, columns and units, lengths) is
+    checked now; values are checked for NaN/inf as chunks are read, and the time base
+    by :meth:`SystemRecord.check_sampling`.
+    """
+    path = Path(path)
+    kind = _kind_of(path)
+    if kind == "h5":
+        from stableins.data.hdf5format import H5Reader
+
+        reader = H5Reader(path, "system", SYSTEM_COLUMNS)
+        document, n, inner = reader.document, reader.rows, reader
+    else:
+        from stableins.data.csvformat import CsvReader
+
+        with CsvReader(path, "system", SYSTEM_COLUMNS) as csv_reader:
+            document = csv_reader.document
+            n = 0
+            for chunk in csv_reader.iter_chunks(DEFAULT_CHUNK):  # validates every row, bounded memory
+                n += len(chunk["time"])
+        inner = None
+    if "metadata" not in document:
+        raise InputError("header has no metadata", path=path, field="metadata", expected="site metadata (docs/formats.md)")
+    metadata = metadata_from_document(document["metadata"], str(path))
+    return SystemRecord(str(path), metadata, n, inner)

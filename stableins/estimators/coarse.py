@@ -1,0 +1,479 @@
+r"""Device-level coarse calibration: 15 parameters from 18 static positions, exact kinematics.
+
+Observation (Wu et al. 2018 Eq. 7, signs restored; conventions in
+:mod:`stableins.conventions`), position ``j``, dwell mean ``ȳ_j`` of the
+accelerometer outputs and mean angle-sensor readings ``r_j``::
+
+    ȳ_j = h(p, θ; r_j) + v_j,      h = F(f^p_j, p),
+    f^p_j = C_b^p(r_j + θ) · C_n^b · [0, 0, −g]
+
+``F`` is the exact forward model of :class:`stableins.errormodel.ErrorModel` (Eq. 6;
+the coarse model leaves out the quadratic terms unless asked), ``C_b^p`` the exact gimbal
+chain ``R3(s1 α1) R1(s2 α2) R2(s3 α3) R3(s4 q)``, ``θ = (θ10, θ20, θ30)`` the
+angle-sensor zero offsets, and ``v_j`` the dwell-mean noise with the 1σ measured in
+the dwell (:mod:`stableins.estimators.dwell`).  No small-angle table is used: the
+solution is Gauss-Newton on the exact model (:mod:`stableins.estimators.gauss_newton`),
+which converges in 3–4 steps from the ideal instrument.
+
+Jacobian
+--------
+``∂h/∂p`` (scale factors, biases, installation angles) is
+:meth:`ErrorModel.jacobian`; the offsets act through the specific force,
+``∂h/∂θ_i = (∂F/∂f^p) · ∂f^p/∂α_i`` with (``R_i'(a) = −[e_i×] R_i(a)``)::
+
+    ∂f^p/∂α1 = −s1 [e3×] f^p
+    ∂f^p/∂α2 = −s2 A [e1×] Aᵀ f^p                      A = R3(s1 α1)
+    ∂f^p/∂α3 = −s3 A B [e2×] Bᵀ Aᵀ f^p                 B = R1(s2 α2)
+
+Gauge
+-----
+A rotation of the platform about ``z_p`` is indistinguishable from turning the triad
+about ``z_p``: for any ``φ`` the model family is closed under
+``C_p^a → C_p^a R3(φ)`` (see :func:`gauge_equivalent`), so the design has an exact
+null direction that moves ``θ10``, ``β_xz``, ``β_yz`` (and, at second order,
+``sf_x``, ``sf_y``, ``β_xy``, ``β_yx``, ``β_zx``, ``β_zy``).  It is found from the
+SVD of the design (:mod:`stableins.estimators.design`), and the gauge
+``θ10 = 0`` is applied: the platform-axis sensor zero defines the platform azimuth.
+The estimates of ``β_xz`` and ``β_yz`` then determine ``β_xz + s1 θ10`` and
+``β_yz + s1 θ10``.  ``θ30`` is determined relative to the base pitch given in the
+site metadata (a base tilt about the middle-gimbal axis is the same rotation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import (
+    DEFAULT_GIMBALS,
+    R1,
+    R2,
+    R3,
+    GimbalConfiguration,
+    dcm_nav_to_body,
+    skew,
+    specific_force_nav,
+)
+from stableins.data.errors import InputError
+from stableins.errormodel import ErrorModel
+from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.dwell import DwellSummary
+from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
+from stableins.estimators.result import FitResult
+
+#: Ids tried first as gauge parameters (platform azimuth, then the offsets).
+GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
+_E = np.eye(3)
+
+
+def coarse_model(nonlinear: bool = False) -> ErrorModel:
+    """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``)."""
+    return ErrorModel.standard(nonlinear=nonlinear, gimbals=True)
+
+
+def platform_specific_force(
+    readings: ArrayLike,
+    offsets: ArrayLike,
+    gravity: ArrayLike,
+    base_dcm: ArrayLike = _E,
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact ``f^p`` and ``∂f^p/∂θ`` (columns θ10, θ20, θ30) for readings ``(..., 3)``.
+
+    Returns
+    -------
+    f_p : ndarray (..., 3)
+    derivative : ndarray (..., 3, 3)
+    """
+    s1, s2, s3, _ = configuration.senses
+    alpha = np.asarray(readings, dtype=float) + np.asarray(offsets, dtype=float)
+    a = R3(s1 * alpha[..., 0])
+    b = R1(s2 * alpha[..., 1])
+    c = R2(s3 * alpha[..., 2])
+    f_n = specific_force_nav(np.asarray(gravity, dtype=float))
+    f_b = np.einsum("ij,...j->...i", np.asarray(base_dcm, dtype=float), f_n)
+    f_c = np.einsum("...ij,...j->...i", c, f_b)
+    f_bc = np.einsum("...ij,...j->...i", b, f_c)
+    f_p = np.einsum("...ij,...j->...i", a, f_bc)
+    d1 = -s1 * np.einsum("ij,...j->...i", skew(_E[2]), f_p)
+    d2 = -s2 * np.einsum("...ij,...j->...i", a, np.einsum("ij,...j->...i", skew(_E[0]), f_bc))
+    d3 = -s3 * np.einsum("...ij,...j->...i", a @ b, np.einsum("ij,...j->...i", skew(_E[1]), f_c))
+    return f_p, np.stack([d1, d2, d3], axis=-1)
+
+
+def gauge_equivalent(values: Mapping[str, float], configuration: GimbalConfiguration = DEFAULT_GIMBALS) -> dict[str, float]:
+    r"""Exactly equivalent parameters with ``θ10 = 0`` (the coarse gauge).
+
+    With ``φ = s1 θ10``, ``SF^{-1} C_p^a R3(φ) = SF'^{-1} C'`` where, row by row
+    (``c = cos φ``, ``s = sin φ``)::
+
+        k_x = c − β_xz s:  β_xz' = (s + β_xz c)/k_x,  β_xy' = β_xy/k_x,  SF_x' = SF_x / k_x
+        k_y = c − β_yz s:  β_yz' = (s + β_yz c)/k_y,  β_yx' = β_yx/k_y,  SF_y' = SF_y / k_y
+        β_zy' = β_zy c + β_zx s,  β_zx' = β_zx c − β_zy s
+
+    Outputs are identical for every orientation (biases and ``K2`` unchanged), so this is
+    what a calibration in the gauge ``θ10 = 0`` recovers from noiseless data.
+    """
+    v = dict(values)
+    phi = configuration.senses[0] * float(v.get("theta10", 0.0))
+    c, s = np.cos(phi), np.sin(phi)
+    bxz, bxy, byz, byx = (float(v.get(k, 0.0)) for k in ("beta_xz", "beta_xy", "beta_yz", "beta_yx"))
+    bzy, bzx = float(v.get("beta_zy", 0.0)), float(v.get("beta_zx", 0.0))
+    kx, ky = c - bxz * s, c - byz * s
+    v.update(
+        beta_xz=(s + bxz * c) / kx,
+        beta_xy=bxy / kx,
+        beta_yz=(s + byz * c) / ky,
+        beta_yx=byx / ky,
+        beta_zy=bzy * c + bzx * s,
+        beta_zx=bzx * c - bzy * s,
+        sf_x=float(v.get("sf_x", 1.0)) / kx,
+        sf_y=float(v.get("sf_y", 1.0)) / ky,
+        theta10=0.0,
+    )
+    return v
+
+
+@dataclass(frozen=True)
+class CoarseProblem:
+    """Batched coarse observations (trial axis ``T``, ``m`` positions).
+
+    Attributes
+    ----------
+    readings : ndarray (T, m, 3)
+        Mean angle-sensor readings [rad].
+    means : ndarray (T, m, 3)
+        Dwell-mean accelerometer outputs [m/s²].
+    sigma : ndarray (T, m, 3)
+        1σ of the dwell means [m/s²].
+    gravity : float or ndarray (T,)
+        Local gravity [m/s²].
+    base_dcm : ndarray (3, 3)
+        ``C_n^b`` of the base.
+    configuration : GimbalConfiguration
+    model : ErrorModel
+    """
+
+    readings: NDArray[np.float64]
+    means: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    gravity: float | NDArray[np.float64]
+    base_dcm: NDArray[np.float64]
+    configuration: GimbalConfiguration
+    model: ErrorModel
+
+    def predict(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
+        model = self.model
+        values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
+        theta = np.stack([x[..., model.index(g)] for g in ("theta10", "theta20", "theta30")], axis=-1)[..., None, :]
+        g = np.asarray(self.gravity, dtype=float)
+        g = g[..., None] if g.ndim else g
+        f_p, d_theta = platform_specific_force(self.readings, theta, g, self.base_dcm, self.configuration)
+        out = model.forward(f_p, values)
+        jac = model.jacobian(f_p, values)
+        d_fp = model.jacobian_specific_force(f_p, values)
+        jac_theta = d_fp @ d_theta
+        for i, gid in enumerate(("theta10", "theta20", "theta30")):
+            jac[..., model.index(gid)] = jac_theta[..., i]
+        return out, jac
+
+    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    slow_covariance: NDArray[np.float64] | None = None
+
+    def whitening(self) -> NDArray[np.float64] | None:
+        """``L⁻¹`` per trial and axis ``(T, 3, m, m)`` with ``L Lᵀ = diag(σ_a²) + C_slow``."""
+        if self.slow_covariance is None:
+            return None
+        sig2 = np.moveaxis(self.sigma, -1, 1) ** 2  # (T, 3, m)
+        cov = self.slow_covariance[:, None] + sig2[..., None] * np.eye(sig2.shape[-1])
+        chol = np.linalg.cholesky(cov)
+        return np.linalg.inv(chol)
+
+    def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        out, jac = self.predict(x)
+        t = x.shape[0]
+        w = self.whitening()
+        if w is None:
+            r = ((self.means - out) / self.sigma).reshape(t, -1)
+            a = (jac / self.sigma[..., None]).reshape(t, -1, jac.shape[-1])
+            return r, a
+        resid = np.moveaxis(self.means - out, -1, 1)  # (T, 3, m)
+        r = np.einsum("tamk,tak->tam", w, resid)
+        a = np.einsum("tamk,tkan->tamn", w, jac)
+        return np.moveaxis(r, 1, 2).reshape(t, -1), np.moveaxis(a, 1, 2).reshape(t, -1, jac.shape[-1])
+
+
+def solve_coarse(
+    problem: CoarseProblem,
+    fixed: Mapping[str, float] | None = None,
+    x0: NDArray[np.float64] | None = None,
+    max_iterations: int = 12,
+):
+    """Batched Gauss-Newton for the coarse problem; ``fixed`` maps gauge ids to values.
+
+    Returns a :class:`~stableins.estimators.gauss_newton.GaussNewtonSolution`.
+    """
+    model = problem.model
+    fixed = {"theta10": 0.0} if fixed is None else dict(fixed)
+    t = problem.means.shape[0]
+    if x0 is None:
+        x0 = np.broadcast_to(model.vector({}), (t, len(model))).copy()
+    for k, v in fixed.items():
+        x0[..., model.index(k)] = v
+    free = np.array([k not in fixed for k in model.ids])
+    scales = np.array([term.nominal for term in model])
+    return gauss_newton(problem.weighted, x0, free, scales, max_iterations=max_iterations)
+
+
+def expected_outputs(readings: ArrayLike, gravity: float, base_dcm: ArrayLike, configuration: GimbalConfiguration) -> NDArray[np.float64]:
+    """Outputs of an ideal instrument with zero offsets: ``f^p`` at the readings."""
+    return platform_specific_force(readings, np.zeros(3), gravity, base_dcm, configuration)[0]
+
+
+def _orientation_hypotheses(configuration: GimbalConfiguration):
+    """Alternative explanations of data that do not match the commanded orientation."""
+    yield "as configured", configuration, None
+    s = configuration.senses
+    for s1 in (1, -1):
+        for s2 in (1, -1):
+            for s3 in (1, -1):
+                senses = (s1, s2, s3, s[3])
+                if senses != s:
+                    other = GimbalConfiguration(senses)
+                    hand = "the other gimbal handedness" if other.handedness != configuration.handedness else "other rotation senses"
+                    yield f"gimbal senses {senses} ({hand})", other, None
+    for i, ax in enumerate("xyz"):
+        m = np.eye(3)
+        m[i, i] = -1
+        yield f"the {ax} axis sign inverted", configuration, m
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        m = np.eye(3)[[j if k == i else i if k == j else k for k in range(3)]]
+        yield f"the {'xyz'[i]} and {'xyz'[j]} axes swapped", configuration, m
+
+
+def check_orientation(
+    dwells: Sequence[DwellSummary],
+    gravity: float,
+    base_dcm: ArrayLike,
+    configuration: GimbalConfiguration,
+    tolerance: float,
+    source: str = "data",
+) -> dict[int, str]:
+    """Compare each dwell mean with the ideal output at its readings.
+
+    Returns ``{position: reason}`` for isolated positions that do not match (to be left
+    out).  Raises :class:`InputError` when the data as a whole fit another orientation
+    hypothesis (an axis sign or order swapped, other gimbal senses) better, or when more
+    than two positions mismatch.
+    """
+    if not dwells:
+        return {}
+    readings = np.array([d.angles for d in dwells])
+    means = np.array([d.mean for d in dwells])
+    scores = []
+    for name, config, mapping in _orientation_hypotheses(configuration):
+        pred = expected_outputs(readings, gravity, base_dcm, config)
+        if mapping is not None:
+            pred = pred @ mapping.T
+        miss = np.abs(means - pred).max(axis=1) > tolerance
+        scores.append((int(miss.sum()), name, miss))
+    configured = scores[0]
+    best = min(s[0] for s in scores)
+    if best < configured[0] and configured[0] > 0:
+        bad = [d.position for d, m in zip(dwells, configured[2], strict=True) if m]
+        # Several explanations can fit equally well (e.g. a y sign flip and senses (-1, -1, 1)
+        # give the same outputs for this sequence): name them all.
+        names = " or ".join(s[1] for s in scores if s[0] == best)
+        raise InputError(
+            f"the data do not match the commanded orientations at positions {bad}; they fit {names} "
+            f"({len(dwells) - best} of {len(dwells)} positions). Check the axis wiring and the gimbal_senses metadata",
+            path=source,
+            field="f_x, f_y, f_z",
+            expected=f"outputs within {tolerance:.3g} m/s^2 of the ideal instrument at the commanded orientation",
+        )
+    if configured[0] > 2:
+        bad = [d.position for d, m in zip(dwells, configured[2], strict=True) if m]
+        raise InputError(
+            f"{configured[0]} positions do not match their commanded orientation: {bad}",
+            path=source,
+            field="f_x, f_y, f_z",
+            expected=f"outputs within {tolerance:.3g} m/s^2 of the ideal instrument at the commanded orientation",
+        )
+    out = {}
+    pred = expected_outputs(readings, gravity, base_dcm, configuration)
+    for d, p, m in zip(dwells, pred, configured[2], strict=True):
+        if m:
+            out[d.position] = (
+                f"does not match the commanded orientation: mean output {np.round(d.mean, 3).tolist()} m/s^2, "
+                f"expected about {np.round(p, 3).tolist()}"
+            )
+    return out
+
+
+def slow_covariance(dwells: Sequence[DwellSummary], slow_noise: SlowNoise | None, source: str) -> NDArray[np.float64] | None:
+    """``C_slow (1, m, m)`` for the dwells, or None without slow noise."""
+    if slow_noise is None or slow_noise.is_zero:
+        return None
+    starts = np.array([d.start for d in dwells])
+    if not np.all(np.isfinite(starts)):
+        raise InputError("dwell start times are needed for the slow-noise covariance", path=source, field="time")
+    return dwell_mean_covariance(starts, np.array([d.duration for d in dwells]), slow_noise)[None]
+
+
+def calibrate_coarse(
+    dwells: Sequence[DwellSummary],
+    *,
+    gravity: float,
+    base_attitude: Sequence[float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    expected_positions: Sequence[int] | None = None,
+    allow_missing: bool = False,
+    nonlinear: bool = False,
+    orientation_tolerance: float = 0.02 * 9.80665,
+    slow_noise: SlowNoise | None = None,
+    source: str = "data",
+) -> FitResult:
+    """Coarse stage: fit the 15 parameters to one pass of dwell summaries.
+
+    Parameters
+    ----------
+    dwells : sequence of DwellSummary
+        One pass (one dwell per position).
+    gravity : float
+        Local gravity [m/s²].
+    base_attitude : (yaw, pitch, roll)
+        Base attitude from the site survey [rad].
+    configuration : GimbalConfiguration
+        Gimbal rotation senses.
+    expected_positions : sequence of int, optional
+        Positions the procedure defines; a missing one raises :class:`InputError`
+        unless ``allow_missing``.
+    nonlinear : bool
+        Also estimate ``K2_*`` (the paper ignores them in this stage).
+    orientation_tolerance : float
+        Largest allowed difference between a dwell mean and the ideal output [m/s²].
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk: adds the correlated covariance of the dwell
+        means (:mod:`stableins.estimators.noise_model`); white noise only when None.
+
+    Returns
+    -------
+    FitResult
+        Stage ``"coarse"``, with gauge ``θ10 = 0`` (status ``gauge``).
+    """
+    positions = [d.position for d in dwells]
+    duplicates = sorted({p for p in positions if positions.count(p) > 1})
+    if duplicates:
+        raise InputError(f"positions {duplicates} appear more than once in one pass", path=source, field="position")
+    notes: list[str] = []
+    left_out: dict[int, str] = {}
+    if expected_positions is not None:
+        missing = sorted(set(expected_positions) - set(positions))
+        extra = sorted(set(positions) - set(expected_positions))
+        if extra:
+            raise InputError(
+                f"positions {extra} are not in the procedure", path=source, field="position", expected=f"{sorted(expected_positions)}"
+            )
+        if missing and not allow_missing:
+            raise InputError(
+                f"positions {missing} are missing (the procedure stopped early or rows were lost)",
+                path=source,
+                field="position",
+                expected=f"all of {sorted(expected_positions)}",
+            )
+        for p in missing:
+            left_out[p] = "missing from the data"
+    for d in dwells:
+        if d.flags:
+            left_out[d.position] = "; ".join(d.flags)
+        for n in d.notes:
+            notes.append(f"position {d.position}: {n}")
+    usable = [d for d in dwells if d.usable]
+    base_dcm = dcm_nav_to_body(*base_attitude)
+    left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
+    usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
+    model = coarse_model(nonlinear)
+    n = len(model)
+    if 3 * len(usable) <= n:
+        raise InputError(f"only {len(usable)} usable positions; the coarse stage needs more than {n // 3}", path=source, field="position")
+    problem = CoarseProblem(
+        readings=np.array([d.angles for d in usable])[None],
+        means=np.array([d.mean for d in usable])[None],
+        sigma=np.array([d.sem for d in usable])[None],
+        gravity=float(gravity),
+        base_dcm=base_dcm,
+        configuration=configuration,
+        model=model,
+        slow_covariance=slow_covariance(usable, slow_noise, source),
+    )
+    if slow_noise is not None:
+        notes.append(slow_noise.describe())
+    scales = np.array([t.nominal for t in model])
+    # Null space of the design at the starting point decides the gauge.
+    x_start = model.vector({})[None]
+    _, a_start = problem.weighted(x_start)
+    start = analyze_design(a_start[0], model.ids, scales)
+    gauge = choose_gauge(start, GAUGE_PREFERENCE, scales)
+    if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
+        raise InputError(
+            f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
+            f"(left out: {left_out or 'none'})",
+            path=source,
+            field="position",
+            expected="the 18 positions of the procedure (only theta10 may be a gauge)",
+        )
+    fixed = {g: 0.0 for g in gauge.fixed}
+    solution = solve_coarse(problem, fixed)
+    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    gauge = choose_gauge(design, GAUGE_PREFERENCE, scales) if design.deficiency == len(fixed) else gauge
+    for g in gauge.fixed:
+        notes.append(
+            f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {', '.join(design.involved()[0])})"
+        )
+    notes.append("theta30 is relative to the base pitch given in the site metadata (a base tilt about East is the same rotation)")
+    if not nonlinear:
+        notes.append("K2 (quadratic nonlinearity) ignored in the coarse stage (Wu et al. Eq. 7); estimated in the fine stage")
+    for p, why in sorted(left_out.items()):
+        notes.append(f"position {p} left out: {why}")
+    residuals = (problem.means[0] - problem.predict(solution.x)[0][0]).reshape(-1)
+    variance = problem.sigma[0] ** 2
+    if problem.slow_covariance is not None:
+        variance = variance + np.diagonal(problem.slow_covariance[0])[:, None]
+    residual_sigma = np.sqrt(variance).reshape(-1)
+    labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
+    status = tuple("gauge" if k in fixed else "estimated" for k in model.ids)
+    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed)
+    extra = {
+        "gauge": {g: 0.0 for g in gauge.fixed},
+        "gauge_coefficients": gauge.coefficients,
+        "positions_used": [d.position for d in usable],
+        "left_out": {int(k): v for k, v in sorted(left_out.items())},
+        "iterations": solution.iterations,
+        "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
+        "gravity": float(gravity),
+        "base_attitude": [float(a) for a in base_attitude],
+        "gimbal_senses": list(configuration.senses),
+        "weak": list(design.weak),
+        "angles": {d.position: d.angles.tolist() for d in usable},
+    }
+    return FitResult(
+        stage="coarse",
+        terms=model.terms,
+        values=solution.x[0].copy(),
+        covariance=solution.covariance[0].copy(),
+        status=status,
+        residuals=residuals,
+        residual_sigma=residual_sigma,
+        residual_labels=labels,
+        rank=design.rank,
+        singular_values=design.singular_values,
+        null_space=design.null_space,
+        determined=determined,
+        notes=tuple(notes),
+        extra=extra,
+    )

@@ -1,0 +1,205 @@
+"""The device-level pipeline: dwell summaries → coarse passes → fine stage.
+
+Takes the samples of a device-level session (one or more files of
+``DEVICE_COLUMNS``), runs the coarse stage on every coarse pass (the last pass is the
+coarse result; earlier passes give the zero-offset history), then the fine stage when
+fine dwells are present.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.estimators.coarse import calibrate_coarse, check_orientation
+from stableins.estimators.design import describe_design
+from stableins.estimators.dwell import DwellChecks, DwellSummary, pooled_allan_excess, summarize_dwell
+from stableins.estimators.fine import calibrate_fine
+from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
+from stableins.estimators.result import FitResult
+from stableins.procedures.definition import ProcedureDefinition, load_procedure
+
+
+@dataclass(frozen=True)
+class DeviceCalibration:
+    """Results of a device-level calibration.
+
+    Attributes
+    ----------
+    coarse : FitResult
+        Coarse stage on the last coarse pass.
+    fine : FitResult or None
+        Fine stage (None when the data have no fine dwells).
+    passes : tuple of FitResult
+        Coarse fit of every pass, in order (the last is ``coarse``).
+    """
+
+    coarse: FitResult
+    fine: FitResult | None = None
+    passes: tuple[FitResult, ...] = field(default=(), repr=False)
+
+    def offset_history(self) -> list[str]:
+        """θ20, θ30 of every pass and their change from the previous pass."""
+        lines, previous = [], None
+        for k, fit in enumerate(self.passes, start=1):
+            t2, s2, _ = fit["theta20"]
+            t3, s3, _ = fit["theta30"]
+            text = f"pass {k}: theta20 = {t2 / ARCSEC:+.3f} ± {s2 / ARCSEC:.3f}″, theta30 = {t3 / ARCSEC:+.3f} ± {s3 / ARCSEC:.3f}″"
+            if previous is not None:
+                text += f" (change {(t2 - previous[0]) / ARCSEC:+.3f}″, {(t3 - previous[1]) / ARCSEC:+.3f}″)"
+            lines.append(text)
+            previous = (t2, t3)
+        return lines
+
+    def report(self) -> str:
+        parts = ["== device-level coarse stage ==", self.coarse.report(), ""]
+        parts += describe_design(self.coarse.ids, self.coarse.singular_values, self.coarse.null_space)
+        if len(self.passes) > 1:
+            parts += ["", "zero-offset passes:"] + [f"  {line}" for line in self.offset_history()]
+        if self.fine is not None:
+            parts += ["", "== device-level fine stage ==", self.fine.report(), ""]
+            parts += describe_design(self.fine.ids, self.fine.singular_values, self.fine.null_space)
+        return "\n".join(parts)
+
+    def __str__(self) -> str:
+        return self.report()
+
+    def record(self, site: SiteMetadata, inputs: Sequence[str] = (), procedure: str = ""):
+        """Calibration record: the coarse result refined by the fine stage."""
+        from stableins.records import CalibrationRecord
+
+        record = CalibrationRecord.from_fit_result(self.coarse, site=site, inputs=inputs, procedure=procedure)
+        if self.fine is not None:
+            record = record.update(self.fine, inputs=inputs, procedure=procedure)
+        return record
+
+
+def summarize_dwells(dwells: Sequence[object], procedures: dict[str, ProcedureDefinition], source: str = "data") -> list[DwellSummary]:
+    """Summaries of dataset dwells (objects with the fields of ``stableins.data.device.Dwell``).
+
+    Samples earlier than the procedure's settle time after the command are dropped;
+    duplicated (stage, pass, position) keys raise :class:`InputError`.
+    """
+    seen: set[tuple[str, int, int]] = set()
+    out = []
+    for d in dwells:
+        key = (str(d.stage), int(d.pass_number), int(d.position))
+        if key in seen:
+            raise InputError(
+                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
+                path=source,
+                field="position",
+                row=getattr(d, "first_row", None),
+                expected="each position once per stage and pass",
+            )
+        seen.add(key)
+        procedure = procedures.get(key[0])
+        if procedure is not None and key[2] in procedure.positions:
+            settle = procedure.step(key[2]).settle
+            checks = procedure.acceptance.dwell_checks()
+        else:
+            settle, checks = 0.0, DwellChecks()
+        since = np.asarray(d.time_since_command, dtype=float)
+        if np.any(np.diff(since) < 0):
+            raise InputError(
+                f"position {key[2]} was commanded twice in {key[0]} pass {key[1]} (time_since_command restarts)",
+                path=source,
+                field="time_since_command",
+                row=getattr(d, "first_row", None),
+            )
+        use = since >= settle
+        out.append(
+            summarize_dwell(
+                np.asarray(d.time)[use],
+                np.asarray(d.specific_force)[use],
+                np.asarray(d.angles)[use],
+                d.command,
+                position=key[2],
+                stage=key[0],
+                pass_number=key[1],
+                checks=checks,
+            )
+        )
+    return out
+
+
+def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.0) -> SlowNoise:
+    """Bias instability from the pooled Allan excess of the longest dwells (weak; see dwell.pooled_allan_excess)."""
+    longest = max((d.duration for d in dwells if d.usable), default=0.0)
+    chosen = [d for d in dwells if d.usable and d.duration >= 0.5 * longest]
+    mean, stderr, count = pooled_allan_excess(chosen)
+    if count >= 3 and np.any(mean > significance * stderr):
+        return slow_noise_from_allan_excess(mean, source=f"estimated from the pooled Allan excess of {count} dwells (weak estimate)")
+    bound = np.sqrt(np.max(np.clip(mean, 0.0, None) + significance * stderr)) / 0.664 if count >= 3 else float("inf")
+    return SlowNoise(0.0, 0.0, source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)")
+
+
+def calibrate_device(
+    dwells: Sequence[DwellSummary],
+    site: SiteMetadata,
+    *,
+    coarse_procedure: ProcedureDefinition | None = None,
+    fine_procedure: ProcedureDefinition | None = None,
+    allow_missing: bool = False,
+    slow_noise: SlowNoise | None = None,
+    coarse_nonlinear: bool = True,
+    source: str = "data",
+) -> DeviceCalibration:
+    """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
+
+    ``slow_noise`` is the instrument's bias instability / random walk (datasheet or a long
+    static record).  Without it, the pooled Allan excess of the fine dwells is used when it
+    is significant (2 standard errors); otherwise the stages use white noise only and say so.
+
+    ``coarse_nonlinear`` (default True) also estimates ``K2_*`` in the coarse stage.  The
+    paper's 15-parameter coarse stage (``False``) ignores them, which for nominal
+    ``K2 = 20 µg/g²`` biases the coarse biases by about 3σ and θ30 by about 1σ
+    (benchmarks/bench_device_montecarlo.py); the fine stage re-estimates the biases either way.
+    """
+    coarse_procedure = coarse_procedure or load_procedure("device-coarse")
+    fine_procedure = fine_procedure or load_procedure("device-fine")
+    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
+    if slow_noise is None:
+        slow_noise = estimate_slow_noise(dwells)
+    coarse_dwells = [d for d in dwells if d.stage == "coarse"]
+    if not coarse_dwells:
+        raise InputError("no coarse-stage dwells in the data", path=source, field="stage", expected="rows with stage 'coarse'")
+    passes = []
+    for p in sorted({d.pass_number for d in coarse_dwells}):
+        passes.append(
+            calibrate_coarse(
+                [d for d in coarse_dwells if d.pass_number == p],
+                gravity=site.gravity,
+                base_attitude=site.base_attitude,
+                configuration=configuration,
+                expected_positions=coarse_procedure.positions,
+                allow_missing=allow_missing,
+                orientation_tolerance=coarse_procedure.acceptance.orientation_tolerance,
+                slow_noise=slow_noise,
+                nonlinear=coarse_nonlinear,
+                source=f"{source} (coarse pass {p})",
+            )
+        )
+    coarse = passes[-1]
+    fine_dwells = [d for d in dwells if d.stage == "fine"]
+    fine = None
+    if fine_dwells:
+        usable = [d for d in fine_dwells if d.usable]
+        tolerance = fine_procedure.acceptance.orientation_tolerance
+        wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance, f"{source} (fine)")
+        fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
+        fine = calibrate_fine(
+            fine_dwells,
+            coarse,
+            gravity=site.gravity,
+            expected_positions=fine_procedure.positions,
+            allow_missing=allow_missing,
+            slow_noise=slow_noise,
+            source=f"{source} (fine)",
+        )
+    return DeviceCalibration(coarse, fine, tuple(passes))

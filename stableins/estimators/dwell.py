@@ -1,0 +1,340 @@
+r"""Dwell statistics: the mean output of one static position and the noise of that mean.
+
+Every device-level observation is the mean accelerometer output of a dwell.  Its 1σ
+comes from the data of the same dwell, honestly for correlated noise:
+
+* white-noise estimate ``σ_w = s / √n`` (``s`` the sample standard deviation);
+* block-mean estimate ``σ_B = std(block means) / √B`` over ``B`` equal blocks, which
+  also sees noise correlated on time scales up to the block length (flicker, bias
+  instability; it is the Allan deviation at ``τ = T/B`` divided by ``√B`` for a
+  constant signal).
+
+Under white noise ``(σ_B/σ_w)² ~ χ²_{B−1}/(B−1)``.  When the ratio exceeds its 99.9 %
+quantile the noise is correlated and ``σ_B`` is used (the dwell gets a note);
+otherwise the more precise ``σ_w`` (``n − 1`` degrees of freedom instead of ``B − 1``).
+
+Checks (thresholds from the procedure's ``[acceptance]`` table) flag a dwell and leave
+it out: too few samples to measure noise, clipped or saturated samples, a slew inside
+the dwell (angle readings move), non-finite values.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import ARCSEC, STANDARD_GRAVITY
+from stableins.data.errors import InputError
+
+
+@dataclass(frozen=True)
+class DwellChecks:
+    """Acceptance thresholds for one dwell (SI).
+
+    Attributes
+    ----------
+    min_samples : int
+        Fewest samples that still measure the noise (block estimate needs ``blocks``
+        blocks of at least 2 samples).
+    blocks : int
+        Number of blocks of the block-mean noise estimate.
+    saturation : float
+        Output magnitude at or beyond which a sample counts as saturated [m/s²].
+    max_angle_span : float
+        Largest allowed peak-to-peak span of an angle reading within the dwell [rad].
+    noise_floor : float
+        Smallest 1σ of a dwell mean [m/s²]; keeps noiseless simulations finite.
+    correlation_quantile : float
+        Quantile of the white-noise ratio test above which the block estimate is used.
+    """
+
+    min_samples: int = 20
+    blocks: int = 10
+    saturation: float = 3.0 * STANDARD_GRAVITY
+    max_angle_span: float = 20.0 * ARCSEC
+    noise_floor: float = 1e-9
+    correlation_quantile: float = 0.999
+
+
+@dataclass(frozen=True)
+class DwellSummary:
+    """Statistics of one dwell.
+
+    Attributes
+    ----------
+    position : int
+        Position number in the procedure.
+    stage : str
+        ``"coarse"`` or ``"fine"``.
+    pass_number : int
+        Coarse pass (1, 2, ...) or 1 for the fine stage.
+    command : ndarray (3,)
+        Commanded angle-sensor readings (platform, inner, middle) [rad].
+    angles : ndarray (3,)
+        Mean measured angle-sensor readings [rad].
+    mean : ndarray (3,)
+        Mean accelerometer output [m/s²].
+    sem : ndarray (3,)
+        1σ of ``mean`` [m/s²] (see module docstring).
+    noise : ndarray (3,)
+        Sample standard deviation [m/s²].
+    samples : int
+    duration : float
+        Time spanned by the samples used [s].
+    flags : tuple of str
+        Why the dwell must be left out (empty when usable).
+    notes : tuple of str
+        Remarks that do not exclude the dwell (e.g. correlated noise).
+    """
+
+    position: int
+    stage: str
+    pass_number: int
+    command: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    mean: NDArray[np.float64]
+    sem: NDArray[np.float64]
+    noise: NDArray[np.float64]
+    samples: int
+    duration: float
+    flags: tuple[str, ...] = ()
+    notes: tuple[str, ...] = field(default=())
+    white_sem: NDArray[np.float64] | None = field(default=None, repr=False)
+    allan_clusters: NDArray[np.int64] | None = field(default=None, repr=False)
+    allan_excess: NDArray[np.float64] | None = field(default=None, repr=False)
+    start: float = float("nan")
+
+    @property
+    def usable(self) -> bool:
+        return not self.flags
+
+
+def overlapping_allan_variance(samples: NDArray[np.float64], clusters: NDArray[np.int64]) -> NDArray[np.float64]:
+    r"""Overlapping Allan variance of ``samples (n, k)`` at cluster sizes ``m`` (samples).
+
+    .. math:: \sigma_A^2(m) = \frac{1}{2(n-2m+1)} \sum_i (\bar y_{i+m} - \bar y_i)^2
+
+    with ``ȳ_i`` the mean of samples ``i .. i+m−1`` (IEEE Std 952-1997, Annex C).  For
+    white noise of variance ``σ²`` its expectation is ``σ²/m``.
+    """
+    x = np.asarray(samples, dtype=float)
+    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - x.mean(axis=0), axis=0)])
+    out = np.empty((len(clusters), x.shape[1]))
+    for k, m in enumerate(clusters):
+        w = (c[m:] - c[:-m]) / m
+        d = w[m:] - w[:-m]
+        out[k] = 0.5 * np.mean(d**2, axis=0)
+    return out
+
+
+def _clipped(x: NDArray[np.float64]) -> bool:
+    """A rail: the extreme value is shared by many samples, more than the next value inward."""
+    n = x.size
+    for extreme, inward in ((x.max(), np.sort(np.unique(x))[-2:-1]), (x.min(), np.sort(np.unique(x))[1:2])):
+        count = np.count_nonzero(x == extreme)
+        if count >= max(3, 0.02 * n):
+            next_count = np.count_nonzero(x == inward[0]) if inward.size else 0
+            if count > next_count:
+                return True
+    return False
+
+
+def summarize_dwell(
+    time: ArrayLike,
+    specific_force: ArrayLike,
+    angles: ArrayLike,
+    command: ArrayLike,
+    *,
+    position: int,
+    stage: str = "coarse",
+    pass_number: int = 1,
+    checks: DwellChecks = DwellChecks(),
+) -> DwellSummary:
+    """Mean, its honest 1σ and acceptance flags of one dwell (samples after settling).
+
+    Parameters
+    ----------
+    time : array_like (n,)
+        Sample times [s].
+    specific_force : array_like (n, 3)
+        Accelerometer outputs [m/s²].
+    angles : array_like (n, 3)
+        Angle-sensor readings [rad].
+    command : array_like (3,)
+        Commanded readings [rad].
+    """
+    from scipy.stats import chi2
+
+    t = np.asarray(time, dtype=float)
+    f = np.asarray(specific_force, dtype=float).reshape(-1, 3)
+    a = np.asarray(angles, dtype=float).reshape(-1, 3)
+    n = f.shape[0]
+    flags: list[str] = []
+    notes: list[str] = []
+    nan3 = np.full(3, np.nan)
+    if n == 0:
+        return DwellSummary(
+            position, stage, pass_number, np.asarray(command, float), nan3, nan3, nan3, nan3, 0, 0.0, ("no samples after settling",)
+        )
+    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(a))):
+        flags.append("non-finite samples (NaN or inf)")
+    duration = float(t[-1] - t[0]) if n > 1 else 0.0
+    if n < max(checks.min_samples, 2 * checks.blocks):
+        flags.append(f"too short to measure noise: {n} samples (need at least {max(checks.min_samples, 2 * checks.blocks)})")
+    if np.any(np.abs(f) >= checks.saturation):
+        flags.append(f"saturated samples: |f| reaches {np.nanmax(np.abs(f)):.4g} m/s^2 (limit {checks.saturation:.4g})")
+    elif n >= checks.min_samples and any(_clipped(f[:, i]) for i in range(3)):
+        axes = [ax for i, ax in enumerate("xyz") if _clipped(f[:, i])]
+        flags.append(f"clipped samples on axis {', '.join(axes)}: output pinned at its extreme value")
+    span = np.ptp(a, axis=0) if n > 0 else np.zeros(3)
+    if np.any(span > checks.max_angle_span):
+        gimbal = ("platform", "inner", "middle")[int(np.argmax(span))]
+        flags.append(
+            f"slew inside the dwell: {gimbal} angle reading spans {span.max() / ARCSEC:.1f} arcsec (limit {checks.max_angle_span / ARCSEC:.1f})"
+        )
+    with np.errstate(invalid="ignore"):
+        mean = f.mean(axis=0)
+        noise = f.std(axis=0, ddof=1) if n > 1 else np.full(3, np.nan)
+    sem = noise / np.sqrt(n)
+    if n >= 2 * checks.blocks:
+        b = checks.blocks
+        m = n // b
+        block_means = f[: m * b].reshape(b, m, 3).mean(axis=1)
+        sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = (sem_block / np.maximum(sem, checks.noise_floor)) ** 2
+        limit = chi2.ppf(checks.correlation_quantile, b - 1) / (b - 1)
+        if np.any(ratio > limit):
+            notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
+            sem = np.where(ratio > limit, sem_block, sem)
+    white_sem = sem.copy()
+    clusters = np.array([n // 2**k for k in (2, 3, 4) if n // 2**k >= 10], dtype=np.int64)
+    excess = None
+    if clusters.size and not flags:
+        # Allan variance beyond the white-noise prediction s²/m: flicker (bias instability)
+        # and random walk, pooled over the dwells of a stage by pooled_allan_excess().
+        excess = overlapping_allan_variance(f, clusters) - noise**2 / clusters[:, None]
+    sem = np.maximum(sem, checks.noise_floor)
+    return DwellSummary(
+        position,
+        stage,
+        pass_number,
+        np.asarray(command, dtype=float),
+        a.mean(axis=0),
+        mean,
+        sem,
+        noise,
+        n,
+        duration,
+        tuple(flags),
+        tuple(notes),
+        white_sem,
+        clusters,
+        excess,
+        float(t[0]),
+    )
+
+
+def pooled_allan_excess(dwells: Sequence[DwellSummary]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    r"""Allan variance beyond white noise, pooled over dwells: mean, standard error (per axis), count.
+
+    A dwell mean differs from the next one by white noise *and* by the slow wander of the
+    bias (flicker, random walk), which one dwell hardly shows.  Its size is the Allan
+    variance beyond the white-noise prediction, ``e(τ) = σ_A²(τ) − s²/m`` (nearly flat,
+    ``≈ 0.664² B²``, for flicker), averaged over the three longest cluster times
+    (``T/4, T/8, T/16``) and the usable dwells; the standard error is the scatter over
+    dwells.  It is a weak estimate (a 10 min dwell sees a 2 µg floor at about 1σ);
+    :mod:`stableins.estimators.noise_model` turns it into a slow-noise model.
+    """
+    usable = [d for d in dwells if d.usable and d.allan_excess is not None]
+    if len(usable) < 3:
+        return np.zeros(3), np.full(3, np.inf), len(usable)
+    per_dwell = np.array([d.allan_excess.mean(axis=0) for d in usable])
+    return per_dwell.mean(axis=0), per_dwell.std(axis=0, ddof=1) / np.sqrt(len(usable)), len(usable)
+
+
+def dwells_from_columns(
+    columns: Mapping[str, ArrayLike],
+    *,
+    settle: float = 0.0,
+    checks: DwellChecks = DwellChecks(),
+    source: str = "data",
+) -> list[DwellSummary]:
+    """Split device-level samples (``DEVICE_COLUMNS`` names) into dwells and summarize them.
+
+    Samples with ``time_since_command < settle`` are dropped (settling).  A position
+    commanded twice within one stage and pass (``time_since_command`` restarts) is a
+    duplicate and raises :class:`InputError`.
+    """
+    required = ("stage", "pass", "position", "time", "time_since_command", "f_x", "f_y", "f_z")
+    for name in required:
+        if name not in columns:
+            raise InputError("device data lack a column", path=source, field=name, expected="the device-level columns of docs/formats.md")
+    stage = np.asarray(columns["stage"]).astype(str)
+    pass_ = np.asarray(columns["pass"]).astype(int)
+    position = np.asarray(columns["position"]).astype(int)
+    time = np.asarray(columns["time"], dtype=float)
+    since = np.asarray(columns["time_since_command"], dtype=float)
+    f = np.stack([np.asarray(columns[k], dtype=float) for k in ("f_x", "f_y", "f_z")], axis=-1)
+
+    def three(prefix: str) -> NDArray[np.float64]:
+        names = [f"{prefix}_{g}" for g in ("platform", "inner", "middle")]
+        if all(k in columns for k in names):
+            return np.stack([np.asarray(columns[k], dtype=float) for k in names], axis=-1)
+        raise InputError("device data lack angle columns", path=source, field=names[0], expected=", ".join(names))
+
+    angles = three("angle")
+    commands = three("command")
+    keys = np.rec.fromarrays([stage, pass_, position])
+    order: list[tuple[str, int, int]] = []
+    seen: set[tuple[str, int, int]] = set()
+    starts = np.flatnonzero(np.r_[True, (stage[1:] != stage[:-1]) | (pass_[1:] != pass_[:-1]) | (position[1:] != position[:-1])])
+    for s in starts:
+        key = (str(keys[s][0]), int(keys[s][1]), int(keys[s][2]))
+        if key in seen:
+            raise InputError(
+                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
+                path=source,
+                field="position",
+                row=int(s) + 1,
+                expected="each position once per stage and pass",
+            )
+        seen.add(key)
+        order.append(key)
+    out = []
+    for key in order:
+        rows = np.flatnonzero((stage == key[0]) & (pass_ == key[1]) & (position == key[2]))
+        if np.any(np.diff(since[rows]) < 0):
+            raise InputError(
+                f"position {key[2]} was commanded twice in {key[0]} pass {key[1]} (time_since_command restarts)",
+                path=source,
+                field="time_since_command",
+                row=int(rows[0]) + 1,
+                expected="each position once per stage and pass",
+            )
+        use = rows[since[rows] >= settle]
+        out.append(
+            summarize_dwell(
+                time[use],
+                f[use],
+                angles[use],
+                commands[rows[0]],
+                position=key[2],
+                stage=key[0],
+                pass_number=key[1],
+                checks=checks,
+            )
+        )
+    return out
+
+
+def select(dwells: Sequence[DwellSummary], stage: str, pass_number: int | None = None) -> list[DwellSummary]:
+    """Dwells of one stage and pass (the last pass when ``pass_number`` is None)."""
+    chosen = [d for d in dwells if d.stage == stage]
+    if not chosen:
+        return []
+    p = max(d.pass_number for d in chosen) if pass_number is None else pass_number
+    return [d for d in chosen if d.pass_number == p]

@@ -1,0 +1,259 @@
+r"""Device-level fine calibration: the squared-amplitude observation (Wu et al. 2018 Sec. 4).
+
+At a static position the true specific force has the local gravity magnitude,
+``|f^p| = g``, whatever the orientation.  With the exact inverse model (Eq. 8)
+``f^p(p) = (C_p^a)^{-1} SF (u − K∘u²)``, ``u = ȳ − δb``, each dwell mean ``ȳ_j``
+gives one scalar observation that does not depend on the gimbal pointing::
+
+    z_j = ½ g² − ½ |f^p(p; ȳ_j)|² = 0 + v_j
+
+(Eq. 10 with ``|f^p| = g``).  It is solved by Gauss-Newton on the exact model,
+starting from the coarse estimate, so the result is a full-value update (not an
+increment) with the exact Jacobian obtained by implicit differentiation of
+``ȳ = F(f^p, p)``::
+
+    ∂f^p/∂p = −(∂F/∂f^p)^{-1} ∂F/∂p,      ∂z/∂p = −f^pᵀ ∂f^p/∂p
+
+and noise ``σ_z² = Σ_i (f^pᵀ (∂F/∂f^p)^{-1})_i² σ_i²`` from the dwell-mean 1σ.
+
+Linearized at ``K̂ = 0`` with ``ŵ = SF̂ (ȳ − δb̂)`` this is (signs re-derived; see
+``docs/device-calibration.md``)::
+
+    z ≈ Σ_i ŵ_i² ΔSF_i/SF_i − Σ_i ŵ_i (SF_i Δb_i) − Σ_i ŵ_i³ (K_i/SF_i)
+        − ŵ_x ŵ_y (Δβ_xz − Δβ_yz) − ŵ_x ŵ_z (Δβ_zy − Δβ_xy) − ŵ_y ŵ_z (Δβ_yx − Δβ_zx)
+
+so 12 combinations are determined.  The norm only sees the symmetric part of the
+installation matrix: the sums ``β_xz + β_yz``, ``β_zy + β_xy``, ``β_yx + β_zx`` are
+null directions of the design.  They are detected from its SVD, held at the coarse
+values (gauge), and the six angles are reported ``unidentifiable`` (coarse values
+carried through), with the three determined differences stated with their 1σ.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.data.errors import InputError
+from stableins.errormodel import BETA_IDS, ErrorModel
+from stableins.estimators.coarse import slow_covariance
+from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.dwell import DwellSummary
+from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.noise_model import SlowNoise
+from stableins.estimators.result import FitResult
+
+#: Held at their coarse values (one of each pair the norm cannot separate).
+GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
+
+
+def fine_model() -> ErrorModel:
+    """Scale factors, biases, installation angles and quadratic coefficients (15 terms)."""
+    return ErrorModel.standard(nonlinear=True)
+
+
+@dataclass(frozen=True)
+class FineProblem:
+    """Batched fine observations: ``means``, ``sigma`` (T, m, 3), ``gravity`` float or (T,)."""
+
+    means: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    gravity: float | NDArray[np.float64]
+    model: ErrorModel
+
+    def evaluate(self, x: NDArray[np.float64]):
+        """``f^p (T,m,3)``, ``½|f^p|² (T,m)``, its Jacobian ``(T,m,n)`` and 1σ ``(T,m)``."""
+        model = self.model
+        values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
+        f_p = model.inverse(self.means, values)
+        d_fa_d_fp = model.jacobian_specific_force(f_p, values)
+        d_fa_d_p = model.jacobian(f_p, values)
+        d_fp_d_fa = np.linalg.inv(d_fa_d_fp)
+        d_fp_d_p = -d_fp_d_fa @ d_fa_d_p
+        half_norm = 0.5 * np.einsum("...i,...i->...", f_p, f_p)
+        d_h_d_p = np.einsum("...i,...ik->...k", f_p, d_fp_d_p)
+        d_h_d_y = np.einsum("...i,...ik->...k", f_p, d_fp_d_fa)
+        sigma_h = np.sqrt(np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2))
+        return f_p, half_norm, d_h_d_p, sigma_h
+
+    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    slow_covariance: NDArray[np.float64] | None = None
+
+    def observation_covariance(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``Cov(z) = Σ_a (d_a d_aᵀ) ∘ (diag σ_a² + C_slow)`` with ``d_a = ∂z/∂ȳ_a``, ``(T, m, m)``."""
+        *_, d_h_d_y = self._with_output_derivative(x)
+        white = np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2)
+        cov = white[..., None] * np.eye(white.shape[-1])
+        if self.slow_covariance is not None:
+            cov = cov + np.einsum("tia,tja->tij", d_h_d_y, d_h_d_y) * self.slow_covariance
+        return cov
+
+    def _with_output_derivative(self, x: NDArray[np.float64]):
+        model = self.model
+        values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
+        f_p = model.inverse(self.means, values)
+        d_fp_d_fa = np.linalg.inv(model.jacobian_specific_force(f_p, values))
+        return f_p, values, d_fp_d_fa, np.einsum("...i,...ik->...k", f_p, d_fp_d_fa)
+
+    def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        _, h, d_h, sigma_h = self.evaluate(x)
+        g = np.asarray(self.gravity, dtype=float)
+        g = g[..., None] if g.ndim else g
+        if self.slow_covariance is None:
+            return (0.5 * g**2 - h) / sigma_h, d_h / sigma_h[..., None]
+        w = np.linalg.inv(np.linalg.cholesky(self.observation_covariance(x)))
+        return np.einsum("tij,tj->ti", w, 0.5 * g**2 - h), np.einsum("tij,tjn->tin", w, d_h)
+
+
+def solve_fine(problem: FineProblem, x0: NDArray[np.float64], fixed: Sequence[str] = GAUGE_PREFERENCE, max_iterations: int = 12):
+    """Batched Gauss-Newton; ``fixed`` ids keep their ``x0`` values (the gauge)."""
+    model = problem.model
+    free = np.array([k not in fixed for k in model.ids])
+    scales = np.array([t.nominal for t in model])
+    return gauss_newton(problem.weighted, np.array(x0, dtype=float), free, scales, max_iterations=max_iterations)
+
+
+def _start_values(model: ErrorModel, coarse: FitResult | Mapping[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    if isinstance(coarse, FitResult):
+        values = coarse.as_dict()
+        sig = dict(zip(coarse.ids, map(float, coarse.sigma), strict=True))
+    else:
+        values, sig = dict(coarse), {}
+    return {k: float(values.get(k, model[k].reference)) for k in model.ids}, sig
+
+
+def calibrate_fine(
+    dwells: Sequence[DwellSummary],
+    coarse: FitResult | Mapping[str, float],
+    *,
+    gravity: float,
+    expected_positions: Sequence[int] | None = None,
+    allow_missing: bool = False,
+    slow_noise: SlowNoise | None = None,
+    source: str = "data",
+) -> FitResult:
+    """Fine stage: 12 determined combinations from the squared-amplitude observation.
+
+    Parameters
+    ----------
+    dwells : sequence of DwellSummary
+        Fine-stage dwells (one per position).
+    coarse : FitResult or mapping
+        Coarse estimate (start values; the installation-angle sums are carried from it).
+    gravity : float
+        Local gravity [m/s²]; an error ``δg`` scales all three scale factors by ``1 + δg/g``.
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk of the instrument: correlated covariance of the
+        dwell means.  Without it a 10 min stage understates its 1σ when the bias wanders.
+    """
+    positions = [d.position for d in dwells]
+    duplicates = sorted({p for p in positions if positions.count(p) > 1})
+    if duplicates:
+        raise InputError(f"fine-stage positions {duplicates} appear more than once", path=source, field="position")
+    left_out: dict[int, str] = {}
+    if expected_positions is not None:
+        missing = sorted(set(expected_positions) - set(positions))
+        if missing and not allow_missing:
+            raise InputError(
+                f"fine-stage positions {missing} are missing",
+                path=source,
+                field="position",
+                expected=f"all of {sorted(expected_positions)}",
+            )
+        for p in missing:
+            left_out[p] = "missing from the data"
+    notes: list[str] = []
+    for d in dwells:
+        if d.flags:
+            left_out[d.position] = "; ".join(d.flags)
+        for n in d.notes:
+            notes.append(f"position {d.position}: {n}")
+    usable = sorted((d for d in dwells if d.usable), key=lambda d: d.position)
+    model = fine_model()
+    start, coarse_sigma = _start_values(model, coarse)
+    x0 = model.vector(start)[None]
+    problem = FineProblem(
+        means=np.array([d.mean for d in usable])[None] if usable else np.zeros((1, 0, 3)),
+        sigma=np.array([d.sem for d in usable])[None] if usable else np.zeros((1, 0, 3)),
+        gravity=float(gravity),
+        model=model,
+        slow_covariance=slow_covariance(usable, slow_noise, source) if usable else None,
+    )
+    if slow_noise is not None:
+        notes.append(slow_noise.describe())
+    if len(usable) <= 12:
+        raise InputError(f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13", path=source, field="position")
+    scales = np.array([t.nominal for t in model])
+    _, a0 = problem.weighted(x0)
+    start_design = analyze_design(a0[0], model.ids, scales)
+    gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
+    if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
+        raise InputError(
+            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()}",
+            path=source,
+            field="position",
+            expected="positions with every axis near +1 g, −1 g and in between",
+        )
+    solution = solve_fine(problem, x0, gauge.fixed)
+    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    x = solution.x[0].copy()
+    cov = solution.covariance[0].copy()
+    # Installation angles: the fit moves only the determined differences; report those.
+    combos: dict[str, tuple[float, float]] = {}
+    determined = []
+    arcsec = model["beta_xz"].scale
+    for k, coefficients in gauge.coefficients.items():
+        if k not in BETA_IDS:
+            continue
+        (g, c), *_ = sorted(coefficients.items(), key=lambda kv: -abs(kv[1]))
+        name = f"{k} {'+' if c > 0 else '−'} {g}"
+        value = x[model.index(k)] + c * x[model.index(g)]
+        sigma = float(np.sqrt(cov[model.index(k), model.index(k)]))
+        combos[name] = (float(value), sigma)
+        determined.append(f"{name} = {value / arcsec:+.3f} ± {sigma / arcsec:.3f} arcsec")
+    for k in BETA_IDS:
+        i = model.index(k)
+        x[i] = start[k]
+        cov[i, :] = 0.0
+        cov[:, i] = 0.0
+        cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
+    status = tuple("unidentifiable" if k in BETA_IDS else "estimated" for k in model.ids)
+    determined.append(
+        "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
+    )
+    notes.append("installation angles: coarse values carried through (fine stage cannot separate the pairs (xz, yz), (zy, xy), (yx, zx))")
+    notes.append(f"local gravity {gravity:.7f} m/s^2 taken as exact; an error δg scales sf_x, sf_y, sf_z by 1 + δg/g")
+    for p, why in sorted(left_out.items()):
+        notes.append(f"position {p} left out: {why}")
+    f_p, h, _, sigma_h = problem.evaluate(solution.x)
+    if problem.slow_covariance is not None:
+        sigma_h = np.sqrt(np.diagonal(problem.observation_covariance(solution.x), axis1=-2, axis2=-1))
+    g = float(gravity)
+    residuals = ((0.5 * g**2 - h) / g)[0]  # ≈ g − |f^p| [m/s²]
+    return FitResult(
+        stage="fine",
+        terms=model.terms,
+        values=x,
+        covariance=cov,
+        status=status,
+        residuals=residuals,
+        residual_sigma=(sigma_h / g)[0],
+        residual_labels=tuple(f"pos {d.position} |f|" for d in usable),
+        rank=design.rank,
+        singular_values=design.singular_values,
+        null_space=design.null_space,
+        determined=tuple(determined),
+        notes=tuple(notes),
+        extra={
+            "beta_combinations": combos,
+            "gauge": {gid: float(start[gid]) for gid in gauge.fixed},
+            "positions_used": [d.position for d in usable],
+            "left_out": {int(k): v for k, v in sorted(left_out.items())},
+            "iterations": solution.iterations,
+            "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
+            "gravity": g,
+        },
+    )

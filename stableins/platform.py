@@ -1,0 +1,237 @@
+r"""The physical gimbal platform: angle sensors, gimbal chain and base.
+
+:class:`GimbalPlatform` turns angle-sensor *readings* into the exact platform
+orientation, using only the definitions of :mod:`stableins.conventions`, plus the
+imperfections a real platform has and the conventions leave out:
+
+Angle sensors
+    ``alpha_i = r_i + theta_i0 + c_i cos r_i + s_i sin r_i`` : reading plus zero
+    offset (conventions) plus an optional once-per-revolution sensor error with cosine
+    and sine amplitudes ``c_i, s_i`` [rad] (effect ids ``ang1_<gimbal>_c`` /
+    ``ang1_<gimbal>_s``, gimbal in platform, inner, middle).
+
+Gimbal chain with non-orthogonal axes
+    .. math::
+        C_b^p = R_3(s_1\alpha_1)\,R_2(\nu_{12})\,R_1(s_2\alpha_2)\,R_3(\nu_{23})\,
+                R_2(s_3\alpha_3)\,R_3(s_4 q)
+
+    ``nu12`` (``nonorth_12``) is a fixed frame rotation about y inserted between the
+    platform (z) and inner (x) axes: the inner axis makes the angle ``pi/2 + nu12``
+    with the platform axis.  ``nu23`` (``nonorth_23``) is a fixed rotation about z
+    between the inner (x) and middle (y) axes: they make the angle ``pi/2 + nu23``.
+    With ``nu = 0`` this is :func:`stableins.conventions.dcm_body_to_platform`.
+
+Base
+    ``C_n^b = dcm_nav_to_body(yaw, pitch, roll) @ R2(t_E) @ R1(t_N)``: the true base
+    is the surveyed one turned right-handedly by ``t_N`` (``tilt_north``) about North,
+    then by ``t_E`` (``tilt_east``) about East (frame rotations, as in conventions).
+
+Everything is vectorized over leading dimensions of the readings.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import (
+    DEFAULT_GIMBALS,
+    R1,
+    R2,
+    R3,
+    GimbalConfiguration,
+    dcm_body_to_platform,
+    dcm_nav_to_body,
+    specific_force_nav,
+)
+
+GIMBAL_NAMES = ("platform", "inner", "middle")
+
+
+def _frozen(mapping: Mapping[str, float] | None) -> Mapping[str, float]:
+    return MappingProxyType(dict(mapping or {}))
+
+
+@dataclass(frozen=True)
+class GimbalPlatform:
+    """A gimbaled platform on a static base.
+
+    Parameters
+    ----------
+    zero_offsets : tuple of float
+        ``(theta10, theta20, theta30)`` [rad]: actual angle when the sensor reads zero.
+    configuration : GimbalConfiguration
+        Rotation senses (see :mod:`stableins.conventions`).
+    base_attitude : tuple of float
+        Surveyed (yaw, pitch, roll) of the base [rad].
+    base_tilt : tuple of float
+        ``(tilt_north, tilt_east)`` [rad]: unknown small rotation of the true base
+        about North then East relative to the surveyed attitude.
+    nonorthogonality : tuple of float
+        ``(nu12, nu23)`` [rad], see the module docstring.
+    angle_sensor_errors : mapping
+        Once-per-revolution sensor errors by id ``ang1_<gimbal>_c`` / ``_s`` [rad].
+    outer_angle : float
+        Outer (azimuth) gimbal angle, normally held at zero [rad].
+    """
+
+    zero_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    base_tilt: tuple[float, float] = (0.0, 0.0)
+    nonorthogonality: tuple[float, float] = (0.0, 0.0)
+    angle_sensor_errors: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    outer_angle: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "angle_sensor_errors", _frozen(self.angle_sensor_errors))
+        known = {f"ang1_{g}_{k}" for g in GIMBAL_NAMES for k in "cs"}
+        unknown = set(self.angle_sensor_errors) - known
+        if unknown:
+            raise ValueError(f"unknown angle-sensor error ids {sorted(unknown)} (known: {sorted(known)})")
+
+    # ------------------------------------------------------------------ sensors
+    @property
+    def _sensor_coefficients(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        c = np.array([self.angle_sensor_errors.get(f"ang1_{g}_c", 0.0) for g in GIMBAL_NAMES])
+        s = np.array([self.angle_sensor_errors.get(f"ang1_{g}_s", 0.0) for g in GIMBAL_NAMES])
+        return c, s
+
+    def actual_angles(self, readings: ArrayLike) -> NDArray[np.float64]:
+        """Actual gimbal angles ``alpha = r + theta0 + c cos r + s sin r`` (last axis: 3 gimbals)."""
+        r = np.asarray(readings, dtype=float)
+        alpha = r + np.asarray(self.zero_offsets, dtype=float)
+        if self.angle_sensor_errors:
+            c, s = self._sensor_coefficients
+            alpha = alpha + c * np.cos(r) + s * np.sin(r)
+        return alpha
+
+    def readings_from_actual(self, actual: ArrayLike, iterations: int = 3) -> NDArray[np.float64]:
+        """Inverse of :meth:`actual_angles` (fixed-point iteration; exact for zero sensor errors)."""
+        alpha = np.asarray(actual, dtype=float)
+        r = alpha - np.asarray(self.zero_offsets, dtype=float)
+        if self.angle_sensor_errors:
+            c, s = self._sensor_coefficients
+            base = r.copy()
+            for _ in range(iterations):
+                r = base - c * np.cos(r) - s * np.sin(r)
+        return r
+
+    # ------------------------------------------------------------------ kinematics
+    def dcm_body_to_platform_actual(self, actual: ArrayLike) -> NDArray[np.float64]:
+        """``C_b^p`` from actual angles (module docstring chain, with non-orthogonality)."""
+        alpha = np.asarray(actual, dtype=float)
+        a1, a2, a3 = alpha[..., 0], alpha[..., 1], alpha[..., 2]
+        nu12, nu23 = self.nonorthogonality
+        if nu12 == 0.0 and nu23 == 0.0:
+            return dcm_body_to_platform(a1, a2, a3, self.outer_angle, self.configuration)
+        s1, s2, s3, s4 = self.configuration.senses
+        return R3(s1 * a1) @ R2(nu12) @ R1(s2 * a2) @ R3(nu23) @ R2(s3 * a3) @ R3(s4 * self.outer_angle)
+
+    def dcm_body_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:
+        """``C_b^p`` from angle-sensor readings."""
+        return self.dcm_body_to_platform_actual(self.actual_angles(readings))
+
+    def dcm_nav_to_body(self) -> NDArray[np.float64]:
+        """True ``C_n^b`` of the base: surveyed attitude, then the tilt (module docstring)."""
+        yaw, pitch, roll = self.base_attitude
+        c = dcm_nav_to_body(yaw, pitch, roll)
+        t_north, t_east = self.base_tilt
+        if t_north or t_east:
+            c = c @ R2(t_east) @ R1(t_north)
+        return c
+
+    def dcm_nav_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:
+        """``C_n^p = C_b^p(readings) C_n^b`` (exact)."""
+        return self.dcm_body_to_platform(readings) @ self.dcm_nav_to_body()
+
+    def specific_force_platform(self, readings: ArrayLike, gravity: float) -> NDArray[np.float64]:
+        """Exact static specific force in the platform frame, ``f^p = C_b^p C_n^b f^n``."""
+        return np.einsum("...ij,j->...i", self.dcm_nav_to_platform(readings), specific_force_nav(gravity))
+
+    def angular_rate(self, actual: ArrayLike, actual_rate: ArrayLike) -> NDArray[np.float64]:
+        r"""Angular rate of the platform relative to the base in the p-frame, ``omega_bp^p``.
+
+        .. math::
+            \omega_{bp}^p = s_1\dot\alpha_1 e_3 + R_3(s_1\alpha_1)R_2(\nu_{12})\big[s_2\dot\alpha_2 e_1
+                            + R_1(s_2\alpha_2)R_3(\nu_{23})\,s_3\dot\alpha_3 e_2\big]
+        """
+        alpha = np.asarray(actual, dtype=float)
+        rate = np.asarray(actual_rate, dtype=float)
+        s1, s2, s3, _ = self.configuration.senses
+        nu12, nu23 = self.nonorthogonality
+        e1, e2 = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+        inner = s2 * rate[..., 1, None] * e1 + np.einsum("...ij,j->...i", R1(s2 * alpha[..., 1]) @ R3(nu23), e2) * (s3 * rate[..., 2, None])
+        outer = np.einsum("...ij,...j->...i", R3(s1 * alpha[..., 0]) @ R2(nu12), inner)
+        outer[..., 2] += s1 * rate[..., 0]
+        return outer
+
+    # ------------------------------------------------------------------ inverse kinematics
+    def actual_from_dcm(
+        self, dcm_body_to_platform_: ArrayLike, initial: ArrayLike | None = None, iterations: int = 3
+    ) -> NDArray[np.float64]:
+        """Actual gimbal angles that produce a given ``C_b^p`` (outer angle held).
+
+        Without ``initial``: closed form for the orthogonal chain ``R3(a) R1(b) R2(c)``,
+        ``b = asin(-M21)`` in [-pi/2, pi/2], ``c = atan2(M20, M22)``, ``a = atan2(M01, M11)``,
+        refined by Newton steps on the small rotation error when the axes are
+        non-orthogonal.  With ``initial`` (angles close to the answer, any branch):
+        Newton steps from there, which keeps the gimbal branch of ``initial``.
+        """
+        target = np.asarray(dcm_body_to_platform_, dtype=float)
+        s1, s2, s3, s4 = self.configuration.senses
+        if initial is None:
+            m = target @ R3(s4 * self.outer_angle).swapaxes(-1, -2) if self.outer_angle else target
+            b = np.arcsin(np.clip(-m[..., 2, 1], -1.0, 1.0))
+            c = np.arctan2(m[..., 2, 0], m[..., 2, 2])
+            a = np.arctan2(m[..., 0, 1], m[..., 1, 1])
+            alpha = np.stack([s1 * a, s2 * b, s3 * c], axis=-1)
+            if self.nonorthogonality == (0.0, 0.0):
+                return alpha
+        else:
+            alpha = np.array(np.broadcast_to(np.asarray(initial, dtype=float), target.shape[:-2] + (3,)))
+        step = 1e-6
+        for _ in range(iterations):
+            residual = _rotation_vector(target @ self.dcm_body_to_platform_actual(alpha).swapaxes(-1, -2))
+            jac = np.empty(alpha.shape + (3,))
+            base = self.dcm_body_to_platform_actual(alpha)
+            for k in range(3):
+                shifted = alpha.copy()
+                shifted[..., k] += step
+                jac[..., :, k] = _rotation_vector(self.dcm_body_to_platform_actual(shifted) @ base.swapaxes(-1, -2)) / step
+            alpha = alpha + np.linalg.solve(jac, residual[..., None])[..., 0]
+        return alpha
+
+    def readings_from_dcm_nav_to_platform(
+        self, dcm_nav_to_platform_: ArrayLike, initial_readings: ArrayLike | None = None
+    ) -> NDArray[np.float64]:
+        """Angle-sensor readings that a platform with orientation ``C_n^p`` shows (exact inverse kinematics)."""
+        c_bp = np.asarray(dcm_nav_to_platform_, dtype=float) @ self.dcm_nav_to_body().T
+        initial = None if initial_readings is None else self.actual_angles(initial_readings)
+        return self.readings_from_actual(self.actual_from_dcm(c_bp, initial))
+
+
+def _rotation_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Small-angle vector ``theta`` of a frame rotation ``C = I - [theta x] + O(theta^2)``."""
+    return 0.5 * np.stack([dcm[..., 1, 2] - dcm[..., 2, 1], dcm[..., 2, 0] - dcm[..., 0, 2], dcm[..., 0, 1] - dcm[..., 1, 0]], axis=-1)
+
+
+def rotation_about(axis_angle: ArrayLike) -> NDArray[np.float64]:
+    r"""Frame rotation by the vector ``theta`` (right hand about its direction), exact Rodrigues form.
+
+    ``C = I - sin|θ|/|θ| [θx] + (1-cos|θ|)/|θ|^2 [θx]^2``, so ``C = I - [θx] + O(θ^2)``
+    like :func:`stableins.conventions.R1`.
+    """
+    from stableins.conventions import skew
+
+    theta = np.asarray(axis_angle, dtype=float)
+    angle = np.linalg.norm(theta, axis=-1)[..., None, None]
+    k = skew(theta)
+    safe = np.where(angle > 0, angle, 1.0)
+    s = np.where(angle > 1e-4, np.sin(angle) / safe, 1.0 - angle**2 / 6.0)
+    c = np.where(angle > 1e-4, (1.0 - np.cos(angle)) / safe**2, 0.5 - angle**2 / 24.0)
+    return np.eye(3) - s * k + c * (k @ k)

@@ -1,0 +1,1 @@
+"""Calibration procedures: TOML definitions (``procedures/`` at the top level) and their execution."""

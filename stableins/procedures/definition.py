@@ -1,0 +1,236 @@
+"""Procedure definitions: load a TOML file of gimbal steps and validate it.
+
+The format is documented at the top of ``procedures/device-coarse.toml``.  Angles are
+written in degrees in the file and held in radians here (SI inside).  Every problem
+raises :class:`stableins.data.errors.InputError` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stableins.conventions import ARCSEC
+from stableins.data.errors import InputError
+
+#: Where the definitions shipped with stableins live (``procedures/`` in the repository).
+PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
+
+_STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step"}
+_AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
+
+
+@dataclass(frozen=True)
+class Step:
+    """One position: commanded angle-sensor readings [rad] and timing [s, Hz]."""
+
+    position: int
+    command: tuple[float, float, float]
+    settle: float
+    dwell: float
+    sample_rate: float
+    expect: str = ""
+
+    @property
+    def command_degrees(self) -> tuple[float, float, float]:
+        return tuple(math.degrees(a) for a in self.command)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """Dwell acceptance checks (SI): see :class:`stableins.estimators.dwell.DwellChecks`."""
+
+    min_samples: int = 20
+    noise_blocks: int = 10
+    saturation: float = 29.41995
+    max_angle_span: float = 20.0 * ARCSEC
+    orientation_tolerance: float = 0.196133
+
+    def dwell_checks(self):
+        from stableins.estimators.dwell import DwellChecks
+
+        return DwellChecks(
+            min_samples=self.min_samples, blocks=self.noise_blocks, saturation=self.saturation, max_angle_span=self.max_angle_span
+        )
+
+
+@dataclass(frozen=True)
+class OffsetIteration:
+    """Zero-offset re-commanding loop: stop below ``threshold`` [rad] (or within
+    ``noise_sigmas`` of zero), at most ``max_passes`` passes."""
+
+    threshold: float = 0.1 * ARCSEC
+    max_passes: int = 5
+    noise_sigmas: float = 3.0
+
+
+@dataclass(frozen=True)
+class ProcedureDefinition:
+    """A validated procedure."""
+
+    name: str
+    stage: str
+    source: str
+    handedness: int
+    repoint: bool
+    steps: tuple[Step, ...]
+    acceptance: Acceptance
+    offset_iteration: OffsetIteration
+    path: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def positions(self) -> tuple[int, ...]:
+        return tuple(s.position for s in self.steps)
+
+    def step(self, position: int) -> Step:
+        for s in self.steps:
+            if s.position == position:
+                return s
+        raise KeyError(position)
+
+    @property
+    def duration(self) -> float:
+        """Total settle + dwell time [s] (slews not included)."""
+        return sum(s.settle + s.dwell for s in self.steps)
+
+
+def _number(table: dict, key: str, path: str, where: str, *, positive: bool = False, minimum: float | None = None) -> float:
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(f"{where}: not a finite number ({value!r})", path=path, field=key, expected="a number")
+    if positive and value <= 0:
+        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=key, expected="> 0")
+    if minimum is not None and value < minimum:
+        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=key, expected=f">= {minimum}")
+    return float(value)
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """A path, or the name of a shipped definition (``"device-coarse"``)."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return PROCEDURE_DIRECTORY / f"{name_or_path}.toml"
+
+
+def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
+    """Load and validate a procedure definition.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, TOML syntax error, unknown or missing keys, bad numbers,
+        duplicated or non-consecutive positions.
+    """
+    path = resolve(name_or_path)
+    spath = str(path)
+    try:
+        with open(path, "rb") as handle:
+            data = tomllib.load(handle)
+    except FileNotFoundError:
+        raise InputError("procedure definition not found", path=spath, expected=f"a TOML file or a name in {PROCEDURE_DIRECTORY}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path=spath) from None
+    unknown = set(data) - _SECTIONS
+    if unknown:
+        raise InputError(f"unknown sections {sorted(unknown)}", path=spath, expected=f"{sorted(_SECTIONS)}")
+    head = data.get("procedure")
+    if not isinstance(head, dict):
+        raise InputError("missing [procedure] table", path=spath, field="procedure")
+    for key in ("name", "stage"):
+        if not isinstance(head.get(key), str):
+            raise InputError("missing or not a string", path=spath, field=f"procedure.{key}")
+    if head.get("angle_unit", "deg") != "deg":
+        raise InputError("commands must be written in degrees", path=spath, field="procedure.angle_unit", expected='"deg"')
+    handedness = head.get("handedness", 1)
+    if handedness not in (1, -1):
+        raise InputError("must be +1 or -1", path=spath, field="procedure.handedness")
+    defaults = data.get("defaults", {})
+    base = {}
+    for key, fallback in (("settle", 0.0), ("dwell", None), ("sample_rate", None)):
+        if key in defaults:
+            base[key] = _number(defaults, key, spath, "defaults", positive=key != "settle", minimum=0.0)
+        elif fallback is not None:
+            base[key] = fallback
+    acc_table = data.get("acceptance", {})
+    acc_fields = {"min_samples", "noise_blocks", "saturation", "max_angle_span", "orientation_tolerance"}
+    if set(acc_table) - acc_fields:
+        raise InputError(
+            f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}"
+        )
+    acc_values: dict[str, Any] = {k: _number(acc_table, k, spath, "acceptance", positive=True) for k in acc_table}
+    for k in ("min_samples", "noise_blocks"):
+        if k in acc_values:
+            acc_values[k] = int(acc_values[k])
+    if "max_angle_span" in acc_values:
+        acc_values["max_angle_span"] *= ARCSEC
+    acceptance = Acceptance(**acc_values)
+    it_table = data.get("offset_iteration", {})
+    it_fields = {"threshold", "max_passes", "noise_sigmas"}
+    if set(it_table) - it_fields:
+        raise InputError(f"unknown keys {sorted(set(it_table) - it_fields)}", path=spath, field="offset_iteration")
+    it_values: dict[str, Any] = {k: _number(it_table, k, spath, "offset_iteration", minimum=0.0) for k in it_table}
+    if "threshold" in it_values:
+        it_values["threshold"] *= ARCSEC
+    if "max_passes" in it_values:
+        it_values["max_passes"] = int(it_values["max_passes"])
+        if it_values["max_passes"] < 1:
+            raise InputError("must be at least 1", path=spath, field="offset_iteration.max_passes")
+    steps_raw = data.get("step")
+    if not isinstance(steps_raw, list) or not steps_raw:
+        raise InputError("no [[step]] entries", path=spath, field="step")
+    steps = []
+    for k, raw in enumerate(steps_raw, start=1):
+        where = f"step {k}"
+        unknown = set(raw) - _STEP_KEYS
+        if unknown:
+            raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=spath, field="step", expected=f"{sorted(_STEP_KEYS)}")
+        for key in ("position", "platform", "inner", "middle"):
+            if key not in raw:
+                raise InputError(f"{where}: missing", path=spath, field=f"step.{key}")
+        position = raw["position"]
+        if isinstance(position, bool) or not isinstance(position, int):
+            raise InputError(f"{where}: position must be an integer", path=spath, field="step.position")
+        angles = []
+        for key in ("platform", "inner", "middle"):
+            deg = _number(raw, key, spath, where)
+            if abs(deg) > 720.0:
+                raise InputError(
+                    f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees"
+                )
+            angles.append(math.radians(deg))
+        timing = dict(base)
+        for key in ("settle", "dwell", "sample_rate"):
+            if key in raw:
+                timing[key] = _number(raw, key, spath, where, positive=key != "settle", minimum=0.0)
+            if key not in timing:
+                raise InputError(f"{where}: no {key} and no default", path=spath, field=f"step.{key}")
+        expect = raw.get("expect", "")
+        if expect:
+            words = [w.strip().split() for w in str(expect).split(",")]
+            if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
+                raise InputError(
+                    f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'"
+                )
+        steps.append(Step(position, tuple(angles), timing["settle"], timing["dwell"], timing["sample_rate"], str(expect)))
+    positions = [s.position for s in steps]
+    if sorted(positions) != list(range(1, len(steps) + 1)) or positions != sorted(positions):
+        dup = sorted({p for p in positions if positions.count(p) > 1})
+        what = f"duplicated positions {dup}" if dup else f"positions {positions}"
+        raise InputError(f"{what}: positions must run 1, 2, ... {len(steps)} in order", path=spath, field="step.position")
+    return ProcedureDefinition(
+        name=head["name"],
+        stage=head["stage"],
+        source=str(head.get("source", "")),
+        handedness=int(handedness),
+        repoint=bool(head.get("repoint", False)),
+        steps=tuple(steps),
+        acceptance=acceptance,
+        offset_iteration=OffsetIteration(**it_values),
+        path=spath,
+    )

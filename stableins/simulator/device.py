@@ -1,0 +1,407 @@
+r"""Device level: a simulated gimbaled platform that slews, settles and records.
+
+:class:`SimulatedPlatform` implements :class:`stableins.drivers.base.PlatformDriver`.
+Every sample is computed from first principles:
+
+1. Gimbal readings follow the command: a cosine-profile slew from the readings at
+   the command to the commanded readings (peak rate ``settling['slew_rate']``),
+   then a settling transient ``δr_i(τ) = G Δr_i e^{-ζωτ} sin(ω_d τ)`` (``G`` =
+   ``settling['gain']``, ``ω = 2π settling['frequency']``, ``ζ = settling['damping']``,
+   ``ω_d = ω sqrt(1-ζ²)``, ``τ`` time since the end of the slew, ``Δr`` the slew).
+   The angle sensors read the actual motion plus white noise.
+2. Exact kinematics: ``C_n^p`` from :class:`stableins.platform.GimbalPlatform`
+   (offsets, senses, base attitude and tilt, non-orthogonality, sensor errors).  With
+   ``Dg_a`` effects the platform also drifts about ``p``-axis ``a`` at the rate
+   ``Dg_a f^p_a`` from the end of each slew (the readings follow by exact inverse
+   kinematics).
+3. ``f^p = C_n^p f^n`` with ``f^n = (0, 0, −g)``.
+4. Accelerometer output from the full nonlinear forward model
+   :meth:`stableins.errormodel.ErrorModel.forward` with the true parameters plus the
+   injected output effects (:mod:`stableins.simulator.effects`), evaluated with the
+   temperature, session time, slew direction and platform angular rate/acceleration
+   (``ω_bp^p`` of the platform relative to the static base; the Earth rate is left
+   out of the size effect, ``ω_ie² r < 1e-10 m/s²``).
+5. Additive noise, then quantization of the velocity increments with the remainder
+   carried (:mod:`stableins.simulator.noise`).
+
+Samples are indexed on a fixed clock ``t_k = k / rate``.  A sample depends only on
+the truth, the seed and the commands issued before it, so acquisition can be split
+into any blocks, and a platform can be rebuilt from its command history
+(:meth:`SimulatedPlatform.restore`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import specific_force_nav
+from stableins.data.metadata import SiteMetadata
+from stableins.drivers.base import SampleBlock
+from stableins.errormodel import ErrorModel, TermInputs
+from stableins.platform import rotation_about
+from stableins.simulator import effects as fx
+from stableins.simulator.noise import BLOCK_SAMPLES, NoiseGenerator
+from stableins.simulator.truth import Truth
+
+
+@dataclass(frozen=True)
+class _Command:
+    sample: int
+    start: NDArray[np.float64]  # readings at the command
+    target: NDArray[np.float64]  # commanded readings
+    duration: float  # slew duration [s]
+    slew_direction: NDArray[np.float64]  # sign of the change of f^p per axis over the slew
+
+
+class SimulatedPlatform:
+    """The simulated platform of a :class:`~stableins.simulator.truth.Truth`.
+
+    Parameters
+    ----------
+    truth : Truth
+    rate : float, optional
+        Sample rate [Hz] (default ``truth.site.sample_rate``).
+    seed : int, optional
+        Seed of the random streams (default ``truth.seed``).
+    initial_readings : tuple of float
+        Readings at session time 0 [rad].
+    """
+
+    def __init__(
+        self, truth: Truth, rate: float | None = None, seed: int | None = None, initial_readings: Sequence[float] = (0.0, 0.0, 0.0)
+    ):
+        self.truth = truth
+        self.rate = float(rate if rate is not None else truth.site.sample_rate)
+        if not self.rate > 0:
+            raise ValueError("sample rate must be positive")
+        self.seed = int(truth.seed if seed is None else seed)
+        self.platform = truth.platform()
+        self.noise = NoiseGenerator(truth.noise, self.rate, self.seed)
+        self.initial_readings = np.asarray(initial_readings, dtype=float)
+        self._commands: list[_Command] = []
+        self._sample = 0
+        self._closed = False
+        values = dict(truth.parameters)
+        values.update({k: v for k, v in truth.effects.items() if fx.CATALOGUE[k].kind == "output"})
+        self._values = values
+        self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
+        self._gravity_nav = specific_force_nav(truth.site.gravity)
+        self._drift = np.array([truth.effects.get(f"Dg_{a}", 0.0) for a in "xyz"])
+        self._needs_rates = fx.needs(truth.effects, "lever_")
+        s = truth.settling
+        self._omega = 2 * np.pi * s["frequency"]
+        self._zeta = s["damping"]
+        self._omega_d = self._omega * np.sqrt(max(1.0 - self._zeta**2, 0.0))
+        self._gain = s["gain"]
+        self._slew_rate = s["slew_rate"]
+        # quantizer carry: (next sample, accumulator in LSB)
+        self._carry: tuple[int, NDArray[np.float64]] | None = None
+        site = truth.site
+        self._metadata = SiteMetadata(**{**site.__dict__, "sample_rate": self.rate})
+
+    # ----------------------------------------------------------------- driver API
+    @property
+    def metadata(self) -> SiteMetadata:
+        return self._metadata
+
+    @property
+    def time(self) -> float:
+        """Current session time [s] (time of the next sample)."""
+        return self._sample / self.rate
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        """Slew to the commanded readings (platform, inner, middle) [rad]; returns the command time [s]."""
+        self._check_open()
+        target = np.asarray(readings, dtype=float)
+        if target.shape != (3,) or not np.all(np.isfinite(target)):
+            raise ValueError(f"command needs three finite readings, got {readings!r}")
+        start = self._nominal_readings(self._sample)
+        delta = target - start
+        duration = float(np.pi / 2 * np.max(np.abs(delta)) / self._slew_rate)
+        f_start = self.platform.specific_force_platform(start, self.truth.site.gravity)
+        f_end = self.platform.specific_force_platform(target, self.truth.site.gravity)
+        self._commands.append(_Command(self._sample, start, target, duration, np.sign(np.round((f_end - f_start) / 1e-9))))
+        return self.time
+
+    def read_angles(self) -> NDArray[np.float64]:
+        """Angle-sensor readings at the current time [rad] (with sensor noise)."""
+        readings, *_ = self._motion(np.array([self._sample]))
+        return readings[0] + self.noise.angles(self._sample, 1)[0]
+
+    def acquire(self, duration: float) -> SampleBlock:
+        """Record ``round(duration·rate)`` samples from the current time."""
+        self._check_open()
+        count = int(round(duration * self.rate))
+        if count < 0:
+            raise ValueError("duration must be non-negative")
+        block = self.samples(self._sample, count)
+        self._sample += count
+        return block
+
+    def wait(self, duration: float) -> None:
+        """Let ``duration`` seconds pass without recording (the world goes on identically)."""
+        self.acquire(duration)
+
+    def slew_duration(self) -> float:
+        """Duration [s] of the last commanded slew."""
+        return self._commands[-1].duration if self._commands else 0.0
+
+    def status(self) -> dict[str, object]:
+        return {
+            "driver": "simulated",
+            "time": self.time,
+            "sample": self._sample,
+            "commands": len(self._commands),
+            "last_command": None if not self._commands else self._commands[-1].target.tolist(),
+            "seed": self.seed,
+            "serial_number": self.truth.site.serial_number,
+            "closed": self._closed,
+        }
+
+    def close(self) -> None:
+        self._closed = True
+
+    # ----------------------------------------------------------------- history / resume
+    @property
+    def history(self) -> list[dict[str, Any]]:
+        """Command history ``[{sample, readings}]``: with the truth and seed it defines the whole session."""
+        return [{"sample": c.sample, "readings": c.target.tolist()} for c in self._commands]
+
+    @classmethod
+    def restore(
+        cls,
+        truth: Truth,
+        history: Sequence[dict[str, Any]],
+        time: float,
+        rate: float | None = None,
+        seed: int | None = None,
+        initial_readings: Sequence[float] = (0.0, 0.0, 0.0),
+    ) -> SimulatedPlatform:
+        """Rebuild a platform from its command history and continue at session ``time`` [s]."""
+        platform = cls(truth, rate=rate, seed=seed, initial_readings=initial_readings)
+        for entry in history:
+            platform._sample = int(entry["sample"])
+            platform.command(tuple(entry["readings"]))
+        platform._sample = int(round(time * platform.rate))
+        return platform
+
+    # ----------------------------------------------------------------- the world
+    def samples(self, start: int, count: int) -> SampleBlock:
+        """Samples ``start .. start+count-1`` as the instrument outputs them (pure function of the commands so far)."""
+        if count == 0:
+            empty = np.zeros((0, 3))
+            return SampleBlock(np.zeros(0), empty, empty.copy(), np.zeros(0))
+        if self.truth.noise.quantization > 0 and not (self._carry is not None and self._carry[0] == start):
+            begin = (start // BLOCK_SAMPLES) * BLOCK_SAMPLES
+            if begin < start:
+                self._carry = None
+                self._quantized(begin, self._raw(np.arange(begin, start))[0])
+        index = np.arange(start, start + count)
+        f_a, readings, temperature = self._raw(index)
+        if self.truth.noise.quantization > 0:
+            f_a = self._quantized(start, f_a)
+        angles = readings + self.noise.angles(start, count)
+        temperature = temperature + self.noise.temperature_sensor(start, count)
+        return SampleBlock(index / self.rate, f_a, angles, temperature)
+
+    def _quantized(self, start: int, f_a: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Quantize velocity increments with the remainder carried; restart with a seeded dither at block boundaries."""
+        lsb = self.truth.noise.quantization
+        scale = 1.0 / (self.rate * lsb)
+        out = np.empty_like(f_a)
+        k, done = start, 0
+        while done < len(f_a):
+            block = k // BLOCK_SAMPLES
+            n = min(len(f_a) - done, (block + 1) * BLOCK_SAMPLES - k)
+            if k % BLOCK_SAMPLES == 0:
+                accumulator = self.noise.dither(block)
+            elif self._carry is not None and self._carry[0] == k:
+                accumulator = self._carry[1]
+            else:  # pragma: no cover - samples() always provides the carry
+                raise RuntimeError("quantizer state lost")
+            total = np.cumsum(np.vstack([accumulator[None, :], f_a[done : done + n] * scale]), axis=0)
+            counts = np.floor(total)
+            out[done : done + n] = np.diff(counts, axis=0) * (lsb * self.rate)
+            self._carry = (k + n, total[-1].copy())
+            k += n
+            done += n
+        return out
+
+    def _raw(self, index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Unquantized accelerometer output (with noise), noise-free readings and true temperature."""
+        truth = self.truth
+        time = index / self.rate
+        readings, rates, dcm, segment, settle_time = self._motion(index)
+        f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)
+        temperature = truth.noise.temperature(time)
+        slew_direction = np.zeros((len(index), 3))
+        has = segment >= 0
+        if np.any(has):
+            directions = np.array([c.slew_direction for c in self._commands])
+            slew_direction[has] = directions[segment[has]]
+        inputs = TermInputs(
+            specific_force=f_p,
+            temperature=temperature - truth.site.reference_temperature,
+            time=time,
+            slew_direction=slew_direction,
+        )
+        if self._needs_rates:
+            h = 1e-3
+            w = self.platform.angular_rate(self.platform.actual_angles(readings), rates)
+            w_plus = self._angular_rate_at(index, h)
+            w_minus = self._angular_rate_at(index, -h)
+            inputs = TermInputs(f_p, inputs.temperature, inputs.time, slew_direction, w, (w_plus - w_minus) / (2 * h))
+        f_a = self._model.forward(f_p, self._values, inputs)
+        f_a = f_a + self.noise.accelerometer(int(index[0]), len(index))
+        return f_a, readings, temperature
+
+    def _angular_rate_at(self, index: NDArray[np.int64], shift: float) -> NDArray[np.float64]:
+        readings, rates, _, _ = self._path(index, shift)
+        return self.platform.angular_rate(self.platform.actual_angles(readings), rates)
+
+    def _segments(self, index: NDArray[np.int64]) -> NDArray[np.int64]:
+        starts = np.array([c.sample for c in self._commands], dtype=np.int64)
+        return np.searchsorted(starts, index, side="right") - 1
+
+    def _path(self, index: NDArray[np.int64], shift: float = 0.0):
+        """Noise-free readings and reading rates (slew + settling), segment index, time since slew end."""
+        n = len(index)
+        readings = np.broadcast_to(self.initial_readings, (n, 3)).copy()
+        rates = np.zeros((n, 3))
+        settle_time = np.full(n, -1.0)
+        segment = self._segments(index) if self._commands else np.full(n, -1)
+        for j in np.unique(segment[segment >= 0]):
+            c = self._commands[j]
+            rows = segment == j
+            tau = (index[rows] - c.sample) / self.rate + shift
+            delta = c.target - c.start
+            if c.duration > 0:
+                x = np.clip(tau / c.duration, 0.0, 1.0)
+                moving = (tau > 0) & (tau < c.duration)
+                r = c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None]
+                rd = delta * (np.where(moving, 0.5 * np.pi / c.duration * np.sin(np.pi * x), 0.0))[:, None]
+            else:
+                r = np.broadcast_to(c.target, (len(tau), 3)).copy()
+                rd = np.zeros((len(tau), 3))
+            after = tau - c.duration
+            settled = after > 0
+            if np.any(settled) and self._gain:
+                a = after[settled]
+                envelope = np.exp(-self._zeta * self._omega * a)
+                r[settled] += self._gain * delta * (envelope * np.sin(self._omega_d * a))[:, None]
+                rd[settled] += (
+                    self._gain
+                    * delta
+                    * (envelope * (self._omega_d * np.cos(self._omega_d * a) - self._zeta * self._omega * np.sin(self._omega_d * a)))[
+                        :, None
+                    ]
+                )
+            readings[rows] = r
+            rates[rows] = rd
+            settle_time[rows] = after
+        return readings, rates, segment, settle_time
+
+    def _motion(self, index: NDArray[np.int64]):
+        """Readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end."""
+        readings, rates, segment, settle_time = self._path(index)
+        dcm = self.platform.dcm_nav_to_platform(readings)
+        if np.any(self._drift) and np.any(settle_time > 0):
+            f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)
+            angle = self._drift * f_p * np.clip(settle_time, 0.0, None)[:, None]
+            drifting = settle_time > 0
+            dcm[drifting] = rotation_about(angle[drifting]) @ dcm[drifting]
+            readings = readings.copy()
+            readings[drifting] = self.platform.readings_from_dcm_nav_to_platform(dcm[drifting], readings[drifting])
+        return readings, rates, dcm, segment, settle_time
+
+    def _nominal_readings(self, sample: int) -> NDArray[np.float64]:
+        """Readings on the slew path at ``sample`` without the settling transient (start of a new slew)."""
+        if not self._commands:
+            return self.initial_readings.copy()
+        c = self._commands[-1]
+        tau = (sample - c.sample) / self.rate
+        if c.duration <= 0 or tau >= c.duration:
+            return c.target.copy()
+        x = tau / c.duration
+        return c.start + (c.target - c.start) * 0.5 * (1.0 - np.cos(np.pi * x))
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("the simulated platform is closed")
+
+
+def simulate_dwells(
+    truth: Truth,
+    readings_list: Sequence[ArrayLike],
+    dwell: float,
+    settle: float,
+    rate: float | None = None,
+    seed: int | None = None,
+    stage: str = "coarse",
+    pass_number: int = 1,
+    initial_readings: Sequence[float] = (0.0, 0.0, 0.0),
+) -> dict[str, NDArray]:
+    """Command each reading triple in turn, wait for the slew and ``settle`` seconds, record ``dwell`` seconds.
+
+    Parameters
+    ----------
+    truth : Truth
+    readings_list : sequence of (3,) array_like
+        Commanded angle-sensor readings (platform, inner, middle) [rad], in order;
+        positions are numbered 1..N in this order.
+    dwell : float
+        Recorded time per position [s].
+    settle : float
+        Time between the end of the slew and the start of recording [s] (0 keeps the
+        settling transient in the record).
+    rate : float, optional
+        Sample rate [Hz] (default ``truth.site.sample_rate``).
+    seed : int, optional
+        Seed of the random streams (default ``truth.seed``).
+    stage : str
+        ``"coarse"`` or ``"fine"``.
+    pass_number : int
+
+    Returns
+    -------
+    dict of str to ndarray
+        Columns named as :data:`stableins.data.schema.DEVICE_COLUMNS`.
+    """
+    platform = SimulatedPlatform(truth, rate=rate, seed=seed, initial_readings=initial_readings)
+    pieces: list[dict[str, NDArray]] = []
+    for position, readings in enumerate(readings_list, start=1):
+        r = np.asarray(readings, dtype=float)
+        t_command = platform.command(tuple(r))
+        platform.wait(platform.slew_duration() + settle)
+        block = platform.acquire(dwell)
+        n = len(block)
+        pieces.append(
+            {
+                "time": block.time,
+                "stage": np.full(n, stage),
+                "pass": np.full(n, pass_number, dtype=np.int32),
+                "position": np.full(n, position, dtype=np.int32),
+                "time_since_command": block.time - t_command,
+                "command_platform": np.full(n, r[0]),
+                "command_inner": np.full(n, r[1]),
+                "command_middle": np.full(n, r[2]),
+                "angle_platform": block.angles[:, 0],
+                "angle_inner": block.angles[:, 1],
+                "angle_middle": block.angles[:, 2],
+                "f_x": block.specific_force[:, 0],
+                "f_y": block.specific_force[:, 1],
+                "f_z": block.specific_force[:, 2],
+                "temperature": block.temperature,
+            }
+        )
+    from stableins.data.schema import DEVICE_COLUMNS
+
+    names = [c.name for c in DEVICE_COLUMNS]
+    if not pieces:
+        return {name: np.zeros(0) for name in names}
+    return {name: np.concatenate([p[name] for p in pieces]) for name in names}

@@ -1,0 +1,331 @@
+r"""Extra physical effects the world can contain, injectable by id with a magnitude [SI].
+
+Two kinds:
+
+``output`` effects add to the accelerometer output *before* the quadratic
+nonlinearity of Eq. 6 (they enter ``w`` of :meth:`stableins.errormodel.ErrorModel.forward`
+as additive terms), each as ``value × regressor``.  The regressors below are the
+simulator's own physics, written here; they do not come from any estimator.
+``f`` is the platform-frame specific force ``f^p`` along the nominal sensitive axes,
+``ΔT`` the temperature minus the reference, ``t`` the session time.
+
+``geometry`` effects change the platform kinematics (:mod:`stableins.platform`) or
+the platform's motion (:mod:`stableins.simulator.device`).
+
+===============  ==============================================================
+id               added output of accelerometer ``a`` (axis a in x, y, z)
+===============  ==============================================================
+``K3_a``         ``K3 f_a³``
+``Koq_a``        ``Koq f_a |f_a|``
+``Ksa_a``        ``Ksa |f_a|``: scale factor ``1 + Ksa`` for positive input and
+                 ``1 − Ksa`` for negative input; ``(SF₊ − SF₋)/SF = 2 Ksa``
+``Kcq_ab``       ``Kcq f_b²`` (b ≠ a)
+``Kcc_abc``      ``Kcc f_b f_c`` (b < c in x < y < z; Cai et al. 2016 K_abc)
+``Kt_bias_a``    ``Kt ΔT``
+``Kt_sf_a``      ``Kt ΔT f_a`` (scale factor changes by ``Kt`` per kelvin)
+``Kd_bias_a``    ``Kd t``
+``Kh_a``         ``Kh sgn(Δf_a)``: sign of the change of ``f_a`` over the last slew
+``lever_a_b``    ``e_a · (ω̇ × r + ω × (ω × r))`` with ``r = lever_a_b e_b`` the proof-mass
+                 position of accelerometer a from the rotation centre; ``ω`` platform
+                 angular rate: non-zero only while the platform moves (slews, settling)
+===============  ==============================================================
+
+Geometry effects: ``Dg_a`` (platform drifts about p-axis a at the rate
+``Dg_a f_a`` after each slew, right-handed, as a g-sensitive gyro would make a
+stabilized platform drift; the angle sensors see it), ``nonorth_12``, ``nonorth_23``
+(gimbal-axis non-orthogonality, :mod:`stableins.platform`), ``tilt_north``,
+``tilt_east`` (base tilt), ``ang1_<gimbal>_c`` / ``_s`` (once-per-revolution angle
+sensor error ``c cos r + s sin r``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.data.errors import InputError
+from stableins.errormodel import AXES, Term, TermInputs
+
+_G = STANDARD_GRAVITY
+DEG_PER_HOUR = np.pi / 180.0 / 3600.0
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One injectable physical effect.
+
+    Attributes
+    ----------
+    id, unit, nominal, meaning :
+        Stable id, SI unit, typical magnitude [SI], one-line meaning.
+    kind : str
+        ``"output"`` (adds to the accelerometer output) or ``"geometry"``.
+    regressor : callable or None
+        For output effects: ``TermInputs -> (..., 3)`` output change per unit value.
+    axis : int or None
+        Accelerometer axis (output effects) or platform axis (``Dg_a``).
+    """
+
+    id: str
+    unit: str
+    nominal: float
+    meaning: str
+    kind: str
+    regressor: Callable[[TermInputs], NDArray[np.float64]] | None = None
+    axis: int | None = None
+
+    def term(self) -> Term:
+        """The effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
+        if self.kind != "output":
+            raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
+        return Term(
+            self.id,
+            "additive",
+            self.unit,
+            self.unit,
+            1.0,
+            self.nominal,
+            self.meaning,
+            axis=self.axis,
+            regressor=self.regressor,
+            source="stableins.simulator.effects",
+        )
+
+
+def _on_axis(axis: int, values: Callable[[TermInputs], NDArray[np.float64]]) -> Callable[[TermInputs], NDArray[np.float64]]:
+    def regressor(inputs: TermInputs) -> NDArray[np.float64]:
+        v = values(inputs)
+        out = np.zeros(np.shape(v) + (3,))
+        out[..., axis] = v
+        return out
+
+    return regressor
+
+
+def _f(inputs: TermInputs, i: int) -> NDArray[np.float64]:
+    return np.asarray(inputs.specific_force, dtype=float)[..., i]
+
+
+def _broadcast_scalar(inputs: TermInputs, name: str, term_id: str) -> NDArray[np.float64]:
+    v = inputs.require(name, term_id)
+    return np.broadcast_to(v, np.shape(inputs.specific_force)[:-1])
+
+
+def _lever_matrix(inputs: TermInputs, term_id: str) -> NDArray[np.float64]:
+    from stableins.conventions import skew
+
+    w = inputs.require("angular_rate", term_id)
+    wd = inputs.require("angular_acceleration", term_id)
+    sw = skew(w)
+    return skew(wd) + sw @ sw
+
+
+def _build() -> dict[str, Effect]:
+    cat: dict[str, Effect] = {}
+
+    def add(e: Effect) -> None:
+        cat[e.id] = e
+
+    for i, a in enumerate(AXES):
+        add(
+            Effect(
+                f"K3_{a}",
+                "s^4/m^2",
+                MICRO_G / _G**3,
+                f"cubic nonlinearity of the {a} accelerometer: + K3 f_{a}^3",
+                "output",
+                _on_axis(i, lambda x, i=i: _f(x, i) ** 3),
+                i,
+            )
+        )
+        add(
+            Effect(
+                f"Koq_{a}",
+                "s^2/m",
+                10 * MICRO_G / _G**2,
+                f"odd quadratic of the {a} accelerometer: + Koq f_{a}|f_{a}|",
+                "output",
+                _on_axis(i, lambda x, i=i: _f(x, i) * np.abs(_f(x, i))),
+                i,
+            )
+        )
+        add(
+            Effect(
+                f"Ksa_{a}",
+                "1",
+                10 * PPM,
+                f"scale-factor asymmetry of the {a} accelerometer: + Ksa |f_{a}| ((SF+ - SF-)/SF = 2 Ksa)",
+                "output",
+                _on_axis(i, lambda x, i=i: np.abs(_f(x, i))),
+                i,
+            )
+        )
+        for j, b in enumerate(AXES):
+            if j != i:
+                add(
+                    Effect(
+                        f"Kcq_{a}{b}",
+                        "s^2/m",
+                        5 * MICRO_G / _G**2,
+                        f"cross-axis quadratic: {a} accelerometer + Kcq f_{b}^2",
+                        "output",
+                        _on_axis(i, lambda x, j=j: _f(x, j) ** 2),
+                        i,
+                    )
+                )
+        for j in range(3):
+            for k in range(j + 1, 3):
+                add(
+                    Effect(
+                        f"Kcc_{a}{AXES[j]}{AXES[k]}",
+                        "s^2/m",
+                        10 * MICRO_G / _G**2,
+                        f"cross-coupling: {a} accelerometer + Kcc f_{AXES[j]} f_{AXES[k]} (Cai et al. 2016)",
+                        "output",
+                        _on_axis(i, lambda x, j=j, k=k: _f(x, j) * _f(x, k)),
+                        i,
+                    )
+                )
+        add(
+            Effect(
+                f"Kt_bias_{a}",
+                "m/s^2/K",
+                5 * MICRO_G,
+                f"bias temperature sensitivity of the {a} accelerometer: + Kt dT",
+                "output",
+                _on_axis(i, lambda x, tid=f"Kt_bias_{a}": _broadcast_scalar(x, "temperature", tid)),
+                i,
+            )
+        )
+        add(
+            Effect(
+                f"Kt_sf_{a}",
+                "1/K",
+                5 * PPM,
+                f"scale-factor temperature sensitivity of the {a} accelerometer: + Kt dT f_{a}",
+                "output",
+                _on_axis(i, lambda x, i=i, tid=f"Kt_sf_{a}": _broadcast_scalar(x, "temperature", tid) * _f(x, i)),
+                i,
+            )
+        )
+        add(
+            Effect(
+                f"Kd_bias_{a}",
+                "m/s^3",
+                10 * MICRO_G / 86400.0,
+                f"bias drift in time of the {a} accelerometer: + Kd t",
+                "output",
+                _on_axis(i, lambda x, tid=f"Kd_bias_{a}": _broadcast_scalar(x, "time", tid)),
+                i,
+            )
+        )
+        add(
+            Effect(
+                f"Kh_{a}",
+                "m/s^2",
+                5 * MICRO_G,
+                f"hysteresis of the {a} accelerometer: + Kh sign(change of f_{a} in the last slew)",
+                "output",
+                _on_axis(i, lambda x, i=i, tid=f"Kh_{a}": x.require("slew_direction", tid)[..., i]),
+                i,
+            )
+        )
+        for j, b in enumerate(AXES):
+            add(
+                Effect(
+                    f"lever_{a}_{b}",
+                    "m",
+                    0.02,
+                    f"proof-mass position of the {a} accelerometer along {b}_p (size effect, only while rotating)",
+                    "output",
+                    _on_axis(i, lambda x, i=i, j=j, tid=f"lever_{a}_{b}": _lever_matrix(x, tid)[..., i, j]),
+                    i,
+                )
+            )
+    for i, a in enumerate(AXES):
+        add(
+            Effect(
+                f"Dg_{a}",
+                "rad s/m",
+                0.01 * DEG_PER_HOUR / _G,
+                f"g-sensitive platform drift about {a}_p during a dwell: rate Dg f_{a} [rad/s per m/s^2]",
+                "geometry",
+                axis=i,
+            )
+        )
+    add(
+        Effect(
+            "nonorth_12",
+            "rad",
+            10 * ARCSEC,
+            "non-orthogonality of the platform (z) and inner (x) gimbal axes (angle pi/2 + nu12)",
+            "geometry",
+        )
+    )
+    add(
+        Effect(
+            "nonorth_23",
+            "rad",
+            10 * ARCSEC,
+            "non-orthogonality of the inner (x) and middle (y) gimbal axes (angle pi/2 + nu23)",
+            "geometry",
+        )
+    )
+    add(
+        Effect(
+            "tilt_north", "rad", 10 * ARCSEC, "unknown base tilt about North (right-handed) relative to the surveyed attitude", "geometry"
+        )
+    )
+    add(
+        Effect("tilt_east", "rad", 10 * ARCSEC, "unknown base tilt about East (right-handed) relative to the surveyed attitude", "geometry")
+    )
+    for g in ("platform", "inner", "middle"):
+        add(Effect(f"ang1_{g}_c", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += c cos(reading)", "geometry"))
+        add(Effect(f"ang1_{g}_s", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += s sin(reading)", "geometry"))
+    return cat
+
+
+#: All injectable effects by id (read-only).
+CATALOGUE: Mapping[str, Effect] = MappingProxyType(_build())
+
+
+def validate_effects(effects: Mapping[str, float], source: str | None = None) -> dict[str, float]:
+    """Check ids and values; return a plain ``dict`` of floats.
+
+    Raises
+    ------
+    InputError
+        Unknown id (the message lists the known ids) or a non-finite value.
+    """
+    out: dict[str, float] = {}
+    for key, value in effects.items():
+        if key not in CATALOGUE:
+            raise InputError(f"unknown effect id {key!r}", path=source, field="effects", expected=f"one of {', '.join(CATALOGUE)}")
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"effect {key!r} has a non-numeric value {value!r}", path=source, field=f"effects.{key}") from None
+        if not np.isfinite(v):
+            raise InputError(f"effect {key!r} is not finite", path=source, field=f"effects.{key}", expected="a finite SI value")
+        out[key] = v
+    return out
+
+
+def output_terms(effects: Mapping[str, float]) -> tuple[Term, ...]:
+    """Additive error-model terms for the non-zero output effects in ``effects``."""
+    return tuple(CATALOGUE[k].term() for k, v in effects.items() if CATALOGUE[k].kind == "output" and v != 0.0)
+
+
+def needs(effects: Mapping[str, float], prefix: str) -> bool:
+    """Whether any non-zero effect id starts with ``prefix``."""
+    return any(k.startswith(prefix) and v != 0.0 for k, v in effects.items())
+
+
+def catalogue_table() -> list[tuple[str, str, float, str]]:
+    """``(id, SI unit, nominal, meaning)`` rows for documentation."""
+    return [(e.id, e.unit, e.nominal, e.meaning) for e in CATALOGUE.values()]

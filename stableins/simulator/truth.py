@@ -1,0 +1,326 @@
+"""The truth of a simulated world: one instrument, its platform, site, noise and effects.
+
+A :class:`Truth` is everything the simulator needs and everything an estimator is
+judged against.  It is immutable, serializes to JSON (``schema_version`` 1) and can be
+drawn at random with realistic magnitudes (:meth:`Truth.draw`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.errormodel import GIMBAL_IDS, MICRO_G_PER_G2, ErrorModel
+from stableins.simulator.effects import validate_effects
+from stableins.simulator.noise import NoiseSettings
+
+SCHEMA_VERSION = 1
+KIND = "stableins.truth"
+
+#: Parameter ids a truth may set (the paper's model with gimbal offsets).
+PARAMETER_IDS = ErrorModel.standard(nonlinear=True, gimbals=True).ids
+
+#: Default settling transient after a slew: damped oscillation of each gimbal by
+#: ``gain × slew angle`` at ``frequency`` [Hz] with damping ratio ``damping``; slews
+#: follow a cosine profile whose peak rate is ``slew_rate`` [rad/s].
+DEFAULT_SETTLING = {"frequency": 0.5, "damping": 0.2, "gain": 1e-4, "slew_rate": math.radians(10.0)}
+
+#: Default INS damping: horizontal damping ratio and vertical-loop time constant [s].
+DEFAULT_DAMPING = {"zeta": 0.5, "vertical_time_constant": 300.0}
+
+#: Default 1σ of the calibration residual (true − installed) per kind of parameter, [SI].
+DEFAULT_RESIDUAL = {
+    "scale_factor": 5 * PPM,
+    "bias": 5 * MICRO_G,
+    "installation": 3 * ARCSEC,
+    "nonlinearity": 5 * MICRO_G_PER_G2,
+    "gimbal": 2 * ARCSEC,
+}
+
+
+def damping_parameters(zeta: float, vertical_time_constant: float, gravity: float) -> dict[str, float]:
+    r"""Full damping description stored in ``SiteMetadata.damping``.
+
+    Horizontal: ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``.  Vertical third-order loop with a
+    triple pole at ``-1/τ``: ``k1 = 3/τ``, ``k2 = 3/τ² + 2 ω_s²``, ``k3 = 1/τ³``, so that
+    the height error obeys ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = s u`` (see
+    :mod:`stableins.simulator.system`).
+    """
+    omega_s = math.sqrt(gravity / EARTH_RADIUS)
+    tau = vertical_time_constant
+    return {
+        "zeta": float(zeta),
+        "omega_s": omega_s,
+        "R": EARTH_RADIUS,
+        "gravity": float(gravity),
+        "horizontal_gain": 2.0 * zeta * omega_s,
+        "vertical_time_constant": float(tau),
+        "k1": 3.0 / tau,
+        "k2": 3.0 / tau**2 + 2.0 * omega_s**2,
+        "k3": 1.0 / tau**3,
+    }
+
+
+def _float_dict(d: Any, name: str, source: str | None) -> dict[str, float]:
+    if not isinstance(d, Mapping):
+        raise InputError(f"'{name}' must be a mapping of id to number", path=source, field=name)
+    out = {}
+    for k, v in d.items():
+        try:
+            out[str(k)] = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"value {v!r} is not a number", path=source, field=f"{name}.{k}") from None
+        if not math.isfinite(out[str(k)]):
+            raise InputError("value is not finite", path=source, field=f"{name}.{k}")
+    return out
+
+
+def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None) -> None:
+    unknown = sorted(set(d) - set(PARAMETER_IDS))
+    if unknown:
+        raise InputError(f"unknown parameter ids {unknown}", path=source, field=name, expected=f"ids among {', '.join(PARAMETER_IDS)}")
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The simulated world.
+
+    Attributes
+    ----------
+    parameters : dict
+        True error-model values by id [SI] (ids of :data:`PARAMETER_IDS`); absent ids take
+        their reference (scale factor 1, others 0).
+    site : SiteMetadata
+        Latitude, gravity, sample rate, gimbal senses, base attitude ...
+    effects : dict
+        Injected extra effects by id [SI] (:mod:`stableins.simulator.effects`).
+    noise : NoiseSettings
+    seed : int
+        Default seed of the random streams.
+    installed_calibration : dict
+        The calibration the INS navigation computer compensates with (system level);
+        the residual true − installed drives the navigation errors.
+    gyro_drift : dict
+        System level: ``x``, ``y``, ``z`` constant gyro drift in the platform frame
+        [rad/s]; ``case_amplitude`` [rad/s], ``case_period`` [s] (default 480 s) and
+        ``case_phase`` [rad] of the residual of gyro-case rotation (a drift vector of
+        that amplitude rotating about ``z_p``).
+    damping : dict
+        ``zeta`` and ``vertical_time_constant`` [s] of the INS damping loops.
+    settling : dict
+        Slew and settling behaviour (:data:`DEFAULT_SETTLING`).
+    """
+
+    parameters: dict[str, float]
+    site: SiteMetadata
+    effects: dict[str, float] = field(default_factory=dict)
+    noise: NoiseSettings = field(default_factory=NoiseSettings)
+    seed: int = 0
+    installed_calibration: dict[str, float] = field(default_factory=dict)
+    gyro_drift: dict[str, float] = field(default_factory=dict)
+    damping: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_DAMPING))
+    settling: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTLING))
+
+    def __post_init__(self) -> None:
+        _check_parameter_ids(self.parameters, "parameters", None)
+        _check_parameter_ids(self.installed_calibration, "installed_calibration", None)
+        object.__setattr__(self, "parameters", dict(self.parameters))
+        object.__setattr__(self, "installed_calibration", dict(self.installed_calibration))
+        object.__setattr__(self, "effects", validate_effects(self.effects))
+        object.__setattr__(self, "damping", {**DEFAULT_DAMPING, **self.damping})
+        object.__setattr__(self, "settling", {**DEFAULT_SETTLING, **self.settling})
+        unknown = set(self.gyro_drift) - {"x", "y", "z", "case_amplitude", "case_period", "case_phase"}
+        if unknown:
+            raise InputError(
+                f"unknown gyro_drift keys {sorted(unknown)}",
+                field="gyro_drift",
+                expected="x, y, z, case_amplitude, case_period, case_phase",
+            )
+        if not self.site.damping:
+            object.__setattr__(self, "site", replace(self.site, damping=self.damping_parameters()))
+
+    # ----------------------------------------------------------------- derived
+    def damping_parameters(self) -> dict[str, float]:
+        """``zeta, omega_s, R, k1, k2, k3`` ... (see :func:`damping_parameters`)."""
+        return damping_parameters(self.damping["zeta"], self.damping["vertical_time_constant"], self.site.gravity)
+
+    @property
+    def configuration(self) -> GimbalConfiguration:
+        return GimbalConfiguration(tuple(self.site.gimbal_senses))
+
+    def platform(self):
+        """The true :class:`stableins.platform.GimbalPlatform` (offsets, senses, base, tilt, non-orthogonality, sensor errors)."""
+        from stableins.platform import GimbalPlatform
+
+        e = self.effects
+        return GimbalPlatform(
+            zero_offsets=tuple(self.parameters.get(g, 0.0) for g in GIMBAL_IDS),
+            configuration=self.configuration,
+            base_attitude=tuple(self.site.base_attitude),
+            base_tilt=(e.get("tilt_north", 0.0), e.get("tilt_east", 0.0)),
+            nonorthogonality=(e.get("nonorth_12", 0.0), e.get("nonorth_23", 0.0)),
+            angle_sensor_errors={k: v for k, v in e.items() if k.startswith("ang1_")},
+        )
+
+    def calibration_residual(self) -> dict[str, float]:
+        """True minus installed calibration, by id [SI] (ids in either)."""
+        model = ErrorModel.standard(nonlinear=True, gimbals=True)
+        ref = {t.id: t.reference for t in model}
+        ids = [i for i in PARAMETER_IDS if i in self.parameters or i in self.installed_calibration]
+        return {i: self.parameters.get(i, ref[i]) - self.installed_calibration.get(i, ref[i]) for i in ids}
+
+    def with_changes(self, **changes: Any) -> Truth:
+        """A copy with some fields replaced (dataclasses.replace)."""
+        return replace(self, **changes)
+
+    # ----------------------------------------------------------------- drawing
+    @classmethod
+    def draw(
+        cls,
+        seed: int,
+        *,
+        latitude: float = math.radians(40.0),
+        height: float = 0.0,
+        sample_rate: float = 100.0,
+        gimbal_senses: tuple[int, int, int, int] = (1, 1, 1, 1),
+        base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        effects: Mapping[str, float] | None = None,
+        noise: NoiseSettings | None = None,
+        nonlinear: bool = True,
+        residual: Mapping[str, float] | None = None,
+        gyro_drift: Mapping[str, float] | None = None,
+        damping: Mapping[str, float] | None = None,
+        serial_number: str | None = None,
+    ) -> Truth:
+        """A realistic random instrument.
+
+        Each parameter is drawn as ``reference + nominal × N(0, 1)`` with the nominal
+        magnitude of its :class:`stableins.errormodel.Term` (100 ppm, 100 µg, 30″,
+        20 µg/g², zero offsets 60″).  The installed calibration is the truth minus a
+        residual drawn with :data:`DEFAULT_RESIDUAL` (override per kind with
+        ``residual``).  Noise defaults to :meth:`NoiseSettings.quartz`.
+        """
+        import numpy as np
+
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7477]))
+        model = ErrorModel.standard(nonlinear=nonlinear, gimbals=True)
+        parameters = {t.id: float(t.reference + t.nominal * rng.standard_normal()) for t in model}
+        scales = {**DEFAULT_RESIDUAL, **(residual or {})}
+        installed = {t.id: float(parameters[t.id] - scales[t.kind] * rng.standard_normal()) for t in model}
+        gravity = float(normal_gravity(latitude, height))
+        site = SiteMetadata(
+            serial_number=serial_number or f"SIM-{seed}",
+            latitude=float(latitude),
+            height=float(height),
+            gravity=gravity,
+            gravity_source="WGS-84 normal gravity",
+            sample_rate=float(sample_rate),
+            gimbal_senses=tuple(gimbal_senses),
+            base_attitude=tuple(float(x) for x in base_attitude),
+            reference_temperature=(noise or NoiseSettings.quartz()).temperature.reference,
+        )
+        return cls(
+            parameters=parameters,
+            site=site,
+            effects=dict(effects or {}),
+            noise=noise if noise is not None else NoiseSettings.quartz(),
+            seed=int(seed),
+            installed_calibration=installed,
+            gyro_drift=dict(gyro_drift or {}),
+            damping={**DEFAULT_DAMPING, **(damping or {})},
+        )
+
+    # ----------------------------------------------------------------- serialization
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "kind": KIND,
+            "parameters": dict(self.parameters),
+            "effects": dict(self.effects),
+            "site": self.site.to_dict(),
+            "noise": self.noise.to_dict(),
+            "seed": self.seed,
+            "installed_calibration": dict(self.installed_calibration),
+            "gyro_drift": dict(self.gyro_drift),
+            "damping": dict(self.damping),
+            "settling": dict(self.settling),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str | None = None) -> Truth:
+        """Inverse of :meth:`to_dict`; raises :class:`InputError` naming the field on bad content."""
+        if not isinstance(d, Mapping):
+            raise InputError("a truth file must hold a JSON object", path=source)
+        if d.get("kind", KIND) != KIND:
+            raise InputError(f"not a truth file (kind {d.get('kind')!r})", path=source, field="kind", expected=repr(KIND))
+        version = d.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise InputError(f"unsupported schema_version {version!r}", path=source, field="schema_version", expected=str(SCHEMA_VERSION))
+        for key in ("parameters", "site"):
+            if key not in d:
+                raise InputError("missing field", path=source, field=key)
+        parameters = _float_dict(d["parameters"], "parameters", source)
+        _check_parameter_ids(parameters, "parameters", source)
+        installed = _float_dict(d.get("installed_calibration", {}), "installed_calibration", source)
+        _check_parameter_ids(installed, "installed_calibration", source)
+        effects = validate_effects(_float_dict(d.get("effects", {}), "effects", source), source)
+        site_d = d["site"]
+        if not isinstance(site_d, Mapping):
+            raise InputError("must be an object", path=source, field="site")
+        try:
+            site_d = dict(site_d)
+            site_d["gimbal_senses"] = tuple(int(s) for s in site_d.get("gimbal_senses", (1, 1, 1, 1)))
+            site_d["base_attitude"] = tuple(float(s) for s in site_d.get("base_attitude", (0.0, 0.0, 0.0)))
+            site = SiteMetadata(**site_d)
+            GimbalConfiguration(site.gimbal_senses)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"bad site metadata: {exc}", path=source, field="site") from None
+        try:
+            noise = NoiseSettings.from_dict(d.get("noise", {}))
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"bad noise settings: {exc}", path=source, field="noise") from None
+        try:
+            seed = int(d.get("seed", 0))
+        except (TypeError, ValueError):
+            raise InputError("seed must be an integer", path=source, field="seed") from None
+        try:
+            return cls(
+                parameters=parameters,
+                site=site,
+                effects=effects,
+                noise=noise,
+                seed=seed,
+                installed_calibration=installed,
+                gyro_drift=_float_dict(d.get("gyro_drift", {}), "gyro_drift", source),
+                damping=_float_dict(d.get("damping", DEFAULT_DAMPING), "damping", source),
+                settling=_float_dict(d.get("settling", DEFAULT_SETTLING), "settling", source),
+            )
+        except InputError as exc:
+            raise InputError(exc.message, path=source, field=exc.field, expected=exc.expected) from None
+
+    def write(self, path: str | os.PathLike[str]) -> None:
+        """Write JSON atomically (a reader sees the old file or the whole new one)."""
+        from stableins.data.atomic import atomic_write
+
+        with atomic_write(path) as handle:
+            json.dump(self.to_dict(), handle, indent=2, sort_keys=True)
+            handle.write("\n")
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> Truth:
+        """Read a truth file; :class:`InputError` (naming the file and field) on any problem."""
+        try:
+            with open(path, encoding="utf-8") as handle:
+                data = json.load(handle)
+        except FileNotFoundError:
+            raise InputError("file not found", path=path) from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"not valid JSON ({exc})", path=path) from None
+        return cls.from_dict(data, source=str(path))

@@ -1,0 +1,165 @@
+"""Bad input never gives a silently wrong calibration: a clear error, or a flagged position left out."""
+
+import numpy as np
+import pytest
+from device_world import GRAVITY, device_columns, draw_truth
+
+from stableins.conventions import ARCSEC
+from stableins.data.errors import InputError
+from stableins.estimators.coarse import calibrate_coarse
+from stableins.estimators.dwell import DwellChecks, dwells_from_columns, summarize_dwell
+from stableins.procedures.definition import load_procedure
+
+PROCEDURE = load_procedure("device-coarse")
+CHECKS = PROCEDURE.acceptance.dwell_checks()
+TRUTH = draw_truth(np.random.default_rng(31), quadratic=False)
+
+
+def _columns(**kw):
+    return device_columns(TRUTH, PROCEDURE, sigma=1e-3, seed=kw.pop("seed", 1), **kw)
+
+
+def _calibrate(cols, **kw):
+    dwells = dwells_from_columns(cols, settle=5.0, checks=CHECKS, source="run.csv")
+    return calibrate_coarse(dwells, gravity=GRAVITY, expected_positions=PROCEDURE.positions, source="run.csv", **kw)
+
+
+def _rows(cols, mask):
+    return {k: v[mask] for k, v in cols.items()}
+
+
+def test_clean_data_pass():
+    fit = _calibrate(_columns())
+    assert fit.extra["left_out"] == {} and fit.rank == 14
+
+
+def test_missing_position_is_an_error_naming_it():
+    cols = _columns()
+    with pytest.raises(InputError, match=r"positions \[7\] are missing") as info:
+        _calibrate(_rows(cols, cols["position"] != 7))
+    assert "run.csv" in str(info.value)
+    fit = _calibrate(_rows(cols, cols["position"] != 7), allow_missing=True)
+    assert "missing" in fit.extra["left_out"][7] and any("position 7 left out" in n for n in fit.notes)
+
+
+def test_duplicated_position_is_an_error():
+    cols = _columns()
+    again = _rows(cols, cols["position"] == 3)
+    doubled = {k: np.concatenate([cols[k], again[k]]) for k in cols}
+    with pytest.raises(InputError, match="position 3 appears twice"):
+        _calibrate(doubled)
+    # position 3 commanded twice in a row (time_since_command restarts)
+    idx = np.flatnonzero(cols["position"] == 3)
+    inserted = {k: np.insert(cols[k], idx[-1] + 1, cols[k][idx]) for k in cols}
+    with pytest.raises(InputError, match="commanded twice"):
+        _calibrate(inserted)
+
+
+def test_dwell_too_short_to_measure_noise_is_left_out():
+    cols = _columns()
+    keep = (cols["position"] != 4) | (cols["time_since_command"] < 5.1)  # 0.1 s of dwell: 10 samples
+    fit = _calibrate(_rows(cols, keep))
+    assert "too short to measure noise" in fit.extra["left_out"][4]
+    assert 4 not in fit.extra["positions_used"]
+
+
+def test_clipped_and_saturated_samples_are_left_out():
+    cols = _columns()
+    sel = (cols["position"] == 11) & (cols["time_since_command"] >= 5.0)  # x up, about +g
+    rail = np.quantile(cols["f_x"][sel], 0.7)
+    cols["f_x"][sel] = np.minimum(cols["f_x"][sel], rail)  # output pinned at a rail
+    sel2 = (cols["position"] == 2) & (cols["time_since_command"] >= 8.0) & (cols["time_since_command"] < 8.05)
+    cols["f_y"][sel2] = 40.0  # beyond the range
+    fit = _calibrate(cols)
+    assert "clipped samples on axis x" in fit.extra["left_out"][11]
+    assert "saturated" in fit.extra["left_out"][2]
+
+
+def test_slew_inside_a_dwell_is_left_out():
+    cols = _columns()
+    sel = (cols["position"] == 13) & (cols["time_since_command"] >= 15.0)
+    cols["angle_inner"][sel] += np.radians(0.5)
+    cols["f_x"][sel] += 0.05
+    fit = _calibrate(cols)
+    assert "slew inside the dwell" in fit.extra["left_out"][13]
+
+
+def test_non_finite_samples_are_left_out():
+    cols = _columns()
+    cols["f_z"][(cols["position"] == 5) & (cols["time_since_command"] > 10)] = np.nan
+    assert "non-finite" in _calibrate(cols).extra["left_out"][5]
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda c: c.update(f_x=-c["f_x"]), "the x axis sign inverted"),
+        (lambda c: c.update(f_y=-c["f_y"]), "the y axis sign inverted"),
+        (lambda c: c.update(f_x=c["f_y"], f_y=c["f_x"]), "the x and y axes swapped"),
+        (lambda c: c.update(f_y=c["f_z"], f_z=c["f_y"]), "the y and z axes swapped"),
+    ],
+)
+def test_axis_wiring_errors_are_diagnosed(change, message):
+    cols = _columns()
+    change(cols)
+    with pytest.raises(InputError, match=message):
+        _calibrate(cols)
+
+
+def test_other_gimbal_handedness_is_diagnosed():
+    cols = device_columns(TRUTH, PROCEDURE, sigma=1e-3, seed=2, senses=(1, -1, 1, 1))
+    with pytest.raises(InputError, match="other gimbal handedness"):
+        _calibrate(cols)
+
+
+def test_a_single_wrong_position_is_flagged_not_fitted():
+    cols = _columns()
+    sel = cols["position"] == 9
+    cols["f_y"][sel] *= -1.0
+    fit = _calibrate(cols)
+    assert "does not match the commanded orientation" in fit.extra["left_out"][9]
+
+
+def test_too_many_positions_left_out_is_an_error():
+    cols = _columns()
+    for p in (1, 7, 3, 9, 5, 11, 2, 4, 6, 8, 10, 12, 13):
+        cols["f_x"][cols["position"] == p] = np.nan
+    with pytest.raises(InputError, match="usable positions"):
+        _calibrate(cols)
+
+
+def test_missing_column_names_the_field():
+    cols = _columns()
+    del cols["f_y"]
+    with pytest.raises(InputError) as info:
+        dwells_from_columns(cols, source="run.csv")
+    assert info.value.field == "f_y"
+
+
+def test_block_noise_estimate_is_honest_for_correlated_noise():
+    rng = np.random.default_rng(5)
+    n, trials, rho = 2000, 300, 0.98  # AR(1) noise: correlation time 50 samples
+    e = rng.normal(size=(trials, n))
+    x = np.empty_like(e)
+    x[:, 0] = e[:, 0] / np.sqrt(1 - rho**2)
+    for i in range(1, n):
+        x[:, i] = rho * x[:, i - 1] + e[:, i]
+    sems = []
+    for t in range(trials):
+        f = np.stack([x[t], x[t], x[t]], axis=1) * 1e-4
+        d = summarize_dwell(np.arange(n) / 100.0, f, np.zeros((n, 3)), np.zeros(3), position=1, checks=DwellChecks(blocks=10))
+        sems.append(d.sem[0])
+        assert any("correlated noise" in k for k in d.notes)
+    actual = x.mean(axis=1).std() * 1e-4
+    assert np.median(sems) == pytest.approx(actual, rel=0.2)
+    white = x.std(axis=1).mean() * 1e-4 / np.sqrt(n)
+    assert white < 0.3 * actual  # the white estimate would overstate precision by >3x
+
+
+def test_white_noise_uses_the_sample_scatter():
+    rng = np.random.default_rng(6)
+    f = 1e-3 * rng.normal(size=(2000, 3))
+    d = summarize_dwell(np.arange(2000) / 100.0, f, np.zeros((2000, 3)), np.zeros(3), position=1)
+    np.testing.assert_allclose(d.sem, f.std(axis=0, ddof=1) / np.sqrt(2000))
+    assert d.notes == () and d.flags == ()
+    assert d.sem.min() > 0 and ARCSEC > 0
