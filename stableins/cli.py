@@ -45,6 +45,7 @@ class Group(NamedTuple):
 #: name -> Command or Group.  Register a command by adding one line.
 COMMANDS: dict[str, Command | Group] = {
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "diagnose": Command("stableins.commands.diagnose", "compare the model with the data, rank missing effects, add them and refit"),
     "calibrate": Group(
         "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
     ),

@@ -132,6 +132,80 @@ class DwellSet:
         )
 
 
+def dwells_from_dataset(
+    datasets: Sequence,
+    stage: str | None = None,
+    procedures: Mapping | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+) -> DwellSet:
+    """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
+
+    The mean, its 1σ and the acceptance checks come from the device stage's dwell
+    statistics (:func:`stableins.estimators.device.summarize_dwells`: settling dropped,
+    correlated noise detected per dwell); flagged dwells are left out (listed in
+    ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
+    else ``"coarse"`` (all passes, in time order).
+    """
+    from stableins.data.errors import InputError
+    from stableins.estimators.device import summarize_dwells
+    from stableins.procedures.definition import load_procedure
+
+    if not datasets:
+        raise InputError("no data files given", field="DATA")
+    site = datasets[0].metadata
+    procedures = dict(procedures) if procedures else {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    raw = [d for ds in datasets for d in ds.dwells()]
+    if stage is None:
+        stage = "fine" if any(d.stage == "fine" for d in raw) else "coarse"
+    raw = sorted((d for d in raw if d.stage == stage), key=lambda d: float(d.time[0]) if len(d.time) else 0.0)
+    if not raw:
+        raise InputError(f"no {stage}-stage dwells in the data", field="stage", expected="rows with stage 'coarse' or 'fine'")
+    summaries = summarize_dwells(raw, procedures, source=", ".join(str(ds.path) for ds in datasets))
+    keep = [k for k, sm in enumerate(summaries) if sm.usable]
+    left_out = [
+        f"{stage} pass {summaries[k].pass_number} position {summaries[k].position}: {'; '.join(summaries[k].flags)}"
+        for k in range(len(raw))
+        if k not in keep
+    ]
+    if len(keep) < 6:
+        raise InputError(f"only {len(keep)} usable {stage} dwells", field="position", expected="at least 6 usable dwells")
+    mid, tau, temp = [], [], []
+    for k in keep:
+        d = raw[k]
+        procedure = procedures.get(stage)
+        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+        use = np.asarray(d.time_since_command) >= settle
+        mid.append(float(np.mean(np.asarray(d.time)[use])))
+        tau.append(float(np.mean(np.asarray(d.time_since_command)[use])))
+        temp.append(float(np.mean(np.asarray(d.temperature)[use])) - site.reference_temperature)
+    sm = [summaries[k] for k in keep]
+    readings = np.array([x.angles for x in sm])
+    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
+    start = None if initial_readings is None else _initial(initial_readings, site.gravity, site.base_attitude, configuration)
+    from stableins.discovery.kinematics import platform_specific_force
+
+    nominal = platform_specific_force(readings, site.gravity, base_attitude=site.base_attitude, configuration=configuration)
+    return DwellSet(
+        readings=readings,
+        output=np.array([x.mean for x in sm]),
+        sigma=np.array([x.sem for x in sm]),
+        gravity=float(site.gravity),
+        time=np.array(mid),
+        time_since_command=np.array(tau),
+        temperature=np.array(temp),
+        slew_direction=slew_directions(nominal, start),
+        labels=tuple(f"{stage[0]}{x.pass_number}/{x.position}" for x in sm),
+        base_attitude=tuple(site.base_attitude),
+        configuration=configuration,
+        noise={
+            "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
+            "left_out": left_out,
+            "stage": stage,
+        },
+        initial_readings=initial_readings,
+    )
+
+
 def slew_directions(specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = 1e-2) -> NDArray[np.float64]:
     """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
 
