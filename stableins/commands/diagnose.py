@@ -32,6 +32,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--alpha", type=float, default=0.05, help="family-wise false-alarm level for flagging candidates (default 0.05)")
     parser.add_argument("--top", type=int, default=10, help="candidates to show in the text report (default 10)")
     parser.add_argument("--plots", type=Path, metavar="DIR", help="write residual and history plots (PNG) into DIR")
+    parser.add_argument(
+        "--bias-instability",
+        type=float,
+        metavar="UG",
+        help="bias instability B [ug]: slow bias wander correlated between dwells (default: estimated from the dwells if detectable)",
+    )
+    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,7 +67,16 @@ def run(args: argparse.Namespace) -> int:
     for effect in args.add:
         if effect in model:
             raise InputError(f"effect {effect!r} is already in the model of {args.record}", field="--add")
-    dwells = dwells_from_dataset(datasets, stage=args.stage)
+    slow_noise = None
+    if args.bias_instability is not None or args.random_walk:
+        from stableins.estimators.noise_model import SlowNoise
+
+        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
+            if not 0.0 <= value < float("inf"):
+                raise InputError("must be a finite non-negative number", field=name)
+        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    dwells = dwells_from_dataset(datasets, stage=args.stage, slow_noise=slow_noise)
+    note(f"noise: {dwells.noise['slow_noise']}")
     for line in dwells.noise.get("left_out", []):
         note(f"left out: {line}")
     session = Discovery(DwellProblem(dwells), model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})

@@ -148,6 +148,8 @@ def diagnose(problem, result: FitResult) -> Diagnosis:
     """Residual diagnostics of a device-level dwell fit (any problem with 3 outputs per position)."""
     from scipy import stats
 
+    from stableins.discovery.problem import fit_chi2, fit_chi2_red
+
     residuals = result.residuals.reshape(-1, 3)
     sigma = result.residual_sigma.reshape(-1, 3)
     labels = tuple(getattr(getattr(problem, "dwells", None), "labels", ())) or tuple(f"pos {k + 1}" for k in range(residuals.shape[0]))
@@ -159,9 +161,9 @@ def diagnose(problem, result: FitResult) -> Diagnosis:
         residuals=residuals,
         sigma=sigma,
         orientation=orientation,
-        chi2_red=result.chi2_red,
+        chi2_red=fit_chi2_red(result),
         spread=float(np.sqrt(2.0 / max(nu, 1))),
-        p_value=float(stats.chi2.sf(result.chi2, nu)) if nu > 0 else float("nan"),
+        p_value=float(stats.chi2.sf(fit_chi2(result), nu)) if nu > 0 else float("nan"),
         noise=dict(result.extra.get("noise", {})),
     )
 

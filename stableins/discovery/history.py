@@ -89,6 +89,8 @@ def _per_axis(result: FitResult, values) -> np.ndarray:
 
 def make_step(result: FitResult, label: str, previous: FitResult | None = None) -> Step:
     """Summarize a fit as a history step (and what changed since ``previous``)."""
+    from stableins.discovery.problem import fit_chi2, fit_chi2_red
+
     k = result.rank
     m = result.residuals.size
     added = ()
@@ -109,9 +111,9 @@ def make_step(result: FitResult, label: str, previous: FitResult | None = None) 
         model_ids=result.ids,
         rms=_per_axis(result, result.residuals),
         noise_floor=_per_axis(result, result.residual_sigma),
-        chi2_red=result.chi2_red,
+        chi2_red=fit_chi2_red(result),
         dof=result.dof,
-        bic=float(result.chi2 + k * np.log(m)),
+        bic=float(fit_chi2(result) + k * np.log(m)),
         added=added,
         shifts=shifts,
     )

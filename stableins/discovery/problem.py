@@ -79,6 +79,11 @@ class DwellSet:
     initial_readings : tuple or None
         Angle-sensor readings before the first command (for the slew into the first
         position); None: unknown, no slew direction for the first position.
+    slow_covariance : ndarray (P, P), optional
+        Covariance of the dwell means caused by slow noise (bias instability, random walk),
+        the same on every axis and correlated between dwells
+        (:func:`stableins.estimators.noise_model.dwell_mean_covariance`).  The fit is then
+        generalized least squares with ``R_a = diag(σ_a²) + C_slow`` per axis.
     """
 
     readings: NDArray[np.float64]
@@ -94,6 +99,7 @@ class DwellSet:
     configuration: GimbalConfiguration = DEFAULT_GIMBALS
     noise: dict = field(default_factory=dict)
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
+    slow_covariance: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -129,6 +135,7 @@ class DwellSet:
             self.configuration,
             dict(self.noise),
             None,
+            None if self.slow_covariance is None else self.slow_covariance[np.ix_(i, i)],
         )
 
 
@@ -137,6 +144,7 @@ def dwells_from_dataset(
     stage: str | None = None,
     procedures: Mapping | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    slow_noise=None,
 ) -> DwellSet:
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
@@ -144,7 +152,10 @@ def dwells_from_dataset(
     statistics (:func:`stableins.estimators.device.summarize_dwells`: settling dropped,
     correlated noise detected per dwell); flagged dwells are left out (listed in
     ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
-    else ``"coarse"`` (all passes, in time order).
+    else ``"coarse"`` (all passes, in time order).  ``slow_noise``
+    (:class:`stableins.estimators.noise_model.SlowNoise`) adds the covariance of slow bias
+    wander between dwells; None estimates it from the dwells' pooled Allan excess as the
+    device stage does (zero when not detectable).
     """
     from stableins.data.errors import InputError
     from stableins.estimators.device import summarize_dwells
@@ -179,6 +190,18 @@ def dwells_from_dataset(
         tau.append(float(np.mean(np.asarray(d.time_since_command)[use])))
         temp.append(float(np.mean(np.asarray(d.temperature)[use])) - site.reference_temperature)
     sm = [summaries[k] for k in keep]
+    from stableins.estimators.device import estimate_slow_noise
+    from stableins.estimators.noise_model import dwell_mean_covariance
+
+    if slow_noise is None:
+        slow_noise = estimate_slow_noise(sm)
+    starts = []
+    for k in keep:
+        d = raw[k]
+        procedure = procedures.get(stage)
+        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+        starts.append(float(np.asarray(d.time)[np.asarray(d.time_since_command) >= settle][0]))
+    slow_cov = None if slow_noise.is_zero else dwell_mean_covariance(np.array(starts), np.array([x.duration for x in sm]), slow_noise)
     readings = np.array([x.angles for x in sm])
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     start = None if initial_readings is None else _initial(initial_readings, site.gravity, site.base_attitude, configuration)
@@ -201,8 +224,10 @@ def dwells_from_dataset(
             "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
             "left_out": left_out,
             "stage": stage,
+            "slow_noise": slow_noise.describe(),
         },
         initial_readings=initial_readings,
+        slow_covariance=slow_cov,
     )
 
 
@@ -241,6 +266,7 @@ def dwell_means(
     batches: int = 8,
     labels: Sequence[str] | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    slow_noise=None,
 ) -> DwellSet:
     r"""Reduce samples to dwell means with a measured noise floor.
 
@@ -257,7 +283,9 @@ def dwell_means(
     99.9 % quantile of ``χ²_dof/dof`` (correlated noise), in which case the batch estimate is
     used.  Both, the ratio and the choice are kept in ``noise``.  Platform pointing errors are
     not in the within-dwell scatter; they enter the fit through the measured angle readings,
-    whose averaging error is negligible.
+    whose averaging error is negligible.  Slow bias wander (``slow_noise``, a
+    :class:`stableins.estimators.noise_model.SlowNoise` from a datasheet or a long static
+    record) is not in it either; when given, its covariance between dwells is added.
     """
     t = np.asarray(time, dtype=float)
     f = np.asarray(output, dtype=float)
@@ -275,6 +303,7 @@ def dwell_means(
     white = np.zeros(3)
     white_n = 0
     mid, tau, dtemp = np.zeros(n_pos), np.zeros(n_pos), np.zeros(n_pos)
+    starts, lengths = np.zeros(n_pos), np.zeros(n_pos)
     for k, p in enumerate(order):
         sel = pos == p
         n = int(sel.sum())
@@ -285,6 +314,7 @@ def dwell_means(
         angle_means[k] = r[sel].mean(axis=0)
         mid[k], tau[k], dtemp[k] = ts.mean(), since[sel].mean(), temp[sel].mean() - reference_temperature
         counts[k] = n
+        starts[k], lengths[k] = ts[0], ts[-1] - ts[0]
         x = ts - ts.mean()
         slope = (x @ (fs - fs.mean(axis=0))) / (x @ x)
         e = fs - fs.mean(axis=0) - np.outer(x, slope)
@@ -330,7 +360,16 @@ def dwell_means(
             "colour_ratio": sigma_batch / sigma_white,
         },
         initial_readings=initial_readings,
+        slow_covariance=_slow_covariance(starts, lengths, slow_noise),
     )
+
+
+def _slow_covariance(starts: NDArray, lengths: NDArray, slow_noise) -> NDArray[np.float64] | None:
+    if slow_noise is None or slow_noise.is_zero:
+        return None
+    from stableins.estimators.noise_model import dwell_mean_covariance
+
+    return dwell_mean_covariance(starts, lengths, slow_noise)
 
 
 def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
@@ -353,6 +392,27 @@ class DwellProblem:
     def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None) -> None:
         self.dwells = dwells
         self.fixed = dict(fixed or {})
+        self._inverse_factor = None
+        if dwells.slow_covariance is not None:
+            c = np.asarray(dwells.slow_covariance, dtype=float)
+            self._inverse_factor = np.stack([np.linalg.inv(np.linalg.cholesky(c + np.diag(dwells.sigma[:, a] ** 2))) for a in range(3)])
+
+    @property
+    def total_sigma(self) -> NDArray[np.float64]:
+        """1σ of each observation (white and slow noise), flattened position-major."""
+        d = self.dwells
+        variance = d.sigma**2 + (0.0 if d.slow_covariance is None else np.diag(d.slow_covariance)[:, None])
+        return np.sqrt(variance).reshape(-1)
+
+    def whiten(self, v: ArrayLike) -> NDArray[np.float64]:
+        """``R^{-1/2} v`` for observation-ordered vectors (m,) or matrices (m, k): ``L_a^{-1}`` per axis."""
+        v = np.asarray(v, dtype=float)
+        if self._inverse_factor is None:
+            s = self.dwells.sigma.reshape(-1)
+            return v / (s if v.ndim == 1 else s[:, None])
+        shaped = v.reshape((self.dwells.n_positions, 3) + v.shape[1:])
+        out = np.stack([self._inverse_factor[a] @ shaped[:, a] for a in range(3)], axis=1)
+        return out.reshape(v.shape)
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -421,14 +481,13 @@ class DwellProblem:
             values.update({k: float(v) for k, v in start.items() if k in model})
         values.update({k: float(v) for k, v in self.fixed.items() if k in model})
         y = d.output.reshape(-1)
-        s = d.sigma.reshape(-1)
         free = [t.id not in self.fixed for t in model.terms]
         gauge: list[str] = []
         notes: list[str] = []
         for _ in range(iterations):
             prediction, jac, _, _ = self.evaluate(model, values)
-            a = jac.reshape(-1, len(model))[:, :] / s[:, None]
-            r = (y - prediction.reshape(-1)) / s
+            a = self.whiten(jac.reshape(-1, len(model)))
+            r = self.whiten(y - prediction.reshape(-1))
             cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
             cols, new_gauge = _gauge(a, cols, model.terms)
             for gid in new_gauge:
@@ -441,7 +500,7 @@ class DwellProblem:
             if np.max(np.abs(step) * scale) < 1e-6:
                 break
         prediction, jac, f_p, _ = self.evaluate(model, values)
-        a = jac.reshape(-1, len(model)) / s[:, None]
+        a = self.whiten(jac.reshape(-1, len(model)))
         cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
         normal = a[:, cols].T @ a[:, cols]
         cov_free = np.linalg.inv(normal)
@@ -451,6 +510,7 @@ class DwellProblem:
         scaled = a[:, cols] / np.linalg.norm(a[:, cols], axis=0)
         sv = np.linalg.svd(scaled, compute_uv=False)
         residuals = y - prediction.reshape(-1)
+        white = self.whiten(residuals)
         return FitResult(
             stage="device dwells",
             terms=model.terms,
@@ -458,13 +518,19 @@ class DwellProblem:
             covariance=cov,
             status=status,
             residuals=residuals,
-            residual_sigma=s.copy(),
+            residual_sigma=self.total_sigma,
             residual_labels=self.labels,
             rank=len(cols),
             singular_values=sv,
             null_space=np.zeros((len(model), 0)),
             notes=tuple(notes),
-            extra={"specific_force_platform": f_p, "prediction": prediction, "noise": d.noise},
+            extra={
+                "specific_force_platform": f_p,
+                "prediction": prediction,
+                "noise": d.noise,
+                "chi2_whitened": float(white @ white),
+                "slow_noise": d.slow_covariance is not None,
+            },
         )
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
@@ -485,6 +551,25 @@ class DwellProblem:
 
         f_p = platform_specific_force(d.readings, d.gravity, base_attitude=d.base_attitude, configuration=d.configuration)
         return np.repeat(f_p / d.gravity, 3, axis=0)
+
+
+def fit_chi2(result: FitResult) -> float:
+    """χ² that the fit minimized (generalized when the observations are correlated)."""
+    return float(result.extra.get("chi2_whitened", result.chi2))
+
+
+def fit_chi2_red(result: FitResult) -> float:
+    return fit_chi2(result) / result.dof if result.dof > 0 else float("nan")
+
+
+def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
+    """``R^{-1/2} v`` with the problem's noise model (diagonal 1σ when it has none)."""
+    w = getattr(problem, "whiten", None)
+    if w is not None:
+        return w(v)
+    v = np.asarray(v, dtype=float)
+    s = result.residual_sigma
+    return v / (s if v.ndim == 1 else s[:, None])
 
 
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:

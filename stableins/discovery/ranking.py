@@ -141,6 +141,12 @@ class CandidateScore:
         }
 
 
+def _chi2_red(result: FitResult) -> float:
+    from stableins.discovery.problem import fit_chi2_red
+
+    return fit_chi2_red(result)
+
+
 def _finite(x: float) -> float | None:
     x = float(x)
     return x if np.isfinite(x) else None
@@ -176,7 +182,7 @@ class Ranking:
     def report(self, top: int = 10) -> str:
         model = ErrorModel(self.result.terms)
         lines = [
-            f"candidates ranked against the {self.result.stage} fit (χ²_ν = {self.result.chi2_red:.3f}, ν = {self.result.dof}); "
+            f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
             f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates",
             f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δf|':>10}  identifiable / aliases",
         ]
@@ -241,14 +247,16 @@ def rank(
         separation = {c.id: c.separation for c in LIBRARY}
     model_ids = set(result.ids)
     terms = [t for t in candidates if t.id not in model_ids]
-    s = result.residual_sigma
-    r = result.residuals / s
-    x = problem.design(result) / s[:, None]
+    from stableins.discovery.problem import whiten
+
+    r = whiten(problem, result, result.residuals)
+    x = whiten(problem, result, problem.design(result))
     est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
     m = r.size
     nu = result.dof
     rss0 = float(r @ r)
-    columns = _candidate_columns(problem, terms, result) / s[:, None]
+    raw_columns = _candidate_columns(problem, terms, result)
+    columns = whiten(problem, result, raw_columns)
     q, _ = np.linalg.qr(x)
     z_perp = columns - q @ (q.T @ columns)
     norm_z = np.linalg.norm(columns, axis=0)
@@ -290,7 +298,7 @@ def rank(
                 delta_bic=dbic,
                 estimate=float(gamma[k]),
                 sigma=float(gsig[k]),
-                predicted=float(np.max(np.abs(columns[:, k] * s * gamma[k]))) if identifiable[k] else 0.0,
+                predicted=float(np.max(np.abs(raw_columns[:, k] * gamma[k]))) if identifiable[k] else 0.0,
                 identifiable=bool(identifiable[k]),
                 excited=bool(excited[k]),
                 separability=float(separability[k]),
@@ -341,8 +349,10 @@ def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDA
 def refit(problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
     """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
     new = problem.fit(model + candidate.term, start=result.as_dict())
-    delta = result.chi2 - new.chi2
-    stat, p, dbic = _statistics(delta, result.chi2, nu, m)
+    from stableins.discovery.problem import fit_chi2
+
+    delta = fit_chi2(result) - fit_chi2(new)
+    stat, p, dbic = _statistics(delta, fit_chi2(result), nu, m)
     value, sigma, _ = new[candidate.id]
     shifts = {}
     for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):
