@@ -209,3 +209,45 @@ def test_tilt_east_is_reported_as_theta30_alias():
     assert not tilt.identifiable and tilt.excited and tilt.aliases[0][0] == "theta30"
     assert not score["lever_x_y"].excited  # static dwells do not excite the size effect
     assert "azimuth" in tilt.advice
+
+
+def test_harmonic_spectrum_recovers_earth_rate_harmonics():
+    from stableins.conventions import EARTH_RATE
+    from stableins.discovery.diagnostics import harmonic_spectrum
+
+    rng = np.random.default_rng(12)
+    t = np.arange(0, 86400.0, 10.0)
+    sigma = 2e-5
+    r = 3e-6 + 4e-6 * np.cos(2 * EARTH_RATE * t) - 1e-6 * np.sin(2 * EARTH_RATE * t) + rng.normal(0, sigma, t.size)
+    spec = harmonic_spectrum(t, r, sigma)
+    expected_sigma = sigma * np.sqrt(2.0 / t.size)
+    assert spec.sigma[1] == pytest.approx(expected_sigma, rel=0.01)
+    assert abs(spec.cosine[1] - 4e-6) < 4 * expected_sigma and abs(spec.sine[1] + 1e-6) < 4 * expected_sigma
+    assert np.all(spec.amplitude[[0, 2, 3]] < 4 * expected_sigma)
+    assert "11.97" in spec.report()  # period of the second harmonic [h]: half a sidereal day
+
+
+def test_diagnose_any_stage_result_from_its_labels():
+    from stableins.discovery.diagnostics import diagnose
+    from stableins.estimators.result import FitResult
+
+    terms = ErrorModel.standard().terms[:2]
+    common = dict(stage="s", terms=terms, values=np.zeros(2), covariance=np.eye(2), status=("estimated",) * 2, rank=2)
+    three = FitResult(
+        **common,
+        residuals=np.arange(12.0) * 1e-6,
+        residual_sigma=np.full(12, 1e-6),
+        residual_labels=tuple(f"pos {p} f_{a}" for p in range(1, 5) for a in "xyz"),
+    )
+    d = diagnose(None, three)
+    assert d.position_labels == ("pos 1", "pos 2", "pos 3", "pos 4") and d.outputs == ("f_x", "f_y", "f_z")
+    assert d.worst(1)[0][:2] == ("pos 4", "f_z")
+    norm = FitResult(
+        **common,
+        residuals=np.array([1.0, -2.0, 0.5]) * 1e-6,
+        residual_sigma=np.full(3, 1e-6),
+        residual_labels=("pos 1 |f|", "pos 2 |f|", "pos 3 |f|"),
+    )
+    d = diagnose(None, norm)
+    assert d.outputs == ("|f|",) and d.residuals.shape == (3, 1)
+    assert d.chi2_red == pytest.approx(5.25 / 1) and "pos 2 |f| -2.0σ" in d.report()

@@ -58,6 +58,9 @@ class Diagnosis:
     spread: float
     p_value: float
     noise: dict
+    outputs: tuple[str, ...] = ("f_x", "f_y", "f_z")
+    unit: str = "µg"
+    scale: float = MICRO_G
 
     @property
     def normalized(self) -> NDArray[np.float64]:
@@ -65,7 +68,7 @@ class Diagnosis:
 
     @property
     def rms(self) -> NDArray[np.float64]:
-        """Residual RMS per axis [m/s²]."""
+        """Residual RMS per output [SI of the observation]."""
         return np.sqrt(np.mean(self.residuals**2, axis=0))
 
     @property
@@ -81,8 +84,9 @@ class Diagnosis:
     def worst(self, count: int = 5) -> list[tuple[str, str, float]]:
         """The largest normalized residuals: (position, axis, residual/σ)."""
         z = self.normalized
+        k = z.shape[1]
         order = np.argsort(-np.abs(z), axis=None)[:count]
-        return [(self.position_labels[i // 3], AXIS_NAMES[i % 3], float(z.flat[i])) for i in order]
+        return [(self.position_labels[i // k], self.outputs[i % k], float(z.flat[i])) for i in order]
 
     def report(self) -> str:
         r = self.result
@@ -92,11 +96,12 @@ class Diagnosis:
             f"P(χ² ≥ observed) = {self.p_value:.3g} — {verdict}",
             f"{'axis':<5} {'residual RMS':>14} {'noise floor':>12} {'ratio':>7}",
         ]
-        for a, rms, floor in zip(AXIS_NAMES, self.rms, self.noise_floor, strict=True):
-            lines.append(f"{a:<5} {rms / MICRO_G:>11.3f} µg {floor / MICRO_G:>9.3f} µg {rms / floor:>7.2f}")
+        for a, rms, floor in zip(self.outputs, self.rms, self.noise_floor, strict=True):
+            u, sc = self.unit, self.scale
+            lines.append(f"{a:<5} {rms / sc:>11.3f} {u:<2} {floor / sc:>9.3f} {u:<2} {rms / floor:>7.2f}")
         if self.noise:
             lines.append(f"noise floor: {self.noise.get('method', '')}")
-        lines.append("largest residuals: " + ", ".join(f"{p} f_{a} {z:+.1f}σ" for p, a, z in self.worst()))
+        lines.append("largest residuals: " + ", ".join(f"{p} {a} {z:+.1f}σ" for p, a, z in self.worst()))
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -104,18 +109,19 @@ class Diagnosis:
 
     # ------------------------------------------------------------------ plots
     def plot_positions(self, fig: Figure | None = None, title: str | None = None) -> Figure:
-        """Residuals per position and axis with 1σ bars (µg)."""
+        """Residuals per position and output with 1σ bars (in :attr:`unit`)."""
         import matplotlib.pyplot as plt
 
         fig = fig or plt.figure(figsize=(10, 6.5))
         k = np.arange(len(self.position_labels))
-        axes = fig.subplots(3, 1, sharex=True)
+        axes = np.atleast_1d(fig.subplots(len(self.outputs), 1, sharex=True))
         for i, ax in enumerate(axes):
-            ax.errorbar(k, self.residuals[:, i] / MICRO_G, yerr=self.sigma[:, i] / MICRO_G, fmt="o", ms=3.5, lw=1, capsize=2)
+            ax.errorbar(k, self.residuals[:, i] / self.scale, yerr=self.sigma[:, i] / self.scale, fmt="o", ms=3.5, lw=1, capsize=2)
             ax.axhline(0.0, color="k", lw=0.6)
-            ax.set_ylabel(f"f_{AXIS_NAMES[i]} residual [µg]")
+            ax.set_ylabel(f"{self.outputs[i]} residual [{self.unit}]")
             ax.grid(alpha=0.3)
-        axes[-1].set_xticks(k, self.position_labels, rotation=90, fontsize=7)
+        if len(k) <= 80:
+            axes[-1].set_xticks(k, self.position_labels, rotation=90, fontsize=7)
         axes[0].set_title(title or f"{self.result.stage}: χ²_ν = {self.chi2_red:.2f} (expected 1 ± {self.spread:.2f})")
         fig.tight_layout()
         return fig
@@ -144,20 +150,45 @@ class Diagnosis:
         return fig
 
 
-def diagnose(problem, result: FitResult) -> Diagnosis:
-    """Residual diagnostics of a device-level dwell fit (any problem with 3 outputs per position)."""
+def _layout(labels: Sequence[str], m: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Position names and output names from residual labels ``"<position> <output>"``.
+
+    Three outputs per position when the labels end in ``f_x, f_y, f_z`` in turn (device
+    dwells); otherwise one output per observation (the fine stage's ``|f|``, system records).
+    """
+    if len(labels) == m and m % 3 == 0 and all(lbl.endswith(f" f_{a}") for lbl, a in zip(labels, AXIS_NAMES * (m // 3), strict=False)):
+        return tuple(lbl.rsplit(" ", 1)[0] for lbl in labels[::3]), tuple(f"f_{a}" for a in AXIS_NAMES)
+    if len(labels) == m and all(" " in lbl for lbl in labels):
+        outputs = {lbl.rsplit(" ", 1)[1] for lbl in labels}
+        if len(outputs) == 1:
+            return tuple(lbl.rsplit(" ", 1)[0] for lbl in labels), (outputs.pop(),)
+    return tuple(labels) if len(labels) == m else tuple(f"obs {k + 1}" for k in range(m)), ("residual",)
+
+
+def diagnose(problem, result: FitResult, unit: str = "µg", scale: float = MICRO_G) -> Diagnosis:
+    """Residual diagnostics of any fitted stage.
+
+    ``problem`` may be None: the residuals, their 1σ and labels of ``result`` are enough
+    (e.g. a FitResult of the device estimators).  With a discovery problem the χ² is the one
+    its fit minimized (generalized when slow noise correlates the dwells) and the
+    orientation of each position is known.  ``unit``/``scale`` set how residuals are shown
+    (default µg for specific force; e.g. ``"µrad", 1e-6`` for attitude residuals).
+    """
     from scipy import stats
 
     from stableins.discovery.problem import fit_chi2, fit_chi2_red
 
-    residuals = result.residuals.reshape(-1, 3)
-    sigma = result.residual_sigma.reshape(-1, 3)
-    labels = tuple(getattr(getattr(problem, "dwells", None), "labels", ())) or tuple(f"pos {k + 1}" for k in range(residuals.shape[0]))
-    orientation = problem.orientation(result)[::3] if hasattr(problem, "orientation") else None
+    positions, outputs = _layout(result.residual_labels, result.residuals.size)
+    k = len(outputs)
+    residuals = result.residuals.reshape(-1, k)
+    sigma = result.residual_sigma.reshape(-1, k)
+    if problem is not None and hasattr(problem, "dwells"):
+        positions = tuple(problem.dwells.labels)
+    orientation = problem.orientation(result)[::3] if problem is not None and hasattr(problem, "orientation") else None
     nu = result.dof
     return Diagnosis(
         result=result,
-        position_labels=labels,
+        position_labels=positions,
         residuals=residuals,
         sigma=sigma,
         orientation=orientation,
@@ -165,6 +196,9 @@ def diagnose(problem, result: FitResult) -> Diagnosis:
         spread=float(np.sqrt(2.0 / max(nu, 1))),
         p_value=float(stats.chi2.sf(fit_chi2(result), nu)) if nu > 0 else float("nan"),
         noise=dict(result.extra.get("noise", {})),
+        outputs=outputs,
+        unit=unit,
+        scale=scale,
     )
 
 
