@@ -251,3 +251,34 @@ def test_diagnose_any_stage_result_from_its_labels():
     d = diagnose(None, norm)
     assert d.outputs == ("|f|",) and d.residuals.shape == (3, 1)
     assert d.chi2_red == pytest.approx(5.25 / 1) and "pos 2 |f| -2.0σ" in d.report()
+
+
+def test_separating_procedures_are_found_numerically():
+    from stableins.discovery.separation import separation
+
+    rng = np.random.default_rng(3)
+    angles = np.deg2rad(np.arange(0, 360, 45.0))
+    zero = 0 * angles
+    tumble = [np.stack([zero, angles, zero], 1), np.stack([zero, zero, angles], 1), np.stack([angles, zero, zero + np.pi / 2], 1)]
+    readings = np.concatenate(tumble)
+    model = ErrorModel.standard(gimbals=True)
+    truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
+    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS])
+    n = len(readings)
+    sigma = 5e-6
+    labels = tuple(f"p{k}" for k in range(n))
+    f_a = model.forward(f_p, truth) + rng.normal(0, sigma, f_p.shape)
+    time = np.arange(n) * 60.0
+    dwells = DwellSet(readings, f_a, np.full((n, 3), sigma), G, time, np.full(n, 30.0), np.zeros(n), np.zeros((n, 3)), labels)
+    problem = DwellProblem(dwells)
+    result = problem.fit(model)
+
+    def separated_by(cid, partners=()):
+        return {s.proposal for s in separation(problem, result, LIBRARY[cid].term, [LIBRARY[p].term for p in partners]) if s.separates()}
+
+    assert separated_by("tilt_east") == {"azimuth_180"}  # θ30 and the east tilt: one rotation unless the base turns
+    assert separated_by("Kcq_xy", ["Kcq_xz"]) == set()  # |f| = g at every static position
+    assert separated_by("Kt_bias_x") == {"temperature"}  # no temperature change in these data
+    assert separated_by("lever_x_y") == set()  # needs rotation
+    ranking = rank(problem, result, [LIBRARY["tilt_east"].term])
+    assert "separated by: azimuth_180" in ranking["tilt_east"].advice

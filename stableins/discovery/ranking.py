@@ -221,6 +221,7 @@ def rank(
     alpha: float = 0.05,
     refit_top: int = 3,
     separation: dict[str, str] | None = None,
+    propose: bool = True,
 ) -> Ranking:
     """Rank every candidate not in the model; refit the best ``refit_top`` with the full fitter.
 
@@ -238,6 +239,10 @@ def rank(
         How many of the best identifiable candidates to refit fully.
     separation : dict, optional
         Advice per id on what separates the effect (default: the library's).
+    propose : bool
+        For device dwell problems, test numerically which standard procedure extensions
+        (:mod:`stableins.discovery.separation`) separate the excited candidates that are not
+        separable or are confused with another, and add the answer to their advice.
     """
     from stableins.discovery.library import LIBRARY
 
@@ -308,6 +313,8 @@ def rank(
             )
         )
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
+    if propose and hasattr(problem, "dwells"):
+        scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
     # full refit of the best identifiable candidates
     refits = []
@@ -319,6 +326,21 @@ def rank(
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
     flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
     return Ranking(result, tuple(flagged), alpha, n_tested)
+
+
+def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
+    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
+    from stableins.discovery.separation import describe, separation
+
+    out = []
+    for c in scores:
+        if c.excited and (not c.identifiable or c.confused_with):
+            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
+            text = c.advice.removeprefix("confirm with ")
+            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
+            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
+        out.append(c)
+    return out
 
 
 def _statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
