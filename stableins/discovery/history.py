@@ -225,7 +225,8 @@ class Discovery:
 
         return diagnose(self.problem, self.result)
 
-    def rank(self, refit_top: int = 3) -> Ranking:
+    def rank(self, refit_top: int = 3, propose: bool = True) -> Ranking:
+        """Rank every library candidate not in the model (see :func:`stableins.discovery.ranking.rank`)."""
         from stableins.discovery.ranking import rank
 
         self._ranking = rank(
@@ -235,6 +236,7 @@ class Discovery:
             alpha=self.alpha,
             refit_top=refit_top,
             separation={c.id: c.separation for c in self.library},
+            propose=propose,
         )
         return self._ranking
 
@@ -254,7 +256,7 @@ class Discovery:
     def auto(self, max_steps: int = 5) -> History:
         """Add the best flagged, identifiable candidate until none is flagged (or ``max_steps``)."""
         for _ in range(max_steps):
-            best = self.rank(refit_top=1).best
+            best = self.rank(refit_top=1, propose=False).best
             if best is None or not best.flagged:
                 break
             self.add(best.term)
