@@ -13,6 +13,9 @@ What it prints and what it compares against:
   chunk into resizable chunked datasets, with no validation and no atomic rename: the
   floor for any HDF5 writer on this disk;
 - baseline 2: ``numpy.ndarray.tofile`` of the same bytes, fsynced: the disk's sequential bandwidth;
+- controlled comparison: the same hour of chunks written alternately by the writer and by
+  raw h5py (best of N), the fairest measure of the writer's own overhead (validation,
+  buffering, atomic rename);
 - reading back: ``open_system_record`` + ``check_sampling`` + ``iter_chunks`` over all columns;
 - peak memory: tracemalloc peak of Python/numpy allocations during the writer run, and the
   process's maximum resident set size (``ru_maxrss``).  A day is 0.97 GB of float64: a peak
@@ -58,7 +61,6 @@ def synthetic_chunks(duration: float, rate: float, chunk: int = CHUNK):
 
 def simulator_chunks(duration: float, rate: float, chunk: int = CHUNK):
     from stableins.simulator.system import system_record_chunks
-
     from stableins.simulator.truth import Truth
 
     truth = Truth.draw(1, sample_rate=rate)
@@ -70,6 +72,7 @@ def main() -> None:
     parser.add_argument("--hours", type=float, default=24.0)
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--source", choices=("simulator", "synthetic"), default="simulator")
+    parser.add_argument("--repeat", type=int, default=3, help="repetitions of each baseline")
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: a temporary directory)")
     args = parser.parse_args()
     duration = args.hours * 3600.0
@@ -132,33 +135,76 @@ def main() -> None:
 
         # ---------------------------------------------------------- baselines
         block = np.random.default_rng(2).normal(size=(ncol, CHUNK))
-        raw = directory / "raw.h5"
-        t0 = time.perf_counter()
-        with h5py.File(raw, "w") as f:
-            datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
-            for start in range(0, n_total, CHUNK):
-                n = min(CHUNK, n_total - start)
-                for j, d in enumerate(datasets):
-                    d.resize((start + n,))
-                    d[start:] = block[j, :n]
-        with open(raw, "rb+") as handle:
-            os.fsync(handle.fileno())  # the writer fsyncs too
-        t_raw = time.perf_counter() - t0
-        raw.unlink()
-        flat = directory / "raw.bin"
-        t0 = time.perf_counter()
-        with open(flat, "wb") as handle:
-            for start in range(0, n_total, CHUNK):
-                n = min(CHUNK, n_total - start)
-                block[:, :n].tofile(handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        t_flat = time.perf_counter() - t0
-        flat.unlink()
-        print("\nbaselines (same rows x columns of float64):")
-        print(f"  raw h5py chunked append: {t_raw:6.2f} s  {n_total / t_raw:12.0f} samples/s  {payload_mb / t_raw:7.1f} MB/s")
-        print(f"  numpy tofile:            {t_flat:6.2f} s  {n_total / t_flat:12.0f} samples/s  {payload_mb / t_flat:7.1f} MB/s")
-        print(f"  writer / raw h5py time: {t_writer / t_raw:.2f}")
+
+        def raw_h5py() -> float:
+            raw = directory / "raw.h5"
+            t0 = time.perf_counter()
+            with h5py.File(raw, "w") as f:
+                datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
+                for start in range(0, n_total, CHUNK):
+                    n = min(CHUNK, n_total - start)
+                    for j, d in enumerate(datasets):
+                        d.resize((start + n,))
+                        d[start:] = block[j, :n]
+            with open(raw, "rb+") as handle:
+                os.fsync(handle.fileno())  # the writer fsyncs too
+            elapsed = time.perf_counter() - t0
+            raw.unlink()
+            return elapsed
+
+        def raw_tofile() -> float:
+            flat = directory / "raw.bin"
+            t0 = time.perf_counter()
+            with open(flat, "wb") as handle:
+                for start in range(0, n_total, CHUNK):
+                    n = min(CHUNK, n_total - start)
+                    block[:, :n].tofile(handle)
+                handle.flush()
+                os.fsync(handle.fileno())
+            elapsed = time.perf_counter() - t0
+            flat.unlink()
+            return elapsed
+
+        t_raw = [raw_h5py() for _ in range(args.repeat)]
+        t_flat = [raw_tofile() for _ in range(args.repeat)]
+        print(f"\nbaselines (same rows x columns of float64; best and worst of {args.repeat}):")
+        for label, times in (("raw h5py chunked append", t_raw), ("numpy tofile", t_flat)):
+            lo, hi = min(times), max(times)
+            rates = f"{n_total / hi:10.0f}..{n_total / lo:10.0f} samples/s  {payload_mb / hi:6.1f}..{payload_mb / lo:6.1f} MB/s"
+            print(f"  {label:<24} {lo:6.2f}..{hi:6.2f} s  {rates}")
+        print(f"  writer time / raw h5py time: {t_writer / max(t_raw):.2f}..{t_writer / min(t_raw):.2f}")
+        print("  (disk figures swing by 2x or more with page-cache state and machine load; compare within one run)")
+
+        # ---------------------------------------------------------- controlled comparison
+        hour = list(synthetic_chunks(3600.0, args.rate))
+        n_hour = sum(len(c["time"]) for c in hour)
+
+        def writer_hour() -> float:
+            t0 = time.perf_counter()
+            with SystemRecordWriter(directory / "hour.h5", site, chunk_samples=CHUNK) as w:
+                for c in hour:
+                    w.append(c)
+            return time.perf_counter() - t0
+
+        def raw_hour() -> float:
+            t0 = time.perf_counter()
+            with h5py.File(directory / "hour-raw.h5", "w") as f:
+                datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
+                start = 0
+                for c in hour:
+                    n = len(c["time"])
+                    for name, d in zip(NAMES, datasets):
+                        d.resize((start + n,))
+                        d[start:] = c[name]
+                    start += n
+            with open(directory / "hour-raw.h5", "rb+") as handle:
+                os.fsync(handle.fileno())
+            return time.perf_counter() - t0
+
+        pairs = [(writer_hour(), raw_hour()) for _ in range(max(3, args.repeat))]
+        w_best, r_best = min(p[0] for p in pairs), min(p[1] for p in pairs)
+        print(f"\ncontrolled: the same 1 h of chunks ({n_hour} samples), writer and raw h5py alternating, best of {len(pairs)}:")
+        print(f"  writer {w_best:.3f} s ({n_hour / w_best:.0f} samples/s), raw h5py {r_best:.3f} s; writer / raw = {w_best / r_best:.2f}")
 
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3  # kB on Linux
     print(f"\nprocess max resident set size (ru_maxrss, whole run incl. interpreter and libraries): {rss:.0f} MB")

@@ -94,7 +94,8 @@ def statistics(name, ids, err, cov, crb, scale_units):
     for k, i in enumerate(ids):
         unit, factor = scale_units[k]
         print(
-            f"  {i:<22}{z[:, k].mean():>+11.3f}{rms[k] / factor:>12.4f}{bound[k] / factor:>12.4f}{rms[k] / bound[k]:>10.3f}{z[:, k].std():>11.3f}  {unit}"
+            f"  {i:<22}{z[:, k].mean():>+11.3f}{rms[k] / factor:>12.4f}{bound[k] / factor:>12.4f}"
+            f"{rms[k] / bound[k]:>10.3f}{z[:, k].std():>11.3f}  {unit}"
         )
         worst_bias = max(worst_bias, abs(z[:, k].mean()))
         worst_eff = max(worst_eff, abs(rms[k] / bound[k] - 1))

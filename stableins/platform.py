@@ -22,9 +22,10 @@ Gimbal chain with non-orthogonal axes
     With ``nu = 0`` this is :func:`stableins.conventions.dcm_body_to_platform`.
 
 Base
-    ``C_n^b = dcm_nav_to_body(yaw, pitch, roll) @ R2(t_E) @ R1(t_N)``: the true base
-    is the surveyed one turned right-handedly by ``t_N`` (``tilt_north``) about North,
-    then by ``t_E`` (``tilt_east``) about East (frame rotations, as in conventions).
+    ``C_n^b = dcm_nav_to_body(yaw, pitch, roll) @ R2(t_E) @ R1(t_N) @ R3(ψ_e)``: the
+    true base is the surveyed one turned right-handedly by ``ψ_e`` (``azimuth_error``)
+    about Down, by ``t_N`` (``tilt_north``) about North, then by ``t_E``
+    (``tilt_east``) about East (frame rotations, as in conventions).
 
 Everything is vectorized over leading dimensions of the readings.
 """
@@ -71,6 +72,8 @@ class GimbalPlatform:
     base_tilt : tuple of float
         ``(tilt_north, tilt_east)`` [rad]: unknown small rotation of the true base
         about North then East relative to the surveyed attitude.
+    base_azimuth : float
+        Unknown azimuth error of the base about Down [rad].
     nonorthogonality : tuple of float
         ``(nu12, nu23)`` [rad], see the module docstring.
     angle_sensor_errors : mapping
@@ -83,6 +86,7 @@ class GimbalPlatform:
     configuration: GimbalConfiguration = DEFAULT_GIMBALS
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
     base_tilt: tuple[float, float] = (0.0, 0.0)
+    base_azimuth: float = 0.0
     nonorthogonality: tuple[float, float] = (0.0, 0.0)
     angle_sensor_errors: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     outer_angle: float = 0.0
@@ -137,12 +141,12 @@ class GimbalPlatform:
         return self.dcm_body_to_platform_actual(self.actual_angles(readings))
 
     def dcm_nav_to_body(self) -> NDArray[np.float64]:
-        """True ``C_n^b`` of the base: surveyed attitude, then the tilt (module docstring)."""
+        """True ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
         yaw, pitch, roll = self.base_attitude
         c = dcm_nav_to_body(yaw, pitch, roll)
         t_north, t_east = self.base_tilt
-        if t_north or t_east:
-            c = c @ R2(t_east) @ R1(t_north)
+        if t_north or t_east or self.base_azimuth:
+            c = c @ R2(t_east) @ R1(t_north) @ R3(self.base_azimuth)
         return c
 
     def dcm_nav_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:
@@ -161,18 +165,25 @@ class GimbalPlatform:
                             + R_1(s_2\alpha_2)R_3(\nu_{23})\,s_3\dot\alpha_3 e_2\big]
         """
         alpha = np.asarray(actual, dtype=float)
-        rate = np.asarray(actual_rate, dtype=float)
+        rate = np.broadcast_to(np.asarray(actual_rate, dtype=float), alpha.shape)
         s1, s2, s3, _ = self.configuration.senses
         nu12, nu23 = self.nonorthogonality
-        e1, e2 = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
-        inner = s2 * rate[..., 1, None] * e1 + np.einsum("...ij,j->...i", R1(s2 * alpha[..., 1]) @ R3(nu23), e2) * (s3 * rate[..., 2, None])
-        outer = np.einsum("...ij,...j->...i", R3(s1 * alpha[..., 0]) @ R2(nu12), inner)
-        outer[..., 2] += s1 * rate[..., 0]
-        return outer
+        a, b = s1 * alpha[..., 0], s2 * alpha[..., 1]
+        r1, r2, r3 = s1 * rate[..., 0], s2 * rate[..., 1], s3 * rate[..., 2]
+        cb, sb = np.cos(b), np.sin(b)
+        # inner = s2 a2' e1 + R1(b) R3(nu23) e2 s3 a3',  R3(nu) e2 = (sin nu, cos nu, 0)
+        v0 = r2 + r3 * np.sin(nu23)
+        v1 = r3 * cb * np.cos(nu23)
+        v2 = -r3 * sb * np.cos(nu23)
+        # R2(nu12) v = (c v0 - s v2, v1, s v0 + c v2); then R3(a) w = (ca w0 + sa w1, -sa w0 + ca w1, w2)
+        c12, s12 = np.cos(nu12), np.sin(nu12)
+        w0, w2 = c12 * v0 - s12 * v2, s12 * v0 + c12 * v2
+        ca, sa = np.cos(a), np.sin(a)
+        return np.stack([ca * w0 + sa * v1, -sa * w0 + ca * v1, w2 + r1], axis=-1)
 
     # ------------------------------------------------------------------ inverse kinematics
     def actual_from_dcm(
-        self, dcm_body_to_platform_: ArrayLike, initial: ArrayLike | None = None, iterations: int = 3
+        self, dcm_body_to_platform_: ArrayLike, initial: ArrayLike | None = None, iterations: int = 2
     ) -> NDArray[np.float64]:
         """Actual gimbal angles that produce a given ``C_b^p`` (outer angle held).
 
@@ -194,15 +205,11 @@ class GimbalPlatform:
                 return alpha
         else:
             alpha = np.array(np.broadcast_to(np.asarray(initial, dtype=float), target.shape[:-2] + (3,)))
-        step = 1e-6
+        eye = np.eye(3)
         for _ in range(iterations):
             residual = _rotation_vector(target @ self.dcm_body_to_platform_actual(alpha).swapaxes(-1, -2))
-            jac = np.empty(alpha.shape + (3,))
-            base = self.dcm_body_to_platform_actual(alpha)
-            for k in range(3):
-                shifted = alpha.copy()
-                shifted[..., k] += step
-                jac[..., :, k] = _rotation_vector(self.dcm_body_to_platform_actual(shifted) @ base.swapaxes(-1, -2)) / step
+            # d(C_b^p) = -[(J dalpha) x] C_b^p with the columns of J the angular rates for unit gimbal rates
+            jac = np.stack([self.angular_rate(alpha, np.broadcast_to(eye[k], alpha.shape)) for k in range(3)], axis=-1)
             alpha = alpha + np.linalg.solve(jac, residual[..., None])[..., 0]
         return alpha
 

@@ -376,6 +376,17 @@ class CalibrationRecord:
         for key in ("serial_number", "parameters", "covariance", "provenance"):
             if key not in document:
                 raise fail("missing key", key, "the keys of docs/formats.md")
+
+        def text(value: Any, key: str) -> str:
+            if not isinstance(value, str):
+                raise fail(f"{value!r} is not a string", key, "a string")
+            return value
+
+        def texts(value: Any, key: str) -> tuple[str, ...]:
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise fail(f"{value!r} is not a list of strings", key, "a list of strings")
+            return tuple(value)
+
         if not isinstance(document["parameters"], list):
             raise fail("not a list", "parameters", "a list of parameter objects")
         parameters = []
@@ -386,49 +397,52 @@ class CalibrationRecord:
             for key in ("id", "value", "unit", "sigma", "status"):
                 if key not in item:
                     raise fail("missing key", f"{where}.{key}", '{"id", "value", "unit", "sigma", "status"}')
+            parameter_id = text(item["id"], f"{where}.id")
             if item["status"] not in STATUSES:
-                raise fail(f"bad status {item['status']!r} for {item['id']!r}", f"{where}.status", " or ".join(STATUSES))
+                raise fail(f"bad status {item['status']!r} for {parameter_id!r}", f"{where}.status", " or ".join(STATUSES))
             value = _number(item["value"], path, f"{where}.value")
             sigma = math.nan if item["sigma"] is None else _number(item["sigma"], path, f"{where}.sigma")
-            parameters.append(Parameter(str(item["id"]), value, str(item["unit"]), sigma, item["status"]))
+            parameters.append(Parameter(parameter_id, value, text(item["unit"], f"{where}.unit"), sigma, item["status"]))
         cov = document["covariance"]
         if not isinstance(cov, dict) or "ids" not in cov or "matrix" not in cov:
             raise fail("malformed", "covariance", '{"ids": [...], "matrix": [[...]]}')
         ids = [p.id for p in parameters]
-        if list(cov["ids"]) != ids:
-            raise fail(f"ids {cov['ids']} do not follow the parameters {ids}", "covariance.ids", "the parameter ids in order")
-        try:
-            matrix = np.array([[math.nan if x is None else x for x in row] for row in cov["matrix"]], dtype=float)
-        except (TypeError, ValueError):
-            raise fail("not a numeric matrix", "covariance.matrix", "a list of rows of numbers") from None
-        if matrix.shape != (len(ids), len(ids)):
-            raise fail(f"shape {matrix.shape}", "covariance.matrix", f"({len(ids)}, {len(ids)})")
+        if cov["ids"] != ids:
+            raise fail(f"ids {cov['ids']!r} do not follow the parameters {ids}", "covariance.ids", "the parameter ids in order")
+        rows = cov["matrix"]
+        n = len(ids)
+        if not isinstance(rows, list) or len(rows) != n or not all(isinstance(r, list) and len(r) == n for r in rows):
+            raise fail("not a square list of rows", "covariance.matrix", f"{n} rows of {n} numbers")
+        if not all(x is None or (isinstance(x, int | float) and not isinstance(x, bool)) for r in rows for x in r):
+            raise fail("not a numeric matrix", "covariance.matrix", "numbers (null only for unidentifiable parameters)")
+        matrix = np.array([[math.nan if x is None else float(x) for x in r] for r in rows], dtype=float).reshape(n, n)
         prov = document["provenance"]
         if not isinstance(prov, dict) or "software" not in prov:
             raise fail("malformed", "provenance", "an object with software, procedure, stages, inputs, created")
-        try:
-            inputs = tuple(InputFile(str(f["path"]), str(f["sha256"])) for f in prov.get("inputs", []))
-        except (TypeError, KeyError):
-            raise fail("malformed input list", "provenance.inputs", '[{"path": ..., "sha256": ...}]') from None
+        files = prov.get("inputs", [])
+        if not isinstance(files, list) or not all(
+            isinstance(f, dict) and isinstance(f.get("path"), str) and isinstance(f.get("sha256"), str) for f in files
+        ):
+            raise fail("malformed input list", "provenance.inputs", '[{"path": ..., "sha256": ...}]')
         provenance = Provenance(
-            software=str(prov["software"]),
-            procedure=str(prov.get("procedure", "")),
-            stages=tuple(map(str, prov.get("stages", []))),
-            inputs=inputs,
-            created=str(prov.get("created", "")),
-            data_start=str(prov.get("data_start", "")),
-            data_end=str(prov.get("data_end", "")),
+            software=text(prov["software"], "provenance.software"),
+            procedure=text(prov.get("procedure", ""), "provenance.procedure"),
+            stages=texts(prov.get("stages", []), "provenance.stages"),
+            inputs=tuple(InputFile(f["path"], f["sha256"]) for f in files),
+            created=text(prov.get("created", ""), "provenance.created"),
+            data_start=text(prov.get("data_start", ""), "provenance.data_start"),
+            data_end=text(prov.get("data_end", ""), "provenance.data_end"),
         )
         site = None if document.get("site") is None else metadata_from_document(document["site"], path)
         record = cls.__new__(cls)
         fields = {
-            "serial_number": str(document["serial_number"]),
+            "serial_number": text(document["serial_number"], "serial_number"),
             "parameters": tuple(parameters),
             "covariance": matrix,
             "provenance": provenance,
             "site": site,
-            "determined": tuple(map(str, document.get("determined", []))),
-            "notes": tuple(map(str, document.get("notes", []))),
+            "determined": texts(document.get("determined", []), "determined"),
+            "notes": texts(document.get("notes", []), "notes"),
             "schema_version": RECORD_SCHEMA_VERSION,
         }
         for name, value in fields.items():

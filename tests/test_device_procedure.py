@@ -11,8 +11,8 @@ COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
 
 
-def _f_over_g(readings, offsets=np.zeros(3), senses=(1, 1, 1, 1)):
-    a = np.asarray(readings) + offsets
+def _f_over_g(readings, offsets=None, senses=(1, 1, 1, 1)):
+    a = np.asarray(readings) + (0.0 if offsets is None else offsets)
     return cv.dcm_body_to_platform(*a, 0.0, cv.GimbalConfiguration(senses)) @ np.array([0.0, 0.0, -1.0])
 
 
@@ -113,7 +113,7 @@ sample_rate = 100.0
     "body, field",
     [
         (
-            "[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n",
+            "[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\n" * 2,
             "step.position",
         ),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\n", "step.middle"),

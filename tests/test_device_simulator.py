@@ -26,12 +26,14 @@ WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)
 
 def _session(truth, seed, fine_rate=10.0, fine_dwell=600.0):
     coarse = simulate_dwells(truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, seed=seed, stage="coarse")
-    fine = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=fine_dwell, settle=5.0, rate=fine_rate, seed=seed + 1, stage="fine")
+    commands = [s.command for s in FINE.steps]
+    fine = simulate_dwells(truth, commands, dwell=fine_dwell, settle=5.0, rate=fine_rate, seed=seed + 1, stage="fine")
     return coarse, fine
 
 
 def _dwells(coarse, fine):
-    return dwells_from_columns(coarse, checks=COARSE.acceptance.dwell_checks()) + dwells_from_columns(fine, checks=FINE.acceptance.dwell_checks())
+    coarse_dwells = dwells_from_columns(coarse, checks=COARSE.acceptance.dwell_checks())
+    return coarse_dwells + dwells_from_columns(fine, checks=FINE.acceptance.dwell_checks())
 
 
 def test_offset_iteration_converges_from_60_arcsec_through_the_simulated_platform():
@@ -108,3 +110,21 @@ def test_cli_bad_input_exits_2_without_writing_a_record(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "x axis sign inverted" in err and "Traceback" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "site, sign",
+    [(dict(base_attitude=(0.3, 0.01, -0.02)), "+"), (dict(gimbal_senses=(-1, -1, 1, 1)), "−"), (dict(gimbal_senses=(1, -1, -1, 1)), "+")],
+)
+def test_exact_recovery_for_tilted_bases_and_other_senses(site, sign):
+    from stableins.conventions import GimbalConfiguration
+
+    truth = Truth.draw(12, noise=NoiseSettings.quiet(), **site)
+    calibration = calibrate_device(_dwells(*_session(truth, 12, fine_rate=5.0, fine_dwell=60.0)), truth.site)
+    expected = gauge_equivalent(truth.parameters, GimbalConfiguration(truth.site.gimbal_senses))
+    for fit in (calibration.coarse, calibration.fine):
+        for k, term in zip(fit.ids, fit.terms):
+            if fit[k][2] == "estimated":
+                assert fit[k][0] == pytest.approx(expected[k], abs=1e-6 * term.nominal), k
+    # the determined combination follows the platform-axis sense s1: β_xz + s1·θ10
+    assert f"beta_xz estimates beta_xz {sign} theta10" in calibration.coarse.determined

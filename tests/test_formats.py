@@ -379,11 +379,11 @@ def test_system_writer_crash_leaves_nothing_or_the_old_file(tmp_path, suffix):
 
 
 # --------------------------------------------------------------------------- system records
-@pytest.mark.parametrize("suffix", [".h5", ".csv"])
-def test_system_record_streams_round_trip(tmp_path, suffix):
+@pytest.mark.parametrize(("suffix", "chunk_samples"), [(".h5", 128), (".h5", 1000), (".h5", 4096), (".csv", 128)])
+def test_system_record_streams_round_trip(tmp_path, suffix, chunk_samples):
     path = tmp_path / f"rec{suffix}"
     chunks = [make_system_chunk(k * 333, 333, seed=k) for k in range(4)]
-    with SystemRecordWriter(path, make_metadata(), chunk_samples=128) as writer:
+    with SystemRecordWriter(path, make_metadata(), chunk_samples=chunk_samples) as writer:
         for chunk in chunks:
             writer.append(chunk)
             chunk["f_x"][:] = 0.0  # the writer must have copied what it has not written yet

@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
@@ -199,3 +201,44 @@ def test_save_is_atomic(saved, monkeypatch):
         record.save(saved)
     assert saved.read_bytes() == before
     assert [p.name for p in saved.parent.iterdir()] == [saved.name]
+
+
+def _leaves(value, path=()):
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _leaves(v, path + (k,))
+    elif isinstance(value, list):
+        for k, v in enumerate(value):
+            yield from _leaves(v, path + (k,))
+    yield path
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=5),
+    lambda children: st.lists(children, max_size=3) | st.dictionaries(st.text(max_size=3), children, max_size=3),
+    max_leaves=5,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.data())
+def test_any_damaged_value_gives_input_error_or_a_valid_record(tmp_path_factory, data):
+    record = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE)
+    document = record.to_document()
+    paths = [p for p in _leaves(document) if p]
+    target = data.draw(st.sampled_from(paths))
+    parent = document
+    for key in target[:-1]:
+        parent = parent[key]
+    if data.draw(st.booleans()):
+        parent[target[-1]] = data.draw(json_values)
+    elif isinstance(parent, dict):
+        del parent[target[-1]]
+    else:
+        parent.pop(target[-1])
+    path = tmp_path_factory.mktemp("fuzz") / "cal.json"
+    path.write_text(json.dumps(document))
+    try:
+        CalibrationRecord.load(path)
+    except InputError as error:
+        assert str(path) in str(error)

@@ -183,3 +183,42 @@ def test_simulated_platform_is_a_platform_driver():
 def test_unknown_effect_is_an_input_error_listing_known_ids():
     with pytest.raises(InputError, match="K3_x"):
         Truth.draw(1, effects={"K4_x": 1.0})
+
+
+@pytest.mark.parametrize(
+    ("effect", "value", "readings", "axis", "expected"),
+    [
+        # x axis up (+g): middle gimbal at +90 deg gives f^p = (g, 0, 0)
+        ("K3_x", 1e-8, (0, 0, np.pi / 2), 0, lambda g: 1e-8 * g**3),
+        ("Koq_x", 1e-7, (0, 0, -np.pi / 2), 0, lambda g: -1e-7 * g**2),  # x down: f|f| < 0
+        ("Ksa_x", 1e-5, (0, 0, -np.pi / 2), 0, lambda g: 1e-5 * g),  # |f| > 0 either way
+        ("Kcq_zx", 1e-7, (0, 0, np.pi / 4), 2, lambda g: 1e-7 * (g / np.sqrt(2)) ** 2),
+        ("Kcc_zxz", 1e-7, (0, 0, np.pi / 4), 2, lambda g: 1e-7 * (g / np.sqrt(2)) * (-g / np.sqrt(2))),
+        ("Kcc_yxy", 1e-7, (0, 0, np.pi / 4), 1, lambda g: 0.0),  # f_y = 0
+    ],
+)
+def test_output_effects_follow_their_definitions(effect, value, readings, axis, expected):
+    base = quiet_truth(parameters={})
+    hidden = base.with_changes(effects={effect: value})
+    a = position_means(simulate_dwells(base, [readings], dwell=0.3, settle=0.0, rate=10))[1]
+    b = position_means(simulate_dwells(hidden, [readings], dwell=0.3, settle=0.0, rate=10))[1]
+    g = base.site.gravity
+    assert b[axis] - a[axis] == pytest.approx(expected(g), rel=1e-9, abs=1e-15)
+    others = [k for k in range(3) if k != axis]
+    np.testing.assert_allclose(b[others], a[others], atol=1e-15)
+
+
+def test_temperature_and_time_effects():
+    from stableins.simulator.noise import TemperatureProfile
+
+    profile = TemperatureProfile(reference=25.0, offset=2.0, ramp=0.01)
+    base = quiet_truth(parameters={}).with_changes(noise=NoiseSettings(temperature=profile))
+    effects = {"Kt_bias_y": 1e-5, "Kt_sf_z": 2e-5, "Kd_bias_x": 1e-6}
+    a = simulate_dwells(base, [(0, 0, 0)], dwell=100.0, settle=0.0, rate=1)
+    b = simulate_dwells(base.with_changes(effects=effects), [(0, 0, 0)], dwell=100.0, settle=0.0, rate=1)
+    t = a["time"]
+    d_t = 2.0 + 0.01 * t  # reference_temperature of the drawn site is the profile's reference
+    np.testing.assert_allclose(b["temperature"], 25.0 + d_t)
+    np.testing.assert_allclose(b["f_x"] - a["f_x"], 1e-6 * t, atol=1e-15)
+    np.testing.assert_allclose(b["f_y"] - a["f_y"], 1e-5 * d_t, atol=1e-15)
+    np.testing.assert_allclose(b["f_z"] - a["f_z"], 2e-5 * d_t * -base.site.gravity, rtol=1e-9)

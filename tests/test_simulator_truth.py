@@ -47,6 +47,8 @@ def test_round_trip_through_a_file(tmp_path):
         (lambda d: d["effects"].update(K9_x=1.0), "effects"),
         (lambda d: d.update(schema_version=99), "schema_version"),
         (lambda d: d["site"].update(gimbal_senses=[1, 2, 1, 1]), "site"),
+        (lambda d: d.update(paramters={}), "paramters"),
+        (lambda d: d["gyro_drift"].update(w=1.0), "gyro_drift"),
     ],
 )
 def test_bad_truth_files_name_file_and_field(tmp_path, mutate, field):
@@ -78,3 +80,19 @@ def test_catalogue_has_units_nominals_and_meanings():
     for eid, unit, nominal, meaning in catalogue_table():
         assert unit and nominal > 0 and len(meaning) > 10, eid
     assert not set(PARAMETER_IDS) & ids
+
+
+def test_docs_list_every_effect():
+    import pathlib
+
+    text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "simulator.md").read_text()
+    missing = [e for e in CATALOGUE if f"`{e}`" not in text]
+    assert not missing, f"docs/simulator.md does not list {missing}"
+
+
+def test_truth_is_immutable():
+    truth = Truth.draw(2)
+    with pytest.raises(TypeError):
+        truth.parameters["bias_x"] = 0.0
+    changed = truth.with_changes(parameters={**truth.parameters, "bias_x": 0.0})
+    assert changed.parameters["bias_x"] == 0.0 and truth.parameters["bias_x"] != 0.0

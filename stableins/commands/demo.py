@@ -20,7 +20,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.commands.simulate import build_truth, prepare_directory, simulate_device, simulate_system
+    from stableins.commands.simulate import build_truth, levels, prepare_directory, simulate_device, simulate_system
     from stableins.output import emit
 
     out = prepare_directory(args.out)
@@ -30,7 +30,8 @@ def run(args: argparse.Namespace) -> int:
     truth = build_truth(options)
     truth.write(out / "truth.json")
     files = simulate_device(truth, out, args.seed, options)
-    files.append(simulate_system(truth, out, args.seed, options))
+    if "system" in levels():
+        files.append(simulate_system(truth, out, args.seed, options))
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {out / 'truth.json'}"]
     emit(args, {"out": str(out), "files": files, "truth": str(out / "truth.json")}, "\n".join(lines))
     return 0

@@ -72,8 +72,15 @@ def parse_hidden(text: str) -> tuple[str, float]:
     return key, number
 
 
+def levels() -> tuple[str, ...]:
+    """Simulation levels this installation provides (the system level needs ``stableins.simulator.system``)."""
+    import importlib.util
+
+    return ("device", "system") if importlib.util.find_spec("stableins.simulator.system") else ("device",)
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("level", choices=("device", "system"), help="device-level dwells or a system-level static record")
+    parser.add_argument("level", choices=levels(), help="device-level dwells or a system-level static record")
     parser.add_argument("--out", type=Path, metavar="DIR", help="output directory (created if needed)")
     parser.add_argument(
         "--seed", type=int, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"

@@ -73,6 +73,7 @@ class H5Writer:
                 f.attrs["serial_number"] = serial
             f.attrs["complete"] = False
             group = f.create_group(GROUP)
+            self._datasets = {}
             for c in self.schema:
                 dtype = STRING_DTYPE if c.dtype == "str" else c.dtype
                 d = group.create_dataset(
@@ -81,18 +82,26 @@ class H5Writer:
                 if c.unit is not None:
                     d.attrs["unit"] = c.unit
                 d.attrs["meaning"] = c.meaning
+                self._datasets[c.name] = d
         except BaseException as error:
             self._abort(error)
             raise
         return self
 
     def append(self, chunk: Mapping[str, Any]) -> None:
-        """Queue rows (dict of equal-length 1-D arrays, one per schema column)."""
+        """Queue rows (dict of equal-length 1-D arrays, one per schema column).
+
+        The writer copies what it keeps beyond this call, so the caller may reuse its arrays.
+        """
+        import numpy as np
+
         n = len(chunk[self.schema[0].name])
-        self._buffer.append(chunk)
         self._buffered += n
         if self._buffered >= self.chunk_samples:
-            self._flush()
+            self._buffer.append(chunk)
+            self._flush()  # writes whole chunks now and copies the remainder
+        else:
+            self._buffer.append({c.name: np.array(chunk[c.name]) for c in self.schema})
 
     def _flush(self, final: bool = False) -> None:
         """Write the whole chunks buffered (everything if ``final``); keep the remainder.
@@ -106,7 +115,6 @@ class H5Writer:
         n = self._buffered if final else self._buffered - self._buffered % self.chunk_samples
         if n == 0:
             return
-        group = self._file[GROUP]
         rest: dict[str, Any] = {}
         for c in self.schema:
             parts = [np.asarray(ch[c.name]) for ch in self._buffer]
@@ -115,7 +123,7 @@ class H5Writer:
             values = values[:n]
             if c.dtype == "str":
                 values = np.char.encode(values.astype(str), "ascii")
-            d = group[c.name]
+            d = self._datasets[c.name]
             d.resize((self.rows + n,))
             d[self.rows :] = values
         self.rows += n

@@ -135,7 +135,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         if not isinstance(item, dict) or "value" not in item or "unit" not in item:
             raise fail(f"{item!r} has no explicit unit", key, '{"value": ..., "unit": ...}')
         units = QUANTITY_UNITS[key]
-        if item["unit"] not in units:
+        if not isinstance(item["unit"], str) or item["unit"] not in units:
             raise fail(f"unit {item['unit']!r} found", key, "unit " + " or ".join(repr(u) for u in units))
         factor = units[item["unit"]]
         if vector:

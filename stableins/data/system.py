@@ -103,7 +103,7 @@ class SystemRecordWriter:
         extra = [n for n in chunk if n not in NAMES]
         if extra:
             raise InputError(f"{where} has an unknown column {extra[0]!r}", path=self.path, field=extra[0], expected="system columns only")
-        arrays = {n: np.array(chunk[n], dtype=float) for n in NAMES}  # copies: the caller may reuse its buffers
+        arrays = {n: np.asarray(chunk[n], dtype=float) for n in NAMES}  # the writers copy what they keep
         n = len(arrays["time"])
         for name, values in arrays.items():
             if values.shape != (n,):

@@ -218,3 +218,18 @@ def describe_design(ids: Sequence[str], singular_values: ArrayLike, null_space: 
         parts = ", ".join(f"{i} {c:+.4f}" for i, c, b in zip(ids, v, big, strict=True) if b)
         lines.append(f"null direction {k + 1} (unit vector, SI): {parts}")
     return lines
+
+
+def aligned_null_space(analysis: DesignAnalysis, gauge: Gauge) -> NDArray[np.float64]:
+    """The null space rotated so that each gauge parameter moves in exactly one unit vector.
+
+    For the fine stage this gives the readable basis ``β_xz + β_yz``, ``β_zy + β_xy``,
+    ``β_yx + β_zx`` instead of an arbitrary rotation of it.
+    """
+    n = analysis.null_space
+    if n.shape[1] != len(gauge.fixed) or n.shape[1] == 0:
+        return n
+    rows = [analysis.ids.index(g) for g in gauge.fixed]
+    basis = n @ np.linalg.inv(n[rows])
+    basis /= np.linalg.norm(basis, axis=0, keepdims=True)
+    return basis

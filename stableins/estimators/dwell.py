@@ -193,7 +193,8 @@ def summarize_dwell(
     if np.any(span > checks.max_angle_span):
         gimbal = ("platform", "inner", "middle")[int(np.argmax(span))]
         flags.append(
-            f"slew inside the dwell: {gimbal} angle reading spans {span.max() / ARCSEC:.1f} arcsec (limit {checks.max_angle_span / ARCSEC:.1f})"
+            f"slew inside the dwell: {gimbal} angle reading spans {span.max() / ARCSEC:.1f} arcsec "
+            f"(limit {checks.max_angle_span / ARCSEC:.1f})"
         )
     with np.errstate(invalid="ignore"):
         mean = f.mean(axis=0)

@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel
 from stableins.estimators.coarse import slow_covariance
-from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.gauss_newton import gauss_newton
 from stableins.estimators.noise_model import SlowNoise
@@ -244,7 +244,7 @@ def calibrate_fine(
         residual_labels=tuple(f"pos {d.position} |f|" for d in usable),
         rank=design.rank,
         singular_values=design.singular_values,
-        null_space=design.null_space,
+        null_space=aligned_null_space(design, gauge),
         determined=tuple(determined),
         notes=tuple(notes),
         extra={

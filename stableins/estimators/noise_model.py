@@ -67,7 +67,10 @@ class SlowNoise:
 
     def describe(self) -> str:
         ug = 9.80665e-6
-        return f"slow noise: bias instability {self.bias_instability / ug:.3g} ug, random walk {self.random_walk:.3g} m/s^2/sqrt(s) ({self.source})"
+        return (
+            f"slow noise: bias instability {self.bias_instability / ug:.3g} ug, "
+            f"random walk {self.random_walk:.3g} m/s^2/sqrt(s) ({self.source})"
+        )
 
 
 def _gauss_markov_window_covariance(start: NDArray, length: NDArray, tau: float) -> NDArray[np.float64]:

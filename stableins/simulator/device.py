@@ -1,7 +1,9 @@
 r"""Device level: a simulated gimbaled platform that slews, settles and records.
 
 :class:`SimulatedPlatform` implements :class:`stableins.drivers.base.PlatformDriver`.
-Every sample is computed from first principles:
+The gimbal servos hold the angle-sensor readings at the command (the platform is
+slaved to the base during device-level calibration), so the Earth's rotation does not
+move it within a dwell.  Every sample is computed from first principles:
 
 1. Gimbal readings follow the command: a cosine-profile slew from the readings at
    the command to the commanded readings (peak rate ``settling['slew_rate']``),
@@ -45,7 +47,7 @@ from stableins.drivers.base import SampleBlock
 from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.simulator import effects as fx
-from stableins.simulator.noise import BLOCK_SAMPLES, NoiseGenerator
+from stableins.simulator.noise import BLOCK_SAMPLES, NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
 
 
@@ -99,8 +101,7 @@ class SimulatedPlatform:
         self._omega_d = self._omega * np.sqrt(max(1.0 - self._zeta**2, 0.0))
         self._gain = s["gain"]
         self._slew_rate = s["slew_rate"]
-        # quantizer carry: (next sample, accumulator in LSB)
-        self._carry: tuple[int, NDArray[np.float64]] | None = None
+        self._quantizer = Quantizer(self.noise)
         site = truth.site
         self._metadata = SiteMetadata(**{**site.__dict__, "sample_rate": self.rate})
 
@@ -196,41 +197,15 @@ class SimulatedPlatform:
         if count == 0:
             empty = np.zeros((0, 3))
             return SampleBlock(np.zeros(0), empty, empty.copy(), np.zeros(0))
-        if self.truth.noise.quantization > 0 and not (self._carry is not None and self._carry[0] == start):
+        if self.truth.noise.quantization > 0 and not self._quantizer.continues(start):
             begin = (start // BLOCK_SAMPLES) * BLOCK_SAMPLES
-            if begin < start:
-                self._carry = None
-                self._quantized(begin, self._raw(np.arange(begin, start))[0])
+            self._quantizer(begin, self._raw(np.arange(begin, start))[0])
         index = np.arange(start, start + count)
         f_a, readings, temperature = self._raw(index)
-        if self.truth.noise.quantization > 0:
-            f_a = self._quantized(start, f_a)
+        f_a = self._quantizer(start, f_a)
         angles = readings + self.noise.angles(start, count)
         temperature = temperature + self.noise.temperature_sensor(start, count)
         return SampleBlock(index / self.rate, f_a, angles, temperature)
-
-    def _quantized(self, start: int, f_a: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Quantize velocity increments with the remainder carried; restart with a seeded dither at block boundaries."""
-        lsb = self.truth.noise.quantization
-        scale = 1.0 / (self.rate * lsb)
-        out = np.empty_like(f_a)
-        k, done = start, 0
-        while done < len(f_a):
-            block = k // BLOCK_SAMPLES
-            n = min(len(f_a) - done, (block + 1) * BLOCK_SAMPLES - k)
-            if k % BLOCK_SAMPLES == 0:
-                accumulator = self.noise.dither(block)
-            elif self._carry is not None and self._carry[0] == k:
-                accumulator = self._carry[1]
-            else:  # pragma: no cover - samples() always provides the carry
-                raise RuntimeError("quantizer state lost")
-            total = np.cumsum(np.vstack([accumulator[None, :], f_a[done : done + n] * scale]), axis=0)
-            counts = np.floor(total)
-            out[done : done + n] = np.diff(counts, axis=0) * (lsb * self.rate)
-            self._carry = (k + n, total[-1].copy())
-            k += n
-            done += n
-        return out
 
     def _raw(self, index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Unquantized accelerometer output (with noise), noise-free readings and true temperature."""

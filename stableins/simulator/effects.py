@@ -34,7 +34,7 @@ Geometry effects: ``Dg_a`` (platform drifts about p-axis a at the rate
 ``Dg_a f_a`` after each slew, right-handed, as a g-sensitive gyro would make a
 stabilized platform drift; the angle sensors see it), ``nonorth_12``, ``nonorth_23``
 (gimbal-axis non-orthogonality, :mod:`stableins.platform`), ``tilt_north``,
-``tilt_east`` (base tilt), ``ang1_<gimbal>_c`` / ``_s`` (once-per-revolution angle
+``tilt_east`` (base tilt), ``azimuth_error`` (base azimuth), ``ang1_<gimbal>_c`` / ``_s`` (once-per-revolution angle
 sensor error ``c cos r + s sin r``).
 """
 
@@ -283,6 +283,11 @@ def _build() -> dict[str, Effect]:
     )
     add(
         Effect("tilt_east", "rad", 10 * ARCSEC, "unknown base tilt about East (right-handed) relative to the surveyed attitude", "geometry")
+    )
+    add(
+        Effect(
+            "azimuth_error", "rad", 30 * ARCSEC, "unknown base azimuth error about Down (right-handed) relative to the survey", "geometry"
+        )
     )
     for g in ("platform", "inner", "middle"):
         add(Effect(f"ang1_{g}_c", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += c cos(reading)", "geometry"))

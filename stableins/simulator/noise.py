@@ -23,9 +23,10 @@ quantization
     velocity-increment LSB ``q`` [m/s].  The instrument accumulates the exact
     velocity increment and outputs whole LSBs; the remainder is carried to the next
     sample, so the quantization error of the *integrated* output stays below one LSB.
-    The accumulator restarts with a seeded uniform remainder at each noise block
-    (every :data:`BLOCK_SAMPLES` samples) so that any sample can be recomputed from
-    the seed alone (the restart adds at most one LSB per block to a velocity sum).
+    At device level the accumulator restarts with a seeded uniform remainder at each
+    noise block (every :data:`BLOCK_SAMPLES` samples) so that any sample can be
+    recomputed from the seed and the commands alone (the restart adds at most one LSB
+    per block to a velocity sum); system-level records carry the remainder throughout.
 
 Temperature
     deterministic profile ``T(t) = T_ref + offset + ramp·t + A sin(2π t/P + φ)``
@@ -223,6 +224,16 @@ class NoiseGenerator:
             self._states[b + 1] = state
         return state
 
+    def _accumulating_noise(self, block: int) -> NDArray[np.float64]:
+        """Accumulating noise of one block (the last block is cached: sequential reads compute it once)."""
+        cached = getattr(self, "_cached_block", None)
+        if cached is not None and cached[0] == block:
+            return cached[1]
+        noise, state = self._block_accumulating(block, self._state_at(block))
+        self._states.setdefault(block + 1, state)
+        self._cached_block = (block, noise)
+        return noise
+
     # ------------------------------------------------------------- public
     def accelerometer(self, start: int, count: int) -> NDArray[np.float64]:
         """Additive noise (white + bias instability + random walk) for samples ``start .. start+count-1``, ``(count, channels)``."""
@@ -240,8 +251,7 @@ class NoiseGenerator:
                     white_sigma * stream_generator(self.seed, "white", block).standard_normal((BLOCK_SAMPLES, self.channels))[lo:hi]
                 )
             if accumulating:
-                noise, _ = self._block_accumulating(block, self._state_at(block))
-                out[rows] += noise[lo:hi]
+                out[rows] += self._accumulating_noise(block)[lo:hi]
         return out
 
     def angles(self, start: int, count: int) -> NDArray[np.float64]:
@@ -267,21 +277,55 @@ class NoiseGenerator:
             )
         return out
 
-    def quantize(self, start: int, specific_force: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Quantize outputs ``(count, channels)`` that start at a block boundary (velocity increments, remainder carried)."""
-        lsb = self.settings.quantization
-        if lsb <= 0:
+
+class Quantizer:
+    """Velocity-increment quantizer with the remainder carried (module docstring).
+
+    Call it with consecutive pieces of the unquantized output; a piece that does not
+    continue the previous one must start at a block boundary (the accumulator then
+    restarts from the seeded dither of that block), so the result is the same however
+    the samples are split.  With ``restart_each_block=True`` (device level: any sample
+    can be recomputed from the seed and the commands) the accumulator also restarts at
+    every block boundary; with ``False`` (system level, always generated from the start)
+    the remainder is carried through the whole record.
+    """
+
+    def __init__(self, noise: NoiseGenerator, restart_each_block: bool = True) -> None:
+        self.noise = noise
+        self.lsb = noise.settings.quantization
+        self.restart_each_block = restart_each_block
+        self._carry: tuple[int, NDArray[np.float64]] | None = None
+
+    def continues(self, start: int) -> bool:
+        """Whether ``start`` can be quantized now (continues the last piece or starts a block)."""
+        return start % BLOCK_SAMPLES == 0 or (self._carry is not None and self._carry[0] == start)
+
+    def _restart(self, k: int) -> bool:
+        continuing = self._carry is not None and self._carry[0] == k
+        return k % BLOCK_SAMPLES == 0 and (self.restart_each_block or not continuing)
+
+    def __call__(self, start: int, specific_force: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.lsb <= 0:
             return specific_force
-        if start % BLOCK_SAMPLES:
-            raise ValueError("quantize() needs samples that start at a block boundary")
+        rate = self.noise.rate
+        scale = 1.0 / (rate * self.lsb)
         out = np.empty_like(specific_force)
-        count = len(specific_force)
-        for block, lo, hi in _blocks(start, count):
-            offset = block * BLOCK_SAMPLES - start
-            dv = specific_force[offset + lo : offset + hi] * (self.dt / lsb)  # in LSB
-            counts = np.floor(self.dither(block) + np.cumsum(dv, axis=0))
-            previous = np.vstack([np.floor(self.dither(block))[None, :], counts[:-1]])
-            out[offset + lo : offset + hi] = (counts - previous) * (lsb / self.dt)
+        k, done = start, 0
+        while done < len(specific_force):
+            block = k // BLOCK_SAMPLES
+            n = min(len(specific_force) - done, (block + 1) * BLOCK_SAMPLES - k)
+            if self._restart(k):
+                accumulator = self.noise.dither(block)
+            elif self._carry is not None and self._carry[0] == k:
+                accumulator = self._carry[1]
+            else:
+                raise ValueError(f"quantizer: sample {k} neither continues the last piece nor starts a block")
+            # sequential sums in the same order however the samples are split
+            total = np.cumsum(np.vstack([accumulator[None, :], specific_force[done : done + n] * scale]), axis=0)
+            out[done : done + n] = np.diff(np.floor(total), axis=0) * (self.lsb * rate)
+            self._carry = (k + n, total[-1].copy())
+            k += n
+            done += n
         return out
 
 

@@ -12,6 +12,7 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Any
 
 from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
@@ -48,23 +49,24 @@ DEFAULT_RESIDUAL = {
 def damping_parameters(zeta: float, vertical_time_constant: float, gravity: float) -> dict[str, float]:
     r"""Full damping description stored in ``SiteMetadata.damping``.
 
-    Horizontal: ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``.  Vertical third-order loop with a
-    triple pole at ``-1/τ``: ``k1 = 3/τ``, ``k2 = 3/τ² + 2 ω_s²``, ``k3 = 1/τ³``, so that
-    the height error obeys ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = s u`` (see
-    :mod:`stableins.simulator.system`).
+    Horizontal: ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``.  Vertical third-order loop: the
+    height error obeys ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = s u`` (see
+    :mod:`stableins.simulator.system`); the gains put its poles at ``-a`` and
+    ``-a/2 ± i a √3/2`` with ``a = 1/τ`` (third-order Butterworth,
+    ``(s + a)(s² + a s + a²)``): ``k1 = 2a``, ``k2 = 2a² + 2ω_s²``, ``k3 = a³``.
     """
     omega_s = math.sqrt(gravity / EARTH_RADIUS)
-    tau = vertical_time_constant
+    a = 1.0 / vertical_time_constant
     return {
         "zeta": float(zeta),
         "omega_s": omega_s,
         "R": EARTH_RADIUS,
         "gravity": float(gravity),
         "horizontal_gain": 2.0 * zeta * omega_s,
-        "vertical_time_constant": float(tau),
-        "k1": 3.0 / tau,
-        "k2": 3.0 / tau**2 + 2.0 * omega_s**2,
-        "k3": 1.0 / tau**3,
+        "vertical_time_constant": float(vertical_time_constant),
+        "k1": 2.0 * a,
+        "k2": 2.0 * a**2 + 2.0 * omega_s**2,
+        "k3": a**3,
     }
 
 
@@ -90,7 +92,7 @@ def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None) 
 
 @dataclass(frozen=True)
 class Truth:
-    """The simulated world.
+    """The simulated world (immutable: the mappings are read-only views; use :meth:`with_changes`).
 
     Attributes
     ----------
@@ -118,24 +120,26 @@ class Truth:
         Slew and settling behaviour (:data:`DEFAULT_SETTLING`).
     """
 
-    parameters: dict[str, float]
+    parameters: Mapping[str, float]
     site: SiteMetadata
-    effects: dict[str, float] = field(default_factory=dict)
+    effects: Mapping[str, float] = field(default_factory=dict)
     noise: NoiseSettings = field(default_factory=NoiseSettings)
     seed: int = 0
-    installed_calibration: dict[str, float] = field(default_factory=dict)
-    gyro_drift: dict[str, float] = field(default_factory=dict)
-    damping: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_DAMPING))
-    settling: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTLING))
+    installed_calibration: Mapping[str, float] = field(default_factory=dict)
+    gyro_drift: Mapping[str, float] = field(default_factory=dict)
+    damping: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_DAMPING))
+    settling: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTLING))
 
     def __post_init__(self) -> None:
         _check_parameter_ids(self.parameters, "parameters", None)
         _check_parameter_ids(self.installed_calibration, "installed_calibration", None)
-        object.__setattr__(self, "parameters", dict(self.parameters))
-        object.__setattr__(self, "installed_calibration", dict(self.installed_calibration))
-        object.__setattr__(self, "effects", validate_effects(self.effects))
-        object.__setattr__(self, "damping", {**DEFAULT_DAMPING, **self.damping})
-        object.__setattr__(self, "settling", {**DEFAULT_SETTLING, **self.settling})
+        # read-only views: a Truth is immutable (use with_changes for a modified copy)
+        object.__setattr__(self, "parameters", MappingProxyType(dict(self.parameters)))
+        object.__setattr__(self, "installed_calibration", MappingProxyType(dict(self.installed_calibration)))
+        object.__setattr__(self, "effects", MappingProxyType(validate_effects(self.effects)))
+        object.__setattr__(self, "damping", MappingProxyType({**DEFAULT_DAMPING, **self.damping}))
+        object.__setattr__(self, "settling", MappingProxyType({**DEFAULT_SETTLING, **self.settling}))
+        object.__setattr__(self, "gyro_drift", MappingProxyType(dict(self.gyro_drift)))
         unknown = set(self.gyro_drift) - {"x", "y", "z", "case_amplitude", "case_period", "case_phase"}
         if unknown:
             raise InputError(
@@ -143,8 +147,10 @@ class Truth:
                 field="gyro_drift",
                 expected="x, y, z, case_amplitude, case_period, case_phase",
             )
-        if not self.site.damping:
-            object.__setattr__(self, "site", replace(self.site, damping=self.damping_parameters()))
+        # the site carries the damping the world uses (derived from ``damping`` and the site's gravity)
+        derived = self.damping_parameters()
+        if self.site.damping != derived:
+            object.__setattr__(self, "site", replace(self.site, damping=derived))
 
     # ----------------------------------------------------------------- derived
     def damping_parameters(self) -> dict[str, float]:
@@ -165,6 +171,7 @@ class Truth:
             configuration=self.configuration,
             base_attitude=tuple(self.site.base_attitude),
             base_tilt=(e.get("tilt_north", 0.0), e.get("tilt_east", 0.0)),
+            base_azimuth=e.get("azimuth_error", 0.0),
             nonorthogonality=(e.get("nonorth_12", 0.0), e.get("nonorth_23", 0.0)),
             angle_sensor_errors={k: v for k, v in e.items() if k.startswith("ang1_")},
         )
@@ -266,6 +273,24 @@ class Truth:
         for key in ("parameters", "site"):
             if key not in d:
                 raise InputError("missing field", path=source, field=key)
+        known = {
+            "schema_version",
+            "kind",
+            "parameters",
+            "effects",
+            "site",
+            "noise",
+            "seed",
+            "installed_calibration",
+            "gyro_drift",
+            "damping",
+            "settling",
+        }
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise InputError(
+                f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
+            )
         parameters = _float_dict(d["parameters"], "parameters", source)
         _check_parameter_ids(parameters, "parameters", source)
         installed = _float_dict(d.get("installed_calibration", {}), "installed_calibration", source)

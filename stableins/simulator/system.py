@@ -1,0 +1,456 @@
+r"""System level: a static record of a space-stable INS, with INS error dynamics integrated in time.
+
+The world
+---------
+The base is static at latitude ``L`` with the true attitude of
+:meth:`stableins.platform.GimbalPlatform.dcm_nav_to_body` (survey plus tilt).  At
+``t = 0`` the platform is commanded to the polar-alignment readings
+(:func:`stableins.conventions.polar_alignment_readings`, platform angle ``-s1 St0``)
+corrected with the *installed* zero offsets, and from then on held fixed in inertial
+space by its gyros.  The local frame turns with the Earth, so
+
+.. math::
+    C_n^p(t) = C_{p_0}^{p}(t)\, C_{n_0}^{p_0}\, C_{n(t)}^{n_0},\qquad
+    C_{n(t)}^{n_0} = \exp(\omega_{ie} t\,[u\times]),\ u = \omega_{ie}^n/\omega_{ie}
+
+and the platform-axis reading falls as ``-s1 ω_ie t`` (``St = St0 + ω_ie t``,
+:func:`stableins.conventions.earth_rate_angle`).  ``C_{p0}^p(t)`` is the platform drift:
+the stabilization loop nulls the gyro outputs, so a gyro drift ``ε^p`` (output error,
+constant in the platform frame, plus an optional gyro-case-rotation residual
+``a (cos(2πt/P + φ), sin(2πt/P + φ), 0)``) turns the platform at ``-ε^p`` in inertial
+space; ``Dg_a`` effects add ``Dg_a f^p_a`` about ``p``-axis ``a``.  The gimbal readings
+are the exact inverse kinematics of ``C_b^p = C_n^p C_b^n`` (continuous, not wrapped).
+The accelerometers output :meth:`stableins.errormodel.ErrorModel.forward` of
+``f^p = C_n^p (0, 0, -g)`` with the true parameters and output effects, plus noise
+and quantization.
+
+The navigation computer
+-----------------------
+It compensates the raw outputs with ``installed_calibration`` (exact inverse model,
+:meth:`~stableins.errormodel.ErrorModel.inverse`), giving ``\hat f^p``; the
+specific-force error in the navigation frame is
+``Δf^n = C_p^n (\hat f^p − f^p)`` (noise included).  It keeps its platform-to-local
+DCM ``C_p^{n'} = C_n^{n'} C_p^n`` with ``C_n^{n'} = I − [φ×]`` and outputs the attitude
+``C_b^{n'} = C_p^{n'} \hat C_b^p`` where ``\hat C_b^p`` is
+:func:`stableins.conventions.dcm_body_to_platform` of the measured readings plus the
+installed offsets (so gimbal-offset residuals appear as constant attitude errors,
+Wu et al. 2018 Eq. 28).  ``φ(0)`` is the initial misalignment (default 0: the
+computer starts with the true platform orientation).
+
+Error dynamics (static base, NED, ``v = 0``; Britting 1971 ch. 6; Titterton & Weston
+2004 Sec. 12.3.1, ψ-angle form with ``C_n^{n'} = I − [φ×]``)::
+
+    δL'  = δv_N / R
+    δv_N' = Δf_N + g φ_E − 2Ω sinL δv_E − c δv_N
+    δv_E' = Δf_E − g φ_N + 2Ω sinL δv_N + 2Ω cosL δv_D − c δv_E
+    φ_N' = −Ω sinL δL − Ω sinL φ_E + δv_E / R − ε_N
+    φ_E' =  Ω sinL φ_N + Ω cosL φ_D − δv_N / R − ε_E
+    φ_D' = −Ω cosL δL − Ω cosL φ_E − tanL δv_E / R − ε_D
+    δh'  = −δv_D − k1 δh
+    δv_D' = Δf_D − 2Ω cosL δv_E − (2g/R) δh + k2 δh + b
+    b'   = k3 δh
+
+``−φ×f^n = (g φ_E, −g φ_N, 0)`` for ``f^n = (0, 0, −g)``; ``−2ω_ie×δv`` the Coriolis
+terms; ``δω_in^n = (−Ω sinL δL + δv_E/R, −δv_N/R, −Ω cosL δL − tanL δv_E/R)``.  The
+horizontal damping feeds ``−c (v − v_ref)``, ``v_ref = 0``, into the velocity
+integration with ``c = 2 ζ ω_s``, ``ω_s = sqrt(g/R)``; per channel, neglecting the
+Earth-rate couplings, ``δv_N = s Δf_N/(s² + c s + ω_s²)`` and
+``φ_E = −(Δf_N/g) ω_s²/(s² + 2ζω_s s + ω_s²)``: pitch error ``−φ_E`` lags ``+Δf_N/g``,
+roll error ``−φ_N`` lags ``−Δf_E/g``.  The vertical loop against an external height
+reference gives ``(s³ + k1 s² + (k2 − 2ω_s²) s + k3) δh = −s Δf_D``.  The constants
+are in ``site.damping`` (:func:`stableins.simulator.truth.damping_parameters`).
+
+Numerics
+--------
+``x' = A x + B u`` is discretized exactly for inputs held over each sample (ZOH):
+with ``A = V diag(μ) V⁻¹`` each mode obeys ``z_{k+1} = λ z_k + (e^{μ dt} − 1)/μ ·
+(V⁻¹ B u_k)``, ``λ = e^{μ dt}``, run by :func:`scipy.signal.lfilter` per mode (a complex
+first-order IIR) with its state carried between chunks.  Everything else is
+vectorized per chunk, so memory is bounded by the chunk size and the samples do not
+depend on it (noise is keyed by sample index, :mod:`stableins.simulator.noise`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
+from stableins.data.schema import SYSTEM_COLUMNS
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
+from stableins.platform import rotation_about
+from stableins.simulator import effects as fx
+from stableins.simulator.noise import NoiseGenerator, Quantizer
+from stableins.simulator.truth import Truth
+
+STATE_NAMES = (
+    "latitude_error",
+    "velocity_north",
+    "velocity_east",
+    "phi_north",
+    "phi_east",
+    "phi_down",
+    "height_error",
+    "velocity_down",
+    "vertical_integrator",
+)
+INPUT_NAMES = ("df_north", "df_east", "df_down", "drift_north", "drift_east", "drift_down")
+TRUTH_COLUMNS = ("truth_phi_north", "truth_phi_east", "truth_phi_down", "truth_df_north", "truth_df_east", "truth_df_down")
+
+
+def error_dynamics(latitude: float, damping: dict[str, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Continuous INS error dynamics ``x' = A x + B u`` of the module docstring.
+
+    Parameters
+    ----------
+    latitude : float
+        [rad].
+    damping : dict
+        ``gravity``, ``R``, ``horizontal_gain`` (``c``), ``k1``, ``k2``, ``k3``
+        (:func:`stableins.simulator.truth.damping_parameters`).
+
+    Returns
+    -------
+    A : ndarray (9, 9), B : ndarray (9, 6)
+        States :data:`STATE_NAMES`, inputs :data:`INPUT_NAMES`.
+    """
+    g, radius, c = damping["gravity"], damping["R"], damping["horizontal_gain"]
+    k1, k2, k3 = damping["k1"], damping["k2"], damping["k3"]
+    w = EARTH_RATE
+    sl, cl, tl = np.sin(latitude), np.cos(latitude), np.tan(latitude)
+    A = np.zeros((9, 9))
+    L, VN, VE, PN, PE, PD, H, VD, BV = range(9)
+    A[L, VN] = 1 / radius
+    A[VN, PE], A[VN, VE], A[VN, VN] = g, -2 * w * sl, -c
+    A[VE, PN], A[VE, VN], A[VE, VD], A[VE, VE] = -g, 2 * w * sl, 2 * w * cl, -c
+    A[PN, L], A[PN, PE], A[PN, VE] = -w * sl, -w * sl, 1 / radius
+    A[PE, PN], A[PE, PD], A[PE, VN] = w * sl, w * cl, -1 / radius
+    A[PD, L], A[PD, PE], A[PD, VE] = -w * cl, -w * cl, -tl / radius
+    A[H, VD], A[H, H] = -1.0, -k1
+    A[VD, VE], A[VD, H], A[VD, BV] = -2 * w * cl, -2 * g / radius + k2, 1.0
+    A[BV, H] = k3
+    B = np.zeros((9, 6))
+    B[VN, 0] = B[VE, 1] = B[VD, 2] = 1.0
+    B[PN, 3] = B[PE, 4] = B[PD, 5] = -1.0
+    return A, B
+
+
+@dataclass(frozen=True)
+class ModalRecursion:
+    """Exact ZOH discretization of ``x' = A x + B u`` in modal form (module docstring).
+
+    Attributes
+    ----------
+    eigenvalues : ndarray (m,) complex
+        ``λ = exp(μ dt)``.
+    input_gain : ndarray (m, p) complex
+        ``diag((λ − 1)/μ) V⁻¹ B``.
+    modes : ndarray (m, m) complex
+        ``V``.
+    to_modes : ndarray (m, m) complex
+        ``V⁻¹``.
+    """
+
+    eigenvalues: NDArray[np.complex128]
+    input_gain: NDArray[np.complex128]
+    modes: NDArray[np.complex128]
+    to_modes: NDArray[np.complex128]
+
+    @property
+    def _partner(self) -> NDArray[np.int64]:
+        """Index of each complex mode's conjugate partner (−1 for real modes); the real
+        system's response is the sum over one mode of each pair, doubled, so only half
+        of the complex modes are filtered."""
+        cached = self.__dict__.get("_partner_cache")
+        if cached is None:
+            lam = self.eigenvalues
+            cached = np.full(len(lam), -1)
+            for i in range(len(lam)):
+                if lam[i].imag != 0 and cached[i] < 0:
+                    j = int(np.argmin(np.abs(lam - np.conj(lam[i])) + np.where(np.arange(len(lam)) == i, np.inf, 0)))
+                    cached[i], cached[j] = j, i
+            self.__dict__["_partner_cache"] = cached
+        return cached
+
+    @classmethod
+    def discretize(cls, A: NDArray[np.float64], B: NDArray[np.float64], dt: float) -> ModalRecursion:
+        mu, v = np.linalg.eig(A)
+        condition = np.linalg.cond(v)
+        if not condition < 1e10:
+            raise ValueError(f"error dynamics are (nearly) defective, eigenvector condition {condition:.2e}")
+        v_inv = np.linalg.inv(v)
+        phi = np.exp(mu * dt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            hold = np.where(mu != 0, np.expm1(mu * dt) / np.where(mu != 0, mu, 1.0), dt)
+        return cls(phi, hold[:, None] * (v_inv @ B), v, v_inv)
+
+    def run(self, u: NDArray[np.float64], z0: NDArray[np.complex128]) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
+        """States ``x_k`` for inputs ``u_k`` (n, p), modal state ``z0`` at the first sample; returns (x, z after the last input)."""
+        from scipy.signal import lfilter
+
+        n, p = u.shape
+        m = len(self.eigenvalues)
+        x = np.zeros((n, m))
+        z_end = np.empty(m, dtype=complex)
+        for i in range(m):
+            lam = self.eigenvalues[i]
+            if lam.imag < 0 and self._partner[i] >= 0:
+                continue  # the conjugate of its partner's mode: filled in below
+            w = np.zeros(n, dtype=complex)
+            for j in range(p):  # fixed summation order: identical results for any chunking
+                if self.input_gain[i, j] != 0:
+                    w += self.input_gain[i, j] * u[:, j]
+            z, zf = lfilter([0.0, 1.0], [1.0, -lam], w, zi=[z0[i]])
+            z_end[i] = zf[0]
+            partner = self._partner[i]
+            weight = 2.0 if partner >= 0 else 1.0  # a conjugate pair adds up to twice the real part
+            x += weight * (self.modes[None, :, i] * z[:, None]).real
+            if partner >= 0:
+                z_end[partner] = np.conj(zf[0])
+        return x, z_end
+
+
+class SystemWorld:
+    """The system-level world of a truth at one sample rate (see the module docstring).
+
+    Parameters
+    ----------
+    truth : Truth
+    rate : float, optional
+        Sample rate [Hz] (default ``truth.site.sample_rate``).
+    seed : int, optional
+        Seed of the random streams (default ``truth.seed``).
+    earth_angle : float
+        Earth-rate angle ``St0`` at ``t = 0`` [rad].
+    initial_misalignment : sequence of 3 float
+        ``φ(0)`` in NED [rad].
+    """
+
+    def __init__(
+        self,
+        truth: Truth,
+        rate: float | None = None,
+        seed: int | None = None,
+        earth_angle: float = 0.0,
+        initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        self.truth = truth
+        self.rate = float(rate if rate is not None else truth.site.sample_rate)
+        self.seed = int(truth.seed if seed is None else seed)
+        site = truth.site
+        self.latitude = site.latitude
+        self.gravity = site.gravity
+        self.damping = truth.damping_parameters()
+        self.platform = truth.platform()
+        self.configuration = truth.configuration
+        s1 = self.configuration.senses[0]
+        # polar alignment commanded with the installed offsets
+        _, middle = polar_alignment_readings(self.latitude, self.configuration)
+        nominal = np.array([-s1 * earth_angle, 0.0, middle])
+        installed_offsets = np.array([truth.installed_calibration.get(g, 0.0) for g in GIMBAL_IDS])
+        self.installed_offsets = installed_offsets
+        self.initial_readings = nominal - installed_offsets
+        self.initial_actual = self.platform.actual_angles(self.initial_readings)
+        self.nav_to_platform_0 = self.platform.dcm_nav_to_platform(self.initial_readings)
+        self.nav_to_body = self.platform.dcm_nav_to_body()
+        axis = earth_rate_nav(self.latitude) / EARTH_RATE
+        k = skew(axis)
+        self._ck, self._ck2 = self.nav_to_platform_0 @ k, self.nav_to_platform_0 @ k @ k
+        # error model of the world and of the navigation computer
+        self._values = dict(truth.parameters)
+        self._values.update({key: v for key, v in truth.effects.items() if fx.CATALOGUE[key].kind == "output"})
+        self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
+        self._computer = ErrorModel.standard(nonlinear=True)
+        self._installed = dict(truth.installed_calibration)
+        self._needs_rates = fx.needs(truth.effects, "lever_")
+        self._g_drift = np.array([truth.effects.get(f"Dg_{a}", 0.0) for a in "xyz"])
+        drift = truth.gyro_drift
+        self._drift = np.array([drift.get(a, 0.0) for a in "xyz"])
+        self._case = (drift.get("case_amplitude", 0.0), drift.get("case_period", 480.0), drift.get("case_phase", 0.0))
+        # noise and dynamics
+        self.noise = NoiseGenerator(truth.noise, self.rate, self.seed)
+        self.quantizer = Quantizer(self.noise, restart_each_block=False)
+        A, B = error_dynamics(self.latitude, self.damping)
+        self.A, self.B = A, B
+        self.recursion = ModalRecursion.discretize(A, B, 1.0 / self.rate)
+        x0 = np.zeros(9)
+        x0[3:6] = np.asarray(initial_misalignment, dtype=float)
+        self._z = self.recursion.to_modes @ x0
+        self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
+        self._next = 0
+
+    # --------------------------------------------------------------- world pieces
+    def gyro_drift(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Gyro drift ``ε^p(t)`` [rad/s] (n, 3)."""
+        eps = np.broadcast_to(self._drift, (len(time), 3)).copy()
+        amplitude, period, phase = self._case
+        if amplitude:
+            arg = 2 * np.pi * time / period + phase
+            eps[:, 0] += amplitude * np.cos(arg)
+            eps[:, 1] += amplitude * np.sin(arg)
+        return eps
+
+    def _drift_angle(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``-∫_0^t ε^p dt`` (analytic)."""
+        angle = -np.outer(time, self._drift)
+        amplitude, period, phase = self._case
+        if amplitude:
+            omega = 2 * np.pi / period
+            angle[:, 0] -= amplitude / omega * (np.sin(omega * time + phase) - np.sin(phase))
+            angle[:, 1] += amplitude / omega * (np.cos(omega * time + phase) - np.cos(phase))
+        return angle
+
+    def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """True ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
+        theta = EARTH_RATE * time
+        s, c = np.sin(theta), np.cos(theta)
+        dcm = self.nav_to_platform_0 + s[:, None, None] * self._ck + (1.0 - c)[:, None, None] * self._ck2
+        angle = self._drift_angle(time) if (np.any(self._drift) or self._case[0]) else None
+        if extra_angle is not None:
+            angle = extra_angle if angle is None else angle + extra_angle
+        if angle is not None:
+            dcm = rotation_about(angle) @ dcm
+        return dcm
+
+    def readings(self, nav_to_platform: NDArray[np.float64], time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Angle-sensor readings (noise-free, continuous) of orientations ``C_n^p``."""
+        s1 = self.configuration.senses[0]
+        guess = self.initial_actual + np.outer(time, [-s1 * EARTH_RATE, 0.0, 0.0])
+        body_to_platform = nav_to_platform @ self.nav_to_body.T
+        actual = self.platform.actual_from_dcm(body_to_platform)  # closed form (+ Newton for non-orthogonal axes)
+        actual += 2 * np.pi * np.round((guess - actual) / (2 * np.pi))  # continuous, not wrapped
+        return self.platform.readings_from_actual(actual)
+
+    # --------------------------------------------------------------- generation
+    def chunk(self, count: int, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
+        """The next ``count`` samples as columns of :data:`stableins.data.schema.SYSTEM_COLUMNS`."""
+        start = self._next
+        index = np.arange(start, start + count)
+        time = index / self.rate
+        truth = self.truth
+        extra = None
+        if np.any(self._g_drift):
+            # Dg: platform turns at Dg∘f^p; f^p of the drift-free orientation, integrated by sequential sums
+            f_free = -self.gravity * self.platform_orientation(time)[:, :, 2]
+            steps = np.vstack([self._g_drift_angle[None, :], self._g_drift * f_free / self.rate])
+            cumulative = np.cumsum(steps, axis=0)
+            extra, self._g_drift_angle = cumulative[:-1], cumulative[-1].copy()
+        dcm = self.platform_orientation(time, extra)
+        f_p = -self.gravity * dcm[:, :, 2]
+        readings = self.readings(dcm, time)
+        temperature = truth.noise.temperature(time)
+        zeros = np.zeros((count, 3))
+        inputs = TermInputs(
+            specific_force=f_p,
+            temperature=temperature - truth.site.reference_temperature,
+            time=time,
+            slew_direction=zeros,
+            angular_rate=zeros if self._needs_rates else None,
+            angular_acceleration=zeros if self._needs_rates else None,
+        )
+        f_a = self._model.forward(f_p, self._values, inputs) + self.noise.accelerometer(start, count)
+        f_a = self.quantizer(start, f_a)
+        measured = readings + self.noise.angles(start, count)
+        # navigation computer
+        f_hat = self._computer.inverse(f_a, self._installed)
+        df_n = np.einsum("nji,nj->ni", dcm, f_hat - f_p)
+        eps_n = np.einsum("nji,nj->ni", dcm, self.gyro_drift(time))
+        x, self._z = self.recursion.run(np.hstack([df_n, eps_n]), self._z)
+        phi = x[:, 3:6]
+        body_to_platform_hat = dcm_body_to_platform(
+            measured[:, 0] + self.installed_offsets[0],
+            measured[:, 1] + self.installed_offsets[1],
+            measured[:, 2] + self.installed_offsets[2],
+            0.0,
+            self.configuration,
+        )
+        nav_to_body_computed = body_to_platform_hat.swapaxes(1, 2) @ dcm @ rotation_about(phi).swapaxes(1, 2)
+        yaw, pitch, roll = euler_from_dcm(nav_to_body_computed)
+        self._next += count
+        out = {
+            "time": time,
+            "angle_platform": measured[:, 0],
+            "angle_inner": measured[:, 1],
+            "angle_middle": measured[:, 2],
+            "f_x": f_a[:, 0],
+            "f_y": f_a[:, 1],
+            "f_z": f_a[:, 2],
+            "velocity_north": x[:, 1],
+            "velocity_east": x[:, 2],
+            "velocity_down": x[:, 7],
+            "roll": roll,
+            "pitch": pitch,
+            "heading": yaw,
+            "temperature": temperature + self.noise.temperature_sensor(start, count),
+        }
+        out = {c.name: out[c.name] for c in SYSTEM_COLUMNS}
+        if include_truth:
+            for k, name in enumerate(("north", "east", "down")):
+                out[f"truth_phi_{name}"] = phi[:, k]
+                out[f"truth_df_{name}"] = df_n[:, k]
+        return out
+
+
+def system_record_chunks(
+    truth: Truth,
+    duration: float,
+    rate: float | None = None,
+    seed: int | None = None,
+    chunk_samples: int = 1 << 16,
+    *,
+    earth_angle: float = 0.0,
+    initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
+    include_truth: bool = False,
+) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Stream a static system-level record in chunks of ``chunk_samples`` (bounded memory).
+
+    Parameters
+    ----------
+    truth : Truth
+    duration : float
+        Record length [s]; ``round(duration·rate)`` samples.
+    rate : float, optional
+        Sample rate [Hz] (default ``truth.site.sample_rate``).
+    seed : int, optional
+        Seed (default ``truth.seed``).
+    chunk_samples : int
+        Samples per yielded chunk; the samples do not depend on it.
+    earth_angle : float
+        ``St0`` [rad].
+    initial_misalignment : sequence of float
+        ``φ(0)`` [rad] (NED).
+    include_truth : bool
+        Also yield ``truth_phi_*`` and ``truth_df_*`` (the error states and the n-frame
+        specific-force error) for validation.
+
+    Yields
+    ------
+    dict of str to ndarray
+        Columns named as :data:`stableins.data.schema.SYSTEM_COLUMNS`.
+    """
+    if chunk_samples < 1:
+        raise ValueError("chunk_samples must be positive")
+    world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment)
+    total = int(round(duration * world.rate))
+    done = 0
+    while done < total:
+        n = min(chunk_samples, total - done)
+        yield world.chunk(n, include_truth)
+        done += n
+
+
+def simulate_system(
+    truth: Truth,
+    duration: float,
+    rate: float | None = None,
+    seed: int | None = None,
+    **options,
+) -> dict[str, NDArray[np.float64]]:
+    """A whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
+    pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
+    if not pieces:
+        return {c.name: np.zeros(0) for c in SYSTEM_COLUMNS}
+    return {name: np.concatenate([p[name] for p in pieces]) for name in pieces[0]}
