@@ -12,15 +12,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from stableins.procedures.definition import load_procedure
-from stableins.simulator.device import simulate_dwells
-from stableins.simulator.truth import Truth
 
 from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
 from stableins.discovery.diagnostics import diagnose
 from stableins.discovery.history import Discovery
 from stableins.discovery.problem import DwellProblem, dwell_means
 from stableins.errormodel import ErrorModel
+from stableins.estimators.noise_model import SlowNoise
+from stableins.procedures.definition import load_procedure
+from stableins.simulator.device import simulate_dwells
+from stableins.simulator.truth import Truth
 
 IMG = Path(__file__).parent / "img"
 HIDDEN = {"Kcc_xxy": 60 * MICRO_G / STANDARD_GRAVITY**2, "nonorth_12": 15 * ARCSEC}
@@ -45,6 +46,8 @@ def main() -> None:
         gravity=truth.site.gravity,
         reference_temperature=truth.site.reference_temperature,
         configuration=truth.configuration,
+        # the instrument's slow noise (datasheet values): bias wander correlated between dwells
+        slow_noise=SlowNoise(truth.noise.bias_instability, truth.noise.acceleration_random_walk, source="instrument specification"),
     )
     problem = DwellProblem(dwells)
     session = Discovery(problem, ErrorModel.standard(gimbals=True))
