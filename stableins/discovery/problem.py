@@ -351,13 +351,15 @@ def dwell_means(
         configuration=configuration,
         noise={
             "method": "per axis: white noise from first differences unless batch means "
-            f"({batches} per dwell, detrended, pooled over {n_pos} dwells) show correlated noise",
+            f"({batches} per dwell, detrended, pooled over {n_pos} dwells) show correlated noise"
+            + ("" if slow_noise is None or slow_noise.is_zero else "; plus slow noise correlated between dwells"),
             "sigma_per_sample": sigma_eff,
             "sigma_white": sigma_white,
             "sigma_batch": sigma_batch,
             "correlated": correlated,
             "dof": dof,
             "colour_ratio": sigma_batch / sigma_white,
+            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
         },
         initial_readings=initial_readings,
         slow_covariance=_slow_covariance(starts, lengths, slow_noise),
