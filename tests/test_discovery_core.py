@@ -282,3 +282,46 @@ def test_separating_procedures_are_found_numerically():
     assert separated_by("lever_x_y") == set()  # needs rotation
     ranking = rank(problem, result, [LIBRARY["tilt_east"].term])
     assert "separated by: azimuth_180" in ranking["tilt_east"].advice
+
+
+def test_library_matches_the_simulator_catalogue():
+    """Same ids; output effects: the same regressor as the simulator's own physics (independent code)."""
+    effects = pytest.importorskip("stableins.simulator.effects")
+    assert set(effects.CATALOGUE) == set(LIBRARY.ids)
+    rng = np.random.default_rng(0)
+    n = 7
+    inputs = TermInputs(
+        rng.normal(0, 9.8, (n, 3)),
+        temperature=rng.normal(0, 2, n),
+        time=rng.uniform(0, 1e4, n),
+        slew_direction=rng.choice([-1.0, 0.0, 1.0], (n, 3)),
+        angular_rate=rng.normal(0, 0.3, (n, 3)),
+        angular_acceleration=rng.normal(0, 0.3, (n, 3)),
+    )
+    for effect in effects.CATALOGUE.values():
+        if effect.kind != "output":
+            continue
+        np.testing.assert_allclose(LIBRARY[effect.id].term.regressor(inputs), effect.regressor(inputs), rtol=1e-12, err_msg=effect.id)
+
+
+def test_kinematics_agree_with_the_platform_model():
+    from stableins.platform import GimbalPlatform
+
+    rng = np.random.default_rng(21)
+    cfg = GimbalConfiguration((1, -1, 1, 1))
+    readings = rng.uniform(-np.pi, np.pi, (9, 3))
+    offsets = tuple(rng.normal(0, 1e-3, 3))
+    base = tuple(rng.normal(0, 0.05, 3))
+    effects = {k: rng.normal(0, 1e-3) for k in KINEMATIC_IDS}
+    platform = GimbalPlatform(
+        zero_offsets=offsets,
+        configuration=cfg,
+        base_attitude=base,
+        base_tilt=(effects["tilt_north"], effects["tilt_east"]),
+        base_azimuth=effects["azimuth_error"],
+        nonorthogonality=(effects["nonorth_12"], effects["nonorth_23"]),
+        angle_sensor_errors={k: v for k, v in effects.items() if k.startswith("ang1_")},
+    )
+    np.testing.assert_allclose(
+        platform_specific_force(readings, G, offsets, base, effects, cfg), platform.specific_force_platform(readings, G), atol=1e-12
+    )

@@ -14,9 +14,11 @@ chain with the test-equipment effects that the standard model leaves out:
   ``C_b^p = R3(s1 α1) R2(n12) R1(s2 α2) R3(n23) R2(s3 α3) R3(s4 q)``.  A rotation about
   either axis itself would be a zero offset; the common normal (z × x = y, x × y = z) is
   the only new direction.
-* **base tilt** ``tilt_north``, ``tilt_east``: the local level frame the base is set up on
-  is turned by ``tilt_north`` about North and ``tilt_east`` about East,
-  ``C_n^b = C_n^b(yaw, pitch, roll) R2(tilt_east) R1(tilt_north)``.
+* **base tilt and azimuth** ``tilt_north``, ``tilt_east``, ``azimuth_error``: the true base is
+  the surveyed one turned by ``tilt_north`` about North, ``tilt_east`` about East and
+  ``azimuth_error`` about Down, ``C_n^b = C_n^b(yaw, pitch, roll) R2(t_E) R1(t_N) R3(ψ_e)``
+  (as :mod:`stableins.platform`).  ``R3(ψ_e)`` leaves ``f^n = (0, 0, −g)`` unchanged: the
+  azimuth error is invisible to gravity (it matters at system level, through the Earth rate).
 * **once-per-revolution angle-sensor error** ``ang1_<gimbal>_c``, ``ang1_<gimbal>_s``:
   the actual angle is ``α_i = r_i + θ_i0 + c_i cos r_i + s_i sin r_i``.
 
@@ -45,6 +47,7 @@ KINEMATIC_IDS = (
     "nonorth_23",
     "tilt_north",
     "tilt_east",
+    "azimuth_error",
     *(f"ang1_{g}_{cs}" for g in GIMBAL_NAMES for cs in ("c", "s")),
 )
 #: Zero-offset ids, in gimbal order.
@@ -75,7 +78,8 @@ def _chain(readings: NDArray, offsets: NDArray, effects: Mapping[str, float], se
 
 def _nav_to_body(base_attitude: ArrayLike, effects: Mapping[str, float]) -> NDArray:
     yaw, pitch, roll = np.asarray(base_attitude, dtype=float)
-    return dcm_nav_to_body(yaw, pitch, roll) @ R2(effects.get("tilt_east", 0.0)) @ R1(effects.get("tilt_north", 0.0))
+    tilt = R2(effects.get("tilt_east", 0.0)) @ R1(effects.get("tilt_north", 0.0)) @ R3(effects.get("azimuth_error", 0.0))
+    return dcm_nav_to_body(yaw, pitch, roll) @ tilt
 
 
 def _product(factors: list[tuple[int, NDArray]]) -> NDArray:
@@ -167,14 +171,16 @@ def platform_jacobian(
     full = prefix[n]  # C_b^p
 
     def d_tilt(rotation_axis: int) -> NDArray:
+        """∂f^p/∂(base rotation about North, East or Down): C_b^p C_ypr [R2 R1 R3 with one factor differentiated] f^n."""
         yaw_pitch_roll = dcm_nav_to_body(*np.asarray(base_attitude, dtype=float))
-        if rotation_axis == 0:  # tilt_north: innermost factor R1(t_N)
-            inner = -skew(_E[0]) @ R1(effects.get("tilt_north", 0.0)) @ f_n
-            m = yaw_pitch_roll @ R2(effects.get("tilt_east", 0.0))
-        else:  # tilt_east
-            inner = -skew(_E[1]) @ R2(effects.get("tilt_east", 0.0)) @ R1(effects.get("tilt_north", 0.0)) @ f_n
-            m = yaw_pitch_roll
-        return np.einsum("...ij,j->...i", full, m @ inner)
+        factors = [(1, effects.get("tilt_east", 0.0)), (0, effects.get("tilt_north", 0.0)), (2, effects.get("azimuth_error", 0.0))]
+        m = yaw_pitch_roll
+        v = None
+        for axis, angle in factors:
+            rot = _ROT[axis](angle)
+            m = m @ (-skew(_E[axis]) @ rot if axis == rotation_axis else rot)
+        v = m @ f_n
+        return np.einsum("...ij,j->...i", full, v)
 
     senses = configuration.senses
     gimbal_factor = (0, 2, 4)
@@ -191,6 +197,8 @@ def platform_jacobian(
             columns.append(d_tilt(0))
         elif pid == "tilt_east":
             columns.append(d_tilt(1))
+        elif pid == "azimuth_error":
+            columns.append(d_tilt(2))
         elif pid.startswith("ang1_"):
             _, g, cs = pid.split("_")
             i = GIMBAL_NAMES.index(g)

@@ -36,7 +36,7 @@ drifts about ``p``-axis ``a`` at ``Dg_a f_a``; after the time ``τ`` since the p
 stabilised the frame has turned by ``φ = Dg_a f_a τ e_a`` and ``δf^p = f^p × φ``, °/h/g).
 Test equipment (through the exact kinematics of :mod:`stableins.discovery.kinematics`,
 regressor ``∂f^p/∂p``): ``nonorth_12``, ``nonorth_23``, ``tilt_north``, ``tilt_east``,
-``ang1_<gimbal>_c``/``_s``.
+``azimuth_error``, ``ang1_<gimbal>_c``/``_s``.
 
 Custom effects: build a Term with :func:`custom_effect` (a Python function of
 ``TermInputs``) and :func:`register` it; it is then ranked like the library's own.
@@ -413,6 +413,7 @@ _EQUIPMENT_TEXT = {
     "nonorth_23": ("non-orthogonality of the inner-gimbal axis (x) and the middle-gimbal axis (y)", ("theta30", "beta_xy")),
     "tilt_north": ("tilt of the base about North (level error)", ("theta20",)),
     "tilt_east": ("tilt of the base about East (level error)", ("theta30",)),
+    "azimuth_error": ("azimuth error of the base about Down (survey error)", ()),
 }
 _EQUIPMENT_SEPARATION = {
     "nonorth_12": "positions that turn the platform axis with the inner gimbal at 0 and at ±90°",
@@ -420,6 +421,7 @@ _EQUIPMENT_SEPARATION = {
     "tilt_north": "turn the base by 180° in azimuth (or measure the tilt with a precision level)",
     "tilt_east": "turn the base by 180° in azimuth (or measure the tilt with a precision level); θ30 and the "
     "east tilt are one rotation about the same axis for a fixed base",
+    "azimuth_error": "invisible to gravity: a system-level record (Earth rate) or an optical azimuth survey",
 }
 
 
