@@ -514,6 +514,21 @@ class Library:
         return tuple(c.term for c in self._items.values())
 
 
+def markdown_table(library: Library | None = None) -> str:
+    """The candidates as a Markdown table (id, unit, meaning, excitation, aliases, separation) for the docs."""
+    library = library if library is not None else LIBRARY
+    rows = ["| id | unit | group | meaning | excitation | aliases into | separated by |", "|---|---|---|---|---|---|---|"]
+
+    def cell(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    for c in library:
+        t = c.term
+        aliases = ", ".join(f"`{a}`" for a in t.aliases) or "—"
+        rows.append(f"| `{t.id}` | {t.unit} | {c.group} | {cell(t.meaning)} | {cell(t.excitation)} | {aliases} | {cell(c.separation)} |")
+    return "\n".join(rows)
+
+
 #: The process-wide default library; :func:`register` adds custom effects to it.
 LIBRARY = Library.default()
 
