@@ -325,3 +325,58 @@ def test_kinematics_agree_with_the_platform_model():
     np.testing.assert_allclose(
         platform_specific_force(readings, G, offsets, base, effects, cfg), platform.specific_force_platform(readings, G), atol=1e-12
     )
+
+
+def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow_covariance=None):
+    angles = np.deg2rad(np.arange(0, 360, 45.0))
+    zero = 0 * angles
+    tumble = [np.stack([zero, angles, zero], 1), np.stack([zero, zero, angles], 1), np.stack([angles, zero, zero + np.pi / 2], 1)]
+    readings = np.concatenate(tumble + tumble[::-1])
+    model = ErrorModel.standard(gimbals=True)
+    truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
+    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS], effects=hidden_kinematic or {})
+    values = dict(truth)
+    for term, value in hidden_terms:
+        values[term.id] = value
+    full = model + [t for t, _ in hidden_terms]
+    n = len(readings)
+    noise = rng.normal(0, sigma, (n, 3))
+    if slow_covariance is not None:
+        noise = noise + np.linalg.cholesky(slow_covariance) @ rng.normal(size=(n, 3))
+    f_a = full.forward(f_p, values) + noise
+    labels = tuple(f"p{k}" for k in range(n))
+    time = np.arange(n) * 60.0
+    since, zeros = np.full(n, 30.0), np.zeros(n)
+    return DwellSet(readings, f_a, np.full((n, 3), sigma), G, time, since, zeros, np.zeros((n, 3)), labels, slow_covariance=slow_covariance)
+
+
+def test_auto_adds_two_hidden_effects_in_turn():
+    rng = np.random.default_rng(17)
+    kcc = LIBRARY["Kcc_xxy"].term
+    dwells = _tumble_dwells(rng, hidden_kinematic={"nonorth_23": 20 * ARCSEC}, hidden_terms=[(kcc, 40 * kcc.scale)])
+    session = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True))
+    history = session.auto(max_steps=4)
+    # the two hidden effects come first (a later step may add a false alarm at the 5 % family-wise level)
+    assert [s.added[0][0] for s in history.steps[1:3]] == ["nonorth_23", "Kcc_xxy"], history.report()
+    assert 0.6 < history.steps[2].chi2_red < 1.5
+    assert [s.bic for s in history.steps] == sorted((s.bic for s in history.steps), reverse=True)
+
+
+def test_slow_noise_whitening_is_the_generalized_least_squares_metric():
+    rng = np.random.default_rng(5)
+    n = 48
+    t = np.arange(n) * 60.0
+    slow = 4e-12 * np.exp(-np.abs(t[:, None] - t[None, :]) / 900.0)  # correlated between dwells
+    dwells = _tumble_dwells(rng, slow_covariance=slow)
+    problem = DwellProblem(dwells)
+    v = rng.normal(size=3 * n)
+    w = problem.whiten(v)
+    vv = v.reshape(n, 3)
+    expected = sum(vv[:, a] @ np.linalg.solve(slow + np.diag(dwells.sigma[:, a] ** 2), vv[:, a]) for a in range(3))
+    assert w @ w == pytest.approx(expected, rel=1e-10)
+    result = problem.fit(ErrorModel.standard(gimbals=True))
+    from stableins.discovery.problem import fit_chi2
+
+    white = problem.whiten(result.residuals)
+    assert fit_chi2(result) == pytest.approx(white @ white, rel=1e-12)
+    np.testing.assert_allclose(result.residual_sigma, np.sqrt(dwells.sigma**2 + np.diag(slow)[:, None]).reshape(-1))
