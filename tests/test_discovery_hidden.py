@@ -149,3 +149,25 @@ def test_realistic_noise(effect_id):
     estimate, sigma, _ = session.result[effect_id]
     assert abs(estimate - value) < 5 * sigma
     assert session.result.chi2_red < 1.5
+
+
+def test_platform_drift_is_found_in_the_reading_slopes():
+    """``Dg``: the angle sensors follow the drifting platform; the reading slopes within dwells show it."""
+    from stableins.discovery.drift import drift_problem
+
+    for effect_id in ("Dg_x", "Dg_y", "Dg_z", None):
+        value = 0.05 * LIBRARY["Dg_x"].term.scale  # 0.05 °/h/g
+        dwells, truth = simulate({effect_id: value} if effect_id else {}, passes=2)
+        session = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True))
+        assert not session.rank(refit_top=0, propose=False)[f"Dg_{'x' if effect_id is None else effect_id[-1]}"].excited
+        ranking = session.drift()
+        if effect_id is None:
+            assert not ranking.flagged
+            continue
+        assert ranking.best.id == effect_id and ranking.best.flagged
+        offsets = [session.result.as_dict()[i] for i in ("theta10", "theta20", "theta30")]
+        problem, null, terms, _ = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
+        fit = problem.fit(null + [t for t in terms if t.id == effect_id])
+        estimate, sigma, _ = fit[effect_id]
+        assert abs(estimate - value) < 5 * sigma
+        assert 0.6 < fit.chi2_red < 1.5

@@ -15,7 +15,8 @@ history of steps (docs/discovery.md).
 ``--json`` prints one document: ``chi2_red``, ``dof``, ``expected_spread``, ``stage``,
 ``model``, ``residual_rms`` / ``noise_floor`` [m/s², per axis], ``candidates`` (best first:
 ``id``, ``statistic``, ``p_value``, ``delta_bic``, ``predicted``, ``identifiable``,
-``aliases`` ...) and ``history``.
+``aliases`` ...), ``history``, and ``drift``: the platform-drift candidates ``Dg_*`` ranked on
+the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
 """
 
 from __future__ import annotations
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         session.add(effect)
     diagnosis = session.diagnose()
     ranking = session.rank()
+    drift = session.drift()
     if args.plots is not None:
         import matplotlib
 
@@ -93,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
         diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
         session.history.plot().savefig(args.plots / "history.png", dpi=110)
         note(f"plots written to {args.plots}")
-    text = "\n\n".join([diagnosis.report(), ranking.report(top=args.top), session.history.report()])
+    drift_text = "platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3)
+    text = "\n\n".join([diagnosis.report(), ranking.report(top=args.top), drift_text, session.history.report()])
     result = {
         "stage": dwells.noise.get("stage"),
         "chi2_red": session.result.chi2_red,
@@ -106,6 +109,12 @@ def run(args: argparse.Namespace) -> int:
         "candidates": ranking.to_json(),
         "history": session.history.to_json(),
         "left_out": dwells.noise.get("left_out", []),
+        "drift": {
+            "chi2_red": drift.result.chi2_red,
+            "dof": drift.result.dof,
+            "candidates": drift.to_json(),
+            "left_out": list(getattr(session, "drift_notes", ())),
+        },
     }
     emit(args, result, text)
     return 0

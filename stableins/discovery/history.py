@@ -240,6 +240,25 @@ class Discovery:
         )
         return self._ranking
 
+    def drift(self, refit_top: int = 3) -> Ranking:
+        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells.
+
+        Uses the zero offsets of the current fit for the actual angles; see
+        :mod:`stableins.discovery.drift`.  Needs a dwell problem whose dwells carry slopes.
+        """
+        from stableins.discovery.drift import drift_problem
+        from stableins.discovery.ranking import rank
+
+        dwells = getattr(self.problem, "dwells", None)
+        if dwells is None or dwells.reading_slope is None:
+            raise ValueError("these data carry no reading slopes (device dwells are needed)")
+        values = self.result.as_dict()
+        offsets = [values.get(i, 0.0) for i in ("theta10", "theta20", "theta30")]
+        problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
+        ranking = rank(problem, problem.fit(null), terms, alpha=self.alpha, refit_top=refit_top, propose=False)
+        self.drift_notes = notes
+        return ranking
+
     def _term(self, effect: str | Term) -> Term:
         return effect if isinstance(effect, Term) else self.library[effect].term
 

@@ -32,8 +32,9 @@ Environment and time: ``Kt_bias_a`` (``ΔT``, µg/K), ``Kt_sf_a`` (``f_a ΔT``, 
 ``Kd_bias_a`` (``t``, µg/h), ``Kh_a`` (direction ±1 of the last slew of the axis' input, µg).
 Rotation and platform: ``lever_a_b`` (accelerometer ``a`` displaced by ``r`` along platform
 axis ``b``: ``e_a·(ω̇×e_b + ω×(ω×e_b))``, mm), ``Dg_a`` (gyro g-sensitivity: the platform
-drifts about ``p``-axis ``a`` at ``Dg_a f_a``; after the time ``τ`` since the platform was
-stabilised the frame has turned by ``φ = Dg_a f_a τ e_a`` and ``δf^p = f^p × φ``, °/h/g).
+drifts about ``p``-axis ``a`` at ``Dg_a f_a``, °/h/g; the angle sensors measure the drift, so
+its regressor on ``f^a`` against measured readings is zero: it is found from the slopes of the
+readings within dwells, :mod:`stableins.discovery.drift`).
 Test equipment (through the exact kinematics of :mod:`stableins.discovery.kinematics`,
 regressor ``∂f^p/∂p``): ``nonorth_12``, ``nonorth_23``, ``tilt_north``, ``tilt_east``,
 ``azimuth_error``, ``ang1_<gimbal>_c``/``_s``.
@@ -125,12 +126,13 @@ def _lever(axis: int, offset_axis: int, term_id: str) -> Callable[[TermInputs], 
 
 
 def _drift(axis: int, term_id: str) -> Callable[[TermInputs], NDArray]:
+    """Zero: the angle sensors measure the drifting platform, so f^a stays consistent with the readings.
+
+    The drift shows in the slopes of the readings within dwells (:mod:`stableins.discovery.drift`).
+    """
+
     def regressor(inputs: TermInputs) -> NDArray:
-        tau = inputs.require("time_since_command", term_id)
-        f = _f(inputs)
-        phi = np.zeros_like(f)
-        phi[..., axis] = f[..., axis] * tau
-        return np.cross(f, phi)
+        return np.zeros_like(_f(inputs))
 
     return regressor
 
@@ -396,13 +398,13 @@ def _rotation() -> list[Candidate]:
                     "while it holds a position, tilting the input of the other accelerometers",
                     axis=i,
                     regressor=_drift(i, tid),
-                    excitation="long dwells with the axis vertical (drift grows with time since the position was reached)",
-                    aliases=tuple(f"beta_{b}{a}" for b in AXES if b != a),
+                    excitation="dwells with the axis vertical; seen in the slopes of the angle readings within dwells",
+                    aliases=(),
                     source="Cai et al. 2016 Eq. 1 (gyro g-sensitivity G)",
                 ),
                 "rotation",
-                "dwells of different lengths, or within-dwell slopes, with the axis up and down",
-                needs=("time_since_command",),
+                "the reading-slope analysis (Discovery.drift, stableins.discovery.drift) on dwells away from gimbal lock",
+                needs=(),
             )
         )
     return out

@@ -84,6 +84,9 @@ class DwellSet:
         the same on every axis and correlated between dwells
         (:func:`stableins.estimators.noise_model.dwell_mean_covariance`).  The fit is then
         generalized least squares with ``R_a = diag(σ_a²) + C_slow`` per axis.
+    reading_slope, reading_slope_sigma : ndarray (P, 3), optional
+        Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
+        (:mod:`stableins.discovery.drift`).
     """
 
     readings: NDArray[np.float64]
@@ -100,6 +103,8 @@ class DwellSet:
     noise: dict = field(default_factory=dict)
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
     slow_covariance: NDArray[np.float64] | None = None
+    reading_slope: NDArray[np.float64] | None = None
+    reading_slope_sigma: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -136,6 +141,8 @@ class DwellSet:
             dict(self.noise),
             None,
             None if self.slow_covariance is None else self.slow_covariance[np.ix_(i, i)],
+            None if self.reading_slope is None else self.reading_slope[i],
+            None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
         )
 
 
@@ -195,12 +202,18 @@ def dwells_from_dataset(
 
     if slow_noise is None:
         slow_noise = estimate_slow_noise(sm)
-    starts = []
+    from stableins.discovery.drift import reading_slope
+
+    starts, slopes, slope_sigma = [], [], []
     for k in keep:
         d = raw[k]
         procedure = procedures.get(stage)
         settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
-        starts.append(float(np.asarray(d.time)[np.asarray(d.time_since_command) >= settle][0]))
+        use = np.asarray(d.time_since_command) >= settle
+        starts.append(float(np.asarray(d.time)[use][0]))
+        a, b = reading_slope(np.asarray(d.time)[use], np.asarray(d.angles)[use])
+        slopes.append(a)
+        slope_sigma.append(b)
     slow_cov = None if slow_noise.is_zero else dwell_mean_covariance(np.array(starts), np.array([x.duration for x in sm]), slow_noise)
     readings = np.array([x.angles for x in sm])
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
@@ -228,6 +241,8 @@ def dwells_from_dataset(
         },
         initial_readings=initial_readings,
         slow_covariance=slow_cov,
+        reading_slope=np.array(slopes),
+        reading_slope_sigma=np.array(slope_sigma),
     )
 
 
@@ -304,6 +319,9 @@ def dwell_means(
     white_n = 0
     mid, tau, dtemp = np.zeros(n_pos), np.zeros(n_pos), np.zeros(n_pos)
     starts, lengths = np.zeros(n_pos), np.zeros(n_pos)
+    slopes, slope_sigma = np.zeros((n_pos, 3)), np.zeros((n_pos, 3))
+    from stableins.discovery.drift import reading_slope
+
     for k, p in enumerate(order):
         sel = pos == p
         n = int(sel.sum())
@@ -315,6 +333,7 @@ def dwell_means(
         mid[k], tau[k], dtemp[k] = ts.mean(), since[sel].mean(), temp[sel].mean() - reference_temperature
         counts[k] = n
         starts[k], lengths[k] = ts[0], ts[-1] - ts[0]
+        slopes[k], slope_sigma[k] = reading_slope(ts, r[sel])
         x = ts - ts.mean()
         slope = (x @ (fs - fs.mean(axis=0))) / (x @ x)
         e = fs - fs.mean(axis=0) - np.outer(x, slope)
@@ -363,6 +382,8 @@ def dwell_means(
         },
         initial_readings=initial_readings,
         slow_covariance=_slow_covariance(starts, lengths, slow_noise),
+        reading_slope=slopes,
+        reading_slope_sigma=slope_sigma,
     )
 
 
