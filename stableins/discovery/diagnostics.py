@@ -14,7 +14,7 @@ For any fitted stage (a :class:`~stableins.estimators.result.FitResult`):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -214,12 +214,14 @@ class HarmonicSpectrum:
     amplitude: NDArray[np.float64]
     frequency: NDArray[np.float64]
     periodogram: NDArray[np.float64]
+    chi2: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    p_value: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
     def report(self, unit: str = "", scale: float = 1.0) -> str:
-        lines = [f"{'harmonic':>8} {'period [h]':>10} {'amplitude':>12} {'1σ':>10}  significance"]
-        for k, a, s in zip(self.harmonics, self.amplitude, self.sigma, strict=True):
+        lines = [f"{'harmonic':>8} {'period [h]':>10} {'amplitude':>12} {'1σ':>10} {'χ²₂':>8} {'p':>9}"]
+        for k, a, s, q, p in zip(self.harmonics, self.amplitude, self.sigma, self.chi2, self.p_value, strict=True):
             period = 2 * np.pi / (k * EARTH_RATE) / 3600.0 if k else float("inf")
-            lines.append(f"{k:>8d} {period:>10.2f} {a / scale:>10.4g}{unit:>2} {s / scale:>10.3g}  {a / s:.1f}σ")
+            lines.append(f"{k:>8d} {period:>10.2f} {a / scale:>10.4g}{unit:>2} {s / scale:>10.3g} {q:>8.2f} {p:>9.3g}")
         return "\n".join(lines)
 
     def plot(self, ax=None, unit: str = "", scale: float = 1.0):
@@ -236,14 +238,31 @@ class HarmonicSpectrum:
         return fig
 
 
+def residual_spectra(time: ArrayLike, diagnosis: Diagnosis, harmonics: Sequence[int] = (1, 2, 3, 4)) -> dict[str, HarmonicSpectrum]:
+    """Earth-rate harmonic spectrum of each output's residual (system records binned into dwells).
+
+    The per-sample σ passed to :func:`harmonic_spectrum` is the RMS of the residuals' 1σ.
+    """
+    t = np.asarray(time, dtype=float)
+    return {
+        name: harmonic_spectrum(t, diagnosis.residuals[:, k], float(np.sqrt(np.mean(diagnosis.sigma[:, k] ** 2))), harmonics)
+        for k, name in enumerate(diagnosis.outputs)
+    }
+
+
 def harmonic_spectrum(time: ArrayLike, residual: ArrayLike, sigma: float, harmonics: Sequence[int] = (1, 2, 3, 4)) -> HarmonicSpectrum:
     r"""Residual amplitude at the Earth-rate harmonics ``k ω_ie`` and its periodogram.
 
     Fits ``r(t) = c_0 + Σ_k (a_k cos kω_ie t + b_k sin kω_ie t)`` by least squares with white
-    noise ``sigma`` (per sample) and returns the amplitudes ``sqrt(a_k² + b_k²)`` with the 1σ
-    of each coefficient.  A residual harmonic far above its σ means a missing effect with a
-    once- or twice-per-sidereal-day signature (Wu et al. 2018 Eqs. 22–38).
+    noise ``sigma`` (per sample) and returns the amplitudes ``sqrt(a_k² + b_k²)``, the mean 1σ
+    of the two coefficients, and the significance of each harmonic as
+    ``χ²₂ = (a, b) C⁻¹ (a, b)ᵀ`` with the pair's 2×2 covariance ``C`` and its p-value (records
+    shorter than a day correlate ``a`` and ``b``, so amplitude/σ would mislead).  A significant
+    residual harmonic means a missing effect with that once- or twice-per-sidereal-day signature
+    (Wu et al. 2018 Eqs. 22–38).
     """
+    from scipy import stats
+
     t = np.asarray(time, dtype=float)
     r = np.asarray(residual, dtype=float)
     h = np.asarray(harmonics, dtype=int)
@@ -255,9 +274,13 @@ def harmonic_spectrum(time: ArrayLike, residual: ArrayLike, sigma: float, harmon
     cov = sigma**2 * np.linalg.inv(x.T @ x)
     a, b = coef[1::2], coef[2::2]
     sa, sb = np.sqrt(np.diag(cov)[1::2]), np.sqrt(np.diag(cov)[2::2])
+    chi2 = np.zeros(len(h))
+    for j in range(len(h)):
+        pair = [1 + 2 * j, 2 + 2 * j]
+        chi2[j] = coef[pair] @ np.linalg.solve(cov[np.ix_(pair, pair)], coef[pair])
     # amplitude spectrum (one-sided) of the mean-removed residual
     n = r.size
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
     spectrum = np.abs(np.fft.rfft(r - r.mean())) * 2.0 / n
     freq = 2 * np.pi * np.fft.rfftfreq(n, dt)
-    return HarmonicSpectrum(h, a, b, np.sqrt((sa**2 + sb**2) / 2.0), np.hypot(a, b), freq, spectrum)
+    return HarmonicSpectrum(h, a, b, np.sqrt((sa**2 + sb**2) / 2.0), np.hypot(a, b), freq, spectrum, chi2, stats.chi2.sf(chi2, 2))

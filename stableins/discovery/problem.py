@@ -515,12 +515,14 @@ class DwellProblem:
             cols, new_gauge = _gauge(a, cols, model.terms)
             for gid in new_gauge:
                 gauge.append(gid)
-                notes.append(f"{gid} held at {values[gid]:.6g} (gauge): it is not separable from the other parameters with these positions")
+                notes.append(
+                    f"{gid} held at {values[gid]:.6g} (gauge): these data do not separate it from the other parameters "
+                    f"(1σ of the combination > {UNDETERMINED_RATIO:g}× its typical size)"
+                )
             step, *_ = np.linalg.lstsq(a[:, cols], r, rcond=None)
-            for k, dv in zip(cols, step, strict=True):
-                values[model.terms[k].id] += float(dv)
+            values, step = self._damped(model, values, cols, step, float(r @ r), y)
             scale = np.linalg.norm(a[:, cols], axis=0)
-            if np.max(np.abs(step) * scale) < 1e-6:
+            if not cols or np.max(np.abs(step) * scale) < 1e-6:
                 break
         prediction, jac, f_p, _ = self.evaluate(model, values)
         a = self.whiten(jac.reshape(-1, len(model)))
@@ -555,6 +557,23 @@ class DwellProblem:
                 "slow_noise": d.slow_covariance is not None,
             },
         )
+
+    def _damped(self, model: ErrorModel, values: dict, cols: list[int], step: NDArray, rss: float, y: NDArray) -> tuple[dict, NDArray]:
+        """Gauss–Newton step, halved until the whitened RSS does not grow and the model stays valid (up to 20 times)."""
+        for _ in range(20):
+            trial = dict(values)
+            for k, dv in zip(cols, step, strict=True):
+                trial[model.terms[k].id] += float(dv)
+            try:
+                prediction, *_ = self.evaluate(model, trial)
+            except ValueError:  # e.g. a quadratic coefficient beyond the fold of Eq. 6
+                step = step / 2.0
+                continue
+            r = self.whiten(y - prediction.reshape(-1))
+            if float(r @ r) <= rss * (1.0 + 1e-12) + 1e-300:
+                return trial, step
+            step = step / 2.0
+        return values, np.zeros_like(step)
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
         model = ErrorModel(result.terms)
@@ -595,11 +614,24 @@ def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
     return v / (s if v.ndim == 1 else s[:, None])
 
 
+#: A parameter combination whose 1σ exceeds this many times its typical size (Term.nominal) is not
+#: determined by the data; a gauge holds one of its parameters at its prior value.
+UNDETERMINED_RATIO = 100.0
+_GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_factor": 3, "installation": 4, "bias": 5}
+
+
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
-    """Drop columns until the column-scaled design has full rank; prefer gimbal offsets, then additive terms."""
+    """Drop columns until every direction of the design is determined.
+
+    Columns of the whitened design are scaled by each term's typical size (``nominal``); a
+    singular value ``s`` then means a combination with 1σ = ``1/s`` typical sizes.  While the
+    smallest is below ``max(tolerance·s_max, 1/UNDETERMINED_RATIO)`` (exact null space, or a
+    combination these data cannot determine), the parameter with the largest share of that
+    direction is held, preferring gimbal offsets, then additive terms, quadratic coefficients,
+    scale factors, installation angles and biases last.
+    """
     cols = list(cols)
     dropped: list[str] = []
-    preference = {"gimbal": 0, "additive": 1}
     while cols:
         sub = a[:, cols]
         norms = np.linalg.norm(sub, axis=0)
@@ -608,11 +640,13 @@ def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float 
             dropped += [terms[c].id for c in zero]
             cols = [c for c in cols if c not in zero]
             continue
-        _, sv, vt = np.linalg.svd(sub / norms, full_matrices=False)
-        if sv[-1] > tolerance * sv[0]:
+        nominal = np.array([abs(terms[c].nominal) for c in cols])
+        scale = np.where(nominal > 0, nominal, 1.0 / norms)
+        _, sv, vt = np.linalg.svd(sub * scale, full_matrices=False)
+        if sv[-1] > max(tolerance * sv[0], 1.0 / UNDETERMINED_RATIO):
             break
         null = np.abs(vt[-1])
-        involved = [(preference.get(terms[c].kind, 2), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
+        involved = [(_GAUGE_PREFERENCE.get(terms[c].kind, 6), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
         _, _, c = min(involved)
         dropped.append(terms[c].id)
         cols.remove(c)
@@ -682,3 +716,89 @@ class LinearProblem:
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
         return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))
+
+
+# ----------------------------------------------------------------------------- system records
+def bins_from_chunks(
+    chunks,
+    *,
+    gravity: float,
+    bin_seconds: float = 60.0,
+    reference_temperature: float = 25.0,
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+) -> DwellSet:
+    r"""Bin a system-level record (a stream of column chunks) into "dwells" for discovery.
+
+    A space-stable platform turns at the Earth rate relative to the base, so its specific
+    force moves slowly; a bin of length ``T`` averaged at the mean readings differs from the
+    mean of the outputs by about ``g (ω_ie T)²/24`` (0.8 µg for 60 s), far below the bin's
+    noise.  Each bin's 1σ is the white-noise floor of its axis (first differences, pooled
+    over the record) over ``sqrt(n)``.  No slews: hysteresis is not excited; the time since
+    the last command is the record time.  Memory is bounded by the number of bins.
+
+    Parameters
+    ----------
+    chunks : iterable of mappings
+        Column chunks with ``time``, ``angle_platform/inner/middle``, ``f_x/y/z`` and
+        ``temperature`` (e.g. :meth:`stableins.data.system.SystemRecord.iter_chunks`).
+    gravity : float
+        Local gravity [m/s²].
+    bin_seconds : float
+        Bin length [s].
+    """
+    sums: dict[int, NDArray] = {}
+    squares = np.zeros(3)
+    n_diff = 0
+    t0 = None
+    last = None  # (bin, f) of the previous sample, for differences across chunk boundaries
+    for chunk in chunks:
+        t = np.asarray(chunk["time"], dtype=float)
+        if t.size == 0:
+            continue
+        t0 = t[0] if t0 is None else t0
+        f = np.stack([np.asarray(chunk[k], dtype=float) for k in ("f_x", "f_y", "f_z")], axis=-1)
+        r = np.stack([np.asarray(chunk[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=-1)
+        temp = np.asarray(chunk["temperature"], dtype=float)
+        b = np.floor((t - t0) / bin_seconds).astype(np.int64)
+        if last is not None:
+            b_all, f_all = np.concatenate([[last[0]], b]), np.vstack([last[1][None], f])
+        else:
+            b_all, f_all = b, f
+        same = b_all[1:] == b_all[:-1]
+        d = np.diff(f_all, axis=0)[same]
+        squares += (d**2).sum(axis=0) / 2.0
+        n_diff += d.shape[0]
+        last = (b[-1], f[-1])
+        for k in np.unique(b):
+            m = b == k
+            row = np.concatenate([[m.sum(), t[m].sum(), temp[m].sum()], f[m].sum(axis=0), r[m].sum(axis=0)])
+            sums[int(k)] = sums.get(int(k), 0.0) + row
+    if not sums or n_diff == 0:
+        raise ValueError("the record has too few samples to form bins")
+    keys = sorted(sums)
+    table = np.array([sums[k] for k in keys])
+    n = table[:, 0]
+    full = n >= 0.5 * np.median(n)  # drop a short last bin
+    table, n = table[full], n[full]
+    sigma_white = np.sqrt(squares / n_diff)
+    readings = table[:, 6:9] / n[:, None]
+    time = table[:, 1] / n
+    return DwellSet(
+        readings=readings,
+        output=table[:, 3:6] / n[:, None],
+        sigma=sigma_white[None, :] / np.sqrt(n)[:, None],
+        gravity=float(gravity),
+        time=time,
+        time_since_command=time - float(t0),
+        temperature=table[:, 2] / n - reference_temperature,
+        slew_direction=np.zeros((len(n), 3)),
+        labels=tuple(f"{(tk - t0) / 3600:.2f}h" for tk in time),
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        noise={
+            "method": f"white noise from first differences, pooled over the record; {bin_seconds:g} s bins",
+            "sigma_per_sample": sigma_white,
+        },  # noqa: E501
+        initial_readings=None,
+    )
