@@ -16,6 +16,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from stableins.conventions import ARCSEC
+
 sim_device = pytest.importorskip("stableins.simulator.device")
 procedures = pytest.importorskip("stableins.procedures.definition")
 
@@ -114,6 +116,15 @@ def test_base_tilt_east_is_reported_unseparable():
     assert tilt.aliases[0][0] == "theta30" and tilt.aliases[0][1] == pytest.approx(1.0, abs=1e-3)
     assert not ranking.flagged
     assert "not separable" in ranking.report() and "tilt_east" in ranking.report()
+    assert "azimuth_180" in tilt.advice  # tested numerically: turning the base separates it
+
+
+def test_base_azimuth_error_is_not_excited_by_gravity():
+    dwells, _ = simulate({"azimuth_error": 60 * ARCSEC}, passes=2)
+    session = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True))
+    assert abs(session.result.chi2_red - 1) < 4 * np.sqrt(2 / session.result.dof)  # nothing to see
+    ranking = session.rank(refit_top=0, propose=False)
+    assert not ranking["azimuth_error"].excited and not ranking.flagged
 
 
 def test_false_alarm_rate_on_clean_data():
