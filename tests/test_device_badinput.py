@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from device_world import GRAVITY, device_columns, draw_truth
 
-from stableins.conventions import ARCSEC
 from stableins.data.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellChecks, dwells_from_columns, summarize_dwell
@@ -31,6 +30,17 @@ def _rows(cols, mask):
 def test_clean_data_pass():
     fit = _calibrate(_columns())
     assert fit.extra["left_out"] == {} and fit.rank == 14
+    assert not any(n.startswith("warning:") for n in fit.notes)
+
+
+def test_a_position_off_within_the_orientation_tolerance_is_not_silent():
+    # 0.01 m/s^2 (about 1 mg) is far inside the 0.196 m/s^2 orientation check but 30σ of a dwell mean
+    cols = _columns()
+    cols["f_x"][cols["position"] == 4] += 0.01
+    fit = _calibrate(cols)
+    warnings = [n for n in fit.notes if n.startswith("warning:")]
+    assert len(warnings) == 1 and "exceeds its 99.9 % quantile" in warnings[0]
+    assert "largest normalized residuals: pos 4 f_x" in warnings[0]
 
 
 def test_missing_position_is_an_error_naming_it():
@@ -124,8 +134,9 @@ def test_too_many_positions_left_out_is_an_error():
     cols = _columns()
     for p in (1, 7, 3, 9, 5, 11, 2, 4, 6, 8, 10, 12, 13):
         cols["f_x"][cols["position"] == p] = np.nan
-    with pytest.raises(InputError, match="usable positions"):
+    with pytest.raises(InputError, match="usable positions") as info:
         _calibrate(cols)
+    assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13)" in str(info.value)
 
 
 def test_missing_column_names_the_field():
@@ -162,4 +173,88 @@ def test_white_noise_uses_the_sample_scatter():
     d = summarize_dwell(np.arange(2000) / 100.0, f, np.zeros((2000, 3)), np.zeros(3), position=1)
     np.testing.assert_allclose(d.sem, f.std(axis=0, ddof=1) / np.sqrt(2000))
     assert d.notes == () and d.flags == ()
-    assert d.sem.min() > 0 and ARCSEC > 0
+    assert d.sem.min() > 0
+
+
+FINE = load_procedure("device-fine")
+
+
+def _fine_session(change=None, keep=None):
+    """Coarse and fine dwells of one unit (fine dwells shortened to 60 s to keep the test fast)."""
+    from device_world import ExactPlatform
+
+    site = ExactPlatform(TRUTH).metadata
+    coarse = dwells_from_columns(_columns(), settle=5.0, checks=CHECKS, source="coarse.csv")
+    cols = device_columns(TRUTH, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0)
+    if change is not None:
+        change(cols)
+    if keep is not None:
+        cols = _rows(cols, keep(cols))
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks(), source="fine.csv")
+    return coarse + fine, site
+
+
+def test_fine_position_off_its_orientation_is_flagged_and_left_out():
+    from stableins.estimators.device import calibrate_device
+
+    def flip(cols):
+        cols["f_y"][cols["position"] == 9] *= -1.0  # y up reads as y down: same |f|, wrong orientation
+
+    dwells, site = _fine_session(flip)
+    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    assert "does not match the commanded orientation" in result.fine.extra["left_out"][9]
+    assert 9 not in result.fine.extra["positions_used"] and len(result.fine.extra["positions_used"]) == 17
+
+
+def test_fine_positions_missing_are_an_error_unless_allowed():
+    from stableins.estimators.device import calibrate_device
+
+    dwells, site = _fine_session(keep=lambda c: ~np.isin(c["position"], (4, 14)))
+    with pytest.raises(InputError, match=r"fine-stage positions \[4, 14\] are missing"):
+        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, allow_missing=True, source="fine.csv")
+    assert result.fine.extra["left_out"] == {4: "missing from the data", 14: "missing from the data"}
+    assert result.fine.rank == 12
+
+
+def test_too_few_usable_fine_positions_is_an_error_saying_why():
+    from stableins.estimators.device import calibrate_device
+
+    def clip(cols):
+        for p in range(1, 7):
+            cols["f_z"][(cols["position"] == p) & (cols["time_since_command"] > 10)] = np.nan
+
+    dwells, site = _fine_session(clip)
+    with pytest.raises(InputError, match="only 12 usable fine-stage positions") as info:
+        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6)" in str(info.value)
+
+
+def test_procedure_of_the_wrong_stage_is_an_error():
+    from stableins.estimators.device import calibrate_device
+
+    dwells, site = _fine_session()
+    with pytest.raises(InputError, match="is a 'fine' procedure, given for the coarse stage") as info:
+        calibrate_device(dwells, site, coarse_procedure=FINE, fine_procedure=FINE)
+    assert info.value.field == "procedure.stage" and "device-fine.toml" in str(info.value)
+
+
+def test_unit_of_the_other_handedness_is_warned_about_and_its_weak_terms_named():
+    from device_world import ExactPlatform
+
+    from stableins.estimators.device import calibrate_device
+
+    senses = (1, -1, 1, 1)  # handedness −1, correctly described by the metadata: y never points down
+    site = ExactPlatform(TRUTH, senses=senses).metadata
+    coarse = dwells_from_columns(device_columns(TRUTH, PROCEDURE, sigma=1e-3, seed=1, senses=senses), settle=5.0, checks=CHECKS)
+    cols = device_columns(TRUTH, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses)
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks())
+    result = calibrate_device(coarse + fine, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    for fit in (result.coarse, result.fine):
+        assert any("designed for gimbal handedness +1" in n and "give -1" in n for n in fit.notes)
+    weak = [n for n in result.fine.notes if n.startswith("warning: weakly determined")]
+    assert len(weak) == 1 and all(k in weak[0] for k in ("sf_y", "bias_y", "K2_y"))
+    # the default handedness gets neither warning
+    dwells, site = _fine_session()
+    clean = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    assert not any("handedness" in n or "weakly determined" in n for fit in (clean.coarse, clean.fine) for n in fit.notes)

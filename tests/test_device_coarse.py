@@ -163,6 +163,7 @@ def test_offset_iteration_failure_reports_history():
     with pytest.raises(OffsetIterationError) as info:
         iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=10), PROCEDURE, max_passes=2, noise_sigmas=0.0, threshold=1e-3 * ARCSEC)
     assert len(info.value.history) == 2 and "pass 1" in str(info.value) and "pass 2" in str(info.value)
+    assert str(info.value).count("limit (0.001, 0.001)″ = max(threshold, noise_sigmas·σ): not converged") == 2
 
 
 def test_report_and_result_are_frozen():
@@ -173,4 +174,16 @@ def test_report_and_result_are_frozen():
     with pytest.raises(ValueError):
         fit.values[0] = 1.0
     assert fit.residuals.shape == (54,) and fit.residual_labels[4] == "pos 2 f_y"
-    assert TRUTH_MODEL  # the truth model is a superset of the coarse model
+    assert set(MODEL.ids) <= set(TRUTH_MODEL.ids)  # the truth model is a superset of the coarse model
+
+
+def test_gauss_newton_stopped_at_its_limit_is_reported():
+    truth = draw_truth(np.random.default_rng(13), quadratic=False)
+    means = outputs(truth, READINGS)[None]
+    problem = CoarseProblem(READINGS[None], means, np.full(means.shape, 1e-5), GRAVITY, np.eye(3), DEFAULT_GIMBALS, MODEL)
+    from stableins.estimators.gauss_newton import convergence_warning
+
+    one = solve_coarse(problem, max_iterations=1)  # one step from the ideal instrument cannot reach 1e-9
+    assert not one.converged[0] and "did not converge in 1 iterations" in convergence_warning(one)
+    full = solve_coarse(problem)
+    assert full.converged[0] and convergence_warning(full) is None

@@ -117,3 +117,17 @@ def test_recovery_and_honest_sigma_over_seeds():
     nees = np.einsum("ti,tij,tj->t", err, np.linalg.inv(cov), err)
     lo, hi = stats.chi2.ppf([0.001, 0.999], 12 * trials) / trials
     assert lo < nees.mean() < hi
+
+
+def test_fine_position_off_the_model_is_not_silent():
+    truth = draw_truth(np.random.default_rng(25))
+    rng = np.random.default_rng(2)
+    coarse_means = outputs(truth, READINGS) + 3e-5 * rng.normal(size=(18, 3))
+    coarse = calibrate_coarse(_dwells(coarse_means, 3e-5, "coarse"), gravity=GRAVITY)
+    fine_means = outputs(truth, READINGS) + 5e-6 * rng.normal(size=(18, 3))
+    clean = calibrate_fine(_dwells(fine_means, 5e-6, "fine"), coarse, gravity=GRAVITY)
+    assert not any(n.startswith("warning:") for n in clean.notes)
+    fine_means[10, 0] += 2e-3  # position 11 (x up): 0.2 mg on x, 400σ of the mean
+    bad = calibrate_fine(_dwells(fine_means, 5e-6, "fine"), coarse, gravity=GRAVITY)
+    warnings = [n for n in bad.notes if n.startswith("warning:")]
+    assert len(warnings) == 1 and "pos 11 |f|" in warnings[0]

@@ -67,3 +67,24 @@ def test_fine_stage_sigma_is_honest_only_with_the_slow_noise_model():
             nees[label].append(e @ np.linalg.solve(p, e))
     assert 9.0 < np.mean(nees["slow"]) < 15.5  # χ²_12 mean 12, sd of a 30-trial mean 0.9
     assert np.mean(nees["white"]) > 25.0  # white-only σ is far too small
+
+
+def test_undetectable_slow_noise_comparable_to_the_white_noise_is_warned_about():
+    from stableins.estimators.device import estimate_slow_noise, hidden_slow_noise_warning
+
+    rng = np.random.default_rng(8)
+    n = 1200  # 10 min at 2 Hz, white noise only: nothing to detect, but little to exclude either
+    dwells = [
+        summarize_dwell(np.arange(n) / 2.0, 1e-3 * rng.normal(size=(n, 3)), np.zeros((n, 3)), np.zeros(3), position=j + 1, stage="fine")
+        for j in range(18)
+    ]
+    estimated = estimate_slow_noise(dwells)
+    assert estimated.is_zero and estimated.undetected_bound > 0
+    white = np.median([np.median(d.sem) for d in dwells])
+    warning = hidden_slow_noise_warning(estimated, dwells)
+    assert (0.664 * estimated.undetected_bound > 0.5 * white) == (warning is not None)
+    assert warning is not None and "fine-stage 1σ may be too small" in warning
+    # given by the user (even as zero): no warning
+    assert hidden_slow_noise_warning(SlowNoise(0.0, 0.0, "datasheet"), dwells) is None
+    # a bound well below the white noise of a mean: no warning
+    assert hidden_slow_noise_warning(SlowNoise(0.0, 0.0, "x", undetected_bound=0.1 * white), dwells) is None

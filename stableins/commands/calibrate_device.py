@@ -91,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
+    for fit in (*calibration.passes, calibration.fine):
+        for line in fit.notes if fit is not None else ():
+            if line.startswith("warning:"):
+                note(f"stableins: {fit.stage} stage: {line}")
     record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
     record.save(args.out)
     note(f"calibration record written to {args.out}")

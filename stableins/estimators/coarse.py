@@ -60,8 +60,8 @@ from stableins.conventions import (
 from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
-from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.dwell import DwellSummary, describe_left_out
+from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult
 
@@ -400,7 +400,11 @@ def calibrate_coarse(
     model = coarse_model(nonlinear)
     n = len(model)
     if 3 * len(usable) <= n:
-        raise InputError(f"only {len(usable)} usable positions; the coarse stage needs more than {n // 3}", path=source, field="position")
+        raise InputError(
+            f"only {len(usable)} usable positions; the coarse stage needs more than {n // 3}. Left out: {describe_left_out(left_out)}",
+            path=source,
+            field="position",
+        )
     problem = CoarseProblem(
         readings=np.array([d.angles for d in usable])[None],
         means=np.array([d.mean for d in usable])[None],
@@ -422,7 +426,7 @@ def calibrate_coarse(
     if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
         raise InputError(
             f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
-            f"(left out: {left_out or 'none'})",
+            f"(left out: {describe_left_out(left_out)})",
             path=source,
             field="position",
             expected="the 18 positions of the procedure (only theta10 may be a gauge)",
@@ -446,6 +450,14 @@ def calibrate_coarse(
         variance = variance + np.diagonal(problem.slow_covariance[0])[:, None]
     residual_sigma = np.sqrt(variance).reshape(-1)
     labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
+    chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
+    if (stalled := convergence_warning(solution)) is not None:
+        notes.append(stalled)
+    warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / residual_sigma, labels)
+    if warning is not None:
+        notes.append(warning)
+    if design.weak:
+        notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
     status = tuple("gauge" if k in fixed else "estimated" for k in model.ids)
     determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed)
     extra = {
@@ -454,7 +466,7 @@ def calibrate_coarse(
         "positions_used": [d.position for d in usable],
         "left_out": {int(k): v for k, v in sorted(left_out.items())},
         "iterations": solution.iterations,
-        "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
+        "chi2_whitened": chi2_whitened,
         "gravity": float(gravity),
         "base_attitude": [float(a) for a in base_attitude],
         "gimbal_senses": list(configuration.senses),

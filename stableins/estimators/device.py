@@ -136,7 +136,37 @@ def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.
     if count >= 3 and np.any(mean > significance * stderr):
         return slow_noise_from_allan_excess(mean, source=f"estimated from the pooled Allan excess of {count} dwells (weak estimate)")
     bound = np.sqrt(np.max(np.clip(mean, 0.0, None) + significance * stderr)) / 0.664 if count >= 3 else float("inf")
-    return SlowNoise(0.0, 0.0, source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)")
+    return SlowNoise(
+        0.0,
+        0.0,
+        source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)",
+        undetected_bound=float(bound),
+    )
+
+
+def hidden_slow_noise_warning(slow_noise: SlowNoise, dwells: Sequence[DwellSummary]) -> str | None:
+    """A warning when undetected bias instability could be comparable to the white noise of the dwell means.
+
+    The pooled Allan excess of 10 min dwells cannot see a bias instability of a few µg, which
+    is already comparable to the white noise of such a dwell mean; the fine-stage 1σ are then
+    too small (on the simulator's quartz instrument, B = 2 µg, its NEES is about twice χ²).
+    Warn when the largest hidden Allan floor ``0.664 B`` exceeds half the median white 1σ.
+    """
+    if slow_noise.undetected_bound <= 0.0:
+        return None
+    sems = [float(np.median(d.sem)) for d in dwells if d.usable]
+    if not sems:
+        return None
+    white = float(np.median(sems))
+    hidden = 0.664 * slow_noise.undetected_bound
+    if hidden <= 0.5 * white:
+        return None
+    ug = 9.80665e-6
+    return (
+        f"warning: no bias instability given and none detectable in these dwells, but an Allan floor up to about {hidden / ug:.2g} ug "
+        f"could hide in them, against {white / ug:.2g} ug white noise of a dwell mean: the {dwells[0].stage}-stage 1σ may be too small. "
+        "Give the instrument's value (--bias-instability, --random-walk)"
+    )
 
 
 def calibrate_device(
@@ -163,6 +193,14 @@ def calibrate_device(
     """
     coarse_procedure = coarse_procedure or load_procedure("device-coarse")
     fine_procedure = fine_procedure or load_procedure("device-fine")
+    for procedure, stage in ((coarse_procedure, "coarse"), (fine_procedure, "fine")):
+        if procedure.stage != stage:
+            raise InputError(
+                f"procedure {procedure.name!r} is a {procedure.stage!r} procedure, given for the {stage} stage",
+                path=procedure.path or None,
+                field="procedure.stage",
+                expected=repr(stage),
+            )
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     if slow_noise is None:
         slow_noise = estimate_slow_noise(dwells)
@@ -186,6 +224,15 @@ def calibrate_device(
             )
         )
     coarse = passes[-1]
+    mismatch = None
+    if coarse_procedure.handedness != configuration.handedness:
+        mismatch = (
+            f"warning: procedure {coarse_procedure.name!r} is designed for gimbal handedness {coarse_procedure.handedness:+d}, "
+            f"the unit's gimbal_senses {tuple(configuration.senses)} give {configuration.handedness:+d}: the sequence does not point "
+            "every axis both up and down (docs/conventions.md), so scale factors, biases and K2 of some axes are poorly determined"
+        )
+        coarse = replace(coarse, notes=coarse.notes + (mismatch,))
+        passes[-1] = coarse
     fine_dwells = [d for d in dwells if d.stage == "fine"]
     fine = None
     if fine_dwells:
@@ -202,4 +249,9 @@ def calibrate_device(
             slow_noise=slow_noise,
             source=f"{source} (fine)",
         )
+        warning = hidden_slow_noise_warning(slow_noise, [d for d in fine_dwells if d.usable])
+        if warning is not None:
+            fine = replace(fine, notes=fine.notes + (warning,))
+        if mismatch is not None:
+            fine = replace(fine, notes=fine.notes + (mismatch,))
     return DeviceCalibration(coarse, fine, tuple(passes))

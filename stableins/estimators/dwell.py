@@ -332,6 +332,19 @@ def dwells_from_columns(
     return out
 
 
+def describe_left_out(left_out: Mapping[int, str]) -> str:
+    """Why positions were left out, grouped by reason: ``"saturated samples (positions 1, 2); ..."``.
+
+    Reasons are grouped by their text before the first ``:`` (the numbers after it differ
+    from dwell to dwell).
+    """
+    groups: dict[str, list[int]] = {}
+    for position, reason in sorted(left_out.items()):
+        for part in reason.split("; "):
+            groups.setdefault(part.split(":")[0].strip(), []).append(int(position))
+    return "; ".join(f"{reason} (position{'s' if len(p) > 1 else ''} {', '.join(map(str, p))})" for reason, p in groups.items()) or "none"
+
+
 def select(dwells: Sequence[DwellSummary], stage: str, pass_number: int | None = None) -> list[DwellSummary]:
     """Dwells of one stage and pass (the last pass when ``pass_number`` is None)."""
     chosen = [d for d in dwells if d.stage == stage]

@@ -41,8 +41,8 @@ from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel
 from stableins.estimators.coarse import slow_covariance
 from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
-from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.dwell import DwellSummary, describe_left_out
+from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.result import FitResult
 
@@ -185,14 +185,19 @@ def calibrate_fine(
     if slow_noise is not None:
         notes.append(slow_noise.describe())
     if len(usable) <= 12:
-        raise InputError(f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13", path=source, field="position")
+        raise InputError(
+            f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13. Left out: {describe_left_out(left_out)}",
+            path=source,
+            field="position",
+        )
     scales = np.array([t.nominal for t in model])
     _, a0 = problem.weighted(x0)
     start_design = analyze_design(a0[0], model.ids, scales)
     gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
     if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
         raise InputError(
-            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()}",
+            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
+            f"(left out: {describe_left_out(left_out)})",
             path=source,
             field="position",
             expected="positions with every axis near +1 g, −1 g and in between",
@@ -233,6 +238,19 @@ def calibrate_fine(
         sigma_h = np.sqrt(np.diagonal(problem.observation_covariance(solution.x), axis1=-2, axis2=-1))
     g = float(gravity)
     residuals = ((0.5 * g**2 - h) / g)[0]  # ≈ g − |f^p| [m/s²]
+    labels = tuple(f"pos {d.position} |f|" for d in usable)
+    chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
+    if (stalled := convergence_warning(solution)) is not None:
+        notes.append(stalled)
+    warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / (sigma_h / g)[0], labels)
+    if warning is not None:
+        notes.append(warning)
+    weak = [k for k in design.weak if k not in BETA_IDS]
+    if weak:
+        notes.append(
+            f"warning: weakly determined (1σ above the typical magnitude): {', '.join(weak)}; "
+            "the positions used do not excite these terms (an axis that never points both up and down?)"
+        )
     return FitResult(
         stage="fine",
         terms=model.terms,
@@ -241,7 +259,7 @@ def calibrate_fine(
         status=status,
         residuals=residuals,
         residual_sigma=(sigma_h / g)[0],
-        residual_labels=tuple(f"pos {d.position} |f|" for d in usable),
+        residual_labels=labels,
         rank=design.rank,
         singular_values=design.singular_values,
         null_space=aligned_null_space(design, gauge),
@@ -253,7 +271,7 @@ def calibrate_fine(
             "positions_used": [d.position for d in usable],
             "left_out": {int(k): v for k, v in sorted(left_out.items())},
             "iterations": solution.iterations,
-            "chi2_whitened": float(solution.weighted_residuals[0] @ solution.weighted_residuals[0]),
+            "chi2_whitened": chi2_whitened,
             "gravity": g,
         },
     )

@@ -29,7 +29,7 @@ Evaluate = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np
 class GaussNewtonSolution:
     """Batched solution: ``x (T, n)``, ``covariance (T, n, n)`` (zero rows for fixed
     parameters), weighted residuals ``(T, m)``, weighted Jacobian ``(T, m, n)``,
-    iterations used and the last scaled step."""
+    iterations used, the last scaled step and whether it fell below the tolerance ``(T,)``."""
 
     x: NDArray[np.float64]
     covariance: NDArray[np.float64]
@@ -37,6 +37,7 @@ class GaussNewtonSolution:
     weighted_jacobian: NDArray[np.float64]
     iterations: int
     last_step: NDArray[np.float64]
+    converged: NDArray[np.bool_] | None = None
 
 
 def gauss_newton(
@@ -80,4 +81,47 @@ def gauss_newton(
     inv = np.linalg.inv(normal) * d[:, None] * d[None, :]
     idx = np.flatnonzero(free)
     covariance[..., idx[:, None], idx[None, :]] = inv
-    return GaussNewtonSolution(x, covariance, r, a, iterations, step)
+    return GaussNewtonSolution(x, covariance, r, a, iterations, step, step < tolerance)
+
+
+def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:
+    """A warning when Gauss-Newton stopped at its iteration limit without converging, else None."""
+    if solution.converged is None or bool(solution.converged[trial]):
+        return None
+    return (
+        f"warning: Gauss-Newton did not converge in {solution.iterations} iterations (last step {solution.last_step[trial]:.3g} "
+        "of the typical parameter magnitudes): the estimates may not be the least-squares solution"
+    )
+
+
+def goodness_of_fit_warning(
+    chi2: float,
+    dof: int,
+    normalized_residuals: NDArray[np.float64],
+    labels: tuple[str, ...],
+    quantile: float = 0.999,
+    worst: int = 3,
+) -> str | None:
+    r"""A warning when :math:`\chi^2` exceeds its ``quantile`` under the measured noise, else None.
+
+    With the covariance built on the measured noise (never scaled by χ²_ν), a χ² far
+    beyond :math:`\chi^2_\nu` means the data do not fit the model (a position off its
+    orientation, an unmodelled effect, noise that is not white): the 1σ then understate
+    the errors, and the user must be told.  The message names the observations with the
+    largest normalized residuals (``residual / 1σ``).
+    """
+    from scipy.stats import chi2 as chi2_distribution
+
+    if dof <= 0 or not np.isfinite(chi2):
+        return None
+    limit = float(chi2_distribution.ppf(quantile, dof))
+    if chi2 <= limit:
+        return None
+    z = np.asarray(normalized_residuals, dtype=float)
+    order = np.argsort(-np.abs(z))[:worst]
+    largest = ", ".join(f"{labels[k]} {z[k]:+.1f}" for k in order) if len(labels) == z.size else ""
+    return (
+        f"warning: chi2 = {chi2:.4g} for nu = {dof} (chi2_red {chi2 / dof:.3g}) exceeds its {100 * quantile:g} % quantile "
+        f"({limit / dof:.3g}·nu): the data do not fit the model within the measured noise and the 1σ understate the errors"
+        + (f"; largest normalized residuals: {largest}" if largest else "")
+    )

@@ -55,11 +55,15 @@ class SlowNoise:
         ``K`` [m/s²/√s] (acceleration random walk).
     source : str
         Where the values come from (shown in reports).
+    undetected_bound : float
+        When none was given and none was detected: the largest bias instability [m/s²]
+        the dwells could still hide (``inf`` when they cannot tell); 0 otherwise.
     """
 
     bias_instability: float = 0.0
     random_walk: float = 0.0
     source: str = "none"
+    undetected_bound: float = 0.0
 
     @property
     def is_zero(self) -> bool:

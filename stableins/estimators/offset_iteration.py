@@ -57,7 +57,12 @@ class PassRecord:
         r = ", ".join(f"{x / ARCSEC:+.3f}" for x in self.residual)
         s = ", ".join(f"{x / ARCSEC:.3f}" for x in self.sigma)
         e = ", ".join(f"{x / ARCSEC:+.3f}" for x in self.estimated_offsets)
-        return f"pass {self.pass_number}: theta20, theta30 = ({e})″, re-estimated residual ({r})″ ± ({s})″, chi2_red {self.chi2_red:.2f}"
+        lim = ", ".join(f"{x / ARCSEC:.3f}" for x in self.limit)
+        verdict = "converged" if self.converged else "not converged"
+        return (
+            f"pass {self.pass_number}: theta20, theta30 = ({e})″, re-estimated residual ({r})″ ± ({s})″, "
+            f"limit ({lim})″ = max(threshold, noise_sigmas·σ): {verdict}, chi2_red {self.chi2_red:.2f}"
+        )
 
 
 class OffsetIterationError(RuntimeError):
