@@ -255,7 +255,11 @@ class Discovery:
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in ("theta10", "theta20", "theta30")]
         problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
-        ranking = rank(problem, problem.fit(null), terms, alpha=self.alpha, refit_top=refit_top, propose=False)
+        arcsec_per_hour = np.pi / 648000 / 3600
+        fit = problem.fit(null)
+        ranking = rank(
+            problem, fit, terms, alpha=self.alpha, refit_top=refit_top, propose=False, output_unit='"/h', output_scale=arcsec_per_hour
+        )
         self.drift_notes = notes
         return ranking
 

@@ -128,7 +128,7 @@ class CandidateScore:
                 "sigma": _finite(sigma),
                 "unit": self.term.unit,
                 "max_output_change": _finite(self.predicted),
-                "max_output_change_unit": "m/s^2",
+                "max_output_change_unit": "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)",
             },
             "identifiable": bool(self.identifiable),
             "excited": bool(self.excited),
@@ -160,6 +160,8 @@ class Ranking:
     candidates: tuple[CandidateScore, ...]
     alpha: float
     n_tested: int
+    output_unit: str = "µg"
+    output_scale: float = 9.80665e-6
 
     @property
     def best(self) -> CandidateScore | None:
@@ -184,7 +186,7 @@ class Ranking:
         lines = [
             f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
             f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates",
-            f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δf|':>10}  identifiable / aliases",
+            f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δobs|':>13}  identifiable / aliases",
         ]
         for k, c in enumerate(self.candidates[:top], 1):
             value, sigma = c.estimate_engineering
@@ -195,7 +197,7 @@ class Ranking:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
-                f"{c.predicted / 9.80665e-6:>8.2f}µg  {ident}{' (refit)' if c.refit else ''}"
+                f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
             )
         hidden = [c for c in self.candidates[top:] if not c.identifiable and c.excited]
         if hidden:
@@ -222,6 +224,8 @@ def rank(
     refit_top: int = 3,
     separation: dict[str, str] | None = None,
     propose: bool = True,
+    output_unit: str = "µg",
+    output_scale: float = 9.80665e-6,
 ) -> Ranking:
     """Rank every candidate not in the model; refit the best ``refit_top`` with the full fitter.
 
@@ -243,6 +247,8 @@ def rank(
         For device dwell problems, test numerically which standard procedure extensions
         (:mod:`stableins.discovery.separation`) separate the excited candidates that are not
         separable or are confused with another, and add the answer to their advice.
+    output_unit, output_scale : str, float
+        How the largest predicted change of an observation is shown (default µg).
     """
     from stableins.discovery.library import LIBRARY
 
@@ -325,7 +331,7 @@ def rank(
     scores = [by_id.get(c.id, c) for c in scores]
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
     flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
-    return Ranking(result, tuple(flagged), alpha, n_tested)
+    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
 
 
 def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
