@@ -532,8 +532,7 @@ class DwellProblem:
         cov = np.zeros((len(model), len(model)))
         cov[np.ix_(cols, cols)] = cov_free
         status = tuple("estimated" if k in cols else ("gauge" if model.terms[k].id in gauge else "fixed") for k in range(len(model)))
-        scaled = a[:, cols] / np.linalg.norm(a[:, cols], axis=0)
-        sv = np.linalg.svd(scaled, compute_uv=False)
+        null_space, determined, sv = _design_report(a, model, free, gauge)
         residuals = y - prediction.reshape(-1)
         white = self.whiten(residuals)
         return FitResult(
@@ -547,7 +546,8 @@ class DwellProblem:
             residual_labels=self.labels,
             rank=len(cols),
             singular_values=sv,
-            null_space=np.zeros((len(model), 0)),
+            null_space=null_space,
+            determined=determined,
             notes=tuple(notes),
             extra={
                 "specific_force_platform": f_p,
@@ -612,6 +612,30 @@ def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
     v = np.asarray(v, dtype=float)
     s = result.residual_sigma
     return v / (s if v.ndim == 1 else s[:, None])
+
+
+def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: Sequence[str]) -> tuple[NDArray, tuple[str, ...], NDArray]:
+    """Null space (model order), determined combinations and singular values of the free parameters' design.
+
+    Uses the device stage's design analysis (:mod:`stableins.estimators.design`) on the
+    nominal-scaled whitened design, with the same threshold as the gauge choice here
+    (a direction is undetermined when its 1σ exceeds ``UNDETERMINED_RATIO`` typical sizes).
+    """
+    from stableins.estimators.design import analyze_design, choose_gauge
+
+    idx = [k for k in range(len(model)) if free[k]]
+    ids = [model.terms[k].id for k in idx]
+    scales = np.array([abs(model.terms[k].nominal) or 1.0 for k in idx])
+    smax = np.linalg.norm(a[:, idx] * scales, ord=2) if idx else 0.0
+    rtol = (1.0 / UNDETERMINED_RATIO) / smax if smax > 0 else 1e-8
+    analysis = analyze_design(a[:, idx], ids, scales, rtol=max(rtol, 1e-12))
+    null = np.zeros((len(model), analysis.null_space.shape[1]))
+    null[idx] = analysis.null_space
+    determined: tuple[str, ...] = ()
+    if analysis.deficiency:
+        chosen = choose_gauge(analysis, preference=tuple(gauge), scales=scales)
+        determined = chosen.describe() + tuple(f"{g} = its prior value by gauge" for g in chosen.fixed)
+    return null, determined, analysis.singular_values
 
 
 #: A parameter combination whose 1σ exceeds this many times its typical size (Term.nominal) is not
