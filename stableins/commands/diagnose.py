@@ -7,8 +7,9 @@
     stableins diagnose session.h5 --record record.json --plots figures/
 
 Fits the standard model (with the zero offsets and any discovery terms already in the
-record) to the device-level dwell means (fine stage when present, else coarse), starting
-from the record, adds the effects given with ``--add`` one step at a time, then prints the
+record) to the device-level dwell means (fine stage when present, else coarse) or to the
+bins of one system-level record (``--bin`` seconds; adds the residual spectra at the
+Earth-rate harmonics), starting from the record, adds the effects given with ``--add`` one step at a time, then prints the
 residual diagnostics, the ranking of every candidate effect not in the model and the
 history of steps (docs/discovery.md).
 
@@ -26,7 +27,8 @@ from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5)")
+    parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
+    parser.add_argument("--bin", type=float, default=60.0, metavar="S", help="system records: bin length [s] (default 60)")
     parser.add_argument("--record", type=Path, required=True, metavar="CAL.json", help="calibration record to start from")
     parser.add_argument("--add", action="append", default=[], metavar="ID", help="add this effect and refit (repeatable, in order)")
     parser.add_argument("--stage", choices=("coarse", "fine"), help="which dwells to use (default: fine if present, else coarse)")
@@ -60,9 +62,23 @@ def run(args: argparse.Namespace) -> int:
     if len(set(args.add)) != len(args.add):
         raise InputError("an effect is given twice", field="--add")
     record = CalibrationRecord.load(args.record)
-    datasets = [load_device(path) for path in args.data]
-    if record.serial_number != datasets[0].metadata.serial_number:
-        note(f"warning: record {args.record} is for unit {record.serial_number}, data for {datasets[0].metadata.serial_number}")
+    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+
+    system = [str(p) for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
+    if system and len(args.data) > 1:
+        raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
+    if not args.bin > 0:
+        raise InputError("must be a positive number of seconds", field="--bin")
+    if system:
+        from stableins.data.system import open_system_record
+
+        opened = open_system_record(system[0])
+        serial = opened.metadata.serial_number
+    else:
+        datasets = [load_device(path) for path in args.data]
+        serial = datasets[0].metadata.serial_number
+    if record.serial_number != serial:
+        note(f"warning: record {args.record} is for unit {record.serial_number}, data for {serial}")
     model = ErrorModel.standard(nonlinear=True, gimbals=True)
     model = model + [LIBRARY[i].term for i in record.ids if i in LIBRARY and i not in model]
     for effect in args.add:
@@ -76,27 +92,58 @@ def run(args: argparse.Namespace) -> int:
             if not 0.0 <= value < float("inf"):
                 raise InputError("must be a finite non-negative number", field=name)
         slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
-    dwells = dwells_from_dataset(datasets, stage=args.stage, slow_noise=slow_noise)
-    note(f"noise: {dwells.noise['slow_noise']}")
+    if system:
+        from stableins.conventions import GimbalConfiguration
+        from stableins.discovery.problem import bins_from_chunks
+
+        site = opened.metadata
+        dwells = bins_from_chunks(
+            opened.iter_chunks(),
+            gravity=site.gravity,
+            bin_seconds=args.bin,
+            reference_temperature=site.reference_temperature,
+            base_attitude=tuple(site.base_attitude),
+            configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+            slow_noise=slow_noise,
+        )
+        dwells.noise["stage"] = "system"
+        if slow_noise is None:
+            note("noise: white only; over hours the bias wander of an instrument looks like drift (give --bias-instability/--random-walk)")
+    else:
+        dwells = dwells_from_dataset(datasets, stage=args.stage, slow_noise=slow_noise)
+        note(f"noise: {dwells.noise['slow_noise']}")
     for line in dwells.noise.get("left_out", []):
         note(f"left out: {line}")
-    session = Discovery(DwellProblem(dwells), model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})
+    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} {'bins' if system else 'dwells'}")
+    session = Discovery(problem, model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})
     for effect in args.add:
         session.add(effect)
     diagnosis = session.diagnose()
-    ranking = session.rank()
-    drift = session.drift()
+    ranking = session.rank(propose=not system)
+    drift = None if system else session.drift()
+    spectra = {}
+    if system:
+        from stableins.discovery.diagnostics import residual_spectra
+
+        spectra = residual_spectra(dwells.time, diagnosis)
     if args.plots is not None:
         import matplotlib
 
         matplotlib.use("Agg")
         args.plots.mkdir(parents=True, exist_ok=True)
         diagnosis.plot_positions().savefig(args.plots / "residuals.png", dpi=110)
-        diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+        if diagnosis.orientation is not None:
+            diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+        for name, spectrum in spectra.items():
+            spectrum.plot(unit="µg", scale=9.80665e-6).savefig(args.plots / f"spectrum_{name}.png", dpi=110)
         session.history.plot().savefig(args.plots / "history.png", dpi=110)
         note(f"plots written to {args.plots}")
-    drift_text = "platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3)
-    text = "\n\n".join([diagnosis.report(), ranking.report(top=args.top), drift_text, session.history.report()])
+    parts = [diagnosis.report(), ranking.report(top=args.top)]
+    if drift is not None:
+        parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
+    for name, spectrum in spectra.items():
+        parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
+    text = "\n\n".join(parts + [session.history.report()])
     result = {
         "stage": dwells.noise.get("stage"),
         "chi2_red": session.result.chi2_red,
@@ -109,11 +156,24 @@ def run(args: argparse.Namespace) -> int:
         "candidates": ranking.to_json(),
         "history": session.history.to_json(),
         "left_out": dwells.noise.get("left_out", []),
-        "drift": {
+        "drift": None
+        if drift is None
+        else {
             "chi2_red": drift.result.chi2_red,
             "dof": drift.result.dof,
             "candidates": drift.to_json(),
             "left_out": list(getattr(session, "drift_notes", ())),
+        },
+        "spectra": {
+            name: {
+                "harmonics": sp.harmonics,
+                "amplitude": sp.amplitude,
+                "sigma": sp.sigma,
+                "chi2": sp.chi2,
+                "p_value": sp.p_value,
+                "unit": "m/s^2",
+            }
+            for name, sp in spectra.items()
         },
     }
     emit(args, result, text)

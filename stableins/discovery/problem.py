@@ -412,9 +412,10 @@ class DwellProblem:
         Parameters held at a given value (status ``"fixed"``), e.g. from a record.
     """
 
-    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None) -> None:
+    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: str = "device dwells") -> None:
         self.dwells = dwells
         self.fixed = dict(fixed or {})
+        self.stage = stage
         self._inverse_factor = None
         if dwells.slow_covariance is not None:
             c = np.asarray(dwells.slow_covariance, dtype=float)
@@ -536,7 +537,7 @@ class DwellProblem:
         residuals = y - prediction.reshape(-1)
         white = self.whiten(residuals)
         return FitResult(
-            stage="device dwells",
+            stage=self.stage,
             terms=model.terms,
             values=np.array([values[t.id] for t in model.terms]),
             covariance=cov,
@@ -751,6 +752,7 @@ def bins_from_chunks(
     reference_temperature: float = 25.0,
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    slow_noise=None,
 ) -> DwellSet:
     r"""Bin a system-level record (a stream of column chunks) into "dwells" for discovery.
 
@@ -770,6 +772,9 @@ def bins_from_chunks(
         Local gravity [m/s²].
     bin_seconds : float
         Bin length [s].
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk of the instrument: over a day the slow bias wander is
+        correlated between bins and would otherwise look like drift or a harmonic.
     """
     sums: dict[int, NDArray] = {}
     squares = np.zeros(3)
@@ -808,6 +813,9 @@ def bins_from_chunks(
     sigma_white = np.sqrt(squares / n_diff)
     readings = table[:, 6:9] / n[:, None]
     time = table[:, 1] / n
+    rate = float(np.median(n)) / bin_seconds
+    lengths = n / rate
+    slow = _slow_covariance(time - lengths / 2.0, lengths, slow_noise)
     return DwellSet(
         readings=readings,
         output=table[:, 3:6] / n[:, None],
@@ -823,6 +831,8 @@ def bins_from_chunks(
         noise={
             "method": f"white noise from first differences, pooled over the record; {bin_seconds:g} s bins",
             "sigma_per_sample": sigma_white,
-        },  # noqa: E501
+            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
+        },
         initial_readings=None,
+        slow_covariance=slow,
     )
