@@ -29,11 +29,19 @@ def session_files(tmp_path_factory):
         files.append(str(save_device(tmp / f"device-{name}.csv", columns, replace(truth.site, extra={"procedure": name}))))
     record = tmp / "record.json"
     assert main(["calibrate", "device", *files, "--out", str(record), "--bias-instability", "0"]) == 0
+    from stableins.data.system import SystemRecordWriter
+    from stableins.simulator.system import simulate_system
+
+    system = tmp / "system.h5"
+    with SystemRecordWriter(system, replace(truth.site, sample_rate=5.0)) as writer:
+        writer.append(simulate_system(truth, 6 * 3600.0, rate=5.0, seed=23))
+    files.append(str(system))
     return files, str(record)
 
 
 def test_diagnose_ranks_the_hidden_effect_first_and_adding_it_restores_chi2(session_files, capsys):
     files, record = session_files
+    files = files[:2]
     capsys.readouterr()
     assert main(["diagnose", *files, "--record", record, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -73,6 +81,19 @@ def test_diagnose_bad_arguments_exit_2(session_files, capsys, extra, message):
     files, record = session_files
     assert main(["diagnose", files[1], "--record", record, *extra]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_diagnose_system_record(session_files, capsys):
+    files, record = session_files
+    capsys.readouterr()
+    assert main(["diagnose", files[2], "--record", record, "--bin", "120", "--add", "nonorth_12", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["stage"] == "system" and out["drift"] is None
+    assert set(out["spectra"]) == {"f_x", "f_y", "f_z"} and len(out["spectra"]["f_x"]["p_value"]) == 4
+    # the hidden non-orthogonality is in the system record too: with it added the bins are at the floor
+    assert abs(out["chi2_red"] - 1) < 4 * out["expected_spread"]
+    assert main(["diagnose", files[0], files[2], "--record", record]) == 2  # one kind of data at a time
+    assert "one system-level record" in capsys.readouterr().err
 
 
 def test_diagnose_missing_record_exit_2(session_files, capsys, tmp_path):
