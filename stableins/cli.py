@@ -49,7 +49,11 @@ COMMANDS: dict[str, Command | Group] = {
     "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
     "diagnose": Command("stableins.commands.diagnose", "compare the model with the data, rank missing effects, add them and refit"),
     "calibrate": Group(
-        "calibrate from recorded data", {"device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration")}
+        "calibrate from recorded data",
+        {
+            "device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration"),
+            "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
+        },
     ),
 }
 

@@ -1,0 +1,169 @@
+"""``stableins calibrate system RECORD --prior CAL.json --out CAL2.json``: the third stage.
+
+Reads a static, polar-aligned system-level record (``.h5`` or ``.csv``) and the
+calibration the INS was running with (``--prior``), estimates the fifteen combined
+coefficients (Earth-rate harmonics of the specific-force error, loop-compensated pitch
+and roll harmonics), separates them into accelerometer corrections by weighted least
+squares and writes the updated calibration record (``--out``, atomically).  What the
+data cannot separate is reported and left at the prior (see docs/system-calibration.md).
+
+With ``--json`` the result (combined coefficients, determined combinations, updated
+parameters, notes) goes to stdout as one JSON document.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
+    parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS compensated the record with")
+    parser.add_argument("--out", required=True, metavar="CAL2.json", help="updated calibration record to write")
+    parser.add_argument(
+        "--case-rotation-period",
+        type=float,
+        default=480.0,
+        metavar="SECONDS",
+        help="period of the gyro case-rotation residual fitted as a nuisance (default 480 s; 0 leaves it out)",
+    )
+    parser.add_argument(
+        "--no-loop-compensation",
+        action="store_true",
+        help="read the attitude harmonics quasi-statically as the paper does (biased; for comparison only)",
+    )
+    parser.add_argument(
+        "--no-couplings", action="store_true", help="loop model without Earth-rate/Coriolis couplings (for comparison only)"
+    )
+    parser.add_argument("--chunk-rows", type=int, default=1 << 18, metavar="N", help="samples per streamed chunk (memory ~ 100 bytes x N)")
+    parser.add_argument(
+        "--estimate-k2",
+        action="store_true",
+        help="also estimate the residual quadratic coefficients K2_x, K2_y from the third harmonic, remove their bias (not in the paper)",
+    )
+    parser.add_argument(
+        "--gyro-drift",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="known constant gyro drift in the platform frame [deg/h]; its response is removed from pitch and roll",
+    )
+    parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
+
+
+def run(args: Any) -> int:
+    import math
+    import warnings
+
+    from stableins.data.errors import InputError
+    from stableins.data.system import open_system_record
+    from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    from stableins.output import emit, note
+    from stableins.records import CalibrationRecord
+
+    if args.chunk_rows < 1024:
+        raise InputError("--chunk-rows must be at least 1024", field="--chunk-rows")
+    prior = CalibrationRecord.load(args.prior)
+    record = open_system_record(args.record)
+    if record.metadata.serial_number and prior.serial_number and record.metadata.serial_number != prior.serial_number:
+        raise InputError(
+            f"the record is of unit {record.metadata.serial_number!r} but the prior calibration of {prior.serial_number!r}",
+            path=args.prior,
+            field="serial_number",
+            expected="a calibration of the same unit",
+        )
+    values = prior.values()
+    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
+    options = SystemOptions(
+        chunk_rows=args.chunk_rows,
+        case_rotation_period=args.case_rotation_period or None,
+        compensate_loop=not args.no_loop_compensation,
+        couplings=not args.no_couplings,
+        estimate_k2=args.estimate_k2,
+        known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_system_stage(record, record.metadata, values, covariance, options)
+    for w in caught:
+        note(f"stableins: warning: {w.message}")
+    updated = prior.update(outcome.result, inputs=[args.record], procedure="system-level static record")
+    updated.save(args.out)
+    if args.plot:
+        plot(outcome, args.plot)
+
+    combined = outcome.combined
+    data = {
+        "record": args.record,
+        "prior": args.prior,
+        "out": args.out,
+        "combined": [
+            {"name": n, "value": float(v), "sigma": float(s), "status": st}
+            for n, v, s, st in zip(combined.ids, combined.values, combined.sigma, combined.status, strict=True)
+        ],
+        "determined": [
+            {"combination": name, "value": value, "sigma": sigma, "determined": ok}
+            for name, (value, sigma, ok) in outcome.separation.combinations.items()
+        ],
+        "parameters": [
+            {"id": t.id, "value": float(v), "sigma": float(s), "status": st, "correction": outcome.corrections.get(t.id, 0.0)}
+            for t, v, s, st in zip(outcome.result.terms, outcome.result.values, outcome.result.sigma, outcome.result.status, strict=True)
+        ],
+        "rank": outcome.result.rank,
+        "chi2_red": outcome.result.chi2_red,
+        "notes": list(outcome.notes) + list(outcome.result.notes),
+        "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
+    }
+    emit(args, data, text=report(outcome, args.out))
+    return 0
+
+
+def report(outcome: Any, out: str) -> str:
+    """Text report: combined coefficients, separation, updated parameters."""
+    c = outcome.combined
+    lines = ["combined coefficients (rad):", f"  {'name':<12} {'value':>12} {'1 sigma':>10}  status"]
+    for n, v, s, st in zip(c.ids, c.values, c.sigma, c.status, strict=True):
+        shown = f"{v:>12.4e} {s:>10.2e}" if st != "unidentifiable" else f"{'—':>12} {'—':>10}"
+        lines.append(f"  {n:<12} {shown}  {st}")
+    lines += ["", outcome.result.report(), "", f"updated calibration written to {out}"]
+    return "\n".join(lines)
+
+
+def plot(outcome: Any, path: str) -> None:
+    """Convergence of the five harmonic states and the attitude residuals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from stableins.data.atomic import atomic_path
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 7))
+    if outcome.history is not None:
+        hours = outcome.history_time / 3600.0
+        sig = np.sqrt(np.diagonal(outcome.history.covariances, axis1=1, axis2=2))
+        for k in range(5):
+            line = axes[0].plot(hours, outcome.history.means[:, k] * 1e6, label=f"x{k + 1}")[0]
+            axes[0].fill_between(
+                hours,
+                (outcome.history.means[:, k] - sig[:, k]) * 1e6,
+                (outcome.history.means[:, k] + sig[:, k]) * 1e6,
+                color=line.get_color(),
+                alpha=0.15,
+            )
+        axes[0].set_xlabel("time [h]")
+        axes[0].set_ylabel("state [µrad]")
+        axes[0].legend(ncol=5, fontsize=8)
+        axes[0].set_title("Kalman filter convergence (decimated bins, ±1σ)")
+    res = outcome.attitude.block_residuals
+    axes[1].plot(res[:, 0] * 1e6, lw=0.6, label="pitch")
+    axes[1].plot(res[:, 1] * 1e6, lw=0.6, label="roll")
+    axes[1].set_xlabel("attitude block")
+    axes[1].set_ylabel("residual [µrad]")
+    axes[1].legend()
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)

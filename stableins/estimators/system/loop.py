@@ -1,0 +1,332 @@
+r"""Horizontal error dynamics of a damped INS on a static base, and its transfer function.
+
+The steady-state relation "attitude error = horizontal specific-force error / g" of
+Wu et al. 2018 (Eq. 28) is the zero-frequency limit of a damped Schuler loop.  At the
+Earth-rate harmonics the loop has gain and phase: for the uncoupled channel
+
+.. math:: \frac{\delta\theta}{\Delta f_N/g} = \frac{\omega_s^2}{s^2 + 2\zeta\omega_s s + \omega_s^2},
+          \qquad \arg = -\arctan\frac{2\zeta r}{1-r^2},\quad r = k\,\omega_{ie}/\omega_s
+
+(3.4° at ζ = 0.5 for the 24 h harmonic, 6.8° for the 12 h one), which moves 6–12 % of
+every sine coefficient into its cosine partner.  The Earth-rate and Coriolis couplings
+change the lag by a further ~0.4° and add a 0.4 % cross-coupling between the channels,
+so this module keeps them.
+
+Model (phi-angle, true-frame error equations, Titterton & Weston 2004 §12.2, static
+base ``v = 0``, NED, ``C_n^{n'} = I − [φ×]``, horizontal velocity damping ``−c δv``)::
+
+    φ̇   = −ω_ie^n × φ + δω_ie^n + δω_en^n              (gyro errors left out: they are not an input here)
+    δv̇_h = (f^n × φ)_h + Δf^n_h − (2 ω_ie^n × δv)_h − c δv_h
+    δL̇  = δv_N / R
+
+with ``f^n = (0, 0, −g)``, ``δω_ie^n = ω(−sinL δL, 0, −cosL δL)``,
+``δω_en^n = (δv_E/R, −δv_N/R, −tanL δv_E/R)``, ``c = 2ζω_s``, ``ω_s = sqrt(g/R)``.
+States ``(φ_N, φ_E, φ_D, δv_N, δv_E, δL)`` and, when the metadata give the vertical gains
+``k1, k2, k3``, the height-aided third-order vertical channel (Widnall & Sinha 1980;
+height error ``δh`` up, ``δv_D`` down, ``b`` the integrator)::
+
+    δḣ   = −δv_D − k1 δh
+    δv̇_D = Δf_D − 2ω cosL δv_E − (2g/R) δh + k2 δh + b
+    ḃ    = k3 δh
+
+which feeds the east channel through the Coriolis term ``+2ω cosL δv_D``.  This path is
+not negligible: with the vertical error ``Δf_D`` at the Earth-rate harmonics it moves the
+roll coefficients by up to ~2e-6 rad per 1e-4 of along-gravity error (measured against
+the truth simulator), so ``Δf_D/g = −u·δ`` (known from the harmonic states) is a third
+input of the loop.
+
+For a level, north-pointing body the attitude errors are ``δpitch = −φ_E``,
+``δroll = −φ_N`` (:mod:`stableins.conventions`); the quasi-static limit is
+``δpitch = Δf_N/g``, ``δroll = −Δf_E/g``.  The transfer matrix returned here maps the
+*quasi-static* attitude errors ``(Δf_N/g, −Δf_E/g)`` to the observed ones, so it is the
+identity at low frequency.
+
+The Earth-rate mode (eigenvalues ``±jω_ie``) of this model is not controllable from the
+specific-force input, so the response at exactly the Earth rate is finite; it is computed
+from the modal expansion over the controllable modes only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RADIUS, EARTH_RATE
+from stableins.data.errors import InputError
+
+#: Names of the loop states, in order.
+LOOP_STATES = (
+    "phi_north",
+    "phi_east",
+    "phi_down",
+    "velocity_north",
+    "velocity_east",
+    "latitude",
+    "height",
+    "velocity_down",
+    "vertical_integrator",
+)
+
+
+@dataclass(frozen=True)
+class DampingLoop:
+    """Linear horizontal error dynamics of a velocity-damped INS on a static base.
+
+    Attributes
+    ----------
+    latitude : float
+        Geodetic latitude [rad].
+    gravity : float
+        Local gravity [m/s²].
+    zeta : float
+        Damping ratio of the horizontal loop (0 = undamped Schuler loop).
+    earth_radius : float
+        Radius used in the error dynamics [m].
+    schuler_frequency : float
+        ω_s [rad/s]; the damping gain is ``c = 2 ζ ω_s``.
+    earth_rate : float
+        ω_ie [rad/s].
+    couplings : bool
+        Keep the Earth-rate and Coriolis couplings (default).  ``False`` gives two
+        independent second-order channels.
+    vertical_gains : (k1, k2, k3) or None
+        Gains of the height-aided vertical loop; ``None`` leaves the vertical channel out.
+    """
+
+    latitude: float
+    gravity: float
+    zeta: float
+    earth_radius: float = EARTH_RADIUS
+    schuler_frequency: float = float("nan")
+    earth_rate: float = EARTH_RATE
+    couplings: bool = True
+    vertical_gains: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.schuler_frequency):
+            object.__setattr__(self, "schuler_frequency", float(np.sqrt(self.gravity / self.earth_radius)))
+        if not (0.0 <= self.zeta < 10.0):
+            raise ValueError(f"damping ratio zeta must be in [0, 10), got {self.zeta}")
+
+    @classmethod
+    def from_metadata(cls, damping: Mapping[str, float], latitude: float, gravity: float, couplings: bool = True) -> DampingLoop:
+        """Build the loop from ``SiteMetadata.damping``.
+
+        Keys: ``zeta`` (required), ``schuler_frequency`` [rad/s] and ``earth_radius`` [m]
+        (optional: ``ω_s = sqrt(g/R)`` with ``R = conventions.EARTH_RADIUS``).  A
+        ``damping_coefficient`` ``c`` [1/s] may be given instead of ``zeta``.
+        """
+        if damping is None or not ({"zeta", "damping_coefficient", "horizontal_gain"} & set(damping)):
+            raise InputError(
+                "the system record's metadata has no damping parameters; the attitude harmonics cannot be "
+                "compensated for the damping loop's gain and phase",
+                field="damping.zeta",
+                expected="the horizontal damping ratio 'zeta' (and optionally 'schuler_frequency', 'earth_radius')",
+            )
+        radius = float(damping.get("earth_radius", damping.get("R", EARTH_RADIUS)))
+        omega_s = float(damping.get("schuler_frequency", damping.get("omega_s", np.sqrt(gravity / radius))))
+        if "zeta" in damping:
+            zeta = float(damping["zeta"])
+        else:
+            zeta = float(damping.get("damping_coefficient", damping.get("horizontal_gain"))) / (2.0 * omega_s)
+        if not np.isfinite(zeta) or zeta < 0:
+            raise InputError(f"damping ratio must be a finite non-negative number, got {zeta}", field="damping.zeta")
+        gains = None
+        if all(k in damping for k in ("k1", "k2", "k3")):
+            gains = (float(damping["k1"]), float(damping["k2"]), float(damping["k3"]))
+        return cls(
+            latitude=float(latitude),
+            gravity=float(gravity),
+            zeta=zeta,
+            earth_radius=radius,
+            schuler_frequency=omega_s,
+            couplings=couplings,
+            vertical_gains=gains,
+        )
+
+    # ------------------------------------------------------------------ model
+    @property
+    def damping_coefficient(self) -> float:
+        """``c = 2 ζ ω_s`` [1/s]."""
+        return 2.0 * self.zeta * self.schuler_frequency
+
+    @property
+    def n_states(self) -> int:
+        return 9 if self.vertical_gains is not None else 6
+
+    def state_matrix(self) -> NDArray[np.float64]:
+        """``A`` of ``ẋ = A x + B u`` for the states :data:`LOOP_STATES` (first six without the vertical channel)."""
+        w = self.earth_rate if self.couplings else 0.0
+        s, c = np.sin(self.latitude), np.cos(self.latitude)
+        r = self.earth_radius
+        g = self.schuler_frequency**2 * r  # so that ω_s² = g/R exactly as configured
+        k = 1.0 if self.couplings else 0.0
+        a = np.zeros((self.n_states, self.n_states))
+        # φ̇ = −ω×φ + δω_ie + δω_en,  ω×φ = ω(s φ_E, −s φ_N − c φ_D, c φ_E)
+        a[0, 1], a[0, 5], a[0, 4] = -w * s, -w * s, 1.0 / r
+        a[1, 0], a[1, 2], a[1, 3] = w * s, w * c, -1.0 / r
+        a[2, 1], a[2, 5], a[2, 4] = -w * c, -w * c, -k * np.tan(self.latitude) / r
+        # δv̇ = f×φ + Δf − 2ω×δv − c δv,  f×φ = (g φ_E, −g φ_N, 0)
+        a[3, 1], a[3, 4], a[3, 3] = g, -2.0 * w * s, -self.damping_coefficient
+        a[4, 0], a[4, 3], a[4, 4] = -g, 2.0 * w * s, -self.damping_coefficient
+        a[5, 3] = 1.0 / r
+        if self.vertical_gains is not None:
+            k1, k2, k3 = self.vertical_gains
+            a[4, 7] = 2.0 * w * c  # east Coriolis from δv_D
+            a[6, 7], a[6, 6] = -1.0, -k1
+            a[7, 4], a[7, 6], a[7, 8] = -2.0 * w * c, -2.0 * g / r + k2, 1.0
+            a[8, 6] = k3
+        return a
+
+    def input_matrix(self) -> NDArray[np.float64]:
+        """``B`` for the input ``u = (Δf_N/g, −Δf_E/g, Δf_D/g)`` (quasi-static pitch and roll errors, vertical error)."""
+        g = self.schuler_frequency**2 * self.earth_radius
+        b = np.zeros((self.n_states, 3))
+        b[3, 0] = g
+        b[4, 1] = -g
+        if self.vertical_gains is not None:
+            b[7, 2] = g
+        return b
+
+    def drift_input_matrix(self) -> NDArray[np.float64]:
+        """``B_ε`` for a gyro drift ``ε^n`` [rad/s] in the n-frame: ``φ̇ = … − ε^n``."""
+        b = np.zeros((self.n_states, 3))
+        b[0, 0] = b[1, 1] = b[2, 2] = -1.0
+        return b
+
+    def drift_responses(self, time: NDArray[np.float64], earth_angle: NDArray[np.float64]) -> NDArray[np.float64]:
+        r"""Pitch and roll responses ``(n, 2, 3)`` to a unit constant gyro drift along each platform axis, from rest at ``time[0]``.
+
+        On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
+        polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
+        Earth-rate mode at resonance (a ``t·sin`` growth in the tilts).  Exact first-order-hold
+        discretization on the given (uniform) grid.
+        """
+        from scipy.linalg import expm
+
+        from stableins.conventions import dcm_body_to_platform
+
+        t = np.asarray(time, dtype=float)
+        dt = float(np.median(np.diff(t)))
+        nav_to_platform = dcm_body_to_platform(-np.asarray(earth_angle, dtype=float), 0.0, np.pi / 2 + self.latitude)
+        a, b, c = self.state_matrix(), self.drift_input_matrix(), self.output_matrix()
+        n = a.shape[0]
+        big = np.zeros((n + 6, n + 6))
+        big[:n, :n], big[:n, n : n + 3] = a * dt, b * dt
+        big[n : n + 3, n + 3 :] = np.eye(3)
+        e = expm(big)
+        phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + 3], e[:n, n + 3 :]
+        out = np.zeros((t.size, 2, 3))
+        for j in range(3):
+            eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
+            x = np.zeros(n)
+            for k in range(t.size):
+                out[k, :, j] = c @ x
+                if k + 1 < t.size:
+                    step = (t[k + 1] - t[k]) / dt
+                    x = phi @ x + step * (gamma0 @ eps_n[k] + gamma1 @ (eps_n[k + 1] - eps_n[k]))
+        return out
+
+    def output_matrix(self) -> NDArray[np.float64]:
+        """``C`` for the output ``(δpitch, δroll) = (−φ_E, −φ_N)``."""
+        c = np.zeros((2, self.n_states))
+        c[0, 1] = -1.0
+        c[1, 0] = -1.0
+        return c
+
+    def _controllable_modes(self) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]:
+        a, b, c = self.state_matrix(), self.input_matrix(), self.output_matrix()
+        # Balance the states (angles ~ 1, velocities ~ R ω, latitude ~ 1) for a well-conditioned eigenproblem.
+        v = self.earth_radius * self.schuler_frequency
+        scale = np.array([1.0, 1.0, 1.0, v, v, 1.0, self.earth_radius, v, v * self.schuler_frequency])[: self.n_states]
+        a_s = a * scale[None, :] / scale[:, None]
+        b_s, c_s = b / scale[:, None], c * scale[None, :]
+        eigenvalues, right = np.linalg.eig(a_s)
+        left = np.linalg.inv(right)
+        residue_in = left @ b_s  # (modes, inputs)
+        residue_out = c_s @ right  # (outputs, modes)
+        strength = np.linalg.norm(residue_in, axis=1) * np.linalg.norm(residue_out, axis=0)
+        keep = strength > 1e-9 * strength.max()
+        return eigenvalues[keep], residue_out[:, keep], residue_in[keep]
+
+    def frequency_response(self, omega: float) -> NDArray[np.complex128]:
+        r"""Transfer matrix ``G(jω)`` (2×3) from ``(Δf_N/g, −Δf_E/g, Δf_D/g)`` to ``(δpitch, δroll)``.
+
+        ``G(jω) = Σ_i (C v_i)(w_i^H B) / (jω − λ_i)`` over the controllable and
+        observable modes ``i``; ``G(0) = I`` for a damped loop.
+        """
+        eigenvalues, out, inp = self._controllable_modes()
+        return np.einsum("om,mi->oi", out / (1j * omega - eigenvalues)[None, :], inp)
+
+    def harmonic_matrix(self, harmonic: int) -> NDArray[np.float64]:
+        r"""Real 4×4 map from quasi-static to observed harmonic coefficients.
+
+        With ``u_j(t) = a_j cos(kS) + b_j sin(kS) = Re{(a_j − i b_j) e^{ikS}}`` and
+        ``S = S_0 + ω_ie t``, the steady response is ``Re{G(ikω_ie)(a − ib) e^{ikS}}``.
+        Ordering of both vectors: ``(pitch cos, pitch sin, roll cos, roll sin)``.
+        """
+        return self._real_map(harmonic, (0, 1))
+
+    def vertical_harmonic_matrix(self, harmonic: int) -> NDArray[np.float64]:
+        """Real 4×2 map from the ``(cos, sin)`` harmonic of ``Δf_D/g`` to ``(pitch cos, pitch sin, roll cos, roll sin)``."""
+        return self._real_map(harmonic, (2,))
+
+    def _real_map(self, harmonic: int, inputs: tuple[int, ...]) -> NDArray[np.float64]:
+        g = self.frequency_response(harmonic * self.earth_rate)
+        m = np.zeros((4, 2 * len(inputs)))
+        for o in range(2):
+            for j, i in enumerate(inputs):
+                re, im = g[o, i].real, g[o, i].imag
+                # (re + i im)(a − i b) = (re a + im b) − i (re b − im a)
+                m[2 * o : 2 * o + 2, 2 * j : 2 * j + 2] = [[re, im], [-im, re]]
+        return m
+
+    def dc_gain(self) -> NDArray[np.float64]:
+        """Steady response (2×3) to constant inputs (the Earth-rate and integrator modes are not excited)."""
+        return self.frequency_response(0.0).real
+
+    def transient_modes(self) -> NDArray[np.complex128]:
+        """Controllable modes other than the Schuler ones (vertical channel): eigenvalues with ``Im ≥ 0``."""
+        eigenvalues, _, _ = self._controllable_modes()
+        schuler = self.schuler_modes()
+        out = [m for m in eigenvalues if m.imag >= 0 and all(abs(m - s) > 1e-9 for s in schuler) and abs(m) > 2.5 * self.earth_rate]
+        return np.array(sorted(out, key=lambda m: (m.real, m.imag)))
+
+    def schuler_modes(self) -> NDArray[np.complex128]:
+        """Eigenvalues (upper half plane) of the controllable oscillatory modes (the Schuler modes)."""
+        eigenvalues, _, _ = self._controllable_modes()
+        near = np.abs(np.abs(eigenvalues) - self.schuler_frequency) < 0.5 * self.schuler_frequency
+        modes = eigenvalues[(eigenvalues.imag > 2.5 * self.earth_rate) & near]
+        return np.sort_complex(modes)
+
+    def simulate(
+        self, time: NDArray[np.float64], forcing: NDArray[np.float64], initial_state: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """Exact response to ``(Δf_N/g, −Δf_E/g)`` sampled on a uniform grid, linear between samples.
+
+        First-order-hold discretization (``expm`` of the augmented matrix).  Used by the
+        tests of this module (the truth simulator has its own integrator).
+        Returns ``(n, 2)``: ``(δpitch, δroll)``.
+        """
+        from scipy.linalg import expm
+
+        dt = float(time[1] - time[0])
+        a, b, c = self.state_matrix(), self.input_matrix(), self.output_matrix()
+        forcing = np.asarray(forcing, dtype=float)
+        b = b[:, : forcing.shape[1]]
+        n, m = a.shape[0], b.shape[1]
+        big = np.zeros((n + 2 * m, n + 2 * m))
+        big[:n, :n], big[:n, n : n + m] = a * dt, b * dt
+        big[n : n + m, n + m :] = np.eye(m)
+        e = expm(big)
+        phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + m], e[:n, n + m :]
+        x = np.zeros(n) if initial_state is None else np.asarray(initial_state, dtype=float)
+        out = np.empty((len(time), 2))
+        for k in range(len(time)):
+            out[k] = c @ x
+            if k + 1 < len(time):
+                x = phi @ x + gamma0 @ forcing[k] + gamma1 @ (forcing[k + 1] - forcing[k])
+        return out

@@ -1,0 +1,1083 @@
+r"""The system-level stage over a whole record, streaming in bounded memory.
+
+One pass over the record (chunks of ``chunk_rows`` samples):
+
+* specific force: raw outputs compensated with the installed calibration (Wu et al.
+  2018 Eq. 8, :meth:`stableins.errormodel.ErrorModel.inverse` in closed form), the
+  squared-amplitude observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz``
+  (:mod:`.harmonics`) accumulated at full rate.  The Earth-rate angle moves by
+  ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
+  ``cos k(S_c + δ)`` is expanded to third order in ``δ``: the trigonometric functions are
+  evaluated once per block and the per-sample work is a few multiply-adds.  The
+  truncation (``(4δ)⁴/24 < 1e-15``) is far below double-precision round-off of the sums;
+  :func:`harmonic_information` is the per-sample reference it is tested against;
+* noise: per-axis variance from second differences of the raw outputs on the first
+  samples of each chunk (insensitive to the Earth-rate signal);
+* attitude, velocity and time at a decimated rate (``attitude_decimation_seconds``):
+  block means of pitch and roll (:class:`.attitude.AttitudeBlocks`), the static-base
+  checks and the platform-rate check;
+* Kalman-filter bins: ``Σz``, ``ΣH`` over ``filter_block_seconds`` for the convergence
+  curves of filterpy's filter (decimated, ``R/n`` per bin).
+
+Then the harmonic states (x1..x5 of the paper plus the third harmonic x6, x7 that measures a
+residual K2), the loop-compensated attitude coefficients and their separation into
+accelerometer corrections (:mod:`.separation`).  On a turned or tilted base the Earth-rate
+angle comes from the full gimbal kinematics; a known gyro drift's response is removed from
+pitch and roll.  Checks: sampling (gaps, jitter, order), static base (velocity, attitude
+excursion), platform turning at the Earth rate, polar alignment, record length (short records
+keep only the combinations they determine).  See docs/system-calibration.md.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
+from stableins.estimators.result import FitResult
+from stableins.estimators.system import harmonics as hm
+from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
+from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+
+FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
+SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
+LEVEL_TOLERANCE = 1e-4
+
+#: Variance-inflation factor above which a coefficient counts as not observable in a short record.
+VIF_LIMIT = 30.0
+
+
+class ChunkSource(Protocol):
+    """What the stage reads: ``iter_chunks(columns, rows)`` yielding ``{column: ndarray}``."""
+
+    path: str
+
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = ...) -> Iterator[dict[str, Any]]: ...
+
+
+@dataclass(frozen=True)
+class ArraySource:
+    """In-memory columns as a :class:`ChunkSource` (tests, small records).  Checks NaN/inf."""
+
+    columns: Mapping[str, NDArray[np.float64]]
+    path: str = "<arrays>"
+
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16) -> Iterator[dict[str, Any]]:
+        names = list(self.columns if columns is None else columns)
+        for name in names:
+            if name not in self.columns:
+                raise InputError("missing column", path=self.path, field=name, expected="the system-record columns")
+        n = len(self.columns[names[0]])
+        for start in range(0, n, rows):
+            chunk = {name: np.asarray(self.columns[name][start : start + rows], dtype=float) for name in names}
+            for name, values in chunk.items():
+                bad = ~np.isfinite(values)
+                if bad.any():
+                    row = start + int(np.flatnonzero(bad)[0]) + 1
+                    raise InputError("value is NaN or infinite", path=self.path, field=name, row=row, expected="finite numbers")
+            yield chunk
+
+
+@dataclass(frozen=True)
+class SystemOptions:
+    """Settings of the system stage (defaults follow docs/system-calibration.md)."""
+
+    chunk_rows: int = 1 << 18
+    attitude_decimation_seconds: float = 1.0
+    attitude_block_seconds: float = 10.0
+    filter_block_seconds: float = 600.0
+    case_rotation_period: float | None = 480.0
+    couplings: bool = True
+    compensate_loop: bool = True
+    velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
+    attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
+    rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
+    polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
+    minimum_duration: float = 4 * 3600.0  # [s]
+    noise_samples_per_chunk: int = 8192
+    run_filter: bool = True
+    gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
+    known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
+    estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
+
+
+@dataclass(frozen=True)
+class SystemCalibration:
+    """Everything the system stage found.
+
+    Attributes
+    ----------
+    result : FitResult
+        Stage ``"system"`` over the accelerometer terms of the prior: updated values
+        (prior + correction), covariance of the updated values, status
+        (``estimated`` when a parameter is determined by itself, ``gauge`` when only
+        combinations are, ``fixed`` for terms this stage does not touch).
+    combined : FitResult
+        The fifteen combined coefficients (``x1..x5``, pitch and roll) [rad].
+    separation : Separation
+        The weighted least-squares separation (residual space).
+    attitude : AttitudeFit
+        The Fourier fit of pitch and roll.
+    history : hm.FilterHistory or None
+        Kalman-filter convergence on the decimated bins (``history_time`` gives the bin ends).
+    """
+
+    result: FitResult
+    combined: FitResult
+    separation: Separation
+    attitude: AttitudeFit
+    history: hm.FilterHistory | None
+    history_time: NDArray[np.float64]
+    corrections: dict[str, float]
+    notes: tuple[str, ...] = ()
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- harmonic information
+def harmonic_information(
+    earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float, order: int = 3
+) -> hm.InformationAccumulator:
+    """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
+    acc = hm.InformationAccumulator(n_states=2 * order + 1)
+    acc.add(hm.observation_rows(earth_angle, latitude, order=order), z)
+    return acc
+
+
+@dataclass
+class _BlockHarmonics:
+    """Block-Taylor accumulation of the harmonic information (see the module docstring)."""
+
+    latitude: float
+    sense: float  # dS/d(reading) = −s1
+    offset: float  # S = sense·(reading + theta10)
+    block: int
+    order: int = 3  # highest harmonic of S in H
+    trig_sums: NDArray[np.float64] = field(init=False)  # C_0..C_2m, S_0..S_2m
+    z_sums: NDArray[np.float64] = field(init=False)  # ZC_0..ZC_m, ZS_0..ZS_m
+    sum_z2: float = 0.0
+    count: int = 0
+
+    def __post_init__(self) -> None:
+        self.trig_sums = np.zeros(2 * (2 * self.order + 1))
+        self.z_sums = np.zeros(2 * (self.order + 1))
+
+    @property
+    def columns(self) -> list[tuple[int, int]]:
+        """``(k, kind)`` of the H columns, kind 0 = cos, 1 = sin: 1, cos S, sin S, cos 2S, ..."""
+        return [(0, 0)] + [(k, t) for k in range(1, self.order + 1) for t in (0, 1)]
+
+    def add(
+        self, angle: NDArray[np.float64], z: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate; returns per-block ``(Σz, ΣH (nb, 2·order+1), n)`` for the filter bins."""
+        n = z.size
+        b = self.block
+        nb = n // b
+        outs = []
+        if nb:
+            outs.append(self._blocks(angle[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b)))
+        if n - nb * b:
+            outs.append(self._blocks(angle[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1)))
+        self.sum_z2 += float(np.einsum("i,i->", z, z))  # not BLAS: its threads stall on a loaded machine
+        self.count += n
+        zs = np.concatenate([o[0] for o in outs])
+        hs = np.concatenate([o[1] for o in outs])
+        counts = np.concatenate([o[2] for o in outs])
+        return zs, hs, counts
+
+    def _blocks(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+        m = angle.shape[1]
+        centre = angle[:, m // 2]
+        d = angle - centre[:, None]
+        if np.abs(d).max() > 0.5:  # the reading wrapped inside a block
+            d = d - 2.0 * np.pi * np.round(d / (2.0 * np.pi))
+        sd = self.sense
+        d2 = d * d
+        d3 = d2 * d
+        m1, m2, m3 = d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd
+        n0 = z.sum(1)
+        zd = z * d
+        n1 = zd.sum(1) * sd
+        n2 = (zd * d).sum(1)
+        n3 = (zd * d2).sum(1) * sd
+        s_c = sd * (centre + self.offset)
+        count = float(m)
+        top = 2 * self.order
+        nk = top + 1
+        trig = np.zeros((angle.shape[0], 2 * nk))  # C_k, then S_k
+        trig[:, 0] = count
+        zk = np.zeros((angle.shape[0], 2 * (self.order + 1)))
+        zk[:, 0] = n0
+        for k in range(1, top + 1):
+            ck, sk = np.cos(k * s_c), np.sin(k * s_c)
+            # Σ cos k(S_c + δ) = cos kS_c Σ cos kδ − sin kS_c Σ sin kδ, third order in δ
+            even = count - 0.5 * k * k * m2
+            odd = k * m1 - k**3 * m3 / 6.0
+            trig[:, k] = ck * even - sk * odd
+            trig[:, nk + k] = sk * even + ck * odd
+            if k <= self.order:
+                zeven = n0 - 0.5 * k * k * n2
+                zodd = k * n1 - k**3 * n3 / 6.0
+                zk[:, k] = ck * zeven - sk * zodd
+                zk[:, self.order + 1 + k] = sk * zeven + ck * zodd
+        self.trig_sums += trig.sum(0)
+        self.z_sums += zk.sum(0)
+        a = math.cos(self.latitude)
+        h = np.stack([a**k * trig[:, k + t * nk] for k, t in self.columns], axis=1)
+        return zk[:, 0], h, np.full(angle.shape[0], count)
+
+    def accumulator(self) -> hm.InformationAccumulator:
+        """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
+        nk = 2 * self.order + 1
+        c_sum = self.trig_sums[:nk]
+        s_sum = self.trig_sums[nk:]
+
+        def cos_sum(k: int) -> float:
+            return float(c_sum[abs(k)])
+
+        def sin_sum(k: int) -> float:
+            return float(np.sign(k) * s_sum[abs(k)])
+
+        a = math.cos(self.latitude)
+        cols = self.columns
+        lam = np.empty((len(cols), len(cols)))
+        for i, (ki, ti) in enumerate(cols):
+            for j, (kj, tj) in enumerate(cols):
+                if ti == 0 and tj == 0:
+                    v = 0.5 * (cos_sum(ki - kj) + cos_sum(ki + kj))
+                elif ti == 1 and tj == 1:
+                    v = 0.5 * (cos_sum(ki - kj) - cos_sum(ki + kj))
+                elif ti == 0:  # cos ki · sin kj
+                    v = 0.5 * (sin_sum(ki + kj) - sin_sum(ki - kj))
+                else:  # sin ki · cos kj
+                    v = 0.5 * (sin_sum(ki + kj) + sin_sum(ki - kj))
+                lam[i, j] = a ** (ki + kj) * v
+        zc = self.z_sums[: self.order + 1]
+        zs = self.z_sums[self.order + 1 :]
+        acc = hm.InformationAccumulator(n_states=len(cols))
+        acc.information = 0.5 * (lam + lam.T)
+        acc.projection = np.array([a**k * (zc[k] if t == 0 else zs[k]) for k, t in cols])
+        acc.sum_squares = self.sum_z2
+        acc.count = self.count
+        return acc
+
+
+def block_length(sample_rate: float, limit: float = 2e-4) -> int:
+    """Largest power of two ``B`` with ``B·ω_ie/rate ≤ limit`` (at least 1)."""
+    b = max(1.0, limit * sample_rate / EARTH_RATE)
+    return 1 << int(math.floor(math.log2(b)))
+
+
+# --------------------------------------------------------------------------- compensation
+@dataclass(frozen=True)
+class _Compensation:
+    """Closed-form Eq. 8 for constant core parameters: ``f^p = M (u − K u²)``, ``u = f^a − δb``."""
+
+    matrix: NDArray[np.float64]
+    bias: NDArray[np.float64]
+    quadratic: NDArray[np.float64]
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, float]) -> _Compensation:
+        model = ErrorModel.standard(nonlinear=True)
+        known = {k: v for k, v in values.items() if k in model.ids}
+        # M from the model's own inverse applied to unit vectors (no re-derivation of Eq. 8 here)
+        zero_bias = dict(known, bias_x=0.0, bias_y=0.0, bias_z=0.0, K2_x=0.0, K2_y=0.0, K2_z=0.0)
+        matrix = model.inverse(np.eye(3), zero_bias).T
+        bias = np.array([known.get(f"bias_{a}", 0.0) for a in "xyz"])
+        quadratic = np.array([known.get(f"K2_{a}", 0.0) for a in "xyz"])
+        return cls(matrix, bias, quadratic)
+
+    def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
+        """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
+        q = np.einsum("ki,kj->ij", self.matrix, self.matrix)
+        w0, w1, w2 = fx - self.bias[0], fy - self.bias[1], fz - self.bias[2]
+        if np.any(self.quadratic):
+            w0 -= self.quadratic[0] * w0 * w0
+            w1 -= self.quadratic[1] * w1 * w1
+            w2 -= self.quadratic[2] * w2 * w2
+        out = q[0, 0] * w0 * w0
+        out += q[1, 1] * w1 * w1
+        out += q[2, 2] * w2 * w2
+        w0 *= 2.0
+        out += (q[0, 1] * w0) * w1
+        out += (q[0, 2] * w0) * w2
+        out += (2.0 * q[1, 2] * w1) * w2
+        return out
+
+
+# --------------------------------------------------------------------------- the stage
+def _residual_scale(values: Mapping[str, float], gravity: float) -> dict[str, float]:
+    """d(record value)/d(residual): sf = sf/(1 − D) → sf; bias = g·b → g; beta → 1."""
+    out = {}
+    for name in hm.RESIDUAL_NAMES:
+        if name.startswith("D_"):
+            out[name] = float(values.get(f"sf_{name[2]}", 1.0))
+        elif name.startswith("b_"):
+            out[name] = gravity
+        else:
+            out[name] = 1.0
+    return out
+
+
+def _term_id(residual: str) -> str:
+    if residual.startswith("D_"):
+        return f"sf_{residual[2]}"
+    if residual.startswith("b_"):
+        return f"bias_{residual[2]}"
+    return residual
+
+
+def residuals_from_parameters(true: Mapping[str, float], installed: Mapping[str, float], gravity: float) -> NDArray[np.float64]:
+    """Residual vector (:data:`harmonics.RESIDUAL_NAMES`) for true and installed parameters (reference values)."""
+    out = []
+    for name in hm.RESIDUAL_NAMES:
+        tid = _term_id(name)
+        t, i = float(true.get(tid, 1.0 if tid.startswith("sf") else 0.0)), float(installed.get(tid, 1.0 if tid.startswith("sf") else 0.0))
+        if name.startswith("D_"):
+            out.append((t - i) / t)
+        elif name.startswith("b_"):
+            out.append((t - i) / gravity)
+        else:
+            out.append(t - i)
+    return np.array(out)
+
+
+def _combined_terms() -> tuple[Term, ...]:
+    meaning = dict(zip(hm.STATE_NAMES, hm.STATE_MEANING, strict=True))
+    terms = []
+    for name in COMBINED_COEFFICIENTS:
+        terms.append(
+            Term(
+                name,
+                "combined",
+                "rad",
+                "urad",
+                1e-6,
+                1e-4,
+                meaning.get(name, f"quasi-static {'pitch' if name.startswith('theta') else 'roll'} coefficient {name}"),
+                source="Wu et al. 2018 Eqs. 21-25, 29-38 (signs derived in docs/system-calibration.md)",
+            )
+        )
+    return tuple(terms)
+
+
+def run_system_stage(
+    source: ChunkSource,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None = None,
+    options: SystemOptions = SystemOptions(),
+) -> SystemCalibration:
+    """Run the system-level stage on a static, polar-aligned record.
+
+    Parameters
+    ----------
+    source : ChunkSource
+        The record (``stableins.data`` reader or :class:`ArraySource`).
+    metadata : SiteMetadata
+        Latitude, gravity, sample rate, gimbal senses, base attitude, damping.
+    prior : mapping
+        Installed calibration the INS compensates with (record values) [SI].
+    prior_covariance : mapping, optional
+        ``{(id_i, id_j): cov}`` of the prior; sets the gauge metric and the
+        uncertainty carried into directions the data do not see.  Default: nominal
+        magnitudes of the terms.
+    options : SystemOptions
+    """
+    path = getattr(source, "path", "<record>")
+    latitude, gravity, rate = _check_metadata(metadata, path)
+    loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
+    config = GimbalConfiguration(tuple(metadata.gimbal_senses))
+    sense = -float(config.senses[0])
+    theta10 = float(prior.get("theta10", 0.0))
+    base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
+    cos_yaw, sin_yaw = math.cos(base[0]), math.sin(base[0])
+    # level base: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) exactly to first order.  A tilted base mixes the azimuth
+    # error φ_D into pitch and roll (tilt × φ_D, 1e-6 rad per degree): then φ comes from the full output DCM.
+    tilted = max(abs(base[1]), abs(base[2])) > LEVEL_TOLERANCE
+    base_dcm_t = dcm_nav_to_body(*base).T
+    columns = list(FAST_COLUMNS + SLOW_COLUMNS) + (["heading"] if tilted else [])
+    # Earth-rate angle: on a level, north-pointing base S = −s1·α1 (conventions.earth_rate_angle).  Otherwise the
+    # gimbal angles no longer separate that way: S = atan2(u_y, u_x) with u = f^p/g = −C_n^p e_D from the exact
+    # kinematics C_n^p = C_b^p(α) C_n^b(base), evaluated on the decimated samples and interpolated (S is smooth).
+    general = tilted or abs(base[0]) > LEVEL_TOLERANCE
+    offsets = np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")])
+    nav_to_body = dcm_nav_to_body(*base)
+    if general:
+        columns += ["angle_inner", "angle_middle"]
+    compensation = _Compensation.from_values(prior)
+    block = block_length(rate)
+    chunk_rows = max(block, (options.chunk_rows // block) * block)
+    decimation = max(1, int(round(options.attitude_decimation_seconds * rate)))
+    filter_samples = max(block, int(round(options.filter_block_seconds * rate / block)) * block)
+
+    accumulator = _BlockHarmonics(latitude, 1.0, 0.0, block) if general else _BlockHarmonics(latitude, sense, theta10, block)
+    attitude_blocks: AttitudeBlocks | None = None
+    noise_sums = np.zeros(3)
+    noise_count = 0
+    filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 7)), "n": np.zeros(0)}
+    checks = _StaticChecks(options, rate, path)
+    checks.latitude = latitude
+    seen = 0
+    first_time = None
+    for chunk in source.iter_chunks(columns, rows=chunk_rows):
+        n = len(chunk["f_x"])
+        if n == 0:
+            continue
+        time = chunk["time"]
+        checks.time(time, seen)
+        if first_time is None:
+            first_time = float(time[0])
+            attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
+        fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
+        angle = chunk["angle_platform"]
+        phase = (-seen) % decimation
+        sel = slice(phase, None, decimation)
+        if general:
+            knots = np.unique(np.concatenate([[0], np.arange(n)[sel], [n - 1]]))
+            s_knots = _earth_angle_from_kinematics(chunk, knots, offsets, nav_to_body, config)
+            angle = np.interp(np.arange(n), knots, s_knots)  # linear: error (ω_ie·decimation/rate)²/8 < 1e-9 rad
+            s_d = angle[sel]
+        else:
+            s_d = sense * (angle[sel] + theta10)
+        z = 0.5 * (compensation.squared_norm(fx, fy, fz) / gravity**2 - 1.0)
+        zs, hs, counts = accumulator.add(angle, z)
+        # filter bins by global sample index
+        starts = seen + np.arange(len(counts)) * block
+        bins = starts // filter_samples
+        _grow_bins(filter_bins, int(bins[-1]) + 1)
+        np.add.at(filter_bins["z"], bins, zs)
+        np.add.at(filter_bins["h"], bins, hs)
+        np.add.at(filter_bins["n"], bins, counts)
+        # noise from second differences of the raw outputs
+        m = min(options.noise_samples_per_chunk, n)
+        if m >= 3:
+            for k, f in enumerate((fx, fy, fz)):
+                d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
+                noise_sums[k] += float(np.einsum("i,i->", d2, d2))
+            noise_count += m - 2
+        # decimated slow channels
+        t_d = time[sel]
+        pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
+        # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
+        # rotate back to the north-pointing pair the loop model outputs
+        if tilted:  # C_n^b' = C_n^b (I + [φ×]) (conventions): φ from the antisymmetric part
+            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
+            p0 = -0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
+            r0 = -0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
+        else:
+            p0 = cos_yaw * pitch_d + sin_yaw * roll_d
+            r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
+        attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
+        checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
+        checks.polar(fx[sel], fy[sel], fz[sel])
+        seen += n
+
+    if seen == 0 or attitude_blocks is None:
+        raise InputError("the record has no samples", path=path)
+    notes: list[str] = []
+    checks.finish(seen, notes)
+    duration = checks.duration
+    if duration < options.minimum_duration:
+        raise InputError(
+            f"the record lasts {duration / 3600:.2f} h; the Earth-rate harmonics cannot be separated from the mean and the Schuler "
+            f"transient in less than {options.minimum_duration / 3600:.1f} h",
+            path=path,
+            field="time",
+            expected=f"at least {options.minimum_duration / 3600:.1f} h, ideally one sidereal day ({SIDEREAL_DAY / 3600:.2f} h) or more",
+        )
+
+    # ---------------------------------------------------------------- noise
+    if noise_count < 10:
+        raise InputError("too few samples to measure the accelerometer noise", path=path)
+    axis_variance = noise_sums / noise_count / 6.0  # E[(Δ²n)²] = 6σ² for white noise
+    sin_l, cos_l = math.sin(latitude), math.cos(latitude)
+    var_xy = 0.5 * (axis_variance[0] + axis_variance[1])
+    sigma_pitch = math.sqrt(sin_l**2 * var_xy + cos_l**2 * axis_variance[2]) / gravity
+    sigma_roll = math.sqrt(var_xy) / gravity
+
+    # ---------------------------------------------------------------- harmonics
+    info = accumulator.accumulator()
+    x_ls, cov_unit = info.solve(1.0)  # LS estimate is independent of R
+    r_var = info.residual_variance(x_ls)
+    noise_bias = float(axis_variance.sum()) / (2.0 * gravity**2)
+    x_hat = x_ls.copy()
+    x_hat[0] -= noise_bias
+    cov_x = cov_unit * r_var
+
+    # ---------------------------------------------------------------- low-frequency noise check on the filter bins
+    keep_bins = filter_bins["n"] > 0
+    nn_all = filter_bins["n"][keep_bins]
+    bin_residual = filter_bins["z"][keep_bins] / nn_all - (filter_bins["h"][keep_bins] / nn_all[:, None]) @ x_ls
+    n_bins = int(keep_bins.sum())
+    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
+
+    bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
+    high = min(70.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
+    freqs, rho = spectral_ratios(bin_time, bin_residual, nn_all, r_var, (3.5 * EARTH_FREQUENCY, high)) if n_bins > 8 else (np.zeros(0),) * 2
+    z_factors = inflation(freqs, rho, np.array([1, 1, 1, 2, 2, 3, 3]) * EARTH_FREQUENCY)
+    low_frequency_ratio = float(z_factors[1])
+    cov_x = cov_x * np.outer(np.sqrt(z_factors), np.sqrt(z_factors))
+    if low_frequency_ratio > 2.0:
+        notes.append(
+            f"the specific-force residuals carry low-frequency noise (bias instability, random walk or temperature): their spectrum "
+            f"extrapolated to one cycle per day is {low_frequency_ratio:.1f}x the white level; the harmonic states' covariance was "
+            "scaled accordingly"
+        )
+
+    # ---------------------------------------------------------------- filter convergence
+    history = None
+    history_time = np.zeros(0)
+    prior_res_cov = _prior_residual_covariance(prior, prior_covariance, gravity)
+    if options.run_filter:
+        keep = filter_bins["n"] > 0
+        nn = filter_bins["n"][keep]
+        zb = filter_bins["z"][keep] / nn - noise_bias
+        hb = filter_bins["h"][keep] / nn[:, None]
+        m_x = hm.state_combinations(latitude)
+        p0 = np.zeros((7, 7))
+        p0[:5, :5] = m_x @ prior_res_cov @ m_x.T
+        k2_var = _fixed_variance(prior_covariance)
+        p0[5, 5], p0[6, 6] = (gravity**2 / 16.0) * k2_var["K2_x"], (gravity**2 / 16.0) * k2_var["K2_y"]
+        history = hm.kalman_filter(hb, zb, r_var / nn, np.zeros(7), p0)
+        history_time = (np.cumsum(nn)) / rate
+
+    # ---------------------------------------------------------------- attitude
+    blocks = attitude_blocks.means()
+    cos_l = math.cos(latitude)
+    along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
+    vertical = -along * x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
+    att = fit_attitude(
+        blocks,
+        loop,
+        (sigma_pitch / math.sqrt(decimation), sigma_roll / math.sqrt(decimation)),
+        case_rotation_period=options.case_rotation_period,
+        compensate_loop=options.compensate_loop,
+        vertical=vertical,
+        gyro_drift=options.gyro_drift,
+        known_drift=options.known_gyro_drift,
+    )
+    notes += list(att.notes)
+
+    # ---------------------------------------------------------------- observability (short records)
+    # v = (x1..x7, ten attitude coefficients) with its covariance; cross terms from the vertical path
+    cov_v = np.zeros((17, 17))
+    cov_v[:7, :7] = cov_x
+    jac_x = np.zeros((10, 7))
+    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-along)  # ∂attitude/∂x through the vertical channel
+    cov_v[7:, 7:] = att.covariance + jac_x @ cov_x @ jac_x.T
+    cov_v[7:, :7] = jac_x @ cov_x
+    cov_v[:7, 7:] = cov_v[7:, :7].T
+    v = np.concatenate([x_hat, att.values])
+    # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
+    k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
+    k2_sigma = 4.0 * np.sqrt(np.diag(cov_x)[5:7]) / gravity
+    k2_significant = np.abs(k2_values) > 3.0 * k2_sigma
+    to_combined = _k2_map(latitude, options.estimate_k2)
+    if k2_significant.any() and not options.estimate_k2:
+        text = (
+            "third harmonic of Earth rate in the specific-force error: residual quadratic coefficients "
+            f"ΔK2_x = {k2_values[0] / MICRO_G_PER_G2:.1f} ± {k2_sigma[0] / MICRO_G_PER_G2:.1f} µg/g², "
+            f"ΔK2_y = {k2_values[1] / MICRO_G_PER_G2:.1f} ± {k2_sigma[1] / MICRO_G_PER_G2:.1f} µg/g²; they bias x2, x3 and the "
+            f"fundamentals of pitch and roll by up to {3 * cos_l**2 * np.abs(x_hat[5:7]).max():.2e} rad (the paper's model has no K2); "
+            "rerun with the K2 estimation on (--estimate-k2) to remove them"
+        )
+        notes.append(text)
+        warnings.warn(f"{path}: {text}", UserWarning, stacklevel=2)
+    combined_values = to_combined @ v
+    combined_cov = to_combined @ cov_v @ to_combined.T
+    transform, observable, kept = _observable_directions(combined_cov)
+    if duration < 0.98 * SIDEREAL_DAY or not observable.all():
+        hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
+        notes.append(
+            f"record of {duration / 3600:.2f} h (< one sidereal day): the data determine {kept} of 15 combinations of the combined "
+            f"coefficients (variance inflation ≤ {VIF_LIMIT:g}); "
+            + (
+                f"not observable on their own and reported as unidentifiable: {', '.join(hidden)}; the separation uses only the "
+                "determined combinations"
+                if hidden
+                else "every coefficient remains observable, with larger uncertainty than over a full day"
+            )
+        )
+        if hidden:
+            warnings.warn(f"{path}: {notes[-1]}", UserWarning, stacklevel=2)
+    names_used = list(COMBINED_COEFFICIENTS)
+
+    # ---------------------------------------------------------------- separation
+    scale = _residual_scale(prior, gravity)
+    prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
+    sep = separate(names_used, combined_values, combined_cov, latitude, prior_sigma=prior_sigma, transform=transform)
+    result, corrections = _fit_result(
+        sep,
+        prior,
+        prior_res_cov,
+        scale,
+        latitude,
+        gravity,
+        transform,
+        combined_values,
+        combined_cov,
+        notes,
+        _fixed_variance(prior_covariance),
+        k2_estimate=(k2_values, cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity]))
+        if options.estimate_k2
+        else None,
+    )
+
+    status = tuple("estimated" if ok else "unidentifiable" for ok in observable)
+    combined = FitResult(
+        stage="system-combined",
+        terms=_combined_terms(),
+        values=combined_values,
+        covariance=combined_cov,
+        status=status,
+        residuals=np.zeros(0),
+        residual_sigma=np.zeros(0),
+        rank=int(observable.sum()),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {noise_bias:.3e}",),
+        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "transform": transform},
+    )
+    diagnostics = {
+        "duration": duration,
+        "samples": seen,
+        "block_length": block,
+        "axis_noise_sigma": np.sqrt(axis_variance),
+        "z_residual_sigma": math.sqrt(r_var),
+        "z_low_frequency_ratio": low_frequency_ratio,
+        "noise_bias_x1": noise_bias,
+        "k2_residual": k2_values,
+        "k2_residual_sigma": k2_sigma,
+        "third_harmonic": x_hat[5:7],
+        "attitude_noise_sigma": (sigma_pitch, sigma_roll),
+        "attitude_residual_rms": att.residual_rms,
+        "attitude_noise_ratio": att.residual_noise_ratio,
+        "platform_rate_ratio": checks.rate_ratio,
+        "max_velocity": checks.max_velocity,
+        "attitude_excursion": checks.excursion,
+        "loop": loop,
+        "sampling": checks.summary(),
+    }
+    return SystemCalibration(
+        result=result,
+        combined=combined,
+        separation=sep,
+        attitude=att,
+        history=history,
+        history_time=history_time,
+        corrections=corrections,
+        notes=tuple(notes),
+        diagnostics=diagnostics,
+    )
+
+
+def _earth_angle_from_kinematics(
+    chunk: Mapping[str, NDArray[np.float64]],
+    sel: NDArray[np.int64],
+    offsets: NDArray[np.float64],
+    nav_to_body: NDArray,
+    config: GimbalConfiguration,
+) -> NDArray[np.float64]:
+    """Unwrapped Earth-rate angle ``S = atan2(u_y, u_x)``, ``u = −C_b^p(α) C_n^b e_D`` on the selected samples."""
+    alpha = [chunk[name][sel] + offsets[k] for k, name in enumerate(("angle_platform", "angle_inner", "angle_middle"))]
+    c_bp = dcm_body_to_platform(alpha[0], alpha[1], alpha[2], 0.0, config)
+    u = -(c_bp @ nav_to_body[:, 2])
+    return np.unwrap(np.arctan2(u[:, 1], u[:, 0]))
+
+
+def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, float]:
+    lat = metadata.latitude
+    if lat is None or not np.isfinite(lat) or abs(lat) > np.pi / 2:
+        raise InputError("latitude is missing or not a latitude", path=path, field="metadata.latitude", expected="geodetic latitude in rad")
+    if abs(lat) > np.radians(89.0):
+        raise InputError("polar-aligned system calibration is degenerate within 1° of a pole", path=path, field="metadata.latitude")
+    g = metadata.gravity
+    if g is None or not np.isfinite(g) or not (9.7 < g < 9.9):
+        raise InputError(f"gravity {g!r} is missing or implausible", path=path, field="metadata.gravity", expected="local gravity in m/s^2")
+    rate = metadata.sample_rate
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        raise InputError("sample rate is missing", path=path, field="metadata.sample_rate", expected="a positive rate in Hz")
+    return float(lat), float(g), float(rate)
+
+
+def _k2_map(latitude: float, estimate_k2: bool) -> NDArray[np.float64]:
+    """Matrix ``(15, 17)`` from ``(x1..x7, attitude)`` to the combined coefficients.
+
+    With ``estimate_k2`` the residual-K2 parts are removed: ``δ_i += gΔK_i u_i²`` gives
+    ``x2 += 3cos²L x6``, ``x3 −= 3cos²L x7``, ``θ1c −= 3 sinL cos²L x6``, ``θ1s += 3 sinL cos²L x7``,
+    ``φ1s += cos²L x6``, ``φ1c += cos²L x7`` (docs/system-calibration.md §8).
+    """
+    m = np.zeros((15, 17))
+    m[:5, :5] = np.eye(5)
+    m[5:, 7:] = np.eye(10)
+    if estimate_k2:
+        s, c2 = math.sin(latitude), math.cos(latitude) ** 2
+        x6, x7 = 5, 6
+        row = {n: i for i, n in enumerate(COMBINED_COEFFICIENTS)}
+        m[row["x2"], x6] = -3.0 * c2
+        m[row["x3"], x7] = 3.0 * c2
+        m[row["theta_1c"], x6] = 3.0 * s * c2
+        m[row["theta_1s"], x7] = -3.0 * s * c2
+        m[row["phi_1s"], x6] = -c2
+        m[row["phi_1c"], x7] = -c2
+    return m
+
+
+def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> dict[str, float]:
+    """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
+    out = {}
+    for t in CORE_TERMS:
+        if t.kind == "nonlinearity":
+            v = None if prior_covariance is None else prior_covariance.get((t.id, t.id))
+            out[t.id] = float(v) if v is not None and np.isfinite(v) and v > 0 else t.nominal**2
+    return out
+
+
+def _grow_bins(bins: dict[str, NDArray[np.float64]], size: int) -> None:
+    if bins["n"].size >= size:
+        return
+    new = max(size, 2 * bins["n"].size)
+    for key in ("z", "n"):
+        bins[key] = np.concatenate([bins[key], np.zeros(new - bins[key].size)])
+    bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], bins["h"].shape[1]))])
+
+
+def _observable_directions(covariance: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], int]:
+    """Combinations of the combined coefficients that the record determines.
+
+    Per group (the five harmonic states; the ten attitude coefficients) the information
+    matrix in correlation form ``Λ_s`` has unit eigenvalues for an orthogonal design (a
+    whole number of days).  Directions with eigenvalue ``< 1/VIF_LIMIT`` (variance inflated
+    more than ``VIF_LIMIT`` times) are not observable.  Returns the transform ``T`` whose
+    rows are the kept combinations (``T c`` has covariance ``diag(1/λ)``), which coefficients
+    remain individually observable, and the number of kept combinations.
+    """
+    rows = []
+    observable = np.zeros(15, bool)
+    for group in (slice(0, 5), slice(5, 15)):
+        idx = np.arange(15)[group]
+        info = np.linalg.pinv(covariance[np.ix_(idx, idx)], rcond=1e-15, hermitian=True)
+        d = np.sqrt(np.clip(np.diag(info), 1e-300, None))
+        eigenvalues, vectors = np.linalg.eigh(info / np.outer(d, d))
+        keep = eigenvalues >= 1.0 / VIF_LIMIT
+        v = vectors[:, keep]
+        for column in v.T:
+            row = np.zeros(15)
+            row[idx] = column * d
+            rows.append(row)
+        inside = np.linalg.norm(v.T, axis=0)  # |projection of each unit coefficient direction on the kept span|
+        observable[idx] = inside > 0.99
+    transform = np.array(rows) if rows else np.zeros((0, 15))
+    if transform.shape[0] == 15:
+        transform = np.eye(15)  # everything is determined: use the coefficients themselves
+    return transform, observable, len(rows)
+
+
+def _prior_residual_covariance(
+    prior: Mapping[str, float], prior_covariance: Mapping[tuple[str, str], float] | None, gravity: float
+) -> NDArray[np.float64]:
+    """Prior covariance of the residuals (:data:`harmonics.RESIDUAL_NAMES`); nominal term magnitudes where unknown."""
+    scale = _residual_scale(prior, gravity)
+    nominal = {t.id: t.nominal for t in CORE_TERMS}
+    n = len(hm.RESIDUAL_NAMES)
+    cov = np.zeros((n, n))
+    for i, a in enumerate(hm.RESIDUAL_NAMES):
+        for j, b in enumerate(hm.RESIDUAL_NAMES):
+            ta, tb = _term_id(a), _term_id(b)
+            value = None if prior_covariance is None else prior_covariance.get((ta, tb))
+            if value is not None and np.isfinite(value):
+                cov[i, j] = value / (scale[a] * scale[b])
+            elif i == j:
+                cov[i, j] = (nominal[ta] / scale[a]) ** 2
+        if not (cov[i, i] > 0):
+            cov[i, i] = (nominal[_term_id(a)] / scale[a]) ** 2
+    return 0.5 * (cov + cov.T)
+
+
+def _fit_result(
+    sep: Separation,
+    prior: Mapping[str, float],
+    prior_res_cov: NDArray[np.float64],
+    scale: Mapping[str, float],
+    latitude: float,
+    gravity: float,
+    transform: NDArray[np.float64],
+    combined_values: NDArray[np.float64],
+    combined_cov: NDArray[np.float64],
+    notes: list[str],
+    fixed_variance: Mapping[str, float],
+    k2_estimate: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+) -> tuple[FitResult, dict[str, float]]:
+    from stableins.estimators.system.separation import combination_matrix
+
+    n = len(hm.RESIDUAL_NAMES)
+    p = sep.values[:n]
+    # new − true = (I − K G)(prior − true) + K e, with K the gauge-fixed solution map
+    g_full = transform @ combination_matrix(latitude)
+    k_map = _solution_map(sep, g_full, transform @ combined_cov @ transform.T, prior_res_cov)
+    kg = (k_map @ g_full)[:n, :n]
+    ikg = np.eye(n) - kg
+    cov_res = ikg @ prior_res_cov @ ikg.T + sep.covariance[:n, :n]
+    j = np.array([scale[r] for r in hm.RESIDUAL_NAMES])
+    model_ids = [t.id for t in CORE_TERMS]
+    terms = tuple(t for t in CORE_TERMS)
+    values = []
+    corrections = {}
+    k2_index = {"K2_x": 0, "K2_y": 1}
+    for t in terms:
+        if t.kind == "nonlinearity":
+            base = float(prior.get(t.id, 0.0))
+            if k2_estimate is not None and t.id in k2_index:
+                corrections[t.id] = float(k2_estimate[0][k2_index[t.id]])
+                values.append(base + corrections[t.id])
+            else:
+                values.append(base)
+            continue
+        r = next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)
+        k = hm.RESIDUAL_NAMES.index(r)
+        base = float(prior.get(t.id, t.reference))
+        if t.kind == "scale_factor":
+            new = base / (1.0 - p[k])
+        elif t.kind == "bias":
+            new = base + gravity * p[k]
+        else:
+            new = base + p[k]
+        corrections[t.id] = new - base
+        values.append(new)
+    cov = np.zeros((len(terms), len(terms)))
+    res_index = [
+        hm.RESIDUAL_NAMES.index(next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)) if t.kind != "nonlinearity" else -1
+        for t in terms
+    ]
+    for a, ia in enumerate(res_index):
+        for b, ib in enumerate(res_index):
+            if ia >= 0 and ib >= 0:
+                cov[a, b] = cov_res[ia, ib] * j[ia] * j[ib]
+    status = []
+    for t, ia in zip(terms, res_index, strict=True):
+        if ia < 0:
+            k = model_ids.index(t.id)
+            if k2_estimate is not None and t.id in k2_index:
+                status.append("estimated")
+                cov[k, k] = float(k2_estimate[1][k2_index[t.id], k2_index[t.id]])
+            else:
+                status.append("fixed")
+                cov[k, k] = fixed_variance.get(t.id, t.nominal**2)
+        else:
+            status.append("estimated" if sep.determined[ia] else "gauge")
+    determined = tuple(
+        f"{name} = {value:.4e} ± {sigma:.2e}" + ("" if ok else " (NOT determined by these data)")
+        for name, (value, sigma, ok) in sep.combinations.items()
+    )
+    null_terms = np.zeros((len(terms), sep.null_space.shape[1]))
+    for a, ia in enumerate(res_index):
+        if ia >= 0:
+            null_terms[a] = sep.null_space[ia] * j[ia]
+    if null_terms.size:
+        null_terms /= np.linalg.norm(null_terms, axis=0, keepdims=True)
+    notes = list(notes) + [
+        "gauge: corrections along combinations the data determine are shared among the parameters in proportion to their prior "
+        "variances; directions the data do not see keep the prior values (and their prior uncertainty)",
+        "b_x and beta_xy act only through b_x/g - beta_xy*sinL, b_y and beta_yx only through b_y/g + beta_yx*sinL "
+        "(paper Eq. 41 is singular); (beta_xz+beta_yz)/2 is indistinguishable from the platform-axis zero offset; the scale factors "
+        "and b_z enter only through x1",
+        (
+            "K2_x, K2_y corrected from the third harmonic of Earth rate in z (not in the paper's model); their covariance with "
+            "the other terms is not carried (set to zero); K2_z is not observed and keeps its prior"
+            if k2_estimate is not None
+            else "K2 terms are not corrected by this stage and keep their prior values and variances (nominal magnitude when the prior "
+            "has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, --estimate-k2)"
+        ),
+    ]
+    result = FitResult(
+        stage="system",
+        terms=terms,
+        values=np.array(values),
+        covariance=0.5 * (cov + cov.T),
+        status=tuple(status),
+        residuals=sep.residuals,
+        residual_sigma=sep.residual_sigma,
+        residual_labels=tuple(COMBINED_COEFFICIENTS)
+        if transform.shape[0] == 15
+        else tuple(f"combination {k + 1}" for k in range(transform.shape[0])),
+        rank=sep.rank,
+        singular_values=sep.singular_values,
+        null_space=null_terms,
+        determined=determined,
+        notes=tuple(notes),
+        extra={"residual_corrections": dict(zip(hm.RESIDUAL_NAMES, map(float, p), strict=True)), "nuisance": sep.values[n:]},
+    )
+    return result, corrections
+
+
+def _solution_map(sep: Separation, g: NDArray, cov: NDArray, prior_res_cov: NDArray) -> NDArray[np.float64]:
+    """Linear map K from coefficients to the gauge-fixed solution (same SVD as :func:`separate`)."""
+    scale = np.concatenate([np.sqrt(np.diag(prior_res_cov)), [1e-4, 1e-4]])
+    sd = np.sqrt(np.diag(cov))
+    chol = np.linalg.cholesky(cov / np.outer(sd, sd))
+    whiten = np.linalg.solve(chol, np.diag(1.0 / sd))
+    a = whiten @ g * scale[None, :]
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    r = sep.rank
+    return (scale[:, None] * (vt[:r].T / sv[:r]) @ u[:, :r].T) @ whiten
+
+
+# --------------------------------------------------------------------------- checks
+class _StaticChecks:
+    """Sampling, static-base and platform-rate checks on the streamed record."""
+
+    def __init__(self, options: SystemOptions, rate: float, path: str) -> None:
+        self.options = options
+        self.rate = rate
+        self.path = path
+        self.period = 1.0 / rate
+        self.last_time: float | None = None
+        self.first_time: float | None = None
+        self.gaps: list[tuple[int, float]] = []
+        self.gap_time = 0.0
+        self.jitter = 0
+        self.max_velocity = 0.0
+        self.pitch_range = [np.inf, -np.inf]
+        self.roll_range = [np.inf, -np.inf]
+        self.excursion = 0.0
+        self.rate_sums = np.zeros(5)  # n, Σt, Σt², ΣS, ΣtS (unwrapped)
+        self.last_angle: float | None = None
+        self.angle_offset = 0.0
+        self.moving_at: float | None = None
+        self.rate_ratio = float("nan")
+        self.duration = 0.0
+        self.polar_sums = np.zeros(2)
+        self.latitude = 0.0
+
+    def time(self, t: NDArray[np.float64], seen: int) -> None:
+        # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
+        step = np.diff(t)
+        if self.last_time is not None and t.size:
+            step = np.concatenate([[t[0] - self.last_time], step]) if (t[0] - self.last_time) != self.period else step
+        lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
+        if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
+            series = t if self.last_time is None else np.concatenate([[self.last_time], t])
+            step = np.diff(series)
+            offset = seen + (1 if self.last_time is None else 0)
+            if not (step > 0).all():
+                k = int(np.flatnonzero(~(step > 0))[0])
+                raise InputError(
+                    "time does not increase", path=self.path, field="time", row=offset + k + 1, expected="strictly increasing time"
+                )
+            gap = step > 1.5 * self.period
+            if gap.any():
+                for k in np.flatnonzero(gap)[:100]:
+                    self.gaps.append((offset + int(k) + 1, float(step[k])))
+                self.gap_time += float(step[gap].sum() - gap.sum() * self.period)
+            self.jitter += int(((np.abs(step - self.period) > 0.01 * self.period) & ~gap).sum())
+        if self.first_time is None:
+            self.first_time = float(t[0])
+        self.last_time = float(t[-1])
+
+    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> None:
+        if t.size == 0:
+            return
+        speed = np.hypot(vn, ve)
+        vmax = float(speed.max())
+        if vmax > self.options.velocity_limit and self.moving_at is None:
+            self.moving_at = float(t[int(np.argmax(speed > self.options.velocity_limit))])
+        self.max_velocity = max(self.max_velocity, vmax)
+        self.pitch_range = [min(self.pitch_range[0], float(pitch.min())), max(self.pitch_range[1], float(pitch.max()))]
+        self.roll_range = [min(self.roll_range[0], float(roll.min())), max(self.roll_range[1], float(roll.max()))]
+        # unwrap the Earth-rate angle across chunks
+        prev = self.last_angle if self.last_angle is not None else float(s[0])
+        series = np.unwrap(np.concatenate([[prev], s]))
+        series = series[1:] + self.angle_offset
+        self.angle_offset = float(series[-1] - s[-1])
+        self.last_angle = float(s[-1])
+        tt = t - (self.first_time or 0.0)
+        self.rate_sums += [t.size, tt.sum(), (tt * tt).sum(), series.sum(), (tt * series).sum()]
+
+    def polar(self, fx: NDArray, fy: NDArray, fz: NDArray) -> None:
+        """Accumulate the direction cosine of gravity with z_p (sin L on a polar-aligned platform)."""
+        norm = np.sqrt(fx * fx + fy * fy + fz * fz)
+        self.polar_sums += [fz.size, float(np.sum(fz / norm))]
+
+    def finish(self, seen: int, notes: list[str]) -> None:
+        self.duration = (self.last_time or 0.0) - (self.first_time or 0.0)
+        n, st, stt, ss, sts = self.rate_sums
+        denominator = n * stt - st * st
+        if n > 2 and denominator > 0:
+            slope = (n * sts - st * ss) / denominator
+            self.rate_ratio = slope / EARTH_RATE
+        excursion = max(self.pitch_range[1] - self.pitch_range[0], self.roll_range[1] - self.roll_range[0])
+        self.excursion = excursion
+        if self.moving_at is not None:
+            raise InputError(
+                f"the base is not static: horizontal velocity output reaches {self.max_velocity:.3g} m/s "
+                f"(first beyond {self.options.velocity_limit:g} m/s at t = {self.moving_at:.1f} s)",
+                path=self.path,
+                field="velocity_north/velocity_east",
+                expected="a static base (velocity outputs are then navigation errors: Schuler transients of Δf/ω_s, a few m/s at most)",
+            )
+        if excursion > self.options.attitude_limit:
+            raise InputError(
+                f"the base is not static or not level: pitch/roll vary by {excursion:.3g} rad over the record",
+                path=self.path,
+                field="pitch/roll",
+                expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base",
+            )
+        if self.polar_sums[0] > 0:
+            mean_uz = self.polar_sums[1] / self.polar_sums[0]
+            polar_error = math.asin(max(-1.0, min(1.0, mean_uz))) - self.latitude
+            if abs(polar_error) > self.options.polar_tolerance:
+                raise InputError(
+                    f"the platform is not polar aligned: gravity makes {math.degrees(math.asin(max(-1.0, min(1.0, mean_uz)))):.3f}° "
+                    f"with the platform's x-y plane, the latitude is {math.degrees(self.latitude):.3f}°",
+                    path=self.path,
+                    field="f_z",
+                    expected="z_p on the Earth's spin axis (f_z/g = sin L), as the system-level method requires",
+                )
+        if np.isfinite(self.rate_ratio) and abs(self.rate_ratio - 1.0) > self.options.rate_tolerance:
+            raise InputError(
+                f"the platform-axis angle turns at {self.rate_ratio:.4f} x the Earth rate",
+                path=self.path,
+                field="angle_platform",
+                expected="a platform fixed in inertial space on a static base (angle rate = Earth rate, correct sense s1)",
+            )
+        if self.gaps:
+            first = self.gaps[0]
+            text = (
+                f"{len(self.gaps)} gap(s) in the time column (first at row {first[0]}: step {first[1]:.6g} s; {self.gap_time:.1f} s "
+                "missing in all); the fits use the samples present (the INS kept running), the Earth-rate angle is read per sample"
+            )
+            notes.append(text)
+            warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=3)
+        if self.jitter:
+            text = (
+                f"{self.jitter} time step(s) off the nominal {self.period:.6g} s by more than 1 %; the fits do not assume uniform sampling"
+            )
+            notes.append(text)
+            warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=3)
+
+    def summary(self) -> dict[str, Any]:
+        return {"gaps": list(self.gaps[:10]), "gap_count": len(self.gaps), "missing_seconds": self.gap_time, "jitter_steps": self.jitter}
+
+
+__all__ = [
+    "ATTITUDE_COEFFICIENTS",
+    "ArraySource",
+    "SystemCalibration",
+    "SystemOptions",
+    "block_length",
+    "harmonic_information",
+    "residuals_from_parameters",
+    "run_system_stage",
+]
