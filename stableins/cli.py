@@ -55,6 +55,10 @@ COMMANDS: dict[str, Command | Group] = {
             "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
         },
     ),
+    "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
+    "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
+    "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
 }
 
 EXIT_FAILURE = 1

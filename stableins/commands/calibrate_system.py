@@ -52,6 +52,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
 
 
+def record_statuses(result: Any, prior: Any) -> Any:
+    """The stage result with the statuses the calibration record must carry.
+
+    The stage marks ``gauge`` (a correction shared by prior variances along a combination
+    it determines, or none) and ``fixed`` (left at the prior) relative to *its own* data.
+    In the record the value is still the prior stage's estimate updated by this one, so
+    such a parameter keeps the status it had in the prior record (``estimated`` stays
+    ``estimated``; a ``gauge`` stays ``gauge``).
+    """
+    from dataclasses import replace
+
+    known = set(prior.ids)
+    status = tuple(
+        st if st == "estimated" or t.id not in known else prior[t.id].status for t, st in zip(result.terms, result.status, strict=True)
+    )
+    return replace(result, status=status)
+
+
 def run(args: Any) -> int:
     import math
     import warnings
@@ -88,7 +106,7 @@ def run(args: Any) -> int:
         outcome = run_system_stage(record, record.metadata, values, covariance, options)
     for w in caught:
         note(f"stableins: warning: {w.message}")
-    updated = prior.update(outcome.result, inputs=[args.record], procedure="system-level static record")
+    updated = prior.update(record_statuses(outcome.result, prior), inputs=[args.record], procedure="system-level static record")
     updated.save(args.out)
     if args.plot:
         plot(outcome, args.plot)

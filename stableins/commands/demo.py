@@ -1,14 +1,26 @@
-"""``stableins demo --out DIR``: simulate a platform and write everything to a directory.
+"""``stableins demo --out DIR``: the main job on the embedded simulated platform.
 
-For now: a device-level session (coarse and fine procedures) and a system-level record
-from one drawn truth, plus ``truth.json``; later stages add calibration, discovery and
-reports to the same directory.
+Runs the whole three-stage calibration the way a user would, each step through the
+same CLI command a user types, and leaves every file in ``DIR``:
+
+1. ``simulate device``: a drawn instrument (``truth.json``) on the simulated platform,
+   coarse 18-position session and fine dwells;
+2. ``calibrate device``: coarse + fine stages → ``cal-device.json``;
+3. ``simulate system --installed cal-device.json``: one sidereal day on a static base
+   with the INS compensating by the device-level calibration (the third stage corrects
+   what the first two left);
+4. ``calibrate system`` → ``calibration.json`` (the final record);
+5. ``diagnose`` (model discovery) and ``report`` (PDF) when those commands exist;
+6. the verdict: every determined parameter of the final record against the simulator's
+   truth, in engineering units and in σ (``verdict.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+from typing import Any
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -16,22 +28,98 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--out", type=Path, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)")
     parser.add_argument("--seed", type=int, default=2018, help="random seed (default 2018)")
-    parser.add_argument("--duration", type=parse_duration, default=2 * 3600.0, help="length of the system-level record (default 2h)")
+    parser.add_argument(
+        "--duration", type=parse_duration, default=86164.0905, help="length of the system-level record (default one sidereal day)"
+    )
+    parser.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="system-level sample rate [Hz] (default 10)")
+
+
+def _step(title: str, argv: list[str]) -> None:
+    import sys
+
+    from stableins import cli
+
+    print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
+    status = cli.main(argv)
+    if status != 0:
+        raise SystemExit(status)
+
+
+def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
+    """Final record against the truth: error and error/σ of every estimated parameter.
+
+    The truth is first put in the record's gauge (θ10 = 0, exactly equivalent
+    parameters, :func:`stableins.estimators.coarse.gauge_equivalent`).
+    """
+    from stableins.conventions import GimbalConfiguration
+    from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
+    from stableins.estimators.coarse import gauge_equivalent
+    from stableins.records import CalibrationRecord
+    from stableins.simulator.truth import Truth
+
+    record = CalibrationRecord.load(record_path)
+    truth = Truth.read(truth_path)
+    configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
+    reference = gauge_equivalent(dict(truth.parameters), configuration)
+    terms = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
+    rows = []
+    for parameter in record.parameters:
+        if parameter.status != "estimated" or parameter.id not in reference or parameter.id not in terms:
+            continue
+        term = terms[parameter.id]
+        error = parameter.value - reference[parameter.id]
+        rows.append(
+            {
+                "id": parameter.id,
+                "unit": term.unit,
+                "truth": float(term.to_engineering(reference[parameter.id])),
+                "estimate": float(term.to_engineering(parameter.value)),
+                "sigma": float(term.sigma_to_engineering(parameter.sigma)),
+                "error": float(term.sigma_to_engineering(error)),
+                "z": float(error / parameter.sigma) if parameter.sigma else float("nan"),
+            }
+        )
+    return rows
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.commands.simulate import build_truth, levels, prepare_directory, simulate_device, simulate_system
+    import importlib.util
+
+    from stableins.commands.simulate import prepare_directory
     from stableins.output import emit
 
     out = prepare_directory(args.out)
-    options = argparse.Namespace(
-        truth=None, hidden=[], seed=args.seed, rate=None, format=None, procedure=None, dwell=None, settle=None, duration=args.duration
+    seed = str(args.seed)
+    _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out)])
+    coarse, fine = out / "device-coarse.csv", out / "device-fine.h5"
+    _step("device-level calibration", ["calibrate", "device", str(coarse), str(fine), "--out", str(out / "cal-device.json")])
+    _step(
+        "system-level record",
+        ["simulate", "system", "--truth", str(out / "truth.json"), "--seed", seed, "--installed", str(out / "cal-device.json"),
+         "--duration", f"{args.duration}s", "--rate", str(args.rate), "--out", str(out)],
+    )  # fmt: skip
+    _step(
+        "system-level calibration",
+        ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    truth = build_truth(options)
-    truth.write(out / "truth.json")
-    files = simulate_device(truth, out, args.seed, options)
-    if "system" in levels():
-        files.append(simulate_system(truth, out, args.seed, options))
-    lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {out / 'truth.json'}"]
-    emit(args, {"out": str(out), "files": files, "truth": str(out / "truth.json")}, "\n".join(lines))
+    if importlib.util.find_spec("stableins.commands.diagnose") is not None:
+        _step(
+            "model discovery",
+            ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), "--json-out", str(out / "diagnosis.json")],
+        )
+    if importlib.util.find_spec("stableins.commands.report") is not None:
+        _step(
+            "calibration report",
+            ["report", str(out / "calibration.json"), "--data", str(coarse), str(fine), str(out / "system.h5"),
+             "--out", str(out / "calibration-report.pdf")],
+        )  # fmt: skip
+    rows = verdict(out / "calibration.json", out / "truth.json")
+    (out / "verdict.json").write_text(json.dumps(rows, indent=1) + "\n")
+    lines = ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",
+             f"{'parameter':<10} {'truth':>12} {'estimate':>12} {'error':>10} {'1σ':>9} {'error/σ':>8}  unit"]  # fmt: skip
+    row = "{id:<10} {truth:>12.3f} {estimate:>12.3f} {error:>10.3f} {sigma:>9.3f} {z:>8.2f}  {unit}"
+    lines += [row.format(**r) for r in rows]
+    worst = max((abs(r["z"]) for r in rows), default=float("nan"))
+    lines.append(f"largest |error|/σ = {worst:.2f} over {len(rows)} estimated parameters; files in {out}/")
+    emit(args, {"out": str(out), "verdict": rows}, "\n".join(lines))
     return 0

@@ -109,6 +109,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--dwell", type=positive_float, metavar="S", help="device: override the procedure's dwell time [s]")
     parser.add_argument("--settle", type=float, metavar="S", help="device: override the procedure's settling time [s]")
+    parser.add_argument(
+        "--installed",
+        type=Path,
+        metavar="CAL.json",
+        help="system: the INS compensates with this calibration record (default: the truth's installed calibration)",
+    )
     parser.add_argument("--list-effects", action="store_true", help="list the injectable effects (id, SI unit, meaning) and exit")
 
 
@@ -125,6 +131,25 @@ def prepare_directory(out: Path | None) -> Path:
     return out
 
 
+def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
+    """Parameter values of a calibration record, as the calibration the simulated INS runs with.
+
+    Ids the truth's error model does not know (e.g. additive terms) are refused; ids the
+    record lacks keep the truth's installed value.  Unidentifiable parameters carry
+    their prior value in a record, which is what an INS would be loaded with.
+    """
+    from stableins.records import CalibrationRecord
+
+    record = CalibrationRecord.load(path)
+    installed = dict(truth.installed_calibration)
+    known = set(truth.parameters) | set(installed)
+    for parameter_id, value in record.values().items():
+        if parameter_id not in known:
+            raise InputError(f"parameter {parameter_id!r} is not part of the simulated instrument", path=path, field=parameter_id)
+        installed[parameter_id] = float(value)
+    return installed
+
+
 def build_truth(args: argparse.Namespace) -> Any:
     """The truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
     from stableins.simulator.effects import validate_effects
@@ -137,6 +162,8 @@ def build_truth(args: argparse.Namespace) -> Any:
         if args.rate is not None:
             kwargs["sample_rate"] = args.rate
         truth = Truth.draw(0 if args.seed is None else args.seed, **kwargs)
+    if getattr(args, "installed", None) is not None:
+        truth = truth.with_changes(installed_calibration=installed_from_record(args.installed, truth))
     if args.hidden:
         effects = dict(truth.effects)
         effects.update(dict(args.hidden))

@@ -20,7 +20,9 @@ from stableins.data.errors import InputError
 PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step"}
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record"}
+#: Stages a definition may declare.
+STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
 
 
@@ -82,6 +84,9 @@ class ProcedureDefinition:
     offset_iteration: OffsetIteration
     path: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    runner: RunnerSettings = field(default_factory=lambda: RunnerSettings())
+    people: tuple[PersonAction, ...] = ()
+    record: StaticRecord | None = None
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -181,8 +186,12 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         it_values["max_passes"] = int(it_values["max_passes"])
         if it_values["max_passes"] < 1:
             raise InputError("must be at least 1", path=spath, field="offset_iteration.max_passes")
+    if head["stage"] not in STAGES:
+        raise InputError(f"unknown stage {head['stage']!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
     steps_raw = data.get("step")
-    if not isinstance(steps_raw, list) or not steps_raw:
+    if head["stage"] == "system" and steps_raw is None:
+        steps_raw = []  # a static record: [record] says where and how long
+    elif not isinstance(steps_raw, list) or not steps_raw:
         raise InputError("no [[step]] entries", path=spath, field="step")
     steps = []
     for k, raw in enumerate(steps_raw, start=1):
@@ -233,4 +242,151 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         acceptance=acceptance,
         offset_iteration=OffsetIteration(**it_values),
         path=spath,
+        runner=_runner_settings(data.get("runner", {}), spath),
+        people=_people(data.get("person", []), spath, len(steps)),
+        record=_static_record(data.get("record"), head["stage"], spath),
+    )
+
+
+# --------------------------------------------------------------------------- runner sections
+@dataclass(frozen=True)
+class RunnerSettings:
+    """``[runner]``: how ``stableins run`` executes and accepts each dwell (SI).
+
+    ``angle_tolerance`` [rad] (file: arcsec): the platform must be this close to the
+    commanded readings (arrival, and the mean over the dwell); ``max_slew`` [s]: longest wait
+    for arrival; ``scatter_max`` [m/s²] (file: µg): largest residual standard deviation of a
+    dwell about its straight line; ``slope_max`` [m/s² per s] (file: µg/s): largest slope
+    beyond 3σ of its own noise; ``retries``: repeats of a rejected dwell before the run stops;
+    ``chunk`` [s]: dwells are journaled in pieces of at most this length.
+    """
+
+    retries: int = 2
+    chunk: float = 10.0
+    angle_tolerance: float = 20.0 * ARCSEC
+    scatter_max: float = 5e-3 * 9.80665
+    slope_max: float = 20e-6 * 9.80665
+    max_slew: float = 120.0
+
+
+@dataclass(frozen=True)
+class PersonAction:
+    """``[[person]]``: a step a person carries out before position ``before`` (0: before the first;
+    ``len(steps) + 1``: at the end).  ``action`` is ``"confirm"`` or ``"enter"`` (a value with
+    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses)."""
+
+    before: int
+    action: str
+    prompt: str
+    key: str = ""
+    unit: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    default: float | str | None = None
+
+
+@dataclass(frozen=True)
+class StaticRecord:
+    """``[record]`` of a system-level procedure: hold the platform at ``command`` [rad] (file: deg),
+    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz]."""
+
+    command: tuple[float, float, float]
+    settle: float
+    duration: float
+    sample_rate: float
+
+
+_RUNNER_KEYS = {
+    "retries": 1.0,
+    "chunk": 1.0,
+    "angle_tolerance": ARCSEC,
+    "scatter_max": 9.80665e-6,
+    "slope_max": 9.80665e-6,
+    "max_slew": 1.0,
+}
+_PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}
+_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate"}
+
+
+def _runner_settings(table: Any, path: str) -> RunnerSettings:
+    if not isinstance(table, dict):
+        raise InputError("[runner] must be a table", path=path, field="runner")
+    unknown = set(table) - set(_RUNNER_KEYS)
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="runner", expected=f"{sorted(_RUNNER_KEYS)}")
+    values: dict[str, Any] = {}
+    for key, factor in _RUNNER_KEYS.items():
+        if key in table:
+            values[key] = _number(table, key, path, "runner", positive=key != "retries", minimum=0.0) * factor
+    if "retries" in values:
+        if values["retries"] != int(values["retries"]):
+            raise InputError("must be a whole number", path=path, field="runner.retries")
+        values["retries"] = int(values["retries"])
+    return RunnerSettings(**values)
+
+
+def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
+    if not isinstance(entries, list):
+        raise InputError("person steps are written [[person]]", path=path, field="person")
+    people = []
+    for k, raw in enumerate(entries, start=1):
+        where = f"person {k}"
+        unknown = set(raw) - _PERSON_KEYS
+        if unknown:
+            raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
+        for key in ("before", "action", "prompt"):
+            if key not in raw:
+                raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
+        before = raw["before"]
+        if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
+            raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
+        if raw["action"] not in ("confirm", "enter"):
+            raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
+        if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
+            raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
+        if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
+            raise InputError(
+                f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
+            )
+        bounds = {b: _number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
+        if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
+            raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
+        default = raw.get("default")
+        if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
+            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
+        people.append(
+            PersonAction(
+                before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
+            )
+        )
+    return tuple(people)
+
+
+def _static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
+    if table is None:
+        if stage == "system":
+            raise InputError(
+                "a system-level procedure needs a [record] table", path=path, field="record", expected=f"{sorted(_RECORD_KEYS)}"
+            )
+        return None
+    if stage != "system":
+        raise InputError(f"[record] belongs to system-level procedures, this one is {stage!r}", path=path, field="record")
+    if not isinstance(table, dict):
+        raise InputError("[record] must be a table", path=path, field="record")
+    unknown = set(table) - _RECORD_KEYS
+    missing = {"duration", "sample_rate"} - set(table)
+    if unknown or missing:
+        what = f"unknown keys {sorted(unknown)}" if unknown else f"missing {sorted(missing)}"
+        raise InputError(what, path=path, field="record", expected=f"{sorted(_RECORD_KEYS)} (duration and sample_rate required)")
+    angles = []
+    for key in ("platform", "inner", "middle"):
+        deg = _number(table, key, path, "record") if key in table else 0.0
+        if abs(deg) > 720.0:
+            raise InputError(f"{deg} deg is not a gimbal angle in degrees", path=path, field=f"record.{key}", expected="degrees")
+        angles.append(math.radians(deg))
+    return StaticRecord(
+        command=(angles[0], angles[1], angles[2]),
+        settle=_number(table, "settle", path, "record", minimum=0.0) if "settle" in table else 0.0,
+        duration=_number(table, "duration", path, "record", positive=True),
+        sample_rate=_number(table, "sample_rate", path, "record", positive=True),
     )

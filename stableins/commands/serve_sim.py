@@ -1,0 +1,45 @@
+"""``stableins serve-sim --port N``: the simulated platform behind the TCP protocol (docs/protocol.md), on 127.0.0.1 only.
+
+Prints ``listening on 127.0.0.1:PORT`` on stdout once it accepts connections (``--port 0``
+picks a free port).  The platform keeps its state across client connections, like hardware.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", type=int, required=True, help="TCP port on 127.0.0.1 (0: any free port)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated truth and noise")
+    parser.add_argument("--unit", help="serial number the simulated unit reports")
+    parser.add_argument("--rate", type=float, help="sample rate [Hz] (default: the simulator's)")
+    parser.add_argument("--connections", type=int, help="stop after this many client connections (default: serve until interrupted)")
+    parser.add_argument(
+        "--realtime", type=float, default=0.0, metavar="FACTOR", help="stream samples at FACTOR x real time (1: like hardware; 0: at once)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="do not log connections")
+
+
+def run(args: argparse.Namespace) -> int:
+    from stableins.data.errors import InputError
+    from stableins.drivers.select import simulated_platform
+    from stableins.drivers.server import LOOPBACK, serve
+
+    if not 0 <= args.port < 65536:
+        raise InputError(f"port {args.port}", field="--port", expected="0 to 65535")
+    driver = simulated_platform(args.seed, args.unit, args.rate)
+
+    def ready(port: int) -> None:
+        print(f"listening on {LOOPBACK}:{port}", flush=True)
+
+    def log(message: str) -> None:
+        if not args.quiet:
+            print(f"serve-sim: {message}", file=sys.stderr, flush=True)
+
+    try:
+        serve(driver, args.port, ready=ready, log=log, max_connections=args.connections, realtime=max(0.0, args.realtime))
+    except OSError as error:
+        raise InputError(f"cannot listen on {LOOPBACK}:{args.port}: {error.strerror}", field="--port") from None
+    return 0

@@ -1,0 +1,96 @@
+"""Open a platform driver from a ``--driver`` specification: ``sim``, ``tcp://HOST:PORT`` or ``replay:PATH``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stableins.data.errors import InputError
+from stableins.drivers.base import PlatformDriver
+
+SPEC_HELP = "sim, tcp://HOST:PORT or replay:PATH"
+
+
+def is_deterministic(driver: Any) -> bool:
+    """Whether the driver answers the same operations with the same results (sim, replay)."""
+    return bool(getattr(driver, "deterministic", False))
+
+
+def open_driver(
+    spec: str, *, seed: int | None = None, unit: str | None = None, sample_rate: float | None = None, timeout: float = 10.0
+) -> PlatformDriver:
+    """The driver named by ``spec``.
+
+    ``sim`` builds the embedded simulated platform (:mod:`stableins.simulator`) with a truth
+    drawn from ``seed`` and serial number ``unit``; it is deterministic: the same seed and
+    the same sequence of operations give the same samples.
+    """
+    if spec == "sim":
+        return simulated_platform(seed=0 if seed is None else seed, unit=unit, sample_rate=sample_rate)
+    if spec.startswith("tcp://"):
+        from stableins.drivers.tcp import connect
+
+        return connect(spec, timeout=timeout)
+    if spec.startswith("replay:"):
+        from stableins.drivers.replay import ReplayDriver
+
+        return ReplayDriver(spec[len("replay:") :])
+    raise InputError(f"unknown driver {spec!r}", field="--driver", expected=SPEC_HELP)
+
+
+def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
+    """The embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
+    try:
+        from stableins.simulator.truth import Truth
+    except ImportError as error:  # pragma: no cover - the simulator ships with stableins
+        raise InputError(
+            f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH"
+        ) from None
+    truth = Truth.draw(seed, **({"sample_rate": sample_rate} if sample_rate else {}), serial_number=unit)
+    return SimulatedDriver(truth, seed)
+
+
+class SimulatedDriver:
+    """The simulated platform as a driver, plus the system-level recorder of the same truth.
+
+    Device-level operations go to :class:`stableins.simulator.device.SimulatedPlatform`;
+    :meth:`static_record` streams a system-level static record (INS outputs included) from
+    :func:`stableins.simulator.system.system_record_chunks`.  Deterministic: the same seed and
+    the same operations give the same samples.
+    """
+
+    deterministic = True
+
+    def __init__(self, truth: Any, seed: int) -> None:
+        from stableins.simulator.device import SimulatedPlatform
+
+        self.truth = truth
+        self.seed = seed
+        self.platform = SimulatedPlatform(truth, seed=seed)
+
+    @property
+    def metadata(self) -> Any:
+        return self.platform.metadata
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        return self.platform.command(readings)
+
+    def read_angles(self) -> Any:
+        return self.platform.read_angles()
+
+    def acquire(self, duration: float) -> Any:
+        return self.platform.acquire(duration)
+
+    def status(self) -> dict[str, object]:
+        return self.platform.status()
+
+    def close(self) -> None:
+        self.platform.close()
+
+    def static_record(self, duration: float, chunk: float) -> Any:
+        """Chunks (dicts of :data:`~stableins.data.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s."""
+        try:
+            from stableins.simulator.system import system_record_chunks
+        except ImportError as error:
+            raise InputError(f"the simulated system-level recorder is not available ({error})", field="--driver") from None
+        rate = self.platform.rate
+        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=max(1, int(round(chunk * rate))))

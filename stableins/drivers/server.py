@@ -1,0 +1,223 @@
+"""Serve a platform driver over the line-based TCP protocol of ``docs/protocol.md``.
+
+``stableins serve-sim --port N`` uses :func:`serve` to put a simulated platform behind a
+socket on the loopback interface, so that the TCP driver, the runner and their failure
+handling are exercised against a separate process exactly as against real hardware.  The
+platform's state (session time, gimbal positions) lives in the server and survives client
+disconnects, as it would on a real platform.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+import zlib
+from collections.abc import Callable
+from typing import Any, TextIO
+
+from stableins.drivers.base import PlatformDriver
+
+PROTOCOL_GREETING = "STABLEINS-PLATFORM 1"
+#: The server binds this address only: a calibration platform is not a network service.
+LOOPBACK = "127.0.0.1"
+
+
+def format_float(value: float) -> str:
+    """Shortest text that reads back as exactly the same double (``repr``)."""
+    return repr(float(value))
+
+
+def sample_lines(block: Any) -> list[str]:
+    """``S t fx fy fz ap ai am T`` lines of a :class:`~stableins.drivers.base.SampleBlock`."""
+    lines = []
+    for k in range(len(block.time)):
+        values = [block.time[k], *block.specific_force[k], *block.angles[k], block.temperature[k]]
+        lines.append("S " + " ".join(format_float(v) for v in values) + "\n")
+    return lines
+
+
+def checksum(lines: list[str]) -> str:
+    """CRC-32 (hex) of the concatenated sample lines, newlines included."""
+    crc = 0
+    for line in lines:
+        crc = zlib.crc32(line.encode("ascii"), crc)
+    return f"{crc:08x}"
+
+
+class _Session:
+    """One client connection: reads requests, answers them from the driver."""
+
+    def __init__(self, driver: PlatformDriver, reader: TextIO, writer: TextIO, log: Callable[[str], None], realtime: float = 0.0) -> None:
+        self.driver = driver
+        self.reader = reader
+        self.writer = writer
+        self.log = log
+        self.realtime = realtime
+
+    def send(self, text: str) -> None:
+        self.writer.write(text)
+        self.writer.flush()
+
+    def run(self) -> None:
+        self.send(PROTOCOL_GREETING + "\n")
+        for line in self.reader:
+            words = line.split()
+            if not words:
+                continue
+            request_id = words[0]
+            if not request_id.isdigit() or len(words) < 2:
+                self.send(f"0 ERR protocol malformed request {line.strip()[:60]!r}\n")
+                continue
+            verb, arguments = words[1].upper(), words[2:]
+            try:
+                if not self.handle(request_id, verb, arguments):
+                    return
+            except (ValueError, IndexError) as error:
+                self.send(f"{request_id} ERR protocol {verb}: {error}\n")
+            except Exception as error:  # the platform failed: tell the client, keep serving
+                message = str(error).replace("\n", " ")
+                self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
+
+    def handle(self, request_id: str, verb: str, arguments: list[str]) -> bool:
+        if verb == "META":
+            self.send(f"{request_id} OK {json.dumps(self.driver.metadata.to_dict(), allow_nan=False)}\n")
+        elif verb == "CMD":
+            if len(arguments) != 3:
+                raise ValueError("expected three angle-sensor readings [rad]")
+            readings = tuple(_finite(a) for a in arguments)
+            issued = self.driver.command(readings)  # type: ignore[arg-type]
+            self.send(f"{request_id} OK {format_float(issued)}\n")
+        elif verb == "ANG":
+            angles = self.driver.read_angles()
+            self.send(f"{request_id} OK {' '.join(format_float(a) for a in angles)}\n")
+        elif verb == "ACQ":
+            if len(arguments) != 1:
+                raise ValueError("expected one duration [s]")
+            duration = _finite(arguments[0])
+            if duration <= 0:
+                raise ValueError("duration must be positive")
+            block = self.driver.acquire(duration)
+            lines = sample_lines(block)
+            self.send(f"{request_id} OK {len(lines)}\n")
+            try:
+                if self.realtime > 0:  # stream as a real platform would: each sample when it is measured
+                    start, first = time.monotonic(), float(block.time[0]) if len(lines) else 0.0
+                    for k, line in enumerate(lines):
+                        delay = (float(block.time[k]) - first) / self.realtime - (time.monotonic() - start)
+                        if delay > 0:
+                            self.writer.flush()
+                            time.sleep(delay)
+                        self.writer.write(line)
+                else:
+                    for line in lines:
+                        self.writer.write(line)
+            except OSError:
+                raise
+            except Exception as error:  # after OK only samples may follow: a failure drops the connection
+                raise ConnectionAbortedError(f"acquisition failed while streaming: {error}") from error
+            self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
+        elif verb == "STATUS":
+            self.send(f"{request_id} OK {json.dumps(_jsonable(self.driver.status()))}\n")
+        elif verb == "BYE":
+            self.send(f"{request_id} OK\n")
+            return False
+        else:
+            self.send(f"{request_id} ERR protocol unknown verb {verb!r}\n")
+        return True
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text!r} is not a finite number")
+    return value
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def serve(
+    driver: PlatformDriver,
+    port: int = 0,
+    ready: Callable[[int], None] | None = None,
+    log: Callable[[str], None] = print,
+    max_connections: int | None = None,
+    realtime: float = 0.0,
+) -> None:
+    """Serve ``driver`` on ``127.0.0.1:port``, one client at a time, until interrupted.
+
+    The latest client wins: a new connection closes the previous one (whose host may have
+    lost power without closing it), then takes the platform over once that session has
+    let go of it.
+
+    Parameters
+    ----------
+    driver : PlatformDriver
+        The platform to serve (its state persists across client connections).
+    port : int
+        TCP port; 0 picks a free one.
+    ready : callable, optional
+        Called with the bound port once the server accepts connections.
+    max_connections : int, optional
+        Stop after this many client connections have ended (tests); ``None`` serves forever.
+    realtime : float
+        Stream samples paced at ``realtime`` × real time (1: like hardware); 0: as fast as possible.
+    """
+    platform = threading.Lock()  # one session talks to the driver at a time
+    state: dict[str, Any] = {"current": None}
+    sessions: list[threading.Thread] = []
+
+    def session(connection: socket.socket, peer: tuple[str, int]) -> None:
+        with platform, connection:
+            if state["current"] is not connection:  # replaced before it started
+                return
+            connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
+            writer = connection.makefile("w", encoding="ascii", newline="\n")
+            try:
+                _Session(driver, reader, writer, log, realtime).run()
+            except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
+                log(f"client {peer[0]}:{peer[1]} lost: {error}")
+            else:
+                log(f"client {peer[0]}:{peer[1]} disconnected")
+            finally:
+                for stream in (reader, writer):
+                    try:
+                        stream.close()
+                    except (OSError, ValueError):
+                        pass
+
+    with socket.create_server((LOOPBACK, port), backlog=4) as listener:
+        bound = listener.getsockname()[1]
+        if ready is not None:
+            ready(bound)
+        accepted = 0
+        while max_connections is None or accepted < max_connections:
+            connection, peer = listener.accept()
+            accepted += 1
+            previous, state["current"] = state["current"], connection
+            if previous is not None:
+                log(f"client {peer[0]}:{peer[1]} connected; it replaces the previous client")
+                try:
+                    previous.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            else:
+                log(f"client {peer[0]}:{peer[1]} connected")
+            thread = threading.Thread(target=session, args=(connection, peer), daemon=True)
+            thread.start()
+            sessions.append(thread)
+        for thread in sessions:
+            thread.join()

@@ -1,0 +1,269 @@
+"""TCP client for a platform speaking the line-based ASCII protocol of ``docs/protocol.md``.
+
+Failure handling, in one place:
+
+* every read and write has a timeout (``timeout`` seconds of silence, not of total time, so a
+  long dwell whose samples keep streaming never times out);
+* anything that is not the protocol (bad greeting, wrong request id, unparsable numbers, a
+  sample count or CRC-32 that does not match) raises :class:`DriverProtocolError` and drops
+  the connection, so a late or corrupted reply can never be mistaken for a later one;
+* idempotent requests (``META``, ``CMD``, ``ANG``, ``STATUS``) are sent again once after a
+  reconnect; an acquisition is not (time has moved on): it raises
+  :class:`AcquisitionInterrupted` and the runner repeats the step;
+* reconnects are bounded (``reconnect_attempts`` tries, ``reconnect_delay`` apart).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+import zlib
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.drivers.base import SampleBlock
+from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
+from stableins.drivers.server import PROTOCOL_GREETING, format_float
+
+#: Longest line accepted from the platform [characters] (a sample line is ~200).
+MAX_LINE = 65536
+
+
+def parse_address(spec: str) -> tuple[str, int]:
+    """``tcp://HOST:PORT`` → ``(host, port)``; raises :class:`InputError` naming the option."""
+    rest = spec[len("tcp://") :] if spec.startswith("tcp://") else spec
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise InputError(f"cannot read {spec!r} as a platform address", field="--driver", expected="tcp://HOST:PORT")
+    return host.strip("[]"), int(port)
+
+
+class TcpDriver:
+    """:class:`~stableins.drivers.base.PlatformDriver` over TCP.
+
+    Parameters
+    ----------
+    host, port : str, int
+        Where the platform listens.
+    timeout : float
+        Longest silence accepted from the platform [s].
+    reconnect_attempts : int
+        Connection attempts before giving up (first connection and after a failure).
+    reconnect_delay : float
+        Pause between attempts [s].
+    """
+
+    deterministic = False
+
+    def __init__(self, host: str, port: int, timeout: float = 10.0, reconnect_attempts: int = 5, reconnect_delay: float = 0.5) -> None:
+        self.host, self.port = host, port
+        self.timeout = timeout
+        self.reconnect_attempts = max(1, int(reconnect_attempts))
+        self.reconnect_delay = reconnect_delay
+        self._socket: socket.socket | None = None
+        self._buffer = b""
+        self._next_id = 1
+        self.reconnects = 0
+        self._metadata: SiteMetadata | None = None
+        self._connect()
+
+    # ------------------------------------------------------------------ link
+    @property
+    def address(self) -> str:
+        return f"tcp://{self.host}:{self.port}"
+
+    def _connect(self) -> None:
+        last: Exception | None = None
+        for attempt in range(self.reconnect_attempts):
+            if attempt:
+                time.sleep(self.reconnect_delay)
+            try:
+                sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
+            except OSError as error:
+                last = error
+                continue
+            sock.settimeout(self.timeout)
+            self._socket, self._buffer = sock, b""
+            try:
+                greeting = self._read_line()
+            except DriverError as error:
+                self._drop()
+                last = error
+                continue
+            if greeting != PROTOCOL_GREETING:
+                self._drop()
+                raise DriverProtocolError(
+                    f"{self.address} is not a stableins platform: it greeted with {greeting[:60]!r}, expected {PROTOCOL_GREETING!r}"
+                )
+            return
+        raise DriverConnectionError(f"cannot connect to the platform at {self.address} after {self.reconnect_attempts} attempts: {last}")
+
+    def _drop(self) -> None:
+        if self._socket is not None:
+            try:
+                self._socket.close()
+            except OSError:
+                pass
+        self._socket, self._buffer = None, b""
+
+    def _reconnect(self) -> None:
+        self._drop()
+        self.reconnects += 1
+        self._connect()
+
+    def _read_line(self) -> str:
+        assert self._socket is not None
+        while b"\n" not in self._buffer:
+            if len(self._buffer) > MAX_LINE:
+                raise DriverProtocolError(f"{self.address} sent a line longer than {MAX_LINE} characters (garbage?)")
+            try:
+                chunk = self._socket.recv(65536)
+            except TimeoutError:
+                raise DriverConnectionError(f"{self.address} did not answer within {self.timeout:g} s") from None
+            except OSError as error:
+                raise DriverConnectionError(f"{self.address}: {error}") from None
+            if not chunk:
+                raise DriverConnectionError(f"{self.address} closed the connection")
+            self._buffer += chunk
+        line, _, self._buffer = self._buffer.partition(b"\n")
+        try:
+            return line.decode("ascii").rstrip("\r")
+        except UnicodeDecodeError:
+            raise DriverProtocolError(f"{self.address} sent non-ASCII bytes {line[:40]!r} (garbage)") from None
+
+    def _send(self, request_id: int, verb: str, arguments: tuple[str, ...]) -> None:
+        if self._socket is None:
+            self._reconnect()
+        assert self._socket is not None
+        text = " ".join((str(request_id), verb, *arguments)) + "\n"
+        try:
+            self._socket.sendall(text.encode("ascii"))
+        except OSError as error:
+            raise DriverConnectionError(f"{self.address}: {error}") from None
+
+    def _reply(self, request_id: int, verb: str) -> str:
+        line = self._read_line()
+        words = line.split(" ", 2)
+        if len(words) < 2 or words[0] != str(request_id):
+            raise DriverProtocolError(f"{self.address} answered {line[:80]!r} to request {request_id} {verb} (garbage or out of step)")
+        if words[1] == "ERR":
+            raise DriverError(f"the platform at {self.address} refused {verb}: {words[2] if len(words) > 2 else ''}")
+        if words[1] != "OK":
+            raise DriverProtocolError(f"{self.address} answered {line[:80]!r} to {verb} (expected OK or ERR)")
+        return words[2] if len(words) > 2 else ""
+
+    def _call(self, verb: str, *arguments: str, retry: bool = True) -> str:
+        """One idempotent request/reply, sent again once after a reconnect if the link fails."""
+        for attempt in (0, 1):
+            request_id = self._next_id
+            self._next_id += 1
+            try:
+                self._send(request_id, verb, arguments)
+                return self._reply(request_id, verb)
+            except DriverProtocolError:
+                self._drop()
+                raise
+            except DriverConnectionError:
+                self._drop()
+                if attempt or not retry:
+                    raise
+                self._reconnect()
+        raise AssertionError("unreachable")
+
+    # ------------------------------------------------------------------ PlatformDriver
+    @property
+    def metadata(self) -> SiteMetadata:
+        if self._metadata is None:
+            payload = self._call("META")
+            try:
+                d = json.loads(payload)
+                d["gimbal_senses"] = tuple(d["gimbal_senses"])
+                d["base_attitude"] = tuple(d["base_attitude"])
+                self._metadata = SiteMetadata(**d)
+            except (ValueError, KeyError, TypeError) as error:
+                raise DriverProtocolError(f"{self.address} sent unreadable metadata ({error})") from None
+        return self._metadata
+
+    def command(self, readings: tuple[float, float, float]) -> float:
+        payload = self._call("CMD", *(format_float(r) for r in readings))
+        return _number(payload, self.address, "CMD")
+
+    def read_angles(self) -> NDArray[np.float64]:
+        payload = self._call("ANG")
+        values = payload.split()
+        if len(values) != 3:
+            raise DriverProtocolError(f"{self.address} answered ANG with {payload[:80]!r} (expected three angles)")
+        return np.array([_number(v, self.address, "ANG") for v in values])
+
+    def status(self) -> dict[str, object]:
+        try:
+            remote = json.loads(self._call("STATUS"))
+        except ValueError as error:
+            raise DriverProtocolError(f"{self.address} sent an unreadable status ({error})") from None
+        return {"driver": "tcp", "address": self.address, "reconnects": self.reconnects, "platform": remote}
+
+    def acquire(self, duration: float) -> SampleBlock:
+        request_id = self._next_id
+        self._next_id += 1
+        received = 0
+        try:
+            self._send(request_id, "ACQ", (format_float(duration),))
+            count_text = self._reply(request_id, "ACQ")
+            count = int(_number(count_text, self.address, "ACQ"))
+            rows = np.empty((count, 8))
+            crc = 0
+            for received in range(count):
+                line = self._read_line()
+                crc = zlib.crc32((line + "\n").encode("ascii"), crc)
+                values = line.split(" ")
+                if len(values) != 9 or values[0] != "S":
+                    raise DriverProtocolError(f"{self.address} sent {line[:80]!r} as sample {received + 1} of {count} (garbage)")
+                rows[received] = [_number(v, self.address, "ACQ") for v in values[1:]]
+            received = count
+            end = self._read_line().split(" ")
+            if end[:3] != [str(request_id), "END", str(count)] or len(end) != 4 or end[3] != f"{crc:08x}":
+                raise DriverProtocolError(
+                    f"{self.address}: acquisition trailer {' '.join(end)[:80]!r} does not match {count} samples with CRC {crc:08x}"
+                )
+        except DriverProtocolError:
+            self._drop()
+            raise
+        except DriverConnectionError as error:
+            self._drop()
+            try:
+                self._reconnect()
+            except DriverConnectionError as again:
+                raise AcquisitionInterrupted(f"{error}; {again}", received) from None
+            raise AcquisitionInterrupted(f"acquisition interrupted after {received} samples ({error}); reconnected", received) from None
+        return SampleBlock(
+            time=rows[:, 0].copy(), specific_force=rows[:, 1:4].copy(), angles=rows[:, 4:7].copy(), temperature=rows[:, 7].copy()
+        )
+
+    def close(self) -> None:
+        if self._socket is not None:
+            try:
+                self._call("BYE", retry=False)
+            except DriverError:
+                pass
+        self._drop()
+
+
+def _number(text: str, address: str, verb: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise DriverProtocolError(f"{address} sent {text[:60]!r} where {verb} needs a number (garbage)") from None
+    if not np.isfinite(value):
+        raise DriverProtocolError(f"{address} sent a non-finite number {text!r} in reply to {verb}")
+    return value
+
+
+def connect(spec: str, **options: Any) -> TcpDriver:
+    """Open ``tcp://HOST:PORT``."""
+    host, port = parse_address(spec)
+    return TcpDriver(host, port, **options)

@@ -1,0 +1,98 @@
+"""Turn a procedure definition (``procedures/*.toml``, :mod:`stableins.procedures.definition`) into a runnable plan.
+
+* A coarse definition that re-points (``repoint = true``, ``[offset_iteration]``) becomes one
+  zero-offset iteration step: passes of all positions until the offsets converge.
+* Any other definition becomes one dwell step per position, re-pointed by the current
+  zero-offset estimate (from the unit's previous record) when ``repoint`` is set.
+
+The runner's online checks of each dwell (reached, still) use the thresholds of
+:class:`~stableins.procedures.plan.Checks`; the estimators' own dwell checks (the
+definition's ``[acceptance]`` table) still apply when the data are estimated.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
+
+
+def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: float | None = None) -> Plan:
+    """The plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`).
+
+    ``[runner]`` gives the online checks, retries and journal chunk (``retries``/``chunk``
+    override it); ``[[person]]`` entries are placed before the position they name.
+    """
+    settings = definition.runner
+    checks = Checks(
+        angle_tolerance=settings.angle_tolerance,
+        scatter_max=settings.scatter_max,
+        slope_max=settings.slope_max,
+        max_slew=settings.max_slew,
+    )
+    rates = {s.sample_rate for s in definition.steps}
+    sample_rate = rates.pop() if len(rates) == 1 else None
+    if definition.stage == "system":
+        record = definition.record
+        sample_rate = record.sample_rate
+        work: list = [StaticRecordStep(f"{definition.name}: static record", record.command, record.settle, record.duration, checks)]
+    elif definition.stage == "coarse" and definition.repoint:
+        work = [
+            OffsetIterationStep(
+                name=f"{definition.name}: zero-offset iteration over {len(definition.steps)} positions",
+                positions=tuple(s.position for s in definition.steps),
+                settles=tuple(float(s.settle) for s in definition.steps),
+                dwells=tuple(float(s.dwell) for s in definition.steps),
+                stage=definition.stage,
+            )
+        ]
+    else:
+        work = [
+            DwellStep(
+                name=f"{definition.stage} position {s.position}",
+                stage=definition.stage,
+                pass_number=1,
+                position=s.position,
+                readings=tuple(float(a) for a in s.command),
+                settle=float(s.settle),
+                dwell=float(s.dwell),
+                checks=checks,
+                why=f"ideal axes: {s.expect}" if s.expect else "",
+                offset_corrected=bool(definition.repoint),
+            )
+            for s in definition.steps
+        ]
+    steps: list = []
+    positions = [getattr(w, "position", 1) for w in work]
+    for index, step in enumerate(work):
+        here = positions[index] if isinstance(step, DwellStep) else 1
+        if index == 0:
+            steps += [_person(p) for p in definition.people if p.before <= here]
+        else:
+            steps += [_person(p) for p in definition.people if positions[index - 1] < p.before <= here]
+        steps.append(step)
+    last = positions[-1] if work and isinstance(work[-1], DwellStep) else 1
+    steps += [_person(p) for p in definition.people if p.before > last]
+    return Plan(
+        name=definition.name,
+        level="system" if definition.stage == "system" else "device",
+        steps=tuple(steps),
+        retries=settings.retries if retries is None else retries,
+        chunk=settings.chunk if chunk is None else chunk,
+        sample_rate=sample_rate,
+        description=definition.source,
+    )
+
+
+def _person(action: Any) -> PersonStep:
+    name = action.key or action.prompt[:40]
+    return PersonStep(
+        name=name,
+        action=action.action,
+        prompt=action.prompt,
+        key=action.key,
+        unit=action.unit,
+        minimum=action.minimum,
+        maximum=action.maximum,
+        default=action.default,
+    )

@@ -1,0 +1,366 @@
+"""A run directory: start a run, resume it, and write what it produced.
+
+Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
+
+    journal.bin       every operation and decision, append-only (the ground truth of the run)
+    procedure.json    the plan that runs (also in the journal's start record)
+    procedure.toml    copy of the procedure definition the run was started with (if any)
+    prior.json        copy of the record used as prior / for the zero offsets (if any)
+    device.h5         accepted dwells in the device-level data format read by ``stableins calibrate`` (HDF5)
+    estimate.json     what this run's data alone say (data-only calibration record)
+    record.json       the unit's calibration record after this run (estimate merged onto the prior)
+    report.pdf        the calibration report (when the report writer is installed)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from stableins import __version__
+from stableins.data.errors import InputError
+from stableins.data.metadata import SiteMetadata
+from stableins.drivers.base import PlatformDriver
+from stableins.drivers.replay import JOURNAL_NAME
+from stableins.drivers.select import is_deterministic, open_driver
+from stableins.procedures.journal import Journal, scan
+from stableins.procedures.plan import Plan
+from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
+
+DATASET_NAME = "device.h5"
+SYSTEM_NAME = "system.h5"
+PLAN_NAME = "procedure.json"
+DEFINITION_NAME = "procedure.toml"
+PRIOR_NAME = "prior.json"
+ESTIMATE_NAME = "estimate.json"
+RECORD_NAME = "record.json"
+REPORT_NAME = "report.pdf"
+
+
+@dataclass
+class RunOutcome:
+    """What a finished run left in its directory."""
+
+    rundir: Path
+    runner: Runner
+    dataset: Path | None
+    replayed: int
+    superseded: tuple[int, int] | None = None
+    estimate: Path | None = None
+    record: Path | None = None
+    report: Path | None = None
+
+
+def _utc() -> str:
+    return datetime.now(UTC).replace(microsecond=0).isoformat()
+
+
+def start_run(
+    plan: Plan,
+    rundir: str | os.PathLike[str],
+    *,
+    driver_spec: str,
+    seed: int | None = None,
+    unit: str | None = None,
+    console: Console | None = None,
+    options: RunOptions | None = None,
+    driver: PlatformDriver | None = None,
+    definition_file: str | os.PathLike[str] | None = None,
+    prior_file: str | os.PathLike[str] | None = None,
+    timeout: float = 10.0,
+) -> RunOutcome:
+    """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
+
+    ``definition_file`` (the procedure TOML) and ``prior_file`` (a calibration record whose
+    zero offsets re-point the gimbals and which a fine stage builds on) are copied into the
+    run directory first, so that a resumed run needs nothing from outside it.
+    """
+    rundir = Path(rundir)
+    console = console or Console()
+    journal_file = rundir / JOURNAL_NAME
+    if journal_file.exists():
+        if scan(journal_file).records:
+            raise InputError(
+                "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
+            )
+        journal_file.unlink()  # a start that died before its first record: nothing happened, start afresh
+    prior = _load_record(prior_file) if prior_file is not None else None
+    fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
+    if definition_file is not None and plan.level == "system" and prior is None:
+        raise InputError(
+            "the system-level stage estimates corrections to the calibration the INS navigates with",
+            field="--prior",
+            expected="--prior RECORD (the unit's record in force) or --store DIR",
+        )
+    if definition_file is not None and fine and prior is None:
+        raise InputError(
+            "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
+            field="--prior",
+            expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
+        )
+    if prior is not None and unit is not None and prior.serial_number != unit:
+        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
+    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
+    try:
+        metadata = driver.metadata
+        if unit is not None and metadata.serial_number != unit:
+            raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="--unit", expected=repr(unit))
+        for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
+            if source is not None:
+                _copy(Path(source), rundir / name)
+        _write_plan(rundir, plan)
+        journal = Journal.create(journal_file)
+        with journal:
+            journal.append(
+                "start",
+                {
+                    "version": __version__,
+                    "utc": _utc(),
+                    "plan": plan.to_dict(),
+                    "driver": driver_spec,
+                    "seed": seed,
+                    "unit": metadata.serial_number,
+                    "metadata": metadata.to_dict(),
+                    "deterministic": is_deterministic(driver),
+                    "options": vars(options or RunOptions()),
+                    "definition": DEFINITION_NAME if definition_file is not None else None,
+                    "prior": PRIOR_NAME if prior_file is not None else None,
+                },
+            )
+            console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
+            runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options, journal.records[0])
+            runner.execute()
+            return finish(rundir, runner, metadata, journal.records[0], replayed=0)
+    finally:
+        driver.close()
+
+
+def resume_run(
+    rundir: str | os.PathLike[str],
+    *,
+    console: Console | None = None,
+    driver_spec: str | None = None,
+    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None = None,
+    timeout: float = 10.0,
+) -> RunOutcome:
+    """Continue the run in ``rundir`` where it stopped.
+
+    ``driver_spec`` may replace the journaled one for a network platform that moved
+    (``tcp://`` to ``tcp://``); the simulated platform is rebuilt from the journaled seed.
+    """
+    rundir = Path(rundir)
+    console = console or Console()
+    journal = Journal.open(rundir / JOURNAL_NAME)
+    with journal:
+        if not journal.records or journal.records[0].kind != "start":
+            raise InputError(
+                "the journal holds no start record: nothing to resume", path=journal.path, expected="a run started with 'stableins run'"
+            )
+        start = journal.records[0]
+        plan = Plan.from_dict(start["plan"])
+        spec = start["driver"]
+        if driver_spec is not None and driver_spec != spec:
+            if not (driver_spec.startswith("tcp://") and spec.startswith("tcp://")):
+                raise InputError(
+                    f"this run was made with --driver {spec}",
+                    field="--driver",
+                    expected=f"{spec} (only a tcp:// address may change on resume)",
+                )
+            spec = driver_spec
+        if journal.recovered is not None:
+            torn = journal.recovered
+            console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
+        if driver_factory is not None:
+            driver = driver_factory(start.fields)
+        else:
+            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
+        try:
+            metadata = driver.metadata
+            if metadata.serial_number != start["unit"]:
+                raise InputError(
+                    f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
+                )
+            deterministic = is_deterministic(driver)
+            script, superseded = resume_script(journal.records, deterministic)
+            journal.append(
+                "resume",
+                {"utc": _utc(), "superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec},
+            )
+            how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
+            console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
+            session = Session(journal, script, driver, forward=deterministic)
+            runner = _runner(rundir, plan, session, console, RunOptions(**start.get("options", {})), start)
+            runner.execute()
+            outcome = finish(rundir, runner, metadata, start, replayed=session.replayed)
+            outcome.superseded = superseded
+            return outcome
+        finally:
+            driver.close()
+
+
+def _runner(rundir: Path, plan: Plan, session: Session, console: Console, options: RunOptions | None, start: Any) -> Runner:
+    definition = None
+    if start.get("definition"):
+        from stableins.procedures.definition import load_procedure
+
+        definition = load_procedure(rundir / start["definition"])
+    offsets = (0.0, 0.0, 0.0)
+    if start.get("prior"):
+        prior = _load_record(rundir / start["prior"])
+        values = prior.values()
+        offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
+    return Runner(plan, session, console, options, definition=definition, offsets=offsets)
+
+
+def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
+    """After the last step: write the data set, run the stage's estimation, write the records."""
+    complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
+    data_end = complete.get("utc", "") if complete is not None else ""
+    dataset = export(rundir, runner, metadata)
+    outcome = RunOutcome(rundir, runner, dataset, replayed)
+    fit = _estimate(rundir, runner, metadata, dataset, start)
+    if fit is None:
+        return outcome
+    from stableins.records import CalibrationRecord
+
+    estimate = CalibrationRecord.from_fit_result(
+        fit,
+        site=metadata,
+        inputs=[dataset] if dataset else [],
+        procedure=runner.plan.name,
+        data_start=start.get("utc", ""),
+        data_end=data_end,
+    )
+    outcome.estimate = estimate.save(rundir / ESTIMATE_NAME)
+    record = estimate
+    if start.get("prior") and runner.iteration is None:
+        record = _load_record(rundir / start["prior"]).update(estimate)
+    outcome.record = record.save(rundir / RECORD_NAME)
+    runner.console.say(f"calibration record written: {outcome.record}")
+    runner.console.say(fit.report())
+    outcome.report = _write_report(rundir, runner, outcome, start, fit)
+    return outcome
+
+
+def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any, fit: Any) -> Path | None:
+    """The PDF calibration report (``stableins.reporting``), if that part of stableins is installed."""
+    try:
+        from stableins.reporting import write_report
+    except ImportError:
+        runner.console.say("note: no report writer in this installation; the record is complete without it")
+        return None
+    target = rundir / REPORT_NAME
+    write_report(
+        target,
+        outcome.record,
+        data=[outcome.dataset] if outcome.dataset else [],
+        previous=rundir / start["prior"] if start.get("prior") else None,
+        procedure=rundir / start["definition"] if start.get("definition") else None,
+        fits=[fit],
+    )
+    runner.console.say(f"report written: {target}")
+    return target
+
+
+def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Path | None, start: Any) -> Any:
+    """The stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
+    if runner.iteration is not None:
+        return runner.iteration.fit
+    if runner.static_chunks:
+        return _estimate_system(rundir, runner, dataset, start)
+    definition = runner.definition
+    if definition is None or definition.stage != "fine":
+        return None
+    if not start.get("prior"):
+        raise InputError(
+            "the fine stage starts from a coarse estimate", field="--prior", expected="the unit's coarse record (--prior RECORD or --store)"
+        )
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.fine import calibrate_fine
+
+    columns = accepted_columns(runner.entries)
+    source = str(dataset or rundir / JOURNAL_NAME)
+    dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
+    prior = _load_record(rundir / start["prior"])
+    return calibrate_fine(dwells, prior.values(), gravity=metadata.gravity, expected_positions=definition.positions, source=source)
+
+
+def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
+    """The system-level stage on the static record, starting from the installed calibration (the prior record)."""
+    try:
+        from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    except ImportError:
+        runner.console.say(
+            "note: no system-level estimator in this installation; the record is in system.h5 for 'stableins calibrate system'"
+        )
+        return None
+    from stableins.data.system import open_system_record
+
+    if not start.get("prior"):
+        runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
+        return None
+    prior = _load_record(rundir / start["prior"])
+    record = open_system_record(dataset)
+    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
+    for warning in caught:
+        runner.console.say(f"warning: {warning.message}")
+    return outcome.result
+
+
+def _load_record(path: str | os.PathLike[str]) -> Any:
+    from stableins.records import CalibrationRecord
+
+    return CalibrationRecord.load(path)
+
+
+def _copy(source: Path, target: Path) -> None:
+    from stableins.data.atomic import atomic_write
+
+    try:
+        data = source.read_bytes()
+    except OSError as error:
+        raise InputError(f"cannot read: {error.strerror}", path=source) from None
+    if source.resolve() == target.resolve():
+        return
+    with atomic_write(target, "wb") as handle:
+        handle.write(data)
+
+
+def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
+    """Write the accepted data (atomically): dwells in the device-level format, a static record in the system format."""
+    if runner.static_chunks:
+        from stableins.data.system import SystemRecordWriter
+
+        with SystemRecordWriter(rundir / SYSTEM_NAME, metadata) as writer:
+            for record in runner.static_chunks:
+                writer.append(record.arrays)
+        return rundir / SYSTEM_NAME
+    columns = accepted_columns(runner.entries)
+    if not len(columns["time"]):
+        return None
+    extra = dict(metadata.extra)
+    extra.update(procedure=runner.plan.name, inputs=dict(runner.inputs))
+    metadata = SiteMetadata(**{**metadata.__dict__, "extra": extra})
+    try:
+        from stableins.data.device import save_device
+    except ImportError:  # the data-format writers are not installed: the samples stay in the journal only
+        runner.console.say("note: no device-level data writer in this installation; the accepted samples are in journal.bin")
+        return None
+    return save_device(rundir / DATASET_NAME, columns, metadata)
+
+
+def _write_plan(rundir: Path, plan: Plan) -> None:
+    from stableins.data.atomic import atomic_write
+
+    with atomic_write(rundir / PLAN_NAME) as handle:
+        json.dump(plan.to_dict(), handle, indent=2)

@@ -1,0 +1,227 @@
+"""History store (index, record in force, staleness), change significance, drift trends, recalibration with a prior."""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from stableins.data.errors import InputError
+from stableins.history import HistoryStore, compare, format_changes, format_trends, parse_date, plot_trends, trend
+from stableins.recalibration import fuse_with_prior
+
+records = pytest.importorskip("stableins.records")
+
+IDS = ("bias_x", "bias_y", "sf_x")
+UNITS = ("m/s^2", "m/s^2", "1")
+SIGMA = np.array([2e-5, 3e-5, 5e-6])
+
+
+def make_record(values, covariance, created, serial="INS-7", stages=("fine",), status=None, procedure="device-fine"):
+    status = status or ["estimated"] * len(values)
+    sigma = np.sqrt(np.diag(covariance))
+    parameters = tuple(
+        records.Parameter(i, float(v), u, float(s) if st != "unidentifiable" else math.nan, st)
+        for i, v, u, s, st in zip(IDS, values, UNITS, sigma, status)
+    )
+    cov = np.array(covariance, dtype=float)
+    for k, st in enumerate(status):
+        if st == "unidentifiable":
+            cov[k, :] = np.nan
+            cov[:, k] = np.nan
+    provenance = records.Provenance("stableins test", procedure, tuple(stages), (), created, created, created)
+    return records.CalibrationRecord(serial, parameters, cov, provenance)
+
+
+TRUTH = np.array([1e-4, -2e-4, 1.0 + 50e-6])
+
+
+def test_store_index_in_force_and_staleness(tmp_path):
+    store = HistoryStore(tmp_path / "store")
+    rng = np.random.default_rng(3)
+    dates = ["2025-01-10T00:00:00+00:00", "2025-06-01T00:00:00+00:00", "2026-02-01T00:00:00+00:00"]
+    paths = []
+    for k, date in enumerate(dates):
+        path = tmp_path / f"r{k}.json"
+        make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), date).save(path)
+        paths.append(path)
+    for path in (paths[2], paths[0], paths[1]):  # added out of order
+        store.add(path)
+    assert store.add(paths[1]).file == store.entries("INS-7")[1].file  # the same bytes are added once
+    entries = store.entries("INS-7")
+    assert [e.valid_from for e in entries] == dates
+    assert store.serials() == ["INS-7"]
+    assert store.in_force("INS-7", parse_date("2025-03-01")).valid_from == dates[0]
+    assert store.in_force("INS-7", parse_date("2025-06-01T00:00:00Z")).valid_from == dates[1]
+    assert store.in_force("INS-7", parse_date("2030-01-01")).valid_from == dates[2]
+    with pytest.raises(InputError, match="no calibration in force on 2024"):
+        store.in_force("INS-7", parse_date("2024-12-31"))
+    with pytest.raises(InputError, match="no calibration records for unit 'OTHER'"):
+        store.in_force("OTHER")
+    entry = store.in_force("INS-7", parse_date("2026-03-01"))
+    assert store.staleness(entry, parse_date("2026-03-01")) is None
+    warning = store.staleness(entry, parse_date("2026-12-01"), max_age=timedelta(days=180))
+    assert warning and "303 days old" in warning
+    # the stored record is the record, byte for byte
+    assert (store.root / "INS-7" / entry.file).read_bytes() == paths[2].read_bytes()
+
+
+def test_bad_inputs(tmp_path):
+    store = HistoryStore(tmp_path)
+    with pytest.raises(InputError, match="cannot name a history folder"):
+        store.entries("../etc")
+    with pytest.raises(InputError, match="as a date"):
+        parse_date("yesterday")
+    (tmp_path / "X").mkdir()
+    (tmp_path / "X" / "index.json").write_text("{not json")
+    with pytest.raises(InputError, match="history index unreadable"):
+        store.entries("X")
+
+
+def test_trend_significance_is_standard_normal_without_drift():
+    rng = np.random.default_rng(11)
+    times = [datetime(2024, 1, 1, tzinfo=UTC) + timedelta(days=d) for d in (0, 40, 150, 200, 380, 500, 620)]
+    sigmas = np.array([1.0, 2.0, 1.0, 1.5, 1.0, 3.0, 1.0]) * 1e-5
+    z = []
+    for _ in range(2000):
+        values = 1e-4 + rng.normal(0, sigmas)
+        z.append(trend(list(zip(times, values, sigmas))).significance)
+    z = np.array(z)
+    # mean 0 ± 3/sqrt(2000), std 1 ± 3 * 1/sqrt(2 * 2000)
+    assert abs(z.mean()) < 3 / math.sqrt(2000)
+    assert abs(z.std() - 1) < 3 / math.sqrt(4000)
+
+
+def test_trend_recovers_an_injected_drift():
+    rng = np.random.default_rng(12)
+    times = [datetime(2024, 1, 1, tzinfo=UTC) + timedelta(days=91 * k) for k in range(9)]
+    slope = 4e-5  # per year
+    sigma = np.full(9, 1e-5)
+    years = np.array([(t - times[0]).days / 365.25 for t in times])
+    values = 1e-4 + slope * years + rng.normal(0, sigma)
+    result = trend(list(zip(times, values, sigma)), "bias_x", "m/s^2")
+    assert abs(result.slope - slope) < 3 * result.slope_sigma
+    assert result.significance > 5
+    assert result.chi2_red_constant > 3  # a constant does not fit
+    assert "drifting" in format_trends([result])
+
+
+def test_fusion_change_significance_matches_the_independent_form_and_is_calibrated():
+    rng = np.random.default_rng(5)
+    p0 = np.diag(SIGMA**2)
+    pd = np.diag((0.7 * SIGMA) ** 2)
+    z_fused, z_direct = [], []
+    for k in range(400):
+        x0 = TRUTH + rng.normal(0, SIGMA)
+        xd = TRUTH + rng.normal(0, 0.7 * SIGMA)
+        old = make_record(x0, p0, "2025-01-01T00:00:00+00:00")
+        new_data = make_record(xd, pd, "2025-09-01T00:00:00+00:00", stages=("system",))
+        fused = fuse_with_prior(old, new_data)
+        changes = compare(old, fused, prior_used=True)
+        direct = compare(old, new_data, prior_used=False)
+        z_fused.append([c.significance for c in changes])
+        z_direct.append([c.significance for c in direct])
+        if k == 0:
+            # scalar identity: (x1 - x0)/sqrt(P0 - P1) == (xd - x0)/sqrt(P0 + Pd)
+            np.testing.assert_allclose(z_fused[0], z_direct[0], rtol=1e-9)
+            expected = (x0 / SIGMA**2 + xd / (0.7 * SIGMA) ** 2) / (1 / SIGMA**2 + 1 / (0.7 * SIGMA) ** 2)
+            np.testing.assert_allclose([fused[i].value for i in IDS], expected, rtol=1e-12)
+            assert "recal" in fused.provenance.stages
+            assert format_changes(changes).count("\n") == 3
+    z = np.array(z_fused)
+    assert np.all(np.abs(z.mean(axis=0)) < 3 / math.sqrt(400))
+    assert np.all(np.abs(z.std(axis=0) - 1) < 3 / math.sqrt(800))
+
+
+def test_fusion_carries_prior_correlations_and_keeps_what_the_data_do_not_see():
+    # the new data see only bias_x; bias_y is correlated with it in the prior and must move too
+    p0 = np.array([[4e-10, 3e-10, 0], [3e-10, 9e-10, 0], [0, 0, 25e-12]])
+    old = make_record(TRUTH, p0, "2025-01-01T00:00:00+00:00")
+    pd = np.diag([1e-10, 1.0, 1.0])
+    new_data = make_record(TRUTH + [2e-5, 0, 0], pd, "2025-09-01T00:00:00+00:00", status=["estimated", "unidentifiable", "unidentifiable"])
+    fused = fuse_with_prior(old, new_data)
+    gain = p0[0, 0] / (p0[0, 0] + 1e-10)
+    assert fused["bias_x"].value == pytest.approx(TRUTH[0] + gain * 2e-5, rel=1e-9)
+    assert fused["bias_y"].value == pytest.approx(TRUTH[1] + p0[1, 0] / (p0[0, 0] + 1e-10) * 2e-5, rel=1e-9)
+    assert fused["sf_x"].value == pytest.approx(TRUTH[2], rel=1e-13) and fused["sf_x"].sigma == pytest.approx(5e-6)
+    assert fused["bias_x"].sigma == pytest.approx(math.sqrt(p0[0, 0] * (1 - gain)), rel=1e-9)
+
+
+def test_fusion_refuses_another_unit():
+    old = make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00")
+    other = make_record(TRUTH, np.diag(SIGMA**2), "2025-02-01T00:00:00+00:00", serial="INS-8")
+    with pytest.raises(InputError, match="unit 'INS-7'"):
+        fuse_with_prior(old, other)
+
+
+def test_history_changes_trends_and_plot(tmp_path):
+    store = HistoryStore(tmp_path / "store")
+    rng = np.random.default_rng(8)
+    for k in range(5):
+        date = (datetime(2024, 1, 1, tzinfo=UTC) + timedelta(days=120 * k)).isoformat()
+        drifted = TRUTH + np.array([3e-5 * k, 0, 0])  # bias_x drifts 3e-5 per 120 days
+        path = tmp_path / f"r{k}.json"
+        make_record(drifted + rng.normal(0, SIGMA), np.diag(SIGMA**2), date).save(path)
+        store.add(path)
+    pairs = store.changes("INS-7")
+    assert len(pairs) == 4 and all(len(c) == 3 for _, _, c in pairs)
+    trends = {t.id: t for t in store.trends("INS-7")}
+    assert trends["bias_x"].significance > 5
+    assert abs(trends["bias_y"].significance) < 3
+    fig = plot_trends(list(trends.values()), "INS-7")
+    out = tmp_path / "history.png"
+    fig.savefig(out)
+    assert out.stat().st_size > 1000
+    assert len([ax for ax in fig.axes if ax.get_visible()]) == 3
+
+
+def _cli(*argv):
+    import os
+    import subprocess
+    import sys
+
+    from tests.tcp_fixtures import ROOT
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+
+
+def test_cli_history_and_recal_with_an_estimate(tmp_path):
+    import json
+
+    rng = np.random.default_rng(21)
+    store = tmp_path / "store"
+    first = tmp_path / "first.json"
+    make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00").save(first)
+    result = _cli("history", "INS-7", "--store", str(store), "--add", str(first), "--at", "2026-01-01", "--max-age", "180")
+    assert result.returncode == 0, result.stderr
+    assert "WARNING: the record in force is 365 days old" in result.stdout
+    # a field recalibration whose data show a real 10σ change of bias_x
+    shifted = TRUTH + np.array([10 * SIGMA[0], 0, 0])
+    estimate = tmp_path / "estimate.json"
+    make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00", stages=("fine",)).save(
+        estimate
+    )
+    result = _cli(
+        "recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(estimate), "--out", str(tmp_path / "recal"), "--json"
+    )
+    assert result.returncode == 0, result.stderr
+    document = json.loads(result.stdout)
+    assert document["significant"] == ["bias_x"]
+    z = {c["id"]: c["significance"] for c in document["changes"]}
+    assert z["bias_x"] > 5 and abs(z["bias_y"]) < 3
+    # the store now holds both; the second is marked as built on the first
+    entries = HistoryStore(store).entries("INS-7")
+    assert len(entries) == 2 and entries[1].prior == entries[0].sha256 and entries[1].evidence
+    result = _cli("history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"))
+    assert result.returncode == 0, result.stderr
+    assert "prior-based recalibration" in result.stdout and (tmp_path / "drift.png").stat().st_size > 1000
+    # bad input: another unit's record, an unknown unit
+    other = tmp_path / "other.json"
+    make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00", serial="INS-8").save(other)
+    result = _cli("history", "INS-7", "--store", str(store), "--add", str(other))
+    assert result.returncode == 2 and "INS-8" in result.stderr and "Traceback" not in result.stderr
+    result = _cli("recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(estimate))
+    assert result.returncode == 2 and "no calibration records for unit 'NOPE'" in result.stderr
