@@ -1,0 +1,180 @@
+"""``stableins diagnose DATA --record CAL.json [--add ID ...]``: what is the error model missing?
+
+::
+
+    stableins diagnose session.h5 --record record.json
+    stableins diagnose session.h5 --record record.json --add nonorth_12 --add Kcc_xxy --json
+    stableins diagnose session.h5 --record record.json --plots figures/
+
+Fits the standard model (with the zero offsets and any discovery terms already in the
+record) to the device-level dwell means (fine stage when present, else coarse) or to the
+bins of one system-level record (``--bin`` seconds; adds the residual spectra at the
+Earth-rate harmonics), starting from the record, adds the effects given with ``--add`` one step at a time, then prints the
+residual diagnostics, the ranking of every candidate effect not in the model and the
+history of steps (docs/discovery.md).
+
+``--json`` prints one document: ``chi2_red``, ``dof``, ``expected_spread``, ``stage``,
+``model``, ``residual_rms`` / ``noise_floor`` [m/s², per axis], ``candidates`` (best first:
+``id``, ``statistic``, ``p_value``, ``delta_bic``, ``predicted``, ``identifiable``,
+``aliases`` ...), ``history``, and ``drift``: the platform-drift candidates ``Dg_*`` ranked on
+the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
+    parser.add_argument("--bin", type=float, default=60.0, metavar="S", help="system records: bin length [s] (default 60)")
+    parser.add_argument("--record", type=Path, required=True, metavar="CAL.json", help="calibration record to start from")
+    parser.add_argument("--add", action="append", default=[], metavar="ID", help="add this effect and refit (repeatable, in order)")
+    parser.add_argument("--stage", choices=("coarse", "fine"), help="which dwells to use (default: fine if present, else coarse)")
+    parser.add_argument("--alpha", type=float, default=0.05, help="family-wise false-alarm level for flagging candidates (default 0.05)")
+    parser.add_argument("--top", type=int, default=10, help="candidates to show in the text report (default 10)")
+    parser.add_argument("--plots", type=Path, metavar="DIR", help="write residual and history plots (PNG) into DIR")
+    parser.add_argument(
+        "--bias-instability",
+        type=float,
+        metavar="UG",
+        help="bias instability B [ug]: slow bias wander correlated between dwells (default: estimated from the dwells if detectable)",
+    )
+    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+
+
+def run(args: argparse.Namespace) -> int:
+    from stableins.data.device import load_device
+    from stableins.data.errors import InputError
+    from stableins.discovery.history import Discovery
+    from stableins.discovery.library import LIBRARY
+    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+    from stableins.errormodel import ErrorModel
+    from stableins.output import emit, note
+    from stableins.records import CalibrationRecord
+
+    if not 0.0 < args.alpha < 1.0:
+        raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
+    for effect in args.add:
+        if effect not in LIBRARY:
+            raise InputError(f"unknown effect {effect!r}", field="--add", expected=f"one of {', '.join(LIBRARY.ids)}")
+    if len(set(args.add)) != len(args.add):
+        raise InputError("an effect is given twice", field="--add")
+    record = CalibrationRecord.load(args.record)
+    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+
+    system = [str(p) for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
+    if system and len(args.data) > 1:
+        raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
+    if not args.bin > 0:
+        raise InputError("must be a positive number of seconds", field="--bin")
+    if system:
+        from stableins.data.system import open_system_record
+
+        opened = open_system_record(system[0])
+        serial = opened.metadata.serial_number
+    else:
+        datasets = [load_device(path) for path in args.data]
+        serial = datasets[0].metadata.serial_number
+    if record.serial_number != serial:
+        note(f"warning: record {args.record} is for unit {record.serial_number}, data for {serial}")
+    model = ErrorModel.standard(nonlinear=True, gimbals=True)
+    model = model + [LIBRARY[i].term for i in record.ids if i in LIBRARY and i not in model]
+    for effect in args.add:
+        if effect in model:
+            raise InputError(f"effect {effect!r} is already in the model of {args.record}", field="--add")
+    slow_noise = None
+    if args.bias_instability is not None or args.random_walk:
+        from stableins.estimators.noise_model import SlowNoise
+
+        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
+            if not 0.0 <= value < float("inf"):
+                raise InputError("must be a finite non-negative number", field=name)
+        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    if system:
+        from stableins.conventions import GimbalConfiguration
+        from stableins.discovery.problem import bins_from_chunks
+
+        site = opened.metadata
+        dwells = bins_from_chunks(
+            opened.iter_chunks(),
+            gravity=site.gravity,
+            bin_seconds=args.bin,
+            reference_temperature=site.reference_temperature,
+            base_attitude=tuple(site.base_attitude),
+            configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+            slow_noise=slow_noise,
+        )
+        dwells.noise["stage"] = "system"
+        if slow_noise is None:
+            note("noise: white only; over hours the bias wander of an instrument looks like drift (give --bias-instability/--random-walk)")
+    else:
+        dwells = dwells_from_dataset(datasets, stage=args.stage, slow_noise=slow_noise)
+        note(f"noise: {dwells.noise['slow_noise']}")
+    for line in dwells.noise.get("left_out", []):
+        note(f"left out: {line}")
+    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} {'bins' if system else 'dwells'}")
+    session = Discovery(problem, model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})
+    for effect in args.add:
+        session.add(effect)
+    diagnosis = session.diagnose()
+    ranking = session.rank(propose=not system)
+    drift = None if system else session.drift()
+    spectra = {}
+    if system:
+        from stableins.discovery.diagnostics import residual_spectra
+
+        spectra = residual_spectra(dwells.time, diagnosis)
+    if args.plots is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        args.plots.mkdir(parents=True, exist_ok=True)
+        diagnosis.plot_positions().savefig(args.plots / "residuals.png", dpi=110)
+        if diagnosis.orientation is not None:
+            diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+        for name, spectrum in spectra.items():
+            spectrum.plot(unit="µg", scale=9.80665e-6).savefig(args.plots / f"spectrum_{name}.png", dpi=110)
+        session.history.plot().savefig(args.plots / "history.png", dpi=110)
+        note(f"plots written to {args.plots}")
+    parts = [diagnosis.report(), ranking.report(top=args.top)]
+    if drift is not None:
+        parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
+    for name, spectrum in spectra.items():
+        parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
+    text = "\n\n".join(parts + [session.history.report()])
+    result = {
+        "stage": dwells.noise.get("stage"),
+        "chi2_red": session.result.chi2_red,
+        "dof": session.result.dof,
+        "expected_spread": diagnosis.spread,
+        "p_value": diagnosis.p_value,
+        "model": list(session.result.ids),
+        "residual_rms": diagnosis.rms,
+        "noise_floor": diagnosis.noise_floor,
+        "candidates": ranking.to_json(),
+        "history": session.history.to_json(),
+        "left_out": dwells.noise.get("left_out", []),
+        "drift": None
+        if drift is None
+        else {
+            "chi2_red": drift.result.chi2_red,
+            "dof": drift.result.dof,
+            "candidates": drift.to_json(),
+            "left_out": list(getattr(session, "drift_notes", ())),
+        },
+        "spectra": {
+            name: {
+                "harmonics": sp.harmonics,
+                "amplitude": sp.amplitude,
+                "sigma": sp.sigma,
+                "chi2": sp.chi2,
+                "p_value": sp.p_value,
+                "unit": "m/s^2",
+            }
+            for name, sp in spectra.items()
+        },
+    }
+    emit(args, result, text)
+    return 0

@@ -1,0 +1,838 @@
+r"""Least-squares problems that model discovery works on.
+
+Discovery needs four things from a fitted stage: the weighted residuals, their 1σ from
+noise measured in the data, the design (∂prediction/∂parameter at the estimate) and the
+column of any candidate term.  :class:`Problem` is that interface; two implementations:
+
+* :class:`DwellProblem` — device level.  Observations are dwell means of the three
+  accelerometer outputs per position; the prediction is the exact forward model
+  ``f^a = forward(f^p(readings, θ_0, base), p)`` (Wu et al. 2018 Eq. 6 with the exact gimbal
+  kinematics of :mod:`stableins.discovery.kinematics`).  The fit is Gauss–Newton; the
+  zero offset ``θ10`` (and anything else in the null space of the design) is held at its
+  prior value as an explicit gauge, marked ``"gauge"``.
+* :class:`LinearProblem` — any linear(ized) problem given as observations, 1σ, model
+  columns and candidate columns (system-level harmonics, user problems).
+
+Both return a frozen :class:`~stableins.estimators.result.FitResult`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
+from stableins.estimators.result import FitResult
+
+
+class Problem(Protocol):
+    """What discovery needs from a fitted stage."""
+
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult: ...
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        """``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
+        ...
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        """``∂prediction/∂p`` of terms not in the model (at value 0), shape (m, len(terms))."""
+        ...
+
+
+# ----------------------------------------------------------------------------- device dwells
+@dataclass(frozen=True)
+class DwellSet:
+    """Dwell means of a device-level procedure (one row per position).
+
+    Attributes
+    ----------
+    readings : ndarray (P, 3)
+        Mean angle-sensor readings (platform, inner, middle) during the dwell [rad].
+    output : ndarray (P, 3)
+        Dwell-mean accelerometer outputs ``f^a`` [m/s²].
+    sigma : ndarray (P, 3)
+        1σ of each dwell mean, from noise measured in the data [m/s²].
+    gravity : float
+        Local gravity [m/s²].
+    time : ndarray (P,)
+        Mid-dwell session time [s].
+    time_since_command : ndarray (P,)
+        Mean time since the position was commanded [s].
+    temperature : ndarray (P,)
+        Mean temperature minus the reference temperature [K].
+    slew_direction : ndarray (P, 3)
+        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged) from
+        the nominal geometry; :class:`DwellProblem` recomputes it from the fitted ``f^p``.
+    labels : tuple of str
+        Name of each position.
+    base_attitude : tuple
+        Nominal (yaw, pitch, roll) of the base [rad].
+    configuration : GimbalConfiguration
+        Gimbal rotation senses.
+    noise : dict
+        How ``sigma`` was measured (method, per-axis floors ...).
+    initial_readings : tuple or None
+        Angle-sensor readings before the first command (for the slew into the first
+        position); None: unknown, no slew direction for the first position.
+    slow_covariance : ndarray (P, P), optional
+        Covariance of the dwell means caused by slow noise (bias instability, random walk),
+        the same on every axis and correlated between dwells
+        (:func:`stableins.estimators.noise_model.dwell_mean_covariance`).  The fit is then
+        generalized least squares with ``R_a = diag(σ_a²) + C_slow`` per axis.
+    reading_slope, reading_slope_sigma : ndarray (P, 3), optional
+        Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
+        (:mod:`stableins.discovery.drift`).
+    """
+
+    readings: NDArray[np.float64]
+    output: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    gravity: float
+    time: NDArray[np.float64]
+    time_since_command: NDArray[np.float64]
+    temperature: NDArray[np.float64]
+    slew_direction: NDArray[np.float64]
+    labels: tuple[str, ...]
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS
+    noise: dict = field(default_factory=dict)
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
+    slow_covariance: NDArray[np.float64] | None = None
+    reading_slope: NDArray[np.float64] | None = None
+    reading_slope_sigma: NDArray[np.float64] | None = None
+
+    def __post_init__(self) -> None:
+        p = self.readings.shape[0]
+        for name in ("readings", "output", "sigma", "slew_direction"):
+            if getattr(self, name).shape != (p, 3):
+                raise ValueError(f"DwellSet.{name} must have shape ({p}, 3), got {getattr(self, name).shape}")
+        for name in ("time", "time_since_command", "temperature"):
+            if getattr(self, name).shape != (p,):
+                raise ValueError(f"DwellSet.{name} must have shape ({p},), got {getattr(self, name).shape}")
+        if len(self.labels) != p:
+            raise ValueError("DwellSet.labels must name every position")
+        if not np.all(np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
+            raise ValueError("DwellSet.sigma must be finite and positive")
+
+    @property
+    def n_positions(self) -> int:
+        return self.readings.shape[0]
+
+    def subset(self, index: ArrayLike) -> DwellSet:
+        """The dwells at ``index`` (positions to leave out, cross-validation)."""
+        i = np.asarray(index)
+        return DwellSet(
+            self.readings[i],
+            self.output[i],
+            self.sigma[i],
+            self.gravity,
+            self.time[i],
+            self.time_since_command[i],
+            self.temperature[i],
+            self.slew_direction[i],
+            tuple(np.asarray(self.labels, dtype=object)[i]),
+            self.base_attitude,
+            self.configuration,
+            dict(self.noise),
+            None,
+            None if self.slow_covariance is None else self.slow_covariance[np.ix_(i, i)],
+            None if self.reading_slope is None else self.reading_slope[i],
+            None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
+        )
+
+
+def dwells_from_dataset(
+    datasets: Sequence,
+    stage: str | None = None,
+    procedures: Mapping | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    slow_noise=None,
+) -> DwellSet:
+    """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
+
+    The mean, its 1σ and the acceptance checks come from the device stage's dwell
+    statistics (:func:`stableins.estimators.device.summarize_dwells`: settling dropped,
+    correlated noise detected per dwell); flagged dwells are left out (listed in
+    ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
+    else ``"coarse"`` (all passes, in time order).  ``slow_noise``
+    (:class:`stableins.estimators.noise_model.SlowNoise`) adds the covariance of slow bias
+    wander between dwells; None estimates it from the dwells' pooled Allan excess as the
+    device stage does (zero when not detectable).
+    """
+    from stableins.data.errors import InputError
+    from stableins.estimators.device import summarize_dwells
+    from stableins.procedures.definition import load_procedure
+
+    if not datasets:
+        raise InputError("no data files given", field="DATA")
+    site = datasets[0].metadata
+    procedures = dict(procedures) if procedures else {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    raw = [d for ds in datasets for d in ds.dwells()]
+    if stage is None:
+        stage = "fine" if any(d.stage == "fine" for d in raw) else "coarse"
+    raw = sorted((d for d in raw if d.stage == stage), key=lambda d: float(d.time[0]) if len(d.time) else 0.0)
+    if not raw:
+        raise InputError(f"no {stage}-stage dwells in the data", field="stage", expected="rows with stage 'coarse' or 'fine'")
+    summaries = summarize_dwells(raw, procedures, source=", ".join(str(ds.path) for ds in datasets))
+    keep = [k for k, sm in enumerate(summaries) if sm.usable]
+    left_out = [
+        f"{stage} pass {summaries[k].pass_number} position {summaries[k].position}: {'; '.join(summaries[k].flags)}"
+        for k in range(len(raw))
+        if k not in keep
+    ]
+    if len(keep) < 6:
+        raise InputError(f"only {len(keep)} usable {stage} dwells", field="position", expected="at least 6 usable dwells")
+    mid, tau, temp = [], [], []
+    for k in keep:
+        d = raw[k]
+        procedure = procedures.get(stage)
+        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+        use = np.asarray(d.time_since_command) >= settle
+        mid.append(float(np.mean(np.asarray(d.time)[use])))
+        tau.append(float(np.mean(np.asarray(d.time_since_command)[use])))
+        temp.append(float(np.mean(np.asarray(d.temperature)[use])) - site.reference_temperature)
+    sm = [summaries[k] for k in keep]
+    from stableins.estimators.device import estimate_slow_noise
+    from stableins.estimators.noise_model import dwell_mean_covariance
+
+    if slow_noise is None:
+        slow_noise = estimate_slow_noise(sm)
+    from stableins.discovery.drift import reading_slope
+
+    starts, slopes, slope_sigma = [], [], []
+    for k in keep:
+        d = raw[k]
+        procedure = procedures.get(stage)
+        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+        use = np.asarray(d.time_since_command) >= settle
+        starts.append(float(np.asarray(d.time)[use][0]))
+        a, b = reading_slope(np.asarray(d.time)[use], np.asarray(d.angles)[use])
+        slopes.append(a)
+        slope_sigma.append(b)
+    slow_cov = None if slow_noise.is_zero else dwell_mean_covariance(np.array(starts), np.array([x.duration for x in sm]), slow_noise)
+    readings = np.array([x.angles for x in sm])
+    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
+    start = None if initial_readings is None else _initial(initial_readings, site.gravity, site.base_attitude, configuration)
+    from stableins.discovery.kinematics import platform_specific_force
+
+    nominal = platform_specific_force(readings, site.gravity, base_attitude=site.base_attitude, configuration=configuration)
+    return DwellSet(
+        readings=readings,
+        output=np.array([x.mean for x in sm]),
+        sigma=np.array([x.sem for x in sm]),
+        gravity=float(site.gravity),
+        time=np.array(mid),
+        time_since_command=np.array(tau),
+        temperature=np.array(temp),
+        slew_direction=slew_directions(nominal, start),
+        labels=tuple(f"{stage[0]}{x.pass_number}/{x.position}" for x in sm),
+        base_attitude=tuple(site.base_attitude),
+        configuration=configuration,
+        noise={
+            "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
+            "left_out": left_out,
+            "stage": stage,
+            "slow_noise": slow_noise.describe(),
+        },
+        initial_readings=initial_readings,
+        slow_covariance=slow_cov,
+        reading_slope=np.array(slopes),
+        reading_slope_sigma=np.array(slope_sigma),
+    )
+
+
+def slew_directions(specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = 1e-2) -> NDArray[np.float64]:
+    """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
+
+    A slew that changes an axis' input by less than ``tolerance`` [m/s²] leaves its state
+    as it was (the input did not travel; nothing reverses the hysteresis loop).  This
+    makes the state independent of arcsecond-level geometry such as the unobservable
+    zero offset ``θ10``.  ``initial`` is ``f^p`` before the first command (default: state 0).
+    """
+    f = np.asarray(specific_force_platform, dtype=float)
+    before = f[:1] if initial is None else np.asarray(initial, dtype=float).reshape(1, 3)
+    d = np.diff(f, axis=0, prepend=before)
+    state = np.zeros_like(f)
+    current = np.zeros(f.shape[1:])
+    for k in range(f.shape[0]):
+        moved = np.abs(d[k]) > tolerance
+        current = np.where(moved, np.sign(d[k]), current)
+        state[k] = current
+    return state
+
+
+def dwell_means(
+    time: ArrayLike,
+    output: ArrayLike,
+    readings: ArrayLike,
+    temperature: ArrayLike,
+    position: ArrayLike,
+    time_since_command: ArrayLike,
+    *,
+    gravity: float,
+    reference_temperature: float = 25.0,
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    batches: int = 8,
+    labels: Sequence[str] | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    slow_noise=None,
+) -> DwellSet:
+    r"""Reduce samples to dwell means with a measured noise floor.
+
+    The 1σ of a dwell mean comes from the data: each dwell and axis is detrended (a
+    linear fit: a drift is signal, not noise), cut into ``batches`` contiguous batches, and
+    the batch means' scatter is pooled over all dwells of the axis,
+
+    .. math:: \hat\sigma^2_{eff} = \frac{\sum_d \sum_k n_{d}\,\bar e_{dk}^2}{\sum_d (K-2)},\qquad
+              \sigma(\bar f_d) = \hat\sigma_{eff}/\sqrt{N_d}
+
+    (batch means, e.g. Flegal & Jones 2010), which follows correlated noise up to the batch
+    length.  The white-noise floor from first differences, ``σ_w² = Σ(Δf)²/(2 n)``, has far
+    more degrees of freedom; it is used unless the batch estimate exceeds it beyond the
+    99.9 % quantile of ``χ²_dof/dof`` (correlated noise), in which case the batch estimate is
+    used.  Both, the ratio and the choice are kept in ``noise``.  Platform pointing errors are
+    not in the within-dwell scatter; they enter the fit through the measured angle readings,
+    whose averaging error is negligible.  Slow bias wander (``slow_noise``, a
+    :class:`stableins.estimators.noise_model.SlowNoise` from a datasheet or a long static
+    record) is not in it either; when given, its covariance between dwells is added.
+    """
+    t = np.asarray(time, dtype=float)
+    f = np.asarray(output, dtype=float)
+    r = np.asarray(readings, dtype=float)
+    temp = np.asarray(temperature, dtype=float)
+    pos = np.asarray(position)
+    since = np.asarray(time_since_command, dtype=float)
+    order = list(dict.fromkeys(pos.tolist()))
+    n_pos = len(order)
+    means = np.zeros((n_pos, 3))
+    angle_means = np.zeros((n_pos, 3))
+    counts = np.zeros(n_pos)
+    numerator = np.zeros(3)
+    dof = 0.0
+    white = np.zeros(3)
+    white_n = 0
+    mid, tau, dtemp = np.zeros(n_pos), np.zeros(n_pos), np.zeros(n_pos)
+    starts, lengths = np.zeros(n_pos), np.zeros(n_pos)
+    slopes, slope_sigma = np.zeros((n_pos, 3)), np.zeros((n_pos, 3))
+    from stableins.discovery.drift import reading_slope
+
+    for k, p in enumerate(order):
+        sel = pos == p
+        n = int(sel.sum())
+        if n < 4 * batches:
+            raise ValueError(f"position {p}: {n} samples, need at least {4 * batches} to measure the noise floor")
+        ts, fs = t[sel], f[sel]
+        means[k] = fs.mean(axis=0)
+        angle_means[k] = r[sel].mean(axis=0)
+        mid[k], tau[k], dtemp[k] = ts.mean(), since[sel].mean(), temp[sel].mean() - reference_temperature
+        counts[k] = n
+        starts[k], lengths[k] = ts[0], ts[-1] - ts[0]
+        slopes[k], slope_sigma[k] = reading_slope(ts, r[sel])
+        x = ts - ts.mean()
+        slope = (x @ (fs - fs.mean(axis=0))) / (x @ x)
+        e = fs - fs.mean(axis=0) - np.outer(x, slope)
+        nb = n // batches
+        b = e[: nb * batches].reshape(batches, nb, 3).mean(axis=1)
+        numerator += nb * (b**2).sum(axis=0)
+        dof += batches - 2
+        d = np.diff(fs, axis=0)
+        white += (d**2).sum(axis=0) / 2.0
+        white_n += d.shape[0]
+    from scipy.stats import chi2
+
+    sigma_batch = np.sqrt(numerator / dof)
+    sigma_white = np.sqrt(white / white_n)
+    correlated = (sigma_batch / sigma_white) ** 2 > chi2.ppf(0.999, dof) / dof
+    sigma_eff = np.where(correlated, sigma_batch, sigma_white)
+    sigma = sigma_eff[None, :] / np.sqrt(counts)[:, None]
+    from stableins.discovery.kinematics import platform_specific_force
+
+    nominal = platform_specific_force(angle_means, gravity, base_attitude=base_attitude, configuration=configuration)
+    return DwellSet(
+        readings=angle_means,
+        output=means,
+        sigma=sigma,
+        gravity=float(gravity),
+        time=mid,
+        time_since_command=tau,
+        temperature=dtemp,
+        slew_direction=slew_directions(
+            nominal, None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
+        ),
+        labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        noise={
+            "method": "per axis: white noise from first differences unless batch means "
+            f"({batches} per dwell, detrended, pooled over {n_pos} dwells) show correlated noise"
+            + ("" if slow_noise is None or slow_noise.is_zero else "; plus slow noise correlated between dwells"),
+            "sigma_per_sample": sigma_eff,
+            "sigma_white": sigma_white,
+            "sigma_batch": sigma_batch,
+            "correlated": correlated,
+            "dof": dof,
+            "colour_ratio": sigma_batch / sigma_white,
+            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
+        },
+        initial_readings=initial_readings,
+        slow_covariance=_slow_covariance(starts, lengths, slow_noise),
+        reading_slope=slopes,
+        reading_slope_sigma=slope_sigma,
+    )
+
+
+def _slow_covariance(starts: NDArray, lengths: NDArray, slow_noise) -> NDArray[np.float64] | None:
+    if slow_noise is None or slow_noise.is_zero:
+        return None
+    from stableins.estimators.noise_model import dwell_mean_covariance
+
+    return dwell_mean_covariance(starts, lengths, slow_noise)
+
+
+def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
+    from stableins.discovery.kinematics import platform_specific_force
+
+    return platform_specific_force(np.asarray(readings, dtype=float), gravity, offsets, base_attitude, configuration=configuration)
+
+
+class DwellProblem:
+    """Device-level dwell means under the exact forward model (see module docstring).
+
+    Parameters
+    ----------
+    dwells : DwellSet
+        The observations.
+    fixed : mapping, optional
+        Parameters held at a given value (status ``"fixed"``), e.g. from a record.
+    """
+
+    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: str = "device dwells") -> None:
+        self.dwells = dwells
+        self.fixed = dict(fixed or {})
+        self.stage = stage
+        self._inverse_factor = None
+        if dwells.slow_covariance is not None:
+            c = np.asarray(dwells.slow_covariance, dtype=float)
+            self._inverse_factor = np.stack([np.linalg.inv(np.linalg.cholesky(c + np.diag(dwells.sigma[:, a] ** 2))) for a in range(3)])
+
+    @property
+    def total_sigma(self) -> NDArray[np.float64]:
+        """1σ of each observation (white and slow noise), flattened position-major."""
+        d = self.dwells
+        variance = d.sigma**2 + (0.0 if d.slow_covariance is None else np.diag(d.slow_covariance)[:, None])
+        return np.sqrt(variance).reshape(-1)
+
+    def whiten(self, v: ArrayLike) -> NDArray[np.float64]:
+        """``R^{-1/2} v`` for observation-ordered vectors (m,) or matrices (m, k): ``L_a^{-1}`` per axis."""
+        v = np.asarray(v, dtype=float)
+        if self._inverse_factor is None:
+            s = self.dwells.sigma.reshape(-1)
+            return v / (s if v.ndim == 1 else s[:, None])
+        shaped = v.reshape((self.dwells.n_positions, 3) + v.shape[1:])
+        out = np.stack([self._inverse_factor[a] @ shaped[:, a] for a in range(3)], axis=1)
+        return out.reshape(v.shape)
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(f"{p} f_{a}" for p in self.dwells.labels for a in AXES)
+
+    @property
+    def position_index(self) -> NDArray[np.int64]:
+        return np.repeat(np.arange(self.dwells.n_positions), 3)
+
+    @property
+    def axis_index(self) -> NDArray[np.int64]:
+        return np.tile(np.arange(3), self.dwells.n_positions)
+
+    def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
+        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS
+
+        return tuple(i for i in OFFSET_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in OFFSET_IDS)
+
+    def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> tuple:
+        """Prediction (P, 3), Jacobian (P, 3, n) over ``model + extra_terms``, ``f^p`` and inputs.
+
+        Zero offsets and kinematic (test-equipment) effects act through the exact kinematics:
+        ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
+        every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
+        """
+        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
+
+        d = self.dwells
+        full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
+        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in OFFSET_IDS])
+        effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
+        f_p = platform_specific_force(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration)
+        kin_ids = self._kinematic_ids(full.terms)
+        d_fp = platform_jacobian(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration, ids=kin_ids)
+        initial = None
+        if d.initial_readings is not None:
+            initial = platform_specific_force(
+                np.asarray(d.initial_readings, dtype=float), d.gravity, offsets, d.base_attitude, effects, d.configuration
+            )
+        inputs = TermInputs(
+            f_p,
+            temperature=d.temperature,
+            time=d.time,
+            slew_direction=slew_directions(f_p, initial),
+            angular_rate=np.zeros_like(f_p),
+            angular_acceleration=np.zeros_like(f_p),
+            extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": kin_ids},
+        )
+        through_kinematics = [k for k, t in enumerate(full.terms) if t.id in kin_ids]
+        dynamic = {k: v for k, v in values.items() if k not in effects}  # kinematic effects are already in f^p
+        prediction = full.forward(f_p, dynamic, inputs)
+        jac = full.jacobian(f_p, dynamic, inputs)
+        if through_kinematics:
+            j_fp = full.jacobian_specific_force(f_p, dynamic, inputs)
+            for k in through_kinematics:
+                jac[..., k] = np.einsum("...ij,...j->...i", j_fp, d_fp[..., kin_ids.index(full.terms[k].id)])
+        return prediction, jac, f_p, inputs
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:
+        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ²)."""
+        d = self.dwells
+        values = model.nominal_values()
+        if start:
+            values.update({k: float(v) for k, v in start.items() if k in model})
+        values.update({k: float(v) for k, v in self.fixed.items() if k in model})
+        y = d.output.reshape(-1)
+        free = [t.id not in self.fixed for t in model.terms]
+        gauge: list[str] = []
+        notes: list[str] = []
+        for _ in range(iterations):
+            prediction, jac, _, _ = self.evaluate(model, values)
+            a = self.whiten(jac.reshape(-1, len(model)))
+            r = self.whiten(y - prediction.reshape(-1))
+            cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
+            cols, new_gauge = _gauge(a, cols, model.terms)
+            for gid in new_gauge:
+                gauge.append(gid)
+                notes.append(
+                    f"{gid} held at {values[gid]:.6g} (gauge): these data do not separate it from the other parameters "
+                    f"(1σ of the combination > {UNDETERMINED_RATIO:g}× its typical size)"
+                )
+            step, *_ = np.linalg.lstsq(a[:, cols], r, rcond=None)
+            values, step = self._damped(model, values, cols, step, float(r @ r), y)
+            scale = np.linalg.norm(a[:, cols], axis=0)
+            if not cols or np.max(np.abs(step) * scale) < 1e-6:
+                break
+        prediction, jac, f_p, _ = self.evaluate(model, values)
+        a = self.whiten(jac.reshape(-1, len(model)))
+        cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
+        normal = a[:, cols].T @ a[:, cols]
+        cov_free = np.linalg.inv(normal)
+        cov = np.zeros((len(model), len(model)))
+        cov[np.ix_(cols, cols)] = cov_free
+        status = tuple("estimated" if k in cols else ("gauge" if model.terms[k].id in gauge else "fixed") for k in range(len(model)))
+        null_space, determined, sv = _design_report(a, model, free, gauge)
+        residuals = y - prediction.reshape(-1)
+        white = self.whiten(residuals)
+        return FitResult(
+            stage=self.stage,
+            terms=model.terms,
+            values=np.array([values[t.id] for t in model.terms]),
+            covariance=cov,
+            status=status,
+            residuals=residuals,
+            residual_sigma=self.total_sigma,
+            residual_labels=self.labels,
+            rank=len(cols),
+            singular_values=sv,
+            null_space=null_space,
+            determined=determined,
+            notes=tuple(notes),
+            extra={
+                "specific_force_platform": f_p,
+                "prediction": prediction,
+                "noise": d.noise,
+                "chi2_whitened": float(white @ white),
+                "slow_noise": d.slow_covariance is not None,
+            },
+        )
+
+    def _damped(self, model: ErrorModel, values: dict, cols: list[int], step: NDArray, rss: float, y: NDArray) -> tuple[dict, NDArray]:
+        """Gauss–Newton step, halved until the whitened RSS does not grow and the model stays valid (up to 20 times)."""
+        for _ in range(20):
+            trial = dict(values)
+            for k, dv in zip(cols, step, strict=True):
+                trial[model.terms[k].id] += float(dv)
+            try:
+                prediction, *_ = self.evaluate(model, trial)
+            except ValueError:  # e.g. a quadratic coefficient beyond the fold of Eq. 6
+                step = step / 2.0
+                continue
+            r = self.whiten(y - prediction.reshape(-1))
+            if float(r @ r) <= rss * (1.0 + 1e-12) + 1e-300:
+                return trial, step
+            step = step / 2.0
+        return values, np.zeros_like(step)
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        model = ErrorModel(result.terms)
+        _, jac, _, _ = self.evaluate(model, result.as_dict())
+        cols = [k for k, st in enumerate(result.status) if st == "estimated"]
+        return jac.reshape(-1, len(model))[:, cols]
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        model = ErrorModel(result.terms)
+        _, jac, _, _ = self.evaluate(model, result.as_dict(), extra_terms=tuple(terms))
+        return jac.reshape(-1, len(model) + len(terms))[:, len(model) :]
+
+    def orientation(self, result: FitResult | None = None) -> NDArray[np.float64]:
+        """``f^p/g`` per observation, shape (m, 3) (residuals against orientation)."""
+        d = self.dwells
+        from stableins.discovery.kinematics import platform_specific_force
+
+        f_p = platform_specific_force(d.readings, d.gravity, base_attitude=d.base_attitude, configuration=d.configuration)
+        return np.repeat(f_p / d.gravity, 3, axis=0)
+
+
+def fit_chi2(result: FitResult) -> float:
+    """χ² that the fit minimized (generalized when the observations are correlated)."""
+    return float(result.extra.get("chi2_whitened", result.chi2))
+
+
+def fit_chi2_red(result: FitResult) -> float:
+    return fit_chi2(result) / result.dof if result.dof > 0 else float("nan")
+
+
+def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
+    """``R^{-1/2} v`` with the problem's noise model (diagonal 1σ when it has none)."""
+    w = getattr(problem, "whiten", None)
+    if w is not None:
+        return w(v)
+    v = np.asarray(v, dtype=float)
+    s = result.residual_sigma
+    return v / (s if v.ndim == 1 else s[:, None])
+
+
+def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: Sequence[str]) -> tuple[NDArray, tuple[str, ...], NDArray]:
+    """Null space (model order), determined combinations and singular values of the free parameters' design.
+
+    Uses the device stage's design analysis (:mod:`stableins.estimators.design`) on the
+    nominal-scaled whitened design, with the same threshold as the gauge choice here
+    (a direction is undetermined when its 1σ exceeds ``UNDETERMINED_RATIO`` typical sizes).
+    """
+    from stableins.estimators.design import analyze_design, choose_gauge
+
+    idx = [k for k in range(len(model)) if free[k]]
+    ids = [model.terms[k].id for k in idx]
+    scales = np.array([abs(model.terms[k].nominal) or 1.0 for k in idx])
+    smax = np.linalg.norm(a[:, idx] * scales, ord=2) if idx else 0.0
+    rtol = (1.0 / UNDETERMINED_RATIO) / smax if smax > 0 else 1e-8
+    analysis = analyze_design(a[:, idx], ids, scales, rtol=max(rtol, 1e-12))
+    null = np.zeros((len(model), analysis.null_space.shape[1]))
+    null[idx] = analysis.null_space
+    determined: tuple[str, ...] = ()
+    if analysis.deficiency:
+        chosen = choose_gauge(analysis, preference=tuple(gauge), scales=scales)
+        determined = chosen.describe() + tuple(f"{g} = its prior value by gauge" for g in chosen.fixed)
+    return null, determined, analysis.singular_values
+
+
+#: A parameter combination whose 1σ exceeds this many times its typical size (Term.nominal) is not
+#: determined by the data; a gauge holds one of its parameters at its prior value.
+UNDETERMINED_RATIO = 100.0
+_GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_factor": 3, "installation": 4, "bias": 5}
+
+
+def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
+    """Drop columns until every direction of the design is determined.
+
+    Columns of the whitened design are scaled by each term's typical size (``nominal``); a
+    singular value ``s`` then means a combination with 1σ = ``1/s`` typical sizes.  While the
+    smallest is below ``max(tolerance·s_max, 1/UNDETERMINED_RATIO)`` (exact null space, or a
+    combination these data cannot determine), the parameter with the largest share of that
+    direction is held, preferring gimbal offsets, then additive terms, quadratic coefficients,
+    scale factors, installation angles and biases last.
+    """
+    cols = list(cols)
+    dropped: list[str] = []
+    while cols:
+        sub = a[:, cols]
+        norms = np.linalg.norm(sub, axis=0)
+        zero = [c for c, n in zip(cols, norms, strict=True) if n == 0.0]
+        if zero:
+            dropped += [terms[c].id for c in zero]
+            cols = [c for c in cols if c not in zero]
+            continue
+        nominal = np.array([abs(terms[c].nominal) for c in cols])
+        scale = np.where(nominal > 0, nominal, 1.0 / norms)
+        _, sv, vt = np.linalg.svd(sub * scale, full_matrices=False)
+        if sv[-1] > max(tolerance * sv[0], 1.0 / UNDETERMINED_RATIO):
+            break
+        null = np.abs(vt[-1])
+        involved = [(_GAUGE_PREFERENCE.get(terms[c].kind, 6), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
+        _, _, c = min(involved)
+        dropped.append(terms[c].id)
+        cols.remove(c)
+    return cols, dropped
+
+
+# ----------------------------------------------------------------------------- generic linear problem
+class LinearProblem:
+    """A linear least-squares problem ``y = X p + e``, ``e ~ N(0, diag σ²)``.
+
+    Parameters
+    ----------
+    observations, sigma : array_like (m,)
+        Observations and their 1σ (measured independently).
+    terms : sequence of Term
+        Model parameters; ``columns[term.id]`` is its column.
+    columns : mapping id → array (m,)
+        Design columns of model parameters *and* candidates.
+    labels : sequence of str, optional
+        Names of the observations.
+    """
+
+    def __init__(
+        self,
+        observations: ArrayLike,
+        sigma: ArrayLike,
+        columns: Mapping[str, ArrayLike],
+        labels: Sequence[str] | None = None,
+        stage: str = "linear",
+    ) -> None:
+        self.y = np.asarray(observations, dtype=float)
+        self.s = np.broadcast_to(np.asarray(sigma, dtype=float), self.y.shape).copy()
+        self.columns = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
+        self.labels = tuple(labels) if labels is not None else tuple(f"obs {i}" for i in range(self.y.size))
+        self.stage = stage
+
+    def _column(self, term: Term) -> NDArray:
+        if term.id not in self.columns:
+            raise KeyError(f"no design column for {term.id!r}")
+        return self.columns[term.id]
+
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult:
+        x = np.stack([self._column(t) for t in model.terms], axis=1) / self.s[:, None]
+        cols, gauge = _gauge(x, list(range(len(model))), model.terms)
+        p = np.zeros(len(model))
+        sol, *_ = np.linalg.lstsq(x[:, cols], self.y / self.s, rcond=None)
+        p[cols] = sol
+        cov = np.zeros((len(model), len(model)))
+        cov[np.ix_(cols, cols)] = np.linalg.inv(x[:, cols].T @ x[:, cols])
+        residuals = self.y - (x * self.s[:, None]) @ p
+        status = tuple("estimated" if k in cols else "gauge" for k in range(len(model)))
+        return FitResult(
+            stage=self.stage,
+            terms=model.terms,
+            values=p,
+            covariance=cov,
+            status=status,
+            residuals=residuals,
+            residual_sigma=self.s.copy(),
+            residual_labels=self.labels,
+            rank=len(cols),
+            notes=tuple(f"{g} held at 0 (gauge)" for g in gauge),
+        )
+
+    def design(self, result: FitResult) -> NDArray[np.float64]:
+        return np.stack([self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"], axis=1)
+
+    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))
+
+
+# ----------------------------------------------------------------------------- system records
+def bins_from_chunks(
+    chunks,
+    *,
+    gravity: float,
+    bin_seconds: float = 60.0,
+    reference_temperature: float = 25.0,
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    slow_noise=None,
+) -> DwellSet:
+    r"""Bin a system-level record (a stream of column chunks) into "dwells" for discovery.
+
+    A space-stable platform turns at the Earth rate relative to the base, so its specific
+    force moves slowly; a bin of length ``T`` averaged at the mean readings differs from the
+    mean of the outputs by about ``g (ω_ie T)²/24`` (0.8 µg for 60 s), far below the bin's
+    noise.  Each bin's 1σ is the white-noise floor of its axis (first differences, pooled
+    over the record) over ``sqrt(n)``.  No slews: hysteresis is not excited; the time since
+    the last command is the record time.  Memory is bounded by the number of bins.
+
+    Parameters
+    ----------
+    chunks : iterable of mappings
+        Column chunks with ``time``, ``angle_platform/inner/middle``, ``f_x/y/z`` and
+        ``temperature`` (e.g. :meth:`stableins.data.system.SystemRecord.iter_chunks`).
+    gravity : float
+        Local gravity [m/s²].
+    bin_seconds : float
+        Bin length [s].
+    slow_noise : SlowNoise, optional
+        Bias instability / random walk of the instrument: over a day the slow bias wander is
+        correlated between bins and would otherwise look like drift or a harmonic.
+    """
+    sums: dict[int, NDArray] = {}
+    squares = np.zeros(3)
+    n_diff = 0
+    t0 = None
+    last = None  # (bin, f) of the previous sample, for differences across chunk boundaries
+    for chunk in chunks:
+        t = np.asarray(chunk["time"], dtype=float)
+        if t.size == 0:
+            continue
+        t0 = t[0] if t0 is None else t0
+        f = np.stack([np.asarray(chunk[k], dtype=float) for k in ("f_x", "f_y", "f_z")], axis=-1)
+        r = np.stack([np.asarray(chunk[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=-1)
+        temp = np.asarray(chunk["temperature"], dtype=float)
+        b = np.floor((t - t0) / bin_seconds).astype(np.int64)
+        if last is not None:
+            b_all, f_all = np.concatenate([[last[0]], b]), np.vstack([last[1][None], f])
+        else:
+            b_all, f_all = b, f
+        same = b_all[1:] == b_all[:-1]
+        d = np.diff(f_all, axis=0)[same]
+        squares += (d**2).sum(axis=0) / 2.0
+        n_diff += d.shape[0]
+        last = (b[-1], f[-1])
+        for k in np.unique(b):
+            m = b == k
+            row = np.concatenate([[m.sum(), t[m].sum(), temp[m].sum()], f[m].sum(axis=0), r[m].sum(axis=0)])
+            sums[int(k)] = sums.get(int(k), 0.0) + row
+    if not sums or n_diff == 0:
+        raise ValueError("the record has too few samples to form bins")
+    keys = sorted(sums)
+    table = np.array([sums[k] for k in keys])
+    n = table[:, 0]
+    full = n >= 0.5 * np.median(n)  # drop a short last bin
+    table, n = table[full], n[full]
+    sigma_white = np.sqrt(squares / n_diff)
+    readings = table[:, 6:9] / n[:, None]
+    time = table[:, 1] / n
+    rate = float(np.median(n)) / bin_seconds
+    lengths = n / rate
+    slow = _slow_covariance(time - lengths / 2.0, lengths, slow_noise)
+    return DwellSet(
+        readings=readings,
+        output=table[:, 3:6] / n[:, None],
+        sigma=sigma_white[None, :] / np.sqrt(n)[:, None],
+        gravity=float(gravity),
+        time=time,
+        time_since_command=time - float(t0),
+        temperature=table[:, 2] / n - reference_temperature,
+        slew_direction=np.zeros((len(n), 3)),
+        labels=tuple(f"{(tk - t0) / 3600:.2f}h" for tk in time),
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        noise={
+            "method": f"white noise from first differences, pooled over the record; {bin_seconds:g} s bins",
+            "sigma_per_sample": sigma_white,
+            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
+        },
+        initial_readings=None,
+        slow_covariance=slow,
+    )

@@ -1,0 +1,404 @@
+r"""Rank candidate effects against a fitted model: which physical effect is missing?
+
+Notation (whitened with the measured 1σ): residual ``r``, model design ``X`` (estimated
+parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
+
+* **Added-variable statistic** (score test; Cook & Weisberg 1982, *Residuals and Influence
+  in Regression*, §2.3).  The part of the candidate the model cannot absorb is
+  ``z⊥ = (I − H) z``.  One Gauss–Newton step from the fitted model gives
+
+  .. math:: \hat\gamma = \frac{z_\perp^T r}{z_\perp^T z_\perp},\quad \sigma_\gamma = \|z_\perp\|^{-1},\quad
+            \Delta RSS = \frac{(z_\perp^T r)^2}{z_\perp^T z_\perp}
+
+  computed for every candidate in one pass (``ΔRSS ~ χ²₁`` under "no effect").
+* **Refit** of the best candidates with the full fitter (``model + effect``):
+  ``ΔRSS``, ``F = ΔRSS / (RSS₁/(ν−1))`` with its p-value from ``F(1, ν−1)`` (robust to a
+  mis-scaled noise floor), and ``ΔBIC = χ²₁ − χ²₀ + ln m`` (known σ; negative favours the effect).
+* **Identifiability.**  ``‖z⊥‖/‖z‖`` is the sine of the angle between the candidate and the
+  model's column space; below ``1e-3`` (variance inflation 10⁶) the candidate cannot be separated.  The regression
+  ``c = (XᵀX)⁻¹Xᵀz`` says where a left-out effect goes: with the effect ``γ`` present and left
+  out, the estimates shift by ``c γ``.  The largest contributions ``|c_j|·‖X_j‖`` name the
+  aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (|corr| > 0.99) cannot be
+  told apart from each other with these data; they are reported together.
+* **Flagging** uses a Bonferroni family-wise false-alarm level ``α``: a candidate is flagged
+  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.errormodel import ErrorModel, Term
+from stableins.estimators.result import FitResult
+
+#: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
+IDENTIFIABLE_TOLERANCE = 1e-3
+#: A candidate whose nominal size moves the data by less than this (whitened norm over the whole record) is "not excited".
+EXCITATION_TOLERANCE = 0.05
+#: |corr| of projected columns above which two candidates cannot be told apart.
+CONFUSION_CORRELATION = 0.99
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate's standing against the current model.
+
+    Attributes
+    ----------
+    id : str
+        Candidate id.
+    term : Term
+        The candidate term.
+    statistic : float
+        ΔRSS in χ² units (score / added-variable statistic; refit value when ``refit``).
+    p_value : float
+        F-test p-value, ``F(1, ν−1)``.
+    delta_bic : float
+        BIC change on adding the effect (negative favours it).
+    estimate, sigma : float
+        Coefficient and 1σ [SI].
+    predicted : float
+        Largest predicted change of an observation caused by the estimated effect [SI of the observation].
+    identifiable : bool
+        False when the effect cannot be separated from the model with these data.
+    excited : bool
+        False when the data do not excite the effect at all (zero or negligible column).
+    separability : float
+        ``‖z⊥‖/‖z‖``.
+    aliases : tuple of (str, float)
+        Model parameters the effect is absorbed into when left out, with the shift per unit
+        effect [parameter SI per candidate SI], largest first.
+    confused_with : tuple of str
+        Other candidates indistinguishable from this one with these data.
+    refit : bool
+        True when the numbers come from a full refit (not the one-step statistic).
+    shifts : dict
+        Refit only: shift of each model parameter [SI] and in units of its 1σ.
+    advice : str
+        What would separate the effect (when not identifiable) or confirm it.
+    """
+
+    id: str
+    term: Term
+    statistic: float
+    p_value: float
+    delta_bic: float
+    estimate: float
+    sigma: float
+    predicted: float
+    identifiable: bool
+    excited: bool
+    separability: float
+    aliases: tuple[tuple[str, float], ...] = ()
+    confused_with: tuple[str, ...] = ()
+    refit: bool = False
+    shifts: dict = field(default_factory=dict)
+    advice: str = ""
+    flagged: bool = False
+
+    @property
+    def estimate_engineering(self) -> tuple[float, float]:
+        return float(self.term.to_engineering(self.estimate)), float(self.term.sigma_to_engineering(self.sigma))
+
+    def alias_text(self, model: ErrorModel | None = None) -> str:
+        if not self.aliases:
+            return "—"
+        parts = []
+        for pid, c in self.aliases:
+            if model is not None and pid in model:
+                per = c * self.term.scale / model[pid].scale  # parameter eng units per candidate eng unit
+                parts.append(f"{pid} ({per:+.3g} {model[pid].unit} per {self.term.unit})")
+            else:
+                parts.append(pid)
+        return ", ".join(parts)
+
+    def to_json(self, model: ErrorModel | None = None) -> dict:
+        value, sigma = self.estimate_engineering
+        return {
+            "id": self.id,
+            "statistic": _finite(self.statistic),
+            "p_value": _finite(self.p_value),
+            "delta_bic": _finite(self.delta_bic),
+            "predicted": {
+                "estimate": _finite(value),
+                "sigma": _finite(sigma),
+                "unit": self.term.unit,
+                "max_output_change": _finite(self.predicted),
+                "max_output_change_unit": "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)",
+            },
+            "identifiable": bool(self.identifiable),
+            "excited": bool(self.excited),
+            "separability": _finite(self.separability),
+            "aliases": [{"id": pid, "shift_per_unit": _finite(c)} for pid, c in self.aliases],
+            "confused_with": list(self.confused_with),
+            "refit": self.refit,
+            "flagged": self.flagged,
+            "advice": self.advice,
+        }
+
+
+def _chi2_red(result: FitResult) -> float:
+    from stableins.discovery.problem import fit_chi2_red
+
+    return fit_chi2_red(result)
+
+
+def _finite(x: float) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """Candidates ranked best first, plus the fit they were ranked against."""
+
+    result: FitResult
+    candidates: tuple[CandidateScore, ...]
+    alpha: float
+    n_tested: int
+    output_unit: str = "µg"
+    output_scale: float = 9.80665e-6
+
+    @property
+    def best(self) -> CandidateScore | None:
+        return self.candidates[0] if self.candidates else None
+
+    @property
+    def flagged(self) -> tuple[CandidateScore, ...]:
+        return tuple(c for c in self.candidates if c.flagged)
+
+    def __getitem__(self, term_id: str) -> CandidateScore:
+        for c in self.candidates:
+            if c.id == term_id:
+                return c
+        raise KeyError(term_id)
+
+    def position(self, term_id: str) -> int:
+        """1-based rank of a candidate."""
+        return [c.id for c in self.candidates].index(term_id) + 1
+
+    def report(self, top: int = 10) -> str:
+        model = ErrorModel(self.result.terms)
+        lines = [
+            f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
+            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates",
+            f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δobs|':>13}  identifiable / aliases",
+        ]
+        for k, c in enumerate(self.candidates[:top], 1):
+            value, sigma = c.estimate_engineering
+            est = f"{value:+.3g} ± {sigma:.2g} {c.term.unit}" if c.identifiable else "—"
+            mark = "*" if c.flagged else " "
+            ident = "yes" if c.identifiable else ("not excited" if not c.excited else "NO: aliases " + c.alias_text(model))
+            if c.confused_with:
+                ident += f"; indistinguishable from {', '.join(c.confused_with)}"
+            lines.append(
+                f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
+                f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
+            )
+        hidden = [c for c in self.candidates[top:] if not c.identifiable and c.excited]
+        if hidden:
+            lines.append("")
+            lines.append("not separable with these data (left out of the ranking):")
+            for c in hidden:
+                lines.append(f"  {c.id:<14} aliases {c.alias_text(model)}; to separate: {c.advice}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.report()
+
+    def to_json(self) -> list[dict]:
+        model = ErrorModel(self.result.terms)
+        return [c.to_json(model) for c in self.candidates]
+
+
+def rank(
+    problem,
+    result: FitResult,
+    candidates: Iterable[Term] | None = None,
+    *,
+    alpha: float = 0.05,
+    refit_top: int = 3,
+    separation: dict[str, str] | None = None,
+    propose: bool = True,
+    output_unit: str = "µg",
+    output_scale: float = 9.80665e-6,
+) -> Ranking:
+    """Rank every candidate not in the model; refit the best ``refit_top`` with the full fitter.
+
+    Parameters
+    ----------
+    problem : Problem
+        The stage's least-squares problem (:mod:`stableins.discovery.problem`).
+    result : FitResult
+        The current fit.
+    candidates : iterable of Term, optional
+        Candidates (default: the whole default library).
+    alpha : float
+        Family-wise false-alarm level for flagging.
+    refit_top : int
+        How many of the best identifiable candidates to refit fully.
+    separation : dict, optional
+        Advice per id on what separates the effect (default: the library's).
+    propose : bool
+        For device dwell problems, test numerically which standard procedure extensions
+        (:mod:`stableins.discovery.separation`) separate the excited candidates that are not
+        separable or are confused with another, and add the answer to their advice.
+    output_unit, output_scale : str, float
+        How the largest predicted change of an observation is shown (default µg).
+    """
+    from stableins.discovery.library import LIBRARY
+
+    if candidates is None:
+        candidates = LIBRARY.terms()
+    if separation is None:
+        separation = {c.id: c.separation for c in LIBRARY}
+    model_ids = set(result.ids)
+    terms = [t for t in candidates if t.id not in model_ids]
+    from stableins.discovery.problem import whiten
+
+    r = whiten(problem, result, result.residuals)
+    x = whiten(problem, result, problem.design(result))
+    est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+    m = r.size
+    nu = result.dof
+    rss0 = float(r @ r)
+    raw_columns = _candidate_columns(problem, terms, result)
+    columns = whiten(problem, result, raw_columns)
+    q, _ = np.linalg.qr(x)
+    z_perp = columns - q @ (q.T @ columns)
+    norm_z = np.linalg.norm(columns, axis=0)
+    norm_perp = np.linalg.norm(z_perp, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        separability = np.where(norm_z > 0, norm_perp / np.where(norm_z > 0, norm_z, 1.0), 0.0)
+    nominal = np.array([abs(t.nominal) for t in terms])
+    excited = norm_z * nominal > EXCITATION_TOLERANCE
+    identifiable = excited & (separability > IDENTIFIABLE_TOLERANCE)
+    coef_alias, *_ = np.linalg.lstsq(x, columns, rcond=None)
+    x_norm = np.linalg.norm(x, axis=0)
+    n_tested = max(int(identifiable.sum()), 1)
+
+    # one-step statistics for every identifiable candidate
+    proj = z_perp.T @ r
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gamma = np.where(identifiable, proj / np.where(identifiable, norm_perp**2, 1.0), 0.0)
+        gsig = np.where(identifiable, 1.0 / np.where(identifiable, norm_perp, 1.0), np.inf)
+    delta = np.where(identifiable, gamma * proj, 0.0)
+
+    # pairwise confusion among identifiable candidates
+    unit_perp = np.where(identifiable, z_perp / np.where(norm_perp > 0, norm_perp, 1.0), 0.0)
+    corr = np.abs(unit_perp.T @ unit_perp)
+
+    scores: list[CandidateScore] = []
+    for k, t in enumerate(terms):
+        contrib = np.abs(coef_alias[:, k]) * x_norm
+        total = np.linalg.norm(columns[:, k])
+        aliases = tuple((est_ids[j], float(coef_alias[j, k])) for j in np.argsort(-contrib) if total > 0 and contrib[j] > 0.1 * total)[:4]
+        confused = tuple(terms[j].id for j in np.flatnonzero(corr[k] > CONFUSION_CORRELATION) if j != k) if identifiable[k] else ()
+        advice = separation.get(t.id, t.excitation)
+        stat, p, dbic = _statistics(delta[k], rss0, nu, m) if identifiable[k] else (0.0, 1.0, float(np.log(m)))
+        scores.append(
+            CandidateScore(
+                id=t.id,
+                term=t,
+                statistic=stat,
+                p_value=p,
+                delta_bic=dbic,
+                estimate=float(gamma[k]),
+                sigma=float(gsig[k]),
+                predicted=float(np.max(np.abs(raw_columns[:, k] * gamma[k]))) if identifiable[k] else 0.0,
+                identifiable=bool(identifiable[k]),
+                excited=bool(excited[k]),
+                separability=float(separability[k]),
+                aliases=aliases,
+                confused_with=confused,
+                advice=advice if not identifiable[k] else f"confirm with {advice}",
+            )
+        )
+    scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
+    if propose and hasattr(problem, "dwells"):
+        scores = _propose(problem, result, scores, {t.id: t for t in terms})
+
+    # full refit of the best identifiable candidates
+    refits = []
+    model = ErrorModel(result.terms)
+    for c in [c for c in scores if c.identifiable][:refit_top]:
+        refits.append(refit(problem, result, model, c, nu, m))
+    by_id = {c.id: c for c in refits}
+    scores = [by_id.get(c.id, c) for c in scores]
+    scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
+    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
+    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
+
+
+def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
+    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
+    from stableins.discovery.separation import describe, separation
+
+    out = []
+    for c in scores:
+        if c.excited and (not c.identifiable or c.confused_with):
+            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
+            text = c.advice.removeprefix("confirm with ")
+            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
+            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
+        out.append(c)
+    return out
+
+
+def _statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
+    from scipy import stats
+
+    rss1 = max(rss0 - delta_rss, 1e-300)
+    dof = max(nu - 1, 1)
+    f = delta_rss / (rss1 / dof)
+    return float(delta_rss), float(stats.f.sf(f, 1, dof)), float(-delta_rss + np.log(m))
+
+
+def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+    """Candidate columns; a candidate whose inputs the data lack gets a zero column (not excited)."""
+    if not terms:
+        return np.zeros((result.residuals.size, 0))
+    try:
+        return problem.candidate_columns(terms, result)
+    except ValueError:
+        cols = []
+        for t in terms:
+            try:
+                cols.append(problem.candidate_columns([t], result)[:, 0])
+            except ValueError:
+                cols.append(np.zeros(result.residuals.size))
+        return np.stack(cols, axis=1)
+
+
+def refit(problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
+    """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
+    new = problem.fit(model + candidate.term, start=result.as_dict())
+    from stableins.discovery.problem import fit_chi2
+
+    delta = fit_chi2(result) - fit_chi2(new)
+    stat, p, dbic = _statistics(delta, fit_chi2(result), nu, m)
+    value, sigma, _ = new[candidate.id]
+    shifts = {}
+    for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):
+        if st != "estimated":
+            continue
+        v1 = new[t.id][0]
+        shifts[t.id] = (float(v1 - v0), float((v1 - v0) / s0) if s0 > 0 else float("nan"))
+    column = _candidate_columns(problem, [candidate.term], result)[:, 0]
+    return CandidateScore(
+        **{
+            **candidate.__dict__,
+            "statistic": stat,
+            "p_value": p,
+            "delta_bic": dbic,
+            "estimate": value,
+            "sigma": sigma,
+            "predicted": float(np.max(np.abs(column * value))),
+            "refit": True,
+            "shifts": shifts,
+        }
+    )
