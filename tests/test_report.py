@@ -215,9 +215,12 @@ def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys)
     assert cli.main(["simulate", "device", "--seed", "5", "--out", str(tmp_path)]) == 0
     coarse, fine = tmp_path / "device-coarse.csv", tmp_path / "device-fine.h5"
     assert cli.main(["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json")]) == 0
-    out = tmp_path / "cal.pdf"
     capsys.readouterr()
-    assert cli.main(["report", str(tmp_path / "cal.json"), "--data", str(coarse), str(fine), "--out", str(out), "--json"]) == 0
+    assert cli.main(["diagnose", str(coarse), str(fine), "--record", str(tmp_path / "cal.json"), "--stage", "coarse", "--json"]) == 0
+    (tmp_path / "diag.json").write_text(capsys.readouterr().out)
+    out = tmp_path / "cal.pdf"
+    argv = ["report", str(tmp_path / "cal.json"), "--data", str(coarse), str(fine), "--discovery", str(tmp_path / "diag.json")]
+    assert cli.main([*argv, "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     pages, text = _render(out)
     flat = " ".join(text.split())
@@ -227,6 +230,9 @@ def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys)
     assert set(chi2) == {"coarse", "fine"}
     assert 0.3 < chi2["coarse"] < 2.0  # the coarse model explains the simulated data to the noise
     assert text.count("verified:") == 2  # both data files match the record's SHA-256
+    diagnosis = json.loads((tmp_path / "diag.json").read_text())
+    assert "From diag.json (stableins diagnose)" in flat and "Refit history" in flat
+    assert diagnosis["candidates"][0]["id"] in text
 
 
 @needs_poppler

@@ -24,6 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--procedure", metavar="PROC.toml", help="procedure definition whose [tolerances] table gives the conformity limits"
     )
+    parser.add_argument("--discovery", metavar="DIAG.json", help="output of 'stableins diagnose --json' (model-discovery section)")
     parser.add_argument("--report-id", help="report id to print (default: derived from the serial number, date and input digests)")
     parser.add_argument("--out", required=True, metavar="REPORT.pdf", help="PDF to write (written atomically)")
 
@@ -34,7 +35,13 @@ def run(args: argparse.Namespace) -> int:
     from stableins.reporting.builder import write_report
 
     summary = write_report(
-        args.out, args.record, data=args.data, previous=args.previous, procedure=args.procedure, report_id=args.report_id
+        args.out,
+        args.record,
+        data=args.data,
+        previous=args.previous,
+        procedure=args.procedure,
+        report_id=args.report_id,
+        discovery=args.discovery,
     )
     data = {
         "path": summary.path,

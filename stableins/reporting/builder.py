@@ -82,6 +82,19 @@ def collect_inputs(record: RecordView, data: Sequence[str | PathLike[str]]) -> l
     return rows
 
 
+def read_discovery(path: str | PathLike[str]) -> dict[str, Any]:
+    """The JSON document of ``stableins diagnose --json`` (checked for its two lists)."""
+    try:
+        document = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("no such file", path=path, expected="the output of 'stableins diagnose --json'") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise InputError(f"cannot read JSON ({error})", path=path, expected="the output of 'stableins diagnose --json'") from None
+    if not isinstance(document, dict) or not isinstance(document.get("history"), list) or not isinstance(document.get("candidates"), list):
+        raise InputError("no 'history' and 'candidates' lists", path=path, expected="the output of 'stableins diagnose --json'")
+    return document
+
+
 def write_report(
     out: str | PathLike[str],
     record: Any,
@@ -93,6 +106,7 @@ def write_report(
     fits: Sequence[Any] = (),
     report_id: str | None = None,
     issued: dt.datetime | None = None,
+    discovery: str | PathLike[str] | None = None,
 ) -> ReportSummary:
     """Write the calibration report of ``record`` to ``out`` (PDF).
 
@@ -116,6 +130,8 @@ def write_report(
         Id to print; by default :func:`report_id_for`.
     issued : datetime, optional
         Date of issue (default: now, UTC).
+    discovery : path, optional
+        Output of ``stableins diagnose --json`` (ranked candidates and refit history).
 
     Returns
     -------
@@ -160,6 +176,11 @@ def write_report(
         changes, skipped = content.compare(rows, content.parameter_rows(previous_view, terms))
     checks = content.conformity(rows, changes, stages, tolerances)
 
+    discovery_document, discovery_source = view.discovery, "calibration record"
+    if discovery is not None:
+        discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
+        inputs.append(sections.InputFile("model discovery", Path(discovery).name, sha256_file(discovery), "read by this report"))
+
     issued = issued or dt.datetime.now(dt.UTC)
     ctx = sections.ReportContext(
         record=view,
@@ -175,6 +196,8 @@ def write_report(
         skipped_changes=skipped or [],
         software_version=stableins.__version__,
         evidence_notes=evidence_notes,
+        discovery=discovery_document,
+        discovery_source=discovery_source,
     )
     story = [flowable for section in sections.SECTIONS for flowable in section(ctx)]
     buffer = io.BytesIO()

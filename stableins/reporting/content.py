@@ -98,7 +98,7 @@ def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COV
         if term is not None:
             value = float(term.to_engineering(p.value)) if math.isfinite(p.value) else math.nan
             u = float(term.sigma_to_engineering(p.sigma)) if math.isfinite(p.sigma) else math.nan
-            unit, meaning = _unit_text(term.unit), term.meaning
+            unit, meaning = unit_text(term.unit), term.meaning
         else:
             value, u, unit, meaning = p.value, p.sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
         if p.status == "unidentifiable":  # the record may carry the prior value: never show it as a result
@@ -111,8 +111,9 @@ def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COV
     return rows
 
 
-def _unit_text(unit: str) -> str:
-    return {"ug": "µg", "ug/g^2": "µg/g²", "ug/g^3": "µg/g³"}.get(unit, unit)
+def unit_text(unit: str) -> str:
+    """Engineering unit as printed (``ug`` → ``µg``, ``^2`` → ``²``)."""
+    return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³")
 
 
 def correlation(record: RecordView) -> tuple[tuple[str, ...], list[list[float]]]:

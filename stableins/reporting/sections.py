@@ -51,6 +51,8 @@ class ReportContext:
     software_version: str = ""
     evidence_notes: list[str] = field(default_factory=list)
     figures: int = 0
+    discovery: dict[str, Any] = field(default_factory=dict)
+    discovery_source: str = "calibration record"
 
     def figure_label(self) -> str:
         """ "Figure n." with n counting the figures in the order they are laid out."""
@@ -350,7 +352,9 @@ def _system(ctx: ReportContext) -> list[Flowable]:
 
 def discovery(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("6  Model discovery", "h1")]
-    steps = ctx.record.discovery.get("steps", [])
+    if "history" in ctx.discovery:
+        return out + _diagnosis(ctx)
+    steps = ctx.discovery.get("steps", [])
     if not steps:
         out.append(
             _p(
@@ -378,6 +382,82 @@ def discovery(ctx: ReportContext) -> list[Flowable]:
     if all("residual_rms" in s for s in steps):
         png, aspect = figures.discovery_steps(steps)
         out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} Residual RMS after each model-discovery step."))
+    return out
+
+
+def _diagnosis(ctx: ReportContext) -> list[Flowable]:
+    """The output of ``stableins diagnose --json``: the refit history and the ranked candidates."""
+    from stableins.conventions import MICRO_G
+
+    d = ctx.discovery
+    out: list[Flowable] = [
+        _p(
+            f"From {escape(ctx.discovery_source)} (stableins diagnose): {escape(d.get('stage') or 'device')} stage, "
+            f"χ²_ν = {float(d.get('chi2_red', math.nan)):.3f} with ν = {d.get('dof', '—')}. Candidates are ranked by the "
+            "significance of the residual they explain; ΔBIC &lt; 0 favours adding the effect."
+        )
+    ]
+    rows: list[list[Any]] = [["Candidate", "p-value", "ΔBIC", "Estimate ± 1σ", "Flag", "Advice"]]
+    for c in d.get("candidates", [])[:12]:
+        predicted = c.get("predicted") or {}
+        estimate = predicted.get("estimate")
+        sigma = predicted.get("sigma")
+        text = (
+            "—"
+            if estimate is None
+            else f"{_fmt(float(estimate), 3)} ± {_fmt(float(sigma), 2)} {content.unit_text(str(predicted.get('unit', '')))}"
+        )
+        p_value = c.get("p_value")
+        rows.append(
+            [
+                str(c.get("id", "")),
+                "—" if p_value is None else f"{float(p_value):.2g}",
+                "—" if c.get("delta_bic") is None else f"{float(c['delta_bic']):.1f}".replace("-", MINUS),
+                text,
+                "yes" if c.get("flagged") else "no",
+                str(c.get("advice", "")),
+            ]
+        )
+    if len(rows) > 1:
+        out.append(document.table(rows, [0.15, 0.09, 0.08, 0.2, 0.08, 0.40], align_right=(1, 2)))
+    else:
+        out.append(_p("No candidate effect was tested."))
+    steps = []
+    for step in d.get("history", []):
+        rms = [float(x) for x in step.get("residual_rms", [])]
+        floor = [float(x) for x in step.get("noise_floor", [])]
+        if not rms:
+            continue
+        steps.append(
+            {
+                "label": str(step.get("label", "")),
+                "residual_rms": math.sqrt(sum(x * x for x in rms) / len(rms)) / MICRO_G,
+                "noise_floor": math.sqrt(sum(x * x for x in floor) / len(floor)) / MICRO_G if floor else None,
+                "unit": "µg",
+                "chi2_red": step.get("chi2_red"),
+                "bic": step.get("bic"),
+            }
+        )
+    if steps:
+        out.append(_p("Refit history", "h2"))
+        rows = [["Step", "Model", "Residual RMS [µg]", "Noise floor [µg]", "χ²_ν", "BIC"]]
+        for i, st in enumerate(steps):
+            rows.append(
+                [
+                    str(i),
+                    st["label"],
+                    _fmt(st["residual_rms"], 3),
+                    _fmt(st["noise_floor"], 3) if st["noise_floor"] is not None else "—",
+                    _fmt(float(st["chi2_red"]), 3) if st.get("chi2_red") is not None else "—",
+                    f"{float(st['bic']):.1f}".replace("-", MINUS) if st.get("bic") is not None else "—",
+                ]
+            )
+        out.append(document.table(rows, [0.07, 0.33, 0.16, 0.16, 0.12, 0.16], align_right=(2, 3, 4, 5)))
+        png, aspect = figures.discovery_steps(steps)
+        caption = (
+            f"{ctx.figure_label()} Residual RMS (RMS over the output axes) after each step of the refit history, with the noise floor."
+        )
+        out.append(document.figure(png, 1.0, aspect, caption))
     return out
 
 
