@@ -50,9 +50,13 @@ class StageEvidence:
     n_parameters: int
     notes: tuple[str, ...] = ()
     determined: tuple[str, ...] = ()
+    chi2_whitened: float | None = None
 
     @property
     def chi2(self) -> float:
+        """χ² of the whitened residuals when the stage gives it (noise correlated between observations), else Σ(r/σ)²."""
+        if self.chi2_whitened is not None:
+            return self.chi2_whitened
         return float(sum((r / s) ** 2 for r, s in zip(self.residuals, self.sigma, strict=True)))
 
     @property
@@ -101,6 +105,7 @@ def fit_to_dict(fit: Any) -> dict[str, Any]:
 
     Values and covariance are not repeated here: the record's parameter list carries them.
     """
+    whitened = fit.extra.get("chi2_whitened")
     return {
         "stage": fit.stage,
         "parameter_ids": list(fit.ids),
@@ -111,6 +116,7 @@ def fit_to_dict(fit: Any) -> dict[str, Any]:
         "residual_unit": str(fit.extra.get("residual_unit", "m/s^2")),
         "notes": list(fit.notes),
         "determined": list(fit.determined),
+        "chi2_whitened": None if whitened is None else float(whitened),
     }
 
 
@@ -144,4 +150,5 @@ def stage_evidence(source: Any, where: str = "calibration record") -> StageEvide
         n_parameters=len(source.get("parameter_ids", [])),
         notes=tuple(str(x) for x in source.get("notes", [])),
         determined=tuple(str(x) for x in source.get("determined", [])),
+        chi2_whitened=None if source.get("chi2_whitened") is None else float(source["chi2_whitened"]),
     )

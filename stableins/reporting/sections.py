@@ -293,8 +293,9 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
         out.append(document.table(rows, [0.10, 0.13, 0.15, 0.09, 0.07, 0.24, 0.22], align_right=(1, 3, 4), cell_colours=colours))
         out.append(
             _p(
-                "χ²_ν = Σ(r_i/σ_i)²/ν with ν = observations − rank; σ_i is the noise floor of observation i measured in the data. "
-                "Values inside the interval mean the model explains the data down to the noise.",
+                "χ²_ν = Σ(r_i/σ_i)²/ν with ν = observations − rank; σ_i is the noise floor of observation i measured in the data; "
+                "where the stage models noise correlated between observations (slow bias drift), χ² is that of the whitened "
+                "residuals. Values inside the interval mean the model explains the data down to the noise.",
                 "small",
             )
         )
