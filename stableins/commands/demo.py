@@ -24,23 +24,36 @@ from typing import Any
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from stableins.commands.simulate import parse_duration
+    from stableins.commands.simulate import parse_duration, parse_hidden
 
     parser.add_argument("--out", type=Path, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)")
     parser.add_argument("--seed", type=int, default=2018, help="random seed (default 2018)")
     parser.add_argument(
         "--duration", type=parse_duration, default=86164.0905, help="length of the system-level record (default one sidereal day)"
     )
+    parser.add_argument(
+        "--hidden",
+        type=parse_hidden,
+        action="append",
+        default=[],
+        metavar="ID=VALUE",
+        help="hide an effect in the simulated instrument (SI, repeatable) for model discovery to find",
+    )
     parser.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="system-level sample rate [Hz] (default 10)")
 
 
-def _step(title: str, argv: list[str]) -> None:
+def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
+    """Run one CLI command as a user would type it; its standard output goes to ``stdout`` if given."""
+    import contextlib
     import sys
 
     from stableins import cli
 
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
-    status = cli.main(argv)
+    with contextlib.ExitStack() as stack:
+        if stdout is not None:
+            stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(stdout, "w", encoding="utf-8"))))
+        status = cli.main(argv)
     if status != 0:
         raise SystemExit(status)
 
@@ -93,13 +106,15 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
 
 def run(args: argparse.Namespace) -> int:
     import importlib.util
+    import sys
 
     from stableins.commands.simulate import prepare_directory
     from stableins.output import emit
 
     out = prepare_directory(args.out)
     seed = str(args.seed)
-    _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out)])
+    hidden = [item for name, value in args.hidden for item in ("--hidden", f"{name}={value}")]
+    _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out), *hidden])
     coarse, fine = out / "device-coarse.csv", out / "device-fine.h5"
     datasheet = _datasheet(out / "truth.json")  # what a user knows of the instrument: its Allan parameters
     _step(
@@ -115,11 +130,12 @@ def run(args: argparse.Namespace) -> int:
         "system-level calibration",
         ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    if importlib.util.find_spec("stableins.commands.diagnose") is not None:
-        _step(
-            "model discovery",
-            ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), "--json-out", str(out / "diagnosis.json")],
-        )
+    _step(
+        "model discovery (is an effect missing from the model?)",
+        ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), "--plots", str(out / "discovery"), *datasheet],
+        stdout=out / "diagnosis.txt",
+    )
+    print((out / "diagnosis.txt").read_text(encoding="utf-8"), file=sys.stderr)
     if importlib.util.find_spec("stableins.commands.report") is not None:
         _step(
             "calibration report",
