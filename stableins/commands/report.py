@@ -1,0 +1,54 @@
+"""``stableins report RECORD.json [--data ...] [--previous OLD.json] [--procedure PROC.toml] --out REPORT.pdf``.
+
+Writes the PDF calibration report of a calibration record (see ``docs/reports.md``).
+Heavy imports (reportlab, matplotlib, numpy) happen inside :func:`run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "write the PDF calibration report of a calibration record"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Write the calibration report (ISO/IEC 17025 7.8) of a calibration record: identification, results with expanded "
+        "uncertainty, evidence that the model fits, change since the previous calibration and conformity."
+    )
+    parser.add_argument("record", metavar="RECORD.json", help="calibration record written by stableins")
+    parser.add_argument(
+        "--data", nargs="+", default=[], metavar="FILE", help="data files of the calibration (SHA-256 checked against the record)"
+    )
+    parser.add_argument("--previous", metavar="OLD.json", help="previous calibration record of the unit (change and its significance)")
+    parser.add_argument(
+        "--procedure", metavar="PROC.toml", help="procedure definition whose [tolerances] table gives the conformity limits"
+    )
+    parser.add_argument("--discovery", metavar="DIAG.json", help="output of 'stableins diagnose --json' (model-discovery section)")
+    parser.add_argument("--report-id", help="report id to print (default: derived from the serial number, date and input digests)")
+    parser.add_argument("--out", required=True, metavar="REPORT.pdf", help="PDF to write (written atomically)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the report; an :class:`~stableins.data.errors.InputError` reaches the CLI (message, exit status 2)."""
+    from stableins.output import emit
+    from stableins.reporting.builder import write_report
+
+    summary = write_report(
+        args.out,
+        args.record,
+        data=args.data,
+        previous=args.previous,
+        procedure=args.procedure,
+        report_id=args.report_id,
+        discovery=args.discovery,
+    )
+    data = {
+        "path": summary.path,
+        "report_id": summary.report_id,
+        "pages": summary.pages,
+        "verdict": summary.verdict,
+        "sha256": summary.sha256,
+    }
+    emit(args, data, f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}")
+    return 0

@@ -1,0 +1,256 @@
+"""Page layout of the calibration report (reportlab platypus).
+
+One typeface everywhere: DejaVu Sans, the font matplotlib ships and draws its figures
+with, embedded in the PDF (it has µ, σ, χ, ², ≤ and the true minus sign).  Every page
+carries the report id, the unit serial number and "page i of n" (ISO/IEC 17025
+7.8.2.1 d); the total page count is known only after layout, so the page furniture is
+drawn by :class:`NumberedCanvas` when the document is saved.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Sequence
+from typing import Any
+
+from reportlab.lib import colors
+from reportlab.lib.enums import TA_LEFT
+from reportlab.lib.pagesizes import A4
+from reportlab.lib.styles import ParagraphStyle
+from reportlab.lib.units import mm
+from reportlab.pdfbase import pdfmetrics
+from reportlab.pdfbase.ttfonts import TTFont
+from reportlab.pdfgen import canvas as canvas_module
+from reportlab.platypus import (
+    BaseDocTemplate,
+    Flowable,
+    Frame,
+    Image,
+    KeepTogether,
+    PageTemplate,
+    Paragraph,
+    Spacer,
+    Table,
+    TableStyle,
+)
+
+PAGE_WIDTH, PAGE_HEIGHT = A4
+MARGIN = 18 * mm
+HEADER = 14 * mm
+FOOTER = 14 * mm
+#: Width available to text, tables and figures [pt].
+TEXT_WIDTH = PAGE_WIDTH - 2 * MARGIN
+
+FONT, FONT_BOLD, FONT_ITALIC, FONT_MONO = "DejaVuSans", "DejaVuSans-Bold", "DejaVuSans-Oblique", "DejaVuSansMono"
+BODY_SIZE = 9.0
+SMALL_SIZE = 7.5
+ACCENT = colors.HexColor("#1f3a5f")
+RULE = colors.HexColor("#8a96a3")
+SHADE = colors.HexColor("#e8edf3")
+ZEBRA = colors.HexColor("#f6f8fa")
+VERDICT_COLOURS = {
+    "pass": colors.HexColor("#1b7a3a"),
+    "fail": colors.HexColor("#b3261e"),
+    "conditional pass": colors.HexColor("#8a6d00"),
+    "conditional fail": colors.HexColor("#b35c00"),
+    "not assessed": colors.HexColor("#5f6b7a"),
+}
+
+
+def register_fonts() -> None:
+    """Register DejaVu Sans (regular, bold, oblique, mono) from matplotlib's font directory."""
+    if FONT in pdfmetrics.getRegisteredFontNames():
+        return
+    import matplotlib
+
+    folder = os.path.join(matplotlib.get_data_path(), "fonts", "ttf")
+    for name, file in (
+        (FONT, "DejaVuSans.ttf"),
+        (FONT_BOLD, "DejaVuSans-Bold.ttf"),
+        (FONT_ITALIC, "DejaVuSans-Oblique.ttf"),
+        (FONT_MONO, "DejaVuSansMono.ttf"),
+    ):
+        pdfmetrics.registerFont(TTFont(name, os.path.join(folder, file)))
+    pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD, italic=FONT_ITALIC, boldItalic=FONT_BOLD)
+
+
+def styles() -> dict[str, ParagraphStyle]:
+    """Paragraph styles of the report."""
+    register_fonts()
+    body = ParagraphStyle("body", fontName=FONT, fontSize=BODY_SIZE, leading=BODY_SIZE * 1.35, alignment=TA_LEFT, spaceAfter=4)
+    return {
+        "title": ParagraphStyle("title", parent=body, fontName=FONT_BOLD, fontSize=17, leading=21, textColor=ACCENT, spaceAfter=2),
+        "subtitle": ParagraphStyle("subtitle", parent=body, fontSize=10, leading=13, textColor=RULE, spaceAfter=10),
+        "h1": ParagraphStyle(
+            "h1", parent=body, fontName=FONT_BOLD, fontSize=12, leading=15, textColor=ACCENT, spaceBefore=10, spaceAfter=5
+        ),
+        "h2": ParagraphStyle("h2", parent=body, fontName=FONT_BOLD, fontSize=10, leading=13, spaceBefore=6, spaceAfter=3),
+        "body": body,
+        "small": ParagraphStyle("small", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceAfter=2),
+        "caption": ParagraphStyle(
+            "caption", parent=body, fontName=FONT_ITALIC, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceBefore=2, spaceAfter=8
+        ),
+        "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
+        "cell_mono": ParagraphStyle(
+            "cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0
+        ),
+        "head": ParagraphStyle(
+            "head", parent=body, fontName=FONT_BOLD, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0
+        ),
+        "verdict": ParagraphStyle("verdict", parent=body, fontName=FONT_BOLD, fontSize=13, leading=17, spaceBefore=4, spaceAfter=6),
+    }
+
+
+def escape(text: Any) -> str:
+    """Text safe for a reportlab Paragraph (which reads a small XML markup)."""
+    return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def table(
+    rows: Sequence[Sequence[Any]],
+    widths: Sequence[float],
+    *,
+    header_rows: int = 1,
+    align_right: Sequence[int] = (),
+    mono: Sequence[int] = (),
+    cell_colours: dict[tuple[int, int], Any] | None = None,
+    key_value: bool = False,
+) -> Table:
+    """A ruled table whose cells wrap inside ``widths`` (fractions of the text width if they sum to ≤ 1).
+
+    Strings become Paragraphs (so long text wraps instead of running off the page);
+    flowables are kept as they are.  Header rows repeat on every page the table spans.
+    """
+    s = styles()
+    if sum(widths) <= 1.0 + 1e-9:
+        widths = [w * TEXT_WIDTH for w in widths]
+    right = ParagraphStyle("cell_right", parent=s["cell"], alignment=2)
+    right_head = ParagraphStyle("head_right", parent=s["head"], alignment=2)
+    data = []
+    for r, row in enumerate(rows):
+        out = []
+        for c, cell in enumerate(row):
+            if isinstance(cell, Flowable):
+                out.append(cell)
+                continue
+            if r < header_rows:
+                style = right_head if c in align_right else s["head"]
+            elif key_value and c == 0:
+                style = s["head"]
+            elif c in mono:
+                style = s["cell_mono"]
+            else:
+                style = right if c in align_right else s["cell"]
+            text = escape(cell)
+            if cell_colours and (r, c) in cell_colours:
+                text = f'<font color="{cell_colours[(r, c)].hexval()}"><b>{text}</b></font>'
+            out.append(Paragraph(text, style))
+        data.append(out)
+    t = Table(data, colWidths=list(widths), repeatRows=header_rows, hAlign="LEFT")
+    commands: list[tuple[Any, ...]] = [
+        ("VALIGN", (0, 0), (-1, -1), "TOP"),
+        ("LEFTPADDING", (0, 0), (-1, -1), 3),
+        ("RIGHTPADDING", (0, 0), (-1, -1), 3),
+        ("TOPPADDING", (0, 0), (-1, -1), 1.5),
+        ("BOTTOMPADDING", (0, 0), (-1, -1), 2),
+        ("LINEABOVE", (0, 0), (-1, 0), 0.8, ACCENT),
+        ("LINEBELOW", (0, -1), (-1, -1), 0.8, ACCENT),
+    ]
+    if header_rows:
+        commands += [
+            ("BACKGROUND", (0, 0), (-1, header_rows - 1), SHADE),
+            ("LINEBELOW", (0, header_rows - 1), (-1, header_rows - 1), 0.5, ACCENT),
+        ]
+    for r in range(header_rows, len(data)):
+        if (r - header_rows) % 2 == 1:
+            commands.append(("BACKGROUND", (0, r), (-1, r), ZEBRA))
+    t.setStyle(TableStyle(commands))
+    return t
+
+
+def figure(png: bytes, width_fraction: float, aspect: float, caption: str) -> KeepTogether:
+    """A high-dpi PNG figure scaled to a fraction of the text width, kept together with its caption.
+
+    ``aspect`` is height / width of the figure as drawn by matplotlib.
+    """
+    s = styles()
+    width = width_fraction * TEXT_WIDTH
+    image = Image(io.BytesIO(png), width=width, height=width * aspect)
+    image.hAlign = "CENTER"
+    return KeepTogether([image, Paragraph(caption, s["caption"])])
+
+
+class NumberedCanvas(canvas_module.Canvas):
+    """Canvas that draws the page furniture with "page i of n" once the total is known."""
+
+    furniture: dict[str, str] = {}
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._pages: list[dict[str, Any]] = []
+
+    def showPage(self) -> None:  # noqa: N802 (reportlab API)
+        self._pages.append(dict(self.__dict__))
+        self._startPage()
+
+    def save(self) -> None:
+        total = len(self._pages)
+        for state in self._pages:
+            self.__dict__.update(state)
+            self._draw_furniture(total)
+            super().showPage()
+        super().save()
+
+    def _draw_furniture(self, total: int) -> None:
+        f = self.furniture
+        top = PAGE_HEIGHT - MARGIN + 4 * mm
+        self.saveState()
+        self.setStrokeColor(ACCENT)
+        self.setLineWidth(0.6)
+        self.line(MARGIN, top - 2 * mm, PAGE_WIDTH - MARGIN, top - 2 * mm)
+        self.setFont(FONT_BOLD, 8)
+        self.setFillColor(ACCENT)
+        self.drawString(MARGIN, top, f.get("title", ""))
+        self.setFont(FONT, 8)
+        self.setFillColor(colors.black)
+        self.drawRightString(PAGE_WIDTH - MARGIN, top, f"Report {f.get('report_id', '')}   ·   Unit S/N {f.get('serial', '')}")
+        bottom = MARGIN - 8 * mm
+        self.setStrokeColor(RULE)
+        self.line(MARGIN, bottom + 4 * mm, PAGE_WIDTH - MARGIN, bottom + 4 * mm)
+        self.setFont(FONT, 7)
+        self.setFillColor(RULE)
+        self.drawString(MARGIN, bottom, f.get("footer", ""))
+        self.setFillColor(colors.black)
+        self.setFont(FONT_BOLD, 8)
+        self.drawRightString(PAGE_WIDTH - MARGIN, bottom, f"page {self._pageNumber} of {total}")
+        self.restoreState()
+
+
+def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial: str, footer: str, subject: str = "") -> int:
+    """Lay out ``story`` into ``out`` (a path or binary file object); returns the page count."""
+    register_fonts()
+    doc = BaseDocTemplate(
+        out,
+        pagesize=A4,
+        leftMargin=MARGIN,
+        rightMargin=MARGIN,
+        topMargin=MARGIN + HEADER * 0.4,
+        bottomMargin=MARGIN + FOOTER * 0.2,
+        title=f"{title} {report_id}",
+        author="stableins",
+        subject=subject,
+        creator="stableins (reportlab)",
+    )
+    frame = Frame(
+        doc.leftMargin, doc.bottomMargin, doc.width, doc.height, id="body", leftPadding=0, rightPadding=0, topPadding=0, bottomPadding=0
+    )
+    doc.addPageTemplates([PageTemplate(id="page", frames=[frame])])
+    furniture = {"title": title, "report_id": report_id, "serial": serial, "footer": footer}
+    canvas_class = type("ReportCanvas", (NumberedCanvas,), {"furniture": furniture})
+    doc.build(story, canvasmaker=canvas_class)
+    return doc.page
+
+
+def spacer(height_mm: float) -> Spacer:
+    return Spacer(1, height_mm * mm)

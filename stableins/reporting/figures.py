@@ -1,0 +1,225 @@
+"""Report figures (matplotlib, Agg, no pyplot state).
+
+Figures are drawn at the size they are printed (the text width, 174 mm) with the
+report's typeface (DejaVu Sans) at 8 pt, so lettering in figures matches the tables;
+they are embedded as 300-dpi PNG.  Each function returns ``(png_bytes, aspect)`` with
+``aspect = height / width``.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+from contextlib import contextmanager
+from typing import Any
+
+from stableins.conventions import MICRO_G
+
+#: Printed width of a full-width figure [inch] (A4 minus 2 × 18 mm margins).
+FULL_WIDTH = (210.0 - 36.0) / 25.4
+DPI = 300
+STYLE = {
+    "font.family": "DejaVu Sans",
+    "font.size": 8.0,
+    "axes.titlesize": 8.5,
+    "axes.labelsize": 8.0,
+    "xtick.labelsize": 7.0,
+    "ytick.labelsize": 7.0,
+    "legend.fontsize": 7.0,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 0.9,
+    "axes.grid": True,
+    "grid.linewidth": 0.4,
+    "grid.alpha": 0.5,
+    "axes.axisbelow": True,
+    "axes.unicode_minus": True,
+    "savefig.dpi": DPI,
+}
+AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
+
+
+@contextmanager
+def _style() -> Any:
+    import matplotlib
+
+    with matplotlib.rc_context(STYLE):
+        yield
+
+
+def _figure(width: float, height: float) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _png(fig: Any) -> tuple[bytes, float]:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
+    width, height = fig.get_size_inches()
+    return buffer.getvalue(), float(height / width)
+
+
+def residual_scale(unit: str) -> tuple[float, str]:
+    """Divisor and label turning residuals in ``unit`` into the unit plotted."""
+    if unit in ("m/s^2", "m/s²"):
+        return MICRO_G, "µg"
+    return 1.0, unit
+
+
+def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]]) -> tuple[bytes, float]:
+    """Heat map of the correlation coefficients of the estimated parameters (annotated when ≤ 18)."""
+    import numpy as np
+
+    n = len(ids)
+    rho = np.asarray(matrix, dtype=float)
+    with _style():
+        size = min(FULL_WIDTH * 0.8, 1.6 + 0.28 * n)
+        fig = _figure(size + 0.9, size)
+        ax = fig.add_subplot(111)
+        image = ax.imshow(rho, cmap="RdBu_r", vmin=-1.0, vmax=1.0, interpolation="nearest")
+        ax.set_xticks(range(n), ids, rotation=90)
+        ax.set_yticks(range(n), ids)
+        ax.grid(False)
+        if n <= 18:
+            for i in range(n):
+                for j in range(n):
+                    value = rho[i, j]
+                    text = "0.00" if abs(value) < 0.005 else f"{value:.2f}".replace("-", "\u2212")
+                    ax.text(j, i, text, ha="center", va="center", fontsize=5.0, color="white" if abs(value) > 0.6 else "black")
+        bar = fig.colorbar(image, ax=ax, shrink=0.8, pad=0.02)
+        bar.set_label("correlation coefficient ρ (dimensionless)")
+        return _png(fig)
+
+
+def residuals_by_position(stage: Any) -> tuple[bytes, float]:
+    """Residual of every position, one panel per axis, with the ±1σ noise floor of each observation."""
+    import numpy as np
+
+    scale, unit = residual_scale(stage.unit)
+    groups = stage.by_position_axis()
+    keys = [k for k in ("x", "y", "z", "|f|") if k in groups]
+    colours = dict(AXIS_COLOURS, **{"|f|": "#1f3a5f"})
+    with _style():
+        fig = _figure(FULL_WIDTH, 0.9 + 1.25 * len(keys))
+        axes = np.atleast_1d(fig.subplots(len(keys), 1, sharex=True))
+        for ax, axis in zip(axes, keys, strict=True):
+            name = "|f|" if axis == "|f|" else f"f_{axis}"
+            points = sorted(groups[axis])
+            position = np.array([p[0] for p in points], dtype=float)
+            residual = np.array([p[1] for p in points]) / scale
+            sigma = np.array([p[2] for p in points]) / scale
+            # Observations may repeat a position (passes); offset them slightly so all are visible.
+            offsets = np.zeros_like(position)
+            for value in np.unique(position):
+                same = np.flatnonzero(position == value)
+                if same.size > 1:
+                    offsets[same] = np.linspace(-0.2, 0.2, same.size)
+            x = position + offsets
+            ax.fill_between(x, -sigma, sigma, step="mid", color="0.85", label="noise floor (±1σ)", linewidth=0)
+            ax.errorbar(
+                x, residual, yerr=sigma, fmt="o", ms=2.8, color=colours[axis], elinewidth=0.6, capsize=1.5, label=f"{name} residual"
+            )
+            ax.axhline(0.0, color="black", linewidth=0.6)
+            ax.set_ylabel(f"{name} residual [{unit}]")
+            ax.legend(loc="upper right", ncols=2, frameon=False)
+            limit = max(float(np.max(np.abs(residual) + sigma)), 1e-12) * 1.35
+            ax.set_ylim(-limit, limit)
+        axes[-1].set_xlabel("position number")
+        positions = sorted({p[0] for points in groups.values() for p in points})
+        if positions and len(positions) <= 40:
+            axes[-1].set_xticks(positions)
+        per = "per position" if "|f|" in groups else "per position and axis"
+        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) {per}; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
+        return _png(fig)
+
+
+def normalized_residuals(stage: Any) -> tuple[bytes, float]:
+    """Residual / 1σ per observation (for stages whose residuals are not labelled by position and axis)."""
+    import numpy as np
+
+    r = np.asarray(stage.residuals) / np.asarray(stage.sigma)
+    with _style():
+        fig = _figure(FULL_WIDTH, 2.2)
+        ax = fig.add_subplot(111)
+        ax.axhspan(-1, 1, color="0.85", label="noise floor (±1σ)", linewidth=0)
+        ax.plot(np.arange(1, r.size + 1), r, "o", ms=2.5, label="residual / σ")
+        ax.axhline(0, color="black", linewidth=0.6)
+        ax.set_xlabel("observation number")
+        ax.set_ylabel("residual / σ (dimensionless)")
+        ax.set_title(f"{stage.stage} stage: normalized residuals; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
+        ax.legend(loc="upper right", frameon=False, ncols=2)
+        return _png(fig)
+
+
+def harmonic_fits(records: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
+    """System-level records with their fitted harmonic model, one panel per channel."""
+    import numpy as np
+
+    n = len(records)
+    with _style():
+        fig = _figure(FULL_WIDTH, 1.6 + 1.5 * n)
+        axes = np.atleast_1d(fig.subplots(n, 1, sharex=False))
+        for ax, record in zip(axes, records, strict=True):
+            time = np.asarray(record["time"], dtype=float) / 3600.0
+            ax.plot(time, record["observed"], color="0.45", linewidth=0.6, label="observed")
+            ax.plot(time, record["model"], color="#d62728", linewidth=1.0, label="harmonic fit")
+            title = record.get("channel", "")
+            if "chi2_red" in record:
+                title += f"  (χ²_ν = {float(record['chi2_red']):.2f})"
+            ax.set_title(title, loc="left")
+            ax.set_ylabel(f"{record.get('quantity', 'value')} [{record.get('unit', '')}]")
+            ax.legend(loc="upper right", frameon=False, ncols=2)
+        axes[-1].set_xlabel("time since start of record [h]")
+        return _png(fig)
+
+
+def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
+    """Residual RMS after each model-discovery step."""
+    labels = [str(s.get("label", s.get("model", f"step {i}"))) for i, s in enumerate(steps)]
+    rms = [float(s["residual_rms"]) for s in steps]
+    unit = str(steps[0].get("unit", "µg")) if steps else "µg"
+    with _style():
+        fig = _figure(FULL_WIDTH, 2.4)
+        ax = fig.add_subplot(111)
+        ax.plot(range(len(rms)), rms, "o-", color="#1f3a5f", ms=4)
+        floor = [s.get("noise_floor") for s in steps]
+        if all(f is not None for f in floor) and floor:
+            ax.plot(range(len(rms)), [float(f) for f in floor], "--", color="0.4", label="noise floor")
+            ax.legend(frameon=False)
+        ax.set_xticks(range(len(rms)), labels, rotation=20, ha="right")
+        from matplotlib.ticker import FuncFormatter
+
+        ax.set_yscale("log")
+        plain = FuncFormatter(lambda v, _: f"{v:g}")
+        ax.yaxis.set_major_formatter(plain)
+        ax.yaxis.set_minor_formatter(plain)
+        ax.set_ylabel(f"residual RMS [{unit}]")
+        ax.set_xlabel("model after step")
+        return _png(fig)
+
+
+def changes(items: Sequence[Any]) -> tuple[bytes, float]:
+    """Change since the previous calibration, normalized by its expanded uncertainty (E_n, signed)."""
+    labels = [c.id for c in items]
+    values = [c.delta / (2.0 * c.u_delta) if c.u_delta > 0 else math.copysign(math.inf, c.delta) for c in items]
+    with _style():
+        fig = _figure(FULL_WIDTH, 2.3)
+        ax = fig.add_subplot(111)
+        colours = ["#b3261e" if abs(v) > 1 else "#1f3a5f" for v in values]
+        finite = [v if math.isfinite(v) else 0.0 for v in values]
+        ax.bar(range(len(values)), finite, color=colours, width=0.6)
+        ax.axhspan(-1, 1, color="0.88", linewidth=0, label="|E_n| ≤ 1: not significant")
+        ax.axhline(0, color="black", linewidth=0.6)
+        ax.set_xticks(range(len(values)), labels, rotation=90)
+        from matplotlib.ticker import FuncFormatter
+
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
+        ax.set_ylabel("Δ / U(Δ), signed E_n")
+        ax.set_xlim(-0.6, len(values) - 0.4)
+        ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
+        return _png(fig)

@@ -1,0 +1,579 @@
+"""Content builders, one per report section (ISO/IEC 17025:2017 7.8 and the GUM as the checklist).
+
+Each builder takes the :class:`ReportContext` and returns flowables.  A section whose
+evidence the record does not carry says so ("not performed" / "not recorded"); no
+number is ever made up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from reportlab.platypus import CondPageBreak, Flowable, KeepTogether, Paragraph
+
+from stableins.reporting import content, document, figures
+from stableins.reporting.content import MINUS, Change, Check, ParameterRow
+from stableins.reporting.document import escape
+from stableins.reporting.evidence import StageEvidence
+from stableins.reporting.record_view import RecordView
+from stableins.reporting.tolerances import RULE_TEXT, Tolerances
+
+NOT_RECORDED = "not recorded"
+
+
+@dataclass(frozen=True)
+class InputFile:
+    """One input of the report and its SHA-256, with how it was checked."""
+
+    role: str
+    name: str
+    sha256: str
+    check: str = ""
+
+
+@dataclass
+class ReportContext:
+    """Everything a report states, gathered before layout."""
+
+    record: RecordView
+    report_id: str
+    issued: str
+    rows: list[ParameterRow]
+    stages: list[StageEvidence]
+    inputs: list[InputFile]
+    tolerances: Tolerances
+    checks: list[Check]
+    previous: RecordView | None = None
+    changes: list[Change] | None = None
+    skipped_changes: list[str] = field(default_factory=list)
+    software_version: str = ""
+    evidence_notes: list[str] = field(default_factory=list)
+    figures: int = 0
+    discovery: dict[str, Any] = field(default_factory=dict)
+    discovery_source: str = "calibration record"
+
+    def figure_label(self) -> str:
+        """ "Figure n." with n counting the figures in the order they are laid out."""
+        self.figures += 1
+        return f"Figure {self.figures}."
+
+
+def _p(text: str, style: str = "body") -> Paragraph:
+    return Paragraph(text, document.styles()[style])
+
+
+def _fmt(x: float, significant: int = 3) -> str:
+    return content.number(x, significant) if math.isfinite(x) else "—"
+
+
+def _degrees(radians: float) -> str:
+    return f"{math.degrees(radians):.6f}°".replace("-", MINUS)
+
+
+# ---------------------------------------------------------------------- sections
+def title_block(ctx: ReportContext) -> list[Flowable]:
+    r = ctx.record
+    site = r.site
+    extra = site.extra if site else {}
+    rows = [
+        ["Report id", ctx.report_id],
+        ["Item calibrated", f"tri-axis accelerometer of a space-stable (gimbaled) INS, unit serial number {r.serial_number}"],
+        ["Laboratory", str(extra.get("laboratory", NOT_RECORDED))],
+        ["Customer", str(extra.get("customer", NOT_RECORDED))],
+        ["Location of calibration", str(extra.get("location", "on the system, at the site described in section 2"))],
+        ["Calibration performed", _period(r.times)],
+        ["Date of issue", ctx.issued],
+        [
+            "Software",
+            f"stableins {ctx.software_version} (calibration record written by stableins "
+            f"{r.software_version or NOT_RECORDED}, schema {r.schema_version})",
+        ],
+    ]
+    return [
+        _p("Calibration certificate", "title"),
+        _p("On-system calibration of the tri-axis accelerometer of a space-stable inertial navigation system", "subtitle"),
+        document.table(rows, [0.24, 0.76], header_rows=0, key_value=True),
+        document.spacer(2),
+        _p(
+            "The results relate only to the item calibrated, at the time and under the conditions stated. This report shall not be "
+            "reproduced except in full without the written approval of the issuing laboratory.",
+            "small",
+        ),
+    ]
+
+
+def _period(times: dict[str, str]) -> str:
+    if times.get("started") and times.get("finished"):
+        return f"{times['started']} to {times['finished']}"
+    if times.get("started") or times.get("finished"):
+        return times.get("started") or times.get("finished")
+    if times.get("created"):
+        return f"record created {times['created']} (times of the data not recorded)"
+    return NOT_RECORDED
+
+
+def method(ctx: ReportContext) -> list[Flowable]:
+    r = ctx.record
+    rows = [["Item", "Value"]]
+    rows += [[label, text] for label, text in content.describe_procedure(r.procedure)]
+    if len(rows) == 1:
+        rows.append(["procedure", "not recorded in the calibration record"])
+    if r.site is not None:
+        rows.append(["sample rate", f"{r.site.sample_rate:g} Hz"])
+    stages = ", ".join(s.stage for s in ctx.stages)
+    if stages and not any(label == "stages run" for label, _ in rows):
+        rows.append(["stages with residual evidence", stages])
+    out: list[Flowable] = [_p("1  Procedure and method", "h1")]
+    out.append(
+        _p(
+            "Multi-position self-calibration on the system's own gimbals: the platform is turned to a sequence of positions and the "
+            "accelerometer outputs are compared with local gravity resolved through the exact gimbal kinematics (after Wu et al., "
+            "Sensors 2018, 18, 2888, with the physics re-derived and sign errors corrected; see docs/conventions.md)."
+        )
+    )
+    out.append(document.table(rows, [0.32, 0.68], key_value=True))
+    return out
+
+
+def site_environment(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [_p("2  Site and environment", "h1")]
+    site = ctx.record.site
+    if site is None:
+        out.append(
+            _p(
+                "Site metadata: not recorded in the calibration record. "
+                "Local gravity, the reference of this calibration, is therefore not stated."
+            )
+        )
+        return out
+    env = ctx.record.environment
+    temperature = env.get("temperature")
+    if isinstance(temperature, dict) and "mean" in temperature:
+        parts = [f"mean {float(temperature['mean']):.2f} °C"]
+        if "min" in temperature and "max" in temperature:
+            parts.append(f"range {float(temperature['min']):.2f} to {float(temperature['max']):.2f} °C")
+        temperature_text = ", ".join(parts) + " (instrument temperature during the calibration)"
+    else:
+        temperature_text = "not recorded in the calibration record"
+    yaw, pitch, roll = site.base_attitude
+    rows = [
+        ["Quantity", "Value"],
+        ["latitude (geodetic)", _degrees(site.latitude)],
+        ["height (ellipsoidal)", f"{site.height:.1f} m".replace("-", MINUS)],
+        ["local gravity g", f"{site.gravity:.7f} m/s²"],
+        ["source of g", site.gravity_source],
+        ["base attitude (yaw, pitch, roll)", f"{_degrees(yaw)}, {_degrees(pitch)}, {_degrees(roll)} (site survey)"],
+        ["gimbal rotation senses (s1..s4)", ", ".join(f"{s:+d}" for s in site.gimbal_senses)],
+        ["temperature", temperature_text],
+        ["reference temperature", f"{site.reference_temperature:.1f} °C"],
+    ]
+    out.append(document.table(rows, [0.32, 0.68], key_value=True))
+    out.append(
+        _p(
+            "Metrological traceability: the reference quantity of this calibration is the local gravity g stated above; scale "
+            "factors are traceable to the SI through it and its source. Angles are realized by the system's own gimbal angle sensors, "
+            "whose zero offsets are part of the model. Biases and installation angles are determined relative to these references.",
+            "small",
+        )
+    )
+    return out
+
+
+def inputs(ctx: ReportContext) -> list[Flowable]:
+    rows: list[list[Any]] = [["Role", "File", "SHA-256", "Check"]]
+    for f in ctx.inputs:
+        rows.append([f.role, f.name, f.sha256, f.check])
+    out: list[Flowable] = [_p("3  Inputs and their integrity", "h1")]
+    out.append(
+        _p(
+            "SHA-256 digests of every file this calibration and this report were made from. "
+            "A file whose digest differs is not the file used."
+        )
+    )
+    out.append(document.table(rows, [0.14, 0.27, 0.41, 0.18], mono=(2,)))
+    return out
+
+
+def results(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(120), _p("4  Results", "h1")]
+    out.append(
+        _p(
+            "Values after calibration, in engineering units: scale factors as deviation from 1 in ppm, biases in µg, angles in "
+            "arcsec, quadratic nonlinearity in µg/g² (1 g = 9.80665 m/s², the conventional value used for units only). u is the standard "
+            "uncertainty; U = k·u is the expanded uncertainty with coverage factor k = 2."
+        )
+    )
+    header = ["Parameter", "Meaning", "Status", "Value", "u", "U (k = 2)", "Unit"]
+    rows: list[list[Any]] = [header]
+    for row in ctx.rows:
+        value, u, expanded = row.formatted()
+        rows.append([row.id, row.meaning, content.STATUS_TEXT[row.status], value, u, expanded, row.unit])
+    out.append(document.table(rows, [0.11, 0.37, 0.11, 0.12, 0.08, 0.11, 0.10], align_right=(3, 4, 5)))
+    out.append(document.spacer(2))
+    out.append(_p(_uncertainty_statement(ctx), "small"))
+    not_estimated = [r for r in ctx.rows if not r.estimated]
+    out.append(_p("Parameters not estimated", "h2"))
+    if not_estimated:
+        rows = [["Parameter", "Status", "Why"]] + [[r.id, content.STATUS_TEXT[r.status], r.why or NOT_RECORDED] for r in not_estimated]
+        out.append(document.table(rows, [0.14, 0.16, 0.70]))
+    else:
+        out.append(_p("None: every parameter of the model was estimated from the data."))
+    determined = [(s.stage, d) for s in ctx.stages for d in s.determined]
+    determined += [("record", d) for d in ctx.record.determined if all(d != x for _, x in determined)]
+    if determined:
+        out.append(_p("Combinations the data determine", "h2"))
+        out.append(document.table([["Stage", "Combination"]] + [list(d) for d in determined], [0.14, 0.86]))
+    ids, matrix = content.correlation(ctx.record)
+    heading = _p("Correlation of the estimates", "h2")
+    if len(ids) >= 2:
+        png, aspect = figures.correlation_matrix(ids, matrix)
+        width = 0.85 * min(1.0, (1.6 + 0.28 * len(ids) + 0.9) / figures.FULL_WIDTH)
+        caption = (
+            f"{ctx.figure_label()} Correlation coefficients of the {len(ids)} estimated parameters, "
+            "from the covariance in the calibration record."
+        )
+        out.append(KeepTogether([heading, document.figure(png, width, aspect, caption)]))
+    else:
+        out += [heading, _p("Not shown: the calibration record carries no covariance of two or more estimated parameters.")]
+    return out
+
+
+def _uncertainty_statement(ctx: ReportContext) -> str:
+    text = (
+        "Uncertainty evaluation (GUM, JCGM 100:2008): u is the square root of the diagonal of the parameter covariance, propagated "
+        "by least squares from the noise measured in the calibration data (Type A, GUM 4.2). U = 2u gives a coverage probability of "
+        "about 95\u00a0% for a normal distribution (GUM 6.2, 6.3). Uncertainties are reported as estimated, not scaled by χ²_ν; "
+    )
+    high = [s for s in ctx.stages if s.dof > 0 and s.chi2_red > s.chi2_red_interval()[1]]
+    if high:
+        names = ", ".join(f"{s.stage} (χ²_ν = {s.chi2_red:.2f})" for s in high)
+        text += (
+            f"<b>caution</b>: the residuals of {escape(names)} exceed the noise by more than chance allows, so effects outside the model "
+            "are present and u may understate the error (see section 5)."
+        )
+    elif ctx.stages:
+        text += "the residuals agree with the noise (section 5), so no unmodelled effect is seen at this level."
+    else:
+        text += "no residual evidence was available to check this (section 5)."
+    return text
+
+
+def evidence(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(150), _p("5  Evidence that the model fits", "h1")]
+    for note in ctx.evidence_notes:
+        out.append(_p(escape(note[0].upper() + note[1:]) + ".", "small"))
+    if not ctx.stages:
+        out.append(
+            _p(
+                "Device-level residual analysis: <b>not performed</b>; the calibration record carries no stage residuals "
+                "and no device-level data file was given (--data)."
+            )
+        )
+    else:
+        rows: list[list[Any]] = [["Stage", "Obs.", "Rank / param.", "χ²_ν", "ν", "95\u00a0% interval, noise alone", "Verdict"]]
+        colours = {}
+        for i, s in enumerate(ctx.stages, start=1):
+            low, high = s.chi2_red_interval()
+            ok = low <= s.chi2_red <= high
+            verdict = "consistent with noise" if ok else ("residuals exceed noise" if s.chi2_red > high else "residuals below noise")
+            colours[(i, 6)] = document.VERDICT_COLOURS["pass" if ok else "conditional fail"]
+            rows.append(
+                [
+                    s.stage,
+                    str(len(s.residuals)),
+                    f"{s.rank} / {s.n_parameters}",
+                    f"{s.chi2_red:.3f}",
+                    str(s.dof),
+                    f"{low:.3f} to {high:.3f}",
+                    verdict,
+                ]
+            )
+        out.append(document.table(rows, [0.10, 0.13, 0.15, 0.09, 0.07, 0.24, 0.22], align_right=(1, 3, 4), cell_colours=colours))
+        out.append(
+            _p(
+                "χ²_ν = Σ(r_i/σ_i)²/ν with ν = observations − rank; σ_i is the noise floor of observation i measured in the data; "
+                "where the stage models noise correlated between observations (slow bias drift), χ² is that of the whitened "
+                "residuals. Values inside the interval mean the model explains the data down to the noise.",
+                "small",
+            )
+        )
+        for s in ctx.stages:
+            if s.labels and s.unlabelled == 0:
+                png, aspect = figures.residuals_by_position(s)
+                caption = (
+                    f"{ctx.figure_label()} {s.stage.capitalize()} stage: residual of each position (per axis, or of the specific-force "
+                    "magnitude |f|) with ±1σ error bars; "
+                    "the grey band is the noise floor (±1σ) measured in the data."
+                )
+            else:
+                png, aspect = figures.normalized_residuals(s)
+                caption = f"{ctx.figure_label()} {s.stage.capitalize()} stage: residual of each observation divided by its 1σ noise floor."
+            out.append(document.figure(png, 1.0, aspect, caption))
+            if s.notes:
+                out.append(_p(f"Notes of the {escape(s.stage)} stage: " + "; ".join(escape(n) for n in s.notes), "small"))
+    out.append(KeepTogether([_p("System-level harmonic fits", "h2"), *_system(ctx)]))
+    return out
+
+
+def _system(ctx: ReportContext) -> list[Flowable]:
+    system = ctx.record.system
+    harmonics = system.get("harmonics", [])
+    records = [r for r in system.get("records", []) if {"time", "observed", "model"} <= set(r)]
+    if not harmonics and not records:
+        if "system" in ctx.record.procedure.get("stages", []):
+            return [
+                _p(
+                    "<b>Not shown</b>: the system-level stage ran (record provenance), but the record carries neither its harmonic "
+                    "fits nor its residuals, so this report cannot show them."
+                )
+            ]
+        return [_p("<b>Not performed</b>: the calibration record carries no system-level stage.")]
+    out: list[Flowable] = []
+    if harmonics:
+        rows: list[list[Any]] = [["Channel", "Period [h]", "Amplitude", "u", "Phase [°]", "Unit"]]
+        for h in harmonics:
+            rows.append(
+                [
+                    str(h.get("channel", "")),
+                    _fmt(float(h.get("period", math.nan)) / 3600.0, 4),
+                    _fmt(float(h.get("amplitude", math.nan)), 4),
+                    _fmt(float(h.get("sigma", math.nan)), 2),
+                    _fmt(math.degrees(float(h.get("phase", math.nan))), 4),
+                    str(h.get("unit", "")),
+                ]
+            )
+        out.append(document.table(rows, [0.24, 0.14, 0.16, 0.14, 0.14, 0.18], align_right=(1, 2, 3, 4)))
+    if records:
+        png, aspect = figures.harmonic_fits(records)
+        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} System-level records with the fitted harmonic model."))
+    return out
+
+
+def discovery(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(120), _p("6  Model discovery", "h1")]
+    if "history" in ctx.discovery:
+        return out + _diagnosis(ctx)
+    steps = ctx.discovery.get("steps", [])
+    if not steps:
+        out.append(
+            _p(
+                "<b>Not performed</b>: the calibration record carries no model-discovery history. "
+                "The error model is the one named by the procedure."
+            )
+        )
+        return out
+    rows: list[list[Any]] = [["Step", "Candidate", "Statistic", "Value", "Decision", "Residual RMS"]]
+    for i, step in enumerate(steps):
+        unit = str(step.get("unit", "µg"))
+        candidates = step.get("candidates", []) or [{}]
+        for j, c in enumerate(candidates):
+            rows.append(
+                [
+                    str(i) if j == 0 else "",
+                    str(c.get("term", step.get("label", ""))),
+                    str(c.get("statistic", "")),
+                    _fmt(float(c["value"]), 4) if "value" in c else "",
+                    str(c.get("decision", "")),
+                    f"{_fmt(float(step['residual_rms']), 3)} {unit}" if j == 0 and "residual_rms" in step else "",
+                ]
+            )
+    out.append(document.table(rows, [0.07, 0.25, 0.16, 0.14, 0.22, 0.16], align_right=(3, 5)))
+    if all("residual_rms" in s for s in steps):
+        png, aspect = figures.discovery_steps(steps)
+        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} Residual RMS after each model-discovery step."))
+    return out
+
+
+def _diagnosis(ctx: ReportContext) -> list[Flowable]:
+    """The output of ``stableins diagnose --json``: the refit history and the ranked candidates."""
+    from stableins.conventions import MICRO_G
+
+    d = ctx.discovery
+    out: list[Flowable] = [
+        _p(
+            f"From {escape(ctx.discovery_source)} (stableins diagnose): {escape(d.get('stage') or 'device')} stage, "
+            f"χ²_ν = {float(d.get('chi2_red', math.nan)):.3f} with ν = {d.get('dof', '—')}. Candidates are ranked by the "
+            "significance of the residual they explain; ΔBIC &lt; 0 favours adding the effect."
+        )
+    ]
+    rows: list[list[Any]] = [["Candidate", "p-value", "ΔBIC", "Estimate ± 1σ", "Flag", "Advice"]]
+    for c in d.get("candidates", [])[:12]:
+        predicted = c.get("predicted") or {}
+        estimate = predicted.get("estimate")
+        sigma = predicted.get("sigma")
+        text = (
+            "—"
+            if estimate is None
+            else f"{_fmt(float(estimate), 3)} ± {_fmt(float(sigma), 2)} {content.unit_text(str(predicted.get('unit', '')))}"
+        )
+        p_value = c.get("p_value")
+        rows.append(
+            [
+                str(c.get("id", "")),
+                "—" if p_value is None else f"{float(p_value):.2g}",
+                "—" if c.get("delta_bic") is None else f"{float(c['delta_bic']):.1f}".replace("-", MINUS),
+                text,
+                "yes" if c.get("flagged") else "no",
+                str(c.get("advice", "")),
+            ]
+        )
+    if len(rows) > 1:
+        out.append(document.table(rows, [0.15, 0.09, 0.08, 0.2, 0.08, 0.40], align_right=(1, 2)))
+    else:
+        out.append(_p("No candidate effect was tested."))
+    steps = []
+    for step in d.get("history", []):
+        rms = [float(x) for x in step.get("residual_rms", [])]
+        floor = [float(x) for x in step.get("noise_floor", [])]
+        if not rms:
+            continue
+        steps.append(
+            {
+                "label": str(step.get("label", "")),
+                "residual_rms": math.sqrt(sum(x * x for x in rms) / len(rms)) / MICRO_G,
+                "noise_floor": math.sqrt(sum(x * x for x in floor) / len(floor)) / MICRO_G if floor else None,
+                "unit": "µg",
+                "chi2_red": step.get("chi2_red"),
+                "bic": step.get("bic"),
+            }
+        )
+    if steps:
+        out.append(_p("Refit history", "h2"))
+        rows = [["Step", "Model", "Residual RMS [µg]", "Noise floor [µg]", "χ²_ν", "BIC"]]
+        for i, st in enumerate(steps):
+            rows.append(
+                [
+                    str(i),
+                    st["label"],
+                    _fmt(st["residual_rms"], 3),
+                    _fmt(st["noise_floor"], 3) if st["noise_floor"] is not None else "—",
+                    _fmt(float(st["chi2_red"]), 3) if st.get("chi2_red") is not None else "—",
+                    f"{float(st['bic']):.1f}".replace("-", MINUS) if st.get("bic") is not None else "—",
+                ]
+            )
+        out.append(document.table(rows, [0.07, 0.33, 0.16, 0.16, 0.12, 0.16], align_right=(2, 3, 4, 5)))
+        png, aspect = figures.discovery_steps(steps)
+        caption = (
+            f"{ctx.figure_label()} Residual RMS (RMS over the output axes) after each step of the refit history, with the noise floor."
+        )
+        out.append(document.figure(png, 1.0, aspect, caption))
+    return out
+
+
+def change(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(120), _p("7  Change since the previous calibration", "h1")]
+    if ctx.previous is None or ctx.changes is None:
+        out.append(_p("<b>Not performed</b>: no previous calibration record was given."))
+        return out
+    prev = ctx.previous
+    out.append(
+        _p(
+            f"Previous record: {escape(prev.path or 'in memory')} (serial number {escape(prev.serial_number)}, "
+            f"calibrated {escape(_period(prev.times))}). "
+            "Δ = new − previous; U(Δ) = 2·sqrt(u_new² + u_prev²), the two calibrations taken as independent; E_n = |Δ| / U(Δ). "
+            "A change with E_n > 1 is significant at about 95\u00a0%."
+        )
+    )
+    if prev.serial_number != ctx.record.serial_number:
+        out.append(
+            _p(f"<b>Warning</b>: the previous record is of unit {escape(prev.serial_number)}, not {escape(ctx.record.serial_number)}.")
+        )
+    if ctx.changes:
+        rows: list[list[Any]] = [["Parameter", "Previous", "Now", "Δ", "U(Δ)", "E_n", "Significant", "Unit"]]
+        colours = {}
+        for i, c in enumerate(ctx.changes, start=1):
+            rows.append(
+                [
+                    c.id,
+                    _fmt(c.old, 5),
+                    _fmt(c.new, 5),
+                    _fmt(c.delta, 3),
+                    _fmt(2 * c.u_delta, 2),
+                    f"{c.normalized_error:.2f}",
+                    "yes" if c.significant else "no",
+                    c.unit,
+                ]
+            )
+            if c.significant:
+                colours[(i, 6)] = document.VERDICT_COLOURS["fail"]
+        out.append(
+            document.table(rows, [0.13, 0.13, 0.13, 0.12, 0.11, 0.09, 0.14, 0.15], align_right=(1, 2, 3, 4, 5), cell_colours=colours)
+        )
+        png, aspect = figures.changes(ctx.changes)
+        out.append(
+            document.figure(
+                png,
+                1.0,
+                aspect,
+                f"{ctx.figure_label()} Change of each parameter divided by its expanded uncertainty (signed E_n); "
+                "bars outside the grey band are significant.",
+            )
+        )
+    if ctx.skipped_changes:
+        out.append(_p("Not compared: " + "; ".join(escape(s) for s in ctx.skipped_changes) + ".", "small"))
+    return out
+
+
+def conformity(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(120), _p("8  Statement of conformity", "h1")]
+    t = ctx.tolerances
+    if t.empty:
+        out.append(
+            _p("<b>No statement of conformity</b>: the procedure defines no tolerances ([tolerances] table absent), so none is made.")
+        )
+        return out
+    verdict = content.overall_verdict(ctx.checks)
+    colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
+    out.append(
+        _p(
+            f"Tolerances: {escape(t.source)}. Decision rule: {escape(RULE_TEXT[t.decision_rule])} "
+            f"Coverage factor of U: k = {t.coverage_factor:g}."
+        )
+    )
+    rows: list[list[Any]] = [["Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result"]]
+    colours = {}
+    kind_text = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
+    for i, c in enumerate(ctx.checks, start=1):
+        measured = _fmt(abs(c.measured), 4) if math.isfinite(c.measured) and c.verdict != "not assessed" else "—"
+        result = c.verdict + (f" ({c.reason})" if c.reason else "")
+        rows.append([kind_text[c.kind], c.subject, measured, _fmt(c.expanded, 2), _fmt(c.limit, 4), c.unit, result])
+        colours[(i, 6)] = document.VERDICT_COLOURS[c.verdict]
+    out.append(document.table(rows, [0.16, 0.14, 0.13, 0.09, 0.10, 0.09, 0.29], align_right=(2, 3, 4), cell_colours=colours))
+    counts = {v: sum(1 for c in ctx.checks if c.verdict == v) for v in document.VERDICT_COLOURS}
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    out.append(
+        KeepTogether(
+            [
+                _p(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>', "verdict"),
+                _p(
+                    f"{summary}. Checks marked 'not assessed' concern parameters without a stated value or evidence "
+                    "and do not enter the verdict.",
+                    "small",
+                ),
+            ]
+        )
+    )
+    return out
+
+
+def closing(ctx: ReportContext) -> list[Flowable]:
+    out: list[Flowable] = [CondPageBreak(140), _p("9  Notes and authorization", "h1")]
+    if ctx.record.notes:
+        out.append(document.table([["Notes from the calibration record"]] + [[n] for n in ctx.record.notes], [1.0]))
+    else:
+        out.append(_p("The calibration record carries no notes."))
+    out.append(document.spacer(6))
+    rows = [["", "Name", "Function", "Signature and date"], ["Performed by", "", "", ""], ["Authorized by", "", "", ""]]
+    signature = document.table(rows, [0.18, 0.30, 0.22, 0.30])
+    signature.setStyle(
+        [("ROWBACKGROUNDS", (0, 1), (-1, -1), [None]), ("TOPPADDING", (0, 1), (-1, -1), 14), ("GRID", (0, 0), (-1, -1), 0.4, document.RULE)]
+    )
+    out.append(KeepTogether([_p("Persons authorizing the report (ISO/IEC 17025 7.8.2.1 o)", "h2"), signature]))
+    out.append(document.spacer(4))
+    out.append(_p("End of report.", "small"))
+    return out
+
+
+SECTIONS = (title_block, method, site_environment, inputs, results, evidence, discovery, change, conformity, closing)

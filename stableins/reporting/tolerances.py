@@ -1,0 +1,175 @@
+r"""Conformity: tolerances from the procedure definition and the decision rule (ILAC-G8:09/2019).
+
+A procedure TOML may carry a ``[tolerances]`` table (schema proposal, see
+``docs/reports.md``)::
+
+    [tolerances]
+    decision_rule = "guarded"   # "guarded" (default), "simple" or "non-binary"
+    coverage_factor = 2.0       # k of the expanded uncertainty U = k u used by the rule
+
+    [tolerances.limits]         # |value| <= limit, in the engineering unit of each term
+    "bias_*" = 500.0            # µg
+    "sf_*" = 300.0              # ppm (deviation of the scale factor from 1)
+    "beta_*" = 60.0             # arcsec
+    "K2_*" = 50.0               # µg/g²
+
+    [tolerances.uncertainty]    # U (k = coverage_factor) <= limit: the calibration reached its accuracy
+    "bias_*" = 20.0
+
+    [tolerances.stability]      # |change since the previous calibration| <= limit
+    "bias_*" = 100.0
+
+    [tolerances.fit]
+    chi2_red_max = 2.0          # the model must explain the data to this level
+
+Keys are parameter ids or shell-style patterns (``fnmatch``); an exact id wins over a
+pattern, then the longest pattern.
+
+Decision rules (ILAC-G8:09/2019 Section 4.2, guard band ``w``, tolerance limit ``T``,
+measured ``|x|``, expanded uncertainty ``U``):
+
+* ``guarded`` (binary, ``w = U``): **pass** if ``|x| <= T − U``, else **fail**.  The
+  probability of accepting a non-conforming unit is below 2.5 % for a normal
+  distribution with ``k = 2`` (ILAC-G8 4.2.2).  This is the default: an accredited
+  laboratory states conformity only where its uncertainty supports it.
+* ``simple`` (binary, ``w = 0``, "shared risk"): **pass** if ``|x| <= T``.  The risk of
+  false acceptance reaches 50 % at the limit; use only where the customer agreed.
+* ``non-binary`` (ILAC-G8 4.2.3, ``w = U``): **pass** ``|x| <= T − U``;
+  **conditional pass** ``T − U < |x| <= T``; **conditional fail** ``T < |x| <= T + U``;
+  **fail** ``|x| > T + U``.
+
+Uncertainty limits compare the stated ``U`` itself (no measurement of ``U``, so no guard
+band); χ²_ν is compared with its maximum directly.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from stableins.data.errors import InputError
+
+DECISION_RULES = ("guarded", "simple", "non-binary")
+
+RULE_TEXT = {
+    "guarded": (
+        "Binary guarded acceptance, ILAC-G8:09/2019 4.2.2, guard band w = U: a result passes when |x| ≤ T − U and fails "
+        "otherwise. The probability of accepting a non-conforming value is below 2.5 % (normal distribution, k = 2)."
+    ),
+    "simple": (
+        "Binary simple acceptance, ILAC-G8:09/2019 4.2.1, guard band w = 0 (shared risk, as agreed with the customer): a result "
+        "passes when |x| ≤ T. The probability of false acceptance reaches 50 % at the limit."
+    ),
+    "non-binary": (
+        "Non-binary statement, ILAC-G8:09/2019 4.2.3, guard band w = U: pass |x| ≤ T − U; conditional pass T − U < |x| ≤ T; "
+        "conditional fail T < |x| ≤ T + U; fail |x| > T + U."
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Tolerance limits of a procedure, in engineering units."""
+
+    decision_rule: str = "guarded"
+    coverage_factor: float = 2.0
+    limits: Mapping[str, float] = field(default_factory=dict)
+    uncertainty: Mapping[str, float] = field(default_factory=dict)
+    stability: Mapping[str, float] = field(default_factory=dict)
+    chi2_red_max: float | None = None
+    source: str = ""
+
+    @property
+    def empty(self) -> bool:
+        return not (self.limits or self.uncertainty or self.stability or self.chi2_red_max is not None)
+
+    @classmethod
+    def from_mapping(cls, table: Any, source: str = "procedure") -> Tolerances:
+        """Validate a ``[tolerances]`` table; problems raise :class:`InputError` naming ``source``."""
+        if table is None:
+            return cls(source=source)
+        if not isinstance(table, Mapping):
+            raise InputError("[tolerances] is not a table", path=source, field="tolerances")
+        known = {"decision_rule", "coverage_factor", "limits", "uncertainty", "stability", "fit"}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise InputError(f"unknown keys {unknown}", path=source, field="tolerances", expected=", ".join(sorted(known)))
+        rule = table.get("decision_rule", "guarded")
+        if rule not in DECISION_RULES:
+            raise InputError(
+                f"unknown decision rule {rule!r}", path=source, field="tolerances.decision_rule", expected=" or ".join(DECISION_RULES)
+            )
+        k = _positive(table.get("coverage_factor", 2.0), source, "tolerances.coverage_factor")
+        fit = table.get("fit", {})
+        if not isinstance(fit, Mapping) or set(fit) - {"chi2_red_max"}:
+            raise InputError("[tolerances.fit] takes only chi2_red_max", path=source, field="tolerances.fit")
+        chi2_max = fit.get("chi2_red_max")
+        return cls(
+            decision_rule=rule,
+            coverage_factor=k,
+            limits=_limits(table.get("limits", {}), source, "limits"),
+            uncertainty=_limits(table.get("uncertainty", {}), source, "uncertainty"),
+            stability=_limits(table.get("stability", {}), source, "stability"),
+            chi2_red_max=None if chi2_max is None else _positive(chi2_max, source, "tolerances.fit.chi2_red_max"),
+            source=source,
+        )
+
+    @classmethod
+    def from_procedure_file(cls, path: str) -> Tolerances:
+        """Read the ``[tolerances]`` table of a procedure TOML file."""
+        import tomllib
+
+        try:
+            with open(path, "rb") as handle:
+                data = tomllib.load(handle)
+        except FileNotFoundError:
+            raise InputError("no such file", path=path, expected="a procedure definition (TOML)") from None
+        except tomllib.TOMLDecodeError as error:
+            raise InputError(f"not valid TOML ({error})", path=path) from None
+        return cls.from_mapping(data.get("tolerances"), source=str(path))
+
+
+def limit_for(table: Mapping[str, float], parameter_id: str) -> float | None:
+    """Limit for one parameter: exact id first, then the longest matching pattern."""
+    if parameter_id in table:
+        return table[parameter_id]
+    matches = [p for p in table if fnmatch.fnmatchcase(parameter_id, p)]
+    return table[max(matches, key=len)] if matches else None
+
+
+def decide(value: float, expanded_uncertainty: float, limit: float, rule: str) -> str:
+    """Verdict for ``|value|`` against the symmetric limit ``limit`` (see module docstring).
+
+    Returns ``"pass"``, ``"fail"``, ``"conditional pass"`` or ``"conditional fail"``.
+    """
+    x, u, t = abs(value), expanded_uncertainty, limit
+    if not (math.isfinite(x) and math.isfinite(u)):
+        return "fail"
+    if rule == "simple":
+        return "pass" if x <= t else "fail"
+    if rule == "guarded":
+        return "pass" if x <= t - u else "fail"
+    if rule == "non-binary":
+        if x <= t - u:
+            return "pass"
+        if x <= t:
+            return "conditional pass"
+        if x <= t + u:
+            return "conditional fail"
+        return "fail"
+    raise ValueError(f"unknown decision rule {rule!r}")
+
+
+def _positive(value: Any, source: str, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (math.isfinite(value) and value > 0):
+        raise InputError(f"not a positive number: {value!r}", path=source, field=name, expected="a positive number")
+    return float(value)
+
+
+def _limits(table: Any, source: str, name: str) -> dict[str, float]:
+    if not isinstance(table, Mapping):
+        raise InputError("not a table", path=source, field=f"tolerances.{name}")
+    return {str(k): _positive(v, source, f"tolerances.{name}.{k}") for k, v in table.items()}

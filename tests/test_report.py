@@ -1,0 +1,289 @@
+"""Calibration report: rendered to PNG (pdftoppm) and read back (pdftotext); decision rules; bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+import report_fixtures as rf  # noqa: E402
+
+from stableins import cli  # noqa: E402
+from stableins.conventions import MICRO_G  # noqa: E402
+from stableins.data.errors import InputError  # noqa: E402
+from stableins.reporting import content  # noqa: E402
+from stableins.reporting.record_view import RecordView, sha256_file  # noqa: E402
+from stableins.reporting.tolerances import Tolerances, decide  # noqa: E402
+
+POPPLER = shutil.which("pdftoppm") and shutil.which("pdftotext")
+needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftoppm/pdftotext (Debian package poppler-utils) are not installed")
+
+PROCEDURE = """
+name = "wu2018-18-position"
+[tolerances]
+decision_rule = "guarded"
+[tolerances.limits]
+"bias_*" = 500.0
+"sf_*" = 300.0
+"beta_*" = 60.0
+"K2_*" = 50.0
+[tolerances.uncertainty]
+"bias_*" = 20.0
+[tolerances.stability]
+"bias_*" = 30.0
+[tolerances.fit]
+chi2_red_max = 2.0
+"""
+BIAS_STEP_UG = 60.0
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("report")
+    data = folder / "device.csv"
+    data.write_text("time[s],f_x[m/s^2]\n0.0,0.1\n")  # stands for the session data: only its digest is used
+    result = rf.fit(1)
+    (folder / "record.json").write_text(json.dumps(rf.record(result, inputs=(data,))))
+    values = rf.truth(1)
+    values["bias_x"] -= BIAS_STEP_UG * MICRO_G  # the unit's bias moved by +60 µg since the previous calibration
+    (folder / "old.json").write_text(json.dumps(rf.record(rf.fit(2, values=values), started="2025-11-20T08:00:00Z")))
+    (folder / "proc.toml").write_text(PROCEDURE)
+    return folder
+
+
+def _render(pdf: Path) -> tuple[list[Path], str]:
+    subprocess.run(["pdftoppm", "-r", "40", "-png", str(pdf), str(pdf.with_suffix(""))], check=True, timeout=60)
+    pages = sorted(pdf.parent.glob(pdf.stem + "-*.png"))
+    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], check=True, capture_output=True, text=True, timeout=60).stdout
+    return pages, text
+
+
+@needs_poppler
+def test_full_report_pages_and_required_fields(files, capsys):
+    out = files / "full.pdf"
+    status = cli.main(
+        [
+            "report",
+            str(files / "record.json"),
+            "--data",
+            str(files / "device.csv"),
+            "--previous",
+            str(files / "old.json"),
+            "--procedure",
+            str(files / "proc.toml"),
+            "--out",
+            str(out),
+        ]
+    )
+    assert status == 0
+    printed = capsys.readouterr().out
+    report_id = re.search(r"report (SI-\S+),", printed).group(1)
+    pages, text = _render(out)
+    n = len(pages)
+    assert 4 <= n <= 12
+    for i in range(1, n + 1):  # every page carries "page i of n" and the report id
+        assert f"page {i} of {n}" in text
+    assert text.count(report_id) >= n
+    assert "ACC-0042" in text and "Unit S/N ACC-0042" in text
+    for pid in ["sf_x", "bias_y", "beta_zy", "K2_z", "theta10", "theta20"]:
+        assert pid in text
+    assert "U (k = 2)" in text and "µg/g²" in text and "arcsec" in text and "ppm" in text
+    assert sha256_file(files / "device.csv") in text.replace("\n", "") or sha256_file(files / "device.csv")[:40] in text
+    assert "verified: device.csv" in text
+    assert "9.8015000 m/s²" in text and "WGS-84 normal gravity" in text
+    assert "Model discovery" in text and "Not performed" in text  # no discovery history in the record
+    # The +60 µg bias step is found significant and fails the 30 µg stability limit.
+    assert "Verdict: FAIL" in text
+    assert re.search(r"change since\s+bias_x.*fail", text, re.S)
+
+
+def test_change_recovers_the_injected_bias_step(files):
+    now = RecordView.load(files / "record.json")
+    before = RecordView.load(files / "old.json")
+    terms = content.known_terms()
+    changes, skipped = content.compare(content.parameter_rows(now, terms), content.parameter_rows(before, terms))
+    by_id = {c.id: c for c in changes}
+    step = by_id["bias_x"]
+    assert abs(step.delta - BIAS_STEP_UG) < 4 * step.u_delta
+    assert step.significant
+    # Parameters that did not move: E_n is |N(0,1)|/2, so rarely above 1 (≈5 %); allow two of the others.
+    assert sum(c.significant for c in changes if c.id != "bias_x") <= 2
+    assert any(s.startswith("theta20") for s in skipped)
+    rows = {r.id: r for r in content.parameter_rows(now, terms)}
+    assert math.isnan(rows["theta20"].value) and rows["theta20"].formatted()[0] == "not stated"  # prior value never shown
+
+
+@needs_poppler
+def test_sections_without_evidence_say_so(files, tmp_path):
+    record = json.loads((files / "record.json").read_text())
+    record.pop("stages")
+    record.pop("environment")
+    record["provenance"]["inputs"] = []
+    (tmp_path / "bare.json").write_text(json.dumps(record))
+    out = tmp_path / "bare.pdf"
+    assert cli.main(["report", str(tmp_path / "bare.json"), "--out", str(out)]) == 0
+    pages, text = _render(out)
+    flat = " ".join(text.split())
+    assert f"page {len(pages)} of {len(pages)}" in text
+    assert "Device-level residual analysis: not performed" in flat
+    assert "System-level harmonic fits Not performed" in flat
+    assert "no previous calibration record was given" in flat
+    assert "No statement of conformity" in flat
+    assert "temperature not recorded" in flat
+
+
+@pytest.mark.parametrize(
+    ("value", "expanded", "rule", "verdict"),
+    [
+        (8.0, 1.0, "guarded", "pass"),  # 8 ≤ 10 − 1
+        (9.5, 1.0, "guarded", "fail"),  # inside T, inside the guard band
+        (9.5, 1.0, "simple", "pass"),
+        (10.5, 1.0, "simple", "fail"),
+        (-9.5, 1.0, "non-binary", "conditional pass"),
+        (10.5, 1.0, "non-binary", "conditional fail"),
+        (11.5, 1.0, "non-binary", "fail"),
+        (math.nan, 1.0, "simple", "fail"),
+    ],
+)
+def test_decision_rules(value, expanded, rule, verdict):
+    assert decide(value, expanded, 10.0, rule) == verdict
+
+
+def test_tolerance_patterns_and_bad_tables():
+    t = Tolerances.from_mapping({"limits": {"bias_*": 500.0, "bias_z": 100.0, "*": 1.0}})
+    from stableins.reporting.tolerances import limit_for
+
+    assert limit_for(t.limits, "bias_z") == 100.0 and limit_for(t.limits, "bias_x") == 500.0 and limit_for(t.limits, "sf_x") == 1.0
+    with pytest.raises(InputError, match="decision rule"):
+        Tolerances.from_mapping({"decision_rule": "lenient"}, source="p.toml")
+    with pytest.raises(InputError, match="positive"):
+        Tolerances.from_mapping({"limits": {"bias_x": -3}}, source="p.toml")
+
+
+def test_gum_rounding():
+    assert content.round_to_uncertainty(-260.8049, 0.6512) == "\u2212260.80"
+    assert content.round_to_uncertainty(12345.6, 23.0) == "12346"
+    assert content.number(0.0123456, 2) == "0.012"
+
+
+def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
+    out = tmp_path / "r.pdf"
+    (tmp_path / "broken.json").write_text('{"schema_version": 1, "serial_number": "X", "parameters": [')
+    assert cli.main(["report", str(tmp_path / "broken.json"), "--out", str(out)]) == 2
+    assert "broken.json" in capsys.readouterr().err and not out.exists()
+
+    record = json.loads((files / "record.json").read_text())
+    record["parameters"][0]["status"] = "guessed"
+    (tmp_path / "status.json").write_text(json.dumps(record))
+    assert cli.main(["report", str(tmp_path / "status.json"), "--out", str(out)]) == 2
+    assert "parameters[0].status" in capsys.readouterr().err
+
+    # A data file the calibration did not use is refused, and an existing report is left untouched.
+    out.write_bytes(b"old report")
+    (tmp_path / "other.csv").write_text("time[s]\n1\n")
+    assert cli.main(["report", str(files / "record.json"), "--data", str(tmp_path / "other.csv"), "--out", str(out)]) == 2
+    assert "other.csv" in capsys.readouterr().err
+    assert out.read_bytes() == b"old report"
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".partial")] == []
+
+
+def test_record_view_rejects_asymmetric_covariance(files):
+    record = json.loads((files / "record.json").read_text())
+    record["covariance"]["matrix"][0][12] *= 3.0  # sf_x, K2_x: correlated (ρ ≈ 0.1)
+    with pytest.raises(InputError, match="symmetric"):
+        RecordView.from_mapping(record, path="r.json")
+
+
+def test_correlation_matches_fit(files):
+    result = rf.fit(1)
+    ids, matrix = content.correlation(RecordView.load(files / "record.json"))
+    assert ids == result.ids
+    np.testing.assert_allclose(matrix, result.correlation(), atol=1e-12)
+
+
+@needs_poppler
+def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys):
+    """simulate device → calibrate device → report --data: the residual evidence comes from re-running the stages."""
+    assert cli.main(["simulate", "device", "--seed", "5", "--out", str(tmp_path)]) == 0
+    coarse, fine = tmp_path / "device-coarse.csv", tmp_path / "device-fine.h5"
+    assert cli.main(["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json")]) == 0
+    capsys.readouterr()
+    assert cli.main(["diagnose", str(coarse), str(fine), "--record", str(tmp_path / "cal.json"), "--stage", "coarse", "--json"]) == 0
+    (tmp_path / "diag.json").write_text(capsys.readouterr().out)
+    out = tmp_path / "cal.pdf"
+    argv = ["report", str(tmp_path / "cal.json"), "--data", str(coarse), str(fine), "--discovery", str(tmp_path / "diag.json")]
+    assert cli.main([*argv, "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    pages, text = _render(out)
+    flat = " ".join(text.split())
+    assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text
+    assert "Device-level residuals recomputed from" in flat
+    chi2 = {m.group(1): float(m.group(2)) for m in re.finditer(r"^\s*(coarse|fine)\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)}
+    assert set(chi2) == {"coarse", "fine"}
+    assert 0.3 < chi2["coarse"] < 2.0  # the coarse model explains the simulated data to the noise
+    assert text.count("verified:") == 2  # both data files match the record's SHA-256
+    diagnosis = json.loads((tmp_path / "diag.json").read_text())
+    assert "From diag.json (stableins diagnose)" in flat and "Refit history" in flat
+    assert diagnosis["candidates"][0]["id"] in text
+
+
+@needs_poppler
+def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path):
+    """System-level fits and a discovery history render as tables and figures; nothing runs off the page."""
+    record = json.loads((files / "record.json").read_text())
+    time = np.linspace(0.0, 86164.0, 400)
+    rng = np.random.default_rng(4)
+    model = 2e-3 * np.sin(2 * np.pi * time / 5064.0 + 0.3)
+    record["system"] = {
+        "harmonics": [{"channel": "velocity_north", "period": 5064.0, "amplitude": 2e-3, "sigma": 4e-5, "phase": 0.3, "unit": "m/s"}],
+        "records": [
+            {
+                "channel": "velocity_north",
+                "quantity": "north velocity error",
+                "unit": "m/s",
+                "time": time.tolist(),
+                "observed": (model + 1e-4 * rng.normal(size=400)).tolist(),
+                "model": model.tolist(),
+                "chi2_red": 1.02,
+            }
+        ],
+    }
+    record["discovery"] = {
+        "steps": [
+            {"label": "core model", "residual_rms": 42.0, "noise_floor": 3.0, "unit": "µg", "candidates": []},
+            {
+                "label": "+ K3_x",
+                "residual_rms": 3.2,
+                "noise_floor": 3.0,
+                "unit": "µg",
+                "candidates": [
+                    {"term": "K3_x", "statistic": "ΔBIC", "value": -310.0, "decision": "accepted"},
+                    {"term": "hysteresis_y", "statistic": "ΔBIC", "value": 4.1, "decision": "rejected"},
+                ],
+            },
+        ]
+    }
+    (tmp_path / "rich.json").write_text(json.dumps(record))
+    out = tmp_path / "rich.pdf"
+    assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
+    pages, text = _render(out)
+    flat = " ".join(text.split())
+    assert "velocity_north" in text and "K3_x" in text and "hysteresis_y" in text and "accepted" in text
+    numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 4  # correlation, residuals, system, discovery
+    bbox = subprocess.run(["pdftotext", "-bbox", str(out), "-"], check=True, capture_output=True, text=True, timeout=60).stdout
+    page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', bbox)
+    width, height = float(page.group(1)), float(page.group(2))
+    words = re.findall(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" yMax="([\d.]+)">', bbox)
+    assert len(words) > 500
+    side = 18 * 72 / 25.4 - 1.0  # text frame: 18 mm side margins; header and footer stay 7 mm from the edge
+    for x0, y0, x1, y1 in ((float(a), float(b), float(c), float(d)) for a, b, c, d in words):
+        assert side < x0 and x1 < width - side and 20.0 < y0 and y1 < height - 20.0
