@@ -3,15 +3,18 @@
 Runs the whole three-stage calibration the way a user would, each step through the
 same CLI command a user types, and leaves every file in ``DIR``:
 
-1. ``simulate device``: a drawn instrument (``truth.json``) on the simulated platform,
-   coarse 18-position session and fine dwells;
+1. ``simulate device``: a drawn instrument (``truth.json``) on the simulated platform:
+   the 18-position coarse passes of the zero-offset iteration, then the fine dwells at
+   the re-pointed positions;
 2. ``calibrate device``: coarse + fine stages → ``cal-device.json``;
 3. ``simulate system --installed cal-device.json``: one sidereal day on a static base
    with the INS compensating by the device-level calibration (the third stage corrects
    what the first two left);
 4. ``calibrate system`` → ``calibration.json`` (the final record);
-5. ``diagnose`` (model discovery) and ``report`` (PDF) when those commands exist;
-6. the verdict: every determined parameter of the final record against the simulator's
+5. ``diagnose``: model discovery on the device-level data (plots in ``discovery/``;
+   ``--hidden ID=VALUE`` hides an effect for it to find);
+6. ``report``: the PDF calibration report ``calibration-report.pdf``;
+7. the verdict: every determined parameter of the final record against the simulator's
    truth, in engineering units and in σ (``verdict.json``).
 """
 
@@ -105,7 +108,6 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import importlib.util
     import sys
 
     from stableins.commands.simulate import prepare_directory
@@ -130,18 +132,18 @@ def run(args: argparse.Namespace) -> int:
         "system-level calibration",
         ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    _step(
-        "model discovery (is an effect missing from the model?)",
-        ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), "--plots", str(out / "discovery"), *datasheet],
-        stdout=out / "diagnosis.txt",
-    )
+    diagnose = ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), *datasheet]
+    _step("model discovery (is an effect missing from the model?)", [*diagnose, "--plots", str(out / "discovery")], out / "diagnosis.txt")
     print((out / "diagnosis.txt").read_text(encoding="utf-8"), file=sys.stderr)
-    if importlib.util.find_spec("stableins.commands.report") is not None:
-        _step(
-            "calibration report",
-            ["report", str(out / "calibration.json"), "--data", str(coarse), str(fine), str(out / "system.h5"),
-             "--out", str(out / "calibration-report.pdf")],
-        )  # fmt: skip
+    _step("model discovery, machine-readable for the report", [*diagnose, "--json"], out / "diagnosis.json")
+    from stableins.procedures.definition import load_procedure
+
+    _step(
+        "calibration report",
+        ["report", str(out / "calibration.json"), "--data", str(coarse), str(fine), str(out / "system.h5"),
+         "--discovery", str(out / "diagnosis.json"), "--procedure", load_procedure("system-static").path,
+         "--out", str(out / "calibration-report.pdf")],
+    )  # fmt: skip
     rows = verdict(out / "calibration.json", out / "truth.json")
     (out / "verdict.json").write_text(json.dumps(rows, indent=1) + "\n")
     lines = ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",

@@ -20,7 +20,8 @@ from stableins.data.errors import InputError
 PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record"}
+#: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances"}
 #: Stages a definition may declare.
 STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
