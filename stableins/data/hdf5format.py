@@ -239,13 +239,84 @@ class H5Reader:
         return out
 
     def iter_chunks(
-        self, names: Sequence[str] | None = None, rows: int = DEFAULT_CHUNK, start: int = 0, stop: int | None = None
+        self,
+        names: Sequence[str] | None = None,
+        rows: int = DEFAULT_CHUNK,
+        start: int = 0,
+        stop: int | None = None,
+        *,
+        thin: Sequence[str] = (),
+        step: int = 1,
+        reuse: bool = False,
     ) -> Iterator[dict[str, Any]]:
-        """Yield validated dicts of ``rows`` rows at a time (bounded memory)."""
+        """Yield validated dicts of ``rows`` rows at a time (bounded memory).
+
+        Parameters
+        ----------
+        thin : sequence of str
+            Columns (also listed in ``names``) returned only at the rows whose index (0-based, from
+            the start of the file) is a multiple of ``step``.  For uncompressed files they are
+            gathered from a read-only memory map of the file's chunks (only the selected values are
+            copied); otherwise by an HDF5 strided selection.
+        reuse : bool
+            Read the full-rate columns into buffers that are reused from one chunk to the next
+            (``Dataset.read_direct``: no allocation per chunk).  The arrays yielded are then valid
+            only until the next chunk is requested.
+        """
+        import numpy as np
+
         stop = self.rows if stop is None else min(stop, self.rows)
+        columns = self._columns(names)
+        thin_set = set(thin)
+        if not thin_set and not reuse:
+            with self._open() as f:
+                for k in range(start, stop, rows):
+                    yield self._read(f, names, k, min(k + rows, stop))
+            return
         with self._open() as f:
-            for k in range(start, stop, rows):
-                yield self._read(f, names, k, min(k + rows, stop))
+            group = f[GROUP]
+            gathers = {c.name: _ThinColumn(group[c.name], self.path) for c in columns if c.name in thin_set}
+            buffers: dict[str, Any] = {}
+            try:
+                for k in range(start, stop, rows):
+                    end = min(k + rows, stop)
+                    out: dict[str, Any] = {}
+                    for c in columns:
+                        if c.name in gathers:
+                            first = k + (-k) % step
+                            values = gathers[c.name].take(first, end, step)
+                            bad = ~np.isfinite(values)
+                            if bad.any():
+                                j = int(np.argmax(bad))
+                                raise InputError(
+                                    f"value {values[j].item()!r} is not finite",
+                                    path=self.path,
+                                    row=first + j * step + 1,
+                                    field=c.name,
+                                    expected="a finite number",
+                                )
+                        elif reuse and c.dtype != "str":
+                            d = group[c.name]
+                            buf = buffers.get(c.name)
+                            if buf is None or buf.size < end - k:
+                                buf = buffers[c.name] = np.empty(rows, dtype=c.dtype)
+                            values = buf[: end - k]
+                            try:
+                                d.read_direct(values, np.s_[k:end], np.s_[0 : end - k])
+                            except (OSError, RuntimeError) as error:
+                                raise InputError(
+                                    f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",
+                                    path=self.path,
+                                    field=c.name,
+                                ) from None
+                            check_finite(c.name, values, self.path, first_row=k + 1)
+                        else:
+                            values = self._read(f, [c.name], k, end)[c.name]
+                        out[c.name] = values
+                    yield out
+            finally:
+                for g in gathers.values():
+                    g.close()
 
     def _columns(self, names: Sequence[str] | None) -> list[Column]:
         if names is None:
@@ -255,6 +326,114 @@ class H5Reader:
         if unknown:
             raise InputError(f"unknown column(s) {unknown}", path=self.path, field=unknown[0], expected="one of " + ", ".join(by_name))
         return [by_name[n] for n in names]
+
+
+class _ThinColumn:
+    """Every ``step``-th value of a 1-D dataset without reading the rest.
+
+    An HDF5 strided selection still copies every chunk it touches (it costs as much as reading
+    the whole column).  For an uncompressed dataset the values are stored as plain arrays at
+    offsets the library reports (``get_chunk_info``, or ``get_offset`` for a contiguous
+    dataset), so a read-only memory map of the file gives them without a copy and only the
+    selected values are gathered.  Any other layout (filters, unallocated chunks, non-native
+    byte order) falls back to the strided selection.
+    """
+
+    def __init__(self, dataset: Any, path: str) -> None:
+
+        self.dataset = dataset
+        self.path = path
+        self.map: Any = None
+        self.chunk = 0
+        self.offsets: list[int | None] = []
+        dtype = dataset.dtype
+        plain = dataset.compression is None and not dataset.fletcher32 and not dataset.scaleoffset and not dataset.shuffle
+        if not plain or dtype.kind != "f" or not dtype.isnative or dataset.shape[0] == 0:
+            return
+        try:
+            if dataset.chunks is None:
+                offset = dataset.id.get_offset()
+                if offset is None:
+                    return
+                self.chunk = dataset.shape[0]
+                self.offsets = [int(offset)]
+            else:
+                self.chunk = int(dataset.chunks[0])
+                n_chunks = -(-dataset.shape[0] // self.chunk)
+                infos: list[Any] = []
+                if hasattr(dataset.id, "chunk_iter"):  # one pass over the chunk index (get_chunk_info(i) walks it each call)
+                    dataset.id.chunk_iter(infos.append)
+                else:
+                    infos = [dataset.id.get_chunk_info(i) for i in range(dataset.id.get_num_chunks())]
+                by_start = {int(info.chunk_offset[0]) // self.chunk: info for info in infos}
+                for i in range(n_chunks):
+                    info = by_start.get(i)
+                    ok = (
+                        info is not None
+                        and info.byte_offset is not None
+                        and info.filter_mask == 0
+                        and info.size == self.chunk * dtype.itemsize
+                    )
+                    self.offsets.append(int(info.byte_offset) if ok else None)
+            import mmap
+
+            with open(path, "rb") as handle:
+                self.map = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+        except (AttributeError, OSError, ValueError, TypeError):
+            self.map = None
+
+    def take(self, first: int, stop: int, step: int) -> Any:
+        """Values at rows ``first, first + step, ... < stop`` (a new array)."""
+        import numpy as np
+
+        if first >= stop:
+            return np.zeros(0, dtype=self.dataset.dtype)
+        if self.map is None:
+            return self._strided(first, stop, step)
+        parts = []
+        row = first
+        while row < stop:
+            index = row // self.chunk
+            offset = self.offsets[index]
+            chunk_start = index * self.chunk
+            chunk_stop = min(chunk_start + self.chunk, stop)
+            if offset is None:
+                parts.append(self._strided(row, chunk_stop, step))
+            else:
+                parts.append(self._mapped(offset, row - chunk_start, chunk_stop - chunk_start, step))
+            row += -(-(chunk_stop - row) // step) * step
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _mapped(self, offset: int, first: int, stop: int, step: int) -> Any:
+        """Gather from the mapped file, then release the pages (the process keeps no file pages resident)."""
+        import mmap
+
+        import numpy as np
+
+        itemsize = self.dataset.dtype.itemsize
+        begin = offset + first * itemsize
+        view = np.frombuffer(self.map, dtype=self.dataset.dtype, count=stop - first, offset=begin)
+        values = view[::step].copy()
+        del view
+        if hasattr(self.map, "madvise"):
+            page = begin - begin % mmap.PAGESIZE
+            self.map.madvise(mmap.MADV_DONTNEED, page, min(len(self.map), offset + stop * itemsize) - page)
+        return values
+
+    def _strided(self, first: int, stop: int, step: int) -> Any:
+        try:
+            return self.dataset[first:stop:step]
+        except (OSError, RuntimeError) as error:
+            raise InputError(
+                f"rows {first + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt",
+                path=self.path,
+                field=self.dataset.name,
+            ) from None
+
+    def close(self) -> None:
+        if self.map is not None:
+            self.map.close()
+            self.map = None
 
 
 def _unit_attr(dataset: Any) -> str | None:

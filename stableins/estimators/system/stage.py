@@ -49,8 +49,13 @@ from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, Attitude
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
-FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
-SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+#: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks.
+FAST_COLUMNS = ("time", "f_x", "f_y", "f_z")
+#: Read at the attitude decimation only (slowly varying outputs; docs/system-calibration.md §6).
+SLOW_COLUMNS = ("angle_platform", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Samples per sub-block of the z computation (its temporaries stay in the processor cache).
+Z_SUBBLOCK = 1 << 15
 
 #: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
 LEVEL_TOLERANCE = 1e-4
@@ -64,7 +69,9 @@ class ChunkSource(Protocol):
 
     path: str
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = ...) -> Iterator[dict[str, Any]]: ...
+    def iter_chunks(
+        self, columns: Sequence[str] | None = None, rows: int = ..., *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+    ) -> Iterator[dict[str, Any]]: ...
 
 
 @dataclass(frozen=True)
@@ -74,19 +81,27 @@ class ArraySource:
     columns: Mapping[str, NDArray[np.float64]]
     path: str = "<arrays>"
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16) -> Iterator[dict[str, Any]]:
+    def iter_chunks(
+        self, columns: Sequence[str] | None = None, rows: int = 1 << 16, *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+    ) -> Iterator[dict[str, Any]]:
+        """Same contract as :meth:`stableins.data.system.SystemRecord.iter_chunks` (``reuse`` has no effect)."""
         names = list(self.columns if columns is None else columns)
         for name in names:
             if name not in self.columns:
                 raise InputError("missing column", path=self.path, field=name, expected="the system-record columns")
         n = len(self.columns[names[0]])
         for start in range(0, n, rows):
-            chunk = {name: np.asarray(self.columns[name][start : start + rows], dtype=float) for name in names}
-            for name, values in chunk.items():
+            phase = (-start) % step
+            chunk = {}
+            for name in names:
+                values = np.asarray(self.columns[name][start : start + rows], dtype=float)
+                every = step if name in thin else 1
+                values = values[phase::every] if every > 1 else values
                 bad = ~np.isfinite(values)
                 if bad.any():
-                    row = start + int(np.flatnonzero(bad)[0]) + 1
+                    row = start + (phase if every > 1 else 0) + int(np.flatnonzero(bad)[0]) * every + 1
                     raise InputError("value is NaN or infinite", path=self.path, field=name, row=row, expected="finite numbers")
+                chunk[name] = values
             yield chunk
 
 
@@ -197,6 +212,43 @@ class _BlockHarmonics:
         counts = np.concatenate([o[2] for o in outs])
         return zs, hs, counts
 
+    def add_timed(
+        self, time: NDArray[np.float64], z: NDArray[np.float64], centre_angle: NDArray[np.float64], uniform_period: float | None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate with ``S = S_c + ω_ie (t − t̄)`` in each block (``t̄`` the block's mean time).
+
+        ``centre_angle`` is ``S`` at the block-mean times (one per block of ``block`` samples,
+        the last possibly partial).  The platform is inertially held, so within a block (2.6 s at
+        100 Hz) ``S`` advances at the Earth rate; the angle reading fixes ``S_c``.  With
+        ``uniform_period`` (steps within 1e-3 of it) the offsets ``t − t̄`` are the nominal grid
+        ``(j − (B−1)/2)·period`` (their sum over a block is zero either way) and the z moments are
+        one small matrix product per chunk; otherwise they are computed from the time stamps.
+        """
+        n = z.size
+        b = self.block
+        nb = n // b
+        outs = []
+        if nb and uniform_period is not None:
+            grid = EARTH_RATE * uniform_period * (np.arange(b) - 0.5 * (b - 1))
+            powers = np.stack([np.ones(b), grid, grid * grid, grid**3])
+            moments = np.einsum("ij,kj->ki", z[: nb * b].reshape(nb, b), powers)  # (4, nb); not BLAS (see docs §6)
+            sums = powers.sum(1)
+            outs.append(self._moments(centre_angle[:nb], float(b), sums[1], sums[2], sums[3], moments))
+        elif nb:
+            outs.append(self._from_time(time[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b), centre_angle[:nb]))
+        if n - nb * b:
+            outs.append(self._from_time(time[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1), centre_angle[nb:]))
+        self.sum_z2 += float(np.einsum("i,i->", z, z))
+        self.count += n
+        return tuple(np.concatenate([o[k] for o in outs]) for k in range(3))  # type: ignore[return-value]
+
+    def _from_time(self, time: NDArray[np.float64], z: NDArray[np.float64], s_c: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+        d = EARTH_RATE * (time - time.mean(axis=1, keepdims=True))
+        d2 = d * d
+        zd = z * d
+        moments = np.stack([z.sum(1), zd.sum(1), (zd * d).sum(1), (zd * d2).sum(1)])
+        return self._moments(s_c, float(d.shape[1]), d.sum(1), d2.sum(1), (d2 * d).sum(1), moments)
+
     def _blocks(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
         m = angle.shape[1]
         centre = angle[:, m // 2]
@@ -206,19 +258,21 @@ class _BlockHarmonics:
         sd = self.sense
         d2 = d * d
         d3 = d2 * d
-        m1, m2, m3 = d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd
-        n0 = z.sum(1)
         zd = z * d
-        n1 = zd.sum(1) * sd
-        n2 = (zd * d).sum(1)
-        n3 = (zd * d2).sum(1) * sd
-        s_c = sd * (centre + self.offset)
-        count = float(m)
+        moments = np.stack([z.sum(1), zd.sum(1) * sd, (zd * d).sum(1), (zd * d2).sum(1) * sd])
+        return self._moments(sd * (centre + self.offset), float(m), d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd, moments)
+
+    def _moments(
+        self, s_c: NDArray[np.float64], count: float, m1: Any, m2: Any, m3: Any, moments: NDArray[np.float64]
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        """Block sums from ``S_c`` and the moments ``m_p = Σδ^p``, ``n_p = Σ z δ^p`` (δ in S units)."""
+        n0, n1, n2, n3 = moments
+        n_blocks = s_c.size
         top = 2 * self.order
         nk = top + 1
-        trig = np.zeros((angle.shape[0], 2 * nk))  # C_k, then S_k
+        trig = np.zeros((n_blocks, 2 * nk))  # C_k, then S_k
         trig[:, 0] = count
-        zk = np.zeros((angle.shape[0], 2 * (self.order + 1)))
+        zk = np.zeros((n_blocks, 2 * (self.order + 1)))
         zk[:, 0] = n0
         for k in range(1, top + 1):
             ck, sk = np.cos(k * s_c), np.sin(k * s_c)
@@ -236,7 +290,7 @@ class _BlockHarmonics:
         self.z_sums += zk.sum(0)
         a = math.cos(self.latitude)
         h = np.stack([a**k * trig[:, k + t * nk] for k, t in self.columns], axis=1)
-        return zk[:, 0], h, np.full(angle.shape[0], count)
+        return zk[:, 0], h, np.full(n_blocks, count)
 
     def accumulator(self) -> hm.InformationAccumulator:
         """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
@@ -299,6 +353,44 @@ class _Compensation:
         bias = np.array([known.get(f"bias_{a}", 0.0) for a in "xyz"])
         quadratic = np.array([known.get(f"K2_{a}", 0.0) for a in "xyz"])
         return cls(matrix, bias, quadratic)
+
+    def observation_into(self, fx: NDArray, fy: NDArray, fz: NDArray, gravity: float, out: NDArray, work: NDArray) -> None:
+        """``out = ½(|f^p|²/g² − 1)`` (the z of :mod:`.harmonics`) in sub-blocks, without temporaries.
+
+        ``work`` holds at least ``4·min(n, Z_SUBBLOCK)`` values.  Same arithmetic as
+        :meth:`squared_norm` (tested equal), with ``Q/(2g²)`` folded in.
+        """
+        q = np.einsum("ki,kj->ij", self.matrix, self.matrix) / (2.0 * gravity**2)
+        n = fx.size
+        quadratic = bool(np.any(self.quadratic))
+        for a in range(0, n, Z_SUBBLOCK):
+            b = min(a + Z_SUBBLOCK, n)
+            m = b - a
+            w0, w1, w2, tmp = (work[k * m : (k + 1) * m] for k in range(4))
+            o = out[a:b]
+            np.subtract(fx[a:b], self.bias[0], out=w0)
+            np.subtract(fy[a:b], self.bias[1], out=w1)
+            np.subtract(fz[a:b], self.bias[2], out=w2)
+            if quadratic:
+                for w, k2 in ((w0, self.quadratic[0]), (w1, self.quadratic[1]), (w2, self.quadratic[2])):
+                    np.multiply(w, w, out=tmp)
+                    tmp *= k2
+                    w -= tmp
+            np.multiply(w0, q[0, 0], out=o)
+            np.multiply(w1, 2.0 * q[0, 1], out=tmp)
+            o += tmp
+            np.multiply(w2, 2.0 * q[0, 2], out=tmp)
+            o += tmp
+            o *= w0  # w0 (q00 w0 + 2 q01 w1 + 2 q02 w2)
+            np.multiply(w1, q[1, 1], out=tmp)
+            np.multiply(w2, 2.0 * q[1, 2], out=w0)
+            tmp += w0
+            tmp *= w1
+            o += tmp  # + w1 (q11 w1 + 2 q12 w2)
+            np.multiply(w2, q[2, 2], out=tmp)
+            tmp *= w2
+            o += tmp
+            o -= 0.5
 
     def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
         """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
@@ -433,28 +525,50 @@ def run_system_stage(
     checks.latitude = latitude
     seen = 0
     first_time = None
-    for chunk in source.iter_chunks(columns, rows=chunk_rows):
+    thin = [c for c in columns if c not in FAST_COLUMNS]
+    z_buffer = np.empty(chunk_rows)
+    work = np.empty(4 * min(chunk_rows, Z_SUBBLOCK))
+    knot_time: float | None = None  # last Earth-rate-angle knot of the previous chunk
+    knot_angle = 0.0
+    for chunk in source.iter_chunks(columns, rows=chunk_rows, thin=thin, step=decimation, reuse=True):
         n = len(chunk["f_x"])
         if n == 0:
             continue
         time = chunk["time"]
-        checks.time(time, seen)
+        uniform = checks.time(time, seen)
         if first_time is None:
             first_time = float(time[0])
             attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
         fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
-        angle = chunk["angle_platform"]
         phase = (-seen) % decimation
         sel = slice(phase, None, decimation)
+        t_d = time[sel]
         if general:
-            knots = np.unique(np.concatenate([[0], np.arange(n)[sel], [n - 1]]))
-            s_knots = _earth_angle_from_kinematics(chunk, knots, offsets, nav_to_body, config)
-            angle = np.interp(np.arange(n), knots, s_knots)  # linear: error (ω_ie·decimation/rate)²/8 < 1e-9 rad
-            s_d = angle[sel]
+            s_d = _earth_angle_from_kinematics(chunk, slice(None), offsets, nav_to_body, config)
         else:
-            s_d = sense * (angle[sel] + theta10)
-        z = 0.5 * (compensation.squared_norm(fx, fy, fz) / gravity**2 - 1.0)
-        zs, hs, counts = accumulator.add(angle, z)
+            s_d = sense * (chunk["angle_platform"] + theta10)
+        pitch_d, roll_d = chunk["pitch"], chunk["roll"]
+        # static checks and the unwrapped Earth-rate angle at the decimated samples
+        s_knots = checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], chunk["velocity_east"])
+        # S at each block's mean time: linear between the knots (1 s apart, S is smooth), the previous chunk's last knot
+        # before the first and the Earth rate after the last (the platform is inertially held: dS/dt = ω_ie)
+        z = z_buffer[:n]
+        compensation.observation_into(fx, fy, fz, gravity, z, work)
+        nb_full = n // block
+        block_time = np.empty(nb_full + (1 if n % block else 0))
+        block_time[:nb_full] = time[: nb_full * block].reshape(nb_full, block).mean(axis=1)
+        if n % block:
+            block_time[-1] = time[nb_full * block :].mean()
+        kt = t_d if knot_time is None else np.concatenate([[knot_time], t_d])
+        ks = s_knots if knot_time is None else np.concatenate([[knot_angle], s_knots])
+        kt = np.concatenate([kt, [time[-1] + 1.0]])
+        ks = np.concatenate([ks, [ks[-1] + EARTH_RATE * (time[-1] + 1.0 - kt[-2])]])
+        if kt[0] > time[0]:  # no knot yet before the first block (first chunk starts at a knot; kept for safety)
+            kt = np.concatenate([[time[0]], kt])
+            ks = np.concatenate([[ks[0] - EARTH_RATE * (kt[1] - time[0])], ks])
+        centre_angle = np.interp(block_time, kt, ks)
+        knot_time, knot_angle = float(t_d[-1]), float(s_knots[-1])
+        zs, hs, counts = accumulator.add_timed(time, z, centre_angle, 1.0 / rate if uniform else None)
         # filter bins by global sample index
         starts = seen + np.arange(len(counts)) * block
         bins = starts // filter_samples
@@ -469,21 +583,18 @@ def run_system_stage(
                 d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
                 noise_sums[k] += float(np.einsum("i,i->", d2, d2))
             noise_count += m - 2
-        # decimated slow channels
-        t_d = time[sel]
-        pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
         # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
         # rotate back to the north-pointing pair the loop model outputs
         if tilted:  # C_n^b' = C_n^b (I + [φ×]) (conventions): φ from the antisymmetric part
-            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
+            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"], pitch_d, roll_d)
             p0 = -0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
             r0 = -0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
         else:
             p0 = cos_yaw * pitch_d + sin_yaw * roll_d
             r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
         attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
-        checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
-        checks.polar(fx[sel], fy[sel], fz[sel])
+        sparse = slice(phase, None, 10 * decimation)  # the polar check is a record mean: one sample per 10 decimated ones
+        checks.polar(fx[sparse], fy[sparse], fz[sparse])
         seen += n
 
     if seen == 0 or attitude_blocks is None:
@@ -685,7 +796,7 @@ def run_system_stage(
 
 def _earth_angle_from_kinematics(
     chunk: Mapping[str, NDArray[np.float64]],
-    sel: NDArray[np.int64],
+    sel: Any,
     offsets: NDArray[np.float64],
     nav_to_body: NDArray,
     config: GimbalConfiguration,
@@ -960,14 +1071,26 @@ class _StaticChecks:
         self.duration = 0.0
         self.polar_sums = np.zeros(2)
         self.latitude = 0.0
+        self.step_buffer = np.empty(0)
 
-    def time(self, t: NDArray[np.float64], seen: int) -> None:
+    def time(self, t: NDArray[np.float64], seen: int) -> bool:
+        """Sampling checks of one chunk; returns whether its steps are within 1e-3 of the nominal period."""
         # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
-        step = np.diff(t)
-        if self.last_time is not None and t.size:
-            step = np.concatenate([[t[0] - self.last_time], step]) if (t[0] - self.last_time) != self.period else step
+        if self.step_buffer.size < t.size - 1:
+            self.step_buffer = np.empty(t.size - 1)
+        step = np.subtract(t[1:], t[:-1], out=self.step_buffer[: max(t.size - 1, 0)])
         lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
+        if self.last_time is not None and t.size:  # the step across the chunk boundary
+            across = float(t[0] - self.last_time)
+            lo, hi = min(lo, across), max(hi, across)
+        uniform = 0.999 * self.period <= lo and hi <= 1.001 * self.period
         if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
+            bad = ~np.isfinite(t)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise InputError(
+                    f"value {t[k]!r} is not finite", path=self.path, field="time", row=seen + k + 1, expected="a finite number"
+                )
             series = t if self.last_time is None else np.concatenate([[self.last_time], t])
             step = np.diff(series)
             offset = seen + (1 if self.last_time is None else 0)
@@ -985,10 +1108,12 @@ class _StaticChecks:
         if self.first_time is None:
             self.first_time = float(t[0])
         self.last_time = float(t[-1])
+        return uniform
 
-    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> None:
+    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> NDArray[np.float64]:
+        """Static-base checks on the decimated samples; returns the Earth-rate angle unwrapped across chunks."""
         if t.size == 0:
-            return
+            return s
         speed = np.hypot(vn, ve)
         vmax = float(speed.max())
         if vmax > self.options.velocity_limit and self.moving_at is None:
@@ -1004,6 +1129,7 @@ class _StaticChecks:
         self.last_angle = float(s[-1])
         tt = t - (self.first_time or 0.0)
         self.rate_sums += [t.size, tt.sum(), (tt * tt).sum(), series.sum(), (tt * series).sum()]
+        return series
 
     def polar(self, fx: NDArray, fy: NDArray, fz: NDArray) -> None:
         """Accumulate the direction cosine of gravity with z_p (sin L on a polar-aligned platform)."""
