@@ -629,25 +629,9 @@ def run_system_stage(
     x_hat[0] -= noise_bias
     cov_x = cov_unit * r_var
 
-    # ---------------------------------------------------------------- low-frequency noise check on the filter bins
+    # ---------------------------------------------------------------- bins for the coloured-noise model (after the attitude fit)
     keep_bins = filter_bins["n"] > 0
-    nn_all = filter_bins["n"][keep_bins]
-    bin_residual = filter_bins["z"][keep_bins] / nn_all - (filter_bins["h"][keep_bins] / nn_all[:, None]) @ x_ls
-    n_bins = int(keep_bins.sum())
-    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
-
     bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
-    high = min(70.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
-    freqs, rho = spectral_ratios(bin_time, bin_residual, nn_all, r_var, (3.5 * EARTH_FREQUENCY, high)) if n_bins > 8 else (np.zeros(0),) * 2
-    z_factors = inflation(freqs, rho, np.array([1, 1, 1, 2, 2, 3, 3]) * EARTH_FREQUENCY)
-    low_frequency_ratio = float(z_factors[1])
-    cov_x = cov_x * np.outer(np.sqrt(z_factors), np.sqrt(z_factors))
-    if low_frequency_ratio > 2.0:
-        notes.append(
-            f"the specific-force residuals carry low-frequency noise (bias instability, random walk or temperature): their spectrum "
-            f"extrapolated to one cycle per day is {low_frequency_ratio:.1f}x the white level; the harmonic states' covariance was "
-            "scaled accordingly"
-        )
 
     # ---------------------------------------------------------------- filter convergence
     history = None
@@ -680,8 +664,16 @@ def run_system_stage(
         vertical=vertical,
         gyro_drift=options.gyro_drift,
         known_drift=options.known_gyro_drift,
+        scale_low_frequency=False,
     )
     notes += list(att.notes)
+    if options.known_gyro_drift is None:
+        notes.append(
+            "gyro drift not supplied: the attitude coefficients assume none.  A constant drift of 0.001 deg/h along a platform "
+            "axis drives the loop's undamped Earth-rate mode and biases them by up to 1.9e-5 rad (x1..x5 do not see it); one day "
+            "of pitch and roll cannot separate it from the accelerometer harmonics.  Supply the drift in the platform frame from "
+            "the gyro calibration (--gyro-drift X Y Z, deg/h) for unbiased attitude coefficients"
+        )
 
     # ---------------------------------------------------------------- observability (short records)
     # v = (x1..x7, ten attitude coefficients) with its covariance; cross terms from the vertical path
@@ -692,6 +684,20 @@ def run_system_stage(
     cov_v[7:, 7:] = att.covariance + jac_x @ cov_x @ jac_x.T
     cov_v[7:, :7] = jac_x @ cov_x
     cov_v[:7, 7:] = cov_v[7:, :7].T
+    # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
+    coloured, coloured_info = _coloured_covariance(
+        filter_bins, keep_bins, bin_time, filter_samples / rate, x_ls, r_var, blocks, att, jac_x, latitude, loop
+    )
+    white_x2 = cov_v[1, 1]
+    cov_v = cov_v + coloured
+    cov_x = cov_v[:7, :7]
+    low_frequency_ratio = float(cov_v[1, 1] / white_x2)
+    if low_frequency_ratio > 1.5:
+        notes.append(
+            "the residuals carry low-frequency noise of the accelerometers (bias instability, random walk or temperature): a model of it "
+            f"fitted to the residual spectra (Whittle gain {coloured_info['loglik_gain']:.0f}) makes the variance of x2 "
+            f"{low_frequency_ratio:.1f}x the white-noise value; the covariance of all coefficients includes it"
+        )
     v = np.concatenate([x_hat, att.values])
     # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
@@ -768,6 +774,7 @@ def run_system_stage(
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
+        "coloured_noise": coloured_info,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
         "k2_residual_sigma": k2_sigma,
@@ -792,6 +799,100 @@ def run_system_stage(
         notes=tuple(notes),
         diagnostics=diagnostics,
     )
+
+
+#: At most this many bins enter the coloured-noise model (longer records: wider bins).
+COLOURED_BINS = 320
+
+
+def _coloured_covariance(
+    filter_bins: dict[str, NDArray[np.float64]],
+    keep_bins: NDArray[np.bool_],
+    bin_time: NDArray[np.float64],
+    width: float,
+    x_ls: NDArray[np.float64],
+    r_var: float,
+    blocks: dict[str, NDArray[np.float64]],
+    att: AttitudeFit,
+    jac_x: NDArray[np.float64],
+    latitude: float,
+    loop: DampingLoop,
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Covariance ``(17, 17)`` of ``(x1..x7, attitude)`` due to coloured accelerometer noise (zero when the data show none).
+
+    The z residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes of random-walk
+    and flicker components of the x-y and z accelerometers (:func:`.spectrum.fit_coloured_noise`: periodogram between
+    3.5 and 30 cycles/day, exact for what the fit absorbs and for the Earth-rate modulation of x and y).  The same
+    components, loaded onto pitch and roll (:func:`.spectrum.axis_loadings`), are propagated through the linear maps of
+    the harmonic fit and of the attitude fit: ``cov = Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the
+    harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of x2 and of φ1s) and the
+    correlation it creates between the specific-force and attitude coefficients.
+    """
+    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, axis_loadings, coloured_components, fit_coloured_noise
+
+    out = np.zeros((17, 17))
+    info: dict[str, Any] = {"loglik_gain": 0.0, "frequencies": 0, "amplitudes": {}}
+    n_keep = int(keep_bins.sum())
+    if n_keep < 16 or att.block_map is None:
+        return out, info
+    merge = max(1, -(-n_keep // COLOURED_BINS))
+    ids = np.flatnonzero(keep_bins) // merge
+    groups, index = np.unique(ids, return_inverse=True)
+    n = groups.size
+    count = np.bincount(index, weights=filter_bins["n"][keep_bins], minlength=n)
+    zsum = np.bincount(index, weights=filter_bins["z"][keep_bins], minlength=n)
+    hsum = np.stack([np.bincount(index, weights=filter_bins["h"][keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
+    x_bins = hsum / count[:, None]
+    residual = zsum / count - x_bins @ x_ls
+    time = (groups + 0.5) * width * merge
+    wide = width * merge
+    a_z = np.linalg.solve(x_bins.T @ (x_bins * count[:, None]), (x_bins * count[:, None]).T)  # (7, n)
+    r_z = np.eye(n) - x_bins @ a_z
+    cos_l = math.cos(latitude)
+    cos_s, sin_s = x_bins[:, 1] / cos_l, x_bins[:, 2] / cos_l
+    loads = [axis_loadings(ch, cos_s, sin_s, latitude) for ch in ("z", "pitch", "roll")]
+    names, covs = coloured_components(time, wide, loads)
+    high = min(30.0 * EARTH_FREQUENCY, 0.45 / wide)
+    # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
+    nb = blocks["time"].size
+    block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
+    att_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
+    ok = att_count > 0
+    channels, makers, weights = [residual], [r_z], [count]
+    gains: list[Any] = [None]
+    if ok.all():
+        # the attitude fit's mean and harmonics on the bins (its other nuisances are faster or decay)
+        x_att = np.stack([np.ones(n), cos_s, sin_s, cos_s**2 - sin_s**2, 2.0 * sin_s * cos_s], axis=1)
+        r_att = np.eye(n) - x_att @ np.linalg.solve(x_att.T @ (x_att * att_count[:, None]), (x_att * att_count[:, None]).T)
+        for ch in range(2):
+            res = np.bincount(block_bin, weights=blocks["count"] * att.block_residuals[:, ch], minlength=n) / att_count
+            channels.append(res)
+            makers.append(r_att)
+            weights.append(att_count)
+            gains.append(lambda f, ch=ch: float(np.abs(loop.frequency_response(2.0 * np.pi * f)).max(axis=1)[ch] ** 2))
+    used = len(channels) * n
+    amplitudes, fit_info = fit_coloured_noise(
+        channels, makers, weights, time, [c[:used, :used] for c in covs], (3.5 * EARTH_FREQUENCY, high), power_gains=gains
+    )
+    info.update(fit_info)
+    info["amplitudes"] = dict(zip(names, map(float, amplitudes), strict=True))
+    info["white_variance"] = r_var
+    if not np.any(amplitudes > 0):
+        return out, info
+    # attitude blocks → the same bins (block time since the record start)
+    a_att = np.zeros((10, 2 * n))
+    for ch in range(2):
+        part = att.block_map[:, ch * nb : (ch + 1) * nb]
+        for k in range(10):
+            a_att[k, ch * n : (ch + 1) * n] = np.bincount(block_bin, weights=part[k], minlength=n)
+    j = np.zeros((17, 3 * n))
+    j[:7, :n] = a_z
+    j[7:, :n] = jac_x @ a_z
+    j[7:, n:] = a_att
+    for alpha, cov in zip(amplitudes, covs, strict=True):
+        if alpha > 0:
+            out += alpha * (j @ cov @ j.T)
+    return 0.5 * (out + out.T), info
 
 
 def _earth_angle_from_kinematics(
