@@ -213,15 +213,15 @@ def fit_coloured_noise(
         w = weights[p] / weights[p].sum()
         arg = 2.0 * np.pi * np.outer(ks / span, t)
         vectors = np.concatenate([2.0 * w * np.cos(arg), 2.0 * w * np.sin(arg)])  # (2m, n)
-        proj = vectors @ residual_makers[p]
+        proj = np.einsum("kn,nm->km", vectors, residual_makers[p])
         m = ks.size
-        a = vectors @ residuals[p]
+        a = np.einsum("kn,n->k", vectors, residuals[p])
         observed.append(0.5 * (a[:m] ** 2 + a[m:] ** 2))
         sl = slice(p * n_bins, (p + 1) * n_bins)
         cols = []
         white = np.einsum("kn,n,kn->k", proj, 1.0 / weights[p], proj)
         cols.append(0.5 * (white[:m] + white[m:]))
-        for cov in components:
+        for cov in components:  # einsum, not BLAS: its threads stall on a loaded machine (docs §6)
             e = np.einsum("kn,nm,km->k", proj, cov[sl, sl], proj)
             cols.append(0.5 * (e[:m] + e[m:]))
         gain = np.ones(m) if power_gains is None or power_gains[p] is None else np.array([power_gains[p](f) for f in ks / span])
