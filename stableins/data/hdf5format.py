@@ -255,9 +255,8 @@ class H5Reader:
         ----------
         thin : sequence of str
             Columns (also listed in ``names``) returned only at the rows whose index (0-based, from
-            the start of the file) is a multiple of ``step``.  For uncompressed files they are
-            gathered from a read-only memory map of the file's chunks (only the selected values are
-            copied); otherwise by an HDF5 strided selection.
+            the start of the file) is a multiple of ``step`` (an HDF5 strided selection: only those
+            values are copied and checked).
         reuse : bool
             Read the full-rate columns into buffers that are reused from one chunk to the next
             (``Dataset.read_direct``: no allocation per chunk).  The arrays yielded are then valid
@@ -315,8 +314,7 @@ class H5Reader:
                         out[c.name] = values
                     yield out
             finally:
-                for g in gathers.values():
-                    g.close()
+                buffers.clear()
 
     def _columns(self, names: Sequence[str] | None) -> list[Column]:
         if names is None:
@@ -329,58 +327,17 @@ class H5Reader:
 
 
 class _ThinColumn:
-    """Every ``step``-th value of a 1-D dataset without reading the rest.
+    """Every ``step``-th value of a 1-D dataset (an HDF5 strided selection).
 
-    An HDF5 strided selection still copies every chunk it touches (it costs as much as reading
-    the whole column).  For an uncompressed dataset the values are stored as plain arrays at
-    offsets the library reports (``get_chunk_info``, or ``get_offset`` for a contiguous
-    dataset), so a read-only memory map of the file gives them without a copy and only the
-    selected values are gathered.  Any other layout (filters, unallocated chunks, non-native
-    byte order) falls back to the strided selection.
+    HDF5 still reads each chunk it touches into its chunk cache, but only the selected values are
+    copied out and checked.  (A read-only memory map of the chunks was tried: no faster on a
+    loaded machine, and the file pages it mapped raised the process's resident memory by ~80 MB
+    over a week-long record.)
     """
 
     def __init__(self, dataset: Any, path: str) -> None:
-
         self.dataset = dataset
         self.path = path
-        self.map: Any = None
-        self.chunk = 0
-        self.offsets: list[int | None] = []
-        dtype = dataset.dtype
-        plain = dataset.compression is None and not dataset.fletcher32 and not dataset.scaleoffset and not dataset.shuffle
-        if not plain or dtype.kind != "f" or not dtype.isnative or dataset.shape[0] == 0:
-            return
-        try:
-            if dataset.chunks is None:
-                offset = dataset.id.get_offset()
-                if offset is None:
-                    return
-                self.chunk = dataset.shape[0]
-                self.offsets = [int(offset)]
-            else:
-                self.chunk = int(dataset.chunks[0])
-                n_chunks = -(-dataset.shape[0] // self.chunk)
-                infos: list[Any] = []
-                if hasattr(dataset.id, "chunk_iter"):  # one pass over the chunk index (get_chunk_info(i) walks it each call)
-                    dataset.id.chunk_iter(infos.append)
-                else:
-                    infos = [dataset.id.get_chunk_info(i) for i in range(dataset.id.get_num_chunks())]
-                by_start = {int(info.chunk_offset[0]) // self.chunk: info for info in infos}
-                for i in range(n_chunks):
-                    info = by_start.get(i)
-                    ok = (
-                        info is not None
-                        and info.byte_offset is not None
-                        and info.filter_mask == 0
-                        and info.size == self.chunk * dtype.itemsize
-                    )
-                    self.offsets.append(int(info.byte_offset) if ok else None)
-            import mmap
-
-            with open(path, "rb") as handle:
-                self.map = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
-        except (AttributeError, OSError, ValueError, TypeError):
-            self.map = None
 
     def take(self, first: int, stop: int, step: int) -> Any:
         """Values at rows ``first, first + step, ... < stop`` (a new array)."""
@@ -388,39 +345,6 @@ class _ThinColumn:
 
         if first >= stop:
             return np.zeros(0, dtype=self.dataset.dtype)
-        if self.map is None:
-            return self._strided(first, stop, step)
-        parts = []
-        row = first
-        while row < stop:
-            index = row // self.chunk
-            offset = self.offsets[index]
-            chunk_start = index * self.chunk
-            chunk_stop = min(chunk_start + self.chunk, stop)
-            if offset is None:
-                parts.append(self._strided(row, chunk_stop, step))
-            else:
-                parts.append(self._mapped(offset, row - chunk_start, chunk_stop - chunk_start, step))
-            row += -(-(chunk_stop - row) // step) * step
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-    def _mapped(self, offset: int, first: int, stop: int, step: int) -> Any:
-        """Gather from the mapped file, then release the pages (the process keeps no file pages resident)."""
-        import mmap
-
-        import numpy as np
-
-        itemsize = self.dataset.dtype.itemsize
-        begin = offset + first * itemsize
-        view = np.frombuffer(self.map, dtype=self.dataset.dtype, count=stop - first, offset=begin)
-        values = view[::step].copy()
-        del view
-        if hasattr(self.map, "madvise"):
-            page = begin - begin % mmap.PAGESIZE
-            self.map.madvise(mmap.MADV_DONTNEED, page, min(len(self.map), offset + stop * itemsize) - page)
-        return values
-
-    def _strided(self, first: int, stop: int, step: int) -> Any:
         try:
             return self.dataset[first:stop:step]
         except (OSError, RuntimeError) as error:
@@ -429,11 +353,6 @@ class _ThinColumn:
                 path=self.path,
                 field=self.dataset.name,
             ) from None
-
-    def close(self) -> None:
-        if self.map is not None:
-            self.map.close()
-            self.map = None
 
 
 def _unit_attr(dataset: Any) -> str | None:

@@ -169,7 +169,7 @@ class AttitudeFit:
     drift_estimate: NDArray[np.float64]
     drift_sigma: NDArray[np.float64]
     notes: tuple[str, ...] = ()
-    block_map: NDArray[np.float64] | None = None  # (10, 2·blocks): values ← (pitch blocks, roll blocks), for coloured noise
+    block_map: NDArray[np.float64] | None = None  # (10, 2·bins): values ← (pitch, roll) summed over time bins (coloured noise)
 
 
 def _design(
@@ -220,6 +220,7 @@ def fit_attitude(
     gyro_drift: str = "ignore",
     known_drift: NDArray[np.float64] | None = None,
     scale_low_frequency: bool = True,
+    map_bin_seconds: float = 600.0,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -255,6 +256,9 @@ def fit_attitude(
         Scale the covariance by the residual spectrum extrapolated to the harmonics (stand-alone use).  The
         system stage passes ``False`` and adds the coloured-noise covariance of its joint model
         (:func:`.spectrum.fit_coloured_noise`) through ``block_map`` instead.
+    map_bin_seconds : float
+        Width of the time bins (from the record start) over which ``block_map``, the linear map from
+        the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
     """
     x_common, names, freqs = _design(blocks, loop, case_rotation_period)
     w = blocks["count"]
@@ -264,7 +268,9 @@ def fit_attitude(
         y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
     drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
     n_common = x_common.shape[1]
-    maps = np.zeros((10, 2 * w.size))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← blocks
+    map_bin = np.floor(blocks["time"] / map_bin_seconds).astype(np.int64)
+    n_map = int(map_bin.max()) + 1 if map_bin.size else 0
+    maps = np.zeros((10, 2 * n_map))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← block means summed per time bin
     beta = np.zeros((n_common, 2))
     residuals = np.zeros_like(y)
     cov_obs = np.zeros((10, 10))
@@ -282,7 +288,10 @@ def fit_attitude(
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = np.concatenate([x_common, drift[:, ch, :]], axis=1), inv_d
-        maps[5 * ch : 5 * ch + 5, ch * w.size : (ch + 1) * w.size] = (inv_full @ (columns * w[:, None]).T)[:5]
+        rows = inv_full[:5] @ (columns * w[:, None]).T  # (5, blocks), transient
+        for k in range(5):
+            maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] = np.bincount(map_bin, weights=rows[k], minlength=n_map)
+        del rows
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]

@@ -665,6 +665,7 @@ def run_system_stage(
         gyro_drift=options.gyro_drift,
         known_drift=options.known_gyro_drift,
         scale_low_frequency=False,
+        map_bin_seconds=filter_samples / rate,
     )
     notes += list(att.notes)
     if options.known_gyro_drift is None:
@@ -854,7 +855,6 @@ def _coloured_covariance(
     names, covs = coloured_components(time, wide, loads)
     high = min(30.0 * EARTH_FREQUENCY, 0.45 / wide)
     # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
-    nb = blocks["time"].size
     block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
     att_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
     ok = att_count > 0
@@ -880,11 +880,13 @@ def _coloured_covariance(
     if not np.any(amplitudes > 0):
         return out, info
     # attitude blocks → the same bins (block time since the record start)
+    n_map = att.block_map.shape[1] // 2
+    map_group = np.clip(np.searchsorted(groups, np.arange(n_map) // merge), 0, n - 1)  # 600-s bins of the fit → groups
     a_att = np.zeros((10, 2 * n))
     for ch in range(2):
-        part = att.block_map[:, ch * nb : (ch + 1) * nb]
+        part = att.block_map[:, ch * n_map : (ch + 1) * n_map]
         for k in range(10):
-            a_att[k, ch * n : (ch + 1) * n] = np.bincount(block_bin, weights=part[k], minlength=n)
+            a_att[k, ch * n : (ch + 1) * n] = np.bincount(map_group, weights=part[k], minlength=n)
     j = np.zeros((17, 3 * n))
     j[:7, :n] = a_z
     j[7:, :n] = jac_x @ a_z
