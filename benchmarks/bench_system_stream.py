@@ -1,17 +1,20 @@
 """Speed and memory of the system stage on a week-long 100 Hz record read from disk.
 
-Writes (once, cached beside the script's ``--dir``) a synthetic static record of one
-sidereal week at 100 Hz (6.0e7 samples, ~6.8 GB) through the project's HDF5 format
-(:class:`stableins.data.system.SystemRecordWriter`): accelerometer outputs of a
-polar-aligned platform with Table-2-sized residuals and 5e-3 m/s² white noise, the
-platform angle, and small attitude/velocity errors.  Then, on the same file:
+Writes a synthetic static record of one sidereal week at 100 Hz (6.0e7 samples, ~6.8 GB) into
+``--dir`` (default /tmp/stableins-bench) through the project's HDF5 format
+(:class:`stableins.data.system.SystemRecordWriter`) with a fast vectorized writer (closed form,
+not the truth simulator): accelerometer outputs of a polar-aligned platform with Table-2-sized
+residuals and 5e-3 m/s² white noise, the platform angle, and small attitude/velocity errors.  A
+file this run wrote is deleted at the end (``--keep`` keeps it); an existing file is reused.
+Then, on the same file (page cache warmed first), minimum of ``--repeat`` runs:
 
-1. baseline: one ``np.sum`` pass over ``f_x, f_y, f_z`` through the record reader;
-2. the whole system stage (:func:`stableins.estimators.system.stage.run_system_stage`).
+1. baseline: one ``np.sum`` pass over ``f_x, f_y, f_z`` through the record reader (and the same
+   with reused read buffers, the fastest read);
+2. the whole system stage (:func:`stableins.estimators.system.stage.run_system_stage`);
 
-It prints both times, their ratio (target ≤ 2), the per-sample cost, and the peak memory
-of the stage (tracemalloc peak of Python/numpy allocations, and the process's max RSS),
-for the week and for its first day (memory must not grow with record length).
+for the first day and for the whole record.  Printed: both times, their ratio (target ≤ 2),
+the per-sample cost, the peak memory of the stage (tracemalloc peak of Python/numpy
+allocations, whole record and first day) and the process's max RSS (``ru_maxrss``).
 
 Usage::
 

@@ -288,7 +288,7 @@ def fit_attitude(
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = np.concatenate([x_common, drift[:, ch, :]], axis=1), inv_d
-        rows = inv_full[:5] @ (columns * w[:, None]).T  # (5, blocks), transient
+        rows = np.einsum("ij,nj->in", inv_full[:5], columns) * w[None, :]  # (5, blocks), transient; no weighted copy
         for k in range(5):
             maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] = np.bincount(map_bin, weights=rows[k], minlength=n_map)
         del rows
