@@ -150,10 +150,7 @@ def test_other_gimbal_senses_and_latitudes(senses, latitude_deg):
 
 
 def test_quartz_noise_low_frequency_power_is_seen():
-    """The simulator's quartz noise (bias instability, random walk) is coloured: the stage scales σ up and says so.
-
-    The spectral extrapolation still leaves σ ~1.6x small in rms (docs/system-calibration.md), hence 6σ here.
-    """
+    """The simulator's quartz noise (bias instability, random walk) is coloured: the stage measures it and says so."""
     import warnings
 
     from stableins.estimators.system.stage import SystemOptions
@@ -166,5 +163,34 @@ def test_quartz_noise_low_frequency_power_is_seen():
         out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True))
     assert any("low-frequency noise" in n for n in out.notes)
     assert out.diagnostics["z_low_frequency_ratio"] > 3.0
+    assert out.diagnostics["coloured_noise"]["loglik_gain"] > 6.0
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]
-    assert np.abs(((out.combined.values - ref) / out.combined.sigma)[harmonic]).max() < 6.0
+    assert np.abs(((out.combined.values - ref) / out.combined.sigma)[harmonic]).max() < 4.0
+
+
+def test_monte_carlo_sigma_with_quartz_noise():
+    """With the simulator's default quartz noise the σ built from the coloured-noise model matches the scatter.
+
+    Without the model the normalized errors have rms ~6.7 (seeds 1-8); with it 1.2 over these 12 seeds
+    (benchmarks/bench_system_sigma.py: more seeds).  White-noise records keep rms ≈ 1 (test_monte_carlo_sigma).
+    """
+    import warnings
+
+    from stableins.estimators.system.stage import SystemOptions
+
+    harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]  # x1 also carries K2_z
+    normalized = []
+    for seed in range(1, 13):
+        truth = Truth.draw(seed, sample_rate=1.0)
+        cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
+        _, ref = reference(truth)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True))
+        normalized.append(((out.combined.values - ref) / out.combined.sigma)[harmonic])
+    z = np.array(normalized)
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert 0.7 < rms < 1.45, rms  # 144 normalized errors
+    # heavy tail: where the coloured excess falls below the detection threshold σ stays white (largest |z| here 6.0)
+    assert np.abs(z).max() < 8.0
+    assert np.mean(np.abs(z) > 3.0) < 0.05

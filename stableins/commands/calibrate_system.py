@@ -47,7 +47,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         type=float,
         nargs=3,
         metavar=("X", "Y", "Z"),
-        help="known constant gyro drift in the platform frame [deg/h]; its response is removed from pitch and roll",
+        help=(
+            "known constant gyro drift in the platform frame [deg/h], from the gyro calibration; its response is removed from "
+            "pitch and roll.  Without it the attitude coefficients assume zero drift (0.001 deg/h biases them by up to 1.9e-5 rad; "
+            "this stage cannot estimate it from one record)"
+        ),
     )
     parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
 

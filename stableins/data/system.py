@@ -294,10 +294,32 @@ class SystemRecord:
         """Nominal duration n / rate [s]."""
         return self.n_samples / self.sample_rate
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = DEFAULT_CHUNK) -> Iterator[dict[str, Any]]:
+    def iter_chunks(
+        self,
+        columns: Sequence[str] | None = None,
+        rows: int = DEFAULT_CHUNK,
+        *,
+        thin: Sequence[str] = (),
+        step: int = 1,
+        reuse: bool = False,
+    ) -> Iterator[dict[str, Any]]:
         """Yield dicts ``{column: ndarray}`` of up to ``rows`` rows, in order, each checked for NaN/inf.
 
         Memory is bounded by ``rows`` × number of columns, whatever the record length.
+
+        Parameters
+        ----------
+        columns : sequence of str, optional
+            Columns to read (all by default).
+        rows : int
+            Rows per chunk.
+        thin : sequence of str
+            Columns of ``columns`` wanted only at the rows whose index (0-based, from the first row
+            of the record) is a multiple of ``step`` (slowly varying outputs: attitude, velocity,
+            gimbal angles).  HDF5: gathered without reading the rows in between.
+        reuse : bool
+            HDF5: read the other columns into buffers reused from chunk to chunk; the arrays are
+            valid only until the next chunk is requested (for one-pass consumers).
         """
         names = list(NAMES if columns is None else columns)
         unknown = [n for n in names if n not in NAMES]
@@ -311,10 +333,11 @@ class SystemRecord:
                 for chunk in reader.iter_chunks(rows):
                     for n in names:
                         check_finite(n, chunk[n], self.path, first_row=first)
+                    phase = (-(first - 1)) % step
                     first += len(chunk["time"])
-                    yield {n: chunk[n] for n in names}
+                    yield {n: chunk[n][phase::step] if n in thin else chunk[n] for n in names}
         else:
-            yield from self._reader.iter_chunks(names, rows)
+            yield from self._reader.iter_chunks(names, rows, thin=thin, step=step, reuse=reuse)
 
     def read(self, columns: Sequence[str] | None = None) -> dict[str, Any]:
         """Whole columns at once (for short records or a few columns)."""

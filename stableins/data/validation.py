@@ -83,7 +83,9 @@ def check_finite(name: str, values: Any, path: Any, first_row: int = 1) -> None:
     values = np.asarray(values)
     if values.dtype.kind != "f":
         return
-    bad = ~np.isfinite(values)
+    if np.isfinite(np.add.reduce(values, axis=None)):  # NaN and ±inf propagate into the sum: one pass, no temporary
+        return
+    bad = ~np.isfinite(values)  # a non-finite value, or finite values whose sum overflowed: look
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError(f"value {values[k].item()!r} is not finite", path=path, row=first_row + k, field=name, expected="a finite number")

@@ -169,6 +169,7 @@ class AttitudeFit:
     drift_estimate: NDArray[np.float64]
     drift_sigma: NDArray[np.float64]
     notes: tuple[str, ...] = ()
+    block_map: NDArray[np.float64] | None = None  # (10, 2·bins): values ← (pitch, roll) summed over time bins (coloured noise)
 
 
 def _design(
@@ -218,6 +219,8 @@ def fit_attitude(
     vertical: NDArray[np.float64] | None = None,
     gyro_drift: str = "ignore",
     known_drift: NDArray[np.float64] | None = None,
+    scale_low_frequency: bool = True,
+    map_bin_seconds: float = 600.0,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -249,6 +252,13 @@ def fit_attitude(
         significant either), so by default (``"ignore"``) it is left out: pass ``known_drift``.
     known_drift : array (3,), optional
         Gyro drift in the platform frame [rad/s] known from elsewhere: its response is removed.
+    scale_low_frequency : bool
+        Scale the covariance by the residual spectrum extrapolated to the harmonics (stand-alone use).  The
+        system stage passes ``False`` and adds the coloured-noise covariance of its joint model
+        (:func:`.spectrum.fit_coloured_noise`) through ``block_map`` instead.
+    map_bin_seconds : float
+        Width of the time bins (from the record start) over which ``block_map``, the linear map from
+        the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
     """
     x_common, names, freqs = _design(blocks, loop, case_rotation_period)
     w = blocks["count"]
@@ -258,6 +268,9 @@ def fit_attitude(
         y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
     drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
     n_common = x_common.shape[1]
+    map_bin = np.floor(blocks["time"] / map_bin_seconds).astype(np.int64)
+    n_map = int(map_bin.max()) + 1 if map_bin.size else 0
+    maps = np.zeros((10, 2 * n_map))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← block means summed per time bin
     beta = np.zeros((n_common, 2))
     residuals = np.zeros_like(y)
     cov_obs = np.zeros((10, 10))
@@ -266,6 +279,7 @@ def fit_attitude(
         gains = np.array([np.abs(loop.frequency_response(f)).max(axis=1)[ch] if f > 0 else 1.0 for f in freqs[:5]])
         d = noise_sigma[ch] * gains
         coef, res, inv = _weighted_fit(x_common, y[:, ch], w)
+        columns, inv_full = x_common, inv
         if drift is not None and gyro_drift in ("fit", "check"):
             # the same fit with the drift responses of this channel as three more columns
             coef_d, res_d, inv_d = _weighted_fit(np.concatenate([x_common, drift[:, ch, :]], axis=1), y[:, ch], w)
@@ -273,6 +287,11 @@ def fit_attitude(
             drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * _DRIFT_SCALE, sigma_d * _DRIFT_SCALE
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
+                columns, inv_full = np.concatenate([x_common, drift[:, ch, :]], axis=1), inv_d
+        rows = np.einsum("ij,nj->in", inv_full[:5], columns) * w[None, :]  # (5, blocks), transient; no weighted copy
+        for k in range(5):
+            maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] = np.bincount(map_bin, weights=rows[k], minlength=n_map)
+        del rows
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
@@ -318,7 +337,14 @@ def fit_attitude(
     for ch in range(2):
         gain = np.array([np.abs(loop.frequency_response(2 * np.pi * f)).max(axis=1)[ch] for f in grid])
         freqs, rho = spectral_ratios(
-            blocks["time"], residuals[:, ch], w, noise_sigma[ch] ** 2, (3.5 * EARTH_FREQUENCY, 30.0 * EARTH_FREQUENCY), gain, grid
+            blocks["time"],
+            residuals[:, ch],
+            w,
+            noise_sigma[ch] ** 2,
+            (3.5 * EARTH_FREQUENCY, 30.0 * EARTH_FREQUENCY),
+            gain,
+            grid,
+            max_frequencies=64,
         )
         if rho.size:
             ratio[ch] = float(np.mean(rho))
@@ -329,6 +355,9 @@ def fit_attitude(
                 f"{ch and 'roll' or 'pitch'} residuals carry low-frequency noise (bias instability / random walk): the spectrum "
                 f"extrapolated to one cycle per day is {factors[5 * ch + 1]:.1f}x the white level; the covariance was scaled accordingly"
             )
+    if not scale_low_frequency:
+        factors = np.ones(10)
+        notes = [n.replace("the covariance was scaled accordingly", "see the coloured-noise model") for n in notes]
     scale_obs = np.sqrt(factors)  # in the observed (mean, 1c, 1s, 2c, 2s) order of each channel
     cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
     cov_qs = transform @ cov_obs @ transform.T
@@ -349,6 +378,7 @@ def fit_attitude(
         drift_estimate=drift_estimate,
         drift_sigma=drift_sigma,
         notes=tuple(notes),
+        block_map=(transform @ maps)[order],
     )
 
 

@@ -238,6 +238,13 @@ class DampingLoop:
         return c
 
     def _controllable_modes(self) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]:
+        cached = self.__dict__.get("_modes")  # the loop is immutable: decompose once
+        if cached is None:
+            cached = self._decompose()
+            object.__setattr__(self, "_modes", cached)
+        return cached
+
+    def _decompose(self) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]:
         a, b, c = self.state_matrix(), self.input_matrix(), self.output_matrix()
         # Balance the states (angles ~ 1, velocities ~ R ω, latitude ~ 1) for a well-conditioned eigenproblem.
         v = self.earth_radius * self.schuler_frequency

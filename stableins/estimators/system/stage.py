@@ -49,8 +49,13 @@ from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, Attitude
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
-FAST_COLUMNS = ("f_x", "f_y", "f_z", "angle_platform")
-SLOW_COLUMNS = ("time", "pitch", "roll", "velocity_north", "velocity_east")
+#: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks.
+FAST_COLUMNS = ("time", "f_x", "f_y", "f_z")
+#: Read at the attitude decimation only (slowly varying outputs; docs/system-calibration.md §6).
+SLOW_COLUMNS = ("angle_platform", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Samples per sub-block of the z computation (its temporaries stay in the processor cache).
+Z_SUBBLOCK = 1 << 15
 
 #: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
 LEVEL_TOLERANCE = 1e-4
@@ -64,7 +69,9 @@ class ChunkSource(Protocol):
 
     path: str
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = ...) -> Iterator[dict[str, Any]]: ...
+    def iter_chunks(
+        self, columns: Sequence[str] | None = None, rows: int = ..., *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+    ) -> Iterator[dict[str, Any]]: ...
 
 
 @dataclass(frozen=True)
@@ -74,19 +81,27 @@ class ArraySource:
     columns: Mapping[str, NDArray[np.float64]]
     path: str = "<arrays>"
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16) -> Iterator[dict[str, Any]]:
+    def iter_chunks(
+        self, columns: Sequence[str] | None = None, rows: int = 1 << 16, *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+    ) -> Iterator[dict[str, Any]]:
+        """Same contract as :meth:`stableins.data.system.SystemRecord.iter_chunks` (``reuse`` has no effect)."""
         names = list(self.columns if columns is None else columns)
         for name in names:
             if name not in self.columns:
                 raise InputError("missing column", path=self.path, field=name, expected="the system-record columns")
         n = len(self.columns[names[0]])
         for start in range(0, n, rows):
-            chunk = {name: np.asarray(self.columns[name][start : start + rows], dtype=float) for name in names}
-            for name, values in chunk.items():
+            phase = (-start) % step
+            chunk = {}
+            for name in names:
+                values = np.asarray(self.columns[name][start : start + rows], dtype=float)
+                every = step if name in thin else 1
+                values = values[phase::every] if every > 1 else values
                 bad = ~np.isfinite(values)
                 if bad.any():
-                    row = start + int(np.flatnonzero(bad)[0]) + 1
+                    row = start + (phase if every > 1 else 0) + int(np.flatnonzero(bad)[0]) * every + 1
                     raise InputError("value is NaN or infinite", path=self.path, field=name, row=row, expected="finite numbers")
+                chunk[name] = values
             yield chunk
 
 
@@ -197,6 +212,43 @@ class _BlockHarmonics:
         counts = np.concatenate([o[2] for o in outs])
         return zs, hs, counts
 
+    def add_timed(
+        self, time: NDArray[np.float64], z: NDArray[np.float64], centre_angle: NDArray[np.float64], uniform_period: float | None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate with ``S = S_c + ω_ie (t − t̄)`` in each block (``t̄`` the block's mean time).
+
+        ``centre_angle`` is ``S`` at the block-mean times (one per block of ``block`` samples,
+        the last possibly partial).  The platform is inertially held, so within a block (2.6 s at
+        100 Hz) ``S`` advances at the Earth rate; the angle reading fixes ``S_c``.  With
+        ``uniform_period`` (steps within 1e-3 of it) the offsets ``t − t̄`` are the nominal grid
+        ``(j − (B−1)/2)·period`` (their sum over a block is zero either way) and the z moments are
+        one small matrix product per chunk; otherwise they are computed from the time stamps.
+        """
+        n = z.size
+        b = self.block
+        nb = n // b
+        outs = []
+        if nb and uniform_period is not None:
+            grid = EARTH_RATE * uniform_period * (np.arange(b) - 0.5 * (b - 1))
+            powers = np.stack([np.ones(b), grid, grid * grid, grid**3])
+            moments = np.einsum("ij,kj->ki", z[: nb * b].reshape(nb, b), powers)  # (4, nb); not BLAS (see docs §6)
+            sums = powers.sum(1)
+            outs.append(self._moments(centre_angle[:nb], float(b), sums[1], sums[2], sums[3], moments))
+        elif nb:
+            outs.append(self._from_time(time[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b), centre_angle[:nb]))
+        if n - nb * b:
+            outs.append(self._from_time(time[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1), centre_angle[nb:]))
+        self.sum_z2 += float(np.einsum("i,i->", z, z))
+        self.count += n
+        return tuple(np.concatenate([o[k] for o in outs]) for k in range(3))  # type: ignore[return-value]
+
+    def _from_time(self, time: NDArray[np.float64], z: NDArray[np.float64], s_c: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+        d = EARTH_RATE * (time - time.mean(axis=1, keepdims=True))
+        d2 = d * d
+        zd = z * d
+        moments = np.stack([z.sum(1), zd.sum(1), (zd * d).sum(1), (zd * d2).sum(1)])
+        return self._moments(s_c, float(d.shape[1]), d.sum(1), d2.sum(1), (d2 * d).sum(1), moments)
+
     def _blocks(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
         m = angle.shape[1]
         centre = angle[:, m // 2]
@@ -206,19 +258,21 @@ class _BlockHarmonics:
         sd = self.sense
         d2 = d * d
         d3 = d2 * d
-        m1, m2, m3 = d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd
-        n0 = z.sum(1)
         zd = z * d
-        n1 = zd.sum(1) * sd
-        n2 = (zd * d).sum(1)
-        n3 = (zd * d2).sum(1) * sd
-        s_c = sd * (centre + self.offset)
-        count = float(m)
+        moments = np.stack([z.sum(1), zd.sum(1) * sd, (zd * d).sum(1), (zd * d2).sum(1) * sd])
+        return self._moments(sd * (centre + self.offset), float(m), d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd, moments)
+
+    def _moments(
+        self, s_c: NDArray[np.float64], count: float, m1: Any, m2: Any, m3: Any, moments: NDArray[np.float64]
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        """Block sums from ``S_c`` and the moments ``m_p = Σδ^p``, ``n_p = Σ z δ^p`` (δ in S units)."""
+        n0, n1, n2, n3 = moments
+        n_blocks = s_c.size
         top = 2 * self.order
         nk = top + 1
-        trig = np.zeros((angle.shape[0], 2 * nk))  # C_k, then S_k
+        trig = np.zeros((n_blocks, 2 * nk))  # C_k, then S_k
         trig[:, 0] = count
-        zk = np.zeros((angle.shape[0], 2 * (self.order + 1)))
+        zk = np.zeros((n_blocks, 2 * (self.order + 1)))
         zk[:, 0] = n0
         for k in range(1, top + 1):
             ck, sk = np.cos(k * s_c), np.sin(k * s_c)
@@ -236,7 +290,7 @@ class _BlockHarmonics:
         self.z_sums += zk.sum(0)
         a = math.cos(self.latitude)
         h = np.stack([a**k * trig[:, k + t * nk] for k, t in self.columns], axis=1)
-        return zk[:, 0], h, np.full(angle.shape[0], count)
+        return zk[:, 0], h, np.full(n_blocks, count)
 
     def accumulator(self) -> hm.InformationAccumulator:
         """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
@@ -299,6 +353,44 @@ class _Compensation:
         bias = np.array([known.get(f"bias_{a}", 0.0) for a in "xyz"])
         quadratic = np.array([known.get(f"K2_{a}", 0.0) for a in "xyz"])
         return cls(matrix, bias, quadratic)
+
+    def observation_into(self, fx: NDArray, fy: NDArray, fz: NDArray, gravity: float, out: NDArray, work: NDArray) -> None:
+        """``out = ½(|f^p|²/g² − 1)`` (the z of :mod:`.harmonics`) in sub-blocks, without temporaries.
+
+        ``work`` holds at least ``4·min(n, Z_SUBBLOCK)`` values.  Same arithmetic as
+        :meth:`squared_norm` (tested equal), with ``Q/(2g²)`` folded in.
+        """
+        q = np.einsum("ki,kj->ij", self.matrix, self.matrix) / (2.0 * gravity**2)
+        n = fx.size
+        quadratic = bool(np.any(self.quadratic))
+        for a in range(0, n, Z_SUBBLOCK):
+            b = min(a + Z_SUBBLOCK, n)
+            m = b - a
+            w0, w1, w2, tmp = (work[k * m : (k + 1) * m] for k in range(4))
+            o = out[a:b]
+            np.subtract(fx[a:b], self.bias[0], out=w0)
+            np.subtract(fy[a:b], self.bias[1], out=w1)
+            np.subtract(fz[a:b], self.bias[2], out=w2)
+            if quadratic:
+                for w, k2 in ((w0, self.quadratic[0]), (w1, self.quadratic[1]), (w2, self.quadratic[2])):
+                    np.multiply(w, w, out=tmp)
+                    tmp *= k2
+                    w -= tmp
+            np.multiply(w0, q[0, 0], out=o)
+            np.multiply(w1, 2.0 * q[0, 1], out=tmp)
+            o += tmp
+            np.multiply(w2, 2.0 * q[0, 2], out=tmp)
+            o += tmp
+            o *= w0  # w0 (q00 w0 + 2 q01 w1 + 2 q02 w2)
+            np.multiply(w1, q[1, 1], out=tmp)
+            np.multiply(w2, 2.0 * q[1, 2], out=w0)
+            tmp += w0
+            tmp *= w1
+            o += tmp  # + w1 (q11 w1 + 2 q12 w2)
+            np.multiply(w2, q[2, 2], out=tmp)
+            tmp *= w2
+            o += tmp
+            o -= 0.5
 
     def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
         """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
@@ -433,28 +525,50 @@ def run_system_stage(
     checks.latitude = latitude
     seen = 0
     first_time = None
-    for chunk in source.iter_chunks(columns, rows=chunk_rows):
+    thin = [c for c in columns if c not in FAST_COLUMNS]
+    z_buffer = np.empty(chunk_rows)
+    work = np.empty(4 * min(chunk_rows, Z_SUBBLOCK))
+    knot_time: float | None = None  # last Earth-rate-angle knot of the previous chunk
+    knot_angle = 0.0
+    for chunk in source.iter_chunks(columns, rows=chunk_rows, thin=thin, step=decimation, reuse=True):
         n = len(chunk["f_x"])
         if n == 0:
             continue
         time = chunk["time"]
-        checks.time(time, seen)
+        uniform = checks.time(time, seen)
         if first_time is None:
             first_time = float(time[0])
             attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
         fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
-        angle = chunk["angle_platform"]
         phase = (-seen) % decimation
         sel = slice(phase, None, decimation)
+        t_d = time[sel]
         if general:
-            knots = np.unique(np.concatenate([[0], np.arange(n)[sel], [n - 1]]))
-            s_knots = _earth_angle_from_kinematics(chunk, knots, offsets, nav_to_body, config)
-            angle = np.interp(np.arange(n), knots, s_knots)  # linear: error (ω_ie·decimation/rate)²/8 < 1e-9 rad
-            s_d = angle[sel]
+            s_d = _earth_angle_from_kinematics(chunk, slice(None), offsets, nav_to_body, config)
         else:
-            s_d = sense * (angle[sel] + theta10)
-        z = 0.5 * (compensation.squared_norm(fx, fy, fz) / gravity**2 - 1.0)
-        zs, hs, counts = accumulator.add(angle, z)
+            s_d = sense * (chunk["angle_platform"] + theta10)
+        pitch_d, roll_d = chunk["pitch"], chunk["roll"]
+        # static checks and the unwrapped Earth-rate angle at the decimated samples
+        s_knots = checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], chunk["velocity_east"])
+        # S at each block's mean time: linear between the knots (1 s apart, S is smooth), the previous chunk's last knot
+        # before the first and the Earth rate after the last (the platform is inertially held: dS/dt = ω_ie)
+        z = z_buffer[:n]
+        compensation.observation_into(fx, fy, fz, gravity, z, work)
+        nb_full = n // block
+        block_time = np.empty(nb_full + (1 if n % block else 0))
+        block_time[:nb_full] = time[: nb_full * block].reshape(nb_full, block).mean(axis=1)
+        if n % block:
+            block_time[-1] = time[nb_full * block :].mean()
+        kt = t_d if knot_time is None else np.concatenate([[knot_time], t_d])
+        ks = s_knots if knot_time is None else np.concatenate([[knot_angle], s_knots])
+        kt = np.concatenate([kt, [time[-1] + 1.0]])
+        ks = np.concatenate([ks, [ks[-1] + EARTH_RATE * (time[-1] + 1.0 - kt[-2])]])
+        if kt[0] > time[0]:  # no knot yet before the first block (first chunk starts at a knot; kept for safety)
+            kt = np.concatenate([[time[0]], kt])
+            ks = np.concatenate([[ks[0] - EARTH_RATE * (kt[1] - time[0])], ks])
+        centre_angle = np.interp(block_time, kt, ks)
+        knot_time, knot_angle = float(t_d[-1]), float(s_knots[-1])
+        zs, hs, counts = accumulator.add_timed(time, z, centre_angle, 1.0 / rate if uniform else None)
         # filter bins by global sample index
         starts = seen + np.arange(len(counts)) * block
         bins = starts // filter_samples
@@ -469,21 +583,18 @@ def run_system_stage(
                 d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
                 noise_sums[k] += float(np.einsum("i,i->", d2, d2))
             noise_count += m - 2
-        # decimated slow channels
-        t_d = time[sel]
-        pitch_d, roll_d = chunk["pitch"][sel], chunk["roll"][sel]
         # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
         # rotate back to the north-pointing pair the loop model outputs
         if tilted:  # C_n^b' = C_n^b (I + [φ×]) (conventions): φ from the antisymmetric part
-            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"][sel], pitch_d, roll_d)
+            rel = base_dcm_t @ dcm_nav_to_body(chunk["heading"], pitch_d, roll_d)
             p0 = -0.5 * (rel[:, 0, 2] - rel[:, 2, 0])
             r0 = -0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
         else:
             p0 = cos_yaw * pitch_d + sin_yaw * roll_d
             r0 = -sin_yaw * pitch_d + cos_yaw * roll_d
         attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
-        checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"][sel], chunk["velocity_east"][sel])
-        checks.polar(fx[sel], fy[sel], fz[sel])
+        sparse = slice(phase, None, 10 * decimation)  # the polar check is a record mean: one sample per 10 decimated ones
+        checks.polar(fx[sparse], fy[sparse], fz[sparse])
         seen += n
 
     if seen == 0 or attitude_blocks is None:
@@ -518,25 +629,9 @@ def run_system_stage(
     x_hat[0] -= noise_bias
     cov_x = cov_unit * r_var
 
-    # ---------------------------------------------------------------- low-frequency noise check on the filter bins
+    # ---------------------------------------------------------------- bins for the coloured-noise model (after the attitude fit)
     keep_bins = filter_bins["n"] > 0
-    nn_all = filter_bins["n"][keep_bins]
-    bin_residual = filter_bins["z"][keep_bins] / nn_all - (filter_bins["h"][keep_bins] / nn_all[:, None]) @ x_ls
-    n_bins = int(keep_bins.sum())
-    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
-
     bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
-    high = min(70.0 * EARTH_FREQUENCY, 0.45 * rate / filter_samples)
-    freqs, rho = spectral_ratios(bin_time, bin_residual, nn_all, r_var, (3.5 * EARTH_FREQUENCY, high)) if n_bins > 8 else (np.zeros(0),) * 2
-    z_factors = inflation(freqs, rho, np.array([1, 1, 1, 2, 2, 3, 3]) * EARTH_FREQUENCY)
-    low_frequency_ratio = float(z_factors[1])
-    cov_x = cov_x * np.outer(np.sqrt(z_factors), np.sqrt(z_factors))
-    if low_frequency_ratio > 2.0:
-        notes.append(
-            f"the specific-force residuals carry low-frequency noise (bias instability, random walk or temperature): their spectrum "
-            f"extrapolated to one cycle per day is {low_frequency_ratio:.1f}x the white level; the harmonic states' covariance was "
-            "scaled accordingly"
-        )
 
     # ---------------------------------------------------------------- filter convergence
     history = None
@@ -569,8 +664,17 @@ def run_system_stage(
         vertical=vertical,
         gyro_drift=options.gyro_drift,
         known_drift=options.known_gyro_drift,
+        scale_low_frequency=False,
+        map_bin_seconds=filter_samples / rate,
     )
     notes += list(att.notes)
+    if options.known_gyro_drift is None:
+        notes.append(
+            "gyro drift not supplied: the attitude coefficients assume none.  A constant drift of 0.001 deg/h along a platform "
+            "axis drives the loop's undamped Earth-rate mode and biases them by up to 1.9e-5 rad (x1..x5 do not see it); one day "
+            "of pitch and roll cannot separate it from the accelerometer harmonics.  Supply the drift in the platform frame from "
+            "the gyro calibration (--gyro-drift X Y Z, deg/h) for unbiased attitude coefficients"
+        )
 
     # ---------------------------------------------------------------- observability (short records)
     # v = (x1..x7, ten attitude coefficients) with its covariance; cross terms from the vertical path
@@ -581,6 +685,20 @@ def run_system_stage(
     cov_v[7:, 7:] = att.covariance + jac_x @ cov_x @ jac_x.T
     cov_v[7:, :7] = jac_x @ cov_x
     cov_v[:7, 7:] = cov_v[7:, :7].T
+    # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
+    coloured, coloured_info = _coloured_covariance(
+        filter_bins, keep_bins, bin_time, filter_samples / rate, x_ls, r_var, blocks, att, jac_x, latitude, loop
+    )
+    white_x2 = cov_v[1, 1]
+    cov_v = cov_v + coloured
+    cov_x = cov_v[:7, :7]
+    low_frequency_ratio = float(cov_v[1, 1] / white_x2)
+    if low_frequency_ratio > 1.5:
+        notes.append(
+            "the residuals carry low-frequency noise of the accelerometers (bias instability, random walk or temperature): a model of it "
+            f"fitted to the residual spectra (Whittle gain {coloured_info['loglik_gain']:.0f}) makes the variance of x2 "
+            f"{low_frequency_ratio:.1f}x the white-noise value; the covariance of all coefficients includes it"
+        )
     v = np.concatenate([x_hat, att.values])
     # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
@@ -657,6 +775,7 @@ def run_system_stage(
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
+        "coloured_noise": coloured_info,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
         "k2_residual_sigma": k2_sigma,
@@ -683,9 +802,104 @@ def run_system_stage(
     )
 
 
+#: At most this many bins enter the coloured-noise model (longer records: wider bins).
+COLOURED_BINS = 320
+
+
+def _coloured_covariance(
+    filter_bins: dict[str, NDArray[np.float64]],
+    keep_bins: NDArray[np.bool_],
+    bin_time: NDArray[np.float64],
+    width: float,
+    x_ls: NDArray[np.float64],
+    r_var: float,
+    blocks: dict[str, NDArray[np.float64]],
+    att: AttitudeFit,
+    jac_x: NDArray[np.float64],
+    latitude: float,
+    loop: DampingLoop,
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Covariance ``(17, 17)`` of ``(x1..x7, attitude)`` due to coloured accelerometer noise (zero when the data show none).
+
+    The z residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes of random-walk
+    and flicker components of the x-y and z accelerometers (:func:`.spectrum.fit_coloured_noise`: periodogram between
+    3.5 and 30 cycles/day, exact for what the fit absorbs and for the Earth-rate modulation of x and y).  The same
+    components, loaded onto pitch and roll (:func:`.spectrum.axis_loadings`), are propagated through the linear maps of
+    the harmonic fit and of the attitude fit: ``cov = Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the
+    harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of x2 and of φ1s) and the
+    correlation it creates between the specific-force and attitude coefficients.
+    """
+    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, axis_loadings, coloured_components, fit_coloured_noise
+
+    out = np.zeros((17, 17))
+    info: dict[str, Any] = {"loglik_gain": 0.0, "frequencies": 0, "amplitudes": {}}
+    n_keep = int(keep_bins.sum())
+    if n_keep < 16 or att.block_map is None:
+        return out, info
+    merge = max(1, -(-n_keep // COLOURED_BINS))
+    ids = np.flatnonzero(keep_bins) // merge
+    groups, index = np.unique(ids, return_inverse=True)
+    n = groups.size
+    count = np.bincount(index, weights=filter_bins["n"][keep_bins], minlength=n)
+    zsum = np.bincount(index, weights=filter_bins["z"][keep_bins], minlength=n)
+    hsum = np.stack([np.bincount(index, weights=filter_bins["h"][keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
+    x_bins = hsum / count[:, None]
+    residual = zsum / count - x_bins @ x_ls
+    time = (groups + 0.5) * width * merge
+    wide = width * merge
+    a_z = np.linalg.solve(x_bins.T @ (x_bins * count[:, None]), (x_bins * count[:, None]).T)  # (7, n)
+    r_z = np.eye(n) - x_bins @ a_z
+    cos_l = math.cos(latitude)
+    cos_s, sin_s = x_bins[:, 1] / cos_l, x_bins[:, 2] / cos_l
+    loads = [axis_loadings(ch, cos_s, sin_s, latitude) for ch in ("z", "pitch", "roll")]
+    names, covs = coloured_components(time, wide, loads)
+    high = min(30.0 * EARTH_FREQUENCY, 0.45 / wide)
+    # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
+    block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
+    att_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
+    ok = att_count > 0
+    channels, makers, weights = [residual], [r_z], [count]
+    gains: list[Any] = [None]
+    if ok.all():
+        # the attitude fit's mean and harmonics on the bins (its other nuisances are faster or decay)
+        x_att = np.stack([np.ones(n), cos_s, sin_s, cos_s**2 - sin_s**2, 2.0 * sin_s * cos_s], axis=1)
+        r_att = np.eye(n) - x_att @ np.linalg.solve(x_att.T @ (x_att * att_count[:, None]), (x_att * att_count[:, None]).T)
+        for ch in range(2):
+            res = np.bincount(block_bin, weights=blocks["count"] * att.block_residuals[:, ch], minlength=n) / att_count
+            channels.append(res)
+            makers.append(r_att)
+            weights.append(att_count)
+            gains.append(lambda f, ch=ch: float(np.abs(loop.frequency_response(2.0 * np.pi * f)).max(axis=1)[ch] ** 2))
+    used = len(channels) * n
+    amplitudes, fit_info = fit_coloured_noise(
+        channels, makers, weights, time, [c[:used, :used] for c in covs], (3.5 * EARTH_FREQUENCY, high), power_gains=gains
+    )
+    info.update(fit_info)
+    info["amplitudes"] = dict(zip(names, map(float, amplitudes), strict=True))
+    info["white_variance"] = r_var
+    if not np.any(amplitudes > 0):
+        return out, info
+    # attitude blocks → the same bins (block time since the record start)
+    n_map = att.block_map.shape[1] // 2
+    map_group = np.clip(np.searchsorted(groups, np.arange(n_map) // merge), 0, n - 1)  # 600-s bins of the fit → groups
+    a_att = np.zeros((10, 2 * n))
+    for ch in range(2):
+        part = att.block_map[:, ch * n_map : (ch + 1) * n_map]
+        for k in range(10):
+            a_att[k, ch * n : (ch + 1) * n] = np.bincount(map_group, weights=part[k], minlength=n)
+    j = np.zeros((17, 3 * n))
+    j[:7, :n] = a_z
+    j[7:, :n] = jac_x @ a_z
+    j[7:, n:] = a_att
+    for alpha, cov in zip(amplitudes, covs, strict=True):
+        if alpha > 0:
+            out += alpha * np.einsum("in,nm,km->ik", j, cov, j)  # not BLAS (docs §6)
+    return 0.5 * (out + out.T), info
+
+
 def _earth_angle_from_kinematics(
     chunk: Mapping[str, NDArray[np.float64]],
-    sel: NDArray[np.int64],
+    sel: Any,
     offsets: NDArray[np.float64],
     nav_to_body: NDArray,
     config: GimbalConfiguration,
@@ -960,14 +1174,26 @@ class _StaticChecks:
         self.duration = 0.0
         self.polar_sums = np.zeros(2)
         self.latitude = 0.0
+        self.step_buffer = np.empty(0)
 
-    def time(self, t: NDArray[np.float64], seen: int) -> None:
+    def time(self, t: NDArray[np.float64], seen: int) -> bool:
+        """Sampling checks of one chunk; returns whether its steps are within 1e-3 of the nominal period."""
         # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
-        step = np.diff(t)
-        if self.last_time is not None and t.size:
-            step = np.concatenate([[t[0] - self.last_time], step]) if (t[0] - self.last_time) != self.period else step
+        if self.step_buffer.size < t.size - 1:
+            self.step_buffer = np.empty(t.size - 1)
+        step = np.subtract(t[1:], t[:-1], out=self.step_buffer[: max(t.size - 1, 0)])
         lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
+        if self.last_time is not None and t.size:  # the step across the chunk boundary
+            across = float(t[0] - self.last_time)
+            lo, hi = min(lo, across), max(hi, across)
+        uniform = 0.999 * self.period <= lo and hi <= 1.001 * self.period
         if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
+            bad = ~np.isfinite(t)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise InputError(
+                    f"value {t[k]!r} is not finite", path=self.path, field="time", row=seen + k + 1, expected="a finite number"
+                )
             series = t if self.last_time is None else np.concatenate([[self.last_time], t])
             step = np.diff(series)
             offset = seen + (1 if self.last_time is None else 0)
@@ -985,10 +1211,12 @@ class _StaticChecks:
         if self.first_time is None:
             self.first_time = float(t[0])
         self.last_time = float(t[-1])
+        return uniform
 
-    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> None:
+    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> NDArray[np.float64]:
+        """Static-base checks on the decimated samples; returns the Earth-rate angle unwrapped across chunks."""
         if t.size == 0:
-            return
+            return s
         speed = np.hypot(vn, ve)
         vmax = float(speed.max())
         if vmax > self.options.velocity_limit and self.moving_at is None:
@@ -1004,6 +1232,7 @@ class _StaticChecks:
         self.last_angle = float(s[-1])
         tt = t - (self.first_time or 0.0)
         self.rate_sums += [t.size, tt.sum(), (tt * tt).sum(), series.sum(), (tt * series).sum()]
+        return series
 
     def polar(self, fx: NDArray, fy: NDArray, fz: NDArray) -> None:
         """Accumulate the direction cosine of gravity with z_p (sin L on a polar-aligned platform)."""
