@@ -488,4 +488,5 @@ def calibrate_coarse(
         determined=determined,
         notes=tuple(notes),
         extra=extra,
+        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
     )

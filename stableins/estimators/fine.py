@@ -274,4 +274,5 @@ def calibrate_fine(
             "chi2_whitened": chi2_whitened,
             "gravity": g,
         },
+        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
     )
