@@ -60,7 +60,7 @@ from stableins.conventions import (
 from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
-from stableins.estimators.dwell import DwellSummary, describe_left_out
+from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult
@@ -366,34 +366,7 @@ def calibrate_coarse(
     FitResult
         Stage ``"coarse"``, with gauge ``θ10 = 0`` (status ``gauge``).
     """
-    positions = [d.position for d in dwells]
-    duplicates = sorted({p for p in positions if positions.count(p) > 1})
-    if duplicates:
-        raise InputError(f"positions {duplicates} appear more than once in one pass", path=source, field="position")
-    notes: list[str] = []
-    left_out: dict[int, str] = {}
-    if expected_positions is not None:
-        missing = sorted(set(expected_positions) - set(positions))
-        extra = sorted(set(positions) - set(expected_positions))
-        if extra:
-            raise InputError(
-                f"positions {extra} are not in the procedure", path=source, field="position", expected=f"{sorted(expected_positions)}"
-            )
-        if missing and not allow_missing:
-            raise InputError(
-                f"positions {missing} are missing (the procedure stopped early or rows were lost)",
-                path=source,
-                field="position",
-                expected=f"all of {sorted(expected_positions)}",
-            )
-        for p in missing:
-            left_out[p] = "missing from the data"
-    for d in dwells:
-        if d.flags:
-            left_out[d.position] = "; ".join(d.flags)
-        for n in d.notes:
-            notes.append(f"position {d.position}: {n}")
-    usable = [d for d in dwells if d.usable]
+    usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source)
     base_dcm = dcm_nav_to_body(*base_attitude)
     left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)

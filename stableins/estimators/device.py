@@ -18,7 +18,7 @@ from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
-from stableins.estimators.dwell import DwellChecks, DwellSummary, pooled_allan_excess, summarize_dwell
+from stableins.estimators.dwell import DwellSummary, pooled_allan_excess
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
@@ -91,55 +91,6 @@ class DeviceCalibration:
         record = CalibrationRecord.from_fit_result(self.final, site=site, inputs=inputs, procedure=procedure)
         stages = ("coarse", "fine") if self.fused is not None else ("coarse",)
         return replace(record, provenance=replace(record.provenance, stages=stages))
-
-
-def summarize_dwells(dwells: Sequence[object], procedures: dict[str, ProcedureDefinition], source: str = "data") -> list[DwellSummary]:
-    """Summaries of dataset dwells (objects with the fields of ``stableins.data.device.Dwell``).
-
-    Samples earlier than the procedure's settle time after the command are dropped;
-    duplicated (stage, pass, position) keys raise :class:`InputError`.
-    """
-    seen: set[tuple[str, int, int]] = set()
-    out = []
-    for d in dwells:
-        key = (str(d.stage), int(d.pass_number), int(d.position))
-        if key in seen:
-            raise InputError(
-                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
-                path=source,
-                field="position",
-                row=getattr(d, "first_row", None),
-                expected="each position once per stage and pass",
-            )
-        seen.add(key)
-        procedure = procedures.get(key[0])
-        if procedure is not None and key[2] in procedure.positions:
-            settle = procedure.step(key[2]).settle
-            checks = procedure.acceptance.dwell_checks()
-        else:
-            settle, checks = 0.0, DwellChecks()
-        since = np.asarray(d.time_since_command, dtype=float)
-        if np.any(np.diff(since) < 0):
-            raise InputError(
-                f"position {key[2]} was commanded twice in {key[0]} pass {key[1]} (time_since_command restarts)",
-                path=source,
-                field="time_since_command",
-                row=getattr(d, "first_row", None),
-            )
-        use = since >= settle
-        out.append(
-            summarize_dwell(
-                np.asarray(d.time)[use],
-                np.asarray(d.specific_force)[use],
-                np.asarray(d.angles)[use],
-                d.command,
-                position=key[2],
-                stage=key[0],
-                pass_number=key[1],
-                checks=checks,
-            )
-        )
-    return out
 
 
 def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.0) -> SlowNoise:
