@@ -166,6 +166,28 @@ class CoarseProblem:
     configuration: GimbalConfiguration
     model: ErrorModel
 
+    @classmethod
+    def from_dwells(
+        cls,
+        dwells: Sequence[DwellSummary],
+        gravity: float,
+        base_dcm: NDArray[np.float64],
+        configuration: GimbalConfiguration,
+        model: ErrorModel,
+        slow_covariance: NDArray[np.float64] | None = None,
+    ) -> CoarseProblem:
+        """One trial from dwell summaries: measured readings, means and their 1σ."""
+        return cls(
+            readings=np.array([d.angles for d in dwells])[None],
+            means=np.array([d.mean for d in dwells])[None],
+            sigma=np.array([d.sem for d in dwells])[None],
+            gravity=float(gravity),
+            base_dcm=np.asarray(base_dcm, dtype=float),
+            configuration=configuration,
+            model=model,
+            slow_covariance=slow_covariance,
+        )
+
     def predict(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
         model = self.model
@@ -378,16 +400,7 @@ def calibrate_coarse(
             path=source,
             field="position",
         )
-    problem = CoarseProblem(
-        readings=np.array([d.angles for d in usable])[None],
-        means=np.array([d.mean for d in usable])[None],
-        sigma=np.array([d.sem for d in usable])[None],
-        gravity=float(gravity),
-        base_dcm=base_dcm,
-        configuration=configuration,
-        model=model,
-        slow_covariance=slow_covariance(usable, slow_noise, source),
-    )
+    problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, slow_covariance(usable, slow_noise, source))
     if slow_noise is not None:
         notes.append(slow_noise.describe())
     scales = np.array([t.nominal for t in model])

@@ -161,16 +161,7 @@ def fit_joint(
         Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
     """
     model = coarse_model(nonlinear or bool(fine_dwells))
-    base_dcm = dcm_nav_to_body(*base_attitude)
-    coarse = CoarseProblem(
-        readings=np.array([d.angles for d in coarse_dwells])[None],
-        means=np.array([d.mean for d in coarse_dwells])[None],
-        sigma=np.array([d.sem for d in coarse_dwells])[None],
-        gravity=float(gravity),
-        base_dcm=base_dcm,
-        configuration=configuration,
-        model=model,
-    )
+    coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
     fine = None
     columns = np.zeros(0, dtype=np.int64)
     if fine_dwells:
