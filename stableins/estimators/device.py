@@ -242,7 +242,8 @@ def calibrate_device(
             start=start,
             stage="coarse+fine",
             notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
-            + ((mismatch,) if mismatch is not None else ()),
+            + ((mismatch,) if mismatch is not None else ())
+            + ((warning,) if warning is not None else ()),
             **joint,
         )
     return DeviceCalibration(coarse, fine, tuple(passes), fused)
