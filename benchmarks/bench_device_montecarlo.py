@@ -14,7 +14,7 @@ Part A, vectorized (``--trials``, default 10000 random devices, so that a 0.1σ 
     squared (NEES).
     The fine-stage √CRB is the bound of the norm (squared-amplitude) observation alone.
 Part B, full simulator (``--sim-devices N``, default 48; ≥1000 for the acceptance run,
-    about 25 min on 2 cores): stableins.simulator with the quartz noise (white + 2 µg bias
+    about 20 min on 2 idle cores): stableins.simulator with the quartz noise (white + 2 µg bias
     instability + random walk + quantization + angle noise), ``--passes`` coarse passes
     (default 2) at 100 Hz, fine at 10 Hz (the mean's white noise is the same), through the
     whole pipeline (dwell statistics, screening, gauge, per-pass and joint coarse, fine stage,
@@ -321,7 +321,7 @@ def main() -> int:
         dest="sim_devices",
         type=int,
         default=48,
-        help="simulator devices of Part B (0 skips; 1000 ≈ 25 min on 2 cores)",
+        help="simulator devices of Part B (0 skips; 1000 ≈ 20 min on 2 idle cores)",
     )
     parser.add_argument("--passes", type=int, default=2, help="coarse passes per simulator device")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
