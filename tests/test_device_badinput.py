@@ -258,3 +258,108 @@ def test_unit_of_the_other_handedness_is_warned_about_and_its_weak_terms_named()
     dwells, site = _fine_session()
     clean = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
     assert not any("handedness" in n or "weakly determined" in n for fit in (clean.coarse, clean.fine) for n in fit.notes)
+
+
+def test_procedure_settle_and_duplicate_checks_of_the_one_dwell_path():
+    # The CLI path: dwells_from_columns(procedures=...) takes each step's settle time and the acceptance checks.
+    cols = _columns()
+    dwells = dwells_from_columns(cols, procedures={"coarse": PROCEDURE}, source="run.csv")
+    for d in dwells:
+        rows = (cols["position"] == d.position) & (cols["time_since_command"] >= PROCEDURE.step(d.position).settle)
+        assert d.samples == int(rows.sum())
+    again = _rows(cols, cols["position"] == 3)
+    doubled = {k: np.concatenate([cols[k], again[k]]) for k in cols}
+    with pytest.raises(InputError, match="position 3 appears twice in coarse pass 1") as info:
+        dwells_from_columns(doubled, procedures={"coarse": PROCEDURE}, source="run.csv")
+    assert info.value.field == "position" and info.value.row == cols["position"].size + 1 and "run.csv" in str(info.value)
+    idx = np.flatnonzero(cols["position"] == 3)
+    inserted = {k: np.insert(cols[k], idx[-1] + 1, cols[k][idx]) for k in cols}
+    with pytest.raises(InputError, match="commanded twice") as info:
+        dwells_from_columns(inserted, procedures={"coarse": PROCEDURE}, source="run.csv")
+    assert info.value.field == "time_since_command"
+
+
+def test_cli_rejects_a_position_commanded_twice(tmp_path, capsys):
+    from device_world import ExactPlatform
+
+    from stableins.cli import main
+    from stableins.data.device import save_device
+
+    cols = _columns()
+    idx = np.flatnonzero(cols["position"] == 3)
+    inserted = {k: np.insert(cols[k], idx[-1] + 1, cols[k][idx]) for k in cols}
+    inserted["time"] = np.arange(inserted["time"].size) * 0.01
+    path = save_device(tmp_path / "coarse.csv", inserted, ExactPlatform(TRUTH).metadata)  # the file format allows it
+    out = tmp_path / "record.json"
+    assert main(["calibrate", "device", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "position 3 was commanded twice" in err and "coarse.csv" in err and "time_since_command" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_fine_stage_rejects_positions_not_in_its_procedure():
+    from stableins.estimators.device import calibrate_device
+
+    def renumber(cols):
+        cols["position"][cols["position"] == 18] = 19
+
+    dwells, site = _fine_session(renumber)
+    with pytest.raises(InputError, match=r"fine-stage positions \[19\] are not in the procedure") as info:
+        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, allow_missing=True, source="fine.csv")
+    assert info.value.field == "position"
+
+
+def _quantized(rng, mean, sigma, step, n=2000):
+    return np.round((mean + sigma * rng.normal(size=n)) / step) * step
+
+
+def test_coarsely_quantized_healthy_dwell_is_not_called_clipped():
+    rng = np.random.default_rng(12)
+    sigma = 1e-3
+    for offset in (0.0, 0.3, 0.45, 0.5):  # mean between two levels: two levels hold most samples
+        for step in (3e-3, 5e-3, 1e-2):
+            x = _quantized(rng, 9.8 + offset * step, sigma, step)
+            f = np.stack([x, _quantized(rng, 0.01, sigma, step), _quantized(rng, -0.02, sigma, step)], axis=1)
+            d = summarize_dwell(np.arange(2000) * 0.01, f, np.zeros((2000, 3)), np.zeros(3), position=1, checks=CHECKS)
+            assert d.usable, (offset, step, d.flags)
+    # finely quantized healthy noise is not clipped either
+    f = np.stack([_quantized(rng, 9.8, sigma, 1e-4) for _ in range(3)], axis=1)
+    assert summarize_dwell(np.arange(2000) * 0.01, f, np.zeros((2000, 3)), np.zeros(3), position=1, checks=CHECKS).usable
+
+
+def test_truly_clipped_dwells_are_flagged():
+    rng = np.random.default_rng(13)
+    sigma = 1e-3
+    # fine quantization, output pinned at a rail 0.5σ above the mean
+    x = np.minimum(_quantized(rng, 9.8, sigma, 1e-4), 9.8 + 0.5 * sigma)
+    f = np.stack([x, _quantized(rng, 0.0, sigma, 1e-4), _quantized(rng, 0.0, sigma, 1e-4)], axis=1)
+    d = summarize_dwell(np.arange(2000) * 0.01, f, np.zeros((2000, 3)), np.zeros(3), position=1, checks=CHECKS)
+    assert any("clipped samples on axis x" in flag for flag in d.flags)
+    # coarse quantization: samples at the stated full-scale range (one step below it, the top code)
+    step = 4e-3
+    full_scale = DwellChecks(saturation=9.8 + 0.5 * step)
+    x = np.minimum(_quantized(rng, 9.8, sigma, step), 9.8)
+    f = np.stack([x, _quantized(rng, 0.0, sigma, step), _quantized(rng, 0.0, sigma, step)], axis=1)
+    d = summarize_dwell(np.arange(2000) * 0.01, f, np.zeros((2000, 3)), np.zeros(3), position=1, checks=full_scale)
+    assert any("clipped samples on axis x" in flag for flag in d.flags)
+    healthy = DwellChecks(saturation=3 * 9.80665)  # the same samples with the range far away are not called clipped
+    assert summarize_dwell(np.arange(2000) * 0.01, f, np.zeros((2000, 3)), np.zeros(3), position=1, checks=healthy).usable
+
+
+def test_cli_report_failure_leaves_no_record(tmp_path, capsys):
+    from device_world import ExactPlatform
+
+    from stableins.cli import main
+    from stableins.data.device import save_device
+
+    path = save_device(tmp_path / "coarse.csv", _columns(), ExactPlatform(TRUTH).metadata)
+    out = tmp_path / "record.json"
+    report = tmp_path / "report.txt"
+    report.mkdir()  # the report cannot be written: a directory is in the way
+    status = main(["calibrate", "device", str(path), "--out", str(out), "--report", str(report)])
+    err = capsys.readouterr().err
+    assert status != 0 and "cannot write the report" in err and "no record" in err and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.glob(".record.json.*"))
+    # and with a writable report both are written
+    assert main(["calibrate", "device", str(path), "--out", str(out), "--report", str(tmp_path / "ok.txt")]) == 0
+    assert out.exists() and "coarse stage" in (tmp_path / "ok.txt").read_text()

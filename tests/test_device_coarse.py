@@ -158,6 +158,28 @@ def test_offset_iteration_with_noise_stops_at_the_noise_floor():
     assert 2 <= len(result.history) <= 3 and result.history[-1].converged
 
 
+def test_offset_iteration_result_combines_every_pass():
+    z, ratios = [], []
+    for seed in (9, 19, 29):
+        truth = draw_truth(np.random.default_rng(seed), quadratic=False)
+        truth.update(theta20=30 * ARCSEC, theta30=-20 * ARCSEC)
+        result = iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=seed), PROCEDURE, nonlinear=False)
+        k = len(result.history)
+        assert k >= 2 and result.fit.extra["passes"] == list(range(1, k + 1)) and result.last is not None
+        assert len(result.fit.residuals) == 3 * 18 * k  # every pass's dwells, each with its own readings
+        for term in ("sf_x", "bias_z", "beta_yx", "theta20", "theta30"):
+            ratios.append(result.fit[term][1] * np.sqrt(k) / result.last[term][1])
+        expected = gauge_equivalent(truth)
+        z += [
+            (v - expected[i]) / s
+            for i, v, s, st in zip(result.fit.ids, result.fit.values, result.fit.sigma, result.fit.status)
+            if st == "estimated"
+        ]
+    # k equal independent passes: 1σ of the joint fit = 1σ of one pass / √k
+    np.testing.assert_allclose(ratios, 1.0, atol=0.05)
+    assert np.abs(z).max() < 4.5 and 0.5 < np.mean(np.square(z)) < 1.6
+
+
 def test_offset_iteration_failure_reports_history():
     truth = draw_truth(np.random.default_rng(10), quadratic=False)
     with pytest.raises(OffsetIterationError) as info:

@@ -57,10 +57,10 @@ def _same_site(datasets) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.atomic import atomic_write
     from stableins.data.device import load_device
     from stableins.data.errors import InputError
-    from stableins.estimators.device import calibrate_device, summarize_dwells
+    from stableins.estimators.device import calibrate_device
+    from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     _same_site(datasets)
     summaries = []
     for dataset in datasets:
-        summaries += summarize_dwells(dataset.dwells(), procedures, source=str(dataset.path))
+        summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
     slow_noise = None
@@ -91,26 +91,52 @@ def run(args: argparse.Namespace) -> int:
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
-    for fit in (*calibration.passes, calibration.fine):
+    for fit in (*calibration.passes, calibration.fine, calibration.fused):
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
     record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
-    record.save(args.out)
-    note(f"calibration record written to {args.out}")
     text = calibration.report()
-    if args.report is not None:
-        with atomic_write(args.report) as handle:
-            handle.write(text + "\n")
+    _write_all_or_nothing(record, args.out, text, args.report)
+    note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     result = {
         "record": str(args.out),
         "stages": ["coarse"] + (["fine"] if calibration.fine is not None else []),
         "coarse": _summary(calibration.coarse),
         "fine": None if calibration.fine is None else _summary(calibration.fine),
+        "fused": None if calibration.fused is None else _summary(calibration.fused),
         "passes": len(calibration.passes),
     }
     emit(args, result, text)
     return 0
+
+
+def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> None:
+    """Write the record and (optionally) the report, both or neither.
+
+    Both go to temporary files first; they are renamed into place only when both are
+    complete (report first, then record), so a report that cannot be written leaves no
+    record behind (and an existing record untouched).
+    """
+    import contextlib
+
+    from stableins.data.atomic import atomic_path
+    from stableins.data.errors import InputError
+
+    step = "record"
+    try:
+        with contextlib.ExitStack() as stack:
+            record.save(stack.enter_context(atomic_path(out)))
+            if report is not None:
+                step = "report"
+                stack.enter_context(atomic_path(report)).write_text(text + "\n", encoding="utf-8")
+    except OSError as error:
+        raise InputError(
+            f"cannot write the {step}: {error.strerror or error}; nothing was written (no record, no report)",
+            path=str(report if step == "report" else out),
+            field="--report" if step == "report" else "--out",
+            expected="a writable file path",
+        ) from None
 
 
 def _summary(fit) -> dict:

@@ -60,7 +60,7 @@ from stableins.conventions import (
 from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
-from stableins.estimators.dwell import DwellSummary, describe_left_out
+from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult
@@ -165,6 +165,28 @@ class CoarseProblem:
     base_dcm: NDArray[np.float64]
     configuration: GimbalConfiguration
     model: ErrorModel
+
+    @classmethod
+    def from_dwells(
+        cls,
+        dwells: Sequence[DwellSummary],
+        gravity: float,
+        base_dcm: NDArray[np.float64],
+        configuration: GimbalConfiguration,
+        model: ErrorModel,
+        slow_covariance: NDArray[np.float64] | None = None,
+    ) -> CoarseProblem:
+        """One trial from dwell summaries: measured readings, means and their 1σ."""
+        return cls(
+            readings=np.array([d.angles for d in dwells])[None],
+            means=np.array([d.mean for d in dwells])[None],
+            sigma=np.array([d.sem for d in dwells])[None],
+            gravity=float(gravity),
+            base_dcm=np.asarray(base_dcm, dtype=float),
+            configuration=configuration,
+            model=model,
+            slow_covariance=slow_covariance,
+        )
 
     def predict(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
@@ -366,34 +388,7 @@ def calibrate_coarse(
     FitResult
         Stage ``"coarse"``, with gauge ``θ10 = 0`` (status ``gauge``).
     """
-    positions = [d.position for d in dwells]
-    duplicates = sorted({p for p in positions if positions.count(p) > 1})
-    if duplicates:
-        raise InputError(f"positions {duplicates} appear more than once in one pass", path=source, field="position")
-    notes: list[str] = []
-    left_out: dict[int, str] = {}
-    if expected_positions is not None:
-        missing = sorted(set(expected_positions) - set(positions))
-        extra = sorted(set(positions) - set(expected_positions))
-        if extra:
-            raise InputError(
-                f"positions {extra} are not in the procedure", path=source, field="position", expected=f"{sorted(expected_positions)}"
-            )
-        if missing and not allow_missing:
-            raise InputError(
-                f"positions {missing} are missing (the procedure stopped early or rows were lost)",
-                path=source,
-                field="position",
-                expected=f"all of {sorted(expected_positions)}",
-            )
-        for p in missing:
-            left_out[p] = "missing from the data"
-    for d in dwells:
-        if d.flags:
-            left_out[d.position] = "; ".join(d.flags)
-        for n in d.notes:
-            notes.append(f"position {d.position}: {n}")
-    usable = [d for d in dwells if d.usable]
+    usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source)
     base_dcm = dcm_nav_to_body(*base_attitude)
     left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
@@ -405,16 +400,7 @@ def calibrate_coarse(
             path=source,
             field="position",
         )
-    problem = CoarseProblem(
-        readings=np.array([d.angles for d in usable])[None],
-        means=np.array([d.mean for d in usable])[None],
-        sigma=np.array([d.sem for d in usable])[None],
-        gravity=float(gravity),
-        base_dcm=base_dcm,
-        configuration=configuration,
-        model=model,
-        slow_covariance=slow_covariance(usable, slow_noise, source),
-    )
+    problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, slow_covariance(usable, slow_noise, source))
     if slow_noise is not None:
         notes.append(slow_noise.describe())
     scales = np.array([t.nominal for t in model])
@@ -488,4 +474,5 @@ def calibrate_coarse(
         determined=determined,
         notes=tuple(notes),
         extra=extra,
+        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
     )

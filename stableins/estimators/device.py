@@ -1,9 +1,9 @@
 """The device-level pipeline: dwell summaries → coarse passes → fine stage.
 
-Takes the samples of a device-level session (one or more files of
-``DEVICE_COLUMNS``), runs the coarse stage on every coarse pass (the last pass is the
-coarse result; earlier passes give the zero-offset history), then the fine stage when
-fine dwells are present.
+Takes the dwell summaries of a device-level session, runs the coarse stage on every
+coarse pass (zero-offset history, screening), fits all passes jointly (the coarse
+result), runs the fine stage when fine dwells are present, and fuses coarse and fine
+by a joint generalized least squares (:mod:`stableins.estimators.joint`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
-from stableins.estimators.dwell import DwellChecks, DwellSummary, pooled_allan_excess, summarize_dwell
+from stableins.estimators.dwell import DwellSummary, pooled_allan_excess
 from stableins.estimators.fine import calibrate_fine
+from stableins.estimators.joint import fit_joint
 from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
 from stableins.estimators.result import FitResult
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
@@ -32,16 +33,26 @@ class DeviceCalibration:
     Attributes
     ----------
     coarse : FitResult
-        Coarse stage on the last coarse pass.
+        Coarse stage: joint GLS fit of every coarse pass (:mod:`stableins.estimators.joint`);
+        with one pass, the fit of that pass.
     fine : FitResult or None
-        Fine stage (None when the data have no fine dwells).
+        Fine stage alone, linearized about ``coarse`` (None when the data have no fine dwells).
     passes : tuple of FitResult
-        Coarse fit of every pass, in order (the last is ``coarse``).
+        Coarse fit of every pass on its own, in order (zero-offset history).
+    fused : FitResult or None
+        Joint GLS fit of all coarse passes and the fine stage (stage ``"coarse+fine"``):
+        the result that goes into the record.  None without fine dwells.
     """
 
     coarse: FitResult
     fine: FitResult | None = None
     passes: tuple[FitResult, ...] = field(default=(), repr=False)
+    fused: FitResult | None = None
+
+    @property
+    def final(self) -> FitResult:
+        """The result recorded: ``fused`` when there is a fine stage, else ``coarse``."""
+        return self.fused if self.fused is not None else self.coarse
 
     def offset_history(self) -> list[str]:
         """θ20, θ30 of every pass and their change from the previous pass."""
@@ -57,75 +68,29 @@ class DeviceCalibration:
         return lines
 
     def report(self) -> str:
-        parts = ["== device-level coarse stage ==", self.coarse.report(), ""]
+        scope = f"joint fit of {len(self.passes)} passes" if len(self.passes) > 1 else "one pass"
+        title = f"== device-level coarse stage ({scope}) =="
+        parts = [title, self.coarse.report(), ""]
         parts += describe_design(self.coarse.ids, self.coarse.singular_values, self.coarse.null_space)
         if len(self.passes) > 1:
-            parts += ["", "zero-offset passes:"] + [f"  {line}" for line in self.offset_history()]
+            parts += ["", "zero-offset passes (each on its own):"] + [f"  {line}" for line in self.offset_history()]
         if self.fine is not None:
-            parts += ["", "== device-level fine stage ==", self.fine.report(), ""]
+            parts += ["", "== device-level fine stage (alone, linearized about the coarse result) ==", self.fine.report(), ""]
             parts += describe_design(self.fine.ids, self.fine.singular_values, self.fine.null_space)
+        if self.fused is not None:
+            parts += ["", "== coarse + fine fused (joint GLS; recorded) ==", self.fused.report()]
         return "\n".join(parts)
 
     def __str__(self) -> str:
         return self.report()
 
     def record(self, site: SiteMetadata, inputs: Sequence[str] = (), procedure: str = ""):
-        """Calibration record: the coarse result refined by the fine stage."""
+        """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced)."""
         from stableins.records import CalibrationRecord
 
-        record = CalibrationRecord.from_fit_result(self.coarse, site=site, inputs=inputs, procedure=procedure)
-        if self.fine is not None:
-            record = record.update(self.fine, inputs=inputs, procedure=procedure)
-        return record
-
-
-def summarize_dwells(dwells: Sequence[object], procedures: dict[str, ProcedureDefinition], source: str = "data") -> list[DwellSummary]:
-    """Summaries of dataset dwells (objects with the fields of ``stableins.data.device.Dwell``).
-
-    Samples earlier than the procedure's settle time after the command are dropped;
-    duplicated (stage, pass, position) keys raise :class:`InputError`.
-    """
-    seen: set[tuple[str, int, int]] = set()
-    out = []
-    for d in dwells:
-        key = (str(d.stage), int(d.pass_number), int(d.position))
-        if key in seen:
-            raise InputError(
-                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
-                path=source,
-                field="position",
-                row=getattr(d, "first_row", None),
-                expected="each position once per stage and pass",
-            )
-        seen.add(key)
-        procedure = procedures.get(key[0])
-        if procedure is not None and key[2] in procedure.positions:
-            settle = procedure.step(key[2]).settle
-            checks = procedure.acceptance.dwell_checks()
-        else:
-            settle, checks = 0.0, DwellChecks()
-        since = np.asarray(d.time_since_command, dtype=float)
-        if np.any(np.diff(since) < 0):
-            raise InputError(
-                f"position {key[2]} was commanded twice in {key[0]} pass {key[1]} (time_since_command restarts)",
-                path=source,
-                field="time_since_command",
-                row=getattr(d, "first_row", None),
-            )
-        use = since >= settle
-        out.append(
-            summarize_dwell(
-                np.asarray(d.time)[use],
-                np.asarray(d.specific_force)[use],
-                np.asarray(d.angles)[use],
-                d.command,
-                position=key[2],
-                stage=key[0],
-                pass_number=key[1],
-                checks=checks,
-            )
-        )
-    return out
+        record = CalibrationRecord.from_fit_result(self.final, site=site, inputs=inputs, procedure=procedure)
+        stages = ("coarse", "fine") if self.fused is not None else ("coarse",)
+        return replace(record, provenance=replace(record.provenance, stages=stages))
 
 
 def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.0) -> SlowNoise:
@@ -223,7 +188,22 @@ def calibrate_device(
                 source=f"{source} (coarse pass {p})",
             )
         )
-    coarse = passes[-1]
+    pass_dwells = {
+        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.extra["positions_used"]]
+        for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
+    }
+    used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
+    joint = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, slow_noise=slow_noise)
+    if len(passes) > 1:
+        coarse = fit_joint(
+            used_coarse,
+            start=passes[-1],
+            nonlinear=coarse_nonlinear,
+            notes=(f"joint fit of coarse passes {', '.join(map(str, sorted(pass_dwells)))} (each with its own readings)",),
+            **joint,
+        )
+    else:
+        coarse = passes[-1]
     mismatch = None
     if coarse_procedure.handedness != configuration.handedness:
         mismatch = (
@@ -232,9 +212,9 @@ def calibrate_device(
             "every axis both up and down (docs/conventions.md), so scale factors, biases and K2 of some axes are poorly determined"
         )
         coarse = replace(coarse, notes=coarse.notes + (mismatch,))
-        passes[-1] = coarse
+        passes[-1] = replace(passes[-1], notes=passes[-1].notes + (mismatch,))
     fine_dwells = [d for d in dwells if d.stage == "fine"]
-    fine = None
+    fine = fused = None
     if fine_dwells:
         usable = [d for d in fine_dwells if d.usable]
         tolerance = fine_procedure.acceptance.orientation_tolerance
@@ -254,4 +234,16 @@ def calibrate_device(
             fine = replace(fine, notes=fine.notes + (warning,))
         if mismatch is not None:
             fine = replace(fine, notes=fine.notes + (mismatch,))
-    return DeviceCalibration(coarse, fine, tuple(passes))
+        used_fine = sorted((d for d in fine_dwells if d.position in fine.extra["positions_used"]), key=lambda d: d.position)
+        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == "estimated"}
+        fused = fit_joint(
+            used_coarse,
+            used_fine,
+            start=start,
+            stage="coarse+fine",
+            notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
+            + ((mismatch,) if mismatch is not None else ())
+            + ((warning,) if warning is not None else ()),
+            **joint,
+        )
+    return DeviceCalibration(coarse, fine, tuple(passes), fused)

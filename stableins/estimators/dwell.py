@@ -22,12 +22,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import ARCSEC, STANDARD_GRAVITY
 from stableins.data.errors import InputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.procedures.definition import ProcedureDefinition
 
 
 @dataclass(frozen=True)
@@ -130,15 +134,34 @@ def overlapping_allan_variance(samples: NDArray[np.float64], clusters: NDArray[n
     return out
 
 
-def _clipped(x: NDArray[np.float64]) -> bool:
-    """A rail: the extreme value is shared by many samples, more than the next value inward."""
-    n = x.size
-    for extreme, inward in ((x.max(), np.sort(np.unique(x))[-2:-1]), (x.min(), np.sort(np.unique(x))[1:2])):
-        count = np.count_nonzero(x == extreme)
-        if count >= max(3, 0.02 * n):
-            next_count = np.count_nonzero(x == inward[0]) if inward.size else 0
-            if count > next_count:
-                return True
+def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
+    """A rail: samples pinned at an extreme value, robust to coarse quantization.
+
+    Two signatures, either side:
+
+    * the extreme value lies within one quantization step of the stated full-scale
+      range (``full_scale``, the procedure's ``saturation``) and is shared by at least
+      3 samples: the output sits at its range limit;
+    * the quantization is fine compared with the noise (step ≤ σ/2, σ from the median
+      absolute deviation, robust to the clipped tail) and the extreme value holds more
+      samples (at least 3 and 2 %) than the next value inward: a healthy noise tail thins
+      out outwards, a rail piles up.
+
+    With a quantization step comparable to or larger than the noise, a healthy dwell
+    takes only a few values whose counts need not thin out outwards, and a rail inside
+    the range cannot be told from it by one dwell's samples: only the first test applies.
+    """
+    levels, counts = np.unique(x[np.isfinite(x)], return_counts=True)
+    if levels.size == 0:
+        return False
+    step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
+    sigma = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    fine_quantization = levels.size > 2 and step <= 0.5 * sigma
+    for extreme, count, inward in ((levels[-1], counts[-1], counts[-2:-1]), (levels[0], counts[0], counts[1:2])):
+        if count >= 3 and abs(extreme) >= full_scale - max(step, 0.0) and np.isfinite(full_scale):
+            return True
+        if fine_quantization and count >= max(3, 0.02 * x.size) and count > (inward[0] if inward.size else 0):
+            return True
     return False
 
 
@@ -186,8 +209,8 @@ def summarize_dwell(
         flags.append(f"too short to measure noise: {n} samples (need at least {max(checks.min_samples, 2 * checks.blocks)})")
     if np.any(np.abs(f) >= checks.saturation):
         flags.append(f"saturated samples: |f| reaches {np.nanmax(np.abs(f)):.4g} m/s^2 (limit {checks.saturation:.4g})")
-    elif n >= checks.min_samples and any(_clipped(f[:, i]) for i in range(3)):
-        axes = [ax for i, ax in enumerate("xyz") if _clipped(f[:, i])]
+    elif n >= checks.min_samples and any(_clipped(f[:, i], checks.saturation) for i in range(3)):
+        axes = [ax for i, ax in enumerate("xyz") if _clipped(f[:, i], checks.saturation)]
         flags.append(f"clipped samples on axis {', '.join(axes)}: output pinned at its extreme value")
     span = np.ptp(a, axis=0) if n > 0 else np.zeros(3)
     if np.any(span > checks.max_angle_span):
@@ -262,13 +285,18 @@ def dwells_from_columns(
     *,
     settle: float = 0.0,
     checks: DwellChecks = DwellChecks(),
+    procedures: Mapping[str, ProcedureDefinition] | None = None,
     source: str = "data",
 ) -> list[DwellSummary]:
     """Split device-level samples (``DEVICE_COLUMNS`` names) into dwells and summarize them.
 
-    Samples with ``time_since_command < settle`` are dropped (settling).  A position
-    commanded twice within one stage and pass (``time_since_command`` restarts) is a
-    duplicate and raises :class:`InputError`.
+    Samples with ``time_since_command < settle`` are dropped (settling).  With
+    ``procedures`` (``{stage: procedure}``), the settle time of each position's step and
+    the procedure's acceptance checks are used instead of ``settle`` and ``checks``
+    (a position the procedure does not define keeps ``settle``/``checks``; the stage
+    rejects it later).  A position that appears twice within one stage and pass, or is
+    commanded twice (``time_since_command`` restarts), raises :class:`InputError`.
+    This is the one path from samples to dwell summaries (CLI, tests, benchmarks).
     """
     required = ("stage", "pass", "position", "time", "time_since_command", "f_x", "f_y", "f_z")
     for name in required:
@@ -316,7 +344,11 @@ def dwells_from_columns(
                 row=int(rows[0]) + 1,
                 expected="each position once per stage and pass",
             )
-        use = rows[since[rows] >= settle]
+        step_settle, step_checks = settle, checks
+        procedure = (procedures or {}).get(key[0])
+        if procedure is not None and key[2] in procedure.positions:
+            step_settle, step_checks = procedure.step(key[2]).settle, procedure.acceptance.dwell_checks()
+        use = rows[since[rows] >= step_settle]
         out.append(
             summarize_dwell(
                 time[use],
@@ -326,10 +358,65 @@ def dwells_from_columns(
                 position=key[2],
                 stage=key[0],
                 pass_number=key[1],
-                checks=checks,
+                checks=step_checks,
             )
         )
     return out
+
+
+def screen_dwells(
+    dwells: Sequence[DwellSummary],
+    expected_positions: Sequence[int] | None = None,
+    *,
+    allow_missing: bool = False,
+    source: str = "data",
+    stage: str = "",
+) -> tuple[list[DwellSummary], dict[int, str], list[str]]:
+    """Screen the dwells of one stage and pass against the procedure (shared by the coarse and fine stages).
+
+    Raises :class:`InputError` for a position that appears twice, a position that is not
+    in ``expected_positions``, and (unless ``allow_missing``) a missing position.
+
+    Returns
+    -------
+    usable : list of DwellSummary
+        Unflagged dwells, sorted by position.
+    left_out : dict
+        ``{position: reason}`` of missing and flagged positions.
+    notes : list of str
+        Dwell notes (e.g. correlated noise) prefixed with their position.
+    """
+    label = f"{stage}-stage " if stage else ""
+    positions = [d.position for d in dwells]
+    duplicates = sorted({p for p in positions if positions.count(p) > 1})
+    if duplicates:
+        raise InputError(f"{label}positions {duplicates} appear more than once in one pass", path=source, field="position")
+    left_out: dict[int, str] = {}
+    if expected_positions is not None:
+        missing = sorted(set(expected_positions) - set(positions))
+        extra = sorted(set(positions) - set(expected_positions))
+        if extra:
+            raise InputError(
+                f"{label}positions {extra} are not in the procedure",
+                path=source,
+                field="position",
+                expected=f"{sorted(expected_positions)}",
+            )
+        if missing and not allow_missing:
+            raise InputError(
+                f"{label}positions {missing} are missing (the procedure stopped early or rows were lost)",
+                path=source,
+                field="position",
+                expected=f"all of {sorted(expected_positions)}",
+            )
+        for p in missing:
+            left_out[p] = "missing from the data"
+    notes: list[str] = []
+    for d in dwells:
+        if d.flags:
+            left_out[d.position] = "; ".join(d.flags)
+        notes += [f"position {d.position}: {n}" for n in d.notes]
+    return sorted((d for d in dwells if d.usable), key=lambda d: d.position), left_out, notes
 
 
 def describe_left_out(left_out: Mapping[int, str]) -> str:

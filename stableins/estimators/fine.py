@@ -41,7 +41,7 @@ from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel
 from stableins.estimators.coarse import slow_covariance
 from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
-from stableins.estimators.dwell import DwellSummary, describe_left_out
+from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.result import FitResult
@@ -149,29 +149,7 @@ def calibrate_fine(
         Bias instability / random walk of the instrument: correlated covariance of the
         dwell means.  Without it a 10 min stage understates its 1σ when the bias wanders.
     """
-    positions = [d.position for d in dwells]
-    duplicates = sorted({p for p in positions if positions.count(p) > 1})
-    if duplicates:
-        raise InputError(f"fine-stage positions {duplicates} appear more than once", path=source, field="position")
-    left_out: dict[int, str] = {}
-    if expected_positions is not None:
-        missing = sorted(set(expected_positions) - set(positions))
-        if missing and not allow_missing:
-            raise InputError(
-                f"fine-stage positions {missing} are missing",
-                path=source,
-                field="position",
-                expected=f"all of {sorted(expected_positions)}",
-            )
-        for p in missing:
-            left_out[p] = "missing from the data"
-    notes: list[str] = []
-    for d in dwells:
-        if d.flags:
-            left_out[d.position] = "; ".join(d.flags)
-        for n in d.notes:
-            notes.append(f"position {d.position}: {n}")
-    usable = sorted((d for d in dwells if d.usable), key=lambda d: d.position)
+    usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source, stage="fine")
     model = fine_model()
     start, coarse_sigma = _start_values(model, coarse)
     x0 = model.vector(start)[None]
@@ -274,4 +252,5 @@ def calibrate_fine(
             "chi2_whitened": chi2_whitened,
             "gravity": g,
         },
+        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
     )

@@ -91,13 +91,39 @@ def _gauss_markov_window_covariance(start: NDArray, length: NDArray, tau: float)
     return cov
 
 
-def dwell_mean_covariance(start: ArrayLike, length: ArrayLike, slow: SlowNoise) -> NDArray[np.float64]:
-    """``C_slow`` (m, m) [(m/s²)²] for dwells starting at ``start`` and lasting ``length`` [s].
+def sessions(start: ArrayLike, length: ArrayLike) -> NDArray[np.int64]:
+    """Session number of each dwell, in the order given: a dwell that starts before the previous one ended starts a new session.
 
-    Windows are assumed disjoint (dwells never overlap in time).
+    Dwells of one session share a time base (one continuous record); a file or pass
+    recorded with its own time origin overlaps the windows before it and begins a new one.
+    """
+    s = np.asarray(start, dtype=float)
+    end = s + np.asarray(length, dtype=float)
+    new = np.r_[False, s[1:] < end[:-1]] if s.size else np.zeros(0, bool)
+    return np.cumsum(new).astype(np.int64)
+
+
+def dwell_mean_covariance(start: ArrayLike, length: ArrayLike, slow: SlowNoise) -> NDArray[np.float64]:
+    """``C_slow`` (m, m) [(m/s²)²] for dwells starting at ``start`` and lasting ``length`` [s], in acquisition order.
+
+    Within one session (:func:`sessions`) the windows are disjoint and the covariance is
+    the one derived above.  Different sessions (separate time bases: coarse passes or
+    stages recorded as separate runs) are treated as independent draws of the slow
+    noise: the covariance between them is zero.  This is exact for the truth simulator,
+    which draws every run's noise afresh; for a real instrument whose sessions follow
+    each other closely, record them on one time base so that the slow components common
+    to both are modelled (otherwise the 1σ of a bias combined over sessions is too small
+    by up to ``1/√(number of sessions)`` of its slow part).
     """
     s = np.asarray(start, dtype=float)
     t = np.asarray(length, dtype=float)
+    labels = sessions(s, t)
+    if labels.size and labels[-1] > 0:
+        cov = np.zeros((s.size, s.size))
+        for k in range(int(labels[-1]) + 1):
+            idx = np.flatnonzero(labels == k)
+            cov[np.ix_(idx, idx)] = dwell_mean_covariance(s[idx], t[idx], slow)
+        return cov
     m = s.size
     cov = np.zeros((m, m))
     if slow.bias_instability > 0:

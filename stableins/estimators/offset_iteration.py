@@ -33,6 +33,7 @@ from stableins.conventions import ARCSEC, GimbalConfiguration
 from stableins.drivers.base import PlatformDriver
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
+from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.procedures.definition import ProcedureDefinition
 
@@ -75,12 +76,28 @@ class OffsetIterationError(RuntimeError):
 
 @dataclass(frozen=True)
 class OffsetIterationResult:
-    """Converged iteration: the last coarse fit, the offsets to re-point with, history and all dwells."""
+    """Converged iteration.
+
+    Attributes
+    ----------
+    fit : FitResult
+        Joint fit of *all* passes (:func:`stableins.estimators.joint.fit_joint`): the passes
+        are independent measurements of the same parameters at different commanded
+        readings, so their combination has about ``1/√k`` the 1σ of one pass.
+    offsets : (θ10, θ20, θ30)
+        Offsets to re-point with (the last pass's estimate, used for the commands).
+    history : tuple of PassRecord
+    dwells : tuple of DwellSummary
+        Every dwell of every pass.
+    last : FitResult or None
+        The last pass on its own (what the stopping test used).
+    """
 
     fit: FitResult
     offsets: tuple[float, float, float]
     history: tuple[PassRecord, ...]
     dwells: tuple[DwellSummary, ...] = field(repr=False)
+    last: FitResult | None = field(default=None, repr=False)
 
     def describe(self) -> str:
         return "\n".join(p.describe() for p in self.history)
@@ -181,6 +198,7 @@ def iterate_offsets(
     offsets = np.array(initial_offsets, dtype=float)
     history: list[PassRecord] = []
     all_dwells: list[DwellSummary] = []
+    used: list[DwellSummary] = []
     for k in range(1, max_passes + 1):
         dwells = measure_pass(driver, procedure, tuple(offsets), pass_number=k)
         all_dwells += dwells
@@ -194,6 +212,7 @@ def iterate_offsets(
             nonlinear=nonlinear,
             source=f"coarse pass {k}",
         )
+        used += sorted((d for d in dwells if d.position in fit.extra["positions_used"]), key=lambda d: d.position)
         estimate = np.array([fit["theta10"][0], fit["theta20"][0], fit["theta30"][0]])
         sigma = np.array([fit["theta20"][1], fit["theta30"][1]])
         residual = estimate[1:] - offsets[1:]
@@ -212,7 +231,19 @@ def iterate_offsets(
             progress(record)
         offsets = np.array([offsets[0], estimate[1], estimate[2]])
         if record.converged:
-            return OffsetIterationResult(fit, (float(offsets[0]), float(offsets[1]), float(offsets[2])), tuple(history), tuple(all_dwells))
+            joint = fit
+            if k > 1:
+                joint = fit_joint(
+                    used,
+                    gravity=site.gravity,
+                    base_attitude=site.base_attitude,
+                    configuration=configuration,
+                    start=fit,
+                    nonlinear=nonlinear,
+                    notes=(f"joint fit of coarse passes 1..{k} (each with its own commanded readings)",),
+                )
+            offsets_out = (float(offsets[0]), float(offsets[1]), float(offsets[2]))
+            return OffsetIterationResult(joint, offsets_out, tuple(history), tuple(all_dwells), fit)
     raise OffsetIterationError(
         f"zero offsets did not converge within {max_passes} passes "
         f"(threshold {threshold / ARCSEC:.3g}″, or {noise_sigmas:g} σ of one pass)",

@@ -58,6 +58,11 @@ class FitResult:
         Gauges applied, positions left out and why, warnings.
     extra : dict
         Stage-specific details (pass history, convergence curves ...).
+    whitened_residuals : ndarray (m,) or None
+        ``L⁻¹ (observed − model)`` with ``L Lᵀ`` the full covariance of the observations,
+        when it is not diagonal (correlated noise).  Then :attr:`chi2` is the exact
+        ``rᵀ R⁻¹ r`` (``‖L⁻¹ r‖²``) rather than the diagonal approximation
+        ``Σ (r_i/σ_i)²``.  None: the observations are independent.
     """
 
     stage: str
@@ -74,6 +79,7 @@ class FitResult:
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict)
+    whitened_residuals: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.terms)
@@ -82,8 +88,11 @@ class FitResult:
         bad = set(self.status) - set(STATUSES)
         if bad:
             raise ValueError(f"FitResult: unknown status {sorted(bad)}")
-        for name in ("values", "covariance", "residuals", "residual_sigma", "singular_values", "null_space"):
-            getattr(self, name).setflags(write=False)
+        if self.whitened_residuals is not None and self.whitened_residuals.shape != self.residuals.shape:
+            raise ValueError("FitResult: whitened_residuals must match residuals")
+        for name in ("values", "covariance", "residuals", "residual_sigma", "singular_values", "null_space", "whitened_residuals"):
+            if getattr(self, name) is not None:
+                getattr(self, name).setflags(write=False)
 
     # ----------------------------------------------------------------- access
     @property
@@ -96,6 +105,9 @@ class FitResult:
 
     @property
     def chi2(self) -> float:
+        """``rᵀ R⁻¹ r``: exact with :attr:`whitened_residuals`, else ``Σ (r_i/σ_i)²``."""
+        if self.whitened_residuals is not None:
+            return float(self.whitened_residuals @ self.whitened_residuals)
         r = self.residuals / self.residual_sigma
         return float(r @ r)
 

@@ -1,0 +1,229 @@
+r"""Joint device-level fit: every coarse pass and the fine stage in one generalized least squares.
+
+The coarse passes of the zero-offset iteration and the fine stage measure the same
+instrument parameters ``p`` (scale factors, biases, installation angles, ``K2``) and
+offsets ``θ``; only the commanded readings differ.  Their best combination is the
+generalized-least-squares (GLS) solution of all observations together::
+
+    o = [ ȳ_c,1 … ȳ_c,N ; z_f,1 … z_f,M ],     o = h(p, θ) + v,     Cov(v) = R
+    x̂ = argmin (o − h(x))ᵀ R⁻¹ (o − h(x)),      P = (Hᵀ R⁻¹ H)⁻¹ at x̂
+
+* coarse rows (:mod:`stableins.estimators.coarse`): the three dwell-mean outputs of
+  every usable position of every pass, each with its *own* measured readings;
+* fine rows (:mod:`stableins.estimators.fine`): ``h_j = ½|f^p(p; ȳ_j)|²`` with the
+  observed value ``½ g²``, a function of the fine dwell mean ``ȳ_j``.
+
+Why not an update of the coarse result with the fine stage's result?  The fine stage's
+estimate is conditioned on the coarse values: it is linearized around them, and it
+holds the three installation-angle sums at the coarse values (its gauge), so its
+covariance is *not* information independent of the coarse covariance; adding the two
+informations counts the coarse data twice along the sums.  The information of the
+fine *data* is ``J_fᵀ R_f⁻¹ J_f`` with ``J_f = ∂h_f/∂p`` on all 15 parameters (rank
+12: the sums are its null space); in the linearized problem the fused estimate is the
+information-form update of the coarse estimate ``(x̂_c, P_c)`` by the fine observations,
+
+.. math::
+    P^{-1} = P_c^{-1} + J_f^T R_f^{-1} J_f,\qquad
+    \hat x = \hat x_c + P J_f^T R_f^{-1} (z_f - h_f(\hat x_c))
+
+and the GLS above is that update iterated to the common solution (relinearized at
+``x̂``, so the result does not depend on where the fine stage was linearized).  With
+slow noise ``R`` is not block-diagonal: coarse and fine dwells of one time base share
+the bias wander (:func:`stableins.estimators.noise_model.dwell_mean_covariance`), and
+the information form above would miss that cross-covariance; the joint GLS carries it
+exactly:
+
+.. math::
+    \mathrm{Cov}(\bar y_{i,a}, \bar y_{j,b}) = \delta_{ab} (\sigma_{i,a}^2 \delta_{ij} + C_{slow,ij}),\qquad
+    \mathrm{Cov}(o) = M\,\mathrm{Cov}(\bar y)\,M^T
+
+with ``M`` the identity on the coarse rows and ``∂h_j/∂ȳ_j`` on the fine rows.  The
+fine rows determine the installation-angle differences (``β_xz − β_yz`` …); fused with
+the coarse rows, which see every angle, all six angles are estimated.  ``θ10`` stays
+the gauge (held at 0, status ``gauge``): the norm observation does not see it and the
+coarse rows cannot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
+from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model
+from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.dwell import DwellSummary
+from stableins.estimators.fine import FineProblem, fine_model
+from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
+from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
+from stableins.estimators.result import FitResult
+
+
+@dataclass(frozen=True)
+class JointProblem:
+    """Coarse rows of all passes plus (optionally) fine rows, with the full observation covariance.
+
+    Attributes
+    ----------
+    coarse : CoarseProblem
+        All usable coarse dwells (``slow_covariance`` unused here).
+    fine : FineProblem or None
+        Usable fine dwells (``slow_covariance`` unused here).
+    columns : ndarray of int
+        Index in the joint parameter vector of each fine-model parameter.
+    slow : ndarray (N+M, N+M) or None
+        Slow-noise covariance of all dwell means (coarse first), same on every axis.
+    """
+
+    coarse: CoarseProblem
+    fine: FineProblem | None
+    columns: NDArray[np.int64]
+    slow: NDArray[np.float64] | None
+
+    def raw(self, x: NDArray[np.float64]):
+        """Residuals ``o − h(x)`` (T, 3N+M), model Jacobian (T, 3N+M, n) and ``Cov(o)`` (T, 3N+M, 3N+M)."""
+        out, jac = self.coarse.predict(x)
+        t, m_c = out.shape[:2]
+        n = x.shape[-1]
+        residual = (self.coarse.means - out).reshape(t, -1)
+        jacobian = jac.reshape(t, -1, n)
+        sigma = self.coarse.sigma
+        derivative = np.zeros((t, 0, 3))
+        if self.fine is not None:
+            xf = x[..., self.columns]
+            _, h, d_h_d_p, _ = self.fine.evaluate(xf)
+            *_, d_h_d_y = self.fine._with_output_derivative(xf)
+            g = np.asarray(self.fine.gravity, dtype=float)
+            g = g[..., None] if g.ndim else g
+            fine_jac = np.zeros((t, h.shape[-1], n))
+            fine_jac[..., self.columns] = d_h_d_p
+            residual = np.concatenate([residual, 0.5 * g**2 - h], axis=-1)
+            jacobian = np.concatenate([jacobian, fine_jac], axis=1)
+            sigma = np.concatenate([sigma, self.fine.sigma], axis=1)
+            derivative = -d_h_d_y  # residual of row j moves by −∂h/∂ȳ_j · δȳ_j
+        m_f = derivative.shape[1]
+        dwells = m_c + m_f
+        # Cov(ȳ) over (dwell, axis), then o = M ȳ.
+        cov_y = np.zeros((t, dwells, 3, dwells, 3))
+        for a in range(3):
+            block = sigma[..., a, None] ** 2 * np.eye(dwells)
+            if self.slow is not None:
+                block = block + self.slow
+            cov_y[:, :, a, :, a] = block
+        cov_y = cov_y.reshape(t, 3 * dwells, 3 * dwells)
+        mapping = np.zeros((t, 3 * m_c + m_f, 3 * dwells))
+        mapping[:, np.arange(3 * m_c), np.arange(3 * m_c)] = 1.0
+        for j in range(m_f):
+            mapping[:, 3 * m_c + j, 3 * (m_c + j) : 3 * (m_c + j) + 3] = derivative[:, j]
+        cov_o = mapping @ cov_y @ np.swapaxes(mapping, -1, -2)
+        return residual, jacobian, cov_o
+
+    def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Whitened residuals and Jacobian ``L⁻¹ r``, ``L⁻¹ H`` with ``L Lᵀ = Cov(o)``."""
+        residual, jacobian, cov_o = self.raw(x)
+        w = np.linalg.inv(np.linalg.cholesky(cov_o))
+        return np.einsum("tij,tj->ti", w, residual), w @ jacobian
+
+
+def _slow(dwells: Sequence[DwellSummary], slow_noise: SlowNoise | None) -> NDArray[np.float64] | None:
+    if slow_noise is None or slow_noise.is_zero:
+        return None
+    return dwell_mean_covariance([d.start for d in dwells], [d.duration for d in dwells], slow_noise)
+
+
+def fit_joint(
+    coarse_dwells: Sequence[DwellSummary],
+    fine_dwells: Sequence[DwellSummary] = (),
+    *,
+    gravity: float,
+    base_attitude: Sequence[float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration,
+    start: FitResult | Mapping[str, float],
+    nonlinear: bool = True,
+    slow_noise: SlowNoise | None = None,
+    stage: str = "coarse",
+    notes: Sequence[str] = (),
+) -> FitResult:
+    """GLS fit of usable coarse dwells (any number of passes) and fine dwells; gauge ``θ10 = 0``.
+
+    Parameters
+    ----------
+    coarse_dwells, fine_dwells : sequence of DwellSummary
+        Dwells already screened by the coarse and fine stages (usable, in acquisition order).
+    start : FitResult
+        Start values (a coarse pass or the joint coarse fit); missing ids start at their reference.
+    nonlinear : bool
+        Estimate ``K2_*`` (always when fine dwells are given: the fine rows determine them).
+    stage : str
+        Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
+    """
+    model = coarse_model(nonlinear or bool(fine_dwells))
+    coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
+    fine = None
+    columns = np.zeros(0, dtype=np.int64)
+    if fine_dwells:
+        fm = fine_model()
+        fine = FineProblem(np.array([d.mean for d in fine_dwells])[None], np.array([d.sem for d in fine_dwells])[None], float(gravity), fm)
+        columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
+    problem = JointProblem(coarse, fine, columns, _slow([*coarse_dwells, *fine_dwells], slow_noise))
+    given = start.as_dict() if isinstance(start, FitResult) else dict(start)
+    x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
+    scales = np.array([t.nominal for t in model])
+    start_design = analyze_design(problem.weighted(x0)[1][0], model.ids, scales)
+    gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
+    fixed = tuple(gauge.fixed) or ("theta10",)
+    x0[0, [model.index(g) for g in fixed]] = 0.0
+    free = np.array([k not in fixed for k in model.ids])
+    solution = gauss_newton(problem.weighted, x0, free, scales)
+    residual, _, cov_o = problem.raw(solution.x)
+    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    m_c = 3 * len(coarse_dwells)
+    g = float(gravity)
+    residual_sigma = np.sqrt(np.diagonal(cov_o[0]))
+    residuals = residual[0].copy()
+    residuals[m_c:] /= g  # fine rows as g − |f^p| [m/s²]
+    residual_sigma[m_c:] /= g
+    multi = len({d.pass_number for d in coarse_dwells}) > 1
+    labels = tuple(
+        f"{'pass ' + str(d.pass_number) + ' ' if multi else ''}pos {d.position} f_{ax}" for d in coarse_dwells for ax in "xyz"
+    ) + tuple(f"fine pos {d.position} |f|" for d in fine_dwells)
+    whitened = solution.weighted_residuals[0].copy()
+    out_notes = list(notes)
+    out_notes += [f"gauge: {k} held at 0 ({model[k].meaning})" for k in fixed]
+    if slow_noise is not None:
+        out_notes.append(slow_noise.describe())
+    if (stalled := convergence_warning(solution)) is not None:
+        out_notes.append(stalled)
+    warning = goodness_of_fit_warning(float(whitened @ whitened), residuals.size - design.rank, residuals / residual_sigma, labels)
+    if warning is not None:
+        out_notes.append(warning)
+    if design.weak:
+        out_notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
+    return FitResult(
+        stage=stage,
+        terms=model.terms,
+        values=solution.x[0].copy(),
+        covariance=solution.covariance[0].copy(),
+        status=tuple("gauge" if k in fixed else "estimated" for k in model.ids),
+        residuals=residuals,
+        residual_sigma=residual_sigma,
+        residual_labels=labels,
+        rank=design.rank,
+        singular_values=design.singular_values,
+        null_space=design.null_space,
+        determined=tuple(gauge.describe()) + tuple(f"{k} = 0 by gauge" for k in fixed),
+        notes=tuple(out_notes),
+        extra={
+            "gauge": {k: 0.0 for k in fixed},
+            "passes": sorted({d.pass_number for d in coarse_dwells}),
+            "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
+            "fine_positions_used": [d.position for d in fine_dwells],
+            "iterations": solution.iterations,
+            "chi2_whitened": float(whitened @ whitened),
+            "gravity": g,
+        },
+        whitened_residuals=whitened,
+    )
