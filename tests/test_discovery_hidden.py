@@ -100,11 +100,46 @@ def test_indistinguishable_pairs_are_reported():
     assert "Koq_z" in ranking["K3_z"].confused_with
 
 
-def test_hysteresis_is_ranked_first():
-    for a in "xyz":
-        dwells, _ = simulate({f"Kh_{a}": _magnitude(f"Kh_{a}")})
-        ranking = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True)).rank(refit_top=1, propose=False)
-        assert ranking.best.id == f"Kh_{a}" and ranking.best.flagged
+@pytest.mark.parametrize("axis", "xyz")
+def test_hysteresis_is_ranked_first_and_adding_it_restores_chi2(axis):
+    effect_id = f"Kh_{axis}"
+    value = _magnitude(effect_id)
+    dwells, _ = simulate({effect_id: value})
+    session = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True))
+    ranking = session.rank(refit_top=1, propose=False)
+    assert ranking.best.id == effect_id and ranking.best.flagged
+    session.add(effect_id)
+    assert 0.8 <= session.result.chi2_red <= 1.3, session.history.report()
+    estimate, sigma, _ = session.result[effect_id]
+    assert abs(estimate - value) < 5 * sigma
+    assert session.history[1].bic < session.history[0].bic
+
+
+def test_hysteresis_state_is_defined_alike_in_simulator_and_discovery():
+    """Same threshold, same memory, same initial state (0 until a slew moves the input beyond it)."""
+    from stableins.discovery.problem import HYSTERESIS_THRESHOLD, slew_directions
+    from stableins.simulator import effects as sim_effects
+
+    assert sim_effects.HYSTERESIS_THRESHOLD == HYSTERESIS_THRESHOLD == 1e-2
+    rng = np.random.default_rng(7)
+    # steps of g/√2 and g size mixed with sub-threshold (arcsecond-level), near- and above-threshold changes
+    sizes = rng.choice([1e-4, 0.5e-2, 2e-2, 6.9, 9.8], size=(60, 3))
+    steps = sizes * rng.choice([-1.0, 1.0], size=(60, 3))
+    steps[0] = [1e-4, 6.9, -0.5e-2]  # first slew: only y travels beyond the threshold
+    initial = np.array([0.0, 0.0, -9.8])
+    f = initial + np.cumsum(steps, axis=0)
+    state = np.zeros(3)
+    simulated = []
+    for before, after in zip(np.vstack([initial, f[:-1]]), f):
+        state = sim_effects.hysteresis_state(state, after - before)
+        simulated.append(state)
+    discovered = slew_directions(f, initial)
+    np.testing.assert_array_equal(np.array(simulated), discovered)
+    np.testing.assert_array_equal(discovered[0], [0.0, 1.0, 0.0])  # initial state 0, set only by a travelling input
+    assert np.any(np.diff(discovered, axis=0) != 0)
+    # a sub-threshold change keeps the state; the same change above the threshold sets it
+    assert sim_effects.hysteresis_state(np.array([1.0]), np.array([-0.9e-2]))[0] == 1.0
+    assert sim_effects.hysteresis_state(np.array([1.0]), np.array([-1.1e-2]))[0] == -1.0
 
 
 def test_base_tilt_east_is_reported_unseparable():

@@ -246,13 +246,23 @@ def dwells_from_dataset(
     )
 
 
-def slew_directions(specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = 1e-2) -> NDArray[np.float64]:
+#: Input change [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``); the truth
+#: simulator uses the same definition (``stableins.simulator.effects.HYSTERESIS_THRESHOLD``, kept
+#: equal by tests/test_discovery_hidden.py).
+HYSTERESIS_THRESHOLD = 1e-2
+
+
+def slew_directions(
+    specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = HYSTERESIS_THRESHOLD
+) -> NDArray[np.float64]:
     """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
 
     A slew that changes an axis' input by less than ``tolerance`` [m/s²] leaves its state
     as it was (the input did not travel; nothing reverses the hysteresis loop).  This
     makes the state independent of arcsecond-level geometry such as the unobservable
-    zero offset ``θ10``.  ``initial`` is ``f^p`` before the first command (default: state 0).
+    zero offset ``θ10``.  ``initial`` is ``f^p`` at the initial readings, before the first
+    command: the first slew's change is measured from it; the state is 0 until a slew moves
+    the input beyond ``tolerance`` (with ``initial=None`` the first dwell sets no state).
     """
     f = np.asarray(specific_force_platform, dtype=float)
     before = f[:1] if initial is None else np.asarray(initial, dtype=float).reshape(1, 3)

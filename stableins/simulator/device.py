@@ -57,7 +57,7 @@ class _Command:
     start: NDArray[np.float64]  # readings at the command
     target: NDArray[np.float64]  # commanded readings
     duration: float  # slew duration [s]
-    slew_direction: NDArray[np.float64]  # sign of the change of f^p per axis over the slew
+    slew_direction: NDArray[np.float64]  # hysteresis state per axis after the slew (effects.hysteresis_state)
 
 
 class SimulatedPlatform:
@@ -126,7 +126,9 @@ class SimulatedPlatform:
         duration = float(np.pi / 2 * np.max(np.abs(delta)) / self._slew_rate)
         f_start = self.platform.specific_force_platform(start, self.truth.site.gravity)
         f_end = self.platform.specific_force_platform(target, self.truth.site.gravity)
-        self._commands.append(_Command(self._sample, start, target, duration, np.sign(np.round((f_end - f_start) / 1e-9))))
+        previous = self._commands[-1].slew_direction if self._commands else np.zeros(3)
+        state = fx.hysteresis_state(previous, f_end - f_start)
+        self._commands.append(_Command(self._sample, start, target, duration, state))
         return self.time
 
     def read_angles(self) -> NDArray[np.float64]:

@@ -24,7 +24,10 @@ id               added output of accelerometer ``a`` (axis a in x, y, z)
 ``Kt_bias_a``    ``Kt ΔT``
 ``Kt_sf_a``      ``Kt ΔT f_a`` (scale factor changes by ``Kt`` per kelvin)
 ``Kd_bias_a``    ``Kd t``
-``Kh_a``         ``Kh sgn(Δf_a)``: sign of the change of ``f_a`` over the last slew
+``Kh_a``         ``Kh h_a``: hysteresis state ``h_a`` (+1/−1/0) of axis a, the sign of
+                 the last slew that moved ``f_a`` by more than ``HYSTERESIS_THRESHOLD``
+                 (0.01 m/s²); smaller changes keep the state; 0 before the first such
+                 slew (changes measured from ``f^p`` at the initial readings)
 ``lever_a_b``    ``e_a · (ω̇ × r + ω × (ω × r))`` with ``r = lever_a_b e_b`` the proof-mass
                  position of accelerometer a from the rotation centre; ``ω`` platform
                  angular rate: non-zero only while the platform moves (slews, settling)
@@ -53,6 +56,35 @@ from stableins.errormodel import AXES, Term, TermInputs
 
 _G = STANDARD_GRAVITY
 DEG_PER_HOUR = np.pi / 180.0 / 3600.0
+
+#: Input excursion [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``).
+#: A real accelerometer's hysteresis follows the excursion of its input: a change much
+#: smaller than the loop (here arcsecond-level geometry, ~1e-4 m/s²) does not reverse the
+#: magnetic/flexure state, so the state keeps its last value.
+HYSTERESIS_THRESHOLD = 1e-2
+
+
+def hysteresis_state(
+    previous: NDArray[np.float64], change: NDArray[np.float64], threshold: float = HYSTERESIS_THRESHOLD
+) -> NDArray[np.float64]:
+    r"""Hysteresis state of each axis after a slew (threshold plus memory).
+
+    .. math:: h_a^{+} = \operatorname{sign}(\Delta f_a)\ \text{if}\ |\Delta f_a| > f_{th},\ \text{else}\ h_a
+
+    (IEEE Std 1293 hysteresis: the output depends on the direction from which the input was
+    approached; the state changes only with an input excursion beyond ``f_th``).
+
+    Parameters
+    ----------
+    previous : ndarray (3,)
+        State before the slew (+1/−1; 0 before any slew moved the axis' input beyond ``threshold``).
+    change : ndarray (3,)
+        Change of the platform specific force ``f^p`` over the slew [m/s²].
+    threshold : float
+        ``f_th`` [m/s²] (default :data:`HYSTERESIS_THRESHOLD`).
+    """
+    change = np.asarray(change, dtype=float)
+    return np.where(np.abs(change) > threshold, np.sign(change), np.asarray(previous, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -229,7 +261,7 @@ def _build() -> dict[str, Effect]:
                 f"Kh_{a}",
                 "m/s^2",
                 5 * MICRO_G,
-                f"hysteresis of the {a} accelerometer: + Kh sign(change of f_{a} in the last slew)",
+                f"hysteresis of the {a} accelerometer: + Kh sign(last change of f_{a} over a slew > 0.01 m/s^2)",
                 "output",
                 _on_axis(i, lambda x, i=i, tid=f"Kh_{a}": x.require("slew_direction", tid)[..., i]),
                 i,
