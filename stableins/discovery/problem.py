@@ -156,7 +156,7 @@ def dwells_from_dataset(
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
     The mean, its 1σ and the acceptance checks come from the device stage's dwell
-    statistics (:func:`stableins.estimators.device.summarize_dwells`: settling dropped,
+    statistics (:func:`stableins.estimators.dwell.dwells_from_columns`: settling dropped,
     correlated noise detected per dwell); flagged dwells are left out (listed in
     ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
     else ``"coarse"`` (all passes, in time order).  ``slow_noise``
@@ -165,20 +165,28 @@ def dwells_from_dataset(
     device stage does (zero when not detectable).
     """
     from stableins.data.errors import InputError
-    from stableins.estimators.device import summarize_dwells
+    from stableins.estimators.dwell import dwells_from_columns
     from stableins.procedures.definition import load_procedure
 
     if not datasets:
         raise InputError("no data files given", field="DATA")
     site = datasets[0].metadata
     procedures = dict(procedures) if procedures else {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
-    raw = [d for ds in datasets for d in ds.dwells()]
+    # the device stage's one path from samples to dwell statistics, per file; paired with the raw dwells by
+    # (file, stage, pass, position), which a file holds once each (dwells_from_columns refuses repeats)
+    pairs = []
+    for ds in datasets:
+        statistics = {
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
+        }
+        pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
     if stage is None:
-        stage = "fine" if any(d.stage == "fine" for d in raw) else "coarse"
-    raw = sorted((d for d in raw if d.stage == stage), key=lambda d: float(d.time[0]) if len(d.time) else 0.0)
-    if not raw:
+        stage = "fine" if any(d.stage == "fine" for d, _ in pairs) else "coarse"
+    pairs = sorted(((d, s) for d, s in pairs if d.stage == stage), key=lambda pair: float(pair[0].time[0]) if len(pair[0].time) else 0.0)
+    if not pairs:
         raise InputError(f"no {stage}-stage dwells in the data", field="stage", expected="rows with stage 'coarse' or 'fine'")
-    summaries = summarize_dwells(raw, procedures, source=", ".join(str(ds.path) for ds in datasets))
+    raw = [d for d, _ in pairs]
+    summaries = [s for _, s in pairs]
     keep = [k for k, sm in enumerate(summaries) if sm.usable]
     left_out = [
         f"{stage} pass {summaries[k].pass_number} position {summaries[k].position}: {'; '.join(summaries[k].flags)}"

@@ -27,7 +27,8 @@ def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[s
         What was done, and which files were not device-level sessions.
     """
     from stableins.data.device import load_device
-    from stableins.estimators.device import calibrate_device, summarize_dwells
+    from stableins.estimators.device import calibrate_device
+    from stableins.estimators.dwell import dwells_from_columns
     from stableins.procedures.definition import load_procedure
 
     datasets, notes = [], []
@@ -41,7 +42,7 @@ def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[s
     procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
     summaries = []
     for dataset in datasets:
-        summaries += summarize_dwells(dataset.dwells(), procedures, source=str(dataset.path))
+        summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
     calibration = calibrate_device(
         summaries, datasets[0].metadata, coarse_procedure=procedures["coarse"], fine_procedure=procedures["fine"], source=source
