@@ -475,24 +475,18 @@ class CalibrationRecord:
     def report(self) -> str:
         """Plain-text table in engineering units where the id is a known term."""
         from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
+        from stableins.estimators.result import parameter_table
 
         terms = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
         lines = [f"calibration record of {self.serial_number} ({', '.join(self.provenance.stages)}; {self.provenance.software})", ""]
-        lines.append(f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} status")
+        rows = []
         for p in self.parameters:
             t = terms.get(p.id)
             value, sigma, unit = (
                 (float(t.to_engineering(p.value)), float(t.sigma_to_engineering(p.sigma)), t.unit) if t else (p.value, p.sigma, p.unit)
             )
-            if p.status == "unidentifiable":
-                lines.append(f"{p.id:<12} {'—':>14} {'—':>10} {unit:<8} {p.status}")
-            else:
-                lines.append(f"{p.id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {p.status}")
-        if self.determined:
-            lines += ["", "determined combinations:"] + [f"  {d}" for d in self.determined]
-        if self.notes:
-            lines += ["", "notes:"] + [f"  {n}" for n in self.notes]
-        return "\n".join(lines)
+            rows.append((p.id, value, sigma, unit, p.status))
+        return "\n".join(lines + parameter_table(rows, self.determined, self.notes))
 
     def __str__(self) -> str:
         return self.report()

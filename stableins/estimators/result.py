@@ -8,6 +8,7 @@ themselves; records and reports are built from them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -21,6 +22,27 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Allowed parameter statuses (also used in calibration records).
 STATUSES = ("estimated", "fixed", "gauge", "unidentifiable")
+
+
+def parameter_table(
+    rows: Sequence[tuple[str, float, float, str, str]], determined: Sequence[str] = (), notes: Sequence[str] = ()
+) -> list[str]:
+    """Text lines of a parameter table ``(id, value, 1σ, unit, status)`` in engineering units.
+
+    Unidentifiable parameters show no numbers (their value in a record is only the prior
+    carried through).  Shared by :meth:`FitResult.report` and the calibration record's report.
+    """
+    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} status"]
+    for parameter_id, value, sigma, unit, status in rows:
+        if status == "unidentifiable":
+            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status}")
+        else:
+            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status}")
+    if determined:
+        lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
+    if notes:
+        lines += ["", "notes:"] + [f"  {n}" for n in notes]
+    return lines
 
 
 @dataclass(frozen=True)
@@ -143,17 +165,11 @@ class FitResult:
             f"rank = {self.rank} of {len(self.terms)}",
             "",
         ]
-        lines.append(f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} status")
-        for t, v, s, st in zip(self.terms, self.values, self.sigma, self.status, strict=True):
-            if st == "unidentifiable":
-                lines.append(f"{t.id:<12} {'—':>14} {'—':>10} {t.unit:<8} {st}")
-            else:
-                lines.append(f"{t.id:<12} {float(t.to_engineering(v)):>14.4f} {float(t.sigma_to_engineering(s)):>10.4f} {t.unit:<8} {st}")
-        if self.determined:
-            lines += ["", "determined combinations:"] + [f"  {d}" for d in self.determined]
-        if self.notes:
-            lines += ["", "notes:"] + [f"  {n}" for n in self.notes]
-        return "\n".join(lines)
+        rows = [
+            (t.id, float(t.to_engineering(v)), float(t.sigma_to_engineering(s)), t.unit, st)
+            for t, v, s, st in zip(self.terms, self.values, self.sigma, self.status, strict=True)
+        ]
+        return "\n".join(lines + parameter_table(rows, self.determined, self.notes))
 
     def __str__(self) -> str:
         return self.report()
