@@ -38,6 +38,7 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,9 @@ from stableins.estimators.system.loop import DampingLoop
 PITCH_COEFFICIENTS = ("theta_mean", "theta_1c", "theta_1s", "theta_2c", "theta_2s")
 ROLL_COEFFICIENTS = ("phi_mean", "phi_1s", "phi_1c", "phi_2s", "phi_2c")
 ATTITUDE_COEFFICIENTS = PITCH_COEFFICIENTS + ROLL_COEFFICIENTS
+
+#: Blocks per slice of the design matrix in :func:`fit_attitude` (its temporaries stay a few MiB whatever the record length).
+FIT_ROWS = 4096
 
 #: Default period of the gyro case-rotation residual [s] (Wu et al. 2018 §6.2: 8 minutes).
 CASE_ROTATION_PERIOD = 480.0
@@ -260,14 +264,20 @@ def fit_attitude(
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
     """
-    x_common, names, freqs = _design(blocks, loop, case_rotation_period)
+    n_blocks = blocks["time"].size
+    _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
+    slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
+
+    def common(rows: slice) -> NDArray[np.float64]:
+        return _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
     drift = _drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
     if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
         y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
     drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
-    n_common = x_common.shape[1]
+    n_common = len(names)
     map_bin = np.floor(blocks["time"] / map_bin_seconds).astype(np.int64)
     n_map = int(map_bin.max()) + 1 if map_bin.size else 0
     maps = np.zeros((10, 2 * n_map))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← block means summed per time bin
@@ -278,20 +288,24 @@ def fit_attitude(
     for ch in range(2):
         gains = np.array([np.abs(loop.frequency_response(f)).max(axis=1)[ch] if f > 0 else 1.0 for f in freqs[:5]])
         d = noise_sigma[ch] * gains
-        coef, res, inv = _weighted_fit(x_common, y[:, ch], w)
-        columns, inv_full = x_common, inv
+        coef, res, inv = _weighted_fit(common, y[:, ch], w, slices)
+        columns, inv_full = common, inv
         if drift is not None and gyro_drift in ("fit", "check"):
             # the same fit with the drift responses of this channel as three more columns
-            coef_d, res_d, inv_d = _weighted_fit(np.concatenate([x_common, drift[:, ch, :]], axis=1), y[:, ch], w)
+
+            def with_drift(rows: slice, ch: int = ch) -> NDArray[np.float64]:
+                return np.concatenate([common(rows), drift[rows, ch, :]], axis=1)
+
+            coef_d, res_d, inv_d = _weighted_fit(with_drift, y[:, ch], w, slices)
             sigma_d = noise_sigma[ch] * np.abs(loop.frequency_response(loop.earth_rate)).max(axis=1)[ch] * np.sqrt(np.diag(inv_d)[-3:])
             drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * _DRIFT_SCALE, sigma_d * _DRIFT_SCALE
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
-                columns, inv_full = np.concatenate([x_common, drift[:, ch, :]], axis=1), inv_d
-        rows = np.einsum("ij,nj->in", inv_full[:5], columns) * w[None, :]  # (5, blocks), transient; no weighted copy
-        for k in range(5):
-            maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] = np.bincount(map_bin, weights=rows[k], minlength=n_map)
-        del rows
+                columns, inv_full = with_drift, inv_d
+        for rows in slices:  # the map from block means to coefficients, summed per time bin, FIT_ROWS blocks at a time
+            part = (columns(rows) @ inv_full[:5].T) * w[rows, None]
+            for k in range(5):
+                maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
@@ -400,11 +414,27 @@ def _drift_columns(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop) ->
 _DRIFT_SCALE = 1e-8
 
 
-def _weighted_fit(x: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-    """Weighted least squares ``(coefficients, residuals, (XᵀWX)⁻¹)`` with column scaling."""
-    xtwx = x.T @ (x * w[:, None])
+def _weighted_fit(
+    design: Callable[[slice], NDArray[np.float64]], y: NDArray[np.float64], w: NDArray[np.float64], slices: list[slice]
+) -> tuple[NDArray, NDArray, NDArray]:
+    """Weighted least squares ``(coefficients, residuals, (XᵀWX)⁻¹)`` with column scaling.
+
+    ``design(rows)`` returns the rows of ``X`` for a slice of blocks: the normal equations
+    ``XᵀWX``, ``XᵀWy`` are accumulated over ``slices`` so that ``X`` is never held whole
+    (memory independent of the record length but for the block means themselves).
+    """
+    xtwx: NDArray[np.float64] | float = 0.0
+    xtwy: NDArray[np.float64] | float = 0.0
+    for rows in slices:
+        x = design(rows)
+        xw = x * w[rows, None]
+        xtwx = xtwx + x.T @ xw
+        xtwy = xtwy + xw.T @ y[rows]
     scale = np.sqrt(np.diag(xtwx))
     scale = np.where(scale > 0, scale, 1.0)
     inv = np.linalg.pinv(xtwx / np.outer(scale, scale), rcond=1e-13) / np.outer(scale, scale)
-    coef = inv @ (x.T @ (y * w))
-    return coef, y - x @ coef, inv
+    coef = inv @ xtwy
+    residuals = np.empty_like(y)
+    for rows in slices:
+        residuals[rows] = y[rows] - design(rows) @ coef
+    return coef, residuals, inv
