@@ -280,3 +280,42 @@ def test_stage_observation_in_place_equals_squared_norm():
     out, work = np.empty(n), np.empty(4 * Z_SUBBLOCK)
     comp.observation_into(f_a[:, 0], f_a[:, 1], f_a[:, 2], 9.8, out, work)
     np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_attitude_blocks_merge_pairs_equals_wider_blocks_and_stays_bounded():
+    from stableins.estimators.system.attitude import AttitudeBlocks
+
+    rng = np.random.default_rng(11)
+    t = 100.0 + np.arange(0.0, 20000.0, 1.0)
+    s = 0.3 + cv.EARTH_RATE * t
+    pitch, roll = rng.normal(0, 1e-4, (2, t.size))
+    capped = AttitudeBlocks(10.0, 100.0, max_blocks=300)  # 2000 10-s blocks needed: merged three times, to 80 s
+    for part in np.array_split(np.arange(t.size), 37):
+        capped.add(t[part], np.cos(s[part]), np.sin(s[part]), pitch[part], roll[part])
+    assert capped.block_seconds == 80.0
+    assert max(a.size for a in capped.sums.values()) <= 300
+    direct = AttitudeBlocks(80.0, 100.0)
+    direct.add(t, np.cos(s), np.sin(s), pitch, roll)
+    a, b = capped.means(), direct.means()
+    assert a["count"].size == 250 and np.array_equal(a["count"], b["count"])
+    for key in ("time", "cos", "sin", "pitch", "roll"):
+        np.testing.assert_allclose(a[key], b[key], rtol=1e-12, atol=1e-15)
+
+
+def test_attitude_fit_independent_of_row_slicing(monkeypatch):
+    import stableins.estimators.system.attitude as attitude_module
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, cv.SIDEREAL_DAY, 10.0)
+    s = 0.3 + cv.EARTH_RATE * t
+    y = 1e-5 * np.stack([np.cos(s + 0.2), np.sin(s - 0.1)], axis=1) + rng.normal(0, 1e-6, (t.size, 2))
+    blocks = dict(count=np.full_like(t, 10.0), time=t, cos=np.cos(s), sin=np.sin(s), pitch=y[:, 0], roll=y[:, 1])
+    loop = DampingLoop(LAT, G, 0.5)
+    whole = fit_attitude(blocks, loop, (5e-4, 5e-4), gyro_drift="check")
+    monkeypatch.setattr(attitude_module, "FIT_ROWS", 97)  # 90 slices, the last partial
+    sliced = fit_attitude(blocks, loop, (5e-4, 5e-4), gyro_drift="check")
+    assert whole.block_residuals.shape == (t.size, 2)
+    np.testing.assert_allclose(sliced.values, whole.values, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(sliced.covariance, whole.covariance, rtol=1e-9, atol=1e-24)
+    np.testing.assert_allclose(sliced.block_residuals, whole.block_residuals, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(sliced.block_map, whole.block_map, rtol=1e-9, atol=1e-12 * np.abs(whole.block_map).max())

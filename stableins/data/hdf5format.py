@@ -276,6 +276,7 @@ class H5Reader:
             group = f[GROUP]
             gathers = {c.name: _ThinColumn(group[c.name], self.path) for c in columns if c.name in thin_set}
             buffers: dict[str, Any] = {}
+            datasets = {c.name: group[c.name] for c in columns if reuse and c.dtype != "str" and c.name not in gathers}  # looked up once
             try:
                 for k in range(start, stop, rows):
                     end = min(k + rows, stop)
@@ -295,7 +296,7 @@ class H5Reader:
                                     expected="a finite number",
                                 )
                         elif reuse and c.dtype != "str":
-                            d = group[c.name]
+                            d = datasets[c.name]
                             buf = buffers.get(c.name)
                             if buf is None or buf.size < end - k:
                                 buf = buffers[c.name] = np.empty(rows, dtype=c.dtype)

@@ -38,6 +38,7 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,9 @@ from stableins.estimators.system.loop import DampingLoop
 PITCH_COEFFICIENTS = ("theta_mean", "theta_1c", "theta_1s", "theta_2c", "theta_2s")
 ROLL_COEFFICIENTS = ("phi_mean", "phi_1s", "phi_1c", "phi_2s", "phi_2c")
 ATTITUDE_COEFFICIENTS = PITCH_COEFFICIENTS + ROLL_COEFFICIENTS
+
+#: Blocks per slice of the design matrix in :func:`fit_attitude` (its temporaries stay a few MiB whatever the record length).
+FIT_ROWS = 4096
 
 #: Default period of the gyro case-rotation residual [s] (Wu et al. 2018 §6.2: 8 minutes).
 CASE_ROTATION_PERIOD = 480.0
@@ -87,14 +91,20 @@ def attitude_combinations(latitude: float) -> NDArray[np.float64]:
 
 @dataclass
 class AttitudeBlocks:
-    """Block means of the attitude record (streaming accumulator).
+    """Block means of the attitude record (streaming accumulator) in bounded memory.
 
-    Blocks are fixed time bins of ``block_seconds``; each keeps the sample count and
-    the sums of time, ``cos S``, ``sin S``, pitch and roll.
+    Blocks are fixed time bins of ``block_seconds`` from ``start_time``; each keeps the sample
+    count and the sums of time, ``cos S``, ``sin S``, pitch and roll.  When the record would need
+    more than ``max_blocks`` bins, adjacent pairs are merged and ``block_seconds`` doubles (sums
+    add exactly, so this equals accumulating with the doubled width from the start): memory is
+    bounded by ``6 · max_blocks`` values whatever the record length.  The default, 2¹⁶ bins,
+    keeps the 10-s blocks up to 7.6 days; 20-s blocks are still 250 times shorter than the
+    Schuler period and attenuate the 8-minute case-rotation nuisance by 0.3 %.
     """
 
     block_seconds: float
     start_time: float
+    max_blocks: int = 1 << 16
     sums: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     _KEYS = ("count", "time", "cos", "sin", "pitch", "roll")
@@ -107,7 +117,11 @@ class AttitudeBlocks:
         pitch: NDArray[np.float64],
         roll: NDArray[np.float64],
     ) -> None:
-        index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
+        while True:
+            index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
+            if int(index[-1]) < self.max_blocks:
+                break
+            self._merge_pairs()
         lo = int(index[0])
         local = index - lo
         size = int(local[-1]) + 1
@@ -116,11 +130,19 @@ class AttitudeBlocks:
         for key in self._KEYS:
             arr = self.sums.get(key)
             if arr is None:
-                arr = np.zeros(max(needed, 1024))
+                arr = np.zeros(min(max(needed, 1024), self.max_blocks))
             elif arr.size < needed:
-                arr = np.concatenate([arr, np.zeros(max(needed - arr.size, arr.size))])
+                arr = np.concatenate([arr, np.zeros(min(max(needed - arr.size, arr.size), self.max_blocks - arr.size))])
             arr[lo:needed] += np.bincount(local, weights=values[key], minlength=size)
             self.sums[key] = arr
+
+    def _merge_pairs(self) -> None:
+        """Merge bins ``(2j, 2j+1)`` into bin ``j`` and double ``block_seconds``."""
+        for key, arr in self.sums.items():
+            if arr.size % 2:
+                arr = np.append(arr, 0.0)
+            self.sums[key] = arr.reshape(-1, 2).sum(axis=1)
+        self.block_seconds *= 2.0
 
     def means(self) -> dict[str, NDArray[np.float64]]:
         count = self.sums["count"]
@@ -260,14 +282,20 @@ def fit_attitude(
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
     """
-    x_common, names, freqs = _design(blocks, loop, case_rotation_period)
+    n_blocks = blocks["time"].size
+    _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
+    slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
+
+    def common(rows: slice) -> NDArray[np.float64]:
+        return _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
     drift = _drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
     if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
         y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
     drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
-    n_common = x_common.shape[1]
+    n_common = len(names)
     map_bin = np.floor(blocks["time"] / map_bin_seconds).astype(np.int64)
     n_map = int(map_bin.max()) + 1 if map_bin.size else 0
     maps = np.zeros((10, 2 * n_map))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← block means summed per time bin
@@ -278,20 +306,24 @@ def fit_attitude(
     for ch in range(2):
         gains = np.array([np.abs(loop.frequency_response(f)).max(axis=1)[ch] if f > 0 else 1.0 for f in freqs[:5]])
         d = noise_sigma[ch] * gains
-        coef, res, inv = _weighted_fit(x_common, y[:, ch], w)
-        columns, inv_full = x_common, inv
+        coef, res, inv = _weighted_fit(common, y[:, ch], w, slices)
+        columns, inv_full = common, inv
         if drift is not None and gyro_drift in ("fit", "check"):
             # the same fit with the drift responses of this channel as three more columns
-            coef_d, res_d, inv_d = _weighted_fit(np.concatenate([x_common, drift[:, ch, :]], axis=1), y[:, ch], w)
+
+            def with_drift(rows: slice, ch: int = ch) -> NDArray[np.float64]:
+                return np.concatenate([common(rows), drift[rows, ch, :]], axis=1)
+
+            coef_d, res_d, inv_d = _weighted_fit(with_drift, y[:, ch], w, slices)
             sigma_d = noise_sigma[ch] * np.abs(loop.frequency_response(loop.earth_rate)).max(axis=1)[ch] * np.sqrt(np.diag(inv_d)[-3:])
             drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * _DRIFT_SCALE, sigma_d * _DRIFT_SCALE
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
-                columns, inv_full = np.concatenate([x_common, drift[:, ch, :]], axis=1), inv_d
-        rows = np.einsum("ij,nj->in", inv_full[:5], columns) * w[None, :]  # (5, blocks), transient; no weighted copy
-        for k in range(5):
-            maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] = np.bincount(map_bin, weights=rows[k], minlength=n_map)
-        del rows
+                columns, inv_full = with_drift, inv_d
+        for rows in slices:  # the map from block means to coefficients, summed per time bin, FIT_ROWS blocks at a time
+            part = (columns(rows) @ inv_full[:5].T) * w[rows, None]
+            for k in range(5):
+                maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
@@ -400,11 +432,27 @@ def _drift_columns(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop) ->
 _DRIFT_SCALE = 1e-8
 
 
-def _weighted_fit(x: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-    """Weighted least squares ``(coefficients, residuals, (XᵀWX)⁻¹)`` with column scaling."""
-    xtwx = x.T @ (x * w[:, None])
+def _weighted_fit(
+    design: Callable[[slice], NDArray[np.float64]], y: NDArray[np.float64], w: NDArray[np.float64], slices: list[slice]
+) -> tuple[NDArray, NDArray, NDArray]:
+    """Weighted least squares ``(coefficients, residuals, (XᵀWX)⁻¹)`` with column scaling.
+
+    ``design(rows)`` returns the rows of ``X`` for a slice of blocks: the normal equations
+    ``XᵀWX``, ``XᵀWy`` are accumulated over ``slices`` so that ``X`` is never held whole
+    (memory independent of the record length but for the block means themselves).
+    """
+    xtwx: NDArray[np.float64] | float = 0.0
+    xtwy: NDArray[np.float64] | float = 0.0
+    for rows in slices:
+        x = design(rows)
+        xw = x * w[rows, None]
+        xtwx = xtwx + x.T @ xw
+        xtwy = xtwy + xw.T @ y[rows]
     scale = np.sqrt(np.diag(xtwx))
     scale = np.where(scale > 0, scale, 1.0)
     inv = np.linalg.pinv(xtwx / np.outer(scale, scale), rcond=1e-13) / np.outer(scale, scale)
-    coef = inv @ (x.T @ (y * w))
-    return coef, y - x @ coef, inv
+    coef = inv @ xtwy
+    residuals = np.empty_like(y)
+    for rows in slices:
+        residuals[rows] = y[rows] - design(rows) @ coef
+    return coef, residuals, inv

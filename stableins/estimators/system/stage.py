@@ -772,6 +772,7 @@ def run_system_stage(
         "duration": duration,
         "samples": seen,
         "block_length": block,
+        "attitude_block_seconds": attitude_blocks.block_seconds,  # doubled from the option's value beyond 2^16 blocks
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
