@@ -481,15 +481,14 @@ class Runner:
                     self._record(step.settle, "settling", "settle")
                 blocks = self._record(step.dwell, "dwell", "dwell") if arrived is None else []
             except (DriverConnectionError, DriverProtocolError) as error:
-                link_failures += 1
-                self.session.decide("interrupted", {"step": index, "attempt": attempt, "reason": str(error)})
-                self.console.say(f"  link failure: {error}; this attempt's samples are set aside (kept in the journal); repeating the step")
-                if link_failures >= self.options.link_failures:
-                    message = f"step {step.name!r}: the link to the platform failed {link_failures} times in a row (last: {error})"
-                    _, replayed = self.session.decide("stop", {"step": index, "reason": message})
-                    if not replayed:
-                        raise RunStopped(message) from None
-                    link_failures = 0
+                link_failures = self._link_failure(
+                    index,
+                    attempt,
+                    step.name,
+                    error,
+                    link_failures,
+                    "this attempt's samples are set aside (kept in the journal); repeating the step",
+                )
                 continue
             if arrived is None:
                 result = evaluate_dwell(readings, _concatenate(blocks), step.checks, step.dwell, self.rate)
@@ -563,6 +562,22 @@ class Runner:
         self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
         self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)")
 
+    def _link_failure(self, index: int, attempt: int, name: str, error: Exception, failures: int, consequence: str) -> int:
+        """Journal a broken link, say what happens next; stop the run after ``options.link_failures`` in a row.
+
+        Returns the updated count of consecutive failures (reset to 0 when a replayed stop was passed).
+        """
+        failures += 1
+        self.session.decide("interrupted", {"step": index, "attempt": attempt, "reason": str(error)})
+        self.console.say(f"  link failure: {error}; {consequence}")
+        if failures >= self.options.link_failures:
+            message = f"step {name!r}: the link to the platform failed {failures} times in a row (last: {error})"
+            _, replayed = self.session.decide("stop", {"step": index, "reason": message})
+            if not replayed:
+                raise RunStopped(message) from None
+            failures = 0
+        return failures
+
     def _wait_until_reached(self, readings: NDArray[np.float64], checks: Checks) -> str | None:
         """Record (and discard) short pieces until the platform is at the commanded readings.
 
@@ -626,15 +641,9 @@ class Runner:
                     continue
                 raise RunStopped(message) from None
             except (DriverConnectionError, DriverProtocolError) as error:
-                link_failures += 1
-                self.session.decide("interrupted", {"step": index, "attempt": attempt, "reason": str(error)})
-                self.console.say(f"  link failure: {error}; the iteration starts again (its samples so far stay in the journal)")
-                if link_failures >= self.options.link_failures:
-                    message = f"step {step.name!r}: the link to the platform failed {link_failures} times in a row (last: {error})"
-                    _, replayed = self.session.decide("stop", {"step": index, "reason": message})
-                    if not replayed:
-                        raise RunStopped(message) from None
-                    link_failures = 0
+                link_failures = self._link_failure(
+                    index, attempt, step.name, error, link_failures, "the iteration starts again (its samples so far stay in the journal)"
+                )
                 continue
             finally:
                 trace, self.session.trace = self.session.trace, None
