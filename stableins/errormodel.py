@@ -216,6 +216,13 @@ GIMBAL_TERMS: tuple[Term, ...] = tuple(
 CORE_IDS = tuple(t.id for t in CORE_TERMS)
 
 
+def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
+    """Terms by id: the core and gimbal terms, plus any given (e.g. discovered additive terms)."""
+    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
+    out.update({t.id: t for t in extra})
+    return out
+
+
 @dataclass(frozen=True)
 class ErrorModel:
     """An immutable, ordered set of terms.

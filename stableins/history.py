@@ -151,7 +151,9 @@ def compare(old: CalibrationRecord, new: CalibrationRecord, prior_used: bool = F
 
 def format_changes(changes: list[Change]) -> str:
     """Table of changes in engineering units where the id is a known term."""
-    terms = _known_terms()
+    from stableins.errormodel import known_terms
+
+    terms = known_terms()
     lines = [f"{'parameter':<12} {'old':>14} {'new':>14} {'change':>12} {'σ(change)':>10} {'unit':<8} {'z':>6}"]
     for c in changes:
         term = terms.get(c.id)
@@ -176,12 +178,6 @@ def _spread(term: Any, value: Any) -> Any:
     import numpy as np
 
     return term.sigma_to_engineering(value) if term is not None else np.asarray(value, dtype=float)
-
-
-def _known_terms() -> dict[str, Any]:
-    from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
-
-    return {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
 
 
 def trend(points: list[tuple[datetime, float, float]], parameter: str = "", unit: str = "") -> Trend:
@@ -342,7 +338,9 @@ class HistoryStore:
 
 
 def format_trends(trends: list[Trend]) -> str:
-    terms = _known_terms()
+    from stableins.errormodel import known_terms
+
+    terms = known_terms()
     lines = [f"{'parameter':<12} {'records':>7} {'drift / year':>14} {'σ':>10} {'unit':<8} {'z':>6} {'χ²_ν const':>10}"]
     for t in trends:
         term = terms.get(t.id)
@@ -360,7 +358,9 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    terms = _known_terms()
+    from stableins.errormodel import known_terms
+
+    terms = known_terms()
     n = max(1, len(trends))
     columns = min(3, n)
     rows = math.ceil(n / columns)

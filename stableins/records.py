@@ -474,10 +474,10 @@ class CalibrationRecord:
 
     def report(self) -> str:
         """Plain-text table in engineering units where the id is a known term."""
-        from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
+        from stableins.errormodel import known_terms
         from stableins.estimators.result import parameter_table
 
-        terms = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
+        terms = known_terms()
         lines = [f"calibration record of {self.serial_number} ({', '.join(self.provenance.stages)}; {self.provenance.software})", ""]
         rows = []
         for p in self.parameters:

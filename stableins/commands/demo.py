@@ -77,7 +77,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     parameters, :func:`stableins.estimators.coarse.gauge_equivalent`).
     """
     from stableins.conventions import GimbalConfiguration
-    from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
+    from stableins.errormodel import known_terms
     from stableins.estimators.coarse import gauge_equivalent
     from stableins.records import CalibrationRecord
     from stableins.simulator.truth import Truth
@@ -86,7 +86,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     truth = Truth.read(truth_path)
     configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
     reference = gauge_equivalent(dict(truth.parameters), configuration)
-    terms = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
+    terms = known_terms()
     rows = []
     for parameter in record.parameters:
         if parameter.status != "estimated" or parameter.id not in reference or parameter.id not in terms:

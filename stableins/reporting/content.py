@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS, Term
+from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms is part of this module's interface (builder)
 from stableins.reporting.evidence import StageEvidence
 from stableins.reporting.record_view import RecordView
 from stableins.reporting.tolerances import Tolerances, decide, limit_for
@@ -41,13 +41,6 @@ STATUS_WHY = {
     "gauge": "the data do not determine it; fixed by an explicit, documented gauge",
     "unidentifiable": "the data do not determine it; no value is stated",
 }
-
-
-def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
-    """Terms by id: the core and gimbal terms, plus any given (e.g. discovered additive terms)."""
-    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
-    out.update({t.id: t for t in extra})
-    return out
 
 
 @dataclass(frozen=True)
