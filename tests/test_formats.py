@@ -649,8 +649,10 @@ def test_system_thin_read_names_the_row_of_a_nan(tmp_path):
     path = tmp_path / "nan.h5"
     with SystemRecordWriter(path, make_metadata(), chunk_samples=1000) as writer:
         writer.append(make_system_chunk(0, 4000, seed=2))
-    with h5py.File(path, "r+") as f:
+    with h5py.File(path, "r+") as f:  # a NaN in the data and in its overview row
+        assert f["overview"].attrs["step"] == RATE  # one overview row per second
         f["columns/pitch"][2500] = np.nan
+        f["overview/pitch"][2500 // int(RATE)] = np.nan
     record = open_system_record(path)
     with pytest.raises(InputError, match="row 2501") as caught:
         for _ in record.iter_chunks(["time", "pitch"], rows=1000, thin=["pitch"], step=100):
@@ -661,3 +663,38 @@ def test_system_thin_read_names_the_row_of_a_nan(tmp_path):
             pass
     # rows between the thinned ones are not read, hence not checked (docs/formats.md); a full read finds the NaN
     assert sum(len(c["pitch"]) for c in record.iter_chunks(["time", "pitch"], rows=1000, thin=["pitch"], step=7)) == 572
+
+
+@pytest.mark.parametrize("rows", [333, 1000, 4096])
+def test_system_overview_rows_equal_the_full_columns(tmp_path, rows):
+    """Thin reads served by /overview equal every step-th row of the full columns, for any chunking and multiple steps."""
+    path = tmp_path / "r.h5"
+    with SystemRecordWriter(path, make_metadata(), chunk_samples=700) as writer:
+        for start in range(0, 5001, 1237):  # appends that do not line up with chunks or overview rows
+            writer.append(make_system_chunk(start, min(1237, 5001 - start), seed=3))
+    record = open_system_record(path)
+    full = record.read(["pitch", "velocity_east"])
+    for step in (100, 300):
+        got = list(record.iter_chunks(["time", "pitch", "velocity_east"], rows=rows, thin=["pitch", "velocity_east"], step=step))
+        for name in ("pitch", "velocity_east"):
+            np.testing.assert_array_equal(np.concatenate([c[name] for c in got]), full[name][::step])
+    assert record.verify_overview() == RATE
+
+
+def test_system_overview_changed_after_writing_is_named(tmp_path):
+    """A column edited by another tool no longer matches its overview: `check` names the file, row and dataset."""
+    import h5py
+
+    path = tmp_path / "edited.h5"
+    with SystemRecordWriter(path, make_metadata(), chunk_samples=1000) as writer:
+        writer.append(make_system_chunk(0, 4000, seed=2))
+    with h5py.File(path, "r+") as f:
+        f["columns/roll"][3100] = 0.5
+    with pytest.raises(InputError, match="row 3101") as caught:
+        open_system_record(path).verify_overview()
+    assert caught.value.field == "/overview/roll"
+    with h5py.File(path, "r+") as f:  # an overview of the wrong length is not used: the full columns are read
+        f["overview/roll"].resize((7,))
+    record = open_system_record(path)
+    assert record.verify_overview() == 0
+    assert sum(len(c["roll"]) for c in record.iter_chunks(["time", "roll"], rows=1000, thin=["roll"], step=100)) == 40

@@ -120,26 +120,6 @@ def test_attitude_fit_compensates_loop_exactly(couplings):
     assert np.abs(biased.values - ref).max() > 2e-6  # the quasi-static reading is off by several 1e-6 rad
 
 
-def test_block_taylor_information_equals_per_sample():
-    rng = np.random.default_rng(0)
-    rate = 100.0
-    n = 300_000 + 77  # partial block at the end
-    t = np.arange(n) / rate
-    reading = -(1.0 + cv.EARTH_RATE * t) + rng.normal(0, 5e-6, n)
-    reading = (reading + np.pi) % (2 * np.pi) - np.pi + 40 * np.pi  # wrapped and offset reading
-    z = rng.normal(0, 5e-4, n) + 1e-4
-    theta10 = 2e-5
-    s = -(reading + theta10)
-    ref = harmonic_information(s, z, LAT, order=3)
-    block = _BlockHarmonics(LAT, -1.0, theta10, 256, order=3)
-    for start in range(0, n, 65536):
-        block.add(reading[start : start + 65536], z[start : start + 65536])
-    acc = block.accumulator()
-    np.testing.assert_allclose(acc.information, ref.information, rtol=1e-11, atol=1e-11 * n)
-    np.testing.assert_allclose(acc.projection, ref.projection, rtol=1e-9, atol=1e-12 * np.abs(z).sum())
-    assert acc.count == n
-
-
 def test_filter_smoother_batch_information_agree():
     rng = np.random.default_rng(7)
     s = np.linspace(0, 2 * np.pi, 3000)
@@ -235,7 +215,7 @@ def test_vertical_channel_from_metadata_moves_roll():
 
 
 def test_stage_compensation_equals_error_model_inverse():
-    """The stage's closed-form |f^p|² (column arithmetic) equals |ErrorModel.inverse(f^a)|², K2 included."""
+    """The closed-form |f^p|² (column arithmetic, the numpy reference) equals |ErrorModel.inverse(f^a)|², K2 included."""
     from stableins.estimators.system.stage import _Compensation
 
     rng = np.random.default_rng(4)
@@ -247,8 +227,60 @@ def test_stage_compensation_equals_error_model_inverse():
 
 
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
+def test_block_sums_compiled_equal_numpy_reference(jitter):
+    """The compiled per-sample pass equals its numpy reference (z, moments, block times, Σz², irregular steps)."""
+    from stableins.estimators.system.blocksums import block_sums, block_sums_reference
+    from stableins.estimators.system.stage import _Compensation
+
+    rng = np.random.default_rng(6)
+    installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
+    for n in (1, 2, 255, 256, 257, 70_001):
+        t = 50.0 + np.arange(n) / 100.0 + (rng.uniform(-jitter, jitter, n) / 100.0 if jitter else 0.0)
+        f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
+        packed = _Compensation.from_values(installed).packed(9.8)
+        args = (*(f_a[:, k].copy() for k in range(3)), t, packed, 256, cv.EARTH_RATE, (0.0099, 0.0101))
+        got, expected = block_sums(*args), block_sums_reference(*args)
+        # round-off scale per block and column: Σ|z||δ|^p, Σ|δ|^p, plus p·Σ|z||δ|^(p−1)·ε_c for the round-off ε_c of the centre
+        z = 0.5 * (_Compensation.from_values(installed).squared_norm(*(f_a[:, k].copy() for k in range(3))) / 9.8**2 - 1.0)
+        d = np.abs(cv.EARTH_RATE * (t - np.repeat(expected[1], expected[0][:, 7].astype(int))))
+        eps_c = cv.EARTH_RATE * 1e-14 * np.abs(t).max()
+        starts = np.arange(0, n, 256)
+
+        def rsum(v, starts=starts):
+            return np.add.reduceat(v, starts)
+
+        scale = np.stack([rsum(np.abs(z) * d**p) for p in range(4)] + [rsum(d**p) for p in (1, 2, 3)] + [expected[0][:, 7]], axis=1)
+        centre = np.stack(
+            [p * eps_c * rsum(np.abs(z) * d ** max(p - 1, 0)) for p in range(4)] + [p * eps_c * rsum(d ** (p - 1)) for p in (1, 2, 3)],
+            axis=1,
+        )
+        excess = np.abs(got[0] - expected[0]) / (1e-12 * scale + np.c_[centre, np.zeros(len(centre))] + 1e-300)
+        assert excess.max() <= 1.0, (n, np.unravel_index(np.argmax(excess), excess.shape), excess.max())
+        np.testing.assert_allclose(got[1], expected[1], rtol=1e-15)
+        assert got[2] == pytest.approx(expected[2], rel=1e-12)
+        assert got[3] == expected[3] and (jitter == 0 or n < 3 or got[3] > 0)
+
+
+def test_block_sums_z_equals_error_model_inverse():
+    """z of the compiled pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
+    from stableins.estimators.system.blocksums import block_sums
+    from stableins.estimators.system.stage import _Compensation
+
+    rng = np.random.default_rng(5)
+    installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
+    n = 1000
+    f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
+    expected = 0.5 * (np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1) / 9.8**2 - 1.0)
+    packed = _Compensation.from_values(installed).packed(9.8)
+    sums, *_ = block_sums(*(f_a[:, k].copy() for k in range(3)), np.arange(n) / 100.0, packed, 1, cv.EARTH_RATE, (0.0, 1.0))
+    np.testing.assert_allclose(sums[:, 0], expected, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.2])
 def test_timed_block_information_equals_per_sample(jitter):
     """``S = S_c + ω_ie (t − t̄)`` per block (uniform grid or jittered stamps) equals the per-sample information."""
+    from stableins.estimators.system.blocksums import block_sums
+
     rng = np.random.default_rng(1)
     rate = 100.0
     n = 200_000 + 33
@@ -256,30 +288,19 @@ def test_timed_block_information_equals_per_sample(jitter):
     s = 0.7 + cv.EARTH_RATE * (t - t[0])
     z = rng.normal(0, 5e-4, n) + 1e-4 * np.cos(s)
     ref = harmonic_information(s, z, LAT, order=3)
-    block = _BlockHarmonics(LAT, 1.0, 0.0, 256, order=3)
+    # an identity calibration with q00 = 1, zero force on y and z: the pass's z is fx² − ½, so fx = √(z + ½)
+    packed = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    fx = np.sqrt(z + 0.5)
+    block = _BlockHarmonics(LAT, 256, order=3)
     for start in range(0, n, 65536):
-        tt, zz = t[start : start + 65536], z[start : start + 65536]
-        nb = -(-tt.size // 256)
-        centres = np.array([tt[k * 256 : (k + 1) * 256].mean() for k in range(nb)])
-        block.add_timed(tt, zz, 0.7 + cv.EARTH_RATE * (centres - t[0]), None if jitter else 1.0 / rate)
+        sl = slice(start, start + 65536)
+        sums, centres, z2, _ = block_sums(fx[sl], np.zeros(fx[sl].size), np.zeros(fx[sl].size), t[sl], packed, 256, cv.EARTH_RATE, (0, 1))
+        block.add_sums(0.7 + cv.EARTH_RATE * (centres - t[0]), sums, z2)
     acc = block.accumulator()
     np.testing.assert_allclose(acc.information, ref.information, rtol=1e-11, atol=1e-11 * n)
     np.testing.assert_allclose(acc.projection, ref.projection, rtol=1e-9, atol=1e-12 * np.abs(z).sum())
     assert acc.count == n
-
-
-def test_stage_observation_in_place_equals_squared_norm():
-    from stableins.estimators.system.stage import Z_SUBBLOCK, _Compensation
-
-    rng = np.random.default_rng(5)
-    installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
-    n = Z_SUBBLOCK + 1001
-    f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
-    comp = _Compensation.from_values(installed)
-    expected = 0.5 * (comp.squared_norm(*(f_a[:, k].copy() for k in range(3))) / 9.8**2 - 1.0)
-    out, work = np.empty(n), np.empty(4 * Z_SUBBLOCK)
-    comp.observation_into(f_a[:, 0], f_a[:, 1], f_a[:, 2], 9.8, out, work)
-    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
+    assert acc.sum_squares == pytest.approx(float(z @ z), rel=1e-10)
 
 
 def test_attitude_blocks_merge_pairs_equals_wider_blocks_and_stays_bounded():

@@ -57,6 +57,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SamplingWarning)
             report = record.check_sampling(allow_gaps=allow_gaps)
+        overview = record.verify_overview()
         return {
             "file": path,
             "kind": "system",
@@ -67,6 +68,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
             "duration_s": record.duration,
             "gaps": len(report.gaps),
             "jitter_steps": report.n_jitter,
+            "overview_step": overview,
             "warnings": [str(w.message) for w in caught],
         }
     from stableins.data.errors import InputError

@@ -5,6 +5,10 @@ Layout::
     /                      attrs: format, schema_version, rows, complete, serial_number,
                                   header (JSON: format, schema_version, metadata with units)
     /columns/<name>        1-D chunked dataset per column, attrs: unit (physical columns), meaning
+    /overview/<name>       optional, attrs (group): step.  Every ``step``-th row of each numeric column
+                           (rows 0, step, 2·step, ...), written with the columns by the same writer, so
+                           readers wanting slowly varying columns at a low rate read these few values
+                           instead of touching every chunk of the full-rate column.
 
 Written through a temporary file renamed on success (:mod:`stableins.data.atomic`), in
 chunks, so a day-long record never has to be in memory and a crash never leaves a
@@ -23,8 +27,11 @@ from stableins.data.schema import Column
 from stableins.data.validation import FORMAT_TAGS, check_finite, check_header_document, match_columns
 
 GROUP = "columns"
+OVERVIEW = "overview"
 STRING_DTYPE = "S16"
 DEFAULT_CHUNK = 65536
+#: Values of an overview column read at a time (a window reused across chunks: few HDF5 calls).
+OVERVIEW_WINDOW = 1 << 16
 
 
 class H5Writer:
@@ -42,6 +49,7 @@ class H5Writer:
         document: Mapping[str, Any],
         chunk_samples: int = DEFAULT_CHUNK,
         compression: str | None = None,
+        overview_step: int = 0,
     ) -> None:
         self.path = str(path)
         self.kind = kind
@@ -49,6 +57,7 @@ class H5Writer:
         self.document = dict(document)
         self.chunk_samples = int(chunk_samples)
         self.compression = compression
+        self.overview_step = int(overview_step) if overview_step and overview_step >= 2 else 0
         self.rows = 0
         self._buffer: list[Mapping[str, Any]] = []
         self._buffered = 0
@@ -83,6 +92,19 @@ class H5Writer:
                     d.attrs["unit"] = c.unit
                 d.attrs["meaning"] = c.meaning
                 self._datasets[c.name] = d
+            self._overview = {}
+            if self.overview_step:
+                view = f.create_group(OVERVIEW)
+                view.attrs["step"] = self.overview_step
+                for c in self.schema:
+                    if c.dtype != "str":
+                        self._overview[c.name] = view.create_dataset(
+                            c.name,
+                            shape=(0,),
+                            maxshape=(None,),
+                            dtype=c.dtype,
+                            chunks=(max(1024, self.chunk_samples // self.overview_step),),
+                        )
         except BaseException as error:
             self._abort(error)
             raise
@@ -126,6 +148,13 @@ class H5Writer:
             d = self._datasets[c.name]
             d.resize((self.rows + n,))
             d[self.rows :] = values
+            view = self._overview.get(c.name)
+            if view is not None:  # rows self.rows .. self.rows+n−1 that are multiples of the step
+                picked = values[(-self.rows) % self.overview_step :: self.overview_step]
+                if picked.size:
+                    m = view.shape[0]
+                    view.resize((m + picked.size,))
+                    view[m:] = picked
         self.rows += n
         self._buffered -= n
         self._buffer[:] = [rest] if self._buffered else []
@@ -202,6 +231,60 @@ class H5Reader:
                     )
                 if c.dtype != "str" and not np.issubdtype(d.dtype, np.number):
                     raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="a numeric dataset")
+            self.overview_step = self._overview_step(f)
+
+    def _overview_step(self, f: Any) -> int:
+        """Step of a usable ``/overview`` group (0: none, or not matching the columns: the full columns are read instead)."""
+        view = f.get(OVERVIEW)
+        if view is None:
+            return 0
+        try:
+            step = int(view.attrs["step"])
+        except (KeyError, TypeError, ValueError):
+            return 0
+        if step < 2:
+            return 0
+        expected = -(-self.rows // step)
+        for c in self.schema:
+            if c.dtype == "str":
+                continue
+            d = view.get(c.name)
+            if d is None or d.ndim != 1 or d.shape[0] != expected:
+                return 0
+        return step
+
+    def verify_overview(self, rows: int = DEFAULT_CHUNK) -> int:
+        """Check ``/overview`` against the full-rate columns (streaming); returns its step (0: none).
+
+        Raises
+        ------
+        InputError
+            An overview value differs from its full-rate row (the file was modified by another tool).
+        """
+        import numpy as np
+
+        step = self.overview_step
+        if not step:
+            return 0
+        rows = max(step, rows - rows % step)
+        names = [c.name for c in self.schema if c.dtype != "str"]
+        with self._open() as f:
+            for k in range(0, self.rows, rows):
+                full = self._read(f, names, k, min(k + rows, self.rows))
+                for name in names:
+                    view = f[OVERVIEW][name][k // step : k // step + len(full[name][::step])]
+                    bad = np.flatnonzero(view != full[name][::step])
+                    if bad.size:
+                        row = k + int(bad[0]) * step
+                        raise InputError(
+                            f"overview value {float(view[bad[0]])!r} differs from the column's row ({float(full[name][row - k])!r}); "
+                            "the file was changed after it was written",
+                            path=self.path,
+                            row=row + 1,
+                            field=f"/{OVERVIEW}/{name}",
+                            expected=f"every {step}-th row of /{GROUP}/{name}",
+                        )
+        return step
 
     def _open(self) -> Any:
         import h5py
@@ -255,8 +338,9 @@ class H5Reader:
         ----------
         thin : sequence of str
             Columns (also listed in ``names``) returned only at the rows whose index (0-based, from
-            the start of the file) is a multiple of ``step`` (an HDF5 strided selection: only those
-            values are copied and checked).
+            the start of the file) is a multiple of ``step``: from ``/overview`` when the file has one
+            whose step divides ``step`` (a few values per chunk), otherwise an HDF5 strided selection
+            (only those values are copied and checked, but every chunk of the column is touched).
         reuse : bool
             Read the full-rate columns into buffers that are reused from one chunk to the next
             (``Dataset.read_direct``: no allocation per chunk).  The arrays yielded are then valid
@@ -274,7 +358,13 @@ class H5Reader:
             return
         with self._open() as f:
             group = f[GROUP]
-            gathers = {c.name: _ThinColumn(group[c.name], self.path) for c in columns if c.name in thin_set}
+            gathers: dict[str, _ThinColumn | _OverviewColumn] = {}
+            for c in columns:
+                if c.name in thin_set:
+                    if self.overview_step and step % self.overview_step == 0 and c.dtype != "str":
+                        gathers[c.name] = _OverviewColumn(f[OVERVIEW][c.name], self.overview_step, self.path)
+                    else:
+                        gathers[c.name] = _ThinColumn(group[c.name], self.path)
             buffers: dict[str, Any] = {}
             datasets = {c.name: group[c.name] for c in columns if reuse and c.dtype != "str" and c.name not in gathers}  # looked up once
             try:
@@ -354,6 +444,39 @@ class _ThinColumn:
                 path=self.path,
                 field=self.dataset.name,
             ) from None
+
+
+class _OverviewColumn:
+    """Rows that are multiples of ``step`` of one column, from its ``/overview`` copy (read a window at a time)."""
+
+    def __init__(self, dataset: Any, view_step: int, path: str) -> None:
+        self.dataset = dataset
+        self.view_step = view_step
+        self.path = path
+        self.window_start = 0
+        self.window: Any = None
+
+    def take(self, first: int, stop: int, step: int) -> Any:
+        """Values at rows ``first, first + step, ... < stop`` (``first`` and ``step`` multiples of the overview step)."""
+        import numpy as np
+
+        if first >= stop:
+            return np.zeros(0, dtype=self.dataset.dtype)
+        a = first // self.view_step
+        b = (stop - 1) // self.view_step + 1
+        stride = step // self.view_step
+        if self.window is None or a < self.window_start or b > self.window_start + self.window.size:
+            end = min(self.dataset.shape[0], max(b, a + OVERVIEW_WINDOW))
+            try:
+                self.window = self.dataset[a:end]
+            except (OSError, RuntimeError) as error:
+                raise InputError(
+                    f"overview rows {a + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",
+                    path=self.path,
+                    field=self.dataset.name,
+                ) from None
+            self.window_start = a
+        return self.window[a - self.window_start : b - self.window_start : stride].copy()
 
 
 def _unit_attr(dataset: Any) -> str | None:

@@ -22,6 +22,9 @@ from stableins.data.schema import SYSTEM_COLUMNS
 from stableins.data.validation import check_finite, check_increasing
 
 DEFAULT_CHUNK = 65536
+#: HDF5 system records carry an ``/overview`` of every column at this period [s] (one row per second): the system
+#: stage reads attitude, velocity and gimbal angles at 1 Hz from it (docs/formats.md).
+OVERVIEW_SECONDS = 1.0
 NAMES = tuple(c.name for c in SYSTEM_COLUMNS)
 
 
@@ -81,7 +84,8 @@ class SystemRecordWriter:
         if self.kind == "h5":
             from stableins.data.hdf5format import H5Writer
 
-            self._inner = H5Writer(self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression)
+            step = int(round(self.metadata.sample_rate * OVERVIEW_SECONDS)) if self.metadata.sample_rate else 0
+            self._inner = H5Writer(self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression, overview_step=step)
             self._inner.__enter__()
         else:
             from stableins.data.atomic import atomic_write
@@ -348,6 +352,10 @@ class SystemRecord:
         if not chunks:
             return {n: np.zeros(0) for n in names}
         return {n: np.concatenate([c[n] for c in chunks]) for n in names}
+
+    def verify_overview(self) -> int:
+        """HDF5: check the ``/overview`` rows against the full-rate columns; returns its step (0: none, or CSV)."""
+        return 0 if self._reader is None else int(self._reader.verify_overview())
 
     def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
         """Check the time column against the metadata rate (streaming).

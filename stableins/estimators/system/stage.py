@@ -46,6 +46,7 @@ from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
+from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
@@ -53,9 +54,6 @@ from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separa
 FAST_COLUMNS = ("time", "f_x", "f_y", "f_z")
 #: Read at the attitude decimation only (slowly varying outputs; docs/system-calibration.md §6).
 SLOW_COLUMNS = ("angle_platform", "pitch", "roll", "velocity_north", "velocity_east")
-
-#: Samples per sub-block of the z computation (its temporaries stay in the processor cache).
-Z_SUBBLOCK = 1 << 15
 
 #: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
 LEVEL_TOLERANCE = 1e-4
@@ -175,8 +173,6 @@ class _BlockHarmonics:
     """Block-Taylor accumulation of the harmonic information (see the module docstring)."""
 
     latitude: float
-    sense: float  # dS/d(reading) = −s1
-    offset: float  # S = sense·(reading + theta10)
     block: int
     order: int = 3  # highest harmonic of S in H
     trig_sums: NDArray[np.float64] = field(init=False)  # C_0..C_2m, S_0..S_2m
@@ -193,104 +189,19 @@ class _BlockHarmonics:
         """``(k, kind)`` of the H columns, kind 0 = cos, 1 = sin: 1, cos S, sin S, cos 2S, ..."""
         return [(0, 0)] + [(k, t) for k in range(1, self.order + 1) for t in (0, 1)]
 
-    def add(
-        self, angle: NDArray[np.float64], z: NDArray[np.float64]
+    def add_sums(
+        self, centre_angle: NDArray[np.float64], sums: NDArray[np.float64], sum_z2: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Accumulate; returns per-block ``(Σz, ΣH (nb, 2·order+1), n)`` for the filter bins."""
-        n = z.size
-        b = self.block
-        nb = n // b
-        outs = []
-        if nb:
-            outs.append(self._blocks(angle[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b)))
-        if n - nb * b:
-            outs.append(self._blocks(angle[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1)))
-        self.sum_z2 += float(np.einsum("i,i->", z, z))  # not BLAS: its threads stall on a loaded machine
-        self.count += n
-        zs = np.concatenate([o[0] for o in outs])
-        hs = np.concatenate([o[1] for o in outs])
-        counts = np.concatenate([o[2] for o in outs])
-        return zs, hs, counts
+        """Accumulate one chunk's per-block sums (:func:`.blocksums.block_sums`).
 
-    def add_timed(
-        self, time: NDArray[np.float64], z: NDArray[np.float64], centre_angle: NDArray[np.float64], uniform_period: float | None
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Accumulate with ``S = S_c + ω_ie (t − t̄)`` in each block (``t̄`` the block's mean time).
-
-        ``centre_angle`` is ``S`` at the block-mean times (one per block of ``block`` samples,
-        the last possibly partial).  The platform is inertially held, so within a block (2.6 s at
-        100 Hz) ``S`` advances at the Earth rate; the angle reading fixes ``S_c``.  With
-        ``uniform_period`` (steps within 1e-3 of it) the offsets ``t − t̄`` are the nominal grid
-        ``(j − (B−1)/2)·period`` (their sum over a block is zero either way) and the z moments are
-        one small matrix product per chunk; otherwise they are computed from the time stamps.
+        ``centre_angle`` is ``S`` at each block's mean time; within the block ``S = S_c + δ`` with
+        ``δ = ω_ie (t − t̄)`` (the platform is inertially held, so ``S`` advances at the Earth rate).
+        Returns per-block ``(Σz, ΣH (n_blocks, 2·order+1), n)`` for the filter bins.
         """
-        n = z.size
-        b = self.block
-        nb = n // b
-        outs = []
-        if nb and uniform_period is not None:
-            grid = EARTH_RATE * uniform_period * (np.arange(b) - 0.5 * (b - 1))
-            powers = np.stack([np.ones(b), grid, grid * grid, grid**3])
-            moments = np.einsum("ij,kj->ki", z[: nb * b].reshape(nb, b), powers)  # (4, nb); not BLAS (see docs §6)
-            sums = powers.sum(1)
-            outs.append(self._moments(centre_angle[:nb], float(b), sums[1], sums[2], sums[3], moments))
-        elif nb:
-            outs.append(self._from_time(time[: nb * b].reshape(nb, b), z[: nb * b].reshape(nb, b), centre_angle[:nb]))
-        if n - nb * b:
-            outs.append(self._from_time(time[nb * b :].reshape(1, -1), z[nb * b :].reshape(1, -1), centre_angle[nb:]))
-        self.sum_z2 += float(np.einsum("i,i->", z, z))
-        self.count += n
-        return tuple(np.concatenate([o[k] for o in outs]) for k in range(3))  # type: ignore[return-value]
-
-    def _from_time(self, time: NDArray[np.float64], z: NDArray[np.float64], s_c: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-        d = EARTH_RATE * (time - time.mean(axis=1, keepdims=True))
-        d2 = d * d
-        zd = z * d
-        moments = np.stack([z.sum(1), zd.sum(1), (zd * d).sum(1), (zd * d2).sum(1)])
-        return self._moments(s_c, float(d.shape[1]), d.sum(1), d2.sum(1), (d2 * d).sum(1), moments)
-
-    def _blocks(self, angle: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-        m = angle.shape[1]
-        centre = angle[:, m // 2]
-        d = angle - centre[:, None]
-        if np.abs(d).max() > 0.5:  # the reading wrapped inside a block
-            d = d - 2.0 * np.pi * np.round(d / (2.0 * np.pi))
-        sd = self.sense
-        d2 = d * d
-        d3 = d2 * d
-        zd = z * d
-        moments = np.stack([z.sum(1), zd.sum(1) * sd, (zd * d).sum(1), (zd * d2).sum(1) * sd])
-        return self._moments(sd * (centre + self.offset), float(m), d.sum(1) * sd, d2.sum(1), d3.sum(1) * sd, moments)
-
-    def _moments(
-        self, s_c: NDArray[np.float64], count: float, m1: Any, m2: Any, m3: Any, moments: NDArray[np.float64]
-    ) -> tuple[NDArray, NDArray, NDArray]:
-        """Block sums from ``S_c`` and the moments ``m_p = Σδ^p``, ``n_p = Σ z δ^p`` (δ in S units)."""
-        n0, n1, n2, n3 = moments
-        n_blocks = s_c.size
-        top = 2 * self.order
-        nk = top + 1
-        trig = np.zeros((n_blocks, 2 * nk))  # C_k, then S_k
-        trig[:, 0] = count
-        zk = np.zeros((n_blocks, 2 * (self.order + 1)))
-        zk[:, 0] = n0
-        for k in range(1, top + 1):
-            ck, sk = np.cos(k * s_c), np.sin(k * s_c)
-            # Σ cos k(S_c + δ) = cos kS_c Σ cos kδ − sin kS_c Σ sin kδ, third order in δ
-            even = count - 0.5 * k * k * m2
-            odd = k * m1 - k**3 * m3 / 6.0
-            trig[:, k] = ck * even - sk * odd
-            trig[:, nk + k] = sk * even + ck * odd
-            if k <= self.order:
-                zeven = n0 - 0.5 * k * k * n2
-                zodd = k * n1 - k**3 * n3 / 6.0
-                zk[:, k] = ck * zeven - sk * zodd
-                zk[:, self.order + 1 + k] = sk * zeven + ck * zodd
-        self.trig_sums += trig.sum(0)
-        self.z_sums += zk.sum(0)
-        a = math.cos(self.latitude)
-        h = np.stack([a**k * trig[:, k + t * nk] for k, t in self.columns], axis=1)
-        return zk[:, 0], h, np.full(n_blocks, count)
+        self.sum_z2 += float(sum_z2)
+        self.count += int(round(float(sums[:, 7].sum())))
+        h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, self.z_sums)
+        return sums[:, 0].copy(), h, sums[:, 7].copy()
 
     def accumulator(self) -> hm.InformationAccumulator:
         """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
@@ -354,43 +265,9 @@ class _Compensation:
         quadratic = np.array([known.get(f"K2_{a}", 0.0) for a in "xyz"])
         return cls(matrix, bias, quadratic)
 
-    def observation_into(self, fx: NDArray, fy: NDArray, fz: NDArray, gravity: float, out: NDArray, work: NDArray) -> None:
-        """``out = ½(|f^p|²/g² − 1)`` (the z of :mod:`.harmonics`) in sub-blocks, without temporaries.
-
-        ``work`` holds at least ``4·min(n, Z_SUBBLOCK)`` values.  Same arithmetic as
-        :meth:`squared_norm` (tested equal), with ``Q/(2g²)`` folded in.
-        """
-        q = np.einsum("ki,kj->ij", self.matrix, self.matrix) / (2.0 * gravity**2)
-        n = fx.size
-        quadratic = bool(np.any(self.quadratic))
-        for a in range(0, n, Z_SUBBLOCK):
-            b = min(a + Z_SUBBLOCK, n)
-            m = b - a
-            w0, w1, w2, tmp = (work[k * m : (k + 1) * m] for k in range(4))
-            o = out[a:b]
-            np.subtract(fx[a:b], self.bias[0], out=w0)
-            np.subtract(fy[a:b], self.bias[1], out=w1)
-            np.subtract(fz[a:b], self.bias[2], out=w2)
-            if quadratic:
-                for w, k2 in ((w0, self.quadratic[0]), (w1, self.quadratic[1]), (w2, self.quadratic[2])):
-                    np.multiply(w, w, out=tmp)
-                    tmp *= k2
-                    w -= tmp
-            np.multiply(w0, q[0, 0], out=o)
-            np.multiply(w1, 2.0 * q[0, 1], out=tmp)
-            o += tmp
-            np.multiply(w2, 2.0 * q[0, 2], out=tmp)
-            o += tmp
-            o *= w0  # w0 (q00 w0 + 2 q01 w1 + 2 q02 w2)
-            np.multiply(w1, q[1, 1], out=tmp)
-            np.multiply(w2, 2.0 * q[1, 2], out=w0)
-            tmp += w0
-            tmp *= w1
-            o += tmp  # + w1 (q11 w1 + 2 q12 w2)
-            np.multiply(w2, q[2, 2], out=tmp)
-            tmp *= w2
-            o += tmp
-            o -= 0.5
+    def packed(self, gravity: float) -> NDArray[np.float64]:
+        """The coefficients of the compiled per-sample pass (:func:`.blocksums.coefficients`)."""
+        return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
     def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
         """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
@@ -516,7 +393,9 @@ def run_system_stage(
     decimation = max(1, int(round(options.attitude_decimation_seconds * rate)))
     filter_samples = max(block, int(round(options.filter_block_seconds * rate / block)) * block)
 
-    accumulator = _BlockHarmonics(latitude, 1.0, 0.0, block) if general else _BlockHarmonics(latitude, sense, theta10, block)
+    accumulator = _BlockHarmonics(latitude, block)
+    packed = compensation.packed(gravity)
+    step_range = (0.99 / rate, 1.01 / rate)
     attitude_blocks: AttitudeBlocks | None = None
     noise_sums = np.zeros(3)
     noise_count = 0
@@ -526,8 +405,6 @@ def run_system_stage(
     seen = 0
     first_time = None
     thin = [c for c in columns if c not in FAST_COLUMNS]
-    z_buffer = np.empty(chunk_rows)
-    work = np.empty(4 * min(chunk_rows, Z_SUBBLOCK))
     knot_time: float | None = None  # last Earth-rate-angle knot of the previous chunk
     knot_angle = 0.0
     for chunk in source.iter_chunks(columns, rows=chunk_rows, thin=thin, step=decimation, reuse=True):
@@ -535,11 +412,13 @@ def run_system_stage(
         if n == 0:
             continue
         time = chunk["time"]
-        uniform = checks.time(time, seen)
+        fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
+        # the one pass over every sample: z and its per-block moments, block mean times, irregular steps
+        sums, block_time, sum_z2, irregular = block_sums(fx, fy, fz, time, packed, block, EARTH_RATE, step_range)
+        checks.time(time, seen, irregular)
         if first_time is None:
             first_time = float(time[0])
             attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
-        fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
         phase = (-seen) % decimation
         sel = slice(phase, None, decimation)
         t_d = time[sel]
@@ -552,13 +431,6 @@ def run_system_stage(
         s_knots = checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], chunk["velocity_east"])
         # S at each block's mean time: linear between the knots (1 s apart, S is smooth), the previous chunk's last knot
         # before the first and the Earth rate after the last (the platform is inertially held: dS/dt = ω_ie)
-        z = z_buffer[:n]
-        compensation.observation_into(fx, fy, fz, gravity, z, work)
-        nb_full = n // block
-        block_time = np.empty(nb_full + (1 if n % block else 0))
-        block_time[:nb_full] = time[: nb_full * block].reshape(nb_full, block).mean(axis=1)
-        if n % block:
-            block_time[-1] = time[nb_full * block :].mean()
         kt = t_d if knot_time is None else np.concatenate([[knot_time], t_d])
         ks = s_knots if knot_time is None else np.concatenate([[knot_angle], s_knots])
         kt = np.concatenate([kt, [time[-1] + 1.0]])
@@ -568,7 +440,7 @@ def run_system_stage(
             ks = np.concatenate([[ks[0] - EARTH_RATE * (kt[1] - time[0])], ks])
         centre_angle = np.interp(block_time, kt, ks)
         knot_time, knot_angle = float(t_d[-1]), float(s_knots[-1])
-        zs, hs, counts = accumulator.add_timed(time, z, centre_angle, 1.0 / rate if uniform else None)
+        zs, hs, counts = accumulator.add_sums(centre_angle, sums, sum_z2)
         # filter bins by global sample index
         starts = seen + np.arange(len(counts)) * block
         bins = starts // filter_samples
@@ -1175,20 +1047,16 @@ class _StaticChecks:
         self.duration = 0.0
         self.polar_sums = np.zeros(2)
         self.latitude = 0.0
-        self.step_buffer = np.empty(0)
 
-    def time(self, t: NDArray[np.float64], seen: int) -> bool:
-        """Sampling checks of one chunk; returns whether its steps are within 1e-3 of the nominal period."""
-        # one diff and two reductions for a uniform chunk; the detailed pass only when something is off
-        if self.step_buffer.size < t.size - 1:
-            self.step_buffer = np.empty(t.size - 1)
-        step = np.subtract(t[1:], t[:-1], out=self.step_buffer[: max(t.size - 1, 0)])
-        lo, hi = (float(step.min()), float(step.max())) if step.size else (self.period, self.period)
+    def time(self, t: NDArray[np.float64], seen: int, irregular: int) -> None:
+        """Sampling checks of one chunk; ``irregular`` counts its steps off the nominal period by more than 1 %.
+
+        Only a chunk with such steps (or an irregular step from the previous chunk) is examined step by step.
+        """
         if self.last_time is not None and t.size:  # the step across the chunk boundary
             across = float(t[0] - self.last_time)
-            lo, hi = min(lo, across), max(hi, across)
-        uniform = 0.999 * self.period <= lo and hi <= 1.001 * self.period
-        if not (0.99 * self.period <= lo and hi <= 1.01 * self.period):
+            irregular += not (0.99 * self.period <= across <= 1.01 * self.period)
+        if irregular:
             bad = ~np.isfinite(t)
             if bad.any():
                 k = int(np.argmax(bad))
@@ -1212,7 +1080,6 @@ class _StaticChecks:
         if self.first_time is None:
             self.first_time = float(t[0])
         self.last_time = float(t[-1])
-        return uniform
 
     def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> NDArray[np.float64]:
         """Static-base checks on the decimated samples; returns the Earth-rate angle unwrapped across chunks."""
