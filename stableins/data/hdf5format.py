@@ -9,6 +9,12 @@ Layout::
                            (rows 0, step, 2·step, ...), written with the columns by the same writer, so
                            readers wanting slowly varying columns at a low rate read these few values
                            instead of touching every chunk of the full-rate column.
+    /time_grid             optional, (n, 3) float64 rows (first_row, first_time, period), attrs: tolerance.
+                           Segments of the time column: rows first_row .. (next first_row − 1) have
+                           time = first_time + (row − first_row)·period within ``tolerance`` seconds.
+                           Written by the writer from the values it writes (at most MAX_SEGMENTS; a time
+                           column with more irregular steps gets none), so readers can reconstruct
+                           uniformly sampled stretches instead of reading the column.
 
 Written through a temporary file renamed on success (:mod:`stableins.data.atomic`), in
 chunks, so a day-long record never has to be in memory and a crash never leaves a
@@ -28,8 +34,13 @@ from stableins.data.validation import FORMAT_TAGS, check_finite, check_header_do
 
 GROUP = "columns"
 OVERVIEW = "overview"
+TIME_GRID = "time_grid"
+#: /time_grid reproduces the time column within this fraction of the period.
+TIME_GRID_TOLERANCE = 1e-6
 STRING_DTYPE = "S16"
 DEFAULT_CHUNK = 65536
+#: A time column needing more segments than this gets no /time_grid (readers then read the column).
+MAX_SEGMENTS = 4096
 #: Values of an overview column read at a time (a window reused across chunks: few HDF5 calls).
 OVERVIEW_WINDOW = 1 << 16
 
@@ -50,6 +61,7 @@ class H5Writer:
         chunk_samples: int = DEFAULT_CHUNK,
         compression: str | None = None,
         overview_step: int = 0,
+        time_period: float | None = None,
     ) -> None:
         self.path = str(path)
         self.kind = kind
@@ -58,6 +70,8 @@ class H5Writer:
         self.chunk_samples = int(chunk_samples)
         self.compression = compression
         self.overview_step = int(overview_step) if overview_step and overview_step >= 2 else 0
+        self.time_period = float(time_period) if time_period else None
+        self._segments: list[tuple[int, float]] | None = [] if self.time_period else None
         self.rows = 0
         self._buffer: list[Mapping[str, Any]] = []
         self._buffered = 0
@@ -148,6 +162,8 @@ class H5Writer:
             d = self._datasets[c.name]
             d.resize((self.rows + n,))
             d[self.rows :] = values
+            if c.name == "time" and self._segments is not None:
+                self._track_segments(np.asarray(values, dtype=float))
             view = self._overview.get(c.name)
             if view is not None:  # rows self.rows .. self.rows+n−1 that are multiples of the step
                 picked = values[(-self.rows) % self.overview_step :: self.overview_step]
@@ -159,12 +175,39 @@ class H5Writer:
         self._buffered -= n
         self._buffer[:] = [rest] if self._buffered else []
 
+    def _track_segments(self, values: Any) -> None:
+        """Extend the uniform segments of the time column by rows ``self.rows ..`` (values of this flush)."""
+        import numpy as np
+
+        period = self.time_period
+        segments = self._segments
+        tolerance = TIME_GRID_TOLERANCE * period
+        position = 0
+        while segments is not None and position < values.size:
+            if not segments:
+                segments.append((self.rows + position, float(values[position])))
+            first_row, first_time = segments[-1]
+            rows = self.rows + position + np.arange(values.size - position)
+            off = np.abs(values[position:] - (first_time + (rows - first_row) * period)) > tolerance
+            if not off.any():
+                break
+            position += int(np.argmax(off))
+            segments.append((self.rows + position, float(values[position])))
+            if len(segments) > MAX_SEGMENTS:
+                segments = None
+        self._segments = segments
+
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is not None:
             self._abort(exc)
             return
         try:
             self._flush(final=True)
+            if self._segments:
+                grid = self._file.create_dataset(
+                    TIME_GRID, data=[(row, time, self.time_period) for row, time in self._segments], dtype="f8"
+                )
+                grid.attrs["tolerance"] = TIME_GRID_TOLERANCE * self.time_period
             self._file.attrs["rows"] = self.rows
             self._file.attrs["complete"] = True
             self._file.close()
@@ -232,6 +275,22 @@ class H5Reader:
                 if c.dtype != "str" and not np.issubdtype(d.dtype, np.number):
                     raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="a numeric dataset")
             self.overview_step = self._overview_step(f)
+            self.time_grid = self._time_grid(f)
+
+    def _time_grid(self, f: Any) -> Any:
+        """The ``/time_grid`` segments ``(n, 3)`` if present and consistent with the file, else None."""
+        import numpy as np
+
+        d = f.get(TIME_GRID)
+        if d is None or "time" not in {c.name for c in self.schema}:
+            return None
+        grid = np.asarray(d[()], dtype=float)
+        if grid.ndim != 2 or grid.shape[1] != 3 or grid.shape[0] == 0 or not np.isfinite(grid).all():
+            return None
+        rows = grid[:, 0]
+        if rows[0] != 0 or not (np.diff(rows) > 0).all() or rows[-1] >= max(self.rows, 1) or not (grid[:, 2] > 0).all():
+            return None
+        return grid
 
     def _overview_step(self, f: Any) -> int:
         """Step of a usable ``/overview`` group (0: none, or not matching the columns: the full columns are read instead)."""
@@ -252,6 +311,44 @@ class H5Reader:
             if d is None or d.ndim != 1 or d.shape[0] != expected:
                 return 0
         return step
+
+    def grid_time(self, start: int, stop: int) -> Any:
+        """Time of rows ``start:stop`` from ``/time_grid`` (requires one)."""
+        import numpy as np
+
+        grid = self.time_grid
+        rows = np.arange(start, stop)
+        k = np.searchsorted(grid[:, 0], rows, side="right") - 1
+        return grid[k, 1] + (rows - grid[k, 0]) * grid[k, 2]
+
+    def verify_time_grid(self, rows: int = DEFAULT_CHUNK) -> bool:
+        """Check ``/time_grid`` against the time column (streaming); returns whether the file has one.
+
+        Raises
+        ------
+        InputError
+            A time value differs from its segment by more than the tolerance (the file was changed after it was written).
+        """
+        import numpy as np
+
+        if self.time_grid is None:
+            return False
+        tolerance = TIME_GRID_TOLERANCE * float(self.time_grid[:, 2].min())
+        with self._open() as f:
+            for k in range(0, self.rows, rows):
+                stop = min(k + rows, self.rows)
+                time = self._read(f, ["time"], k, stop)["time"]
+                bad = np.flatnonzero(np.abs(time - self.grid_time(k, stop)) > tolerance)
+                if bad.size:
+                    raise InputError(
+                        f"time {float(time[bad[0]])!r} is not on the time grid written with the file "
+                        f"({float(self.grid_time(k + int(bad[0]), k + int(bad[0]) + 1)[0])!r}); the file was changed after it was written",
+                        path=self.path,
+                        row=k + int(bad[0]) + 1,
+                        field=f"/{TIME_GRID}",
+                        expected=f"the time column within {tolerance:.3g} s of its segments",
+                    )
+        return True
 
     def verify_overview(self, rows: int = DEFAULT_CHUNK) -> int:
         """Check ``/overview`` against the full-rate columns (streaming); returns its step (0: none).
@@ -331,6 +428,7 @@ class H5Reader:
         thin: Sequence[str] = (),
         step: int = 1,
         reuse: bool = False,
+        unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]:
         """Yield validated dicts of ``rows`` rows at a time (bounded memory).
 
@@ -351,6 +449,7 @@ class H5Reader:
         stop = self.rows if stop is None else min(stop, self.rows)
         columns = self._columns(names)
         thin_set = set(thin)
+        unchecked_set = set(unchecked)
         if not thin_set and not reuse:
             with self._open() as f:
                 for k in range(start, stop, rows):
@@ -399,7 +498,8 @@ class H5Reader:
                                     path=self.path,
                                     field=c.name,
                                 ) from None
-                            check_finite(c.name, values, self.path, first_row=k + 1)
+                            if c.name not in unchecked_set:
+                                check_finite(c.name, values, self.path, first_row=k + 1)
                         else:
                             values = self._read(f, [c.name], k, end)[c.name]
                         out[c.name] = values

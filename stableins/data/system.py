@@ -85,7 +85,10 @@ class SystemRecordWriter:
             from stableins.data.hdf5format import H5Writer
 
             step = int(round(self.metadata.sample_rate * OVERVIEW_SECONDS)) if self.metadata.sample_rate else 0
-            self._inner = H5Writer(self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression, overview_step=step)
+            period = 1.0 / self.metadata.sample_rate if self.metadata.sample_rate else None
+            self._inner = H5Writer(
+                self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression, overview_step=step, time_period=period
+            )
             self._inner.__enter__()
         else:
             from stableins.data.atomic import atomic_write
@@ -306,6 +309,7 @@ class SystemRecord:
         thin: Sequence[str] = (),
         step: int = 1,
         reuse: bool = False,
+        unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]:
         """Yield dicts ``{column: ndarray}`` of up to ``rows`` rows, in order, each checked for NaN/inf.
 
@@ -324,6 +328,8 @@ class SystemRecord:
         reuse : bool
             HDF5: read the other columns into buffers reused from chunk to chunk; the arrays are
             valid only until the next chunk is requested (for one-pass consumers).
+        unchecked : sequence of str
+            HDF5 with ``reuse``: full-rate columns the caller checks for NaN/inf in its own pass (naming the row).
         """
         names = list(NAMES if columns is None else columns)
         unknown = [n for n in names if n not in NAMES]
@@ -341,7 +347,7 @@ class SystemRecord:
                     first += len(chunk["time"])
                     yield {n: chunk[n][phase::step] if n in thin else chunk[n] for n in names}
         else:
-            yield from self._reader.iter_chunks(names, rows, thin=thin, step=step, reuse=reuse)
+            yield from self._reader.iter_chunks(names, rows, thin=thin, step=step, reuse=reuse, unchecked=unchecked)
 
     def read(self, columns: Sequence[str] | None = None) -> dict[str, Any]:
         """Whole columns at once (for short records or a few columns)."""
@@ -356,6 +362,19 @@ class SystemRecord:
     def verify_overview(self) -> int:
         """HDF5: check the ``/overview`` rows against the full-rate columns; returns its step (0: none, or CSV)."""
         return 0 if self._reader is None else int(self._reader.verify_overview())
+
+    @property
+    def time_grid(self) -> Any:
+        """HDF5: the uniform segments of the time column, ``(n, 3)`` rows (first_row, first_time, period), or None."""
+        return None if self._reader is None else self._reader.time_grid
+
+    def grid_time(self, start: int, stop: int) -> Any:
+        """Time of rows ``start:stop`` from :attr:`time_grid` (which must exist)."""
+        return self._reader.grid_time(start, stop)
+
+    def verify_time_grid(self) -> bool:
+        """HDF5: check :attr:`time_grid` against the time column; returns whether the file has one."""
+        return False if self._reader is None else bool(self._reader.verify_time_grid())
 
     def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
         """Check the time column against the metadata rate (streaming).

@@ -22,7 +22,8 @@ the harmonic information by a third-order expansion of :math:`\cos k(S_c + \delt
 :mod:`.stage`).  Exact time stamps are used, so jittered sampling needs no second path.
 
 The pass is compiled with numba: one loop over the samples with eight running sums, which LLVM vectorizes
-when allowed to reassociate them (``fastmath``; the inputs are finite, checked by the readers).  A numpy
+when allowed to reassociate them (:data:`FASTMATH`; NaN and inf still propagate, so a non-finite input shows
+in :math:`\sum z^2`).  A numpy
 pass needs about fifteen array operations per sample and cost 5-6 ns/sample; this one costs about
 0.6 ns/sample, below the cost of reading the samples from a file (``benchmarks/bench_system_stream.py``).
 :func:`block_sums_reference` is the numpy reference it is tested against.
@@ -39,6 +40,9 @@ from numpy.typing import NDArray
 SUM_COLUMNS = ("n0", "n1", "n2", "n3", "m1", "m2", "m3", "count")
 
 _KERNEL: Any = None
+#: LLVM may reassociate sums (so it vectorizes them), but NaN and ±inf keep their meaning: a non-finite input
+#: makes Σz² non-finite, which is how the stage detects one without a separate pass.
+FASTMATH = {"reassoc", "nsz", "arcp", "contract", "afn"}
 
 
 def coefficients(
@@ -49,107 +53,119 @@ def coefficients(
     return np.array([*bias, q[0, 0], 2 * q[0, 1], 2 * q[0, 2], q[1, 1], 2 * q[1, 2], q[2, 2], *quadratic], dtype=float)
 
 
-def _kernel() -> Any:
-    """Compile (once per process; cached on disk by numba) and return the per-block pass."""
-    global _KERNEL
-    if _KERNEL is not None:
-        return _KERNEL
-    from numba import njit
+# The compiled functions are written at module level (numba's disk cache keys on the qualified name and source)
+# and compiled on first use, so importing this module does not import numba.
+def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
+    b0, b1, b2 = p[0], p[1], p[2]
+    q00, q01, q02, q11, q12, q22 = p[3], p[4], p[5], p[6], p[7], p[8]
+    k0, k1, k2 = p[9], p[10], p[11]
+    m = fx.size
+    s = t[0]
+    irregular = 0.0
+    for j in range(1, m):
+        s += t[j]
+        step = t[j] - t[j - 1]
+        irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
+    centre = s / m
+    n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
+    for j in range(m):
+        d = omega * (t[j] - centre)
+        w0 = fx[j] - b0
+        w1 = fy[j] - b1
+        w2 = fz[j] - b2
+        w0 -= k0 * w0 * w0
+        w1 -= k1 * w1 * w1
+        w2 -= k2 * w2 * w2
+        z = w0 * (q00 * w0 + q01 * w1 + q02 * w2) + w1 * (q11 * w1 + q12 * w2) + q22 * w2 * w2 - 0.5
+        zd = z * d
+        dd = d * d
+        n0 += z
+        n1 += zd
+        n2 += zd * d
+        n3 += zd * dd
+        m1 += d
+        m2 += dd
+        m3 += dd * d
+        zz += z * z
+    return centre, n0, n1, n2, n3, m1, m2, m3, zz, irregular
 
-    @njit(fastmath=True, inline="always")
-    def one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
-        b0, b1, b2 = p[0], p[1], p[2]
-        q00, q01, q02, q11, q12, q22 = p[3], p[4], p[5], p[6], p[7], p[8]
-        k0, k1, k2 = p[9], p[10], p[11]
-        m = fx.size
-        s = t[0]
-        irregular = 0.0
-        for j in range(1, m):
-            s += t[j]
-            step = t[j] - t[j - 1]
+
+def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, step_high, out, centres):
+    n = fx.size
+    n_blocks = (n + block - 1) // block
+    total = 0.0
+    irregular = 0.0
+    uniform = period > 0.0  # t is not given: t_j = start_time + j·period, generated a block at a time (in cache)
+    scratch = np.empty(block)
+    for b in range(n_blocks):
+        a = b * block
+        e = min(a + block, n)
+        if uniform:
+            for j in range(e - a):
+                scratch[j] = start_time + (a + j) * period
+            times = scratch[: e - a]
+        else:
+            times = t[a:e]
+        centre, n0, n1, n2, n3, m1, m2, m3, zz, block_irregular = _one_block(
+            fx[a:e], fy[a:e], fz[a:e], times, omega, p, step_low, step_high
+        )
+        irregular += block_irregular
+        if a > 0 and not uniform:
+            step = t[a] - t[a - 1]
             irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
-        centre = s / m
-        n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
-        for j in range(m):
-            d = omega * (t[j] - centre)
-            w0 = fx[j] - b0
-            w1 = fy[j] - b1
-            w2 = fz[j] - b2
-            w0 -= k0 * w0 * w0
-            w1 -= k1 * w1 * w1
-            w2 -= k2 * w2 * w2
-            z = w0 * (q00 * w0 + q01 * w1 + q02 * w2) + w1 * (q11 * w1 + q12 * w2) + q22 * w2 * w2 - 0.5
-            zd = z * d
-            dd = d * d
-            n0 += z
-            n1 += zd
-            n2 += zd * d
-            n3 += zd * dd
-            m1 += d
-            m2 += dd
-            m3 += dd * d
-            zz += z * z
-        return centre, n0, n1, n2, n3, m1, m2, m3, zz, irregular
+        centres[b] = centre
+        out[b, 0] = n0
+        out[b, 1] = n1
+        out[b, 2] = n2
+        out[b, 3] = n3
+        out[b, 4] = m1
+        out[b, 5] = m2
+        out[b, 6] = m3
+        out[b, 7] = e - a
+        total += zz
+    return total, irregular
 
-    @njit(fastmath=True, cache=True)
-    def block_pass(fx, fy, fz, t, omega, p, block, step_low, step_high, out, centres):
-        n = fx.size
-        n_blocks = (n + block - 1) // block
-        total = 0.0
-        irregular = 0.0
-        for b in range(n_blocks):
-            a = b * block
-            e = min(a + block, n)
-            centre, n0, n1, n2, n3, m1, m2, m3, zz, block_irregular = one_block(
-                fx[a:e], fy[a:e], fz[a:e], t[a:e], omega, p, step_low, step_high
-            )
-            irregular += block_irregular
-            if a > 0:
-                step = t[a] - t[a - 1]
-                irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
-            centres[b] = centre
-            out[b, 0] = n0
-            out[b, 1] = n1
-            out[b, 2] = n2
-            out[b, 3] = n3
-            out[b, 4] = m1
-            out[b, 5] = m2
-            out[b, 6] = m3
-            out[b, 7] = e - a
-            total += zz
-        return total, irregular
 
-    @njit(cache=True)
-    def harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):
-        nk = 2 * order + 1
-        for b in range(centre_angle.size):
-            n0, n1, n2, n3 = sums[b, 0], sums[b, 1], sums[b, 2], sums[b, 3]
-            m1, m2, m3, count = sums[b, 4], sums[b, 5], sums[b, 6], sums[b, 7]
-            c1 = np.cos(centre_angle[b])
-            s1 = np.sin(centre_angle[b])
-            ck, sk = 1.0, 0.0
-            trig_sums[0] += count
-            z_sums[0] += n0
-            h[b, 0] = count
-            weight = 1.0
-            for k in range(1, nk):
-                ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1  # cos kS_c, sin kS_c by the angle-sum recurrence
-                even = count - 0.5 * k * k * m2
-                odd = k * m1 - k * k * k * m3 / 6.0
-                cos_sum = ck * even - sk * odd
-                sin_sum = sk * even + ck * odd
-                trig_sums[k] += cos_sum
-                trig_sums[nk + k] += sin_sum
-                if k <= order:
-                    weight *= cos_latitude
-                    h[b, 2 * k - 1] = weight * cos_sum
-                    h[b, 2 * k] = weight * sin_sum
-                    zeven = n0 - 0.5 * k * k * n2
-                    zodd = k * n1 - k * k * k * n3 / 6.0
-                    z_sums[k] += ck * zeven - sk * zodd
-                    z_sums[order + 1 + k] += sk * zeven + ck * zodd
+def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):
+    nk = 2 * order + 1
+    for b in range(centre_angle.size):
+        n0, n1, n2, n3 = sums[b, 0], sums[b, 1], sums[b, 2], sums[b, 3]
+        m1, m2, m3, count = sums[b, 4], sums[b, 5], sums[b, 6], sums[b, 7]
+        c1 = np.cos(centre_angle[b])
+        s1 = np.sin(centre_angle[b])
+        ck, sk = 1.0, 0.0
+        trig_sums[0] += count
+        z_sums[0] += n0
+        h[b, 0] = count
+        weight = 1.0
+        for k in range(1, nk):
+            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1  # cos kS_c, sin kS_c by the angle-sum recurrence
+            even = count - 0.5 * k * k * m2
+            odd = k * m1 - k * k * k * m3 / 6.0
+            cos_sum = ck * even - sk * odd
+            sin_sum = sk * even + ck * odd
+            trig_sums[k] += cos_sum
+            trig_sums[nk + k] += sin_sum
+            if k <= order:
+                weight *= cos_latitude
+                h[b, 2 * k - 1] = weight * cos_sum
+                h[b, 2 * k] = weight * sin_sum
+                zeven = n0 - 0.5 * k * k * n2
+                zodd = k * n1 - k * k * k * n3 / 6.0
+                z_sums[k] += ck * zeven - sk * zodd
+                z_sums[order + 1 + k] += sk * zeven + ck * zodd
 
-    _KERNEL = (block_pass, harmonic_pass)
+
+def _kernel() -> Any:
+    """Compile once per process (numba caches the machine code on disk) and return the two passes."""
+    global _KERNEL, _one_block, _block_pass, _harmonic_pass
+    if _KERNEL is None:
+        from numba import njit
+
+        _one_block = njit(fastmath=FASTMATH, inline="always", cache=True)(_one_block)
+        _block_pass = njit(fastmath=FASTMATH, cache=True)(_block_pass)
+        _harmonic_pass = njit(cache=True)(_harmonic_pass)
+        _KERNEL = (_block_pass, _harmonic_pass)
     return _KERNEL
 
 
@@ -157,11 +173,12 @@ def block_sums(
     fx: NDArray[np.float64],
     fy: NDArray[np.float64],
     fz: NDArray[np.float64],
-    time: NDArray[np.float64],
+    time: NDArray[np.float64] | None,
     packed: NDArray[np.float64],
     block: int,
     omega: float,
     step_range: tuple[float, float],
+    grid: tuple[float, float] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
     """Per-block sums of one chunk (compiled pass).
 
@@ -169,8 +186,8 @@ def block_sums(
     ----------
     fx, fy, fz : ndarray (n,)
         Raw accelerometer outputs [m/s²] (finite).
-    time : ndarray (n,)
-        Time stamps [s].
+    time : ndarray (n,) or None
+        Time stamps [s]; None with ``grid``.
     packed : ndarray (12,)
         :func:`coefficients` of the installed calibration.
     block : int
@@ -179,6 +196,8 @@ def block_sums(
         Rate of the Earth-rate angle [rad/s].
     step_range : (float, float)
         Accepted time steps ``[low, high]`` [s]; steps outside are counted.
+    grid : (float, float), optional
+        ``(t_0, period)``: uniformly sampled chunk, ``t_j = t_0 + j·period`` (the stamps are not read).
 
     Returns
     -------
@@ -195,11 +214,14 @@ def block_sums(
     n_blocks = -(-n // block)
     sums = np.empty((n_blocks, len(SUM_COLUMNS)))
     centres = np.empty(n_blocks)
+    start_time, period = (0.0, 0.0) if grid is None else (float(grid[0]), float(grid[1]))
     total, irregular = _kernel()[0](
         np.ascontiguousarray(fx, dtype=float),
         np.ascontiguousarray(fy, dtype=float),
         np.ascontiguousarray(fz, dtype=float),
-        np.ascontiguousarray(time, dtype=float),
+        np.zeros(0) if grid is not None else np.ascontiguousarray(time, dtype=float),
+        start_time,
+        period,
         float(omega),
         np.ascontiguousarray(packed, dtype=float),
         int(block),

@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
+from stableins.data.validation import check_finite
 from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
@@ -50,8 +51,11 @@ from stableins.estimators.system.blocksums import block_sums, coefficients, harm
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
-#: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks.
+#: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
+#: (HDF5 records with a /time_grid: time only at the attitude decimation, the rest reconstructed).
 FAST_COLUMNS = ("time", "f_x", "f_y", "f_z")
+#: Checked for NaN/inf by the stage's own pass (a non-finite force makes Σz² non-finite), not by the reader.
+FORCE_COLUMNS = ("f_x", "f_y", "f_z")
 #: Read at the attitude decimation only (slowly varying outputs; docs/system-calibration.md §6).
 SLOW_COLUMNS = ("angle_platform", "pitch", "roll", "velocity_north", "velocity_east")
 
@@ -68,7 +72,14 @@ class ChunkSource(Protocol):
     path: str
 
     def iter_chunks(
-        self, columns: Sequence[str] | None = None, rows: int = ..., *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+        self,
+        columns: Sequence[str] | None = None,
+        rows: int = ...,
+        *,
+        thin: Sequence[str] = (),
+        step: int = 1,
+        reuse: bool = False,
+        unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]: ...
 
 
@@ -80,9 +91,16 @@ class ArraySource:
     path: str = "<arrays>"
 
     def iter_chunks(
-        self, columns: Sequence[str] | None = None, rows: int = 1 << 16, *, thin: Sequence[str] = (), step: int = 1, reuse: bool = False
+        self,
+        columns: Sequence[str] | None = None,
+        rows: int = 1 << 16,
+        *,
+        thin: Sequence[str] = (),
+        step: int = 1,
+        reuse: bool = False,
+        unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]:
-        """Same contract as :meth:`stableins.data.system.SystemRecord.iter_chunks` (``reuse`` has no effect)."""
+        """Same contract as :meth:`stableins.data.system.SystemRecord.iter_chunks` (``reuse``, ``unchecked`` have no effect)."""
         names = list(self.columns if columns is None else columns)
         for name in names:
             if name not in self.columns:
@@ -405,23 +423,41 @@ def run_system_stage(
     seen = 0
     first_time = None
     thin = [c for c in columns if c not in FAST_COLUMNS]
+    # an HDF5 record's /time_grid: uniformly sampled stretches are reconstructed, not read (time then comes at 1 Hz only)
+    grid = getattr(source, "time_grid", None)
+    if grid is not None:
+        thin.append("time")
     knot_time: float | None = None  # last Earth-rate-angle knot of the previous chunk
     knot_angle = 0.0
-    for chunk in source.iter_chunks(columns, rows=chunk_rows, thin=thin, step=decimation, reuse=True):
+    for chunk in source.iter_chunks(columns, rows=chunk_rows, thin=thin, step=decimation, reuse=True, unchecked=FORCE_COLUMNS):
         n = len(chunk["f_x"])
         if n == 0:
             continue
-        time = chunk["time"]
         fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
-        # the one pass over every sample: z and its per-block moments, block mean times, irregular steps
-        sums, block_time, sum_z2, irregular = block_sums(fx, fy, fz, time, packed, block, EARTH_RATE, step_range)
-        checks.time(time, seen, irregular)
-        if first_time is None:
-            first_time = float(time[0])
-            attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
         phase = (-seen) % decimation
-        sel = slice(phase, None, decimation)
-        t_d = time[sel]
+        uniform = None
+        if grid is None:
+            time = chunk["time"]
+            t_d = time[phase::decimation]
+        else:
+            t_d = chunk["time"]
+            k = int(np.searchsorted(grid[:, 0], seen, side="right")) - 1
+            inside = (k + 1 == len(grid) or seen + n <= grid[k + 1, 0]) and (seen == 0 or grid[k, 0] < seen)
+            if inside:  # one segment, not starting at this chunk: t = t_0 + j·period
+                uniform = (float(grid[k, 1] + (seen - grid[k, 0]) * grid[k, 2]), float(grid[k, 2]))
+                time = None
+            else:  # a segment boundary (gap or irregular steps) in this chunk: the stamps from the grid
+                time = source.grid_time(seen, seen + n)
+        # the one pass over every sample: z and its per-block moments, block mean times, irregular steps
+        sums, block_time, sum_z2, irregular = block_sums(fx, fy, fz, time, packed, block, EARTH_RATE, step_range, grid=uniform)
+        if not (math.isfinite(sum_z2) and np.isfinite(sums[:, 0]).all()):  # a NaN or ±inf force propagates into Σz²
+            for name, values in zip(FORCE_COLUMNS, (fx, fy, fz), strict=True):
+                check_finite(name, values, path, first_row=seen + 1)
+        span = (float(time[0]), float(time[-1])) if uniform is None else (uniform[0], uniform[0] + (n - 1) * uniform[1])
+        checks.time(time, span, seen, irregular)
+        if first_time is None:
+            first_time = span[0]
+            attitude_blocks = AttitudeBlocks(options.attitude_block_seconds, first_time)
         if general:
             s_d = _earth_angle_from_kinematics(chunk, slice(None), offsets, nav_to_body, config)
         else:
@@ -433,11 +469,11 @@ def run_system_stage(
         # before the first and the Earth rate after the last (the platform is inertially held: dS/dt = ω_ie)
         kt = t_d if knot_time is None else np.concatenate([[knot_time], t_d])
         ks = s_knots if knot_time is None else np.concatenate([[knot_angle], s_knots])
-        kt = np.concatenate([kt, [time[-1] + 1.0]])
-        ks = np.concatenate([ks, [ks[-1] + EARTH_RATE * (time[-1] + 1.0 - kt[-2])]])
-        if kt[0] > time[0]:  # no knot yet before the first block (first chunk starts at a knot; kept for safety)
-            kt = np.concatenate([[time[0]], kt])
-            ks = np.concatenate([[ks[0] - EARTH_RATE * (kt[1] - time[0])], ks])
+        kt = np.concatenate([kt, [span[1] + 1.0]])
+        ks = np.concatenate([ks, [ks[-1] + EARTH_RATE * (span[1] + 1.0 - kt[-2])]])
+        if kt[0] > span[0]:  # no knot yet before the first block (first chunk starts at a knot; kept for safety)
+            kt = np.concatenate([[span[0]], kt])
+            ks = np.concatenate([[ks[0] - EARTH_RATE * (kt[1] - span[0])], ks])
         centre_angle = np.interp(block_time, kt, ks)
         knot_time, knot_angle = float(t_d[-1]), float(s_knots[-1])
         zs, hs, counts = accumulator.add_sums(centre_angle, sums, sum_z2)
@@ -644,7 +680,7 @@ def run_system_stage(
         "duration": duration,
         "samples": seen,
         "block_length": block,
-        "attitude_block_seconds": attitude_blocks.block_seconds,  # doubled from the option's value beyond 2^16 blocks
+        "attitude_block_seconds": attitude_blocks.block_seconds,  # doubled from the option's value beyond 2^14 blocks
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
@@ -1048,15 +1084,16 @@ class _StaticChecks:
         self.polar_sums = np.zeros(2)
         self.latitude = 0.0
 
-    def time(self, t: NDArray[np.float64], seen: int, irregular: int) -> None:
+    def time(self, t: NDArray[np.float64] | None, span: tuple[float, float], seen: int, irregular: int) -> None:
         """Sampling checks of one chunk; ``irregular`` counts its steps off the nominal period by more than 1 %.
 
-        Only a chunk with such steps (or an irregular step from the previous chunk) is examined step by step.
+        ``span`` is the chunk's first and last time; ``t`` its stamps (None for a uniform stretch of a time grid).
+        Only a chunk with irregular steps (or an irregular step from the previous chunk) is examined step by step.
         """
-        if self.last_time is not None and t.size:  # the step across the chunk boundary
-            across = float(t[0] - self.last_time)
+        if self.last_time is not None:  # the step across the chunk boundary
+            across = span[0] - self.last_time
             irregular += not (0.99 * self.period <= across <= 1.01 * self.period)
-        if irregular:
+        if irregular and t is not None:
             bad = ~np.isfinite(t)
             if bad.any():
                 k = int(np.argmax(bad))
@@ -1078,8 +1115,8 @@ class _StaticChecks:
                 self.gap_time += float(step[gap].sum() - gap.sum() * self.period)
             self.jitter += int(((np.abs(step - self.period) > 0.01 * self.period) & ~gap).sum())
         if self.first_time is None:
-            self.first_time = float(t[0])
-        self.last_time = float(t[-1])
+            self.first_time = span[0]
+        self.last_time = span[1]
 
     def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> NDArray[np.float64]:
         """Static-base checks on the decimated samples; returns the Earth-rate angle unwrapped across chunks."""
