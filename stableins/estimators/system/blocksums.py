@@ -55,10 +55,18 @@ def coefficients(
 
 # The compiled functions are written at module level (numba's disk cache keys on the qualified name and source)
 # and compiled on first use, so importing this module does not import numba.
+def _observation(x, y, z, p):
+    """``z = ½(wᵀQw/g² − 1)`` of one sample (Q/(2g²) and the bias, K2 packed in ``p``: :func:`coefficients`)."""
+    w0 = x - p[0]
+    w1 = y - p[1]
+    w2 = z - p[2]
+    w0 -= p[9] * w0 * w0
+    w1 -= p[10] * w1 * w1
+    w2 -= p[11] * w2 * w2
+    return w0 * (p[3] * w0 + p[4] * w1 + p[5] * w2) + w1 * (p[6] * w1 + p[7] * w2) + p[8] * w2 * w2 - 0.5
+
+
 def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
-    b0, b1, b2 = p[0], p[1], p[2]
-    q00, q01, q02, q11, q12, q22 = p[3], p[4], p[5], p[6], p[7], p[8]
-    k0, k1, k2 = p[9], p[10], p[11]
     m = fx.size
     s = t[0]
     irregular = 0.0
@@ -70,13 +78,7 @@ def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices
     n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
     for j in range(m):
         d = omega * (t[j] - centre)
-        w0 = fx[j] - b0
-        w1 = fy[j] - b1
-        w2 = fz[j] - b2
-        w0 -= k0 * w0 * w0
-        w1 -= k1 * w1 * w1
-        w2 -= k2 * w2 * w2
-        z = w0 * (q00 * w0 + q01 * w1 + q02 * w2) + w1 * (q11 * w1 + q12 * w2) + q22 * w2 * w2 - 0.5
+        z = _observation(fx[j], fy[j], fz[j], p)
         zd = z * d
         dd = d * d
         n0 += z
@@ -90,29 +92,47 @@ def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices
     return centre, n0, n1, n2, n3, m1, m2, m3, zz, irregular
 
 
+def _uniform_block(fx, fy, fz, angle_step, p):
+    """As :func:`_one_block` for stamps ``t_0 + j·period``: ``δ_j = (j − (m−1)/2)·ω·period`` from the index alone."""
+    m = fx.size
+    half = 0.5 * (m - 1)
+    n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
+    for j in range(m):
+        d = (j - half) * angle_step
+        z = _observation(fx[j], fy[j], fz[j], p)
+        zd = z * d
+        dd = d * d
+        n0 += z
+        n1 += zd
+        n2 += zd * d
+        n3 += zd * dd
+        m1 += d
+        m2 += dd
+        m3 += dd * d
+        zz += z * z
+    return n0, n1, n2, n3, m1, m2, m3, zz
+
+
 def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, step_high, out, centres):
     n = fx.size
     n_blocks = (n + block - 1) // block
     total = 0.0
     irregular = 0.0
-    uniform = period > 0.0  # t is not given: t_j = start_time + j·period, generated a block at a time (in cache)
-    scratch = np.empty(block)
+    uniform = period > 0.0  # t is not given: t_j = start_time + j·period
     for b in range(n_blocks):
         a = b * block
         e = min(a + block, n)
         if uniform:
-            for j in range(e - a):
-                scratch[j] = start_time + (a + j) * period
-            times = scratch[: e - a]
+            centre = start_time + (a + 0.5 * (e - a - 1)) * period
+            n0, n1, n2, n3, m1, m2, m3, zz = _uniform_block(fx[a:e], fy[a:e], fz[a:e], omega * period, p)
         else:
-            times = t[a:e]
-        centre, n0, n1, n2, n3, m1, m2, m3, zz, block_irregular = _one_block(
-            fx[a:e], fy[a:e], fz[a:e], times, omega, p, step_low, step_high
-        )
-        irregular += block_irregular
-        if a > 0 and not uniform:
-            step = t[a] - t[a - 1]
-            irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
+            centre, n0, n1, n2, n3, m1, m2, m3, zz, block_irregular = _one_block(
+                fx[a:e], fy[a:e], fz[a:e], t[a:e], omega, p, step_low, step_high
+            )
+            irregular += block_irregular
+            if a > 0:
+                step = t[a] - t[a - 1]
+                irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
         centres[b] = centre
         out[b, 0] = n0
         out[b, 1] = n1
@@ -123,7 +143,19 @@ def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, st
         out[b, 6] = m3
         out[b, 7] = e - a
         total += zz
+    if uniform and not (step_low <= period <= step_high):
+        irregular = max(n - 1, 0)
     return total, irregular
+
+
+def _second_differences(fx, fy, fz, m, out):
+    for j in range(2, m):
+        a = fx[j] - 2.0 * fx[j - 1] + fx[j - 2]
+        b = fy[j] - 2.0 * fy[j - 1] + fy[j - 2]
+        c = fz[j] - 2.0 * fz[j - 1] + fz[j - 2]
+        out[0] += a * a
+        out[1] += b * b
+        out[2] += c * c
 
 
 def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):
@@ -158,14 +190,17 @@ def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h
 
 def _kernel() -> Any:
     """Compile once per process (numba caches the machine code on disk) and return the two passes."""
-    global _KERNEL, _one_block, _block_pass, _harmonic_pass
+    global _KERNEL, _observation, _one_block, _uniform_block, _block_pass, _harmonic_pass, _second_differences
     if _KERNEL is None:
         from numba import njit
 
+        _observation = njit(fastmath=FASTMATH, inline="always", cache=True)(_observation)
         _one_block = njit(fastmath=FASTMATH, inline="always", cache=True)(_one_block)
+        _uniform_block = njit(fastmath=FASTMATH, inline="always", cache=True)(_uniform_block)
         _block_pass = njit(fastmath=FASTMATH, cache=True)(_block_pass)
         _harmonic_pass = njit(cache=True)(_harmonic_pass)
-        _KERNEL = (_block_pass, _harmonic_pass)
+        _second_differences = njit(cache=True)(_second_differences)
+        _KERNEL = (_block_pass, _harmonic_pass, _second_differences)
     return _KERNEL
 
 
@@ -262,6 +297,21 @@ def harmonic_sums(
     return h
 
 
+def second_difference_sums(
+    fx: NDArray[np.float64], fy: NDArray[np.float64], fz: NDArray[np.float64], m: int, out: NDArray[np.float64]
+) -> int:
+    r"""Add :math:`\sum (\Delta^2 f)^2` of the first ``m`` samples of each axis to ``out`` (3,); returns the terms added.
+
+    For white noise of variance :math:`\sigma^2`, :math:`E[(\Delta^2 n)^2] = 6\sigma^2`; the Earth-rate signal
+    (:math:`\omega_{ie}^2 g /\text{rate}^2` per step) does not reach it.
+    """
+    m = min(int(m), fx.size)
+    if m < 3:
+        return 0
+    _kernel()[2](fx, fy, fz, m, out)
+    return m - 2
+
+
 def block_sums_reference(
     fx: NDArray[np.float64],
     fy: NDArray[np.float64],
@@ -291,4 +341,4 @@ def block_sums_reference(
     return sums, centres, float(np.sum(z * z)), irregular
 
 
-__all__ = ["SUM_COLUMNS", "block_sums", "block_sums_reference", "coefficients", "harmonic_sums"]
+__all__ = ["SUM_COLUMNS", "block_sums", "block_sums_reference", "coefficients", "harmonic_sums", "second_difference_sums"]

@@ -47,7 +47,7 @@ from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
-from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums
+from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums, second_difference_sums
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 
@@ -58,6 +58,9 @@ FAST_COLUMNS = ("time", "f_x", "f_y", "f_z")
 FORCE_COLUMNS = ("f_x", "f_y", "f_z")
 #: Read at the attitude decimation only (slowly varying outputs; docs/system-calibration.md §6).
 SLOW_COLUMNS = ("angle_platform", "pitch", "roll", "velocity_north", "velocity_east")
+
+#: Steps of the sequential Kalman filter's convergence curve at most (filter bins merged beyond 3.5 days).
+FILTER_STEPS = 512
 
 #: Base pitch/roll [rad] above which the base counts as tilted (φ is then taken from the full output DCM).
 LEVEL_TOLERANCE = 1e-4
@@ -481,16 +484,13 @@ def run_system_stage(
         starts = seen + np.arange(len(counts)) * block
         bins = starts // filter_samples
         _grow_bins(filter_bins, int(bins[-1]) + 1)
-        np.add.at(filter_bins["z"], bins, zs)
-        np.add.at(filter_bins["h"], bins, hs)
-        np.add.at(filter_bins["n"], bins, counts)
+        first_of_bin = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])  # blocks are in order: bins are runs
+        ids = bins[first_of_bin]
+        filter_bins["z"][ids] += np.add.reduceat(zs, first_of_bin)
+        filter_bins["h"][ids] += np.add.reduceat(hs, first_of_bin, axis=0)
+        filter_bins["n"][ids] += np.add.reduceat(counts, first_of_bin)
         # noise from second differences of the raw outputs
-        m = min(options.noise_samples_per_chunk, n)
-        if m >= 3:
-            for k, f in enumerate((fx, fy, fz)):
-                d2 = f[2:m] - 2.0 * f[1 : m - 1] + f[: m - 2]
-                noise_sums[k] += float(np.einsum("i,i->", d2, d2))
-            noise_count += m - 2
+        noise_count += second_difference_sums(fx, fy, fz, options.noise_samples_per_chunk, noise_sums)
         # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
         # rotate back to the north-pointing pair the loop model outputs
         if tilted:  # C_n^b' = C_n^b (I + [φ×]) (conventions): φ from the antisymmetric part
@@ -555,6 +555,15 @@ def run_system_stage(
         p0[:5, :5] = m_x @ prior_res_cov @ m_x.T
         k2_var = _fixed_variance(prior_covariance)
         p0[5, 5], p0[6, 6] = (gravity**2 / 16.0) * k2_var["K2_x"], (gravity**2 / 16.0) * k2_var["K2_y"]
+        # at most FILTER_STEPS steps: consecutive bins merged (exact: sums add), so a week costs what two days do
+        merge = -(-nn.size // FILTER_STEPS)
+        if merge > 1:
+            group = np.arange(nn.size) // merge
+            size = int(group[-1]) + 1
+            zsum = np.bincount(group, weights=zb * nn, minlength=size)
+            hsum = np.stack([np.bincount(group, weights=hb[:, k] * nn, minlength=size) for k in range(hb.shape[1])], axis=1)
+            nn = np.bincount(group, weights=nn, minlength=size)
+            zb, hb = zsum / nn, hsum / nn[:, None]
         history = hm.kalman_filter(hb, zb, r_var / nn, np.zeros(7), p0)
         history_time = (np.cumsum(nn)) / rate
 
@@ -1131,7 +1140,9 @@ class _StaticChecks:
         self.roll_range = [min(self.roll_range[0], float(roll.min())), max(self.roll_range[1], float(roll.max()))]
         # unwrap the Earth-rate angle across chunks
         prev = self.last_angle if self.last_angle is not None else float(s[0])
-        series = np.unwrap(np.concatenate([[prev], s]))
+        series = np.concatenate([[prev], s])
+        if np.abs(np.diff(series)).max() > np.pi:  # a wrap of the reading in this chunk (rare: S moves 7e-5 rad/s)
+            series = np.unwrap(series)
         series = series[1:] + self.angle_offset
         self.angle_offset = float(series[-1] - s[-1])
         self.last_angle = float(s[-1])
