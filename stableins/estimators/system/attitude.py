@@ -51,7 +51,8 @@ PITCH_COEFFICIENTS = ("theta_mean", "theta_1c", "theta_1s", "theta_2c", "theta_2
 ROLL_COEFFICIENTS = ("phi_mean", "phi_1s", "phi_1c", "phi_2s", "phi_2c")
 ATTITUDE_COEFFICIENTS = PITCH_COEFFICIENTS + ROLL_COEFFICIENTS
 
-#: Blocks per slice of the design matrix in :func:`fit_attitude` (its temporaries stay a few MiB whatever the record length).
+#: Blocks per slice of the design matrix in :func:`fit_attitude`.  The slices are built once and shared by both channels
+#: and all passes; with at most ``AttitudeBlocks.max_blocks`` (2¹⁴) blocks they hold about 3 MiB whatever the record length.
 FIT_ROWS = 4096
 
 #: Default period of the gyro case-rotation residual [s] (Wu et al. 2018 §6.2: 8 minutes).
@@ -288,8 +289,12 @@ def fit_attitude(
     _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
     slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
 
+    designs: dict[int, NDArray[np.float64]] = {}  # both channels and all passes share the rows: built once per slice
+
     def common(rows: slice) -> NDArray[np.float64]:
-        return _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+        if rows.start not in designs:
+            designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+        return designs[rows.start]
 
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
