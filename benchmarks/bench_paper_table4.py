@@ -85,11 +85,17 @@ class SimulatorSource:
         self.truth, self.duration, self.rate, self.seed = truth, duration, rate, seed
         self.path = f"<simulator seed {seed}>"
 
-    def iter_chunks(self, columns=None, rows=1 << 16):
+    def iter_chunks(self, columns=None, rows=1 << 16, *, thin=(), step=1, reuse=False, unchecked=()):
+        """The stage's chunk-source contract (stableins.estimators.system.stage.ChunkSource): ``thin`` columns at rows
+        whose index is a multiple of ``step``; every value is checked for NaN/inf by the stage or here."""
         from stableins.simulator.system import system_record_chunks
 
+        first = 0
         for chunk in system_record_chunks(self.truth, self.duration, self.rate, self.seed, chunk_samples=rows, earth_angle=0.7):
-            yield chunk if columns is None else {c: chunk[c] for c in columns}
+            names = list(chunk) if columns is None else list(columns)
+            phase = (-first) % step
+            first += len(chunk["time"])
+            yield {c: chunk[c][phase::step] if c in thin else chunk[c] for c in names}
 
 
 def main(argv: list[str] | None = None) -> int:
