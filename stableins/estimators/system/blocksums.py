@@ -66,8 +66,9 @@ def _observation(x, y, z, p):
     return w0 * (p[3] * w0 + p[4] * w1 + p[5] * w2) + w1 * (p[6] * w1 + p[7] * w2) + p[8] * w2 * w2 - 0.5
 
 
-def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
-    m = fx.size
+def _centre(t, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
+    """Mean time of a block and the number of its steps outside ``[step_low, step_high]``."""
+    m = t.size
     s = t[0]
     irregular = 0.0
     for j in range(1, m):
@@ -75,30 +76,17 @@ def _one_block(fx, fy, fz, t, omega, p, step_low, step_high):  # slices: indices
         step = t[j] - t[j - 1]
         irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
     centre = s / m
-    n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
-    for j in range(m):
-        d = omega * (t[j] - centre)
-        z = _observation(fx[j], fy[j], fz[j], p)
-        zd = z * d
-        dd = d * d
-        n0 += z
-        n1 += zd
-        n2 += zd * d
-        n3 += zd * dd
-        m1 += d
-        m2 += dd
-        m3 += dd * d
-        zz += z * z
-    return centre, n0, n1, n2, n3, m1, m2, m3, zz, irregular
+    return centre, irregular
 
 
-def _uniform_block(fx, fy, fz, angle_step, p):
-    """As :func:`_one_block` for stamps ``t_0 + j·period``: ``δ_j = (j − (m−1)/2)·ω·period`` from the index alone."""
+def _moments(fx, fy, fz, t, centre, omega, angle_step, p):
+    """Σ z δ^p, Σ δ^p, Σ z² of one block: ``δ = ω(t − t̄)``, or with no stamps (``t`` empty) ``δ_j = (j − (m−1)/2)·angle_step``."""
     m = fx.size
+    stamped = t.size > 0
     half = 0.5 * (m - 1)
     n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
     for j in range(m):
-        d = (j - half) * angle_step
+        d = omega * (t[j] - centre) if stamped else (j - half) * angle_step
         z = _observation(fx[j], fy[j], fz[j], p)
         zd = z * d
         dd = d * d
@@ -124,15 +112,15 @@ def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, st
         e = min(a + block, n)
         if uniform:
             centre = start_time + (a + 0.5 * (e - a - 1)) * period
-            n0, n1, n2, n3, m1, m2, m3, zz = _uniform_block(fx[a:e], fy[a:e], fz[a:e], omega * period, p)
+            times = t[:0]
         else:
-            centre, n0, n1, n2, n3, m1, m2, m3, zz, block_irregular = _one_block(
-                fx[a:e], fy[a:e], fz[a:e], t[a:e], omega, p, step_low, step_high
-            )
+            times = t[a:e]
+            centre, block_irregular = _centre(times, step_low, step_high)
             irregular += block_irregular
             if a > 0:
                 step = t[a] - t[a - 1]
                 irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
+        n0, n1, n2, n3, m1, m2, m3, zz = _moments(fx[a:e], fy[a:e], fz[a:e], times, centre, omega, omega * period, p)
         centres[b] = centre
         out[b, 0] = n0
         out[b, 1] = n1
@@ -190,13 +178,13 @@ def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h
 
 def _kernel() -> Any:
     """Compile once per process (numba caches the machine code on disk) and return the two passes."""
-    global _KERNEL, _observation, _one_block, _uniform_block, _block_pass, _harmonic_pass, _second_differences
+    global _KERNEL, _observation, _centre, _moments, _block_pass, _harmonic_pass, _second_differences
     if _KERNEL is None:
         from numba import njit
 
         _observation = njit(fastmath=FASTMATH, inline="always", cache=True)(_observation)
-        _one_block = njit(fastmath=FASTMATH, inline="always", cache=True)(_one_block)
-        _uniform_block = njit(fastmath=FASTMATH, inline="always", cache=True)(_uniform_block)
+        _centre = njit(fastmath=FASTMATH, inline="always", cache=True)(_centre)
+        _moments = njit(fastmath=FASTMATH, inline="always", cache=True)(_moments)
         _block_pass = njit(fastmath=FASTMATH, cache=True)(_block_pass)
         _harmonic_pass = njit(cache=True)(_harmonic_pass)
         _second_differences = njit(cache=True)(_second_differences)
