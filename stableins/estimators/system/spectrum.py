@@ -14,7 +14,15 @@ noise, exponentially distributed).  A non-negative least-squares fit of
 
 (white, flicker, random walk) is evaluated at the harmonic frequencies; the variance of a
 coefficient at frequency ``f`` is scaled by ``max(1, ρ(f))``.  The extrapolation below the
-fitted band is a model assumption (documented in docs/system-calibration.md).
+fitted band is a model assumption (documented in docs/system-calibration.md).  The attitude fit
+uses this only as a diagnostic.
+
+The system stage's covariance uses the second half of the module: a random walk and a flicker
+noise of the accelerometer axes, their exact bin-mean covariances (:func:`bin_process_kernel`),
+how they reach each channel (loadings, and the damping loop through :func:`loop_bin_mixing`),
+the expected residual periodograms (:func:`periodogram_design`), the maximum of the Whittle
+likelihood (:func:`fit_coloured_noise`) and the propagation ``A Σ Bᵀ`` without the stacked
+covariance (:func:`component_quadratic`).  docs/system-calibration.md §1a.
 """
 
 from __future__ import annotations
@@ -199,22 +207,23 @@ def loop_bin_mixing(
     eigenvalues, out, inp = modes
     t = np.asarray(time, dtype=float)
     n = t.size
-    lag = np.subtract.outer(t, t)  # t_i − t_j
-    later = lag > 0.5 * width
-    phi = np.zeros((out.shape[0], inp.shape[1], n, n))
+    lag = np.subtract.outer(t, t) - width  # t_i − t_j − w
+    later = lag > -0.5 * width
+    lag[~later] = 0.0
+    mixing = [[np.zeros((n, n)) for _ in range(3)] for _ in range(out.shape[0])]
     for lam, c_m, b_m in zip(eigenvalues, out.T, inp, strict=True):
         x = lam * width
         small = abs(x) < 1e-6
         ratio = 1.0 + 0.5 * x if small else np.expm1(x) / x
         diagonal = 0.5 + x / 6.0 if small else (np.expm1(x) - x) / (x * x)
-        shape = np.where(later, np.exp(lam * np.where(later, lag - width, 0.0)) * (width * ratio * ratio), 0.0)
+        shape = np.exp(lam * lag)
+        shape *= width * ratio * ratio
+        shape[~later] = 0.0
         shape[np.diag_indices(n)] = width * diagonal
-        for o in range(out.shape[0]):
-            for k in range(inp.shape[1]):
-                phi[o, k] += np.real(c_m[o] * b_m[k] * shape)
-    mixing = []
-    for o in range(out.shape[0]):
-        mixing.append([sum(phi[o, k] * input_loadings[k][:, axis][None, :] for k in range(inp.shape[1])) for axis in range(3)])
+        for axis in range(3):
+            column = sum(b_m[k] * input_loadings[k][:, axis] for k in range(inp.shape[1]))  # input side, (n,)
+            for o in range(out.shape[0]):
+                mixing[o][axis] += np.real(shape * (c_m[o] * column)[None, :])
     return mixing
 
 

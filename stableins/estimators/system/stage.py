@@ -815,8 +815,10 @@ def run_system_stage(
     )
 
 
-#: At most this many bins enter the coloured-noise model (longer records: wider bins).
-COLOURED_BINS = 320
+#: At most this many bins enter the coloured-noise model (longer records: wider bins, so its memory, about 4 MiB,
+#: does not depend on the record's length; one day has 144 bins of 600 s).  Monte Carlo of 4-day records (30 seeds):
+#: rms z 1.03 with 160 bins, 1.22 with 320 (docs/system-calibration.md §1a).
+COLOURED_BINS = 160
 
 
 def _coloured_covariance(
@@ -835,13 +837,16 @@ def _coloured_covariance(
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Covariance ``(17, 17)`` of ``(x1..x7, attitude)`` due to coloured accelerometer noise (zero when the data show none).
 
-    The z residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes of random-walk
-    and flicker components of the x-y and z accelerometers (:func:`.spectrum.fit_coloured_noise`: periodogram between
-    3.5 and 30 cycles/day, exact for what the fit absorbs and for the Earth-rate modulation of x and y).  The same
-    components, loaded onto pitch and roll (:func:`.spectrum.axis_loadings`), are propagated through the linear maps of
-    the harmonic fit and of the attitude fit: ``cov = Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the
-    harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of x2 and of φ1s) and the
-    correlation it creates between the specific-force and attitude coefficients.
+    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes
+    of a random walk and a flicker noise, one of each for the three accelerometer axes (maximum Whittle likelihood of the
+    residual periodograms between 3.5 and 30 cycles/day, :func:`.spectrum.fit_coloured_noise`; the expectations are
+    exact for what the fits absorb (:func:`_attitude_residual_maker` for pitch and roll), for the Earth-rate modulation
+    of x and y (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`)).  The
+    components are propagated through the linear maps of the harmonic fit and of the attitude fit:
+    ``cov = Σ_c α_c J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only).  This carries the
+    low-frequency noise at the harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of
+    x2 and of φ1s) and the correlation it creates between the specific-force and attitude coefficients.
+    docs/system-calibration.md §1a.
     """
     from stableins.estimators.system import spectrum
 
