@@ -42,8 +42,12 @@ def test_recovers_combined_coefficients_within_k_sigma(seed):
     _, ref = reference(truth)
     z = (out.combined.values - ref) / out.combined.sigma
     assert np.abs(z[HARMONIC]).max() < 4.0, dict(zip(COMBINED_COEFFICIENTS, np.round(z, 2), strict=True))
-    assert np.abs(ref[HARMONIC]).max() > 20 * out.combined.sigma.max()  # real signal, not noise
-    assert 1e-6 < out.combined.sigma[HARMONIC].max() < 5e-6
+    # white noise: the white-noise σ has the expected size; the coloured-noise fit (maximum likelihood, no detection
+    # threshold) may add to it in a white record, never subtract (docs/system-calibration.md §1a)
+    white = out.diagnostics["combined_sigma_white"]
+    assert np.abs(ref[HARMONIC]).max() > 20 * white.max()  # real signal, not noise
+    assert 1e-6 < white[HARMONIC].max() < 5e-6
+    assert np.all(out.combined.sigma >= white * (1 - 1e-9))
     assert out.result.rank == 9
     assert 0.1 < out.result.chi2_red < 4.0
 
@@ -171,8 +175,10 @@ def test_quartz_noise_low_frequency_power_is_seen():
 def test_monte_carlo_sigma_with_quartz_noise():
     """With the simulator's default quartz noise the σ built from the coloured-noise model matches the scatter.
 
-    Without the model the normalized errors have rms ~6.7 (seeds 1-8); with it 1.2 over these 12 seeds
-    (benchmarks/bench_system_sigma.py: more seeds).  White-noise records keep rms ≈ 1 (test_monte_carlo_sigma).
+    Without the model the normalized errors have rms ~6.7 (seeds 1-8).  With it, seeds 1-40 (480 errors, ~12 s):
+    rms 1.08, largest 3.8, 0.6 % beyond 3σ; the previous model (detection threshold, |G|² on the whole expected
+    periodogram, attitude residual maker without the transients) gave rms 1.28, largest 8.2, 2.9 % beyond 3σ on the
+    same seeds.  benchmarks/bench_system_sigma.py runs more seeds.
     """
     import warnings
 
@@ -180,7 +186,7 @@ def test_monte_carlo_sigma_with_quartz_noise():
 
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]  # x1 also carries K2_z
     normalized = []
-    for seed in range(1, 13):
+    for seed in range(1, 41):
         truth = Truth.draw(seed, sample_rate=1.0)
         cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
         _, ref = reference(truth)
@@ -190,7 +196,6 @@ def test_monte_carlo_sigma_with_quartz_noise():
         normalized.append(((out.combined.values - ref) / out.combined.sigma)[harmonic])
     z = np.array(normalized)
     rms = float(np.sqrt(np.mean(z**2)))
-    assert 0.7 < rms < 1.45, rms  # 144 normalized errors
-    # heavy tail: where the coloured excess falls below the detection threshold σ stays white (largest |z| here 6.0)
-    assert np.abs(z).max() < 8.0
-    assert np.mean(np.abs(z) > 3.0) < 0.05
+    assert 0.85 < rms < 1.2, rms  # 480 normalized errors (12 per record, correlated within a record)
+    assert np.abs(z).max() < 6.0  # the tail left by the uncertainty of one day's amplitudes (was 8.2 with the previous model)
+    assert np.mean(np.abs(z) > 3.0) < 0.02

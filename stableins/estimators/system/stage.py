@@ -604,7 +604,18 @@ def run_system_stage(
     cov_v[:7, 7:] = cov_v[7:, :7].T
     # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
     coloured, coloured_info = _coloured_covariance(
-        filter_bins, keep_bins, bin_time, filter_samples / rate, x_ls, r_var, blocks, att, jac_x, latitude, loop
+        filter_bins,
+        keep_bins,
+        bin_time,
+        filter_samples / rate,
+        x_ls,
+        r_var,
+        blocks,
+        att,
+        jac_x,
+        latitude,
+        loop,
+        options.case_rotation_period,
     )
     white_x2 = cov_v[1, 1]
     cov_v = cov_v + coloured
@@ -693,6 +704,7 @@ def run_system_stage(
         "axis_noise_sigma": np.sqrt(axis_variance),
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
+        "combined_sigma_white": np.sqrt(np.diag(to_combined @ (cov_v - coloured) @ to_combined.T)),  # without the coloured part
         "coloured_noise": coloured_info,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
@@ -720,8 +732,10 @@ def run_system_stage(
     )
 
 
-#: At most this many bins enter the coloured-noise model (longer records: wider bins).
-COLOURED_BINS = 320
+#: At most this many bins enter the coloured-noise model (longer records: wider bins, so its memory, about 4 MiB,
+#: does not depend on the record's length; one day has 144 bins of 600 s).  Monte Carlo of 4-day records (30 seeds):
+#: rms z 1.03 with 160 bins, 1.22 with 320 (docs/system-calibration.md §1a).
+COLOURED_BINS = 160
 
 
 def _coloured_covariance(
@@ -736,21 +750,25 @@ def _coloured_covariance(
     jac_x: NDArray[np.float64],
     latitude: float,
     loop: DampingLoop,
+    case_rotation_period: float | None = None,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Covariance ``(17, 17)`` of ``(x1..x7, attitude)`` due to coloured accelerometer noise (zero when the data show none).
 
-    The z residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes of random-walk
-    and flicker components of the x-y and z accelerometers (:func:`.spectrum.fit_coloured_noise`: periodogram between
-    3.5 and 30 cycles/day, exact for what the fit absorbs and for the Earth-rate modulation of x and y).  The same
-    components, loaded onto pitch and roll (:func:`.spectrum.axis_loadings`), are propagated through the linear maps of
-    the harmonic fit and of the attitude fit: ``cov = Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the
-    harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of x2 and of φ1s) and the
-    correlation it creates between the specific-force and attitude coefficients.
+    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes
+    of a random walk and a flicker noise, one of each for the three accelerometer axes (maximum Whittle likelihood of the
+    residual periodograms between 3.5 and 30 cycles/day, :func:`.spectrum.fit_coloured_noise`; the expectations are
+    exact for what the fits absorb (:func:`_attitude_residual_maker` for pitch and roll), for the Earth-rate modulation
+    of x and y (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`)).  The
+    components are propagated through the linear maps of the harmonic fit and of the attitude fit:
+    ``cov = Σ_c α_c J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only).  This carries the
+    low-frequency noise at the harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of
+    x2 and of φ1s) and the correlation it creates between the specific-force and attitude coefficients.
+    docs/system-calibration.md §1a.
     """
-    from stableins.estimators.system.spectrum import EARTH_FREQUENCY, axis_loadings, coloured_components, fit_coloured_noise
+    from stableins.estimators.system import spectrum
 
     out = np.zeros((17, 17))
-    info: dict[str, Any] = {"loglik_gain": 0.0, "frequencies": 0, "amplitudes": {}}
+    info: dict[str, Any] = {"loglik_gain": 0.0, "ordinates": 0, "amplitudes": {}}
     n_keep = int(keep_bins.sum())
     if n_keep < 16 or att.block_map is None:
         return out, info
@@ -769,31 +787,44 @@ def _coloured_covariance(
     r_z = np.eye(n) - x_bins @ a_z
     cos_l = math.cos(latitude)
     cos_s, sin_s = x_bins[:, 1] / cos_l, x_bins[:, 2] / cos_l
-    loads = [axis_loadings(ch, cos_s, sin_s, latitude) for ch in ("z", "pitch", "roll")]
-    names, covs = coloured_components(time, wide, loads)
-    high = min(30.0 * EARTH_FREQUENCY, 0.45 / wide)
+    loads = [spectrum.axis_loadings(ch, cos_s, sin_s, latitude) for ch in ("z", "pitch", "roll")]
+    kernels = [spectrum.bin_process_kernel(kind, time, wide) for kind in spectrum.COLOURED_KINDS]  # (n, n) each
+    high = min(30.0 * spectrum.EARTH_FREQUENCY, 0.45 / wide)
+    # pitch and roll: the loop filters (Δf_N/g, −Δf_E/g, Δf_D/g) = (pitch, roll, −z loadings) · n/g, bin by bin
+    mixing = [[loads[0][:, a] for a in range(3)]] + spectrum.loop_bin_mixing(
+        loop._controllable_modes(), time, wide, [loads[1], loads[2], -loads[0]]
+    )
     # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
     block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
     att_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
-    ok = att_count > 0
     channels, makers, weights = [residual], [r_z], [count]
     gains: list[Any] = [None]
-    if ok.all():
-        # the attitude fit's mean and harmonics on the bins (its other nuisances are faster or decay)
-        x_att = np.stack([np.ones(n), cos_s, sin_s, cos_s**2 - sin_s**2, 2.0 * sin_s * cos_s], axis=1)
-        r_att = np.eye(n) - x_att @ np.linalg.solve(x_att.T @ (x_att * att_count[:, None]), (x_att * att_count[:, None]).T)
+    if (att_count > 0).all():
+        r_att = _attitude_residual_maker(blocks, block_bin, att_count, loop, case_rotation_period)
         for ch in range(2):
             res = np.bincount(block_bin, weights=blocks["count"] * att.block_residuals[:, ch], minlength=n) / att_count
             channels.append(res)
             makers.append(r_att)
             weights.append(att_count)
-            gains.append(lambda f, ch=ch: float(np.abs(loop.frequency_response(2.0 * np.pi * f)).max(axis=1)[ch] ** 2))
-    used = len(channels) * n
-    amplitudes, fit_info = fit_coloured_noise(
-        channels, makers, weights, time, [c[:used, :used] for c in covs], (3.5 * EARTH_FREQUENCY, high), power_gains=gains
+            # white accelerometer noise through the loop (three independent inputs), then averaged over the bin: the
+            # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
+            # beyond the bins' Nyquist frequency)
+            gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
+    built = spectrum.periodogram_design(
+        channels,
+        makers,
+        weights,
+        time,
+        kernels,
+        mixing[: len(channels)],
+        (3.5 * spectrum.EARTH_FREQUENCY, high),
+        white_gains=gains,
     )
+    if built is None:
+        return out, info
+    amplitudes, fit_info = spectrum.fit_coloured_noise(*built)
     info.update(fit_info)
-    info["amplitudes"] = dict(zip(names, map(float, amplitudes), strict=True))
+    info["amplitudes"] = dict(zip(spectrum.COLOURED_KINDS, map(float, amplitudes), strict=True))
     info["white_variance"] = r_var
     if not np.any(amplitudes > 0):
         return out, info
@@ -809,10 +840,44 @@ def _coloured_covariance(
     j[:7, :n] = a_z
     j[7:, :n] = jac_x @ a_z
     j[7:, n:] = a_att
-    for alpha, cov in zip(amplitudes, covs, strict=True):
+    for alpha, kernel in zip(amplitudes, kernels, strict=True):
         if alpha > 0:
-            out += alpha * np.einsum("in,nm,km->ik", j, cov, j)  # not BLAS (docs §6)
+            out += alpha * spectrum.component_quadratic(j, j, mixing, kernel)
     return 0.5 * (out + out.T), info
+
+
+def _attitude_residual_maker(
+    blocks: dict[str, NDArray[np.float64]],
+    block_bin: NDArray[np.int64],
+    bin_count: NDArray[np.float64],
+    loop: DampingLoop,
+    case_rotation_period: float | None,
+) -> NDArray[np.float64]:
+    """Residual maker ``(n, n)`` of the attitude fit on the bins: ``R = I − X̄ (XᵀWX)⁻¹ X̄ᵀ W̄``.
+
+    The attitude fit runs on the blocks with all its columns (mean, harmonics, the decaying Schuler and vertical
+    transients, the case-rotation terms: :func:`.attitude._design`).  For noise that is constant within a bin, the
+    binned residual is ``R`` applied to the binned noise, with ``X̄`` the bin means of the columns, ``W̄`` the bin
+    counts and ``XᵀWX`` the fit's block-level normal matrix.  The transient columns matter: over the first hour they
+    absorb a large part of a random walk's low-frequency power (the residual variance on the bins drops by up to a
+    half), which a residual maker with only the mean and the harmonics misses.  Built in slices of
+    :data:`.attitude.FIT_ROWS` blocks (bounded memory).  Drift columns (``gyro_drift="fit"``) are not included.
+    """
+    from stableins.estimators.system.attitude import FIT_ROWS, _design
+
+    n = bin_count.size
+    columns = None
+    normal = None
+    for start in range(0, blocks["time"].size, FIT_ROWS):
+        rows = slice(start, start + FIT_ROWS)
+        x = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+        wx = x * blocks["count"][rows, None]
+        part = np.einsum("bi,bj->ij", wx, x)  # einsum, not BLAS (docs §6)
+        sums = np.stack([np.bincount(block_bin[rows], weights=wx[:, k], minlength=n) for k in range(x.shape[1])], axis=1)
+        normal = part if normal is None else normal + part
+        columns = sums if columns is None else columns + sums
+    mean_columns = columns / bin_count[:, None]
+    return np.eye(n) - mean_columns @ np.linalg.solve(normal, columns.T)
 
 
 def _earth_angle_from_kinematics(
