@@ -383,11 +383,14 @@ class H5Reader:
                         )
         return step
 
-    def _open(self) -> Any:
+    def _open(self, chunk_cache: bool = True) -> Any:
+        """Open for reading.  ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them
+        straight into the destination instead of through its chunk cache (measured 0.29 → 0.18 s for the
+        forces of a week at 100 Hz)."""
         import h5py
 
         try:
-            return h5py.File(self.path, "r")
+            return h5py.File(self.path, "r") if chunk_cache else h5py.File(self.path, "r", rdcc_nbytes=0)
         except FileNotFoundError:
             raise InputError("no such file", path=self.path) from None
         except OSError as error:
@@ -440,9 +443,10 @@ class H5Reader:
             whose step divides ``step`` (a few values per chunk), otherwise an HDF5 strided selection
             (only those values are copied and checked, but every chunk of the column is touched).
         reuse : bool
-            One-pass consumers: datasets are looked up once and read by h5py's simple-slice path
-            (measured 15 % faster than ``Dataset.read_direct`` into buffers reused from chunk to chunk).
-            Treat the arrays as valid only until the next chunk is requested.
+            One-pass consumers: datasets are looked up once and the full-rate columns are read
+            (``Dataset.read_direct``) into buffers reused from chunk to chunk, with HDF5's chunk cache
+            off, so whole chunks go straight into them and no page is faulted in again.  The arrays
+            yielded are valid only until the next chunk is requested.
         """
         import numpy as np
 
@@ -451,11 +455,12 @@ class H5Reader:
         thin_set = set(thin)
         unchecked_set = set(unchecked)
         if not thin_set and not reuse:
-            with self._open() as f:
+            with self._open(chunk_cache=False) as f:
                 for k in range(start, stop, rows):
                     yield self._read(f, names, k, min(k + rows, stop))
             return
-        with self._open() as f:
+        strided = bool(thin_set) and not (self.overview_step and step % self.overview_step == 0)  # gathers need the cache
+        with self._open(chunk_cache=strided) as f:
             group = f[GROUP]
             gathers: dict[str, _ThinColumn | _OverviewColumn] = {}
             for c in columns:
@@ -465,6 +470,7 @@ class H5Reader:
                     else:
                         gathers[c.name] = _ThinColumn(group[c.name], self.path)
             datasets = {c.name: group[c.name] for c in columns if reuse and c.dtype != "str" and c.name not in gathers}  # looked up once
+            buffers: dict[str, Any] = {}
             for k in range(start, stop, rows):
                 end = min(k + rows, stop)
                 out: dict[str, Any] = {}
@@ -484,7 +490,11 @@ class H5Reader:
                             )
                     elif reuse and c.dtype != "str":
                         try:
-                            values = datasets[c.name][k:end]
+                            buffer = buffers.get(c.name)
+                            if buffer is None:
+                                buffer = buffers[c.name] = np.empty(rows, dtype=c.dtype)
+                            values = buffer[: end - k]
+                            datasets[c.name].read_direct(values, np.s_[k:end], np.s_[0 : end - k])
                         except (OSError, RuntimeError) as error:
                             raise InputError(
                                 f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",
