@@ -401,14 +401,17 @@ class H5Reader:
         with self._open() as f:
             return self._read(f, names, start, stop)
 
-    def _read(self, f: Any, names: Sequence[str] | None, start: int, stop: int | None) -> dict[str, Any]:
+    def _read(
+        self, f: Any, names: Sequence[str] | None, start: int, stop: int | None, datasets: Mapping[str, Any] | None = None
+    ) -> dict[str, Any]:
+        """Rows ``start:stop`` of the named columns, checked; ``datasets``: the columns' datasets looked up already."""
         import numpy as np
 
         stop = self.rows if stop is None else min(stop, self.rows)
         out: dict[str, Any] = {}
         for c in self._columns(names):
             try:
-                values = f[GROUP][c.name][start:stop]
+                values = (f[GROUP][c.name] if datasets is None else datasets[c.name])[start:stop]
             except (OSError, RuntimeError) as error:
                 raise InputError(
                     f"rows {start + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=c.name
@@ -456,8 +459,9 @@ class H5Reader:
         unchecked_set = set(unchecked)
         if not thin_set and not reuse:
             with self._open(chunk_cache=False) as f:
+                looked_up = {c.name: f[GROUP][c.name] for c in columns}
                 for k in range(start, stop, rows):
-                    yield self._read(f, names, k, min(k + rows, stop))
+                    yield self._read(f, names, k, min(k + rows, stop), looked_up)
             return
         strided = bool(thin_set) and not (self.overview_step and step % self.overview_step == 0)  # gathers need the cache
         with self._open(chunk_cache=strided) as f:
