@@ -276,3 +276,15 @@ def test_non_finite_force_in_hdf5_record_names_row_and_column(day, tmp_path, val
     with pytest.raises(InputError, match="not finite") as caught:
         run_system_stage(open_system_record(path), meta, installed, options=SystemOptions(chunk_rows=4096))
     assert caught.value.row == 20_124 and caught.value.field == "f_z"
+
+
+def test_array_source_names_the_record_row_of_a_nan_in_a_thinned_column():
+    cols = {"time": np.arange(1000.0), "pitch": np.zeros(1000)}
+    cols["pitch"][730] = np.nan
+    with pytest.raises(InputError, match="row 731") as caught:
+        for _ in ArraySource(cols).iter_chunks(["time", "pitch"], rows=300, thin=["pitch"], step=10):
+            pass
+    assert caught.value.field == "pitch"
+    cols["pitch"][730] = 0.0
+    cols["pitch"][733] = np.inf  # between the thinned rows: not read, so not checked
+    assert sum(len(c["pitch"]) for c in ArraySource(cols).iter_chunks(["time", "pitch"], rows=300, thin=["pitch"], step=10)) == 100

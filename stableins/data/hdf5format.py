@@ -463,13 +463,13 @@ class H5Reader:
                 for k in range(start, stop, rows):
                     yield self._read(f, names, k, min(k + rows, stop), looked_up)
             return
-        strided = bool(thin_set) and not (self.overview_step and step % self.overview_step == 0)  # gathers need the cache
-        with self._open(chunk_cache=strided) as f:
+        from_overview = bool(self.overview_step) and step % self.overview_step == 0
+        with self._open(chunk_cache=bool(thin_set) and not from_overview) as f:  # strided gathers need the cache
             group = f[GROUP]
             gathers: dict[str, _ThinColumn | _OverviewColumn] = {}
             for c in columns:
                 if c.name in thin_set:
-                    if self.overview_step and step % self.overview_step == 0 and c.dtype != "str":
+                    if from_overview and c.dtype != "str":
                         gathers[c.name] = _OverviewColumn(f[OVERVIEW][c.name], self.overview_step, self.path)
                     else:
                         gathers[c.name] = _ThinColumn(group[c.name], self.path)
@@ -482,16 +482,7 @@ class H5Reader:
                     if c.name in gathers:
                         first = k + (-k) % step
                         values = gathers[c.name].take(first, end, step)
-                        bad = None if np.isfinite(np.add.reduce(values)) else ~np.isfinite(values)  # one pass when all is well
-                        if bad is not None and bad.any():
-                            j = int(np.argmax(bad))
-                            raise InputError(
-                                f"value {values[j].item()!r} is not finite",
-                                path=self.path,
-                                row=first + j * step + 1,
-                                field=c.name,
-                                expected="a finite number",
-                            )
+                        check_finite(c.name, values, self.path, first_row=first + 1, row_step=step)
                     elif reuse and c.dtype != "str":
                         try:
                             buffer = buffers.get(c.name)

@@ -76,8 +76,12 @@ def check_header_document(document: Any, kind: str, path: Any) -> None:
         )
 
 
-def check_finite(name: str, values: Any, path: Any, first_row: int = 1) -> None:
-    """Raise for the first NaN or infinity of a float column (``first_row``: row number of ``values[0]``)."""
+def check_finite(name: str, values: Any, path: Any, first_row: int = 1, row_step: int = 1) -> None:
+    """Raise for the first NaN or infinity of a float column.
+
+    ``first_row`` is the row number of ``values[0]``; ``row_step`` the rows between consecutive values
+    (values taken at every ``row_step``-th row of the record).
+    """
     import numpy as np
 
     values = np.asarray(values)
@@ -88,7 +92,9 @@ def check_finite(name: str, values: Any, path: Any, first_row: int = 1) -> None:
     bad = ~np.isfinite(values)  # a non-finite value, or finite values whose sum overflowed: look
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(f"value {values[k].item()!r} is not finite", path=path, row=first_row + k, field=name, expected="a finite number")
+        raise InputError(
+            f"value {values[k].item()!r} is not finite", path=path, row=first_row + k * row_step, field=name, expected="a finite number"
+        )
 
 
 def check_increasing(time: Any, path: Any, first_row: int = 1, previous: float | None = None, field: str = "time") -> None:

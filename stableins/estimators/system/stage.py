@@ -114,12 +114,11 @@ class ArraySource:
             chunk = {}
             for name in names:
                 values = np.asarray(self.columns[name][start : start + rows], dtype=float)
-                every = step if name in thin else 1
-                values = values[phase::every] if every > 1 else values
-                bad = ~np.isfinite(values)
-                if bad.any():
-                    row = start + (phase if every > 1 else 0) + int(np.flatnonzero(bad)[0]) * every + 1
-                    raise InputError("value is NaN or infinite", path=self.path, field=name, row=row, expected="finite numbers")
+                if name in thin:
+                    values = values[phase::step]
+                    check_finite(name, values, self.path, first_row=start + phase + 1, row_step=step)
+                else:
+                    check_finite(name, values, self.path, first_row=start + 1)
                 chunk[name] = values
             yield chunk
 
