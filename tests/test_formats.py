@@ -678,7 +678,7 @@ def test_system_overview_rows_equal_the_full_columns(tmp_path, rows):
         got = list(record.iter_chunks(["time", "pitch", "velocity_east"], rows=rows, thin=["pitch", "velocity_east"], step=step))
         for name in ("pitch", "velocity_east"):
             np.testing.assert_array_equal(np.concatenate([c[name] for c in got]), full[name][::step])
-    assert record.verify_overview() == RATE
+    assert record.verify_derived() == (RATE, 1)
 
 
 def test_system_overview_changed_after_writing_is_named(tmp_path):
@@ -691,10 +691,24 @@ def test_system_overview_changed_after_writing_is_named(tmp_path):
     with h5py.File(path, "r+") as f:
         f["columns/roll"][3100] = 0.5
     with pytest.raises(InputError, match="row 3101") as caught:
-        open_system_record(path).verify_overview()
+        open_system_record(path).verify_derived()
     assert caught.value.field == "/overview/roll"
     with h5py.File(path, "r+") as f:  # an overview of the wrong length is not used: the full columns are read
         f["overview/roll"].resize((7,))
     record = open_system_record(path)
-    assert record.verify_overview() == 0
+    assert record.verify_derived() == (0, 1)
     assert sum(len(c["roll"]) for c in record.iter_chunks(["time", "roll"], rows=1000, thin=["roll"], step=100)) == 40
+
+
+def test_system_time_grid_changed_after_writing_is_named(tmp_path):
+    """A time stamp edited by another tool leaves its grid segment: `check` names the row and /time_grid."""
+    import h5py
+
+    path = tmp_path / "edited-time.h5"
+    with SystemRecordWriter(path, make_metadata(), chunk_samples=1000) as writer:
+        writer.append(make_system_chunk(0, 4000, seed=2))
+    with h5py.File(path, "r+") as f:
+        f["columns/time"][2345] += 0.5 / RATE  # still increasing, half a step late (not an overview row)
+    with pytest.raises(InputError, match="row 2346") as caught:
+        open_system_record(path).verify_derived()
+    assert caught.value.field == "/time_grid"

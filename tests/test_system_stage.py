@@ -247,7 +247,7 @@ def test_hdf5_record_with_time_grid_and_overview_equals_in_memory_columns(day, t
         writer.append(cols)
     source = open_system_record(path)
     assert source.time_grid is not None and (len(source.time_grid) > 3) == gaps
-    assert source.verify_overview() == 4 and source.verify_time_grid()
+    assert source.verify_derived() == (4, len(source.time_grid))
     options = SystemOptions(chunk_rows=1 << 15)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)

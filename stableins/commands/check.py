@@ -57,8 +57,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SamplingWarning)
             report = record.check_sampling(allow_gaps=allow_gaps)
-        overview = record.verify_overview()
-        grid = record.verify_time_grid()
+        overview, segments = record.verify_derived()
         return {
             "file": path,
             "kind": "system",
@@ -70,7 +69,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
             "gaps": len(report.gaps),
             "jitter_steps": report.n_jitter,
             "overview_step": overview,
-            "time_grid_segments": 0 if not grid else len(record.time_grid),
+            "time_grid_segments": segments,
             "warnings": [str(w.message) for w in caught],
         }
     from stableins.data.errors import InputError

@@ -321,67 +321,57 @@ class H5Reader:
         k = np.searchsorted(grid[:, 0], rows, side="right") - 1
         return grid[k, 1] + (rows - grid[k, 0]) * grid[k, 2]
 
-    def verify_time_grid(self, rows: int = DEFAULT_CHUNK) -> bool:
-        """Check ``/time_grid`` against the time column (streaming); returns whether the file has one.
+    def verify_derived(self, rows: int = DEFAULT_CHUNK) -> tuple[int, int]:
+        """Check ``/overview`` and ``/time_grid`` against the columns in one streaming pass.
+
+        Returns the overview step and the number of time-grid segments (0 for what the file does not have).
 
         Raises
         ------
         InputError
-            A time value differs from its segment by more than the tolerance (the file was changed after it was written).
+            An overview value differs from its full-rate row, or a time stamp from its grid segment by more than the
+            tolerance (the file was changed after it was written); names the row and the dataset.
         """
         import numpy as np
 
-        if self.time_grid is None:
-            return False
-        tolerance = TIME_GRID_TOLERANCE * float(self.time_grid[:, 2].min())
+        step, grid = self.overview_step, self.time_grid
+        if not step and grid is None:
+            return 0, 0
+        names = [c.name for c in self.schema if c.dtype != "str"] if step else ["time"]
+        rows = max(step, rows - rows % step) if step else rows  # chunks start on overview rows
+        tolerance = TIME_GRID_TOLERANCE * float(grid[:, 2].min()) if grid is not None else 0.0
         with self._open() as f:
             for k in range(0, self.rows, rows):
                 stop = min(k + rows, self.rows)
-                time = self._read(f, ["time"], k, stop)["time"]
-                bad = np.flatnonzero(np.abs(time - self.grid_time(k, stop)) > tolerance)
-                if bad.size:
-                    raise InputError(
-                        f"time {float(time[bad[0]])!r} is not on the time grid written with the file "
-                        f"({float(self.grid_time(k + int(bad[0]), k + int(bad[0]) + 1)[0])!r}); the file was changed after it was written",
-                        path=self.path,
-                        row=k + int(bad[0]) + 1,
-                        field=f"/{TIME_GRID}",
-                        expected=f"the time column within {tolerance:.3g} s of its segments",
-                    )
-        return True
-
-    def verify_overview(self, rows: int = DEFAULT_CHUNK) -> int:
-        """Check ``/overview`` against the full-rate columns (streaming); returns its step (0: none).
-
-        Raises
-        ------
-        InputError
-            An overview value differs from its full-rate row (the file was modified by another tool).
-        """
-        import numpy as np
-
-        step = self.overview_step
-        if not step:
-            return 0
-        rows = max(step, rows - rows % step)
-        names = [c.name for c in self.schema if c.dtype != "str"]
-        with self._open() as f:
-            for k in range(0, self.rows, rows):
-                full = self._read(f, names, k, min(k + rows, self.rows))
-                for name in names:
-                    view = f[OVERVIEW][name][k // step : k // step + len(full[name][::step])]
-                    bad = np.flatnonzero(view != full[name][::step])
+                full = self._read(f, names, k, stop)
+                if grid is not None:
+                    on_grid = self.grid_time(k, stop)
+                    bad = np.flatnonzero(np.abs(full["time"] - on_grid) > tolerance)
                     if bad.size:
-                        row = k + int(bad[0]) * step
+                        j = int(bad[0])
                         raise InputError(
-                            f"overview value {float(view[bad[0]])!r} differs from the column's row ({float(full[name][row - k])!r}); "
+                            f"time {float(full['time'][j])!r} is not on the time grid written with the file "
+                            f"({float(on_grid[j])!r}); the file was changed after it was written",
+                            path=self.path,
+                            row=k + j + 1,
+                            field=f"/{TIME_GRID}",
+                            expected=f"the time column within {tolerance:.3g} s of its segments",
+                        )
+                for name in names if step else ():
+                    picked = full[name][::step]
+                    view = f[OVERVIEW][name][k // step : k // step + picked.size]
+                    bad = np.flatnonzero(view != picked)
+                    if bad.size:
+                        j = int(bad[0])
+                        raise InputError(
+                            f"overview value {float(view[j])!r} differs from the column's row ({float(picked[j])!r}); "
                             "the file was changed after it was written",
                             path=self.path,
-                            row=row + 1,
+                            row=k + j * step + 1,
                             field=f"/{OVERVIEW}/{name}",
                             expected=f"every {step}-th row of /{GROUP}/{name}",
                         )
-        return step
+        return step, 0 if grid is None else len(grid)
 
     def _open(self, chunk_cache: bool = True) -> Any:
         """Open for reading.  ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them

@@ -359,9 +359,12 @@ class SystemRecord:
             return {n: np.zeros(0) for n in names}
         return {n: np.concatenate([c[n] for c in chunks]) for n in names}
 
-    def verify_overview(self) -> int:
-        """HDF5: check the ``/overview`` rows against the full-rate columns; returns its step (0: none, or CSV)."""
-        return 0 if self._reader is None else int(self._reader.verify_overview())
+    def verify_derived(self) -> tuple[int, int]:
+        """HDF5: check ``/overview`` and ``/time_grid`` against the columns in one pass; returns (overview step, grid segments).
+
+        Zeros for what the file does not have (and for CSV).
+        """
+        return (0, 0) if self._reader is None else self._reader.verify_derived()
 
     @property
     def time_grid(self) -> Any:
@@ -371,10 +374,6 @@ class SystemRecord:
     def grid_time(self, start: int, stop: int) -> Any:
         """Time of rows ``start:stop`` from :attr:`time_grid` (which must exist)."""
         return self._reader.grid_time(start, stop)
-
-    def verify_time_grid(self) -> bool:
-        """HDF5: check :attr:`time_grid` against the time column; returns whether the file has one."""
-        return False if self._reader is None else bool(self._reader.verify_time_grid())
 
     def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
         """Check the time column against the metadata rate (streaming).
