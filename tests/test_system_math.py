@@ -11,6 +11,7 @@ from stableins import conventions as cv
 from stableins.errormodel import ErrorModel
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import attitude_combinations, fit_attitude
+from stableins.estimators.system.blocksums import observation
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, separate
 from stableins.estimators.system.stage import _BlockHarmonics, harmonic_information, residuals_from_parameters
@@ -215,14 +216,15 @@ def test_vertical_channel_from_metadata_moves_roll():
 
 
 def test_stage_compensation_equals_error_model_inverse():
-    """The closed-form |f^p|² (column arithmetic, the numpy reference) equals |ErrorModel.inverse(f^a)|², K2 included."""
+    """The closed-form z of the compiled pass (its numpy form) gives |f^p|² = |ErrorModel.inverse(f^a)|², K2 included."""
     from stableins.estimators.system.stage import _Compensation
 
     rng = np.random.default_rng(4)
     installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
     f_a = platform_force(rng.uniform(0, 6, 1000)) + rng.normal(0, 1e-2, (1000, 3))
     expected = np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1)
-    got = _Compensation.from_values(installed).squared_norm(f_a[:, 0].copy(), f_a[:, 1].copy(), f_a[:, 2].copy())
+    z = observation(f_a[:, 0], f_a[:, 1], f_a[:, 2], _Compensation.from_values(installed).packed(9.8))
+    got = 2.0 * 9.8**2 * (z + 0.5)  # z = ½(|f^p|²/g² − 1)
     np.testing.assert_allclose(got, expected, rtol=1e-14)
 
 
@@ -241,7 +243,7 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
         args = (*(f_a[:, k].copy() for k in range(3)), t, packed, 256, cv.EARTH_RATE, (0.0099, 0.0101))
         got, expected = block_sums(*args), block_sums_reference(*args)
         # round-off scale per block and column: Σ|z||δ|^p, Σ|δ|^p, plus p·Σ|z||δ|^(p−1)·ε_c for the round-off ε_c of the centre
-        z = 0.5 * (_Compensation.from_values(installed).squared_norm(*(f_a[:, k].copy() for k in range(3))) / 9.8**2 - 1.0)
+        z = observation(f_a[:, 0], f_a[:, 1], f_a[:, 2], packed)
         d = np.abs(cv.EARTH_RATE * (t - np.repeat(expected[1], expected[0][:, 7].astype(int))))
         eps_c = cv.EARTH_RATE * 1e-14 * np.abs(t).max()
         starts = np.arange(0, n, 256)

@@ -289,23 +289,6 @@ class _Compensation:
         """The coefficients of the compiled per-sample pass (:func:`.blocksums.coefficients`)."""
         return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
-    def squared_norm(self, fx: NDArray, fy: NDArray, fz: NDArray) -> NDArray[np.float64]:
-        """``|f^p|² = wᵀ Q w`` with ``Q = MᵀM`` (column arithmetic: no BLAS call, no (n, 3) copy)."""
-        q = np.einsum("ki,kj->ij", self.matrix, self.matrix)
-        w0, w1, w2 = fx - self.bias[0], fy - self.bias[1], fz - self.bias[2]
-        if np.any(self.quadratic):
-            w0 -= self.quadratic[0] * w0 * w0
-            w1 -= self.quadratic[1] * w1 * w1
-            w2 -= self.quadratic[2] * w2 * w2
-        out = q[0, 0] * w0 * w0
-        out += q[1, 1] * w1 * w1
-        out += q[2, 2] * w2 * w2
-        w0 *= 2.0
-        out += (q[0, 1] * w0) * w1
-        out += (q[0, 2] * w0) * w2
-        out += (2.0 * q[1, 2] * w1) * w2
-        return out
-
 
 # --------------------------------------------------------------------------- the stage
 def _residual_scale(values: Mapping[str, float], gravity: float) -> dict[str, float]:
