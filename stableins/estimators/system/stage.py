@@ -70,7 +70,12 @@ VIF_LIMIT = 30.0
 
 
 class ChunkSource(Protocol):
-    """What the stage reads: ``iter_chunks(columns, rows)`` yielding ``{column: ndarray}``."""
+    """What the stage reads: ``iter_chunks(columns, rows)`` yielding ``{column: ndarray}``.
+
+    A source may also offer ``time_grid`` (uniform segments of the time column, ``(n, 3)`` rows first_row,
+    first_time, period) and ``grid_time(start, stop)``, as :class:`stableins.data.system.SystemRecord` does for
+    HDF5 files: the stage then reads the time stamps at the attitude decimation only.
+    """
 
     path: str
 
@@ -221,7 +226,7 @@ class _BlockHarmonics:
         self.sum_z2 += float(sum_z2)
         self.count += int(round(float(sums[:, 7].sum())))
         h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, self.z_sums)
-        return sums[:, 0].copy(), h, sums[:, 7].copy()
+        return sums[:, 0], h, sums[:, 7]
 
     def accumulator(self) -> hm.InformationAccumulator:
         """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
