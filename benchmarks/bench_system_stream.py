@@ -145,6 +145,70 @@ def stage(path: Path, rows: int, limit_days: float | None = None, trace: bool = 
     return elapsed, peak, int(out.diagnostics["samples"])
 
 
+def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
+    """Where one run of the stage spends its time: the source's reads and the stage's parts (section timers).
+
+    The parts are wrapped with timers for this run only (the module is restored afterwards); what is left of the
+    total is the streaming loop's own numpy work on the 1-Hz columns and the post-processing not listed.
+    """
+    from stableins.estimators.system import stage as module
+
+    record = open_system_record(path)
+    timers: dict[str, float] = {}
+
+    class TimedSource:
+        path = record.path
+        time_grid = record.time_grid
+
+        def grid_time(self, start: int, stop: int):
+            return record.grid_time(start, stop)
+
+        def iter_chunks(self, *args, **options):
+            chunks = record.iter_chunks(*args, **options)
+            while True:
+                start = time.perf_counter()
+                chunk = next(chunks, None)
+                timers["reads (forces at full rate, 1-Hz overview)"] = timers.get("reads (forces at full rate, 1-Hz overview)", 0.0) + (
+                    time.perf_counter() - start
+                )
+                if chunk is None:
+                    return
+                yield chunk
+
+    parts = {
+        (module, "block_sums"): "compiled pass (z, block moments, sampling check)",
+        (module, "harmonic_sums"): "harmonic block sums",
+        (module, "second_difference_sums"): "noise second differences",
+        (module._StaticChecks, "slow"): "static checks on the 1-Hz columns",
+        (module.AttitudeBlocks, "add"): "attitude blocks",
+        (module.hm, "kalman_filter"): "Kalman-filter curve",
+        (module, "fit_attitude"): "attitude fit",
+        (module, "_coloured_covariance"): "coloured-noise model",
+    }
+    saved = {key: getattr(*key) for key in parts}
+
+    def timed(function, label):
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                timers[label] = timers.get(label, 0.0) + time.perf_counter() - start
+
+        return wrapper
+
+    try:
+        for (owner, name), label in parts.items():
+            setattr(owner, name, timed(saved[(owner, name)], label))
+        start = time.perf_counter()
+        run_system_stage(TimedSource(), record.metadata, {}, options=SystemOptions(chunk_rows=rows))
+        total = time.perf_counter() - start
+    finally:
+        for (owner, name), function in saved.items():
+            setattr(owner, name, function)
+    return total, timers
+
+
 _RSS_SCRIPT = """
 import sys
 def rss():  # VmHWM: this process's peak resident set (ru_maxrss would carry the parent's over fork and exec)
@@ -205,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         _, peak_day, _ = stage(path, args.rows, limit_days=1.0, trace=True)
         lengths = [d for d in (2.0, 3.0, 5.0) if d < args.days]
         peaks = [stage(path, args.rows, limit_days=d, trace=True)[1] for d in lengths]
+        split = min((breakdown(path, args.rows) for _ in range(r)), key=lambda run: run[0])
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         rss_imports, rss_stage = stage_rss(path, args.rows)
     finally:
@@ -221,6 +286,11 @@ def main(argv: list[str] | None = None) -> int:
             f"ratio {ts / tp:.2f} to the h5py baseline (target <= 2), {ts / tb:.2f} to the reader's"
         )
     print(f"  baseline, h5py slices with the chunk cache off   : {t_base_fast:7.3f} s  -> stage ratio {t_stage / t_base_fast:.2f}")
+    total, timers = split
+    print(f"where the stage's time goes (whole record, section timers, fastest of {r} runs: {total:.3f} s in all):")
+    for label, seconds in sorted(timers.items(), key=lambda item: -item[1]):
+        print(f"  {label:<48} {seconds:7.3f} s")
+    print(f"  {'the rest (loop numpy work, other post-processing)':<48} {total - sum(timers.values()):7.3f} s")
     print(
         f"peak traced memory (tracemalloc): whole record {peak / 2**20:.1f} MiB, first day {peak_day / 2**20:.1f} MiB "
         "(target <= 256 MiB, flat)"
