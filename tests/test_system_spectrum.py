@@ -170,9 +170,11 @@ def test_whittle_fit_recovers_known_levels_within_k_sigma():
     fisher = (design / e[:, None]).T @ (design / e[:, None])
     sigma = np.sqrt(np.diag(np.linalg.inv(fisher)))
     assert np.all(np.abs(fitted - theta) < 4 * sigma), (fitted, theta, sigma)
-    amplitudes, info = spectrum.fit_coloured_noise(design, observed, 1)
-    np.testing.assert_allclose(amplitudes, fitted[1:], rtol=1e-6)
-    assert info["loglik_gain"] > 10  # strongly coloured: far better than white
+    fit = spectrum.fit_coloured_noise(design, observed, 1)
+    np.testing.assert_allclose(fit.maximum_likelihood, fitted[1:], rtol=1e-4)
+    assert fit.statistic > 10 and fit.detected  # strongly coloured: far better than white
+    np.testing.assert_allclose(fit.amplitudes, fit.maximum_likelihood)
+    assert np.all(fit.lower <= fit.maximum_likelihood) and np.all(fit.maximum_likelihood <= fit.upper)
 
 
 def test_component_quadratic_memory_does_not_grow_with_the_stacked_size():
