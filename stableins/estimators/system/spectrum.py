@@ -191,7 +191,7 @@ def component_quadratic(
     for axis in range(3):
         a = sum(_mix(left[:, p * n : (p + 1) * n], ops[axis]) for p, ops in enumerate(mixing))
         b = a if right is left else sum(_mix(right[:, p * n : (p + 1) * n], ops[axis]) for p, ops in enumerate(mixing))
-        out += np.einsum("in,nm,km->ik", a, kernel, b)
+        out += np.einsum("im,km->ik", np.einsum("in,nm->im", a, kernel), b)  # two products: a three-operand einsum loops naively
     return out
 
 
@@ -306,7 +306,7 @@ def periodogram_design(
             e = np.zeros(2 * m)
             for axis in range(3):
                 pa = _mix(proj, mixing[p][axis])
-                e += np.einsum("kn,nm,km->k", pa, kernel, pa)
+                e += np.einsum("km,km->k", np.einsum("kn,nm->km", pa, kernel), pa)
             block[:, n_ch + c] = 0.5 * (e[:m] + e[m:])
         if white_gains is not None and white_gains[p] is not None:
             block[:, p] *= np.array([white_gains[p](f) for f in ks / span])
