@@ -29,11 +29,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from stableins import noise as _noise
 from stableins.conventions import EARTH_RATE
 
 #: Earth-rate frequency [Hz].
@@ -121,24 +123,30 @@ def inflation(frequencies: NDArray[np.float64], ratios: NDArray[np.float64], at:
 
 
 # --------------------------------------------------------------------------- coloured accelerometer noise, modulated
-#: Correlation times [s] of the Gauss-Markov sum standing for flicker (bias instability), one decade apart.  The sum has
-#: a 1/f spectrum from about ``1/(2π·1e5 s)`` (0.14 cycles/day) to ``1/(2π·1e2 s)`` (140 cycles/day), which covers
-#: the fitted band (3.5 to 30 cycles/day) and reaches down to the harmonic frequencies.
-FLICKER_TIME_CONSTANTS = (1e2, 1e3, 1e4, 1e5)
+#: Correlation times [s] of the Gauss-Markov sum standing for flicker (bias instability), one decade apart: the noise
+#: model's (:data:`stableins.noise.FLICKER_TIME_CONSTANTS`, 1 s to 1e5 s).  The sum has a 1/f spectrum from about
+#: ``1/(2π·1e5 s)`` (0.14 cycles/day) to ``1/(2π·1 s)``, which covers the fitted bands (3.5 to about 650 cycles/day)
+#: and reaches down to the harmonic frequencies.
+FLICKER_TIME_CONSTANTS = _noise.FLICKER_TIME_CONSTANTS
 
 #: The coloured components: random walk and flicker, one amplitude each for the three accelerometer axes.
 COLOURED_KINDS = ("random_walk", "flicker")
 
 
-def amplitudes_to_allan(amplitudes: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
-    """``(K, B)`` [m/s²/√s, m/s²] from the amplitudes ``((K/g)², σ²/g²)``, ``σ² = B² ln 10/π`` per Gauss-Markov process."""
-    a = np.asarray(amplitudes, dtype=float)
-    return np.array([gravity * math.sqrt(max(a[0], 0.0)), gravity * math.sqrt(max(a[1], 0.0) * math.pi / math.log(10.0))])
+def amplitudes_to_allan(amplitudes: ArrayLike, gravity: float) -> NDArray[np.float64]:
+    """``(K, B)`` [m/s²/√s, m/s²] from the amplitudes ``((K/g)², σ²/g²)``, ``σ² = B² ln 10/π`` per Gauss-Markov process.
+
+    Works elementwise on arrays whose first axis is the kind (:data:`COLOURED_KINDS`); ``inf`` stays ``inf``.
+    """
+    a = np.maximum(np.asarray(amplitudes, dtype=float), 0.0)
+    return np.stack([gravity * np.sqrt(a[0]), gravity * np.sqrt(a[1] / _noise.FLICKER_VARIANCE_PER_B2)])
 
 
-def allan_to_amplitudes(random_walk: float, bias_instability: float, gravity: float) -> NDArray[np.float64]:
-    """The inverse of :func:`amplitudes_to_allan`."""
-    return np.array([(random_walk / gravity) ** 2, (bias_instability / gravity) ** 2 * math.log(10.0) / math.pi])
+def allan_to_amplitudes(random_walk: ArrayLike, bias_instability: ArrayLike, gravity: float) -> NDArray[np.float64]:
+    """The inverse of :func:`amplitudes_to_allan`: ``((K/g)², (B/g)² ln 10/π)``."""
+    k = np.asarray(random_walk, dtype=float)
+    b = np.asarray(bias_instability, dtype=float)
+    return np.stack([(k / gravity) ** 2, (b / gravity) ** 2 * _noise.FLICKER_VARIANCE_PER_B2])
 
 
 def bin_process_kernel(kind: str, time: NDArray[np.float64], width: float) -> NDArray[np.float64]:
@@ -159,11 +167,13 @@ def bin_process_kernel(kind: str, time: NDArray[np.float64], width: float) -> ND
         return cov
     lag = np.abs(np.subtract.outer(t, t))
     cov = np.zeros_like(lag)
+    diagonal = np.diag_indices_from(cov)
     for tau in FLICKER_TIME_CONSTANTS:
         x = width / tau
-        shrink = (np.sinh(0.5 * x) / (0.5 * x)) ** 2  # two disjoint bins of the same width
-        cov += np.exp(-lag / tau) * shrink
-        cov[np.diag_indices_from(cov)] += 2.0 * (x - 1.0 + np.exp(-x)) / (x * x) - shrink
+        # two disjoint bins: e^{−Δt/τ} (sinh(x/2)/(x/2))² = e^{−(Δt − w)/τ} ((1 − e^{−x})/x)², without overflow for x ≫ 1
+        part = np.exp(-np.maximum(lag - width, 0.0) / tau) * (-math.expm1(-x) / x) ** 2
+        part[diagonal] = 2.0 * (x - 1.0 + math.exp(-x)) / (x * x) if x > 1e-6 else 1.0 - x / 3.0
+        cov += part
     return cov
 
 
@@ -175,7 +185,12 @@ def _mix(rows: NDArray[np.float64], operator: NDArray[np.float64]) -> NDArray[np
 
 
 def component_quadratic(
-    left: NDArray[np.float64], right: NDArray[np.float64], mixing: list[list[NDArray[np.float64]]], kernel: NDArray[np.float64]
+    left: NDArray[np.float64],
+    right: NDArray[np.float64],
+    mixing: list[list[NDArray[np.float64]]],
+    kernel: NDArray[np.float64],
+    *,
+    per_axis: bool = False,
 ) -> NDArray[np.float64]:
     """``A Σ Bᵀ`` for the stacked channel bins without forming the stacked covariance ``Σ``.
 
@@ -184,15 +199,16 @@ def component_quadratic(
     = ``mixing[p][a]``: a loading ``L_pa(t_i)`` (diagonal, ``(n,)``) or an ``(n, n)`` operator (a loop filtering
     the loadings, :func:`loop_bin_mixing`).  ``left (r, P·n)``, ``right (s, P·n)`` act on the ``P`` channels' bins
     stacked; per axis ``A_a = Σ_p A_p M_pa`` and ``A Σ Bᵀ = Σ_a A_a C B_aᵀ``.  Memory ``O((r + s) n)`` besides the
-    kernel and the operators.
+    kernel and the operators.  ``per_axis``: the three terms ``A_a C B_aᵀ`` separately, shape ``(3, r, s)`` (axes with
+    different noise levels).
     """
     n = kernel.shape[0]
-    out = np.zeros((left.shape[0], right.shape[0]))
+    out = np.zeros((3, left.shape[0], right.shape[0]))
     for axis in range(3):
         a = sum(_mix(left[:, p * n : (p + 1) * n], ops[axis]) for p, ops in enumerate(mixing))
         b = a if right is left else sum(_mix(right[:, p * n : (p + 1) * n], ops[axis]) for p, ops in enumerate(mixing))
-        out += np.einsum("im,km->ik", np.einsum("in,nm->im", a, kernel), b)  # two products: a three-operand einsum loops naively
-    return out
+        out[axis] = np.einsum("im,km->ik", np.einsum("in,nm->im", a, kernel), b)  # two products: a three-operand einsum loops naively
+    return out if per_axis else out.sum(axis=0)
 
 
 def loop_bin_mixing(
@@ -379,9 +395,9 @@ def z_bin_expectations(k: NDArray[np.int64], n: int, width: float, latitude: flo
     for tau in FLICKER_TIME_CONSTANTS:
         x = width / tau
         variance = 2.0 * (x - 1.0 + math.exp(-x)) / (x * x) if x > 1e-6 else 1.0 - x / 3.0
-        shrink = (math.sinh(0.5 * x) / (0.5 * x)) ** 2 if x < 700 else 0.0
+        lag_one = (-math.expm1(-x) / x) ** 2  # e^{−x} (sinh(x/2)/(x/2))², the covariance of adjacent bins
         rho = math.exp(-x)
-        flicker += modulated(lambda th, v=variance, c=shrink * rho, r=rho: _dft_of_geometric_covariance(th, n, v, c, r))
+        flicker += modulated(lambda th, v=variance, c=lag_one, r=rho: _dft_of_geometric_covariance(th, n, v, c, r))
     out[:, 2] = flicker
     return out
 
@@ -400,6 +416,7 @@ def whittle_fit(
     free: NDArray[np.bool_] | None = None,
     offset: NDArray[np.float64] | None = None,
     start: NDArray[np.float64] | None = None,
+    penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], float]:
     r"""Maximum of the Whittle likelihood ``ℓ(θ) = −Σ_k [log E_k + P_k/E_k]``, ``E = design @ θ + offset``, over ``θ ≥ 0``.
 
@@ -408,7 +425,9 @@ def whittle_fit(
     scoring on columns scaled to the mean ordinate: the step solves ``I Δ = ∇ℓ`` with ``I = Dᵀ diag(E⁻²) D`` over the
     columns not held at their bound (a column at 0 whose gradient points below 0 is held), halved until ``ℓ`` increases;
     converged when the Newton decrement ``∇ℓᵀ I⁻¹ ∇ℓ < 1e-10``.  A few iterations of a few small matrix products: the
-    stage runs dozens of these fits (decision, intervals) in milliseconds.  Returns ``θ`` and ``ℓ(θ)``.
+    stage runs dozens of these fits (decision, intervals) in milliseconds.  ``penalty = (mean, sd)`` per column adds a
+    Gaussian prior ``−½ Σ ((θ_c − mean_c)/sd_c)²`` (``sd = inf``: none), an independent measurement of the levels; the
+    maximum is then the posterior mode.  Returns ``θ`` and the (penalized) ``ℓ(θ)``.
     """
     p = design.shape[1]
     free = np.ones(p, dtype=bool) if free is None else np.asarray(free, dtype=bool)
@@ -424,18 +443,26 @@ def whittle_fit(
         if not np.any(a @ u + base > floor):
             u = np.full(a.shape[1], 1.0 / a.shape[1])
 
+    if penalty is None:
+        centre, weight = np.zeros(a.shape[1]), np.zeros(a.shape[1])
+    else:
+        sd = np.asarray(penalty[1], dtype=float)[free] / scale
+        centre = np.asarray(penalty[0], dtype=float)[free] / scale
+        weight = np.where(np.isfinite(sd) & (sd > 0), 1.0 / np.where(sd > 0, sd, 1.0) ** 2, 0.0)
+        centre = np.where(weight > 0, centre, 0.0)
+
     def loglik(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         e = np.maximum(a @ v + base, floor)
-        return -float(np.sum(np.log(e) + observed / e)), e
+        return -float(np.sum(np.log(e) + observed / e)) - 0.5 * float(np.sum(weight * (v - centre) ** 2)), e
 
     value, e = loglik(u)
     for _ in range(200):
-        gradient = a.T @ ((observed / e - 1.0) / e)
+        gradient = a.T @ ((observed / e - 1.0) / e) - weight * (u - centre)
         moving = (u > 0.0) | (gradient > 0.0)
         if not moving.any():
             break
         scaled = a[:, moving] / e[:, None]
-        fisher = scaled.T @ scaled
+        fisher = scaled.T @ scaled + np.diag(weight[moving])
         try:
             step = np.linalg.solve(fisher, gradient[moving])
         except np.linalg.LinAlgError:
@@ -477,27 +504,38 @@ def _chi_bar_squared_sf(statistic: float, correlation: float | None) -> float:
     return 0.5 * float(chi2.sf(statistic, 1)) + w2 * float(chi2.sf(statistic, 2))
 
 
+class ColouredSource(Enum):
+    """Where the coloured-noise amplitudes under σ come from."""
+
+    #: The record alone: a decision with a calibrated false-positive rate, then the maximum-likelihood amplitudes.
+    DATA = "the record alone"
+    #: The record and the prior noise model (an earlier measurement): the posterior mode.
+    PRIOR = "the record and the prior noise model"
+    #: Given (a datasheet): the amplitudes are the given ones; the record's own fit is reported beside them.
+    GIVEN = "given"
+
+
 @dataclass(frozen=True)
 class ColouredNoiseFit:
     """The coloured-noise amplitudes of a record and how they were decided (docs/system-calibration.md §1a).
 
     Attributes
     ----------
-    kinds : tuple of str
-        :data:`COLOURED_KINDS`: random walk ``(K/g)²`` [1/s] and flicker (variance of each Gauss-Markov process of
-        :data:`FLICKER_TIME_CONSTANTS`, ``σ²/g² = (B/g)² ln 10/π``).
-    amplitudes : ndarray
-        The amplitudes used for σ: the maximum-likelihood values when coloured noise is detected (or given), else 0.
-    maximum_likelihood : ndarray
-        The maximum of the Whittle likelihood over amplitudes ≥ 0.
-    lower, upper : ndarray
-        Profile-likelihood interval of each amplitude at ``confidence`` (``upper`` = the largest the data allow).
+    amplitudes : ndarray (2, 3)
+        The amplitudes used for σ per kind (:data:`COLOURED_KINDS`: random walk ``(K/g)²`` [1/s]; flicker, the variance of
+        each Gauss-Markov process of :data:`FLICKER_TIME_CONSTANTS`, ``σ²/g² = (B/g)² ln 10/π``) and accelerometer axis:
+        the maximum-likelihood values (or the posterior mode) when coloured noise is detected, the given ones, else 0.
+    maximum_likelihood : ndarray (2,)
+        The maximum of the record's Whittle likelihood over amplitudes ≥ 0 (one value for the three axes).
+    lower, upper : ndarray (2,)
+        Profile-likelihood interval of each amplitude at ``confidence`` (with the prior when there is one); ``upper`` is
+        the largest amplitude the data allow.
     statistic, p_value : float
-        ``2(ℓ_coloured − ℓ_white)`` and its p-value under white noise (χ̄², :func:`_chi_bar_squared_sf`).
+        ``2(ℓ_coloured − ℓ_white)`` of the record alone and its p-value under white noise (χ̄², :func:`_chi_bar_squared_sf`).
     alpha : float
         False-positive rate of the decision: coloured noise is detected when ``p_value < alpha``.
-    source : str
-        ``"data"`` (the decision above), ``"given"`` (amplitudes from the record's noise model) or ``"data and prior"``.
+    source : ColouredSource
+        Where :attr:`amplitudes` come from.
     white_levels : ndarray
         White levels of the channels (z, pitch, roll) [per-sample variance, z in g²; pitch and roll in rad² at the blocks].
     ordinates : tuple of int
@@ -514,22 +552,27 @@ class ColouredNoiseFit:
     p_value: float
     alpha: float
     confidence: float
-    source: str = "data"
+    source: ColouredSource = ColouredSource.DATA
     white_levels: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     ordinates: tuple[int, int] = (0, 0)
     band: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    kinds: tuple[str, ...] = COLOURED_KINDS
 
     @property
     def detected(self) -> bool:
-        """Coloured noise declared present (``p_value < alpha``); always True for given amplitudes that are not zero."""
-        return self.source != "data" and bool(np.any(self.amplitudes > 0)) or self.p_value < self.alpha
+        """The amplitudes under σ are not zero (detected by the decision, or given, or known from the prior)."""
+        return bool(np.any(self.amplitudes > 0))
+
+    @property
+    def data_detected(self) -> bool:
+        """The record alone shows coloured noise (``p_value < alpha``)."""
+        return self.p_value < self.alpha
 
     def describe(self) -> str:
-        verdict = "detected" if self.detected else "not detected"
+        verdict = "detected" if self.data_detected else "not detected"
         return (
-            f"low-frequency noise {verdict}: likelihood ratio {self.statistic:.2f} against white noise, p = {self.p_value:.3g} "
-            f"(false-positive rate {self.alpha:g}; {self.ordinates[0]} + {self.ordinates[1]} periodogram ordinates)"
+            f"low-frequency noise {verdict} in the record: likelihood ratio {self.statistic:.2f} against white noise, "
+            f"p = {self.p_value:.3g} (false-positive rate {self.alpha:g}; {self.ordinates[0]} + {self.ordinates[1]} periodogram "
+            "ordinates)"
         )
 
 
@@ -542,6 +585,9 @@ def fit_coloured_noise(
     confidence: float = 0.95,
     ordinates: tuple[int, int] = (0, 0),
     band: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prior_detected: bool = False,
+    given: NDArray[np.float64] | None = None,
 ) -> ColouredNoiseFit:
     """Decide whether the residuals carry coloured noise, with a calibrated false-positive rate, and fit its amplitudes.
 
@@ -553,10 +599,16 @@ def fit_coloured_noise(
     interval of each amplitude is the profile-likelihood one at ``confidence``; its upper end is what the data allow.
     Why a decision and not always the maximum: with white noise the maximum is above 0 in about 60 % of one-day records
     and a random-walk amplitude far below detection multiplies the variance at the harmonics (docs §1a).
+
+    ``prior = (mean, sd)`` of the amplitudes (an earlier measurement of the instrument; ``sd = inf``: nothing known):
+    the amplitudes are then the posterior mode (:func:`whittle_fit` with the penalty) when the record or the prior
+    (``prior_detected``) shows coloured noise, else 0.  ``given`` ``(2, 3)``: the amplitudes per axis, used as they are
+    (the record's own fit and decision are still reported).
     """
     from scipy.stats import chi2
 
     p = design.shape[1]
+    kinds = p - channels
     white_only = np.zeros(p, dtype=bool)
     white_only[:channels] = True
     theta0, loglik0 = whittle_fit(design, observed, white_only)
@@ -572,13 +624,29 @@ def fit_coloured_noise(
     block = covariance[amp, amp]
     correlation = None if block.shape[0] < 2 else float(block[0, 1] / math.sqrt(max(block[0, 0] * block[1, 1], 1e-300)))
     p_value = _chi_bar_squared_sf(statistic, correlation)
-    level = float(chi2.ppf(confidence, 1))
-    lower, upper = np.zeros(p - channels), np.zeros(p - channels)
-    for c in range(channels, p):
-        lower[c - channels], upper[c - channels] = _profile_interval(design, observed, theta, loglik, c, level)
     detected = p_value < alpha
+    penalty = None
+    best, best_loglik = theta, loglik
+    source = ColouredSource.DATA
+    if given is not None:
+        source = ColouredSource.GIVEN
+        used = np.asarray(given, dtype=float).reshape(kinds, 3)
+    elif prior is not None:
+        source = ColouredSource.PRIOR
+        penalty = (
+            np.concatenate([np.zeros(channels), np.asarray(prior[0], dtype=float)]),
+            np.concatenate([np.full(channels, np.inf), np.asarray(prior[1], dtype=float)]),
+        )
+        best, best_loglik = whittle_fit(design, observed, start=theta, penalty=penalty)
+        used = np.repeat(best[amp][:, None], 3, axis=1) if (detected or prior_detected) else np.zeros((kinds, 3))
+    else:
+        used = np.repeat(theta[amp][:, None], 3, axis=1) if detected else np.zeros((kinds, 3))
+    level = float(chi2.ppf(confidence, 1))
+    lower, upper = np.zeros(kinds), np.zeros(kinds)
+    for c in range(channels, p):
+        lower[c - channels], upper[c - channels] = _profile_interval(design, observed, best, best_loglik, c, level, penalty)
     return ColouredNoiseFit(
-        amplitudes=theta[amp].copy() if detected else np.zeros(p - channels),
+        amplitudes=used,
         maximum_likelihood=theta[amp].copy(),
         lower=lower,
         upper=upper,
@@ -586,6 +654,7 @@ def fit_coloured_noise(
         p_value=p_value,
         alpha=alpha,
         confidence=confidence,
+        source=source,
         white_levels=theta[:channels].copy(),
         ordinates=ordinates,
         band=band,
@@ -601,7 +670,13 @@ def _small_amplitudes(design: NDArray[np.float64], theta0: NDArray[np.float64], 
 
 
 def _profile_interval(
-    design: NDArray[np.float64], observed: NDArray[np.float64], theta: NDArray[np.float64], loglik: float, column: int, level: float
+    design: NDArray[np.float64],
+    observed: NDArray[np.float64],
+    theta: NDArray[np.float64],
+    loglik: float,
+    column: int,
+    level: float,
+    penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[float, float]:
     """``{v : 2(ℓ̂ − max_{θ_c = v} ℓ) ≤ level}`` for amplitude ``column``: lower and upper end (lower 0 when 0 is inside)."""
     from scipy.optimize import brentq
@@ -609,9 +684,14 @@ def _profile_interval(
     free = np.ones(design.shape[1], dtype=bool)
     free[column] = False
     best = float(theta[column])
+    prior_term = 0.0, 0.0
+    if penalty is not None and np.isfinite(penalty[1][column]) and penalty[1][column] > 0:
+        prior_term = float(penalty[0][column]), float(penalty[1][column])
 
     def deficit(v: float) -> float:
-        fitted, value = whittle_fit(design, observed, free, offset=v * design[:, column], start=theta)
+        fitted, value = whittle_fit(design, observed, free, offset=v * design[:, column], start=theta, penalty=penalty)
+        if prior_term[1] > 0:  # the fixed column's own prior term
+            value -= 0.5 * ((v - prior_term[0]) / prior_term[1]) ** 2
         return 2.0 * (loglik - value) - level
 
     # a scale: the amplitude whose column adds the mean ordinate over the band

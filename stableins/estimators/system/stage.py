@@ -50,7 +50,8 @@ from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, Attitude
 from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums, second_difference_sums
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
-from stableins.estimators.system.spectrum import ColouredNoiseFit
+from stableins.estimators.system.spectrum import ColouredNoiseFit, ColouredSource
+from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
 #: (HDF5 records with a /time_grid: time only at the attitude decimation, the rest reconstructed).
@@ -175,6 +176,10 @@ class SystemCalibration:
     coloured_noise : ColouredNoiseFit or None
         The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
         (None when the record is too short for the model).
+    noise_model : NoiseModel
+        The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
+        from second differences, bias instability and random walk from the residual spectra, with intervals; the given
+        model when a datasheet model was given.  It goes into the calibration record.
     """
 
     result: FitResult
@@ -187,6 +192,7 @@ class SystemCalibration:
     notes: tuple[str, ...] = ()
     diagnostics: dict[str, Any] = field(default_factory=dict)
     coloured_noise: ColouredNoiseFit | None = None
+    noise_model: NoiseModel | None = None
 
 
 # --------------------------------------------------------------------------- harmonic information
@@ -407,6 +413,8 @@ def run_system_stage(
     prior: Mapping[str, float],
     prior_covariance: Mapping[tuple[str, str], float] | None = None,
     options: SystemOptions = SystemOptions(),
+    *,
+    noise_model: NoiseModel | None = None,
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -423,6 +431,16 @@ def run_system_stage(
         uncertainty carried into directions the data do not see.  Default: nominal
         magnitudes of the terms.
     options : SystemOptions
+    noise_model : NoiseModel, optional
+        The instrument's noise model as known before this record (the calibration record's).  A datasheet model gives
+        the amplitudes of the low-frequency noise as they are; a measured one (device dwells, an earlier static record)
+        is a prior on them (docs/system-calibration.md §1a).  The white level is always measured in the record.
+
+    Returns
+    -------
+    SystemCalibration
+        With :attr:`SystemCalibration.noise_model`, the noise model under its σ (measured in this record, source
+        ``static record``, unless a datasheet model was given).
     """
     path = getattr(source, "path", "<record>")
     latitude, gravity, rate = _check_metadata(metadata, path)
@@ -635,6 +653,7 @@ def run_system_stage(
     cov_v[7:, :7] = jac_x @ cov_x
     cov_v[:7, 7:] = cov_v[7:, :7].T
     # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
+    given, noise_prior, prior_detected = _noise_prior(noise_model, gravity)
     units, coloured_fit = _coloured_covariance(
         filter_bins,
         fine_bins,
@@ -648,9 +667,15 @@ def run_system_stage(
         loop,
         options.case_rotation_period,
         alpha=options.noise_false_positive_rate,
+        prior=noise_prior,
+        prior_detected=prior_detected,
+        given=given,
     )
-    amplitudes = np.zeros(units.shape[0]) if coloured_fit is None else coloured_fit.amplitudes
-    coloured = np.einsum("c,cij->ij", amplitudes, units)
+    if coloured_fit is not None:
+        amplitudes = coloured_fit.amplitudes
+    else:  # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
+        amplitudes = np.zeros(units.shape[:2])
+    coloured = np.einsum("ca,caij->ij", amplitudes, units)
     white_x2 = cov_v[1, 1]
     cov_v = cov_v + coloured
     cov_x = cov_v[:7, :7]
@@ -741,6 +766,7 @@ def run_system_stage(
         "z_low_frequency_ratio": low_frequency_ratio,
         "combined_sigma_white": np.sqrt(np.diag(to_combined @ (cov_v - coloured) @ to_combined.T)),  # without the coloured part
         "coloured_noise_units": units,
+        "noise_samples": noise_count,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
         "k2_residual_sigma": k2_sigma,
@@ -765,6 +791,7 @@ def run_system_stage(
         notes=tuple(notes),
         diagnostics=diagnostics,
         coloured_noise=coloured_fit,
+        noise_model=_measured_noise_model(axis_variance, noise_count, rate, coloured_fit, gravity, noise_model, path, duration),
     )
 
 
@@ -794,8 +821,11 @@ def _coloured_covariance(
     case_rotation_period: float | None = None,
     alpha: float = 0.05,
     confidence: float = 0.95,
+    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prior_detected: bool = False,
+    given: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], Any]:
-    """Unit covariances ``(2, 17, 17)`` of ``(x1..x7, attitude)`` for the coloured components, and their amplitudes.
+    """Unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
     The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the low band: residual
     periodograms between 3.5 and 30 cycles/day (at most 0.45/bin width) with exact expectations for what the fits absorb
@@ -814,7 +844,7 @@ def _coloured_covariance(
     """
     from stableins.estimators.system import spectrum
 
-    units = np.zeros((len(spectrum.COLOURED_KINDS), 17, 17))
+    units = np.zeros((len(spectrum.COLOURED_KINDS), 3, 17, 17))
     n_keep = int(keep_bins.sum())
     if n_keep < 16 or att.block_map is None:
         return units, None
@@ -896,6 +926,9 @@ def _coloured_covariance(
         confidence=confidence,
         ordinates=(int(observed.size - n_high), n_high),
         band=(low[0], high, top),
+        prior=prior,
+        prior_detected=prior_detected,
+        given=given,
     )
     # attitude blocks → the same bins (block time since the record start)
     n_map = att.block_map.shape[1] // 2
@@ -910,32 +943,141 @@ def _coloured_covariance(
     j[7:, :n] = jac_x @ a_z
     j[7:, n:] = a_att
     for c, kernel in enumerate(kernels):
-        unit = spectrum.component_quadratic(j, j, mixing, kernel)
-        units[c] = 0.5 * (unit + unit.T)
+        unit = spectrum.component_quadratic(j, j, mixing, kernel, per_axis=True)
+        units[c] = 0.5 * (unit + unit.transpose(0, 2, 1))
     return units, fit
 
 
-def _coloured_note(fit: Any, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
+def _coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
     """What the decision on low-frequency noise found and what it does to σ (docs/system-calibration.md §1a)."""
     from stableins.estimators.system.spectrum import amplitudes_to_allan
 
     upper = amplitudes_to_allan(fit.upper, gravity)
-    allowed = float(np.einsum("c,c->", fit.upper, units[:, 1, 1]))
+    allowed = float(np.einsum("c,ca->", fit.upper, units[:, :, 1, 1]))
     bound = (
         f"the data allow up to bias instability {upper[1] / MICRO_G:.3g} ug and random walk {upper[0]:.3g} m/s^2/sqrt(s) "
         f"({100 * fit.confidence:g} % upper limits), with which the variance of x2 would be "
         f"{(white_x2 + allowed) / white_x2:.1f}x the white-noise value"
     )
-    if fit.detected:
-        used = amplitudes_to_allan(fit.amplitudes, gravity)
-        factor = (white_x2 + float(np.einsum("c,c->", fit.amplitudes, units[:, 1, 1]))) / white_x2
+    factor = (white_x2 + float(np.einsum("ca,ca->", fit.amplitudes, units[:, :, 1, 1]))) / white_x2
+    used = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+    levels = f"bias instability {used[1] / MICRO_G:.3g} ug and random walk {used[0]:.3g} m/s^2/sqrt(s)"
+    if fit.source is ColouredSource.GIVEN:
         return (
-            f"the residuals carry low-frequency noise of the accelerometers ({fit.describe()}): bias instability "
-            f"{used[1] / MICRO_G:.3g} ug and random walk {used[0]:.3g} m/s^2/sqrt(s) (maximum likelihood, one value for the three "
-            f"axes) make the variance of x2 {factor:.1f}x the white-noise value; the covariance of all coefficients includes it; {bound}"
+            f"low-frequency noise as given in the noise model ({levels}) makes the variance of x2 {factor:.1f}x the white-noise "
+            f"value; the record's own fit: {fit.describe()}; {bound}"
         )
-    return f"no low-frequency noise detected ({fit.describe()}): σ is the white-noise σ; {bound}"
+    if fit.detected:
+        how = "posterior mode with the prior noise model" if fit.source is ColouredSource.PRIOR else "maximum likelihood"
+        return (
+            f"the residuals carry low-frequency noise of the accelerometers ({fit.describe()}): {levels} ({how}, one value for "
+            f"the three axes) make the variance of x2 {factor:.1f}x the white-noise value; the covariance of all coefficients "
+            f"includes it; {bound}"
+        )
+    return f"no low-frequency noise ({fit.describe()}): σ is the white-noise σ; {bound}"
 
+
+def _noise_prior(
+    model: NoiseModel | None, gravity: float
+) -> tuple[NDArray[np.float64] | None, tuple[NDArray[np.float64], NDArray[np.float64]] | None, bool]:
+    """What a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
+
+    A datasheet model: the amplitudes per axis, used as they are (``given``, ``(2, 3)``).  A measured model (device dwells,
+    an earlier static record): a Gaussian prior on each amplitude (one value for the three axes, the mean over the axes)
+    with its centre at the model's value and its standard deviation from the model's interval (two-sided when the term
+    was detected, one-sided from its upper limit otherwise; none when the term is not bounded); ``prior_detected`` when
+    a slow term was detected.  Nothing known (no model, source ``none``): no prior.
+    """
+    from scipy.stats import norm
+
+    from stableins.estimators.system.spectrum import allan_to_amplitudes
+
+    if model is None or model.source is NoiseSource.NONE:
+        return None, None, False
+    values = allan_to_amplitudes(model.values("random_walk"), model.values("bias_instability"), gravity)  # (2, 3)
+    if model.source is NoiseSource.DATASHEET:
+        return values, None, False
+    (k_lo, k_hi), (b_lo, b_hi) = model.limits("random_walk"), model.limits("bias_instability")
+    lower = allan_to_amplitudes(k_lo, b_lo, gravity).mean(axis=1)
+    upper = allan_to_amplitudes(k_hi, b_hi, gravity).mean(axis=1)
+    centre = values.mean(axis=1)
+    two_sided, one_sided = float(norm.ppf(0.5 + 0.5 * model.confidence)), float(norm.ppf(model.confidence))
+    sd = np.where(lower > 0, (upper - lower) / (2.0 * two_sided), (upper - centre) / one_sided)
+    sd = np.where(np.isfinite(upper) & (sd > 0), sd, np.inf)
+    detected = bool(np.any(np.concatenate([k_lo, b_lo]) > 0))
+    return None, (centre, sd), detected
+
+
+#: Effective degrees of freedom per second difference of white noise: consecutive second differences are correlated
+#: (−2/3 at lag 1, 1/6 at lag 2), so the variance of their mean square is ``2(1 + 2(4/9 + 1/36))/n`` times its square.
+SECOND_DIFFERENCE_DOF = 1.0 / (1.0 + 2.0 * (4.0 / 9.0 + 1.0 / 36.0))
+
+
+def _measured_noise_model(
+    axis_variance: NDArray[np.float64],
+    count: int,
+    rate: float,
+    fit: ColouredNoiseFit | None,
+    gravity: float,
+    given: NoiseModel | None,
+    path: str,
+    duration: float,
+) -> NoiseModel:
+    """The noise model of the instrument measured in this record (source ``static record``), per axis.
+
+    * White noise ``N = σ/√rate`` per axis from the second differences of the raw outputs (``σ²``, insensitive to the
+      Earth-rate signal), interval from ``χ²`` with ``SECOND_DIFFERENCE_DOF · count`` degrees of freedom;
+    * bias instability ``B`` and random walk ``K``: the amplitudes under σ (one value for the three axes) with their
+      profile-likelihood intervals (:class:`.spectrum.ColouredNoiseFit`); not detected: 0 with the upper limit;
+    * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
+      all of the second differences' variance (``20 Q²/dt²``).
+    A datasheet model given to the stage is returned as it is (its amplitudes were used).
+    """
+    from scipy.stats import chi2
+
+    from stableins.estimators.system.spectrum import amplitudes_to_allan
+
+    if given is not None and given.source is NoiseSource.DATASHEET:
+        return given
+    confidence = 0.95 if fit is None else fit.confidence
+    dof = max(1.0, SECOND_DIFFERENCE_DOF * count)
+    tail = 0.5 * (1.0 - confidence)
+    white = np.sqrt(axis_variance / rate)
+    white_lo = white * math.sqrt(dof / float(chi2.ppf(1.0 - tail, dof)))
+    white_hi = white * math.sqrt(dof / float(chi2.ppf(tail, dof)))
+    q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
+    if fit is None:
+        slow = {"random_walk": NoiseTerm.unbounded(), "bias_instability": NoiseTerm.unbounded()}
+        slow_text = "bias instability and random walk not measured (record too short for the residual-spectrum model)"
+    else:
+        value = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+        lower = amplitudes_to_allan(fit.lower, gravity)
+        upper = amplitudes_to_allan(fit.upper, gravity)
+        slow = {}
+        for k, name in enumerate(("random_walk", "bias_instability")):
+            v = float(value[k])
+            lo = min(float(lower[k]), v) if fit.detected else 0.0
+            slow[name] = NoiseTerm(v, lo, max(float(upper[k]), v))
+        slow_text = (
+            "bias instability and random walk from the residual spectra, one value for the three axes ("
+            + fit.describe()
+            + ("; with the prior noise model" if fit.source is ColouredSource.PRIOR else "")
+            + ")"
+        )
+    axes = tuple(
+        AxisNoise(
+            white=NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])),
+            bias_instability=slow["bias_instability"],
+            random_walk=slow["random_walk"],
+            quantization=NoiseTerm(0.0, 0.0, float(q_upper[a])),
+        )
+        for a in range(3)
+    )
+    provenance = (
+        f"system-level record {path}: {duration / 3600:.2f} h at {rate:g} Hz; white noise from {count} second differences "
+        f"per axis; {slow_text}; quantization not separable from the white noise at this rate (upper limit)"
+    )
+    return NoiseModel(axes, NoiseSource.STATIC_RECORD, provenance, confidence)  # type: ignore[arg-type]
 
 
 def _attitude_residual_maker(
