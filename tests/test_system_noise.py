@@ -82,7 +82,10 @@ def test_a_datasheet_model_gives_the_amplitudes_and_comes_back_unchanged():
     given = NoiseModel.given(QUARTZ.velocity_random_walk, QUARTZ.bias_instability, QUARTZ.acceleration_random_walk)
     out, normalized = day(4, QUARTZ, noise_model=given)
     fit = out.coloured_noise
-    assert fit.source is ColouredSource.GIVEN and out.noise_model is given
+    assert fit.source is ColouredSource.GIVEN and out.noise_model.source is NoiseSource.DATASHEET
+    for name in ("bias_instability", "random_walk", "quantization"):  # as given; the white noise is the record's
+        np.testing.assert_array_equal(out.noise_model.values(name), given.values(name))
+    assert "white noise measured in the system-level record" in out.noise_model.provenance
     g = 9.80665  # the amplitudes are in units of the local gravity (9.80 at the simulated site): 0.2 % tolerance
     np.testing.assert_allclose(fit.amplitudes[0], (QUARTZ.acceleration_random_walk / g) ** 2 * np.ones(3), rtol=3e-3)
     np.testing.assert_allclose(fit.amplitudes[1], (QUARTZ.bias_instability / g) ** 2 * math.log(10) / math.pi * np.ones(3), rtol=3e-3)

@@ -1031,14 +1031,15 @@ def _measured_noise_model(
       profile-likelihood intervals (:class:`.spectrum.ColouredNoiseFit`); not detected: 0 with the upper limit;
     * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
       all of the second differences' variance (``20 Q²/dt²``).
-    A datasheet model given to the stage is returned as it is (its amplitudes were used).
+    With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
+    are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
     """
+    from dataclasses import replace
+
     from scipy.stats import chi2
 
     from stableins.estimators.system.spectrum import amplitudes_to_allan
 
-    if given is not None and given.source is NoiseSource.DATASHEET:
-        return given
     confidence = 0.95 if fit is None else fit.confidence
     dof = max(1.0, SECOND_DIFFERENCE_DOF * count)
     tail = 0.5 * (1.0 - confidence)
@@ -1046,6 +1047,14 @@ def _measured_noise_model(
     white_lo = white * math.sqrt(dof / float(chi2.ppf(1.0 - tail, dof)))
     white_hi = white * math.sqrt(dof / float(chi2.ppf(tail, dof)))
     q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
+    whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
+    if given is not None and given.source is NoiseSource.DATASHEET:
+        axes = tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes))
+        provenance = (
+            f"white noise measured in the system-level record {path} ({count} second differences per axis); bias instability, "
+            f"random walk and quantization as given ({given.provenance or 'datasheet'})"
+        )
+        return replace(given, axes=axes, provenance=provenance)
     if fit is None:
         slow = {"random_walk": NoiseTerm.unbounded(), "bias_instability": NoiseTerm.unbounded()}
         slow_text = "bias instability and random walk not measured (record too short for the residual-spectrum model)"
@@ -1066,7 +1075,7 @@ def _measured_noise_model(
         )
     axes = tuple(
         AxisNoise(
-            white=NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])),
+            white=whites[a],
             bias_instability=slow["bias_instability"],
             random_walk=slow["random_walk"],
             quantization=NoiseTerm(0.0, 0.0, float(q_upper[a])),
