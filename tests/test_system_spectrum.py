@@ -334,3 +334,16 @@ def test_decision_has_its_false_positive_rate_and_the_intervals_cover():
         covered += fit.lower[1] <= coloured[2] <= fit.upper[1]
         assert fit.detected
     assert covered >= 85, covered  # 95 % intervals
+
+
+def test_decision_with_a_noiseless_channel():
+    """A channel whose residuals are exactly zero (a synthetic record without attitude noise) has a zero white level."""
+    rng = np.random.default_rng(9)
+    z = _white_design(rng)
+    m = z.shape[0]
+    design = np.zeros((2 * m, 4))
+    design[:m, 0], design[:m, 2:] = z[:, 0], z[:, 1:]
+    design[m:, 1], design[m:, 2:] = z[:, 0], 0.1 * z[:, 1:]
+    observed = np.concatenate([rng.exponential(z[:, 0] * 1e-6), np.zeros(m)])
+    fit = spectrum.fit_coloured_noise(design, observed, 2)
+    assert np.isfinite(fit.p_value) and not fit.detected and fit.white_levels[1] == 0.0

@@ -616,7 +616,7 @@ def fit_coloured_noise(
     if loglik < loglik0:  # the nested white-only maximum is a point of the full model
         theta, loglik = theta0, loglik0
     statistic = max(0.0, 2.0 * (loglik - loglik0))
-    e0 = design @ theta0
+    e0 = np.maximum(design @ theta0, 1e-12 * float(observed.mean()) + 1e-300)  # a channel without noise has E = 0
     scaled = design / e0[:, None]
     scaled = scaled / np.maximum(np.linalg.norm(scaled, axis=0), 1e-300)
     covariance = np.linalg.pinv(scaled.T @ scaled)
