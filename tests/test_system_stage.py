@@ -170,6 +170,12 @@ def test_short_record_fits_only_what_is_observable():
         with pytest.raises(InputError, match="lack one sidereal day") as info:
             run(cols8, meta, installed)
     assert "no record was written" in str(info.value) and "8.00 h" in str(info.value)
+    cols9, meta = record(true, installed, rate=1.0, duration=9 * 3600.0, seed=3)
+    # 9 h: the named combinations are determined, but by exactly as many resolved combinations (ν = 0): not certifiable
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(InputError, match="ν = 0"):
+            run(cols9, meta, installed)
     cols, meta = record(true, installed, rate=1.0, duration=12 * 3600.0, seed=3)
     with pytest.warns(UserWarning, match="not observable"):
         out = run(cols, meta, installed)

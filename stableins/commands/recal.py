@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         args.prior = str(prior_path)
         args.new_calibration = True  # a recalibration starts a new calibration from the record in force
+        args.emit_result = False  # one result on stdout: the recalibration's
         status = run_command.run(args)
         if status != 0:
             return status

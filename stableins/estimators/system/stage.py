@@ -666,11 +666,17 @@ def run_system_stage(
     scale = _residual_scale(prior, gravity)
     prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
     sep = separate(names_used, combined_values, combined_cov, latitude, prior_sigma=prior_sigma, transform=transform)
-    if not any(ok for _, _, ok in sep.combinations.values()):
+    if sep.dof < 1 or not any(ok for _, _, ok in sep.combinations.values()):
+        what = (
+            f"none of the combinations the separation needs ({'; '.join(sep.combinations)}) is determined"
+            if not any(ok for _, _, ok in sep.combinations.values())
+            else f"the {kept} combinations it resolves are all used by the {sep.rank} the separation estimates (ν = 0): its χ²_ν is "
+            "undefined and nothing is left to test the model"
+        )
         raise InputError(
-            f"the record of {duration / 3600:.2f} h determines none of the combinations the system-level stage separates "
-            f"({'; '.join(sep.combinations)}): {kept} of 15 combinations of the Earth-rate harmonics are resolved, and none of them "
-            "separates an accelerometer parameter; the data lack one sidereal day. Nothing was estimated and no record was written",
+            f"the record of {duration / 3600:.2f} h determines nothing the stage can certify: {what}; over less than one sidereal day "
+            "the Earth-rate harmonics are not separable from one another (the data lack one sidereal day). Nothing was estimated "
+            "and no record was written",
             path=path,
             field="time",
             expected=f"a static record of one sidereal day ({SIDEREAL_DAY / 3600:.2f} h) or more",
