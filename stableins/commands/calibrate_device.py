@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from stableins.commands import add_entries_option
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
@@ -38,13 +40,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
     )
     parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="an entry of the calibration (laboratory, customer, operator, location, lab_temperature=21.5 degC ...); repeatable",
-    )
+    add_entries_option(parser)
 
 
 def _same_site(datasets) -> None:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from stableins.commands import add_entries_option
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
@@ -62,13 +64,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="start a new calibration from the prior (a record in force) instead of continuing the prior's calibration",
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="an entry of the calibration (laboratory, customer, operator, location, lab_temperature=21.5 degC ...); repeatable",
-    )
+    add_entries_option(parser)
 
 
 def run(args: Any) -> int:

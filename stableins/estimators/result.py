@@ -23,6 +23,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Relative eigenvalue below which a direction of a (correlation-scaled) information matrix counts as not determined.
 INFORMATION_RTOL = 1e-9
+#: A parameter is determined by the data alone when its share in every direction they do not determine is below this
+#: (correlation-scaled).  The fine stage's null directions (the β sums) carry sf at 3e-4 through the nonlinear model:
+#: the scale factors count as determined alone, as they are to that order.
+ALONE_LOADING = 1e-2
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,10 +121,10 @@ class Likelihood:
         return d, scaled, null
 
     def estimable(self) -> NDArray[np.bool_]:
-        """Which parameters the data determine by themselves (unit vector in the row space of ``Λ``)."""
+        """Which parameters the data determine by themselves (unit vector in the row space of ``Λ``, to :data:`ALONE_LOADING`)."""
         d, _, null = self._scaled()
         loading = np.linalg.norm(null, axis=1) if null.size else np.zeros(len(self.ids))
-        return (d > 0) & (loading < 1e-6)
+        return (d > 0) & (loading < ALONE_LOADING)
 
     def rank(self) -> int:
         """Number of independent combinations the data determine."""
