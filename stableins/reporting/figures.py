@@ -211,16 +211,17 @@ def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]
         ax = fig.add_subplot(111)
         colours = ["#b3261e" if c.significant else "#1f3a5f" for c in items]
         finite = [v if math.isfinite(v) else 0.0 for v in values]
-        ax.bar(range(len(values)), finite, color=colours, width=0.6)
-        ax.axhspan(-threshold, threshold, color="0.88", linewidth=0, label=f"|z| < {threshold:g}: not flagged")
-        ax.axhline(0, color="black", linewidth=0.6)
+        ax.axhspan(-threshold, threshold, color="0.88", linewidth=0, label=f"|z| < {threshold:g}: not flagged", zorder=0)
+        ax.bar(range(len(values)), finite, color=colours, width=0.6, zorder=2)
+        ax.axhline(0, color="black", linewidth=0.6, zorder=3)
         ax.set_xticks(range(len(values)), labels, rotation=90)
         from matplotlib.ticker import FuncFormatter
 
-        ax.set_yscale("symlog", linthresh=threshold)
+        limit = max([threshold + 1.0] + [1.2 * abs(v) for v in finite])
+        if limit > 10 * threshold:  # a large change: a logarithmic scale beyond the flag level keeps the small ones visible
+            ax.set_yscale("symlog", linthresh=threshold)
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
         ax.set_ylabel("z = Δ / u(Δ)")
-        limit = max([threshold + 1.0] + [1.2 * abs(v) for v in finite])
         ax.set_ylim(-limit, limit)
         ax.set_xlim(-0.6, len(values) - 0.4)
         ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
