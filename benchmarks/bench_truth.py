@@ -156,8 +156,8 @@ def field_recalibration(root: Path) -> None:
     history = json.loads(must("history", "SN042", "--store", str(store), "--json"))
     section = text[text.index("7 Change since the previous calibration") : text.index("8 Statement of conformity")]
     certificate = sorted({m.group(1) for m in re.finditer(r"^\s*(\w+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)})
-    print(f"   change flags (|z| ≥ 3): recal {recal['significant']}, history {history['changes'][-1]['significant']}, "
-          f"certificate {certificate}; compared: {len(recal['changes'])} parameters, not compared: {len(recal['not_compared'])}")  # fmt: skip
+    flags = f"recal {recal['significant']}, history {history['changes'][-1]['significant']}, certificate {certificate}"
+    print(f"   change flags (|z| ≥ 3): {flags}; compared: {len(recal['changes'])} parameters, not compared: {len(recal['not_compared'])}")
     flat = " ".join(text.split())
     print(f"   on the certificate: site temperature entry {'site temperature 23.5 °C' in flat}, data times "
           f"{record.provenance.data_start in flat and record.provenance.data_end in flat}, sample rate {'100 Hz' in flat}")  # fmt: skip

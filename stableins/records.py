@@ -254,11 +254,12 @@ class Calibration:
 
     @classmethod
     def new(cls, procedure: str = "", entries: Iterable[Entry] = (), prior: PriorReference | None = None) -> Calibration:
+        import uuid
+
         from stableins import __version__
 
         created = _now()
-        digest = hashlib.sha256(f"{created}{procedure}{os.getpid()}{id(entries)}".encode()).hexdigest()[:8]
-        return cls(f"cal-{created[:10]}-{digest}", procedure, f"stableins {__version__}", created, prior, tuple(entries))
+        return cls(f"cal-{created[:10]}-{uuid.uuid4().hex[:8]}", procedure, f"stableins {__version__}", created, prior, tuple(entries))
 
 
 @dataclass(frozen=True)
