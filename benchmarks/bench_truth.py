@@ -141,9 +141,8 @@ def field_recalibration(root: Path) -> None:
     same = (store / "SN042" / entry.file).read_bytes() == (out / "record.json").read_bytes()
     print(f"   record in force after recal: {entry.file}; byte-identical to recal1/record.json: {same}; prior digest {prior_digest[:12]}")
     record = dict(found)["record.json"]
-    print(
-        f"   stages run: {', '.join(record.provenance.stages)}; carried over: {', '.join(s.name for s in record.stages if s not in record.stages_run)}"
-    )
+    carried = ", ".join(s.name for s in record.stages if s not in record.stages_run)
+    print(f"   stages run: {', '.join(record.provenance.stages)}; carried over: {carried}")
     text = pdf_text(out / "report.pdf")
     rows = {m.group(1): m.group(2) for m in re.finditer(r"^(\w+)\s+estimated\s+(\S+)\s", text, re.M)}
     terms = known_terms()
