@@ -173,7 +173,7 @@ def test_whittle_fit_recovers_known_levels_within_k_sigma():
     fit = spectrum.fit_coloured_noise(design, observed, 1)
     np.testing.assert_allclose(fit.maximum_likelihood, fitted[1:], rtol=1e-4)
     assert fit.statistic > 10 and fit.detected  # strongly coloured: far better than white
-    np.testing.assert_allclose(fit.amplitudes, fit.maximum_likelihood)
+    np.testing.assert_allclose(fit.amplitudes, np.repeat(fit.maximum_likelihood[:, None], 3, axis=1))  # one value for the axes
     assert np.all(fit.lower <= fit.maximum_likelihood) and np.all(fit.maximum_likelihood <= fit.upper)
 
 
