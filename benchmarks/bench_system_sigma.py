@@ -13,10 +13,13 @@ and two ways of running the stage:
 
 * ``default``: nothing known about the noise (the record alone: the decision on low-frequency noise with its
   false-positive rate, then the maximum-likelihood amplitudes);
-* ``datasheet``: the instrument's noise model given (the simulator's own settings as a datasheet ``NoiseModel``).
+* ``datasheet``: the instrument's noise model given (the simulator's own settings as a datasheet ``NoiseModel``);
+* ``prior``: the noise model the stage measured on an earlier day of the same instrument (another record of the
+  same world, seed + 5000) as the prior, the way ``calibrate system`` uses the model in the calibration record.
 
 Printed per world and mode: rms z per coefficient family (x2–x5, pitch θ, roll φ; target [0.9, 1.1], expected
-1 ± 1/√(2N)), overall, the largest |z| and the fractions beyond 2 and 3 (Gaussian: 4.6 %, 0.27 %); the fraction of
+1 ± 1/√(2N)), the overall rms z of each batch of 40 consecutive seeds, overall, the largest |z| and the fractions
+beyond 2 and 3 (Gaussian: 4.6 %, 0.27 %); the fraction of
 records in which low-frequency noise is detected (white worlds: the false-positive rate, nominal 5 %; quartz: the
 detection power), the likelihood-ratio statistic's quantiles, the factor by which the coloured part raises the variance
 of x2, and the measured noise model against the simulator's settings (read here, never by the estimator): white N per
@@ -71,16 +74,16 @@ def datasheet(noise: NoiseSettings) -> NoiseModel:
 
 
 def run(seed: int, noise: NoiseSettings, mode: str) -> stage.SystemCalibration:
+    model = datasheet(noise) if mode == "datasheet" else None
+    if mode == "prior":
+        earlier, _ = run(seed + 5000, noise, "default")
+        model = earlier.noise_model
     truth = Truth.draw(seed, sample_rate=1.0, noise=noise)
     cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out = run_system_stage(
-            ArraySource(cols),
-            truth.site,
-            truth.installed_calibration,
-            options=SystemOptions(estimate_k2=True),
-            noise_model=datasheet(noise) if mode == "datasheet" else None,
+            ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True), noise_model=model
         )
     p = residuals_from_parameters(truth.parameters, truth.installed_calibration, truth.site.gravity)
     ref = combination_matrix(truth.site.latitude) @ np.r_[p, 0.0, 0.0]
@@ -110,6 +113,12 @@ def campaign(world: str, mode: str, seeds: range) -> None:
         f"  overall rms z {np.sqrt(np.mean(zz**2)):.3f}, max |z| {np.abs(zz).max():.1f}, "
         f"|z| > 2: {np.mean(np.abs(zz) > 2):.3f} (Gaussian 0.046), |z| > 3: {np.mean(np.abs(zz) > 3):.4f} (0.0027)"
     )
+    if n >= 80:
+        batches = [np.sqrt(np.mean(zz[k : k + 40] ** 2)) for k in range(0, n - 39, 20)]
+        print(
+            "  overall rms z of 40 consecutive seeds (starting every 20): "
+            + ", ".join(f"{seeds[0] + 20 * j}-{seeds[0] + 20 * j + 39} {b:.3f}" for j, b in enumerate(batches))
+        )
     print("  rms z per coefficient: " + ", ".join(f"{COMBINED_COEFFICIENTS[i]} {np.sqrt(np.mean(z[:, i] ** 2)):.2f}" for i in HARMONIC))
     det = np.mean(detected)
     expected = "false-positive rate, nominal 0.05" if noise.bias_instability == 0 else "detection power"
@@ -188,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=40)
     parser.add_argument("--first", type=int, default=100)
     parser.add_argument("--worlds", nargs="+", choices=sorted(WORLDS), default=["quartz", "white", "white-5e-3"])
-    parser.add_argument("--modes", nargs="+", choices=("default", "datasheet"), default=["default", "datasheet"])
+    parser.add_argument("--modes", nargs="+", choices=("default", "datasheet", "prior"), default=["default", "datasheet", "prior"])
     parser.add_argument("--memory", action="store_true", help="also print the memory table")
     args = parser.parse_args(argv)
     seeds = range(args.first, args.first + args.seeds)
