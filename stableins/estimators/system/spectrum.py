@@ -280,6 +280,7 @@ def periodogram_design(
     mixing: list[list[NDArray[np.float64]]],
     band: tuple[float, float],
     white_gains: list[Any] | None = None,
+    exclude: tuple[float, ...] = (),
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int] | None:
     r"""Periodogram ordinates of the channels' residuals and their expectations per unit noise level.
 
@@ -295,6 +296,9 @@ def periodogram_design(
     :func:`bin_process_kernel`, one amplitude for the three axes).  ``white_gains[p]``, a function of frequency [Hz],
     is ``|G(f)|²`` of the loop for the white noise (stationary: its periodogram is its spectrum times ``|G|²``).
 
+    ``exclude``: frequencies [Hz] left out with their neighbours within half a Fourier spacing (the harmonics the fits
+    absorb, where a residual ordinate carries nothing).
+
     Returns ``(design, observed, channels)`` with ``E P = design @ (w_1..w_P, α_1..α_C)`` (the
     channels' ordinates one after the other), or ``None`` when the band holds fewer than four Fourier frequencies or
     there are fewer than eight bins.
@@ -303,6 +307,8 @@ def periodogram_design(
     n_bins = time.size
     span = float(time[-1] - time[0]) + (float(np.median(np.diff(time))) if n_bins > 1 else 0.0)
     ks = np.arange(max(1, int(np.ceil(band[0] * span))), int(np.floor(band[1] * span)) + 1)
+    for f in exclude:  # frequencies the fits absorb (the harmonics): no ordinate within half a Fourier spacing
+        ks = ks[np.abs(ks - f * span) >= 0.5]
     if ks.size < 4 or n_bins < 8:
         return None
     m = ks.size

@@ -919,8 +919,13 @@ def _coloured_covariance(
             # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
             # beyond the bins' Nyquist frequency)
             gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
-    low = (3.5 * spectrum.EARTH_FREQUENCY, high)
-    built = spectrum.periodogram_design(channels, makers, weights, time, kernels, mixing[: len(channels)], low, white_gains=gains)
+    # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
+    # per day; longer records also between the harmonics, where the random walk's power is largest)
+    low = (0.0, high)
+    harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
+    built = spectrum.periodogram_design(
+        channels, makers, weights, time, kernels, mixing[: len(channels)], low, white_gains=gains, exclude=harmonics
+    )
     if built is None:
         return units, None
     design, observed, n_ch = built
@@ -957,7 +962,7 @@ def _coloured_covariance(
         alpha=alpha,
         confidence=confidence,
         ordinates=(int(observed.size - n_high), n_high),
-        band=(low[0], high, top),
+        band=(_lowest_frequency(time, wide, harmonics), high, top),
         prior=prior,
         prior_detected=prior_detected,
         given=given,
@@ -978,6 +983,15 @@ def _coloured_covariance(
         unit = spectrum.component_quadratic(j, j, mixing, kernel, per_axis=True)
         units[c] = 0.5 * (unit + unit.transpose(0, 2, 1))
     return units, fit
+
+
+def _lowest_frequency(time: NDArray[np.float64], width: float, harmonics: tuple[float, ...]) -> float:
+    """The lowest Fourier frequency of the low band (the first not within half a spacing of an absorbed harmonic)."""
+    span = float(time[-1] - time[0]) + width
+    k = 1
+    while any(abs(k - f * span) < 0.5 for f in harmonics):
+        k += 1
+    return k / span
 
 
 def _coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
