@@ -32,7 +32,7 @@ chunks), and of ``_coloured_covariance`` alone (peak above its start).
 Usage::
 
     python benchmarks/bench_system_sigma.py [--seeds 40] [--first 100] [--worlds quartz white white-5e-3]
-                                            [--modes default datasheet] [--memory]
+                                            [--modes default datasheet prior] [--days 1] [--memory]
 """
 
 from __future__ import annotations
@@ -73,13 +73,13 @@ def datasheet(noise: NoiseSettings) -> NoiseModel:
     )
 
 
-def run(seed: int, noise: NoiseSettings, mode: str) -> stage.SystemCalibration:
+def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0) -> stage.SystemCalibration:
     model = datasheet(noise) if mode == "datasheet" else None
     if mode == "prior":
-        earlier, _ = run(seed + 5000, noise, "default")
+        earlier, _ = run(seed + 5000, noise, "default", days)
         model = earlier.noise_model
     truth = Truth.draw(seed, sample_rate=1.0, noise=noise)
-    cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
+    cols = system.simulate_system(truth, days * SIDEREAL_DAY, 1.0, seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out = run_system_stage(
@@ -90,12 +90,12 @@ def run(seed: int, noise: NoiseSettings, mode: str) -> stage.SystemCalibration:
     return out, (out.combined.values - ref) / out.combined.sigma
 
 
-def campaign(world: str, mode: str, seeds: range) -> None:
+def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
     noise = WORLDS[world]
     start = time.perf_counter()
     z, detected, statistic, factor, models = [], [], [], [], []
     for seed in seeds:
-        out, normalized = run(seed, noise, mode)
+        out, normalized = run(seed, noise, mode, days)
         z.append(normalized)
         fit = out.coloured_noise
         detected.append(fit.data_detected)
@@ -104,7 +104,10 @@ def campaign(world: str, mode: str, seeds: range) -> None:
         models.append(out.noise_model)
     z = np.array(z)
     n = len(seeds)
-    print(f"{world} noise, {mode}: {n} one-day records at 1 Hz x {len(HARMONIC)} coefficients ({time.perf_counter() - start:.0f} s)")
+    print(
+        f"{world} noise, {mode}: {n} records of {days:g} sidereal days at 1 Hz x {len(HARMONIC)} coefficients "
+        f"({time.perf_counter() - start:.0f} s)"
+    )
     families = ", ".join(f"{name} {np.sqrt(np.mean(z[:, idx] ** 2)):.3f}" for name, idx in FAMILIES.items())
     zz = z[:, HARMONIC]
     spread = 1.0 / math.sqrt(2 * len(FAMILIES["x2-x5"]) * n)
@@ -198,12 +201,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first", type=int, default=100)
     parser.add_argument("--worlds", nargs="+", choices=sorted(WORLDS), default=["quartz", "white", "white-5e-3"])
     parser.add_argument("--modes", nargs="+", choices=("default", "datasheet", "prior"), default=["default", "datasheet", "prior"])
+    parser.add_argument("--days", type=float, default=1.0, help="record length [sidereal days] (default 1)")
     parser.add_argument("--memory", action="store_true", help="also print the memory table")
     args = parser.parse_args(argv)
     seeds = range(args.first, args.first + args.seeds)
     for mode in args.modes:
         for world in args.worlds:
-            campaign(world, mode, seeds)
+            campaign(world, mode, seeds, args.days)
     if args.memory:
         memory()
     return 0
