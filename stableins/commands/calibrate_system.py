@@ -70,10 +70,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: Any) -> int:
     import math
     import warnings
+    from dataclasses import replace
 
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    from stableins.noise import NoiseModel
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -99,9 +101,10 @@ def run(args: Any) -> int:
         known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
     )
     entries = parse_entries(args.set)
+    noise = None if prior.noise_model is None else NoiseModel.from_document(dict(prior.noise_model), path=str(args.prior))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, values, covariance, options)
+        outcome = run_system_stage(record, record.metadata, values, covariance, options, noise_model=noise)
     for w in caught:
         note(f"stableins: warning: {w.message}")
     start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
@@ -120,11 +123,13 @@ def run(args: Any) -> int:
         sample_rate=record.sample_rate,
         environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
     )
+    updated = replace(updated, noise_model=outcome.noise_model.to_document())  # the model under this stage's σ
     updated.save(args.out)
     if args.plot:
         plot(outcome, args.plot)
 
     combined = outcome.combined
+    fit = outcome.coloured_noise
     data = {
         "record": args.record,
         "prior": args.prior,
@@ -154,6 +159,16 @@ def run(args: Any) -> int:
         "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
         "notes": list(outcome.notes) + list(outcome.result.notes),
+        "noise_model": outcome.noise_model.to_document(),
+        "low_frequency_noise": None
+        if fit is None
+        else {
+            "source": fit.source.name.lower(),
+            "detected": fit.detected,
+            "likelihood_ratio": fit.statistic,
+            "p_value": fit.p_value,
+            "false_positive_rate": fit.alpha,
+        },
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
     emit(args, data, text=report(outcome, updated, args.out))
@@ -168,6 +183,10 @@ def report(outcome: Any, record: Any, out: str) -> str:
     for n, v, s, st in zip(c.ids, c.values, c.sigma, c.status, strict=True):
         shown = f"{v:>12.4e} {s:>10.2e}" if st != "unidentifiable" else f"{'—':>12} {'—':>10}"
         lines.append(f"  {n:<12} {shown}  {st}")
+    fit = outcome.coloured_noise
+    lines += ["", outcome.noise_model.report()]
+    if fit is not None:
+        lines.append(fit.describe())
     lines += [
         "",
         f"stage: system; chi2_red = {r.chi2_red:.3f} (nu = {r.dof}, expected 1 ± {(2 / max(r.dof, 1)) ** 0.5:.2f}); rank = {r.rank}",

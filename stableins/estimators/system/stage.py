@@ -767,7 +767,7 @@ def run_system_stage(
         transform,
         notes,
         _prior_term_covariance(prior_covariance, prior_res_cov, scale),
-        _settings(options),
+        _settings(options, noise_model),
         k2=(k2_values, k2_covariance) if options.estimate_k2 else None,
     )
 
@@ -793,7 +793,6 @@ def run_system_stage(
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
         "combined_sigma_white": np.sqrt(np.diag(to_combined @ (cov_v - coloured) @ to_combined.T)),  # without the coloured part
-        "coloured_noise_units": units,
         "noise_samples": noise_count,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
@@ -1311,14 +1310,17 @@ def _prior_residual_covariance(
     return 0.5 * (cov + cov.T)
 
 
-def _settings(options: SystemOptions) -> dict[str, Any]:
-    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame)."""
+def _settings(options: SystemOptions, noise_model: NoiseModel | None = None) -> dict[str, Any]:
+    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame).
+
+    ``noise_model``: the source of the noise model the stage started from (``none`` when there was none).
+    """
     from dataclasses import asdict
 
     out = asdict(options)
     if out["known_gyro_drift"] is not None:
         out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
-    return {"stage": "system", **out}
+    return {"stage": "system", **out, "noise_model": "none" if noise_model is None else noise_model.source.value}
 
 
 @dataclass(frozen=True)
