@@ -1,6 +1,9 @@
 """Procedure definitions: load a TOML file of gimbal steps and validate it.
 
-The format is documented at the top of ``procedures/device-coarse.toml``.  Angles are
+The format is documented at the top of ``device-coarse.toml`` and in ``docs/procedures.md``.  The
+definitions shipped with stableins are package data (``stableins/procedures/definitions/``), so a
+name such as ``"device-coarse"`` is found from any directory, in a checkout and in an installed
+wheel alike; ``procedures/`` at the top of the repository links to them.  Angles are
 written in degrees in the file and held in radians here (SI inside).  Every problem
 raises :class:`stableins.data.errors.InputError` naming the file and the field.
 """
@@ -16,8 +19,8 @@ from typing import Any
 from stableins.conventions import ARCSEC
 from stableins.data.errors import InputError
 
-#: Where the definitions shipped with stableins live (``procedures/`` in the repository).
-PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
+#: Where the definitions shipped with stableins live: package data, found by name from any directory.
+PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
 #: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
@@ -116,8 +119,17 @@ def _number(table: dict, key: str, path: str, where: str, *, positive: bool = Fa
     return float(value)
 
 
+def shipped_procedures() -> tuple[str, ...]:
+    """Names of the definitions shipped with stableins (``"device-coarse"``, ...)."""
+    return tuple(sorted(p.stem for p in PROCEDURE_DIRECTORY.glob("*.toml")))
+
+
 def resolve(name_or_path: str | Path) -> Path:
-    """A path, or the name of a shipped definition (``"device-coarse"``)."""
+    """A path, or the name of a shipped definition (``"device-coarse"``).
+
+    A name without ``.toml`` that is not an existing file is looked up among the shipped
+    definitions (package data, :data:`PROCEDURE_DIRECTORY`), whatever the working directory.
+    """
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         return p
@@ -139,7 +151,11 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         with open(path, "rb") as handle:
             data = tomllib.load(handle)
     except FileNotFoundError:
-        raise InputError("procedure definition not found", path=spath, expected=f"a TOML file or a name in {PROCEDURE_DIRECTORY}") from None
+        raise InputError(
+            "procedure definition not found",
+            path=spath,
+            expected=f"a TOML file or the name of a shipped definition ({', '.join(shipped_procedures())})",
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=spath) from None
     unknown = set(data) - _SECTIONS

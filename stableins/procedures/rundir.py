@@ -22,7 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from stableins import __version__
+import stableins
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
@@ -119,7 +119,7 @@ def start_run(
             journal.append(
                 "start",
                 {
-                    "version": __version__,
+                    "version": stableins.__version__,
                     "utc": _utc(),
                     "plan": plan.to_dict(),
                     "driver": driver_spec,
