@@ -3,7 +3,7 @@
 ::
 
     stableins simulate device --seed 3 --out sim/ [--procedure device-coarse --procedure device-fine]
-    stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
+    stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
@@ -100,7 +100,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
     )
     parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
-    parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
+    parser.add_argument(
+        "--duration",
+        type=parse_duration,
+        default=None,
+        help="system: record length, e.g. 30h, 2d (default one sidereal day, 23.93 h: the least that separates the Earth-rate harmonics)",
+    )
     parser.add_argument(
         "--procedure",
         action="append",
@@ -316,7 +321,9 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
 
     suffix = args.format or "h5"
     rate = args.rate or truth.site.sample_rate
-    duration = args.duration or 6 * 3600.0
+    from stableins.conventions import SIDEREAL_DAY
+
+    duration = args.duration or SIDEREAL_DAY
     chunk_samples = 65536
     metadata = replace(truth.site, sample_rate=rate)  # the truth puts its damping-loop parameters in site.damping
     path = out / f"system.{suffix}"
