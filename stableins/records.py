@@ -10,12 +10,19 @@ A record is a JSON file (format in ``docs/formats.md``)::
       "provenance": {"software": "stableins 0.1.0", "procedure": ..., "stages": [...],
                      "inputs": [{"path": ..., "sha256": ...}], "created": ..., "data_start": ..., "data_end": ...},
       "site": {...site metadata with units...},
-      "determined": [...], "notes": [...]
+      "determined": [...], "notes": [...],
+      "discovery": {"stage": "coarse+fine", "alpha": 0.05, "steps": [...]}     (only when effects were added)
     }
 
 Values are SI (``unit`` says which); ``sigma`` is the square root of the covariance
 diagonal and is stored only for people (the loader checks that it agrees).  Parameters
 whose status is ``unidentifiable`` have no σ (``null``): the data say nothing about them.
+
+Discovered effects (``stableins calibrate device --add Kcc_xxy``) are parameters like any
+other, with the ids of the discovery library; :meth:`CalibrationRecord.error_model` is the model
+that compensation applies (:meth:`stableins.errormodel.ErrorModel.inverse`).  The optional
+``discovery`` section is the history of the fit that added them (model, χ²_ν, residual RMS
+and the verdict on every tested effect, :class:`stableins.discovery.history.ModelHistory`).
 """
 
 from __future__ import annotations
@@ -37,6 +44,8 @@ if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
     from numpy.typing import NDArray
 
+    from stableins.discovery.history import ModelHistory
+    from stableins.errormodel import ErrorModel
     from stableins.estimators.result import FitResult
 
 RECORD_FORMAT = "stableins-calibration-record"
@@ -147,6 +156,8 @@ class CalibrationRecord:
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     schema_version: int = RECORD_SCHEMA_VERSION
+    #: History of the fit that added discovered effects (None: no effect was added).
+    discovery: ModelHistory | None = None
 
     def __post_init__(self) -> None:
         import numpy as np
@@ -170,6 +181,17 @@ class CalibrationRecord:
     def values(self) -> dict[str, float]:
         """``{id: value}`` [SI], e.g. for :meth:`stableins.errormodel.ErrorModel.forward`."""
         return {p.id: p.value for p in self.parameters}
+
+    def error_model(self) -> ErrorModel:
+        """The error model this record calibrates: the standard terms with ``K2`` and the discovered terms it carries.
+
+        Compensation is ``record.error_model().inverse(output, record.values())`` (Wu et al.
+        2018 Eq. 8 with the additive terms, :meth:`stableins.errormodel.ErrorModel.inverse`).
+        """
+        from stableins.discovery.library import record_terms
+        from stableins.errormodel import ErrorModel
+
+        return ErrorModel.standard(nonlinear=True) + record_terms(self.ids)
 
     def covariance_of(self, ids: Sequence[str]) -> NDArray[np.float64]:
         """The covariance block of the given parameters."""
@@ -308,6 +330,7 @@ class CalibrationRecord:
             site=newer.site or self.site,
             determined=self.determined + tuple(d for d in newer.determined if d not in self.determined),
             notes=self.notes + tuple(f"[{stage}] {n}" for n in newer.notes),
+            discovery=newer.discovery or self.discovery,
         )
 
     #: ``merge`` is the same operation as :meth:`update`.
@@ -320,7 +343,7 @@ class CalibrationRecord:
         def num(x: float) -> float | None:
             return float(x) if math.isfinite(x) else None
 
-        return {
+        document = {
             "format": RECORD_FORMAT,
             "schema_version": self.schema_version,
             "serial_number": self.serial_number,
@@ -345,6 +368,9 @@ class CalibrationRecord:
             "determined": list(self.determined),
             "notes": list(self.notes),
         }
+        if self.discovery is not None:
+            document["discovery"] = self.discovery.to_json()
+        return document
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the record atomically (a reader sees the old file or the whole new one)."""
@@ -434,6 +460,15 @@ class CalibrationRecord:
             data_end=text(prov.get("data_end", ""), "provenance.data_end"),
         )
         site = None if document.get("site") is None else metadata_from_document(document["site"], path)
+        discovery = None
+        if document.get("discovery") is not None:
+            from stableins.discovery.history import ModelHistory
+
+            try:
+                discovery = ModelHistory.from_json(document["discovery"])
+            except ValueError as error:
+                where, _, what = str(error).partition(": ")
+                raise fail(what, where, "the discovery section of docs/formats.md") from None
         record = cls.__new__(cls)
         fields = {
             "serial_number": text(document["serial_number"], "serial_number"),
@@ -444,6 +479,7 @@ class CalibrationRecord:
             "determined": texts(document.get("determined", []), "determined"),
             "notes": texts(document.get("notes", []), "notes"),
             "schema_version": RECORD_SCHEMA_VERSION,
+            "discovery": discovery,
         }
         for name, value in fields.items():
             object.__setattr__(record, name, value)
@@ -474,10 +510,10 @@ class CalibrationRecord:
 
     def report(self) -> str:
         """Plain-text table in engineering units where the id is a known term."""
-        from stableins.errormodel import known_terms
+        from stableins.discovery.library import all_terms
         from stableins.estimators.result import parameter_table
 
-        terms = known_terms()
+        terms = all_terms()
         lines = [f"calibration record of {self.serial_number} ({', '.join(self.provenance.stages)}; {self.provenance.software})", ""]
         rows = []
         for p in self.parameters:
@@ -486,7 +522,10 @@ class CalibrationRecord:
                 (float(t.to_engineering(p.value)), float(t.sigma_to_engineering(p.sigma)), t.unit) if t else (p.value, p.sigma, p.unit)
             )
             rows.append((p.id, value, sigma, unit, p.status))
-        return "\n".join(lines + parameter_table(rows, self.determined, self.notes))
+        lines += parameter_table(rows, self.determined, self.notes)
+        if self.discovery is not None:
+            lines += ["", self.discovery.report()]
+        return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.report()
@@ -551,6 +590,14 @@ def _check(record: CalibrationRecord, path: str | None) -> None:
     c = record.covariance
     if c.shape != (n, n):
         raise fail(f"shape {c.shape}", "covariance", f"({n}, {n}) following the parameters")
+    if record.discovery is not None:
+        missing = [e for e in record.discovery.effects if e not in ids]
+        if missing:
+            raise fail(
+                f"the discovery history keeps {missing}, which are not parameters of the record",
+                "discovery",
+                "kept effects among the parameters",
+            )
     known = np.array([p.status != "unidentifiable" for p in record.parameters], dtype=bool)
     for k, p in enumerate(record.parameters):
         if p.status not in STATUSES:

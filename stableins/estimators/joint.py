@@ -53,7 +53,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
-from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model
+from stableins.errormodel import Term
+from stableins.estimators.coarse import CoarseProblem, coarse_model, gauge_preference, held_terms_note
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import FineProblem, fine_model
@@ -146,6 +147,7 @@ def fit_joint(
     slow_noise: SlowNoise | None = None,
     stage: str = "coarse",
     notes: Sequence[str] = (),
+    extra_terms: Sequence[Term] = (),
 ) -> FitResult:
     """GLS fit of usable coarse dwells (any number of passes) and fine dwells; gauge ``θ10 = 0``.
 
@@ -159,13 +161,18 @@ def fit_joint(
         Estimate ``K2_*`` (always when fine dwells are given: the fine rows determine them).
     stage : str
         Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
+    extra_terms : sequence of Term
+        Additive terms (discovered effects) estimated with the standard ones, in the coarse and
+        the fine rows; one that the rows do not determine keeps its ``start`` value with status
+        ``unidentifiable``.
     """
-    model = coarse_model(nonlinear or bool(fine_dwells))
+    model = coarse_model(nonlinear or bool(fine_dwells), extra_terms)
+    extra_ids = tuple(t.id for t in extra_terms)
     coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
     fine = None
     columns = np.zeros(0, dtype=np.int64)
     if fine_dwells:
-        fm = fine_model()
+        fm = fine_model(extra_terms)
         fine = FineProblem(np.array([d.mean for d in fine_dwells])[None], np.array([d.sem for d in fine_dwells])[None], float(gravity), fm)
         columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
     problem = JointProblem(coarse, fine, columns, _slow([*coarse_dwells, *fine_dwells], slow_noise))
@@ -173,10 +180,11 @@ def fit_joint(
     x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
     scales = np.array([t.nominal for t in model])
     start_design = analyze_design(problem.weighted(x0)[1][0], model.ids, scales)
-    gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
-    fixed = tuple(gauge.fixed) or ("theta10",)
+    gauge = choose_gauge(start_design, gauge_preference(extra_ids), scales)
+    held = tuple(g for g in gauge.fixed if g in extra_ids)
+    fixed = tuple(g for g in gauge.fixed if g not in held) or ("theta10",)
     x0[0, [model.index(g) for g in fixed]] = 0.0
-    free = np.array([k not in fixed for k in model.ids])
+    free = np.array([k not in fixed and k not in held for k in model.ids])
     solution = gauss_newton(problem.weighted, x0, free, scales)
     residual, _, cov_o = problem.raw(solution.x)
     design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
@@ -193,6 +201,9 @@ def fit_joint(
     whitened = solution.weighted_residuals[0].copy()
     out_notes = list(notes)
     out_notes += [f"gauge: {k} held at 0 ({model[k].meaning})" for k in fixed]
+    if held:
+        values = dict(zip(model.ids, x0[0], strict=True))
+        out_notes.append(held_terms_note(held, values, model, [i for ids in start_design.involved() for i in ids], stage))
     if slow_noise is not None:
         out_notes.append(slow_noise.describe())
     if (stalled := convergence_warning(solution)) is not None:
@@ -207,7 +218,7 @@ def fit_joint(
         terms=model.terms,
         values=solution.x[0].copy(),
         covariance=solution.covariance[0].copy(),
-        status=tuple("gauge" if k in fixed else "estimated" for k in model.ids),
+        status=tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
@@ -218,6 +229,7 @@ def fit_joint(
         notes=tuple(out_notes),
         extra={
             "gauge": {k: 0.0 for k in fixed},
+            "held": {k: float(x0[0, model.index(k)]) for k in held},
             "passes": sorted({d.pass_number for d in coarse_dwells}),
             "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
             "fine_positions_used": [d.position for d in fine_dwells],

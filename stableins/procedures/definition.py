@@ -24,7 +24,7 @@ PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
 #: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances"}
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "model"}
 #: Stages a definition may declare.
 STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
@@ -91,6 +91,8 @@ class ProcedureDefinition:
     runner: RunnerSettings = field(default_factory=lambda: RunnerSettings())
     people: tuple[PersonAction, ...] = ()
     record: StaticRecord | None = None
+    #: ``[model] add``: discovered effects (library ids) the stage estimates with the standard terms.
+    model_add: tuple[str, ...] = ()
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -262,6 +264,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         runner=_runner_settings(data.get("runner", {}), spath),
         people=_people(data.get("person", []), spath, len(steps)),
         record=_static_record(data.get("record"), head["stage"], spath),
+        model_add=_model_add(data.get("model", {}), head["stage"], spath),
     )
 
 
@@ -377,6 +380,32 @@ def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
             )
         )
     return tuple(people)
+
+
+def _model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
+    """``[model] add = ["Kcc_xxy", ...]``: effects of the discovery library carried into the device stages."""
+    if not isinstance(table, dict):
+        raise InputError("[model] must be a table", path=path, field="model")
+    unknown = set(table) - {"add"}
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="model", expected="add = [effect ids]")
+    ids = table.get("add", [])
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise InputError(f"{ids!r} is not a list of effect ids", path=path, field="model.add", expected='e.g. add = ["Kcc_xxy"]')
+    if ids and stage == "system":
+        raise InputError(
+            "a system-level record does not estimate discovered effects; it compensates those of the prior record",
+            path=path,
+            field="model.add",
+            expected="[model] in a coarse or fine procedure",
+        )
+    from stableins.discovery.library import calibration_terms
+
+    try:
+        calibration_terms(ids, source="model.add")
+    except InputError as error:
+        raise InputError(error.message, path=path, field="model.add", expected=error.expected) from None
+    return tuple(ids)
 
 
 def _static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
