@@ -29,15 +29,15 @@ def draw_truth(rng, quadratic=True, offset_scale=1.0):
     return v
 
 
-def outputs(truth, readings, gravity=GRAVITY, senses=(1, 1, 1, 1), base=(0.0, 0.0, 0.0)):
-    """Exact accelerometer outputs at angle-sensor readings ``(..., 3)``."""
+def outputs(truth, readings, gravity=GRAVITY, senses=(1, 1, 1, 1), base=(0.0, 0.0, 0.0), model=TRUTH_MODEL):
+    """Exact accelerometer outputs at angle-sensor readings ``(..., 3)`` (``model`` may add the simulator's effect terms)."""
     config = cv.GimbalConfiguration(tuple(senses))
     offsets = np.array([truth["theta10"], truth["theta20"], truth["theta30"]])
     alpha = cv.actual_gimbal_angles(readings, offsets)
     c = cv.dcm_body_to_platform(alpha[..., 0], alpha[..., 1], alpha[..., 2], 0.0, config)
     f_n = cv.specific_force_nav(gravity)
     f_p = np.einsum("...ij,jk,k->...i", c, cv.dcm_nav_to_body(*base), f_n)
-    return TRUTH_MODEL.forward(f_p, truth)
+    return model.forward(f_p, truth)
 
 
 class ExactPlatform:
@@ -96,6 +96,7 @@ def device_columns(
     rate=100.0,
     dwell=None,
     settle=None,
+    model=TRUTH_MODEL,
 ):
     """Samples of one pass as DEVICE_COLUMNS arrays (settle samples included, tagged by time_since_command)."""
     rng = np.random.default_rng(seed)
@@ -126,7 +127,7 @@ def device_columns(
         d = step.dwell if dwell is None else dwell
         n = int(round((s + d) * rate))
         since = np.arange(n) / rate
-        f = outputs(truth, command, senses=senses) + sigma * rng.normal(size=(n, 3))
+        f = outputs(truth, command, senses=senses, model=model) + sigma * rng.normal(size=(n, 3))
         cols["time"].append(t0 + since)
         cols["time_since_command"].append(since)
         cols["stage"].append(np.full(n, stage))

@@ -80,6 +80,7 @@ def run(args: Any) -> int:
 
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
@@ -107,7 +108,7 @@ def run(args: Any) -> int:
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, values, covariance, options)
+        outcome = run_system_stage(record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids))
     for w in caught:
         note(f"stableins: warning: {w.message}")
     updated = prior.update(record_statuses(outcome.result, prior), inputs=[args.record], procedure="system-level static record")

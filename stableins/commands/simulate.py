@@ -145,18 +145,27 @@ def prepare_directory(out: Path | None) -> Path:
 def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     """Parameter values of a calibration record, as the calibration the simulated INS runs with.
 
-    Ids the truth's error model does not know (e.g. additive terms) are refused; ids the
-    record lacks keep the truth's installed value.  Unidentifiable parameters carry
-    their prior value in a record, which is what an INS would be loaded with.
+    The record's discovered (additive) terms are installed too: the navigation computer
+    compensates with them (``ErrorModel.inverse`` with the simulator's own definition of the
+    effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
+    effect catalogue's output effects know are refused; ids the record lacks keep the truth's
+    installed value.  Unidentifiable parameters carry their prior value in a record, which is
+    what an INS would be loaded with.
     """
     from stableins.records import CalibrationRecord
+    from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
     installed = dict(truth.installed_calibration)
-    known = set(truth.parameters) | set(installed)
+    known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
     for parameter_id, value in record.values().items():
         if parameter_id not in known:
-            raise InputError(f"parameter {parameter_id!r} is not part of the simulated instrument", path=path, field=parameter_id)
+            raise InputError(
+                f"parameter {parameter_id!r} is not part of the simulated instrument",
+                path=path,
+                field=parameter_id,
+                expected="standard parameters or output effects of 'stableins simulate --list-effects'",
+            )
         installed[parameter_id] = float(value)
     return installed
 

@@ -59,7 +59,7 @@ from stableins.conventions import (
 )
 from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel, Term
-from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
@@ -84,13 +84,44 @@ def gauge_preference(extra_ids: Sequence[str]) -> tuple[str, ...]:
     return GAUGE_PREFERENCE[:1] + tuple(extra_ids) + GAUGE_PREFERENCE[1:]
 
 
-def held_terms_note(held: Sequence[str], values: Mapping[str, float], model: ErrorModel, involved: Sequence[str], stage: str) -> str:
-    """Note for added terms held at their prior value because these data do not determine them."""
-    parts = ", ".join(f"{h} = {float(model[h].to_engineering(values[h])):.4g} {model[h].unit}" for h in held)
-    return (
-        f"not determined by the {stage} data: {parts} held at the prior value (status unidentifiable); "
-        f"the design cannot separate it from {', '.join(i for i in involved if i not in held) or 'the model'}"
+def held_terms_note(held: Mapping[str, Sequence[str]], values: Mapping[str, float], model: ErrorModel, stage: str) -> str:
+    """Note for added terms held at their prior value because these data do not determine them (:func:`.design.undetermined`)."""
+    parts = "; ".join(
+        f"{h} = {float(model[h].to_engineering(values[h])):.4g} {model[h].unit} (with {', '.join(involved) or 'the model'})"
+        for h, involved in held.items()
     )
+    return (
+        f"not determined by the {stage} data, held at the prior value (status unidentifiable): {parts}; "
+        f"the combination's 1σ would exceed {UNDETERMINED_RATIO:g}× its typical size"
+    )
+
+
+def hold_and_gauge(
+    weighted_jacobian: NDArray[np.float64],
+    model: ErrorModel,
+    scales: NDArray[np.float64],
+    extra_ids: Sequence[str],
+    preference: Sequence[str],
+) -> tuple[DesignAnalysis, Gauge, dict[str, tuple[str, ...]]]:
+    """Design analysis and gauge of the standard parameters, and the added terms these data do not determine.
+
+    The gauge is chosen on the standard columns alone (so a discovered term never becomes a
+    gauge of the standard model); then :func:`.design.undetermined` names the added terms to hold.
+    """
+    standard = [k for k, i in enumerate(model.ids) if i not in extra_ids]
+    analysis = analyze_design(weighted_jacobian[:, standard], [model.ids[k] for k in standard], scales[standard])
+    gauge = choose_gauge(analysis, preference, scales[standard])
+    held = undetermined(weighted_jacobian, model.ids, scales, extra_ids, fixed=gauge.fixed)
+    return analysis, gauge, held
+
+
+def final_design(
+    weighted_jacobian: NDArray[np.float64], model: ErrorModel, scales: NDArray[np.float64], held: Sequence[str]
+) -> DesignAnalysis:
+    """Analysis of the design at the solution with the held terms' columns removed (they are not estimated)."""
+    a = np.array(weighted_jacobian, dtype=float)
+    a[:, [model.index(h) for h in held]] = 0.0
+    return analyze_design(a, model.ids, scales)
 
 
 def platform_specific_force(
@@ -435,12 +466,8 @@ def calibrate_coarse(
     start_values = {i: float((prior or {}).get(i, model[i].reference)) for i in extra_ids}
     x_start = model.vector(start_values)[None]
     _, a_start = problem.weighted(x_start)
-    start = analyze_design(a_start[0], model.ids, scales)
-    preference = gauge_preference(extra_ids)
-    gauge = choose_gauge(start, preference, scales)
-    held = tuple(g for g in gauge.fixed if g in extra_ids)
-    standard_gauge = tuple(g for g in gauge.fixed if g not in extra_ids)
-    if any(g not in GAUGE_PREFERENCE for g in standard_gauge) or len(standard_gauge) > 1:
+    start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
         raise InputError(
             f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
             f"(left out: {describe_left_out(left_out)})",
@@ -448,17 +475,17 @@ def calibrate_coarse(
             field="position",
             expected="the 18 positions of the procedure (only theta10 may be a gauge)",
         )
+    standard_gauge = gauge.fixed
     fixed = {g: 0.0 for g in standard_gauge} | {h: start_values[h] for h in held}
     solution = solve_coarse(problem, fixed, x0=x_start.copy())
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
-    gauge = choose_gauge(design, preference, scales) if design.deficiency == len(fixed) else gauge
-    involved = [i for ids in design.involved() for i in ids]
-    for g in (g for g in gauge.fixed if g not in held):
-        notes.append(
-            f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {', '.join(design.involved()[0])})"
-        )
+    design = final_design(solution.weighted_jacobian[0], model, scales, tuple(held))
+    if design.deficiency == len(fixed):
+        gauge = choose_gauge(design, gauge_preference(tuple(held)), scales)
+    for g in standard_gauge:
+        moved = ", ".join(start.involved()[0])
+        notes.append(f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {moved})")
     if held:
-        notes.append(held_terms_note(held, start_values, model, involved, "coarse"))
+        notes.append(held_terms_note(held, start_values, model, "coarse"))
     notes.append("theta30 is relative to the base pitch given in the site metadata (a base tilt about East is the same rotation)")
     if not nonlinear:
         notes.append("K2 (quadratic nonlinearity) ignored in the coarse stage (Wu et al. Eq. 7); estimated in the fine stage")
@@ -479,9 +506,9 @@ def calibrate_coarse(
     if design.weak:
         notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
     status = tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids)
-    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed if g not in held)
+    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge)
     extra = {
-        "gauge": {g: 0.0 for g in gauge.fixed if g not in held},
+        "gauge": {g: 0.0 for g in standard_gauge},
         "held": {h: start_values[h] for h in held},
         "gauge_coefficients": gauge.coefficients,
         "positions_used": [d.position for d in usable],

@@ -39,8 +39,8 @@ from numpy.typing import NDArray
 
 from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel, Term
-from stableins.estimators.coarse import held_terms_note, slow_covariance
-from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
+from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge, slow_covariance
+from stableins.estimators.design import aligned_null_space
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise
@@ -176,10 +176,9 @@ def calibrate_fine(
         )
     scales = np.array([t.nominal for t in model])
     _, a0 = problem.weighted(x0)
-    start_design = analyze_design(a0[0], model.ids, scales)
-    gauge = choose_gauge(start_design, GAUGE_PREFERENCE + extra_ids, scales)
-    held = tuple(g for g in gauge.fixed if g in extra_ids)
-    if start_design.deficiency != 3 + len(held) or set(gauge.fixed) - set(held) != set(GAUGE_PREFERENCE):
+    start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    held = tuple(undetermined)
+    if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
         raise InputError(
             f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
             f"(left out: {describe_left_out(left_out)})",
@@ -187,8 +186,8 @@ def calibrate_fine(
             field="position",
             expected="positions with every axis near +1 g, −1 g and in between",
         )
-    solution = solve_fine(problem, x0, gauge.fixed)
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    solution = solve_fine(problem, x0, gauge.fixed + held)
+    design = final_design(solution.weighted_jacobian[0], model, scales, held)
     x = solution.x[0].copy()
     cov = solution.covariance[0].copy()
     # Installation angles: the fit moves only the determined differences; report those.
@@ -213,7 +212,7 @@ def calibrate_fine(
         cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
     status = tuple("unidentifiable" if k in BETA_IDS or k in held else "estimated" for k in model.ids)
     if held:
-        notes.append(held_terms_note(held, start, model, [i for ids in start_design.involved() for i in ids], "fine"))
+        notes.append(held_terms_note(undetermined, start, model, "fine"))
     determined.append(
         "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
     )
@@ -255,7 +254,7 @@ def calibrate_fine(
         notes=tuple(notes),
         extra={
             "beta_combinations": combos,
-            "gauge": {gid: float(start[gid]) for gid in gauge.fixed if gid not in held},
+            "gauge": {gid: float(start[gid]) for gid in gauge.fixed},
             "held": {h: float(start[h]) for h in held},
             "positions_used": [d.position for d in usable],
             "left_out": {int(k): v for k, v in sorted(left_out.items())},

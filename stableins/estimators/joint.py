@@ -54,8 +54,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
-from stableins.estimators.coarse import CoarseProblem, coarse_model, gauge_preference, held_terms_note
-from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
@@ -179,15 +178,14 @@ def fit_joint(
     given = start.as_dict() if isinstance(start, FitResult) else dict(start)
     x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
     scales = np.array([t.nominal for t in model])
-    start_design = analyze_design(problem.weighted(x0)[1][0], model.ids, scales)
-    gauge = choose_gauge(start_design, gauge_preference(extra_ids), scales)
-    held = tuple(g for g in gauge.fixed if g in extra_ids)
-    fixed = tuple(g for g in gauge.fixed if g not in held) or ("theta10",)
+    _, gauge, undetermined = hold_and_gauge(problem.weighted(x0)[1][0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    held = tuple(undetermined)
+    fixed = tuple(gauge.fixed) or ("theta10",)
     x0[0, [model.index(g) for g in fixed]] = 0.0
     free = np.array([k not in fixed and k not in held for k in model.ids])
     solution = gauss_newton(problem.weighted, x0, free, scales)
     residual, _, cov_o = problem.raw(solution.x)
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    design = final_design(solution.weighted_jacobian[0], model, scales, held)
     m_c = 3 * len(coarse_dwells)
     g = float(gravity)
     residual_sigma = np.sqrt(np.diagonal(cov_o[0]))
@@ -202,8 +200,7 @@ def fit_joint(
     out_notes = list(notes)
     out_notes += [f"gauge: {k} held at 0 ({model[k].meaning})" for k in fixed]
     if held:
-        values = dict(zip(model.ids, x0[0], strict=True))
-        out_notes.append(held_terms_note(held, values, model, [i for ids in start_design.involved() for i in ids], stage))
+        out_notes.append(held_terms_note(undetermined, dict(zip(model.ids, x0[0], strict=True)), model, stage))
     if slow_noise is not None:
         out_notes.append(slow_noise.describe())
     if (stalled := convergence_warning(solution)) is not None:

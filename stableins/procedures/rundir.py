@@ -300,6 +300,7 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         )
         return None
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
 
     if not start.get("prior"):
         runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
@@ -311,7 +312,9 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
+        outcome = run_system_stage(
+            record, record.metadata, prior.values(), covariance, SystemOptions(), compensation_terms=record_terms(prior.ids)
+        )
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
     return outcome.result

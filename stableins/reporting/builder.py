@@ -138,6 +138,7 @@ def write_report(
     ReportSummary
     """
     import stableins
+    from stableins.discovery.library import record_terms
 
     view = RecordView.from_any(record)
     previous_view = RecordView.from_any(previous) if previous is not None else None
@@ -147,9 +148,9 @@ def write_report(
     if not fits and not view.stages and data:
         from stableins.reporting.replay import device_fits
 
-        fits, evidence_notes = device_fits(data)
+        fits, evidence_notes = device_fits(data, effects=record_terms(view.ids))
     stages: list[StageEvidence] = [stage_evidence(f, where) for f in (fits or view.stages)]
-    extra_terms = [t for f in fits if not isinstance(f, dict) for t in getattr(f, "terms", ())]
+    extra_terms = [t for f in fits if not isinstance(f, dict) for t in getattr(f, "terms", ())] + list(record_terms(view.ids))
     terms = content.known_terms(extra_terms)
     rows = content.parameter_rows(view, terms)
     if previous_view is not None:
@@ -176,7 +177,7 @@ def write_report(
         changes, skipped = content.compare(rows, content.parameter_rows(previous_view, terms))
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = view.discovery, "calibration record"
+    discovery_document, discovery_source = {}, ""
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
         inputs.append(sections.InputFile("model discovery", Path(discovery).name, sha256_file(discovery), "read by this report"))

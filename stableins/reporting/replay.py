@@ -16,8 +16,11 @@ from typing import Any
 from stableins.data.errors import InputError
 
 
-def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[str]]:
+def device_fits(paths: Sequence[str | PathLike[str]], *, effects: Sequence[Any] = ()) -> tuple[list[Any], list[str]]:
     """FitResults of the coarse (last pass) and fine stages re-run on the device-level files among ``paths``.
+
+    ``effects`` are the discovered (additive) terms of the record's model: the stages estimate
+    them with the standard parameters, as ``stableins calibrate device --add`` did.
 
     Returns
     -------
@@ -45,12 +48,18 @@ def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[s
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
     calibration = calibrate_device(
-        summaries, datasets[0].metadata, coarse_procedure=procedures["coarse"], fine_procedure=procedures["fine"], source=source
+        summaries,
+        datasets[0].metadata,
+        coarse_procedure=procedures["coarse"],
+        fine_procedure=procedures["fine"],
+        extra_terms=tuple(effects),
+        source=source,
     )
     fits = [calibration.coarse] + ([calibration.fine] if calibration.fine is not None else [])
     notes.insert(
         0,
         f"device-level residuals recomputed from {source} by re-running the coarse and fine stages "
-        "(procedures device-coarse and device-fine, as 'stableins calibrate device' does)",
+        "(procedures device-coarse and device-fine, as 'stableins calibrate device' does"
+        + (f", with the record's discovered effects {', '.join(t.id for t in effects)})" if effects else ")"),
     )
     return fits, notes
