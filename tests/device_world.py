@@ -43,8 +43,9 @@ def outputs(truth, readings, gravity=GRAVITY, senses=(1, 1, 1, 1), base=(0.0, 0.
 class ExactPlatform:
     """PlatformDriver over the exact model with white noise ``sigma`` per sample."""
 
-    def __init__(self, truth, sigma=1e-3, rate=100.0, seed=0, senses=(1, 1, 1, 1), gravity=GRAVITY, transform=None):
+    def __init__(self, truth, sigma=1e-3, rate=100.0, seed=0, senses=(1, 1, 1, 1), gravity=GRAVITY, transform=None, model=TRUTH_MODEL):
         self.truth = truth
+        self.model = model  # the world's error model (the standard one, or with the simulator's effect terms)
         self.sigma = sigma
         self.rate = rate
         self.rng = np.random.default_rng(seed)
@@ -72,7 +73,7 @@ class ExactPlatform:
         n = int(round(duration * self.rate))
         t = self.time + np.arange(n) / self.rate
         self.time += n / self.rate
-        f = outputs(self.truth, self.readings, self.gravity, self.senses) + self.sigma * self.rng.normal(size=(n, 3))
+        f = outputs(self.truth, self.readings, self.gravity, self.senses, model=self.model) + self.sigma * self.rng.normal(size=(n, 3))
         if self.transform is not None:
             f = self.transform(f)
         return SampleBlock(t, f, np.tile(self.readings, (n, 1)), np.full(n, 25.0))

@@ -1,5 +1,6 @@
 """Discovery reaches the record: added effects in the device stages, verdicts, the record section, compensation."""
 
+import copy
 import functools
 import json
 import math
@@ -142,7 +143,8 @@ def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
     assert merged.discovery is not None and merged.discovery.effects == ("Kcc_xxy",)
 
 
-def _document(tmp_path, hidden_kcc):
+@pytest.fixture(scope="module")
+def kcc_document(hidden_kcc):
     truth, calibrate = hidden_kcc
     carried = carry_effects(lambda extra: calibrate(extra_terms=extra), calibration_terms(["Kcc_xxy"]))
     return replace(carried.calibration.record(truth.site), discovery=carried.history).to_document()
@@ -159,16 +161,16 @@ def _document(tmp_path, hidden_kcc):
         (lambda d: d["discovery"].__setitem__("steps", []), "discovery.steps"),
     ],
 )
-def test_a_damaged_discovery_section_is_refused_naming_the_field(tmp_path, hidden_kcc, change, field):
-    document = _document(tmp_path, hidden_kcc)
+def test_a_damaged_discovery_section_is_refused_naming_the_field(kcc_document, change, field):
+    document = copy.deepcopy(kcc_document)
     change(document)
     with pytest.raises(InputError) as caught:
         CalibrationRecord.from_document(document, "cal.json")
     assert caught.value.field == field and caught.value.path == "cal.json"
 
 
-def test_a_kept_effect_must_be_a_parameter_of_the_record(tmp_path, hidden_kcc):
-    document = _document(tmp_path, hidden_kcc)
+def test_a_kept_effect_must_be_a_parameter_of_the_record(kcc_document):
+    document = copy.deepcopy(kcc_document)
     k = document["covariance"]["ids"].index("Kcc_xxy")
     document["parameters"].pop(k)
     document["covariance"]["ids"].pop(k)
@@ -318,3 +320,40 @@ def test_the_simulated_ins_applies_the_installed_discovered_terms(simulated, tmp
         error[name] = max(np.abs(chunk[f"truth_df_{k}"]).max() for k in ("north", "east", "down"))
     assert error["without"] > 5 * MICRO_G  # the uncompensated effect: f_x f_y Kcc_xxy of order 30 µg on the polar platform
     assert error["with"] < 1e-6 * MICRO_G
+
+
+def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_path, monkeypatch):
+    """``stableins run`` with ``[model] add`` (coarse) and then on that prior (fine): the effect is estimated in both."""
+    import io
+
+    from device_world import ExactPlatform, draw_truth
+
+    from stableins.procedures.planning import plan_from_definition
+    from stableins.procedures.rundir import start_run
+    from stableins.procedures.runner import Console
+
+    monkeypatch.setattr("os.fsync", lambda fd: None)
+    truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}
+    world = ErrorModel.standard(nonlinear=True, gimbals=True) + (CATALOGUE["Kcc_xxy"].term(),)
+
+    def short(name, table=""):
+        text = open(load_procedure(name).path, encoding="utf-8").read()
+        text = text.replace("dwell = 20.0", "dwell = 4.0").replace("dwell = 600.0", "dwell = 20.0")
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text + "\n" + table + "\n", encoding="utf-8")
+        return path
+
+    coarse_file = short("device-coarse", '[model]\nadd = ["Kcc_xxy"]')
+    coarse = start_run(plan_from_definition(load_procedure(coarse_file)), tmp_path / "coarse", driver_spec="exact",
+                       console=Console(yes=True, out=io.StringIO()), driver=ExactPlatform(truth, sigma=3e-4, seed=1, model=world),
+                       definition_file=coarse_file)  # fmt: skip
+    record = CalibrationRecord.load(coarse.record)
+    assert record["Kcc_xxy"].status == "estimated"
+    assert abs(record["Kcc_xxy"].value - 4 * KCC) < 4 * record["Kcc_xxy"].sigma
+    fine_file = short("device-fine")  # no [model]: the prior record's model is the unit's
+    fine = start_run(plan_from_definition(load_procedure(fine_file)), tmp_path / "fine", driver_spec="exact",
+                     console=Console(yes=True, quiet=True), driver=ExactPlatform(truth, sigma=3e-4, seed=2, model=world),
+                     definition_file=fine_file, prior_file=coarse.record)  # fmt: skip
+    estimate = CalibrationRecord.load(fine.estimate)
+    assert estimate["Kcc_xxy"].status == "estimated"
+    assert abs(estimate["Kcc_xxy"].value - 4 * KCC) < 4 * estimate["Kcc_xxy"].sigma
