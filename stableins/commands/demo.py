@@ -117,13 +117,14 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def discovery_loop(out: Path, data: list[str], datasheet: list[str]) -> tuple[list[str], Path, list[str]]:
+def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: bool = True) -> tuple[list[str], Path, list[str]]:
     """Diagnose, add the best flagged effect, recalibrate; until nothing is flagged.
 
     Returns the effects the record in force keeps, the last diagnosis (JSON) and what the loop
     said.  Each round runs ``diagnose`` on the device-level data against ``cal-device.json`` (the
     record in force) and, when a carried effect is flagged, ``calibrate device ... --add`` with the
     effects kept so far and the new one; the calibration's own test decides whether it stays.
+    ``plots`` writes the diagnosis plots of every round (``discovery/round-K/``).
     """
     import sys
 
@@ -139,8 +140,8 @@ def discovery_loop(out: Path, data: list[str], datasheet: list[str]) -> tuple[li
     for round_ in range(MAX_ROUNDS + 1):
         diagnose = ["diagnose", *data, "--record", str(record), *datasheet]
         text, document = out / "discovery" / f"round-{round_}.txt", out / "discovery" / f"round-{round_}.json"
-        _step(f"model discovery, round {round_}: is an effect missing from the model in force?",
-              [*diagnose, "--plots", str(out / "discovery" / f"round-{round_}")], text)  # fmt: skip
+        figures = ["--plots", str(out / "discovery" / f"round-{round_}")] if plots else []
+        _step(f"model discovery, round {round_}: is an effect missing from the model in force?", [*diagnose, *figures], text)
         print(text.read_text(encoding="utf-8"), file=sys.stderr)
         _step("the same, machine-readable for the report", [*diagnose, "--json"], document)
         flagged = [c for c in json.loads(document.read_text(encoding="utf-8"))["candidates"] if c.get("flagged")]
