@@ -53,7 +53,7 @@ def _git(*args: str) -> str:
 
 def test_the_version_comes_from_git_and_names_the_commit():
     """In a checkout the version is computed from git: it changes with every commit and names it."""
-    version = stableins.__version__
+    version = stableins._version()  # computed now (stableins.__version__ is cached at its first use)
     head = _git("rev-parse", "HEAD")
     assert version != "0.1.0"
     local = version.partition("+")[2]
