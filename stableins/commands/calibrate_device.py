@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from stableins.commands import add_entries_option
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
@@ -63,6 +65,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="keep an added effect even when the data do not show it (default: left out of the record, with its verdict)",
     )
+    add_entries_option(parser)
 
 
 def _same_site(datasets) -> None:
@@ -94,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
+    from stableins.records import parse_entries
 
     if not 0.0 < args.alpha < 1.0:
         raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
@@ -141,11 +145,16 @@ def run(args: argparse.Namespace) -> int:
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
-    record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
-    text = calibration.report()
+    record = calibration.record(
+        site,
+        inputs=[str(p) for p in args.data],
+        procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
+        **data_description(datasets),
+        entries=parse_entries(args.set),
+    )
     if history is not None:
-        record = replace(record, discovery=history)
-        text += "\n\n" + history.report()
+        record = replace(record, discovery=history)  # the record's report below shows it
+    text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     result = {
@@ -159,6 +168,19 @@ def run(args: argparse.Namespace) -> int:
     }
     emit(args, result, text)
     return 0
+
+
+def data_description(datasets) -> dict:
+    """Data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
+    import numpy as np
+
+    from stableins.records import data_times, temperature_summary
+
+    spans = [data_times(d.metadata, float(d.columns["time"][0]), float(d.columns["time"][-1])) for d in datasets if len(d.columns["time"])]
+    starts = [a for a, _ in spans if a]
+    ends = [b for _, b in spans if b]
+    temperature = np.concatenate([np.asarray(d.columns["temperature"], dtype=float) for d in datasets])
+    return {"data_start": min(starts, default=""), "data_end": max(ends, default=""), "environment": temperature_summary(temperature)}
 
 
 def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> None:
