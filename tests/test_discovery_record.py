@@ -138,9 +138,9 @@ def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
     text = again.report()
     assert "ug/g^2" in text.split("Kcc_xxy", 1)[1].splitlines()[0]  # engineering units for discovered terms
     assert "not supported" in text
-    # a later stage (merge) keeps the history with the model
-    merged = again.update(replace(again, discovery=None))
-    assert merged.discovery is not None and merged.discovery.effects == ("Kcc_xxy",)
+    # a later stage's Bayesian update carries the history with the model
+    later = again.updated(carried.calibration.fine)
+    assert later.discovery is not None and later.discovery.effects == ("Kcc_xxy",) and "Kcc_xxy" in later.ids
 
 
 @pytest.fixture(scope="module")
@@ -354,6 +354,8 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
     fine = start_run(plan_from_definition(load_procedure(fine_file)), tmp_path / "fine", driver_spec="exact",
                      console=Console(yes=True, quiet=True), driver=ExactPlatform(truth, sigma=3e-4, seed=2, model=world),
                      definition_file=fine_file, prior_file=coarse.record)  # fmt: skip
-    estimate = CalibrationRecord.load(fine.estimate)
-    assert estimate["Kcc_xxy"].status == "estimated"
-    assert abs(estimate["Kcc_xxy"].value - 4 * KCC) < 4 * estimate["Kcc_xxy"].sigma
+    final = CalibrationRecord.load(fine.record)  # the coarse record updated by the fine stage's likelihood
+    assert final["Kcc_xxy"].status == "estimated"
+    assert [d.stage.split("-")[0] for d in final["Kcc_xxy"].determined_by][-1] == "fine"  # the fine data saw it too
+    assert abs(final["Kcc_xxy"].value - 4 * KCC) < 4 * final["Kcc_xxy"].sigma
+    assert final["Kcc_xxy"].sigma <= record["Kcc_xxy"].sigma
