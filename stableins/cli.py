@@ -25,7 +25,18 @@ import sys
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
-from stableins import __version__
+
+class _Version(argparse.Action):
+    """``--version``: computed only when asked for (it may ask git), so other commands stay fast."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help="print the version (from git) and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object, option_string: str | None = None):
+        import stableins
+
+        print(f"stableins {stableins.__version__}")
+        parser.exit()
 
 
 class Command(NamedTuple):
@@ -110,7 +121,7 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
         description="On-system calibration of the accelerometer triad of a space-stable inertial navigation system.",
         epilog="Run 'stableins COMMAND --help' for a command's options.  Exit status: 0 ok, 1 failure, 2 bad input, 130 interrupted.",
     )
-    parser.add_argument("--version", action="version", version=f"stableins {__version__}")
+    parser.add_argument("--version", action=_Version)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add(subparsers, COMMANDS, argv, ())
     return parser

@@ -215,9 +215,9 @@ def compare(old: CalibrationRecord, new: CalibrationRecord) -> Comparison:
 
 def format_changes(changes: Sequence[Change]) -> str:
     """Table of changes in engineering units where the id is a known term."""
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     lines = [f"{'parameter':<12} {'old':>14} {'new':>14} {'change':>12} {'σ(change)':>10} {'unit':<8} {'z':>6}"]
     for c in changes:
         term = terms.get(c.id)
@@ -430,9 +430,9 @@ def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:
 
 
 def format_trends(trends: list[Trend]) -> str:
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     lines = [f"{'parameter':<12} {'records':>7} {'drift / year':>14} {'σ':>10} {'unit':<8} {'z':>6} {'χ²_ν const':>10}"]
     for t in trends:
         term = terms.get(t.id)
@@ -450,9 +450,9 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     n = max(1, len(trends))
     columns = min(3, n)
     rows = math.ceil(n / columns)

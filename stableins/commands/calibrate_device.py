@@ -4,10 +4,17 @@
 
     stableins calibrate device sim/device-device-coarse.csv sim/device-device-fine.csv --out record.json
     stableins calibrate device session.h5 --out record.json --json
+    stableins calibrate device sim/device-coarse.csv sim/device-fine.h5 --add Kcc_xxy --out record.json
 
 Runs the coarse stage on every coarse pass in the data (the last pass is the coarse
 result), then the fine stage when fine dwells are present, prints the report and writes
 the calibration record (atomically: a failed run never leaves a half-written record).
+
+``--add ID`` (repeatable; and ``[model] add = [...]`` in the procedure files) carries
+effects found by ``stableins diagnose`` into the calibration: every stage estimates them
+with the standard parameters, each gets a verdict from the fused fit (F-test p against
+``--alpha``, ΔBIC; :mod:`stableins.discovery.carry`), an effect the data do not show is left
+out of the record (``--keep-unsupported`` keeps it) and the record carries the history.
 """
 
 from __future__ import annotations
@@ -40,6 +47,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
     )
     parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+    parser.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="estimate this discovered effect with the standard parameters (repeatable, tested in order; see 'stableins diagnose')",
+    )
+    parser.add_argument(
+        "--alpha",
+        type=float,
+        default=0.05,
+        help="false-alarm level of the F-test that keeps an added effect (default 0.05)",
+    )
+    parser.add_argument(
+        "--keep-unsupported",
+        action="store_true",
+        help="keep an added effect even when the data do not show it (default: left out of the record, with its verdict)",
+    )
     add_entries_option(parser)
 
 
@@ -60,8 +85,13 @@ def _same_site(datasets) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import functools
+    from dataclasses import replace
+
     from stableins.data.device import load_device
     from stableins.data.errors import InputError
+    from stableins.discovery.carry import carry_effects
+    from stableins.discovery.library import calibration_terms
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.noise_model import SlowNoise
@@ -69,9 +99,14 @@ def run(args: argparse.Namespace) -> int:
     from stableins.procedures.definition import load_procedure
     from stableins.records import parse_entries
 
+    if not 0.0 < args.alpha < 1.0:
+        raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
     procedures = {"coarse": coarse_procedure, "fine": fine_procedure}
+    # the model: the procedures' [model] add, then --add (each effect once, tested in this order)
+    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
+    effects = calibration_terms(effect_ids + [e for e in args.add if e not in effect_ids])
     datasets = [load_device(path) for path in args.data]
     _same_site(datasets)
     summaries = []
@@ -85,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
             if not value >= 0 or value != value or value == float("inf"):
                 raise InputError("must be a finite non-negative number", field=name)
         slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
-    calibration = calibrate_device(
+    calibrate = functools.partial(
+        calibrate_device,
         summaries,
         site,
         coarse_procedure=coarse_procedure,
@@ -95,6 +131,16 @@ def run(args: argparse.Namespace) -> int:
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
+    history = None
+    if effects:
+        carried = carry_effects(
+            lambda extra: calibrate(extra_terms=extra), effects, alpha=args.alpha, keep_unsupported=args.keep_unsupported
+        )
+        calibration, history = carried.calibration, carried.history
+        for step in carried.left_out:
+            note(f"stableins: warning: {step.added[0][0]} {step.decision}: {step.reason}")
+    else:
+        calibration = calibrate()
     for fit in (*calibration.passes, calibration.fine, calibration.fused):
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
@@ -106,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
         **data_description(datasets),
         entries=parse_entries(args.set),
     )
+    if history is not None:
+        record = replace(record, discovery=history)  # the record's report below shows it
     text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
@@ -116,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         "fine": None if calibration.fine is None else _summary(calibration.fine),
         "fused": None if calibration.fused is None else _summary(calibration.fused),
         "passes": len(calibration.passes),
+        "discovery": None if history is None else history.to_json(),
     }
     emit(args, result, text)
     return 0

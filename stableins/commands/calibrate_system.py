@@ -73,6 +73,7 @@ def run(args: Any) -> int:
 
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
@@ -101,7 +102,7 @@ def run(args: Any) -> int:
     entries = parse_entries(args.set)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, values, covariance, options)
+        outcome = run_system_stage(record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids))
     for w in caught:
         note(f"stableins: warning: {w.message}")
     start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])

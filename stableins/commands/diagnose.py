@@ -130,13 +130,17 @@ def run(args: argparse.Namespace) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
         args.plots.mkdir(parents=True, exist_ok=True)
-        diagnosis.plot_positions().savefig(args.plots / "residuals.png", dpi=110)
+        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
         if diagnosis.orientation is not None:
-            diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+            figures["orientation"] = diagnosis.plot_orientation()
         for name, spectrum in spectra.items():
-            spectrum.plot(unit="µg", scale=9.80665e-6).savefig(args.plots / f"spectrum_{name}.png", dpi=110)
-        session.history.plot().savefig(args.plots / "history.png", dpi=110)
+            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+        for name, figure in figures.items():
+            figure.savefig(args.plots / f"{name}.png", dpi=110)
+            plt.close(figure)
         note(f"plots written to {args.plots}")
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:

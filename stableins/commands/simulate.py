@@ -3,7 +3,7 @@
 ::
 
     stableins simulate device --seed 3 --out sim/ [--procedure device-coarse --procedure device-fine]
-    stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
+    stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
@@ -100,7 +100,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
     )
     parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
-    parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
+    parser.add_argument(
+        "--duration",
+        type=parse_duration,
+        default=None,
+        help="system: record length, e.g. 30h, 2d (default one sidereal day, 23.93 h: the least that separates the Earth-rate harmonics)",
+    )
     parser.add_argument(
         "--procedure",
         action="append",
@@ -147,18 +152,27 @@ def simulation_start(duration: float) -> str:
 def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     """Parameter values of a calibration record, as the calibration the simulated INS runs with.
 
-    Ids the truth's error model does not know (e.g. additive terms) are refused; ids the
-    record lacks keep the truth's installed value.  Unidentifiable parameters carry
-    their prior value in a record, which is what an INS would be loaded with.
+    The record's discovered (additive) terms are installed too: the navigation computer
+    compensates with them (``ErrorModel.inverse`` with the simulator's own definition of the
+    effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
+    effect catalogue's output effects know are refused; ids the record lacks keep the truth's
+    installed value.  Unidentifiable parameters carry their prior value in a record, which is
+    what an INS would be loaded with.
     """
     from stableins.records import CalibrationRecord
+    from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
     installed = dict(truth.installed_calibration)
-    known = set(truth.parameters) | set(installed)
+    known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
     for parameter_id, value in record.values().items():
         if parameter_id not in known:
-            raise InputError(f"parameter {parameter_id!r} is not part of the simulated instrument", path=path, field=parameter_id)
+            raise InputError(
+                f"parameter {parameter_id!r} is not part of the simulated instrument",
+                path=path,
+                field=parameter_id,
+                expected="standard parameters or output effects of 'stableins simulate --list-effects'",
+            )
         installed[parameter_id] = float(value)
     return installed
 
@@ -324,7 +338,9 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
 
     suffix = args.format or "h5"
     rate = args.rate or truth.site.sample_rate
-    duration = args.duration or 6 * 3600.0
+    from stableins.conventions import SIDEREAL_DAY
+
+    duration = args.duration or SIDEREAL_DAY
     chunk_samples = 65536
     # the truth puts its damping-loop parameters in site.damping; time 0 of the record is the simulation's start
     metadata = replace(truth.site, sample_rate=rate, start_time=simulation_start(duration))

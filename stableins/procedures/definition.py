@@ -1,6 +1,9 @@
 """Procedure definitions: load a TOML file of gimbal steps and validate it.
 
-The format is documented at the top of ``procedures/device-coarse.toml``.  Angles are
+The format is documented at the top of ``device-coarse.toml`` and in ``docs/procedures.md``.  The
+definitions shipped with stableins are package data (``stableins/procedures/definitions/``), so a
+name such as ``"device-coarse"`` is found from any directory, in a checkout and in an installed
+wheel alike; ``procedures/`` at the top of the repository links to them.  Angles are
 written in degrees in the file and held in radians here (SI inside).  Every problem
 raises :class:`stableins.data.errors.InputError` naming the file and the field.
 """
@@ -16,12 +19,12 @@ from typing import Any
 from stableins.conventions import ARCSEC
 from stableins.data.errors import InputError
 
-#: Where the definitions shipped with stableins live (``procedures/`` in the repository).
-PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
+#: Where the definitions shipped with stableins live: package data, found by name from any directory.
+PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
 #: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances"}
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "model"}
 #: Stages a definition may declare.
 STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
@@ -88,6 +91,8 @@ class ProcedureDefinition:
     runner: RunnerSettings = field(default_factory=lambda: RunnerSettings())
     people: tuple[PersonAction, ...] = ()
     record: StaticRecord | None = None
+    #: ``[model] add``: discovered effects (library ids) the stage estimates with the standard terms.
+    model_add: tuple[str, ...] = ()
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -116,8 +121,17 @@ def _number(table: dict, key: str, path: str, where: str, *, positive: bool = Fa
     return float(value)
 
 
+def shipped_procedures() -> tuple[str, ...]:
+    """Names of the definitions shipped with stableins (``"device-coarse"``, ...)."""
+    return tuple(sorted(p.stem for p in PROCEDURE_DIRECTORY.glob("*.toml")))
+
+
 def resolve(name_or_path: str | Path) -> Path:
-    """A path, or the name of a shipped definition (``"device-coarse"``)."""
+    """A path, or the name of a shipped definition (``"device-coarse"``).
+
+    A name without ``.toml`` that is not an existing file is looked up among the shipped
+    definitions (package data, :data:`PROCEDURE_DIRECTORY`), whatever the working directory.
+    """
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         return p
@@ -139,7 +153,11 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         with open(path, "rb") as handle:
             data = tomllib.load(handle)
     except FileNotFoundError:
-        raise InputError("procedure definition not found", path=spath, expected=f"a TOML file or a name in {PROCEDURE_DIRECTORY}") from None
+        raise InputError(
+            "procedure definition not found",
+            path=spath,
+            expected=f"a TOML file or the name of a shipped definition ({', '.join(shipped_procedures())})",
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=spath) from None
     unknown = set(data) - _SECTIONS
@@ -246,6 +264,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         runner=_runner_settings(data.get("runner", {}), spath),
         people=_people(data.get("person", []), spath, len(steps)),
         record=_static_record(data.get("record"), head["stage"], spath),
+        model_add=_model_add(data.get("model", {}), head["stage"], spath),
     )
 
 
@@ -361,6 +380,32 @@ def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
             )
         )
     return tuple(people)
+
+
+def _model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
+    """``[model] add = ["Kcc_xxy", ...]``: effects of the discovery library carried into the device stages."""
+    if not isinstance(table, dict):
+        raise InputError("[model] must be a table", path=path, field="model")
+    unknown = set(table) - {"add"}
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="model", expected="add = [effect ids]")
+    ids = table.get("add", [])
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise InputError(f"{ids!r} is not a list of effect ids", path=path, field="model.add", expected='e.g. add = ["Kcc_xxy"]')
+    if ids and stage == "system":
+        raise InputError(
+            "a system-level record does not estimate discovered effects; it compensates those of the prior record",
+            path=path,
+            field="model.add",
+            expected="[model] in a coarse or fine procedure",
+        )
+    from stableins.discovery.library import calibration_terms
+
+    try:
+        calibration_terms(ids, source="model.add")
+    except InputError as error:
+        raise InputError(error.message, path=path, field="model.add", expected=error.expected) from None
+    return tuple(ids)
 
 
 def _static_record(table: Any, stage: str, path: str) -> StaticRecord | None:

@@ -24,7 +24,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from stableins import __version__
+import stableins
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
@@ -124,7 +124,7 @@ def start_run(
             journal.append(
                 "start",
                 {
-                    "version": __version__,
+                    "version": stableins.__version__,
                     "utc": _utc(),
                     "plan": plan.to_dict(),
                     "driver": driver_spec,
@@ -218,11 +218,25 @@ def _runner(rundir: Path, plan: Plan, session: Session, console: Console, option
 
         definition = load_procedure(rundir / start["definition"])
     offsets = (0.0, 0.0, 0.0)
+    prior = None
     if start.get("prior"):
         prior = _load_record(rundir / start["prior"])
         values = prior.values()
         offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
-    return Runner(plan, session, console, options, definition=definition, offsets=offsets)
+    extra = model_terms(definition, prior)
+    return Runner(plan, session, console, options, definition=definition, offsets=offsets, extra_terms=extra)
+
+
+def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
+    """The discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
+
+    A unit's model is the one its record in force carries; a procedure may add effects to it.
+    """
+    from stableins.discovery.library import calibration_terms, record_terms
+
+    carried = record_terms(prior.ids) if prior is not None else ()
+    named = tuple(definition.model_add) if definition is not None else ()
+    return carried + calibration_terms([i for i in named if i not in {t.id for t in carried}], source="model.add")
 
 
 def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
@@ -362,7 +376,14 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     source = str(dataset or rundir / JOURNAL_NAME)
     dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
     prior = _load_record(rundir / start["prior"])
-    return calibrate_fine(dwells, prior.values(), gravity=metadata.gravity, expected_positions=definition.positions, source=source)
+    return calibrate_fine(
+        dwells,
+        prior.values(),
+        gravity=metadata.gravity,
+        expected_positions=definition.positions,
+        extra_terms=runner.extra_terms,
+        source=source,
+    )
 
 
 def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
@@ -377,6 +398,7 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     from dataclasses import replace
 
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
 
     if not start.get("prior"):
         runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
@@ -388,7 +410,9 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
+        outcome = run_system_stage(
+            record, record.metadata, prior.values(), covariance, SystemOptions(), compensation_terms=record_terms(prior.ids)
+        )
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
     extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}

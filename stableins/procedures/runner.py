@@ -410,8 +410,11 @@ class Runner:
         *,
         definition: Any = None,
         offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        extra_terms: tuple[Any, ...] = (),
     ) -> None:
         self.plan = plan
+        #: discovered terms of the unit's model the stage estimates (the prior record's and the definition's ``[model] add``)
+        self.extra_terms = tuple(extra_terms)
         self.session = session
         self.console = console
         self.options = options or RunOptions()
@@ -633,6 +636,7 @@ class Runner:
                     self.definition,
                     initial_offsets=tuple(float(o) for o in self.offsets),
                     progress=lambda record: self.console.say(f"  {record.describe()}"),
+                    extra_terms=self.extra_terms,
                 )
             except OffsetIterationError as error:
                 message = f"step {step.name!r}: {error}"

@@ -105,13 +105,6 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
     return rows
 
 
-def discovered_terms(ids: Iterable[str]) -> list[Any]:
-    """Terms of the model-discovery library among ``ids`` (their engineering units for the certificate)."""
-    from stableins.discovery.library import LIBRARY
-
-    return [LIBRARY[i].term for i in ids if i in LIBRARY]
-
-
 def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence]:
     """The residual evidence of every fit of the stages run in this calibration, as stored in the record."""
     out = []
@@ -181,6 +174,7 @@ def write_report(
     ReportSummary
     """
     import stableins
+    from stableins.discovery.library import record_terms
     from stableins.history import compare
 
     loaded = LoadedRecord.of(record)
@@ -194,9 +188,9 @@ def write_report(
     if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
         from stableins.reporting.replay import device_fits
 
-        fits, evidence_notes = device_fits(data, bare[0].settings or None)
+        fits, evidence_notes = device_fits(data, bare[0].settings or None, effects=record_terms(view.ids))
         stages = [stage_evidence(f, where) for f in fits] + stages
-    terms = content.known_terms(discovered_terms(view.ids))
+    terms = content.known_terms(record_terms(view.ids))
     rows = content.parameter_rows(view, terms)
     if previous_loaded is not None:
         inputs.append(
@@ -225,7 +219,7 @@ def write_report(
         changes = content.change_rows(comparison, terms)
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = dict(view.discovery or {}), "calibration record"
+    discovery_document, discovery_source = {}, ""  # the record's own history is ctx.record.discovery
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
         inputs.append(sections.InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
