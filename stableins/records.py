@@ -24,6 +24,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
@@ -44,6 +45,8 @@ RECORD_SCHEMA_VERSION = 1
 #: Allowed statuses (the same as :data:`stableins.estimators.result.STATUSES`, repeated here
 #: so that reading a record does not import numpy-heavy estimator modules).
 STATUSES = ("estimated", "fixed", "gauge", "unidentifiable")
+#: A SHA-256 digest as records write it.
+_SHA256 = re.compile(r"[0-9a-f]{64}")
 #: Relative asymmetry tolerated in a stored covariance.
 SYMMETRY_TOLERANCE = 1e-9
 
@@ -387,8 +390,12 @@ class CalibrationRecord:
                 raise fail(f"{value!r} is not a list of strings", key, "a list of strings")
             return tuple(value)
 
-        if not isinstance(document["parameters"], list):
-            raise fail("not a list", "parameters", "a list of parameter objects")
+        if not isinstance(document["parameters"], list) or not document["parameters"]:
+            raise fail(
+                "not a list" if not isinstance(document["parameters"], list) else "empty",
+                "parameters",
+                "a non-empty list of parameter objects",
+            )
         parameters = []
         for k, item in enumerate(document["parameters"]):
             where = f"parameters[{k}]"
@@ -424,6 +431,11 @@ class CalibrationRecord:
             isinstance(f, dict) and isinstance(f.get("path"), str) and isinstance(f.get("sha256"), str) for f in files
         ):
             raise fail("malformed input list", "provenance.inputs", '[{"path": ..., "sha256": ...}]')
+        for k, f in enumerate(files):
+            if not _SHA256.fullmatch(f["sha256"]):
+                raise fail(
+                    f"{f['sha256'][:70]!r} is not a SHA-256 digest", f"provenance.inputs[{k}].sha256", "64 lower-case hexadecimal digits"
+                )
         provenance = Provenance(
             software=text(prov["software"], "provenance.software"),
             procedure=text(prov.get("procedure", ""), "provenance.procedure"),
@@ -461,15 +473,9 @@ class CalibrationRecord:
             Unknown schema version, missing keys, bad status, a covariance that is not
             square, symmetric, positive semi-definite or consistent with the σ's, ...
         """
-        try:
-            with open(path, encoding="utf-8") as handle:
-                document = json.load(handle)
-        except FileNotFoundError:
-            raise InputError("no such file", path=path) from None
-        except json.JSONDecodeError as error:
-            raise InputError(f"not valid JSON: {error.msg} at line {error.lineno}; the file is damaged or truncated", path=path) from None
-        except (OSError, UnicodeDecodeError) as error:
-            raise InputError(f"cannot read: {error}", path=path) from None
+        from stableins.data.jsonio import load_json_file
+
+        document = load_json_file(path, what="a calibration record (JSON) written by stableins")
         return cls.from_document(document, str(path))
 
     def report(self) -> str:

@@ -13,11 +13,19 @@ import argparse
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number
+
     parser.add_argument("serial", metavar="SERIAL", help="unit serial number")
     parser.add_argument("--store", metavar="DIR", help="history store (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)")
     parser.add_argument("--add", nargs="+", default=[], metavar="RECORD", help="file these calibration records first")
     parser.add_argument("--at", metavar="DATE", help="which record was in force at this ISO 8601 date (default: now)")
-    parser.add_argument("--max-age", type=float, default=180.0, metavar="DAYS", help="older records in force are stale (default 180)")
+    parser.add_argument(
+        "--max-age",
+        type=number(0.0, 36525.0, unit="days"),
+        default=180.0,
+        metavar="DAYS",
+        help="older records in force are stale, 0 to 36525 days (default 180)",
+    )
     parser.add_argument("--plot", metavar="FILE", help="write the drift plot (PNG, PDF, SVG by suffix)")
 
 

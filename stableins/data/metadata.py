@@ -194,3 +194,35 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         damping=damping,
         extra=extra,
     )
+
+
+def metadata_from_si(values: Any, source: str | None = None) -> SiteMetadata:
+    """Validate :meth:`SiteMetadata.to_dict` output (SI numbers, no units: a platform's ``META`` reply, a journal).
+
+    The values get their SI units and go through :func:`metadata_from_document`, so the same keys, types and
+    ranges are checked as in a file header.
+
+    Raises
+    ------
+    InputError
+        Naming ``source`` and the key.
+    """
+    from stableins.data.errors import InputError
+
+    if not isinstance(values, dict):
+        raise InputError("metadata is not a JSON object", path=source, expected="an object with the keys of SiteMetadata")
+    unknown = sorted(set(values) - set(SiteMetadata.__dataclass_fields__))
+    if unknown:
+        raise InputError(
+            f"unknown metadata key(s) {unknown[:5]}", path=source, field=f"metadata.{unknown[0]}", expected="SiteMetadata fields"
+        )
+    document = dict(values)
+    for key, unit in (("latitude", "rad"), ("height", "m"), ("gravity", "m/s^2"), ("sample_rate", "Hz"), ("reference_temperature", "degC")):
+        if key in document:
+            document[key] = {"value": document[key], "unit": unit}
+    if "base_attitude" in document:
+        document["base_attitude"] = {"value": document["base_attitude"], "unit": "rad"}
+    damping = document.get("damping", {})
+    if isinstance(damping, dict):
+        document["damping"] = {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in damping.items()}
+    return metadata_from_document(document, source)

@@ -115,13 +115,29 @@ def _canonical_dtype(dtype: np.dtype, name: str) -> str:
 
 
 def _decode(payload: bytes, offset: int, path: str | None = None, with_arrays: bool = True) -> Record:
+    from stableins.data.jsonio import parse_json
+
     (n,) = _HEADER_LENGTH.unpack_from(payload, 0)
-    header = json.loads(payload[4 : 4 + n].decode("utf-8"))
+    if n > len(payload) - 4:
+        raise ValueError("header length beyond the payload")
+    try:
+        header = parse_json(payload[4 : 4 + n], path=path, field="journal record", allow_nan=True, what="a journal record header")
+    except InputError as error:
+        raise ValueError(error.describe()) from None
+    if not isinstance(header, dict) or not isinstance(header.get("arrays"), list):
+        raise ValueError("the record header is not an object with an array list")
     position = 4 + n
     arrays: dict[str, NDArray[Any]] = {}
     specs = header.pop("arrays")
-    for name, dtype, shape in specs:
-        count = int(np.prod(shape)) if shape else 1
+    for spec in specs:
+        if not (isinstance(spec, list) and len(spec) == 3 and spec[1] in _DTYPES and isinstance(spec[2], list)):
+            raise ValueError(f"bad array description {str(spec)[:80]}")
+        name, dtype, shape = spec
+        if not all(isinstance(d, int) and 0 <= d < 1 << 40 for d in shape):
+            raise ValueError(f"bad array shape {str(shape)[:80]}")
+        count = int(np.prod(shape, dtype=object)) if shape else 1
+        if count * np.dtype(_DTYPES[dtype]).itemsize > len(payload) - position:
+            raise ValueError("arrays longer than the payload")
         size = count * np.dtype(_DTYPES[dtype]).itemsize
         if with_arrays:
             a = np.frombuffer(payload, dtype=_DTYPES[dtype], count=count, offset=position).reshape(shape)

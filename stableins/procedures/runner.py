@@ -169,6 +169,9 @@ class Session:
         self.replayed = 0
         #: when a list, every operation record (replayed or new) is also appended to it
         self.trace: list[Record] | None = None
+        #: the latest platform time seen [s] and whether it was a sample's (the next sample must then come strictly
+        #: later) or a command's (a sample may carry the command's time): the platform's clock never runs back
+        self.clock: tuple[float, bool] = (-math.inf, False)
 
     @property
     def replaying(self) -> bool:
@@ -214,11 +217,11 @@ class Session:
                 _check_same(operation, result, call(), record.seq)
             if self.trace is not None:
                 self.trace.append(record)
+            self.clock = _latest_time(operation, result, self.clock)
             return result
         try:
             result = call()
-            if operation == "acquire":
-                _validate_block(result)
+            self.clock = _check_clock(operation, result, self.clock)  # before anything is journaled
         except DriverError as error:
             self.journal.append(
                 "op",
@@ -323,6 +326,58 @@ def _validate_block(block: SampleBlock) -> None:
     for name, shape in shapes.items():
         if np.shape(getattr(block, name)) != shape:
             raise DriverProtocolError(f"the platform returned {name} of shape {np.shape(getattr(block, name))}, expected {shape}")
+
+
+def _sample_times(operation: str, result: Any) -> Any:
+    if operation == "acquire":
+        return np.asarray(result.time, dtype=float)
+    if operation == "static_chunk":
+        return np.asarray(result.get("time", ()), dtype=float)
+    return None
+
+
+def _latest_time(operation: str, result: Any, clock: tuple[float, bool]) -> tuple[float, bool]:
+    """The clock after an operation (journaled results: already checked)."""
+    if operation == "command":
+        return max(clock[0], float(result)), clock[1] and clock[0] >= float(result)
+    time = _sample_times(operation, result)
+    if time is not None and time.size:
+        return max(clock[0], float(time[-1])), True
+    return clock
+
+
+def _check_clock(operation: str, result: Any, clock: tuple[float, bool]) -> tuple[float, bool]:
+    """Refuse (DriverProtocolError, before it is journaled) a result whose times are not finite or run back; the new clock.
+
+    A session's times must increase throughout: the data set of the run is one time series, and samples that ran
+    back would make every export of the run, and so every resume, fail the same way.  A command may carry the time
+    of the last sample, and the first sample after it the command's time; samples increase strictly.
+    """
+    latest, strict = clock
+    if operation == "acquire":
+        _validate_block(result)
+    elif operation == "command":
+        issued = float(result)
+        if not math.isfinite(issued):
+            raise DriverProtocolError(f"the platform reported the command at time {issued!r}")
+        if issued < latest:
+            raise DriverProtocolError(f"the platform's clock ran back: a command at {issued!r} s after a sample at {latest!r} s")
+        return issued, False
+    time = _sample_times(operation, result)
+    if time is None or time.size == 0:
+        return clock
+    if not np.isfinite(time).all():
+        raise DriverProtocolError(f"the platform sent a sample time {time[~np.isfinite(time)][0]!r} (expected finite times)")
+    steps = np.diff(time)
+    first_ok = time[0] > latest if strict else time[0] >= latest
+    if not first_ok or not (steps > 0).all():
+        k = 0 if not first_ok else int(np.argmax(~(steps > 0))) + 1
+        before = latest if k == 0 else float(time[k - 1])
+        raise DriverProtocolError(
+            f"the platform's clock ran back: sample {k + 1} of {time.size} at {float(time[k])!r} s follows {before!r} s "
+            "(times must increase through the whole session)"
+        )
+    return float(time[-1]), True
 
 
 # --------------------------------------------------------------------------- checks

@@ -28,7 +28,6 @@ the field.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -110,17 +109,12 @@ class RecordView:
     @classmethod
     def load(cls, path: str | PathLike[str]) -> RecordView:
         """Read a record file; every problem is an :class:`InputError` naming the file."""
+        from stableins.data.jsonio import MAX_DOCUMENT_BYTES, parse_json, read_input_bytes
+
         path = Path(path)
-        try:
-            raw = path.read_bytes()
-        except FileNotFoundError:
-            raise InputError("no such file", path=path, expected="a calibration record (JSON)") from None
-        except OSError as error:
-            raise InputError(f"cannot read the file ({error.strerror})", path=path) from None
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as error:
-            raise InputError(f"not valid JSON ({error})", path=path, expected="a calibration record written by stableins") from None
+        what = "a calibration record (JSON) written by stableins"
+        raw = read_input_bytes(path, max_bytes=MAX_DOCUMENT_BYTES, what=what)
+        data = parse_json(raw, path=path, what=what)
         return cls.from_mapping(data, path=str(path), sha256=hashlib.sha256(raw).hexdigest())
 
     @classmethod
