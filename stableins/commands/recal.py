@@ -32,7 +32,8 @@ def run(args: argparse.Namespace) -> int:
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
     from stableins.data.errors import InputError
-    from stableins.history import HistoryStore, compare, format_changes
+    from stableins.history import compare, format_changes
+    from stableins.history_store import HistoryStore
     from stableins.output import emit, note
     from stableins.recalibration import fuse_with_prior
     from stableins.records import CalibrationRecord, file_sha256

@@ -102,15 +102,30 @@ def prior_file(args: argparse.Namespace) -> Path | None:
     if args.store:
         if not args.unit:
             raise InputError("--store needs --unit to find the unit's record", field="--unit")
-        from stableins.history import HistoryStore
+        from stableins.history_store import HistoryStore
 
         store = HistoryStore(args.store)
         entry = store.in_force(args.unit)
         warning = store.staleness(entry)
         if warning:
             print(f"stableins: warning: {warning}", file=sys.stderr)
-        return store.root / args.unit / entry.file
+        return store.record_path(args.unit, entry)  # its SHA-256 checked against the index
     return None
+
+
+def _resumable(rundir: str | None) -> bool:
+    """Whether RUNDIR holds a run that ``--resume`` can continue (a journal that starts with its start record)."""
+    from stableins.drivers.replay import JOURNAL_NAME
+    from stableins.procedures.journal import has_start
+
+    return rundir is not None and has_start(Path(rundir) / JOURNAL_NAME)
+
+
+def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
+    """What the person can do next: resume only when there is something to resume."""
+    if _resumable(rundir):
+        return f"everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}"
+    return "nothing was started (the run directory holds no journal); fix the problem and run the same command again"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,22 +162,16 @@ def run(args: argparse.Namespace) -> int:
                 timeout=args.timeout,
             )
     except RunStopped as stop:
-        print(
-            f"stableins: run stopped: {stop}\n  everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}",
-            file=sys.stderr,
-        )
-        return EXIT_STOPPED
+        print(f"stableins: run stopped: {stop}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
+        return EXIT_STOPPED if _resumable(rundir) else 1
     except DriverError as error:
-        print(f"stableins: platform: {error}\n  continue with: stableins run --resume {rundir}", file=sys.stderr)
-        return EXIT_STOPPED
+        print(f"stableins: platform: {error}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
+        return EXIT_STOPPED if _resumable(rundir) else 1
     except JournalMismatch as error:
         print(f"stableins: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(
-            f"stableins: interrupted; everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}",
-            file=sys.stderr,
-        )
+        print(f"stableins: interrupted\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
         return 130
     data = {
         "rundir": str(outcome.rundir),

@@ -204,7 +204,7 @@ class TcpDriver:
             try:
                 self._metadata = metadata_from_si(parse_json(payload, field="META", what="site metadata"), f"META reply of {self.address}")
             except InputError as error:
-                raise DriverProtocolError(f"{self.address} sent unusable metadata: {error}") from None
+                raise DriverProtocolError(f"{self.address} sent unusable metadata (garbage?): {error}") from None
         return self._metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
@@ -228,13 +228,12 @@ class TcpDriver:
         return {"driver": "tcp", "address": self.address, "reconnects": self.reconnects, "platform": remote}
 
     def acquire(self, duration: float) -> SampleBlock:
-        if not (math.isfinite(duration) and duration > 0):
-            raise DriverError(f"cannot acquire for {duration!r} s (expected a positive duration)")
-        limit = int(math.ceil(ACQ_COUNT_MARGIN * duration * float(self.metadata.sample_rate))) + ACQ_COUNT_SLACK
+        span = duration if math.isfinite(duration) and duration > 0 else 0.0  # the platform refuses other durations itself
+        limit = int(math.ceil(ACQ_COUNT_MARGIN * span * float(self.metadata.sample_rate))) + ACQ_COUNT_SLACK
         request_id = self._next_id
         self._next_id += 1
         received = 0
-        deadline = time.monotonic() + self.timeout + ACQ_TIME_FACTOR * duration
+        deadline = time.monotonic() + self.timeout + ACQ_TIME_FACTOR * span
         try:
             self._send(request_id, "ACQ", (format_float(duration),))
             count_text = self._reply(request_id, "ACQ", deadline)

@@ -128,16 +128,17 @@ def _number(
     whole: bool = False,
 ) -> float:
     value = table[key]
+    field = f"{where.split()[0]}.{key}"  # "step 3" -> step.dwell, "runner" -> runner.chunk
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise InputError(f"{where}: not a finite number ({str(value)[:40]!r})", path=path, field=key, expected="a number")
+        raise InputError(f"{where}: not a finite number ({str(value)[:40]!r})", path=path, field=field, expected="a number")
     if positive and value <= 0:
-        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=key, expected="> 0")
+        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=field, expected="> 0")
     if minimum is not None and value < minimum:
-        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=key, expected=f">= {minimum}")
+        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=field, expected=f">= {minimum}")
     if maximum is not None and value > maximum:
-        raise InputError(f"{where}: above {maximum:g} ({value!r})", path=path, field=key, expected=f"<= {maximum:g}")
+        raise InputError(f"{where}: above {maximum:g} ({value!r})", path=path, field=field, expected=f"<= {maximum:g}")
     if whole and value != int(value):
-        raise InputError(f"{where}: {value!r} is not a whole number", path=path, field=key, expected="a whole number")
+        raise InputError(f"{where}: {value!r} is not a whole number", path=path, field=field, expected="a whole number")
     return float(value)
 
 

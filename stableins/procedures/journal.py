@@ -222,6 +222,32 @@ def scan(path: str | os.PathLike[str]) -> ScanResult:
     return ScanResult(records, position, size - position, torn_reason)
 
 
+def has_start(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a journal whose first record is whole and a ``start``: a run that can be resumed.
+
+    Reads only the file header and the first record.
+    """
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(len(FILE_MAGIC)) != FILE_MAGIC:
+                return False
+            head = handle.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                return False
+            magic, length, crc = _RECORD_HEAD.unpack(head)
+            if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
+                return False
+            payload = handle.read(length)
+    except OSError:
+        return False
+    if len(payload) != length or zlib.crc32(payload) != crc:
+        return False
+    try:
+        return _decode(payload, len(FILE_MAGIC), str(path), with_arrays=False).kind == "start"
+    except (ValueError, KeyError, UnicodeDecodeError):
+        return False
+
+
 def _damaged(path: Path, handle: Any, position: int, reason: str, size: int, end: int) -> None:
     """Raise unless the bad record is the last thing in the file (then it is a torn write)."""
     if end >= size:

@@ -172,6 +172,9 @@ class Session:
         #: the latest platform time seen [s] and whether it was a sample's (the next sample must then come strictly
         #: later) or a command's (a sample may carry the command's time): the platform's clock never runs back
         self.clock: tuple[float, bool] = (-math.inf, False)
+        #: the latest sample time of the accepted data [s]: nothing recorded later may come before it
+        self.floor = -math.inf
+        self._live = False
 
     @property
     def replaying(self) -> bool:
@@ -219,6 +222,12 @@ class Session:
                 self.trace.append(record)
             self.clock = _latest_time(operation, result, self.clock)
             return result
+        if not self._live:
+            self._live = True
+            if self.replayed and not self.forward:
+                # a real platform after a resume: its clock may have restarted with its power, which is harmless as long
+                # as nothing it records comes before the data already accepted
+                self.clock = (self.floor, True)
         try:
             result = call()
             self.clock = _check_clock(operation, result, self.clock)  # before anything is journaled
@@ -247,6 +256,12 @@ class Session:
         if self.trace is not None:
             self.trace.append(record)
         return _result_of(record)
+
+    def accept(self, blocks: list[SampleBlock]) -> None:
+        """Blocks that became part of the run's data: later recordings must come after them."""
+        for block in blocks:
+            if len(block.time):
+                self.floor = max(self.floor, float(block.time[-1]))
 
     # ------------------------------------------------------------------ decisions
     def decide(self, kind: str, fields: dict[str, Any]) -> tuple[Record, bool]:
@@ -512,7 +527,7 @@ class Runner:
 
         def ask_value() -> Any:
             text = self.console.enter(step)
-            return _parse_value(step, text)
+            return parse_entry(step, text)
 
         value = self.session.enter("input", index, ask_value)
         self.inputs[step.key] = value
@@ -565,6 +580,7 @@ class Runner:
             if result.accepted:
                 self.console.say(f"  accepted: {result.describe()}")
                 self.entries.append(_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
+                self.session.accept(blocks)
                 return
             rejections += 1
             self.console.say(f"  rejected: {'; '.join(result.reasons)}")
@@ -707,7 +723,10 @@ class Runner:
             self.session.decide(
                 "iteration", {"step": index, "attempt": attempt, "offsets": list(self.offsets), "passes": len(result.history)}
             )
-            self.entries += iteration_entries(step, trace)
+            accepted = iteration_entries(step, trace)
+            self.entries += accepted
+            for entry in accepted:
+                self.session.accept(entry["blocks"])
             seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
             return
@@ -791,7 +810,8 @@ def _concatenate(blocks: list[SampleBlock]) -> SampleBlock:
     )
 
 
-def _parse_value(step: PersonStep, text: str) -> Any:
+def parse_entry(step: PersonStep, text: str) -> Any:
+    """The value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
     if step.minimum is None and step.maximum is None and not _is_number(text):
         if not text:
             raise InputError(f"step {step.name!r}: no value entered", field=step.key, expected=f"a value in {step.unit or 'text'}")
