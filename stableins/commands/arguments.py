@@ -38,6 +38,8 @@ def number(
 
     def parse(text: str) -> float:
         try:
+            if not text.isascii() or "_" in text:  # float() also reads 1_0 and full-width digits
+                raise ValueError(text)
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a number (expected {what})") from None

@@ -139,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
     diagnosis = session.diagnose()
     ranking = session.rank(propose=not system)
     drift = None if system else session.drift()
+    if not system and drift is None:
+        for line in getattr(session, "drift_notes", ()):
+            note(f"drift analysis: {line}")
     spectra = {}
     if system:
         from stableins.discovery.diagnostics import residual_spectra

@@ -369,11 +369,17 @@ class H5Reader:
         if not hasattr(d, "dtype") or d.dtype.kind not in "iuf" or d.ndim != 2 or d.shape[1] != 3 or not 0 < d.shape[0] <= MAX_SEGMENTS:
             return None
         grid = np.asarray(d[()], dtype=float)
-        if grid.ndim != 2 or grid.shape[1] != 3 or grid.shape[0] == 0 or not np.isfinite(grid).all():
-            return None
         rows = grid[:, 0]
-        if rows[0] != 0 or not (np.diff(rows) > 0).all() or rows[-1] >= max(self.rows, 1) or not (grid[:, 2] > 0).all():
-            return None
+        if np.isfinite(rows).all() and rows[-1] >= max(self.rows, 1):
+            return None  # written for more rows than the columns hold now: does not match the file, the columns are read
+        if not np.isfinite(grid).all() or rows[0] != 0 or not (np.diff(rows) > 0).all() or not (grid[:, 2] > 0).all():
+            raise InputError(
+                "the time grid is damaged (rows not increasing from 0, a non-finite value or a period that is not positive); "
+                "the file was changed after it was written",
+                path=self.path,
+                field=f"/{TIME_GRID}",
+                expected="(first_row, first_time, period) rows as the writer made them, or no /time_grid",
+            )
         return grid
 
     def _overview_step(self, f: Any) -> int:

@@ -80,6 +80,8 @@ DAMPING_UNITS: dict[str, str] = {
     "k2": "1/s^2",
     "k3": "1/s^3",
 }
+#: The order of the base-attitude angles in files.
+BASE_ATTITUDE_ORDER = ("yaw", "pitch", "roll")
 _REQUIRED = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
 
 
@@ -97,7 +99,7 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
         "gravity_source": metadata.gravity_source,
         "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
         "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
-        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": ["yaw", "pitch", "roll"]},
+        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
         "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
         "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
         "extra": dict(metadata.extra),
@@ -160,6 +162,9 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     if not isinstance(senses, list) or len(senses) != 4 or any(s not in (1, -1) or isinstance(s, bool) for s in senses):
         raise fail(f"gimbal senses {senses!r}", "gimbal_senses", "four values, each +1 or -1")
     base_attitude = quantity("base_attitude", vector=3) if "base_attitude" in document else (0.0, 0.0, 0.0)
+    if "base_attitude" in document and document["base_attitude"].get("order", list(BASE_ATTITUDE_ORDER)) != list(BASE_ATTITUDE_ORDER):
+        order = document["base_attitude"]["order"]
+        raise fail(f"order {str(order)[:60]!r}", "base_attitude.order", f"{list(BASE_ATTITUDE_ORDER)} (the only order stableins reads)")
     reference_temperature = quantity("reference_temperature") if "reference_temperature" in document else 25.0
     damping_doc = document.get("damping", {})
     if not isinstance(damping_doc, dict):

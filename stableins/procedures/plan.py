@@ -284,7 +284,7 @@ class _Validator:
         return Checks(**{k: self.number(x, f"{where}.{k}", *ranges[k], above=True) for k, x in d.items()})
 
     def step(self, value: Any, where: str) -> Step:
-        if not isinstance(value, dict) or value.get("kind") not in _STEP_TYPES:
+        if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
             kind = value.get("kind") if isinstance(value, dict) else value
             raise self.fail(f"step kind {str(kind)[:40]!r}", f"{where}.kind", " or ".join(repr(k) for k in _STEP_TYPES))
         kind = value["kind"]
