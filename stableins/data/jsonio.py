@@ -187,7 +187,7 @@ def read_input_bytes(path: str | os.PathLike[str], *, max_bytes: int, what: str)
     try:
         handle = open(path, "rb")  # noqa: SIM115 - closed below
     except FileNotFoundError:
-        raise InputError("no such file", path=path, expected=what) from None
+        raise InputError("file not found", path=path, expected=what) from None
     except IsADirectoryError:
         raise InputError("is a directory", path=path, expected=what) from None
     except OSError as error:

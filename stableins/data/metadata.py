@@ -120,7 +120,9 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         return InputError(message, path=path, field=f"metadata.{key}", expected=expected)
 
     if not isinstance(document, dict):
-        raise InputError("metadata is not a JSON object", path=path, expected="an object with the keys of docs/formats.md")
+        raise InputError(
+            "metadata is not a JSON object", path=path, field="metadata", expected="an object with the keys of docs/formats.md"
+        )
     missing = [k for k in _REQUIRED if k not in document]
     if missing:
         raise fail(f"missing metadata key(s) {missing}", missing[0], "the keys " + ", ".join(_REQUIRED))

@@ -174,6 +174,8 @@ class Session:
         self.clock: tuple[float, bool] = (-math.inf, False)
         #: the latest sample time of the accepted data [s]: nothing recorded later may come before it
         self.floor = -math.inf
+        #: a system-level static record has its own time base (time since the start of the record)
+        self.static_clock: tuple[float, bool] = (-math.inf, False)
         self._live = False
 
     @property
@@ -220,7 +222,10 @@ class Session:
                 _check_same(operation, result, call(), record.seq)
             if self.trace is not None:
                 self.trace.append(record)
-            self.clock = _latest_time(operation, result, self.clock)
+            if operation == "static_chunk":
+                self.static_clock = _latest_time(operation, result, self.static_clock)
+            else:
+                self.clock = _latest_time(operation, result, self.clock)
             return result
         if not self._live:
             self._live = True
@@ -230,7 +235,10 @@ class Session:
                 self.clock = (self.floor, True)
         try:
             result = call()
-            self.clock = _check_clock(operation, result, self.clock)  # before anything is journaled
+            if operation == "static_chunk":  # before anything is journaled
+                self.static_clock = _check_clock(operation, result, self.static_clock)
+            else:
+                self.clock = _check_clock(operation, result, self.clock)
         except DriverError as error:
             self.journal.append(
                 "op",
@@ -619,6 +627,7 @@ class Runner:
         done = 0
         context = {"step": index, "attempt": 1, "phase": "static"}
         self.static_chunks = []
+        self.session.static_clock = (-math.inf, False)  # the record's own time base starts with it
         while done < total:
             self.session.context = dict(context)
             self.session.trace = []
