@@ -607,3 +607,18 @@ def test_a_line_without_newline_costs_bounded_memory_and_time(ws, tmp_path):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert elapsed < 5.0 and peak < 16 * MAX_LINE, (elapsed, peak)
+
+
+def test_an_entry_out_of_range_is_asked_again_not_fatal(tmp_path, monkeypatch):
+    from platform_double import PlatformDouble
+    from runner_fixtures import short_plan
+
+    from stableins.procedures.rundir import start_run
+    from stableins.procedures.runner import Console
+
+    answers = iter(["y", "200", "warm", "19.25"])  # the range is -20 .. 60 degC
+    monkeypatch.setattr("builtins.input", lambda prompt: next(answers))
+    out = io.StringIO()
+    outcome = start_run(short_plan(), tmp_path / "run", driver_spec="double", console=Console(out=out), driver=PlatformDouble(0))
+    assert outcome.runner.inputs == {"lab_temperature": 19.25}
+    assert out.getvalue().count("please enter it again") == 2

@@ -425,13 +425,16 @@ class H5Reader:
             A non-finite value, an overview value that differs from its full-rate row, or a time stamp off its grid
             segment by more than the tolerance (the file was changed after it was written); names the row and the dataset.
         """
-        for _ in self.iter_verified(rows):
+        for _ in self.iter_verified(max(rows, 1 << 18)):
             pass
         return self.overview_step, 0 if self.time_grid is None else len(self.time_grid)
 
-    def iter_verified(self, rows: int = DEFAULT_CHUNK) -> Iterator[dict[str, Any]]:
+    def iter_verified(self, rows: int = 1 << 18) -> Iterator[dict[str, Any]]:
         """Every column, chunk by chunk, each value checked (finite numbers, whole numbers where integers are due), and
         the derived datasets checked against the rows of each chunk: the one validating pass over a file.
+
+        Numeric columns are read into buffers reused from chunk to chunk (HDF5's chunk cache off, as the system
+        stage reads): the arrays yielded are valid only until the next chunk is requested.
         """
         import numpy as np
 
@@ -439,27 +442,32 @@ class H5Reader:
         names = [c.name for c in self.schema]
         rows = max(step, rows - rows % step) if step else rows  # chunks start on overview rows
         tolerance = TIME_GRID_TOLERANCE * float(grid[:, 2].min()) if grid is not None else 0.0
+        buffers = {c.name: np.empty(min(rows, max(self.rows, 1))) for c in self.schema if c.dtype != "str"}
+        work = np.empty(min(rows, max(self.rows, 1)))
+        index = np.arange(min(rows, max(self.rows, 1)), dtype=float)
         with self._open(chunk_cache=False) as f:
             try:
                 datasets = {name: f[GROUP][name] for name in names}
                 views = {c.name: f[OVERVIEW][c.name] for c in self.schema if c.dtype != "str"} if step else {}
                 for k in range(0, self.rows, rows):
                     stop = min(k + rows, self.rows)
-                    full = self._read(f, names, k, stop, datasets)
+                    n = stop - k
+                    full: dict[str, Any] = {}
+                    for c in self.schema:
+                        if c.dtype == "str":
+                            full[c.name] = self._read(f, [c.name], k, stop, datasets)[c.name]
+                            continue
+                        values = buffers[c.name][:n]
+                        datasets[c.name].read_direct(values, np.s_[k:stop], np.s_[0:n])
+                        if c.dtype == "int32":
+                            from stableins.data.csvformat import integer_column
+
+                            full[c.name] = integer_column(values, None, c.name, self.path, k + 1)
+                        else:
+                            check_finite(c.name, values, self.path, first_row=k + 1)
+                            full[c.name] = values
                     if grid is not None:
-                        on_grid = self.grid_time(k, stop)
-                        with np.errstate(invalid="ignore", over="ignore"):
-                            bad = np.flatnonzero(~(np.abs(full["time"] - on_grid) <= tolerance))
-                        if bad.size:
-                            j = int(bad[0])
-                            raise InputError(
-                                f"time {float(full['time'][j])!r} is not on the time grid written with the file "
-                                f"({float(on_grid[j])!r}); the file was changed after it was written",
-                                path=self.path,
-                                row=k + j + 1,
-                                field=f"/{TIME_GRID}",
-                                expected=f"the time column within {tolerance:.3g} s of its segments",
-                            )
+                        self._check_grid(full["time"], k, stop, tolerance, work[:n], index[:n])
                     for name, view_dataset in views.items():
                         picked = full[name][::step]
                         view = view_dataset[k // step : k // step + picked.size]
@@ -477,6 +485,38 @@ class H5Reader:
                     yield full
             except H5_DAMAGE as error:
                 raise InputError(f"the file cannot be read ({error}); it is truncated or corrupt", path=self.path) from None
+
+    def _check_grid(self, time: Any, start: int, stop: int, tolerance: float, work: Any, index: Any) -> None:
+        """Rows ``start:stop`` of the time column lie on ``/time_grid`` within ``tolerance`` (in place: no temporaries)."""
+        import numpy as np
+
+        grid = self.time_grid
+        segment = int(np.searchsorted(grid[:, 0], start, side="right")) - 1
+        within = segment + 1 == len(grid) or stop <= grid[segment + 1, 0]
+        if within:  # one segment: t = t0 + (row − first_row)·period
+            first_row, first_time, period = grid[segment]
+            np.multiply(index, period, out=work)
+            work += first_time + (start - first_row) * period
+            on_grid = None
+        else:
+            on_grid = self.grid_time(start, stop)
+            work[...] = on_grid
+        with np.errstate(invalid="ignore", over="ignore"):
+            np.subtract(work, time, out=work)
+            np.abs(work, out=work)
+            worst = float(np.max(work)) if work.size else 0.0
+        if worst <= tolerance:
+            return
+        j = int(np.argmax(~(work <= tolerance)))
+        expected = float(on_grid[j]) if on_grid is not None else float(grid[segment, 1] + (start + j - grid[segment, 0]) * grid[segment, 2])
+        raise InputError(
+            f"time {float(time[j])!r} is not on the time grid written with the file ({expected!r}); "
+            "the file was changed after it was written",
+            path=self.path,
+            row=start + j + 1,
+            field=f"/{TIME_GRID}",
+            expected=f"the time column within {tolerance:.3g} s of its segments",
+        )
 
     def _open(self, chunk_cache: bool = True) -> Any:
         """Open for reading.  ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them

@@ -534,8 +534,14 @@ class Runner:
             return
 
         def ask_value() -> Any:
-            text = self.console.enter(step)
-            return parse_entry(step, text)
+            while True:
+                text = self.console.enter(step)
+                try:
+                    return parse_entry(step, text)
+                except InputError as error:
+                    if self.console.yes or step.key in self.console.values:
+                        raise  # checked before the run started; cannot happen unless the plan changed
+                    self.console.say(f"  {error.message} (expected {error.expected}); please enter it again")
 
         value = self.session.enter("input", index, ask_value)
         self.inputs[step.key] = value
