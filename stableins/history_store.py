@@ -45,6 +45,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from stableins.data.atomic import fsync_directory
 from stableins.data.errors import InputError
 from stableins.history import DEFAULT_MAX_AGE, Trend, compare, parse_date, trend
 
@@ -330,7 +331,7 @@ class HistoryStore:
                     self._insert(connection, serial, entry, when, record, evidence_record)
                     for temporary, final in staged:  # under the write lock: the files appear with their row
                         os.replace(temporary, final)
-                    _fsync_directory(directory)
+                    fsync_directory(directory)
             finally:
                 for temporary, _ in staged:
                     with contextlib.suppress(FileNotFoundError):
@@ -609,14 +610,6 @@ def _stage(directory: Path, name: str, data: bytes) -> tuple[str, Path]:
             os.unlink(temporary)
         raise
     return temporary, directory / name
-
-
-def _fsync_directory(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _legacy_entries(index: Path, folder: Path) -> Iterator[tuple[Entry, datetime, CalibrationRecord, CalibrationRecord | None]]:

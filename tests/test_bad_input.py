@@ -622,3 +622,8 @@ def test_an_entry_out_of_range_is_asked_again_not_fatal(tmp_path, monkeypatch):
     outcome = start_run(short_plan(), tmp_path / "run", driver_spec="double", console=Console(out=out), driver=PlatformDouble(0))
     assert outcome.runner.inputs == {"lab_temperature": 19.25}
     assert out.getvalue().count("please enter it again") == 2
+
+
+def test_an_injected_effect_beyond_the_model_is_refused_and_leaves_nothing(tmp_path):
+    err = refused(["simulate", "device", "--hidden", "K3_x=1e300", "--out", tmp_path / "sim"], "effects.K3_x", "nominal size")
+    assert "Traceback" not in err and not (tmp_path / "sim").exists()

@@ -198,15 +198,25 @@ def run(args: argparse.Namespace) -> int:
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
+    existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
+    before = set(out.iterdir())
     seed = truth.seed if args.seed is None else args.seed
     truth_path = out / "truth.json"
-    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
-    note(f"truth written to {truth_path}")
-    if args.level == "device":
-        files = simulate_device(truth, out, seed, args)
-    else:
-        files = [simulate_system(truth, out, seed, args)]
+    try:
+        truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+        note(f"truth written to {truth_path}")
+        if args.level == "device":
+            files = simulate_device(truth, out, seed, args)
+        else:
+            files = [simulate_system(truth, out, seed, args)]
+    except BaseException:  # nothing left behind: the files this run created go (what was there stays)
+        for path in set(out.iterdir()) - before:
+            if path.is_file():
+                path.unlink()
+        if not existed and not any(out.iterdir()):
+            out.rmdir()
+        raise
     result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))

@@ -20,7 +20,7 @@ Every violation raises :class:`~stableins.data.errors.InputError` naming the fil
 field: the JSON path of the offending value (``parameters[3].value``), prefixed with the
 ``field`` the caller gives (``header`` for an HDF5 attribute).  Checking the types of the
 fields is the caller's business; :func:`expect_mapping`, :func:`expect_list`,
-:func:`expect_text`, :func:`expect_number` and :func:`expect_integer` say what was
+:func:`expect_text` and :func:`expect_number` say what was
 expected in the same form.
 """
 
@@ -261,20 +261,6 @@ def expect_number(
     if not math.isfinite(number):
         raise InputError(f"{_shown(value)} is not finite", path=path, field=field, expected=expected)
     if (positive and not number > 0) or (minimum is not None and number < minimum) or (maximum is not None and number > maximum):
-        raise InputError(f"{_shown(value)} is out of range", path=path, field=field, expected=expected)
-    return number
-
-
-def expect_integer(value: Any, path: Any, field: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
-    """A JSON integer (``3`` or ``3.0``; not a boolean) within the bounds given."""
-    bounds = " ≥ " + str(minimum) if minimum is not None and maximum is None else ""
-    if minimum is not None and maximum is not None:
-        bounds = f" from {minimum} to {maximum}"
-    expected = f"an integer{bounds}"
-    if isinstance(value, bool) or not isinstance(value, int | float) or (isinstance(value, float) and not value.is_integer()):
-        raise InputError(f"{_shown(value)} is not an integer", path=path, field=field, expected=expected)
-    number = int(value)
-    if (minimum is not None and number < minimum) or (maximum is not None and number > maximum):
         raise InputError(f"{_shown(value)} is out of range", path=path, field=field, expected=expected)
     return number
 

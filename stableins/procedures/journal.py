@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.data.atomic import fsync_directory
 from stableins.data.errors import InputError
 
 FILE_MAGIC = b"STABLEINS-JOURNAL 1\n"
@@ -287,7 +288,7 @@ class Journal:
             raise
         os.write(fd, FILE_MAGIC)
         os.fsync(fd)
-        _fsync_directory(path.parent)
+        fsync_directory(path.parent)
         return cls(path, [], fd)
 
     @classmethod
@@ -362,11 +363,3 @@ def _lock(fd: int, path: Path) -> None:
         raise InputError(
             "another stableins process is running this run right now", path=path, expected="that process to finish or stop"
         ) from None
-
-
-def _fsync_directory(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
