@@ -87,7 +87,9 @@ def check_finite(name: str, values: Any, path: Any, first_row: int = 1, row_step
     values = np.asarray(values)
     if values.dtype.kind != "f":
         return
-    if np.isfinite(np.add.reduce(values, axis=None)):  # NaN and ±inf propagate into the sum: one pass, no temporary
+    with np.errstate(over="ignore", invalid="ignore"):  # a sum of large finite values may overflow: then look (below)
+        total = np.add.reduce(values, axis=None)
+    if np.isfinite(total):  # NaN and ±inf propagate into the sum: one pass, no temporary
         return
     bad = ~np.isfinite(values)  # a non-finite value, or finite values whose sum overflowed: look
     if bad.any():
