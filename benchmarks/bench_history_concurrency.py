@@ -34,10 +34,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from fuzzing import make_record  # noqa: E402
 
 from stableins.history import parse_date  # noqa: E402
 from stableins.history_store import HistoryStore  # noqa: E402
-from stableins.records import CalibrationRecord, Parameter, Provenance  # noqa: E402
 
 WRITER = """
 import sys
@@ -52,17 +54,12 @@ for path in {paths!r}:
 
 def make_records(directory: Path, serial: str, count: int, first_day: int = 0) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
-    sigma = np.array([2e-5, 5e-6])
+    sigmas = {"bias_x": 2e-5, "sf_x": 5e-6}
     paths = []
     for k in range(count):
         created = (parse_date("2025-01-01") + timedelta(days=first_day + k)).isoformat()
-        parameters = (
-            Parameter("bias_x", 1e-4 + 1e-7 * k, "m/s^2", float(sigma[0]), "estimated"),
-            Parameter("sf_x", 1.0, "1", float(sigma[1]), "estimated"),
-        )
-        provenance = Provenance("stableins bench", "device-fine", ("fine",), (), created, created, created)
         path = directory / f"{serial}-{first_day + k}.json"
-        CalibrationRecord(serial, parameters, np.diag(sigma**2), provenance).save(path)
+        make_record(serial, created, {"bias_x": 1e-4 + 1e-7 * k, "sf_x": 1.0}, sigmas).save(path)
         paths.append(path)
     return paths
 

@@ -5,6 +5,7 @@ Layout of a store (``--store DIR``, default ``$STABLEINS_HISTORY`` or ``~/.local
     DIR/history.sqlite                       the index (SQLite, WAL mode): units, records, digests, statuses
     DIR/<serial>/<valid-from>-<sha8>.json    the records, copied in byte for byte
     DIR/<serial>/<valid-from>-<sha8>.evidence.json   the data-only estimate a recalibration kept beside its record
+                                                     (stores of earlier versions; records now carry their likelihoods)
 
 Why a database (docs/procedures.md, README "Dependencies and why"): the index is changed in transactions, so any
 number of processes may file records at once (``stableins history --add``, ``stableins recal``) without losing an
@@ -16,8 +17,8 @@ record file without an index row (a filing killed between the two) is never read
 byte, when the record is filed again.
 
 The index holds, per record: the unit, the file, its SHA-256, the time it is valid from, its creation time,
-procedure, stages, the prior it was built on, the data-only estimate kept beside it (file and SHA-256) and
-every parameter's value, σ and status (of the record and of the estimate), so that a laboratory can ask
+procedure, stages, the prior it was built on, every parameter's value, σ and status, and the data-only estimates
+of its calibration (:func:`stableins.history.data_only`, the points of the drift), so that a laboratory can ask
 about its whole fleet without opening a record: which units are due (:meth:`HistoryStore.fleet`, ``stableins
 history --fleet --due``), which drift (``--drifted``).  A record is read only through :meth:`HistoryStore.load`,
 which compares its SHA-256 with the index and refuses a record changed after it was filed, naming its path and
@@ -47,10 +48,9 @@ from typing import TYPE_CHECKING, Any
 
 from stableins.data.atomic import fsync_directory
 from stableins.data.errors import InputError
-from stableins.history import DEFAULT_MAX_AGE, Trend, compare, parse_date, trend
+from stableins.history import DEFAULT_MAX_AGE, Comparison, Trend, compare, data_only, parse_date, trend
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.history import Change
     from stableins.records import CalibrationRecord
 
 STORE_NAME = "history.sqlite"
@@ -90,7 +90,7 @@ _SCHEMA = (
         UNIQUE (serial, file))""",
     """CREATE TABLE IF NOT EXISTS parameters (
         record INTEGER NOT NULL REFERENCES records(id),
-        source TEXT NOT NULL CHECK (source IN ('record', 'evidence')),
+        source TEXT NOT NULL CHECK (source IN ('record', 'evidence', 'data_only')),
         id TEXT NOT NULL,
         value REAL NOT NULL,
         sigma REAL,
@@ -378,7 +378,10 @@ class HistoryStore:
                 continue
             for p in which.parameters:
                 sigma = p.sigma if math.isfinite(p.sigma) else None
-                rows.append((cursor.lastrowid, source, p.id, p.value, sigma, p.unit, p.status))
+                rows.append((cursor.lastrowid, source, p.id, p.value, sigma, p.unit, getattr(p.status, "value", str(p.status))))
+        # what the record's own calibration determines from its data alone: the points of the drift (fleet queries)
+        for pid, (value, sigma) in data_only(record).items():
+            rows.append((cursor.lastrowid, "data_only", pid, value, sigma, record[pid].unit, "estimated"))
         connection.executemany("INSERT INTO parameters (record, source, id, value, sigma, unit, status) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
     # ------------------------------------------------------------------ reading records
@@ -454,26 +457,25 @@ class HistoryStore:
             return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
         return None
 
-    def changes(self, serial: str) -> list[tuple[Entry, Entry, list[Change]]]:
-        """Consecutive pairs of records with every parameter's change and significance."""
+    def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
+        """Consecutive pairs of records with every parameter's change and significance (:func:`stableins.history.compare`)."""
         entries = self.entries(serial)
         out = []
         for old, new in zip(entries, entries[1:]):
-            prior_used = bool(new.prior) and new.prior == old.sha256
-            out.append((old, new, compare(self.load(serial, old), self.load(serial, new), prior_used)))
+            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
         return out
 
     def trends(self, serial: str) -> list[Trend]:
-        """Drift trend of every parameter determined by at least two records (data-only estimates where kept)."""
+        """Drift trend of every parameter that at least two calibrations determine from their own data
+        (:func:`stableins.history.data_only`)."""
         entries = self.entries(serial)
         series: dict[str, list[tuple[datetime, float, float]]] = {}
         units: dict[str, str] = {}
         for entry in entries:
-            record = self.load(serial, entry, evidence=True)
-            for p in record.parameters:
-                if p.status == "estimated" and math.isfinite(p.sigma) and p.sigma > 0:
-                    series.setdefault(p.id, []).append((entry.time, p.value, p.sigma))
-                    units[p.id] = p.unit
+            record = self.load(serial, entry)
+            for pid, (value, sigma) in data_only(record).items():
+                series.setdefault(pid, []).append((entry.time, value, sigma))
+                units[pid] = record[pid].unit
         return [trend(points, pid, units[pid]) for pid, points in series.items() if len(points) >= 2]
 
     def fleet(
@@ -481,8 +483,8 @@ class HistoryStore:
     ) -> list[UnitStatus]:
         """Every unit: its record in force at ``date``, whether it is due, which parameters drift (from the index alone).
 
-        The drift of a parameter is the weighted straight line through the data-only estimates (the record's own values
-        where no estimate was kept), as :meth:`trends` computes it from the records; a unit drifts when one of its
+        The drift of a parameter is the weighted straight line through the data-only estimates of its records (indexed
+        when they were filed), as :meth:`trends` computes it from the records; a unit drifts when one of its
         parameters' ``|z| = |drift / σ|`` reaches ``drift_sigmas``.
         """
         date = date or datetime.now(UTC)
@@ -490,12 +492,10 @@ class HistoryStore:
             if connection is None:
                 return []
             rows = connection.execute(f"SELECT id, serial, {_ENTRY_COLUMNS} FROM records ORDER BY serial, valid_from_utc, id").fetchall()
-            values = connection.execute(
-                "SELECT p.record, p.source, p.id, p.value, p.sigma, p.unit FROM parameters p WHERE p.status = 'estimated'"
-            ).fetchall()
-        by_record: dict[tuple[int, str], list[tuple[str, float, float, str]]] = {}
-        for record_id, source, pid, value, sigma, unit in values:
-            by_record.setdefault((record_id, source), []).append((pid, value, sigma if sigma is not None else math.nan, unit))
+            values = connection.execute("SELECT record, id, value, sigma FROM parameters WHERE source = 'data_only'").fetchall()
+        by_record: dict[int, list[tuple[str, float, float]]] = {}
+        for record_id, pid, value, sigma in values:
+            by_record.setdefault(record_id, []).append((pid, value, sigma if sigma is not None else math.nan))
         units: dict[str, list[tuple[int, Entry]]] = {}
         for row in rows:
             units.setdefault(row[1], []).append((row[0], _entry(row[2:])))
@@ -506,8 +506,7 @@ class HistoryStore:
             age = (date - current.time).total_seconds() / 86400.0 if current is not None else None
             series: dict[str, list[tuple[datetime, float, float]]] = {}
             for record_id, entry in items:
-                chosen = by_record.get((record_id, "evidence")) or by_record.get((record_id, "record"), [])
-                for pid, value, sigma, _ in chosen:
+                for pid, value, sigma in by_record.get(record_id, []):
                     if math.isfinite(sigma) and sigma > 0:
                         series.setdefault(pid, []).append((entry.time, value, sigma))
             drifting = []

@@ -129,7 +129,7 @@ class Workspace:
         self.device_csv = save_device(root / "device.csv", columns, metadata)
         self.device_h5 = save_device(root / "device.h5", columns, metadata)
         true, installed = system_synthetic.paper_residuals()
-        cols, meta = system_synthetic.record(true, installed, rate=1.0, seed=4, duration=5 * 3600.0)
+        cols, meta = system_synthetic.record(true, installed, rate=1.0, seed=4)
         self.system_h5 = root / "system.h5"
         with SystemRecordWriter(self.system_h5, meta, chunk_samples=2048) as writer:
             writer.append(cols)
@@ -153,22 +153,39 @@ class Workspace:
         return path
 
 
+def make_record(
+    serial: str,
+    created: str,
+    values: dict[str, float],
+    sigmas: dict[str, float],
+    *,
+    stage: str = "fine",
+    procedure: str = "device-fine",
+    inputs: tuple = (),
+) -> Any:
+    """A first calibration (no prior) of one stage run whose data end at ``created``: every parameter estimated alone."""
+    from stableins.errormodel import known_terms
+    from stableins.records import Calibration, CalibrationRecord, DeterminedBy, InputFile, Parameter, StageRun
+    from stableins.status import Determination
+
+    tag = hashlib.sha256(f"{serial} {created} {sorted(values.items())}".encode()).hexdigest()[:8]
+    calibration = Calibration(f"cal-{created[:10]}-{tag}", procedure, "stableins test", created)
+    files = tuple(InputFile(name, digest) for name, digest in inputs)
+    run = StageRun(f"{stage}-{tag}", stage, calibration.id, procedure, "stableins test", created, created, created, inputs=files)
+    terms = known_terms()
+    parameters = tuple(
+        Parameter(pid, float(v), terms[pid].si_unit, float(sigmas[pid]), "estimated", (DeterminedBy(run.id, Determination.ALONE),))
+        for pid, v in values.items()
+    )
+    return CalibrationRecord(serial, parameters, np.diag([sigmas[pid] ** 2 for pid in values]), calibration, (run,))
+
+
 def _record(serial: str) -> Any:
     from stableins.errormodel import CORE_TERMS
-    from stableins.records import CalibrationRecord, InputFile, Parameter, Provenance
 
-    terms = list(CORE_TERMS)
-    parameters = tuple(Parameter(t.id, float(t.reference), t.si_unit, float(t.nominal), "estimated") for t in terms)
-    provenance = Provenance(
-        "stableins test",
-        "device-fine",
-        ("coarse", "fine"),
-        (InputFile("device.csv", "0" * 64),),
-        "2026-03-01T10:00:00+00:00",
-        "2026-03-01T08:00:00+00:00",
-        "2026-03-01T09:30:00+00:00",
-    )
-    return CalibrationRecord(serial, parameters, np.diag([t.nominal**2 for t in terms]), provenance, notes=("fuzz base record",))
+    values = {t.id: float(t.reference) for t in CORE_TERMS}
+    sigmas = {t.id: float(t.nominal) for t in CORE_TERMS}
+    return make_record(serial, "2026-03-01T09:30:00+00:00", values, sigmas, inputs=(("device.csv", "0" * 64),))
 
 
 def _discovery_document() -> dict[str, Any]:

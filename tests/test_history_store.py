@@ -18,24 +18,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fuzzing import make_record
 
 from stableins import cli
 from stableins.data.errors import InputError
 from stableins.history import parse_date
 from stableins.history_store import STORE_NAME, HistoryStore
-from stableins.records import CalibrationRecord, Parameter, Provenance
+from stableins.records import CalibrationRecord
 
 ROOT = Path(__file__).resolve().parents[1]
 IDS = ("bias_x", "sf_x")
-UNITS = ("m/s^2", "1")
 SIGMA = np.array([2e-5, 5e-6])
 
 
-def record(serial: str, day: int, values=(1e-4, 1.0), stages=("fine",)) -> CalibrationRecord:
+def record(serial: str, day: int, values=(1e-4, 1.0)) -> CalibrationRecord:
+    """An independent calibration of one fine-stage run whose data end ``day`` days after 2025-01-01."""
     created = (parse_date("2025-01-01") + timedelta(days=day)).isoformat()
-    parameters = tuple(Parameter(i, float(v), u, float(s), "estimated") for i, v, u, s in zip(IDS, values, UNITS, SIGMA))
-    provenance = Provenance("stableins test", "device-fine", tuple(stages), (), created, created, created)
-    return CalibrationRecord(serial, parameters, np.diag(SIGMA**2), provenance)
+    return make_record(serial, created, dict(zip(IDS, values)), dict(zip(IDS, SIGMA)))
 
 
 def write_records(directory: Path, serial: str, count: int, start_day: int = 0) -> list[Path]:
@@ -46,6 +45,32 @@ def write_records(directory: Path, serial: str, count: int, start_day: int = 0) 
         record(serial, start_day + k, values=(1e-4 + k * 1e-7, 1.0)).save(path)
         paths.append(path)
     return paths
+
+
+def v1_record(serial: str, created: str, bias: float) -> dict:
+    """A calibration record as version 1 of the format wrote it (what stores of that version hold)."""
+    return {
+        "format": "stableins-calibration-record",
+        "schema_version": 1,
+        "serial_number": serial,
+        "parameters": [
+            {"id": "bias_x", "value": bias, "unit": "m/s^2", "sigma": 2e-5, "status": "estimated"},
+            {"id": "sf_x", "value": 1.0, "unit": "1", "sigma": 5e-6, "status": "estimated"},
+        ],
+        "covariance": {"ids": ["bias_x", "sf_x"], "unit": "SI", "matrix": [[4e-10, 0.0], [0.0, 2.5e-11]]},
+        "provenance": {
+            "software": "stableins 0.1.0",
+            "procedure": "device-fine",
+            "stages": ["fine"],
+            "inputs": [],
+            "created": created,
+            "data_start": created,
+            "data_end": created,
+        },  # fmt: skip
+        "site": None,
+        "determined": [],
+        "notes": [],
+    }
 
 
 def consistent(store: HistoryStore) -> None:
@@ -153,18 +178,18 @@ def test_a_json_store_is_migrated_on_first_use(tmp_path):
     unit = root / "INS-3"
     unit.mkdir(parents=True)
     entries = []
-    for k, path in enumerate(write_records(tmp_path / "r", "INS-3", 3)):
-        data = path.read_bytes()
+    for k in range(3):  # records of that version: schema 1
+        created = f"2025-01-0{k + 1}T00:00:00+00:00"
+        data = json.dumps(v1_record("INS-3", created, 1e-4 + k * 1e-6)).encode()
         digest = hashlib.sha256(data).hexdigest()
         name = f"2025010{k + 1}T000000Z-{digest[:8]}.json"
         (unit / name).write_bytes(data)
-        document = json.loads(data)
         prior = entries[-1]["sha256"] if entries else ""
         entries.append(
             {
                 "file": name,
-                "valid_from": document["provenance"]["data_end"],
-                "created": document["provenance"]["created"],
+                "valid_from": created,
+                "created": created,
                 "sha256": digest,
                 "procedure": "device-fine",
                 "stages": ["fine"],
@@ -180,7 +205,9 @@ def test_a_json_store_is_migrated_on_first_use(tmp_path):
     assert not (unit / "index.json").exists() and (unit / "index.json.migrated").exists()
     assert (root / STORE_NAME).exists()
     consistent(store)
-    assert len(store.changes("INS-3")) == 2 and store.changes("INS-3")[1][2][0].correlated
+    comparison = store.changes("INS-3")[1][2]
+    assert len(store.changes("INS-3")) == 2 and comparison.relation == "independent" and len(comparison.changes) == 2
+    assert [t.id for t in store.trends("INS-3")] == ["bias_x", "sf_x"]  # the v1 records are read (migrated) as they are
 
     # an old index whose record no longer matches its digest is not migrated silently
     other = tmp_path / "store2" / "INS-4"

@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from stableins.commands import add_entries_option
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from stableins.commands.arguments import number, output_file
@@ -46,6 +48,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="acceleration random walk K [m/s^2/sqrt(s)]",
     )
+    add_entries_option(parser)
 
 
 def _same_site(datasets) -> None:
@@ -71,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
+    from stableins.records import parse_entries
 
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
@@ -99,8 +103,14 @@ def run(args: argparse.Namespace) -> int:
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
-    record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
-    text = calibration.report()
+    record = calibration.record(
+        site,
+        inputs=[str(p) for p in args.data],
+        procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
+        **data_description(datasets),
+        entries=parse_entries(args.set),
+    )
+    text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     result = {
@@ -113,6 +123,19 @@ def run(args: argparse.Namespace) -> int:
     }
     emit(args, result, text)
     return 0
+
+
+def data_description(datasets) -> dict:
+    """Data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
+    import numpy as np
+
+    from stableins.records import data_times, temperature_summary
+
+    spans = [data_times(d.metadata, float(d.columns["time"][0]), float(d.columns["time"][-1])) for d in datasets if len(d.columns["time"])]
+    starts = [a for a, _ in spans if a]
+    ends = [b for _, b in spans if b]
+    temperature = np.concatenate([np.asarray(d.columns["temperature"], dtype=float) for d in datasets])
+    return {"data_start": min(starts, default=""), "data_end": max(ends, default=""), "environment": temperature_summary(temperature)}
 
 
 def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> None:

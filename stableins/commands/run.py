@@ -36,6 +36,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prior", metavar="RECORD", help="the unit's previous record (zero offsets to re-point; fine stage builds on it)")
     parser.add_argument("--store", metavar="DIR", help="history store: use the unit's record in force as --prior")
     parser.add_argument(
+        "--new-calibration",
+        action="store_true",
+        help="the run starts a new calibration from --prior (default with --store: the record in force is a previous calibration; "
+        "with --prior the run continues the prior's calibration, e.g. the fine stage after the coarse stage)",
+    )
+    parser.add_argument(
         "--retries", type=integer(*RETRIES_RANGE), help="repeats of a rejected dwell before stopping (default: the procedure's, 2)"
     )
     parser.add_argument(
@@ -160,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
                 definition_file=definition_file,
                 prior_file=prior_file(args),
                 timeout=args.timeout,
+                new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
+                fields=parse_settings(args.set),
             )
     except RunStopped as stop:
         print(f"stableins: run stopped: {stop}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
@@ -173,10 +181,11 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"stableins: interrupted\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
         return 130
+    if not getattr(args, "emit_result", True):  # a command that runs a procedure and reports itself (recal)
+        return 0
     data = {
         "rundir": str(outcome.rundir),
         "dataset": outcome.dataset,
-        "estimate": outcome.estimate,
         "record": outcome.record,
         "report": outcome.report,
         "dwells": len(outcome.runner.entries),

@@ -63,7 +63,7 @@ from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
@@ -452,7 +452,6 @@ def calibrate_coarse(
         "positions_used": [d.position for d in usable],
         "left_out": {int(k): v for k, v in sorted(left_out.items())},
         "iterations": solution.iterations,
-        "chi2_whitened": chi2_whitened,
         "gravity": float(gravity),
         "base_attitude": [float(a) for a in base_attitude],
         "gimbal_senses": list(configuration.senses),
@@ -475,4 +474,6 @@ def calibrate_coarse(
         notes=tuple(notes),
         extra=extra,
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "slow_noise": None if slow_noise is None else slow_noise.settings()},
     )

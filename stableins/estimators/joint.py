@@ -59,7 +59,7 @@ from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 
 
 @dataclass(frozen=True)
@@ -222,8 +222,13 @@ def fit_joint(
             "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
             "fine_positions_used": [d.position for d in fine_dwells],
             "iterations": solution.iterations,
-            "chi2_whitened": float(whitened @ whitened),
             "gravity": g,
         },
         whitened_residuals=whitened,
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={
+            "stage": stage,
+            "nonlinear": bool(nonlinear or bool(fine_dwells)),
+            "slow_noise": None if slow_noise is None else slow_noise.settings(),
+        },
     )

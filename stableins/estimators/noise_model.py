@@ -69,6 +69,16 @@ class SlowNoise:
     def is_zero(self) -> bool:
         return self.bias_instability == 0.0 and self.random_walk == 0.0
 
+    def settings(self) -> dict[str, float | str]:
+        """The values as stage settings in a record (SI: ``bias_instability`` [m/s²], ``random_walk`` [m/s²/√s])."""
+        return {"bias_instability": float(self.bias_instability), "random_walk": float(self.random_walk), "source": self.source}
+
+    @classmethod
+    def from_settings(cls, settings: dict) -> SlowNoise:
+        """Inverse of :meth:`settings` (what a report recomputes with)."""
+        source = str(settings.get("source", "record"))
+        return cls(float(settings.get("bias_instability", 0.0)), float(settings.get("random_walk", 0.0)), source)
+
     def describe(self) -> str:
         ug = 9.80665e-6
         return (
