@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 
 class _Version(argparse.Action):
@@ -79,7 +80,15 @@ EXIT_INTERRUPTED = 130
 
 
 class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors use the CLI's one-line format and exit status 2."""
+    """ArgumentParser whose errors use the CLI's one-line format and exit status 2.
+
+    Negative numbers in scientific notation (``--gyro-drift -1e-3 0 0``) are values, not options (Python 3.11's
+    argparse only knows ``-1`` and ``-1.5``): no stableins option looks like a number.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?$|^-inf$|^-nan$")
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)
@@ -145,6 +154,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except (IsADirectoryError, NotADirectoryError) as error:  # a path mix-up the argument checks could not see: bad input
+        wanted = "a file, not a directory" if isinstance(error, IsADirectoryError) else "a directory on the way, not a file"
+        where = error.filename2 or error.filename
+        print(f"stableins: error: {where}: {error.strerror.lower()} (expected {wanted})", file=sys.stderr)
+        return EXIT_USAGE
     except OSError as error:  # disk full, permission denied ... on a file the user named: no traceback
         if isinstance(error, BrokenPipeError):
             return 0

@@ -766,17 +766,9 @@ class CalibrationRecord:
             Unknown schema version, missing keys, bad status, a covariance that is not
             square, symmetric, positive semi-definite or consistent with the σ's, ...
         """
-        try:
-            with open(path, encoding="utf-8") as handle:
-                document = json.load(handle)
-        except FileNotFoundError:
-            raise InputError("no such file", path=path) from None
-        except IsADirectoryError:
-            raise InputError("is a directory", path=path, expected="a calibration record (JSON)") from None
-        except json.JSONDecodeError as error:
-            raise InputError(f"not valid JSON: {error.msg} at line {error.lineno}; the file is damaged or truncated", path=path) from None
-        except (OSError, UnicodeDecodeError) as error:
-            raise InputError(f"cannot read: {error}", path=path) from None
+        from stableins.data.jsonio import load_json_file
+
+        document = load_json_file(path, what="a calibration record (JSON) written by stableins")
         return cls.from_document(document, str(path))
 
     # ------------------------------------------------------------------ people
@@ -1099,8 +1091,9 @@ class _Reader:
         stage_ids = {s.id for s in stages}
         if len(stage_ids) != len(stages):
             raise fail("a stage id appears twice", "stages", "unique stage ids")
-        if not isinstance(document["parameters"], list):
-            raise fail("not a list", "parameters", "a list of parameter objects")
+        if not isinstance(document["parameters"], list) or not document["parameters"]:
+            shown = "not a list" if not isinstance(document["parameters"], list) else "empty"
+            raise fail(shown, "parameters", "a non-empty list of parameter objects")
         parameters = []
         keys = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
         for k, item in enumerate(document["parameters"]):

@@ -26,8 +26,10 @@ from stableins.commands import add_entries_option
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_file
+
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
-    parser.add_argument("--out", type=Path, required=True, metavar="RECORD.json", help="calibration record to write")
+    parser.add_argument("--out", type=output_file, required=True, metavar="RECORD.json", help="calibration record to write")
     parser.add_argument("--coarse-procedure", default="device-coarse", metavar="NAME", help="coarse procedure name or TOML file")
     parser.add_argument("--fine-procedure", default="device-fine", metavar="NAME", help="fine procedure name or TOML file")
     parser.add_argument(
@@ -38,15 +40,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
     )
-    parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
+    parser.add_argument("--report", type=output_file, metavar="FILE", help="also write the text report to FILE")
     parser.add_argument(
         "--bias-instability",
-        type=float,
+        type=number(0.0, 1e5, unit="µg"),
         metavar="UG",
         help="instrument bias instability B [ug] (Allan floor 0.664 B), from a datasheet or a long static record; "
         "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
     )
-    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+    parser.add_argument(
+        "--random-walk",
+        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
+        default=0.0,
+        metavar="K",
+        help="acceleration random walk K [m/s^2/sqrt(s)]",
+    )
     parser.add_argument(
         "--add",
         action="append",
@@ -56,7 +64,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--alpha",
-        type=float,
+        type=number(0.0, 0.5, above=True),
         default=0.05,
         help="false-alarm level of the F-test that keeps an added effect (default 0.05)",
     )
@@ -115,10 +123,7 @@ def run(args: argparse.Namespace) -> int:
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
     slow_noise = None
-    if args.bias_instability is not None or args.random_walk:
-        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
-            if not value >= 0 or value != value or value == float("inf"):
-                raise InputError("must be a finite non-negative number", field=name)
+    if args.bias_instability is not None or args.random_walk:  # ranges checked when parsed (stableins.commands.arguments)
         slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
     calibrate = functools.partial(
         calibrate_device,

@@ -34,10 +34,13 @@ MAX_ROUNDS = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_directory, seed
     from stableins.commands.simulate import parse_duration, parse_hidden
 
-    parser.add_argument("--out", type=Path, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)")
-    parser.add_argument("--seed", type=int, default=2018, help="random seed (default 2018)")
+    parser.add_argument(
+        "--out", type=output_directory, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)"
+    )
+    parser.add_argument("--seed", type=seed, default=2018, help="random seed (default 2018)")
     parser.add_argument(
         "--duration", type=parse_duration, default=None, help="length of the system-level record (default one sidereal day)"
     )
@@ -49,7 +52,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="ID=VALUE",
         help="hide an effect in the simulated instrument (SI, repeatable) for model discovery to find",
     )
-    parser.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="system-level sample rate [Hz] (default 10)")
+    parser.add_argument(
+        "--rate",
+        type=number(0.0, 10000.0, above=True, unit="Hz"),
+        default=10.0,
+        metavar="HZ",
+        help="system-level sample rate [Hz] (default 10)",
+    )
 
 
 def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:

@@ -25,6 +25,8 @@ from stableins.data.errors import InputError
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
+#: Longest record ``--duration`` accepts [s] (30 days).
+MAX_DURATION = 30 * 86400.0
 #: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).
 CSV_ROW_LIMIT = 100_000
 
@@ -42,18 +44,8 @@ def parse_duration(text: str) -> float:
         value = float(number) * factor
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a duration (expected e.g. 600, 600s, 30min, 6h, 1d)") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a duration must be positive")
-    return value
-
-
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    if not math.isfinite(value) or value <= 0 or value > MAX_DURATION:
+        raise argparse.ArgumentTypeError(f"{text!r}: a duration must be positive and at most {MAX_DURATION / 86400:g} days")
     return value
 
 
@@ -80,10 +72,12 @@ def levels() -> tuple[str, ...]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_directory, seed
+
     parser.add_argument("level", choices=levels(), help="device-level dwells or a system-level static record")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="output directory (created if needed)")
+    parser.add_argument("--out", type=output_directory, metavar="DIR", help="output directory (created if needed)")
     parser.add_argument(
-        "--seed", type=int, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
+        "--seed", type=seed, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
     )
     parser.add_argument("--truth", type=Path, metavar="FILE", help="simulate this truth (a truth.json) instead of drawing one")
     parser.add_argument(
@@ -99,7 +93,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         choices=("csv", "h5"),
         help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
     )
-    parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
+    parser.add_argument(
+        "--rate", type=number(0.0, 10000.0, above=True, unit="Hz"), metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)"
+    )
     parser.add_argument(
         "--duration",
         type=parse_duration,
@@ -112,8 +108,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="device: procedure name or TOML file, repeatable (default: device-coarse and device-fine)",
     )
-    parser.add_argument("--dwell", type=positive_float, metavar="S", help="device: override the procedure's dwell time [s]")
-    parser.add_argument("--settle", type=float, metavar="S", help="device: override the procedure's settling time [s]")
+    parser.add_argument(
+        "--dwell",
+        type=number(0.0, 86400.0, above=True, unit="seconds"),
+        metavar="S",
+        help="device: override the procedure's dwell time [s]",
+    )
+    parser.add_argument(
+        "--settle", type=number(0.0, 86400.0, unit="seconds"), metavar="S", help="device: override the procedure's settling time [s]"
+    )
     parser.add_argument(
         "--installed",
         type=Path,
@@ -216,15 +219,25 @@ def run(args: argparse.Namespace) -> int:
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
+    existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
+    before = set(out.iterdir())
     seed = truth.seed if args.seed is None else args.seed
     truth_path = out / "truth.json"
-    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
-    note(f"truth written to {truth_path}")
-    if args.level == "device":
-        files = simulate_device(truth, out, seed, args)
-    else:
-        files = [simulate_system(truth, out, seed, args)]
+    try:
+        truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+        note(f"truth written to {truth_path}")
+        if args.level == "device":
+            files = simulate_device(truth, out, seed, args)
+        else:
+            files = [simulate_system(truth, out, seed, args)]
+    except BaseException:  # nothing left behind: the files this run created go (what was there stays)
+        for path in set(out.iterdir()) - before:
+            if path.is_file():
+                path.unlink()
+        if not existed and not any(out.iterdir()):
+            out.rmdir()
+        raise
     result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))

@@ -455,8 +455,9 @@ class Discovery:
         )
         return self._ranking
 
-    def drift(self, refit_top: int = 3) -> Ranking:
-        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells.
+    def drift(self, refit_top: int = 3) -> Ranking | None:
+        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells (None: too few usable slopes,
+        ``drift_notes`` says why).
 
         Uses the zero offsets of the current fit for the actual angles; see
         :mod:`stableins.discovery.drift`.  Needs a dwell problem whose dwells carry slopes.
@@ -470,6 +471,11 @@ class Discovery:
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in ("theta10", "theta20", "theta30")]
         problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
+        if problem.y.size <= len(null) + len(terms):
+            self.drift_notes = notes + (
+                f"only {problem.y.size // 3} dwell(s) with usable reading slopes: too few to rank the drift candidates",
+            )
+            return None
         arcsec_per_hour = np.pi / 648000 / 3600
         fit = problem.fit(null)
         ranking = rank(

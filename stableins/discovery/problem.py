@@ -755,7 +755,9 @@ class LinearProblem:
         )
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
-        return np.stack([self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"], axis=1)
+        """Columns of the estimated terms (none: the data determine none of them, e.g. slopes of very short dwells)."""
+        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+        return np.stack(estimated, axis=1) if estimated else np.zeros((self.y.size, 0))
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
         return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))

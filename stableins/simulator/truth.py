@@ -348,11 +348,7 @@ class Truth:
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> Truth:
         """Read a truth file; :class:`InputError` (naming the file and field) on any problem."""
-        try:
-            with open(path, encoding="utf-8") as handle:
-                data = json.load(handle)
-        except FileNotFoundError:
-            raise InputError("file not found", path=path) from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"not valid JSON ({exc})", path=path) from None
+        from stableins.data.jsonio import load_json_file
+
+        data = load_json_file(path, what="a truth file (truth.json) written by 'stableins simulate'")
         return cls.from_dict(data, source=str(path))
