@@ -27,21 +27,39 @@ from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import integer, number, output_directory
+
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
-    parser.add_argument("--bin", type=float, default=60.0, metavar="S", help="system records: bin length [s] (default 60)")
+    parser.add_argument(
+        "--bin", type=number(1.0, 86400.0, unit="seconds"), default=60.0, metavar="S", help="system records: bin length [s] (default 60)"
+    )
     parser.add_argument("--record", type=Path, required=True, metavar="CAL.json", help="calibration record to start from")
     parser.add_argument("--add", action="append", default=[], metavar="ID", help="add this effect and refit (repeatable, in order)")
     parser.add_argument("--stage", choices=("coarse", "fine"), help="which dwells to use (default: fine if present, else coarse)")
-    parser.add_argument("--alpha", type=float, default=0.05, help="family-wise false-alarm level for flagging candidates (default 0.05)")
-    parser.add_argument("--top", type=int, default=10, help="candidates to show in the text report (default 10)")
-    parser.add_argument("--plots", type=Path, metavar="DIR", help="write residual and history plots (PNG) into DIR")
+    parser.add_argument(
+        "--alpha",
+        type=number(0.0, 0.5, above=True),
+        default=0.05,
+        help="family-wise false-alarm level for flagging candidates, in (0, 0.5] (default 0.05)",
+    )
+    parser.add_argument("--top", type=integer(1, 10000), default=10, help="candidates to show in the text report (default 10)")
+    parser.add_argument("--plots", type=output_directory, metavar="DIR", help="write residual and history plots (PNG) into DIR")
     parser.add_argument(
         "--bias-instability",
-        type=float,
+        type=number(0.0, 1e5, unit="µg"),
         metavar="UG",
         help="bias instability B [ug]: slow bias wander correlated between dwells (default: estimated from the dwells if detectable)",
     )
-    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+    parser.add_argument(
+        "--random-walk",
+        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
+        default=0.0,
+        metavar="K",
+        help="acceleration random walk K [m/s^2/sqrt(s)]",
+    )
+    parser.add_argument(
+        "--allow-gaps", action="store_true", help="system records: accept gaps in the time column (as 'stableins check --allow-gaps')"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,8 +72,6 @@ def run(args: argparse.Namespace) -> int:
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
-    if not 0.0 < args.alpha < 1.0:
-        raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
     for effect in args.add:
         if effect not in LIBRARY:
             raise InputError(f"unknown effect {effect!r}", field="--add", expected=f"one of {', '.join(LIBRARY.ids)}")
@@ -67,12 +83,17 @@ def run(args: argparse.Namespace) -> int:
     system = [str(p) for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
     if system and len(args.data) > 1:
         raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
-    if not args.bin > 0:
-        raise InputError("must be a positive number of seconds", field="--bin")
     if system:
         from stableins.data.system import open_system_record
 
         opened = open_system_record(system[0])
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            opened.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs
+        for w in caught:
+            note(f"stableins: warning: {w.message}")
         serial = opened.metadata.serial_number
     else:
         datasets = [load_device(path) for path in args.data]
@@ -88,9 +109,6 @@ def run(args: argparse.Namespace) -> int:
     if args.bias_instability is not None or args.random_walk:
         from stableins.estimators.noise_model import SlowNoise
 
-        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
-            if not 0.0 <= value < float("inf"):
-                raise InputError("must be a finite non-negative number", field=name)
         slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
     if system:
         from stableins.conventions import GimbalConfiguration
@@ -121,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
     diagnosis = session.diagnose()
     ranking = session.rank(propose=not system)
     drift = None if system else session.drift()
+    if not system and drift is None:
+        for line in getattr(session, "drift_notes", ()):
+            note(f"drift analysis: {line}")
     spectra = {}
     if system:
         from stableins.discovery.diagnostics import residual_spectra
@@ -130,13 +151,17 @@ def run(args: argparse.Namespace) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
         args.plots.mkdir(parents=True, exist_ok=True)
-        diagnosis.plot_positions().savefig(args.plots / "residuals.png", dpi=110)
+        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
         if diagnosis.orientation is not None:
-            diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+            figures["orientation"] = diagnosis.plot_orientation()
         for name, spectrum in spectra.items():
-            spectrum.plot(unit="µg", scale=9.80665e-6).savefig(args.plots / f"spectrum_{name}.png", dpi=110)
-        session.history.plot().savefig(args.plots / "history.png", dpi=110)
+            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+        for name, figure in figures.items():
+            figure.savefig(args.plots / f"{name}.png", dpi=110)
+            plt.close(figure)
         note(f"plots written to {args.plots}")
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:

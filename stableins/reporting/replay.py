@@ -17,7 +17,9 @@ from typing import Any
 from stableins.data.errors import InputError
 
 
-def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None) -> tuple[list[Any], list[str]]:
+def device_fits(
+    paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None, *, effects: Sequence[Any] = ()
+) -> tuple[list[Any], list[str]]:
     """FitResults of the coarse and fine stages (and their fusion) re-run on the device-level files among ``paths``.
 
     Parameters
@@ -27,6 +29,9 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
     settings : mapping, optional
         The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``slow_noise``, ``coarse_nonlinear``,
         ``allow_missing``); the defaults of ``stableins calibrate device`` where absent.
+    effects : sequence of Term
+        The discovered (additive) terms of the record's model: the stages estimate them with the
+        standard parameters, as ``stableins calibrate device --add`` did.
 
     Returns
     -------
@@ -65,6 +70,7 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
         allow_missing=bool(settings.get("allow_missing", False)),
         slow_noise=None if slow is None else SlowNoise.from_settings(slow),
         coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),
+        extra_terms=tuple(effects),
         source=source,
     )
     fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
@@ -72,6 +78,6 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
         "with the settings the record states (procedures, slow-noise model, coarse nonlinearity)"
         if settings
         else "with the defaults of 'stableins calibrate device' (the record states no settings)"
-    )
+    ) + (f" and the record's discovered effects {', '.join(t.id for t in effects)}" if effects else "")
     notes.insert(0, f"device-level residuals recomputed from {source} by re-running the coarse and fine stages {how}")
     return fits, notes
