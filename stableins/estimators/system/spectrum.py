@@ -500,14 +500,14 @@ def _chi_bar_squared_sf(statistic: float, correlation: float | None) -> float:
     Two amplitudes whose unconstrained estimates have correlation ``ρ``: ``χ̄² = w₁ χ²₁ + w₂ χ²₂`` with ``w₁ = ½``,
     ``w₂ = ¼ + arcsin(ρ)/(2π)`` (and ``w₀ = ½ − w₂`` at zero); one amplitude: ``½ χ²₁`` (Shapiro 1985; Self & Liang 1987).
     """
-    from scipy.stats import chi2
+    from scipy.special import gammaincc  # χ²_k survival function: Q(k/2, x/2) (scipy.stats costs the stage's memory)
 
     if statistic <= 0.0:
         return 1.0
     if correlation is None:
-        return 0.5 * float(chi2.sf(statistic, 1))
+        return 0.5 * float(gammaincc(0.5, 0.5 * statistic))
     w2 = 0.25 + math.asin(max(-1.0, min(1.0, correlation))) / (2.0 * math.pi)
-    return 0.5 * float(chi2.sf(statistic, 1)) + w2 * float(chi2.sf(statistic, 2))
+    return 0.5 * float(gammaincc(0.5, 0.5 * statistic)) + w2 * float(gammaincc(1.0, 0.5 * statistic))
 
 
 class ColouredSource(Enum):
@@ -611,7 +611,7 @@ def fit_coloured_noise(
     (``prior_detected``) shows coloured noise, else 0.  ``given`` ``(2, 3)``: the amplitudes per axis, used as they are
     (the record's own fit and decision are still reported).
     """
-    from scipy.stats import chi2
+    from scipy.special import gammaincinv
 
     p = design.shape[1]
     kinds = p - channels
@@ -647,7 +647,7 @@ def fit_coloured_noise(
         used = np.repeat(best[amp][:, None], 3, axis=1) if (detected or prior_detected) else np.zeros((kinds, 3))
     else:
         used = np.repeat(theta[amp][:, None], 3, axis=1) if detected else np.zeros((kinds, 3))
-    level = float(chi2.ppf(confidence, 1))
+    level = 2.0 * float(gammaincinv(0.5, confidence))  # the χ²₁ quantile
     lower, upper = np.zeros(kinds), np.zeros(kinds)
     for c in range(channels, p):
         lower[c - channels], upper[c - channels] = _profile_interval(design, observed, best, best_loglik, c, level, penalty)

@@ -1089,7 +1089,7 @@ def _noise_prior(
     was detected, one-sided from its upper limit otherwise; none when the term is not bounded); ``prior_detected`` when
     a slow term was detected.  Nothing known (no model, source ``none``): no prior.
     """
-    from scipy.stats import norm
+    from scipy.special import ndtri  # the normal quantile
 
     from stableins.estimators.system.spectrum import allan_to_amplitudes
 
@@ -1102,7 +1102,7 @@ def _noise_prior(
     lower = allan_to_amplitudes(k_lo, b_lo, gravity).mean(axis=1)
     upper = allan_to_amplitudes(k_hi, b_hi, gravity).mean(axis=1)
     centre = values.mean(axis=1)
-    two_sided, one_sided = float(norm.ppf(0.5 + 0.5 * model.confidence)), float(norm.ppf(model.confidence))
+    two_sided, one_sided = float(ndtri(0.5 + 0.5 * model.confidence)), float(ndtri(model.confidence))
     sd = np.where(lower > 0, (upper - lower) / (2.0 * two_sided), (upper - centre) / one_sided)
     sd = np.where(np.isfinite(upper) & (sd > 0), sd, np.inf)
     detected = bool(np.any(np.concatenate([k_lo, b_lo]) > 0))
@@ -1137,7 +1137,7 @@ def _measured_noise_model(
     """
     from dataclasses import replace
 
-    from scipy.stats import chi2
+    from scipy.special import gammaincinv
 
     from stableins.estimators.system.spectrum import amplitudes_to_allan
 
@@ -1145,8 +1145,8 @@ def _measured_noise_model(
     dof = max(1.0, SECOND_DIFFERENCE_DOF * count)
     tail = 0.5 * (1.0 - confidence)
     white = np.sqrt(axis_variance / rate)
-    white_lo = white * math.sqrt(dof / float(chi2.ppf(1.0 - tail, dof)))
-    white_hi = white * math.sqrt(dof / float(chi2.ppf(tail, dof)))
+    white_lo = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, 1.0 - tail))))  # χ²_dof quantiles
+    white_hi = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, tail))))
     q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
     whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
     if given is not None and given.source is NoiseSource.DATASHEET:
