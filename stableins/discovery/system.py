@@ -35,6 +35,7 @@ import numpy as np
 
 from stableins.discovery.diagnostics import Diagnosis, HarmonicSpectrum
 from stableins.discovery.history import Discovery
+from stableins.discovery.problem import DwellSet
 from stableins.discovery.ranking import Ranking
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
@@ -129,22 +130,27 @@ def _dof(spectrum: HarmonicSpectrum) -> np.ndarray:
 
 
 def measure_noise(
-    record: Any, calibration: Mapping[str, float], covariance: Mapping[tuple[str, str], float] | None, prior: NoiseModel | None
+    record: Any,
+    calibration: Mapping[str, float],
+    covariance: Mapping[tuple[str, str], float] | None,
+    prior: NoiseModel | None,
+    compensation_terms: Sequence[Any] = (),
 ) -> tuple[NoiseModel, float, tuple[str, ...]]:
     """The noise model of the instrument in a system-level record, exactly as the system stage measures it.
 
-    Runs :func:`stableins.estimators.system.stage.run_system_stage` on the record (the installed ``calibration``, the
-    ``prior`` noise model as the stage uses it).  Returns the model, the record's duration [s] and notes.
+    :func:`stableins.estimators.system.stage.measure_noise_model` on the record (the installed ``calibration``, the
+    ``prior`` noise model as the stage uses it).  Returns the model, the record's duration [s] and the stage's note.
     """
     import warnings
 
-    from stableins.estimators.system.stage import run_system_stage
+    from stableins.estimators.system.stage import measure_noise_model
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the stage's warnings are about its calibration, not about the noise
-        outcome = run_system_stage(record, record.metadata, calibration, covariance, noise_model=prior)
-    notes = tuple(n for n in outcome.notes if "low-frequency noise" in n)
-    return outcome.noise_model, float(outcome.diagnostics["duration"]), notes
+        measured = measure_noise_model(
+            record, record.metadata, calibration, covariance, compensation_terms=compensation_terms, noise_model=prior
+        )
+    return measured.noise_model, measured.duration, measured.notes
 
 
 def diagnose_system_record(
@@ -184,31 +190,25 @@ def diagnose_system_record(
             "the slow noise is not bounded by the data: flags are against the measured model only, and slow wander may look like drift"
         )
 
-    def bins(noise: NoiseModel):
-        return bins_from_chunks(
-            record.iter_chunks(),
-            gravity=site.gravity,
-            bin_seconds=width,
-            reference_temperature=site.reference_temperature,
-            base_attitude=tuple(site.base_attitude),
-            configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
-            noise=noise,
-        )
+    binned = bins_from_chunks(
+        record.iter_chunks(),
+        gravity=site.gravity,
+        bin_seconds=width,
+        reference_temperature=site.reference_temperature,
+        base_attitude=tuple(site.base_attitude),
+        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+    )
 
-    def session(dwells) -> Discovery:
-        s = Discovery(DwellProblem(dwells, stage="system bins"), model, alpha=alpha, start=start)
+    def session(noise: NoiseModel) -> Discovery:
+        s = Discovery(DwellProblem(with_noise(binned, noise), stage="system bins"), model, alpha=alpha, start=start)
         for effect in add:
             s.add(effect)
         return s
 
-    measured_bins = bins(noise_model)
-    main = session(measured_bins)
+    main = session(noise_model)
     sessions = {"measured": main}
     for name, other in (("upper", upper), ("lower", lower)):
-        if other == noise_model:
-            sessions[name] = main
-        else:  # the same bins, another covariance
-            sessions[name] = session(replace(measured_bins, slow_covariance=_slow(measured_bins, other)))
+        sessions[name] = main if other == noise_model else session(other)
     diagnosis = main.diagnose()
     chi2_hi, chi2_lo = sessions["upper"].result.chi2_red, sessions["lower"].result.chi2_red
     nu = main.result.dof
@@ -219,7 +219,7 @@ def diagnose_system_record(
     p = p_hi if p_hi < 0.5 else (p_lo if p_lo > 0.5 else 0.5)
     diagnosis = replace(diagnosis, p_value=p)
     ranking = sessions["upper"].rank(refit_top=1, propose=False)
-    spectra = residual_spectra(measured_bins.time, sessions["upper"].diagnose(), problem=sessions["upper"].problem)
+    spectra = residual_spectra(binned.time, sessions["upper"].diagnose(), problem=sessions["upper"].problem)
     return SystemDiagnosis(
         noise_model=noise_model,
         upper_model=upper,
@@ -234,9 +234,24 @@ def diagnose_system_record(
     )
 
 
-def _slow(dwells, noise: NoiseModel) -> np.ndarray | None:
-    """The slow covariance of the bins under another noise model (same windows as the bins)."""
-    if not noise.has_slow_noise:
-        return None
+def with_noise(dwells: DwellSet, noise: NoiseModel) -> DwellSet:
+    """The bins of a system record under ``noise``: white ``N_a²/T`` per bin and axis, slow noise correlated between bins.
+
+    ``dwells`` from :func:`.problem.bins_from_chunks` (its ``noise["lengths"]`` are the bins' durations).  The slow
+    covariance is :meth:`stableins.noise.NoiseModel.slow_covariance` of the bins' windows; the discovery fit holds one
+    for the three axes, which is exact for the system stage's model (one bias instability and one random walk for the
+    three axes) and the mean of the axes for a model given per axis.
+    """
     lengths = np.asarray(dwells.noise["lengths"], dtype=float)
-    return noise.slow_covariance(dwells.time - lengths / 2.0, lengths)
+    sigma = noise.values("white")[None, :] / np.sqrt(lengths)[:, None]
+    slow = None
+    if noise.has_slow_noise:
+        slow = noise.slow_covariance(dwells.time - lengths / 2.0, lengths).mean(axis=0)
+    info = dict(
+        dwells.noise,
+        method=f"the instrument's noise model: white N²/T per bin and axis, slow noise correlated between bins; "
+        f"{float(np.median(lengths)):g} s bins",
+        white_noise=noise.values("white"),
+        slow_noise=noise.describe(),
+    )
+    return replace(dwells, sigma=sigma, slow_covariance=slow, noise=info)

@@ -336,7 +336,6 @@ def periodogram_design(
     return np.concatenate(blocks), np.concatenate(observed), n_ch
 
 
-
 # --------------------------------------------------------------------------- the z channel above the low band
 def _dft_of_geometric_covariance(theta: NDArray[np.float64], n: int, variance: float, lag_one: float, rho: float) -> NDArray[np.float64]:
     r"""``E|Σ_j x_j e^{−iθj}|²`` for ``n`` stationary values with covariance ``c_0 = variance``, ``c_m = lag_one·ρ^{m−1}`` (m ≥ 1).
