@@ -282,7 +282,7 @@ def test_high_band_expectation_matches_drawn_noise_after_the_harmonic_fit():
 
     for kind, column in (("random_walk", 1), ("flicker", 2)):
         means, fitted, raw = [], 0.0, 0.0
-        for _ in range(100):
+        for _ in range(60):
             if kind == "random_walk":  # unit (K/g)²: increments of variance step, started at 0
                 axes = np.cumsum(rng.normal(0.0, math.sqrt(step), (m, 3)), axis=0)
             else:  # unit-variance Gauss-Markov processes, stationary start

@@ -191,7 +191,6 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     from stableins.discovery.library import record_terms
 
     noise, duration, notes = measure_noise(opened, values, covariance, prior, record_terms(record.ids))
-    note(f"noise: {noise.describe()}")
     result = diagnose_system_record(
         opened,
         model,

@@ -275,12 +275,14 @@ def harmonic_tests(problem, result: FitResult, time: ArrayLike, harmonics: Seque
 
     the drop of the whitened RSS if the pair were added (exact for a linear refit; the generalized-least-squares form of
     :mod:`stableins.discovery.ranking`'s score).  A harmonic the model already explains (``d = 0``, e.g. the first
-    harmonic of x and y, which the biases and scale factors carry) gets ``χ² = 0``, ``p = 1``.  The cosine and sine
+    harmonic of x and y, which the biases and scale factors carry; a direction whose ``‖z̃_⊥‖`` is below the ranking's
+    identifiability tolerance times ``‖z̃‖``) gets ``χ² = 0``, ``p = 1``.  The cosine and sine
     amplitudes are the refit's, ``(Z̃_⊥ᵀ Z̃_⊥)^+ Z̃_⊥ᵀ r̃``, with their 1σ.
     """
     from scipy import stats
 
     from stableins.discovery.problem import whiten
+    from stableins.discovery.ranking import IDENTIFIABLE_TOLERANCE
 
     t = np.asarray(time, dtype=float)
     h = np.asarray(harmonics, dtype=int)
@@ -300,7 +302,7 @@ def harmonic_tests(problem, result: FitResult, time: ArrayLike, harmonics: Seque
             zt = whiten(problem, result, z)
             perp = zt - q @ (q.T @ zt)
             u, sv, vt = np.linalg.svd(perp, full_matrices=False)
-            keep = sv > 1e-6 * max(float(np.linalg.norm(zt)), 1e-300)
+            keep = sv > IDENTIFIABLE_TOLERANCE * max(float(np.linalg.norm(zt)), 1e-300)
             if not keep.any():
                 continue
             projection = u[:, keep].T @ r

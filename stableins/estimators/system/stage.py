@@ -801,7 +801,7 @@ def run_system_stage(
         )
     measured = _measured_noise_model(axis_variance, noise_count, rate, coloured_fit, gravity, noise_model, path, duration)
     if _noise_only:  # measure_noise: the record's noise, whether or not its coefficients can be separated
-        return SystemNoise(measured, coloured_fit, duration, tuple(n for n in notes if "low-frequency noise" in n))
+        return SystemNoise(measured, coloured_fit, duration, tuple(notes[-1:]))  # the decision's note, appended just above
     v = np.concatenate([x_hat, att.values])
     # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
