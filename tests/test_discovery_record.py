@@ -288,7 +288,7 @@ def test_calibrate_device_add_writes_the_effect_its_verdict_and_a_procedure_adds
         (["--add", "nonorth_12"], "cannot be carried"),
         (["--add", "Kcc_xxy", "--add", "Kcc_xxy"], "twice"),
         (["--add", "Kxx"], "unknown effect"),
-        (["--add", "Kcc_xxy", "--alpha", "1.5"], "between 0 and 1"),
+        (["--add", "Kcc_xxy", "--alpha", "1.5"], "--alpha: 1.5 is out of range"),
     ],
 )
 def test_calibrate_device_refuses_bad_effects_before_writing(simulated, tmp_path, capsys, extra, message):

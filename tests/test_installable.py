@@ -44,7 +44,8 @@ def test_an_unknown_procedure_name_lists_the_shipped_ones(tmp_path, monkeypatch,
     monkeypatch.chdir(tmp_path)
     assert cli.main(["simulate", "device", "--procedure", "device-corase", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
-    assert "procedure definition not found" in err and "device-coarse" in err
+    assert "not found" in err and "procedure definition" in err and "device-coarse" in err
+    assert "truth written" not in err and not (tmp_path / "x").exists()  # validated before anything is written
 
 
 def _git(*args: str) -> str:

@@ -219,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
+    procedures = _device_procedures(args) if args.level == "device" else []  # all checked before anything is written
     existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
     before = set(out.iterdir())
@@ -228,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
         truth.write(truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
         if args.level == "device":
-            files = simulate_device(truth, out, seed, args)
+            files = simulate_device(truth, out, seed, args, procedures)
         else:
             files = [simulate_system(truth, out, seed, args)]
     except BaseException:  # nothing left behind: the files this run created go (what was there stays)
@@ -244,7 +245,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+def _device_procedures(args: argparse.Namespace) -> list[Any]:
+    """The device-level procedures of this simulation, loaded, validated and with the ``--dwell``/``--settle`` timing."""
+    from stableins.procedures.definition import load_procedure
+
+    return [_with_timing(load_procedure(name), args.dwell, args.settle) for name in args.procedure or DEFAULT_PROCEDURES]
+
+
+def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, procedures: list[Any]) -> list[dict[str, Any]]:
     """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``).
 
     By default the session is what the device-level procedure does on a real platform,
@@ -257,12 +265,9 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     from dataclasses import replace
 
     from stableins.data.device import save_device
-    from stableins.procedures.definition import load_procedure
     from stableins.progress import Progress
 
     rate = args.rate or truth.site.sample_rate
-    procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
-    procedures = [_with_timing(p, args.dwell, args.settle) for p in procedures]
     if getattr(args, "no_iteration", False):
         sessions = _single_passes(truth, procedures, rate, seed)
     else:
