@@ -110,13 +110,15 @@ def false_alarms(world: str, seeds: range) -> None:
 def power(seeds: range) -> None:
     for effect, value in HIDDEN.items():
         start = time.perf_counter()
-        first, flagged, signal = 0, 0, []
+        first, flagged, signal, others = 0, 0, [], []
         with tempfile.TemporaryDirectory() as tmp:
             for seed in seeds:
                 record, truth = write_day(Path(tmp), seed, WORLDS["quartz"], {effect: value})
                 result = diagnose(record, truth)
                 candidate = result.ranking[effect]
                 first += result.ranking.best is not None and result.ranking.best.id == effect
+                if result.ranking.best is not None and result.ranking.best.id != effect:
+                    others.append(result.ranking.best.id)
                 flagged += candidate.flagged
                 signal.append(abs(value) / candidate.sigma)
                 Path(record.path).unlink()
@@ -126,6 +128,7 @@ def power(seeds: range) -> None:
             f"(quartz noise, {len(seeds)} seeds, {time.perf_counter() - start:.0f} s): "
             f"ranked first {first}/{len(seeds)}, flagged {flagged}/{len(seeds)}; signal |γ|/σ_γ median {np.median(signal):.1f} "
             f"(range {min(signal):.1f}-{max(signal):.1f}) under the upper-limit noise model"
+            + (f"; first instead: {', '.join(sorted(set(others)))}" if others else "")
         )
 
 
