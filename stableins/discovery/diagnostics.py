@@ -230,12 +230,34 @@ class HarmonicSpectrum:
         return "\n".join(lines)
 
     def plot(self, ax=None, unit: str = "", scale: float = 1.0):
+        """The residual's amplitude spectrum up to a few harmonics beyond those tested, and each tested harmonic ± 1σ.
+
+        Harmonics the fitted model explains (no degree of freedom left) are not drawn; error bars stop at a tenth of
+        the amplitude on the logarithmic axis.
+        """
         import matplotlib.pyplot as plt
 
         fig = ax.figure if ax is not None else plt.figure(figsize=(8, 4))
         ax = ax or fig.add_subplot(111)
-        ax.semilogy(self.frequency / EARTH_RATE, self.periodogram / scale, lw=0.8, label="residual amplitude spectrum")
-        ax.errorbar(self.harmonics, self.amplitude / scale, yerr=self.sigma / scale, fmt="o", label="Earth-rate harmonics (LS fit)")
+        top = float(self.harmonics.max()) + 4.0 if self.harmonics.size else 8.0
+        x = self.frequency / EARTH_RATE
+        shown = (x > 0) & (x <= top)
+        ax.semilogy(x[shown], self.periodogram[shown] / scale, lw=0.8, label="residual amplitude spectrum")
+        tested = self.amplitude > 0 if self.dof is None else (self.dof > 0) & (self.amplitude > 0)
+        amplitude, sigma = self.amplitude[tested] / scale, self.sigma[tested] / scale
+        ax.errorbar(
+            self.harmonics[tested],
+            amplitude,
+            yerr=np.stack([np.minimum(sigma, 0.9 * amplitude), sigma]),
+            fmt="o",
+            capsize=3,
+            label="Earth-rate harmonics (fit, ±1σ)",
+        )
+        values = np.concatenate([self.periodogram[shown] / scale, amplitude + sigma, 0.1 * amplitude])
+        values = values[np.isfinite(values) & (values > 0)]
+        if values.size:
+            ax.set_ylim(values.min() / 2.0, values.max() * 2.0)
+        ax.set_xlim(0.0, top)
         ax.set_xlabel("frequency / ω_ie")
         ax.set_ylabel(f"amplitude [{unit}]")
         ax.legend()
