@@ -104,6 +104,7 @@ def fuse_with_prior(prior: CalibrationRecord, data: CalibrationRecord, *, prior_
         site=data.site or prior.site,
         determined=tuple(dict.fromkeys(prior.determined + data.determined)),
         notes=data.notes + (note,),
+        noise_model=data.noise_model if data.noise_model is not None else prior.noise_model,
     )
 
 

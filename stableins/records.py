@@ -10,7 +10,8 @@ A record is a JSON file (format in ``docs/formats.md``)::
       "provenance": {"software": "stableins 0.1.0", "procedure": ..., "stages": [...],
                      "inputs": [{"path": ..., "sha256": ...}], "created": ..., "data_start": ..., "data_end": ...},
       "site": {...site metadata with units...},
-      "determined": [...], "notes": [...]
+      "determined": [...], "notes": [...],
+      "noise_model": {...}     (optional: the instrument's noise model, stableins.noise.NoiseModel)
     }
 
 Values are SI (``unit`` says which); ``sigma`` is the square root of the covariance
@@ -38,6 +39,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from numpy.typing import NDArray
 
     from stableins.estimators.result import FitResult
+    from stableins.noise import NoiseModel
 
 RECORD_FORMAT = "stableins-calibration-record"
 RECORD_SCHEMA_VERSION = 1
@@ -147,6 +149,9 @@ class CalibrationRecord:
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     schema_version: int = RECORD_SCHEMA_VERSION
+    #: The instrument's noise model (docs/noise.md); carried through every stage unchanged
+    #: unless a stage measures it.
+    noise_model: NoiseModel | None = None
 
     def __post_init__(self) -> None:
         import numpy as np
@@ -192,6 +197,7 @@ class CalibrationRecord:
         data_end: str = "",
         notes: Iterable[str] = (),
         created: str | None = None,
+        noise_model: NoiseModel | None = None,
     ) -> CalibrationRecord:
         """Record of one estimation stage.
 
@@ -213,6 +219,8 @@ class CalibrationRecord:
             Added to the result's own notes (gauges, warnings).
         created : str, optional
             Creation time; now (UTC) by default.
+        noise_model : NoiseModel, optional
+            The noise model the stage's σ rest on.
         """
         import numpy as np
 
@@ -250,6 +258,7 @@ class CalibrationRecord:
             site=site,
             determined=tuple(result.determined),
             notes=tuple(result.notes) + tuple(notes),
+            noise_model=noise_model,
         )
 
     def update(self, newer: CalibrationRecord | FitResult, **kwargs: Any) -> CalibrationRecord:
@@ -308,6 +317,7 @@ class CalibrationRecord:
             site=newer.site or self.site,
             determined=self.determined + tuple(d for d in newer.determined if d not in self.determined),
             notes=self.notes + tuple(f"[{stage}] {n}" for n in newer.notes),
+            noise_model=newer.noise_model if newer.noise_model is not None else self.noise_model,
         )
 
     #: ``merge`` is the same operation as :meth:`update`.
@@ -344,7 +354,7 @@ class CalibrationRecord:
             "site": None if self.site is None else metadata_to_document(self.site),
             "determined": list(self.determined),
             "notes": list(self.notes),
-        }
+        } | ({} if self.noise_model is None else {"noise_model": self.noise_model.to_document()})
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the record atomically (a reader sees the old file or the whole new one)."""
@@ -444,6 +454,7 @@ class CalibrationRecord:
             "determined": texts(document.get("determined", []), "determined"),
             "notes": texts(document.get("notes", []), "notes"),
             "schema_version": RECORD_SCHEMA_VERSION,
+            "noise_model": _noise_model(document.get("noise_model"), path),
         }
         for name, value in fields.items():
             object.__setattr__(record, name, value)
@@ -526,6 +537,15 @@ def _layout(document: dict[str, Any]) -> str:
             text = dump(value)
         lines.append(f"  {dump(key)}: {text}")
     return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def _noise_model(document: Any, path: str | None) -> NoiseModel | None:
+    """The optional ``noise_model`` section, validated by :meth:`stableins.noise.NoiseModel.from_document`."""
+    if document is None:
+        return None
+    from stableins.noise import NoiseModel
+
+    return NoiseModel.from_document(document, path)
 
 
 def _number(value: Any, path: str | None, key: str) -> float:

@@ -30,14 +30,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
     )
     parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
-    parser.add_argument(
-        "--bias-instability",
-        type=float,
-        metavar="UG",
-        help="instrument bias instability B [ug] (Allan floor 0.664 B), from a datasheet or a long static record; "
-        "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
-    )
-    parser.add_argument("--random-walk", type=float, default=0.0, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)]")
+    from stableins.commands.noise import add_noise_options
+
+    add_noise_options(parser)
 
 
 def _same_site(datasets) -> None:
@@ -57,11 +52,10 @@ def _same_site(datasets) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stableins.commands.noise import noise_from_options
     from stableins.data.device import load_device
-    from stableins.data.errors import InputError
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
 
@@ -75,19 +69,14 @@ def run(args: argparse.Namespace) -> int:
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
-    slow_noise = None
-    if args.bias_instability is not None or args.random_walk:
-        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk)):
-            if not value >= 0 or value != value or value == float("inf"):
-                raise InputError("must be a finite non-negative number", field=name)
-        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    noise, _ = noise_from_options(args, summaries)
     calibration = calibrate_device(
         summaries,
         site,
         coarse_procedure=coarse_procedure,
         fine_procedure=fine_procedure,
         allow_missing=args.allow_missing,
-        slow_noise=slow_noise,
+        noise=noise,
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
@@ -106,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
         "fine": None if calibration.fine is None else _summary(calibration.fine),
         "fused": None if calibration.fused is None else _summary(calibration.fused),
         "passes": len(calibration.passes),
+        "noise_model": None if calibration.noise is None else calibration.noise.to_document(),
+        "largest_floor": None if calibration.floor is None else _summary(calibration.floor),
     }
     emit(args, result, text)
     return 0
