@@ -127,7 +127,8 @@ def static_record_points(record) -> tuple[Any, str]:
 
     head_f, head_r = [], []
     head_n = 0
-    block_sum: dict[int, Any] = {}
+    block_index: list[Any] = []
+    block_rows: list[Any] = []
     t0 = None
     rate = None
     for chunk in record.iter_chunks(("time", "f_x", "f_y", "f_z", "angle_platform", "angle_inner", "angle_middle")):
@@ -146,16 +147,19 @@ def static_record_points(record) -> tuple[Any, str]:
             head_r.append(r[:take])
             head_n += take
         b = np.floor((t - t0) / BLOCK_SECONDS).astype(np.int64)
-        for k in np.unique(b):
-            m = b == k
-            row = np.concatenate([[m.sum()], f[m].sum(axis=0), r[m].sum(axis=0)])
-            block_sum[int(k)] = block_sum.get(int(k), 0.0) + row
-    if rate is None or not block_sum:
+        keys, inverse = np.unique(b, return_inverse=True)
+        sums = np.zeros((keys.size, 7))
+        np.add.at(sums, inverse, np.column_stack([np.ones(t.size), f, r]))
+        block_index.append(keys)
+        block_rows.append(sums)
+    if rate is None or not block_index:
         from stableins.data.errors import InputError
 
         raise InputError("too few samples for an Allan analysis", path=str(record.path))
-    keys = sorted(block_sum)
-    table = np.array([block_sum[k] for k in keys])
+    all_keys = np.concatenate(block_index)
+    keys, inverse = np.unique(all_keys, return_inverse=True)  # a block split across two chunks is summed
+    table = np.zeros((keys.size, 7))
+    np.add.at(table, inverse, np.vstack(block_rows))
     full = table[:, 0] >= 0.5 * np.median(table[:, 0])
     contiguous = np.flatnonzero(full)
     table = table[full]
@@ -166,11 +170,11 @@ def static_record_points(record) -> tuple[Any, str]:
     residual_blocks = means_f - x_blocks @ coefficients
     head = np.vstack(head_f) - regressors(np.vstack(head_r)) @ coefficients
     # block means of a gap-free stretch only (a missing block would join two windows across a gap)
-    breaks = np.flatnonzero(np.diff(np.asarray(keys)[contiguous]) != 1) + 1
+    breaks = np.flatnonzero(np.diff(keys[contiguous]) != 1) + 1
     segments = np.split(residual_blocks, breaks)
     short = allan_points([head], rate, max_fraction=8)
     long = allan_points(segments, 1.0 / BLOCK_SECONDS, max_fraction=8)
-    span = (keys[-1] + 1) * BLOCK_SECONDS
+    span = (int(keys[-1]) + 1) * BLOCK_SECONDS
     text = (
         f"{record.path}: {span / 3600:.2f} h static record at {rate:g} Hz; gravity signal (1, f^p, f^p f^p per axis) removed; "
         f"first {head.shape[0]} samples at full rate, {len(residual_blocks)} block means of {BLOCK_SECONDS:g} s"

@@ -169,29 +169,40 @@ def _nll(theta: NDArray, a: NDArray, e: NDArray, basis: NDArray) -> float:
 
 
 def _fit_axis(a: NDArray, e: NDArray, basis: NDArray, fixed: dict[int, float] | None = None) -> tuple[NDArray, float]:
-    """ML θ ≥ 0 of one axis (``fixed``: terms held at a value), and the negative log-likelihood."""
-    from scipy.optimize import minimize, nnls
+    """ML θ ≥ 0 of one axis (``fixed``: terms held at a value), and the negative log-likelihood.
+
+    Fisher scoring, which for this model is iteratively reweighted non-negative least squares:
+    at the current model ``m``, ``θ ← argmin_{θ≥0} Σ (ν_i/2) (a_i − g_iᵀθ)²/m_i²``.
+    """
+    from scipy.optimize import nnls
 
     fixed = fixed or {}
     free = [k for k in range(basis.shape[1]) if k not in fixed]
     offset = basis[:, list(fixed)] @ np.array(list(fixed.values())) if fixed else np.zeros(a.size)
-    scale = np.array([max(np.max(a / np.maximum(basis[:, k], 1e-300)) * 1e-3, 1e-300) for k in free])
-    w = 1.0 / a
-    start, _ = nnls(basis[:, free] * w[:, None] * scale, np.maximum(a - offset, 0.0) * w)
-    start = np.maximum(start, 1e-6)
-
-    def full(u: NDArray) -> NDArray:
-        theta = np.zeros(basis.shape[1])
-        for k, v in fixed.items():
-            theta[k] = v
-        theta[free] = u * scale
-        return theta
-
-    result = minimize(
-        lambda u: _nll(full(u), a, e, basis), start, method="L-BFGS-B", bounds=[(0.0, None)] * len(free), options={"ftol": 1e-13}
-    )
-    theta = full(np.maximum(result.x, 0.0))
+    scale = np.array([_term_scale(a, basis, k) for k in free])  # θ_k of term k alone at the point where it is tightest
+    g = basis[:, free] * scale
+    m = np.maximum(a, 1e-300)
+    u = np.zeros(len(free))
+    for _ in range(100):
+        w = np.sqrt(0.5 * e) / m
+        new, _ = nnls(g * w[:, None], (a - offset) * w)
+        m_new = offset + g @ new
+        if np.any(m_new <= 0):
+            m_new = np.maximum(m_new, 1e-12 * np.max(a))
+        done = np.max(np.abs(m_new - m) / m) < 1e-10
+        u, m = new, m_new
+        if done:
+            break
+    theta = np.zeros(basis.shape[1])
+    for k, v in fixed.items():
+        theta[k] = v
+    theta[free] = u * scale
     return theta, _nll(theta, a, e, basis)
+
+
+def _term_scale(a: NDArray, basis: NDArray, k: int) -> float:
+    ratio = a / np.maximum(basis[:, k], 1e-300)
+    return max(float(np.min(ratio[basis[:, k] > 0])) if np.any(basis[:, k] > 0) else 1.0, 1e-300)
 
 
 def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k: int, confidence: float) -> tuple[float, float]:
@@ -207,19 +218,18 @@ def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k:
         return nll - best - level
 
     def search(lo: float, hi: float) -> float:
-        for _ in range(40):
+        for _ in range(30):
             mid = math.sqrt(lo * hi) if lo > 0 else 0.5 * hi
             if excess(mid) > 0:
                 hi = mid
             else:
                 lo = mid
-            if hi - lo <= 1e-3 * hi:
+            if hi - lo <= 0.01 * hi:
                 break
         return hi
 
-    span = max(theta[k], float(np.max(a / np.maximum(basis[:, k], 1e-300))) * 1e-6)
-    hi = span * 2
-    for _ in range(60):
+    hi = max(2.0 * theta[k], 1e-3 * _term_scale(a, basis, k))
+    for _ in range(40):
         if excess(hi) > 0:
             break
         hi *= 4
@@ -236,7 +246,7 @@ def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k:
                 lo_value = mid
             else:
                 hi_value = mid
-            if hi_value - lo_value <= 1e-3 * theta[k]:
+            if hi_value - lo_value <= 0.01 * theta[k]:
                 break
         lower = lo_value
     return lower, upper
@@ -466,6 +476,7 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
                 ax.loglog(tau, alone, color="0.45", lw=0.9, ls=style, label=f"{name.replace('_', ' ')} alone")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_ylim(0.3 * float(np.min(lo[:, a])) / MICRO_G, 2.0 * float(np.max(hi[:, a])) / MICRO_G)
         ax.set_title(f"axis {AXES[a]}")
         ax.set_xlabel("averaging time τ [s]")
         ax.grid(True, which="both", alpha=0.3)
