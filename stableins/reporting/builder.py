@@ -147,7 +147,7 @@ def write_report(
     if not fits and not view.stages and data:
         from stableins.reporting.replay import device_fits
 
-        fits, evidence_notes = device_fits(data)
+        fits, evidence_notes = device_fits(data, noise=view.noise_model)
     stages: list[StageEvidence] = [stage_evidence(f, where) for f in (fits or view.stages)]
     extra_terms = [t for f in fits if not isinstance(f, dict) for t in getattr(f, "terms", ())]
     terms = content.known_terms(extra_terms)

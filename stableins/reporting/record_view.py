@@ -94,6 +94,8 @@ class RecordView:
     stages: tuple[dict[str, Any], ...] = ()
     system: dict[str, Any] = field(default_factory=dict)
     discovery: dict[str, Any] = field(default_factory=dict)
+    #: The record's noise model (:class:`stableins.noise.NoiseModel`), or None.
+    noise_model: Any = None
 
     # ------------------------------------------------------------------ access
     def __getitem__(self, parameter_id: str) -> ParameterEntry:
@@ -194,10 +196,19 @@ class RecordView:
             stages=tuple(dict(s) for s in stages),
             system=dict(_mapping(data.get("system", {}), where, "system")),
             discovery=dict(_mapping(data.get("discovery", {}), where, "discovery")),
+            noise_model=_noise_model(data.get("noise_model"), where),
         )
 
 
 # ---------------------------------------------------------------------- helpers
+def _noise_model(document: Any, where: str) -> Any:
+    if document is None:
+        return None
+    from stableins.noise import NoiseModel
+
+    return NoiseModel.from_document(document, where)
+
+
 def _mapping(value: Any, where: str, name: str) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
         raise InputError(f"{name} is not a JSON object", path=where, field=name)

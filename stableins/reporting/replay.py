@@ -16,8 +16,11 @@ from typing import Any
 from stableins.data.errors import InputError
 
 
-def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[str]]:
+def device_fits(paths: Sequence[str | PathLike[str]], noise: Any = None) -> tuple[list[Any], list[str]]:
     """FitResults of the coarse (last pass) and fine stages re-run on the device-level files among ``paths``.
+
+    ``noise``: the record's noise model (:class:`stableins.noise.NoiseModel`), under which the
+    stages are re-run; None: measured in the dwells, as ``stableins calibrate device`` does.
 
     Returns
     -------
@@ -45,7 +48,12 @@ def device_fits(paths: Sequence[str | PathLike[str]]) -> tuple[list[Any], list[s
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
     calibration = calibrate_device(
-        summaries, datasets[0].metadata, coarse_procedure=procedures["coarse"], fine_procedure=procedures["fine"], source=source
+        summaries,
+        datasets[0].metadata,
+        coarse_procedure=procedures["coarse"],
+        fine_procedure=procedures["fine"],
+        source=source,
+        noise=noise,
     )
     fits = [calibration.coarse] + ([calibration.fine] if calibration.fine is not None else [])
     notes.insert(
