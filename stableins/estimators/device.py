@@ -175,7 +175,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
         "slow noise not detected: the σ above rest on white noise.  The dwells allow a bias instability up to "
         f"{b_up / 9.80665e-6:.3g} ug ({100 * (noise.confidence if noise else 0.95):g} % upper limit; random walk not bounded).  "
         "With that largest floor the σ would be:",
-        f"{'parameter':<12} {'σ recorded':>14} {'σ largest floor':>16} {'ratio':>7}",
+        f"{'parameter':<12} {'σ recorded':>18} {'σ largest floor':>18} {'ratio':>7}",
     ]
     for k in final.ids:
         v, s, st = final[k]
@@ -184,7 +184,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
         s_floor = floor[k][1]
         term = final.terms[final.ids.index(k)]
         lines.append(
-            f"{k:<12} {term.sigma_to_engineering(s):>10.4g} {term.unit:<3} {term.sigma_to_engineering(s_floor):>12.4g} {term.unit:<3} "
+            f"{k:<12} {term.sigma_to_engineering(s):>11.4g} {term.unit:<6} {term.sigma_to_engineering(s_floor):>11.4g} {term.unit:<6} "
             f"{s_floor / s if s > 0 else float('nan'):>7.2f}"
         )
     return lines
