@@ -16,10 +16,10 @@ B. ``diagnose`` on the clean fine dwells (the CLI's default stage), with the rec
    model (no flags) and with the true noise given: mean χ²_ν (target [0.9, 1.1]) and family-wise false
    alarms (target ≤ 5 %).
 C. Detection power: per seed one library effect, hidden at signal √λ = 4 (λ = the weighted RSS it
-   leaves in noise-free dwell means after refitting the standard model, in units of the dwell-mean
-   noise, here from the whitened candidate column orthogonal to the design), quartz noise, the record's
-   noise model: fraction of seeds where it (or a candidate reported indistinguishable from it) ranks
-   first (target ≥ 80 %).
+   leaves in noise-free dwell means after refitting the standard model, in units of the true dwell-mean
+   noise: the candidate column whitened with the simulator's noise, orthogonal to the design; linear),
+   quartz noise: fraction of seeds where it (or a candidate reported indistinguishable from it) ranks
+   first with the record's measured noise model and with the true noise model (target ≥ 80 %).
 D. (``--static``) What a measured noise model gives: the noise model fitted by ``stableins noise`` on a
    24-h static (system-level) record of the same instrument at 1 Hz, then ``calibrate device --noise``:
    rms z per family on quartz noise, and the coverage of the fitted B's 95 % interval.
@@ -151,8 +151,7 @@ def part_c(job):
     seed, signal = job
     effect = EFFECTS[seed % len(EFFECTS)]
     truth, datasets, summaries = session(seed, "quartz")
-    noise = calibrate_device(summaries, truth.site).noise
-    value = signal * signal_scale(datasets, truth, noise, effect)
+    value = signal * signal_scale(datasets, truth, true_noise(truth, summaries), effect)  # √λ in units of the true dwell-mean noise
     truth, datasets, summaries = session(seed, "quartz", {effect: value})
     noise = calibrate_device(summaries, truth.site).noise  # the record's model, as 'calibrate device' would store it
     return {
