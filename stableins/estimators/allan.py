@@ -469,11 +469,16 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
             ax.fill_between(
                 tau, lower[:, a] / MICRO_G, fitted[:, a] / MICRO_G, color="C3", alpha=0.15, lw=0, label="model bounds (upper not bounded)"
             )
-        for name, style in (("white", ":"), ("bias_instability", "--"), ("random_walk", "-."), ("quantization", (0, (1, 3)))):
+        for name, style, colour in (
+            ("white", ":", "0.35"),
+            ("bias_instability", "--", "0.35"),
+            ("random_walk", "-.", "0.35"),
+            ("quantization", ":", "C2"),
+        ):
             value = model.axes[a].term(name).value
             if value > 0:
                 alone = NoiseModel.given(**{name: value}).allan_deviation(tau)[:, a] / MICRO_G
-                ax.loglog(tau, alone, color="0.45", lw=0.9, ls=style, label=f"{name.replace('_', ' ')} alone")
+                ax.loglog(tau, alone, color=colour, lw=0.9, ls=style, label=f"{name.replace('_', ' ')} alone")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_ylim(0.3 * float(np.min(lo[:, a])) / MICRO_G, 2.0 * float(np.max(hi[:, a])) / MICRO_G)
@@ -481,7 +486,11 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
         ax.set_xlabel("averaging time τ [s]")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel("Allan deviation σ_A(τ) [µg]")
-    axes[0].legend(fontsize=7.5, loc="lower left")
+    handles: dict[str, object] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, handle)
+    axes[0].legend(list(handles.values()), list(handles), fontsize=7.5, loc="lower left")
     if title:
         fig.suptitle(title)
     return fig
