@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,6 +28,9 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
 from stableins.estimators.result import FitResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.noise import NoiseModel
 
 
 class Problem(Protocol):
@@ -151,7 +154,7 @@ def dwells_from_dataset(
     stage: str | None = None,
     procedures: Mapping | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
-    noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
@@ -309,7 +312,7 @@ def dwell_means(
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
     labels: Sequence[str] | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
-    noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
     """Reduce samples (one dwell per distinct ``position``, in order of appearance) to dwell means.
 
@@ -710,7 +713,7 @@ def bins_from_chunks(
     reference_temperature: float = 25.0,
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
     r"""Bin a system-level record (a stream of column chunks) into "dwells" for discovery.
 
