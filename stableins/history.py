@@ -11,19 +11,28 @@ date asked about is *stale*: it is still returned, with a warning.
 
 Significance of a change between two records (``old`` → ``new``) of a parameter
 ------------------------------------------------------------------------------
-Independent calibrations: under "nothing changed" the difference has variance
-:math:`\sigma^2_\Delta = \sigma^2_{old} + \sigma^2_{new}`.  A recalibration that used the old
-record as its prior (:mod:`stableins.recalibration`) is correlated with it: for the linear
-Gaussian update :math:`\hat x_1 = \hat x_0 + K(y - H\hat x_0)` the errors obey
-:math:`\mathrm{Cov}(e_1, e_0) = (I - KH)P_0 = P_1`, so
-:math:`\mathrm{Var}(\hat x_1 - \hat x_0) = P_0 + P_1 - 2P_1 = P_0 - P_1`.
-The significance is :math:`z = \Delta / \sigma_\Delta` (a standard normal under "no change").
+One definition, used by ``stableins recal``, ``stableins history`` and the certificate
+(:func:`compare`).  The two records are related in one of two ways, read from their stage runs:
+
+* **independent** (no stage run in common): under "nothing changed" the difference has variance
+  :math:`\sigma^2_\Delta = \sigma^2_{old} + \sigma^2_{new}`;
+* **new descends from old** (every stage run of ``old`` is in ``new``: ``new`` is ``old`` updated by
+  later stages, each a Bayesian update, :mod:`stableins.estimators.posterior`): the errors are
+  correlated, :math:`\mathrm{Cov}(e_{new}, e_{old}) = P_{new}` (for one update
+  :math:`(I - KH)P_0 = P_1`; by induction for a chain of them), so
+  :math:`\mathrm{Var}(\hat x_{new} - \hat x_{old}) = P_{old} - P_{new}`.  A parameter no later stage
+  saw has :math:`\Delta = 0` and :math:`\sigma_\Delta = 0`: it was not re-measured and is not compared.
+
+Records that share some stage runs but not all (two branches from one calibration) cannot be
+compared: their correlation is not recorded.  The significance is :math:`z = \Delta/\sigma_\Delta`
+(standard normal under "no change"); a change is flagged when :math:`|z| \ge` :data:`CHANGE_THRESHOLD`
+(3: a false-alarm probability of 0.27 % per parameter compared, two-sided).
 
 Drift trend of a parameter across records
 -----------------------------------------
 Weighted least-squares line :math:`x_k = a + b\,(t_k - \bar t) + e_k`, weights
-:math:`1/\sigma_k^2`, using each record's *data-only* estimate where one is kept (a
-recalibration stores it beside the record) so that the points are independent.
+:math:`1/\sigma_k^2`, using each record's *data-only* estimate (:func:`data_only`: the
+likelihoods of the stages its calibration ran, summed) so that the points are independent.
 :math:`\sigma_b = (\sum w_k (t_k - \bar t)^2)^{-1/2}`, significance :math:`z = b/\sigma_b`;
 :math:`\chi^2_\nu` of the constant model says whether the scatter exceeds the σ's.
 """
@@ -34,12 +43,14 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stableins.data.errors import InputError
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -48,6 +59,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 INDEX_NAME = "index.json"
 INDEX_FORMAT = "stableins-history-index"
+#: |z| at and beyond which a change since the previous calibration is flagged (0.27 % false alarms per parameter).
+CHANGE_THRESHOLD = 3.0
 #: Default age after which the record in force is reported stale.
 DEFAULT_MAX_AGE = timedelta(days=180)
 SECONDS_PER_YEAR = 365.25 * 86400.0
@@ -89,7 +102,7 @@ class Entry:
 
 @dataclass(frozen=True)
 class Change:
-    """Change of one parameter between two records and its significance."""
+    """Change of one parameter between two records and its significance (SI)."""
 
     id: str
     unit: str
@@ -111,6 +124,32 @@ class Change:
             return math.nan
         return self.difference / self.sigma_difference
 
+    @property
+    def significant(self) -> bool:
+        """``|z| ≥`` :data:`CHANGE_THRESHOLD` (the flag of ``recal``, ``history`` and the certificate)."""
+        return abs(self.significance) >= CHANGE_THRESHOLD
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.__dict__, "difference": self.difference, "significance": self.significance, "significant": self.significant}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The changes between two records, how they are related, and what could not be compared (with why)."""
+
+    relation: str  # "independent" or "descendant"
+    changes: tuple[Change, ...]
+    skipped: tuple[str, ...]
+
+    @property
+    def significant(self) -> tuple[str, ...]:
+        return tuple(c.id for c in self.changes if c.significant)
+
+    def describe(self) -> str:
+        if self.relation == "descendant":
+            return "the new record updates the old one (Bayesian update): σ²(change) = σ²_old − σ²_new"
+        return "independent calibrations: σ²(change) = σ²_old + σ²_new"
+
 
 @dataclass(frozen=True)
 class Trend:
@@ -131,25 +170,50 @@ class Trend:
 
 
 # --------------------------------------------------------------------------- significance
-def compare(old: CalibrationRecord, new: CalibrationRecord, prior_used: bool = False) -> list[Change]:
-    """Every parameter both records determine, old → new, with σ of the difference (module docstring)."""
-    changes = []
+def relation(old: CalibrationRecord, new: CalibrationRecord) -> str:
+    """``"descendant"`` (every stage run of ``old`` is in ``new``), ``"independent"`` (none), else InputError."""
+    old_runs = {s.id for s in old.stages}
+    new_runs = {s.id for s in new.stages}
+    if old_runs and old_runs <= new_runs:
+        return "descendant"
+    if not old_runs & new_runs:
+        return "independent"
+    raise InputError(
+        f"the records share {len(old_runs & new_runs)} of {len(old_runs)} stage runs: one does not descend from the other and they "
+        "are not independent, so the correlation of their errors is not known",
+        field="stages",
+        expected="a record and one it was updated from, or two independent calibrations",
+    )
+
+
+def compare(old: CalibrationRecord, new: CalibrationRecord) -> Comparison:
+    """Every parameter both records estimate, old → new, with σ of the difference (module docstring)."""
+    kind = relation(old, new)
+    old_runs = {s.id for s in old.stages}
+    changes, skipped = [], []
     for p in new.parameters:
         if p.id not in old.ids:
+            skipped.append(f"{p.id}: not in the previous record")
             continue
         q = old[p.id]
-        if p.status != "estimated" or q.status != "estimated":  # gauge, fixed or unidentifiable: not an estimate to compare
+        if p.status is not Status.ESTIMATED or q.status is not Status.ESTIMATED:
+            skipped.append(f"{p.id}: {p.status.value} now, {q.status.value} before")
             continue
-        if prior_used:
+        if kind == "descendant":
+            if all(d.stage in old_runs for d in p.determined_by):
+                skipped.append(f"{p.id}: not re-measured (carried over from {new.source_text(p.id).removesuffix(', carried over')})")
+                continue
             variance = q.sigma**2 - p.sigma**2
             sigma = math.sqrt(variance) if variance > 0 else math.nan
         else:
             sigma = math.hypot(q.sigma, p.sigma)
-        changes.append(Change(p.id, p.unit, q.value, p.value, q.sigma, p.sigma, sigma, prior_used))
-    return changes
+        changes.append(Change(p.id, p.unit, q.value, p.value, q.sigma, p.sigma, sigma, kind == "descendant"))
+    new_ids = set(new.ids)
+    skipped += [f"{q.id}: only in the previous record" for q in old.parameters if q.id not in new_ids]
+    return Comparison(kind, tuple(changes), tuple(skipped))
 
 
-def format_changes(changes: list[Change]) -> str:
+def format_changes(changes: Sequence[Change]) -> str:
     """Table of changes in engineering units where the id is a known term."""
     from stableins.errormodel import known_terms
 
@@ -159,7 +223,7 @@ def format_changes(changes: list[Change]) -> str:
         term = terms.get(c.id)
         unit = term.unit if term else c.unit
         z = c.significance
-        flag = "  <-- significant" if abs(z) >= 3 else ""
+        flag = f"  <-- significant (|z| ≥ {CHANGE_THRESHOLD:g})" if c.significant else ""
         old, new = _value(term, c.old), _value(term, c.new)
         difference, sigma = _spread(term, c.difference), _spread(term, c.sigma_difference)
         lines.append(f"{c.id:<12} {old:>14.4f} {new:>14.4f} {difference:>12.4f} {sigma:>10.4f} {unit:<8} {z:>6.2f}{flag}")
@@ -314,27 +378,55 @@ class HistoryStore:
             return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
         return None
 
-    def changes(self, serial: str) -> list[tuple[Entry, Entry, list[Change]]]:
-        """Consecutive pairs of records with every parameter's change and significance."""
+    def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
+        """Consecutive pairs of records with every parameter's change and significance (:func:`compare`)."""
         entries = self.entries(serial)
         out = []
         for old, new in zip(entries, entries[1:]):
-            prior_used = bool(new.prior) and new.prior == old.sha256
-            out.append((old, new, compare(self.load(serial, old), self.load(serial, new), prior_used)))
+            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
         return out
 
     def trends(self, serial: str) -> list[Trend]:
-        """Drift trend of every parameter determined by at least two records (data-only estimates where kept)."""
+        """Drift trend of every parameter that at least two calibrations determine from their own data (:func:`data_only`)."""
         entries = self.entries(serial)
         series: dict[str, list[tuple[datetime, float, float]]] = {}
         units: dict[str, str] = {}
         for entry in entries:
-            record = self.load(serial, entry, evidence=True)
-            for p in record.parameters:
-                if p.status == "estimated" and math.isfinite(p.sigma) and p.sigma > 0:
-                    series.setdefault(p.id, []).append((entry.time, p.value, p.sigma))
-                    units[p.id] = p.unit
+            record = self.load(serial, entry)
+            for pid, (value, sigma) in data_only(record).items():
+                series.setdefault(pid, []).append((entry.time, value, sigma))
+                units[pid] = record[pid].unit
         return [trend(points, pid, units[pid]) for pid, points in series.items() if len(points) >= 2]
+
+
+def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:
+    """``{id: (value, σ)}`` that the record's own calibration determines from its data alone (independent across records).
+
+    The likelihoods of the stages run in the record's calibration are summed; a parameter they determine by
+    themselves gives its data-only estimate.  A calibration without a prior (its first stage had none) is its
+    own data-only estimate; stage runs without a likelihood (migrated records) give the record's values.
+    """
+    import numpy as np
+
+    from stableins.estimators.result import Likelihood
+
+    runs = record.stages_run
+    if record.calibration.prior is None and all(s.likelihood is None for s in runs):
+        return {p.id: (p.value, p.sigma) for p in record.parameters if p.status is Status.ESTIMATED and p.sigma > 0}
+    likelihoods = [s.likelihood for s in runs if s.likelihood is not None]
+    if not likelihoods:
+        return {}
+    ids = list(dict.fromkeys(i for lik in likelihoods for i in lik.ids))
+    gauge = {p.id: p.value for p in record.parameters if p.status is Status.GAUGE}
+    n = len(ids)
+    information, gradient, point = np.zeros((n, n)), np.zeros(n), np.array([record[i].value if i in record.ids else 0.0 for i in ids])
+    for lik in likelihoods:
+        k = [ids.index(i) for i in lik.ids]
+        information[np.ix_(k, k)] += lik.information
+        gradient[k] += lik.gradient + lik.information @ (lik.point - point[k])
+    combined = Likelihood(tuple(ids), point, information, gradient).conditioned({i: v for i, v in gauge.items() if i in ids})
+    values, sigmas = combined.data_only()
+    return {i: (float(v), float(s)) for i, v, s in zip(combined.ids, values, sigmas, strict=True) if np.isfinite(v) and s > 0}
 
 
 def format_trends(trends: list[Trend]) -> str:

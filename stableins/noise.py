@@ -369,7 +369,7 @@ class NoiseModel:
         if self.provenance:
             parts[0] += f": {self.provenance}"
         parts[0] += ")"
-        parts.append(f"bias instability {_triple(b)} ug, random walk {_triple(k)} ug/sqrt(s)")
+        parts.append(f"bias instability {_triple(b)} µg, random walk {_triple(k)} µg/√s")
         if not self.slow_noise_bounded:
             parts.append("slow noise not bounded by the data")
         return "; ".join(parts)

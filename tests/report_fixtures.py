@@ -13,8 +13,7 @@ from stableins.conventions import MICRO_G
 from stableins.data.metadata import metadata_from_document
 from stableins.errormodel import GIMBAL_TERMS, ErrorModel
 from stableins.estimators.result import FitResult
-from stableins.records import CalibrationRecord
-from stableins.reporting.evidence import fit_to_dict
+from stableins.records import Calibration, CalibrationRecord, Entry, StageRun
 
 GRAVITY = 9.8015
 
@@ -91,8 +90,8 @@ SITE_DOCUMENT = {
 def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: tuple = ()) -> dict:
     """A calibration record document (stableins.records format) of ``result`` plus three gimbal offsets not estimated.
 
-    Two keys beyond the record format carry the report's evidence: ``stages`` (residuals,
-    :func:`fit_to_dict`) and ``environment``.
+    Its stage run carries the fit's residual evidence, the instrument temperature the data carry, an
+    entry a person made and the settings; the calibration carries the laboratory and customer fields.
     """
     n = len(result.terms)
     covariance = np.zeros((n + 3, n + 3))
@@ -111,19 +110,30 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
             "theta10: a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)",
             "theta20, theta30: positions were given as platform-frame specific force, so the data carry no angle-sensor information",
         ),
+        settings={"stage": "fine", "slow_noise": None},
+    )
+    calibration = Calibration.new(
+        "wu2018-18-position",
+        (Entry("laboratory", "Inertial Sensor Laboratory, Building 4"), Entry("customer", "Navigation Systems Division")),
+    )
+    stage = StageRun.from_fit(
+        full,
+        calibration=calibration.id,
+        procedure="wu2018-18-position",
+        inputs=inputs,
+        data_start=started,
+        data_end=started.replace("08:00", "14:30"),
+        sample_rate=200.0,
+        entries=(Entry("lab_temperature", 21.5, "degC", "Laboratory temperature at the start"),),
+        environment={"temperature": {"mean": 24.81, "min": 24.62, "max": 25.07, "unit": "degC"}},
+        fits=(result,),
+        created=started.replace("08:00", "14:35"),
     )
     rec = CalibrationRecord.from_fit_result(
         full,
         site=metadata_from_document(SITE_DOCUMENT),
-        inputs=inputs,
-        procedure="wu2018-18-position",
-        data_start=started,
-        data_end=started.replace("08:00", "14:30"),
         notes=["Platform warmed up for 2 h before the first position."],
-        created=started.replace("08:00", "14:35"),
+        stage=stage,
+        calibration=calibration,
     )
-    document = rec.to_document()
-    document["provenance"]["stages"] = ["coarse", "fine"]
-    document["stages"] = [fit_to_dict(result)]
-    document["environment"] = {"temperature": {"mean": 24.81, "min": 24.62, "max": 25.07}}
-    return document
+    return rec.to_document()

@@ -97,7 +97,10 @@ def test_joint_fit_of_the_passes_gains_sqrt_two(monte_carlo):
 def test_record_holds_the_fused_result_with_gauge_and_statuses(monte_carlo):
     calibration, _ = monte_carlo[0]
     record = calibration.record(Truth.draw(400).site)
-    assert record.provenance.stages == ("coarse", "fine")
+    assert record.provenance.stages == ("coarse+fine",)
+    run = record.stages_run[0]
+    assert [f["stage"] for f in run.fits] == ["coarse", "fine", "coarse+fine"]  # the evidence of every fit is kept
+    assert run.settings["noise_model"] == calibration.settings["noise_model"]  # and the settings it ran with
     assert record["theta10"].status == "gauge" and record["theta10"].value == 0.0 and record["theta10"].sigma == 0.0
     for k in calibration.fused.ids:
         if k != "theta10":
@@ -106,7 +109,7 @@ def test_record_holds_the_fused_result_with_gauge_and_statuses(monte_carlo):
     # the report's χ² is the exact (whitened) one under slow noise
     fused = calibration.fused
     assert fused.whitened_residuals is not None
-    assert fused.chi2 == pytest.approx(fused.extra["chi2_whitened"])
+    assert run.fits[-1]["chi2"] == pytest.approx(fused.chi2)
     assert fused.chi2 == pytest.approx(float(fused.whitened_residuals @ fused.whitened_residuals))
 
 

@@ -9,21 +9,35 @@ import numpy as np
 import pytest
 
 from stableins.data.errors import InputError
+from stableins.errormodel import known_terms
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.history import HistoryStore, compare, format_changes, format_trends, parse_date, plot_trends, trend
-from stableins.recalibration import fuse_with_prior
-
-records = pytest.importorskip("stableins.records")
+from stableins.records import Calibration, CalibrationRecord, Parameter, PriorReference, StageRun
 
 IDS = ("bias_x", "bias_y", "sf_x")
 UNITS = ("m/s^2", "m/s^2", "1")
 SIGMA = np.array([2e-5, 3e-5, 5e-6])
 
 
+def estimate(values, covariance, stage="fine"):
+    """A data-only estimate as a stage result: its likelihood has information P⁻¹ at its values."""
+    terms = tuple(known_terms()[i] for i in IDS)
+    values, covariance = np.asarray(values, dtype=float), np.asarray(covariance, dtype=float)
+    likelihood = Likelihood(IDS, values, np.linalg.inv(covariance), np.zeros(len(IDS)))
+    return FitResult(stage, terms, values, covariance, ("estimated",) * len(IDS), np.zeros(0), np.zeros(0), likelihood=likelihood)
+
+
 def make_record(values, covariance, created, serial="INS-7", stages=("fine",), status=None, procedure="device-fine"):
+    """A first calibration (no prior) whose stage run took its data until ``created``."""
     status = status or ["estimated"] * len(values)
     sigma = np.sqrt(np.diag(covariance))
+    calibration = Calibration(f"cal-{created[:10]}-{abs(hash((created, serial))) % 10**8:08d}", procedure, "stableins test", created)
+    run = StageRun(f"{stages[0]}-{abs(hash((created, serial, 1))) % 10**8:08d}", stages[0], calibration.id, procedure, created=created,
+                   data_start=created, data_end=created)  # fmt: skip
     parameters = tuple(
-        records.Parameter(i, float(v), u, float(s) if st != "unidentifiable" else math.nan, st)
+        Parameter(
+            i, float(v), u, float(s) if st != "unidentifiable" else math.nan, st, ((records_how(run.id),) if st == "estimated" else ())
+        )
         for i, v, u, s, st in zip(IDS, values, UNITS, sigma, status)
     )
     cov = np.array(covariance, dtype=float)
@@ -31,8 +45,14 @@ def make_record(values, covariance, created, serial="INS-7", stages=("fine",), s
         if st == "unidentifiable":
             cov[k, :] = np.nan
             cov[:, k] = np.nan
-    provenance = records.Provenance("stableins test", procedure, tuple(stages), (), created, created, created)
-    return records.CalibrationRecord(serial, parameters, cov, provenance)
+    return CalibrationRecord(serial, parameters, cov, calibration, (run,))
+
+
+def records_how(stage_id):
+    from stableins.records import DeterminedBy
+    from stableins.status import Determination
+
+    return DeterminedBy(stage_id, Determination.ALONE)
 
 
 TRUTH = np.array([1e-4, -2e-4, 1.0 + 50e-6])
@@ -108,7 +128,7 @@ def test_trend_recovers_an_injected_drift():
     assert "drifting" in format_trends([result])
 
 
-def test_fusion_change_significance_matches_the_independent_form_and_is_calibrated():
+def test_recalibration_change_significance_matches_the_independent_form_and_is_calibrated():
     rng = np.random.default_rng(5)
     p0 = np.diag(SIGMA**2)
     pd = np.diag((0.7 * SIGMA) ** 2)
@@ -117,43 +137,52 @@ def test_fusion_change_significance_matches_the_independent_form_and_is_calibrat
         x0 = TRUTH + rng.normal(0, SIGMA)
         xd = TRUTH + rng.normal(0, 0.7 * SIGMA)
         old = make_record(x0, p0, "2025-01-01T00:00:00+00:00")
-        new_data = make_record(xd, pd, "2025-09-01T00:00:00+00:00", stages=("system",))
-        fused = fuse_with_prior(old, new_data)
-        changes = compare(old, fused, prior_used=True)
-        direct = compare(old, new_data, prior_used=False)
-        z_fused.append([c.significance for c in changes])
-        z_direct.append([c.significance for c in direct])
+        fused = old.updated(estimate(xd, pd), new_calibration=True, prior=PriorReference("a" * 64), data_end="2025-09-01T00:00:00+00:00")
+        comparison = compare(old, fused)
+        direct = compare(old, make_record(xd, pd, "2025-09-01T00:00:00+00:00"))
+        assert comparison.relation == "descendant" and direct.relation == "independent"
+        z_fused.append([c.significance for c in comparison.changes])
+        z_direct.append([c.significance for c in direct.changes])
         if k == 0:
-            # scalar identity: (x1 - x0)/sqrt(P0 - P1) == (xd - x0)/sqrt(P0 + Pd)
+            # scalar identity: (x1 - x0)/sqrt(P0 - P1) == (xd - x0)/sqrt(P0 + Pd): one statistic, whatever the relation
             np.testing.assert_allclose(z_fused[0], z_direct[0], rtol=1e-9)
             expected = (x0 / SIGMA**2 + xd / (0.7 * SIGMA) ** 2) / (1 / SIGMA**2 + 1 / (0.7 * SIGMA) ** 2)
             np.testing.assert_allclose([fused[i].value for i in IDS], expected, rtol=1e-12)
-            assert "recal" in fused.provenance.stages
-            assert format_changes(changes).count("\n") == 3
+            assert fused.provenance.stages == ("fine",) and fused.calibration.prior.sha256 == "a" * 64
+            assert format_changes(comparison.changes).count("\n") == 3
     z = np.array(z_fused)
     assert np.all(np.abs(z.mean(axis=0)) < 3 / math.sqrt(400))
     assert np.all(np.abs(z.std(axis=0) - 1) < 3 / math.sqrt(800))
+    # the flag |z| ≥ 3: false alarms at 0.27 % per parameter (1200 comparisons: expect 3.2, allow < 12)
+    assert (np.abs(z) >= 3).sum() < 12
 
 
-def test_fusion_carries_prior_correlations_and_keeps_what_the_data_do_not_see():
+def test_recalibration_carries_prior_correlations_and_keeps_what_the_data_do_not_see():
     # the new data see only bias_x; bias_y is correlated with it in the prior and must move too
     p0 = np.array([[4e-10, 3e-10, 0], [3e-10, 9e-10, 0], [0, 0, 25e-12]])
     old = make_record(TRUTH, p0, "2025-01-01T00:00:00+00:00")
-    pd = np.diag([1e-10, 1.0, 1.0])
-    new_data = make_record(TRUTH + [2e-5, 0, 0], pd, "2025-09-01T00:00:00+00:00", status=["estimated", "unidentifiable", "unidentifiable"])
-    fused = fuse_with_prior(old, new_data)
+    new = estimate(TRUTH + [2e-5, 0, 0], np.diag([1e-10, 1.0, 1.0]))
+    only_x = Likelihood(IDS, new.values, np.diag([1e10, 0.0, 0.0]), np.zeros(3))
+    from dataclasses import replace
+
+    fused = old.updated(replace(new, likelihood=only_x), new_calibration=True)
     gain = p0[0, 0] / (p0[0, 0] + 1e-10)
     assert fused["bias_x"].value == pytest.approx(TRUTH[0] + gain * 2e-5, rel=1e-9)
     assert fused["bias_y"].value == pytest.approx(TRUTH[1] + p0[1, 0] / (p0[0, 0] + 1e-10) * 2e-5, rel=1e-9)
-    assert fused["sf_x"].value == pytest.approx(TRUTH[2], rel=1e-13) and fused["sf_x"].sigma == pytest.approx(5e-6)
+    assert fused["sf_x"].value == TRUTH[2] and fused["sf_x"].sigma == pytest.approx(5e-6)
     assert fused["bias_x"].sigma == pytest.approx(math.sqrt(p0[0, 0] * (1 - gain)), rel=1e-9)
+    comparison = compare(old, fused)
+    assert [c.id for c in comparison.changes] == ["bias_x"]  # bias_y moved only by correlation; sf_x not at all
+    assert any(s.startswith("bias_y: not re-measured") for s in comparison.skipped)
+    assert any(s.startswith("sf_x: not re-measured") for s in comparison.skipped)
 
 
-def test_fusion_refuses_another_unit():
+def test_records_of_two_branches_cannot_be_compared():
     old = make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00")
-    other = make_record(TRUTH, np.diag(SIGMA**2), "2025-02-01T00:00:00+00:00", serial="INS-8")
-    with pytest.raises(InputError, match="unit 'INS-7'"):
-        fuse_with_prior(old, other)
+    a = old.updated(estimate(TRUTH, np.diag(SIGMA**2)), new_calibration=True, data_end="2025-02-01T00:00:00+00:00")
+    b = old.updated(estimate(TRUTH, np.diag(SIGMA**2), stage="system"), new_calibration=True, data_end="2025-03-01T00:00:00+00:00")
+    with pytest.raises(InputError, match="correlation of their errors is not known"):
+        compare(a, b)
 
 
 def test_history_changes_trends_and_plot(tmp_path):
@@ -166,7 +195,7 @@ def test_history_changes_trends_and_plot(tmp_path):
         make_record(drifted + rng.normal(0, SIGMA), np.diag(SIGMA**2), date).save(path)
         store.add(path)
     pairs = store.changes("INS-7")
-    assert len(pairs) == 4 and all(len(c) == 3 for _, _, c in pairs)
+    assert len(pairs) == 4 and all(len(c.changes) == 3 and c.relation == "independent" for _, _, c in pairs)
     trends = {t.id: t for t in store.trends("INS-7")}
     assert trends["bias_x"].significance > 5
     assert abs(trends["bias_y"].significance) < 3
@@ -198,30 +227,36 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     result = _cli("history", "INS-7", "--store", str(store), "--add", str(first), "--at", "2026-01-01", "--max-age", "180")
     assert result.returncode == 0, result.stderr
     assert "WARNING: the record in force is 365 days old" in result.stdout
-    # a field recalibration whose data show a real 10σ change of bias_x
+    # a field recalibration whose data show a real 10σ change of bias_x: a calibration of new data made elsewhere
     shifted = TRUTH + np.array([10 * SIGMA[0], 0, 0])
-    estimate = tmp_path / "estimate.json"
-    make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00", stages=("fine",)).save(
-        estimate
-    )
+    other = make_record(shifted + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00")
+    from dataclasses import replace
+
+    run = replace(other.stages[0], likelihood=estimate([p.value for p in other.parameters], other.covariance).likelihood)
+    (tmp_path / "estimate.json").write_text(json.dumps(replace(other, stages=(run,)).to_document()))
     result = _cli(
-        "recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(estimate), "--out", str(tmp_path / "recal"), "--json"
-    )
+        "recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"), "--out", str(tmp_path / "recal"),
+        "--json",
+    )  # fmt: skip
     assert result.returncode == 0, result.stderr
     document = json.loads(result.stdout)
-    assert document["significant"] == ["bias_x"]
+    assert document["significant"] == ["bias_x"] and document["relation"] == "descendant"
     z = {c["id"]: c["significance"] for c in document["changes"]}
     assert z["bias_x"] > 5 and abs(z["bias_y"]) < 3
-    # the store now holds both; the second is marked as built on the first
+    # exactly one new record, filed, the record in force; its certificate
+    assert sorted(p.name for p in (tmp_path / "recal").iterdir()) == ["recal-changes.txt", "record.json", "report.pdf"]
     entries = HistoryStore(store).entries("INS-7")
-    assert len(entries) == 2 and entries[1].prior == entries[0].sha256 and entries[1].evidence
-    result = _cli("history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"))
+    in_force = HistoryStore(store).in_force("INS-7")
+    assert len(entries) == 2 and (store / "INS-7" / in_force.file).read_bytes() == (tmp_path / "recal" / "record.json").read_bytes()
+    result = _cli("history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"), "--json")
     assert result.returncode == 0, result.stderr
-    assert "prior-based recalibration" in result.stdout and (tmp_path / "drift.png").stat().st_size > 1000
+    history = json.loads(result.stdout)
+    assert history["changes"][0]["relation"] == "descendant" and history["changes"][0]["significant"] == ["bias_x"]
+    assert (tmp_path / "drift.png").stat().st_size > 1000
     # bad input: another unit's record, an unknown unit
-    other = tmp_path / "other.json"
-    make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00", serial="INS-8").save(other)
-    result = _cli("history", "INS-7", "--store", str(store), "--add", str(other))
+    other_unit = tmp_path / "other.json"
+    make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00", serial="INS-8").save(other_unit)
+    result = _cli("history", "INS-7", "--store", str(store), "--add", str(other_unit))
     assert result.returncode == 2 and "INS-8" in result.stderr and "Traceback" not in result.stderr
-    result = _cli("recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(estimate))
+    result = _cli("recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"))
     assert result.returncode == 2 and "no calibration records for unit 'NOPE'" in result.stderr

@@ -11,7 +11,6 @@ from stableins.data.device import save_device
 from stableins.data.errors import InputError
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.procedures.definition import load_procedure
-from stableins.recalibration import fuse_with_prior
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -90,15 +89,20 @@ def test_calibrate_device_uses_a_records_noise_model(session, tmp_path, capsys):
     assert not (tmp_path / "cal4.json").exists()
 
 
-def test_the_noise_model_is_carried_through_updates_and_recalibration(session):
-    out, _ = session
+def test_the_noise_model_is_carried_through_stage_updates(session):
+    """A later stage keeps the record's noise model unless it measured one (CalibrationRecord.updated)."""
+    from stableins.data.device import load_device
+    from stableins.estimators.device import calibrate_device
+    from stableins.estimators.dwell import dwells_from_columns
+
+    out, truth = session
     record = CalibrationRecord.load(out / "cal.json")
-    bare = replace(record, noise_model=None)
-    assert bare.update(bare).noise_model is None
-    assert record.update(bare).noise_model == record.noise_model  # a stage that does not measure it keeps it
-    newer = replace(record, noise_model=NoiseModel.given(1e-4, provenance="static record"))
-    assert record.update(newer).noise_model == newer.noise_model  # a stage that measured it replaces it
-    assert fuse_with_prior(record, bare).noise_model == record.noise_model
+    summaries = [s for name in ("coarse.csv", "fine.h5") for s in dwells_from_columns(load_device(out / name).columns)]
+    later = calibrate_device(summaries, truth.site).final
+    assert record.updated(later).noise_model == record.noise_model
+    measured = NoiseModel.given(1e-4, provenance="static record")
+    assert record.updated(later, noise_model=measured).noise_model == measured
+    assert CalibrationRecord.from_document(record.updated(later).to_document()).noise_model == record.noise_model
 
 
 def test_a_damaged_noise_model_section_names_its_field(session, tmp_path):

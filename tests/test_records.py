@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
-from stableins.estimators.result import STATUSES, FitResult
+from stableins.estimators.result import STATUSES, FitResult, Likelihood
 from stableins.records import STATUSES as RECORD_STATUSES
-from stableins.records import CalibrationRecord, file_sha256
+from stableins.records import CalibrationRecord, file_sha256, parse_entries
 
 SITE = SiteMetadata("INS-0042", math.radians(45.0), 30.0, 9.8062, "WGS-84 normal gravity", 100.0)
 
@@ -61,7 +61,7 @@ def test_from_fit_result_round_trip(tmp_path):
     assert record["theta30"].status == "unidentifiable" and math.isnan(record["theta30"].sigma)
     path = record.save(tmp_path / "cal.json")
     document = json.loads(path.read_text())
-    assert document["schema_version"] == 1 and document["covariance"]["ids"] == list(record.ids)
+    assert document["schema_version"] == 2 and document["covariance"]["ids"] == list(record.ids)
     assert document["parameters"][-1]["sigma"] is None  # theta30: no number for what the data cannot say
     back = CalibrationRecord.load(path)
     assert back.ids == record.ids and back.site == record.site
@@ -71,41 +71,82 @@ def test_from_fit_result_round_trip(tmp_path):
     assert "INS-0042" in back.report() and "unidentifiable" in back.report()
 
 
-def test_update_refines_some_parameters_and_keeps_the_rest():
-    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE)
+def as_likelihood(result: FitResult) -> FitResult:
+    """The result with the likelihood of a data-only estimate: information P⁻¹ at its values."""
+    from dataclasses import replace
+
+    ids = result.ids
+    return replace(result, likelihood=Likelihood(ids, result.values, np.linalg.inv(result.covariance), np.zeros(len(ids))))
+
+
+def test_update_is_bayesian_and_keeps_what_the_stage_does_not_see():
+    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, procedure="device-coarse")
     fine_terms = tuple(t for t in CORE_TERMS if t.id.startswith(("sf_", "bias_", "K2_")))
-    fine = make_result(terms=fine_terms, stage="fine", seed=5)
-    merged = coarse.update(fine)
+    fine = as_likelihood(make_result(terms=fine_terms, stage="fine", seed=5))
+    merged = coarse.updated(fine, procedure="device-fine", entries=parse_entries(["site_temperature=21.5 degC"]))
     assert merged.ids == coarse.ids  # order kept
     fine_ids = [t.id for t in fine_terms]
-    kept_ids = [i for i in coarse.ids if i not in fine_ids and i != "theta30"]
-    np.testing.assert_array_equal(merged.covariance_of(fine_ids), fine.covariance)
-    np.testing.assert_array_equal(merged.covariance_of(kept_ids), coarse.covariance_of(kept_ids))
-    cross = merged.covariance[np.ix_([merged.ids.index(i) for i in fine_ids], [merged.ids.index(i) for i in kept_ids])]
-    assert not cross.any()
-    assert merged["K2_x"].value == fine.values[fine_ids.index("K2_x")]
-    assert merged["beta_xy"] == coarse["beta_xy"]
-    assert merged.provenance.stages == ("coarse", "fine")
+    # the posterior is the Kalman update of the coarse record by the fine estimate (H selects the fine ids)
+    keep = [i for i in coarse.ids if coarse[i].status == "estimated"]
+    p0 = coarse.covariance_of(keep)
+    h = np.array([[1.0 if k == f else 0.0 for k in keep] for f in fine_ids])
+    gain = p0 @ h.T @ np.linalg.inv(h @ p0 @ h.T + fine.covariance)
+    expected = np.array([coarse[k].value for k in keep]) + gain @ (fine.values - h @ [coarse[k].value for k in keep])
+    np.testing.assert_allclose([merged[k].value for k in keep], expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(merged.covariance_of(keep), p0 - gain @ h @ p0, rtol=0, atol=1e-9 * np.abs(p0).max())
+    for p in merged.parameters:  # no σ grows
+        assert not (p.sigma > coarse[p.id].sigma * (1 + 1e-9)), p.id
+    assert merged["theta10"] == coarse["theta10"] and merged["theta30"].status == "unidentifiable"
+    assert merged.provenance.stages == ("coarse", "fine") and merged.calibration.procedure == "device-coarse + device-fine"
+    assert [d.how for d in merged["K2_x"].determined_by] == ["alone", "alone"]  # coarse, then fine
+    assert len(merged["beta_xy"].determined_by) == 1 and merged.last_determined_by("beta_xy")[0].name == "coarse"
+    assert merged.entries[0].text() == "21.5 °C" and merged.stages_run[-1].entries[0].prompt == ""
     assert "[fine] a note" in merged.notes
-    assert merged.merge is not None and CalibrationRecord.merge is CalibrationRecord.update
+    back = CalibrationRecord.from_document(json.loads(json.dumps(merged.to_document())))
+    assert back.stages == merged.stages and back.parameters == merged.parameters
 
 
-def test_update_ignores_unidentifiable_and_adds_new_terms():
+def test_a_recalibration_starts_a_new_calibration_and_carries_the_rest_over():
+    from stableins.records import PriorReference
+
+    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, procedure="device-coarse")
+    fine = as_likelihood(make_result(terms=CORE_TERMS[:6], stage="fine", seed=7))
+    recal = coarse.updated(fine, new_calibration=True, prior=PriorReference("0" * 64), procedure="field-recal-device")
+    assert recal.calibration.id != coarse.calibration.id and recal.calibration.prior.sha256 == "0" * 64
+    assert recal.provenance.stages == ("fine",) and recal.calibration.procedure == "field-recal-device"
+    assert recal.measured_in_this_calibration("sf_x") and not recal.measured_in_this_calibration("beta_xy")
+    assert recal.source_text("beta_xy").endswith("carried over") and "fine (alone" in recal.source_text("sf_x")
+
+
+def test_a_stage_that_determines_nothing_writes_no_record():
     coarse = CalibrationRecord.from_fit_result(make_result(), site=SITE)
-    later = make_result(terms=CORE_TERMS[:2] + GIMBAL_TERMS[:1], stage="system", statuses=["unidentifiable", "estimated", "estimated"])
-    later = FitResult(later.stage, later.terms, later.values, later.covariance, later.status, later.residuals, later.residual_sigma)
-    plain = CalibrationRecord.from_fit_result(make_result(terms=CORE_TERMS), site=SITE)
-    merged = plain.update(later)
-    assert merged["sf_x"] == plain["sf_x"]  # the later stage could not see it
-    assert merged.ids[-1] == "theta10" and merged["theta10"].status == "estimated"
-    assert coarse.update(later)["sf_y"].value == later.values[1]
+    blind = make_result(terms=CORE_TERMS[:3], stage="system")
+    from dataclasses import replace
+
+    blind = replace(blind, likelihood=Likelihood(blind.ids, blind.values, np.zeros((3, 3)), np.zeros(3)))
+    with pytest.raises(InputError, match="determine no parameter"):
+        coarse.updated(blind)
+    with pytest.raises(InputError, match="no likelihood"):
+        coarse.updated(make_result(terms=CORE_TERMS[:3], stage="fine"))
 
 
-def test_update_refuses_another_unit():
-    a = CalibrationRecord.from_fit_result(make_result(), site=SITE)
-    b = CalibrationRecord.from_fit_result(make_result(), "INS-9999")
-    with pytest.raises(InputError, match="different units"):
-        a.update(b)
+def test_version_1_records_are_migrated(tmp_path):
+    v2 = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, data_end="2026-01-02T00:00:00Z")
+    document = v2.to_document()
+    v1 = {k: v for k, v in document.items() if k not in ("calibration", "stages")}
+    v1["schema_version"] = 1
+    for p in v1["parameters"]:
+        p.pop("determined_by")
+    v1["provenance"] = {"software": "stableins 0.1.0", "procedure": "p", "stages": ["coarse", "fine"], "inputs": [],
+                        "created": "2026-01-02T01:00:00+00:00", "data_start": "", "data_end": "2026-01-02T00:00:00Z"}  # fmt: skip
+    (tmp_path / "v1.json").write_text(json.dumps(v1))
+    record = CalibrationRecord.load(tmp_path / "v1.json")
+    assert record.schema_version == 2 and [s.name for s in record.stages] == ["coarse+fine"]
+    assert record.provenance.stages == ("coarse+fine",) and record.provenance.data_end == "2026-01-02T00:00:00Z"
+    assert record["sf_x"].determined_by[0].stage == record.stages[0].id and record["theta10"].determined_by == ()
+    assert record.stages[0].likelihood is None and "migrated" in record.notes[-1]
+    np.testing.assert_array_equal(record.covariance, v2.covariance)
+    assert json.loads(record.save(tmp_path / "v2.json").read_text())["schema_version"] == 2
 
 
 @pytest.fixture
@@ -130,11 +171,16 @@ def expect_error(path, *fragments):
 
 
 def test_unknown_schema_version(saved):
-    corrupt(saved, lambda d: d.update(schema_version=2))
-    expect_error(saved, "field 'schema_version'", "unknown schema version 2")
+    corrupt(saved, lambda d: d.update(schema_version=3))
+    expect_error(saved, "field 'schema_version'", "unknown schema version 3")
 
 
-@pytest.mark.parametrize("key", ["serial_number", "parameters", "covariance", "provenance"])
+def test_determined_by_must_name_a_stage_of_the_record(saved):
+    corrupt(saved, lambda d: d["parameters"][0]["determined_by"][0].update(stage="fine-00000000"))
+    expect_error(saved, "field 'parameters[0].determined_by[0]'", "does not name a stage")
+
+
+@pytest.mark.parametrize("key", ["serial_number", "parameters", "covariance", "calibration", "stages"])
 def test_missing_top_level_key(saved, key):
     corrupt(saved, lambda d: d.pop(key))
     expect_error(saved, f"field '{key}'", "missing key")

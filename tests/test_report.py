@@ -19,8 +19,9 @@ import report_fixtures as rf  # noqa: E402
 from stableins import cli  # noqa: E402
 from stableins.conventions import MICRO_G  # noqa: E402
 from stableins.data.errors import InputError  # noqa: E402
+from stableins.history import compare  # noqa: E402
+from stableins.records import CalibrationRecord, file_sha256  # noqa: E402
 from stableins.reporting import content  # noqa: E402
-from stableins.reporting.record_view import RecordView, sha256_file  # noqa: E402
 from stableins.reporting.tolerances import Tolerances, decide  # noqa: E402
 
 POPPLER = shutil.which("pdftoppm") and shutil.which("pdftotext")
@@ -96,48 +97,59 @@ def test_full_report_pages_and_required_fields(files, capsys):
     for pid in ["sf_x", "bias_y", "beta_zy", "K2_z", "theta10", "theta20"]:
         assert pid in text
     assert "U (k = 2)" in text and "µg/g²" in text and "arcsec" in text and "ppm" in text
-    assert sha256_file(files / "device.csv") in text.replace("\n", "") or sha256_file(files / "device.csv")[:40] in text
+    assert file_sha256(files / "device.csv") in text.replace("\n", "") or file_sha256(files / "device.csv")[:40] in text
     assert "verified: device.csv" in text
     assert "9.8015000 m/s²" in text and "WGS-84 normal gravity" in text
     assert "Model discovery" in text and "Not performed" in text  # no discovery history in the record
+    # what people entered and what the data carry appear on the certificate
+    flat = " ".join(text.split())
+    assert "Inertial Sensor Laboratory, Building 4" in flat and "Navigation Systems Division" in flat
+    assert "lab temperature 21.5 °C Laboratory temperature at the start" in flat
+    assert "mean 24.81 °C, range 24.62 to 25.07 °C (from the data)" in flat
+    assert "2026-11-20T08:00:00Z to 2026-11-20T14:30:00Z" in flat and "200 Hz" in flat and "wu2018-18-position" in flat
     # The +60 µg bias step is found significant and fails the 30 µg stability limit.
     assert "Verdict: FAIL" in text
     assert re.search(r"change since\s+bias_x.*fail", text, re.S)
 
 
 def test_change_recovers_the_injected_bias_step(files):
-    now = RecordView.load(files / "record.json")
-    before = RecordView.load(files / "old.json")
-    terms = content.known_terms()
-    changes, skipped = content.compare(content.parameter_rows(now, terms), content.parameter_rows(before, terms))
-    by_id = {c.id: c for c in changes}
+    now = CalibrationRecord.load(files / "record.json")
+    before = CalibrationRecord.load(files / "old.json")
+    comparison = compare(before, now)
+    assert comparison.relation == "independent"
+    by_id = {c.id: c for c in comparison.changes}
     step = by_id["bias_x"]
-    assert abs(step.delta - BIAS_STEP_UG) < 4 * step.u_delta
-    assert step.significant
-    # Parameters that did not move: E_n is |N(0,1)|/2, so rarely above 1 (≈5 %); allow two of the others.
-    assert sum(c.significant for c in changes if c.id != "bias_x") <= 2
-    assert any(s.startswith("theta20") for s in skipped)
+    assert abs(step.difference - BIAS_STEP_UG * MICRO_G) < 4 * step.sigma_difference
+    assert step.significant and abs(step.significance) >= 3
+    # Parameters that did not move: |z| ≥ 3 has probability 0.27 % each; allow one of the others.
+    assert sum(c.significant for c in comparison.changes if c.id != "bias_x") <= 1
+    assert any(s.startswith("theta20") for s in comparison.skipped)
+    terms = content.known_terms()
     rows = {r.id: r for r in content.parameter_rows(now, terms)}
     assert math.isnan(rows["theta20"].value) and rows["theta20"].formatted()[0] == "not stated"  # prior value never shown
+    shown = {c.id: c for c in content.change_rows(comparison, terms)}
+    assert shown["bias_x"].significant and shown["bias_x"].significance == step.significance  # the same z, in µg
 
 
 @needs_poppler
 def test_sections_without_evidence_say_so(files, tmp_path):
     record = json.loads((files / "record.json").read_text())
-    record.pop("stages")
-    record.pop("environment")
-    record["provenance"]["inputs"] = []
+    for stage in record["stages"]:
+        stage.update(fits=[], environment={}, inputs=[], entries=[])
+    record["calibration"]["entries"] = []
+    record["site"]["extra"] = {}
     (tmp_path / "bare.json").write_text(json.dumps(record))
     out = tmp_path / "bare.pdf"
     assert cli.main(["report", str(tmp_path / "bare.json"), "--out", str(out)]) == 0
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert f"page {len(pages)} of {len(pages)}" in text
-    assert "Device-level residual analysis: not performed" in flat
-    assert "System-level harmonic fits Not performed" in flat
+    assert "Residual analysis: not performed" in flat
+    assert "System-level stage Not performed" in flat
     assert "no previous calibration record was given" in flat
     assert "No statement of conformity" in flat
-    assert "temperature not recorded" in flat
+    assert "instrument temperature (fine) not recorded in the data" in flat
+    assert "Laboratory not recorded" in flat and "None: no value was entered by a person" in flat
 
 
 @pytest.mark.parametrize(
@@ -176,7 +188,7 @@ def test_gum_rounding():
 
 def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
     out = tmp_path / "r.pdf"
-    (tmp_path / "broken.json").write_text('{"schema_version": 1, "serial_number": "X", "parameters": [')
+    (tmp_path / "broken.json").write_text('{"schema_version": 2, "serial_number": "X", "parameters": [')
     assert cli.main(["report", str(tmp_path / "broken.json"), "--out", str(out)]) == 2
     assert "broken.json" in capsys.readouterr().err and not out.exists()
 
@@ -195,27 +207,30 @@ def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".partial")] == []
 
 
-def test_record_view_rejects_asymmetric_covariance(files):
+def test_the_one_reader_rejects_asymmetric_covariance(files):
     record = json.loads((files / "record.json").read_text())
     record["covariance"]["matrix"][0][12] *= 3.0  # sf_x, K2_x: correlated (ρ ≈ 0.1)
     with pytest.raises(InputError, match="symmetric"):
-        RecordView.from_mapping(record, path="r.json")
+        CalibrationRecord.from_document(record, "r.json")
 
 
 def test_correlation_matches_fit(files):
     result = rf.fit(1)
-    ids, matrix = content.correlation(RecordView.load(files / "record.json"))
+    ids, matrix = content.correlation(CalibrationRecord.load(files / "record.json"))
     assert ids == result.ids
     np.testing.assert_allclose(matrix, result.correlation(), atol=1e-12)
 
 
 @needs_poppler
-def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys):
-    """simulate device → calibrate device → report --data: the residual evidence comes from re-running the stages."""
+def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, capsys):
+    """simulate → calibrate device --json → report: χ²_ν of every fit on the certificate is the one calibrate printed;
+    a version-1 record of the same calibration has its evidence recomputed from --data, and the report says so."""
     assert cli.main(["simulate", "device", "--seed", "5", "--out", str(tmp_path)]) == 0
     coarse, fine = tmp_path / "device-coarse.csv", tmp_path / "device-fine.h5"
-    assert cli.main(["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json")]) == 0
     capsys.readouterr()
+    argv = ["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json"), "--bias-instability", "2", "--json"]
+    assert cli.main(argv) == 0
+    printed = json.loads(capsys.readouterr().out)
     assert cli.main(["diagnose", str(coarse), str(fine), "--record", str(tmp_path / "cal.json"), "--stage", "coarse", "--json"]) == 0
     (tmp_path / "diag.json").write_text(capsys.readouterr().out)
     out = tmp_path / "cal.pdf"
@@ -225,37 +240,41 @@ def test_pipeline_record_with_data_recomputes_device_residuals(tmp_path, capsys)
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text
-    assert "Device-level residuals recomputed from" in flat
-    chi2 = {m.group(1): float(m.group(2)) for m in re.finditer(r"^\s*(coarse|fine)\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)}
-    assert set(chi2) == {"coarse", "fine"}
-    assert 0.3 < chi2["coarse"] < 2.0  # the coarse model explains the simulated data to the noise
+    chi2 = {
+        m.group(1): float(m.group(2))
+        for m in re.finditer(r"^\s*(coarse\+fine|coarse|fine)\s+coarse\+fine\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)
+    }
+    assert chi2 == {
+        k: pytest.approx(printed[s]["chi2_red"], abs=5e-4) for k, s in (("coarse", "coarse"), ("fine", "fine"), ("coarse+fine", "fused"))
+    }
+    assert "bias instability 2 µg" in flat  # the settings the calibration ran with
+    assert "recomputed" not in flat
     assert text.count("verified:") == 2  # both data files match the record's SHA-256
     diagnosis = json.loads((tmp_path / "diag.json").read_text())
     assert "From diag.json (stableins diagnose)" in flat and "Refit history" in flat
     assert diagnosis["candidates"][0]["id"] in text
+    # the same record as schema version 1 (no stage runs): the evidence is recomputed, and the certificate says how
+    record = CalibrationRecord.load(tmp_path / "cal.json")
+    v1 = {k: v for k, v in record.to_document().items() if k not in ("calibration", "stages")}
+    v1["schema_version"] = 1
+    for p in v1["parameters"]:
+        p.pop("determined_by")
+    prov = record.provenance
+    v1["provenance"] = {"software": prov.software, "procedure": prov.procedure, "stages": ["coarse", "fine"],
+                        "inputs": [{"path": f.path, "sha256": f.sha256} for f in prov.inputs], "created": prov.created,
+                        "data_start": prov.data_start, "data_end": prov.data_end}  # fmt: skip
+    (tmp_path / "v1.json").write_text(json.dumps(v1))
+    assert cli.main(["report", str(tmp_path / "v1.json"), "--data", str(coarse), str(fine), "--out", str(tmp_path / "v1.pdf")]) == 0
+    _, text1 = _render(tmp_path / "v1.pdf")
+    flat1 = " ".join(text1.split())
+    assert "recomputed from" in flat1 and "defaults of 'stableins calibrate device'" in flat1
+    assert "record migrated from schema version 1" in flat1
 
 
 @needs_poppler
 def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path):
-    """System-level fits and a discovery history render as tables and figures; nothing runs off the page."""
+    """A discovery history renders as a table and a figure; nothing runs off the page."""
     record = json.loads((files / "record.json").read_text())
-    time = np.linspace(0.0, 86164.0, 400)
-    rng = np.random.default_rng(4)
-    model = 2e-3 * np.sin(2 * np.pi * time / 5064.0 + 0.3)
-    record["system"] = {
-        "harmonics": [{"channel": "velocity_north", "period": 5064.0, "amplitude": 2e-3, "sigma": 4e-5, "phase": 0.3, "unit": "m/s"}],
-        "records": [
-            {
-                "channel": "velocity_north",
-                "quantity": "north velocity error",
-                "unit": "m/s",
-                "time": time.tolist(),
-                "observed": (model + 1e-4 * rng.normal(size=400)).tolist(),
-                "model": model.tolist(),
-                "chi2_red": 1.02,
-            }
-        ],
-    }
     record["discovery"] = {
         "steps": [
             {"label": "core model", "residual_rms": 42.0, "noise_floor": 3.0, "unit": "µg", "candidates": []},
@@ -276,9 +295,9 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
     pages, text = _render(out)
     flat = " ".join(text.split())
-    assert "velocity_north" in text and "K3_x" in text and "hysteresis_y" in text and "accepted" in text
+    assert "K3_x" in text and "hysteresis_y" in text and "accepted" in text
     numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
-    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 4  # correlation, residuals, system, discovery
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 3  # correlation, residuals, discovery
     bbox = subprocess.run(["pdftotext", "-bbox", str(out), "-"], check=True, capture_output=True, text=True, timeout=60).stdout
     page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', bbox)
     width, height = float(page.group(1)), float(page.group(2))

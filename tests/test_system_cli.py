@@ -10,13 +10,22 @@ from stableins.commands import calibrate_system
 from stableins.data.errors import InputError
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import CORE_TERMS
-from stableins.records import CalibrationRecord, Parameter, Provenance
+from stableins.estimators.result import FitResult
+from stableins.records import CalibrationRecord
 
 
 def prior_record(values, serial="SYN-1"):
-    terms = [t for t in CORE_TERMS]
-    params = tuple(Parameter(t.id, float(values.get(t.id, t.reference)), t.si_unit, t.nominal, "estimated") for t in terms)
-    return CalibrationRecord(serial, params, np.diag([t.nominal**2 for t in terms]), Provenance("test", stages=("fine",)))
+    terms = tuple(CORE_TERMS)
+    fit = FitResult(
+        "fine",
+        terms,
+        np.array([float(values.get(t.id, t.reference)) for t in terms]),
+        np.diag([t.nominal**2 for t in terms]),
+        ("estimated",) * len(terms),
+        np.zeros(0),
+        np.zeros(0),
+    )
+    return CalibrationRecord.from_fit_result(fit, serial, procedure="device-fine")
 
 
 def parse(argv):
@@ -47,13 +56,19 @@ def test_cli_writes_updated_record(files, capsys):
     text = capsys.readouterr().out
     assert "combined coefficients" in text and "b_x - beta_xy*sinL" in text
     updated = CalibrationRecord.load(out)
-    assert "system" in updated.provenance.stages
+    assert updated.provenance.stages == ("fine", "system")  # the stage continues the prior's calibration
+    assert updated.calibration.procedure == "device-fine + system-static"
     assert updated["beta_zy"].status == "estimated"
-    # bias_x is only seen through b_x/g - beta_xy*sinL: the stage shares that correction by prior
-    # variances, so the record keeps the prior's status for it (the stage's own result says "gauge")
+    # bias_x is only seen through b_x/g - beta_xy*sinL: a posterior (estimated, with σ), determined in combination;
+    # the console prints the record's own status and source, the same words as the record and the certificate
     previous = CalibrationRecord.load(prior)
-    assert updated["bias_x"].status == previous["bias_x"].status
+    assert updated["bias_x"].status == "estimated" and updated["bias_x"].sigma < previous["bias_x"].sigma
     assert updated["bias_x"].value != previous["bias_x"].value
+    assert updated.source_text("bias_x").startswith("system (in combination")
+    line = next(x for x in text.splitlines() if x.startswith("bias_x "))
+    assert "estimated" in line and "system (in combination" in line and "gauge" not in text.split("calibration record of")[1]
+    stage = updated.stages_run[-1]
+    assert stage.sample_rate == 1.0 and stage.settings["case_rotation_period"] == 480.0 and stage.fits[0]["stage"] == "system"
     # beta_zy is determined by itself: the record now holds the truth within 4 sigma
     assert abs(updated["beta_zy"].value - true["beta_zy"]) < 4 * updated["beta_zy"].sigma
     assert updated["K2_x"].value == 0.0  # not touched
@@ -68,6 +83,13 @@ def test_cli_json(files, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert [c["name"] for c in doc["combined"]][:5] == ["x1", "x2", "x3", "x4", "x5"]
     assert doc["rank"] == 9
+    record = CalibrationRecord.load(out)
+    by_id = {p["id"]: p for p in doc["parameters"]}
+    for p in record.parameters:  # JSON = record: value, σ, status, source
+        assert by_id[p.id]["status"] == p.status and by_id[p.id]["sigma"] == pytest.approx(p.sigma)
+        assert by_id[p.id]["last_determined_by"] == record.source_text(p.id)
+        assert by_id[p.id]["sigma"] <= by_id[p.id]["prior_sigma"] * (1 + 1e-9)
+    assert doc["chi2_red"] == pytest.approx(record.stages_run[-1].fits[0]["chi2_red"])
 
 
 def test_cli_serial_mismatch_is_a_user_error(files):

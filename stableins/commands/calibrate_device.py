@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from stableins.commands import add_entries_option
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
@@ -33,6 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from stableins.commands.noise import add_noise_options
 
     add_noise_options(parser)
+    add_entries_option(parser)
 
 
 def _same_site(datasets) -> None:
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
+    from stableins.records import parse_entries
 
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
@@ -84,8 +88,14 @@ def run(args: argparse.Namespace) -> int:
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
-    record = calibration.record(site, inputs=[str(p) for p in args.data], procedure=f"{coarse_procedure.name}+{fine_procedure.name}")
-    text = calibration.report()
+    record = calibration.record(
+        site,
+        inputs=[str(p) for p in args.data],
+        procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
+        **data_description(datasets),
+        entries=parse_entries(args.set),
+    )
+    text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     result = {
@@ -100,6 +110,19 @@ def run(args: argparse.Namespace) -> int:
     }
     emit(args, result, text)
     return 0
+
+
+def data_description(datasets) -> dict:
+    """Data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
+    import numpy as np
+
+    from stableins.records import data_times, temperature_summary
+
+    spans = [data_times(d.metadata, float(d.columns["time"][0]), float(d.columns["time"][-1])) for d in datasets if len(d.columns["time"])]
+    starts = [a for a, _ in spans if a]
+    ends = [b for _, b in spans if b]
+    temperature = np.concatenate([np.asarray(d.columns["temperature"], dtype=float) for d in datasets])
+    return {"data_start": min(starts, default=""), "data_end": max(ends, default=""), "environment": temperature_summary(temperature)}
 
 
 def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> None:

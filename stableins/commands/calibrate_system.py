@@ -3,18 +3,23 @@
 Reads a static, polar-aligned system-level record (``.h5`` or ``.csv``) and the
 calibration the INS was running with (``--prior``), estimates the fifteen combined
 coefficients (Earth-rate harmonics of the specific-force error, loop-compensated pitch
-and roll harmonics), separates them into accelerometer corrections by weighted least
-squares and writes the updated calibration record (``--out``, atomically).  What the
-data cannot separate is reported and left at the prior (see docs/system-calibration.md).
+and roll harmonics) and updates the prior record with what they say (a Bayesian update:
+no σ grows, nothing moves along what the data do not determine; docs/system-calibration.md
+§4), then writes the updated record (``--out``, atomically).  A record that determines
+nothing (shorter than about half a sidereal day) writes no record and exits 2 saying why.
 
-With ``--json`` the result (combined coefficients, determined combinations, updated
-parameters, notes) goes to stdout as one JSON document.
+The stage continues the prior's calibration (its record, e.g. the device-level one made for
+this calibration); ``--new-calibration`` starts a new one from a record in force instead
+(a system-level recalibration).  The console table, ``--json`` and the certificate show the
+record's own statuses and σ.
 """
 
 from __future__ import annotations
 
 import argparse
 from typing import Any
+
+from stableins.commands import add_entries_option
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -54,24 +59,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
-
-
-def record_statuses(result: Any, prior: Any) -> Any:
-    """The stage result with the statuses the calibration record must carry.
-
-    The stage marks ``gauge`` (a correction shared by prior variances along a combination
-    it determines, or none) and ``fixed`` (left at the prior) relative to *its own* data.
-    In the record the value is still the prior stage's estimate updated by this one, so
-    such a parameter keeps the status it had in the prior record (``estimated`` stays
-    ``estimated``; a ``gauge`` stays ``gauge``).
-    """
-    from dataclasses import replace
-
-    known = set(prior.ids)
-    status = tuple(
-        st if st == "estimated" or t.id not in known else prior[t.id].status for t, st in zip(result.terms, result.status, strict=True)
+    parser.add_argument(
+        "--new-calibration",
+        action="store_true",
+        help="start a new calibration from the prior (a record in force) instead of continuing the prior's calibration",
     )
-    return replace(result, status=status)
+    add_entries_option(parser)
 
 
 def run(args: Any) -> int:
@@ -82,7 +75,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note
-    from stableins.records import CalibrationRecord
+    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
     if args.chunk_rows < 1024:
         raise InputError("--chunk-rows must be at least 1024", field="--chunk-rows")
@@ -105,12 +98,28 @@ def run(args: Any) -> int:
         estimate_k2=args.estimate_k2,
         known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
     )
+    entries = parse_entries(args.set)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         outcome = run_system_stage(record, record.metadata, values, covariance, options)
     for w in caught:
         note(f"stableins: warning: {w.message}")
-    updated = prior.update(record_statuses(outcome.result, prior), inputs=[args.record], procedure="system-level static record")
+    start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
+    temperature = outcome.diagnostics["temperature"]
+    reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
+    updated = prior.updated(
+        outcome.result,
+        new_calibration=args.new_calibration,
+        prior=reference,
+        procedure=str(record.metadata.extra.get("procedure", "system-static")),
+        calibration_entries=entries,
+        site=record.metadata,
+        inputs=[args.record],
+        data_start=start,
+        data_end=end,
+        sample_rate=record.sample_rate,
+        environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
+    )
     updated.save(args.out)
     if args.plot:
         plot(outcome, args.plot)
@@ -129,26 +138,44 @@ def run(args: Any) -> int:
             for name, (value, sigma, ok) in outcome.separation.combinations.items()
         ],
         "parameters": [
-            {"id": t.id, "value": float(v), "sigma": float(s), "status": st, "correction": outcome.corrections.get(t.id, 0.0)}
-            for t, v, s, st in zip(outcome.result.terms, outcome.result.values, outcome.result.sigma, outcome.result.status, strict=True)
+            {
+                "id": p.id,
+                "value": p.value,
+                "sigma": p.sigma if p.sigma == p.sigma else None,
+                "status": p.status.value,
+                "prior_sigma": prior[p.id].sigma if p.id in prior.ids and prior[p.id].sigma == prior[p.id].sigma else None,
+                "correction": p.value - prior[p.id].value if p.id in prior.ids else None,
+                "last_determined_by": updated.source_text(p.id),
+            }
+            for p in updated.parameters
         ],
         "rank": outcome.result.rank,
+        "chi2": outcome.result.chi2,
+        "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
         "notes": list(outcome.notes) + list(outcome.result.notes),
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
-    emit(args, data, text=report(outcome, args.out))
+    emit(args, data, text=report(outcome, updated, args.out))
     return 0
 
 
-def report(outcome: Any, out: str) -> str:
-    """Text report: combined coefficients, separation, updated parameters."""
+def report(outcome: Any, record: Any, out: str) -> str:
+    """Text report: combined coefficients, the stage's fit, and the record written (its statuses and σ, as in the PDF)."""
     c = outcome.combined
+    r = outcome.result
     lines = ["combined coefficients (rad):", f"  {'name':<12} {'value':>12} {'1 sigma':>10}  status"]
     for n, v, s, st in zip(c.ids, c.values, c.sigma, c.status, strict=True):
         shown = f"{v:>12.4e} {s:>10.2e}" if st != "unidentifiable" else f"{'—':>12} {'—':>10}"
         lines.append(f"  {n:<12} {shown}  {st}")
-    lines += ["", outcome.result.report(), "", f"updated calibration written to {out}"]
+    lines += [
+        "",
+        f"stage: system; chi2_red = {r.chi2_red:.3f} (nu = {r.dof}, expected 1 ± {(2 / max(r.dof, 1)) ** 0.5:.2f}); rank = {r.rank}",
+        "",
+        record.report(),
+        "",
+        f"updated calibration written to {out}",
+    ]
     return "\n".join(lines)
 
 

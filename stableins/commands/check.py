@@ -29,9 +29,11 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
             "file": path,
             "kind": "calibration record",
             "serial_number": record.serial_number,
+            "schema_version": record.schema_version,
             "stages": list(record.provenance.stages),
+            "stages_carried_over": [s.name for s in record.stages if s not in record.stages_run],
             "parameters": len(record.parameters),
-            "statuses": {s: sum(p.status == s for p in record.parameters) for s in sorted({p.status for p in record.parameters})},
+            "statuses": {s.value: sum(p.status is s for p in record.parameters) for s in sorted({p.status for p in record.parameters})},
         }
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
 

@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from datetime import timedelta
 
     from stableins.data.errors import InputError
-    from stableins.history import HistoryStore, format_changes, format_trends, parse_date, plot_trends
+    from stableins.history import CHANGE_THRESHOLD, HistoryStore, format_changes, format_trends, parse_date, plot_trends
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
@@ -59,11 +59,21 @@ def run(args: argparse.Namespace) -> int:
         data["in_force"] = current.file
         data["stale"] = warning
     changes = store.changes(args.serial)
-    for old, new, table in changes:
-        kind = "prior-based recalibration" if new.prior == old.sha256 and new.prior else "independent calibrations"
-        lines += ["", f"{old.valid_from} -> {new.valid_from} ({kind}; z = change / σ of the change):", format_changes(table)]
+    for old, new, comparison in changes:
+        lines += ["", f"{old.valid_from} -> {new.valid_from} ({comparison.describe()}; z = change / σ of the change):"]
+        lines.append(format_changes(comparison.changes))
+        if comparison.significant:
+            lines.append(f"changed (|z| ≥ {CHANGE_THRESHOLD:g}): {', '.join(comparison.significant)}")
     data["changes"] = [
-        {"from": o.file, "to": n.file, "parameters": [{**c.__dict__, "significance": c.significance} for c in t]} for o, n, t in changes
+        {
+            "from": o.file,
+            "to": n.file,
+            "relation": c.relation,
+            "parameters": [x.to_json() for x in c.changes],
+            "significant": list(c.significant),
+            "not_compared": list(c.skipped),
+        }
+        for o, n, c in changes
     ]
     trends = store.trends(args.serial)
     if trends:

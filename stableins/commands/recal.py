@@ -1,16 +1,19 @@
-"""``stableins recal``: field recalibration with the unit's previous record as the prior.
+"""``stableins recal``: field recalibration, a new calibration that updates the unit's record in force.
 
 ::
 
-    # run a short device-level set on the platform, then combine it with the record in force
-    stableins recal device-fine --unit INS-7 --store cal/ --driver tcp://127.0.0.1:5025 --out runs/recal-2026-06
-    # or combine an estimate made elsewhere: a data-only device-level estimate (estimate.json of a run),
-    # or a system-level correction ('stableins calibrate system' with the record in force as --prior)
-    stableins recal --unit INS-7 --store cal/ --estimate estimate.json --out runs/recal-2026-06
+    # run a short device-level set on the platform; its stage updates the record in force
+    stableins recal field-recal-device --unit INS-7 --store cal/ --driver tcp://127.0.0.1:5025 --out runs/recal-2026-06
+    # or apply a calibration made elsewhere from new data (e.g. 'stableins calibrate device' on field data, or
+    # 'stableins calibrate system --new-calibration' with the record in force as --prior): its stages update the record in force
+    stableins recal --unit INS-7 --store cal/ --estimate other.json --out runs/recal-2026-06
 
-Every parameter's change is printed with its significance (change / σ of the change, where
-σ² = P_prior − P_new because the new record is built on the old one; see
-:mod:`stableins.recalibration`).  The new record is filed in the history store.
+Exactly one new record is written, ``OUT/record.json``: the record in force updated by the new
+stage(s), a Bayesian update (no σ grows, nothing moves along what the new data do not see).  It
+is filed in the history store (so it is the record in force from the end of its data) and its
+certificate is ``OUT/report.pdf``.  Every parameter's change is printed with its significance
+(:func:`stableins.history.compare`: the new record descends from the old one, σ² of a change =
+σ²_old − σ²_new; flagged at |z| ≥ 3), the same numbers the certificate shows.
 """
 
 from __future__ import annotations
@@ -24,18 +27,49 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from stableins.commands import run as run_command
 
     run_command.configure(parser)
-    parser.add_argument("--estimate", metavar="RECORD", help="data-only estimate to combine, instead of running PROCEDURE")
+    parser.add_argument("--estimate", metavar="RECORD", help="a record of new data whose own stages update the record in force")
     parser.add_argument("--no-file", action="store_true", help="do not file the new record in the history store")
+
+
+def apply_estimate(prior, prior_path: Path, estimate_path: Path):
+    """The record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
+    from stableins.data.errors import InputError
+    from stableins.records import CalibrationRecord, PriorReference, file_sha256
+
+    estimate = CalibrationRecord.load(estimate_path)
+    if estimate.serial_number != prior.serial_number:
+        raise InputError(
+            f"the estimate is of unit {estimate.serial_number!r}, the record in force of {prior.serial_number!r}",
+            path=estimate_path,
+            field="serial_number",
+            expected="the same unit",
+        )
+    known = {s.id for s in prior.stages}
+    runs = [s for s in estimate.stages_run if s.id not in known]
+    if not runs:
+        raise InputError("the estimate holds no stage run that the record in force lacks", path=estimate_path, field="stages")
+    missing = [s.name for s in runs if s.likelihood is None]
+    if missing:
+        raise InputError(
+            f"stage run(s) {', '.join(missing)} carry no likelihood (a migrated record): they cannot update a record",
+            path=estimate_path,
+            field="stages",
+            expected="a record written by this version of stableins",
+        )
+    record = prior
+    reference = PriorReference(file_sha256(prior_path), str(prior_path), prior.calibration.created)
+    for k, run in enumerate(runs):
+        record = record.updated_by_run(run, new_calibration=k == 0, prior=reference, site=estimate.site)
+    return record
 
 
 def run(args: argparse.Namespace) -> int:
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
     from stableins.data.errors import InputError
-    from stableins.history import HistoryStore, compare, format_changes
+    from stableins.history import CHANGE_THRESHOLD, HistoryStore, compare, format_changes
     from stableins.output import emit, note
-    from stableins.recalibration import fuse_with_prior
-    from stableins.records import CalibrationRecord, file_sha256
+    from stableins.records import CalibrationRecord
 
     if not args.unit:
         raise InputError("which unit?", field="--unit", expected="the serial number")
@@ -46,52 +80,48 @@ def run(args: argparse.Namespace) -> int:
     if args.estimate:
         if args.procedure or args.resume:
             raise InputError("give either --estimate or a PROCEDURE to run", field="--estimate")
-        estimate_path = Path(args.estimate)
-        out = Path(args.out) if args.out else estimate_path.parent
+        out = Path(args.out) if args.out else Path(args.estimate).parent
+        record = apply_estimate(prior, prior_path, Path(args.estimate))
+        record_path = record.save(out / "record.json")
+        from stableins.reporting import write_report
+
+        write_report(out / "report.pdf", record_path, previous=prior_path)
     else:
         args.prior = str(prior_path)
+        args.new_calibration = True  # a recalibration starts a new calibration from the record in force
+        args.emit_result = False  # one result on stdout: the recalibration's
         status = run_command.run(args)
         if status != 0:
             return status
         out = Path(args.resume or args.out)
-        estimate_path = out / "estimate.json"
-        if not estimate_path.exists():
-            raise InputError(
-                "the procedure produced no estimate to combine", path=estimate_path, expected="a procedure whose stage estimates"
-            )
-    estimate = CalibrationRecord.load(estimate_path)
-    digest = file_sha256(prior_path)
-    if "system" in estimate.provenance.stages:
-        # the system-level stage already starts from the installed (prior) calibration and estimates
-        # the correction to it from the data: fusing it with the prior again would count the prior twice
-        fused = prior.update(estimate)
-        prior_used = False
-        how = "system-level correction applied to the previous record (the stage used it as its prior); σ² of a change = σ²_old + σ²_new"
-    else:
-        fused = fuse_with_prior(prior, estimate, prior_sha256=digest)
-        prior_used = True
-        how = "data-only estimate combined with the previous record as prior; σ² of a change = σ²_old − σ²_new"
-    record_path = fused.save(out / "recal.json")
-    changes = compare(prior, fused, prior_used=prior_used)
-    significant = [c.id for c in changes if abs(c.significance) >= 3]
-    text = [f"field recalibration of {args.unit}: {prior_path} -> {record_path}", how, "", format_changes(changes)]
-    if significant:
-        text += ["", f"changed beyond 3σ: {', '.join(significant)}"]
-    if not prior_used and estimate.determined:
-        # the system-level stage determines combinations of parameters; per-parameter changes along
-        # directions it does not see are the prior's (gauge), so its own summary is the evidence
-        text += ["", "what the new data determine (system-level stage):"] + [f"  {line}" for line in estimate.determined]
+        record_path = out / "record.json"
+        if not record_path.exists():
+            raise InputError("the procedure produced no record", path=record_path, expected="a procedure whose stage estimates")
+        record = CalibrationRecord.load(record_path)
+    comparison = compare(prior, record)
+    text = [
+        f"field recalibration of {args.unit}: {prior_path} -> {record_path} (certificate {out / 'report.pdf'})",
+        comparison.describe(),
+        "",
+        format_changes(comparison.changes),
+    ]
+    if comparison.significant:
+        text += ["", f"changed (|z| ≥ {CHANGE_THRESHOLD:g}): {', '.join(comparison.significant)}"]
+    if comparison.skipped:
+        text += ["", "not compared: " + "; ".join(comparison.skipped)]
     if args.store and not args.no_file:
-        entry = HistoryStore(args.store).add(record_path, prior=digest if prior_used else "", evidence=estimate_path)
-        note(f"filed in {args.store} as {entry.file}")
+        entry = HistoryStore(args.store).add(record_path)
+        note(f"filed in {args.store} as {entry.file}: the record in force from {entry.valid_from}")
     with atomic_write(out / "recal-changes.txt") as handle:
         handle.write("\n".join(text) + "\n")
     data = {
         "record": str(record_path),
         "prior": str(prior_path),
-        "estimate": str(estimate_path),
-        "changes": [{**c.__dict__, "significance": c.significance} for c in changes],
-        "significant": significant,
+        "report": str(out / "report.pdf"),
+        "relation": comparison.relation,
+        "changes": [c.to_json() for c in comparison.changes],
+        "significant": list(comparison.significant),
+        "not_compared": list(comparison.skipped),
     }
     emit(args, data, "\n".join(text))
     sys.stdout.flush()

@@ -32,6 +32,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="value for a person step (repeatable)")
     parser.add_argument("--prior", metavar="RECORD", help="the unit's previous record (zero offsets to re-point; fine stage builds on it)")
     parser.add_argument("--store", metavar="DIR", help="history store: use the unit's record in force as --prior")
+    parser.add_argument(
+        "--new-calibration",
+        action="store_true",
+        help="the run starts a new calibration from --prior (default with --store: the record in force is a previous calibration; "
+        "with --prior the run continues the prior's calibration, e.g. the fine stage after the coarse stage)",
+    )
     parser.add_argument("--retries", type=int, help="repeats of a rejected dwell before stopping (default: the procedure's, 2)")
     parser.add_argument("--chunk", type=float, help="journal dwells in pieces of at most this many seconds (default 10)")
     parser.add_argument("--link-failures", type=int, default=3, help="consecutive link failures of one step before stopping")
@@ -129,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
                 definition_file=definition_file,
                 prior_file=prior_file(args),
                 timeout=args.timeout,
+                new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
+                fields=parse_settings(args.set),
             )
     except RunStopped as stop:
         print(
@@ -148,10 +156,11 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 130
+    if not getattr(args, "emit_result", True):  # a command that runs a procedure and reports itself (recal)
+        return 0
     data = {
         "rundir": str(outcome.rundir),
         "dataset": outcome.dataset,
-        "estimate": outcome.estimate,
         "record": outcome.record,
         "report": outcome.report,
         "dwells": len(outcome.runner.entries),

@@ -137,6 +137,13 @@ def prepare_directory(out: Path | None) -> Path:
     return out
 
 
+def simulation_start(duration: float) -> str:
+    """UTC time of time 0 of simulated data lasting ``duration`` seconds: they end now (to the second)."""
+    from datetime import UTC, datetime, timedelta
+
+    return (datetime.now(UTC) - timedelta(seconds=round(duration))).replace(microsecond=0).isoformat()
+
+
 def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     """Parameter values of a calibration record, as the calibration the simulated INS runs with.
 
@@ -234,9 +241,10 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     else:
         sessions = _iterated_session(truth, procedures, rate, seed)
     files = []
+    start = simulation_start(max(float(c["time"][-1]) for _, c in sessions if len(c["time"])) if sessions else 0.0)
     with Progress(total=len(sessions), label="write device data") as progress:
         for procedure, columns in sessions:
-            metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name})
+            metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name}, start_time=start)
             n = len(columns["time"])
             suffix = args.format or ("csv" if n <= CSV_ROW_LIMIT else "h5")
             path = save_device(out / f"{procedure.name}.{suffix}", columns, metadata)
@@ -318,7 +326,8 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     rate = args.rate or truth.site.sample_rate
     duration = args.duration or 6 * 3600.0
     chunk_samples = 65536
-    metadata = replace(truth.site, sample_rate=rate)  # the truth puts its damping-loop parameters in site.damping
+    # the truth puts its damping-loop parameters in site.damping; time 0 of the record is the simulation's start
+    metadata = replace(truth.site, sample_rate=rate, start_time=simulation_start(duration))
     path = out / f"system.{suffix}"
     total = int(round(duration * rate))
     with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:

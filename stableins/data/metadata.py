@@ -34,6 +34,9 @@ class SiteMetadata:
         System-level only: damping-loop parameters of the INS (``zeta``, vertical gains...).
     extra : dict
         Anything else worth keeping (procedure, operator, ...).
+    start_time : str
+        ISO 8601 UTC time of the data's time 0 (``time[s]`` counts from it); ``""`` when unknown.
+        Gives the calibration date: the record's data start and end times.
     """
 
     serial_number: str
@@ -47,6 +50,7 @@ class SiteMetadata:
     reference_temperature: float = 25.0
     damping: dict[str, float] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+    start_time: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -101,7 +105,7 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
         "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
         "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
         "extra": dict(metadata.extra),
-    }
+    } | ({"start_time": metadata.start_time} if metadata.start_time else {})
 
 
 def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
@@ -181,6 +185,14 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     source = document["gravity_source"]
     if not isinstance(source, str):
         raise fail(f"gravity source {source!r}", "gravity_source", "a string")
+    start_time = document.get("start_time", "")
+    if start_time:
+        from datetime import datetime
+
+        try:
+            datetime.fromisoformat(str(start_time).replace("Z", "+00:00"))
+        except ValueError:
+            raise fail(f"start time {start_time!r}", "start_time", "an ISO 8601 time such as 2026-03-01T12:00:00Z") from None
     return SiteMetadata(
         serial_number=serial,
         latitude=latitude,
@@ -193,4 +205,5 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         reference_temperature=reference_temperature,
         damping=damping,
         extra=extra,
+        start_time=str(start_time),
     )

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
@@ -514,10 +514,10 @@ class DwellProblem:
                 "specific_force_platform": f_p,
                 "prediction": prediction,
                 "noise": d.noise,
-                "chi2_whitened": float(white @ white),
                 "slow_noise": d.slow_covariance is not None,
             },
             whitened_residuals=white,
+            likelihood=Likelihood.from_weighted(model.ids, np.array([values[t.id] for t in model.terms]), a, white),
         )
 
     def _damped(self, model: ErrorModel, values: dict, cols: list[int], step: NDArray, rss: float, y: NDArray) -> tuple[dict, NDArray]:
@@ -559,11 +559,12 @@ class DwellProblem:
 
 def fit_chi2(result: FitResult) -> float:
     """χ² that the fit minimized (generalized when the observations are correlated): :attr:`FitResult.chi2`."""
-    return float(result.chi2)
+    return result.chi2
 
 
 def fit_chi2_red(result: FitResult) -> float:
-    return fit_chi2(result) / result.dof if result.dof > 0 else float("nan")
+    """:attr:`FitResult.chi2_red`, the one χ²_ν printed everywhere."""
+    return result.chi2_red
 
 
 def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:

@@ -62,7 +62,7 @@ from stableins.errormodel import ErrorModel
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
@@ -445,7 +445,6 @@ def calibrate_coarse(
         "positions_used": [d.position for d in usable],
         "left_out": {int(k): v for k, v in sorted(left_out.items())},
         "iterations": solution.iterations,
-        "chi2_whitened": chi2_whitened,
         "gravity": float(gravity),
         "base_attitude": [float(a) for a in base_attitude],
         "gimbal_senses": list(configuration.senses),
@@ -468,4 +467,6 @@ def calibrate_coarse(
         notes=tuple(notes),
         extra=extra,
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
     )

@@ -56,6 +56,9 @@ class DeviceCalibration:
     fine: FitResult | None = None
     passes: tuple[FitResult, ...] = field(default=(), repr=False)
     fused: FitResult | None = None
+    #: The options the pipeline ran with (procedures, noise model, coarse nonlinearity, missing positions): stored in
+    #: the record's stage run so that a report recomputes exactly what the calibration did.
+    settings: dict = field(default_factory=dict)
     noise: NoiseModel | None = None
     floor: FitResult | None = field(default=None, repr=False)
 
@@ -98,13 +101,40 @@ class DeviceCalibration:
     def __str__(self) -> str:
         return self.report()
 
-    def record(self, site: SiteMetadata, inputs: Sequence[str] = (), procedure: str = ""):
-        """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced)."""
-        from stableins.records import CalibrationRecord
+    def record(
+        self,
+        site: SiteMetadata,
+        inputs: Sequence[str] = (),
+        procedure: str = "",
+        *,
+        data_start: str = "",
+        data_end: str = "",
+        environment: dict | None = None,
+        entries: Sequence = (),
+    ):
+        """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced).
 
-        record = CalibrationRecord.from_fit_result(self.final, site=site, inputs=inputs, procedure=procedure, noise_model=self.noise)
-        stages = ("coarse", "fine") if self.fused is not None else ("coarse",)
-        return replace(record, provenance=replace(record.provenance, stages=stages))
+        The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
+        fused, each with its χ²_ν), the fused likelihood and :attr:`settings`; ``entries`` are the calibration's fields.
+        The record carries :attr:`noise` (the noise model every σ rests on).
+        """
+        from stableins.records import Calibration, CalibrationRecord, StageRun
+
+        calibration = Calibration.new(procedure, entries)
+        fits = [self.coarse] + [f for f in (self.fine, self.fused) if f is not None]
+        stage = StageRun.from_fit(
+            self.final,
+            calibration=calibration.id,
+            procedure=procedure,
+            inputs=inputs,
+            data_start=data_start,
+            data_end=data_end,
+            sample_rate=site.sample_rate,
+            environment=environment,
+            fits=fits,
+            settings=self.settings or self.final.settings,
+        )
+        return CalibrationRecord.from_fit_result(self.final, site=site, stage=stage, calibration=calibration, noise_model=self.noise)
 
 
 def noise_from_dwells(
@@ -330,4 +360,11 @@ def calibrate_device(
                 fused = replace(fused, notes=fused.notes + (text,))
             else:
                 coarse = replace(coarse, notes=coarse.notes + (text,))
-    return DeviceCalibration(coarse, fine, tuple(passes), fused, noise, floor)
+    settings = {
+        "coarse_procedure": coarse_procedure.name,
+        "fine_procedure": fine_procedure.name,
+        "allow_missing": bool(allow_missing),
+        "coarse_nonlinear": bool(coarse_nonlinear),
+        "noise_model": noise.to_document(),
+    }
+    return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise, floor)

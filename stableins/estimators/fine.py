@@ -42,7 +42,7 @@ from stableins.errormodel import BETA_IDS, ErrorModel
 from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
@@ -207,7 +207,10 @@ def calibrate_fine(
     determined.append(
         "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
     )
-    notes.append("installation angles: coarse values carried through (fine stage cannot separate the pairs (xz, yz), (zy, xy), (yx, zx))")
+    notes.append(
+        "installation angles: the fine stage determines only the differences of the pairs (xz, yz), (zy, xy), (yx, zx); its own "
+        "result carries the coarse values, a record it updates takes the differences in combination with the coarse information"
+    )
     notes.append(f"local gravity {gravity:.7f} m/s^2 taken as exact; an error δg scales sf_x, sf_y, sf_z by 1 + δg/g")
     for p, why in sorted(left_out.items()):
         notes.append(f"position {p} left out: {why}")
@@ -249,8 +252,9 @@ def calibrate_fine(
             "positions_used": [d.position for d in usable],
             "left_out": {int(k): v for k, v in sorted(left_out.items())},
             "iterations": solution.iterations,
-            "chi2_whitened": chi2_whitened,
             "gravity": g,
         },
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={"stage": "fine", "noise_model": None if noise is None else noise.to_document()},
     )

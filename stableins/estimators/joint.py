@@ -58,7 +58,7 @@ from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 
 
@@ -216,8 +216,13 @@ def fit_joint(
             "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
             "fine_positions_used": [d.position for d in fine_dwells],
             "iterations": solution.iterations,
-            "chi2_whitened": float(whitened @ whitened),
             "gravity": g,
         },
         whitened_residuals=whitened,
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={
+            "stage": stage,
+            "nonlinear": bool(nonlinear or bool(fine_dwells)),
+            "noise_model": None if noise is None else noise.to_document(),
+        },
     )

@@ -16,28 +16,148 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import Term
+from stableins.status import STATUSES, Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-#: Allowed parameter statuses (also used in calibration records).
-STATUSES = ("estimated", "fixed", "gauge", "unidentifiable")
+#: Relative eigenvalue below which a direction of a (correlation-scaled) information matrix counts as not determined.
+INFORMATION_RTOL = 1e-9
+#: A parameter is determined by the data alone when its share in every direction they do not determine is below this
+#: (correlation-scaled).  The fine stage's null directions (the β sums) carry sf at 3e-4 through the nonlinear model:
+#: the scale factors count as determined alone, as they are to that order.
+ALONE_LOADING = 1e-2
 
 
-def parameter_table(
-    rows: Sequence[tuple[str, float, float, str, str]], determined: Sequence[str] = (), notes: Sequence[str] = ()
-) -> list[str]:
-    """Text lines of a parameter table ``(id, value, 1σ, unit, status)`` in engineering units.
+@dataclass(frozen=True, eq=False)
+class Likelihood:
+    r"""What a stage's data say about the parameters, in canonical Gaussian form (linearized).
+
+    .. math::
+        \log L(x) = g^T (x - \hat x) - \tfrac12 (x - \hat x)^T \Lambda (x - \hat x) + \text{const}
+
+    For weighted residuals :math:`r = W(y - h(x))` and Jacobian :math:`A = W\,\partial h/\partial x` at
+    :math:`\hat x`: :math:`\Lambda = A^T A` (the Fisher information) and :math:`g = A^T r` (zero on the
+    free parameters of a converged least-squares fit).  ``Λ`` may be singular: its null space is what the
+    data do not determine (e.g. θ10 at device level, the β sums in the fine stage).  A stage that updates
+    a prior record hands this over; :func:`stableins.estimators.posterior.bayesian_update` combines it with
+    the prior.  Units are SI (``Λ`` in 1/(unit_i unit_j)).
+
+    Attributes
+    ----------
+    ids : tuple of str
+        Parameter ids, in the order of the arrays.
+    point : ndarray (n,)
+        Linearization point :math:`\hat x` [SI].
+    information : ndarray (n, n)
+        :math:`\Lambda`.
+    gradient : ndarray (n,)
+        :math:`g`.
+    """
+
+    ids: tuple[str, ...]
+    point: NDArray[np.float64]
+    information: NDArray[np.float64]
+    gradient: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        n = len(self.ids)
+        for name, shape in (("point", (n,)), ("information", (n, n)), ("gradient", (n,))):
+            array = np.array(getattr(self, name), dtype=float)
+            if array.shape != shape:
+                raise ValueError(f"Likelihood: {name} has shape {array.shape}, expected {shape}")
+            if not np.all(np.isfinite(array)):
+                raise ValueError(f"Likelihood: {name} is not finite")
+            if name == "information":
+                array = 0.5 * (array + array.T)
+            array.setflags(write=False)
+            object.__setattr__(self, name, array)
+        if len(set(self.ids)) != n:
+            raise ValueError("Likelihood: an id appears twice")
+
+    @classmethod
+    def from_weighted(
+        cls, ids: Sequence[str], point: NDArray[np.float64], jacobian: NDArray[np.float64], residuals: NDArray[np.float64]
+    ) -> Likelihood:
+        """From whitened residuals ``r = W(y − h(x̂))`` and Jacobian ``A = W ∂h/∂x`` at ``x̂``."""
+        a = np.asarray(jacobian, dtype=float)
+        return cls(tuple(ids), np.asarray(point, dtype=float), a.T @ a, a.T @ np.asarray(residuals, dtype=float))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Likelihood):
+            return NotImplemented
+        return self.ids == other.ids and all(
+            np.array_equal(getattr(self, k), getattr(other, k)) for k in ("point", "information", "gradient")
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def index(self, parameter_id: str) -> int:
+        return self.ids.index(parameter_id)
+
+    def conditioned(self, held: dict[str, float]) -> Likelihood:
+        """The likelihood of the other parameters with ``held`` ids fixed at the given values."""
+        keep = [k for k, i in enumerate(self.ids) if i not in held]
+        fixed = [k for k, i in enumerate(self.ids) if i in held]
+        if not fixed:
+            return self
+        shift = np.array([held[self.ids[k]] for k in fixed]) - self.point[fixed]
+        gradient = self.gradient[keep] - self.information[np.ix_(keep, fixed)] @ shift
+        return Likelihood(tuple(self.ids[k] for k in keep), self.point[keep], self.information[np.ix_(keep, keep)], gradient)
+
+    def seen(self) -> NDArray[np.bool_]:
+        """Which parameters the data see at all (a non-zero column of the information)."""
+        scale = np.sqrt(np.clip(np.diag(self.information), 0.0, None))
+        return scale > 0.0
+
+    def _scaled(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(d, Λ_s, null)``: column scale, correlation-scaled information, orthonormal basis of its null space."""
+        d = np.sqrt(np.clip(np.diag(self.information), 0.0, None))
+        inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+        scaled = self.information * np.outer(inv, inv)
+        eigenvalues, vectors = np.linalg.eigh(scaled)
+        top = max(float(eigenvalues.max(initial=0.0)), 1e-300)
+        null = vectors[:, eigenvalues <= INFORMATION_RTOL * top]
+        return d, scaled, null
+
+    def estimable(self) -> NDArray[np.bool_]:
+        """Which parameters the data determine by themselves (unit vector in the row space of ``Λ``, to :data:`ALONE_LOADING`)."""
+        d, _, null = self._scaled()
+        loading = np.linalg.norm(null, axis=1) if null.size else np.zeros(len(self.ids))
+        return (d > 0) & (loading < ALONE_LOADING)
+
+    def rank(self) -> int:
+        """Number of independent combinations the data determine."""
+        return len(self.ids) - self._scaled()[2].shape[1]
+
+    def data_only(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(value, σ)`` of each parameter from these data alone; NaN where not :meth:`estimable`.
+
+        Estimable functions do not depend on the generalized inverse used: ``x̂ + Λ⁺ g`` and ``diag Λ⁺``.
+        """
+        d, scaled, _ = self._scaled()
+        inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+        pinv = np.linalg.pinv(scaled, rcond=INFORMATION_RTOL, hermitian=True) * np.outer(inv, inv)
+        values = self.point + pinv @ self.gradient
+        sigma = np.sqrt(np.clip(np.diag(pinv), 0.0, None))
+        ok = self.estimable()
+        return np.where(ok, values, np.nan), np.where(ok, sigma, np.nan)
+
+
+def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] = (), notes: Sequence[str] = ()) -> list[str]:
+    """Text lines of a parameter table ``(id, value, 1σ, unit, status[, determined by])`` in engineering units.
 
     Unidentifiable parameters show no numbers (their value in a record is only the prior
     carried through).  Shared by :meth:`FitResult.report` and the calibration record's report.
     """
-    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} status"]
-    for parameter_id, value, sigma, unit, status in rows:
-        if status == "unidentifiable":
-            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status}")
+    sources = any(len(r) > 5 for r in rows)
+    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
+    for parameter_id, value, sigma, unit, status, *source in rows:
+        tail = f" {source[0]}" if source else ""
+        if status == Status.UNIDENTIFIABLE:
+            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
         else:
-            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status}")
+            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status:<15}{tail}".rstrip())
     if determined:
         lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
     if notes:
@@ -60,8 +180,8 @@ class FitResult:
         ``unidentifiable`` parameters the prior value carried through (never a fit).
     covariance : ndarray (n, n)
         Absolute covariance [SI²], from noise measured in the data (not scaled by χ²_ν).
-    status : tuple of str
-        One of :data:`STATUSES` per parameter.
+    status : tuple of Status
+        One of :class:`stableins.status.Status` per parameter (strings are converted).
     residuals : ndarray (m,)
         Weighted-fit residuals (observed − model) [SI of the observation].
     residual_sigma : ndarray (m,)
@@ -85,6 +205,12 @@ class FitResult:
         when it is not diagonal (correlated noise).  Then :attr:`chi2` is the exact
         ``rᵀ R⁻¹ r`` (``‖L⁻¹ r‖²``) rather than the diagonal approximation
         ``Σ (r_i/σ_i)²``.  None: the observations are independent.
+    likelihood : Likelihood or None
+        What the stage's data say about its parameters (canonical form), for a Bayesian update of a
+        prior record (:meth:`stableins.records.CalibrationRecord.updated`).
+    settings : dict
+        The options the stage ran with (JSON-ready: noise model, estimate K2, gyro drift ...), so a record
+        and a report can say, and recompute with, exactly what the calibration used.
     """
 
     stage: str
@@ -102,6 +228,8 @@ class FitResult:
     notes: tuple[str, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict)
     whitened_residuals: NDArray[np.float64] | None = None
+    likelihood: Likelihood | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.terms)
@@ -110,6 +238,7 @@ class FitResult:
         bad = set(self.status) - set(STATUSES)
         if bad:
             raise ValueError(f"FitResult: unknown status {sorted(bad)}")
+        object.__setattr__(self, "status", tuple(Status(s) for s in self.status))
         if self.whitened_residuals is not None and self.whitened_residuals.shape != self.residuals.shape:
             raise ValueError("FitResult: whitened_residuals must match residuals")
         for name in ("values", "covariance", "residuals", "residual_sigma", "singular_values", "null_space", "whitened_residuals"):

@@ -7,9 +7,11 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
     procedure.toml    copy of the procedure definition the run was started with (if any)
     prior.json        copy of the record used as prior / for the zero offsets (if any)
     device.h5         accepted dwells in the device-level data format read by ``stableins calibrate`` (HDF5)
-    estimate.json     what this run's data alone say (data-only calibration record)
-    record.json       the unit's calibration record after this run (estimate merged onto the prior)
-    report.pdf        the calibration report (when the report writer is installed)
+    system.h5         the static record of a system-level procedure
+    record.json       the one calibration record this run produces: the prior updated by the stage (a Bayesian
+                      update), or the stage's own record when it has no prior to update; it carries the stage
+                      run (data identities and times, settings, entries, fits, likelihood)
+    report.pdf        the certificate of record.json (when the report writer is installed)
 """
 
 from __future__ import annotations
@@ -37,7 +39,6 @@ SYSTEM_NAME = "system.h5"
 PLAN_NAME = "procedure.json"
 DEFINITION_NAME = "procedure.toml"
 PRIOR_NAME = "prior.json"
-ESTIMATE_NAME = "estimate.json"
 RECORD_NAME = "record.json"
 REPORT_NAME = "report.pdf"
 
@@ -51,7 +52,6 @@ class RunOutcome:
     dataset: Path | None
     replayed: int
     superseded: tuple[int, int] | None = None
-    estimate: Path | None = None
     record: Path | None = None
     report: Path | None = None
 
@@ -73,12 +73,17 @@ def start_run(
     definition_file: str | os.PathLike[str] | None = None,
     prior_file: str | os.PathLike[str] | None = None,
     timeout: float = 10.0,
+    new_calibration: bool = False,
+    fields: dict[str, str] | None = None,
 ) -> RunOutcome:
     """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
 
     ``definition_file`` (the procedure TOML) and ``prior_file`` (a calibration record whose
-    zero offsets re-point the gimbals and which a fine stage builds on) are copied into the
-    run directory first, so that a resumed run needs nothing from outside it.
+    zero offsets re-point the gimbals and which a fine or system stage updates) are copied into
+    the run directory first, so that a resumed run needs nothing from outside it.
+    ``new_calibration``: the run starts a new calibration from the prior (a record in force, e.g.
+    a field recalibration) instead of continuing the prior's calibration (e.g. the fine stage
+    after the coarse stage of the same calibration).
     """
     rundir = Path(rundir)
     console = console or Console()
@@ -130,6 +135,9 @@ def start_run(
                     "options": vars(options or RunOptions()),
                     "definition": DEFINITION_NAME if definition_file is not None else None,
                     "prior": PRIOR_NAME if prior_file is not None else None,
+                    "prior_path": str(prior_file) if prior_file is not None else None,
+                    "new_calibration": bool(new_calibration),
+                    "fields": dict(fields or {}),
                 },
             )
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
@@ -218,37 +226,105 @@ def _runner(rundir: Path, plan: Plan, session: Session, console: Console, option
 
 
 def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
-    """After the last step: write the data set, run the stage's estimation, write the records."""
-    complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
-    data_end = complete.get("utc", "") if complete is not None else ""
+    """After the last step: write the data set, run the stage's estimation, write the one record and its certificate."""
+    from dataclasses import replace
+
+    if not metadata.start_time:  # time 0 of the platform's session: the run's start, to the second
+        metadata = replace(metadata, start_time=start.get("utc", ""))
     dataset = export(rundir, runner, metadata)
     outcome = RunOutcome(rundir, runner, dataset, replayed)
     fit = _estimate(rundir, runner, metadata, dataset, start)
     if fit is None:
         return outcome
-    from stableins.records import CalibrationRecord
+    from stableins.records import CalibrationRecord, PriorReference, StageRun, file_sha256
 
-    estimate = CalibrationRecord.from_fit_result(
-        fit,
-        site=metadata,
-        inputs=[dataset] if dataset else [],
-        procedure=runner.plan.name,
-        data_start=start.get("utc", ""),
-        data_end=data_end,
-    )
-    outcome.estimate = estimate.save(rundir / ESTIMATE_NAME)
-    record = estimate
-    if start.get("prior") and runner.iteration is None:
-        record = _load_record(rundir / start["prior"]).update(estimate)
+    columns = _exported_columns(runner, dataset)
+    # the calibration date: when the run took its data, by the wall clock of the journal (a simulated platform's
+    # session clock runs faster than the wall clock; a real platform's follows it)
+    complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
+    data_start, data_end = start.get("utc", ""), complete.get("utc", "") if complete is not None else ""
+    stage_fields = {
+        "procedure": runner.plan.name,
+        "inputs": [dataset] if dataset else [],
+        "data_start": data_start,
+        "data_end": data_end,
+        "sample_rate": float(metadata.sample_rate),
+        "entries": run_entries(runner),
+        "environment": _environment(runner, columns, fit),
+    }
+    calibration_entries = _calibration_entries(runner, start)
+    prior_path = rundir / start["prior"] if start.get("prior") else None
+    if prior_path is not None and runner.iteration is None:
+        # the stage updates the prior record (fine, system): a Bayesian update, one new record
+        prior = _load_record(prior_path)
+        reference = PriorReference(file_sha256(prior_path), str(start.get("prior_path") or prior_path), prior.calibration.created)
+        record = prior.updated(
+            fit,
+            new_calibration=bool(start.get("new_calibration")),
+            prior=reference,
+            calibration_entries=calibration_entries,
+            site=metadata,
+            **stage_fields,
+        )
+    else:
+        from stableins.records import Calibration
+
+        calibration = Calibration.new(runner.plan.name, calibration_entries)
+        stage = StageRun.from_fit(fit, calibration=calibration.id, **stage_fields)
+        record = CalibrationRecord.from_fit_result(fit, site=metadata, stage=stage, calibration=calibration)
     outcome.record = record.save(rundir / RECORD_NAME)
     runner.console.say(f"calibration record written: {outcome.record}")
-    runner.console.say(fit.report())
-    outcome.report = _write_report(rundir, runner, outcome, start, fit)
+    runner.console.say(record.report())
+    outcome.report = _write_report(rundir, runner, outcome, start)
     return outcome
 
 
-def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any, fit: Any) -> Path | None:
-    """The PDF calibration report (``stableins.reporting``), if that part of stableins is installed."""
+def _calibration_entries(runner: Runner, start: Any) -> tuple[Any, ...]:
+    """The ``--set`` values no prompt of the procedure asked for: the calibration's own fields (laboratory, customer ...)."""
+    from stableins.procedures.plan import PersonStep
+    from stableins.records import parse_entries
+
+    asked = {s.key for s in runner.plan.steps if isinstance(s, PersonStep) and s.key}
+    return parse_entries([f"{k}={v}" for k, v in (start.get("fields") or {}).items() if k not in asked])
+
+
+def run_entries(runner: Runner) -> tuple[Any, ...]:
+    """What people entered at the procedure's prompts, with the prompt and the unit."""
+    from stableins.procedures.plan import PersonStep
+    from stableins.records import Entry
+
+    steps = {s.key: s for s in runner.plan.steps if isinstance(s, PersonStep) and s.key}
+    out = []
+    for key, value in runner.inputs.items():
+        step = steps.get(key)
+        value = float(value) if isinstance(value, int | float) and not isinstance(value, bool) else str(value)
+        out.append(Entry(key, value, step.unit if step else "", step.prompt if step else ""))
+    return tuple(out)
+
+
+def _exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
+    if runner.static_chunks or dataset is None:
+        return None
+    columns = accepted_columns(runner.entries)
+    return columns if len(columns["time"]) else None
+
+
+def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
+    """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
+    from stableins.records import temperature_summary
+
+    if columns is not None:
+        return temperature_summary(columns["temperature"])
+    temperature = fit.extra.get("temperature")
+    return {"temperature": {**temperature, "unit": "degC"}} if temperature else {}
+
+
+def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any) -> Path | None:
+    """The certificate of the run's record (``stableins.reporting``), if that part of stableins is installed.
+
+    It renders ``record.json`` with the evidence stored in it; the change section compares it with the
+    record it started from when the run began a new calibration (a recalibration).
+    """
     try:
         from stableins.reporting import write_report
     except ImportError:
@@ -259,9 +335,8 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any,
         target,
         outcome.record,
         data=[outcome.dataset] if outcome.dataset else [],
-        previous=rundir / start["prior"] if start.get("prior") else None,
+        previous=rundir / start["prior"] if start.get("prior") and start.get("new_calibration") else None,
         procedure=rundir / start["definition"] if start.get("definition") else None,
-        fits=[fit],
     )
     runner.console.say(f"report written: {target}")
     return target
@@ -299,6 +374,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
             "note: no system-level estimator in this installation; the record is in system.h5 for 'stableins calibrate system'"
         )
         return None
+    from dataclasses import replace
+
     from stableins.data.system import open_system_record
 
     if not start.get("prior"):
@@ -314,7 +391,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
-    return outcome.result
+    extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}
+    return replace(outcome.result, extra=extra)
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:

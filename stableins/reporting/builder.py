@@ -17,16 +17,16 @@ import hashlib
 import io
 import json
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any
 
 from stableins.data.atomic import atomic_write
 from stableins.data.errors import InputError
+from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
 from stableins.reporting.evidence import StageEvidence, stage_evidence
-from stableins.reporting.record_view import RecordView, sha256_file
 from stableins.reporting.tolerances import Tolerances
 
 TITLE = "Calibration certificate"
@@ -43,43 +43,84 @@ class ReportSummary:
     sha256: str
 
 
-def report_id_for(record: RecordView, digests: Iterable[str]) -> str:
+@dataclass(frozen=True)
+class LoadedRecord:
+    """A record read through the one reader (:meth:`CalibrationRecord.load`), with the file it came from."""
+
+    record: CalibrationRecord
+    path: str = ""
+    sha256: str = ""
+
+    @classmethod
+    def of(cls, source: CalibrationRecord | str | PathLike[str]) -> LoadedRecord:
+        if isinstance(source, CalibrationRecord):
+            return cls(source)
+        record = CalibrationRecord.load(source)
+        return cls(record, str(source), file_sha256(source))
+
+
+def report_id_for(loaded: LoadedRecord, digests: Iterable[str]) -> str:
     """Unique, reproducible report id: serial, calibration date and a digest of every input.
 
     ``SI-<serial>-<yyyymmdd>-<8 hex>``; the same inputs give the same id, any change of
     an input (record, data, previous record, procedure) gives another.
     """
+    record = loaded.record
     digest = hashlib.sha256()
-    digest.update((record.sha256 or json.dumps([p.__dict__ for p in record.parameters], sort_keys=True, default=str)).encode())
+    digest.update((loaded.sha256 or json.dumps(record.to_document(), sort_keys=True, default=str)).encode())
     for d in sorted(digests):
         digest.update(d.encode())
-    date = (record.times.get("finished") or record.times.get("started") or record.times.get("created") or "")[:10].replace("-", "")
+    date = (record.provenance.data_end or record.provenance.data_start or record.calibration.created or "")[:10].replace("-", "")
     serial = "".join(c if c.isalnum() or c in "-_" else "-" for c in record.serial_number)
     return "-".join(x for x in ("SI", serial, date, digest.hexdigest()[:8].upper()) if x)
 
 
-def collect_inputs(record: RecordView, data: Sequence[str | PathLike[str]]) -> list[sections.InputFile]:
+def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) -> list[sections.InputFile]:
     """Rows of the inputs table; a data file the record does not list is an :class:`InputError`."""
-    hashed = [(p, sha256_file(p)) for p in data]
+    record = loaded.record
+    hashed = [(p, file_sha256(p)) for p in data]
     given = {digest: Path(p).name for p, digest in hashed}
-    recorded = {digest: name for name, digest in record.inputs}
+    listed = [(s, f) for s in record.stages for f in s.inputs]
+    recorded = {f.sha256 for _, f in listed}
     rows = []
-    if record.path:
-        rows.append(sections.InputFile("calibration record", Path(record.path).name, record.sha256, "read by this report"))
-    for name, digest in record.inputs:
-        check = f"verified: {given[digest]} given to this report" if digest in given else "listed in the record; not given to this report"
-        rows.append(sections.InputFile("calibration input", name, digest, check))
+    if loaded.path:
+        rows.append(sections.InputFile("calibration record", Path(loaded.path).name, loaded.sha256, "read by this report"))
+    this = {s.id for s in record.stages_run}
+    for stage, f in listed:
+        role = f"{stage.name} data" + ("" if stage.id in this else " (earlier calibration)")
+        check = (
+            f"verified: {given[f.sha256]} given to this report" if f.sha256 in given else "listed in the record; not given to this report"
+        )
+        rows.append(sections.InputFile(role, Path(f.path).name, f.sha256, check))
     for path, digest in hashed:
         if digest in recorded:
             continue
-        if record.inputs:
+        if recorded:
             raise InputError(
-                f"SHA-256 {digest} is not among the {len(record.inputs)} inputs the calibration record lists",
+                f"SHA-256 {digest} is not among the {len(recorded)} inputs the calibration record lists",
                 path=path,
                 expected="a data file this calibration was made from",
             )
         rows.append(sections.InputFile("data", Path(path).name, digest, "the record lists no inputs"))
     return rows
+
+
+def discovered_terms(ids: Iterable[str]) -> list[Any]:
+    """Terms of the model-discovery library among ``ids`` (their engineering units for the certificate)."""
+    from stableins.discovery.library import LIBRARY
+
+    return [LIBRARY[i].term for i in ids if i in LIBRARY]
+
+
+def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence]:
+    """The residual evidence of every fit of the stages run in this calibration, as stored in the record."""
+    out = []
+    for run in record.stages_run:
+        fits = [stage_evidence(f, where, run=run.name) for f in run.fits]
+        if fits:
+            fits[-1] = replace(fits[-1], notes=run.notes, determined=run.determined)
+        out += fits
+    return out
 
 
 def read_discovery(path: str | PathLike[str]) -> dict[str, Any]:
@@ -97,35 +138,37 @@ def read_discovery(path: str | PathLike[str]) -> dict[str, Any]:
 
 def write_report(
     out: str | PathLike[str],
-    record: Any,
+    record: CalibrationRecord | str | PathLike[str],
     *,
     data: Sequence[str | PathLike[str]] = (),
-    previous: Any = None,
+    previous: CalibrationRecord | str | PathLike[str] | None = None,
     procedure: str | PathLike[str] | None = None,
     tolerances: Tolerances | None = None,
-    fits: Sequence[Any] = (),
     report_id: str | None = None,
     issued: dt.datetime | None = None,
     discovery: str | PathLike[str] | None = None,
 ) -> ReportSummary:
-    """Write the calibration report of ``record`` to ``out`` (PDF).
+    """Write the calibration certificate of ``record`` to ``out`` (PDF).
+
+    The certificate renders the record: its values, statuses, the stage that last determined each
+    parameter, the stages run and their settings, entries, environment and the residual evidence stored
+    in its stage runs.  Only a record without stored evidence (migrated from schema version 1) has its
+    device-level evidence recomputed from ``data``, with the settings its stage run states.
 
     Parameters
     ----------
     out : path
         PDF to write (atomically).
-    record : path, mapping, RecordView or object with ``to_dict()``
-        The calibration record.
+    record : path or CalibrationRecord
+        The calibration record (read by :meth:`CalibrationRecord.load`, the one reader).
     data : sequence of paths
         Data files of the calibration; their SHA-256 are checked against the record.
-    previous : same types as ``record``, optional
-        Previous calibration record of the unit, for the change section.
+    previous : path or CalibrationRecord, optional
+        Previous calibration record of the unit, for the change section (:func:`stableins.history.compare`).
     procedure : path, optional
         Procedure definition (TOML) whose ``[tolerances]`` table gives the conformity limits.
     tolerances : Tolerances, optional
         Limits given directly (overrides ``procedure``).
-    fits : sequence of FitResult or stage dictionaries, optional
-        Stage results in memory (``stableins run``); otherwise the record's ``stages``.
     report_id : str, optional
         Id to print; by default :func:`report_id_for`.
     issued : datetime, optional
@@ -138,62 +181,71 @@ def write_report(
     ReportSummary
     """
     import stableins
+    from stableins.history import compare
 
-    view = RecordView.from_any(record)
-    previous_view = RecordView.from_any(previous) if previous is not None else None
-    where = view.path or "calibration record"
-    inputs = collect_inputs(view, data)
+    loaded = LoadedRecord.of(record)
+    view = loaded.record
+    previous_loaded = LoadedRecord.of(previous) if previous is not None else None
+    where = loaded.path or "calibration record"
+    inputs = collect_inputs(loaded, data)
     evidence_notes: list[str] = []
-    if not fits and not view.stages and data:
+    stages = stored_evidence(view, where)
+    bare = [run for run in view.stages_run if not run.fits and run.name != "system"]
+    if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
         from stableins.reporting.replay import device_fits
 
-        fits, evidence_notes = device_fits(data, noise=view.noise_model)
-    stages: list[StageEvidence] = [stage_evidence(f, where) for f in (fits or view.stages)]
-    extra_terms = [t for f in fits if not isinstance(f, dict) for t in getattr(f, "terms", ())]
-    terms = content.known_terms(extra_terms)
+        settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
+        fits, evidence_notes = device_fits(data, settings)
+        stages = [stage_evidence(f, where) for f in fits] + stages
+    terms = content.known_terms(discovered_terms(view.ids))
     rows = content.parameter_rows(view, terms)
-    if previous_view is not None:
+    if previous_loaded is not None:
         inputs.append(
             sections.InputFile(
                 "previous record",
-                Path(previous_view.path).name if previous_view.path else "in memory",
-                previous_view.sha256 or "—",
+                Path(previous_loaded.path).name if previous_loaded.path else "in memory",
+                previous_loaded.sha256 or "—",
                 "read by this report",
             )
         )
     if tolerances is None:
-        if procedure is not None:
-            tolerances = Tolerances.from_procedure_file(str(procedure))
-        else:
-            tolerances = Tolerances.from_mapping(
-                view.procedure.get("tolerances"), source=f"{Path(where).name}, provenance.procedure.tolerances"
-            )
+        tolerances = Tolerances.from_procedure_file(str(procedure)) if procedure is not None else Tolerances.from_mapping(None)
     if procedure is not None:
-        inputs.append(sections.InputFile("procedure", Path(procedure).name, sha256_file(procedure), "tolerances read from it"))
+        inputs.append(sections.InputFile("procedure", Path(procedure).name, file_sha256(procedure), "tolerances read from it"))
 
-    changes = skipped = None
-    if previous_view is not None:
-        changes, skipped = content.compare(rows, content.parameter_rows(previous_view, terms))
+    comparison = changes = None
+    if previous_loaded is not None:
+        if previous_loaded.record.serial_number != view.serial_number:
+            raise InputError(
+                f"the previous record is of unit {previous_loaded.record.serial_number!r}, this one of {view.serial_number!r}",
+                path=previous_loaded.path or None,
+                field="serial_number",
+                expected="a record of the same unit",
+            )
+        comparison = compare(previous_loaded.record, view)
+        changes = content.change_rows(comparison, terms)
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = view.discovery, "calibration record"
+    discovery_document, discovery_source = dict(view.discovery or {}), "calibration record"
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
-        inputs.append(sections.InputFile("model discovery", Path(discovery).name, sha256_file(discovery), "read by this report"))
+        inputs.append(sections.InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
 
     issued = issued or dt.datetime.now(dt.UTC)
     ctx = sections.ReportContext(
         record=view,
-        report_id=report_id or report_id_for(view, [f.sha256 for f in inputs]),
+        record_path=loaded.path,
+        report_id=report_id or report_id_for(loaded, [f.sha256 for f in inputs]),
         issued=issued.strftime("%Y-%m-%d %H:%M UTC"),
         rows=rows,
         stages=stages,
         inputs=inputs,
         tolerances=tolerances,
         checks=checks,
-        previous=previous_view,
+        previous=None if previous_loaded is None else previous_loaded.record,
+        previous_path=None if previous_loaded is None else previous_loaded.path,
+        comparison=comparison,
         changes=changes,
-        skipped_changes=skipped or [],
         software_version=stableins.__version__,
         evidence_notes=evidence_notes,
         discovery=discovery_document,

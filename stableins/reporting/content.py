@@ -4,10 +4,9 @@ r"""The numbers a report states, computed from the record (no layout here).
   ``U = k u`` (``k = 2``) in engineering units through :meth:`Term.to_engineering`;
   rounded per GUM 7.2.6 (``u`` to two significant digits, the value to the same place).
 * Correlation matrix of the estimated parameters: ``ρ_ij = P_ij / (σ_i σ_j)``.
-* Change since the previous calibration: ``Δ = x_new − x_old`` with
-  ``u(Δ) = sqrt(u_new² + u_old²)`` (two calibrations with independent noise) and the
-  normalized error ``E_n = |Δ| / sqrt(U_new² + U_old²)`` (ISO 13528:2022 9.7 with k = 2);
-  ``E_n > 1`` is a significant change at about 95 %.
+* Change since the previous calibration: :func:`stableins.history.compare`, the one definition
+  ``recal`` and ``history`` use (σ of a change from how the records are related; flagged at
+  ``|z| ≥ 3``), shown here in engineering units.
 * Conformity against the procedure's tolerances (see :mod:`stableins.reporting.tolerances`).
 """
 
@@ -20,32 +19,25 @@ from dataclasses import dataclass
 from typing import Any
 
 from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms is part of this module's interface (builder)
+from stableins.history import Comparison
+from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import StageEvidence
-from stableins.reporting.record_view import RecordView
 from stableins.reporting.tolerances import Tolerances, decide, limit_for
+from stableins.status import Status
 
 #: Coverage factor of the expanded uncertainty (GUM 6.2; about 95 % for a normal distribution).
 COVERAGE_FACTOR = 2.0
 
 MINUS = "\u2212"
 
-STATUS_TEXT = {
-    "estimated": "estimated",
-    "fixed": "fixed",
-    "gauge": "gauge",
-    "unidentifiable": "not identifiable",
-}
-
-STATUS_WHY = {
-    "fixed": "held at a stated value by the procedure (not estimated)",
-    "gauge": "the data do not determine it; fixed by an explicit, documented gauge",
-    "unidentifiable": "the data do not determine it; no value is stated",
-}
-
 
 @dataclass(frozen=True)
 class ParameterRow:
-    """One row of the results table, in engineering units (``nan`` where no value is stated)."""
+    """One row of the results table, in engineering units (``nan`` where no value is stated).
+
+    ``source`` says which stage last determined the parameter (and whether in this calibration,
+    :meth:`CalibrationRecord.source_text`); ``measured`` whether a stage of this calibration saw it.
+    """
 
     id: str
     meaning: str
@@ -53,18 +45,20 @@ class ParameterRow:
     value: float
     u: float
     expanded: float
-    status: str
+    status: Status
     why: str
+    source: str = ""
+    measured: bool = True
 
     @property
     def estimated(self) -> bool:
-        return self.status == "estimated"
+        return self.status is Status.ESTIMATED
 
     def formatted(self) -> tuple[str, str, str]:
         """``(value, u, U)`` as text, rounded per GUM 7.2.6."""
-        if self.status == "unidentifiable" or not math.isfinite(self.value):
+        if self.status is Status.UNIDENTIFIABLE or not math.isfinite(self.value):
             return "not stated", "—", "—"
-        if self.status in ("fixed", "gauge") or not (self.u > 0):
+        if self.status in (Status.FIXED, Status.GAUGE) or not (self.u > 0):
             return f"{number(self.value, 6)}", "—", "—"
         return round_to_uncertainty(self.value, self.u), number(self.u, 2), number(self.expanded, 2)
 
@@ -83,7 +77,7 @@ def round_to_uncertainty(value: float, u: float) -> str:
     return f"{value:.{decimals}f}".replace("-", MINUS)
 
 
-def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR) -> list[ParameterRow]:
+def parameter_rows(record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR) -> list[ParameterRow]:
     """Results table rows in record order."""
     rows = []
     for p in record.parameters:
@@ -94,13 +88,26 @@ def parameter_rows(record: RecordView, terms: Mapping[str, Term], k: float = COV
             unit, meaning = unit_text(term.unit), term.meaning
         else:
             value, u, unit, meaning = p.value, p.sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
-        if p.status == "unidentifiable":  # the record may carry the prior value: never show it as a result
+        if p.status is Status.UNIDENTIFIABLE:  # the record may carry the prior value: never show it as a result
             value = u = math.nan
-        why = p.note
-        if not why and p.status != "estimated":
+        why = ""
+        if p.status is not Status.ESTIMATED:
             mentions = [n for n in record.notes if re.search(rf"\b{re.escape(p.id)}\b", n)]
-            why = "; ".join(mentions) or STATUS_WHY.get(p.status, "")
-        rows.append(ParameterRow(p.id, meaning, unit, value, u, k * u if math.isfinite(u) else math.nan, p.status, why))
+            why = "; ".join(mentions) or p.status.why
+        rows.append(
+            ParameterRow(
+                p.id,
+                meaning,
+                unit,
+                value,
+                u,
+                k * u if math.isfinite(u) else math.nan,
+                p.status,
+                why,
+                record.source_text(p.id),
+                record.measured_in_this_calibration(p.id),
+            )
+        )
     return rows
 
 
@@ -109,66 +116,44 @@ def unit_text(unit: str) -> str:
     return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³")
 
 
-def correlation(record: RecordView) -> tuple[tuple[str, ...], list[list[float]]]:
+def correlation(record: CalibrationRecord) -> tuple[tuple[str, ...], list[list[float]]]:
     """Correlation matrix of the estimated parameters with a positive variance."""
-    if not record.covariance_ids:
-        return (), []
-    status = {p.id: p.status for p in record.parameters}
-    keep = [
-        i
-        for i, pid in enumerate(record.covariance_ids)
-        if status.get(pid) == "estimated" and math.isfinite(record.covariance[i][i]) and record.covariance[i][i] > 0
-    ]
-    ids = tuple(record.covariance_ids[i] for i in keep)
-    sigma = [math.sqrt(record.covariance[i][i]) for i in keep]
-    matrix = [[record.covariance[i][j] / (sigma[a] * sigma[b]) for b, j in enumerate(keep)] for a, i in enumerate(keep)]
+    c = record.covariance
+    keep = [i for i, p in enumerate(record.parameters) if p.status is Status.ESTIMATED and math.isfinite(c[i, i]) and c[i, i] > 0]
+    ids = tuple(record.ids[i] for i in keep)
+    sigma = [math.sqrt(c[i, i]) for i in keep]
+    matrix = [[float(c[i, j]) / (sigma[a] * sigma[b]) for b, j in enumerate(keep)] for a, i in enumerate(keep)]
     return ids, matrix
 
 
 @dataclass(frozen=True)
-class Change:
-    """Change of one parameter since the previous calibration (engineering units)."""
+class ChangeRow:
+    """A change of :func:`stableins.history.compare` in the engineering unit of its term (presentation only)."""
 
     id: str
     unit: str
     new: float
     old: float
-    u_new: float
-    u_old: float
-
-    @property
-    def delta(self) -> float:
-        return self.new - self.old
-
-    @property
-    def u_delta(self) -> float:
-        return math.hypot(self.u_new, self.u_old)
-
-    @property
-    def normalized_error(self) -> float:
-        """``E_n = |Δ| / sqrt(U_new² + U_old²)`` with ``U = 2u``."""
-        return abs(self.delta) / (COVERAGE_FACTOR * self.u_delta) if self.u_delta > 0 else math.inf
-
-    @property
-    def significant(self) -> bool:
-        return self.normalized_error > 1.0
+    delta: float
+    u_delta: float
+    significance: float
+    significant: bool
 
 
-def compare(current: Sequence[ParameterRow], previous: Sequence[ParameterRow]) -> tuple[list[Change], list[str]]:
-    """Changes of the parameters estimated in both calibrations, and the ids that could not be compared (with why)."""
-    old = {r.id: r for r in previous}
-    changes, skipped = [], []
-    for row in current:
-        before = old.get(row.id)
-        if before is None:
-            skipped.append(f"{row.id}: not in the previous record")
-        elif not (row.estimated and before.estimated):
-            skipped.append(f"{row.id}: {STATUS_TEXT[row.status]} now, {STATUS_TEXT[before.status]} before")
-        else:
-            changes.append(Change(row.id, row.unit, row.value, before.value, row.u, before.u))
-    current_ids = {r.id for r in current}
-    skipped += [f"{r.id}: only in the previous record" for r in previous if r.id not in current_ids]
-    return changes, skipped
+def change_rows(comparison: Comparison, terms: Mapping[str, Term]) -> list[ChangeRow]:
+    """The comparison's changes in engineering units (z and the flag are the comparison's own)."""
+    rows = []
+    for c in comparison.changes:
+        term = terms.get(c.id)
+        value = (lambda x, t=term: float(t.to_engineering(x))) if term else float
+        spread = (lambda x, t=term: float(t.sigma_to_engineering(x))) if term else float
+        unit = unit_text(term.unit) if term else c.unit
+        rows.append(
+            ChangeRow(
+                c.id, unit, value(c.new), value(c.old), spread(c.difference), spread(c.sigma_difference), c.significance, c.significant
+            )
+        )
+    return rows
 
 
 @dataclass(frozen=True)
@@ -187,7 +172,7 @@ class Check:
 
 def conformity(
     rows: Sequence[ParameterRow],
-    changes: Sequence[Change] | None,
+    changes: Sequence[ChangeRow] | None,
     stages: Sequence[StageEvidence],
     tolerances: Tolerances,
 ) -> list[Check]:
@@ -199,7 +184,7 @@ def conformity(
         if limit is None:
             continue
         if not row.estimated:
-            checks.append(Check("value", row.id, row.value, math.nan, limit, row.unit, "not assessed", STATUS_TEXT[row.status]))
+            checks.append(Check("value", row.id, row.value, math.nan, limit, row.unit, "not assessed", row.status.value))
         else:
             expanded = k * row.u
             checks.append(Check("value", row.id, row.value, expanded, limit, row.unit, decide(row.value, expanded, limit, rule)))
@@ -208,7 +193,7 @@ def conformity(
         if limit is None:
             continue
         if not row.estimated:
-            checks.append(Check("uncertainty", row.id, math.nan, math.nan, limit, row.unit, "not assessed", STATUS_TEXT[row.status]))
+            checks.append(Check("uncertainty", row.id, math.nan, math.nan, limit, row.unit, "not assessed", row.status.value))
         else:
             expanded = k * row.u
             checks.append(Check("uncertainty", row.id, expanded, math.nan, limit, row.unit, "pass" if expanded <= limit else "fail"))
@@ -220,7 +205,7 @@ def conformity(
                 continue
             change = by_id.get(row.id)
             if change is None:
-                reason = "no previous calibration given" if changes is None else "not estimated in both calibrations"
+                reason = "no previous calibration given" if changes is None else "not re-measured, or not estimated in both calibrations"
                 checks.append(Check("stability", row.id, math.nan, math.nan, limit, row.unit, "not assessed", reason))
             else:
                 expanded = k * change.u_delta
@@ -248,30 +233,41 @@ def overall_verdict(checks: Sequence[Check]) -> str:
     return "PASS"
 
 
-def describe_procedure(procedure: Mapping[str, Any]) -> list[tuple[str, str]]:
-    """Procedure and method as (label, text) pairs, in a fixed order, from whatever the record states."""
-    labels = [
-        ("name", "procedure"),
-        ("version", "procedure version"),
-        ("method", "method"),
-        ("positions", "positions"),
-        ("dwell", "dwell per position [s]"),
-        ("coarse_dwell", "coarse dwell [s]"),
-        ("fine_dwell", "fine dwell [s]"),
-        ("settle", "settling time discarded [s]"),
-        ("passes", "coarse passes"),
-        ("stages", "stages run"),
-        ("system_record_duration", "system-level record [s]"),
-    ]
-    out = []
-    for key, label in labels:
-        if key in procedure:
-            value = procedure[key]
-            if isinstance(value, list | tuple):
-                value = ", ".join(map(str, value)) if len(value) <= 20 else f"{len(value)} entries"
-            out.append((label, str(value)))
-    known = {k for k, _ in labels}
-    for key, value in procedure.items():
-        if key not in known and isinstance(value, str | int | float):
-            out.append((key.replace("_", " "), str(value)))
-    return out
+def describe_settings(settings: Mapping[str, Any]) -> str:
+    """The settings a stage ran with, as one line for people (noise model, options that change the estimates)."""
+    parts = []
+    slow = settings.get("slow_noise")  # records of the first schema-2 version
+    if "slow_noise" in settings and slow is None:
+        parts.append("white noise only (no slow-noise model)")
+    model = settings.get("noise_model")
+    if isinstance(model, Mapping):
+        from stableins.noise import NoiseModel
+
+        parts.append(NoiseModel.from_document(model).describe())
+    if isinstance(slow, Mapping):
+        ug = 9.80665e-6
+        parts.append(
+            f"slow noise: bias instability {float(slow.get('bias_instability', 0.0)) / ug:.3g} µg, random walk "
+            f"{float(slow.get('random_walk', 0.0)):.3g} m/s²/√s ({slow.get('source', '')})"
+        )
+    for key in ("coarse_procedure", "fine_procedure"):
+        if key in settings:
+            parts.append(f"{key.replace('_', ' ')} {settings[key]}")
+    if settings.get("coarse_nonlinear") is False or settings.get("nonlinear") is False:
+        parts.append("coarse stage without K2")
+    if settings.get("allow_missing"):
+        parts.append("missing positions allowed")
+    if "estimate_k2" in settings:
+        parts.append("K2 from the third harmonic" if settings["estimate_k2"] else "K2 not estimated")
+    if settings.get("stage") == "system":
+        drift = settings.get("known_gyro_drift")
+        parts.append(
+            "gyro drift not given (assumed zero)"
+            if drift is None
+            else "gyro drift " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)"
+        )
+        if settings.get("gyro_drift") not in (None, "ignore"):
+            parts.append(f"gyro drift {settings['gyro_drift']}")
+        if settings.get("compensate_loop") is False:
+            parts.append("no damping-loop compensation")
+    return "; ".join(parts) or "defaults"

@@ -1,9 +1,10 @@
-"""Fit evidence for the report: stage results as plain dictionaries, and residuals per position and axis.
+"""Fit evidence for the report: the residuals of each fit, grouped per position and axis.
 
-A stage result reaches the report either in memory (a
-:class:`~stableins.estimators.result.FitResult` handed over by ``stableins run``) or
-inside the record (``stages``: the dictionaries written by :func:`fit_to_dict`).  Both
-become a :class:`StageEvidence`, the only form the report draws from.
+A fit's evidence is what a record's stage run stores (:func:`stableins.records.fit_evidence`:
+residuals, 1σ, labels and the fit's one χ², ν, χ²_ν), or a
+:class:`~stableins.estimators.result.FitResult` recomputed by the report
+(:mod:`stableins.reporting.replay`).  Both become a :class:`StageEvidence`, the only form the
+report draws from; its χ²_ν is the number the calibration printed.
 """
 
 from __future__ import annotations
@@ -39,6 +40,10 @@ class StageEvidence:
         Rank of the design and number of parameters.
     notes, determined : tuple of str
         Gauges applied, warnings; combinations the data determine.
+    chi2 : float
+        The fit's χ² (whitened where the noise is correlated between observations), as the fit computed it.
+    run : str
+        The stage run the fit belongs to (its name), "" when recomputed.
     """
 
     stage: str
@@ -48,16 +53,10 @@ class StageEvidence:
     unit: str
     rank: int
     n_parameters: int
+    chi2: float
     notes: tuple[str, ...] = ()
     determined: tuple[str, ...] = ()
-    chi2_whitened: float | None = None
-
-    @property
-    def chi2(self) -> float:
-        """χ² of the whitened residuals when the stage gives it (noise correlated between observations), else Σ(r/σ)²."""
-        if self.chi2_whitened is not None:
-            return self.chi2_whitened
-        return float(sum((r / s) ** 2 for r, s in zip(self.residuals, self.sigma, strict=True)))
+    run: str = ""
 
     @property
     def dof(self) -> int:
@@ -100,30 +99,15 @@ class StageEvidence:
         return sum(1 for label in self.labels if not (_LABEL.search(label) or _MAGNITUDE.search(label)))
 
 
-def fit_to_dict(fit: Any) -> dict[str, Any]:
-    """A FitResult as a JSON-ready dictionary (what a record's ``stages`` list holds).
-
-    Values and covariance are not repeated here: the record's parameter list carries them.
-    """
-    whitened = fit.extra.get("chi2_whitened")
-    return {
-        "stage": fit.stage,
-        "parameter_ids": list(fit.ids),
-        "rank": int(fit.rank),
-        "residual_labels": list(fit.residual_labels),
-        "residuals": [float(x) for x in fit.residuals],
-        "residual_sigma": [float(x) for x in fit.residual_sigma],
-        "residual_unit": str(fit.extra.get("residual_unit", "m/s^2")),
-        "notes": list(fit.notes),
-        "determined": list(fit.determined),
-        "chi2_whitened": None if whitened is None else float(whitened),
-    }
-
-
-def stage_evidence(source: Any, where: str = "calibration record") -> StageEvidence:
-    """:class:`StageEvidence` from a FitResult or from a dictionary written by :func:`fit_to_dict`."""
+def stage_evidence(source: Any, where: str = "calibration record", run: str = "") -> StageEvidence:
+    """:class:`StageEvidence` from a FitResult or from a fit stored in a stage run (:func:`stableins.records.fit_evidence`)."""
     if not isinstance(source, Mapping):
-        source = fit_to_dict(source)
+        from stableins.records import fit_evidence
+
+        notes, determined = tuple(source.notes), tuple(source.determined)
+        source = fit_evidence(source)
+    else:
+        notes, determined = tuple(str(x) for x in source.get("notes", [])), tuple(str(x) for x in source.get("determined", []))
     name = str(source.get("stage", "stage"))
     field = f"stages[{name}]"
     residuals = source.get("residuals")
@@ -140,6 +124,9 @@ def stage_evidence(source: Any, where: str = "calibration record") -> StageEvide
     labels = tuple(str(x) for x in source.get("residual_labels", []))
     if labels and len(labels) != len(residuals_f):
         raise InputError("residual_labels must match residuals", path=where, field=field)
+    chi2 = source.get("chi2")
+    if chi2 is None:  # not stored: Σ(r/σ)² (observations independent)
+        chi2 = sum((r / s) ** 2 for r, s in zip(residuals_f, sigma_f, strict=True))
     return StageEvidence(
         stage=name,
         labels=labels,
@@ -148,7 +135,8 @@ def stage_evidence(source: Any, where: str = "calibration record") -> StageEvide
         unit=str(source.get("residual_unit", "m/s^2")),
         rank=int(source.get("rank", 0)),
         n_parameters=len(source.get("parameter_ids", [])),
-        notes=tuple(str(x) for x in source.get("notes", [])),
-        determined=tuple(str(x) for x in source.get("determined", [])),
-        chi2_whitened=None if source.get("chi2_whitened") is None else float(source["chi2_whitened"]),
+        chi2=float(chi2),
+        notes=notes,
+        determined=determined,
+        run=run,
     )

@@ -202,24 +202,27 @@ def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
         return _png(fig)
 
 
-def changes(items: Sequence[Any]) -> tuple[bytes, float]:
-    """Change since the previous calibration, normalized by its expanded uncertainty (E_n, signed)."""
+def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]:
+    """Change since the previous calibration in units of its standard uncertainty (z = Δ/u(Δ), signed)."""
     labels = [c.id for c in items]
-    values = [c.delta / (2.0 * c.u_delta) if c.u_delta > 0 else math.copysign(math.inf, c.delta) for c in items]
+    values = [c.significance for c in items]
     with _style():
         fig = _figure(FULL_WIDTH, 2.3)
         ax = fig.add_subplot(111)
-        colours = ["#b3261e" if abs(v) > 1 else "#1f3a5f" for v in values]
+        colours = ["#b3261e" if c.significant else "#1f3a5f" for c in items]
         finite = [v if math.isfinite(v) else 0.0 for v in values]
-        ax.bar(range(len(values)), finite, color=colours, width=0.6)
-        ax.axhspan(-1, 1, color="0.88", linewidth=0, label="|E_n| ≤ 1: not significant")
-        ax.axhline(0, color="black", linewidth=0.6)
+        ax.axhspan(-threshold, threshold, color="0.88", linewidth=0, label=f"|z| < {threshold:g}: not flagged", zorder=0)
+        ax.bar(range(len(values)), finite, color=colours, width=0.6, zorder=2)
+        ax.axhline(0, color="black", linewidth=0.6, zorder=3)
         ax.set_xticks(range(len(values)), labels, rotation=90)
         from matplotlib.ticker import FuncFormatter
 
-        ax.set_yscale("symlog", linthresh=1.0)
+        limit = max([threshold + 1.0] + [1.2 * abs(v) for v in finite])
+        if limit > 10 * threshold:  # a large change: a logarithmic scale beyond the flag level keeps the small ones visible
+            ax.set_yscale("symlog", linthresh=threshold)
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
-        ax.set_ylabel("Δ / U(Δ), signed E_n")
+        ax.set_ylabel("z = Δ / u(Δ)")
+        ax.set_ylim(-limit, limit)
         ax.set_xlim(-0.6, len(values) - 0.4)
         ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
         return _png(fig)

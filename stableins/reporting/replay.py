@@ -1,39 +1,47 @@
-"""Residual evidence recomputed from the calibration's data files (when the record carries none).
+"""Residual evidence recomputed from the calibration's data files (when the record stores none).
 
-A calibration record states parameters, not residuals.  Given the device-level data
-files (already checked against the record's SHA-256), the report re-runs the
-device-level stages exactly as ``stableins calibrate device`` does with its default
-procedures, and shows their residuals, noise floor and χ²_ν.  The report says that the
-evidence was recomputed, and with what.
+A record written by this version stores the residual evidence of every fit in its stage runs.
+A record migrated from schema version 1 does not: given its device-level data files (already
+checked against the record's SHA-256), the report re-runs the device-level stages with the
+settings the record's stage run states (procedures, noise model, coarse nonlinearity)
+— or, when the record states none, with the defaults of ``stableins calibrate device`` — and
+says which.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from os import PathLike
 from typing import Any
 
 from stableins.data.errors import InputError
 
 
-def device_fits(paths: Sequence[str | PathLike[str]], noise: Any = None) -> tuple[list[Any], list[str]]:
-    """FitResults of the coarse (last pass) and fine stages re-run on the device-level files among ``paths``.
+def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None) -> tuple[list[Any], list[str]]:
+    """FitResults of the coarse and fine stages (and their fusion) re-run on the device-level files among ``paths``.
 
-    ``noise``: the record's noise model (:class:`stableins.noise.NoiseModel`), under which the
-    stages are re-run; None: measured in the dwells, as ``stableins calibrate device`` does.
+    Parameters
+    ----------
+    paths : sequence of paths
+        Data files given to the report.
+    settings : mapping, optional
+        The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``noise_model``, ``coarse_nonlinear``,
+        ``allow_missing``); the defaults of ``stableins calibrate device`` where absent.
 
     Returns
     -------
     fits : list of FitResult
         Empty when no file is a device-level session.
     notes : list of str
-        What was done, and which files were not device-level sessions.
+        What was done and with which settings, and which files were not device-level sessions.
     """
     from stableins.data.device import load_device
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.noise import NoiseModel
     from stableins.procedures.definition import load_procedure
 
+    settings = dict(settings or {})
     datasets, notes = [], []
     for path in paths:
         try:
@@ -42,23 +50,29 @@ def device_fits(paths: Sequence[str | PathLike[str]], noise: Any = None) -> tupl
             notes.append(f"{path}: not used for device-level residuals ({error.message})")
     if not datasets:
         return [], notes
-    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    names = {"coarse": settings.get("coarse_procedure", "device-coarse"), "fine": settings.get("fine_procedure", "device-fine")}
+    procedures = {stage: load_procedure(name) for stage, name in names.items()}
     summaries = []
     for dataset in datasets:
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
+    noise = settings.get("noise_model")
     calibration = calibrate_device(
         summaries,
         datasets[0].metadata,
         coarse_procedure=procedures["coarse"],
         fine_procedure=procedures["fine"],
+        allow_missing=bool(settings.get("allow_missing", False)),
+        noise=None if noise is None else NoiseModel.from_document(noise),
+        coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),
         source=source,
-        noise=noise,
     )
-    fits = [calibration.coarse] + ([calibration.fine] if calibration.fine is not None else [])
-    notes.insert(
-        0,
-        f"device-level residuals recomputed from {source} by re-running the coarse and fine stages "
-        "(procedures device-coarse and device-fine, as 'stableins calibrate device' does)",
-    )
+    fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
+    if set(settings) - {"noise_model"}:
+        how = "with the settings the record states (procedures, noise model, coarse nonlinearity)"
+    elif settings:
+        how = "with the record's noise model and otherwise the defaults of 'stableins calibrate device'"
+    else:
+        how = "with the defaults of 'stableins calibrate device' (the record states no settings)"
+    notes.insert(0, f"device-level residuals recomputed from {source} by re-running the coarse and fine stages {how}")
     return fits, notes

@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from reportlab.platypus import CondPageBreak, Flowable, KeepTogether, Paragraph
 
+from stableins.history import CHANGE_THRESHOLD, Comparison
+from stableins.records import CalibrationRecord
 from stableins.reporting import content, document, figures
-from stableins.reporting.content import MINUS, Change, Check, ParameterRow
+from stableins.reporting.content import MINUS, ChangeRow, Check, ParameterRow
 from stableins.reporting.document import escape
 from stableins.reporting.evidence import StageEvidence
-from stableins.reporting.record_view import RecordView
 from stableins.reporting.tolerances import RULE_TEXT, Tolerances
 
 NOT_RECORDED = "not recorded"
@@ -37,7 +39,7 @@ class InputFile:
 class ReportContext:
     """Everything a report states, gathered before layout."""
 
-    record: RecordView
+    record: CalibrationRecord
     report_id: str
     issued: str
     rows: list[ParameterRow]
@@ -45,9 +47,11 @@ class ReportContext:
     inputs: list[InputFile]
     tolerances: Tolerances
     checks: list[Check]
-    previous: RecordView | None = None
-    changes: list[Change] | None = None
-    skipped_changes: list[str] = field(default_factory=list)
+    record_path: str = ""
+    previous: CalibrationRecord | None = None
+    previous_path: str | None = None
+    comparison: Comparison | None = None
+    changes: list[ChangeRow] | None = None
     software_version: str = ""
     evidence_notes: list[str] = field(default_factory=list)
     figures: int = 0
@@ -73,22 +77,34 @@ def _degrees(radians: float) -> str:
 
 
 # ---------------------------------------------------------------------- sections
+def _entry(record: CalibrationRecord, key: str) -> str | None:
+    for e in record.entries:
+        if e.key == key:
+            return e.text()
+    return None
+
+
 def title_block(ctx: ReportContext) -> list[Flowable]:
     r = ctx.record
-    site = r.site
-    extra = site.extra if site else {}
+    extra = r.site.extra if r.site else {}
+
+    def field_text(key: str, default: str) -> str:
+        return _entry(r, key) or str(extra.get(key, default))
+
     rows = [
         ["Report id", ctx.report_id],
         ["Item calibrated", f"tri-axis accelerometer of a space-stable (gimbaled) INS, unit serial number {r.serial_number}"],
-        ["Laboratory", str(extra.get("laboratory", NOT_RECORDED))],
-        ["Customer", str(extra.get("customer", NOT_RECORDED))],
-        ["Location of calibration", str(extra.get("location", "on the system, at the site described in section 2"))],
-        ["Calibration performed", _period(r.times)],
+        ["Laboratory", field_text("laboratory", NOT_RECORDED)],
+        ["Customer", field_text("customer", NOT_RECORDED)],
+        ["Operator", field_text("operator", NOT_RECORDED)],
+        ["Location of calibration", field_text("location", "on the system, at the site described in section 2")],
+        ["Calibration performed", _period(r)],
+        ["Procedure", r.calibration.procedure or NOT_RECORDED],
         ["Date of issue", ctx.issued],
         [
             "Software",
-            f"stableins {ctx.software_version} (calibration record written by stableins "
-            f"{r.software_version or NOT_RECORDED}, schema {r.schema_version})",
+            f"stableins {ctx.software_version} (this certificate); calibration by {r.calibration.software or NOT_RECORDED} "
+            f"(record schema {r.schema_version})",
         ],
     ]
     return [
@@ -104,36 +120,59 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
     ]
 
 
-def _period(times: dict[str, str]) -> str:
-    if times.get("started") and times.get("finished"):
-        return f"{times['started']} to {times['finished']}"
-    if times.get("started") or times.get("finished"):
-        return times.get("started") or times.get("finished")
-    if times.get("created"):
-        return f"record created {times['created']} (times of the data not recorded)"
+def _period(record: CalibrationRecord) -> str:
+    p = record.provenance
+    if p.data_start and p.data_end:
+        return f"{p.data_start} to {p.data_end} (data of the stages run)"
+    if p.data_start or p.data_end:
+        return p.data_start or p.data_end
+    if p.created:
+        return f"record created {p.created} (times of the data not recorded)"
     return NOT_RECORDED
+
+
+def _span(start: str, end: str) -> str:
+    if start and end:
+        return f"{start} to {end}"
+    return start or end or NOT_RECORDED
 
 
 def method(ctx: ReportContext) -> list[Flowable]:
     r = ctx.record
-    rows = [["Item", "Value"]]
-    rows += [[label, text] for label, text in content.describe_procedure(r.procedure)]
-    if len(rows) == 1:
-        rows.append(["procedure", "not recorded in the calibration record"])
-    if r.site is not None:
-        rows.append(["sample rate", f"{r.site.sample_rate:g} Hz"])
-    stages = ", ".join(s.stage for s in ctx.stages)
-    if stages and not any(label == "stages run" for label, _ in rows):
-        rows.append(["stages with residual evidence", stages])
     out: list[Flowable] = [_p("1  Procedure and method", "h1")]
     out.append(
         _p(
             "Multi-position self-calibration on the system's own gimbals: the platform is turned to a sequence of positions and the "
-            "accelerometer outputs are compared with local gravity resolved through the exact gimbal kinematics (after Wu et al., "
-            "Sensors 2018, 18, 2888, with the physics re-derived and sign errors corrected; see docs/conventions.md)."
+            "accelerometer outputs are compared with local gravity resolved through the exact gimbal kinematics; at system level the "
+            "Earth-rate harmonics of the specific-force error on a static base are separated into accelerometer corrections (after "
+            "Wu et al., Sensors 2018, 18, 2888, with the physics re-derived and sign errors corrected). Each stage is a Bayesian update "
+            "of the record before it: no uncertainty grows, nothing moves along what its data do not determine."
         )
     )
-    out.append(document.table(rows, [0.32, 0.68], key_value=True))
+    rows: list[list[Any]] = [["Stage", "Procedure", "Data (UTC)", "Sample rate", "Settings"]]
+    for s in r.stages_run:
+        rate = f"{s.sample_rate:g} Hz" if s.sample_rate else NOT_RECORDED
+        rows.append([s.name, s.procedure or NOT_RECORDED, _span(s.data_start, s.data_end), rate, content.describe_settings(s.settings)])
+    out.append(_p(f"Stages run in this calibration ({escape(r.calibration.id)})", "h2"))
+    if len(rows) > 1:
+        out.append(document.table(rows, [0.13, 0.20, 0.26, 0.09, 0.32]))
+    else:
+        out.append(_p("None recorded."))
+    earlier = [s for s in r.stages if s.calibration != r.calibration.id]
+    if earlier:
+        out.append(_p("Stages of earlier calibrations the record carries over", "h2"))
+        rows = [["Stage", "Procedure", "Data (UTC)", "Calibration"]]
+        rows += [[s.name, s.procedure or NOT_RECORDED, _span(s.data_start, s.data_end), s.calibration] for s in earlier]
+        out.append(document.table(rows, [0.14, 0.22, 0.38, 0.26]))
+    if r.calibration.prior is not None:
+        prior = r.calibration.prior
+        out.append(
+            _p(
+                f"This calibration updates the record in force before it: {escape(Path(prior.path).name or 'record')} "
+                f"(SHA-256 {escape(prior.sha256[:16])}…, created {escape(prior.created or NOT_RECORDED)}).",
+                "small",
+            )
+        )
     return out
 
 
@@ -147,38 +186,51 @@ def site_environment(ctx: ReportContext) -> list[Flowable]:
                 "Local gravity, the reference of this calibration, is therefore not stated."
             )
         )
-        return out
-    env = ctx.record.environment
-    temperature = env.get("temperature")
-    if isinstance(temperature, dict) and "mean" in temperature:
-        parts = [f"mean {float(temperature['mean']):.2f} °C"]
-        if "min" in temperature and "max" in temperature:
-            parts.append(f"range {float(temperature['min']):.2f} to {float(temperature['max']):.2f} °C")
-        temperature_text = ", ".join(parts) + " (instrument temperature during the calibration)"
     else:
-        temperature_text = "not recorded in the calibration record"
-    yaw, pitch, roll = site.base_attitude
-    rows = [
-        ["Quantity", "Value"],
-        ["latitude (geodetic)", _degrees(site.latitude)],
-        ["height (ellipsoidal)", f"{site.height:.1f} m".replace("-", MINUS)],
-        ["local gravity g", f"{site.gravity:.7f} m/s²"],
-        ["source of g", site.gravity_source],
-        ["base attitude (yaw, pitch, roll)", f"{_degrees(yaw)}, {_degrees(pitch)}, {_degrees(roll)} (site survey)"],
-        ["gimbal rotation senses (s1..s4)", ", ".join(f"{s:+d}" for s in site.gimbal_senses)],
-        ["temperature", temperature_text],
-        ["reference temperature", f"{site.reference_temperature:.1f} °C"],
-    ]
-    out.append(document.table(rows, [0.32, 0.68], key_value=True))
-    out.append(
-        _p(
-            "Metrological traceability: the reference quantity of this calibration is the local gravity g stated above; scale "
-            "factors are traceable to the SI through it and its source. Angles are realized by the system's own gimbal angle sensors, "
-            "whose zero offsets are part of the model. Biases and installation angles are determined relative to these references.",
-            "small",
+        yaw, pitch, roll = site.base_attitude
+        rows = [
+            ["Quantity", "Value"],
+            ["latitude (geodetic)", _degrees(site.latitude)],
+            ["height (ellipsoidal)", f"{site.height:.1f} m".replace("-", MINUS)],
+            ["local gravity g", f"{site.gravity:.7f} m/s²"],
+            ["source of g", site.gravity_source],
+            ["base attitude (yaw, pitch, roll)", f"{_degrees(yaw)}, {_degrees(pitch)}, {_degrees(roll)} (site survey)"],
+            ["gimbal rotation senses (s1..s4)", ", ".join(f"{s:+d}" for s in site.gimbal_senses)],
+            ["reference temperature", f"{site.reference_temperature:.1f} °C"],
+        ]
+        for s in ctx.record.stages_run:
+            rows.append([f"instrument temperature ({s.name})", _temperature(s.environment)])
+        if not ctx.record.stages_run:
+            rows.append(["instrument temperature", f"{NOT_RECORDED} in the calibration record"])
+        out.append(document.table(rows, [0.32, 0.68], key_value=True))
+    entries = [(e, "calibration") for e in ctx.record.calibration.entries] + [(e, s.name) for s in ctx.record.stages_run for e in s.entries]
+    out.append(_p("Entries made during the calibration", "h2"))
+    if entries:
+        rows = [["Entry", "Value", "Asked as", "Stage"]]
+        rows += [[e.key.replace("_", " "), e.text(), e.prompt or "—", where] for e, where in entries]
+        out.append(document.table(rows, [0.22, 0.22, 0.38, 0.18]))
+    else:
+        out.append(_p("None: no value was entered by a person during this calibration."))
+    if site is not None:
+        out.append(
+            _p(
+                "Metrological traceability: the reference quantity of this calibration is the local gravity g stated above; scale "
+                "factors are traceable to the SI through it and its source. Angles are realized by the system's own gimbal angle sensors, "
+                "whose zero offsets are part of the model. Biases and installation angles are determined relative to these references.",
+                "small",
+            )
         )
-    )
     return out
+
+
+def _temperature(environment: Any) -> str:
+    temperature = environment.get("temperature") if isinstance(environment, dict) else None
+    if isinstance(temperature, dict) and "mean" in temperature:
+        text = f"mean {float(temperature['mean']):.2f} °C"
+        if "min" in temperature and "max" in temperature:
+            text += f", range {float(temperature['min']):.2f} to {float(temperature['max']):.2f} °C"
+        return text + " (from the data)"
+    return f"{NOT_RECORDED} in the data"
 
 
 def inputs(ctx: ReportContext) -> list[Flowable]:
@@ -200,28 +252,41 @@ def results(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("4  Results", "h1")]
     out.append(
         _p(
-            "Values after calibration, in engineering units: scale factors as deviation from 1 in ppm, biases in µg, angles in "
-            "arcsec, quadratic nonlinearity in µg/g² (1 g = 9.80665 m/s², the conventional value used for units only). u is the standard "
-            "uncertainty; U = k·u is the expanded uncertainty with coverage factor k = 2."
+            "Values of the record in force after this calibration, in engineering units: scale factors as deviation from 1 in ppm, "
+            "biases in µg, angles in arcsec, quadratic nonlinearity in µg/g² (1 g = 9.80665 m/s², the conventional value used for units "
+            "only). u is the standard uncertainty; U = k·u is the expanded uncertainty with coverage factor k = 2. 'Last determined by' "
+            "names the stage whose data last saw the parameter, alone or only in combination with others; a parameter no stage of this "
+            "calibration saw is 'carried over' from an earlier one."
         )
     )
-    header = ["Parameter", "Meaning", "Status", "Value", "u", "U (k = 2)", "Unit"]
+    header = ["Parameter", "Status", "Value", "u", "U (k = 2)", "Unit", "Last determined by"]
     rows: list[list[Any]] = [header]
     for row in ctx.rows:
         value, u, expanded = row.formatted()
-        rows.append([row.id, row.meaning, content.STATUS_TEXT[row.status], value, u, expanded, row.unit])
-    out.append(document.table(rows, [0.11, 0.37, 0.11, 0.12, 0.08, 0.11, 0.10], align_right=(3, 4, 5)))
+        rows.append([row.id, row.status.value, value, u, expanded, row.unit, row.source])
+    out.append(document.table(rows, [0.11, 0.13, 0.13, 0.08, 0.11, 0.09, 0.35], align_right=(2, 3, 4)))
     out.append(document.spacer(2))
     out.append(_p(_uncertainty_statement(ctx), "small"))
+    carried = [r for r in ctx.rows if r.estimated and not r.measured]
+    if carried:
+        out.append(
+            _p(
+                f"Carried over, not re-measured in this calibration: {escape(', '.join(r.id for r in carried))} "
+                "(value and u as the earlier calibration determined them, updated only through their correlation with what was "
+                "measured).",
+                "small",
+            )
+        )
     not_estimated = [r for r in ctx.rows if not r.estimated]
     out.append(_p("Parameters not estimated", "h2"))
     if not_estimated:
-        rows = [["Parameter", "Status", "Why"]] + [[r.id, content.STATUS_TEXT[r.status], r.why or NOT_RECORDED] for r in not_estimated]
+        rows = [["Parameter", "Status", "Why"]] + [[r.id, r.status.value, r.why or NOT_RECORDED] for r in not_estimated]
         out.append(document.table(rows, [0.14, 0.16, 0.70]))
     else:
         out.append(_p("None: every parameter of the model was estimated from the data."))
-    determined = [(s.stage, d) for s in ctx.stages for d in s.determined]
-    determined += [("record", d) for d in ctx.record.determined if all(d != x for _, x in determined)]
+    out.append(_p("Meaning of the parameters", "h2"))
+    out.append(document.table([["Parameter", "Meaning"]] + [[r.id, r.meaning] for r in ctx.rows], [0.14, 0.86]))
+    determined = [(s.name, d) for s in ctx.record.stages_run if s.name != "system" for d in s.determined]  # system: section 5
     if determined:
         out.append(_p("Combinations the data determine", "h2"))
         out.append(document.table([["Stage", "Combination"]] + [list(d) for d in determined], [0.14, 0.86]))
@@ -243,7 +308,8 @@ def results(ctx: ReportContext) -> list[Flowable]:
 def _uncertainty_statement(ctx: ReportContext) -> str:
     text = (
         "Uncertainty evaluation (GUM, JCGM 100:2008): u is the square root of the diagonal of the parameter covariance, propagated "
-        "by least squares from the noise measured in the calibration data (Type A, GUM 4.2). U = 2u gives a coverage probability of "
+        "by least squares and the Bayesian update of each stage from the noise measured in the calibration data (Type A, GUM 4.2). "
+        "U = 2u gives a coverage probability of "
         "about 95\u00a0% for a normal distribution (GUM 6.2, 6.3). Uncertainties are reported as estimated, not scaled by χ²_ν; "
     )
     high = [s for s in ctx.stages if s.dof > 0 and s.chi2_red > s.chi2_red_interval()[1]]
@@ -267,21 +333,22 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
     if not ctx.stages:
         out.append(
             _p(
-                "Device-level residual analysis: <b>not performed</b>; the calibration record carries no stage residuals "
+                "Residual analysis: <b>not performed</b>; the calibration record carries no residual evidence of its stages "
                 "and no device-level data file was given (--data)."
             )
         )
     else:
-        rows: list[list[Any]] = [["Stage", "Obs.", "Rank / param.", "χ²_ν", "ν", "95\u00a0% interval, noise alone", "Verdict"]]
+        rows: list[list[Any]] = [["Fit", "Stage run", "Obs.", "Rank / param.", "χ²_ν", "ν", "95\u00a0% interval, noise alone", "Verdict"]]
         colours = {}
         for i, s in enumerate(ctx.stages, start=1):
             low, high = s.chi2_red_interval()
             ok = low <= s.chi2_red <= high
             verdict = "consistent with noise" if ok else ("residuals exceed noise" if s.chi2_red > high else "residuals below noise")
-            colours[(i, 6)] = document.VERDICT_COLOURS["pass" if ok else "conditional fail"]
+            colours[(i, 7)] = document.VERDICT_COLOURS["pass" if ok else "conditional fail"]
             rows.append(
                 [
                     s.stage,
+                    s.run or "recomputed",
                     str(len(s.residuals)),
                     f"{s.rank} / {s.n_parameters}",
                     f"{s.chi2_red:.3f}",
@@ -290,7 +357,8 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
                     verdict,
                 ]
             )
-        out.append(document.table(rows, [0.10, 0.13, 0.15, 0.09, 0.07, 0.24, 0.22], align_right=(1, 3, 4), cell_colours=colours))
+        widths = [0.12, 0.13, 0.07, 0.12, 0.08, 0.06, 0.20, 0.22]
+        out.append(document.table(rows, widths, align_right=(2, 4, 5), cell_colours=colours))
         out.append(
             _p(
                 "χ²_ν = Σ(r_i/σ_i)²/ν with ν = observations − rank; σ_i is the noise floor of observation i measured in the data; "
@@ -300,6 +368,10 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
             )
         )
         for s in ctx.stages:
+            if s.stage == "system":
+                if s.notes:
+                    out.append(_p("Notes of the system stage: " + "; ".join(escape(n) for n in s.notes), "small"))
+                continue
             if s.labels and s.unlabelled == 0:
                 png, aspect = figures.residuals_by_position(s)
                 caption = (
@@ -313,41 +385,32 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
             out.append(document.figure(png, 1.0, aspect, caption))
             if s.notes:
                 out.append(_p(f"Notes of the {escape(s.stage)} stage: " + "; ".join(escape(n) for n in s.notes), "small"))
-    out.append(KeepTogether([_p("System-level harmonic fits", "h2"), *_system(ctx)]))
+    out.append(KeepTogether([_p("System-level stage", "h2"), *_system(ctx)]))
     return out
 
 
 def _system(ctx: ReportContext) -> list[Flowable]:
-    system = ctx.record.system
-    harmonics = system.get("harmonics", [])
-    records = [r for r in system.get("records", []) if {"time", "observed", "model"} <= set(r)]
-    if not harmonics and not records:
-        if "system" in ctx.record.procedure.get("stages", []):
-            return [
-                _p(
-                    "<b>Not shown</b>: the system-level stage ran (record provenance), but the record carries neither its harmonic "
-                    "fits nor its residuals, so this report cannot show them."
-                )
-            ]
-        return [_p("<b>Not performed</b>: the calibration record carries no system-level stage.")]
+    runs = [s for s in ctx.record.stages_run if s.name == "system"]
+    if not runs:
+        return [_p("<b>Not performed</b>: no system-level stage ran in this calibration.")]
     out: list[Flowable] = []
-    if harmonics:
-        rows: list[list[Any]] = [["Channel", "Period [h]", "Amplitude", "u", "Phase [°]", "Unit"]]
-        for h in harmonics:
-            rows.append(
-                [
-                    str(h.get("channel", "")),
-                    _fmt(float(h.get("period", math.nan)) / 3600.0, 4),
-                    _fmt(float(h.get("amplitude", math.nan)), 4),
-                    _fmt(float(h.get("sigma", math.nan)), 2),
-                    _fmt(math.degrees(float(h.get("phase", math.nan))), 4),
-                    str(h.get("unit", "")),
-                ]
+    for run in runs:
+        fit = next((f for f in run.fits if f.get("stage") == "system"), None)
+        if fit is not None and fit.get("chi2_red") is not None:
+            out.append(
+                _p(
+                    f"Separation of the combined coefficients (Earth-rate harmonics of the specific-force error, pitch and roll): "
+                    f"χ²_ν = {float(fit['chi2_red']):.3f} with ν = {fit.get('dof')} (table above). What these data determine, "
+                    "each with its 1σ from these data alone [rad]:"
+                )
             )
-        out.append(document.table(rows, [0.24, 0.14, 0.16, 0.14, 0.14, 0.18], align_right=(1, 2, 3, 4)))
-    if records:
-        png, aspect = figures.harmonic_fits(records)
-        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} System-level records with the fitted harmonic model."))
+        rows: list[list[Any]] = [["Combination", "Value ± 1σ", "Determined"]]
+        for line in run.determined:
+            name, _, rest = line.partition(" = ")
+            determined = "NOT determined" not in rest
+            rows.append([name, rest.replace(" (NOT determined by these data)", ""), "yes" if determined else "no (short record)"])
+        if len(rows) > 1:
+            out.append(document.table(rows, [0.50, 0.32, 0.18]))
     return out
 
 
@@ -464,37 +527,30 @@ def _diagnosis(ctx: ReportContext) -> list[Flowable]:
 
 def change(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("7  Change since the previous calibration", "h1")]
-    if ctx.previous is None or ctx.changes is None:
+    if ctx.previous is None or ctx.comparison is None or ctx.changes is None:
         out.append(_p("<b>Not performed</b>: no previous calibration record was given."))
         return out
     prev = ctx.previous
+    how = (
+        "This record updates the previous one (a Bayesian update), so their errors are correlated: u(Δ)² = u_prev² − u_new²."
+        if ctx.comparison.relation == "descendant"
+        else "The two calibrations are independent: u(Δ)² = u_prev² + u_new²."
+    )
     out.append(
         _p(
-            f"Previous record: {escape(prev.path or 'in memory')} (serial number {escape(prev.serial_number)}, "
-            f"calibrated {escape(_period(prev.times))}). "
-            "Δ = new − previous; U(Δ) = 2·sqrt(u_new² + u_prev²), the two calibrations taken as independent; E_n = |Δ| / U(Δ). "
-            "A change with E_n > 1 is significant at about 95\u00a0%."
+            f"Previous record: {escape(Path(ctx.previous_path).name if ctx.previous_path else 'in memory')} (serial number "
+            f"{escape(prev.serial_number)}, calibrated {escape(_period(prev))}). Δ = new − previous; {how} z = Δ / u(Δ) is "
+            f"standard normal when nothing changed; a change with |z| ≥ {CHANGE_THRESHOLD:g} is flagged (false-alarm probability "
+            "0.27\u00a0% per parameter). The same statistic and flag as 'stableins recal' and 'stableins history'."
         )
     )
-    if prev.serial_number != ctx.record.serial_number:
-        out.append(
-            _p(f"<b>Warning</b>: the previous record is of unit {escape(prev.serial_number)}, not {escape(ctx.record.serial_number)}.")
-        )
     if ctx.changes:
-        rows: list[list[Any]] = [["Parameter", "Previous", "Now", "Δ", "U(Δ)", "E_n", "Significant", "Unit"]]
+        rows: list[list[Any]] = [["Parameter", "Previous", "Now", "Δ", "u(Δ)", "z", "Changed", "Unit"]]
         colours = {}
         for i, c in enumerate(ctx.changes, start=1):
+            z = f"{c.significance:.2f}".replace("-", MINUS) if math.isfinite(c.significance) else "—"
             rows.append(
-                [
-                    c.id,
-                    _fmt(c.old, 5),
-                    _fmt(c.new, 5),
-                    _fmt(c.delta, 3),
-                    _fmt(2 * c.u_delta, 2),
-                    f"{c.normalized_error:.2f}",
-                    "yes" if c.significant else "no",
-                    c.unit,
-                ]
+                [c.id, _fmt(c.old, 5), _fmt(c.new, 5), _fmt(c.delta, 3), _fmt(c.u_delta, 2), z, "yes" if c.significant else "no", c.unit]
             )
             if c.significant:
                 colours[(i, 6)] = document.VERDICT_COLOURS["fail"]
@@ -507,12 +563,12 @@ def change(ctx: ReportContext) -> list[Flowable]:
                 png,
                 1.0,
                 aspect,
-                f"{ctx.figure_label()} Change of each parameter divided by its expanded uncertainty (signed E_n); "
-                "bars outside the grey band are significant.",
+                f"{ctx.figure_label()} Change of each parameter in units of its standard uncertainty (z); "
+                f"bars beyond ±{CHANGE_THRESHOLD:g} are flagged.",
             )
         )
-    if ctx.skipped_changes:
-        out.append(_p("Not compared: " + "; ".join(escape(s) for s in ctx.skipped_changes) + ".", "small"))
+    if ctx.comparison.skipped:
+        out.append(_p("Not compared: " + "; ".join(escape(s) for s in ctx.comparison.skipped) + ".", "small"))
     return out
 
 
@@ -561,7 +617,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
 def closing(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(140), _p("9  Notes and authorization", "h1")]
     if ctx.record.notes:
-        out.append(document.table([["Notes from the calibration record"]] + [[n] for n in ctx.record.notes], [1.0]))
+        out.append(document.table([["Notes from the calibration record"]] + [[escape(n)] for n in ctx.record.notes], [1.0]))
     else:
         out.append(_p("The calibration record carries no notes."))
     out.append(document.spacer(6))

@@ -44,12 +44,13 @@ from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
 from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
 from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums, second_difference_sums
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+from stableins.status import Determination, Status
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
 #: (HDF5 records with a /time_grid: time only at the attitude decimation, the rest reconstructed).
@@ -395,6 +396,10 @@ def run_system_stage(
     nav_to_body = dcm_nav_to_body(*base)
     if general:
         columns += ["angle_inner", "angle_middle"]
+    has_temperature = "temperature" in getattr(source, "columns", ())
+    if has_temperature:
+        columns.append("temperature")  # read at the attitude decimation: what the data carry about the environment
+    temperature = [math.inf, -math.inf, 0.0, 0]  # min, max, sum, count
     compensation = _Compensation.from_values(prior)
     block = block_length(rate)
     chunk_rows = max(block, (options.chunk_rows // block) * block)
@@ -490,6 +495,14 @@ def run_system_stage(
         attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
         sparse = slice(phase, None, 10 * decimation)  # the polar check is a record mean: one sample per 10 decimated ones
         checks.polar(fx[sparse], fy[sparse], fz[sparse])
+        if has_temperature and chunk["temperature"].size:
+            tc = chunk["temperature"]
+            temperature = [
+                min(temperature[0], float(tc.min())),
+                max(temperature[1], float(tc.max())),
+                temperature[2] + float(tc.sum()),
+                temperature[3] + tc.size,
+            ]
         seen += n
 
     if seen == 0 or attitude_blocks is None:
@@ -649,25 +662,40 @@ def run_system_stage(
             warnings.warn(f"{path}: {notes[-1]}", UserWarning, stacklevel=2)
     names_used = list(COMBINED_COEFFICIENTS)
 
-    # ---------------------------------------------------------------- separation
+    # ---------------------------------------------------------------- what the data determine (data-only separation)
     scale = _residual_scale(prior, gravity)
     prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
     sep = separate(names_used, combined_values, combined_cov, latitude, prior_sigma=prior_sigma, transform=transform)
+    if sep.dof < 1 or not any(ok for _, _, ok in sep.combinations.values()):
+        what = (
+            f"none of the combinations the separation needs ({'; '.join(sep.combinations)}) is determined"
+            if not any(ok for _, _, ok in sep.combinations.values())
+            else f"the {kept} combinations it resolves are all used by the {sep.rank} the separation estimates (ν = 0): its χ²_ν is "
+            "undefined and nothing is left to test the model"
+        )
+        raise InputError(
+            f"the record of {duration / 3600:.2f} h determines nothing the stage can certify: {what}; over less than one sidereal day "
+            "the Earth-rate harmonics are not separable from one another (the data lack one sidereal day). Nothing was estimated "
+            "and no record was written",
+            path=path,
+            field="time",
+            expected=f"a static record of one sidereal day ({SIDEREAL_DAY / 3600:.2f} h) or more",
+        )
+    k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
+    likelihood, fit = _likelihood(prior, latitude, gravity, v, cov_v, to_combined, transform, options.estimate_k2)
     result, corrections = _fit_result(
         sep,
+        fit,
+        likelihood,
         prior,
         prior_res_cov,
         scale,
-        latitude,
         gravity,
         transform,
-        combined_values,
-        combined_cov,
         notes,
-        _fixed_variance(prior_covariance),
-        k2_estimate=(k2_values, cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity]))
-        if options.estimate_k2
-        else None,
+        _prior_term_covariance(prior_covariance, prior_res_cov, scale),
+        _settings(options),
+        k2=(k2_values, k2_covariance) if options.estimate_k2 else None,
     )
 
     status = tuple("estimated" if ok else "unidentifiable" for ok in observable)
@@ -705,6 +733,10 @@ def run_system_stage(
         "attitude_excursion": checks.excursion,
         "loop": loop,
         "sampling": checks.summary(),
+        "temperature": None
+        if temperature[3] == 0
+        else {"mean": temperature[2] / temperature[3], "min": temperature[0], "max": temperature[1]},
+        "time_span": (checks.first_time, checks.last_time),
     }
     return SystemCalibration(
         result=result,
@@ -919,6 +951,34 @@ def _k2_map(latitude: float, estimate_k2: bool) -> NDArray[np.float64]:
     return m
 
 
+def _prior_term_covariance(
+    prior_covariance: Mapping[tuple[str, str], float] | None, prior_res_cov: NDArray[np.float64], scale: Mapping[str, float]
+) -> NDArray[np.float64]:
+    """Prior covariance over CORE_TERMS: the prior's own entries (all correlations), nominal magnitudes where it has none.
+
+    The residual block is :func:`_prior_residual_covariance` mapped back to the terms; K2 terms and their cross terms
+    with the others come from the prior as given (a record's covariance), their variance nominal² when missing.
+    """
+    terms = CORE_TERMS
+    res_index = {_term_id(r): i for i, r in enumerate(hm.RESIDUAL_NAMES)}
+    j = {_term_id(r): scale[r] for r in hm.RESIDUAL_NAMES}
+    fixed = _fixed_variance(prior_covariance)
+    cov = np.zeros((len(terms), len(terms)))
+    for a, ta in enumerate(terms):
+        for b, tb in enumerate(terms):
+            if ta.id in res_index and tb.id in res_index:
+                cov[a, b] = prior_res_cov[res_index[ta.id], res_index[tb.id]] * j[ta.id] * j[tb.id]
+            elif a == b:
+                cov[a, b] = fixed[ta.id]
+            else:
+                value = None if prior_covariance is None else prior_covariance.get((ta.id, tb.id))
+                cov[a, b] = float(value) if value is not None and np.isfinite(value) else 0.0
+    cov = 0.5 * (cov + cov.T)
+    if np.linalg.eigvalsh(cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))).min() <= 0.0:  # mixed sources broke it: no cross terms
+        cov = np.where(np.outer([t.id in res_index for t in terms], [t.id in res_index for t in terms]), cov, np.diag(np.diag(cov)))
+    return cov
+
+
 def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> dict[str, float]:
     """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
     out = {}
@@ -990,132 +1050,158 @@ def _prior_residual_covariance(
     return 0.5 * (cov + cov.T)
 
 
+def _settings(options: SystemOptions) -> dict[str, Any]:
+    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame)."""
+    from dataclasses import asdict
+
+    out = asdict(options)
+    if out["known_gyro_drift"] is not None:
+        out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
+    return {"stage": "system", **out}
+
+
+@dataclass(frozen=True)
+class _SeparationFit:
+    """The measurement the stage hands to the Bayesian update, and its own least-squares fit (χ², ν)."""
+
+    labels: tuple[str, ...]
+    values: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    residuals: NDArray[np.float64]
+    whitened: NDArray[np.float64]
+    rank: int
+
+
+def _likelihood(
+    prior: Mapping[str, float],
+    latitude: float,
+    gravity: float,
+    v: NDArray[np.float64],
+    cov_v: NDArray[np.float64],
+    to_combined: NDArray[np.float64],
+    transform: NDArray[np.float64],
+    estimate_k2: bool,
+) -> tuple[Likelihood, _SeparationFit]:
+    r"""What the record says about the accelerometer parameters: a :class:`Likelihood` (docs/system-calibration.md §4).
+
+    Measurement ``w = T c`` (the combinations of the combined coefficients ``c`` the record resolves; with
+    ``estimate_k2`` also the third-harmonic states ``x6 = gΔK2_x/4``, ``x7 = −gΔK2_y/4``), covariance ``R`` from
+    ``cov_v``.  Model ``w = H q + e`` over the residuals ``q`` (true − installed, :data:`harmonics.RESIDUAL_NAMES`;
+    ΔK2_x, ΔK2_y with ``estimate_k2``) and the two mean nuisances (base tilt and gimbal zero offsets in the pitch and
+    roll means).  The nuisances have no prior: they are eliminated exactly by projecting the whitened measurement
+    on the complement of their columns.  With whitened ``A = R^{-1/2} H`` and ``r = R^{-1/2} w`` (at ``q = 0``,
+    the installed calibration), ``Λ_q = A_pᵀ A_p``, ``g_q = A_pᵀ r_p``; in the record's parameters
+    ``x = x_0 + J q`` (``J``: the installed scale factor for ``D``, ``g`` for a bias residual, 1 for angles and K2),
+    ``Λ = J⁻¹ Λ_q J⁻¹``, ``g = J⁻¹ g_q`` at the point ``x_0``.
+    """
+    from stableins.estimators.system.separation import combination_matrix
+
+    n_res = len(hm.RESIDUAL_NAMES)
+    rows = transform @ to_combined  # (k, 17)
+    g_full = combination_matrix(latitude)  # (15, 14): residuals, then the two nuisances
+    h_res = transform @ g_full[:, :n_res]
+    h_nuisance = transform @ g_full[:, n_res:]
+    labels = list(COMBINED_COEFFICIENTS) if transform.shape[0] == 15 else [f"combination {k + 1}" for k in range(transform.shape[0])]
+    ids = [_term_id(r) for r in hm.RESIDUAL_NAMES]
+    jac = [float(_residual_scale(prior, gravity)[r]) for r in hm.RESIDUAL_NAMES]
+    if estimate_k2:
+        rows = np.vstack([rows, np.eye(17)[5:7]])
+        h_res = np.block([[h_res, np.zeros((h_res.shape[0], 2))], [np.zeros((2, n_res)), np.diag([gravity / 4.0, -gravity / 4.0])]])
+        h_nuisance = np.vstack([h_nuisance, np.zeros((2, 2))])
+        labels += ["x6", "x7"]
+        ids += ["K2_x", "K2_y"]
+        jac += [1.0, 1.0]
+    w = rows @ v
+    cov_w = rows @ cov_v @ rows.T
+    sd = np.sqrt(np.diag(cov_w))
+    chol = np.linalg.cholesky(cov_w / np.outer(sd, sd)) * sd[:, None]
+    whiten = np.linalg.inv(chol)
+    a_res, a_nui, r = whiten @ h_res, whiten @ h_nuisance, whiten @ w
+    # eliminate the nuisances (flat prior): project on the orthogonal complement of their whitened columns
+    pinv_n = np.linalg.pinv(a_nui, rcond=1e-10)
+    a_p = a_res - a_nui @ (pinv_n @ a_res)
+    r_p = r - a_nui @ (pinv_n @ r)
+    j_inv = 1.0 / np.array(jac)
+    information = (a_p.T @ a_p) * np.outer(j_inv, j_inv)
+    gradient = (a_p.T @ r_p) * j_inv
+    point = np.array([float(prior.get(i, 1.0 if i.startswith("sf_") else 0.0)) for i in ids])
+    likelihood = Likelihood(tuple(ids), point, information, gradient)
+    # the stage's own least-squares fit of the measurement (residuals, χ², ν = measurements − rank)
+    a_full = np.hstack([a_res, a_nui])
+    solution, *_ = np.linalg.lstsq(a_full, r, rcond=1e-10)
+    rank = int(np.linalg.matrix_rank(a_full, tol=1e-10 * np.linalg.norm(a_full, 2)))
+    whitened = r - a_full @ solution
+    fit = _SeparationFit(tuple(labels), w, sd, chol @ whitened, whitened, rank)
+    return likelihood, fit
+
+
 def _fit_result(
     sep: Separation,
+    fit: _SeparationFit,
+    likelihood: Likelihood,
     prior: Mapping[str, float],
     prior_res_cov: NDArray[np.float64],
     scale: Mapping[str, float],
-    latitude: float,
     gravity: float,
     transform: NDArray[np.float64],
-    combined_values: NDArray[np.float64],
-    combined_cov: NDArray[np.float64],
     notes: list[str],
-    fixed_variance: Mapping[str, float],
-    k2_estimate: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prior_cov: NDArray[np.float64],
+    settings: dict[str, Any],
+    k2: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
-    from stableins.estimators.system.separation import combination_matrix
+    """The stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS)."""
+    from stableins.estimators.posterior import bayesian_update
 
-    n = len(hm.RESIDUAL_NAMES)
-    p = sep.values[:n]
-    # new − true = (I − K G)(prior − true) + K e, with K the gauge-fixed solution map
-    g_full = transform @ combination_matrix(latitude)
-    k_map = _solution_map(sep, g_full, transform @ combined_cov @ transform.T, prior_res_cov)
-    kg = (k_map @ g_full)[:n, :n]
-    ikg = np.eye(n) - kg
-    cov_res = ikg @ prior_res_cov @ ikg.T + sep.covariance[:n, :n]
-    j = np.array([scale[r] for r in hm.RESIDUAL_NAMES])
-    model_ids = [t.id for t in CORE_TERMS]
-    terms = tuple(t for t in CORE_TERMS)
-    values = []
-    corrections = {}
-    k2_index = {"K2_x": 0, "K2_y": 1}
-    for t in terms:
-        if t.kind == "nonlinearity":
-            base = float(prior.get(t.id, 0.0))
-            if k2_estimate is not None and t.id in k2_index:
-                corrections[t.id] = float(k2_estimate[0][k2_index[t.id]])
-                values.append(base + corrections[t.id])
-            else:
-                values.append(base)
-            continue
-        r = next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)
-        k = hm.RESIDUAL_NAMES.index(r)
-        base = float(prior.get(t.id, t.reference))
-        if t.kind == "scale_factor":
-            new = base / (1.0 - p[k])
-        elif t.kind == "bias":
-            new = base + gravity * p[k]
-        else:
-            new = base + p[k]
-        corrections[t.id] = new - base
-        values.append(new)
-    cov = np.zeros((len(terms), len(terms)))
-    res_index = [
-        hm.RESIDUAL_NAMES.index(next(r for r in hm.RESIDUAL_NAMES if _term_id(r) == t.id)) if t.kind != "nonlinearity" else -1
-        for t in terms
-    ]
-    for a, ia in enumerate(res_index):
-        for b, ib in enumerate(res_index):
-            if ia >= 0 and ib >= 0:
-                cov[a, b] = cov_res[ia, ib] * j[ia] * j[ib]
-    status = []
-    for t, ia in zip(terms, res_index, strict=True):
-        if ia < 0:
-            k = model_ids.index(t.id)
-            if k2_estimate is not None and t.id in k2_index:
-                status.append("estimated")
-                cov[k, k] = float(k2_estimate[1][k2_index[t.id], k2_index[t.id]])
-            else:
-                status.append("fixed")
-                cov[k, k] = fixed_variance.get(t.id, t.nominal**2)
-        else:
-            status.append("estimated" if sep.determined[ia] else "gauge")
+    terms = tuple(CORE_TERMS)
+    ids = [t.id for t in terms]
+    prior_values = np.array([float(prior.get(t.id, t.reference)) for t in terms])
+    post = bayesian_update(ids, prior_values, prior_cov, [Status.ESTIMATED] * len(ids), likelihood)
+    corrections = {t.id: float(post.values[k] - prior_values[k]) for k, t in enumerate(terms) if post.determination[k] is not None}
     determined = tuple(
         f"{name} = {value:.4e} ± {sigma:.2e}" + ("" if ok else " (NOT determined by these data)")
         for name, (value, sigma, ok) in sep.combinations.items()
     )
-    null_terms = np.zeros((len(terms), sep.null_space.shape[1]))
-    for a, ia in enumerate(res_index):
-        if ia >= 0:
-            null_terms[a] = sep.null_space[ia] * j[ia]
-    if null_terms.size:
-        null_terms /= np.linalg.norm(null_terms, axis=0, keepdims=True)
+    seen = [t.id for t, d in zip(terms, post.determination, strict=True) if d is not None]
+    alone = [t.id for t, d in zip(terms, post.determination, strict=True) if d is Determination.ALONE]
     notes = list(notes) + [
-        "gauge: corrections along combinations the data determine are shared among the parameters in proportion to their prior "
-        "variances; directions the data do not see keep the prior values (and their prior uncertainty)",
+        "Bayesian update of the installed calibration (the prior): the data's information on the combinations they determine "
+        "is added to the prior's, so no uncertainty grows and nothing moves along what the data do not see; determined by "
+        f"these data alone: {', '.join(alone) or 'none'}; in combination only: {', '.join(i for i in seen if i not in alone) or 'none'}",
         "b_x and beta_xy act only through b_x/g - beta_xy*sinL, b_y and beta_yx only through b_y/g + beta_yx*sinL "
         "(paper Eq. 41 is singular); (beta_xz+beta_yz)/2 is indistinguishable from the platform-axis zero offset; the scale factors "
         "and b_z enter only through x1",
         (
-            "K2_x, K2_y corrected from the third harmonic of Earth rate in z (not in the paper's model); their covariance with "
-            "the other terms is not carried (set to zero); K2_z is not observed and keeps its prior"
-            if k2_estimate is not None
-            else "K2 terms are not corrected by this stage and keep their prior values and variances (nominal magnitude when the prior "
+            "K2_x, K2_y measured by the third harmonic of Earth rate in z (not in the paper's model) and updated with the rest; "
+            "K2_z is not observed and keeps its prior"
+            if k2 is not None
+            else "K2 terms are not seen by this stage and keep their prior values and variances (nominal magnitude when the prior "
             "has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, --estimate-k2)"
         ),
     ]
     result = FitResult(
         stage="system",
         terms=terms,
-        values=np.array(values),
-        covariance=0.5 * (cov + cov.T),
-        status=tuple(status),
-        residuals=sep.residuals,
-        residual_sigma=sep.residual_sigma,
-        residual_labels=tuple(COMBINED_COEFFICIENTS)
-        if transform.shape[0] == 15
-        else tuple(f"combination {k + 1}" for k in range(transform.shape[0])),
-        rank=sep.rank,
+        values=np.array(post.values, dtype=float),
+        covariance=np.array(post.covariance, dtype=float),
+        status=post.status,
+        residuals=fit.residuals,
+        residual_sigma=fit.sigma,
+        residual_labels=fit.labels,
+        rank=fit.rank,
         singular_values=sep.singular_values,
-        null_space=null_terms,
+        null_space=np.zeros((len(terms), 0)),
         determined=determined,
         notes=tuple(notes),
-        extra={"residual_corrections": dict(zip(hm.RESIDUAL_NAMES, map(float, p), strict=True)), "nuisance": sep.values[n:]},
+        extra={
+            "nuisance": sep.values[len(hm.RESIDUAL_NAMES) :],
+            "determination": dict(zip(ids, post.determination, strict=True)),
+            "k2_data_only": None if k2 is None else {"values": k2[0], "covariance": k2[1]},
+        },
+        whitened_residuals=fit.whitened,
+        likelihood=likelihood,
+        settings=settings,
     )
     return result, corrections
-
-
-def _solution_map(sep: Separation, g: NDArray, cov: NDArray, prior_res_cov: NDArray) -> NDArray[np.float64]:
-    """Linear map K from coefficients to the gauge-fixed solution (same SVD as :func:`separate`)."""
-    scale = np.concatenate([np.sqrt(np.diag(prior_res_cov)), [1e-4, 1e-4]])
-    sd = np.sqrt(np.diag(cov))
-    chol = np.linalg.cholesky(cov / np.outer(sd, sd))
-    whiten = np.linalg.solve(chol, np.diag(1.0 / sd))
-    a = whiten @ g * scale[None, :]
-    u, sv, vt = np.linalg.svd(a, full_matrices=False)
-    r = sep.rank
-    return (scale[:, None] * (vt[:r].T / sv[:r]) @ u[:, :r].T) @ whiten
 
 
 # --------------------------------------------------------------------------- checks
