@@ -243,7 +243,7 @@ def describe_settings(settings: Mapping[str, Any]) -> str:
     if isinstance(model, Mapping):
         from stableins.noise import NoiseModel
 
-        parts.append(NoiseModel.from_document(model).describe())
+        parts.append(NoiseModel.from_document(model).summary())
     if isinstance(slow, Mapping):
         ug = 9.80665e-6
         parts.append(
