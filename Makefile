@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 OUT    ?= demo-output
 
-.PHONY: setup system-deps demo test lint bench clean
+.PHONY: setup system-deps demo test installed-demo lint bench clean
 
 $(BIN)/stableins: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,12 @@ system-deps:
 test: setup system-deps
 	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
 	MPLBACKEND=Agg $(BIN)/python -m pytest
+	$(MAKE) --no-print-directory installed-demo
+
+# The wheel as a user installs it: built from this checkout, installed into a fresh venv outside it,
+# `stableins demo` run there (version and procedures must come from the package, not the checkout).
+installed-demo: setup
+	MPLBACKEND=Agg PYTHON=$(PYTHON) .ci/installed-demo
 
 lint: setup
 	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)

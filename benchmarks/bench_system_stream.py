@@ -145,6 +145,15 @@ def stage(path: Path, rows: int, limit_days: float | None = None, trace: bool = 
     return elapsed, peak, int(out.diagnostics["samples"])
 
 
+def validation(path: Path) -> float:
+    """Seconds of the validation pass that ``stableins check`` and ``stableins calibrate system`` run before the stage."""
+    from stableins.data.system import open_system_record
+
+    t0 = time.perf_counter()
+    open_system_record(path).validate()
+    return time.perf_counter() - t0
+
+
 def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
     """Where one run of the stage spends its time: the source's reads and the stage's parts (section timers).
 
@@ -270,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         lengths = [d for d in (2.0, 3.0, 5.0) if d < args.days]
         peaks = [stage(path, args.rows, limit_days=d, trace=True)[1] for d in lengths]
         split = min((breakdown(path, args.rows) for _ in range(r)), key=lambda run: run[0])
+        t_validate = min(validation(path) for _ in range(r))
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         rss_imports, rss_stage = stage_rss(path, args.rows)
     finally:
@@ -286,6 +296,10 @@ def main(argv: list[str] | None = None) -> int:
             f"ratio {ts / tp:.2f} to the h5py baseline (target <= 2), {ts / tb:.2f} to the reader's"
         )
     print(f"  baseline, h5py slices with the chunk cache off   : {t_base_fast:7.3f} s  -> stage ratio {t_stage / t_base_fast:.2f}")
+    print(
+        f"  validation pass of check / calibrate system (every column, time base, /overview, /time_grid): {t_validate:7.3f} s "
+        f"({t_validate / n * 1e9:5.1f} ns/sample; SystemRecord.validate, before the stage)"
+    )
     total, timers = split
     print(f"where the stage's time goes (whole record, section timers, fastest of {r} runs: {total:.3f} s in all):")
     for label, seconds in sorted(timers.items(), key=lambda item: -item[1]):

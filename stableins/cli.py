@@ -21,11 +21,23 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
-from stableins import __version__
+
+class _Version(argparse.Action):
+    """``--version``: computed only when asked for (it may ask git), so other commands stay fast."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help="print the version (from git) and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object, option_string: str | None = None):
+        import stableins
+
+        print(f"stableins {stableins.__version__}")
+        parser.exit()
 
 
 class Command(NamedTuple):
@@ -69,7 +81,15 @@ EXIT_INTERRUPTED = 130
 
 
 class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors use the CLI's one-line format and exit status 2."""
+    """ArgumentParser whose errors use the CLI's one-line format and exit status 2.
+
+    Negative numbers in scientific notation (``--gyro-drift -1e-3 0 0``) are values, not options (Python 3.11's
+    argparse only knows ``-1`` and ``-1.5``): no stableins option looks like a number.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?$|^-inf$|^-nan$")
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)
@@ -111,7 +131,7 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
         description="On-system calibration of the accelerometer triad of a space-stable inertial navigation system.",
         epilog="Run 'stableins COMMAND --help' for a command's options.  Exit status: 0 ok, 1 failure, 2 bad input, 130 interrupted.",
     )
-    parser.add_argument("--version", action="version", version=f"stableins {__version__}")
+    parser.add_argument("--version", action=_Version)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add(subparsers, COMMANDS, argv, ())
     return parser
@@ -135,6 +155,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except (IsADirectoryError, NotADirectoryError) as error:  # a path mix-up the argument checks could not see: bad input
+        wanted = "a file, not a directory" if isinstance(error, IsADirectoryError) else "a directory on the way, not a file"
+        where = error.filename2 or error.filename
+        print(f"stableins: error: {where}: {error.strerror.lower()} (expected {wanted})", file=sys.stderr)
+        return EXIT_USAGE
     except OSError as error:  # disk full, permission denied ... on a file the user named: no traceback
         if isinstance(error, BrokenPipeError):
             return 0

@@ -1,13 +1,10 @@
-r"""Calibration history of each unit: records by serial number, the record in force, staleness, drift.
+r"""Calibration history of each unit: change significance and drift across a unit's records.
 
-Store layout (``--store DIR``, default ``$STABLEINS_HISTORY`` or ``~/.local/share/stableins/history``)::
-
-    DIR/<serial>/index.json                   entries, oldest first (rewritten atomically)
-    DIR/<serial>/<valid-from>-<sha8>.json     the records, copied in byte for byte
-
-An entry is *in force* from its ``valid_from`` time (the end of the data it was estimated
-from, or its creation time) until the next entry's.  A record older than ``max_age`` at the
-date asked about is *stale*: it is still returned, with a warning.
+The records themselves are kept by the history store (:mod:`stableins.history_store`: SQLite index, records
+verified by their SHA-256 when read); ``HistoryStore`` and ``Entry`` are importable from here too.  An entry
+is *in force* from its ``valid_from`` time (the end of the data it was estimated from, or its creation time)
+until the next entry's.  A record older than ``max_age`` at the date asked about is *stale*: it is still
+returned, with a warning.
 
 Significance of a change between two records (``old`` → ``new``) of a parameter
 ------------------------------------------------------------------------------
@@ -39,14 +36,10 @@ likelihoods of the stages its calibration ran, summed) so that the points are in
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stableins.data.errors import InputError
@@ -57,18 +50,11 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.records import CalibrationRecord
 
-INDEX_NAME = "index.json"
-INDEX_FORMAT = "stableins-history-index"
 #: |z| at and beyond which a change since the previous calibration is flagged (0.27 % false alarms per parameter).
 CHANGE_THRESHOLD = 3.0
 #: Default age after which the record in force is reported stale.
 DEFAULT_MAX_AGE = timedelta(days=180)
 SECONDS_PER_YEAR = 365.25 * 86400.0
-
-
-def default_store() -> Path:
-    env = os.environ.get("STABLEINS_HISTORY")
-    return Path(env) if env else Path.home() / ".local" / "share" / "stableins" / "history"
 
 
 def parse_date(text: str, field: str = "date") -> datetime:
@@ -80,24 +66,6 @@ def parse_date(text: str, field: str = "date") -> datetime:
             f"cannot read {text!r} as a date", field=field, expected="ISO 8601, e.g. 2026-03-01 or 2026-03-01T12:00:00Z"
         ) from None
     return value if value.tzinfo else value.replace(tzinfo=UTC)
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One record in a unit's history."""
-
-    file: str
-    valid_from: str
-    created: str
-    sha256: str
-    procedure: str
-    stages: tuple[str, ...]
-    prior: str = ""  #: sha256 of the record used as prior ("" for an independent calibration)
-    evidence: str = ""  #: file of the data-only estimate kept beside a prior-based record
-
-    @property
-    def time(self) -> datetime:
-        return parse_date(self.valid_from, "valid_from")
 
 
 @dataclass(frozen=True)
@@ -215,9 +183,9 @@ def compare(old: CalibrationRecord, new: CalibrationRecord) -> Comparison:
 
 def format_changes(changes: Sequence[Change]) -> str:
     """Table of changes in engineering units where the id is a known term."""
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     lines = [f"{'parameter':<12} {'old':>14} {'new':>14} {'change':>12} {'σ(change)':>10} {'unit':<8} {'z':>6}"]
     for c in changes:
         term = terms.get(c.id)
@@ -268,137 +236,6 @@ def trend(points: list[tuple[datetime, float, float]], parameter: str = "", unit
     )
 
 
-# --------------------------------------------------------------------------- store
-class HistoryStore:
-    """Per-serial store of calibration records (module docstring for the layout)."""
-
-    def __init__(self, root: str | os.PathLike[str] | None = None) -> None:
-        self.root = Path(root) if root is not None else default_store()
-
-    def _unit_directory(self, serial: str) -> Path:
-        if not serial or any(c in serial for c in "/\\\0") or serial in (".", ".."):
-            raise InputError(f"serial number {serial!r} cannot name a history folder", field="serial", expected="letters, digits, '-', '_'")
-        return self.root / serial
-
-    def entries(self, serial: str) -> list[Entry]:
-        """The unit's entries, oldest first; empty if it has none."""
-        path = self._unit_directory(serial) / INDEX_NAME
-        if not path.exists():
-            return []
-        try:
-            document = json.loads(path.read_text(encoding="utf-8"))
-            if document.get("format") != INDEX_FORMAT:
-                raise ValueError(f"format {document.get('format')!r}")
-            entries = [Entry(**{**e, "stages": tuple(e["stages"])}) for e in document["entries"]]
-        except (ValueError, KeyError, TypeError) as error:
-            raise InputError(f"history index unreadable ({error})", path=path, expected=f"a {INDEX_FORMAT} file") from None
-        return sorted(entries, key=lambda e: e.time)
-
-    def serials(self) -> list[str]:
-        if not self.root.exists():
-            return []
-        return sorted(p.name for p in self.root.iterdir() if (p / INDEX_NAME).exists())
-
-    def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
-        """Copy a record into its unit's history (idempotent: the same bytes are added once)."""
-        from stableins.data.atomic import atomic_write
-        from stableins.records import CalibrationRecord
-
-        record_path = Path(record_path)
-        record = CalibrationRecord.load(record_path)
-        data = record_path.read_bytes()
-        digest = hashlib.sha256(data).hexdigest()
-        directory = self._unit_directory(record.serial_number)
-        entries = self.entries(record.serial_number)
-        for entry in entries:
-            if entry.sha256 == digest:
-                return entry
-        valid_from = record.provenance.data_end or record.provenance.created
-        if not valid_from:
-            raise InputError("record has neither a data end time nor a creation time", path=record_path, field="provenance.data_end")
-        stamp = parse_date(valid_from, "provenance.data_end").strftime("%Y%m%dT%H%M%SZ")
-        name = f"{stamp}-{digest[:8]}.json"
-        with atomic_write(directory / name, "wb") as handle:
-            handle.write(data)
-        evidence_name = ""
-        if evidence is not None:
-            evidence_bytes = Path(evidence).read_bytes()
-            CalibrationRecord.load(evidence)  # must be a valid record of its own
-            evidence_name = f"{stamp}-{digest[:8]}.evidence.json"
-            with atomic_write(directory / evidence_name, "wb") as handle:
-                handle.write(evidence_bytes)
-        entry = Entry(
-            name, valid_from, record.provenance.created, digest, record.provenance.procedure, record.provenance.stages, prior, evidence_name
-        )
-        self._write_index(record.serial_number, entries + [entry])
-        return entry
-
-    def _write_index(self, serial: str, entries: list[Entry]) -> None:
-        from stableins.data.atomic import atomic_write
-
-        entries = sorted(entries, key=lambda e: e.time)
-        document = {"format": INDEX_FORMAT, "serial_number": serial, "entries": [{**e.__dict__, "stages": list(e.stages)} for e in entries]}
-        with atomic_write(self._unit_directory(serial) / INDEX_NAME) as handle:
-            json.dump(document, handle, indent=1)
-
-    def load(self, serial: str, entry: Entry, evidence: bool = False) -> CalibrationRecord:
-        from stableins.records import CalibrationRecord
-
-        name = entry.evidence if evidence and entry.evidence else entry.file
-        return CalibrationRecord.load(self._unit_directory(serial) / name)
-
-    def in_force(self, serial: str, date: datetime | None = None) -> Entry:
-        """The entry in force at ``date`` (now by default).
-
-        Raises
-        ------
-        InputError
-            The unit has no history, or none of its records is older than ``date``.
-        """
-        date = date or datetime.now(UTC)
-        entries = self.entries(serial)
-        if not entries:
-            raise InputError(
-                f"no calibration records for unit {serial!r}", path=self.root, expected="records added with 'stableins history add'"
-            )
-        earlier = [e for e in entries if e.time <= date]
-        if not earlier:
-            raise InputError(
-                f"unit {serial!r} had no calibration in force on {date.isoformat()}; "
-                f"its first record is valid from {entries[0].valid_from}",
-                field="--at",
-            )
-        return earlier[-1]
-
-    def staleness(self, entry: Entry, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE) -> str | None:
-        """A warning if ``entry`` is older than ``max_age`` at ``date``, else ``None``."""
-        date = date or datetime.now(UTC)
-        age = date - entry.time
-        if age > max_age:
-            return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
-        return None
-
-    def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
-        """Consecutive pairs of records with every parameter's change and significance (:func:`compare`)."""
-        entries = self.entries(serial)
-        out = []
-        for old, new in zip(entries, entries[1:]):
-            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
-        return out
-
-    def trends(self, serial: str) -> list[Trend]:
-        """Drift trend of every parameter that at least two calibrations determine from their own data (:func:`data_only`)."""
-        entries = self.entries(serial)
-        series: dict[str, list[tuple[datetime, float, float]]] = {}
-        units: dict[str, str] = {}
-        for entry in entries:
-            record = self.load(serial, entry)
-            for pid, (value, sigma) in data_only(record).items():
-                series.setdefault(pid, []).append((entry.time, value, sigma))
-                units[pid] = record[pid].unit
-        return [trend(points, pid, units[pid]) for pid, points in series.items() if len(points) >= 2]
-
-
 def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:
     """``{id: (value, σ)}`` that the record's own calibration determines from its data alone (independent across records).
 
@@ -430,9 +267,9 @@ def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:
 
 
 def format_trends(trends: list[Trend]) -> str:
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     lines = [f"{'parameter':<12} {'records':>7} {'drift / year':>14} {'σ':>10} {'unit':<8} {'z':>6} {'χ²_ν const':>10}"]
     for t in trends:
         term = terms.get(t.id)
@@ -450,9 +287,9 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
 
-    terms = known_terms()
+    terms = all_terms()  # discovered terms in engineering units too
     n = max(1, len(trends))
     columns = min(3, n)
     rows = math.ceil(n / columns)
@@ -475,3 +312,15 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     fig.suptitle(f"calibration history of {serial}")
     fig.tight_layout()
     return fig
+
+
+#: The store lives in :mod:`stableins.history_store`; these names are importable from here as well.
+_STORE_NAMES = ("HistoryStore", "Entry", "UnitStatus", "default_store", "INDEX_NAME", "INDEX_FORMAT", "STORE_NAME")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _STORE_NAMES:
+        from stableins import history_store
+
+        return getattr(history_store, name)
+    raise AttributeError(f"module 'stableins.history' has no attribute {name!r}")

@@ -15,7 +15,8 @@ A record is a JSON file (format in ``docs/formats.md``, schema version 2)::
                   "determined", "notes"}, ...],
       "site": {...site metadata with units...},
       "determined": [...], "notes": [...],
-      "discovery": {...} (optional), "noise_model": {...} (optional, issue 11)
+      "discovery": {"stage": "coarse+fine", "alpha": 0.05, "steps": [...]} (optional),
+      "noise_model": {...} (optional, issue 11)
     }
 
 Every stage the unit's model rests on is listed in ``stages`` (oldest first, carried over from
@@ -29,6 +30,12 @@ what its data do not determine.  Statuses are :class:`stableins.status.Status`.
 Values are SI (``unit`` says which); ``sigma`` is the square root of the covariance diagonal
 and is stored only for people (the loader checks that it agrees).  Version-1 files are read
 and migrated (:func:`migrate_v1`).
+
+Discovered effects (``stableins calibrate device --add Kcc_xxy``) are parameters like any
+other, with the ids of the discovery library; :meth:`CalibrationRecord.error_model` is the model
+that compensation applies (:meth:`stableins.errormodel.ErrorModel.inverse`).  The optional
+``discovery`` section is the history of the fit that added them (model, χ²_ν, residual RMS
+and the verdict on every tested effect, :class:`stableins.discovery.history.ModelHistory`).
 """
 
 from __future__ import annotations
@@ -51,6 +58,8 @@ if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
     from numpy.typing import NDArray
 
+    from stableins.discovery.history import ModelHistory
+    from stableins.errormodel import ErrorModel
     from stableins.estimators.result import FitResult, Likelihood
     from stableins.noise import NoiseModel
 
@@ -385,8 +394,8 @@ class CalibrationRecord:
     site: SiteMetadata | None = None
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
-    #: Model-discovery history carried with the record (rendered by the certificate; see docs/reports.md).
-    discovery: Mapping[str, Any] | None = None
+    #: History of the fit that added discovered effects (validated; rendered by the certificate; docs/formats.md).
+    discovery: ModelHistory | None = None
     #: The unit's noise model (:class:`stableins.noise.NoiseModel`, docs/noise.md): carried through every stage
     #: unchanged unless a stage measures it.
     noise_model: NoiseModel | None = None
@@ -414,6 +423,17 @@ class CalibrationRecord:
     def values(self) -> dict[str, float]:
         """``{id: value}`` [SI], e.g. for :meth:`stableins.errormodel.ErrorModel.forward`."""
         return {p.id: p.value for p in self.parameters}
+
+    def error_model(self) -> ErrorModel:
+        """The error model this record calibrates: the standard terms with ``K2`` and the discovered terms it carries.
+
+        Compensation is ``record.error_model().inverse(output, record.values())`` (Wu et al.
+        2018 Eq. 8 with the additive terms, :meth:`stableins.errormodel.ErrorModel.inverse`).
+        """
+        from stableins.discovery.library import record_terms
+        from stableins.errormodel import ErrorModel
+
+        return ErrorModel.standard(nonlinear=True) + record_terms(self.ids)
 
     def covariance_of(self, ids: Sequence[str]) -> NDArray[np.float64]:
         """The covariance block of the given parameters."""
@@ -732,7 +752,7 @@ class CalibrationRecord:
             "notes": list(self.notes),
         }
         if self.discovery is not None:
-            document["discovery"] = dict(self.discovery)
+            document["discovery"] = self.discovery.to_json()
         if self.noise_model is not None:
             document["noise_model"] = self.noise_model.to_document()
         return document
@@ -763,25 +783,17 @@ class CalibrationRecord:
             Unknown schema version, missing keys, bad status, a covariance that is not
             square, symmetric, positive semi-definite or consistent with the σ's, ...
         """
-        try:
-            with open(path, encoding="utf-8") as handle:
-                document = json.load(handle)
-        except FileNotFoundError:
-            raise InputError("no such file", path=path) from None
-        except IsADirectoryError:
-            raise InputError("is a directory", path=path, expected="a calibration record (JSON)") from None
-        except json.JSONDecodeError as error:
-            raise InputError(f"not valid JSON: {error.msg} at line {error.lineno}; the file is damaged or truncated", path=path) from None
-        except (OSError, UnicodeDecodeError) as error:
-            raise InputError(f"cannot read: {error}", path=path) from None
+        from stableins.data.jsonio import load_json_file
+
+        document = load_json_file(path, what="a calibration record (JSON) written by stableins")
         return cls.from_document(document, str(path))
 
     # ------------------------------------------------------------------ people
     def rows(self) -> list[tuple[str, float, float, str, str, str]]:
         """``(id, value, σ, unit, status, determined by)`` in engineering units where the id is a known term."""
-        from stableins.errormodel import known_terms
+        from stableins.discovery.library import all_terms
 
-        terms = known_terms()
+        terms = all_terms()  # discovered terms in engineering units too
         out = []
         for p in self.parameters:
             t = terms.get(p.id)
@@ -807,7 +819,10 @@ class CalibrationRecord:
 
         run = ", ".join(s.name for s in self.stages_run) or "none"
         lines = [f"calibration record of {self.serial_number} (stages run: {run}; {self.calibration.software})", ""]
-        return "\n".join(lines + parameter_table(self.rows(), self.determined, self.notes))
+        lines += parameter_table(self.rows(), self.determined, self.notes)
+        if self.discovery is not None:
+            lines += ["", self.discovery.report()]
+        return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.report()
@@ -1093,8 +1108,9 @@ class _Reader:
         stage_ids = {s.id for s in stages}
         if len(stage_ids) != len(stages):
             raise fail("a stage id appears twice", "stages", "unique stage ids")
-        if not isinstance(document["parameters"], list):
-            raise fail("not a list", "parameters", "a list of parameter objects")
+        if not isinstance(document["parameters"], list) or not document["parameters"]:
+            shown = "not a list" if not isinstance(document["parameters"], list) else "empty"
+            raise fail(shown, "parameters", "a non-empty list of parameter objects")
         parameters = []
         keys = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
         for k, item in enumerate(document["parameters"]):
@@ -1151,12 +1167,18 @@ class _Reader:
         )
         site = None if document.get("site") is None else metadata_from_document(document["site"], self.path)
         optional: dict[str, Any] = {}
-        if document.get("discovery") is not None:
-            optional["discovery"] = dict(self.mapping(document["discovery"], "discovery"))
         if document.get("noise_model") is not None:
             from stableins.noise import NoiseModel
 
             optional["noise_model"] = NoiseModel.from_document(document["noise_model"], self.path)
+        if document.get("discovery") is not None:
+            from stableins.discovery.history import ModelHistory
+
+            try:
+                optional["discovery"] = ModelHistory.from_json(document["discovery"])
+            except ValueError as error:
+                where, _, what = str(error).partition(": ")
+                raise fail(what, where, "the discovery section of docs/formats.md") from None
         record = CalibrationRecord.__new__(CalibrationRecord)
         fields = {
             "serial_number": self.text(document["serial_number"], "serial_number"),
@@ -1200,6 +1222,14 @@ def _check(record: CalibrationRecord, path: str | None) -> None:
     c = record.covariance
     if c.shape != (n, n):
         raise fail(f"shape {c.shape}", "covariance", f"({n}, {n}) following the parameters")
+    if record.discovery is not None:
+        missing = [e for e in record.discovery.effects if e not in ids]
+        if missing:
+            raise fail(
+                f"the discovery history keeps {missing}, which are not parameters of the record",
+                "discovery",
+                "kept effects among the parameters",
+            )
     known = np.array([p.status is not Status.UNIDENTIFIABLE for p in record.parameters], dtype=bool)
     for k, p in enumerate(record.parameters):
         if p.status not in STATUSES:

@@ -29,22 +29,23 @@ def draw_truth(rng, quadratic=True, offset_scale=1.0):
     return v
 
 
-def outputs(truth, readings, gravity=GRAVITY, senses=(1, 1, 1, 1), base=(0.0, 0.0, 0.0)):
-    """Exact accelerometer outputs at angle-sensor readings ``(..., 3)``."""
+def outputs(truth, readings, gravity=GRAVITY, senses=(1, 1, 1, 1), base=(0.0, 0.0, 0.0), model=TRUTH_MODEL):
+    """Exact accelerometer outputs at angle-sensor readings ``(..., 3)`` (``model`` may add the simulator's effect terms)."""
     config = cv.GimbalConfiguration(tuple(senses))
     offsets = np.array([truth["theta10"], truth["theta20"], truth["theta30"]])
     alpha = cv.actual_gimbal_angles(readings, offsets)
     c = cv.dcm_body_to_platform(alpha[..., 0], alpha[..., 1], alpha[..., 2], 0.0, config)
     f_n = cv.specific_force_nav(gravity)
     f_p = np.einsum("...ij,jk,k->...i", c, cv.dcm_nav_to_body(*base), f_n)
-    return TRUTH_MODEL.forward(f_p, truth)
+    return model.forward(f_p, truth)
 
 
 class ExactPlatform:
     """PlatformDriver over the exact model with white noise ``sigma`` per sample."""
 
-    def __init__(self, truth, sigma=1e-3, rate=100.0, seed=0, senses=(1, 1, 1, 1), gravity=GRAVITY, transform=None):
+    def __init__(self, truth, sigma=1e-3, rate=100.0, seed=0, senses=(1, 1, 1, 1), gravity=GRAVITY, transform=None, model=TRUTH_MODEL):
         self.truth = truth
+        self.model = model  # the world's error model (the standard one, or with the simulator's effect terms)
         self.sigma = sigma
         self.rate = rate
         self.rng = np.random.default_rng(seed)
@@ -72,7 +73,7 @@ class ExactPlatform:
         n = int(round(duration * self.rate))
         t = self.time + np.arange(n) / self.rate
         self.time += n / self.rate
-        f = outputs(self.truth, self.readings, self.gravity, self.senses) + self.sigma * self.rng.normal(size=(n, 3))
+        f = outputs(self.truth, self.readings, self.gravity, self.senses, model=self.model) + self.sigma * self.rng.normal(size=(n, 3))
         if self.transform is not None:
             f = self.transform(f)
         return SampleBlock(t, f, np.tile(self.readings, (n, 1)), np.full(n, 25.0))
@@ -96,6 +97,7 @@ def device_columns(
     rate=100.0,
     dwell=None,
     settle=None,
+    model=TRUTH_MODEL,
 ):
     """Samples of one pass as DEVICE_COLUMNS arrays (settle samples included, tagged by time_since_command)."""
     rng = np.random.default_rng(seed)
@@ -126,7 +128,7 @@ def device_columns(
         d = step.dwell if dwell is None else dwell
         n = int(round((s + d) * rate))
         since = np.arange(n) / rate
-        f = outputs(truth, command, senses=senses) + sigma * rng.normal(size=(n, 3))
+        f = outputs(truth, command, senses=senses, model=model) + sigma * rng.normal(size=(n, 3))
         cols["time"].append(t0 + since)
         cols["time_since_command"].append(since)
         cols["stage"].append(np.full(n, stage))

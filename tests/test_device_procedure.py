@@ -117,7 +117,7 @@ sample_rate = 100.0
             "step.position",
         ),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\n", "step.middle"),
-        ("[[step]]\nposition = 1\nplatform = 'a'\ninner = 0.0\nmiddle = 0.0\n", "platform"),
+        ("[[step]]\nposition = 1\nplatform = 'a'\ninner = 0.0\nmiddle = 0.0\n", "step.platform"),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 1e4\nmiddle = 0.0\n", "step.inner"),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\ndwel = 3\n", "step"),
         ("[[step]]\nposition = 1\nplatform = 0.0\ninner = 0.0\nmiddle = 0.0\nexpect = 'z sideways'\n", "step.expect"),

@@ -275,27 +275,37 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
 def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path):
     """A discovery history renders as a table and a figure; nothing runs off the page."""
     record = json.loads((files / "record.json").read_text())
+    # a discovered term and the history that kept it (the record's discovery section, docs/formats.md)
+    record["parameters"].append({"id": "K3_x", "value": 2.1e-7, "unit": "s^4/m^3", "sigma": 1e-8, "status": "estimated"})
+    record["covariance"]["ids"].append("K3_x")
+    record["covariance"]["matrix"] = [row + [0.0] for row in record["covariance"]["matrix"]]
+    record["covariance"]["matrix"].append([0.0] * (len(record["covariance"]["ids"]) - 1) + [1e-16])
+    ids = [p["id"] for p in record["parameters"]]
+
+    def step(label, rms, chi2, decision, added=(), p=None, dbic=None, reason=""):
+        return {
+            "label": label, "model": ids, "channels": ["f_x", "f_y", "f_z", "|f|"], "residual_rms": [r * 9.80665e-6 for r in rms],
+            "noise_floor": [3e-5, 3e-5, 3e-5, 1e-5], "chi2_red": chi2, "dof": 108, "bic": 200.0,
+            "added": [{"id": a, "estimate": 21.0, "sigma": 1.0, "unit": "ug/g^3"} for a in added], "shifts": {},
+            "decision": decision, "delta_chi2": None, "p_value": p, "delta_bic": dbic, "reason": reason,
+        }  # fmt: skip
+
     record["discovery"] = {
+        "stage": "coarse+fine",
+        "alpha": 0.05,
         "steps": [
-            {"label": "core model", "residual_rms": 42.0, "noise_floor": 3.0, "unit": "µg", "candidates": []},
-            {
-                "label": "+ K3_x",
-                "residual_rms": 3.2,
-                "noise_floor": 3.0,
-                "unit": "µg",
-                "candidates": [
-                    {"term": "K3_x", "statistic": "ΔBIC", "value": -310.0, "decision": "accepted"},
-                    {"term": "hysteresis_y", "statistic": "ΔBIC", "value": 4.1, "decision": "rejected"},
-                ],
-            },
-        ]
+            step("standard model", [42.0, 12.0, 9.0, 7.0], 12.8, "baseline"),
+            step("+ K3_x", [3.2, 3.1, 3.0, 1.0], 0.98, "kept", ["K3_x"], 1e-30, -310.0, "K3_x = +21 ± 1 ug/g^3; kept in the record"),
+            step("+ Kh_y", [3.2, 3.1, 3.0, 1.0], 0.99, "not supported", ["Kh_y"], 0.41, 4.1, "Kh_y: the data do not show it; left out"),
+        ],
     }
     (tmp_path / "rich.json").write_text(json.dumps(record))
     out = tmp_path / "rich.pdf"
     assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
     pages, text = _render(out)
     flat = " ".join(text.split())
-    assert "K3_x" in text and "hysteresis_y" in text and "accepted" in text
+    assert "K3_x" in text and "Kh_y" in text and "not supported" in text and "Model in force" in text
+    assert "µg/g³" in text  # the verdict's units as printed
     numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
     assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 3  # correlation, residuals, discovery
     bbox = subprocess.run(["pdftotext", "-bbox", str(out), "-"], check=True, capture_output=True, text=True, timeout=60).stdout

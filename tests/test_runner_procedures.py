@@ -160,7 +160,7 @@ def test_cli_bad_procedure_is_exit_2_with_the_file_and_no_run(tmp_path):
     plan = tmp_path / "plan.json"
     plan.write_text('{"name": "x"}')
     result = _cli("run", str(plan), "--driver", "sim", "--out", str(tmp_path / "run2"))
-    assert result.returncode == 2 and "not a procedure plan" in result.stderr and "Traceback" not in result.stderr
+    assert result.returncode == 2 and "missing key 'level'" in result.stderr and "Traceback" not in result.stderr
     result = _cli("run", "device-fine", "--out", str(tmp_path / "run3"))
     assert result.returncode == 2 and "--driver" in result.stderr
     result = _cli("run", "--resume", str(tmp_path / "nothing-here"))

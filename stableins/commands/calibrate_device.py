@@ -4,10 +4,17 @@
 
     stableins calibrate device sim/device-device-coarse.csv sim/device-device-fine.csv --out record.json
     stableins calibrate device session.h5 --out record.json --json
+    stableins calibrate device sim/device-coarse.csv sim/device-fine.h5 --add Kcc_xxy --out record.json
 
 Runs the coarse stage on every coarse pass in the data (the last pass is the coarse
 result), then the fine stage when fine dwells are present, prints the report and writes
 the calibration record (atomically: a failed run never leaves a half-written record).
+
+``--add ID`` (repeatable; and ``[model] add = [...]`` in the procedure files) carries
+effects found by ``stableins diagnose`` into the calibration: every stage estimates them
+with the standard parameters, each gets a verdict from the fused fit (F-test p against
+``--alpha``, ΔBIC; :mod:`stableins.discovery.carry`), an effect the data do not show is left
+out of the record (``--keep-unsupported`` keeps it) and the record carries the history.
 """
 
 from __future__ import annotations
@@ -19,8 +26,10 @@ from stableins.commands import add_entries_option
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_file
+
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
-    parser.add_argument("--out", type=Path, required=True, metavar="RECORD.json", help="calibration record to write")
+    parser.add_argument("--out", type=output_file, required=True, metavar="RECORD.json", help="calibration record to write")
     parser.add_argument("--coarse-procedure", default="device-coarse", metavar="NAME", help="coarse procedure name or TOML file")
     parser.add_argument("--fine-procedure", default="device-fine", metavar="NAME", help="fine procedure name or TOML file")
     parser.add_argument(
@@ -31,10 +40,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
     )
-    parser.add_argument("--report", type=Path, metavar="FILE", help="also write the text report to FILE")
+    parser.add_argument("--report", type=output_file, metavar="FILE", help="also write the text report to FILE")
     from stableins.commands.noise import add_noise_options
 
     add_noise_options(parser)
+    parser.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="estimate this discovered effect with the standard parameters (repeatable, tested in order; see 'stableins diagnose')",
+    )
+    parser.add_argument(
+        "--alpha",
+        type=number(0.0, 0.5, above=True),
+        default=0.05,
+        help="false-alarm level of the F-test that keeps an added effect (default 0.05)",
+    )
+    parser.add_argument(
+        "--keep-unsupported",
+        action="store_true",
+        help="keep an added effect even when the data do not show it (default: left out of the record, with its verdict)",
+    )
     add_entries_option(parser)
 
 
@@ -55,17 +82,28 @@ def _same_site(datasets) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import functools
+    from dataclasses import replace
+
     from stableins.commands.noise import noise_from_options
     from stableins.data.device import load_device
+    from stableins.data.errors import InputError
+    from stableins.discovery.carry import carry_effects
+    from stableins.discovery.library import calibration_terms
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
     from stableins.records import parse_entries
 
+    if not 0.0 < args.alpha < 1.0:
+        raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
     procedures = {"coarse": coarse_procedure, "fine": fine_procedure}
+    # the model: the procedures' [model] add, then --add (each effect once, tested in this order)
+    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
+    effects = calibration_terms(effect_ids + [e for e in args.add if e not in effect_ids])
     datasets = [load_device(path) for path in args.data]
     _same_site(datasets)
     summaries = []
@@ -73,8 +111,9 @@ def run(args: argparse.Namespace) -> int:
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
-    noise, _ = noise_from_options(args, summaries)
-    calibration = calibrate_device(
+    noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
+    calibrate = functools.partial(
+        calibrate_device,
         summaries,
         site,
         coarse_procedure=coarse_procedure,
@@ -84,6 +123,16 @@ def run(args: argparse.Namespace) -> int:
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
+    history = None
+    if effects:
+        carried = carry_effects(
+            lambda extra: calibrate(extra_terms=extra), effects, alpha=args.alpha, keep_unsupported=args.keep_unsupported
+        )
+        calibration, history = carried.calibration, carried.history
+        for step in carried.left_out:
+            note(f"stableins: warning: {step.added[0][0]} {step.decision}: {step.reason}")
+    else:
+        calibration = calibrate()
     for fit in (*calibration.passes, calibration.fine, calibration.fused):
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
@@ -95,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
         **data_description(datasets),
         entries=parse_entries(args.set),
     )
+    if history is not None:
+        record = replace(record, discovery=history)  # the record's report below shows it
     text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
@@ -105,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
         "fine": None if calibration.fine is None else _summary(calibration.fine),
         "fused": None if calibration.fused is None else _summary(calibration.fused),
         "passes": len(calibration.passes),
+        "discovery": None if history is None else history.to_json(),
         "noise_model": None if calibration.noise is None else calibration.noise.to_document(),
         "largest_floor": None if calibration.floor is None else _summary(calibration.floor),
     }

@@ -23,15 +23,17 @@ from stableins.commands import add_entries_option
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import integer, number, output_file
+
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
     parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS compensated the record with")
-    parser.add_argument("--out", required=True, metavar="CAL2.json", help="updated calibration record to write")
+    parser.add_argument("--out", required=True, type=output_file, metavar="CAL2.json", help="updated calibration record to write")
     parser.add_argument(
         "--case-rotation-period",
-        type=float,
+        type=number(60.0, 3600.0, unit="seconds", or_zero=True),
         default=480.0,
         metavar="SECONDS",
-        help="period of the gyro case-rotation residual fitted as a nuisance (default 480 s; 0 leaves it out)",
+        help="period of the gyro case-rotation residual fitted as a nuisance, 60 to 3600 s (default 480 s; 0 leaves it out)",
     )
     parser.add_argument(
         "--no-loop-compensation",
@@ -41,7 +43,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-couplings", action="store_true", help="loop model without Earth-rate/Coriolis couplings (for comparison only)"
     )
-    parser.add_argument("--chunk-rows", type=int, default=1 << 18, metavar="N", help="samples per streamed chunk (memory ~ 100 bytes x N)")
+    parser.add_argument(
+        "--chunk-rows",
+        type=integer(1024, 1 << 26),
+        default=1 << 18,
+        metavar="N",
+        help="samples per streamed chunk, 1024 to 2^26 (memory ~ 100 bytes x N)",
+    )
     parser.add_argument(
         "--estimate-k2",
         action="store_true",
@@ -49,7 +57,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--gyro-drift",
-        type=float,
+        type=number(-100.0, 100.0, unit="deg/h"),
         nargs=3,
         metavar=("X", "Y", "Z"),
         help=(
@@ -58,7 +66,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
             "this stage cannot estimate it from one record)"
         ),
     )
-    parser.add_argument("--plot", metavar="PNG", help="also write the filter convergence and attitude residual plot")
+    parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
+    parser.add_argument(
+        "--allow-gaps",
+        action="store_true",
+        help="accept gaps in the time column (warned about; the fits use the samples present), as 'stableins check --allow-gaps'",
+    )
     parser.add_argument(
         "--new-calibration",
         action="store_true",
@@ -73,12 +86,11 @@ def run(args: Any) -> int:
 
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
-    if args.chunk_rows < 1024:
-        raise InputError("--chunk-rows must be at least 1024", field="--chunk-rows")
     prior = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
     if record.metadata.serial_number and prior.serial_number and record.metadata.serial_number != prior.serial_number:
@@ -101,7 +113,8 @@ def run(args: Any) -> int:
     entries = parse_entries(args.set)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, values, covariance, options)
+        record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
+        outcome = run_system_stage(record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids))
     for w in caught:
         note(f"stableins: warning: {w.message}")
     start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
@@ -122,13 +135,13 @@ def run(args: Any) -> int:
     )
     updated.save(args.out)
     if args.plot:
-        plot(outcome, args.plot)
+        plot(outcome, str(args.plot))
 
     combined = outcome.combined
     data = {
         "record": args.record,
         "prior": args.prior,
-        "out": args.out,
+        "out": str(args.out),
         "combined": [
             {"name": n, "value": float(v), "sigma": float(s), "status": st}
             for n, v, s, st in zip(combined.ids, combined.values, combined.sigma, combined.status, strict=True)
@@ -156,7 +169,7 @@ def run(args: Any) -> int:
         "notes": list(outcome.notes) + list(outcome.result.notes),
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
-    emit(args, data, text=report(outcome, updated, args.out))
+    emit(args, data, text=report(outcome, updated, str(args.out)))
     return 0
 
 

@@ -1,7 +1,10 @@
 """``stableins check FILE...``: validate data files and calibration records, print a summary.
 
 Each file is read completely and every check of ``docs/formats.md`` is applied
-(columns, units, NaN/inf, time order, dwell blocks, sampling, record consistency).
+(columns, units, NaN/inf, time order, dwell blocks, sampling, record consistency): the
+same validation the commands that consume the file run (``load_device`` for device
+data, :meth:`~stableins.data.system.SystemRecord.validate` for system records,
+``CalibrationRecord.load`` for records), so ``check`` and they never disagree.
 Exit status 0 if all files pass, 2 at the first file that does not.
 """
 
@@ -58,8 +61,8 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
         record = open_system_record(path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SamplingWarning)
-            report = record.check_sampling(allow_gaps=allow_gaps)
-        overview, segments = record.verify_derived()
+            validation = record.validate(allow_gaps=allow_gaps)  # exactly what calibrate system and diagnose run
+        report, overview, segments = validation.sampling, validation.overview_step, validation.time_grid_segments
         return {
             "file": path,
             "kind": "system",

@@ -1,21 +1,25 @@
 """``stableins demo --out DIR``: the main job on the embedded simulated platform.
 
 Runs the whole three-stage calibration the way a user would, each step through the
-same CLI command a user types, and leaves every file in ``DIR``:
+same CLI command a user types (printed before it runs), and leaves every file in ``DIR``:
 
 1. ``simulate device``: a drawn instrument (``truth.json``) on the simulated platform:
    the 18-position coarse passes of the zero-offset iteration, then the fine dwells at
-   the re-pointed positions;
+   the re-pointed positions (``--hidden ID=VALUE`` hides an effect in the instrument);
 2. ``calibrate device``: coarse + fine stages → ``cal-device.json``;
-3. ``simulate system --installed cal-device.json``: one sidereal day on a static base
-   with the INS compensating by the device-level calibration (the third stage corrects
-   what the first two left);
-4. ``calibrate system`` → ``calibration.json`` (the final record);
-5. ``diagnose``: model discovery on the device-level data (plots in ``discovery/``;
-   ``--hidden ID=VALUE`` hides an effect for it to find);
-6. ``report``: the PDF calibration report ``calibration-report.pdf``;
+3. the discovery loop: ``diagnose`` the device-level data against the record in force
+   (``discovery/round-K.txt``, ``.json`` and plots); when an effect is flagged, the demo
+   adds the best one and recalibrates (``calibrate device --add ID ...`` → ``cal-device.json``,
+   now with the effect and the discovery history), then diagnoses again, until nothing is
+   flagged (at most :data:`MAX_ROUNDS` effects).  An effect a calibration cannot carry ends
+   the loop with the next step printed as a command;
+4. ``simulate system --installed cal-device.json``: one sidereal day on a static base
+   with the INS compensating by the device-level calibration, discovered effects included;
+5. ``calibrate system`` → ``calibration.json`` (the final record);
+6. ``report``: the PDF calibration report ``calibration-report.pdf`` (with the discovery
+   history the record carries and the last diagnosis);
 7. the verdict: every determined parameter of the final record against the simulator's
-   truth, in engineering units and in σ (``verdict.json``).
+   truth, in engineering units and in σ (``verdict.json``), discovered effects included.
 """
 
 from __future__ import annotations
@@ -25,14 +29,20 @@ import json
 from pathlib import Path
 from typing import Any
 
+#: Effects the discovery loop adds at most (one per round).
+MAX_ROUNDS = 3
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_directory, seed
     from stableins.commands.simulate import parse_duration, parse_hidden
 
-    parser.add_argument("--out", type=Path, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)")
-    parser.add_argument("--seed", type=int, default=2018, help="random seed (default 2018)")
     parser.add_argument(
-        "--duration", type=parse_duration, default=86164.0905, help="length of the system-level record (default one sidereal day)"
+        "--out", type=output_directory, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)"
+    )
+    parser.add_argument("--seed", type=seed, default=2018, help="random seed (default 2018)")
+    parser.add_argument(
+        "--duration", type=parse_duration, default=None, help="length of the system-level record (default one sidereal day)"
     )
     parser.add_argument(
         "--hidden",
@@ -42,7 +52,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="ID=VALUE",
         help="hide an effect in the simulated instrument (SI, repeatable) for model discovery to find",
     )
-    parser.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="system-level sample rate [Hz] (default 10)")
+    parser.add_argument(
+        "--rate",
+        type=number(0.0, 10000.0, above=True, unit="Hz"),
+        default=10.0,
+        metavar="HZ",
+        help="system-level sample rate [Hz] (default 10)",
+    )
 
 
 def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
@@ -74,10 +90,12 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     """Final record against the truth: error and error/σ of every estimated parameter.
 
     The truth is first put in the record's gauge (θ10 = 0, exactly equivalent
-    parameters, :func:`stableins.estimators.coarse.gauge_equivalent`).
+    parameters, :func:`stableins.estimators.coarse.gauge_equivalent`).  A discovered term
+    is compared with the effect the simulator hid (0 when it hid none); the gauge moves
+    its regressor's input by θ10 (about 1e-4 relative), which is neglected.
     """
     from stableins.conventions import GimbalConfiguration
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import LIBRARY, all_terms
     from stableins.estimators.coarse import gauge_equivalent
     from stableins.records import CalibrationRecord
     from stableins.simulator.truth import Truth
@@ -86,7 +104,8 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     truth = Truth.read(truth_path)
     configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
     reference = gauge_equivalent(dict(truth.parameters), configuration)
-    terms = known_terms()
+    reference.update({i: float(truth.effects.get(i, 0.0)) for i in record.ids if i in LIBRARY})
+    terms = all_terms()
     rows = []
     for parameter in record.parameters:
         if parameter.status != "estimated" or parameter.id not in reference or parameter.id not in terms:
@@ -107,6 +126,72 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: bool = True) -> tuple[list[str], Path, list[str]]:
+    """Diagnose, add the best flagged effect, recalibrate; until nothing is flagged.
+
+    Returns the effects the record in force keeps, the last diagnosis (JSON) and what the loop
+    said.  Each round runs ``diagnose`` on the device-level data against ``cal-device.json`` (the
+    record in force) and, when a carried effect is flagged, ``calibrate device ... --add`` with the
+    effects kept so far and the new one; the calibration's own test decides whether it stays.
+    ``plots`` writes the diagnosis plots of every round (``discovery/round-K/``).
+    """
+    import sys
+
+    from stableins.discovery.library import calibration_limit
+    from stableins.records import CalibrationRecord
+
+    kept: list[str] = []
+    tested: dict[str, str] = {}  # effect -> the calibration's verdict when it was left out
+    said: list[str] = []
+    (out / "discovery").mkdir(exist_ok=True)
+    record = out / "cal-device.json"
+    calibrate = ["calibrate", "device", *data, "--out", str(record), *datasheet]
+    for round_ in range(MAX_ROUNDS + 1):
+        diagnose = ["diagnose", *data, "--record", str(record), *datasheet]
+        text, document = out / "discovery" / f"round-{round_}.txt", out / "discovery" / f"round-{round_}.json"
+        figures = ["--plots", str(out / "discovery" / f"round-{round_}")] if plots else []
+        _step(f"model discovery, round {round_}: is an effect missing from the model in force?", [*diagnose, *figures], text)
+        print(text.read_text(encoding="utf-8"), file=sys.stderr)
+        _step("the same, machine-readable for the report", [*diagnose, "--json"], document)
+        flagged = [c for c in json.loads(document.read_text(encoding="utf-8"))["candidates"] if c.get("flagged")]
+        if not flagged:
+            said.append(f"round {round_}: nothing flagged; the model in force reaches the noise floor")
+            break
+        best = flagged[0]
+        found = f"{best['id']} flagged (p = {best['p_value']:.2g}, ΔBIC {best['delta_bic']:+.1f})"
+        why = calibration_limit(best["id"])
+        if why is not None:
+            said.append(
+                f"round {round_}: {found} but it cannot be carried into the calibration: {why}. "
+                f"Next step (see it in the model): stableins {' '.join(diagnose)} --add {best['id']}"
+            )
+            break
+        if best["id"] in tested:
+            said.append(
+                f"round {round_}: {found} again, but the calibration left it out ({tested[best['id']]}): its coarse dwells and "
+                f"the fine stage's |f| do not determine it as the diagnosis of the fine dwells does. Next step: {best['advice']}"
+            )
+            break
+        if round_ == MAX_ROUNDS:
+            said.append(
+                f"round {round_}: {found}; the demo stops after {MAX_ROUNDS} effects. "
+                f"Next step: stableins {' '.join(calibrate)} {' '.join('--add ' + a for a in kept)} --add {best['id']}"
+            )
+            break
+        said.append(f"round {round_}: {found}; the demo adds it and recalibrates")
+        print(f"\n{said[-1]}", file=sys.stderr)
+        _step("recalibration with the discovered effect (the calibration tests it again)",
+              [*calibrate, *(item for a in (*kept, best["id"]) for item in ("--add", a))])  # fmt: skip
+        history = CalibrationRecord.load(record).discovery
+        verdict = history.steps[-1] if history is not None else None
+        if verdict is not None and verdict.decision is not None and verdict.decision.in_model:
+            kept.append(best["id"])
+        else:
+            tested[best["id"]] = f"{verdict.decision}: {verdict.reason}" if verdict is not None else "no verdict"
+            said.append(f"round {round_}: the calibration left {best['id']} out ({tested[best['id']]})")
+    return kept, document, said
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
 
@@ -117,40 +202,39 @@ def run(args: argparse.Namespace) -> int:
     seed = str(args.seed)
     hidden = [item for name, value in args.hidden for item in ("--hidden", f"{name}={value}")]
     _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out), *hidden])
-    coarse, fine = out / "device-coarse.csv", out / "device-fine.h5"
+    data = [str(out / "device-coarse.csv"), str(out / "device-fine.h5")]
     datasheet = _datasheet(out / "truth.json")  # what a user knows of the instrument: its Allan parameters
-    _step(
-        "device-level calibration",
-        ["calibrate", "device", str(coarse), str(fine), "--out", str(out / "cal-device.json"), *datasheet],
-    )
+    _step("device-level calibration", ["calibrate", "device", *data, "--out", str(out / "cal-device.json"), *datasheet])
+    added, diagnosis, said = discovery_loop(out, data, datasheet)
+    duration = [] if args.duration is None else ["--duration", f"{args.duration}s"]
     _step(
         "system-level record",
         ["simulate", "system", "--truth", str(out / "truth.json"), "--seed", seed, "--installed", str(out / "cal-device.json"),
-         "--duration", f"{args.duration}s", "--rate", str(args.rate), "--out", str(out)],
+         *duration, "--rate", str(args.rate), "--out", str(out)],
     )  # fmt: skip
     _step(
         "system-level calibration",
         ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    diagnose = ["diagnose", str(coarse), str(fine), "--record", str(out / "cal-device.json"), *datasheet]
-    _step("model discovery (is an effect missing from the model?)", [*diagnose, "--plots", str(out / "discovery")], out / "diagnosis.txt")
-    print((out / "diagnosis.txt").read_text(encoding="utf-8"), file=sys.stderr)
-    _step("model discovery, machine-readable for the report", [*diagnose, "--json"], out / "diagnosis.json")
     from stableins.procedures.definition import load_procedure
 
     _step(
         "calibration report",
-        ["report", str(out / "calibration.json"), "--data", str(coarse), str(fine), str(out / "system.h5"),
-         "--discovery", str(out / "diagnosis.json"), "--procedure", load_procedure("system-static").path,
+        ["report", str(out / "calibration.json"), "--data", *data, str(out / "system.h5"),
+         "--discovery", str(diagnosis), "--procedure", load_procedure("system-static").path,
          "--out", str(out / "calibration-report.pdf")],
     )  # fmt: skip
     rows = verdict(out / "calibration.json", out / "truth.json")
     (out / "verdict.json").write_text(json.dumps(rows, indent=1) + "\n")
-    lines = ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",
-             f"{'parameter':<10} {'truth':>12} {'estimate':>12} {'error':>10} {'1σ':>9} {'error/σ':>8}  unit"]  # fmt: skip
+    lines = ["", "model discovery:"] + [f"  {line}" for line in said]
+    hidden_ids = ", ".join(n for n, _ in args.hidden) or "none"
+    lines.append(f"  effects added to the calibration: {', '.join(added) or 'none'}; hidden in the simulated instrument: {hidden_ids}")
+    lines += ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",
+              f"{'parameter':<10} {'truth':>12} {'estimate':>12} {'error':>10} {'1σ':>9} {'error/σ':>8}  unit"]  # fmt: skip
     row = "{id:<10} {truth:>12.3f} {estimate:>12.3f} {error:>10.3f} {sigma:>9.3f} {z:>8.2f}  {unit}"
     lines += [row.format(**r) for r in rows]
     worst = max((abs(r["z"]) for r in rows), default=float("nan"))
     lines.append(f"largest |error|/σ = {worst:.2f} over {len(rows)} estimated parameters; files in {out}/")
-    emit(args, {"out": str(out), "verdict": rows}, "\n".join(lines))
+    print("", file=sys.stderr)
+    emit(args, {"out": str(out), "added": added, "discovery": said, "verdict": rows}, "\n".join(lines))
     return 0

@@ -27,17 +27,29 @@ from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import integer, number, output_directory
+
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
-    parser.add_argument("--bin", type=float, default=60.0, metavar="S", help="system records: bin length [s] (default 60)")
+    parser.add_argument(
+        "--bin", type=number(1.0, 86400.0, unit="seconds"), default=60.0, metavar="S", help="system records: bin length [s] (default 60)"
+    )
     parser.add_argument("--record", type=Path, required=True, metavar="CAL.json", help="calibration record to start from")
     parser.add_argument("--add", action="append", default=[], metavar="ID", help="add this effect and refit (repeatable, in order)")
     parser.add_argument("--stage", choices=("coarse", "fine"), help="which dwells to use (default: fine if present, else coarse)")
-    parser.add_argument("--alpha", type=float, default=0.05, help="family-wise false-alarm level for flagging candidates (default 0.05)")
-    parser.add_argument("--top", type=int, default=10, help="candidates to show in the text report (default 10)")
-    parser.add_argument("--plots", type=Path, metavar="DIR", help="write residual and history plots (PNG) into DIR")
+    parser.add_argument(
+        "--alpha",
+        type=number(0.0, 0.5, above=True),
+        default=0.05,
+        help="family-wise false-alarm level for flagging candidates, in (0, 0.5] (default 0.05)",
+    )
+    parser.add_argument("--top", type=integer(1, 10000), default=10, help="candidates to show in the text report (default 10)")
+    parser.add_argument("--plots", type=output_directory, metavar="DIR", help="write residual and history plots (PNG) into DIR")
     from stableins.commands.noise import add_noise_options
 
     add_noise_options(parser)
+    parser.add_argument(
+        "--allow-gaps", action="store_true", help="system records: accept gaps in the time column (as 'stableins check --allow-gaps')"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,8 +62,6 @@ def run(args: argparse.Namespace) -> int:
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
-    if not 0.0 < args.alpha < 1.0:
-        raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
     for effect in args.add:
         if effect not in LIBRARY:
             raise InputError(f"unknown effect {effect!r}", field="--add", expected=f"one of {', '.join(LIBRARY.ids)}")
@@ -63,12 +73,17 @@ def run(args: argparse.Namespace) -> int:
     system = [str(p) for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
     if system and len(args.data) > 1:
         raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
-    if not args.bin > 0:
-        raise InputError("must be a positive number of seconds", field="--bin")
     if system:
         from stableins.data.system import open_system_record
 
         opened = open_system_record(system[0])
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            opened.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs
+        for w in caught:
+            note(f"stableins: warning: {w.message}")
         serial = opened.metadata.serial_number
     else:
         datasets = [load_device(path) for path in args.data]
@@ -113,6 +128,9 @@ def run(args: argparse.Namespace) -> int:
     diagnosis = session.diagnose()
     ranking = session.rank(propose=not system)
     drift = None if system else session.drift()
+    if not system and drift is None:
+        for line in getattr(session, "drift_notes", ()):
+            note(f"drift analysis: {line}")
     spectra = {}
     if system:
         from stableins.discovery.diagnostics import residual_spectra
@@ -122,13 +140,17 @@ def run(args: argparse.Namespace) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
         args.plots.mkdir(parents=True, exist_ok=True)
-        diagnosis.plot_positions().savefig(args.plots / "residuals.png", dpi=110)
+        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
         if diagnosis.orientation is not None:
-            diagnosis.plot_orientation().savefig(args.plots / "orientation.png", dpi=110)
+            figures["orientation"] = diagnosis.plot_orientation()
         for name, spectrum in spectra.items():
-            spectrum.plot(unit="µg", scale=9.80665e-6).savefig(args.plots / f"spectrum_{name}.png", dpi=110)
-        session.history.plot().savefig(args.plots / "history.png", dpi=110)
+            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+        for name, figure in figures.items():
+            figure.savefig(args.plots / f"{name}.png", dpi=110)
+            plt.close(figure)
         note(f"plots written to {args.plots}")
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:
@@ -136,10 +158,10 @@ def run(args: argparse.Namespace) -> int:
     for name, spectrum in spectra.items():
         parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
     text = "\n\n".join(parts + [session.history.report()])
-    model = dwells.noise.get("model")
+    model_used = dwells.noise.get("model")
     result = {
         "stage": dwells.noise.get("stage"),
-        "noise_model": None if model is None else model.to_document(),
+        "noise_model": None if model_used is None else model_used.to_document(),
         "chi2_red": session.result.chi2_red,
         "dof": session.result.dof,
         "expected_spread": diagnosis.spread,
@@ -177,23 +199,18 @@ def run(args: argparse.Namespace) -> int:
 def _device_noise(args: argparse.Namespace, datasets, default):
     """The device stages' noise model: flags, ``--noise``, the record's, or (None) measured in all dwells as calibrate does."""
     from stableins.commands.noise import noise_from_options
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.procedures.definition import load_procedure
 
-    summaries = []
-    if args.bias_instability is not None or args.random_walk is not None:
-        from stableins.estimators.dwell import dwells_from_columns
-        from stableins.procedures.definition import load_procedure
+    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
 
-        procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
-        for ds in datasets:
-            summaries += dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
-    noise, origin = noise_from_options(args, summaries, default=default)
+    def summaries():
+        return [s for ds in datasets for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))]
+
+    given = args.bias_instability is not None or args.random_walk is not None
+    noise, origin = noise_from_options(args, summaries() if given else [], default=default)
     if noise is None:
         from stableins.estimators.device import noise_from_dwells
-        from stableins.estimators.dwell import dwells_from_columns
-        from stableins.procedures.definition import load_procedure
 
-        procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
-        for ds in datasets:
-            summaries += dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
-        noise = noise_from_dwells(summaries, source=", ".join(str(ds.path) for ds in datasets))
+        noise = noise_from_dwells(summaries(), source=", ".join(str(ds.path) for ds in datasets))
     return noise, origin

@@ -1,45 +1,147 @@
-"""``stableins history SERIAL``: a unit's calibration records, the one in force, staleness, drift.
+"""``stableins history``: a unit's calibration records, the one in force, staleness, drift; the fleet at a glance.
 
 ::
 
     stableins history INS-7 --store cal/ --add runs/fine/record.json     # file a record
     stableins history INS-7 --store cal/                                  # index, in force now, changes, drift
     stableins history INS-7 --store cal/ --at 2026-03-01 --plot drift.png
+    stableins history --store cal/ --fleet                                # every unit: in force, age, due, drifting
+    stableins history --store cal/ --fleet --due --drifted               # only the units that need attention
+    stableins history --store cal/ --verify                               # every filed record against its SHA-256
+
+The store is a SQLite index beside the records (:mod:`stableins.history_store`); every record read is checked
+against the SHA-256 the index holds.
 """
 
 from __future__ import annotations
 
 import argparse
 
+#: Formats of the drift plot, by suffix.
+PLOT_FORMATS = ("png", "pdf", "svg")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("serial", metavar="SERIAL", help="unit serial number")
+    from stableins.commands.arguments import number, output_file
+
+    parser.add_argument("serial", nargs="?", metavar="SERIAL", help="unit serial number (omit with --fleet or --verify)")
     parser.add_argument("--store", metavar="DIR", help="history store (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)")
     parser.add_argument("--add", nargs="+", default=[], metavar="RECORD", help="file these calibration records first")
     parser.add_argument("--at", metavar="DATE", help="which record was in force at this ISO 8601 date (default: now)")
-    parser.add_argument("--max-age", type=float, default=180.0, metavar="DAYS", help="older records in force are stale (default 180)")
-    parser.add_argument("--plot", metavar="FILE", help="write the drift plot (PNG, PDF, SVG by suffix)")
+    parser.add_argument(
+        "--max-age",
+        type=number(0.0, 36525.0, unit="days"),
+        default=180.0,
+        metavar="DAYS",
+        help="older records in force are stale, 0 to 36525 days (default 180)",
+    )
+    parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the drift plot (PNG, PDF, SVG by suffix)")
+    parser.add_argument("--fleet", action="store_true", help="every unit of the store: record in force, age, due, drifting parameters")
+    parser.add_argument("--due", action="store_true", help="with --fleet: only units without a record in force or with a stale one")
+    parser.add_argument("--drifted", action="store_true", help="with --fleet: only units with a parameter drifting beyond 3σ per year")
+    parser.add_argument(
+        "--verify", action="store_true", help="check the index and every filed record against its SHA-256 (exit 2 if any fails)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    from stableins.data.errors import InputError
+
+    if (args.due or args.drifted) and not args.fleet:
+        raise InputError("--due and --drifted select units of the fleet", field="--due", expected="--fleet as well")
+    if args.fleet or (args.verify and not args.serial):
+        if args.serial or args.add or args.plot:
+            raise InputError(
+                "--fleet and --verify without SERIAL look at the whole store", field="SERIAL", expected="no SERIAL, --add or --plot"
+            )
+        return _fleet(args) if args.fleet else _verify(args)
+    if not args.serial:
+        raise InputError("which unit?", field="SERIAL", expected="a serial number, or --fleet / --verify for the whole store")
+    if args.verify:
+        return _verify(args)
+    return _unit(args)
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from stableins.data.errors import InputError
+    from stableins.history_store import HistoryStore
+    from stableins.output import emit
+
+    store = HistoryStore(args.store)
+    problems = store.verify(args.serial)
+    emit(args, {"store": str(store.root), "problems": problems}, "\n".join(problems) or f"{store.root}: every filed record verified")
+    if problems:
+        raise InputError(f"{len(problems)} problem(s) in the history store; the first: {problems[0]}", path=store.root)
+    return 0
+
+
+def _fleet(args: argparse.Namespace) -> int:
+    from datetime import timedelta
+
+    from stableins.history import parse_date
+    from stableins.history_store import HistoryStore
+    from stableins.output import emit
+
+    store = HistoryStore(args.store)
+    date = parse_date(args.at, "--at") if args.at else None
+    units = store.fleet(date, timedelta(days=args.max_age))
+    shown = [u for u in units if (not args.due or u.due) and (not args.drifted or u.drifting)]
+    lines = [
+        f"fleet of {store.root}: {len(units)} unit(s), {sum(u.due for u in units)} due, {sum(bool(u.drifting) for u in units)} drifting",
+        "",
+    ]
+    lines.append(f"{'unit':<16} {'records':>7} {'in force since':<26} {'age [d]':>8} {'due':<4} drifting (z = drift/σ per year)")
+    for u in shown:
+        since = u.in_force.valid_from if u.in_force else "none"
+        age = f"{u.age_days:.0f}" if u.age_days is not None else "-"
+        drift = ", ".join(f"{p} {z:+.1f}" for p, z in u.drifting) or "-"
+        lines.append(f"{u.serial:<16} {u.records:>7} {since:<26} {age:>8} {'yes' if u.due else 'no':<4} {drift}")
+    data = {
+        "store": str(store.root),
+        "max_age_days": args.max_age,
+        "units": [
+            {
+                "serial": u.serial,
+                "records": u.records,
+                "in_force": None if u.in_force is None else u.in_force.file,
+                "valid_from": None if u.in_force is None else u.in_force.valid_from,
+                "age_days": u.age_days,
+                "due": u.due,
+                "drifting": [{"id": p, "significance": z} for p, z in u.drifting],
+            }
+            for u in shown
+        ],
+    }
+    emit(args, data, "\n".join(lines))
+    return 0
+
+
+def _unit(args: argparse.Namespace) -> int:
     from datetime import timedelta
 
     from stableins.data.errors import InputError
-    from stableins.history import CHANGE_THRESHOLD, HistoryStore, format_changes, format_trends, parse_date, plot_trends
+    from stableins.history import CHANGE_THRESHOLD, format_changes, format_trends, parse_date, plot_trends
+    from stableins.history_store import HistoryStore
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
+    if args.plot and args.plot.suffix.lower().lstrip(".") not in PLOT_FORMATS:
+        raise InputError(
+            f"cannot draw a {args.plot.suffix or 'suffix-less'} file", path=args.plot, field="--plot", expected=".png, .pdf or .svg"
+        )
     store = HistoryStore(args.store)
-    for path in args.add:
+    store.unit_directory(args.serial)  # a serial number that cannot name a folder is refused before anything is read
+    date = parse_date(args.at, "--at") if args.at else None
+    for path in args.add:  # all checked before the first is filed
         record = CalibrationRecord.load(path)
         if record.serial_number != args.serial:
             raise InputError(f"record of unit {record.serial_number!r}", path=path, field="serial_number", expected=repr(args.serial))
+    for path in args.add:
         entry = store.add(path)
         note(f"filed {path} as {entry.file} (valid from {entry.valid_from})")
     entries = store.entries(args.serial)
     if not entries:
         raise InputError(f"no calibration records for unit {args.serial!r}", path=store.root, expected="records filed with --add")
-    date = parse_date(args.at, "--at") if args.at else None
     lines = [f"calibration history of {args.serial} ({store.root})", ""]
     lines.append(f"{'valid from':<26} {'stages':<22} {'procedure':<20} file")
     for e in entries:
@@ -95,10 +197,10 @@ def run(args: argparse.Namespace) -> int:
         from stableins.data.atomic import atomic_path
 
         figure = plot_trends(trends, args.serial)
-        suffix = args.plot.rsplit(".", 1)[-1] if "." in args.plot else "png"
+        suffix = args.plot.suffix.lower().lstrip(".")
         with atomic_path(args.plot) as temporary:
             figure.savefig(temporary, format=suffix)
         note(f"drift plot written: {args.plot}")
-        data["plot"] = args.plot
+        data["plot"] = str(args.plot)
     emit(args, data, "\n".join(lines))
     return 0

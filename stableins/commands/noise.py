@@ -32,28 +32,41 @@ BLOCK_SECONDS = 1.0
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="a static (system-level) record, or device-level files")
-    parser.add_argument("--record", type=Path, metavar="CAL.json", help="calibration record to copy with the measured noise model")
-    parser.add_argument("--out", type=Path, metavar="CAL2.json", help="where to write the record with the noise model (needs --record)")
-    parser.add_argument("--plot", type=Path, metavar="PNG", help="plot the Allan deviation with the fitted model and its bounds")
-    parser.add_argument("--confidence", type=float, default=0.95, help="confidence level of the intervals (default 0.95)")
+    from stableins.commands.arguments import input_file, number, output_file
+
+    parser.add_argument("--record", type=input_file, metavar="CAL.json", help="calibration record to copy with the measured noise model")
+    parser.add_argument(
+        "--out", type=output_file, metavar="CAL2.json", help="where to write the record with the noise model (needs --record)"
+    )
+    parser.add_argument("--plot", type=output_file, metavar="PNG", help="plot the Allan deviation with the fitted model and its bounds")
+    parser.add_argument(
+        "--confidence", type=number(0.5, 1.0, above=True), default=0.95, help="confidence level of the intervals (default 0.95)"
+    )
 
 
 # ----------------------------------------------------------------------------- shared options
 def add_noise_options(parser: argparse.ArgumentParser) -> None:
     """``--noise CAL.json``, ``--bias-instability UG``, ``--random-walk K`` (calibrate device, diagnose)."""
+    from stableins.commands.arguments import input_file, number
+
     parser.add_argument(
         "--noise",
-        type=Path,
+        type=input_file,
         metavar="CAL.json",
         help="use the noise model of this calibration record (measured with 'stableins noise'); docs/noise.md",
     )
     parser.add_argument(
         "--bias-instability",
-        type=float,
+        type=number(0.0, 1e5, unit="µg"),
         metavar="UG",
         help="instrument bias instability B [ug] (Allan floor 0.664 B) from a datasheet; white noise is measured in the dwells",
     )
-    parser.add_argument("--random-walk", type=float, metavar="K", help="acceleration random walk K [m/s^2/sqrt(s)] from a datasheet")
+    parser.add_argument(
+        "--random-walk",
+        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
+        metavar="K",
+        help="acceleration random walk K [m/s^2/sqrt(s)] from a datasheet",
+    )
 
 
 def noise_from_options(args: argparse.Namespace, dwells, default=None):
@@ -66,10 +79,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
     given = args.bias_instability is not None or args.random_walk is not None
     if given and args.noise is not None:
         raise InputError("give either --noise CAL.json or --bias-instability/--random-walk, not both", field="--noise")
-    if given:
-        for name, value in (("--bias-instability", args.bias_instability or 0.0), ("--random-walk", args.random_walk or 0.0)):
-            if not 0.0 <= value < float("inf"):
-                raise InputError("must be a finite non-negative number", field=name)
+    if given:  # ranges checked when parsed
         from stableins.estimators.device import with_given_slow_noise
 
         model = with_given_slow_noise(

@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
     from stableins.data.errors import InputError
-    from stableins.history import CHANGE_THRESHOLD, HistoryStore, compare, format_changes
+    from stableins.history import CHANGE_THRESHOLD, compare, format_changes
+    from stableins.history_store import HistoryStore
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 

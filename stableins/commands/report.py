@@ -26,7 +26,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--discovery", metavar="DIAG.json", help="output of 'stableins diagnose --json' (model-discovery section)")
     parser.add_argument("--report-id", help="report id to print (default: derived from the serial number, date and input digests)")
-    parser.add_argument("--out", required=True, metavar="REPORT.pdf", help="PDF to write (written atomically)")
+    from stableins.commands.arguments import output_file
+
+    parser.add_argument("--out", required=True, type=output_file, metavar="REPORT.pdf", help="PDF to write (written atomically)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -22,12 +22,15 @@ EXIT_STOPPED = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import integer, number, output_directory, seed
+    from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
+
     parser.add_argument("procedure", nargs="?", metavar="PROCEDURE", help="procedure name, .toml definition or .json plan")
     parser.add_argument("--driver", help="sim, tcp://HOST:PORT or replay:RUNDIR (on --resume: a new tcp:// address)")
     parser.add_argument("--unit", help="serial number of the unit (checked against the platform)")
-    parser.add_argument("--out", metavar="RUNDIR", help="new run directory (journal, data, records)")
+    parser.add_argument("--out", type=output_directory, metavar="RUNDIR", help="new run directory (journal, data, records)")
     parser.add_argument("--resume", metavar="RUNDIR", help="continue the run in RUNDIR where it stopped")
-    parser.add_argument("--seed", type=int, help="seed of the simulated platform (sim): same seed, same samples")
+    parser.add_argument("--seed", type=seed, help="seed of the simulated platform (sim): same seed, same samples")
     parser.add_argument("--yes", action="store_true", help="unattended: confirm every prompt, take defaults")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="value for a person step (repeatable)")
     parser.add_argument("--prior", metavar="RECORD", help="the unit's previous record (zero offsets to re-point; fine stage builds on it)")
@@ -38,10 +41,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="the run starts a new calibration from --prior (default with --store: the record in force is a previous calibration; "
         "with --prior the run continues the prior's calibration, e.g. the fine stage after the coarse stage)",
     )
-    parser.add_argument("--retries", type=int, help="repeats of a rejected dwell before stopping (default: the procedure's, 2)")
-    parser.add_argument("--chunk", type=float, help="journal dwells in pieces of at most this many seconds (default 10)")
-    parser.add_argument("--link-failures", type=int, default=3, help="consecutive link failures of one step before stopping")
-    parser.add_argument("--timeout", type=float, default=10.0, help="network driver: longest silence accepted [s]")
+    parser.add_argument(
+        "--retries", type=integer(*RETRIES_RANGE), help="repeats of a rejected dwell before stopping (default: the procedure's, 2)"
+    )
+    parser.add_argument(
+        "--chunk",
+        type=number(*CHUNK_RANGE, unit="seconds"),
+        help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default 10)",
+    )
+    parser.add_argument(
+        "--link-failures", type=integer(1, 100), default=3, help="consecutive link failures of one step before stopping (1 to 100)"
+    )
+    parser.add_argument(
+        "--timeout",
+        type=number(0.1, 3600.0, unit="seconds"),
+        default=10.0,
+        help="network driver: longest silence accepted [s], 0.1 to 3600 (default 10)",
+    )
     parser.add_argument("--quiet", action="store_true", help="say nothing but errors")
 
 
@@ -60,26 +76,26 @@ def parse_settings(items: list[str]) -> dict[str, str]:
 def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple[Any, Path | None]:
     """The plan for PROCEDURE, and the definition file to copy into the run directory (if any)."""
     import dataclasses
-    import json
 
-    from stableins.data.errors import InputError
     from stableins.procedures.plan import Plan
 
     path = Path(procedure)
     if path.suffix == ".json":
-        try:
-            plan = Plan.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except FileNotFoundError:
-            raise InputError("no such plan file", path=path) from None
-        except (ValueError, KeyError, TypeError) as error:
-            raise InputError(f"not a procedure plan ({error})", path=path, expected="a procedure.json written by 'stableins run'") from None
+        from stableins.data.jsonio import load_json_file
+
+        plan = Plan.from_dict(load_json_file(path, what="a procedure plan (procedure.json written by 'stableins run')"), path)
         definition_file = None
     else:
         from stableins.procedures.definition import load_procedure, resolve
         from stableins.procedures.planning import plan_from_definition
 
         definition_file = resolve(procedure)
-        plan = plan_from_definition(load_procedure(definition_file))
+        definition = load_procedure(definition_file)
+        plan = plan_from_definition(definition)
+        if definition.tolerances is not None:  # read by the report at the end of the run: checked before the platform moves
+            from stableins.reporting.tolerances import Tolerances
+
+            Tolerances.from_mapping(definition.tolerances, source=str(definition_file))
     changes = {k: v for k, v in (("retries", retries), ("chunk", chunk)) if v is not None}
     return (dataclasses.replace(plan, **changes) if changes else plan), definition_file
 
@@ -92,15 +108,30 @@ def prior_file(args: argparse.Namespace) -> Path | None:
     if args.store:
         if not args.unit:
             raise InputError("--store needs --unit to find the unit's record", field="--unit")
-        from stableins.history import HistoryStore
+        from stableins.history_store import HistoryStore
 
         store = HistoryStore(args.store)
         entry = store.in_force(args.unit)
         warning = store.staleness(entry)
         if warning:
             print(f"stableins: warning: {warning}", file=sys.stderr)
-        return store.root / args.unit / entry.file
+        return store.record_path(args.unit, entry)  # its SHA-256 checked against the index
     return None
+
+
+def _resumable(rundir: str | None) -> bool:
+    """Whether RUNDIR holds a run that ``--resume`` can continue (a journal that starts with its start record)."""
+    from stableins.drivers.replay import JOURNAL_NAME
+    from stableins.procedures.journal import has_start
+
+    return rundir is not None and has_start(Path(rundir) / JOURNAL_NAME)
+
+
+def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
+    """What the person can do next: resume only when there is something to resume."""
+    if _resumable(rundir):
+        return f"everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}"
+    return "nothing was started (the run directory holds no journal); fix the problem and run the same command again"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -139,22 +170,16 @@ def run(args: argparse.Namespace) -> int:
                 fields=parse_settings(args.set),
             )
     except RunStopped as stop:
-        print(
-            f"stableins: run stopped: {stop}\n  everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}",
-            file=sys.stderr,
-        )
-        return EXIT_STOPPED
+        print(f"stableins: run stopped: {stop}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
+        return EXIT_STOPPED if _resumable(rundir) else 1
     except DriverError as error:
-        print(f"stableins: platform: {error}\n  continue with: stableins run --resume {rundir}", file=sys.stderr)
-        return EXIT_STOPPED
+        print(f"stableins: platform: {error}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
+        return EXIT_STOPPED if _resumable(rundir) else 1
     except JournalMismatch as error:
         print(f"stableins: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(
-            f"stableins: interrupted; everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}",
-            file=sys.stderr,
-        )
+        print(f"stableins: interrupted\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
         return 130
     if not getattr(args, "emit_result", True):  # a command that runs a procedure and reports itself (recal)
         return 0

@@ -11,13 +11,21 @@ import sys
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", type=int, required=True, help="TCP port on 127.0.0.1 (0: any free port)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated truth and noise")
+    from stableins.commands.arguments import integer, number, seed
+
+    parser.add_argument("--port", type=integer(0, 65535), required=True, help="TCP port on 127.0.0.1 (0: any free port)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of the simulated truth and noise")
     parser.add_argument("--unit", help="serial number the simulated unit reports")
-    parser.add_argument("--rate", type=float, help="sample rate [Hz] (default: the simulator's)")
-    parser.add_argument("--connections", type=int, help="stop after this many client connections (default: serve until interrupted)")
+    parser.add_argument("--rate", type=number(0.0, 10000.0, above=True, unit="Hz"), help="sample rate [Hz] (default: the simulator's)")
     parser.add_argument(
-        "--realtime", type=float, default=0.0, metavar="FACTOR", help="stream samples at FACTOR x real time (1: like hardware; 0: at once)"
+        "--connections", type=integer(1, 10**9), help="stop after this many client connections (default: serve until interrupted)"
+    )
+    parser.add_argument(
+        "--realtime",
+        type=number(0.0, 1000.0),
+        default=0.0,
+        metavar="FACTOR",
+        help="stream samples at FACTOR x real time (1: like hardware; 0: at once)",
     )
     parser.add_argument("--quiet", action="store_true", help="do not log connections")
 
@@ -39,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"serve-sim: {message}", file=sys.stderr, flush=True)
 
     try:
-        serve(driver, args.port, ready=ready, log=log, max_connections=args.connections, realtime=max(0.0, args.realtime))
+        serve(driver, args.port, ready=ready, log=log, max_connections=args.connections, realtime=args.realtime)
     except OSError as error:
         raise InputError(f"cannot listen on {LOOPBACK}:{args.port}: {error.strerror}", field="--port") from None
     return 0

@@ -3,7 +3,7 @@
 ::
 
     stableins simulate device --seed 3 --out sim/ [--procedure device-coarse --procedure device-fine]
-    stableins simulate system --seed 3 --out sim/ --duration 6h [--rate 100]
+    stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
@@ -25,6 +25,8 @@ from stableins.data.errors import InputError
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
+#: Longest record ``--duration`` accepts [s] (30 days).
+MAX_DURATION = 30 * 86400.0
 #: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).
 CSV_ROW_LIMIT = 100_000
 
@@ -42,18 +44,8 @@ def parse_duration(text: str) -> float:
         value = float(number) * factor
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a duration (expected e.g. 600, 600s, 30min, 6h, 1d)") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a duration must be positive")
-    return value
-
-
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    if not math.isfinite(value) or value <= 0 or value > MAX_DURATION:
+        raise argparse.ArgumentTypeError(f"{text!r}: a duration must be positive and at most {MAX_DURATION / 86400:g} days")
     return value
 
 
@@ -80,10 +72,12 @@ def levels() -> tuple[str, ...]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from stableins.commands.arguments import number, output_directory, seed
+
     parser.add_argument("level", choices=levels(), help="device-level dwells or a system-level static record")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="output directory (created if needed)")
+    parser.add_argument("--out", type=output_directory, metavar="DIR", help="output directory (created if needed)")
     parser.add_argument(
-        "--seed", type=int, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
+        "--seed", type=seed, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
     )
     parser.add_argument("--truth", type=Path, metavar="FILE", help="simulate this truth (a truth.json) instead of drawing one")
     parser.add_argument(
@@ -99,16 +93,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
         choices=("csv", "h5"),
         help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
     )
-    parser.add_argument("--rate", type=positive_float, metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)")
-    parser.add_argument("--duration", type=parse_duration, default=None, help="system: record length, e.g. 6h, 1d (default 6h)")
+    parser.add_argument(
+        "--rate", type=number(0.0, 10000.0, above=True, unit="Hz"), metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)"
+    )
+    parser.add_argument(
+        "--duration",
+        type=parse_duration,
+        default=None,
+        help="system: record length, e.g. 30h, 2d (default one sidereal day, 23.93 h: the least that separates the Earth-rate harmonics)",
+    )
     parser.add_argument(
         "--procedure",
         action="append",
         metavar="NAME",
         help="device: procedure name or TOML file, repeatable (default: device-coarse and device-fine)",
     )
-    parser.add_argument("--dwell", type=positive_float, metavar="S", help="device: override the procedure's dwell time [s]")
-    parser.add_argument("--settle", type=float, metavar="S", help="device: override the procedure's settling time [s]")
+    parser.add_argument(
+        "--dwell",
+        type=number(0.0, 86400.0, above=True, unit="seconds"),
+        metavar="S",
+        help="device: override the procedure's dwell time [s]",
+    )
+    parser.add_argument(
+        "--settle", type=number(0.0, 86400.0, unit="seconds"), metavar="S", help="device: override the procedure's settling time [s]"
+    )
     parser.add_argument(
         "--installed",
         type=Path,
@@ -147,18 +155,27 @@ def simulation_start(duration: float) -> str:
 def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     """Parameter values of a calibration record, as the calibration the simulated INS runs with.
 
-    Ids the truth's error model does not know (e.g. additive terms) are refused; ids the
-    record lacks keep the truth's installed value.  Unidentifiable parameters carry
-    their prior value in a record, which is what an INS would be loaded with.
+    The record's discovered (additive) terms are installed too: the navigation computer
+    compensates with them (``ErrorModel.inverse`` with the simulator's own definition of the
+    effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
+    effect catalogue's output effects know are refused; ids the record lacks keep the truth's
+    installed value.  Unidentifiable parameters carry their prior value in a record, which is
+    what an INS would be loaded with.
     """
     from stableins.records import CalibrationRecord
+    from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
     installed = dict(truth.installed_calibration)
-    known = set(truth.parameters) | set(installed)
+    known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
     for parameter_id, value in record.values().items():
         if parameter_id not in known:
-            raise InputError(f"parameter {parameter_id!r} is not part of the simulated instrument", path=path, field=parameter_id)
+            raise InputError(
+                f"parameter {parameter_id!r} is not part of the simulated instrument",
+                path=path,
+                field=parameter_id,
+                expected="standard parameters or output effects of 'stableins simulate --list-effects'",
+            )
         installed[parameter_id] = float(value)
     return installed
 
@@ -202,22 +219,40 @@ def run(args: argparse.Namespace) -> int:
     if args.level == "device" and args.duration is not None:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
+    procedures = _device_procedures(args) if args.level == "device" else []  # all checked before anything is written
+    existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
+    before = set(out.iterdir())
     seed = truth.seed if args.seed is None else args.seed
     truth_path = out / "truth.json"
-    truth.write(truth_path)  # first: every data file in DIR has its truth beside it
-    note(f"truth written to {truth_path}")
-    if args.level == "device":
-        files = simulate_device(truth, out, seed, args)
-    else:
-        files = [simulate_system(truth, out, seed, args)]
+    try:
+        truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+        note(f"truth written to {truth_path}")
+        if args.level == "device":
+            files = simulate_device(truth, out, seed, args, procedures)
+        else:
+            files = [simulate_system(truth, out, seed, args)]
+    except BaseException:  # nothing left behind: the files this run created go (what was there stays)
+        for path in set(out.iterdir()) - before:
+            if path.is_file():
+                path.unlink()
+        if not existed and not any(out.iterdir()):
+            out.rmdir()
+        raise
     result = {"out": str(out), "truth": str(truth_path), "seed": seed, "files": files}
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
     return 0
 
 
-def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+def _device_procedures(args: argparse.Namespace) -> list[Any]:
+    """The device-level procedures of this simulation, loaded, validated and with the ``--dwell``/``--settle`` timing."""
+    from stableins.procedures.definition import load_procedure
+
+    return [_with_timing(load_procedure(name), args.dwell, args.settle) for name in args.procedure or DEFAULT_PROCEDURES]
+
+
+def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, procedures: list[Any]) -> list[dict[str, Any]]:
     """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``).
 
     By default the session is what the device-level procedure does on a real platform,
@@ -230,12 +265,9 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     from dataclasses import replace
 
     from stableins.data.device import save_device
-    from stableins.procedures.definition import load_procedure
     from stableins.progress import Progress
 
     rate = args.rate or truth.site.sample_rate
-    procedures = [load_procedure(name) for name in args.procedure or DEFAULT_PROCEDURES]  # all checked before anything is written
-    procedures = [_with_timing(p, args.dwell, args.settle) for p in procedures]
     if getattr(args, "no_iteration", False):
         sessions = _single_passes(truth, procedures, rate, seed)
     else:
@@ -324,7 +356,9 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
 
     suffix = args.format or "h5"
     rate = args.rate or truth.site.sample_rate
-    duration = args.duration or 6 * 3600.0
+    from stableins.conventions import SIDEREAL_DAY
+
+    duration = args.duration or SIDEREAL_DAY
     chunk_samples = 65536
     # the truth puts its damping-loop parameters in site.damping; time 0 of the record is the simulation's start
     metadata = replace(truth.site, sample_rate=rate, start_time=simulation_start(duration))

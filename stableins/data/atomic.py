@@ -34,11 +34,7 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w", encoding: str | 
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, target)
-        directory = os.open(target.parent, os.O_RDONLY)
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
+        fsync_directory(target.parent)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -66,3 +62,12 @@ def atomic_path(path: str | os.PathLike[str]) -> contextlib.AbstractContextManag
             raise
 
     return _manager()
+
+
+def fsync_directory(directory: str | os.PathLike[str]) -> None:
+    """Make a rename or a new file in ``directory`` durable (fsync of the directory itself)."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -32,6 +33,15 @@ from stableins.data.validation import check_finite, check_header_document, match
 BEGIN = "# BEGIN HEADER"
 END = "# END HEADER"
 TRAILER = "# END OF DATA:"
+#: Longest line read [characters]: a data row is ~300; a longer line is refused after reading this much.
+MAX_LINE = 1 << 20
+#: Largest JSON header block [characters].
+MAX_HEADER = 1 << 20
+#: A chunk of rows holds at most this many characters of text (whatever ``rows`` asks for).
+MAX_CHUNK_TEXT = 16 << 20
+#: A number field: ASCII digits only, no underscores (Python's float() accepts both); nan/inf pass to be named as not finite.
+_NUMBER = re.compile(r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|nan|inf|infinity)\s*", re.ASCII | re.IGNORECASE)
+_TRAILER_COUNT = re.compile(r"([0-9]{1,19})(?:\s+rows?)?", re.ASCII)
 
 
 def header_text(kind: str, document: Mapping[str, Any], schema: Sequence[Column]) -> str:
@@ -80,6 +90,87 @@ def trailer_text(rows: int) -> str:
     return f"{TRAILER} {rows} rows\n"
 
 
+def open_text(path: str) -> IO[str]:
+    """Open a CSV file for reading (UTF-8; a byte-order mark, as spreadsheets write, is dropped)."""
+    try:
+        return open(path, encoding="utf-8-sig", newline="")  # noqa: SIM115 - the caller closes it
+    except FileNotFoundError:
+        raise InputError("no such file", path=path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory", path=path, expected="a CSV file") from None
+    except OSError as error:
+        raise InputError(f"cannot open: {error.strerror or error}", path=path) from None
+
+
+def read_line(handle: IO[str], path: str, line_number: int) -> str:
+    """One line of at most :data:`MAX_LINE` characters (a longer one is refused after reading that much: bounded memory)."""
+    try:
+        line = handle.readline(MAX_LINE + 1)
+    except UnicodeDecodeError:
+        raise InputError("not a text file (bad UTF-8)", path=path, expected="a CSV file") from None
+    except IsADirectoryError:
+        raise InputError("is a directory", path=path, expected="a CSV file") from None
+    except OSError as error:
+        raise InputError(f"cannot be read ({error.strerror or error})", path=path) from None
+    if len(line) > MAX_LINE:
+        raise InputError(
+            f"line {line_number} is longer than {MAX_LINE} characters (a data row has a few hundred)",
+            path=path,
+            expected="a stableins CSV file",
+        )
+    return line
+
+
+def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
+    """The JSON header document and the column headers, reading lines with ``readline()`` up to the column-header line."""
+    from stableins.data.jsonio import parse_json
+
+    json_lines: list[str] = []
+    size = 0
+    state = "before"
+    while True:
+        line = readline()
+        if not line:
+            raise InputError("file ends before the column-header line", path=path, expected="a complete stableins CSV file")
+        text = line.rstrip("\r\n")
+        if text.startswith("#"):
+            if text.strip() == BEGIN:
+                state = "inside"
+            elif text.strip() == END:
+                state = "after"
+            elif state == "inside":
+                json_lines.append(text[1:])
+                size += len(text)
+                if size > MAX_HEADER:
+                    raise InputError(f"header block longer than {MAX_HEADER} characters", path=path, field="header")
+            continue
+        if not text.strip():
+            continue
+        break
+    if state == "before":
+        raise InputError("no header block (BEGIN HEADER ... END HEADER)", path=path, expected="the JSON header of docs/formats.md")
+    if state == "inside":
+        raise InputError("header block has no END HEADER line", path=path, expected="a complete JSON header")
+    document = parse_json("\n".join(json_lines), path=path, field="header", what="the JSON header of docs/formats.md")
+    return document, text.split(",")
+
+
+def integer_column(values: Any, raw: Any, name: str, path: str, first_row: int) -> Any:
+    """A float column that must hold whole numbers in the int32 range, as int32 (InputError naming the row otherwise)."""
+    import numpy as np
+
+    values = np.asarray(values)
+    with np.errstate(invalid="ignore"):
+        whole = np.isfinite(values) & (values == np.round(values)) & (np.abs(values) <= np.iinfo(np.int32).max)
+    if not whole.all():
+        k = int(np.argmin(whole))
+        shown = raw[k] if raw is not None else repr(values[k].item())
+        raise InputError(
+            f"{shown!r} is not an integer", path=path, row=first_row + k, field=name, expected=f"an integer below {np.iinfo(np.int32).max}"
+        )
+    return values.astype(np.int32)
+
+
 class CsvReader:
     """Streaming reader of one stableins CSV file (validates as it goes).
 
@@ -98,19 +189,15 @@ class CsvReader:
         self.kind = kind
         self.schema = tuple(schema)
         self._handle: IO[str] | None = None
+        self.line_number = 0
+        self._handle = open_text(self.path)
         try:
-            self._handle = open(self.path, encoding="utf-8", newline="")  # noqa: SIM115 (closed in close())
-        except FileNotFoundError:
-            raise InputError("no such file", path=self.path) from None
-        except OSError as error:
-            raise InputError(f"cannot open: {error.strerror}", path=self.path) from None
-        try:
-            self.document, headers = self._read_header()
+            self.document, headers = read_header_block(self._readline, self.path)
+            check_header_document(self.document, kind, self.path)
+            self.positions = match_columns([parse_header(h) for h in headers], self.schema, self.path)
         except BaseException:
             self.close()
             raise
-        check_header_document(self.document, kind, self.path)
-        self.positions = match_columns([parse_header(h) for h in headers], self.schema, self.path)
         self.n_fields = len(headers)
         self.rows_read = 0
         self.trailer_rows: int | None = None
@@ -118,49 +205,20 @@ class CsvReader:
     # ------------------------------------------------------------------ header
     def _readline(self) -> str:
         assert self._handle is not None
-        try:
-            line = self._handle.readline()
-        except UnicodeDecodeError:
-            raise InputError("not a text file (bad UTF-8)", path=self.path, expected="a CSV file") from None
         self.line_number += 1
-        return line
-
-    def _read_header(self) -> tuple[Any, list[str]]:
-        self.line_number = 0
-        json_lines: list[str] = []
-        state = "before"
-        while True:
-            line = self._readline()
-            if not line:
-                raise InputError("file ends before the column-header line", path=self.path, expected="a complete stableins CSV file")
-            text = line.rstrip("\r\n")
-            if text.startswith("#"):
-                if text.strip() == BEGIN:
-                    state = "inside"
-                elif text.strip() == END:
-                    state = "after"
-                elif state == "inside":
-                    json_lines.append(text[1:])
-                continue
-            if not text.strip():
-                continue
-            break
-        if state == "before":
-            raise InputError("no header block (BEGIN HEADER ... END HEADER)", path=self.path, expected="the JSON header of docs/formats.md")
-        if state == "inside":
-            raise InputError("header block has no END HEADER line", path=self.path, expected="a complete JSON header")
-        try:
-            document = json.loads("\n".join(json_lines))
-        except json.JSONDecodeError as error:
-            raise InputError(f"header JSON is invalid: {error.msg} (header line {error.lineno})", path=self.path) from None
-        return document, [h for h in text.split(",")]
+        return read_line(self._handle, self.path, self.line_number)
 
     # ------------------------------------------------------------------ rows
     def iter_chunks(self, rows: int = 65536) -> Iterator[dict[str, Any]]:
-        """Yield dicts of column arrays of up to ``rows`` rows each, in file order."""
+        """Yield dicts of column arrays of up to ``rows`` rows (and :data:`MAX_CHUNK_TEXT` characters) each, in file order."""
         while True:
             lines: list[tuple[int, str]] = []
+            text_size = 0
+            full = False
             while len(lines) < rows:
+                if text_size >= MAX_CHUNK_TEXT:
+                    full = True
+                    break
                 line = self._readline()
                 if not line:
                     break
@@ -182,20 +240,20 @@ class CsvReader:
                             expected="a complete file",
                         )
                 lines.append((self.line_number, line))
+                text_size += len(line)
             if lines:
                 chunk = self._parse(lines)
                 self.rows_read += len(lines)
                 yield chunk
-            if len(lines) < rows:
+            if len(lines) < rows and not full:
                 break
         self._finish()
 
     def _trailer(self, line: str) -> None:
-        text = line[len(TRAILER) :].strip()
-        try:
-            self.trailer_rows = int(text.split()[0])
-        except (ValueError, IndexError):
-            raise InputError(f"bad END OF DATA line {line.strip()!r}", path=self.path, expected="'# END OF DATA: <n> rows'") from None
+        match = _TRAILER_COUNT.fullmatch(line[len(TRAILER) :].strip())
+        if match is None:
+            raise InputError(f"bad END OF DATA line {line.strip()[:80]!r}", path=self.path, expected="'# END OF DATA: <n> rows'")
+        self.trailer_rows = int(match.group(1))
 
     def _finish(self) -> None:
         if self.trailer_rows is None:
@@ -221,8 +279,10 @@ class CsvReader:
         import numpy as np
 
         commas = self.n_fields - 1
-        if all(line.count(",") == commas for _, line in lines):
-            text = io.StringIO("".join(line for _, line in lines))
+        joined = "".join(line for _, line in lines)
+        # numpy's parser for plain ASCII numbers only: Python's float() (the slow path) would take 1_0 and full-width digits
+        if joined.isascii() and "_" not in joined and all(line.count(",") == commas for _, line in lines):
+            text = io.StringIO(joined)
             numeric = [c for c in self.schema if c.dtype != "str"]
             try:
                 values = np.loadtxt(
@@ -242,15 +302,9 @@ class CsvReader:
         return self._parse_slowly(lines)
 
     def _typed(self, c: Column, values: Any, raw: Any, first_row: int) -> Any:
-        import numpy as np
 
         if c.dtype == "int32":
-            whole = np.isfinite(values) & (values == np.round(values))
-            if not whole.all():
-                k = int(np.argmin(whole))
-                shown = raw[k] if raw is not None else repr(float(values[k]))
-                raise InputError(f"{shown!r} is not an integer", path=self.path, row=first_row + k, field=c.name, expected="an integer")
-            return values.astype(np.int32)
+            return integer_column(values, raw, c.name, self.path, first_row)
         check_finite(c.name, values, self.path, first_row=first_row)
         return values
 
@@ -276,21 +330,16 @@ class CsvReader:
             if c.dtype == "str":
                 out[c.name] = np.array([v.strip() for v in raw])
                 continue
-            try:
-                values = np.array(raw, dtype=float)
-            except ValueError:
-                for k, v in enumerate(raw):
-                    try:
-                        float(v)
-                    except ValueError:
-                        raise InputError(
-                            f"{v!r} is not a number (line {lines[k][0]})",
-                            path=self.path,
-                            row=first_row + k,
-                            field=c.name,
-                            expected="a number",
-                        ) from None
-                raise
+            for k, v in enumerate(raw):
+                if _NUMBER.fullmatch(v) is None:
+                    raise InputError(
+                        f"{v[:40]!r} is not a number (line {lines[k][0]})",
+                        path=self.path,
+                        row=first_row + k,
+                        field=c.name,
+                        expected="a decimal number in ASCII digits, e.g. 9.80665 or -1.2e-05",
+                    )
+            values = np.array(raw, dtype=float)
             out[c.name] = self._typed(c, values, raw, first_row)
         return out
 

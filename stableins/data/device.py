@@ -146,6 +146,40 @@ def _as_column(values: Any, dtype: str) -> Any:
     return array.astype(dtype)
 
 
+def check_device_rows(columns: Mapping[str, Any], path: str | None, first_row: int = 1, previous_time: float | None = None) -> None:
+    """The checks of single rows (and of time order) of a device table, or of a piece of one starting at ``first_row``.
+
+    Readers run them on each piece as it is read, so that a file that is wrong from its first rows on (a sparse or
+    forged file declaring millions of rows) is refused before the rest is read.
+    """
+    import numpy as np
+
+    n = len(columns["time"])
+    for c in DEVICE_COLUMNS:
+        if len(columns[c.name]) != n:
+            raise InputError(f"column has {len(columns[c.name])} rows, 'time' has {n}", path=path, field=c.name, expected=f"{n} rows")
+        check_finite(c.name, columns[c.name], path, first_row=first_row)
+    stage = columns["stage"]
+    bad = ~np.isin(stage, STAGES)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"unknown stage {str(stage[k])[:40]!r}", path=path, row=first_row + k, field="stage", expected="'coarse' or 'fine'"
+        )
+    for name in ("pass", "position"):
+        bad = columns[name] < 1
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(
+                f"{name} {columns[name][k]} is not positive", path=path, row=first_row + k, field=name, expected="an integer ≥ 1"
+            )
+    check_increasing(columns["time"], path, first_row=first_row, previous=previous_time)
+    bad = columns["time_since_command"] < 0
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError("negative time since command", path=path, row=first_row + k, field="time_since_command", expected="a value ≥ 0 s")
+
+
 def validate_device_columns(columns: Mapping[str, Any], path: str | None) -> tuple[tuple[int, int], ...]:
     """Check the content of a device table; return its ``(start, stop)`` dwell blocks.
 
@@ -159,27 +193,10 @@ def validate_device_columns(columns: Mapping[str, Any], path: str | None) -> tup
     import numpy as np
 
     n = len(columns["time"])
-    for c in DEVICE_COLUMNS:
-        if len(columns[c.name]) != n:
-            raise InputError(f"column has {len(columns[c.name])} rows, 'time' has {n}", path=path, field=c.name, expected=f"{n} rows")
-        check_finite(c.name, columns[c.name], path)
-    stage = columns["stage"]
-    bad = ~np.isin(stage, STAGES)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(f"unknown stage {str(stage[k])!r}", path=path, row=k + 1, field="stage", expected="'coarse' or 'fine'")
-    for name in ("pass", "position"):
-        bad = columns[name] < 1
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise InputError(f"{name} {columns[name][k]} is not positive", path=path, row=k + 1, field=name, expected="an integer ≥ 1")
-    check_increasing(columns["time"], path)
-    bad = columns["time_since_command"] < 0
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError("negative time since command", path=path, row=k + 1, field="time_since_command", expected="a value ≥ 0 s")
     if n == 0:
-        return ()
+        raise InputError("the file holds no data rows", path=path, expected="the samples of at least one dwell")
+    check_device_rows(columns, path)
+    stage = columns["stage"]
     change = np.zeros(n, dtype=bool)
     change[0] = True
     for name in ("stage", "pass", "position"):
@@ -250,11 +267,27 @@ def load_device(path: str | os.PathLike[str]) -> DeviceDataset:
 
         reader_h5 = H5Reader(path, "device", DEVICE_COLUMNS)
         document = reader_h5.document
-        columns = reader_h5.read()
+        columns = _read_h5_checked(reader_h5, str(path))
     if "metadata" not in document:
         raise InputError("header has no metadata", path=path, field="metadata", expected="site metadata (docs/formats.md)")
     metadata = metadata_from_document(document["metadata"], str(path))
     return DeviceDataset(metadata, columns, str(path))
+
+
+def _read_h5_checked(reader: Any, path: str) -> dict[str, Any]:
+    """All rows of a device HDF5 file, each piece checked as it is read (memory grows only with rows that pass)."""
+    import numpy as np
+
+    parts: list[dict[str, Any]] = []
+    first, previous = 1, None
+    for chunk in reader.iter_chunks():
+        check_device_rows(chunk, path, first_row=first, previous_time=previous)
+        parts.append(chunk)
+        first += len(chunk["time"])
+        previous = float(chunk["time"][-1]) if len(chunk["time"]) else previous
+    if not parts:
+        return reader.read()
+    return {c.name: np.concatenate([p[c.name] for p in parts]) for c in DEVICE_COLUMNS}
 
 
 def save_device(path: str | os.PathLike[str], columns: Mapping[str, Any], metadata: SiteMetadata) -> Path:

@@ -84,6 +84,8 @@ DAMPING_UNITS: dict[str, str] = {
     "k2": "1/s^2",
     "k3": "1/s^3",
 }
+#: The order of the base-attitude angles in files.
+BASE_ATTITUDE_ORDER = ("yaw", "pitch", "roll")
 _REQUIRED = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
 
 
@@ -101,7 +103,7 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
         "gravity_source": metadata.gravity_source,
         "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
         "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
-        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": ["yaw", "pitch", "roll"]},
+        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
         "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
         "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
         "extra": dict(metadata.extra),
@@ -122,7 +124,9 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         return InputError(message, path=path, field=f"metadata.{key}", expected=expected)
 
     if not isinstance(document, dict):
-        raise InputError("metadata is not a JSON object", path=path, expected="an object with the keys of docs/formats.md")
+        raise InputError(
+            "metadata is not a JSON object", path=path, field="metadata", expected="an object with the keys of docs/formats.md"
+        )
     missing = [k for k in _REQUIRED if k not in document]
     if missing:
         raise fail(f"missing metadata key(s) {missing}", missing[0], "the keys " + ", ".join(_REQUIRED))
@@ -164,6 +168,9 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     if not isinstance(senses, list) or len(senses) != 4 or any(s not in (1, -1) or isinstance(s, bool) for s in senses):
         raise fail(f"gimbal senses {senses!r}", "gimbal_senses", "four values, each +1 or -1")
     base_attitude = quantity("base_attitude", vector=3) if "base_attitude" in document else (0.0, 0.0, 0.0)
+    if "base_attitude" in document and document["base_attitude"].get("order", list(BASE_ATTITUDE_ORDER)) != list(BASE_ATTITUDE_ORDER):
+        order = document["base_attitude"]["order"]
+        raise fail(f"order {str(order)[:60]!r}", "base_attitude.order", f"{list(BASE_ATTITUDE_ORDER)} (the only order stableins reads)")
     reference_temperature = quantity("reference_temperature") if "reference_temperature" in document else 25.0
     damping_doc = document.get("damping", {})
     if not isinstance(damping_doc, dict):
@@ -207,3 +214,35 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         extra=extra,
         start_time=str(start_time),
     )
+
+
+def metadata_from_si(values: Any, source: str | None = None) -> SiteMetadata:
+    """Validate :meth:`SiteMetadata.to_dict` output (SI numbers, no units: a platform's ``META`` reply, a journal).
+
+    The values get their SI units and go through :func:`metadata_from_document`, so the same keys, types and
+    ranges are checked as in a file header.
+
+    Raises
+    ------
+    InputError
+        Naming ``source`` and the key.
+    """
+    from stableins.data.errors import InputError
+
+    if not isinstance(values, dict):
+        raise InputError("metadata is not a JSON object", path=source, expected="an object with the keys of SiteMetadata")
+    unknown = sorted(set(values) - set(SiteMetadata.__dataclass_fields__))
+    if unknown:
+        raise InputError(
+            f"unknown metadata key(s) {unknown[:5]}", path=source, field=f"metadata.{unknown[0]}", expected="SiteMetadata fields"
+        )
+    document = dict(values)
+    for key, unit in (("latitude", "rad"), ("height", "m"), ("gravity", "m/s^2"), ("sample_rate", "Hz"), ("reference_temperature", "degC")):
+        if key in document:
+            document[key] = {"value": document[key], "unit": unit}
+    if "base_attitude" in document:
+        document["base_attitude"] = {"value": document["base_attitude"], "unit": "rad"}
+    damping = document.get("damping", {})
+    if isinstance(damping, dict):
+        document["damping"] = {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in damping.items()}
+    return metadata_from_document(document, source)

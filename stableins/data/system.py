@@ -198,6 +198,7 @@ class SamplingReport:
     jitter: tuple[SamplingIssue, ...] = ()
     n_jitter: int = 0
     max_step_error: float = 0.0
+    n_gaps: int = 0
 
     @property
     def uniform(self) -> bool:
@@ -234,6 +235,7 @@ class SamplingChecker:
         self.gaps: list[SamplingIssue] = []
         self.jitter: list[SamplingIssue] = []
         self.n_jitter = 0
+        self.n_gaps = 0
         self.max_step_error = 0.0
 
     def update(self, time: Any) -> None:
@@ -243,15 +245,26 @@ class SamplingChecker:
         if time.size == 0:
             return
         check_finite("time", time, self.path, first_row=self.n + 1)
-        check_increasing(time, self.path, first_row=self.n + 1, previous=self.last)
-        series = time if self.last is None else np.concatenate([[self.last], time])
+        steps = np.diff(time)
+        first = None if self.last is None else time[0] - self.last
+        if not ((steps.size == 0 or steps.min() > 0) and (first is None or first > 0)):
+            check_increasing(time, self.path, first_row=self.n + 1, previous=self.last)  # names the row
+        low, high = (1.0 - self.tolerance) * self.period, min((1.0 + self.tolerance) * self.period, self.gap_factor * self.period)
+        if steps.size and low <= steps.min() and steps.max() <= high and (first is None or low <= first <= high):
+            # every step regular (the usual case): two passes instead of the per-step bookkeeping below
+            self.max_step_error = max(self.max_step_error, float(steps.max()) - self.period, self.period - float(steps.min()))
+            if first is not None:
+                self.max_step_error = max(self.max_step_error, abs(first - self.period))
+            steps = steps[:0]
+        elif first is not None:
+            steps = np.concatenate([[first], steps])
         row0 = self.n + 1 if self.last is None else self.n
-        steps = np.diff(series)
         if steps.size:
             error = np.abs(steps - self.period)
             self.max_step_error = max(self.max_step_error, float(error.max()))
             gap = steps > self.gap_factor * self.period
-            for k in np.flatnonzero(gap)[:100]:
+            self.n_gaps += int(gap.sum())
+            for k in np.flatnonzero(gap)[: max(0, 100 - len(self.gaps))]:
                 self.gaps.append(SamplingIssue("gap", row0 + int(k) + 1, float(steps[k]), self.period))
             off = (error > self.tolerance * self.period) & ~gap
             self.n_jitter += int(off.sum())
@@ -265,7 +278,25 @@ class SamplingChecker:
     def finish(self) -> SamplingReport:
         span = (self.last or 0.0) - (self.first or 0.0)
         mean_rate = (self.n - 1) / span if self.n > 1 and span > 0 else float("nan")
-        return SamplingReport(self.n, mean_rate, tuple(self.gaps), tuple(self.jitter), self.n_jitter, self.max_step_error)
+        return SamplingReport(self.n, mean_rate, tuple(self.gaps), tuple(self.jitter), self.n_jitter, self.max_step_error, self.n_gaps)
+
+
+@dataclass(frozen=True)
+class RecordValidation:
+    """Result of :meth:`SystemRecord.validate`: the time base, and the derived datasets found consistent.
+
+    Attributes
+    ----------
+    sampling : SamplingReport
+    overview_step : int
+        Step of the ``/overview`` datasets (0: none).
+    time_grid_segments : int
+        Segments of ``/time_grid`` (0: none).
+    """
+
+    sampling: SamplingReport
+    overview_step: int = 0
+    time_grid_segments: int = 0
 
 
 @dataclass(frozen=True)
@@ -375,6 +406,32 @@ class SystemRecord:
         """Time of rows ``start:stop`` from :attr:`time_grid` (which must exist)."""
         return self._reader.grid_time(start, stop)
 
+    def validate(self, *, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = 1 << 18) -> RecordValidation:
+        """The one validation of a system-level record, run by every command that reads one (``check``, ``calibrate system``,
+        ``diagnose``), so that they never disagree about a file.
+
+        One streaming pass (bounded memory) over every column: every value finite, the time strictly increasing and
+        sampled at ``metadata.sample_rate`` (:meth:`check_sampling`'s rules: a gap is an error unless ``allow_gaps``, a
+        mean rate off the metadata by more than 1 % is an error, jitter is a :class:`SamplingWarning`), and the derived
+        datasets of an HDF5 file (``/overview``, ``/time_grid``) equal to the columns they were derived from.
+
+        Raises
+        ------
+        InputError
+            The first problem, naming the row and the column (or dataset).
+        """
+        checker = SamplingChecker(self.sample_rate, self.path, tolerance=tolerance)
+        if self._reader is None:
+            chunks: Iterator[dict[str, Any]] = self.iter_chunks(rows=rows)
+        else:
+            chunks = self._reader.iter_verified(rows)
+        for chunk in chunks:
+            checker.update(chunk["time"])
+        report = self._sampling_verdict(checker.finish(), allow_gaps)
+        grid = None if self._reader is None else self._reader.time_grid
+        step, segments = (0 if self._reader is None else self._reader.overview_step), (0 if grid is None else len(grid))
+        return RecordValidation(report, step, segments)
+
     def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
         """Check the time column against the metadata rate (streaming).
 
@@ -392,7 +449,19 @@ class SystemRecord:
         checker = SamplingChecker(self.sample_rate, self.path, tolerance=tolerance)
         for chunk in self.iter_chunks(["time"], rows=rows):
             checker.update(chunk["time"])
-        report = checker.finish()
+        return self._sampling_verdict(checker.finish(), allow_gaps)
+
+    def _sampling_verdict(self, report: SamplingReport, allow_gaps: bool) -> SamplingReport:
+        """Errors and warnings of a time base (docs/formats.md, "Sampling checks")."""
+        steps = report.n_samples - 1
+        if steps >= 2 and report.n_gaps > steps / 2:
+            raise InputError(
+                f"{report.n_gaps} of the {steps} time steps are longer than 1.5 periods of metadata.sample_rate "
+                f"(mean rate of the stamps {report.mean_rate:.6g} Hz): the sample rate is wrong, not the record gapped",
+                path=self.path,
+                field="time",
+                expected=f"time stamps consistent with metadata.sample_rate = {self.sample_rate:g} Hz",
+            )
         if report.gaps and not allow_gaps:
             g = report.gaps[0]
             raise InputError(
@@ -400,7 +469,7 @@ class SystemRecord:
                 path=self.path,
                 row=g.row,
                 field="time",
-                expected=f"uniform sampling at {self.sample_rate:g} Hz (step {g.expected:.6g} s)",
+                expected=f"uniform sampling at {self.sample_rate:g} Hz (step {g.expected:.6g} s), or --allow-gaps",
             )
         if report.n_samples > 1 and abs(report.mean_rate / self.sample_rate - 1.0) > 0.01 and not report.gaps:
             raise InputError(
@@ -413,7 +482,7 @@ class SystemRecord:
         if issues:
             text = "; ".join(i.describe(self.path) for i in issues[:3])
             more = f" (and {len(report.gaps) + report.n_jitter - 3} more)" if len(report.gaps) + report.n_jitter > 3 else ""
-            warnings.warn(SamplingWarning(f"irregular sampling: {text}{more}", self.path, issues), stacklevel=2)
+            warnings.warn(SamplingWarning(f"irregular sampling: {text}{more}", self.path, issues), stacklevel=3)
         return report
 
 

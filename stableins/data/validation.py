@@ -87,7 +87,9 @@ def check_finite(name: str, values: Any, path: Any, first_row: int = 1, row_step
     values = np.asarray(values)
     if values.dtype.kind != "f":
         return
-    if np.isfinite(np.add.reduce(values, axis=None)):  # NaN and ±inf propagate into the sum: one pass, no temporary
+    with np.errstate(over="ignore", invalid="ignore"):  # a sum of large finite values may overflow: then look (below)
+        total = np.add.reduce(values, axis=None)
+    if np.isfinite(total):  # NaN and ±inf propagate into the sum: one pass, no temporary
         return
     bad = ~np.isfinite(values)  # a non-finite value, or finite values whose sum overflowed: look
     if bad.any():
@@ -124,45 +126,18 @@ def read_format_tag(path: Any) -> str:
 
     Returns ``"stableins-device"``, ``"stableins-system"`` or whatever the file says.
     """
-    import json
     from pathlib import Path
 
     path = Path(path)
     if path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
-        import h5py
+        from stableins.data.hdf5format import open_h5, read_header_attribute
 
-        try:
-            with h5py.File(path, "r") as f:
-                header = f.attrs.get("header")
-        except FileNotFoundError:
-            raise InputError("no such file", path=path) from None
-        except OSError as error:
-            raise InputError(f"cannot be read as HDF5 ({error}); the file is truncated or corrupt", path=path) from None
-        try:
-            return str(json.loads(header).get("format"))
-        except (TypeError, ValueError, AttributeError):
-            raise InputError("no valid 'header' attribute: not a stableins HDF5 file", path=path, field="header") from None
-    from stableins.data.csvformat import BEGIN, END
+        with open_h5(path) as f:
+            document = read_header_attribute(f, path)
+    else:
+        from stableins.data.csvformat import open_text, read_header_block, read_line
 
-    lines: list[str] = []
-    inside = False
-    try:
-        with open(path, encoding="utf-8") as handle:
-            for line in handle:
-                if not line.startswith("#"):
-                    break
-                if line.strip() == BEGIN:
-                    inside = True
-                elif line.strip() == END:
-                    break
-                elif inside:
-                    lines.append(line[1:])
-    except FileNotFoundError:
-        raise InputError("no such file", path=path) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(f"cannot read: {error}", path=path) from None
-    try:
-        document = json.loads("".join(lines))
-    except ValueError:
-        raise InputError("no valid JSON header block", path=path, expected="the header of docs/formats.md") from None
+        with open_text(str(path)) as handle:
+            count = iter(range(1, 1 << 62))
+            document, _ = read_header_block(lambda: read_line(handle, str(path), next(count)), str(path))
     return str(document.get("format")) if isinstance(document, dict) else "unknown"

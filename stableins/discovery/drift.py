@@ -54,7 +54,11 @@ def reading_slope(time: ArrayLike, angles: ArrayLike, skip: float = SLOPE_SKIP) 
     slope = x @ (a - a.mean(axis=0)) / sxx
     residual = a - a.mean(axis=0) - np.outer(x, slope)
     s2 = (residual**2).sum(axis=0) / max(t.size - 2, 1)
-    return slope, np.sqrt(s2 / sxx)
+    sigma = np.sqrt(s2 / sxx) if sxx > 0 else np.full(a.shape[1], np.nan)
+    # a reading that takes fewer than 3 values (a quiet or coarsely quantized sensor) has no scatter to weigh its
+    # slope by (the residuals are rounding): NaN, and the drift analysis leaves the dwell out
+    distinct = np.array([np.unique(a[:, k]).size for k in range(a.shape[1])])
+    return slope, np.where(distinct >= 3, sigma, np.nan)
 
 
 def _nuisance_terms() -> tuple[Term, ...]:
@@ -95,8 +99,17 @@ def drift_problem(
     platform = GimbalPlatform(zero_offsets=tuple(zero_offsets), configuration=dwells.configuration, base_attitude=dwells.base_attitude)
     actual = platform.actual_angles(dwells.readings)
     g = np.stack([platform.angular_rate(actual, np.eye(3)[k]) for k in range(3)], axis=-1)  # (P, 3 omega, 3 gimbals)
-    keep = np.linalg.cond(g) < MAX_CONDITION
-    notes = tuple(f"{lbl}: near gimbal lock, left out of the drift analysis" for lbl, k in zip(dwells.labels, keep, strict=True) if not k)
+    locked = ~(np.linalg.cond(g) < MAX_CONDITION)
+    # a reading that does not move within a dwell (a quiet or coarsely quantized angle sensor) has a slope whose
+    # 1σ from the scatter is 0: it cannot be weighed, and is left out like a dwell near gimbal lock
+    unweighable = ~np.all(np.isfinite(slope_sigma) & (slope_sigma > 0) & np.isfinite(slopes), axis=1)
+    keep = ~locked & ~unweighable
+    notes = tuple(
+        f"{lbl}: {'near gimbal lock' if lock else 'readings constant within the dwell (slope cannot be weighed)'}, "
+        "left out of the drift analysis"
+        for lbl, lock, bad in zip(dwells.labels, locked, unweighable, strict=True)
+        if lock or bad
+    )
     f_p = platform_specific_force(dwells.readings, dwells.gravity, zero_offsets, dwells.base_attitude, configuration=dwells.configuration)
     terms = tuple(drift_terms) if drift_terms is not None else tuple(LIBRARY[f"Dg_{a}"].term for a in "xyz")
     columns: dict[str, NDArray] = {}

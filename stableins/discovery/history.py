@@ -11,13 +11,20 @@ r"""The discovery loop: fit, rank, add an effect, refit — and the history of s
     session.history.plot()
 
 ``BIC = χ² + k ln m`` with the measured σ (k estimated parameters, m observations).
+
+The same :class:`Step` is the unit of the history a calibration record carries
+(:class:`ModelHistory`, the record's ``discovery`` section, docs/formats.md): there every
+step after the first tests one effect added to the calibration (``calibrate device --add``)
+and carries its verdict (:class:`Decision`, Δχ², F-test p, ΔBIC).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from enum import StrEnum
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +40,25 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.ranking import Ranking
 
 
+class Decision(StrEnum):
+    """What became of a step's model in a calibration (the record's discovery history)."""
+
+    BASELINE = "baseline"  #: the model before any effect was added
+    KEPT = "kept"  #: the effect is supported by the data (F-test p < α) and stays in the model
+    NOT_SUPPORTED = "not supported"  #: p ≥ α: the data do not show it; left out of the record
+    NOT_DETERMINED = "not determined"  #: the data cannot separate it from the model; left out of the record
+    KEPT_ON_REQUEST = "kept on request"  #: p ≥ α but kept (``--keep-unsupported``)
+
+    @property
+    def in_model(self) -> bool:
+        """Whether the step's model is the one the following steps build on."""
+        return self in (Decision.BASELINE, Decision.KEPT, Decision.KEPT_ON_REQUEST)
+
+
+#: Output channels a residual label may end with (device dwell means per axis, the fine stage's |f|).
+CHANNELS = ("f_x", "f_y", "f_z", "|f|")
+
+
 @dataclass(frozen=True)
 class Step:
     """One model in the history.
@@ -40,19 +66,29 @@ class Step:
     Attributes
     ----------
     label : str
-        ``"standard"`` or ``"+ Kcc_xxy"``.
+        ``"standard model"`` or ``"+ Kcc_xxy"``.
     model_ids : tuple of str
         Parameter ids of the model.
-    rms : ndarray (3,) or (1,)
-        Residual RMS per output axis [SI].
-    noise_floor : ndarray
-        RMS of the measured 1σ per output axis [SI].
+    rms : ndarray (c,)
+        Residual RMS per output channel [SI].
+    noise_floor : ndarray (c,)
+        RMS of the measured 1σ per output channel [SI].
     chi2_red, dof, bic : float, int, float
         Goodness of fit.
     added : tuple of (id, value, sigma, unit)
         Estimates of the effects added at this step, in engineering units.
     shifts : dict
         Existing parameter id → (shift in engineering units, unit, shift / old 1σ).
+    channels : tuple of str
+        Name of each entry of ``rms`` (``f_x``, ``f_y``, ``f_z``, ``|f|``, or ``all``).
+    decision : Decision or None
+        In a calibration's history: what became of this step's model.
+    delta_chi2, p_value, delta_bic : float
+        In a calibration's history: Δχ² of adding the tested effect to the model in force,
+        its F-test p-value (``F(1, ν−1)``) and the BIC change (negative favours the effect);
+        NaN for the baseline.
+    reason : str
+        The verdict in words.
     """
 
     label: str
@@ -64,27 +100,143 @@ class Step:
     bic: float
     added: tuple[tuple[str, float, float, str], ...] = ()
     shifts: dict = field(default_factory=dict)
+    channels: tuple[str, ...] = ("f_x", "f_y", "f_z")
+    decision: Decision | None = None
+    delta_chi2: float = math.nan
+    p_value: float = math.nan
+    delta_bic: float = math.nan
+    reason: str = ""
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "label": self.label,
             "model": list(self.model_ids),
+            "channels": list(self.channels),
             "residual_rms": [float(x) for x in self.rms],
             "residual_rms_unit": "m/s^2",
             "noise_floor": [float(x) for x in self.noise_floor],
-            "chi2_red": float(self.chi2_red),
+            "chi2_red": _finite(self.chi2_red),
             "dof": int(self.dof),
-            "bic": float(self.bic),
+            "bic": _finite(self.bic),
             "added": [{"id": i, "estimate": v, "sigma": s, "unit": u} for i, v, s, u in self.added],
-            "shifts": {k: {"shift": v[0], "unit": v[1], "in_sigma": v[2]} for k, v in self.shifts.items()},
+            "shifts": {k: {"shift": v[0], "unit": v[1], "in_sigma": _finite(v[2])} for k, v in self.shifts.items()},
         }
+        if self.decision is not None:
+            out.update(
+                decision=str(self.decision),
+                delta_chi2=_finite(self.delta_chi2),
+                p_value=_finite(self.p_value),
+                delta_bic=_finite(self.delta_bic),
+                reason=self.reason,
+            )
+        return out
+
+    @classmethod
+    def from_json(cls, document: Any, where: str = "step") -> Step:
+        """Validate a step written by :meth:`to_json`; ``ValueError`` naming the key otherwise."""
+
+        def fail(key: str, expected: str) -> ValueError:
+            return ValueError(f"{where}.{key}: expected {expected}")
+
+        if not isinstance(document, Mapping):
+            raise ValueError(f"{where}: expected an object")
+        for key in ("label", "model", "channels", "residual_rms", "noise_floor", "chi2_red", "dof", "bic"):
+            if key not in document:
+                raise fail(key, "this key (docs/formats.md, discovery)")
+        label, model, channels = document["label"], document["model"], document["channels"]
+        if not isinstance(label, str) or not label:
+            raise fail("label", "a non-empty string")
+        if not isinstance(model, list) or not all(isinstance(i, str) for i in model):
+            raise fail("model", "a list of parameter ids")
+        if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
+            raise fail("channels", "a non-empty list of channel names")
+        arrays = {}
+        for key in ("residual_rms", "noise_floor"):
+            values = document[key]
+            if not isinstance(values, list) or len(values) != len(channels) or not all(_is_number(v) and v >= 0 for v in values):
+                raise fail(key, f"{len(channels)} non-negative numbers [m/s^2], one per channel")
+            arrays[key] = np.array(values, dtype=float)
+        dof = document["dof"]
+        if isinstance(dof, bool) or not isinstance(dof, int) or dof < 0:
+            raise fail("dof", "a non-negative integer")
+        numbers = {}
+        for key in ("chi2_red", "bic", "delta_chi2", "p_value", "delta_bic"):
+            value = document.get(key)
+            if value is not None and not _is_number(value):
+                raise fail(key, "a finite number or null")
+            numbers[key] = math.nan if value is None else float(value)
+        if numbers["chi2_red"] < 0:
+            raise fail("chi2_red", "a non-negative number")
+        if not (math.isnan(numbers["p_value"]) or 0.0 <= numbers["p_value"] <= 1.0):
+            raise fail("p_value", "a probability in [0, 1]")
+        added = []
+        raw_added = document.get("added", [])
+        if not isinstance(raw_added, list):
+            raise fail("added", "a list")
+        for k, item in enumerate(raw_added):
+            if not (isinstance(item, Mapping) and isinstance(item.get("id"), str) and isinstance(item.get("unit"), str)):
+                raise fail(f"added[{k}]", '{"id", "estimate", "sigma", "unit"}')
+            if not (_is_number(item.get("estimate")) and _is_number(item.get("sigma"))):
+                raise fail(f"added[{k}]", "finite numbers for estimate and sigma")
+            added.append((item["id"], float(item["estimate"]), float(item["sigma"]), item["unit"]))
+        shifts = {}
+        raw_shifts = document.get("shifts", {})
+        if not isinstance(raw_shifts, Mapping):
+            raise fail("shifts", "an object")
+        for key, item in raw_shifts.items():
+            if not (isinstance(item, Mapping) and _is_number(item.get("shift")) and isinstance(item.get("unit"), str)):
+                raise fail(f"shifts.{key}", '{"shift", "unit", "in_sigma"}')
+            in_sigma = item.get("in_sigma")
+            if in_sigma is not None and not _is_number(in_sigma):
+                raise fail(f"shifts.{key}.in_sigma", "a finite number or null")
+            shifts[str(key)] = (float(item["shift"]), item["unit"], math.nan if in_sigma is None else float(in_sigma))
+        decision = document.get("decision")
+        if decision is not None:
+            try:
+                decision = Decision(decision)
+            except ValueError:
+                raise fail("decision", " or ".join(repr(str(d)) for d in Decision)) from None
+        reason = document.get("reason", "")
+        if not isinstance(reason, str):
+            raise fail("reason", "a string")
+        return cls(
+            label=label,
+            model_ids=tuple(model),
+            rms=arrays["residual_rms"],
+            noise_floor=arrays["noise_floor"],
+            chi2_red=numbers["chi2_red"],
+            dof=dof,
+            bic=numbers["bic"],
+            added=tuple(added),
+            shifts=shifts,
+            channels=tuple(channels),
+            decision=decision,
+            delta_chi2=numbers["delta_chi2"],
+            p_value=numbers["p_value"],
+            delta_bic=numbers["delta_bic"],
+            reason=reason,
+        )
 
 
-def _per_axis(result: FitResult, values) -> np.ndarray:
+def _finite(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _per_channel(result: FitResult, values) -> tuple[tuple[str, ...], np.ndarray]:
+    """RMS of ``values`` per output channel named by the residual labels (``... f_x``, ``... |f|``), else over all."""
     v = np.asarray(values, dtype=float)
-    if v.size % 3 == 0 and all(lbl.endswith(("f_x", "f_y", "f_z")) for lbl in result.residual_labels[:3]):
-        return np.sqrt(np.mean(v.reshape(-1, 3) ** 2, axis=0))
-    return np.sqrt(np.mean(v**2, keepdims=True))
+    labels = result.residual_labels
+    names = [next((c for c in CHANNELS if lbl.endswith(c)), None) for lbl in labels] if len(labels) == v.size else [None]
+    if v.size and None not in names:
+        channels = tuple(c for c in CHANNELS if c in names)
+        index = np.array(names)
+        return channels, np.array([np.sqrt(np.mean(v[index == c] ** 2)) for c in channels])
+    return ("all",), np.sqrt(np.mean(v**2, keepdims=True))
 
 
 def make_step(result: FitResult, label: str, previous: FitResult | None = None) -> Step:
@@ -102,21 +254,80 @@ def make_step(result: FitResult, label: str, previous: FitResult | None = None) 
             (t.id, float(t.to_engineering(result[t.id][0])), float(t.sigma_to_engineering(result[t.id][1])), t.unit) for t in new_ids
         )
         for t in result.terms:
-            if t.id in old and old[t.id][2] == "estimated":
+            if t.id in old and old[t.id][2] == "estimated" and result[t.id][2] == "estimated":
                 v0, s0, _ = old[t.id]
                 dv = result[t.id][0] - v0
                 shifts[t.id] = (float(dv / t.scale), t.unit, float(dv / s0) if s0 > 0 else float("nan"))
+    channels, rms = _per_channel(result, result.residuals)
+    _, floor = _per_channel(result, result.residual_sigma)
     return Step(
         label=label,
         model_ids=result.ids,
-        rms=_per_axis(result, result.residuals),
-        noise_floor=_per_axis(result, result.residual_sigma),
+        rms=rms,
+        noise_floor=floor,
         chi2_red=fit_chi2_red(result),
         dof=result.dof,
         bic=float(fit_chi2(result) + k * np.log(m)),
         added=added,
         shifts=shifts,
+        channels=channels,
     )
+
+
+@dataclass(frozen=True)
+class ModelHistory:
+    """The discovery history a calibration record carries (its ``discovery`` section).
+
+    Attributes
+    ----------
+    stage : str
+        The fit whose model grew (``"coarse+fine"``: the fused device-level fit).
+    alpha : float
+        False-alarm level of the F-test that keeps an added effect.
+    steps : tuple of Step
+        The baseline first, then one step per effect tested, each with its :class:`Decision`.
+    """
+
+    stage: str
+    alpha: float
+    steps: tuple[Step, ...]
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """Effects in the model in force: those whose step was kept."""
+        return tuple(s.added[0][0] for s in self.steps[1:] if s.decision is not None and s.decision.in_model)
+
+    def to_json(self) -> dict:
+        return {"stage": self.stage, "alpha": self.alpha, "steps": [s.to_json() for s in self.steps]}
+
+    @classmethod
+    def from_json(cls, document: Any, where: str = "discovery") -> ModelHistory:
+        """Validate the section; ``ValueError`` naming the key (the record reader adds the file)."""
+        if not isinstance(document, Mapping):
+            raise ValueError(f"{where}: expected an object with stage, alpha and steps")
+        stage, alpha, steps = document.get("stage"), document.get("alpha"), document.get("steps")
+        if not isinstance(stage, str) or not stage:
+            raise ValueError(f"{where}.stage: expected the name of the fit, e.g. 'coarse+fine'")
+        if not _is_number(alpha) or not 0.0 < alpha < 1.0:
+            raise ValueError(f"{where}.alpha: expected a false-alarm level between 0 and 1")
+        if not isinstance(steps, list) or not steps:
+            raise ValueError(f"{where}.steps: expected a non-empty list of steps")
+        parsed = tuple(Step.from_json(step, f"{where}.steps[{k}]") for k, step in enumerate(steps))
+        if parsed[0].decision is not Decision.BASELINE:
+            raise ValueError(f"{where}.steps[0].decision: expected 'baseline' (the model before any effect was added)")
+        for k, step in enumerate(parsed[1:], start=1):
+            if step.decision is None or step.decision is Decision.BASELINE or len(step.added) != 1:
+                raise ValueError(f"{where}.steps[{k}]: expected one tested effect in 'added' and its decision")
+        return cls(stage, float(alpha), parsed)
+
+    def report(self) -> str:
+        """The steps (:meth:`History.report`) and the verdict on every tested effect."""
+        lines = [f"model discovery carried into the calibration ({self.stage} fit; an added effect stays when F-test p < {self.alpha:g}):"]
+        lines.append(History(self.steps).report())
+        verdicts = [s for s in self.steps[1:] if s.decision is not None]
+        if verdicts:
+            lines += ["", "verdicts:"] + [f"  {s.added[0][0]}: {s.decision}. {s.reason}" for s in verdicts]
+        return "\n".join(lines)
 
 
 class History:
@@ -137,14 +348,19 @@ class History:
     def report(self) -> str:
         if not self.steps:
             return "(no steps)"
-        n_ax = self.steps[0].rms.size
-        axes = ("x", "y", "z") if n_ax == 3 else ("all",)
+        axes = [c.removeprefix("f_") for c in self.steps[0].channels]
+        verdicts = any(s.decision is not None for s in self.steps)
         head = f"{'step':>4} {'model':<26}" + "".join(f" {'RMS ' + a + ' [µg]':>11}" for a in axes) + f" {'χ²_ν':>8} {'±':>5} {'BIC':>10}"
-        lines = [head]
+        lines = [head + (f" {'p':>9} {'ΔBIC':>8}  decision" if verdicts else "")]
         for k, s in enumerate(self.steps):
             spread = np.sqrt(2.0 / max(s.dof, 1))
             row = f"{k:>4} {s.label:<26}" + "".join(f" {x / MICRO_G:>11.3f}" for x in s.rms)
-            lines.append(row + f" {s.chi2_red:>8.3f} {spread:>5.2f} {s.bic:>10.1f}")
+            row += f" {s.chi2_red:>8.3f} {spread:>5.2f} {s.bic:>10.1f}"
+            if verdicts:
+                p = "" if math.isnan(s.p_value) else f"{s.p_value:.2g}"
+                dbic = "" if math.isnan(s.delta_bic) else f"{s.delta_bic:.1f}"
+                row += f" {p:>9} {dbic:>8}  {s.decision or ''}"
+            lines.append(row)
         floor = self.steps[-1].noise_floor
         lines.append(f"{'':>4} {'noise floor':<26}" + "".join(f" {x / MICRO_G:>11.3f}" for x in floor) + f" {1.0:>8.3f}")
         for k, s in enumerate(self.steps):
@@ -173,9 +389,8 @@ class History:
         k = np.arange(len(self.steps))
         rms = np.array([s.rms for s in self.steps]) / MICRO_G
         floor = np.array([s.noise_floor for s in self.steps]) / MICRO_G
-        names = ("x", "y", "z") if rms.shape[1] == 3 else ("all",)
-        for i, a in enumerate(names):
-            (line,) = ax1.semilogy(k, rms[:, i], "o-", label=f"residual RMS f_{a}")
+        for i, channel in enumerate(self.steps[0].channels):
+            (line,) = ax1.semilogy(k, rms[:, i], "o-", label=f"residual RMS {channel}")
             ax1.semilogy(k, floor[:, i], "--", color=line.get_color(), lw=0.8)
         ax1.set_ylabel("µg (dashed: noise floor)")
         ax1.legend(fontsize=8)
@@ -240,8 +455,9 @@ class Discovery:
         )
         return self._ranking
 
-    def drift(self, refit_top: int = 3) -> Ranking:
-        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells.
+    def drift(self, refit_top: int = 3) -> Ranking | None:
+        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells (None: too few usable slopes,
+        ``drift_notes`` says why).
 
         Uses the zero offsets of the current fit for the actual angles; see
         :mod:`stableins.discovery.drift`.  Needs a dwell problem whose dwells carry slopes.
@@ -255,6 +471,11 @@ class Discovery:
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in ("theta10", "theta20", "theta30")]
         problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
+        if problem.y.size <= len(null) + len(terms):
+            self.drift_notes = notes + (
+                f"only {problem.y.size // 3} dwell(s) with usable reading slopes: too few to rank the drift candidates",
+            )
+            return None
         arcsec_per_hour = np.pi / 648000 / 3600
         fit = problem.fit(null)
         ranking = rank(

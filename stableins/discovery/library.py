@@ -41,6 +41,11 @@ regressor ``∂f^p/∂p``): ``nonorth_12``, ``nonorth_23``, ``tilt_north``, ``ti
 
 Custom effects: build a Term with :func:`custom_effect` (a Python function of
 ``TermInputs``) and :func:`register` it; it is then ranked like the library's own.
+
+Carried into a calibration (``stableins calibrate device --add ID``, :func:`calibration_terms`):
+the instrument group, whose regressors read the specific force only, so that the device
+stages can estimate them and any compensation (:meth:`ErrorModel.inverse`) can apply them.
+The other groups are diagnosed only; :func:`calibration_limit` says why.
 """
 
 from __future__ import annotations
@@ -63,6 +68,17 @@ DEG_PER_HOUR_PER_G = DEG_PER_HOUR / G0
 
 #: Groups of candidates, for reports.
 GROUPS = ("instrument", "environment", "rotation", "equipment", "custom")
+
+#: Groups whose effects a calibration carries (estimated by the device stages, applied by compensation).
+CALIBRATION_GROUPS = ("instrument",)
+#: Why the other groups are diagnosed but not carried into a calibration record.
+_NOT_CARRIED = {
+    "environment": "it needs the temperature, session time or slew history of every dwell, which the device stages do not model",
+    "rotation": "it is not an output of the accelerometers at rest (lever arm: needs rotation; Dg: the gyros move the platform)",
+    "equipment": "it acts through the gimbal kinematics or the base (a property of the platform or the site), not through the "
+    "accelerometer outputs that a calibration record compensates",
+    "custom": "a user-defined regressor may read inputs the device stages do not have",
+}
 
 
 @dataclass(frozen=True)
@@ -514,6 +530,59 @@ class Library:
 
     def terms(self) -> tuple[Term, ...]:
         return tuple(c.term for c in self._items.values())
+
+
+def calibration_limit(term_id: str, library: Library | None = None) -> str | None:
+    """Why an effect cannot be carried into a calibration record, or None when it can (:data:`CALIBRATION_GROUPS`)."""
+    library = library if library is not None else LIBRARY
+    if term_id not in library:
+        return f"no candidate effect {term_id!r} in the library"
+    group = library[term_id].group
+    return None if group in CALIBRATION_GROUPS else _NOT_CARRIED.get(group, f"its group {group!r} is not carried")
+
+
+def calibration_terms(term_ids: Iterable[str], *, source: str = "--add", library: Library | None = None) -> tuple[Term, ...]:
+    """The library terms for effects to be estimated in a calibration, in order, each once.
+
+    Raises
+    ------
+    InputError
+        An unknown id, an id given twice, or an effect that a calibration cannot carry
+        (:func:`calibration_limit`), naming ``source`` (an option or a procedure file).
+    """
+    from stableins.data.errors import InputError
+
+    library = library if library is not None else LIBRARY
+    ids = list(term_ids)
+    carried = [c.id for c in library if c.group in CALIBRATION_GROUPS]
+    seen: set[str] = set()
+    for term_id in ids:
+        if term_id in seen:
+            raise InputError(f"effect {term_id!r} is given twice", field=source, expected="each effect once")
+        seen.add(term_id)
+        if term_id not in library:
+            raise InputError(f"unknown effect {term_id!r}", field=source, expected=f"an effect of the library: {', '.join(carried)}")
+        why = calibration_limit(term_id, library)
+        if why is not None:
+            raise InputError(
+                f"effect {term_id!r} cannot be carried into a calibration: {why}; 'stableins diagnose --add {term_id}' tests it",
+                field=source,
+                expected=f"an instrument effect: {', '.join(carried)}",
+            )
+    return tuple(library[i].term for i in ids)
+
+
+def record_terms(parameter_ids: Iterable[str], library: Library | None = None) -> tuple[Term, ...]:
+    """The discovered (additive) terms among a record's parameter ids, in record order."""
+    library = library if library is not None else LIBRARY
+    return tuple(library[i].term for i in parameter_ids if i in library)
+
+
+def all_terms(library: Library | None = None) -> dict[str, Term]:
+    """Every term a calibration record may carry, by id: the standard and gimbal terms and the library's."""
+    from stableins.errormodel import known_terms
+
+    return known_terms((library if library is not None else LIBRARY).terms())
 
 
 def markdown_table(library: Library | None = None) -> str:

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
+from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.result import FitResult, Likelihood
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -601,9 +602,6 @@ def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: S
     return null, determined, analysis.singular_values
 
 
-#: A parameter combination whose 1σ exceeds this many times its typical size (Term.nominal) is not
-#: determined by the data; a gauge holds one of its parameters at its prior value.
-UNDETERMINED_RATIO = 100.0
 _GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_factor": 3, "installation": 4, "bias": 5}
 
 
@@ -699,7 +697,9 @@ class LinearProblem:
         )
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
-        return np.stack([self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"], axis=1)
+        """Columns of the estimated terms (none: the data determine none of them, e.g. slopes of very short dwells)."""
+        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+        return np.stack(estimated, axis=1) if estimated else np.zeros((self.y.size, 0))
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
         return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))

@@ -299,7 +299,7 @@ def rank(
         aliases = tuple((est_ids[j], float(coef_alias[j, k])) for j in np.argsort(-contrib) if total > 0 and contrib[j] > 0.1 * total)[:4]
         confused = tuple(terms[j].id for j in np.flatnonzero(corr[k] > CONFUSION_CORRELATION) if j != k) if identifiable[k] else ()
         advice = separation.get(t.id, t.excitation)
-        stat, p, dbic = _statistics(delta[k], rss0, nu, m) if identifiable[k] else (0.0, 1.0, float(np.log(m)))
+        stat, p, dbic = effect_statistics(delta[k], rss0, nu, m) if identifiable[k] else (0.0, 1.0, float(np.log(m)))
         scores.append(
             CandidateScore(
                 id=t.id,
@@ -349,7 +349,12 @@ def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: di
     return out
 
 
-def _statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
+def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
+    """``(ΔRSS, p, ΔBIC)`` of adding one effect to a fit with χ² ``rss0`` on ``nu`` degrees of freedom, ``m`` observations.
+
+    ``p`` from ``F = ΔRSS / (RSS₁/(ν−1))`` with ``F(1, ν−1)`` (robust to a mis-scaled noise floor);
+    ``ΔBIC = −ΔRSS + ln m`` (negative favours the effect).
+    """
     from scipy import stats
 
     rss1 = max(rss0 - delta_rss, 1e-300)
@@ -380,7 +385,7 @@ def refit(problem, result: FitResult, model: ErrorModel, candidate: CandidateSco
     from stableins.discovery.problem import fit_chi2
 
     delta = fit_chi2(result) - fit_chi2(new)
-    stat, p, dbic = _statistics(delta, fit_chi2(result), nu, m)
+    stat, p, dbic = effect_statistics(delta, fit_chi2(result), nu, m)
     value, sigma, _ = new[candidate.id]
     shifts = {}
     for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):

@@ -15,7 +15,8 @@ Failure handling, in one place:
 
 from __future__ import annotations
 
-import json
+import math
+import re
 import socket
 import time
 import zlib
@@ -32,6 +33,16 @@ from stableins.drivers.server import PROTOCOL_GREETING, format_float
 
 #: Longest line accepted from the platform [characters] (a sample line is ~200).
 MAX_LINE = 65536
+#: An ``ACQ`` reply must be complete within ``timeout + ACQ_TIME_FACTOR × duration`` seconds (a platform streams a
+#: dwell in real time; twice that allows a slow link), any other reply within ``timeout``: a controller that
+#: trickles bytes cannot hold a request for longer.
+ACQ_TIME_FACTOR = 2.0
+#: An ``ACQ`` may announce at most ``ACQ_COUNT_MARGIN × duration × rate + ACQ_COUNT_SLACK`` samples.
+ACQ_COUNT_MARGIN = 1.1
+ACQ_COUNT_SLACK = 16
+_COUNT = re.compile(r"[0-9]{1,15}", re.ASCII)
+#: A number of the protocol: decimal ASCII (Python's float() would also take ``1_0``).
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
 
 
 def parse_address(spec: str) -> tuple[str, int]:
@@ -90,7 +101,7 @@ class TcpDriver:
             sock.settimeout(self.timeout)
             self._socket, self._buffer = sock, b""
             try:
-                greeting = self._read_line()
+                greeting = self._read_line(time.monotonic() + self.timeout)
             except DriverError as error:
                 self._drop()
                 last = error
@@ -116,14 +127,21 @@ class TcpDriver:
         self.reconnects += 1
         self._connect()
 
-    def _read_line(self) -> str:
+    def _read_line(self, deadline: float) -> str:
+        """The next line; the request it belongs to must be answered by ``deadline`` (``time.monotonic()``)."""
         assert self._socket is not None
         while b"\n" not in self._buffer:
             if len(self._buffer) > MAX_LINE:
                 raise DriverProtocolError(f"{self.address} sent a line longer than {MAX_LINE} characters (garbage?)")
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DriverConnectionError(f"{self.address} did not complete its reply in time (it sends, but too slowly)")
+            self._socket.settimeout(min(self.timeout, remaining))
             try:
                 chunk = self._socket.recv(65536)
             except TimeoutError:
+                if time.monotonic() >= deadline - 1e-3:
+                    raise DriverConnectionError(f"{self.address} did not complete its reply in time (it sends, but too slowly)") from None
                 raise DriverConnectionError(f"{self.address} did not answer within {self.timeout:g} s") from None
             except OSError as error:
                 raise DriverConnectionError(f"{self.address}: {error}") from None
@@ -146,8 +164,8 @@ class TcpDriver:
         except OSError as error:
             raise DriverConnectionError(f"{self.address}: {error}") from None
 
-    def _reply(self, request_id: int, verb: str) -> str:
-        line = self._read_line()
+    def _reply(self, request_id: int, verb: str, deadline: float) -> str:
+        line = self._read_line(deadline)
         words = line.split(" ", 2)
         if len(words) < 2 or words[0] != str(request_id):
             raise DriverProtocolError(f"{self.address} answered {line[:80]!r} to request {request_id} {verb} (garbage or out of step)")
@@ -164,7 +182,7 @@ class TcpDriver:
             self._next_id += 1
             try:
                 self._send(request_id, verb, arguments)
-                return self._reply(request_id, verb)
+                return self._reply(request_id, verb, time.monotonic() + self.timeout)
             except DriverProtocolError:
                 self._drop()
                 raise
@@ -179,14 +197,14 @@ class TcpDriver:
     @property
     def metadata(self) -> SiteMetadata:
         if self._metadata is None:
+            from stableins.data.jsonio import parse_json
+            from stableins.data.metadata import metadata_from_si
+
             payload = self._call("META")
             try:
-                d = json.loads(payload)
-                d["gimbal_senses"] = tuple(d["gimbal_senses"])
-                d["base_attitude"] = tuple(d["base_attitude"])
-                self._metadata = SiteMetadata(**d)
-            except (ValueError, KeyError, TypeError) as error:
-                raise DriverProtocolError(f"{self.address} sent unreadable metadata ({error})") from None
+                self._metadata = metadata_from_si(parse_json(payload, field="META", what="site metadata"), f"META reply of {self.address}")
+            except InputError as error:
+                raise DriverProtocolError(f"{self.address} sent unusable metadata (garbage?): {error}") from None
         return self._metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
@@ -201,31 +219,46 @@ class TcpDriver:
         return np.array([_number(v, self.address, "ANG") for v in values])
 
     def status(self) -> dict[str, object]:
+        from stableins.data.jsonio import parse_json
+
         try:
-            remote = json.loads(self._call("STATUS"))
-        except ValueError as error:
+            remote = parse_json(self._call("STATUS"), field="STATUS", allow_nan=True, what="a status object")
+        except InputError as error:
             raise DriverProtocolError(f"{self.address} sent an unreadable status ({error})") from None
         return {"driver": "tcp", "address": self.address, "reconnects": self.reconnects, "platform": remote}
 
     def acquire(self, duration: float) -> SampleBlock:
+        span = duration if math.isfinite(duration) and duration > 0 else 0.0  # the platform refuses other durations itself
+        limit = int(math.ceil(ACQ_COUNT_MARGIN * span * float(self.metadata.sample_rate))) + ACQ_COUNT_SLACK
         request_id = self._next_id
         self._next_id += 1
         received = 0
+        deadline = time.monotonic() + self.timeout + ACQ_TIME_FACTOR * span
         try:
             self._send(request_id, "ACQ", (format_float(duration),))
-            count_text = self._reply(request_id, "ACQ")
-            count = int(_number(count_text, self.address, "ACQ"))
+            count_text = self._reply(request_id, "ACQ", deadline)
+            if not _COUNT.fullmatch(count_text) or int(count_text) > limit:
+                raise DriverProtocolError(
+                    f"{self.address} announced {count_text[:40]!r} samples for {duration:g} s at "
+                    f"{self.metadata.sample_rate:g} Hz (expected a whole number up to {limit})"
+                )
+            count = int(count_text)
             rows = np.empty((count, 8))
             crc = 0
             for received in range(count):
-                line = self._read_line()
+                line = self._read_line(deadline)
                 crc = zlib.crc32((line + "\n").encode("ascii"), crc)
                 values = line.split(" ")
                 if len(values) != 9 or values[0] != "S":
                     raise DriverProtocolError(f"{self.address} sent {line[:80]!r} as sample {received + 1} of {count} (garbage)")
                 rows[received] = [_number(v, self.address, "ACQ") for v in values[1:]]
+                if received and not rows[received, 0] > rows[received - 1, 0]:
+                    raise DriverProtocolError(
+                        f"{self.address}: sample {received + 1} of {count} has time {rows[received, 0]!r} s, "
+                        f"not after the previous sample's {rows[received - 1, 0]!r} s"
+                    )
             received = count
-            end = self._read_line().split(" ")
+            end = self._read_line(deadline).split(" ")
             if end[:3] != [str(request_id), "END", str(count)] or len(end) != 4 or end[3] != f"{crc:08x}":
                 raise DriverProtocolError(
                     f"{self.address}: acquisition trailer {' '.join(end)[:80]!r} does not match {count} samples with CRC {crc:08x}"
@@ -254,6 +287,8 @@ class TcpDriver:
 
 
 def _number(text: str, address: str, verb: str) -> float:
+    if not _NUMBER.fullmatch(text):
+        raise DriverProtocolError(f"{address} sent {text[:60]!r} where {verb} needs a number (garbage)")
     try:
         value = float(text)
     except ValueError:

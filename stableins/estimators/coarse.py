@@ -58,8 +58,8 @@ from stableins.conventions import (
     specific_force_nav,
 )
 from stableins.data.errors import InputError
-from stableins.errormodel import ErrorModel
-from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.errormodel import ErrorModel, Term
+from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
@@ -70,9 +70,58 @@ GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
 _E = np.eye(3)
 
 
-def coarse_model(nonlinear: bool = False) -> ErrorModel:
-    """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``)."""
-    return ErrorModel.standard(nonlinear=nonlinear, gimbals=True)
+def coarse_model(nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
+    """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
+    return ErrorModel.standard(nonlinear=nonlinear, gimbals=True) + tuple(extra_terms)
+
+
+def gauge_preference(extra_ids: Sequence[str]) -> tuple[str, ...]:
+    """Gauge candidates in order: the platform azimuth ``θ10``, then added (discovered) terms, then the other offsets.
+
+    An added term that these data cannot separate from the model is held at its prior value
+    (status ``unidentifiable``) rather than letting a standard parameter become the gauge.
+    """
+    return GAUGE_PREFERENCE[:1] + tuple(extra_ids) + GAUGE_PREFERENCE[1:]
+
+
+def held_terms_note(held: Mapping[str, Sequence[str]], values: Mapping[str, float], model: ErrorModel, stage: str) -> str:
+    """Note for added terms held at their prior value because these data do not determine them (:func:`.design.undetermined`)."""
+    parts = "; ".join(
+        f"{h} = {float(model[h].to_engineering(values[h])):.4g} {model[h].unit} (with {', '.join(involved) or 'the model'})"
+        for h, involved in held.items()
+    )
+    return (
+        f"not determined by the {stage} data, held at the prior value (status unidentifiable): {parts}; "
+        f"the combination's 1σ would exceed {UNDETERMINED_RATIO:g}× its typical size"
+    )
+
+
+def hold_and_gauge(
+    weighted_jacobian: NDArray[np.float64],
+    model: ErrorModel,
+    scales: NDArray[np.float64],
+    extra_ids: Sequence[str],
+    preference: Sequence[str],
+) -> tuple[DesignAnalysis, Gauge, dict[str, tuple[str, ...]]]:
+    """Design analysis and gauge of the standard parameters, and the added terms these data do not determine.
+
+    The gauge is chosen on the standard columns alone (so a discovered term never becomes a
+    gauge of the standard model); then :func:`.design.undetermined` names the added terms to hold.
+    """
+    standard = [k for k, i in enumerate(model.ids) if i not in extra_ids]
+    analysis = analyze_design(weighted_jacobian[:, standard], [model.ids[k] for k in standard], scales[standard])
+    gauge = choose_gauge(analysis, preference, scales[standard])
+    held = undetermined(weighted_jacobian, model.ids, scales, extra_ids, fixed=gauge.fixed)
+    return analysis, gauge, held
+
+
+def final_design(
+    weighted_jacobian: NDArray[np.float64], model: ErrorModel, scales: NDArray[np.float64], held: Sequence[str]
+) -> DesignAnalysis:
+    """Analysis of the design at the solution with the held terms' columns removed (they are not estimated)."""
+    a = np.array(weighted_jacobian, dtype=float)
+    a[:, [model.index(h) for h in held]] = 0.0
+    return analyze_design(a, model.ids, scales)
 
 
 def platform_specific_force(
@@ -349,6 +398,8 @@ def calibrate_coarse(
     nonlinear: bool = False,
     orientation_tolerance: float = 0.02 * 9.80665,
     noise: NoiseModel | None = None,
+    extra_terms: Sequence[Term] = (),
+    prior: Mapping[str, float] | None = None,
     source: str = "data",
 ) -> FitResult:
     """Coarse stage: fit the 15 parameters to one pass of dwell summaries.
@@ -374,6 +425,12 @@ def calibrate_coarse(
         The instrument's noise model: its bias instability / random walk add the correlated
         covariance of the dwell means (:meth:`stableins.noise.NoiseModel.dwell_mean_covariance`);
         white noise measured in each dwell only when None.
+    extra_terms : sequence of Term
+        Additive terms estimated with the standard ones (discovered effects, e.g. the
+        library's ``Kcc_xxy``; regressors of the specific force).  One that these positions
+        do not determine is held at its ``prior`` value with status ``unidentifiable``.
+    prior : mapping, optional
+        Prior values of ``extra_terms`` [SI] (default: their reference, 0).
 
     Returns
     -------
@@ -384,7 +441,8 @@ def calibrate_coarse(
     base_dcm = dcm_nav_to_body(*base_attitude)
     left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
-    model = coarse_model(nonlinear)
+    model = coarse_model(nonlinear, extra_terms)
+    extra_ids = tuple(t.id for t in extra_terms)
     n = len(model)
     if 3 * len(usable) <= n:
         raise InputError(
@@ -398,10 +456,10 @@ def calibrate_coarse(
         notes.append(noise.describe())
     scales = np.array([t.nominal for t in model])
     # Null space of the design at the starting point decides the gauge.
-    x_start = model.vector({})[None]
+    start_values = {i: float((prior or {}).get(i, model[i].reference)) for i in extra_ids}
+    x_start = model.vector(start_values)[None]
     _, a_start = problem.weighted(x_start)
-    start = analyze_design(a_start[0], model.ids, scales)
-    gauge = choose_gauge(start, GAUGE_PREFERENCE, scales)
+    start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
     if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
         raise InputError(
             f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
@@ -410,14 +468,17 @@ def calibrate_coarse(
             field="position",
             expected="the 18 positions of the procedure (only theta10 may be a gauge)",
         )
-    fixed = {g: 0.0 for g in gauge.fixed}
-    solution = solve_coarse(problem, fixed)
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
-    gauge = choose_gauge(design, GAUGE_PREFERENCE, scales) if design.deficiency == len(fixed) else gauge
-    for g in gauge.fixed:
-        notes.append(
-            f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {', '.join(design.involved()[0])})"
-        )
+    standard_gauge = gauge.fixed
+    fixed = {g: 0.0 for g in standard_gauge} | {h: start_values[h] for h in held}
+    solution = solve_coarse(problem, fixed, x0=x_start.copy())
+    design = final_design(solution.weighted_jacobian[0], model, scales, tuple(held))
+    if design.deficiency == len(fixed):
+        gauge = choose_gauge(design, gauge_preference(tuple(held)), scales)
+    for g in standard_gauge:
+        moved = ", ".join(start.involved()[0])
+        notes.append(f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {moved})")
+    if held:
+        notes.append(held_terms_note(held, start_values, model, "coarse"))
     notes.append("theta30 is relative to the base pitch given in the site metadata (a base tilt about East is the same rotation)")
     if not nonlinear:
         notes.append("K2 (quadratic nonlinearity) ignored in the coarse stage (Wu et al. Eq. 7); estimated in the fine stage")
@@ -437,10 +498,11 @@ def calibrate_coarse(
         notes.append(warning)
     if design.weak:
         notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
-    status = tuple("gauge" if k in fixed else "estimated" for k in model.ids)
-    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in gauge.fixed)
+    status = tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids)
+    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge)
     extra = {
-        "gauge": {g: 0.0 for g in gauge.fixed},
+        "gauge": {g: 0.0 for g in standard_gauge},
+        "held": {h: start_values[h] for h in held},
         "gauge_coefficients": gauge.coefficients,
         "positions_used": [d.position for d in usable],
         "left_out": {int(k): v for k, v in sorted(left_out.items())},

@@ -36,6 +36,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+#: A parameter combination whose 1σ exceeds this many times its typical size (``Term.nominal``) is not
+#: determined by the data: an added (discovered) term in it is held at its prior value.  Model discovery
+#: uses the same limit for its gauges (:mod:`stableins.discovery.problem`).
+UNDETERMINED_RATIO = 100.0
+
 
 @dataclass(frozen=True)
 class DesignAnalysis:
@@ -206,6 +211,53 @@ def choose_gauge(analysis: DesignAnalysis, preference: Sequence[str] = (), scale
             coefficients[kid] = terms
             significance[kid] = {g: abs(c) * d[ids.index(g)] / d[r] for g, c in terms.items()}
     return Gauge(tuple(fixed), coefficients, significance)
+
+
+def undetermined(
+    weighted_jacobian: ArrayLike,
+    ids: Sequence[str],
+    scales: ArrayLike,
+    candidates: Sequence[str],
+    fixed: Sequence[str] = (),
+    ratio: float = UNDETERMINED_RATIO,
+) -> dict[str, tuple[str, ...]]:
+    """Which ``candidates`` to hold so that no free combination has 1σ above ``ratio`` typical sizes.
+
+    In the nominal-scaled design a singular value ``s`` is the noise-σ change of the data per
+    unit-nominal move along its vector, so the combination's 1σ is ``1/s`` typical sizes.  While a
+    vector with ``s < 1/ratio`` involves candidates (component above 0.1), the last of them in
+    ``candidates`` is held (the effect added last gives way to those already established).
+    Exact null directions (``|f| = g`` makes ``Kcq_xy`` and ``Kcq_xz`` one with the bias and
+    ``K2``) and near ones (the same at the calibrated point, off by the installation angles) are
+    both caught; the standard parameters are never held here.
+
+    Returns
+    -------
+    dict
+        Held id → ids of the other parameters in its undetermined direction.
+    """
+    a = np.asarray(weighted_jacobian, dtype=float)
+    d = np.asarray(scales, dtype=float)
+    ids = list(ids)
+    held: dict[str, tuple[str, ...]] = {}
+    while True:
+        cols = [k for k, i in enumerate(ids) if i not in fixed and i not in held]
+        if not cols or not any(ids[k] in candidates for k in cols):
+            return held
+        _, s, vt = np.linalg.svd(a[:, cols] * d[cols], full_matrices=False)
+        options = []
+        for value, vector in zip(s, vt, strict=True):
+            if value >= 1.0 / ratio:
+                continue
+            v = np.abs(vector)
+            options += [
+                (list(candidates).index(ids[c]), v[j], ids[c], vector) for j, c in enumerate(cols) if ids[c] in candidates and v[j] > 0.1
+            ]
+        if not options:
+            return held
+        *_, chosen, vector = max(options, key=lambda o: (o[0], o[1]))
+        big = np.abs(vector) > 0.1 * np.abs(vector).max()
+        held[chosen] = tuple(ids[c] for c, b in zip(cols, big, strict=True) if b and ids[c] != chosen)
 
 
 def describe_design(ids: Sequence[str], singular_values: ArrayLike, null_space: ArrayLike, tol: float = 1e-3) -> list[str]:

@@ -17,6 +17,7 @@ import numpy as np
 from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
+from stableins.errormodel import Term
 from stableins.estimators.allan import DEFAULT_ALPHA, slow_noise_test
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
@@ -236,6 +237,7 @@ def calibrate_device(
     noise: NoiseModel | None = None,
     alpha: float = DEFAULT_ALPHA,
     coarse_nonlinear: bool = True,
+    extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> DeviceCalibration:
     """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
@@ -250,6 +252,10 @@ def calibrate_device(
     paper's 15-parameter coarse stage (``False``) ignores them, which for nominal
     ``K2 = 20 µg/g²`` biases the coarse biases by about 3σ and θ30 by about 1σ
     (benchmarks/bench_device_montecarlo.py); the fine stage re-estimates the biases either way.
+
+    ``extra_terms`` are additive terms (discovered effects, :func:`stableins.discovery.library.calibration_terms`)
+    estimated jointly with the standard parameters in every stage that determines them; a stage
+    that does not holds them (status ``unidentifiable``) at the value of the stage before.
     """
     coarse_procedure = coarse_procedure or load_procedure("device-coarse")
     fine_procedure = fine_procedure or load_procedure("device-fine")
@@ -281,6 +287,7 @@ def calibrate_device(
                 orientation_tolerance=coarse_procedure.acceptance.orientation_tolerance,
                 noise=noise,
                 nonlinear=coarse_nonlinear,
+                extra_terms=extra_terms,
                 source=f"{source} (coarse pass {p})",
             )
         )
@@ -289,7 +296,9 @@ def calibrate_device(
         for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
     }
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
-    joint = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise)
+    joint = dict(
+        gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms
+    )
     if len(passes) > 1:
         coarse = fit_joint(
             used_coarse,
@@ -323,6 +332,7 @@ def calibrate_device(
             expected_positions=fine_procedure.positions,
             allow_missing=allow_missing,
             noise=noise,
+            extra_terms=extra_terms,
             source=f"{source} (fine)",
         )
         if mismatch is not None:
@@ -366,5 +376,6 @@ def calibrate_device(
         "allow_missing": bool(allow_missing),
         "coarse_nonlinear": bool(coarse_nonlinear),
         "noise_model": noise.to_document(),
+        "effects": [t.id for t in extra_terms],  # discovered terms estimated with the standard ones
     }
     return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise, floor)

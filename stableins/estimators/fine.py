@@ -38,8 +38,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.errors import InputError
-from stableins.errormodel import BETA_IDS, ErrorModel
-from stableins.estimators.design import aligned_null_space, analyze_design, choose_gauge
+from stableins.errormodel import BETA_IDS, ErrorModel, Term
+from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.design import aligned_null_space
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
@@ -49,9 +50,9 @@ from stableins.noise import NoiseModel
 GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
 
 
-def fine_model() -> ErrorModel:
-    """Scale factors, biases, installation angles and quadratic coefficients (15 terms)."""
-    return ErrorModel.standard(nonlinear=True)
+def fine_model(extra_terms: Sequence[Term] = ()) -> ErrorModel:
+    """Scale factors, biases, installation angles and quadratic coefficients (15 terms), + ``extra_terms``."""
+    return ErrorModel.standard(nonlinear=True) + tuple(extra_terms)
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,7 @@ def calibrate_fine(
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
     noise: NoiseModel | None = None,
+    extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> FitResult:
     """Fine stage: 12 determined combinations from the squared-amplitude observation.
@@ -148,9 +150,14 @@ def calibrate_fine(
     noise : NoiseModel, optional
         The instrument's noise model (slow noise correlated between dwells,
         :func:`stableins.estimators.dwell.slow_covariance`); white noise only when None.
+    extra_terms : sequence of Term
+        Additive terms estimated with the standard ones (discovered effects), starting from
+        ``coarse``.  One that the norm observation does not determine is carried through from
+        ``coarse`` with status ``unidentifiable``, like the installation-angle pairs.
     """
     usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source, stage="fine")
-    model = fine_model()
+    model = fine_model(extra_terms)
+    extra_ids = tuple(t.id for t in extra_terms)
     start, coarse_sigma = _start_values(model, coarse)
     x0 = model.vector(start)[None]
     problem = FineProblem(
@@ -170,8 +177,8 @@ def calibrate_fine(
         )
     scales = np.array([t.nominal for t in model])
     _, a0 = problem.weighted(x0)
-    start_design = analyze_design(a0[0], model.ids, scales)
-    gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
+    start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    held = tuple(undetermined)
     if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
         raise InputError(
             f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
@@ -180,8 +187,8 @@ def calibrate_fine(
             field="position",
             expected="positions with every axis near +1 g, −1 g and in between",
         )
-    solution = solve_fine(problem, x0, gauge.fixed)
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    solution = solve_fine(problem, x0, gauge.fixed + held)
+    design = final_design(solution.weighted_jacobian[0], model, scales, held)
     x = solution.x[0].copy()
     cov = solution.covariance[0].copy()
     # Installation angles: the fit moves only the determined differences; report those.
@@ -189,21 +196,24 @@ def calibrate_fine(
     determined = []
     arcsec = model["beta_xz"].scale
     for k, coefficients in gauge.coefficients.items():
-        if k not in BETA_IDS:
+        pairs = {g: c for g, c in coefficients.items() if g in GAUGE_PREFERENCE}
+        if k not in BETA_IDS or not pairs:
             continue
-        (g, c), *_ = sorted(coefficients.items(), key=lambda kv: -abs(kv[1]))
+        (g, c), *_ = sorted(pairs.items(), key=lambda kv: -abs(kv[1]))
         name = f"{k} {'+' if c > 0 else '−'} {g}"
         value = x[model.index(k)] + c * x[model.index(g)]
         sigma = float(np.sqrt(cov[model.index(k), model.index(k)]))
         combos[name] = (float(value), sigma)
         determined.append(f"{name} = {value / arcsec:+.3f} ± {sigma / arcsec:.3f} arcsec")
-    for k in BETA_IDS:
+    for k in BETA_IDS + held:
         i = model.index(k)
         x[i] = start[k]
         cov[i, :] = 0.0
         cov[:, i] = 0.0
         cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
-    status = tuple("unidentifiable" if k in BETA_IDS else "estimated" for k in model.ids)
+    status = tuple("unidentifiable" if k in BETA_IDS or k in held else "estimated" for k in model.ids)
+    if held:
+        notes.append(held_terms_note(undetermined, start, model, "fine"))
     determined.append(
         "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
     )
@@ -249,6 +259,7 @@ def calibrate_fine(
         extra={
             "beta_combinations": combos,
             "gauge": {gid: float(start[gid]) for gid in gauge.fixed},
+            "held": {h: float(start[h]) for h in held},
             "positions_used": [d.position for d in usable],
             "left_out": {int(k): v for k, v in sorted(left_out.items())},
             "iterations": solution.iterations,

@@ -64,24 +64,76 @@ def gauss_newton(
     d = np.asarray(scales, dtype=float)[free]
     step = np.full(x.shape[:-1], np.inf)
     iterations = 0
+    r, a = evaluate(x)
+    cost = np.einsum("tm,tm->t", r, r)
     for iterations in range(1, max_iterations + 1):  # noqa: B007
-        r, a = evaluate(x)
         a_s = a[..., free] * d
         normal = np.einsum("tmi,tmj->tij", a_s, a_s)
         rhs = np.einsum("tmi,tm->ti", a_s, r)
-        dz = np.linalg.solve(normal, rhs[..., None])[..., 0]
-        x[..., free] += dz * d
-        step = np.abs(dz).max(axis=-1)
+        dz = _solve(normal, rhs)
+        x, r, a, cost, factor = _damped_step(evaluate, x, free, dz * d, cost)
+        step = np.abs(dz).max(axis=-1) * factor
         if np.all(step < tolerance):
             break
-    r, a = evaluate(x)
     a_s = a[..., free] * d
     normal = np.einsum("tmi,tmj->tij", a_s, a_s)
     covariance = np.zeros(x.shape + (x.shape[-1],))
-    inv = np.linalg.inv(normal) * d[:, None] * d[None, :]
+    inv = _inverse(normal) * d[:, None] * d[None, :]
     idx = np.flatnonzero(free)
     covariance[..., idx[:, None], idx[None, :]] = inv
     return GaussNewtonSolution(x, covariance, r, a, iterations, step, step < tolerance)
+
+
+#: A Gauss-Newton step is halved until the cost falls (at most this many times): a step that diverges (a weakly
+#: determined direction, a quadratic model taken beyond its fold) is shortened instead of followed.
+MAX_HALVINGS = 40
+#: Relative increase of the cost still accepted as "not larger" (rounding near the minimum).
+COST_SLACK = 1e-6
+
+
+def _damped_step(
+    evaluate: Evaluate, x: NDArray[np.float64], free: NDArray[np.bool_], delta: NDArray[np.float64], cost: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The full Gauss-Newton step where it does not raise the cost, else the longest of its halvings that does not.
+
+    A well-posed problem takes the full step every time (the iteration is the plain Gauss-Newton one, result for
+    result); a trial whose cost rises (or whose model cannot be evaluated at the new point) takes half the step, and so on.
+    Returns the new point, its residuals, Jacobian and cost, and the step factor taken per trial (0: no step).
+    """
+    factor = np.ones(x.shape[:-1])
+    for _ in range(MAX_HALVINGS + 1):
+        trial = x.copy()
+        trial[..., free] += factor[:, None] * delta
+        try:
+            with np.errstate(all="ignore"):
+                r, a = evaluate(trial)
+                new_cost = np.einsum("tm,tm->t", r, r)
+            ok = np.isfinite(new_cost) & np.isfinite(a).all(axis=(-2, -1)) & (new_cost <= cost * (1.0 + COST_SLACK) + 1e-300)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):  # e.g. the quadratic model's fold
+            ok = np.zeros(x.shape[:-1], dtype=bool)
+        if ok.all():
+            return trial, r, a, new_cost, factor
+        factor = np.where(ok, factor, 0.5 * factor)
+    factor = np.where(ok, factor, 0.0)  # no step lowers the cost: stay (at a minimum within rounding)
+    trial = x.copy()
+    trial[..., free] += factor[:, None] * delta
+    r, a = evaluate(trial)
+    return trial, r, a, np.einsum("tm,tm->t", r, r), factor
+
+
+def _solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``normal⁻¹ rhs`` per trial; the minimum-norm solution where ``normal`` is singular."""
+    try:
+        return np.linalg.solve(normal, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return np.einsum("tij,tj->ti", np.linalg.pinv(normal, hermitian=True), rhs)
+
+
+def _inverse(normal: NDArray[np.float64]) -> NDArray[np.float64]:
+    try:
+        return np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(normal, hermitian=True)
 
 
 def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:

@@ -53,8 +53,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
-from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model
-from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.errormodel import Term
+from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
@@ -140,6 +140,7 @@ def fit_joint(
     noise: NoiseModel | None = None,
     stage: str = "coarse",
     notes: Sequence[str] = (),
+    extra_terms: Sequence[Term] = (),
 ) -> FitResult:
     """GLS fit of usable coarse dwells (any number of passes) and fine dwells; gauge ``θ10 = 0``.
 
@@ -153,27 +154,32 @@ def fit_joint(
         Estimate ``K2_*`` (always when fine dwells are given: the fine rows determine them).
     stage : str
         Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
+    extra_terms : sequence of Term
+        Additive terms (discovered effects) estimated with the standard ones, in the coarse and
+        the fine rows; one that the rows do not determine keeps its ``start`` value with status
+        ``unidentifiable``.
     """
-    model = coarse_model(nonlinear or bool(fine_dwells))
+    model = coarse_model(nonlinear or bool(fine_dwells), extra_terms)
+    extra_ids = tuple(t.id for t in extra_terms)
     coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
     fine = None
     columns = np.zeros(0, dtype=np.int64)
     if fine_dwells:
-        fm = fine_model()
+        fm = fine_model(extra_terms)
         fine = FineProblem(np.array([d.mean for d in fine_dwells])[None], np.array([d.sem for d in fine_dwells])[None], float(gravity), fm)
         columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
     problem = JointProblem(coarse, fine, columns, slow_covariance([*coarse_dwells, *fine_dwells], noise))
     given = start.as_dict() if isinstance(start, FitResult) else dict(start)
     x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
     scales = np.array([t.nominal for t in model])
-    start_design = analyze_design(problem.weighted(x0)[1][0], model.ids, scales)
-    gauge = choose_gauge(start_design, GAUGE_PREFERENCE, scales)
+    _, gauge, undetermined = hold_and_gauge(problem.weighted(x0)[1][0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    held = tuple(undetermined)
     fixed = tuple(gauge.fixed) or ("theta10",)
     x0[0, [model.index(g) for g in fixed]] = 0.0
-    free = np.array([k not in fixed for k in model.ids])
+    free = np.array([k not in fixed and k not in held for k in model.ids])
     solution = gauss_newton(problem.weighted, x0, free, scales)
     residual, _, cov_o = problem.raw(solution.x)
-    design = analyze_design(solution.weighted_jacobian[0], model.ids, scales)
+    design = final_design(solution.weighted_jacobian[0], model, scales, held)
     m_c = 3 * len(coarse_dwells)
     g = float(gravity)
     residual_sigma = np.sqrt(np.diagonal(cov_o[0]))
@@ -187,6 +193,8 @@ def fit_joint(
     whitened = solution.weighted_residuals[0].copy()
     out_notes = list(notes)
     out_notes += [f"gauge: {k} held at 0 ({model[k].meaning})" for k in fixed]
+    if held:
+        out_notes.append(held_terms_note(undetermined, dict(zip(model.ids, x0[0], strict=True)), model, stage))
     if noise is not None:
         out_notes.append(noise.describe())
     if (stalled := convergence_warning(solution)) is not None:
@@ -201,7 +209,7 @@ def fit_joint(
         terms=model.terms,
         values=solution.x[0].copy(),
         covariance=solution.covariance[0].copy(),
-        status=tuple("gauge" if k in fixed else "estimated" for k in model.ids),
+        status=tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
@@ -212,6 +220,7 @@ def fit_joint(
         notes=tuple(out_notes),
         extra={
             "gauge": {k: 0.0 for k in fixed},
+            "held": {k: float(x0[0, model.index(k)]) for k in held},
             "passes": sorted({d.pass_number for d in coarse_dwells}),
             "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
             "fine_positions_used": [d.position for d in fine_dwells],

@@ -23,7 +23,7 @@ All acquisition goes through :class:`stableins.drivers.base.PlatformDriver`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, GimbalConfiguration
 from stableins.drivers.base import PlatformDriver
+from stableins.errormodel import Term
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
 from stableins.estimators.joint import fit_joint
@@ -171,6 +172,7 @@ def iterate_offsets(
     initial_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
     nonlinear: bool = True,
     progress: Callable[[PassRecord], None] | None = None,
+    extra_terms: Sequence[Term] = (),
 ) -> OffsetIterationResult:
     """Run coarse passes through ``driver`` until the re-estimated offsets are negligible.
 
@@ -188,6 +190,9 @@ def iterate_offsets(
     nonlinear : bool
         Estimate ``K2_*`` in each coarse pass (default); ``False`` is the paper's
         15-parameter stage, whose offsets absorb part of the quadratic terms.
+    extra_terms : sequence of Term
+        Discovered (additive) terms of the unit's model, estimated in every pass and in the
+        joint fit (a hidden cross-coupling would otherwise bias the offsets the passes re-point by).
     """
     cfg = procedure.offset_iteration
     threshold = cfg.threshold if threshold is None else threshold
@@ -210,6 +215,7 @@ def iterate_offsets(
             expected_positions=procedure.positions,
             orientation_tolerance=procedure.acceptance.orientation_tolerance,
             nonlinear=nonlinear,
+            extra_terms=extra_terms,
             source=f"coarse pass {k}",
         )
         used += sorted((d for d in dwells if d.position in fit.extra["positions_used"]), key=lambda d: d.position)
@@ -241,6 +247,7 @@ def iterate_offsets(
                     start=fit,
                     nonlinear=nonlinear,
                     notes=(f"joint fit of coarse passes 1..{k} (each with its own commanded readings)",),
+                    extra_terms=extra_terms,
                 )
             offsets_out = (float(offsets[0]), float(offsets[1]), float(offsets[2]))
             return OffsetIterationResult(joint, offsets_out, tuple(history), tuple(all_dwells), fit)

@@ -1,6 +1,9 @@
 """Procedure definitions: load a TOML file of gimbal steps and validate it.
 
-The format is documented at the top of ``procedures/device-coarse.toml``.  Angles are
+The format is documented at the top of ``device-coarse.toml`` and in ``docs/procedures.md``.  The
+definitions shipped with stableins are package data (``stableins/procedures/definitions/``), so a
+name such as ``"device-coarse"`` is found from any directory, in a checkout and in an installed
+wheel alike; ``procedures/`` at the top of the repository links to them.  Angles are
 written in degrees in the file and held in radians here (SI inside).  Every problem
 raises :class:`stableins.data.errors.InputError` naming the file and the field.
 """
@@ -9,6 +12,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,12 +20,12 @@ from typing import Any
 from stableins.conventions import ARCSEC
 from stableins.data.errors import InputError
 
-#: Where the definitions shipped with stableins live (``procedures/`` in the repository).
-PROCEDURE_DIRECTORY = Path(__file__).resolve().parents[2] / "procedures"
+#: Where the definitions shipped with stableins live: package data, found by name from any directory.
+PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
 #: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances"}
+_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "model"}
 #: Stages a definition may declare.
 STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
@@ -88,6 +92,10 @@ class ProcedureDefinition:
     runner: RunnerSettings = field(default_factory=lambda: RunnerSettings())
     people: tuple[PersonAction, ...] = ()
     record: StaticRecord | None = None
+    #: ``[model] add``: discovered effects (library ids) the stage estimates with the standard terms.
+    model_add: tuple[str, ...] = ()
+    #: the ``[tolerances]`` table as written (validated by :mod:`stableins.reporting.tolerances`), None if absent
+    tolerances: dict[str, Any] | None = None
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -105,19 +113,57 @@ class ProcedureDefinition:
         return sum(s.settle + s.dwell for s in self.steps)
 
 
-def _number(table: dict, key: str, path: str, where: str, *, positive: bool = False, minimum: float | None = None) -> float:
+#: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
+MAX_SECONDS = 86400.0
+MAX_RECORD_SECONDS = 30 * 86400.0
+MAX_RATE = 1e4
+#: Largest procedure file read [bytes] (50 000 steps are about 5 MB).
+MAX_FILE_BYTES = 64 << 20
+
+
+def _number(
+    table: dict,
+    key: str,
+    path: str,
+    where: str,
+    *,
+    positive: bool = False,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    whole: bool = False,
+) -> float:
     value = table[key]
+    field = f"{where.split()[0]}.{key}"  # "step 3" -> step.dwell, "runner" -> runner.chunk
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise InputError(f"{where}: not a finite number ({value!r})", path=path, field=key, expected="a number")
+        raise InputError(f"{where}: not a finite number ({str(value)[:40]!r})", path=path, field=field, expected="a number")
     if positive and value <= 0:
-        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=key, expected="> 0")
+        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=field, expected="> 0")
     if minimum is not None and value < minimum:
-        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=key, expected=f">= {minimum}")
+        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=field, expected=f">= {minimum}")
+    if maximum is not None and value > maximum:
+        raise InputError(f"{where}: above {maximum:g} ({value!r})", path=path, field=field, expected=f"<= {maximum:g}")
+    if whole and value != int(value):
+        raise InputError(f"{where}: {value!r} is not a whole number", path=path, field=field, expected="a whole number")
     return float(value)
 
 
+def shipped_procedures() -> tuple[str, ...]:
+    """Names of the definitions shipped with stableins (``"device-coarse"``, ...)."""
+    return tuple(sorted(p.stem for p in PROCEDURE_DIRECTORY.glob("*.toml")))
+
+
+def _table(value: Any, path: str, name: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
+    return value
+
+
 def resolve(name_or_path: str | Path) -> Path:
-    """A path, or the name of a shipped definition (``"device-coarse"``)."""
+    """A path, or the name of a shipped definition (``"device-coarse"``).
+
+    A name without ``.toml`` that is not an existing file is looked up among the shipped
+    definitions (package data, :data:`PROCEDURE_DIRECTORY`), whatever the working directory.
+    """
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         return p
@@ -135,13 +181,8 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     """
     path = resolve(name_or_path)
     spath = str(path)
-    try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except FileNotFoundError:
-        raise InputError("procedure definition not found", path=spath, expected=f"a TOML file or a name in {PROCEDURE_DIRECTORY}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", path=spath) from None
+    shipped = ", ".join(shipped_procedures())
+    data = read_toml(path, what=f"a procedure definition (a TOML file, or the name of a shipped definition: {shipped})")
     unknown = set(data) - _SECTIONS
     if unknown:
         raise InputError(f"unknown sections {sorted(unknown)}", path=spath, expected=f"{sorted(_SECTIONS)}")
@@ -154,39 +195,50 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     if head.get("angle_unit", "deg") != "deg":
         raise InputError("commands must be written in degrees", path=spath, field="procedure.angle_unit", expected='"deg"')
     handedness = head.get("handedness", 1)
-    if handedness not in (1, -1):
+    if isinstance(handedness, bool) or handedness not in (1, -1):
         raise InputError("must be +1 or -1", path=spath, field="procedure.handedness")
-    defaults = data.get("defaults", {})
+    for key in ("source",):
+        if key in head and not isinstance(head[key], str):
+            raise InputError("not a string", path=spath, field=f"procedure.{key}")
+    if "repoint" in head and not isinstance(head["repoint"], bool):
+        raise InputError(f"{head['repoint']!r} is not true or false", path=spath, field="procedure.repoint", expected="true or false")
+    defaults = _table(data.get("defaults", {}), spath, "defaults")
+    unknown = set(defaults) - set(_TIMING_LIMITS)
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=spath, field="defaults", expected=f"{sorted(_TIMING_LIMITS)}")
     base = {}
     for key, fallback in (("settle", 0.0), ("dwell", None), ("sample_rate", None)):
         if key in defaults:
-            base[key] = _number(defaults, key, spath, "defaults", positive=key != "settle", minimum=0.0)
+            base[key] = _number(defaults, key, spath, "defaults", **_TIMING_LIMITS[key])
         elif fallback is not None:
             base[key] = fallback
-    acc_table = data.get("acceptance", {})
+    acc_table = _table(data.get("acceptance", {}), spath, "acceptance")
     acc_fields = {"min_samples", "noise_blocks", "saturation", "max_angle_span", "orientation_tolerance"}
     if set(acc_table) - acc_fields:
         raise InputError(
             f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}"
         )
-    acc_values: dict[str, Any] = {k: _number(acc_table, k, spath, "acceptance", positive=True) for k in acc_table}
+    acc_values: dict[str, Any] = {k: _number(acc_table, k, spath, "acceptance", **_ACCEPTANCE_LIMITS[k]) for k in acc_table}
     for k in ("min_samples", "noise_blocks"):
         if k in acc_values:
             acc_values[k] = int(acc_values[k])
     if "max_angle_span" in acc_values:
         acc_values["max_angle_span"] *= ARCSEC
     acceptance = Acceptance(**acc_values)
-    it_table = data.get("offset_iteration", {})
+    it_table = _table(data.get("offset_iteration", {}), spath, "offset_iteration")
     it_fields = {"threshold", "max_passes", "noise_sigmas"}
     if set(it_table) - it_fields:
         raise InputError(f"unknown keys {sorted(set(it_table) - it_fields)}", path=spath, field="offset_iteration")
-    it_values: dict[str, Any] = {k: _number(it_table, k, spath, "offset_iteration", minimum=0.0) for k in it_table}
+    it_limits: dict[str, dict[str, Any]] = {
+        "threshold": {"minimum": 0.0, "maximum": 3600.0},
+        "max_passes": {"minimum": 1.0, "maximum": 100.0, "whole": True},
+        "noise_sigmas": {"minimum": 0.0, "maximum": 100.0},
+    }
+    it_values: dict[str, Any] = {k: _number(it_table, k, spath, "offset_iteration", **it_limits[k]) for k in it_table}
     if "threshold" in it_values:
         it_values["threshold"] *= ARCSEC
     if "max_passes" in it_values:
         it_values["max_passes"] = int(it_values["max_passes"])
-        if it_values["max_passes"] < 1:
-            raise InputError("must be at least 1", path=spath, field="offset_iteration.max_passes")
     if head["stage"] not in STAGES:
         raise InputError(f"unknown stage {head['stage']!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
     steps_raw = data.get("step")
@@ -197,6 +249,8 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     steps = []
     for k, raw in enumerate(steps_raw, start=1):
         where = f"step {k}"
+        if not isinstance(raw, dict):
+            raise InputError(f"{where}: not a table", path=spath, field="step", expected="[[step]] tables")
         unknown = set(raw) - _STEP_KEYS
         if unknown:
             raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=spath, field="step", expected=f"{sorted(_STEP_KEYS)}")
@@ -217,7 +271,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         timing = dict(base)
         for key in ("settle", "dwell", "sample_rate"):
             if key in raw:
-                timing[key] = _number(raw, key, spath, where, positive=key != "settle", minimum=0.0)
+                timing[key] = _number(raw, key, spath, where, **_TIMING_LIMITS[key])
             if key not in timing:
                 raise InputError(f"{where}: no {key} and no default", path=spath, field=f"step.{key}")
         expect = raw.get("expect", "")
@@ -229,9 +283,10 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
                 )
         steps.append(Step(position, tuple(angles), timing["settle"], timing["dwell"], timing["sample_rate"], str(expect)))
     positions = [s.position for s in steps]
-    if sorted(positions) != list(range(1, len(steps) + 1)) or positions != sorted(positions):
-        dup = sorted({p for p in positions if positions.count(p) > 1})
-        what = f"duplicated positions {dup}" if dup else f"positions {positions}"
+    if positions != list(range(1, len(steps) + 1)):  # linear in the number of steps
+        dup = sorted(p for p, count in Counter(positions).items() if count > 1)
+        first = next(k for k, p in enumerate(positions, start=1) if p != k)
+        what = f"duplicated positions {dup[:10]}" if dup else f"step {first} has position {positions[first - 1]}"
         raise InputError(f"{what}: positions must run 1, 2, ... {len(steps)} in order", path=spath, field="step.position")
     return ProcedureDefinition(
         name=head["name"],
@@ -246,7 +301,28 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         runner=_runner_settings(data.get("runner", {}), spath),
         people=_people(data.get("person", []), spath, len(steps)),
         record=_static_record(data.get("record"), head["stage"], spath),
+        model_add=_model_add(data.get("model", {}), head["stage"], spath),
+        tolerances=None if data.get("tolerances") is None else data["tolerances"],
     )
+
+
+def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
+    """A TOML file as a table; InputError naming the file when it is missing, a directory, too large, not UTF-8 or not TOML."""
+    from stableins.data.jsonio import read_input_bytes
+
+    data = read_input_bytes(path, max_bytes=MAX_FILE_BYTES, what=what)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise InputError(
+            f"not UTF-8 text (byte {error.start} is {data[error.start : error.start + 1]!r})", path=path, expected="a TOML file in UTF-8"
+        ) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path=path) from None
+    except RecursionError:
+        raise InputError("nested too deeply", path=path, expected="a TOML procedure definition") from None
 
 
 # --------------------------------------------------------------------------- runner sections
@@ -297,6 +373,20 @@ class StaticRecord:
     sample_rate: float
 
 
+#: Ranges of the timing keys of [defaults] and [[step]].
+_TIMING_LIMITS: dict[str, dict[str, Any]] = {
+    "settle": {"minimum": 0.0, "maximum": MAX_SECONDS},
+    "dwell": {"positive": True, "maximum": MAX_SECONDS},
+    "sample_rate": {"positive": True, "maximum": MAX_RATE},
+}
+#: Ranges of the [acceptance] keys (file units: samples, blocks, m/s², arcsec, m/s²).
+_ACCEPTANCE_LIMITS: dict[str, dict[str, Any]] = {
+    "min_samples": {"minimum": 2.0, "maximum": 1e8, "whole": True},
+    "noise_blocks": {"minimum": 2.0, "maximum": 1000.0, "whole": True},
+    "saturation": {"positive": True, "maximum": 1e4},
+    "max_angle_span": {"positive": True, "maximum": 1296000.0},
+    "orientation_tolerance": {"positive": True, "maximum": 100.0},
+}
 _RUNNER_KEYS = {
     "retries": 1.0,
     "chunk": 1.0,
@@ -315,13 +405,21 @@ def _runner_settings(table: Any, path: str) -> RunnerSettings:
     unknown = set(table) - set(_RUNNER_KEYS)
     if unknown:
         raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="runner", expected=f"{sorted(_RUNNER_KEYS)}")
+    from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
+
+    limits: dict[str, dict[str, Any]] = {
+        "retries": {"minimum": RETRIES_RANGE[0], "maximum": RETRIES_RANGE[1], "whole": True},
+        "chunk": {"minimum": CHUNK_RANGE[0], "maximum": CHUNK_RANGE[1]},
+        "angle_tolerance": {"positive": True, "maximum": 648000.0},
+        "scatter_max": {"positive": True, "maximum": 1e8},
+        "slope_max": {"positive": True, "maximum": 1e8},
+        "max_slew": {"positive": True, "maximum": MAX_SECONDS},
+    }
     values: dict[str, Any] = {}
     for key, factor in _RUNNER_KEYS.items():
         if key in table:
-            values[key] = _number(table, key, path, "runner", positive=key != "retries", minimum=0.0) * factor
+            values[key] = _number(table, key, path, "runner", **limits[key]) * factor
     if "retries" in values:
-        if values["retries"] != int(values["retries"]):
-            raise InputError("must be a whole number", path=path, field="runner.retries")
         values["retries"] = int(values["retries"])
     return RunnerSettings(**values)
 
@@ -329,9 +427,13 @@ def _runner_settings(table: Any, path: str) -> RunnerSettings:
 def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
     if not isinstance(entries, list):
         raise InputError("person steps are written [[person]]", path=path, field="person")
+    from stableins.procedures.plan import check_person_default
+
     people = []
     for k, raw in enumerate(entries, start=1):
         where = f"person {k}"
+        if not isinstance(raw, dict):
+            raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
         unknown = set(raw) - _PERSON_KEYS
         if unknown:
             raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
@@ -355,12 +457,44 @@ def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
         default = raw.get("default")
         if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
             raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
+        if isinstance(default, float) and not math.isfinite(default):
+            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
+        for key in ("key", "unit"):
+            if key in raw and not isinstance(raw[key], str):
+                raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
+        check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"person {k}: default")
         people.append(
             PersonAction(
                 before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
             )
         )
     return tuple(people)
+
+
+def _model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
+    """``[model] add = ["Kcc_xxy", ...]``: effects of the discovery library carried into the device stages."""
+    if not isinstance(table, dict):
+        raise InputError("[model] must be a table", path=path, field="model")
+    unknown = set(table) - {"add"}
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="model", expected="add = [effect ids]")
+    ids = table.get("add", [])
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise InputError(f"{ids!r} is not a list of effect ids", path=path, field="model.add", expected='e.g. add = ["Kcc_xxy"]')
+    if ids and stage == "system":
+        raise InputError(
+            "a system-level record does not estimate discovered effects; it compensates those of the prior record",
+            path=path,
+            field="model.add",
+            expected="[model] in a coarse or fine procedure",
+        )
+    from stableins.discovery.library import calibration_terms
+
+    try:
+        calibration_terms(ids, source="model.add")
+    except InputError as error:
+        raise InputError(error.message, path=path, field="model.add", expected=error.expected) from None
+    return tuple(ids)
 
 
 def _static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
@@ -387,7 +521,7 @@ def _static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
         angles.append(math.radians(deg))
     return StaticRecord(
         command=(angles[0], angles[1], angles[2]),
-        settle=_number(table, "settle", path, "record", minimum=0.0) if "settle" in table else 0.0,
-        duration=_number(table, "duration", path, "record", positive=True),
-        sample_rate=_number(table, "sample_rate", path, "record", positive=True),
+        settle=_number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
+        duration=_number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS),
+        sample_rate=_number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
     )

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.data.atomic import fsync_directory
 from stableins.data.errors import InputError
 
 FILE_MAGIC = b"STABLEINS-JOURNAL 1\n"
@@ -115,13 +116,29 @@ def _canonical_dtype(dtype: np.dtype, name: str) -> str:
 
 
 def _decode(payload: bytes, offset: int, path: str | None = None, with_arrays: bool = True) -> Record:
+    from stableins.data.jsonio import parse_json
+
     (n,) = _HEADER_LENGTH.unpack_from(payload, 0)
-    header = json.loads(payload[4 : 4 + n].decode("utf-8"))
+    if n > len(payload) - 4:
+        raise ValueError("header length beyond the payload")
+    try:
+        header = parse_json(payload[4 : 4 + n], path=path, field="journal record", allow_nan=True, what="a journal record header")
+    except InputError as error:
+        raise ValueError(error.describe()) from None
+    if not isinstance(header, dict) or not isinstance(header.get("arrays"), list):
+        raise ValueError("the record header is not an object with an array list")
     position = 4 + n
     arrays: dict[str, NDArray[Any]] = {}
     specs = header.pop("arrays")
-    for name, dtype, shape in specs:
-        count = int(np.prod(shape)) if shape else 1
+    for spec in specs:
+        if not (isinstance(spec, list) and len(spec) == 3 and spec[1] in _DTYPES and isinstance(spec[2], list)):
+            raise ValueError(f"bad array description {str(spec)[:80]}")
+        name, dtype, shape = spec
+        if not all(isinstance(d, int) and 0 <= d < 1 << 40 for d in shape):
+            raise ValueError(f"bad array shape {str(shape)[:80]}")
+        count = int(np.prod(shape, dtype=object)) if shape else 1
+        if count * np.dtype(_DTYPES[dtype]).itemsize > len(payload) - position:
+            raise ValueError("arrays longer than the payload")
         size = count * np.dtype(_DTYPES[dtype]).itemsize
         if with_arrays:
             a = np.frombuffer(payload, dtype=_DTYPES[dtype], count=count, offset=position).reshape(shape)
@@ -206,6 +223,32 @@ def scan(path: str | os.PathLike[str]) -> ScanResult:
     return ScanResult(records, position, size - position, torn_reason)
 
 
+def has_start(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a journal whose first record is whole and a ``start``: a run that can be resumed.
+
+    Reads only the file header and the first record.
+    """
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(len(FILE_MAGIC)) != FILE_MAGIC:
+                return False
+            head = handle.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                return False
+            magic, length, crc = _RECORD_HEAD.unpack(head)
+            if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
+                return False
+            payload = handle.read(length)
+    except OSError:
+        return False
+    if len(payload) != length or zlib.crc32(payload) != crc:
+        return False
+    try:
+        return _decode(payload, len(FILE_MAGIC), str(path), with_arrays=False).kind == "start"
+    except (ValueError, KeyError, UnicodeDecodeError):
+        return False
+
+
 def _damaged(path: Path, handle: Any, position: int, reason: str, size: int, end: int) -> None:
     """Raise unless the bad record is the last thing in the file (then it is a torn write)."""
     if end >= size:
@@ -245,7 +288,7 @@ class Journal:
             raise
         os.write(fd, FILE_MAGIC)
         os.fsync(fd)
-        _fsync_directory(path.parent)
+        fsync_directory(path.parent)
         return cls(path, [], fd)
 
     @classmethod
@@ -320,11 +363,3 @@ def _lock(fd: int, path: Path) -> None:
         raise InputError(
             "another stableins process is running this run right now", path=path, expected="that process to finish or stop"
         ) from None
-
-
-def _fsync_directory(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

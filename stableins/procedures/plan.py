@@ -9,10 +9,20 @@ edited since.  Procedure files (``procedures/*.toml``) are read by
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field
 from typing import Any
 
 from stableins.data.errors import InputError
+
+#: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
+CHUNK_RANGE = (0.1, 3600.0)
+#: ``retries``: repeats of a rejected dwell.
+RETRIES_RANGE = (0, 100)
+#: Longest settle, dwell or slew of one step [s], and longest static record [s].
+MAX_STEP_SECONDS = 86400.0
+MAX_RECORD_SECONDS = 30 * 86400.0
+#: Most steps of a plan.
+MAX_STEPS = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -151,10 +161,10 @@ class Plan:
     description: str = ""
 
     def __post_init__(self) -> None:
-        if self.retries < 0:
-            raise InputError(f"retries = {self.retries}", field="retries", expected="0 or more")
-        if not self.chunk > 0:
-            raise InputError(f"chunk = {self.chunk}", field="chunk", expected="a positive duration [s]")
+        if not RETRIES_RANGE[0] <= self.retries <= RETRIES_RANGE[1]:
+            raise InputError(f"retries = {self.retries}", field="retries", expected=f"{RETRIES_RANGE[0]} to {RETRIES_RANGE[1]}")
+        if not CHUNK_RANGE[0] <= self.chunk <= CHUNK_RANGE[1]:
+            raise InputError(f"chunk = {self.chunk}", field="chunk", expected=f"{CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} s")
         for step in self.steps:
             if isinstance(step, DwellStep) and not (step.dwell > 0 and step.settle >= 0):
                 raise InputError(f"step {step.name!r}: dwell {step.dwell} s, settle {step.settle} s", expected="dwell > 0, settle >= 0")
@@ -177,25 +187,175 @@ class Plan:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Plan:
-        steps: list[Step] = []
-        for s in d["steps"]:
-            s = dict(s)
-            kind = s["kind"]
-            if kind in ("dwell", "static_record"):
-                s["readings"] = tuple(s["readings"])
-                s["checks"] = Checks(**s["checks"])
-            if kind == "offset_iteration":
-                s["positions"] = tuple(s["positions"])
-                s["settles"] = tuple(s["settles"])
-                s["dwells"] = tuple(s.get("dwells", ()))
-            steps.append(_STEP_TYPES[kind](**s))
+    def from_dict(cls, d: Any, path: Any = None) -> Plan:
+        """Validate a plan document (``procedure.json``, a journal's start record) completely and build the plan.
+
+        Raises
+        ------
+        InputError
+            Naming ``path`` and the field (``steps[3].dwell``) and what was expected.
+        """
+        v = _Validator(path)
+        d = v.mapping(d, "", {"name", "level", "retries", "chunk", "sample_rate", "description", "steps"}, {"name", "level", "steps"})
+        level = v.choice(d["level"], "level", ("device", "system", "recal"))
+        raw_steps = v.list(d["steps"], "steps", 1, MAX_STEPS)
+        steps: list[Step] = [v.step(item, f"steps[{k}]") for k, item in enumerate(raw_steps)]
+        rate = d.get("sample_rate")
         return cls(
-            name=d["name"],
-            level=d["level"],
+            name=v.text(d["name"], "name"),
+            level=level,
             steps=tuple(steps),
-            retries=int(d["retries"]),
-            chunk=float(d["chunk"]),
-            sample_rate=d.get("sample_rate"),
-            description=d.get("description", ""),
+            retries=v.integer(d.get("retries", 2), "retries", *RETRIES_RANGE),
+            chunk=v.number(d.get("chunk", 10.0), "chunk", *CHUNK_RANGE),
+            sample_rate=None if rate is None else v.number(rate, "sample_rate", 0.0, 1e4, above=True),
+            description=v.text(d.get("description", ""), "description"),
+        )
+
+
+class _Validator:
+    """Field checks of a plan document; every failure is an InputError naming the file and the field."""
+
+    def __init__(self, path: Any) -> None:
+        self.path = path
+
+    def fail(self, message: str, where: str, expected: str) -> InputError:
+        return InputError(message, path=self.path, field=where or None, expected=expected)
+
+    def mapping(self, value: Any, where: str, allowed: set[str], required: set[str]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(f"{str(value)[:40]!r} is not an object", where, "a JSON object")
+        unknown = sorted(set(value) - allowed)
+        if unknown:
+            raise self.fail(f"unknown key {unknown[0][:40]!r}", where, "keys " + ", ".join(sorted(allowed)))
+        missing = sorted(required - set(value))
+        if missing:
+            raise self.fail(f"missing key {missing[0]!r}", where, "keys " + ", ".join(sorted(required)))
+        return value
+
+    def list(self, value: Any, where: str, shortest: int = 0, longest: int = MAX_STEPS) -> list[Any]:
+        if not isinstance(value, list) or not shortest <= len(value) <= longest:
+            raise self.fail(f"{str(value)[:40]!r} is not a list of {shortest} to {longest} items", where, "a list")
+        return value
+
+    def text(self, value: Any, where: str) -> str:
+        if not isinstance(value, str):
+            raise self.fail(f"{str(value)[:40]!r} is not a string", where, "a string")
+        return value
+
+    def choice(self, value: Any, where: str, options: tuple[str, ...]) -> str:
+        if value not in options:
+            raise self.fail(f"{str(value)[:40]!r}", where, " or ".join(repr(o) for o in options))
+        return value
+
+    def flag(self, value: Any, where: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.fail(f"{str(value)[:40]!r} is not true or false", where, "a boolean")
+        return value
+
+    def number(self, value: Any, where: str, low: float, high: float, *, above: bool = False) -> float:
+        ok = not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
+        if ok:
+            ok = (value > low if above else value >= low) and value <= high
+        if not ok:
+            raise self.fail(f"{str(value)[:40]!r}", where, f"a number in {'(' if above else '['}{low:g}, {high:g}]")
+        return float(value)
+
+    def optional_number(self, value: Any, where: str) -> float | None:
+        return None if value is None else self.number(value, where, -1e300, 1e300)
+
+    def integer(self, value: Any, where: str, low: int, high: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise self.fail(f"{str(value)[:40]!r}", where, f"a whole number from {low} to {high}")
+        return value
+
+    def readings(self, value: Any, where: str) -> tuple[float, float, float]:
+        items = self.list(value, where, 3, 3)
+        return tuple(self.number(x, f"{where}[{k}]", -4 * math.pi, 4 * math.pi) for k, x in enumerate(items))  # type: ignore[return-value]
+
+    def checks(self, value: Any, where: str) -> Checks:
+        d = self.mapping(value, where, set(Checks.__dataclass_fields__), set())
+        ranges = {
+            "angle_tolerance": (0.0, math.pi),
+            "scatter_max": (0.0, 1e3),
+            "slope_max": (0.0, 1e3),
+            "min_fraction": (0.0, 1.0),
+            "max_slew": (0.0, MAX_STEP_SECONDS),
+        }
+        return Checks(**{k: self.number(x, f"{where}.{k}", *ranges[k], above=True) for k, x in d.items()})
+
+    def step(self, value: Any, where: str) -> Step:
+        if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
+            kind = value.get("kind") if isinstance(value, dict) else value
+            raise self.fail(f"step kind {str(kind)[:40]!r}", f"{where}.kind", " or ".join(repr(k) for k in _STEP_TYPES))
+        kind = value["kind"]
+        fields = set(_STEP_TYPES[kind].__dataclass_fields__)
+        required = {f for f, spec in _STEP_TYPES[kind].__dataclass_fields__.items() if spec.default is spec.default_factory is MISSING}
+        d = dict(self.mapping(value, where, fields, required | {"kind"}))
+        at = lambda key: f"{where}.{key}"  # noqa: E731
+        d["name"] = self.text(d["name"], at("name"))
+        for key in ("why", "prompt", "key", "unit"):
+            if key in d:
+                d[key] = self.text(d[key], at(key))
+        if kind == "dwell":
+            d["stage"] = self.choice(d["stage"], at("stage"), ("coarse", "fine"))
+            d["pass_number"] = self.integer(d["pass_number"], at("pass_number"), 1, 10**6)
+            d["position"] = self.integer(d["position"], at("position"), 1, 10**6)
+            d["readings"] = self.readings(d["readings"], at("readings"))
+            d["settle"] = self.number(d["settle"], at("settle"), 0.0, MAX_STEP_SECONDS)
+            d["dwell"] = self.number(d["dwell"], at("dwell"), 0.0, MAX_STEP_SECONDS, above=True)
+            if "checks" in d:
+                d["checks"] = self.checks(d["checks"], at("checks"))
+            if "offset_corrected" in d:
+                d["offset_corrected"] = self.flag(d["offset_corrected"], at("offset_corrected"))
+        elif kind == "static_record":
+            d["readings"] = self.readings(d["readings"], at("readings"))
+            d["settle"] = self.number(d["settle"], at("settle"), 0.0, MAX_STEP_SECONDS)
+            d["duration"] = self.number(d["duration"], at("duration"), 0.0, MAX_RECORD_SECONDS, above=True)
+            if "checks" in d:
+                d["checks"] = self.checks(d["checks"], at("checks"))
+        elif kind == "offset_iteration":
+            positions = self.list(d.get("positions", []), at("positions"), 1, 10**4)
+            d["positions"] = tuple(self.integer(p, f"{at('positions')}[{k}]", 1, 10**6) for k, p in enumerate(positions))
+            n = len(positions)
+            d["settles"] = tuple(
+                self.number(x, f"{at('settles')}[{k}]", 0.0, MAX_STEP_SECONDS)
+                for k, x in enumerate(self.list(d.get("settles", []), at("settles"), n, n))
+            )
+            d["dwells"] = tuple(
+                self.number(x, f"{at('dwells')}[{k}]", 0.0, MAX_STEP_SECONDS, above=True)
+                for k, x in enumerate(self.list(d.get("dwells", []), at("dwells"), n, n))
+            )
+            if "stage" in d:
+                d["stage"] = self.choice(d["stage"], at("stage"), ("coarse",))
+        else:  # person
+            d["action"] = self.choice(d["action"], at("action"), ("confirm", "enter"))
+            for key in ("minimum", "maximum"):
+                if key in d:
+                    d[key] = self.optional_number(d[key], at(key))
+            default = d.get("default")
+            if isinstance(default, bool) or not (default is None or isinstance(default, str | int | float)):
+                raise self.fail(f"default {str(default)[:40]!r}", at("default"), "a number, a text or null")
+            check_person_default(d.get("minimum"), d.get("maximum"), default, self.path, at("default"))
+        return _STEP_TYPES[kind](**d)
+
+
+def check_person_default(minimum: float | None, maximum: float | None, default: Any, path: Any, where: str) -> None:
+    """A person step's bounds are ordered, and its default (what an unattended run enters) obeys them."""
+    if minimum is not None and maximum is not None and minimum > maximum:
+        raise InputError(f"minimum {minimum:g} above maximum {maximum:g}", path=path, field=where, expected="minimum <= maximum")
+    if default is None or (minimum is None and maximum is None):
+        return
+    if isinstance(default, str):
+        try:
+            value = float(default)
+        except ValueError:
+            raise InputError(f"default {default[:40]!r} is not a number", path=path, field=where, expected="a number") from None
+    else:
+        value = float(default)
+    if not math.isfinite(value) or (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
+        raise InputError(
+            f"default {default!r} is outside the step's range",
+            path=path,
+            field=where,
+            expected=f"a default from {minimum} to {maximum}",
         )

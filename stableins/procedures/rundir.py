@@ -24,7 +24,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from stableins import __version__
+import stableins
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
@@ -110,21 +110,23 @@ def start_run(
         )
     if prior is not None and unit is not None and prior.serial_number != unit:
         raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
+    check_settings(plan, console.values)
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
     try:
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="--unit", expected=repr(unit))
+        digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
-                _copy(Path(source), rundir / name)
+                digests[name] = _copy(Path(source), rundir / name)
         _write_plan(rundir, plan)
         journal = Journal.create(journal_file)
         with journal:
             journal.append(
                 "start",
                 {
-                    "version": __version__,
+                    "version": stableins.__version__,
                     "utc": _utc(),
                     "plan": plan.to_dict(),
                     "driver": driver_spec,
@@ -138,6 +140,7 @@ def start_run(
                     "prior_path": str(prior_file) if prior_file is not None else None,
                     "new_calibration": bool(new_calibration),
                     "fields": dict(fields or {}),
+                    "inputs": digests,  # SHA-256 of the copies: a resume verifies every file it reads again
                 },
             )
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
@@ -180,6 +183,8 @@ def resume_run(
                     expected=f"{spec} (only a tcp:// address may change on resume)",
                 )
             spec = driver_spec
+        check_settings(plan, console.values)
+        verify_inputs(rundir, start)  # before the platform is touched: what is read again is what the run started with
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
@@ -211,6 +216,46 @@ def resume_run(
             driver.close()
 
 
+def check_settings(plan: Plan, values: dict[str, str]) -> None:
+    """A ``--set KEY=VALUE`` that answers a person step of the plan is valid for it (checked before the platform moves).
+
+    Other keys are the calibration's own fields (laboratory, operator ...), recorded as entries.
+    """
+    from stableins.procedures.plan import PersonStep
+    from stableins.procedures.runner import parse_entry
+
+    steps = {s.key: s for s in plan.steps if isinstance(s, PersonStep) and s.action == "enter" and s.key}
+    for key, text in values.items():
+        if key in steps:
+            parse_entry(steps[key], text)
+
+
+def verify_inputs(rundir: Path, start: Any) -> None:
+    """Every file of the run directory a resume reads again has the SHA-256 the start record holds.
+
+    Raises
+    ------
+    InputError
+        Naming the file, the digest found and the digest the journal holds (edited acceptance limits or a replaced
+        prior would otherwise change the estimation of a run in progress silently).
+    """
+    from stableins.records import file_sha256
+
+    expected = start.get("inputs")
+    if not isinstance(expected, dict):  # a journal written before digests were kept: nothing to compare with
+        return
+    for name, digest in expected.items():
+        path = rundir / str(name)
+        found = file_sha256(path)
+        if found != digest:
+            raise InputError(
+                f"changed since the run started (SHA-256 {found}); a resumed run must read what it started with",
+                path=path,
+                field="sha256",
+                expected=f"SHA-256 {digest}, as the journal's start record holds",
+            )
+
+
 def _runner(rundir: Path, plan: Plan, session: Session, console: Console, options: RunOptions | None, start: Any) -> Runner:
     definition = None
     if start.get("definition"):
@@ -218,11 +263,25 @@ def _runner(rundir: Path, plan: Plan, session: Session, console: Console, option
 
         definition = load_procedure(rundir / start["definition"])
     offsets = (0.0, 0.0, 0.0)
+    prior = None
     if start.get("prior"):
         prior = _load_record(rundir / start["prior"])
         values = prior.values()
         offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
-    return Runner(plan, session, console, options, definition=definition, offsets=offsets)
+    extra = model_terms(definition, prior)
+    return Runner(plan, session, console, options, definition=definition, offsets=offsets, extra_terms=extra)
+
+
+def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
+    """The discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
+
+    A unit's model is the one its record in force carries; a procedure may add effects to it.
+    """
+    from stableins.discovery.library import calibration_terms, record_terms
+
+    carried = record_terms(prior.ids) if prior is not None else ()
+    named = tuple(definition.model_add) if definition is not None else ()
+    return carried + calibration_terms([i for i in named if i not in {t.id for t in carried}], source="model.add")
 
 
 def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
@@ -362,7 +421,14 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     source = str(dataset or rundir / JOURNAL_NAME)
     dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
     prior = _load_record(rundir / start["prior"])
-    return calibrate_fine(dwells, prior.values(), gravity=metadata.gravity, expected_positions=definition.positions, source=source)
+    return calibrate_fine(
+        dwells,
+        prior.values(),
+        gravity=metadata.gravity,
+        expected_positions=definition.positions,
+        extra_terms=runner.extra_terms,
+        source=source,
+    )
 
 
 def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
@@ -377,6 +443,7 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     from dataclasses import replace
 
     from stableins.data.system import open_system_record
+    from stableins.discovery.library import record_terms
 
     if not start.get("prior"):
         runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
@@ -388,7 +455,9 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = run_system_stage(record, record.metadata, prior.values(), covariance, SystemOptions())
+        outcome = run_system_stage(
+            record, record.metadata, prior.values(), covariance, SystemOptions(), compensation_terms=record_terms(prior.ids)
+        )
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
     extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}
@@ -401,17 +470,18 @@ def _load_record(path: str | os.PathLike[str]) -> Any:
     return CalibrationRecord.load(path)
 
 
-def _copy(source: Path, target: Path) -> None:
-    from stableins.data.atomic import atomic_write
+def _copy(source: Path, target: Path) -> str:
+    """Copy ``source`` to ``target`` (atomically); returns the SHA-256 of the bytes copied."""
+    import hashlib
 
-    try:
-        data = source.read_bytes()
-    except OSError as error:
-        raise InputError(f"cannot read: {error.strerror}", path=source) from None
-    if source.resolve() == target.resolve():
-        return
-    with atomic_write(target, "wb") as handle:
-        handle.write(data)
+    from stableins.data.atomic import atomic_write
+    from stableins.data.jsonio import MAX_DOCUMENT_BYTES, read_input_bytes
+
+    data = read_input_bytes(source, max_bytes=MAX_DOCUMENT_BYTES, what="an input file of the run")
+    if source.resolve() != target.resolve():
+        with atomic_write(target, "wb") as handle:
+            handle.write(data)
+    return hashlib.sha256(data).hexdigest()
 
 
 def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:

@@ -169,6 +169,14 @@ class Session:
         self.replayed = 0
         #: when a list, every operation record (replayed or new) is also appended to it
         self.trace: list[Record] | None = None
+        #: the latest platform time seen [s] and whether it was a sample's (the next sample must then come strictly
+        #: later) or a command's (a sample may carry the command's time): the platform's clock never runs back
+        self.clock: tuple[float, bool] = (-math.inf, False)
+        #: the latest sample time of the accepted data [s]: nothing recorded later may come before it
+        self.floor = -math.inf
+        #: a system-level static record has its own time base (time since the start of the record)
+        self.static_clock: tuple[float, bool] = (-math.inf, False)
+        self._live = False
 
     @property
     def replaying(self) -> bool:
@@ -214,11 +222,23 @@ class Session:
                 _check_same(operation, result, call(), record.seq)
             if self.trace is not None:
                 self.trace.append(record)
+            if operation == "static_chunk":
+                self.static_clock = _latest_time(operation, result, self.static_clock)
+            else:
+                self.clock = _latest_time(operation, result, self.clock)
             return result
+        if not self._live:
+            self._live = True
+            if self.replayed and not self.forward:
+                # a real platform after a resume: its clock may have restarted with its power, which is harmless as long
+                # as nothing it records comes before the data already accepted
+                self.clock = (self.floor, True)
         try:
             result = call()
-            if operation == "acquire":
-                _validate_block(result)
+            if operation == "static_chunk":  # before anything is journaled
+                self.static_clock = _check_clock(operation, result, self.static_clock)
+            else:
+                self.clock = _check_clock(operation, result, self.clock)
         except DriverError as error:
             self.journal.append(
                 "op",
@@ -244,6 +264,12 @@ class Session:
         if self.trace is not None:
             self.trace.append(record)
         return _result_of(record)
+
+    def accept(self, blocks: list[SampleBlock]) -> None:
+        """Blocks that became part of the run's data: later recordings must come after them."""
+        for block in blocks:
+            if len(block.time):
+                self.floor = max(self.floor, float(block.time[-1]))
 
     # ------------------------------------------------------------------ decisions
     def decide(self, kind: str, fields: dict[str, Any]) -> tuple[Record, bool]:
@@ -323,6 +349,58 @@ def _validate_block(block: SampleBlock) -> None:
     for name, shape in shapes.items():
         if np.shape(getattr(block, name)) != shape:
             raise DriverProtocolError(f"the platform returned {name} of shape {np.shape(getattr(block, name))}, expected {shape}")
+
+
+def _sample_times(operation: str, result: Any) -> Any:
+    if operation == "acquire":
+        return np.asarray(result.time, dtype=float)
+    if operation == "static_chunk":
+        return np.asarray(result.get("time", ()), dtype=float)
+    return None
+
+
+def _latest_time(operation: str, result: Any, clock: tuple[float, bool]) -> tuple[float, bool]:
+    """The clock after an operation (journaled results: already checked)."""
+    if operation == "command":
+        return max(clock[0], float(result)), clock[1] and clock[0] >= float(result)
+    time = _sample_times(operation, result)
+    if time is not None and time.size:
+        return max(clock[0], float(time[-1])), True
+    return clock
+
+
+def _check_clock(operation: str, result: Any, clock: tuple[float, bool]) -> tuple[float, bool]:
+    """Refuse (DriverProtocolError, before it is journaled) a result whose times are not finite or run back; the new clock.
+
+    A session's times must increase throughout: the data set of the run is one time series, and samples that ran
+    back would make every export of the run, and so every resume, fail the same way.  A command may carry the time
+    of the last sample, and the first sample after it the command's time; samples increase strictly.
+    """
+    latest, strict = clock
+    if operation == "acquire":
+        _validate_block(result)
+    elif operation == "command":
+        issued = float(result)
+        if not math.isfinite(issued):
+            raise DriverProtocolError(f"the platform reported the command at time {issued!r}")
+        if issued < latest:
+            raise DriverProtocolError(f"the platform's clock ran back: a command at {issued!r} s after a sample at {latest!r} s")
+        return issued, False
+    time = _sample_times(operation, result)
+    if time is None or time.size == 0:
+        return clock
+    if not np.isfinite(time).all():
+        raise DriverProtocolError(f"the platform sent a sample time {time[~np.isfinite(time)][0]!r} (expected finite times)")
+    steps = np.diff(time)
+    first_ok = time[0] > latest if strict else time[0] >= latest
+    if not first_ok or not (steps > 0).all():
+        k = 0 if not first_ok else int(np.argmax(~(steps > 0))) + 1
+        before = latest if k == 0 else float(time[k - 1])
+        raise DriverProtocolError(
+            f"the platform's clock ran back: sample {k + 1} of {time.size} at {float(time[k])!r} s follows {before!r} s "
+            "(times must increase through the whole session)"
+        )
+    return float(time[-1]), True
 
 
 # --------------------------------------------------------------------------- checks
@@ -410,8 +488,11 @@ class Runner:
         *,
         definition: Any = None,
         offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        extra_terms: tuple[Any, ...] = (),
     ) -> None:
         self.plan = plan
+        #: discovered terms of the unit's model the stage estimates (the prior record's and the definition's ``[model] add``)
+        self.extra_terms = tuple(extra_terms)
         self.session = session
         self.console = console
         self.options = options or RunOptions()
@@ -456,8 +537,14 @@ class Runner:
             return
 
         def ask_value() -> Any:
-            text = self.console.enter(step)
-            return _parse_value(step, text)
+            while True:
+                text = self.console.enter(step)
+                try:
+                    return parse_entry(step, text)
+                except InputError as error:
+                    if self.console.yes or step.key in self.console.values:
+                        raise  # checked before the run started; cannot happen unless the plan changed
+                    self.console.say(f"  {error.message} (expected {error.expected}); please enter it again")
 
         value = self.session.enter("input", index, ask_value)
         self.inputs[step.key] = value
@@ -510,6 +597,7 @@ class Runner:
             if result.accepted:
                 self.console.say(f"  accepted: {result.describe()}")
                 self.entries.append(_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
+                self.session.accept(blocks)
                 return
             rejections += 1
             self.console.say(f"  rejected: {'; '.join(result.reasons)}")
@@ -548,6 +636,7 @@ class Runner:
         done = 0
         context = {"step": index, "attempt": 1, "phase": "static"}
         self.static_chunks = []
+        self.session.static_clock = (-math.inf, False)  # the record's own time base starts with it
         while done < total:
             self.session.context = dict(context)
             self.session.trace = []
@@ -633,6 +722,7 @@ class Runner:
                     self.definition,
                     initial_offsets=tuple(float(o) for o in self.offsets),
                     progress=lambda record: self.console.say(f"  {record.describe()}"),
+                    extra_terms=self.extra_terms,
                 )
             except OffsetIterationError as error:
                 message = f"step {step.name!r}: {error}"
@@ -652,7 +742,10 @@ class Runner:
             self.session.decide(
                 "iteration", {"step": index, "attempt": attempt, "offsets": list(self.offsets), "passes": len(result.history)}
             )
-            self.entries += iteration_entries(step, trace)
+            accepted = iteration_entries(step, trace)
+            self.entries += accepted
+            for entry in accepted:
+                self.session.accept(entry["blocks"])
             seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
             return
@@ -736,7 +829,8 @@ def _concatenate(blocks: list[SampleBlock]) -> SampleBlock:
     )
 
 
-def _parse_value(step: PersonStep, text: str) -> Any:
+def parse_entry(step: PersonStep, text: str) -> Any:
+    """The value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
     if step.minimum is None and step.maximum is None and not _is_number(text):
         if not text:
             raise InputError(f"step {step.name!r}: no value entered", field=step.key, expected=f"a value in {step.unit or 'text'}")

@@ -105,13 +105,6 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
     return rows
 
 
-def discovered_terms(ids: Iterable[str]) -> list[Any]:
-    """Terms of the model-discovery library among ``ids`` (their engineering units for the certificate)."""
-    from stableins.discovery.library import LIBRARY
-
-    return [LIBRARY[i].term for i in ids if i in LIBRARY]
-
-
 def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence]:
     """The residual evidence of every fit of the stages run in this calibration, as stored in the record."""
     out = []
@@ -125,15 +118,51 @@ def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence
 
 def read_discovery(path: str | PathLike[str]) -> dict[str, Any]:
     """The JSON document of ``stableins diagnose --json`` (checked for its two lists)."""
-    try:
-        document = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("no such file", path=path, expected="the output of 'stableins diagnose --json'") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise InputError(f"cannot read JSON ({error})", path=path, expected="the output of 'stableins diagnose --json'") from None
+    from stableins.data.jsonio import load_json_file
+
+    document = load_json_file(path, what="the output of 'stableins diagnose --json'")
     if not isinstance(document, dict) or not isinstance(document.get("history"), list) or not isinstance(document.get("candidates"), list):
         raise InputError("no 'history' and 'candidates' lists", path=path, expected="the output of 'stableins diagnose --json'")
+    _check_discovery(document, path)
     return document
+
+
+#: Types of the fields of a ``diagnose --json`` document that the report reads (None: may be null or absent).
+_DISCOVERY_TOP = {"stage": str, "chi2_red": float, "dof": float}
+_DISCOVERY_CANDIDATE = {"id": str, "p_value": float, "delta_bic": float, "flagged": bool, "advice": str}
+_DISCOVERY_PREDICTED = {"estimate": float, "sigma": float, "unit": str}
+_DISCOVERY_STEP = {"label": str, "chi2_red": float, "bic": float}
+
+
+def _check_discovery(document: dict[str, Any], path: Any) -> None:
+    """Every field the report renders has the type it is rendered as (InputError naming the field otherwise)."""
+    from stableins.data.jsonio import expect_list, expect_mapping, expect_number
+
+    def fields(item: Any, types: dict[str, type], where: str) -> None:
+        for key, kind in types.items():
+            value = item.get(key)
+            name = f"{where}.{key}" if where else key
+            if value is None:
+                continue
+            if kind is float:
+                expect_number(value, path, name)
+            elif kind is bool and not isinstance(value, bool):
+                raise InputError(f"{value!r} is not true or false", path=path, field=name, expected="a boolean")
+            elif kind is str and not isinstance(value, str):
+                raise InputError(f"{value!r} is not a string", path=path, field=name, expected="a string")
+
+    fields(document, _DISCOVERY_TOP, "")
+    for k, candidate in enumerate(document["candidates"]):
+        where = f"candidates[{k}]"
+        fields(expect_mapping(candidate, path, where), _DISCOVERY_CANDIDATE, where)
+        if candidate.get("predicted") is not None:
+            fields(expect_mapping(candidate["predicted"], path, f"{where}.predicted"), _DISCOVERY_PREDICTED, f"{where}.predicted")
+    for k, step in enumerate(document["history"]):
+        where = f"history[{k}]"
+        fields(expect_mapping(step, path, where), _DISCOVERY_STEP, where)
+        for key in ("residual_rms", "noise_floor"):
+            for j, x in enumerate(expect_list(step.get(key, []), path, f"{where}.{key}", "a list of numbers")):
+                expect_number(x, path, f"{where}.{key}[{j}]", minimum=0.0, expected="a non-negative number")
 
 
 def write_report(
@@ -181,6 +210,7 @@ def write_report(
     ReportSummary
     """
     import stableins
+    from stableins.discovery.library import record_terms
     from stableins.history import compare
 
     loaded = LoadedRecord.of(record)
@@ -195,9 +225,9 @@ def write_report(
         from stableins.reporting.replay import device_fits
 
         settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
-        fits, evidence_notes = device_fits(data, settings)
+        fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
         stages = [stage_evidence(f, where) for f in fits] + stages
-    terms = content.known_terms(discovered_terms(view.ids))
+    terms = content.known_terms(record_terms(view.ids))
     rows = content.parameter_rows(view, terms)
     if previous_loaded is not None:
         inputs.append(
@@ -226,7 +256,7 @@ def write_report(
         changes = content.change_rows(comparison, terms)
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = dict(view.discovery or {}), "calibration record"
+    discovery_document, discovery_source = {}, ""  # the record's own history is ctx.record.discovery
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
         inputs.append(sections.InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))

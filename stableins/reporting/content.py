@@ -116,6 +116,11 @@ def unit_text(unit: str) -> str:
     return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³")
 
 
+def unit_words(text: str) -> str:
+    """:func:`unit_text` applied to the units inside a sentence (``ug`` only as a word of its own)."""
+    return re.sub(r"(?<![A-Za-z])ug(?![A-Za-z])", "µg", text).replace("^2", "²").replace("^3", "³")
+
+
 def correlation(record: CalibrationRecord) -> tuple[tuple[str, ...], list[list[float]]]:
     """Correlation matrix of the estimated parameters with a positive variance."""
     c = record.covariance

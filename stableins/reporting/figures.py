@@ -202,6 +202,35 @@ def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
         return _png(fig)
 
 
+def model_history(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
+    """Residual RMS per output channel after each step of a record's discovery history, with the noise floor."""
+    from stableins.conventions import MICRO_G
+
+    labels = [str(s.get("label", f"step {i}")) for i, s in enumerate(steps)]
+    channels = [str(c) for c in steps[0].get("channels", [])]
+    rms = [[float(x) / MICRO_G for x in s.get("residual_rms", [])] for s in steps]
+    floor = [float(x) / MICRO_G for x in steps[-1].get("noise_floor", [])]
+    with _style():
+        fig = _figure(FULL_WIDTH, 2.4)
+        ax = fig.add_subplot(111)
+        for k, channel in enumerate(channels):
+            (line,) = ax.plot(range(len(steps)), [r[k] for r in rms], "o-", ms=4, label=channel)
+            if k < len(floor):
+                ax.axhline(floor[k], ls="--", lw=0.8, color=line.get_color())
+        ax.set_xticks(range(len(steps)), labels, rotation=20, ha="right")
+        ax.set_xlim(-0.3, len(steps) - 0.7)
+        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+        ax.set_yscale("log")
+        ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.set_ylabel("residual RMS [µg]")
+        ax.set_xlabel("model after step")
+        ax.legend(frameon=False, ncols=len(channels), loc="lower center", bbox_to_anchor=(0.5, 1.0))
+        return _png(fig)
+
+
 def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]:
     """Change since the previous calibration in units of its standard uncertainty (z = Δ/u(Δ), signed)."""
     labels = [c.id for c in items]

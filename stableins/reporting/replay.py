@@ -17,7 +17,9 @@ from typing import Any
 from stableins.data.errors import InputError
 
 
-def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None) -> tuple[list[Any], list[str]]:
+def device_fits(
+    paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None, *, effects: Sequence[Any] = ()
+) -> tuple[list[Any], list[str]]:
     """FitResults of the coarse and fine stages (and their fusion) re-run on the device-level files among ``paths``.
 
     Parameters
@@ -27,6 +29,9 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
     settings : mapping, optional
         The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``noise_model``, ``coarse_nonlinear``,
         ``allow_missing``); the defaults of ``stableins calibrate device`` where absent.
+    effects : sequence of Term
+        The discovered (additive) terms of the record's model: the stages estimate them with the
+        standard parameters, as ``stableins calibrate device --add`` did.
 
     Returns
     -------
@@ -65,6 +70,7 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
         allow_missing=bool(settings.get("allow_missing", False)),
         noise=None if noise is None else NoiseModel.from_document(noise),
         coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),
+        extra_terms=tuple(effects),
         source=source,
     )
     fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
@@ -74,5 +80,6 @@ def device_fits(paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any
         how = "with the record's noise model and otherwise the defaults of 'stableins calibrate device'"
     else:
         how = "with the defaults of 'stableins calibrate device' (the record states no settings)"
+    how += f" and the record's discovered effects {', '.join(t.id for t in effects)}" if effects else ""
     notes.insert(0, f"device-level residuals recomputed from {source} by re-running the coarse and fine stages {how}")
     return fits, notes

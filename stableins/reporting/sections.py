@@ -415,37 +415,67 @@ def _system(ctx: ReportContext) -> list[Flowable]:
 
 
 def discovery(ctx: ReportContext) -> list[Flowable]:
+    """The model in force (the record's discovery history) and, when given, the diagnosis (``stableins diagnose --json``)."""
     out: list[Flowable] = [CondPageBreak(120), _p("6  Model discovery", "h1")]
+    history = ctx.record.discovery.to_json() if ctx.record.discovery is not None else None
+    if history:
+        out += _model_history(ctx, history)
     if "history" in ctx.discovery:
-        return out + _diagnosis(ctx)
-    steps = ctx.discovery.get("steps", [])
-    if not steps:
+        if history:
+            out.append(_p("Diagnosis of the data", "h2"))
+        out += _diagnosis(ctx)
+    if not history and "history" not in ctx.discovery:
         out.append(
             _p(
-                "<b>Not performed</b>: the calibration record carries no model-discovery history. "
-                "The error model is the one named by the procedure."
+                "<b>Not performed</b>: the calibration record carries no model-discovery history and no diagnosis was given. "
+                "The error model is the standard one (Wu et al. 2018 Eq. 6 with the quadratic terms)."
             )
         )
-        return out
-    rows: list[list[Any]] = [["Step", "Candidate", "Statistic", "Value", "Decision", "Residual RMS"]]
+    return out
+
+
+def _model_history(ctx: ReportContext, history: dict[str, Any]) -> list[Flowable]:
+    """The record's ``discovery`` section: every effect tested in the calibration, its verdict, the fit after each step."""
+    from stableins.conventions import MICRO_G
+
+    steps = [s for s in history.get("steps", []) if isinstance(s, dict)]
+    channels = [str(c) for c in (steps[0].get("channels", []) if steps else [])]
+    out: list[Flowable] = [
+        _p("Model in force", "h2"),
+        _p(
+            f"Effects found by model discovery and estimated with the standard parameters ({escape(str(history.get('stage', '')))} fit "
+            f"of the calibration record). Each step adds one effect to the model in force; it stays when the F-test of its "
+            f"χ² reduction gives p &lt; α = {float(history.get('alpha', math.nan)):g}, and is otherwise left out of the record. "
+            "χ²_ν is expected within 1 ± 2√(2/ν); the residual RMS is per output axis and for the fine stage's |f|."
+        ),
+    ]
+    head = ["Step", "Model", "χ²_ν (ν)"] + [f"RMS {c.removeprefix('f_')}" for c in channels] + ["p", "ΔBIC", "Decision"]
+    rows: list[list[Any]] = [head]
     for i, step in enumerate(steps):
-        unit = str(step.get("unit", "µg"))
-        candidates = step.get("candidates", []) or [{}]
-        for j, c in enumerate(candidates):
-            rows.append(
-                [
-                    str(i) if j == 0 else "",
-                    str(c.get("term", step.get("label", ""))),
-                    str(c.get("statistic", "")),
-                    _fmt(float(c["value"]), 4) if "value" in c else "",
-                    str(c.get("decision", "")),
-                    f"{_fmt(float(step['residual_rms']), 3)} {unit}" if j == 0 and "residual_rms" in step else "",
-                ]
-            )
-    out.append(document.table(rows, [0.07, 0.25, 0.16, 0.14, 0.22, 0.16], align_right=(3, 5)))
-    if all("residual_rms" in s for s in steps):
-        png, aspect = figures.discovery_steps(steps)
-        out.append(document.figure(png, 1.0, aspect, f"{ctx.figure_label()} Residual RMS after each model-discovery step."))
+        rms = [float(x) / MICRO_G for x in step.get("residual_rms", [])]
+        p_value, delta_bic = step.get("p_value"), step.get("delta_bic")
+        rows.append(
+            [str(i), str(step.get("label", "")), f"{_fmt(float(step.get('chi2_red') or math.nan), 3)} ({step.get('dof', '—')})"]
+            + [_fmt(x, 3) for x in rms]
+            + [
+                "—" if p_value is None else f"{float(p_value):.2g}",
+                "—" if delta_bic is None else f"{float(delta_bic):+.1f}".replace("-", MINUS),
+                str(step.get("decision", "")),
+            ]
+        )
+    floor = [float(x) / MICRO_G for x in (steps[-1].get("noise_floor", []) if steps else [])]
+    rows.append(["", "noise floor", "1"] + [_fmt(x, 3) for x in floor] + ["", "", ""])
+    n = len(channels)
+    widths = [0.06, 0.17, 0.12] + [0.34 / max(n, 1)] * n + [0.08, 0.08, 0.15]
+    out.append(document.table(rows, widths, align_right=tuple(range(2, 5 + n))))
+    out.append(_p("Residual RMS in µg. Verdicts:", "small"))
+    for step in steps[1:]:
+        reason = content.unit_words(str(step.get("reason", "")))
+        out.append(_p(f"<b>{escape(str(step.get('decision', '')))}</b>: {escape(reason)}", "small"))
+    if steps and channels:
+        png, aspect = figures.model_history(steps)
+        caption = f"{ctx.figure_label()} Residual RMS per output channel after each step of the calibration's model (dashed: noise floor)."
+        out.append(document.figure(png, 1.0, aspect, caption))
     return out
 
 

@@ -120,15 +120,9 @@ class Tolerances:
     @classmethod
     def from_procedure_file(cls, path: str) -> Tolerances:
         """Read the ``[tolerances]`` table of a procedure TOML file."""
-        import tomllib
+        from stableins.procedures.definition import read_toml
 
-        try:
-            with open(path, "rb") as handle:
-                data = tomllib.load(handle)
-        except FileNotFoundError:
-            raise InputError("no such file", path=path, expected="a procedure definition (TOML)") from None
-        except tomllib.TOMLDecodeError as error:
-            raise InputError(f"not valid TOML ({error})", path=path) from None
+        data = read_toml(path, what="a procedure definition (TOML)")
         return cls.from_mapping(data.get("tolerances"), source=str(path))
 
 

@@ -331,6 +331,11 @@ def _build() -> dict[str, Effect]:
 CATALOGUE: Mapping[str, Effect] = MappingProxyType(_build())
 
 
+#: An injected effect may be at most this many times its nominal size (beyond, the model leaves its domain:
+#: a quadratic output reaches its fold, angles leave the small-angle regime).
+MAX_EFFECT_FACTOR = 1e4
+
+
 def validate_effects(effects: Mapping[str, float], source: str | None = None) -> dict[str, float]:
     """Check ids and values; return a plain ``dict`` of floats.
 
@@ -349,6 +354,14 @@ def validate_effects(effects: Mapping[str, float], source: str | None = None) ->
             raise InputError(f"effect {key!r} has a non-numeric value {value!r}", path=source, field=f"effects.{key}") from None
         if not np.isfinite(v):
             raise InputError(f"effect {key!r} is not finite", path=source, field=f"effects.{key}", expected="a finite SI value")
+        limit = MAX_EFFECT_FACTOR * abs(CATALOGUE[key].nominal)
+        if abs(v) > limit:
+            raise InputError(
+                f"effect {key!r} = {v:g} {CATALOGUE[key].unit} is beyond any instrument this simulator models",
+                path=source,
+                field=f"effects.{key}",
+                expected=f"at most {MAX_EFFECT_FACTOR:g} × its nominal size, |value| <= {limit:.3g} {CATALOGUE[key].unit}",
+            )
         out[key] = v
     return out
 

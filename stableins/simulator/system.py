@@ -263,8 +263,11 @@ class SystemWorld:
         self._values = dict(truth.parameters)
         self._values.update({key: v for key, v in truth.effects.items() if fx.CATALOGUE[key].kind == "output"})
         self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
-        self._computer = ErrorModel.standard(nonlinear=True)
+        # the INS compensates with its installed calibration: the standard terms and any installed output effects
         self._installed = dict(truth.installed_calibration)
+        self._computer = ErrorModel.standard(nonlinear=True) + fx.output_terms(
+            {k: v for k, v in self._installed.items() if k in fx.CATALOGUE}
+        )
         self._needs_rates = fx.needs(truth.effects, "lever_")
         self._g_drift = np.array([truth.effects.get(f"Dg_{a}", 0.0) for a in "xyz"])
         drift = truth.gyro_drift
@@ -355,7 +358,7 @@ class SystemWorld:
         f_a = self.quantizer(start, f_a)
         measured = readings + self.noise.angles(start, count)
         # navigation computer
-        f_hat = self._computer.inverse(f_a, self._installed)
+        f_hat = self._computer.inverse(f_a, self._installed, inputs)
         df_n = np.einsum("nji,nj->ni", dcm, f_hat - f_p)
         eps_n = np.einsum("nji,nj->ni", dcm, self.gyro_drift(time))
         x, self._z = self.recursion.run(np.hstack([df_n, eps_n]), self._z)

@@ -19,7 +19,7 @@ from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConf
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import GIMBAL_IDS, MICRO_G_PER_G2, ErrorModel
-from stableins.simulator.effects import validate_effects
+from stableins.simulator.effects import CATALOGUE, validate_effects
 from stableins.simulator.noise import NoiseSettings
 
 SCHEMA_VERSION = 1
@@ -27,6 +27,9 @@ KIND = "stableins.truth"
 
 #: Parameter ids a truth may set (the paper's model with gimbal offsets).
 PARAMETER_IDS = ErrorModel.standard(nonlinear=True, gimbals=True).ids
+#: Ids the installed calibration may also hold: output effects of the catalogue (discovered terms of a
+#: calibration record, which the navigation computer compensates like the others).
+INSTALLED_EFFECT_IDS = tuple(k for k, e in CATALOGUE.items() if e.kind == "output")
 
 #: Default settling transient after a slew: damped oscillation of each gimbal by
 #: ``gain × slew angle`` at ``frequency`` [Hz] with damping ratio ``damping``; slews
@@ -84,10 +87,12 @@ def _float_dict(d: Any, name: str, source: str | None) -> dict[str, float]:
     return out
 
 
-def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None) -> None:
-    unknown = sorted(set(d) - set(PARAMETER_IDS))
+def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None, *, effects: bool = False) -> None:
+    allowed = PARAMETER_IDS + (INSTALLED_EFFECT_IDS if effects else ())
+    unknown = sorted(set(d) - set(allowed))
     if unknown:
-        raise InputError(f"unknown parameter ids {unknown}", path=source, field=name, expected=f"ids among {', '.join(PARAMETER_IDS)}")
+        what = f"ids among {', '.join(PARAMETER_IDS)}" + (" or output effects of the catalogue" if effects else "")
+        raise InputError(f"unknown parameter ids {unknown}", path=source, field=name, expected=what)
 
 
 @dataclass(frozen=True)
@@ -108,7 +113,9 @@ class Truth:
         Default seed of the random streams.
     installed_calibration : dict
         The calibration the INS navigation computer compensates with (system level);
-        the residual true − installed drives the navigation errors.
+        the residual true − installed drives the navigation errors.  Besides
+        :data:`PARAMETER_IDS` it may hold output effects (:data:`INSTALLED_EFFECT_IDS`): the
+        discovered terms of a calibration record, compensated like the others.
     gyro_drift : dict
         System level: ``x``, ``y``, ``z`` constant gyro drift in the platform frame
         [rad/s]; ``case_amplitude`` [rad/s], ``case_period`` [s] (default 480 s) and
@@ -132,7 +139,7 @@ class Truth:
 
     def __post_init__(self) -> None:
         _check_parameter_ids(self.parameters, "parameters", None)
-        _check_parameter_ids(self.installed_calibration, "installed_calibration", None)
+        _check_parameter_ids(self.installed_calibration, "installed_calibration", None, effects=True)
         # read-only views: a Truth is immutable (use with_changes for a modified copy)
         object.__setattr__(self, "parameters", MappingProxyType(dict(self.parameters)))
         object.__setattr__(self, "installed_calibration", MappingProxyType(dict(self.installed_calibration)))
@@ -294,7 +301,7 @@ class Truth:
         parameters = _float_dict(d["parameters"], "parameters", source)
         _check_parameter_ids(parameters, "parameters", source)
         installed = _float_dict(d.get("installed_calibration", {}), "installed_calibration", source)
-        _check_parameter_ids(installed, "installed_calibration", source)
+        _check_parameter_ids(installed, "installed_calibration", source, effects=True)
         effects = validate_effects(_float_dict(d.get("effects", {}), "effects", source), source)
         site_d = d["site"]
         if not isinstance(site_d, Mapping):
@@ -341,11 +348,7 @@ class Truth:
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> Truth:
         """Read a truth file; :class:`InputError` (naming the file and field) on any problem."""
-        try:
-            with open(path, encoding="utf-8") as handle:
-                data = json.load(handle)
-        except FileNotFoundError:
-            raise InputError("file not found", path=path) from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"not valid JSON ({exc})", path=path) from None
+        from stableins.data.jsonio import load_json_file
+
+        data = load_json_file(path, what="a truth file (truth.json) written by 'stableins simulate'")
         return cls.from_dict(data, source=str(path))

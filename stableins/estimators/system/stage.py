@@ -3,7 +3,8 @@ r"""The system-level stage over a whole record, streaming in bounded memory.
 One pass over the record (chunks of ``chunk_rows`` samples):
 
 * specific force: raw outputs compensated with the installed calibration (Wu et al.
-  2018 Eq. 8, :meth:`stableins.errormodel.ErrorModel.inverse` in closed form), the
+  2018 Eq. 8, :meth:`stableins.errormodel.ErrorModel.inverse` in closed form; discovered
+  additive terms of the prior, when it has any, through :class:`_AdditiveCompensation`), the
   squared-amplitude observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz``
   (:mod:`.harmonics`) accumulated at full rate.  The Earth-rate angle moves by
   ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
@@ -296,6 +297,53 @@ class _Compensation:
         return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
 
+@dataclass(frozen=True)
+class _AdditiveCompensation:
+    r"""The prior's discovered (additive) terms, removed from the raw outputs before the closed-form pass.
+
+    The compiled pass applies the core terms only.  With additive terms ``e(f^p)`` the installed
+    model is ``f^a = δb + u``, ``u − K u² = SF⁻¹ C f^p + e(f^p)``; the outputs of the same
+    instrument without them, at the same specific force, are
+
+    .. math:: f^{a\prime} = F_{core}\big(F^{-1}_{full}(f^a)\big)
+
+    (:meth:`ErrorModel.inverse` of the full model, exact, then :meth:`ErrorModel.forward` of the
+    core), so the closed-form compensation of ``f^{a'}`` gives exactly the full model's ``f^p``.
+    Only terms of the specific force are allowed (the instrument effects a record carries).
+    """
+
+    full: ErrorModel
+    core: ErrorModel
+    values: dict[str, float]
+
+    @classmethod
+    def from_prior(cls, terms: Sequence[Term], prior: Mapping[str, float], path: str) -> _AdditiveCompensation | None:
+        if not terms:
+            return None
+        from stableins.errormodel import TermInputs
+
+        for t in terms:
+            if t.kind != "additive" or t.regressor is None:
+                raise InputError(f"{t.id!r} is not an additive term", path=path, field=t.id)
+            try:
+                t.regressor(TermInputs(np.array([[0.0, 0.0, -9.8]])))
+            except ValueError as error:
+                raise InputError(
+                    f"the prior's term {t.id!r} cannot be compensated from the specific force alone: {error}",
+                    path=path,
+                    field=t.id,
+                    expected="discovered instrument terms (stableins.discovery.library.calibration_terms)",
+                ) from None
+        core = ErrorModel.standard(nonlinear=True)
+        full = core + tuple(terms)
+        return cls(full, core, {k: float(v) for k, v in prior.items() if k in full})
+
+    def __call__(self, fx: NDArray, fy: NDArray, fz: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        f_p = self.full.inverse(np.stack([fx, fy, fz], axis=-1), self.values)
+        out = self.core.forward(f_p, self.values)
+        return out[:, 0], out[:, 1], out[:, 2]
+
+
 # --------------------------------------------------------------------------- the stage
 def _residual_scale(values: Mapping[str, float], gravity: float) -> dict[str, float]:
     """d(record value)/d(residual): sf = sf/(1 − D) → sf; bias = g·b → g; beta → 1."""
@@ -358,6 +406,8 @@ def run_system_stage(
     prior: Mapping[str, float],
     prior_covariance: Mapping[tuple[str, str], float] | None = None,
     options: SystemOptions = SystemOptions(),
+    *,
+    compensation_terms: Sequence[Term] = (),
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -374,6 +424,10 @@ def run_system_stage(
         uncertainty carried into directions the data do not see.  Default: nominal
         magnitudes of the terms.
     options : SystemOptions
+    compensation_terms : sequence of Term
+        Discovered (additive) terms of the prior, whose values are in ``prior``: the INS applies
+        them, so the stage compensates the raw outputs with them too (the record's
+        :meth:`~stableins.records.CalibrationRecord.error_model`).  This stage does not update them.
     """
     path = getattr(source, "path", "<record>")
     latitude, gravity, rate = _check_metadata(metadata, path)
@@ -401,6 +455,7 @@ def run_system_stage(
         columns.append("temperature")  # read at the attitude decimation: what the data carry about the environment
     temperature = [math.inf, -math.inf, 0.0, 0]  # min, max, sum, count
     compensation = _Compensation.from_values(prior)
+    additive = _AdditiveCompensation.from_prior(compensation_terms, prior, path)
     block = block_length(rate)
     chunk_rows = max(block, (options.chunk_rows // block) * block)
     decimation = max(1, int(round(options.attitude_decimation_seconds * rate)))
@@ -429,6 +484,8 @@ def run_system_stage(
         if n == 0:
             continue
         fx, fy, fz = chunk["f_x"], chunk["f_y"], chunk["f_z"]
+        if additive is not None:
+            fx, fy, fz = additive(fx, fy, fz)
         phase = (-seen) % decimation
         uniform = None
         if grid is None:

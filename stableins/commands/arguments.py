@@ -1,0 +1,116 @@
+"""Argument types of the command line: every numeric option is checked for its range when it is parsed.
+
+A value out of range (``nan``, ``inf``, a negative timeout, a chunk of 1e-300 s) stops the command before
+anything is read or written, with argparse's one-line message and exit status 2:
+``stableins: error: argument --timeout: -1 is out of range (expected a number of seconds in [0.1, 3600])``.
+The ranges are listed in ``docs/cli.md``.  Path types refuse a directory where a file is written and a
+file where a directory is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+#: Seeds of the random generators (numpy's SeedSequence takes non-negative integers).
+SEED_RANGE = (0, 2**63 - 1)
+
+
+def _bounds(minimum: float | None, maximum: float | None, above: bool) -> str:
+    low = "-inf" if minimum is None else f"{minimum:g}"
+    high = "inf" if maximum is None else f"{maximum:g}"
+    return f"{'(' if above or minimum is None else '['}{low}, {high}{']' if maximum is not None else ')'}"
+
+
+def number(
+    minimum: float | None = None,
+    maximum: float | None = None,
+    *,
+    above: bool = False,
+    unit: str = "",
+    or_zero: bool = False,
+) -> Callable[[str], float]:
+    """A finite float in ``[minimum, maximum]`` (``(minimum, maximum]`` with ``above``); ``or_zero``: 0 also allowed."""
+    what = f"a number{' of ' + unit if unit else ''} in {_bounds(minimum, maximum, above)}{' or 0' if or_zero else ''}"
+
+    def parse(text: str) -> float:
+        try:
+            if not text.isascii() or "_" in text:  # float() also reads 1_0 and full-width digits
+                raise ValueError(text)
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number (expected {what})") from None
+        if or_zero and value == 0.0:
+            return 0.0
+        if (
+            not math.isfinite(value)
+            or (minimum is not None and (value <= minimum if above else value < minimum))
+            or (maximum is not None and value > maximum)
+        ):
+            raise argparse.ArgumentTypeError(f"{text} is out of range (expected {what})")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def integer(minimum: int | None = None, maximum: int | None = None, *, what: str = "an integer") -> Callable[[str], int]:
+    """A whole number in ``[minimum, maximum]`` (decimal digits; ``1e3`` and ``1.5`` are refused)."""
+    expected = f"{what} in {_bounds(minimum, maximum, False)}"
+
+    def parse(text: str) -> int:
+        stripped = text.strip()
+        digits = stripped[1:] if stripped[:1] in "+-" else stripped
+        if not digits.isascii() or not digits.isdigit() or len(digits) > 30:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (expected {expected})")
+        value = int(stripped)
+        if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"{text} is out of range (expected {expected})")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: ``--seed``: a non-negative integer.
+seed = integer(*SEED_RANGE, what="a seed")
+
+
+def output_file(text: str) -> Path:
+    """A file to write: not an existing directory, and not inside something that is not a directory."""
+    path = Path(text)
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path (expected a file to write)")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory (expected a file to write)")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{parent} is a file, not a directory (expected a file to write in a directory)")
+    return path
+
+
+def output_directory(text: str) -> Path:
+    """A directory to write into: an existing directory or a path that can become one."""
+    path = Path(text)
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path (expected a directory)")
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise argparse.ArgumentTypeError(f"{probe} is a file, not a directory (expected a directory)")
+    return path
+
+
+def input_file(text: str) -> str:
+    """A file to read: it exists and is not a directory (what it holds is checked by the reader)."""
+    if os.path.isdir(text):
+        raise argparse.ArgumentTypeError(f"{text} is a directory (expected a file)")
+    if not os.path.exists(text):
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    return text
