@@ -67,6 +67,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
+    from stableins.commands.noise import add_noise_options
+
+    add_noise_options(parser)  # default: the prior record's noise model (docs/system-calibration.md §1a)
     parser.add_argument(
         "--allow-gaps",
         action="store_true",
@@ -85,11 +88,11 @@ def run(args: Any) -> int:
     import warnings
     from dataclasses import replace
 
+    from stableins.commands.noise import system_noise_prior
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
-    from stableins.noise import NoiseModel
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -113,7 +116,7 @@ def run(args: Any) -> int:
         known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
     )
     entries = parse_entries(args.set)
-    noise = None if prior.noise_model is None else NoiseModel.from_document(dict(prior.noise_model), path=str(args.prior))
+    noise, _ = system_noise_prior(args, default=prior.noise_model)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
@@ -138,7 +141,7 @@ def run(args: Any) -> int:
         sample_rate=record.sample_rate,
         environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
     )
-    updated = replace(updated, noise_model=outcome.noise_model.to_document())  # the model under this stage's σ
+    updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)
     if args.plot:
         plot(outcome, str(args.plot))

@@ -238,20 +238,19 @@ def with_noise(dwells: DwellSet, noise: NoiseModel) -> DwellSet:
     """The bins of a system record under ``noise``: white ``N_a²/T`` per bin and axis, slow noise correlated between bins.
 
     ``dwells`` from :func:`.problem.bins_from_chunks` (its ``noise["lengths"]`` are the bins' durations).  The slow
-    covariance is :meth:`stableins.noise.NoiseModel.slow_covariance` of the bins' windows; the discovery fit holds one
-    for the three axes, which is exact for the system stage's model (one bias instability and one random walk for the
-    three axes) and the mean of the axes for a model given per axis.
+    covariance is :meth:`stableins.noise.NoiseModel.slow_covariance` of the bins' windows, per axis.
     """
     lengths = np.asarray(dwells.noise["lengths"], dtype=float)
     sigma = noise.values("white")[None, :] / np.sqrt(lengths)[:, None]
     slow = None
     if noise.has_slow_noise:
-        slow = noise.slow_covariance(dwells.time - lengths / 2.0, lengths).mean(axis=0)
+        slow = noise.slow_covariance(dwells.time - lengths / 2.0, lengths)
     info = dict(
         dwells.noise,
         method=f"the instrument's noise model: white N²/T per bin and axis, slow noise correlated between bins; "
         f"{float(np.median(lengths)):g} s bins",
         white_noise=noise.values("white"),
         slow_noise=noise.describe(),
+        model=noise,
     )
     return replace(dwells, sigma=sigma, slow_covariance=slow, noise=info)
