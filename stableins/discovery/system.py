@@ -104,23 +104,32 @@ class SystemDiagnosis:
     def report(self, top: int = 10) -> str:
         """The noise model, the diagnosis with its verdict, the ranking and the harmonic tests."""
         hi, lo = self.chi2_range
+        given = self.upper_model == self.noise_model and self.lower_model == self.noise_model
+        span = (
+            "χ²_ν under the one noise model: its slow terms are given without an interval"
+            if given
+            else f"χ²_ν over the noise models the record allows: {hi:.3f} (slow terms at their upper limits) to {lo:.3f} "
+            "(lower limits); the verdict holds for all of them"
+        )
         lines = [
             self.noise_model.describe(),
             f"bins of {self.bin_seconds:g} s; white floor N²/T per bin and axis, slow noise correlated between bins "
             "(generalized least squares)",
             self.diagnosis.report(),
-            f"χ²_ν over the noise models the record allows: {hi:.3f} (slow terms at their upper limits) to {lo:.3f} (lower limits); "
-            "the verdict holds for all of them",
+            span,
         ]
         parts = ["\n".join(lines + list(self.notes))]
-        parts.append(
-            "ranked against the largest slow noise the record allows (a candidate is flagged only if every noise model the "
-            "data allow needs it):\n" + self.ranking.report(top=top)
+        against = (
+            "ranked against the noise model"
+            if given
+            else "ranked against the largest slow noise the record allows (a candidate is flagged only if every noise model the "
+            "data allow needs it)"
         )
+        parts.append(against + ":\n" + self.ranking.report(top=top))
         flagged = {(name, k) for name, k, _ in self.flagged_harmonics}
         for name, spectrum in self.spectra.items():
             marks = ", ".join(f"harmonic {k}" for n, k in sorted(flagged) if n == name)
-            head = f"residual of {name} at the Earth-rate harmonics (against the upper-limit noise model)"
+            head = f"residual of {name} at the Earth-rate harmonics" + ("" if given else " (against the upper-limit noise model)")
             parts.append(head + (f"; significant: {marks}" if marks else "") + ":\n" + spectrum.report(unit="µg", scale=9.80665e-6))
         return "\n\n".join(parts)
 
