@@ -113,19 +113,7 @@ def run(args: argparse.Namespace) -> int:
         for line in getattr(session, "drift_notes", ()):
             note(f"drift analysis: {line}")
     if args.plots is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        args.plots.mkdir(parents=True, exist_ok=True)
-        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
-        if diagnosis.orientation is not None:
-            figures["orientation"] = diagnosis.plot_orientation()
-        for name, figure in figures.items():
-            figure.savefig(args.plots / f"{name}.png", dpi=110)
-            plt.close(figure)
-        note(f"plots written to {args.plots}")
+        _write_plots(args.plots, diagnosis, session)
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
@@ -162,7 +150,7 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     """A system-level record: discovery under the noise model the system stage measures in it (docs/discovery.md)."""
     from stableins.commands.noise import system_noise_prior
     from stableins.discovery.system import diagnose_system_record, measure_noise
-    from stableins.output import emit, note
+    from stableins.output import emit
 
     prior, _ = system_noise_prior(args, default=record.noise_model)
     values = record.values()
@@ -183,21 +171,7 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     )
     session, diagnosis, ranking = result.session, result.diagnosis, result.ranking
     if args.plots is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        args.plots.mkdir(parents=True, exist_ok=True)
-        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
-        if diagnosis.orientation is not None:
-            figures["orientation"] = diagnosis.plot_orientation()
-        for name, spectrum in result.spectra.items():
-            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
-        for name, figure in figures.items():
-            figure.savefig(args.plots / f"{name}.png", dpi=110)
-            plt.close(figure)
-        note(f"plots written to {args.plots}")
+        _write_plots(args.plots, diagnosis, session, result.spectra)
     text = "\n\n".join([result.report(top=args.top), session.history.report()])
     flagged = {(name, k) for name, k, _ in result.flagged_harmonics}
     data = {
@@ -255,3 +229,24 @@ def _device_noise(args: argparse.Namespace, datasets, default):
 
         noise = noise_from_dwells(summaries(), source=", ".join(str(ds.path) for ds in datasets))
     return noise, origin
+
+
+def _write_plots(directory: Path, diagnosis, session, spectra=None) -> None:
+    """Residuals per position (and against orientation), the history and the harmonic spectra, as PNG in ``directory``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stableins.output import note
+
+    directory.mkdir(parents=True, exist_ok=True)
+    figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
+    if diagnosis.orientation is not None:
+        figures["orientation"] = diagnosis.plot_orientation()
+    for name, spectrum in (spectra or {}).items():
+        figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+    for name, figure in figures.items():
+        figure.savefig(directory / f"{name}.png", dpi=110)
+        plt.close(figure)
+    note(f"plots written to {directory}")
