@@ -88,6 +88,23 @@ class DeviceCalibration:
     def __str__(self) -> str:
         return self.report()
 
+    def __repr__(self) -> str:
+        from stableins.display import clipped, parameter_lines
+
+        fits = [f"coarse ({len(self.passes) or 1} pass{'es' if len(self.passes) > 1 else ''}) χ²_ν = {self.coarse.chi2_red:.3f}"]
+        if self.fine is not None:
+            fits.append(f"fine χ²_ν = {self.fine.chi2_red:.3f}")
+        if self.fused is not None:
+            fits.append(f"fused χ²_ν = {self.fused.chi2_red:.3f} (ν = {self.fused.dof})")
+        lines = [f"<DeviceCalibration: stage {self.final.stage!r} recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
+        lines += parameter_lines(self.final.rows())
+        return clipped(
+            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, calibration.record(site) for the record)"
+        )
+
+    def _repr_html_(self) -> str:
+        return self.final._repr_html_()
+
     def record(
         self,
         site: SiteMetadata,
