@@ -30,6 +30,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from stableins.discovery.problem import Problem
+
 AXIS_NAMES = ("x", "y", "z")
 #: Above this many positions the per-position plots are drawn against time, without per-point labels.
 MAX_NAMED_POSITIONS = 80
@@ -304,7 +306,7 @@ def _layout(labels: Sequence[str], m: int) -> tuple[tuple[str, ...], tuple[str, 
     return tuple(labels) if len(labels) == m else tuple(f"obs {k + 1}" for k in range(m)), ("residual",)
 
 
-def diagnose(problem, result: FitResult, unit: str = "µg", scale: float = MICRO_G) -> Diagnosis:
+def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scale: float = MICRO_G) -> Diagnosis:
     """Residual diagnostics of any fitted stage.
 
     ``problem`` may be None: the residuals, their 1σ and labels of ``result`` are enough

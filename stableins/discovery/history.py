@@ -38,6 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.discovery.diagnostics import Diagnosis
     from stableins.discovery.library import Library
+    from stableins.discovery.problem import Problem
     from stableins.discovery.ranking import Ranking
 
 
@@ -576,7 +577,14 @@ class Discovery:
         Starting parameter values (e.g. from a calibration record).
     """
 
-    def __init__(self, problem, model: ErrorModel, library: Library | None = None, alpha: float = 0.05, start=None) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        model: ErrorModel,
+        library: Library | None = None,
+        alpha: float = 0.05,
+        start: Mapping[str, float] | None = None,
+    ) -> None:
         from stableins.discovery.library import LIBRARY
 
         self.problem = problem

@@ -28,13 +28,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.discovery.problem import Problem
 
 #: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
 IDENTIFIABLE_TOLERANCE = 1e-3
@@ -359,7 +362,7 @@ class Ranking:
 
 
 def rank(
-    problem,
+    problem: Problem,
     result: FitResult,
     candidates: Iterable[Term] | None = None,
     *,
@@ -522,7 +525,7 @@ def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDA
         return np.stack(cols, axis=1)
 
 
-def refit(problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
+def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
     """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
     new = problem.fit(model + candidate.term, start=result.as_dict())
     from stableins.discovery.problem import fit_chi2

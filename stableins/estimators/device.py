@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
 from stableins.estimators.result import FitResult
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.records import CalibrationRecord, Entry
 
 
 @dataclass(frozen=True)
@@ -114,8 +118,8 @@ class DeviceCalibration:
         data_start: str = "",
         data_end: str = "",
         environment: dict | None = None,
-        entries: Sequence = (),
-    ):
+        entries: Sequence[Entry] = (),
+    ) -> CalibrationRecord:
         """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced).
 
         The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
