@@ -294,6 +294,8 @@ class FitResult:
         ]
 
     def _fit_line(self) -> str:
+        if self.dof <= 0:
+            return f"no residual degrees of freedom (m = {self.residuals.size}); rank {self.rank} of {len(self.terms)}"
         spread = np.sqrt(2 / max(self.dof, 1))
         return f"χ²_ν = {self.chi2_red:.3f} (ν = {self.dof}, expected 1 ± {spread:.2f}); rank {self.rank} of {len(self.terms)}"
 
