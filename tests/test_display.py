@@ -102,9 +102,7 @@ def test_fit_result_repr_html_and_dataframe(session):
 def test_html_escapes_every_text():
     evil = "<script>alert('x')</script>"
     term = Term("b<i>", "bias", "m/s^2", "ug", MICRO_G, 1e-4, evil)
-    result = dataclasses.replace(
-        make_result(terms=(term,) + tuple(CORE_TERMS[:2])), notes=(evil,), determined=("a & b",), stage="<stage>"
-    )
+    result = dataclasses.replace(make_result(terms=(term,) + tuple(CORE_TERMS[:2])), notes=(evil,), determined=("a & b",), stage="<stage>")
     page = result._repr_html_()
     well_formed(page)
     assert "<script>" not in page and "<i>" not in page
@@ -113,7 +111,8 @@ def test_html_escapes_every_text():
 
 def test_record_repr_html_dataframe_with_discovery_and_noise(session):
     discovery, _, _ = session
-    steps = tuple(dataclasses.replace(s, decision=Decision.BASELINE if k == 0 else Decision.NOT_SUPPORTED) for k, s in enumerate(discovery.history))
+    decisions = [Decision.BASELINE, Decision.NOT_SUPPORTED]
+    steps = tuple(dataclasses.replace(s, decision=d) for s, d in zip(discovery.history, decisions, strict=True))
     noise = NoiseModel.given(50 * MICRO_G, 2 * MICRO_G, provenance="datasheet").to_document()
     statuses = gimbal_statuses()
     record = dataclasses.replace(
