@@ -512,10 +512,19 @@ class History:
             if len(steps) > 1:
                 ax1.plot(x, rms[:, i], "-", color=colour, lw=0.8, alpha=0.5)
             ax1.plot(x, floor[:, i], "_", color="k", ms=14, mew=2.0, label="noise floor of that output" if i == 0 else None, zorder=4)
-            ax1.annotate(f"{floor[-1, i]:.3g}", (x[-1], floor[-1, i]), xytext=(0, -11), textcoords="offset points", ha="center", fontsize=7)
+            below = rms[-1, i] >= floor[-1, i]  # the floor's value on the side away from the RMS marker
+            ax1.annotate(
+                f"{floor[-1, i]:.3g}",
+                (x[-1], floor[-1, i]),
+                xytext=(0, -11 if below else 5),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+            )
             ax1.vlines(x, floor[:, i], rms[:, i], color=colour, lw=1.0, alpha=0.6)
-            for xi, r in zip(x, rms[:, i], strict=True):
-                ax1.annotate(f"{r:.3g}", (xi, r), xytext=(0, 6), textcoords="offset points", ha="center", fontsize=7, color=colour)
+            for xi, r, f in zip(x, rms[:, i], floor[:, i], strict=True):
+                offset = 6 if r >= f else -13
+                ax1.annotate(f"{r:.3g}", (xi, r), xytext=(0, offset), textcoords="offset points", ha="center", fontsize=7, color=colour)
         low, high = float(np.min(np.minimum(rms, floor))), float(np.max(np.maximum(rms, floor)))
         if high > 8 * low > 0:
             ax1.set_yscale("log")
