@@ -143,11 +143,9 @@ def run(args: argparse.Namespace) -> int:
         import matplotlib.pyplot as plt
 
         args.plots.mkdir(parents=True, exist_ok=True)
-        figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
-        if diagnosis.orientation is not None:
-            figures["orientation"] = diagnosis.plot_orientation()
+        figures = session.figures(next_step=ranking.next_step())  # residuals, orientation: before and after --add; history
         for name, spectrum in spectra.items():
-            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6, name=name, next_step=ranking.next_step())
         for name, figure in figures.items():
             figure.savefig(args.plots / f"{name}.png", dpi=110)
             plt.close(figure)
