@@ -56,22 +56,24 @@ def main() -> None:
 
     first = session.diagnose()
     print("== step 0: the standard model\n" + first.report() + "\n")
-    first.plot_positions().savefig(IMG / "discovery_residuals_before.png", dpi=110)
-    first.plot_orientation().savefig(IMG / "discovery_orientation_before.png", dpi=110)
+    ranking = session.rank(refit_top=3)
+    first.plot_positions(next_step=ranking.next_step()).savefig(IMG / "discovery_residuals_before.png", dpi=110)
+    first.plot_orientation(next_step=ranking.next_step()).savefig(IMG / "discovery_orientation_before.png", dpi=110)
 
     for step in range(1, 4):
-        ranking = session.rank(refit_top=3)
-        print(f"== ranking {step}\n" + ranking.report(top=8) + "\n")
+        print(f"== ranking {step}\n" + ranking.report(top=8) + "\n" + ranking.next_step() + "\n")
         if not ranking.best.flagged:
-            print("nothing flagged: the model reaches the noise floor\n")
             break
         session.add(ranking.best.term)
+        ranking = session.rank(refit_top=3)
 
     last = diagnose(problem, session.result)
     print("== final model\n" + last.report() + "\n")
-    last.plot_positions().savefig(IMG / "discovery_residuals_after.png", dpi=110)
+    # before and after, each named by its model, with what to do next under the figure
+    last.plot_positions(before=first, next_step=ranking.next_step()).savefig(IMG / "discovery_residuals_after.png", dpi=110)
+    last.plot_orientation(before=first, next_step=ranking.next_step()).savefig(IMG / "discovery_orientation_after.png", dpi=110)
     print("== history\n" + session.history.report())
-    session.history.plot().savefig(IMG / "discovery_history.png", dpi=110)
+    session.history.plot(next_step=ranking.next_step()).savefig(IMG / "discovery_history.png", dpi=110)
     print(
         "\ntruth: "
         + ", ".join(f"{k} = {v / (MICRO_G / STANDARD_GRAVITY**2 if k.startswith('K') else ARCSEC):g}" for k, v in HIDDEN.items())

@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Any
 from stableins.data.atomic import fsync_directory
 from stableins.data.errors import InputError
 from stableins.history import DEFAULT_MAX_AGE, Comparison, Trend, compare, data_only, parse_date, trend
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord
@@ -464,6 +465,36 @@ class HistoryStore:
         for old, new in zip(entries, entries[1:]):
             out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
         return out
+
+    def __repr__(self) -> str:
+        return f"HistoryStore({str(self.root)!r})"
+
+    def to_dataframe(self, serial: str) -> Any:
+        """The unit's calibration history as a :class:`pandas.DataFrame`, one row per record, oldest first.
+
+        Columns ``valid_from``, ``file``, ``procedure``, ``stages``, ``prior`` (``independent`` or ``updates <sha256>``), then
+        for every parameter of any record its value and ``σ <id>`` in engineering units (NaN where a record does not state it).
+        Every record is read verified (:meth:`load`).  Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        rows = []
+        for entry in self.entries(serial):
+            record = self.load(serial, entry)
+            row: dict[str, Any] = {
+                "valid_from": entry.time,
+                "file": entry.file,
+                "procedure": entry.procedure,
+                "stages": ", ".join(entry.stages),
+                "prior": f"updates {entry.prior[:12]}" if entry.prior else "independent",
+            }
+            for pid, value, sigma, unit, status, _ in record.rows():
+                shown = status != Status.UNIDENTIFIABLE
+                row[f"{pid} [{unit}]"] = value if shown else math.nan
+                row[f"σ {pid}"] = sigma if shown and status == Status.ESTIMATED else math.nan
+            rows.append(row)
+        return pandas.DataFrame.from_records(rows)
 
     def trends(self, serial: str) -> list[Trend]:
         """Drift trend of every parameter that at least two calibrations determine from their own data

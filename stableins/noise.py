@@ -403,29 +403,83 @@ class NoiseModel:
         level = f"{100 * self.confidence:g} %"
         lines = [f"noise model: {self.source.value}" + (f" ({self.provenance})" if self.provenance else "")]
         lines.append(f"{'term':<40} {'axis':>4} {'value':>12} {level + ' interval':>28}  unit")
-        for name in TERMS:
-            unit, scale = ENGINEERING[name]
-            for a, axis in enumerate(self.axes):
-                term = axis.term(name)
-                upper = "not bounded" if not term.bounded else f"{term.upper / scale:.4g}"
-                interval = f"[{term.lower / scale:.4g}, {upper}]"
-                lines.append(f"{LABELS[name] if a == 0 else '':<40} {AXES[a]:>4} {term.value / scale:>12.4g} {interval:>28}  {unit}")
+        for label, axis, value, interval, unit in self._term_rows():
+            lines.append(f"{label if axis == AXES[0] else '':<40} {axis:>4} {value:>12} {interval:>28}  {unit}")
         if self.test is not None:
-            t = self.test
-            verdict = "detected" if t.detected else "not detected"
-            lines.append(
-                f"slow noise {verdict}: statistic {t.statistic:+.2f} (0 ± 1 under white noise), p = {t.p_value:.3g} "
-                f"(false-positive rate {t.alpha:g})"
-            )
+            lines.append(self._test_line())
         return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.report()
 
-    def _repr_html_(self) -> str:  # Jupyter
-        import html
+    def _term_rows(self) -> list[list[str]]:
+        """One row per term and axis: label, axis, value, interval (engineering units)."""
+        rows = []
+        for name in TERMS:
+            unit, scale = ENGINEERING[name]
+            for a, axis in enumerate(self.axes):
+                term = axis.term(name)
+                upper = "not bounded" if not term.bounded else f"{term.upper / scale:.4g}"
+                rows.append([LABELS[name], AXES[a], f"{term.value / scale:.4g}", f"[{term.lower / scale:.4g}, {upper}]", unit])
+        return rows
 
-        return "<pre>" + html.escape(self.report()) + "</pre>"
+    def _test_line(self) -> str | None:
+        if self.test is None:
+            return None
+        t = self.test
+        verdict = "detected" if t.detected else "not detected"
+        return (
+            f"slow noise {verdict}: statistic {t.statistic:+.2f} (0 ± 1 under white noise), p = {t.p_value:.3g} "
+            f"(false-positive rate {t.alpha:g})"
+        )
+
+    def __repr__(self) -> str:
+        from stableins.display import clipped, unit_text
+
+        lines = [f"<NoiseModel ({self.source.value}{': ' + self.provenance if self.provenance else ''})>"]
+        for name in TERMS:
+            unit, scale = ENGINEERING[name]
+            cells = []
+            for axis in self.axes:
+                term = axis.term(name)
+                upper = "∞" if not term.bounded else f"{term.upper / scale:.3g}"
+                interval = "" if term.lower == term.value == term.upper else f" [{term.lower / scale:.3g}, {upper}]"
+                cells.append(f"{term.value / scale:.3g}{interval}")
+            same = len(set(cells)) == 1
+            shown = f"{cells[0]} on every axis" if same else "   ".join(f"{a} {c}" for a, c in zip(AXES, cells, strict=True))
+            lines.append(f"  {LABELS[name]} [{unit_text(unit)}]: {shown}")
+        lines.append(self._test_line() or f"intervals at {100 * self.confidence:g} % confidence")
+        return clipped(lines, "(print(model) for the table)")
+
+    def _repr_html_(self) -> str:  # Jupyter
+        from stableins.display import html_result, html_table, unit_text
+
+        rows = [[label, axis, value, interval, unit_text(unit)] for label, axis, value, interval, unit in self._term_rows()]
+        table = html_table(["term", "axis", "value", f"{100 * self.confidence:g} % interval", "unit"], rows, numeric=(2, 3))
+        return html_result(f"Noise model: {self.source.value}", [self.provenance, self._test_line() or ""], [table])
+
+    def to_dataframe(self) -> Any:
+        """Every term and axis as a :class:`pandas.DataFrame` (``term``, ``axis``, ``value``, ``lower``, ``upper``, ``unit``;
+        engineering units, ``upper`` infinite where the data do not bound the term).  Needs pandas."""
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        rows = []
+        for name in TERMS:
+            unit, scale = ENGINEERING[name]
+            for a, axis in enumerate(self.axes):
+                term = axis.term(name)
+                rows.append(
+                    {
+                        "term": name,
+                        "axis": AXES[a],
+                        "value": term.value / scale,
+                        "lower": term.lower / scale,
+                        "upper": term.upper / scale,
+                        "unit": unit,
+                    }
+                )
+        return pandas.DataFrame.from_records(rows)
 
     # ------------------------------------------------------------------ documents
     def to_document(self) -> dict[str, Any]:

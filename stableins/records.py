@@ -827,6 +827,85 @@ class CalibrationRecord:
     def __str__(self) -> str:
         return self.report()
 
+    def _summary_lines(self) -> list[str]:
+        from stableins.display import plural
+
+        run = ", ".join(s.name for s in self.stages_run) or "none"
+        lines = [f"calibration {self.calibration.id} ({self.calibration.software}); stages run: {run}; valid from {self.valid_from or '—'}"]
+        carried = len(self.stages) - len(self.stages_run)
+        if carried:
+            lines[0] += f"; rests on {plural(carried, 'earlier stage run')}"
+        return lines
+
+    def _discovery_line(self) -> str | None:
+        if self.discovery is None:
+            return None
+        verdicts = [f"{s.added[0][0]} {s.decision}" for s in self.discovery.steps[1:] if s.decision is not None and s.added]
+        return "discovery: " + ("; ".join(verdicts) if verdicts else "baseline only")
+
+    def _noise_line(self) -> str | None:
+        model = self.noise_model
+        if model is None:
+            return None
+        describe = getattr(model, "describe", None)
+        if callable(describe):
+            return str(describe())
+        return f"noise model: {model.get('source', '')}" + (f" ({model['provenance']})" if model.get("provenance") else "")
+
+    def __repr__(self) -> str:
+        from stableins.display import clipped, parameter_lines, status_counts
+
+        counts = status_counts(p.status for p in self.parameters)
+        head = f"<CalibrationRecord of {self.serial_number}: {len(self.parameters)} parameters ({counts})>"
+        lines = [head, *self._summary_lines(), *parameter_lines(row[:5] for row in self.rows())]
+        lines += [line for line in (self._discovery_line(), self._noise_line()) if line]
+        return clipped(lines, "(print(record) for the full report, record.to_dataframe() for the table)")
+
+    def _repr_html_(self) -> str:
+        from stableins.discovery.library import all_terms
+        from stableins.display import html_result, parameter_html
+
+        terms = all_terms()
+        meanings = [terms[p.id].meaning if p.id in terms else "" for p in self.parameters]
+        tables = [parameter_html(self.rows(), meanings, extra="last determined by")]
+        if self.discovery is not None:
+            tables.append(self.discovery._repr_html_())
+        return html_result(
+            f"Calibration record of {self.serial_number}",
+            [*self._summary_lines(), self._noise_line() or ""],
+            tables,
+            [("determined combinations", self.determined), ("notes", self.notes)],
+        )
+
+    def to_dataframe(self) -> Any:
+        """The parameter table as a :class:`pandas.DataFrame` indexed by parameter id.
+
+        Columns ``value``, ``sigma``, ``unit`` (engineering units where the id is a known term), ``status``,
+        ``determined_by`` (the stage that last determined it, :meth:`source_text`), ``value_si``, ``sigma_si``,
+        ``si_unit``; an ``unidentifiable`` parameter has no value.  Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        out = []
+        for (pid, value, sigma, unit, status, source), p in zip(self.rows(), self.parameters, strict=True):
+            hidden = p.status is Status.UNIDENTIFIABLE
+            nan = math.nan
+            out.append(
+                {
+                    "parameter": pid,
+                    "value": nan if hidden else value,
+                    "sigma": nan if hidden else sigma,
+                    "unit": unit,
+                    "status": status,
+                    "determined_by": source,
+                    "value_si": nan if hidden else p.value,
+                    "sigma_si": nan if hidden else p.sigma,
+                    "si_unit": p.unit,
+                }
+            )
+        return pandas.DataFrame.from_records(out, index="parameter")
+
 
 def _estimable(result: FitResult) -> dict[str, bool]:
     """Which of the result's parameters its likelihood determines by itself (all, without a likelihood)."""

@@ -307,3 +307,18 @@ def test_array_source_names_the_record_row_of_a_nan_in_a_thinned_column():
     cols["pitch"][730] = 0.0
     cols["pitch"][733] = np.inf  # between the thinned rows: not read, so not checked
     assert sum(len(c["pitch"]) for c in ArraySource(cols).iter_chunks(["time", "pitch"], rows=300, thin=["pitch"], step=10)) == 100
+
+
+def test_system_result_shows_itself_briefly(day):
+    pytest.importorskip("pandas")  # the test extra installs it
+    true, installed, cols, meta = day
+    out = run_system_stage(ArraySource(cols), meta, installed)
+    text = repr(out)
+    assert "object at 0x" not in text and len(text.splitlines()) <= 25 and len(text) < 3000
+    assert f"separation χ²_ν = {out.separation.chi2 / out.separation.dof:.2f}" in text and "bias [µg]" in text
+    page = out._repr_html_()
+    assert page.count("<tr") == len(out.result.terms) + 1 + len(out.combined.terms) + 1
+    frame = out.to_dataframe()
+    bias = out.result.terms[out.result.ids.index("bias_x")]
+    assert frame.loc["bias_x", "correction"] == pytest.approx(float(bias.sigma_to_engineering(out.corrections["bias_x"])))
+    assert frame.loc["beta_zy", "determination"] == "alone" and frame.loc["K2_x", "determination"] == "not seen"

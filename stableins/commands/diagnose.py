@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         for line in getattr(session, "drift_notes", ()):
             note(f"drift analysis: {line}")
     if args.plots is not None:
-        _write_plots(args.plots, diagnosis, session)
+        _write_plots(args.plots, session, ranking)
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
@@ -171,7 +171,7 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     )
     session, diagnosis, ranking = result.session, result.diagnosis, result.ranking
     if args.plots is not None:
-        _write_plots(args.plots, diagnosis, session, result.spectra)
+        _write_plots(args.plots, session, ranking, result.spectra)
     text = "\n\n".join([result.report(top=args.top), session.history.report()])
     flagged = {(name, k) for name, k, _ in result.flagged_harmonics}
     data = {
@@ -231,8 +231,8 @@ def _device_noise(args: argparse.Namespace, datasets, default):
     return noise, origin
 
 
-def _write_plots(directory: Path, diagnosis, session, spectra=None) -> None:
-    """Residuals per position (and against orientation), the history and the harmonic spectra, as PNG in ``directory``."""
+def _write_plots(directory: Path, session, ranking, spectra=None) -> None:
+    """The session's figures (residuals, orientation: before and after ``--add``; history) and the harmonic spectra, as PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -241,11 +241,9 @@ def _write_plots(directory: Path, diagnosis, session, spectra=None) -> None:
     from stableins.output import note
 
     directory.mkdir(parents=True, exist_ok=True)
-    figures = {"residuals": diagnosis.plot_positions(), "history": session.history.plot()}
-    if diagnosis.orientation is not None:
-        figures["orientation"] = diagnosis.plot_orientation()
+    figures = session.figures(next_step=ranking.next_step())
     for name, spectrum in (spectra or {}).items():
-        figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6)
+        figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6, name=name, next_step=ranking.next_step())
     for name, figure in figures.items():
         figure.savefig(directory / f"{name}.png", dpi=110)
         plt.close(figure)

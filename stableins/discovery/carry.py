@@ -129,8 +129,7 @@ def carry_effects(
             else:
                 decision = Decision.NOT_SUPPORTED
                 reason = (
-                    f"{estimate}; {test} ≥ α = {alpha:g}: the data do not show it; left out of the record "
-                    "(--keep-unsupported keeps it)"
+                    f"{estimate}; {test} ≥ α = {alpha:g}: the data do not show it; left out of the record (--keep-unsupported keeps it)"
                 )
         largest = sorted(step.shifts.items(), key=lambda kv: -abs(kv[1][2]) if kv[1][2] == kv[1][2] else 0.0)[:SHIFTS_KEPT]
         step = replace(step, decision=decision, reason=reason, shifts=dict(largest))

@@ -13,20 +13,28 @@ For any fitted stage (a :class:`~stableins.estimators.result.FitResult`):
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE, MICRO_G
+from stableins.display import layout_with_caption
 from stableins.estimators.result import FitResult
 
 if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from stableins.discovery.problem import Problem
+
 AXIS_NAMES = ("x", "y", "z")
+#: Above this many positions the per-position plots are drawn against time, without per-point labels.
+MAX_NAMED_POSITIONS = 80
 
 
 @dataclass(frozen=True)
@@ -47,6 +55,12 @@ class Diagnosis:
         ``χ²_ν``, ``sqrt(2/ν)`` and ``P(χ² ≥ observed)`` under the model.
     noise : dict
         How the noise floor was measured.
+    outputs : tuple of str
+        Name of each output (columns of the per-position arrays).
+    unit, scale : str, float
+        How residuals are shown (default µg).
+    time : ndarray (P,) or None
+        Time of each position [s] (dwell problems), for plots of many bins against time.
     """
 
     result: FitResult
@@ -61,6 +75,7 @@ class Diagnosis:
     outputs: tuple[str, ...] = ("f_x", "f_y", "f_z")
     unit: str = "µg"
     scale: float = MICRO_G
+    time: NDArray[np.float64] | None = None
 
     @property
     def normalized(self) -> NDArray[np.float64]:
@@ -88,65 +103,191 @@ class Diagnosis:
         order = np.argsort(-np.abs(z), axis=None)[:count]
         return [(self.position_labels[i // k], self.outputs[i % k], float(z.flat[i])) for i in order]
 
-    def report(self) -> str:
-        r = self.result
-        verdict = "consistent with the noise floor" if self.consistent else "NOT consistent with the noise floor: something is missing"
-        lines = [
-            f"{r.stage}: χ²_ν = {self.chi2_red:.3f} (ν = {r.dof}, expected 1 ± {self.spread:.3f}); "
-            f"P(χ² ≥ observed) = {self.p_value:.3g} — {verdict}",
-            f"{'axis':<5} {'residual RMS':>14} {'noise floor':>12} {'ratio':>7}",
+    @property
+    def verdict(self) -> str:
+        """``consistent with the noise floor`` or ``NOT consistent ...: something is missing``."""
+        return "consistent with the noise floor" if self.consistent else "NOT consistent with the noise floor: something is missing"
+
+    def _fit_line(self) -> str:
+        return (
+            f"{self.result.stage}: χ²_ν = {self.chi2_red:.3f} (ν = {self.result.dof}, expected 1 ± {self.spread:.3f}); "
+            f"P(χ² ≥ observed) = {self.p_value:.3g} — {self.verdict}"
+        )
+
+    def _axis_rows(self) -> list[list[str]]:
+        u, sc = self.unit, self.scale
+        return [
+            [a, f"{rms / sc:.3f} {u}", f"{floor / sc:.3f} {u}", f"{rms / floor:.2f}"]
+            for a, rms, floor in zip(self.outputs, self.rms, self.noise_floor, strict=True)
         ]
-        for a, rms, floor in zip(self.outputs, self.rms, self.noise_floor, strict=True):
-            u, sc = self.unit, self.scale
-            lines.append(f"{a:<5} {rms / sc:>11.3f} {u:<2} {floor / sc:>9.3f} {u:<2} {rms / floor:>7.2f}")
+
+    def _worst_line(self) -> str:
+        return "largest residuals: " + ", ".join(f"{p} {a} {z:+.1f}σ" for p, a, z in self.worst())
+
+    def report(self) -> str:
+        lines = [self._fit_line(), f"{'axis':<5} {'residual RMS':>14} {'noise floor':>12} {'ratio':>7}"]
+        lines += [f"{a:<5} {rms:>14} {floor:>12} {ratio:>7}" for a, rms, floor, ratio in self._axis_rows()]
         if self.noise:
             lines.append(f"noise floor: {self.noise.get('method', '')}")
-        lines.append("largest residuals: " + ", ".join(f"{p} {a} {z:+.1f}σ" for p, a, z in self.worst()))
+        lines.append(self._worst_line())
         return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.report()
 
+    def __repr__(self) -> str:
+        from stableins.display import clipped
+
+        lines = [f"<Diagnosis of {len(self.position_labels)} positions × {len(self.outputs)} outputs>", self._fit_line()]
+        lines += [
+            f"  {a:<5} residual RMS {rms:>12}   noise floor {floor:>12}   ratio {ratio:>5}" for a, rms, floor, ratio in self._axis_rows()
+        ]
+        lines.append(self._worst_line())
+        if not self.consistent:
+            lines.append("next: rank the candidate effects (Discovery.rank(), or stableins diagnose prints the ranking)")
+        return clipped(lines, "(print(diagnosis) for the report, diagnosis.to_dataframe() for the residuals, diagnosis.plot_positions())")
+
+    def _repr_html_(self) -> str:
+        from stableins.display import html_result, html_table
+
+        table = html_table(["output", "residual RMS", "noise floor", "ratio"], self._axis_rows(), numeric=(1, 2, 3))
+        notes = [self.noise["method"]] if self.noise.get("method") else []
+        return html_result("Diagnosis", [self._fit_line(), self._worst_line()], [table], [("noise floor", notes)])
+
+    def to_dataframe(self) -> Any:
+        """The residuals as a :class:`pandas.DataFrame`, one row per position and output.
+
+        Columns ``position``, ``output``, ``residual`` and ``sigma`` (in :attr:`unit`), ``normalized`` (residual / 1σ),
+        and ``f_x/g``, ``f_y/g``, ``f_z/g`` (the orientation) when known.  Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        rows = []
+        for i, position in enumerate(self.position_labels):
+            for j, output in enumerate(self.outputs):
+                row = {
+                    "position": position,
+                    "output": output,
+                    f"residual [{self.unit}]": self.residuals[i, j] / self.scale,
+                    f"sigma [{self.unit}]": self.sigma[i, j] / self.scale,
+                    "normalized": self.residuals[i, j] / self.sigma[i, j],
+                }
+                if self.orientation is not None:
+                    row.update({f"f_{a}/g": float(self.orientation[i, k]) for k, a in enumerate(AXIS_NAMES)})
+                rows.append(row)
+        return pandas.DataFrame.from_records(rows)
+
     # ------------------------------------------------------------------ plots
-    def plot_positions(self, fig: Figure | None = None, title: str | None = None) -> Figure:
-        """Residuals per position and output with 1σ bars (in :attr:`unit`)."""
+    @property
+    def model_name(self) -> str:
+        """``standard model`` plus the effects the fit added (``standard model + nonorth_12``), as plots name it."""
+        added = [t.id for t in self.result.terms if t.kind == "additive"]
+        return "standard model" + "".join(f" + {i}" for i in added)
+
+    def _by_time(self) -> bool:
+        """Plot against time (system records: many bins) rather than against named positions."""
+        return self.time is not None and len(self.position_labels) > MAX_NAMED_POSITIONS
+
+    def _position_axis(self) -> str:
+        """What the x axis of the per-position plots shows, with an example of a label explained."""
+        if self._by_time():
+            return "time since the start of the record [h]"
+        first = self.position_labels[0] if self.position_labels else ""
+        match = re.fullmatch(r"([cf])(\d+)/(\d+)", first)
+        if match:
+            stage = {"c": "coarse", "f": "fine"}[match.group(1)]
+            return f"dwell (stage, pass / procedure position: {first} = {stage} stage, pass {match.group(2)}, position {match.group(3)})"
+        return "dwell (in acquisition order)"
+
+    def plot_positions(
+        self,
+        fig: Figure | None = None,
+        title: str | None = None,
+        *,
+        before: Diagnosis | None = None,
+        next_step: str | None = None,
+    ) -> Figure:
+        """Residuals per position and output with 1σ bars (in :attr:`unit`), the noise floor as a grey band.
+
+        ``before``: the diagnosis of the model before effects were added (same positions): drawn in a left column,
+        this one in a right column, each named by its model and χ²_ν.  ``next_step``: a caption under the figure
+        (e.g. :meth:`stableins.discovery.ranking.Ranking.next_step`).  Many positions (system records) are drawn
+        against time, without per-point bars.
+        """
         import matplotlib.pyplot as plt
 
-        fig = fig or plt.figure(figsize=(10, 6.5))
-        k = np.arange(len(self.position_labels))
-        axes = np.atleast_1d(fig.subplots(len(self.outputs), 1, sharex=True))
-        for i, ax in enumerate(axes):
-            ax.errorbar(k, self.residuals[:, i] / self.scale, yerr=self.sigma[:, i] / self.scale, fmt="o", ms=3.5, lw=1, capsize=2)
-            ax.axhline(0.0, color="k", lw=0.6)
-            ax.set_ylabel(f"{self.outputs[i]} residual [{self.unit}]")
-            ax.grid(alpha=0.3)
-        if len(k) <= 80:
-            axes[-1].set_xticks(k, self.position_labels, rotation=90, fontsize=7)
-        axes[0].set_title(title or f"{self.result.stage}: χ²_ν = {self.chi2_red:.2f} (expected 1 ± {self.spread:.2f})")
-        fig.tight_layout()
+        panels = [d for d in (before, self) if d is not None]
+        fig = fig or plt.figure(figsize=(7.5 * len(panels) + 2.5, 6.8 + (0.35 if next_step else 0.0)))
+        axes = np.atleast_2d(fig.subplots(len(self.outputs), len(panels), sharex=True, squeeze=False))
+        by_time = self._by_time()
+        for column, diagnosis in enumerate(panels):
+            x = diagnosis.time / 3600.0 if by_time else np.arange(len(diagnosis.position_labels))
+            for i, ax in enumerate(axes[:, column]):
+                r, sg = diagnosis.residuals[:, i] / self.scale, diagnosis.sigma[:, i] / self.scale
+                ax.fill_between(x, -sg, sg, color="0.88", step="mid", lw=0, label="±1σ noise floor")
+                if by_time:
+                    ax.plot(x, r, ".", ms=2.5, color="C0" if diagnosis is self else "0.45", label="residual")
+                else:
+                    ax.errorbar(
+                        x, r, yerr=sg, fmt="o", ms=3.5, lw=1, capsize=2, color="C0" if diagnosis is self else "0.45", label="residual ± 1σ"
+                    )
+                ax.axhline(0.0, color="k", lw=0.6)
+                ax.set_ylabel(f"{self.outputs[i]} residual [{self.unit}]")
+                ax.grid(alpha=0.3)
+            head = f"{'before' if diagnosis is before else 'after' if before is not None else 'model'}: {diagnosis.model_name}"
+            axes[0, column].set_title(f"{head}\nχ²_ν = {diagnosis.chi2_red:.3g} (expected 1 ± {diagnosis.spread:.2g})", fontsize=10)
+            axes[-1, column].set_xlabel(self._position_axis() if column == len(panels) - 1 or len(panels) == 1 else "", fontsize=9)
+            if not by_time and len(x) <= MAX_NAMED_POSITIONS:
+                axes[-1, column].set_xticks(x, diagnosis.position_labels, rotation=90, fontsize=7)
+        axes[0, -1].legend(fontsize=7, loc="upper right")
+        if len(panels) > 1:
+            axes[-1, 0].set_xlabel(self._position_axis(), fontsize=9)
+        fig.suptitle(title or f"Residuals of the {self.result.stage} fit per {'bin' if by_time else 'dwell'}", fontsize=11)
+        layout_with_caption(fig, next_step)
         return fig
 
-    def plot_orientation(self, fig: Figure | None = None) -> Figure:
-        """Normalized residual of each axis against each component of ``f^p/g`` (3 × 3 panels)."""
+    def plot_orientation(self, fig: Figure | None = None, *, before: Diagnosis | None = None, next_step: str | None = None) -> Figure:
+        """Normalized residual of each axis against each component of ``f^p`` [g] (3 × 3 panels).
+
+        A residual that grows with one component of the specific force points at a missing term in that input
+        (a scale-factor or cross-coupling effect); ``before`` draws the model before effects were added in grey.
+        """
         import matplotlib.pyplot as plt
 
         if self.orientation is None:
             raise ValueError("this diagnosis has no orientation (not a dwell problem)")
-        fig = fig or plt.figure(figsize=(9, 8))
+        fig = fig or plt.figure(figsize=(10, 8.6 + (0.35 if next_step else 0.0)))
         axes = fig.subplots(3, 3, sharex=True, sharey=True)
-        z = self.normalized
         for i in range(3):
             for j in range(3):
                 ax = axes[i, j]
-                ax.scatter(self.orientation[:, j], z[:, i], s=12)
+                if before is not None and before.orientation is not None:
+                    ax.scatter(
+                        before.orientation[:, j], before.normalized[:, i], s=14, facecolors="none", edgecolors="0.55",
+                        label=f"before: {before.model_name} (χ²_ν = {before.chi2_red:.3g})",
+                    )  # fmt: skip
+                ax.scatter(
+                    self.orientation[:, j], self.normalized[:, i], s=12, color="C0",
+                    label=f"{'after' if before is not None else 'model'}: {self.model_name} (χ²_ν = {self.chi2_red:.3g})",
+                )  # fmt: skip
+                ax.axhspan(-1.0, 1.0, color="0.9", zorder=0)
                 ax.axhline(0.0, color="k", lw=0.6)
                 ax.grid(alpha=0.3)
                 if i == 2:
-                    ax.set_xlabel(f"f^p_{AXIS_NAMES[j]} / g")
+                    ax.set_xlabel(f"platform specific force $f^p_{AXIS_NAMES[j]}$ [g]")
                 if j == 0:
-                    ax.set_ylabel(f"f_{AXIS_NAMES[i]} residual / σ")
-        fig.suptitle("residuals against orientation")
-        fig.tight_layout()
+                    ax.set_ylabel(f"$f_{AXIS_NAMES[i]}$ residual [σ]")
+        if before is not None and float(np.max(np.abs(before.normalized))) > 10 * max(float(np.max(np.abs(self.normalized))), 1.0):
+            axes[0, 0].set_yscale("symlog", linthresh=3.0)  # linear within ±3σ (the model after), logarithmic beyond (before)
+            top = float(np.max(np.abs(before.normalized)))
+            ticks = [t for t in (1, 3, 10, 30, 100, 300, 1000, 3000, 10000) if t <= 1.5 * top]
+            axes[0, 0].set_yticks([-t for t in ticks[::-1]] + [0] + ticks, [f"−{t}" for t in ticks[::-1]] + ["0"] + [str(t) for t in ticks])
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.96), ncol=1, fontsize=8, frameon=False)
+        scale = "; logarithmic beyond ±3σ" if axes[0, 0].get_yscale() == "symlog" else ""
+        fig.suptitle(f"Residuals of the {self.result.stage} fit against orientation (grey band: ±1σ{scale})", fontsize=11)
+        layout_with_caption(fig, next_step, top=0.92 if before is not None else 0.94)
         return fig
 
 
@@ -165,7 +306,7 @@ def _layout(labels: Sequence[str], m: int) -> tuple[tuple[str, ...], tuple[str, 
     return tuple(labels) if len(labels) == m else tuple(f"obs {k + 1}" for k in range(m)), ("residual",)
 
 
-def diagnose(problem, result: FitResult, unit: str = "µg", scale: float = MICRO_G) -> Diagnosis:
+def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scale: float = MICRO_G) -> Diagnosis:
     """Residual diagnostics of any fitted stage.
 
     ``problem`` may be None: the residuals, their 1σ and labels of ``result`` are enough
@@ -199,6 +340,7 @@ def diagnose(problem, result: FitResult, unit: str = "µg", scale: float = MICRO
         outputs=outputs,
         unit=unit,
         scale=scale,
+        time=np.asarray(problem.dwells.time, dtype=float) if problem is not None and hasattr(problem, "dwells") else None,
     )
 
 
@@ -229,39 +371,68 @@ class HarmonicSpectrum:
             lines.append(f"{k:>8d} {period:>10.2f} {a / scale:>10.4g}{unit:>2} {s / scale:>10.3g} {q:>8.2f} {d:>4.0f} {p:>9.3g}")
         return "\n".join(lines)
 
-    def plot(self, ax=None, unit: str = "", scale: float = 1.0):
-        """The residual's amplitude spectrum up to a few harmonics beyond those tested, and each tested harmonic ± 1σ.
+    def __repr__(self) -> str:
+        from stableins.display import clipped
 
-        Harmonics the fitted model explains (no degree of freedom left) are not drawn; error bars stop at a tenth of
-        the amplitude on the logarithmic axis.
+        head = f"<HarmonicSpectrum: residual at harmonics {', '.join(map(str, self.harmonics))} of the Earth rate (amplitudes in SI)>"
+        return clipped([head, *self.report().splitlines()], "(spectrum.plot(unit='µg', scale=MICRO_G) draws it)")
+
+    def plot(
+        self,
+        ax: Axes | None = None,
+        unit: str = "",
+        scale: float = 1.0,
+        *,
+        name: str = "",
+        cycles: float = 6.0,
+        next_step: str | None = None,
+    ) -> Figure:
+        """The residual's amplitude at the Earth-rate harmonics (least-squares fit ± 1σ, p of each) over its amplitude spectrum.
+
+        The x axis is in cycles per sidereal day (``k`` = the ``k``-th harmonic of ω_ie), zoomed on ``0 … cycles``; the
+        harmonics are marked with their periods.  ``unit``/``scale``: how amplitudes are shown (e.g. ``"µg"``,
+        ``MICRO_G``); ``name``: the output, for the title; ``next_step``: a caption under the figure.
         """
         import matplotlib.pyplot as plt
 
-        fig = ax.figure if ax is not None else plt.figure(figsize=(8, 4))
+        fig = ax.figure if ax is not None else plt.figure(figsize=(8.5, 4.6 + (0.35 if next_step else 0.0)))
         ax = ax or fig.add_subplot(111)
-        top = float(self.harmonics.max()) + 4.0 if self.harmonics.size else 8.0
-        x = self.frequency / EARTH_RATE
-        shown = (x > 0) & (x <= top)
-        ax.semilogy(x[shown], self.periodogram[shown] / scale, lw=0.8, label="residual amplitude spectrum")
-        tested = self.amplitude > 0 if self.dof is None else (self.dof > 0) & (self.amplitude > 0)
-        amplitude, sigma = self.amplitude[tested] / scale, self.sigma[tested] / scale
+        cpd = self.frequency / EARTH_RATE
+        keep = (cpd > 0) & (cpd <= cycles)  # the zero-frequency bin is the removed mean
+        # harmonics the fitted model explains entirely (no degree of freedom left, harmonic_tests) carry no amplitude
+        tested = np.ones(self.harmonics.size, bool) if self.dof is None else self.dof > 0
+        amplitude, sigma = self.amplitude / scale, self.sigma / scale
+        ax.plot(cpd[keep], self.periodogram[keep] / scale, ".-", lw=0.8, ms=4, color="0.55", label="amplitude spectrum of the residual")
         ax.errorbar(
             self.harmonics[tested],
-            amplitude,
-            yerr=np.stack([np.minimum(sigma, 0.9 * amplitude), sigma]),
+            amplitude[tested],
+            yerr=sigma[tested],
             fmt="o",
+            ms=6,
             capsize=3,
-            label="Earth-rate harmonics (fit, ±1σ)",
+            color="C3",
+            label="harmonic amplitude (fit ± 1σ)",
         )
-        values = np.concatenate([self.periodogram[shown] / scale, amplitude + sigma, 0.1 * amplitude])
-        values = values[np.isfinite(values) & (values > 0)]
-        if values.size:
-            ax.set_ylim(values.min() / 2.0, values.max() * 2.0)
-        ax.set_xlim(0.0, top)
-        ax.set_xlabel("frequency / ω_ie")
-        ax.set_ylabel(f"amplitude [{unit}]")
-        ax.legend()
-        ax.grid(alpha=0.3, which="both")
+        top = max(float(np.max((amplitude + sigma)[tested], initial=0.0)), float(np.max(self.periodogram[keep] / scale, initial=0.0)))
+        top = top * 1.35 if top > 0 else 1.0
+        p_values = self.p_value if self.p_value.size else np.full(self.harmonics.size, math.nan)
+        for k, a, p, shown in zip(self.harmonics, amplitude, p_values, tested, strict=True):
+            period = 2 * np.pi / (k * EARTH_RATE) / 3600.0
+            ax.axvline(k, color="C3", lw=0.6, ls=":", zorder=0)
+            ax.text(k, top * 0.98, f"{k}×ω_ie\n{period:.1f} h", ha="center", va="top", fontsize=7, color="C3")
+            if not shown:
+                ax.text(k, top * 0.80, "explained\nby the model", ha="center", va="top", fontsize=7, color="0.4")
+            elif math.isfinite(p):
+                ax.annotate(f"p = {p:.2g}", (k, a), xytext=(6, 0), textcoords="offset points", fontsize=7, va="center")
+        ax.set_xlim(0.0, cycles + 0.3)
+        ax.set_ylim(0.0, top)
+        ax.set_xlabel("frequency [cycles per sidereal day] (k = k-th harmonic of the Earth rate ω_ie)")
+        ax.set_ylabel(f"residual amplitude [{unit or 'SI'}]")
+        ax.set_title(f"Residual{' of ' + name if name else ''} at the Earth-rate harmonics", fontsize=10)
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.87), ncol=2)
+        ax.grid(alpha=0.3)
+        if ax is fig.axes[0] and len(fig.axes) == 1:
+            layout_with_caption(fig, next_step, top=1.0)
         return fig
 
 

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stableins.conventions import MICRO_G
+from stableins.display import clipped, html_result, html_table, layout_with_caption, require_pandas, unit_text, value_sigma
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
 
@@ -37,6 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.discovery.diagnostics import Diagnosis
     from stableins.discovery.library import Library
+    from stableins.discovery.problem import Problem
     from stableins.discovery.ranking import Ranking
 
 
@@ -106,6 +108,16 @@ class Step:
     p_value: float = math.nan
     delta_bic: float = math.nan
     reason: str = ""
+
+    def __repr__(self) -> str:
+        spread = np.sqrt(2.0 / max(self.dof, 1))
+        rms = ", ".join(f"{c} {x / MICRO_G:.3g}" for c, x in zip(self.channels, self.rms, strict=True))
+        verdict = (
+            f"; {self.decision}" + (f" (p = {self.p_value:.2g})" if math.isfinite(self.p_value) else "")
+            if self.decision is not None
+            else ""
+        )
+        return f"<Step {self.label!r}: χ²_ν = {self.chi2_red:.3f} ± {spread:.2f} (ν = {self.dof}); residual RMS [µg] {rms}{verdict}>"
 
     def to_json(self) -> dict:
         out = {
@@ -329,6 +341,39 @@ class ModelHistory:
             lines += ["", "verdicts:"] + [f"  {s.added[0][0]}: {s.decision}. {s.reason}" for s in verdicts]
         return "\n".join(lines)
 
+    def __str__(self) -> str:
+        return self.report()
+
+    def _head(self) -> str:
+        kept = self.effects
+        return (
+            f"model discovery of the {self.stage} fit, {len(self.steps)} steps; model in force: standard"
+            + "".join(f" + {e}" for e in kept)
+            + f" (an effect stays when F-test p < {self.alpha:g})"
+        )
+
+    def __repr__(self) -> str:
+        history = History(self.steps)
+        verdicts = [f"{s.added[0][0]}: {s.decision}" for s in self.steps[1:] if s.decision is not None and s.added]
+        lines = [f"<ModelHistory: {self._head()}>", *history._table_lines(), *history._added_lines()]
+        if verdicts:
+            lines.append("verdicts: " + "; ".join(verdicts))
+        return clipped(lines, "(print(history) for the verdicts in words, history.to_dataframe(), history.plot())")
+
+    def _repr_html_(self) -> str:
+        history = History(self.steps)
+        table = html_table(history._columns(), history._rows(), numeric=range(2, len(history._columns()) - 1))
+        verdicts = [f"{s.added[0][0]}: {s.decision}. {s.reason}" for s in self.steps[1:] if s.decision is not None and s.added]
+        return html_result(self._head()[0].upper() + self._head()[1:], history._added_lines(), [table], [("verdicts", verdicts)])
+
+    def to_dataframe(self) -> Any:
+        """The steps with their verdicts (:meth:`History.to_dataframe`)."""
+        return History(self.steps).to_dataframe()
+
+    def plot(self, fig: Figure | None = None, *, title: str | None = None) -> Figure:
+        """The steps with their verdicts (:meth:`History.plot`)."""
+        return History(self.steps).plot(fig, title=title)
+
 
 class History:
     """Steps of the discovery loop, printed and plotted."""
@@ -345,24 +390,44 @@ class History:
     def __getitem__(self, k: int) -> Step:
         return self.steps[k]
 
+    def _columns(self) -> list[str]:
+        """Column names of :meth:`_rows` (RMS per output channel in µg, χ²_ν and its spread, BIC, verdict columns if any)."""
+        axes = [c.removeprefix("f_") for c in self.steps[0].channels]
+        verdicts = any(s.decision is not None for s in self.steps)
+        return ["step", "model", *(f"RMS {a} [µg]" for a in axes), "χ²_ν", "±", "BIC"] + (["p", "ΔBIC", "decision"] if verdicts else [])
+
+    def _rows(self) -> list[list[str]]:
+        """One row of text per step, then the noise floor."""
+        verdicts = any(s.decision is not None for s in self.steps)
+        rows = []
+        for k, s in enumerate(self.steps):
+            spread = np.sqrt(2.0 / max(s.dof, 1))
+            row = [str(k), s.label, *(f"{x / MICRO_G:.3f}" for x in s.rms), f"{s.chi2_red:.3f}", f"{spread:.2f}", f"{s.bic:.1f}"]
+            if verdicts:
+                row += ["" if math.isnan(s.p_value) else f"{s.p_value:.2g}", "" if math.isnan(s.delta_bic) else f"{s.delta_bic:.1f}"]
+                row.append(str(s.decision or ""))
+            rows.append(row)
+        floor = self.steps[-1].noise_floor
+        rows.append(["", "noise floor", *(f"{x / MICRO_G:.3f}" for x in floor), "1.000"] + [""] * (len(rows[0]) - 3 - len(floor)))
+        return rows
+
+    def _table_lines(self) -> list[str]:
+        """:meth:`_columns` and :meth:`_rows` as aligned text (the report's table)."""
+        columns = self._columns()
+        channels = len(self.steps[0].channels)
+        widths = [4, -26, *([11] * channels), 8, 5, 10] + ([9, 8, -1] if columns[-1] == "decision" else [])
+        lines = []
+        for row in [columns, *self._rows()]:
+            cells = [f"{cell:<{-w}}" if w < 0 else f"{cell:>{w}}" for cell, w in zip(row, widths, strict=True)]
+            if columns[-1] == "decision":
+                cells[-1] = " " + cells[-1]
+            lines.append(" ".join(cells).rstrip())
+        return lines
+
     def report(self) -> str:
         if not self.steps:
             return "(no steps)"
-        axes = [c.removeprefix("f_") for c in self.steps[0].channels]
-        verdicts = any(s.decision is not None for s in self.steps)
-        head = f"{'step':>4} {'model':<26}" + "".join(f" {'RMS ' + a + ' [µg]':>11}" for a in axes) + f" {'χ²_ν':>8} {'±':>5} {'BIC':>10}"
-        lines = [head + (f" {'p':>9} {'ΔBIC':>8}  decision" if verdicts else "")]
-        for k, s in enumerate(self.steps):
-            spread = np.sqrt(2.0 / max(s.dof, 1))
-            row = f"{k:>4} {s.label:<26}" + "".join(f" {x / MICRO_G:>11.3f}" for x in s.rms)
-            row += f" {s.chi2_red:>8.3f} {spread:>5.2f} {s.bic:>10.1f}"
-            if verdicts:
-                p = "" if math.isnan(s.p_value) else f"{s.p_value:.2g}"
-                dbic = "" if math.isnan(s.delta_bic) else f"{s.delta_bic:.1f}"
-                row += f" {p:>9} {dbic:>8}  {s.decision or ''}"
-            lines.append(row)
-        floor = self.steps[-1].noise_floor
-        lines.append(f"{'':>4} {'noise floor':<26}" + "".join(f" {x / MICRO_G:>11.3f}" for x in floor) + f" {1.0:>8.3f}")
+        lines = self._table_lines()
         for k, s in enumerate(self.steps):
             if not s.added:
                 continue
@@ -377,33 +442,130 @@ class History:
     def __str__(self) -> str:
         return self.report()
 
+    def _added_lines(self) -> list[str]:
+        return [
+            f"step {k} ({s.label}): " + "; ".join(f"{i} = {value_sigma(v, sg, unit_text(u))}" for i, v, sg, u in s.added)
+            for k, s in enumerate(self.steps)
+            if s.added
+        ]
+
+    def __repr__(self) -> str:
+        if not self.steps:
+            return "<History: no steps>"
+        lines = [f"<History: {len(self.steps)} step{'s' if len(self.steps) != 1 else ''} of the discovery loop>", *self._table_lines()]
+        return clipped(lines + self._added_lines(), "(print(history) for the shifts of every step, history.to_dataframe(), history.plot())")
+
+    def _repr_html_(self) -> str:
+        if not self.steps:
+            return html_result("Discovery history: no steps")
+        table = html_table(self._columns(), self._rows(), numeric=range(2, len(self._columns()) - 1))
+        return html_result(f"Discovery history: {len(self.steps)} steps", self._added_lines(), [table])
+
+    def to_dataframe(self) -> Any:
+        """One row per step as a :class:`pandas.DataFrame` indexed by step number.
+
+        Columns ``label``, ``model`` (the parameter ids, comma-separated), ``rms <channel> [µg]`` and
+        ``noise floor <channel> [µg]`` per output channel, ``chi2_red``, ``dof``, ``spread`` (``sqrt(2/ν)``), ``bic``,
+        ``added`` (the effects added at the step with estimate ± 1σ), and for a calibration's history ``decision``,
+        ``delta_chi2``, ``p_value``, ``delta_bic``, ``reason``.  Needs pandas (``pip install stableins[pandas]``).
+        """
+        pandas = require_pandas()
+        rows = []
+        for k, s in enumerate(self.steps):
+            row: dict[str, Any] = {"step": k, "label": s.label, "model": ", ".join(s.model_ids)}
+            row.update({f"rms {c} [µg]": x / MICRO_G for c, x in zip(s.channels, s.rms, strict=True)})
+            row.update({f"noise floor {c} [µg]": x / MICRO_G for c, x in zip(s.channels, s.noise_floor, strict=True)})
+            row.update(chi2_red=s.chi2_red, dof=s.dof, spread=float(np.sqrt(2.0 / max(s.dof, 1))), bic=s.bic)
+            row["added"] = "; ".join(f"{i} = {value_sigma(v, sg, unit_text(u))}" for i, v, sg, u in s.added)
+            if s.decision is not None:
+                row.update(decision=str(s.decision), delta_chi2=s.delta_chi2, p_value=s.p_value, delta_bic=s.delta_bic, reason=s.reason)
+            rows.append(row)
+        return pandas.DataFrame.from_records(rows, index="step")
+
     def to_json(self) -> list[dict]:
         return [s.to_json() for s in self.steps]
 
-    def plot(self, fig: Figure | None = None) -> Figure:
-        """Residual RMS per axis against step (with the noise floor) and χ²_ν with its expected band."""
+    def plot(self, fig: Figure | None = None, *, title: str | None = None, next_step: str | None = None) -> Figure:
+        """Residual RMS per output channel against its noise floor, and χ²_ν against its expected band, per step.
+
+        Left: for every step (named on the x axis, with its verdict in a calibration's history) the residual RMS of
+        each channel [µg] as a coloured marker and that channel's noise floor as a black bar beside it, values
+        written.  Right: χ²_ν with the band ``1 ± 2√(2/ν)`` of its step.  A single step is drawn as well as many.
+        ``next_step``: a caption under the figure.
+        """
         import matplotlib.pyplot as plt
 
-        fig = fig or plt.figure(figsize=(9, 4.5))
-        ax1, ax2 = fig.subplots(1, 2)
-        k = np.arange(len(self.steps))
-        rms = np.array([s.rms for s in self.steps]) / MICRO_G
-        floor = np.array([s.noise_floor for s in self.steps]) / MICRO_G
-        for i, channel in enumerate(self.steps[0].channels):
-            (line,) = ax1.semilogy(k, rms[:, i], "o-", label=f"residual RMS {channel}")
-            ax1.semilogy(k, floor[:, i], "--", color=line.get_color(), lw=0.8)
-        ax1.set_ylabel("µg (dashed: noise floor)")
-        ax1.legend(fontsize=8)
-        chi = np.array([s.chi2_red for s in self.steps])
-        spread = np.array([np.sqrt(2.0 / max(s.dof, 1)) for s in self.steps])
-        ax2.semilogy(k, chi, "o-", label="χ²_ν")
-        ax2.fill_between(k, np.maximum(1 - 2 * spread, 1e-2), 1 + 2 * spread, color="0.85", label="1 ± 2√(2/ν)")
-        ax2.legend(fontsize=8)
-        labels = [s.label for s in self.steps]
+        steps = self.steps
+        if not steps:
+            raise ValueError("the history has no steps to plot")
+        fig = fig or plt.figure(figsize=(max(9.0, 3.2 + 2.2 * len(steps)), 4.8 + (0.35 if next_step else 0.0)))
+        ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})
+        k = np.arange(len(steps))
+        channels = steps[0].channels
+        rms = np.array([s.rms for s in steps]) / MICRO_G
+        floor = np.array([s.noise_floor for s in steps]) / MICRO_G
+        width = 0.7 / len(channels)
+        for i, channel in enumerate(channels):
+            x = k + (i - (len(channels) - 1) / 2) * width
+            colour = f"C{i}"
+            ax1.plot(x, rms[:, i], "o", color=colour, ms=7, label=f"residual RMS {channel}", zorder=3)
+            if len(steps) > 1:
+                ax1.plot(x, rms[:, i], "-", color=colour, lw=0.8, alpha=0.5)
+            ax1.plot(x, floor[:, i], "_", color="k", ms=14, mew=2.0, label="noise floor of that output" if i == 0 else None, zorder=4)
+            below = rms[-1, i] >= floor[-1, i]  # the floor's value on the side away from the RMS marker
+            ax1.annotate(
+                f"{floor[-1, i]:.3g}",
+                (x[-1], floor[-1, i]),
+                xytext=(0, -11 if below else 5),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+            )
+            ax1.vlines(x, floor[:, i], rms[:, i], color=colour, lw=1.0, alpha=0.6)
+            for xi, r, f in zip(x, rms[:, i], floor[:, i], strict=True):
+                offset = 6 if r >= f else -13
+                ax1.annotate(f"{r:.3g}", (xi, r), xytext=(0, offset), textcoords="offset points", ha="center", fontsize=7, color=colour)
+        low, high = float(np.min(np.minimum(rms, floor))), float(np.max(np.maximum(rms, floor)))
+        if high > 8 * low > 0:
+            ax1.set_yscale("log")
+            ax1.set_ylim(low / 1.6, high * 2.2)
+        else:
+            ax1.set_ylim(0.0, high * 1.25)
+        ax1.set_ylabel("residual RMS [µg]")
+        ax1.set_title("residual RMS per output against its noise floor", fontsize=10)
+        ax1.legend(fontsize=7, loc="upper right")
+        chi = np.array([s.chi2_red for s in steps])
+        spread = np.array([np.sqrt(2.0 / max(s.dof, 1)) for s in steps])
+        for j in range(len(steps)):
+            ax2.fill_between(
+                [j - 0.3, j + 0.3], 1 - 2 * spread[j], 1 + 2 * spread[j], color="0.82", lw=0, label="1 ± 2√(2/ν)" if j == 0 else None
+            )
+        ax2.plot(k, chi, "o", color="C3", ms=7, label="χ²_ν", zorder=3)
+        if len(steps) > 1:
+            ax2.plot(k, chi, "-", color="C3", lw=0.8, alpha=0.5)
+        for j, c in enumerate(chi):
+            ax2.annotate(f"{c:.3g}\n(ν = {steps[j].dof})", (j, c), xytext=(8, 0), textcoords="offset points", fontsize=7, va="center")
+        ax2.axhline(1.0, color="k", lw=0.6)
+        top = float(np.max(np.r_[chi, 1 + 2 * spread]))
+        bottom = float(np.min(np.r_[chi, 1 - 2 * spread]))
+        if top > 10 * max(bottom, 0.1):
+            ax2.set_yscale("log")
+            ax2.set_ylim(max(min(bottom, 0.5) / 1.5, 1e-2), top * 2.0)
+        else:
+            ax2.set_ylim(max(0.0, bottom - 0.2 * (top - bottom) - 0.05), top + 0.25 * (top - bottom) + 0.05)
+        ax2.set_ylabel("χ²_ν (expected 1)")
+        ax2.set_title("χ²_ν against its expected band", fontsize=10)
+        ax2.legend(fontsize=7, loc="best")
+        labels = [s.label + (f"\n({s.decision})" if s.decision is not None and s.decision is not Decision.BASELINE else "") for s in steps]
         for ax in (ax1, ax2):
-            ax.set_xticks(k, labels, rotation=30, ha="right", fontsize=8)
-            ax.grid(alpha=0.3, which="both")
-        fig.tight_layout()
+            ax.set_xlim(-0.6, len(steps) - 0.4)
+            ax.set_xticks(k, labels, rotation=20 if len(steps) > 3 else 0, ha="right" if len(steps) > 3 else "center", fontsize=8)
+            ax.set_xlabel("model at each step (effect added)")
+            ax.grid(alpha=0.3, which="both", axis="y")
+        fig.suptitle(
+            title or f"Model discovery: {len(steps)} step{'s' if len(steps) != 1 else ''}, last model: {steps[-1].label}", fontsize=11
+        )
+        layout_with_caption(fig, next_step)
         return fig
 
 
@@ -424,7 +586,14 @@ class Discovery:
         Starting parameter values (e.g. from a calibration record).
     """
 
-    def __init__(self, problem, model: ErrorModel, library: Library | None = None, alpha: float = 0.05, start=None) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        model: ErrorModel,
+        library: Library | None = None,
+        alpha: float = 0.05,
+        start: Mapping[str, float] | None = None,
+    ) -> None:
         from stableins.discovery.library import LIBRARY
 
         self.problem = problem
@@ -432,6 +601,8 @@ class Discovery:
         self.alpha = alpha
         self.model = model
         self.result = problem.fit(model, start=start)
+        #: The fit of every step, in the order of :attr:`history` (``results[0]``: the starting model).
+        self.results: list[FitResult] = [self.result]
         self.history = History([make_step(self.result, "standard model")])
         self._ranking: Ranking | None = None
 
@@ -439,6 +610,24 @@ class Discovery:
         from stableins.discovery.diagnostics import diagnose
 
         return diagnose(self.problem, self.result)
+
+    def figures(self, *, next_step: str | None = None) -> dict[str, Figure]:
+        """The discovery plots of the session (what ``stableins diagnose --plots`` writes), by name.
+
+        ``residuals``: residuals per position of the current model, beside those of the starting model when effects
+        were added (:meth:`Diagnosis.plot_positions`); ``orientation``: residuals against orientation, the starting
+        model in grey (dwell problems); ``history``: :meth:`History.plot`.  ``next_step`` (e.g.
+        :meth:`Ranking.next_step`) is the caption of each.
+        """
+        from stableins.discovery.diagnostics import diagnose
+
+        now = self.diagnose()
+        before = diagnose(self.problem, self.results[0]) if len(self.results) > 1 else None
+        figures = {"residuals": now.plot_positions(before=before, next_step=next_step)}
+        if now.orientation is not None:
+            figures["orientation"] = now.plot_orientation(before=before, next_step=next_step)
+        figures["history"] = self.history.plot(next_step=next_step)
+        return figures
 
     def rank(self, refit_top: int = 3, propose: bool = True) -> Ranking:
         """Rank every library candidate not in the model (see :func:`stableins.discovery.ranking.rank`)."""
@@ -493,6 +682,7 @@ class Discovery:
         previous = self.result
         self.model = self.model + terms
         self.result = self.problem.fit(self.model, start=previous.as_dict())
+        self.results.append(self.result)
         self.history.append(make_step(self.result, "+ " + ", ".join(t.id for t in terms), previous))
         self._ranking = None
         return self.result

@@ -568,7 +568,7 @@ def fit_chi2_red(result: FitResult) -> float:
     return result.chi2_red
 
 
-def whiten(problem, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
+def whiten(problem: Problem | None, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
     """``R^{-1/2} v`` with the problem's noise model (diagonal 1σ when it has none)."""
     w = getattr(problem, "whiten", None)
     if w is not None:

@@ -28,12 +28,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.discovery.problem import Problem
 
 #: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
 IDENTIFIABLE_TOLERANCE = 1e-3
@@ -99,6 +103,15 @@ class CandidateScore:
     shifts: dict = field(default_factory=dict)
     advice: str = ""
     flagged: bool = False
+
+    def __repr__(self) -> str:
+        from stableins.display import number, unit_text, value_sigma
+
+        value, sigma = self.estimate_engineering
+        estimate = value_sigma(value, sigma, unit_text(self.term.unit)) if self.identifiable else "not identifiable"
+        flag = ", flagged" if self.flagged else ""
+        test = f"ΔRSS = {self.statistic:.2f}, p = {number(self.p_value, 2)}, ΔBIC = {self.delta_bic:+.1f}"
+        return f"<CandidateScore {self.id}: {estimate}; {test}{flag}>"
 
     @property
     def estimate_engineering(self) -> tuple[float, float]:
@@ -210,13 +223,146 @@ class Ranking:
     def __str__(self) -> str:
         return self.report()
 
+    def next_step(self) -> str:
+        """What to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).
+
+        The best flagged candidate: add it (and whether a calibration can carry it, :func:`stableins.discovery.library.calibration_limit`),
+        or how to tell it from the candidates it cannot be told from; nothing flagged: whether χ²_ν is at the noise floor.
+        """
+        from scipy import stats
+
+        from stableins.discovery.library import LIBRARY, calibration_limit
+
+        best = next((c for c in self.candidates if c.flagged), None)
+        if best is None:
+            nu = self.result.dof
+            p = float(stats.chi2.sf(self.result.chi2, nu)) if nu > 0 else float("nan")
+            if not p < 0.005:
+                return "nothing flagged and χ²_ν at the noise floor: the model is complete for these data; nothing to add"
+            return (
+                f"nothing flagged although χ²_ν = {self.result.chi2_red:.2f} is above the noise floor (p = {p:.2g}): look at the largest "
+                "residuals (a disturbed dwell?) and the noise model (slow noise between dwells) before adding terms"
+            )
+        value, sigma = best.estimate_engineering
+        from stableins.display import unit_text, value_sigma
+
+        found = f"{best.id} = {value_sigma(value, sigma, unit_text(best.term.unit))} (p = {best.p_value:.2g})"
+        if best.confused_with:
+            advice = best.advice.removeprefix("confirm with ")
+            return f"{found} cannot be told from {', '.join(best.confused_with)} with these data; to separate them: {advice}"
+        if best.id not in LIBRARY:
+            return f"next: add {found} to the model and refit"
+        why = calibration_limit(best.id)
+        if why is None:
+            return f"next: add {found} and recalibrate with it (calibrate device --add {best.id})"
+        return f"next: add {found} to the model (diagnose --add {best.id}); a calibration cannot carry it: {why}"
+
+    def _head(self) -> str:
+        flagged = len(self.flagged)
+        return (
+            f"{len(self.candidates)} candidates against the {self.result.stage} fit "
+            f"(χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
+            f"{flagged} flagged at α = {self.alpha:g} over {self.n_tested} identifiable"
+        )
+
+    def _rows(self, top: int | None = None) -> list[list[str]]:
+        from stableins.display import number, unit_text, value_sigma
+
+        rows = []
+        for k, c in enumerate(self.candidates[:top], 1):
+            value, sigma = c.estimate_engineering
+            ident = "yes" if c.identifiable else ("not excited" if not c.excited else "no")
+            rows.append(
+                [
+                    f"{k}{'*' if c.flagged else ''}",
+                    c.id,
+                    f"{c.statistic:.2f}",
+                    number(c.p_value, 2),
+                    f"{c.delta_bic:+.1f}",
+                    value_sigma(value, sigma, unit_text(c.term.unit)) if c.identifiable else "—",
+                    ident + (f"; like {', '.join(c.confused_with)}" if c.confused_with else ""),
+                ]
+            )
+        return rows
+
+    def __repr__(self) -> str:
+        from stableins.display import clipped
+
+        lines = [
+            f"<Ranking: {self._head()}>",
+            f"{'rank':>4} {'id':<14} {'ΔRSS':>10} {'p':>8} {'ΔBIC':>9}  {'estimate ± 1σ':<26} identifiable",
+        ]
+        lines += [f"{r[0]:>4} {r[1]:<14} {r[2]:>10} {r[3]:>8} {r[4]:>9}  {r[5]:<26} {r[6]}" for r in self._rows(top=8)]
+        hidden = [c.id for c in self.candidates if not c.identifiable and c.excited]
+        if hidden:
+            lines.append(f"not separable with these data: {', '.join(hidden[:8])}{' …' if len(hidden) > 8 else ''}")
+        lines.append(self.next_step())
+        return clipped(lines, "(* flagged; print(ranking) for the report, ranking.to_dataframe() for every candidate)")
+
+    def _repr_html_(self) -> str:
+        from stableins.display import html_result, html_table
+
+        shown = self._rows(top=15)
+        table = html_table(
+            ["rank", "id", "ΔRSS", "p", "ΔBIC", "estimate ± 1σ", "identifiable"],
+            shown,
+            numeric=(0, 2, 3, 4, 5),
+            titles=[c.term.meaning for c in self.candidates[: len(shown)]],
+        )
+        hidden = [
+            f"{c.id}: aliases {c.alias_text(ErrorModel(self.result.terms))}; to separate: {c.advice}"
+            for c in self.candidates
+            if not c.identifiable and c.excited
+        ]
+        return html_result(
+            "Ranking of candidate effects",
+            [self._head(), "* flagged (Bonferroni); the 15 best shown, to_dataframe() has all", self.next_step()],
+            [table],
+            [("not separable with these data", hidden)],
+        )
+
+    def to_dataframe(self) -> Any:
+        """Every candidate, best first, as a :class:`pandas.DataFrame` indexed by rank (1 = best).
+
+        Columns ``id``, ``statistic`` (ΔRSS), ``p_value``, ``delta_bic``, ``estimate``, ``sigma``, ``unit`` (engineering),
+        ``max_output_change`` (in :attr:`output_unit`), ``identifiable``, ``excited``, ``flagged``, ``refit``, ``aliases``,
+        ``confused_with``, ``advice``.  Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        rows = []
+        for k, c in enumerate(self.candidates, 1):
+            value, sigma = c.estimate_engineering
+            rows.append(
+                {
+                    "rank": k,
+                    "id": c.id,
+                    "statistic": c.statistic,
+                    "p_value": c.p_value,
+                    "delta_bic": c.delta_bic,
+                    "estimate": value if c.identifiable else float("nan"),
+                    "sigma": sigma if c.identifiable else float("nan"),
+                    "unit": c.term.unit,
+                    f"max_output_change [{self.output_unit}]": c.predicted / self.output_scale,
+                    "identifiable": c.identifiable,
+                    "excited": c.excited,
+                    "flagged": c.flagged,
+                    "refit": c.refit,
+                    "aliases": ", ".join(pid for pid, _ in c.aliases),
+                    "confused_with": ", ".join(c.confused_with),
+                    "advice": c.advice,
+                }
+            )
+        return pandas.DataFrame.from_records(rows, index="rank")
+
     def to_json(self) -> list[dict]:
         model = ErrorModel(self.result.terms)
         return [c.to_json(model) for c in self.candidates]
 
 
 def rank(
-    problem,
+    problem: Problem,
     result: FitResult,
     candidates: Iterable[Term] | None = None,
     *,
@@ -379,7 +525,7 @@ def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDA
         return np.stack(cols, axis=1)
 
 
-def refit(problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
+def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
     """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
     new = problem.fit(model + candidate.term, start=result.as_dict())
     from stableins.discovery.problem import fit_chi2

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.records import CalibrationRecord, Entry
 
 
 @dataclass(frozen=True)
@@ -102,6 +106,23 @@ class DeviceCalibration:
     def __str__(self) -> str:
         return self.report()
 
+    def __repr__(self) -> str:
+        from stableins.display import clipped, parameter_lines
+
+        fits = [f"coarse ({len(self.passes) or 1} pass{'es' if len(self.passes) > 1 else ''}) χ²_ν = {self.coarse.chi2_red:.3f}"]
+        if self.fine is not None:
+            fits.append(f"fine χ²_ν = {self.fine.chi2_red:.3f}")
+        if self.fused is not None:
+            fits.append(f"fused χ²_ν = {self.fused.chi2_red:.3f} (ν = {self.fused.dof})")
+        lines = [f"<DeviceCalibration: stage {self.final.stage!r} recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
+        lines += parameter_lines(self.final.rows())
+        return clipped(
+            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, calibration.record(site) for the record)"
+        )
+
+    def _repr_html_(self) -> str:
+        return self.final._repr_html_()
+
     def record(
         self,
         site: SiteMetadata,
@@ -111,8 +132,8 @@ class DeviceCalibration:
         data_start: str = "",
         data_end: str = "",
         environment: dict | None = None,
-        entries: Sequence = (),
-    ):
+        entries: Sequence[Entry] = (),
+    ) -> CalibrationRecord:
         """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced).
 
         The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,

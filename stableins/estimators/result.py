@@ -286,6 +286,19 @@ class FitResult:
         return dict(zip(self.ids, map(float, self.values), strict=True))
 
     # ----------------------------------------------------------------- report
+    def rows(self) -> list[tuple[str, float, float, str, Status]]:
+        """``(id, value, 1σ, unit, status)`` of every parameter in engineering units (report, repr, HTML, DataFrame)."""
+        return [
+            (t.id, float(t.to_engineering(v)), float(t.sigma_to_engineering(s)), t.unit, st)
+            for t, v, s, st in zip(self.terms, self.values, self.sigma, self.status, strict=True)
+        ]
+
+    def _fit_line(self) -> str:
+        if self.dof <= 0:
+            return f"no residual degrees of freedom (m = {self.residuals.size}); rank {self.rank} of {len(self.terms)}"
+        spread = np.sqrt(2 / max(self.dof, 1))
+        return f"χ²_ν = {self.chi2_red:.3f} (ν = {self.dof}, expected 1 ± {spread:.2f}); rank {self.rank} of {len(self.terms)}"
+
     def report(self) -> str:
         """Plain-text report in engineering units."""
         lines = [
@@ -294,14 +307,57 @@ class FitResult:
             f"rank = {self.rank} of {len(self.terms)}",
             "",
         ]
-        rows = [
-            (t.id, float(t.to_engineering(v)), float(t.sigma_to_engineering(s)), t.unit, st)
-            for t, v, s, st in zip(self.terms, self.values, self.sigma, self.status, strict=True)
-        ]
-        return "\n".join(lines + parameter_table(rows, self.determined, self.notes))
+        return "\n".join(lines + parameter_table(self.rows(), self.determined, self.notes))
 
     def __str__(self) -> str:
         return self.report()
+
+    def __repr__(self) -> str:
+        from stableins.display import clipped, parameter_lines, plural, status_counts
+
+        lines = [f"<FitResult: stage {self.stage!r}, {len(self.terms)} parameters ({status_counts(self.status)})>", self._fit_line()]
+        lines += parameter_lines(self.rows())
+        more = f"{plural(len(self.notes), 'note')}; " if self.notes else ""
+        return clipped(lines, f"({more}print(result) for the full report, result.to_dataframe() for the table)")
+
+    def _repr_html_(self) -> str:
+        from stableins.display import html_result, parameter_html
+
+        return html_result(
+            f"FitResult: stage {self.stage!r}, {len(self.terms)} parameters",
+            [self._fit_line()],
+            [parameter_html(self.rows(), [t.meaning for t in self.terms])],
+            [("determined combinations", self.determined), ("notes", self.notes)],
+        )
+
+    def to_dataframe(self) -> Any:
+        """The parameter table as a :class:`pandas.DataFrame` indexed by parameter id.
+
+        Columns ``value``, ``sigma``, ``unit`` (engineering), ``status``, ``value_si``, ``sigma_si``, ``si_unit``,
+        ``meaning``; an ``unidentifiable`` parameter has no value (NaN: what a result carries there is only the prior).
+        Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        records = []
+        for (pid, value, sigma, unit, status), t, v, s in zip(self.rows(), self.terms, self.values, self.sigma, strict=True):
+            hidden = status == Status.UNIDENTIFIABLE
+            nan = float("nan")
+            records.append(
+                {
+                    "parameter": pid,
+                    "value": nan if hidden else value,
+                    "sigma": nan if hidden else sigma,
+                    "unit": unit,
+                    "status": str(status),
+                    "value_si": nan if hidden else float(v),
+                    "sigma_si": nan if hidden else float(s),
+                    "si_unit": t.si_unit,
+                    "meaning": t.meaning,
+                }
+            )
+        return pandas.DataFrame.from_records(records, index="parameter")
 
     def plot(self, ax: Any = None) -> Figure:
         """Normalized residuals (residual / 1σ) per observation with ±1 bands."""
