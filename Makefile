@@ -26,7 +26,7 @@ system-deps:
 
 test: setup system-deps
 	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n auto
 	$(MAKE) --no-print-directory installed-demo
 
 # The wheel as a user installs it: built from this checkout, installed into a fresh venv outside it,
