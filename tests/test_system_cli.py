@@ -107,3 +107,38 @@ def test_cli_plot(files):
     png = tmp / "conv.png"
     assert calibrate_system.run(parse([str(path), "--prior", str(prior), "--out", str(tmp / "cal4.json"), "--plot", str(png)])) == 0
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_noise_model_in_and_out(files, capsys):
+    """The record written carries the noise model under the stage's σ; a datasheet model in the prior is used as given."""
+    import json
+    from dataclasses import replace
+
+    from stableins.noise import NoiseModel, NoiseSource
+
+    tmp, path, prior, _, _ = files
+    out = tmp / "cal-noise.json"
+    assert calibrate_system.run(parse([str(path), "--prior", str(prior), "--out", str(out), "--chunk-rows", "8192", "--json"])) == 0
+    data = json.loads(capsys.readouterr().out)
+    measured = CalibrationRecord.load(out).noise_model
+    assert measured.source is NoiseSource.STATIC_RECORD and measured == NoiseModel.from_document(data["noise_model"])
+    assert data["low_frequency_noise"]["source"] == "data" and 0.0 <= data["low_frequency_noise"]["p_value"] <= 1.0
+    sheet = NoiseModel.given(1e-4, 2e-5, 1e-7, provenance="datasheet of the unit")
+    with_sheet = tmp / "prior-sheet.json"
+    replace(CalibrationRecord.load(prior), noise_model=sheet).save(with_sheet)
+    out2 = tmp / "cal-sheet.json"
+    assert calibrate_system.run(parse([str(path), "--prior", str(with_sheet), "--out", str(out2), "--chunk-rows", "8192", "--json"])) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["low_frequency_noise"]["source"] == "given"
+    written = CalibrationRecord.load(out2).noise_model
+    assert written.source is NoiseSource.DATASHEET
+    np.testing.assert_array_equal(written.values("bias_instability"), sheet.values("bias_instability"))
+    assert not np.allclose(written.values("white"), sheet.values("white"))  # the white noise is the record's
+    assert CalibrationRecord.load(out2).stages_run[-1].settings["noise_model"] == "datasheet"
+    # datasheet flags on the command line: the same, without a record carrying them
+    out3 = tmp / "cal-flags.json"
+    argv = [str(path), "--prior", str(prior), "--out", str(out3), "--chunk-rows", "8192"]
+    argv += ["--bias-instability", "2", "--random-walk", "1e-7"]
+    assert calibrate_system.run(parse(argv)) == 0
+    flags = CalibrationRecord.load(out3).noise_model
+    assert flags.source is NoiseSource.DATASHEET and flags.values("random_walk")[0] == 1e-7

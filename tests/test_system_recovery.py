@@ -167,7 +167,8 @@ def test_quartz_noise_low_frequency_power_is_seen():
         out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True))
     assert any("low-frequency noise" in n for n in out.notes)
     assert out.diagnostics["z_low_frequency_ratio"] > 3.0
-    assert out.diagnostics["coloured_noise"]["loglik_gain"] > 6.0
+    fit = out.coloured_noise
+    assert fit.detected and fit.statistic > 6.0 and fit.p_value < 1e-3
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]
     assert np.abs(((out.combined.values - ref) / out.combined.sigma)[harmonic]).max() < 4.0
 
@@ -175,10 +176,11 @@ def test_quartz_noise_low_frequency_power_is_seen():
 def test_monte_carlo_sigma_with_quartz_noise():
     """With the simulator's default quartz noise the σ built from the coloured-noise model matches the scatter.
 
-    Without the model the normalized errors have rms ~6.7 (seeds 1-8).  With it, seeds 1-40 (480 errors, ~12 s):
-    rms 1.08, largest 3.8, 0.6 % beyond 3σ; the previous model (detection threshold, |G|² on the whole expected
-    periodogram, attitude residual maker without the transients) gave rms 1.28, largest 8.2, 2.9 % beyond 3σ on the
-    same seeds.  benchmarks/bench_system_sigma.py runs more seeds.
+    Without the model the normalized errors have rms ~6.7 (seeds 1-8).  With it, seeds 1-40 (480 errors): rms 1.13,
+    largest 4.3, 1.0 % beyond 3σ, low-frequency noise detected in all 40 (this batch is the least favourable of seeds
+    1-199: one day cannot pin the random walk, docs/system-calibration.md §1a; seeds 100-199 give 0.99).  The
+    previous models gave 1.28 (threshold) and 1.08 (maximum likelihood always) on the same seeds.
+    benchmarks/bench_system_sigma.py runs more seeds and the datasheet and prior modes.
     """
     import warnings
 

@@ -170,9 +170,11 @@ def test_whittle_fit_recovers_known_levels_within_k_sigma():
     fisher = (design / e[:, None]).T @ (design / e[:, None])
     sigma = np.sqrt(np.diag(np.linalg.inv(fisher)))
     assert np.all(np.abs(fitted - theta) < 4 * sigma), (fitted, theta, sigma)
-    amplitudes, info = spectrum.fit_coloured_noise(design, observed, 1)
-    np.testing.assert_allclose(amplitudes, fitted[1:], rtol=1e-6)
-    assert info["loglik_gain"] > 10  # strongly coloured: far better than white
+    fit = spectrum.fit_coloured_noise(design, observed, 1)
+    np.testing.assert_allclose(fit.maximum_likelihood, fitted[1:], rtol=1e-4)
+    assert fit.statistic > 10 and fit.detected  # strongly coloured: far better than white
+    np.testing.assert_allclose(fit.amplitudes, np.repeat(fit.maximum_likelihood[:, None], 3, axis=1))  # one value for the axes
+    assert np.all(fit.lower <= fit.maximum_likelihood) and np.all(fit.maximum_likelihood <= fit.upper)
 
 
 def test_component_quadratic_memory_does_not_grow_with_the_stacked_size():
@@ -215,3 +217,133 @@ def test_attitude_residual_maker_equals_the_block_fit_for_noise_constant_within_
     cos_s = np.bincount(block_bin, weights=w * blocks["cos"], minlength=n) / bin_count
     sin_s = np.bincount(block_bin, weights=w * blocks["sin"], minlength=n) / bin_count
     assert np.abs(harmonic_maker(cos_s, sin_s, bin_count) @ values - residual).max() > 1e-3 * np.abs(residual).max()
+
+
+# --------------------------------------------------------------------------- the z channel's high band and the decision
+def _z_bin_covariance(kind, n, width):
+    """Brute force: covariance of the z bin means, ``Σ_a L_a(i) L_a(j) C(i, j)`` with the z loadings (S advancing at ω_ie)."""
+    time = (np.arange(n) + 0.5) * width
+    angle = 0.7 + EARTH_RATE * time
+    loads = spectrum.axis_loadings("z", np.cos(angle), np.sin(angle), LATITUDE)
+    kernel = spectrum.bin_process_kernel(kind, time, width)
+    return sum(np.outer(loads[:, a], loads[:, a]) * kernel for a in range(3))
+
+
+@pytest.mark.parametrize("kind", ["random_walk", "flicker"])
+def test_z_bin_expectations_are_the_periodogram_of_the_bin_covariance(kind):
+    """Closed forms (geometric sums, the random walk's min(i, j)) against ``E P_k = 2 vᵀ C v̄ / n²`` with ``v = e^{−iθ_k j}``."""
+    n, width = 300, 60.0
+    k = np.array([40, 57, 101, 133])
+    cov = _z_bin_covariance(kind, n, width)
+    v = np.exp(-2j * np.pi * np.outer(k, np.arange(n)) / n)
+    brute = 2.0 * np.real(np.einsum("kn,nm,km->k", v, cov, v.conj())) / n**2
+    column = 1 + spectrum.COLOURED_KINDS.index(kind)
+    expected = spectrum.z_bin_expectations(k, n, width, LATITUDE, 60.0)[:, column]
+    # the loadings use the bin-centre angle; the closed form modulates by cos(ω_ie (t_i − t_j)): the same thing
+    np.testing.assert_allclose(expected, brute, rtol=1e-9)
+    white = spectrum.z_bin_expectations(k, n, width, LATITUDE, 60.0)[:, 0]
+    np.testing.assert_allclose(white, 2.0 / (n * 60.0))
+
+
+def test_z_bin_periodogram_is_the_weighted_projection():
+    rng = np.random.default_rng(4)
+    n = 200
+    residual, count = rng.normal(size=n), rng.integers(50, 61, n).astype(float)
+    count[17] = 0.0
+    k = np.array([20, 35, 80])
+    w = count / count.sum()
+    arg = 2 * np.pi * np.outer(k, np.arange(n)) / n
+    a, b = 2 * (np.cos(arg) @ (w * residual)), 2 * (np.sin(arg) @ (w * residual))
+    np.testing.assert_allclose(spectrum.z_bin_periodogram(residual, count, k), 0.5 * (a * a + b * b), rtol=1e-12)
+
+
+def test_high_band_expectation_matches_drawn_noise_after_the_harmonic_fit():
+    """Random walk and flicker drawn at 1-s steps over one sidereal day on the three axes, loaded into z, binned to 60 s:
+    the mean periodogram above 30 cycles/day is the closed form's, and fitting out the mean and the harmonics (to the
+    third) changes it by less than 1 % (draw by draw: the closed form leaves the fit out).  The random walk's ordinates
+    share its end-point leakage, so its band mean scatters from draw to draw: the bound is 4 standard errors of the
+    draws' own band means."""
+    rng = np.random.default_rng(21)
+    step, width = 1.0, 60.0
+    m = int(SIDEREAL_DAY // width) * int(width // step)
+    t = (np.arange(m) + 0.5) * step
+    per = int(width // step)
+    n = m // per
+    angle = 0.7 + EARTH_RATE * t
+    loads = spectrum.axis_loadings("z", np.cos(angle), np.sin(angle), LATITUDE)
+    tb = (np.arange(n) + 0.5) * width
+    sb = 0.7 + EARTH_RATE * tb
+    x = np.stack([np.ones(n)] + [f(j * sb) for j in (1, 2, 3) for f in (np.cos, np.sin)], axis=1)
+    maker = np.eye(n) - x @ np.linalg.pinv(x)
+    k = np.arange(int(30 * n * width / SIDEREAL_DAY) + 1, int(0.45 * n) + 1)
+    expected = spectrum.z_bin_expectations(k, n, width, LATITUDE, per)
+    count = np.full(n, float(per))
+    from scipy.signal import lfilter
+
+    for kind, column in (("random_walk", 1), ("flicker", 2)):
+        means, fitted, raw = [], 0.0, 0.0
+        for _ in range(60):
+            if kind == "random_walk":  # unit (K/g)²: increments of variance step, started at 0
+                axes = np.cumsum(rng.normal(0.0, math.sqrt(step), (m, 3)), axis=0)
+            else:  # unit-variance Gauss-Markov processes, stationary start
+                axes = np.zeros((m, 3))
+                for tau in spectrum.FLICKER_TIME_CONSTANTS:
+                    a = math.exp(-step / tau)
+                    drive = rng.normal(0.0, math.sqrt(1 - a * a), (m, 3))
+                    drive[0] = rng.normal(0.0, 1.0, 3)
+                    axes += lfilter([1.0], [1.0, -a], drive, axis=0)
+            z = np.sum(loads * axes, axis=1).reshape(n, per).mean(axis=1)
+            unfitted = spectrum.z_bin_periodogram(z, count, k)
+            residual = spectrum.z_bin_periodogram(maker @ z, count, k)
+            means.append(np.mean(residual / expected[:, column]))
+            fitted, raw = fitted + residual.sum(), raw + unfitted.sum()
+        means = np.array(means)
+        error = means.std(ddof=1) / math.sqrt(means.size)
+        # sampling at 1 s instead of continuous time raises the bin means' ordinates by well under 1 %
+        assert abs(means.mean() - 1.0) < 4.0 * error + 0.02, (kind, means.mean(), error)
+        assert abs(fitted / raw - 1.0) < 0.01, (kind, fitted / raw)
+
+
+def _white_design(rng):
+    """A z channel low band (random columns of realistic shape) and the high band: white, random walk, flicker."""
+    n, width = 1436, 60.0
+    k = np.arange(30, int(0.45 * n) + 1)
+    high = spectrum.z_bin_expectations(k, n, width, LATITUDE, 60.0)
+    kl = np.arange(4, 30)
+    low = np.stack([np.full(kl.size, 2.0 / 86164), 2.0 * 86164 / (2 * np.pi * kl) ** 2 / 86164, 2e4 / kl / 86164], axis=1)
+    return np.vstack([low, high])
+
+
+def test_decision_has_its_false_positive_rate_and_the_intervals_cover():
+    """White ordinates (exponential, known means): coloured noise declared in α of the draws (χ̄² calibration); with a
+    coloured truth the profile interval's upper end covers it at about the confidence level."""
+    rng = np.random.default_rng(8)
+    design = _white_design(rng)
+    truth = np.array([1e-6, 0.0, 0.0])
+    draws, alpha = 300, 0.05
+    detected = 0
+    for _ in range(draws):
+        observed = rng.exponential(design @ truth)
+        detected += spectrum.fit_coloured_noise(design, observed, 1, alpha=alpha).detected
+    rate = detected / draws
+    assert abs(rate - alpha) < 3.5 * math.sqrt(alpha * (1 - alpha) / draws), rate  # ± 0.044
+    coloured = np.array([1e-6, 0.0, 1e-6 * 0.4 / design[:, 2].mean() * design[:, 0].mean()])
+    covered = 0
+    for _ in range(100):
+        fit = spectrum.fit_coloured_noise(design, rng.exponential(design @ coloured), 1)
+        covered += fit.lower[1] <= coloured[2] <= fit.upper[1]
+        assert fit.detected
+    assert covered >= 85, covered  # 95 % intervals
+
+
+def test_decision_with_a_noiseless_channel():
+    """A channel whose residuals are exactly zero (a synthetic record without attitude noise) has a zero white level."""
+    rng = np.random.default_rng(9)
+    z = _white_design(rng)
+    m = z.shape[0]
+    design = np.zeros((2 * m, 4))
+    design[:m, 0], design[:m, 2:] = z[:, 0], z[:, 1:]
+    design[m:, 1], design[m:, 2:] = z[:, 0], 0.1 * z[:, 1:]
+    observed = np.concatenate([rng.exponential(z[:, 0] * 1e-6), np.zeros(m)])
+    fit = spectrum.fit_coloured_noise(design, observed, 2)
+    assert np.isfinite(fit.p_value) and not fit.detected and fit.white_levels[1] == 0.0

@@ -67,6 +67,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
+    from stableins.commands.noise import add_noise_options
+
+    add_noise_options(parser)  # default: the prior record's noise model (docs/system-calibration.md §1a)
     parser.add_argument(
         "--allow-gaps",
         action="store_true",
@@ -83,7 +86,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: Any) -> int:
     import math
     import warnings
+    from dataclasses import replace
 
+    from stableins.commands.noise import system_noise_prior
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
@@ -111,10 +116,13 @@ def run(args: Any) -> int:
         known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
     )
     entries = parse_entries(args.set)
+    noise, _ = system_noise_prior(args, default=prior.noise_model)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
-        outcome = run_system_stage(record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids))
+        outcome = run_system_stage(
+            record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
+        )
     for w in caught:
         note(f"stableins: warning: {w.message}")
     start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
@@ -133,11 +141,13 @@ def run(args: Any) -> int:
         sample_rate=record.sample_rate,
         environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
     )
+    updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)
     if args.plot:
         plot(outcome, str(args.plot))
 
     combined = outcome.combined
+    fit = outcome.coloured_noise
     data = {
         "record": args.record,
         "prior": args.prior,
@@ -167,6 +177,16 @@ def run(args: Any) -> int:
         "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
         "notes": list(outcome.notes) + list(outcome.result.notes),
+        "noise_model": outcome.noise_model.to_document(),
+        "low_frequency_noise": None
+        if fit is None
+        else {
+            "source": fit.source.name.lower(),
+            "detected": fit.detected,
+            "likelihood_ratio": fit.statistic,
+            "p_value": fit.p_value,
+            "false_positive_rate": fit.alpha,
+        },
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
     emit(args, data, text=report(outcome, updated, str(args.out)))
@@ -181,6 +201,10 @@ def report(outcome: Any, record: Any, out: str) -> str:
     for n, v, s, st in zip(c.ids, c.values, c.sigma, c.status, strict=True):
         shown = f"{v:>12.4e} {s:>10.2e}" if st != "unidentifiable" else f"{'—':>12} {'—':>10}"
         lines.append(f"  {n:<12} {shown}  {st}")
+    fit = outcome.coloured_noise
+    lines += ["", outcome.noise_model.report()]
+    if fit is not None:
+        lines.append(fit.describe())
     lines += [
         "",
         f"stage: system; chi2_red = {r.chi2_red:.3f} (nu = {r.dof}, expected 1 ± {(2 / max(r.dof, 1)) ** 0.5:.2f}); rank = {r.rank}",

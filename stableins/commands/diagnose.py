@@ -95,66 +95,28 @@ def run(args: argparse.Namespace) -> int:
     for effect in args.add:
         if effect in model:
             raise InputError(f"effect {effect!r} is already in the model of {args.record}", field="--add")
-    from stableins.commands.noise import noise_from_options
-
-    noise, origin = noise_from_options(args, [], default=record.noise_model) if system else (None, "")
     if system:
-        from stableins.conventions import GimbalConfiguration
-        from stableins.discovery.problem import bins_from_chunks
-
-        site = opened.metadata
-        dwells = bins_from_chunks(
-            opened.iter_chunks(),
-            gravity=site.gravity,
-            bin_seconds=args.bin,
-            reference_temperature=site.reference_temperature,
-            base_attitude=tuple(site.base_attitude),
-            configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
-            noise=noise,
-        )
-        dwells.noise["stage"] = "system"
-        if noise is None or not noise.has_slow_noise:
-            note("noise: white only; over hours the bias wander of an instrument looks like drift (give --bias-instability/--random-walk)")
-    else:
-        noise, origin = _device_noise(args, datasets, record.noise_model)
-        dwells = dwells_from_dataset(datasets, stage=args.stage, noise=noise)
-        note(f"noise ({origin}): {dwells.noise['slow_noise']}")
+        return _system(args, opened, record, model)
+    noise, origin = _device_noise(args, datasets, record.noise_model)
+    dwells = dwells_from_dataset(datasets, stage=args.stage, noise=noise)
+    note(f"noise ({origin}): {dwells.noise['slow_noise']}")
     for line in dwells.noise.get("left_out", []):
         note(f"left out: {line}")
-    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} {'bins' if system else 'dwells'}")
+    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} dwells")
     session = Discovery(problem, model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})
     for effect in args.add:
         session.add(effect)
     diagnosis = session.diagnose()
-    ranking = session.rank(propose=not system)
-    drift = None if system else session.drift()
-    if not system and drift is None:
+    ranking = session.rank()
+    drift = session.drift()
+    if drift is None:
         for line in getattr(session, "drift_notes", ()):
             note(f"drift analysis: {line}")
-    spectra = {}
-    if system:
-        from stableins.discovery.diagnostics import residual_spectra
-
-        spectra = residual_spectra(dwells.time, diagnosis)
     if args.plots is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        args.plots.mkdir(parents=True, exist_ok=True)
-        figures = session.figures(next_step=ranking.next_step())  # residuals, orientation: before and after --add; history
-        for name, spectrum in spectra.items():
-            figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6, name=name, next_step=ranking.next_step())
-        for name, figure in figures.items():
-            figure.savefig(args.plots / f"{name}.png", dpi=110)
-            plt.close(figure)
-        note(f"plots written to {args.plots}")
+        _write_plots(args.plots, session, ranking)
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
-    for name, spectrum in spectra.items():
-        parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
     text = "\n\n".join(parts + [session.history.report()])
     model_used = dwells.noise.get("model")
     result = {
@@ -178,19 +140,74 @@ def run(args: argparse.Namespace) -> int:
             "candidates": drift.to_json(),
             "left_out": list(getattr(session, "drift_notes", ())),
         },
+        "spectra": {},
+    }
+    emit(args, result, text)
+    return 0
+
+
+def _system(args: argparse.Namespace, opened, record, model) -> int:
+    """A system-level record: discovery under the noise model the system stage measures in it (docs/discovery.md)."""
+    from stableins.commands.noise import system_noise_prior
+    from stableins.discovery.system import diagnose_system_record, measure_noise
+    from stableins.output import emit
+
+    prior, _ = system_noise_prior(args, default=record.noise_model)
+    values = record.values()
+    covariance = {(a, b): float(record.covariance[i, j]) for i, a in enumerate(record.ids) for j, b in enumerate(record.ids)}
+    from stableins.discovery.library import record_terms
+
+    noise, duration, notes = measure_noise(opened, values, covariance, prior, record_terms(record.ids))
+    result = diagnose_system_record(
+        opened,
+        model,
+        {k: v for k, v in values.items() if k in model},
+        noise,
+        bin_seconds=args.bin,
+        duration=duration,
+        alpha=args.alpha,
+        add=args.add,
+        notes=notes,
+    )
+    session, diagnosis, ranking = result.session, result.diagnosis, result.ranking
+    if args.plots is not None:
+        _write_plots(args.plots, session, ranking, result.spectra)
+    text = "\n\n".join([result.report(top=args.top), session.history.report()])
+    flagged = {(name, k) for name, k, _ in result.flagged_harmonics}
+    data = {
+        "stage": "system",
+        "noise_model": noise.to_document(),
+        "chi2_red": session.result.chi2_red,
+        "chi2_red_range": list(result.chi2_range),
+        "dof": session.result.dof,
+        "expected_spread": diagnosis.spread,
+        "p_value": diagnosis.p_value,
+        "consistent": diagnosis.consistent,
+        "alarm": result.alarm,
+        "bin_seconds": result.bin_seconds,
+        "model": list(session.result.ids),
+        "residual_rms": diagnosis.rms,
+        "noise_floor": diagnosis.noise_floor,
+        "candidates": ranking.to_json(),
+        "history": session.history.to_json(),
+        "left_out": [],
+        "drift": None,
+        "notes": list(result.notes),
         "spectra": {
             name: {
                 "harmonics": sp.harmonics,
                 "amplitude": sp.amplitude,
                 "sigma": sp.sigma,
                 "chi2": sp.chi2,
+                "dof": sp.dof,
                 "p_value": sp.p_value,
+                "flagged": [bool((name, int(k)) in flagged) for k in sp.harmonics],
                 "unit": "m/s^2",
             }
-            for name, sp in spectra.items()
+            for name, sp in result.spectra.items()
         },
     }
-    emit(args, result, text)
+    emit(args, data, text)
     return 0
 
 
@@ -212,3 +229,22 @@ def _device_noise(args: argparse.Namespace, datasets, default):
 
         noise = noise_from_dwells(summaries(), source=", ".join(str(ds.path) for ds in datasets))
     return noise, origin
+
+
+def _write_plots(directory: Path, session, ranking, spectra=None) -> None:
+    """The session's figures (residuals, orientation: before and after ``--add``; history) and the harmonic spectra, as PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stableins.output import note
+
+    directory.mkdir(parents=True, exist_ok=True)
+    figures = session.figures(next_step=ranking.next_step())
+    for name, spectrum in (spectra or {}).items():
+        figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6, name=name, next_step=ranking.next_step())
+    for name, figure in figures.items():
+        figure.savefig(directory / f"{name}.png", dpi=110)
+        plt.close(figure)
+    note(f"plots written to {directory}")

@@ -46,7 +46,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 # ----------------------------------------------------------------------------- shared options
 def add_noise_options(parser: argparse.ArgumentParser) -> None:
-    """``--noise CAL.json``, ``--bias-instability UG``, ``--random-walk K`` (calibrate device, diagnose)."""
+    """``--noise CAL.json``, ``--bias-instability UG``, ``--random-walk K`` (calibrate device and system, diagnose)."""
     from stableins.commands.arguments import input_file, number
 
     parser.add_argument(
@@ -94,6 +94,34 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
     if default is not None:
         return default, "the record's noise model"
     return None, "measured in the dwells"
+
+
+def system_noise_prior(args: argparse.Namespace, default=None):
+    """The noise model a system-level record starts from (``calibrate system``, ``diagnose`` on a system record).
+
+    Datasheet flags: the bias instability and random walk as given (the system stage measures the white noise in the
+    record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
+    decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
+    """
+    from stableins.data.errors import InputError
+    from stableins.noise import NoiseModel
+
+    given = args.bias_instability is not None or args.random_walk is not None
+    if given and args.noise is not None:
+        raise InputError("give either --noise CAL.json or --bias-instability/--random-walk, not both", field="--noise")
+    if given:
+        model = NoiseModel.given(
+            0.0,
+            (args.bias_instability or 0.0) * 9.80665e-6,
+            args.random_walk or 0.0,
+            provenance="bias instability and random walk given on the command line",
+        )
+        return model, "given on the command line (datasheet)"
+    if args.noise is not None:
+        return record_noise(args.noise), f"the noise model of {args.noise}"
+    if default is not None:
+        return default, "the calibration record's noise model"
+    return None, "measured in the record"
 
 
 def record_noise(path: Path):

@@ -721,8 +721,8 @@ def bins_from_chunks(
     A space-stable platform turns at the Earth rate relative to the base, so its specific
     force moves slowly; a bin of length ``T`` averaged at the mean readings differs from the
     mean of the outputs by about ``g (ω_ie T)²/24`` (0.8 µg for 60 s), far below the bin's
-    noise.  Each bin's 1σ is the white-noise floor of its axis (first differences, pooled
-    over the record) over ``sqrt(n)``.  No slews: hysteresis is not excited; the time since
+    noise.  Each bin's 1σ is the white-noise floor of its axis (second differences, pooled
+    over the record, free of the Earth-rate slope of the signal) over ``sqrt(n)``.  No slews: hysteresis is not excited; the time since
     the last command is the record time.  Memory is bounded by the number of bins.
 
     Parameters
@@ -742,7 +742,7 @@ def bins_from_chunks(
     squares = np.zeros(3)
     n_diff = 0
     t0 = None
-    last = None  # (bin, f) of the previous sample, for differences across chunk boundaries
+    last = None  # (bins, f) of the previous chunk's last two samples, for differences across chunk boundaries
     for chunk in chunks:
         t = np.asarray(chunk["time"], dtype=float)
         if t.size == 0:
@@ -753,14 +753,16 @@ def bins_from_chunks(
         temp = np.asarray(chunk["temperature"], dtype=float)
         b = np.floor((t - t0) / bin_seconds).astype(np.int64)
         if last is not None:
-            b_all, f_all = np.concatenate([[last[0]], b]), np.vstack([last[1][None], f])
+            b_all, f_all = np.concatenate([last[0], b]), np.vstack([last[1], f])
         else:
             b_all, f_all = b, f
-        same = b_all[1:] == b_all[:-1]
-        d = np.diff(f_all, axis=0)[same]
-        squares += (d**2).sum(axis=0) / 2.0
+        # second differences within a bin: E[(Δ²n)²] = 6σ² for white noise, and the platform's slow turning (a slope
+        # of g ω_ie cosL per second in x and y, +14 % on a first-difference floor at 1 Hz) does not reach them
+        same = b_all[2:] == b_all[:-2]
+        d = (f_all[2:] - 2.0 * f_all[1:-1] + f_all[:-2])[same]
+        squares += (d**2).sum(axis=0) / 6.0
         n_diff += d.shape[0]
-        last = (b[-1], f[-1])
+        last = (b_all[-2:], f_all[-2:])
         for k in np.unique(b):
             m = b == k
             row = np.concatenate([[m.sum(), t[m].sum(), temp[m].sum()], f[m].sum(axis=0), r[m].sum(axis=0)])
@@ -791,8 +793,9 @@ def bins_from_chunks(
         base_attitude=tuple(base_attitude),
         configuration=configuration,
         noise={
-            "method": f"white noise from first differences, pooled over the record; {bin_seconds:g} s bins",
+            "method": f"white noise from second differences, pooled over the record; {bin_seconds:g} s bins",
             "sigma_per_sample": sigma_white,
+            "lengths": lengths,
             "slow_noise": "none" if noise is None else noise.describe(),
         },
         initial_readings=None,

@@ -40,7 +40,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
+from stableins.conventions import EARTH_RATE, MICRO_G, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
@@ -51,6 +51,8 @@ from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, Attitude
 from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums, second_difference_sums
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+from stableins.estimators.system.spectrum import ColouredNoiseFit, ColouredSource
+from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.status import Determination, Status
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
@@ -146,11 +148,12 @@ class SystemOptions:
     rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
     polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
     minimum_duration: float = 4 * 3600.0  # [s]
-    noise_samples_per_chunk: int = 8192
+    noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
     run_filter: bool = True
     gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
+    noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
 
 
 class _SystemCalibrationView:
@@ -246,6 +249,13 @@ class SystemCalibration(_SystemCalibrationView):
         The Fourier fit of pitch and roll.
     history : hm.FilterHistory or None
         Kalman-filter convergence on the decimated bins (``history_time`` gives the bin ends).
+    coloured_noise : ColouredNoiseFit or None
+        The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
+        (None when the record is too short for the model).
+    noise_model : NoiseModel
+        The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
+        from second differences, bias instability and random walk from the residual spectra, with intervals; the given
+        model when a datasheet model was given.  It goes into the calibration record.
     """
 
     result: FitResult
@@ -257,6 +267,50 @@ class SystemCalibration(_SystemCalibrationView):
     corrections: dict[str, float]
     notes: tuple[str, ...] = ()
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    coloured_noise: ColouredNoiseFit | None = None
+    noise_model: NoiseModel | None = None
+
+
+@dataclass(frozen=True)
+class SystemNoise:
+    """The instrument's noise in a system-level record, as the stage measures it (:func:`measure_noise_model`).
+
+    Attributes
+    ----------
+    noise_model : NoiseModel
+        The model under the stage's σ (:attr:`SystemCalibration.noise_model`).
+    coloured_noise : ColouredNoiseFit or None
+        The decision and the amplitudes (None when the record is too short for the model).
+    duration : float
+        Length of the record [s].
+    notes : tuple of str
+        What the decision found (the stage's note).
+    """
+
+    noise_model: NoiseModel
+    coloured_noise: ColouredNoiseFit | None
+    duration: float
+    notes: tuple[str, ...] = ()
+
+
+def measure_noise_model(
+    source: ChunkSource,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None = None,
+    options: SystemOptions = SystemOptions(),
+    *,
+    compensation_terms: Sequence[Term] = (),
+    noise_model: NoiseModel | None = None,
+) -> SystemNoise:
+    """The noise model of the instrument in a system-level record, exactly as :func:`run_system_stage` measures it.
+
+    The same pass, fits and decision (docs/system-calibration.md §1a), without the separation: a record too short to
+    determine the coefficients the separation needs (e.g. six hours) still gives its noise (``stableins diagnose``).
+    """
+    return run_system_stage(  # type: ignore[return-value]
+        source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model, _noise_only=True
+    )
 
 
 # --------------------------------------------------------------------------- harmonic information
@@ -344,6 +398,50 @@ def block_length(sample_rate: float, limit: float = 2e-4) -> int:
     """Largest power of two ``B`` with ``B·ω_ie/rate ≤ limit`` (at least 1)."""
     b = max(1.0, limit * sample_rate / EARTH_RATE)
     return 1 << int(math.floor(math.log2(b)))
+
+
+@dataclass
+class _SampleBins:
+    """Sums of ``z``, of the ``H`` rows and sample counts over bins of ``samples`` consecutive samples (global index).
+
+    Blocks never straddle a bin (``samples`` is a multiple of the block length and so is every chunk).  With ``cap``,
+    the record never needs more than ``cap`` bins: adjacent pairs merge and ``samples`` doubles (sums add exactly, so
+    this equals accumulating with the doubled width from the start), which bounds memory whatever the record length.
+    """
+
+    samples: int
+    cap: int | None = None
+    z: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    h: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 7)))
+    n: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def add(self, starts: NDArray[np.int64], zs: NDArray[np.float64], hs: NDArray[np.float64], counts: NDArray[np.float64]) -> None:
+        """Add per-block sums; ``starts`` are the blocks' first global sample indices (in order)."""
+        while self.cap is not None and int(starts[-1]) // self.samples >= self.cap:
+            self._merge_pairs()
+        bins = starts // self.samples
+        size = int(bins[-1]) + 1
+        if self.n.size < size:
+            new = max(size, 2 * self.n.size)
+            if self.cap is not None:
+                new = min(new, self.cap)
+            self.z = np.concatenate([self.z, np.zeros(new - self.z.size)])
+            self.n = np.concatenate([self.n, np.zeros(new - self.n.size)])
+            self.h = np.concatenate([self.h, np.zeros((new - self.h.shape[0], self.h.shape[1]))])
+        first_of_bin = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])  # blocks are in order: bins are runs
+        ids = bins[first_of_bin]
+        self.z[ids] += np.add.reduceat(zs, first_of_bin)
+        self.h[ids] += np.add.reduceat(hs, first_of_bin, axis=0)
+        self.n[ids] += np.add.reduceat(counts, first_of_bin)
+
+    def _merge_pairs(self) -> None:
+        if self.n.size % 2:
+            self.z, self.n = np.append(self.z, 0.0), np.append(self.n, 0.0)
+            self.h = np.vstack([self.h, np.zeros((1, self.h.shape[1]))])
+        self.z = self.z.reshape(-1, 2).sum(axis=1)
+        self.n = self.n.reshape(-1, 2).sum(axis=1)
+        self.h = self.h.reshape(-1, 2, self.h.shape[1]).sum(axis=1)
+        self.samples *= 2
 
 
 # --------------------------------------------------------------------------- compensation
@@ -482,6 +580,8 @@ def run_system_stage(
     options: SystemOptions = SystemOptions(),
     *,
     compensation_terms: Sequence[Term] = (),
+    noise_model: NoiseModel | None = None,
+    _noise_only: bool = False,
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -502,6 +602,16 @@ def run_system_stage(
         Discovered (additive) terms of the prior, whose values are in ``prior``: the INS applies
         them, so the stage compensates the raw outputs with them too (the record's
         :meth:`~stableins.records.CalibrationRecord.error_model`).  This stage does not update them.
+    noise_model : NoiseModel, optional
+        The instrument's noise model as known before this record (the calibration record's).  A datasheet model gives
+        the amplitudes of the low-frequency noise as they are; a measured one (device dwells, an earlier static record)
+        is a prior on them (docs/system-calibration.md §1a).  The white level is always measured in the record.
+
+    Returns
+    -------
+    SystemCalibration
+        With :attr:`SystemCalibration.noise_model`, the noise model under its σ: measured in this record (source
+        ``static record``), or with a datasheet model its slow terms as given and the record's white noise.
     """
     path = getattr(source, "path", "<record>")
     latitude, gravity, rate = _check_metadata(metadata, path)
@@ -541,7 +651,8 @@ def run_system_stage(
     attitude_blocks: AttitudeBlocks | None = None
     noise_sums = np.zeros(3)
     noise_count = 0
-    filter_bins: dict[str, NDArray[np.float64]] = {"z": np.zeros(0), "h": np.zeros((0, 7)), "n": np.zeros(0)}
+    filter_bins = _SampleBins(filter_samples)
+    fine_bins = _SampleBins(max(block, int(round(FINE_BIN_SECONDS * rate / block)) * block), cap=FINE_BINS)
     checks = _StaticChecks(options, rate, path)
     checks.latitude = latitude
     seen = 0
@@ -603,15 +714,10 @@ def run_system_stage(
         centre_angle = np.interp(block_time, kt, ks)
         knot_time, knot_angle = float(t_d[-1]), float(s_knots[-1])
         zs, hs, counts = accumulator.add_sums(centre_angle, sums, sum_z2)
-        # filter bins by global sample index
+        # filter bins (600 s) and the fine bins of the coloured-noise model's high band, by global sample index
         starts = seen + np.arange(len(counts)) * block
-        bins = starts // filter_samples
-        _grow_bins(filter_bins, int(bins[-1]) + 1)
-        first_of_bin = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])  # blocks are in order: bins are runs
-        ids = bins[first_of_bin]
-        filter_bins["z"][ids] += np.add.reduceat(zs, first_of_bin)
-        filter_bins["h"][ids] += np.add.reduceat(hs, first_of_bin, axis=0)
-        filter_bins["n"][ids] += np.add.reduceat(counts, first_of_bin)
+        filter_bins.add(starts, zs, hs, counts)
+        fine_bins.add(starts, zs, hs, counts)
         # noise from second differences of the raw outputs
         noise_count += second_difference_sums(fx, fy, fz, options.noise_samples_per_chunk, noise_sums)
         # level base with heading ψ: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) (conventions.attitude_error_from_misalignment);
@@ -669,18 +775,17 @@ def run_system_stage(
     cov_x = cov_unit * r_var
 
     # ---------------------------------------------------------------- bins for the coloured-noise model (after the attitude fit)
-    keep_bins = filter_bins["n"] > 0
-    bin_time = (np.flatnonzero(keep_bins) + 0.5) * filter_samples / rate
+    keep_bins = filter_bins.n > 0
 
     # ---------------------------------------------------------------- filter convergence
     history = None
     history_time = np.zeros(0)
     prior_res_cov = _prior_residual_covariance(prior, prior_covariance, gravity)
     if options.run_filter:
-        keep = filter_bins["n"] > 0
-        nn = filter_bins["n"][keep]
-        zb = filter_bins["z"][keep] / nn - noise_bias
-        hb = filter_bins["h"][keep] / nn[:, None]
+        keep = filter_bins.n > 0
+        nn = filter_bins.n[keep]
+        zb = filter_bins.z[keep] / nn - noise_bias
+        hb = filter_bins.h[keep] / nn[:, None]
         m_x = hm.state_combinations(latitude)
         p0 = np.zeros((7, 7))
         p0[:5, :5] = m_x @ prior_res_cov @ m_x.T
@@ -734,30 +839,43 @@ def run_system_stage(
     cov_v[7:, :7] = jac_x @ cov_x
     cov_v[:7, 7:] = cov_v[7:, :7].T
     # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
-    coloured, coloured_info = _coloured_covariance(
+    given, noise_prior, prior_detected = _noise_prior(noise_model, gravity)
+    units, coloured_fit = _coloured_covariance(
         filter_bins,
+        fine_bins,
         keep_bins,
-        bin_time,
-        filter_samples / rate,
+        rate,
         x_ls,
-        r_var,
         blocks,
         att,
         jac_x,
         latitude,
         loop,
         options.case_rotation_period,
+        alpha=options.noise_false_positive_rate,
+        prior=noise_prior,
+        prior_detected=prior_detected,
+        given=given,
     )
+    if coloured_fit is not None:
+        amplitudes = coloured_fit.amplitudes
+    else:  # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
+        amplitudes = np.zeros(units.shape[:2])
+    coloured = np.einsum("ca,caij->ij", amplitudes, units)
     white_x2 = cov_v[1, 1]
     cov_v = cov_v + coloured
     cov_x = cov_v[:7, :7]
     low_frequency_ratio = float(cov_v[1, 1] / white_x2)
-    if low_frequency_ratio > 1.5:
+    if coloured_fit is not None:
+        notes.append(_coloured_note(coloured_fit, units, white_x2, gravity))
+    else:
         notes.append(
-            "the residuals carry low-frequency noise of the accelerometers (bias instability, random walk or temperature): a model of it "
-            f"fitted to the residual spectra (Whittle gain {coloured_info['loglik_gain']:.0f}) makes the variance of x2 "
-            f"{low_frequency_ratio:.1f}x the white-noise value; the covariance of all coefficients includes it"
+            "the record is too short for the low-frequency noise model (fewer than 16 bins of "
+            f"{filter_samples / rate:.0f} s or four Fourier frequencies): σ is the white-noise σ"
         )
+    measured = _measured_noise_model(axis_variance, noise_count, rate, coloured_fit, gravity, noise_model, path, duration)
+    if _noise_only:  # measure_noise: the record's noise, whether or not its coefficients can be separated
+        return SystemNoise(measured, coloured_fit, duration, tuple(notes[-1:]))  # the decision's note, appended just above
     v = np.concatenate([x_hat, att.values])
     # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
@@ -825,7 +943,7 @@ def run_system_stage(
         transform,
         notes,
         _prior_term_covariance(prior_covariance, prior_res_cov, scale),
-        _settings(options),
+        _settings(options, noise_model),
         k2=(k2_values, k2_covariance) if options.estimate_k2 else None,
     )
 
@@ -851,7 +969,7 @@ def run_system_stage(
         "z_residual_sigma": math.sqrt(r_var),
         "z_low_frequency_ratio": low_frequency_ratio,
         "combined_sigma_white": np.sqrt(np.diag(to_combined @ (cov_v - coloured) @ to_combined.T)),  # without the coloured part
-        "coloured_noise": coloured_info,
+        "noise_samples": noise_count,
         "noise_bias_x1": noise_bias,
         "k2_residual": k2_values,
         "k2_residual_sigma": k2_sigma,
@@ -879,6 +997,8 @@ def run_system_stage(
         corrections=corrections,
         notes=tuple(notes),
         diagnostics=diagnostics,
+        coloured_noise=coloured_fit,
+        noise_model=measured,
     )
 
 
@@ -887,48 +1007,62 @@ def run_system_stage(
 #: rms z 1.03 with 160 bins, 1.22 with 320 (docs/system-calibration.md §1a).
 COLOURED_BINS = 160
 
+#: Fine bins of z for the coloured-noise model's high band [s] (a whole number of blocks), at most :data:`FINE_BINS` of
+#: them (pairs merge beyond: a week gets 240-s bins).  They carry the z channel's periodogram from the top of the low band
+#: (30 cycles/day) to 0.45/width (650 cycles/day for 60 s), where the white level is pinned (docs/system-calibration.md §1a).
+FINE_BIN_SECONDS = 60.0
+FINE_BINS = 1 << 12
+
 
 def _coloured_covariance(
-    filter_bins: dict[str, NDArray[np.float64]],
+    filter_bins: _SampleBins,
+    fine_bins: _SampleBins,
     keep_bins: NDArray[np.bool_],
-    bin_time: NDArray[np.float64],
-    width: float,
+    rate: float,
     x_ls: NDArray[np.float64],
-    r_var: float,
     blocks: dict[str, NDArray[np.float64]],
     att: AttitudeFit,
     jac_x: NDArray[np.float64],
     latitude: float,
     loop: DampingLoop,
     case_rotation_period: float | None = None,
-) -> tuple[NDArray[np.float64], dict[str, Any]]:
-    """Covariance ``(17, 17)`` of ``(x1..x7, attitude)`` due to coloured accelerometer noise (zero when the data show none).
+    alpha: float = 0.05,
+    confidence: float = 0.95,
+    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prior_detected: bool = False,
+    given: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], Any]:
+    """Unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
-    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the amplitudes
-    of a random walk and a flicker noise, one of each for the three accelerometer axes (maximum Whittle likelihood of the
-    residual periodograms between 3.5 and 30 cycles/day, :func:`.spectrum.fit_coloured_noise`; the expectations are
-    exact for what the fits absorb (:func:`_attitude_residual_maker` for pitch and roll), for the Earth-rate modulation
-    of x and y (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`)).  The
-    components are propagated through the linear maps of the harmonic fit and of the attitude fit:
-    ``cov = Σ_c α_c J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only).  This carries the
-    low-frequency noise at the harmonic frequencies themselves (a slowly drifting x bias is, over the record, part of
-    x2 and of φ1s) and the correlation it creates between the specific-force and attitude coefficients.
-    docs/system-calibration.md §1a.
+    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the low band: residual
+    periodograms between 3.5 and 30 cycles/day (at most 0.45/bin width) with exact expectations for what the fits absorb
+    (:func:`_attitude_residual_maker` for pitch and roll), for the Earth-rate modulation of x and y
+    (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`).  The z residual on the
+    fine bins gives the high band, from the top of the low band to 0.45/fine-bin width, with the closed-form expectations
+    of :func:`.spectrum.z_bin_expectations`; it shares the z channel's white level with the low band, which pins that
+    level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
+    or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.spectrum.fit_coloured_noise`.
+    Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
+    ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
+    ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
+    x bias is, over the record, part of x2 and of φ1s) and the correlation it creates between the specific-force and
+    attitude coefficients.  docs/system-calibration.md §1a.  Returns ``(units, fit)``; ``fit`` is None when the record is
+    too short for the model (the covariance is then white).
     """
     from stableins.estimators.system import spectrum
 
-    out = np.zeros((17, 17))
-    info: dict[str, Any] = {"loglik_gain": 0.0, "ordinates": 0, "amplitudes": {}}
+    units = np.zeros((len(spectrum.COLOURED_KINDS), 3, 17, 17))
     n_keep = int(keep_bins.sum())
     if n_keep < 16 or att.block_map is None:
-        return out, info
+        return units, None
+    width = filter_bins.samples / rate
     merge = max(1, -(-n_keep // COLOURED_BINS))
     ids = np.flatnonzero(keep_bins) // merge
     groups, index = np.unique(ids, return_inverse=True)
     n = groups.size
-    count = np.bincount(index, weights=filter_bins["n"][keep_bins], minlength=n)
-    zsum = np.bincount(index, weights=filter_bins["z"][keep_bins], minlength=n)
-    hsum = np.stack([np.bincount(index, weights=filter_bins["h"][keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
+    count = np.bincount(index, weights=filter_bins.n[keep_bins], minlength=n)
+    zsum = np.bincount(index, weights=filter_bins.z[keep_bins], minlength=n)
+    hsum = np.stack([np.bincount(index, weights=filter_bins.h[keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
     x_bins = hsum / count[:, None]
     residual = zsum / count - x_bins @ x_ls
     time = (groups + 0.5) * width * merge
@@ -960,24 +1094,52 @@ def _coloured_covariance(
             # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
             # beyond the bins' Nyquist frequency)
             gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
+    # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
+    # per day; longer records also between the harmonics, where the random walk's power is largest)
+    low = (0.0, high)
+    harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
     built = spectrum.periodogram_design(
-        channels,
-        makers,
-        weights,
-        time,
-        kernels,
-        mixing[: len(channels)],
-        (3.5 * spectrum.EARTH_FREQUENCY, high),
-        white_gains=gains,
+        channels, makers, weights, time, kernels, mixing[: len(channels)], low, white_gains=gains, exclude=harmonics
     )
     if built is None:
-        return out, info
-    amplitudes, fit_info = spectrum.fit_coloured_noise(*built)
-    info.update(fit_info)
-    info["amplitudes"] = dict(zip(spectrum.COLOURED_KINDS, map(float, amplitudes), strict=True))
-    info["white_variance"] = r_var
-    if not np.any(amplitudes > 0):
-        return out, info
+        return units, None
+    design, observed, n_ch = built
+    # high band: the z residual on the fine bins (a trailing partial bin left out), above the low band
+    fine_count = fine_bins.n.copy()
+    last = int(np.flatnonzero(fine_count > 0)[-1]) + 1 if np.any(fine_count > 0) else 0
+    if last and fine_count[last - 1] < fine_bins.samples:
+        last -= 1
+    fine_count = fine_count[:last]
+    top = low[1]
+    n_high = 0
+    if last >= 16:
+        fine_width = fine_bins.samples / rate
+        k = np.arange(int(math.floor(high * last * fine_width)) + 1, int(math.floor(0.45 * last)) + 1)
+        k = k[k / (last * fine_width) > high]
+        if k.size:
+            filled = fine_count > 0
+            fine_residual = np.zeros(last)
+            fine_residual[filled] = (fine_bins.z[:last][filled] - fine_bins.h[:last][filled] @ x_ls) / fine_count[filled]
+            expected = spectrum.z_bin_expectations(k, last, fine_width, latitude, float(fine_count.sum()) / last)
+            rows = np.zeros((k.size, design.shape[1]))
+            rows[:, 0] = expected[:, 0]  # the z channel's white level, shared with the low band
+            rows[:, n_ch:] = expected[:, 1:]
+            design = np.vstack([design, rows])
+            observed = np.concatenate([observed, spectrum.z_bin_periodogram(fine_residual, fine_count, k)])
+            n_high = int(k.size)
+            top = float(k[-1] / (last * fine_width))
+    fit = spectrum.fit_coloured_noise(
+        design,
+        observed,
+        n_ch,
+        alpha=alpha,
+        confidence=confidence,
+        ordinates=(int(observed.size - n_high), n_high),
+        band=(_lowest_frequency(time, wide, harmonics), high, top),
+        prior=prior,
+        prior_detected=prior_detected,
+        given=given,
+    )
     # attitude blocks → the same bins (block time since the record start)
     n_map = att.block_map.shape[1] // 2
     map_group = np.clip(np.searchsorted(groups, np.arange(n_map) // merge), 0, n - 1)  # 600-s bins of the fit → groups
@@ -990,10 +1152,160 @@ def _coloured_covariance(
     j[:7, :n] = a_z
     j[7:, :n] = jac_x @ a_z
     j[7:, n:] = a_att
-    for alpha, kernel in zip(amplitudes, kernels, strict=True):
-        if alpha > 0:
-            out += alpha * spectrum.component_quadratic(j, j, mixing, kernel)
-    return 0.5 * (out + out.T), info
+    for c, kernel in enumerate(kernels):
+        unit = spectrum.component_quadratic(j, j, mixing, kernel, per_axis=True)
+        units[c] = 0.5 * (unit + unit.transpose(0, 2, 1))
+    return units, fit
+
+
+def _lowest_frequency(time: NDArray[np.float64], width: float, harmonics: tuple[float, ...]) -> float:
+    """The lowest Fourier frequency of the low band (the first not within half a spacing of an absorbed harmonic)."""
+    span = float(time[-1] - time[0]) + width
+    k = 1
+    while any(abs(k - f * span) < 0.5 for f in harmonics):
+        k += 1
+    return k / span
+
+
+def _coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
+    """What the decision on low-frequency noise found and what it does to σ (docs/system-calibration.md §1a)."""
+    from stableins.estimators.system.spectrum import amplitudes_to_allan
+
+    upper = amplitudes_to_allan(fit.upper, gravity)
+    allowed = float(np.einsum("c,ca->", fit.upper, units[:, :, 1, 1]))
+    bound = (
+        f"the data allow up to bias instability {upper[1] / MICRO_G:.3g} ug and random walk {upper[0]:.3g} m/s^2/sqrt(s) "
+        f"({100 * fit.confidence:g} % upper limits), with which the variance of x2 would be "
+        f"{(white_x2 + allowed) / white_x2:.1f}x the white-noise value"
+    )
+    factor = (white_x2 + float(np.einsum("ca,ca->", fit.amplitudes, units[:, :, 1, 1]))) / white_x2
+    used = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+    levels = f"bias instability {used[1] / MICRO_G:.3g} ug and random walk {used[0]:.3g} m/s^2/sqrt(s)"
+    if fit.source is ColouredSource.GIVEN:
+        return (
+            f"low-frequency noise as given in the noise model ({levels}) makes the variance of x2 {factor:.1f}x the white-noise "
+            f"value; the record's own fit: {fit.describe()}; {bound}"
+        )
+    if fit.detected:
+        how = "posterior mode with the prior noise model" if fit.source is ColouredSource.PRIOR else "maximum likelihood"
+        return (
+            f"the residuals carry low-frequency noise of the accelerometers ({fit.describe()}): {levels} ({how}, one value for "
+            f"the three axes) make the variance of x2 {factor:.1f}x the white-noise value; the covariance of all coefficients "
+            f"includes it; {bound}"
+        )
+    return f"no low-frequency noise ({fit.describe()}): σ is the white-noise σ; {bound}"
+
+
+def _noise_prior(
+    model: NoiseModel | None, gravity: float
+) -> tuple[NDArray[np.float64] | None, tuple[NDArray[np.float64], NDArray[np.float64]] | None, bool]:
+    """What a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
+
+    A datasheet model: the amplitudes per axis, used as they are (``given``, ``(2, 3)``).  A measured model (device dwells,
+    an earlier static record): a Gaussian prior on each amplitude (one value for the three axes, the mean over the axes)
+    with its centre at the model's value and its standard deviation from the model's interval (two-sided when the term
+    was detected, one-sided from its upper limit otherwise; none when the term is not bounded); ``prior_detected`` when
+    a slow term was detected.  Nothing known (no model, source ``none``): no prior.
+    """
+    from scipy.special import ndtri  # the normal quantile
+
+    from stableins.estimators.system.spectrum import allan_to_amplitudes
+
+    if model is None or model.source is NoiseSource.NONE:
+        return None, None, False
+    values = allan_to_amplitudes(model.values("random_walk"), model.values("bias_instability"), gravity)  # (2, 3)
+    if model.source is NoiseSource.DATASHEET:
+        return values, None, False
+    (k_lo, k_hi), (b_lo, b_hi) = model.limits("random_walk"), model.limits("bias_instability")
+    lower = allan_to_amplitudes(k_lo, b_lo, gravity).mean(axis=1)
+    upper = allan_to_amplitudes(k_hi, b_hi, gravity).mean(axis=1)
+    centre = values.mean(axis=1)
+    two_sided, one_sided = float(ndtri(0.5 + 0.5 * model.confidence)), float(ndtri(model.confidence))
+    sd = np.where(lower > 0, (upper - lower) / (2.0 * two_sided), (upper - centre) / one_sided)
+    sd = np.where(np.isfinite(upper) & (sd > 0), sd, np.inf)
+    detected = bool(np.any(np.concatenate([k_lo, b_lo]) > 0))
+    return None, (centre, sd), detected
+
+
+#: Effective degrees of freedom per second difference of white noise: consecutive second differences are correlated
+#: (−2/3 at lag 1, 1/6 at lag 2), so the variance of their mean square is ``2(1 + 2(4/9 + 1/36))/n`` times its square.
+SECOND_DIFFERENCE_DOF = 1.0 / (1.0 + 2.0 * (4.0 / 9.0 + 1.0 / 36.0))
+
+
+def _measured_noise_model(
+    axis_variance: NDArray[np.float64],
+    count: int,
+    rate: float,
+    fit: ColouredNoiseFit | None,
+    gravity: float,
+    given: NoiseModel | None,
+    path: str,
+    duration: float,
+) -> NoiseModel:
+    """The noise model of the instrument measured in this record (source ``static record``), per axis.
+
+    * White noise ``N = σ/√rate`` per axis from the second differences of the raw outputs (``σ²``, insensitive to the
+      Earth-rate signal), interval from ``χ²`` with ``SECOND_DIFFERENCE_DOF · count`` degrees of freedom;
+    * bias instability ``B`` and random walk ``K``: the amplitudes under σ (one value for the three axes) with their
+      profile-likelihood intervals (:class:`.spectrum.ColouredNoiseFit`); not detected: 0 with the upper limit;
+    * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
+      all of the second differences' variance (``20 Q²/dt²``).
+    With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
+    are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
+    """
+    from dataclasses import replace
+
+    from scipy.special import gammaincinv
+
+    from stableins.estimators.system.spectrum import amplitudes_to_allan
+
+    confidence = 0.95 if fit is None else fit.confidence
+    dof = max(1.0, SECOND_DIFFERENCE_DOF * count)
+    tail = 0.5 * (1.0 - confidence)
+    white = np.sqrt(axis_variance / rate)
+    white_lo = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, 1.0 - tail))))  # χ²_dof quantiles
+    white_hi = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, tail))))
+    q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
+    whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
+    if given is not None and given.source is NoiseSource.DATASHEET:
+        axes = tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes))
+        provenance = (
+            f"white noise measured in the system-level record {path} ({count} second differences per axis); bias instability, "
+            f"random walk and quantization as given ({given.provenance or 'datasheet'})"
+        )
+        return replace(given, axes=axes, provenance=provenance)
+    if fit is None:
+        slow = {"random_walk": NoiseTerm.unbounded(), "bias_instability": NoiseTerm.unbounded()}
+        slow_text = "bias instability and random walk not measured (record too short for the residual-spectrum model)"
+    else:
+        value = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+        lower = amplitudes_to_allan(fit.lower, gravity)
+        upper = amplitudes_to_allan(fit.upper, gravity)
+        slow = {}
+        for k, name in enumerate(("random_walk", "bias_instability")):
+            v = float(value[k])
+            lo = min(float(lower[k]), v) if fit.detected else 0.0
+            slow[name] = NoiseTerm(v, lo, max(float(upper[k]), v))
+        slow_text = (
+            "bias instability and random walk from the residual spectra, one value for the three axes ("
+            + fit.describe()
+            + ("; with the prior noise model" if fit.source is ColouredSource.PRIOR else "")
+            + ")"
+        )
+    axes = tuple(
+        AxisNoise(
+            white=whites[a],
+            bias_instability=slow["bias_instability"],
+            random_walk=slow["random_walk"],
+            quantization=NoiseTerm(0.0, 0.0, float(q_upper[a])),
+        )
+        for a in range(3)
+    )
+    provenance = (
+        f"system-level record {path}: {duration / 3600:.2f} h at {rate:g} Hz; white noise from {count} second differences "
+        f"per axis; {slow_text}; quantization not separable from the white noise at this rate (upper limit)"
+    )
+    return NoiseModel(axes, NoiseSource.STATIC_RECORD, provenance, confidence)  # type: ignore[arg-type]
 
 
 def _attitude_residual_maker(
@@ -1120,15 +1432,6 @@ def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) ->
     return out
 
 
-def _grow_bins(bins: dict[str, NDArray[np.float64]], size: int) -> None:
-    if bins["n"].size >= size:
-        return
-    new = max(size, 2 * bins["n"].size)
-    for key in ("z", "n"):
-        bins[key] = np.concatenate([bins[key], np.zeros(new - bins[key].size)])
-    bins["h"] = np.concatenate([bins["h"], np.zeros((new - bins["h"].shape[0], bins["h"].shape[1]))])
-
-
 def _observable_directions(covariance: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], int]:
     """Combinations of the combined coefficients that the record determines.
 
@@ -1181,14 +1484,17 @@ def _prior_residual_covariance(
     return 0.5 * (cov + cov.T)
 
 
-def _settings(options: SystemOptions) -> dict[str, Any]:
-    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame)."""
+def _settings(options: SystemOptions, noise_model: NoiseModel | None = None) -> dict[str, Any]:
+    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame).
+
+    ``noise_model``: the source of the noise model the stage started from (``none`` when there was none).
+    """
     from dataclasses import asdict
 
     out = asdict(options)
     if out["known_gyro_drift"] is not None:
         out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
-    return {"stage": "system", **out}
+    return {"stage": "system", **out, "noise_model": "none" if noise_model is None else noise_model.source.value}
 
 
 @dataclass(frozen=True)
@@ -1490,8 +1796,10 @@ __all__ = [
     "ArraySource",
     "SystemCalibration",
     "SystemOptions",
+    "SystemNoise",
     "block_length",
     "harmonic_information",
+    "measure_noise_model",
     "residuals_from_parameters",
     "run_system_stage",
 ]
