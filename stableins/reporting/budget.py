@@ -76,7 +76,7 @@ TITLES = {
     "gyro_drift": "gyro drift",
     "damping_loop": "damping-loop parameters",
 }
-SHORT = {"gravity": "g", "angle_sensors": "angle sensors", "temperature": "temperature", "gyro_drift": "gyro drift", "damping_loop": "loop"}
+SHORT = {"gravity": "g", "angle_sensors": "angle sensors", "temperature": "temp.", "gyro_drift": "gyro drift", "damping_loop": "loop"}
 _KEYS = {"gravity", "angle_sensor", "gyro_drift", "damping_loop", "temperature_sensitivity"}
 
 
@@ -141,6 +141,14 @@ class UncertaintyInputs:
             temperature_sensitivity=temperature,
             source=source,
         )
+
+    @classmethod
+    def from_procedure_file(cls, path: str) -> UncertaintyInputs:
+        """Read the ``[uncertainty]`` table of a procedure TOML file (absent: every input takes its default)."""
+        from stableins.procedures.definition import read_toml
+
+        data = read_toml(path, what="a procedure definition (TOML)")
+        return cls.from_mapping(data.get("uncertainty"), source=str(path))
 
 
 @dataclass(frozen=True)
@@ -294,9 +302,11 @@ def uncertainty_budget(
                 total += to_record_matrix(s.ids, s.covariance)
         cov = covariance @ total @ covariance * u_angle**2
         contributions["angle_sensors"] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        effect = "each dwell's readings as independent errors of the coarse stage's orientations (" + largest(
-            contributions["angle_sensors"]
-        ) + ")"
+        effect = (
+            "each dwell's readings as independent errors of the coarse stage's orientations ("
+            + largest(contributions["angle_sensors"])
+            + ")"
+        )
         sources.append(Source("angle_sensors", "static readings of the three gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
                               "rectangular" if inputs.angle_sensor is None else "normal", angle_origin, effect))  # fmt: skip
     else:
@@ -528,4 +538,4 @@ _UNSTATED_GRAVITY_TEXT = "assumed as for the normal-gravity formula: the site st
 _ANGLE_TEXT = "assumed: ±1″ static accuracy (Wu et al. 2018 §6), rectangular"
 _DRIFT_TEXT = "assumed: ±0.001 °/h (Wu et al. 2018 §6: drift below 0.001 °/h), rectangular"
 _LOOP_TEXT = "software constants of the navigation computer, taken as exact"
-_LOOP_NAMES = {"zeta": "ζ", "omega_s": "ω_s", "schuler_frequency": "ω_s", "k1": "k1", "k2": "k2", "k3": "k3"}
+_LOOP_NAMES = {"zeta": "ζ", "omega_s": "ω_s", "schuler_frequency": "ω_s", "k1": "k_1", "k2": "k_2", "k3": "k_3"}

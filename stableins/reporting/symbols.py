@@ -83,7 +83,7 @@ def plain(parameter_id: str) -> str:
 # ------------------------------------------------------------------ prose
 #: Command-line syntax a record's notes may carry, and the words a certificate says instead (longest first).
 _FLAGS = (
-    (r"\(--gyro-drift X Y Z,? deg/h\)", "(the gyro drift in the platform frame, in °/h, given to the system stage)"),
+    (r"\(--gyro-drift X Y Z,? deg/h\)", "(in °/h, an input of the system stage)"),
     (r"--gyro-drift X Y Z", "the gyro drift in the platform frame"),
     (r"\(see diagnostics, --estimate-k2\)", "(the system stage's K₂ estimation)"),
     (r"\(--estimate-k2\)", "(with the system stage's K₂ estimation)"),
@@ -106,7 +106,7 @@ _UNITS = (
     ("ug/g^3", "µg/g³"),
     ("s^2/m", "s²/m"),
 )
-_WORD = re.compile(r"(?<![\w.])([A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)+|theta\d0)(?![\w])")
+_WORD = re.compile(r"(?<![\w.])([A-Za-zα-ω][A-Za-z0-9]*(?:_[A-Za-z0-9]+)+|theta\d0)(?![A-Za-z0-9_])")
 _SYSTEM_NAMES = {f"{h}_{a}" for h in ("b", "D") for a in "xyz"}
 #: A path with at least one folder: ``/work/x/y.h5``, ``demo-output/system.h5``, ``C:\\x\\y.toml``.
 _PATH = re.compile(r"(?<![\w/])(?:[A-Za-z]:\\|/|\.{1,2}/|[\w.-]+/)(?:[\w.+-]+[/\\])*([\w.+-]+\.[A-Za-z0-9]{1,5})\b")
@@ -130,10 +130,10 @@ def prose(text: str, ids: Iterable[str] = (), *, markup_symbols: bool = True) ->
     Parameter ids (``ids`` and the standard ones) become symbols, ``a*b`` a product, `` - `` a minus
     sign, ``sinL`` ``sin L``, units their printed form, command-line flags words and paths file names.
     """
-    from stableins.errormodel import known_terms
+    from stableins.discovery.library import all_terms
     from stableins.reporting.document import escape
 
-    known = set(known_terms()) | set(ids) | _SYSTEM_NAMES
+    known = set(all_terms()) | set(ids) | _SYSTEM_NAMES
     text = basename_paths(words_for_flags(str(text)))
     for ascii_unit, printed in _UNITS:
         text = text.replace(ascii_unit, printed)
@@ -141,7 +141,16 @@ def prose(text: str, ids: Iterable[str] = (), *, markup_symbols: bool = True) ->
     text = re.sub(r"\b(sin|cos)(2?)L\b", lambda m: f"{m.group(1)}{'²' if m.group(2) else ''} L", text)
     text = re.sub(r"(?<=[\w)])\*(?=[\w(])", "·", text)
     text = re.sub(r"(?<=[\s(])-(?=[\s\w(])", MINUS, text)
+    text = re.sub(r"[ \t]{2,}", " ", text).replace(" ,", ",").replace(" ;", ";").replace(" .", ".").replace("( ", "(")
     text = escape(text)
     if not markup_symbols:
         return text
-    return _WORD.sub(lambda m: markup(m.group(1)) if m.group(1) in known else m.group(1), text)
+
+    def symbol(match: re.Match[str]) -> str:
+        word = match.group(1)
+        if word in known:
+            return markup(word)
+        short = re.fullmatch(r"([A-Za-zα-ω])_([A-Za-z0-9]{1,3})", word)  # y_p, f_x, K_nl, ω_s
+        return f"{short.group(1)}<sub>{short.group(2)}</sub>" if short else word
+
+    return _WORD.sub(symbol, text)
