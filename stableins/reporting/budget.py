@@ -161,7 +161,13 @@ class Source:
     distribution: str
     origin: str
     effect: str
-    evaluated: bool = True
+    #: "evaluated"; "not applicable" (no stage of the record uses the input); "condition" (stated as a condition
+    #: of validity instead); "not evaluated" (the record lacks what the evaluation needs)
+    state: str = "evaluated"
+
+    @property
+    def evaluated(self) -> bool:
+        return self.state == "evaluated"
 
 
 @dataclass(frozen=True)
@@ -169,7 +175,7 @@ class Budget:
     """Type A and Type B standard uncertainties of every parameter of a record [SI].
 
     ``contributions[group][k]`` is the standard uncertainty the input group gives parameter ``ids[k]``
-    (zero where it has none; NaN where the group was not evaluated).
+    (zero where it has none, and for a group whose :attr:`Source.state` is not "evaluated").
     """
 
     ids: tuple[str, ...]
@@ -180,18 +186,25 @@ class Budget:
 
     @property
     def combined(self) -> NDArray[np.float64]:
-        """u_c = sqrt(u_A² + Σ u_i²) (GUM Eq. 10, inputs uncorrelated); groups not evaluated count as zero."""
+        """u_c = sqrt(u_A² + Σ u_i²) (GUM Eq. 10, inputs uncorrelated)."""
         total = self.type_a**2
         for values in self.contributions.values():
-            total = total + np.nan_to_num(values) ** 2
+            total = total + values**2
         return np.sqrt(total)
+
+    def state(self, group: str) -> str:
+        source = self.source(group)
+        return source.state if source is not None else "not evaluated"
 
     def combined_of(self, parameter_id: str) -> float:
         return float(self.combined[self.ids.index(parameter_id)])
 
     def contribution(self, group: str, parameter_id: str) -> float:
+        """The group's standard uncertainty of the parameter [SI]; NaN unless the group was evaluated."""
         values = self.contributions.get(group)
-        return math.nan if values is None else float(values[self.ids.index(parameter_id)])
+        if values is None or self.state(group) != "evaluated":
+            return math.nan
+        return float(values[self.ids.index(parameter_id)])
 
     def source(self, group: str) -> Source | None:
         return next((s for s in self.sources if s.group == group), None)
@@ -250,8 +263,8 @@ def uncertainty_budget(
     # ---------------------------------------------------------------- gravity
     site = record.site
     if site is None:
-        sources.append(Source("gravity", "not recorded", "—", "—", "the record has no site metadata", "not evaluated", evaluated=False))
-        contributions["gravity"] = np.full(n, np.nan)
+        sources.append(Source("gravity", "not recorded", "—", "—", "the record has no site metadata", "not evaluated", "not evaluated"))
+        contributions["gravity"] = np.zeros(n)
     else:
         g = float(site.gravity)
         if site.gravity_uncertainty is not None:
@@ -311,14 +324,14 @@ def uncertainty_budget(
                               "rectangular" if inputs.angle_sensor is None else "normal", angle_origin, effect))  # fmt: skip
     else:
         device = [s for s in record.stages if s.name in ("coarse", "coarse+fine")]
-        contributions["angle_sensors"] = np.zeros(n) if not device else np.full(n, np.nan)
+        contributions["angle_sensors"] = np.zeros(n)
         why = (
             "no stage of the record reads the gimbal angles (the fine and system stages do not)"
             if not device
             else "the record's coarse stage stores no angle-sensor sensitivity (written by an earlier version): not evaluated"
         )
         sources.append(Source("angle_sensors", "static readings of the gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
-                              "rectangular", angle_origin, why, evaluated=not device))  # fmt: skip
+                              "rectangular", angle_origin, why, "not evaluated" if device else "not applicable"))  # fmt: skip
 
     # gyro drift: the system stage's input, per platform axis
     drift = stored.get("gyro_drift", [])
@@ -359,7 +372,7 @@ def uncertainty_budget(
         )
     else:
         system = [s for s in record.stages if s.name == "system"]
-        contributions["gyro_drift"] = np.zeros(n) if not system else np.full(n, np.nan)
+        contributions["gyro_drift"] = np.zeros(n)
         sources.append(
             Source(
                 "gyro_drift",
@@ -370,7 +383,7 @@ def uncertainty_budget(
                 "no system-level stage in the record: the device stages do not depend on it"
                 if not system
                 else "the record's system stage stores no sensitivity (written by an earlier version): not evaluated",
-                evaluated=not system,
+                "not evaluated" if system else "not applicable",
             )
         )
 
@@ -394,7 +407,7 @@ def uncertainty_budget(
         )
     else:
         system = [s for s in record.stages if s.name == "system"]
-        contributions["damping_loop"] = np.zeros(n) if not system else np.full(n, np.nan)
+        contributions["damping_loop"] = np.zeros(n)
         sources.append(
             Source(
                 "damping_loop",
@@ -405,7 +418,7 @@ def uncertainty_budget(
                 "no system-level stage in the record: the device stages do not depend on them"
                 if not system
                 else "the record's system stage stores no sensitivity (written by an earlier version): not evaluated",
-                evaluated=not system,
+                "not evaluated" if system else "not applicable",
             )
         )
 
@@ -414,7 +427,8 @@ def uncertainty_budget(
     contributions["temperature"] = np.zeros(n)
     if low is None:
         conditions.append("The instrument temperature is not recorded in the data: the results apply to the conditions of the calibration.")
-        sources.append(Source("temperature", "not recorded", "—", "—", "—", "not evaluated", evaluated=False))
+        effect = "the results apply to the conditions of the calibration"
+        sources.append(Source("temperature", "not recorded", "—", "—", "—", effect, "condition"))
     else:
         spread = (high - low) / math.sqrt(12.0)
         stated = {pid: _pattern(inputs.temperature_sensitivity, pid) for pid in ids}
@@ -444,6 +458,7 @@ def uncertainty_budget(
                     "rectangular",
                     "recorded range",
                     "no temperature sensitivity known to this calibration: not in the budget, stated as a condition of validity",
+                    "condition",
                 )
             )
         conditions.append(

@@ -264,10 +264,37 @@ class NumberedCanvas(canvas_module.Canvas):
         self.restoreState()
 
 
+class FloatingDocTemplate(BaseDocTemplate):
+    """A document whose figures float: a :class:`Figure` that does not fit in what is left of the page lets the
+    flowables after it that do fit go first (never past another figure or a heading that would start a new page),
+    and is placed at the top of the next page — so a rigid figure never leaves half a page empty."""
+
+    def handle_flowable(self, flowables: list[Flowable]) -> None:
+        first = flowables[0] if flowables else None
+        if isinstance(first, Figure) and len(flowables) > 1:
+            frame = self.frame
+            width, room = frame._getAvailableWidth(), frame._y - frame._y1p
+            _, needed = first.wrap(width, room)
+            following = flowables[1]
+            if needed > room and not isinstance(following, Figure) and self._fits(following, width, room):
+                flowables[0], flowables[1] = following, first
+        super().handle_flowable(flowables)
+
+    @staticmethod
+    def _fits(flowable: Flowable, width: float, room: float) -> bool:
+        """Whether ``flowable`` fits whole in ``room`` (a conditional page break fits when it would not break)."""
+        if isinstance(flowable, CondPageBreak):
+            return room >= flowable.height
+        if isinstance(flowable, Figure):
+            return False
+        _, height = flowable.wrap(width, room)
+        return height + flowable.getSpaceBefore() + flowable.getSpaceAfter() <= room
+
+
 def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial: str, footer: str, subject: str = "") -> int:
     """Lay out ``story`` into ``out`` (a path or binary file object); returns the page count."""
     register_fonts()
-    doc = BaseDocTemplate(
+    doc = FloatingDocTemplate(
         out,
         pagesize=A4,
         leftMargin=MARGIN,

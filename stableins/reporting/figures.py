@@ -94,7 +94,7 @@ def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]], th
         ax.set_yticks(range(1, n), labels[1:])
         ax.set_xlim(-0.5, n - 1.5)
         ax.set_ylim(n - 0.5, 0.5)
-        ax.tick_params(length=0, labelsize=7.0)
+        ax.tick_params(length=0, labelsize=8.0)
         ax.grid(False)
         for spine in ax.spines.values():
             spine.set_visible(False)
@@ -103,9 +103,9 @@ def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]], th
                 value = rho[i, j]
                 if abs(value) >= threshold:
                     text = f"{value:.2f}".replace("-", "\u2212")
-                    ax.text(j, i, text, ha="center", va="center", fontsize=5.0, color="white" if abs(value) > 0.6 else "black")
+                    ax.text(j, i, text, ha="center", va="center", fontsize=5.5, color="white" if abs(value) > 0.6 else "black")
         bar = fig.colorbar(image, ax=ax, shrink=0.7, pad=0.02, ticks=[-1.0, -0.5, 0.0, 0.5, 1.0])
-        bar.ax.tick_params(labelsize=7.0)
+        bar.ax.tick_params(labelsize=7.5)
         bar.set_label("correlation coefficient ρ (dimensionless)")
         return _png(fig)
 

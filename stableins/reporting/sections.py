@@ -302,7 +302,7 @@ def results(ctx: ReportContext) -> list[Flowable]:
     for row in ctx.rows:
         r = row.rounded()
         rows.append([row.symbol, row.status.value, r.value, r.u, r.expanded, escape(row.unit), escape(row.source)])
-    out.append(document.table(rows, [0.11, 0.12, 0.13, 0.08, 0.10, 0.09, 0.37], align_right=(2, 3, 4), markup=True))
+    out.append(document.table(rows, [0.11, 0.14, 0.11, 0.08, 0.10, 0.09, 0.37], align_right=(2, 3, 4), markup=True))
     carried = [r for r in ctx.rows if r.estimated and not r.measured]
     if carried:
         out.append(
@@ -364,7 +364,7 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
     rows: list[list[Any]] = [["Input", "Value used", "Standard uncertainty", "Distribution", "Source of the uncertainty", "Effect"]]
     for s in budget.sources:
         rows.append([TITLES[s.group], prose(s.value), prose(s.uncertainty), s.distribution, prose(s.origin), prose(s.effect)])
-    out.append(document.table(rows, [0.13, 0.18, 0.12, 0.11, 0.21, 0.25], markup=True))
+    out.append(document.table(rows, [0.13, 0.16, 0.12, 0.13, 0.21, 0.25], markup=True))
     out += heading("Budget per parameter", "h2", room_mm=35)
     head = ["Parameter", "Unit", "Type A u<sub>A</sub>", *[SHORT[g] for g in GROUPS], "u<sub>c</sub>", f"U (k = {k:g})"]
     rows = [head]
@@ -374,27 +374,28 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
         decimals = content.decimals_of(row.u)
         term_scale = row.u / budget.combined_of(row.id) if budget.combined_of(row.id) > 0 else math.nan
 
-        def cell(si: float, decimals: int = decimals, scale: float = term_scale) -> str:
-            if not math.isfinite(si):
-                return "n.e."
-            text = f"{si * scale:.{decimals}f}"
-            return text
+        def cell(si: float, group: str = "", decimals: int = decimals, scale: float = term_scale) -> str:
+            state = budget.state(group) if group else "evaluated"
+            if state != "evaluated":
+                return "n.e." if state == "not evaluated" else "—"
+            return f"{si * scale:.{decimals}f}"
 
         r = row.rounded()
         rows.append(
             [row.symbol, escape(row.unit), cell(budget.type_a[budget.ids.index(row.id)])]
-            + [cell(budget.contribution(g, row.id)) for g in GROUPS]
+            + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
             + [r.u, r.expanded]
         )
     widths = [0.12, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.12]
     out.append(document.table(rows, widths, align_right=tuple(range(2, 10)), markup=True))
-    not_evaluated = [TITLES[s.group] for s in budget.sources if not s.evaluated]
+    not_evaluated = [TITLES[s.group] for s in budget.sources if s.state == "not evaluated"]
     text = (
         "Standard uncertainties in the unit of each parameter, given to the decimal place of u<sub>c</sub> (a contribution below "
-        "it shows as 0). Columns: local gravity g, gimbal angle sensors, instrument temperature (temp.), gyro drift, damping loop."
+        "it shows as 0). Columns: local gravity g, gimbal angle sensors, instrument temperature (temp.), gyro drift, damping loop; "
+        "—: the input does not apply to this record or is stated as a condition of validity (see the inputs above)."
     )
     if not_evaluated:
-        text += f" n.e.: not evaluated ({escape(', '.join(not_evaluated))}; see the inputs above)."
+        text += f" n.e.: not evaluated ({escape(', '.join(not_evaluated))}); it is not in u<sub>c</sub>."
     out.append(_p(text, "small"))
     if budget.conditions:
         out += heading("Conditions of validity", "h2", room_mm=15)
@@ -445,7 +446,7 @@ def correlations(ctx: ReportContext) -> list[Flowable]:
         f"{ctx.figure_label()} Correlation coefficients of the {len(ids)} estimated parameters (lower triangle); "
         "the coefficients with |ρ| ≥ 0.3 are written in their cells."
     )
-    out.append(document.figure(png, figures.CORRELATION_WIDTH / figures.FULL_WIDTH, aspect, caption, min_scale=0.85))
+    out.append(document.figure(png, figures.CORRELATION_WIDTH / figures.FULL_WIDTH, aspect, caption, min_scale=0.75))
     return out
 
 
@@ -897,7 +898,7 @@ def _check_numbers(ctx: ReportContext, c: Check) -> tuple[str, str]:
 
 # ---------------------------------------------------------------------- 11 notes
 def closing(ctx: ReportContext) -> list[Flowable]:
-    out: list[Flowable] = [*heading("11  Notes and authorization", room_mm=60)]
+    out: list[Flowable] = [*heading("11  Notes and authorization", room_mm=45)]
     stage_notes = {n for s in ctx.record.stages for n in s.notes} | {f"[{s.name}] {n}" for s in ctx.record.stages for n in s.notes}
     remaining = [n for n in ctx.record.notes if n not in ctx.shown_notes and n not in stage_notes]
     if remaining:

@@ -75,9 +75,9 @@ def mathtext(parameter_id: str) -> str:
 
 
 def plain(parameter_id: str) -> str:
-    """The symbol as plain text with the subscript run on (``βxy``), for places without markup."""
+    """The symbol as plain text with the subscript run on (``βxy``, ``K2,x``): how a PDF's text layer reads it."""
     base, sub = parts(parameter_id)
-    return base + sub.replace(",", "")
+    return base + sub
 
 
 # ------------------------------------------------------------------ prose
