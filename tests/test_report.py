@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
 
 from stableins import cli  # noqa: E402
@@ -110,6 +111,7 @@ def test_full_report_pages_and_required_fields(files, capsys):
     assert "2026-11-20T08:00:00Z to 2026-11-20T14:30:00Z" in flat and "200 Hz" in flat and "wu2018-18-position" in flat
     # The +60 µg bias step is found significant and fails the 30 µg stability limit.
     assert "Verdict: FAIL" in text
+    assert certificate_checks.review(out, files) == []  # no near-empty page, path, flag; units and one rounding
     assert re.search(r"change since\s+δbx.*fail", text, re.S)
 
 
@@ -241,6 +243,7 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text
+    assert certificate_checks.review(out, tmp_path) == []
     chi2 = {
         m.group(1): float(m.group(2))
         for m in re.finditer(r"^\s*(coarse\+fine|coarse|fine)\s+coarse\+fine\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)
@@ -306,6 +309,7 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert plain("K3_x") in text and plain("Kh_y") in text and "not supported" in text and "Model in force" in text
+    assert certificate_checks.review(out, tmp_path) == []
     assert "µg/g³" in text  # the verdict's units as printed
     numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
     assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 3  # correlation, residuals, discovery

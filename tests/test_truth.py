@@ -10,6 +10,7 @@ import subprocess
 from dataclasses import replace
 from pathlib import Path
 
+import certificate_checks
 import numpy as np
 import pytest
 from device_world import GRAVITY, device_columns, draw_truth
@@ -104,6 +105,7 @@ def test_recal_writes_one_record_in_force_whose_certificate_shows_it(tmp_path, c
     assert "field-recal-device" in flat and "100 Hz" in flat and "(from the data)" in flat
     assert f"{record.provenance.data_start} to {record.provenance.data_end}" in flat
     assert "Stages of earlier calibrations the record carries over" in flat
+    assert certificate_checks.review(out / "report.pdf", tmp_path) == []  # the field recalibration's certificate, reviewed
 
 
 def exact_unit(serial: str, seed: int):

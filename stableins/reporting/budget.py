@@ -288,7 +288,7 @@ def uncertainty_budget(
             Source(
                 "gravity",
                 f"{g:.7f} m/s² ({site.gravity_source})",
-                f"{_mgal(u_g)} mGal" + ("" if u_g == 0 else f" ({number_text(u_g)} m/s²)"),
+                f"{_mgal(u_g)} mGal" + ("" if u_g == 0 else f" ({scientific(u_g)} m/s²)"),
                 distribution,
                 origin,
                 "δSF/SF = δg/g on every scale factor (" + largest(c * u_g) + ")" if u_g > 0 else "δSF/SF = δg/g on every scale factor",
@@ -539,10 +539,11 @@ def _mgal(u: float) -> str:
     return number(u / MGAL, 2) if u else "0"
 
 
-def number_text(x: float) -> str:
-    from stableins.reporting.content import number
-
-    return number(x, 2)
+def scientific(x: float, significant: int = 2) -> str:
+    """``5.0 × 10⁻⁷``: a number in scientific notation for people."""
+    mantissa, exponent = f"{x:.{significant - 1}e}".split("e")
+    power = str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+    return f"{mantissa} × 10{power}".replace("-", "\u2212")
 
 
 _NORMAL_GRAVITY_TEXT = (
