@@ -29,29 +29,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-
-
-def device_world(seed: int):
-    from stableins.estimators.device import calibrate_device
-    from stableins.estimators.dwell import dwells_from_columns
-    from stableins.noise import NoiseModel
-    from stableins.procedures.definition import load_procedure
-    from stableins.simulator.device import simulate_dwells
-    from stableins.simulator.truth import Truth
-
-    coarse, fine = load_procedure("device-coarse"), load_procedure("device-fine")
-    procedures = {"coarse": coarse, "fine": fine}
-    truth = Truth.draw(seed)
-    dwells = dwells_from_columns(
-        simulate_dwells(truth, [s.command for s in coarse.steps], dwell=20.0, settle=5.0, rate=50.0, seed=seed * 10 + 1, stage="coarse"),
-        procedures=procedures,
-    )
-    columns = simulate_dwells(truth, [s.command for s in fine.steps], dwell=120.0, settle=5.0, rate=5.0, seed=seed * 10 + 2, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=procedures)
-    n = truth.noise
-    noise = NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, provenance="datasheet")
-    calibration = calibrate_device(dwells, truth.site, noise=noise)
-    return truth, dwells, noise, calibration, calibration.record(truth.site)
+import budget_world  # noqa: E402
 
 
 def sigma_of(record) -> np.ndarray:
@@ -82,35 +60,17 @@ def gravity(world) -> None:
 
 
 def angles(world) -> None:
-    from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
-    from stableins.estimators.coarse import CoarseProblem, coarse_model
-    from stableins.estimators.fine import FineProblem, fine_model
-    from stableins.estimators.joint import JointProblem, fit_joint
+    from stableins.conventions import ARCSEC
     from stableins.estimators.sensitivity import angle_reading_gradients
 
-    truth, dwells, _, calibration, _ = world
-    coarse = [d for d in dwells if d.stage == "coarse" and d.usable]
-    fine = [d for d in dwells if d.stage == "fine" and d.usable]
-    site = truth.site
-    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
-    options = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, start=calibration.coarse)
-    base = fit_joint(coarse, fine, stage="coarse+fine", **options)
-    model, fm = coarse_model(True), fine_model()
-    problem = JointProblem(
-        CoarseProblem.from_dwells(coarse, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, model),
-        FineProblem(np.array([d.mean for d in fine])[None], np.array([d.sem for d in fine])[None], float(site.gravity), fm),
-        np.array([model.index(k) for k in fm.ids]),
-        None,
-    )
+    base, problem, coarse, fine, options = budget_world.joint(world)
     gradients = angle_reading_gradients(problem, base.values)
     sigma = np.where(base.sigma > 0, base.sigma, 1.0)
     print("2. gimbal angle readings: fit_joint re-run with one dwell's reading moved by 2″ (every third reading)")
     errors, largest = [], []
     for column in range(0, gradients.shape[1], 3):
         j, i = divmod(column, 3)
-        moved = list(coarse)
-        moved[j] = replace(moved[j], angles=moved[j].angles + 2.0 * ARCSEC * np.eye(3)[i])
-        refit = fit_joint(moved, fine, stage="coarse+fine", **options)
+        refit = budget_world.refit_with_reading_moved(options, coarse, fine, j, i, 2.0 * ARCSEC)
         predicted = base.covariance @ gradients[:, column] * 2.0 * ARCSEC
         errors.append(np.abs((refit.values - base.values - predicted) / sigma).max())
         largest.append(np.abs(predicted / sigma).max())
@@ -119,23 +79,14 @@ def angles(world) -> None:
 
 
 def system(world) -> None:
-    import system_synthetic as syn
 
-    from stableins.conventions import ARCSEC
     from stableins.estimators.system import sensitivity
-    from stableins.estimators.system.stage import ArraySource, SystemOptions, run_system_stage
+    from stableins.estimators.system.stage import SystemOptions
     from stableins.reporting.budget import DEG_PER_H, MGAL
 
     prior = world[4]
-    installed = {k: v for k, v in prior.values().items() if not k.startswith("theta")}
-    true = dict(installed, bias_x=installed["bias_x"] + 3e-5, beta_zy=installed["beta_zy"] + 2.0 * ARCSEC)
-    columns, meta = syn.record(true, installed, rate=1.0, noise=2e-3, seed=5)
-    meta = replace(meta, serial_number=prior.serial_number, gravity=prior.site.gravity)
-    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
-    source, values = ArraySource(columns), prior.values()
-
-    def run(options=None, metadata=meta):
-        return run_system_stage(source, metadata, values, covariance, options or SystemOptions())
+    run, meta = budget_world.system_day(prior)
+    source, values, covariance = run.source, run.values, run.covariance
 
     start = time.perf_counter()
     base = run()
@@ -207,7 +158,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=13)
     parser.add_argument("--record", help="also print the budget of this calibration record")
     args = parser.parse_args()
-    world = device_world(args.seed)
+    world = budget_world.device(args.seed)
     gravity(world)
     angles(world)
     system(world)

@@ -18,22 +18,17 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+import budget_world  # noqa: E402
 import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
-import system_synthetic as syn  # noqa: E402
 
-from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body  # noqa: E402
+from stableins.conventions import ARCSEC  # noqa: E402
 from stableins.data.errors import InputError  # noqa: E402
 from stableins.discovery.library import all_terms  # noqa: E402
-from stableins.estimators.coarse import CoarseProblem, coarse_model  # noqa: E402
 from stableins.estimators.device import calibrate_device  # noqa: E402
-from stableins.estimators.dwell import dwells_from_columns  # noqa: E402
-from stableins.estimators.fine import FineProblem, fine_model  # noqa: E402
-from stableins.estimators.joint import JointProblem, fit_joint  # noqa: E402
 from stableins.estimators.sensitivity import angle_reading_gradients  # noqa: E402
 from stableins.estimators.system import sensitivity as system_sensitivity  # noqa: E402
-from stableins.estimators.system.stage import ArraySource, SystemOptions, run_system_stage  # noqa: E402
-from stableins.noise import NoiseModel  # noqa: E402
+from stableins.estimators.system.stage import SystemOptions  # noqa: E402
 from stableins.procedures.definition import load_procedure  # noqa: E402
 from stableins.records import CalibrationRecord  # noqa: E402
 from stableins.reporting import write_report  # noqa: E402
@@ -45,8 +40,6 @@ from stableins.reporting.budget import (  # noqa: E402
     gravity_direction,
     uncertainty_budget,
 )
-from stableins.simulator.device import simulate_dwells  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
@@ -57,18 +50,8 @@ needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftoppm/pdftotext (Debi
 
 @pytest.fixture(scope="module")
 def device():
-    """One simulated quartz instrument: a coarse pass (20-s dwells) and the fine stage (120-s dwells), its datasheet noise."""
-    truth = Truth.draw(13)
-    dwells = dwells_from_columns(
-        simulate_dwells(truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, rate=50.0, seed=131, stage="coarse"),
-        procedures=PROCEDURES,
-    )
-    columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=120.0, settle=5.0, rate=5.0, seed=132, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=PROCEDURES)
-    n = truth.noise
-    noise = NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, provenance="datasheet")
-    calibration = calibrate_device(dwells, truth.site, noise=noise)
-    return truth, dwells, noise, calibration, calibration.record(truth.site)
+    """One simulated quartz instrument (tests/budget_world.py): its datasheet noise, device calibration and record."""
+    return budget_world.device(13)
 
 
 def _differences(a: CalibrationRecord, b: CalibrationRecord) -> np.ndarray:
@@ -97,27 +80,12 @@ def test_gravity_sensitivity_is_the_refit_with_g_perturbed(device):
 
 def test_angle_reading_sensitivity_is_the_refit_with_one_reading_moved(device):
     """∂x/∂r_{j,i} = P Aᵀ W E_{j,i}: against fit_joint re-run with one dwell's reading moved by 2″."""
-    truth, dwells, _, calibration, _ = device
-    coarse = [d for d in dwells if d.stage == "coarse" and d.usable]
-    fine = [d for d in dwells if d.stage == "fine" and d.usable]
-    site = truth.site
-    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
-    options = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, start=calibration.coarse)
-    base = fit_joint(coarse, fine, stage="coarse+fine", **options)
-    model, fm = coarse_model(True), fine_model()
-    problem = JointProblem(
-        CoarseProblem.from_dwells(coarse, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, model),
-        FineProblem(np.array([d.mean for d in fine])[None], np.array([d.sem for d in fine])[None], float(site.gravity), fm),
-        np.array([model.index(k) for k in fm.ids]),
-        None,
-    )
+    base, problem, coarse, fine, options = budget_world.joint(device)
     gradients = angle_reading_gradients(problem, base.values)
     np.testing.assert_allclose(base.sensitivities[0].covariance, gradients @ gradients.T, rtol=1e-9)  # what the record stores
     sigma = base.sigma
     for j, i in ((0, 1), (7, 2), (12, 0), (17, 1)):
-        moved = list(coarse)
-        moved[j] = replace(moved[j], angles=moved[j].angles + 2.0 * ARCSEC * np.eye(3)[i])
-        refit = fit_joint(moved, fine, stage="coarse+fine", **options)
+        refit = budget_world.refit_with_reading_moved(options, coarse, fine, j, i, 2.0 * ARCSEC)
         predicted = base.covariance @ gradients[:, 3 * j + i] * 2.0 * ARCSEC
         assert np.abs(predicted / np.where(sigma > 0, sigma, 1.0)).max() > 0.02  # the reading moves something
         assert np.abs((refit.values - base.values - predicted) / np.where(sigma > 0, sigma, 1.0)).max() < 1e-3, (j, i)
@@ -126,18 +94,9 @@ def test_angle_reading_sensitivity_is_the_refit_with_one_reading_moved(device):
 @pytest.fixture(scope="module")
 def system(device):
     """The system stage on a one-day synthetic record (1 Hz) of the same unit, with the device record as its prior."""
-    truth, _, _, _, prior = device
-    installed = {k: v for k, v in prior.values().items() if not k.startswith("theta")}
-    true = dict(installed, bias_x=installed["bias_x"] + 3e-5, beta_zy=installed["beta_zy"] + 2.0 * ARCSEC)
-    columns, meta = syn.record(true, installed, rate=1.0, noise=2e-3, seed=5)
-    meta = replace(meta, serial_number=prior.serial_number, gravity=prior.site.gravity, gravity_uncertainty=0.05 * MGAL)
-    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
-    source = ArraySource(columns)
-    values = prior.values()
-
-    def run(options=None, metadata=meta):
-        return run_system_stage(source, metadata, values, covariance, options or SystemOptions())
-
+    prior = device[4]
+    run, meta = budget_world.system_day(prior, gravity_uncertainty=0.05 * MGAL)
+    source, values, covariance = run.source, run.values, run.covariance
     base = run()
     found = system_sensitivity.system_sensitivities(source, meta, values, covariance, SystemOptions(), base=base)
     record = prior.updated(replace(base.result, sensitivities=found), site=meta, procedure="system-static")

@@ -371,21 +371,8 @@ def uncertainty_budget(
             )
         )
     else:
-        system = [s for s in record.stages if s.name == "system"]
         contributions["gyro_drift"] = np.zeros(n)
-        sources.append(
-            Source(
-                "gyro_drift",
-                "constant drift in the platform frame",
-                "—",
-                "—",
-                "—",
-                "no system-level stage in the record: the device stages do not depend on it"
-                if not system
-                else "the record's system stage stores no sensitivity (written by an earlier version): not evaluated",
-                "not evaluated" if system else "not applicable",
-            )
-        )
+        sources.append(_system_input_missing(record, "gyro_drift", "constant drift in the platform frame"))
 
     # damping loop: software constants of the navigation computer unless the procedure says otherwise
     loop = stored.get("damping_loop", [])
@@ -406,21 +393,8 @@ def uncertainty_budget(
             )
         )
     else:
-        system = [s for s in record.stages if s.name == "system"]
         contributions["damping_loop"] = np.zeros(n)
-        sources.append(
-            Source(
-                "damping_loop",
-                "damping-loop parameters",
-                "—",
-                "—",
-                "—",
-                "no system-level stage in the record: the device stages do not depend on them"
-                if not system
-                else "the record's system stage stores no sensitivity (written by an earlier version): not evaluated",
-                "not evaluated" if system else "not applicable",
-            )
-        )
+        sources.append(_system_input_missing(record, "damping_loop", "damping-loop parameters"))
 
     # temperature: the recorded range, with a stated sensitivity or as a condition of validity
     low, high, mean = _temperature_range(record)
@@ -437,37 +411,38 @@ def uncertainty_budget(
             term = terms.get(pid)
             if sensitivity is not None and term is not None and type_a[k] > 0:
                 contributions["temperature"][k] = float(term.from_engineering(sensitivity * spread) - term.from_engineering(0.0))
-        range_text = f"{low:.2f} to {high:.2f} °C (mean {mean:.2f} °C)"
-        if any(v is not None for v in stated.values()):
-            sources.append(
-                Source(
-                    "temperature",
-                    f"recorded range {range_text}",
-                    f"{spread:.2g} K",
-                    "rectangular",
-                    f"recorded range; sensitivities from the procedure ({_name(inputs.source)})",
-                    "u = |k_T| (T_max − T_min)/√12",
-                )
+        known = any(v is not None for v in stated.values())
+        sources.append(
+            Source(
+                "temperature",
+                f"recorded range {low:.2f} to {high:.2f} °C (mean {mean:.2f} °C)",
+                f"{spread:.2g} K",
+                "rectangular",
+                f"recorded range; sensitivities from the procedure ({_name(inputs.source)})" if known else "recorded range",
+                "u = |k_T| (T_max − T_min)/√12"
+                if known
+                else "no temperature sensitivity known to this calibration: not in the budget, stated as a condition of validity",
+                "evaluated" if known else "condition",
             )
-        else:
-            sources.append(
-                Source(
-                    "temperature",
-                    f"recorded range {range_text}",
-                    f"{spread:.2g} K",
-                    "rectangular",
-                    "recorded range",
-                    "no temperature sensitivity known to this calibration: not in the budget, stated as a condition of validity",
-                    "condition",
-                )
-            )
+        )
         conditions.append(
             f"The results apply to instrument temperatures from {low:.2f} to {high:.2f} °C (recorded during the calibration"
-            f"{'' if any(v is not None for v in stated.values()) else '; no temperature sensitivity is known to it'})."
+            f"{'' if known else '; no temperature sensitivity is known to it'})."
         )
     order = {g: i for i, g in enumerate(GROUPS)}
     sources.sort(key=lambda s: order[s.group])
     return Budget(ids, type_a, {g: contributions[g] for g in GROUPS}, tuple(sources), tuple(conditions))
+
+
+def _system_input_missing(record: CalibrationRecord, group: str, value: str) -> Source:
+    """The source of a system-stage input the record stores no sensitivity for: not applicable, or not evaluated."""
+    system = any(s.name == "system" for s in record.stages)
+    effect = (
+        "the record's system stage stores no sensitivity (written by an earlier version): not evaluated"
+        if system
+        else "no system-level stage in the record: the device stages do not depend on it"
+    )
+    return Source(group, value, "—", "—", "—", effect, "not evaluated" if system else "not applicable")
 
 
 def gravity_direction(record: CalibrationRecord, terms: Mapping[str, Term]) -> dict[str, float]:
