@@ -60,7 +60,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.discovery.history import ModelHistory
     from stableins.errormodel import ErrorModel
-    from stableins.estimators.result import FitResult, Likelihood
+    from stableins.estimators.result import FitResult, InputSensitivity, Likelihood
     from stableins.noise import NoiseModel
 
 RECORD_FORMAT = "stableins-calibration-record"
@@ -175,6 +175,8 @@ class StageRun:
         What the stage's data say about the parameters (canonical form; None for migrated records).
     determined, notes : tuple of str
         Combinations the data determine; the stage's notes.
+    sensitivities : tuple of InputSensitivity
+        How the stage's likelihood depends on inputs it took as known (Type B inputs of the uncertainty budget).
     """
 
     id: str
@@ -194,6 +196,7 @@ class StageRun:
     likelihood: Likelihood | None = None
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    sensitivities: tuple[InputSensitivity, ...] = ()
 
     @classmethod
     def from_fit(
@@ -239,6 +242,7 @@ class StageRun:
             likelihood=result.likelihood,
             determined=tuple(result.determined),
             notes=tuple(result.notes),
+            sensitivities=tuple(result.sensitivities),
         )
 
 
@@ -955,6 +959,8 @@ def _stage_document(s: StageRun) -> dict[str, Any]:
         "determined": list(s.determined),
         "notes": list(s.notes),
     }
+    if s.sensitivities:
+        out["sensitivities"] = [x.to_json() for x in s.sensitivities]
     return out
 
 
@@ -1164,7 +1170,45 @@ class _Reader:
             likelihood=self.likelihood(s.get("likelihood"), f"{where}.likelihood"),
             determined=self.texts(s.get("determined", []), f"{where}.determined"),
             notes=self.texts(s.get("notes", []), f"{where}.notes"),
+            sensitivities=self.sensitivities(s.get("sensitivities", []), f"{where}.sensitivities"),
         )
+
+    def sensitivities(self, value: Any, key: str) -> tuple[InputSensitivity, ...]:
+        import numpy as np
+
+        from stableins.estimators.result import InputSensitivity
+
+        if not isinstance(value, list):
+            raise self.fail("not a list", key, "a list of input sensitivities (docs/formats.md)")
+        out = []
+        for k, item in enumerate(value):
+            where = f"{key}[{k}]"
+            item = self.mapping(item, where)
+            ids = self.texts(item.get("ids"), f"{where}.ids")
+            n = len(ids)
+            gradient = covariance = None
+            if "gradient" in item:
+                v = item["gradient"]
+                if not isinstance(v, list) or len(v) != n:
+                    raise self.fail("not a list of one number per id", f"{where}.gradient", f"{n} numbers")
+                gradient = np.array([self.number(x, f"{where}.gradient") for x in v])
+            if "covariance" in item:
+                covariance = self.matrix(item["covariance"], n, f"{where}.covariance", nulls=False)
+            try:
+                out.append(
+                    InputSensitivity(
+                        self.text(item.get("input"), f"{where}.input"),
+                        self.text(item.get("unit", ""), f"{where}.unit"),
+                        ids,
+                        self.number(item.get("value", 0.0), f"{where}.value"),
+                        gradient,
+                        covariance,
+                        self.number(item.get("step", 0.0), f"{where}.step"),
+                    )
+                )
+            except ValueError as error:
+                raise self.fail(str(error), where, "a gradient or a covariance over the ids") from None
+        return tuple(out)
 
     def record(self, document: Any) -> CalibrationRecord:
         fail = self.fail

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
 
 from stableins import cli  # noqa: E402
@@ -22,6 +23,7 @@ from stableins.data.errors import InputError  # noqa: E402
 from stableins.history import compare  # noqa: E402
 from stableins.records import CalibrationRecord, file_sha256  # noqa: E402
 from stableins.reporting import content  # noqa: E402
+from stableins.reporting.symbols import plain  # noqa: E402
 from stableins.reporting.tolerances import Tolerances, decide  # noqa: E402
 
 POPPLER = shutil.which("pdftoppm") and shutil.which("pdftotext")
@@ -109,7 +111,8 @@ def test_full_report_pages_and_required_fields(files, capsys):
     assert "2026-11-20T08:00:00Z to 2026-11-20T14:30:00Z" in flat and "200 Hz" in flat and "wu2018-18-position" in flat
     # The +60 µg bias step is found significant and fails the 30 µg stability limit.
     assert "Verdict: FAIL" in text
-    assert re.search(r"change since\s+bias_x.*fail", text, re.S)
+    assert certificate_checks.review(out, files) == []  # no near-empty page, path, flag; units and one rounding
+    assert re.search(r"change since\s+δbx.*fail", text, re.S)
 
 
 def test_change_recovers_the_injected_bias_step(files):
@@ -240,6 +243,7 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text
+    assert certificate_checks.review(out, tmp_path) == []
     chi2 = {
         m.group(1): float(m.group(2))
         for m in re.finditer(r"^\s*(coarse\+fine|coarse|fine)\s+coarse\+fine\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)
@@ -252,7 +256,7 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     assert text.count("verified:") == 2  # both data files match the record's SHA-256
     diagnosis = json.loads((tmp_path / "diag.json").read_text())
     assert "From diag.json (stableins diagnose)" in flat and "Refit history" in flat
-    assert diagnosis["candidates"][0]["id"] in text
+    assert plain(diagnosis["candidates"][0]["id"]) in text  # typeset: Kh_x prints as K with subscript h,x
     # the same record as schema version 1 (no stage runs): the evidence is recomputed, and the certificate says how
     record = CalibrationRecord.load(tmp_path / "cal.json")
     v1 = {k: v for k, v in record.to_document().items() if k not in ("calibration", "stages")}
@@ -304,7 +308,8 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
     pages, text = _render(out)
     flat = " ".join(text.split())
-    assert "K3_x" in text and "Kh_y" in text and "not supported" in text and "Model in force" in text
+    assert plain("K3_x") in text and plain("Kh_y") in text and "not supported" in text and "Model in force" in text
+    assert certificate_checks.review(out, tmp_path) == []
     assert "µg/g³" in text  # the verdict's units as printed
     numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
     assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 3  # correlation, residuals, discovery

@@ -4,13 +4,13 @@ no stage raises a σ; a stage that determines nothing writes nothing; everything
 from __future__ import annotations
 
 import json
-import math
 import re
 import shutil
 import subprocess
 from dataclasses import replace
 from pathlib import Path
 
+import certificate_checks
 import numpy as np
 import pytest
 from device_world import GRAVITY, device_columns, draw_truth
@@ -23,6 +23,7 @@ from stableins.estimators.result import FitResult
 from stableins.history import HistoryStore
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord, file_sha256
+from stableins.reporting.symbols import plain
 from stableins.status import Status
 
 POPPLER = shutil.which("pdftotext")
@@ -35,9 +36,10 @@ def pdf_text(path: Path) -> str:
 
 
 def flagged_on_certificate(text: str) -> set[str]:
-    """Parameters whose row in section 7 says 'Changed: yes'."""
-    section = text[text.index("7 Change since the previous calibration") : text.index("8 Statement of conformity")]
-    return {m.group(1) for m in re.finditer(r"^\s*(\w+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)}
+    """Parameters whose row in the change section says 'Changed: yes' (ids from their typeset symbols)."""
+    section = text[text.index("Change since the previous calibration") : text.index("Statement of conformity")]
+    ids = {plain(t): t for t in known_terms()}
+    return {ids[m.group(1)] for m in re.finditer(r"^\s*(\S+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)}
 
 
 @needs_poppler
@@ -90,17 +92,20 @@ def test_recal_writes_one_record_in_force_whose_certificate_shows_it(tmp_path, c
     # its certificate shows its values and what was entered
     text = pdf_text(out / "report.pdf")
     flat = " ".join(text.split())
-    rows = {m.group(1): m.group(2) for m in re.finditer(r"^(\w+)\s+estimated\s+(\S+)\s", text, re.M)}
+    rows = {m.group(1): (m.group(2), m.group(4)) for m in re.finditer(r"^(\S+)\s+estimated\s+(\S+)\s+(\S+)\s+(\S+)\s", text, re.M)}
     for pid in ("sf_x", "bias_y", "beta_zx", "K2_z", "theta30"):
         p = record[pid]
         term = known_terms()[pid]
-        shown = float(rows[pid].replace("\u2212", "-"))
-        u = float(term.sigma_to_engineering(p.sigma))
-        assert abs(shown - float(term.to_engineering(p.value))) <= 0.51 * 10 ** (math.floor(math.log10(u)) - 1), pid  # GUM rounding
+        value, expanded = rows[plain(pid)]
+        decimals = len(value.partition(".")[2])
+        assert decimals == len(expanded.partition(".")[2]), pid  # GUM 7.2.6: the value to the last digit of U
+        shown = float(value.replace("\u2212", "-"))
+        assert abs(shown - float(term.to_engineering(p.value))) <= 0.5 * 10**-decimals + 1e-9, pid
     assert "Field team 3" in flat and "site temperature 23.5 °C Site temperature fine" in flat
     assert "field-recal-device" in flat and "100 Hz" in flat and "(from the data)" in flat
     assert f"{record.provenance.data_start} to {record.provenance.data_end}" in flat
     assert "Stages of earlier calibrations the record carries over" in flat
+    assert certificate_checks.review(out / "report.pdf", tmp_path) == []  # the field recalibration's certificate, reviewed
 
 
 def exact_unit(serial: str, seed: int):

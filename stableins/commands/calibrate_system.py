@@ -66,6 +66,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
             "this stage cannot estimate it from one record)"
         ),
     )
+    parser.add_argument(
+        "--gyro-drift-uncertainty",
+        type=number(0.0, 100.0, unit="deg/h"),
+        metavar="U",
+        help=(
+            "standard uncertainty of the gyro drift per platform axis [deg/h] (of the value given, or of zero when none is given), "
+            "from the gyro calibration; the certificate's uncertainty budget uses it (default: the procedure's or 0.00058 deg/h, "
+            "a rectangular distribution over the 0.001 deg/h bound of Wu et al. 2018)"
+        ),
+    )
     parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
     from stableins.commands.noise import add_noise_options
 
@@ -92,6 +102,7 @@ def run(args: Any) -> int:
     from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
+    from stableins.estimators.system.sensitivity import with_sensitivities
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
@@ -114,6 +125,7 @@ def run(args: Any) -> int:
         couplings=not args.no_couplings,
         estimate_k2=args.estimate_k2,
         known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
+        gyro_drift_uncertainty=None if args.gyro_drift_uncertainty is None else math.radians(args.gyro_drift_uncertainty) / 3600.0,
     )
     entries = parse_entries(args.set)
     noise, _ = system_noise_prior(args, default=prior.noise_model)
@@ -123,6 +135,9 @@ def run(args: Any) -> int:
         outcome = run_system_stage(
             record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
         )
+    outcome = with_sensitivities(
+        outcome, record, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
+    )
     for w in caught:
         note(f"stableins: warning: {w.message}")
     start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])

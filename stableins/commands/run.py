@@ -96,6 +96,10 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
             from stableins.reporting.tolerances import Tolerances
 
             Tolerances.from_mapping(definition.tolerances, source=str(definition_file))
+        if definition.uncertainty is not None:  # the certificate's Type B inputs: checked before the platform moves too
+            from stableins.reporting.budget import UncertaintyInputs
+
+            UncertaintyInputs.from_mapping(definition.uncertainty, source=str(definition_file))
     changes = {k: v for k, v in (("retries", retries), ("chunk", chunk)) if v is not None}
     return (dataclasses.replace(plan, **changes) if changes else plan), definition_file
 

@@ -22,6 +22,9 @@ class SiteMetadata:
         Local gravity magnitude [m/s²].
     gravity_source : str
         Where ``gravity`` comes from, e.g. ``"WGS-84 normal gravity"`` or a survey.
+    gravity_uncertainty : float or None
+        Standard uncertainty of ``gravity`` [m/s²] as its source states it (a survey's), or None when not
+        stated; the certificate's uncertainty budget then assumes one from the source (docs/reports.md).
     sample_rate : float
         Accelerometer sample rate [Hz].
     gimbal_senses : tuple of int
@@ -51,6 +54,7 @@ class SiteMetadata:
     damping: dict[str, float] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     start_time: str = ""
+    gravity_uncertainty: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -67,6 +71,7 @@ QUANTITY_UNITS: dict[str, dict[str, float]] = {
     "latitude": ANGLE_UNITS,
     "height": {"m": 1.0},
     "gravity": {"m/s^2": 1.0},
+    "gravity_uncertainty": {"m/s^2": 1.0, "mGal": 1e-5},
     "sample_rate": {"Hz": 1.0},
     "base_attitude": ANGLE_UNITS,
     "reference_temperature": {"degC": 1.0},
@@ -95,19 +100,27 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
     Angles are written in degrees (people read files), everything else in SI.
     """
     deg = ANGLE_UNITS["deg"]
-    return {
-        "serial_number": metadata.serial_number,
-        "latitude": {"value": metadata.latitude / deg, "unit": "deg"},
-        "height": {"value": metadata.height, "unit": "m"},
-        "gravity": {"value": metadata.gravity, "unit": "m/s^2"},
-        "gravity_source": metadata.gravity_source,
-        "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
-        "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
-        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
-        "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
-        "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
-        "extra": dict(metadata.extra),
-    } | ({"start_time": metadata.start_time} if metadata.start_time else {})
+    return (
+        {
+            "serial_number": metadata.serial_number,
+            "latitude": {"value": metadata.latitude / deg, "unit": "deg"},
+            "height": {"value": metadata.height, "unit": "m"},
+            "gravity": {"value": metadata.gravity, "unit": "m/s^2"},
+            "gravity_source": metadata.gravity_source,
+            "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
+            "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
+            "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
+            "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
+            "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
+            "extra": dict(metadata.extra),
+        }
+        | ({"start_time": metadata.start_time} if metadata.start_time else {})
+        | (
+            {}
+            if metadata.gravity_uncertainty is None
+            else {"gravity_uncertainty": {"value": metadata.gravity_uncertainty, "unit": "m/s^2"}}
+        )
+    )
 
 
 def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
@@ -161,6 +174,11 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     gravity = quantity("gravity")
     if not 9.7 < gravity < 9.9:
         raise fail(f"gravity {gravity:g} m/s^2 is not a terrestrial gravity value", "gravity", "a value in m/s^2 between 9.7 and 9.9")
+    gravity_uncertainty = quantity("gravity_uncertainty") if document.get("gravity_uncertainty") is not None else None
+    if gravity_uncertainty is not None and not 0.0 <= gravity_uncertainty <= 0.05:
+        raise fail(
+            f"gravity uncertainty {gravity_uncertainty:g} m/s^2", "gravity_uncertainty", "a standard uncertainty from 0 to 0.05 m/s^2"
+        )
     sample_rate = quantity("sample_rate")
     if sample_rate <= 0:
         raise fail(f"sample rate {sample_rate:g} Hz", "sample_rate", "a positive rate in Hz")
@@ -213,6 +231,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         damping=damping,
         extra=extra,
         start_time=str(start_time),
+        gravity_uncertainty=gravity_uncertainty,
     )
 
 
@@ -237,7 +256,10 @@ def metadata_from_si(values: Any, source: str | None = None) -> SiteMetadata:
             f"unknown metadata key(s) {unknown[:5]}", path=source, field=f"metadata.{unknown[0]}", expected="SiteMetadata fields"
         )
     document = dict(values)
-    for key, unit in (("latitude", "rad"), ("height", "m"), ("gravity", "m/s^2"), ("sample_rate", "Hz"), ("reference_temperature", "degC")):
+    if document.get("gravity_uncertainty", 0.0) is None:
+        del document["gravity_uncertainty"]
+    quantities = (("latitude", "rad"), ("height", "m"), ("gravity", "m/s^2"), ("gravity_uncertainty", "m/s^2"), ("sample_rate", "Hz"))
+    for key, unit in (*quantities, ("reference_temperature", "degC")):
         if key in document:
             document[key] = {"value": document[key], "unit": unit}
     if "base_attitude" in document:

@@ -63,6 +63,7 @@ from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gaug
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
@@ -531,4 +532,5 @@ def calibrate_coarse(
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
+        sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
     )

@@ -221,7 +221,10 @@ def calibrate_fine(
         "installation angles: the fine stage determines only the differences of the pairs (xz, yz), (zy, xy), (yx, zx); its own "
         "result carries the coarse values, a record it updates takes the differences in combination with the coarse information"
     )
-    notes.append(f"local gravity {gravity:.7f} m/s^2 taken as exact; an error δg scales sf_x, sf_y, sf_z by 1 + δg/g")
+    notes.append(
+        f"local gravity {gravity:.7f} m/s^2 is the reference: an error δg scales sf_x, sf_y, sf_z by 1 + δg/g "
+        "(a Type B input of the certificate's uncertainty budget)"
+    )
     for p, why in sorted(left_out.items()):
         notes.append(f"position {p} left out: {why}")
     f_p, h, _, sigma_h = problem.evaluate(solution.x)

@@ -59,6 +59,7 @@ from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 
 
@@ -234,4 +235,5 @@ def fit_joint(
             "nonlinear": bool(nonlinear or bool(fine_dwells)),
             "noise_model": None if noise is None else noise.to_document(),
         },
+        sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
     )

@@ -144,6 +144,71 @@ class Likelihood:
         return np.where(ok, values, np.nan), np.where(ok, sigma, np.nan)
 
 
+@dataclass(frozen=True, eq=False)
+class InputSensitivity:
+    r"""How a stage's data-only result depends on an input the stage takes as known (a GUM Type B input).
+
+    A stage enters a record through the information vector :math:`\eta = \Lambda\hat x + g` of its
+    :class:`Likelihood`; the record's values are :math:`x = P \sum_k \eta_k` (the Bayesian updates in
+    information form, :mod:`stableins.estimators.posterior`), so an error :math:`\delta q` of an input moves
+    them by :math:`P \sum_k (\partial\eta_k/\partial q)\,\delta q` (docs/reports.md, "Uncertainty budget").
+
+    Attributes
+    ----------
+    input : str
+        ``<group>.<name>``: ``gyro_drift.x``, ``damping_loop.zeta``, ``angle_sensors.readings`` ...
+    unit : str
+        SI unit of the input (``rad/s``, ``1``, ``rad``).
+    ids : tuple of str
+        Parameters of the stage's likelihood, in the order of the arrays.
+    value : float
+        The value of the input the stage used.
+    gradient : ndarray (n,) or None
+        :math:`\partial\eta/\partial q` per unit of the input.
+    covariance : ndarray (n, n) or None
+        For a set of independent inputs of one kind with unit variance each (the angle reading of every
+        dwell): :math:`\sum_j (\partial\eta/\partial q_j)(\partial\eta/\partial q_j)^T`.
+    step : float
+        The perturbation of a sensitivity computed by re-running the stage (0: derived analytically).
+    """
+
+    input: str
+    unit: str
+    ids: tuple[str, ...]
+    value: float = 0.0
+    gradient: NDArray[np.float64] | None = None
+    covariance: NDArray[np.float64] | None = None
+    step: float = 0.0
+
+    def __post_init__(self) -> None:
+        n = len(self.ids)
+        if (self.gradient is None) == (self.covariance is None):
+            raise ValueError("InputSensitivity: give either a gradient or a covariance")
+        for name, shape in (("gradient", (n,)), ("covariance", (n, n))):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            array = np.array(value, dtype=float)
+            if array.shape != shape or not np.all(np.isfinite(array)):
+                raise ValueError(f"InputSensitivity {self.input}: {name} must be finite with shape {shape}")
+            array.setflags(write=False)
+            object.__setattr__(self, name, array)
+
+    @property
+    def group(self) -> str:
+        """The budget column the input belongs to (``gyro_drift``, ``damping_loop`` ...)."""
+        return self.input.partition(".")[0]
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"input": self.input, "unit": self.unit, "ids": list(self.ids), "value": float(self.value)}
+        if self.gradient is not None:
+            out["gradient"] = self.gradient.tolist()
+        if self.covariance is not None:
+            out["covariance"] = self.covariance.tolist()
+        out["step"] = float(self.step)
+        return out
+
+
 def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] = (), notes: Sequence[str] = ()) -> list[str]:
     """Text lines of a parameter table ``(id, value, 1σ, unit, status[, determined by])`` in engineering units.
 
@@ -211,6 +276,9 @@ class FitResult:
     settings : dict
         The options the stage ran with (JSON-ready: noise model, estimate K2, gyro drift ...), so a record
         and a report can say, and recompute with, exactly what the calibration used.
+    sensitivities : tuple of InputSensitivity
+        How the stage's likelihood depends on the inputs it takes as known (angle readings, gyro drift,
+        damping loop): the Type B part of a certificate's uncertainty budget.
     """
 
     stage: str
@@ -230,6 +298,7 @@ class FitResult:
     whitened_residuals: NDArray[np.float64] | None = None
     likelihood: Likelihood | None = None
     settings: dict[str, Any] = field(default_factory=dict)
+    sensitivities: tuple[InputSensitivity, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.terms)

@@ -24,8 +24,11 @@ from stableins.data.errors import InputError
 PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
 
 _STEP_KEYS = {"position", "platform", "inner", "middle", "settle", "dwell", "sample_rate", "expect"}
-#: ``tolerances`` is read and validated by the report (stableins.reporting.tolerances, docs/reports.md).
-_SECTIONS = {"procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "model"}
+#: ``tolerances`` and ``uncertainty`` are read and validated by the report (stableins.reporting.tolerances and
+#: stableins.reporting.budget, docs/reports.md).
+_SECTIONS = {
+    "procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "uncertainty", "model",
+}  # fmt: skip
 #: Stages a definition may declare.
 STAGES = ("coarse", "fine", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
@@ -96,6 +99,8 @@ class ProcedureDefinition:
     model_add: tuple[str, ...] = ()
     #: the ``[tolerances]`` table as written (validated by :mod:`stableins.reporting.tolerances`), None if absent
     tolerances: dict[str, Any] | None = None
+    #: the ``[uncertainty]`` table as written (Type B inputs, validated by :mod:`stableins.reporting.budget`), None if absent
+    uncertainty: dict[str, Any] | None = None
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -303,6 +308,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         record=_static_record(data.get("record"), head["stage"], spath),
         model_add=_model_add(data.get("model", {}), head["stage"], spath),
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
+        uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
     )
 
 

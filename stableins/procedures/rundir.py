@@ -458,6 +458,10 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         outcome = run_system_stage(
             record, record.metadata, prior.values(), covariance, SystemOptions(), compensation_terms=record_terms(prior.ids)
         )
+        from stableins.estimators.system.sensitivity import with_sensitivities
+
+        terms = record_terms(prior.ids)
+        outcome = with_sensitivities(outcome, record, prior.values(), covariance, SystemOptions(), compensation_terms=terms)
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
     extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}

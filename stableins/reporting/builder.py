@@ -26,6 +26,7 @@ from stableins.data.atomic import atomic_write
 from stableins.data.errors import InputError
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
+from stableins.reporting.budget import UncertaintyInputs, uncertainty_budget
 from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
 
@@ -176,6 +177,7 @@ def write_report(
     report_id: str | None = None,
     issued: dt.datetime | None = None,
     discovery: str | PathLike[str] | None = None,
+    uncertainty: UncertaintyInputs | None = None,
 ) -> ReportSummary:
     """Write the calibration certificate of ``record`` to ``out`` (PDF).
 
@@ -204,6 +206,8 @@ def write_report(
         Date of issue (default: now, UTC).
     discovery : path, optional
         Output of ``stableins diagnose --json`` (ranked candidates and refit history).
+    uncertainty : UncertaintyInputs, optional
+        Type B inputs given directly (overrides the procedure's ``[uncertainty]`` table; :mod:`stableins.reporting.budget`).
 
     Returns
     -------
@@ -228,7 +232,10 @@ def write_report(
         fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
         stages = [stage_evidence(f, where) for f in fits] + stages
     terms = content.known_terms(record_terms(view.ids))
-    rows = content.parameter_rows(view, terms)
+    if uncertainty is None:
+        uncertainty = UncertaintyInputs.from_procedure_file(str(procedure)) if procedure is not None else UncertaintyInputs()
+    budget = uncertainty_budget(view, uncertainty, terms)
+    rows = content.parameter_rows(view, terms, budget=budget)
     if previous_loaded is not None:
         inputs.append(
             sections.InputFile(
@@ -241,9 +248,11 @@ def write_report(
     if tolerances is None:
         tolerances = Tolerances.from_procedure_file(str(procedure)) if procedure is not None else Tolerances.from_mapping(None)
     if procedure is not None:
-        inputs.append(sections.InputFile("procedure", Path(procedure).name, file_sha256(procedure), "tolerances read from it"))
+        inputs.append(
+            sections.InputFile("procedure", Path(procedure).name, file_sha256(procedure), "tolerances and uncertainty inputs read from it")
+        )
 
-    comparison = changes = None
+    comparison = changes = previous_rows = None
     if previous_loaded is not None:
         if previous_loaded.record.serial_number != view.serial_number:
             raise InputError(
@@ -254,6 +263,10 @@ def write_report(
             )
         comparison = compare(previous_loaded.record, view)
         changes = content.change_rows(comparison, terms)
+        previous_terms = content.known_terms(record_terms(previous_loaded.record.ids))
+        previous_rows = content.parameter_rows(
+            previous_loaded.record, previous_terms, budget=uncertainty_budget(previous_loaded.record, uncertainty, previous_terms)
+        )
     checks = content.conformity(rows, changes, stages, tolerances)
 
     discovery_document, discovery_source = {}, ""  # the record's own history is ctx.record.discovery
@@ -268,6 +281,8 @@ def write_report(
         report_id=report_id or report_id_for(loaded, [f.sha256 for f in inputs]),
         issued=issued.strftime("%Y-%m-%d %H:%M UTC"),
         rows=rows,
+        budget=budget,
+        previous_rows=previous_rows,
         stages=stages,
         inputs=inputs,
         tolerances=tolerances,

@@ -32,11 +32,37 @@ MINUS = "\u2212"
 
 
 @dataclass(frozen=True)
+class Rounded:
+    """A value with its standard and expanded uncertainty as printed (GUM 7.2.6, :func:`gum`)."""
+
+    value: str
+    u: str
+    expanded: str
+
+
+def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
+    """The one rounding of the certificate (GUM 7.2.6): ``U = k u`` and ``u`` to two significant digits, the value
+    to the decimal place of ``U``.  Every section prints a value and its uncertainty through this function."""
+    if not math.isfinite(value):
+        return Rounded("not stated", "—", "—")
+    if not (math.isfinite(u) and u > 0):
+        return Rounded(number(value, 6), "—", "—")
+    expanded = k * u
+    decimals = max(1 - math.floor(math.log10(expanded)), 0)
+    text = f"{value:.{decimals}f}"
+    if float(text) == 0.0:
+        text = text.lstrip("-")
+    return Rounded(text.replace("-", MINUS), number(u, 2), number(expanded, 2))
+
+
+@dataclass(frozen=True)
 class ParameterRow:
     """One row of the results table, in engineering units (``nan`` where no value is stated).
 
-    ``source`` says which stage last determined the parameter (and whether in this calibration,
-    :meth:`CalibrationRecord.source_text`); ``measured`` whether a stage of this calibration saw it.
+    ``u`` is the combined standard uncertainty (Type A ⊕ Type B, :mod:`stableins.reporting.budget`) and
+    ``expanded = k u``; ``type_a`` the record's own σ.  ``source`` says which stage last determined the
+    parameter (and whether in this calibration, :meth:`CalibrationRecord.source_text`); ``measured``
+    whether a stage of this calibration saw it.
     """
 
     id: str
@@ -49,18 +75,32 @@ class ParameterRow:
     why: str
     source: str = ""
     measured: bool = True
+    type_a: float = math.nan
+    coverage: float = COVERAGE_FACTOR
 
     @property
     def estimated(self) -> bool:
         return self.status is Status.ESTIMATED
 
-    def formatted(self) -> tuple[str, str, str]:
-        """``(value, u, U)`` as text, rounded per GUM 7.2.6."""
+    @property
+    def symbol(self) -> str:
+        """The typeset name (reportlab markup)."""
+        from stableins.reporting.symbols import markup
+
+        return markup(self.id)
+
+    def rounded(self) -> Rounded:
+        """Value, u and U as printed everywhere on the certificate (GUM 7.2.6)."""
         if self.status is Status.UNIDENTIFIABLE or not math.isfinite(self.value):
-            return "not stated", "—", "—"
+            return Rounded("not stated", "—", "—")
         if self.status in (Status.FIXED, Status.GAUGE) or not (self.u > 0):
-            return f"{number(self.value, 6)}", "—", "—"
-        return round_to_uncertainty(self.value, self.u), number(self.u, 2), number(self.expanded, 2)
+            return Rounded(number(self.value, 6) if self.value else "0", "—", "—")
+        return gum(self.value, self.u, self.coverage)
+
+    def formatted(self) -> tuple[str, str, str]:
+        """``(value, u, U)`` as text (:meth:`rounded`)."""
+        r = self.rounded()
+        return r.value, r.u, r.expanded
 
 
 def number(x: float, significant: int) -> str:
@@ -77,19 +117,35 @@ def round_to_uncertainty(value: float, u: float) -> str:
     return f"{value:.{decimals}f}".replace("-", MINUS)
 
 
-def parameter_rows(record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR) -> list[ParameterRow]:
-    """Results table rows in record order."""
+def decimals_of(u: float) -> int:
+    """Decimal places of ``u`` given to two significant digits."""
+    return max(1 - math.floor(math.log10(u)), 0) if u > 0 and math.isfinite(u) else 0
+
+
+def chi2_text(x: float) -> str:
+    """χ²_ν as printed everywhere on the certificate (three decimals, the console's)."""
+    return f"{x:.3f}" if math.isfinite(x) else "—"
+
+
+def parameter_rows(
+    record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR, budget: Any = None
+) -> list[ParameterRow]:
+    """Results table rows in record order; ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the
+    combined standard uncertainty, else the record's σ (Type A) is used."""
     rows = []
     for p in record.parameters:
         term = terms.get(p.id)
+        sigma = p.sigma
+        combined = budget.combined_of(p.id) if budget is not None and p.id in budget.ids else sigma
         if term is not None:
             value = float(term.to_engineering(p.value)) if math.isfinite(p.value) else math.nan
-            u = float(term.sigma_to_engineering(p.sigma)) if math.isfinite(p.sigma) else math.nan
+            u = float(term.sigma_to_engineering(combined)) if math.isfinite(combined) else math.nan
+            type_a = float(term.sigma_to_engineering(sigma)) if math.isfinite(sigma) else math.nan
             unit, meaning = unit_text(term.unit), term.meaning
         else:
-            value, u, unit, meaning = p.value, p.sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
+            value, u, type_a, unit, meaning = p.value, combined, sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
         if p.status is Status.UNIDENTIFIABLE:  # the record may carry the prior value: never show it as a result
-            value = u = math.nan
+            value = u = type_a = math.nan
         why = ""
         if p.status is not Status.ESTIMATED:
             mentions = [n for n in record.notes if re.search(rf"\b{re.escape(p.id)}\b", n)]
@@ -106,6 +162,8 @@ def parameter_rows(record: CalibrationRecord, terms: Mapping[str, Term], k: floa
                 why,
                 record.source_text(p.id),
                 record.measured_in_this_calibration(p.id),
+                type_a,
+                k,
             )
         )
     return rows
@@ -238,41 +296,76 @@ def overall_verdict(checks: Sequence[Check]) -> str:
     return "PASS"
 
 
+def noise_text(document: Mapping[str, Any]) -> str:
+    """The noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
+    import numpy as np
+
+    from stableins.noise import ENGINEERING, NoiseModel, NoiseSource
+
+    model = NoiseModel.from_document(document)
+
+    def amount(name: str) -> str:
+        unit, scale = ENGINEERING[name]
+        values = model.values(name) / scale
+        shown = f"{np.max(values):.2g}" if np.allclose(values, np.max(values), rtol=0.02) else "/".join(f"{v:.2g}" for v in values)
+        return f"{shown} {unit_text(unit).replace('sqrt(Hz)', '√Hz').replace('sqrt(s)', '√s')}"
+
+    white = f"white noise measured in the dwells: {amount('white')}"
+    slow = ("bias_instability", "random_walk")
+    names = {"bias_instability": "bias instability", "random_walk": "random walk"}
+    if model.source is NoiseSource.DATASHEET:
+        given = [f"{names[n]} given: {amount(n)}" for n in slow if np.any(model.values(n) > 0)]
+        return "; ".join(given + [white])
+    if model.source is NoiseSource.NONE:
+        return f"{white}; slow noise not given and not bounded"
+    where = "in a static record" if model.source is NoiseSource.STATIC_RECORD else "in the dwells"
+    measured = [f"{names[n]} measured {where}: {amount(n)}" for n in slow]
+    return "; ".join([white, *measured])
+
+
 def describe_settings(settings: Mapping[str, Any]) -> str:
-    """The settings a stage ran with, as one line for people (noise model, options that change the estimates)."""
+    """The settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
+    from stableins.reporting.symbols import words_for_flags
+
     parts = []
     slow = settings.get("slow_noise")  # records of the first schema-2 version
     if "slow_noise" in settings and slow is None:
         parts.append("white noise only (no slow-noise model)")
     model = settings.get("noise_model")
     if isinstance(model, Mapping):
-        from stableins.noise import NoiseModel
-
-        parts.append(NoiseModel.from_document(model).summary())
+        parts.append(noise_text(model))
     if isinstance(slow, Mapping):
         ug = 9.80665e-6
         parts.append(
-            f"slow noise: bias instability {float(slow.get('bias_instability', 0.0)) / ug:.3g} µg, random walk "
-            f"{float(slow.get('random_walk', 0.0)):.3g} m/s²/√s ({slow.get('source', '')})"
+            f"bias instability {float(slow.get('bias_instability', 0.0)) / ug:.2g} µg, random walk "
+            f"{float(slow.get('random_walk', 0.0)):.2g} m/s²/√s ({slow.get('source', '')})"
         )
-    for key in ("coarse_procedure", "fine_procedure"):
-        if key in settings:
-            parts.append(f"{key.replace('_', ' ')} {settings[key]}")
+    procedures = [str(settings[k]) for k in ("coarse_procedure", "fine_procedure") if k in settings]
+    if procedures:
+        parts.append("procedures " + " and ".join(procedures))
     if settings.get("coarse_nonlinear") is False or settings.get("nonlinear") is False:
-        parts.append("coarse stage without K2")
+        parts.append("coarse stage without K₂")
     if settings.get("allow_missing"):
         parts.append("missing positions allowed")
+    effects = settings.get("effects")
+    if isinstance(effects, list) and effects:
+        from stableins.reporting.symbols import plain
+
+        parts.append("discovered effects estimated: " + ", ".join(plain(str(e)) for e in effects))
     if "estimate_k2" in settings:
-        parts.append("K2 from the third harmonic" if settings["estimate_k2"] else "K2 not estimated")
+        parts.append("K₂,x and K₂,y from the third harmonic" if settings["estimate_k2"] else "K₂ not estimated")
     if settings.get("stage") == "system":
         drift = settings.get("known_gyro_drift")
         parts.append(
             "gyro drift not given (assumed zero)"
             if drift is None
-            else "gyro drift " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)"
+            else "gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)"
         )
+        uncertainty = settings.get("gyro_drift_uncertainty")
+        if isinstance(uncertainty, int | float):
+            parts.append(f"gyro drift uncertainty given: {math.degrees(float(uncertainty)) * 3600.0:.2g} °/h per axis")
         if settings.get("gyro_drift") not in (None, "ignore"):
-            parts.append(f"gyro drift {settings['gyro_drift']}")
+            parts.append("gyro drift fitted as a nuisance" if settings["gyro_drift"] == "fit" else "gyro drift checked")
         if settings.get("compensate_loop") is False:
             parts.append("no damping-loop compensation")
-    return "; ".join(parts) or "defaults"
+    return words_for_flags("; ".join(parts)) or "defaults"

@@ -24,10 +24,9 @@ from reportlab.pdfbase.ttfonts import TTFont
 from reportlab.pdfgen import canvas as canvas_module
 from reportlab.platypus import (
     BaseDocTemplate,
+    CondPageBreak,
     Flowable,
     Frame,
-    Image,
-    KeepTogether,
     PageTemplate,
     Paragraph,
     Spacer,
@@ -91,6 +90,9 @@ def styles() -> dict[str, ParagraphStyle]:
         "caption": ParagraphStyle(
             "caption", parent=body, fontName=FONT_ITALIC, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceBefore=2, spaceAfter=8
         ),
+        "note": ParagraphStyle(
+            "note", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, leftIndent=8, firstLineIndent=-6, spaceAfter=1
+        ),
         "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
         "cell_mono": ParagraphStyle(
             "cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0
@@ -116,11 +118,13 @@ def table(
     mono: Sequence[int] = (),
     cell_colours: dict[tuple[int, int], Any] | None = None,
     key_value: bool = False,
+    markup: bool = False,
 ) -> Table:
     """A ruled table whose cells wrap inside ``widths`` (fractions of the text width if they sum to ≤ 1).
 
-    Strings become Paragraphs (so long text wraps instead of running off the page);
-    flowables are kept as they are.  Header rows repeat on every page the table spans.
+    Strings become Paragraphs (so long text wraps instead of running off the page); with ``markup`` they
+    are reportlab markup already (``β<sub>xy</sub>``; the caller escapes), else they are escaped here.
+    Flowables are kept as they are.  Header rows repeat on every page the table spans.
     """
     s = styles()
     if sum(widths) <= 1.0 + 1e-9:
@@ -142,7 +146,7 @@ def table(
                 style = s["cell_mono"]
             else:
                 style = right if c in align_right else s["cell"]
-            text = escape(cell)
+            text = str(cell) if markup else escape(cell)
             if cell_colours and (r, c) in cell_colours:
                 text = f'<font color="{cell_colours[(r, c)].hexval()}"><b>{text}</b></font>'
             out.append(Paragraph(text, style))
@@ -169,16 +173,49 @@ def table(
     return t
 
 
-def figure(png: bytes, width_fraction: float, aspect: float, caption: str) -> KeepTogether:
-    """A high-dpi PNG figure scaled to a fraction of the text width, kept together with its caption.
+class Figure(Flowable):
+    """A figure and its caption that never split, and shrink (down to ``min_scale``) rather than leave a page half empty.
+
+    When the figure at its natural size does not fit in what is left of the frame but fits at ``min_scale`` or
+    more, it is drawn as large as the space allows; otherwise it moves to the next page at its natural size.
+    """
+
+    def __init__(self, png: bytes, width: float, aspect: float, caption: Paragraph, min_scale: float = 0.8) -> None:
+        super().__init__()
+        self.png, self.natural_width, self.aspect, self.caption, self.min_scale = png, width, aspect, caption, min_scale
+        self.scale = 1.0
+        self.hAlign = "CENTER"
+
+    def wrap(self, available_width: float, available_height: float) -> tuple[float, float]:
+        self.width = available_width
+        _, self.caption_height = self.caption.wrap(available_width, available_height)
+        self.caption_height += self.caption.getSpaceBefore() + self.caption.getSpaceAfter()
+        natural = self.natural_width * self.aspect
+        room = available_height - self.caption_height
+        self.scale = 1.0 if natural <= room or room < self.min_scale * natural else max(room / natural, self.min_scale)
+        self.height = natural * self.scale + self.caption_height
+        return self.width, self.height
+
+    def split(self, available_width: float, available_height: float) -> list[Flowable]:
+        return []
+
+    def draw(self) -> None:
+        from reportlab.lib.utils import ImageReader
+
+        width = self.natural_width * self.scale
+        height = width * self.aspect
+        x = (self.width - width) / 2.0
+        self.canv.drawImage(ImageReader(io.BytesIO(self.png)), x, self.caption_height, width, height)
+        self.caption.drawOn(self.canv, 0, self.caption.getSpaceAfter())
+
+
+def figure(png: bytes, width_fraction: float, aspect: float, caption: str, min_scale: float = 0.8) -> Figure:
+    """A high-dpi PNG figure at a fraction of the text width, with its caption (:class:`Figure`).
 
     ``aspect`` is height / width of the figure as drawn by matplotlib.
     """
     s = styles()
-    width = width_fraction * TEXT_WIDTH
-    image = Image(io.BytesIO(png), width=width, height=width * aspect)
-    image.hAlign = "CENTER"
-    return KeepTogether([image, Paragraph(caption, s["caption"])])
+    return Figure(png, width_fraction * TEXT_WIDTH, aspect, Paragraph(caption, s["caption"]), min_scale)
 
 
 class NumberedCanvas(canvas_module.Canvas):
@@ -227,10 +264,37 @@ class NumberedCanvas(canvas_module.Canvas):
         self.restoreState()
 
 
+class FloatingDocTemplate(BaseDocTemplate):
+    """A document whose figures float: a :class:`Figure` that does not fit in what is left of the page lets the
+    flowables after it that do fit go first (never past another figure or a heading that would start a new page),
+    and is placed at the top of the next page — so a rigid figure never leaves half a page empty."""
+
+    def handle_flowable(self, flowables: list[Flowable]) -> None:
+        first = flowables[0] if flowables else None
+        if isinstance(first, Figure) and len(flowables) > 1:
+            frame = self.frame
+            width, room = frame._getAvailableWidth(), frame._y - frame._y1p
+            _, needed = first.wrap(width, room)
+            following = flowables[1]
+            if needed > room and not isinstance(following, Figure) and self._fits(following, width, room):
+                flowables[0], flowables[1] = following, first
+        super().handle_flowable(flowables)
+
+    @staticmethod
+    def _fits(flowable: Flowable, width: float, room: float) -> bool:
+        """Whether ``flowable`` fits whole in ``room`` (a conditional page break fits when it would not break)."""
+        if isinstance(flowable, CondPageBreak):
+            return room >= flowable.height
+        if isinstance(flowable, Figure):
+            return False
+        _, height = flowable.wrap(width, room)
+        return height + flowable.getSpaceBefore() + flowable.getSpaceAfter() <= room
+
+
 def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial: str, footer: str, subject: str = "") -> int:
     """Lay out ``story`` into ``out`` (a path or binary file object); returns the page count."""
     register_fonts()
-    doc = BaseDocTemplate(
+    doc = FloatingDocTemplate(
         out,
         pagesize=A4,
         leftMargin=MARGIN,
@@ -254,3 +318,8 @@ def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial
 
 def spacer(height_mm: float) -> Spacer:
     return Spacer(1, height_mm * mm)
+
+
+def heading(text: str, level: str = "h1", room_mm: float = 30.0) -> list[Flowable]:
+    """A heading that never ends a page: it moves to the next page unless ``room_mm`` of the frame remain below it."""
+    return [CondPageBreak(room_mm * mm), Paragraph(text, styles()[level])]

@@ -36,6 +36,8 @@ STYLE = {
     "axes.unicode_minus": True,
     "savefig.dpi": DPI,
 }
+#: Printed width of the correlation heat map [inch]: drawn at this size, its 7.5-pt labels print at 7.5 pt.
+CORRELATION_WIDTH = 4.3
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
 
 
@@ -70,27 +72,40 @@ def residual_scale(unit: str) -> tuple[float, str]:
     return 1.0, unit
 
 
-def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]]) -> tuple[bytes, float]:
-    """Heat map of the correlation coefficients of the estimated parameters (annotated when ≤ 18)."""
+def correlation_matrix(ids: Sequence[str], matrix: Sequence[Sequence[float]], threshold: float = 0.3) -> tuple[bytes, float]:
+    """Lower triangle of the correlation coefficients as a heat map, printed large enough to read.
+
+    Typeset parameter names on both axes; the coefficients with ``|ρ| ≥ threshold`` are written in their
+    cells (the rest are small: their colour says so), a colour bar with ticks every 0.5.
+    """
     import numpy as np
 
+    from stableins.reporting.symbols import mathtext
+
     n = len(ids)
-    rho = np.asarray(matrix, dtype=float)
+    rho = np.array(matrix, dtype=float)
+    shown = np.where(np.tril(np.ones((n, n), dtype=bool), k=-1), rho, np.nan)
+    labels = [mathtext(i) for i in ids]
     with _style():
-        size = min(FULL_WIDTH * 0.8, 1.6 + 0.28 * n)
-        fig = _figure(size + 0.9, size)
+        fig = _figure(CORRELATION_WIDTH, CORRELATION_WIDTH - 0.7)
         ax = fig.add_subplot(111)
-        image = ax.imshow(rho, cmap="RdBu_r", vmin=-1.0, vmax=1.0, interpolation="nearest")
-        ax.set_xticks(range(n), ids, rotation=90)
-        ax.set_yticks(range(n), ids)
+        image = ax.imshow(shown, cmap="RdBu_r", vmin=-1.0, vmax=1.0, interpolation="nearest")
+        ax.set_xticks(range(n - 1), labels[:-1], rotation=90)
+        ax.set_yticks(range(1, n), labels[1:])
+        ax.set_xlim(-0.5, n - 1.5)
+        ax.set_ylim(n - 0.5, 0.5)
+        ax.tick_params(length=0, labelsize=8.0)
         ax.grid(False)
-        if n <= 18:
-            for i in range(n):
-                for j in range(n):
-                    value = rho[i, j]
-                    text = "0.00" if abs(value) < 0.005 else f"{value:.2f}".replace("-", "\u2212")
-                    ax.text(j, i, text, ha="center", va="center", fontsize=5.0, color="white" if abs(value) > 0.6 else "black")
-        bar = fig.colorbar(image, ax=ax, shrink=0.8, pad=0.02)
+        for spine in ax.spines.values():
+            spine.set_visible(False)
+        for i in range(1, n):
+            for j in range(i):
+                value = rho[i, j]
+                if abs(value) >= threshold:
+                    text = f"{value:.2f}".replace("-", "\u2212")
+                    ax.text(j, i, text, ha="center", va="center", fontsize=5.5, color="white" if abs(value) > 0.6 else "black")
+        bar = fig.colorbar(image, ax=ax, shrink=0.7, pad=0.02, ticks=[-1.0, -0.5, 0.0, 0.5, 1.0])
+        bar.ax.tick_params(labelsize=7.5)
         bar.set_label("correlation coefficient ρ (dimensionless)")
         return _png(fig)
 
@@ -104,10 +119,10 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
     keys = [k for k in ("x", "y", "z", "|f|") if k in groups]
     colours = dict(AXIS_COLOURS, **{"|f|": "#1f3a5f"})
     with _style():
-        fig = _figure(FULL_WIDTH, 0.9 + 1.25 * len(keys))
+        fig = _figure(FULL_WIDTH, 0.8 + 1.05 * len(keys))
         axes = np.atleast_1d(fig.subplots(len(keys), 1, sharex=True))
         for ax, axis in zip(axes, keys, strict=True):
-            name = "|f|" if axis == "|f|" else f"f_{axis}"
+            name = "|f|" if axis == "|f|" else f"$f_{axis}$"
             points = sorted(groups[axis])
             position = np.array([p[0] for p in points], dtype=float)
             residual = np.array([p[1] for p in points]) / scale
@@ -133,53 +148,53 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
         if positions and len(positions) <= 40:
             axes[-1].set_xticks(positions)
         per = "per position" if "|f|" in groups else "per position and axis"
-        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) {per}; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
+        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) {per}; χ²_ν = {stage.chi2_red:.3f}, ν = {stage.dof}")
         return _png(fig)
 
 
 def normalized_residuals(stage: Any) -> tuple[bytes, float]:
-    """Residual / 1σ per observation (for stages whose residuals are not labelled by position and axis)."""
+    """Residual / 1σ of every observation (named on the axis when the labels are few), with the ±1 band."""
     import numpy as np
 
     r = np.asarray(stage.residuals) / np.asarray(stage.sigma)
+    names = [coefficient_label(x) for x in stage.labels] if stage.labels and len(stage.labels) <= 40 else None
     with _style():
-        fig = _figure(FULL_WIDTH, 2.2)
+        fig = _figure(FULL_WIDTH, 2.1)
         ax = fig.add_subplot(111)
-        ax.axhspan(-1, 1, color="0.85", label="noise floor (±1σ)", linewidth=0)
-        ax.plot(np.arange(1, r.size + 1), r, "o", ms=2.5, label="residual / σ")
-        ax.axhline(0, color="black", linewidth=0.6)
-        ax.set_xlabel("observation number")
+        x = np.arange(1, r.size + 1)
+        ax.axhspan(-1, 1, color="0.85", label="±1σ (noise alone)", linewidth=0, zorder=0)
+        ax.plot(x, r, "o", ms=3.0, color="#1f3a5f", label="residual / σ", zorder=2)
+        ax.axhline(0, color="black", linewidth=0.6, zorder=1)
+        limit = max(3.0, 1.25 * float(np.max(np.abs(r), initial=0.0)))
+        ax.set_ylim(-limit, limit)
+        if names:
+            ax.set_xticks(x, names)
+            ax.set_xlabel("combined coefficient" if stage.stage == "system" else "observation")
+        else:
+            ax.set_xlabel("observation number")
+        ax.set_xlim(0.4, r.size + 0.6)
         ax.set_ylabel("residual / σ (dimensionless)")
-        ax.set_title(f"{stage.stage} stage: normalized residuals; χ²_ν = {stage.chi2_red:.2f}, ν = {stage.dof}")
+        ax.set_title(f"{stage.stage} stage: normalized residuals; χ²_ν = {stage.chi2_red:.3f}, ν = {stage.dof}")
         ax.legend(loc="upper right", frameon=False, ncols=2)
         return _png(fig)
 
 
-def harmonic_fits(records: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
-    """System-level records with their fitted harmonic model, one panel per channel."""
-    import numpy as np
+def coefficient_label(name: str) -> str:
+    """mathtext of a system stage's combined coefficient (``x1`` → x₁, ``theta_1c`` → θ₁c, ``phi_mean`` → φ̄)."""
+    import re
 
-    n = len(records)
-    with _style():
-        fig = _figure(FULL_WIDTH, 1.6 + 1.5 * n)
-        axes = np.atleast_1d(fig.subplots(n, 1, sharex=False))
-        for ax, record in zip(axes, records, strict=True):
-            time = np.asarray(record["time"], dtype=float) / 3600.0
-            ax.plot(time, record["observed"], color="0.45", linewidth=0.6, label="observed")
-            ax.plot(time, record["model"], color="#d62728", linewidth=1.0, label="harmonic fit")
-            title = record.get("channel", "")
-            if "chi2_red" in record:
-                title += f"  (χ²_ν = {float(record['chi2_red']):.2f})"
-            ax.set_title(title, loc="left")
-            ax.set_ylabel(f"{record.get('quantity', 'value')} [{record.get('unit', '')}]")
-            ax.legend(loc="upper right", frameon=False, ncols=2)
-        axes[-1].set_xlabel("time since start of record [h]")
-        return _png(fig)
+    if re.fullmatch(r"x\d", name):
+        return f"$x_{name[1]}$"
+    head, _, tail = name.partition("_")
+    greek = {"theta": r"\theta", "phi": r"\varphi"}.get(head)
+    if greek is None:
+        return name
+    return rf"$\bar{{{greek}}}$" if tail == "mean" else rf"${greek}_{{{tail}}}$"
 
 
 def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
     """Residual RMS after each model-discovery step."""
-    labels = [str(s.get("label", s.get("model", f"step {i}"))) for i, s in enumerate(steps)]
+    labels = [step_label(str(s.get("label", s.get("model", f"step {i}")))) for i, s in enumerate(steps)]
     rms = [float(s["residual_rms"]) for s in steps]
     unit = str(steps[0].get("unit", "µg")) if steps else "µg"
     with _style():
@@ -206,7 +221,7 @@ def model_history(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
     """Residual RMS per output channel after each step of a record's discovery history, with the noise floor."""
     from stableins.conventions import MICRO_G
 
-    labels = [str(s.get("label", f"step {i}")) for i, s in enumerate(steps)]
+    labels = [step_label(str(s.get("label", f"step {i}"))) for i, s in enumerate(steps)]
     channels = [str(c) for c in steps[0].get("channels", [])]
     rms = [[float(x) / MICRO_G for x in s.get("residual_rms", [])] for s in steps]
     floor = [float(x) / MICRO_G for x in steps[-1].get("noise_floor", [])]
@@ -214,7 +229,8 @@ def model_history(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
         fig = _figure(FULL_WIDTH, 2.4)
         ax = fig.add_subplot(111)
         for k, channel in enumerate(channels):
-            (line,) = ax.plot(range(len(steps)), [r[k] for r in rms], "o-", ms=4, label=channel)
+            name = channel if channel.startswith("|") else f"${channel}$"
+            (line,) = ax.plot(range(len(steps)), [r[k] for r in rms], "o-", ms=4, label=f"{name} residual")
             if k < len(floor):
                 ax.axhline(floor[k], ls="--", lw=0.8, color=line.get_color())
         ax.set_xticks(range(len(steps)), labels, rotation=20, ha="right")
@@ -225,15 +241,18 @@ def model_history(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
         ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.plot([], [], ls="--", lw=0.8, color="0.3", label="noise floor (same colour)")
         ax.set_ylabel("residual RMS [µg]")
         ax.set_xlabel("model after step")
-        ax.legend(frameon=False, ncols=len(channels), loc="lower center", bbox_to_anchor=(0.5, 1.0))
+        ax.legend(frameon=False, ncols=len(channels) + 1, loc="lower center", bbox_to_anchor=(0.5, 1.0))
         return _png(fig)
 
 
 def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]:
     """Change since the previous calibration in units of its standard uncertainty (z = Δ/u(Δ), signed)."""
-    labels = [c.id for c in items]
+    from stableins.reporting.symbols import mathtext
+
+    labels = [mathtext(c.id) for c in items]
     values = [c.significance for c in items]
     with _style():
         fig = _figure(FULL_WIDTH, 2.3)
@@ -243,15 +262,24 @@ def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]
         ax.axhspan(-threshold, threshold, color="0.88", linewidth=0, label=f"|z| < {threshold:g}: not flagged", zorder=0)
         ax.bar(range(len(values)), finite, color=colours, width=0.6, zorder=2)
         ax.axhline(0, color="black", linewidth=0.6, zorder=3)
-        ax.set_xticks(range(len(values)), labels, rotation=90)
+        ax.set_xticks(range(len(values)), labels, rotation=90 if len(values) > 12 else 0)
         from matplotlib.ticker import FuncFormatter
 
         limit = max([threshold + 1.0] + [1.2 * abs(v) for v in finite])
         if limit > 10 * threshold:  # a large change: a logarithmic scale beyond the flag level keeps the small ones visible
             ax.set_yscale("symlog", linthresh=threshold)
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
-        ax.set_ylabel("z = Δ / u(Δ)")
+        ax.set_ylabel("z = Δ / u(Δ) (dimensionless)")
         ax.set_ylim(-limit, limit)
         ax.set_xlim(-0.6, len(values) - 0.4)
         ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
         return _png(fig)
+
+
+def step_label(label: str) -> str:
+    """A discovery step's model label with typeset effect names (``+ K3_x`` → ``+ K₃,ₓ`` in mathtext)."""
+    import re
+
+    from stableins.reporting.symbols import mathtext
+
+    return re.sub(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)+", lambda m: mathtext(m.group(0)), label)

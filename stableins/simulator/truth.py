@@ -234,7 +234,9 @@ class Truth:
             latitude=float(latitude),
             height=float(height),
             gravity=gravity,
-            gravity_source="WGS-84 normal gravity",
+            # the simulated world's gravity is the normal-gravity formula itself: the site's g is exact there
+            gravity_source="WGS-84 normal gravity (the simulated world's gravity: exact)",
+            gravity_uncertainty=0.0,
             sample_rate=float(sample_rate),
             gimbal_senses=tuple(gimbal_senses),
             base_attitude=tuple(float(x) for x in base_attitude),

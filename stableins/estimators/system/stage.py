@@ -152,6 +152,7 @@ class SystemOptions:
     run_filter: bool = True
     gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
+    gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
 

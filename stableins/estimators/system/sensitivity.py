@@ -1,0 +1,128 @@
+r"""Type B sensitivities of the system stage: the stage re-run with each input it takes as known perturbed.
+
+The system stage takes as known the constant gyro drift in the platform frame (zero unless given,
+``SystemOptions.known_gyro_drift``) and the parameters of the INS damping loop
+(``SiteMetadata.damping``: ζ, ω_s, vertical gains k1, k2, k3), through which it reads the attitude
+harmonics.  An error in either moves the attitude coefficients and, through the separation, the
+stage's likelihood: its information vector :math:`\eta = \Lambda\hat x + g` (at :math:`\hat x = x_0`, the
+installed calibration, so only :math:`g` moves).  Each input :math:`q` is perturbed by a small step
+:math:`h` and the whole stage re-run (the same data, the same code path)::
+
+    ∂η/∂q = (g(q + h) − g(q)) / h
+
+The steps are small against the inputs' uncertainty (1e-6 °/h for the drift, 1e-4 relative for the
+loop), where the stage is linear: the coloured-noise model it re-fits to the residuals moves by
+1e-4 of its information, and halving or doubling the step changes ∂η/∂q by less than 1 %
+(``tests/test_budget.py``).  The local gravity needs no re-run: the stage compares ``|f|`` with
+``g`` only through the normalization of x1, so a gravity error is the scale-factor change
+``δSF_i = SF_i δg/g`` that the device stages see too (docs/reports.md, "Uncertainty budget");
+the report derives it from the likelihood alone, and the test checks it against a re-run.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from stableins.data.metadata import SiteMetadata
+from stableins.errormodel import Term
+from stableins.estimators.result import InputSensitivity
+
+#: Perturbation of the gyro drift [rad/s] (1e-6 °/h).
+DRIFT_STEP = math.radians(1e-6) / 3600.0
+#: Relative perturbation of a damping-loop parameter.
+LOOP_STEP = 1e-4
+#: Damping-loop parameters perturbed when the metadata state them (``omega_s`` also under its long name).
+LOOP_PARAMETERS = ("zeta", "omega_s", "schuler_frequency", "k1", "k2", "k3")
+
+
+def system_sensitivities(
+    source: Any,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    options: Any,
+    *,
+    compensation_terms: Sequence[Term] = (),
+    noise_model: Any = None,
+    base: Any = None,
+) -> tuple[InputSensitivity, ...]:
+    """:class:`InputSensitivity` of the stage's likelihood to the gyro drift (x, y, z) and the damping-loop parameters.
+
+    Parameters are those of :func:`stableins.estimators.system.stage.run_system_stage`; ``base`` is its
+    result with the inputs as given (run here when not given); ``noise_model`` is the noise model the stage was
+    given (docs/system-calibration.md §1a), the same in every re-run.  Each input costs one more run of the stage.
+    """
+    from stableins.estimators.system.stage import run_system_stage
+
+    def run(opts: Any, meta: SiteMetadata) -> Any:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return run_system_stage(
+                source, meta, prior, prior_covariance, opts, compensation_terms=compensation_terms, noise_model=noise_model
+            )
+
+    base = base if base is not None else run(options, metadata)
+    likelihood = base.result.likelihood
+    if likelihood is None:
+        return ()
+
+    def gradient(outcome: Any) -> np.ndarray:
+        other = outcome.result.likelihood
+        if other is None or other.ids != likelihood.ids or not np.array_equal(other.point, likelihood.point):
+            raise RuntimeError("the perturbed system stage changed its parameters or linearization point")
+        return np.asarray(other.gradient - likelihood.gradient, dtype=float)
+
+    out = []
+    drift = np.zeros(3) if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
+    for axis, name in enumerate("xyz"):
+        moved = drift.copy()
+        moved[axis] += DRIFT_STEP
+        outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata)
+        out.append(InputSensitivity(f"gyro_drift.{name}", "rad/s", likelihood.ids, float(drift[axis]), gradient(outcome) / DRIFT_STEP,
+                                    step=DRIFT_STEP))  # fmt: skip
+    damping = dict(metadata.damping or {})
+    for key in LOOP_PARAMETERS:
+        value = damping.get(key)
+        if value is None or not (isinstance(value, int | float) and math.isfinite(value) and value != 0.0):
+            continue
+        step = LOOP_STEP * abs(float(value))
+        outcome = run(options, replace(metadata, damping={**damping, key: float(value) + step}))
+        out.append(
+            InputSensitivity(
+                f"damping_loop.{key}", _LOOP_UNITS.get(key, "SI"), likelihood.ids, float(value), gradient(outcome) / step, step=step
+            )
+        )
+    return tuple(out)
+
+
+def with_sensitivities(
+    outcome: Any,
+    source: Any,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    options: Any,
+    *,
+    compensation_terms: Sequence[Term] = (),
+    noise_model: Any = None,
+) -> Any:
+    """The stage's outcome (``SystemCalibration``) with :func:`system_sensitivities` on its result, for the record."""
+    found = system_sensitivities(
+        source,
+        source.metadata,
+        prior,
+        prior_covariance,
+        options,
+        compensation_terms=compensation_terms,
+        noise_model=noise_model,
+        base=outcome,
+    )
+    return replace(outcome, result=replace(outcome.result, sensitivities=found))
+
+
+_LOOP_UNITS = {"zeta": "1", "omega_s": "rad/s", "schuler_frequency": "rad/s", "k1": "1/s", "k2": "1/s^2", "k3": "1/s^3"}
