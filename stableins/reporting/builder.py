@@ -41,6 +41,8 @@ class ReportSummary:
     pages: int
     verdict: str
     sha256: str
+    #: the certificate's statement of conformity in plain text (:func:`stableins.reporting.content.conformity_text`)
+    conformity: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -295,4 +297,5 @@ def write_report(
     with atomic_write(out, "wb") as handle:
         handle.write(pdf)
     verdict = content.overall_verdict(checks) if not tolerances.empty else "NO STATEMENT"
-    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest())
+    statement = tuple(content.conformity_text(checks, assessed=not tolerances.empty))
+    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest(), statement)

@@ -606,9 +606,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [CondPageBreak(120), _p("8  Statement of conformity", "h1")]
     t = ctx.tolerances
     if t.empty:
-        out.append(
-            _p("<b>No statement of conformity</b>: the procedure defines no tolerances ([tolerances] table absent), so none is made.")
-        )
+        out.append(_p(escape(content.NO_STATEMENT).replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
         return out
     verdict = content.overall_verdict(ctx.checks)
     colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
@@ -618,24 +616,19 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
             f"Coverage factor of U: k = {t.coverage_factor:g}."
         )
     )
-    rows: list[list[Any]] = [["Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result"]]
+    rows: list[list[Any]] = [list(content.CONFORMITY_HEADER)]
     colours = {}
-    kind_text = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
     for i, c in enumerate(ctx.checks, start=1):
-        measured = _fmt(abs(c.measured), 4) if math.isfinite(c.measured) and c.verdict != "not assessed" else "—"
-        result = c.verdict + (f" ({c.reason})" if c.reason else "")
-        rows.append([kind_text[c.kind], c.subject, measured, _fmt(c.expanded, 2), _fmt(c.limit, 4), c.unit, result])
+        rows.append(list(content.conformity_row(c)))
         colours[(i, 6)] = document.VERDICT_COLOURS[c.verdict]
     out.append(document.table(rows, [0.16, 0.14, 0.13, 0.09, 0.10, 0.09, 0.29], align_right=(2, 3, 4), cell_colours=colours))
-    counts = {v: sum(1 for c in ctx.checks if c.verdict == v) for v in document.VERDICT_COLOURS}
-    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
     out.append(
         KeepTogether(
             [
                 _p(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>', "verdict"),
                 _p(
-                    f"{summary}. Checks marked 'not assessed' concern parameters without a stated value or evidence "
-                    "and do not enter the verdict.",
+                    f"{content.conformity_counts(ctx.checks)}. Checks marked 'not assessed' concern parameters without a stated value "
+                    "or evidence and do not enter the verdict.",
                     "small",
                 ),
             ]
