@@ -168,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
     for name, spectrum in spectra.items():
         parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
-    text = "\n\n".join(parts + [session.history.report()])
+    steps = next_steps(args, record, ranking.flagged, system=bool(system))
+    text = "\n\n".join(parts + [session.history.report(), "\n".join(steps)])
     result = {
         "stage": dwells.noise.get("stage"),
         "chi2_red": session.result.chi2_red,
@@ -181,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
         "candidates": ranking.to_json(),
         "history": session.history.to_json(),
         "left_out": dwells.noise.get("left_out", []),
+        "next": steps,
         "drift": None
         if drift is None
         else {
@@ -201,5 +203,42 @@ def run(args: argparse.Namespace) -> int:
             for name, sp in spectra.items()
         },
     }
+    if args.json:
+        for line in steps:
+            note(line)
     emit(args, result, text)
     return 0
+
+
+def next_steps(args: argparse.Namespace, record, flagged, *, system: bool) -> list[str]:
+    """What to do next, as commands that run as written: carry the best flagged effect into the calibration, look at
+    an effect a calibration cannot carry, or certify the record when nothing is missing."""
+    import shlex
+
+    from stableins.commands import noise_arguments
+    from stableins.discovery.library import LIBRARY, calibration_limit
+
+    data = [str(p) for p in args.data]
+    record_path = Path(args.record)
+    if not flagged:
+        certificate = record_path.with_name(f"{record_path.stem}-report.pdf")
+        command = ["stableins", "report", str(record_path), "--data", *data, "--out", str(certificate)]
+        return [
+            f"next: nothing is flagged at α = {args.alpha:g}: the model in force reaches the noise floor; its certificate:",
+            f"  {shlex.join(command)}",
+        ]
+    best = flagged[0]
+    why = calibration_limit(best.id)
+    if system or why is not None:
+        reason = f"a calibration cannot carry it: {why}" if why is not None else "the system stage does not estimate added effects"
+        command = ["stableins", "diagnose", *data, "--record", str(record_path), *noise_arguments(args), "--add", best.id]
+        return [f"next: {best.id} is flagged ({reason}); see it in the model and what it changes:", f"  {shlex.join(command)}"]
+    kept = [i for i in record.ids if i in LIBRARY]  # the discovered effects of the model in force stay in it
+    out = record_path.with_name(f"{record_path.stem}-{best.id}.json")
+    command = ["stableins", "calibrate", "device", *data, *noise_arguments(args)]
+    command += [item for effect in (*kept, best.id) for item in ("--add", effect)] + ["--out", str(out)]
+    confused = f"; with these data it is indistinguishable from {', '.join(best.confused_with)}" if best.confused_with else ""
+    return [
+        f"next: carry {best.id} into the calibration (it is tested again there and kept only if the data show it{confused}):",
+        f"  {shlex.join(command)}",
+    ]
