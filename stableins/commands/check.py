@@ -72,7 +72,11 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
 def _head(file: Path) -> bytes:
     from stableins.data.jsonio import read_input_bytes
 
-    if not file.is_file():  # missing, a directory: the reader's one message
+    if not file.exists():
+        from stableins.data.errors import InputError
+
+        raise InputError("no such file", path=file)  # as the data readers say it
+    if not file.is_file():  # a directory: the reader's one message
         read_input_bytes(file, max_bytes=MAX_WHOLE_FILE, what="a file written by stableins")
     with open(file, "rb") as handle:
         return handle.read(64)

@@ -217,12 +217,10 @@ def run(args: argparse.Namespace) -> int:
         "system-level calibration",
         ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    from stableins.procedures.definition import load_procedure
-
     _step(
         "calibration report",
         ["report", str(out / "calibration.json"), "--data", *data, str(out / "system.h5"),
-         "--discovery", str(diagnosis), "--procedure", load_procedure("system-static").path,
+         "--discovery", str(diagnosis), "--procedure", "system-static",
          "--out", str(out / "calibration-report.pdf")],
     )  # fmt: skip
     rows = verdict(out / "calibration.json", out / "truth.json")

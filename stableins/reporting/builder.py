@@ -239,6 +239,10 @@ def write_report(
                 "read by this report",
             )
         )
+    if procedure is not None:  # a shipped definition's name ("system-static") or a TOML file
+        from stableins.procedures.definition import resolve
+
+        procedure = resolve(procedure)
     if tolerances is None:
         tolerances = Tolerances.from_procedure_file(str(procedure)) if procedure is not None else Tolerances.from_mapping(None)
     if procedure is not None:
