@@ -232,7 +232,7 @@ def _simulated_device(job: tuple[int, int, bool]) -> dict[str, dict[str, tuple[f
     """One simulator device through the whole pipeline: {result: {id: (error, σ)}}."""
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.noise_model import SlowNoise
+    from stableins.noise import NoiseModel
     from stableins.simulator.device import simulate_dwells
     from stableins.simulator.truth import Truth
 
@@ -251,8 +251,8 @@ def _simulated_device(job: tuple[int, int, bool]) -> dict[str, dict[str, tuple[f
     )
     dwells += dwells_from_columns(columns, procedures=procedures)
     noise = truth.noise
-    slow = SlowNoise(noise.bias_instability, noise.acceleration_random_walk, "datasheet") if spec else None
-    cal = calibrate_device(dwells, truth.site, slow_noise=slow)
+    slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk) if spec else None
+    cal = calibrate_device(dwells, truth.site, noise=slow)
     g = gauge_equivalent(truth.parameters)
     out = {}
     for name, fit in (("pass 1", cal.passes[0]), ("coarse", cal.coarse), ("fine", cal.fine), ("fused", cal.fused)):

@@ -25,7 +25,7 @@ import numpy as np
 from stableins.discovery.history import Discovery
 from stableins.discovery.problem import DwellProblem, dwell_means
 from stableins.errormodel import ErrorModel
-from stableins.estimators.noise_model import SlowNoise
+from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -48,8 +48,9 @@ def session(seed: int):
     )
     kw = dict(gravity=truth.site.gravity, reference_temperature=truth.site.reference_temperature, configuration=truth.configuration)
     noise = truth.noise
-    slow = SlowNoise(noise.bias_instability, noise.acceleration_random_walk, source="instrument specification")
-    return dwell_means(*args, **kw), dwell_means(*args, **kw, slow_noise=slow)
+    slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="specification")
+    white = NoiseModel.given(noise.velocity_random_walk, provenance="white noise only")
+    return dwell_means(*args, **kw, noise=white), dwell_means(*args, **kw, noise=slow)
 
 
 def main(seeds: int = 20) -> None:

@@ -18,7 +18,7 @@ from stableins.discovery.diagnostics import diagnose
 from stableins.discovery.history import Discovery
 from stableins.discovery.problem import DwellProblem, dwell_means
 from stableins.errormodel import ErrorModel
-from stableins.estimators.noise_model import SlowNoise
+from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -47,7 +47,9 @@ def main() -> None:
         reference_temperature=truth.site.reference_temperature,
         configuration=truth.configuration,
         # the instrument's slow noise (datasheet values): bias wander correlated between dwells
-        slow_noise=SlowNoise(truth.noise.bias_instability, truth.noise.acceleration_random_walk, source="instrument specification"),
+        noise=NoiseModel.given(
+            truth.noise.velocity_random_walk, truth.noise.bias_instability, truth.noise.acceleration_random_walk, provenance="specification"
+        ),
     )
     problem = DwellProblem(dwells)
     session = Discovery(problem, ErrorModel.standard(gimbals=True))

@@ -369,10 +369,34 @@ class NoiseModel:
         if self.provenance:
             parts[0] += f": {self.provenance}"
         parts[0] += ")"
-        parts.append(f"bias instability {_triple(b)} ug, random walk {_triple(k)} ug/sqrt(s)")
+        parts.append(f"bias instability {_triple(b)} µg, random walk {_triple(k)} µg/√s")
         if not self.slow_noise_bounded:
             parts.append("slow noise not bounded by the data")
         return "; ".join(parts)
+
+    def summary(self) -> str:
+        """One short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
+
+        def term(name: str, unit: str, limit: bool = True) -> str:
+            v = self.values(name) / MICRO_G
+            up = self.limits(name)[1] / MICRO_G
+            text = f"{_triple(v, 0.01)} {unit}"
+            if not limit:
+                return text
+            if np.all(np.isinf(up)):
+                return text + " (not bounded)" if np.all(v == 0) else text
+            if not np.allclose(up, v):
+                text += f" (≤ {_triple(up, 0.01)})"
+            return text
+
+        parts = [
+            f"noise model ({self.source.value}): white {term('white', 'µg/√Hz', limit=False)}",
+            f"bias instability {term('bias_instability', 'µg')}",
+            f"random walk {term('random_walk', 'µg/√s')}",
+        ]
+        if self.test is not None:
+            parts.append(f"slow noise {'detected' if self.test.detected else 'not detected'} (p = {self.test.p_value:.2g})")
+        return ", ".join(parts[:3]) + ("; " + parts[3] if len(parts) > 3 else "")
 
     def report(self) -> str:
         """Table of every term per axis with its interval, in engineering units."""
@@ -487,8 +511,9 @@ class NoiseModel:
         return cls(tuple(axes), sources[document["source"]], provenance, confidence, test)  # type: ignore[arg-type]
 
 
-def _triple(v: NDArray[np.float64]) -> str:
-    return f"{v[0]:.3g}" if np.allclose(v, v[0]) else "/".join(f"{x:.3g}" for x in v)
+def _triple(v: NDArray[np.float64], rtol: float = 1e-5) -> str:
+    """One number when the three axes agree (to ``rtol``), else x/y/z."""
+    return f"{np.max(v):.3g}" if np.allclose(v, np.max(v), rtol=rtol, atol=0.0) else "/".join(f"{x:.3g}" for x in v)
 
 
 # ----------------------------------------------------------------------------- closed forms

@@ -61,6 +61,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.history import ModelHistory
     from stableins.errormodel import ErrorModel
     from stableins.estimators.result import FitResult, Likelihood
+    from stableins.noise import NoiseModel
 
 RECORD_FORMAT = "stableins-calibration-record"
 RECORD_SCHEMA_VERSION = 2
@@ -395,8 +396,9 @@ class CalibrationRecord:
     notes: tuple[str, ...] = ()
     #: History of the fit that added discovered effects (validated; rendered by the certificate; docs/formats.md).
     discovery: ModelHistory | None = None
-    #: The measured noise model of the unit (issue 11); carried through unchanged.
-    noise_model: Mapping[str, Any] | None = None
+    #: The unit's noise model (:class:`stableins.noise.NoiseModel`, docs/noise.md): carried through every stage
+    #: unchanged unless a stage measures it.
+    noise_model: NoiseModel | None = None
     schema_version: int = RECORD_SCHEMA_VERSION
 
     def __post_init__(self) -> None:
@@ -509,6 +511,7 @@ class CalibrationRecord:
         stage: StageRun | None = None,
         calibration: Calibration | None = None,
         entries: Iterable[Entry] = (),
+        noise_model: NoiseModel | None = None,
     ) -> CalibrationRecord:
         """The first record of a calibration: one data-only stage (no prior).
 
@@ -530,6 +533,8 @@ class CalibrationRecord:
             The calibration this record starts (a new one by default).
         entries : iterable of Entry
             The calibration's own fields (laboratory, customer, operator ...).
+        noise_model : NoiseModel, optional
+            The noise model the stage's σ rest on (docs/noise.md).
         """
         import numpy as np
 
@@ -574,6 +579,7 @@ class CalibrationRecord:
             site=site,
             determined=tuple(result.determined),
             notes=tuple(result.notes) + tuple(notes),
+            noise_model=noise_model,
         )
 
     def updated(
@@ -586,6 +592,7 @@ class CalibrationRecord:
         procedure: str = "",
         calibration_entries: Iterable[Entry] = (),
         site: SiteMetadata | None = None,
+        noise_model: NoiseModel | None = None,
         **stage_fields: Any,
     ) -> CalibrationRecord:
         """This record updated by a later stage: the Bayesian update with the stage's likelihood.
@@ -607,6 +614,8 @@ class CalibrationRecord:
             The calibration's own fields (laboratory, customer ...); a later key replaces an earlier one.
         site : SiteMetadata, optional
             Site of the new data (defaults to the record's).
+        noise_model : NoiseModel, optional
+            A noise model the stage measured; by default the record's is carried over unchanged.
 
         Raises
         ------
@@ -622,7 +631,8 @@ class CalibrationRecord:
             where = site or self.site
             stage_fields.setdefault("sample_rate", None if where is None else where.sample_rate)
             stage = StageRun.from_fit(result, calibration=calibration.id, procedure=procedure, **stage_fields)
-        return self._apply(replace(stage, likelihood=result.likelihood), calibration, {t.id: t.si_unit for t in result.terms}, site)
+        units = {t.id: t.si_unit for t in result.terms}
+        return self._apply(replace(stage, likelihood=result.likelihood), calibration, units, site, noise_model)
 
     def updated_by_run(
         self, stage: StageRun, *, new_calibration: bool = False, prior: PriorReference | None = None, site: SiteMetadata | None = None
@@ -642,7 +652,14 @@ class CalibrationRecord:
         merged = {e.key: e for e in (*self.calibration.entries, *entries)}
         return replace(self.calibration, procedure=" + ".join(dict.fromkeys(names)), entries=tuple(merged.values()))
 
-    def _apply(self, stage: StageRun, calibration: Calibration, units: Mapping[str, str], site: SiteMetadata | None) -> CalibrationRecord:
+    def _apply(
+        self,
+        stage: StageRun,
+        calibration: Calibration,
+        units: Mapping[str, str],
+        site: SiteMetadata | None,
+        noise_model: NoiseModel | None = None,
+    ) -> CalibrationRecord:
         """The posterior of this record given ``stage.likelihood``, with ``stage`` appended (as a run of ``calibration``)."""
         from stableins.estimators.posterior import bayesian_update
 
@@ -678,7 +695,7 @@ class CalibrationRecord:
             determined=tuple(dict.fromkeys(self.determined + stage.determined)),
             notes=self.notes + tuple(f"[{stage.name}] {n}" for n in stage.notes),
             discovery=self.discovery,
-            noise_model=self.noise_model,
+            noise_model=noise_model if noise_model is not None else self.noise_model,
         )
 
     def values_array(self) -> NDArray[np.float64]:
@@ -737,7 +754,7 @@ class CalibrationRecord:
         if self.discovery is not None:
             document["discovery"] = self.discovery.to_json()
         if self.noise_model is not None:
-            document["noise_model"] = dict(self.noise_model)
+            document["noise_model"] = self.noise_model.to_document()
         return document
 
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -1151,7 +1168,9 @@ class _Reader:
         site = None if document.get("site") is None else metadata_from_document(document["site"], self.path)
         optional: dict[str, Any] = {}
         if document.get("noise_model") is not None:
-            optional["noise_model"] = dict(self.mapping(document["noise_model"], "noise_model"))
+            from stableins.noise import NoiseModel
+
+            optional["noise_model"] = NoiseModel.from_document(document["noise_model"], self.path)
         if document.get("discovery") is not None:
             from stableins.discovery.history import ModelHistory
 

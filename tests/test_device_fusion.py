@@ -10,8 +10,8 @@ from stableins.estimators.coarse import calibrate_coarse, gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import DwellSummary, dwells_from_columns
 from stableins.estimators.joint import fit_joint
-from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance, sessions
 from stableins.estimators.result import FitResult
+from stableins.noise import NoiseModel, sessions
 from stableins.procedures.definition import load_procedure
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -33,8 +33,8 @@ def _simulated_calibration(seed):
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=120.0, settle=5.0, rate=5.0, seed=seed + 5003, stage="fine")
     dwells += dwells_from_columns(columns, procedures=PROCEDURES)
     noise = truth.noise
-    slow = SlowNoise(noise.bias_instability, noise.acceleration_random_walk, "datasheet")
-    return calibrate_device(dwells, truth.site, slow_noise=slow), gauge_equivalent(truth.parameters)
+    slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
+    return calibrate_device(dwells, truth.site, noise=slow), gauge_equivalent(truth.parameters)
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,7 @@ def test_record_holds_the_fused_result_with_gauge_and_statuses(monte_carlo):
     assert record.provenance.stages == ("coarse+fine",)
     run = record.stages_run[0]
     assert [f["stage"] for f in run.fits] == ["coarse", "fine", "coarse+fine"]  # the evidence of every fit is kept
-    assert run.settings["slow_noise"] == calibration.settings["slow_noise"]  # and the settings it ran with
+    assert run.settings["noise_model"] == calibration.settings["noise_model"]  # and the settings it ran with
     assert record["theta10"].status == "gauge" and record["theta10"].value == 0.0 and record["theta10"].sigma == 0.0
     for k in calibration.fused.ids:
         if k != "theta10":
@@ -179,12 +179,12 @@ def test_sessions_on_separate_time_bases_are_independent():
     starts = np.array([0.0, 100.0, 200.0, 0.0, 100.0])  # second run restarts its clock
     lengths = np.full(5, 60.0)
     assert sessions(starts, lengths).tolist() == [0, 0, 0, 1, 1]
-    slow = SlowNoise(2 * 9.80665e-6, 1e-6)
-    cov = dwell_mean_covariance(starts, lengths, slow)
-    assert np.all(cov[:3, 3:] == 0.0)
-    np.testing.assert_allclose(cov[3:, 3:], dwell_mean_covariance(starts[3:], lengths[3:], slow))
-    np.testing.assert_allclose(cov[:3, :3], dwell_mean_covariance(starts[:3], lengths[:3], slow))
-    assert np.all(cov[:3, :3] > 0)  # one time base: correlated
+    slow = NoiseModel.given(bias_instability=2 * 9.80665e-6, random_walk=1e-6)
+    cov = slow.slow_covariance(starts, lengths)
+    assert np.all(cov[:, :3, 3:] == 0.0)
+    np.testing.assert_allclose(cov[:, 3:, 3:], slow.slow_covariance(starts[3:], lengths[3:]))
+    np.testing.assert_allclose(cov[:, :3, :3], slow.slow_covariance(starts[:3], lengths[:3]))
+    assert np.all(cov[:, :3, :3] > 0)  # one time base: correlated
 
 
 def test_fit_result_chi2_uses_whitened_residuals_when_given():

@@ -11,8 +11,8 @@ from stableins.data.device import save_device
 from stableins.estimators.coarse import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
-from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.offset_iteration import iterate_offsets
+from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import SimulatedPlatform, simulate_dwells
@@ -66,7 +66,7 @@ def test_exact_recovery_of_the_simulator_truth_without_noise():
 @pytest.mark.parametrize("seed", [21, 22, 23])
 def test_recovery_within_k_sigma_of_the_simulator_truth(seed):
     truth = Truth.draw(seed, noise=WHITE)
-    calibration = calibrate_device(_dwells(*_session(truth, seed)), truth.site, slow_noise=SlowNoise(0.0, 0.0, "white noise only"))
+    calibration = calibrate_device(_dwells(*_session(truth, seed)), truth.site, noise=NoiseModel.given(provenance="white noise only"))
     expected = gauge_equivalent(truth.parameters)
     z = []
     for fit in (calibration.coarse, calibration.fine):

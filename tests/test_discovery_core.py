@@ -342,7 +342,7 @@ def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow
     n = len(readings)
     noise = rng.normal(0, sigma, (n, 3))
     if slow_covariance is not None:
-        noise = noise + np.linalg.cholesky(slow_covariance) @ rng.normal(size=(n, 3))
+        noise = noise + np.stack([np.linalg.cholesky(slow_covariance[a]) @ rng.normal(size=n) for a in range(3)], axis=-1)
     f_a = full.forward(f_p, values) + noise
     labels = tuple(f"p{k}" for k in range(n))
     time = np.arange(n) * 60.0
@@ -367,7 +367,7 @@ def test_slow_noise_whitening_is_the_generalized_least_squares_metric():
     n = 48
     t = np.arange(n) * 60.0
     slow = 4e-12 * np.exp(-np.abs(t[:, None] - t[None, :]) / 900.0)  # correlated between dwells
-    dwells = _tumble_dwells(rng, slow_covariance=slow)
+    dwells = _tumble_dwells(rng, slow_covariance=np.stack([slow] * 3))
     problem = DwellProblem(dwells)
     v = rng.normal(size=3 * n)
     w = problem.whiten(v)

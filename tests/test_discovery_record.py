@@ -19,7 +19,7 @@ from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
 from stableins.estimators.coarse import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
-from stableins.estimators.noise_model import SlowNoise
+from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
@@ -44,8 +44,8 @@ def _session(seed, effects):
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=300.0, settle=5.0, rate=2.0, seed=seed + 5003, stage="fine")
     dwells += dwells_from_columns(columns, procedures=PROCEDURES)
     noise = truth.noise
-    slow = SlowNoise(noise.bias_instability, noise.acceleration_random_walk, "datasheet")
-    return truth, functools.partial(calibrate_device, dwells, truth.site, slow_noise=slow)
+    slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
+    return truth, functools.partial(calibrate_device, dwells, truth.site, noise=slow)
 
 
 @pytest.fixture(scope="module")

@@ -14,13 +14,3 @@ def add_entries_option(parser: Any) -> None:
         metavar="KEY=VALUE",
         help="an entry of the calibration (laboratory, customer, operator, location, lab_temperature=21.5 degC ...); repeatable",
     )
-
-
-def noise_arguments(args: Any) -> list[str]:
-    """The noise-model options this command was given, to pass on to the next command."""
-    out = []
-    if getattr(args, "bias_instability", None) is not None:
-        out += ["--bias-instability", f"{args.bias_instability:g}"]
-    if getattr(args, "random_walk", 0.0):
-        out += ["--random-walk", f"{args.random_walk:g}"]
-    return out

@@ -41,20 +41,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
     )
     parser.add_argument("--report", type=output_file, metavar="FILE", help="also write the text report to FILE")
-    parser.add_argument(
-        "--bias-instability",
-        type=number(0.0, 1e5, unit="µg"),
-        metavar="UG",
-        help="instrument bias instability B [ug] (Allan floor 0.664 B), from a datasheet or a long static record; "
-        "makes the 1σ honest when the bias wanders between dwells (default: estimated from the dwells if detectable)",
-    )
-    parser.add_argument(
-        "--random-walk",
-        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
-        default=0.0,
-        metavar="K",
-        help="acceleration random walk K [m/s^2/sqrt(s)]",
-    )
+    from stableins.commands.noise import add_noise_options
+
+    add_noise_options(parser)
     parser.add_argument(
         "--add",
         action="append",
@@ -96,13 +85,13 @@ def run(args: argparse.Namespace) -> int:
     import functools
     from dataclasses import replace
 
+    from stableins.commands.noise import noise_from_options
     from stableins.data.device import load_device
     from stableins.data.errors import InputError
     from stableins.discovery.carry import carry_effects
     from stableins.discovery.library import calibration_terms
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.noise_model import SlowNoise
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
     from stableins.records import parse_entries
@@ -122,9 +111,7 @@ def run(args: argparse.Namespace) -> int:
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
-    slow_noise = None
-    if args.bias_instability is not None or args.random_walk:  # ranges checked when parsed (stableins.commands.arguments)
-        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
     calibrate = functools.partial(
         calibrate_device,
         summaries,
@@ -132,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         coarse_procedure=coarse_procedure,
         fine_procedure=fine_procedure,
         allow_missing=args.allow_missing,
-        slow_noise=slow_noise,
+        noise=noise,
         coarse_nonlinear=not args.coarse_linear,
         source=source,
     )
@@ -173,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
         "fused": None if calibration.fused is None else _summary(calibration.fused),
         "passes": len(calibration.passes),
         "discovery": None if history is None else history.to_json(),
+        "noise_model": None if calibration.noise is None else calibration.noise.to_document(),
+        "largest_floor": None if calibration.floor is None else _summary(calibration.floor),
         "next": [line.strip() for line in steps if line.startswith("  ")],
     }
     emit(args, result, text)
@@ -184,7 +173,7 @@ def next_steps(args: argparse.Namespace, record) -> list[str]:
     effect (``stableins diagnose``); then the system stage on a static record taken with the INS compensating by it."""
     import shlex
 
-    from stableins.commands import noise_arguments
+    from stableins.commands.noise import noise_arguments
 
     command = ["stableins", "diagnose", *[str(p) for p in args.data], "--record", str(args.out), *noise_arguments(args)]
     return [

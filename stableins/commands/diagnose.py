@@ -44,19 +44,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--top", type=integer(1, 10000), default=10, help="candidates to show in the text report (default 10)")
     parser.add_argument("--plots", type=output_directory, metavar="DIR", help="write residual and history plots (PNG) into DIR")
-    parser.add_argument(
-        "--bias-instability",
-        type=number(0.0, 1e5, unit="µg"),
-        metavar="UG",
-        help="bias instability B [ug]: slow bias wander correlated between dwells (default: estimated from the dwells if detectable)",
-    )
-    parser.add_argument(
-        "--random-walk",
-        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
-        default=0.0,
-        metavar="K",
-        help="acceleration random walk K [m/s^2/sqrt(s)]",
-    )
+    from stableins.commands.noise import add_noise_options
+
+    add_noise_options(parser)
     parser.add_argument(
         "--allow-gaps", action="store_true", help="system records: accept gaps in the time column (as 'stableins check --allow-gaps')"
     )
@@ -105,11 +95,9 @@ def run(args: argparse.Namespace) -> int:
     for effect in args.add:
         if effect in model:
             raise InputError(f"effect {effect!r} is already in the model of {args.record}", field="--add")
-    slow_noise = None
-    if args.bias_instability is not None or args.random_walk:
-        from stableins.estimators.noise_model import SlowNoise
+    from stableins.commands.noise import noise_from_options
 
-        slow_noise = SlowNoise((args.bias_instability or 0.0) * 9.80665e-6, args.random_walk, source="given on the command line")
+    noise, origin = noise_from_options(args, [], default=record.noise_model) if system else (None, "")
     if system:
         from stableins.conventions import GimbalConfiguration
         from stableins.discovery.problem import bins_from_chunks
@@ -122,14 +110,15 @@ def run(args: argparse.Namespace) -> int:
             reference_temperature=site.reference_temperature,
             base_attitude=tuple(site.base_attitude),
             configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
-            slow_noise=slow_noise,
+            noise=noise,
         )
         dwells.noise["stage"] = "system"
-        if slow_noise is None:
+        if noise is None or not noise.has_slow_noise:
             note("noise: white only; over hours the bias wander of an instrument looks like drift (give --bias-instability/--random-walk)")
     else:
-        dwells = dwells_from_dataset(datasets, stage=args.stage, slow_noise=slow_noise)
-        note(f"noise: {dwells.noise['slow_noise']}")
+        noise, origin = _device_noise(args, datasets, record.noise_model)
+        dwells = dwells_from_dataset(datasets, stage=args.stage, noise=noise)
+        note(f"noise ({origin}): {dwells.noise['slow_noise']}")
     for line in dwells.noise.get("left_out", []):
         note(f"left out: {line}")
     problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} {'bins' if system else 'dwells'}")
@@ -168,10 +157,12 @@ def run(args: argparse.Namespace) -> int:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
     for name, spectrum in spectra.items():
         parts.append(f"residual of {name} at the Earth-rate harmonics:\n" + spectrum.report(unit="µg", scale=9.80665e-6))
+    model_used = dwells.noise.get("model")
     steps = next_steps(args, record, ranking.flagged, system=bool(system))
     text = "\n\n".join(parts + [session.history.report(), "\n".join(steps)])
     result = {
         "stage": dwells.noise.get("stage"),
+        "noise_model": None if model_used is None else model_used.to_document(),
         "chi2_red": session.result.chi2_red,
         "dof": session.result.dof,
         "expected_spread": diagnosis.spread,
@@ -210,12 +201,32 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _device_noise(args: argparse.Namespace, datasets, default):
+    """The device stages' noise model: flags, ``--noise``, the record's, or (None) measured in all dwells as calibrate does."""
+    from stableins.commands.noise import noise_from_options
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.procedures.definition import load_procedure
+
+    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+
+    def summaries():
+        return [s for ds in datasets for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))]
+
+    given = args.bias_instability is not None or args.random_walk is not None
+    noise, origin = noise_from_options(args, summaries() if given else [], default=default)
+    if noise is None:
+        from stableins.estimators.device import noise_from_dwells
+
+        noise = noise_from_dwells(summaries(), source=", ".join(str(ds.path) for ds in datasets))
+    return noise, origin
+
+
 def next_steps(args: argparse.Namespace, record, flagged, *, system: bool) -> list[str]:
     """What to do next, as commands that run as written: carry the best flagged effect into the calibration, look at
     an effect a calibration cannot carry, or certify the record when nothing is missing."""
     import shlex
 
-    from stableins.commands import noise_arguments
+    from stableins.commands.noise import noise_arguments
     from stableins.discovery.library import LIBRARY, calibration_limit
 
     data = [str(p) for p in args.data]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,6 +29,9 @@ from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.result import FitResult, Likelihood
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.noise import NoiseModel
 
 
 class Problem(Protocol):
@@ -80,11 +83,11 @@ class DwellSet:
     initial_readings : tuple or None
         Angle-sensor readings before the first command (for the slew into the first
         position); None: unknown, no slew direction for the first position.
-    slow_covariance : ndarray (P, P), optional
-        Covariance of the dwell means caused by slow noise (bias instability, random walk),
-        the same on every axis and correlated between dwells
-        (:func:`stableins.estimators.noise_model.dwell_mean_covariance`).  The fit is then
-        generalized least squares with ``R_a = diag(σ_a²) + C_slow`` per axis.
+    slow_covariance : ndarray (3, P, P), optional
+        Covariance of the dwell means beyond their white 1σ, per axis: slow noise (bias
+        instability, random walk) correlated between dwells, and quantization
+        (:func:`stableins.estimators.dwell.slow_covariance`, the device stages' own).  The fit
+        is then generalized least squares with ``R_a = diag(σ_a²) + C_slow,a`` per axis.
     reading_slope, reading_slope_sigma : ndarray (P, 3), optional
         Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
         (:mod:`stableins.discovery.drift`).
@@ -141,7 +144,7 @@ class DwellSet:
             self.configuration,
             dict(self.noise),
             None,
-            None if self.slow_covariance is None else self.slow_covariance[np.ix_(i, i)],
+            None if self.slow_covariance is None else self.slow_covariance[:, i][:, :, i],
             None if self.reading_slope is None else self.reading_slope[i],
             None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
         )
@@ -152,7 +155,7 @@ def dwells_from_dataset(
     stage: str | None = None,
     procedures: Mapping | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
-    slow_noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
@@ -160,10 +163,11 @@ def dwells_from_dataset(
     statistics (:func:`stableins.estimators.dwell.dwells_from_columns`: settling dropped,
     correlated noise detected per dwell); flagged dwells are left out (listed in
     ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
-    else ``"coarse"`` (all passes, in time order).  ``slow_noise``
-    (:class:`stableins.estimators.noise_model.SlowNoise`) adds the covariance of slow bias
-    wander between dwells; None estimates it from the dwells' pooled Allan excess as the
-    device stage does (zero when not detectable).
+    else ``"coarse"`` (all passes, in time order).  ``noise``
+    (:class:`stableins.noise.NoiseModel`, e.g. the calibration record's) adds the covariance
+    of slow bias wander between dwells exactly as the device stages do
+    (:func:`stableins.estimators.dwell.slow_covariance`); None measures it from the dwells as
+    ``stableins calibrate device`` does (:func:`stableins.estimators.device.noise_from_dwells`).
     """
     from stableins.data.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
@@ -196,60 +200,70 @@ def dwells_from_dataset(
     ]
     if len(keep) < 6:
         raise InputError(f"only {len(keep)} usable {stage} dwells", field="position", expected="at least 6 usable dwells")
-    mid, tau, temp = [], [], []
+    extras = []
     for k in keep:
         d = raw[k]
         procedure = procedures.get(stage)
         settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
         use = np.asarray(d.time_since_command) >= settle
-        mid.append(float(np.mean(np.asarray(d.time)[use])))
-        tau.append(float(np.mean(np.asarray(d.time_since_command)[use])))
-        temp.append(float(np.mean(np.asarray(d.temperature)[use])) - site.reference_temperature)
-    sm = [summaries[k] for k in keep]
-    from stableins.estimators.device import estimate_slow_noise
-    from stableins.estimators.noise_model import dwell_mean_covariance
+        extras.append(
+            (
+                np.asarray(d.time)[use],
+                np.asarray(d.time_since_command)[use],
+                np.asarray(d.temperature)[use] - site.reference_temperature,
+                np.asarray(d.angles)[use],
+            )
+        )
+    return _dwell_set(
+        [summaries[k] for k in keep],
+        extras,
+        gravity=site.gravity,
+        base_attitude=tuple(site.base_attitude),
+        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        labels=tuple(f"{stage[0]}{summaries[k].pass_number}/{summaries[k].position}" for k in keep),
+        initial_readings=initial_readings,
+        noise=noise,
+        info={"left_out": left_out, "stage": stage},
+    )
 
-    if slow_noise is None:
-        slow_noise = estimate_slow_noise(sm)
+
+def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labels, initial_readings, noise, info) -> DwellSet:
+    """A :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
+
+    ``extras``: per dwell ``(time, time_since_command, temperature − reference, angles)`` of the
+    samples used.  ``noise`` None: measured from the dwells as the device stage does.
+    """
     from stableins.discovery.drift import reading_slope
-
-    starts, slopes, slope_sigma = [], [], []
-    for k in keep:
-        d = raw[k]
-        procedure = procedures.get(stage)
-        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
-        use = np.asarray(d.time_since_command) >= settle
-        starts.append(float(np.asarray(d.time)[use][0]))
-        a, b = reading_slope(np.asarray(d.time)[use], np.asarray(d.angles)[use])
-        slopes.append(a)
-        slope_sigma.append(b)
-    slow_cov = None if slow_noise.is_zero else dwell_mean_covariance(np.array(starts), np.array([x.duration for x in sm]), slow_noise)
-    readings = np.array([x.angles for x in sm])
-    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
-    start = None if initial_readings is None else _initial(initial_readings, site.gravity, site.base_attitude, configuration)
     from stableins.discovery.kinematics import platform_specific_force
+    from stableins.estimators.device import noise_from_dwells
+    from stableins.estimators.dwell import slow_covariance
 
-    nominal = platform_specific_force(readings, site.gravity, base_attitude=site.base_attitude, configuration=configuration)
+    if noise is None:
+        noise = noise_from_dwells(summaries)
+    slopes, slope_sigma = zip(*(reading_slope(t, angles) for t, _, _, angles in extras), strict=True)
+    readings = np.array([x.angles for x in summaries])
+    start = None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
+    nominal = platform_specific_force(readings, gravity, base_attitude=base_attitude, configuration=configuration)
     return DwellSet(
         readings=readings,
-        output=np.array([x.mean for x in sm]),
-        sigma=np.array([x.sem for x in sm]),
-        gravity=float(site.gravity),
-        time=np.array(mid),
-        time_since_command=np.array(tau),
-        temperature=np.array(temp),
+        output=np.array([x.mean for x in summaries]),
+        sigma=np.array([x.sem for x in summaries]),
+        gravity=float(gravity),
+        time=np.array([float(np.mean(t)) for t, *_ in extras]),
+        time_since_command=np.array([float(np.mean(tc)) for _, tc, _, _ in extras]),
+        temperature=np.array([float(np.mean(temp)) for _, _, temp, _ in extras]),
         slew_direction=slew_directions(nominal, start),
-        labels=tuple(f"{stage[0]}{x.pass_number}/{x.position}" for x in sm),
-        base_attitude=tuple(site.base_attitude),
+        labels=tuple(labels),
+        base_attitude=tuple(base_attitude),
         configuration=configuration,
         noise={
             "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
-            "left_out": left_out,
-            "stage": stage,
-            "slow_noise": slow_noise.describe(),
+            "slow_noise": noise.describe(),
+            "model": noise,
+            **info,
         },
         initial_readings=initial_readings,
-        slow_covariance=slow_cov,
+        slow_covariance=slow_covariance(summaries, noise),
         reading_slope=np.array(slopes),
         reading_slope_sigma=np.array(slope_sigma),
     )
@@ -297,121 +311,49 @@ def dwell_means(
     reference_temperature: float = 25.0,
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    batches: int = 8,
     labels: Sequence[str] | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
-    slow_noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
-    r"""Reduce samples to dwell means with a measured noise floor.
+    """Reduce samples (one dwell per distinct ``position``, in order of appearance) to dwell means.
 
-    The 1σ of a dwell mean comes from the data: each dwell and axis is detrended (a
-    linear fit: a drift is signal, not noise), cut into ``batches`` contiguous batches, and
-    the batch means' scatter is pooled over all dwells of the axis,
-
-    .. math:: \hat\sigma^2_{eff} = \frac{\sum_d \sum_k n_{d}\,\bar e_{dk}^2}{\sum_d (K-2)},\qquad
-              \sigma(\bar f_d) = \hat\sigma_{eff}/\sqrt{N_d}
-
-    (batch means, e.g. Flegal & Jones 2010), which follows correlated noise up to the batch
-    length.  The white-noise floor from first differences, ``σ_w² = Σ(Δf)²/(2 n)``, has far
-    more degrees of freedom; it is used unless the batch estimate exceeds it beyond the
-    99.9 % quantile of ``χ²_dof/dof`` (correlated noise), in which case the batch estimate is
-    used.  Both, the ratio and the choice are kept in ``noise``.  Platform pointing errors are
-    not in the within-dwell scatter; they enter the fit through the measured angle readings,
-    whose averaging error is negligible.  Slow bias wander (``slow_noise``, a
-    :class:`stableins.estimators.noise_model.SlowNoise` from a datasheet or a long static
-    record) is not in it either; when given, its covariance between dwells is added.
+    Each dwell's mean and 1σ come from the device stage's dwell statistics
+    (:func:`stableins.estimators.dwell.summarize_dwell`: white noise from the sample
+    scatter, block means where the noise is correlated within the dwell), and slow noise
+    correlated between dwells from ``noise`` (:class:`stableins.noise.NoiseModel`; None:
+    measured from the dwells as ``stableins calibrate device`` does).  Platform pointing
+    enters through the measured angle readings.  A dwell too short to measure its noise, or
+    with non-finite samples, raises ``ValueError``.
     """
+    from stableins.estimators.dwell import summarize_dwell
+
     t = np.asarray(time, dtype=float)
-    f = np.asarray(output, dtype=float)
-    r = np.asarray(readings, dtype=float)
+    f = np.asarray(output, dtype=float).reshape(-1, 3)
+    r = np.asarray(readings, dtype=float).reshape(-1, 3)
     temp = np.asarray(temperature, dtype=float)
     pos = np.asarray(position)
     since = np.asarray(time_since_command, dtype=float)
     order = list(dict.fromkeys(pos.tolist()))
-    n_pos = len(order)
-    means = np.zeros((n_pos, 3))
-    angle_means = np.zeros((n_pos, 3))
-    counts = np.zeros(n_pos)
-    numerator = np.zeros(3)
-    dof = 0.0
-    white = np.zeros(3)
-    white_n = 0
-    mid, tau, dtemp = np.zeros(n_pos), np.zeros(n_pos), np.zeros(n_pos)
-    starts, lengths = np.zeros(n_pos), np.zeros(n_pos)
-    slopes, slope_sigma = np.zeros((n_pos, 3)), np.zeros((n_pos, 3))
-    from stableins.discovery.drift import reading_slope
-
+    summaries, extras = [], []
     for k, p in enumerate(order):
         sel = pos == p
-        n = int(sel.sum())
-        if n < 4 * batches:
-            raise ValueError(f"position {p}: {n} samples, need at least {4 * batches} to measure the noise floor")
-        ts, fs = t[sel], f[sel]
-        means[k] = fs.mean(axis=0)
-        angle_means[k] = r[sel].mean(axis=0)
-        mid[k], tau[k], dtemp[k] = ts.mean(), since[sel].mean(), temp[sel].mean() - reference_temperature
-        counts[k] = n
-        starts[k], lengths[k] = ts[0], ts[-1] - ts[0]
-        slopes[k], slope_sigma[k] = reading_slope(ts, r[sel])
-        x = ts - ts.mean()
-        slope = (x @ (fs - fs.mean(axis=0))) / (x @ x)
-        e = fs - fs.mean(axis=0) - np.outer(x, slope)
-        nb = n // batches
-        b = e[: nb * batches].reshape(batches, nb, 3).mean(axis=1)
-        numerator += nb * (b**2).sum(axis=0)
-        dof += batches - 2
-        d = np.diff(fs, axis=0)
-        white += (d**2).sum(axis=0) / 2.0
-        white_n += d.shape[0]
-    from scipy.stats import chi2
-
-    sigma_batch = np.sqrt(numerator / dof)
-    sigma_white = np.sqrt(white / white_n)
-    correlated = (sigma_batch / sigma_white) ** 2 > chi2.ppf(0.999, dof) / dof
-    sigma_eff = np.where(correlated, sigma_batch, sigma_white)
-    sigma = sigma_eff[None, :] / np.sqrt(counts)[:, None]
-    from stableins.discovery.kinematics import platform_specific_force
-
-    nominal = platform_specific_force(angle_means, gravity, base_attitude=base_attitude, configuration=configuration)
-    return DwellSet(
-        readings=angle_means,
-        output=means,
-        sigma=sigma,
-        gravity=float(gravity),
-        time=mid,
-        time_since_command=tau,
-        temperature=dtemp,
-        slew_direction=slew_directions(
-            nominal, None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
-        ),
-        labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
+        summary = summarize_dwell(t[sel], f[sel], r[sel], r[sel].mean(axis=0), position=k + 1, stage="dwells")
+        fatal = [x for x in summary.flags if x.startswith(("too short", "non-finite", "no samples"))]
+        if fatal:  # the other checks (clipping, slews ...) are the acquisition's; the caller's samples are taken as they are
+            raise ValueError(f"position {p}: {'; '.join(fatal)}")
+        summaries.append(summary)
+        extras.append((t[sel], since[sel], temp[sel] - reference_temperature, r[sel]))
+    return _dwell_set(
+        summaries,
+        extras,
+        gravity=gravity,
         base_attitude=tuple(base_attitude),
         configuration=configuration,
-        noise={
-            "method": "per axis: white noise from first differences unless batch means "
-            f"({batches} per dwell, detrended, pooled over {n_pos} dwells) show correlated noise"
-            + ("" if slow_noise is None or slow_noise.is_zero else "; plus slow noise correlated between dwells"),
-            "sigma_per_sample": sigma_eff,
-            "sigma_white": sigma_white,
-            "sigma_batch": sigma_batch,
-            "correlated": correlated,
-            "dof": dof,
-            "colour_ratio": sigma_batch / sigma_white,
-            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
-        },
+        labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
         initial_readings=initial_readings,
-        slow_covariance=_slow_covariance(starts, lengths, slow_noise),
-        reading_slope=slopes,
-        reading_slope_sigma=slope_sigma,
+        noise=noise,
+        info={},
     )
-
-
-def _slow_covariance(starts: NDArray, lengths: NDArray, slow_noise) -> NDArray[np.float64] | None:
-    if slow_noise is None or slow_noise.is_zero:
-        return None
-    from stableins.estimators.noise_model import dwell_mean_covariance
-
-    return dwell_mean_covariance(starts, lengths, slow_noise)
 
 
 def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
@@ -438,13 +380,13 @@ class DwellProblem:
         self._inverse_factor = None
         if dwells.slow_covariance is not None:
             c = np.asarray(dwells.slow_covariance, dtype=float)
-            self._inverse_factor = np.stack([np.linalg.inv(np.linalg.cholesky(c + np.diag(dwells.sigma[:, a] ** 2))) for a in range(3)])
+            self._inverse_factor = np.stack([np.linalg.inv(np.linalg.cholesky(c[a] + np.diag(dwells.sigma[:, a] ** 2))) for a in range(3)])
 
     @property
     def total_sigma(self) -> NDArray[np.float64]:
         """1σ of each observation (white and slow noise), flattened position-major."""
         d = self.dwells
-        variance = d.sigma**2 + (0.0 if d.slow_covariance is None else np.diag(d.slow_covariance)[:, None])
+        variance = d.sigma**2 + (0.0 if d.slow_covariance is None else np.diagonal(d.slow_covariance, axis1=1, axis2=2).T)
         return np.sqrt(variance).reshape(-1)
 
     def whiten(self, v: ArrayLike) -> NDArray[np.float64]:
@@ -772,7 +714,7 @@ def bins_from_chunks(
     reference_temperature: float = 25.0,
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    slow_noise=None,
+    noise: NoiseModel | None = None,
 ) -> DwellSet:
     r"""Bin a system-level record (a stream of column chunks) into "dwells" for discovery.
 
@@ -792,9 +734,9 @@ def bins_from_chunks(
         Local gravity [m/s²].
     bin_seconds : float
         Bin length [s].
-    slow_noise : SlowNoise, optional
-        Bias instability / random walk of the instrument: over a day the slow bias wander is
-        correlated between bins and would otherwise look like drift or a harmonic.
+    noise : NoiseModel, optional
+        The instrument's noise model: over a day the slow bias wander (bias instability,
+        random walk) is correlated between bins and would otherwise look like drift or a harmonic.
     """
     sums: dict[int, NDArray] = {}
     squares = np.zeros(3)
@@ -835,7 +777,7 @@ def bins_from_chunks(
     time = table[:, 1] / n
     rate = float(np.median(n)) / bin_seconds
     lengths = n / rate
-    slow = _slow_covariance(time - lengths / 2.0, lengths, slow_noise)
+    slow = None if noise is None or not noise.has_slow_noise else noise.slow_covariance(time - lengths / 2.0, lengths)
     return DwellSet(
         readings=readings,
         output=table[:, 3:6] / n[:, None],
@@ -851,7 +793,7 @@ def bins_from_chunks(
         noise={
             "method": f"white noise from first differences, pooled over the record; {bin_seconds:g} s bins",
             "sigma_per_sample": sigma_white,
-            "slow_noise": "none" if slow_noise is None else slow_noise.describe(),
+            "slow_noise": "none" if noise is None else noise.describe(),
         },
         initial_readings=None,
         slow_covariance=slow,

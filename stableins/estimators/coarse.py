@@ -60,10 +60,10 @@ from stableins.conventions import (
 from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
-from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
+from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.noise import NoiseModel
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
@@ -253,15 +253,16 @@ class CoarseProblem:
             jac[..., model.index(gid)] = jac_theta[..., i]
         return out, jac
 
-    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    #: Optional covariance of the dwell means beyond their white 1σ, ``(T, 3, m, m)`` per axis
+    #: (:func:`stableins.estimators.dwell.slow_covariance`).
     slow_covariance: NDArray[np.float64] | None = None
 
     def whitening(self) -> NDArray[np.float64] | None:
-        """``L⁻¹`` per trial and axis ``(T, 3, m, m)`` with ``L Lᵀ = diag(σ_a²) + C_slow``."""
+        """``L⁻¹`` per trial and axis ``(T, 3, m, m)`` with ``L Lᵀ = diag(σ_a²) + C_slow,a``."""
         if self.slow_covariance is None:
             return None
         sig2 = np.moveaxis(self.sigma, -1, 1) ** 2  # (T, 3, m)
-        cov = self.slow_covariance[:, None] + sig2[..., None] * np.eye(sig2.shape[-1])
+        cov = self.slow_covariance + sig2[..., None] * np.eye(sig2.shape[-1])
         chol = np.linalg.cholesky(cov)
         return np.linalg.inv(chol)
 
@@ -386,16 +387,6 @@ def check_orientation(
     return out
 
 
-def slow_covariance(dwells: Sequence[DwellSummary], slow_noise: SlowNoise | None, source: str) -> NDArray[np.float64] | None:
-    """``C_slow (1, m, m)`` for the dwells, or None without slow noise."""
-    if slow_noise is None or slow_noise.is_zero:
-        return None
-    starts = np.array([d.start for d in dwells])
-    if not np.all(np.isfinite(starts)):
-        raise InputError("dwell start times are needed for the slow-noise covariance", path=source, field="time")
-    return dwell_mean_covariance(starts, np.array([d.duration for d in dwells]), slow_noise)[None]
-
-
 def calibrate_coarse(
     dwells: Sequence[DwellSummary],
     *,
@@ -406,7 +397,7 @@ def calibrate_coarse(
     allow_missing: bool = False,
     nonlinear: bool = False,
     orientation_tolerance: float = 0.02 * 9.80665,
-    slow_noise: SlowNoise | None = None,
+    noise: NoiseModel | None = None,
     extra_terms: Sequence[Term] = (),
     prior: Mapping[str, float] | None = None,
     source: str = "data",
@@ -430,9 +421,10 @@ def calibrate_coarse(
         Also estimate ``K2_*`` (the paper ignores them in this stage).
     orientation_tolerance : float
         Largest allowed difference between a dwell mean and the ideal output [m/s²].
-    slow_noise : SlowNoise, optional
-        Bias instability / random walk: adds the correlated covariance of the dwell
-        means (:mod:`stableins.estimators.noise_model`); white noise only when None.
+    noise : NoiseModel, optional
+        The instrument's noise model: its bias instability / random walk add the correlated
+        covariance of the dwell means (:meth:`stableins.noise.NoiseModel.dwell_mean_covariance`);
+        white noise measured in each dwell only when None.
     extra_terms : sequence of Term
         Additive terms estimated with the standard ones (discovered effects, e.g. the
         library's ``Kcc_xxy``; regressors of the specific force).  One that these positions
@@ -458,9 +450,10 @@ def calibrate_coarse(
             path=source,
             field="position",
         )
-    problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, slow_covariance(usable, slow_noise, source))
-    if slow_noise is not None:
-        notes.append(slow_noise.describe())
+    slow = slow_covariance(usable, noise, source)
+    problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, None if slow is None else slow[None])
+    if noise is not None:
+        notes.append(noise.describe())
     scales = np.array([t.nominal for t in model])
     # Null space of the design at the starting point decides the gauge.
     start_values = {i: float((prior or {}).get(i, model[i].reference)) for i in extra_ids}
@@ -494,7 +487,7 @@ def calibrate_coarse(
     residuals = (problem.means[0] - problem.predict(solution.x)[0][0]).reshape(-1)
     variance = problem.sigma[0] ** 2
     if problem.slow_covariance is not None:
-        variance = variance + np.diagonal(problem.slow_covariance[0])[:, None]
+        variance = variance + np.diagonal(problem.slow_covariance[0], axis1=-2, axis2=-1).T
     residual_sigma = np.sqrt(variance).reshape(-1)
     labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
@@ -537,5 +530,5 @@ def calibrate_coarse(
         extra=extra,
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "slow_noise": None if slow_noise is None else slow_noise.settings()},
+        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
     )

@@ -8,6 +8,7 @@ by a joint generalized least squares (:mod:`stableins.estimators.joint`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -17,13 +18,14 @@ from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
+from stableins.estimators.allan import DEFAULT_ALPHA, slow_noise_test
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
-from stableins.estimators.dwell import DwellSummary, pooled_allan_excess
+from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.joint import fit_joint
-from stableins.estimators.noise_model import SlowNoise, slow_noise_from_allan_excess
 from stableins.estimators.result import FitResult
+from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
 
 
@@ -43,15 +45,23 @@ class DeviceCalibration:
     fused : FitResult or None
         Joint GLS fit of all coarse passes and the fine stage (stage ``"coarse+fine"``):
         the result that goes into the record.  None without fine dwells.
+    noise : NoiseModel or None
+        The noise model every σ rests on (given, or measured from the dwells).
+    floor : FitResult or None
+        When the noise model was measured from the dwells and slow noise was not detected:
+        :attr:`final` refitted with the bias instability at the upper limit the dwells allow
+        (the largest floor), to show what the σ would become.
     """
 
     coarse: FitResult
     fine: FitResult | None = None
     passes: tuple[FitResult, ...] = field(default=(), repr=False)
     fused: FitResult | None = None
-    #: The options the pipeline ran with (procedures, slow noise, coarse nonlinearity, missing positions): stored in
+    #: The options the pipeline ran with (procedures, noise model, coarse nonlinearity, missing positions): stored in
     #: the record's stage run so that a report recomputes exactly what the calibration did.
     settings: dict = field(default_factory=dict)
+    noise: NoiseModel | None = None
+    floor: FitResult | None = field(default=None, repr=False)
 
     @property
     def final(self) -> FitResult:
@@ -83,6 +93,10 @@ class DeviceCalibration:
             parts += describe_design(self.fine.ids, self.fine.singular_values, self.fine.null_space)
         if self.fused is not None:
             parts += ["", "== coarse + fine fused (joint GLS; recorded) ==", self.fused.report()]
+        if self.noise is not None:
+            parts += ["", "== noise model (every σ above rests on it) ==", self.noise.report()]
+        if self.floor is not None:
+            parts += ["", *floor_table(self.final, self.floor, self.noise)]
         return "\n".join(parts)
 
     def __str__(self) -> str:
@@ -103,6 +117,7 @@ class DeviceCalibration:
 
         The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
         fused, each with its χ²_ν), the fused likelihood and :attr:`settings`; ``entries`` are the calibration's fields.
+        The record carries :attr:`noise` (the noise model every σ rests on).
         """
         from stableins.records import Calibration, CalibrationRecord, StageRun
 
@@ -120,48 +135,96 @@ class DeviceCalibration:
             fits=fits,
             settings=self.settings or self.final.settings,
         )
-        return CalibrationRecord.from_fit_result(self.final, site=site, stage=stage, calibration=calibration)
+        return CalibrationRecord.from_fit_result(self.final, site=site, stage=stage, calibration=calibration, noise_model=self.noise)
 
 
-def estimate_slow_noise(dwells: Sequence[DwellSummary], significance: float = 2.0) -> SlowNoise:
-    """Bias instability from the pooled Allan excess of the longest dwells (weak; see dwell.pooled_allan_excess)."""
-    longest = max((d.duration for d in dwells if d.usable), default=0.0)
-    chosen = [d for d in dwells if d.usable and d.duration >= 0.5 * longest]
-    mean, stderr, count = pooled_allan_excess(chosen)
-    if count >= 3 and np.any(mean > significance * stderr):
-        return slow_noise_from_allan_excess(mean, source=f"estimated from the pooled Allan excess of {count} dwells (weak estimate)")
-    bound = np.sqrt(np.max(np.clip(mean, 0.0, None) + significance * stderr)) / 0.664 if count >= 3 else float("inf")
-    return SlowNoise(
-        0.0,
-        0.0,
-        source=f"none given, none detected in the dwells (bias instability below about {bound / 9.80665e-6:.2g} ug)",
-        undetected_bound=float(bound),
-    )
+def noise_from_dwells(
+    dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95, source: str = "the dwells"
+) -> NoiseModel:
+    """The noise model a device session measures (source ``DEVICE_DWELLS``).
 
-
-def hidden_slow_noise_warning(slow_noise: SlowNoise, dwells: Sequence[DwellSummary]) -> str | None:
-    """A warning when undetected bias instability could be comparable to the white noise of the dwell means.
-
-    The pooled Allan excess of 10 min dwells cannot see a bias instability of a few µg, which
-    is already comparable to the white noise of such a dwell mean; the fine-stage 1σ are then
-    too small (on the simulator's quartz instrument, B = 2 µg, its NEES is about twice χ²).
-    Warn when the largest hidden Allan floor ``0.664 B`` exceeds half the median white 1σ.
+    * white noise ``N`` per axis from the sample variances, pooled over the usable dwells
+      (``N² = s²/rate``; interval from χ² with the pooled degrees of freedom);
+    * slow noise: the decision of :func:`stableins.estimators.allan.slow_noise_test` at the
+      false-positive rate ``alpha``.  Detected: the bias instability is its unbiased estimate
+      with interval; not detected: 0 with the upper limit the dwells allow.  The dwells
+      cannot separate the random walk from bias instability: ``K`` is 0, not bounded;
+    * quantization: not measured (0, not bounded).
     """
-    if slow_noise.undetected_bound <= 0.0:
-        return None
-    sems = [float(np.median(d.sem)) for d in dwells if d.usable]
-    if not sems:
-        return None
-    white = float(np.median(sems))
-    hidden = 0.664 * slow_noise.undetected_bound
-    if hidden <= 0.5 * white:
-        return None
-    ug = 9.80665e-6
-    return (
-        f"warning: no bias instability given and none detectable in these dwells, but an Allan floor up to about {hidden / ug:.2g} ug "
-        f"could hide in them, against {white / ug:.2g} ug white noise of a dwell mean: the {dwells[0].stage}-stage 1σ may be too small. "
-        "Give the instrument's value (--bias-instability, --random-walk)"
+    from scipy.stats import chi2, norm
+
+    usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
+    if not usable:
+        return NoiseModel.unknown("no usable dwells")
+    dof = np.array([d.samples - 1.0 for d in usable])
+    n2 = np.array([d.noise**2 / d.rate for d in usable])  # (m, 3): s² dt
+    pooled = (dof[:, None] * n2).sum(axis=0) / dof.sum()
+    total = dof.sum()
+    q = (1.0 - confidence) / 2.0
+    lo, hi = total / chi2.ppf(1 - q, total), total / chi2.ppf(q, total)
+    ratios = [(d.samples, d.allan_ratios, d.noise**2, d.rate) for d in usable if d.allan_ratios is not None]
+    slow = slow_noise_test(ratios, alpha=alpha, confidence=confidence)
+    z = norm.ppf(confidence)
+    # detected: the unbiased estimate of B² with its interval; not detected: 0 with the upper limit.  (Using the
+    # non-significant estimate instead inflates σ on white noise, grossly so for short dwells, where it is mostly noise.)
+    if slow.test.detected:
+        b_hat = math.sqrt(max(slow.b2, 0.0))
+        b = NoiseTerm(b_hat, math.sqrt(max(slow.b2 - z * slow.b2_sigma, 0.0)), max(slow.b_upper, b_hat))
+    else:
+        b = NoiseTerm(0.0, 0.0, slow.b_upper)
+    longest = max(d.duration for d in usable)
+    axes = tuple(
+        AxisNoise(
+            NoiseTerm(math.sqrt(pooled[a]), math.sqrt(pooled[a] * lo), math.sqrt(pooled[a] * hi)),
+            b,
+            NoiseTerm.unbounded(),
+            NoiseTerm.unbounded(),
+        )
+        for a in range(3)
     )
+    provenance = (
+        f"measured in {len(usable)} dwells of {source} (longest {longest:.0f} s): white noise from the sample variances; "
+        f"slow noise {'detected' if slow.test.detected else 'not detected'} by the pooled Allan variance at 1/4 ... 1/32 of each dwell "
+        f"(p = {slow.test.p_value:.3g}, false-positive rate {alpha:g}), expressed as bias instability; "
+        "the random walk cannot be told from it in these dwells (not bounded)"
+    )
+    return NoiseModel(axes, NoiseSource.DEVICE_DWELLS, provenance, confidence, slow.test)  # type: ignore[arg-type]
+
+
+def with_given_slow_noise(dwells: Sequence[DwellSummary], bias_instability: float, random_walk: float, provenance: str) -> NoiseModel:
+    """A datasheet's bias instability and random walk (same on every axis) with the white noise measured in the dwells."""
+    measured = noise_from_dwells(dwells)
+    b, k = NoiseTerm.exact(bias_instability), NoiseTerm.exact(random_walk)
+    axes = tuple(replace(a, bias_instability=b, random_walk=k) for a in measured.axes)
+    return NoiseModel(axes, NoiseSource.DATASHEET, f"{provenance}; white noise measured in the dwells", measured.confidence)  # type: ignore[arg-type]
+
+
+def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) -> list[str]:
+    """What the σ become with the largest floor the data allow (bias instability at its upper limit)."""
+    b_up = float(np.max(noise.limits("bias_instability")[1])) if noise is not None else float("nan")
+    lines = [
+        "slow noise not detected: the σ above rest on white noise.  The dwells allow a bias instability up to "
+        f"{b_up / 9.80665e-6:.3g} ug ({100 * (noise.confidence if noise else 0.95):g} % upper limit; random walk not bounded).  "
+        "With that largest floor the σ would be:",
+        f"{'parameter':<12} {'σ recorded':>18} {'σ largest floor':>18} {'ratio':>7}",
+    ]
+    for k in final.ids:
+        v, s, st = final[k]
+        if st != "estimated":
+            continue
+        s_floor = floor[k][1]
+        term = final.terms[final.ids.index(k)]
+        lines.append(
+            f"{k:<12} {term.sigma_to_engineering(s):>11.4g} {term.unit:<6} {term.sigma_to_engineering(s_floor):>11.4g} {term.unit:<6} "
+            f"{s_floor / s if s > 0 else float('nan'):>7.2f}"
+        )
+    return lines
+
+
+def floor_ratio(final: FitResult, floor: FitResult) -> float:
+    """Largest σ(largest floor)/σ(recorded) over the estimated parameters."""
+    ratios = [floor[k][1] / final[k][1] for k in final.ids if final[k][2] == "estimated" and final[k][1] > 0]
+    return max(ratios, default=1.0)
 
 
 def calibrate_device(
@@ -171,16 +234,19 @@ def calibrate_device(
     coarse_procedure: ProcedureDefinition | None = None,
     fine_procedure: ProcedureDefinition | None = None,
     allow_missing: bool = False,
-    slow_noise: SlowNoise | None = None,
+    noise: NoiseModel | None = None,
+    alpha: float = DEFAULT_ALPHA,
     coarse_nonlinear: bool = True,
     extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> DeviceCalibration:
     """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
 
-    ``slow_noise`` is the instrument's bias instability / random walk (datasheet or a long
-    static record).  Without it, the pooled Allan excess of the fine dwells is used when it
-    is significant (2 standard errors); otherwise the stages use white noise only and say so.
+    ``noise`` is the instrument's noise model (a calibration record's ``noise_model``, measured
+    by ``stableins noise`` on a static record, or a datasheet).  Without it the dwells'
+    own (:func:`noise_from_dwells`): the bias instability they measure, with the decision at
+    the false-positive rate ``alpha``; when slow noise is not detected the result says so and
+    :attr:`DeviceCalibration.floor` shows the σ with the largest floor the dwells allow.
 
     ``coarse_nonlinear`` (default True) also estimates ``K2_*`` in the coarse stage.  The
     paper's 15-parameter coarse stage (``False``) ignores them, which for nominal
@@ -202,8 +268,9 @@ def calibrate_device(
                 expected=repr(stage),
             )
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
-    if slow_noise is None:
-        slow_noise = estimate_slow_noise(dwells)
+    measured = noise is None or noise.source is NoiseSource.NONE
+    if measured:
+        noise = noise_from_dwells(dwells, alpha=alpha, source=source)
     coarse_dwells = [d for d in dwells if d.stage == "coarse"]
     if not coarse_dwells:
         raise InputError("no coarse-stage dwells in the data", path=source, field="stage", expected="rows with stage 'coarse'")
@@ -218,7 +285,7 @@ def calibrate_device(
                 expected_positions=coarse_procedure.positions,
                 allow_missing=allow_missing,
                 orientation_tolerance=coarse_procedure.acceptance.orientation_tolerance,
-                slow_noise=slow_noise,
+                noise=noise,
                 nonlinear=coarse_nonlinear,
                 extra_terms=extra_terms,
                 source=f"{source} (coarse pass {p})",
@@ -230,7 +297,7 @@ def calibrate_device(
     }
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
     joint = dict(
-        gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, slow_noise=slow_noise, extra_terms=extra_terms
+        gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms
     )
     if len(passes) > 1:
         coarse = fit_joint(
@@ -264,13 +331,10 @@ def calibrate_device(
             gravity=site.gravity,
             expected_positions=fine_procedure.positions,
             allow_missing=allow_missing,
-            slow_noise=slow_noise,
+            noise=noise,
             extra_terms=extra_terms,
             source=f"{source} (fine)",
         )
-        warning = hidden_slow_noise_warning(slow_noise, [d for d in fine_dwells if d.usable])
-        if warning is not None:
-            fine = replace(fine, notes=fine.notes + (warning,))
         if mismatch is not None:
             fine = replace(fine, notes=fine.notes + (mismatch,))
         used_fine = sorted((d for d in fine_dwells if d.position in fine.extra["positions_used"]), key=lambda d: d.position)
@@ -281,16 +345,37 @@ def calibrate_device(
             start=start,
             stage="coarse+fine",
             notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
-            + ((mismatch,) if mismatch is not None else ())
-            + ((warning,) if warning is not None else ()),
+            + ((mismatch,) if mismatch is not None else ()),
             **joint,
         )
+    floor = None
+    if measured and noise.test is not None and not noise.test.detected:
+        b_up = noise.limits("bias_instability")[1]
+        if np.all(np.isfinite(b_up)) and np.any(b_up > 0):
+            largest = noise.with_values(bias_instability=b_up)
+            if fused is not None:
+                floor = fit_joint(used_coarse, used_fine, start=fused, stage="coarse+fine", **(joint | {"noise": largest}))
+            else:
+                floor = fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear, **(joint | {"noise": largest}))
+            ratio = floor_ratio(fused if fused is not None else coarse, floor)
+            text = (
+                f"slow noise not detected in the dwells (p = {noise.test.p_value:.2g} at false-positive rate {noise.test.alpha:g}): "
+                f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / 9.80665e-6:.2g} ug; "
+                f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'), and the random walk "
+                "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
+            )
+            if ratio > 1.1:
+                text = "warning: " + text
+            if fused is not None:
+                fused = replace(fused, notes=fused.notes + (text,))
+            else:
+                coarse = replace(coarse, notes=coarse.notes + (text,))
     settings = {
         "coarse_procedure": coarse_procedure.name,
         "fine_procedure": fine_procedure.name,
         "allow_missing": bool(allow_missing),
         "coarse_nonlinear": bool(coarse_nonlinear),
-        "slow_noise": slow_noise.settings(),
+        "noise_model": noise.to_document(),
         "effects": [t.id for t in extra_terms],  # discovered terms estimated with the standard ones
     }
-    return DeviceCalibration(coarse, fine, tuple(passes), fused, settings)
+    return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise, floor)

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import ARCSEC, STANDARD_GRAVITY
 from stableins.data.errors import InputError
+from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.procedures.definition import ProcedureDefinition
@@ -92,6 +93,14 @@ class DwellSummary:
         Why the dwell must be left out (empty when usable).
     notes : tuple of str
         Remarks that do not exclude the dwell (e.g. correlated noise).
+    white_sem : ndarray (3,) or None
+        The white-noise 1σ of the mean before the noise floor is applied.
+    allan_ratios : ndarray (k, 3) or None
+        Overlapping Allan variance over its white-noise value, ``σ̂²_A(m) m / s²``, at the
+        cluster sizes of :func:`stableins.estimators.allan.dwell_test_clusters` (the slow-noise
+        decision, :func:`stableins.estimators.allan.slow_noise_test`).
+    start : float
+        Time of the first sample used [s].
     """
 
     position: int
@@ -107,31 +116,17 @@ class DwellSummary:
     flags: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
     white_sem: NDArray[np.float64] | None = field(default=None, repr=False)
-    allan_clusters: NDArray[np.int64] | None = field(default=None, repr=False)
-    allan_excess: NDArray[np.float64] | None = field(default=None, repr=False)
+    allan_ratios: NDArray[np.float64] | None = field(default=None, repr=False)
     start: float = float("nan")
 
     @property
     def usable(self) -> bool:
         return not self.flags
 
-
-def overlapping_allan_variance(samples: NDArray[np.float64], clusters: NDArray[np.int64]) -> NDArray[np.float64]:
-    r"""Overlapping Allan variance of ``samples (n, k)`` at cluster sizes ``m`` (samples).
-
-    .. math:: \sigma_A^2(m) = \frac{1}{2(n-2m+1)} \sum_i (\bar y_{i+m} - \bar y_i)^2
-
-    with ``ȳ_i`` the mean of samples ``i .. i+m−1`` (IEEE Std 952-1997, Annex C).  For
-    white noise of variance ``σ²`` its expectation is ``σ²/m``.
-    """
-    x = np.asarray(samples, dtype=float)
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - x.mean(axis=0), axis=0)])
-    out = np.empty((len(clusters), x.shape[1]))
-    for k, m in enumerate(clusters):
-        w = (c[m:] - c[:-m]) / m
-        d = w[m:] - w[:-m]
-        out[k] = 0.5 * np.mean(d**2, axis=0)
-    return out
+    @property
+    def rate(self) -> float:
+        """Sample rate [Hz] of the samples used."""
+        return (self.samples - 1) / self.duration if self.duration > 0 else float("nan")
 
 
 def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
@@ -235,12 +230,12 @@ def summarize_dwell(
             notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
             sem = np.where(ratio > limit, sem_block, sem)
     white_sem = sem.copy()
-    clusters = np.array([n // 2**k for k in (2, 3, 4) if n // 2**k >= 10], dtype=np.int64)
-    excess = None
-    if clusters.size and not flags:
-        # Allan variance beyond the white-noise prediction s²/m: flicker (bias instability)
-        # and random walk, pooled over the dwells of a stage by pooled_allan_excess().
-        excess = overlapping_allan_variance(f, clusters) - noise**2 / clusters[:, None]
+    ratios = None
+    if not flags and duration > 0:
+        # Allan variance over its white-noise value at n/4 ... n/32: the slow-noise decision of the stage
+        from stableins.estimators.allan import dwell_allan_ratios
+
+        ratios = dwell_allan_ratios(f, (n - 1) / duration)[1]
     sem = np.maximum(sem, checks.noise_floor)
     return DwellSummary(
         position,
@@ -256,28 +251,26 @@ def summarize_dwell(
         tuple(flags),
         tuple(notes),
         white_sem,
-        clusters,
-        excess,
+        ratios,
         float(t[0]),
     )
 
 
-def pooled_allan_excess(dwells: Sequence[DwellSummary]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-    r"""Allan variance beyond white noise, pooled over dwells: mean, standard error (per axis), count.
+def slow_covariance(dwells: Sequence[DwellSummary], noise: NoiseModel | None, source: str = "data") -> NDArray[np.float64] | None:
+    """Covariance of the dwell means beyond their measured white noise, per axis ``(3, m, m)``, or None.
 
-    A dwell mean differs from the next one by white noise *and* by the slow wander of the
-    bias (flicker, random walk), which one dwell hardly shows.  Its size is the Allan
-    variance beyond the white-noise prediction, ``e(τ) = σ_A²(τ) − s²/m`` (nearly flat,
-    ``≈ 0.664² B²``, for flicker), averaged over the three longest cluster times
-    (``T/4, T/8, T/16``) and the usable dwells; the standard error is the scatter over
-    dwells.  It is a weak estimate (a 10 min dwell sees a 2 µg floor at about 1σ);
-    :mod:`stableins.estimators.noise_model` turns it into a slow-noise model.
+    ``R_a = diag(sem_a²) + slow_covariance[a]`` is
+    :meth:`stableins.noise.NoiseModel.dwell_mean_covariance` with the white part measured in
+    each dwell (``sem``): the one implementation of the uncertainty of a dwell mean, used by
+    the coarse, fine and joint fits and by model discovery.  None when the model has no slow
+    noise and no quantization (diagonal observations).
     """
-    usable = [d for d in dwells if d.usable and d.allan_excess is not None]
-    if len(usable) < 3:
-        return np.zeros(3), np.full(3, np.inf), len(usable)
-    per_dwell = np.array([d.allan_excess.mean(axis=0) for d in usable])
-    return per_dwell.mean(axis=0), per_dwell.std(axis=0, ddof=1) / np.sqrt(len(usable)), len(usable)
+    if noise is None or not (noise.has_slow_noise or np.any(noise.values("quantization") > 0)):
+        return None
+    starts = np.array([d.start for d in dwells], dtype=float)
+    if not np.all(np.isfinite(starts)):
+        raise InputError("dwell start times are needed for the slow-noise covariance", path=source, field="time")
+    return noise.dwell_mean_covariance(starts, [d.duration for d in dwells], np.zeros((len(dwells), 3)))
 
 
 def dwells_from_columns(

@@ -39,12 +39,12 @@ from numpy.typing import NDArray
 
 from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel, Term
-from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge, slow_covariance
+from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.design import aligned_null_space
-from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells
+from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.noise_model import SlowNoise
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.noise import NoiseModel
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
 GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
@@ -79,16 +79,17 @@ class FineProblem:
         sigma_h = np.sqrt(np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2))
         return f_p, half_norm, d_h_d_p, sigma_h
 
-    #: Optional slow-noise covariance of the dwell means, ``(T, m, m)`` (same on every axis).
+    #: Optional covariance of the dwell means beyond their white 1σ, ``(T, 3, m, m)`` per axis
+    #: (:func:`stableins.estimators.dwell.slow_covariance`).
     slow_covariance: NDArray[np.float64] | None = None
 
     def observation_covariance(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``Cov(z) = Σ_a (d_a d_aᵀ) ∘ (diag σ_a² + C_slow)`` with ``d_a = ∂z/∂ȳ_a``, ``(T, m, m)``."""
+        """``Cov(z) = Σ_a (d_a d_aᵀ) ∘ (diag σ_a² + C_slow,a)`` with ``d_a = ∂z/∂ȳ_a``, ``(T, m, m)``."""
         *_, d_h_d_y = self._with_output_derivative(x)
         white = np.einsum("...k,...k->...", d_h_d_y**2, self.sigma**2)
         cov = white[..., None] * np.eye(white.shape[-1])
         if self.slow_covariance is not None:
-            cov = cov + np.einsum("tia,tja->tij", d_h_d_y, d_h_d_y) * self.slow_covariance
+            cov = cov + np.einsum("tia,tja,taij->tij", d_h_d_y, d_h_d_y, self.slow_covariance)
         return cov
 
     def _with_output_derivative(self, x: NDArray[np.float64]):
@@ -132,7 +133,7 @@ def calibrate_fine(
     gravity: float,
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
-    slow_noise: SlowNoise | None = None,
+    noise: NoiseModel | None = None,
     extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> FitResult:
@@ -146,9 +147,9 @@ def calibrate_fine(
         Coarse estimate (start values; the installation-angle sums are carried from it).
     gravity : float
         Local gravity [m/s²]; an error ``δg`` scales all three scale factors by ``1 + δg/g``.
-    slow_noise : SlowNoise, optional
-        Bias instability / random walk of the instrument: correlated covariance of the
-        dwell means.  Without it a 10 min stage understates its 1σ when the bias wanders.
+    noise : NoiseModel, optional
+        The instrument's noise model (slow noise correlated between dwells,
+        :func:`stableins.estimators.dwell.slow_covariance`); white noise only when None.
     extra_terms : sequence of Term
         Additive terms estimated with the standard ones (discovered effects), starting from
         ``coarse``.  One that the norm observation does not determine is carried through from
@@ -164,10 +165,10 @@ def calibrate_fine(
         sigma=np.array([d.sem for d in usable])[None] if usable else np.zeros((1, 0, 3)),
         gravity=float(gravity),
         model=model,
-        slow_covariance=slow_covariance(usable, slow_noise, source) if usable else None,
+        slow_covariance=slow[None] if usable and (slow := slow_covariance(usable, noise, source)) is not None else None,
     )
-    if slow_noise is not None:
-        notes.append(slow_noise.describe())
+    if noise is not None:
+        notes.append(noise.describe())
     if len(usable) <= 12:
         raise InputError(
             f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13. Left out: {describe_left_out(left_out)}",
@@ -266,5 +267,5 @@ def calibrate_fine(
         },
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-        settings={"stage": "fine", "slow_noise": None if slow_noise is None else slow_noise.settings()},
+        settings={"stage": "fine", "noise_model": None if noise is None else noise.to_document()},
     )

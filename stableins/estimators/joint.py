@@ -29,7 +29,7 @@ information-form update of the coarse estimate ``(x̂_c, P_c)`` by the fine obse
 and the GLS above is that update iterated to the common solution (relinearized at
 ``x̂``, so the result does not depend on where the fine stage was linearized).  With
 slow noise ``R`` is not block-diagonal: coarse and fine dwells of one time base share
-the bias wander (:func:`stableins.estimators.noise_model.dwell_mean_covariance`), and
+the bias wander (:meth:`stableins.noise.NoiseModel.dwell_mean_covariance`), and
 the information form above would miss that cross-covariance; the joint GLS carries it
 exactly:
 
@@ -55,11 +55,11 @@ from numpy.typing import NDArray
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
 from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
-from stableins.estimators.dwell import DwellSummary
+from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.noise_model import SlowNoise, dwell_mean_covariance
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.noise import NoiseModel
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,8 @@ class JointProblem:
         Usable fine dwells (``slow_covariance`` unused here).
     columns : ndarray of int
         Index in the joint parameter vector of each fine-model parameter.
-    slow : ndarray (N+M, N+M) or None
-        Slow-noise covariance of all dwell means (coarse first), same on every axis.
+    slow : ndarray (3, N+M, N+M) or None
+        Covariance of all dwell means (coarse first) beyond their white 1σ, per axis.
     """
 
     coarse: CoarseProblem
@@ -111,7 +111,7 @@ class JointProblem:
         for a in range(3):
             block = sigma[..., a, None] ** 2 * np.eye(dwells)
             if self.slow is not None:
-                block = block + self.slow
+                block = block + self.slow[a]
             cov_y[:, :, a, :, a] = block
         cov_y = cov_y.reshape(t, 3 * dwells, 3 * dwells)
         mapping = np.zeros((t, 3 * m_c + m_f, 3 * dwells))
@@ -128,12 +128,6 @@ class JointProblem:
         return np.einsum("tij,tj->ti", w, residual), w @ jacobian
 
 
-def _slow(dwells: Sequence[DwellSummary], slow_noise: SlowNoise | None) -> NDArray[np.float64] | None:
-    if slow_noise is None or slow_noise.is_zero:
-        return None
-    return dwell_mean_covariance([d.start for d in dwells], [d.duration for d in dwells], slow_noise)
-
-
 def fit_joint(
     coarse_dwells: Sequence[DwellSummary],
     fine_dwells: Sequence[DwellSummary] = (),
@@ -143,7 +137,7 @@ def fit_joint(
     configuration: GimbalConfiguration,
     start: FitResult | Mapping[str, float],
     nonlinear: bool = True,
-    slow_noise: SlowNoise | None = None,
+    noise: NoiseModel | None = None,
     stage: str = "coarse",
     notes: Sequence[str] = (),
     extra_terms: Sequence[Term] = (),
@@ -174,7 +168,7 @@ def fit_joint(
         fm = fine_model(extra_terms)
         fine = FineProblem(np.array([d.mean for d in fine_dwells])[None], np.array([d.sem for d in fine_dwells])[None], float(gravity), fm)
         columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
-    problem = JointProblem(coarse, fine, columns, _slow([*coarse_dwells, *fine_dwells], slow_noise))
+    problem = JointProblem(coarse, fine, columns, slow_covariance([*coarse_dwells, *fine_dwells], noise))
     given = start.as_dict() if isinstance(start, FitResult) else dict(start)
     x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
     scales = np.array([t.nominal for t in model])
@@ -201,8 +195,8 @@ def fit_joint(
     out_notes += [f"gauge: {k} held at 0 ({model[k].meaning})" for k in fixed]
     if held:
         out_notes.append(held_terms_note(undetermined, dict(zip(model.ids, x0[0], strict=True)), model, stage))
-    if slow_noise is not None:
-        out_notes.append(slow_noise.describe())
+    if noise is not None:
+        out_notes.append(noise.describe())
     if (stalled := convergence_warning(solution)) is not None:
         out_notes.append(stalled)
     warning = goodness_of_fit_warning(float(whitened @ whitened), residuals.size - design.rank, residuals / residual_sigma, labels)
@@ -238,6 +232,6 @@ def fit_joint(
         settings={
             "stage": stage,
             "nonlinear": bool(nonlinear or bool(fine_dwells)),
-            "slow_noise": None if slow_noise is None else slow_noise.settings(),
+            "noise_model": None if noise is None else noise.to_document(),
         },
     )

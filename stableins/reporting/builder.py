@@ -226,7 +226,8 @@ def write_report(
     if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
         from stableins.reporting.replay import device_fits
 
-        fits, evidence_notes = device_fits(data, bare[0].settings or None, effects=record_terms(view.ids))
+        settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
+        fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
         stages = [stage_evidence(f, where) for f in fits] + stages
     terms = content.known_terms(record_terms(view.ids))
     rows = content.parameter_rows(view, terms)

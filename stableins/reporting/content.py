@@ -278,9 +278,14 @@ def overall_verdict(checks: Sequence[Check]) -> str:
 def describe_settings(settings: Mapping[str, Any]) -> str:
     """The settings a stage ran with, as one line for people (noise model, options that change the estimates)."""
     parts = []
-    slow = settings.get("slow_noise")
+    slow = settings.get("slow_noise")  # records of the first schema-2 version
     if "slow_noise" in settings and slow is None:
         parts.append("white noise only (no slow-noise model)")
+    model = settings.get("noise_model")
+    if isinstance(model, Mapping):
+        from stableins.noise import NoiseModel
+
+        parts.append(NoiseModel.from_document(model).summary())
     if isinstance(slow, Mapping):
         ug = 9.80665e-6
         parts.append(

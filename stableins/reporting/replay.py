@@ -3,7 +3,7 @@
 A record written by this version stores the residual evidence of every fit in its stage runs.
 A record migrated from schema version 1 does not: given its device-level data files (already
 checked against the record's SHA-256), the report re-runs the device-level stages with the
-settings the record's stage run states (procedures, slow-noise model, coarse nonlinearity)
+settings the record's stage run states (procedures, noise model, coarse nonlinearity)
 — or, when the record states none, with the defaults of ``stableins calibrate device`` — and
 says which.
 """
@@ -27,7 +27,7 @@ def device_fits(
     paths : sequence of paths
         Data files given to the report.
     settings : mapping, optional
-        The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``slow_noise``, ``coarse_nonlinear``,
+        The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``noise_model``, ``coarse_nonlinear``,
         ``allow_missing``); the defaults of ``stableins calibrate device`` where absent.
     effects : sequence of Term
         The discovered (additive) terms of the record's model: the stages estimate them with the
@@ -43,7 +43,7 @@ def device_fits(
     from stableins.data.device import load_device
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.noise_model import SlowNoise
+    from stableins.noise import NoiseModel
     from stableins.procedures.definition import load_procedure
 
     settings = dict(settings or {})
@@ -61,23 +61,25 @@ def device_fits(
     for dataset in datasets:
         summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
-    slow = settings.get("slow_noise")
+    noise = settings.get("noise_model")
     calibration = calibrate_device(
         summaries,
         datasets[0].metadata,
         coarse_procedure=procedures["coarse"],
         fine_procedure=procedures["fine"],
         allow_missing=bool(settings.get("allow_missing", False)),
-        slow_noise=None if slow is None else SlowNoise.from_settings(slow),
+        noise=None if noise is None else NoiseModel.from_document(noise),
         coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),
         extra_terms=tuple(effects),
         source=source,
     )
     fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
-    how = (
-        "with the settings the record states (procedures, slow-noise model, coarse nonlinearity)"
-        if settings
-        else "with the defaults of 'stableins calibrate device' (the record states no settings)"
-    ) + (f" and the record's discovered effects {', '.join(t.id for t in effects)}" if effects else "")
+    if set(settings) - {"noise_model"}:
+        how = "with the settings the record states (procedures, noise model, coarse nonlinearity)"
+    elif settings:
+        how = "with the record's noise model and otherwise the defaults of 'stableins calibrate device'"
+    else:
+        how = "with the defaults of 'stableins calibrate device' (the record states no settings)"
+    how += f" and the record's discovered effects {', '.join(t.id for t in effects)}" if effects else ""
     notes.insert(0, f"device-level residuals recomputed from {source} by re-running the coarse and fine stages {how}")
     return fits, notes
