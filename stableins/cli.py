@@ -58,7 +58,7 @@ class Group(NamedTuple):
 COMMANDS: dict[str, Command | Group] = {
     "simulate": Command("stableins.commands.simulate", "simulate device-level dwells or a system-level record with a known truth"),
     "demo": Command("stableins.commands.demo", "simulate a platform end to end and write everything to a directory"),
-    "check": Command("stableins.commands.check", "validate data files and calibration records (columns, units, sampling ...)"),
+    "check": Command("stableins.commands.check", "validate any file stableins writes: data, records, truth, plans, journals, reports"),
     "noise": Command("stableins.commands.noise", "measure the noise model (Allan deviation) from a static record or dwells"),
     "diagnose": Command("stableins.commands.diagnose", "compare the model with the data, rank missing effects, add them and refit"),
     "calibrate": Group(

@@ -31,6 +31,7 @@ arcsec, µg/g²) exist only at the edges through :meth:`Term.to_engineering`.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
@@ -146,6 +147,53 @@ class Term:
     def from_engineering(self, value: ArrayLike) -> NDArray[np.float64]:
         """Engineering unit → SI value."""
         return self.reference + np.asarray(value, dtype=float) * self.scale
+
+    def parse_value(self, text: str, *, si_units: Iterable[str] = ()) -> float:
+        """A value of this term written by a person → SI.
+
+        ``text`` is a number followed by the term's engineering unit (``"60ug/g2"``, ``"60 µg/g²"``, ``"30 arcsec"``)
+        or by its SI unit, or a bare number, which is SI.  Units are compared after :func:`normalize_unit` (``µ`` or
+        ``u``, ``g2``, ``g^2`` or ``g²``, spaces ignored).  ``si_units`` are further spellings of the SI unit.
+
+        Raises
+        ------
+        ValueError
+            The number is not a finite ASCII decimal, or the unit is neither the engineering nor the SI unit; the message
+            says what is expected.
+        """
+        match = _QUANTITY.match(text.strip())
+        spellings = [self.unit, self.si_unit, *si_units]
+        si = " or ".join(dict.fromkeys(s for s in spellings[1:] if s and s != "1")) or "dimensionless"
+        expected = f"a number in {self.unit}, or in SI ({si}; a bare number is SI), e.g. {self.id}=10{self.unit.replace('^', '')}"
+        if match is None or not match.group(1).isascii():
+            raise ValueError(f"{text!r} is not a value of {self.id} (expected {expected})")
+        number, unit = float(match.group(1)), normalize_unit(match.group(2))
+        if not np.isfinite(number):
+            raise ValueError(f"{text!r}: a value of {self.id} must be finite (expected {expected})")
+        if unit == "" or unit in {normalize_unit(s) for s in spellings[1:] if s}:
+            return number
+        if unit == normalize_unit(self.unit):
+            return float(self.from_engineering(number))
+        raise ValueError(f"{text!r}: {match.group(2).strip()!r} is not a unit of {self.id} (expected {expected})")
+
+
+#: A number (ASCII decimal, scientific notation allowed) and whatever follows it (the unit).
+_QUANTITY = re.compile(r"^([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
+_UNIT_SPELLINGS = (("μ", "u"), ("µ", "u"), ("²", "^2"), ("³", "^3"), ("⁴", "^4"), ("**", "^"), ("°", "deg"), ("·", "*"))
+
+
+def normalize_unit(unit: str) -> str:
+    """A unit as it is compared: no spaces, ``µ``/``μ`` → ``u``, ``²`` → ``^2``, ``g2`` → ``g^2`` (a letter followed by a
+    digit is a power), ``°`` → ``deg``; ``"1"`` (dimensionless) → ``""``.
+
+    >>> normalize_unit("µg/g²") == normalize_unit("ug/g2") == normalize_unit("ug / g^2") == "ug/g^2"
+    True
+    """
+    text = "".join(unit.split())
+    for old, new in _UNIT_SPELLINGS:
+        text = text.replace(old, new)
+    text = re.sub(r"(?<=[A-Za-z])(\d)", r"^\1", text)
+    return "" if text == "1" else text
 
 
 MICRO_G_PER_G2 = MICRO_G / STANDARD_GRAVITY**2

@@ -37,6 +37,7 @@ import json
 import math
 import os
 import re
+import shlex
 import sqlite3
 import tempfile
 import time
@@ -439,7 +440,10 @@ class HistoryStore:
         entries = self.entries(serial)
         if not entries:
             raise InputError(
-                f"no calibration records for unit {serial!r}", path=self.root, expected="records added with 'stableins history add'"
+                f"no calibration records for unit {serial!r}",
+                path=self.root,
+                expected=f"a record filed with 'stableins history {shlex.quote(serial)} --store {shlex.quote(str(self.root))} "
+                "--add RECORD.json'",
             )
         earlier = [e for e in entries if e.time <= date]
         if not earlier:

@@ -343,8 +343,8 @@ def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, ca
     ("argv", "fragment"),
     [
         (["--hidden", "K3_x"], "is not ID=VALUE"),
-        (["--hidden", "K3_x=big"], "'big' is not a number"),
-        (["--hidden", "K3_q=1e-6"], "unknown effect id 'K3_q'"),
+        (["--hidden", "K3_x=big"], "'big' is not a value of K3_x"),
+        (["--hidden", "K3_q=1e-6"], "'K3_q' is not an effect of the simulator"),
         (["--duration", "1h"], "--duration applies to system-level simulation only"),
         (["--dwell", "-1"], "-1 is out of range"),
         (["--procedure", "no-such-procedure"], "no-such-procedure"),

@@ -132,9 +132,9 @@ def test_prompts_without_yes(tmp_path, monkeypatch):
     monkeypatch.setattr("builtins.input", lambda prompt: next(answers))
     outcome = start_run(short_plan(), tmp_path / "run", driver_spec="double", console=Console(quiet=True), driver=PlatformDouble(0))
     assert outcome.runner.inputs == {"lab_temperature": 19.25}
-    # on resume nobody is asked again: the answers come from the journal
+    # estimated again from the journal, nobody is asked again: the answers come from the journal
     monkeypatch.setattr("builtins.input", lambda prompt: pytest.fail("asked twice"))
-    again = resume_run(tmp_path / "run", console=Console(quiet=True), driver_factory=lambda start: PlatformDouble(0))
+    again = resume_run(tmp_path / "run", console=Console(quiet=True), re_estimate=True)
     assert again.runner.inputs == {"lab_temperature": 19.25}
 
 

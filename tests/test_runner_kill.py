@@ -143,3 +143,34 @@ def test_kill_9_over_the_network_loses_and_duplicates_nothing(tmp_path):
     assert all(len(d) == 200 for d in dwells)  # whole dwells, never stitched across a kill
     assert all(np.all(np.diff(d.time) > 0) and np.ptp(np.diff(d.time)) < 1e-9 for d in dwells)  # contiguous
     np.testing.assert_array_equal(journal_columns(records)["f_x"], data.columns["f_x"])
+
+
+def test_killed_while_writing_outputs_resume_writes_them(tmp_path):
+    """Killed after the last step's ``complete`` record but before the outputs were written: resume writes them from
+    the journal (sample for sample those of the run) and journals the run as finished; a second resume says finished."""
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(short_plan(chunk=0.5, checks=SIM_CHECKS, positions=SMALL_MOVES).to_dict()))
+    rundir = tmp_path / "run"
+    process = _launch("start", rundir, 5, plan)
+    assert process.wait(timeout=120) == 0, process.stderr.read()
+    process.stderr.close()
+    journal = rundir / "journal.bin"
+    records = scan(journal).records
+    assert [r.kind for r in records][-2:] == ["complete", "finished"]
+    expected = load_device(rundir / "device.h5").columns
+    # the state a kill between 'complete' and the outputs leaves: no 'finished' record, no data set
+    with open(journal, "r+b") as handle:
+        handle.truncate(records[-1].offset)
+    (rundir / "device.h5").unlink()
+    process = _launch("resume", rundir, 5, plan)
+    assert process.wait(timeout=120) == 0, process.stderr.read()
+    process.stderr.close()
+    got = load_device(rundir / "device.h5").columns
+    for name in expected:
+        np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+    kinds = [r.kind for r in scan(journal).records]
+    assert kinds.count("complete") == 1 and kinds[-1] == "finished" and "resume" not in kinds
+    process = _launch("resume", rundir, 5, plan)
+    message = process.stderr.read().decode()
+    assert process.wait(timeout=60) == 0 and "is finished" in message, message
+    process.stderr.close()

@@ -149,6 +149,9 @@ def run(args: argparse.Namespace) -> int:
     text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
+    steps = next_steps(args, record)
+    for line in steps:
+        note(line)
     result = {
         "record": str(args.out),
         "stages": ["coarse"] + (["fine"] if calibration.fine is not None else []),
@@ -159,9 +162,27 @@ def run(args: argparse.Namespace) -> int:
         "discovery": None if history is None else history.to_json(),
         "noise_model": None if calibration.noise is None else calibration.noise.to_document(),
         "largest_floor": None if calibration.floor is None else _summary(calibration.floor),
+        "next": [line.strip() for line in steps if line.startswith("  ")],
     }
     emit(args, result, text)
     return 0
+
+
+def next_steps(args: argparse.Namespace, record) -> list[str]:
+    """What to do next with a device-level record, as a command that runs as written: ask whether the model misses an
+    effect (``stableins diagnose``); then the system stage on a static record taken with the INS compensating by it."""
+    import shlex
+
+    from stableins.commands.noise import noise_arguments
+
+    command = ["stableins", "diagnose", *[str(p) for p in args.data], "--record", str(args.out), *noise_arguments(args)]
+    return [
+        "next: is the model missing an effect? (model discovery against this record)",
+        f"  {shlex.join(command)}",
+        f"then the system stage: one sidereal day on a static base with the INS compensating by {args.out} "
+        f"('stableins run system-static --prior {shlex.quote(str(args.out))}' on the platform), then "
+        f"'stableins calibrate system DAY.h5 --prior {shlex.quote(str(args.out))} --out calibration.json'",
+    ]
 
 
 def data_description(datasets) -> dict:

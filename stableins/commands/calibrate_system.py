@@ -17,6 +17,7 @@ record's own statuses and σ.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from stableins.commands import add_entries_option
@@ -204,6 +205,12 @@ def run(args: Any) -> int:
         },
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
+    import shlex
+
+    certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
+    command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
+    data["next"] = [command]
+    note(f"next: the calibration certificate of {args.out}:\n  {command}")
     emit(args, data, text=report(outcome, updated, str(args.out)))
     return 0
 

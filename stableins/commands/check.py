@@ -1,43 +1,91 @@
-"""``stableins check FILE...``: validate data files and calibration records, print a summary.
+"""``stableins check FILE...``: validate any file stableins writes, print what it holds.
 
-Each file is read completely and every check of ``docs/formats.md`` is applied
-(columns, units, NaN/inf, time order, dwell blocks, sampling, record consistency): the
-same validation the commands that consume the file run (``load_device`` for device
-data, :meth:`~stableins.data.system.SystemRecord.validate` for system records,
-``CalibrationRecord.load`` for records), so ``check`` and they never disagree.
+Each file is recognized by its content (its first bytes, its ``format`` or ``kind`` field) and read with
+exactly the validation of the code that consumes it, so that ``check`` and those commands never disagree:
+
+===========================================  =====================================================================
+file                                         validated by
+===========================================  =====================================================================
+device data (``.csv``, ``.h5``)               ``load_device`` (what ``calibrate device`` and ``diagnose`` read)
+system record (``.h5``)                       ``SystemRecord.validate`` (what ``calibrate system`` and ``diagnose`` run)
+calibration record (``.json``)                ``CalibrationRecord.load`` (records, ``prior.json``, the history store's copies)
+simulator truth (``truth.json``)              ``Truth.read`` (what ``simulate --truth`` reads)
+plan (``procedure.json``)                     ``Plan.from_dict`` (what ``run`` reads as PROCEDURE)
+procedure definition (``.toml``)              ``load_procedure`` (what ``run``, ``simulate``, ``calibrate device`` read)
+run journal (``journal.bin``)                 the journal reader of ``run --resume`` (records, CRC-32, start record, plan)
+diagnosis (``diagnose --json``)               the reader of ``report --discovery``
+demo verdict (``verdict.json``)               every row's fields and types
+history store index (``history.sqlite``)      ``HistoryStore.verify`` (the index and every filed record's SHA-256)
+certificate (``.pdf``), plots (PNG, SVG)      the file's structure (header, trailer, page count; image size)
+text reports (``.txt``)                       UTF-8 text
+===========================================  =====================================================================
+
 Exit status 0 if all files pass, 2 at the first file that does not.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("files", nargs="+", metavar="FILE", help="device/system data (.csv, .h5) or calibration record (.json)")
+    parser.add_argument("files", nargs="+", metavar="FILE", help="any file stableins writes: data, records, truth, plans, journals, ...")
     parser.add_argument("--allow-gaps", action="store_true", help="report gaps in system records as warnings instead of errors")
 
 
+#: First bytes of binary files stableins writes.
+PDF_MAGIC, PNG_MAGIC, HDF5_MAGIC, SQLITE_MAGIC = b"%PDF-", b"\x89PNG\r\n\x1a\n", b"\x89HDF\r\n\x1a\n", b"SQLite format 3\x00"
+#: Largest text or PDF file ``check`` reads whole (a certificate is about 1 MB).
+MAX_WHOLE_FILE = 256 << 20
+
+
 def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
-    """Validate one file and describe it (raises InputError)."""
+    """Recognize and validate one file and describe it (raises InputError naming the file, the field and what was expected)."""
+    from stableins.procedures.journal import FILE_MAGIC
+
+    file = Path(path)
+    head = _head(file)
+    suffix = file.suffix.lower()
+    if head.startswith(HDF5_MAGIC) or suffix in (".h5", ".hdf5", ".hdf"):
+        return _data(path, allow_gaps)
+    if head.startswith(FILE_MAGIC[:8]) or suffix == ".bin":
+        return _journal(path)
+    if head.startswith(SQLITE_MAGIC):
+        return _store(path)
+    if head.startswith(PDF_MAGIC):
+        return _pdf(path)
+    if head.startswith(PNG_MAGIC):
+        return _png(path, head)
+    if suffix == ".csv" or head.startswith(b"# stableins-device"):
+        return _data(path, allow_gaps)
+    if suffix == ".toml":
+        return _procedure(path)
+    if suffix == ".json" or head.lstrip()[:1] in (b"{", b"["):
+        return _json(path)
+    if suffix == ".svg" or head.lstrip().startswith((b"<?xml", b"<svg")):
+        return _text(path, "plot (SVG)")
+    return _text(path, "text report")
+
+
+def _head(file: Path) -> bytes:
+    from stableins.data.jsonio import read_input_bytes
+
+    if not file.exists():
+        from stableins.data.errors import InputError
+
+        raise InputError("no such file", path=file)  # as the data readers say it
+    if not file.is_file():  # a directory: the reader's one message
+        read_input_bytes(file, max_bytes=MAX_WHOLE_FILE, what="a file written by stableins")
+    with open(file, "rb") as handle:
+        return handle.read(64)
+
+
+def _data(path: str, allow_gaps: bool) -> dict[str, Any]:
     import warnings
-    from pathlib import Path
 
-    if Path(path).suffix.lower() == ".json":
-        from stableins.records import CalibrationRecord
-
-        record = CalibrationRecord.load(path)
-        return {
-            "file": path,
-            "kind": "calibration record",
-            "serial_number": record.serial_number,
-            "schema_version": record.schema_version,
-            "stages": list(record.provenance.stages),
-            "stages_carried_over": [s.name for s in record.stages if s not in record.stages_run],
-            "parameters": len(record.parameters),
-            "statuses": {s.value: sum(p.status is s for p in record.parameters) for s in sorted({p.status for p in record.parameters})},
-        }
+    from stableins.data.errors import InputError
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
 
     tag = read_format_tag(path)
@@ -77,9 +125,198 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
             "time_grid_segments": segments,
             "warnings": [str(w.message) for w in caught],
         }
+    raise InputError(f"unknown format {tag!r}", path=path, field="format", expected="'stableins-device' or 'stableins-system'")
+
+
+def _json(path: str) -> dict[str, Any]:
+    from stableins.data.errors import InputError
+    from stableins.data.jsonio import load_json_file
+    from stableins.records import RECORD_FORMAT
+
+    document = load_json_file(path, what="a JSON file written by stableins")
+    if isinstance(document, dict) and (document.get("format") == RECORD_FORMAT or "parameters" in document and "covariance" in document):
+        return _record(path)
+    if isinstance(document, dict) and (document.get("kind") == "stableins.truth" or {"parameters", "site", "noise"} <= set(document)):
+        from stableins.simulator.truth import Truth
+
+        truth = Truth.read(path)
+        return {
+            "file": path,
+            "kind": "simulator truth",
+            "serial_number": truth.site.serial_number,
+            "seed": truth.seed,
+            "parameters": len(truth.parameters),
+            "hidden_effects": sorted(truth.effects),
+        }
+    if isinstance(document, dict) and {"name", "level", "steps"} <= set(document):
+        from stableins.procedures.plan import Plan
+
+        plan = Plan.from_dict(document, path)
+        return {"file": path, "kind": "procedure plan", "name": plan.name, "level": plan.level, "steps": len(plan.steps)}
+    if isinstance(document, dict) and {"candidates", "history"} <= set(document):
+        from stableins.reporting.builder import read_discovery
+
+        diagnosis = read_discovery(path)
+        flagged = [c.get("id") for c in diagnosis["candidates"] if c.get("flagged")]
+        return {"file": path, "kind": "diagnosis", "stage": diagnosis.get("stage"), "steps": len(diagnosis["history"]), "flagged": flagged}
+    if isinstance(document, list) and document and all(isinstance(r, dict) and "estimate" in r and "truth" in r for r in document):
+        return _verdict(path, document)
+    raise InputError(
+        "a JSON document stableins does not write",
+        path=path,
+        expected="a calibration record, truth.json, procedure.json, the output of 'stableins diagnose --json' or the demo's verdict.json",
+    )
+
+
+def _record(path: str) -> dict[str, Any]:
+    from stableins.records import CalibrationRecord
+
+    record = CalibrationRecord.load(path)
+    return {
+        "file": path,
+        "kind": "calibration record",
+        "serial_number": record.serial_number,
+        "schema_version": record.schema_version,
+        "stages": list(record.provenance.stages),
+        "stages_carried_over": [s.name for s in record.stages if s not in record.stages_run],
+        "parameters": len(record.parameters),
+        "statuses": {s.value: sum(p.status is s for p in record.parameters) for s in sorted({p.status for p in record.parameters})},
+    }
+
+
+#: Fields of a row of the demo's ``verdict.json`` and their types.
+_VERDICT_FIELDS = {"id": str, "unit": str, "truth": float, "estimate": float, "sigma": float, "error": float, "z": float}
+
+
+def _verdict(path: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    from stableins.data.errors import InputError
+    from stableins.data.jsonio import expect_number
+
+    for k, row in enumerate(rows):
+        for key, kind in _VERDICT_FIELDS.items():
+            where = f"[{k}].{key}"
+            if key not in row:
+                raise InputError("missing", path=path, field=where, expected=f"the fields {', '.join(_VERDICT_FIELDS)}")
+            if kind is str and not isinstance(row[key], str):
+                raise InputError(f"{row[key]!r} is not a string", path=path, field=where, expected="a string")
+            if kind is float and not (key == "z" and row[key] is None):
+                expect_number(row[key], path, where)
+    worst = max((abs(r["z"]) for r in rows if r["z"] is not None), default=float("nan"))
+    return {"file": path, "kind": "demo verdict", "parameters": len(rows), "largest_abs_z": worst}
+
+
+def _procedure(path: str) -> dict[str, Any]:
+    from stableins.procedures.definition import load_procedure
+
+    definition = load_procedure(path)
+    return {
+        "file": path,
+        "kind": "procedure definition",
+        "name": definition.name,
+        "stage": definition.stage,
+        "positions": len(definition.steps),
+        "tolerances": definition.tolerances is not None,
+    }
+
+
+def _journal(path: str) -> dict[str, Any]:
+    from collections import Counter
+
+    from stableins.data.errors import InputError
+    from stableins.procedures.journal import scan
+    from stableins.procedures.plan import Plan
+
+    result = scan(path)  # the reader of --resume: CRC-32 of every record, damage before the last record refused
+    if not result.records or result.records[0].kind != "start":
+        raise InputError("the journal holds no start record", path=path, field="start", expected="a journal written by 'stableins run'")
+    start = result.records[0]
+    plan = Plan.from_dict(start["plan"], f"{path}, start record, plan")
+    kinds = Counter(r.kind for r in result.records)
+    state = "finished" if kinds["complete"] else ("stopped" if kinds["stop"] else "interrupted or running")
+    summary = {
+        "file": path,
+        "kind": "run journal",
+        "procedure": plan.name,
+        "unit": start.get("unit"),
+        "records": len(result.records),
+        "state": state,
+        "records_by_kind": dict(sorted(kinds.items())),
+    }
+    if result.torn_bytes:
+        summary["warnings"] = [f"a torn last record ({result.torn_bytes} bytes, {result.torn_reason}): 'stableins run --resume' drops it"]
+    return summary
+
+
+def _store(path: str) -> dict[str, Any]:
+    from stableins.data.errors import InputError
+    from stableins.history_store import STORE_NAME, HistoryStore
+
+    file = Path(path)
+    if file.name != STORE_NAME:
+        raise InputError("an SQLite file that is not a history store index", path=path, expected=f"{STORE_NAME} in a history store")
+    store = HistoryStore(file.parent)
+    problems = store.verify()
+    if problems:
+        raise InputError(f"{len(problems)} problem(s); the first: {problems[0]}", path=path, expected="a consistent history store")
+    serials = store.serials()
+    return {
+        "file": path,
+        "kind": "history store index",
+        "units": len(serials),
+        "records": sum(len(store.entries(s)) for s in serials),
+    }
+
+
+def _pdf(path: str) -> dict[str, Any]:
+    import re
+
+    from stableins.data.errors import InputError
+    from stableins.data.jsonio import read_input_bytes
+
+    data = read_input_bytes(path, max_bytes=MAX_WHOLE_FILE, what="a PDF written by stableins")
+    if b"%%EOF" not in data[-1024:]:
+        raise InputError("the PDF has no end-of-file marker (cut short?)", path=path, field="%%EOF", expected="a complete PDF")
+    pages = len(re.findall(rb"/Type\s*/Page(?![s\w])", data))
+
+    def info(key: str) -> str:
+        match = re.search(rb"/" + key.encode() + rb" \(((?:[^()\\]|\\.)*)\)", data)
+        return match.group(1).decode("latin-1").replace("\\(", "(").replace("\\)", ")") if match else ""
+
+    summary: dict[str, Any] = {"file": path, "kind": "PDF document", "pages": pages}
+    if info("Author") == "stableins" and info("Title"):
+        summary.update(kind="calibration certificate (PDF)", title=info("Title"), subject=info("Subject"))
+    if pages == 0:
+        raise InputError("the PDF has no pages", path=path, field="pages", expected="a PDF with at least one page")
+    return summary
+
+
+def _png(path: str, head: bytes) -> dict[str, Any]:
+    import struct
+
     from stableins.data.errors import InputError
 
-    raise InputError(f"unknown format {tag!r}", path=path, field="format", expected="'stableins-device' or 'stableins-system'")
+    if len(head) < 24 or head[12:16] != b"IHDR":
+        raise InputError("a PNG without its image header", path=path, field="IHDR", expected="a complete PNG image")
+    width, height = struct.unpack(">II", head[16:24])
+    with open(path, "rb") as handle:
+        handle.seek(-12, 2)
+        if handle.read(12)[4:8] != b"IEND":
+            raise InputError("the PNG has no end chunk (cut short?)", path=path, field="IEND", expected="a complete PNG image")
+    return {"file": path, "kind": "plot (PNG)", "width": width, "height": height}
+
+
+def _text(path: str, kind: str) -> dict[str, Any]:
+    from stableins.data.errors import InputError
+    from stableins.data.jsonio import read_input_bytes
+
+    data = read_input_bytes(path, max_bytes=MAX_WHOLE_FILE, what="a text file written by stableins")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise InputError(f"not UTF-8 text (byte {error.start})", path=path, expected="a file written by stableins") from None
+    if "\x00" in text:
+        raise InputError("binary content in a text file", path=path, expected="a file written by stableins")
+    return {"file": path, "kind": kind, "lines": text.count("\n") + (not text.endswith("\n") and bool(text))}
 
 
 def run(args: argparse.Namespace) -> int:

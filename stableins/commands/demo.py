@@ -34,8 +34,8 @@ MAX_ROUNDS = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from stableins.commands.arguments import number, output_directory, seed
-    from stableins.commands.simulate import parse_duration, parse_hidden
+    from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
+    from stableins.commands.simulate import parse_duration
 
     parser.add_argument(
         "--out", type=output_directory, default=Path("demo-output"), metavar="DIR", help="output directory (default demo-output)"
@@ -46,11 +46,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--hidden",
-        type=parse_hidden,
+        type=effect_magnitude,
         action="append",
         default=[],
         metavar="ID=VALUE",
-        help="hide an effect in the simulated instrument (SI, repeatable) for model discovery to find",
+        help="hide an effect in the simulated instrument for model discovery to find: VALUE in its engineering unit "
+        "(Kcc_xxy=60ug/g2) or SI (a bare number); repeatable; see 'stableins simulate --list-effects'",
     )
     parser.add_argument(
         "--rate",
@@ -200,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = prepare_directory(args.out)
     seed = str(args.seed)
-    hidden = [item for name, value in args.hidden for item in ("--hidden", f"{name}={value}")]
+    hidden = [item for name, value in args.hidden for item in ("--hidden", f"{name}={value!r}")]  # SI, exactly
     _step("device-level session", ["simulate", "device", "--seed", seed, "--out", str(out), *hidden])
     data = [str(out / "device-coarse.csv"), str(out / "device-fine.h5")]
     datasheet = _datasheet(out / "truth.json")  # what a user knows of the instrument: its Allan parameters
@@ -216,12 +217,10 @@ def run(args: argparse.Namespace) -> int:
         "system-level calibration",
         ["calibrate", "system", str(out / "system.h5"), "--prior", str(out / "cal-device.json"), "--out", str(out / "calibration.json")],
     )
-    from stableins.procedures.definition import load_procedure
-
     _step(
         "calibration report",
         ["report", str(out / "calibration.json"), "--data", *data, str(out / "system.h5"),
-         "--discovery", str(diagnosis), "--procedure", load_procedure("system-static").path,
+         "--discovery", str(diagnosis), "--procedure", "system-static",
          "--out", str(out / "calibration-report.pdf")],
     )  # fmt: skip
     rows = verdict(out / "calibration.json", out / "truth.json")

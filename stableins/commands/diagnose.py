@@ -117,8 +117,9 @@ def run(args: argparse.Namespace) -> int:
     parts = [diagnosis.report(), ranking.report(top=args.top)]
     if drift is not None:
         parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
-    text = "\n\n".join(parts + [session.history.report()])
     model_used = dwells.noise.get("model")
+    steps = next_steps(args, record, ranking.flagged, system=False)
+    text = "\n\n".join(parts + [session.history.report(), "\n".join(steps)])
     result = {
         "stage": dwells.noise.get("stage"),
         "noise_model": None if model_used is None else model_used.to_document(),
@@ -132,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         "candidates": ranking.to_json(),
         "history": session.history.to_json(),
         "left_out": dwells.noise.get("left_out", []),
+        "next": steps,
         "drift": None
         if drift is None
         else {
@@ -142,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
         },
         "spectra": {},
     }
+    if args.json:
+        for line in steps:
+            note(line)
     emit(args, result, text)
     return 0
 
@@ -150,7 +155,7 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     """A system-level record: discovery under the noise model the system stage measures in it (docs/discovery.md)."""
     from stableins.commands.noise import system_noise_prior
     from stableins.discovery.system import diagnose_system_record, measure_noise
-    from stableins.output import emit
+    from stableins.output import emit, note
 
     prior, _ = system_noise_prior(args, default=record.noise_model)
     values = record.values()
@@ -172,7 +177,8 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
     session, diagnosis, ranking = result.session, result.diagnosis, result.ranking
     if args.plots is not None:
         _write_plots(args.plots, session, ranking, result.spectra)
-    text = "\n\n".join([result.report(top=args.top), session.history.report()])
+    steps = next_steps(args, record, ranking.flagged, system=True)
+    text = "\n\n".join([result.report(top=args.top), session.history.report(), "\n".join(steps)])
     flagged = {(name, k) for name, k, _ in result.flagged_harmonics}
     data = {
         "stage": "system",
@@ -191,6 +197,7 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
         "candidates": ranking.to_json(),
         "history": session.history.to_json(),
         "left_out": [],
+        "next": steps,
         "drift": None,
         "notes": list(result.notes),
         "spectra": {
@@ -207,6 +214,9 @@ def _system(args: argparse.Namespace, opened, record, model) -> int:
             for name, sp in result.spectra.items()
         },
     }
+    if args.json:
+        for line in steps:
+            note(line)
     emit(args, data, text)
     return 0
 
@@ -248,3 +258,37 @@ def _write_plots(directory: Path, session, ranking, spectra=None) -> None:
         figure.savefig(directory / f"{name}.png", dpi=110)
         plt.close(figure)
     note(f"plots written to {directory}")
+
+
+def next_steps(args: argparse.Namespace, record, flagged, *, system: bool) -> list[str]:
+    """What to do next, as commands that run as written: carry the best flagged effect into the calibration, look at
+    an effect a calibration cannot carry, or certify the record when nothing is missing."""
+    import shlex
+
+    from stableins.commands.noise import noise_arguments
+    from stableins.discovery.library import LIBRARY, calibration_limit
+
+    data = [str(p) for p in args.data]
+    record_path = Path(args.record)
+    if not flagged:
+        certificate = record_path.with_name(f"{record_path.stem}-report.pdf")
+        command = ["stableins", "report", str(record_path), "--data", *data, "--out", str(certificate)]
+        return [
+            f"next: nothing is flagged at α = {args.alpha:g}: the model in force reaches the noise floor; its certificate:",
+            f"  {shlex.join(command)}",
+        ]
+    best = flagged[0]
+    why = calibration_limit(best.id)
+    if system or why is not None:
+        reason = f"a calibration cannot carry it: {why}" if why is not None else "the system stage does not estimate added effects"
+        command = ["stableins", "diagnose", *data, "--record", str(record_path), *noise_arguments(args), "--add", best.id]
+        return [f"next: {best.id} is flagged ({reason}); see it in the model and what it changes:", f"  {shlex.join(command)}"]
+    kept = [i for i in record.ids if i in LIBRARY]  # the discovered effects of the model in force stay in it
+    out = record_path.with_name(f"{record_path.stem}-{best.id}.json")
+    command = ["stableins", "calibrate", "device", *data, *noise_arguments(args)]
+    command += [item for effect in (*kept, best.id) for item in ("--add", effect)] + ["--out", str(out)]
+    confused = f"; with these data it is indistinguishable from {', '.join(best.confused_with)}" if best.confused_with else ""
+    return [
+        f"next: carry {best.id} into the calibration (it is tested again there and kept only if the data show it{confused}):",
+        f"  {shlex.join(command)}",
+    ]

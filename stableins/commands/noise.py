@@ -69,6 +69,18 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def noise_arguments(args: argparse.Namespace) -> list[str]:
+    """The noise options of :func:`add_noise_options` this command was given, to pass on to the next command it suggests."""
+    out = []
+    if getattr(args, "noise", None) is not None:
+        out += ["--noise", str(args.noise)]
+    if getattr(args, "bias_instability", None) is not None:
+        out += ["--bias-instability", f"{args.bias_instability:g}"]
+    if getattr(args, "random_walk", None) is not None:
+        out += ["--random-walk", f"{args.random_walk:g}"]
+    return out
+
+
 def noise_from_options(args: argparse.Namespace, dwells, default=None):
     """The noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
 

@@ -11,7 +11,9 @@
 Exactly one new record is written, ``OUT/record.json``: the record in force updated by the new
 stage(s), a Bayesian update (no σ grows, nothing moves along what the new data do not see).  It
 is filed in the history store (so it is the record in force from the end of its data) and its
-certificate is ``OUT/report.pdf``.  Every parameter's change is printed with its significance
+certificate is ``OUT/report.pdf``.  The store is ``--store DIR``, else ``$STABLEINS_HISTORY``, else
+``~/.local/share/stableins/history`` (as for ``stableins history``); ``--prior RECORD`` gives the record in
+force directly.  Every parameter's change is printed with its significance
 (:func:`stableins.history.compare`: the new record descends from the old one, σ² of a change =
 σ²_old − σ²_new; flagged at |z| ≥ 3), the same numbers the certificate shows.
 """
@@ -29,6 +31,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     run_command.configure(parser)
     parser.add_argument("--estimate", metavar="RECORD", help="a record of new data whose own stages update the record in force")
     parser.add_argument("--no-file", action="store_true", help="do not file the new record in the history store")
+    for action in parser._actions:
+        if action.dest == "store":
+            action.help = "history store with the unit's record in force (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)"
 
 
 def apply_estimate(prior, prior_path: Path, estimate_path: Path):
@@ -74,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.unit:
         raise InputError("which unit?", field="--unit", expected="the serial number")
+    if not args.store and not args.prior:  # the history store of 'stableins history': $STABLEINS_HISTORY or the default
+        from stableins.history_store import default_store
+
+        args.store = str(default_store())
     prior_path = run_command.prior_file(args)
     if prior_path is None:
         raise InputError("a recalibration needs the unit's previous record", field="--store", expected="--store DIR or --prior RECORD")
@@ -86,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
         record_path = record.save(out / "record.json")
         from stableins.reporting import write_report
 
-        write_report(out / "report.pdf", record_path, previous=prior_path)
+        summary = write_report(out / "report.pdf", record_path, previous=prior_path)
+        note("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
     else:
         args.prior = str(prior_path)
         args.new_calibration = True  # a recalibration starts a new calibration from the record in force
@@ -94,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
         status = run_command.run(args)
         if status != 0:
             return status
+        if args.finished is not None:  # --resume of a finished recalibration: its record was filed when it finished
+            emit(args, {"rundir": str(args.finished.rundir), "finished": True, "completed": args.finished.completed},
+                 f"finished: {args.finished.rundir} (completed {args.finished.completed}); nothing was filed again")  # fmt: skip
+            return 0
         out = Path(args.resume or args.out)
         record_path = out / "record.json"
         if not record_path.exists():

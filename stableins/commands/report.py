@@ -22,7 +22,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--previous", metavar="OLD.json", help="previous calibration record of the unit (change and its significance)")
     parser.add_argument(
-        "--procedure", metavar="PROC.toml", help="procedure definition whose [tolerances] table gives the conformity limits"
+        "--procedure",
+        metavar="PROCEDURE",
+        help="procedure (a shipped definition's name, e.g. system-static, or a TOML file) whose [tolerances] table gives the limits",
     )
     parser.add_argument("--discovery", metavar="DIAG.json", help="output of 'stableins diagnose --json' (model-discovery section)")
     parser.add_argument("--report-id", help="report id to print (default: derived from the serial number, date and input digests)")
@@ -52,5 +54,7 @@ def run(args: argparse.Namespace) -> int:
         "verdict": summary.verdict,
         "sha256": summary.sha256,
     }
-    emit(args, data, f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}")
+    data["conformity"] = list(summary.conformity)
+    text = [f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}"]
+    emit(args, data, "\n".join(text + [f"  {line}" for line in summary.conformity if summary.verdict != "NO STATEMENT"]))
     return 0

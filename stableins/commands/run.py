@@ -5,9 +5,11 @@
     stableins run device-coarse --driver sim --unit INS-7 --out runs/coarse --seed 3
     stableins run device-fine --driver tcp://127.0.0.1:5025 --unit INS-7 --out runs/fine --prior runs/coarse/record.json
     stableins run --resume runs/fine            # after a crash, a power loss, kill -9 or a stop
+    stableins run --resume runs/fine --re-estimate   # a finished run, estimated again from its journal
 
-PROCEDURE is a definition name (``procedures/<name>.toml``), a ``.toml`` file, or a plan
-``.json`` (``procedure.json`` of an earlier run).  Exit status: 0 done, 2 bad input,
+PROCEDURE is the name of a shipped definition (``device-coarse``, found from any directory), a ``.toml``
+file, or a plan ``.json`` (``procedure.json`` of an earlier run).  ``--resume`` of a finished run says it
+is finished and changes nothing (``--re-estimate`` estimates it again from its journal).  Exit status: 0 done, 2 bad input,
 3 stopped (a step failed its retries, the link failed, a person declined): resume with --resume.
 """
 
@@ -29,7 +31,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--driver", help="sim, tcp://HOST:PORT or replay:RUNDIR (on --resume: a new tcp:// address)")
     parser.add_argument("--unit", help="serial number of the unit (checked against the platform)")
     parser.add_argument("--out", type=output_directory, metavar="RUNDIR", help="new run directory (journal, data, records)")
-    parser.add_argument("--resume", metavar="RUNDIR", help="continue the run in RUNDIR where it stopped")
+    parser.add_argument("--resume", metavar="RUNDIR", help="continue the run in RUNDIR where it stopped (a finished run: says so)")
+    parser.add_argument(
+        "--re-estimate",
+        action="store_true",
+        help="with --resume of a finished run: estimate it again from its journal alone (no platform) and write its data, "
+        "record and certificate anew",
+    )
     parser.add_argument("--seed", type=seed, help="seed of the simulated platform (sim): same seed, same samples")
     parser.add_argument("--yes", action="store_true", help="unattended: confirm every prompt, take defaults")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="value for a person step (repeatable)")
@@ -142,16 +150,21 @@ def run(args: argparse.Namespace) -> int:
     from stableins.data.errors import InputError
     from stableins.drivers.errors import DriverError
     from stableins.output import emit
-    from stableins.procedures.rundir import resume_run, start_run
+    from stableins.procedures.rundir import RunFinished, resume_run, start_run
     from stableins.procedures.runner import Console, JournalMismatch, RunOptions, RunStopped
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
+    args.finished = None
     try:
+        if args.re_estimate and not args.resume:
+            raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
         if args.resume:
             if args.procedure or args.out:
                 raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
-            outcome = resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout)
+            outcome = resume_run(
+                args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate
+            )
         else:
             missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
             if missing:
@@ -173,6 +186,18 @@ def run(args: argparse.Namespace) -> int:
                 new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
                 fields=parse_settings(args.set),
             )
+    except RunFinished as finished:
+        args.finished = finished
+        print(
+            f"stableins: {finished}; nothing was run or rewritten.\n"
+            f"  to estimate it again from its journal (e.g. with a newer stableins): stableins run --resume {rundir} --re-estimate",
+            file=sys.stderr,
+        )
+        if getattr(args, "emit_result", True):
+            files = {p.name: str(p) for p in finished.outputs}
+            emit(args, {"rundir": str(finished.rundir), "finished": True, "completed": finished.completed, "files": files},
+                 f"finished: {finished.rundir} (completed {finished.completed})")  # fmt: skip
+        return 0
     except RunStopped as stop:
         print(f"stableins: run stopped: {stop}\n  {_how_to_continue(rundir, args)}", file=sys.stderr)
         return EXIT_STOPPED if _resumable(rundir) else 1
@@ -195,6 +220,9 @@ def run(args: argparse.Namespace) -> int:
         "dwells": len(outcome.runner.entries),
         "static_record_chunks": len(outcome.runner.static_chunks),
         "replayed_records": outcome.replayed,
+        "verdict": outcome.verdict,
+        "conformity": list(outcome.conformity),
     }
-    emit(args, data, "\n".join(f"{k}: {v}" for k, v in data.items() if v is not None))
+    text = [f"{k}: {v}" for k, v in data.items() if v is not None and k != "conformity"]
+    emit(args, data, "\n".join(text + [f"  {line}" for line in outcome.conformity]))
     return 0

@@ -4,7 +4,8 @@
 
     stableins simulate device --seed 3 --out sim/ [--procedure device-coarse --procedure device-fine]
     stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
-    stableins simulate device --truth sim/truth.json --hidden cross_xz=2e-5 --out sim2/
+    stableins simulate device --truth sim/truth.json --hidden Kcc_xxy=60ug/g2 --out sim2/
+    stableins simulate --list-effects
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
 per procedure, or ``system.h5``) and
@@ -49,19 +50,26 @@ def parse_duration(text: str) -> float:
     return value
 
 
-def parse_hidden(text: str) -> tuple[str, float]:
-    """``"ID=VALUE"`` → ``(ID, VALUE)``; VALUE in SI (argparse type)."""
-    key, sep, value = text.partition("=")
-    key = key.strip()
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"{text!r} is not ID=VALUE (e.g. --hidden cross_xz=2e-5)")
-    try:
-        number = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number (values are SI)") from None
-    if not math.isfinite(number):
-        raise argparse.ArgumentTypeError(f"{text!r}: the value must be finite")
-    return key, number
+def effect_rows() -> list[dict[str, Any]]:
+    """The simulator's effects with their nominal size in SI (``unit``, ``nominal``) and in engineering units."""
+    from stableins.discovery.library import all_terms
+    from stableins.simulator.effects import catalogue_table
+
+    terms = all_terms()
+    rows = []
+    for effect_id, unit, nominal, meaning in catalogue_table():
+        term = terms[effect_id]
+        rows.append(
+            {
+                "id": effect_id,
+                "unit": unit,
+                "nominal": nominal,
+                "engineering_unit": term.unit,
+                "nominal_engineering": float(term.sigma_to_engineering(nominal)),
+                "meaning": meaning,
+            }
+        )
+    return rows
 
 
 def levels() -> tuple[str, ...]:
@@ -72,9 +80,9 @@ def levels() -> tuple[str, ...]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from stableins.commands.arguments import number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
 
-    parser.add_argument("level", choices=levels(), help="device-level dwells or a system-level static record")
+    parser.add_argument("level", nargs="?", choices=levels(), help="device-level dwells or a system-level static record")
     parser.add_argument("--out", type=output_directory, metavar="DIR", help="output directory (created if needed)")
     parser.add_argument(
         "--seed", type=seed, default=None, help="random seed of the truth draw and the noise (default 0, or the truth file's)"
@@ -82,11 +90,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", type=Path, metavar="FILE", help="simulate this truth (a truth.json) instead of drawing one")
     parser.add_argument(
         "--hidden",
-        type=parse_hidden,
+        type=effect_magnitude,
         action="append",
         default=[],
         metavar="ID=VALUE",
-        help="inject an effect of the catalogue, value in SI (repeatable; see --list-effects)",
+        help="inject an effect of the catalogue: VALUE in its engineering unit (Kcc_xxy=60ug/g2) or SI (a bare number); "
+        "repeatable; see --list-effects",
     )
     parser.add_argument(
         "--format",
@@ -129,7 +138,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="device: one pass of every procedure at its nominal commands (default: the coarse zero-offset iteration, "
         "then fine dwells at the re-pointed positions)",
     )
-    parser.add_argument("--list-effects", action="store_true", help="list the injectable effects (id, SI unit, meaning) and exit")
+    parser.add_argument(
+        "--list-effects", action="store_true", help="list the injectable effects (id, nominal size in engineering and SI units, meaning)"
+    )
 
 
 def prepare_directory(out: Path | None) -> Path:
@@ -205,15 +216,15 @@ def run(args: argparse.Namespace) -> int:
     from stableins.output import emit, note
 
     if args.list_effects:
-        from stableins.simulator.effects import catalogue_table
-
-        rows = catalogue_table()
-        emit(
-            args,
-            {"effects": [{"id": i, "unit": u, "nominal": n, "meaning": m} for i, u, n, m in rows]},
-            "\n".join(f"{i:<24} {u:<12} nominal {n:<10.3g} {m}" for i, u, n, m in rows),
-        )
+        rows = effect_rows()
+        lines = [f"{'id':<16} {'nominal':>9} {'unit':<9} {'nominal (SI)':>12} {'SI unit':<14} meaning"]
+        row = "{id:<16} {nominal_engineering:>9.3g} {engineering_unit:<9} {nominal:>12.3g} {unit:<14} {meaning}"
+        lines += [row.format(**r) for r in rows]
+        lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
+        emit(args, {"effects": rows}, "\n".join(lines))
         return 0
+    if args.level is None:
+        raise InputError("which level?", field="LEVEL", expected="'device' or 'system' (or --list-effects)")
     if args.level == "system" and (args.procedure or args.dwell is not None or args.settle is not None):
         raise InputError("--procedure, --dwell and --settle apply to device-level simulation only", field="--procedure")
     if args.level == "device" and args.duration is not None:

@@ -176,7 +176,7 @@ def _instrument() -> list[Candidate]:
                 Term(
                     f"K3_{a}",
                     "additive",
-                    "s^4/m^3",
+                    "s^4/m^2",
                     "ug/g^3",
                     MICRO_G_PER_G3,
                     10 * MICRO_G_PER_G3,

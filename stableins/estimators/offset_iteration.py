@@ -25,12 +25,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, GimbalConfiguration
-from stableins.drivers.base import PlatformDriver
+from stableins.drivers.base import PlatformDriver, SampleBlock
 from stableins.errormodel import Term
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
@@ -104,6 +105,20 @@ class OffsetIterationResult:
         return "\n".join(p.describe() for p in self.history)
 
 
+class PassObserver(Protocol):
+    """Sees every position of a pass as it is measured (the runner's console: one line per dwell, settle and dwell
+    progress, the dwell's verdict).  Observing changes nothing: the operations and the estimates are the same."""
+
+    def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
+        """The position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""
+
+    def phase(self, name: str, done: float, total: float) -> None:
+        """``done`` of ``total`` seconds of the phase ``name`` (``"settle"`` or ``"dwell"``) recorded (0 before it starts)."""
+
+    def measured(self, block: SampleBlock, summary: DwellSummary) -> None:
+        """The dwell's samples and their summary, with the acceptance flags of the procedure's ``[acceptance]`` checks."""
+
+
 def repointed_command(nominal: tuple[float, float, float], offsets: NDArray[np.float64] | tuple[float, ...]) -> tuple[float, float, float]:
     """Readings that put the gimbals at their nominal angles: ``r = r_nominal − θ̂`` (θ10 not re-commanded)."""
     return (float(nominal[0]), float(nominal[1] - offsets[1]), float(nominal[2] - offsets[2]))
@@ -136,29 +151,44 @@ def measure_pass(
     *,
     stage: str = "coarse",
     pass_number: int = 1,
+    observer: PassObserver | None = None,
 ) -> list[DwellSummary]:
-    """Command every step (re-pointed by ``offsets``), wait for the slew, settle, dwell and summarize."""
+    """Command every step (re-pointed by ``offsets``), wait for the slew, settle, dwell and summarize.
+
+    ``observer`` (optional) is told of every position, the settle and dwell phases and every dwell's summary.
+    """
     checks = procedure.acceptance.dwell_checks()
     dwells = []
     for step in procedure.steps:
         command = repointed_command(step.command, offsets) if procedure.repoint else step.command
+        if observer is not None:
+            observer.position(pass_number, step, tuple(float(c) for c in command))  # type: ignore[arg-type]
         driver.command(command)
         wait_until_arrived(driver, command, procedure.acceptance.max_angle_span)
         if step.settle > 0:
+            if observer is not None:
+                observer.phase("settle", 0.0, step.settle)
             driver.acquire(step.settle)
+            if observer is not None:
+                observer.phase("settle", step.settle, step.settle)
+        if observer is not None:
+            observer.phase("dwell", 0.0, step.dwell)
         block = driver.acquire(step.dwell)
-        dwells.append(
-            summarize_dwell(
-                block.time,
-                block.specific_force,
-                block.angles,
-                command,
-                position=step.position,
-                stage=stage,
-                pass_number=pass_number,
-                checks=checks,
-            )
+        if observer is not None:
+            observer.phase("dwell", step.dwell, step.dwell)
+        summary = summarize_dwell(
+            block.time,
+            block.specific_force,
+            block.angles,
+            command,
+            position=step.position,
+            stage=stage,
+            pass_number=pass_number,
+            checks=checks,
         )
+        if observer is not None:
+            observer.measured(block, summary)
+        dwells.append(summary)
     return dwells
 
 
@@ -173,6 +203,7 @@ def iterate_offsets(
     nonlinear: bool = True,
     progress: Callable[[PassRecord], None] | None = None,
     extra_terms: Sequence[Term] = (),
+    observer: PassObserver | None = None,
 ) -> OffsetIterationResult:
     """Run coarse passes through ``driver`` until the re-estimated offsets are negligible.
 
@@ -193,6 +224,8 @@ def iterate_offsets(
     extra_terms : sequence of Term
         Discovered (additive) terms of the unit's model, estimated in every pass and in the
         joint fit (a hidden cross-coupling would otherwise bias the offsets the passes re-point by).
+    observer : PassObserver, optional
+        Told of every position, settle and dwell of every pass (:func:`measure_pass`).
     """
     cfg = procedure.offset_iteration
     threshold = cfg.threshold if threshold is None else threshold
@@ -205,7 +238,7 @@ def iterate_offsets(
     all_dwells: list[DwellSummary] = []
     used: list[DwellSummary] = []
     for k in range(1, max_passes + 1):
-        dwells = measure_pass(driver, procedure, tuple(offsets), pass_number=k)
+        dwells = measure_pass(driver, procedure, tuple(offsets), pass_number=k, observer=observer)
         all_dwells += dwells
         fit = calibrate_coarse(
             dwells,

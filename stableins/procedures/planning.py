@@ -85,7 +85,7 @@ def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: 
 
 
 def _person(action: Any) -> PersonStep:
-    name = action.key or action.prompt[:40]
+    name = action.key or action.prompt
     return PersonStep(
         name=name,
         action=action.action,

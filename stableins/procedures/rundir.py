@@ -54,6 +54,52 @@ class RunOutcome:
     superseded: tuple[int, int] | None = None
     record: Path | None = None
     report: Path | None = None
+    #: the certificate's conformity verdict (PASS, FAIL, ..., NO STATEMENT) and its statement in plain text
+    verdict: str | None = None
+    conformity: tuple[str, ...] = ()
+
+
+class RunFinished(Exception):
+    """``--resume`` of a run whose journal says it is complete: there is nothing to continue.
+
+    Attributes
+    ----------
+    rundir : Path
+    completed : str
+        UTC time the run completed (from the journal).
+    outputs : list of Path
+        What the run left in its directory (data, record, certificate) that exists now.
+    """
+
+    def __init__(self, rundir: Path, completed: str, outputs: list[Path]) -> None:
+        self.rundir = rundir
+        self.completed = completed
+        self.outputs = outputs
+        listed = ", ".join(p.name for p in outputs) or "no output files"
+        super().__init__(f"the run in {rundir} is finished (completed {completed or 'at an unrecorded time'}): {listed}")
+
+
+class _JournalOnlyDriver:
+    """The platform of a finished run, for re-estimating it: every answer comes from the journal, so nothing is asked of a
+    platform (none need be connected); anything beyond the journal is refused."""
+
+    deterministic = False
+
+    def __init__(self, metadata: SiteMetadata) -> None:
+        self.metadata = metadata
+
+    def _refuse(self, *args: Any) -> Any:
+        from stableins.drivers.errors import DriverError
+
+        raise DriverError("re-estimating a finished run: the journal holds no more operations (the run is not complete)")
+
+    command = read_angles = acquire = static_record = _refuse
+
+    def status(self) -> dict[str, object]:
+        return {"driver": "journal of a finished run"}
+
+    def close(self) -> None:
+        pass
 
 
 def _utc() -> str:
@@ -146,7 +192,9 @@ def start_run(
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
             runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options, journal.records[0])
             runner.execute()
-            return finish(rundir, runner, metadata, journal.records[0], replayed=0)
+            outcome = finish(rundir, runner, metadata, journal.records[0], replayed=0)
+            _journal_finished(journal, outcome)
+            return outcome
     finally:
         driver.close()
 
@@ -158,11 +206,25 @@ def resume_run(
     driver_spec: str | None = None,
     driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None = None,
     timeout: float = 10.0,
+    re_estimate: bool = False,
 ) -> RunOutcome:
     """Continue the run in ``rundir`` where it stopped.
 
     ``driver_spec`` may replace the journaled one for a network platform that moved
     (``tcp://`` to ``tcp://``); the simulated platform is rebuilt from the journaled seed.
+
+    A finished run (its journal holds the ``complete`` record) is not run again: :class:`RunFinished` says so.
+    ``re_estimate`` estimates a finished run again from its journal alone (no platform is opened, nothing is
+    appended to the journal) and writes its data set, record and certificate anew, e.g. with a newer stableins.
+    A run killed after its last step but before its outputs were all written (no ``finished`` record,
+    :data:`FINISHED`) is finished that way on resume, and then journaled as finished.
+
+    Raises
+    ------
+    RunFinished
+        The run is complete and ``re_estimate`` is false.
+    InputError
+        ``re_estimate`` of a run that is not complete; a changed input; a journal without a start record.
     """
     rundir = Path(rundir)
     console = console or Console()
@@ -174,6 +236,23 @@ def resume_run(
             )
         start = journal.records[0]
         plan = Plan.from_dict(start["plan"])
+        complete = next((r for r in journal.records if r.kind == "complete"), None)
+        names = (DATASET_NAME, SYSTEM_NAME, RECORD_NAME, REPORT_NAME)
+        written = any(r.kind == FINISHED for r in journal.records) or (rundir / REPORT_NAME).exists()
+        if complete is not None and not re_estimate:
+            if written:
+                raise RunFinished(rundir, str(complete.get("utc") or ""), [rundir / n for n in names if (rundir / n).exists()])
+            # the last step was done but the run was interrupted while writing its outputs: write them from the journal
+            console.say("the run completed its last step but was interrupted before writing all its outputs: writing them from the journal")
+            re_estimate = True
+        journal_finish = not re_estimate or (complete is not None and not written)
+        if complete is None and re_estimate:
+            raise InputError(
+                "the run is not finished: there is nothing to estimate again yet",
+                path=rundir,
+                field="--re-estimate",
+                expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
+            )
         spec = start["driver"]
         if driver_spec is not None and driver_spec != spec:
             if not (driver_spec.startswith("tcp://") and spec.startswith("tcp://")):
@@ -188,7 +267,11 @@ def resume_run(
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        if driver_factory is not None:
+        if re_estimate:
+            from stableins.drivers.replay import metadata_from_start
+
+            driver: PlatformDriver = _JournalOnlyDriver(metadata_from_start(start))
+        elif driver_factory is not None:
             driver = driver_factory(start.fields)
         else:
             driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
@@ -199,18 +282,26 @@ def resume_run(
                     f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
                 )
             deterministic = is_deterministic(driver)
-            script, superseded = resume_script(journal.records, deterministic)
-            journal.append(
-                "resume",
-                {"utc": _utc(), "superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec},
-            )
-            how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
-            console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
-            session = Session(journal, script, driver, forward=deterministic)
+            script, superseded = resume_script(journal.records, deterministic or re_estimate)
+            if re_estimate:
+                what = f"{plan.name!r} of unit {start['unit']}"
+                console.say(f"estimating the finished run {what} again from its journal ({len(script)} records)")
+            else:
+                journal.append(
+                    "resume",
+                    {"utc": _utc(), "superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec},
+                )
+                how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
+                console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
+            session = Session(journal, script, driver, forward=deterministic and not re_estimate)
+            if re_estimate:
+                session.on_live = lambda replayed: None  # the journal is the whole run: nothing goes live
             runner = _runner(rundir, plan, session, console, RunOptions(**start.get("options", {})), start)
             runner.execute()
             outcome = finish(rundir, runner, metadata, start, replayed=session.replayed)
             outcome.superseded = superseded
+            if journal_finish:
+                _journal_finished(journal, outcome)
             return outcome
         finally:
             driver.close()
@@ -282,6 +373,17 @@ def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
     carried = record_terms(prior.ids) if prior is not None else ()
     named = tuple(definition.model_add) if definition is not None else ()
     return carried + calibration_terms([i for i in named if i not in {t.id for t in carried}], source="model.add")
+
+
+#: Journal record written once every output of a run is on disk (after :func:`finish`): a resume of a run with a
+#: ``complete`` record but without this one writes the outputs from the journal instead of saying it is finished.
+FINISHED = "finished"
+
+
+def _journal_finished(journal: Journal, outcome: RunOutcome) -> None:
+    """Journal that the outputs of a finished run are all written (names of the files)."""
+    files = [p for p in (outcome.dataset, outcome.record, outcome.report) if p is not None]
+    journal.append(FINISHED, {"utc": _utc(), "files": [Path(p).name for p in files]})
 
 
 def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
@@ -390,7 +492,7 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any)
         runner.console.say("note: no report writer in this installation; the record is complete without it")
         return None
     target = rundir / REPORT_NAME
-    write_report(
+    summary = write_report(
         target,
         outcome.record,
         data=[outcome.dataset] if outcome.dataset else [],
@@ -398,6 +500,8 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any)
         procedure=rundir / start["definition"] if start.get("definition") else None,
     )
     runner.console.say(f"report written: {target}")
+    outcome.verdict, outcome.conformity = summary.verdict, tuple(summary.conformity)
+    runner.console.say("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
     return target
 
 

@@ -69,8 +69,20 @@ class JournalMismatch(Exception):
 
 
 # --------------------------------------------------------------------------- console
+#: Marks what a resumed run prints of steps the journal answers (nothing happens on the platform for them).
+REPLAY_MARK = "replay"
+#: Answers a confirmation takes (case-insensitive); anything else is asked again.
+YES_ANSWERS = ("y", "yes")
+NO_ANSWERS = ("n", "no")
+
+
 class Console:
-    """What the runner says, its progress bars and its prompts.
+    """What the runner says, its progress bars and its prompts (all on ``out``, stderr by default).
+
+    Every dwell of every stage is shown the same way (:meth:`dwell`, :meth:`progress`, :meth:`verdict`): a line
+    with the command and the timing, a settle and a dwell bar on a terminal, and the verdict with its reasons.
+    Lines are never cut: on a terminal they wrap at its width (``width``), elsewhere (logs, pipes) they stay whole.
+    What a resumed run replays from its journal is marked :data:`REPLAY_MARK`.
 
     Parameters
     ----------
@@ -78,29 +90,89 @@ class Console:
         Unattended: confirm every confirmation, use defaults and ``values`` for entries.
     values : dict
         Values given on the command line (``--set key=value``) for ``enter`` steps.
+    out : text stream, optional
+        Where to write (stderr by default: standard output is the command's result, e.g. ``--json``).
+    quiet : bool
+        Say nothing (prompts are still asked).
+    width : int, optional
+        Wrap lines at this many columns; default: the terminal's width when ``out`` is a terminal, else no wrapping.
+    bars : bool, optional
+        Draw progress bars; default: when ``out`` is a terminal.
     """
 
-    def __init__(self, yes: bool = False, values: dict[str, str] | None = None, out: TextIO | None = None, quiet: bool = False) -> None:
+    def __init__(
+        self,
+        yes: bool = False,
+        values: dict[str, str] | None = None,
+        out: TextIO | None = None,
+        quiet: bool = False,
+        *,
+        width: int | None = None,
+        bars: bool | None = None,
+    ) -> None:
         self.yes = yes
         self.values = dict(values or {})
         self.out = out or sys.stderr
         self.quiet = quiet
-        self._bar: Any = None
+        terminal = bool(getattr(self.out, "isatty", None) and self.out.isatty())
+        if width is None and terminal:
+            import shutil
 
-    def say(self, text: str) -> None:
+            width = shutil.get_terminal_size((100, 24)).columns
+        self.width = width or 0
+        self.bars = terminal if bars is None else bars
+        self._bar: Any = None
+        self._pending: str | None = None
+
+    def journal_used_up(self, replayed: int) -> None:
+        """The resumed run has replayed its journal (``replayed`` records); said before the next live line."""
+        self._pending = f"journal replayed ({replayed} records): the run is live from here"
+
+    # ------------------------------------------------------------------ lines
+    def say(self, text: str, *, replay: bool = False) -> None:
+        """Print ``text`` (each of its lines wrapped, never cut); ``replay``: marked as answered by the journal."""
         self._end_bar()
-        if not self.quiet:
-            print(text, file=self.out, flush=True)
+        if self.quiet:
+            return
+        if self._pending is not None and not replay:
+            pending, self._pending = self._pending, None
+            print(self._wrap(pending), file=self.out, flush=True)
+        for line in text.split("\n"):
+            print(self._wrap(f"{REPLAY_MARK} {line}" if replay else line), file=self.out, flush=True)
+
+    def _wrap(self, line: str) -> str:
+        if not self.width or len(line) <= self.width:
+            return line
+        import textwrap
+
+        body = line.lstrip(" ")
+        indent = " " * (len(line) - len(body))
+        return textwrap.fill(
+            body, self.width, initial_indent=indent, subsequent_indent=indent + "    ", break_long_words=False, break_on_hyphens=False
+        )
+
+    def dwell(self, label: str, readings: Any, settle: float, dwell: float, why: str = "", *, replay: bool = False) -> None:
+        """The line that opens a dwell of any stage: where the gimbals are commanded, how long it settles and dwells."""
+        degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
+        reason = f" — {why}" if why else ""
+        self.say(f"{label}: command readings ({degrees}) deg, settle {settle:g} s, dwell {dwell:g} s{reason}", replay=replay)
+
+    def verdict(self, result: CheckResult, *, replay: bool = False, rejected: str = "rejected", indent: str = "  ") -> None:
+        """The verdict of a dwell with its reasons: ``accepted: ...`` or ``<rejected>: <reasons> (...)``."""
+        if result.accepted:
+            self.say(f"{indent}accepted: {result.describe()}", replay=replay)
+        else:
+            self.say(f"{indent}{rejected}: {'; '.join(result.reasons)} ({result.describe()})", replay=replay)
 
     def progress(self, label: str, done: float, total: float) -> None:
-        """Progress of a dwell (a bar on a terminal, :class:`stableins.progress.Progress`); closed when done."""
-        if self.quiet:
+        """Progress of a settle or dwell phase (a bar on a terminal, :class:`stableins.progress.Progress`); closed when done."""
+        if self.quiet or not self.bars:
             return
         from stableins.progress import Progress
 
         if self._bar is None or self._bar.label != f"  {label}":
             self._end_bar()
-            self._bar = Progress(total=total, label=f"  {label}", stream=self.out)
+            self._bar = Progress(total=total, label=f"  {label}", stream=self.out, enabled=True)
         self._bar.update(done - self._bar.done)
         if done >= total:
             self._end_bar()
@@ -110,15 +182,23 @@ class Console:
             self._bar.close()
             self._bar = None
 
+    # ------------------------------------------------------------------ prompts
     def confirm(self, prompt: str) -> bool:
+        """Ask ``prompt``; ``y``/``yes`` confirms, ``n``/``no`` declines, anything else (a typo, nothing) is asked again."""
         if self.yes:
             self.say(f"  {prompt} — confirmed (--yes)")
             return True
         self._end_bar()
-        answer = _ask(f"  {prompt} [y/N] ")
-        return answer.strip().lower() in ("y", "yes")
+        while True:
+            answer = self._ask(f"  {prompt} [y/n] ").strip().lower()
+            if answer in YES_ANSWERS:
+                return True
+            if answer in NO_ANSWERS:
+                return False
+            self._tell(f"  {answer!r} is neither yes nor no: please answer y or n" if answer else "  please answer y or n")
 
     def enter(self, step: PersonStep) -> str:
+        """The text a person enters for ``step`` (``--set``, the default with ``--yes``, or asked)."""
         if step.key in self.values:
             self.say(f"  {step.prompt}: {self.values[step.key]} {step.unit} (--set)")
             return self.values[step.key]
@@ -130,9 +210,25 @@ class Console:
             self.say(f"  {step.prompt}: {step.default} {step.unit} (default, --yes)")
             return str(step.default)
         self._end_bar()
+        bounds = f", {step.minimum:g} to {step.maximum:g}" if step.minimum is not None and step.maximum is not None else ""
+        unit = f" ({step.unit}{bounds})" if step.unit or bounds else ""
         default = f" [{step.default}]" if step.default is not None else ""
-        answer = _ask(f"  {step.prompt} ({step.unit}){default}: ").strip()
+        answer = self._ask(f"  {step.prompt}{unit}{default}: ").strip()
         return answer or ("" if step.default is None else str(step.default))
+
+    def _tell(self, text: str) -> None:
+        """A line for the person answering a prompt (shown even when quiet: a prompt is being asked)."""
+        self._end_bar()
+        print(self._wrap(text), file=self.out, flush=True)
+
+    def _ask(self, prompt: str) -> str:
+        """One answer from standard input; the prompt goes to ``out`` (wrapped like every line), not to standard output."""
+        text = self._wrap(prompt)
+        print(text, end="" if text.endswith(" ") else " ", file=self.out, flush=True)
+        answer = _ask("")
+        if not (getattr(sys.stdin, "isatty", None) and sys.stdin.isatty()):  # no terminal echoes it: the log shows the answer
+            print(answer, file=self.out, flush=True)
+        return answer
 
 
 def _ask(prompt: str) -> str:
@@ -177,6 +273,10 @@ class Session:
         #: a system-level static record has its own time base (time since the start of the record)
         self.static_clock: tuple[float, bool] = (-math.inf, False)
         self._live = False
+        #: whether the latest operation was answered by the journal
+        self.last_replayed = False
+        #: called once, when the last journaled record has been replayed (the run goes live from there)
+        self.on_live: Callable[[int], None] | None = None
 
     @property
     def replaying(self) -> bool:
@@ -189,6 +289,8 @@ class Session:
                 f"resuming: the procedure reaches {describe} but the journal has a {record.kind!r} record (seq {record.seq})"
             )
         self.replayed += 1
+        if not self.script and self.on_live is not None:
+            self.on_live(self.replayed)
         return record
 
     # ------------------------------------------------------------------ driver operations
@@ -204,6 +306,7 @@ class Session:
                 "read_angles": self.driver.read_angles,
                 "acquire": lambda: self.driver.acquire(arguments[0]),
             }[operation]
+        self.last_replayed = bool(self.script)
         if self.script:
             record = self._next("op", f"{operation} {arguments}")
             if record["operation"] != operation or not np.allclose(record["arguments"], arguments, rtol=0, atol=1e-12):
@@ -293,17 +396,14 @@ class Session:
 class SessionDriver:
     """The session seen as a :class:`~stableins.drivers.base.PlatformDriver`, for estimators that drive the platform themselves."""
 
-    def __init__(self, session: Session, on_command: Callable[[tuple[float, ...]], None] | None = None) -> None:
+    def __init__(self, session: Session) -> None:
         self.session = session
-        self.on_command = on_command
 
     @property
     def metadata(self) -> Any:
         return self.session.driver.metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
-        if self.on_command is not None:
-            self.on_command(tuple(float(r) for r in readings))
         return self.session.operate("command", [float(r) for r in readings])
 
     def read_angles(self) -> NDArray[np.float64]:
@@ -428,20 +528,44 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Che
     """Acceptance checks of one dwell (see the module docstring for the formulas)."""
     n = len(block.time)
     expected = max(1, int(round(dwell * rate)))
+    statistics = dwell_statistics(command, block)
+    if statistics is None:
+        finite = n > 0 and all(np.all(np.isfinite(a)) for a in (block.time, block.specific_force, block.angles, block.temperature))
+        reason = f"{n} samples, {'some not finite' if n and not finite else 'too few to check'}"
+        return CheckResult(False, (reason,), math.inf, math.inf, math.inf, n, expected)
+    angle_error, scatter, slope, slope_sigma, excess, axis = statistics
     reasons = []
-    finite = n > 0 and all(np.all(np.isfinite(a)) for a in (block.time, block.specific_force, block.angles, block.temperature))
-    if n < 3 or not finite:
-        reasons.append(f"{n} samples, {'some not finite' if n and not finite else 'too few to check'}")
-        return CheckResult(False, tuple(reasons), math.inf, math.inf, math.inf, n, expected)
     if n < checks.min_fraction * expected:
         reasons.append(f"only {n} of {expected} expected samples (gaps)")
-    difference = np.mean(block.angles, axis=0) - command
-    angle_error = float(np.max(np.abs(np.angle(np.exp(1j * difference)))))
     if angle_error > checks.angle_tolerance:
         reasons.append(
             f"platform not at the commanded angles: off by {math.degrees(angle_error) * 3600:.1f} arcsec "
             f"(limit {math.degrees(checks.angle_tolerance) * 3600:.1f})"
         )
+    micro_g = 9.80665e-6
+    if scatter > checks.scatter_max:
+        reasons.append(f"not still: scatter {scatter / micro_g:.1f} µg (limit {checks.scatter_max / micro_g:.1f})")
+    if excess > checks.slope_max:
+        reasons.append(
+            f"not still: slope {slope / micro_g:.2f} ± {slope_sigma / micro_g:.2f} µg/s on {'xyz'[axis]} "
+            f"(limit {checks.slope_max / micro_g:.2f} µg/s beyond {SLOPE_SIGMAS:g}σ)"
+        )
+    return CheckResult(not reasons, tuple(reasons), angle_error, scatter, slope, n, expected)
+
+
+def dwell_statistics(command: Any, block: SampleBlock) -> tuple[float, float, float, float, float, int] | None:
+    """What the acceptance checks look at in a dwell; ``None`` when it has fewer than 3 samples or a non-finite one.
+
+    Returns ``(angle_error, scatter, slope, slope_sigma, excess, axis)``: the largest |mean reading − command| (wrapped
+    to ±π) [rad]; the largest residual standard deviation about the per-axis least-squares line [m/s²]; the slope
+    [m/s² per s] and its 1σ on the axis ``axis`` where ``|b| − 3σ_b`` (``excess``) is largest.
+    """
+    n = len(block.time)
+    finite = n > 0 and all(np.all(np.isfinite(a)) for a in (block.time, block.specific_force, block.angles, block.temperature))
+    if n < 3 or not finite:
+        return None
+    difference = np.mean(block.angles, axis=0) - np.asarray(command, dtype=float)
+    angle_error = float(np.max(np.abs(np.angle(np.exp(1j * difference)))))
     t = block.time - block.time.mean()
     design = np.column_stack([np.ones(n), t])
     coefficients, *_ = np.linalg.lstsq(design, block.specific_force, rcond=None)
@@ -451,16 +575,19 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Che
     slope_sigma = deviation / math.sqrt(float(np.sum(t**2))) if np.any(t) else np.full(3, math.inf)
     excess = np.abs(coefficients[1]) - SLOPE_SIGMAS * slope_sigma
     worst = int(np.argmax(excess))
-    slope = float(abs(coefficients[1][worst]))
-    micro_g = 9.80665e-6
-    if scatter > checks.scatter_max:
-        reasons.append(f"not still: scatter {scatter / micro_g:.1f} µg (limit {checks.scatter_max / micro_g:.1f})")
-    if excess[worst] > checks.slope_max:
-        reasons.append(
-            f"not still: slope {slope / micro_g:.2f} ± {slope_sigma[worst] / micro_g:.2f} µg/s on {'xyz'[worst]} "
-            f"(limit {checks.slope_max / micro_g:.2f} µg/s beyond {SLOPE_SIGMAS:g}σ)"
-        )
-    return CheckResult(not reasons, tuple(reasons), angle_error, scatter, slope, n, expected)
+    return angle_error, scatter, float(abs(coefficients[1][worst])), float(slope_sigma[worst]), float(excess[worst]), worst
+
+
+def estimator_verdict(command: Any, block: SampleBlock, summary: Any, dwell: float, rate: float) -> CheckResult:
+    """The verdict of a dwell the estimator itself checks (the zero-offset iteration's coarse dwells).
+
+    Accepted when the procedure's ``[acceptance]`` checks (:func:`stableins.estimators.dwell.summarize_dwell`) leave it
+    usable, else the reasons are its flags; the figures are those of :func:`evaluate_dwell`, so every dwell of every
+    stage is described alike.
+    """
+    statistics = dwell_statistics(command, block)
+    angle_error, scatter, slope = statistics[:3] if statistics is not None else (math.inf, math.inf, math.inf)
+    return CheckResult(summary.usable, tuple(summary.flags), angle_error, scatter, slope, len(block.time), max(1, int(round(dwell * rate))))
 
 
 # --------------------------------------------------------------------------- runner
@@ -509,13 +636,15 @@ class Runner:
 
     def execute(self) -> None:
         total = len(self.plan.steps)
+        if self.session.on_live is None:
+            self.session.on_live = self.console.journal_used_up
         for index, step in enumerate(self.plan.steps):
             self.session.context = {"step": index}
             label = f"[{index + 1}/{total}] {step.name}"
             if isinstance(step, DwellStep):
                 self._dwell(index, step, label)
             elif isinstance(step, PersonStep):
-                self._person(index, step, label)
+                self._person(index, step, f"[{index + 1}/{total}]")
             elif isinstance(step, OffsetIterationStep):
                 self._offset_iteration(index, step, label)
             elif isinstance(step, StaticRecordStep):
@@ -524,8 +653,11 @@ class Runner:
         self.session.decide("complete", {"step": total, "utc": datetime.now(UTC).replace(microsecond=0).isoformat()})
 
     # ------------------------------------------------------------------ steps
-    def _person(self, index: int, step: PersonStep, label: str) -> None:
-        self.console.say(f"{label}: a person must act")
+    def _person(self, index: int, step: PersonStep, number: str) -> None:
+        """Ask a person (the prompt's full text, wrapped, never cut); a typo or an out-of-range value is asked again."""
+        replay = self.session.replaying
+        what = "confirm" if step.action == "confirm" else f"enter {step.key or 'a value'}"
+        self.console.say(f"{number} a person must act: {what}", replay=replay)
         if step.action == "confirm":
 
             def ask() -> bool:
@@ -534,6 +666,8 @@ class Runner:
                 return True
 
             self.session.enter("input", index, ask)
+            if replay:
+                self.console.say(f"  {step.prompt}: confirmed (answered before the run was interrupted)", replay=True)
             return
 
         def ask_value() -> Any:
@@ -544,28 +678,28 @@ class Runner:
                 except InputError as error:
                     if self.console.yes or step.key in self.console.values:
                         raise  # checked before the run started; cannot happen unless the plan changed
-                    self.console.say(f"  {error.message} (expected {error.expected}); please enter it again")
+                    self.console._tell(f"  {error.message} (expected {error.expected}); please enter it again")
 
         value = self.session.enter("input", index, ask_value)
+        if replay:
+            self.console.say(f"  {step.prompt}: {value} {step.unit} (entered before the run was interrupted)".rstrip(), replay=True)
         self.inputs[step.key] = value
 
     def _dwell(self, index: int, step: DwellStep, label: str) -> None:
         readings = np.asarray(step.readings, dtype=float) - (self.offsets if step.offset_corrected else 0.0)
-        degrees = ", ".join(f"{math.degrees(r):.3f}" for r in readings)
         rejections = 0
         link_failures = 0
         attempt = 0
         while True:
             attempt += 1
             self.session.context = {"step": index, "attempt": attempt}
-            why = f" — {step.why}" if step.why else ""
             again = f" (attempt {attempt})" if attempt > 1 else ""
-            self.console.say(f"{label}{again}: command readings ({degrees}) deg, settle {step.settle:g} s, dwell {step.dwell:g} s{why}")
+            self.console.dwell(f"{label}{again}", readings, step.settle, step.dwell, step.why, replay=self.session.replaying)
             try:
                 command_time = self.session.operate("command", [float(r) for r in readings])
                 arrived = self._wait_until_reached(readings, step.checks)
                 if arrived is None and step.settle > 0:
-                    self._record(step.settle, "settling", "settle")
+                    self._record(step.settle, "settle", "settle")
                 blocks = self._record(step.dwell, "dwell", "dwell") if arrived is None else []
             except (DriverConnectionError, DriverProtocolError) as error:
                 link_failures = self._link_failure(
@@ -593,24 +727,23 @@ class Runner:
                 "command_time": command_time,
                 "command": [float(r) for r in readings],
             }
-            self.session.decide("verdict", verdict)
+            _, replayed = self.session.decide("verdict", verdict)
+            self.console.verdict(result, replay=replayed)
             if result.accepted:
-                self.console.say(f"  accepted: {result.describe()}")
                 self.entries.append(_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
                 self.session.accept(blocks)
                 return
             rejections += 1
-            self.console.say(f"  rejected: {'; '.join(result.reasons)}")
             if rejections > self.plan.retries:
                 last = "; ".join(result.reasons)
                 message = f"step {step.name!r} rejected {rejections} times (retries = {self.plan.retries}); last reason: {last}"
                 _, replayed = self.session.decide("stop", {"step": index, "reason": message})
                 if replayed:  # stopped here before and was resumed: fresh retries
-                    self.console.say("  (the run had stopped here; resumed with fresh retries)")
+                    self.console.say("  (the run had stopped here; resumed with fresh retries)", replay=True)
                     rejections = 0
                     continue
                 raise RunStopped(message)
-            self.console.say(f"  repeating the step ({rejections} of {self.plan.retries} retries used)")
+            self.console.say(f"  repeating the step ({rejections} of {self.plan.retries} retries used)", replay=replayed)
 
     def _static_record(self, index: int, step: StaticRecordStep, label: str) -> None:
         """Command the position, wait for arrival, settle, then stream the static record chunk by chunk into the journal."""
@@ -621,7 +754,8 @@ class Runner:
                 "(the simulated platform does; the network protocol does not yet)"
             )
         hours = step.duration / 3600.0
-        self.console.say(f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}")
+        what = f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}"
+        self.console.say(what, replay=self.session.replaying)
         self.session.context = {"step": index, "attempt": 1}
         readings = np.asarray(step.readings, dtype=float)
         self.session.operate("command", [float(r) for r in readings])
@@ -630,7 +764,7 @@ class Runner:
             self.session.decide("stop", {"step": index, "reason": arrived})
             raise RunStopped(f"{label}: {arrived}")
         if step.settle > 0:
-            self._record(step.settle, "settling", "settle")
+            self._record(step.settle, "settle", "settle")
         chunks = recorder(step.duration, self.plan.chunk)
         total = int(round(step.duration * self.rate))
         done = 0
@@ -646,10 +780,11 @@ class Runner:
             self.static_chunks += self.session.trace
             self.session.trace = None
             done += len(chunk["time"])
-            self.console.progress("static record", done / self.rate, total / self.rate)
+            if not self.session.last_replayed:
+                self.console.progress("static record", done / self.rate, total / self.rate)
         self.session.context = {"step": index}
-        self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
-        self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)")
+        _, replayed = self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
+        self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)", replay=replayed)
 
     def _link_failure(self, index: int, attempt: int, name: str, error: Exception, failures: int, consequence: str) -> int:
         """Journal a broken link, say what happens next; stop the run after ``options.link_failures`` in a row.
@@ -700,7 +835,8 @@ class Runner:
             self.session.context = context
             blocks.append(self.session.operate("acquire", [piece]))
             done += piece
-            self.console.progress(label, done, duration)
+            if not self.session.last_replayed:  # a bar for what the platform records, not for what the journal replays
+                self.console.progress(label, done, duration)
         self.session.context = {k: v for k, v in context.items() if k != "phase"}
         return blocks
 
@@ -713,16 +849,18 @@ class Runner:
         attempt = 0
         while True:
             attempt += 1
-            self.console.say(f"{label}{f' (attempt {attempt})' if attempt > 1 else ''}: zero-offset iteration — {step.why}")
+            again = f" (attempt {attempt})" if attempt > 1 else ""
+            self.console.say(f"{label}{again} — {step.why}", replay=self.session.replaying)
             self.session.context = {"step": index, "attempt": attempt, "phase": "iteration"}
             self.session.trace = []
             try:
                 result = iterate_offsets(
-                    SessionDriver(self.session, _Announcer(self.console, step.positions)),
+                    SessionDriver(self.session),
                     self.definition,
                     initial_offsets=tuple(float(o) for o in self.offsets),
-                    progress=lambda record: self.console.say(f"  {record.describe()}"),
+                    progress=lambda record: self.console.say(f"  {record.describe()}", replay=self.session.last_replayed),
                     extra_terms=self.extra_terms,
+                    observer=_IterationConsole(self.console, self.session, self.rate),
                 )
             except OffsetIterationError as error:
                 message = f"step {step.name!r}: {error}"
@@ -739,7 +877,7 @@ class Runner:
                 trace, self.session.trace = self.session.trace, None
             self.offsets = np.asarray(result.offsets, dtype=float)
             self.iteration = result
-            self.session.decide(
+            _, replayed = self.session.decide(
                 "iteration", {"step": index, "attempt": attempt, "offsets": list(self.offsets), "passes": len(result.history)}
             )
             accepted = iteration_entries(step, trace)
@@ -747,23 +885,38 @@ class Runner:
             for entry in accepted:
                 self.session.accept(entry["blocks"])
             seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
-            self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec")
+            self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec", replay=replayed)
             return
 
 
-class _Announcer:
-    """Says which pass and position each command of the zero-offset iteration is."""
+class _IterationConsole:
+    """The console of the zero-offset iteration (:class:`~stableins.estimators.offset_iteration.PassObserver`): every
+    dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
+    :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit)."""
 
-    def __init__(self, console: Console, positions: tuple[int, ...]) -> None:
+    def __init__(self, console: Console, session: Session, rate: float) -> None:
         self.console = console
-        self.positions = positions
-        self.count = 0
+        self.session = session
+        self.rate = rate
+        self.command: tuple[float, ...] = ()
+        self.dwell = 0.0
+        self.live = True
 
-    def __call__(self, readings: tuple[float, ...]) -> None:
-        k, n = self.count, len(self.positions)
-        self.count += 1
-        degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
-        self.console.say(f"  pass {k // n + 1}, position {self.positions[k % n]}: command readings ({degrees}) deg")
+    def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
+        self.command, self.dwell = command, float(step.dwell)
+        why = f"ideal axes: {step.expect}" if getattr(step, "expect", "") else ""
+        label = f"  pass {pass_number}, position {step.position}"
+        self.console.dwell(label, command, step.settle, step.dwell, why, replay=self.session.replaying)
+
+    def phase(self, name: str, done: float, total: float) -> None:
+        if done == 0.0:
+            self.live = not self.session.replaying
+        if self.live:
+            self.console.progress(name, done, total)
+
+    def measured(self, block: SampleBlock, summary: Any) -> None:
+        result = estimator_verdict(self.command, block, summary, self.dwell, self.rate)
+        self.console.verdict(result, replay=self.session.last_replayed, rejected="left out of this pass's fit", indent="    ")
 
 
 def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
@@ -866,7 +1019,7 @@ def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Reco
         if record.kind == "resume" and record.get("superseded"):
             first, last = record["superseded"]
             superseded.update(range(first, last + 1))
-    script = [r for r in records[1:] if r.kind != "resume" and r.seq not in superseded]
+    script = [r for r in records[1:] if r.kind not in ("resume", "finished") and r.seq not in superseded]
     if deterministic or not script:
         return script, None
     cut = len(script)

@@ -144,11 +144,13 @@ class UncertaintyInputs:
 
     @classmethod
     def from_procedure_file(cls, path: str) -> UncertaintyInputs:
-        """Read the ``[uncertainty]`` table of a procedure TOML file (absent: every input takes its default)."""
-        from stableins.procedures.definition import read_toml
+        """Read the ``[uncertainty]`` table of a procedure (a shipped definition's name or a TOML file; absent table:
+        every input takes its default)."""
+        from stableins.procedures.definition import read_toml, resolve
 
-        data = read_toml(path, what="a procedure definition (TOML)")
-        return cls.from_mapping(data.get("uncertainty"), source=str(path))
+        resolved = resolve(path)
+        data = read_toml(resolved, what="a procedure definition (TOML)")
+        return cls.from_mapping(data.get("uncertainty"), source=str(resolved))
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,8 @@ class ReportSummary:
     pages: int
     verdict: str
     sha256: str
+    #: the certificate's statement of conformity in plain text (:func:`stableins.reporting.content.conformity_text`)
+    conformity: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -245,6 +247,10 @@ def write_report(
                 "read by this report",
             )
         )
+    if procedure is not None:  # a shipped definition's name ("system-static") or a TOML file
+        from stableins.procedures.definition import resolve
+
+        procedure = resolve(procedure)
     if tolerances is None:
         tolerances = Tolerances.from_procedure_file(str(procedure)) if procedure is not None else Tolerances.from_mapping(None)
     if procedure is not None:
@@ -311,4 +317,5 @@ def write_report(
     with atomic_write(out, "wb") as handle:
         handle.write(pdf)
     verdict = content.overall_verdict(checks) if not tolerances.empty else "NO STATEMENT"
-    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest())
+    statement = tuple(content.conformity_text(checks, assessed=not tolerances.empty, coverage_factor=tolerances.coverage_factor))
+    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest(), statement)

@@ -285,6 +285,55 @@ def conformity(
     return checks
 
 
+#: Words of the statement of conformity: the kinds of check, and the verdicts in the order they are counted.
+CHECK_KINDS = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
+VERDICTS = ("pass", "fail", "conditional pass", "conditional fail", "not assessed")
+CONFORMITY_HEADER = ("Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result")
+NO_STATEMENT = "No statement of conformity: the procedure defines no tolerances ([tolerances] table absent), so none is made."
+
+
+def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tuple[str, str, str, str, str, str, str]:
+    """One row of the statement of conformity, as the certificate prints it and the console repeats it (:data:`CONFORMITY_HEADER`).
+
+    The measured value and U carry the certificate's one rounding (:func:`gum`, sections 4 and 9); χ²_ν its three decimals."""
+
+    def fmt(x: float, significant: int) -> str:
+        return number(x, significant) if math.isfinite(x) else "—"
+
+    measured, expanded = "—", "—"
+    if check.verdict != "not assessed" and math.isfinite(check.measured):
+        if check.kind == "fit":
+            measured = chi2_text(abs(check.measured))
+        elif check.kind == "uncertainty":
+            measured = number(abs(check.measured), 2)
+        elif math.isfinite(check.expanded) and check.expanded > 0:
+            rounded = gum(abs(check.measured), check.expanded / coverage_factor, coverage_factor)
+            measured, expanded = rounded.value, rounded.expanded
+        else:
+            measured = fmt(abs(check.measured), 4)
+    result = check.verdict + (f" ({check.reason})" if check.reason else "")
+    return (CHECK_KINDS[check.kind], check.subject, measured, expanded, fmt(check.limit, 4), check.unit, result)
+
+
+def conformity_counts(checks: Sequence[Check]) -> str:
+    """``"23 pass, 1 fail"``: how many checks reached each verdict."""
+    return ", ".join(f"{n} {v}" for v in VERDICTS if (n := sum(1 for c in checks if c.verdict == v)))
+
+
+def conformity_text(checks: Sequence[Check], assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
+    """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
+    and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given."""
+    if not assessed:
+        return [NO_STATEMENT]
+    lines = [f"Verdict: {overall_verdict(checks)} ({conformity_counts(checks)})"]
+    for check in checks:
+        if check.verdict != "pass":
+            kind, subject, measured, expanded, limit, unit, result = conformity_row(check, coverage_factor)
+            unit = f" {unit}" if unit else ""
+            lines.append(f"  {kind} {subject}: measured |x| {measured}{unit}, U {expanded}, limit T {limit}{unit}: {result}")
+    return lines
+
+
 def overall_verdict(checks: Sequence[Check]) -> str:
     """FAIL if any check fails; CONDITIONAL FAIL / CONDITIONAL PASS next; PASS when every assessed check passes."""
     verdicts = {c.verdict for c in checks}

@@ -842,9 +842,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [*heading("10  Statement of conformity", room_mm=50)]
     t = ctx.tolerances
     if t.empty:
-        out.append(
-            _p("<b>No statement of conformity</b>: the procedure defines no tolerances ([tolerances] table absent), so none is made.")
-        )
+        out.append(_p(escape(content.NO_STATEMENT).replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
         return out
     verdict = content.overall_verdict(ctx.checks)
     colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
@@ -855,45 +853,28 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
             "'measured' is the value of section 4."
         )
     )
-    rows: list[list[Any]] = [["Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result"]]
+    rows: list[list[Any]] = [list(content.CONFORMITY_HEADER)]
     colours = {}
-    kind_text = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
     for i, c in enumerate(ctx.checks, start=1):
-        measured, expanded = _check_numbers(ctx, c)
+        kind, _, measured, expanded, limit, unit, _ = content.conformity_row(c, ctx.tolerances.coverage_factor)
         result = escape(c.verdict) + (f" ({ctx.text(c.reason)})" if c.reason else "")
         subject = markup(c.subject) if c.kind != "fit" else escape(c.subject).replace("χ²_ν", "χ²<sub>ν</sub>")
-        rows.append([kind_text[c.kind], subject, measured, expanded, f"{c.limit:g}", escape(c.unit), result])
+        rows.append([kind, subject, measured, expanded, limit, escape(unit), result])
         colours[(i, 6)] = document.VERDICT_COLOURS[c.verdict]
     out.append(document.table(rows, [0.16, 0.14, 0.13, 0.09, 0.10, 0.09, 0.29], align_right=(2, 3, 4), cell_colours=colours, markup=True))
-    counts = {v: sum(1 for c in ctx.checks if c.verdict == v) for v in document.VERDICT_COLOURS}
-    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
     out.append(
         KeepTogether(
             [
                 _p(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>', "verdict"),
                 _p(
-                    f"{summary}. Checks marked 'not assessed' concern parameters without a stated value or evidence "
-                    "and do not enter the verdict.",
+                    f"{content.conformity_counts(ctx.checks)}. Checks marked 'not assessed' concern parameters without a stated value "
+                    "or evidence and do not enter the verdict.",
                     "small",
                 ),
             ]
         )
     )
     return out
-
-
-def _check_numbers(ctx: ReportContext, c: Check) -> tuple[str, str]:
-    """Measured value and U of a check as printed: the same rounding as sections 4 and 9."""
-    if c.verdict == "not assessed" or not math.isfinite(c.measured):
-        return "—", "—"
-    if c.kind == "fit":
-        return content.chi2_text(abs(c.measured)), "—"
-    if c.kind == "uncertainty":
-        return content.number(abs(c.measured), 2), "—"
-    if math.isfinite(c.expanded) and c.expanded > 0:
-        rounded = content.gum(abs(c.measured), c.expanded / ctx.tolerances.coverage_factor, ctx.tolerances.coverage_factor)
-        return rounded.value, rounded.expanded
-    return _fmt(abs(c.measured), 4), "—"
 
 
 # ---------------------------------------------------------------------- 11 notes

@@ -247,9 +247,7 @@ class NoiseGenerator:
             offset = block * BLOCK_SAMPLES
             rows = slice(offset + lo - start, offset + hi - start)
             if white_sigma > 0:
-                out[rows] += (
-                    white_sigma * stream_generator(self.seed, "white", block).standard_normal((BLOCK_SAMPLES, self.channels))[lo:hi]
-                )
+                out[rows] += white_sigma * self._normals("white", block, self.channels)[lo:hi]
             if accumulating:
                 out[rows] += self._accumulating_noise(block)[lo:hi]
         return out
@@ -272,10 +270,23 @@ class NoiseGenerator:
             return out
         for block, lo, hi in _blocks(start, count):
             offset = block * BLOCK_SAMPLES
-            out[offset + lo - start : offset + hi - start] = (
-                sigma * stream_generator(self.seed, stream, block).standard_normal((BLOCK_SAMPLES, width))[lo:hi]
-            )
+            out[offset + lo - start : offset + hi - start] = sigma * self._normals(stream, block, width)[lo:hi]
         return out
+
+    def _normals(self, stream: str, block: int, width: int) -> NDArray[np.float64]:
+        """The standard normals of one block of a stream, ``(BLOCK_SAMPLES, width)``.
+
+        The last block of each stream is kept: a platform polled in short pieces (0.5 s while it slews) reads the same
+        block many times, and drawing a whole block per piece cost about 1 ms each.  The values are those of
+        :func:`stream_generator`, so caching changes nothing but the time.
+        """
+        cache = self.__dict__.setdefault("_normals_cache", {})
+        key = (stream, width)
+        cached = cache.get(key)
+        if cached is None or cached[0] != block:
+            cached = (block, stream_generator(self.seed, stream, block).standard_normal((BLOCK_SAMPLES, width)))
+            cache[key] = cached
+        return cached[1]
 
 
 class Quantizer:
