@@ -50,8 +50,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata, metadata_from_document, metadata_to_document
+from stableins.data.metadata import metadata_from_document, metadata_to_document
+from stableins.errors import InputError
+from stableins.site import SiteMetadata
 from stableins.status import STATUSES, Determination, Status
 
 if TYPE_CHECKING:  # pragma: no cover

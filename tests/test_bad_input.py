@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from stableins import cli
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.records import CalibrationRecord
 
 DEEP = "[" * 300 + "]" * 300
@@ -103,10 +103,11 @@ def test_bad_records_are_refused_by_every_command_that_reads_one(ws, tmp_path, p
 
 
 def test_bad_truth_file_plan_discovery_and_history_index(ws, tmp_path):
+    from stableins.data.truth import save_truth
     from stableins.simulator.truth import Truth
 
     truth = tmp_path / "truth.json"
-    Truth.draw(0).write(truth)
+    save_truth(Truth.draw(0), truth)
     bad = tmp_path / "bad-truth.json"
     bad.write_text(with_value(truth.read_text(), ("seed",), HUGE))
     refused(["simulate", "device", "--truth", bad, "--out", tmp_path / "s"], str(bad), "field 'seed'", "5000 digits")

@@ -23,8 +23,8 @@ import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
 
 from stableins.conventions import ARCSEC  # noqa: E402
-from stableins.data.errors import InputError  # noqa: E402
 from stableins.discovery.library import all_terms  # noqa: E402
+from stableins.errors import InputError  # noqa: E402
 from stableins.estimators.device import calibrate_device  # noqa: E402
 from stableins.estimators.sensitivity import angle_reading_gradients  # noqa: E402
 from stableins.estimators.system import sensitivity as system_sensitivity  # noqa: E402

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from device_world import GRAVITY, device_columns, draw_truth
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellChecks, dwells_from_columns, summarize_dwell
 from stableins.procedures.definition import load_procedure

@@ -11,11 +11,12 @@ import pytest
 
 from stableins import cli
 from stableins.conventions import MICRO_G
-from stableins.data.errors import InputError
+from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
 from stableins.discovery.history import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
+from stableins.errors import InputError
 from stableins.estimators.coarse import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
@@ -305,7 +306,7 @@ def test_the_simulated_ins_applies_the_installed_discovered_terms(simulated, tmp
     from stableins.simulator.noise import NoiseSettings
     from stableins.simulator.system import SystemWorld
 
-    truth = Truth.read(simulated / "truth.json")
+    truth = load_truth(simulated / "truth.json")
     record = tmp_path / "cal.json"
     data = [str(simulated / "device-coarse.csv"), str(simulated / "device-fine.h5")]
     assert cli.main(["calibrate", "device", *data, "--add", "Kcc_xxy", "--out", str(record)]) == 0

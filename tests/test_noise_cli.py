@@ -8,7 +8,8 @@ import pytest
 
 from stableins.cli import main
 from stableins.data.device import save_device
-from stableins.data.errors import InputError
+from stableins.data.truth import save_truth
+from stableins.errors import InputError
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
@@ -134,7 +135,7 @@ def test_noise_from_a_static_system_record_recovers_the_simulated_terms(tmp_path
 
     noise = replace(NoiseSettings.quartz(), bias_instability=10 * 9.80665e-6)
     truth = replace(Truth.draw(4), noise=noise)
-    truth.write(tmp_path / "truth.json")
+    save_truth(truth, tmp_path / "truth.json")
     args = ["simulate", "system", "--truth", str(tmp_path / "truth.json"), "--duration", "3h", "--rate", "2", "--out", str(tmp_path)]
     assert main(args) == 0
     capsys.readouterr()

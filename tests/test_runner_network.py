@@ -121,7 +121,7 @@ def test_crash_then_resume_over_the_network_supersedes_the_unfinished_attempt(se
 
 
 def test_wrong_unit_on_the_network(server, tmp_path):
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     driver = TcpDriver("127.0.0.1", server.port, timeout=5)
     with pytest.raises(InputError, match="reports unit 'NET-1'"):

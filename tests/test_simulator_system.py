@@ -10,7 +10,7 @@ import pytest
 from scipy.linalg import expm
 
 from stableins import conventions as cv
-from stableins.data.schema import SYSTEM_COLUMNS
+from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import ModalRecursion, SystemWorld, error_dynamics, simulate_system
 from stableins.simulator.truth import Truth

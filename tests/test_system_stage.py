@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from system_synthetic import paper_residuals, record
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
 from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage
 

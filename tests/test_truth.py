@@ -17,13 +17,13 @@ from device_world import GRAVITY, device_columns, draw_truth
 
 from stableins import cli
 from stableins.data.device import save_device
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, known_terms
 from stableins.estimators.result import FitResult
 from stableins.history import HistoryStore
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting.symbols import plain
+from stableins.site import SiteMetadata
 from stableins.status import Status
 
 POPPLER = shutil.which("pdftotext")
@@ -180,10 +180,10 @@ def test_recal_history_and_certificate_agree_on_every_change_flag(tmp_path, caps
 
 
 def test_a_stage_on_six_hours_writes_no_record_and_exits_2_with_the_reason(tmp_path, capsys):
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     assert cli.main(["simulate", "system", "--seed", "3", "--duration", "6h", "--rate", "1", "--out", str(tmp_path)]) == 0
-    truth = Truth.read(tmp_path / "truth.json")
+    truth = load_truth(tmp_path / "truth.json")
     terms = CORE_TERMS
     values = np.array([truth.installed_calibration.get(t.id, t.reference) for t in terms])
     covariance = np.diag([(0.02 * t.nominal) ** 2 for t in terms])

@@ -66,7 +66,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _same_site(datasets) -> None:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     first = datasets[0]
     for other in datasets[1:]:
@@ -87,9 +87,9 @@ def run(args: argparse.Namespace) -> int:
 
     from stableins.commands.noise import noise_from_options
     from stableins.data.device import load_device
-    from stableins.data.errors import InputError
     from stableins.discovery.carry import carry_effects
     from stableins.discovery.library import calibration_terms
+    from stableins.errors import InputError
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.output import emit, note
@@ -208,7 +208,7 @@ def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> 
     import contextlib
 
     from stableins.data.atomic import atomic_path
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     step = "record"
     try:

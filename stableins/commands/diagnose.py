@@ -54,11 +54,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from stableins.data.device import load_device
-    from stableins.data.errors import InputError
     from stableins.discovery.history import Discovery
     from stableins.discovery.library import LIBRARY
     from stableins.discovery.problem import DwellProblem, dwells_from_dataset
     from stableins.errormodel import ErrorModel
+    from stableins.errors import InputError
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 

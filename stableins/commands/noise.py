@@ -86,7 +86,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
     Returns ``(model or None, text saying where it comes from)``.
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     given = args.bias_instability is not None or args.random_walk is not None
     if given and args.noise is not None:
@@ -115,7 +115,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
     decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.noise import NoiseModel
 
     given = args.bias_instability is not None or args.random_walk is not None
@@ -138,7 +138,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
 
 def record_noise(path: Path):
     """The ``noise_model`` section of a calibration record (InputError when it has none)."""
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.records import CalibrationRecord
 
     record = CalibrationRecord.load(path)
@@ -203,7 +203,7 @@ def static_record_points(record) -> tuple[Any, str]:
         block_index.append(keys)
         block_rows.append(sums)
     if rate is None or not block_index:
-        from stableins.data.errors import InputError
+        from stableins.errors import InputError
 
         raise InputError("too few samples for an Allan analysis", path=str(record.path))
     all_keys = np.concatenate(block_index)
@@ -255,7 +255,7 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
             summaries.append(s)
             segments.append(np.asarray(d.specific_force)[use])
     if not summaries:
-        from stableins.data.errors import InputError
+        from stableins.errors import InputError
 
         raise InputError("no usable dwells in the device files", path=str(datasets[0].path), expected="device-level dwells")
     longest = max(summaries, key=lambda s: s.duration)
@@ -270,8 +270,8 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from stableins.data.errors import InputError
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.errors import InputError
     from stableins.estimators.allan import fit_allan, points_for_model
     from stableins.noise import NoiseSource
     from stableins.output import emit, note

@@ -21,7 +21,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
@@ -193,11 +193,12 @@ def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
 
 def build_truth(args: argparse.Namespace) -> Any:
     """The truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
+    from stableins.data.truth import load_truth
     from stableins.simulator.effects import validate_effects
     from stableins.simulator.truth import Truth
 
     if args.truth is not None:
-        truth = Truth.read(args.truth)
+        truth = load_truth(args.truth)
     else:
         kwargs: dict[str, Any] = {}
         if args.rate is not None:
@@ -237,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
     seed = truth.seed if args.seed is None else args.seed
     truth_path = out / "truth.json"
     try:
-        truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+        save_truth(truth, truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
         if args.level == "device":
             files = simulate_device(truth, out, seed, args, procedures)

@@ -169,7 +169,7 @@ def dwells_from_dataset(
     (:func:`stableins.estimators.dwell.slow_covariance`); None measures it from the dwells as
     ``stableins calibrate device`` does (:func:`stableins.estimators.device.noise_from_dwells`).
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.procedures.definition import load_procedure
 

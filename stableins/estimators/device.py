@@ -16,9 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.estimators.allan import DEFAULT_ALPHA, slow_noise_test
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
@@ -28,6 +27,7 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
+from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord, Entry

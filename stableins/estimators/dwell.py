@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import ARCSEC, STANDARD_GRAVITY
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -31,13 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, GimbalConfiguration
-from stableins.drivers.base import PlatformDriver, SampleBlock
+from stableins.drivers.base import PlatformDriver
 from stableins.errormodel import Term
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.procedures.definition import ProcedureDefinition
+from stableins.samples import SampleBlock
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ definitions shipped with stableins are package data (``stableins/procedures/defi
 name such as ``"device-coarse"`` is found from any directory, in a checkout and in an installed
 wheel alike; ``procedures/`` at the top of the repository links to them.  Angles are
 written in degrees in the file and held in radians here (SI inside).  Every problem
-raises :class:`stableins.data.errors.InputError` naming the file and the field.
+raises :class:`stableins.errors.InputError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.conventions import ARCSEC
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Where the definitions shipped with stableins live: package data, found by name from any directory.
 PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"

@@ -12,7 +12,7 @@ import math
 from dataclasses import MISSING, asdict, dataclass, field
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)

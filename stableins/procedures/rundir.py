@@ -25,14 +25,14 @@ from pathlib import Path
 from typing import Any
 
 import stableins
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.drivers.base import PlatformDriver
 from stableins.drivers.replay import JOURNAL_NAME
 from stableins.drivers.select import is_deterministic, open_driver
+from stableins.errors import InputError
 from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import Plan
 from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
+from stableins.site import SiteMetadata
 
 DATASET_NAME = "device.h5"
 SYSTEM_NAME = "system.h5"

@@ -40,13 +40,14 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
-from stableins.data.schema import DEVICE_COLUMNS
-from stableins.drivers.base import PlatformDriver, SampleBlock
+from stableins.drivers.base import PlatformDriver
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.replay import block_from_record, live_operations
+from stableins.errors import InputError
 from stableins.procedures.journal import Journal, Record
 from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
+from stableins.samples import SampleBlock
+from stableins.schema import DEVICE_COLUMNS
 
 #: A slope counts against the limit only beyond this many σ of its own noise (short dwells are noisy).
 SLOPE_SIGMAS = 3.0
@@ -1031,7 +1032,7 @@ def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Reco
 
 
 def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
-    """Accepted dwells as device-level columns (:data:`stableins.data.schema.DEVICE_COLUMNS`), in recording order."""
+    """Accepted dwells as device-level columns (:data:`stableins.schema.DEVICE_COLUMNS`), in recording order."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
     for entry in entries:
         block = _concatenate(entry["blocks"])

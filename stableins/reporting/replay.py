@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from os import PathLike
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 
 def device_fits(

@@ -41,10 +41,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, MICRO_G, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
 from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
+from stableins.errors import InputError
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
@@ -53,6 +52,7 @@ from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 from stableins.estimators.system.spectrum import ColouredNoiseFit, ColouredSource
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
+from stableins.site import SiteMetadata
 from stableins.status import Determination, Status
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
