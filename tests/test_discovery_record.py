@@ -29,7 +29,7 @@ from stableins.simulator.truth import Truth
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
-PROCEDURES = {"coarse": COARSE, "fine": FINE}
+LAYOUTS = {"coarse": COARSE.layout, "fine": FINE.layout}
 KCC = 60 * MICRO_G_PER_G2  # 60 µg/g²
 
 
@@ -41,9 +41,9 @@ def _session(seed, effects):
         columns = simulate_dwells(
             truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, rate=20.0, seed=seed + 977 * p, stage="coarse", pass_number=p
         )
-        dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+        dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=300.0, settle=5.0, rate=2.0, seed=seed + 5003, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+    dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
     return truth, functools.partial(calibrate_device, dwells, truth.site, noise=slow)
@@ -127,7 +127,7 @@ def test_an_effect_the_data_cannot_separate_is_held_and_not_determined(clean):
 def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
     truth, calibrate = hidden_kcc
     carried = carry_effects(lambda extra: calibrate(extra_terms=extra), calibration_terms(["Kcc_xxy", "Kcc_yyz"]))
-    record = replace(carried.calibration.record(truth.site), discovery=carried.history)
+    record = replace(CalibrationRecord.from_device(carried.calibration, truth.site), discovery=carried.history)
     path = record.save(tmp_path / "cal.json")
     again = CalibrationRecord.load(path)
     assert again["Kcc_xxy"].unit == "s^2/m" and again["Kcc_xxy"].status == "estimated"
@@ -148,7 +148,7 @@ def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
 def kcc_document(hidden_kcc):
     truth, calibrate = hidden_kcc
     carried = carry_effects(lambda extra: calibrate(extra_terms=extra), calibration_terms(["Kcc_xxy"]))
-    return replace(carried.calibration.record(truth.site), discovery=carried.history).to_document()
+    return replace(CalibrationRecord.from_device(carried.calibration, truth.site), discovery=carried.history).to_document()
 
 
 @pytest.mark.parametrize(

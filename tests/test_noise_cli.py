@@ -11,7 +11,7 @@ from stableins.data.device import save_device
 from stableins.data.truth import save_truth
 from stableins.errors import InputError
 from stableins.noise import NoiseModel, NoiseSource
-from stableins.procedures.definition import load_procedure
+from stableins.procedures.definition import device_layouts, load_procedure
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -99,7 +99,7 @@ def test_the_noise_model_is_carried_through_stage_updates(session):
     out, truth = session
     record = CalibrationRecord.load(out / "cal.json")
     summaries = [s for name in ("coarse.csv", "fine.h5") for s in dwells_from_columns(load_device(out / name).columns)]
-    later = calibrate_device(summaries, truth.site).final
+    later = calibrate_device(summaries, truth.site, layouts=device_layouts()).final
     assert record.updated(later).noise_model == record.noise_model
     measured = NoiseModel.given(1e-4, provenance="static record")
     assert record.updated(later, noise_model=measured).noise_model == measured

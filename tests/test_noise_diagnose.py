@@ -18,7 +18,7 @@ FINE = load_procedure("device-fine")
 def _fine_session(seed):
     truth = Truth.draw(seed)
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=600.0, settle=5.0, rate=5.0, seed=seed + 17, stage="fine")
-    return truth, DeviceDataset(truth.site, columns, f"fine-{seed}"), dwells_from_columns(columns, procedures={"fine": FINE})
+    return truth, DeviceDataset(truth.site, columns, f"fine-{seed}"), dwells_from_columns(columns, layouts={"fine": FINE.layout})
 
 
 def test_clean_quartz_sessions_have_chi2_one_with_the_true_noise_model():

@@ -128,7 +128,7 @@ def fine_estimate(truth, site, prior: CalibrationRecord, seed: int, path: Path) 
         for k, v in device_columns(truth, procedure, seed=seed, stage="fine", offsets=offsets, dwell=60.0, settle=2.0).items()
     }
     data = save_device(path.with_suffix(".h5"), columns, replace(site, start_time="2026-06-01T08:00:00+00:00"))
-    dwells = dwells_from_columns(columns, procedures={"fine": procedure}, source=str(data))
+    dwells = dwells_from_columns(columns, layouts={"fine": procedure.layout}, source=str(data))
     fit = calibrate_fine(dwells, prior.values(), gravity=site.gravity, expected_positions=procedure.positions, source=str(data))
     estimate = CalibrationRecord.from_fit_result(
         fit, site=site, inputs=[data], procedure="device-fine", data_end="2026-06-01T12:00:00+00:00"

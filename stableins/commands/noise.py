@@ -237,20 +237,20 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
     import numpy as np
 
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.procedures.definition import load_procedure
+    from stableins.procedures.definition import device_layouts
 
-    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    layouts = device_layouts()
     summaries, segments = [], []
     for ds in datasets:
         stats = {
-            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
         }
         for d in ds.dwells():
             s = stats[(d.stage, d.pass_number, d.position)]
             if not s.usable:
                 continue
-            procedure = procedures.get(d.stage)
-            settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+            layout = layouts.get(d.stage)
+            settle = layout.settle(d.position) if layout is not None and d.position in layout.positions else 0.0
             use = np.asarray(d.time_since_command) >= settle
             summaries.append(s)
             segments.append(np.asarray(d.specific_force)[use])

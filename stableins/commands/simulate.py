@@ -214,6 +214,7 @@ def build_truth(args: argparse.Namespace) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stableins.data.truth import save_truth
     from stableins.output import emit, note
 
     if args.list_effects:
@@ -270,7 +271,7 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, 
     By default the session is what the device-level procedure does on a real platform,
     through the same driver interface: the coarse passes of the zero-offset iteration
     (the gimbals re-commanded by −θ̂20, −θ̂30 after each pass until the offsets vanish,
-    :func:`stableins.estimators.offset_iteration.iterate_offsets`), then the fine dwells
+    :func:`stableins.procedures.iteration.iterate_offsets`), then the fine dwells
     at the re-pointed positions.  ``--no-iteration`` records one pass of every procedure
     at its nominal commands instead.
     """
@@ -333,7 +334,7 @@ def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) ->
 def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
     """Coarse zero-offset iteration, then fine dwells, on one simulated platform session."""
     from stableins.drivers.recording import RecordingDriver
-    from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets, measure_pass
+    from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
     from stableins.simulator.device import SimulatedPlatform
 
     driver = RecordingDriver(SimulatedPlatform(truth, rate=rate, seed=seed))

@@ -19,6 +19,7 @@ from typing import Any
 
 from stableins.conventions import ARCSEC
 from stableins.errors import InputError
+from stableins.estimators.layout import DwellChecks, StageLayout
 
 #: Where the definitions shipped with stableins live: package data, found by name from any directory.
 PROCEDURE_DIRECTORY = Path(__file__).resolve().parent / "definitions"
@@ -51,24 +52,6 @@ class Step:
 
 
 @dataclass(frozen=True)
-class Acceptance:
-    """Dwell acceptance checks (SI): see :class:`stableins.estimators.dwell.DwellChecks`."""
-
-    min_samples: int = 20
-    noise_blocks: int = 10
-    saturation: float = 29.41995
-    max_angle_span: float = 20.0 * ARCSEC
-    orientation_tolerance: float = 0.196133
-
-    def dwell_checks(self):
-        from stableins.estimators.dwell import DwellChecks
-
-        return DwellChecks(
-            min_samples=self.min_samples, blocks=self.noise_blocks, saturation=self.saturation, max_angle_span=self.max_angle_span
-        )
-
-
-@dataclass(frozen=True)
 class OffsetIteration:
     """Zero-offset re-commanding loop: stop below ``threshold`` [rad] (or within
     ``noise_sigmas`` of zero), at most ``max_passes`` passes."""
@@ -88,7 +71,8 @@ class ProcedureDefinition:
     handedness: int
     repoint: bool
     steps: tuple[Step, ...]
-    acceptance: Acceptance
+    #: the checks of every dwell: ``[acceptance]`` and the thresholds of ``[runner]``
+    checks: DwellChecks
     offset_iteration: OffsetIteration
     path: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
@@ -111,6 +95,13 @@ class ProcedureDefinition:
             if s.position == position:
                 return s
         raise KeyError(position)
+
+    @property
+    def layout(self) -> StageLayout:
+        """The positions, settle times, handedness and dwell checks, as the estimators take them."""
+        return StageLayout(
+            self.name, self.stage, self.positions, tuple(s.settle for s in self.steps), self.handedness, self.checks, self.path
+        )
 
     @property
     def duration(self) -> float:
@@ -229,7 +220,6 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
             acc_values[k] = int(acc_values[k])
     if "max_angle_span" in acc_values:
         acc_values["max_angle_span"] *= ARCSEC
-    acceptance = Acceptance(**acc_values)
     it_table = _table(data.get("offset_iteration", {}), spath, "offset_iteration")
     it_fields = {"threshold", "max_passes", "noise_sigmas"}
     if set(it_table) - it_fields:
@@ -300,7 +290,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         handedness=int(handedness),
         repoint=bool(head.get("repoint", False)),
         steps=tuple(steps),
-        acceptance=acceptance,
+        checks=DwellChecks(**acc_values, **_runner_checks(data.get("runner", {}), spath)),
         offset_iteration=OffsetIteration(**it_values),
         path=spath,
         runner=_runner_settings(data.get("runner", {}), spath),
@@ -310,6 +300,15 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
         uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
     )
+
+
+def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "device-fine") -> dict[str, StageLayout]:
+    """``{"coarse": ..., "fine": ...}``: the stage layouts of two device-level procedures (names or paths) for the estimators.
+
+    What :func:`stableins.estimators.device.calibrate_device`, :func:`stableins.estimators.dwell.dwells_from_columns`
+    and :func:`stableins.discovery.problem.dwells_from_dataset` take; by default those of the shipped procedures.
+    """
+    return {"coarse": load_procedure(coarse).layout, "fine": load_procedure(fine).layout}
 
 
 def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
@@ -334,22 +333,16 @@ def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
 # --------------------------------------------------------------------------- runner sections
 @dataclass(frozen=True)
 class RunnerSettings:
-    """``[runner]``: how ``stableins run`` executes and accepts each dwell (SI).
+    """``[runner]``: how ``stableins run`` executes a procedure.
 
-    ``angle_tolerance`` [rad] (file: arcsec): the platform must be this close to the
-    commanded readings (arrival, and the mean over the dwell); ``max_slew`` [s]: longest wait
-    for arrival; ``scatter_max`` [m/s²] (file: µg): largest residual standard deviation of a
-    dwell about its straight line; ``slope_max`` [m/s² per s] (file: µg/s): largest slope
-    beyond 3σ of its own noise; ``retries``: repeats of a rejected dwell before the run stops;
-    ``chunk`` [s]: dwells are journaled in pieces of at most this length.
+    ``retries``: repeats of a rejected dwell before the run stops; ``chunk`` [s]: dwells are
+    journaled in pieces of at most this length.  The table's thresholds (``angle_tolerance``,
+    ``scatter_max``, ``slope_max``, ``max_slew``) are dwell checks: they go to the procedure's
+    :class:`~stableins.estimators.layout.DwellChecks`.
     """
 
     retries: int = 2
     chunk: float = 10.0
-    angle_tolerance: float = 20.0 * ARCSEC
-    scatter_max: float = 5e-3 * 9.80665
-    slope_max: float = 20e-6 * 9.80665
-    max_slew: float = 120.0
 
 
 @dataclass(frozen=True)
@@ -405,7 +398,8 @@ _PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum
 _RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate"}
 
 
-def _runner_settings(table: Any, path: str) -> RunnerSettings:
+def _runner_values(table: Any, path: str) -> dict[str, Any]:
+    """The ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
     if not isinstance(table, dict):
         raise InputError("[runner] must be a table", path=path, field="runner")
     unknown = set(table) - set(_RUNNER_KEYS)
@@ -427,7 +421,17 @@ def _runner_settings(table: Any, path: str) -> RunnerSettings:
             values[key] = _number(table, key, path, "runner", **limits[key]) * factor
     if "retries" in values:
         values["retries"] = int(values["retries"])
-    return RunnerSettings(**values)
+    return values
+
+
+def _runner_settings(table: Any, path: str) -> RunnerSettings:
+    values = _runner_values(table, path)
+    return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
+
+
+def _runner_checks(table: Any, path: str) -> dict[str, float]:
+    """The dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
+    return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
 
 
 def _people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:

@@ -523,7 +523,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
 
     columns = accepted_columns(runner.entries)
     source = str(dataset or rundir / JOURNAL_NAME)
-    dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
+    dwells = dwells_from_columns(columns, checks=definition.checks, source=source)
     prior = _load_record(rundir / start["prior"])
     return calibrate_fine(
         dwells,

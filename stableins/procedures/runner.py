@@ -44,8 +44,9 @@ from stableins.drivers.base import PlatformDriver
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.replay import block_from_record, live_operations
 from stableins.errors import InputError
+from stableins.estimators.layout import DwellChecks
 from stableins.procedures.journal import Journal, Record
-from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
+from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 from stableins.samples import SampleBlock
 from stableins.schema import DEVICE_COLUMNS
 
@@ -525,7 +526,7 @@ class CheckResult:
         )
 
 
-def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Checks, dwell: float, rate: float) -> CheckResult:
+def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: DwellChecks, dwell: float, rate: float) -> CheckResult:
     """Acceptance checks of one dwell (see the module docstring for the formulas)."""
     n = len(block.time)
     expected = max(1, int(round(dwell * rate)))
@@ -803,7 +804,7 @@ class Runner:
             failures = 0
         return failures
 
-    def _wait_until_reached(self, readings: NDArray[np.float64], checks: Checks) -> str | None:
+    def _wait_until_reached(self, readings: NDArray[np.float64], checks: DwellChecks) -> str | None:
         """Record (and discard) short pieces until the platform is at the commanded readings.
 
         Returns ``None`` on arrival, else why it did not arrive within ``checks.max_slew``.
@@ -842,7 +843,7 @@ class Runner:
         return blocks
 
     def _offset_iteration(self, index: int, step: OffsetIterationStep, label: str) -> None:
-        from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets
+        from stableins.procedures.iteration import OffsetIterationError, iterate_offsets
 
         if self.definition is None:
             raise RunStopped(f"{label}: the procedure definition is not available to the zero-offset iteration")
@@ -891,7 +892,7 @@ class Runner:
 
 
 class _IterationConsole:
-    """The console of the zero-offset iteration (:class:`~stableins.estimators.offset_iteration.PassObserver`): every
+    """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`): every
     dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
     :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit)."""
 
