@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stableins.console import Console
 from stableins.estimators.layout import DwellChecks
 from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import DwellStep, Plan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console
+from stableins.runs import resume_run, start_run
 
 
 def append_rate(directory: Path, pieces: int = 200) -> tuple[float, float]:

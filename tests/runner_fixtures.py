@@ -70,8 +70,8 @@ class PacedDouble:
 
 def main(argv: list[str]) -> int:
     """``python -m tests.runner_fixtures start|resume RUNDIR SEED PACE``: run the short plan on the double."""
-    from stableins.procedures.rundir import resume_run, start_run
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
+    from stableins.runs import resume_run, start_run
 
     mode, rundir, seed, pace = argv[0], argv[1], int(argv[2]), float(argv[3])
     console = Console(yes=True, quiet=True)

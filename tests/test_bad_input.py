@@ -403,9 +403,10 @@ def test_samples_whose_time_runs_back_are_refused_before_journaling(tmp_path):
     from platform_double import PlatformDouble
     from runner_fixtures import short_plan
 
+    from stableins.console import Console
     from stableins.procedures.journal import scan
-    from stableins.procedures.rundir import resume_run, start_run
-    from stableins.procedures.runner import Console, RunStopped
+    from stableins.procedures.runner import RunStopped
+    from stableins.runs import resume_run, start_run
 
     class Rewinding(PlatformDouble):
         """Its clock jumps back 100 s once, in the middle of the run (a controller that restarted its clock)."""
@@ -612,8 +613,8 @@ def test_an_entry_out_of_range_is_asked_again_not_fatal(tmp_path, monkeypatch):
     from platform_double import PlatformDouble
     from runner_fixtures import short_plan
 
-    from stableins.procedures.rundir import start_run
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
+    from stableins.runs import start_run
 
     answers = iter(["y", "200", "warm", "19.25"])  # the range is -20 .. 60 degC
     monkeypatch.setattr("builtins.input", lambda prompt: next(answers))

@@ -108,7 +108,7 @@ def test_cli_bad_input_exits_2_without_writing_a_record(tmp_path, capsys):
     truth = Truth.draw(6, noise=WHITE)
     coarse, _ = _session(truth, 6, fine_rate=1.0, fine_dwell=30.0)
     coarse["f_x"] = -coarse["f_x"]  # x axis wired backwards
-    path = save_device(tmp_path / "coarse.csv", coarse, truth.site, layouts=LAYOUTS)
+    path = save_device(tmp_path / "coarse.csv", coarse, truth.site)
     out = tmp_path / "record.json"
     assert main(["calibrate", "device", str(path), "--out", str(out)]) == 2
     err = capsys.readouterr().err

@@ -329,9 +329,9 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
 
     from device_world import ExactPlatform, draw_truth
 
+    from stableins.console import Console
     from stableins.procedures.planning import plan_from_definition
-    from stableins.procedures.rundir import start_run
-    from stableins.procedures.runner import Console
+    from stableins.runs import start_run
 
     monkeypatch.setattr("os.fsync", lambda fd: None)
     truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}

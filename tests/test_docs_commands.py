@@ -99,7 +99,7 @@ def _expand(tokens: list[str], cwd: Path) -> list[str]:
 def test_the_documents_commands_run_as_written(document, tmp_path, monkeypatch, capsys):
     import stableins.estimators.device
     import stableins.procedures.definition
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
     from stableins.simulator.truth import Truth
 
     fast = _fast(stableins.procedures.definition.load_procedure)

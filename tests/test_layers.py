@@ -52,12 +52,14 @@ LAYERS: dict[str, int] = {
     "stableins.records": 6,
     "stableins.history": 6,
     "stableins.history_store": 6,
+    "stableins.runs": 6,
     "stableins.reporting": 6,
     # 7 interface
     "stableins.commands": 7,
     "stableins.cli": 7,
     "stableins.output": 7,
     "stableins.progress": 7,
+    "stableins.console": 7,
     "stableins.__main__": 7,
 }
 LAYER_NAMES = ("physics", "world", "data", "estimators", "discovery", "procedures", "records and reports", "interface")

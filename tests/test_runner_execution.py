@@ -7,9 +7,10 @@ import io
 import numpy as np
 import pytest
 
+from stableins.console import Console
 from stableins.procedures.journal import scan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console, RunStopped, evaluate_dwell, journal_columns
+from stableins.procedures.runner import RunStopped, evaluate_dwell, journal_columns
+from stableins.runs import resume_run, start_run
 from stableins.samples import SampleBlock
 from tests.platform_double import PlatformDouble
 from tests.runner_fixtures import LOOSE, short_plan

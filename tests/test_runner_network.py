@@ -7,11 +7,12 @@ import io
 import numpy as np
 import pytest
 
+from stableins.console import Console
 from stableins.data.device import load_device
 from stableins.drivers.tcp import TcpDriver
 from stableins.procedures.journal import scan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console, RunStopped, journal_columns
+from stableins.procedures.runner import RunStopped, journal_columns
+from stableins.runs import resume_run, start_run
 from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 from tests.tcp_fixtures import FaultyRelay, ServerProcess
 

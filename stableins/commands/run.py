@@ -147,11 +147,13 @@ def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stableins.console import Console
     from stableins.drivers.errors import DriverError
     from stableins.errors import InputError
     from stableins.output import emit
-    from stableins.procedures.rundir import RunFinished, resume_run, start_run
-    from stableins.procedures.runner import Console, JournalMismatch, RunOptions, RunStopped
+    from stableins.procedures.rundir import RunFinished
+    from stableins.procedures.runner import JournalMismatch, RunOptions, RunStopped
+    from stableins.runs import resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
