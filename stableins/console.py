@@ -12,7 +12,8 @@ import sys
 from typing import Any, TextIO
 
 from stableins.procedures.plan import PersonStep
-from stableins.procedures.runner import CheckResult, RunStopped
+from stableins.procedures.runner import RunStopped
+from stableins.procedures.verdict import CheckResult
 
 #: Marks what a resumed run prints of steps the journal answers (nothing happens on the platform for them).
 REPLAY_MARK = "replay"

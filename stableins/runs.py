@@ -20,6 +20,7 @@ from stableins.drivers.base import PlatformDriver
 from stableins.drivers.replay import JOURNAL_NAME
 from stableins.drivers.select import is_deterministic, open_driver
 from stableins.errors import InputError
+from stableins.procedures.entries import accepted_columns, resume_script
 from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import Plan
 from stableins.procedures.rundir import (
@@ -42,7 +43,8 @@ from stableins.procedures.rundir import (
     utc_now,
     write_plan,
 )
-from stableins.procedures.runner import RunConsole, Runner, RunOptions, Session, accepted_columns, resume_script
+from stableins.procedures.runner import RunConsole, Runner, RunOptions
+from stableins.procedures.session import Session
 from stableins.site import SiteMetadata
 
 

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from stableins.console import Console
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
-from stableins.procedures.runner import RunStopped, evaluate_dwell, journal_columns
+from stableins.procedures.runner import RunStopped
+from stableins.procedures.verdict import evaluate_dwell
 from stableins.runs import resume_run, start_run
 from stableins.samples import SampleBlock
 from tests.platform_double import PlatformDouble

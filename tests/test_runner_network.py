@@ -10,8 +10,9 @@ import pytest
 from stableins.console import Console
 from stableins.data.device import load_device
 from stableins.drivers.tcp import TcpDriver
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
-from stableins.procedures.runner import RunStopped, journal_columns
+from stableins.procedures.runner import RunStopped
 from stableins.runs import resume_run, start_run
 from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 from tests.tcp_fixtures import FaultyRelay, ServerProcess

@@ -152,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
     from stableins.errors import InputError
     from stableins.output import emit
     from stableins.procedures.rundir import RunFinished
-    from stableins.procedures.runner import JournalMismatch, RunOptions, RunStopped
+    from stableins.procedures.runner import RunOptions, RunStopped
+    from stableins.procedures.session import JournalMismatch
     from stableins.runs import resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)

@@ -22,9 +22,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from stableins.procedures.entries import accepted_columns
 from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
-from stableins.procedures.runner import Runner, accepted_columns
+from stableins.procedures.runner import Runner
 from stableins.site import SiteMetadata
 
 DATASET_NAME = "device.h5"
