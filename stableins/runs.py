@@ -193,28 +193,13 @@ def resume_run(
                 field="--re-estimate",
                 expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
             )
-        spec = start["driver"]
-        if driver_spec is not None and driver_spec != spec:
-            if not (driver_spec.startswith("tcp://") and spec.startswith("tcp://")):
-                raise InputError(
-                    f"this run was made with --driver {spec}",
-                    field="--driver",
-                    expected=f"{spec} (only a tcp:// address may change on resume)",
-                )
-            spec = driver_spec
+        spec = _resume_spec(start["driver"], driver_spec)
         check_settings(plan, console.values)
         verify_inputs(rundir, start)  # before the platform is touched: what is read again is what the run started with
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        if re_estimate:
-            from stableins.drivers.replay import metadata_from_start
-
-            driver: PlatformDriver = JournalOnlyDriver(metadata_from_start(start))
-        elif driver_factory is not None:
-            driver = driver_factory(start.fields)
-        else:
-            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
+        driver = _resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
@@ -250,6 +235,38 @@ def resume_run(
             return outcome
         finally:
             driver.close()
+
+
+def _resume_spec(journaled: str, driver_spec: str | None) -> str:
+    """The driver a resumed run uses: the journaled one, or a new ``tcp://`` address of a network platform that moved."""
+    if driver_spec is None or driver_spec == journaled:
+        return journaled
+    if not (driver_spec.startswith("tcp://") and journaled.startswith("tcp://")):
+        raise InputError(
+            f"this run was made with --driver {journaled}",
+            field="--driver",
+            expected=f"{journaled} (only a tcp:// address may change on resume)",
+        )
+    return driver_spec
+
+
+def _resume_driver(
+    start: Any,
+    spec: str,
+    plan: Plan,
+    *,
+    re_estimate: bool,
+    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
+    timeout: float,
+) -> PlatformDriver:
+    """The platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens."""
+    if re_estimate:
+        from stableins.drivers.replay import metadata_from_start
+
+        return JournalOnlyDriver(metadata_from_start(start))
+    if driver_factory is not None:
+        return driver_factory(start.fields)
+    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
 
 
 def verify_inputs(rundir: Path, start: Any) -> None:

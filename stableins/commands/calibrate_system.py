@@ -162,9 +162,22 @@ def run(args: Any) -> int:
     if args.plot:
         plot(outcome, str(args.plot))
 
+    data = _result(args, outcome, prior, updated)
+    import shlex
+
+    certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
+    command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
+    data["next"] = [command]
+    note(f"next: the calibration certificate of {args.out}:\n  {command}")
+    emit(args, data, text=report(outcome, updated, str(args.out)))
+    return 0
+
+
+def _result(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, Any]:
+    """What ``--json`` prints: the combined coefficients, what they determine, every parameter of the record written."""
     combined = outcome.combined
     fit = outcome.coloured_noise
-    data = {
+    return {
         "record": args.record,
         "prior": args.prior,
         "out": str(args.out),
@@ -205,14 +218,6 @@ def run(args: Any) -> int:
         },
         "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
     }
-    import shlex
-
-    certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
-    command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
-    data["next"] = [command]
-    note(f"next: the calibration certificate of {args.out}:\n  {command}")
-    emit(args, data, text=report(outcome, updated, str(args.out)))
-    return 0
 
 
 def report(outcome: Any, record: Any, out: str) -> str:
