@@ -157,9 +157,8 @@ def part_c(job):
     truth, datasets, summaries = session(seed, "quartz")
     value = signal * signal_scale(datasets, truth, true_noise(truth, summaries), effect)  # √λ in units of the true dwell-mean noise
     truth, datasets, summaries = session(seed, "quartz", {effect: value})
-    noise = calibrate_device(
-        summaries, truth.site, layouts=device_layouts()
-    ).noise  # the record's model, as 'calibrate device' would store it
+    # the record's model, as 'calibrate device' would store it
+    noise = calibrate_device(summaries, truth.site, layouts=device_layouts()).noise
     return {
         "effect": effect,
         "value": value,

@@ -46,7 +46,7 @@ def _session(seed, effects):
     dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
-    return truth, functools.partial(calibrate_device, dwells, truth.site, noise=slow)
+    return truth, functools.partial(calibrate_device, dwells, truth.site, layouts=LAYOUTS, noise=slow)
 
 
 @pytest.fixture(scope="module")
