@@ -163,14 +163,14 @@ def static_record_points(record) -> tuple[Any, str]:
 
     from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
     from stableins.estimators.allan import allan_points, merge_points
-    from stableins.estimators.coarse import platform_specific_force
+    from stableins.platform import platform_specific_force
 
     site = record.metadata
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     base = dcm_nav_to_body(*site.base_attitude)
 
     def regressors(readings):
-        f_p, _ = platform_specific_force(readings, np.zeros(3), site.gravity, base, configuration)
+        f_p = platform_specific_force(readings, site.gravity, base_dcm=base, configuration=configuration)
         u = f_p / site.gravity
         cols = [np.ones(u.shape[0])] + [u[:, i] for i in range(3)] + [u[:, i] * u[:, j] for i in range(3) for j in range(i, 3)]
         return np.stack(cols, axis=-1)

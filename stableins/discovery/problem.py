@@ -7,7 +7,7 @@ column of any candidate term.  :class:`Problem` is that interface; two implement
 * :class:`DwellProblem` — device level.  Observations are dwell means of the three
   accelerometer outputs per position; the prediction is the exact forward model
   ``f^a = forward(f^p(readings, θ_0, base), p)`` (Wu et al. 2018 Eq. 6 with the exact gimbal
-  kinematics of :mod:`stableins.discovery.kinematics`).  The fit is Gauss–Newton; the
+  kinematics of :mod:`stableins.platform`).  The fit is Gauss–Newton; the
   zero offset ``θ10`` (and anything else in the null space of the design) is held at its
   prior value as an explicit gauge, marked ``"gauge"``.
 * :class:`LinearProblem` — any linear(ized) problem given as observations, 1σ, model
@@ -234,9 +234,9 @@ def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labe
     samples used.  ``noise`` None: measured from the dwells as the device stage does.
     """
     from stableins.discovery.drift import reading_slope
-    from stableins.discovery.kinematics import platform_specific_force
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
+    from stableins.platform import platform_specific_force
 
     if noise is None:
         noise = noise_from_dwells(summaries)
@@ -357,9 +357,11 @@ def dwell_means(
 
 
 def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
-    from stableins.discovery.kinematics import platform_specific_force
+    from stableins.platform import platform_specific_force
 
-    return platform_specific_force(np.asarray(readings, dtype=float), gravity, offsets, base_attitude, configuration=configuration)
+    return platform_specific_force(
+        np.asarray(readings, dtype=float), gravity, zero_offsets=offsets, base_attitude=base_attitude, configuration=configuration
+    )
 
 
 class DwellProblem:
@@ -413,7 +415,7 @@ class DwellProblem:
         return np.tile(np.arange(3), self.dwells.n_positions)
 
     def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
-        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS
+        from stableins.platform import KINEMATIC_IDS, OFFSET_IDS
 
         return tuple(i for i in OFFSET_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in OFFSET_IDS)
 
@@ -424,20 +426,18 @@ class DwellProblem:
         ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
         every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
         """
-        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
+        from stableins.platform import KINEMATIC_IDS, OFFSET_IDS, platform_specific_force, specific_force_and_jacobian
 
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
         offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in OFFSET_IDS])
         effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
-        f_p = platform_specific_force(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration)
         kin_ids = self._kinematic_ids(full.terms)
-        d_fp = platform_jacobian(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration, ids=kin_ids)
+        geometry = {"zero_offsets": offsets, "base_attitude": d.base_attitude, "effects": effects, "configuration": d.configuration}
+        f_p, d_fp = specific_force_and_jacobian(d.readings, d.gravity, ids=kin_ids, **geometry)
         initial = None
         if d.initial_readings is not None:
-            initial = platform_specific_force(
-                np.asarray(d.initial_readings, dtype=float), d.gravity, offsets, d.base_attitude, effects, d.configuration
-            )
+            initial = platform_specific_force(np.asarray(d.initial_readings, dtype=float), d.gravity, **geometry)
         inputs = TermInputs(
             f_p,
             temperature=d.temperature,
@@ -552,7 +552,7 @@ class DwellProblem:
     def orientation(self, result: FitResult | None = None) -> NDArray[np.float64]:
         """``f^p/g`` per observation, shape (m, 3) (residuals against orientation)."""
         d = self.dwells
-        from stableins.discovery.kinematics import platform_specific_force
+        from stableins.platform import platform_specific_force
 
         f_p = platform_specific_force(d.readings, d.gravity, base_attitude=d.base_attitude, configuration=d.configuration)
         return np.repeat(f_p / d.gravity, 3, axis=0)
