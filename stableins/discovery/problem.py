@@ -459,33 +459,49 @@ class DwellProblem:
 
     # ------------------------------------------------------------------ fit
     def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:
-        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ²)."""
+        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ², whitened where the noise is slow).
+
+        The solver is the one of the device stages (:func:`stableins.estimators.gauss_newton.gauss_newton`,
+        column-scaled by each term's typical size, step halved while the cost rises); the parameters
+        these data do not determine are held (gauge, :func:`_gauge`) from the start and, should the
+        design at the solution lose a direction, the fit is repeated with it held as well.
+        """
+        from stableins.estimators.gauss_newton import gauss_newton
+
         d = self.dwells
         values = model.nominal_values()
         if start:
             values.update({k: float(v) for k, v in start.items() if k in model})
         values.update({k: float(v) for k, v in self.fixed.items() if k in model})
         y = d.output.reshape(-1)
+        ids = model.ids
         free = [t.id not in self.fixed for t in model.terms]
+        scales = np.array([abs(t.nominal) or 1.0 for t in model.terms])
+
+        def weighted(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            prediction, jac, _, _ = self.evaluate(model, dict(zip(ids, x[0], strict=True)))
+            return self.whiten(y - prediction.reshape(-1))[None], self.whiten(jac.reshape(-1, len(model)))[None]
+
+        x = np.array([[values[i] for i in ids]])
         gauge: list[str] = []
         notes: list[str] = []
-        for _ in range(iterations):
-            prediction, jac, _, _ = self.evaluate(model, values)
-            a = self.whiten(jac.reshape(-1, len(model)))
-            r = self.whiten(y - prediction.reshape(-1))
-            cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
-            cols, new_gauge = _gauge(a, cols, model.terms)
+        solved = False
+        while True:
+            _, a = weighted(x)
+            _, new_gauge = _gauge(a[0], [k for k in range(len(model)) if free[k] and ids[k] not in gauge], model.terms)
             for gid in new_gauge:
                 gauge.append(gid)
                 notes.append(
-                    f"{gid} held at {values[gid]:.6g} (gauge): these data do not separate it from the other parameters "
+                    f"{gid} held at {x[0, ids.index(gid)]:.6g} (gauge): these data do not separate it from the other parameters "
                     f"(1σ of the combination > {UNDETERMINED_RATIO:g}× its typical size)"
                 )
-            step, *_ = np.linalg.lstsq(a[:, cols], r, rcond=None)
-            values, step = self._damped(model, values, cols, step, float(r @ r), y)
-            scale = np.linalg.norm(a[:, cols], axis=0)
-            if not cols or np.max(np.abs(step) * scale) < 1e-6:
+            if solved and not new_gauge:
                 break
+            mask = np.array([free[k] and ids[k] not in gauge for k in range(len(model))])
+            if mask.any():
+                x = gauss_newton(weighted, x, mask, scales, max_iterations=iterations).x
+            solved = True
+        values = dict(zip(ids, (float(v) for v in x[0]), strict=True))
         prediction, jac, f_p, _ = self.evaluate(model, values)
         a = self.whiten(jac.reshape(-1, len(model)))
         cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
@@ -520,23 +536,6 @@ class DwellProblem:
             whitened_residuals=white,
             likelihood=Likelihood.from_weighted(model.ids, np.array([values[t.id] for t in model.terms]), a, white),
         )
-
-    def _damped(self, model: ErrorModel, values: dict, cols: list[int], step: NDArray, rss: float, y: NDArray) -> tuple[dict, NDArray]:
-        """Gauss–Newton step, halved until the whitened RSS does not grow and the model stays valid (up to 20 times)."""
-        for _ in range(20):
-            trial = dict(values)
-            for k, dv in zip(cols, step, strict=True):
-                trial[model.terms[k].id] += float(dv)
-            try:
-                prediction, *_ = self.evaluate(model, trial)
-            except ValueError:  # e.g. a quadratic coefficient beyond the fold of Eq. 6
-                step = step / 2.0
-                continue
-            r = self.whiten(y - prediction.reshape(-1))
-            if float(r @ r) <= rss * (1.0 + 1e-12) + 1e-300:
-                return trial, step
-            step = step / 2.0
-        return values, np.zeros_like(step)
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
         model = ErrorModel(result.terms)
