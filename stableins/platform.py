@@ -49,11 +49,10 @@ from stableins.conventions import (
     skew,
     specific_force_nav,
 )
+from stableins.errormodel import GIMBAL_IDS
 
 #: Gimbal names in angle-sensor order (platform z, inner x, middle y), as in the data schema.
 GIMBAL_NAMES = ("platform", "inner", "middle")
-#: Zero-offset ids, in gimbal order.
-OFFSET_IDS = ("theta10", "theta20", "theta30")
 #: Ids of the kinematic (test-equipment) effects, in [rad].
 KINEMATIC_IDS = (
     "nonorth_12",
@@ -157,7 +156,7 @@ def specific_force_and_jacobian(
     base_dcm: ArrayLike | None = None,
     effects: Mapping[str, float] | None = None,
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    ids: Sequence[str] = OFFSET_IDS + KINEMATIC_IDS,
+    ids: Sequence[str] = GIMBAL_IDS + KINEMATIC_IDS,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     r"""Exact static ``f^p`` and its analytic derivative ``∂f^p/∂p`` for zero offsets and kinematic effects.
 
@@ -187,7 +186,7 @@ def specific_force_and_jacobian(
     configuration : GimbalConfiguration
         Rotation senses.
     ids : sequence of str
-        Parameters of the derivative, from :data:`OFFSET_IDS` and :data:`KINEMATIC_IDS`.
+        Parameters of the derivative, from :data:`GIMBAL_IDS` and :data:`KINEMATIC_IDS`.
 
     Returns
     -------
@@ -197,9 +196,9 @@ def specific_force_and_jacobian(
         ``∂f^p/∂p`` [m/s² per rad].
     """
     effects = effects or {}
-    unknown = [i for i in ids if i not in OFFSET_IDS + KINEMATIC_IDS]
+    unknown = [i for i in ids if i not in GIMBAL_IDS + KINEMATIC_IDS]
     if unknown:
-        raise KeyError(f"{unknown[0]!r} is not a kinematic parameter (known: {', '.join(OFFSET_IDS + KINEMATIC_IDS)})")
+        raise KeyError(f"{unknown[0]!r} is not a kinematic parameter (known: {', '.join(GIMBAL_IDS + KINEMATIC_IDS)})")
     r = np.asarray(readings, dtype=float)
     alpha = actual_angles(r, zero_offsets, effects)
     nonorth = (float(effects.get("nonorth_12", 0.0)), float(effects.get("nonorth_23", 0.0)))
@@ -235,8 +234,8 @@ def specific_force_and_jacobian(
     senses = configuration.senses
     columns = []
     for pid in ids:
-        if pid in OFFSET_IDS:
-            i = OFFSET_IDS.index(pid)
+        if pid in GIMBAL_IDS:
+            i = GIMBAL_IDS.index(pid)
             columns.append(senses[i] * d_factor(GIMBAL_NAMES[i]))
         elif pid.startswith("nonorth_"):
             columns.append(d_factor(pid))
@@ -282,7 +281,7 @@ def platform_jacobian(
     base_dcm: ArrayLike | None = None,
     effects: Mapping[str, float] | None = None,
     configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    ids: Sequence[str] = OFFSET_IDS + KINEMATIC_IDS,
+    ids: Sequence[str] = GIMBAL_IDS + KINEMATIC_IDS,
 ) -> NDArray[np.float64]:
     """Analytic ``∂f^p/∂p``, shape ``(..., 3, len(ids))`` (:func:`specific_force_and_jacobian`)."""
     return specific_force_and_jacobian(

@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from stableins.conventions import ARCSEC, MICRO_G
+from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
 from stableins.discovery.history import Discovery, History, make_step
 from stableins.discovery.library import LIBRARY, Library, custom_effect
 from stableins.discovery.problem import DwellProblem, DwellSet, LinearProblem, slew_directions
 from stableins.discovery.ranking import rank
-from stableins.errormodel import ErrorModel, Term, TermInputs
-from stableins.platform import OFFSET_IDS, platform_specific_force
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
+from stableins.platform import platform_specific_force
 
 G = 9.80170
 
@@ -91,7 +91,7 @@ def test_custom_effect_is_ranked_like_library_effects():
         out[..., 0] = inputs.specific_force[..., 0] ** 4
         return out
 
-    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / 9.80665**4, meaning="quartic x")
+    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4, meaning="quartic x")
     library = Library.default()
     library.register(term, separation="many tilt angles")
     assert "K4_x" in library and library["K4_x"].group == "custom"
@@ -103,7 +103,7 @@ def test_custom_effect_is_ranked_like_library_effects():
     readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in OFFSET_IDS])
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS])
     sigma = 2e-6
     f_a = (model + term).forward(f_p, {**truth, "K4_x": 200 * term.scale}) + rng.normal(0, sigma, f_p.shape)
     n = len(readings)
@@ -153,7 +153,7 @@ def test_tilt_east_is_reported_as_theta30_alias():
     readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in OFFSET_IDS], effects={"tilt_east": 20 * ARCSEC})
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS], effects={"tilt_east": 20 * ARCSEC})
     f_a = model.forward(f_p, truth) + rng.normal(0, 1e-5, f_p.shape)
     n = len(readings)
     dwells = DwellSet(
@@ -229,7 +229,7 @@ def test_separating_procedures_are_found_numerically():
     readings = np.concatenate(tumble)
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in OFFSET_IDS])
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS])
     n = len(readings)
     sigma = 5e-6
     labels = tuple(f"p{k}" for k in range(n))
@@ -277,7 +277,7 @@ def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow
     readings = np.concatenate(tumble + tumble[::-1])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in OFFSET_IDS], effects=hidden_kinematic or {})
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS], effects=hidden_kinematic or {})
     values = dict(truth)
     for term, value in hidden_terms:
         values[term.id] = value

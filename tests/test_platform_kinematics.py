@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from stableins.conventions import GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
-from stableins.errormodel import ErrorModel
+from stableins.errormodel import GIMBAL_IDS, ErrorModel
 from stableins.estimators.coarse import CoarseProblem
 from stableins.platform import (
     KINEMATIC_IDS,
-    OFFSET_IDS,
     GimbalPlatform,
     platform_jacobian,
     platform_specific_force,
@@ -46,12 +45,12 @@ def test_platform_jacobian_matches_central_differences(senses):
     effects = _random_effects(rng)
     jac = platform_jacobian(readings, G, zero_offsets=offsets, base_attitude=base, effects=effects, configuration=cfg)
     h = 1e-6
-    for k, pid in enumerate(OFFSET_IDS + KINEMATIC_IDS):
+    for k, pid in enumerate(GIMBAL_IDS + KINEMATIC_IDS):
 
         def f(d, pid=pid):
             o, e = offsets.copy(), dict(effects)
-            if pid in OFFSET_IDS:
-                o[OFFSET_IDS.index(pid)] += d
+            if pid in GIMBAL_IDS:
+                o[GIMBAL_IDS.index(pid)] += d
             else:
                 e[pid] += d
             return platform_specific_force(readings, G, zero_offsets=o, base_attitude=base, effects=e, configuration=cfg)
@@ -105,7 +104,7 @@ def test_coarse_problem_uses_the_platform_kinematics():
     problem = CoarseProblem(readings, np.zeros((1, 18, 3)), np.ones((1, 18, 3)), G, base, cfg, model)
     out, jac = problem.predict(x)
     f_p, d_theta = specific_force_and_jacobian(
-        readings, G, zero_offsets=(0.0, 2e-4, -3e-4), base_dcm=base, configuration=cfg, ids=OFFSET_IDS
+        readings, G, zero_offsets=(0.0, 2e-4, -3e-4), base_dcm=base, configuration=cfg, ids=GIMBAL_IDS
     )
     values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
     np.testing.assert_array_equal(out, model.forward(f_p, values))

@@ -86,6 +86,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
     Returns ``(model or None, text saying where it comes from)``.
     """
+    from stableins.conventions import MICRO_G
     from stableins.data.errors import InputError
 
     given = args.bias_instability is not None or args.random_walk is not None
@@ -96,7 +97,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
         model = with_given_slow_noise(
             dwells,
-            (args.bias_instability or 0.0) * 9.80665e-6,
+            (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
             "bias instability and random walk given on the command line",
         )
@@ -115,6 +116,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
     decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
     """
+    from stableins.conventions import MICRO_G
     from stableins.data.errors import InputError
     from stableins.noise import NoiseModel
 
@@ -124,7 +126,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     if given:
         model = NoiseModel.given(
             0.0,
-            (args.bias_instability or 0.0) * 9.80665e-6,
+            (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
             provenance="bias instability and random walk given on the command line",
         )

@@ -631,7 +631,7 @@ def custom_effect(
     ...     out = np.zeros_like(inputs.specific_force)
     ...     out[..., 0] = inputs.specific_force[..., 0] ** 4
     ...     return out
-    >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=9.80665e-6 / 9.80665**4)
+    >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4)
     >>> term.kind
     'additive'
     """

@@ -415,9 +415,10 @@ class DwellProblem:
         return np.tile(np.arange(3), self.dwells.n_positions)
 
     def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
-        from stableins.platform import KINEMATIC_IDS, OFFSET_IDS
+        from stableins.errormodel import GIMBAL_IDS
+        from stableins.platform import KINEMATIC_IDS
 
-        return tuple(i for i in OFFSET_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in OFFSET_IDS)
+        return tuple(i for i in GIMBAL_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in GIMBAL_IDS)
 
     def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> tuple:
         """Prediction (P, 3), Jacobian (P, 3, n) over ``model + extra_terms``, ``f^p`` and inputs.
@@ -426,11 +427,12 @@ class DwellProblem:
         ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
         every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
         """
-        from stableins.platform import KINEMATIC_IDS, OFFSET_IDS, platform_specific_force, specific_force_and_jacobian
+        from stableins.errormodel import GIMBAL_IDS
+        from stableins.platform import KINEMATIC_IDS, platform_specific_force, specific_force_and_jacobian
 
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
-        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in OFFSET_IDS])
+        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in GIMBAL_IDS])
         effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
         kin_ids = self._kinematic_ids(full.terms)
         geometry = {"zero_offsets": offsets, "base_attitude": d.base_attitude, "effects": effects, "configuration": d.configuration}

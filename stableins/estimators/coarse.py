@@ -49,18 +49,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import (
     DEFAULT_GIMBALS,
+    STANDARD_GRAVITY,
     GimbalConfiguration,
     dcm_nav_to_body,
 )
 from stableins.data.errors import InputError
-from stableins.errormodel import ErrorModel, Term
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
-from stableins.platform import OFFSET_IDS, platform_specific_force, specific_force_and_jacobian
+from stableins.platform import platform_specific_force, specific_force_and_jacobian
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
@@ -207,17 +208,17 @@ class CoarseProblem:
         """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
         model = self.model
         values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
-        theta = np.stack([x[..., model.index(g)] for g in ("theta10", "theta20", "theta30")], axis=-1)[..., None, :]
+        theta = np.stack([x[..., model.index(g)] for g in GIMBAL_IDS], axis=-1)[..., None, :]
         g = np.asarray(self.gravity, dtype=float)
         g = g[..., None] if g.ndim else g
         f_p, d_theta = specific_force_and_jacobian(
-            self.readings, g, zero_offsets=theta, base_dcm=self.base_dcm, configuration=self.configuration, ids=OFFSET_IDS
+            self.readings, g, zero_offsets=theta, base_dcm=self.base_dcm, configuration=self.configuration, ids=GIMBAL_IDS
         )
         out = model.forward(f_p, values)
         jac = model.jacobian(f_p, values)
         d_fp = model.jacobian_specific_force(f_p, values)
         jac_theta = d_fp @ d_theta
-        for i, gid in enumerate(("theta10", "theta20", "theta30")):
+        for i, gid in enumerate(GIMBAL_IDS):
             jac[..., model.index(gid)] = jac_theta[..., i]
         return out, jac
 
@@ -364,7 +365,7 @@ def calibrate_coarse(
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
     nonlinear: bool = False,
-    orientation_tolerance: float = 0.02 * 9.80665,
+    orientation_tolerance: float = 0.02 * STANDARD_GRAVITY,
     noise: NoiseModel | None = None,
     extra_terms: Sequence[Term] = (),
     prior: Mapping[str, float] | None = None,
