@@ -250,26 +250,6 @@ def test_separating_procedures_are_found_numerically():
     assert "separated by: azimuth_180" in ranking["tilt_east"].advice
 
 
-def test_library_matches_the_simulator_catalogue():
-    """Same ids; output effects: the same regressor as the simulator's own physics (independent code)."""
-    effects = pytest.importorskip("stableins.simulator.effects")
-    assert set(effects.CATALOGUE) == set(LIBRARY.ids)
-    rng = np.random.default_rng(0)
-    n = 7
-    inputs = TermInputs(
-        rng.normal(0, 9.8, (n, 3)),
-        temperature=rng.normal(0, 2, n),
-        time=rng.uniform(0, 1e4, n),
-        slew_direction=rng.choice([-1.0, 0.0, 1.0], (n, 3)),
-        angular_rate=rng.normal(0, 0.3, (n, 3)),
-        angular_acceleration=rng.normal(0, 0.3, (n, 3)),
-    )
-    for effect in effects.CATALOGUE.values():
-        if effect.kind != "output":
-            continue
-        np.testing.assert_allclose(LIBRARY[effect.id].term.regressor(inputs), effect.regressor(inputs), rtol=1e-12, err_msg=effect.id)
-
-
 def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow_covariance=None):
     angles = np.deg2rad(np.arange(0, 360, 45.0))
     zero = 0 * angles
