@@ -607,36 +607,25 @@ _GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_facto
 
 
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
-    """Drop columns until every direction of the design is determined.
+    """Hold columns until every direction of the design is determined (:func:`.design.undetermined`).
 
-    Columns of the whitened design are scaled by each term's typical size (``nominal``); a
-    singular value ``s`` then means a combination with 1σ = ``1/s`` typical sizes.  While the
-    smallest is below ``max(tolerance·s_max, 1/UNDETERMINED_RATIO)`` (exact null space, or a
-    combination these data cannot determine), the parameter with the largest share of that
-    direction is held, preferring gimbal offsets, then additive terms, quadratic coefficients,
-    scale factors, installation angles and biases last.
+    Columns of the whitened design are scaled by each term's typical size (``nominal``; a term
+    without one by its column's norm); a singular value ``s`` then means a combination with
+    1σ = ``1/s`` typical sizes.  While the smallest is below ``max(tolerance·s_max,
+    1/UNDETERMINED_RATIO)`` (exact null space, or a combination these data cannot determine), the
+    parameter with the largest share of that direction is held, preferring gimbal offsets, then
+    additive terms, quadratic coefficients, scale factors, installation angles and biases last.
+    Returns the columns kept and the ids held.
     """
-    cols = list(cols)
-    dropped: list[str] = []
-    while cols:
-        sub = a[:, cols]
-        norms = np.linalg.norm(sub, axis=0)
-        zero = [c for c, n in zip(cols, norms, strict=True) if n == 0.0]
-        if zero:
-            dropped += [terms[c].id for c in zero]
-            cols = [c for c in cols if c not in zero]
-            continue
-        nominal = np.array([abs(terms[c].nominal) for c in cols])
-        scale = np.where(nominal > 0, nominal, 1.0 / norms)
-        _, sv, vt = np.linalg.svd(sub * scale, full_matrices=False)
-        if sv[-1] > max(tolerance * sv[0], 1.0 / UNDETERMINED_RATIO):
-            break
-        null = np.abs(vt[-1])
-        involved = [(_GAUGE_PREFERENCE.get(terms[c].kind, 6), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
-        _, _, c = min(involved)
-        dropped.append(terms[c].id)
-        cols.remove(c)
-    return cols, dropped
+    from stableins.estimators.design import undetermined
+
+    ids = [terms[c].id for c in cols]
+    norms = np.linalg.norm(a[:, cols], axis=0)
+    nominal = np.array([abs(terms[c].nominal) for c in cols])
+    scales = np.where(nominal > 0, nominal, 1.0 / np.where(norms > 0, norms, 1.0))
+    rank = {terms[c].id: _GAUGE_PREFERENCE.get(terms[c].kind, 6) for c in cols}
+    held = undetermined(a[:, cols], ids, scales, rank, tolerance=tolerance, smallest_only=True)
+    return [c for c in cols if terms[c].id not in held], list(held)
 
 
 # ----------------------------------------------------------------------------- generic linear problem
