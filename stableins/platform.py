@@ -272,30 +272,6 @@ def platform_specific_force(
     )[0]
 
 
-def platform_jacobian(
-    readings: ArrayLike,
-    gravity: ArrayLike,
-    *,
-    zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
-    base_attitude: ArrayLike | None = None,
-    base_dcm: ArrayLike | None = None,
-    effects: Mapping[str, float] | None = None,
-    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-    ids: Sequence[str] = GIMBAL_IDS + KINEMATIC_IDS,
-) -> NDArray[np.float64]:
-    """Analytic ``∂f^p/∂p``, shape ``(..., 3, len(ids))`` (:func:`specific_force_and_jacobian`)."""
-    return specific_force_and_jacobian(
-        readings,
-        gravity,
-        zero_offsets=zero_offsets,
-        base_attitude=base_attitude,
-        base_dcm=base_dcm,
-        effects=effects,
-        configuration=configuration,
-        ids=ids,
-    )[1]
-
-
 @dataclass(frozen=True)
 class GimbalPlatform:
     """A gimbaled platform on a static base.

@@ -13,7 +13,7 @@ import pytest
 
 from stableins.discovery.library import LIBRARY
 from stableins.errormodel import ErrorModel, TermInputs
-from stableins.platform import KINEMATIC_IDS, GimbalPlatform, platform_jacobian
+from stableins.platform import KINEMATIC_IDS, GimbalPlatform, specific_force_and_jacobian
 from stableins.simulator.effects import CATALOGUE
 
 G = 9.80170
@@ -68,7 +68,7 @@ def test_kinematic_effects_give_the_library_signal_to_first_order(seed):
     nominal = GimbalPlatform(zero_offsets=offsets, base_attitude=base)
     f_p = nominal.specific_force_platform(readings, G)
     j_fp = model.jacobian_specific_force(f_p, values)
-    columns = platform_jacobian(readings, G, zero_offsets=offsets, base_attitude=base, ids=KINEMATIC_IDS)
+    _, columns = specific_force_and_jacobian(readings, G, zero_offsets=offsets, base_attitude=base, ids=KINEMATIC_IDS)
     inputs = TermInputs(f_p, extra={"platform_jacobian": columns, "platform_jacobian_ids": KINEMATIC_IDS})
     value = 1e-5  # rad: the second-order remainder is ~1e-5 of the signal
     for tid in KINEMATIC_IDS:
