@@ -56,8 +56,9 @@ class Quick:
     why
         What the settings keep and what they cut, against the benchmark's defaults.
     volatile
-        Regular expressions; every number in an output line matching one of them is a run-to-run varying
-        figure (wall time, memory of a process, scheduling): reported with the timings, never compared.
+        Regular expressions naming run-to-run varying figures (wall time, memory of a process, scheduling):
+        every number inside a match (inside its first group if it has groups) is reported with the timings,
+        never compared.  Found by comparing two quick runs of the same commit.
     """
 
     arguments: tuple[str, ...]
@@ -73,9 +74,7 @@ QUICK: dict[str, Quick] = {
     "bench_day_record": Quick(
         ("--hours", "0.5", "--repeat", "1", "--dir", "{work}"), "half an hour at 100 Hz instead of 24 h, one repetition"
     ),
-    "bench_demo_loop": Quick(
-        ("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"
-    ),
+    "bench_demo_loop": Quick(("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"),
     "bench_device_montecarlo": Quick(
         ("--trials", "1000", "--sim-devices", "2", "--workers", "1", "--seed", "20260101"),
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
@@ -86,23 +85,17 @@ QUICK: dict[str, Quick] = {
         ("--trials", "5", "--writers", "4", "--kills", "5", "--seed", "14"), "5 trials of 4 writers, 5 kills"
     ),
     "bench_journal": Quick((), "the default run (its figures are durations and rates)"),
-    "bench_noise_device": Quick(
-        ("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"
-    ),
+    "bench_noise_device": Quick(("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"),
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h"),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
-    "bench_system_sigma": Quick(
-        ("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"
-    ),
-    "bench_system_stream": Quick(
-        ("--dir", "{work}", "--days", "1", "--repeat", "1"), "one day at 100 Hz instead of a week, one timed run"
-    ),
+    "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
+    "bench_system_stream": Quick(("--dir", "{work}", "--days", "1", "--repeat", "1"), "one day at 100 Hz instead of a week, one timed run"),
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
 }
 
 TIME_UNIT = r"(?:s|ms|µs|us|ns|min|seconds?|sec)\b"
-RATE_UNIT = r"[\w µ]*/s\b"
+RATE_UNIT = r"(?:[A-Za-zµ]+\s?)?/s\b|(?:[A-Za-zµ]+\s?)?/(?:sample|step|case)\b|[×x]\s*(?:real[- ]time|faster)"
 NUMBER = r"[-+−]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+−]?\d+)?"
 _NUMBER = re.compile(NUMBER)
 _TIMING = re.compile(rf"({NUMBER})(?=\s*(?:{TIME_UNIT}|{RATE_UNIT}))")
@@ -196,17 +189,18 @@ def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
     """Split a line into template, figures and timings.
 
     Absolute paths are masked (their digits are not figures).  A number followed by a time unit or a rate
-    (``…/s``) is a timing; so is every number of a line that matches one of ``volatile``.
+    (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
+    ``volatile`` patterns (inside its first group when it has groups, else inside the whole match).
     """
     text = _PATH.sub("<path>", text.rstrip())
-    if any(re.search(pattern, text) for pattern in volatile):
-        timings = tuple(_float(m.group()) for m in _NUMBER.finditer(text))
-        return Line(_NUMBER.sub("#", text), (), timings)
-    timing_spans = {m.span(1) for m in _TIMING.finditer(text)}
+    spans = [m.span(1) for m in _TIMING.finditer(text)]
+    for pattern in volatile:
+        spans += [m.span(1 if m.re.groups else 0) for m in re.finditer(pattern, text)]
     figures, timings, pieces, last = [], [], [], 0
     for m in _NUMBER.finditer(text):
-        (timings if m.span() in timing_spans else figures).append(_float(m.group()))
-        pieces.append(text[last : m.start()] + ("~" if m.span() in timing_spans else "#"))
+        timing = any(a <= m.start() and m.end() <= b for a, b in spans)
+        (timings if timing else figures).append(_float(m.group()))
+        pieces.append(text[last : m.start()] + ("~" if timing else "#"))
         last = m.end()
     pieces.append(text[last:])
     return Line("".join(pieces), tuple(figures), tuple(timings))
@@ -234,7 +228,10 @@ def compare_outputs(name: str, before: str, after: str, *, rtol: float, volatile
     a = [parse_line(t, volatile) for t in before.splitlines()]
     b = [parse_line(t, volatile) for t in after.splitlines()]
     timings = tuple(
-        (x, y) for la, lb in zip(a, b, strict=False) if len(la.timings) == len(lb.timings) for x, y in zip(la.timings, lb.timings, strict=True)
+        (x, y)
+        for la, lb in zip(a, b, strict=False)
+        if len(la.timings) == len(lb.timings)
+        for x, y in zip(la.timings, lb.timings, strict=True)
     )
     details: list[str] = []
     exact = True

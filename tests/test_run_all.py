@@ -1,0 +1,96 @@
+"""The comparison logic of benchmarks/run_all.py (figures against timings, tolerance), not the benchmarks themselves."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def run_all():
+    spec = importlib.util.spec_from_file_location("run_all", ROOT / "benchmarks" / "run_all.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["run_all"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_quick_table_covers_every_benchmark(run_all):
+    assert set(run_all.QUICK) == set(run_all.scripts())
+    assert len(run_all.QUICK) >= 16
+
+
+def test_timings_are_separated_from_figures(run_all):
+    line = run_all.parse_line("stage: 1.234 s (5.6 ns/sample), ratio 1.70, 120 MB/s, χ²_ν = 1.02, 3/20 flagged, 0.5 h")
+    assert line.figures == (1.70, 1.02, 3, 20, 0.5)  # 0.5 h is a record length, 3/20 a count
+    assert line.timings == (1.234, 5.6, 120.0)
+    assert run_all.parse_line("writer at 41.5× real time").timings == (41.5,)
+    assert run_all.parse_line("took 3 min and 12 ms").timings == (3.0, 12.0)
+    assert run_all.parse_line("rms z −1.5e-3").figures == (-1.5e-3,)
+
+
+def test_paths_are_masked(run_all):
+    a = run_all.parse_line("wrote /tmp/stableins-bench_x-ab12/static-1d-100Hz.h5 (0.21 GB)")
+    b = run_all.parse_line("wrote /tmp/stableins-bench_x-zz98/static-1d-100Hz.h5 (0.21 GB)")
+    assert a == b
+    assert a.figures == (0.21,)
+
+
+def test_identical_within_tolerance_and_different(run_all):
+    before = "rms z 1.0000000000 over 40 seeds\nwall 10.0 s\n"
+    assert run_all.compare_outputs("x", before, before, rtol=1e-9).verdict == "identical"
+    slower = "rms z 1.0000000000 over 40 seeds\nwall 25.0 s\n"
+    timed = run_all.compare_outputs("x", before, slower, rtol=1e-9)
+    assert timed.verdict == "identical"
+    assert timed.timings == ((10.0, 25.0),)
+    nudged = "rms z 1.0000000001 over 40 seeds\nwall 10.0 s\n"
+    assert run_all.compare_outputs("x", before, nudged, rtol=1e-9).verdict == "equal within rtol"
+    assert run_all.compare_outputs("x", before, nudged, rtol=1e-12).verdict == "different"
+    changed = run_all.compare_outputs("x", before, "rms z 1.1 over 40 seeds\nwall 10.0 s\n", rtol=1e-9)
+    assert changed.verdict == "different"
+    assert "line 1: 1 -> 1.1" in changed.details[0]
+
+
+def test_text_and_length_changes_are_differences(run_all):
+    assert run_all.compare_outputs("x", "verdict PASS 3\n", "verdict FAIL 3\n", rtol=1e-9).verdict == "different"
+    assert run_all.compare_outputs("x", "a 1\nb 2\n", "a 1\n", rtol=1e-9).verdict == "different"
+
+
+def test_volatile_lines_are_timings(run_all):
+    before, after = "peak RSS 120 MiB\nrank 7\n", "peak RSS 131 MiB\nrank 7\n"
+    assert run_all.compare_outputs("x", before, after, rtol=1e-9).verdict == "different"
+    result = run_all.compare_outputs("x", before, after, rtol=1e-9, volatile=(r"peak RSS \d+",))
+    assert result.verdict == "identical"
+    assert result.timings == ((120.0, 131.0),)
+    # a group marks only the numbers inside it: the exit status stays a figure
+    table = r"^case \w+\s+\d+\s+(\d+\.\d+\s+\d+)"
+    row = run_all.parse_line("case a   2   0.47   95", (table,))
+    assert row.figures == (2,)
+    assert row.timings == (0.47, 95.0)
+    changed = run_all.compare_outputs("x", "case a   2   0.47   95\n", "case a   0   0.52   99\n", rtol=1e-9, volatile=(table,))
+    assert changed.verdict == "different"
+
+
+def test_compare_runs_exit_status(run_all, tmp_path, capsys):
+    def write(directory: Path, text: str, status: int) -> None:
+        directory.mkdir()
+        command = ["nice", "-n", "10", "python", "benchmarks/bench_x.py"]
+        entry = {"command": command, "shell": " ".join(command), "wall_seconds": 2.0, "exit_status": status}
+        (directory / "index.json").write_text(json.dumps({"commit": "c", "benchmarks": {"bench_x": entry}}))
+        (directory / "bench_x.txt").write_text(text)
+
+    write(tmp_path / "a", "z 1.0 in 2.0 s\n", 0)
+    write(tmp_path / "b", "z 1.0 in 4.0 s\n", 0)
+    write(tmp_path / "c", "z 1.5 in 2.0 s\n", 0)
+    write(tmp_path / "d", "z 1.0 in 2.0 s\n", 1)
+    assert run_all.compare_runs(tmp_path / "a", tmp_path / "b", 1e-9) == 0
+    assert "geometric mean 2.00" in capsys.readouterr().out
+    assert run_all.compare_runs(tmp_path / "a", tmp_path / "c", 1e-9) == 1
+    assert run_all.compare_runs(tmp_path / "a", tmp_path / "c", 0.6) == 0
+    assert run_all.compare_runs(tmp_path / "a", tmp_path / "d", 1e-9) == 1
