@@ -3,7 +3,7 @@
 ``run_all.py --quick --out DIR`` runs each ``benchmarks/bench_*.py`` with the flags of the table ``QUICK``
 below (fewer seeds, shorter records, fixed seeds), under ``nice -n 10`` (the machine is shared), one after the
 other.  Each benchmark's standard output and error go to ``DIR/<name>.txt``; ``DIR/index.json`` holds, per
-benchmark, the exact command line, the wall time and the exit status, and the commit and Python of the run.
+benchmark, the exact command line, the wall time, the CPU time and the exit status, and the commit and Python of the run.
 
 ``run_all.py --compare BEFORE AFTER`` reads two such directories and reports, per benchmark:
 
@@ -32,6 +32,7 @@ import math
 import os
 import platform
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -122,6 +123,12 @@ def git_commit() -> str:
     return done.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "") if done.returncode == 0 else "unknown"
 
 
+def _children_cpu() -> float:
+    """User + system CPU seconds of the finished child processes (wall time swings with the machine's load)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def run_quick(out: Path, only: list[str] | None, timeout: float) -> int:
     """Run the quick benchmarks into ``out``; returns 1 if one failed or timed out."""
     names = scripts()
@@ -153,17 +160,23 @@ def run_quick(out: Path, only: list[str] | None, timeout: float) -> int:
         work = Path(tempfile.mkdtemp(prefix=f"stableins-{name}-"))
         command = command_of(name, work)
         print(f"{name:<30} ", end="", flush=True)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), _children_cpu()
         with (out / f"{name}.txt").open("w") as sink:
             try:
                 status = subprocess.run(command, cwd=ROOT, env=env, stdout=sink, stderr=subprocess.STDOUT, timeout=timeout).returncode
             except subprocess.TimeoutExpired:
                 status = "timeout"
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, _children_cpu() - cpu
         shutil.rmtree(work, ignore_errors=True)
-        results[name] = {"command": command, "shell": " ".join(command), "wall_seconds": round(wall, 2), "exit_status": status}
+        results[name] = {
+            "command": command,
+            "shell": " ".join(command),
+            "wall_seconds": round(wall, 2),
+            "cpu_seconds": round(cpu, 2),
+            "exit_status": status,
+        }
         failed += status != 0
-        print(f"{wall:7.1f} s  exit {status}", flush=True)
+        print(f"{wall:7.1f} s wall {cpu:7.1f} s CPU  exit {status}", flush=True)
         index_path.write_text(json.dumps(index, indent=2) + "\n")
     print(f"total {sum(r['wall_seconds'] for r in results.values()):.0f} s; outputs and index.json in {out}")
     return 1 if failed else 0
@@ -280,7 +293,9 @@ def compare_runs(before: Path, after: Path, rtol: float) -> int:
         walls = [r["wall_seconds"] for r in runs]
         verdict = result.verdict if status[0] == status[1] else f"{result.verdict}; exit status {status[0]} -> {status[1]}"
         failed = failed or result.verdict == "different" or status[0] != status[1]
-        print(f"{name:<30} {verdict:<20} wall {walls[0]:7.1f} s -> {walls[1]:7.1f} s ({walls[1] / max(walls[0], 1e-9):.2f}×)")
+        cpus = [r.get("cpu_seconds") for r in runs]
+        cpu = f", CPU {cpus[0]:.1f} s -> {cpus[1]:.1f} s" if None not in cpus else ""
+        print(f"{name:<30} {verdict:<20} wall {walls[0]:7.1f} s -> {walls[1]:7.1f} s ({walls[1] / max(walls[0], 1e-9):.2f}×){cpu}")
         if runs[0]["command"][3:] != runs[1]["command"][3:]:
             print(f"    command differs: {runs[0]['shell']}  ->  {runs[1]['shell']}")
         for detail in result.details:
