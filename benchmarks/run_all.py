@@ -201,7 +201,8 @@ def _float(text: str) -> float:
 def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
     """Split a line into template, figures and timings.
 
-    Absolute paths are masked (their digits are not figures).  A number followed by a time unit or a rate
+    Absolute paths are masked (their digits are not figures) and runs of white space count as one space
+    (a column's padding follows the width of a timing).  A number followed by a time unit or a rate
     (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
     ``volatile`` patterns (inside its first group when it has groups, else inside the whole match).
     """
@@ -216,7 +217,7 @@ def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
         pieces.append(text[last : m.start()] + ("~" if timing else "#"))
         last = m.end()
     pieces.append(text[last:])
-    return Line("".join(pieces), tuple(figures), tuple(timings))
+    return Line(" ".join("".join(pieces).split()), tuple(figures), tuple(timings))
 
 
 def close(a: float, b: float, rtol: float) -> bool:
@@ -296,7 +297,7 @@ def compare_runs(before: Path, after: Path, rtol: float) -> int:
         cpus = [r.get("cpu_seconds") for r in runs]
         cpu = f", CPU {cpus[0]:.1f} s -> {cpus[1]:.1f} s" if None not in cpus else ""
         print(f"{name:<30} {verdict:<20} wall {walls[0]:7.1f} s -> {walls[1]:7.1f} s ({walls[1] / max(walls[0], 1e-9):.2f}×){cpu}")
-        if runs[0]["command"][3:] != runs[1]["command"][3:]:
+        if [_PATH.sub("<path>", a) for a in runs[0]["command"][4:]] != [_PATH.sub("<path>", a) for a in runs[1]["command"][4:]]:
             print(f"    command differs: {runs[0]['shell']}  ->  {runs[1]['shell']}")
         for detail in result.details:
             print(f"    {detail}")

@@ -33,6 +33,8 @@ def test_timings_are_separated_from_figures(run_all):
     assert run_all.parse_line("writer at 41.5× real time").timings == (41.5,)
     assert run_all.parse_line("took 3 min and 12 ms").timings == (3.0, 12.0)
     assert run_all.parse_line("rms z −1.5e-3").figures == (-1.5e-3,)
+    # a column's padding follows the width of the timing before it
+    assert run_all.parse_line("source:    9.71 s  (a)").template == run_all.parse_line("source:   49.78 s  (a)").template
 
 
 def test_paths_are_masked(run_all):
