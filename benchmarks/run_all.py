@@ -101,6 +101,7 @@ NUMBER = r"[-+−]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+−]?\d+)?"
 _NUMBER = re.compile(NUMBER)
 _TIMING = re.compile(rf"({NUMBER})(?=\s*(?:{TIME_UNIT}|{RATE_UNIT}))")
 _PATH = re.compile(r"(?<![\w.~])/[^\s'\"(),;:\]]+")
+_CLOCK = re.compile(r"\d{4}-\d\d-\d\d[T ]\d\d:\d\d(?::\d\d(?:\.\d+)?)?(?:Z|[+-]\d\d:?\d\d)?")
 
 
 def scripts() -> list[str]:
@@ -201,12 +202,12 @@ def _float(text: str) -> float:
 def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
     """Split a line into template, figures and timings.
 
-    Absolute paths are masked (their digits are not figures) and runs of white space count as one space
-    (a column's padding follows the width of a timing).  A number followed by a time unit or a rate
-    (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
+    Absolute paths and clock readings (ISO 8601 date and time) are masked (their digits are not figures)
+    and runs of white space count as one space (a column's padding follows the width of a timing).  A number
+    followed by a time unit or a rate (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
     ``volatile`` patterns (inside its first group when it has groups, else inside the whole match).
     """
-    text = _PATH.sub("<path>", text.rstrip())
+    text = _CLOCK.sub("<clock>", _PATH.sub("<path>", text.rstrip()))
     spans = [m.span(1) for m in _TIMING.finditer(text)]
     for pattern in volatile:
         spans += [m.span(1 if m.re.groups else 0) for m in re.finditer(pattern, text)]

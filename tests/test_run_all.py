@@ -42,6 +42,8 @@ def test_paths_are_masked(run_all):
     b = run_all.parse_line("wrote /tmp/stableins-bench_x-zz98/static-1d-100Hz.h5 (0.21 GB)")
     assert a == b
     assert a.figures == (0.21,)
+    done = run_all.parse_line("the run is finished (completed 2026-11-23T03:36:06+00:00): 3 files")
+    assert done.figures == (3,)
 
 
 def test_identical_within_tolerance_and_different(run_all):
