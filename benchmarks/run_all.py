@@ -70,10 +70,16 @@ class Quick:
 # The quick table: one entry per benchmarks/bench_*.py (run_all refuses to run with a script missing here).
 # Wall times are those of --quick on the 2-core development machine under nice -n 10 (see benchmarks/README.md).
 QUICK: dict[str, Quick] = {
-    "bench_bad_input_limits": Quick(("--megabytes", "16"), "16 MB long line / JSON / declared-rows files instead of 256 MB"),
+    "bench_bad_input_limits": Quick(
+        ("--megabytes", "16"),
+        "16 MB long line / JSON / declared-rows files instead of 256 MB",
+        volatile=(r"\s{2,}\d+\s+(\d+\.\d+)\s+\d+",),  # the 'time [s]' column of the table
+    ),
     "bench_budget": Quick(("--seed", "13"), "the default run (one device world, one synthetic day at 1 Hz); seed pinned"),
     "bench_day_record": Quick(
-        ("--hours", "0.5", "--repeat", "1", "--dir", "{work}"), "half an hour at 100 Hz instead of 24 h, one repetition"
+        ("--hours", "0.5", "--repeat", "1", "--dir", "{work}"),
+        "half an hour at 100 Hz instead of 24 h, one repetition",
+        volatile=(r"\d[\d.]*\.\.\s*\d[\d.]*", r"writer / raw = [\d.]+"),  # best..worst of the baselines, their ratios
     ),
     "bench_demo_loop": Quick(("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"),
     "bench_device_montecarlo": Quick(
@@ -81,14 +87,18 @@ QUICK: dict[str, Quick] = {
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
     ),
     "bench_discovery_false_alarms": Quick(("3",), "3 clean sessions (seeds 100-102) instead of 20"),
-    "bench_fuzz": Quick(("--scale", "0.05", "--seed", "7"), "5 % of the cases (about 120), hypothesis seed 7 instead of the clock"),
+    "bench_fuzz": Quick(
+        ("--scale", "0.05", "--seed", "7"),
+        "5 % of the cases (about 120), hypothesis seed 7 instead of the clock",
+        volatile=(r"\d\s+(\d+\.\d)$",),  # the last column of the table: seconds per kind of input
+    ),
     "bench_history_concurrency": Quick(
         ("--trials", "5", "--writers", "4", "--kills", "5", "--seed", "14"), "5 trials of 4 writers, 5 kills"
     ),
-    "bench_journal": Quick((), "the default run (its figures are durations and rates)"),
+    "bench_journal": Quick((), "the default run (its figures are durations and rates)", volatile=(r"durability costs ([\d.]+) %",)),
     "bench_noise_device": Quick(("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"),
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
-    "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h"),
+    "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
     "bench_system_stream": Quick(("--dir", "{work}", "--days", "1", "--repeat", "1"), "one day at 100 Hz instead of a week, one timed run"),
