@@ -106,8 +106,10 @@ QUICK: dict[str, Quick] = {
 }
 
 TIME_UNIT = r"(?:s|ms|µs|us|ns|min|seconds?|sec)\b"
-RATE_UNIT = r"(?:[A-Za-zµ]+\s?)?/s\b|(?:[A-Za-zµ]+\s?)?/(?:sample|step|case)\b|[×x]\s*(?:real[- ]time|faster)"
-NUMBER = r"[-+−]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+−]?\d+)?"
+# rates of work per wall-clock second, not physical units (m/s, rad/s stay figures)
+_WORK = r"(?:[kMG]?samples?|[kMG]i?B|pieces?|cases?|records?|rows?|files?|trials?|steps?)"
+RATE_UNIT = rf"{_WORK}\s?/\s?s\b|/(?:sample|step|case)\b|[×x]\s*(?:real[- ]time|faster)"
+NUMBER = r"(?<!\w)(?<!\w\.)[-+−]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+−]?\d+)?"  # not the digits of a name (phi_1s, x1, K2_x)
 _NUMBER = re.compile(NUMBER)
 _TIMING = re.compile(rf"({NUMBER})(?=\s*(?:{TIME_UNIT}|{RATE_UNIT}))")
 _PATH = re.compile(r"(?<![\w.~])/[^\s'\"(),;:\]]+")

@@ -31,6 +31,12 @@ def test_timings_are_separated_from_figures(run_all):
     assert line.figures == (1.70, 1.02, 3, 20, 0.5)  # 0.5 h is a record length, 3/20 a count
     assert line.timings == (1.234, 5.6, 120.0)
     assert run_all.parse_line("writer at 41.5× real time").timings == (41.5,)
+    physical = run_all.parse_line("g = 9.80 m/s², random walk 1.3e-06 m/s^2/sqrt(s), Earth rate 7.29e-05 rad/s")
+    assert physical.figures == (9.80, 1.3e-06, 2, 7.29e-05)
+    assert physical.timings == ()
+    named = run_all.parse_line("phi_1s     1.3319e-04  2.54e-06  agrees; K2_x 3")
+    assert named.figures == (1.3319e-04, 2.54e-06, 3)
+    assert named.timings == ()
     assert run_all.parse_line("took 3 min and 12 ms").timings == (3.0, 12.0)
     assert run_all.parse_line("rms z −1.5e-3").figures == (-1.5e-3,)
     # a column's padding follows the width of the timing before it
