@@ -328,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     action.add_argument("--list", action="store_true", help="print the quick table (benchmark, command, why)")
     parser.add_argument("--out", type=Path, help="directory of a --quick run's outputs and index.json")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks (bench_x); index.json is updated")
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds allowed per benchmark (default 900)")
+    parser.add_argument("--timeout", type=float, default=1800.0, help="seconds allowed per benchmark (default 1800)")
     parser.add_argument("--rtol", type=float, default=1e-9, help="relative tolerance of --compare (default 1e-9)")
     args = parser.parse_args(argv)
     if args.list:
