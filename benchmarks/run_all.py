@@ -113,7 +113,11 @@ NUMBER = r"(?<!\w)(?<!\w\.)[-+−]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+−]?\d+)?"  # n
 _NUMBER = re.compile(NUMBER)
 _TIMING = re.compile(rf"({NUMBER})(?=\s*(?:{TIME_UNIT}|{RATE_UNIT}))")
 _PATH = re.compile(r"(?<![\w.~])/[^\s'\"(),;:\]]+")
-_CLOCK = re.compile(r"\d{4}-\d\d-\d\d[T ]\d\d:\d\d(?::\d\d(?:\.\d+)?)?(?:Z|[+-]\d\d:?\d\d)?")
+_CLOCK = re.compile(
+    r"\d{4}-\d\d-\d\d(?:[T ]\d\d:\d\d(?::\d\d(?:\.\d+)?)?(?:Z|[+-]\d\d:?\d\d)?)?"  # ISO 8601 date (and time)
+    r"|\b\d{8}T\d{4,6}Z?"  # compact stamps (history file names)
+    r"|\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{8,}\b"  # hex digests and ids
+)
 
 
 def scripts() -> list[str]:
@@ -214,7 +218,7 @@ def _float(text: str) -> float:
 def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
     """Split a line into template, figures and timings.
 
-    Absolute paths and clock readings (ISO 8601 date and time) are masked (their digits are not figures)
+    Absolute paths, clock readings (ISO 8601 dates and times, compact stamps) and hex digests are masked (their digits are not figures)
     and runs of white space count as one space (a column's padding follows the width of a timing).  A number
     followed by a time unit or a rate (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
     ``volatile`` patterns (inside its first group when it has groups, else inside the whole match).

@@ -50,6 +50,8 @@ def test_paths_are_masked(run_all):
     assert a.figures == (0.21,)
     done = run_all.parse_line("the run is finished (completed 2026-11-23T03:36:06+00:00): 3 files")
     assert done.figures == (3,)
+    recal = "record in force: 20261123T040127Z-72c7824f.json; prior digest 064cff3f2ad8; (alone, 2026-11-23) 8616000 samples"
+    assert run_all.parse_line(recal).figures == (8616000,)
 
 
 def test_identical_within_tolerance_and_different(run_all):
