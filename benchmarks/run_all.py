@@ -60,11 +60,15 @@ class Quick:
         Regular expressions naming run-to-run varying figures (wall time, memory of a process, scheduling):
         every number inside a match (inside its first group if it has groups) is reported with the timings,
         never compared.  Found by comparing two quick runs of the same commit.
+    unordered
+        Regular expressions of lines whose order varies run to run (a table sorted by time): left out of the
+        comparison.
     """
 
     arguments: tuple[str, ...]
     why: str
     volatile: tuple[str, ...] = field(default=())
+    unordered: tuple[str, ...] = field(default=())
 
 
 # The quick table: one entry per benchmarks/bench_*.py (run_all refuses to run with a script missing here).
@@ -101,7 +105,12 @@ QUICK: dict[str, Quick] = {
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
-    "bench_system_stream": Quick(("--dir", "{work}", "--days", "1", "--repeat", "1"), "one day at 100 Hz instead of a week, one timed run"),
+    "bench_system_stream": Quick(
+        ("--dir", "{work}", "--days", "1", "--repeat", "1"),
+        "one day at 100 Hz instead of a week, one timed run",
+        volatile=(r"ratio ([\d.]+) to the h5py", r"([\d.]+) to the reader's", r"stage ratio ([\d.]+)"),  # ratios of times
+        unordered=(r"^  [\w(].{46,}\s\d+\.\d{3} s$",),  # "where the stage's time goes", sorted by time
+    ),
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
 }
 
@@ -219,7 +228,7 @@ def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
     """Split a line into template, figures and timings.
 
     Absolute paths, clock readings (ISO 8601 dates and times, compact stamps) and hex digests are masked (their digits are not figures)
-    and runs of white space count as one space (a column's padding follows the width of a timing).  A number
+    and white space is not compared (a column's padding follows the width of a timing).  A number
     followed by a time unit or a rate (``…/s``, ``…/sample``, ``× real time``) is a timing; so is every number inside a match of one of the
     ``volatile`` patterns (inside its first group when it has groups, else inside the whole match).
     """
@@ -234,7 +243,7 @@ def parse_line(text: str, volatile: tuple[str, ...] = ()) -> Line:
         pieces.append(text[last : m.start()] + ("~" if timing else "#"))
         last = m.end()
     pieces.append(text[last:])
-    return Line(" ".join("".join(pieces).split()), tuple(figures), tuple(timings))
+    return Line("".join("".join(pieces).split()), tuple(figures), tuple(timings))
 
 
 def close(a: float, b: float, rtol: float) -> bool:
@@ -254,8 +263,12 @@ class Comparison:
     timings: tuple[tuple[float, float], ...]
 
 
-def compare_outputs(name: str, before: str, after: str, *, rtol: float, volatile: tuple[str, ...] = ()) -> Comparison:
-    """Compare two outputs of a benchmark figure by figure (timings and volatile figures aside)."""
+def compare_outputs(
+    name: str, before: str, after: str, *, rtol: float, volatile: tuple[str, ...] = (), unordered: tuple[str, ...] = ()
+) -> Comparison:
+    """Compare two outputs of a benchmark figure by figure (timings, volatile figures and unordered lines aside)."""
+    if unordered:
+        before, after = ("\n".join(t for t in x.splitlines() if not any(re.search(u, t) for u in unordered)) for x in (before, after))
     a = [parse_line(t, volatile) for t in before.splitlines()]
     b = [parse_line(t, volatile) for t in after.splitlines()]
     timings = tuple(
@@ -305,8 +318,8 @@ def compare_runs(before: Path, after: Path, rtol: float) -> int:
             failed = True
             continue
         texts = [(d / f"{name}.txt").read_text(errors="replace") for d in (before, after)]
-        volatile = QUICK[name].volatile if name in QUICK else ()
-        result = compare_outputs(name, texts[0], texts[1], rtol=rtol, volatile=volatile)
+        quick = QUICK.get(name, Quick((), ""))
+        result = compare_outputs(name, texts[0], texts[1], rtol=rtol, volatile=quick.volatile, unordered=quick.unordered)
         status = [r["exit_status"] for r in runs]
         walls = [r["wall_seconds"] for r in runs]
         verdict = result.verdict if status[0] == status[1] else f"{result.verdict}; exit status {status[0]} -> {status[1]}"

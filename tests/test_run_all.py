@@ -41,6 +41,7 @@ def test_timings_are_separated_from_figures(run_all):
     assert run_all.parse_line("rms z −1.5e-3").figures == (-1.5e-3,)
     # a column's padding follows the width of the timing before it
     assert run_all.parse_line("source:    9.71 s  (a)").template == run_all.parse_line("source:   49.78 s  (a)").template
+    assert run_all.parse_line("stage ( 97.7 ns/sample)").template == run_all.parse_line("stage (145.5 ns/sample)").template
 
 
 def test_paths_are_masked(run_all):
@@ -106,3 +107,14 @@ def test_compare_runs_exit_status(run_all, tmp_path, capsys):
     assert run_all.compare_runs(tmp_path / "a", tmp_path / "c", 1e-9) == 1
     assert run_all.compare_runs(tmp_path / "a", tmp_path / "c", 0.6) == 0
     assert run_all.compare_runs(tmp_path / "a", tmp_path / "d", 1e-9) == 1
+
+
+def test_unordered_lines_are_left_out(run_all):
+    before = "where the time goes:\n  reads 0.770 s\n  filter 0.059 s\nrank 9\n"
+    after = "where the time goes:\n  filter 0.061 s\n  reads 0.500 s\nrank 9\n"
+    assert run_all.compare_outputs("x", before, after, rtol=1e-9).verdict == "different"
+    assert run_all.compare_outputs("x", before, after, rtol=1e-9, unordered=(r"^  \w+ [\d.]+ s$",)).verdict == "identical"
+    assert (
+        run_all.compare_outputs("x", before, after.replace("rank 9", "rank 8"), rtol=1e-9, unordered=(r"^  \w+ [\d.]+ s$",)).verdict
+        == "different"
+    )
