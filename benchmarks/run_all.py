@@ -57,7 +57,7 @@ class Quick:
     why
         What the settings keep and what they cut, against the benchmark's defaults.
     volatile
-        Regular expressions naming run-to-run varying figures (wall time, memory of a process, scheduling):
+        Regular expressions naming run-to-run varying figures (wall times, rates and ratios of times):
         every number inside a match (inside its first group if it has groups) is reported with the timings,
         never compared.  Found by comparing two quick runs of the same commit.
     unordered
