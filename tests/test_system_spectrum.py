@@ -192,9 +192,9 @@ def test_component_quadratic_memory_does_not_grow_with_the_stacked_size():
     assert peak < 1.5e6, peak
 
 
-def test_attitude_residual_maker_equals_the_block_fit_for_noise_constant_within_bins():
+def testattitude_residual_maker_equals_the_block_fit_for_noise_constant_within_bins():
     from stableins.estimators.system.attitude import _design
-    from stableins.estimators.system.stage import _attitude_residual_maker
+    from stableins.estimators.system.coloured import attitude_residual_maker
 
     rng = np.random.default_rng(2)
     lp = loop()
@@ -205,7 +205,7 @@ def test_attitude_residual_maker_equals_the_block_fit_for_noise_constant_within_
     block_bin = np.floor(block_time / WIDTH).astype(np.int64)
     n = int(block_bin.max()) + 1
     bin_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
-    maker = _attitude_residual_maker(blocks, block_bin, bin_count, lp, 480.0)
+    maker = attitude_residual_maker(blocks, block_bin, bin_count, lp, 480.0)
     values = np.cumsum(rng.standard_normal(n))  # a random walk on the bins, constant within each
     y = values[block_bin]
     x = _design(blocks, lp, 480.0)[0]

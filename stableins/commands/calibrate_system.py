@@ -141,8 +141,8 @@ def run(args: Any) -> int:
     )
     for w in caught:
         note(f"stableins: warning: {w.message}")
-    start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
-    temperature = outcome.diagnostics["temperature"]
+    start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
+    temperature = outcome.diagnostics.temperature
     reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
     updated = prior.updated(
         outcome.result,
@@ -155,7 +155,7 @@ def run(args: Any) -> int:
         data_start=start,
         data_end=end,
         sample_rate=record.sample_rate,
-        environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
+        environment={"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {},
     )
     updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)
@@ -203,7 +203,7 @@ def run(args: Any) -> int:
             "p_value": fit.p_value,
             "false_positive_rate": fit.alpha,
         },
-        "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
+        "diagnostics": outcome.diagnostics.to_dict(),
     }
     import shlex
 
