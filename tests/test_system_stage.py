@@ -63,6 +63,14 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     assert how["K2_x"] is None  # not seen without --estimate-k2
     assert 0.2 < out.result.chi2_red < 3.0
     assert out.history is not None and out.history.means.shape[1] == 7  # x1..x5 and the third harmonic x6, x7
+    # the library's messages name the stage's parameters, never a command-line flag; the command translates them
+    from stableins.commands.calibrate_system import flag_text
+
+    notes = [*out.notes, *out.result.notes]
+    assert not [n for n in notes if " --" in n or "(--" in n]
+    assert any("(known_gyro_drift, rad/s)" in n for n in notes) and any("estimate_k2=True" in n for n in notes)
+    shown = [flag_text(n) for n in notes]
+    assert any("(--gyro-drift X Y Z, deg/h)" in n for n in shown) and any("(see diagnostics, --estimate-k2)" in n for n in shown)
 
 
 def test_yawed_base_and_chunking_give_same_answer(day):

@@ -28,7 +28,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body
+from stableins.conventions import (
+    EARTH_RATE,
+    SIDEREAL_DAY,
+    GimbalConfiguration,
+    dcm_body_to_platform,
+    dcm_nav_to_body,
+    earth_rate_angle,
+    heading_to_north_pointing,
+    misalignment_pitch_roll,
+)
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
@@ -302,10 +311,9 @@ class StageAccumulator:
     ) -> None:
         self.path, self.options = path, options
         self.config = GimbalConfiguration(tuple(metadata.gimbal_senses))
-        self.sense = -float(self.config.senses[0])
         self.theta10 = float(prior.get("theta10", 0.0))
         base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
-        self.cos_yaw, self.sin_yaw = math.cos(base[0]), math.sin(base[0])
+        self.yaw = base[0]
         # level base: (δpitch, δroll) = R(ψ)(−φ_E, −φ_N) exactly to first order.  A tilted base mixes the azimuth
         # error φ_D into pitch and roll (tilt × φ_D, 1e-6 rad per degree): then φ comes from the full output DCM.
         self.tilted = max(abs(base[1]), abs(base[2])) > LEVEL_TOLERANCE
@@ -376,7 +384,7 @@ class StageAccumulator:
         if self.general:
             s_d = earth_angle_from_kinematics(chunk, slice(None), self.offsets, self.nav_to_body, self.config)
         else:
-            s_d = self.sense * (chunk["angle_platform"] + self.theta10)
+            s_d = earth_rate_angle(chunk["angle_platform"] + self.theta10, self.config)
         pitch_d, roll_d = chunk["pitch"], chunk["roll"]
         # static checks and the unwrapped Earth-rate angle at the decimated samples
         s_knots = self.checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], chunk["velocity_east"])
@@ -439,13 +447,12 @@ class StageAccumulator:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Pitch and roll errors as the north-pointing pair the loop model outputs.
 
-        Level base with heading ψ: ``(δpitch, δroll) = R(ψ)(−φ_E, −φ_N)`` (conventions.attitude_error_from_misalignment),
-        rotated back.  Tilted base: ``C_n^b' = C_n^b (I + [φ×])`` (conventions), φ from the antisymmetric part.
+        Level base with heading ψ: :func:`stableins.conventions.heading_to_north_pointing`.  Tilted base:
+        :func:`stableins.conventions.misalignment_pitch_roll` of ``C_n^b(base)ᵀ C_n^b'``.
         """
         if self.tilted:
-            rel = self.base_dcm_t @ dcm_nav_to_body(chunk["heading"], pitch_d, roll_d)
-            return -0.5 * (rel[:, 0, 2] - rel[:, 2, 0]), -0.5 * (rel[:, 2, 1] - rel[:, 1, 2])
-        return self.cos_yaw * pitch_d + self.sin_yaw * roll_d, -self.sin_yaw * pitch_d + self.cos_yaw * roll_d
+            return misalignment_pitch_roll(self.base_dcm_t @ dcm_nav_to_body(chunk["heading"], pitch_d, roll_d))
+        return heading_to_north_pointing(pitch_d, roll_d, self.yaw)
 
     def finish(self) -> RecordSums:
         """Record-level checks (no samples, moving or misaligned base, too short, too few noise samples) and the sums."""

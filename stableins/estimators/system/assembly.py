@@ -26,6 +26,11 @@ from stableins.status import Determination, Status
 if TYPE_CHECKING:
     from stableins.estimators.system.stage import SystemOptions
 
+#: How the stage's messages name its inputs: parameters of :class:`~stableins.estimators.system.stage.SystemOptions`
+#: (``stableins calibrate system`` translates them to its flags, a certificate to plain words).
+GYRO_DRIFT_PARAMETER = "known_gyro_drift, rad/s"
+ESTIMATE_K2_PARAMETER = "estimate_k2=True"
+
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
 VIF_LIMIT = 30.0
 
@@ -326,7 +331,7 @@ def fit_result(
             "K2_z is not observed and keeps its prior"
             if k2 is not None
             else "K2 terms are not seen by this stage and keep their prior values and variances (nominal magnitude when the prior "
-            "has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, --estimate-k2)"
+            f"has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, {ESTIMATE_K2_PARAMETER})"
         ),
     ]
     result = FitResult(
@@ -356,6 +361,8 @@ def fit_result(
 
 
 __all__ = [
+    "ESTIMATE_K2_PARAMETER",
+    "GYRO_DRIFT_PARAMETER",
     "VIF_LIMIT",
     "SeparationFit",
     "combined_terms",

@@ -30,7 +30,7 @@ from stableins.data.errors import InputError
 from stableins.errormodel import MICRO_G_PER_G2
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.accumulate import RecordSums
-from stableins.estimators.system.assembly import VIF_LIMIT, k2_map, observable_directions
+from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
 from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
 from stableins.estimators.system.loop import DampingLoop
@@ -193,11 +193,6 @@ def fit_attitude_coefficients(
             f"the gyro calibration ({GYRO_DRIFT_PARAMETER}) for unbiased attitude coefficients"
         )
     return AttitudeStep(att, blocks, along, tuple(notes))
-
-
-#: How the stage's messages name its inputs (the command line translates them to its flags).
-GYRO_DRIFT_PARAMETER = "known_gyro_drift, rad/s"
-ESTIMATE_K2_PARAMETER = "estimate_k2=True"
 
 
 @dataclass(frozen=True)
@@ -412,9 +407,7 @@ def _check_determined(sep: Separation, kept: int, duration: float, path: str) ->
 
 
 __all__ = [
-    "ESTIMATE_K2_PARAMETER",
     "FILTER_STEPS",
-    "GYRO_DRIFT_PARAMETER",
     "AttitudeStep",
     "Combination",
     "FilterCurve",
