@@ -10,10 +10,9 @@ import pytest
 from stableins import conventions as cv
 from stableins.errormodel import ErrorModel
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.accumulate import BlockHarmonics, harmonic_information
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.attitude import attitude_combinations, fit_attitude
-from stableins.estimators.system.blocksums import observation
+from stableins.estimators.system.blocksums import BlockHarmonics, harmonic_information, observation
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, separate
 

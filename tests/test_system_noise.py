@@ -16,8 +16,8 @@ from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY  # noqa: E402
 from stableins.data.chunks import ArraySource  # noqa: E402
 from stableins.estimators.system.assembly import residuals_from_parameters  # noqa: E402
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix  # noqa: E402
-from stableins.estimators.system.spectrum import ColouredSource  # noqa: E402
 from stableins.estimators.system.stage import SystemOptions, run_system_stage  # noqa: E402
+from stableins.estimators.system.whittle import ColouredSource  # noqa: E402
 from stableins.noise import NoiseModel, NoiseSource  # noqa: E402
 from stableins.simulator.noise import NoiseSettings  # noqa: E402
 from stableins.simulator.truth import Truth  # noqa: E402

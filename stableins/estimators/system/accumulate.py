@@ -6,8 +6,8 @@ Per chunk (docs/system-calibration.md §6):
   observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz`` (:mod:`.harmonics`) accumulated at full rate.
   The Earth-rate angle moves by ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
   ``cos k(S_c + δ)`` is expanded to third order in ``δ``: the trigonometric functions are evaluated once per block and
-  the per-sample work is a few multiply-adds (:class:`BlockHarmonics`).  The truncation (``(4δ)⁴/24 < 1e-15``) is far
-  below double-precision round-off of the sums; :func:`harmonic_information` is the per-sample reference it is tested
+  the per-sample work is a few multiply-adds (:class:`.blocksums.BlockHarmonics`).  The truncation (``(4δ)⁴/24 < 1e-15``) is far
+  below double-precision round-off of the sums; :func:`.blocksums.harmonic_information` is the per-sample reference it is tested
   against;
 * noise: per-axis sums of squared second differences of the raw outputs on the first samples of each chunk;
 * attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.attitude.AttitudeBlocks`),
@@ -44,7 +44,7 @@ from stableins.data.validation import check_finite
 from stableins.errormodel import Term
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import AttitudeBlocks
-from stableins.estimators.system.blocksums import block_sums, harmonic_sums, second_difference_sums
+from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
 
@@ -67,92 +67,6 @@ LEVEL_TOLERANCE = 1e-4
 #: (30 cycles/day) to 0.45/width (650 cycles/day for 60 s), where the white level is pinned (docs/system-calibration.md §1a).
 FINE_BIN_SECONDS = 60.0
 FINE_BINS = 1 << 12
-
-
-def harmonic_information(
-    earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float, order: int = 3
-) -> hm.InformationAccumulator:
-    """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
-    acc = hm.InformationAccumulator(n_states=2 * order + 1)
-    acc.add(hm.observation_rows(earth_angle, latitude, order=order), z)
-    return acc
-
-
-@dataclass
-class BlockHarmonics:
-    """Block-Taylor accumulation of the harmonic information (see the module docstring)."""
-
-    latitude: float
-    block: int
-    order: int = 3  # highest harmonic of S in H
-    trig_sums: NDArray[np.float64] = field(init=False)  # C_0..C_2m, S_0..S_2m
-    z_sums: NDArray[np.float64] = field(init=False)  # ZC_0..ZC_m, ZS_0..ZS_m
-    sum_z2: float = 0.0
-    count: int = 0
-
-    def __post_init__(self) -> None:
-        self.trig_sums = np.zeros(2 * (2 * self.order + 1))
-        self.z_sums = np.zeros(2 * (self.order + 1))
-
-    @property
-    def columns(self) -> list[tuple[int, int]]:
-        """``(k, kind)`` of the H columns, kind 0 = cos, 1 = sin: 1, cos S, sin S, cos 2S, ..."""
-        return [(0, 0)] + [(k, t) for k in range(1, self.order + 1) for t in (0, 1)]
-
-    def add_sums(
-        self, centre_angle: NDArray[np.float64], sums: NDArray[np.float64], sum_z2: float
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Accumulate one chunk's per-block sums (:func:`.blocksums.block_sums`).
-
-        ``centre_angle`` is ``S`` at each block's mean time; within the block ``S = S_c + δ`` with
-        ``δ = ω_ie (t − t̄)`` (the platform is inertially held, so ``S`` advances at the Earth rate).
-        Returns per-block ``(Σz, ΣH (n_blocks, 2·order+1), n)`` for the filter bins.
-        """
-        self.sum_z2 += float(sum_z2)
-        self.count += int(round(float(sums[:, 7].sum())))
-        h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, self.z_sums)
-        return sums[:, 0], h, sums[:, 7]
-
-    def accumulator(self) -> hm.InformationAccumulator:
-        """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
-        nk = 2 * self.order + 1
-        c_sum = self.trig_sums[:nk]
-        s_sum = self.trig_sums[nk:]
-
-        def cos_sum(k: int) -> float:
-            return float(c_sum[abs(k)])
-
-        def sin_sum(k: int) -> float:
-            return float(np.sign(k) * s_sum[abs(k)])
-
-        a = math.cos(self.latitude)
-        cols = self.columns
-        lam = np.empty((len(cols), len(cols)))
-        for i, (ki, ti) in enumerate(cols):
-            for j, (kj, tj) in enumerate(cols):
-                if ti == 0 and tj == 0:
-                    v = 0.5 * (cos_sum(ki - kj) + cos_sum(ki + kj))
-                elif ti == 1 and tj == 1:
-                    v = 0.5 * (cos_sum(ki - kj) - cos_sum(ki + kj))
-                elif ti == 0:  # cos ki · sin kj
-                    v = 0.5 * (sin_sum(ki + kj) - sin_sum(ki - kj))
-                else:  # sin ki · cos kj
-                    v = 0.5 * (sin_sum(ki + kj) + sin_sum(ki - kj))
-                lam[i, j] = a ** (ki + kj) * v
-        zc = self.z_sums[: self.order + 1]
-        zs = self.z_sums[self.order + 1 :]
-        acc = hm.InformationAccumulator(n_states=len(cols))
-        acc.information = 0.5 * (lam + lam.T)
-        acc.projection = np.array([a**k * (zc[k] if t == 0 else zs[k]) for k, t in cols])
-        acc.sum_squares = self.sum_z2
-        acc.count = self.count
-        return acc
-
-
-def block_length(sample_rate: float, limit: float = 2e-4) -> int:
-    """Largest power of two ``B`` with ``B·ω_ie/rate ≤ limit`` (at least 1)."""
-    b = max(1.0, limit * sample_rate / EARTH_RATE)
-    return 1 << int(math.floor(math.log2(b)))
 
 
 @dataclass
@@ -245,7 +159,7 @@ class RecordSums:
     duration : float
         Last minus first time stamp [s].
     block : int
-        Samples per harmonic block (:func:`block_length`).
+        Samples per harmonic block (:func:`.blocksums.block_length`).
     decimation : int
         Samples per attitude sample.
     checks : StaticChecks
@@ -497,12 +411,9 @@ __all__ = [
     "FINE_BIN_SECONDS",
     "FORCE_COLUMNS",
     "SLOW_COLUMNS",
-    "BlockHarmonics",
     "RecordSums",
     "SampleBins",
     "StageAccumulator",
     "TemperatureSummary",
-    "block_length",
     "earth_angle_from_kinematics",
-    "harmonic_information",
 ]

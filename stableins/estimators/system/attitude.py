@@ -280,7 +280,7 @@ def fit_attitude(
     scale_low_frequency : bool
         Scale the covariance by the residual spectrum extrapolated to the harmonics (stand-alone use).  The
         system stage passes ``False`` and adds the coloured-noise covariance of its joint model
-        (:func:`.spectrum.fit_coloured_noise`) through ``block_map`` instead.
+        (:func:`.whittle.fit_coloured_noise`) through ``block_map`` instead.
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).

@@ -1,7 +1,7 @@
 """The low-frequency (coloured) noise of the accelerometers in the system stage (docs/system-calibration.md §1a).
 
 :func:`coloured_covariance`: the residual periodograms on the filter and fine bins, the decision (coloured noise or
-not) and the amplitudes (:func:`.spectrum.fit_coloured_noise`), and the unit covariances of ``(x1..x7, attitude)`` per
+not) and the amplitudes (:func:`.whittle.fit_coloured_noise`), and the unit covariances of ``(x1..x7, attitude)`` per
 component and axis; :func:`noise_prior` reads a prior noise model; :func:`measured_noise_model` is the instrument's
 noise model the stage puts under its σ; :func:`coloured_note` says what the decision found.
 """
@@ -16,11 +16,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
-from stableins.estimators.system import spectrum
+from stableins.estimators.system import spectrum, whittle
 from stableins.estimators.system.accumulate import SampleBins
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.loop import DampingLoop
-from stableins.estimators.system.spectrum import ColouredNoiseFit, ColouredSource
+from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 
 #: At most this many bins enter the coloured-noise model (longer records: wider bins, so its memory, about 4 MiB,
@@ -56,7 +56,7 @@ def coloured_covariance(
     fine bins gives the high band, from the top of the low band to 0.45/fine-bin width, with the closed-form expectations
     of :func:`.spectrum.z_bin_expectations`; it shares the z channel's white level with the low band, which pins that
     level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
-    or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.spectrum.fit_coloured_noise`.
+    or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.whittle.fit_coloured_noise`.
     Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
     ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
     ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
@@ -85,7 +85,7 @@ def coloured_covariance(
         return units, None
     design, observed, n_ch = built
     design, observed, n_high, top = _high_band(fine_bins, rate, x_ls, latitude, bins.high, design, observed, n_ch)
-    fit = spectrum.fit_coloured_noise(
+    fit = whittle.fit_coloured_noise(
         design,
         observed,
         n_ch,
@@ -320,7 +320,7 @@ def measured_noise_model(
     * White noise ``N = σ/√rate`` per axis from the second differences of the raw outputs (``σ²``, insensitive to the
       Earth-rate signal), interval from ``χ²`` with ``SECOND_DIFFERENCE_DOF · count`` degrees of freedom;
     * bias instability ``B`` and random walk ``K``: the amplitudes under σ (one value for the three axes) with their
-      profile-likelihood intervals (:class:`.spectrum.ColouredNoiseFit`); not detected: 0 with the upper limit;
+      profile-likelihood intervals (:class:`.whittle.ColouredNoiseFit`); not detected: 0 with the upper limit;
     * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
       all of the second differences' variance (``20 Q²/dt²``).
     With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and

@@ -35,7 +35,7 @@ from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
 from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
-from stableins.estimators.system.spectrum import ColouredNoiseFit
+from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:

@@ -49,8 +49,8 @@ from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import Separation
-from stableins.estimators.system.spectrum import ColouredNoiseFit
 from stableins.estimators.system.view import SystemCalibrationView
+from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 
 
