@@ -337,3 +337,22 @@ class DampingLoop:
             if k + 1 < len(time):
                 x = phi @ x + gamma0 @ forcing[k] + gamma1 @ (forcing[k + 1] - forcing[k])
         return out
+
+
+def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
+    """Drift responses ``(n_blocks, 2, 3)`` of pitch and roll (:meth:`DampingLoop.drift_responses`, in units of
+    :data:`DRIFT_SCALE`) on the attitude block times (simulated on a uniform grid, interpolated over gaps)."""
+    t = blocks["time"]
+    angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
+    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    grid = np.arange(0.0, t[-1] + step, step)
+    responses = loop.drift_responses(grid, np.interp(grid, t, angle))
+    out = np.empty((t.size, 2, 3))
+    for ch in range(2):
+        for j in range(3):
+            out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
+    return out * DRIFT_SCALE  # columns of the order of the others
+
+
+#: Unit of the drift columns [rad/s] (about 0.002 °/h).
+DRIFT_SCALE = 1e-8
