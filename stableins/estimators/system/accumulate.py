@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -224,7 +224,7 @@ class StageAccumulator:
         grid_time: Callable[[int, int], NDArray[np.float64]] | None = None,
     ) -> None:
         self.path, self.options = path, options
-        self.config = GimbalConfiguration(tuple(metadata.gimbal_senses))
+        self.config = GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses)))
         self.theta10 = float(prior.get("theta10", 0.0))
         base = tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))
         self.yaw = base[0]
@@ -290,7 +290,11 @@ class StageAccumulator:
         if not (math.isfinite(sum_z2) and np.isfinite(sums[:, 0]).all()):  # a NaN or ±inf force propagates into Σz²
             for name, values in zip(FORCE_COLUMNS, (fx, fy, fz), strict=True):
                 check_finite(name, values, self.path, first_row=seen + 1)
-        span = (float(time[0]), float(time[-1])) if uniform is None else (uniform[0], uniform[0] + (n - 1) * uniform[1])
+        if uniform is None:
+            assert time is not None  # stamps are read or reconstructed unless the chunk is on one uniform segment
+            span = (float(time[0]), float(time[-1]))
+        else:
+            span = (uniform[0], uniform[0] + (n - 1) * uniform[1])
         self.checks.time(time, span, seen, irregular)
         if self.first_time is None:
             self.first_time = span[0]

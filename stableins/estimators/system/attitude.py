@@ -38,7 +38,7 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -243,7 +243,7 @@ def fit_attitude(
     compensate_loop: bool = True,
     vertical: NDArray[np.float64] | None = None,
     gyro_drift: str = "ignore",
-    known_drift: NDArray[np.float64] | None = None,
+    known_drift: Sequence[float] | NDArray[np.float64] | None = None,
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
 ) -> AttitudeFit:
@@ -314,6 +314,7 @@ def fit_attitude(
     cov_qs = transform @ cov_obs @ transform.T
     covariance = cov_qs[np.ix_(order, order)]
     cov_obs_out = cov_obs[np.ix_(order, order)]
+    rms = np.sqrt(np.mean(residuals**2, axis=0))
     return AttitudeFit(
         names=ATTITUDE_COEFFICIENTS,
         values=values,
@@ -323,7 +324,7 @@ def fit_attitude(
         nuisance=nuisance,
         noise_sigma=(float(noise_sigma[0]), float(noise_sigma[1])),
         residual_noise_ratio=(float(ratio[0]), float(ratio[1])),
-        residual_rms=tuple(float(v) for v in np.sqrt(np.mean(residuals**2, axis=0))),
+        residual_rms=(float(rms[0]), float(rms[1])),
         block_residuals=residuals,
         vertical_jacobian=jac_vertical,
         drift_estimate=drift_estimate,
@@ -353,7 +354,7 @@ def _fit_channels(
     loop: DampingLoop,
     noise_sigma: tuple[float, float],
     case_rotation_period: float | None,
-    drift_settings: tuple[str, NDArray[np.float64] | None],
+    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None],
     map_bin_seconds: float,
     n_common: int,
     freqs: NDArray[np.float64],

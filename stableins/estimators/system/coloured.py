@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,12 +154,12 @@ def _low_band(
     ids = np.flatnonzero(keep_bins) // merge
     groups, index = np.unique(ids, return_inverse=True)
     n = groups.size
-    count = np.bincount(index, weights=filter_bins.n[keep_bins], minlength=n)
+    count = np.asarray(np.bincount(index, weights=filter_bins.n[keep_bins], minlength=n), dtype=float)
     zsum = np.bincount(index, weights=filter_bins.z[keep_bins], minlength=n)
     hsum = np.stack([np.bincount(index, weights=filter_bins.h[keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
     x_bins = hsum / count[:, None]
     residual = zsum / count - x_bins @ x_ls
-    time = (groups + 0.5) * width * merge
+    time = np.asarray((groups + 0.5) * width * merge, dtype=float)
     wide = width * merge
     a_z = np.linalg.solve(x_bins.T @ (x_bins * count[:, None]), (x_bins * count[:, None]).T)  # (7, n)
     r_z = np.eye(n) - x_bins @ a_z
@@ -174,7 +174,7 @@ def _low_band(
     )
     # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
     block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
-    att_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
+    att_count = np.asarray(np.bincount(block_bin, weights=blocks["count"], minlength=n), dtype=float)
     channels, makers, weights = [residual], [r_z], [count]
     gains: list[Any] = [None]
     if (att_count > 0).all():
@@ -341,7 +341,7 @@ def measured_noise_model(
     q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
     whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
     if given is not None and given.source is NoiseSource.DATASHEET:
-        axes = tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes))
+        axes = cast("tuple[AxisNoise, AxisNoise, AxisNoise]", tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes)))
         provenance = (
             f"white noise measured in the system-level record {path} ({count} second differences per axis); bias instability, "
             f"random walk and quantization as given ({given.provenance or 'datasheet'})"
@@ -365,7 +365,7 @@ def measured_noise_model(
             + ("; with the prior noise model" if fit.source is ColouredSource.PRIOR else "")
             + ")"
         )
-    axes = tuple(
+    per_axis = tuple(
         AxisNoise(
             white=whites[a],
             bias_instability=slow["bias_instability"],
@@ -378,7 +378,7 @@ def measured_noise_model(
         f"system-level record {path}: {duration / 3600:.2f} h at {rate:g} Hz; white noise from {count} second differences "
         f"per axis; {slow_text}; quantization not separable from the white noise at this rate (upper limit)"
     )
-    return NoiseModel(axes, NoiseSource.STATIC_RECORD, provenance, confidence)  # type: ignore[arg-type]
+    return NoiseModel(cast("tuple[AxisNoise, AxisNoise, AxisNoise]", per_axis), NoiseSource.STATIC_RECORD, provenance, confidence)
 
 
 def attitude_residual_maker(
@@ -411,6 +411,7 @@ def attitude_residual_maker(
         sums = np.stack([np.bincount(block_bin[rows], weights=wx[:, k], minlength=n) for k in range(x.shape[1])], axis=1)
         normal = part if normal is None else normal + part
         columns = sums if columns is None else columns + sums
+    assert columns is not None and normal is not None  # the record has blocks
     mean_columns = columns / bin_count[:, None]
     return np.eye(n) - mean_columns @ np.linalg.solve(normal, columns.T)
 

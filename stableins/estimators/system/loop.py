@@ -131,7 +131,7 @@ class DampingLoop:
         if "zeta" in damping:
             zeta = float(damping["zeta"])
         else:
-            zeta = float(damping.get("damping_coefficient", damping.get("horizontal_gain"))) / (2.0 * omega_s)
+            zeta = float(damping.get("damping_coefficient", damping.get("horizontal_gain", np.nan))) / (2.0 * omega_s)
         if not np.isfinite(zeta) or zeta < 0:
             raise InputError(f"damping ratio must be a finite non-negative number, got {zeta}", field="damping.zeta")
         gains = None

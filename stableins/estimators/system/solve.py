@@ -146,7 +146,7 @@ def filter_curve(
         size = int(group[-1]) + 1
         zsum = np.bincount(group, weights=zb * nn, minlength=size)
         hsum = np.stack([np.bincount(group, weights=hb[:, k] * nn, minlength=size) for k in range(hb.shape[1])], axis=1)
-        nn = np.bincount(group, weights=nn, minlength=size)
+        nn = np.asarray(np.bincount(group, weights=nn, minlength=size), dtype=float)
         zb, hb = zsum / nn, hsum / nn[:, None]
     history = hm.kalman_filter(hb, zb, fit.residual_variance / nn, np.zeros(7), p0)
     return FilterCurve(history, (np.cumsum(nn)) / rate)

@@ -84,7 +84,11 @@ def spectral_ratios(
         arg = 2.0 * np.pi * f * t
         a = 2.0 * float(np.sum(wr * np.cos(arg))) / n_total
         b = 2.0 * float(np.sum(wr * np.sin(arg))) / n_total
-        g = 1.0 if gain is None else float(np.interp(f, gain_frequencies, gain))
+        if gain is None:
+            g = 1.0
+        else:
+            assert gain_frequencies is not None  # given with the gain
+            g = float(np.interp(f, gain_frequencies, gain))
         predicted = 2.0 * white_variance * g * g / n_total  # variance of a and of b for white noise
         ratios[i] = 0.5 * (a * a + b * b) / predicted
     return freqs, ratios
