@@ -287,6 +287,32 @@ def test_hdf5_record_with_time_grid_and_overview_equals_in_memory_columns(day, t
     assert from_file.diagnostics.samples == in_memory.diagnostics.samples
     assert from_file.diagnostics.sampling == in_memory.diagnostics.sampling
     assert from_file.diagnostics.sampling.gap_count == (2 if gaps else 0)
+    # the chunk-source protocol: both are sources, only the file has a time grid
+    from stableins.data.chunks import ChunkSource, GriddedChunkSource
+
+    assert isinstance(source, GriddedChunkSource) and isinstance(ArraySource(cols), ChunkSource)
+    assert not isinstance(ArraySource(cols), GriddedChunkSource)
+    json_form = from_file.diagnostics.to_dict()
+    assert "loop" not in json_form and json_form["sampling"]["gap_count"] == (2 if gaps else 0)
+    assert list(json_form)[:3] == ["duration", "samples", "block_length"]
+
+
+def test_array_source_keeps_the_chunk_contract():
+    """ArraySource: chunks in order of at most ``rows`` rows, thin columns at the global multiples of ``step``."""
+    from stableins.data.chunks import ArraySource as Source
+
+    n = 1000
+    cols = {"time": np.arange(n, dtype=float), "pitch": np.arange(n) * 2.0}
+    chunks = list(Source(cols).iter_chunks(["time", "pitch"], rows=96, thin=["pitch"], step=10))
+    assert [len(c["time"]) for c in chunks] == [96] * 10 + [40]
+    np.testing.assert_array_equal(np.concatenate([c["time"] for c in chunks]), cols["time"])
+    np.testing.assert_array_equal(np.concatenate([c["pitch"] for c in chunks]), cols["pitch"][::10])
+    with pytest.raises(InputError, match="missing column"):
+        next(Source(cols).iter_chunks(["time", "roll"]))
+    bad = dict(cols, pitch=np.where(np.arange(n) == 500, np.nan, cols["pitch"]))
+    with pytest.raises(InputError) as error:
+        list(Source(bad).iter_chunks(["time", "pitch"], rows=96, thin=["pitch"], step=10))
+    assert error.value.row == 501
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf])
