@@ -90,18 +90,18 @@ class GriddedChunkSource(ChunkSource, Protocol):
 
 
 def source_path(source: ChunkSource) -> str:
-    """The name a source's messages use: its ``path``, ``"<record>"`` when it has none."""
+    """Return the name a source's messages use: its ``path``, ``"<record>"`` when it has none."""
     return str(getattr(source, "path", "<record>"))
 
 
 def source_columns(source: ChunkSource) -> Collection[str]:
-    """The columns a source says it has (empty when it does not say)."""
+    """Return the columns a source says it has (empty when it does not say)."""
     columns: Collection[str] = getattr(source, "columns", ())
     return columns
 
 
 def source_time_grid(source: ChunkSource) -> NDArray[np.float64] | None:
-    """The source's time grid (:class:`GriddedChunkSource`), None when it has none."""
+    """Return the source's time grid (:class:`GriddedChunkSource`), None when it has none."""
     grid: NDArray[np.float64] | None = getattr(source, "time_grid", None)
     return grid
 
@@ -131,7 +131,7 @@ class ArraySource:
         reuse: bool = False,
         unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]:
-        """Same contract as :meth:`stableins.data.system.SystemRecord.iter_chunks` (``reuse``, ``unchecked`` have no effect)."""
+        """Yield chunks as :meth:`stableins.data.system.SystemRecord.iter_chunks` does (``reuse``, ``unchecked`` have no effect)."""
         names = list(self.columns if columns is None else columns)
         for name in names:
             if name not in self.columns:

@@ -136,7 +136,7 @@ class TemperatureSummary:
     max: float
 
     def to_dict(self) -> dict[str, float]:
-        """The JSON form."""
+        """Return the JSON form."""
         return {"mean": self.mean, "min": self.min, "max": self.max}
 
 
@@ -328,7 +328,7 @@ class StageAccumulator:
     def _time(
         self, chunk: Mapping[str, NDArray[np.float64]], n: int, phase: int
     ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64], tuple[float, float] | None]:
-        """The chunk's full-rate stamps (None on a uniform grid segment), its decimated stamps, and ``(t_0, period)`` of the segment."""
+        """Return the chunk's full-rate stamps (None on a uniform grid segment), its decimated ones and ``(t_0, period)``."""
         seen, grid = self.seen, self.grid
         if grid is None:
             time = chunk["time"]

@@ -49,6 +49,7 @@ def residual_scale(values: Mapping[str, float], gravity: float) -> dict[str, flo
 
 
 def term_id(residual: str) -> str:
+    """Return the record term of a residual (:data:`harmonics.RESIDUAL_NAMES`): ``D_x`` → ``sf_x``, ``b_x`` → ``bias_x``."""
     if residual.startswith("D_"):
         return f"sf_{residual[2]}"
     if residual.startswith("b_"):
@@ -72,6 +73,7 @@ def residuals_from_parameters(true: Mapping[str, float], installed: Mapping[str,
 
 
 def combined_terms() -> tuple[Term, ...]:
+    """Return the fifteen combined coefficients as terms (x1..x5, the pitch and roll coefficients) [rad]."""
     meaning = dict(zip(hm.STATE_NAMES, hm.STATE_MEANING, strict=True))
     terms = []
     for name in COMBINED_COEFFICIENTS:
@@ -90,7 +92,7 @@ def combined_terms() -> tuple[Term, ...]:
     return tuple(terms)
 
 
-def k2_map(latitude: float, estimate_k2: bool) -> NDArray[np.float64]:
+def k2_map(latitude: float, *, estimate_k2: bool) -> NDArray[np.float64]:
     """Matrix ``(15, 17)`` from ``(x1..x7, attitude)`` to the combined coefficients.
 
     With ``estimate_k2`` the residual-K2 parts are removed: ``δ_i += gΔK_i u_i²`` gives
@@ -152,7 +154,7 @@ def fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> 
 
 
 def observable_directions(covariance: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], int]:
-    """Combinations of the combined coefficients that the record determines.
+    """Find the combinations of the combined coefficients that the record determines.
 
     Per group (the five harmonic states; the ten attitude coefficients) the information
     matrix in correlation form ``Λ_s`` has unit eigenvalues for an orthogonal design (a
@@ -204,7 +206,7 @@ def prior_residual_covariance(
 
 
 def stage_settings(options: SystemOptions, noise_model: NoiseModel | None = None) -> dict[str, Any]:
-    """The stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame).
+    """Return the stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame).
 
     ``noise_model``: the source of the noise model the stage started from (``none`` when there was none).
     """
@@ -236,9 +238,10 @@ def separation_likelihood(
     cov_v: NDArray[np.float64],
     to_combined: NDArray[np.float64],
     transform: NDArray[np.float64],
+    *,
     estimate_k2: bool,
 ) -> tuple[Likelihood, SeparationFit]:
-    r"""What the record says about the accelerometer parameters: a :class:`Likelihood` (docs/system-calibration.md §4).
+    r"""Return what the record says about the accelerometer parameters: a :class:`Likelihood` (docs/system-calibration.md §4).
 
     Measurement ``w = T c`` (the combinations of the combined coefficients ``c`` the record resolves; with
     ``estimate_k2`` also the third-harmonic states ``x6 = gΔK2_x/4``, ``x7 = −gΔK2_y/4``), covariance ``R`` from
@@ -305,7 +308,7 @@ def fit_result(
     settings: dict[str, Any],
     k2: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
-    """The stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS)."""
+    """Return the stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS)."""
     from stableins.estimators.posterior import bayesian_update
 
     terms = tuple(CORE_TERMS)

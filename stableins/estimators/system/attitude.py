@@ -120,6 +120,7 @@ class AttitudeBlocks:
         pitch: NDArray[np.float64],
         roll: NDArray[np.float64],
     ) -> None:
+        """Add decimated samples (time, ``cos S``, ``sin S``, pitch, roll) to their blocks."""
         while True:
             index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
             if int(index[-1]) < self.max_blocks:
@@ -148,6 +149,7 @@ class AttitudeBlocks:
         self.block_seconds *= 2.0
 
     def means(self) -> dict[str, NDArray[np.float64]]:
+        """Return the block means of the non-empty blocks (``count``, ``time`` since the start, ``cos``, ``sin``, pitch, roll)."""
         count = self.sums["count"]
         keep = count > 0
         out = {"count": count[keep]}
@@ -293,7 +295,7 @@ def fit_attitude(
     beta, residuals, cov_obs, maps, drift_estimate, drift_sigma = fits
     notes = _drift_notes(drift_estimate, drift_sigma) if gyro_drift == "check" else []
     observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
-    transform, vertical_map = _loop_compensation(loop, compensate_loop)
+    transform, vertical_map = _loop_compensation(loop, compensate_loop=compensate_loop)
     v = np.zeros(5) if vertical is None else np.asarray(vertical, dtype=float)
     qs = transform @ (observed - vertical_map @ v)
     jac_vertical = -transform @ vertical_map
@@ -360,7 +362,7 @@ def _fit_channels(
     freqs: NDArray[np.float64],
     slices: list[slice],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The weighted fits of pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
+    """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
 
     ``drift_settings``: ``(gyro_drift, known_drift)`` of :func:`fit_attitude`.  Returns ``(coefficients (n, 2), block
     residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means summed per
@@ -414,7 +416,7 @@ def _fit_channels(
     return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma
 
 
-def _loop_compensation(loop: DampingLoop, compensate_loop: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _loop_compensation(loop: DampingLoop, *, compensate_loop: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Loop compensation of the harmonics, vectors (pitch c, pitch s, roll c, roll s): ``(M_k⁻¹ blocks, vertical map)``."""
     transform = np.eye(10)
     vertical_map = np.zeros((10, 5))  # observed ← Δf_D/g coefficients
@@ -432,8 +434,10 @@ def _loop_compensation(loop: DampingLoop, compensate_loop: bool) -> tuple[NDArra
 def _low_frequency(
     blocks: dict[str, NDArray[np.float64]], residuals: NDArray[np.float64], noise_sigma: tuple[float, float], loop: DampingLoop
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
-    """Coloured (low-frequency) noise of the residuals: ``(mean spectral ratio per channel, covariance factors at 1 and 2
-    cycles/day in the observed order, notes)`` from the residual spectrum extrapolated to the harmonics."""
+    """Measure the coloured (low-frequency) noise of the residuals from their spectrum extrapolated to the harmonics.
+
+    Returns ``(mean spectral ratio per channel, covariance factors at 1 and 2 cycles/day in the observed order, notes)``.
+    """
     from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
 
     w = blocks["count"]

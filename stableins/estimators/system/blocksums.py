@@ -323,7 +323,7 @@ def block_sums_reference(
     omega: float,
     step_range: tuple[float, float],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
-    """The same sums with numpy array operations (the reference :func:`block_sums` is tested against)."""
+    """Compute the same sums with numpy array operations (the reference :func:`block_sums` is tested against)."""
     z = observation(fx, fy, fz, packed)
     n = z.size
     starts = np.arange(0, n, block)

@@ -40,7 +40,7 @@ class SamplingSummary:
     jitter_steps: int
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON form (keys as the attribute names, gaps as lists)."""
+        """Return the JSON form (keys as the attribute names, gaps as lists)."""
         return {
             "gaps": list(self.gaps),
             "gap_count": self.gap_count,
@@ -92,7 +92,7 @@ class StaticChecks:
         self.latitude = 0.0
 
     def time(self, t: NDArray[np.float64] | None, span: tuple[float, float], seen: int, irregular: int) -> None:
-        """Sampling checks of one chunk; ``irregular`` counts its steps off the nominal period by more than 1 %.
+        """Check the sampling of one chunk; ``irregular`` counts its steps off the nominal period by more than 1 %.
 
         ``span`` is the chunk's first and last time; ``t`` its stamps (None for a uniform stretch of a time grid).
         Only a chunk with irregular steps (or an irregular step from the previous chunk) is examined step by step.
@@ -212,7 +212,7 @@ class StaticChecks:
             warnings.warn(f"{self.path}: {text}", UserWarning, stacklevel=5)
 
     def summary(self) -> SamplingSummary:
-        """What the sampling checks found."""
+        """Return what the sampling checks found."""
         return SamplingSummary(tuple(self.gaps[:10]), len(self.gaps), self.gap_time, self.jitter)
 
 

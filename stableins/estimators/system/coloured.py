@@ -41,13 +41,14 @@ def coloured_covariance(
     latitude: float,
     loop: DampingLoop,
     case_rotation_period: float | None = None,
+    *,
     alpha: float = 0.05,
     confidence: float = 0.95,
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     prior_detected: bool = False,
     given: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], Any]:
-    """Unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
+    """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
     The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the low band: residual
     periodograms between 3.5 and 30 cycles/day (at most 0.45/bin width) with exact expectations for what the fits absorb
@@ -147,8 +148,11 @@ def _low_band(
     case_rotation_period: float | None,
     n_keep: int,
 ) -> _LowBand:
-    """The z, pitch and roll residuals on the filter bins merged to at most :data:`COLOURED_BINS`, their residual makers,
-    weights, white-noise gains, the bin kernels of the coloured components and the loop's mixing."""
+    """Build the low band: the z, pitch and roll residuals on the filter bins merged to at most :data:`COLOURED_BINS`.
+
+    With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
+    mixing.
+    """
     width = filter_bins.samples / rate
     merge = max(1, -(-n_keep // COLOURED_BINS))
     ids = np.flatnonzero(keep_bins) // merge
@@ -203,8 +207,10 @@ def _high_band(
     observed: NDArray[np.float64],
     n_ch: int,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, float]:
-    """The z residual on the fine bins (a trailing partial bin left out), above the low band: rows of the design and
-    ordinates appended; returns ``(design, observed, ordinates of the high band, top frequency)``."""
+    """Append the high band: the z residual on the fine bins (a trailing partial bin left out), above the low band.
+
+    Returns ``(design, observed, ordinates of the high band, top frequency)`` with its rows and ordinates appended.
+    """
     fine_count = fine_bins.n.copy()
     last = int(np.flatnonzero(fine_count > 0)[-1]) + 1 if np.any(fine_count > 0) else 0
     if last and fine_count[last - 1] < fine_bins.samples:
@@ -232,7 +238,7 @@ def _high_band(
 
 
 def _lowest_frequency(time: NDArray[np.float64], width: float, harmonics: tuple[float, ...]) -> float:
-    """The lowest Fourier frequency of the low band (the first not within half a spacing of an absorbed harmonic)."""
+    """Return the lowest Fourier frequency of the low band (the first not within half a spacing of an absorbed harmonic)."""
     span = float(time[-1] - time[0]) + width
     k = 1
     while any(abs(k - f * span) < 0.5 for f in harmonics):
@@ -241,7 +247,7 @@ def _lowest_frequency(time: NDArray[np.float64], width: float, harmonics: tuple[
 
 
 def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
-    """What the decision on low-frequency noise found and what it does to σ (docs/system-calibration.md §1a)."""
+    """Say what the decision on low-frequency noise found and what it does to σ (docs/system-calibration.md §1a)."""
     from stableins.estimators.system.spectrum import amplitudes_to_allan
 
     upper = amplitudes_to_allan(fit.upper, gravity)
@@ -272,7 +278,7 @@ def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: f
 def noise_prior(
     model: NoiseModel | None, gravity: float
 ) -> tuple[NDArray[np.float64] | None, tuple[NDArray[np.float64], NDArray[np.float64]] | None, bool]:
-    """What a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
+    """Return what a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
 
     A datasheet model: the amplitudes per axis, used as they are (``given``, ``(2, 3)``).  A measured model (device dwells,
     an earlier static record): a Gaussian prior on each amplitude (one value for the three axes, the mean over the axes)
@@ -315,7 +321,7 @@ def measured_noise_model(
     path: str,
     duration: float,
 ) -> NoiseModel:
-    """The noise model of the instrument measured in this record (source ``static record``), per axis.
+    """Return the noise model of the instrument measured in this record (source ``static record``), per axis.
 
     * White noise ``N = σ/√rate`` per axis from the second differences of the raw outputs (``σ²``, insensitive to the
       Earth-rate signal), interval from ``χ²`` with ``SECOND_DIFFERENCE_DOF · count`` degrees of freedom;

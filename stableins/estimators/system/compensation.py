@@ -27,6 +27,7 @@ class Compensation:
 
     @classmethod
     def from_values(cls, values: Mapping[str, float]) -> Compensation:
+        """Build the compensation from the installed calibration (record values of the core terms)."""
         model = ErrorModel.standard(nonlinear=True)
         known = {k: v for k, v in values.items() if k in model.ids}
         # M from the model's own inverse applied to unit vectors (no re-derivation of Eq. 8 here)
@@ -37,7 +38,7 @@ class Compensation:
         return cls(matrix, bias, quadratic)
 
     def packed(self, gravity: float) -> NDArray[np.float64]:
-        """The coefficients of the compiled per-sample pass (:func:`.blocksums.coefficients`)."""
+        """Return the coefficients of the compiled per-sample pass (:func:`.blocksums.coefficients`)."""
         return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
 
@@ -62,6 +63,7 @@ class AdditiveCompensation:
 
     @classmethod
     def from_prior(cls, terms: Sequence[Term], prior: Mapping[str, float], path: str) -> AdditiveCompensation | None:
+        """Build it for the prior's discovered terms (None without any); each must be an additive term of the specific force."""
         if not terms:
             return None
         from stableins.errormodel import TermInputs
@@ -83,6 +85,7 @@ class AdditiveCompensation:
         return cls(full, core, {k: float(v) for k, v in prior.items() if k in full})
 
     def __call__(self, fx: NDArray, fy: NDArray, fz: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """Return the outputs of the same instrument without the additive terms, axis by axis."""
         f_p = self.full.inverse(np.stack([fx, fy, fz], axis=-1), self.values)
         out = self.core.forward(f_p, self.values)
         return out[:, 0], out[:, 1], out[:, 2]

@@ -154,8 +154,10 @@ def filter_curve(
 
 @dataclass(frozen=True)
 class AttitudeStep:
-    """The Fourier fit of pitch and roll (:class:`.attitude.AttitudeFit`), the block means it ran on, the projection
-    ``along`` of x1..x5 on the vertical, and the notes of the step."""
+    """The Fourier fit of pitch and roll (:class:`.attitude.AttitudeFit`) and what the next steps need of it.
+
+    The block means it ran on, the projection ``along`` of x1..x5 on the vertical, and the notes of the step.
+    """
 
     fit: AttitudeFit
     blocks: dict[str, NDArray[np.float64]]
@@ -237,8 +239,11 @@ def decide_noise(
     given: NoiseModel | None,
     path: str,
 ) -> NoiseDecision:
-    """Step 5: the joint white covariance of ``v`` (cross terms from the vertical path), the coloured noise measured in
-    the residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model."""
+    """Step 5: decide on the low-frequency noise and build the covariance of ``v`` under it.
+
+    The joint white covariance of ``v`` (cross terms from the vertical path), the coloured noise measured in the
+    residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.
+    """
     att = attitude.fit
     cov_x = harmonic.covariance
     cov_v = np.zeros((17, 17))
@@ -320,7 +325,7 @@ class Combination:
 
 
 def _k2_note(harmonic: HarmonicFit, k2_values: NDArray[np.float64], k2_sigma: NDArray[np.float64], latitude: float) -> str:
-    """The third harmonic's residual K2 when the K2 estimation is off."""
+    """Return the note on the third harmonic's residual K2 when the K2 estimation is off."""
     cos_l = math.cos(latitude)
     bias = 3 * cos_l**2 * np.abs(harmonic.x_hat[5:7]).max()
     return (

@@ -145,7 +145,7 @@ def amplitudes_to_allan(amplitudes: ArrayLike, gravity: float) -> NDArray[np.flo
 
 
 def allan_to_amplitudes(random_walk: ArrayLike, bias_instability: ArrayLike, gravity: float) -> NDArray[np.float64]:
-    """The inverse of :func:`amplitudes_to_allan`: ``((K/g)², (B/g)² ln 10/π)``."""
+    """Invert :func:`amplitudes_to_allan`: ``((K/g)², (B/g)² ln 10/π)``."""
     k = np.asarray(random_walk, dtype=float)
     b = np.asarray(bias_instability, dtype=float)
     return np.stack([(k / gravity) ** 2, (b / gravity) ** 2 * _noise.FLICKER_VARIANCE_PER_B2])
@@ -194,7 +194,7 @@ def component_quadratic(
     *,
     per_axis: bool = False,
 ) -> NDArray[np.float64]:
-    """``A Σ Bᵀ`` for the stacked channel bins without forming the stacked covariance ``Σ``.
+    """Compute ``A Σ Bᵀ`` for the stacked channel bins without forming the stacked covariance ``Σ``.
 
     Channel ``p``'s coloured noise on the bins is ``Σ_a M_pa n_a`` with ``n_a`` the bin means of axis ``a``'s unit
     process (covariance ``C`` = ``kernel``, the same for the three axes and independent between them) and ``M_pa``
@@ -371,7 +371,7 @@ def _dft_of_random_walk(theta: NDArray[np.float64], n: int, width: float) -> NDA
 
 
 def z_bin_expectations(k: NDArray[np.int64], n: int, width: float, latitude: float, samples_per_bin: float) -> NDArray[np.float64]:
-    r"""Expected periodogram ordinates of the z residual on ``n`` uniform bins of ``width`` [s], per unit noise level.
+    r"""Return the expected periodogram ordinates of the z residual on ``n`` uniform bins of ``width`` [s], per unit noise level.
 
     Columns: white (per-sample variance 1, ``samples_per_bin`` samples per bin), random walk ``(K/g)² = 1`` [1/s],
     flicker (each Gauss-Markov process of :data:`FLICKER_TIME_CONSTANTS` of variance 1), at the Fourier

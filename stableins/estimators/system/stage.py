@@ -156,7 +156,7 @@ class SystemDiagnostics:
     time_span: tuple[float | None, float | None]
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON form (``calibrate system --json``): every attribute but ``loop``, in order; sampling and temperature as dicts."""
+        """Return the JSON form (``calibrate system --json``): every attribute but ``loop``, in order; sampling and temperature as dicts."""
         out: dict[str, Any] = {}
         for name in self.__dataclass_fields__:
             value = getattr(self, name)
@@ -300,7 +300,7 @@ def measure_noise_model(
     compensation_terms: Sequence[Term] = (),
     noise_model: NoiseModel | None = None,
 ) -> SystemNoise:
-    """The noise model of the instrument in a system-level record, exactly as :func:`run_system_stage` measures it.
+    """Measure the noise model of the instrument in a system-level record, exactly as :func:`run_system_stage` measures it.
 
     The same pass, fits and decision (docs/system-calibration.md §1a), without the separation: a record too short to
     determine the coefficients the separation needs (e.g. six hours) still gives its noise (``stableins diagnose``).
@@ -312,8 +312,7 @@ def measure_noise_model(
 
 @dataclass(frozen=True)
 class _Stage:
-    """The pass and the solve steps up to the noise decision, shared by :func:`run_system_stage` and
-    :func:`measure_noise_model`."""
+    """The pass and the solve steps up to the noise decision (shared by the stage and :func:`measure_noise_model`)."""
 
     path: str
     latitude: float
@@ -339,7 +338,7 @@ def _run(
     compensation_terms: Sequence[Term],
     noise_model: NoiseModel | None,
 ) -> _Stage:
-    """The one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
+    """Run the one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
     path = source_path(source)
     latitude, gravity, rate = check_metadata(metadata, path)
     loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
@@ -382,7 +381,7 @@ def _assemble(
     options: SystemOptions,
     noise_model: NoiseModel | None,
 ) -> SystemCalibration:
-    """The stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
+    """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
     sums, harmonic, att, decision = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision
     gravity, cov_v, to_combined, transform = stage.gravity, decision.covariance, combination.to_combined, combination.transform
     notes = [*sums.notes, *stage.attitude.notes, decision.note, *combination.notes]
@@ -435,7 +434,7 @@ def _assemble(
 
 
 def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnostics:
-    """The stage's :class:`SystemDiagnostics`."""
+    """Collect the stage's :class:`SystemDiagnostics`."""
     sums, harmonic, att, decision, checks = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision, stage.sums.checks
     to_combined = combination.to_combined
     return SystemDiagnostics(

@@ -75,8 +75,11 @@ class SystemCalibrationView:
         return html_result("System-level stage", self._summary_lines(), [parameters, combined], [("notes", self.notes)])
 
     def to_dataframe(self) -> Any:
-        """The updated accelerometer terms (:meth:`FitResult.to_dataframe`) with ``correction`` (engineering units) and
-        ``determination`` (``alone``, ``in combination`` or ``not seen`` by these data).  Needs pandas."""
+        """Return the updated accelerometer terms as a table (:meth:`FitResult.to_dataframe`); needs pandas.
+
+        With ``correction`` (engineering units) and ``determination`` (``alone``, ``in combination`` or ``not seen`` by
+        these data).
+        """
         frame = self.result.to_dataframe()
         terms = {t.id: t for t in self.result.terms}
         frame["correction"] = [

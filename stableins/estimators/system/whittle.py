@@ -176,6 +176,7 @@ class ColouredNoiseFit:
         return self.p_value < self.alpha
 
     def describe(self) -> str:
+        """Say in one line what the decision found (likelihood ratio, p-value, false-positive rate, ordinates)."""
         verdict = "detected" if self.data_detected else "not detected"
         return (
             f"low-frequency noise {verdict} in the record: likelihood ratio {self.statistic:.2f} against white noise, "
@@ -270,7 +271,7 @@ def fit_coloured_noise(
 
 
 def _small_amplitudes(design: NDArray[np.float64], theta0: NDArray[np.float64], channels: int) -> NDArray[np.float64]:
-    """A start for the full fit: each amplitude at 1 % of the mean ordinate of the white fit."""
+    """Return a start for the full fit: each amplitude at 1 % of the mean ordinate of the white fit."""
     out = np.zeros(design.shape[1])
     level = 0.01 * float((design @ theta0).mean())
     out[channels:] = level / np.maximum(design[:, channels:].mean(axis=0), 1e-300)
