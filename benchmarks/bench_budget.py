@@ -39,11 +39,15 @@ def sigma_of(record) -> np.ndarray:
 def gravity(world) -> None:
     from stableins.discovery.library import all_terms
     from stableins.estimators.device import calibrate_device
+    from stableins.procedures.definition import device_layouts
+    from stableins.records import CalibrationRecord
     from stableins.reporting.budget import MGAL, gravity_direction
 
     truth, dwells, noise, _, record = world
     dg = 30.0 * MGAL
-    moved = calibrate_device(dwells, replace(truth.site, gravity=truth.site.gravity + dg), noise=noise).record(truth.site)
+    moved = CalibrationRecord.from_device(
+        calibrate_device(dwells, replace(truth.site, gravity=truth.site.gravity + dg), layouts=device_layouts(), noise=noise), truth.site
+    )
     direction = gravity_direction(record, all_terms())
     sigma = sigma_of(record)
     print("1. local gravity, device stages: calibrate_device re-run with g + 30 mGal")

@@ -39,9 +39,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from stableins.data.metadata import SiteMetadata  # noqa: E402
-from stableins.data.schema import SYSTEM_COLUMNS  # noqa: E402
 from stableins.data.system import SystemRecordWriter, open_system_record  # noqa: E402
+from stableins.schema import SYSTEM_COLUMNS  # noqa: E402
+from stableins.site import SiteMetadata  # noqa: E402
 
 CHUNK = 65536
 NAMES = [c.name for c in SYSTEM_COLUMNS]

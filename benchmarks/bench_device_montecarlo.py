@@ -238,21 +238,21 @@ def _simulated_device(job: tuple[int, int, bool]) -> dict[str, dict[str, tuple[f
 
     seed, passes, spec = job
     coarse_proc, fine_proc = load_procedure("device-coarse"), load_procedure("device-fine")
-    procedures = {"coarse": coarse_proc, "fine": fine_proc}
+    layouts = {"coarse": coarse_proc.layout, "fine": fine_proc.layout}
     truth = Truth.draw(seed)
     dwells = []
     for p in range(1, passes + 1):
         columns = simulate_dwells(
             truth, [s.command for s in coarse_proc.steps], dwell=20.0, settle=5.0, seed=seed + 7919 * p, stage="coarse", pass_number=p
         )
-        dwells += dwells_from_columns(columns, procedures=procedures)
+        dwells += dwells_from_columns(columns, layouts=layouts)
     columns = simulate_dwells(
         truth, [s.command for s in fine_proc.steps], dwell=600.0, settle=5.0, rate=10.0, seed=seed + 1000003, stage="fine"
     )
-    dwells += dwells_from_columns(columns, procedures=procedures)
+    dwells += dwells_from_columns(columns, layouts=layouts)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk) if spec else None
-    cal = calibrate_device(dwells, truth.site, noise=slow)
+    cal = calibrate_device(dwells, truth.site, layouts=layouts, noise=slow)
     g = gauge_equivalent(truth.parameters)
     out = {}
     for name, fit in (("pass 1", cal.passes[0]), ("coarse", cal.coarse), ("fine", cal.fine), ("fused", cal.fused)):

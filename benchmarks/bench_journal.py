@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stableins.console import Console
+from stableins.estimators.layout import DwellChecks
 from stableins.procedures.journal import Journal, scan
-from stableins.procedures.plan import Checks, DwellStep, Plan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console
+from stableins.procedures.plan import DwellStep, Plan
+from stableins.runs import resume_run, start_run
 
 
 def append_rate(directory: Path, pieces: int = 200) -> tuple[float, float]:
@@ -51,7 +52,7 @@ def scan_rate(directory: Path) -> float:
 
 def device_run(directory: Path) -> tuple[float, float, int]:
     positions = [(0.0, 0.0, 0.0), (0.0, math.pi / 2, 0.0), (math.pi / 2, math.pi / 2, 0.0)] * 6
-    checks = Checks(angle_tolerance=math.radians(0.01), scatter_max=2e-2, slope_max=2e-4)
+    checks = DwellChecks(angle_tolerance=math.radians(0.01), scatter_max=2e-2, slope_max=2e-4)
     steps = tuple(DwellStep(f"position {k}", "coarse", 1, k, p, 5.0, 20.0, checks) for k, p in enumerate(positions, start=1))
     plan = Plan("bench", "device", steps, retries=2, chunk=10.0, sample_rate=100.0)
     start = time.perf_counter()

@@ -65,7 +65,7 @@ def session(seed: int, kind: str, effects: dict | None = None):
     from stableins.simulator.truth import Truth
 
     coarse, fine = load_procedure("device-coarse"), load_procedure("device-fine")
-    procedures = {"coarse": coarse, "fine": fine}
+    layouts = {"coarse": coarse.layout, "fine": fine.layout}
     truth = Truth.draw(seed, noise=settings(kind), effects=effects or {})
     runs = [
         simulate_dwells(
@@ -77,7 +77,7 @@ def session(seed: int, kind: str, effects: dict | None = None):
         simulate_dwells(truth, [s.command for s in fine.steps], dwell=600.0, settle=5.0, rate=10.0, seed=seed + 1000003, stage="fine")
     )
     datasets = [DeviceDataset(truth.site, c, f"run{k}") for k, c in enumerate(runs)]
-    summaries = [s for c in runs for s in dwells_from_columns(c, procedures=procedures)]
+    summaries = [s for c in runs for s in dwells_from_columns(c, layouts=layouts)]
     return truth, datasets, summaries
 
 
@@ -99,8 +99,9 @@ def diagnose(datasets, truth, noise, effect=None):
     from stableins.discovery.history import Discovery
     from stableins.discovery.problem import DwellProblem, dwells_from_dataset
     from stableins.errormodel import ErrorModel
+    from stableins.procedures.definition import device_layouts
 
-    dwells = dwells_from_dataset(datasets, noise=noise)
+    dwells = dwells_from_dataset(datasets, layouts=device_layouts(), noise=noise)
     session = Discovery(
         DwellProblem(dwells, stage="fine dwells"), ErrorModel.standard(nonlinear=True, gimbals=True), start=truth.parameters
     )
@@ -115,12 +116,13 @@ def diagnose(datasets, truth, noise, effect=None):
 
 def part_ab(job):
     from stableins.estimators.device import calibrate_device
+    from stableins.procedures.definition import device_layouts
 
     seed, kind = job
     truth, datasets, summaries = session(seed, kind)
     given = true_noise(truth, summaries)
-    default = calibrate_device(summaries, truth.site)
-    reference = calibrate_device(summaries, truth.site, noise=given)
+    default = calibrate_device(summaries, truth.site, layouts=device_layouts())
+    reference = calibrate_device(summaries, truth.site, layouts=device_layouts(), noise=given)
     return {
         "default": z_scores(default.final, truth),
         "given": z_scores(reference.final, truth),
@@ -135,8 +137,9 @@ def signal_scale(datasets, truth, noise, effect: str) -> float:
     from stableins.discovery.library import LIBRARY
     from stableins.discovery.problem import DwellProblem, dwells_from_dataset
     from stableins.errormodel import ErrorModel
+    from stableins.procedures.definition import device_layouts
 
-    problem = DwellProblem(dwells_from_dataset(datasets, noise=noise))
+    problem = DwellProblem(dwells_from_dataset(datasets, layouts=device_layouts(), noise=noise))
     model = ErrorModel.standard(nonlinear=True, gimbals=True)
     fit = problem.fit(model, start=truth.parameters)
     x = problem.whiten(problem.design(fit))
@@ -147,13 +150,15 @@ def signal_scale(datasets, truth, noise, effect: str) -> float:
 
 def part_c(job):
     from stableins.estimators.device import calibrate_device
+    from stableins.procedures.definition import device_layouts
 
     seed, signal = job
     effect = EFFECTS[seed % len(EFFECTS)]
     truth, datasets, summaries = session(seed, "quartz")
     value = signal * signal_scale(datasets, truth, true_noise(truth, summaries), effect)  # √λ in units of the true dwell-mean noise
     truth, datasets, summaries = session(seed, "quartz", {effect: value})
-    noise = calibrate_device(summaries, truth.site).noise  # the record's model, as 'calibrate device' would store it
+    # the record's model, as 'calibrate device' would store it
+    noise = calibrate_device(summaries, truth.site, layouts=device_layouts()).noise
     return {
         "effect": effect,
         "value": value,
@@ -168,6 +173,7 @@ def part_d(seed):
     from stableins.estimators.allan import fit_allan
     from stableins.estimators.device import calibrate_device
     from stableins.noise import NoiseSource
+    from stableins.procedures.definition import device_layouts
     from stableins.simulator.system import system_record_chunks
 
     truth, datasets, summaries = session(seed, "quartz")
@@ -184,7 +190,7 @@ def part_d(seed):
     model, _ = fit_allan(points, source=NoiseSource.STATIC_RECORD)
     b_lo, b_hi = model.limits("bias_instability")
     covered = (b_lo <= truth.noise.bias_instability) & (truth.noise.bias_instability <= b_hi)
-    fit = calibrate_device(summaries, truth.site, noise=model).final
+    fit = calibrate_device(summaries, truth.site, layouts=device_layouts(), noise=model).final
     return {
         "z": z_scores(fit, truth),
         "b": model.values("bias_instability").tolist(),

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY, normal_gravity
-from stableins.data.metadata import SiteMetadata
 from stableins.data.system import SystemRecordWriter, open_system_record
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
+from stableins.site import SiteMetadata
 
 RATE = 100.0
 

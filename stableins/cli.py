@@ -11,7 +11,7 @@ Conventions shared by every command:
 
 - ``--json``: the result goes to stdout as one JSON document (progress and messages go
   to stderr), see :func:`stableins.output.emit`;
-- a user error (:class:`~stableins.data.errors.InputError`, bad arguments) prints
+- a user error (:class:`~stableins.errors.InputError`, bad arguments) prints
   ``stableins: error: <message>`` and exits with status 2, never a traceback;
 - Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
   prints ``stableins: error: <message>`` and exits with status 1.
@@ -139,7 +139,7 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stableins`` console script; returns the exit status."""
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stableins.data.atomic import fsync_directory
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.history import DEFAULT_MAX_AGE, Comparison, Trend, compare, data_only, parse_date, trend
 from stableins.status import Status
 

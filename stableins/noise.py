@@ -46,7 +46,7 @@ independent draws of the slow noise.  That is exact for the truth simulator; for
 instrument record the stages of one calibration on one time base.
 
 This module is the physics layer: it imports numpy and the project's conventions only (and,
-when reading a document, the user-error type :class:`stableins.data.errors.InputError`).
+when reading a document, the user-error type :class:`stableins.errors.InputError`).
 """
 
 from __future__ import annotations
@@ -502,7 +502,7 @@ class NoiseModel:
     @classmethod
     def from_document(cls, document: Any, path: str | None = None, prefix: str = "noise_model") -> NoiseModel:
         """Build and validate a model from :meth:`to_document`'s form; :class:`InputError` names the field."""
-        from stableins.data.errors import InputError  # the one user-error type (no dependencies); imported here to keep this layer pure
+        from stableins.errors import InputError  # the one user-error type (no dependencies); imported here to keep this layer pure
 
         def fail(message: str, key: str, expected: str) -> InputError:
             return InputError(message, path=path, field=f"{prefix}.{key}" if key else prefix, expected=expected)

@@ -50,8 +50,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata, metadata_from_document, metadata_to_document
+from stableins.data.metadata import metadata_from_document, metadata_to_document
+from stableins.errors import InputError
+from stableins.site import SiteMetadata
 from stableins.status import STATUSES, Determination, Status
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -60,6 +61,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.discovery.history import ModelHistory
     from stableins.errormodel import ErrorModel
+    from stableins.estimators.device import DeviceCalibration
     from stableins.estimators.result import FitResult, InputSensitivity, Likelihood
     from stableins.noise import NoiseModel
 
@@ -499,6 +501,41 @@ class CalibrationRecord:
         return self.provenance.data_end or self.calibration.created
 
     # ------------------------------------------------------------------ build
+    @classmethod
+    def from_device(
+        cls,
+        calibration: DeviceCalibration,
+        site: SiteMetadata,
+        inputs: Sequence[str] = (),
+        procedure: str = "",
+        *,
+        data_start: str = "",
+        data_end: str = "",
+        environment: dict | None = None,
+        entries: Sequence[Entry] = (),
+    ) -> CalibrationRecord:
+        """The record of a device-level calibration: its ``final`` fit (coarse and fine fused by joint GLS, not replaced).
+
+        The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
+        fused, each with its χ²_ν), the fused likelihood and the calibration's ``settings``; ``entries`` are the
+        calibration's fields.  The record carries ``calibration.noise`` (the noise model every σ rests on).
+        """
+        started = Calibration.new(procedure, entries)
+        fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
+        stage = StageRun.from_fit(
+            calibration.final,
+            calibration=started.id,
+            procedure=procedure,
+            inputs=inputs,
+            data_start=data_start,
+            data_end=data_end,
+            sample_rate=site.sample_rate,
+            environment=environment,
+            fits=fits,
+            settings=calibration.settings or calibration.final.settings,
+        )
+        return cls.from_fit_result(calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
+
     @classmethod
     def from_fit_result(
         cls,

@@ -18,6 +18,7 @@ from stableins.estimators.joint import JointProblem, fit_joint
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
+from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
 
@@ -25,18 +26,18 @@ from stableins.simulator.truth import Truth
 def device(seed: int):
     """``(truth, dwells, noise, DeviceCalibration, record)``: a coarse pass (20-s dwells) and the fine stage (120-s dwells)."""
     coarse, fine = load_procedure("device-coarse"), load_procedure("device-fine")
-    procedures = {"coarse": coarse, "fine": fine}
+    layouts = {"coarse": coarse.layout, "fine": fine.layout}
     truth = Truth.draw(seed)
     commands = [s.command for s in coarse.steps]
     dwells = dwells_from_columns(
-        simulate_dwells(truth, commands, dwell=20.0, settle=5.0, rate=50.0, seed=seed * 10 + 1, stage="coarse"), procedures=procedures
+        simulate_dwells(truth, commands, dwell=20.0, settle=5.0, rate=50.0, seed=seed * 10 + 1, stage="coarse"), layouts=layouts
     )
     columns = simulate_dwells(truth, [s.command for s in fine.steps], dwell=120.0, settle=5.0, rate=5.0, seed=seed * 10 + 2, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=procedures)
+    dwells += dwells_from_columns(columns, layouts=layouts)
     n = truth.noise
     noise = NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, provenance="datasheet")
-    calibration = calibrate_device(dwells, truth.site, noise=noise)
-    return truth, dwells, noise, calibration, calibration.record(truth.site)
+    calibration = calibrate_device(dwells, truth.site, layouts=layouts, noise=noise)
+    return truth, dwells, noise, calibration, CalibrationRecord.from_device(calibration, truth.site)
 
 
 def joint(world):

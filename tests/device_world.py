@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from stableins import conventions as cv
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import SampleBlock
 from stableins.errormodel import ErrorModel
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 GRAVITY = float(cv.normal_gravity(np.radians(40.0)))
 TRUTH_MODEL = ErrorModel.standard(nonlinear=True, gimbals=True)

@@ -615,7 +615,7 @@ def case_record(ws: Workspace, rng: random.Random, op: str, consumer: str) -> Re
 
 def case_plan(ws: Workspace, rng: random.Random, op: str) -> Result:
     from stableins.commands.run import load_plan
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     directory = ws.case_directory()
     data, what, must = mutate_json(ws.plan.read_text(encoding="utf-8"), rng, op)
@@ -625,7 +625,7 @@ def case_plan(ws: Workspace, rng: random.Random, op: str) -> Result:
 
 def case_procedure(ws: Workspace, rng: random.Random, op: str) -> Result:
     from stableins.commands.run import load_plan
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     directory = ws.case_directory()
     data, what, must = mutate_toml(ws.procedure.read_text(encoding="utf-8"), rng, op)
@@ -634,7 +634,7 @@ def case_procedure(ws: Workspace, rng: random.Random, op: str) -> Result:
 
 
 def case_discovery(ws: Workspace, rng: random.Random, op: str) -> Result:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.reporting.builder import read_discovery
 
     directory = ws.case_directory()
@@ -761,7 +761,7 @@ class ScriptedPlatform:
 
 
 def _meta_payload() -> str:
-    from stableins.data.metadata import SiteMetadata
+    from stableins.site import SiteMetadata
 
     metadata = SiteMetadata("NET-1", math.radians(34.0), 400.0, 9.7966, "test", 10.0, (1, -1, -1, 1))
     return json.dumps(metadata.to_dict())

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from stableins.conventions import dcm_body_to_platform, normal_gravity
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import SampleBlock
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 
 class PlatformDouble:

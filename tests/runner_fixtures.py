@@ -6,7 +6,8 @@ import math
 import sys
 import time
 
-from stableins.procedures.plan import Checks, DwellStep, PersonStep, Plan
+from stableins.estimators.layout import DwellChecks
+from stableins.procedures.plan import DwellStep, PersonStep, Plan
 
 POSITIONS = [
     (0.0, 0.0, 0.0),
@@ -16,11 +17,11 @@ POSITIONS = [
     (math.pi, 0.0, math.pi / 2),
     (0.0, math.pi, 0.0),
 ]
-LOOSE = Checks(angle_tolerance=math.radians(0.01), scatter_max=5e-3, slope_max=2e-4, min_fraction=0.98)
+LOOSE = DwellChecks(angle_tolerance=math.radians(0.01), scatter_max=5e-3, slope_max=2e-4, min_fraction=0.98)
 
 
 #: Checks for the simulated platform's quartz-like noise (~500 µg per sample at 100 Hz).
-SIM_CHECKS = Checks(angle_tolerance=math.radians(0.01), scatter_max=2e-2, slope_max=2e-4, min_fraction=0.98)
+SIM_CHECKS = DwellChecks(angle_tolerance=math.radians(0.01), scatter_max=2e-2, slope_max=2e-4, min_fraction=0.98)
 
 
 #: Small moves (10°): the simulated platform slews at 10°/s, so a kill test run stays short.
@@ -35,7 +36,7 @@ SMALL_MOVES = [
 
 
 def short_plan(
-    retries: int = 2, dwell: float = 2.0, chunk: float = 0.5, person: bool = True, checks: Checks = LOOSE, positions=POSITIONS
+    retries: int = 2, dwell: float = 2.0, chunk: float = 0.5, person: bool = True, checks: DwellChecks = LOOSE, positions=POSITIONS
 ) -> Plan:
     steps: list = []
     if person:
@@ -69,8 +70,8 @@ class PacedDouble:
 
 def main(argv: list[str]) -> int:
     """``python -m tests.runner_fixtures start|resume RUNDIR SEED PACE``: run the short plan on the double."""
-    from stableins.procedures.rundir import resume_run, start_run
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
+    from stableins.runs import resume_run, start_run
 
     mode, rundir, seed, pace = argv[0], argv[1], int(argv[2]), float(argv[3])
     console = Console(yes=True, quiet=True)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from stableins import conventions as cv
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import ErrorModel
+from stableins.site import SiteMetadata
 
 LATITUDE = np.radians(40.0)
 

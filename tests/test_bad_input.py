@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from stableins import cli
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.records import CalibrationRecord
 
 DEEP = "[" * 300 + "]" * 300
@@ -103,10 +103,11 @@ def test_bad_records_are_refused_by_every_command_that_reads_one(ws, tmp_path, p
 
 
 def test_bad_truth_file_plan_discovery_and_history_index(ws, tmp_path):
+    from stableins.data.truth import save_truth
     from stableins.simulator.truth import Truth
 
     truth = tmp_path / "truth.json"
-    Truth.draw(0).write(truth)
+    save_truth(Truth.draw(0), truth)
     bad = tmp_path / "bad-truth.json"
     bad.write_text(with_value(truth.read_text(), ("seed",), HUGE))
     refused(["simulate", "device", "--truth", bad, "--out", tmp_path / "s"], str(bad), "field 'seed'", "5000 digits")
@@ -402,9 +403,10 @@ def test_samples_whose_time_runs_back_are_refused_before_journaling(tmp_path):
     from platform_double import PlatformDouble
     from runner_fixtures import short_plan
 
+    from stableins.console import Console
     from stableins.procedures.journal import scan
-    from stableins.procedures.rundir import resume_run, start_run
-    from stableins.procedures.runner import Console, RunStopped
+    from stableins.procedures.runner import RunStopped
+    from stableins.runs import resume_run, start_run
 
     class Rewinding(PlatformDouble):
         """Its clock jumps back 100 s once, in the middle of the run (a controller that restarted its clock)."""
@@ -611,8 +613,8 @@ def test_an_entry_out_of_range_is_asked_again_not_fatal(tmp_path, monkeypatch):
     from platform_double import PlatformDouble
     from runner_fixtures import short_plan
 
-    from stableins.procedures.rundir import start_run
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
+    from stableins.runs import start_run
 
     answers = iter(["y", "200", "warm", "19.25"])  # the range is -20 .. 60 degC
     monkeypatch.setattr("builtins.input", lambda prompt: next(answers))

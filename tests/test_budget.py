@@ -23,8 +23,8 @@ import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
 
 from stableins.conventions import ARCSEC  # noqa: E402
-from stableins.data.errors import InputError  # noqa: E402
 from stableins.discovery.library import all_terms  # noqa: E402
+from stableins.errors import InputError  # noqa: E402
 from stableins.estimators.device import calibrate_device  # noqa: E402
 from stableins.estimators.sensitivity import angle_reading_gradients  # noqa: E402
 from stableins.estimators.system import sensitivity as system_sensitivity  # noqa: E402
@@ -43,7 +43,7 @@ from stableins.reporting.budget import (  # noqa: E402
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
-PROCEDURES = {"coarse": COARSE, "fine": FINE}
+LAYOUTS = {"coarse": COARSE.layout, "fine": FINE.layout}
 POPPLER = shutil.which("pdftoppm") and shutil.which("pdftotext")
 needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftoppm/pdftotext (Debian package poppler-utils) are not installed")
 
@@ -62,7 +62,9 @@ def test_gravity_sensitivity_is_the_refit_with_g_perturbed(device):
     """δg moves the scale factors by SF δg/g and nothing else: the budget's c_g against calibrate_device re-run with g + δg."""
     truth, dwells, noise, _, record = device
     dg = 30.0 * MGAL
-    moved = calibrate_device(dwells, replace(truth.site, gravity=truth.site.gravity + dg), noise=noise).record(truth.site)
+    moved = CalibrationRecord.from_device(
+        calibrate_device(dwells, replace(truth.site, gravity=truth.site.gravity + dg), layouts=LAYOUTS, noise=noise), truth.site
+    )
     predicted = np.array([gravity_direction(record, all_terms()).get(pid, 0.0) for pid in record.ids]) * dg
     observed = _differences(record, moved)
     sigma = np.array([p.sigma if p.sigma > 0 else 1.0 for p in record.parameters])

@@ -96,7 +96,7 @@ def fake_commands(tmp_path, monkeypatch):
     (package / "interrupt.py").write_text("def configure(parser):\n    pass\n\ndef run(args):\n    raise KeyboardInterrupt\n")
     (package / "crash_input.py").write_text(
         "def configure(parser):\n    pass\n\n"
-        "def run(args):\n    from stableins.data.errors import InputError\n"
+        "def run(args):\n    from stableins.errors import InputError\n"
         "    raise InputError('bad thing', path='f.csv', row=3, field='f_x', expected='a number')\n"
     )
     (package / "disk_full.py").write_text(
@@ -298,7 +298,7 @@ def simulate(tmp_path: Path, *extra: str, name: str = "sim") -> tuple[int, Path]
 @requires_simulate
 def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
     from stableins.data.device import load_device
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     status, out = simulate(tmp_path, "--seed", "4", "--json")
     assert status == 0
@@ -308,7 +308,7 @@ def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
     session = load_device(out / "device-coarse.csv")
     dwells = session.dwells(stage="coarse", pass_number=1)
     assert [d.position for d in dwells] == list(range(1, 19)) and all(len(d) == 100 for d in dwells)
-    truth = Truth.read(out / "truth.json")
+    truth = load_truth(out / "truth.json")
     assert truth.seed == 4 and session.metadata.serial_number == truth.site.serial_number
     text = (out / "device-coarse.csv").read_text()
     assert "installed_calibration" not in text and "bias_x" not in text  # the data never carry the truth
@@ -320,7 +320,7 @@ def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
 @requires_simulate
 def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, capsys):
     from stableins.data.device import load_device
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     assert simulate(tmp_path, "--seed", "9", name="a")[0] == 0
     assert simulate(tmp_path, "--seed", "9", name="b")[0] == 0
@@ -328,7 +328,7 @@ def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, ca
     assert simulate(tmp_path, "--truth", str(tmp_path / "a" / "truth.json"), "--seed", "9", "--hidden", f"K3_x={k3}", name="c")[0] == 0
     a, b, c = (load_device(tmp_path / n / "device-coarse.csv") for n in "abc")
     np.testing.assert_array_equal(a.columns["f_x"], b.columns["f_x"])
-    assert Truth.read(tmp_path / "c" / "truth.json").effects == {"K3_x": k3}
+    assert load_truth(tmp_path / "c" / "truth.json").effects == {"K3_x": k3}
     # same seed, same noise: the dwell means differ by the cubic term, to the quantizer's
     # resolution (its carry moves a dwell mean by at most one LSB / 100 samples = 1e-5 m/s^2)
     change = [(dc.specific_force[:, 0] - da.specific_force[:, 0]).mean() for da, dc in zip(a.dwells(), c.dwells())]
@@ -377,7 +377,7 @@ def test_simulate_list_effects(capsys):
 @requires_simulate
 def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
     from stableins.data.system import open_system_record
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     out = tmp_path / "sys"
     assert cli.main(["simulate", "system", "--seed", "5", "--duration", "2min", "--rate", "50", "--out", str(out), "--json"]) == 0
@@ -386,7 +386,7 @@ def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
     record = open_system_record(out / "system.h5")
     report = record.check_sampling()
     assert record.n_samples == 6000 and record.sample_rate == 50.0 and report.uniform
-    truth = Truth.read(out / "truth.json")
+    truth = load_truth(out / "truth.json")
     assert record.metadata.damping["zeta"] == truth.damping["zeta"]  # the INS loop settings a site knows
     chunk = next(record.iter_chunks(["f_x", "f_y", "f_z"], rows=1000))
     g = np.linalg.norm([chunk[name].mean() for name in ("f_x", "f_y", "f_z")])
@@ -399,7 +399,7 @@ def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
 def test_simulate_device_runs_the_zero_offset_iteration_then_fine_at_repointed_positions(tmp_path, capsys):
     from stableins.conventions import ARCSEC
     from stableins.data.device import load_device
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     out = tmp_path / "session"
     argv = ["simulate", "device", "--out", str(out), "--seed", "11", "--dwell", "5", "--settle", "1", "--json"]
@@ -408,7 +408,7 @@ def test_simulate_device_runs_the_zero_offset_iteration_then_fine_at_repointed_p
     assert files["device-coarse"]["passes"] >= 2 and files["device-fine"]["passes"] == 1
     coarse = load_device(files["device-coarse"]["path"])
     fine = load_device(files["device-fine"]["path"])
-    truth = Truth.read(out / "truth.json")
+    truth = load_truth(out / "truth.json")
     first = coarse.dwells(stage="coarse", pass_number=1)
     last = coarse.dwells(stage="coarse", pass_number=files["device-coarse"]["passes"])
     assert [d.position for d in first] == [d.position for d in last] == list(range(1, 19))

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from device_world import GRAVITY, device_columns, draw_truth
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellChecks, dwells_from_columns, summarize_dwell
 from stableins.procedures.definition import load_procedure
 
 PROCEDURE = load_procedure("device-coarse")
-CHECKS = PROCEDURE.acceptance.dwell_checks()
+CHECKS = PROCEDURE.checks
 TRUTH = draw_truth(np.random.default_rng(31), quadratic=False)
 
 
@@ -158,7 +158,7 @@ def test_block_noise_estimate_is_honest_for_correlated_noise():
     sems = []
     for t in range(trials):
         f = np.stack([x[t], x[t], x[t]], axis=1) * 1e-4
-        d = summarize_dwell(np.arange(n) / 100.0, f, np.zeros((n, 3)), np.zeros(3), position=1, checks=DwellChecks(blocks=10))
+        d = summarize_dwell(np.arange(n) / 100.0, f, np.zeros((n, 3)), np.zeros(3), position=1, checks=DwellChecks(noise_blocks=10))
         sems.append(d.sem[0])
         assert any("correlated noise" in k for k in d.notes)
     actual = x.mean(axis=1).std() * 1e-4
@@ -177,6 +177,7 @@ def test_white_noise_uses_the_sample_scatter():
 
 
 FINE = load_procedure("device-fine")
+LAYOUTS = {"coarse": PROCEDURE.layout, "fine": FINE.layout}
 
 
 def _fine_session(change=None, keep=None):
@@ -190,7 +191,7 @@ def _fine_session(change=None, keep=None):
         change(cols)
     if keep is not None:
         cols = _rows(cols, keep(cols))
-    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks(), source="fine.csv")
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.checks, source="fine.csv")
     return coarse + fine, site
 
 
@@ -201,7 +202,7 @@ def test_fine_position_off_its_orientation_is_flagged_and_left_out():
         cols["f_y"][cols["position"] == 9] *= -1.0  # y up reads as y down: same |f|, wrong orientation
 
     dwells, site = _fine_session(flip)
-    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+    result = calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
     assert "does not match the commanded orientation" in result.fine.extra["left_out"][9]
     assert 9 not in result.fine.extra["positions_used"] and len(result.fine.extra["positions_used"]) == 17
 
@@ -211,8 +212,8 @@ def test_fine_positions_missing_are_an_error_unless_allowed():
 
     dwells, site = _fine_session(keep=lambda c: ~np.isin(c["position"], (4, 14)))
     with pytest.raises(InputError, match=r"fine-stage positions \[4, 14\] are missing"):
-        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
-    result = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, allow_missing=True, source="fine.csv")
+        calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
+    result = calibrate_device(dwells, site, layouts=LAYOUTS, allow_missing=True, source="fine.csv")
     assert result.fine.extra["left_out"] == {4: "missing from the data", 14: "missing from the data"}
     assert result.fine.rank == 12
 
@@ -226,7 +227,7 @@ def test_too_few_usable_fine_positions_is_an_error_saying_why():
 
     dwells, site = _fine_session(clip)
     with pytest.raises(InputError, match="only 12 usable fine-stage positions") as info:
-        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, source="fine.csv")
+        calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
     assert "non-finite samples (NaN or inf) (positions 1, 2, 3, 4, 5, 6)" in str(info.value)
 
 
@@ -235,7 +236,7 @@ def test_procedure_of_the_wrong_stage_is_an_error():
 
     dwells, site = _fine_session()
     with pytest.raises(InputError, match="is a 'fine' procedure, given for the coarse stage") as info:
-        calibrate_device(dwells, site, coarse_procedure=FINE, fine_procedure=FINE)
+        calibrate_device(dwells, site, layouts={"coarse": FINE.layout, "fine": FINE.layout})
     assert info.value.field == "procedure.stage" and "device-fine.toml" in str(info.value)
 
 
@@ -248,34 +249,34 @@ def test_unit_of_the_other_handedness_is_warned_about_and_its_weak_terms_named()
     site = ExactPlatform(TRUTH, senses=senses).metadata
     coarse = dwells_from_columns(device_columns(TRUTH, PROCEDURE, sigma=1e-3, seed=1, senses=senses), settle=5.0, checks=CHECKS)
     cols = device_columns(TRUTH, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses)
-    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.acceptance.dwell_checks())
-    result = calibrate_device(coarse + fine, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    fine = dwells_from_columns(cols, settle=5.0, checks=FINE.checks)
+    result = calibrate_device(coarse + fine, site, layouts=LAYOUTS)
     for fit in (result.coarse, result.fine):
         assert any("designed for gimbal handedness +1" in n and "give -1" in n for n in fit.notes)
     weak = [n for n in result.fine.notes if n.startswith("warning: weakly determined")]
     assert len(weak) == 1 and all(k in weak[0] for k in ("sf_y", "bias_y", "K2_y"))
     # the default handedness gets neither warning
     dwells, site = _fine_session()
-    clean = calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE)
+    clean = calibrate_device(dwells, site, layouts=LAYOUTS)
     assert not any("handedness" in n or "weakly determined" in n for fit in (clean.coarse, clean.fine) for n in fit.notes)
 
 
 def test_procedure_settle_and_duplicate_checks_of_the_one_dwell_path():
     # The CLI path: dwells_from_columns(procedures=...) takes each step's settle time and the acceptance checks.
     cols = _columns()
-    dwells = dwells_from_columns(cols, procedures={"coarse": PROCEDURE}, source="run.csv")
+    dwells = dwells_from_columns(cols, layouts={"coarse": PROCEDURE.layout}, source="run.csv")
     for d in dwells:
         rows = (cols["position"] == d.position) & (cols["time_since_command"] >= PROCEDURE.step(d.position).settle)
         assert d.samples == int(rows.sum())
     again = _rows(cols, cols["position"] == 3)
     doubled = {k: np.concatenate([cols[k], again[k]]) for k in cols}
     with pytest.raises(InputError, match="position 3 appears twice in coarse pass 1") as info:
-        dwells_from_columns(doubled, procedures={"coarse": PROCEDURE}, source="run.csv")
+        dwells_from_columns(doubled, layouts={"coarse": PROCEDURE.layout}, source="run.csv")
     assert info.value.field == "position" and info.value.row == cols["position"].size + 1 and "run.csv" in str(info.value)
     idx = np.flatnonzero(cols["position"] == 3)
     inserted = {k: np.insert(cols[k], idx[-1] + 1, cols[k][idx]) for k in cols}
     with pytest.raises(InputError, match="commanded twice") as info:
-        dwells_from_columns(inserted, procedures={"coarse": PROCEDURE}, source="run.csv")
+        dwells_from_columns(inserted, layouts={"coarse": PROCEDURE.layout}, source="run.csv")
     assert info.value.field == "time_since_command"
 
 
@@ -305,7 +306,7 @@ def test_fine_stage_rejects_positions_not_in_its_procedure():
 
     dwells, site = _fine_session(renumber)
     with pytest.raises(InputError, match=r"fine-stage positions \[19\] are not in the procedure") as info:
-        calibrate_device(dwells, site, coarse_procedure=PROCEDURE, fine_procedure=FINE, allow_missing=True, source="fine.csv")
+        calibrate_device(dwells, site, layouts=LAYOUTS, allow_missing=True, source="fine.csv")
     assert info.value.field == "position"
 
 

@@ -9,8 +9,8 @@ from stableins.conventions import ARCSEC, DEFAULT_GIMBALS, MICRO_G
 from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_model, gauge_equivalent, solve_coarse
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets, measure_pass
 from stableins.procedures.definition import load_procedure
+from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
 
 PROCEDURE = load_procedure("device-coarse")
 READINGS = np.array([s.command for s in PROCEDURE.steps])

@@ -13,12 +13,13 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.noise import NoiseModel, sessions
 from stableins.procedures.definition import load_procedure
+from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
-PROCEDURES = {"coarse": COARSE, "fine": FINE}
+LAYOUTS = {"coarse": COARSE.layout, "fine": FINE.layout}
 
 
 def _simulated_calibration(seed):
@@ -29,12 +30,12 @@ def _simulated_calibration(seed):
         columns = simulate_dwells(
             truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, rate=50.0, seed=seed + 977 * p, stage="coarse", pass_number=p
         )
-        dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+        dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=120.0, settle=5.0, rate=5.0, seed=seed + 5003, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+    dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
-    return calibrate_device(dwells, truth.site, noise=slow), gauge_equivalent(truth.parameters)
+    return calibrate_device(dwells, truth.site, layouts=LAYOUTS, noise=slow), gauge_equivalent(truth.parameters)
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +97,7 @@ def test_joint_fit_of_the_passes_gains_sqrt_two(monte_carlo):
 
 def test_record_holds_the_fused_result_with_gauge_and_statuses(monte_carlo):
     calibration, _ = monte_carlo[0]
-    record = calibration.record(Truth.draw(400).site)
+    record = CalibrationRecord.from_device(calibration, Truth.draw(400).site)
     assert record.provenance.stages == ("coarse+fine",)
     run = record.stages_run[0]
     assert [f["stage"] for f in run.fits] == ["coarse", "fine", "coarse+fine"]  # the evidence of every fit is kept
@@ -118,17 +119,17 @@ def test_other_handedness_fine_stage_cannot_spoil_the_fused_scale_factors():
     truth = draw_truth(np.random.default_rng(31), quadratic=False)
     senses = (1, -1, 1, 1)
     site = ExactPlatform(truth, senses=senses).metadata
-    coarse = dwells_from_columns(device_columns(truth, COARSE, sigma=1e-3, seed=1, senses=senses), procedures=PROCEDURES)
+    coarse = dwells_from_columns(device_columns(truth, COARSE, sigma=1e-3, seed=1, senses=senses), layouts=LAYOUTS)
     fine = dwells_from_columns(
-        device_columns(truth, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses), procedures=PROCEDURES
+        device_columns(truth, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses), layouts=LAYOUTS
     )
-    result = calibrate_device(coarse + fine, site)
+    result = calibrate_device(coarse + fine, site, layouts=LAYOUTS)
     expected = gauge_equivalent(truth, _config(site))
     assert result.fine["sf_y"][1] > 100 * result.coarse["sf_y"][1]  # the fine stage alone is useless for sf_y
     for k in ("sf_x", "sf_y", "sf_z", "bias_x", "bias_y", "bias_z"):
         assert result.fused[k][1] <= result.coarse[k][1] * (1 + 1e-9), k
         assert abs(result.fused[k][0] - expected[k]) < 5 * result.fused[k][1], k
-    record = result.record(site)
+    record = CalibrationRecord.from_device(result, site)
     assert record["sf_y"].sigma == pytest.approx(result.fused["sf_y"][1]) and record["sf_y"].sigma < 1e-5
 
 

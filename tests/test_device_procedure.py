@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stableins import conventions as cv
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.procedures.definition import load_procedure
 
 COARSE = load_procedure("device-coarse")

@@ -11,9 +11,9 @@ from stableins.data.device import save_device
 from stableins.estimators.coarse import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
-from stableins.estimators.offset_iteration import iterate_offsets
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
+from stableins.procedures.iteration import iterate_offsets
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import SimulatedPlatform, simulate_dwells
 from stableins.simulator.noise import NoiseSettings
@@ -21,6 +21,7 @@ from stableins.simulator.truth import Truth
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
+LAYOUTS = {"coarse": COARSE.layout, "fine": FINE.layout}
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)
 
 
@@ -32,8 +33,8 @@ def _session(truth, seed, fine_rate=10.0, fine_dwell=600.0):
 
 
 def _dwells(coarse, fine):
-    coarse_dwells = dwells_from_columns(coarse, checks=COARSE.acceptance.dwell_checks())
-    return coarse_dwells + dwells_from_columns(fine, checks=FINE.acceptance.dwell_checks())
+    coarse_dwells = dwells_from_columns(coarse, checks=COARSE.checks)
+    return coarse_dwells + dwells_from_columns(fine, checks=FINE.checks)
 
 
 def test_offset_iteration_converges_from_60_arcsec_through_the_simulated_platform():
@@ -52,7 +53,7 @@ def test_offset_iteration_converges_from_60_arcsec_through_the_simulated_platfor
 
 def test_exact_recovery_of_the_simulator_truth_without_noise():
     truth = Truth.draw(11, noise=NoiseSettings.quiet())
-    calibration = calibrate_device(_dwells(*_session(truth, 11, fine_rate=10.0, fine_dwell=60.0)), truth.site)
+    calibration = calibrate_device(_dwells(*_session(truth, 11, fine_rate=10.0, fine_dwell=60.0)), truth.site, layouts=LAYOUTS)
     expected = gauge_equivalent(truth.parameters)
     coarse, fine = calibration.coarse, calibration.fine
     for k in coarse.ids:
@@ -66,7 +67,9 @@ def test_exact_recovery_of_the_simulator_truth_without_noise():
 @pytest.mark.parametrize("seed", [21, 22, 23])
 def test_recovery_within_k_sigma_of_the_simulator_truth(seed):
     truth = Truth.draw(seed, noise=WHITE)
-    calibration = calibrate_device(_dwells(*_session(truth, seed)), truth.site, noise=NoiseModel.given(provenance="white noise only"))
+    calibration = calibrate_device(
+        _dwells(*_session(truth, seed)), truth.site, layouts=LAYOUTS, noise=NoiseModel.given(provenance="white noise only")
+    )
     expected = gauge_equivalent(truth.parameters)
     z = []
     for fit in (calibration.coarse, calibration.fine):
@@ -121,7 +124,7 @@ def test_exact_recovery_for_tilted_bases_and_other_senses(site, sign):
     from stableins.conventions import GimbalConfiguration
 
     truth = Truth.draw(12, noise=NoiseSettings.quiet(), **site)
-    calibration = calibrate_device(_dwells(*_session(truth, 12, fine_rate=5.0, fine_dwell=60.0)), truth.site)
+    calibration = calibrate_device(_dwells(*_session(truth, 12, fine_rate=5.0, fine_dwell=60.0)), truth.site, layouts=LAYOUTS)
     expected = gauge_equivalent(truth.parameters, GimbalConfiguration(truth.site.gimbal_senses))
     for fit in (calibration.coarse, calibration.fine):
         for k, term in zip(fit.ids, fit.terms):

@@ -11,11 +11,12 @@ import pytest
 
 from stableins import cli
 from stableins.conventions import MICRO_G
-from stableins.data.errors import InputError
+from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
 from stableins.discovery.history import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
+from stableins.errors import InputError
 from stableins.estimators.coarse import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
@@ -28,7 +29,7 @@ from stableins.simulator.truth import Truth
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
-PROCEDURES = {"coarse": COARSE, "fine": FINE}
+LAYOUTS = {"coarse": COARSE.layout, "fine": FINE.layout}
 KCC = 60 * MICRO_G_PER_G2  # 60 µg/g²
 
 
@@ -40,12 +41,12 @@ def _session(seed, effects):
         columns = simulate_dwells(
             truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, rate=20.0, seed=seed + 977 * p, stage="coarse", pass_number=p
         )
-        dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+        dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     columns = simulate_dwells(truth, [s.command for s in FINE.steps], dwell=300.0, settle=5.0, rate=2.0, seed=seed + 5003, stage="fine")
-    dwells += dwells_from_columns(columns, procedures=PROCEDURES)
+    dwells += dwells_from_columns(columns, layouts=LAYOUTS)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="datasheet")
-    return truth, functools.partial(calibrate_device, dwells, truth.site, noise=slow)
+    return truth, functools.partial(calibrate_device, dwells, truth.site, layouts=LAYOUTS, noise=slow)
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +127,7 @@ def test_an_effect_the_data_cannot_separate_is_held_and_not_determined(clean):
 def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
     truth, calibrate = hidden_kcc
     carried = carry_effects(lambda extra: calibrate(extra_terms=extra), calibration_terms(["Kcc_xxy", "Kcc_yyz"]))
-    record = replace(carried.calibration.record(truth.site), discovery=carried.history)
+    record = replace(CalibrationRecord.from_device(carried.calibration, truth.site), discovery=carried.history)
     path = record.save(tmp_path / "cal.json")
     again = CalibrationRecord.load(path)
     assert again["Kcc_xxy"].unit == "s^2/m" and again["Kcc_xxy"].status == "estimated"
@@ -147,7 +148,7 @@ def test_record_carries_the_effect_and_the_history(hidden_kcc, tmp_path):
 def kcc_document(hidden_kcc):
     truth, calibrate = hidden_kcc
     carried = carry_effects(lambda extra: calibrate(extra_terms=extra), calibration_terms(["Kcc_xxy"]))
-    return replace(carried.calibration.record(truth.site), discovery=carried.history).to_document()
+    return replace(CalibrationRecord.from_device(carried.calibration, truth.site), discovery=carried.history).to_document()
 
 
 @pytest.mark.parametrize(
@@ -305,7 +306,7 @@ def test_the_simulated_ins_applies_the_installed_discovered_terms(simulated, tmp
     from stableins.simulator.noise import NoiseSettings
     from stableins.simulator.system import SystemWorld
 
-    truth = Truth.read(simulated / "truth.json")
+    truth = load_truth(simulated / "truth.json")
     record = tmp_path / "cal.json"
     data = [str(simulated / "device-coarse.csv"), str(simulated / "device-fine.h5")]
     assert cli.main(["calibrate", "device", *data, "--add", "Kcc_xxy", "--out", str(record)]) == 0
@@ -328,9 +329,9 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
 
     from device_world import ExactPlatform, draw_truth
 
+    from stableins.console import Console
     from stableins.procedures.planning import plan_from_definition
-    from stableins.procedures.rundir import start_run
-    from stableins.procedures.runner import Console
+    from stableins.runs import start_run
 
     monkeypatch.setattr("os.fsync", lambda fd: None)
     truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}

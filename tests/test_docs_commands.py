@@ -97,9 +97,8 @@ def _expand(tokens: list[str], cwd: Path) -> list[str]:
 
 @pytest.mark.parametrize("document", [d for d in DOCUMENTS if blocks(d, "sh")])
 def test_the_documents_commands_run_as_written(document, tmp_path, monkeypatch, capsys):
-    import stableins.estimators.device
     import stableins.procedures.definition
-    from stableins.procedures.runner import Console
+    from stableins.console import Console
     from stableins.simulator.truth import Truth
 
     fast = _fast(stableins.procedures.definition.load_procedure)
@@ -109,7 +108,6 @@ def test_the_documents_commands_run_as_written(document, tmp_path, monkeypatch, 
     # the shipped procedures' coarse passes (2 to 5) stay in CSV and the fine stage in HDF5, as at 100 Hz with the docs' seeds
     monkeypatch.setattr(stableins.commands.simulate, "CSV_ROW_LIMIT", 10_000)
     monkeypatch.setattr(stableins.procedures.definition, "load_procedure", fast)
-    monkeypatch.setattr(stableins.estimators.device, "load_procedure", fast)
     monkeypatch.setattr(Console, "_ask", _person)
     monkeypatch.setattr("os.fsync", lambda fd: None)
     monkeypatch.setenv("MPLBACKEND", "Agg")

@@ -13,10 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stableins.data.device import DeviceDataset, load_device, save_device
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata, metadata_from_document, metadata_to_document
-from stableins.data.schema import DEVICE_COLUMNS, SYSTEM_COLUMNS
+from stableins.data.metadata import metadata_from_document, metadata_to_document
 from stableins.data.system import SamplingWarning, SystemRecordWriter, open_system_record
+from stableins.errors import InputError
+from stableins.schema import DEVICE_COLUMNS, SYSTEM_COLUMNS
+from stableins.site import SiteMetadata
 
 RATE = 50.0
 

@@ -8,8 +8,8 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
-from stableins.data.errors import InputError
 from stableins.errormodel import known_terms
+from stableins.errors import InputError
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.history import HistoryStore, compare, format_changes, format_trends, parse_date, plot_trends, trend
 from stableins.records import Calibration, CalibrationRecord, Parameter, PriorReference, StageRun

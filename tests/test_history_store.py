@@ -21,7 +21,7 @@ import pytest
 from fuzzing import make_record
 
 from stableins import cli
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.history import parse_date
 from stableins.history_store import STORE_NAME, HistoryStore
 from stableins.records import CalibrationRecord

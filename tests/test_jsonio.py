@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from stableins.data.errors import InputError
 from stableins.data.jsonio import MAX_DEPTH, MAX_INTEGER_DIGITS, load_json_file, parse_json
+from stableins.errors import InputError
 
 
 def test_depth_limit_is_exact():

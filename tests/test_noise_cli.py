@@ -8,9 +8,10 @@ import pytest
 
 from stableins.cli import main
 from stableins.data.device import save_device
-from stableins.data.errors import InputError
+from stableins.data.truth import save_truth
+from stableins.errors import InputError
 from stableins.noise import NoiseModel, NoiseSource
-from stableins.procedures.definition import load_procedure
+from stableins.procedures.definition import device_layouts, load_procedure
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.truth import Truth
@@ -98,7 +99,7 @@ def test_the_noise_model_is_carried_through_stage_updates(session):
     out, truth = session
     record = CalibrationRecord.load(out / "cal.json")
     summaries = [s for name in ("coarse.csv", "fine.h5") for s in dwells_from_columns(load_device(out / name).columns)]
-    later = calibrate_device(summaries, truth.site).final
+    later = calibrate_device(summaries, truth.site, layouts=device_layouts()).final
     assert record.updated(later).noise_model == record.noise_model
     measured = NoiseModel.given(1e-4, provenance="static record")
     assert record.updated(later, noise_model=measured).noise_model == measured
@@ -134,7 +135,7 @@ def test_noise_from_a_static_system_record_recovers_the_simulated_terms(tmp_path
 
     noise = replace(NoiseSettings.quartz(), bias_instability=10 * 9.80665e-6)
     truth = replace(Truth.draw(4), noise=noise)
-    truth.write(tmp_path / "truth.json")
+    save_truth(truth, tmp_path / "truth.json")
     args = ["simulate", "system", "--truth", str(tmp_path / "truth.json"), "--duration", "3h", "--rate", "2", "--out", str(tmp_path)]
     assert main(args) == 0
     capsys.readouterr()

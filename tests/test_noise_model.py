@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.noise import FLICKER_FLOOR, AxisNoise, NoiseModel, NoiseSource, NoiseTerm, SlowNoiseTest, sessions
 from stableins.simulator.noise import NoiseGenerator, NoiseSettings, allan_deviation
 

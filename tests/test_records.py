@@ -11,12 +11,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
+from stableins.errors import InputError
 from stableins.estimators.result import STATUSES, FitResult, Likelihood
 from stableins.records import STATUSES as RECORD_STATUSES
 from stableins.records import CalibrationRecord, file_sha256, parse_entries
+from stableins.site import SiteMetadata
 
 SITE = SiteMetadata("INS-0042", math.radians(45.0), 30.0, 9.8062, "WGS-84 normal gravity", 100.0)
 

@@ -19,7 +19,7 @@ import report_fixtures as rf  # noqa: E402
 
 from stableins import cli  # noqa: E402
 from stableins.conventions import MICRO_G  # noqa: E402
-from stableins.data.errors import InputError  # noqa: E402
+from stableins.errors import InputError  # noqa: E402
 from stableins.history import compare  # noqa: E402
 from stableins.records import CalibrationRecord, file_sha256  # noqa: E402
 from stableins.reporting import content  # noqa: E402

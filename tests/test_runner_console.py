@@ -12,12 +12,14 @@ import subprocess
 import numpy as np
 import pytest
 
+from stableins.console import REPLAY_MARK, Console
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
 from stableins.procedures.journal import scan
 from stableins.procedures.plan import PersonStep, Plan
 from stableins.procedures.planning import plan_from_definition
-from stableins.procedures.rundir import RunFinished, resume_run, start_run
-from stableins.procedures.runner import REPLAY_MARK, Console, RunStopped
+from stableins.procedures.rundir import RunFinished
+from stableins.procedures.runner import RunStopped
+from stableins.runs import resume_run, start_run
 from tests.device_world import ExactPlatform, draw_truth
 from tests.platform_double import PlatformDouble
 from tests.runner_fixtures import short_plan

@@ -10,13 +10,14 @@ import pytest
 pytest.importorskip("stableins.estimators.offset_iteration")
 pytest.importorskip("stableins.records")
 
+from stableins.console import Console  # noqa: E402
 from stableins.data.device import load_device  # noqa: E402
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure  # noqa: E402
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan  # noqa: E402
 from stableins.procedures.planning import plan_from_definition  # noqa: E402
-from stableins.procedures.rundir import resume_run, start_run  # noqa: E402
-from stableins.procedures.runner import Console, journal_columns  # noqa: E402
 from stableins.records import CalibrationRecord  # noqa: E402
+from stableins.runs import resume_run, start_run  # noqa: E402
 from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
 
 
@@ -93,7 +94,7 @@ def test_coarse_iteration_then_fine_on_the_prior(tmp_path, truth):
     assert len(data.dwells()) == 18 * len(passes)
     for dwell in data.dwells():  # the dwells proper: after arrival and settling, whole, still
         assert dwell.time_since_command[0] >= 0.5 and len(dwell) == 200
-        assert np.ptp(dwell.angles, axis=0).max() < definition.acceptance.max_angle_span
+        assert np.ptp(dwell.angles, axis=0).max() < definition.checks.max_angle_span
     assert {d.pass_number for d in data.dwells()} == set(range(1, len(passes) + 1))
     # the journal alone gives the same data set (exactly once, in order)
     from_journal = journal_columns(scan(tmp_path / "coarse" / "journal.bin").records)
@@ -172,21 +173,21 @@ def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_p
     last = len(outcome.runner.iteration.history)
     for dwell in data.dwells():  # after arrival (slews of up to 180° at 10°/s) and the 5 s settle
         assert dwell.time_since_command[0] >= 5.0 and len(dwell) == 200
-        assert np.ptp(dwell.angles, axis=0).max() < definition.acceptance.max_angle_span
+        assert np.ptp(dwell.angles, axis=0).max() < definition.checks.max_angle_span
     assert max(d.time_since_command[0] for d in data.dwells()) > 5.0
     # re-estimating the last pass from the exported file gives the iteration's own fit of that pass
     site = data.metadata
     columns = {k: np.asarray(v) for k, v in data.columns.items()}
     # (with the settle cut 'stableins calibrate device' applies: every exported sample is after settling)
     settle = definition.steps[0].settle
-    dwells = [d for d in dwells_from_columns(columns, settle=settle, checks=definition.acceptance.dwell_checks()) if d.pass_number == last]
+    dwells = [d for d in dwells_from_columns(columns, settle=settle, checks=definition.checks) if d.pass_number == last]
     fit = calibrate_coarse(
         dwells,
         gravity=site.gravity,
         base_attitude=site.base_attitude,
         configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
         expected_positions=definition.positions,
-        orientation_tolerance=definition.acceptance.orientation_tolerance,
+        orientation_tolerance=definition.checks.orientation_tolerance,
         nonlinear=True,  # as the iteration does
     )
     np.testing.assert_allclose(fit.values, outcome.runner.iteration.last.values, rtol=0, atol=1e-12)

@@ -7,10 +7,13 @@ import io
 import numpy as np
 import pytest
 
-from stableins.drivers.base import SampleBlock
+from stableins.console import Console
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console, RunStopped, evaluate_dwell, journal_columns
+from stableins.procedures.runner import RunStopped
+from stableins.procedures.verdict import evaluate_dwell
+from stableins.runs import resume_run, start_run
+from stableins.samples import SampleBlock
 from tests.platform_double import PlatformDouble
 from tests.runner_fixtures import LOOSE, short_plan
 
@@ -159,7 +162,7 @@ def test_refused_confirmation_and_unattended_entry_without_default(tmp_path, mon
 
 
 def test_a_run_directory_is_never_reused(tmp_path):
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     _run(tmp_path)
     before = (tmp_path / "run" / "journal.bin").read_bytes()

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.procedures.journal import FILE_MAGIC, Journal, scan
 
 

@@ -18,8 +18,8 @@ import time
 import numpy as np
 
 from stableins.data.device import load_device
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
-from stableins.procedures.runner import journal_columns
 from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 from tests.tcp_fixtures import ROOT
 

@@ -7,11 +7,13 @@ import io
 import numpy as np
 import pytest
 
+from stableins.console import Console
 from stableins.data.device import load_device
 from stableins.drivers.tcp import TcpDriver
+from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
-from stableins.procedures.rundir import resume_run, start_run
-from stableins.procedures.runner import Console, RunStopped, journal_columns
+from stableins.procedures.runner import RunStopped
+from stableins.runs import resume_run, start_run
 from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 from tests.tcp_fixtures import FaultyRelay, ServerProcess
 
@@ -121,7 +123,7 @@ def test_crash_then_resume_over_the_network_supersedes_the_unfinished_attempt(se
 
 
 def test_wrong_unit_on_the_network(server, tmp_path):
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     driver = TcpDriver("127.0.0.1", server.port, timeout=5)
     with pytest.raises(InputError, match="reports unit 'NET-1'"):

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, StaticRecordStep
 from stableins.procedures.planning import plan_from_definition

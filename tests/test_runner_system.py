@@ -7,12 +7,12 @@ import pytest
 
 pytest.importorskip("stableins.simulator.system")
 
+from stableins.console import Console  # noqa: E402
 from stableins.data.system import open_system_record  # noqa: E402
 from stableins.drivers.select import simulated_platform  # noqa: E402
 from stableins.procedures.definition import load_procedure  # noqa: E402
 from stableins.procedures.planning import plan_from_definition  # noqa: E402
-from stableins.procedures.rundir import resume_run, start_run  # noqa: E402
-from stableins.procedures.runner import Console  # noqa: E402
+from stableins.runs import resume_run, start_run  # noqa: E402
 
 SHORT = """
 [procedure]

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from stableins import conventions as cv
-from stableins.data.errors import InputError
-from stableins.data.schema import DEVICE_COLUMNS
 from stableins.drivers.base import PlatformDriver
 from stableins.errormodel import ErrorModel
+from stableins.errors import InputError
+from stableins.schema import DEVICE_COLUMNS
 from stableins.simulator.device import SimulatedPlatform, simulate_dwells
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.truth import Truth

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC, MICRO_G
-from stableins.data.errors import InputError
+from stableins.data.truth import load_truth, save_truth
 from stableins.errormodel import ErrorModel
+from stableins.errors import InputError
 from stableins.simulator.effects import CATALOGUE, catalogue_table
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.truth import PARAMETER_IDS, Truth
@@ -31,8 +32,8 @@ def test_draw_has_realistic_magnitudes():
 def test_round_trip_through_a_file(tmp_path):
     truth = Truth.draw(5, effects={"K3_x": 1e-8, "tilt_north": 1e-5}, gyro_drift={"z": 1e-9}, noise=NoiseSettings.quartz())
     path = tmp_path / "truth.json"
-    truth.write(path)
-    back = Truth.read(path)
+    save_truth(truth, path)
+    back = load_truth(path)
     assert back == truth
     assert json.loads(path.read_text())["schema_version"] == 1
     assert set(back.site.damping) >= {"zeta", "omega_s", "R", "k1", "k2", "k3"}
@@ -57,17 +58,17 @@ def test_bad_truth_files_name_file_and_field(tmp_path, mutate, field):
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(d))
     with pytest.raises(InputError) as info:
-        Truth.read(path)
+        load_truth(path)
     assert info.value.field == field
     assert str(path) in str(info.value)
 
 
 def test_unreadable_files(tmp_path):
     with pytest.raises(InputError, match="not found"):
-        Truth.read(tmp_path / "missing.json")
+        load_truth(tmp_path / "missing.json")
     (tmp_path / "x.json").write_text("{not json")
     with pytest.raises(InputError, match="JSON"):
-        Truth.read(tmp_path / "x.json")
+        load_truth(tmp_path / "x.json")
 
 
 def test_catalogue_has_units_nominals_and_meanings():

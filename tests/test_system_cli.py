@@ -7,9 +7,9 @@ import pytest
 from system_synthetic import paper_residuals, record
 
 from stableins.commands import calibrate_system
-from stableins.data.errors import InputError
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import CORE_TERMS
+from stableins.errors import InputError
 from stableins.estimators.result import FitResult
 from stableins.records import CalibrationRecord
 

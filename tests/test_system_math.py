@@ -95,7 +95,7 @@ def test_coupled_loop_finite_at_earth_rate_and_matches_time_domain():
 
 
 def test_loop_from_metadata_requires_damping():
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     with pytest.raises(InputError, match="damping"):
         DampingLoop.from_metadata({}, LAT, G)

@@ -100,7 +100,7 @@ def test_monte_carlo_sigma():
 
 def test_platform_not_polar_aligned_is_refused():
     """The simulator aligns the platform for a level base; on a tilted base z_p misses the pole by the tilt."""
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     truth, cols = simulated_day(12, base_attitude=(0.0, 0.01, -0.006))
     with pytest.raises(InputError, match="polar aligned|Earth rate"):

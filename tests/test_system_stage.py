@@ -12,7 +12,7 @@ import pytest
 from system_synthetic import paper_residuals, record
 
 from stableins.data.chunks import ArraySource
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
 from stableins.estimators.system.stage import SystemOptions, run_system_stage

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from stableins.data.errors import InputError
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.select import simulated_platform
 from stableins.drivers.tcp import TcpDriver, connect, parse_address
+from stableins.errors import InputError
 from tests.platform_double import PlatformDouble
 from tests.tcp_fixtures import FaultyRelay, ServerProcess
 

@@ -18,13 +18,13 @@ from device_world import GRAVITY, device_columns, draw_truth
 from stableins import cli
 from stableins.conventions import MICRO_G
 from stableins.data.device import save_device
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, known_terms
 from stableins.estimators.result import FitResult
 from stableins.history import HistoryStore
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting.symbols import plain
+from stableins.site import SiteMetadata
 from stableins.status import Status
 
 POPPLER = shutil.which("pdftotext")
@@ -128,7 +128,7 @@ def fine_estimate(truth, site, prior: CalibrationRecord, seed: int, path: Path) 
         for k, v in device_columns(truth, procedure, seed=seed, stage="fine", offsets=offsets, dwell=60.0, settle=2.0).items()
     }
     data = save_device(path.with_suffix(".h5"), columns, replace(site, start_time="2026-06-01T08:00:00+00:00"))
-    dwells = dwells_from_columns(columns, procedures={"fine": procedure}, source=str(data))
+    dwells = dwells_from_columns(columns, layouts={"fine": procedure.layout}, source=str(data))
     fit = calibrate_fine(dwells, prior.values(), gravity=site.gravity, expected_positions=procedure.positions, source=str(data))
     estimate = CalibrationRecord.from_fit_result(
         fit, site=site, inputs=[data], procedure="device-fine", data_end="2026-06-01T12:00:00+00:00"
@@ -180,10 +180,10 @@ def test_recal_history_and_certificate_agree_on_every_change_flag(tmp_path, caps
 
 
 def test_a_stage_on_six_hours_writes_no_record_and_exits_2_with_the_reason(tmp_path, capsys):
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
     assert cli.main(["simulate", "system", "--seed", "3", "--duration", "6h", "--rate", "1", "--out", str(tmp_path)]) == 0
-    truth = Truth.read(tmp_path / "truth.json")
+    truth = load_truth(tmp_path / "truth.json")
     terms = CORE_TERMS
     values = np.array([truth.installed_calibration.get(t.id, t.reference) for t in terms])
     covariance = np.diag([(0.02 * t.nominal) ** 2 for t in terms])

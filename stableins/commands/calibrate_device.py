@@ -66,7 +66,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _same_site(datasets) -> None:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     first = datasets[0]
     for other in datasets[1:]:
@@ -87,20 +87,20 @@ def run(args: argparse.Namespace) -> int:
 
     from stableins.commands.noise import noise_from_options
     from stableins.data.device import load_device
-    from stableins.data.errors import InputError
     from stableins.discovery.carry import carry_effects
     from stableins.discovery.library import calibration_terms
+    from stableins.errors import InputError
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
-    from stableins.records import parse_entries
+    from stableins.records import CalibrationRecord, parse_entries
 
     if not 0.0 < args.alpha < 1.0:
         raise InputError("must lie between 0 and 1", field="--alpha", expected="a false-alarm level such as 0.05")
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
-    procedures = {"coarse": coarse_procedure, "fine": fine_procedure}
+    layouts = {"coarse": coarse_procedure.layout, "fine": fine_procedure.layout}
     # the model: the procedures' [model] add, then --add (each effect once, tested in this order)
     effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
     effects = calibration_terms(effect_ids + [e for e in args.add if e not in effect_ids])
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     _same_site(datasets)
     summaries = []
     for dataset in datasets:
-        summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
+        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
     noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
@@ -116,8 +116,7 @@ def run(args: argparse.Namespace) -> int:
         calibrate_device,
         summaries,
         site,
-        coarse_procedure=coarse_procedure,
-        fine_procedure=fine_procedure,
+        layouts=layouts,
         allow_missing=args.allow_missing,
         noise=noise,
         coarse_nonlinear=not args.coarse_linear,
@@ -137,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
         for line in fit.notes if fit is not None else ():
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
-    record = calibration.record(
+    record = CalibrationRecord.from_device(
+        calibration,
         site,
         inputs=[str(p) for p in args.data],
         procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
@@ -208,7 +208,7 @@ def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> 
     import contextlib
 
     from stableins.data.atomic import atomic_path
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     step = "record"
     try:

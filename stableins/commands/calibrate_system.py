@@ -100,9 +100,9 @@ def run(args: Any) -> int:
     from dataclasses import replace
 
     from stableins.commands.noise import system_noise_prior
-    from stableins.data.errors import InputError
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
+    from stableins.errors import InputError
     from stableins.estimators.system.sensitivity import with_sensitivities
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
     from stableins.output import emit, note

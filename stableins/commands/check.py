@@ -9,7 +9,7 @@ file                                         validated by
 device data (``.csv``, ``.h5``)               ``load_device`` (what ``calibrate device`` and ``diagnose`` read)
 system record (``.h5``)                       ``SystemRecord.validate`` (what ``calibrate system`` and ``diagnose`` run)
 calibration record (``.json``)                ``CalibrationRecord.load`` (records, ``prior.json``, the history store's copies)
-simulator truth (``truth.json``)              ``Truth.read`` (what ``simulate --truth`` reads)
+simulator truth (``truth.json``)              ``load_truth`` (what ``simulate --truth`` reads)
 plan (``procedure.json``)                     ``Plan.from_dict`` (what ``run`` reads as PROCEDURE)
 procedure definition (``.toml``)              ``load_procedure`` (what ``run``, ``simulate``, ``calibrate device`` read)
 run journal (``journal.bin``)                 the journal reader of ``run --resume`` (records, CRC-32, start record, plan)
@@ -73,7 +73,7 @@ def _head(file: Path) -> bytes:
     from stableins.data.jsonio import read_input_bytes
 
     if not file.exists():
-        from stableins.data.errors import InputError
+        from stableins.errors import InputError
 
         raise InputError("no such file", path=file)  # as the data readers say it
     if not file.is_file():  # a directory: the reader's one message
@@ -85,8 +85,8 @@ def _head(file: Path) -> bytes:
 def _data(path: str, allow_gaps: bool) -> dict[str, Any]:
     import warnings
 
-    from stableins.data.errors import InputError
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.errors import InputError
 
     tag = read_format_tag(path)
     if tag == FORMAT_TAGS["device"]:
@@ -129,17 +129,17 @@ def _data(path: str, allow_gaps: bool) -> dict[str, Any]:
 
 
 def _json(path: str) -> dict[str, Any]:
-    from stableins.data.errors import InputError
     from stableins.data.jsonio import load_json_file
+    from stableins.errors import InputError
     from stableins.records import RECORD_FORMAT
 
     document = load_json_file(path, what="a JSON file written by stableins")
     if isinstance(document, dict) and (document.get("format") == RECORD_FORMAT or "parameters" in document and "covariance" in document):
         return _record(path)
     if isinstance(document, dict) and (document.get("kind") == "stableins.truth" or {"parameters", "site", "noise"} <= set(document)):
-        from stableins.simulator.truth import Truth
+        from stableins.data.truth import load_truth
 
-        truth = Truth.read(path)
+        truth = load_truth(path)
         return {
             "file": path,
             "kind": "simulator truth",
@@ -189,8 +189,8 @@ _VERDICT_FIELDS = {"id": str, "unit": str, "truth": float, "estimate": float, "s
 
 
 def _verdict(path: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
-    from stableins.data.errors import InputError
     from stableins.data.jsonio import expect_number
+    from stableins.errors import InputError
 
     for k, row in enumerate(rows):
         for key, kind in _VERDICT_FIELDS.items():
@@ -222,7 +222,7 @@ def _procedure(path: str) -> dict[str, Any]:
 def _journal(path: str) -> dict[str, Any]:
     from collections import Counter
 
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.procedures.journal import scan
     from stableins.procedures.plan import Plan
 
@@ -248,7 +248,7 @@ def _journal(path: str) -> dict[str, Any]:
 
 
 def _store(path: str) -> dict[str, Any]:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.history_store import STORE_NAME, HistoryStore
 
     file = Path(path)
@@ -270,8 +270,8 @@ def _store(path: str) -> dict[str, Any]:
 def _pdf(path: str) -> dict[str, Any]:
     import re
 
-    from stableins.data.errors import InputError
     from stableins.data.jsonio import read_input_bytes
+    from stableins.errors import InputError
 
     data = read_input_bytes(path, max_bytes=MAX_WHOLE_FILE, what="a PDF written by stableins")
     if b"%%EOF" not in data[-1024:]:
@@ -293,7 +293,7 @@ def _pdf(path: str) -> dict[str, Any]:
 def _png(path: str, head: bytes) -> dict[str, Any]:
     import struct
 
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     if len(head) < 24 or head[12:16] != b"IHDR":
         raise InputError("a PNG without its image header", path=path, field="IHDR", expected="a complete PNG image")
@@ -306,8 +306,8 @@ def _png(path: str, head: bytes) -> dict[str, Any]:
 
 
 def _text(path: str, kind: str) -> dict[str, Any]:
-    from stableins.data.errors import InputError
     from stableins.data.jsonio import read_input_bytes
+    from stableins.errors import InputError
 
     data = read_input_bytes(path, max_bytes=MAX_WHOLE_FILE, what="a text file written by stableins")
     try:

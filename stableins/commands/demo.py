@@ -81,9 +81,9 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
 def _datasheet(truth_path: Path) -> list[str]:
     """``--bias-instability`` / ``--random-walk`` from the instrument's Allan parameters (its datasheet)."""
     from stableins.conventions import MICRO_G
-    from stableins.simulator.truth import Truth
+    from stableins.data.truth import load_truth
 
-    noise = Truth.read(truth_path).noise
+    noise = load_truth(truth_path).noise
     return ["--bias-instability", f"{noise.bias_instability / MICRO_G:.6g}", "--random-walk", f"{noise.acceleration_random_walk:.6g}"]
 
 
@@ -96,13 +96,13 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     its regressor's input by θ10 (about 1e-4 relative), which is neglected.
     """
     from stableins.conventions import GimbalConfiguration
+    from stableins.data.truth import load_truth
     from stableins.discovery.library import LIBRARY, all_terms
     from stableins.estimators.coarse import gauge_equivalent
     from stableins.records import CalibrationRecord
-    from stableins.simulator.truth import Truth
 
     record = CalibrationRecord.load(record_path)
-    truth = Truth.read(truth_path)
+    truth = load_truth(truth_path)
     configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
     reference = gauge_equivalent(dict(truth.parameters), configuration)
     reference.update({i: float(truth.effects.get(i, 0.0)) for i in record.ids if i in LIBRARY})

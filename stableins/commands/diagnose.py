@@ -54,12 +54,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from stableins.data.device import load_device
-    from stableins.data.errors import InputError
     from stableins.discovery.history import Discovery
     from stableins.discovery.library import LIBRARY
     from stableins.discovery.problem import DwellProblem, dwells_from_dataset
     from stableins.errormodel import ErrorModel
+    from stableins.errors import InputError
     from stableins.output import emit, note
+    from stableins.procedures.definition import device_layouts
     from stableins.records import CalibrationRecord
 
     for effect in args.add:
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if system:
         return _system(args, opened, record, model)
     noise, origin = _device_noise(args, datasets, record.noise_model)
-    dwells = dwells_from_dataset(datasets, stage=args.stage, noise=noise)
+    dwells = dwells_from_dataset(datasets, layouts=device_layouts(), stage=args.stage, noise=noise)
     note(f"noise ({origin}): {dwells.noise['slow_noise']}")
     for line in dwells.noise.get("left_out", []):
         note(f"left out: {line}")
@@ -225,12 +226,12 @@ def _device_noise(args: argparse.Namespace, datasets, default):
     """The device stages' noise model: flags, ``--noise``, the record's, or (None) measured in all dwells as calibrate does."""
     from stableins.commands.noise import noise_from_options
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.procedures.definition import load_procedure
+    from stableins.procedures.definition import device_layouts
 
-    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    layouts = device_layouts()
 
     def summaries():
-        return [s for ds in datasets for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))]
+        return [s for ds in datasets for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))]
 
     given = args.bias_instability is not None or args.random_walk is not None
     noise, origin = noise_from_options(args, summaries() if given else [], default=default)

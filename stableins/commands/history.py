@@ -45,7 +45,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     if (args.due or args.drifted) and not args.fleet:
         raise InputError("--due and --drifted select units of the fleet", field="--due", expected="--fleet as well")
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _verify(args: argparse.Namespace) -> int:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.history_store import HistoryStore
     from stableins.output import emit
 
@@ -119,7 +119,7 @@ def _fleet(args: argparse.Namespace) -> int:
 def _unit(args: argparse.Namespace) -> int:
     from datetime import timedelta
 
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.history import CHANGE_THRESHOLD, format_changes, format_trends, parse_date, plot_trends
     from stableins.history_store import HistoryStore
     from stableins.output import emit, note

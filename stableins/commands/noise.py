@@ -87,7 +87,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
     Returns ``(model or None, text saying where it comes from)``.
     """
     from stableins.conventions import MICRO_G
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     given = args.bias_instability is not None or args.random_walk is not None
     if given and args.noise is not None:
@@ -117,7 +117,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
     """
     from stableins.conventions import MICRO_G
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.noise import NoiseModel
 
     given = args.bias_instability is not None or args.random_walk is not None
@@ -140,7 +140,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
 
 def record_noise(path: Path):
     """The ``noise_model`` section of a calibration record (InputError when it has none)."""
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.records import CalibrationRecord
 
     record = CalibrationRecord.load(path)
@@ -205,7 +205,7 @@ def static_record_points(record) -> tuple[Any, str]:
         block_index.append(keys)
         block_rows.append(sums)
     if rate is None or not block_index:
-        from stableins.data.errors import InputError
+        from stableins.errors import InputError
 
         raise InputError("too few samples for an Allan analysis", path=str(record.path))
     all_keys = np.concatenate(block_index)
@@ -239,25 +239,25 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
     import numpy as np
 
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.procedures.definition import load_procedure
+    from stableins.procedures.definition import device_layouts
 
-    procedures = {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
+    layouts = device_layouts()
     summaries, segments = [], []
     for ds in datasets:
         stats = {
-            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
         }
         for d in ds.dwells():
             s = stats[(d.stage, d.pass_number, d.position)]
             if not s.usable:
                 continue
-            procedure = procedures.get(d.stage)
-            settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+            layout = layouts.get(d.stage)
+            settle = layout.settle(d.position) if layout is not None and d.position in layout.positions else 0.0
             use = np.asarray(d.time_since_command) >= settle
             summaries.append(s)
             segments.append(np.asarray(d.specific_force)[use])
     if not summaries:
-        from stableins.data.errors import InputError
+        from stableins.errors import InputError
 
         raise InputError("no usable dwells in the device files", path=str(datasets[0].path), expected="device-level dwells")
     longest = max(summaries, key=lambda s: s.duration)
@@ -272,8 +272,8 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from stableins.data.errors import InputError
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.errors import InputError
     from stableins.estimators.allan import fit_allan, points_for_model
     from stableins.noise import NoiseSource
     from stableins.output import emit, note

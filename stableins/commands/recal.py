@@ -38,7 +38,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def apply_estimate(prior, prior_path: Path, estimate_path: Path):
     """The record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.records import CalibrationRecord, PriorReference, file_sha256
 
     estimate = CalibrationRecord.load(estimate_path)
@@ -71,7 +71,7 @@ def apply_estimate(prior, prior_path: Path, estimate_path: Path):
 def run(args: argparse.Namespace) -> int:
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.history import CHANGE_THRESHOLD, compare, format_changes
     from stableins.history_store import HistoryStore
     from stableins.output import emit, note

@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the report; an :class:`~stableins.data.errors.InputError` reaches the CLI (message, exit status 2)."""
+    """Write the report; an :class:`~stableins.errors.InputError` reaches the CLI (message, exit status 2)."""
     from stableins.output import emit
     from stableins.reporting.builder import write_report
 

@@ -70,7 +70,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_settings(items: list[str]) -> dict[str, str]:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     values = {}
     for item in items:
@@ -113,7 +113,7 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
 
 
 def prior_file(args: argparse.Namespace) -> Path | None:
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     if args.prior:
         return Path(args.prior)
@@ -147,11 +147,14 @@ def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.errors import InputError
+    from stableins.console import Console
     from stableins.drivers.errors import DriverError
+    from stableins.errors import InputError
     from stableins.output import emit
-    from stableins.procedures.rundir import RunFinished, resume_run, start_run
-    from stableins.procedures.runner import Console, JournalMismatch, RunOptions, RunStopped
+    from stableins.procedures.rundir import RunFinished
+    from stableins.procedures.runner import RunOptions, RunStopped
+    from stableins.procedures.session import JournalMismatch
+    from stableins.runs import resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out

@@ -31,9 +31,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.errors import InputError
     from stableins.drivers.select import simulated_platform
     from stableins.drivers.server import LOOPBACK, serve
+    from stableins.errors import InputError
 
     if not 0 <= args.port < 65536:
         raise InputError(f"port {args.port}", field="--port", expected="0 to 65535")

@@ -21,7 +21,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
@@ -193,11 +193,12 @@ def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
 
 def build_truth(args: argparse.Namespace) -> Any:
     """The truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
+    from stableins.data.truth import load_truth
     from stableins.simulator.effects import validate_effects
     from stableins.simulator.truth import Truth
 
     if args.truth is not None:
-        truth = Truth.read(args.truth)
+        truth = load_truth(args.truth)
     else:
         kwargs: dict[str, Any] = {}
         if args.rate is not None:
@@ -213,6 +214,7 @@ def build_truth(args: argparse.Namespace) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stableins.data.truth import save_truth
     from stableins.output import emit, note
 
     if args.list_effects:
@@ -237,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
     seed = truth.seed if args.seed is None else args.seed
     truth_path = out / "truth.json"
     try:
-        truth.write(truth_path)  # first: every data file in DIR has its truth beside it
+        save_truth(truth, truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
         if args.level == "device":
             files = simulate_device(truth, out, seed, args, procedures)
@@ -269,7 +271,7 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, 
     By default the session is what the device-level procedure does on a real platform,
     through the same driver interface: the coarse passes of the zero-offset iteration
     (the gimbals re-commanded by −θ̂20, −θ̂30 after each pass until the offsets vanish,
-    :func:`stableins.estimators.offset_iteration.iterate_offsets`), then the fine dwells
+    :func:`stableins.procedures.iteration.iterate_offsets`), then the fine dwells
     at the re-pointed positions.  ``--no-iteration`` records one pass of every procedure
     at its nominal commands instead.
     """
@@ -332,7 +334,7 @@ def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) ->
 def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
     """Coarse zero-offset iteration, then fine dwells, on one simulated platform session."""
     from stableins.drivers.recording import RecordingDriver
-    from stableins.estimators.offset_iteration import OffsetIterationError, iterate_offsets, measure_pass
+    from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
     from stableins.simulator.device import SimulatedPlatform
 
     driver = RecordingDriver(SimulatedPlatform(truth, rate=rate, seed=seed))

@@ -12,8 +12,6 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "InputError": "stableins.data.errors",
-    "SiteMetadata": "stableins.data.metadata",
     "DeviceDataset": "stableins.data.device",
     "Dwell": "stableins.data.device",
     "load_device": "stableins.data.device",

@@ -23,8 +23,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
 from stableins.data.validation import check_finite
+from stableins.errors import InputError
 
 #: Rows per chunk when the caller does not say.
 DEFAULT_ROWS = 1 << 16
@@ -36,7 +36,7 @@ class ChunkSource(Protocol):
 
     ``iter_chunks`` yields dicts ``{column: ndarray}`` with every column of ``columns`` (all of the source's when
     None), at most ``rows`` rows each, consecutive and in order; a column that is not in the source raises
-    :class:`~stableins.data.errors.InputError` naming it.
+    :class:`~stableins.errors.InputError` naming it.
 
     Parameters of ``iter_chunks``
     -----------------------------

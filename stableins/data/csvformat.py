@@ -26,9 +26,9 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-from stableins.data.errors import InputError
-from stableins.data.schema import Column
 from stableins.data.validation import check_finite, check_header_document, match_columns, parse_header
+from stableins.errors import InputError
+from stableins.schema import Column
 
 BEGIN = "# BEGIN HEADER"
 END = "# END HEADER"

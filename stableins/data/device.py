@@ -1,6 +1,6 @@
 """Device-level data sets: load, validate, save, split into dwells (see ``docs/formats.md``).
 
-A device-level session is one table (columns :data:`~stableins.data.schema.DEVICE_COLUMNS`)
+A device-level session is one table (columns :data:`~stableins.schema.DEVICE_COLUMNS`)
 of samples taken while the platform dwells at commanded positions.  Consecutive rows
 with the same ``(stage, pass, position)`` form one :class:`Dwell`.
 """
@@ -14,10 +14,11 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata, metadata_from_document, metadata_to_document
-from stableins.data.schema import DEVICE_COLUMNS, SCHEMA_VERSION
+from stableins.data.metadata import metadata_from_document, metadata_to_document
 from stableins.data.validation import check_finite, check_increasing
+from stableins.errors import InputError
+from stableins.schema import DEVICE_COLUMNS, SCHEMA_VERSION
+from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np

@@ -28,9 +28,9 @@ import os
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
-from stableins.data.errors import InputError
-from stableins.data.schema import Column
 from stableins.data.validation import FORMAT_TAGS, check_finite, check_header_document, match_columns
+from stableins.errors import InputError
+from stableins.schema import Column
 
 GROUP = "columns"
 OVERVIEW = "overview"

@@ -16,7 +16,7 @@ anything is trusted:
   the caller allows non-finite numbers (the journal writes them);
 * no object has the same key twice (``json`` would silently keep the last one).
 
-Every violation raises :class:`~stableins.data.errors.InputError` naming the file and the
+Every violation raises :class:`~stableins.errors.InputError` naming the file and the
 field: the JSON path of the offending value (``parameters[3].value``), prefixed with the
 ``field`` the caller gives (``header`` for an HDF5 attribute).  Checking the types of the
 fields is the caller's business; :func:`expect_mapping`, :func:`expect_list`,
@@ -32,7 +32,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Largest JSON document read from a file [bytes] (a record of 1000 parameters is ~25 MB).
 MAX_DOCUMENT_BYTES = 64 << 20

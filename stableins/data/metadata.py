@@ -2,66 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
 from typing import Any
 
-
-@dataclass(frozen=True)
-class SiteMetadata:
-    """Where and on what the data were taken.  SI inside (radians, metres, m/s²).
-
-    Attributes
-    ----------
-    serial_number : str
-        Unit serial number.
-    latitude : float
-        Geodetic latitude [rad].
-    height : float
-        Ellipsoidal height [m].
-    gravity : float
-        Local gravity magnitude [m/s²].
-    gravity_source : str
-        Where ``gravity`` comes from, e.g. ``"WGS-84 normal gravity"`` or a survey.
-    gravity_uncertainty : float or None
-        Standard uncertainty of ``gravity`` [m/s²] as its source states it (a survey's), or None when not
-        stated; the certificate's uncertainty budget then assumes one from the source (docs/reports.md).
-    sample_rate : float
-        Accelerometer sample rate [Hz].
-    gimbal_senses : tuple of int
-        Rotation senses ``(s1, s2, s3, s4)``, see :mod:`stableins.conventions`.
-    base_attitude : tuple of float
-        True (yaw, pitch, roll) of the base [rad], as known from the site survey.
-    reference_temperature : float
-        Temperature the temperature terms are counted from [°C].
-    damping : dict
-        System-level only: damping-loop parameters of the INS (``zeta``, vertical gains...).
-    extra : dict
-        Anything else worth keeping (procedure, operator, ...).
-    start_time : str
-        ISO 8601 UTC time of the data's time 0 (``time[s]`` counts from it); ``""`` when unknown.
-        Gives the calibration date: the record's data start and end times.
-    """
-
-    serial_number: str
-    latitude: float
-    height: float
-    gravity: float
-    gravity_source: str
-    sample_rate: float
-    gimbal_senses: tuple[int, int, int, int] = (1, 1, 1, 1)
-    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    reference_temperature: float = 25.0
-    damping: dict[str, float] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
-    start_time: str = ""
-    gravity_uncertainty: float | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["gimbal_senses"] = list(self.gimbal_senses)
-        d["base_attitude"] = list(self.base_attitude)
-        return d
-
+from stableins.site import SiteMetadata
 
 # --------------------------------------------------------------------------- file documents
 #: Units accepted in files for each physical quantity of :class:`SiteMetadata`, with the
@@ -131,7 +74,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     InputError
         Naming the file and the key, and what was expected.
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     def fail(message: str, key: str, expected: str | None = None) -> InputError:
         return InputError(message, path=path, field=f"metadata.{key}", expected=expected)
@@ -246,7 +189,7 @@ def metadata_from_si(values: Any, source: str | None = None) -> SiteMetadata:
     InputError
         Naming ``source`` and the key.
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     if not isinstance(values, dict):
         raise InputError("metadata is not a JSON object", path=source, expected="an object with the keys of SiteMetadata")

@@ -1,6 +1,6 @@
 """System-level records: streaming writer, bounded-memory reader, sampling checks.
 
-A system-level record (columns :data:`~stableins.data.schema.SYSTEM_COLUMNS`) is hours to
+A system-level record (columns :data:`~stableins.schema.SYSTEM_COLUMNS`) is hours to
 days of samples at the INS rate: 8.6 million rows per day at 100 Hz.  It is written and
 read in chunks, never held in memory whole.  HDF5 (``.h5``) is the format for real
 records; CSV (``.csv``) is accepted for small ones.
@@ -16,10 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from stableins.data.device import CSV_SUFFIXES, H5_SUFFIXES, header_document
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata, metadata_from_document
-from stableins.data.schema import SYSTEM_COLUMNS
+from stableins.data.metadata import metadata_from_document
 from stableins.data.validation import check_finite, check_increasing
+from stableins.errors import InputError
+from stableins.schema import SYSTEM_COLUMNS
+from stableins.site import SiteMetadata
 
 DEFAULT_CHUNK = 65536
 #: HDF5 system records carry an ``/overview`` of every column at this period [s] (one row per second): the system

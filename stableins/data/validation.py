@@ -1,6 +1,6 @@
 """Checks shared by every reader: column names and units, finite values, time order.
 
-Each check raises :class:`~stableins.data.errors.InputError` naming the file, the
+Each check raises :class:`~stableins.errors.InputError` naming the file, the
 1-based data row and/or the field, and what was expected.
 """
 
@@ -11,8 +11,8 @@ import re
 from collections.abc import Sequence
 from typing import Any
 
-from stableins.data.errors import InputError
-from stableins.data.schema import SCHEMA_VERSION, Column
+from stableins.errors import InputError
+from stableins.schema import SCHEMA_VERSION, Column
 
 _HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
 

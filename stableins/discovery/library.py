@@ -550,7 +550,7 @@ def calibration_terms(term_ids: Iterable[str], *, source: str = "--add", library
         An unknown id, an id given twice, or an effect that a calibration cannot carry
         (:func:`calibration_limit`), naming ``source`` (an option or a procedure file).
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
 
     library = library if library is not None else LIBRARY
     ids = list(term_ids)

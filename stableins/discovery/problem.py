@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
+from stableins.estimators.layout import StageLayout
 from stableins.estimators.result import FitResult, Likelihood
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -152,14 +153,16 @@ class DwellSet:
 
 def dwells_from_dataset(
     datasets: Sequence,
+    *,
+    layouts: Mapping[str, StageLayout],
     stage: str | None = None,
-    procedures: Mapping | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
     noise: NoiseModel | None = None,
 ) -> DwellSet:
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
-    The mean, its 1σ and the acceptance checks come from the device stage's dwell
+    ``layouts`` (``{"coarse": ..., "fine": ...}``, e.g. :func:`stableins.procedures.definition.device_layouts`)
+    give each position's settle time and the dwell checks.  The mean, its 1σ and the acceptance checks come from the device stage's dwell
     statistics (:func:`stableins.estimators.dwell.dwells_from_columns`: settling dropped,
     correlated noise detected per dwell); flagged dwells are left out (listed in
     ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
@@ -169,20 +172,17 @@ def dwells_from_dataset(
     (:func:`stableins.estimators.dwell.slow_covariance`); None measures it from the dwells as
     ``stableins calibrate device`` does (:func:`stableins.estimators.device.noise_from_dwells`).
     """
-    from stableins.data.errors import InputError
+    from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.procedures.definition import load_procedure
-
     if not datasets:
         raise InputError("no data files given", field="DATA")
     site = datasets[0].metadata
-    procedures = dict(procedures) if procedures else {"coarse": load_procedure("device-coarse"), "fine": load_procedure("device-fine")}
     # the device stage's one path from samples to dwell statistics, per file; paired with the raw dwells by
     # (file, stage, pass, position), which a file holds once each (dwells_from_columns refuses repeats)
     pairs = []
     for ds in datasets:
         statistics = {
-            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, procedures=procedures, source=str(ds.path))
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
         }
         pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
     if stage is None:
@@ -203,8 +203,8 @@ def dwells_from_dataset(
     extras = []
     for k in keep:
         d = raw[k]
-        procedure = procedures.get(stage)
-        settle = procedure.step(d.position).settle if procedure is not None and d.position in procedure.positions else 0.0
+        layout = layouts.get(stage)
+        settle = layout.settle(d.position) if layout is not None and d.position in layout.positions else 0.0
         use = np.asarray(d.time_since_command) >= settle
         extras.append(
             (

@@ -7,38 +7,13 @@ driver and the replay driver all implement :class:`PlatformDriver`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.metadata import SiteMetadata
-
-
-@dataclass(frozen=True)
-class SampleBlock:
-    """Consecutive samples from the platform.
-
-    Attributes
-    ----------
-    time : ndarray (n,)
-        Session time [s].
-    specific_force : ndarray (n, 3)
-        Accelerometer outputs f^a [m/s²].
-    angles : ndarray (n, 3)
-        Angle-sensor readings (platform, inner, middle) [rad].
-    temperature : ndarray (n,)
-        Instrument temperature [°C].
-    """
-
-    time: NDArray[np.float64]
-    specific_force: NDArray[np.float64]
-    angles: NDArray[np.float64]
-    temperature: NDArray[np.float64]
-
-    def __len__(self) -> int:
-        return len(self.time)
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 
 @runtime_checkable

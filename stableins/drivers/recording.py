@@ -4,7 +4,7 @@
 :class:`~stableins.drivers.base.PlatformDriver` and remembers, for every command, the
 command, the time it was issued and the *last* block acquired under it — the dwell
 (earlier blocks under the same command are slew waiting and settling).  ``take``
-turns what was recorded into columns of :data:`stableins.data.schema.DEVICE_COLUMNS`.
+turns what was recorded into columns of :data:`stableins.schema.DEVICE_COLUMNS`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.drivers.base import PlatformDriver, SampleBlock
+from stableins.drivers.base import PlatformDriver
+from stableins.samples import SampleBlock
 
 
 @dataclass

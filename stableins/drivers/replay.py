@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import SampleBlock
 from stableins.drivers.errors import DriverError
+from stableins.errors import InputError
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 JOURNAL_NAME = "journal.bin"
 

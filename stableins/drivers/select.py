@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from stableins.data.errors import InputError
 from stableins.drivers.base import PlatformDriver
+from stableins.errors import InputError
 
 SPEC_HELP = "sim, tcp://HOST:PORT or replay:PATH"
 
@@ -87,7 +87,7 @@ class SimulatedDriver:
         self.platform.close()
 
     def static_record(self, duration: float, chunk: float) -> Any:
-        """Chunks (dicts of :data:`~stableins.data.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s."""
+        """Chunks (dicts of :data:`~stableins.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s."""
         try:
             from stableins.simulator.system import system_record_chunks
         except ImportError as error:

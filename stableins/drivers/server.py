@@ -31,7 +31,7 @@ def format_float(value: float) -> str:
 
 
 def sample_lines(block: Any) -> list[str]:
-    """``S t fx fy fz ap ai am T`` lines of a :class:`~stableins.drivers.base.SampleBlock`."""
+    """``S t fx fy fz ap ai am T`` lines of a :class:`~stableins.samples.SampleBlock`."""
     lines = []
     for k in range(len(block.time)):
         values = [block.time[k], *block.specific_force[k], *block.angles[k], block.temperature[k]]

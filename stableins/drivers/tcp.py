@@ -25,11 +25,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import SampleBlock
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.server import PROTOCOL_GREETING, format_float
+from stableins.errors import InputError
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 #: Longest line accepted from the platform [characters] (a sample line is ~200).
 MAX_LINE = 65536

@@ -53,8 +53,8 @@ from stableins.conventions import (
     GimbalConfiguration,
     dcm_nav_to_body,
 )
-from stableins.data.errors import InputError
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
+from stableins.errors import InputError
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning

@@ -9,28 +9,24 @@ by a joint generalized least squares (:mod:`stableins.estimators.joint`).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration, dcm_nav_to_body
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.estimators.allan import DEFAULT_ALPHA, slow_noise_test
 from stableins.estimators.coarse import calibrate_coarse, check_orientation
 from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.joint import fit_joint
+from stableins.estimators.layout import StageLayout
 from stableins.estimators.result import FitResult
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
-from stableins.procedures.definition import ProcedureDefinition, load_procedure
-
-if TYPE_CHECKING:  # pragma: no cover
-    from stableins.records import CalibrationRecord, Entry
+from stableins.site import SiteMetadata
 
 
 @dataclass(frozen=True)
@@ -117,46 +113,12 @@ class DeviceCalibration:
         lines = [f"<DeviceCalibration: stage {self.final.stage!r} recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
         lines += parameter_lines(self.final.rows())
         return clipped(
-            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, calibration.record(site) for the record)"
+            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, "
+            "CalibrationRecord.from_device(calibration, site) for the record)"
         )
 
     def _repr_html_(self) -> str:
         return self.final._repr_html_()
-
-    def record(
-        self,
-        site: SiteMetadata,
-        inputs: Sequence[str] = (),
-        procedure: str = "",
-        *,
-        data_start: str = "",
-        data_end: str = "",
-        environment: dict | None = None,
-        entries: Sequence[Entry] = (),
-    ) -> CalibrationRecord:
-        """Calibration record of :attr:`final` (coarse and fine fused by joint GLS, not replaced).
-
-        The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
-        fused, each with its χ²_ν), the fused likelihood and :attr:`settings`; ``entries`` are the calibration's fields.
-        The record carries :attr:`noise` (the noise model every σ rests on).
-        """
-        from stableins.records import Calibration, CalibrationRecord, StageRun
-
-        calibration = Calibration.new(procedure, entries)
-        fits = [self.coarse] + [f for f in (self.fine, self.fused) if f is not None]
-        stage = StageRun.from_fit(
-            self.final,
-            calibration=calibration.id,
-            procedure=procedure,
-            inputs=inputs,
-            data_start=data_start,
-            data_end=data_end,
-            sample_rate=site.sample_rate,
-            environment=environment,
-            fits=fits,
-            settings=self.settings or self.final.settings,
-        )
-        return CalibrationRecord.from_fit_result(self.final, site=site, stage=stage, calibration=calibration, noise_model=self.noise)
 
 
 def noise_from_dwells(
@@ -252,8 +214,7 @@ def calibrate_device(
     dwells: Sequence[DwellSummary],
     site: SiteMetadata,
     *,
-    coarse_procedure: ProcedureDefinition | None = None,
-    fine_procedure: ProcedureDefinition | None = None,
+    layouts: Mapping[str, StageLayout],
     allow_missing: bool = False,
     noise: NoiseModel | None = None,
     alpha: float = DEFAULT_ALPHA,
@@ -262,6 +223,10 @@ def calibrate_device(
     source: str = "data",
 ) -> DeviceCalibration:
     """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
+
+    ``layouts`` are the positions of the two stages (``{"coarse": ..., "fine": ...}``, e.g. from
+    :func:`stableins.procedures.definition.device_layouts`): which positions a pass must hold, the
+    orientation tolerance of their dwells, the gimbal handedness the sequence was designed for.
 
     ``noise`` is the instrument's noise model (a calibration record's ``noise_model``, measured
     by ``stableins noise`` on a static record, or a datasheet).  Without it the dwells'
@@ -278,13 +243,15 @@ def calibrate_device(
     estimated jointly with the standard parameters in every stage that determines them; a stage
     that does not holds them (status ``unidentifiable``) at the value of the stage before.
     """
-    coarse_procedure = coarse_procedure or load_procedure("device-coarse")
-    fine_procedure = fine_procedure or load_procedure("device-fine")
+    missing = {"coarse", "fine"} - set(layouts)
+    if missing:
+        raise ValueError(f"layouts of the {' and '.join(sorted(missing))} stage missing: layouts maps 'coarse' and 'fine' to a StageLayout")
+    coarse_procedure, fine_procedure = layouts["coarse"], layouts["fine"]
     for procedure, stage in ((coarse_procedure, "coarse"), (fine_procedure, "fine")):
         if procedure.stage != stage:
             raise InputError(
                 f"procedure {procedure.name!r} is a {procedure.stage!r} procedure, given for the {stage} stage",
-                path=procedure.path or None,
+                path=procedure.source or None,
                 field="procedure.stage",
                 expected=repr(stage),
             )
@@ -305,7 +272,7 @@ def calibrate_device(
                 configuration=configuration,
                 expected_positions=coarse_procedure.positions,
                 allow_missing=allow_missing,
-                orientation_tolerance=coarse_procedure.acceptance.orientation_tolerance,
+                orientation_tolerance=coarse_procedure.checks.orientation_tolerance,
                 noise=noise,
                 nonlinear=coarse_nonlinear,
                 extra_terms=extra_terms,
@@ -343,7 +310,7 @@ def calibrate_device(
     fine = fused = None
     if fine_dwells:
         usable = [d for d in fine_dwells if d.usable]
-        tolerance = fine_procedure.acceptance.orientation_tolerance
+        tolerance = fine_procedure.checks.orientation_tolerance
         wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance, f"{source} (fine)")
         fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
         fine = calibrate_fine(

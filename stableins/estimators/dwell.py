@@ -13,8 +13,8 @@ Under white noise ``(σ_B/σ_w)² ~ χ²_{B−1}/(B−1)``.  When the ratio exce
 quantile the noise is correlated and ``σ_B`` is used (the dwell gets a note);
 otherwise the more precise ``σ_w`` (``n − 1`` degrees of freedom instead of ``B − 1``).
 
-Checks (thresholds from the procedure's ``[acceptance]`` table) flag a dwell and leave
-it out: too few samples to measure noise, clipped or saturated samples, a slew inside
+Checks (:class:`~stableins.estimators.layout.DwellChecks`, from the procedure's ``[acceptance]`` table)
+flag a dwell and leave it out: too few samples to measure noise, clipped or saturated samples, a slew inside
 the dwell (angle readings move), non-finite values.
 """
 
@@ -22,46 +22,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import ARCSEC, STANDARD_GRAVITY
-from stableins.data.errors import InputError
+from stableins.conventions import ARCSEC
+from stableins.errors import InputError
+from stableins.estimators.layout import DwellChecks, StageLayout
 from stableins.noise import NoiseModel
 
-if TYPE_CHECKING:  # pragma: no cover
-    from stableins.procedures.definition import ProcedureDefinition
-
-
-@dataclass(frozen=True)
-class DwellChecks:
-    """Acceptance thresholds for one dwell (SI).
-
-    Attributes
-    ----------
-    min_samples : int
-        Fewest samples that still measure the noise (block estimate needs ``blocks``
-        blocks of at least 2 samples).
-    blocks : int
-        Number of blocks of the block-mean noise estimate.
-    saturation : float
-        Output magnitude at or beyond which a sample counts as saturated [m/s²].
-    max_angle_span : float
-        Largest allowed peak-to-peak span of an angle reading within the dwell [rad].
-    noise_floor : float
-        Smallest 1σ of a dwell mean [m/s²]; keeps noiseless simulations finite.
-    correlation_quantile : float
-        Quantile of the white-noise ratio test above which the block estimate is used.
-    """
-
-    min_samples: int = 20
-    blocks: int = 10
-    saturation: float = 3.0 * STANDARD_GRAVITY
-    max_angle_span: float = 20.0 * ARCSEC
-    noise_floor: float = 1e-9
-    correlation_quantile: float = 0.999
+#: The checks of a dwell when none are given (the defaults of docs/procedures.md).
+_DEFAULT_CHECKS = DwellChecks()
 
 
 @dataclass(frozen=True)
@@ -169,7 +140,7 @@ def summarize_dwell(
     position: int,
     stage: str = "coarse",
     pass_number: int = 1,
-    checks: DwellChecks = DwellChecks(),
+    checks: DwellChecks = _DEFAULT_CHECKS,
 ) -> DwellSummary:
     """Mean, its honest 1σ and acceptance flags of one dwell (samples after settling).
 
@@ -200,8 +171,8 @@ def summarize_dwell(
     if not (np.all(np.isfinite(f)) and np.all(np.isfinite(a))):
         flags.append("non-finite samples (NaN or inf)")
     duration = float(t[-1] - t[0]) if n > 1 else 0.0
-    if n < max(checks.min_samples, 2 * checks.blocks):
-        flags.append(f"too short to measure noise: {n} samples (need at least {max(checks.min_samples, 2 * checks.blocks)})")
+    if n < max(checks.min_samples, 2 * checks.noise_blocks):
+        flags.append(f"too short to measure noise: {n} samples (need at least {max(checks.min_samples, 2 * checks.noise_blocks)})")
     if np.any(np.abs(f) >= checks.saturation):
         flags.append(f"saturated samples: |f| reaches {np.nanmax(np.abs(f)):.4g} m/s^2 (limit {checks.saturation:.4g})")
     elif n >= checks.min_samples and any(_clipped(f[:, i], checks.saturation) for i in range(3)):
@@ -218,8 +189,8 @@ def summarize_dwell(
         mean = f.mean(axis=0)
         noise = f.std(axis=0, ddof=1) if n > 1 else np.full(3, np.nan)
     sem = noise / np.sqrt(n)
-    if n >= 2 * checks.blocks:
-        b = checks.blocks
+    if n >= 2 * checks.noise_blocks:
+        b = checks.noise_blocks
         m = n // b
         block_means = f[: m * b].reshape(b, m, 3).mean(axis=1)
         sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
@@ -277,16 +248,16 @@ def dwells_from_columns(
     columns: Mapping[str, ArrayLike],
     *,
     settle: float = 0.0,
-    checks: DwellChecks = DwellChecks(),
-    procedures: Mapping[str, ProcedureDefinition] | None = None,
+    checks: DwellChecks = _DEFAULT_CHECKS,
+    layouts: Mapping[str, StageLayout] | None = None,
     source: str = "data",
 ) -> list[DwellSummary]:
     """Split device-level samples (``DEVICE_COLUMNS`` names) into dwells and summarize them.
 
     Samples with ``time_since_command < settle`` are dropped (settling).  With
-    ``procedures`` (``{stage: procedure}``), the settle time of each position's step and
-    the procedure's acceptance checks are used instead of ``settle`` and ``checks``
-    (a position the procedure does not define keeps ``settle``/``checks``; the stage
+    ``layouts`` (``{stage: StageLayout}``, e.g. a procedure's ``layout``), the settle time of each
+    position and the stage's dwell checks are used instead of ``settle`` and ``checks``
+    (a position the layout does not define keeps ``settle``/``checks``; the stage
     rejects it later).  A position that appears twice within one stage and pass, or is
     commanded twice (``time_since_command`` restarts), raises :class:`InputError`.
     This is the one path from samples to dwell summaries (CLI, tests, benchmarks).
@@ -338,9 +309,9 @@ def dwells_from_columns(
                 expected="each position once per stage and pass",
             )
         step_settle, step_checks = settle, checks
-        procedure = (procedures or {}).get(key[0])
-        if procedure is not None and key[2] in procedure.positions:
-            step_settle, step_checks = procedure.step(key[2]).settle, procedure.acceptance.dwell_checks()
+        layout = (layouts or {}).get(key[0])
+        if layout is not None and key[2] in layout.positions:
+            step_settle, step_checks = layout.settle(key[2]), layout.checks
         use = rows[since[rows] >= step_settle]
         out.append(
             summarize_dwell(

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
 from stableins.errormodel import BETA_IDS, ErrorModel, Term
+from stableins.errors import InputError
 from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.design import aligned_null_space
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance

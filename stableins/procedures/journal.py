@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.atomic import fsync_directory
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 FILE_MAGIC = b"STABLEINS-JOURNAL 1\n"
 RECORD_MAGIC = b"\xa5JR1"

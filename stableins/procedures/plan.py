@@ -12,7 +12,8 @@ import math
 from dataclasses import MISSING, asdict, dataclass, field
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
+from stableins.estimators.layout import DwellChecks
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)
@@ -23,31 +24,6 @@ MAX_STEP_SECONDS = 86400.0
 MAX_RECORD_SECONDS = 30 * 86400.0
 #: Most steps of a plan.
 MAX_STEPS = 1_000_000
-
-
-@dataclass(frozen=True)
-class Checks:
-    """Acceptance checks of a dwell (SI).
-
-    Attributes
-    ----------
-    angle_tolerance : float
-        Largest |mean measured reading − commanded reading| of any gimbal [rad] ("reached").
-    scatter_max : float
-        Largest standard deviation of any accelerometer axis about its straight-line fit [m/s²] ("still").
-    slope_max : float
-        Largest |slope| of that fit on any axis [m/s² per s] ("still": no drift, no creep).
-    min_fraction : float
-        Smallest fraction of the expected number of samples (``dwell × rate``) accepted (gaps).
-    max_slew : float
-        Longest wait for the platform to arrive after a command [s]; the settle time starts on arrival.
-    """
-
-    angle_tolerance: float = math.radians(0.01)
-    scatter_max: float = 1e-3
-    slope_max: float = 1e-5
-    min_fraction: float = 0.98
-    max_slew: float = 120.0
 
 
 @dataclass(frozen=True)
@@ -66,7 +42,7 @@ class DwellStep:
     readings: tuple[float, float, float]
     settle: float
     dwell: float
-    checks: Checks = field(default_factory=Checks)
+    checks: DwellChecks = field(default_factory=DwellChecks)
     why: str = ""
     offset_corrected: bool = False
     kind: str = "dwell"
@@ -95,7 +71,7 @@ class PersonStep:
 class OffsetIterationStep:
     """Run the device-level zero-offset iteration through the driver (Wu et al. 2018 Section 3).
 
-    The iteration (:func:`stableins.estimators.offset_iteration.iterate_offsets`) runs passes of
+    The iteration (:func:`stableins.procedures.iteration.iterate_offsets`) runs passes of
     the procedure's positions; per position it commands, waits for arrival and settles (samples
     discarded) and records the dwell last.  ``positions``, ``settles`` and ``dwells`` are kept
     here so that the journal alone says which samples belong to which pass and position.
@@ -118,10 +94,26 @@ class StaticRecordStep:
     readings: tuple[float, float, float]
     settle: float
     duration: float
-    checks: Checks = field(default_factory=Checks)
+    checks: DwellChecks = field(default_factory=DwellChecks)
     why: str = "the platform stays fixed in inertial space while the INS error dynamics are recorded"
     kind: str = "static_record"
 
+
+#: Ranges of the thresholds of a plan's dwell checks (SI; every one above its lower end).
+_CHECK_RANGES: dict[str, tuple[float, float]] = {
+    "saturation": (0.0, 1e5),
+    "max_angle_span": (0.0, 4 * math.pi),
+    "orientation_tolerance": (0.0, 1e3),
+    "angle_tolerance": (0.0, math.pi),
+    "scatter_max": (0.0, 1e3),
+    "slope_max": (0.0, 1e3),
+    "min_fraction": (0.0, 1.0),
+    "max_slew": (0.0, MAX_STEP_SECONDS),
+    "noise_floor": (0.0, 1e3),
+    "correlation_quantile": (0.0, 1.0),
+}
+#: Whole-number checks and their ranges.
+_WHOLE_CHECKS: dict[str, tuple[int, int]] = {"min_samples": (2, 10**8), "noise_blocks": (2, 1000)}
 
 Step = DwellStep | PersonStep | OffsetIterationStep | StaticRecordStep
 _STEP_TYPES: dict[str, type] = {
@@ -272,16 +264,15 @@ class _Validator:
         items = self.list(value, where, 3, 3)
         return tuple(self.number(x, f"{where}[{k}]", -4 * math.pi, 4 * math.pi) for k, x in enumerate(items))  # type: ignore[return-value]
 
-    def checks(self, value: Any, where: str) -> Checks:
-        d = self.mapping(value, where, set(Checks.__dataclass_fields__), set())
-        ranges = {
-            "angle_tolerance": (0.0, math.pi),
-            "scatter_max": (0.0, 1e3),
-            "slope_max": (0.0, 1e3),
-            "min_fraction": (0.0, 1.0),
-            "max_slew": (0.0, MAX_STEP_SECONDS),
-        }
-        return Checks(**{k: self.number(x, f"{where}.{k}", *ranges[k], above=True) for k, x in d.items()})
+    def checks(self, value: Any, where: str) -> DwellChecks:
+        d = self.mapping(value, where, set(DwellChecks.__dataclass_fields__), set())
+        values: dict[str, Any] = {}
+        for key, item in d.items():
+            if key in _WHOLE_CHECKS:
+                values[key] = self.integer(item, f"{where}.{key}", *_WHOLE_CHECKS[key])
+            else:
+                values[key] = self.number(item, f"{where}.{key}", *_CHECK_RANGES[key], above=True)
+        return DwellChecks(**values)
 
     def step(self, value: Any, where: str) -> Step:
         if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:

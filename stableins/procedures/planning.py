@@ -5,31 +5,27 @@
 * Any other definition becomes one dwell step per position, re-pointed by the current
   zero-offset estimate (from the unit's previous record) when ``repoint`` is set.
 
-The runner's online checks of each dwell (reached, still) use the thresholds of
-:class:`~stableins.procedures.plan.Checks`; the estimators' own dwell checks (the
-definition's ``[acceptance]`` table) still apply when the data are estimated.
+Every dwell step carries the definition's one set of dwell checks
+(:class:`~stableins.estimators.layout.DwellChecks`: ``[acceptance]`` and the thresholds of
+``[runner]``): the runner checks each dwell online (reached, still, complete), the estimators
+check it again when the data are estimated.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from stableins.procedures.plan import Checks, DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
+from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 
 
 def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: float | None = None) -> Plan:
     """The plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`).
 
-    ``[runner]`` gives the online checks, retries and journal chunk (``retries``/``chunk``
+    ``[runner]`` gives the retries and journal chunk (``retries``/``chunk``
     override it); ``[[person]]`` entries are placed before the position they name.
     """
     settings = definition.runner
-    checks = Checks(
-        angle_tolerance=settings.angle_tolerance,
-        scatter_max=settings.scatter_max,
-        slope_max=settings.slope_max,
-        max_slew=settings.max_slew,
-    )
+    checks = definition.checks
     rates = {s.sample_rate for s in definition.steps}
     sample_rate = rates.pop() if len(rates) == 1 else None
     if definition.stage == "system":

@@ -1,4 +1,4 @@
-"""A run directory: start a run, resume it, and write what it produced.
+"""A run directory: its layout, the data a run exports, and the pieces :mod:`stableins.runs` starts and resumes runs with.
 
 Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
 
@@ -17,22 +17,16 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
 from __future__ import annotations
 
 import json
-import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import stableins
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import PlatformDriver
-from stableins.drivers.replay import JOURNAL_NAME
-from stableins.drivers.select import is_deterministic, open_driver
-from stableins.procedures.journal import Journal, scan
+from stableins.procedures.entries import accepted_columns
+from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
-from stableins.procedures.runner import Console, Runner, RunOptions, Session, accepted_columns, resume_script
+from stableins.procedures.runner import Runner
+from stableins.site import SiteMetadata
 
 DATASET_NAME = "device.h5"
 SYSTEM_NAME = "system.h5"
@@ -79,7 +73,7 @@ class RunFinished(Exception):
         super().__init__(f"the run in {rundir} is finished (completed {completed or 'at an unrecorded time'}): {listed}")
 
 
-class _JournalOnlyDriver:
+class JournalOnlyDriver:
     """The platform of a finished run, for re-estimating it: every answer comes from the journal, so nothing is asked of a
     platform (none need be connected); anything beyond the journal is refused."""
 
@@ -102,209 +96,8 @@ class _JournalOnlyDriver:
         pass
 
 
-def _utc() -> str:
+def utc_now() -> str:
     return datetime.now(UTC).replace(microsecond=0).isoformat()
-
-
-def start_run(
-    plan: Plan,
-    rundir: str | os.PathLike[str],
-    *,
-    driver_spec: str,
-    seed: int | None = None,
-    unit: str | None = None,
-    console: Console | None = None,
-    options: RunOptions | None = None,
-    driver: PlatformDriver | None = None,
-    definition_file: str | os.PathLike[str] | None = None,
-    prior_file: str | os.PathLike[str] | None = None,
-    timeout: float = 10.0,
-    new_calibration: bool = False,
-    fields: dict[str, str] | None = None,
-) -> RunOutcome:
-    """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
-
-    ``definition_file`` (the procedure TOML) and ``prior_file`` (a calibration record whose
-    zero offsets re-point the gimbals and which a fine or system stage updates) are copied into
-    the run directory first, so that a resumed run needs nothing from outside it.
-    ``new_calibration``: the run starts a new calibration from the prior (a record in force, e.g.
-    a field recalibration) instead of continuing the prior's calibration (e.g. the fine stage
-    after the coarse stage of the same calibration).
-    """
-    rundir = Path(rundir)
-    console = console or Console()
-    journal_file = rundir / JOURNAL_NAME
-    if journal_file.exists():
-        if scan(journal_file).records:
-            raise InputError(
-                "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
-            )
-        journal_file.unlink()  # a start that died before its first record: nothing happened, start afresh
-    prior = _load_record(prior_file) if prior_file is not None else None
-    fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
-    if definition_file is not None and plan.level == "system" and prior is None:
-        raise InputError(
-            "the system-level stage estimates corrections to the calibration the INS navigates with",
-            field="--prior",
-            expected="--prior RECORD (the unit's record in force) or --store DIR",
-        )
-    if definition_file is not None and fine and prior is None:
-        raise InputError(
-            "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
-            field="--prior",
-            expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
-        )
-    if prior is not None and unit is not None and prior.serial_number != unit:
-        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
-    check_settings(plan, console.values)
-    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
-    try:
-        metadata = driver.metadata
-        if unit is not None and metadata.serial_number != unit:
-            raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="--unit", expected=repr(unit))
-        digests = {}
-        for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
-            if source is not None:
-                digests[name] = _copy(Path(source), rundir / name)
-        _write_plan(rundir, plan)
-        journal = Journal.create(journal_file)
-        with journal:
-            journal.append(
-                "start",
-                {
-                    "version": stableins.__version__,
-                    "utc": _utc(),
-                    "plan": plan.to_dict(),
-                    "driver": driver_spec,
-                    "seed": seed,
-                    "unit": metadata.serial_number,
-                    "metadata": metadata.to_dict(),
-                    "deterministic": is_deterministic(driver),
-                    "options": vars(options or RunOptions()),
-                    "definition": DEFINITION_NAME if definition_file is not None else None,
-                    "prior": PRIOR_NAME if prior_file is not None else None,
-                    "prior_path": str(prior_file) if prior_file is not None else None,
-                    "new_calibration": bool(new_calibration),
-                    "fields": dict(fields or {}),
-                    "inputs": digests,  # SHA-256 of the copies: a resume verifies every file it reads again
-                },
-            )
-            console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
-            runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options, journal.records[0])
-            runner.execute()
-            outcome = finish(rundir, runner, metadata, journal.records[0], replayed=0)
-            _journal_finished(journal, outcome)
-            return outcome
-    finally:
-        driver.close()
-
-
-def resume_run(
-    rundir: str | os.PathLike[str],
-    *,
-    console: Console | None = None,
-    driver_spec: str | None = None,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None = None,
-    timeout: float = 10.0,
-    re_estimate: bool = False,
-) -> RunOutcome:
-    """Continue the run in ``rundir`` where it stopped.
-
-    ``driver_spec`` may replace the journaled one for a network platform that moved
-    (``tcp://`` to ``tcp://``); the simulated platform is rebuilt from the journaled seed.
-
-    A finished run (its journal holds the ``complete`` record) is not run again: :class:`RunFinished` says so.
-    ``re_estimate`` estimates a finished run again from its journal alone (no platform is opened, nothing is
-    appended to the journal) and writes its data set, record and certificate anew, e.g. with a newer stableins.
-    A run killed after its last step but before its outputs were all written (no ``finished`` record,
-    :data:`FINISHED`) is finished that way on resume, and then journaled as finished.
-
-    Raises
-    ------
-    RunFinished
-        The run is complete and ``re_estimate`` is false.
-    InputError
-        ``re_estimate`` of a run that is not complete; a changed input; a journal without a start record.
-    """
-    rundir = Path(rundir)
-    console = console or Console()
-    journal = Journal.open(rundir / JOURNAL_NAME)
-    with journal:
-        if not journal.records or journal.records[0].kind != "start":
-            raise InputError(
-                "the journal holds no start record: nothing to resume", path=journal.path, expected="a run started with 'stableins run'"
-            )
-        start = journal.records[0]
-        plan = Plan.from_dict(start["plan"])
-        complete = next((r for r in journal.records if r.kind == "complete"), None)
-        names = (DATASET_NAME, SYSTEM_NAME, RECORD_NAME, REPORT_NAME)
-        written = any(r.kind == FINISHED for r in journal.records) or (rundir / REPORT_NAME).exists()
-        if complete is not None and not re_estimate:
-            if written:
-                raise RunFinished(rundir, str(complete.get("utc") or ""), [rundir / n for n in names if (rundir / n).exists()])
-            # the last step was done but the run was interrupted while writing its outputs: write them from the journal
-            console.say("the run completed its last step but was interrupted before writing all its outputs: writing them from the journal")
-            re_estimate = True
-        journal_finish = not re_estimate or (complete is not None and not written)
-        if complete is None and re_estimate:
-            raise InputError(
-                "the run is not finished: there is nothing to estimate again yet",
-                path=rundir,
-                field="--re-estimate",
-                expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
-            )
-        spec = start["driver"]
-        if driver_spec is not None and driver_spec != spec:
-            if not (driver_spec.startswith("tcp://") and spec.startswith("tcp://")):
-                raise InputError(
-                    f"this run was made with --driver {spec}",
-                    field="--driver",
-                    expected=f"{spec} (only a tcp:// address may change on resume)",
-                )
-            spec = driver_spec
-        check_settings(plan, console.values)
-        verify_inputs(rundir, start)  # before the platform is touched: what is read again is what the run started with
-        if journal.recovered is not None:
-            torn = journal.recovered
-            console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        if re_estimate:
-            from stableins.drivers.replay import metadata_from_start
-
-            driver: PlatformDriver = _JournalOnlyDriver(metadata_from_start(start))
-        elif driver_factory is not None:
-            driver = driver_factory(start.fields)
-        else:
-            driver = open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
-        try:
-            metadata = driver.metadata
-            if metadata.serial_number != start["unit"]:
-                raise InputError(
-                    f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
-                )
-            deterministic = is_deterministic(driver)
-            script, superseded = resume_script(journal.records, deterministic or re_estimate)
-            if re_estimate:
-                what = f"{plan.name!r} of unit {start['unit']}"
-                console.say(f"estimating the finished run {what} again from its journal ({len(script)} records)")
-            else:
-                journal.append(
-                    "resume",
-                    {"utc": _utc(), "superseded": list(superseded) if superseded else None, "deterministic": deterministic, "driver": spec},
-                )
-                how = "continuing exactly where it stopped" if deterministic else "repeating the interrupted attempt from its command"
-                console.say(f"resuming {plan.name!r} on unit {start['unit']}: {len(script)} journaled records to replay, then {how}")
-            session = Session(journal, script, driver, forward=deterministic and not re_estimate)
-            if re_estimate:
-                session.on_live = lambda replayed: None  # the journal is the whole run: nothing goes live
-            runner = _runner(rundir, plan, session, console, RunOptions(**start.get("options", {})), start)
-            runner.execute()
-            outcome = finish(rundir, runner, metadata, start, replayed=session.replayed)
-            outcome.superseded = superseded
-            if journal_finish:
-                _journal_finished(journal, outcome)
-            return outcome
-        finally:
-            driver.close()
 
 
 def check_settings(plan: Plan, values: dict[str, str]) -> None:
@@ -321,48 +114,6 @@ def check_settings(plan: Plan, values: dict[str, str]) -> None:
             parse_entry(steps[key], text)
 
 
-def verify_inputs(rundir: Path, start: Any) -> None:
-    """Every file of the run directory a resume reads again has the SHA-256 the start record holds.
-
-    Raises
-    ------
-    InputError
-        Naming the file, the digest found and the digest the journal holds (edited acceptance limits or a replaced
-        prior would otherwise change the estimation of a run in progress silently).
-    """
-    from stableins.records import file_sha256
-
-    expected = start.get("inputs")
-    if not isinstance(expected, dict):  # a journal written before digests were kept: nothing to compare with
-        return
-    for name, digest in expected.items():
-        path = rundir / str(name)
-        found = file_sha256(path)
-        if found != digest:
-            raise InputError(
-                f"changed since the run started (SHA-256 {found}); a resumed run must read what it started with",
-                path=path,
-                field="sha256",
-                expected=f"SHA-256 {digest}, as the journal's start record holds",
-            )
-
-
-def _runner(rundir: Path, plan: Plan, session: Session, console: Console, options: RunOptions | None, start: Any) -> Runner:
-    definition = None
-    if start.get("definition"):
-        from stableins.procedures.definition import load_procedure
-
-        definition = load_procedure(rundir / start["definition"])
-    offsets = (0.0, 0.0, 0.0)
-    prior = None
-    if start.get("prior"):
-        prior = _load_record(rundir / start["prior"])
-        values = prior.values()
-        offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
-    extra = model_terms(definition, prior)
-    return Runner(plan, session, console, options, definition=definition, offsets=offsets, extra_terms=extra)
-
-
 def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
     """The discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
 
@@ -375,211 +126,25 @@ def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
     return carried + calibration_terms([i for i in named if i not in {t.id for t in carried}], source="model.add")
 
 
-#: Journal record written once every output of a run is on disk (after :func:`finish`): a resume of a run with a
+#: Journal record written once every output of a run is on disk (after :func:`stableins.runs.finish`): a resume of a run with a
 #: ``complete`` record but without this one writes the outputs from the journal instead of saying it is finished.
 FINISHED = "finished"
 
 
-def _journal_finished(journal: Journal, outcome: RunOutcome) -> None:
+def journal_finished(journal: Journal, outcome: RunOutcome) -> None:
     """Journal that the outputs of a finished run are all written (names of the files)."""
     files = [p for p in (outcome.dataset, outcome.record, outcome.report) if p is not None]
-    journal.append(FINISHED, {"utc": _utc(), "files": [Path(p).name for p in files]})
+    journal.append(FINISHED, {"utc": utc_now(), "files": [Path(p).name for p in files]})
 
 
-def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, replayed: int) -> RunOutcome:
-    """After the last step: write the data set, run the stage's estimation, write the one record and its certificate."""
-    from dataclasses import replace
-
-    if not metadata.start_time:  # time 0 of the platform's session: the run's start, to the second
-        metadata = replace(metadata, start_time=start.get("utc", ""))
-    dataset = export(rundir, runner, metadata)
-    outcome = RunOutcome(rundir, runner, dataset, replayed)
-    fit = _estimate(rundir, runner, metadata, dataset, start)
-    if fit is None:
-        return outcome
-    from stableins.records import CalibrationRecord, PriorReference, StageRun, file_sha256
-
-    columns = _exported_columns(runner, dataset)
-    # the calibration date: when the run took its data, by the wall clock of the journal (a simulated platform's
-    # session clock runs faster than the wall clock; a real platform's follows it)
-    complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
-    data_start, data_end = start.get("utc", ""), complete.get("utc", "") if complete is not None else ""
-    stage_fields = {
-        "procedure": runner.plan.name,
-        "inputs": [dataset] if dataset else [],
-        "data_start": data_start,
-        "data_end": data_end,
-        "sample_rate": float(metadata.sample_rate),
-        "entries": run_entries(runner),
-        "environment": _environment(runner, columns, fit),
-    }
-    calibration_entries = _calibration_entries(runner, start)
-    prior_path = rundir / start["prior"] if start.get("prior") else None
-    if prior_path is not None and runner.iteration is None:
-        # the stage updates the prior record (fine, system): a Bayesian update, one new record
-        prior = _load_record(prior_path)
-        reference = PriorReference(file_sha256(prior_path), str(start.get("prior_path") or prior_path), prior.calibration.created)
-        record = prior.updated(
-            fit,
-            new_calibration=bool(start.get("new_calibration")),
-            prior=reference,
-            calibration_entries=calibration_entries,
-            site=metadata,
-            **stage_fields,
-        )
-    else:
-        from stableins.records import Calibration
-
-        calibration = Calibration.new(runner.plan.name, calibration_entries)
-        stage = StageRun.from_fit(fit, calibration=calibration.id, **stage_fields)
-        record = CalibrationRecord.from_fit_result(fit, site=metadata, stage=stage, calibration=calibration)
-    outcome.record = record.save(rundir / RECORD_NAME)
-    runner.console.say(f"calibration record written: {outcome.record}")
-    runner.console.say(record.report())
-    outcome.report = _write_report(rundir, runner, outcome, start)
-    return outcome
-
-
-def _calibration_entries(runner: Runner, start: Any) -> tuple[Any, ...]:
-    """The ``--set`` values no prompt of the procedure asked for: the calibration's own fields (laboratory, customer ...)."""
-    from stableins.procedures.plan import PersonStep
-    from stableins.records import parse_entries
-
-    asked = {s.key for s in runner.plan.steps if isinstance(s, PersonStep) and s.key}
-    return parse_entries([f"{k}={v}" for k, v in (start.get("fields") or {}).items() if k not in asked])
-
-
-def run_entries(runner: Runner) -> tuple[Any, ...]:
-    """What people entered at the procedure's prompts, with the prompt and the unit."""
-    from stableins.procedures.plan import PersonStep
-    from stableins.records import Entry
-
-    steps = {s.key: s for s in runner.plan.steps if isinstance(s, PersonStep) and s.key}
-    out = []
-    for key, value in runner.inputs.items():
-        step = steps.get(key)
-        value = float(value) if isinstance(value, int | float) and not isinstance(value, bool) else str(value)
-        out.append(Entry(key, value, step.unit if step else "", step.prompt if step else ""))
-    return tuple(out)
-
-
-def _exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
+def exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
     if runner.static_chunks or dataset is None:
         return None
     columns = accepted_columns(runner.entries)
     return columns if len(columns["time"]) else None
 
 
-def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
-    """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
-    from stableins.records import temperature_summary
-
-    if columns is not None:
-        return temperature_summary(columns["temperature"])
-    temperature = fit.extra.get("temperature")
-    return {"temperature": {**temperature, "unit": "degC"}} if temperature else {}
-
-
-def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any) -> Path | None:
-    """The certificate of the run's record (``stableins.reporting``), if that part of stableins is installed.
-
-    It renders ``record.json`` with the evidence stored in it; the change section compares it with the
-    record it started from when the run began a new calibration (a recalibration).
-    """
-    try:
-        from stableins.reporting import write_report
-    except ImportError:
-        runner.console.say("note: no report writer in this installation; the record is complete without it")
-        return None
-    target = rundir / REPORT_NAME
-    summary = write_report(
-        target,
-        outcome.record,
-        data=[outcome.dataset] if outcome.dataset else [],
-        previous=rundir / start["prior"] if start.get("prior") and start.get("new_calibration") else None,
-        procedure=rundir / start["definition"] if start.get("definition") else None,
-    )
-    runner.console.say(f"report written: {target}")
-    outcome.verdict, outcome.conformity = summary.verdict, tuple(summary.conformity)
-    runner.console.say("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
-    return target
-
-
-def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Path | None, start: Any) -> Any:
-    """The stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
-    if runner.iteration is not None:
-        return runner.iteration.fit
-    if runner.static_chunks:
-        return _estimate_system(rundir, runner, dataset, start)
-    definition = runner.definition
-    if definition is None or definition.stage != "fine":
-        return None
-    if not start.get("prior"):
-        raise InputError(
-            "the fine stage starts from a coarse estimate", field="--prior", expected="the unit's coarse record (--prior RECORD or --store)"
-        )
-    from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.fine import calibrate_fine
-
-    columns = accepted_columns(runner.entries)
-    source = str(dataset or rundir / JOURNAL_NAME)
-    dwells = dwells_from_columns(columns, checks=definition.acceptance.dwell_checks(), source=source)
-    prior = _load_record(rundir / start["prior"])
-    return calibrate_fine(
-        dwells,
-        prior.values(),
-        gravity=metadata.gravity,
-        expected_positions=definition.positions,
-        extra_terms=runner.extra_terms,
-        source=source,
-    )
-
-
-def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
-    """The system-level stage on the static record, starting from the installed calibration (the prior record)."""
-    try:
-        from stableins.estimators.system.stage import SystemOptions, run_system_stage
-    except ImportError:
-        runner.console.say(
-            "note: no system-level estimator in this installation; the record is in system.h5 for 'stableins calibrate system'"
-        )
-        return None
-    from dataclasses import replace
-
-    from stableins.data.system import open_system_record
-    from stableins.discovery.library import record_terms
-
-    if not start.get("prior"):
-        runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
-        return None
-    prior = _load_record(rundir / start["prior"])
-    record = open_system_record(dataset)
-    covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
-    import warnings
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        outcome = run_system_stage(
-            record, record.metadata, prior.values(), covariance, SystemOptions(), compensation_terms=record_terms(prior.ids)
-        )
-        from stableins.estimators.system.sensitivity import with_sensitivities
-
-        terms = record_terms(prior.ids)
-        outcome = with_sensitivities(outcome, record, prior.values(), covariance, SystemOptions(), compensation_terms=terms)
-    for warning in caught:
-        runner.console.say(f"warning: {warning.message}")
-    temperature = outcome.diagnostics.temperature
-    extra = {**outcome.result.extra, "temperature": None if temperature is None else temperature.to_dict()}
-    return replace(outcome.result, extra=extra)
-
-
-def _load_record(path: str | os.PathLike[str]) -> Any:
-    from stableins.records import CalibrationRecord
-
-    return CalibrationRecord.load(path)
-
-
-def _copy(source: Path, target: Path) -> str:
+def copy_input(source: Path, target: Path) -> str:
     """Copy ``source`` to ``target`` (atomically); returns the SHA-256 of the bytes copied."""
     import hashlib
 
@@ -616,7 +181,7 @@ def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
     return save_device(rundir / DATASET_NAME, columns, metadata)
 
 
-def _write_plan(rundir: Path, plan: Plan) -> None:
+def write_plan(rundir: Path, plan: Plan) -> None:
     from stableins.data.atomic import atomic_write
 
     with atomic_write(rundir / PLAN_NAME) as handle:

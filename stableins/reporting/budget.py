@@ -54,8 +54,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC
-from stableins.data.errors import InputError
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.records import CalibrationRecord
 from stableins.status import Status
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.data.atomic import atomic_write
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
 from stableins.reporting.budget import UncertaintyInputs, uncertainty_budget

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: "pos 3 f_y", "position 12 y", "p3 f_x" → (3, "y"); "pos 3 |f|" → (3, "|f|") (squared-amplitude stage)
 _LABEL = re.compile(r"p(?:os(?:ition)?)?\s*(\d+)\D*?(?:f_)?([xyz])\b", re.IGNORECASE)

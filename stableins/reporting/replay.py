@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from os import PathLike
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 
 def device_fits(
@@ -56,17 +56,16 @@ def device_fits(
     if not datasets:
         return [], notes
     names = {"coarse": settings.get("coarse_procedure", "device-coarse"), "fine": settings.get("fine_procedure", "device-fine")}
-    procedures = {stage: load_procedure(name) for stage, name in names.items()}
+    layouts = {stage: load_procedure(name).layout for stage, name in names.items()}
     summaries = []
     for dataset in datasets:
-        summaries += dwells_from_columns(dataset.columns, procedures=procedures, source=str(dataset.path))
+        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
     source = ", ".join(str(d.path) for d in datasets)
     noise = settings.get("noise_model")
     calibration = calibrate_device(
         summaries,
         datasets[0].metadata,
-        coarse_procedure=procedures["coarse"],
-        fine_procedure=procedures["fine"],
+        layouts=layouts,
         allow_missing=bool(settings.get("allow_missing", False)),
         noise=None if noise is None else NoiseModel.from_document(noise),
         coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),

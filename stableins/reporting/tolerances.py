@@ -50,7 +50,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 DECISION_RULES = ("guarded", "simple", "non-binary")
 

@@ -42,13 +42,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import specific_force_nav
-from stableins.data.metadata import SiteMetadata
-from stableins.drivers.base import SampleBlock
 from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import rotation_about
+from stableins.samples import SampleBlock
 from stableins.simulator import effects as fx
 from stableins.simulator.noise import BLOCK_SAMPLES, NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
+from stableins.site import SiteMetadata
 
 
 @dataclass(frozen=True)
@@ -347,7 +347,7 @@ def simulate_dwells(
     Returns
     -------
     dict of str to ndarray
-        Columns named as :data:`stableins.data.schema.DEVICE_COLUMNS`.
+        Columns named as :data:`stableins.schema.DEVICE_COLUMNS`.
     """
     platform = SimulatedPlatform(truth, rate=rate, seed=seed, initial_readings=initial_readings)
     pieces: list[dict[str, NDArray]] = []
@@ -376,7 +376,7 @@ def simulate_dwells(
                 "temperature": block.temperature,
             }
         )
-    from stableins.data.schema import DEVICE_COLUMNS
+    from stableins.schema import DEVICE_COLUMNS
 
     names = [c.name for c in DEVICE_COLUMNS]
     if not pieces:

@@ -51,8 +51,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.data.errors import InputError
 from stableins.errormodel import AXES, Term, TermInputs
+from stableins.errors import InputError
 
 _G = STANDARD_GRAVITY
 DEG_PER_HOUR = np.pi / 180.0 / 3600.0

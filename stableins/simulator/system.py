@@ -79,9 +79,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
-from stableins.data.schema import SYSTEM_COLUMNS
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
 from stableins.platform import rotation_about
+from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
@@ -329,7 +329,7 @@ class SystemWorld:
 
     # --------------------------------------------------------------- generation
     def chunk(self, count: int, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
-        """The next ``count`` samples as columns of :data:`stableins.data.schema.SYSTEM_COLUMNS`."""
+        """The next ``count`` samples as columns of :data:`stableins.schema.SYSTEM_COLUMNS`."""
         start = self._next
         index = np.arange(start, start + count)
         time = index / self.rate
@@ -432,7 +432,7 @@ def system_record_chunks(
     Yields
     ------
     dict of str to ndarray
-        Columns named as :data:`stableins.data.schema.SYSTEM_COLUMNS`.
+        Columns named as :data:`stableins.schema.SYSTEM_COLUMNS`.
     """
     if chunk_samples < 1:
         raise ValueError("chunk_samples must be positive")

@@ -7,20 +7,18 @@ drawn at random with realistic magnitudes (:meth:`Truth.draw`).
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
 from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import GIMBAL_IDS, MICRO_G_PER_G2, ErrorModel
+from stableins.errors import InputError
 from stableins.simulator.effects import CATALOGUE, validate_effects
 from stableins.simulator.noise import NoiseSettings
+from stableins.site import SiteMetadata
 
 SCHEMA_VERSION = 1
 KIND = "stableins.truth"
@@ -338,19 +336,3 @@ class Truth:
             )
         except InputError as exc:
             raise InputError(exc.message, path=source, field=exc.field, expected=exc.expected) from None
-
-    def write(self, path: str | os.PathLike[str]) -> None:
-        """Write JSON atomically (a reader sees the old file or the whole new one)."""
-        from stableins.data.atomic import atomic_write
-
-        with atomic_write(path) as handle:
-            json.dump(self.to_dict(), handle, indent=2, sort_keys=True)
-            handle.write("\n")
-
-    @classmethod
-    def read(cls, path: str | os.PathLike[str]) -> Truth:
-        """Read a truth file; :class:`InputError` (naming the file and field) on any problem."""
-        from stableins.data.jsonio import load_json_file
-
-        data = load_json_file(path, what="a truth file (truth.json) written by 'stableins simulate'")
-        return cls.from_dict(data, source=str(path))

@@ -38,15 +38,15 @@ from stableins.conventions import (
     heading_to_north_pointing,
     misalignment_pitch_roll,
 )
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import AttitudeBlocks
 from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
+from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
     from stableins.estimators.system.stage import SystemOptions

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE
-from stableins.data.errors import InputError
-from stableins.data.metadata import SiteMetadata
+from stableins.errors import InputError
+from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
     from stableins.estimators.system.stage import SystemOptions

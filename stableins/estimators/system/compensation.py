@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.data.errors import InputError
 from stableins.errormodel import ErrorModel, Term
+from stableins.errors import InputError
 from stableins.estimators.system.blocksums import coefficients
 
 

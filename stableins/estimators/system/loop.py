@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RADIUS, EARTH_RATE
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Names of the loop states, in order.
 LOOP_STATES = (

@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
 from stableins.estimators.result import InputSensitivity
+from stableins.site import SiteMetadata
 
 #: Perturbation of the gyro drift [rad/s] (1e-6 °/h).
 DRIFT_STEP = math.radians(1e-6) / 3600.0

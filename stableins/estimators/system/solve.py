@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import SIDEREAL_DAY
-from stableins.data.errors import InputError
 from stableins.errormodel import MICRO_G_PER_G2
+from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.accumulate import RecordSums
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
@@ -352,7 +352,7 @@ def combine(
 ) -> Combination:
     """Step 6: the combined coefficients, what the record determines of them, and their separation.
 
-    Raises :class:`~stableins.data.errors.InputError` when the record determines nothing the stage can certify.
+    Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.
     """
     cov_v = decision.covariance
     cov_x = cov_v[:7, :7]

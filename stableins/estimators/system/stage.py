@@ -29,7 +29,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
-from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
@@ -52,6 +51,7 @@ from stableins.estimators.system.separation import Separation
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
+from stableins.site import SiteMetadata
 
 
 @dataclass(frozen=True)

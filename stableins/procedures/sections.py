@@ -1,0 +1,243 @@
+"""The sections of a procedure file that say how it runs: ``[runner]``, ``[[person]]``, ``[record]`` and ``[model]``.
+
+Read and validated for :func:`stableins.procedures.definition.load_procedure`; every problem raises
+:class:`~stableins.errors.InputError` naming the file and the field (docs/procedures.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from stableins.conventions import ARCSEC
+from stableins.errors import InputError
+
+#: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
+MAX_SECONDS = 86400.0
+MAX_RECORD_SECONDS = 30 * 86400.0
+MAX_RATE = 1e4
+
+
+def number(
+    table: dict,
+    key: str,
+    path: str,
+    where: str,
+    *,
+    positive: bool = False,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    whole: bool = False,
+) -> float:
+    value = table[key]
+    field = f"{where.split()[0]}.{key}"  # "step 3" -> step.dwell, "runner" -> runner.chunk
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(f"{where}: not a finite number ({str(value)[:40]!r})", path=path, field=field, expected="a number")
+    if positive and value <= 0:
+        raise InputError(f"{where}: must be positive ({value!r})", path=path, field=field, expected="> 0")
+    if minimum is not None and value < minimum:
+        raise InputError(f"{where}: below {minimum} ({value!r})", path=path, field=field, expected=f">= {minimum}")
+    if maximum is not None and value > maximum:
+        raise InputError(f"{where}: above {maximum:g} ({value!r})", path=path, field=field, expected=f"<= {maximum:g}")
+    if whole and value != int(value):
+        raise InputError(f"{where}: {value!r} is not a whole number", path=path, field=field, expected="a whole number")
+    return float(value)
+
+
+def table(value: Any, path: str, name: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
+    return value
+
+
+@dataclass(frozen=True)
+class RunnerSettings:
+    """``[runner]``: how ``stableins run`` executes a procedure.
+
+    ``retries``: repeats of a rejected dwell before the run stops; ``chunk`` [s]: dwells are
+    journaled in pieces of at most this length.  The table's thresholds (``angle_tolerance``,
+    ``scatter_max``, ``slope_max``, ``max_slew``) are dwell checks: they go to the procedure's
+    :class:`~stableins.estimators.layout.DwellChecks`.
+    """
+
+    retries: int = 2
+    chunk: float = 10.0
+
+
+@dataclass(frozen=True)
+class PersonAction:
+    """``[[person]]``: a step a person carries out before position ``before`` (0: before the first;
+    ``len(steps) + 1``: at the end).  ``action`` is ``"confirm"`` or ``"enter"`` (a value with
+    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses)."""
+
+    before: int
+    action: str
+    prompt: str
+    key: str = ""
+    unit: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    default: float | str | None = None
+
+
+@dataclass(frozen=True)
+class StaticRecord:
+    """``[record]`` of a system-level procedure: hold the platform at ``command`` [rad] (file: deg),
+    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz]."""
+
+    command: tuple[float, float, float]
+    settle: float
+    duration: float
+    sample_rate: float
+
+
+_RUNNER_KEYS = {
+    "retries": 1.0,
+    "chunk": 1.0,
+    "angle_tolerance": ARCSEC,
+    "scatter_max": 9.80665e-6,
+    "slope_max": 9.80665e-6,
+    "max_slew": 1.0,
+}
+_PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}
+_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate"}
+
+
+def _runner_values(table: Any, path: str) -> dict[str, Any]:
+    """The ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
+    if not isinstance(table, dict):
+        raise InputError("[runner] must be a table", path=path, field="runner")
+    unknown = set(table) - set(_RUNNER_KEYS)
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="runner", expected=f"{sorted(_RUNNER_KEYS)}")
+    from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
+
+    limits: dict[str, dict[str, Any]] = {
+        "retries": {"minimum": RETRIES_RANGE[0], "maximum": RETRIES_RANGE[1], "whole": True},
+        "chunk": {"minimum": CHUNK_RANGE[0], "maximum": CHUNK_RANGE[1]},
+        "angle_tolerance": {"positive": True, "maximum": 648000.0},
+        "scatter_max": {"positive": True, "maximum": 1e8},
+        "slope_max": {"positive": True, "maximum": 1e8},
+        "max_slew": {"positive": True, "maximum": MAX_SECONDS},
+    }
+    values: dict[str, Any] = {}
+    for key, factor in _RUNNER_KEYS.items():
+        if key in table:
+            values[key] = number(table, key, path, "runner", **limits[key]) * factor
+    if "retries" in values:
+        values["retries"] = int(values["retries"])
+    return values
+
+
+def runner_settings(table: Any, path: str) -> RunnerSettings:
+    values = _runner_values(table, path)
+    return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
+
+
+def runner_checks(table: Any, path: str) -> dict[str, float]:
+    """The dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
+    return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
+
+
+def people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
+    if not isinstance(entries, list):
+        raise InputError("person steps are written [[person]]", path=path, field="person")
+    from stableins.procedures.plan import check_person_default
+
+    people = []
+    for k, raw in enumerate(entries, start=1):
+        where = f"person {k}"
+        if not isinstance(raw, dict):
+            raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
+        unknown = set(raw) - _PERSON_KEYS
+        if unknown:
+            raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
+        for key in ("before", "action", "prompt"):
+            if key not in raw:
+                raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
+        before = raw["before"]
+        if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
+            raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
+        if raw["action"] not in ("confirm", "enter"):
+            raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
+        if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
+            raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
+        if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
+            raise InputError(
+                f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
+            )
+        bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
+        if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
+            raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
+        default = raw.get("default")
+        if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
+            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
+        if isinstance(default, float) and not math.isfinite(default):
+            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
+        for key in ("key", "unit"):
+            if key in raw and not isinstance(raw[key], str):
+                raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
+        check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"person {k}: default")
+        people.append(
+            PersonAction(
+                before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
+            )
+        )
+    return tuple(people)
+
+
+def model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
+    """``[model] add = ["Kcc_xxy", ...]``: effects of the discovery library carried into the device stages."""
+    if not isinstance(table, dict):
+        raise InputError("[model] must be a table", path=path, field="model")
+    unknown = set(table) - {"add"}
+    if unknown:
+        raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="model", expected="add = [effect ids]")
+    ids = table.get("add", [])
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise InputError(f"{ids!r} is not a list of effect ids", path=path, field="model.add", expected='e.g. add = ["Kcc_xxy"]')
+    if ids and stage == "system":
+        raise InputError(
+            "a system-level record does not estimate discovered effects; it compensates those of the prior record",
+            path=path,
+            field="model.add",
+            expected="[model] in a coarse or fine procedure",
+        )
+    from stableins.discovery.library import calibration_terms
+
+    try:
+        calibration_terms(ids, source="model.add")
+    except InputError as error:
+        raise InputError(error.message, path=path, field="model.add", expected=error.expected) from None
+    return tuple(ids)
+
+
+def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
+    if table is None:
+        if stage == "system":
+            raise InputError(
+                "a system-level procedure needs a [record] table", path=path, field="record", expected=f"{sorted(_RECORD_KEYS)}"
+            )
+        return None
+    if stage != "system":
+        raise InputError(f"[record] belongs to system-level procedures, this one is {stage!r}", path=path, field="record")
+    if not isinstance(table, dict):
+        raise InputError("[record] must be a table", path=path, field="record")
+    unknown = set(table) - _RECORD_KEYS
+    missing = {"duration", "sample_rate"} - set(table)
+    if unknown or missing:
+        what = f"unknown keys {sorted(unknown)}" if unknown else f"missing {sorted(missing)}"
+        raise InputError(what, path=path, field="record", expected=f"{sorted(_RECORD_KEYS)} (duration and sample_rate required)")
+    angles = []
+    for key in ("platform", "inner", "middle"):
+        deg = number(table, key, path, "record") if key in table else 0.0
+        if abs(deg) > 720.0:
+            raise InputError(f"{deg} deg is not a gimbal angle in degrees", path=path, field=f"record.{key}", expected="degrees")
+        angles.append(math.radians(deg))
+    return StaticRecord(
+        command=(angles[0], angles[1], angles[2]),
+        settle=number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
+        duration=number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS),
+        sample_rate=number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
+    )

@@ -1,0 +1,295 @@
+"""Imports run one way: the layer table of docs/architecture.md, enforced over the whole package.
+
+Every module of ``stableins`` is parsed with :mod:`ast` (nothing is imported), and every import
+statement counts: module level, inside functions and under ``if TYPE_CHECKING``.  A module may
+import only from its own layer or a lower one; the layers form no cycle; and the modules
+themselves form no import cycle at module level (the imports executed when a module is first
+imported: lazy imports inside functions do not take part in that cycle check, but they do obey the
+layers).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+import stableins
+
+PACKAGE = Path(stableins.__file__).resolve().parent
+ARCHITECTURE = PACKAGE.parent / "docs" / "architecture.md"
+
+#: The layers, lowest first (docs/architecture.md, "Layers").  A prefix names a module or a package.
+LAYERS: dict[str, int] = {
+    # 0 physics, and the plain types every layer shares
+    "stableins": 0,
+    "stableins._version": 0,
+    "stableins.conventions": 0,
+    "stableins.errormodel": 0,
+    "stableins.status": 0,
+    "stableins.errors": 0,
+    "stableins.platform": 0,
+    "stableins.noise": 0,
+    "stableins.display": 0,
+    "stableins.site": 0,
+    "stableins.schema": 0,
+    "stableins.samples": 0,
+    # 1 world
+    "stableins.simulator": 1,
+    # 2 data
+    "stableins.data": 2,
+    # 3 estimators
+    "stableins.estimators": 3,
+    # 4 discovery
+    "stableins.discovery": 4,
+    # 5 procedures
+    "stableins.procedures": 5,
+    "stableins.drivers": 5,
+    # 6 records and reports
+    "stableins.records": 6,
+    "stableins.history": 6,
+    "stableins.history_store": 6,
+    "stableins.runs": 6,
+    "stableins.reporting": 6,
+    # 7 interface
+    "stableins.commands": 7,
+    "stableins.cli": 7,
+    "stableins.output": 7,
+    "stableins.progress": 7,
+    "stableins.console": 7,
+    "stableins.__main__": 7,
+}
+LAYER_NAMES = ("physics", "world", "data", "estimators", "discovery", "procedures", "records and reports", "interface")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+@cache
+def modules() -> dict[str, Path]:
+    """Every module of the package by dotted name."""
+    return {_module_name(path): path for path in sorted(PACKAGE.rglob("*.py"))}
+
+
+def layer_of(module: str) -> int:
+    """The layer of a module: its longest prefix in :data:`LAYERS` (a module not in the table fails)."""
+    parts = module.split(".")
+    for cut in range(len(parts), 0, -1):
+        prefix = ".".join(parts[:cut])
+        if prefix in LAYERS and (cut > 1 or module == "stableins"):
+            return LAYERS[prefix]
+    raise KeyError(module)
+
+
+def _resolve(module: str, node: ast.ImportFrom) -> str:
+    """The absolute name an ``from ... import`` statement reads from."""
+    if not node.level:
+        return node.module or ""
+    package = module.split(".") if _is_package(module) else module.split(".")[:-1]
+    base = package[: len(package) - node.level + 1]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _is_package(module: str) -> bool:
+    return modules()[module].name == "__init__.py"
+
+
+def _target(name: str) -> str | None:
+    """The package module an imported name refers to (``stableins.errors.InputError`` -> the module)."""
+    known = modules()
+    while name:
+        if name in known:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+@cache
+def imports(module: str) -> tuple[tuple[str, int, bool], ...]:
+    """``(imported module, line, at module level)`` for every stableins import of ``module``.
+
+    "At module level" means executed when the module is imported: not inside a function and not
+    under ``if TYPE_CHECKING``.
+    """
+    tree = ast.parse(modules()[module].read_text(encoding="utf-8"), filename=str(modules()[module]))
+    found: list[tuple[str, int, bool]] = []
+
+    def visit(node: ast.AST, *, eager: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            child_eager = eager
+            if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda):
+                child_eager = False
+            elif isinstance(child, ast.If) and _is_type_checking(child.test):
+                for statement in child.body:
+                    visit_statement(statement, eager=False)
+                for statement in child.orelse:
+                    visit_statement(statement, eager=eager)
+                continue
+            visit_statement(child, eager=child_eager, recurse=False)
+            visit(child, eager=child_eager)
+
+    def visit_statement(node: ast.AST, *, eager: bool, recurse: bool = True) -> None:
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                target = _target(alias.name)
+                if target:
+                    found.append((target, node.lineno, eager))
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve(module, node)
+            if base == "stableins" or base.startswith("stableins."):
+                for alias in node.names:
+                    target = _target(f"{base}.{alias.name}") or _target(base)
+                    if target:
+                        found.append((target, node.lineno, eager))
+        if recurse:
+            visit(node, eager=eager and not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef))
+
+    visit(tree, eager=True)
+    return tuple(found)
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def test_every_module_has_a_layer() -> None:
+    missing = []
+    for module in modules():
+        try:
+            layer_of(module)
+        except KeyError:
+            missing.append(module)
+    assert not missing, f"modules missing from the layer table (tests/test_layers.py, docs/architecture.md): {missing}"
+
+
+def test_no_upward_import() -> None:
+    upward = [
+        f"{module}:{line} ({LAYER_NAMES[layer_of(module)]}) imports {target} ({LAYER_NAMES[layer_of(target)]})"
+        for module in modules()
+        for target, line, _ in imports(module)
+        if layer_of(target) > layer_of(module)
+    ]
+    assert not upward, "upward imports:\n" + "\n".join(upward)
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one node (or with a self-loop), Tarjan's algorithm."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+
+    def connect(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for successor in sorted(graph.get(node, ())):
+            if successor not in index:
+                connect(successor)
+                low[node] = min(low[node], low[successor])
+            elif successor in on_stack:
+                low[node] = min(low[node], index[successor])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1 or node in graph.get(node, ()):
+                components.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            connect(node)
+    return components
+
+
+def test_no_cycle_between_layers() -> None:
+    graph: dict[str, set[str]] = {}
+    for module in modules():
+        for target, _, _ in imports(module):
+            if layer_of(target) != layer_of(module):
+                graph.setdefault(LAYER_NAMES[layer_of(module)], set()).add(LAYER_NAMES[layer_of(target)])
+    assert not _cycles(graph)
+
+
+def test_no_import_cycle_between_modules() -> None:
+    graph: dict[str, set[str]] = {}
+    for module in modules():
+        for target, _, eager in imports(module):
+            if eager and target != module:
+                graph.setdefault(module, set()).add(target)
+    assert not _cycles(graph)
+
+
+def test_the_simulator_imports_no_data_drivers_estimators_or_discovery() -> None:
+    """The world is independent: it computes from the physics layer only (docs/architecture.md)."""
+    bad = [
+        f"{module}:{line} imports {target}"
+        for module in modules()
+        if module.startswith("stableins.simulator")
+        for target, line, _ in imports(module)
+        if layer_of(target) != layer_of(module) and layer_of(target) != 0
+    ]
+    assert not bad
+
+
+def test_docs_hold_the_layer_table() -> None:
+    """docs/architecture.md lists every entry of :data:`LAYERS` in the row of its layer."""
+    rows = {}
+    for line in ARCHITECTURE.read_text(encoding="utf-8").splitlines():
+        match = re.match(r"\|\s*(\d)\s+([a-z ]+?)\s*\|(.*?)\|", line)
+        if match:
+            rows[int(match.group(1))] = (match.group(2), match.group(3))
+    assert sorted(rows) == list(range(len(LAYER_NAMES)))
+    for number, name in enumerate(LAYER_NAMES):
+        assert rows[number][0] == name
+    for prefix, number in LAYERS.items():
+        if prefix in ("stableins", "stableins._version"):
+            continue
+        short = prefix.removeprefix("stableins.")
+        assert re.search(rf"`{re.escape(short)}/?`", rows[number][1]), f"{short} not in layer row {number} of docs/architecture.md"
+
+
+def _synthetic_package(tmp_path: Path, sources: dict[str, str]) -> dict[str, Path]:
+    out = {}
+    for name, source in sources.items():
+        path = tmp_path.joinpath(*name.split(".")).with_suffix(".py")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(source)
+        out[name] = path
+    return out
+
+
+def test_the_parser_sees_lazy_and_type_checking_imports(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """The checks above can fail: an import in a function or under TYPE_CHECKING is found."""
+    fake = _synthetic_package(
+        tmp_path,
+        {
+            "stableins.conventions": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from stableins.records import X\n",
+            "stableins.records": "def f():\n    from stableins import commands\n",
+            "stableins.commands": "import stableins.records\nfrom . import records\n",
+        },
+    )
+    monkeypatch.setattr(f"{__name__}.modules", lambda: fake)
+    imports.cache_clear()
+    try:
+        found = {module: imports(module) for module in fake}
+    finally:
+        imports.cache_clear()
+    assert found["stableins.conventions"] == (("stableins.records", 3, False),)
+    assert found["stableins.records"] == (("stableins.commands", 2, False),)
+    assert found["stableins.commands"] == (("stableins.records", 1, True), ("stableins.records", 2, True))
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
