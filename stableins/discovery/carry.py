@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from stableins.discovery.history import Decision, ModelHistory, Step, make_step
-from stableins.errormodel import Term
+from stableins.errormodel import Term, TermKind
 from stableins.estimators.device import DeviceCalibration
 from stableins.estimators.result import FitResult
 
@@ -145,4 +145,4 @@ def carry_effects(
 
 def stage_effects(fit: FitResult) -> tuple[str, ...]:
     """The additive (discovered) terms a stage result estimates or holds."""
-    return tuple(t.id for t in fit.terms if t.kind == "additive")
+    return tuple(t.id for t in fit.terms if t.kind == TermKind.ADDITIVE)

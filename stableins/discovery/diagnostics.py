@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE, MICRO_G
 from stableins.display import layout_with_caption
+from stableins.errormodel import TermKind
 from stableins.estimators.result import FitResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -182,7 +183,7 @@ class Diagnosis:
     @property
     def model_name(self) -> str:
         """``standard model`` plus the effects the fit added (``standard model + nonorth_12``), as plots name it."""
-        added = [t.id for t in self.result.terms if t.kind == "additive"]
+        added = [t.id for t in self.result.terms if t.kind == TermKind.ADDITIVE]
         return "standard model" + "".join(f" + {i}" for i in added)
 
     def _by_time(self) -> bool:

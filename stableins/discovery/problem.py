@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
-from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
+from stableins.errormodel import AXES, ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.result import FitResult, Likelihood
 
@@ -602,7 +602,14 @@ def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: S
     return null, determined, analysis.singular_values
 
 
-_GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_factor": 3, "installation": 4, "bias": 5}
+_GAUGE_PREFERENCE = {
+    TermKind.GIMBAL: 0,
+    TermKind.ADDITIVE: 1,
+    TermKind.NONLINEARITY: 2,
+    TermKind.SCALE_FACTOR: 3,
+    TermKind.INSTALLATION: 4,
+    TermKind.BIAS: 5,
+}
 
 
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:

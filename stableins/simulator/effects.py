@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.data.errors import InputError
-from stableins.errormodel import AXES, Term, TermInputs
+from stableins.errormodel import AXES, Term, TermInputs, TermKind
 
 _G = STANDARD_GRAVITY
 DEG_PER_HOUR = np.pi / 180.0 / 3600.0
@@ -117,7 +117,7 @@ class Effect:
             raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
         return Term(
             self.id,
-            "additive",
+            TermKind.ADDITIVE,
             self.unit,
             self.unit,
             1.0,

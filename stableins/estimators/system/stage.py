@@ -44,7 +44,7 @@ from stableins.conventions import EARTH_RATE, MICRO_G, SIDEREAL_DAY, GimbalConfi
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
-from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term
+from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term, TermKind
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
@@ -496,7 +496,7 @@ class _AdditiveCompensation:
         from stableins.errormodel import TermInputs
 
         for t in terms:
-            if t.kind != "additive" or t.regressor is None:
+            if t.kind != TermKind.ADDITIVE or t.regressor is None:
                 raise InputError(f"{t.id!r} is not an additive term", path=path, field=t.id)
             try:
                 t.regressor(TermInputs(np.array([[0.0, 0.0, -9.8]])))
@@ -561,7 +561,7 @@ def _combined_terms() -> tuple[Term, ...]:
         terms.append(
             Term(
                 name,
-                "combined",
+                TermKind.COMBINED,
                 "rad",
                 "urad",
                 1e-6,
@@ -1427,7 +1427,7 @@ def _fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) ->
     """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
     out = {}
     for t in CORE_TERMS:
-        if t.kind == "nonlinearity":
+        if t.kind == TermKind.NONLINEARITY:
             v = None if prior_covariance is None else prior_covariance.get((t.id, t.id))
             out[t.id] = float(v) if v is not None and np.isfinite(v) and v > 0 else t.nominal**2
     return out
