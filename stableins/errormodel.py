@@ -330,7 +330,7 @@ class ErrorModel:
 
     # ------------------------------------------------------------- constructors
     @classmethod
-    def standard(cls, nonlinear: bool = True, gimbals: bool = False) -> ErrorModel:
+    def standard(cls, *, nonlinear: bool = True, gimbals: bool = False) -> ErrorModel:
         """The paper's model: 12 linear terms, plus ``K2_*`` and ``theta*0`` on request."""
         terms = [t for t in CORE_TERMS if nonlinear or t.kind != TermKind.NONLINEARITY]
         if gimbals:

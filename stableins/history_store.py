@@ -387,23 +387,23 @@ class HistoryStore:
         connection.executemany("INSERT INTO parameters (record, source, id, value, sigma, unit, status) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
     # ------------------------------------------------------------------ reading records
-    def record_path(self, serial: str, entry: Entry, evidence: bool = False) -> Path:
+    def record_path(self, serial: str, entry: Entry, *, evidence: bool = False) -> Path:
         """Path of a filed record after its SHA-256 was checked against the index (InputError otherwise)."""
-        path, digest = self._file_and_digest(serial, entry, evidence)
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
         _verified_bytes(path, digest)
         return path
 
-    def _file_and_digest(self, serial: str, entry: Entry, evidence: bool) -> tuple[Path, str]:
+    def _file_and_digest(self, serial: str, entry: Entry, *, evidence: bool) -> tuple[Path, str]:
         if evidence and entry.evidence:
             return self.unit_directory(serial) / entry.evidence, entry.evidence_sha256
         return self.unit_directory(serial) / entry.file, entry.sha256
 
-    def load(self, serial: str, entry: Entry, evidence: bool = False) -> CalibrationRecord:
+    def load(self, serial: str, entry: Entry, *, evidence: bool = False) -> CalibrationRecord:
         """A filed record (or the estimate kept beside it), refused unless its bytes have the SHA-256 the index holds."""
         from stableins.data.jsonio import parse_json
         from stableins.records import CalibrationRecord
 
-        path, digest = self._file_and_digest(serial, entry, evidence)
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
         data = _verified_bytes(path, digest)
         return CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))
 
@@ -422,7 +422,7 @@ class HistoryStore:
             entry = _entry(row[1:])
             for evidence in (False, True) if entry.evidence else (False,):
                 try:
-                    _verified_bytes(*self._file_and_digest(row[0], entry, evidence))
+                    _verified_bytes(*self._file_and_digest(row[0], entry, evidence=evidence))
                 except InputError as error:
                     problems.append(str(error))
         return problems

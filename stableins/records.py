@@ -630,7 +630,7 @@ class CalibrationRecord:
             raise InputError(
                 f"the {result.stage} stage gives no likelihood: it cannot update a record", field="stage", expected="a Bayesian stage"
             )
-        calibration = self._next_calibration(new_calibration, prior, procedure, calibration_entries)
+        calibration = self._next_calibration(new_calibration=new_calibration, prior=prior, procedure=procedure, entries=calibration_entries)
         if stage is None:
             where = site or self.site
             stage_fields.setdefault("sample_rate", None if where is None else where.sample_rate)
@@ -644,11 +644,11 @@ class CalibrationRecord:
         """This record updated by a stage run of another record (its stored likelihood), e.g. ``stableins recal --estimate``."""
         if stage.likelihood is None:
             raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
-        calibration = self._next_calibration(new_calibration, prior, stage.procedure, ())
+        calibration = self._next_calibration(new_calibration=new_calibration, prior=prior, procedure=stage.procedure, entries=())
         return self._apply(stage, calibration, {}, site)
 
     def _next_calibration(
-        self, new_calibration: bool, prior: PriorReference | None, procedure: str, entries: Iterable[Entry]
+        self, *, new_calibration: bool, prior: PriorReference | None, procedure: str, entries: Iterable[Entry]
     ) -> Calibration:
         if new_calibration:
             return Calibration.new(procedure, entries, prior)

@@ -629,7 +629,7 @@ class Discovery:
         figures["history"] = self.history.plot(next_step=next_step)
         return figures
 
-    def rank(self, refit_top: int = 3, propose: bool = True) -> Ranking:
+    def rank(self, refit_top: int = 3, *, propose: bool = True) -> Ranking:
         """Rank every library candidate not in the model (see :func:`stableins.discovery.ranking.rank`)."""
         from stableins.discovery.ranking import rank
 

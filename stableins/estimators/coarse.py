@@ -71,7 +71,7 @@ GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
 _E = np.eye(3)
 
 
-def coarse_model(nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
+def coarse_model(*, nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
     """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
     return ErrorModel.standard(nonlinear=nonlinear, gimbals=True) + tuple(extra_terms)
 
@@ -442,7 +442,7 @@ def calibrate_coarse(
     base_dcm = dcm_nav_to_body(*base_attitude)
     left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
-    model = coarse_model(nonlinear, extra_terms)
+    model = coarse_model(nonlinear=nonlinear, extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
     n = len(model)
     if 3 * len(usable) <= n:

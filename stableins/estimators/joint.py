@@ -160,7 +160,7 @@ def fit_joint(
         the fine rows; one that the rows do not determine keeps its ``start`` value with status
         ``unidentifiable``.
     """
-    model = coarse_model(nonlinear or bool(fine_dwells), extra_terms)
+    model = coarse_model(nonlinear=nonlinear or bool(fine_dwells), extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
     coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
     fine = None

@@ -282,7 +282,7 @@ def resume_run(
                     f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
                 )
             deterministic = is_deterministic(driver)
-            script, superseded = resume_script(journal.records, deterministic or re_estimate)
+            script, superseded = resume_script(journal.records, deterministic=deterministic or re_estimate)
             if re_estimate:
                 what = f"{plan.name!r} of unit {start['unit']}"
                 console.say(f"estimating the finished run {what} again from its journal ({len(script)} records)")

@@ -102,11 +102,11 @@ class Console:
 
     def __init__(
         self,
+        *,
         yes: bool = False,
         values: dict[str, str] | None = None,
         out: TextIO | None = None,
         quiet: bool = False,
-        *,
         width: int | None = None,
         bars: bool | None = None,
     ) -> None:
@@ -256,7 +256,7 @@ class Session:
         Deterministic driver: forward replayed operations to it and check its answers.
     """
 
-    def __init__(self, journal: Journal, script: list[Record], driver: PlatformDriver, forward: bool) -> None:
+    def __init__(self, journal: Journal, script: list[Record], driver: PlatformDriver, *, forward: bool) -> None:
         self.journal = journal
         self.script = deque(script)
         self.driver = driver
@@ -1008,7 +1008,7 @@ def _is_number(text: str) -> bool:
 
 
 # --------------------------------------------------------------------------- resume script
-def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
+def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
     """Records to replay on resume, and the range of operation records to mark superseded.
 
     Deterministic drivers replay everything.  Otherwise operations after the last decision

@@ -320,7 +320,7 @@ def conformity_counts(checks: Sequence[Check]) -> str:
     return ", ".join(f"{n} {v}" for v in VERDICTS if (n := sum(1 for c in checks if c.verdict == v)))
 
 
-def conformity_text(checks: Sequence[Check], assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
+def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
     """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
     and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given."""
     if not assessed:

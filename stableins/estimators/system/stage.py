@@ -882,7 +882,7 @@ def run_system_stage(
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
     k2_sigma = 4.0 * np.sqrt(np.diag(cov_x)[5:7]) / gravity
     k2_significant = np.abs(k2_values) > 3.0 * k2_sigma
-    to_combined = _k2_map(latitude, options.estimate_k2)
+    to_combined = _k2_map(latitude, estimate_k2=options.estimate_k2)
     if k2_significant.any() and not options.estimate_k2:
         text = (
             "third harmonic of Earth rate in the specific-force error: residual quadratic coefficients "
@@ -932,7 +932,7 @@ def run_system_stage(
             expected=f"a static record of one sidereal day ({SIDEREAL_DAY / 3600:.2f} h) or more",
         )
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
-    likelihood, fit = _likelihood(prior, latitude, gravity, v, cov_v, to_combined, transform, options.estimate_k2)
+    likelihood, fit = _likelihood(prior, latitude, gravity, v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2)
     result, corrections = _fit_result(
         sep,
         fit,
@@ -1030,6 +1030,7 @@ def _coloured_covariance(
     alpha: float = 0.05,
     confidence: float = 0.95,
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    *,
     prior_detected: bool = False,
     given: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], Any]:
@@ -1372,7 +1373,7 @@ def _check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, fl
     return float(lat), float(g), float(rate)
 
 
-def _k2_map(latitude: float, estimate_k2: bool) -> NDArray[np.float64]:
+def _k2_map(latitude: float, *, estimate_k2: bool) -> NDArray[np.float64]:
     """Matrix ``(15, 17)`` from ``(x1..x7, attitude)`` to the combined coefficients.
 
     With ``estimate_k2`` the residual-K2 parts are removed: ``δ_i += gΔK_i u_i²`` gives
@@ -1518,6 +1519,7 @@ def _likelihood(
     cov_v: NDArray[np.float64],
     to_combined: NDArray[np.float64],
     transform: NDArray[np.float64],
+    *,
     estimate_k2: bool,
 ) -> tuple[Likelihood, _SeparationFit]:
     r"""What the record says about the accelerometer parameters: a :class:`Likelihood` (docs/system-calibration.md §4).
