@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE, MICRO_G
+from stableins.discovery.problem import DiscoveryDetails
 from stableins.display import layout_with_caption
 from stableins.errormodel import TermKind
 from stableins.estimators.result import FitResult
@@ -337,7 +338,7 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
         chi2_red=fit_chi2_red(result),
         spread=float(np.sqrt(2.0 / max(nu, 1))),
         p_value=float(stats.chi2.sf(fit_chi2(result), nu)) if nu > 0 else float("nan"),
-        noise=dict(result.extra.get("noise", {})),
+        noise=dict(result.details.noise) if isinstance(result.details, DiscoveryDetails) else {},
         outputs=outputs,
         unit=unit,
         scale=scale,

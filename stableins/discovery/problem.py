@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,10 +28,32 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, StageDetails
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
+
+
+@dataclass(frozen=True, eq=False)
+class DiscoveryDetails(StageDetails):
+    """What a discovery fit of dwells worked with, beyond the parameters.
+
+    Attributes
+    ----------
+    specific_force_platform : ndarray (n, 3)
+        Platform-frame specific force of each dwell [m/s²] at the fitted parameters.
+    prediction : ndarray (n, 3)
+        The model's output at each dwell [m/s²].
+    noise : dict
+        The noise description the dwells were weighted with (:attr:`DwellSet.noise`).
+    slow_noise : bool
+        Whether the weights include the slow-noise covariance between dwells.
+    """
+
+    specific_force_platform: NDArray[np.float64]
+    prediction: NDArray[np.float64]
+    noise: Mapping[str, Any]
+    slow_noise: bool
 
 
 class Problem(Protocol):
@@ -511,12 +533,9 @@ class DwellProblem:
             null_space=null_space,
             determined=determined,
             notes=tuple(notes),
-            extra={
-                "specific_force_platform": f_p,
-                "prediction": prediction,
-                "noise": d.noise,
-                "slow_noise": d.slow_covariance is not None,
-            },
+            details=DiscoveryDetails(
+                specific_force_platform=f_p, prediction=prediction, noise=d.noise, slow_noise=d.slow_covariance is not None
+            ),
             whitened_residuals=white,
             likelihood=Likelihood.from_weighted(model.ids, np.array([values[t.id] for t in model.terms]), a, white),
         )

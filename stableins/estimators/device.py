@@ -313,7 +313,7 @@ def calibrate_device(
             )
         )
     pass_dwells = {
-        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.extra["positions_used"]]
+        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.positions()]
         for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
     }
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
@@ -358,7 +358,7 @@ def calibrate_device(
         )
         if mismatch is not None:
             fine = replace(fine, notes=fine.notes + (mismatch,))
-        used_fine = sorted((d for d in fine_dwells if d.position in fine.extra["positions_used"]), key=lambda d: d.position)
+        used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
         start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == "estimated"}
         fused = fit_joint(
             used_coarse,

@@ -58,7 +58,7 @@ from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, UsedDwell
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 
@@ -219,15 +219,12 @@ def fit_joint(
         null_space=design.null_space,
         determined=tuple(gauge.describe()) + tuple(f"{k} = 0 by gauge" for k in fixed),
         notes=tuple(out_notes),
-        extra={
-            "gauge": {k: 0.0 for k in fixed},
-            "held": {k: float(x0[0, model.index(k)]) for k in held},
-            "passes": sorted({d.pass_number for d in coarse_dwells}),
-            "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
-            "fine_positions_used": [d.position for d in fine_dwells],
-            "iterations": solution.iterations,
-            "gravity": g,
-        },
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in (*coarse_dwells, *fine_dwells)),
+        gauge_values={k: 0.0 for k in fixed},
+        held={k: float(x0[0, model.index(k)]) for k in held},
+        passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
+        iterations=solution.iterations,
+        gravity=g,
         whitened_residuals=whitened,
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={

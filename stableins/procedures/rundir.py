@@ -472,11 +472,12 @@ def _exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | 
 
 def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
     """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
+    from stableins.estimators.result import SystemDetails
     from stableins.records import temperature_summary
 
     if columns is not None:
         return temperature_summary(columns["temperature"])
-    temperature = fit.extra.get("temperature")
+    temperature = fit.details.temperature if isinstance(fit.details, SystemDetails) else None
     return {"temperature": {**temperature, "unit": "degC"}} if temperature else {}
 
 
@@ -568,8 +569,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         outcome = with_sensitivities(outcome, record, prior.values(), covariance, SystemOptions(), compensation_terms=terms)
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
-    extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}
-    return replace(outcome.result, extra=extra)
+    details = replace(outcome.result.details, temperature=outcome.diagnostics["temperature"])
+    return replace(outcome.result, details=details)
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:

@@ -35,6 +35,7 @@ import math
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
@@ -45,7 +46,7 @@ from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.data.validation import check_finite
 from stableins.errormodel import CORE_TERMS, MICRO_G_PER_G2, ErrorModel, Term, TermKind
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import CombinedDetails, FitResult, Likelihood, SystemDetails
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, AttitudeBlocks, AttitudeFit, fit_attitude
 from stableins.estimators.system.blocksums import block_sums, coefficients, harmonic_sums, second_difference_sums
@@ -132,9 +133,45 @@ class ArraySource:
             yield chunk
 
 
+class GyroDrift(StrEnum):
+    """What the system stage does about a constant gyro drift (:attr:`SystemOptions.gyro_drift`)."""
+
+    #: Leave it out of the attitude fit (a known drift, :attr:`SystemOptions.known_gyro_drift`, is still removed).
+    IGNORE = "ignore"
+    #: Fit its response as a nuisance (σ of the fundamentals ×10).
+    FIT = "fit"
+    #: Fit it only to warn when it is significant.
+    CHECK = "check"
+
+
+_POSITIVE_INTS = ("chunk_rows", "noise_samples_per_chunk")
+_POSITIVE_FLOATS = (
+    "attitude_decimation_seconds",
+    "attitude_block_seconds",
+    "filter_block_seconds",
+    "velocity_limit",
+    "attitude_limit",
+    "rate_tolerance",
+    "polar_tolerance",
+)
+_FLAGS = ("couplings", "compensate_loop", "run_filter", "estimate_k2")
+
+
+def _option_error(name: str, value: object, expected: str) -> InputError:
+    return InputError(f"system-stage option {name} = {value!r} is not valid", field=name, expected=expected)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 @dataclass(frozen=True)
 class SystemOptions:
-    """Settings of the system stage (defaults follow docs/system-calibration.md)."""
+    """Settings of the system stage (defaults follow docs/system-calibration.md).
+
+    Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
+    :class:`~stableins.data.errors.InputError` naming the option and what it expects.
+    """
 
     chunk_rows: int = 1 << 18
     attitude_decimation_seconds: float = 1.0
@@ -150,11 +187,38 @@ class SystemOptions:
     minimum_duration: float = 4 * 3600.0  # [s]
     noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
     run_filter: bool = True
-    gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
+    gyro_drift: GyroDrift = GyroDrift.IGNORE  # see GyroDrift
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+
+    def __post_init__(self) -> None:
+        for name in _POSITIVE_INTS:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise _option_error(name, value, "a positive integer")
+        for name in _POSITIVE_FLOATS:
+            if not _is_number(getattr(self, name)) or getattr(self, name) <= 0:
+                raise _option_error(name, getattr(self, name), "a positive finite number")
+        if not _is_number(self.minimum_duration) or self.minimum_duration < 0:
+            raise _option_error("minimum_duration", self.minimum_duration, "a finite number of seconds ≥ 0")
+        if self.case_rotation_period is not None and (not _is_number(self.case_rotation_period) or self.case_rotation_period <= 0):
+            raise _option_error("case_rotation_period", self.case_rotation_period, "a positive number of seconds, or None")
+        for name in _FLAGS:
+            if not isinstance(getattr(self, name), bool):
+                raise _option_error(name, getattr(self, name), "True or False")
+        try:
+            object.__setattr__(self, "gyro_drift", GyroDrift(self.gyro_drift))
+        except ValueError:
+            raise _option_error("gyro_drift", self.gyro_drift, "one of " + ", ".join(repr(g.value) for g in GyroDrift)) from None
+        drift = self.known_gyro_drift
+        if drift is not None and (not isinstance(drift, tuple | list) or len(drift) != 3 or not all(_is_number(v) for v in drift)):
+            raise _option_error("known_gyro_drift", drift, "three finite numbers [rad/s] (platform x, y, z), or None")
+        if self.gyro_drift_uncertainty is not None and (not _is_number(self.gyro_drift_uncertainty) or self.gyro_drift_uncertainty < 0):
+            raise _option_error("gyro_drift_uncertainty", self.gyro_drift_uncertainty, "a finite number [rad/s] ≥ 0, or None")
+        if not _is_number(self.noise_false_positive_rate) or not 0 < self.noise_false_positive_rate < 1:
+            raise _option_error("noise_false_positive_rate", self.noise_false_positive_rate, "a probability between 0 and 1")
 
 
 class _SystemCalibrationView:
@@ -179,7 +243,7 @@ class _SystemCalibrationView:
 
     def _rows(self) -> list[tuple[str, float, float, str, Status, str, str]]:
         """``(id, updated value, 1σ, unit, status, correction, determination)`` in engineering units."""
-        how = self.result.extra.get("determination", {})
+        how = self.result.details.determination if isinstance(self.result.details, SystemDetails) else {}
         rows = []
         for (pid, value, sigma, unit, status), term in zip(self.result.rows(), self.result.terms, strict=True):
             correction = self.corrections.get(pid)
@@ -226,7 +290,7 @@ class _SystemCalibrationView:
         frame["correction"] = [
             float(terms[i].sigma_to_engineering(self.corrections[i])) if i in self.corrections else math.nan for i in frame.index
         ]
-        how = self.result.extra.get("determination", {})
+        how = self.result.details.determination if isinstance(self.result.details, SystemDetails) else {}
         frame["determination"] = [str(how.get(i) or "not seen") for i in frame.index]
         return frame
 
@@ -959,7 +1023,7 @@ def run_system_stage(
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
         notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {noise_bias:.3e}",),
-        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "transform": transform},
+        details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     diagnostics = {
         "duration": duration,
@@ -1494,6 +1558,7 @@ def _settings(options: SystemOptions, noise_model: NoiseModel | None = None) -> 
     from dataclasses import asdict
 
     out = asdict(options)
+    out["gyro_drift"] = options.gyro_drift.value
     if out["known_gyro_drift"] is not None:
         out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
     return {"stage": "system", **out, "noise_model": "none" if noise_model is None else noise_model.source.value}
@@ -1632,11 +1697,11 @@ def _fit_result(
         null_space=np.zeros((len(terms), 0)),
         determined=determined,
         notes=tuple(notes),
-        extra={
-            "nuisance": sep.values[len(hm.RESIDUAL_NAMES) :],
-            "determination": dict(zip(ids, post.determination, strict=True)),
-            "k2_data_only": None if k2 is None else {"values": k2[0], "covariance": k2[1]},
-        },
+        details=SystemDetails(
+            nuisance=sep.values[len(hm.RESIDUAL_NAMES) :],
+            determination=dict(zip(ids, post.determination, strict=True)),
+            k2_data_only=None if k2 is None else (k2[0], k2[1]),
+        ),
         whitened_residuals=fit.whitened,
         likelihood=likelihood,
         settings=settings,
