@@ -172,7 +172,7 @@ class HistoryStore:
     def _database(self, *, create: bool) -> Iterator[sqlite3.Connection | None]:
         """A connection (None when the store does not exist and ``create`` is false); migrates old stores first."""
         if self.root.exists() and not self.root.is_dir():
-            raise InputError("is a file, not a directory", path=self.root, field="--store", expected="a history store directory")
+            raise InputError("is a file, not a directory", path=self.root, field="root", expected="a history store directory")
         if not self.index_path.exists():
             if not create and not self._legacy_units():
                 yield None
@@ -180,7 +180,7 @@ class HistoryStore:
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
             except OSError as error:
-                raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="--store") from None
+                raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="root") from None
         try:
             connection = sqlite3.connect(self.index_path, timeout=BUSY_TIMEOUT, isolation_level=None)
         except sqlite3.Error as error:
@@ -450,7 +450,7 @@ class HistoryStore:
             raise InputError(
                 f"unit {serial!r} had no calibration in force on {date.isoformat()}; "
                 f"its first record is valid from {entries[0].valid_from}",
-                field="--at",
+                field="date",
             )
         return earlier[-1]
 

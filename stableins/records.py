@@ -305,7 +305,7 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     return digest.hexdigest()
 
 
-def parse_entries(items: Iterable[str], field: str = "--set") -> tuple[Entry, ...]:
+def parse_entries(items: Iterable[str], field: str = "entries") -> tuple[Entry, ...]:
     """Entries from ``KEY=VALUE`` or ``KEY=NUMBER UNIT`` (``laboratory=PTB``, ``lab_temperature=21.5 degC``)."""
     out: dict[str, Entry] = {}
     for item in items:
