@@ -996,7 +996,7 @@ def migrate_v1(document: dict[str, Any], path: str | None = None) -> dict[str, A
     for item in document.get("parameters", []) if isinstance(document.get("parameters"), list) else []:
         if isinstance(item, dict):
             item = dict(item)
-            item["determined_by"] = [{"stage": stage_id, "how": "alone"}] if item.get("status") == "estimated" else []
+            item["determined_by"] = [{"stage": stage_id, "how": "alone"}] if item.get("status") == Status.ESTIMATED else []
         parameters.append(item)
     site = document.get("site")
     sample_rate = None

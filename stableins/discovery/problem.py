@@ -29,6 +29,7 @@ from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.errormodel import AXES, ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.result import FitResult, Likelihood, StageDetails
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
@@ -515,7 +516,9 @@ class DwellProblem:
         cov_free = np.linalg.inv(normal)
         cov = np.zeros((len(model), len(model)))
         cov[np.ix_(cols, cols)] = cov_free
-        status = tuple("estimated" if k in cols else ("gauge" if model.terms[k].id in gauge else "fixed") for k in range(len(model)))
+        status = tuple(
+            Status.ESTIMATED if k in cols else (Status.GAUGE if model.terms[k].id in gauge else Status.FIXED) for k in range(len(model))
+        )
         null_space, determined, sv = _design_report(a, model, free, gauge)
         residuals = y - prediction.reshape(-1)
         white = self.whiten(residuals)
@@ -560,7 +563,7 @@ class DwellProblem:
     def design(self, result: FitResult) -> NDArray[np.float64]:
         model = ErrorModel(result.terms)
         _, jac, _, _ = self.evaluate(model, result.as_dict())
-        cols = [k for k, st in enumerate(result.status) if st == "estimated"]
+        cols = [k for k, st in enumerate(result.status) if st == Status.ESTIMATED]
         return jac.reshape(-1, len(model))[:, cols]
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
@@ -708,7 +711,7 @@ class LinearProblem:
         cov = np.zeros((len(model), len(model)))
         cov[np.ix_(cols, cols)] = np.linalg.inv(x[:, cols].T @ x[:, cols])
         residuals = self.y - (x * self.s[:, None]) @ p
-        status = tuple("estimated" if k in cols else "gauge" for k in range(len(model)))
+        status = tuple(Status.ESTIMATED if k in cols else Status.GAUGE for k in range(len(model)))
         return FitResult(
             stage=self.stage,
             terms=model.terms,
@@ -724,7 +727,7 @@ class LinearProblem:
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
         """Columns of the estimated terms (none: the data determine none of them, e.g. slopes of very short dwells)."""
-        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == Status.ESTIMATED]
         return np.stack(estimated, axis=1) if estimated else np.zeros((self.y.size, 0))
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:

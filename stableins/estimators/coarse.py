@@ -65,6 +65,7 @@ from stableins.estimators.gauss_newton import convergence_warning, gauss_newton,
 from stableins.estimators.result import CoarseDetails, FitResult, Likelihood, UsedDwell
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
+from stableins.status import Status
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
@@ -499,7 +500,7 @@ def calibrate_coarse(
         notes.append(warning)
     if design.weak:
         notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
-    status = tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids)
+    status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids)
     determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge)
     return FitResult(
         stage="coarse",

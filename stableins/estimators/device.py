@@ -28,6 +28,7 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.procedures.definition import ProcedureDefinition, load_procedure
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord, Entry
@@ -231,7 +232,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
     ]
     for k in final.ids:
         v, s, st = final[k]
-        if st != "estimated":
+        if st != Status.ESTIMATED:
             continue
         s_floor = floor[k][1]
         term = final.terms[final.ids.index(k)]
@@ -244,7 +245,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
 
 def floor_ratio(final: FitResult, floor: FitResult) -> float:
     """Largest σ(largest floor)/σ(recorded) over the estimated parameters."""
-    ratios = [floor[k][1] / final[k][1] for k in final.ids if final[k][2] == "estimated" and final[k][1] > 0]
+    ratios = [floor[k][1] / final[k][1] for k in final.ids if final[k][2] == Status.ESTIMATED and final[k][1] > 0]
     return max(ratios, default=1.0)
 
 
@@ -317,9 +318,7 @@ def calibrate_device(
         for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
     }
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
-    joint = dict(
-        gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms
-    )
+    joint = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms)
     if len(passes) > 1:
         coarse = fit_joint(
             used_coarse,
@@ -359,7 +358,7 @@ def calibrate_device(
         if mismatch is not None:
             fine = replace(fine, notes=fine.notes + (mismatch,))
         used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
-        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == "estimated"}
+        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == Status.ESTIMATED}
         fused = fit_joint(
             used_coarse,
             used_fine,

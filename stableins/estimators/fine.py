@@ -45,6 +45,7 @@ from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_d
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood, UsedDwell
 from stableins.noise import NoiseModel
+from stableins.status import Status
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
 GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
@@ -211,7 +212,7 @@ def calibrate_fine(
         cov[i, :] = 0.0
         cov[:, i] = 0.0
         cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
-    status = tuple("unidentifiable" if k in BETA_IDS or k in held else "estimated" for k in model.ids)
+    status = tuple(Status.UNIDENTIFIABLE if k in BETA_IDS or k in held else Status.ESTIMATED for k in model.ids)
     if held:
         notes.append(held_terms_note(undetermined, start, model, "fine"))
     determined.append(

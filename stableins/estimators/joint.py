@@ -61,6 +61,7 @@ from stableins.estimators.gauss_newton import convergence_warning, gauss_newton,
 from stableins.estimators.result import FitResult, Likelihood, UsedDwell
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
+from stableins.status import Status
 
 
 @dataclass(frozen=True)
@@ -210,7 +211,7 @@ def fit_joint(
         terms=model.terms,
         values=solution.x[0].copy(),
         covariance=solution.covariance[0].copy(),
-        status=tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids),
+        status=tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,

@@ -1012,7 +1012,7 @@ def run_system_stage(
         k2=(k2_values, k2_covariance) if options.estimate_k2 else None,
     )
 
-    status = tuple("estimated" if ok else "unidentifiable" for ok in observable)
+    status = tuple(Status.ESTIMATED if ok else Status.UNIDENTIFIABLE for ok in observable)
     combined = FitResult(
         stage="system-combined",
         terms=_combined_terms(),
