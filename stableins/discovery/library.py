@@ -633,7 +633,7 @@ def custom_effect(
     ...     return out
     >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=9.80665e-6 / 9.80665**4)
     >>> term.kind
-    'additive'
+    <TermKind.ADDITIVE: 'additive'>
     """
     return Term(
         term_id,
