@@ -57,6 +57,7 @@ height correction (NIMA TR8350.2, Eqs. 4-1 and 4-3).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Final
 
@@ -299,3 +300,24 @@ def attitude_error_from_misalignment(
     y0, p0, r0 = euler_from_dcm(c_true)
     wrap = lambda x: (x + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
     return np.stack([wrap(y1 - y0), p1 - p0, wrap(r1 - r0)], axis=-1)
+
+
+def heading_to_north_pointing(pitch: ArrayLike, roll: ArrayLike, yaw: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Pitch and roll errors of a level body with heading ``yaw`` as the pair a north-pointing body would show.
+
+    A level body with heading ψ sees ``(δpitch, δroll) = R(ψ)(−φ_E, −φ_N)`` (first order of
+    :func:`attitude_error_from_misalignment`); this rotates back,
+    ``(cos ψ δpitch + sin ψ δroll, −sin ψ δpitch + cos ψ δroll) = (−φ_E, −φ_N)``: the pitch and roll errors of a
+    north-pointing body, as the damping-loop model outputs them.
+    """
+    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+    return cos_yaw * pitch + sin_yaw * roll, -sin_yaw * pitch + cos_yaw * roll  # type: ignore[operator]
+
+
+def misalignment_pitch_roll(relative: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Pitch and roll errors of a north-pointing body from the relative DCM ``C_b^n C_n^{b'} ≈ I + [φ×]`` of a tilted body.
+
+    ``C_n^{b'} = C_n^b (I + [φ×])``: ``φ`` from the antisymmetric part of ``relative`` (``(n, 3, 3)``), and
+    ``(δpitch, δroll) = (−φ_E, −φ_N)`` as for a level north-pointing body (:func:`attitude_error_from_misalignment`).
+    """
+    return -0.5 * (relative[:, 0, 2] - relative[:, 2, 0]), -0.5 * (relative[:, 2, 1] - relative[:, 1, 2])

@@ -203,7 +203,8 @@ def test_every_system_stage_parameter_keeps_or_lowers_its_sigma():
     """The system stage on a synthetic day updating a device-like record with a correlated covariance (the prior)."""
     from system_synthetic import paper_residuals, record
 
-    from stableins.estimators.system.stage import ArraySource, run_system_stage
+    from stableins.data.chunks import ArraySource
+    from stableins.estimators.system.stage import run_system_stage
 
     true, installed = paper_residuals()
     cols, meta = record(true, installed, rate=1.0, seed=21)

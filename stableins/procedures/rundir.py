@@ -571,7 +571,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         outcome = with_sensitivities(outcome, record, prior.values(), covariance, SystemOptions(), compensation_terms=terms)
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
-    details = replace(outcome.result.details, temperature=outcome.diagnostics["temperature"])
+    temperature = outcome.diagnostics.temperature
+    details = replace(outcome.result.details, temperature=None if temperature is None else temperature.to_dict())
     return replace(outcome.result, details=details)
 
 
