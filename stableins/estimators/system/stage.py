@@ -23,14 +23,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from enum import StrEnum
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
-from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
 from stableins.estimators.result import CombinedDetails, FitResult
@@ -50,43 +48,12 @@ from stableins.estimators.system.assembly import (
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 from stableins.status import Status
-
-
-class GyroDrift(StrEnum):
-    """What the system stage does about a constant gyro drift (:attr:`SystemOptions.gyro_drift`)."""
-
-    #: Leave it out of the attitude fit (a known drift, :attr:`SystemOptions.known_gyro_drift`, is still removed).
-    IGNORE = "ignore"
-    #: Fit its response as a nuisance (σ of the fundamentals ×10).
-    FIT = "fit"
-    #: Fit it only to warn when it is significant.
-    CHECK = "check"
-
-
-_POSITIVE_INTS = ("chunk_rows", "noise_samples_per_chunk")
-_POSITIVE_FLOATS = (
-    "attitude_decimation_seconds",
-    "attitude_block_seconds",
-    "filter_block_seconds",
-    "velocity_limit",
-    "attitude_limit",
-    "rate_tolerance",
-    "polar_tolerance",
-)
-_FLAGS = ("couplings", "compensate_loop", "run_filter", "estimate_k2")
-
-
-def _option_error(name: str, value: object, expected: str) -> InputError:
-    return InputError(f"system-stage option {name} = {value!r} is not valid", field=name, expected=expected)
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass(frozen=True)
@@ -118,31 +85,7 @@ class SystemOptions:
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
 
     def __post_init__(self) -> None:
-        for name in _POSITIVE_INTS:
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise _option_error(name, value, "a positive integer")
-        for name in _POSITIVE_FLOATS:
-            if not _is_number(getattr(self, name)) or getattr(self, name) <= 0:
-                raise _option_error(name, getattr(self, name), "a positive finite number")
-        if not _is_number(self.minimum_duration) or self.minimum_duration < 0:
-            raise _option_error("minimum_duration", self.minimum_duration, "a finite number of seconds ≥ 0")
-        if self.case_rotation_period is not None and (not _is_number(self.case_rotation_period) or self.case_rotation_period <= 0):
-            raise _option_error("case_rotation_period", self.case_rotation_period, "a positive number of seconds, or None")
-        for name in _FLAGS:
-            if not isinstance(getattr(self, name), bool):
-                raise _option_error(name, getattr(self, name), "True or False")
-        try:
-            object.__setattr__(self, "gyro_drift", GyroDrift(self.gyro_drift))
-        except ValueError:
-            raise _option_error("gyro_drift", self.gyro_drift, "one of " + ", ".join(repr(g.value) for g in GyroDrift)) from None
-        drift = self.known_gyro_drift
-        if drift is not None and (not isinstance(drift, tuple | list) or len(drift) != 3 or not all(_is_number(v) for v in drift)):
-            raise _option_error("known_gyro_drift", drift, "three finite numbers [rad/s] (platform x, y, z), or None")
-        if self.gyro_drift_uncertainty is not None and (not _is_number(self.gyro_drift_uncertainty) or self.gyro_drift_uncertainty < 0):
-            raise _option_error("gyro_drift_uncertainty", self.gyro_drift_uncertainty, "a finite number [rad/s] ≥ 0, or None")
-        if not _is_number(self.noise_false_positive_rate) or not 0 < self.noise_false_positive_rate < 1:
-            raise _option_error("noise_false_positive_rate", self.noise_false_positive_rate, "a probability between 0 and 1")
+        object.__setattr__(self, "gyro_drift", validate_options(self))
 
 
 @dataclass(frozen=True)
