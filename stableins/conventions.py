@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Final
 
 import numpy as np
@@ -236,6 +237,20 @@ def actual_gimbal_angles(readings: ArrayLike, zero_offsets: ArrayLike) -> NDArra
     return np.asarray(readings, dtype=float) + np.asarray(zero_offsets, dtype=float)
 
 
+#: Where each installation angle stands in ``C_p^a`` and with which sign (Eq. 5, signs restored):
+#: ``C_p^a[row, col] = sign · β`` (:func:`dcm_platform_to_accelerometer`).
+INSTALLATION_ENTRIES: Final = MappingProxyType(
+    {
+        "beta_xz": (0, 1, 1.0),
+        "beta_xy": (0, 2, -1.0),
+        "beta_yz": (1, 0, -1.0),
+        "beta_yx": (1, 2, 1.0),
+        "beta_zy": (2, 0, 1.0),
+        "beta_zx": (2, 1, -1.0),
+    }
+)
+
+
 def dcm_platform_to_accelerometer(
     beta_xz: ArrayLike,
     beta_xy: ArrayLike,
@@ -251,12 +266,11 @@ def dcm_platform_to_accelerometer(
                 -\beta_{yz} & 1 & \beta_{yx}\\ \beta_{zy} & -\beta_{zx} & 1\end{bmatrix}
     """
     b = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (beta_xz, beta_xy, beta_yz, beta_yx, beta_zy, beta_zx)))
-    bxz, bxy, byz, byx, bzy, bzx = b
-    out = np.zeros(bxz.shape + (3, 3))
+    angles = dict(zip(("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx"), b, strict=True))
+    out = np.zeros(b[0].shape + (3, 3))
     out[..., 0, 0] = out[..., 1, 1] = out[..., 2, 2] = 1.0
-    out[..., 0, 1], out[..., 0, 2] = bxz, -bxy
-    out[..., 1, 0], out[..., 1, 2] = -byz, byx
-    out[..., 2, 0], out[..., 2, 1] = bzy, -bzx
+    for name, (row, col, sign) in INSTALLATION_ENTRIES.items():
+        out[..., row, col] = angles[name] if sign > 0 else -angles[name]
     return out
 
 

@@ -16,6 +16,7 @@ import pytest
 from device_world import GRAVITY, device_columns, draw_truth
 
 from stableins import cli
+from stableins.conventions import MICRO_G
 from stableins.data.device import save_device
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, known_terms
@@ -28,7 +29,6 @@ from stableins.status import Status
 
 POPPLER = shutil.which("pdftotext")
 needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftotext (Debian package poppler-utils) is not installed")
-MICRO_G = 9.80665e-6
 
 
 def pdf_text(path: Path) -> str:
