@@ -257,7 +257,7 @@ def _simulated_device(job: tuple[int, int, bool]) -> dict[str, dict[str, tuple[f
     out = {}
     for name, fit in (("pass 1", cal.passes[0]), ("coarse", cal.coarse), ("fine", cal.fine), ("fused", cal.fused)):
         out[name] = {k: (fit[k][0] - g[k], fit[k][1]) for k in fit.ids if fit[k][2] == "estimated"}
-    for combo, (value, sigma) in cal.fine.extra["beta_combinations"].items():
+    for combo, (value, sigma) in cal.fine.combinations.items():
         a, _, b = combo.split()
         out["fine"][combo] = (value - (g[a] - g[b]), sigma)
     return out

@@ -150,7 +150,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return EXIT_USAGE
         return int(args._run(args) or 0)
     except InputError as error:
-        print(f"stableins: error: {error}", file=sys.stderr)
+        from stableins.commands.flags import as_flag
+
+        print(f"stableins: error: {as_flag(error)}", file=sys.stderr)
         return error.exit_status
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)

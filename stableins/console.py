@@ -48,11 +48,11 @@ class Console:
 
     def __init__(
         self,
+        *,
         yes: bool = False,
         values: dict[str, str] | None = None,
         out: TextIO | None = None,
         quiet: bool = False,
-        *,
         width: int | None = None,
         bars: bool | None = None,
     ) -> None:

@@ -24,6 +24,8 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from stableins.status import Status
+
 #: Most lines a result's ``repr`` prints (the rest: ``print(result)``).
 MAX_REPR_LINES = 25
 #: What to install for :func:`require_pandas`.
@@ -110,9 +112,9 @@ def parameter_lines(rows: Iterable[tuple[str, float, float, str, str]]) -> list[
     for parameter_id, value, sigma, unit, status in rows:
         stem, tail = _stem(parameter_id)
         status = str(status)
-        if status == "unidentifiable":
+        if status == Status.UNIDENTIFIABLE:
             text = "not determined"
-        elif status == "estimated":
+        elif status == Status.ESTIMATED:
             text = value_sigma(value, sigma)
         else:
             text = f"{value:.4g} ({status})"
@@ -205,7 +207,7 @@ def parameter_html(rows: Iterable[tuple[str, float, float, str, str]], meanings:
     body = []
     for parameter_id, value, sigma, unit, status, *rest in rows:
         shown = (
-            "not determined" if str(status) == "unidentifiable" else value_sigma(value, sigma if str(status) == "estimated" else math.nan)
+            "not determined" if status == Status.UNIDENTIFIABLE else value_sigma(value, sigma if status == Status.ESTIMATED else math.nan)
         )
         body.append([parameter_id, shown, unit_text(unit), str(status), *rest[:1]])
     return html_table(columns, body, numeric=(1,), titles=list(meanings), status_column=3)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from types import MappingProxyType
 from typing import Any
 
@@ -43,6 +44,29 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import ARCSEC, INSTALLATION_ENTRIES, MICRO_G, PPM, STANDARD_GRAVITY, dcm_platform_to_accelerometer
 
 AXES = ("x", "y", "z")
+
+
+class TermKind(StrEnum):
+    """What a :class:`Term` is, and so how it enters the model (docs/conventions.md, "Term kinds").
+
+    A ``TermKind`` is a ``str``: records, JSON and reports keep the words below.
+    """
+
+    #: Scale factor ``SF`` of one accelerometer (dimensionless, near 1; Wu et al. 2018 Eq. 6).
+    SCALE_FACTOR = "scale_factor"
+    #: Bias ``δb`` of one accelerometer [m/s²] (Eq. 6).
+    BIAS = "bias"
+    #: One of the six installation angles ``β`` of ``C_p^a`` [rad] (Eq. 5).
+    INSTALLATION = "installation"
+    #: Quadratic nonlinearity ``K2`` of one accelerometer [s²/m] (Eq. 6).
+    NONLINEARITY = "nonlinearity"
+    #: Zero offset ``θi0`` of a gimbal angle sensor [rad] (Section 3); enters through the kinematics.
+    GIMBAL = "gimbal"
+    #: An effect outside the core model; enters through its regressor (model discovery, hidden effects).
+    ADDITIVE = "additive"
+    #: A combined quasi-static pitch/roll coefficient of the system stage [rad] (Eqs. 21-25, 29-38): a
+    #: combination of core parameters the system stage estimates; it does not enter :meth:`ErrorModel.forward`.
+    COMBINED = "combined"
 
 
 @dataclass(frozen=True)
@@ -95,10 +119,10 @@ class Term:
     ----------
     id : str
         Stable identifier used in records, reports and scripts.
-    kind : str
-        ``"scale_factor"``, ``"bias"``, ``"installation"``, ``"nonlinearity"``,
-        ``"gimbal"`` (angle-sensor zero offset), or ``"additive"`` (enters through a
-        regressor).
+    kind : TermKind
+        :class:`TermKind` (a string given here is converted; an unknown one is an error): scale factor, bias,
+        installation, nonlinearity, gimbal (angle-sensor zero offset), additive (enters through a regressor) or
+        combined (a system-stage combined coefficient).
     si_unit, unit : str
         SI unit of the value, and the engineering unit shown to people.
     scale : float
@@ -123,7 +147,7 @@ class Term:
     """
 
     id: str
-    kind: str
+    kind: TermKind
     si_unit: str
     unit: str
     scale: float
@@ -135,6 +159,13 @@ class Term:
     excitation: str = "static positions"
     aliases: tuple[str, ...] = ()
     source: str = "Wu et al. 2018 Eq. 6"
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "kind", TermKind(self.kind))
+        except ValueError:
+            known = ", ".join(k.value for k in TermKind)
+            raise ValueError(f"term {self.id!r}: unknown kind {self.kind!r} (expected one of {known})") from None
 
     def to_engineering(self, value: ArrayLike) -> NDArray[np.float64]:
         """SI value → engineering unit (deviation from :attr:`reference`)."""
@@ -222,7 +253,7 @@ def _core_terms() -> tuple[Term, ...]:
         terms.append(
             Term(
                 f"sf_{a}",
-                "scale_factor",
+                TermKind.SCALE_FACTOR,
                 "1",
                 "ppm",
                 PPM,
@@ -234,17 +265,17 @@ def _core_terms() -> tuple[Term, ...]:
         )
     for i, a in enumerate(AXES):
         terms.append(
-            Term(f"bias_{a}", "bias", "m/s^2", "ug", MICRO_G, 100 * MICRO_G, f"bias of the {a} accelerometer (δb in Eq. 6)", axis=i)
+            Term(f"bias_{a}", TermKind.BIAS, "m/s^2", "ug", MICRO_G, 100 * MICRO_G, f"bias of the {a} accelerometer (δb in Eq. 6)", axis=i)
         )
     for bid in BETA_IDS:
         terms.append(
-            Term(bid, "installation", "rad", "arcsec", ARCSEC, 30 * ARCSEC, _BETA_MEANING[bid] + " (Eq. 5)", axis=AXES.index(bid[5]))
+            Term(bid, TermKind.INSTALLATION, "rad", "arcsec", ARCSEC, 30 * ARCSEC, _BETA_MEANING[bid] + " (Eq. 5)", axis=AXES.index(bid[5]))
         )
     for i, a in enumerate(AXES):
         terms.append(
             Term(
                 f"K2_{a}",
-                "nonlinearity",
+                TermKind.NONLINEARITY,
                 "s^2/m",
                 "ug/g^2",
                 MICRO_G_PER_G2,
@@ -259,7 +290,8 @@ def _core_terms() -> tuple[Term, ...]:
 
 CORE_TERMS: tuple[Term, ...] = _core_terms()
 GIMBAL_TERMS: tuple[Term, ...] = tuple(
-    Term(g, "gimbal", "rad", "arcsec", ARCSEC, 60 * ARCSEC, _GIMBAL_MEANING[g], source="Wu et al. 2018 Section 3") for g in GIMBAL_IDS
+    Term(g, TermKind.GIMBAL, "rad", "arcsec", ARCSEC, 60 * ARCSEC, _GIMBAL_MEANING[g], source="Wu et al. 2018 Section 3")
+    for g in GIMBAL_IDS
 )
 CORE_IDS = tuple(t.id for t in CORE_TERMS)
 
@@ -293,14 +325,14 @@ class ErrorModel:
         if duplicates:
             raise ValueError(f"duplicate term ids in error model: {duplicates}")
         for t in self.terms:
-            if t.kind == "additive" and t.regressor is None:
+            if t.kind == TermKind.ADDITIVE and t.regressor is None:
                 raise ValueError(f"additive term {t.id!r} needs a regressor")
 
     # ------------------------------------------------------------- constructors
     @classmethod
-    def standard(cls, nonlinear: bool = True, gimbals: bool = False) -> ErrorModel:
+    def standard(cls, *, nonlinear: bool = True, gimbals: bool = False) -> ErrorModel:
         """The paper's model: 12 linear terms, plus ``K2_*`` and ``theta*0`` on request."""
-        terms = [t for t in CORE_TERMS if nonlinear or t.kind != "nonlinearity"]
+        terms = [t for t in CORE_TERMS if nonlinear or t.kind != TermKind.NONLINEARITY]
         if gimbals:
             terms += list(GIMBAL_TERMS)
         return cls(tuple(terms))
@@ -340,7 +372,7 @@ class ErrorModel:
 
     @property
     def additive_terms(self) -> tuple[Term, ...]:
-        return tuple(t for t in self.terms if t.kind == "additive")
+        return tuple(t for t in self.terms if t.kind == TermKind.ADDITIVE)
 
     def nominal_values(self) -> dict[str, float]:
         """Ideal instrument: scale factors 1, everything else 0."""
@@ -418,18 +450,18 @@ class ErrorModel:
         shape = np.broadcast_shapes(f_p.shape, p.bias.shape)
         jac = np.zeros(shape + (len(self),))
         for k, t in enumerate(self.terms):
-            if t.kind == "scale_factor":
+            if t.kind == TermKind.SCALE_FACTOR:
                 i = t.axis
                 jac[..., i, k] = -gain[..., i] * f_ideal[..., i] / p.scale_factor[..., i] ** 2
-            elif t.kind == "bias":
+            elif t.kind == TermKind.BIAS:
                 jac[..., t.axis, k] = 1.0
-            elif t.kind == "installation":
+            elif t.kind == TermKind.INSTALLATION:
                 row, col, sign = INSTALLATION_ENTRIES[t.id]
                 jac[..., row, k] = gain[..., row] * sign * f_p[..., col] / p.scale_factor[..., row]
-            elif t.kind == "nonlinearity":
+            elif t.kind == TermKind.NONLINEARITY:
                 i = t.axis
                 jac[..., i, k] = gain[..., i] * u[..., i] ** 2
-            elif t.kind == "additive":
+            elif t.kind == TermKind.ADDITIVE:
                 jac[..., k] = gain * t.regressor(self._inputs(f_p, inputs))
         return jac
 
@@ -481,7 +513,7 @@ class _CoreValues:
         return cls(
             scale_factor=stack("sf", 1.0),
             bias=stack("bias", 0.0),
-            quadratic=stack("K2", 0.0) if any(t.kind == "nonlinearity" for t in model.terms) else np.zeros(3),
+            quadratic=stack("K2", 0.0) if any(t.kind == TermKind.NONLINEARITY for t in model.terms) else np.zeros(3),
             installation=dcm_platform_to_accelerometer(
                 *(get(b, 0.0) for b in ("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx"))
             ),

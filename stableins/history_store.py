@@ -172,7 +172,7 @@ class HistoryStore:
     def _database(self, *, create: bool) -> Iterator[sqlite3.Connection | None]:
         """A connection (None when the store does not exist and ``create`` is false); migrates old stores first."""
         if self.root.exists() and not self.root.is_dir():
-            raise InputError("is a file, not a directory", path=self.root, field="--store", expected="a history store directory")
+            raise InputError("is a file, not a directory", path=self.root, field="root", expected="a history store directory")
         if not self.index_path.exists():
             if not create and not self._legacy_units():
                 yield None
@@ -180,7 +180,7 @@ class HistoryStore:
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
             except OSError as error:
-                raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="--store") from None
+                raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="root") from None
         try:
             connection = sqlite3.connect(self.index_path, timeout=BUSY_TIMEOUT, isolation_level=None)
         except sqlite3.Error as error:
@@ -387,23 +387,23 @@ class HistoryStore:
         connection.executemany("INSERT INTO parameters (record, source, id, value, sigma, unit, status) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
     # ------------------------------------------------------------------ reading records
-    def record_path(self, serial: str, entry: Entry, evidence: bool = False) -> Path:
+    def record_path(self, serial: str, entry: Entry, *, evidence: bool = False) -> Path:
         """Path of a filed record after its SHA-256 was checked against the index (InputError otherwise)."""
-        path, digest = self._file_and_digest(serial, entry, evidence)
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
         _verified_bytes(path, digest)
         return path
 
-    def _file_and_digest(self, serial: str, entry: Entry, evidence: bool) -> tuple[Path, str]:
+    def _file_and_digest(self, serial: str, entry: Entry, *, evidence: bool) -> tuple[Path, str]:
         if evidence and entry.evidence:
             return self.unit_directory(serial) / entry.evidence, entry.evidence_sha256
         return self.unit_directory(serial) / entry.file, entry.sha256
 
-    def load(self, serial: str, entry: Entry, evidence: bool = False) -> CalibrationRecord:
+    def load(self, serial: str, entry: Entry, *, evidence: bool = False) -> CalibrationRecord:
         """A filed record (or the estimate kept beside it), refused unless its bytes have the SHA-256 the index holds."""
         from stableins.data.jsonio import parse_json
         from stableins.records import CalibrationRecord
 
-        path, digest = self._file_and_digest(serial, entry, evidence)
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
         data = _verified_bytes(path, digest)
         return CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))
 
@@ -422,7 +422,7 @@ class HistoryStore:
             entry = _entry(row[1:])
             for evidence in (False, True) if entry.evidence else (False,):
                 try:
-                    _verified_bytes(*self._file_and_digest(row[0], entry, evidence))
+                    _verified_bytes(*self._file_and_digest(row[0], entry, evidence=evidence))
                 except InputError as error:
                     problems.append(str(error))
         return problems
@@ -450,7 +450,7 @@ class HistoryStore:
             raise InputError(
                 f"unit {serial!r} had no calibration in force on {date.isoformat()}; "
                 f"its first record is valid from {entries[0].valid_from}",
-                field="--at",
+                field="date",
             )
         return earlier[-1]
 

@@ -377,7 +377,7 @@ class NoiseModel:
     def summary(self) -> str:
         """One short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
 
-        def term(name: str, unit: str, limit: bool = True) -> str:
+        def term(name: str, unit: str, *, limit: bool = True) -> str:
             v = self.values(name) / MICRO_G
             up = self.limits(name)[1] / MICRO_G
             text = f"{_triple(v, 0.01)} {unit}"

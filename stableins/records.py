@@ -307,7 +307,7 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     return digest.hexdigest()
 
 
-def parse_entries(items: Iterable[str], field: str = "--set") -> tuple[Entry, ...]:
+def parse_entries(items: Iterable[str], field: str = "entries") -> tuple[Entry, ...]:
     """Entries from ``KEY=VALUE`` or ``KEY=NUMBER UNIT`` (``laboratory=PTB``, ``lab_temperature=21.5 degC``)."""
     out: dict[str, Entry] = {}
     for item in items:
@@ -667,7 +667,7 @@ class CalibrationRecord:
             raise InputError(
                 f"the {result.stage} stage gives no likelihood: it cannot update a record", field="stage", expected="a Bayesian stage"
             )
-        calibration = self._next_calibration(new_calibration, prior, procedure, calibration_entries)
+        calibration = self._next_calibration(new_calibration=new_calibration, prior=prior, procedure=procedure, entries=calibration_entries)
         if stage is None:
             where = site or self.site
             stage_fields.setdefault("sample_rate", None if where is None else where.sample_rate)
@@ -681,11 +681,11 @@ class CalibrationRecord:
         """This record updated by a stage run of another record (its stored likelihood), e.g. ``stableins recal --estimate``."""
         if stage.likelihood is None:
             raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
-        calibration = self._next_calibration(new_calibration, prior, stage.procedure, ())
+        calibration = self._next_calibration(new_calibration=new_calibration, prior=prior, procedure=stage.procedure, entries=())
         return self._apply(stage, calibration, {}, site)
 
     def _next_calibration(
-        self, new_calibration: bool, prior: PriorReference | None, procedure: str, entries: Iterable[Entry]
+        self, *, new_calibration: bool, prior: PriorReference | None, procedure: str, entries: Iterable[Entry]
     ) -> Calibration:
         if new_calibration:
             return Calibration.new(procedure, entries, prior)
@@ -1033,7 +1033,7 @@ def migrate_v1(document: dict[str, Any], path: str | None = None) -> dict[str, A
     for item in document.get("parameters", []) if isinstance(document.get("parameters"), list) else []:
         if isinstance(item, dict):
             item = dict(item)
-            item["determined_by"] = [{"stage": stage_id, "how": "alone"}] if item.get("status") == "estimated" else []
+            item["determined_by"] = [{"stage": stage_id, "how": "alone"}] if item.get("status") == Status.ESTIMATED else []
         parameters.append(item)
     site = document.get("site")
     sample_rate = None

@@ -86,23 +86,23 @@ def start_run(
     if definition_file is not None and plan.level == "system" and prior is None:
         raise InputError(
             "the system-level stage estimates corrections to the calibration the INS navigates with",
-            field="--prior",
+            field="prior_file",
             expected="--prior RECORD (the unit's record in force) or --store DIR",
         )
     if definition_file is not None and fine and prior is None:
         raise InputError(
             "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
-            field="--prior",
+            field="prior_file",
             expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
         )
     if prior is not None and unit is not None and prior.serial_number != unit:
-        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="--unit", expected=repr(unit))
+        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="unit", expected=repr(unit))
     check_settings(plan, console.values)
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
     try:
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
-            raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="--unit", expected=repr(unit))
+            raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
@@ -190,7 +190,7 @@ def resume_run(
             raise InputError(
                 "the run is not finished: there is nothing to estimate again yet",
                 path=rundir,
-                field="--re-estimate",
+                field="re_estimate",
                 expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
             )
         spec = _resume_spec(start["driver"], driver_spec)
@@ -204,10 +204,10 @@ def resume_run(
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
                 raise InputError(
-                    f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="--driver"
+                    f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="driver_spec"
                 )
             deterministic = is_deterministic(driver)
-            script, superseded = resume_script(journal.records, deterministic or re_estimate)
+            script, superseded = resume_script(journal.records, deterministic=deterministic or re_estimate)
             if re_estimate:
                 what = f"{plan.name!r} of unit {start['unit']}"
                 console.say(f"estimating the finished run {what} again from its journal ({len(script)} records)")
@@ -244,7 +244,7 @@ def _resume_spec(journaled: str, driver_spec: str | None) -> str:
     if not (driver_spec.startswith("tcp://") and journaled.startswith("tcp://")):
         raise InputError(
             f"this run was made with --driver {journaled}",
-            field="--driver",
+            field="driver_spec",
             expected=f"{journaled} (only a tcp:// address may change on resume)",
         )
     return driver_spec
@@ -390,11 +390,12 @@ def run_entries(runner: Runner) -> tuple[Any, ...]:
 
 def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
     """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
+    from stableins.estimators.result import SystemDetails
     from stableins.records import temperature_summary
 
     if columns is not None:
         return temperature_summary(columns["temperature"])
-    temperature = fit.extra.get("temperature")
+    temperature = fit.details.temperature if isinstance(fit.details, SystemDetails) else None
     return {"temperature": {**temperature, "unit": "degC"}} if temperature else {}
 
 
@@ -434,7 +435,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         return None
     if not start.get("prior"):
         raise InputError(
-            "the fine stage starts from a coarse estimate", field="--prior", expected="the unit's coarse record (--prior RECORD or --store)"
+            "the fine stage starts from a coarse estimate", field="prior_file", expected="the unit's coarse record (--prior RECORD or --store)"
         )
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.fine import calibrate_fine
@@ -487,8 +488,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
     temperature = outcome.diagnostics.temperature
-    extra = {**outcome.result.extra, "temperature": None if temperature is None else temperature.to_dict()}
-    return replace(outcome.result, extra=extra)
+    details = replace(outcome.result.details, temperature=None if temperature is None else temperature.to_dict())
+    return replace(outcome.result, details=details)
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:

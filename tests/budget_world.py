@@ -49,7 +49,7 @@ def joint(world):
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     options = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, start=calibration.coarse)
     fit = fit_joint(coarse, fine, stage="coarse+fine", **options)
-    model, fm = coarse_model(True), fine_model()
+    model, fm = coarse_model(nonlinear=True), fine_model()
     problem = JointProblem(
         CoarseProblem.from_dwells(coarse, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, model),
         FineProblem(np.array([d.mean for d in fine])[None], np.array([d.sem for d in fine])[None], float(site.gravity), fm),

@@ -29,7 +29,7 @@ def _rows(cols, mask):
 
 def test_clean_data_pass():
     fit = _calibrate(_columns())
-    assert fit.extra["left_out"] == {} and fit.rank == 14
+    assert fit.left_out == {} and fit.rank == 14
     assert not any(n.startswith("warning:") for n in fit.notes)
 
 
@@ -49,7 +49,7 @@ def test_missing_position_is_an_error_naming_it():
         _calibrate(_rows(cols, cols["position"] != 7))
     assert "run.csv" in str(info.value)
     fit = _calibrate(_rows(cols, cols["position"] != 7), allow_missing=True)
-    assert "missing" in fit.extra["left_out"][7] and any("position 7 left out" in n for n in fit.notes)
+    assert "missing" in fit.left_out[7] and any("position 7 left out" in n for n in fit.notes)
 
 
 def test_duplicated_position_is_an_error():
@@ -69,8 +69,8 @@ def test_dwell_too_short_to_measure_noise_is_left_out():
     cols = _columns()
     keep = (cols["position"] != 4) | (cols["time_since_command"] < 5.1)  # 0.1 s of dwell: 10 samples
     fit = _calibrate(_rows(cols, keep))
-    assert "too short to measure noise" in fit.extra["left_out"][4]
-    assert 4 not in fit.extra["positions_used"]
+    assert "too short to measure noise" in fit.left_out[4]
+    assert 4 not in fit.positions()
 
 
 def test_clipped_and_saturated_samples_are_left_out():
@@ -81,8 +81,8 @@ def test_clipped_and_saturated_samples_are_left_out():
     sel2 = (cols["position"] == 2) & (cols["time_since_command"] >= 8.0) & (cols["time_since_command"] < 8.05)
     cols["f_y"][sel2] = 40.0  # beyond the range
     fit = _calibrate(cols)
-    assert "clipped samples on axis x" in fit.extra["left_out"][11]
-    assert "saturated" in fit.extra["left_out"][2]
+    assert "clipped samples on axis x" in fit.left_out[11]
+    assert "saturated" in fit.left_out[2]
 
 
 def test_slew_inside_a_dwell_is_left_out():
@@ -91,13 +91,13 @@ def test_slew_inside_a_dwell_is_left_out():
     cols["angle_inner"][sel] += np.radians(0.5)
     cols["f_x"][sel] += 0.05
     fit = _calibrate(cols)
-    assert "slew inside the dwell" in fit.extra["left_out"][13]
+    assert "slew inside the dwell" in fit.left_out[13]
 
 
 def test_non_finite_samples_are_left_out():
     cols = _columns()
     cols["f_z"][(cols["position"] == 5) & (cols["time_since_command"] > 10)] = np.nan
-    assert "non-finite" in _calibrate(cols).extra["left_out"][5]
+    assert "non-finite" in _calibrate(cols).left_out[5]
 
 
 @pytest.mark.parametrize(
@@ -127,7 +127,7 @@ def test_a_single_wrong_position_is_flagged_not_fitted():
     sel = cols["position"] == 9
     cols["f_y"][sel] *= -1.0
     fit = _calibrate(cols)
-    assert "does not match the commanded orientation" in fit.extra["left_out"][9]
+    assert "does not match the commanded orientation" in fit.left_out[9]
 
 
 def test_too_many_positions_left_out_is_an_error():
@@ -203,8 +203,8 @@ def test_fine_position_off_its_orientation_is_flagged_and_left_out():
 
     dwells, site = _fine_session(flip)
     result = calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
-    assert "does not match the commanded orientation" in result.fine.extra["left_out"][9]
-    assert 9 not in result.fine.extra["positions_used"] and len(result.fine.extra["positions_used"]) == 17
+    assert "does not match the commanded orientation" in result.fine.left_out[9]
+    assert 9 not in result.fine.positions() and len(result.fine.positions()) == 17
 
 
 def test_fine_positions_missing_are_an_error_unless_allowed():
@@ -214,7 +214,7 @@ def test_fine_positions_missing_are_an_error_unless_allowed():
     with pytest.raises(InputError, match=r"fine-stage positions \[4, 14\] are missing"):
         calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
     result = calibrate_device(dwells, site, layouts=LAYOUTS, allow_missing=True, source="fine.csv")
-    assert result.fine.extra["left_out"] == {4: "missing from the data", 14: "missing from the data"}
+    assert result.fine.left_out == {4: "missing from the data", 14: "missing from the data"}
     assert result.fine.rank == 12
 
 

@@ -43,7 +43,7 @@ def test_exact_recovery_without_noise():
     expected = gauge_equivalent(truth)
     for k in ("sf_x", "sf_y", "sf_z", "bias_x", "bias_y", "bias_z", "K2_x", "K2_y", "K2_z"):
         assert fine[k][0] == pytest.approx(expected[k], abs=1e-5 * MODEL[k].nominal), k  # second order in the carried angles
-    combos = fine.extra["beta_combinations"]
+    combos = fine.combinations
     assert combos["beta_xz − beta_yz"][0] == pytest.approx(expected["beta_xz"] - expected["beta_yz"], abs=1e-3 * ARCSEC)
     assert combos["beta_zy − beta_xy"][0] == pytest.approx(expected["beta_zy"] - expected["beta_xy"], abs=1e-3 * ARCSEC)
     assert combos["beta_yx − beta_zx"][0] == pytest.approx(expected["beta_yx"] - expected["beta_zx"], abs=1e-3 * ARCSEC)

@@ -77,7 +77,7 @@ def test_recovery_within_k_sigma_of_the_simulator_truth(seed):
             value, sigma, status = fit[k]
             if status == "estimated":
                 z.append((value - expected[k]) / sigma)
-    for name, (value, sigma) in calibration.fine.extra["beta_combinations"].items():
+    for name, (value, sigma) in calibration.fine.combinations.items():
         a, _, b = name.split()
         z.append((value - (expected[a] - expected[b])) / sigma)
     z = np.array(z)

@@ -1,11 +1,13 @@
 """Forward/inverse round trips and analytic Jacobians of the error model."""
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stableins.errormodel import CORE_IDS, ErrorModel, Term, TermInputs
+from stableins.errormodel import CORE_IDS, ErrorModel, Term, TermInputs, TermKind
 
 
 def _draw(model, rng, scale=1.0):
@@ -114,3 +116,20 @@ def test_engineering_units():
     assert model["bias_y"].to_engineering(9.80665e-5) == pytest.approx(10.0)
     assert model["beta_xz"].to_engineering(np.radians(1 / 3600)) == pytest.approx(1.0)
     assert model["K2_z"].from_engineering(1.0) == pytest.approx(9.80665e-6 / 9.80665**2)
+
+
+def test_term_kind_is_an_enum_that_serializes_as_its_word() -> None:
+    model = ErrorModel.standard(nonlinear=True, gimbals=True)
+    assert {t.kind for t in model.terms} == {
+        TermKind.SCALE_FACTOR,
+        TermKind.BIAS,
+        TermKind.INSTALLATION,
+        TermKind.NONLINEARITY,
+        TermKind.GIMBAL,
+    }
+    assert all(isinstance(t.kind, TermKind) for t in model.terms)
+    assert json.dumps(model["sf_x"].kind) == '"scale_factor"'
+    term = Term("k3", "additive", "s^2/m^2", "1", 1.0, 1.0, "cubic", regressor=lambda i: i.specific_force**3)
+    assert term.kind is TermKind.ADDITIVE
+    with pytest.raises(ValueError, match="unknown kind 'additve'"):
+        Term("k3", "additve", "1", "1", 1.0, 1.0, "typo")

@@ -57,7 +57,7 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     assert out.result.rank == 9
     assert out.result.status[out.result.ids.index("beta_zy")] == "estimated"
     assert out.result.status[out.result.ids.index("bias_x")] == "estimated"  # one vocabulary: a posterior is an estimate
-    how = out.result.extra["determination"]
+    how = out.result.details.determination
     assert how["beta_zy"] == "alone" and how["beta_zx"] == "alone"  # determined by these data by themselves
     assert how["bias_x"] == how["beta_xy"] == how["sf_x"] == "in combination"  # only through A, x1, (D_x − D_y)/2
     assert how["K2_x"] is None  # not seen without --estimate-k2
@@ -190,7 +190,7 @@ def test_short_record_fits_only_what_is_observable():
     with pytest.warns(UserWarning, match="not observable"):
         out = run(cols, meta, installed)
     assert "unidentifiable" in set(out.combined.status)  # 12 h: some coefficients not on their own ...
-    transform = out.combined.extra["transform"]
+    transform = out.combined.details.transform
     assert 0 < transform.shape[0] < 15  # ... but some combinations of them
     assert any("sidereal day" in n for n in out.notes)
     # the combinations kept, and the separation built on them, are unbiased within their sigma
@@ -358,3 +358,17 @@ def test_system_result_shows_itself_briefly(day):
     bias = out.result.terms[out.result.ids.index("bias_x")]
     assert frame.loc["bias_x", "correction"] == pytest.approx(float(bias.sigma_to_engineering(out.corrections["bias_x"])))
     assert frame.loc["beta_zy", "determination"] == "alone" and frame.loc["K2_x", "determination"] == "not seen"
+
+
+def test_system_options_are_validated_at_construction() -> None:
+    from stableins.data.errors import InputError
+    from stableins.estimators.system.options import GyroDrift
+
+    assert SystemOptions(gyro_drift="fit").gyro_drift is GyroDrift.FIT
+    with pytest.raises(InputError, match="gyro_drift") as typo:
+        SystemOptions(gyro_drift="fti")
+    assert typo.value.field == "gyro_drift" and "'ignore'" in str(typo.value)
+    for name, value in [("chunk_rows", 0), ("chunk_rows", 4096.0), ("estimate_k2", "yes"), ("known_gyro_drift", (1e-9, 0.0))]:
+        with pytest.raises(InputError) as bad:
+            SystemOptions(**{name: value})
+        assert bad.value.field == name

@@ -143,7 +143,7 @@ def test_platform_errors_are_reported_not_fatal(server):
 
 @pytest.mark.parametrize("spec", ["tcp://localhost", "tcp://:80", "tcp://host:abc", "tcp://host:70000"])
 def test_bad_addresses(spec):
-    with pytest.raises(InputError, match="--driver"):
+    with pytest.raises(InputError, match="driver_spec"):
         parse_address(spec)
 
 

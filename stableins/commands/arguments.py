@@ -19,7 +19,7 @@ from pathlib import Path
 SEED_RANGE = (0, 2**63 - 1)
 
 
-def _bounds(minimum: float | None, maximum: float | None, above: bool) -> str:
+def _bounds(minimum: float | None, maximum: float | None, *, above: bool) -> str:
     low = "-inf" if minimum is None else f"{minimum:g}"
     high = "inf" if maximum is None else f"{maximum:g}"
     return f"{'(' if above or minimum is None else '['}{low}, {high}{']' if maximum is not None else ')'}"
@@ -34,7 +34,7 @@ def number(
     or_zero: bool = False,
 ) -> Callable[[str], float]:
     """A finite float in ``[minimum, maximum]`` (``(minimum, maximum]`` with ``above``); ``or_zero``: 0 also allowed."""
-    what = f"a number{' of ' + unit if unit else ''} in {_bounds(minimum, maximum, above)}{' or 0' if or_zero else ''}"
+    what = f"a number{' of ' + unit if unit else ''} in {_bounds(minimum, maximum, above=above)}{' or 0' if or_zero else ''}"
 
     def parse(text: str) -> float:
         try:
@@ -59,7 +59,7 @@ def number(
 
 def integer(minimum: int | None = None, maximum: int | None = None, *, what: str = "an integer") -> Callable[[str], int]:
     """A whole number in ``[minimum, maximum]`` (decimal digits; ``1e3`` and ``1.5`` are refused)."""
-    expected = f"{what} in {_bounds(minimum, maximum, False)}"
+    expected = f"{what} in {_bounds(minimum, maximum, above=False)}"
 
     def parse(text: str) -> int:
         stripped = text.strip()

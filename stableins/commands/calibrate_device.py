@@ -23,6 +23,7 @@ import argparse
 from pathlib import Path
 
 from stableins.commands import add_entries_option
+from stableins.status import Status
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -232,7 +233,7 @@ def _summary(fit) -> dict:
         "rank": fit.rank,
         "parameters": {
             i: {"value": None, "sigma": None, "status": st}
-            if st == "unidentifiable"
+            if st == Status.UNIDENTIFIABLE
             else {"value": float(v), "sigma": float(s), "status": st}
             for i, v, s, st in zip(fit.ids, fit.values, fit.sigma, fit.status, strict=True)
         },

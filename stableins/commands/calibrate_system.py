@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.commands import add_entries_option
+from stableins.status import Status
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -232,7 +233,7 @@ def report(outcome: Any, record: Any, out: str) -> str:
     r = outcome.result
     lines = ["combined coefficients (rad):", f"  {'name':<12} {'value':>12} {'1 sigma':>10}  status"]
     for n, v, s, st in zip(c.ids, c.values, c.sigma, c.status, strict=True):
-        shown = f"{v:>12.4e} {s:>10.2e}" if st != "unidentifiable" else f"{'—':>12} {'—':>10}"
+        shown = f"{v:>12.4e} {s:>10.2e}" if st != Status.UNIDENTIFIABLE else f"{'—':>12} {'—':>10}"
         lines.append(f"  {n:<12} {shown}  {st}")
     fit = outcome.coloured_noise
     lines += ["", outcome.noise_model.report()]

@@ -41,7 +41,7 @@ PDF_MAGIC, PNG_MAGIC, HDF5_MAGIC, SQLITE_MAGIC = b"%PDF-", b"\x89PNG\r\n\x1a\n",
 MAX_WHOLE_FILE = 256 << 20
 
 
-def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
+def summarize(path: str, *, allow_gaps: bool = False) -> dict[str, Any]:
     """Recognize and validate one file and describe it (raises InputError naming the file, the field and what was expected)."""
     from stableins.procedures.journal import FILE_MAGIC
 
@@ -49,7 +49,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
     head = _head(file)
     suffix = file.suffix.lower()
     if head.startswith(HDF5_MAGIC) or suffix in (".h5", ".hdf5", ".hdf"):
-        return _data(path, allow_gaps)
+        return _data(path, allow_gaps=allow_gaps)
     if head.startswith(FILE_MAGIC[:8]) or suffix == ".bin":
         return _journal(path)
     if head.startswith(SQLITE_MAGIC):
@@ -59,7 +59,7 @@ def summarize(path: str, allow_gaps: bool = False) -> dict[str, Any]:
     if head.startswith(PNG_MAGIC):
         return _png(path, head)
     if suffix == ".csv" or head.startswith(b"# stableins-device"):
-        return _data(path, allow_gaps)
+        return _data(path, allow_gaps=allow_gaps)
     if suffix == ".toml":
         return _procedure(path)
     if suffix == ".json" or head.lstrip()[:1] in (b"{", b"["):
@@ -82,7 +82,7 @@ def _head(file: Path) -> bytes:
         return handle.read(64)
 
 
-def _data(path: str, allow_gaps: bool) -> dict[str, Any]:
+def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
     import warnings
 
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
@@ -322,7 +322,7 @@ def _text(path: str, kind: str) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from stableins.output import emit
 
-    summaries = [summarize(path, args.allow_gaps) for path in args.files]
+    summaries = [summarize(path, allow_gaps=args.allow_gaps) for path in args.files]
     lines = []
     for s in summaries:
         details = ", ".join(f"{k} {v}" for k, v in s.items() if k not in ("file", "kind", "warnings"))

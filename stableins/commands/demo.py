@@ -29,6 +29,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from stableins.status import Status
+
 #: Effects the discovery loop adds at most (one per round).
 MAX_ROUNDS = 3
 
@@ -109,7 +111,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     terms = all_terms()
     rows = []
     for parameter in record.parameters:
-        if parameter.status != "estimated" or parameter.id not in reference or parameter.id not in terms:
+        if parameter.status != Status.ESTIMATED or parameter.id not in reference or parameter.id not in terms:
             continue
         term = terms[parameter.id]
         error = parameter.value - reference[parameter.id]

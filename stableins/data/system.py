@@ -428,12 +428,12 @@ class SystemRecord:
             chunks = self._reader.iter_verified(rows)
         for chunk in chunks:
             checker.update(chunk["time"])
-        report = self._sampling_verdict(checker.finish(), allow_gaps)
+        report = self._sampling_verdict(checker.finish(), allow_gaps=allow_gaps)
         grid = None if self._reader is None else self._reader.time_grid
         step, segments = (0 if self._reader is None else self._reader.overview_step), (0 if grid is None else len(grid))
         return RecordValidation(report, step, segments)
 
-    def check_sampling(self, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
+    def check_sampling(self, *, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = DEFAULT_CHUNK) -> SamplingReport:
         """Check the time column against the metadata rate (streaming).
 
         Raises
@@ -450,9 +450,9 @@ class SystemRecord:
         checker = SamplingChecker(self.sample_rate, self.path, tolerance=tolerance)
         for chunk in self.iter_chunks(["time"], rows=rows):
             checker.update(chunk["time"])
-        return self._sampling_verdict(checker.finish(), allow_gaps)
+        return self._sampling_verdict(checker.finish(), allow_gaps=allow_gaps)
 
-    def _sampling_verdict(self, report: SamplingReport, allow_gaps: bool) -> SamplingReport:
+    def _sampling_verdict(self, report: SamplingReport, *, allow_gaps: bool) -> SamplingReport:
         """Errors and warnings of a time base (docs/formats.md, "Sampling checks")."""
         steps = report.n_samples - 1
         if steps >= 2 and report.n_gaps > steps / 2:

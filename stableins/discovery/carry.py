@@ -33,9 +33,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from stableins.discovery.history import Decision, ModelHistory, Step, make_step
-from stableins.errormodel import Term
+from stableins.errormodel import Term, TermKind
 from stableins.estimators.device import DeviceCalibration
 from stableins.estimators.result import FitResult
+from stableins.status import Status
 
 #: Default false-alarm level of the test that keeps one named effect.
 DEFAULT_ALPHA = 0.05
@@ -111,7 +112,7 @@ def carry_effects(
         step = make_step(fit, f"+ {term.id}", previous)
         value, sigma, status = fit[term.id]
         estimate = f"{term.id} = {float(term.to_engineering(value)):+.4g} ± {float(term.sigma_to_engineering(sigma)):.2g} {term.unit}"
-        if status != "estimated":
+        if status != Status.ESTIMATED:
             why = next((n for n in fit.notes if n.startswith("not determined")), "the fit holds it")
             decision = Decision.NOT_DETERMINED
             reason = f"the {fit.stage} fit cannot separate {term.id} from the model ({why}); left out of the record"
@@ -145,4 +146,4 @@ def carry_effects(
 
 def stage_effects(fit: FitResult) -> tuple[str, ...]:
     """The additive (discovered) terms a stage result estimates or holds."""
-    return tuple(t.id for t in fit.terms if t.kind == "additive")
+    return tuple(t.id for t in fit.terms if t.kind == TermKind.ADDITIVE)

@@ -23,7 +23,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE, MICRO_G
+from stableins.discovery.problem import DiscoveryDetails
 from stableins.display import layout_with_caption
+from stableins.errormodel import TermKind
 from stableins.estimators.result import FitResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -182,7 +184,7 @@ class Diagnosis:
     @property
     def model_name(self) -> str:
         """``standard model`` plus the effects the fit added (``standard model + nonorth_12``), as plots name it."""
-        added = [t.id for t in self.result.terms if t.kind == "additive"]
+        added = [t.id for t in self.result.terms if t.kind == TermKind.ADDITIVE]
         return "standard model" + "".join(f" + {i}" for i in added)
 
     def _by_time(self) -> bool:
@@ -336,7 +338,7 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
         chi2_red=fit_chi2_red(result),
         spread=float(np.sqrt(2.0 / max(nu, 1))),
         p_value=float(stats.chi2.sf(fit_chi2(result), nu)) if nu > 0 else float("nan"),
-        noise=dict(result.extra.get("noise", {})),
+        noise=dict(result.details.noise) if isinstance(result.details, DiscoveryDetails) else {},
         outputs=outputs,
         unit=unit,
         scale=scale,

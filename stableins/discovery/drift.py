@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.discovery.problem import DwellSet, LinearProblem
-from stableins.errormodel import ErrorModel, Term
+from stableins.errormodel import ErrorModel, Term, TermKind
 
 GIMBALS = ("platform", "inner", "middle")
 #: Dwells whose gimbal-rate map is worse conditioned than this are left out (near gimbal lock).
@@ -65,7 +65,9 @@ def _nuisance_terms() -> tuple[Term, ...]:
     zero = lambda inputs: np.zeros_like(inputs.specific_force)  # noqa: E731  (never evaluated through the error model)
     arcsec_per_hour = np.pi / 648000 / 3600
     return tuple(
-        Term(f"reading_rate_{g}", "additive", "rad/s", "arcsec/h", arcsec_per_hour, 1e-9, f"constant {g} reading rate", regressor=zero)
+        Term(
+            f"reading_rate_{g}", TermKind.ADDITIVE, "rad/s", "arcsec/h", arcsec_per_hour, 1e-9, f"constant {g} reading rate", regressor=zero
+        )
         for g in GIMBALS
     )
 

@@ -32,6 +32,7 @@ from stableins.conventions import MICRO_G
 from stableins.display import clipped, html_result, html_table, layout_with_caption, require_pandas, unit_text, value_sigma
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.result import FitResult
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -266,7 +267,7 @@ def make_step(result: FitResult, label: str, previous: FitResult | None = None) 
             (t.id, float(t.to_engineering(result[t.id][0])), float(t.sigma_to_engineering(result[t.id][1])), t.unit) for t in new_ids
         )
         for t in result.terms:
-            if t.id in old and old[t.id][2] == "estimated" and result[t.id][2] == "estimated":
+            if t.id in old and old[t.id][2] == Status.ESTIMATED and result[t.id][2] == Status.ESTIMATED:
                 v0, s0, _ = old[t.id]
                 dv = result[t.id][0] - v0
                 shifts[t.id] = (float(dv / t.scale), t.unit, float(dv / s0) if s0 > 0 else float("nan"))
@@ -629,7 +630,7 @@ class Discovery:
         figures["history"] = self.history.plot(next_step=next_step)
         return figures
 
-    def rank(self, refit_top: int = 3, propose: bool = True) -> Ranking:
+    def rank(self, refit_top: int = 3, *, propose: bool = True) -> Ranking:
         """Rank every library candidate not in the model (see :func:`stableins.discovery.ranking.rank`)."""
         from stableins.discovery.ranking import rank
 

@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import AXES, Term, TermInputs
+from stableins.errormodel import AXES, Term, TermInputs, TermKind
 
 G0 = STANDARD_GRAVITY
 MICRO_G_PER_G2 = MICRO_G / G0**2
@@ -175,7 +175,7 @@ def _instrument() -> list[Candidate]:
             Candidate(
                 Term(
                     f"K3_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "s^4/m^2",
                     "ug/g^3",
                     MICRO_G_PER_G3,
@@ -195,7 +195,7 @@ def _instrument() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Koq_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "s^2/m",
                     "ug/g^2",
                     MICRO_G_PER_G2,
@@ -215,7 +215,7 @@ def _instrument() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Ksa_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "1",
                     "ppm",
                     PPM,
@@ -240,7 +240,7 @@ def _instrument() -> list[Candidate]:
                 Candidate(
                     Term(
                         f"Kcq_{a}{b}",
-                        "additive",
+                        TermKind.ADDITIVE,
                         "s^2/m",
                         "ug/g^2",
                         MICRO_G_PER_G2,
@@ -263,7 +263,7 @@ def _instrument() -> list[Candidate]:
                 Candidate(
                     Term(
                         f"Kcc_{a}{b}{c}",
-                        "additive",
+                        TermKind.ADDITIVE,
                         "s^2/m",
                         "ug/g^2",
                         MICRO_G_PER_G2,
@@ -290,7 +290,7 @@ def _environment() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Kt_bias_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "m/s^2/K",
                     "ug/K",
                     MICRO_G,
@@ -311,7 +311,7 @@ def _environment() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Kt_sf_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "1/K",
                     "ppm/K",
                     PPM,
@@ -332,7 +332,7 @@ def _environment() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Kd_bias_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "m/s^3",
                     "ug/h",
                     MICRO_G / 3600.0,
@@ -353,7 +353,7 @@ def _environment() -> list[Candidate]:
             Candidate(
                 Term(
                     f"Kh_{a}",
-                    "additive",
+                    TermKind.ADDITIVE,
                     "m/s^2",
                     "ug",
                     MICRO_G,
@@ -382,7 +382,7 @@ def _rotation() -> list[Candidate]:
                 Candidate(
                     Term(
                         tid,
-                        "additive",
+                        TermKind.ADDITIVE,
                         "m",
                         "mm",
                         1e-3,
@@ -405,7 +405,7 @@ def _rotation() -> list[Candidate]:
             Candidate(
                 Term(
                     tid,
-                    "additive",
+                    TermKind.ADDITIVE,
                     "rad/s/(m/s^2)",
                     "deg/h/g",
                     DEG_PER_HOUR_PER_G,
@@ -461,7 +461,7 @@ def _equipment() -> list[Candidate]:
             Candidate(
                 Term(
                     tid,
-                    "additive",
+                    TermKind.ADDITIVE,
                     "rad",
                     "arcsec",
                     ARCSEC,
@@ -502,7 +502,7 @@ class Library:
     def register(self, item: Candidate | Term, separation: str = "", group: str = "custom") -> Candidate:
         """Add a candidate (or a bare additive Term) to the library; its id must be new."""
         candidate = item if isinstance(item, Candidate) else Candidate(item, group, separation or item.excitation)
-        if candidate.term.kind != "additive" or candidate.term.regressor is None:
+        if candidate.term.kind != TermKind.ADDITIVE or candidate.term.regressor is None:
             raise ValueError(f"candidate {candidate.id!r} must be an additive term with a regressor")
         if candidate.id in self._items:
             raise ValueError(f"candidate {candidate.id!r} is already in the library")
@@ -633,11 +633,11 @@ def custom_effect(
     ...     return out
     >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4)
     >>> term.kind
-    'additive'
+    <TermKind.ADDITIVE: 'additive'>
     """
     return Term(
         term_id,
-        "additive",
+        TermKind.ADDITIVE,
         si_unit or f"({unit}) in SI",
         unit,
         scale,

@@ -20,19 +20,42 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
-from stableins.errormodel import AXES, ErrorModel, Term, TermInputs
+from stableins.errormodel import AXES, ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.layout import StageLayout
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, StageDetails
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
+
+
+@dataclass(frozen=True, eq=False)
+class DiscoveryDetails(StageDetails):
+    """What a discovery fit of dwells worked with, beyond the parameters.
+
+    Attributes
+    ----------
+    specific_force_platform : ndarray (n, 3)
+        Platform-frame specific force of each dwell [m/s²] at the fitted parameters.
+    prediction : ndarray (n, 3)
+        The model's output at each dwell [m/s²].
+    noise : dict
+        The noise description the dwells were weighted with (:attr:`DwellSet.noise`).
+    slow_noise : bool
+        Whether the weights include the slow-noise covariance between dwells.
+    """
+
+    specific_force_platform: NDArray[np.float64]
+    prediction: NDArray[np.float64]
+    noise: Mapping[str, Any]
+    slow_noise: bool
 
 
 class Problem(Protocol):
@@ -511,7 +534,9 @@ class DwellProblem:
         cov_free = np.linalg.inv(normal)
         cov = np.zeros((len(model), len(model)))
         cov[np.ix_(cols, cols)] = cov_free
-        status = tuple("estimated" if k in cols else ("gauge" if model.terms[k].id in gauge else "fixed") for k in range(len(model)))
+        status = tuple(
+            Status.ESTIMATED if k in cols else (Status.GAUGE if model.terms[k].id in gauge else Status.FIXED) for k in range(len(model))
+        )
         null_space, determined, sv = _design_report(a, model, free, gauge)
         residuals = y - prediction.reshape(-1)
         white = self.whiten(residuals)
@@ -529,12 +554,9 @@ class DwellProblem:
             null_space=null_space,
             determined=determined,
             notes=tuple(notes),
-            extra={
-                "specific_force_platform": f_p,
-                "prediction": prediction,
-                "noise": d.noise,
-                "slow_noise": d.slow_covariance is not None,
-            },
+            details=DiscoveryDetails(
+                specific_force_platform=f_p, prediction=prediction, noise=d.noise, slow_noise=d.slow_covariance is not None
+            ),
             whitened_residuals=white,
             likelihood=Likelihood.from_weighted(model.ids, np.array([values[t.id] for t in model.terms]), a, white),
         )
@@ -542,7 +564,7 @@ class DwellProblem:
     def design(self, result: FitResult) -> NDArray[np.float64]:
         model = ErrorModel(result.terms)
         _, jac, _, _ = self.evaluate(model, result.as_dict())
-        cols = [k for k, st in enumerate(result.status) if st == "estimated"]
+        cols = [k for k, st in enumerate(result.status) if st == Status.ESTIMATED]
         return jac.reshape(-1, len(model))[:, cols]
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
@@ -603,7 +625,14 @@ def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: S
     return null, determined, analysis.singular_values
 
 
-_GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_factor": 3, "installation": 4, "bias": 5}
+_GAUGE_PREFERENCE = {
+    TermKind.GIMBAL: 0,
+    TermKind.ADDITIVE: 1,
+    TermKind.NONLINEARITY: 2,
+    TermKind.SCALE_FACTOR: 3,
+    TermKind.INSTALLATION: 4,
+    TermKind.BIAS: 5,
+}
 
 
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
@@ -672,7 +701,7 @@ class LinearProblem:
         cov = np.zeros((len(model), len(model)))
         cov[np.ix_(cols, cols)] = np.linalg.inv(x[:, cols].T @ x[:, cols])
         residuals = self.y - (x * self.s[:, None]) @ p
-        status = tuple("estimated" if k in cols else "gauge" for k in range(len(model)))
+        status = tuple(Status.ESTIMATED if k in cols else Status.GAUGE for k in range(len(model)))
         return FitResult(
             stage=self.stage,
             terms=model.terms,
@@ -688,7 +717,7 @@ class LinearProblem:
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
         """Columns of the estimated terms (none: the data determine none of them, e.g. slopes of very short dwells)."""
-        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+        estimated = [self._column(t) for t, st in zip(result.terms, result.status, strict=True) if st == Status.ESTIMATED]
         return np.stack(estimated, axis=1) if estimated else np.zeros((self.y.size, 0))
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from stableins.conventions import MICRO_G
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
+from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.problem import Problem
@@ -409,7 +410,7 @@ def rank(
 
     r = whiten(problem, result, result.residuals)
     x = whiten(problem, result, problem.design(result))
-    est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == "estimated"]
+    est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == Status.ESTIMATED]
     m = r.size
     nu = result.dof
     rss0 = float(r @ r)
@@ -536,7 +537,7 @@ def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: Can
     value, sigma, _ = new[candidate.id]
     shifts = {}
     for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):
-        if st != "estimated":
+        if st != Status.ESTIMATED:
             continue
         v1 = new[t.id][0]
         shifts[t.id] = (float(v1 - v0), float((v1 - v0) / s0) if s0 > 0 else float("nan"))

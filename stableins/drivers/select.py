@@ -34,7 +34,7 @@ def open_driver(
         from stableins.drivers.replay import ReplayDriver
 
         return ReplayDriver(spec[len("replay:") :])
-    raise InputError(f"unknown driver {spec!r}", field="--driver", expected=SPEC_HELP)
+    raise InputError(f"unknown driver {spec!r}", field="driver_spec", expected=SPEC_HELP)
 
 
 def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
@@ -43,7 +43,7 @@ def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | 
         from stableins.simulator.truth import Truth
     except ImportError as error:  # pragma: no cover - the simulator ships with stableins
         raise InputError(
-            f"the simulated platform is not available ({error})", field="--driver", expected="tcp://HOST:PORT or replay:PATH"
+            f"the simulated platform is not available ({error})", field="driver_spec", expected="tcp://HOST:PORT or replay:PATH"
         ) from None
     truth = Truth.draw(seed, **({"sample_rate": sample_rate} if sample_rate else {}), serial_number=unit)
     return SimulatedDriver(truth, seed)
@@ -91,6 +91,6 @@ class SimulatedDriver:
         try:
             from stableins.simulator.system import system_record_chunks
         except ImportError as error:
-            raise InputError(f"the simulated system-level recorder is not available ({error})", field="--driver") from None
+            raise InputError(f"the simulated system-level recorder is not available ({error})", field="driver_spec") from None
         rate = self.platform.rate
         return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=max(1, int(round(chunk * rate))))

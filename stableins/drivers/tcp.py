@@ -46,11 +46,11 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", r
 
 
 def parse_address(spec: str) -> tuple[str, int]:
-    """``tcp://HOST:PORT`` → ``(host, port)``; raises :class:`InputError` naming the option."""
+    """``tcp://HOST:PORT`` → ``(host, port)``; raises :class:`InputError` naming the parameter (``driver_spec``)."""
     rest = spec[len("tcp://") :] if spec.startswith("tcp://") else spec
     host, _, port = rest.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise InputError(f"cannot read {spec!r} as a platform address", field="--driver", expected="tcp://HOST:PORT")
+        raise InputError(f"cannot read {spec!r} as a platform address", field="driver_spec", expected="tcp://HOST:PORT")
     return host.strip("[]"), int(port)
 
 

@@ -58,16 +58,17 @@ from stableins.errors import InputError
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import CoarseDetails, FitResult, Likelihood, UsedDwell
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 from stableins.platform import platform_specific_force, specific_force_and_jacobian
+from stableins.status import Status
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
 
 
-def coarse_model(nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
+def coarse_model(*, nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
     """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
     return ErrorModel.standard(nonlinear=nonlinear, gimbals=True) + tuple(extra_terms)
 
@@ -410,7 +411,7 @@ def calibrate_coarse(
     base_dcm = dcm_nav_to_body(*base_attitude)
     left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
-    model = coarse_model(nonlinear, extra_terms)
+    model = coarse_model(nonlinear=nonlinear, extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
     n = len(model)
     if 3 * len(usable) <= n:
@@ -467,21 +468,8 @@ def calibrate_coarse(
         notes.append(warning)
     if design.weak:
         notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
-    status = tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids)
+    status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids)
     determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge)
-    extra = {
-        "gauge": {g: 0.0 for g in standard_gauge},
-        "held": {h: start_values[h] for h in held},
-        "gauge_coefficients": gauge.coefficients,
-        "positions_used": [d.position for d in usable],
-        "left_out": {int(k): v for k, v in sorted(left_out.items())},
-        "iterations": solution.iterations,
-        "gravity": float(gravity),
-        "base_attitude": [float(a) for a in base_attitude],
-        "gimbal_senses": list(configuration.senses),
-        "weak": list(design.weak),
-        "angles": {d.position: d.angles.tolist() for d in usable},
-    }
     return FitResult(
         stage="coarse",
         terms=model.terms,
@@ -496,7 +484,19 @@ def calibrate_coarse(
         null_space=design.null_space,
         determined=determined,
         notes=tuple(notes),
-        extra=extra,
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
+        left_out={int(k): v for k, v in sorted(left_out.items())},
+        gauge_values={g: 0.0 for g in standard_gauge},
+        held={h: start_values[h] for h in held},
+        iterations=solution.iterations,
+        gravity=float(gravity),
+        details=CoarseDetails(
+            gauge_coefficients=gauge.coefficients,
+            base_attitude=tuple(float(a) for a in base_attitude),
+            gimbal_senses=tuple(configuration.senses),
+            weak=tuple(design.weak),
+            angles={d.position: d.angles.tolist() for d in usable},
+        ),
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},

@@ -27,6 +27,7 @@ from stableins.estimators.layout import StageLayout
 from stableins.estimators.result import FitResult
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.site import SiteMetadata
+from stableins.status import Status
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
     ]
     for k in final.ids:
         v, s, st = final[k]
-        if st != "estimated":
+        if st != Status.ESTIMATED:
             continue
         s_floor = floor[k][1]
         term = final.terms[final.ids.index(k)]
@@ -206,7 +207,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
 
 def floor_ratio(final: FitResult, floor: FitResult) -> float:
     """Largest σ(largest floor)/σ(recorded) over the estimated parameters."""
-    ratios = [floor[k][1] / final[k][1] for k in final.ids if final[k][2] == "estimated" and final[k][1] > 0]
+    ratios = [floor[k][1] / final[k][1] for k in final.ids if final[k][2] == Status.ESTIMATED and final[k][1] > 0]
     return max(ratios, default=1.0)
 
 
@@ -280,13 +281,11 @@ def calibrate_device(
             )
         )
     pass_dwells = {
-        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.extra["positions_used"]]
+        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.positions()]
         for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
     }
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
-    joint = dict(
-        gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms
-    )
+    joint = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms)
     if len(passes) > 1:
         coarse = fit_joint(
             used_coarse,
@@ -325,8 +324,8 @@ def calibrate_device(
         )
         if mismatch is not None:
             fine = replace(fine, notes=fine.notes + (mismatch,))
-        used_fine = sorted((d for d in fine_dwells if d.position in fine.extra["positions_used"]), key=lambda d: d.position)
-        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == "estimated"}
+        used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
+        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == Status.ESTIMATED}
         fused = fit_joint(
             used_coarse,
             used_fine,

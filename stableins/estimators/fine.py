@@ -43,8 +43,9 @@ from stableins.estimators.coarse import final_design, held_terms_note, hold_and_
 from stableins.estimators.design import aligned_null_space
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, UsedDwell
 from stableins.noise import NoiseModel
+from stableins.status import Status
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
 GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
@@ -211,7 +212,7 @@ def calibrate_fine(
         cov[i, :] = 0.0
         cov[:, i] = 0.0
         cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
-    status = tuple("unidentifiable" if k in BETA_IDS or k in held else "estimated" for k in model.ids)
+    status = tuple(Status.UNIDENTIFIABLE if k in BETA_IDS or k in held else Status.ESTIMATED for k in model.ids)
     if held:
         notes.append(held_terms_note(undetermined, start, model, "fine"))
     determined.append(
@@ -259,15 +260,13 @@ def calibrate_fine(
         null_space=aligned_null_space(design, gauge),
         determined=tuple(determined),
         notes=tuple(notes),
-        extra={
-            "beta_combinations": combos,
-            "gauge": {gid: float(start[gid]) for gid in gauge.fixed},
-            "held": {h: float(start[h]) for h in held},
-            "positions_used": [d.position for d in usable],
-            "left_out": {int(k): v for k, v in sorted(left_out.items())},
-            "iterations": solution.iterations,
-            "gravity": g,
-        },
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
+        left_out={int(k): v for k, v in sorted(left_out.items())},
+        gauge_values={gid: float(start[gid]) for gid in gauge.fixed},
+        held={h: float(start[h]) for h in held},
+        iterations=solution.iterations,
+        gravity=g,
+        combinations=combos,
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={"stage": "fine", "noise_model": None if noise is None else noise.to_document()},

@@ -58,9 +58,10 @@ from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, UsedDwell
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
+from stableins.status import Status
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ def fit_joint(
         the fine rows; one that the rows do not determine keeps its ``start`` value with status
         ``unidentifiable``.
     """
-    model = coarse_model(nonlinear or bool(fine_dwells), extra_terms)
+    model = coarse_model(nonlinear=nonlinear or bool(fine_dwells), extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
     coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
     fine = None
@@ -210,7 +211,7 @@ def fit_joint(
         terms=model.terms,
         values=solution.x[0].copy(),
         covariance=solution.covariance[0].copy(),
-        status=tuple("unidentifiable" if k in held else "gauge" if k in fixed else "estimated" for k in model.ids),
+        status=tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
@@ -219,15 +220,12 @@ def fit_joint(
         null_space=design.null_space,
         determined=tuple(gauge.describe()) + tuple(f"{k} = 0 by gauge" for k in fixed),
         notes=tuple(out_notes),
-        extra={
-            "gauge": {k: 0.0 for k in fixed},
-            "held": {k: float(x0[0, model.index(k)]) for k in held},
-            "passes": sorted({d.pass_number for d in coarse_dwells}),
-            "coarse_positions_used": [(d.pass_number, d.position) for d in coarse_dwells],
-            "fine_positions_used": [d.position for d in fine_dwells],
-            "iterations": solution.iterations,
-            "gravity": g,
-        },
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in (*coarse_dwells, *fine_dwells)),
+        gauge_values={k: 0.0 for k in fixed},
+        held={k: float(x0[0, model.index(k)]) for k in held},
+        passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
+        iterations=solution.iterations,
+        gravity=g,
         whitened_residuals=whitened,
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={

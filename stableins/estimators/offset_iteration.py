@@ -171,7 +171,7 @@ class OffsetEstimator:
             extra_terms=self.extra_terms,
             source=f"coarse pass {k}",
         )
-        self._used += sorted((d for d in dwells if d.position in fit.extra["positions_used"]), key=lambda d: d.position)
+        self._used += sorted((d for d in dwells if d.position in fit.positions()), key=lambda d: d.position)
         estimate = np.array([fit["theta10"][0], fit["theta20"][0], fit["theta30"][0]])
         sigma = np.array([fit["theta20"][1], fit["theta30"][1]])
         residual = estimate[1:] - self.offsets[1:]

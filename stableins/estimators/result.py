@@ -8,9 +8,9 @@ themselves; records and reports are built from them.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -230,6 +230,85 @@ def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] =
     return lines
 
 
+class UsedDwell(NamedTuple):
+    """One dwell a device fit used: its sequence (``"coarse"`` or ``"fine"``), pass and position."""
+
+    stage: str
+    pass_number: int
+    position: int
+
+
+@dataclass(frozen=True)
+class StageDetails:
+    """Base of the stage-specific, typed details a :class:`FitResult` carries in :attr:`FitResult.details`."""
+
+
+@dataclass(frozen=True, eq=False)
+class CoarseDetails(StageDetails):
+    """What the coarse (18-position) fit worked with, beyond the parameters.
+
+    Attributes
+    ----------
+    gauge_coefficients : mapping
+        Coefficients of the gauge the fit applied (:class:`stableins.estimators.design.Gauge`).
+    base_attitude : tuple of float
+        Base attitude (roll, pitch, yaw) [rad] of the site.
+    gimbal_senses : tuple of int
+        Rotation senses ``s1..s4`` of the gimbal configuration.
+    weak : tuple of str
+        Parameters whose 1σ exceeds their typical magnitude.
+    angles : mapping of int to list of float
+        The measured gimbal angles [rad] of each position used.
+    """
+
+    gauge_coefficients: Any
+    base_attitude: tuple[float, ...]
+    gimbal_senses: tuple[int, ...]
+    weak: tuple[str, ...]
+    angles: Mapping[int, list[float]]
+
+
+@dataclass(frozen=True, eq=False)
+class SystemDetails(StageDetails):
+    """What the system stage's separation worked with, beyond the parameters.
+
+    Attributes
+    ----------
+    nuisance : ndarray
+        Values of the nuisance parameters (pitch and roll offsets) of the separation.
+    determination : mapping of str to Determination or None
+        How the stage's data saw each parameter (:class:`stableins.status.Determination`).
+    k2_data_only : tuple of (ndarray, ndarray) or None
+        Data-only estimate of ``K2_*`` and its covariance, when the stage estimated them.
+    temperature : mapping or None
+        Instrument temperature summary of the record (mean, minimum, maximum), filled by a run.
+    """
+
+    nuisance: NDArray[np.float64]
+    determination: Mapping[str, Any]
+    k2_data_only: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    temperature: Mapping[str, Any] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class CombinedDetails(StageDetails):
+    """What the system stage's combined-coefficient fit worked with.
+
+    Attributes
+    ----------
+    observed_attitude : ndarray
+        Pitch/roll Fourier coefficients observed in the record [rad].
+    observed_attitude_covariance : ndarray
+        Their covariance [rad²].
+    transform : ndarray
+        Linear map from the separated parameters to the combined coefficients.
+    """
+
+    observed_attitude: NDArray[np.float64]
+    observed_attitude_covariance: NDArray[np.float64]
+    transform: NDArray[np.float64]
+
+
 @dataclass(frozen=True)
 class FitResult:
     """Outcome of one estimation stage.
@@ -263,8 +342,26 @@ class FitResult:
         Human-readable combinations that the data do determine (when rank-deficient).
     notes : tuple of str
         Gauges applied, positions left out and why, warnings.
-    extra : dict
-        Stage-specific details (pass history, convergence curves ...).
+    positions_used : tuple of UsedDwell
+        Device fits: the dwells the fit used (stage, pass, position).
+    left_out : mapping of int to str
+        Device fits: positions left out, with the reason.
+    gauge_values : mapping of str to float
+        Parameters fixed by the gauge, with the value they were fixed at [SI].
+    held : mapping of str to float
+        Parameters the data do not determine, held at their starting value [SI].
+    passes : tuple of int
+        Joint device fit: the coarse passes it combined.
+    iterations : int
+        Gauss–Newton iterations the fit took (0: linear or not iterated).
+    gravity : float or None
+        Local gravity the fit used [m/s²].
+    combinations : mapping of str to (float, float)
+        Value and 1σ of combinations the data determine when their terms are not all determined (the fine
+        stage's installation-angle combinations) [SI].
+    details : StageDetails or None
+        Stage-specific typed details (:class:`CoarseDetails`, :class:`SystemDetails`, :class:`CombinedDetails`, or the
+        discovery problem's own).
     whitened_residuals : ndarray (m,) or None
         ``L⁻¹ (observed − model)`` with ``L Lᵀ`` the full covariance of the observations,
         when it is not diagonal (correlated noise).  Then :attr:`chi2` is the exact
@@ -294,7 +391,15 @@ class FitResult:
     null_space: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
-    extra: dict[str, Any] = field(default_factory=dict)
+    positions_used: tuple[UsedDwell, ...] = ()
+    left_out: Mapping[int, str] = field(default_factory=dict)
+    gauge_values: Mapping[str, float] = field(default_factory=dict)
+    held: Mapping[str, float] = field(default_factory=dict)
+    passes: tuple[int, ...] = ()
+    iterations: int = 0
+    gravity: float | None = None
+    combinations: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    details: StageDetails | None = None
     whitened_residuals: NDArray[np.float64] | None = None
     likelihood: Likelihood | None = None
     settings: dict[str, Any] = field(default_factory=dict)
@@ -308,6 +413,9 @@ class FitResult:
         if bad:
             raise ValueError(f"FitResult: unknown status {sorted(bad)}")
         object.__setattr__(self, "status", tuple(Status(s) for s in self.status))
+        for name in ("left_out", "gauge_values", "held", "combinations"):
+            object.__setattr__(self, name, dict(getattr(self, name)))
+        object.__setattr__(self, "positions_used", tuple(UsedDwell(*u) for u in self.positions_used))
         if self.whitened_residuals is not None and self.whitened_residuals.shape != self.residuals.shape:
             raise ValueError("FitResult: whitened_residuals must match residuals")
         for name in ("values", "covariance", "residuals", "residual_sigma", "singular_values", "null_space", "whitened_residuals"):
@@ -318,6 +426,10 @@ class FitResult:
     @property
     def ids(self) -> tuple[str, ...]:
         return tuple(t.id for t in self.terms)
+
+    def positions(self, stage: str | None = None) -> frozenset[int]:
+        """Positions of the dwells the fit used (of one ``stage``, ``"coarse"`` or ``"fine"``, when given)."""
+        return frozenset(u.position for u in self.positions_used if stage is None or u.stage == stage)
 
     @property
     def sigma(self) -> NDArray[np.float64]:

@@ -77,7 +77,7 @@ def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
 
 
 # --------------------------------------------------------------------------- resume script
-def resume_script(records: list[Record], deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
+def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
     """Records to replay on resume, and the range of operation records to mark superseded.
 
     Deterministic drivers replay everything.  Otherwise operations after the last decision

@@ -115,7 +115,7 @@ def _canonical_dtype(dtype: np.dtype, name: str) -> str:
     raise TypeError(f"journal array {name!r}: unsupported dtype {dtype}")
 
 
-def _decode(payload: bytes, offset: int, path: str | None = None, with_arrays: bool = True) -> Record:
+def _decode(payload: bytes, offset: int, path: str | None = None, *, with_arrays: bool = True) -> Record:
     from stableins.data.jsonio import parse_json
 
     (n,) = _HEADER_LENGTH.unpack_from(payload, 0)

@@ -49,7 +49,7 @@ class Session:
         Deterministic driver: forward replayed operations to it and check its answers.
     """
 
-    def __init__(self, journal: Journal, script: list[Record], driver: PlatformDriver, forward: bool) -> None:
+    def __init__(self, journal: Journal, script: list[Record], driver: PlatformDriver, *, forward: bool) -> None:
         self.journal = journal
         self.script = deque(script)
         self.driver = driver

@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC
-from stableins.errormodel import Term
+from stableins.errormodel import Term, TermKind
 from stableins.errors import InputError
 from stableins.records import CalibrationRecord
 from stableins.status import Status
@@ -457,7 +457,7 @@ def gravity_direction(record: CalibrationRecord, terms: Mapping[str, Term]) -> d
         term = terms.get(p.id)
         if p.id.startswith("sf_"):
             out[p.id] = p.value / g
-        elif term is not None and term.kind == "additive" and math.isfinite(p.value):
+        elif term is not None and term.kind == TermKind.ADDITIVE and math.isfinite(p.value):
             degree = homogeneity_degree(term, g)
             if degree:
                 out[p.id] = -degree * p.value / g

@@ -16,13 +16,14 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms is part of this module's interface (builder)
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import StageEvidence
-from stableins.reporting.tolerances import Tolerances, decide, limit_for
+from stableins.reporting.tolerances import Tolerances, Verdict, decide, limit_for
 from stableins.status import Status
 
 #: Coverage factor of the expanded uncertainty (GUM 6.2; about 95 % for a normal distribution).
@@ -219,17 +220,26 @@ def change_rows(comparison: Comparison, terms: Mapping[str, Term]) -> list[Chang
     return rows
 
 
+class CheckKind(StrEnum):
+    """What a conformity check compares with its limit (:data:`CHECK_KINDS` has the certificate's words)."""
+
+    VALUE = "value"
+    UNCERTAINTY = "uncertainty"
+    STABILITY = "stability"
+    FIT = "fit"
+
+
 @dataclass(frozen=True)
 class Check:
     """One conformity check."""
 
-    kind: str  # "value", "uncertainty", "stability", "fit"
+    kind: CheckKind
     subject: str
     measured: float
     expanded: float
     limit: float
     unit: str
-    verdict: str  # pass, fail, conditional pass, conditional fail, not assessed
+    verdict: Verdict
     reason: str = ""
 
 
@@ -247,19 +257,20 @@ def conformity(
         if limit is None:
             continue
         if not row.estimated:
-            checks.append(Check("value", row.id, row.value, math.nan, limit, row.unit, "not assessed", row.status.value))
+            checks.append(Check(CheckKind.VALUE, row.id, row.value, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, row.status.value))
         else:
             expanded = k * row.u
-            checks.append(Check("value", row.id, row.value, expanded, limit, row.unit, decide(row.value, expanded, limit, rule)))
+            checks.append(Check(CheckKind.VALUE, row.id, row.value, expanded, limit, row.unit, decide(row.value, expanded, limit, rule)))
     for row in rows:
         limit = limit_for(tolerances.uncertainty, row.id)
         if limit is None:
             continue
         if not row.estimated:
-            checks.append(Check("uncertainty", row.id, math.nan, math.nan, limit, row.unit, "not assessed", row.status.value))
+            checks.append(Check(CheckKind.UNCERTAINTY, row.id, math.nan, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, row.status.value))
         else:
             expanded = k * row.u
-            checks.append(Check("uncertainty", row.id, expanded, math.nan, limit, row.unit, "pass" if expanded <= limit else "fail"))
+            verdict = Verdict.PASS if expanded <= limit else Verdict.FAIL
+            checks.append(Check(CheckKind.UNCERTAINTY, row.id, expanded, math.nan, limit, row.unit, verdict))
     if tolerances.stability:
         by_id = {c.id: c for c in changes or ()}
         for row in rows:
@@ -269,25 +280,32 @@ def conformity(
             change = by_id.get(row.id)
             if change is None:
                 reason = "no previous calibration given" if changes is None else "not re-measured, or not estimated in both calibrations"
-                checks.append(Check("stability", row.id, math.nan, math.nan, limit, row.unit, "not assessed", reason))
+                checks.append(Check(CheckKind.STABILITY, row.id, math.nan, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, reason))
             else:
                 expanded = k * change.u_delta
                 checks.append(
-                    Check("stability", row.id, change.delta, expanded, limit, row.unit, decide(change.delta, expanded, limit, rule))
+                    Check(CheckKind.STABILITY, row.id, change.delta, expanded, limit, row.unit, decide(change.delta, expanded, limit, rule))
                 )
     if tolerances.chi2_red_max is not None:
         if not stages:
-            checks.append(Check("fit", "χ²_ν", math.nan, math.nan, tolerances.chi2_red_max, "", "not assessed", "no residual evidence"))
+            checks.append(
+                Check(CheckKind.FIT, "χ²_ν", math.nan, math.nan, tolerances.chi2_red_max, "", Verdict.NOT_ASSESSED, "no residual evidence")
+            )
         for stage in stages:
             value = stage.chi2_red
-            verdict = "pass" if value <= tolerances.chi2_red_max else "fail"
-            checks.append(Check("fit", f"χ²_ν ({stage.stage})", value, math.nan, tolerances.chi2_red_max, "", verdict))
+            verdict = Verdict.PASS if value <= tolerances.chi2_red_max else Verdict.FAIL
+            checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", value, math.nan, tolerances.chi2_red_max, "", verdict))
     return checks
 
 
 #: Words of the statement of conformity: the kinds of check, and the verdicts in the order they are counted.
-CHECK_KINDS = {"value": "value", "uncertainty": "uncertainty U", "stability": "change since previous", "fit": "model fit"}
-VERDICTS = ("pass", "fail", "conditional pass", "conditional fail", "not assessed")
+CHECK_KINDS = {
+    CheckKind.VALUE: "value",
+    CheckKind.UNCERTAINTY: "uncertainty U",
+    CheckKind.STABILITY: "change since previous",
+    CheckKind.FIT: "model fit",
+}
+VERDICTS = tuple(Verdict)
 CONFORMITY_HEADER = ("Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result")
 NO_STATEMENT = "No statement of conformity: the procedure defines no tolerances ([tolerances] table absent), so none is made."
 
@@ -301,10 +319,10 @@ def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tu
         return number(x, significant) if math.isfinite(x) else "—"
 
     measured, expanded = "—", "—"
-    if check.verdict != "not assessed" and math.isfinite(check.measured):
-        if check.kind == "fit":
+    if check.verdict != Verdict.NOT_ASSESSED and math.isfinite(check.measured):
+        if check.kind == CheckKind.FIT:
             measured = chi2_text(abs(check.measured))
-        elif check.kind == "uncertainty":
+        elif check.kind == CheckKind.UNCERTAINTY:
             measured = number(abs(check.measured), 2)
         elif math.isfinite(check.expanded) and check.expanded > 0:
             rounded = gum(abs(check.measured), check.expanded / coverage_factor, coverage_factor)
@@ -320,14 +338,14 @@ def conformity_counts(checks: Sequence[Check]) -> str:
     return ", ".join(f"{n} {v}" for v in VERDICTS if (n := sum(1 for c in checks if c.verdict == v)))
 
 
-def conformity_text(checks: Sequence[Check], assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
+def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
     """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
     and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given."""
     if not assessed:
         return [NO_STATEMENT]
     lines = [f"Verdict: {overall_verdict(checks)} ({conformity_counts(checks)})"]
     for check in checks:
-        if check.verdict != "pass":
+        if check.verdict != Verdict.PASS:
             kind, subject, measured, expanded, limit, unit, result = conformity_row(check, coverage_factor)
             unit = f" {unit}" if unit else ""
             lines.append(f"  {kind} {subject}: measured |x| {measured}{unit}, U {expanded}, limit T {limit}{unit}: {result}")
@@ -337,9 +355,9 @@ def conformity_text(checks: Sequence[Check], assessed: bool, coverage_factor: fl
 def overall_verdict(checks: Sequence[Check]) -> str:
     """FAIL if any check fails; CONDITIONAL FAIL / CONDITIONAL PASS next; PASS when every assessed check passes."""
     verdicts = {c.verdict for c in checks}
-    if not (verdicts - {"not assessed"}):
+    if not (verdicts - {Verdict.NOT_ASSESSED}):
         return "NOT ASSESSED"
-    for word in ("fail", "conditional fail", "conditional pass"):
+    for word in (Verdict.FAIL, Verdict.CONDITIONAL_FAIL, Verdict.CONDITIONAL_PASS):
         if word in verdicts:
             return word.upper()
     return "PASS"

@@ -858,7 +858,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     for i, c in enumerate(ctx.checks, start=1):
         kind, _, measured, expanded, limit, unit, _ = content.conformity_row(c, ctx.tolerances.coverage_factor)
         result = escape(c.verdict) + (f" ({ctx.text(c.reason)})" if c.reason else "")
-        subject = markup(c.subject) if c.kind != "fit" else escape(c.subject).replace("χ²_ν", "χ²<sub>ν</sub>")
+        subject = markup(c.subject) if c.kind != content.CheckKind.FIT else escape(c.subject).replace("χ²_ν", "χ²<sub>ν</sub>")
         rows.append([kind, subject, measured, expanded, limit, escape(unit), result])
         colours[(i, 6)] = document.VERDICT_COLOURS[c.verdict]
     out.append(document.table(rows, [0.16, 0.14, 0.13, 0.09, 0.10, 0.09, 0.29], align_right=(2, 3, 4), cell_colours=colours, markup=True))

@@ -48,22 +48,42 @@ import fnmatch
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 from stableins.errors import InputError
 
-DECISION_RULES = ("guarded", "simple", "non-binary")
+
+class DecisionRule(StrEnum):
+    """Decision rule of a statement of conformity (ILAC-G8:09/2019; :data:`RULE_TEXT` says each in full)."""
+
+    GUARDED = "guarded"
+    SIMPLE = "simple"
+    NON_BINARY = "non-binary"
+
+
+class Verdict(StrEnum):
+    """Verdict of one conformity check (the certificate prints the word)."""
+
+    PASS = "pass"
+    FAIL = "fail"
+    CONDITIONAL_PASS = "conditional pass"
+    CONDITIONAL_FAIL = "conditional fail"
+    NOT_ASSESSED = "not assessed"
+
+
+DECISION_RULES = tuple(r.value for r in DecisionRule)
 
 RULE_TEXT = {
-    "guarded": (
+    DecisionRule.GUARDED: (
         "Binary guarded acceptance, ILAC-G8:09/2019 4.2.2, guard band w = U: a result passes when |x| ≤ T − U and fails "
         "otherwise. The probability of accepting a non-conforming value is below 2.5 % (normal distribution, k = 2)."
     ),
-    "simple": (
+    DecisionRule.SIMPLE: (
         "Binary simple acceptance, ILAC-G8:09/2019 4.2.1, guard band w = 0 (shared risk, as agreed with the customer): a result "
         "passes when |x| ≤ T. The probability of false acceptance reaches 50 % at the limit."
     ),
-    "non-binary": (
+    DecisionRule.NON_BINARY: (
         "Non-binary statement, ILAC-G8:09/2019 4.2.3, guard band w = U: pass |x| ≤ T − U; conditional pass T − U < |x| ≤ T; "
         "conditional fail T < |x| ≤ T + U; fail |x| > T + U."
     ),
@@ -74,7 +94,7 @@ RULE_TEXT = {
 class Tolerances:
     """Tolerance limits of a procedure, in engineering units."""
 
-    decision_rule: str = "guarded"
+    decision_rule: DecisionRule = DecisionRule.GUARDED
     coverage_factor: float = 2.0
     limits: Mapping[str, float] = field(default_factory=dict)
     uncertainty: Mapping[str, float] = field(default_factory=dict)
@@ -108,7 +128,7 @@ class Tolerances:
             raise InputError("[tolerances.fit] takes only chi2_red_max", path=source, field="tolerances.fit")
         chi2_max = fit.get("chi2_red_max")
         return cls(
-            decision_rule=rule,
+            decision_rule=DecisionRule(rule),
             coverage_factor=k,
             limits=_limits(table.get("limits", {}), source, "limits"),
             uncertainty=_limits(table.get("uncertainty", {}), source, "uncertainty"),
@@ -134,26 +154,26 @@ def limit_for(table: Mapping[str, float], parameter_id: str) -> float | None:
     return table[max(matches, key=len)] if matches else None
 
 
-def decide(value: float, expanded_uncertainty: float, limit: float, rule: str) -> str:
+def decide(value: float, expanded_uncertainty: float, limit: float, rule: DecisionRule) -> Verdict:
     """Verdict for ``|value|`` against the symmetric limit ``limit`` (see module docstring).
 
     Returns ``"pass"``, ``"fail"``, ``"conditional pass"`` or ``"conditional fail"``.
     """
     x, u, t = abs(value), expanded_uncertainty, limit
     if not (math.isfinite(x) and math.isfinite(u)):
-        return "fail"
-    if rule == "simple":
-        return "pass" if x <= t else "fail"
-    if rule == "guarded":
-        return "pass" if x <= t - u else "fail"
-    if rule == "non-binary":
+        return Verdict.FAIL
+    if rule == DecisionRule.SIMPLE:
+        return Verdict.PASS if x <= t else Verdict.FAIL
+    if rule == DecisionRule.GUARDED:
+        return Verdict.PASS if x <= t - u else Verdict.FAIL
+    if rule == DecisionRule.NON_BINARY:
         if x <= t - u:
-            return "pass"
+            return Verdict.PASS
         if x <= t:
-            return "conditional pass"
+            return Verdict.CONDITIONAL_PASS
         if x <= t + u:
-            return "conditional fail"
-        return "fail"
+            return Verdict.CONDITIONAL_FAIL
+        return Verdict.FAIL
     raise ValueError(f"unknown decision rule {rule!r}")
 
 

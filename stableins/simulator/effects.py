@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import AXES, Term, TermInputs
+from stableins.errormodel import AXES, Term, TermInputs, TermKind
 from stableins.errors import InputError
 
 _G = STANDARD_GRAVITY
@@ -117,7 +117,7 @@ class Effect:
             raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
         return Term(
             self.id,
-            "additive",
+            TermKind.ADDITIVE,
             self.unit,
             self.unit,
             1.0,

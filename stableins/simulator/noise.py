@@ -303,7 +303,7 @@ class Quantizer:
     the remainder is carried through the whole record.
     """
 
-    def __init__(self, noise: NoiseGenerator, restart_each_block: bool = True) -> None:
+    def __init__(self, noise: NoiseGenerator, *, restart_each_block: bool = True) -> None:
         self.noise = noise
         self.lsb = noise.settings.quantization
         self.restart_each_block = restart_each_block

@@ -328,7 +328,7 @@ class SystemWorld:
         return self.platform.readings_from_actual(actual)
 
     # --------------------------------------------------------------- generation
-    def chunk(self, count: int, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
+    def chunk(self, count: int, *, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
         """The next ``count`` samples as columns of :data:`stableins.schema.SYSTEM_COLUMNS`."""
         start = self._next
         index = np.arange(start, start + count)
@@ -441,7 +441,7 @@ def system_record_chunks(
     done = 0
     while done < total:
         n = min(chunk_samples, total - done)
-        yield world.chunk(n, include_truth)
+        yield world.chunk(n, include_truth=include_truth)
         done += n
 
 

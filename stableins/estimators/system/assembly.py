@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.errormodel import CORE_TERMS, Term
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.errormodel import CORE_TERMS, Term, TermKind
+from stableins.estimators.result import FitResult, Likelihood, SystemDetails
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation
 from stableins.noise import NoiseModel
@@ -80,7 +80,7 @@ def combined_terms() -> tuple[Term, ...]:
         terms.append(
             Term(
                 name,
-                "combined",
+                TermKind.COMBINED,
                 "rad",
                 "urad",
                 1e-6,
@@ -147,7 +147,7 @@ def fixed_variance(prior_covariance: Mapping[tuple[str, str], float] | None) -> 
     """Prior variances of the terms this stage carries through unchanged (K2); nominal² where unknown."""
     out = {}
     for t in CORE_TERMS:
-        if t.kind == "nonlinearity":
+        if t.kind == TermKind.NONLINEARITY:
             v = None if prior_covariance is None else prior_covariance.get((t.id, t.id))
             out[t.id] = float(v) if v is not None and np.isfinite(v) and v > 0 else t.nominal**2
     return out
@@ -213,6 +213,7 @@ def stage_settings(options: SystemOptions, noise_model: NoiseModel | None = None
     from dataclasses import asdict
 
     out = asdict(options)
+    out["gyro_drift"] = options.gyro_drift.value
     if out["known_gyro_drift"] is not None:
         out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
     return {"stage": "system", **out, "noise_model": "none" if noise_model is None else noise_model.source.value}
@@ -351,11 +352,11 @@ def fit_result(
         null_space=np.zeros((len(terms), 0)),
         determined=determined,
         notes=tuple(notes),
-        extra={
-            "nuisance": sep.values[len(hm.RESIDUAL_NAMES) :],
-            "determination": dict(zip(ids, post.determination, strict=True)),
-            "k2_data_only": None if k2 is None else {"values": k2[0], "covariance": k2[1]},
-        },
+        details=SystemDetails(
+            nuisance=sep.values[len(hm.RESIDUAL_NAMES) :],
+            determination=dict(zip(ids, post.determination, strict=True)),
+            k2_data_only=None if k2 is None else (k2[0], k2[1]),
+        ),
         whitened_residuals=fit.whitened,
         likelihood=likelihood,
         settings=settings,

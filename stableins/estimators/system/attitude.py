@@ -242,6 +242,7 @@ def fit_attitude(
     loop: DampingLoop,
     noise_sigma: tuple[float, float],
     case_rotation_period: float | None = CASE_ROTATION_PERIOD,
+    *,
     compensate_loop: bool = True,
     vertical: NDArray[np.float64] | None = None,
     gyro_drift: str = "ignore",

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.errormodel import ErrorModel, Term
+from stableins.errormodel import ErrorModel, Term, TermKind
 from stableins.errors import InputError
 from stableins.estimators.system.blocksums import coefficients
 
@@ -69,7 +69,7 @@ class AdditiveCompensation:
         from stableins.errormodel import TermInputs
 
         for t in terms:
-            if t.kind != "additive" or t.regressor is None:
+            if t.kind != TermKind.ADDITIVE or t.regressor is None:
                 raise InputError(f"{t.id!r} is not an additive term", path=path, field=t.id)
             try:
                 t.regressor(TermInputs(np.array([[0.0, 0.0, -9.8]])))

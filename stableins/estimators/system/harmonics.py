@@ -242,6 +242,7 @@ def kalman_filter(
     prior_mean: ArrayLike,
     prior_covariance: ArrayLike,
     process_noise: ArrayLike | None = None,
+    *,
     smooth: bool = False,
 ) -> FilterHistory:
     """Sequential filter with filterpy's ``KalmanFilter`` (``F = I``; Joseph-form update).

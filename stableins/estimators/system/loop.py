@@ -112,7 +112,7 @@ class DampingLoop:
             raise ValueError(f"damping ratio zeta must be in [0, 10), got {self.zeta}")
 
     @classmethod
-    def from_metadata(cls, damping: Mapping[str, float], latitude: float, gravity: float, couplings: bool = True) -> DampingLoop:
+    def from_metadata(cls, damping: Mapping[str, float], latitude: float, gravity: float, *, couplings: bool = True) -> DampingLoop:
         """Build the loop from ``SiteMetadata.damping``.
 
         Keys: ``zeta`` (required), ``schuler_frequency`` [rad/s] and ``earth_radius`` [m]

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
 from stableins.errormodel import Term
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import CombinedDetails, FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary
@@ -47,16 +47,22 @@ from stableins.estimators.system.assembly import (
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 from stableins.site import SiteMetadata
+from stableins.status import Status
 
 
 @dataclass(frozen=True)
 class SystemOptions:
-    """Settings of the system stage (defaults follow docs/system-calibration.md)."""
+    """Settings of the system stage (defaults follow docs/system-calibration.md).
+
+    Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
+    :class:`~stableins.data.errors.InputError` naming the option and what it expects.
+    """
 
     chunk_rows: int = 1 << 18
     attitude_decimation_seconds: float = 1.0
@@ -72,11 +78,14 @@ class SystemOptions:
     minimum_duration: float = 4 * 3600.0  # [s]
     noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
     run_filter: bool = True
-    gyro_drift: str = "ignore"  # "fit": drift response as a nuisance (σ of the fundamentals ×10); "check": fit it only to warn
+    gyro_drift: GyroDrift = GyroDrift.IGNORE  # see GyroDrift
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gyro_drift", validate_options(self))
 
 
 @dataclass(frozen=True)
@@ -411,12 +420,12 @@ def _assemble(
         terms=combined_terms(),
         values=combination.values,
         covariance=combination.covariance,
-        status=tuple("estimated" if ok else "unidentifiable" for ok in observable),
+        status=tuple(Status.ESTIMATED if ok else Status.UNIDENTIFIABLE for ok in observable),
         residuals=np.zeros(0),
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
         notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",),
-        extra={"observed_attitude": att.observed, "observed_attitude_covariance": att.observed_covariance, "transform": transform},
+        details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     return SystemCalibration(
         result=result,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, SystemDetails
 from stableins.estimators.system.separation import Separation
 from stableins.status import Status
 
@@ -35,7 +35,7 @@ class SystemCalibrationView:
 
     def _rows(self) -> list[tuple[str, float, float, str, Status, str, str]]:
         """``(id, updated value, 1σ, unit, status, correction, determination)`` in engineering units."""
-        how = self.result.extra.get("determination", {})
+        how = self.result.details.determination if isinstance(self.result.details, SystemDetails) else {}
         rows = []
         for (pid, value, sigma, unit, status), term in zip(self.result.rows(), self.result.terms, strict=True):
             correction = self.corrections.get(pid)
@@ -85,7 +85,7 @@ class SystemCalibrationView:
         frame["correction"] = [
             float(terms[i].sigma_to_engineering(self.corrections[i])) if i in self.corrections else math.nan for i in frame.index
         ]
-        how = self.result.extra.get("determination", {})
+        how = self.result.details.determination if isinstance(self.result.details, SystemDetails) else {}
         frame["determination"] = [str(how.get(i) or "not seen") for i in frame.index]
         return frame
 
