@@ -435,7 +435,9 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         return None
     if not start.get("prior"):
         raise InputError(
-            "the fine stage starts from a coarse estimate", field="prior_file", expected="the unit's coarse record (--prior RECORD or --store)"
+            "the fine stage starts from a coarse estimate",
+            field="prior_file",
+            expected="the unit's coarse record (--prior RECORD or --store)",
         )
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.fine import calibrate_fine
