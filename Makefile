@@ -24,8 +24,7 @@ system-deps:
 	    apt-get update -qq >/dev/null && apt-get install -y -qq poppler-utils >/dev/null; \
 	  else echo "note: poppler-utils not installed (no root/apt): the PDF rendering test will be skipped" >&2; fi; }
 
-test: setup system-deps
-	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
+test: setup system-deps lint
 	MPLBACKEND=Agg $(BIN)/python -m pytest -n auto
 	$(MAKE) --no-print-directory installed-demo
 
@@ -34,8 +33,11 @@ test: setup system-deps
 installed-demo: setup
 	MPLBACKEND=Agg PYTHON=$(PYTHON) .ci/installed-demo
 
+# ruff and mypy, and the allow-lists of not-yet-clean files in pyproject.toml exact (they only shrink).
 lint: setup
-	$(BIN)/ruff check stableins tests $(wildcard benchmarks/*.py)
+	$(BIN)/ruff check stableins tests tools $(wildcard benchmarks/*.py)
+	$(BIN)/mypy
+	$(BIN)/python tools/lint_allowlists.py --check
 
 bench: setup
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done

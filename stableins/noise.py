@@ -460,7 +460,8 @@ class NoiseModel:
 
     def to_dataframe(self) -> Any:
         """Every term and axis as a :class:`pandas.DataFrame` (``term``, ``axis``, ``value``, ``lower``, ``upper``, ``unit``;
-        engineering units, ``upper`` infinite where the data do not bound the term).  Needs pandas."""
+        engineering units, ``upper`` infinite where the data do not bound the term).  Needs pandas.
+        """
         from stableins.display import require_pandas
 
         pandas = require_pandas()

@@ -273,7 +273,8 @@ class CsvReader:
 
     def _parse(self, lines: list[tuple[int, str]]) -> dict[str, Any]:
         """Columns of a block of data lines: numpy's C parser, or, on any problem, a line-by-line
-        pass that names the row and field."""
+        pass that names the row and field.
+        """
         import io
 
         import numpy as np

@@ -521,7 +521,8 @@ class H5Reader:
     def _open(self, chunk_cache: bool = True) -> Any:
         """Open for reading.  ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them
         straight into the destination instead of through its chunk cache (measured 0.29 → 0.18 s for the
-        forces of a week at 100 Hz)."""
+        forces of a week at 100 Hz).
+        """
         return open_h5(self.path, chunk_cache)
 
     def read(self, names: Sequence[str] | None = None, start: int = 0, stop: int | None = None) -> dict[str, Any]:

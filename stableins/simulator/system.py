@@ -163,7 +163,8 @@ class ModalRecursion:
     def _partner(self) -> NDArray[np.int64]:
         """Index of each complex mode's conjugate partner (−1 for real modes); the real
         system's response is the sum over one mode of each pair, doubled, so only half
-        of the complex modes are filtered."""
+        of the complex modes are filtered.
+        """
         cached = self.__dict__.get("_partner_cache")
         if cached is None:
             lam = self.eigenvalues
