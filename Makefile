@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 OUT    ?= demo-output
 
-.PHONY: setup system-deps demo test installed-demo lint bench clean
+.PHONY: setup system-deps demo test installed-demo lint docs bench clean
 
 $(BIN)/stableins: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,7 @@ system-deps:
 
 test: setup system-deps lint
 	MPLBACKEND=Agg $(BIN)/python -m pytest -n auto
+	$(MAKE) --no-print-directory docs
 	$(MAKE) --no-print-directory installed-demo
 
 # The wheel as a user installs it: built from this checkout, installed into a fresh venv outside it,
@@ -39,8 +40,13 @@ lint: setup
 	$(BIN)/mypy
 	$(BIN)/python tools/lint_allowlists.py --check
 
+# The API reference from the numpydoc docstrings (docs/api/_build/html/index.html): a fresh build (-E, so
+# every warning is seen again) with warnings as errors; no network.
+docs: setup
+	MPLBACKEND=Agg $(BIN)/sphinx-build -b html -E -q -W --keep-going -j auto docs/api docs/api/_build/html
+
 bench: setup
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(OUT) .pytest_cache
+	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache docs/api/_build docs/api/modules

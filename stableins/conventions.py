@@ -13,7 +13,8 @@ b : body (base) frame, Forward-Right-Down.  ``C_n^b`` is the yaw-pitch-roll
 p : platform frame.  At zero actual gimbal angles it coincides with b.  ``z_p`` is the
     platform (stable element) axis, ``x_p`` the inner gimbal axis, ``y_p`` the middle
     gimbal axis.
-a : accelerometer frame (non-orthogonal), rows of ``C_p^a`` are the sensitive axes.
+a : accelerometer frame (non-orthogonal).
+    The rows of ``C_p^a`` are the sensitive axes.
 
 Rotation matrices
 -----------------

@@ -189,7 +189,7 @@ class SamplingReport:
     n_jitter : int
         Number of off-nominal steps.
     max_step_error : float
-        Largest |step − 1/rate| [s].
+        Largest ``|step − 1/rate|`` [s].
     """
 
     n_samples: int
