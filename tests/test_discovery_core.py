@@ -286,7 +286,7 @@ def test_separating_procedures_are_found_numerically():
 
 def test_library_matches_the_simulator_catalogue():
     """Same ids; output effects: the same regressor as the simulator's own physics (independent code)."""
-    effects = pytest.importorskip("stableins.simulator.effects")
+    from stableins.simulator import effects
     assert set(effects.CATALOGUE) == set(LIBRARY.ids)
     rng = np.random.default_rng(0)
     n = 7

@@ -7,17 +7,14 @@ import io
 import numpy as np
 import pytest
 
-pytest.importorskip("stableins.estimators.offset_iteration")
-pytest.importorskip("stableins.records")
-
-from stableins.data.device import load_device  # noqa: E402
-from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure  # noqa: E402
-from stableins.procedures.journal import scan  # noqa: E402
-from stableins.procedures.planning import plan_from_definition  # noqa: E402
-from stableins.procedures.rundir import resume_run, start_run  # noqa: E402
-from stableins.procedures.runner import Console, journal_columns  # noqa: E402
-from stableins.records import CalibrationRecord  # noqa: E402
-from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
+from stableins.data.device import load_device
+from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
+from stableins.procedures.journal import scan
+from stableins.procedures.planning import plan_from_definition
+from stableins.procedures.rundir import resume_run, start_run
+from stableins.procedures.runner import Console, journal_columns
+from stableins.records import CalibrationRecord
+from tests.device_world import ExactPlatform, draw_truth
 
 
 def short_definition(tmp_path, name, settle=0.5):

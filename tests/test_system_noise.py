@@ -10,15 +10,14 @@ import warnings
 import numpy as np
 import pytest
 
-system = pytest.importorskip("stableins.simulator.system", reason="system-level simulator not merged yet")
-
-from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY  # noqa: E402
-from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix  # noqa: E402
-from stableins.estimators.system.spectrum import ColouredSource  # noqa: E402
-from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage  # noqa: E402
-from stableins.noise import NoiseModel, NoiseSource  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
+from stableins.estimators.system.spectrum import ColouredSource
+from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage
+from stableins.noise import NoiseModel, NoiseSource
+from stableins.simulator import system
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.truth import Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean", "x1")]
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)  # the quartz white level, nothing slow

@@ -11,13 +11,12 @@ import math
 import numpy as np
 import pytest
 
-system = pytest.importorskip("stableins.simulator.system", reason="system-level simulator not merged yet")
-
-from stableins.conventions import ARCSEC, SIDEREAL_DAY  # noqa: E402
-from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations  # noqa: E402
-from stableins.estimators.system.stage import ArraySource, residuals_from_parameters, run_system_stage  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.conventions import ARCSEC, SIDEREAL_DAY
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations
+from stableins.estimators.system.stage import ArraySource, residuals_from_parameters, run_system_stage
+from stableins.simulator import system
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.truth import Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean")]
 
