@@ -268,7 +268,7 @@ class NoiseModel:
         """Both slow terms have a finite upper limit on every axis."""
         return all(a.bias_instability.bounded and a.random_walk.bounded for a in self.axes)
 
-    def with_values(self, **per_term: float | Sequence[float]) -> NoiseModel:
+    def with_values(self, **per_term: ArrayLike) -> NoiseModel:
         """The same model with some terms replaced by given values (e.g. the upper limits)."""
         axes = []
         for a, axis in enumerate(self.axes):
@@ -278,7 +278,7 @@ class NoiseModel:
                 old = axis.term(name)
                 changes[name] = NoiseTerm(value, min(old.lower, value), max(old.upper, value))
             axes.append(replace(axis, **changes))
-        return replace(self, axes=tuple(axes))
+        return replace(self, axes=(axes[0], axes[1], axes[2]))
 
     def at_upper_limits(self) -> NoiseModel:
         """Slow terms at their upper limits: the largest floor the data allow (needs bounded limits)."""
@@ -303,7 +303,7 @@ class NoiseModel:
             + 3.0 * self.values("quantization")[None] ** 2 / t[:, None] ** 2
             + self.values("random_walk")[None] ** 2 * t[:, None] / 3.0
         )
-        flicker = FLICKER_VARIANCE_PER_B2 * sum(_gauss_markov_allan(t / tc) for tc in FLICKER_TIME_CONSTANTS)
+        flicker = FLICKER_VARIANCE_PER_B2 * np.asarray(sum(_gauss_markov_allan(t / tc) for tc in FLICKER_TIME_CONSTANTS))
         return out + flicker[:, None] * self.values("bias_instability")[None] ** 2
 
     def allan_deviation(self, tau: ArrayLike) -> NDArray[np.float64]:
@@ -405,8 +405,9 @@ class NoiseModel:
         lines.append(f"{'term':<40} {'axis':>4} {'value':>12} {level + ' interval':>28}  unit")
         for label, axis, value, interval, unit in self._term_rows():
             lines.append(f"{label if axis == AXES[0] else '':<40} {axis:>4} {value:>12} {interval:>28}  {unit}")
-        if self.test is not None:
-            lines.append(self._test_line())
+        test_line = self._test_line()
+        if test_line is not None:
+            lines.append(test_line)
         return "\n".join(lines)
 
     def __str__(self) -> str:

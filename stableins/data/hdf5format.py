@@ -181,6 +181,8 @@ class H5Writer:
 
         period = self.time_period
         segments = self._segments
+        if period is None:  # no time column to grid
+            return
         tolerance = TIME_GRID_TOLERANCE * period
         position = 0
         while segments is not None and position < values.size:
@@ -203,11 +205,10 @@ class H5Writer:
             return
         try:
             self._flush(final=True)
-            if self._segments:
-                grid = self._file.create_dataset(
-                    TIME_GRID, data=[(row, time, self.time_period) for row, time in self._segments], dtype="f8"
-                )
-                grid.attrs["tolerance"] = TIME_GRID_TOLERANCE * self.time_period
+            period = self.time_period
+            if self._segments and period is not None:
+                grid = self._file.create_dataset(TIME_GRID, data=[(row, time, period) for row, time in self._segments], dtype="f8")
+                grid.attrs["tolerance"] = TIME_GRID_TOLERANCE * period
             self._file.attrs["rows"] = self.rows
             self._file.attrs["complete"] = True
             self._file.close()

@@ -148,11 +148,12 @@ def parse_json(
     if size > max_bytes:
         raise InputError(f"{size} bytes of JSON", path=path, field=field or None, expected=f"{what} of at most {max_bytes} bytes")
     if isinstance(text, bytes | bytearray):
+        raw = bytes(text)
         try:
-            text = bytes(text).decode("utf-8-sig")
+            text = raw.decode("utf-8-sig")
         except UnicodeDecodeError as error:
             raise InputError(
-                f"not UTF-8 text (byte {error.start} is {bytes(text)[error.start : error.start + 1]!r})",
+                f"not UTF-8 text (byte {error.start} is {raw[error.start : error.start + 1]!r})",
                 path=path,
                 field=field or None,
                 expected=what,
