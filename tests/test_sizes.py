@@ -55,7 +55,6 @@ LONG_FUNCTION_MODULES = {
     "records.py",
     "reporting/budget.py",
     "reporting/builder.py",
-    "simulator/effects.py",
 }
 
 
