@@ -28,7 +28,6 @@ LONG_MODULES = {
     "estimators/system/spectrum.py",
     "estimators/system/stage.py",
     "history_store.py",
-    "noise.py",
     "procedures/definition.py",
     "procedures/rundir.py",
     "procedures/runner.py",
