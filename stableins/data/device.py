@@ -263,7 +263,7 @@ def load_device(path: str | os.PathLike[str]) -> DeviceDataset:
             document = reader.document
             columns = reader.read_all()
     else:
-        from stableins.data.hdf5format import H5Reader
+        from stableins.data.hdf5reader import H5Reader
 
         reader_h5 = H5Reader(path, "device", DEVICE_COLUMNS)
         document = reader_h5.document

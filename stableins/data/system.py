@@ -496,7 +496,7 @@ def open_system_record(path: str | os.PathLike[str]) -> SystemRecord:
     path = Path(path)
     kind = _kind_of(path)
     if kind == "h5":
-        from stableins.data.hdf5format import H5Reader
+        from stableins.data.hdf5reader import H5Reader
 
         reader = H5Reader(path, "system", SYSTEM_COLUMNS)
         document, n, inner = reader.document, reader.rows, reader
