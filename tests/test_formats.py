@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 from stableins.data.device import DeviceDataset, load_device, save_device
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata, metadata_from_document, metadata_to_document
+from stableins.data.sampling import SamplingWarning
 from stableins.data.schema import DEVICE_COLUMNS, SYSTEM_COLUMNS
-from stableins.data.system import SamplingWarning, SystemRecordWriter, open_system_record
+from stableins.data.system import SystemRecordWriter, open_system_record
 
 RATE = 50.0
 
