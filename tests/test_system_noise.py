@@ -37,6 +37,7 @@ def day(seed, noise, noise_model=None):
     return out, ((out.combined.values - ref) / out.combined.sigma)[HARMONIC]
 
 
+@pytest.mark.slow
 def test_white_records_keep_the_white_sigma_and_the_decision_has_its_false_positive_rate():
     """20 white days: low-frequency noise declared in about 5 % (χ̄² calibration), σ white elsewhere, rms z ≈ 1.
 

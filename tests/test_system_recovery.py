@@ -172,6 +172,7 @@ def test_quartz_noise_low_frequency_power_is_seen():
     assert np.abs(((out.combined.values - ref) / out.combined.sigma)[harmonic]).max() < 4.0
 
 
+@pytest.mark.slow
 def test_monte_carlo_sigma_with_quartz_noise():
     """With the simulator's default quartz noise the σ built from the coloured-noise model matches the scatter.
 
