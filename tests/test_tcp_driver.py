@@ -27,7 +27,7 @@ def server():
 def test_simulator_samples_cross_the_wire_bit_for_bit():
     local = simulated_platform(5, "NET-1", 20.0)  # the same simulated platform, in this process
     with ServerProcess(seed=5, simulator=True, rate=20.0) as s:
-        driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=5)
+        driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=30)
         assert driver.metadata == local.metadata
         for readings in [(0.1, 0.2, -0.3), (1.0, -0.5, 0.25)]:
             assert driver.command(readings) == local.command(readings)
@@ -42,7 +42,7 @@ def test_simulator_samples_cross_the_wire_bit_for_bit():
 def test_the_test_double_crosses_the_wire_bit_for_bit():
     local = PlatformDouble(seed=5)
     with ServerProcess(seed=5) as s:
-        driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=5)
+        driver = connect(f"tcp://127.0.0.1:{s.port}", timeout=30)
         driver.command((0.1, 0.2, -0.3))
         local.command((0.1, 0.2, -0.3))
         np.testing.assert_array_equal(driver.acquire(0.6).specific_force, local.acquire(0.6).specific_force)
@@ -51,7 +51,7 @@ def test_the_test_double_crosses_the_wire_bit_for_bit():
 
 def test_disconnect_in_the_middle_of_a_dwell(server):
     with FaultyRelay(server.port, fault=("cut", 3000)) as relay:
-        driver = TcpDriver("127.0.0.1", relay.port, timeout=5, reconnect_delay=0.05)
+        driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.0, 0.1, 0.2))
         with pytest.raises(AcquisitionInterrupted) as caught:
             driver.acquire(5.0)  # 100 samples of ~200 characters: the cut falls inside the stream
@@ -67,7 +67,7 @@ def test_disconnect_in_the_middle_of_a_dwell(server):
 
 def test_idempotent_requests_are_resent_after_a_disconnect(server):
     with FaultyRelay(server.port, fault=("cut", len("STABLEINS-PLATFORM 1\n") + 3)) as relay:
-        driver = TcpDriver("127.0.0.1", relay.port, timeout=5, reconnect_delay=0.05)
+        driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.3, 0.0, 0.0))  # its reply is cut; sent again on a new connection
         driver.acquire(4.0)  # the slew (17° at 10°/s)
         np.testing.assert_allclose(driver.read_angles(), [0.3, 0.0, 0.0], atol=1e-5)
@@ -98,7 +98,7 @@ def test_stall_during_acquisition_is_an_interruption_not_a_hang(server):
 @pytest.mark.parametrize("at", [40, 400, 2500])
 def test_garbage_in_a_reply_is_detected(server, at):
     with FaultyRelay(server.port, fault=("corrupt", at)) as relay:
-        driver = TcpDriver("127.0.0.1", relay.port, timeout=5, reconnect_delay=0.05)
+        driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.0, 0.5, 0.0))
         with pytest.raises(DriverProtocolError, match="garbage|CRC|does not match"):
             for _ in range(3):
@@ -134,7 +134,7 @@ def test_nobody_listening():
 
 
 def test_platform_errors_are_reported_not_fatal(server):
-    driver = TcpDriver("127.0.0.1", server.port, timeout=5)
+    driver = TcpDriver("127.0.0.1", server.port, timeout=30)
     with pytest.raises(DriverError, match="refused ACQ"):
         driver.acquire(-1.0)
     assert len(driver.acquire(0.5)) == 10  # still usable
@@ -163,10 +163,10 @@ def test_the_timeout_counts_silence_not_the_length_of_a_dwell():
 
 def test_a_new_client_takes_over_from_one_that_vanished(server):
     # a client whose host lost power never closes its connection; the next client must not wait for it
-    stale = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+    stale = socket.create_connection(("127.0.0.1", server.port), timeout=30)
     assert stale.recv(100).startswith(b"STABLEINS-PLATFORM 1")
     start = time.monotonic()
-    driver = TcpDriver("127.0.0.1", server.port, timeout=5)
+    driver = TcpDriver("127.0.0.1", server.port, timeout=30)
     assert len(driver.acquire(0.5)) == 10
     assert time.monotonic() - start < 3
     driver.close()
