@@ -125,7 +125,7 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
 
 
 def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
-    """The parser, with the command named in ``argv`` (if any) fully configured."""
+    """Return the parser, with the command named in ``argv`` (if any) fully configured."""
     parser = _Parser(
         prog="stableins",
         description="On-system calibration of the accelerometer triad of a space-stable inertial navigation system.",

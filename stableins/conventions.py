@@ -124,7 +124,7 @@ def earth_rate_nav(latitude: ArrayLike) -> NDArray[np.float64]:
 
 
 def specific_force_nav(gravity: ArrayLike) -> NDArray[np.float64]:
-    """Static specific force in NED, ``[0, 0, -g]`` (Wu et al. 2018 Eq. 1)."""
+    """Return the static specific force in NED, ``[0, 0, -g]`` (Wu et al. 2018 Eq. 1)."""
     gravity = np.asarray(gravity, dtype=float)
     zero = np.zeros_like(gravity)
     return np.stack([zero, zero, -gravity], axis=-1)

@@ -258,7 +258,7 @@ H5_DAMAGE = (KeyError, RuntimeError, OSError, ValueError, TypeError, UnicodeDeco
 
 
 def read_header_attribute(f: Any, path: Any) -> Any:
-    """The JSON document of the root ``header`` attribute (safe JSON reader; InputError naming the file and field)."""
+    """Return the JSON document of the root ``header`` attribute (safe JSON reader; InputError naming the file and field)."""
     from stableins.data.jsonio import parse_json
 
     try:

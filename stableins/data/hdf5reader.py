@@ -28,7 +28,7 @@ from stableins.data.validation import check_finite, check_header_document, match
 
 
 def _check_storage(d: Any, rows: int, path: str, name: str) -> None:
-    """The dataset stores what its shape declares: all chunks (chunked) or all bytes (contiguous).
+    """Check that the dataset stores what its shape declares: all chunks (chunked) or all bytes (contiguous).
 
     A file whose shape promises more rows than it holds (a sparse or truncated file, a header edited to declare
     millions of rows) is refused here, before anything is allocated for it.
@@ -114,7 +114,7 @@ class H5Reader:
         self.time_grid = self._time_grid(f)
 
     def _time_grid(self, f: Any) -> Any:
-        """The ``/time_grid`` segments ``(n, 3)`` if present and consistent with the file, else None."""
+        """Return the ``/time_grid`` segments ``(n, 3)`` if present and consistent with the file, else None."""
         import numpy as np
 
         d = f.get(TIME_GRID)

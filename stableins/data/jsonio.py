@@ -181,7 +181,7 @@ def parse_json(
 
 
 def read_input_bytes(path: str | os.PathLike[str], *, max_bytes: int, what: str) -> bytes:
-    """The bytes of an input file, refusing (InputError) a missing file, a directory, an unreadable or too large one.
+    """Return the bytes of an input file, refusing (InputError) a missing file, a directory, an unreadable or too large one.
 
     The size is checked on the open file before it is read, so a huge file costs nothing.
     """
@@ -252,7 +252,7 @@ def expect_number(
     positive: bool = False,
     expected: str = "a finite number",
 ) -> float:
-    """A finite JSON number (not a boolean) within the bounds given."""
+    """Return a finite JSON number (not a boolean) within the bounds given."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputError(f"{_shown(value)} is not a number", path=path, field=field, expected=expected)
     try:

@@ -266,7 +266,7 @@ class SystemRecord:
         return self._reader.grid_time(start, stop)
 
     def validate(self, *, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = 1 << 18) -> RecordValidation:
-        """The one validation of a system-level record, run by every command that reads one (``check``, ``calibrate system``,
+        """Validate the record: the one validation of a system-level record, run by every command that reads one (``check``, ``calibrate system``,
         ``diagnose``), so that they never disagree about a file.
 
         One streaming pass (bounded memory) over every column: every value finite, the time strictly increasing and

@@ -134,7 +134,7 @@ class NoiseTerm:
 
     @classmethod
     def exact(cls, value: float) -> NoiseTerm:
-        """A given value (interval of zero width)."""
+        """Return a given value (interval of zero width)."""
         return cls(float(value), float(value), float(value))
 
     @classmethod
@@ -236,7 +236,7 @@ class NoiseModel:
         source: NoiseSource = NoiseSource.DATASHEET,
         provenance: str = "",
     ) -> NoiseModel:
-        """A model from given values (scalars: the same on every axis), intervals of zero width."""
+        """Return a model from given values (scalars: the same on every axis), intervals of zero width."""
         values = {
             name: np.broadcast_to(np.asarray(v, dtype=float), (3,))
             for name, v in zip(TERMS, (white, bias_instability, random_walk, quantization))
@@ -270,7 +270,7 @@ class NoiseModel:
         return all(a.bias_instability.bounded and a.random_walk.bounded for a in self.axes)
 
     def with_values(self, **per_term: ArrayLike) -> NoiseModel:
-        """The same model with some terms replaced by given values (e.g. the upper limits)."""
+        """Return the same model with some terms replaced by given values (e.g. the upper limits)."""
         axes = []
         for a, axis in enumerate(self.axes):
             changes = {}

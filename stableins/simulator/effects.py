@@ -112,7 +112,7 @@ class Effect:
     axis: int | None = None
 
     def term(self) -> Term:
-        """The effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
+        """Return the effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
         if self.kind != "output":
             raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
         return Term(
@@ -326,7 +326,7 @@ def _geometry_effects() -> list[Effect]:
 
 
 def _build() -> dict[str, Effect]:
-    """The catalogue: every effect by id, per accelerometer axis first, then the geometry."""
+    """Build the catalogue: every effect by id, per accelerometer axis first, then the geometry."""
     effects: list[Effect] = []
     for i, a in enumerate(AXES):
         effects += _nonlinearity_effects(i, a) + _environment_effects(i, a)

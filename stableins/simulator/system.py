@@ -311,7 +311,7 @@ class SystemWorld:
         return angle
 
     def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        """True ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
+        """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
         theta = EARTH_RATE * time
         s, c = np.sin(theta), np.cos(theta)
         dcm = self.nav_to_platform_0 + s[:, None, None] * self._ck + (1.0 - c)[:, None, None] * self._ck2
@@ -333,7 +333,7 @@ class SystemWorld:
 
     # --------------------------------------------------------------- generation
     def chunk(self, count: int, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
-        """The next ``count`` samples as columns of :data:`stableins.data.schema.SYSTEM_COLUMNS`."""
+        """Return the next ``count`` samples as columns of :data:`stableins.data.schema.SYSTEM_COLUMNS`."""
         start = self._next
         index = np.arange(start, start + count)
         time = index / self.rate
@@ -456,7 +456,7 @@ def simulate_system(
     seed: int | None = None,
     **options,
 ) -> dict[str, NDArray[np.float64]]:
-    """A whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
+    """Return a whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
     pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
     if not pieces:
         return {c.name: np.zeros(0) for c in SYSTEM_COLUMNS}

@@ -176,7 +176,7 @@ class Truth:
         return GimbalConfiguration((s1, s2, s3, s4))
 
     def platform(self):
-        """The true :class:`stableins.platform.GimbalPlatform` (offsets, senses, base, tilt, non-orthogonality, sensor errors)."""
+        """Return the true :class:`stableins.platform.GimbalPlatform` (offsets, senses, base, tilt, non-orthogonality, sensor errors)."""
         from stableins.platform import GimbalPlatform
 
         e = self.effects
@@ -191,14 +191,14 @@ class Truth:
         )
 
     def calibration_residual(self) -> dict[str, float]:
-        """True minus installed calibration, by id [SI] (ids in either)."""
+        """Return true minus installed calibration, by id [SI] (ids in either)."""
         model = ErrorModel.standard(nonlinear=True, gimbals=True)
         ref = {t.id: t.reference for t in model}
         ids = [i for i in PARAMETER_IDS if i in self.parameters or i in self.installed_calibration]
         return {i: self.parameters.get(i, ref[i]) - self.installed_calibration.get(i, ref[i]) for i in ids}
 
     def with_changes(self, **changes: Any) -> Truth:
-        """A copy with some fields replaced (dataclasses.replace)."""
+        """Return a copy with some fields replaced (dataclasses.replace)."""
         return replace(self, **changes)
 
     # ----------------------------------------------------------------- drawing
@@ -220,7 +220,7 @@ class Truth:
         damping: Mapping[str, float] | None = None,
         serial_number: str | None = None,
     ) -> Truth:
-        """A realistic random instrument.
+        """Draw a realistic random instrument.
 
         Each parameter is drawn as ``reference + nominal × N(0, 1)`` with the nominal
         magnitude of its :class:`stableins.errormodel.Term` (100 ppm, 100 µg, 30″,
