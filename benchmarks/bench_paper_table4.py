@@ -28,8 +28,9 @@ import numpy as np
 
 from stableins.conventions import ARCSEC, SIDEREAL_DAY, normal_gravity
 from stableins.data.metadata import SiteMetadata
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
-from stableins.estimators.system.stage import residuals_from_parameters, run_system_stage
+from stableins.estimators.system.stage import run_system_stage
 
 #: Wu et al. 2018 Table 4, "reference values" as printed (magnitudes; signs lost in the text) [rad].
 PAPER_TABLE4 = {

@@ -45,9 +45,11 @@ import warnings
 import numpy as np
 
 from stableins.conventions import ARCSEC, SIDEREAL_DAY
-from stableins.estimators.system import stage
+from stableins.data.chunks import ArraySource
+from stableins.estimators.system import solve, stage
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
-from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage
+from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.noise import NoiseModel
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
@@ -100,7 +102,7 @@ def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
         fit = out.coloured_noise
         detected.append(fit.data_detected)
         statistic.append(fit.statistic)
-        factor.append(out.diagnostics["z_low_frequency_ratio"])
+        factor.append(out.diagnostics.z_low_frequency_ratio)
         models.append(out.noise_model)
     z = np.array(z)
     n = len(seeds)
@@ -161,7 +163,7 @@ def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
     import tracemalloc
 
     truth = Truth.draw(100, sample_rate=1.0)
-    original = stage._coloured_covariance
+    original = solve.coloured_covariance
     peaks: dict[str, float] = {}
 
     def traced(*args, **kwargs):  # peak of the coloured-noise model above the memory in use when it starts
@@ -171,7 +173,7 @@ def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
         peaks["coloured"] = tracemalloc.get_traced_memory()[1] - start
         return result
 
-    print("memory (tracemalloc peak, MiB): record | stage, 16384-row chunks | stage, 2^18-row chunks | _coloured_covariance")
+    print("memory (tracemalloc peak, MiB): record | stage, 16384-row chunks | stage, 2^18-row chunks | coloured_covariance")
     for days in days_list:
         source = ArraySource(system.simulate_system(truth, days * SIDEREAL_DAY, 1.0, seed=100))
         row = []
@@ -182,7 +184,7 @@ def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
                 run_system_stage(source, truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True, chunk_rows=rows))
                 row.append(tracemalloc.get_traced_memory()[1] / 2**20)
                 tracemalloc.stop()
-        stage._coloured_covariance = traced
+        solve.coloured_covariance = traced
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -191,7 +193,7 @@ def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
                 run_system_stage(source, truth.site, truth.installed_calibration, options=small)
                 tracemalloc.stop()
         finally:
-            stage._coloured_covariance = original
+            solve.coloured_covariance = original
         print(f"  {days} d | {row[0]:.1f} | {row[1]:.1f} | {peaks['coloured'] / 2**20:.2f}")
 
 

@@ -142,7 +142,7 @@ def stage(path: Path, rows: int, limit_days: float | None = None, trace: bool = 
     if trace:
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-    return elapsed, peak, int(out.diagnostics["samples"])
+    return elapsed, peak, int(out.diagnostics.samples)
 
 
 def validation(path: Path) -> float:
@@ -160,7 +160,8 @@ def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
     The parts are wrapped with timers for this run only (the module is restored afterwards); what is left of the
     total is the streaming loop's own numpy work on the 1-Hz columns and the post-processing not listed.
     """
-    from stableins.estimators.system import stage as module
+    from stableins.estimators.system import accumulate, blocksums, solve
+    from stableins.estimators.system.checks import StaticChecks
 
     record = open_system_record(path)
     timers: dict[str, float] = {}
@@ -185,14 +186,14 @@ def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
                 yield chunk
 
     parts = {
-        (module, "block_sums"): "compiled pass (z, block moments, sampling check)",
-        (module, "harmonic_sums"): "harmonic block sums",
-        (module, "second_difference_sums"): "noise second differences",
-        (module._StaticChecks, "slow"): "static checks on the 1-Hz columns",
-        (module.AttitudeBlocks, "add"): "attitude blocks",
-        (module.hm, "kalman_filter"): "Kalman-filter curve",
-        (module, "fit_attitude"): "attitude fit",
-        (module, "_coloured_covariance"): "coloured-noise model",
+        (accumulate, "block_sums"): "compiled pass (z, block moments, sampling check)",
+        (blocksums, "harmonic_sums"): "harmonic block sums",
+        (accumulate, "second_difference_sums"): "noise second differences",
+        (StaticChecks, "slow"): "static checks on the 1-Hz columns",
+        (accumulate.AttitudeBlocks, "add"): "attitude blocks",
+        (solve.hm, "kalman_filter"): "Kalman-filter curve",
+        (solve, "fit_attitude"): "attitude fit",
+        (solve, "coloured_covariance"): "coloured-noise model",
     }
     saved = {key: getattr(*key) for key in parts}
 

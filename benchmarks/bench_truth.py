@@ -153,7 +153,9 @@ def field_recalibration(root: Path) -> None:
             worst = max(worst, abs(shown - float(terms[p.id].to_engineering(p.value))) / float(terms[p.id].sigma_to_engineering(p.sigma)))
     print(f"   certificate vs record: {len(rows)} values, largest |shown − record| = {worst:.3f} u (GUM rounding: ≤ 0.05 u)")
     history = json.loads(must("history", "SN042", "--store", str(store), "--json"))
-    section = text[text.index("7 Change since the previous calibration") : text.index("8 Statement of conformity")]
+    begin = re.search(r"^\d+\s+Change since the previous calibration", text, re.M)
+    end = re.search(r"^\d+\s+Statement of conformity", text, re.M)
+    section = text[begin.start() : end.start()]
     certificate = sorted({m.group(1) for m in re.finditer(r"^\s*(\w+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)})
     flags = f"recal {recal['significant']}, history {history['changes'][-1]['significant']}, certificate {certificate}"
     print(f"   change flags (|z| ≥ 3): {flags}; compared: {len(recal['changes'])} parameters, not compared: {len(recal['not_compared'])}")

@@ -58,7 +58,9 @@ height correction (NIMA TR8350.2, Eqs. 4-1 and 4-3).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Final
 
 import numpy as np
@@ -236,6 +238,20 @@ def actual_gimbal_angles(readings: ArrayLike, zero_offsets: ArrayLike) -> NDArra
     return np.asarray(readings, dtype=float) + np.asarray(zero_offsets, dtype=float)
 
 
+#: Where each installation angle stands in ``C_p^a`` and with which sign (Eq. 5, signs restored):
+#: ``C_p^a[row, col] = sign · β`` (:func:`dcm_platform_to_accelerometer`).
+INSTALLATION_ENTRIES: Final = MappingProxyType(
+    {
+        "beta_xz": (0, 1, 1.0),
+        "beta_xy": (0, 2, -1.0),
+        "beta_yz": (1, 0, -1.0),
+        "beta_yx": (1, 2, 1.0),
+        "beta_zy": (2, 0, 1.0),
+        "beta_zx": (2, 1, -1.0),
+    }
+)
+
+
 def dcm_platform_to_accelerometer(
     beta_xz: ArrayLike,
     beta_xy: ArrayLike,
@@ -251,12 +267,11 @@ def dcm_platform_to_accelerometer(
                 -\beta_{yz} & 1 & \beta_{yx}\\ \beta_{zy} & -\beta_{zx} & 1\end{bmatrix}
     """
     b = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (beta_xz, beta_xy, beta_yz, beta_yx, beta_zy, beta_zx)))
-    bxz, bxy, byz, byx, bzy, bzx = b
-    out = np.zeros(bxz.shape + (3, 3))
+    angles = dict(zip(("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx"), b, strict=True))
+    out = np.zeros(b[0].shape + (3, 3))
     out[..., 0, 0] = out[..., 1, 1] = out[..., 2, 2] = 1.0
-    out[..., 0, 1], out[..., 0, 2] = bxz, -bxy
-    out[..., 1, 0], out[..., 1, 2] = -byz, byx
-    out[..., 2, 0], out[..., 2, 1] = bzy, -bzx
+    for name, (row, col, sign) in INSTALLATION_ENTRIES.items():
+        out[..., row, col] = angles[name] if sign > 0 else -angles[name]
     return out
 
 
@@ -300,3 +315,24 @@ def attitude_error_from_misalignment(
     y0, p0, r0 = euler_from_dcm(c_true)
     wrap = lambda x: (x + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
     return np.stack([wrap(y1 - y0), p1 - p0, wrap(r1 - r0)], axis=-1)
+
+
+def heading_to_north_pointing(pitch: ArrayLike, roll: ArrayLike, yaw: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Pitch and roll errors of a level body with heading ``yaw`` as the pair a north-pointing body would show.
+
+    A level body with heading ψ sees ``(δpitch, δroll) = R(ψ)(−φ_E, −φ_N)`` (first order of
+    :func:`attitude_error_from_misalignment`); this rotates back,
+    ``(cos ψ δpitch + sin ψ δroll, −sin ψ δpitch + cos ψ δroll) = (−φ_E, −φ_N)``: the pitch and roll errors of a
+    north-pointing body, as the damping-loop model outputs them.
+    """
+    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+    return cos_yaw * pitch + sin_yaw * roll, -sin_yaw * pitch + cos_yaw * roll  # type: ignore[operator]
+
+
+def misalignment_pitch_roll(relative: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Pitch and roll errors of a north-pointing body from the relative DCM ``C_b^n C_n^{b'} ≈ I + [φ×]`` of a tilted body.
+
+    ``C_n^{b'} = C_n^b (I + [φ×])``: ``φ`` from the antisymmetric part of ``relative`` (``(n, 3, 3)``), and
+    ``(δpitch, δroll) = (−φ_E, −φ_N)`` as for a level north-pointing body (:func:`attitude_error_from_misalignment`).
+    """
+    return -0.5 * (relative[:, 0, 2] - relative[:, 2, 0]), -0.5 * (relative[:, 2, 1] - relative[:, 1, 2])

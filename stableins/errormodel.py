@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY, dcm_platform_to_accelerometer
+from stableins.conventions import ARCSEC, INSTALLATION_ENTRIES, MICRO_G, PPM, STANDARD_GRAVITY, dcm_platform_to_accelerometer
 
 AXES = ("x", "y", "z")
 
@@ -417,14 +417,6 @@ class ErrorModel:
         gain = 1.0 / (1.0 - 2.0 * p.quadratic * u)  # du/dw
         shape = np.broadcast_shapes(f_p.shape, p.bias.shape)
         jac = np.zeros(shape + (len(self),))
-        beta_slot = {
-            "beta_xz": (0, 1, 1.0),
-            "beta_xy": (0, 2, -1.0),
-            "beta_yz": (1, 0, -1.0),
-            "beta_yx": (1, 2, 1.0),
-            "beta_zy": (2, 0, 1.0),
-            "beta_zx": (2, 1, -1.0),
-        }
         for k, t in enumerate(self.terms):
             if t.kind == "scale_factor":
                 i = t.axis
@@ -432,7 +424,7 @@ class ErrorModel:
             elif t.kind == "bias":
                 jac[..., t.axis, k] = 1.0
             elif t.kind == "installation":
-                row, col, sign = beta_slot[t.id]
+                row, col, sign = INSTALLATION_ENTRIES[t.id]
                 jac[..., row, k] = gain[..., row] * sign * f_p[..., col] / p.scale_factor[..., row]
             elif t.kind == "nonlinearity":
                 i = t.axis

@@ -32,7 +32,7 @@ Everything is vectorized over leading dimensions of the readings.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -45,16 +45,231 @@ from stableins.conventions import (
     R2,
     R3,
     GimbalConfiguration,
-    dcm_body_to_platform,
     dcm_nav_to_body,
+    skew,
     specific_force_nav,
 )
+from stableins.errormodel import GIMBAL_IDS
 
+#: Gimbal names in angle-sensor order (platform z, inner x, middle y), as in the data schema.
 GIMBAL_NAMES = ("platform", "inner", "middle")
+#: Ids of the kinematic (test-equipment) effects, in [rad].
+KINEMATIC_IDS = (
+    "nonorth_12",
+    "nonorth_23",
+    "tilt_north",
+    "tilt_east",
+    "azimuth_error",
+    *(f"ang1_{g}_{cs}" for g in GIMBAL_NAMES for cs in ("c", "s")),
+)
+_ROT = (R1, R2, R3)
+_E = np.eye(3)
 
 
+# --------------------------------------------------------------------------- kinematics
 def _frozen(mapping: Mapping[str, float] | None) -> Mapping[str, float]:
     return MappingProxyType(dict(mapping or {}))
+
+
+def sensor_error_coefficients(effects: Mapping[str, float] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Once-per-revolution angle-sensor amplitudes ``(c, s)`` per gimbal from ``ang1_<gimbal>_c|s`` ids [rad]."""
+    effects = effects or {}
+    c = np.array([effects.get(f"ang1_{g}_c", 0.0) for g in GIMBAL_NAMES], dtype=float)
+    s = np.array([effects.get(f"ang1_{g}_s", 0.0) for g in GIMBAL_NAMES], dtype=float)
+    return c, s
+
+
+def actual_angles(
+    readings: ArrayLike, zero_offsets: ArrayLike = (0.0, 0.0, 0.0), effects: Mapping[str, float] | None = None
+) -> NDArray[np.float64]:
+    """Actual gimbal angles ``alpha_i = r_i + theta_i0 + c_i cos r_i + s_i sin r_i`` (last axis: 3 gimbals)."""
+    r = np.asarray(readings, dtype=float)
+    alpha = r + np.asarray(zero_offsets, dtype=float)
+    c, s = sensor_error_coefficients(effects)
+    if c.any() or s.any():
+        alpha = alpha + c * np.cos(r) + s * np.sin(r)
+    return alpha
+
+
+def gimbal_chain(
+    actual: ArrayLike,
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    nonorthogonality: tuple[float, float] = (0.0, 0.0),
+    outer_angle: float = 0.0,
+    keep: Sequence[str] = (),
+) -> list[tuple[str, int, NDArray[np.float64]]]:
+    r"""Factors ``(name, axis, angle)`` of ``C_b^p`` from the platform outwards (left to right).
+
+    .. math:: C_b^p = R_3(s_1\alpha_1) R_2(\nu_{12}) R_1(s_2\alpha_2) R_3(\nu_{23}) R_2(s_3\alpha_3) R_3(s_4 q)
+
+    Names are the gimbal names, ``nonorth_12``, ``nonorth_23`` and ``outer``; a fixed factor
+    whose angle is zero (the identity) is left out unless its name is in ``keep``.
+    """
+    alpha = np.asarray(actual, dtype=float)
+    s1, s2, s3, s4 = configuration.senses
+    zero = np.zeros(alpha.shape[:-1])
+    factors = [
+        ("platform", 2, s1 * alpha[..., 0]),
+        ("nonorth_12", 1, zero + nonorthogonality[0]),
+        ("inner", 0, s2 * alpha[..., 1]),
+        ("nonorth_23", 2, zero + nonorthogonality[1]),
+        ("middle", 1, s3 * alpha[..., 2]),
+        ("outer", 2, zero + s4 * outer_angle),
+    ]
+    fixed = {"nonorth_12": nonorthogonality[0], "nonorth_23": nonorthogonality[1], "outer": outer_angle}
+    return [f for f in factors if f[0] not in fixed or fixed[f[0]] != 0.0 or f[0] in keep]
+
+
+def chain_product(factors: Sequence[tuple[str, int, NDArray[np.float64]]]) -> NDArray[np.float64]:
+    """Product of the factors of :func:`gimbal_chain`, left to right: ``C_b^p``."""
+    out = _ROT[factors[0][1]](factors[0][2])
+    for _, axis, angle in factors[1:]:
+        out = out @ _ROT[axis](angle)
+    return out
+
+
+def nav_to_body(base_dcm: ArrayLike, effects: Mapping[str, float] | None = None) -> NDArray[np.float64]:
+    """True ``C_n^b = C_n^b(surveyed) R2(t_E) R1(t_N) R3(psi_e)`` (module docstring); ``effects`` by id [rad]."""
+    effects = effects or {}
+    c = np.asarray(base_dcm, dtype=float)
+    t_north, t_east, azimuth = (float(effects.get(k, 0.0)) for k in ("tilt_north", "tilt_east", "azimuth_error"))
+    if t_north or t_east or azimuth:
+        c = c @ R2(t_east) @ R1(t_north) @ R3(azimuth)
+    return c
+
+
+def _surveyed(base_attitude: ArrayLike | None, base_dcm: ArrayLike | None) -> NDArray[np.float64]:
+    if base_dcm is not None:
+        if base_attitude is not None:
+            raise ValueError("give the base as base_attitude or as base_dcm, not both")
+        return np.asarray(base_dcm, dtype=float)
+    yaw, pitch, roll = np.asarray((0.0, 0.0, 0.0) if base_attitude is None else base_attitude, dtype=float)
+    return dcm_nav_to_body(yaw, pitch, roll)
+
+
+def specific_force_and_jacobian(
+    readings: ArrayLike,
+    gravity: ArrayLike,
+    *,
+    zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
+    base_attitude: ArrayLike | None = None,
+    base_dcm: ArrayLike | None = None,
+    effects: Mapping[str, float] | None = None,
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    ids: Sequence[str] = GIMBAL_IDS + KINEMATIC_IDS,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Exact static ``f^p`` and its analytic derivative ``∂f^p/∂p`` for zero offsets and kinematic effects.
+
+    .. math:: f^p = R_3(s_1\alpha_1) R_2(\nu_{12}) R_1(s_2\alpha_2) R_3(\nu_{23}) R_2(s_3\alpha_3)
+              \, C_n^b(\psi,\theta,\phi) R_2(t_E) R_1(t_N) R_3(\psi_e)\,(0, 0, -g)^T
+
+    The derivative of a chain of frame rotations with respect to the angle of one factor is
+    ``∂C/∂a_j = P_j (−[e_k×]) R_k(a_j) S_j`` (because ``R_k(a) = exp(−a[e_k×])``), with ``P_j``,
+    ``S_j`` the products before and after factor ``j``; the angle of gimbal ``i`` depends on
+    ``θ_i0`` with slope ``s_i`` and on ``ang1_<i>_c|s`` with slopes ``s_i cos r_i``, ``s_i sin r_i``;
+    the base tilts act on ``C_n^b`` likewise.
+
+    Parameters
+    ----------
+    readings : array_like (..., 3)
+        Angle-sensor readings (platform, inner, middle) [rad].
+    gravity : float or array_like
+        Local gravity [m/s²] (broadcast against the leading dimensions of ``readings``).
+    zero_offsets : array_like (..., 3)
+        ``theta10, theta20, theta30`` [rad].
+    base_attitude : array_like (3,), optional
+        Surveyed (yaw, pitch, roll) of the base [rad] (default level, north).
+    base_dcm : array_like (3, 3), optional
+        Surveyed ``C_n^b`` instead of ``base_attitude``.
+    effects : mapping, optional
+        Values of :data:`KINEMATIC_IDS` [rad]; absent ids are zero.
+    configuration : GimbalConfiguration
+        Rotation senses.
+    ids : sequence of str
+        Parameters of the derivative, from :data:`GIMBAL_IDS` and :data:`KINEMATIC_IDS`.
+
+    Returns
+    -------
+    f_p : ndarray (..., 3)
+        ``f^p`` [m/s²].
+    jacobian : ndarray (..., 3, len(ids))
+        ``∂f^p/∂p`` [m/s² per rad].
+    """
+    effects = effects or {}
+    unknown = [i for i in ids if i not in GIMBAL_IDS + KINEMATIC_IDS]
+    if unknown:
+        raise KeyError(f"{unknown[0]!r} is not a kinematic parameter (known: {', '.join(GIMBAL_IDS + KINEMATIC_IDS)})")
+    r = np.asarray(readings, dtype=float)
+    alpha = actual_angles(r, zero_offsets, effects)
+    nonorth = (float(effects.get("nonorth_12", 0.0)), float(effects.get("nonorth_23", 0.0)))
+    chain = gimbal_chain(alpha, configuration, nonorth, keep=ids)
+    surveyed = _surveyed(base_attitude, base_dcm)
+    f_n = specific_force_nav(gravity)
+    mats = [_ROT[axis](angle) for _, axis, angle in chain]
+    # suffix[j] = M_j ... M_{n-1} f_b, applied to the vector from the right; suffix[0] = f^p
+    suffix = [np.einsum("ij,...j->...i", nav_to_body(surveyed, effects), f_n)]
+    for m in reversed(mats):
+        suffix.insert(0, np.einsum("...ij,...j->...i", m, suffix[0]))
+    f_p = suffix[0]
+    if not ids:
+        return f_p, np.zeros(f_p.shape + (0,))
+    prefix = [np.broadcast_to(_E, alpha.shape[:-1] + (3, 3))]
+    for m in mats:
+        prefix.append(prefix[-1] @ m)
+    names = [name for name, _, _ in chain]
+
+    def d_factor(name: str) -> NDArray[np.float64]:
+        """∂f^p/∂(angle of the named factor): ``P_j (−[e_k×]) (M_j S_j f_b)``."""
+        j = names.index(name)
+        return np.einsum("...ij,...j->...i", prefix[j], -np.cross(_E[chain[j][1]], suffix[j]))
+
+    def d_tilt(rotation_axis: int) -> NDArray[np.float64]:
+        """∂f^p/∂(base rotation about North, East or Down): ``C_b^p C_ypr [R2 R1 R3, one factor differentiated] f^n``."""
+        m = surveyed
+        for axis, key in ((1, "tilt_east"), (0, "tilt_north"), (2, "azimuth_error")):
+            rot = _ROT[axis](effects.get(key, 0.0))
+            m = m @ (-skew(_E[axis]) @ rot if axis == rotation_axis else rot)
+        return np.einsum("...ij,...j->...i", prefix[-1], np.einsum("ij,...j->...i", m, f_n))
+
+    senses = configuration.senses
+    columns = []
+    for pid in ids:
+        if pid in GIMBAL_IDS:
+            i = GIMBAL_IDS.index(pid)
+            columns.append(senses[i] * d_factor(GIMBAL_NAMES[i]))
+        elif pid.startswith("nonorth_"):
+            columns.append(d_factor(pid))
+        elif pid in ("tilt_north", "tilt_east", "azimuth_error"):
+            columns.append(d_tilt(("tilt_north", "tilt_east", "azimuth_error").index(pid)))
+        else:  # ang1_<gimbal>_<c|s>
+            _, g, cs = pid.split("_")
+            i = GIMBAL_NAMES.index(g)
+            slope = np.cos(r[..., i]) if cs == "c" else np.sin(r[..., i])
+            columns.append(senses[i] * slope[..., None] * d_factor(g))
+    return f_p, np.stack(columns, axis=-1)
+
+
+def platform_specific_force(
+    readings: ArrayLike,
+    gravity: ArrayLike,
+    *,
+    zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
+    base_attitude: ArrayLike | None = None,
+    base_dcm: ArrayLike | None = None,
+    effects: Mapping[str, float] | None = None,
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+) -> NDArray[np.float64]:
+    """``f^p`` of static positions from angle-sensor readings, exactly (:func:`specific_force_and_jacobian`)."""
+    return specific_force_and_jacobian(
+        readings,
+        gravity,
+        zero_offsets=zero_offsets,
+        base_attitude=base_attitude,
+        base_dcm=base_dcm,
+        effects=effects,
+        configuration=configuration,
+        ids=(),
+    )[0]
 
 
 @dataclass(frozen=True)
@@ -99,27 +314,16 @@ class GimbalPlatform:
             raise ValueError(f"unknown angle-sensor error ids {sorted(unknown)} (known: {sorted(known)})")
 
     # ------------------------------------------------------------------ sensors
-    @property
-    def _sensor_coefficients(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        c = np.array([self.angle_sensor_errors.get(f"ang1_{g}_c", 0.0) for g in GIMBAL_NAMES])
-        s = np.array([self.angle_sensor_errors.get(f"ang1_{g}_s", 0.0) for g in GIMBAL_NAMES])
-        return c, s
-
     def actual_angles(self, readings: ArrayLike) -> NDArray[np.float64]:
-        """Actual gimbal angles ``alpha = r + theta0 + c cos r + s sin r`` (last axis: 3 gimbals)."""
-        r = np.asarray(readings, dtype=float)
-        alpha = r + np.asarray(self.zero_offsets, dtype=float)
-        if self.angle_sensor_errors:
-            c, s = self._sensor_coefficients
-            alpha = alpha + c * np.cos(r) + s * np.sin(r)
-        return alpha
+        """Actual gimbal angles ``alpha = r + theta0 + c cos r + s sin r`` (:func:`actual_angles`)."""
+        return actual_angles(readings, self.zero_offsets, self.angle_sensor_errors)
 
     def readings_from_actual(self, actual: ArrayLike, iterations: int = 3) -> NDArray[np.float64]:
         """Inverse of :meth:`actual_angles` (fixed-point iteration; exact for zero sensor errors)."""
         alpha = np.asarray(actual, dtype=float)
         r = alpha - np.asarray(self.zero_offsets, dtype=float)
         if self.angle_sensor_errors:
-            c, s = self._sensor_coefficients
+            c, s = sensor_error_coefficients(self.angle_sensor_errors)
             base = r.copy()
             for _ in range(iterations):
                 r = base - c * np.cos(r) - s * np.sin(r)
@@ -128,13 +332,7 @@ class GimbalPlatform:
     # ------------------------------------------------------------------ kinematics
     def dcm_body_to_platform_actual(self, actual: ArrayLike) -> NDArray[np.float64]:
         """``C_b^p`` from actual angles (module docstring chain, with non-orthogonality)."""
-        alpha = np.asarray(actual, dtype=float)
-        a1, a2, a3 = alpha[..., 0], alpha[..., 1], alpha[..., 2]
-        nu12, nu23 = self.nonorthogonality
-        if nu12 == 0.0 and nu23 == 0.0:
-            return dcm_body_to_platform(a1, a2, a3, self.outer_angle, self.configuration)
-        s1, s2, s3, s4 = self.configuration.senses
-        return R3(s1 * a1) @ R2(nu12) @ R1(s2 * a2) @ R3(nu23) @ R2(s3 * a3) @ R3(s4 * self.outer_angle)
+        return chain_product(gimbal_chain(actual, self.configuration, self.nonorthogonality, self.outer_angle))
 
     def dcm_body_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:
         """``C_b^p`` from angle-sensor readings."""
@@ -143,11 +341,9 @@ class GimbalPlatform:
     def dcm_nav_to_body(self) -> NDArray[np.float64]:
         """True ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
         yaw, pitch, roll = self.base_attitude
-        c = dcm_nav_to_body(yaw, pitch, roll)
         t_north, t_east = self.base_tilt
-        if t_north or t_east or self.base_azimuth:
-            c = c @ R2(t_east) @ R1(t_north) @ R3(self.base_azimuth)
-        return c
+        tilts = {"tilt_north": t_north, "tilt_east": t_east, "azimuth_error": self.base_azimuth}
+        return nav_to_body(dcm_nav_to_body(yaw, pitch, roll), tilts)
 
     def dcm_nav_to_platform(self, readings: ArrayLike) -> NDArray[np.float64]:
         """``C_n^p = C_b^p(readings) C_n^b`` (exact)."""

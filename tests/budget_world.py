@@ -9,12 +9,13 @@ import numpy as np
 import system_synthetic as syn
 
 from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
+from stableins.data.chunks import ArraySource
 from stableins.estimators.coarse import CoarseProblem, coarse_model
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.joint import JointProblem, fit_joint
-from stableins.estimators.system.stage import ArraySource, SystemOptions, run_system_stage
+from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
 from stableins.simulator.device import simulate_dwells

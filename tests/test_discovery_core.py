@@ -1,53 +1,19 @@
-"""Model discovery without the simulator: kinematic Jacobians, library, ranking statistics, false alarms, history."""
+"""Model discovery without the simulator: library, ranking statistics, false alarms, history."""
 
 import json
 
 import numpy as np
 import pytest
 
-from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration
+from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
 from stableins.discovery.history import Discovery, History, make_step
-from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
 from stableins.discovery.library import LIBRARY, Library, custom_effect
 from stableins.discovery.problem import DwellProblem, DwellSet, LinearProblem, slew_directions
 from stableins.discovery.ranking import rank
-from stableins.errormodel import ErrorModel, Term, TermInputs
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
+from stableins.platform import platform_specific_force
 
 G = 9.80170
-
-
-@pytest.mark.parametrize("senses", [(1, 1, 1, 1), (1, -1, 1, 1), (-1, 1, -1, 1)])
-def test_platform_jacobian_matches_central_differences(senses):
-    rng = np.random.default_rng(11)
-    cfg = GimbalConfiguration(senses)
-    readings = rng.uniform(-np.pi, np.pi, (6, 3))
-    offsets = rng.normal(0, 1e-3, 3)
-    base = rng.normal(0, 0.05, 3)
-    effects = {k: rng.normal(0, 1e-3) for k in KINEMATIC_IDS}
-    jac = platform_jacobian(readings, G, offsets, base, effects, cfg)
-    h = 1e-6
-    for k, pid in enumerate(OFFSET_IDS + KINEMATIC_IDS):
-
-        def f(d, pid=pid):
-            o, e = offsets.copy(), dict(effects)
-            if pid in OFFSET_IDS:
-                o[OFFSET_IDS.index(pid)] += d
-            else:
-                e[pid] += d
-            return platform_specific_force(readings, G, o, base, e, cfg)
-
-        fd = (f(h) - f(-h)) / (2 * h)
-        np.testing.assert_allclose(jac[..., k], fd, atol=1e-8, err_msg=pid)
-
-
-def test_kinematics_reduce_to_conventions_without_effects():
-    from stableins.conventions import dcm_body_to_platform, dcm_nav_to_body
-
-    rng = np.random.default_rng(2)
-    r = rng.uniform(-3, 3, (5, 3))
-    base = (0.1, -0.02, 0.03)
-    expected = np.einsum("...ij,j->...i", dcm_body_to_platform(r[:, 0], r[:, 1], r[:, 2]) @ dcm_nav_to_body(*base), [0, 0, -G])
-    np.testing.assert_allclose(platform_specific_force(r, G, base_attitude=base), expected, atol=1e-12)
 
 
 def test_library_ids_units_and_regressors():
@@ -125,7 +91,7 @@ def test_custom_effect_is_ranked_like_library_effects():
         out[..., 0] = inputs.specific_force[..., 0] ** 4
         return out
 
-    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / 9.80665**4, meaning="quartic x")
+    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4, meaning="quartic x")
     library = Library.default()
     library.register(term, separation="many tilt angles")
     assert "K4_x" in library and library["K4_x"].group == "custom"
@@ -137,7 +103,7 @@ def test_custom_effect_is_ranked_like_library_effects():
     readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS])
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS])
     sigma = 2e-6
     f_a = (model + term).forward(f_p, {**truth, "K4_x": 200 * term.scale}) + rng.normal(0, sigma, f_p.shape)
     n = len(readings)
@@ -187,7 +153,7 @@ def test_tilt_east_is_reported_as_theta30_alias():
     readings = np.concatenate([np.stack([0 * angles, angles, 0 * angles], 1), np.stack([0 * angles, 0 * angles, angles], 1)])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS], effects={"tilt_east": 20 * ARCSEC})
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS], effects={"tilt_east": 20 * ARCSEC})
     f_a = model.forward(f_p, truth) + rng.normal(0, 1e-5, f_p.shape)
     n = len(readings)
     dwells = DwellSet(
@@ -263,7 +229,7 @@ def test_separating_procedures_are_found_numerically():
     readings = np.concatenate(tumble)
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS])
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS])
     n = len(readings)
     sigma = 5e-6
     labels = tuple(f"p{k}" for k in range(n))
@@ -284,49 +250,6 @@ def test_separating_procedures_are_found_numerically():
     assert "separated by: azimuth_180" in ranking["tilt_east"].advice
 
 
-def test_library_matches_the_simulator_catalogue():
-    """Same ids; output effects: the same regressor as the simulator's own physics (independent code)."""
-    from stableins.simulator import effects
-    assert set(effects.CATALOGUE) == set(LIBRARY.ids)
-    rng = np.random.default_rng(0)
-    n = 7
-    inputs = TermInputs(
-        rng.normal(0, 9.8, (n, 3)),
-        temperature=rng.normal(0, 2, n),
-        time=rng.uniform(0, 1e4, n),
-        slew_direction=rng.choice([-1.0, 0.0, 1.0], (n, 3)),
-        angular_rate=rng.normal(0, 0.3, (n, 3)),
-        angular_acceleration=rng.normal(0, 0.3, (n, 3)),
-    )
-    for effect in effects.CATALOGUE.values():
-        if effect.kind != "output":
-            continue
-        np.testing.assert_allclose(LIBRARY[effect.id].term.regressor(inputs), effect.regressor(inputs), rtol=1e-12, err_msg=effect.id)
-
-
-def test_kinematics_agree_with_the_platform_model():
-    from stableins.platform import GimbalPlatform
-
-    rng = np.random.default_rng(21)
-    cfg = GimbalConfiguration((1, -1, 1, 1))
-    readings = rng.uniform(-np.pi, np.pi, (9, 3))
-    offsets = tuple(rng.normal(0, 1e-3, 3))
-    base = tuple(rng.normal(0, 0.05, 3))
-    effects = {k: rng.normal(0, 1e-3) for k in KINEMATIC_IDS}
-    platform = GimbalPlatform(
-        zero_offsets=offsets,
-        configuration=cfg,
-        base_attitude=base,
-        base_tilt=(effects["tilt_north"], effects["tilt_east"]),
-        base_azimuth=effects["azimuth_error"],
-        nonorthogonality=(effects["nonorth_12"], effects["nonorth_23"]),
-        angle_sensor_errors={k: v for k, v in effects.items() if k.startswith("ang1_")},
-    )
-    np.testing.assert_allclose(
-        platform_specific_force(readings, G, offsets, base, effects, cfg), platform.specific_force_platform(readings, G), atol=1e-12
-    )
-
-
 def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow_covariance=None):
     angles = np.deg2rad(np.arange(0, 360, 45.0))
     zero = 0 * angles
@@ -334,7 +257,7 @@ def _tumble_dwells(rng, hidden_kinematic=None, hidden_terms=(), sigma=3e-6, slow
     readings = np.concatenate(tumble + tumble[::-1])
     model = ErrorModel.standard(gimbals=True)
     truth = {t.id: t.reference + rng.normal() * t.nominal for t in model}
-    f_p = platform_specific_force(readings, G, [truth[i] for i in OFFSET_IDS], effects=hidden_kinematic or {})
+    f_p = platform_specific_force(readings, G, zero_offsets=[truth[i] for i in GIMBAL_IDS], effects=hidden_kinematic or {})
     values = dict(truth)
     for term, value in hidden_terms:
         values[term.id] = value

@@ -73,7 +73,7 @@ class _Record:
     """An in-memory system record for the stage and discovery: ``metadata`` and ``iter_chunks``."""
 
     def __init__(self, columns, site):
-        from stableins.estimators.system.stage import ArraySource
+        from stableins.data.chunks import ArraySource
 
         self.metadata = site
         self.path = "<arrays>"

@@ -10,11 +10,11 @@ import pytest
 from stableins import conventions as cv
 from stableins.errormodel import ErrorModel
 from stableins.estimators.system import harmonics as hm
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.attitude import attitude_combinations, fit_attitude
-from stableins.estimators.system.blocksums import observation
+from stableins.estimators.system.blocksums import BlockHarmonics, harmonic_information, observation
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, separate
-from stableins.estimators.system.stage import _BlockHarmonics, harmonic_information, residuals_from_parameters
 
 LAT = np.radians(40.0)
 G = float(cv.normal_gravity(LAT))
@@ -217,13 +217,13 @@ def test_vertical_channel_from_metadata_moves_roll():
 
 def test_stage_compensation_equals_error_model_inverse():
     """The closed-form z of the compiled pass (its numpy form) gives |f^p|² = |ErrorModel.inverse(f^a)|², K2 included."""
-    from stableins.estimators.system.stage import _Compensation
+    from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(4)
     installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
     f_a = platform_force(rng.uniform(0, 6, 1000)) + rng.normal(0, 1e-2, (1000, 3))
     expected = np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1)
-    z = observation(f_a[:, 0], f_a[:, 1], f_a[:, 2], _Compensation.from_values(installed).packed(9.8))
+    z = observation(f_a[:, 0], f_a[:, 1], f_a[:, 2], Compensation.from_values(installed).packed(9.8))
     got = 2.0 * 9.8**2 * (z + 0.5)  # z = ½(|f^p|²/g² − 1)
     np.testing.assert_allclose(got, expected, rtol=1e-14)
 
@@ -232,14 +232,14 @@ def test_stage_compensation_equals_error_model_inverse():
 def test_block_sums_compiled_equal_numpy_reference(jitter):
     """The compiled per-sample pass equals its numpy reference (z, moments, block times, Σz², irregular steps)."""
     from stableins.estimators.system.blocksums import block_sums, block_sums_reference
-    from stableins.estimators.system.stage import _Compensation
+    from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(6)
     installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
     for n in (1, 2, 255, 256, 257, 70_001):
         t = 50.0 + np.arange(n) / 100.0 + (rng.uniform(-jitter, jitter, n) / 100.0 if jitter else 0.0)
         f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
-        packed = _Compensation.from_values(installed).packed(9.8)
+        packed = Compensation.from_values(installed).packed(9.8)
         args = (*(f_a[:, k].copy() for k in range(3)), t, packed, 256, cv.EARTH_RATE, (0.0099, 0.0101))
         got, expected = block_sums(*args), block_sums_reference(*args)
         # round-off scale per block and column: Σ|z||δ|^p, Σ|δ|^p, plus p·Σ|z||δ|^(p−1)·ε_c for the round-off ε_c of the centre
@@ -273,14 +273,14 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
 def test_block_sums_z_equals_error_model_inverse():
     """z of the compiled pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
     from stableins.estimators.system.blocksums import block_sums
-    from stableins.estimators.system.stage import _Compensation
+    from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(5)
     installed = random_parameters(rng) | {f"K2_{x}": rng.normal(0, 2e-7) for x in "xyz"}
     n = 1000
     f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
     expected = 0.5 * (np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1) / 9.8**2 - 1.0)
-    packed = _Compensation.from_values(installed).packed(9.8)
+    packed = Compensation.from_values(installed).packed(9.8)
     sums, *_ = block_sums(*(f_a[:, k].copy() for k in range(3)), np.arange(n) / 100.0, packed, 1, cv.EARTH_RATE, (0.0, 1.0))
     np.testing.assert_allclose(sums[:, 0], expected, rtol=1e-12, atol=1e-15)
 
@@ -300,7 +300,7 @@ def test_timed_block_information_equals_per_sample(jitter):
     # an identity calibration with q00 = 1, zero force on y and z: the pass's z is fx² − ½, so fx = √(z + ½)
     packed = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     fx = np.sqrt(z + 0.5)
-    block = _BlockHarmonics(LAT, 256, order=3)
+    block = BlockHarmonics(LAT, 256, order=3)
     for start in range(0, n, 65536):
         sl = slice(start, start + 65536)
         sums, centres, z2, _ = block_sums(fx[sl], np.zeros(fx[sl].size), np.zeros(fx[sl].size), t[sl], packed, 256, cv.EARTH_RATE, (0, 1))

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY
+from stableins.data.chunks import ArraySource
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
-from stableins.estimators.system.spectrum import ColouredSource
-from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage
+from stableins.estimators.system.stage import SystemOptions, run_system_stage
+from stableins.estimators.system.whittle import ColouredSource
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
@@ -50,7 +52,7 @@ def test_white_records_keep_the_white_sigma_and_the_decision_has_its_false_posit
         fit = out.coloured_noise
         detected += fit.data_detected
         if not fit.detected:
-            np.testing.assert_allclose(out.combined.sigma, out.diagnostics["combined_sigma_white"], rtol=1e-12)
+            np.testing.assert_allclose(out.combined.sigma, out.diagnostics.combined_sigma_white, rtol=1e-12)
             assert any("no low-frequency noise" in n and "the data allow up to" in n for n in out.notes)
         z.append(normalized)
     z = np.array(z)
@@ -94,7 +96,7 @@ def test_a_datasheet_model_gives_the_amplitudes_and_comes_back_unchanged():
     # a white datasheet (no slow noise) keeps σ white even on a record whose own fit would find some
     white_sheet = NoiseModel.given(QUARTZ.velocity_random_walk)
     out, _ = day(4, QUARTZ, noise_model=white_sheet)
-    np.testing.assert_allclose(out.combined.sigma, out.diagnostics["combined_sigma_white"], rtol=1e-12)
+    np.testing.assert_allclose(out.combined.sigma, out.diagnostics.combined_sigma_white, rtol=1e-12)
 
 
 def test_a_measured_prior_narrows_the_amplitudes():

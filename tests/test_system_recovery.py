@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC, SIDEREAL_DAY
+from stableins.data.chunks import ArraySource
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations
-from stableins.estimators.system.stage import ArraySource, residuals_from_parameters, run_system_stage
+from stableins.estimators.system.stage import run_system_stage
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.truth import Truth
@@ -43,7 +45,7 @@ def test_recovers_combined_coefficients_within_k_sigma(seed):
     assert np.abs(z[HARMONIC]).max() < 4.0, dict(zip(COMBINED_COEFFICIENTS, np.round(z, 2), strict=True))
     # white noise: the white-noise σ has the expected size; the coloured-noise fit (maximum likelihood, no detection
     # threshold) may add to it in a white record, never subtract (docs/system-calibration.md §1a)
-    white = out.diagnostics["combined_sigma_white"]
+    white = out.diagnostics.combined_sigma_white
     assert np.abs(ref[HARMONIC]).max() > 20 * white.max()  # real signal, not noise
     assert 1e-6 < white[HARMONIC].max() < 5e-6
     assert np.all(out.combined.sigma >= white * (1 - 1e-9))
@@ -165,7 +167,7 @@ def test_quartz_noise_low_frequency_power_is_seen():
         warnings.simplefilter("ignore")
         out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True))
     assert any("low-frequency noise" in n for n in out.notes)
-    assert out.diagnostics["z_low_frequency_ratio"] > 3.0
+    assert out.diagnostics.z_low_frequency_ratio > 3.0
     fit = out.coloured_noise
     assert fit.detected and fit.statistic > 6.0 and fit.p_value < 1e-3
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY
-from stableins.estimators.system import spectrum
+from stableins.estimators.system import spectrum, whittle
 from stableins.estimators.system.loop import DampingLoop
 
 LATITUDE = math.radians(40.0)
@@ -166,12 +166,12 @@ def test_whittle_fit_recovers_known_levels_within_k_sigma():
     design = np.stack([np.ones(k.size), 30.0 / k, (30.0 / k) ** 2], axis=1)
     theta = np.array([1.0, 0.5, 0.2])
     observed = rng.exponential(design @ theta)
-    fitted, _ = spectrum.whittle_fit(design, observed)
+    fitted, _ = whittle.whittle_fit(design, observed)
     e = design @ fitted
     fisher = (design / e[:, None]).T @ (design / e[:, None])
     sigma = np.sqrt(np.diag(np.linalg.inv(fisher)))
     assert np.all(np.abs(fitted - theta) < 4 * sigma), (fitted, theta, sigma)
-    fit = spectrum.fit_coloured_noise(design, observed, 1)
+    fit = whittle.fit_coloured_noise(design, observed, 1)
     np.testing.assert_allclose(fit.maximum_likelihood, fitted[1:], rtol=1e-4)
     assert fit.statistic > 10 and fit.detected  # strongly coloured: far better than white
     np.testing.assert_allclose(fit.amplitudes, np.repeat(fit.maximum_likelihood[:, None], 3, axis=1))  # one value for the axes
@@ -193,9 +193,9 @@ def test_component_quadratic_memory_does_not_grow_with_the_stacked_size():
     assert peak < 1.5e6, peak
 
 
-def test_attitude_residual_maker_equals_the_block_fit_for_noise_constant_within_bins():
+def testattitude_residual_maker_equals_the_block_fit_for_noise_constant_within_bins():
     from stableins.estimators.system.attitude import _design
-    from stableins.estimators.system.stage import _attitude_residual_maker
+    from stableins.estimators.system.coloured import attitude_residual_maker
 
     rng = np.random.default_rng(2)
     lp = loop()
@@ -206,7 +206,7 @@ def test_attitude_residual_maker_equals_the_block_fit_for_noise_constant_within_
     block_bin = np.floor(block_time / WIDTH).astype(np.int64)
     n = int(block_bin.max()) + 1
     bin_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
-    maker = _attitude_residual_maker(blocks, block_bin, bin_count, lp, 480.0)
+    maker = attitude_residual_maker(blocks, block_bin, bin_count, lp, 480.0)
     values = np.cumsum(rng.standard_normal(n))  # a random walk on the bins, constant within each
     y = values[block_bin]
     x = _design(blocks, lp, 480.0)[0]
@@ -325,13 +325,13 @@ def test_decision_has_its_false_positive_rate_and_the_intervals_cover():
     detected = 0
     for _ in range(draws):
         observed = rng.exponential(design @ truth)
-        detected += spectrum.fit_coloured_noise(design, observed, 1, alpha=alpha).detected
+        detected += whittle.fit_coloured_noise(design, observed, 1, alpha=alpha).detected
     rate = detected / draws
     assert abs(rate - alpha) < 3.5 * math.sqrt(alpha * (1 - alpha) / draws), rate  # ± 0.044
     coloured = np.array([1e-6, 0.0, 1e-6 * 0.4 / design[:, 2].mean() * design[:, 0].mean()])
     covered = 0
     for _ in range(100):
-        fit = spectrum.fit_coloured_noise(design, rng.exponential(design @ coloured), 1)
+        fit = whittle.fit_coloured_noise(design, rng.exponential(design @ coloured), 1)
         covered += fit.lower[1] <= coloured[2] <= fit.upper[1]
         assert fit.detected
     assert covered >= 85, covered  # 95 % intervals
@@ -346,5 +346,5 @@ def test_decision_with_a_noiseless_channel():
     design[:m, 0], design[:m, 2:] = z[:, 0], z[:, 1:]
     design[m:, 1], design[m:, 2:] = z[:, 0], 0.1 * z[:, 1:]
     observed = np.concatenate([rng.exponential(z[:, 0] * 1e-6), np.zeros(m)])
-    fit = spectrum.fit_coloured_noise(design, observed, 2)
+    fit = whittle.fit_coloured_noise(design, observed, 2)
     assert np.isfinite(fit.p_value) and not fit.detected and fit.white_levels[1] == 0.0

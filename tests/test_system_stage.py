@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from system_synthetic import paper_residuals, record
 
+from stableins.data.chunks import ArraySource
 from stableins.data.errors import InputError
+from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
-from stableins.estimators.system.stage import ArraySource, SystemOptions, residuals_from_parameters, run_system_stage
+from stableins.estimators.system.stage import SystemOptions, run_system_stage
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +38,7 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     means = [COMBINED_COEFFICIENTS.index(n) for n in ("theta_mean", "phi_mean")]
     normalized = np.delete((est - ref) / sig, means)
     assert np.abs(normalized).max() < 4.0
-    white = out.diagnostics["combined_sigma_white"]  # the coloured-noise fit may add to σ in a white record, never subtract
+    white = out.diagnostics.combined_sigma_white  # the coloured-noise fit may add to σ in a white record, never subtract
     assert 1e-6 < white.max() < 6e-6 and np.all(sig >= white * (1 - 1e-9))  # 5e-3 m/s² at 1 Hz over one day: a few 1e-6 rad
     # the corrected calibration removes the determined combinations' error
     new = out.result.as_dict()
@@ -61,6 +63,14 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     assert how["K2_x"] is None  # not seen without --estimate-k2
     assert 0.2 < out.result.chi2_red < 3.0
     assert out.history is not None and out.history.means.shape[1] == 7  # x1..x5 and the third harmonic x6, x7
+    # the library's messages name the stage's parameters, never a command-line flag; the command translates them
+    from stableins.commands.calibrate_system import flag_text
+
+    notes = [*out.notes, *out.result.notes]
+    assert not [n for n in notes if " --" in n or "(--" in n]
+    assert any("(known_gyro_drift, rad/s)" in n for n in notes) and any("estimate_k2=True" in n for n in notes)
+    shown = [flag_text(n) for n in notes]
+    assert any("(--gyro-drift X Y Z, deg/h)" in n for n in shown) and any("(see diagnostics, --estimate-k2)" in n for n in shown)
 
 
 def test_yawed_base_and_chunking_give_same_answer(day):
@@ -69,7 +79,7 @@ def test_yawed_base_and_chunking_give_same_answer(day):
     b = run_system_stage(ArraySource(cols), meta, installed, options=SystemOptions(chunk_rows=4096))
     # x1 carries the noise-bias correction, measured on the first samples of each chunk: chunking changes it slightly
     np.testing.assert_allclose(b.combined.values[1:], a.combined.values[1:], rtol=1e-9, atol=1e-13)
-    assert abs(b.combined.values[0] - a.combined.values[0]) < 0.05 * a.diagnostics["noise_bias_x1"]
+    assert abs(b.combined.values[0] - a.combined.values[0]) < 0.05 * a.diagnostics.noise_bias_x1
     cols_y, meta_y = record(true, installed, rate=1.0, seed=11, yaw=0.6)  # level base, heading 0.6 rad
     c = run_system_stage(ArraySource(cols_y), meta_y, installed)
     np.testing.assert_allclose(c.combined.values, a.combined.values, atol=1e-11)
@@ -232,7 +242,7 @@ def test_residual_k2_seen_in_third_harmonic_and_removed():
     harmonic = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean", "x1")]
     with pytest.warns(UserWarning, match="third harmonic"):
         plain = run_system_stage(ArraySource(cols), meta, installed)
-    k2, k2_sigma = plain.diagnostics["k2_residual"], plain.diagnostics["k2_residual_sigma"]
+    k2, k2_sigma = plain.diagnostics.k2_residual, plain.diagnostics.k2_residual_sigma
     np.testing.assert_array_less(np.abs(k2 - [40 * MICRO_G_PER_G2, -30 * MICRO_G_PER_G2]), 4 * k2_sigma)
     assert np.abs((plain.combined.values - ref)[harmonic] / plain.combined.sigma[harmonic]).max() > 5  # biased
     fixed = run_system_stage(ArraySource(cols), meta, installed, options=SystemOptions(estimate_k2=True))
@@ -274,9 +284,35 @@ def test_hdf5_record_with_time_grid_and_overview_equals_in_memory_columns(day, t
         in_memory = run_system_stage(ArraySource(cols), meta, installed, options=options)
     np.testing.assert_allclose(from_file.combined.values, in_memory.combined.values, rtol=1e-9, atol=1e-13)
     np.testing.assert_allclose(from_file.combined.sigma, in_memory.combined.sigma, rtol=1e-9)
-    assert from_file.diagnostics["samples"] == in_memory.diagnostics["samples"]
-    assert from_file.diagnostics["sampling"] == in_memory.diagnostics["sampling"]
-    assert from_file.diagnostics["sampling"]["gap_count"] == (2 if gaps else 0)
+    assert from_file.diagnostics.samples == in_memory.diagnostics.samples
+    assert from_file.diagnostics.sampling == in_memory.diagnostics.sampling
+    assert from_file.diagnostics.sampling.gap_count == (2 if gaps else 0)
+    # the chunk-source protocol: both are sources, only the file has a time grid
+    from stableins.data.chunks import ChunkSource, GriddedChunkSource
+
+    assert isinstance(source, GriddedChunkSource) and isinstance(ArraySource(cols), ChunkSource)
+    assert not isinstance(ArraySource(cols), GriddedChunkSource)
+    json_form = from_file.diagnostics.to_dict()
+    assert "loop" not in json_form and json_form["sampling"]["gap_count"] == (2 if gaps else 0)
+    assert list(json_form)[:3] == ["duration", "samples", "block_length"]
+
+
+def test_array_source_keeps_the_chunk_contract():
+    """ArraySource: chunks in order of at most ``rows`` rows, thin columns at the global multiples of ``step``."""
+    from stableins.data.chunks import ArraySource as Source
+
+    n = 1000
+    cols = {"time": np.arange(n, dtype=float), "pitch": np.arange(n) * 2.0}
+    chunks = list(Source(cols).iter_chunks(["time", "pitch"], rows=96, thin=["pitch"], step=10))
+    assert [len(c["time"]) for c in chunks] == [96] * 10 + [40]
+    np.testing.assert_array_equal(np.concatenate([c["time"] for c in chunks]), cols["time"])
+    np.testing.assert_array_equal(np.concatenate([c["pitch"] for c in chunks]), cols["pitch"][::10])
+    with pytest.raises(InputError, match="missing column"):
+        next(Source(cols).iter_chunks(["time", "roll"]))
+    bad = dict(cols, pitch=np.where(np.arange(n) == 500, np.nan, cols["pitch"]))
+    with pytest.raises(InputError) as error:
+        list(Source(bad).iter_chunks(["time", "pitch"], rows=96, thin=["pitch"], step=10))
+    assert error.value.row == 501
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf])

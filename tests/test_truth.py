@@ -16,6 +16,7 @@ import pytest
 from device_world import GRAVITY, device_columns, draw_truth
 
 from stableins import cli
+from stableins.conventions import MICRO_G
 from stableins.data.device import save_device
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import CORE_TERMS, known_terms
@@ -28,7 +29,6 @@ from stableins.status import Status
 
 POPPLER = shutil.which("pdftotext")
 needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftotext (Debian package poppler-utils) is not installed")
-MICRO_G = 9.80665e-6
 
 
 def pdf_text(path: Path) -> str:
@@ -203,7 +203,8 @@ def test_every_system_stage_parameter_keeps_or_lowers_its_sigma():
     """The system stage on a synthetic day updating a device-like record with a correlated covariance (the prior)."""
     from system_synthetic import paper_residuals, record
 
-    from stableins.estimators.system.stage import ArraySource, run_system_stage
+    from stableins.data.chunks import ArraySource
+    from stableins.estimators.system.stage import run_system_stage
 
     true, installed = paper_residuals()
     cols, meta = record(true, installed, rate=1.0, seed=21)

@@ -140,9 +140,9 @@ def run(args: Any) -> int:
         outcome, record, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
     )
     for w in caught:
-        note(f"stableins: warning: {w.message}")
-    start, end = data_times(record.metadata, *outcome.diagnostics["time_span"])
-    temperature = outcome.diagnostics["temperature"]
+        note(f"stableins: warning: {flag_text(str(w.message))}")
+    start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
+    temperature = outcome.diagnostics.temperature
     reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
     updated = prior.updated(
         outcome.result,
@@ -155,7 +155,7 @@ def run(args: Any) -> int:
         data_start=start,
         data_end=end,
         sample_rate=record.sample_rate,
-        environment={"temperature": {**temperature, "unit": "degC"}} if temperature else {},
+        environment={"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {},
     )
     updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)
@@ -192,7 +192,7 @@ def run(args: Any) -> int:
         "chi2": outcome.result.chi2,
         "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
-        "notes": list(outcome.notes) + list(outcome.result.notes),
+        "notes": [flag_text(n) for n in (*outcome.notes, *outcome.result.notes)],
         "noise_model": outcome.noise_model.to_document(),
         "low_frequency_noise": None
         if fit is None
@@ -203,7 +203,7 @@ def run(args: Any) -> int:
             "p_value": fit.p_value,
             "false_positive_rate": fit.alpha,
         },
-        "diagnostics": {k: v for k, v in outcome.diagnostics.items() if k != "loop"},
+        "diagnostics": outcome.diagnostics.to_dict(),
     }
     import shlex
 
@@ -211,8 +211,19 @@ def run(args: Any) -> int:
     command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
     data["next"] = [command]
     note(f"next: the calibration certificate of {args.out}:\n  {command}")
-    emit(args, data, text=report(outcome, updated, str(args.out)))
+    emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
     return 0
+
+
+def flag_text(text: str) -> str:
+    """A library message with the system stage's parameters, as its messages name them
+    (:data:`stableins.estimators.system.assembly.GYRO_DRIFT_PARAMETER` and ``ESTIMATE_K2_PARAMETER``), replaced by the
+    flags of this command that set them: what the command prints speaks of its flags."""
+    from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
+
+    for parameter, flag in ((GYRO_DRIFT_PARAMETER, "--gyro-drift X Y Z, deg/h"), (ESTIMATE_K2_PARAMETER, "--estimate-k2")):
+        text = text.replace(parameter, flag)
+    return text
 
 
 def report(outcome: Any, record: Any, out: str) -> str:

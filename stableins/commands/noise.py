@@ -86,6 +86,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
     Returns ``(model or None, text saying where it comes from)``.
     """
+    from stableins.conventions import MICRO_G
     from stableins.data.errors import InputError
 
     given = args.bias_instability is not None or args.random_walk is not None
@@ -96,7 +97,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
         model = with_given_slow_noise(
             dwells,
-            (args.bias_instability or 0.0) * 9.80665e-6,
+            (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
             "bias instability and random walk given on the command line",
         )
@@ -115,6 +116,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
     decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
     """
+    from stableins.conventions import MICRO_G
     from stableins.data.errors import InputError
     from stableins.noise import NoiseModel
 
@@ -124,7 +126,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     if given:
         model = NoiseModel.given(
             0.0,
-            (args.bias_instability or 0.0) * 9.80665e-6,
+            (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
             provenance="bias instability and random walk given on the command line",
         )
@@ -163,14 +165,14 @@ def static_record_points(record) -> tuple[Any, str]:
 
     from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
     from stableins.estimators.allan import allan_points, merge_points
-    from stableins.estimators.coarse import platform_specific_force
+    from stableins.platform import platform_specific_force
 
     site = record.metadata
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
     base = dcm_nav_to_body(*site.base_attitude)
 
     def regressors(readings):
-        f_p, _ = platform_specific_force(readings, np.zeros(3), site.gravity, base, configuration)
+        f_p = platform_specific_force(readings, site.gravity, base_dcm=base, configuration=configuration)
         u = f_p / site.gravity
         cols = [np.ones(u.shape[0])] + [u[:, i] for i in range(3)] + [u[:, i] * u[:, j] for i in range(3) for j in range(i, 3)]
         return np.stack(cols, axis=-1)

@@ -90,9 +90,8 @@ def drift_problem(
     drift_terms : sequence of Term, optional
         The ``Dg`` terms (default: the library's).
     """
-    from stableins.discovery.kinematics import platform_specific_force
     from stableins.discovery.library import LIBRARY
-    from stableins.platform import GimbalPlatform
+    from stableins.platform import GimbalPlatform, platform_specific_force
 
     slopes = np.asarray(slopes, dtype=float)
     slope_sigma = np.asarray(slope_sigma, dtype=float)
@@ -110,7 +109,9 @@ def drift_problem(
         for lbl, lock, bad in zip(dwells.labels, locked, unweighable, strict=True)
         if lock or bad
     )
-    f_p = platform_specific_force(dwells.readings, dwells.gravity, zero_offsets, dwells.base_attitude, configuration=dwells.configuration)
+    f_p = platform_specific_force(
+        dwells.readings, dwells.gravity, zero_offsets=zero_offsets, base_attitude=dwells.base_attitude, configuration=dwells.configuration
+    )
     terms = tuple(drift_terms) if drift_terms is not None else tuple(LIBRARY[f"Dg_{a}"].term for a in "xyz")
     columns: dict[str, NDArray] = {}
     for a, term in enumerate(terms):

@@ -30,7 +30,7 @@ import numpy as np
 
 from stableins.conventions import MICRO_G
 from stableins.display import clipped, html_result, html_table, layout_with_caption, require_pandas, unit_text, value_sigma
-from stableins.errormodel import ErrorModel, Term
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.result import FitResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -658,7 +658,7 @@ class Discovery:
         if dwells is None or dwells.reading_slope is None:
             raise ValueError("these data carry no reading slopes (device dwells are needed)")
         values = self.result.as_dict()
-        offsets = [values.get(i, 0.0) for i in ("theta10", "theta20", "theta30")]
+        offsets = [values.get(i, 0.0) for i in GIMBAL_IDS]
         problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
         if problem.y.size <= len(null) + len(terms):
             self.drift_notes = notes + (

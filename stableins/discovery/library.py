@@ -35,7 +35,7 @@ axis ``b``: ``e_a·(ω̇×e_b + ω×(ω×e_b))``, mm), ``Dg_a`` (gyro g-sensitiv
 drifts about ``p``-axis ``a`` at ``Dg_a f_a``, °/h/g; the angle sensors measure the drift, so
 its regressor on ``f^a`` against measured readings is zero: it is found from the slopes of the
 readings within dwells, :mod:`stableins.discovery.drift`).
-Test equipment (through the exact kinematics of :mod:`stableins.discovery.kinematics`,
+Test equipment (through the exact kinematics of :mod:`stableins.platform`,
 regressor ``∂f^p/∂p``): ``nonorth_12``, ``nonorth_23``, ``tilt_north``, ``tilt_east``,
 ``azimuth_error``, ``ang1_<gimbal>_c``/``_s``.
 
@@ -444,7 +444,7 @@ _EQUIPMENT_SEPARATION = {
 
 
 def _equipment() -> list[Candidate]:
-    from stableins.discovery.kinematics import GIMBAL_NAMES, KINEMATIC_IDS
+    from stableins.platform import GIMBAL_NAMES, KINEMATIC_IDS
 
     out: list[Candidate] = []
     for tid in KINEMATIC_IDS:
@@ -470,7 +470,7 @@ def _equipment() -> list[Candidate]:
                     regressor=_kinematic(tid),
                     excitation="gimbal angles that turn the effect's axis relative to gravity",
                     aliases=aliases,
-                    source="stableins.discovery.kinematics",
+                    source="stableins.platform",
                 ),
                 "equipment",
                 separation,
@@ -631,7 +631,7 @@ def custom_effect(
     ...     out = np.zeros_like(inputs.specific_force)
     ...     out[..., 0] = inputs.specific_force[..., 0] ** 4
     ...     return out
-    >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=9.80665e-6 / 9.80665**4)
+    >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4)
     >>> term.kind
     'additive'
     """

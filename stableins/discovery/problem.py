@@ -7,7 +7,7 @@ column of any candidate term.  :class:`Problem` is that interface; two implement
 * :class:`DwellProblem` — device level.  Observations are dwell means of the three
   accelerometer outputs per position; the prediction is the exact forward model
   ``f^a = forward(f^p(readings, θ_0, base), p)`` (Wu et al. 2018 Eq. 6 with the exact gimbal
-  kinematics of :mod:`stableins.discovery.kinematics`).  The fit is Gauss–Newton; the
+  kinematics of :mod:`stableins.platform`).  The fit is Gauss–Newton; the
   zero offset ``θ10`` (and anything else in the null space of the design) is held at its
   prior value as an explicit gauge, marked ``"gauge"``.
 * :class:`LinearProblem` — any linear(ized) problem given as observations, 1σ, model
@@ -234,9 +234,9 @@ def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labe
     samples used.  ``noise`` None: measured from the dwells as the device stage does.
     """
     from stableins.discovery.drift import reading_slope
-    from stableins.discovery.kinematics import platform_specific_force
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
+    from stableins.platform import platform_specific_force
 
     if noise is None:
         noise = noise_from_dwells(summaries)
@@ -357,9 +357,11 @@ def dwell_means(
 
 
 def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
-    from stableins.discovery.kinematics import platform_specific_force
+    from stableins.platform import platform_specific_force
 
-    return platform_specific_force(np.asarray(readings, dtype=float), gravity, offsets, base_attitude, configuration=configuration)
+    return platform_specific_force(
+        np.asarray(readings, dtype=float), gravity, zero_offsets=offsets, base_attitude=base_attitude, configuration=configuration
+    )
 
 
 class DwellProblem:
@@ -413,9 +415,10 @@ class DwellProblem:
         return np.tile(np.arange(3), self.dwells.n_positions)
 
     def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
-        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS
+        from stableins.errormodel import GIMBAL_IDS
+        from stableins.platform import KINEMATIC_IDS
 
-        return tuple(i for i in OFFSET_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in OFFSET_IDS)
+        return tuple(i for i in GIMBAL_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in GIMBAL_IDS)
 
     def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> tuple:
         """Prediction (P, 3), Jacobian (P, 3, n) over ``model + extra_terms``, ``f^p`` and inputs.
@@ -424,20 +427,19 @@ class DwellProblem:
         ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
         every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
         """
-        from stableins.discovery.kinematics import KINEMATIC_IDS, OFFSET_IDS, platform_jacobian, platform_specific_force
+        from stableins.errormodel import GIMBAL_IDS
+        from stableins.platform import KINEMATIC_IDS, platform_specific_force, specific_force_and_jacobian
 
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
-        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in OFFSET_IDS])
+        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in GIMBAL_IDS])
         effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
-        f_p = platform_specific_force(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration)
         kin_ids = self._kinematic_ids(full.terms)
-        d_fp = platform_jacobian(d.readings, d.gravity, offsets, d.base_attitude, effects, d.configuration, ids=kin_ids)
+        geometry = {"zero_offsets": offsets, "base_attitude": d.base_attitude, "effects": effects, "configuration": d.configuration}
+        f_p, d_fp = specific_force_and_jacobian(d.readings, d.gravity, ids=kin_ids, **geometry)
         initial = None
         if d.initial_readings is not None:
-            initial = platform_specific_force(
-                np.asarray(d.initial_readings, dtype=float), d.gravity, offsets, d.base_attitude, effects, d.configuration
-            )
+            initial = platform_specific_force(np.asarray(d.initial_readings, dtype=float), d.gravity, **geometry)
         inputs = TermInputs(
             f_p,
             temperature=d.temperature,
@@ -459,33 +461,49 @@ class DwellProblem:
 
     # ------------------------------------------------------------------ fit
     def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:
-        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ²)."""
+        """Gauss–Newton fit of ``model`` to the dwell means (weighted by 1/σ², whitened where the noise is slow).
+
+        The solver is the one of the device stages (:func:`stableins.estimators.gauss_newton.gauss_newton`,
+        column-scaled by each term's typical size, step halved while the cost rises); the parameters
+        these data do not determine are held (gauge, :func:`_gauge`) from the start and, should the
+        design at the solution lose a direction, the fit is repeated with it held as well.
+        """
+        from stableins.estimators.gauss_newton import gauss_newton
+
         d = self.dwells
         values = model.nominal_values()
         if start:
             values.update({k: float(v) for k, v in start.items() if k in model})
         values.update({k: float(v) for k, v in self.fixed.items() if k in model})
         y = d.output.reshape(-1)
+        ids = model.ids
         free = [t.id not in self.fixed for t in model.terms]
+        scales = np.array([abs(t.nominal) or 1.0 for t in model.terms])
+
+        def weighted(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            prediction, jac, _, _ = self.evaluate(model, dict(zip(ids, x[0], strict=True)))
+            return self.whiten(y - prediction.reshape(-1))[None], self.whiten(jac.reshape(-1, len(model)))[None]
+
+        x = np.array([[values[i] for i in ids]])
         gauge: list[str] = []
         notes: list[str] = []
-        for _ in range(iterations):
-            prediction, jac, _, _ = self.evaluate(model, values)
-            a = self.whiten(jac.reshape(-1, len(model)))
-            r = self.whiten(y - prediction.reshape(-1))
-            cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
-            cols, new_gauge = _gauge(a, cols, model.terms)
+        solved = False
+        while True:
+            _, a = weighted(x)
+            _, new_gauge = _gauge(a[0], [k for k in range(len(model)) if free[k] and ids[k] not in gauge], model.terms)
             for gid in new_gauge:
                 gauge.append(gid)
                 notes.append(
-                    f"{gid} held at {values[gid]:.6g} (gauge): these data do not separate it from the other parameters "
+                    f"{gid} held at {x[0, ids.index(gid)]:.6g} (gauge): these data do not separate it from the other parameters "
                     f"(1σ of the combination > {UNDETERMINED_RATIO:g}× its typical size)"
                 )
-            step, *_ = np.linalg.lstsq(a[:, cols], r, rcond=None)
-            values, step = self._damped(model, values, cols, step, float(r @ r), y)
-            scale = np.linalg.norm(a[:, cols], axis=0)
-            if not cols or np.max(np.abs(step) * scale) < 1e-6:
+            if solved and not new_gauge:
                 break
+            mask = np.array([free[k] and ids[k] not in gauge for k in range(len(model))])
+            if mask.any():
+                x = gauss_newton(weighted, x, mask, scales, max_iterations=iterations).x
+            solved = True
+        values = dict(zip(ids, (float(v) for v in x[0]), strict=True))
         prediction, jac, f_p, _ = self.evaluate(model, values)
         a = self.whiten(jac.reshape(-1, len(model)))
         cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
@@ -521,23 +539,6 @@ class DwellProblem:
             likelihood=Likelihood.from_weighted(model.ids, np.array([values[t.id] for t in model.terms]), a, white),
         )
 
-    def _damped(self, model: ErrorModel, values: dict, cols: list[int], step: NDArray, rss: float, y: NDArray) -> tuple[dict, NDArray]:
-        """Gauss–Newton step, halved until the whitened RSS does not grow and the model stays valid (up to 20 times)."""
-        for _ in range(20):
-            trial = dict(values)
-            for k, dv in zip(cols, step, strict=True):
-                trial[model.terms[k].id] += float(dv)
-            try:
-                prediction, *_ = self.evaluate(model, trial)
-            except ValueError:  # e.g. a quadratic coefficient beyond the fold of Eq. 6
-                step = step / 2.0
-                continue
-            r = self.whiten(y - prediction.reshape(-1))
-            if float(r @ r) <= rss * (1.0 + 1e-12) + 1e-300:
-                return trial, step
-            step = step / 2.0
-        return values, np.zeros_like(step)
-
     def design(self, result: FitResult) -> NDArray[np.float64]:
         model = ErrorModel(result.terms)
         _, jac, _, _ = self.evaluate(model, result.as_dict())
@@ -552,7 +553,7 @@ class DwellProblem:
     def orientation(self, result: FitResult | None = None) -> NDArray[np.float64]:
         """``f^p/g`` per observation, shape (m, 3) (residuals against orientation)."""
         d = self.dwells
-        from stableins.discovery.kinematics import platform_specific_force
+        from stableins.platform import platform_specific_force
 
         f_p = platform_specific_force(d.readings, d.gravity, base_attitude=d.base_attitude, configuration=d.configuration)
         return np.repeat(f_p / d.gravity, 3, axis=0)
@@ -606,36 +607,25 @@ _GAUGE_PREFERENCE = {"gimbal": 0, "additive": 1, "nonlinearity": 2, "scale_facto
 
 
 def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
-    """Drop columns until every direction of the design is determined.
+    """Hold columns until every direction of the design is determined (:func:`.design.undetermined`).
 
-    Columns of the whitened design are scaled by each term's typical size (``nominal``); a
-    singular value ``s`` then means a combination with 1σ = ``1/s`` typical sizes.  While the
-    smallest is below ``max(tolerance·s_max, 1/UNDETERMINED_RATIO)`` (exact null space, or a
-    combination these data cannot determine), the parameter with the largest share of that
-    direction is held, preferring gimbal offsets, then additive terms, quadratic coefficients,
-    scale factors, installation angles and biases last.
+    Columns of the whitened design are scaled by each term's typical size (``nominal``; a term
+    without one by its column's norm); a singular value ``s`` then means a combination with
+    1σ = ``1/s`` typical sizes.  While the smallest is below ``max(tolerance·s_max,
+    1/UNDETERMINED_RATIO)`` (exact null space, or a combination these data cannot determine), the
+    parameter with the largest share of that direction is held, preferring gimbal offsets, then
+    additive terms, quadratic coefficients, scale factors, installation angles and biases last.
+    Returns the columns kept and the ids held.
     """
-    cols = list(cols)
-    dropped: list[str] = []
-    while cols:
-        sub = a[:, cols]
-        norms = np.linalg.norm(sub, axis=0)
-        zero = [c for c, n in zip(cols, norms, strict=True) if n == 0.0]
-        if zero:
-            dropped += [terms[c].id for c in zero]
-            cols = [c for c in cols if c not in zero]
-            continue
-        nominal = np.array([abs(terms[c].nominal) for c in cols])
-        scale = np.where(nominal > 0, nominal, 1.0 / norms)
-        _, sv, vt = np.linalg.svd(sub * scale, full_matrices=False)
-        if sv[-1] > max(tolerance * sv[0], 1.0 / UNDETERMINED_RATIO):
-            break
-        null = np.abs(vt[-1])
-        involved = [(_GAUGE_PREFERENCE.get(terms[c].kind, 6), -null[i], c) for i, c in enumerate(cols) if null[i] > 0.1]
-        _, _, c = min(involved)
-        dropped.append(terms[c].id)
-        cols.remove(c)
-    return cols, dropped
+    from stableins.estimators.design import undetermined
+
+    ids = [terms[c].id for c in cols]
+    norms = np.linalg.norm(a[:, cols], axis=0)
+    nominal = np.array([abs(terms[c].nominal) for c in cols])
+    scales = np.where(nominal > 0, nominal, 1.0 / np.where(norms > 0, norms, 1.0))
+    rank = {terms[c].id: _GAUGE_PREFERENCE.get(terms[c].kind, 6) for c in cols}
+    held = undetermined(a[:, cols], ids, scales, rank, tolerance=tolerance, smallest_only=True)
+    return [c for c in cols if terms[c].id not in held], list(held)
 
 
 # ----------------------------------------------------------------------------- generic linear problem

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.conventions import MICRO_G
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
 
@@ -174,7 +175,7 @@ class Ranking:
     alpha: float
     n_tested: int
     output_unit: str = "µg"
-    output_scale: float = 9.80665e-6
+    output_scale: float = MICRO_G
 
     @property
     def best(self) -> CandidateScore | None:
@@ -371,7 +372,7 @@ def rank(
     separation: dict[str, str] | None = None,
     propose: bool = True,
     output_unit: str = "µg",
-    output_scale: float = 9.80665e-6,
+    output_scale: float = MICRO_G,
 ) -> Ranking:
     """Rank every candidate not in the model; refit the best ``refit_top`` with the full fitter.
 

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from stableins.conventions import MICRO_G
 from stableins.discovery.diagnostics import Diagnosis, HarmonicSpectrum
 from stableins.discovery.history import Discovery
 from stableins.discovery.problem import DwellSet
@@ -130,7 +131,7 @@ class SystemDiagnosis:
         for name, spectrum in self.spectra.items():
             marks = ", ".join(f"harmonic {k}" for n, k in sorted(flagged) if n == name)
             head = f"residual of {name} at the Earth-rate harmonics" + ("" if given else " (against the upper-limit noise model)")
-            parts.append(head + (f"; significant: {marks}" if marks else "") + ":\n" + spectrum.report(unit="µg", scale=9.80665e-6))
+            parts.append(head + (f"; significant: {marks}" if marks else "") + ":\n" + spectrum.report(unit="µg", scale=MICRO_G))
         return "\n\n".join(parts)
 
 

@@ -49,26 +49,22 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import (
     DEFAULT_GIMBALS,
-    R1,
-    R2,
-    R3,
+    STANDARD_GRAVITY,
     GimbalConfiguration,
     dcm_nav_to_body,
-    skew,
-    specific_force_nav,
 )
 from stableins.data.errors import InputError
-from stableins.errormodel import ErrorModel, Term
+from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
+from stableins.platform import platform_specific_force, specific_force_and_jacobian
 
 #: Ids tried first as gauge parameters (platform azimuth, then the offsets).
 GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
-_E = np.eye(3)
 
 
 def coarse_model(nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
@@ -123,36 +119,6 @@ def final_design(
     a = np.array(weighted_jacobian, dtype=float)
     a[:, [model.index(h) for h in held]] = 0.0
     return analyze_design(a, model.ids, scales)
-
-
-def platform_specific_force(
-    readings: ArrayLike,
-    offsets: ArrayLike,
-    gravity: ArrayLike,
-    base_dcm: ArrayLike = _E,
-    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Exact ``f^p`` and ``∂f^p/∂θ`` (columns θ10, θ20, θ30) for readings ``(..., 3)``.
-
-    Returns
-    -------
-    f_p : ndarray (..., 3)
-    derivative : ndarray (..., 3, 3)
-    """
-    s1, s2, s3, _ = configuration.senses
-    alpha = np.asarray(readings, dtype=float) + np.asarray(offsets, dtype=float)
-    a = R3(s1 * alpha[..., 0])
-    b = R1(s2 * alpha[..., 1])
-    c = R2(s3 * alpha[..., 2])
-    f_n = specific_force_nav(np.asarray(gravity, dtype=float))
-    f_b = np.einsum("ij,...j->...i", np.asarray(base_dcm, dtype=float), f_n)
-    f_c = np.einsum("...ij,...j->...i", c, f_b)
-    f_bc = np.einsum("...ij,...j->...i", b, f_c)
-    f_p = np.einsum("...ij,...j->...i", a, f_bc)
-    d1 = -s1 * np.einsum("ij,...j->...i", skew(_E[2]), f_p)
-    d2 = -s2 * np.einsum("...ij,...j->...i", a, np.einsum("ij,...j->...i", skew(_E[0]), f_bc))
-    d3 = -s3 * np.einsum("...ij,...j->...i", a @ b, np.einsum("ij,...j->...i", skew(_E[1]), f_c))
-    return f_p, np.stack([d1, d2, d3], axis=-1)
 
 
 def gauge_equivalent(values: Mapping[str, float], configuration: GimbalConfiguration = DEFAULT_GIMBALS) -> dict[str, float]:
@@ -242,15 +208,17 @@ class CoarseProblem:
         """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
         model = self.model
         values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
-        theta = np.stack([x[..., model.index(g)] for g in ("theta10", "theta20", "theta30")], axis=-1)[..., None, :]
+        theta = np.stack([x[..., model.index(g)] for g in GIMBAL_IDS], axis=-1)[..., None, :]
         g = np.asarray(self.gravity, dtype=float)
         g = g[..., None] if g.ndim else g
-        f_p, d_theta = platform_specific_force(self.readings, theta, g, self.base_dcm, self.configuration)
+        f_p, d_theta = specific_force_and_jacobian(
+            self.readings, g, zero_offsets=theta, base_dcm=self.base_dcm, configuration=self.configuration, ids=GIMBAL_IDS
+        )
         out = model.forward(f_p, values)
         jac = model.jacobian(f_p, values)
         d_fp = model.jacobian_specific_force(f_p, values)
         jac_theta = d_fp @ d_theta
-        for i, gid in enumerate(("theta10", "theta20", "theta30")):
+        for i, gid in enumerate(GIMBAL_IDS):
             jac[..., model.index(gid)] = jac_theta[..., i]
         return out, jac
 
@@ -305,7 +273,7 @@ def solve_coarse(
 
 def expected_outputs(readings: ArrayLike, gravity: float, base_dcm: ArrayLike, configuration: GimbalConfiguration) -> NDArray[np.float64]:
     """Outputs of an ideal instrument with zero offsets: ``f^p`` at the readings."""
-    return platform_specific_force(readings, np.zeros(3), gravity, base_dcm, configuration)[0]
+    return platform_specific_force(readings, gravity, base_dcm=base_dcm, configuration=configuration)
 
 
 def _orientation_hypotheses(configuration: GimbalConfiguration):
@@ -397,7 +365,7 @@ def calibrate_coarse(
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
     nonlinear: bool = False,
-    orientation_tolerance: float = 0.02 * 9.80665,
+    orientation_tolerance: float = 0.02 * STANDARD_GRAVITY,
     noise: NoiseModel | None = None,
     extra_terms: Sequence[Term] = (),
     prior: Mapping[str, float] | None = None,

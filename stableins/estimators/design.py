@@ -30,7 +30,7 @@ the gauge rows).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -217,45 +217,58 @@ def undetermined(
     weighted_jacobian: ArrayLike,
     ids: Sequence[str],
     scales: ArrayLike,
-    candidates: Sequence[str],
+    candidates: Sequence[str] | Mapping[str, float],
     fixed: Sequence[str] = (),
     ratio: float = UNDETERMINED_RATIO,
+    *,
+    tolerance: float = 0.0,
+    smallest_only: bool = False,
 ) -> dict[str, tuple[str, ...]]:
     """Which ``candidates`` to hold so that no free combination has 1σ above ``ratio`` typical sizes.
 
-    In the nominal-scaled design a singular value ``s`` is the noise-σ change of the data per
-    unit-nominal move along its vector, so the combination's 1σ is ``1/s`` typical sizes.  While a
-    vector with ``s < 1/ratio`` involves candidates (component above 0.1), the last of them in
-    ``candidates`` is held (the effect added last gives way to those already established).
-    Exact null directions (``|f| = g`` makes ``Kcq_xy`` and ``Kcq_xz`` one with the bias and
-    ``K2``) and near ones (the same at the calibrated point, off by the installation angles) are
-    both caught; the standard parameters are never held here.
+    The one gauge-and-hold rule of the package (device stages for added terms, discovery fits
+    for every parameter).  In the nominal-scaled design a singular value ``s`` is the noise-σ
+    change of the data per unit-nominal move along its vector, so the combination's 1σ is ``1/s``
+    typical sizes.  A candidate whose column is zero is held at once; then, while a vector with
+    ``s < max(tolerance·s_max, 1/ratio)`` (only the smallest one with ``smallest_only``) involves
+    candidates (component above 0.1), the candidate first in the order is held, the one with the
+    largest share among equals.  With ``candidates`` a sequence the last is first (the effect
+    added last gives way to those already established); a mapping gives each candidate's rank,
+    lowest first.  Exact null directions (``|f| = g`` makes ``Kcq_xy`` and ``Kcq_xz`` one with the
+    bias and ``K2``) and near ones (the same at the calibrated point, off by the installation
+    angles) are both caught; parameters that are not candidates are never held.
 
     Returns
     -------
     dict
-        Held id → ids of the other parameters in its undetermined direction.
+        Held id → ids of the other parameters in its undetermined direction, in the order held.
     """
     a = np.asarray(weighted_jacobian, dtype=float)
     d = np.asarray(scales, dtype=float)
     ids = list(ids)
+    rank = dict(candidates) if isinstance(candidates, Mapping) else {c: -float(k) for k, c in enumerate(candidates)}
     held: dict[str, tuple[str, ...]] = {}
     while True:
         cols = [k for k, i in enumerate(ids) if i not in fixed and i not in held]
-        if not cols or not any(ids[k] in candidates for k in cols):
+        zero = [k for k in cols if ids[k] in rank and not np.any(a[:, k])]
+        if zero:
+            held.update({ids[k]: () for k in zero})
+            continue
+        cols = [k for k in cols if np.any(a[:, k])]
+        if not cols or not any(ids[k] in rank for k in cols):
             return held
         _, s, vt = np.linalg.svd(a[:, cols] * d[cols], full_matrices=False)
-        options = []
-        for value, vector in zip(s, vt, strict=True):
-            if value >= 1.0 / ratio:
-                continue
-            v = np.abs(vector)
-            options += [
-                (list(candidates).index(ids[c]), v[j], ids[c], vector) for j, c in enumerate(cols) if ids[c] in candidates and v[j] > 0.1
-            ]
+        limit = max(tolerance * s[0], 1.0 / ratio)
+        weak = [vector for value, vector in zip(s, vt, strict=True) if value < limit]
+        options = [
+            (rank[ids[c]], -abs(vector[j]), ids[c], vector)
+            for vector in (weak[-1:] if smallest_only else weak)
+            for j, c in enumerate(cols)
+            if ids[c] in rank and abs(vector[j]) > 0.1
+        ]
         if not options:
             return held
-        *_, chosen, vector = max(options, key=lambda o: (o[0], o[1]))
+        *_, chosen, vector = min(options, key=lambda o: (o[0], o[1]))
         big = np.abs(vector) > 0.1 * np.abs(vector).max()
         held[chosen] = tuple(ids[c] for c, b in zip(cols, big, strict=True) if b and ids[c] != chosen)
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stableins.conventions import ARCSEC, GimbalConfiguration, dcm_nav_to_body
+from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration, dcm_nav_to_body
 from stableins.data.errors import InputError
 from stableins.data.metadata import SiteMetadata
 from stableins.errormodel import Term
@@ -225,7 +225,7 @@ def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) ->
     b_up = float(np.max(noise.limits("bias_instability")[1])) if noise is not None else float("nan")
     lines = [
         "slow noise not detected: the σ above rest on white noise.  The dwells allow a bias instability up to "
-        f"{b_up / 9.80665e-6:.3g} ug ({100 * (noise.confidence if noise else 0.95):g} % upper limit; random walk not bounded).  "
+        f"{b_up / MICRO_G:.3g} ug ({100 * (noise.confidence if noise else 0.95):g} % upper limit; random walk not bounded).  "
         "With that largest floor the σ would be:",
         f"{'parameter':<12} {'σ recorded':>18} {'σ largest floor':>18} {'ratio':>7}",
     ]
@@ -381,7 +381,7 @@ def calibrate_device(
             ratio = floor_ratio(fused if fused is not None else coarse, floor)
             text = (
                 f"slow noise not detected in the dwells (p = {noise.test.p_value:.2g} at false-positive rate {noise.test.alpha:g}): "
-                f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / 9.80665e-6:.2g} ug; "
+                f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
                 f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'), and the random walk "
                 "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
             )

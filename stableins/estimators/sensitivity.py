@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.errormodel import GIMBAL_IDS
 from stableins.estimators.result import InputSensitivity
-
-GIMBAL_IDS = ("theta10", "theta20", "theta30")
 
 
 def angle_reading_sensitivity(problem: Any, x: NDArray[np.float64], ids: Sequence[str]) -> InputSensitivity:

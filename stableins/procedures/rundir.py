@@ -568,7 +568,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
         outcome = with_sensitivities(outcome, record, prior.values(), covariance, SystemOptions(), compensation_terms=terms)
     for warning in caught:
         runner.console.say(f"warning: {warning.message}")
-    extra = {**outcome.result.extra, "temperature": outcome.diagnostics["temperature"]}
+    temperature = outcome.diagnostics.temperature
+    extra = {**outcome.result.extra, "temperature": None if temperature is None else temperature.to_dict()}
     return replace(outcome.result, extra=extra)
 
 

@@ -81,11 +81,14 @@ def plain(parameter_id: str) -> str:
 
 
 # ------------------------------------------------------------------ prose
-#: Command-line syntax a record's notes may carry, and the words a certificate says instead (longest first).
+#: Command-line syntax and stage parameters a record's notes may carry, and the words a certificate says instead (longest first).
 _FLAGS = (
     (r"\(--gyro-drift X Y Z,? deg/h\)", "(in °/h, an input of the system stage)"),
     (r"--gyro-drift X Y Z", "the gyro drift in the platform frame"),
+    (r"\(known_gyro_drift, rad/s\)", "(in °/h, an input of the system stage)"),
     (r"\(see diagnostics, --estimate-k2\)", "(the system stage's K₂ estimation)"),
+    (r"\(see diagnostics, estimate_k2=True\)", "(the system stage's K₂ estimation)"),
+    (r"\(estimate_k2=True\)", "(with the system stage's K₂ estimation)"),
     (r"\(--estimate-k2\)", "(with the system stage's K₂ estimation)"),
     (r"--estimate-k2", "the system stage's K₂ estimation"),
     (r"\(--bias-instability, --random-walk\)", "(the instrument's bias instability and random walk)"),

@@ -50,6 +50,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.conventions import STANDARD_GRAVITY
+
 #: Samples per random block.
 BLOCK_SAMPLES = 16384
 
@@ -120,7 +122,7 @@ class NoiseSettings:
         """
         return cls(
             velocity_random_walk=4.5e-4,
-            bias_instability=2e-6 * 9.80665,
+            bias_instability=2e-6 * STANDARD_GRAVITY,
             acceleration_random_walk=1e-7,
             quantization=1e-5,
             angle_noise=0.2 * np.pi / 648000.0,

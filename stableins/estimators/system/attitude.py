@@ -38,13 +38,13 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.loop import DRIFT_SCALE, DampingLoop, drift_columns
 
 #: Quasi-static combined coefficients of pitch (Eqs. 29–33) and roll (Eqs. 34–38), paper order.
 PITCH_COEFFICIENTS = ("theta_mean", "theta_1c", "theta_1s", "theta_2c", "theta_2s")
@@ -120,6 +120,7 @@ class AttitudeBlocks:
         pitch: NDArray[np.float64],
         roll: NDArray[np.float64],
     ) -> None:
+        """Add decimated samples (time, ``cos S``, ``sin S``, pitch, roll) to their blocks."""
         while True:
             index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
             if int(index[-1]) < self.max_blocks:
@@ -148,6 +149,7 @@ class AttitudeBlocks:
         self.block_seconds *= 2.0
 
     def means(self) -> dict[str, NDArray[np.float64]]:
+        """Return the block means of the non-empty blocks (``count``, ``time`` since the start, ``cos``, ``sin``, pitch, roll)."""
         count = self.sums["count"]
         keep = count > 0
         out = {"count": count[keep]}
@@ -243,7 +245,7 @@ def fit_attitude(
     compensate_loop: bool = True,
     vertical: NDArray[np.float64] | None = None,
     gyro_drift: str = "ignore",
-    known_drift: NDArray[np.float64] | None = None,
+    known_drift: Sequence[float] | NDArray[np.float64] | None = None,
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
 ) -> AttitudeFit:
@@ -280,7 +282,7 @@ def fit_attitude(
     scale_low_frequency : bool
         Scale the covariance by the residual spectrum extrapolated to the harmonics (stand-alone use).  The
         system stage passes ``False`` and adds the coloured-noise covariance of its joint model
-        (:func:`.spectrum.fit_coloured_noise`) through ``block_map`` instead.
+        (:func:`.whittle.fit_coloured_noise`) through ``block_map`` instead.
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
@@ -288,7 +290,84 @@ def fit_attitude(
     n_blocks = blocks["time"].size
     _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
     slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
+    drift = (gyro_drift, known_drift)
+    fits = _fit_channels(blocks, loop, noise_sigma, case_rotation_period, drift, map_bin_seconds, len(names), freqs, slices)
+    beta, residuals, cov_obs, maps, drift_estimate, drift_sigma = fits
+    notes = _drift_notes(drift_estimate, drift_sigma) if gyro_drift == "check" else []
+    observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
+    transform, vertical_map = _loop_compensation(loop, compensate_loop=compensate_loop)
+    v = np.zeros(5) if vertical is None else np.asarray(vertical, dtype=float)
+    qs = transform @ (observed - vertical_map @ v)
+    jac_vertical = -transform @ vertical_map
+    # reorder roll into the paper order (mean, 1s, 1c, 2s, 2c)
+    order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
+    values = qs[order]
+    jac_vertical = jac_vertical[order]
+    observed_out = observed[order]
 
+    nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
+    ratio, factors, low_notes = _low_frequency(blocks, residuals, noise_sigma, loop)
+    notes += low_notes
+    if not scale_low_frequency:
+        factors = np.ones(10)
+        notes = [n.replace("the covariance was scaled accordingly", "see the coloured-noise model") for n in notes]
+    scale_obs = np.sqrt(factors)  # in the observed (mean, 1c, 1s, 2c, 2s) order of each channel
+    cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
+    cov_qs = transform @ cov_obs @ transform.T
+    covariance = cov_qs[np.ix_(order, order)]
+    cov_obs_out = cov_obs[np.ix_(order, order)]
+    rms = np.sqrt(np.mean(residuals**2, axis=0))
+    return AttitudeFit(
+        names=ATTITUDE_COEFFICIENTS,
+        values=values,
+        covariance=covariance,
+        observed=observed_out,
+        observed_covariance=cov_obs_out,
+        nuisance=nuisance,
+        noise_sigma=(float(noise_sigma[0]), float(noise_sigma[1])),
+        residual_noise_ratio=(float(ratio[0]), float(ratio[1])),
+        residual_rms=(float(rms[0]), float(rms[1])),
+        block_residuals=residuals,
+        vertical_jacobian=jac_vertical,
+        drift_estimate=drift_estimate,
+        drift_sigma=drift_sigma,
+        notes=tuple(notes),
+        block_map=(transform @ maps)[order],
+    )
+
+
+def _drift_notes(drift_estimate: NDArray[np.float64], drift_sigma: NDArray[np.float64]) -> list[str]:
+    """``gyro_drift="check"``: a note when the fitted drift is significant (more than 5σ)."""
+    if not np.isfinite(drift_estimate).all():
+        return []
+    z = np.abs(drift_estimate / drift_sigma)
+    if z.max() <= 5.0:
+        return []
+    return [
+        "the attitude errors carry the signature of a gyro drift (the Earth-rate resonance of the loop): fitted drift "
+        f"{np.round(drift_estimate.mean(axis=0) / (np.pi / 180 / 3600), 5).tolist()} °/h (x, y, z, up to {z.max():.0f} sigma); "
+        "over one day it cannot be told from the accelerometer harmonics of pitch and roll, which are biased (0.001 °/h gives "
+        "~2e-5 rad); give the known drift, or rely on the specific-force states"
+    ]
+
+
+def _fit_channels(
+    blocks: dict[str, NDArray[np.float64]],
+    loop: DampingLoop,
+    noise_sigma: tuple[float, float],
+    case_rotation_period: float | None,
+    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None],
+    map_bin_seconds: float,
+    n_common: int,
+    freqs: NDArray[np.float64],
+    slices: list[slice],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
+
+    ``drift_settings``: ``(gyro_drift, known_drift)`` of :func:`fit_attitude`.  Returns ``(coefficients (n, 2), block
+    residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means summed per
+    time bin to them, drift estimate (2, 3), its σ)``.
+    """
     designs: dict[int, NDArray[np.float64]] = {}  # both channels and all passes share the rows: built once per slice
 
     def common(rows: slice) -> NDArray[np.float64]:
@@ -296,20 +375,20 @@ def fit_attitude(
             designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
         return designs[rows.start]
 
+    gyro_drift, known_drift = drift_settings
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
-    drift = _drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
+    drift = drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
     if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
-        y = y - drift @ (np.asarray(known_drift, dtype=float) / _DRIFT_SCALE)
+        assert drift is not None
+        y = y - drift @ (np.asarray(known_drift, dtype=float) / DRIFT_SCALE)
     drift_estimate, drift_sigma = np.full((2, 3), np.nan), np.full((2, 3), np.nan)
-    n_common = len(names)
     map_bin = np.floor(blocks["time"] / map_bin_seconds).astype(np.int64)
     n_map = int(map_bin.max()) + 1 if map_bin.size else 0
     maps = np.zeros((10, 2 * n_map))  # observed (mean, 1c, 1s, 2c, 2s per channel) ← block means summed per time bin
     beta = np.zeros((n_common, 2))
     residuals = np.zeros_like(y)
     cov_obs = np.zeros((10, 10))
-    notes: list[str] = []
     for ch in range(2):
         gains = np.array([np.abs(loop.frequency_response(f)).max(axis=1)[ch] if f > 0 else 1.0 for f in freqs[:5]])
         d = noise_sigma[ch] * gains
@@ -318,12 +397,12 @@ def fit_attitude(
         if drift is not None and gyro_drift in ("fit", "check"):
             # the same fit with the drift responses of this channel as three more columns
 
-            def with_drift(rows: slice, ch: int = ch) -> NDArray[np.float64]:
+            def with_drift(rows: slice, ch: int = ch, drift: NDArray[np.float64] = drift) -> NDArray[np.float64]:
                 return np.concatenate([common(rows), drift[rows, ch, :]], axis=1)
 
             coef_d, res_d, inv_d = _weighted_fit(with_drift, y[:, ch], w, slices)
             sigma_d = noise_sigma[ch] * np.abs(loop.frequency_response(loop.earth_rate)).max(axis=1)[ch] * np.sqrt(np.diag(inv_d)[-3:])
-            drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * _DRIFT_SCALE, sigma_d * _DRIFT_SCALE
+            drift_estimate[ch], drift_sigma[ch] = coef_d[-3:] * DRIFT_SCALE, sigma_d * DRIFT_SCALE
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = with_drift, inv_d
@@ -334,18 +413,11 @@ def fit_attitude(
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
-    if gyro_drift == "check" and np.isfinite(drift_estimate).all():
-        z = np.abs(drift_estimate / drift_sigma)
-        if z.max() > 5.0:
-            notes.append(
-                "the attitude errors carry the signature of a gyro drift (the Earth-rate resonance of the loop): fitted drift "
-                f"{np.round(drift_estimate.mean(axis=0) / (np.pi / 180 / 3600), 5).tolist()} °/h (x, y, z, up to {z.max():.0f} sigma); "
-                "over one day it cannot be told from the accelerometer harmonics of pitch and roll, which are biased (0.001 °/h gives "
-                "~2e-5 rad); give the known drift, or rely on the specific-force states"
-            )
-    observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
+    return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma
 
-    # loop compensation of the harmonics: vectors (pitch c, pitch s, roll c, roll s)
+
+def _loop_compensation(loop: DampingLoop, *, compensate_loop: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Loop compensation of the harmonics, vectors (pitch c, pitch s, roll c, roll s): ``(M_k⁻¹ blocks, vertical map)``."""
     transform = np.eye(10)
     vertical_map = np.zeros((10, 5))  # observed ← Δf_D/g coefficients
     if compensate_loop:
@@ -356,20 +428,20 @@ def fit_attitude(
             vertical_map[np.ix_(idx, [ic, is_])] = loop.vertical_harmonic_matrix(k)
         dc = loop.dc_gain()
         vertical_map[0, 0], vertical_map[5, 0] = dc[0, 2], dc[1, 2]
-    v = np.zeros(5) if vertical is None else np.asarray(vertical, dtype=float)
-    qs = transform @ (observed - vertical_map @ v)
-    cov_qs = transform @ cov_obs @ transform.T
-    jac_vertical = -transform @ vertical_map
-    # reorder roll into the paper order (mean, 1s, 1c, 2s, 2c)
-    order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
-    values, covariance = qs[order], cov_qs[np.ix_(order, order)]
-    jac_vertical = jac_vertical[order]
-    observed_out, cov_obs_out = observed[order], cov_obs[np.ix_(order, order)]
+    return transform, vertical_map
 
-    nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
-    # coloured (low-frequency) noise: scale the covariance by the residual spectrum extrapolated to 1 and 2 cycles/day
+
+def _low_frequency(
+    blocks: dict[str, NDArray[np.float64]], residuals: NDArray[np.float64], noise_sigma: tuple[float, float], loop: DampingLoop
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
+    """Measure the coloured (low-frequency) noise of the residuals from their spectrum extrapolated to the harmonics.
+
+    Returns ``(mean spectral ratio per channel, covariance factors at 1 and 2 cycles/day in the observed order, notes)``.
+    """
     from stableins.estimators.system.spectrum import EARTH_FREQUENCY, inflation, spectral_ratios
 
+    w = blocks["count"]
+    notes: list[str] = []
     ratio = np.full(2, np.nan)
     factors = np.ones(10)
     grid = np.linspace(0.5, 40.0, 160) * EARTH_FREQUENCY
@@ -394,49 +466,7 @@ def fit_attitude(
                 f"{ch and 'roll' or 'pitch'} residuals carry low-frequency noise (bias instability / random walk): the spectrum "
                 f"extrapolated to one cycle per day is {factors[5 * ch + 1]:.1f}x the white level; the covariance was scaled accordingly"
             )
-    if not scale_low_frequency:
-        factors = np.ones(10)
-        notes = [n.replace("the covariance was scaled accordingly", "see the coloured-noise model") for n in notes]
-    scale_obs = np.sqrt(factors)  # in the observed (mean, 1c, 1s, 2c, 2s) order of each channel
-    cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
-    cov_qs = transform @ cov_obs @ transform.T
-    covariance = cov_qs[np.ix_(order, order)]
-    cov_obs_out = cov_obs[np.ix_(order, order)]
-    return AttitudeFit(
-        names=ATTITUDE_COEFFICIENTS,
-        values=values,
-        covariance=covariance,
-        observed=observed_out,
-        observed_covariance=cov_obs_out,
-        nuisance=nuisance,
-        noise_sigma=(float(noise_sigma[0]), float(noise_sigma[1])),
-        residual_noise_ratio=(float(ratio[0]), float(ratio[1])),
-        residual_rms=tuple(float(v) for v in np.sqrt(np.mean(residuals**2, axis=0))),
-        block_residuals=residuals,
-        vertical_jacobian=jac_vertical,
-        drift_estimate=drift_estimate,
-        drift_sigma=drift_sigma,
-        notes=tuple(notes),
-        block_map=(transform @ maps)[order],
-    )
-
-
-def _drift_columns(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
-    """Drift responses ``(n_blocks, 2, 3)`` on the block times (simulated on a uniform grid, interpolated over gaps)."""
-    t = blocks["time"]
-    angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
-    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    grid = np.arange(0.0, t[-1] + step, step)
-    responses = loop.drift_responses(grid, np.interp(grid, t, angle))
-    out = np.empty((t.size, 2, 3))
-    for ch in range(2):
-        for j in range(3):
-            out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
-    return out * _DRIFT_SCALE  # columns of the order of the others
-
-
-#: Unit of the drift columns [rad/s] (about 0.002 °/h).
-_DRIFT_SCALE = 1e-8
+    return ratio, factors, notes
 
 
 def _weighted_fit(

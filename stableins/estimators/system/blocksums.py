@@ -31,10 +31,15 @@ this one costs about 1 ns/sample (0.9 on a time grid), below the cost of reading
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from stableins.conventions import EARTH_RATE
+from stableins.estimators.system import harmonics as hm
 
 #: Columns of the per-block sums: n0, n1, n2, n3 (Σ z δ^p), m1, m2, m3 (Σ δ^p), count.
 SUM_COLUMNS = ("n0", "n1", "n2", "n3", "m1", "m2", "m3", "count")
@@ -318,7 +323,7 @@ def block_sums_reference(
     omega: float,
     step_range: tuple[float, float],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
-    """The same sums with numpy array operations (the reference :func:`block_sums` is tested against)."""
+    """Compute the same sums with numpy array operations (the reference :func:`block_sums` is tested against)."""
     z = observation(fx, fy, fz, packed)
     n = z.size
     starts = np.arange(0, n, block)
@@ -334,4 +339,102 @@ def block_sums_reference(
     return sums, centres, float(np.sum(z * z)), irregular
 
 
-__all__ = ["SUM_COLUMNS", "block_sums", "block_sums_reference", "coefficients", "harmonic_sums", "observation", "second_difference_sums"]
+# --------------------------------------------------------------------------- the harmonic information from the block sums
+def harmonic_information(
+    earth_angle: NDArray[np.float64], z: NDArray[np.float64], latitude: float, order: int = 3
+) -> hm.InformationAccumulator:
+    """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
+    acc = hm.InformationAccumulator(n_states=2 * order + 1)
+    acc.add(hm.observation_rows(earth_angle, latitude, order=order), z)
+    return acc
+
+
+@dataclass
+class BlockHarmonics:
+    """Block-Taylor accumulation of the harmonic information (see the module docstring)."""
+
+    latitude: float
+    block: int
+    order: int = 3  # highest harmonic of S in H
+    trig_sums: NDArray[np.float64] = field(init=False)  # C_0..C_2m, S_0..S_2m
+    z_sums: NDArray[np.float64] = field(init=False)  # ZC_0..ZC_m, ZS_0..ZS_m
+    sum_z2: float = 0.0
+    count: int = 0
+
+    def __post_init__(self) -> None:
+        self.trig_sums = np.zeros(2 * (2 * self.order + 1))
+        self.z_sums = np.zeros(2 * (self.order + 1))
+
+    @property
+    def columns(self) -> list[tuple[int, int]]:
+        """``(k, kind)`` of the H columns, kind 0 = cos, 1 = sin: 1, cos S, sin S, cos 2S, ..."""
+        return [(0, 0)] + [(k, t) for k in range(1, self.order + 1) for t in (0, 1)]
+
+    def add_sums(
+        self, centre_angle: NDArray[np.float64], sums: NDArray[np.float64], sum_z2: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Accumulate one chunk's per-block sums (:func:`.blocksums.block_sums`).
+
+        ``centre_angle`` is ``S`` at each block's mean time; within the block ``S = S_c + δ`` with
+        ``δ = ω_ie (t − t̄)`` (the platform is inertially held, so ``S`` advances at the Earth rate).
+        Returns per-block ``(Σz, ΣH (n_blocks, 2·order+1), n)`` for the filter bins.
+        """
+        self.sum_z2 += float(sum_z2)
+        self.count += int(round(float(sums[:, 7].sum())))
+        h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, self.z_sums)
+        return sums[:, 0], h, sums[:, 7]
+
+    def accumulator(self) -> hm.InformationAccumulator:
+        """``Σ HᵀH`` from the trigonometric sums by product-to-sum identities; ``Σ Hᵀz`` from the z sums."""
+        nk = 2 * self.order + 1
+        c_sum = self.trig_sums[:nk]
+        s_sum = self.trig_sums[nk:]
+
+        def cos_sum(k: int) -> float:
+            return float(c_sum[abs(k)])
+
+        def sin_sum(k: int) -> float:
+            return float(np.sign(k) * s_sum[abs(k)])
+
+        a = math.cos(self.latitude)
+        cols = self.columns
+        lam = np.empty((len(cols), len(cols)))
+        for i, (ki, ti) in enumerate(cols):
+            for j, (kj, tj) in enumerate(cols):
+                if ti == 0 and tj == 0:
+                    v = 0.5 * (cos_sum(ki - kj) + cos_sum(ki + kj))
+                elif ti == 1 and tj == 1:
+                    v = 0.5 * (cos_sum(ki - kj) - cos_sum(ki + kj))
+                elif ti == 0:  # cos ki · sin kj
+                    v = 0.5 * (sin_sum(ki + kj) - sin_sum(ki - kj))
+                else:  # sin ki · cos kj
+                    v = 0.5 * (sin_sum(ki + kj) + sin_sum(ki - kj))
+                lam[i, j] = a ** (ki + kj) * v
+        zc = self.z_sums[: self.order + 1]
+        zs = self.z_sums[self.order + 1 :]
+        acc = hm.InformationAccumulator(n_states=len(cols))
+        acc.information = 0.5 * (lam + lam.T)
+        acc.projection = np.array([a**k * (zc[k] if t == 0 else zs[k]) for k, t in cols])
+        acc.sum_squares = self.sum_z2
+        acc.count = self.count
+        return acc
+
+
+def block_length(sample_rate: float, limit: float = 2e-4) -> int:
+    """Largest power of two ``B`` with ``B·ω_ie/rate ≤ limit`` (at least 1)."""
+    b = max(1.0, limit * sample_rate / EARTH_RATE)
+    return 1 << int(math.floor(math.log2(b)))
+
+
+__all__ = [
+    "SUM_COLUMNS",
+    "BlockHarmonics",
+    "block_length",
+    "block_sums",
+    "block_sums_reference",
+    "coefficients",
+    "harmonic_information",
+    "harmonic_sums",
+    "observation",
+    "second_difference_sums",
+]

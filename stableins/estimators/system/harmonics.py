@@ -162,6 +162,7 @@ class InformationAccumulator:
         self.count += int(z.size)
 
     def merge(self, other: InformationAccumulator) -> None:
+        """Add another accumulator's sums (information, projection, sum of squares, count)."""
         self.information += other.information
         self.projection += other.projection
         self.sum_squares += other.sum_squares

@@ -131,7 +131,7 @@ class DampingLoop:
         if "zeta" in damping:
             zeta = float(damping["zeta"])
         else:
-            zeta = float(damping.get("damping_coefficient", damping.get("horizontal_gain"))) / (2.0 * omega_s)
+            zeta = float(damping.get("damping_coefficient", damping.get("horizontal_gain", np.nan))) / (2.0 * omega_s)
         if not np.isfinite(zeta) or zeta < 0:
             raise InputError(f"damping ratio must be a finite non-negative number, got {zeta}", field="damping.zeta")
         gains = None
@@ -155,10 +155,11 @@ class DampingLoop:
 
     @property
     def n_states(self) -> int:
+        """Return the number of states: 9 with the vertical channel, 6 without."""
         return 9 if self.vertical_gains is not None else 6
 
     def state_matrix(self) -> NDArray[np.float64]:
-        """``A`` of ``ẋ = A x + B u`` for the states :data:`LOOP_STATES` (first six without the vertical channel)."""
+        """Return ``A`` of ``ẋ = A x + B u`` for the states :data:`LOOP_STATES` (first six without the vertical channel)."""
         w = self.earth_rate if self.couplings else 0.0
         s, c = np.sin(self.latitude), np.cos(self.latitude)
         r = self.earth_radius
@@ -296,7 +297,7 @@ class DampingLoop:
         return self.frequency_response(0.0).real
 
     def transient_modes(self) -> NDArray[np.complex128]:
-        """Controllable modes other than the Schuler ones (vertical channel): eigenvalues with ``Im ≥ 0``."""
+        """Return the controllable modes other than the Schuler ones (vertical channel): eigenvalues with ``Im ≥ 0``."""
         eigenvalues, _, _ = self._controllable_modes()
         schuler = self.schuler_modes()
         out = [m for m in eigenvalues if m.imag >= 0 and all(abs(m - s) > 1e-9 for s in schuler) and abs(m) > 2.5 * self.earth_rate]
@@ -337,3 +338,25 @@ class DampingLoop:
             if k + 1 < len(time):
                 x = phi @ x + gamma0 @ forcing[k] + gamma1 @ (forcing[k + 1] - forcing[k])
         return out
+
+
+def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
+    """Return the drift responses ``(n_blocks, 2, 3)`` of pitch and roll on the attitude block times.
+
+    :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid and interpolated
+    over gaps.
+    """
+    t = blocks["time"]
+    angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
+    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    grid = np.arange(0.0, t[-1] + step, step)
+    responses = loop.drift_responses(grid, np.interp(grid, t, angle))
+    out = np.empty((t.size, 2, 3))
+    for ch in range(2):
+        for j in range(3):
+            out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
+    return out * DRIFT_SCALE  # columns of the order of the others
+
+
+#: Unit of the drift columns [rad/s] (about 0.002 °/h).
+DRIFT_SCALE = 1e-8

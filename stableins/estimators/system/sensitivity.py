@@ -111,7 +111,7 @@ def with_sensitivities(
     compensation_terms: Sequence[Term] = (),
     noise_model: Any = None,
 ) -> Any:
-    """The stage's outcome (``SystemCalibration``) with :func:`system_sensitivities` on its result, for the record."""
+    """Return the stage's outcome (``SystemCalibration``) with :func:`system_sensitivities` on its result, for the record."""
     found = system_sensitivities(
         source,
         source.metadata,

@@ -1,0 +1,433 @@
+"""The low-frequency (coloured) noise of the accelerometers in the system stage (docs/system-calibration.md §1a).
+
+:func:`coloured_covariance`: the residual periodograms on the filter and fine bins, the decision (coloured noise or
+not) and the amplitudes (:func:`.whittle.fit_coloured_noise`), and the unit covariances of ``(x1..x7, attitude)`` per
+component and axis; :func:`noise_prior` reads a prior noise model; :func:`measured_noise_model` is the instrument's
+noise model the stage puts under its σ; :func:`coloured_note` says what the decision found.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import MICRO_G
+from stableins.estimators.system import spectrum, whittle
+from stableins.estimators.system.accumulate import SampleBins
+from stableins.estimators.system.attitude import AttitudeFit
+from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
+from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
+
+#: At most this many bins enter the coloured-noise model (longer records: wider bins, so its memory, about 4 MiB,
+#: does not depend on the record's length; one day has 144 bins of 600 s).  Monte Carlo of 4-day records (30 seeds):
+#: rms z 1.03 with 160 bins, 1.22 with 320 (docs/system-calibration.md §1a).
+COLOURED_BINS = 160
+
+
+def coloured_covariance(
+    filter_bins: SampleBins,
+    fine_bins: SampleBins,
+    keep_bins: NDArray[np.bool_],
+    rate: float,
+    x_ls: NDArray[np.float64],
+    blocks: dict[str, NDArray[np.float64]],
+    att: AttitudeFit,
+    jac_x: NDArray[np.float64],
+    latitude: float,
+    loop: DampingLoop,
+    case_rotation_period: float | None = None,
+    *,
+    alpha: float = 0.05,
+    confidence: float = 0.95,
+    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prior_detected: bool = False,
+    given: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], Any]:
+    """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
+
+    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the low band: residual
+    periodograms between 3.5 and 30 cycles/day (at most 0.45/bin width) with exact expectations for what the fits absorb
+    (:func:`attitude_residual_maker` for pitch and roll), for the Earth-rate modulation of x and y
+    (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`).  The z residual on the
+    fine bins gives the high band, from the top of the low band to 0.45/fine-bin width, with the closed-form expectations
+    of :func:`.spectrum.z_bin_expectations`; it shares the z channel's white level with the low band, which pins that
+    level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
+    or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.whittle.fit_coloured_noise`.
+    Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
+    ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
+    ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
+    x bias is, over the record, part of x2 and of φ1s) and the correlation it creates between the specific-force and
+    attitude coefficients.  docs/system-calibration.md §1a.  Returns ``(units, fit)``; ``fit`` is None when the record is
+    too short for the model (the covariance is then white).
+    """
+    units = np.zeros((len(spectrum.COLOURED_KINDS), 3, 17, 17))
+    n_keep = int(keep_bins.sum())
+    if n_keep < 16 or att.block_map is None:
+        return units, None
+    bins = _low_band(filter_bins, keep_bins, rate, x_ls, blocks, att, latitude, loop, case_rotation_period, n_keep)
+    harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
+    built = spectrum.periodogram_design(
+        bins.channels,
+        bins.makers,
+        bins.weights,
+        bins.time,
+        bins.kernels,
+        bins.mixing[: len(bins.channels)],
+        (0.0, bins.high),
+        white_gains=bins.gains,
+        exclude=harmonics,
+    )
+    if built is None:
+        return units, None
+    design, observed, n_ch = built
+    design, observed, n_high, top = _high_band(fine_bins, rate, x_ls, latitude, bins.high, design, observed, n_ch)
+    fit = whittle.fit_coloured_noise(
+        design,
+        observed,
+        n_ch,
+        alpha=alpha,
+        confidence=confidence,
+        ordinates=(int(observed.size - n_high), n_high),
+        band=(_lowest_frequency(bins.time, bins.wide, harmonics), bins.high, top),
+        prior=prior,
+        prior_detected=prior_detected,
+        given=given,
+    )
+    # attitude blocks → the same bins (block time since the record start)
+    assert att.block_map is not None
+    n = bins.groups.size
+    n_map = att.block_map.shape[1] // 2
+    map_group = np.clip(np.searchsorted(bins.groups, np.arange(n_map) // bins.merge), 0, n - 1)  # 600-s bins of the fit → groups
+    a_att = np.zeros((10, 2 * n))
+    for ch in range(2):
+        part = att.block_map[:, ch * n_map : (ch + 1) * n_map]
+        for k in range(10):
+            a_att[k, ch * n : (ch + 1) * n] = np.bincount(map_group, weights=part[k], minlength=n)
+    j = np.zeros((17, 3 * n))
+    j[:7, :n] = bins.a_z
+    j[7:, :n] = jac_x @ bins.a_z
+    j[7:, n:] = a_att
+    for c, kernel in enumerate(bins.kernels):
+        unit = spectrum.component_quadratic(j, j, bins.mixing, kernel, per_axis=True)
+        units[c] = 0.5 * (unit + unit.transpose(0, 2, 1))
+    return units, fit
+
+
+@dataclass(frozen=True)
+class _LowBand:
+    """The residual channels on the (merged) filter bins and what the periodogram design needs of them."""
+
+    groups: NDArray[np.int64]
+    merge: int
+    time: NDArray[np.float64]
+    wide: float
+    high: float
+    a_z: NDArray[np.float64]
+    kernels: list[NDArray[np.float64]]
+    mixing: list[Any]
+    channels: list[NDArray[np.float64]]
+    makers: list[NDArray[np.float64]]
+    weights: list[NDArray[np.float64]]
+    gains: list[Any]
+
+
+def _low_band(
+    filter_bins: SampleBins,
+    keep_bins: NDArray[np.bool_],
+    rate: float,
+    x_ls: NDArray[np.float64],
+    blocks: dict[str, NDArray[np.float64]],
+    att: AttitudeFit,
+    latitude: float,
+    loop: DampingLoop,
+    case_rotation_period: float | None,
+    n_keep: int,
+) -> _LowBand:
+    """Build the low band: the z, pitch and roll residuals on the filter bins merged to at most :data:`COLOURED_BINS`.
+
+    With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
+    mixing.
+    """
+    width = filter_bins.samples / rate
+    merge = max(1, -(-n_keep // COLOURED_BINS))
+    ids = np.flatnonzero(keep_bins) // merge
+    groups, index = np.unique(ids, return_inverse=True)
+    n = groups.size
+    count = np.asarray(np.bincount(index, weights=filter_bins.n[keep_bins], minlength=n), dtype=float)
+    zsum = np.bincount(index, weights=filter_bins.z[keep_bins], minlength=n)
+    hsum = np.stack([np.bincount(index, weights=filter_bins.h[keep_bins][:, k], minlength=n) for k in range(7)], axis=1)
+    x_bins = hsum / count[:, None]
+    residual = zsum / count - x_bins @ x_ls
+    time = np.asarray((groups + 0.5) * width * merge, dtype=float)
+    wide = width * merge
+    a_z = np.linalg.solve(x_bins.T @ (x_bins * count[:, None]), (x_bins * count[:, None]).T)  # (7, n)
+    r_z = np.eye(n) - x_bins @ a_z
+    cos_l = math.cos(latitude)
+    cos_s, sin_s = x_bins[:, 1] / cos_l, x_bins[:, 2] / cos_l
+    loads = [spectrum.axis_loadings(ch, cos_s, sin_s, latitude) for ch in ("z", "pitch", "roll")]
+    kernels = [spectrum.bin_process_kernel(kind, time, wide) for kind in spectrum.COLOURED_KINDS]  # (n, n) each
+    high = min(30.0 * spectrum.EARTH_FREQUENCY, 0.45 / wide)
+    # pitch and roll: the loop filters (Δf_N/g, −Δf_E/g, Δf_D/g) = (pitch, roll, −z loadings) · n/g, bin by bin
+    mixing = [[loads[0][:, a] for a in range(3)]] + spectrum.loop_bin_mixing(
+        loop._controllable_modes(), time, wide, [loads[1], loads[2], -loads[0]]
+    )
+    # attitude residuals on the same bins (block residuals aggregated; the fit's residual maker approximated on bins)
+    block_bin = np.clip(np.searchsorted(groups, np.floor(blocks["time"] / wide).astype(np.int64)), 0, n - 1)
+    att_count = np.asarray(np.bincount(block_bin, weights=blocks["count"], minlength=n), dtype=float)
+    channels, makers, weights = [residual], [r_z], [count]
+    gains: list[Any] = [None]
+    if (att_count > 0).all():
+        r_att = attitude_residual_maker(blocks, block_bin, att_count, loop, case_rotation_period)
+        for ch in range(2):
+            res = np.bincount(block_bin, weights=blocks["count"] * att.block_residuals[:, ch], minlength=n) / att_count
+            channels.append(res)
+            makers.append(r_att)
+            weights.append(att_count)
+            # white accelerometer noise through the loop (three independent inputs), then averaged over the bin: the
+            # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
+            # beyond the bins' Nyquist frequency)
+            gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
+    # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
+    # per day; longer records also between the harmonics, where the random walk's power is largest)
+    return _LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains)
+
+
+def _high_band(
+    fine_bins: SampleBins,
+    rate: float,
+    x_ls: NDArray[np.float64],
+    latitude: float,
+    high: float,
+    design: NDArray[np.float64],
+    observed: NDArray[np.float64],
+    n_ch: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int, float]:
+    """Append the high band: the z residual on the fine bins (a trailing partial bin left out), above the low band.
+
+    Returns ``(design, observed, ordinates of the high band, top frequency)`` with its rows and ordinates appended.
+    """
+    fine_count = fine_bins.n.copy()
+    last = int(np.flatnonzero(fine_count > 0)[-1]) + 1 if np.any(fine_count > 0) else 0
+    if last and fine_count[last - 1] < fine_bins.samples:
+        last -= 1
+    fine_count = fine_count[:last]
+    top = high
+    n_high = 0
+    if last >= 16:
+        fine_width = fine_bins.samples / rate
+        k = np.arange(int(math.floor(high * last * fine_width)) + 1, int(math.floor(0.45 * last)) + 1)
+        k = k[k / (last * fine_width) > high]
+        if k.size:
+            filled = fine_count > 0
+            fine_residual = np.zeros(last)
+            fine_residual[filled] = (fine_bins.z[:last][filled] - fine_bins.h[:last][filled] @ x_ls) / fine_count[filled]
+            expected = spectrum.z_bin_expectations(k, last, fine_width, latitude, float(fine_count.sum()) / last)
+            rows = np.zeros((k.size, design.shape[1]))
+            rows[:, 0] = expected[:, 0]  # the z channel's white level, shared with the low band
+            rows[:, n_ch:] = expected[:, 1:]
+            design = np.vstack([design, rows])
+            observed = np.concatenate([observed, spectrum.z_bin_periodogram(fine_residual, fine_count, k)])
+            n_high = int(k.size)
+            top = float(k[-1] / (last * fine_width))
+    return design, observed, n_high, top
+
+
+def _lowest_frequency(time: NDArray[np.float64], width: float, harmonics: tuple[float, ...]) -> float:
+    """Return the lowest Fourier frequency of the low band (the first not within half a spacing of an absorbed harmonic)."""
+    span = float(time[-1] - time[0]) + width
+    k = 1
+    while any(abs(k - f * span) < 0.5 for f in harmonics):
+        k += 1
+    return k / span
+
+
+def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: float, gravity: float) -> str:
+    """Say what the decision on low-frequency noise found and what it does to σ (docs/system-calibration.md §1a)."""
+    from stableins.estimators.system.spectrum import amplitudes_to_allan
+
+    upper = amplitudes_to_allan(fit.upper, gravity)
+    allowed = float(np.einsum("c,ca->", fit.upper, units[:, :, 1, 1]))
+    bound = (
+        f"the data allow up to bias instability {upper[1] / MICRO_G:.3g} ug and random walk {upper[0]:.3g} m/s^2/sqrt(s) "
+        f"({100 * fit.confidence:g} % upper limits), with which the variance of x2 would be "
+        f"{(white_x2 + allowed) / white_x2:.1f}x the white-noise value"
+    )
+    factor = (white_x2 + float(np.einsum("ca,ca->", fit.amplitudes, units[:, :, 1, 1]))) / white_x2
+    used = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+    levels = f"bias instability {used[1] / MICRO_G:.3g} ug and random walk {used[0]:.3g} m/s^2/sqrt(s)"
+    if fit.source is ColouredSource.GIVEN:
+        return (
+            f"low-frequency noise as given in the noise model ({levels}) makes the variance of x2 {factor:.1f}x the white-noise "
+            f"value; the record's own fit: {fit.describe()}; {bound}"
+        )
+    if fit.detected:
+        how = "posterior mode with the prior noise model" if fit.source is ColouredSource.PRIOR else "maximum likelihood"
+        return (
+            f"the residuals carry low-frequency noise of the accelerometers ({fit.describe()}): {levels} ({how}, one value for "
+            f"the three axes) make the variance of x2 {factor:.1f}x the white-noise value; the covariance of all coefficients "
+            f"includes it; {bound}"
+        )
+    return f"no low-frequency noise ({fit.describe()}): σ is the white-noise σ; {bound}"
+
+
+def noise_prior(
+    model: NoiseModel | None, gravity: float
+) -> tuple[NDArray[np.float64] | None, tuple[NDArray[np.float64], NDArray[np.float64]] | None, bool]:
+    """Return what a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
+
+    A datasheet model: the amplitudes per axis, used as they are (``given``, ``(2, 3)``).  A measured model (device dwells,
+    an earlier static record): a Gaussian prior on each amplitude (one value for the three axes, the mean over the axes)
+    with its centre at the model's value and its standard deviation from the model's interval (two-sided when the term
+    was detected, one-sided from its upper limit otherwise; none when the term is not bounded); ``prior_detected`` when
+    a slow term was detected.  Nothing known (no model, source ``none``): no prior.
+    """
+    from scipy.special import ndtri  # the normal quantile
+
+    from stableins.estimators.system.spectrum import allan_to_amplitudes
+
+    if model is None or model.source is NoiseSource.NONE:
+        return None, None, False
+    values = allan_to_amplitudes(model.values("random_walk"), model.values("bias_instability"), gravity)  # (2, 3)
+    if model.source is NoiseSource.DATASHEET:
+        return values, None, False
+    (k_lo, k_hi), (b_lo, b_hi) = model.limits("random_walk"), model.limits("bias_instability")
+    lower = allan_to_amplitudes(k_lo, b_lo, gravity).mean(axis=1)
+    upper = allan_to_amplitudes(k_hi, b_hi, gravity).mean(axis=1)
+    centre = values.mean(axis=1)
+    two_sided, one_sided = float(ndtri(0.5 + 0.5 * model.confidence)), float(ndtri(model.confidence))
+    sd = np.where(lower > 0, (upper - lower) / (2.0 * two_sided), (upper - centre) / one_sided)
+    sd = np.where(np.isfinite(upper) & (sd > 0), sd, np.inf)
+    detected = bool(np.any(np.concatenate([k_lo, b_lo]) > 0))
+    return None, (centre, sd), detected
+
+
+#: Effective degrees of freedom per second difference of white noise: consecutive second differences are correlated
+#: (−2/3 at lag 1, 1/6 at lag 2), so the variance of their mean square is ``2(1 + 2(4/9 + 1/36))/n`` times its square.
+SECOND_DIFFERENCE_DOF = 1.0 / (1.0 + 2.0 * (4.0 / 9.0 + 1.0 / 36.0))
+
+
+def measured_noise_model(
+    axis_variance: NDArray[np.float64],
+    count: int,
+    rate: float,
+    fit: ColouredNoiseFit | None,
+    gravity: float,
+    given: NoiseModel | None,
+    path: str,
+    duration: float,
+) -> NoiseModel:
+    """Return the noise model of the instrument measured in this record (source ``static record``), per axis.
+
+    * White noise ``N = σ/√rate`` per axis from the second differences of the raw outputs (``σ²``, insensitive to the
+      Earth-rate signal), interval from ``χ²`` with ``SECOND_DIFFERENCE_DOF · count`` degrees of freedom;
+    * bias instability ``B`` and random walk ``K``: the amplitudes under σ (one value for the three axes) with their
+      profile-likelihood intervals (:class:`.whittle.ColouredNoiseFit`); not detected: 0 with the upper limit;
+    * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
+      all of the second differences' variance (``20 Q²/dt²``).
+    With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
+    are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
+    """
+    from dataclasses import replace
+
+    from scipy.special import gammaincinv
+
+    from stableins.estimators.system.spectrum import amplitudes_to_allan
+
+    confidence = 0.95 if fit is None else fit.confidence
+    dof = max(1.0, SECOND_DIFFERENCE_DOF * count)
+    tail = 0.5 * (1.0 - confidence)
+    white = np.sqrt(axis_variance / rate)
+    white_lo = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, 1.0 - tail))))  # χ²_dof quantiles
+    white_hi = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, tail))))
+    q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
+    whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
+    if given is not None and given.source is NoiseSource.DATASHEET:
+        axes = cast("tuple[AxisNoise, AxisNoise, AxisNoise]", tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes)))
+        provenance = (
+            f"white noise measured in the system-level record {path} ({count} second differences per axis); bias instability, "
+            f"random walk and quantization as given ({given.provenance or 'datasheet'})"
+        )
+        return replace(given, axes=axes, provenance=provenance)
+    if fit is None:
+        slow = {"random_walk": NoiseTerm.unbounded(), "bias_instability": NoiseTerm.unbounded()}
+        slow_text = "bias instability and random walk not measured (record too short for the residual-spectrum model)"
+    else:
+        value = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
+        lower = amplitudes_to_allan(fit.lower, gravity)
+        upper = amplitudes_to_allan(fit.upper, gravity)
+        slow = {}
+        for k, name in enumerate(("random_walk", "bias_instability")):
+            v = float(value[k])
+            lo = min(float(lower[k]), v) if fit.detected else 0.0
+            slow[name] = NoiseTerm(v, lo, max(float(upper[k]), v))
+        slow_text = (
+            "bias instability and random walk from the residual spectra, one value for the three axes ("
+            + fit.describe()
+            + ("; with the prior noise model" if fit.source is ColouredSource.PRIOR else "")
+            + ")"
+        )
+    per_axis = tuple(
+        AxisNoise(
+            white=whites[a],
+            bias_instability=slow["bias_instability"],
+            random_walk=slow["random_walk"],
+            quantization=NoiseTerm(0.0, 0.0, float(q_upper[a])),
+        )
+        for a in range(3)
+    )
+    provenance = (
+        f"system-level record {path}: {duration / 3600:.2f} h at {rate:g} Hz; white noise from {count} second differences "
+        f"per axis; {slow_text}; quantization not separable from the white noise at this rate (upper limit)"
+    )
+    return NoiseModel(cast("tuple[AxisNoise, AxisNoise, AxisNoise]", per_axis), NoiseSource.STATIC_RECORD, provenance, confidence)
+
+
+def attitude_residual_maker(
+    blocks: dict[str, NDArray[np.float64]],
+    block_bin: NDArray[np.int64],
+    bin_count: NDArray[np.float64],
+    loop: DampingLoop,
+    case_rotation_period: float | None,
+) -> NDArray[np.float64]:
+    """Residual maker ``(n, n)`` of the attitude fit on the bins: ``R = I − X̄ (XᵀWX)⁻¹ X̄ᵀ W̄``.
+
+    The attitude fit runs on the blocks with all its columns (mean, harmonics, the decaying Schuler and vertical
+    transients, the case-rotation terms: :func:`.attitude._design`).  For noise that is constant within a bin, the
+    binned residual is ``R`` applied to the binned noise, with ``X̄`` the bin means of the columns, ``W̄`` the bin
+    counts and ``XᵀWX`` the fit's block-level normal matrix.  The transient columns matter: over the first hour they
+    absorb a large part of a random walk's low-frequency power (the residual variance on the bins drops by up to a
+    half), which a residual maker with only the mean and the harmonics misses.  Built in slices of
+    :data:`.attitude.FIT_ROWS` blocks (bounded memory).  Drift columns (``gyro_drift="fit"``) are not included.
+    """
+    from stableins.estimators.system.attitude import FIT_ROWS, _design
+
+    n = bin_count.size
+    columns = None
+    normal = None
+    for start in range(0, blocks["time"].size, FIT_ROWS):
+        rows = slice(start, start + FIT_ROWS)
+        x = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+        wx = x * blocks["count"][rows, None]
+        part = np.einsum("bi,bj->ij", wx, x)  # einsum, not BLAS (docs §6)
+        sums = np.stack([np.bincount(block_bin[rows], weights=wx[:, k], minlength=n) for k in range(x.shape[1])], axis=1)
+        normal = part if normal is None else normal + part
+        columns = sums if columns is None else columns + sums
+    assert columns is not None and normal is not None  # the record has blocks
+    mean_columns = columns / bin_count[:, None]
+    return np.eye(n) - mean_columns @ np.linalg.solve(normal, columns.T)
+
+
+__all__ = [
+    "COLOURED_BINS",
+    "SECOND_DIFFERENCE_DOF",
+    "attitude_residual_maker",
+    "coloured_covariance",
+    "coloured_note",
+    "measured_noise_model",
+    "noise_prior",
+]
