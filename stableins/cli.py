@@ -125,7 +125,7 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
 
 
 def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
-    """The parser, with the command named in ``argv`` (if any) fully configured."""
+    """Return the parser, with the command named in ``argv`` (if any) fully configured."""
     parser = _Parser(
         prog="stableins",
         description="On-system calibration of the accelerometer triad of a space-stable inertial navigation system.",
@@ -160,7 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (IsADirectoryError, NotADirectoryError) as error:  # a path mix-up the argument checks could not see: bad input
         wanted = "a file, not a directory" if isinstance(error, IsADirectoryError) else "a directory on the way, not a file"
         where = error.filename2 or error.filename
-        print(f"stableins: error: {where}: {error.strerror.lower()} (expected {wanted})", file=sys.stderr)
+        print(f"stableins: error: {where}: {(error.strerror or str(error)).lower()} (expected {wanted})", file=sys.stderr)
         return EXIT_USAGE
     except OSError as error:  # disk full, permission denied ... on a file the user named: no traceback
         if isinstance(error, BrokenPipeError):

@@ -13,7 +13,8 @@ b : body (base) frame, Forward-Right-Down.  ``C_n^b`` is the yaw-pitch-roll
 p : platform frame.  At zero actual gimbal angles it coincides with b.  ``z_p`` is the
     platform (stable element) axis, ``x_p`` the inner gimbal axis, ``y_p`` the middle
     gimbal axis.
-a : accelerometer frame (non-orthogonal), rows of ``C_p^a`` are the sensitive axes.
+a : accelerometer frame (non-orthogonal).
+    The rows of ``C_p^a`` are the sensitive axes.
 
 Rotation matrices
 -----------------
@@ -125,7 +126,7 @@ def earth_rate_nav(latitude: ArrayLike) -> NDArray[np.float64]:
 
 
 def specific_force_nav(gravity: ArrayLike) -> NDArray[np.float64]:
-    """Static specific force in NED, ``[0, 0, -g]`` (Wu et al. 2018 Eq. 1)."""
+    """Return the static specific force in NED, ``[0, 0, -g]`` (Wu et al. 2018 Eq. 1)."""
     gravity = np.asarray(gravity, dtype=float)
     zero = np.zeros_like(gravity)
     return np.stack([zero, zero, -gravity], axis=-1)

@@ -7,7 +7,7 @@ until the next entry's.  A record older than ``max_age`` at the date asked about
 returned, with a warning.
 
 Significance of a change between two records (``old`` → ``new``) of a parameter
-------------------------------------------------------------------------------
+--------------------------------------------------------------------------------
 One definition, used by ``stableins recal``, ``stableins history`` and the certificate
 (:func:`compare`).  The two records are related in one of two ways, read from their stage runs:
 
@@ -50,7 +50,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.records import CalibrationRecord
 
-#: |z| at and beyond which a change since the previous calibration is flagged (0.27 % false alarms per parameter).
+#: ``|z|`` at and beyond which a change since the previous calibration is flagged (0.27 % false alarms per parameter).
 CHANGE_THRESHOLD = 3.0
 #: Default age after which the record in force is reported stale.
 DEFAULT_MAX_AGE = timedelta(days=180)

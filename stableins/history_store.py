@@ -65,7 +65,7 @@ INDEX_NAME = "index.json"
 INDEX_FORMAT = "stableins-history-index"
 #: Largest record file filed or read [bytes].
 MAX_RECORD_BYTES = 64 << 20
-#: |drift| / σ beyond which a unit counts as drifting in fleet queries.
+#: ``|drift| / σ`` beyond which a unit counts as drifting in fleet queries.
 DRIFT_SIGMAS = 3.0
 #: A serial number that can name a folder on every file system stableins runs on.
 _SERIAL = re.compile(r"[^\x00-\x1f/\\:*?\"<>|]{1,128}")

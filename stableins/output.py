@@ -50,5 +50,5 @@ def emit(args: Any, data: dict[str, Any], text: str | None = None) -> None:
 
 
 def note(message: str) -> None:
-    """A message for the person at the terminal (stderr)."""
+    """Print a message for the person at the terminal (stderr)."""
     print(message, file=sys.stderr)

@@ -62,7 +62,7 @@ class Progress:
             self._draw(now)
 
     def line(self, now: float | None = None) -> str:
-        """The text of the bar as it would be drawn now."""
+        """Return the text of the bar as it would be drawn now."""
         elapsed = (time.monotonic() if now is None else now) - self._start
         head = f"{self.label} " if self.label else ""
         if not self.total:

@@ -434,11 +434,8 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     if definition is None or definition.stage != "fine":
         return None
     if not start.get("prior"):
-        raise InputError(
-            "the fine stage starts from a coarse estimate",
-            field="prior_file",
-            expected="the unit's coarse record (--prior RECORD or --store)",
-        )
+        expected = "the unit's coarse record (--prior RECORD or --store)"
+        raise InputError("the fine stage starts from a coarse estimate", field="prior_file", expected=expected)
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.fine import calibrate_fine
 

@@ -1,11 +1,11 @@
 """Library errors name the library's parameters; the command line names its flags (stableins.commands.flags)."""
 
 import pytest
-from stableins.data.errors import InputError
 
 from stableins.cli import main
 from stableins.commands.flags import FLAGS, as_flag
 from stableins.drivers.tcp import parse_address
+from stableins.errors import InputError
 from stableins.history_store import HistoryStore
 
 

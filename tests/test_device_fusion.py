@@ -47,6 +47,7 @@ def _z(fit, expected):
     return {k: (fit[k][0] - expected[k]) / fit[k][1] for k in fit.ids if fit[k][2] == "estimated"}
 
 
+@pytest.mark.slow
 def test_fused_sigma_is_honest_through_the_simulator(monte_carlo):
     z = [_z(c.fused, expected) for c, expected in monte_carlo]
     ids = list(z[0])
@@ -60,6 +61,7 @@ def test_fused_sigma_is_honest_through_the_simulator(monte_carlo):
     assert np.abs(per_parameter).max() < 5.0
 
 
+@pytest.mark.slow
 def test_fused_is_better_than_either_stage(monte_carlo):
     coarse_errors, fused_errors = [], []
     for calibration, expected in monte_carlo:

@@ -48,6 +48,7 @@ def _white_dwells(rng, count=18, n=1200, rate=2.0, sigma=1e-3):
     ]
 
 
+@pytest.mark.slow
 def test_slow_noise_decision_has_its_false_positive_rate_on_white_noise():
     """200 white sessions of 18 dwells: the 5 % decision fires in 10 ± 3σ(binomial) of them, the statistic is 0 ± 1."""
     rng = np.random.default_rng(7)

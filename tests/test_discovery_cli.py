@@ -5,15 +5,13 @@ from dataclasses import replace
 
 import pytest
 
-pytest.importorskip("stableins.simulator.device")
-
-from stableins.cli import main  # noqa: E402
-from stableins.conventions import ARCSEC  # noqa: E402
-from stableins.data.device import save_device  # noqa: E402
-from stableins.procedures.definition import load_procedure  # noqa: E402
-from stableins.simulator.device import simulate_dwells  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.cli import main
+from stableins.conventions import ARCSEC
+from stableins.data.device import save_device
+from stableins.procedures.definition import load_procedure
+from stableins.simulator.device import simulate_dwells
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.truth import Truth
 
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, quantization=1e-5, angle_noise=0.2 * ARCSEC)
 

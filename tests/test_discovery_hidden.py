@@ -17,16 +17,14 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC
-
-sim_device = pytest.importorskip("stableins.simulator.device")
-procedures = pytest.importorskip("stableins.procedures.definition")
-
-from stableins.discovery.history import Discovery  # noqa: E402
-from stableins.discovery.library import LIBRARY  # noqa: E402
-from stableins.discovery.problem import DwellProblem, dwell_means  # noqa: E402
-from stableins.errormodel import ErrorModel  # noqa: E402
-from stableins.simulator.noise import NoiseSettings, TemperatureProfile  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.discovery.history import Discovery
+from stableins.discovery.library import LIBRARY
+from stableins.discovery.problem import DwellProblem, dwell_means
+from stableins.errormodel import ErrorModel
+from stableins.procedures import definition as procedures
+from stableins.simulator import device as sim_device
+from stableins.simulator.noise import NoiseSettings, TemperatureProfile
+from stableins.simulator.truth import Truth
 
 #: Injected magnitude per effect family [engineering unit of the library term].
 MAGNITUDE = {"K3": 100, "Koq": 100, "Ksa": 100, "Kcq": 60, "Kcc": 60, "Kt_bias": 30, "Kt_sf": 60, "Kd_bias": 60, "Kh": 25}

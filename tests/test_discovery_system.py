@@ -3,17 +3,15 @@
 import numpy as np
 import pytest
 
-pytest.importorskip("stableins.simulator.system")
-
-from stableins.conventions import ARCSEC  # noqa: E402
-from stableins.discovery.diagnostics import residual_spectra  # noqa: E402
-from stableins.discovery.history import Discovery  # noqa: E402
-from stableins.discovery.library import LIBRARY  # noqa: E402
-from stableins.discovery.problem import DwellProblem, bins_from_chunks  # noqa: E402
-from stableins.errormodel import ErrorModel  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.system import simulate_system  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.conventions import ARCSEC
+from stableins.discovery.diagnostics import residual_spectra
+from stableins.discovery.history import Discovery
+from stableins.discovery.library import LIBRARY
+from stableins.discovery.problem import DwellProblem, bins_from_chunks
+from stableins.errormodel import ErrorModel
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.system import simulate_system
+from stableins.simulator.truth import Truth
 
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)
 DAY = 86164.0

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from stableins.data.device import DeviceDataset, load_device, save_device
 from stableins.data.metadata import metadata_from_document, metadata_to_document
-from stableins.data.system import SamplingWarning, SystemRecordWriter, open_system_record
+from stableins.data.sampling import SamplingWarning
+from stableins.data.system import SystemRecordWriter, open_system_record
 from stableins.errors import InputError
 from stableins.schema import DEVICE_COLUMNS, SYSTEM_COLUMNS
 from stableins.site import SiteMetadata

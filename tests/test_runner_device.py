@@ -7,18 +7,15 @@ import io
 import numpy as np
 import pytest
 
-pytest.importorskip("stableins.estimators.offset_iteration")
-pytest.importorskip("stableins.records")
-
-from stableins.console import Console  # noqa: E402
-from stableins.data.device import load_device  # noqa: E402
-from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure  # noqa: E402
+from stableins.console import Console
+from stableins.data.device import load_device
+from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
 from stableins.procedures.entries import journal_columns
-from stableins.procedures.journal import scan  # noqa: E402
-from stableins.procedures.planning import plan_from_definition  # noqa: E402
-from stableins.records import CalibrationRecord  # noqa: E402
-from stableins.runs import resume_run, start_run  # noqa: E402
-from tests.device_world import ExactPlatform, draw_truth  # noqa: E402
+from stableins.procedures.journal import scan
+from stableins.procedures.planning import plan_from_definition
+from stableins.records import CalibrationRecord
+from stableins.runs import resume_run, start_run
+from tests.device_world import ExactPlatform, draw_truth
 
 
 def short_definition(tmp_path, name, settle=0.5):

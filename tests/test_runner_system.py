@@ -5,14 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("stableins.simulator.system")
-
-from stableins.console import Console  # noqa: E402
-from stableins.data.system import open_system_record  # noqa: E402
-from stableins.drivers.select import simulated_platform  # noqa: E402
-from stableins.procedures.definition import load_procedure  # noqa: E402
-from stableins.procedures.planning import plan_from_definition  # noqa: E402
-from stableins.runs import resume_run, start_run  # noqa: E402
+from stableins.console import Console
+from stableins.data.system import open_system_record
+from stableins.drivers.select import simulated_platform
+from stableins.procedures.definition import load_procedure
+from stableins.procedures.planning import plan_from_definition
+from stableins.runs import resume_run, start_run
 
 SHORT = """
 [procedure]

@@ -10,17 +10,16 @@ import warnings
 import numpy as np
 import pytest
 
-system = pytest.importorskip("stableins.simulator.system", reason="system-level simulator not merged yet")
-
-from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY  # noqa: E402
-from stableins.data.chunks import ArraySource  # noqa: E402
-from stableins.estimators.system.assembly import residuals_from_parameters  # noqa: E402
-from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix  # noqa: E402
-from stableins.estimators.system.stage import SystemOptions, run_system_stage  # noqa: E402
-from stableins.estimators.system.whittle import ColouredSource  # noqa: E402
-from stableins.noise import NoiseModel, NoiseSource  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.conventions import ARCSEC, MICRO_G, SIDEREAL_DAY
+from stableins.data.chunks import ArraySource
+from stableins.estimators.system.assembly import residuals_from_parameters
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
+from stableins.estimators.system.stage import SystemOptions, run_system_stage
+from stableins.estimators.system.whittle import ColouredSource
+from stableins.noise import NoiseModel, NoiseSource
+from stableins.simulator import system
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.truth import Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean", "x1")]
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)  # the quartz white level, nothing slow
@@ -40,6 +39,7 @@ def day(seed, noise, noise_model=None):
     return out, ((out.combined.values - ref) / out.combined.sigma)[HARMONIC]
 
 
+@pytest.mark.slow
 def test_white_records_keep_the_white_sigma_and_the_decision_has_its_false_positive_rate():
     """20 white days: low-frequency noise declared in about 5 % (χ̄² calibration), σ white elsewhere, rms z ≈ 1.
 

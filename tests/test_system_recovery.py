@@ -11,15 +11,14 @@ import math
 import numpy as np
 import pytest
 
-system = pytest.importorskip("stableins.simulator.system", reason="system-level simulator not merged yet")
-
-from stableins.conventions import ARCSEC, SIDEREAL_DAY  # noqa: E402
-from stableins.data.chunks import ArraySource  # noqa: E402
-from stableins.estimators.system.assembly import residuals_from_parameters  # noqa: E402
-from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations  # noqa: E402
-from stableins.estimators.system.stage import run_system_stage  # noqa: E402
-from stableins.simulator.noise import NoiseSettings  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.conventions import ARCSEC, SIDEREAL_DAY
+from stableins.data.chunks import ArraySource
+from stableins.estimators.system.assembly import residuals_from_parameters
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations
+from stableins.estimators.system.stage import run_system_stage
+from stableins.simulator import system
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.truth import Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean")]
 
@@ -175,6 +174,7 @@ def test_quartz_noise_low_frequency_power_is_seen():
     assert np.abs(((out.combined.values - ref) / out.combined.sigma)[harmonic]).max() < 4.0
 
 
+@pytest.mark.slow
 def test_monte_carlo_sigma_with_quartz_noise():
     """With the simulator's default quartz noise the σ built from the coloured-noise model matches the scatter.
 

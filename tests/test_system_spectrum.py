@@ -131,6 +131,7 @@ def test_expected_periodogram_matches_the_mean_periodogram_of_drawn_noise(kind):
     assert np.abs(ratio - 1.0).max() < 0.3, ratio
 
 
+@pytest.mark.slow
 def test_white_gain_of_a_loop_filtered_white_noise_on_bins():
     """Bin means of loop-filtered white noise: periodogram ∝ Σ|G(f)|² sinc²(f w), the white column's shape."""
     rng = np.random.default_rng(5)

@@ -361,8 +361,7 @@ def test_system_result_shows_itself_briefly(day):
 
 
 def test_system_options_are_validated_at_construction() -> None:
-    from stableins.data.errors import InputError
-
+    from stableins.errors import InputError
     from stableins.estimators.system.options import GyroDrift
 
     assert SystemOptions(gyro_drift="fit").gyro_drift is GyroDrift.FIT

@@ -104,7 +104,8 @@ def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
             "passes": sorted({(d.stage, d.pass_number) for d in dwells}),
         }
     if tag == FORMAT_TAGS["system"]:
-        from stableins.data.system import SamplingWarning, open_system_record
+        from stableins.data.sampling import SamplingWarning
+        from stableins.data.system import open_system_record
 
         record = open_system_record(path)
         with warnings.catch_warnings(record=True) as caught:

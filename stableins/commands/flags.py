@@ -1,13 +1,13 @@
 """The command-line flag of each library parameter a user error may name.
 
-Library functions name their own parameters in :class:`~stableins.data.errors.InputError` (``field="driver_spec"``);
+Library functions name their own parameters in :class:`~stableins.errors.InputError` (``field="driver_spec"``);
 the command line speaks of its flags.  :func:`as_flag` rewrites the one into the other before the error is printed,
 so the library knows nothing of the CLI and the user reads the flag they typed.
 """
 
 from __future__ import annotations
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 #: Library parameter (``InputError.field``) → the flag that sets it.
 FLAGS = {

@@ -19,8 +19,8 @@ _EXPORTS = {
     "SystemRecord": "stableins.data.system",
     "SystemRecordWriter": "stableins.data.system",
     "open_system_record": "stableins.data.system",
-    "SamplingWarning": "stableins.data.system",
-    "SamplingReport": "stableins.data.system",
+    "SamplingWarning": "stableins.data.sampling",
+    "SamplingReport": "stableins.data.sampling",
 }
 
 __all__ = sorted(_EXPORTS)

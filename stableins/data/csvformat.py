@@ -122,7 +122,7 @@ def read_line(handle: IO[str], path: str, line_number: int) -> str:
 
 
 def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
-    """The JSON header document and the column headers, reading lines with ``readline()`` up to the column-header line."""
+    """Read the JSON header document and the column headers, lines with ``readline()`` up to the column-header line."""
     from stableins.data.jsonio import parse_json
 
     json_lines: list[str] = []
@@ -156,7 +156,7 @@ def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
 
 
 def integer_column(values: Any, raw: Any, name: str, path: str, first_row: int) -> Any:
-    """A float column that must hold whole numbers in the int32 range, as int32 (InputError naming the row otherwise)."""
+    """Return a float column that must hold whole numbers in the int32 range, as int32 (InputError naming the row otherwise)."""
     import numpy as np
 
     values = np.asarray(values)
@@ -273,7 +273,8 @@ class CsvReader:
 
     def _parse(self, lines: list[tuple[int, str]]) -> dict[str, Any]:
         """Columns of a block of data lines: numpy's C parser, or, on any problem, a line-by-line
-        pass that names the row and field."""
+        pass that names the row and field.
+        """
         import io
 
         import numpy as np

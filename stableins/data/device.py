@@ -148,7 +148,7 @@ def _as_column(values: Any, dtype: str) -> Any:
 
 
 def check_device_rows(columns: Mapping[str, Any], path: str | None, first_row: int = 1, previous_time: float | None = None) -> None:
-    """The checks of single rows (and of time order) of a device table, or of a piece of one starting at ``first_row``.
+    """Check single rows (and the time order) of a device table, or of a piece of one starting at ``first_row``.
 
     Readers run them on each piece as it is read, so that a file that is wrong from its first rows on (a sparse or
     forged file declaring millions of rows) is refused before the rest is read.
@@ -264,7 +264,7 @@ def load_device(path: str | os.PathLike[str]) -> DeviceDataset:
             document = reader.document
             columns = reader.read_all()
     else:
-        from stableins.data.hdf5format import H5Reader
+        from stableins.data.hdf5reader import H5Reader
 
         reader_h5 = H5Reader(path, "device", DEVICE_COLUMNS)
         document = reader_h5.document

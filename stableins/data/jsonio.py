@@ -148,11 +148,12 @@ def parse_json(
     if size > max_bytes:
         raise InputError(f"{size} bytes of JSON", path=path, field=field or None, expected=f"{what} of at most {max_bytes} bytes")
     if isinstance(text, bytes | bytearray):
+        raw = bytes(text)
         try:
-            text = bytes(text).decode("utf-8-sig")
+            text = raw.decode("utf-8-sig")
         except UnicodeDecodeError as error:
             raise InputError(
-                f"not UTF-8 text (byte {error.start} is {bytes(text)[error.start : error.start + 1]!r})",
+                f"not UTF-8 text (byte {error.start} is {raw[error.start : error.start + 1]!r})",
                 path=path,
                 field=field or None,
                 expected=what,
@@ -180,7 +181,7 @@ def parse_json(
 
 
 def read_input_bytes(path: str | os.PathLike[str], *, max_bytes: int, what: str) -> bytes:
-    """The bytes of an input file, refusing (InputError) a missing file, a directory, an unreadable or too large one.
+    """Return the bytes of an input file, refusing (InputError) a missing file, a directory, an unreadable or too large one.
 
     The size is checked on the open file before it is read, so a huge file costs nothing.
     """
@@ -251,7 +252,7 @@ def expect_number(
     positive: bool = False,
     expected: str = "a finite number",
 ) -> float:
-    """A finite JSON number (not a boolean) within the bounds given."""
+    """Return a finite JSON number (not a boolean) within the bounds given."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputError(f"{_shown(value)} is not a number", path=path, field=field, expected=expected)
     try:

@@ -122,7 +122,7 @@ def check_increasing(time: Any, path: Any, first_row: int = 1, previous: float |
 
 
 def read_format_tag(path: Any) -> str:
-    """The ``format`` entry of a stableins data file's header (``.csv`` or ``.h5``), without reading the data.
+    """Return the ``format`` entry of a stableins data file's header (``.csv`` or ``.h5``), without reading the data.
 
     Returns ``"stableins-device"``, ``"stableins-system"`` or whatever the file says.
     """

@@ -394,12 +394,3 @@ def describe_left_out(left_out: Mapping[int, str]) -> str:
         for part in reason.split("; "):
             groups.setdefault(part.split(":")[0].strip(), []).append(int(position))
     return "; ".join(f"{reason} (position{'s' if len(p) > 1 else ''} {', '.join(map(str, p))})" for reason, p in groups.items()) or "none"
-
-
-def select(dwells: Sequence[DwellSummary], stage: str, pass_number: int | None = None) -> list[DwellSummary]:
-    """Dwells of one stage and pass (the last pass when ``pass_number`` is None)."""
-    chosen = [d for d in dwells if d.stage == stage]
-    if not chosen:
-        return []
-    p = max(d.pass_number for d in chosen) if pass_number is None else pass_number
-    return [d for d in chosen if d.pass_number == p]

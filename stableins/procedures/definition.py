@@ -85,7 +85,6 @@ class ProcedureDefinition:
     checks: DwellChecks
     offset_iteration: OffsetIteration
     path: str = ""
-    extra: dict[str, Any] = field(default_factory=dict)
     runner: RunnerSettings = field(default_factory=lambda: RunnerSettings())
     people: tuple[PersonAction, ...] = ()
     record: StaticRecord | None = None

@@ -35,7 +35,8 @@ class OffsetIterationError(RuntimeError):
 
 class PassObserver(Protocol):
     """Sees every position of a pass as it is measured (the runner's console: one line per dwell, settle and dwell
-    progress, the dwell's verdict).  Observing changes nothing: the operations and the estimates are the same."""
+    progress, the dwell's verdict).  Observing changes nothing: the operations and the estimates are the same.
+    """
 
     def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
         """The position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""

@@ -163,10 +163,6 @@ class Plan:
             if isinstance(step, PersonStep) and step.action not in ("confirm", "enter"):
                 raise InputError(f"step {step.name!r}: action {step.action!r}", field="action", expected="'confirm' or 'enter'")
 
-    @property
-    def dwell_steps(self) -> tuple[DwellStep, ...]:
-        return tuple(s for s in self.steps if isinstance(s, DwellStep))
-
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,

@@ -69,7 +69,8 @@ class RunnerSettings:
 class PersonAction:
     """``[[person]]``: a step a person carries out before position ``before`` (0: before the first;
     ``len(steps) + 1``: at the end).  ``action`` is ``"confirm"`` or ``"enter"`` (a value with
-    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses)."""
+    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses).
+    """
 
     before: int
     action: str
@@ -84,7 +85,8 @@ class PersonAction:
 @dataclass(frozen=True)
 class StaticRecord:
     """``[record]`` of a system-level procedure: hold the platform at ``command`` [rad] (file: deg),
-    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz]."""
+    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz].
+    """
 
     command: tuple[float, float, float]
     settle: float

@@ -195,7 +195,7 @@ class SimulatedPlatform:
 
     # ----------------------------------------------------------------- the world
     def samples(self, start: int, count: int) -> SampleBlock:
-        """Samples ``start .. start+count-1`` as the instrument outputs them (pure function of the commands so far)."""
+        """Return samples ``start .. start+count-1`` as the instrument outputs them (pure function of the commands so far)."""
         if count == 0:
             empty = np.zeros((0, 3))
             return SampleBlock(np.zeros(0), empty, empty.copy(), np.zeros(0))
@@ -284,7 +284,7 @@ class SimulatedPlatform:
         return readings, rates, segment, settle_time
 
     def _motion(self, index: NDArray[np.int64]):
-        """Readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end."""
+        """Return the readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end."""
         readings, rates, segment, settle_time = self._path(index)
         dcm = self.platform.dcm_nav_to_platform(readings)
         if np.any(self._drift) and np.any(settle_time > 0):
@@ -297,7 +297,7 @@ class SimulatedPlatform:
         return readings, rates, dcm, segment, settle_time
 
     def _nominal_readings(self, sample: int) -> NDArray[np.float64]:
-        """Readings on the slew path at ``sample`` without the settling transient (start of a new slew)."""
+        """Return the readings on the slew path at ``sample`` without the settling transient (start of a new slew)."""
         if not self._commands:
             return self.initial_readings.copy()
         c = self._commands[-1]

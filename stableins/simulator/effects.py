@@ -112,7 +112,7 @@ class Effect:
     axis: int | None = None
 
     def term(self) -> Term:
-        """The effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
+        """Return the effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
         if self.kind != "output":
             raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
         return Term(
@@ -157,174 +157,183 @@ def _lever_matrix(inputs: TermInputs, term_id: str) -> NDArray[np.float64]:
     return skew(wd) + sw @ sw
 
 
-def _build() -> dict[str, Effect]:
-    cat: dict[str, Effect] = {}
+def _nonlinearity_effects(i: int, a: str) -> list[Effect]:
+    """Nonlinear output effects of accelerometer ``i`` (axis name ``a``): K3, Koq, Ksa, Kcq, Kcc."""
+    effects = [
+        Effect(
+            f"K3_{a}",
+            "s^4/m^2",
+            MICRO_G / _G**3,
+            f"cubic nonlinearity of the {a} accelerometer: + K3 f_{a}^3",
+            "output",
+            _on_axis(i, lambda x: _f(x, i) ** 3),
+            i,
+        ),
+        Effect(
+            f"Koq_{a}",
+            "s^2/m",
+            10 * MICRO_G / _G**2,
+            f"odd quadratic of the {a} accelerometer: + Koq f_{a}|f_{a}|",
+            "output",
+            _on_axis(i, lambda x: _f(x, i) * np.abs(_f(x, i))),
+            i,
+        ),
+        Effect(
+            f"Ksa_{a}",
+            "1",
+            10 * PPM,
+            f"scale-factor asymmetry of the {a} accelerometer: + Ksa |f_{a}| ((SF+ - SF-)/SF = 2 Ksa)",
+            "output",
+            _on_axis(i, lambda x: np.abs(_f(x, i))),
+            i,
+        ),
+    ]
+    effects += [_cross_quadratic_effect(i, a, j) for j in range(3) if j != i]
+    effects += [_cross_coupling_effect(i, a, j, k) for j in range(3) for k in range(j + 1, 3)]
+    return effects
 
-    def add(e: Effect) -> None:
-        cat[e.id] = e
 
-    for i, a in enumerate(AXES):
-        add(
-            Effect(
-                f"K3_{a}",
-                "s^4/m^2",
-                MICRO_G / _G**3,
-                f"cubic nonlinearity of the {a} accelerometer: + K3 f_{a}^3",
-                "output",
-                _on_axis(i, lambda x, i=i: _f(x, i) ** 3),
-                i,
-            )
+def _cross_quadratic_effect(i: int, a: str, j: int) -> Effect:
+    """Kcq: accelerometer ``i`` (axis name ``a``) sensitive to the square of the specific force along ``j``."""
+    b = AXES[j]
+    return Effect(
+        f"Kcq_{a}{b}",
+        "s^2/m",
+        5 * MICRO_G / _G**2,
+        f"cross-axis quadratic: {a} accelerometer + Kcq f_{b}^2",
+        "output",
+        _on_axis(i, lambda x: _f(x, j) ** 2),
+        i,
+    )
+
+
+def _cross_coupling_effect(i: int, a: str, j: int, k: int) -> Effect:
+    """Kcc: accelerometer ``i`` (axis name ``a``) sensitive to the product of the specific forces along ``j`` and ``k``."""
+    return Effect(
+        f"Kcc_{a}{AXES[j]}{AXES[k]}",
+        "s^2/m",
+        10 * MICRO_G / _G**2,
+        f"cross-coupling: {a} accelerometer + Kcc f_{AXES[j]} f_{AXES[k]} (Cai et al. 2016)",
+        "output",
+        _on_axis(i, lambda x: _f(x, j) * _f(x, k)),
+        i,
+    )
+
+
+def _environment_effects(i: int, a: str) -> list[Effect]:
+    """Output effects of accelerometer ``i`` (axis name ``a``) driven by temperature, time, history and rotation."""
+    effects = [
+        Effect(
+            f"Kt_bias_{a}",
+            "m/s^2/K",
+            5 * MICRO_G,
+            f"bias temperature sensitivity of the {a} accelerometer: + Kt dT",
+            "output",
+            _on_axis(i, lambda x: _broadcast_scalar(x, "temperature", f"Kt_bias_{a}")),
+            i,
+        ),
+        Effect(
+            f"Kt_sf_{a}",
+            "1/K",
+            5 * PPM,
+            f"scale-factor temperature sensitivity of the {a} accelerometer: + Kt dT f_{a}",
+            "output",
+            _on_axis(i, lambda x: _broadcast_scalar(x, "temperature", f"Kt_sf_{a}") * _f(x, i)),
+            i,
+        ),
+        Effect(
+            f"Kd_bias_{a}",
+            "m/s^3",
+            10 * MICRO_G / 86400.0,
+            f"bias drift in time of the {a} accelerometer: + Kd t",
+            "output",
+            _on_axis(i, lambda x: _broadcast_scalar(x, "time", f"Kd_bias_{a}")),
+            i,
+        ),
+        Effect(
+            f"Kh_{a}",
+            "m/s^2",
+            5 * MICRO_G,
+            f"hysteresis of the {a} accelerometer: + Kh sign(last change of f_{a} over a slew > 0.01 m/s^2)",
+            "output",
+            _on_axis(i, lambda x: x.require("slew_direction", f"Kh_{a}")[..., i]),
+            i,
+        ),
+    ]
+    return effects + [_lever_effect(i, a, j) for j in range(3)]
+
+
+def _lever_effect(i: int, a: str, j: int) -> Effect:
+    """Proof-mass position of accelerometer ``i`` (axis name ``a``) along platform axis ``j``."""
+    b = AXES[j]
+    return Effect(
+        f"lever_{a}_{b}",
+        "m",
+        0.02,
+        f"proof-mass position of the {a} accelerometer along {b}_p (size effect, only while rotating)",
+        "output",
+        _on_axis(i, lambda x: _lever_matrix(x, f"lever_{a}_{b}")[..., i, j]),
+        i,
+    )
+
+
+def _geometry_effects() -> list[Effect]:
+    """Effects on the geometry of the platform: g-sensitive drift, non-orthogonality, base tilt, angle sensors."""
+    effects = [
+        Effect(
+            f"Dg_{a}",
+            "rad s/m",
+            0.01 * DEG_PER_HOUR / _G,
+            f"g-sensitive platform drift about {a}_p during a dwell: rate Dg f_{a} [rad/s per m/s^2]",
+            "geometry",
+            axis=i,
         )
-        add(
-            Effect(
-                f"Koq_{a}",
-                "s^2/m",
-                10 * MICRO_G / _G**2,
-                f"odd quadratic of the {a} accelerometer: + Koq f_{a}|f_{a}|",
-                "output",
-                _on_axis(i, lambda x, i=i: _f(x, i) * np.abs(_f(x, i))),
-                i,
-            )
-        )
-        add(
-            Effect(
-                f"Ksa_{a}",
-                "1",
-                10 * PPM,
-                f"scale-factor asymmetry of the {a} accelerometer: + Ksa |f_{a}| ((SF+ - SF-)/SF = 2 Ksa)",
-                "output",
-                _on_axis(i, lambda x, i=i: np.abs(_f(x, i))),
-                i,
-            )
-        )
-        for j, b in enumerate(AXES):
-            if j != i:
-                add(
-                    Effect(
-                        f"Kcq_{a}{b}",
-                        "s^2/m",
-                        5 * MICRO_G / _G**2,
-                        f"cross-axis quadratic: {a} accelerometer + Kcq f_{b}^2",
-                        "output",
-                        _on_axis(i, lambda x, j=j: _f(x, j) ** 2),
-                        i,
-                    )
-                )
-        for j in range(3):
-            for k in range(j + 1, 3):
-                add(
-                    Effect(
-                        f"Kcc_{a}{AXES[j]}{AXES[k]}",
-                        "s^2/m",
-                        10 * MICRO_G / _G**2,
-                        f"cross-coupling: {a} accelerometer + Kcc f_{AXES[j]} f_{AXES[k]} (Cai et al. 2016)",
-                        "output",
-                        _on_axis(i, lambda x, j=j, k=k: _f(x, j) * _f(x, k)),
-                        i,
-                    )
-                )
-        add(
-            Effect(
-                f"Kt_bias_{a}",
-                "m/s^2/K",
-                5 * MICRO_G,
-                f"bias temperature sensitivity of the {a} accelerometer: + Kt dT",
-                "output",
-                _on_axis(i, lambda x, tid=f"Kt_bias_{a}": _broadcast_scalar(x, "temperature", tid)),
-                i,
-            )
-        )
-        add(
-            Effect(
-                f"Kt_sf_{a}",
-                "1/K",
-                5 * PPM,
-                f"scale-factor temperature sensitivity of the {a} accelerometer: + Kt dT f_{a}",
-                "output",
-                _on_axis(i, lambda x, i=i, tid=f"Kt_sf_{a}": _broadcast_scalar(x, "temperature", tid) * _f(x, i)),
-                i,
-            )
-        )
-        add(
-            Effect(
-                f"Kd_bias_{a}",
-                "m/s^3",
-                10 * MICRO_G / 86400.0,
-                f"bias drift in time of the {a} accelerometer: + Kd t",
-                "output",
-                _on_axis(i, lambda x, tid=f"Kd_bias_{a}": _broadcast_scalar(x, "time", tid)),
-                i,
-            )
-        )
-        add(
-            Effect(
-                f"Kh_{a}",
-                "m/s^2",
-                5 * MICRO_G,
-                f"hysteresis of the {a} accelerometer: + Kh sign(last change of f_{a} over a slew > 0.01 m/s^2)",
-                "output",
-                _on_axis(i, lambda x, i=i, tid=f"Kh_{a}": x.require("slew_direction", tid)[..., i]),
-                i,
-            )
-        )
-        for j, b in enumerate(AXES):
-            add(
-                Effect(
-                    f"lever_{a}_{b}",
-                    "m",
-                    0.02,
-                    f"proof-mass position of the {a} accelerometer along {b}_p (size effect, only while rotating)",
-                    "output",
-                    _on_axis(i, lambda x, i=i, j=j, tid=f"lever_{a}_{b}": _lever_matrix(x, tid)[..., i, j]),
-                    i,
-                )
-            )
-    for i, a in enumerate(AXES):
-        add(
-            Effect(
-                f"Dg_{a}",
-                "rad s/m",
-                0.01 * DEG_PER_HOUR / _G,
-                f"g-sensitive platform drift about {a}_p during a dwell: rate Dg f_{a} [rad/s per m/s^2]",
-                "geometry",
-                axis=i,
-            )
-        )
-    add(
+        for i, a in enumerate(AXES)
+    ]
+    effects += [
         Effect(
             "nonorth_12",
             "rad",
             10 * ARCSEC,
             "non-orthogonality of the platform (z) and inner (x) gimbal axes (angle pi/2 + nu12)",
             "geometry",
-        )
-    )
-    add(
+        ),
         Effect(
             "nonorth_23",
             "rad",
             10 * ARCSEC,
             "non-orthogonality of the inner (x) and middle (y) gimbal axes (angle pi/2 + nu23)",
             "geometry",
-        )
-    )
-    add(
+        ),
         Effect(
             "tilt_north", "rad", 10 * ARCSEC, "unknown base tilt about North (right-handed) relative to the surveyed attitude", "geometry"
-        )
-    )
-    add(
-        Effect("tilt_east", "rad", 10 * ARCSEC, "unknown base tilt about East (right-handed) relative to the surveyed attitude", "geometry")
-    )
-    add(
+        ),
+        Effect(
+            "tilt_east", "rad", 10 * ARCSEC, "unknown base tilt about East (right-handed) relative to the surveyed attitude", "geometry"
+        ),
         Effect(
             "azimuth_error", "rad", 30 * ARCSEC, "unknown base azimuth error about Down (right-handed) relative to the survey", "geometry"
-        )
-    )
+        ),
+    ]
     for g in ("platform", "inner", "middle"):
-        add(Effect(f"ang1_{g}_c", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += c cos(reading)", "geometry"))
-        add(Effect(f"ang1_{g}_s", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += s sin(reading)", "geometry"))
-    return cat
+        effects.append(
+            Effect(f"ang1_{g}_c", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += c cos(reading)", "geometry")
+        )
+        effects.append(
+            Effect(f"ang1_{g}_s", "rad", 2 * ARCSEC, f"once-per-revolution {g} angle-sensor error: actual += s sin(reading)", "geometry")
+        )
+    return effects
+
+
+def _build() -> dict[str, Effect]:
+    """Build the catalogue: every effect by id, per accelerometer axis first, then the geometry."""
+    effects: list[Effect] = []
+    for i, a in enumerate(AXES):
+        effects += _nonlinearity_effects(i, a) + _environment_effects(i, a)
+    effects += _geometry_effects()
+    catalogue = {e.id: e for e in effects}
+    assert len(catalogue) == len(effects), "effect ids are unique"
+    return catalogue
 
 
 #: All injectable effects by id (read-only).

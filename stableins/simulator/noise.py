@@ -72,7 +72,7 @@ class TemperatureProfile:
     sensor_noise: float = 0.0
 
     def __call__(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
-        """True temperature [°C] at session time ``time`` [s]."""
+        """Return the true temperature [°C] at session time ``time`` [s]."""
         t = np.asarray(time, dtype=float)
         return self.reference + self.offset + self.ramp * t + self.amplitude * np.sin(2 * np.pi * t / self.period + self.phase)
 
@@ -114,7 +114,7 @@ class NoiseSettings:
 
     @classmethod
     def quartz(cls) -> NoiseSettings:
-        """A navigation-grade quartz pendulous accelerometer on a precise platform.
+        """Return a navigation-grade quartz pendulous accelerometer on a precise platform.
 
         ``N = 4.5e-4 m/s/√s`` (46 µg/√Hz: about 1e-4 m/s² for a 20 s average),
         ``B = 2 µg``, ``K = 1e-7 m/s²/√s`` (about 3 µg per day), LSB ``1e-5 m/s``,
@@ -276,7 +276,7 @@ class NoiseGenerator:
         return out
 
     def _normals(self, stream: str, block: int, width: int) -> NDArray[np.float64]:
-        """The standard normals of one block of a stream, ``(BLOCK_SAMPLES, width)``.
+        """Return the standard normals of one block of a stream, ``(BLOCK_SAMPLES, width)``.
 
         The last block of each stream is kept: a platform polled in short pieces (0.5 s while it slews) reads the same
         block many times, and drawing a whole block per piece cost about 1 ms each.  The values are those of

@@ -74,6 +74,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -142,6 +143,8 @@ def error_dynamics(latitude: float, damping: dict[str, float]) -> tuple[NDArray[
 class ModalRecursion:
     """Exact ZOH discretization of ``x' = A x + B u`` in modal form (module docstring).
 
+    The arrays are complex (real only when every eigenvalue of ``A`` is real, as numpy's ``eig`` returns them).
+
     Attributes
     ----------
     eigenvalues : ndarray (m,) complex
@@ -154,16 +157,17 @@ class ModalRecursion:
         ``V⁻¹``.
     """
 
-    eigenvalues: NDArray[np.complex128]
-    input_gain: NDArray[np.complex128]
-    modes: NDArray[np.complex128]
-    to_modes: NDArray[np.complex128]
+    eigenvalues: NDArray[np.inexact[Any]]
+    input_gain: NDArray[np.inexact[Any]]
+    modes: NDArray[np.inexact[Any]]
+    to_modes: NDArray[np.inexact[Any]]
 
     @property
     def _partner(self) -> NDArray[np.int64]:
         """Index of each complex mode's conjugate partner (−1 for real modes); the real
         system's response is the sum over one mode of each pair, doubled, so only half
-        of the complex modes are filtered."""
+        of the complex modes are filtered.
+        """
         cached = self.__dict__.get("_partner_cache")
         if cached is None:
             lam = self.eigenvalues
@@ -187,7 +191,7 @@ class ModalRecursion:
             hold = np.where(mu != 0, np.expm1(mu * dt) / np.where(mu != 0, mu, 1.0), dt)
         return cls(phi, hold[:, None] * (v_inv @ B), v, v_inv)
 
-    def run(self, u: NDArray[np.float64], z0: NDArray[np.complex128]) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
+    def run(self, u: NDArray[np.float64], z0: NDArray[np.inexact[Any]]) -> tuple[NDArray[np.float64], NDArray[np.inexact[Any]]]:
         """States ``x_k`` for inputs ``u_k`` (n, p), modal state ``z0`` at the first sample; returns (x, z after the last input)."""
         from scipy.signal import lfilter
 
@@ -281,7 +285,7 @@ class SystemWorld:
         self.recursion = ModalRecursion.discretize(A, B, 1.0 / self.rate)
         x0 = np.zeros(9)
         x0[3:6] = np.asarray(initial_misalignment, dtype=float)
-        self._z = self.recursion.to_modes @ x0
+        self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
         self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
         self._next = 0
 
@@ -307,7 +311,7 @@ class SystemWorld:
         return angle
 
     def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        """True ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
+        """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
         theta = EARTH_RATE * time
         s, c = np.sin(theta), np.cos(theta)
         dcm = self.nav_to_platform_0 + s[:, None, None] * self._ck + (1.0 - c)[:, None, None] * self._ck2
@@ -329,7 +333,7 @@ class SystemWorld:
 
     # --------------------------------------------------------------- generation
     def chunk(self, count: int, *, include_truth: bool = False) -> dict[str, NDArray[np.float64]]:
-        """The next ``count`` samples as columns of :data:`stableins.schema.SYSTEM_COLUMNS`."""
+        """Return the next ``count`` samples as columns of :data:`stableins.schema.SYSTEM_COLUMNS`."""
         start = self._next
         index = np.arange(start, start + count)
         time = index / self.rate
@@ -452,7 +456,7 @@ def simulate_system(
     seed: int | None = None,
     **options,
 ) -> dict[str, NDArray[np.float64]]:
-    """A whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
+    """Return a whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
     pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
     if not pieces:
         return {c.name: np.zeros(0) for c in SYSTEM_COLUMNS}

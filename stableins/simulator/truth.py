@@ -8,7 +8,7 @@ drawn at random with realistic magnitudes (:meth:`Truth.draw`).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
@@ -93,6 +93,12 @@ def _check_parameter_ids(d: Mapping[str, float], name: str, source: str | None, 
         raise InputError(f"unknown parameter ids {unknown}", path=source, field=name, expected=what)
 
 
+def _triple(values: Iterable[float]) -> tuple[float, float, float]:
+    """Three values as a tuple of floats (an angle triple: zero offsets, base attitude)."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 @dataclass(frozen=True)
 class Truth:
     """The simulated world (immutable: the mappings are read-only views; use :meth:`with_changes`).
@@ -164,17 +170,18 @@ class Truth:
 
     @property
     def configuration(self) -> GimbalConfiguration:
-        return GimbalConfiguration(tuple(self.site.gimbal_senses))
+        s1, s2, s3, s4 = self.site.gimbal_senses
+        return GimbalConfiguration((s1, s2, s3, s4))
 
     def platform(self):
-        """The true :class:`stableins.platform.GimbalPlatform` (offsets, senses, base, tilt, non-orthogonality, sensor errors)."""
+        """Return the true :class:`stableins.platform.GimbalPlatform` (offsets, senses, base, tilt, non-orthogonality, sensor errors)."""
         from stableins.platform import GimbalPlatform
 
         e = self.effects
         return GimbalPlatform(
-            zero_offsets=tuple(self.parameters.get(g, 0.0) for g in GIMBAL_IDS),
+            zero_offsets=_triple(self.parameters.get(g, 0.0) for g in GIMBAL_IDS),
             configuration=self.configuration,
-            base_attitude=tuple(self.site.base_attitude),
+            base_attitude=_triple(self.site.base_attitude),
             base_tilt=(e.get("tilt_north", 0.0), e.get("tilt_east", 0.0)),
             base_azimuth=e.get("azimuth_error", 0.0),
             nonorthogonality=(e.get("nonorth_12", 0.0), e.get("nonorth_23", 0.0)),
@@ -182,14 +189,14 @@ class Truth:
         )
 
     def calibration_residual(self) -> dict[str, float]:
-        """True minus installed calibration, by id [SI] (ids in either)."""
+        """Return true minus installed calibration, by id [SI] (ids in either)."""
         model = ErrorModel.standard(nonlinear=True, gimbals=True)
         ref = {t.id: t.reference for t in model}
         ids = [i for i in PARAMETER_IDS if i in self.parameters or i in self.installed_calibration]
         return {i: self.parameters.get(i, ref[i]) - self.installed_calibration.get(i, ref[i]) for i in ids}
 
     def with_changes(self, **changes: Any) -> Truth:
-        """A copy with some fields replaced (dataclasses.replace)."""
+        """Return a copy with some fields replaced (dataclasses.replace)."""
         return replace(self, **changes)
 
     # ----------------------------------------------------------------- drawing
@@ -211,7 +218,7 @@ class Truth:
         damping: Mapping[str, float] | None = None,
         serial_number: str | None = None,
     ) -> Truth:
-        """A realistic random instrument.
+        """Draw a realistic random instrument.
 
         Each parameter is drawn as ``reference + nominal × N(0, 1)`` with the nominal
         magnitude of its :class:`stableins.errormodel.Term` (100 ppm, 100 µg, 30″,
@@ -236,8 +243,8 @@ class Truth:
             gravity_source="WGS-84 normal gravity (the simulated world's gravity: exact)",
             gravity_uncertainty=0.0,
             sample_rate=float(sample_rate),
-            gimbal_senses=tuple(gimbal_senses),
-            base_attitude=tuple(float(x) for x in base_attitude),
+            gimbal_senses=(gimbal_senses[0], gimbal_senses[1], gimbal_senses[2], gimbal_senses[3]),
+            base_attitude=_triple(base_attitude),
             reference_temperature=(noise or NoiseSettings.quartz()).temperature.reference,
         )
         return cls(

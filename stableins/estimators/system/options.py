@@ -6,7 +6,7 @@ import math
 from enum import StrEnum
 from typing import TYPE_CHECKING
 
-from stableins.data.errors import InputError
+from stableins.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.estimators.system.stage import SystemOptions

@@ -61,7 +61,7 @@ class SystemOptions:
     """Settings of the system stage (defaults follow docs/system-calibration.md).
 
     Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
-    :class:`~stableins.data.errors.InputError` naming the option and what it expects.
+    :class:`~stableins.errors.InputError` naming the option and what it expects.
     """
 
     chunk_rows: int = 1 << 18

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import MICRO_G
+from stableins.noise.windows import gauss_markov_allan, gauss_markov_window_covariance, random_walk_window_covariance, sessions
 
 #: Correlation times [s] of the Gauss-Markov sum representing flicker noise: 1 s to about
 #: one day, the span over which an Allan floor is normally specified.  Flicker variance grows
@@ -133,7 +134,7 @@ class NoiseTerm:
 
     @classmethod
     def exact(cls, value: float) -> NoiseTerm:
-        """A given value (interval of zero width)."""
+        """Return a given value (interval of zero width)."""
         return cls(float(value), float(value), float(value))
 
     @classmethod
@@ -235,7 +236,7 @@ class NoiseModel:
         source: NoiseSource = NoiseSource.DATASHEET,
         provenance: str = "",
     ) -> NoiseModel:
-        """A model from given values (scalars: the same on every axis), intervals of zero width."""
+        """Return a model from given values (scalars: the same on every axis), intervals of zero width."""
         values = {
             name: np.broadcast_to(np.asarray(v, dtype=float), (3,))
             for name, v in zip(TERMS, (white, bias_instability, random_walk, quantization))
@@ -268,8 +269,8 @@ class NoiseModel:
         """Both slow terms have a finite upper limit on every axis."""
         return all(a.bias_instability.bounded and a.random_walk.bounded for a in self.axes)
 
-    def with_values(self, **per_term: float | Sequence[float]) -> NoiseModel:
-        """The same model with some terms replaced by given values (e.g. the upper limits)."""
+    def with_values(self, **per_term: ArrayLike) -> NoiseModel:
+        """Return the same model with some terms replaced by given values (e.g. the upper limits)."""
         axes = []
         for a, axis in enumerate(self.axes):
             changes = {}
@@ -278,7 +279,7 @@ class NoiseModel:
                 old = axis.term(name)
                 changes[name] = NoiseTerm(value, min(old.lower, value), max(old.upper, value))
             axes.append(replace(axis, **changes))
-        return replace(self, axes=tuple(axes))
+        return replace(self, axes=(axes[0], axes[1], axes[2]))
 
     def at_upper_limits(self) -> NoiseModel:
         """Slow terms at their upper limits: the largest floor the data allow (needs bounded limits)."""
@@ -303,7 +304,7 @@ class NoiseModel:
             + 3.0 * self.values("quantization")[None] ** 2 / t[:, None] ** 2
             + self.values("random_walk")[None] ** 2 * t[:, None] / 3.0
         )
-        flicker = FLICKER_VARIANCE_PER_B2 * sum(_gauss_markov_allan(t / tc) for tc in FLICKER_TIME_CONSTANTS)
+        flicker = FLICKER_VARIANCE_PER_B2 * np.asarray(sum(gauss_markov_allan(t / tc) for tc in FLICKER_TIME_CONSTANTS))
         return out + flicker[:, None] * self.values("bias_instability")[None] ** 2
 
     def allan_deviation(self, tau: ArrayLike) -> NDArray[np.float64]:
@@ -331,9 +332,9 @@ class NoiseModel:
             flicker = np.zeros((idx.size, idx.size))
             if np.any(b2 > 0):
                 for tc in FLICKER_TIME_CONSTANTS:
-                    flicker += _gauss_markov_window_covariance(s[idx], t[idx], tc)
+                    flicker += gauss_markov_window_covariance(s[idx], t[idx], tc)
                 flicker *= FLICKER_VARIANCE_PER_B2
-            walk = _random_walk_window_covariance(s[idx], t[idx])
+            walk = random_walk_window_covariance(s[idx], t[idx])
             block = b2[:, None, None] * flicker[None] + k2[:, None, None] * walk[None]
             out[:, idx[:, None], idx[None, :]] = block
         return out
@@ -362,124 +363,41 @@ class NoiseModel:
 
     # ------------------------------------------------------------------ text
     def describe(self) -> str:
-        """One line: source and the slow terms (engineering units)."""
-        b = self.values("bias_instability") / MICRO_G
-        k = self.values("random_walk") / MICRO_G
-        parts = [f"noise model ({self.source.value}"]
-        if self.provenance:
-            parts[0] += f": {self.provenance}"
-        parts[0] += ")"
-        parts.append(f"bias instability {_triple(b)} µg, random walk {_triple(k)} µg/√s")
-        if not self.slow_noise_bounded:
-            parts.append("slow noise not bounded by the data")
-        return "; ".join(parts)
+        """Return one line: source and the slow terms (engineering units)."""
+        from stableins.noise import text
+
+        return text.describe(self)
 
     def summary(self) -> str:
-        """One short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
+        """Return one short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
+        from stableins.noise import text
 
-        def term(name: str, unit: str, *, limit: bool = True) -> str:
-            v = self.values(name) / MICRO_G
-            up = self.limits(name)[1] / MICRO_G
-            text = f"{_triple(v, 0.01)} {unit}"
-            if not limit:
-                return text
-            if np.all(np.isinf(up)):
-                return text + " (not bounded)" if np.all(v == 0) else text
-            if not np.allclose(up, v):
-                text += f" (≤ {_triple(up, 0.01)})"
-            return text
-
-        parts = [
-            f"noise model ({self.source.value}): white {term('white', 'µg/√Hz', limit=False)}",
-            f"bias instability {term('bias_instability', 'µg')}",
-            f"random walk {term('random_walk', 'µg/√s')}",
-        ]
-        if self.test is not None:
-            parts.append(f"slow noise {'detected' if self.test.detected else 'not detected'} (p = {self.test.p_value:.2g})")
-        return ", ".join(parts[:3]) + ("; " + parts[3] if len(parts) > 3 else "")
+        return text.summary(self)
 
     def report(self) -> str:
-        """Table of every term per axis with its interval, in engineering units."""
-        level = f"{100 * self.confidence:g} %"
-        lines = [f"noise model: {self.source.value}" + (f" ({self.provenance})" if self.provenance else "")]
-        lines.append(f"{'term':<40} {'axis':>4} {'value':>12} {level + ' interval':>28}  unit")
-        for label, axis, value, interval, unit in self._term_rows():
-            lines.append(f"{label if axis == AXES[0] else '':<40} {axis:>4} {value:>12} {interval:>28}  {unit}")
-        if self.test is not None:
-            lines.append(self._test_line())
-        return "\n".join(lines)
+        """Return the table of every term per axis with its interval, in engineering units."""
+        from stableins.noise import text
+
+        return text.report(self)
 
     def __str__(self) -> str:
         return self.report()
 
-    def _term_rows(self) -> list[list[str]]:
-        """One row per term and axis: label, axis, value, interval (engineering units)."""
-        rows = []
-        for name in TERMS:
-            unit, scale = ENGINEERING[name]
-            for a, axis in enumerate(self.axes):
-                term = axis.term(name)
-                upper = "not bounded" if not term.bounded else f"{term.upper / scale:.4g}"
-                rows.append([LABELS[name], AXES[a], f"{term.value / scale:.4g}", f"[{term.lower / scale:.4g}, {upper}]", unit])
-        return rows
-
-    def _test_line(self) -> str | None:
-        if self.test is None:
-            return None
-        t = self.test
-        verdict = "detected" if t.detected else "not detected"
-        return (
-            f"slow noise {verdict}: statistic {t.statistic:+.2f} (0 ± 1 under white noise), p = {t.p_value:.3g} "
-            f"(false-positive rate {t.alpha:g})"
-        )
-
     def __repr__(self) -> str:
-        from stableins.display import clipped, unit_text
+        from stableins.noise import text
 
-        lines = [f"<NoiseModel ({self.source.value}{': ' + self.provenance if self.provenance else ''})>"]
-        for name in TERMS:
-            unit, scale = ENGINEERING[name]
-            cells = []
-            for axis in self.axes:
-                term = axis.term(name)
-                upper = "∞" if not term.bounded else f"{term.upper / scale:.3g}"
-                interval = "" if term.lower == term.value == term.upper else f" [{term.lower / scale:.3g}, {upper}]"
-                cells.append(f"{term.value / scale:.3g}{interval}")
-            same = len(set(cells)) == 1
-            shown = f"{cells[0]} on every axis" if same else "   ".join(f"{a} {c}" for a, c in zip(AXES, cells, strict=True))
-            lines.append(f"  {LABELS[name]} [{unit_text(unit)}]: {shown}")
-        lines.append(self._test_line() or f"intervals at {100 * self.confidence:g} % confidence")
-        return clipped(lines, "(print(model) for the table)")
+        return text.short_repr(self)
 
     def _repr_html_(self) -> str:  # Jupyter
-        from stableins.display import html_result, html_table, unit_text
+        from stableins.noise import text
 
-        rows = [[label, axis, value, interval, unit_text(unit)] for label, axis, value, interval, unit in self._term_rows()]
-        table = html_table(["term", "axis", "value", f"{100 * self.confidence:g} % interval", "unit"], rows, numeric=(2, 3))
-        return html_result(f"Noise model: {self.source.value}", [self.provenance, self._test_line() or ""], [table])
+        return text.html(self)
 
     def to_dataframe(self) -> Any:
-        """Every term and axis as a :class:`pandas.DataFrame` (``term``, ``axis``, ``value``, ``lower``, ``upper``, ``unit``;
-        engineering units, ``upper`` infinite where the data do not bound the term).  Needs pandas."""
-        from stableins.display import require_pandas
+        """Return every term and axis as a :class:`pandas.DataFrame` (columns: :func:`stableins.noise.text.dataframe`)."""
+        from stableins.noise import text
 
-        pandas = require_pandas()
-        rows = []
-        for name in TERMS:
-            unit, scale = ENGINEERING[name]
-            for a, axis in enumerate(self.axes):
-                term = axis.term(name)
-                rows.append(
-                    {
-                        "term": name,
-                        "axis": AXES[a],
-                        "value": term.value / scale,
-                        "lower": term.lower / scale,
-                        "upper": term.upper / scale,
-                        "unit": unit,
-                    }
-                )
-        return pandas.DataFrame.from_records(rows)
+        return text.dataframe(self)
 
     # ------------------------------------------------------------------ documents
     def to_document(self) -> dict[str, Any]:
@@ -563,59 +481,6 @@ class NoiseModel:
                 raise fail("p_value or alpha outside (0, 1)", "test", "probabilities")
             test = SlowNoiseTest(statistic, p_value, alpha)
         return cls(tuple(axes), sources[document["source"]], provenance, confidence, test)  # type: ignore[arg-type]
-
-
-def _triple(v: NDArray[np.float64], rtol: float = 1e-5) -> str:
-    """One number when the three axes agree (to ``rtol``), else x/y/z."""
-    return f"{np.max(v):.3g}" if np.allclose(v, np.max(v), rtol=rtol, atol=0.0) else "/".join(f"{x:.3g}" for x in v)
-
-
-# ----------------------------------------------------------------------------- closed forms
-def _gauss_markov_allan(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Allan variance of a unit-variance Gauss-Markov process at ``x = τ/τ_c``: ``v(x) − c(x)``."""
-    x = np.asarray(x, dtype=float)
-    small = x < 1e-3
-    xs = np.where(small, 1.0, x)
-    v = 2.0 / xs - 2.0 * (-np.expm1(-xs)) / xs**2
-    c = (-np.expm1(-xs) / xs) ** 2
-    series = 2.0 * x / 3.0 - x**2 / 2.0 + 7.0 * x**3 / 30.0
-    return np.where(small, series, v - c)
-
-
-def _gauss_markov_window_covariance(start: NDArray, length: NDArray, tau: float) -> NDArray[np.float64]:
-    """Covariance of window means of a unit-variance Gauss-Markov process (disjoint windows)."""
-    end = start + length
-    x = length / tau
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        var = np.where(x > 1e-6, 2.0 / x - 2.0 * (-np.expm1(-x)) / x**2, 1.0 - x / 3.0)
-        shape = np.where(x > 1e-12, -np.expm1(-x) / x, 1.0)  # (τ/T)(1 − e^{−T/τ})
-    first = np.minimum.outer(end, end)  # end of the earlier window
-    later_start = np.maximum.outer(start, start)
-    gap = np.clip(later_start - first, 0.0, None)
-    cov = np.outer(shape, shape) * np.exp(-gap / tau)
-    cov[np.diag_indices_from(cov)] = var
-    return cov
-
-
-def _random_walk_window_covariance(start: NDArray, length: NDArray) -> NDArray[np.float64]:
-    """Covariance of window means of ``W(t − t_0)`` (unit intensity), ``t_0`` the first window's start."""
-    t0 = start.min()
-    mid = start + length / 2 - t0
-    cov = np.where(start[:, None] <= start[None, :], mid[:, None], mid[None, :])
-    cov[np.diag_indices(start.size)] = start - t0 + length / 3
-    return cov
-
-
-def sessions(start: ArrayLike, length: ArrayLike) -> NDArray[np.int64]:
-    """Session number of each dwell, in the order given: a dwell that starts before the previous one ended starts a new session.
-
-    Dwells of one session share a time base (one continuous record); a file or pass
-    recorded with its own time origin overlaps the windows before it and begins a new one.
-    """
-    s = np.asarray(start, dtype=float).reshape(-1)
-    end = s + np.asarray(length, dtype=float).reshape(-1)
-    new = np.r_[False, s[1:] < end[:-1]] if s.size else np.zeros(0, bool)
-    return np.cumsum(new).astype(np.int64)
 
 
 __all__ = [
