@@ -25,7 +25,6 @@ LONG_MODULES = {
     "estimators/coarse.py",
     "estimators/result.py",
     "history_store.py",
-    "records.py",
     "reporting/budget.py",
     "reporting/sections.py",
 }
@@ -41,7 +40,6 @@ LONG_FUNCTION_MODULES = {
     "estimators/fine.py",
     "estimators/joint.py",
     "estimators/posterior.py",
-    "records.py",
     "reporting/budget.py",
     "reporting/builder.py",
 }
