@@ -24,7 +24,6 @@ LONG_MODULES = {
     "estimators/allan.py",
     "estimators/coarse.py",
     "estimators/result.py",
-    "history_store.py",
     "reporting/budget.py",
     "reporting/sections.py",
 }
