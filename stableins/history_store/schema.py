@@ -9,12 +9,13 @@ import sqlite3
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
 from stableins.history import parse_date
+from stableins.records.stages import utc_now
 
 STORE_NAME = "history.sqlite"
 STORE_FORMAT = "stableins-history-store"
@@ -89,11 +90,6 @@ def entry_from_row(row: tuple[Any, ...]) -> Entry:
     """Return the entry of a row of :data:`ENTRY_COLUMNS`."""
     file, valid_from, created, sha256, procedure, stages, prior, evidence, evidence_sha256 = row
     return Entry(file, valid_from, created, sha256, procedure, tuple(json.loads(stages)), prior, evidence, evidence_sha256)
-
-
-def utc_now() -> str:
-    """Return the current time, ISO 8601 UTC to the second."""
-    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 @contextlib.contextmanager
