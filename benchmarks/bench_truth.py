@@ -117,7 +117,7 @@ def short_records(root: Path, seed: int) -> None:
 
 def field_recalibration(root: Path) -> None:
     from stableins.errormodel import known_terms
-    from stableins.history import HistoryStore
+    from stableins.history_store import HistoryStore
     from stableins.records import CalibrationRecord
 
     print("\n3. field recalibration on the simulated platform (SN042)")

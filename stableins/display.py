@@ -200,7 +200,11 @@ def html_result(
     return "".join(parts)
 
 
-def parameter_html(rows: Iterable[tuple[str, float, float, str, str]], meanings: Sequence[str] = (), extra: str = "") -> str:
+def parameter_html(
+    rows: Iterable[tuple[str, float, float, str, str] | tuple[str, float, float, str, str, str]],
+    meanings: Sequence[str] = (),
+    extra: str = "",
+) -> str:
     """The parameter table in HTML: parameter, value ± 1σ, unit, status (and a last column ``extra`` when rows carry one)."""
     rows = list(rows)
     columns = ["parameter", "value ± 1σ", "unit", "status"] + ([extra] if extra else [])

@@ -83,6 +83,7 @@ class Change:
 
     @property
     def difference(self) -> float:
+        """New value minus old value [SI]."""
         return self.new - self.old
 
     @property
@@ -98,6 +99,7 @@ class Change:
         return abs(self.significance) >= CHANGE_THRESHOLD
 
     def to_json(self) -> dict[str, Any]:
+        """Return the change as JSON values, with its difference, significance and flag."""
         return {**self.__dict__, "difference": self.difference, "significance": self.significance, "significant": self.significant}
 
 
@@ -111,9 +113,11 @@ class Comparison:
 
     @property
     def significant(self) -> tuple[str, ...]:
+        """Ids of the parameters whose change is significant."""
         return tuple(c.id for c in self.changes if c.significant)
 
     def describe(self) -> str:
+        """Return how σ(change) was computed for this relation, for people."""
         if self.relation == "descendant":
             return "the new record updates the old one (Bayesian update): σ²(change) = σ²_old − σ²_new"
         return "independent calibrations: σ²(change) = σ²_old + σ²_new"
@@ -134,6 +138,7 @@ class Trend:
 
     @property
     def significance(self) -> float:
+        """Slope in σ of the slope (NaN when not determinable)."""
         return self.slope / self.slope_sigma if self.slope_sigma > 0 else math.nan
 
 
@@ -267,6 +272,7 @@ def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:
 
 
 def format_trends(trends: list[Trend]) -> str:
+    """Return the drift table in engineering units: records, drift per year, σ, z and χ²_ν of a constant."""
     from stableins.discovery.library import all_terms
 
     terms = all_terms()  # discovered terms in engineering units too
@@ -283,7 +289,6 @@ def format_trends(trends: list[Trend]) -> str:
 
 def plot_trends(trends: list[Trend], serial: str) -> Figure:
     """One panel per parameter: values ±1σ against date and the fitted drift line."""
-
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -312,15 +317,3 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     fig.suptitle(f"calibration history of {serial}")
     fig.tight_layout()
     return fig
-
-
-#: The store lives in :mod:`stableins.history_store`; these names are importable from here as well.
-_STORE_NAMES = ("HistoryStore", "Entry", "UnitStatus", "default_store", "INDEX_NAME", "INDEX_FORMAT", "STORE_NAME")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _STORE_NAMES:
-        from stableins import history_store
-
-        return getattr(history_store, name)
-    raise AttributeError(f"module 'stableins.history' has no attribute {name!r}")

@@ -11,7 +11,8 @@ import pytest
 from stableins.errormodel import known_terms
 from stableins.errors import InputError
 from stableins.estimators.result import FitResult, Likelihood
-from stableins.history import HistoryStore, compare, format_changes, format_trends, parse_date, plot_trends, trend
+from stableins.history import compare, format_changes, format_trends, parse_date, plot_trends, trend
+from stableins.history_store import HistoryStore
 from stableins.records import Calibration, CalibrationRecord, Parameter, PriorReference, StageRun
 
 IDS = ("bias_x", "bias_y", "sf_x")

@@ -13,8 +13,7 @@ from hypothesis import strategies as st
 
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
 from stableins.errors import InputError
-from stableins.estimators.result import STATUSES, FitResult, Likelihood
-from stableins.records import STATUSES as RECORD_STATUSES
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.records import CalibrationRecord, file_sha256, parse_entries
 from stableins.site import SiteMetadata
 
@@ -38,10 +37,6 @@ def make_result(terms=CORE_TERMS + GIMBAL_TERMS, stage="coarse", seed=0, statuse
 def gimbal_statuses():
     ids = [t.id for t in CORE_TERMS + GIMBAL_TERMS]
     return ["gauge" if i == "theta10" else "unidentifiable" if i == "theta30" else "estimated" for i in ids]
-
-
-def test_statuses_agree_with_fit_result():
-    assert RECORD_STATUSES == STATUSES
 
 
 def test_from_fit_result_round_trip(tmp_path):

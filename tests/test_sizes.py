@@ -24,8 +24,6 @@ LONG_MODULES = {
     "estimators/allan.py",
     "estimators/coarse.py",
     "estimators/result.py",
-    "history_store.py",
-    "records.py",
     "reporting/budget.py",
     "reporting/sections.py",
 }
@@ -41,7 +39,6 @@ LONG_FUNCTION_MODULES = {
     "estimators/fine.py",
     "estimators/joint.py",
     "estimators/posterior.py",
-    "records.py",
     "reporting/budget.py",
     "reporting/builder.py",
 }

@@ -20,7 +20,7 @@ from stableins.conventions import MICRO_G
 from stableins.data.device import save_device
 from stableins.errormodel import CORE_TERMS, known_terms
 from stableins.estimators.result import FitResult
-from stableins.history import HistoryStore
+from stableins.history_store import HistoryStore
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting.symbols import plain

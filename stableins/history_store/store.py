@@ -1,0 +1,300 @@
+"""The :class:`HistoryStore`: filing records, reading them verified, and the questions asked of a unit's history."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import shlex
+import sqlite3
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from stableins.data.atomic import fsync_directory
+from stableins.errors import InputError
+from stableins.history import DEFAULT_MAX_AGE, Comparison, Trend, compare, data_only, trend
+from stableins.history_store.filing import Filing, check_serial, insert_entry, read_filing, stage_file, verified_bytes
+from stableins.history_store.legacy import legacy_units, migrate
+from stableins.history_store.queries import DRIFT_SIGMAS, UnitStatus, fleet_status
+from stableins.history_store.schema import (
+    BUSY_TIMEOUT,
+    ENTRY_COLUMNS,
+    STORE_FORMAT,
+    STORE_NAME,
+    Entry,
+    default_store,
+    entry_from_row,
+    find_entry,
+    prepare,
+    transaction,
+)
+from stableins.status import Status
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.records import CalibrationRecord
+
+
+class HistoryStore:
+    """Per-serial store of calibration records indexed in SQLite (:mod:`stableins.history_store`)."""
+
+    def __init__(self, root: str | os.PathLike[str] | None = None) -> None:
+        self.root = Path(root) if root is not None else default_store()
+        self.index_path = self.root / STORE_NAME
+
+    def __repr__(self) -> str:
+        return f"HistoryStore({str(self.root)!r})"
+
+    # ------------------------------------------------------------------ database
+    @contextlib.contextmanager
+    def _database(self, *, create: bool) -> Iterator[sqlite3.Connection | None]:
+        """Yield a connection (None when the store does not exist and ``create`` is false); migrate old stores first."""
+        if self.root.exists() and not self.root.is_dir():
+            raise InputError("is a file, not a directory", path=self.root, field="root", expected="a history store directory")
+        if not self.index_path.exists():
+            if not create and not legacy_units(self.root):
+                yield None
+                return
+            try:
+                self.root.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="root") from None
+        try:
+            connection = sqlite3.connect(self.index_path, timeout=BUSY_TIMEOUT, isolation_level=None)
+        except sqlite3.Error as error:
+            raise InputError(f"cannot open the history index ({error})", path=self.index_path) from None
+        try:
+            prepare(connection, self.index_path)
+            migrate(connection, self.root)
+            yield connection
+        except sqlite3.DatabaseError as error:
+            raise InputError(
+                f"the history index cannot be used ({error}); it is damaged or not a stableins history index",
+                path=self.index_path,
+                expected=f"a {STORE_FORMAT} SQLite database",
+            ) from None
+        finally:
+            connection.close()
+
+    # ------------------------------------------------------------------ units and entries
+    def unit_directory(self, serial: str) -> Path:
+        """Return ``DIR/<serial>`` (InputError for a serial number that cannot name a folder)."""
+        return self.root / check_serial(serial)
+
+    def entries(self, serial: str) -> list[Entry]:
+        """Return the unit's entries, oldest first; empty if it has none."""
+        self.unit_directory(serial)
+        with self._database(create=False) as connection:
+            if connection is None:
+                return []
+            rows = connection.execute(
+                f"SELECT {ENTRY_COLUMNS} FROM records WHERE serial = ? ORDER BY valid_from_utc, id", (serial,)
+            ).fetchall()
+        return [entry_from_row(row) for row in rows]
+
+    def serials(self) -> list[str]:
+        """Return the units with at least one record, sorted."""
+        with self._database(create=False) as connection:
+            if connection is None:
+                return []
+            return [row[0] for row in connection.execute("SELECT DISTINCT serial FROM records ORDER BY serial")]
+
+    def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
+        """File a record in its unit's history (idempotent: the same bytes are filed once).
+
+        The record (and the data-only ``evidence`` estimate kept beside it) is validated from the very bytes that are
+        filed; nothing is written when either is refused.
+
+        Parameters
+        ----------
+        record_path : path
+            The record to file.
+        prior : str
+            SHA-256 of the record it was built on ("" for an independent calibration).
+        evidence : path, optional
+            The data-only estimate kept beside a prior-based record (stores of earlier versions).
+
+        Returns
+        -------
+        Entry
+            The record's entry (the one already filed when the same bytes were filed before).
+        """
+        filing = read_filing(record_path, prior=prior, evidence=evidence)
+        serial = filing.record.serial_number
+        directory = self.unit_directory(serial)
+        with self._database(create=True) as connection:
+            assert connection is not None
+            existing = find_entry(connection, serial, filing.entry.sha256)
+            if existing is not None:
+                return existing
+            try:
+                directory.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise InputError(f"cannot create the unit's folder ({error.strerror})", path=directory) from None
+            return self._file(connection, directory, filing)
+
+    @staticmethod
+    def _file(connection: sqlite3.Connection, directory: Path, filing: Filing) -> Entry:
+        """Write the filing's files and index them in one transaction (the files appear with their row)."""
+        entry, serial = filing.entry, filing.record.serial_number
+        staged = [stage_file(directory, entry.file, filing.data)]
+        try:
+            if filing.evidence_data is not None:
+                staged.append(stage_file(directory, entry.evidence, filing.evidence_data))
+            with transaction(connection):
+                existing = find_entry(connection, serial, entry.sha256)  # filed by another process meanwhile
+                if existing is not None:
+                    return existing
+                insert_entry(connection, serial, entry, filing.record, filing.evidence_record)
+                for temporary, final in staged:  # under the write lock: the files appear with their row
+                    os.replace(temporary, final)
+                fsync_directory(directory)
+        finally:
+            for temporary, _ in staged:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(temporary)
+        return entry
+
+    # ------------------------------------------------------------------ reading records
+    def record_path(self, serial: str, entry: Entry, *, evidence: bool = False) -> Path:
+        """Return the path of a filed record after its SHA-256 was checked against the index (InputError otherwise)."""
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
+        verified_bytes(path, digest)
+        return path
+
+    def _file_and_digest(self, serial: str, entry: Entry, *, evidence: bool) -> tuple[Path, str]:
+        if evidence and entry.evidence:
+            return self.unit_directory(serial) / entry.evidence, entry.evidence_sha256
+        return self.unit_directory(serial) / entry.file, entry.sha256
+
+    def load(self, serial: str, entry: Entry, *, evidence: bool = False) -> CalibrationRecord:
+        """Return a filed record (or the estimate kept beside it), refused unless its bytes have the SHA-256 the index holds."""
+        from stableins.data.jsonio import parse_json
+        from stableins.records import CalibrationRecord
+
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
+        data = verified_bytes(path, digest)
+        return CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))
+
+    def verify(self, serial: str | None = None) -> list[str]:
+        """Check the index (SQLite's integrity check) and every filed file against its digest; return the problems found."""
+        problems: list[str] = []
+        with self._database(create=False) as connection:
+            if connection is None:
+                return problems
+            result = connection.execute("PRAGMA integrity_check").fetchone()[0]
+            if result != "ok":
+                problems.append(f"{self.index_path}: SQLite integrity check: {result}")
+            query = f"SELECT serial, {ENTRY_COLUMNS} FROM records" + (" WHERE serial = ?" if serial else "") + " ORDER BY serial, id"
+            rows = connection.execute(query, (serial,) if serial else ()).fetchall()
+        for row in rows:
+            entry = entry_from_row(row[1:])
+            for evidence in (False, True) if entry.evidence else (False,):
+                try:
+                    verified_bytes(*self._file_and_digest(row[0], entry, evidence=evidence))
+                except InputError as error:
+                    problems.append(str(error))
+        return problems
+
+    # ------------------------------------------------------------------ questions
+    def in_force(self, serial: str, date: datetime | None = None) -> Entry:
+        """Return the entry in force at ``date`` (now by default).
+
+        Raises
+        ------
+        InputError
+            The unit has no history, or none of its records is older than ``date``.
+        """
+        date = date or datetime.now(UTC)
+        entries = self.entries(serial)
+        if not entries:
+            raise InputError(
+                f"no calibration records for unit {serial!r}",
+                path=self.root,
+                expected=f"a record filed with 'stableins history {shlex.quote(serial)} --store {shlex.quote(str(self.root))} "
+                "--add RECORD.json'",
+            )
+        earlier = [e for e in entries if e.time <= date]
+        if not earlier:
+            raise InputError(
+                f"unit {serial!r} had no calibration in force on {date.isoformat()}; "
+                f"its first record is valid from {entries[0].valid_from}",
+                field="date",
+            )
+        return earlier[-1]
+
+    def staleness(self, entry: Entry, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE) -> str | None:
+        """Return a warning if ``entry`` is older than ``max_age`` at ``date``, else ``None``."""
+        date = date or datetime.now(UTC)
+        age = date - entry.time
+        if age > max_age:
+            return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
+        return None
+
+    def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
+        """Return consecutive pairs of records with every parameter's change and significance (:func:`stableins.history.compare`)."""
+        entries = self.entries(serial)
+        out = []
+        for old, new in zip(entries, entries[1:]):
+            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
+        return out
+
+    def to_dataframe(self, serial: str) -> Any:
+        """Return the unit's calibration history as a :class:`pandas.DataFrame`, one row per record, oldest first.
+
+        Columns ``valid_from``, ``file``, ``procedure``, ``stages``, ``prior`` (``independent`` or ``updates <sha256>``), then
+        for every parameter of any record its value and ``σ <id>`` in engineering units (NaN where a record does not state it).
+        Every record is read verified (:meth:`load`).  Needs pandas (``pip install stableins[pandas]``).
+        """
+        from stableins.display import require_pandas
+
+        pandas = require_pandas()
+        rows = []
+        for entry in self.entries(serial):
+            record = self.load(serial, entry)
+            row: dict[str, Any] = {
+                "valid_from": entry.time,
+                "file": entry.file,
+                "procedure": entry.procedure,
+                "stages": ", ".join(entry.stages),
+                "prior": f"updates {entry.prior[:12]}" if entry.prior else "independent",
+            }
+            for pid, value, sigma, unit, status, _ in record.rows():
+                shown = status != Status.UNIDENTIFIABLE
+                row[f"{pid} [{unit}]"] = value if shown else math.nan
+                row[f"σ {pid}"] = sigma if shown and status == Status.ESTIMATED else math.nan
+            rows.append(row)
+        return pandas.DataFrame.from_records(rows)
+
+    def trends(self, serial: str) -> list[Trend]:
+        """Return the drift trend of every parameter that at least two calibrations determine from their own data.
+
+        The points are each record's data-only estimates (:func:`stableins.history.data_only`).
+        """
+        entries = self.entries(serial)
+        series: dict[str, list[tuple[datetime, float, float]]] = {}
+        units: dict[str, str] = {}
+        for entry in entries:
+            record = self.load(serial, entry)
+            for pid, (value, sigma) in data_only(record).items():
+                series.setdefault(pid, []).append((entry.time, value, sigma))
+                units[pid] = record[pid].unit
+        return [trend(points, pid, units[pid]) for pid, points in series.items() if len(points) >= 2]
+
+    def fleet(
+        self, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE, drift_sigmas: float = DRIFT_SIGMAS
+    ) -> list[UnitStatus]:
+        """Return every unit: its record in force at ``date``, whether it is due, which parameters drift (from the index alone).
+
+        The drift of a parameter is the weighted straight line through the data-only estimates of its records (indexed
+        when they were filed), as :meth:`trends` computes it from the records; a unit drifts when one of its
+        parameters' ``|z| = |drift / σ|`` reaches ``drift_sigmas``.
+        """
+        date = date or datetime.now(UTC)
+        with self._database(create=False) as connection:
+            if connection is None:
+                return []
+            rows = connection.execute(f"SELECT id, serial, {ENTRY_COLUMNS} FROM records ORDER BY serial, valid_from_utc, id").fetchall()
+            values = connection.execute("SELECT record, id, value, sigma FROM parameters WHERE source = 'data_only'").fetchall()
+        return fleet_status(rows, values, date, max_age, drift_sigmas)

@@ -1,0 +1,285 @@
+"""Building records: the first record of a calibration (from a fit, from a device calibration) and its Bayesian updates.
+
+A stage that updates a record is a Bayesian update (:func:`stableins.estimators.posterior.bayesian_update`):
+it never raises a σ and never moves what its data do not determine.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
+
+from stableins.errors import InputError
+from stableins.records.parameters import DeterminedBy, Entry, Parameter
+from stableins.records.record import CalibrationRecord
+from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
+from stableins.site import SiteMetadata
+from stableins.status import Determination, Status
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.estimators.device import DeviceCalibration
+    from stableins.estimators.result import FitResult
+    from stableins.noise import NoiseModel
+
+
+class DeviceFields(TypedDict, total=False):
+    """Keyword arguments of :meth:`CalibrationRecord.from_device` (what describes the stage run and the calibration)."""
+
+    inputs: Iterable[str | os.PathLike[str] | InputFile]
+    procedure: str
+    data_start: str
+    data_end: str
+    environment: Mapping[str, Any] | None
+    entries: Iterable[Entry]
+
+
+class RecordFields(TypedDict, total=False):
+    """Keyword arguments of :meth:`CalibrationRecord.from_fit_result`."""
+
+    site: SiteMetadata | None
+    inputs: Iterable[str | os.PathLike[str] | InputFile]
+    procedure: str
+    data_start: str
+    data_end: str
+    notes: Iterable[str]
+    created: str | None
+    stage: StageRun | None
+    calibration: Calibration | None
+    entries: Iterable[Entry]
+    noise_model: NoiseModel | None
+
+
+class Carried(TypedDict, total=False):
+    """What a stage may replace in the record it updates: the site of its data, a noise model it measured."""
+
+    site: SiteMetadata | None
+    noise_model: NoiseModel | None
+
+
+class UpdateFields(RunFields, total=False):
+    """Keyword arguments of :meth:`CalibrationRecord.updated`: the stage-run fields of :class:`RunFields` and these."""
+
+    stage: StageRun | None
+    new_calibration: bool
+    prior: PriorReference | None
+    calibration_entries: Iterable[Entry]
+    site: SiteMetadata | None
+    noise_model: NoiseModel | None
+
+
+#: The keys of :class:`UpdateFields` that are not stage-run fields.
+_UPDATE_ONLY = ("stage", "new_calibration", "prior", "calibration_entries", "site", "noise_model")
+
+
+def record_from_device(calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> CalibrationRecord:
+    """Return the record of a device-level calibration (:meth:`CalibrationRecord.from_device`)."""
+    procedure = fields.get("procedure", "")
+    started = Calibration.new(procedure, fields.get("entries", ()))
+    fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
+    stage = StageRun.from_fit(
+        calibration.final,
+        calibration=started.id,
+        procedure=procedure,
+        inputs=fields.get("inputs", ()),
+        data_start=fields.get("data_start", ""),
+        data_end=fields.get("data_end", ""),
+        sample_rate=site.sample_rate,
+        environment=fields.get("environment"),
+        fits=fits,
+        settings=calibration.settings or calibration.final.settings,
+    )
+    return record_from_fit(calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
+
+
+def record_from_fit(result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> CalibrationRecord:
+    """Return the first record of a calibration, one data-only stage (:meth:`CalibrationRecord.from_fit_result`)."""
+    import numpy as np
+
+    site = fields.get("site")
+    if serial_number is None:
+        if site is None:
+            raise ValueError("from_fit_result needs a serial_number or site metadata")
+        serial_number = site.serial_number
+    procedure = fields.get("procedure", "")
+    calibration = fields.get("calibration") or Calibration.new(procedure, fields.get("entries", ()))
+    stage = fields.get("stage")
+    if stage is None:
+        stage = StageRun.from_fit(
+            result,
+            calibration=calibration.id,
+            procedure=procedure,
+            inputs=fields.get("inputs", ()),
+            data_start=fields.get("data_start", ""),
+            data_end=fields.get("data_end", ""),
+            sample_rate=None if site is None else site.sample_rate,
+            created=fields.get("created"),
+        )
+    elif stage.calibration != calibration.id:
+        stage = replace(stage, calibration=calibration.id)
+    covariance = np.array(result.covariance, dtype=float)
+    parameters = _first_parameters(result, stage.id, covariance)
+    return CalibrationRecord(
+        serial_number=serial_number,
+        parameters=parameters,
+        covariance=covariance,
+        calibration=calibration,
+        stages=(stage,),
+        site=site,
+        determined=tuple(result.determined),
+        notes=tuple(result.notes) + tuple(fields.get("notes", ())),
+        noise_model=fields.get("noise_model"),
+    )
+
+
+def _first_parameters(result: FitResult, stage_id: str, covariance: Any) -> tuple[Parameter, ...]:
+    """Return the parameters of a result's first record; blank the covariance rows of unidentifiable ones (in place)."""
+    import numpy as np
+
+    sigma = np.sqrt(np.clip(np.diag(result.covariance), 0.0, None))
+    estimable = _estimable(result)
+    parameters = []
+    for k, (term, status) in enumerate(zip(result.terms, result.status, strict=True)):
+        s = float(sigma[k])
+        how: tuple[DeterminedBy, ...] = ()
+        if status is Status.UNIDENTIFIABLE:
+            s = math.nan
+            covariance[k, :] = math.nan
+            covariance[:, k] = math.nan
+        if status is Status.ESTIMATED:
+            how = (DeterminedBy(stage_id, Determination.ALONE if estimable.get(term.id, True) else Determination.COMBINATION),)
+        parameters.append(Parameter(term.id, float(result.values[k]), term.si_unit, s, Status(status), how))
+    return tuple(parameters)
+
+
+def _estimable(result: FitResult) -> dict[str, bool]:
+    """Return which of the result's parameters its likelihood determines by itself (all, without a likelihood)."""
+    if result.likelihood is None:
+        return {}
+    held = {t.id: float(v) for t, v, s in zip(result.terms, result.values, result.status, strict=True) if s is Status.GAUGE}
+    lik = result.likelihood.conditioned({i: v for i, v in held.items() if i in result.likelihood.ids})
+    return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
+
+
+def update_record(record: CalibrationRecord, result: FitResult, **fields: Unpack[UpdateFields]) -> CalibrationRecord:
+    """Return ``record`` updated by a later stage's likelihood (:meth:`CalibrationRecord.updated`)."""
+    if result.likelihood is None:
+        raise InputError(
+            f"the {result.stage} stage gives no likelihood: it cannot update a record", field="stage", expected="a Bayesian stage"
+        )
+    procedure = fields.get("procedure", "")
+    calibration = next_calibration(
+        record,
+        procedure,
+        fields.get("calibration_entries", ()),
+        new_calibration=fields.get("new_calibration", False),
+        prior=fields.get("prior"),
+    )
+    stage = fields.get("stage")
+    site = fields.get("site")
+    if stage is None:
+        run = cast(RunFields, {k: v for k, v in fields.items() if k not in _UPDATE_ONLY})
+        where = site or record.site
+        run.setdefault("sample_rate", None if where is None else where.sample_rate)
+        run["procedure"] = procedure
+        stage = StageRun.from_fit(result, calibration=calibration.id, **run)
+    units = {t.id: t.si_unit for t in result.terms}
+    return apply_stage(
+        record, replace(stage, likelihood=result.likelihood), calibration, units, site=site, noise_model=fields.get("noise_model")
+    )
+
+
+def update_by_run(
+    record: CalibrationRecord,
+    stage: StageRun,
+    *,
+    new_calibration: bool = False,
+    prior: PriorReference | None = None,
+    site: SiteMetadata | None = None,
+) -> CalibrationRecord:
+    """Return ``record`` updated by a stage run of another record (:meth:`CalibrationRecord.updated_by_run`)."""
+    if stage.likelihood is None:
+        raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
+    calibration = next_calibration(record, stage.procedure, (), new_calibration=new_calibration, prior=prior)
+    return apply_stage(record, stage, calibration, {}, site=site)
+
+
+def next_calibration(
+    record: CalibrationRecord, procedure: str, entries: Iterable[Entry], *, new_calibration: bool, prior: PriorReference | None
+) -> Calibration:
+    """Return the calibration a stage run joins: a new one (a recalibration), or the record's with the procedure and entries added."""
+    if new_calibration:
+        return Calibration.new(procedure, entries, prior)
+    names = [n for n in (*record.calibration.procedure.split(" + "), procedure) if n]
+    merged = {e.key: e for e in (*record.calibration.entries, *entries)}
+    return replace(record.calibration, procedure=" + ".join(dict.fromkeys(names)), entries=tuple(merged.values()))
+
+
+def apply_stage(
+    record: CalibrationRecord, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
+) -> CalibrationRecord:
+    """Return the posterior of ``record`` given ``stage.likelihood``, with ``stage`` appended (as a run of ``calibration``).
+
+    Parameters
+    ----------
+    record : CalibrationRecord
+        The prior.
+    stage : StageRun
+        The stage run; its likelihood must not be None.
+    calibration : Calibration
+        The calibration the run belongs to (:func:`next_calibration`).
+    units : mapping
+        SI units of parameters the record does not hold yet ("SI" where missing).
+    **carried
+        :class:`Carried`: ``site`` (default: the record's), ``noise_model`` (default: the record's).
+
+    Returns
+    -------
+    CalibrationRecord
+        The posterior record.
+
+    Raises
+    ------
+    InputError
+        The stage run is already part of the record, or its data determine no parameter of it.
+    """
+    from stableins.estimators.posterior import bayesian_update
+
+    likelihood = stage.likelihood
+    assert likelihood is not None
+    stage = replace(stage, calibration=calibration.id)
+    if stage.id in {s.id for s in record.stages}:
+        raise InputError(f"stage run {stage.id} is already part of this record", field="stages", expected="a new stage run")
+    post = bayesian_update(record.ids, record.values_array(), record.covariance, [p.status for p in record.parameters], likelihood)
+    if not any(d is not None for d in post.determination):
+        raise InputError(
+            f"the {stage.name} stage's data determine no parameter of the record; no record written",
+            field="stage",
+            expected="data that determine at least one parameter",
+        )
+    parameters = []
+    sigma = post.sigma
+    for k, pid in enumerate(post.ids):
+        before = record[pid] if pid in record.ids else None
+        sources = before.determined_by if before is not None else ()
+        how = post.determination[k]
+        if how is not None:
+            sources = sources + (DeterminedBy(stage.id, how),)
+        unit = before.unit if before is not None else units.get(pid, "SI")
+        s = float(sigma[k]) if post.status[k] is not Status.UNIDENTIFIABLE else math.nan
+        parameters.append(Parameter(pid, float(post.values[k]), unit, s, post.status[k], sources))
+    noise_model = carried.get("noise_model")
+    return CalibrationRecord(
+        serial_number=record.serial_number,
+        parameters=tuple(parameters),
+        covariance=post.covariance,
+        calibration=calibration,
+        stages=record.stages + (stage,),
+        site=carried.get("site") or record.site,
+        determined=tuple(dict.fromkeys(record.determined + stage.determined)),
+        notes=record.notes + tuple(f"[{stage.name}] {n}" for n in stage.notes),
+        discovery=record.discovery,
+        noise_model=noise_model if noise_model is not None else record.noise_model,
+    )
