@@ -7,14 +7,14 @@ the residual diagnostics, the ranking of every candidate effect not in the model
 (:class:`~stableins.discovery.diagnose_report.DiagnoseReport`), the rest the live session for text and figures.
 
 * **Device data** (one or more :class:`~stableins.data.device.DeviceDataset`): the dwell means of the fine stage when
-  present, else the coarse stage (:func:`.problem.dwells_from_dataset`), weighted with the device stages' one noise
+  present, else the coarse stage (:func:`stableins.discovery.problem.dwells_from_dataset`), weighted with the device stages' one noise
   model (the noise section of docs/discovery.md), chosen in this order: a whole noise model given; a datasheet's slow
   noise (:class:`SlowNoiseGiven`) with the white noise measured in the dwells; the record's noise model; else measured
   in all dwells as ``stableins calibrate device`` does.  The platform-drift candidates are ranked on the angle-reading
-  slopes within the dwells (:mod:`.drift`).
+  slopes within the dwells (:mod:`stableins.discovery.drift`).
 * **A system record** (:class:`~stableins.data.system.SystemRecord`): the bins of the record under the noise model the
   system stage measures in it, with the given model, datasheet or the record's model as its prior; the verdict, flags
-  and Earth-rate harmonic tests hold for every noise model the record allows (:mod:`.system`).
+  and Earth-rate harmonic tests hold for every noise model the record allows (:mod:`stableins.discovery.system`).
 
 Example::
 
@@ -118,7 +118,7 @@ class DiagnoseOptions:
     noise : NoiseModel, SlowNoiseGiven or None
         The noise model to use, or a datasheet's slow noise; None: the record's, else measured in the data.
     bin_seconds : float
-        System records: bin length [s] (widened for very long records, :data:`.system.MAX_BINS`).
+        System records: bin length [s] (widened for very long records, :data:`stableins.discovery.system.MAX_BINS`).
     """
 
     add: tuple[str, ...] = ()
@@ -212,7 +212,7 @@ class DiagnoseResult:
     def figures(self) -> dict[str, Figure]:
         """Return the figures of the diagnosis by name, captioned with the ranking's next step.
 
-        ``residuals``, ``orientation`` and ``history`` (:meth:`.history.Discovery.figures`), and for a system record
+        ``residuals``, ``orientation`` and ``history`` (:meth:`stableins.discovery.history.Discovery.figures`), and for a system record
         each output's residual at the Earth-rate harmonics (``spectrum_f_x`` ...).
         """
         from stableins.conventions import MICRO_G

@@ -105,7 +105,7 @@ class NextStep:
 
 @dataclass(frozen=True)
 class SystemFindings:
-    """What only the diagnosis of a system record carries (:class:`.system.SystemDiagnosis` as data).
+    """What only the diagnosis of a system record carries (:class:`stableins.discovery.system.SystemDiagnosis` as data).
 
     Attributes
     ----------

@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: What the document is, for messages.
 DOCUMENT = "the output of 'stableins diagnose --json'"
-#: The unit of a candidate's largest predicted change of an observation (:meth:`.ranking.CandidateScore.to_json`).
+#: The unit of a candidate's largest predicted change of an observation (:meth:`stableins.discovery.ranking.CandidateScore.to_json`).
 OBSERVATION_UNIT = "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)"
 
 
@@ -98,7 +98,7 @@ class Reader:
         return self.items(value, where, lambda v, w: self.number(v, w, nullable=nullable, minimum=minimum))
 
     def step(self, value: Any, where: str) -> Step:
-        """Return a history step (:meth:`.history.Step.from_json`, its ``ValueError`` as InputError naming the field)."""
+        """Return a history step (:meth:`stableins.discovery.history.Step.from_json`, its ``ValueError`` as InputError naming the field)."""
         item = self.mapping(value, where)
         if item.get("residual_rms_unit", "m/s^2") != "m/s^2":
             raise self.fail(f"{item['residual_rms_unit']!r:.60}", join(where, "residual_rms_unit"), "'m/s^2'")
@@ -117,7 +117,7 @@ def finite(x: float) -> float | None:
 # ----------------------------------------------------------------------------- parts of the document
 @dataclass(frozen=True)
 class CandidateSummary:
-    """One candidate effect's standing against the model in force (:class:`.ranking.CandidateScore` as data).
+    """One candidate effect's standing against the model in force (:class:`stableins.discovery.ranking.CandidateScore` as data).
 
     Attributes
     ----------
@@ -169,11 +169,11 @@ class CandidateSummary:
 
     @classmethod
     def from_ranking(cls, ranking: Ranking) -> tuple[CandidateSummary, ...]:
-        """Every candidate of a ranking, best first, as written by :meth:`.ranking.Ranking.to_json` (the one JSON form)."""
+        """Every candidate of a ranking, best first, as :meth:`stableins.discovery.ranking.Ranking.to_json` writes them."""
         return tuple(cls.from_json(item, where=f"candidates[{k}]") for k, item in enumerate(ranking.to_json()))
 
     def to_json(self) -> dict[str, Any]:
-        """Return the candidate as :meth:`.ranking.CandidateScore.to_json` writes it."""
+        """Return the candidate as :meth:`stableins.discovery.ranking.CandidateScore.to_json` writes it."""
         return {
             "id": self.id,
             "statistic": finite(self.statistic),
@@ -238,7 +238,7 @@ class CandidateSummary:
 
 @dataclass(frozen=True)
 class DriftSummary:
-    """The platform-drift candidates ``Dg_*`` ranked on the angle-reading slopes within dwells (:mod:`.drift`).
+    """The platform-drift candidates ``Dg_*`` ranked on the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
 
     Attributes
     ----------
@@ -284,7 +284,7 @@ class DriftSummary:
 
 @dataclass(frozen=True)
 class SpectrumSummary:
-    """One output's residual at the Earth-rate harmonics (:class:`.diagnostics.HarmonicSpectrum` as data).
+    """One output's residual at the Earth-rate harmonics (:class:`stableins.discovery.diagnostics.HarmonicSpectrum` as data).
 
     Attributes
     ----------
