@@ -282,6 +282,20 @@ def _model_in_force(record: RecordInForce, add: Sequence[str], record_name: str)
     return model
 
 
+def _fit(session: Discovery, diagnosis: Diagnosis) -> dict[str, Any]:
+    """Return the fields of a :class:`DiagnoseReport` that say how the model fits (device dwells and system bins alike)."""
+    return {
+        "chi2_red": session.result.chi2_red,
+        "dof": session.result.dof,
+        "expected_spread": diagnosis.spread,
+        "p_value": diagnosis.p_value,
+        "model": tuple(session.result.ids),
+        "residual_rms": tuple(diagnosis.rms.tolist()),
+        "noise_floor": tuple(diagnosis.noise_floor.tolist()),
+        "history": tuple(session.history.steps),
+    }
+
+
 def _start(record: RecordInForce, model: ErrorModel) -> dict[str, float]:
     return {k: v for k, v in record.values().items() if k in model}
 
@@ -325,15 +339,8 @@ def _device(
     report = DiagnoseReport(
         stage=DiagnoseStage(dwells.noise["stage"]),
         noise_model=dwells.noise.get("model"),
-        chi2_red=session.result.chi2_red,
-        dof=session.result.dof,
-        expected_spread=diagnosis.spread,
-        p_value=diagnosis.p_value,
-        model=tuple(session.result.ids),
-        residual_rms=tuple(diagnosis.rms.tolist()),
-        noise_floor=tuple(diagnosis.noise_floor.tolist()),
+        **_fit(session, diagnosis),
         candidates=CandidateSummary.from_ranking(ranking),
-        history=tuple(session.history.steps),
         left_out=tuple(dwells.noise.get("left_out", [])),
         drift=None
         if drift is None
@@ -380,15 +387,8 @@ def _system(opened: SystemRecord, record: RecordInForce, model: ErrorModel, opti
     report = DiagnoseReport(
         stage=DiagnoseStage.SYSTEM,
         noise_model=noise,
-        chi2_red=session.result.chi2_red,
-        dof=session.result.dof,
-        expected_spread=diagnosis.spread,
-        p_value=diagnosis.p_value,
-        model=tuple(session.result.ids),
-        residual_rms=tuple(diagnosis.rms.tolist()),
-        noise_floor=tuple(diagnosis.noise_floor.tolist()),
+        **_fit(session, diagnosis),
         candidates=CandidateSummary.from_ranking(found.ranking),
-        history=tuple(session.history.steps),
         spectra=tuple(
             SpectrumSummary.from_spectrum(name, sp, [(name, int(k)) in flagged for k in sp.harmonics]) for name, sp in found.spectra.items()
         ),
