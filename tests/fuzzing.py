@@ -189,16 +189,31 @@ def _record(serial: str) -> Any:
 
 
 def _discovery_document() -> dict[str, Any]:
+    """A complete ``diagnose --json`` document of a system record (every kind of field the reader checks)."""
+    from stableins.discovery.diagnose_report import OBSERVATION_UNIT
+    from stableins.noise import NoiseModel
+
+    noise = NoiseModel.given(4.5e-4, 2e-5, 1e-7, provenance="datasheet").to_document()
+    step = {"label": "standard model", "model": ["bias_x", "sf_x"], "channels": ["f_x", "f_y", "f_z"],
+            "residual_rms": [2e-5, 2e-5, 3e-5], "residual_rms_unit": "m/s^2", "noise_floor": [1e-5, 1e-5, 1e-5],
+            "chi2_red": 1.1, "dof": 30, "bic": 40.5, "added": [], "shifts": {}}  # fmt: skip
+    added = dict(step, label="+ K3_x", model=["bias_x", "sf_x", "K3_x"],
+                 added=[{"id": "K3_x", "estimate": 1.0, "sigma": 2.0, "unit": "ug/g^3"}],
+                 shifts={"sf_x": {"shift": 0.5, "unit": "ppm", "in_sigma": 0.1}})  # fmt: skip
+    candidate = {"id": "Kcc_xxy", "statistic": 0.5, "p_value": 0.5, "delta_bic": 2.5,
+                 "predicted": {"estimate": 1.5, "sigma": 2.0, "unit": "ug/g^2", "max_output_change": 1e-6,
+                               "max_output_change_unit": OBSERVATION_UNIT},
+                 "identifiable": True, "excited": True, "separability": 0.4, "aliases": [{"id": "bias_x", "shift_per_unit": 0.3}],
+                 "confused_with": ["Kcc_xxz"], "refit": False, "flagged": False, "advice": "confirm with 45° positions"}  # fmt: skip
+    spectrum = {"harmonics": [1, 2], "amplitude": [1e-6, 2e-6], "sigma": [1e-6, 1e-6], "chi2": [1.0, 4.0], "dof": [2.0, 2.0],
+                "p_value": [0.6, 0.14], "flagged": [False, False], "unit": "m/s^2"}  # fmt: skip
     return {
-        "stage": "fine",
-        "chi2_red": 1.1,
-        "dof": 30,
-        "candidates": [
-            {"id": "K3_x", "p_value": 0.2, "delta_bic": 1.5, "predicted": {"estimate": 1e-7, "sigma": 2e-7, "unit": "s^2/m^2"}},
-            {"id": "Kcc_xxy", "p_value": 0.5, "delta_bic": 2.5, "predicted": None, "flagged": False, "advice": ""},
-        ],
-        "history": [{"label": "standard model", "residual_rms": [2e-5, 2e-5, 3e-5], "noise_floor": [1e-5, 1e-5, 1e-5], "chi2_red": 1.1}],
-    }
+        "stage": "system", "noise_model": noise, "chi2_red": 1.1, "chi2_red_range": [1.05, 1.2], "dof": 30, "expected_spread": 0.26,
+        "p_value": 0.3, "consistent": True, "alarm": False, "bin_seconds": 60.0, "model": ["bias_x", "sf_x", "K3_x"],
+        "residual_rms": [2e-5, 2e-5, 3e-5], "noise_floor": [1e-5, 1e-5, 1e-5], "candidates": [candidate, dict(candidate, id="K3_y")],
+        "history": [step, added], "left_out": [], "next": ["next: nothing is flagged", "  stableins report cal.json"], "drift": None,
+        "notes": ["bins of 60 s"], "spectra": {"f_x": spectrum, "f_y": spectrum},
+    }  # fmt: skip
 
 
 # --------------------------------------------------------------------------- running a command

@@ -158,8 +158,8 @@ def _json(path: str) -> dict[str, Any]:
         from stableins.reporting.builder import read_discovery
 
         diagnosis = read_discovery(path)
-        flagged = [c.get("id") for c in diagnosis["candidates"] if c.get("flagged")]
-        return {"file": path, "kind": "diagnosis", "stage": diagnosis.get("stage"), "steps": len(diagnosis["history"]), "flagged": flagged}
+        flagged = [c.id for c in diagnosis.flagged]
+        return {"file": path, "kind": "diagnosis", "stage": str(diagnosis.stage), "steps": len(diagnosis.history), "flagged": flagged}
     if isinstance(document, list) and document and all(isinstance(r, dict) and "estimate" in r and "truth" in r for r in document):
         return _verdict(path, document)
     raise InputError(

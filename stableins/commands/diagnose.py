@@ -1,4 +1,4 @@
-"""``stableins diagnose DATA --record CAL.json [--add ID ...]``: what is the error model missing?
+"""``stableins diagnose DATA --record CAL.json [--add ID ...]``: what is the error model missing.
 
 ::
 
@@ -6,27 +6,36 @@
     stableins diagnose session.h5 --record record.json --add nonorth_12 --add Kcc_xxy --json
     stableins diagnose session.h5 --record record.json --plots figures/
 
-Fits the standard model (with the zero offsets and any discovery terms already in the
-record) to the device-level dwell means (fine stage when present, else coarse) or to the
-bins of one system-level record (``--bin`` seconds; adds the residual spectra at the
-Earth-rate harmonics), starting from the record, adds the effects given with ``--add`` one step at a time, then prints the
-residual diagnostics, the ranking of every candidate effect not in the model and the
-history of steps (docs/discovery.md).
+Parses the arguments, reads the record and the data and hands them to
+:func:`stableins.discovery.diagnose.diagnose_data`, which fits the standard model (with the zero offsets and any
+discovery terms already in the record) to the device-level dwell means (fine stage when present, else coarse) or to
+the bins of one system-level record (``--bin`` seconds; adds the residual spectra at the Earth-rate harmonics),
+starting from the record, adds the effects given with ``--add`` one step at a time, and returns the residual
+diagnostics, the ranking of every candidate effect not in the model and the history of steps (docs/discovery.md).
+This command prints them, and the next step as a command that runs as written.
 
-``--json`` prints one document: ``chi2_red``, ``dof``, ``expected_spread``, ``stage``,
-``model``, ``residual_rms`` / ``noise_floor`` [m/s², per axis], ``candidates`` (best first:
-``id``, ``statistic``, ``p_value``, ``delta_bic``, ``predicted``, ``identifiable``,
-``aliases`` ...), ``history``, and ``drift``: the platform-drift candidates ``Dg_*`` ranked on
-the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
+``--json`` prints one document (:class:`stableins.discovery.diagnose_report.DiagnoseReport`, keys in its module
+docstring): ``chi2_red``, ``dof``, ``expected_spread``, ``stage``, ``model``, ``residual_rms`` / ``noise_floor``
+[m/s², per axis], ``candidates`` (best first: ``id``, ``statistic``, ``p_value``, ``delta_bic``, ``predicted``,
+``identifiable``, ``aliases`` ...), ``history``, ``next``, and ``drift``: the platform-drift candidates ``Dg_*``
+ranked on the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from stableins.discovery.diagnose import NoiseOrigin
+    from stableins.discovery.diagnose_report import NextStep
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins diagnose``."""
     from stableins.commands.arguments import integer, number, output_directory
 
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
@@ -53,197 +62,82 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stableins.data.device import load_device
-    from stableins.discovery.history import Discovery
-    from stableins.discovery.library import LIBRARY
-    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
-    from stableins.errormodel import ErrorModel
-    from stableins.errors import InputError
+    """Read the record and the data, diagnose them (:func:`stableins.discovery.diagnose.diagnose_data`), print the result."""
+    from dataclasses import replace
+
+    from stableins.commands.noise import given_noise
+    from stableins.discovery.diagnose import DiagnoseOptions, DiagnoseStage, diagnose_data
     from stableins.output import emit, note
     from stableins.procedures.definition import device_layouts
     from stableins.records import CalibrationRecord
 
-    for effect in args.add:
-        if effect not in LIBRARY:
-            raise InputError(f"unknown effect {effect!r}", field="--add", expected=f"one of {', '.join(LIBRARY.ids)}")
-    if len(set(args.add)) != len(args.add):
-        raise InputError("an effect is given twice", field="--add")
+    options = DiagnoseOptions(add=tuple(args.add), stage=None if args.stage is None else DiagnoseStage(args.stage), alpha=args.alpha)
     record = CalibrationRecord.load(args.record)
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
-
-    system = [str(p) for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
-    if system and len(args.data) > 1:
-        raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
-    if system:
-        from stableins.data.system import open_system_record
-
-        opened = open_system_record(system[0])
-        import warnings
-
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            opened.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs
-        for w in caught:
-            note(f"stableins: warning: {w.message}")
-        serial = opened.metadata.serial_number
-    else:
-        datasets = [load_device(path) for path in args.data]
-        serial = datasets[0].metadata.serial_number
+    data, serial = _load(args.data, allow_gaps=args.allow_gaps)
     if record.serial_number != serial:
         note(f"warning: record {args.record} is for unit {record.serial_number}, data for {serial}")
-    model = ErrorModel.standard(nonlinear=True, gimbals=True)
-    model = model + [LIBRARY[i].term for i in record.ids if i in LIBRARY and i not in model]
-    for effect in args.add:
-        if effect in model:
-            raise InputError(f"effect {effect!r} is already in the model of {args.record}", field="--add")
-    if system:
-        return _system(args, opened, record, model)
-    noise, origin = _device_noise(args, datasets, record.noise_model)
-    dwells = dwells_from_dataset(datasets, layouts=device_layouts(), stage=args.stage, noise=noise)
-    note(f"noise ({origin}): {dwells.noise['slow_noise']}")
-    for line in dwells.noise.get("left_out", []):
-        note(f"left out: {line}")
-    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} dwells")
-    session = Discovery(problem, model, alpha=args.alpha, start={k: v for k, v in record.values().items() if k in model})
-    for effect in args.add:
-        session.add(effect)
-    diagnosis = session.diagnose()
-    ranking = session.rank()
-    drift = session.drift()
-    if drift is None:
-        for line in getattr(session, "drift_notes", ()):
-            note(f"drift analysis: {line}")
+    options = replace(options, noise=given_noise(args), bin_seconds=args.bin)
+    result = diagnose_data(data, record, options=options, layouts=device_layouts(), record_name=str(args.record))
+    report = result.report
+    if result.system is None:
+        if report.noise_model is not None:  # device dwells are always weighted with one
+            note(f"noise ({_origin(args, result.noise_origin)}): {report.noise_model.describe()}")
+        for line in report.left_out:
+            note(f"left out: {line}")
+        if result.drift is None:
+            for line in result.drift_notes:
+                note(f"drift analysis: {line}")
     if args.plots is not None:
-        _write_plots(args.plots, session, ranking)
-    parts = [diagnosis.report(), ranking.report(top=args.top)]
-    if drift is not None:
-        parts.append("platform drift within dwells (angle-reading slopes):\n" + drift.report(top=3))
-    model_used = dwells.noise.get("model")
-    steps = next_steps(args, record, ranking.flagged, system=False)
-    text = "\n\n".join(parts + [session.history.report(), "\n".join(steps)])
-    result = {
-        "stage": dwells.noise.get("stage"),
-        "noise_model": None if model_used is None else model_used.to_document(),
-        "chi2_red": session.result.chi2_red,
-        "dof": session.result.dof,
-        "expected_spread": diagnosis.spread,
-        "p_value": diagnosis.p_value,
-        "model": list(session.result.ids),
-        "residual_rms": diagnosis.rms,
-        "noise_floor": diagnosis.noise_floor,
-        "candidates": ranking.to_json(),
-        "history": session.history.to_json(),
-        "left_out": dwells.noise.get("left_out", []),
-        "next": steps,
-        "drift": None
-        if drift is None
-        else {
-            "chi2_red": drift.result.chi2_red,
-            "dof": drift.result.dof,
-            "candidates": drift.to_json(),
-            "left_out": list(getattr(session, "drift_notes", ())),
-        },
-        "spectra": {},
-    }
+        _write_plots(args.plots, result.figures())
+    steps = next_steps(args, report.next_step)
     if args.json:
         for line in steps:
             note(line)
-    emit(args, result, text)
+    emit(args, replace(report, next=tuple(steps)).to_json(), "\n\n".join([result.text(top=args.top), "\n".join(steps)]))
     return 0
 
 
-def _system(args: argparse.Namespace, opened, record, model) -> int:
-    """A system-level record: discovery under the noise model the system stage measures in it (docs/discovery.md)."""
-    from stableins.commands.noise import system_noise_prior
-    from stableins.discovery.system import diagnose_system_record, measure_noise
-    from stableins.output import emit, note
+def _load(paths: list[Path], *, allow_gaps: bool) -> tuple[Any, str]:
+    """Return the device datasets, or the one system record validated as 'stableins check' does, and the serial number."""
+    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.errors import InputError
+    from stableins.output import note
 
-    prior, _ = system_noise_prior(args, default=record.noise_model)
-    values = record.values()
-    covariance = {(a, b): float(record.covariance[i, j]) for i, a in enumerate(record.ids) for j, b in enumerate(record.ids)}
-    from stableins.discovery.library import record_terms
+    system = [str(p) for p in paths if read_format_tag(p) == FORMAT_TAGS["system"]]
+    if system and len(paths) > 1:
+        raise InputError("give one system-level record alone, or device-level files", path=system[0], expected="DATA of one kind")
+    if not system:
+        from stableins.data.device import load_device
 
-    noise, duration, notes = measure_noise(opened, values, covariance, prior, record_terms(record.ids))
-    result = diagnose_system_record(
-        opened,
-        model,
-        {k: v for k, v in values.items() if k in model},
-        noise,
-        bin_seconds=args.bin,
-        duration=duration,
-        alpha=args.alpha,
-        add=args.add,
-        notes=notes,
-    )
-    session, diagnosis, ranking = result.session, result.diagnosis, result.ranking
-    if args.plots is not None:
-        _write_plots(args.plots, session, ranking, result.spectra)
-    steps = next_steps(args, record, ranking.flagged, system=True)
-    text = "\n\n".join([result.report(top=args.top), session.history.report(), "\n".join(steps)])
-    flagged = {(name, k) for name, k, _ in result.flagged_harmonics}
-    data = {
-        "stage": "system",
-        "noise_model": noise.to_document(),
-        "chi2_red": session.result.chi2_red,
-        "chi2_red_range": list(result.chi2_range),
-        "dof": session.result.dof,
-        "expected_spread": diagnosis.spread,
-        "p_value": diagnosis.p_value,
-        "consistent": diagnosis.consistent,
-        "alarm": result.alarm,
-        "bin_seconds": result.bin_seconds,
-        "model": list(session.result.ids),
-        "residual_rms": diagnosis.rms,
-        "noise_floor": diagnosis.noise_floor,
-        "candidates": ranking.to_json(),
-        "history": session.history.to_json(),
-        "left_out": [],
-        "next": steps,
-        "drift": None,
-        "notes": list(result.notes),
-        "spectra": {
-            name: {
-                "harmonics": sp.harmonics,
-                "amplitude": sp.amplitude,
-                "sigma": sp.sigma,
-                "chi2": sp.chi2,
-                "dof": sp.dof,
-                "p_value": sp.p_value,
-                "flagged": [bool((name, int(k)) in flagged) for k in sp.harmonics],
-                "unit": "m/s^2",
-            }
-            for name, sp in result.spectra.items()
-        },
-    }
-    if args.json:
-        for line in steps:
-            note(line)
-    emit(args, data, text)
-    return 0
+        datasets = [load_device(path) for path in paths]
+        return datasets, datasets[0].metadata.serial_number
+    import warnings
+
+    from stableins.data.system import open_system_record
+
+    opened = open_system_record(system[0])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        opened.validate(allow_gaps=allow_gaps)  # the validation 'stableins check' runs
+    for w in caught:
+        note(f"stableins: warning: {w.message}")
+    return opened, opened.metadata.serial_number
 
 
-def _device_noise(args: argparse.Namespace, datasets, default):
-    """The device stages' noise model: flags, ``--noise``, the record's, or (None) measured in all dwells as calibrate does."""
-    from stableins.commands.noise import noise_from_options
-    from stableins.estimators.dwell import dwells_from_columns
-    from stableins.procedures.definition import device_layouts
+def _origin(args: argparse.Namespace, origin: NoiseOrigin) -> str:
+    """Where the device noise model comes from, in the words of this command's options."""
+    from stableins.discovery.diagnose import NoiseOrigin
 
-    layouts = device_layouts()
-
-    def summaries():
-        return [s for ds in datasets for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))]
-
-    given = args.bias_instability is not None or args.random_walk is not None
-    noise, origin = noise_from_options(args, summaries() if given else [], default=default)
-    if noise is None:
-        from stableins.estimators.device import noise_from_dwells
-
-        noise = noise_from_dwells(summaries(), source=", ".join(str(ds.path) for ds in datasets))
-    return noise, origin
+    return {
+        NoiseOrigin.DATASHEET: "given on the command line (datasheet)",
+        NoiseOrigin.GIVEN: f"the noise model of {args.noise}",
+        NoiseOrigin.RECORD: "the record's noise model",
+        NoiseOrigin.MEASURED: "measured in the dwells",
+    }[origin]
 
 
-def _write_plots(directory: Path, session, ranking, spectra=None) -> None:
-    """The session's figures (residuals, orientation: before and after ``--add``; history) and the harmonic spectra, as PNG."""
+def _write_plots(directory: Path, figures: dict[str, Figure]) -> None:
+    """Write the figures of a diagnosis (:meth:`stableins.discovery.diagnose.DiagnoseResult.figures`) into ``directory`` as PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -252,44 +146,40 @@ def _write_plots(directory: Path, session, ranking, spectra=None) -> None:
     from stableins.output import note
 
     directory.mkdir(parents=True, exist_ok=True)
-    figures = session.figures(next_step=ranking.next_step())
-    for name, spectrum in (spectra or {}).items():
-        figures[f"spectrum_{name}"] = spectrum.plot(unit="µg", scale=9.80665e-6, name=name, next_step=ranking.next_step())
     for name, figure in figures.items():
         figure.savefig(directory / f"{name}.png", dpi=110)
         plt.close(figure)
     note(f"plots written to {directory}")
 
 
-def next_steps(args: argparse.Namespace, record, flagged, *, system: bool) -> list[str]:
-    """What to do next, as commands that run as written: carry the best flagged effect into the calibration, look at
-    an effect a calibration cannot carry, or certify the record when nothing is missing."""
+def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
+    """Word the next step of a diagnosis and give it as a command that runs as written.
+
+    Carry the best flagged effect into the calibration, look at an effect a calibration cannot carry, or certify the
+    record when nothing is flagged (:attr:`stableins.discovery.diagnose_report.DiagnoseReport.next_step`).
+    """
     import shlex
 
     from stableins.commands.noise import noise_arguments
-    from stableins.discovery.library import LIBRARY, calibration_limit
+    from stableins.discovery.diagnose_report import NextAction
 
     data = [str(p) for p in args.data]
     record_path = Path(args.record)
-    if not flagged:
+    if step.action is NextAction.CERTIFY or step.effect is None:
         certificate = record_path.with_name(f"{record_path.stem}-report.pdf")
         command = ["stableins", "report", str(record_path), "--data", *data, "--out", str(certificate)]
         return [
             f"next: nothing is flagged at α = {args.alpha:g}: the model in force reaches the noise floor; its certificate:",
             f"  {shlex.join(command)}",
         ]
-    best = flagged[0]
-    why = calibration_limit(best.id)
-    if system or why is not None:
-        reason = f"a calibration cannot carry it: {why}" if why is not None else "the system stage does not estimate added effects"
-        command = ["stableins", "diagnose", *data, "--record", str(record_path), *noise_arguments(args), "--add", best.id]
-        return [f"next: {best.id} is flagged ({reason}); see it in the model and what it changes:", f"  {shlex.join(command)}"]
-    kept = [i for i in record.ids if i in LIBRARY]  # the discovered effects of the model in force stay in it
-    out = record_path.with_name(f"{record_path.stem}-{best.id}.json")
+    if step.action is NextAction.INSPECT:
+        command = ["stableins", "diagnose", *data, "--record", str(record_path), *noise_arguments(args), "--add", step.effect]
+        return [f"next: {step.effect} is flagged ({step.reason}); see it in the model and what it changes:", f"  {shlex.join(command)}"]
+    out = record_path.with_name(f"{record_path.stem}-{step.effect}.json")
     command = ["stableins", "calibrate", "device", *data, *noise_arguments(args)]
-    command += [item for effect in (*kept, best.id) for item in ("--add", effect)] + ["--out", str(out)]
-    confused = f"; with these data it is indistinguishable from {', '.join(best.confused_with)}" if best.confused_with else ""
+    command += [item for effect in (*step.keep, step.effect) for item in ("--add", effect)] + ["--out", str(out)]
+    confused = f"; with these data it is indistinguishable from {', '.join(step.confused_with)}" if step.confused_with else ""
     return [
-        f"next: carry {best.id} into the calibration (it is tested again there and kept only if the data show it{confused}):",
+        f"next: carry {step.effect} into the calibration (it is tested again there and kept only if the data show it{confused}):",
         f"  {shlex.join(command)}",
     ]

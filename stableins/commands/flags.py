@@ -18,6 +18,7 @@ FLAGS = {
     "root": "--store",  # history_store.HistoryStore
     "date": "--at",  # history_store.HistoryStore.in_force
     "entries": "--set",  # records.parse_entries
+    "add": "--add",  # discovery.diagnose.DiagnoseOptions, diagnose_data
 }
 
 

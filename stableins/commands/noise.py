@@ -81,17 +81,42 @@ def noise_arguments(args: argparse.Namespace) -> list[str]:
     return out
 
 
+#: The provenance of a noise model made from the datasheet flags.
+COMMAND_LINE = "bias instability and random walk given on the command line"
+
+
+def _datasheet_given(args: argparse.Namespace) -> bool:
+    """Whether datasheet flags were given (InputError when ``--noise`` was given too)."""
+    from stableins.errors import InputError
+
+    given = args.bias_instability is not None or args.random_walk is not None
+    if given and args.noise is not None:
+        raise InputError("give either --noise CAL.json or --bias-instability/--random-walk, not both", field="--noise")
+    return given
+
+
+def given_noise(args: argparse.Namespace):
+    """Return the noise the options give, for :class:`stableins.discovery.diagnose.DiagnoseOptions`.
+
+    ``--noise CAL.json``: that record's model; the datasheet flags: their slow noise in SI; neither: None (the
+    calibration record's model, else measured in the data).
+    """
+    from stableins.conventions import MICRO_G
+    from stableins.discovery.diagnose import SlowNoiseGiven
+
+    if _datasheet_given(args):  # ranges checked when parsed
+        return SlowNoiseGiven((args.bias_instability or 0.0) * MICRO_G, args.random_walk or 0.0, provenance=COMMAND_LINE)
+    return None if args.noise is None else record_noise(args.noise)
+
+
 def noise_from_options(args: argparse.Namespace, dwells, default=None):
     """The noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
 
     Returns ``(model or None, text saying where it comes from)``.
     """
     from stableins.conventions import MICRO_G
-    from stableins.errors import InputError
 
-    given = args.bias_instability is not None or args.random_walk is not None
-    if given and args.noise is not None:
-        raise InputError("give either --noise CAL.json or --bias-instability/--random-walk, not both", field="--noise")
+    given = _datasheet_given(args)
     if given:  # ranges checked when parsed
         from stableins.estimators.device import with_given_slow_noise
 
@@ -99,7 +124,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
             dwells,
             (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
-            "bias instability and random walk given on the command line",
+            COMMAND_LINE,
         )
         return model, "given on the command line (datasheet)"
     if args.noise is not None:
@@ -117,18 +142,15 @@ def system_noise_prior(args: argparse.Namespace, default=None):
     decides from the record alone).  Returns ``(model or None, text saying where it comes from)``.
     """
     from stableins.conventions import MICRO_G
-    from stableins.errors import InputError
     from stableins.noise import NoiseModel
 
-    given = args.bias_instability is not None or args.random_walk is not None
-    if given and args.noise is not None:
-        raise InputError("give either --noise CAL.json or --bias-instability/--random-walk, not both", field="--noise")
+    given = _datasheet_given(args)
     if given:
         model = NoiseModel.given(
             0.0,
             (args.bias_instability or 0.0) * MICRO_G,
             args.random_walk or 0.0,
-            provenance="bias instability and random walk given on the command line",
+            provenance=COMMAND_LINE,
         )
         return model, "given on the command line (datasheet)"
     if args.noise is not None:

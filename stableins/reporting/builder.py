@@ -20,9 +20,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
-from typing import Any
 
 from stableins.data.atomic import atomic_write
+from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.errors import InputError
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
@@ -119,53 +119,12 @@ def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence
     return out
 
 
-def read_discovery(path: str | PathLike[str]) -> dict[str, Any]:
-    """The JSON document of ``stableins diagnose --json`` (checked for its two lists)."""
+def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
+    """The document of ``stableins diagnose --json``, every field checked (:meth:`DiagnoseReport.from_json`)."""
     from stableins.data.jsonio import load_json_file
+    from stableins.discovery.diagnose_report import DOCUMENT
 
-    document = load_json_file(path, what="the output of 'stableins diagnose --json'")
-    if not isinstance(document, dict) or not isinstance(document.get("history"), list) or not isinstance(document.get("candidates"), list):
-        raise InputError("no 'history' and 'candidates' lists", path=path, expected="the output of 'stableins diagnose --json'")
-    _check_discovery(document, path)
-    return document
-
-
-#: Types of the fields of a ``diagnose --json`` document that the report reads (None: may be null or absent).
-_DISCOVERY_TOP = {"stage": str, "chi2_red": float, "dof": float}
-_DISCOVERY_CANDIDATE = {"id": str, "p_value": float, "delta_bic": float, "flagged": bool, "advice": str}
-_DISCOVERY_PREDICTED = {"estimate": float, "sigma": float, "unit": str}
-_DISCOVERY_STEP = {"label": str, "chi2_red": float, "bic": float}
-
-
-def _check_discovery(document: dict[str, Any], path: Any) -> None:
-    """Every field the report renders has the type it is rendered as (InputError naming the field otherwise)."""
-    from stableins.data.jsonio import expect_list, expect_mapping, expect_number
-
-    def fields(item: Any, types: dict[str, type], where: str) -> None:
-        for key, kind in types.items():
-            value = item.get(key)
-            name = f"{where}.{key}" if where else key
-            if value is None:
-                continue
-            if kind is float:
-                expect_number(value, path, name)
-            elif kind is bool and not isinstance(value, bool):
-                raise InputError(f"{value!r} is not true or false", path=path, field=name, expected="a boolean")
-            elif kind is str and not isinstance(value, str):
-                raise InputError(f"{value!r} is not a string", path=path, field=name, expected="a string")
-
-    fields(document, _DISCOVERY_TOP, "")
-    for k, candidate in enumerate(document["candidates"]):
-        where = f"candidates[{k}]"
-        fields(expect_mapping(candidate, path, where), _DISCOVERY_CANDIDATE, where)
-        if candidate.get("predicted") is not None:
-            fields(expect_mapping(candidate["predicted"], path, f"{where}.predicted"), _DISCOVERY_PREDICTED, f"{where}.predicted")
-    for k, step in enumerate(document["history"]):
-        where = f"history[{k}]"
-        fields(expect_mapping(step, path, where), _DISCOVERY_STEP, where)
-        for key in ("residual_rms", "noise_floor"):
-            for j, x in enumerate(expect_list(step.get(key, []), path, f"{where}.{key}", "a list of numbers")):
-                expect_number(x, path, f"{where}.{key}[{j}]", minimum=0.0, expected="a non-negative number")
+    return DiagnoseReport.from_json(load_json_file(path, what=DOCUMENT), path)
 
 
 def write_report(
@@ -275,7 +234,7 @@ def write_report(
         )
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = {}, ""  # the record's own history is ctx.record.discovery
+    discovery_document, discovery_source = None, ""  # the record's own history is ctx.record.discovery
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
         inputs.append(sections.InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))

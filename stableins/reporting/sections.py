@@ -18,6 +18,7 @@ from typing import Any
 
 from reportlab.platypus import Flowable, KeepTogether, Paragraph
 
+from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.history import CHANGE_THRESHOLD, Comparison
 from stableins.records import CalibrationRecord
 from stableins.reporting import content, document, figures
@@ -63,7 +64,7 @@ class ReportContext:
     software_version: str = ""
     evidence_notes: list[str] = field(default_factory=list)
     figures: int = 0
-    discovery: dict[str, Any] = field(default_factory=dict)
+    discovery: DiagnoseReport | None = None
     discovery_source: str = "calibration record"
     shown_notes: set[str] = field(default_factory=set)
 
@@ -602,11 +603,11 @@ def discovery(ctx: ReportContext) -> list[Flowable]:
     history = ctx.record.discovery.to_json() if ctx.record.discovery is not None else None
     if history:
         out += _model_history(ctx, history)
-    if "history" in ctx.discovery:
+    if ctx.discovery is not None:
         if history:
             out += heading("Diagnosis of the data", "h2")
-        out += _diagnosis(ctx)
-    if not history and "history" not in ctx.discovery:
+        out += _diagnosis(ctx, ctx.discovery)
+    if not history and ctx.discovery is None:
         out.append(
             _p(
                 "<b>Not performed</b>: the calibration record carries no model-discovery history and no diagnosis was given. "
@@ -681,59 +682,59 @@ def advice_text(advice: str) -> str:
     return advice[:1].upper() + advice[1:] if advice else advice
 
 
-def _diagnosis(ctx: ReportContext) -> list[Flowable]:
+def _estimate_text(estimate: float, sigma: float, unit: str) -> str:
+    """A candidate's estimate ± 1σ rounded to its σ ("—" when there is none)."""
+    if not math.isfinite(estimate):
+        return "—"
+    if math.isfinite(sigma) and sigma > 0:
+        return f"{content.round_to_uncertainty(estimate, sigma)} ± {content.number(sigma, 2)} {unit}"
+    return f"{_fmt(estimate, 3)} {unit}"
+
+
+def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
     """The output of ``stableins diagnose --json``: the refit history and the ranked candidates."""
     from stableins.conventions import MICRO_G
 
-    d = ctx.discovery
+    def number(x: float, text: str) -> str:
+        return text if math.isfinite(x) else "—"
+
     out: list[Flowable] = [
         _p(
-            f"From {escape(_name(ctx.discovery_source))} (stableins diagnose): {escape(d.get('stage') or 'device')} stage, "
-            f"χ²<sub>ν</sub> = {content.chi2_text(float(d.get('chi2_red', math.nan)))} with ν = {d.get('dof', '—')}. Candidates are "
+            f"From {escape(_name(ctx.discovery_source))} (stableins diagnose): {escape(str(d.stage))} stage, "
+            f"χ²<sub>ν</sub> = {content.chi2_text(d.chi2_red)} with ν = {d.dof}. Candidates are "
             "ranked by the significance of the residual they explain; ΔBIC &lt; 0 favours adding the effect."
         )
     ]
     rows: list[list[Any]] = [["Candidate", "p-value", "ΔBIC", "Estimate ± 1σ", "Flag", "Advice"]]
-    for c in d.get("candidates", [])[:12]:
-        predicted = c.get("predicted") or {}
-        estimate = predicted.get("estimate")
-        sigma = predicted.get("sigma")
-        unit = escape(content.unit_text(str(predicted.get("unit", ""))))
-        if estimate is None:
-            text = "—"
-        elif sigma is not None and float(sigma) > 0:
-            text = f"{content.round_to_uncertainty(float(estimate), float(sigma))} ± {content.number(float(sigma), 2)} {unit}"
-        else:
-            text = f"{_fmt(float(estimate), 3)} {unit}"
-        p_value = c.get("p_value")
+    for c in d.candidates[:12]:
         rows.append(
             [
-                markup(str(c.get("id", ""))),
-                "—" if p_value is None else f"{float(p_value):.2g}",
-                "—" if c.get("delta_bic") is None else f"{float(c['delta_bic']):.1f}".replace("-", MINUS),
-                text,
-                "yes" if c.get("flagged") else "no",
-                prose(advice_text(str(c.get("advice", "")))),
+                markup(c.id),
+                number(c.p_value, f"{c.p_value:.2g}"),
+                number(c.delta_bic, f"{c.delta_bic:.1f}".replace("-", MINUS)),
+                _estimate_text(c.estimate, c.sigma, escape(content.unit_text(c.unit))),
+                "yes" if c.flagged else "no",
+                prose(advice_text(c.advice)),
             ]
         )
     if len(rows) > 1:
         out.append(document.table(rows, [0.13, 0.09, 0.08, 0.2, 0.07, 0.43], align_right=(1, 2), markup=True))
     else:
         out.append(_p("No candidate effect was tested."))
-    steps = []
-    for step in d.get("history", []):
-        rms = [float(x) for x in step.get("residual_rms", [])]
-        floor = [float(x) for x in step.get("noise_floor", [])]
+    steps: list[dict[str, Any]] = []
+    for step in d.history:
+        rms = [float(x) for x in step.rms]
+        floor = [float(x) for x in step.noise_floor]
         if not rms:
             continue
         steps.append(
             {
-                "label": str(step.get("label", "")),
+                "label": step.label,
                 "residual_rms": math.sqrt(sum(x * x for x in rms) / len(rms)) / MICRO_G,
                 "noise_floor": math.sqrt(sum(x * x for x in floor) / len(floor)) / MICRO_G if floor else None,
                 "unit": "µg",
-                "chi2_red": step.get("chi2_red"),
-                "bic": step.get("bic"),
+                "chi2_red": step.chi2_red if math.isfinite(step.chi2_red) else None,
+                "bic": step.bic if math.isfinite(step.bic) else None,
             }
         )
     if steps:

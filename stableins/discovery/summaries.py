@@ -1,0 +1,371 @@
+"""The parts of a diagnosis document as data: candidates, drift, Earth-rate spectra, and the checks that read them.
+
+Each part has ``to_json`` (the form :class:`stableins.discovery.diagnose_report.DiagnoseReport` writes) and
+``from_json``, which checks every field (:class:`~stableins.errors.InputError` naming the file and the field).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from os import PathLike
+from typing import TYPE_CHECKING, Any
+
+from stableins.discovery.history import Step
+from stableins.errors import InputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.discovery.diagnostics import HarmonicSpectrum
+    from stableins.discovery.ranking import Ranking
+
+#: What the document is, for messages.
+DOCUMENT = "the output of 'stableins diagnose --json'"
+#: The unit of a candidate's largest predicted change of an observation (:meth:`stableins.discovery.ranking.CandidateScore.to_json`).
+OBSERVATION_UNIT = "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)"
+
+
+# ----------------------------------------------------------------------------- reading the document
+def join(where: str, key: str | int) -> str:
+    """Return the field name of ``key`` within ``where`` (``candidates[3]``, ``history[0].chi2_red``)."""
+    if isinstance(key, int):
+        return f"{where}[{key}]"
+    return f"{where}.{key}" if where else key
+
+
+class Reader:
+    """Field checks of one document: each returns the value with its type or raises InputError naming the field."""
+
+    def __init__(self, path: str | PathLike[str] | None) -> None:
+        self.path = path
+
+    def fail(self, message: str, where: str, expected: str) -> InputError:
+        """Return the InputError naming the file and the field."""
+        return InputError(message, path=self.path, field=where or None, expected=expected)
+
+    def mapping(self, value: Any, where: str, expected: str = "a JSON object") -> Mapping[str, Any]:
+        """Return ``value`` if it is an object."""
+        if not isinstance(value, Mapping):
+            raise self.fail(f"{value!r:.60} is not an object", where, expected)
+        return value
+
+    def get(self, item: Mapping[str, Any], key: str, where: str) -> Any:
+        """Return the value of a required key."""
+        if key not in item:
+            raise self.fail("missing", join(where, key), f"the key {key!r} ({DOCUMENT})")
+        return item[key]
+
+    def text(self, value: Any, where: str) -> str:
+        """Return ``value`` if it is a string."""
+        from stableins.data.jsonio import expect_text
+
+        return expect_text(value, self.path, where)
+
+    def boolean(self, value: Any, where: str) -> bool:
+        """Return ``value`` if it is true or false."""
+        if not isinstance(value, bool):
+            raise self.fail(f"{value!r:.60} is not true or false", where, "a boolean")
+        return value
+
+    def number(self, value: Any, where: str, *, nullable: bool = True, minimum: float | None = None) -> float:
+        """Return a finite number (kept an int when written as one), or NaN for null when ``nullable``."""
+        from stableins.data.jsonio import expect_number
+
+        if value is None and nullable:
+            return math.nan
+        expected = "a finite number" + (" or null" if nullable else "") + ("" if minimum is None else f" >= {minimum:g}")
+        expect_number(value, self.path, where, minimum=minimum, expected=expected)
+        return value if isinstance(value, int) else float(value)
+
+    def integer(self, value: Any, where: str) -> int:
+        """Return ``value`` if it is a non-negative integer."""
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise self.fail(f"{value!r:.60} is not a non-negative integer", where, "a non-negative integer")
+        return value
+
+    def items(self, value: Any, where: str, read: Callable[[Any, str], Any]) -> tuple[Any, ...]:
+        """Return each item of a list read by ``read(item, field)``."""
+        from stableins.data.jsonio import expect_list
+
+        return tuple(read(item, join(where, k)) for k, item in enumerate(expect_list(value, self.path, where)))
+
+    def texts(self, value: Any, where: str) -> tuple[str, ...]:
+        """Return a list of strings."""
+        return self.items(value, where, self.text)
+
+    def numbers(self, value: Any, where: str, *, nullable: bool = True, minimum: float | None = None) -> tuple[float, ...]:
+        """Return a list of numbers (:meth:`number` each)."""
+        return self.items(value, where, lambda v, w: self.number(v, w, nullable=nullable, minimum=minimum))
+
+    def step(self, value: Any, where: str) -> Step:
+        """Return a history step (:meth:`stableins.discovery.history.Step.from_json`, its ``ValueError`` as InputError naming the field)."""
+        item = self.mapping(value, where)
+        if item.get("residual_rms_unit", "m/s^2") != "m/s^2":
+            raise self.fail(f"{item['residual_rms_unit']!r:.60}", join(where, "residual_rms_unit"), "'m/s^2'")
+        try:
+            return Step.from_json(item, where)
+        except ValueError as error:
+            field, _, expected = str(error).partition(": ")
+            raise self.fail("malformed", field, expected.removeprefix("expected ")) from None
+
+
+def finite(x: float) -> float | None:
+    """Return ``x``, or None (JSON null) when it is not finite."""
+    return x if math.isfinite(x) else None
+
+
+# ----------------------------------------------------------------------------- parts of the document
+@dataclass(frozen=True)
+class CandidateSummary:
+    """One candidate effect's standing against the model in force (:class:`stableins.discovery.ranking.CandidateScore` as data).
+
+    Attributes
+    ----------
+    id : str
+        Candidate id.
+    statistic, p_value, delta_bic : float
+        ΔRSS in χ² units, the F-test p-value and the BIC change on adding the effect (negative favours it).
+    estimate, sigma : float
+        The effect's estimate and 1σ, in ``unit`` (its engineering unit).
+    unit : str
+        Engineering unit of ``estimate`` and ``sigma``.
+    max_output_change : float
+        Largest change of an observation the estimated effect causes, in ``max_output_change_unit``.
+    max_output_change_unit : str
+        The SI unit of the observation.
+    identifiable, excited : bool
+        Whether the data separate the effect from the model, and excite it at all.
+    separability : float
+        ``‖z⊥‖/‖z‖``.
+    aliases : tuple of (str, float)
+        Model parameters the effect goes into when left out, with the shift per unit effect.
+    confused_with : tuple of str
+        Candidates these data cannot tell from this one.
+    refit : bool
+        Whether the numbers come from a full refit.
+    flagged : bool
+        Whether the effect is flagged at the family-wise false-alarm level.
+    advice : str
+        What would separate or confirm it.
+    """
+
+    id: str
+    statistic: float
+    p_value: float
+    delta_bic: float
+    estimate: float
+    sigma: float
+    unit: str
+    max_output_change: float
+    max_output_change_unit: str
+    identifiable: bool
+    excited: bool
+    separability: float
+    aliases: tuple[tuple[str, float], ...]
+    confused_with: tuple[str, ...]
+    refit: bool
+    flagged: bool
+    advice: str
+
+    @classmethod
+    def from_ranking(cls, ranking: Ranking) -> tuple[CandidateSummary, ...]:
+        """Every candidate of a ranking, best first, as :meth:`stableins.discovery.ranking.Ranking.to_json` writes them."""
+        return tuple(cls.from_json(item, where=f"candidates[{k}]") for k, item in enumerate(ranking.to_json()))
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the candidate as :meth:`stableins.discovery.ranking.CandidateScore.to_json` writes it."""
+        return {
+            "id": self.id,
+            "statistic": finite(self.statistic),
+            "p_value": finite(self.p_value),
+            "delta_bic": finite(self.delta_bic),
+            "predicted": {
+                "estimate": finite(self.estimate),
+                "sigma": finite(self.sigma),
+                "unit": self.unit,
+                "max_output_change": finite(self.max_output_change),
+                "max_output_change_unit": self.max_output_change_unit,
+            },
+            "identifiable": self.identifiable,
+            "excited": self.excited,
+            "separability": finite(self.separability),
+            "aliases": [{"id": pid, "shift_per_unit": finite(c)} for pid, c in self.aliases],
+            "confused_with": list(self.confused_with),
+            "refit": self.refit,
+            "flagged": self.flagged,
+            "advice": self.advice,
+        }
+
+    @classmethod
+    def from_json(cls, document: Any, path: str | PathLike[str] | None = None, *, where: str = "candidate") -> CandidateSummary:
+        """Read a candidate written by :meth:`to_json` (InputError naming the field otherwise)."""
+        r = Reader(path)
+        item = r.mapping(document, where)
+        predicted = r.mapping(r.get(item, "predicted", where), join(where, "predicted"))
+        at = join(where, "predicted")
+
+        def alias(value: Any, place: str) -> tuple[str, float]:
+            entry = r.mapping(value, place)
+            shift = r.number(r.get(entry, "shift_per_unit", place), join(place, "shift_per_unit"))
+            return r.text(r.get(entry, "id", place), join(place, "id")), shift
+
+        def number(key: str) -> float:
+            return r.number(r.get(item, key, where), join(where, key))
+
+        def flag(key: str) -> bool:
+            return r.boolean(r.get(item, key, where), join(where, key))
+
+        return cls(
+            id=r.text(r.get(item, "id", where), join(where, "id")),
+            statistic=number("statistic"),
+            p_value=number("p_value"),
+            delta_bic=number("delta_bic"),
+            estimate=r.number(r.get(predicted, "estimate", at), join(at, "estimate")),
+            sigma=r.number(r.get(predicted, "sigma", at), join(at, "sigma")),
+            unit=r.text(r.get(predicted, "unit", at), join(at, "unit")),
+            max_output_change=r.number(r.get(predicted, "max_output_change", at), join(at, "max_output_change")),
+            max_output_change_unit=r.text(r.get(predicted, "max_output_change_unit", at), join(at, "max_output_change_unit")),
+            identifiable=flag("identifiable"),
+            excited=flag("excited"),
+            separability=number("separability"),
+            aliases=r.items(r.get(item, "aliases", where), join(where, "aliases"), alias),
+            confused_with=r.texts(r.get(item, "confused_with", where), join(where, "confused_with")),
+            refit=flag("refit"),
+            flagged=flag("flagged"),
+            advice=r.text(r.get(item, "advice", where), join(where, "advice")),
+        )
+
+
+@dataclass(frozen=True)
+class DriftSummary:
+    """The platform-drift candidates ``Dg_*`` ranked on the angle-reading slopes within dwells (:mod:`stableins.discovery.drift`).
+
+    Attributes
+    ----------
+    chi2_red : float
+        ``χ²_ν`` of the slopes under the model without drift.
+    dof : int
+        Its degrees of freedom.
+    candidates : tuple of CandidateSummary
+        The drift candidates, best first.
+    left_out : tuple of str
+        Dwells left out of the drift analysis, and why.
+    """
+
+    chi2_red: float
+    dof: int
+    candidates: tuple[CandidateSummary, ...]
+    left_out: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the ``drift`` section of the document."""
+        return {
+            "chi2_red": finite(self.chi2_red),
+            "dof": self.dof,
+            "candidates": [c.to_json() for c in self.candidates],
+            "left_out": list(self.left_out),
+        }
+
+    @classmethod
+    def from_json(cls, document: Any, path: str | PathLike[str] | None = None, *, where: str = "drift") -> DriftSummary:
+        """Read the section written by :meth:`to_json` (InputError naming the field otherwise)."""
+        r = Reader(path)
+        item = r.mapping(document, where)
+        candidates = r.items(
+            r.get(item, "candidates", where), join(where, "candidates"), lambda v, w: CandidateSummary.from_json(v, path, where=w)
+        )
+        return cls(
+            chi2_red=r.number(r.get(item, "chi2_red", where), join(where, "chi2_red")),
+            dof=r.integer(r.get(item, "dof", where), join(where, "dof")),
+            candidates=candidates,
+            left_out=r.texts(r.get(item, "left_out", where), join(where, "left_out")),
+        )
+
+
+@dataclass(frozen=True)
+class SpectrumSummary:
+    """One output's residual at the Earth-rate harmonics (:class:`stableins.discovery.diagnostics.HarmonicSpectrum` as data).
+
+    Attributes
+    ----------
+    output : str
+        The output (``f_x``, ``f_y``, ``f_z``).
+    harmonics : tuple of int
+        Harmonic numbers of the Earth rate.
+    amplitude, sigma : tuple of float
+        Residual amplitude at each harmonic and its 1σ, in ``unit``.
+    chi2, p_value : tuple of float
+        Test statistic of each harmonic and its p-value.
+    dof : tuple of float or None
+        Degrees of freedom of each test (None: 2 each).
+    flagged : tuple of bool
+        Whether each harmonic is significant at the family-wise level.
+    unit : str
+        Unit of the amplitudes.
+    """
+
+    output: str
+    harmonics: tuple[int, ...]
+    amplitude: tuple[float, ...]
+    sigma: tuple[float, ...]
+    chi2: tuple[float, ...]
+    dof: tuple[float, ...] | None
+    p_value: tuple[float, ...]
+    flagged: tuple[bool, ...]
+    unit: str = "m/s^2"
+
+    def __post_init__(self) -> None:
+        n = len(self.harmonics)
+        lengths = [len(self.amplitude), len(self.sigma), len(self.chi2), len(self.p_value), len(self.flagged)]
+        if self.dof is not None:
+            lengths.append(len(self.dof))
+        if any(m != n for m in lengths):
+            raise ValueError(f"SpectrumSummary {self.output}: every list needs one entry per harmonic ({n})")
+
+    @classmethod
+    def from_spectrum(cls, output: str, spectrum: HarmonicSpectrum, flagged: Sequence[bool]) -> SpectrumSummary:
+        """Summarize the spectrum of one output, with the flag of each harmonic."""
+        return cls(
+            output=output,
+            harmonics=tuple(spectrum.harmonics.tolist()),
+            amplitude=tuple(spectrum.amplitude.tolist()),
+            sigma=tuple(spectrum.sigma.tolist()),
+            chi2=tuple(spectrum.chi2.tolist()),
+            dof=None if spectrum.dof is None else tuple(spectrum.dof.tolist()),
+            p_value=tuple(spectrum.p_value.tolist()),
+            flagged=tuple(bool(f) for f in flagged),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the output's entry of the document's ``spectra``."""
+        return {
+            "harmonics": list(self.harmonics),
+            "amplitude": [finite(x) for x in self.amplitude],
+            "sigma": [finite(x) for x in self.sigma],
+            "chi2": [finite(x) for x in self.chi2],
+            "dof": None if self.dof is None else [finite(x) for x in self.dof],
+            "p_value": [finite(x) for x in self.p_value],
+            "flagged": list(self.flagged),
+            "unit": self.unit,
+        }
+
+    @classmethod
+    def from_json(cls, output: str, document: Any, path: str | PathLike[str] | None = None) -> SpectrumSummary:
+        """Read the entry of ``output`` written by :meth:`to_json` (InputError naming the field otherwise)."""
+        r = Reader(path)
+        where = f"spectra.{output}"
+        item = r.mapping(document, where)
+
+        def numbers(key: str) -> tuple[float, ...]:
+            return r.numbers(r.get(item, key, where), join(where, key))
+
+        dof = None if r.get(item, "dof", where) is None else numbers("dof")
+        harmonics = r.items(r.get(item, "harmonics", where), join(where, "harmonics"), r.integer)
+        values = {key: numbers(key) for key in ("amplitude", "sigma", "chi2", "p_value")}
+        flagged = r.items(r.get(item, "flagged", where), join(where, "flagged"), r.boolean)
+        lists = {**values, "flagged": flagged} | ({} if dof is None else {"dof": dof})
+        for key, entries in lists.items():
+            if len(entries) != len(harmonics):
+                raise r.fail(f"{len(entries)} entries for {len(harmonics)} harmonics", join(where, key), "one entry per harmonic")
+        unit = r.text(r.get(item, "unit", where), join(where, "unit"))
+        return cls(output, harmonics, dof=dof, flagged=flagged, unit=unit, **values)
