@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
+from stableins.discovery.dwells import DwellSet, slew_directions
 from stableins.discovery.history import Discovery, History, make_step
 from stableins.discovery.library import LIBRARY, Library, custom_effect
-from stableins.discovery.problem import DwellProblem, DwellSet, LinearProblem, slew_directions
+from stableins.discovery.linear import LinearProblem
+from stableins.discovery.problem import DwellProblem
 from stableins.discovery.ranking import rank
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
 from stableins.platform import platform_specific_force

@@ -54,9 +54,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from stableins.data.device import load_device
+    from stableins.discovery.dwells import dwells_from_dataset
     from stableins.discovery.history import Discovery
     from stableins.discovery.library import LIBRARY
-    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+    from stableins.discovery.problem import DwellProblem
     from stableins.errormodel import ErrorModel
     from stableins.errors import InputError
     from stableins.output import emit, note

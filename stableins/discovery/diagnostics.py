@@ -3,7 +3,7 @@ r"""Compare a fitted model with the measurements and see where it fails.
 For any fitted stage (a :class:`~stableins.estimators.result.FitResult`):
 
 * residuals per position and axis against the noise floor measured independently of the
-  fit (within-dwell scatter, :func:`stableins.discovery.problem.dwell_means`);
+  fit (within-dwell scatter, :func:`stableins.discovery.dwells.dwell_means`);
 * ``χ²_ν = χ²/ν`` with its expected spread ``sqrt(2/ν)`` and the probability of a larger
   value under the model, ``P(χ²_ν' ≥ χ²_ν)``;
 * plots: residuals per position with 1σ bars, residuals against orientation (``f^p/g`` per

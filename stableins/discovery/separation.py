@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from stableins.discovery.problem import DwellProblem, DwellSet, whiten
+from stableins.discovery.dwells import DwellSet
+from stableins.discovery.problem import DwellProblem, whiten
 from stableins.errormodel import Term
 from stableins.estimators.result import FitResult
 

@@ -35,8 +35,8 @@ import numpy as np
 
 from stableins.conventions import MICRO_G
 from stableins.discovery.diagnostics import Diagnosis, HarmonicSpectrum
+from stableins.discovery.dwells import DwellSet
 from stableins.discovery.history import Discovery
-from stableins.discovery.problem import DwellSet
 from stableins.discovery.ranking import Ranking
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
@@ -182,7 +182,8 @@ def diagnose_system_record(
     """
     from stableins.conventions import GimbalConfiguration
     from stableins.discovery.diagnostics import residual_spectra
-    from stableins.discovery.problem import DwellProblem, bins_from_chunks
+    from stableins.discovery.linear import bins_from_chunks
+    from stableins.discovery.problem import DwellProblem
 
     site = record.metadata
     width = float(bin_seconds)

@@ -56,9 +56,10 @@ from stableins.conventions import (
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.errors import InputError
 from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
+from stableins.estimators.details import CoarseDetails, UsedDwell
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import CoarseDetails, FitResult, Likelihood, UsedDwell
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 from stableins.platform import platform_specific_force, specific_force_and_jacobian

@@ -55,10 +55,11 @@ from numpy.typing import NDArray
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
 from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.details import UsedDwell
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood, UsedDwell
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 from stableins.status import Status
