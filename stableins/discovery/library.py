@@ -56,8 +56,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import AXES, Term, TermInputs, TermKind
+from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.errormodel import Term, TermInputs, TermKind
 
 G0 = STANDARD_GRAVITY
 MICRO_G_PER_G2 = MICRO_G / G0**2

@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stableins.conventions import AXES
 from stableins.discovery.dwells import DwellSet, slew_directions
-from stableins.errormodel import AXES, ErrorModel, Term, TermInputs, TermKind
+from stableins.errormodel import ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
