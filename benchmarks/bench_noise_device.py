@@ -89,7 +89,7 @@ def true_noise(truth, summaries):
 
 
 def z_scores(fit, truth) -> dict[str, tuple[float, float]]:
-    from stableins.estimators.coarse import gauge_equivalent
+    from stableins.estimators.device_gauge import gauge_equivalent
 
     g = gauge_equivalent(truth.parameters)
     return {k: (fit[k][0] - g[k], fit[k][1]) for k in fit.ids if fit[k][2] == "estimated"}

@@ -17,7 +17,7 @@ from stableins.discovery.history import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
 from stableins.errors import InputError
-from stableins.estimators.coarse import gauge_equivalent
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.noise import NoiseModel

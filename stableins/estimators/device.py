@@ -17,12 +17,13 @@ import numpy as np
 from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
 from stableins.errors import InputError
-from stableins.estimators.coarse import calibrate_coarse, check_orientation
+from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
+from stableins.estimators.orientation import check_orientation
 from stableins.estimators.result import FitResult
 from stableins.estimators.slow_noise import DEFAULT_ALPHA, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
@@ -310,7 +311,7 @@ def calibrate_device(
     if fine_dwells:
         usable = [d for d in fine_dwells if d.usable]
         tolerance = fine_procedure.checks.orientation_tolerance
-        wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance, f"{source} (fine)")
+        wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance=tolerance, source=f"{source} (fine)")
         fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
         fine = calibrate_fine(
             fine_dwells,

@@ -54,8 +54,9 @@ from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
-from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.coarse import CoarseProblem, coarse_model
 from stableins.estimators.details import UsedDwell
+from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
