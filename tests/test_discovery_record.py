@@ -13,7 +13,7 @@ from stableins import cli
 from stableins.conventions import MICRO_G
 from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
-from stableins.discovery.history import Decision
+from stableins.discovery.steps import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
 from stableins.errors import InputError

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC
-from stableins.discovery.diagnostics import residual_spectra
+from stableins.discovery.harmonics import residual_spectra
 from stableins.discovery.history import Discovery
 from stableins.discovery.library import LIBRARY
 from stableins.discovery.linear import bins_from_chunks

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,9 +32,6 @@ from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.status import Status
-
-if TYPE_CHECKING:  # pragma: no cover
-    pass
 
 
 @dataclass(frozen=True, eq=False)
