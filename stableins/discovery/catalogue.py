@@ -1,4 +1,7 @@
-"""The shipped candidate effects of model discovery: each an additive error-model term with its group and the procedure that separates it."""
+"""The shipped candidate effects of model discovery.
+
+Each is an additive error-model term with its group and the procedure that separates it.
+"""
 
 from __future__ import annotations
 

@@ -31,8 +31,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
+from stableins.discovery.problem import whiten
 from stableins.discovery.scores import (
     CONFUSION_CORRELATION,
     EXCITATION_TOLERANCE,
@@ -296,8 +298,6 @@ def rank(
         separation = {c.id: c.separation for c in LIBRARY}
     model_ids = set(result.ids)
     terms = [t for t in candidates if t.id not in model_ids]
-    from stableins.discovery.problem import whiten
-
     r = whiten(problem, result, result.residuals)
     x = whiten(problem, result, problem.design(result))
     est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == Status.ESTIMATED]
@@ -306,12 +306,7 @@ def rank(
     rss0 = float(r @ r)
     raw_columns = _candidate_columns(problem, terms, result)
     columns = whiten(problem, result, raw_columns)
-    q, _ = np.linalg.qr(x)
-    z_perp = columns - q @ (q.T @ columns)
-    norm_z = np.linalg.norm(columns, axis=0)
-    norm_perp = np.linalg.norm(z_perp, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        separability = np.where(norm_z > 0, norm_perp / np.where(norm_z > 0, norm_z, 1.0), 0.0)
+    z_perp, norm_z, norm_perp, separability = _separability(x, columns)
     nominal = np.array([abs(t.nominal) for t in terms])
     excited = norm_z * nominal > EXCITATION_TOLERANCE
     identifiable = excited & (separability > IDENTIFIABLE_TOLERANCE)
@@ -320,11 +315,7 @@ def rank(
     n_tested = max(int(identifiable.sum()), 1)
 
     # one-step statistics for every identifiable candidate
-    proj = z_perp.T @ r
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gamma = np.where(identifiable, proj / np.where(identifiable, norm_perp**2, 1.0), 0.0)
-        gsig = np.where(identifiable, 1.0 / np.where(identifiable, norm_perp, 1.0), np.inf)
-    delta = np.where(identifiable, gamma * proj, 0.0)
+    gamma, gsig, delta = _one_step(z_perp, norm_perp, r, identifiable)
 
     # pairwise confusion among identifiable candidates
     unit_perp = np.where(identifiable, z_perp / np.where(norm_perp > 0, norm_perp, 1.0), 0.0)
@@ -360,7 +351,40 @@ def rank(
     if propose and hasattr(problem, "dwells"):
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
-    # full refit of the best identifiable candidates
+    scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
+    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
+    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
+
+
+def _separability(
+    x: NDArray[np.float64], columns: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Candidate columns orthogonal to the whitened design ``x``, the norms before and after, and their ratio."""
+    q, _ = np.linalg.qr(x)
+    z_perp = columns - q @ (q.T @ columns)
+    norm_z = np.linalg.norm(columns, axis=0)
+    norm_perp = np.linalg.norm(z_perp, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        separability = np.where(norm_z > 0, norm_perp / np.where(norm_z > 0, norm_z, 1.0), 0.0)
+    return z_perp, norm_z, norm_perp, separability
+
+
+def _one_step(
+    z_perp: NDArray[np.float64], norm_perp: NDArray[np.float64], r: NDArray[np.float64], identifiable: NDArray[np.bool_]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """One-step estimate ``γ``, its 1σ and the fall of the residual sum of squares of each identifiable candidate."""
+    proj = z_perp.T @ r
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gamma = np.where(identifiable, proj / np.where(identifiable, norm_perp**2, 1.0), 0.0)
+        gsig = np.where(identifiable, 1.0 / np.where(identifiable, norm_perp, 1.0), np.inf)
+    delta = np.where(identifiable, gamma * proj, 0.0)
+    return gamma, gsig, delta
+
+
+def _refit_best(
+    problem: Problem, result: FitResult, scores: list[CandidateScore], *, refit_top: int, nu: int, m: int
+) -> list[CandidateScore]:
+    """The scores with the best ``refit_top`` identifiable candidates refitted by the full fitter, best first."""
     refits = []
     model = ErrorModel(result.terms)
     for c in [c for c in scores if c.identifiable][:refit_top]:
@@ -368,7 +392,4 @@ def rank(
     by_id = {c.id: c for c in refits}
     scores = [by_id.get(c.id, c) for c in scores]
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
-    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
-    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
-
-
+    return scores

@@ -263,7 +263,7 @@ def calibrate_coarse(
         gauge = choose_gauge(design, gauge_preference(tuple(held)), scales)
     notes.extend(_setting_notes(held, start_values, model, left_out, standard_gauge, start, nonlinear=nonlinear))
     residuals, residual_sigma, labels = _residuals(problem, solution.x, usable)
-    notes.extend(_quality_notes(solution, design, residuals / residual_sigma, labels))
+    notes.extend(quality_notes(solution, design, residuals / residual_sigma, labels))
     return FitResult(
         stage="coarse",
         terms=model.terms,
@@ -404,10 +404,10 @@ def _start_gauge(
     return start, gauge, held
 
 
-def _quality_notes(
+def quality_notes(
     solution: GaussNewtonSolution, design: DesignAnalysis, normalized: NDArray[np.float64], labels: tuple[str, ...]
 ) -> list[str]:
-    """The notes of a coarse fit on its convergence, its goodness of fit and its weakly determined parameters."""
+    """The notes of a device fit on its convergence, its goodness of fit and its weakly determined parameters."""
     notes = []
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
     if (stalled := convergence_warning(solution)) is not None:

@@ -311,7 +311,8 @@ def calibrate_device(
     if fine_dwells:
         usable = [d for d in fine_dwells if d.usable]
         tolerance = fine_procedure.checks.orientation_tolerance
-        wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance=tolerance, source=f"{source} (fine)")
+        base_dcm = dcm_nav_to_body(*site.base_attitude)
+        wrong = check_orientation(usable, site.gravity, base_dcm, configuration, tolerance=tolerance, source=f"{source} (fine)")
         fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
         fine = calibrate_fine(
             fine_dwells,
