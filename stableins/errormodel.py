@@ -447,6 +447,7 @@ class ErrorModel:
                 i = t.axis
                 jac[..., i, k] = gain[..., i] * u[..., i] ** 2
             elif t.kind == TermKind.ADDITIVE:
+                assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 jac[..., k] = gain * t.regressor(self._inputs(f_p, inputs))
         return jac
 
@@ -482,6 +483,7 @@ class ErrorModel:
         for t in terms:
             value = np.asarray(values.get(t.id, t.reference), dtype=float)
             if np.any(value != 0.0):
+                assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 total = total + value[..., None] * t.regressor(full)
         return total
 
