@@ -234,7 +234,7 @@ def make_step(result: FitResult, label: str, previous: FitResult | None = None) 
 
     k = result.rank
     m = result.residuals.size
-    added = ()
+    added: tuple[tuple[str, float, float, str], ...] = ()
     shifts: dict = {}
     if previous is not None:
         old = dict(zip(previous.ids, zip(previous.values, previous.sigma, previous.status, strict=True), strict=True))
