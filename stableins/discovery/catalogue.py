@@ -15,21 +15,11 @@ from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import Term, TermInputs, TermKind
 
 G0 = STANDARD_GRAVITY
-
-
 MICRO_G_PER_G2 = MICRO_G / G0**2
-
-
 MICRO_G_PER_G3 = MICRO_G / G0**3
-
-
 DEG_PER_HOUR = np.pi / 180.0 / 3600.0
 #: °/h per g expressed in rad/s per (m/s²).
-
-
-#: °/h per g expressed in rad/s per (m/s²).
 DEG_PER_HOUR_PER_G = DEG_PER_HOUR / G0
-
 
 #: Groups of candidates, for reports.
 GROUPS = ("instrument", "environment", "rotation", "equipment", "custom")

@@ -20,14 +20,8 @@ if TYPE_CHECKING:  # pragma: no cover
 #: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
 IDENTIFIABLE_TOLERANCE = 1e-3
 #: A candidate whose nominal size moves the data by less than this (whitened norm over the whole record) is "not excited".
-
-
-#: A candidate whose nominal size moves the data by less than this (whitened norm over the whole record) is "not excited".
 EXCITATION_TOLERANCE = 0.05
-#: |corr| of projected columns above which two candidates cannot be told apart.
-
-
-#: |corr| of projected columns above which two candidates cannot be told apart.
+#: ``|corr|`` of projected columns above which two candidates cannot be told apart.
 CONFUSION_CORRELATION = 0.99
 
 

@@ -34,7 +34,7 @@ class Decision(StrEnum):
         return self in (Decision.BASELINE, Decision.KEPT, Decision.KEPT_ON_REQUEST)
 
 
-#: Output channels a residual label may end with (device dwell means per axis, the fine stage's |f|).
+#: Output channels a residual label may end with (device dwell means per axis, the fine stage's ``|f|``).
 CHANNELS = ("f_x", "f_y", "f_z", "|f|")
 
 

@@ -33,9 +33,6 @@ from stableins.noise import NoiseModel, SlowNoiseTest
 #: Cluster sizes of the dwell test, as fractions of the dwell's samples.
 TEST_FRACTIONS = (4, 8, 16, 32)
 #: False-positive rate of the slow-noise decision.
-
-
-#: False-positive rate of the slow-noise decision.
 DEFAULT_ALPHA = 0.05
 
 
