@@ -216,6 +216,7 @@ def custom_effect(
     Examples
     --------
     >>> import numpy as np
+    >>> from stableins.conventions import MICRO_G, STANDARD_GRAVITY
     >>> def fourth(inputs):
     ...     out = np.zeros_like(inputs.specific_force)
     ...     out[..., 0] = inputs.specific_force[..., 0] ** 4
