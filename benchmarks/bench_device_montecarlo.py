@@ -40,7 +40,8 @@ from scipy import stats  # noqa: E402
 
 from stableins import conventions as cv  # noqa: E402
 from stableins.errormodel import ErrorModel  # noqa: E402
-from stableins.estimators.coarse import CoarseProblem, coarse_model, gauge_equivalent, solve_coarse  # noqa: E402
+from stableins.estimators.coarse import CoarseProblem, coarse_model, solve_coarse  # noqa: E402
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine  # noqa: E402
 from stableins.procedures.definition import load_procedure  # noqa: E402
 

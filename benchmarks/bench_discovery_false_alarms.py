@@ -22,8 +22,9 @@ import time
 
 import numpy as np
 
+from stableins.discovery.dwells import dwell_means
 from stableins.discovery.history import Discovery
-from stableins.discovery.problem import DwellProblem, dwell_means
+from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure

@@ -89,15 +89,16 @@ def true_noise(truth, summaries):
 
 
 def z_scores(fit, truth) -> dict[str, tuple[float, float]]:
-    from stableins.estimators.coarse import gauge_equivalent
+    from stableins.estimators.device_gauge import gauge_equivalent
 
     g = gauge_equivalent(truth.parameters)
     return {k: (fit[k][0] - g[k], fit[k][1]) for k in fit.ids if fit[k][2] == "estimated"}
 
 
 def diagnose(datasets, truth, noise, effect=None):
+    from stableins.discovery.dwells import dwells_from_dataset
     from stableins.discovery.history import Discovery
-    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+    from stableins.discovery.problem import DwellProblem
     from stableins.errormodel import ErrorModel
     from stableins.procedures.definition import device_layouts
 
@@ -134,8 +135,9 @@ def part_ab(job):
 
 def signal_scale(datasets, truth, noise, effect: str) -> float:
     """Value [SI] of ``effect`` whose signal √λ is 1 in these dwells (linear: ‖(I − H) z‖ of the whitened column)."""
+    from stableins.discovery.dwells import dwells_from_dataset
     from stableins.discovery.library import LIBRARY
-    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+    from stableins.discovery.problem import DwellProblem
     from stableins.errormodel import ErrorModel
     from stableins.procedures.definition import device_layouts
 

@@ -15,8 +15,9 @@ import numpy as np
 
 from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
 from stableins.discovery.diagnostics import diagnose
+from stableins.discovery.dwells import dwell_means
 from stableins.discovery.history import Discovery
-from stableins.discovery.problem import DwellProblem, dwell_means
+from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure

@@ -336,3 +336,24 @@ def misalignment_pitch_roll(relative: NDArray[np.float64]) -> tuple[NDArray[np.f
     ``(δpitch, δroll) = (−φ_E, −φ_N)`` as for a level north-pointing body (:func:`attitude_error_from_misalignment`).
     """
     return -0.5 * (relative[:, 0, 2] - relative[:, 2, 0]), -0.5 * (relative[:, 2, 1] - relative[:, 1, 2])
+
+
+#: What each installation angle of ``C_p^a`` is (Eq. 5).
+INSTALLATION_MEANING: Final = {
+    "beta_xy": "rotation of the x sensitive axis about y_p",
+    "beta_xz": "rotation of the x sensitive axis about z_p",
+    "beta_yx": "rotation of the y sensitive axis about x_p",
+    "beta_yz": "rotation of the y sensitive axis about z_p",
+    "beta_zx": "rotation of the z sensitive axis about x_p",
+    "beta_zy": "rotation of the z sensitive axis about y_p",
+}
+
+#: What each gimbal zero offset is (Wu et al. 2018 Section 3).
+GIMBAL_OFFSET_MEANING: Final = {
+    "theta10": "zero offset of the platform-axis (z_p) angle sensor",
+    "theta20": "zero offset of the inner-gimbal (x) angle sensor",
+    "theta30": "zero offset of the middle-gimbal (y) angle sensor",
+}
+
+#: The accelerometer (and platform) axes, in order.
+AXES = ("x", "y", "z")

@@ -31,7 +31,6 @@ arcsec, µg/g²) exist only at the edges through :meth:`Term.to_engineering`.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
@@ -41,9 +40,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import ARCSEC, INSTALLATION_ENTRIES, MICRO_G, PPM, STANDARD_GRAVITY, dcm_platform_to_accelerometer
-
-AXES = ("x", "y", "z")
+from stableins.conventions import (
+    ARCSEC,
+    AXES,
+    GIMBAL_OFFSET_MEANING,
+    INSTALLATION_ENTRIES,
+    INSTALLATION_MEANING,
+    MICRO_G,
+    PPM,
+    STANDARD_GRAVITY,
+)
+from stableins.coremodel import CoreValues, solve_quadratic
+from stableins.units import QUANTITY, normalize_unit
 
 
 class TermKind(StrEnum):
@@ -192,7 +200,7 @@ class Term:
             The number is not a finite ASCII decimal, or the unit is neither the engineering nor the SI unit; the message
             says what is expected.
         """
-        match = _QUANTITY.match(text.strip())
+        match = QUANTITY.match(text.strip())
         spellings = [self.unit, self.si_unit, *si_units]
         si = " or ".join(dict.fromkeys(s for s in spellings[1:] if s and s != "1")) or "dimensionless"
         expected = f"a number in {self.unit}, or in SI ({si}; a bare number is SI), e.g. {self.id}=10{self.unit.replace('^', '')}"
@@ -208,43 +216,11 @@ class Term:
         raise ValueError(f"{text!r}: {match.group(2).strip()!r} is not a unit of {self.id} (expected {expected})")
 
 
-#: A number (ASCII decimal, scientific notation allowed) and whatever follows it (the unit).
-_QUANTITY = re.compile(r"^([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
-_UNIT_SPELLINGS = (("μ", "u"), ("µ", "u"), ("²", "^2"), ("³", "^3"), ("⁴", "^4"), ("**", "^"), ("°", "deg"), ("·", "*"))
-
-
-def normalize_unit(unit: str) -> str:
-    """A unit as it is compared: no spaces, ``µ``/``μ`` → ``u``, ``²`` → ``^2``, ``g2`` → ``g^2`` (a letter followed by a
-    digit is a power), ``°`` → ``deg``; ``"1"`` (dimensionless) → ``""``.
-
-    >>> normalize_unit("µg/g²") == normalize_unit("ug/g2") == normalize_unit("ug / g^2") == "ug/g^2"
-    True
-    """
-    text = "".join(unit.split())
-    for old, new in _UNIT_SPELLINGS:
-        text = text.replace(old, new)
-    text = re.sub(r"(?<=[A-Za-z])(\d)", r"^\1", text)
-    return "" if text == "1" else text
-
-
 MICRO_G_PER_G2 = MICRO_G / STANDARD_GRAVITY**2
 
 #: Order of the six installation angles (alphabetical) and their C_p^a positions.
 BETA_IDS = ("beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
-_BETA_MEANING = {
-    "beta_xy": "rotation of the x sensitive axis about y_p",
-    "beta_xz": "rotation of the x sensitive axis about z_p",
-    "beta_yx": "rotation of the y sensitive axis about x_p",
-    "beta_yz": "rotation of the y sensitive axis about z_p",
-    "beta_zx": "rotation of the z sensitive axis about x_p",
-    "beta_zy": "rotation of the z sensitive axis about y_p",
-}
 GIMBAL_IDS = ("theta10", "theta20", "theta30")
-_GIMBAL_MEANING = {
-    "theta10": "zero offset of the platform-axis (z_p) angle sensor",
-    "theta20": "zero offset of the inner-gimbal (x) angle sensor",
-    "theta30": "zero offset of the middle-gimbal (y) angle sensor",
-}
 
 
 def _core_terms() -> tuple[Term, ...]:
@@ -269,7 +245,16 @@ def _core_terms() -> tuple[Term, ...]:
         )
     for bid in BETA_IDS:
         terms.append(
-            Term(bid, TermKind.INSTALLATION, "rad", "arcsec", ARCSEC, 30 * ARCSEC, _BETA_MEANING[bid] + " (Eq. 5)", axis=AXES.index(bid[5]))
+            Term(
+                bid,
+                TermKind.INSTALLATION,
+                "rad",
+                "arcsec",
+                ARCSEC,
+                30 * ARCSEC,
+                f"{INSTALLATION_MEANING[bid]} (Eq. 5)",
+                axis=AXES.index(bid[5]),
+            )
         )
     for i, a in enumerate(AXES):
         terms.append(
@@ -290,7 +275,7 @@ def _core_terms() -> tuple[Term, ...]:
 
 CORE_TERMS: tuple[Term, ...] = _core_terms()
 GIMBAL_TERMS: tuple[Term, ...] = tuple(
-    Term(g, TermKind.GIMBAL, "rad", "arcsec", ARCSEC, 60 * ARCSEC, _GIMBAL_MEANING[g], source="Wu et al. 2018 Section 3")
+    Term(g, TermKind.GIMBAL, "rad", "arcsec", ARCSEC, 60 * ARCSEC, GIMBAL_OFFSET_MEANING[g], source="Wu et al. 2018 Section 3")
     for g in GIMBAL_IDS
 )
 CORE_IDS = tuple(t.id for t in CORE_TERMS)
@@ -411,17 +396,17 @@ class ErrorModel:
         ndarray (..., 3)
             ``f^a`` [m/s²].
         """
-        p = _CoreValues.from_mapping(self, values)
+        p = self._core(values)
         f_p = np.asarray(specific_force_platform, dtype=float)
         f_ideal = np.einsum("...ij,...j->...i", p.installation, f_p)
         w = f_ideal / p.scale_factor + self._additive(values, f_p, inputs)
-        return p.bias + _solve_quadratic(w, p.quadratic)
+        return p.bias + solve_quadratic(w, p.quadratic)
 
     def inverse(
         self, output: ArrayLike, values: Mapping[str, ArrayLike], inputs: TermInputs | None = None, iterations: int = 4
     ) -> NDArray[np.float64]:
         """Accelerometer output → platform-frame specific force (Eq. 8, exact inverse)."""
-        p = _CoreValues.from_mapping(self, values)
+        p = self._core(values)
         u = np.asarray(output, dtype=float) - p.bias
         w = u - p.quadratic * u**2
         inverse_installation = np.linalg.inv(p.installation)
@@ -441,11 +426,11 @@ class ErrorModel:
         ``∂f^a/∂δb = I``.  Gimbal offsets act through ``f^p`` (see
         :meth:`jacobian_specific_force`) and are left zero here.
         """
-        p = _CoreValues.from_mapping(self, values)
+        p = self._core(values)
         f_p = np.asarray(specific_force_platform, dtype=float)
         f_ideal = np.einsum("...ij,...j->...i", p.installation, f_p)
         w = f_ideal / p.scale_factor + self._additive(values, f_p, inputs)
-        u = _solve_quadratic(w, p.quadratic)
+        u = solve_quadratic(w, p.quadratic)
         gain = 1.0 / (1.0 - 2.0 * p.quadratic * u)  # du/dw
         shape = np.broadcast_shapes(f_p.shape, p.bias.shape)
         jac = np.zeros(shape + (len(self),))
@@ -462,6 +447,7 @@ class ErrorModel:
                 i = t.axis
                 jac[..., i, k] = gain[..., i] * u[..., i] ** 2
             elif t.kind == TermKind.ADDITIVE:
+                assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 jac[..., k] = gain * t.regressor(self._inputs(f_p, inputs))
         return jac
 
@@ -469,15 +455,19 @@ class ErrorModel:
         self, specific_force_platform: ArrayLike, values: Mapping[str, ArrayLike], inputs: TermInputs | None = None
     ) -> NDArray[np.float64]:
         """``∂f^a/∂f^p`` (core terms; additive terms treated as fixed), shape ``(..., 3, 3)``."""
-        p = _CoreValues.from_mapping(self, values)
+        p = self._core(values)
         f_p = np.asarray(specific_force_platform, dtype=float)
         f_ideal = np.einsum("...ij,...j->...i", p.installation, f_p)
         w = f_ideal / p.scale_factor + self._additive(values, f_p, inputs)
-        u = _solve_quadratic(w, p.quadratic)
+        u = solve_quadratic(w, p.quadratic)
         gain = 1.0 / (1.0 - 2.0 * p.quadratic * u)
         return (gain / p.scale_factor)[..., :, None] * p.installation
 
     # ------------------------------------------------------------- internals
+    def _core(self, values: Mapping[str, Any]) -> CoreValues:
+        """The core terms' values in ``values`` as arrays (the quadratic term only if the model has it)."""
+        return CoreValues.from_mapping(values, nonlinear=any(t.kind == TermKind.NONLINEARITY for t in self.terms))
+
     @staticmethod
     def _inputs(f_p: NDArray[np.float64], inputs: TermInputs | None) -> TermInputs:
         return TermInputs(f_p) if inputs is None else replace(inputs, specific_force=f_p)
@@ -493,36 +483,8 @@ class ErrorModel:
         for t in terms:
             value = np.asarray(values.get(t.id, t.reference), dtype=float)
             if np.any(value != 0.0):
+                assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 total = total + value[..., None] * t.regressor(full)
         return total
 
 
-@dataclass(frozen=True)
-class _CoreValues:
-    scale_factor: NDArray[np.float64]  # (..., 3)
-    bias: NDArray[np.float64]  # (..., 3)
-    quadratic: NDArray[np.float64]  # (..., 3)
-    installation: NDArray[np.float64]  # (..., 3, 3)
-
-    @classmethod
-    def from_mapping(cls, model: ErrorModel, values: Mapping[str, Any]) -> _CoreValues:
-        def get(key: str, default: float) -> NDArray[np.float64]:
-            return np.asarray(values.get(key, default), dtype=float)
-
-        stack = lambda prefix, default: np.stack(np.broadcast_arrays(*(get(f"{prefix}_{a}", default) for a in AXES)), axis=-1)  # noqa: E731
-        return cls(
-            scale_factor=stack("sf", 1.0),
-            bias=stack("bias", 0.0),
-            quadratic=stack("K2", 0.0) if any(t.kind == TermKind.NONLINEARITY for t in model.terms) else np.zeros(3),
-            installation=dcm_platform_to_accelerometer(
-                *(get(b, 0.0) for b in ("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx"))
-            ),
-        )
-
-
-def _solve_quadratic(w: NDArray[np.float64], k: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Root of ``u − k u² = w`` that tends to ``w`` as ``k → 0`` (cancellation-free form)."""
-    discriminant = 1.0 - 4.0 * k * w
-    if np.any(discriminant <= 0.0):
-        raise ValueError("quadratic nonlinearity too large: K2·f reaches the fold of Eq. 6 (1 − 4 K w ≤ 0)")
-    return 2.0 * w / (1.0 + np.sqrt(discriminant))

@@ -390,7 +390,7 @@ def run_entries(runner: Runner) -> tuple[Any, ...]:
 
 def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
     """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
-    from stableins.estimators.result import SystemDetails
+    from stableins.estimators.details import SystemDetails
     from stableins.records import temperature_summary
 
     if columns is not None:

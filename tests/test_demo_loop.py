@@ -14,7 +14,7 @@ import pytest
 
 from stableins import cli
 from stableins.commands.demo import _datasheet, discovery_loop
-from stableins.discovery.history import Decision
+from stableins.discovery.steps import Decision
 from stableins.errormodel import MICRO_G_PER_G2
 from stableins.records import CalibrationRecord
 

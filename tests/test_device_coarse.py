@@ -6,7 +6,8 @@ from device_world import GRAVITY, TRUTH_MODEL, ExactPlatform, draw_truth, output
 from scipy import stats
 
 from stableins.conventions import ARCSEC, DEFAULT_GIMBALS, MICRO_G
-from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_model, gauge_equivalent, solve_coarse
+from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_model, solve_coarse
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.dwell import DwellSummary
 from stableins.procedures.definition import load_procedure

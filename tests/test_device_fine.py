@@ -7,7 +7,8 @@ from scipy import stats
 
 from stableins.conventions import ARCSEC
 from stableins.errormodel import BETA_IDS
-from stableins.estimators.coarse import calibrate_coarse, gauge_equivalent
+from stableins.estimators.coarse import calibrate_coarse
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, calibrate_fine, fine_model, solve_fine
 from stableins.procedures.definition import load_procedure

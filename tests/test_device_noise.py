@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from device_world import GRAVITY, draw_truth, outputs
 
-from stableins.estimators.allan import dwell_allan_ratios, dwell_test_clusters, slow_noise_test, white_allan_covariance
 from stableins.estimators.device import noise_from_dwells
 from stableins.estimators.dwell import slow_covariance, summarize_dwell
 from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine
+from stableins.estimators.slow_noise import dwell_allan_ratios, dwell_test_clusters, slow_noise_test, white_allan_covariance
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.procedures.definition import load_procedure
 from stableins.simulator.noise import NoiseGenerator, NoiseSettings

@@ -6,9 +6,12 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
-from stableins.discovery.history import Discovery, History, make_step
+from stableins.discovery.dwells import DwellSet, slew_directions
+from stableins.discovery.history import Discovery, History
+from stableins.discovery.steps import make_step
 from stableins.discovery.library import LIBRARY, Library, custom_effect
-from stableins.discovery.problem import DwellProblem, DwellSet, LinearProblem, slew_directions
+from stableins.discovery.linear import LinearProblem
+from stableins.discovery.problem import DwellProblem
 from stableins.discovery.ranking import rank
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
 from stableins.platform import platform_specific_force
@@ -179,7 +182,7 @@ def test_tilt_east_is_reported_as_theta30_alias():
 
 def test_harmonic_spectrum_recovers_earth_rate_harmonics():
     from stableins.conventions import EARTH_RATE
-    from stableins.discovery.diagnostics import harmonic_spectrum
+    from stableins.discovery.harmonics import harmonic_spectrum
 
     rng = np.random.default_rng(12)
     t = np.arange(0, 86400.0, 10.0)

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC
+from stableins.discovery.dwells import dwell_means
 from stableins.discovery.history import Discovery
 from stableins.discovery.library import LIBRARY
-from stableins.discovery.problem import DwellProblem, dwell_means
+from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.procedures import definition as procedures
 from stableins.simulator import device as sim_device
@@ -115,7 +116,7 @@ def test_hysteresis_is_ranked_first_and_adding_it_restores_chi2(axis):
 
 def test_hysteresis_state_is_defined_alike_in_simulator_and_discovery():
     """Same threshold, same memory, same initial state (0 until a slew moves the input beyond it)."""
-    from stableins.discovery.problem import HYSTERESIS_THRESHOLD, slew_directions
+    from stableins.discovery.dwells import HYSTERESIS_THRESHOLD, slew_directions
     from stableins.simulator import effects as sim_effects
 
     assert sim_effects.HYSTERESIS_THRESHOLD == HYSTERESIS_THRESHOLD == 1e-2

@@ -13,11 +13,11 @@ from stableins import cli
 from stableins.conventions import MICRO_G
 from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
-from stableins.discovery.history import Decision
+from stableins.discovery.steps import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
 from stableins.errors import InputError
-from stableins.estimators.coarse import gauge_equivalent
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.noise import NoiseModel

@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from stableins.conventions import ARCSEC
-from stableins.discovery.diagnostics import residual_spectra
+from stableins.discovery.harmonics import residual_spectra
 from stableins.discovery.history import Discovery
 from stableins.discovery.library import LIBRARY
-from stableins.discovery.problem import DwellProblem, bins_from_chunks
+from stableins.discovery.linear import bins_from_chunks
+from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import simulate_system

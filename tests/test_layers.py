@@ -29,6 +29,8 @@ LAYERS: dict[str, int] = {
     "stableins._version": 0,
     "stableins.conventions": 0,
     "stableins.errormodel": 0,
+    "stableins.coremodel": 0,
+    "stableins.units": 0,
     "stableins.status": 0,
     "stableins.errors": 0,
     "stableins.platform": 0,

@@ -3,8 +3,9 @@
 import numpy as np
 
 from stableins.data.device import DeviceDataset
+from stableins.discovery.dwells import dwells_from_dataset
 from stableins.discovery.history import Discovery
-from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.estimators.device import with_given_slow_noise
 from stableins.estimators.dwell import dwells_from_columns

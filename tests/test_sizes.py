@@ -15,15 +15,6 @@ MAX_MODULE_LINES = 499  # a module has fewer than 500 lines
 
 # Modules of 500 lines or more (path relative to stableins/).
 LONG_MODULES = {
-    "discovery/diagnostics.py",
-    "discovery/history.py",
-    "discovery/library.py",
-    "discovery/problem.py",
-    "discovery/ranking.py",
-    "errormodel.py",
-    "estimators/allan.py",
-    "estimators/coarse.py",
-    "estimators/result.py",
     "reporting/budget.py",
     "reporting/sections.py",
 }
@@ -32,12 +23,8 @@ LONG_MODULES = {
 LONG_FUNCTION_MODULES = {
     "commands/calibrate_system.py",
     "data/metadata.py",
-    "discovery/library.py",
-    "discovery/ranking.py",
-    "estimators/coarse.py",
     "estimators/device.py",
     "estimators/fine.py",
-    "estimators/joint.py",
     "estimators/posterior.py",
     "reporting/budget.py",
     "reporting/builder.py",

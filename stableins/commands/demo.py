@@ -93,14 +93,14 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     """Final record against the truth: error and error/σ of every estimated parameter.
 
     The truth is first put in the record's gauge (θ10 = 0, exactly equivalent
-    parameters, :func:`stableins.estimators.coarse.gauge_equivalent`).  A discovered term
+    parameters, :func:`stableins.estimators.device_gauge.gauge_equivalent`).  A discovered term
     is compared with the effect the simulator hid (0 when it hid none); the gauge moves
     its regressor's input by θ10 (about 1e-4 relative), which is neglected.
     """
     from stableins.conventions import GimbalConfiguration
     from stableins.data.truth import load_truth
     from stableins.discovery.library import LIBRARY, all_terms
-    from stableins.estimators.coarse import gauge_equivalent
+    from stableins.estimators.device_gauge import gauge_equivalent
     from stableins.records import CalibrationRecord
 
     record = CalibrationRecord.load(record_path)

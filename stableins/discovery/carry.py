@@ -14,7 +14,7 @@ record holds:
   .. math:: \Delta\chi^2 = \chi^2_0 - \chi^2_1,\qquad F = \frac{\Delta\chi^2}{\chi^2_1/(\nu - 1)} \sim F(1, \nu - 1),
             \qquad \Delta\mathrm{BIC} = -\Delta\chi^2 + \ln m
 
-  (the statistics of :func:`stableins.discovery.ranking.effect_statistics`, as the ranking uses);
+  (the statistics of :func:`stableins.discovery.scores.effect_statistics`, as the ranking uses);
 * **kept** when ``p < α`` (default 5 % for one named effect): the model in force grows;
 * **not supported** when ``p ≥ α``: the data do not show the effect, and it is *left out of
   the record* (compensating with a noisy estimate of nothing adds error, and its aliases would
@@ -32,7 +32,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from stableins.discovery.history import Decision, ModelHistory, Step, make_step
+from stableins.discovery.history import ModelHistory
+from stableins.discovery.steps import Decision, Step, make_step
 from stableins.errormodel import Term, TermKind
 from stableins.estimators.device import DeviceCalibration
 from stableins.estimators.result import FitResult
@@ -96,7 +97,7 @@ def carry_effects(
         Called with every step as it is decided.
     """
     from stableins.discovery.problem import fit_chi2
-    from stableins.discovery.ranking import effect_statistics
+    from stableins.discovery.scores import effect_statistics
 
     if not 0.0 < alpha < 1.0:
         raise ValueError("alpha must lie between 0 and 1")

@@ -322,8 +322,9 @@ def _device(
     datasets: list[DeviceDataset], record: RecordInForce, model: ErrorModel, options: DiagnoseOptions, layouts: Mapping[str, StageLayout]
 ) -> DiagnoseResult:
     """Discovery on the dwell means of device data (module docstring)."""
+    from stableins.discovery.dwells import dwells_from_dataset
     from stableins.discovery.history import Discovery
-    from stableins.discovery.problem import DwellProblem, dwells_from_dataset
+    from stableins.discovery.problem import DwellProblem
 
     noise, origin = _device_noise(datasets, options.noise, record.noise_model, layouts)
     stage = None if options.stage is None else str(options.stage)

@@ -28,7 +28,7 @@ from enum import StrEnum
 from os import PathLike
 from typing import Any
 
-from stableins.discovery.history import Step
+from stableins.discovery.steps import Step
 from stableins.discovery.summaries import (
     DOCUMENT,
     OBSERVATION_UNIT,

@@ -11,7 +11,7 @@ it.  What shows it is the slope of the readings within each dwell.  With the gim
 .. math:: \dot r = G(\alpha)^{-1}\, \omega
 
 This module measures the reading slopes (least-squares line per dwell and gimbal, 1σ from the
-scatter about it), and builds a :class:`~stableins.discovery.problem.LinearProblem`: the null
+scatter about it), and builds a :class:`~stableins.discovery.linear.LinearProblem`: the null
 model is a constant reading rate per gimbal (servo creep), the candidates are ``Dg_x, Dg_y,
 Dg_z``.  Dwells near gimbal lock (``cond G > 1e3``) are left out: there the readings cannot
 follow the platform.
@@ -24,7 +24,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.discovery.problem import DwellSet, LinearProblem
+from stableins.discovery.dwells import DwellSet
+from stableins.discovery.linear import LinearProblem
 from stableins.errormodel import ErrorModel, Term, TermKind
 
 GIMBALS = ("platform", "inner", "middle")

@@ -26,14 +26,25 @@ parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
+from stableins.discovery.problem import whiten
+from stableins.discovery.scores import (
+    CONFUSION_CORRELATION,
+    EXCITATION_TOLERANCE,
+    IDENTIFIABLE_TOLERANCE,
+    CandidateScore,
+    _candidate_columns,
+    _propose,
+    effect_statistics,
+    refit,
+)
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.status import Status
@@ -41,130 +52,11 @@ from stableins.status import Status
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.problem import Problem
 
-#: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
-IDENTIFIABLE_TOLERANCE = 1e-3
-#: A candidate whose nominal size moves the data by less than this (whitened norm over the whole record) is "not excited".
-EXCITATION_TOLERANCE = 0.05
-#: |corr| of projected columns above which two candidates cannot be told apart.
-CONFUSION_CORRELATION = 0.99
-
-
-@dataclass(frozen=True)
-class CandidateScore:
-    """One candidate's standing against the current model.
-
-    Attributes
-    ----------
-    id : str
-        Candidate id.
-    term : Term
-        The candidate term.
-    statistic : float
-        ΔRSS in χ² units (score / added-variable statistic; refit value when ``refit``).
-    p_value : float
-        F-test p-value, ``F(1, ν−1)``.
-    delta_bic : float
-        BIC change on adding the effect (negative favours it).
-    estimate, sigma : float
-        Coefficient and 1σ [SI].
-    predicted : float
-        Largest predicted change of an observation caused by the estimated effect [SI of the observation].
-    identifiable : bool
-        False when the effect cannot be separated from the model with these data.
-    excited : bool
-        False when the data do not excite the effect at all (zero or negligible column).
-    separability : float
-        ``‖z⊥‖/‖z‖``.
-    aliases : tuple of (str, float)
-        Model parameters the effect is absorbed into when left out, with the shift per unit
-        effect [parameter SI per candidate SI], largest first.
-    confused_with : tuple of str
-        Other candidates indistinguishable from this one with these data.
-    refit : bool
-        True when the numbers come from a full refit (not the one-step statistic).
-    shifts : dict
-        Refit only: shift of each model parameter [SI] and in units of its 1σ.
-    advice : str
-        What would separate the effect (when not identifiable) or confirm it.
-    """
-
-    id: str
-    term: Term
-    statistic: float
-    p_value: float
-    delta_bic: float
-    estimate: float
-    sigma: float
-    predicted: float
-    identifiable: bool
-    excited: bool
-    separability: float
-    aliases: tuple[tuple[str, float], ...] = ()
-    confused_with: tuple[str, ...] = ()
-    refit: bool = False
-    shifts: dict = field(default_factory=dict)
-    advice: str = ""
-    flagged: bool = False
-
-    def __repr__(self) -> str:
-        from stableins.display import number, unit_text, value_sigma
-
-        value, sigma = self.estimate_engineering
-        estimate = value_sigma(value, sigma, unit_text(self.term.unit)) if self.identifiable else "not identifiable"
-        flag = ", flagged" if self.flagged else ""
-        test = f"ΔRSS = {self.statistic:.2f}, p = {number(self.p_value, 2)}, ΔBIC = {self.delta_bic:+.1f}"
-        return f"<CandidateScore {self.id}: {estimate}; {test}{flag}>"
-
-    @property
-    def estimate_engineering(self) -> tuple[float, float]:
-        return float(self.term.to_engineering(self.estimate)), float(self.term.sigma_to_engineering(self.sigma))
-
-    def alias_text(self, model: ErrorModel | None = None) -> str:
-        if not self.aliases:
-            return "—"
-        parts = []
-        for pid, c in self.aliases:
-            if model is not None and pid in model:
-                per = c * self.term.scale / model[pid].scale  # parameter eng units per candidate eng unit
-                parts.append(f"{pid} ({per:+.3g} {model[pid].unit} per {self.term.unit})")
-            else:
-                parts.append(pid)
-        return ", ".join(parts)
-
-    def to_json(self, model: ErrorModel | None = None) -> dict:
-        value, sigma = self.estimate_engineering
-        return {
-            "id": self.id,
-            "statistic": _finite(self.statistic),
-            "p_value": _finite(self.p_value),
-            "delta_bic": _finite(self.delta_bic),
-            "predicted": {
-                "estimate": _finite(value),
-                "sigma": _finite(sigma),
-                "unit": self.term.unit,
-                "max_output_change": _finite(self.predicted),
-                "max_output_change_unit": "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)",
-            },
-            "identifiable": bool(self.identifiable),
-            "excited": bool(self.excited),
-            "separability": _finite(self.separability),
-            "aliases": [{"id": pid, "shift_per_unit": _finite(c)} for pid, c in self.aliases],
-            "confused_with": list(self.confused_with),
-            "refit": self.refit,
-            "flagged": self.flagged,
-            "advice": self.advice,
-        }
-
 
 def _chi2_red(result: FitResult) -> float:
     from stableins.discovery.problem import fit_chi2_red
 
     return fit_chi2_red(result)
-
-
-def _finite(x: float) -> float | None:
-    x = float(x)
-    return x if np.isfinite(x) else None
 
 
 @dataclass(frozen=True)
@@ -406,8 +298,6 @@ def rank(
         separation = {c.id: c.separation for c in LIBRARY}
     model_ids = set(result.ids)
     terms = [t for t in candidates if t.id not in model_ids]
-    from stableins.discovery.problem import whiten
-
     r = whiten(problem, result, result.residuals)
     x = whiten(problem, result, problem.design(result))
     est_ids = [t.id for t, st in zip(result.terms, result.status, strict=True) if st == Status.ESTIMATED]
@@ -416,12 +306,7 @@ def rank(
     rss0 = float(r @ r)
     raw_columns = _candidate_columns(problem, terms, result)
     columns = whiten(problem, result, raw_columns)
-    q, _ = np.linalg.qr(x)
-    z_perp = columns - q @ (q.T @ columns)
-    norm_z = np.linalg.norm(columns, axis=0)
-    norm_perp = np.linalg.norm(z_perp, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        separability = np.where(norm_z > 0, norm_perp / np.where(norm_z > 0, norm_z, 1.0), 0.0)
+    z_perp, norm_z, norm_perp, separability = _separability(x, columns)
     nominal = np.array([abs(t.nominal) for t in terms])
     excited = norm_z * nominal > EXCITATION_TOLERANCE
     identifiable = excited & (separability > IDENTIFIABLE_TOLERANCE)
@@ -430,11 +315,7 @@ def rank(
     n_tested = max(int(identifiable.sum()), 1)
 
     # one-step statistics for every identifiable candidate
-    proj = z_perp.T @ r
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gamma = np.where(identifiable, proj / np.where(identifiable, norm_perp**2, 1.0), 0.0)
-        gsig = np.where(identifiable, 1.0 / np.where(identifiable, norm_perp, 1.0), np.inf)
-    delta = np.where(identifiable, gamma * proj, 0.0)
+    gamma, gsig, delta = _one_step(z_perp, norm_perp, r, identifiable)
 
     # pairwise confusion among identifiable candidates
     unit_perp = np.where(identifiable, z_perp / np.where(norm_perp > 0, norm_perp, 1.0), 0.0)
@@ -470,7 +351,40 @@ def rank(
     if propose and hasattr(problem, "dwells"):
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
-    # full refit of the best identifiable candidates
+    scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
+    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
+    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
+
+
+def _separability(
+    x: NDArray[np.float64], columns: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Candidate columns orthogonal to the whitened design ``x``, the norms before and after, and their ratio."""
+    q, _ = np.linalg.qr(x)
+    z_perp = columns - q @ (q.T @ columns)
+    norm_z = np.linalg.norm(columns, axis=0)
+    norm_perp = np.linalg.norm(z_perp, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        separability = np.where(norm_z > 0, norm_perp / np.where(norm_z > 0, norm_z, 1.0), 0.0)
+    return z_perp, norm_z, norm_perp, separability
+
+
+def _one_step(
+    z_perp: NDArray[np.float64], norm_perp: NDArray[np.float64], r: NDArray[np.float64], identifiable: NDArray[np.bool_]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """One-step estimate ``γ``, its 1σ and the fall of the residual sum of squares of each identifiable candidate."""
+    proj = z_perp.T @ r
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gamma = np.where(identifiable, proj / np.where(identifiable, norm_perp**2, 1.0), 0.0)
+        gsig = np.where(identifiable, 1.0 / np.where(identifiable, norm_perp, 1.0), np.inf)
+    delta = np.where(identifiable, gamma * proj, 0.0)
+    return gamma, gsig, delta
+
+
+def _refit_best(
+    problem: Problem, result: FitResult, scores: list[CandidateScore], *, refit_top: int, nu: int, m: int
+) -> list[CandidateScore]:
+    """The scores with the best ``refit_top`` identifiable candidates refitted by the full fitter, best first."""
     refits = []
     model = ErrorModel(result.terms)
     for c in [c for c in scores if c.identifiable][:refit_top]:
@@ -478,80 +392,4 @@ def rank(
     by_id = {c.id: c for c in refits}
     scores = [by_id.get(c.id, c) for c in scores]
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
-    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
-    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
-
-
-def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
-    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
-    from stableins.discovery.separation import describe, separation
-
-    out = []
-    for c in scores:
-        if c.excited and (not c.identifiable or c.confused_with):
-            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
-            text = c.advice.removeprefix("confirm with ")
-            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
-            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
-        out.append(c)
-    return out
-
-
-def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
-    """``(ΔRSS, p, ΔBIC)`` of adding one effect to a fit with χ² ``rss0`` on ``nu`` degrees of freedom, ``m`` observations.
-
-    ``p`` from ``F = ΔRSS / (RSS₁/(ν−1))`` with ``F(1, ν−1)`` (robust to a mis-scaled noise floor);
-    ``ΔBIC = −ΔRSS + ln m`` (negative favours the effect).
-    """
-    from scipy import stats
-
-    rss1 = max(rss0 - delta_rss, 1e-300)
-    dof = max(nu - 1, 1)
-    f = delta_rss / (rss1 / dof)
-    return float(delta_rss), float(stats.f.sf(f, 1, dof)), float(-delta_rss + np.log(m))
-
-
-def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
-    """Candidate columns; a candidate whose inputs the data lack gets a zero column (not excited)."""
-    if not terms:
-        return np.zeros((result.residuals.size, 0))
-    try:
-        return problem.candidate_columns(terms, result)
-    except ValueError:
-        cols = []
-        for t in terms:
-            try:
-                cols.append(problem.candidate_columns([t], result)[:, 0])
-            except ValueError:
-                cols.append(np.zeros(result.residuals.size))
-        return np.stack(cols, axis=1)
-
-
-def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
-    """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
-    new = problem.fit(model + candidate.term, start=result.as_dict())
-    from stableins.discovery.problem import fit_chi2
-
-    delta = fit_chi2(result) - fit_chi2(new)
-    stat, p, dbic = effect_statistics(delta, fit_chi2(result), nu, m)
-    value, sigma, _ = new[candidate.id]
-    shifts = {}
-    for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):
-        if st != Status.ESTIMATED:
-            continue
-        v1 = new[t.id][0]
-        shifts[t.id] = (float(v1 - v0), float((v1 - v0) / s0) if s0 > 0 else float("nan"))
-    column = _candidate_columns(problem, [candidate.term], result)[:, 0]
-    return CandidateScore(
-        **{
-            **candidate.__dict__,
-            "statistic": stat,
-            "p_value": p,
-            "delta_bic": dbic,
-            "estimate": value,
-            "sigma": sigma,
-            "predicted": float(np.max(np.abs(column * value))),
-            "refit": True,
-            "shifts": shifts,
-        }
-    )
+    return scores

@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from stableins.discovery.problem import DwellProblem, DwellSet, whiten
+from stableins.discovery.dwells import DwellSet
+from stableins.discovery.problem import DwellProblem, whiten
 from stableins.errormodel import Term
 from stableins.estimators.result import FitResult
 
@@ -43,7 +44,7 @@ class Separation:
     def separates(self, tolerance: float = 1e-3, confusion: float = 0.9) -> bool:
         """Separable (sin > tolerance), excited (the nominal effect's unabsorbed part exceeds the
         ranking's excitation threshold) and no longer confused (|corr| < ``confusion``)."""
-        from stableins.discovery.ranking import EXCITATION_TOLERANCE
+        from stableins.discovery.scores import EXCITATION_TOLERANCE
 
         return (
             self.separability > tolerance

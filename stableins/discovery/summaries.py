@@ -12,11 +12,11 @@ from dataclasses import dataclass
 from os import PathLike
 from typing import TYPE_CHECKING, Any
 
-from stableins.discovery.history import Step
+from stableins.discovery.steps import Step
 from stableins.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.discovery.diagnostics import HarmonicSpectrum
+    from stableins.discovery.harmonics import HarmonicSpectrum
     from stableins.discovery.ranking import Ranking
 
 #: What the document is, for messages.

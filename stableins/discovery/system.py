@@ -34,9 +34,10 @@ from typing import Any
 import numpy as np
 
 from stableins.conventions import MICRO_G
-from stableins.discovery.diagnostics import Diagnosis, HarmonicSpectrum
+from stableins.discovery.diagnostics import Diagnosis
+from stableins.discovery.dwells import DwellSet
+from stableins.discovery.harmonics import HarmonicSpectrum
 from stableins.discovery.history import Discovery
-from stableins.discovery.problem import DwellSet
 from stableins.discovery.ranking import Ranking
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
@@ -181,8 +182,9 @@ def diagnose_system_record(
     values to start from (the calibration record's); ``add`` effects added one step at a time before ranking.
     """
     from stableins.conventions import GimbalConfiguration
-    from stableins.discovery.diagnostics import residual_spectra
-    from stableins.discovery.problem import DwellProblem, bins_from_chunks
+    from stableins.discovery.harmonics import residual_spectra
+    from stableins.discovery.linear import bins_from_chunks
+    from stableins.discovery.problem import DwellProblem
 
     site = record.metadata
     width = float(bin_seconds)

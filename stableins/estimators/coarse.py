@@ -45,7 +45,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from stableins.conventions import (
     DEFAULT_GIMBALS,
@@ -55,104 +55,22 @@ from stableins.conventions import (
 )
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.errors import InputError
-from stableins.estimators.design import UNDETERMINED_RATIO, DesignAnalysis, Gauge, analyze_design, choose_gauge, undetermined
+from stableins.estimators.design import DesignAnalysis, Gauge, choose_gauge
+from stableins.estimators.details import CoarseDetails, UsedDwell
+from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, gauge_preference, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
-from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import CoarseDetails, FitResult, Likelihood, UsedDwell
+from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
+from stableins.estimators.orientation import check_orientation
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
-from stableins.platform import platform_specific_force, specific_force_and_jacobian
+from stableins.platform import specific_force_and_jacobian
 from stableins.status import Status
-
-#: Ids tried first as gauge parameters (platform azimuth, then the offsets).
-GAUGE_PREFERENCE = ("theta10", "theta30", "theta20")
 
 
 def coarse_model(*, nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
     """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
     return ErrorModel.standard(nonlinear=nonlinear, gimbals=True) + tuple(extra_terms)
-
-
-def gauge_preference(extra_ids: Sequence[str]) -> tuple[str, ...]:
-    """Gauge candidates in order: the platform azimuth ``θ10``, then added (discovered) terms, then the other offsets.
-
-    An added term that these data cannot separate from the model is held at its prior value
-    (status ``unidentifiable``) rather than letting a standard parameter become the gauge.
-    """
-    return GAUGE_PREFERENCE[:1] + tuple(extra_ids) + GAUGE_PREFERENCE[1:]
-
-
-def held_terms_note(held: Mapping[str, Sequence[str]], values: Mapping[str, float], model: ErrorModel, stage: str) -> str:
-    """Note for added terms held at their prior value because these data do not determine them (:func:`.design.undetermined`)."""
-    parts = "; ".join(
-        f"{h} = {float(model[h].to_engineering(values[h])):.4g} {model[h].unit} (with {', '.join(involved) or 'the model'})"
-        for h, involved in held.items()
-    )
-    return (
-        f"not determined by the {stage} data, held at the prior value (status unidentifiable): {parts}; "
-        f"the combination's 1σ would exceed {UNDETERMINED_RATIO:g}× its typical size"
-    )
-
-
-def hold_and_gauge(
-    weighted_jacobian: NDArray[np.float64],
-    model: ErrorModel,
-    scales: NDArray[np.float64],
-    extra_ids: Sequence[str],
-    preference: Sequence[str],
-) -> tuple[DesignAnalysis, Gauge, dict[str, tuple[str, ...]]]:
-    """Design analysis and gauge of the standard parameters, and the added terms these data do not determine.
-
-    The gauge is chosen on the standard columns alone (so a discovered term never becomes a
-    gauge of the standard model); then :func:`.design.undetermined` names the added terms to hold.
-    """
-    standard = [k for k, i in enumerate(model.ids) if i not in extra_ids]
-    analysis = analyze_design(weighted_jacobian[:, standard], [model.ids[k] for k in standard], scales[standard])
-    gauge = choose_gauge(analysis, preference, scales[standard])
-    held = undetermined(weighted_jacobian, model.ids, scales, extra_ids, fixed=gauge.fixed)
-    return analysis, gauge, held
-
-
-def final_design(
-    weighted_jacobian: NDArray[np.float64], model: ErrorModel, scales: NDArray[np.float64], held: Sequence[str]
-) -> DesignAnalysis:
-    """Analysis of the design at the solution with the held terms' columns removed (they are not estimated)."""
-    a = np.array(weighted_jacobian, dtype=float)
-    a[:, [model.index(h) for h in held]] = 0.0
-    return analyze_design(a, model.ids, scales)
-
-
-def gauge_equivalent(values: Mapping[str, float], configuration: GimbalConfiguration = DEFAULT_GIMBALS) -> dict[str, float]:
-    r"""Exactly equivalent parameters with ``θ10 = 0`` (the coarse gauge).
-
-    With ``φ = s1 θ10``, ``SF^{-1} C_p^a R3(φ) = SF'^{-1} C'`` where, row by row
-    (``c = cos φ``, ``s = sin φ``)::
-
-        k_x = c − β_xz s:  β_xz' = (s + β_xz c)/k_x,  β_xy' = β_xy/k_x,  SF_x' = SF_x / k_x
-        k_y = c − β_yz s:  β_yz' = (s + β_yz c)/k_y,  β_yx' = β_yx/k_y,  SF_y' = SF_y / k_y
-        β_zy' = β_zy c + β_zx s,  β_zx' = β_zx c − β_zy s
-
-    Outputs are identical for every orientation (biases and ``K2`` unchanged), so this is
-    what a calibration in the gauge ``θ10 = 0`` recovers from noiseless data.
-    """
-    v = dict(values)
-    phi = configuration.senses[0] * float(v.get("theta10", 0.0))
-    c, s = np.cos(phi), np.sin(phi)
-    bxz, bxy, byz, byx = (float(v.get(k, 0.0)) for k in ("beta_xz", "beta_xy", "beta_yz", "beta_yx"))
-    bzy, bzx = float(v.get("beta_zy", 0.0)), float(v.get("beta_zx", 0.0))
-    kx, ky = c - bxz * s, c - byz * s
-    v.update(
-        beta_xz=(s + bxz * c) / kx,
-        beta_xy=bxy / kx,
-        beta_yz=(s + byz * c) / ky,
-        beta_yx=byx / ky,
-        beta_zy=bzy * c + bzx * s,
-        beta_zx=bzx * c - bzy * s,
-        sf_x=float(v.get("sf_x", 1.0)) / kx,
-        sf_y=float(v.get("sf_y", 1.0)) / ky,
-        theta10=0.0,
-    )
-    return v
 
 
 @dataclass(frozen=True)
@@ -272,91 +190,6 @@ def solve_coarse(
     return gauss_newton(problem.weighted, x0, free, scales, max_iterations=max_iterations)
 
 
-def expected_outputs(readings: ArrayLike, gravity: float, base_dcm: ArrayLike, configuration: GimbalConfiguration) -> NDArray[np.float64]:
-    """Outputs of an ideal instrument with zero offsets: ``f^p`` at the readings."""
-    return platform_specific_force(readings, gravity, base_dcm=base_dcm, configuration=configuration)
-
-
-def _orientation_hypotheses(configuration: GimbalConfiguration):
-    """Alternative explanations of data that do not match the commanded orientation."""
-    yield "as configured", configuration, None
-    s = configuration.senses
-    for s1 in (1, -1):
-        for s2 in (1, -1):
-            for s3 in (1, -1):
-                senses = (s1, s2, s3, s[3])
-                if senses != s:
-                    other = GimbalConfiguration(senses)
-                    hand = "the other gimbal handedness" if other.handedness != configuration.handedness else "other rotation senses"
-                    yield f"gimbal senses {senses} ({hand})", other, None
-    for i, ax in enumerate("xyz"):
-        m = np.eye(3)
-        m[i, i] = -1
-        yield f"the {ax} axis sign inverted", configuration, m
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        m = np.eye(3)[[j if k == i else i if k == j else k for k in range(3)]]
-        yield f"the {'xyz'[i]} and {'xyz'[j]} axes swapped", configuration, m
-
-
-def check_orientation(
-    dwells: Sequence[DwellSummary],
-    gravity: float,
-    base_dcm: ArrayLike,
-    configuration: GimbalConfiguration,
-    tolerance: float,
-    source: str = "data",
-) -> dict[int, str]:
-    """Compare each dwell mean with the ideal output at its readings.
-
-    Returns ``{position: reason}`` for isolated positions that do not match (to be left
-    out).  Raises :class:`InputError` when the data as a whole fit another orientation
-    hypothesis (an axis sign or order swapped, other gimbal senses) better, or when more
-    than two positions mismatch.
-    """
-    if not dwells:
-        return {}
-    readings = np.array([d.angles for d in dwells])
-    means = np.array([d.mean for d in dwells])
-    scores = []
-    for name, config, mapping in _orientation_hypotheses(configuration):
-        pred = expected_outputs(readings, gravity, base_dcm, config)
-        if mapping is not None:
-            pred = pred @ mapping.T
-        miss = np.abs(means - pred).max(axis=1) > tolerance
-        scores.append((int(miss.sum()), name, miss))
-    configured = scores[0]
-    best = min(s[0] for s in scores)
-    if best < configured[0] and configured[0] > 0:
-        bad = [d.position for d, m in zip(dwells, configured[2], strict=True) if m]
-        # Several explanations can fit equally well (e.g. a y sign flip and senses (-1, -1, 1)
-        # give the same outputs for this sequence): name them all.
-        names = " or ".join(s[1] for s in scores if s[0] == best)
-        raise InputError(
-            f"the data do not match the commanded orientations at positions {bad}; they fit {names} "
-            f"({len(dwells) - best} of {len(dwells)} positions). Check the axis wiring and the gimbal_senses metadata",
-            path=source,
-            field="f_x, f_y, f_z",
-            expected=f"outputs within {tolerance:.3g} m/s^2 of the ideal instrument at the commanded orientation",
-        )
-    if configured[0] > 2:
-        bad = [d.position for d, m in zip(dwells, configured[2], strict=True) if m]
-        raise InputError(
-            f"{configured[0]} positions do not match their commanded orientation: {bad}",
-            path=source,
-            field="f_x, f_y, f_z",
-            expected=f"outputs within {tolerance:.3g} m/s^2 of the ideal instrument at the commanded orientation",
-        )
-    out = {}
-    pred = expected_outputs(readings, gravity, base_dcm, configuration)
-    for d, p, m in zip(dwells, pred, configured[2], strict=True):
-        if m:
-            out[d.position] = (
-                f"does not match the commanded orientation: mean output {np.round(d.mean, 3).tolist()} m/s^2, "
-                f"expected about {np.round(p, 3).tolist()}"
-            )
-    return out
-
-
 def calibrate_coarse(
     dwells: Sequence[DwellSummary],
     *,
@@ -407,43 +240,114 @@ def calibrate_coarse(
     FitResult
         Stage ``"coarse"``, with gauge ``θ10 = 0`` (status ``gauge``).
     """
-    usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source)
     base_dcm = dcm_nav_to_body(*base_attitude)
-    left_out.update(check_orientation(usable, gravity, base_dcm, configuration, orientation_tolerance, source))
-    usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
     model = coarse_model(nonlinear=nonlinear, extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
-    n = len(model)
-    if 3 * len(usable) <= n:
-        raise InputError(
-            f"only {len(usable)} usable positions; the coarse stage needs more than {n // 3}. Left out: {describe_left_out(left_out)}",
-            path=source,
-            field="position",
-        )
+    usable, left_out, notes = _usable_dwells(
+        dwells, gravity, base_dcm, configuration, n=len(model), expected_positions=expected_positions, allow_missing=allow_missing,
+        orientation_tolerance=orientation_tolerance, source=source,
+    )
     slow = slow_covariance(usable, noise, source)
     problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, None if slow is None else slow[None])
     if noise is not None:
         notes.append(noise.describe())
     scales = np.array([t.nominal for t in model])
-    # Null space of the design at the starting point decides the gauge.
     start_values = {i: float((prior or {}).get(i, model[i].reference)) for i in extra_ids}
     x_start = model.vector(start_values)[None]
-    _, a_start = problem.weighted(x_start)
-    start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
-    if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
-        raise InputError(
-            f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
-            f"(left out: {describe_left_out(left_out)})",
-            path=source,
-            field="position",
-            expected="the 18 positions of the procedure (only theta10 may be a gauge)",
-        )
+    start, gauge, held = _start_gauge(problem, x_start, scales, extra_ids, left_out=left_out, source=source)
     standard_gauge = gauge.fixed
     fixed = {g: 0.0 for g in standard_gauge} | {h: start_values[h] for h in held}
     solution = solve_coarse(problem, fixed, x0=x_start.copy())
     design = final_design(solution.weighted_jacobian[0], model, scales, tuple(held))
     if design.deficiency == len(fixed):
         gauge = choose_gauge(design, gauge_preference(tuple(held)), scales)
+    notes.extend(_setting_notes(held, start_values, model, left_out, standard_gauge, start, nonlinear=nonlinear))
+    residuals, residual_sigma, labels = _residuals(problem, solution.x, usable)
+    notes.extend(quality_notes(solution, design, residuals / residual_sigma, labels))
+    return FitResult(
+        stage="coarse",
+        terms=model.terms,
+        values=solution.x[0].copy(),
+        covariance=solution.covariance[0].copy(),
+        status=tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids),
+        residuals=residuals,
+        residual_sigma=residual_sigma,
+        residual_labels=labels,
+        rank=design.rank,
+        singular_values=design.singular_values,
+        null_space=design.null_space,
+        determined=gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge),
+        notes=tuple(notes),
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
+        left_out={int(k): v for k, v in sorted(left_out.items())},
+        gauge_values={g: 0.0 for g in standard_gauge},
+        held={h: start_values[h] for h in held},
+        iterations=solution.iterations,
+        gravity=float(gravity),
+        details=_details(gauge, design, usable, base_attitude, configuration),
+        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
+        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
+        sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
+    )
+
+
+def _usable_dwells(
+    dwells: Sequence[DwellSummary],
+    gravity: float,
+    base_dcm: NDArray[np.float64],
+    configuration: GimbalConfiguration,
+    *,
+    n: int,
+    expected_positions: Sequence[int] | None,
+    allow_missing: bool,
+    orientation_tolerance: float,
+    source: str,
+) -> tuple[list[DwellSummary], dict[int, str], list[str]]:
+    """The dwells a coarse fit of ``n`` parameters uses (sorted by position), those it leaves out and why, and its notes.
+
+    Raises
+    ------
+    InputError
+        Too few usable positions for ``n`` parameters.
+    """
+    usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source)
+    left_out.update(check_orientation(usable, gravity, base_dcm, configuration, tolerance=orientation_tolerance, source=source))
+    usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
+    if 3 * len(usable) <= n:
+        raise InputError(
+            f"only {len(usable)} usable positions; the coarse stage needs more than {n // 3}. Left out: {describe_left_out(left_out)}",
+            path=source,
+            field="position",
+        )
+    return usable, left_out, notes
+
+
+def _details(
+    gauge: Gauge, design: DesignAnalysis, usable: Sequence[DwellSummary], base_attitude: Sequence[float], configuration: GimbalConfiguration
+) -> CoarseDetails:
+    """What the coarse fit worked with beyond its parameters."""
+    return CoarseDetails(
+        gauge_coefficients=gauge.coefficients,
+        base_attitude=tuple(float(a) for a in base_attitude),
+        gimbal_senses=tuple(configuration.senses),
+        weak=tuple(design.weak),
+        angles={d.position: d.angles.tolist() for d in usable},
+    )
+
+
+def _setting_notes(
+    held: Mapping[str, Sequence[str]],
+    start_values: Mapping[str, float],
+    model: ErrorModel,
+    left_out: Mapping[int, str],
+    standard_gauge: Sequence[str],
+    start: DesignAnalysis,
+    *,
+    nonlinear: bool,
+) -> list[str]:
+    """The notes of a coarse fit on its gauge, what it held, what it ignored and which positions it left out."""
+    notes = []
     for g in standard_gauge:
         moved = ", ".join(start.involved()[0])
         notes.append(f"gauge: {g} held at 0 ({model[g].meaning}); the design cannot see it (null direction moves {moved})")
@@ -454,51 +358,63 @@ def calibrate_coarse(
         notes.append("K2 (quadratic nonlinearity) ignored in the coarse stage (Wu et al. Eq. 7); estimated in the fine stage")
     for p, why in sorted(left_out.items()):
         notes.append(f"position {p} left out: {why}")
-    residuals = (problem.means[0] - problem.predict(solution.x)[0][0]).reshape(-1)
+    return notes
+
+
+def _residuals(
+    problem: CoarseProblem, x: NDArray[np.float64], usable: Sequence[DwellSummary]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[str, ...]]:
+    """Residuals of the dwell means at ``x``, their 1σ (white and, if any, slow noise) and their labels."""
+    residuals = (problem.means[0] - problem.predict(x)[0][0]).reshape(-1)
     variance = problem.sigma[0] ** 2
     if problem.slow_covariance is not None:
         variance = variance + np.diagonal(problem.slow_covariance[0], axis1=-2, axis2=-1).T
     residual_sigma = np.sqrt(variance).reshape(-1)
     labels = tuple(f"pos {d.position} f_{ax}" for d in usable for ax in "xyz")
+    return residuals, residual_sigma, labels
+
+
+def _start_gauge(
+    problem: CoarseProblem,
+    x_start: NDArray[np.float64],
+    scales: NDArray[np.float64],
+    extra_ids: tuple[str, ...],
+    *,
+    left_out: Mapping[int, str],
+    source: str,
+) -> tuple[DesignAnalysis, Gauge, dict[str, tuple[str, ...]]]:
+    """The design at the starting point, the gauge its null space decides, and the extra terms it holds.
+
+    Raises
+    ------
+    InputError
+        The usable positions leave more than the ``θ10`` gauge undetermined.
+    """
+    model = problem.model
+    _, a_start = problem.weighted(x_start)
+    start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
+        raise InputError(
+            f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
+            f"(left out: {describe_left_out(left_out)})",
+            path=source,
+            field="position",
+            expected="the 18 positions of the procedure (only theta10 may be a gauge)",
+        )
+    return start, gauge, held
+
+
+def quality_notes(
+    solution: GaussNewtonSolution, design: DesignAnalysis, normalized: NDArray[np.float64], labels: tuple[str, ...]
+) -> list[str]:
+    """The notes of a device fit on its convergence, its goodness of fit and its weakly determined parameters."""
+    notes = []
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
     if (stalled := convergence_warning(solution)) is not None:
         notes.append(stalled)
-    warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / residual_sigma, labels)
+    warning = goodness_of_fit_warning(chi2_whitened, normalized.size - design.rank, normalized, labels)
     if warning is not None:
         notes.append(warning)
     if design.weak:
         notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
-    status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids)
-    determined = gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge)
-    return FitResult(
-        stage="coarse",
-        terms=model.terms,
-        values=solution.x[0].copy(),
-        covariance=solution.covariance[0].copy(),
-        status=status,
-        residuals=residuals,
-        residual_sigma=residual_sigma,
-        residual_labels=labels,
-        rank=design.rank,
-        singular_values=design.singular_values,
-        null_space=design.null_space,
-        determined=determined,
-        notes=tuple(notes),
-        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
-        left_out={int(k): v for k, v in sorted(left_out.items())},
-        gauge_values={g: 0.0 for g in standard_gauge},
-        held={h: start_values[h] for h in held},
-        iterations=solution.iterations,
-        gravity=float(gravity),
-        details=CoarseDetails(
-            gauge_coefficients=gauge.coefficients,
-            base_attitude=tuple(float(a) for a in base_attitude),
-            gimbal_senses=tuple(configuration.senses),
-            weak=tuple(design.weak),
-            angles={d.position: d.angles.tolist() for d in usable},
-        ),
-        whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
-        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
-        sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
-    )
+    return notes

@@ -17,14 +17,15 @@ import numpy as np
 from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
 from stableins.errors import InputError
-from stableins.estimators.allan import DEFAULT_ALPHA, slow_noise_test
-from stableins.estimators.coarse import calibrate_coarse, check_orientation
+from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
+from stableins.estimators.orientation import check_orientation
 from stableins.estimators.result import FitResult
+from stableins.estimators.slow_noise import DEFAULT_ALPHA, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -129,7 +130,7 @@ def noise_from_dwells(
 
     * white noise ``N`` per axis from the sample variances, pooled over the usable dwells
       (``N² = s²/rate``; interval from χ² with the pooled degrees of freedom);
-    * slow noise: the decision of :func:`stableins.estimators.allan.slow_noise_test` at the
+    * slow noise: the decision of :func:`stableins.estimators.slow_noise.slow_noise_test` at the
       false-positive rate ``alpha``.  Detected: the bias instability is its unbiased estimate
       with interval; not detected: 0 with the upper limit the dwells allow.  The dwells
       cannot separate the random walk from bias instability: ``K`` is 0, not bounded;
@@ -310,7 +311,8 @@ def calibrate_device(
     if fine_dwells:
         usable = [d for d in fine_dwells if d.usable]
         tolerance = fine_procedure.checks.orientation_tolerance
-        wrong = check_orientation(usable, site.gravity, dcm_nav_to_body(*site.base_attitude), configuration, tolerance, f"{source} (fine)")
+        base_dcm = dcm_nav_to_body(*site.base_attitude)
+        wrong = check_orientation(usable, site.gravity, base_dcm, configuration, tolerance=tolerance, source=f"{source} (fine)")
         fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
         fine = calibrate_fine(
             fine_dwells,

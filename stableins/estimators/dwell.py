@@ -68,8 +68,8 @@ class DwellSummary:
         The white-noise 1σ of the mean before the noise floor is applied.
     allan_ratios : ndarray (k, 3) or None
         Overlapping Allan variance over its white-noise value, ``σ̂²_A(m) m / s²``, at the
-        cluster sizes of :func:`stableins.estimators.allan.dwell_test_clusters` (the slow-noise
-        decision, :func:`stableins.estimators.allan.slow_noise_test`).
+        cluster sizes of :func:`stableins.estimators.slow_noise.dwell_test_clusters` (the slow-noise
+        decision, :func:`stableins.estimators.slow_noise.slow_noise_test`).
     start : float
         Time of the first sample used [s].
     """
@@ -204,7 +204,7 @@ def summarize_dwell(
     ratios = None
     if not flags and duration > 0:
         # Allan variance over its white-noise value at n/4 ... n/32: the slow-noise decision of the stage
-        from stableins.estimators.allan import dwell_allan_ratios
+        from stableins.estimators.slow_noise import dwell_allan_ratios
 
         ratios = dwell_allan_ratios(f, (n - 1) / duration)[1]
     sem = np.maximum(sem, checks.noise_floor)

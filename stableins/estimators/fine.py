@@ -39,11 +39,12 @@ from numpy.typing import NDArray
 
 from stableins.errormodel import BETA_IDS, ErrorModel, Term
 from stableins.errors import InputError
-from stableins.estimators.coarse import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.design import aligned_null_space
+from stableins.estimators.details import UsedDwell
+from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood, UsedDwell
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 from stableins.status import Status
 

@@ -124,16 +124,16 @@ def _damped_step(
 def _solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
     """``normal⁻¹ rhs`` per trial; the minimum-norm solution where ``normal`` is singular."""
     try:
-        return np.linalg.solve(normal, rhs[..., None])[..., 0]
+        return np.asarray(np.linalg.solve(normal, rhs[..., None])[..., 0], dtype=np.float64)
     except np.linalg.LinAlgError:
-        return np.einsum("tij,tj->ti", np.linalg.pinv(normal, hermitian=True), rhs)
+        return np.asarray(np.einsum("tij,tj->ti", np.linalg.pinv(normal, hermitian=True), rhs), dtype=np.float64)
 
 
 def _inverse(normal: NDArray[np.float64]) -> NDArray[np.float64]:
     try:
-        return np.linalg.inv(normal)
+        return np.asarray(np.linalg.inv(normal), dtype=np.float64)
     except np.linalg.LinAlgError:
-        return np.linalg.pinv(normal, hermitian=True)
+        return np.asarray(np.linalg.pinv(normal, hermitian=True), dtype=np.float64)
 
 
 def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:

@@ -54,11 +54,13 @@ from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
-from stableins.estimators.coarse import GAUGE_PREFERENCE, CoarseProblem, coarse_model, final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.coarse import CoarseProblem, coarse_model, quality_notes
+from stableins.estimators.details import UsedDwell
+from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
-from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood, UsedDwell
+from stableins.estimators.gauss_newton import gauss_newton
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 from stableins.status import Status
@@ -199,13 +201,7 @@ def fit_joint(
         out_notes.append(held_terms_note(undetermined, dict(zip(model.ids, x0[0], strict=True)), model, stage))
     if noise is not None:
         out_notes.append(noise.describe())
-    if (stalled := convergence_warning(solution)) is not None:
-        out_notes.append(stalled)
-    warning = goodness_of_fit_warning(float(whitened @ whitened), residuals.size - design.rank, residuals / residual_sigma, labels)
-    if warning is not None:
-        out_notes.append(warning)
-    if design.weak:
-        out_notes.append(f"warning: weakly determined (1σ above the typical magnitude): {', '.join(design.weak)}")
+    out_notes += quality_notes(solution, design, residuals / residual_sigma, labels)
     return FitResult(
         stage=stage,
         terms=model.terms,

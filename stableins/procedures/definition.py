@@ -306,7 +306,7 @@ def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "dev
     """``{"coarse": ..., "fine": ...}``: the stage layouts of two device-level procedures (names or paths) for the estimators.
 
     What :func:`stableins.estimators.device.calibrate_device`, :func:`stableins.estimators.dwell.dwells_from_columns`
-    and :func:`stableins.discovery.problem.dwells_from_dataset` take; by default those of the shipped procedures.
+    and :func:`stableins.discovery.dwells.dwells_from_dataset` take; by default those of the shipped procedures.
     """
     return {"coarse": load_procedure(coarse).layout, "fine": load_procedure(fine).layout}
 

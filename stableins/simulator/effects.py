@@ -50,8 +50,8 @@ from types import MappingProxyType
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import AXES, Term, TermInputs, TermKind
+from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.errormodel import Term, TermInputs, TermKind
 from stableins.errors import InputError
 
 _G = STANDARD_GRAVITY

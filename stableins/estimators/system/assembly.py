@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import CORE_TERMS, Term, TermKind
-from stableins.estimators.result import FitResult, Likelihood, SystemDetails
+from stableins.estimators.details import SystemDetails
+from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation
 from stableins.noise import NoiseModel

@@ -30,7 +30,8 @@ from numpy.typing import NDArray
 
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
 from stableins.errormodel import Term
-from stableins.estimators.result import CombinedDetails, FitResult
+from stableins.estimators.details import CombinedDetails
+from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary

@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from stableins.estimators.result import FitResult, SystemDetails
+from stableins.estimators.details import SystemDetails
+from stableins.estimators.result import FitResult
 from stableins.estimators.system.separation import Separation
 from stableins.status import Status
 

@@ -1,0 +1,331 @@
+"""The dwell set discovery fits: dwell means of the device stage, their 1σ from noise measured in the data, and slew directions."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.estimators.layout import StageLayout
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.noise import NoiseModel
+
+
+# ----------------------------------------------------------------------------- device dwells
+@dataclass(frozen=True)
+class DwellSet:
+    """Dwell means of a device-level procedure (one row per position).
+
+    Attributes
+    ----------
+    readings : ndarray (P, 3)
+        Mean angle-sensor readings (platform, inner, middle) during the dwell [rad].
+    output : ndarray (P, 3)
+        Dwell-mean accelerometer outputs ``f^a`` [m/s²].
+    sigma : ndarray (P, 3)
+        1σ of each dwell mean, from noise measured in the data [m/s²].
+    gravity : float
+        Local gravity [m/s²].
+    time : ndarray (P,)
+        Mid-dwell session time [s].
+    time_since_command : ndarray (P,)
+        Mean time since the position was commanded [s].
+    temperature : ndarray (P,)
+        Mean temperature minus the reference temperature [K].
+    slew_direction : ndarray (P, 3)
+        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged) from
+        the nominal geometry; :class:`DwellProblem` recomputes it from the fitted ``f^p``.
+    labels : tuple of str
+        Name of each position.
+    base_attitude : tuple
+        Nominal (yaw, pitch, roll) of the base [rad].
+    configuration : GimbalConfiguration
+        Gimbal rotation senses.
+    noise : dict
+        How ``sigma`` was measured (method, per-axis floors ...).
+    initial_readings : tuple or None
+        Angle-sensor readings before the first command (for the slew into the first
+        position); None: unknown, no slew direction for the first position.
+    slow_covariance : ndarray (3, P, P), optional
+        Covariance of the dwell means beyond their white 1σ, per axis: slow noise (bias
+        instability, random walk) correlated between dwells, and quantization
+        (:func:`stableins.estimators.dwell.slow_covariance`, the device stages' own).  The fit
+        is then generalized least squares with ``R_a = diag(σ_a²) + C_slow,a`` per axis.
+    reading_slope, reading_slope_sigma : ndarray (P, 3), optional
+        Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
+        (:mod:`stableins.discovery.drift`).
+    """
+
+    readings: NDArray[np.float64]
+    output: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    gravity: float
+    time: NDArray[np.float64]
+    time_since_command: NDArray[np.float64]
+    temperature: NDArray[np.float64]
+    slew_direction: NDArray[np.float64]
+    labels: tuple[str, ...]
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS
+    noise: dict = field(default_factory=dict)
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
+    slow_covariance: NDArray[np.float64] | None = None
+    reading_slope: NDArray[np.float64] | None = None
+    reading_slope_sigma: NDArray[np.float64] | None = None
+
+    def __post_init__(self) -> None:
+        p = self.readings.shape[0]
+        for name in ("readings", "output", "sigma", "slew_direction"):
+            if getattr(self, name).shape != (p, 3):
+                raise ValueError(f"DwellSet.{name} must have shape ({p}, 3), got {getattr(self, name).shape}")
+        for name in ("time", "time_since_command", "temperature"):
+            if getattr(self, name).shape != (p,):
+                raise ValueError(f"DwellSet.{name} must have shape ({p},), got {getattr(self, name).shape}")
+        if len(self.labels) != p:
+            raise ValueError("DwellSet.labels must name every position")
+        if not np.all(np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
+            raise ValueError("DwellSet.sigma must be finite and positive")
+
+    @property
+    def n_positions(self) -> int:
+        return self.readings.shape[0]
+
+    def subset(self, index: ArrayLike) -> DwellSet:
+        """The dwells at ``index`` (positions to leave out, cross-validation)."""
+        i = np.asarray(index)
+        return DwellSet(
+            self.readings[i],
+            self.output[i],
+            self.sigma[i],
+            self.gravity,
+            self.time[i],
+            self.time_since_command[i],
+            self.temperature[i],
+            self.slew_direction[i],
+            tuple(np.asarray(self.labels, dtype=object)[i]),
+            self.base_attitude,
+            self.configuration,
+            dict(self.noise),
+            None,
+            None if self.slow_covariance is None else self.slow_covariance[:, i][:, :, i],
+            None if self.reading_slope is None else self.reading_slope[i],
+            None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
+        )
+
+
+def dwells_from_dataset(
+    datasets: Sequence,
+    *,
+    layouts: Mapping[str, StageLayout],
+    stage: str | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    noise: NoiseModel | None = None,
+) -> DwellSet:
+    """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
+
+    ``layouts`` (``{"coarse": ..., "fine": ...}``, e.g. :func:`stableins.procedures.definition.device_layouts`)
+    give each position's settle time and the dwell checks.  The mean, its 1σ and the acceptance checks come from the device stage's dwell
+    statistics (:func:`stableins.estimators.dwell.dwells_from_columns`: settling dropped,
+    correlated noise detected per dwell); flagged dwells are left out (listed in
+    ``noise["left_out"]``).  ``stage`` defaults to ``"fine"`` when fine dwells are present,
+    else ``"coarse"`` (all passes, in time order).  ``noise``
+    (:class:`stableins.noise.NoiseModel`, e.g. the calibration record's) adds the covariance
+    of slow bias wander between dwells exactly as the device stages do
+    (:func:`stableins.estimators.dwell.slow_covariance`); None measures it from the dwells as
+    ``stableins calibrate device`` does (:func:`stableins.estimators.device.noise_from_dwells`).
+    """
+    from stableins.errors import InputError
+    from stableins.estimators.dwell import dwells_from_columns
+    if not datasets:
+        raise InputError("no data files given", field="DATA")
+    site = datasets[0].metadata
+    # the device stage's one path from samples to dwell statistics, per file; paired with the raw dwells by
+    # (file, stage, pass, position), which a file holds once each (dwells_from_columns refuses repeats)
+    pairs = []
+    for ds in datasets:
+        statistics = {
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
+        }
+        pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
+    if stage is None:
+        stage = "fine" if any(d.stage == "fine" for d, _ in pairs) else "coarse"
+    pairs = sorted(((d, s) for d, s in pairs if d.stage == stage), key=lambda pair: float(pair[0].time[0]) if len(pair[0].time) else 0.0)
+    if not pairs:
+        raise InputError(f"no {stage}-stage dwells in the data", field="stage", expected="rows with stage 'coarse' or 'fine'")
+    raw = [d for d, _ in pairs]
+    summaries = [s for _, s in pairs]
+    keep = [k for k, sm in enumerate(summaries) if sm.usable]
+    left_out = [
+        f"{stage} pass {summaries[k].pass_number} position {summaries[k].position}: {'; '.join(summaries[k].flags)}"
+        for k in range(len(raw))
+        if k not in keep
+    ]
+    if len(keep) < 6:
+        raise InputError(f"only {len(keep)} usable {stage} dwells", field="position", expected="at least 6 usable dwells")
+    extras = []
+    for k in keep:
+        d = raw[k]
+        layout = layouts.get(stage)
+        settle = layout.settle(d.position) if layout is not None and d.position in layout.positions else 0.0
+        use = np.asarray(d.time_since_command) >= settle
+        extras.append(
+            (
+                np.asarray(d.time)[use],
+                np.asarray(d.time_since_command)[use],
+                np.asarray(d.temperature)[use] - site.reference_temperature,
+                np.asarray(d.angles)[use],
+            )
+        )
+    return _dwell_set(
+        [summaries[k] for k in keep],
+        extras,
+        gravity=site.gravity,
+        base_attitude=tuple(site.base_attitude),
+        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        labels=tuple(f"{stage[0]}{summaries[k].pass_number}/{summaries[k].position}" for k in keep),
+        initial_readings=initial_readings,
+        noise=noise,
+        info={"left_out": left_out, "stage": stage},
+    )
+
+
+def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labels, initial_readings, noise, info) -> DwellSet:
+    """A :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
+
+    ``extras``: per dwell ``(time, time_since_command, temperature − reference, angles)`` of the
+    samples used.  ``noise`` None: measured from the dwells as the device stage does.
+    """
+    from stableins.discovery.drift import reading_slope
+    from stableins.estimators.device import noise_from_dwells
+    from stableins.estimators.dwell import slow_covariance
+    from stableins.platform import platform_specific_force
+
+    if noise is None:
+        noise = noise_from_dwells(summaries)
+    slopes, slope_sigma = zip(*(reading_slope(t, angles) for t, _, _, angles in extras), strict=True)
+    readings = np.array([x.angles for x in summaries])
+    start = None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
+    nominal = platform_specific_force(readings, gravity, base_attitude=base_attitude, configuration=configuration)
+    return DwellSet(
+        readings=readings,
+        output=np.array([x.mean for x in summaries]),
+        sigma=np.array([x.sem for x in summaries]),
+        gravity=float(gravity),
+        time=np.array([float(np.mean(t)) for t, *_ in extras]),
+        time_since_command=np.array([float(np.mean(tc)) for _, tc, _, _ in extras]),
+        temperature=np.array([float(np.mean(temp)) for _, _, temp, _ in extras]),
+        slew_direction=slew_directions(nominal, start),
+        labels=tuple(labels),
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        noise={
+            "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
+            "slow_noise": noise.describe(),
+            "model": noise,
+            **info,
+        },
+        initial_readings=initial_readings,
+        slow_covariance=slow_covariance(summaries, noise),
+        reading_slope=np.array(slopes),
+        reading_slope_sigma=np.array(slope_sigma),
+    )
+
+
+#: Input change [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``); the truth
+#: simulator uses the same definition (``stableins.simulator.effects.HYSTERESIS_THRESHOLD``, kept
+#: equal by tests/test_discovery_hidden.py).
+HYSTERESIS_THRESHOLD = 1e-2
+
+
+def slew_directions(
+    specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = HYSTERESIS_THRESHOLD
+) -> NDArray[np.float64]:
+    """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
+
+    A slew that changes an axis' input by less than ``tolerance`` [m/s²] leaves its state
+    as it was (the input did not travel; nothing reverses the hysteresis loop).  This
+    makes the state independent of arcsecond-level geometry such as the unobservable
+    zero offset ``θ10``.  ``initial`` is ``f^p`` at the initial readings, before the first
+    command: the first slew's change is measured from it; the state is 0 until a slew moves
+    the input beyond ``tolerance`` (with ``initial=None`` the first dwell sets no state).
+    """
+    f = np.asarray(specific_force_platform, dtype=float)
+    before = f[:1] if initial is None else np.asarray(initial, dtype=float).reshape(1, 3)
+    d = np.diff(f, axis=0, prepend=before)
+    state = np.zeros_like(f)
+    current = np.zeros(f.shape[1:])
+    for k in range(f.shape[0]):
+        moved = np.abs(d[k]) > tolerance
+        current = np.where(moved, np.sign(d[k]), current)
+        state[k] = current
+    return state
+
+
+def dwell_means(
+    time: ArrayLike,
+    output: ArrayLike,
+    readings: ArrayLike,
+    temperature: ArrayLike,
+    position: ArrayLike,
+    time_since_command: ArrayLike,
+    *,
+    gravity: float,
+    reference_temperature: float = 25.0,
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    labels: Sequence[str] | None = None,
+    initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+    noise: NoiseModel | None = None,
+) -> DwellSet:
+    """Reduce samples (one dwell per distinct ``position``, in order of appearance) to dwell means.
+
+    Each dwell's mean and 1σ come from the device stage's dwell statistics
+    (:func:`stableins.estimators.dwell.summarize_dwell`: white noise from the sample
+    scatter, block means where the noise is correlated within the dwell), and slow noise
+    correlated between dwells from ``noise`` (:class:`stableins.noise.NoiseModel`; None:
+    measured from the dwells as ``stableins calibrate device`` does).  Platform pointing
+    enters through the measured angle readings.  A dwell too short to measure its noise, or
+    with non-finite samples, raises ``ValueError``.
+    """
+    from stableins.estimators.dwell import summarize_dwell
+
+    t = np.asarray(time, dtype=float)
+    f = np.asarray(output, dtype=float).reshape(-1, 3)
+    r = np.asarray(readings, dtype=float).reshape(-1, 3)
+    temp = np.asarray(temperature, dtype=float)
+    pos = np.asarray(position)
+    since = np.asarray(time_since_command, dtype=float)
+    order = list(dict.fromkeys(pos.tolist()))
+    summaries, extras = [], []
+    for k, p in enumerate(order):
+        sel = pos == p
+        summary = summarize_dwell(t[sel], f[sel], r[sel], r[sel].mean(axis=0), position=k + 1, stage="dwells")
+        fatal = [x for x in summary.flags if x.startswith(("too short", "non-finite", "no samples"))]
+        if fatal:  # the other checks (clipping, slews ...) are the acquisition's; the caller's samples are taken as they are
+            raise ValueError(f"position {p}: {'; '.join(fatal)}")
+        summaries.append(summary)
+        extras.append((t[sel], since[sel], temp[sel] - reference_temperature, r[sel]))
+    return _dwell_set(
+        summaries,
+        extras,
+        gravity=gravity,
+        base_attitude=tuple(base_attitude),
+        configuration=configuration,
+        labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
+        initial_readings=initial_readings,
+        noise=noise,
+        info={},
+    )
+
+
+def _initial(readings, gravity, base_attitude, configuration, offsets=(0.0, 0.0, 0.0)) -> NDArray[np.float64]:
+    from stableins.platform import platform_specific_force
+
+    return platform_specific_force(
+        np.asarray(readings, dtype=float), gravity, zero_offsets=offsets, base_attitude=base_attitude, configuration=configuration
+    )

@@ -1,0 +1,212 @@
+"""The score of one candidate term against a fit: its effect statistics, its refit and the separating procedures proposed for it."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.errormodel import ErrorModel, Term
+from stableins.estimators.result import FitResult
+from stableins.status import Status
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.discovery.problem import Problem
+
+
+#: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
+IDENTIFIABLE_TOLERANCE = 1e-3
+#: A candidate whose nominal size moves the data by less than this (whitened norm over the whole record) is "not excited".
+EXCITATION_TOLERANCE = 0.05
+#: ``|corr|`` of projected columns above which two candidates cannot be told apart.
+CONFUSION_CORRELATION = 0.99
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate's standing against the current model.
+
+    Attributes
+    ----------
+    id : str
+        Candidate id.
+    term : Term
+        The candidate term.
+    statistic : float
+        ΔRSS in χ² units (score / added-variable statistic; refit value when ``refit``).
+    p_value : float
+        F-test p-value, ``F(1, ν−1)``.
+    delta_bic : float
+        BIC change on adding the effect (negative favours it).
+    estimate, sigma : float
+        Coefficient and 1σ [SI].
+    predicted : float
+        Largest predicted change of an observation caused by the estimated effect [SI of the observation].
+    identifiable : bool
+        False when the effect cannot be separated from the model with these data.
+    excited : bool
+        False when the data do not excite the effect at all (zero or negligible column).
+    separability : float
+        ``‖z⊥‖/‖z‖``.
+    aliases : tuple of (str, float)
+        Model parameters the effect is absorbed into when left out, with the shift per unit
+        effect [parameter SI per candidate SI], largest first.
+    confused_with : tuple of str
+        Other candidates indistinguishable from this one with these data.
+    refit : bool
+        True when the numbers come from a full refit (not the one-step statistic).
+    shifts : dict
+        Refit only: shift of each model parameter [SI] and in units of its 1σ.
+    advice : str
+        What would separate the effect (when not identifiable) or confirm it.
+    """
+
+    id: str
+    term: Term
+    statistic: float
+    p_value: float
+    delta_bic: float
+    estimate: float
+    sigma: float
+    predicted: float
+    identifiable: bool
+    excited: bool
+    separability: float
+    aliases: tuple[tuple[str, float], ...] = ()
+    confused_with: tuple[str, ...] = ()
+    refit: bool = False
+    shifts: dict = field(default_factory=dict)
+    advice: str = ""
+    flagged: bool = False
+
+    def __repr__(self) -> str:
+        from stableins.display import number, unit_text, value_sigma
+
+        value, sigma = self.estimate_engineering
+        estimate = value_sigma(value, sigma, unit_text(self.term.unit)) if self.identifiable else "not identifiable"
+        flag = ", flagged" if self.flagged else ""
+        test = f"ΔRSS = {self.statistic:.2f}, p = {number(self.p_value, 2)}, ΔBIC = {self.delta_bic:+.1f}"
+        return f"<CandidateScore {self.id}: {estimate}; {test}{flag}>"
+
+    @property
+    def estimate_engineering(self) -> tuple[float, float]:
+        return float(self.term.to_engineering(self.estimate)), float(self.term.sigma_to_engineering(self.sigma))
+
+    def alias_text(self, model: ErrorModel | None = None) -> str:
+        if not self.aliases:
+            return "—"
+        parts = []
+        for pid, c in self.aliases:
+            if model is not None and pid in model:
+                per = c * self.term.scale / model[pid].scale  # parameter eng units per candidate eng unit
+                parts.append(f"{pid} ({per:+.3g} {model[pid].unit} per {self.term.unit})")
+            else:
+                parts.append(pid)
+        return ", ".join(parts)
+
+    def to_json(self, model: ErrorModel | None = None) -> dict:
+        value, sigma = self.estimate_engineering
+        return {
+            "id": self.id,
+            "statistic": _finite(self.statistic),
+            "p_value": _finite(self.p_value),
+            "delta_bic": _finite(self.delta_bic),
+            "predicted": {
+                "estimate": _finite(value),
+                "sigma": _finite(sigma),
+                "unit": self.term.unit,
+                "max_output_change": _finite(self.predicted),
+                "max_output_change_unit": "SI unit of the observation (m/s^2 for dwell means, rad/s for reading slopes)",
+            },
+            "identifiable": bool(self.identifiable),
+            "excited": bool(self.excited),
+            "separability": _finite(self.separability),
+            "aliases": [{"id": pid, "shift_per_unit": _finite(c)} for pid, c in self.aliases],
+            "confused_with": list(self.confused_with),
+            "refit": self.refit,
+            "flagged": self.flagged,
+            "advice": self.advice,
+        }
+
+
+def _finite(x: float) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
+    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
+    from stableins.discovery.separation import describe, separation
+
+    out = []
+    for c in scores:
+        if c.excited and (not c.identifiable or c.confused_with):
+            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
+            text = c.advice.removeprefix("confirm with ")
+            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
+            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
+        out.append(c)
+    return out
+
+
+def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
+    """``(ΔRSS, p, ΔBIC)`` of adding one effect to a fit with χ² ``rss0`` on ``nu`` degrees of freedom, ``m`` observations.
+
+    ``p`` from ``F = ΔRSS / (RSS₁/(ν−1))`` with ``F(1, ν−1)`` (robust to a mis-scaled noise floor);
+    ``ΔBIC = −ΔRSS + ln m`` (negative favours the effect).
+    """
+    from scipy import stats
+
+    rss1 = max(rss0 - delta_rss, 1e-300)
+    dof = max(nu - 1, 1)
+    f = delta_rss / (rss1 / dof)
+    return float(delta_rss), float(stats.f.sf(f, 1, dof)), float(-delta_rss + np.log(m))
+
+
+def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+    """Candidate columns; a candidate whose inputs the data lack gets a zero column (not excited)."""
+    if not terms:
+        return np.zeros((result.residuals.size, 0))
+    try:
+        return problem.candidate_columns(terms, result)
+    except ValueError:
+        cols = []
+        for t in terms:
+            try:
+                cols.append(problem.candidate_columns([t], result)[:, 0])
+            except ValueError:
+                cols.append(np.zeros(result.residuals.size))
+        return np.stack(cols, axis=1)
+
+
+def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
+    """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
+    new = problem.fit(model + candidate.term, start=result.as_dict())
+    from stableins.discovery.problem import fit_chi2
+
+    delta = fit_chi2(result) - fit_chi2(new)
+    stat, p, dbic = effect_statistics(delta, fit_chi2(result), nu, m)
+    value, sigma, _ = new[candidate.id]
+    shifts = {}
+    for t, v0, s0, st in zip(result.terms, result.values, result.sigma, result.status, strict=True):
+        if st != Status.ESTIMATED:
+            continue
+        v1 = new[t.id][0]
+        shifts[t.id] = (float(v1 - v0), float((v1 - v0) / s0) if s0 > 0 else float("nan"))
+    column = _candidate_columns(problem, [candidate.term], result)[:, 0]
+    return CandidateScore(
+        **{
+            **candidate.__dict__,
+            "statistic": stat,
+            "p_value": p,
+            "delta_bic": dbic,
+            "estimate": value,
+            "sigma": sigma,
+            "predicted": float(np.max(np.abs(column * value))),
+            "refit": True,
+            "shifts": shifts,
+        }
+    )
