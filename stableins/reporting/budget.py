@@ -143,8 +143,10 @@ class UncertaintyInputs:
 
     @classmethod
     def from_procedure_file(cls, path: str) -> UncertaintyInputs:
-        """Read the ``[uncertainty]`` table of a procedure (a shipped definition's name or a TOML file; absent table:
-        every input takes its default)."""
+        """Read the ``[uncertainty]`` table of a procedure (a shipped definition's name or a TOML file).
+
+        Without the table every input takes its default.
+        """
         from stableins.procedures.definition import read_toml, resolve
 
         resolved = resolve(path)
@@ -168,6 +170,7 @@ class Source:
 
     @property
     def evaluated(self) -> bool:
+        """Return whether the input was evaluated (its state is "evaluated")."""
         return self.state == "evaluated"
 
 
@@ -194,20 +197,23 @@ class Budget:
         return np.sqrt(total)
 
     def state(self, group: str) -> str:
+        """Return the state of the group's source ("not evaluated" when the budget has no such source)."""
         source = self.source(group)
         return source.state if source is not None else "not evaluated"
 
     def combined_of(self, parameter_id: str) -> float:
+        """Return the combined standard uncertainty of a parameter [SI]."""
         return float(self.combined[self.ids.index(parameter_id)])
 
     def contribution(self, group: str, parameter_id: str) -> float:
-        """The group's standard uncertainty of the parameter [SI]; NaN unless the group was evaluated."""
+        """Return the group's standard uncertainty of the parameter [SI]; NaN unless the group was evaluated."""
         values = self.contributions.get(group)
         if values is None or self.state(group) != "evaluated":
             return math.nan
         return float(values[self.ids.index(parameter_id)])
 
     def source(self, group: str) -> Source | None:
+        """Return the source of an input group (None: not in the budget)."""
         return next((s for s in self.sources if s.group == group), None)
 
 

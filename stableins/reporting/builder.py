@@ -58,6 +58,7 @@ class LoadedRecord:
 
     @classmethod
     def of(cls, source: CalibrationRecord | str | PathLike[str]) -> LoadedRecord:
+        """Return the record of ``source`` (a record, or a file read with its SHA-256)."""
         if isinstance(source, CalibrationRecord):
             return cls(source)
         record = CalibrationRecord.load(source)
@@ -65,7 +66,7 @@ class LoadedRecord:
 
 
 def report_id_for(loaded: LoadedRecord, digests: Iterable[str]) -> str:
-    """Unique, reproducible report id: serial, calibration date and a digest of every input.
+    """Return a unique, reproducible report id: serial, calibration date and a digest of every input.
 
     ``SI-<serial>-<yyyymmdd>-<8 hex>``; the same inputs give the same id, any change of
     an input (record, data, previous record, procedure) gives another.
@@ -111,7 +112,7 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
 
 
 def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence]:
-    """The residual evidence of every fit of the stages run in this calibration, as stored in the record."""
+    """Return the residual evidence of every fit of the stages run in this calibration, as stored in the record."""
     out = []
     for run in record.stages_run:
         fits = [stage_evidence(f, where, run=run.name) for f in run.fits]
