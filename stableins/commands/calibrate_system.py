@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stableins.commands import add_entries_option
 from stableins.status import Status
@@ -177,7 +177,9 @@ def _options(args: Any) -> Any:
         compensate_loop=not args.no_loop_compensation,
         couplings=not args.no_couplings,
         estimate_k2=args.estimate_k2,
-        known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
+        known_gyro_drift=None
+        if args.gyro_drift is None
+        else cast("tuple[float, float, float]", tuple(math.radians(v) / 3600.0 for v in args.gyro_drift)),
         gyro_drift_uncertainty=None if args.gyro_drift_uncertainty is None else math.radians(args.gyro_drift_uncertainty) / 3600.0,
     )
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stableins.status import Status
 
@@ -106,7 +106,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
 
     record = CalibrationRecord.load(record_path)
     truth = load_truth(truth_path)
-    configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
+    configuration = GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(truth.site.gimbal_senses)))
     reference = gauge_equivalent(dict(truth.parameters), configuration)
     reference.update({i: float(truth.effects.get(i, 0.0)) for i in record.ids if i in LIBRARY})
     terms = all_terms()
