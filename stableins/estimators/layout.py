@@ -41,14 +41,14 @@ class DwellChecks:
         Largest difference between the measured and the commanded orientation's specific force [m/s²]
         (default 0.02 g).
     angle_tolerance : float
-        Largest ``|mean measured reading − commanded reading|`` of any gimbal [rad]: the platform has
+        Largest absolute difference of mean measured reading and commanded reading of any gimbal [rad]: the platform has
         arrived and stayed there (default 20″).
     scatter_max : float
         Largest standard deviation of any accelerometer axis about its straight-line fit [m/s²]
         ("still"; default 5000 µg, well above the per-sample white noise of a navigation-grade
         accelerometer at 100 Hz, a few hundred µg).
     slope_max : float
-        Largest ``|slope|`` of that fit beyond 3σ of its own noise [m/s² per s] ("still": no creep;
+        Largest absolute slope of that fit beyond 3σ of its own noise [m/s² per s] ("still": no creep;
         default 20 µg/s).
     min_fraction : float
         Smallest fraction of the expected number of samples (``dwell × rate``) accepted (gaps).

@@ -2,15 +2,12 @@ r"""Checks of a dwell on the platform while it is recorded: reached, still, comp
 
 The thresholds are those of :class:`~stableins.estimators.layout.DwellChecks`:
 
-reached
-    :math:`\max_i |\bar r_i - r_i^{cmd}| \le` ``angle_tolerance`` (wrapped to ±π).
-still
-    per accelerometer axis, the least-squares line :math:`f(t) = a + b (t - \bar t)` with residual
-    standard deviation :math:`s \le` ``scatter_max``; the slope fails only when it exceeds the limit
-    beyond its own noise, :math:`|b| - 3\sigma_b >` ``slope_max`` with
-    :math:`\sigma_b = s / \sqrt{\sum (t - \bar t)^2}` (a short, noisy dwell is not rejected for noise).
-complete
-    all samples finite and at least ``min_fraction`` of ``dwell × rate`` of them.
+- reached: :math:`\max_i |\bar r_i - r_i^{cmd}| \le` ``angle_tolerance`` (wrapped to ±π).
+- still: per accelerometer axis, the least-squares line :math:`f(t) = a + b (t - \bar t)` with residual
+  standard deviation :math:`s \le` ``scatter_max``; the slope fails only when it exceeds the limit
+  beyond its own noise, :math:`|b| - 3\sigma_b >` ``slope_max`` with
+  :math:`\sigma_b = s / \sqrt{\sum (t - \bar t)^2}` (a short, noisy dwell is not rejected for noise).
+- complete: all samples finite and at least ``min_fraction`` of ``dwell × rate`` of them.
 """
 
 from __future__ import annotations
@@ -82,9 +79,10 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Dwe
 def dwell_statistics(command: Any, block: SampleBlock) -> tuple[float, float, float, float, float, int] | None:
     """Return what the acceptance checks look at in a dwell; ``None`` when it has fewer than 3 samples or a non-finite one.
 
-    Returns ``(angle_error, scatter, slope, slope_sigma, excess, axis)``: the largest ``|mean reading − command|`` (wrapped
-    to ±π) [rad]; the largest residual standard deviation about the per-axis least-squares line [m/s²]; the slope
-    [m/s² per s] and its 1σ on the axis ``axis`` where ``|b| − 3σ_b`` (``excess``) is largest.
+    Returns ``(angle_error, scatter, slope, slope_sigma, excess, axis)``: the largest absolute difference of mean
+    reading and command (wrapped to ±π) [rad]; the largest residual standard deviation about the per-axis
+    least-squares line [m/s²]; the slope [m/s² per s] and its 1σ on the axis ``axis`` where ``|b| − 3σ_b``
+    (``excess``) is largest.
     """
     n = len(block.time)
     finite = n > 0 and all(np.all(np.isfinite(a)) for a in (block.time, block.specific_force, block.angles, block.temperature))
