@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import stableins
 from stableins.drivers.base import PlatformDriver
@@ -306,7 +306,7 @@ def _runner(rundir: Path, plan: Plan, session: Session, console: RunConsole, opt
     if start.get("prior"):
         prior = _load_record(rundir / start["prior"])
         values = prior.values()
-        offsets = tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30"))
+        offsets = cast("tuple[float, float, float]", tuple(float(values.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")))
     extra = model_terms(definition, prior)
     return Runner(plan, session, console, options, definition=definition, offsets=offsets, extra_terms=extra)
 
@@ -411,6 +411,7 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any)
         runner.console.say("note: no report writer in this installation; the record is complete without it")
         return None
     target = rundir / REPORT_NAME
+    assert outcome.record is not None  # filed by _file before the report is written
     summary = write_report(
         target,
         outcome.record,

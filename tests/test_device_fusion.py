@@ -1,5 +1,7 @@
 """Fused coarse+fine record and joint fit of the coarse passes, judged against the truth simulator."""
 
+import fcntl
+import pickle
 from dataclasses import replace
 
 import numpy as np
@@ -40,8 +42,23 @@ def _simulated_calibration(seed):
 
 
 @pytest.fixture(scope="module")
-def monte_carlo():
-    return [_simulated_calibration(400 + k) for k in range(20)]
+def monte_carlo(tmp_path_factory, worker_id):
+    """The 20 simulated device calibrations, built once per test session.
+
+    Under pytest-xdist every worker that runs a test of this module would build the module fixture again (about
+    80 s of the suite each); the first worker builds it and pickles it into the session's shared temporary
+    directory, the others wait on the lock and read it (the xdist documentation's pattern, with ``fcntl`` locks).
+    """
+    if worker_id == "master":  # not under xdist: nothing to share
+        return [_simulated_calibration(400 + k) for k in range(20)]
+    shared = tmp_path_factory.getbasetemp().parent / "device_fusion_monte_carlo.pickle"
+    with open(shared.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if shared.is_file():
+            return pickle.loads(shared.read_bytes())
+        calibrations = [_simulated_calibration(400 + k) for k in range(20)]
+        shared.write_bytes(pickle.dumps(calibrations))
+        return calibrations
 
 
 def _z(fit, expected):

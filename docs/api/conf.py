@@ -46,8 +46,6 @@ NOT_YET_CLEAN = {
     "stableins.discovery.library",
     "stableins.discovery.ranking",
     "stableins.discovery.separation",
-    "stableins.procedures.plan",
-    "stableins.procedures.runner",
 }
 HERE = Path(__file__).resolve().parent
 GENERATED = HERE / "modules"

@@ -133,8 +133,8 @@ def run(args: argparse.Namespace) -> int:
             note(f"stableins: warning: {step.added[0][0]} {step.decision}: {step.reason}")
     else:
         calibration = calibrate()
-    for fit in (*calibration.passes, calibration.fine, calibration.fused):
-        for line in fit.notes if fit is not None else ():
+    for fit in [f for f in (*calibration.passes, calibration.fine, calibration.fused) if f is not None]:
+        for line in fit.notes:
             if line.startswith("warning:"):
                 note(f"stableins: {fit.stage} stage: {line}")
     record = CalibrationRecord.from_device(

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stableins.commands import add_entries_option
 from stableins.status import Status
@@ -96,7 +96,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: Any) -> int:
-    import math
     import warnings
     from dataclasses import replace
 
@@ -105,7 +104,7 @@ def run(args: Any) -> int:
     from stableins.discovery.library import record_terms
     from stableins.errors import InputError
     from stableins.estimators.system.sensitivity import with_sensitivities
-    from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    from stableins.estimators.system.stage import run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -120,15 +119,7 @@ def run(args: Any) -> int:
         )
     values = prior.values()
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
-    options = SystemOptions(
-        chunk_rows=args.chunk_rows,
-        case_rotation_period=args.case_rotation_period or None,
-        compensate_loop=not args.no_loop_compensation,
-        couplings=not args.no_couplings,
-        estimate_k2=args.estimate_k2,
-        known_gyro_drift=None if args.gyro_drift is None else tuple(math.radians(v) / 3600.0 for v in args.gyro_drift),
-        gyro_drift_uncertainty=None if args.gyro_drift_uncertainty is None else math.radians(args.gyro_drift_uncertainty) / 3600.0,
-    )
+    options = _options(args)
     entries = parse_entries(args.set)
     noise, _ = system_noise_prior(args, default=prior.noise_model)
     with warnings.catch_warnings(record=True) as caught:
@@ -163,9 +154,41 @@ def run(args: Any) -> int:
     if args.plot:
         plot(outcome, str(args.plot))
 
+    data = _document(args, outcome, prior, updated)
+    import shlex
+
+    certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
+    command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
+    data["next"] = [command]
+    note(f"next: the calibration certificate of {args.out}:\n  {command}")
+    emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
+    return 0
+
+
+def _options(args: Any) -> Any:
+    """Return the system stage's options (:class:`~stableins.estimators.system.stage.SystemOptions`) the flags set, in SI."""
+    import math
+
+    from stableins.estimators.system.stage import SystemOptions
+
+    return SystemOptions(
+        chunk_rows=args.chunk_rows,
+        case_rotation_period=args.case_rotation_period or None,
+        compensate_loop=not args.no_loop_compensation,
+        couplings=not args.no_couplings,
+        estimate_k2=args.estimate_k2,
+        known_gyro_drift=None
+        if args.gyro_drift is None
+        else cast("tuple[float, float, float]", tuple(math.radians(v) / 3600.0 for v in args.gyro_drift)),
+        gyro_drift_uncertainty=None if args.gyro_drift_uncertainty is None else math.radians(args.gyro_drift_uncertainty) / 3600.0,
+    )
+
+
+def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, Any]:
+    """Return the JSON document of the command (``--json``): the combinations, the record's parameters and the fit."""
     combined = outcome.combined
     fit = outcome.coloured_noise
-    data = {
+    return {
         "record": args.record,
         "prior": args.prior,
         "out": str(args.out),
@@ -206,14 +229,6 @@ def run(args: Any) -> int:
         },
         "diagnostics": outcome.diagnostics.to_dict(),
     }
-    import shlex
-
-    certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
-    command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
-    data["next"] = [command]
-    note(f"next: the calibration certificate of {args.out}:\n  {command}")
-    emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
-    return 0
 
 
 def flag_text(text: str) -> str:

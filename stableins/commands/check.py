@@ -31,6 +31,7 @@ from typing import Any
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins check`` to ``parser``."""
     parser.add_argument("files", nargs="+", metavar="FILE", help="any file stableins writes: data, records, truth, plans, journals, ...")
     parser.add_argument("--allow-gaps", action="store_true", help="report gaps in system records as warnings instead of errors")
 
@@ -321,6 +322,7 @@ def _text(path: str, kind: str) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins check``: validate every file and print what each holds; exit 2 when one is not valid."""
     from stableins.output import emit
 
     summaries = [summarize(path, allow_gaps=args.allow_gaps) for path in args.files]

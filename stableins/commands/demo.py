@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stableins.status import Status
 
@@ -36,6 +36,7 @@ MAX_ROUNDS = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins demo`` to ``parser``."""
     from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
     from stableins.commands.simulate import parse_duration
 
@@ -90,7 +91,7 @@ def _datasheet(truth_path: Path) -> list[str]:
 
 
 def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
-    """Final record against the truth: error and error/σ of every estimated parameter.
+    """Compare the final record with the truth: error and error/σ of every estimated parameter.
 
     The truth is first put in the record's gauge (θ10 = 0, exactly equivalent
     parameters, :func:`stableins.estimators.device_gauge.gauge_equivalent`).  A discovered term
@@ -105,7 +106,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
 
     record = CalibrationRecord.load(record_path)
     truth = load_truth(truth_path)
-    configuration = GimbalConfiguration(tuple(truth.site.gimbal_senses))
+    configuration = GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(truth.site.gimbal_senses)))
     reference = gauge_equivalent(dict(truth.parameters), configuration)
     reference.update({i: float(truth.effects.get(i, 0.0)) for i in record.ids if i in LIBRARY})
     terms = all_terms()
@@ -196,6 +197,7 @@ def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: b
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins demo``: simulate, calibrate, discover and certify on the embedded simulated platform."""
     import sys
 
     from stableins.commands.simulate import prepare_directory

@@ -345,7 +345,7 @@ def run(args: argparse.Namespace) -> int:
         except OSError as error:
             raise InputError(f"cannot write the plot: {error.strerror or error}", path=str(args.plot), field="--plot") from None
         note(f"Allan deviation plot written to {args.plot}")
-    if args.out is not None:
+    if args.out is not None and record is not None:  # --out requires --record (checked above)
         updated = replace(
             record,
             noise_model=model,

@@ -12,6 +12,7 @@ HELP = "write the PDF calibration report of a calibration record"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins report`` to ``parser``."""
     parser.description = (
         "Write the calibration report (ISO/IEC 17025 7.8) of a calibration record: identification, results with expanded "
         "uncertainty, evidence that the model fits, change since the previous calibration and conformity."

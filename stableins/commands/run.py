@@ -108,7 +108,7 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
             from stableins.reporting.budget import UncertaintyInputs
 
             UncertaintyInputs.from_mapping(definition.uncertainty, source=str(definition_file))
-    changes = {k: v for k, v in (("retries", retries), ("chunk", chunk)) if v is not None}
+    changes: dict[str, Any] = {k: v for k, v in (("retries", retries), ("chunk", chunk)) if v is not None}
     return (dataclasses.replace(plan, **changes) if changes else plan), definition_file
 
 

@@ -11,6 +11,7 @@ import sys
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins serve-sim`` to ``parser``."""
     from stableins.commands.arguments import integer, number, seed
 
     parser.add_argument("--port", type=integer(0, 65535), required=True, help="TCP port on 127.0.0.1 (0: any free port)")
@@ -31,6 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins serve-sim``: serve a simulated platform over TCP on the loopback interface."""
     from stableins.drivers.select import simulated_platform
     from stableins.drivers.server import LOOPBACK, serve
     from stableins.errors import InputError

@@ -66,6 +66,102 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
     )
 
 
+class _Reader:
+    """The quantities of one metadata document, read with their units; each error names the file and the key."""
+
+    def __init__(self, document: dict[str, Any], path: str | None) -> None:
+        self.document = document
+        self.path = path
+
+    def fail(self, message: str, key: str, expected: str | None = None) -> Exception:
+        """Return the :class:`~stableins.errors.InputError` of ``metadata.<key>``."""
+        from stableins.errors import InputError
+
+        return InputError(message, path=self.path, field=f"metadata.{key}", expected=expected)
+
+    def number(self, value: Any, key: str) -> float:
+        """Return ``value`` as a finite float."""
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(f"not a number: {value!r}", key, "a number")
+        if value != value or value in (float("inf"), float("-inf")):
+            raise self.fail(f"not finite: {value!r}", key, "a finite number")
+        return float(value)
+
+    def quantity(self, key: str, vector: int = 0) -> Any:
+        """Return the ``{"value": ..., "unit": ...}`` item ``key`` in SI (a tuple of ``vector`` numbers when ``vector``)."""
+        item = self.document[key]
+        if not isinstance(item, dict) or "value" not in item or "unit" not in item:
+            raise self.fail(f"{item!r} has no explicit unit", key, '{"value": ..., "unit": ...}')
+        units = QUANTITY_UNITS[key]
+        if not isinstance(item["unit"], str) or item["unit"] not in units:
+            raise self.fail(f"unit {item['unit']!r} found", key, "unit " + " or ".join(repr(u) for u in units))
+        factor = units[item["unit"]]
+        if vector:
+            value = item["value"]
+            if not isinstance(value, list) or len(value) != vector:
+                raise self.fail(f"{value!r} is not a list of {vector} numbers", key, f"{vector} numbers")
+            return tuple(self.number(v, key) * factor for v in value)
+        return self.number(item["value"], key) * factor
+
+    def gravity(self) -> tuple[float, float | None]:
+        """Return the local gravity and its standard uncertainty (None: not stated) [m/s²]."""
+        gravity = self.quantity("gravity")
+        if not 9.7 < gravity < 9.9:
+            expected = "a value in m/s^2 between 9.7 and 9.9"
+            raise self.fail(f"gravity {gravity:g} m/s^2 is not a terrestrial gravity value", "gravity", expected)
+        uncertainty = self.quantity("gravity_uncertainty") if self.document.get("gravity_uncertainty") is not None else None
+        if uncertainty is not None and not 0.0 <= uncertainty <= 0.05:
+            expected = "a standard uncertainty from 0 to 0.05 m/s^2"
+            raise self.fail(f"gravity uncertainty {uncertainty:g} m/s^2", "gravity_uncertainty", expected)
+        return gravity, uncertainty
+
+    def attitude(self) -> tuple[list[int], tuple[float, float, float]]:
+        """Return the gimbal senses and the base attitude (yaw, pitch, roll) [rad]."""
+        document = self.document
+        senses = document.get("gimbal_senses", [1, 1, 1, 1])
+        if not isinstance(senses, list) or len(senses) != 4 or any(s not in (1, -1) or isinstance(s, bool) for s in senses):
+            raise self.fail(f"gimbal senses {senses!r}", "gimbal_senses", "four values, each +1 or -1")
+        base_attitude = self.quantity("base_attitude", vector=3) if "base_attitude" in document else (0.0, 0.0, 0.0)
+        if "base_attitude" in document and document["base_attitude"].get("order", list(BASE_ATTITUDE_ORDER)) != list(BASE_ATTITUDE_ORDER):
+            order = document["base_attitude"]["order"]
+            expected = f"{list(BASE_ATTITUDE_ORDER)} (the only order stableins reads)"
+            raise self.fail(f"order {str(order)[:60]!r}", "base_attitude.order", expected)
+        return senses, base_attitude
+
+    def damping(self) -> dict[str, float]:
+        """Return the damping-loop parameters, each in its unit of :data:`DAMPING_UNITS`."""
+        damping_doc = self.document.get("damping", {})
+        if not isinstance(damping_doc, dict):
+            raise self.fail("damping is not an object", "damping", '{"name": {"value": ..., "unit": ...}}')
+        damping = {}
+        for name, item in damping_doc.items():
+            if not isinstance(item, dict) or "value" not in item or "unit" not in item:
+                raise self.fail(f"{item!r} has no explicit unit", f"damping.{name}", '{"value": ..., "unit": ...}')
+            expected_unit = DAMPING_UNITS.get(name, "SI")
+            if item["unit"] != expected_unit:
+                raise self.fail(f"unit {item['unit']!r} found", f"damping.{name}", f"unit {expected_unit!r}")
+            damping[name] = self.number(item["value"], f"damping.{name}")
+        return damping
+
+    def strings(self) -> tuple[str, str, str]:
+        """Return the serial number, the gravity source and the start time (ISO 8601, or empty)."""
+        serial = self.document["serial_number"]
+        if not isinstance(serial, str) or not serial:
+            raise self.fail(f"serial number {serial!r}", "serial_number", "a non-empty string")
+        source = self.document["gravity_source"]
+        if not isinstance(source, str):
+            raise self.fail(f"gravity source {source!r}", "gravity_source", "a string")
+        start_time = self.document.get("start_time", "")
+        if start_time:
+            from datetime import datetime
+
+            try:
+                datetime.fromisoformat(str(start_time).replace("Z", "+00:00"))
+            except ValueError:
+                raise self.fail(f"start time {start_time!r}", "start_time", "an ISO 8601 time such as 2026-03-01T12:00:00Z") from None
+        return serial, source, str(start_time)
+
+
 def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
     """Inverse of :func:`metadata_to_document`, validating keys, units and ranges.
 
@@ -74,97 +170,36 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
     InputError
         Naming the file and the key, and what was expected.
     """
-    from stableins.errors import InputError
+    import math
 
-    def fail(message: str, key: str, expected: str | None = None) -> InputError:
-        return InputError(message, path=path, field=f"metadata.{key}", expected=expected)
+    from stableins.errors import InputError
 
     if not isinstance(document, dict):
         raise InputError(
             "metadata is not a JSON object", path=path, field="metadata", expected="an object with the keys of docs/formats.md"
         )
+    read = _Reader(document, path)
     missing = [k for k in _REQUIRED if k not in document]
     if missing:
-        raise fail(f"missing metadata key(s) {missing}", missing[0], "the keys " + ", ".join(_REQUIRED))
-
-    def number(value: Any, key: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise fail(f"not a number: {value!r}", key, "a number")
-        if value != value or value in (float("inf"), float("-inf")):
-            raise fail(f"not finite: {value!r}", key, "a finite number")
-        return float(value)
-
-    def quantity(key: str, vector: int = 0) -> Any:
-        item = document[key]
-        if not isinstance(item, dict) or "value" not in item or "unit" not in item:
-            raise fail(f"{item!r} has no explicit unit", key, '{"value": ..., "unit": ...}')
-        units = QUANTITY_UNITS[key]
-        if not isinstance(item["unit"], str) or item["unit"] not in units:
-            raise fail(f"unit {item['unit']!r} found", key, "unit " + " or ".join(repr(u) for u in units))
-        factor = units[item["unit"]]
-        if vector:
-            value = item["value"]
-            if not isinstance(value, list) or len(value) != vector:
-                raise fail(f"{value!r} is not a list of {vector} numbers", key, f"{vector} numbers")
-            return tuple(number(v, key) * factor for v in value)
-        return number(item["value"], key) * factor
-
-    import math
-
-    latitude = quantity("latitude")
+        raise read.fail(f"missing metadata key(s) {missing}", missing[0], "the keys " + ", ".join(_REQUIRED))
+    latitude = read.quantity("latitude")
     if abs(latitude) > math.pi / 2:
-        raise fail(f"latitude {math.degrees(latitude):g} deg is outside ±90 deg", "latitude", "a geodetic latitude in [-90, 90] deg")
-    gravity = quantity("gravity")
-    if not 9.7 < gravity < 9.9:
-        raise fail(f"gravity {gravity:g} m/s^2 is not a terrestrial gravity value", "gravity", "a value in m/s^2 between 9.7 and 9.9")
-    gravity_uncertainty = quantity("gravity_uncertainty") if document.get("gravity_uncertainty") is not None else None
-    if gravity_uncertainty is not None and not 0.0 <= gravity_uncertainty <= 0.05:
-        raise fail(
-            f"gravity uncertainty {gravity_uncertainty:g} m/s^2", "gravity_uncertainty", "a standard uncertainty from 0 to 0.05 m/s^2"
-        )
-    sample_rate = quantity("sample_rate")
+        raise read.fail(f"latitude {math.degrees(latitude):g} deg is outside ±90 deg", "latitude", "a geodetic latitude in [-90, 90] deg")
+    gravity, gravity_uncertainty = read.gravity()
+    sample_rate = read.quantity("sample_rate")
     if sample_rate <= 0:
-        raise fail(f"sample rate {sample_rate:g} Hz", "sample_rate", "a positive rate in Hz")
-    senses = document.get("gimbal_senses", [1, 1, 1, 1])
-    if not isinstance(senses, list) or len(senses) != 4 or any(s not in (1, -1) or isinstance(s, bool) for s in senses):
-        raise fail(f"gimbal senses {senses!r}", "gimbal_senses", "four values, each +1 or -1")
-    base_attitude = quantity("base_attitude", vector=3) if "base_attitude" in document else (0.0, 0.0, 0.0)
-    if "base_attitude" in document and document["base_attitude"].get("order", list(BASE_ATTITUDE_ORDER)) != list(BASE_ATTITUDE_ORDER):
-        order = document["base_attitude"]["order"]
-        raise fail(f"order {str(order)[:60]!r}", "base_attitude.order", f"{list(BASE_ATTITUDE_ORDER)} (the only order stableins reads)")
-    reference_temperature = quantity("reference_temperature") if "reference_temperature" in document else 25.0
-    damping_doc = document.get("damping", {})
-    if not isinstance(damping_doc, dict):
-        raise fail("damping is not an object", "damping", '{"name": {"value": ..., "unit": ...}}')
-    damping = {}
-    for name, item in damping_doc.items():
-        if not isinstance(item, dict) or "value" not in item or "unit" not in item:
-            raise fail(f"{item!r} has no explicit unit", f"damping.{name}", '{"value": ..., "unit": ...}')
-        expected_unit = DAMPING_UNITS.get(name, "SI")
-        if item["unit"] != expected_unit:
-            raise fail(f"unit {item['unit']!r} found", f"damping.{name}", f"unit {expected_unit!r}")
-        damping[name] = number(item["value"], f"damping.{name}")
+        raise read.fail(f"sample rate {sample_rate:g} Hz", "sample_rate", "a positive rate in Hz")
+    senses, base_attitude = read.attitude()
+    reference_temperature = read.quantity("reference_temperature") if "reference_temperature" in document else 25.0
+    damping = read.damping()
     extra = document.get("extra", {})
     if not isinstance(extra, dict):
-        raise fail("extra is not an object", "extra", "a JSON object")
-    serial = document["serial_number"]
-    if not isinstance(serial, str) or not serial:
-        raise fail(f"serial number {serial!r}", "serial_number", "a non-empty string")
-    source = document["gravity_source"]
-    if not isinstance(source, str):
-        raise fail(f"gravity source {source!r}", "gravity_source", "a string")
-    start_time = document.get("start_time", "")
-    if start_time:
-        from datetime import datetime
-
-        try:
-            datetime.fromisoformat(str(start_time).replace("Z", "+00:00"))
-        except ValueError:
-            raise fail(f"start time {start_time!r}", "start_time", "an ISO 8601 time such as 2026-03-01T12:00:00Z") from None
+        raise read.fail("extra is not an object", "extra", "a JSON object")
+    serial, source, start_time = read.strings()
     return SiteMetadata(
         serial_number=serial,
         latitude=latitude,
-        height=quantity("height"),
+        height=read.quantity("height"),
         gravity=gravity,
         gravity_source=source,
         sample_rate=sample_rate,
@@ -173,7 +208,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         reference_temperature=reference_temperature,
         damping=damping,
         extra=extra,
-        start_time=str(start_time),
+        start_time=start_time,
         gravity_uncertainty=gravity_uncertainty,
     )
 

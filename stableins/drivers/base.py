@@ -21,7 +21,8 @@ class PlatformDriver(Protocol):
     """What a calibration procedure needs from a platform."""
 
     @property
-    def metadata(self) -> SiteMetadata: ...
+    def metadata(self) -> SiteMetadata:
+        """Return the site metadata of the platform (latitude, gravity, sample rate, ...)."""
 
     def command(self, readings: tuple[float, float, float]) -> float:
         """Slew to the commanded angle-sensor readings (platform, inner, middle) [rad].
@@ -31,7 +32,7 @@ class PlatformDriver(Protocol):
         ...
 
     def read_angles(self) -> NDArray[np.float64]:
-        """Current angle-sensor readings [rad]."""
+        """Return the current angle-sensor readings [rad]."""
         ...
 
     def acquire(self, duration: float) -> SampleBlock:
@@ -42,4 +43,5 @@ class PlatformDriver(Protocol):
         """Driver state for logs and error messages."""
         ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Release the platform (close the connection or file)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,7 +40,7 @@ class RecordingDriver:
 
     def command(self, readings: tuple[float, float, float]) -> float:
         time = self.driver.command(readings)
-        self._commands.append(_Commanded(tuple(float(r) for r in readings), float(time)))
+        self._commands.append(_Commanded(cast("tuple[float, float, float]", tuple(float(r) for r in readings)), float(time)))
         return time
 
     def read_angles(self) -> NDArray[np.float64]:

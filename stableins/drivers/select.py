@@ -45,7 +45,8 @@ def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | 
         raise InputError(
             f"the simulated platform is not available ({error})", field="driver_spec", expected="tcp://HOST:PORT or replay:PATH"
         ) from None
-    truth = Truth.draw(seed, **({"sample_rate": sample_rate} if sample_rate else {}), serial_number=unit)
+    options: dict[str, Any] = {"sample_rate": sample_rate} if sample_rate else {}
+    truth = Truth.draw(seed, **options, serial_number=unit)
     return SimulatedDriver(truth, seed)
 
 

@@ -11,6 +11,7 @@ raises :class:`stableins.errors.InputError` naming the file and the field.
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
@@ -127,7 +128,7 @@ def shipped_procedures() -> tuple[str, ...]:
     return tuple(sorted(p.stem for p in PROCEDURE_DIRECTORY.glob("*.toml")))
 
 
-def resolve(name_or_path: str | Path) -> Path:
+def resolve(name_or_path: str | os.PathLike[str]) -> Path:
     """A path, or the name of a shipped definition (``"device-coarse"``).
 
     A name without ``.toml`` that is not an existing file is looked up among the shipped

@@ -12,7 +12,7 @@ carries the whole pass history.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -159,7 +159,7 @@ def iterate_offsets(
     estimator = OffsetEstimator(
         gravity=site.gravity,
         base_attitude=site.base_attitude,
-        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        configuration=GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(site.gimbal_senses))),
         positions=procedure.positions,
         orientation_tolerance=procedure.checks.orientation_tolerance,
         threshold=threshold,

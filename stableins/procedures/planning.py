@@ -13,7 +13,7 @@ check it again when the data are estimated.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 
@@ -49,7 +49,7 @@ def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: 
                 stage=definition.stage,
                 pass_number=1,
                 position=s.position,
-                readings=tuple(float(a) for a in s.command),
+                readings=cast("tuple[float, float, float]", tuple(float(a) for a in s.command)),
                 settle=float(s.settle),
                 dwell=float(s.dwell),
                 checks=checks,

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -352,7 +352,7 @@ class Runner:
                 result = iterate_offsets(
                     SessionDriver(self.session),
                     self.definition,
-                    initial_offsets=tuple(float(o) for o in self.offsets),
+                    initial_offsets=cast("tuple[float, float, float]", tuple(float(o) for o in self.offsets)),
                     progress=lambda record: self.console.say(f"  {record.describe()}", replay=self.session.last_replayed),
                     extra_terms=self.extra_terms,
                     observer=_IterationConsole(self.console, self.session, self.rate),

@@ -137,7 +137,7 @@ def runner_settings(table: Any, path: str) -> RunnerSettings:
     return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
 
 
-def runner_checks(table: Any, path: str) -> dict[str, float]:
+def runner_checks(table: Any, path: str) -> dict[str, Any]:
     """The dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
     return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
 

@@ -40,6 +40,7 @@ class CheckResult:
     values: dict[str, float] = field(default_factory=dict)
 
     def describe(self) -> str:
+        """Return the checked quantities of the dwell as one line of text, in engineering units."""
         return (
             f"reached within {math.degrees(self.angle_error) * 3600:.1f} arcsec, scatter {self.scatter / 9.80665e-6:.1f} µg, "
             f"slope {self.slope / 9.80665e-6:.2f} µg/s, {self.samples}/{self.expected_samples} samples"
@@ -47,7 +48,7 @@ class CheckResult:
 
 
 def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: DwellChecks, dwell: float, rate: float) -> CheckResult:
-    """Acceptance checks of one dwell (see the module docstring for the formulas)."""
+    """Run the acceptance checks of one dwell (see the module docstring for the formulas)."""
     n = len(block.time)
     expected = max(1, int(round(dwell * rate)))
     statistics = dwell_statistics(command, block)
@@ -76,7 +77,7 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Dwe
 
 
 def dwell_statistics(command: Any, block: SampleBlock) -> tuple[float, float, float, float, float, int] | None:
-    """What the acceptance checks look at in a dwell; ``None`` when it has fewer than 3 samples or a non-finite one.
+    """Return what the acceptance checks look at in a dwell; ``None`` when it has fewer than 3 samples or a non-finite one.
 
     Returns ``(angle_error, scatter, slope, slope_sigma, excess, axis)``: the largest absolute difference of mean
     reading and command (wrapped to ±π) [rad]; the largest residual standard deviation about the per-axis
@@ -102,7 +103,7 @@ def dwell_statistics(command: Any, block: SampleBlock) -> tuple[float, float, fl
 
 
 def estimator_verdict(command: Any, block: SampleBlock, summary: Any, dwell: float, rate: float) -> CheckResult:
-    """The verdict of a dwell the estimator itself checks (the zero-offset iteration's coarse dwells).
+    """Return the verdict of a dwell the estimator itself checks (the zero-offset iteration's coarse dwells).
 
     Accepted when the procedure's ``[acceptance]`` checks (:func:`stableins.estimators.dwell.summarize_dwell`) leave it
     usable, else the reasons are its flags; the figures are those of :func:`evaluate_dwell`, so every dwell of every

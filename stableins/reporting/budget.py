@@ -44,9 +44,8 @@ defaults below, in this order (docs/reports.md).
 
 from __future__ import annotations
 
-import fnmatch
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -144,8 +143,10 @@ class UncertaintyInputs:
 
     @classmethod
     def from_procedure_file(cls, path: str) -> UncertaintyInputs:
-        """Read the ``[uncertainty]`` table of a procedure (a shipped definition's name or a TOML file; absent table:
-        every input takes its default)."""
+        """Read the ``[uncertainty]`` table of a procedure (a shipped definition's name or a TOML file).
+
+        Without the table every input takes its default.
+        """
         from stableins.procedures.definition import read_toml, resolve
 
         resolved = resolve(path)
@@ -169,6 +170,7 @@ class Source:
 
     @property
     def evaluated(self) -> bool:
+        """Return whether the input was evaluated (its state is "evaluated")."""
         return self.state == "evaluated"
 
 
@@ -195,256 +197,55 @@ class Budget:
         return np.sqrt(total)
 
     def state(self, group: str) -> str:
+        """Return the state of the group's source ("not evaluated" when the budget has no such source)."""
         source = self.source(group)
         return source.state if source is not None else "not evaluated"
 
     def combined_of(self, parameter_id: str) -> float:
+        """Return the combined standard uncertainty of a parameter [SI]."""
         return float(self.combined[self.ids.index(parameter_id)])
 
     def contribution(self, group: str, parameter_id: str) -> float:
-        """The group's standard uncertainty of the parameter [SI]; NaN unless the group was evaluated."""
+        """Return the group's standard uncertainty of the parameter [SI]; NaN unless the group was evaluated."""
         values = self.contributions.get(group)
         if values is None or self.state(group) != "evaluated":
             return math.nan
         return float(values[self.ids.index(parameter_id)])
 
     def source(self, group: str) -> Source | None:
+        """Return the source of an input group (None: not in the budget)."""
         return next((s for s in self.sources if s.group == group), None)
 
 
 def uncertainty_budget(
     record: CalibrationRecord, inputs: UncertaintyInputs | None = None, terms: Mapping[str, Term] | None = None
 ) -> Budget:
-    """The budget of every parameter of ``record`` (module docstring), with ``inputs`` from the procedure."""
+    """Return the budget of every parameter of ``record`` (module docstring), with ``inputs`` from the procedure."""
     from stableins.discovery.library import all_terms
+    from stableins.reporting import budget_sources as evaluate  # the evaluations build on this module's types
 
     inputs = inputs or UncertaintyInputs()
-    terms = dict(terms or all_terms())
-    ids = record.ids
-    n = len(ids)
     covariance = np.nan_to_num(np.asarray(record.covariance, dtype=float))
     held = [k for k, p in enumerate(record.parameters) if p.status in (Status.GAUGE, Status.UNIDENTIFIABLE)]
     covariance[held, :] = 0.0
     covariance[:, held] = 0.0
     type_a = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    contributions: dict[str, NDArray[np.float64]] = {}
-    sources: list[Source] = []
-    conditions: list[str] = []
-
-    def to_record(sensitivity_ids: Sequence[str], vector: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = np.zeros(n)
-        for k, pid in enumerate(sensitivity_ids):
-            if pid in ids:
-                out[ids.index(pid)] += vector[k]
-        return out
-
-    def to_record_matrix(sensitivity_ids: Sequence[str], matrix: NDArray[np.float64]) -> NDArray[np.float64]:
-        index = [ids.index(p) for p in sensitivity_ids if p in ids]
-        keep = [k for k, p in enumerate(sensitivity_ids) if p in ids]
-        out = np.zeros((n, n))
-        out[np.ix_(index, index)] = matrix[np.ix_(keep, keep)]
-        return out
-
-    def largest(vector: NDArray[np.float64]) -> str:
-        """The largest effect on a parameter in engineering units, as text."""
-        best = None
-        for k, pid in enumerate(ids):
-            term = terms.get(pid)
-            if term is None or not vector[k]:
-                continue
-            value = abs(float(term.sigma_to_engineering(vector[k])))
-            relative = value / max(float(term.sigma_to_engineering(type_a[k])), 1e-300) if type_a[k] > 0 else 0.0
-            if best is None or relative > best[0]:
-                best = (relative, pid, value, term.unit)
-        if best is None:
-            return "no effect on the parameters"
-        from stableins.reporting.content import number, unit_text
-
-        return f"largest on {best[1]}: {number(best[2], 2)} {unit_text(best[3])}"
-
-    # ---------------------------------------------------------------- gravity
-    site = record.site
-    if site is None:
-        sources.append(Source("gravity", "not recorded", "—", "—", "the record has no site metadata", "not evaluated", "not evaluated"))
-        contributions["gravity"] = np.zeros(n)
-    else:
-        g = float(site.gravity)
-        if site.gravity_uncertainty is not None:
-            u_g, origin, distribution = float(site.gravity_uncertainty), "stated with the site", "normal"
-        elif inputs.gravity is not None:
-            u_g, origin, distribution = inputs.gravity, f"procedure ({_name(inputs.source)})", "normal"
-        elif "normal" in site.gravity_source.lower():
-            u_g, origin, distribution = NORMAL_GRAVITY_UNCERTAINTY, _NORMAL_GRAVITY_TEXT, "normal"
-        else:
-            u_g, origin, distribution = NORMAL_GRAVITY_UNCERTAINTY, _UNSTATED_GRAVITY_TEXT, "normal"
-        direction = gravity_direction(record, terms)
-        gradient = np.zeros(n)
-        stages = [s for s in record.stages if s.likelihood is not None]
-        for stage in stages:
-            lik = stage.likelihood
-            v = np.array([direction.get(pid, 0.0) for pid in lik.ids])
-            gradient += to_record(lik.ids, lik.information @ v)
-        c = covariance @ gradient if stages else np.array([direction.get(pid, 0.0) for pid in ids])
-        contributions["gravity"] = np.abs(c) * u_g
-        sources.append(
-            Source(
-                "gravity",
-                f"{g:.7f} m/s² ({site.gravity_source})",
-                f"{_mgal(u_g)} mGal" + ("" if u_g == 0 else f" ({scientific(u_g)} m/s²)"),
-                distribution,
-                origin,
-                "δSF/SF = δg/g on every scale factor (" + largest(c * u_g) + ")" if u_g > 0 else "δSF/SF = δg/g on every scale factor",
-            )
-        )
-
-    # ---------------------------------------------------------------- stored sensitivities (angle sensors, gyro drift, loop)
-    stored: dict[str, list[tuple[Any, Any]]] = {}
-    for stage in record.stages:
-        for s in stage.sensitivities:
-            stored.setdefault(s.group, []).append((stage, s))
-
-    # angle sensors: the static reading error of every dwell, independent from dwell to dwell
-    u_angle, angle_origin = (
-        (inputs.angle_sensor, f"procedure ({_name(inputs.source)})")
-        if inputs.angle_sensor is not None
-        else (ANGLE_SENSOR_BOUND / math.sqrt(3.0), _ANGLE_TEXT)
+    propagation = evaluate.Propagation(record.ids, covariance, type_a, dict(terms or all_terms()))
+    stored = evaluate.stored_sensitivities(record)
+    evaluations = {
+        "gravity": evaluate.gravity(record, inputs, propagation),
+        "angle_sensors": evaluate.angle_sensors(record, inputs, propagation, stored),
+        "gyro_drift": evaluate.gyro_drift(record, inputs, propagation, stored),
+        "damping_loop": evaluate.damping_loop(record, inputs, propagation, stored),
+        "temperature": evaluate.temperature(record, inputs, propagation),
+    }
+    return Budget(
+        record.ids,
+        type_a,
+        {g: evaluations[g].contribution for g in GROUPS},
+        tuple(evaluations[g].source for g in GROUPS),
+        evaluations["temperature"].conditions,
     )
-    angle = stored.get("angle_sensors", [])
-    if angle:
-        total = np.zeros((n, n))
-        for _, s in angle:
-            if s.covariance is not None:
-                total += to_record_matrix(s.ids, s.covariance)
-        cov = covariance @ total @ covariance * u_angle**2
-        contributions["angle_sensors"] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        effect = (
-            "each dwell's readings as independent errors of the coarse stage's orientations ("
-            + largest(contributions["angle_sensors"])
-            + ")"
-        )
-        sources.append(Source("angle_sensors", "static readings of the three gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
-                              "rectangular" if inputs.angle_sensor is None else "normal", angle_origin, effect))  # fmt: skip
-    else:
-        device = [s for s in record.stages if s.name in ("coarse", "coarse+fine")]
-        contributions["angle_sensors"] = np.zeros(n)
-        why = (
-            "no stage of the record reads the gimbal angles (the fine and system stages do not)"
-            if not device
-            else "the record's coarse stage stores no angle-sensor sensitivity (written by an earlier version): not evaluated"
-        )
-        sources.append(Source("angle_sensors", "static readings of the gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
-                              "rectangular", angle_origin, why, "not evaluated" if device else "not applicable"))  # fmt: skip
-
-    # gyro drift: the system stage's input, per platform axis
-    drift = stored.get("gyro_drift", [])
-    if drift:
-        vectors = {}
-        origins = set()
-        for stage, s in drift:
-            stated = stage.settings.get("gyro_drift_uncertainty")
-            if isinstance(stated, int | float) and math.isfinite(stated):
-                u, origin = float(stated), "given with the system stage"
-            elif inputs.gyro_drift is not None:
-                u, origin = inputs.gyro_drift, f"procedure ({_name(inputs.source)})"
-            else:
-                u, origin = GYRO_DRIFT_BOUND / math.sqrt(3.0), _DRIFT_TEXT
-            origins.add((u, origin))
-            if s.gradient is not None:
-                vectors[s.input] = vectors.get(s.input, np.zeros(n)) + to_record(s.ids, s.gradient) * u
-        per_axis = [covariance @ v for v in vectors.values()]
-        contributions["gyro_drift"] = np.sqrt(sum(np.abs(c) ** 2 for c in per_axis)) if per_axis else np.zeros(n)
-        given = [stage.settings.get("known_gyro_drift") for stage, _ in drift]
-        value = (
-            "not given: assumed zero"
-            if all(x is None for x in given)
-            else "given: " + ", ".join(f"{float(v) / DEG_PER_H:.4g}" for v in next(x for x in given if x is not None)) + " °/h (x, y, z)"
-        )
-        u_text = "; ".join(sorted({f"{u / DEG_PER_H:.2g} °/h per axis" for u, _ in origins}))
-        origin = "; ".join(sorted({o for _, o in origins}))
-        sources.append(
-            Source(
-                "gyro_drift",
-                f"constant drift in the platform frame, {value}",
-                u_text,
-                "rectangular" if origin == _DRIFT_TEXT else "normal",
-                origin,
-                "the system stage re-run with each axis perturbed; the drift drives the loop's Earth-rate mode and moves the "
-                f"attitude coefficients ({largest(contributions['gyro_drift'])})",
-            )
-        )
-    else:
-        contributions["gyro_drift"] = np.zeros(n)
-        sources.append(_system_input_missing(record, "gyro_drift", "constant drift in the platform frame"))
-
-    # damping loop: software constants of the navigation computer unless the procedure says otherwise
-    loop = stored.get("damping_loop", [])
-    relative = inputs.damping_loop if inputs.damping_loop is not None else 0.0
-    if loop:
-        per_parameter = [covariance @ (to_record(s.ids, s.gradient) * abs(s.value)) for _, s in loop if s.gradient is not None]
-        contributions["damping_loop"] = relative * np.sqrt(sum(np.abs(c) ** 2 for c in per_parameter))
-        one_percent = 0.01 * np.sqrt(sum(np.abs(c) ** 2 for c in per_parameter))
-        names = ", ".join(dict.fromkeys(_LOOP_NAMES.get(s.input.partition(".")[2], s.input) for _, s in loop))
-        sources.append(
-            Source(
-                "damping_loop",
-                f"{names} of the INS damping loop (site metadata)",
-                f"{relative:.2g} relative" if relative else "0",
-                "normal",
-                f"procedure ({_name(inputs.source)})" if inputs.damping_loop is not None else _LOOP_TEXT,
-                f"the system stage re-run with each parameter perturbed; a 1 % error of each would give {largest(one_percent)}",
-            )
-        )
-    else:
-        contributions["damping_loop"] = np.zeros(n)
-        sources.append(_system_input_missing(record, "damping_loop", "damping-loop parameters"))
-
-    # temperature: the recorded range, with a stated sensitivity or as a condition of validity
-    low, high, mean = _temperature_range(record)
-    contributions["temperature"] = np.zeros(n)
-    if low is None:
-        conditions.append("The instrument temperature is not recorded in the data: the results apply to the conditions of the calibration.")
-        effect = "the results apply to the conditions of the calibration"
-        sources.append(Source("temperature", "not recorded", "—", "—", "—", effect, "condition"))
-    else:
-        spread = (high - low) / math.sqrt(12.0)
-        stated = {pid: _pattern(inputs.temperature_sensitivity, pid) for pid in ids}
-        for k, pid in enumerate(ids):
-            sensitivity = stated[pid]
-            term = terms.get(pid)
-            if sensitivity is not None and term is not None and type_a[k] > 0:
-                contributions["temperature"][k] = float(term.from_engineering(sensitivity * spread) - term.from_engineering(0.0))
-        known = any(v is not None for v in stated.values())
-        sources.append(
-            Source(
-                "temperature",
-                f"recorded range {low:.2f} to {high:.2f} °C (mean {mean:.2f} °C)",
-                f"{spread:.2g} K",
-                "rectangular",
-                f"recorded range; sensitivities from the procedure ({_name(inputs.source)})" if known else "recorded range",
-                "u = |k_T| (T_max − T_min)/√12"
-                if known
-                else "no temperature sensitivity known to this calibration: not in the budget, stated as a condition of validity",
-                "evaluated" if known else "condition",
-            )
-        )
-        conditions.append(
-            f"The results apply to instrument temperatures from {low:.2f} to {high:.2f} °C (recorded during the calibration"
-            f"{'' if known else '; no temperature sensitivity is known to it'})."
-        )
-    order = {g: i for i, g in enumerate(GROUPS)}
-    sources.sort(key=lambda s: order[s.group])
-    return Budget(ids, type_a, {g: contributions[g] for g in GROUPS}, tuple(sources), tuple(conditions))
-
-
-def _system_input_missing(record: CalibrationRecord, group: str, value: str) -> Source:
-    """The source of a system-stage input the record stores no sensitivity for: not applicable, or not evaluated."""
-    system = any(s.name == "system" for s in record.stages)
-    effect = (
-        "the record's system stage stores no sensitivity (written by an earlier version): not evaluated"
-        if system
-        else "no system-level stage in the record: the device stages do not depend on it"
-    )
-    return Source(group, value, "—", "—", "—", effect, "not evaluated" if system else "not applicable")
 
 
 def gravity_direction(record: CalibrationRecord, terms: Mapping[str, Term]) -> dict[str, float]:
@@ -484,37 +285,6 @@ def homogeneity_degree(term: Term, gravity: float) -> int | None:
     return degree if np.allclose(ratios, degree, atol=1e-6) else None
 
 
-def _temperature_range(record: CalibrationRecord) -> tuple[float | None, float | None, float | None]:
-    lows, highs, means = [], [], []
-    for stage in record.stages_run:
-        t = stage.environment.get("temperature") if isinstance(stage.environment, Mapping) else None
-        if isinstance(t, Mapping) and all(isinstance(t.get(k), int | float) for k in ("min", "max", "mean")):
-            lows.append(float(t["min"]))
-            highs.append(float(t["max"]))
-            means.append(float(t["mean"]))
-    if not lows:
-        return None, None, None
-    return min(lows), max(highs), float(np.mean(means))
-
-
-def _pattern(table: Mapping[str, float], parameter_id: str) -> float | None:
-    if parameter_id in table:
-        return table[parameter_id]
-    matches = [p for p in table if fnmatch.fnmatchcase(parameter_id, p)]
-    return table[max(matches, key=len)] if matches else None
-
-
-def _name(source: str) -> str:
-    from pathlib import Path
-
-    return Path(source).name if source else "procedure"
-
-
-def _mgal(u: float) -> str:
-    from stableins.reporting.content import number
-
-    return number(u / MGAL, 2) if u else "0"
-
 
 def scientific(x: float, significant: int = 2) -> str:
     """``5.0 × 10⁻⁷``: a number in scientific notation for people."""
@@ -522,13 +292,3 @@ def scientific(x: float, significant: int = 2) -> str:
     power = str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
     return f"{mantissa} × 10{power}".replace("-", "\u2212")
 
-
-_NORMAL_GRAVITY_TEXT = (
-    "assumed: the normal-gravity formula omits the local gravity anomaly (tens of mGal, beyond 100 mGal in mountains); "
-    "a surveyed g removes most of it"
-)
-_UNSTATED_GRAVITY_TEXT = "assumed as for the normal-gravity formula: the site states no uncertainty for its g"
-_ANGLE_TEXT = "assumed: ±1″ static accuracy (Wu et al. 2018 §6), rectangular"
-_DRIFT_TEXT = "assumed: ±0.001 °/h (Wu et al. 2018 §6: drift below 0.001 °/h), rectangular"
-_LOOP_TEXT = "software constants of the navigation computer, taken as exact"
-_LOOP_NAMES = {"zeta": "ζ", "omega_s": "ω_s", "schuler_frequency": "ω_s", "k1": "k_1", "k2": "k_2", "k3": "k_3"}

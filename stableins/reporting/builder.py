@@ -20,13 +20,16 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 from stableins.data.atomic import atomic_write
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.errors import InputError
+from stableins.history import Comparison
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
 from stableins.reporting.budget import UncertaintyInputs, uncertainty_budget
+from stableins.reporting.context import InputFile, ReportContext, file_name
 from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
 
@@ -56,6 +59,7 @@ class LoadedRecord:
 
     @classmethod
     def of(cls, source: CalibrationRecord | str | PathLike[str]) -> LoadedRecord:
+        """Return the record of ``source`` (a record, or a file read with its SHA-256)."""
         if isinstance(source, CalibrationRecord):
             return cls(source)
         record = CalibrationRecord.load(source)
@@ -63,7 +67,7 @@ class LoadedRecord:
 
 
 def report_id_for(loaded: LoadedRecord, digests: Iterable[str]) -> str:
-    """Unique, reproducible report id: serial, calibration date and a digest of every input.
+    """Return a unique, reproducible report id: serial, calibration date and a digest of every input.
 
     ``SI-<serial>-<yyyymmdd>-<8 hex>``; the same inputs give the same id, any change of
     an input (record, data, previous record, procedure) gives another.
@@ -78,7 +82,7 @@ def report_id_for(loaded: LoadedRecord, digests: Iterable[str]) -> str:
     return "-".join(x for x in ("SI", serial, date, digest.hexdigest()[:8].upper()) if x)
 
 
-def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) -> list[sections.InputFile]:
+def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) -> list[InputFile]:
     """Rows of the inputs table; a data file the record does not list is an :class:`InputError`."""
     record = loaded.record
     hashed = [(p, file_sha256(p)) for p in data]
@@ -87,14 +91,14 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
     recorded = {f.sha256 for _, f in listed}
     rows = []
     if loaded.path:
-        rows.append(sections.InputFile("calibration record", Path(loaded.path).name, loaded.sha256, "read by this report"))
+        rows.append(InputFile("calibration record", Path(loaded.path).name, loaded.sha256, "read by this report"))
     this = {s.id for s in record.stages_run}
     for stage, f in listed:
         role = f"{stage.name} data" + ("" if stage.id in this else " (earlier calibration)")
         check = (
             f"verified: {given[f.sha256]} given to this report" if f.sha256 in given else "listed in the record; not given to this report"
         )
-        rows.append(sections.InputFile(role, Path(f.path).name, f.sha256, check))
+        rows.append(InputFile(role, Path(f.path).name, f.sha256, check))
     for path, digest in hashed:
         if digest in recorded:
             continue
@@ -104,12 +108,12 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
                 path=path,
                 expected="a data file this calibration was made from",
             )
-        rows.append(sections.InputFile("data", Path(path).name, digest, "the record lists no inputs"))
+        rows.append(InputFile("data", Path(path).name, digest, "the record lists no inputs"))
     return rows
 
 
 def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence]:
-    """The residual evidence of every fit of the stages run in this calibration, as stored in the record."""
+    """Return the residual evidence of every fit of the stages run in this calibration, as stored in the record."""
     out = []
     for run in record.stages_run:
         fits = [stage_evidence(f, where, run=run.name) for f in run.fits]
@@ -176,71 +180,31 @@ def write_report(
     """
     import stableins
     from stableins.discovery.library import record_terms
-    from stableins.history import compare
 
     loaded = LoadedRecord.of(record)
     view = loaded.record
     previous_loaded = LoadedRecord.of(previous) if previous is not None else None
-    where = loaded.path or "calibration record"
     inputs = collect_inputs(loaded, data)
-    evidence_notes: list[str] = []
-    stages = stored_evidence(view, where)
-    bare = [run for run in view.stages_run if not run.fits and run.name != "system"]
-    if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
-        from stableins.reporting.replay import device_fits
-
-        settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
-        fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
-        stages = [stage_evidence(f, where) for f in fits] + stages
+    stages, evidence_notes = _evidence(view, loaded.path or "calibration record", data)
     terms = content.known_terms(record_terms(view.ids))
     if uncertainty is None:
         uncertainty = UncertaintyInputs.from_procedure_file(str(procedure)) if procedure is not None else UncertaintyInputs()
     budget = uncertainty_budget(view, uncertainty, terms)
     rows = content.parameter_rows(view, terms, budget=budget)
     if previous_loaded is not None:
-        inputs.append(
-            sections.InputFile(
-                "previous record",
-                Path(previous_loaded.path).name if previous_loaded.path else "in memory",
-                previous_loaded.sha256 or "—",
-                "read by this report",
-            )
-        )
-    if procedure is not None:  # a shipped definition's name ("system-static") or a TOML file
-        from stableins.procedures.definition import resolve
-
-        procedure = resolve(procedure)
-    if tolerances is None:
-        tolerances = Tolerances.from_procedure_file(str(procedure)) if procedure is not None else Tolerances.from_mapping(None)
-    if procedure is not None:
-        inputs.append(
-            sections.InputFile("procedure", Path(procedure).name, file_sha256(procedure), "tolerances and uncertainty inputs read from it")
-        )
-
-    comparison = changes = previous_rows = None
-    if previous_loaded is not None:
-        if previous_loaded.record.serial_number != view.serial_number:
-            raise InputError(
-                f"the previous record is of unit {previous_loaded.record.serial_number!r}, this one of {view.serial_number!r}",
-                path=previous_loaded.path or None,
-                field="serial_number",
-                expected="a record of the same unit",
-            )
-        comparison = compare(previous_loaded.record, view)
-        changes = content.change_rows(comparison, terms)
-        previous_terms = content.known_terms(record_terms(previous_loaded.record.ids))
-        previous_rows = content.parameter_rows(
-            previous_loaded.record, previous_terms, budget=uncertainty_budget(previous_loaded.record, uncertainty, previous_terms)
-        )
+        inputs.append(InputFile("previous record", file_name(previous_loaded.path), previous_loaded.sha256 or "—", "read by this report"))
+    tolerances, procedure_inputs = _tolerances(procedure, tolerances)
+    inputs += procedure_inputs
+    comparison, changes, previous_rows = _previous(previous_loaded, view, terms, uncertainty)
     checks = content.conformity(rows, changes, stages, tolerances)
 
     discovery_document, discovery_source = None, ""  # the record's own history is ctx.record.discovery
     if discovery is not None:
         discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
-        inputs.append(sections.InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+        inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
 
     issued = issued or dt.datetime.now(dt.UTC)
-    ctx = sections.ReportContext(
+    ctx = ReportContext(
         record=view,
         record_path=loaded.path,
         report_id=report_id or report_id_for(loaded, [f.sha256 for f in inputs]),
@@ -261,6 +225,72 @@ def write_report(
         discovery=discovery_document,
         discovery_source=discovery_source,
     )
+    pdf, pages = _render(ctx)
+    with atomic_write(out, "wb") as handle:
+        handle.write(pdf)
+    verdict = content.overall_verdict(checks) if not tolerances.empty else "NO STATEMENT"
+    statement = tuple(content.conformity_text(checks, assessed=not tolerances.empty, coverage_factor=tolerances.coverage_factor))
+    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest(), statement)
+
+
+def _evidence(view: CalibrationRecord, where: str, data: Sequence[str | PathLike[str]]) -> tuple[list[StageEvidence], list[str]]:
+    """Return the stages' evidence of fit and notes on it: stored in the record, or recomputed from ``data`` for a migrated record."""
+    from stableins.discovery.library import record_terms
+
+    evidence_notes: list[str] = []
+    stages = stored_evidence(view, where)
+    bare = [run for run in view.stages_run if not run.fits and run.name != "system"]
+    if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
+        from stableins.reporting.replay import device_fits
+
+        settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
+        fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
+        stages = [stage_evidence(f, where) for f in fits] + stages
+    return stages, evidence_notes
+
+
+def _previous(
+    previous_loaded: LoadedRecord | None, view: CalibrationRecord, terms: Any, uncertainty: UncertaintyInputs
+) -> tuple[Comparison | None, list[content.ChangeRow] | None, list[content.ParameterRow] | None]:
+    """Return the comparison with the previous record of the unit, its change rows and its parameter rows (None without one)."""
+    from stableins.discovery.library import record_terms
+    from stableins.history import compare
+
+    if previous_loaded is None:
+        return None, None, None
+    if previous_loaded.record.serial_number != view.serial_number:
+        raise InputError(
+            f"the previous record is of unit {previous_loaded.record.serial_number!r}, this one of {view.serial_number!r}",
+            path=previous_loaded.path or None,
+            field="serial_number",
+            expected="a record of the same unit",
+        )
+    comparison = compare(previous_loaded.record, view)
+    changes = content.change_rows(comparison, terms)
+    previous_terms = content.known_terms(record_terms(previous_loaded.record.ids))
+    previous_rows = content.parameter_rows(
+        previous_loaded.record, previous_terms, budget=uncertainty_budget(previous_loaded.record, uncertainty, previous_terms)
+    )
+    return comparison, changes, previous_rows
+
+
+def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | None) -> tuple[Tolerances, list[InputFile]]:
+    """Return the conformity limits (given, the procedure's ``[tolerances]`` table, or none) and the procedure as an input."""
+    if procedure is None:
+        return (tolerances if tolerances is not None else Tolerances.from_mapping(None)), []
+    from stableins.procedures.definition import resolve
+
+    resolved = resolve(procedure)  # a shipped definition's name ("system-static") or a TOML file
+    if tolerances is None:
+        tolerances = Tolerances.from_procedure_file(str(resolved))
+    read = InputFile("procedure", Path(resolved).name, file_sha256(resolved), "tolerances and uncertainty inputs read from it")
+    return tolerances, [read]
+
+
+def _render(ctx: ReportContext) -> tuple[bytes, int]:
+    """Return the PDF of the report laid out from ``ctx``, and its number of pages."""
+    import stableins
+
     story = [flowable for section in sections.SECTIONS for flowable in section(ctx)]
     buffer = io.BytesIO()
     pages = document.build(
@@ -268,13 +298,8 @@ def write_report(
         buffer,
         title=TITLE,
         report_id=ctx.report_id,
-        serial=view.serial_number,
+        serial=ctx.record.serial_number,
         footer=f"stableins {stableins.__version__}  ·  issued {ctx.issued}  ·  not to be reproduced except in full",
-        subject=f"Accelerometer calibration of unit {view.serial_number}",
+        subject=f"Accelerometer calibration of unit {ctx.record.serial_number}",
     )
-    pdf = buffer.getvalue()
-    with atomic_write(out, "wb") as handle:
-        handle.write(pdf)
-    verdict = content.overall_verdict(checks) if not tolerances.empty else "NO STATEMENT"
-    statement = tuple(content.conformity_text(checks, assessed=not tolerances.empty, coverage_factor=tolerances.coverage_factor))
-    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest(), statement)
+    return buffer.getvalue(), pages

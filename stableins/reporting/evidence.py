@@ -60,6 +60,7 @@ class StageEvidence:
 
     @property
     def dof(self) -> int:
+        """Return the degrees of freedom: residuals minus the rank of the fit."""
         return len(self.residuals) - self.rank
 
     @property
@@ -94,6 +95,7 @@ class StageEvidence:
 
     @property
     def unlabelled(self) -> int:
+        """Return the number of residuals whose label names no position or magnitude."""
         if not self.labels:
             return len(self.residuals)
         return sum(1 for label in self.labels if not (_LABEL.search(label) or _MAGNITUDE.search(label)))

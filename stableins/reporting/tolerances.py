@@ -104,6 +104,7 @@ class Tolerances:
 
     @property
     def empty(self) -> bool:
+        """Return whether no tolerance is set (no limits, uncertainty or stability limits and no χ² limit)."""
         return not (self.limits or self.uncertainty or self.stability or self.chi2_red_max is not None)
 
     @classmethod
