@@ -3,7 +3,8 @@ r"""The system stage's one pass over the record: :class:`StageAccumulator` (``ad
 Per chunk (docs/system-calibration.md §6):
 
 * specific force: raw outputs compensated with the installed calibration (:mod:`.compensation`), the squared-amplitude
-  observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz`` (:mod:`.harmonics`) accumulated at full rate.
+  observation ``z`` and its harmonic information ``Σ HᵀH``, ``Σ Hᵀz``
+  (:mod:`~stableins.estimators.system.harmonics`) accumulated at full rate.
   The Earth-rate angle moves by ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
   ``cos k(S_c + δ)`` is expanded to third order in ``δ``: the trigonometric functions are evaluated once per block and
   the per-sample work is a few multiply-adds (:class:`.blocksums.BlockHarmonics`).  The truncation (``(4δ)⁴/24 < 1e-15``) is far

@@ -1,7 +1,7 @@
 r"""Fourier fit of the level attitude errors, compensated for the damping loop.
 
 Derivation (docs/system-calibration.md §2).  Mapping the first-order platform-frame
-error ``δ = Δf^p/g`` of :mod:`.harmonics` to the n-frame through the gimbal angles of a
+error ``δ = Δf^p/g`` of :mod:`~stableins.estimators.system.harmonics` to the n-frame through the gimbal angles of a
 polar-aligned platform on a level, north-pointing base,
 ``C_p^n = R2(−(π/2 + L)) R3(S)``, gives
 

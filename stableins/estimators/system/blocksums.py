@@ -2,7 +2,7 @@ r"""Per-block sums of the squared-amplitude observation: the system stage's one 
 
 For each sample the installed calibration is applied in closed form (Wu et al. 2018 Eq. 8, see
 :class:`stableins.estimators.system.stage._Compensation`) and the squared-amplitude observation of
-:mod:`.harmonics` is formed:
+:mod:`~stableins.estimators.system.harmonics` is formed:
 
 .. math::
 
