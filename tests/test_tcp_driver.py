@@ -69,7 +69,7 @@ def test_idempotent_requests_are_resent_after_a_disconnect(server):
     with FaultyRelay(server.port, fault=("cut", len("STABLEINS-PLATFORM 1\n") + 3)) as relay:
         driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.3, 0.0, 0.0))  # its reply is cut; sent again on a new connection
-        driver.acquire(4.0)  # the slew (17° at 10°/s)
+        driver.acquire(8.0)  # the slew (17° at 10°/s, 2.7 s) and its settling transient (~1e-5 rad at 4 s)
         np.testing.assert_allclose(driver.read_angles(), [0.3, 0.0, 0.0], atol=1e-5)
         assert driver.reconnects == 1
         driver.close()
