@@ -84,9 +84,10 @@ def angles(world) -> None:
 
 def system(world) -> None:
 
+    from stableins.conventions import DEG_PER_HOUR
     from stableins.estimators.system import sensitivity
     from stableins.estimators.system.stage import SystemOptions
-    from stableins.reporting.budget import DEG_PER_H, MGAL
+    from stableins.reporting.budget import MGAL
 
     prior = world[4]
     run, meta = budget_world.system_day(prior)
@@ -121,10 +122,10 @@ def system(world) -> None:
     p = np.nan_to_num(np.asarray(record.covariance))
     gradient = np.array([found["gyro_drift.x"].gradient[lik.ids.index(i)] if i in lik.ids else 0.0 for i in record.ids])
     for degrees in (1e-5, 1e-3):
-        moved = run(SystemOptions(known_gyro_drift=(degrees * DEG_PER_H, 0.0, 0.0)))
+        moved = run(SystemOptions(known_gyro_drift=(degrees * DEG_PER_HOUR, 0.0, 0.0)))
         remade = prior.updated(moved.result, site=meta, procedure="system-static")
         change = np.array([remade[i].value - record[i].value for i in record.ids]) / sigma
-        linear = p @ gradient * degrees * DEG_PER_H / sigma
+        linear = p @ gradient * degrees * DEG_PER_HOUR / sigma
         k = int(np.argmax(np.abs(linear)))
         print(f"   record re-made with a known x drift of {degrees:g} °/h: {record.ids[k]} moves {change[k]:+.3f} σ, "
               f"c δq gives {linear[k]:+.3f} σ (largest |difference| {np.abs(change - linear).max():.3f} σ)")  # fmt: skip

@@ -72,6 +72,8 @@ STANDARD_GRAVITY: Final = 9.80665
 ARCSEC: Final = np.pi / (180.0 * 3600.0)
 MICRO_G: Final = 1e-6 * STANDARD_GRAVITY
 PPM: Final = 1e-6
+#: One degree per hour [rad/s] (gyro drift at the edges).
+DEG_PER_HOUR: Final = np.pi / (180.0 * 3600.0)
 
 # --------------------------------------------------------------------------- WGS-84
 WGS84_SEMI_MAJOR_AXIS: Final = 6378137.0  # a [m]

@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import (
     ARCSEC,
     AXES,
+    DEG_PER_HOUR,
     GIMBAL_OFFSET_MEANING,
     INSTALLATION_ENTRIES,
     INSTALLATION_MEANING,
@@ -75,6 +76,11 @@ class TermKind(StrEnum):
     #: A combined quasi-static pitch/roll coefficient of the system stage [rad] (Eqs. 21-25, 29-38): a
     #: combination of core parameters the system stage estimates; it does not enter :meth:`ErrorModel.forward`.
     COMBINED = "combined"
+    #: Constant drift ``ε^p`` of one platform gyro [rad/s] (output error in the platform frame; the platform
+    #: turns at ``−ε^p`` in inertial space): a property of the platform the accelerometers ride on, estimated
+    #: from system records or the two-position drift test (Zhang et al. 2023); it does not enter
+    #: :meth:`ErrorModel.forward`.
+    GYRO_DRIFT = "gyro_drift"
 
 
 @dataclass(frozen=True)
@@ -279,11 +285,27 @@ GIMBAL_TERMS: tuple[Term, ...] = tuple(
     for g in GIMBAL_IDS
 )
 CORE_IDS = tuple(t.id for t in CORE_TERMS)
+#: The constant platform gyro drifts ``ε^p`` (x, y, z platform axes) [rad/s], °/h at the edges.
+GYRO_DRIFT_TERMS: tuple[Term, ...] = tuple(
+    Term(
+        f"gyro_drift_{a}",
+        TermKind.GYRO_DRIFT,
+        "rad/s",
+        "deg/h",
+        DEG_PER_HOUR,
+        0.001 * DEG_PER_HOUR,
+        f"constant drift of the {a}_p platform gyro (output error; the platform turns at -ε about {a}_p)",
+        axis=i,
+        excitation="a static record (system level) or a two-position drift test",
+        source="Wu et al. 2018 Section 4 (drift neglected there); Zhang et al. 2023 Eqs. 1-4",
+    )
+    for i, a in enumerate(AXES)
+)
 
 
 def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
-    """Terms by id: the core and gimbal terms, plus any given (e.g. discovered additive terms)."""
-    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS}
+    """Terms by id: the core, gimbal and gyro-drift terms, plus any given (e.g. discovered additive terms)."""
+    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS}
     out.update({t.id: t for t in extra})
     return out
 

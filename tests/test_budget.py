@@ -22,7 +22,7 @@ import budget_world  # noqa: E402
 import certificate_checks  # noqa: E402
 import report_fixtures as rf  # noqa: E402
 
-from stableins.conventions import ARCSEC  # noqa: E402
+from stableins.conventions import ARCSEC, DEG_PER_HOUR  # noqa: E402
 from stableins.discovery.library import all_terms  # noqa: E402
 from stableins.errors import InputError  # noqa: E402
 from stableins.estimators.device import calibrate_device  # noqa: E402
@@ -33,7 +33,6 @@ from stableins.procedures.definition import load_procedure  # noqa: E402
 from stableins.records import CalibrationRecord  # noqa: E402
 from stableins.reporting import write_report  # noqa: E402
 from stableins.reporting.budget import (  # noqa: E402
-    DEG_PER_H,
     MGAL,
     NORMAL_GRAVITY_UNCERTAINTY,
     UncertaintyInputs,
@@ -143,7 +142,7 @@ def test_the_budget_of_a_record_is_the_record_re_made_with_the_input_perturbed(s
     """
     run, _, found, record, meta = system
     prior = device[4]
-    drift = 1e-5 * DEG_PER_H
+    drift = 1e-5 * DEG_PER_HOUR
     moved = run(SystemOptions(known_gyro_drift=(drift, 0.0, 0.0)))
     remade = prior.updated(moved.result, site=meta, procedure="system-static")
     observed = _differences(record, remade)
@@ -155,9 +154,9 @@ def test_the_budget_of_a_record_is_the_record_re_made_with_the_input_perturbed(s
     assert np.abs(predicted / sigma).max() > 0.03  # 1e-5 °/h moves the attitude-determined parameters by a few % of σ
     np.testing.assert_allclose(observed / sigma, predicted / sigma, atol=0.02 * np.abs(predicted / sigma).max())
     # the budget: each group as stated, combined in quadrature, gravity exactly v on the scale factors
-    budget = uncertainty_budget(record, UncertaintyInputs(gyro_drift=0.002 * DEG_PER_H, damping_loop=0.01))
+    budget = uncertainty_budget(record, UncertaintyInputs(gyro_drift=0.002 * DEG_PER_HOUR, damping_loop=0.01))
     assert budget.state("gyro_drift") == "evaluated" and budget.state("damping_loop") == "evaluated"
-    per_axis = [covariance @ np.array([s.gradient[s.ids.index(p)] if p in s.ids else 0.0 for p in record.ids]) * 0.002 * DEG_PER_H
+    per_axis = [covariance @ np.array([s.gradient[s.ids.index(p)] if p in s.ids else 0.0 for p in record.ids]) * 0.002 * DEG_PER_HOUR
                 for s in found if s.group == "gyro_drift"]  # fmt: skip
     np.testing.assert_allclose(budget.contributions["gyro_drift"], np.sqrt(sum(c**2 for c in per_axis)), rtol=1e-9)
     total = budget.type_a**2 + sum(c**2 for c in budget.contributions.values())
@@ -215,7 +214,7 @@ def test_uncertainty_table_is_validated_and_read():
         {"gravity": 0.1, "angle_sensor": 0.5, "gyro_drift": 0.002, "damping_loop": 0.02, "temperature_sensitivity": {"sf_*": 2.0}}
     )
     assert table.gravity == pytest.approx(1e-6) and table.angle_sensor == pytest.approx(0.5 * ARCSEC)
-    assert table.gyro_drift == pytest.approx(0.002 * DEG_PER_H) and table.temperature_sensitivity == {"sf_*": 2.0}
+    assert table.gyro_drift == pytest.approx(0.002 * DEG_PER_HOUR) and table.temperature_sensitivity == {"sf_*": 2.0}
     for bad, match in (({"gravity": -1.0}, "uncertainty.gravity"), ({"angles": 1.0}, "unknown keys"),
                        ({"temperature_sensitivity": {"bias_*": "x"}}, "temperature_sensitivity.bias_")):  # fmt: skip
         with pytest.raises(InputError, match=match):

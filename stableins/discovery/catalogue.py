@@ -11,13 +11,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import Term, TermInputs, TermKind
 
 G0 = STANDARD_GRAVITY
 MICRO_G_PER_G2 = MICRO_G / G0**2
 MICRO_G_PER_G3 = MICRO_G / G0**3
-DEG_PER_HOUR = np.pi / 180.0 / 3600.0
 #: °/h per g expressed in rad/s per (m/s²).
 DEG_PER_HOUR_PER_G = DEG_PER_HOUR / G0
 

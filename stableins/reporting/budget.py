@@ -52,20 +52,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC
+from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term, TermKind
 from stableins.errors import InputError
 from stableins.records import CalibrationRecord
 from stableins.status import Status
 
 MGAL = 1e-5  # m/s²
-DEG_PER_H = math.radians(1.0) / 3600.0  # rad/s
 #: Normal gravity omits the local gravity anomaly, tens of mGal in general and beyond 100 mGal in mountains.
 NORMAL_GRAVITY_UNCERTAINTY = 30.0 * MGAL
 #: Static accuracy of a gimbal angle reading, "at the level of 1″" (Wu et al. 2018 §6): ±1″ rectangular.
 ANGLE_SENSOR_BOUND = 1.0 * ARCSEC
 #: Gyro drift "less than 0.001 °/h" (Wu et al. 2018 §6): ±0.001 °/h rectangular per platform axis.
-GYRO_DRIFT_BOUND = 0.001 * DEG_PER_H
+GYRO_DRIFT_BOUND = 0.001 * DEG_PER_HOUR
 #: Budget columns, in the order printed.
 GROUPS = ("gravity", "angle_sensors", "temperature", "gyro_drift", "damping_loop")
 TITLES = {
@@ -135,7 +134,7 @@ class UncertaintyInputs:
         return cls(
             gravity=amount("gravity", MGAL),
             angle_sensor=amount("angle_sensor", ARCSEC),
-            gyro_drift=amount("gyro_drift", DEG_PER_H),
+            gyro_drift=amount("gyro_drift", DEG_PER_HOUR),
             damping_loop=amount("damping_loop", 1.0),
             temperature_sensitivity=temperature,
             source=source,

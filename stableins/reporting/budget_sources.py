@@ -17,12 +17,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC
+from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
     ANGLE_SENSOR_BOUND,
-    DEG_PER_H,
     GYRO_DRIFT_BOUND,
     MGAL,
     NORMAL_GRAVITY_UNCERTAINTY,
@@ -214,9 +213,9 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     value = (
         "not given: assumed zero"
         if all(x is None for x in given)
-        else "given: " + ", ".join(f"{float(v) / DEG_PER_H:.4g}" for v in next(x for x in given if x is not None)) + " °/h (x, y, z)"
+        else "given: " + ", ".join(f"{float(v) / DEG_PER_HOUR:.4g}" for v in next(x for x in given if x is not None)) + " °/h (x, y, z)"
     )
-    u_text = "; ".join(sorted({f"{u / DEG_PER_H:.2g} °/h per axis" for u, _ in origins}))
+    u_text = "; ".join(sorted({f"{u / DEG_PER_HOUR:.2g} °/h per axis" for u, _ in origins}))
     origin = "; ".join(sorted({o for _, o in origins}))
     source = Source(
         "gyro_drift",

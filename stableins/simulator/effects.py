@@ -50,12 +50,11 @@ from types import MappingProxyType
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import Term, TermInputs, TermKind
 from stableins.errors import InputError
 
 _G = STANDARD_GRAVITY
-DEG_PER_HOUR = np.pi / 180.0 / 3600.0
 
 #: Input excursion [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``).
 #: A real accelerometer's hysteresis follows the excursion of its input: a change much
