@@ -14,6 +14,7 @@ from typing import Any
 
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
+from stableins.platform import IndexAxis, PlatformTurn, check_turns
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)
@@ -97,6 +98,8 @@ class StaticRecordStep:
     checks: DwellChecks = field(default_factory=DwellChecks)
     why: str = "the platform stays fixed in inertial space while the INS error dynamics are recorded"
     kind: str = "static_record"
+    #: indexing by torquing during the record (times from the record's start)
+    turns: tuple[PlatformTurn, ...] = ()
 
 
 #: Ranges of the thresholds of a plan's dwell checks (SI; every one above its lower end).
@@ -270,6 +273,24 @@ class _Validator:
                 values[key] = self.number(item, f"{where}.{key}", *_CHECK_RANGES[key], above=True)
         return DwellChecks(**values)
 
+    def turns(self, value: Any, where: str, duration: float) -> tuple[PlatformTurn, ...]:
+        out = []
+        for k, item in enumerate(self.list(value, where, 0, 1000)):
+            here = f"{where}[{k}]"
+            d = self.mapping(item, here, {"start", "angle", "axis", "rate"}, {"start", "angle", "axis", "rate"})
+            axis = self.choice(d["axis"], f"{here}.axis", tuple(a.value for a in IndexAxis))
+            start = self.number(d["start"], f"{here}.start", 0.0, MAX_RECORD_SECONDS)
+            angle = self.number(d["angle"], f"{here}.angle", -2 * math.pi, 2 * math.pi)
+            rate = self.number(d["rate"], f"{here}.rate", 0.0, math.pi, above=True)
+            if angle == 0.0:
+                raise self.fail("a turn of 0 rad", f"{here}.angle", "a non-zero angle [rad]")
+            out.append(PlatformTurn(start, angle, IndexAxis(axis), rate))
+        try:
+            check_turns(out, duration)
+        except ValueError as error:
+            raise self.fail(str(error), where, "turns in time order within the record") from None
+        return tuple(out)
+
     def step(self, value: Any, where: str) -> Step:
         if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
             kind = value.get("kind") if isinstance(value, dict) else value
@@ -300,6 +321,8 @@ class _Validator:
             d["duration"] = self.number(d["duration"], at("duration"), 0.0, MAX_RECORD_SECONDS, above=True)
             if "checks" in d:
                 d["checks"] = self.checks(d["checks"], at("checks"))
+            if "turns" in d:
+                d["turns"] = self.turns(d["turns"], at("turns"), d["duration"])
         elif kind == "offset_iteration":
             positions = self.list(d.get("positions", []), at("positions"), 1, 10**4)
             d["positions"] = tuple(self.integer(p, f"{at('positions')}[{k}]", 1, 10**6) for k, p in enumerate(positions))

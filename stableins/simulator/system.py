@@ -81,9 +81,10 @@ from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
-from stableins.platform import rotation_about
+from stableins.platform import PlatformTurn, rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
+from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
 
@@ -231,6 +232,11 @@ class SystemWorld:
         Earth-rate angle ``St0`` at ``t = 0`` [rad].
     initial_misalignment : sequence of 3 float
         ``φ(0)`` in NED [rad].
+    initial_readings : sequence of 3 float, optional
+        Commanded angle-sensor readings at ``t = 0`` [rad] (default: the polar alignment of the
+        module docstring, corrected with the installed offsets).
+    turns : sequence of PlatformTurn
+        Indexing by torquing during the record (:mod:`stableins.simulator.indexing`).
     """
 
     def __init__(
@@ -240,6 +246,9 @@ class SystemWorld:
         seed: int | None = None,
         earth_angle: float = 0.0,
         initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
+        *,
+        initial_readings: Sequence[float] | None = None,
+        turns: Sequence[PlatformTurn] = (),
     ) -> None:
         self.truth = truth
         self.rate = float(rate if rate is not None else truth.site.sample_rate)
@@ -256,12 +265,13 @@ class SystemWorld:
         nominal = np.array([-s1 * earth_angle, 0.0, middle])
         installed_offsets = np.array([truth.installed_calibration.get(g, 0.0) for g in GIMBAL_IDS])
         self.installed_offsets = installed_offsets
-        self.initial_readings = nominal - installed_offsets
+        self.initial_readings = nominal - installed_offsets if initial_readings is None else np.asarray(initial_readings, dtype=float)
         self.initial_actual = self.platform.actual_angles(self.initial_readings)
         self.nav_to_platform_0 = self.platform.dcm_nav_to_platform(self.initial_readings)
         self.nav_to_body = self.platform.dcm_nav_to_body()
         axis = earth_rate_nav(self.latitude) / EARTH_RATE
         k = skew(axis)
+        self._ck_axis = k
         self._ck, self._ck2 = self.nav_to_platform_0 @ k, self.nav_to_platform_0 @ k @ k
         # error model of the world and of the navigation computer
         self._values = dict(truth.parameters)
@@ -288,6 +298,10 @@ class SystemWorld:
         self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
         self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
         self._next = 0
+        # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
+        self._indexed = None
+        if initial_readings is not None or turns:
+            self._indexed = IndexedMotion(self.platform, self.nav_to_platform_0, self.earth_rotation, turns, self.initial_actual, self.rate)
 
     # --------------------------------------------------------------- world pieces
     def gyro_drift(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -309,6 +323,12 @@ class SystemWorld:
             angle[:, 0] -= amplitude / omega * (np.sin(omega * time + phase) - np.sin(phase))
             angle[:, 1] += amplitude / omega * (np.cos(omega * time + phase) - np.cos(phase))
         return angle
+
+    def earth_rotation(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``C_{n(t)}^{n_0} = exp(ω_ie t [u×])`` (n, 3, 3)."""
+        theta = EARTH_RATE * np.asarray(time, dtype=float)
+        k = self._ck_axis
+        return np.eye(3) + np.sin(theta)[:, None, None] * k + (1.0 - np.cos(theta))[:, None, None] * (k @ k)
 
     def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
@@ -339,15 +359,19 @@ class SystemWorld:
         time = index / self.rate
         truth = self.truth
         extra = None
-        if np.any(self._g_drift):
+        if self._indexed is not None:
+            dcm = self._indexed.orientation(time, self.gyro_drift(time), self._g_drift, self.gravity)
+            readings = self._indexed.readings(dcm)
+        elif np.any(self._g_drift):
             # Dg: platform turns at Dg∘f^p; f^p of the drift-free orientation, integrated by sequential sums
             f_free = -self.gravity * self.platform_orientation(time)[:, :, 2]
             steps = np.vstack([self._g_drift_angle[None, :], self._g_drift * f_free / self.rate])
             cumulative = np.cumsum(steps, axis=0)
             extra, self._g_drift_angle = cumulative[:-1], cumulative[-1].copy()
-        dcm = self.platform_orientation(time, extra)
+        if self._indexed is None:
+            dcm = self.platform_orientation(time, extra)
+            readings = self.readings(dcm, time)
         f_p = -self.gravity * dcm[:, :, 2]
-        readings = self.readings(dcm, time)
         temperature = truth.noise.temperature(time)
         zeros = np.zeros((count, 3))
         inputs = TermInputs(
@@ -411,6 +435,8 @@ def system_record_chunks(
     earth_angle: float = 0.0,
     initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
     include_truth: bool = False,
+    initial_readings: Sequence[float] | None = None,
+    turns: Sequence[PlatformTurn] = (),
 ) -> Iterator[dict[str, NDArray[np.float64]]]:
     """Stream a static system-level record in chunks of ``chunk_samples`` (bounded memory).
 
@@ -432,6 +458,10 @@ def system_record_chunks(
     include_truth : bool
         Also yield ``truth_phi_*`` and ``truth_df_*`` (the error states and the n-frame
         specific-force error) for validation.
+    initial_readings : sequence of 3 float, optional
+        Commanded readings at ``t = 0`` [rad] instead of the polar alignment.
+    turns : sequence of PlatformTurn
+        Indexing of the platform by torquing during the record (:mod:`stableins.simulator.indexing`).
 
     Yields
     ------
@@ -440,8 +470,10 @@ def system_record_chunks(
     """
     if chunk_samples < 1:
         raise ValueError("chunk_samples must be positive")
-    world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment)
+    world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment, initial_readings=initial_readings, turns=turns)
     total = int(round(duration * world.rate))
+    if turns and turns[-1].end > duration:
+        raise ValueError(f"the last turn ends at {turns[-1].end:g} s, after the record ({duration:g} s)")
     done = 0
     while done < total:
         n = min(chunk_samples, total - done)

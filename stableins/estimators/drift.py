@@ -1,0 +1,577 @@
+r"""Gyro drift of a space-stable platform from an indexing test (Zhang et al. 2023's two-position idea, re-derived).
+
+Observation equations (derived here; the extracted paper has no method section and lost its signs)
+------------------------------------------------------------------------------------------------
+The platform is held in inertial space by its gyros; a gyro drift ``ε^p`` (gyro output error, constant in
+the platform frame) makes the stabilization loop turn the platform at ``−ε^p``.  From the angle-sensor
+readings, the installed zero offsets and the surveyed base attitude the estimator forms the platform's
+attitude relative to the inertial frame (the local frame at ``t = 0``)
+
+.. math::
+    \hat M(t) = \hat C_b^p(r(t))\, C_n^{b,s}\, E(t)^T, \qquad E(t) = C_{n(t)}^{n_0} = \exp(\Omega t\,[u\times]),
+
+``u = ω_ie^n/Ω`` (NED ``(cos L, 0, −sin L)``).  Two things make ``\hat M`` move while the platform holds:
+
+* **the drift**: ``M(t) M(t_0)^T = \mathrm{rot}(-\varepsilon^p (t - t_0))`` (frame rotation by ``−εΔt``,
+  ``\mathrm{rot}(θ) = I − [θ×] + …``);
+* **the base error** ``δ = (t_N, t_E, ψ_e)`` (the true base is the surveyed one turned by ``δ``,
+  ``C_n^b = C_n^{b,s}(I − [δ×])``): ``\hat M = (I + [(C_n^p δ)×]) M``, a rotation by ``−C_n^p(t) δ`` that
+  follows the Earth's turn, i.e. the Earth rate misprojected by ``Ω u × δ``.
+
+So for the rotation vector ``φ(t)`` of ``\hat M(t) \hat M(t_k)^T`` in hold ``k`` (reference sample ``t_k``):
+
+.. math::
+    φ(t) = c_k - \varepsilon^p (t - t_k) - C_n^p(t)\,δ \;[+\; D_{g,z} f_z (t - t_k)\, e_z],
+
+with a free constant ``c_k`` per hold (it absorbs the zero-offset residuals, the non-orthogonality and
+``C_n^p(t_k) δ``).  Checked against the independent world (:mod:`stableins.simulator.indexing`) in
+``tests/test_drift.py``.
+
+What the data determine (the rank report)
+-----------------------------------------
+* ``δ`` along ``u`` is a rotation of the base about the Earth's axis: it commutes with ``E(t)`` and only
+  shifts ``c_k``.  **Never observable**; gauge: held at the survey (``u·δ = 0``).
+* The rest, ``δ_⊥`` (``t_E`` and ``t_N sin L + ψ_e cos L``), misprojects ``Ω u × δ`` — a constant vector
+  in inertial space, perpendicular to the Earth's axis.  In one position it is a rate in the platform's
+  equatorial plane, indistinguishable from ``ε_x, ε_y`` within the Earth's few degrees of turn: a single
+  hold cannot tell them apart, so ``δ`` is held at the survey and ``ε_x, ε_y`` carry ``Ω |u × δ|``
+  (5″ of azimuth: ``Ω cos L · 5″ = 2.8e-4 °/h`` at 40°).  An index of 180° about ``z_p`` (the polar axis of
+  a polar-aligned platform) reverses that misprojection in the platform frame and leaves ``ε^p`` alone:
+  both are determined.  The rule is numeric: ``δ_⊥`` is fitted when that inflates no drift σ more than
+  :data:`SEPARATION_LIMIT` times, else held at the survey and the rank report says so.
+* ``ε_z`` (the polar axis) sees no misprojection (``u × δ ⊥ u``) and is determined in any position, except
+  from a drift proportional to ``f_z`` (a g-sensitive gyro, ``D_{g,z}``): ``f_z = g sin L`` in both
+  positions of an index about ``z_p``.  A flip of ``z_p`` (``drift-three-position``: 180° about the middle
+  gimbal) reverses ``f_z`` and separates them; the fit then carries ``D_{g,z}`` as a nuisance.
+* A g-sensitive drift of the equatorial gyros rotates with ``f^p`` like a base tilt about East: the ``δ_⊥``
+  nuisance absorbs it and ``ε_x, ε_y`` stay free of it.
+
+The accelerometer biases are a cross-check, not an update: the mean compensated output of each hold minus
+the specific force predicted from the readings and the fitted base, averaged over holds whose specific
+force reverses on that axis (so scale-factor and misalignment residuals and the gauge cancel), compared
+with the record (``z`` of the difference).  Without a reversal on an axis it says what the mean includes.
+
+Noise: white angle noise; the σ per rotation-vector component is measured from the fit's residuals.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stableins.conventions import (
+    DEG_PER_HOUR,
+    EARTH_RATE,
+    MICRO_G,
+    GimbalConfiguration,
+    dcm_body_to_platform,
+    dcm_nav_to_body,
+    earth_rate_nav,
+    skew,
+)
+from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, TermInputs
+from stableins.errors import InputError
+from stableins.estimators.details import StageDetails
+from stableins.estimators.result import FitResult, Likelihood
+from stableins.platform import GimbalPlatform
+from stableins.status import Status
+
+#: Largest factor by which fitting the base error may inflate a drift σ and still count as separated.
+SEPARATION_LIMIT = 10.0
+#: A sample is "moving" when a gimbal reading changes faster than this over one second [rad/s] (14× the Earth rate).
+MOVING_RATE = 1e-3
+#: Samples left out on each side of a move (servo settling after an index) [s].
+MOVE_MARGIN = 10.0
+#: Shortest hold used [s].
+MIN_HOLD = 60.0
+#: Accelerometer blocks per hold for the σ of its mean.
+BIAS_BLOCKS = 10
+
+
+@dataclass(frozen=True)
+class Hold:
+    """One still stretch of the record: sample range, times [s] and the mean platform-frame specific force [m/s²]."""
+
+    first: int
+    stop: int
+    start: float
+    end: float
+    specific_force: tuple[float, float, float]
+
+    @property
+    def duration(self) -> float:
+        return self.end - self.start
+
+
+@dataclass(frozen=True)
+class BiasCheck:
+    """Accelerometer cross-check of one axis [m/s²]: the mean compensated residual of the holds against the record.
+
+    ``residual``: the holds' mean of ``f̂ − f^p`` (``f̂`` compensated with the record), ``sigma`` its noise;
+    ``predicted``: the 1σ the record's own uncertainty gives that mean (bias, scale factor, misalignment,
+    K2 through their covariance); ``reversed``: whether ``f^p`` on this axis reverses between holds (then
+    scale-factor and misalignment residuals along it cancel and the mean is the bias change).
+    """
+
+    axis: str
+    residual: float
+    sigma: float
+    predicted: float
+    reversed: bool
+
+    @property
+    def z(self) -> float:
+        total = math.hypot(self.sigma, self.predicted)
+        return self.residual / total if total > 0 else math.nan
+
+    def describe(self) -> str:
+        what = (
+            f"f_{self.axis}: mean residual {self.residual / MICRO_G:+.2f} ± {self.sigma / MICRO_G:.2f} µg; "
+            f"the record predicts 0 ± {self.predicted / MICRO_G:.2f} µg"
+        )
+        verdict = "consistent with the record" if abs(self.z) < 3 else "INCONSISTENT with the record"
+        where = (
+            "" if self.reversed else f" (f_{self.axis} does not reverse: the mean is the bias plus scale-factor and misalignment residuals)"
+        )
+        return f"{what}, z = {self.z:+.1f}: {verdict}{where}"
+
+
+@dataclass(frozen=True, eq=False)
+class DriftDetails(StageDetails):
+    """What the drift test worked with, beyond the drift.
+
+    Attributes
+    ----------
+    holds : tuple of Hold
+    nuisance : mapping of str to (float, float)
+        Fitted nuisances, value and 1σ [SI]: ``tilt_east``, ``tilt_north_sin_azimuth_cos`` (rad),
+        ``Dg_z`` (rad s/m), when determined.
+    rank : tuple of str
+        The rank report: what is determined, what is held and why.
+    biases : tuple of BiasCheck
+    residual_rms : tuple of float
+        Rms of the rotation-vector residuals per platform axis [rad].
+    base_separated : bool
+        Whether the base error was fitted (an index reversed its misprojection).
+    """
+
+    holds: tuple[Hold, ...]
+    nuisance: Mapping[str, tuple[float, float]]
+    rank: tuple[str, ...]
+    biases: tuple[BiasCheck, ...]
+    residual_rms: tuple[float, float, float]
+    base_separated: bool
+
+
+def rotation_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Small-angle vector ``θ`` of a frame rotation ``C = I − [θ×] + O(θ²)`` (…, 3)."""
+    return 0.5 * np.stack([dcm[..., 1, 2] - dcm[..., 2, 1], dcm[..., 2, 0] - dcm[..., 0, 2], dcm[..., 0, 1] - dcm[..., 1, 0]], axis=-1)
+
+
+def find_holds(time: NDArray[np.float64], readings: NDArray[np.float64], *, source: str = "record") -> tuple[tuple[int, int], ...]:
+    """Sample ranges ``[first, stop)`` where no gimbal moves faster than :data:`MOVING_RATE` (turns and :data:`MOVE_MARGIN` cut out)."""
+    n = len(time)
+    if n < 2:
+        return ()
+    dt = float(np.median(np.diff(time)))
+    lag = max(1, int(round(1.0 / dt)))
+    change = np.abs(readings[lag:] - readings[:-lag]).max(axis=1) / (lag * dt) if n > lag else np.zeros(0)
+    moving = np.zeros(n, dtype=bool)
+    fast = np.flatnonzero(change > MOVING_RATE)
+    margin = int(round(MOVE_MARGIN / dt))
+    for k in fast:  # few: turns only
+        moving[max(0, k - margin) : min(n, k + lag + margin + 1)] = True
+    holds = []
+    k = 0
+    while k < n:
+        if moving[k]:
+            k += 1
+            continue
+        stop = k
+        while stop < n and not moving[stop]:
+            stop += 1
+        if time[stop - 1] - time[k] >= MIN_HOLD:
+            holds.append((k, stop))
+        k = stop
+    return tuple(holds)
+
+
+def _inertial_attitude(
+    time: NDArray[np.float64],
+    readings: NDArray[np.float64],
+    offsets: Sequence[float],
+    latitude: float,
+    base: tuple[float, float, float],
+    configuration: GimbalConfiguration,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(M̂, Ĉ_n^p)``: platform attitude to the inertial frame and to the local frame (n, 3, 3)."""
+    actual = readings + np.asarray(offsets, dtype=float)
+    body_to_platform = dcm_body_to_platform(actual[:, 0], actual[:, 1], actual[:, 2], 0.0, configuration)
+    nav_to_platform = body_to_platform @ dcm_nav_to_body(*base)
+    k = skew(earth_rate_nav(latitude) / EARTH_RATE)
+    theta = EARTH_RATE * time
+    earth = np.eye(3) + np.sin(theta)[:, None, None] * k + (1.0 - np.cos(theta))[:, None, None] * (k @ k)
+    return nav_to_platform @ earth.swapaxes(1, 2), nav_to_platform
+
+
+def _base_basis(latitude: float) -> NDArray[np.float64]:
+    """Orthonormal basis (3, 2) of the base rotations ``δ`` (NED) perpendicular to the Earth's axis: ``t_E`` and ``t_N sin L + ψ_e cos L``."""
+    return np.array([[0.0, math.sin(latitude)], [1.0, 0.0], [0.0, math.cos(latitude)]])
+
+
+def estimate_drift(
+    columns: Mapping[str, NDArray[np.float64]],
+    *,
+    latitude: float,
+    gravity: float,
+    base_attitude: tuple[float, float, float],
+    configuration: GimbalConfiguration,
+    prior_values: Mapping[str, float],
+    prior_covariance: tuple[Sequence[str], NDArray[np.float64]] | None = None,
+    error_model: ErrorModel | None = None,
+    reference_temperature: float = 20.0,
+    holds: Sequence[tuple[int, int]] | None = None,
+    base: str = "auto",
+    source: str = "record",
+) -> FitResult:
+    """Estimate ``ε^p`` from the readings of an indexing test (module docstring).
+
+    Parameters
+    ----------
+    columns : mapping
+        ``time``, ``angle_platform``, ``angle_inner``, ``angle_middle`` and (for the bias cross-check)
+        ``f_x``, ``f_y``, ``f_z``, ``temperature`` of a system-level record (SI).
+    latitude, gravity : float
+        Site [rad], [m/s²].
+    base_attitude : tuple of float
+        Surveyed (yaw, pitch, roll) of the base [rad].
+    configuration : GimbalConfiguration
+    prior_values : mapping
+        The installed calibration (the record): zero offsets ``theta10..30`` and the accelerometer model.
+    prior_covariance : (ids, ndarray), optional
+        Covariance of the record's parameters (the bias cross-check's expected spread).
+    error_model : ErrorModel, optional
+        The record's error model (default: the standard one).
+    holds : sequence of (int, int), optional
+        Sample ranges of the holds (default: :func:`find_holds`).
+    base : {"auto", "survey"}
+        ``"auto"``: fit ``δ_⊥`` when the holds separate it; ``"survey"``: hold the base at the survey
+        (the one-position estimate, for comparison).
+    source : str
+        Names the data in messages.
+
+    Returns
+    -------
+    FitResult
+        Stage ``"drift"``: ``gyro_drift_x/y/z`` with covariance and a likelihood for the record's
+        Bayesian update; :class:`DriftDetails` in ``details``.
+    """
+    time = np.asarray(columns["time"], dtype=float)
+    readings = np.stack([np.asarray(columns[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=1)
+    if holds is None:
+        holds = find_holds(time, readings, source=source)
+    if not holds:
+        raise InputError(
+            f"{source}: no hold of at least {MIN_HOLD:g} s with the platform still", field="angle_platform",
+            expected="a drift test record (stableins run drift-two-position)",
+        )  # fmt: skip
+    offsets = [float(prior_values.get(g, 0.0)) for g in GIMBAL_IDS]
+    inertial, nav_to_platform = _inertial_attitude(time, readings, offsets, latitude, base_attitude, configuration)
+    f_model = -gravity * nav_to_platform[:, :, 2]
+    hold_list = [Hold(a, b, float(time[a]), float(time[b - 1]), tuple(float(v) for v in f_model[a:b].mean(axis=0))) for a, b in holds]
+    fz_signs = {int(np.sign(h.specific_force[2])) for h in hold_list if abs(h.specific_force[2]) > gravity / 4}
+    with_dg = fz_signs == {-1, 1}
+    basis = _base_basis(latitude)
+    # the inner zero-offset residual turns the computed platform about the inner axis (J = ∂ω/∂α_2); while that
+    # axis keeps its direction in the local frame it acts as a base rotation, after a flip of the middle gimbal not
+    platform = GimbalPlatform(configuration=configuration)
+    actual = readings + np.asarray(offsets, dtype=float)
+    inner_p = platform.angular_rate(actual, np.array([0.0, 1.0, 0.0]))
+    inner_n = np.einsum("nji,nj->ni", nav_to_platform, inner_p)
+    directions = np.array([inner_n[(h.first + h.stop) // 2] for h in hold_list])
+    with_inner = bool(np.min(directions @ directions.T) < -0.5)
+    # ---- design: per hold 3 intercepts; then ε (3), β (2: δ = B β), [Dg_z], [θ20]
+    n_hold = len(hold_list)
+    globals_ = 3 + 2 + (1 if with_dg else 0) + (1 if with_inner else 0)
+    rows_y, rows_a = [], []
+    for h_index, hold in enumerate(hold_list):
+        sl = slice(hold.first, hold.stop)
+        mid = (hold.first + hold.stop) // 2
+        phi = rotation_vector(inertial[sl] @ inertial[mid].T)  # (m, 3)
+        dt = time[sl] - time[mid]
+        m = len(dt)
+        a = np.zeros((m, 3, 3 * n_hold + globals_))
+        a[:, :, 3 * h_index : 3 * h_index + 3] = np.eye(3)
+        a[:, :, 3 * n_hold : 3 * n_hold + 3] = -dt[:, None, None] * np.eye(3)
+        a[:, :, 3 * n_hold + 3 : 3 * n_hold + 5] = -nav_to_platform[sl] @ basis
+        if with_dg:
+            a[:, 2, 3 * n_hold + 5] = dt * f_model[sl, 2]
+        if with_inner:
+            a[:, :, 3 * n_hold + 5 + (1 if with_dg else 0)] = inner_p[sl]
+        rows_y.append(phi)
+        rows_a.append(a)
+    y = np.concatenate(rows_y)  # (N, 3)
+    design = np.concatenate(rows_a)  # (N, 3, p)
+    # per-component noise from a first unweighted fit, then weighted least squares
+    drift_cols = slice(3 * n_hold, 3 * n_hold + 3)
+    base_cols = [3 * n_hold + 3, 3 * n_hold + 4]
+    all_cols = list(range(design.shape[2]))
+    survey_cols = [c for c in all_cols if c not in base_cols]
+    separated = False
+    if base != "survey" and n_hold > 1:
+        cov_free = _covariance(design, y, all_cols)[0]
+        cov_held = _covariance(design, y, survey_cols)[0]
+        idx_free = [all_cols.index(c) for c in range(drift_cols.start, drift_cols.stop)]
+        idx_held = [survey_cols.index(c) for c in range(drift_cols.start, drift_cols.stop)]
+        inflation = np.sqrt(np.diag(cov_free)[idx_free] / np.diag(cov_held)[idx_held])
+        separated = bool(np.all(inflation < SEPARATION_LIMIT))
+    used = all_cols if separated else survey_cols
+    cov, x, sigma_axis, residual = _covariance(design, y, used)
+    pos = {c: k for k, c in enumerate(used)}
+    d_idx = [pos[c] for c in range(drift_cols.start, drift_cols.stop)]
+    eps = x[d_idx]
+    cov_eps = cov[np.ix_(d_idx, d_idx)]
+    nuisance: dict[str, tuple[float, float]] = {}
+    beta = np.zeros(2)
+    if separated:
+        b_idx = [pos[c] for c in base_cols]
+        beta = x[b_idx]
+        for name, k in (("tilt_east", b_idx[0]), ("tilt_north_sin_azimuth_cos", b_idx[1])):
+            nuisance[name] = (float(x[k]), float(math.sqrt(cov[k, k])))
+    if with_dg:
+        k = pos[3 * n_hold + 5]
+        nuisance["Dg_z"] = (float(x[k]), float(math.sqrt(cov[k, k])))
+    if with_inner:
+        k = pos[3 * n_hold + 5 + (1 if with_dg else 0)]
+        nuisance["theta20_residual"] = (float(x[k]), float(math.sqrt(cov[k, k])))
+    rank = _rank_report(latitude, n_hold, separated, with_dg, base) + (
+        ("inner zero-offset residual: estimated as a nuisance (the middle gimbal's flip reverses the inner axis)",)
+        if with_inner
+        else ("inner and middle zero-offset residuals: rotations about axes fixed in the local frame, absorbed by the base nuisance",)
+    )
+    biases = _bias_checks(columns, hold_list, nav_to_platform, basis @ beta, gravity, prior_values, prior_covariance, error_model,
+                          reference_temperature)  # fmt: skip
+    likelihood = Likelihood(tuple(t.id for t in GYRO_DRIFT_TERMS), eps, np.linalg.inv(cov_eps), np.zeros(3))
+    details = DriftDetails(tuple(hold_list), nuisance, rank, biases, tuple(float(s) for s in sigma_axis), separated)
+    notes = tuple(rank)
+    return FitResult(
+        stage="drift",
+        terms=GYRO_DRIFT_TERMS,
+        values=eps,
+        covariance=cov_eps,
+        status=(Status.ESTIMATED,) * 3,
+        residuals=residual.ravel(),
+        residual_sigma=np.broadcast_to(sigma_axis, residual.shape).ravel().copy(),
+        rank=len(used),
+        notes=notes,
+        details=details,
+        likelihood=likelihood,
+        gravity=gravity,
+        settings={"base": base, "holds": n_hold, "base_separated": separated, "g_sensitive_z": with_dg},
+    )
+
+
+def _covariance(
+    design: NDArray[np.float64], y: NDArray[np.float64], columns: Sequence[int]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted least squares on the chosen columns: ``(cov, x, σ per axis, residuals)``; σ measured from the residuals."""
+    a = design[:, :, list(columns)]
+    sigma = np.ones(3)
+    for _ in range(2):
+        w = (a / sigma[None, :, None]).reshape(-1, a.shape[2])
+        rhs = (y / sigma[None, :]).ravel()
+        scale = np.linalg.norm(w, axis=0)
+        scale[scale == 0] = 1.0
+        q, r = np.linalg.qr(w / scale)
+        x = np.linalg.solve(r, q.T @ rhs) / scale
+        residual = y - np.einsum("nip,p->ni", a, x)
+        dof = max(1, len(y) - math.ceil(a.shape[2] / 3))
+        sigma = np.sqrt(np.sum(residual**2, axis=0) / dof)
+        sigma[sigma == 0] = 1e-300
+    w = (a / sigma[None, :, None]).reshape(-1, a.shape[2])
+    scale = np.linalg.norm(w, axis=0)
+    scale[scale == 0] = 1.0
+    r = np.linalg.qr(w / scale, mode="r")
+    r_inv = np.linalg.inv(r)
+    cov = (r_inv @ r_inv.T) / np.outer(scale, scale)
+    return cov, x, sigma, residual
+
+
+def _rank_report(latitude: float, holds: int, separated: bool, with_dg: bool, base: str) -> tuple[str, ...]:
+    per_arcsec = EARTH_RATE * math.cos(latitude) * (math.pi / 180 / 3600) / DEG_PER_HOUR
+    lines = [f"{holds} hold{'s' if holds != 1 else ''}; gyro_drift_x, gyro_drift_y, gyro_drift_z: estimated"]
+    lines.append(
+        "base rotation about the Earth's axis (t_N cos L - azimuth sin L): not observable (commutes with the Earth's turn); "
+        "gauge: held at the survey"
+    )
+    if separated:
+        lines.append("base tilt East and t_N sin L + azimuth cos L: estimated as nuisances (the index reverses their misprojection)")
+    else:
+        why = "held at the survey by request" if base == "survey" else "no index reverses its misprojection"
+        lines.append(
+            f"base tilt East and t_N sin L + azimuth cos L: not separable from gyro_drift_x/y ({why}); gauge: held at the survey, "
+            f"so gyro_drift_x/y carry Ω·|u×δ| ({per_arcsec:.2g} °/h per arcsec of azimuth error)"
+        )
+    if with_dg:
+        lines.append("g-sensitive drift along z_p (Dg_z): estimated as a nuisance (f_z reverses)")
+    else:
+        lines.append("gyro_drift_z includes any g-sensitive drift Dg_z·f_z (f_z never reverses; drift-three-position separates it)")
+    return tuple(lines)
+
+
+def _bias_checks(
+    columns: Mapping[str, NDArray[np.float64]],
+    holds: Sequence[Hold],
+    nav_to_platform: NDArray[np.float64],
+    delta: NDArray[np.float64],
+    gravity: float,
+    values: Mapping[str, float],
+    covariance: tuple[Sequence[str], NDArray[np.float64]] | None,
+    error_model: ErrorModel | None,
+    reference_temperature: float,
+) -> tuple[BiasCheck, ...]:
+    """Accelerometer cross-check against the record, from the hold means (module docstring)."""
+    if not all(k in columns for k in ("f_x", "f_y", "f_z")):
+        return ()
+    model = error_model or ErrorModel.standard(nonlinear=True)
+    raw = np.stack([np.asarray(columns[f"f_{a}"], dtype=float) for a in "xyz"], axis=1)
+    # the true base is the survey turned by δ: f^p = Ĉ_n^p (f^n − δ × f^n)
+    f_nav = np.array([0.0, 0.0, -gravity])
+    f_nav_true = f_nav - np.cross(delta, f_nav)
+    ids = [i for i in (covariance[0] if covariance else ()) if i in values and not i.startswith(("theta", "gyro_drift"))]
+    means, sigmas, sensitivity = [], [], []
+    for hold in holds:
+        sl = slice(hold.first, hold.stop)
+        f_p = nav_to_platform[sl] @ f_nav_true
+        temperature = np.asarray(columns["temperature"], dtype=float)[sl] - reference_temperature if "temperature" in columns else None
+        inputs = TermInputs(specific_force=f_p, temperature=temperature, time=np.asarray(columns["time"], dtype=float)[sl])
+        residual = model.inverse(raw[sl], values, inputs) - f_p
+        block_means = np.array([b.mean(axis=0) for b in np.array_split(residual, BIAS_BLOCKS)])
+        means.append(residual.mean(axis=0))
+        sigmas.append(block_means.std(axis=0, ddof=1) / math.sqrt(BIAS_BLOCKS))
+        # how the record's parameters move the hold's mean compensated output (finite differences at the mean)
+        mean_raw, mean_inputs = raw[sl].mean(axis=0)[None, :], TermInputs(specific_force=f_p.mean(axis=0)[None, :])
+        base = model.inverse(mean_raw, values, mean_inputs)[0]
+        columns_h = []
+        for i in ids:
+            step = 1e-6 * max(1.0, abs(values[i]))
+            shifted = dict(values)
+            shifted[i] = values[i] + step
+            columns_h.append((model.inverse(mean_raw, shifted, mean_inputs)[0] - base) / step)
+        sensitivity.append(np.array(columns_h).T if ids else np.zeros((3, 0)))
+    means_a, sigmas_a = np.array(means), np.array(sigmas)
+    h = np.mean(sensitivity, axis=0)  # (3, len(ids))
+    cov = np.zeros((0, 0))
+    if covariance is not None and ids:
+        order = [list(covariance[0]).index(i) for i in ids]
+        cov = np.nan_to_num(np.asarray(covariance[1], dtype=float)[np.ix_(order, order)])
+    predicted = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", h, cov, h), 0.0, None)) if ids else np.zeros(3)
+    forces = np.array([h_.specific_force for h_ in holds])
+    out = []
+    for k, axis in enumerate("xyz"):
+        signs = {int(np.sign(f)) for f in forces[:, k] if abs(f) > gravity / 4}
+        out.append(
+            BiasCheck(
+                axis,
+                float(means_a[:, k].mean()),
+                float(math.sqrt(np.sum(sigmas_a[:, k] ** 2)) / len(holds)),
+                float(predicted[k]),
+                signs == {-1, 1},
+            )
+        )
+    return tuple(out)
+
+
+#: Columns the drift test reads.
+DRIFT_COLUMNS = ("time", "angle_platform", "angle_inner", "angle_middle", "f_x", "f_y", "f_z", "temperature")
+#: Longest record the drift test reads in one piece [samples] (a day at 10 Hz).
+MAX_SAMPLES = 864_000
+
+
+def drift_from_record(
+    record: Any,
+    prior_values: Mapping[str, float],
+    *,
+    prior_covariance: tuple[Sequence[str], NDArray[np.float64]] | None = None,
+    error_model: ErrorModel | None = None,
+    base: str = "auto",
+) -> FitResult:
+    """:func:`estimate_drift` on a system-level record (:class:`stableins.data.system.SystemRecord`), with its site metadata.
+
+    Raises :class:`InputError` naming the file and field when the record is not a drift test (no two holds
+    with the platform still, too long to read).
+    """
+    if record.n_samples > MAX_SAMPLES:
+        raise InputError(
+            f"{record.n_samples} samples: longer than a drift test", path=record.path, field="time",
+            expected=f"at most {MAX_SAMPLES} samples (a drift-two-position or drift-three-position record)",
+        )  # fmt: skip
+    missing = [c for c in DRIFT_COLUMNS[:4] if c not in record.columns]
+    if missing:
+        raise InputError(
+            f"no column {missing[0]!r}", path=record.path, field=missing[0], expected="a system-level record with the angle readings"
+        )
+    columns = record.read([c for c in DRIFT_COLUMNS if c in record.columns])
+    site = record.metadata
+    time = np.asarray(columns["time"], dtype=float)
+    readings = np.stack([np.asarray(columns[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=1)
+    holds = find_holds(time, readings)
+    if len(holds) < 2 and base != "survey":
+        raise InputError(
+            f"{len(holds)} hold{'s' if len(holds) != 1 else ''} of at least {MIN_HOLD:g} s: the record has no index of the platform",
+            path=record.path,
+            field="angle_platform",
+            expected="two or more holds separated by an index (a record of 'stableins run drift-two-position' or drift-three-position)",
+        )
+    return estimate_drift(
+        columns,
+        latitude=site.latitude,
+        gravity=site.gravity,
+        base_attitude=tuple(site.base_attitude),
+        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        prior_values=prior_values,
+        prior_covariance=prior_covariance,
+        error_model=error_model,
+        reference_temperature=site.reference_temperature,
+        holds=holds,
+        base=base,
+        source=str(record.path),
+    )
+
+
+def report(result: FitResult) -> str:
+    """Text report of a drift test: the drift (°/h) with σ, the rank report, the nuisances, the accelerometer cross-check."""
+    details = result.details
+    assert isinstance(details, DriftDetails)
+    lines = [f"gyro drift from {len(details.holds)} holds (platform frame):"]
+    for term, value, sigma in zip(result.terms, result.values, result.sigma, strict=True):
+        lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR:+.6f} ± {sigma / DEG_PER_HOUR:.6f} °/h")
+    lines.append("holds: " + ", ".join(f"{h.start:.0f}–{h.end:.0f} s" for h in details.holds))
+    lines.append("what the data determine:")
+    lines += [f"  {line}" for line in details.rank]
+    if details.nuisance:
+        lines.append("nuisances: " + ", ".join(f"{k} = {v:.3g} ± {s:.2g}" for k, (v, s) in details.nuisance.items()))
+    rms = ", ".join(f"{r / ARCSEC:.3f}" for r in details.residual_rms)
+    lines.append(f"residual rms of the platform attitude (x, y, z): {rms} arcsec")
+    if details.biases:
+        lines.append("accelerometer cross-check (hold means, compensated with the record):")
+        lines += [f"  {b.describe()}" for b in details.biases]
+    return "\n".join(lines)
+
+
+__all__ = [
+    "DRIFT_COLUMNS",
+    "drift_from_record",
+    "report",
+    "BiasCheck",
+    "DriftDetails",
+    "Hold",
+    "estimate_drift",
+    "find_holds",
+    "rotation_vector",
+]
