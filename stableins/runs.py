@@ -430,6 +430,8 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     if runner.iteration is not None:
         return runner.iteration.fit
     if runner.static_chunks:
+        if any(getattr(step, "turns", ()) for step in runner.plan.steps):
+            return _estimate_drift(rundir, runner, dataset, start)
         return _estimate_system(rundir, runner, dataset, start)
     definition = runner.definition
     if definition is None or definition.stage != "fine":
@@ -490,6 +492,22 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     temperature = outcome.diagnostics.temperature
     details = replace(outcome.result.details, temperature=None if temperature is None else temperature.to_dict())
     return replace(outcome.result, details=details)
+
+
+def _estimate_drift(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
+    """The drift test (:mod:`stableins.estimators.drift`) on an indexed record, with the installed calibration (the prior record)."""
+    from stableins.data.system import open_system_record
+    from stableins.estimators.drift import drift_from_record, report
+
+    if not start.get("prior"):
+        runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate drift'")
+        return None
+    prior = _load_record(rundir / start["prior"])
+    fit = drift_from_record(
+        open_system_record(dataset), prior.values(), prior_covariance=(prior.ids, prior.covariance), error_model=prior.error_model()
+    )
+    runner.console.say(report(fit))
+    return fit
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:

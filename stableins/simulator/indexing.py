@@ -129,7 +129,7 @@ class IndexedMotion:
         steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)
         if self._last_integrand is None:
             steps[0] = 0.0  # the first sample of the record is t = 0
-        cumulative = self._integral + np.cumsum(steps, axis=0)
+        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
         self._integral, self._last_integrand = cumulative[-1].copy(), integrand[-1].copy()
         return commanded @ rotation_about(cumulative) @ self.nav_to_platform_0 @ self.earth_rotation(time)
 
