@@ -90,6 +90,9 @@ MOVING_RATE = 1e-3
 MOVE_MARGIN = 10.0
 #: Shortest hold used [s].
 MIN_HOLD = 60.0
+#: Prior 1σ of the platform angle sensor's once-per-revolution error terms [rad] (the effect's nominal 2″;
+#: the record carries no angle-sensor errors).
+ANGLE_SENSOR_PRIOR = 2.0 * ARCSEC
 #: Accelerometer blocks per hold for the σ of its mean.
 BIAS_BLOCKS = 10
 
@@ -283,81 +286,26 @@ def estimate_drift(
     inertial, nav_to_platform = _inertial_attitude(time, readings, offsets, latitude, base_attitude, configuration)
     f_model = -gravity * nav_to_platform[:, :, 2]
     hold_list = [Hold(a, b, float(time[a]), float(time[b - 1]), tuple(float(v) for v in f_model[a:b].mean(axis=0))) for a, b in holds]
-    fz_signs = {int(np.sign(h.specific_force[2])) for h in hold_list if abs(h.specific_force[2]) > gravity / 4}
-    with_dg = fz_signs == {-1, 1}
-    basis = _base_basis(latitude)
-    # the inner zero-offset residual turns the computed platform about the inner axis (J = ∂ω/∂α_2); while that
-    # axis keeps its direction in the local frame it acts as a base rotation, after a flip of the middle gimbal not
-    platform = GimbalPlatform(configuration=configuration)
-    actual = readings + np.asarray(offsets, dtype=float)
-    inner_p = platform.angular_rate(actual, np.array([0.0, 1.0, 0.0]))
-    inner_n = np.einsum("nji,nj->ni", nav_to_platform, inner_p)
-    directions = np.array([inner_n[(h.first + h.stop) // 2] for h in hold_list])
-    with_inner = bool(np.min(directions @ directions.T) < -0.5)
-    # ---- design: per hold 3 intercepts; then ε (3), β (2: δ = B β), [Dg_z], [θ20]
-    n_hold = len(hold_list)
-    globals_ = 3 + 2 + (1 if with_dg else 0) + (1 if with_inner else 0)
-    rows_y, rows_a = [], []
-    for h_index, hold in enumerate(hold_list):
-        sl = slice(hold.first, hold.stop)
-        mid = (hold.first + hold.stop) // 2
-        phi = rotation_vector(inertial[sl] @ inertial[mid].T)  # (m, 3)
-        dt = time[sl] - time[mid]
-        m = len(dt)
-        a = np.zeros((m, 3, 3 * n_hold + globals_))
-        a[:, :, 3 * h_index : 3 * h_index + 3] = np.eye(3)
-        a[:, :, 3 * n_hold : 3 * n_hold + 3] = -dt[:, None, None] * np.eye(3)
-        a[:, :, 3 * n_hold + 3 : 3 * n_hold + 5] = -nav_to_platform[sl] @ basis
-        if with_dg:
-            a[:, 2, 3 * n_hold + 5] = dt * f_model[sl, 2]
-        if with_inner:
-            a[:, :, 3 * n_hold + 5 + (1 if with_dg else 0)] = inner_p[sl]
-        rows_y.append(phi)
-        rows_a.append(a)
-    y = np.concatenate(rows_y)  # (N, 3)
-    design = np.concatenate(rows_a)  # (N, 3, p)
-    # per-component noise from a first unweighted fit, then weighted least squares
-    drift_cols = slice(3 * n_hold, 3 * n_hold + 3)
-    base_cols = [3 * n_hold + 3, 3 * n_hold + 4]
-    all_cols = list(range(design.shape[2]))
-    survey_cols = [c for c in all_cols if c not in base_cols]
-    separated = False
-    if base != "survey" and n_hold > 1:
-        cov_free = _covariance(design, y, all_cols)[0]
-        cov_held = _covariance(design, y, survey_cols)[0]
-        idx_free = [all_cols.index(c) for c in range(drift_cols.start, drift_cols.stop)]
-        idx_held = [survey_cols.index(c) for c in range(drift_cols.start, drift_cols.stop)]
-        inflation = np.sqrt(np.diag(cov_free)[idx_free] / np.diag(cov_held)[idx_held])
-        separated = bool(np.all(inflation < SEPARATION_LIMIT))
-    used = all_cols if separated else survey_cols
-    cov, x, sigma_axis, residual = _covariance(design, y, used)
-    pos = {c: k for k, c in enumerate(used)}
-    d_idx = [pos[c] for c in range(drift_cols.start, drift_cols.stop)]
-    eps = x[d_idx]
-    cov_eps = cov[np.ix_(d_idx, d_idx)]
-    nuisance: dict[str, tuple[float, float]] = {}
-    beta = np.zeros(2)
-    if separated:
-        b_idx = [pos[c] for c in base_cols]
-        beta = x[b_idx]
-        for name, k in (("tilt_east", b_idx[0]), ("tilt_north_sin_azimuth_cos", b_idx[1])):
-            nuisance[name] = (float(x[k]), float(math.sqrt(cov[k, k])))
-    if with_dg:
-        k = pos[3 * n_hold + 5]
-        nuisance["Dg_z"] = (float(x[k]), float(math.sqrt(cov[k, k])))
-    if with_inner:
-        k = pos[3 * n_hold + 5 + (1 if with_dg else 0)]
-        nuisance["theta20_residual"] = (float(x[k]), float(math.sqrt(cov[k, k])))
-    rank = _rank_report(latitude, n_hold, separated, with_dg, base) + (
-        ("inner zero-offset residual: estimated as a nuisance (the middle gimbal's flip reverses the inner axis)",)
-        if with_inner
-        else ("inner and middle zero-offset residuals: rotations about axes fixed in the local frame, absorbed by the base nuisance",)
-    )
-    biases = _bias_checks(columns, hold_list, nav_to_platform, basis @ beta, gravity, prior_values, prior_covariance, error_model,
-                          reference_temperature)  # fmt: skip
+    y, design, names = _design(time, readings + np.asarray(offsets, dtype=float), inertial, nav_to_platform, hold_list,
+                               latitude=latitude, gravity=gravity, configuration=configuration)  # fmt: skip
+    drift_names = ["eps_x", "eps_y", "eps_z"]
+    used = [n for n in names if n.startswith(("c", "eps_", "ang1_")) or n in ("Dg_z", "theta20_residual")]
+    members = ["tilt_east", "tilt_north_sin_azimuth_cos"]
+    chosen = {"base": base != "survey" and len(hold_list) > 1 and _separable(design, y, names, used, members, drift_names)}
+    if chosen["base"]:
+        used = used + members
+    cov, x, sigma_axis, residual = _covariance(design, y, [names.index(n) for n in used], _priors(used))
+    d_idx = [used.index(n) for n in drift_names]
+    eps, cov_eps = x[d_idx], cov[np.ix_(d_idx, d_idx)]
+    nuisance = {n: (float(x[k]), float(math.sqrt(cov[k, k]))) for k, n in enumerate(used) if not n.startswith(("c", "eps_"))}
+    beta = np.array([nuisance.get(n, (0.0, 0.0))[0] for n in ("tilt_east", "tilt_north_sin_azimuth_cos")])
+    rank = _rank_report(latitude, len(hold_list), chosen, set(used), base)
+    biases = _bias_checks(columns, hold_list, nav_to_platform, _base_basis(latitude) @ beta, gravity,
+                          BiasInputs(prior_values, prior_covariance, error_model, reference_temperature))  # fmt: skip
     likelihood = Likelihood(tuple(t.id for t in GYRO_DRIFT_TERMS), eps, np.linalg.inv(cov_eps), np.zeros(3))
-    details = DriftDetails(tuple(hold_list), nuisance, rank, biases, tuple(float(s) for s in sigma_axis), separated)
-    notes = tuple(rank)
+    details = DriftDetails(
+        tuple(hold_list), nuisance, rank, biases, (float(sigma_axis[0]), float(sigma_axis[1]), float(sigma_axis[2])), chosen["base"]
+    )
     return FitResult(
         stage="drift",
         terms=GYRO_DRIFT_TERMS,
@@ -367,20 +315,89 @@ def estimate_drift(
         residuals=residual.ravel(),
         residual_sigma=np.broadcast_to(sigma_axis, residual.shape).ravel().copy(),
         rank=len(used),
-        notes=notes,
+        notes=rank,
         details=details,
         likelihood=likelihood,
         gravity=gravity,
-        settings={"base": base, "holds": n_hold, "base_separated": separated, "g_sensitive_z": with_dg},
+        settings={"base": base, "holds": len(hold_list), "nuisances": [n for n in used if not n.startswith(("c", "eps_"))]},
     )
 
 
-def _covariance(
-    design: NDArray[np.float64], y: NDArray[np.float64], columns: Sequence[int]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Weighted least squares on the chosen columns: ``(cov, x, σ per axis, residuals)``.
+def _design(
+    time: NDArray[np.float64],
+    actual: NDArray[np.float64],
+    inertial: NDArray[np.float64],
+    nav_to_platform: NDArray[np.float64],
+    holds: Sequence[Hold],
+    *,
+    latitude: float,
+    gravity: float,
+    configuration: GimbalConfiguration,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
+    """Observations ``φ`` (N, 3), design (N, 3, p) and the column names (module docstring's equation).
 
-    The σ of each rotation-vector component is measured from the residuals (two passes); normal equations on
+    Columns: per hold 3 intercepts ``c{k}_{i}``; ``eps_x/y/z``; the base ``δ = B β`` (``tilt_east``,
+    ``tilt_north_sin_azimuth_cos``); ``Dg_z`` when ``f_z`` reverses; ``theta20_residual`` when the inner axis
+    reverses in the local frame; the platform angle sensor's once-per-revolution error ``ang1_platform_c/s``.
+    """
+    platform = GimbalPlatform(configuration=configuration)
+    # a zero-offset or sensor error Δα of gimbal i turns the computed platform by J_i Δα (J_i = ∂ω/∂α_i)
+    inner_p = platform.angular_rate(actual, np.array([0.0, 1.0, 0.0]))
+    outer_p = platform.angular_rate(actual, np.array([1.0, 0.0, 0.0]))
+    inner_n = np.einsum("nji,nj->ni", nav_to_platform, inner_p)
+    directions = np.array([inner_n[(h.first + h.stop) // 2] for h in holds])
+    fz_signs = {int(np.sign(h.specific_force[2])) for h in holds if abs(h.specific_force[2]) > gravity / 4}
+    names = [f"c{k}_{i}" for k in range(len(holds)) for i in "xyz"] + ["eps_x", "eps_y", "eps_z", "tilt_east", "tilt_north_sin_azimuth_cos"]
+    if fz_signs == {-1, 1}:
+        names.append("Dg_z")
+    if np.min(directions @ directions.T) < -0.5:
+        names.append("theta20_residual")
+    names += ["ang1_platform_c", "ang1_platform_s"]
+    column = {n: k for k, n in enumerate(names)}
+    basis = _base_basis(latitude)
+    rows_y, rows_a = [], []
+    for index, hold in enumerate(holds):
+        sl = slice(hold.first, hold.stop)
+        mid = (hold.first + hold.stop) // 2
+        dt = time[sl] - time[mid]
+        a = np.zeros((len(dt), 3, len(names)))
+        a[:, :, column[f"c{index}_x"] : column[f"c{index}_x"] + 3] = np.eye(3)
+        a[:, :, column["eps_x"] : column["eps_x"] + 3] = -dt[:, None, None] * np.eye(3)
+        a[:, :, column["tilt_east"] : column["tilt_east"] + 2] = -nav_to_platform[sl] @ basis
+        if "Dg_z" in column:
+            a[:, 2, column["Dg_z"]] = dt * -gravity * nav_to_platform[sl, 2, 2]
+        if "theta20_residual" in column:
+            a[:, :, column["theta20_residual"]] = inner_p[sl]
+        reading = actual[sl, 0]  # the sensor's angle: reading + offset (the error is a function of the reading; same to 1e-4)
+        a[:, :, column["ang1_platform_c"]] = -outer_p[sl] * np.cos(reading)[:, None]
+        a[:, :, column["ang1_platform_s"]] = -outer_p[sl] * np.sin(reading)[:, None]
+        rows_y.append(rotation_vector(inertial[sl] @ inertial[mid].T))
+        rows_a.append(a)
+    return np.concatenate(rows_y), np.concatenate(rows_a), names
+
+
+def _separable(
+    design: NDArray[np.float64], y: NDArray[np.float64], names: list[str], used: list[str], members: list[str], drift: list[str]
+) -> bool:
+    """Whether adding ``members`` inflates no drift σ more than :data:`SEPARATION_LIMIT` times."""
+    held = _covariance(design, y, [names.index(n) for n in used], _priors(used))[0]
+    free = _covariance(design, y, [names.index(n) for n in used + members], _priors(used + members))[0]
+    before = np.diag(held)[[used.index(n) for n in drift]]
+    after = np.diag(free)[[(used + members).index(n) for n in drift]]
+    return bool(np.all(np.sqrt(after / before) < SEPARATION_LIMIT))
+
+
+def _priors(used: Sequence[str]) -> NDArray[np.float64]:
+    """Prior precision of each used column: the platform angle sensor's once-per-revolution error, none elsewhere."""
+    return np.array([ANGLE_SENSOR_PRIOR**-2 if n.startswith("ang1_") else 0.0 for n in used])
+
+
+def _covariance(
+    design: NDArray[np.float64], y: NDArray[np.float64], columns: Sequence[int], precision: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted least squares on the chosen columns with a zero-mean prior of ``precision``: ``(cov, x, σ per axis, residuals)``.
+
+    The σ of each rotation-vector component is measured from the residuals (three passes); normal equations on
     unit-scaled columns (a dozen columns, well conditioned once scaled).
     """
     a = design[:, :, list(columns)]
@@ -388,7 +405,7 @@ def _covariance(
     p = a.shape[2]
     for _ in range(3):
         w = a / sigma[None, :, None]
-        normal = np.einsum("nip,niq->pq", w, w)
+        normal = np.einsum("nip,niq->pq", w, w) + np.diag(precision)
         scale = np.sqrt(np.diag(normal))
         scale[scale == 0] = 1.0
         inverse = np.linalg.inv(normal / np.outer(scale, scale)) / np.outer(scale, scale)
@@ -400,14 +417,15 @@ def _covariance(
     return inverse, x, sigma, residual
 
 
-def _rank_report(latitude: float, holds: int, separated: bool, with_dg: bool, base: str) -> tuple[str, ...]:
-    per_arcsec = EARTH_RATE * math.cos(latitude) * (math.pi / 180 / 3600) / DEG_PER_HOUR
+def _rank_report(latitude: float, holds: int, chosen: Mapping[str, bool], used: set[str], base: str) -> tuple[str, ...]:
+    """What the data determine and the gauge held for what they do not (module docstring)."""
+    per_arcsec = EARTH_RATE * math.cos(latitude) * ARCSEC / DEG_PER_HOUR
     lines = [f"{holds} hold{'s' if holds != 1 else ''}; gyro_drift_x, gyro_drift_y, gyro_drift_z: estimated"]
     lines.append(
         "base rotation about the Earth's axis (t_N cos L - azimuth sin L): not observable (commutes with the Earth's turn); "
         "gauge: held at the survey"
     )
-    if separated:
+    if chosen["base"]:
         lines.append("base tilt East and t_N sin L + azimuth cos L: estimated as nuisances (the index reverses their misprojection)")
     else:
         why = "held at the survey by request" if base == "survey" else "no index reverses its misprojection"
@@ -415,11 +433,29 @@ def _rank_report(latitude: float, holds: int, separated: bool, with_dg: bool, ba
             f"base tilt East and t_N sin L + azimuth cos L: not separable from gyro_drift_x/y ({why}); gauge: held at the survey, "
             f"so gyro_drift_x/y carry Ω·|u×δ| ({per_arcsec:.2g} °/h per arcsec of azimuth error)"
         )
-    if with_dg:
+    if "Dg_z" in used:
         lines.append("g-sensitive drift along z_p (Dg_z): estimated as a nuisance (f_z reverses)")
     else:
         lines.append("gyro_drift_z includes any g-sensitive drift Dg_z·f_z (f_z never reverses; drift-three-position separates it)")
+    if "theta20_residual" in used:
+        lines.append("inner zero-offset residual: estimated as a nuisance (the middle gimbal's flip reverses the inner axis)")
+    else:
+        lines.append("inner and middle zero-offset residuals: rotations about axes fixed in the local frame, absorbed by the base nuisance")
+    lines.append(
+        "platform angle sensor's once-per-revolution error (ang1_platform_c/s): a nuisance with a 2″ prior (the record carries "
+        "none); its slope reverses with a 180° index, without one it shares gyro_drift_z's σ"
+    )
     return tuple(lines)
+
+
+@dataclass(frozen=True)
+class BiasInputs:
+    """What the accelerometer cross-check compensates with: the record's values, covariance ``(ids, matrix)``, model, T_ref [°C]."""
+
+    values: Mapping[str, float]
+    covariance: tuple[Sequence[str], NDArray[np.float64]] | None
+    error_model: ErrorModel | None
+    reference_temperature: float
 
 
 def _bias_checks(
@@ -428,14 +464,17 @@ def _bias_checks(
     nav_to_platform: NDArray[np.float64],
     delta: NDArray[np.float64],
     gravity: float,
-    values: Mapping[str, float],
-    covariance: tuple[Sequence[str], NDArray[np.float64]] | None,
-    error_model: ErrorModel | None,
-    reference_temperature: float,
+    record: BiasInputs,
 ) -> tuple[BiasCheck, ...]:
     """Accelerometer cross-check against the record, from the hold means (module docstring)."""
     if not all(k in columns for k in ("f_x", "f_y", "f_z")):
         return ()
+    values, covariance, error_model, reference_temperature = (
+        record.values,
+        record.covariance,
+        record.error_model,
+        record.reference_temperature,
+    )
     model = error_model or ErrorModel.standard(nonlinear=True)
     raw = np.stack([np.asarray(columns[f"f_{a}"], dtype=float) for a in "xyz"], axis=1)
     # the true base is the survey turned by δ: f^p = Ĉ_n^p (f^n − δ × f^n)
