@@ -512,6 +512,7 @@ class PlatformTurn:
         return 0.5 * self.angle * (1.0 - np.cos(np.pi * tau))
 
     def to_dict(self) -> dict[str, float | str]:
+        """The turn as a JSON-ready mapping (SI, the axis by name)."""
         return {"start": self.start, "angle": self.angle, "axis": str(self.axis), "rate": self.rate}
 
 

@@ -25,7 +25,7 @@ from stableins.procedures.plan import Plan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.system import SystemWorld, simulate_system, system_record_chunks
+from stableins.simulator.system import SystemWorld, indexed_record_chunks, simulate_system
 from stableins.simulator.truth import Truth
 
 RATE = 10.0
@@ -39,10 +39,7 @@ def fit(truth, record, **options):
     site = truth.site
     return estimate_drift(
         record,
-        latitude=site.latitude,
-        gravity=site.gravity,
-        base_attitude=site.base_attitude,
-        configuration=truth.configuration,
+        site,
         prior_values=truth.installed_calibration,
         **options,
     )
@@ -69,8 +66,8 @@ def test_general_kinematics_without_turns_is_the_polar_world():
 
 def test_indexed_samples_do_not_depend_on_chunking():
     truth = Truth.draw(6, sample_rate=RATE, gyro_drift=DRIFT)
-    a = list(system_record_chunks(truth, 700, RATE, chunk_samples=997, turns=TWO))
-    b = list(system_record_chunks(truth, 700, RATE, chunk_samples=4096, turns=TWO))
+    a = list(indexed_record_chunks(truth, 700, TWO, rate=RATE, chunk_samples=997))
+    b = list(indexed_record_chunks(truth, 700, TWO, rate=RATE, chunk_samples=4096))
     for name in ("angle_platform", "angle_middle", "f_y", "velocity_north"):
         assert np.array_equal(np.concatenate([c[name] for c in a]), np.concatenate([c[name] for c in b])), name
 
@@ -211,7 +208,7 @@ def prior_record(truth):
 
 def write(path, truth, turns, duration):
     with SystemRecordWriter(path, truth.site) as writer:
-        for chunk in system_record_chunks(truth, duration, RATE, turns=turns):
+        for chunk in indexed_record_chunks(truth, duration, turns, rate=RATE):
             writer.append(chunk)
 
 

@@ -22,7 +22,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from stableins.commands.arguments import output_file
 
     parser.add_argument("run", metavar="RUN", help="run directory of a drift test (or its system.h5)")
-    parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS ran with (zero offsets, accelerometer model)")
+    parser.add_argument(
+        "--prior", required=True, metavar="CAL.json", help="calibration record the INS ran with (zero offsets, accelerometer model)"
+    )
     parser.add_argument("--out", required=True, type=output_file, metavar="CAL2.json", help="updated calibration record to write")
     parser.add_argument(
         "--one-position",
@@ -38,7 +40,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def data_file(run: str) -> Path:
-    """The system-level record of RUN: ``RUN/system.h5`` for a run directory, else RUN itself."""
+    """Return the system-level record of RUN: ``RUN/system.h5`` for a run directory, else RUN itself."""
     from stableins.errors import InputError
     from stableins.procedures.rundir import SYSTEM_NAME
 
@@ -46,7 +48,9 @@ def data_file(run: str) -> Path:
     if path.is_dir():
         path = path / SYSTEM_NAME
         if not path.exists():
-            raise InputError("the run directory has no system-level record", path=run, field=SYSTEM_NAME, expected="a drift-test run directory")
+            raise InputError(
+                "the run directory has no system-level record", path=run, field=SYSTEM_NAME, expected="a drift-test run directory"
+            )
     return path
 
 
@@ -54,7 +58,7 @@ def run(args: Any) -> int:
     """Estimate the drift, update the prior record, write it, print the report."""
     from stableins.data.system import open_system_record
     from stableins.errors import InputError
-    from stableins.estimators.drift import drift_from_record, report
+    from stableins.estimators.drift import DriftDetails, drift_from_record, report
     from stableins.output import emit
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -96,7 +100,7 @@ def run(args: Any) -> int:
         "prior": args.prior,
         "out": str(args.out),
         "gyro_drift_deg_per_hour": _drift_document(fit),
-        "rank": list(fit.details.rank) if fit.details is not None else [],
+        "rank": list(fit.details.rank) if isinstance(fit.details, DriftDetails) else [],
         "settings": fit.settings,
         "parameters": [
             {"id": p.id, "value": p.value, "sigma": p.sigma if p.sigma == p.sigma else None, "status": p.status.value}
@@ -111,4 +115,7 @@ def run(args: Any) -> int:
 def _drift_document(fit: Any) -> dict[str, dict[str, float]]:
     from stableins.conventions import DEG_PER_HOUR
 
-    return {t.id: {"value": float(v) / DEG_PER_HOUR, "sigma": float(s) / DEG_PER_HOUR} for t, v, s in zip(fit.terms, fit.values, fit.sigma, strict=True)}
+    return {
+        t.id: {"value": float(v) / DEG_PER_HOUR, "sigma": float(s) / DEG_PER_HOUR}
+        for t, v, s in zip(fit.terms, fit.values, fit.sigma, strict=True)
+    }

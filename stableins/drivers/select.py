@@ -93,8 +93,11 @@ class SimulatedDriver:
         ``turns``: :class:`stableins.platform.PlatformTurn` indexing the platform by torquing during the record.
         """
         try:
-            from stableins.simulator.system import system_record_chunks
+            from stableins.simulator.system import indexed_record_chunks, system_record_chunks
         except ImportError as error:
             raise InputError(f"the simulated system-level recorder is not available ({error})", field="driver_spec") from None
         rate = self.platform.rate
-        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=max(1, int(round(chunk * rate))), turns=tuple(turns))
+        samples = max(1, int(round(chunk * rate)))
+        if turns:
+            return indexed_record_chunks(self.truth, duration, tuple(turns), rate=rate, seed=self.seed, chunk_samples=samples)
+        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=samples)

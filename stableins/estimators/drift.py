@@ -80,6 +80,7 @@ from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.platform import GimbalPlatform
+from stableins.site import SiteMetadata
 from stableins.status import Status
 
 #: Largest factor by which fitting the base error may inflate a drift σ and still count as separated.
@@ -109,6 +110,7 @@ class Hold:
 
     @property
     def duration(self) -> float:
+        """Length of the hold [s]."""
         return self.end - self.start
 
 
@@ -130,10 +132,12 @@ class BiasCheck:
 
     @property
     def z(self) -> float:
+        """The residual in units of its total expected spread (noise and the record's uncertainty)."""
         total = math.hypot(self.sigma, self.predicted)
         return self.residual / total if total > 0 else math.nan
 
     def describe(self) -> str:
+        """One line: the residual, the record's prediction, ``z`` and the verdict."""
         what = (
             f"f_{self.axis}: mean residual {self.residual / MICRO_G:+.2f} ± {self.sigma / MICRO_G:.2f} µg; "
             f"the record predicts 0 ± {self.predicted / MICRO_G:.2f} µg"
@@ -175,7 +179,7 @@ def rotation_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
     return 0.5 * np.stack([dcm[..., 1, 2] - dcm[..., 2, 1], dcm[..., 2, 0] - dcm[..., 0, 2], dcm[..., 0, 1] - dcm[..., 1, 0]], axis=-1)
 
 
-def find_holds(time: NDArray[np.float64], readings: NDArray[np.float64], *, source: str = "record") -> tuple[tuple[int, int], ...]:
+def find_holds(time: NDArray[np.float64], readings: NDArray[np.float64]) -> tuple[tuple[int, int], ...]:
     """Sample ranges ``[first, stop)`` where no gimbal moves faster than :data:`MOVING_RATE` (turns and :data:`MOVE_MARGIN` cut out)."""
     n = len(time)
     if n < 2:
@@ -188,55 +192,42 @@ def find_holds(time: NDArray[np.float64], readings: NDArray[np.float64], *, sour
     margin = int(round(MOVE_MARGIN / dt))
     for k in fast:  # few: turns only
         moving[max(0, k - margin) : min(n, k + lag + margin + 1)] = True
-    holds = []
-    k = 0
-    while k < n:
-        if moving[k]:
-            k += 1
-            continue
-        stop = k
-        while stop < n and not moving[stop]:
-            stop += 1
-        if time[stop - 1] - time[k] >= MIN_HOLD:
-            holds.append((k, stop))
-        k = stop
-    return tuple(holds)
+    edges = np.diff(np.concatenate([[1], moving.astype(np.int8), [1]]))
+    starts, stops = np.flatnonzero(edges == -1), np.flatnonzero(edges == 1)
+    return tuple((int(a), int(b)) for a, b in zip(starts, stops, strict=True) if time[b - 1] - time[a] >= MIN_HOLD)
 
 
 def _inertial_attitude(
-    time: NDArray[np.float64],
-    readings: NDArray[np.float64],
-    offsets: Sequence[float],
-    latitude: float,
-    base: tuple[float, float, float],
-    configuration: GimbalConfiguration,
+    time: NDArray[np.float64], actual: NDArray[np.float64], *, site: SiteMetadata, configuration: GimbalConfiguration
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(M̂, Ĉ_n^p)``: platform attitude to the inertial frame and to the local frame (n, 3, 3)."""
-    actual = readings + np.asarray(offsets, dtype=float)
+    """``(M̂, Ĉ_n^p)`` from the actual angles (readings + installed offsets): platform to the inertial and to the local frame."""
     body_to_platform = dcm_body_to_platform(actual[:, 0], actual[:, 1], actual[:, 2], 0.0, configuration)
-    nav_to_platform = body_to_platform @ dcm_nav_to_body(*base)
-    k = skew(earth_rate_nav(latitude) / EARTH_RATE)
+    nav_to_platform = body_to_platform @ dcm_nav_to_body(*site.base_attitude)
+    k = skew(earth_rate_nav(site.latitude) / EARTH_RATE)
     theta = EARTH_RATE * time
     earth = np.eye(3) + np.sin(theta)[:, None, None] * k + (1.0 - np.cos(theta))[:, None, None] * (k @ k)
     return nav_to_platform @ earth.swapaxes(1, 2), nav_to_platform
 
 
+def _triple(values: NDArray[np.float64]) -> tuple[float, float, float]:
+    return (float(values[0]), float(values[1]), float(values[2]))
+
+
 def _base_basis(latitude: float) -> NDArray[np.float64]:
-    """Orthonormal basis (3, 2) of the base rotations ``δ`` (NED) perpendicular to the Earth's axis: ``t_E`` and ``t_N sin L + ψ_e cos L``."""
+    """Return the orthonormal basis (3, 2) of base rotations ``δ`` (NED) perpendicular to the Earth's axis.
+
+    Its columns are ``t_E`` and ``t_N sin L + ψ_e cos L``.
+    """
     return np.array([[0.0, math.sin(latitude)], [1.0, 0.0], [0.0, math.cos(latitude)]])
 
 
 def estimate_drift(
     columns: Mapping[str, NDArray[np.float64]],
+    site: SiteMetadata,
     *,
-    latitude: float,
-    gravity: float,
-    base_attitude: tuple[float, float, float],
-    configuration: GimbalConfiguration,
     prior_values: Mapping[str, float],
     prior_covariance: tuple[Sequence[str], NDArray[np.float64]] | None = None,
     error_model: ErrorModel | None = None,
-    reference_temperature: float = 20.0,
     holds: Sequence[tuple[int, int]] | None = None,
     base: str = "auto",
     source: str = "record",
@@ -248,11 +239,8 @@ def estimate_drift(
     columns : mapping
         ``time``, ``angle_platform``, ``angle_inner``, ``angle_middle`` and (for the bias cross-check)
         ``f_x``, ``f_y``, ``f_z``, ``temperature`` of a system-level record (SI).
-    latitude, gravity : float
-        Site [rad], [m/s²].
-    base_attitude : tuple of float
-        Surveyed (yaw, pitch, roll) of the base [rad].
-    configuration : GimbalConfiguration
+    site : SiteMetadata
+        Latitude, gravity, surveyed base attitude (yaw, pitch, roll), gimbal senses, reference temperature.
     prior_values : mapping
         The installed calibration (the record): zero offsets ``theta10..30`` and the accelerometer model.
     prior_covariance : (ids, ndarray), optional
@@ -273,25 +261,32 @@ def estimate_drift(
         Stage ``"drift"``: ``gyro_drift_x/y/z`` with covariance and a likelihood for the record's
         Bayesian update; :class:`DriftDetails` in ``details``.
     """
+    latitude, gravity = site.latitude, site.gravity
+    s1, s2, s3, s4 = site.gimbal_senses
+    configuration = GimbalConfiguration((s1, s2, s3, s4))
     time = np.asarray(columns["time"], dtype=float)
     readings = np.stack([np.asarray(columns[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=1)
     if holds is None:
-        holds = find_holds(time, readings, source=source)
+        holds = find_holds(time, readings)
     if not holds:
         raise InputError(
             f"{source}: no hold of at least {MIN_HOLD:g} s with the platform still", field="angle_platform",
             expected="a drift test record (stableins run drift-two-position)",
         )  # fmt: skip
     offsets = [float(prior_values.get(g, 0.0)) for g in GIMBAL_IDS]
-    inertial, nav_to_platform = _inertial_attitude(time, readings, offsets, latitude, base_attitude, configuration)
+    inertial, nav_to_platform = _inertial_attitude(
+        time, readings + np.asarray(offsets, dtype=float), site=site, configuration=configuration
+    )
     f_model = -gravity * nav_to_platform[:, :, 2]
-    hold_list = [Hold(a, b, float(time[a]), float(time[b - 1]), tuple(float(v) for v in f_model[a:b].mean(axis=0))) for a, b in holds]
+    hold_list = [Hold(a, b, float(time[a]), float(time[b - 1]), _triple(f_model[a:b].mean(axis=0))) for a, b in holds]
     y, design, names = _design(time, readings + np.asarray(offsets, dtype=float), inertial, nav_to_platform, hold_list,
                                latitude=latitude, gravity=gravity, configuration=configuration)  # fmt: skip
     drift_names = ["eps_x", "eps_y", "eps_z"]
     used = [n for n in names if n.startswith(("c", "eps_", "ang1_")) or n in ("Dg_z", "theta20_residual")]
     members = ["tilt_east", "tilt_north_sin_azimuth_cos"]
-    chosen = {"base": base != "survey" and len(hold_list) > 1 and _separable(design, y, names, used, members, drift_names)}
+    chosen = {
+        "base": base != "survey" and len(hold_list) > 1 and _separable(design, y, names, used=used, members=members, drift=drift_names)
+    }
     if chosen["base"]:
         used = used + members
     cov, x, sigma_axis, residual = _covariance(design, y, [names.index(n) for n in used], _priors(used))
@@ -300,9 +295,9 @@ def estimate_drift(
     nuisance = {n: (float(x[k]), float(math.sqrt(cov[k, k]))) for k, n in enumerate(used) if not n.startswith(("c", "eps_"))}
     beta = np.array([nuisance.get(n, (0.0, 0.0))[0] for n in ("tilt_east", "tilt_north_sin_azimuth_cos")])
     rank = _rank_report(latitude, len(hold_list), chosen, set(used), base)
-    biases = _bias_checks(columns, hold_list, nav_to_platform, _base_basis(latitude) @ beta, gravity,
-                          BiasInputs(prior_values, prior_covariance, error_model, reference_temperature))  # fmt: skip
-    likelihood = Likelihood(tuple(t.id for t in GYRO_DRIFT_TERMS), eps, np.linalg.inv(cov_eps), np.zeros(3))
+    record = BiasInputs(prior_values, prior_covariance, error_model, site.reference_temperature)
+    biases = _bias_checks(columns, hold_list, nav_to_platform, delta=_base_basis(latitude) @ beta, gravity=gravity, record=record)
+    likelihood = Likelihood(tuple(t.id for t in GYRO_DRIFT_TERMS), eps, np.asarray(np.linalg.inv(cov_eps), dtype=np.float64), np.zeros(3))
     details = DriftDetails(
         tuple(hold_list), nuisance, rank, biases, (float(sigma_axis[0]), float(sigma_axis[1]), float(sigma_axis[2])), chosen["base"]
     )
@@ -377,7 +372,7 @@ def _design(
 
 
 def _separable(
-    design: NDArray[np.float64], y: NDArray[np.float64], names: list[str], used: list[str], members: list[str], drift: list[str]
+    design: NDArray[np.float64], y: NDArray[np.float64], names: list[str], *, used: list[str], members: list[str], drift: list[str]
 ) -> bool:
     """Whether adding ``members`` inflates no drift σ more than :data:`SEPARATION_LIMIT` times."""
     held = _covariance(design, y, [names.index(n) for n in used], _priors(used))[0]
@@ -418,7 +413,7 @@ def _covariance(
 
 
 def _rank_report(latitude: float, holds: int, chosen: Mapping[str, bool], used: set[str], base: str) -> tuple[str, ...]:
-    """What the data determine and the gauge held for what they do not (module docstring)."""
+    """Return the rank report: what the data determine and the gauge held for what they do not (module docstring)."""
     per_arcsec = EARTH_RATE * math.cos(latitude) * ARCSEC / DEG_PER_HOUR
     lines = [f"{holds} hold{'s' if holds != 1 else ''}; gyro_drift_x, gyro_drift_y, gyro_drift_z: estimated"]
     lines.append(
@@ -462,6 +457,7 @@ def _bias_checks(
     columns: Mapping[str, NDArray[np.float64]],
     holds: Sequence[Hold],
     nav_to_platform: NDArray[np.float64],
+    *,
     delta: NDArray[np.float64],
     gravity: float,
     record: BiasInputs,
@@ -567,14 +563,10 @@ def drift_from_record(
         )
     return estimate_drift(
         columns,
-        latitude=site.latitude,
-        gravity=site.gravity,
-        base_attitude=tuple(site.base_attitude),
-        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        site,
         prior_values=prior_values,
         prior_covariance=prior_covariance,
         error_model=error_model,
-        reference_temperature=site.reference_temperature,
         holds=holds,
         base=base,
         source=str(record.path),

@@ -252,7 +252,10 @@ def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
 
 
 def index_turns(entries: Any, duration: float, path: str) -> tuple[PlatformTurn, ...]:
-    """``[[record.index]]``: turns of the platform by torquing during the record (``at`` [s], ``axis``, ``angle`` [deg], ``rate`` [deg/s])."""
+    """Return the ``[[record.index]]`` turns of the platform by torquing during the record.
+
+    Keys: ``at`` [s], ``axis``, ``angle`` [deg], ``rate`` [deg/s]; checked in time order within the record.
+    """
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         raise InputError("[[record.index]] must be an array of tables", path=path, field="record.index", expected="at, axis, angle, rate")
     turns = []
@@ -264,7 +267,9 @@ def index_turns(entries: Any, duration: float, path: str) -> tuple[PlatformTurn,
             raise InputError(what, path=path, field=where, expected=f"{sorted(_INDEX_KEYS)} (at and angle required)")
         axis = entry.get("axis", "platform")
         if axis not in {a.value for a in IndexAxis}:
-            raise InputError(f"axis {str(axis)[:40]!r}", path=path, field=f"{where}.axis", expected=" or ".join(repr(a.value) for a in IndexAxis))
+            raise InputError(
+                f"axis {str(axis)[:40]!r}", path=path, field=f"{where}.axis", expected=" or ".join(repr(a.value) for a in IndexAxis)
+            )
         at = number(entry, "at", path, where, minimum=0.0, maximum=MAX_RECORD_SECONDS)
         angle = number(entry, "angle", path, where, minimum=-360.0, maximum=360.0)
         if angle == 0.0:

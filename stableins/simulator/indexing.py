@@ -70,6 +70,7 @@ class IndexedMotion:
         nav_to_platform_0: NDArray[np.float64],
         earth_rotation: Callable[[NDArray[np.float64]], NDArray[np.float64]],
         turns: Sequence[PlatformTurn],
+        *,
         initial_actual: NDArray[np.float64],
         rate: float,
     ) -> None:
@@ -113,9 +114,9 @@ class IndexedMotion:
 
     # ------------------------------------------------------------------ orientation
     def orientation(
-        self, time: NDArray[np.float64], drift: NDArray[np.float64], g_drift: NDArray[np.float64], gravity: float
+        self, time: NDArray[np.float64], drift: NDArray[np.float64], *, g_drift: NDArray[np.float64], gravity: float
     ) -> NDArray[np.float64]:
-        """True ``C_n^p`` (n, 3, 3) at the next samples ``time`` (consecutive, continuing the last call).
+        """Return the true ``C_n^p`` (n, 3, 3) at the next samples ``time`` (consecutive, continuing the last call).
 
         ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_drift``: ``Dg`` (3,) [rad s/m].
         """

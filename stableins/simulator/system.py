@@ -81,7 +81,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
-from stableins.platform import PlatformTurn, rotation_about
+from stableins.platform import PlatformTurn, check_turns, rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
 from stableins.simulator.indexing import IndexedMotion
@@ -301,7 +301,9 @@ class SystemWorld:
         # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
         self._indexed = None
         if initial_readings is not None or turns:
-            self._indexed = IndexedMotion(self.platform, self.nav_to_platform_0, self.earth_rotation, turns, self.initial_actual, self.rate)
+            self._indexed = IndexedMotion(
+                self.platform, self.nav_to_platform_0, self.earth_rotation, turns, initial_actual=self.initial_actual, rate=self.rate
+            )
 
     # --------------------------------------------------------------- world pieces
     def gyro_drift(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -360,7 +362,7 @@ class SystemWorld:
         truth = self.truth
         extra = None
         if self._indexed is not None:
-            dcm = self._indexed.orientation(time, self.gyro_drift(time), self._g_drift, self.gravity)
+            dcm = self._indexed.orientation(time, self.gyro_drift(time), g_drift=self._g_drift, gravity=self.gravity)
             readings = self._indexed.readings(dcm)
         elif np.any(self._g_drift):
             # Dg: platform turns at Dg∘f^p; f^p of the drift-free orientation, integrated by sequential sums
@@ -435,8 +437,6 @@ def system_record_chunks(
     earth_angle: float = 0.0,
     initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
     include_truth: bool = False,
-    initial_readings: Sequence[float] | None = None,
-    turns: Sequence[PlatformTurn] = (),
 ) -> Iterator[dict[str, NDArray[np.float64]]]:
     """Stream a static system-level record in chunks of ``chunk_samples`` (bounded memory).
 
@@ -458,10 +458,6 @@ def system_record_chunks(
     include_truth : bool
         Also yield ``truth_phi_*`` and ``truth_df_*`` (the error states and the n-frame
         specific-force error) for validation.
-    initial_readings : sequence of 3 float, optional
-        Commanded readings at ``t = 0`` [rad] instead of the polar alignment.
-    turns : sequence of PlatformTurn
-        Indexing of the platform by torquing during the record (:mod:`stableins.simulator.indexing`).
 
     Yields
     ------
@@ -470,10 +466,36 @@ def system_record_chunks(
     """
     if chunk_samples < 1:
         raise ValueError("chunk_samples must be positive")
-    world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment, initial_readings=initial_readings, turns=turns)
+    world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment)
+    yield from _stream(world, duration, chunk_samples, include_truth=include_truth)
+
+
+def indexed_record_chunks(
+    truth: Truth,
+    duration: float,
+    turns: Sequence[PlatformTurn],
+    *,
+    rate: float | None = None,
+    seed: int | None = None,
+    chunk_samples: int = 1 << 16,
+    initial_readings: Sequence[float] | None = None,
+    include_truth: bool = False,
+) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Stream a system-level record of a platform indexed by torquing (:mod:`stableins.simulator.indexing`).
+
+    As :func:`system_record_chunks` (``St0 = 0``, ``φ(0) = 0``), with ``turns`` (:class:`stableins.platform.PlatformTurn`,
+    in time order, ending within ``duration``) and, optionally, the commanded readings ``initial_readings`` [rad]
+    at ``t = 0`` instead of the polar alignment.
+    """
+    if chunk_samples < 1:
+        raise ValueError("chunk_samples must be positive")
+    check_turns(turns, duration)
+    world = SystemWorld(truth, rate, seed, initial_readings=initial_readings, turns=turns)
+    yield from _stream(world, duration, chunk_samples, include_truth=include_truth)
+
+
+def _stream(world: SystemWorld, duration: float, chunk_samples: int, *, include_truth: bool) -> Iterator[dict[str, NDArray[np.float64]]]:
     total = int(round(duration * world.rate))
-    if turns and turns[-1].end > duration:
-        raise ValueError(f"the last turn ends at {turns[-1].end:g} s, after the record ({duration:g} s)")
     done = 0
     while done < total:
         n = min(chunk_samples, total - done)
@@ -488,8 +510,15 @@ def simulate_system(
     seed: int | None = None,
     **options,
 ) -> dict[str, NDArray[np.float64]]:
-    """Return a whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
-    pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
+    """Return a whole (short) system-level record as one dict of columns.
+
+    Options of :func:`system_record_chunks`; with ``turns`` or ``initial_readings`` those of :func:`indexed_record_chunks`.
+    """
+    if "turns" in options or "initial_readings" in options:
+        turns = options.pop("turns", ())
+        pieces = list(indexed_record_chunks(truth, duration, turns, rate=rate, seed=seed, **options))
+    else:
+        pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
     if not pieces:
         return {c.name: np.zeros(0) for c in SYSTEM_COLUMNS}
     return {name: np.concatenate([p[name] for p in pieces]) for name in pieces[0]}
