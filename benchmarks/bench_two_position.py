@@ -31,9 +31,9 @@ import numpy as np
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE
 from stableins.estimators.drift import estimate_drift
-from stableins.platform import PlatformTurn
 from stableins.simulator.system import simulate_system
 from stableins.simulator.truth import Truth
+from stableins.turns import PlatformTurn
 
 DRIFT = 0.005  # °/h per axis
 RATE = 10.0  # Hz, as the procedure

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import StrEnum
 from types import MappingProxyType
 
 import numpy as np
@@ -439,89 +438,3 @@ def rotation_about(axis_angle: ArrayLike) -> NDArray[np.float64]:
     s = np.where(angle > 1e-4, np.sin(angle) / safe, 1.0 - angle**2 / 6.0)
     c = np.where(angle > 1e-4, (1.0 - np.cos(angle)) / safe**2, 0.5 - angle**2 / 24.0)
     return np.eye(3) - s * k + c * (k @ k)
-
-
-# --------------------------------------------------------------------------- indexing by torquing
-class IndexAxis(StrEnum):
-    """The gimbal axis a commanded index turns the platform about.
-
-    ``PLATFORM``: the platform gimbal axis ``z_p`` (fixed in the platform); ``MIDDLE``: the middle gimbal
-    axis as it lies in the platform frame when the turn starts (fixed in the base, so a turn about it moves
-    the middle gimbal only and never passes the inner gimbal through ±90°, the lock of the three-gimbal chain).
-    """
-
-    PLATFORM = "platform"
-    MIDDLE = "middle"
-
-
-#: Default peak rate of a commanded index [rad/s] (10°/s, like the device-level slews).
-INDEX_RATE = float(np.radians(10.0))
-
-
-@dataclass(frozen=True)
-class PlatformTurn:
-    r"""A commanded rotation of a space-stable platform in inertial space, by torquing its gyros.
-
-    The torquers add the commanded rate ``ψ'(t) a`` to the platform's inertial rate (``a`` the unit
-    axis, :class:`IndexAxis`); the gimbal servos follow, so the angle sensors show the exact inverse
-    kinematics of the new orientation.  Profile (a cosine bell in rate, like the device-level slews):
-
-    .. math::
-        \psi(\tau) = \frac{\Delta}{2}\Bigl(1 - \cos\frac{\pi\tau}{D}\Bigr),\quad 0 \le \tau = t - t_0 \le D,
-        \qquad D = \frac{\pi |\Delta|}{2\,\dot\psi_{max}}
-
-    Parameters
-    ----------
-    start : float
-        ``t_0`` [s] from the start of the record.
-    angle : float
-        ``Δ`` [rad], right-handed about the axis (a positive turn about ``PLATFORM`` raises the platform
-        reading by ``s1 Δ``; one about ``MIDDLE`` the middle reading by ``s3 Δ``).
-    axis : IndexAxis
-    rate : float
-        Peak rate ``ψ'_max`` [rad/s].
-    """
-
-    start: float
-    angle: float
-    axis: IndexAxis = IndexAxis.PLATFORM
-    rate: float = INDEX_RATE
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "axis", IndexAxis(self.axis))
-        if not (np.isfinite(self.start) and self.start >= 0.0):
-            raise ValueError(f"turn start {self.start!r} must be a time >= 0 s")
-        if not (np.isfinite(self.angle) and 0.0 < abs(self.angle) <= 2 * np.pi):
-            raise ValueError(f"turn angle {self.angle!r} must be non-zero and at most one revolution")
-        if not (np.isfinite(self.rate) and 0.0 < self.rate <= np.pi):
-            raise ValueError(f"turn rate {self.rate!r} must be in (0, pi] rad/s")
-
-    @property
-    def duration(self) -> float:
-        """``D`` [s]."""
-        return float(np.pi * abs(self.angle) / (2.0 * self.rate))
-
-    @property
-    def end(self) -> float:
-        """``t_0 + D`` [s]."""
-        return self.start + self.duration
-
-    def angle_at(self, time: ArrayLike) -> NDArray[np.float64]:
-        """``ψ(t)`` [rad]: 0 before the turn, ``Δ`` after it."""
-        tau = np.clip((np.asarray(time, dtype=float) - self.start) / self.duration, 0.0, 1.0)
-        return 0.5 * self.angle * (1.0 - np.cos(np.pi * tau))
-
-    def to_dict(self) -> dict[str, float | str]:
-        """The turn as a JSON-ready mapping (SI, the axis by name)."""
-        return {"start": self.start, "angle": self.angle, "axis": str(self.axis), "rate": self.rate}
-
-
-def check_turns(turns: Sequence[PlatformTurn], duration: float) -> None:
-    """Raise ValueError unless the turns are in time order, do not overlap and end within ``duration`` [s]."""
-    end = 0.0
-    for k, turn in enumerate(turns):
-        if turn.start < end:
-            raise ValueError(f"turn {k + 1} starts at {turn.start:g} s, before the previous one ends ({end:g} s)")
-        end = turn.end
-    if turns and end > duration + 1e-9:
-        raise ValueError(f"the last turn ends at {end:g} s, after the record ({duration:g} s)")

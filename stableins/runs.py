@@ -325,8 +325,7 @@ def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, 
     from stableins.records import CalibrationRecord, PriorReference, StageRun, file_sha256
 
     columns = exported_columns(runner, dataset)
-    # the calibration date: when the run took its data, by the wall clock of the journal (a simulated platform's
-    # session clock runs faster than the wall clock; a real platform's follows it)
+    # the calibration date: the journal's wall clock (a simulated platform's session clock runs faster; a real one's follows it)
     complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
     data_start, data_end = start.get("utc", ""), complete.get("utc", "") if complete is not None else ""
     stage_fields = {
@@ -430,8 +429,6 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     if runner.iteration is not None:
         return runner.iteration.fit
     if runner.static_chunks:
-        if any(getattr(step, "turns", ()) for step in runner.plan.steps):
-            return _estimate_drift(rundir, runner, dataset, start)
         return _estimate_system(rundir, runner, dataset, start)
     definition = runner.definition
     if definition is None or definition.stage != "fine":
@@ -469,12 +466,14 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
+    from stableins.estimators.drift import drift_stage
 
     if not start.get("prior"):
         runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
         return None
-    prior = _load_record(rundir / start["prior"])
-    record = open_system_record(dataset)
+    prior, record = _load_record(rundir / start["prior"]), open_system_record(dataset)
+    if any(getattr(step, "turns", ()) for step in runner.plan.steps):  # indexed: the drift test (docs/drift-test.md)
+        return drift_stage(record, prior, runner.console.say)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
     import warnings
 
@@ -492,22 +491,6 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     temperature = outcome.diagnostics.temperature
     details = replace(outcome.result.details, temperature=None if temperature is None else temperature.to_dict())
     return replace(outcome.result, details=details)
-
-
-def _estimate_drift(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
-    """The drift test (:mod:`stableins.estimators.drift`) on an indexed record, with the installed calibration (the prior record)."""
-    from stableins.data.system import open_system_record
-    from stableins.estimators.drift import drift_from_record, report
-
-    if not start.get("prior"):
-        runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate drift'")
-        return None
-    prior = _load_record(rundir / start["prior"])
-    fit = drift_from_record(
-        open_system_record(dataset), prior.values(), prior_covariance=(prior.ids, prior.covariance), error_model=prior.error_model()
-    )
-    runner.console.say(report(fit))
-    return fit
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:

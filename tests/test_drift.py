@@ -13,20 +13,22 @@ import numpy as np
 import pytest
 
 from stableins.commands import calibrate_drift
-from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE
+from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE, earth_rate_nav, skew
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
 from stableins.errors import InputError
 from stableins.estimators.drift import drift_from_record, estimate_drift, find_holds, rotation_vector
 from stableins.estimators.result import FitResult
-from stableins.platform import IndexAxis, PlatformTurn, rotation_about
+from stableins.platform import rotation_about
 from stableins.procedures.definition import load_procedure
 from stableins.procedures.plan import Plan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
+from stableins.simulator.indexing import earth_rotation, indexed_record_chunks
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.system import SystemWorld, indexed_record_chunks, simulate_system
+from stableins.simulator.system import SystemWorld, simulate_system
 from stableins.simulator.truth import Truth
+from stableins.turns import IndexAxis, PlatformTurn
 
 RATE = 10.0
 TWO = (PlatformTurn(600.0, math.pi),)
@@ -79,8 +81,8 @@ def test_turn_kinematics_exact():
     record = simulate_system(truth, 1258, rate=RATE, turns=TWO)
     platform = truth.platform()
     readings = np.stack([record[f"angle_{g}"] for g in ("platform", "inner", "middle")], axis=1)
-    world = SystemWorld(truth, RATE)
-    inertial = platform.dcm_nav_to_platform(readings) @ world.earth_rotation(record["time"]).swapaxes(1, 2)
+    axis = skew(earth_rate_nav(truth.site.latitude) / EARTH_RATE)
+    inertial = platform.dcm_nav_to_platform(readings) @ earth_rotation(axis, record["time"]).swapaxes(1, 2)
     a, b = 5000, 7000  # 500 s and 700 s
     relative = inertial[b] @ inertial[a].T
     # commanded: 180° about z_p, plus the drift over 200 s (about the pre-turn axes for the part before the turn)

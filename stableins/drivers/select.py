@@ -90,10 +90,11 @@ class SimulatedDriver:
     def static_record(self, duration: float, chunk: float, turns: Any = ()) -> Any:
         """Chunks (dicts of :data:`~stableins.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s.
 
-        ``turns``: :class:`stableins.platform.PlatformTurn` indexing the platform by torquing during the record.
+        ``turns``: :class:`stableins.turns.PlatformTurn` indexing the platform by torquing during the record.
         """
         try:
-            from stableins.simulator.system import indexed_record_chunks, system_record_chunks
+            from stableins.simulator.indexing import indexed_record_chunks
+            from stableins.simulator.system import system_record_chunks
         except ImportError as error:
             raise InputError(f"the simulated system-level recorder is not available ({error})", field="driver_spec") from None
         rate = self.platform.rate

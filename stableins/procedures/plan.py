@@ -14,7 +14,7 @@ from typing import Any
 
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
-from stableins.platform import IndexAxis, PlatformTurn, check_turns
+from stableins.turns import IndexAxis, PlatformTurn, check_turns
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)

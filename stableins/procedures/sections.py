@@ -12,7 +12,7 @@ from typing import Any
 
 from stableins.conventions import ARCSEC
 from stableins.errors import InputError
-from stableins.platform import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
+from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
 MAX_SECONDS = 86400.0

@@ -10,7 +10,7 @@ gyro drift ``ε^p`` (the stabilization loop nulls the gyro output, so the platfo
 
 Write the platform attitude as ``C_i^p(t) = T(t)\,X(t)\,C_i^{p_0}`` where ``T`` is the commanded
 rotation alone: the product, in time order, of one frame rotation per turn of
-:class:`stableins.platform.PlatformTurn`, ``T = R_{a_k}(ψ_k) ⋯ R_{a_1}(ψ_1)``, each about its axis
+:class:`stableins.turns.PlatformTurn`, ``T = R_{a_k}(ψ_k) ⋯ R_{a_1}(ψ_1)``, each about its axis
 ``a_k`` in the platform frame, so that ``\dot T = -[\omega_{cmd}\times] T``.  Then
 ``\dot C = -[\omega_{ip}\times] C`` leaves
 
@@ -34,15 +34,27 @@ brings the inner gimbal within 0.06° of ±90° (the lock of the three-gimbal ch
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.platform import GimbalPlatform, IndexAxis, PlatformTurn, check_turns, rotation_about
+from stableins.conventions import EARTH_RATE, earth_rate_nav, skew
+from stableins.platform import GimbalPlatform, rotation_about
+from stableins.turns import IndexAxis, PlatformTurn, check_turns
+
+if TYPE_CHECKING:
+    from stableins.simulator.truth import Truth
 
 #: |cos| of the inner gimbal angle below which the three-gimbal chain is at lock.
 LOCK_COSINE = 1e-3
+
+
+def earth_rotation(axis: NDArray[np.float64], time: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``C_{n(t)}^{n_0} = exp(ω_ie t [u×])`` (n, 3, 3) for ``axis = [u×]``."""
+    theta = EARTH_RATE * np.asarray(time, dtype=float)
+    return np.eye(3) + np.sin(theta)[:, None, None] * axis + (1.0 - np.cos(theta))[:, None, None] * (axis @ axis)
 
 
 class IndexedMotion:
@@ -54,10 +66,10 @@ class IndexedMotion:
         The true platform (zero offsets, senses, base, non-orthogonality, sensor errors).
     nav_to_platform_0 : ndarray (3, 3)
         ``C_n^p`` at ``t = 0``.
-    earth_rotation : callable
-        ``time -> exp(Ωt[u×])`` (n, 3, 3), ``C_{n(t)}^{n_0}``.
     turns : sequence of PlatformTurn
         In time order, not overlapping.
+    latitude : float
+        [rad] (the Earth's turn ``C_{n(t)}^{n_0} = exp(Ωt[u×])``, :func:`earth_rotation`).
     initial_actual : ndarray (3,)
         Actual gimbal angles at ``t = 0`` (chooses the branch and the revolution count).
     rate : float
@@ -68,16 +80,16 @@ class IndexedMotion:
         self,
         platform: GimbalPlatform,
         nav_to_platform_0: NDArray[np.float64],
-        earth_rotation: Callable[[NDArray[np.float64]], NDArray[np.float64]],
         turns: Sequence[PlatformTurn],
         *,
+        latitude: float,
         initial_actual: NDArray[np.float64],
         rate: float,
     ) -> None:
         check_turns(turns, np.inf)
         self.platform = platform
         self.nav_to_platform_0 = np.asarray(nav_to_platform_0, dtype=float)
-        self.earth_rotation = earth_rotation
+        self.earth_axis = skew(earth_rate_nav(latitude) / EARTH_RATE)
         self.turns = tuple(turns)
         self.dt = 1.0 / float(rate)
         self.nav_to_body = platform.dcm_nav_to_body()
@@ -94,7 +106,7 @@ class IndexedMotion:
         for k, turn in enumerate(self.turns):
             start = np.array([turn.start])
             before = self._commanded(start, axes, upto=k)
-            free = before @ self.nav_to_platform_0 @ self.earth_rotation(start)
+            free = before @ self.nav_to_platform_0 @ earth_rotation(self.earth_axis, start)
             actual = self._actual(free @ self.nav_to_body.T)[0]
             gimbal = 0 if turn.axis is IndexAxis.PLATFORM else 2
             axis = self.platform.angular_rate(actual, np.eye(3)[gimbal])
@@ -121,7 +133,7 @@ class IndexedMotion:
         ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_drift``: ``Dg`` (3,) [rad s/m].
         """
         commanded = self.commanded(time)
-        free = commanded @ self.nav_to_platform_0 @ self.earth_rotation(time)
+        free = commanded @ self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
         rate = -drift
         if np.any(g_drift):
             rate = rate + g_drift * (-gravity * free[:, :, 2])
@@ -132,7 +144,7 @@ class IndexedMotion:
             steps[0] = 0.0  # the first sample of the record is t = 0
         cumulative = np.cumsum(np.vstack([self._integral[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
         self._integral, self._last_integrand = cumulative[-1].copy(), integrand[-1].copy()
-        return commanded @ rotation_about(cumulative) @ self.nav_to_platform_0 @ self.earth_rotation(time)
+        return commanded @ rotation_about(cumulative) @ self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
 
     # ------------------------------------------------------------------ readings
     def _actual(self, body_to_platform: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -158,3 +170,29 @@ class IndexedMotion:
         actual = actual + 2 * np.pi * revolutions
         self._previous_actual = actual[-1].copy()
         return self.platform.readings_from_actual(actual)
+
+
+def indexed_record_chunks(
+    truth: Truth,
+    duration: float,
+    turns: Sequence[PlatformTurn],
+    *,
+    rate: float | None = None,
+    seed: int | None = None,
+    chunk_samples: int = 1 << 16,
+    initial_readings: Sequence[float] | None = None,
+    include_truth: bool = False,
+) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Stream a system-level record of a platform indexed by torquing (bounded memory).
+
+    As :func:`stableins.simulator.system.system_record_chunks` (``St0 = 0``, ``φ(0) = 0``), with ``turns``
+    (:class:`stableins.turns.PlatformTurn`, in time order, ending within ``duration``) and, optionally, the
+    commanded readings ``initial_readings`` [rad] at ``t = 0`` instead of the polar alignment.
+    """
+    from stableins.simulator.system import SystemWorld, stream_world
+
+    if chunk_samples < 1:
+        raise ValueError("chunk_samples must be positive")
+    check_turns(turns, duration)
+    world = SystemWorld(truth, rate, seed, initial_readings=initial_readings, turns=turns)
+    yield from stream_world(world, duration, chunk_samples, include_truth=include_truth)

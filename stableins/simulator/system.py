@@ -81,12 +81,13 @@ from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
-from stableins.platform import PlatformTurn, check_turns, rotation_about
+from stableins.platform import rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
 from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
+from stableins.turns import PlatformTurn
 
 STATE_NAMES = (
     "latitude_error",
@@ -232,11 +233,9 @@ class SystemWorld:
         Earth-rate angle ``St0`` at ``t = 0`` [rad].
     initial_misalignment : sequence of 3 float
         ``φ(0)`` in NED [rad].
-    initial_readings : sequence of 3 float, optional
-        Commanded angle-sensor readings at ``t = 0`` [rad] (default: the polar alignment of the
-        module docstring, corrected with the installed offsets).
-    turns : sequence of PlatformTurn
-        Indexing by torquing during the record (:mod:`stableins.simulator.indexing`).
+    initial_readings, turns : optional
+        Commanded readings at ``t = 0`` [rad] (default: the polar alignment, corrected with the installed
+        offsets) and :class:`stableins.turns.PlatformTurn` during the record (:mod:`stableins.simulator.indexing`).
     """
 
     def __init__(
@@ -271,7 +270,6 @@ class SystemWorld:
         self.nav_to_body = self.platform.dcm_nav_to_body()
         axis = earth_rate_nav(self.latitude) / EARTH_RATE
         k = skew(axis)
-        self._ck_axis = k
         self._ck, self._ck2 = self.nav_to_platform_0 @ k, self.nav_to_platform_0 @ k @ k
         # error model of the world and of the navigation computer
         self._values = dict(truth.parameters)
@@ -298,11 +296,10 @@ class SystemWorld:
         self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
         self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
         self._next = 0
-        # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
-        self._indexed = None
+        self._indexed = None  # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
         if initial_readings is not None or turns:
             self._indexed = IndexedMotion(
-                self.platform, self.nav_to_platform_0, self.earth_rotation, turns, initial_actual=self.initial_actual, rate=self.rate
+                self.platform, self.nav_to_platform_0, turns, latitude=self.latitude, initial_actual=self.initial_actual, rate=self.rate
             )
 
     # --------------------------------------------------------------- world pieces
@@ -325,12 +322,6 @@ class SystemWorld:
             angle[:, 0] -= amplitude / omega * (np.sin(omega * time + phase) - np.sin(phase))
             angle[:, 1] += amplitude / omega * (np.cos(omega * time + phase) - np.cos(phase))
         return angle
-
-    def earth_rotation(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``C_{n(t)}^{n_0} = exp(ω_ie t [u×])`` (n, 3, 3)."""
-        theta = EARTH_RATE * np.asarray(time, dtype=float)
-        k = self._ck_axis
-        return np.eye(3) + np.sin(theta)[:, None, None] * k + (1.0 - np.cos(theta))[:, None, None] * (k @ k)
 
     def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
@@ -467,34 +458,13 @@ def system_record_chunks(
     if chunk_samples < 1:
         raise ValueError("chunk_samples must be positive")
     world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment)
-    yield from _stream(world, duration, chunk_samples, include_truth=include_truth)
+    yield from stream_world(world, duration, chunk_samples, include_truth=include_truth)
 
 
-def indexed_record_chunks(
-    truth: Truth,
-    duration: float,
-    turns: Sequence[PlatformTurn],
-    *,
-    rate: float | None = None,
-    seed: int | None = None,
-    chunk_samples: int = 1 << 16,
-    initial_readings: Sequence[float] | None = None,
-    include_truth: bool = False,
+def stream_world(
+    world: SystemWorld, duration: float, chunk_samples: int, *, include_truth: bool
 ) -> Iterator[dict[str, NDArray[np.float64]]]:
-    """Stream a system-level record of a platform indexed by torquing (:mod:`stableins.simulator.indexing`).
-
-    As :func:`system_record_chunks` (``St0 = 0``, ``φ(0) = 0``), with ``turns`` (:class:`stableins.platform.PlatformTurn`,
-    in time order, ending within ``duration``) and, optionally, the commanded readings ``initial_readings`` [rad]
-    at ``t = 0`` instead of the polar alignment.
-    """
-    if chunk_samples < 1:
-        raise ValueError("chunk_samples must be positive")
-    check_turns(turns, duration)
-    world = SystemWorld(truth, rate, seed, initial_readings=initial_readings, turns=turns)
-    yield from _stream(world, duration, chunk_samples, include_truth=include_truth)
-
-
-def _stream(world: SystemWorld, duration: float, chunk_samples: int, *, include_truth: bool) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Yield ``duration`` [s] of ``world`` in chunks of ``chunk_samples``."""
     total = int(round(duration * world.rate))
     done = 0
     while done < total:
@@ -512,11 +482,13 @@ def simulate_system(
 ) -> dict[str, NDArray[np.float64]]:
     """Return a whole (short) system-level record as one dict of columns.
 
-    Options of :func:`system_record_chunks`; with ``turns`` or ``initial_readings`` those of :func:`indexed_record_chunks`.
+    Options of :func:`system_record_chunks`; with ``turns`` or ``initial_readings`` those of
+    :func:`stableins.simulator.indexing.indexed_record_chunks`.
     """
     if "turns" in options or "initial_readings" in options:
-        turns = options.pop("turns", ())
-        pieces = list(indexed_record_chunks(truth, duration, turns, rate=rate, seed=seed, **options))
+        from stableins.simulator.indexing import indexed_record_chunks
+
+        pieces = list(indexed_record_chunks(truth, duration, options.pop("turns", ()), rate=rate, seed=seed, **options))
     else:
         pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
     if not pieces:

@@ -59,7 +59,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,16 +67,17 @@ from stableins.conventions import (
     ARCSEC,
     DEG_PER_HOUR,
     EARTH_RATE,
-    MICRO_G,
     GimbalConfiguration,
     dcm_body_to_platform,
     dcm_nav_to_body,
     earth_rate_nav,
     skew,
 )
-from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, TermInputs
+from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
+from stableins.estimators.drift.accelerometer import BiasCheck, BiasInputs, bias_checks
+from stableins.estimators.drift.holds import MIN_HOLD, Hold, find_holds, rotation_vector
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
@@ -85,66 +85,9 @@ from stableins.status import Status
 
 #: Largest factor by which fitting the base error may inflate a drift σ and still count as separated.
 SEPARATION_LIMIT = 10.0
-#: A sample is "moving" when a gimbal reading changes faster than this over one second [rad/s] (14× the Earth rate).
-MOVING_RATE = 1e-3
-#: Samples left out on each side of a move (servo settling after an index) [s].
-MOVE_MARGIN = 10.0
-#: Shortest hold used [s].
-MIN_HOLD = 60.0
 #: Prior 1σ of the platform angle sensor's once-per-revolution error terms [rad] (the effect's nominal 2″;
 #: the record carries no angle-sensor errors).
 ANGLE_SENSOR_PRIOR = 2.0 * ARCSEC
-#: Accelerometer blocks per hold for the σ of its mean.
-BIAS_BLOCKS = 10
-
-
-@dataclass(frozen=True)
-class Hold:
-    """One still stretch of the record: sample range, times [s] and the mean platform-frame specific force [m/s²]."""
-
-    first: int
-    stop: int
-    start: float
-    end: float
-    specific_force: tuple[float, float, float]
-
-    @property
-    def duration(self) -> float:
-        """Length of the hold [s]."""
-        return self.end - self.start
-
-
-@dataclass(frozen=True)
-class BiasCheck:
-    """Accelerometer cross-check of one axis [m/s²]: the mean compensated residual of the holds against the record.
-
-    ``residual``: the holds' mean of ``f̂ − f^p`` (``f̂`` compensated with the record), ``sigma`` its noise;
-    ``predicted``: the 1σ the record's own uncertainty gives that mean (bias, scale factor, misalignment,
-    K2 through their covariance); ``reversed``: whether ``f^p`` on this axis reverses between holds (then
-    scale-factor and misalignment residuals along it cancel and the mean is the bias change).
-    """
-
-    axis: str
-    residual: float
-    sigma: float
-    predicted: float
-    reversed: bool
-
-    @property
-    def z(self) -> float:
-        """The residual in units of its total expected spread (noise and the record's uncertainty)."""
-        total = math.hypot(self.sigma, self.predicted)
-        return self.residual / total if total > 0 else math.nan
-
-    def describe(self) -> str:
-        """One line: the residual, the record's prediction, ``z`` and the verdict."""
-        what = (
-            f"f_{self.axis}: mean residual {self.residual / MICRO_G:+.2f} ± {self.sigma / MICRO_G:.2f} µg; "
-            f"the record predicts 0 ± {self.predicted / MICRO_G:.2f} µg"
-        )
-        verdict = "consistent with the record" if abs(self.z) < 3 else "INCONSISTENT with the record"
-        where = f" (f_{self.axis} reverses between holds: its scale-factor residual cancels)" if self.reversed else ""
-        return f"{what}, z = {self.z:+.1f}: {verdict}{where}"
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,29 +115,6 @@ class DriftDetails(StageDetails):
     biases: tuple[BiasCheck, ...]
     residual_rms: tuple[float, float, float]
     base_separated: bool
-
-
-def rotation_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Small-angle vector ``θ`` of a frame rotation ``C = I − [θ×] + O(θ²)`` (…, 3)."""
-    return 0.5 * np.stack([dcm[..., 1, 2] - dcm[..., 2, 1], dcm[..., 2, 0] - dcm[..., 0, 2], dcm[..., 0, 1] - dcm[..., 1, 0]], axis=-1)
-
-
-def find_holds(time: NDArray[np.float64], readings: NDArray[np.float64]) -> tuple[tuple[int, int], ...]:
-    """Sample ranges ``[first, stop)`` where no gimbal moves faster than :data:`MOVING_RATE` (turns and :data:`MOVE_MARGIN` cut out)."""
-    n = len(time)
-    if n < 2:
-        return ()
-    dt = float(np.median(np.diff(time)))
-    lag = max(1, int(round(1.0 / dt)))
-    change = np.abs(readings[lag:] - readings[:-lag]).max(axis=1) / (lag * dt) if n > lag else np.zeros(0)
-    moving = np.zeros(n, dtype=bool)
-    fast = np.flatnonzero(change > MOVING_RATE)
-    margin = int(round(MOVE_MARGIN / dt))
-    for k in fast:  # few: turns only
-        moving[max(0, k - margin) : min(n, k + lag + margin + 1)] = True
-    edges = np.diff(np.concatenate([[1], moving.astype(np.int8), [1]]))
-    starts, stops = np.flatnonzero(edges == -1), np.flatnonzero(edges == 1)
-    return tuple((int(a), int(b)) for a, b in zip(starts, stops, strict=True) if time[b - 1] - time[a] >= MIN_HOLD)
 
 
 def _inertial_attitude(
@@ -296,7 +216,7 @@ def estimate_drift(
     beta = np.array([nuisance.get(n, (0.0, 0.0))[0] for n in ("tilt_east", "tilt_north_sin_azimuth_cos")])
     rank = _rank_report(latitude, len(hold_list), chosen, set(used), base)
     record = BiasInputs(prior_values, prior_covariance, error_model, site.reference_temperature)
-    biases = _bias_checks(columns, hold_list, nav_to_platform, delta=_base_basis(latitude) @ beta, gravity=gravity, record=record)
+    biases = bias_checks(columns, hold_list, nav_to_platform, delta=_base_basis(latitude) @ beta, gravity=gravity, record=record)
     likelihood = Likelihood(tuple(t.id for t in GYRO_DRIFT_TERMS), eps, np.asarray(np.linalg.inv(cov_eps), dtype=np.float64), np.zeros(3))
     details = DriftDetails(
         tuple(hold_list), nuisance, rank, biases, (float(sigma_axis[0]), float(sigma_axis[1]), float(sigma_axis[2])), chosen["base"]
@@ -441,166 +361,3 @@ def _rank_report(latitude: float, holds: int, chosen: Mapping[str, bool], used: 
         "none); its slope reverses with a 180° index, without one it shares gyro_drift_z's σ"
     )
     return tuple(lines)
-
-
-@dataclass(frozen=True)
-class BiasInputs:
-    """What the accelerometer cross-check compensates with: the record's values, covariance ``(ids, matrix)``, model, T_ref [°C]."""
-
-    values: Mapping[str, float]
-    covariance: tuple[Sequence[str], NDArray[np.float64]] | None
-    error_model: ErrorModel | None
-    reference_temperature: float
-
-
-def _bias_checks(
-    columns: Mapping[str, NDArray[np.float64]],
-    holds: Sequence[Hold],
-    nav_to_platform: NDArray[np.float64],
-    *,
-    delta: NDArray[np.float64],
-    gravity: float,
-    record: BiasInputs,
-) -> tuple[BiasCheck, ...]:
-    """Accelerometer cross-check against the record, from the hold means (module docstring)."""
-    if not all(k in columns for k in ("f_x", "f_y", "f_z")):
-        return ()
-    values, covariance, error_model, reference_temperature = (
-        record.values,
-        record.covariance,
-        record.error_model,
-        record.reference_temperature,
-    )
-    model = error_model or ErrorModel.standard(nonlinear=True)
-    raw = np.stack([np.asarray(columns[f"f_{a}"], dtype=float) for a in "xyz"], axis=1)
-    # the true base is the survey turned by δ: f^p = Ĉ_n^p (f^n − δ × f^n)
-    f_nav = np.array([0.0, 0.0, -gravity])
-    f_nav_true = f_nav - np.cross(delta, f_nav)
-    ids = [i for i in (covariance[0] if covariance else ()) if i in values and not i.startswith(("theta", "gyro_drift"))]
-    means, sigmas, sensitivity = [], [], []
-    for hold in holds:
-        sl = slice(hold.first, hold.stop)
-        f_p = nav_to_platform[sl] @ f_nav_true
-        temperature = np.asarray(columns["temperature"], dtype=float)[sl] - reference_temperature if "temperature" in columns else None
-        inputs = TermInputs(specific_force=f_p, temperature=temperature, time=np.asarray(columns["time"], dtype=float)[sl])
-        residual = model.inverse(raw[sl], values, inputs) - f_p
-        block_means = np.array([b.mean(axis=0) for b in np.array_split(residual, BIAS_BLOCKS)])
-        means.append(residual.mean(axis=0))
-        sigmas.append(block_means.std(axis=0, ddof=1) / math.sqrt(BIAS_BLOCKS))
-        # how the record's parameters move the hold's mean compensated output (finite differences at the mean)
-        mean_raw, mean_inputs = raw[sl].mean(axis=0)[None, :], TermInputs(specific_force=f_p.mean(axis=0)[None, :])
-        base = model.inverse(mean_raw, values, mean_inputs)[0]
-        columns_h = []
-        for i in ids:
-            step = 1e-6 * max(1.0, abs(values[i]))
-            shifted = dict(values)
-            shifted[i] = values[i] + step
-            columns_h.append((model.inverse(mean_raw, shifted, mean_inputs)[0] - base) / step)
-        sensitivity.append(np.array(columns_h).T if ids else np.zeros((3, 0)))
-    means_a, sigmas_a = np.array(means), np.array(sigmas)
-    h = np.mean(sensitivity, axis=0)  # (3, len(ids))
-    cov = np.zeros((0, 0))
-    if covariance is not None and ids:
-        order = [list(covariance[0]).index(i) for i in ids]
-        cov = np.nan_to_num(np.asarray(covariance[1], dtype=float)[np.ix_(order, order)])
-    predicted = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", h, cov, h), 0.0, None)) if ids else np.zeros(3)
-    forces = np.array([h_.specific_force for h_ in holds])
-    out = []
-    for k, axis in enumerate("xyz"):
-        signs = {int(np.sign(f)) for f in forces[:, k] if abs(f) > gravity / 4}
-        out.append(
-            BiasCheck(
-                axis,
-                float(means_a[:, k].mean()),
-                float(math.sqrt(np.sum(sigmas_a[:, k] ** 2)) / len(holds)),
-                float(predicted[k]),
-                signs == {-1, 1},
-            )
-        )
-    return tuple(out)
-
-
-#: Columns the drift test reads.
-DRIFT_COLUMNS = ("time", "angle_platform", "angle_inner", "angle_middle", "f_x", "f_y", "f_z", "temperature")
-#: Longest record the drift test reads in one piece [samples] (a day at 10 Hz).
-MAX_SAMPLES = 864_000
-
-
-def drift_from_record(
-    record: Any,
-    prior_values: Mapping[str, float],
-    *,
-    prior_covariance: tuple[Sequence[str], NDArray[np.float64]] | None = None,
-    error_model: ErrorModel | None = None,
-    base: str = "auto",
-) -> FitResult:
-    """:func:`estimate_drift` on a system-level record (:class:`stableins.data.system.SystemRecord`), with its site metadata.
-
-    Raises :class:`InputError` naming the file and field when the record is not a drift test (no two holds
-    with the platform still, too long to read).
-    """
-    if record.n_samples > MAX_SAMPLES:
-        raise InputError(
-            f"{record.n_samples} samples: longer than a drift test", path=record.path, field="time",
-            expected=f"at most {MAX_SAMPLES} samples (a drift-two-position or drift-three-position record)",
-        )  # fmt: skip
-    missing = [c for c in DRIFT_COLUMNS[:4] if c not in record.columns]
-    if missing:
-        raise InputError(
-            f"no column {missing[0]!r}", path=record.path, field=missing[0], expected="a system-level record with the angle readings"
-        )
-    columns = record.read([c for c in DRIFT_COLUMNS if c in record.columns])
-    site = record.metadata
-    time = np.asarray(columns["time"], dtype=float)
-    readings = np.stack([np.asarray(columns[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=1)
-    holds = find_holds(time, readings)
-    if len(holds) < 2 and base != "survey":
-        raise InputError(
-            f"{len(holds)} hold{'s' if len(holds) != 1 else ''} of at least {MIN_HOLD:g} s: the record has no index of the platform",
-            path=record.path,
-            field="angle_platform",
-            expected="two or more holds separated by an index (a record of 'stableins run drift-two-position' or drift-three-position)",
-        )
-    return estimate_drift(
-        columns,
-        site,
-        prior_values=prior_values,
-        prior_covariance=prior_covariance,
-        error_model=error_model,
-        holds=holds,
-        base=base,
-        source=str(record.path),
-    )
-
-
-def report(result: FitResult) -> str:
-    """Text report of a drift test: the drift (°/h) with σ, the rank report, the nuisances, the accelerometer cross-check."""
-    details = result.details
-    assert isinstance(details, DriftDetails)
-    lines = [f"gyro drift from {len(details.holds)} holds (platform frame):"]
-    for term, value, sigma in zip(result.terms, result.values, result.sigma, strict=True):
-        lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR:+.6f} ± {sigma / DEG_PER_HOUR:.6f} °/h")
-    lines.append("holds: " + ", ".join(f"{h.start:.0f}–{h.end:.0f} s" for h in details.holds))
-    lines.append("what the data determine:")
-    lines += [f"  {line}" for line in details.rank]
-    if details.nuisance:
-        lines.append("nuisances: " + ", ".join(f"{k} = {v:.3g} ± {s:.2g}" for k, (v, s) in details.nuisance.items()))
-    rms = ", ".join(f"{r / ARCSEC:.3f}" for r in details.residual_rms)
-    lines.append(f"residual rms of the platform attitude (x, y, z): {rms} arcsec")
-    if details.biases:
-        lines.append("accelerometer cross-check (hold means, compensated with the record):")
-        lines += [f"  {b.describe()}" for b in details.biases]
-    return "\n".join(lines)
-
-
-__all__ = [
-    "DRIFT_COLUMNS",
-    "drift_from_record",
-    "report",
-    "BiasCheck",
-    "DriftDetails",
-    "Hold",
-    "estimate_drift",
-    "find_holds",
-    "rotation_vector",
-]
