@@ -47,7 +47,7 @@ from stableins.turns import IndexAxis, PlatformTurn, check_turns
 if TYPE_CHECKING:
     from stableins.simulator.truth import Truth
 
-#: |cos| of the inner gimbal angle below which the three-gimbal chain is at lock.
+#: Absolute cosine of the inner gimbal angle below which the three-gimbal chain is at lock.
 LOCK_COSINE = 1e-3
 
 

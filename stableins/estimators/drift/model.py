@@ -1,7 +1,7 @@
 r"""Gyro drift of a space-stable platform from an indexing test (Zhang et al. 2023's two-position idea, re-derived).
 
 Observation equations (derived here; the extracted paper has no method section and lost its signs)
-------------------------------------------------------------------------------------------------
+---------------------------------------------------------------------------------------------------
 The platform is held in inertial space by its gyros; a gyro drift ``ε^p`` (gyro output error, constant in
 the platform frame) makes the stabilization loop turn the platform at ``−ε^p``.  From the angle-sensor
 readings, the installed zero offsets and the surveyed base attitude the estimator forms the platform's
