@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from stableins.commands import add_entries_option
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -31,11 +31,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold the base at its survey instead of fitting its error (what a single position can do; for comparison only)",
     )
-    parser.add_argument(
-        "--new-calibration",
-        action="store_true",
-        help="start a new calibration from the prior (a record in force) instead of continuing the prior's calibration",
-    )
+    add_new_calibration_option(parser)
     add_entries_option(parser)
 
 
@@ -57,7 +53,6 @@ def data_file(run: str) -> Path:
 def run(args: Any) -> int:
     """Estimate the drift, update the prior record, write it, print the report."""
     from stableins.data.system import open_system_record
-    from stableins.errors import InputError
     from stableins.estimators.drift import DriftDetails, drift_from_record, report
     from stableins.output import emit
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
@@ -65,13 +60,7 @@ def run(args: Any) -> int:
     prior = CalibrationRecord.load(args.prior)
     source = data_file(args.run)
     record = open_system_record(source)
-    if record.metadata.serial_number and prior.serial_number and record.metadata.serial_number != prior.serial_number:
-        raise InputError(
-            f"the record is of unit {record.metadata.serial_number!r} but the prior calibration of {prior.serial_number!r}",
-            path=args.prior,
-            field="serial_number",
-            expected="a calibration of the same unit",
-        )
+    check_same_unit(record.metadata, prior, args.prior)
     fit = drift_from_record(
         record,
         prior.values(),
