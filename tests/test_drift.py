@@ -93,6 +93,20 @@ def test_turn_kinematics_exact():
         assert np.allclose(rate, -eps(truth), atol=1e-12), rate  # 0.005 °/h = 2.4e-8 rad/s
 
 
+def test_commanded_start_orientation():
+    """A platform commanded to arbitrary readings is held there in inertial space and drifts at −ε^p."""
+    truth = Truth.draw(9, sample_rate=RATE, noise=NoiseSettings.quiet(), gyro_drift=DRIFT)
+    start = (0.4, 0.1, 0.3)
+    record = simulate_system(truth, 600, rate=RATE, initial_readings=start)
+    readings = np.stack([record[f"angle_{g}"] for g in ("platform", "inner", "middle")], axis=1)
+    assert np.allclose(readings[0], start, atol=1e-9)
+    axis = skew(earth_rate_nav(truth.site.latitude) / EARTH_RATE)
+    inertial = truth.platform().dcm_nav_to_platform(readings) @ earth_rotation(axis, record["time"]).swapaxes(1, 2)
+    rate = rotation_vector(inertial[-1] @ inertial[0].T) / record["time"][-1]
+    assert np.allclose(rate, -eps(truth), atol=1e-12)
+    assert np.ptp(readings[:, 1]) > 1e-3  # not polar: the Earth's turn moves more than the platform gimbal
+
+
 def test_middle_flip_reverses_the_polar_axis():
     truth = Truth.draw(8, sample_rate=RATE, noise=NoiseSettings.quiet())
     record = simulate_system(truth, 1857, rate=RATE, turns=THREE)
