@@ -32,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--damping",
-        type=number(0.0, 5.0, unit="damping ratio"),
+        type=number(0.0, 5.0),
         metavar="ZETA",
         help="damping ratio of the horizontal loops, 0 = pure inertial (default: the site's, 0 without one)",
     )
@@ -66,10 +66,14 @@ def run(args: argparse.Namespace) -> int:
     record = CalibrationRecord.load(args.record)
     latitude = None if args.latitude is None else math.radians(args.latitude)
     drift = None if args.drift is None else drift_sigma_from_engineering(args.drift)
-    budget = record_navigation_budget(record, duration=args.duration, latitude=latitude, zeta=args.damping, drift_sigma=drift, path=args.record)
+    budget = record_navigation_budget(
+        record, duration=args.duration, latitude=latitude, zeta=args.damping, drift_sigma=drift, path=args.record
+    )
     if args.compare is not None:
         other_record = CalibrationRecord.load(args.compare)
-        other = record_navigation_budget(other_record, duration=args.duration, drift_sigma=drift, scenario=budget.scenario, path=args.compare)
+        other = record_navigation_budget(
+            other_record, duration=args.duration, drift_sigma=drift, scenario=budget.scenario, path=args.compare
+        )
         comparison = budget.compare(other)
         data, text = comparison.to_dict(), comparison.report()
     else:

@@ -9,6 +9,7 @@ budget (docs/navigation-budget.md).  Not to be confused with :mod:`stableins.rep
 
 from stableins.navigation.budget import (
     BudgetComparison,
+    CalibrationTerms,
     DriftSource,
     ErrorSummary,
     NavigationBudget,
@@ -24,6 +25,7 @@ from stableins.navigation.sources import LeftOut
 
 __all__ = [
     "BudgetComparison",
+    "CalibrationTerms",
     "DriftSource",
     "ErrorSummary",
     "LeftOut",

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from enum import StrEnum
 from typing import Any
 
@@ -210,7 +210,7 @@ class NavigationBudget:
     serial_number: str = ""
 
     def term(self, term_id: str) -> TermBudget:
-        """The contribution of one term (KeyError if not propagated)."""
+        """Return the contribution of one term (KeyError if not propagated)."""
         for t in self.terms:
             if t.id == term_id:
                 return t
@@ -231,7 +231,7 @@ class NavigationBudget:
         return tuple(out)
 
     def report(self, *, rows: int | None = None) -> str:
-        """The ranked table (text)."""
+        """Return the ranked table (text)."""
         from stableins.navigation.report import budget_text
 
         return budget_text(self, rows=rows)
@@ -246,7 +246,7 @@ class NavigationBudget:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON document of ``stableins budget --json`` (engineering units: m, m/s, arcsec; σ in the term's unit)."""
+        """Return the JSON document of ``stableins budget --json`` (engineering units: m, m/s, arcsec; σ in the term's unit)."""
         from stableins.navigation.report import budget_document
 
         return budget_document(self)
@@ -261,7 +261,7 @@ class NavigationBudget:
         return budget_figure(self, path, top=top, file_format=file_format)
 
     def compare(self, other: NavigationBudget) -> BudgetComparison:
-        """The difference ``other − self`` term by term and in the totals."""
+        """Return the difference ``other − self`` term by term and in the totals."""
         return BudgetComparison(self, other)
 
 
@@ -273,6 +273,7 @@ class BudgetComparison:
     other: NavigationBudget
 
     def report(self) -> str:
+        """Return the side-by-side table (text)."""
         from stableins.navigation.report import comparison_text
 
         return comparison_text(self)
@@ -281,6 +282,7 @@ class BudgetComparison:
         return self.report()
 
     def to_dict(self) -> dict[str, Any]:
+        """Return both budgets and the differences (JSON of ``--compare``)."""
         from stableins.navigation.report import comparison_document
 
         return comparison_document(self)
@@ -294,7 +296,7 @@ def _step_for(duration: float, step: float) -> tuple[float, int]:
 
 
 def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], scenario: NavigationScenario) -> UnitForcing | str:
-    """The unit forcing of a term, or the reason it is left out."""
+    """Return the unit forcing of a term, or the reason it is left out."""
     if term.kind == TermKind.GYRO_DRIFT:
         return drift_forcing(term.axis if term.axis is not None else 0, scenario)
     if term.kind == TermKind.GIMBAL:
@@ -309,11 +311,67 @@ def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], sc
     return f"kind {term.kind} does not act on navigation"  # pragma: no cover - every kind is listed above
 
 
+@dataclass(frozen=True)
+class CalibrationTerms:
+    """What a budget propagates: a calibration's error model, values (the linearization point), ids and covariance [SI].
+
+    :func:`stableins.reporting.navigation.record_navigation_budget` takes them from a calibration record.
+    """
+
+    model: ErrorModel
+    values: Mapping[str, float]
+    ids: tuple[str, ...]
+    covariance: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class _Chosen:
+    term: Term
+    sigma: float
+    row: int | None  # row in the covariance (None: a given drift, uncorrelated)
+    forcing: UnitForcing | None = None
+
+
+def _choose(calibration: CalibrationTerms, drift_sigma: Sequence[float] | None) -> tuple[list[_Chosen], list[LeftOut], DriftSource]:
+    """Return the terms with a finite, positive 1σ, those left out and why, and where the drift comes from."""
+    terms = known_terms(calibration.model.terms)
+    cov = np.asarray(calibration.covariance, dtype=float)
+    drift_ids = {t.id for t in GYRO_DRIFT_TERMS}
+    chosen: list[_Chosen] = []
+    left_out: list[LeftOut] = []
+    for row, pid in enumerate(calibration.ids):
+        if drift_sigma is not None and pid in drift_ids:
+            continue
+        term, variance = terms.get(pid), float(cov[row, row])
+        if term is None:
+            left_out.append(LeftOut(pid, "not a term of the record's error model"))
+        elif not math.isfinite(variance):
+            left_out.append(LeftOut(pid, "the record gives it no finite 1σ (not determined): its effect is unknown"))
+        elif variance <= 0.0:
+            left_out.append(LeftOut(pid, "1σ = 0 in the record (held, or fixed by a gauge): no contribution"))
+        else:
+            chosen.append(_Chosen(term, math.sqrt(variance), row))
+    if drift_sigma is not None:
+        chosen.extend(_Chosen(t, float(sigma), None) for t, sigma in zip(GYRO_DRIFT_TERMS, drift_sigma, strict=True))
+        return chosen, left_out, DriftSource.GIVEN
+    return chosen, left_out, DriftSource.RECORD if drift_ids & set(calibration.ids) else DriftSource.NONE
+
+
+def _covariance_of(chosen: Sequence[_Chosen], covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Covariance of the propagated terms: the record's block; a given drift uncorrelated with the rest."""
+    m = len(chosen)
+    P = np.zeros((m, m))
+    for a, first in enumerate(chosen):
+        for b, second in enumerate(chosen):
+            if first.row is not None and second.row is not None:
+                P[a, b] = covariance[first.row, second.row]
+            elif a == b:
+                P[a, b] = first.sigma**2
+    return P
+
+
 def navigation_budget(
-    model: ErrorModel,
-    values: Mapping[str, float],
-    ids: Sequence[str],
-    covariance: NDArray[np.float64],
+    calibration: CalibrationTerms,
     scenario: NavigationScenario,
     *,
     duration: float,
@@ -325,12 +383,8 @@ def navigation_budget(
 
     Parameters
     ----------
-    model : ErrorModel
-        The record's error model (:meth:`stableins.records.CalibrationRecord.error_model`).
-    values : mapping
-        The record's values [SI] (the linearization point).
-    ids, covariance
-        The record's parameter ids and covariance [SI].
+    calibration : CalibrationTerms
+        The record's error model (:meth:`stableins.records.CalibrationRecord.error_model`), values, ids and covariance.
     scenario : NavigationScenario
     duration : float
         Navigation time [s].
@@ -345,56 +399,26 @@ def navigation_budget(
         raise ValueError(f"duration must be positive, got {duration!r}")
     if not (math.isfinite(step) and step > 0):
         raise ValueError(f"step must be positive, got {step!r}")
-    terms = known_terms(model.terms)
-    cov = np.asarray(covariance, dtype=float)
-    index = {pid: i for i, pid in enumerate(ids)}
-    chosen: list[tuple[Term, float, int | None]] = []  # term, σ, row in the covariance (None: given)
-    left_out: list[LeftOut] = []
-    drift_ids = {t.id for t in GYRO_DRIFT_TERMS}
-    for pid in ids:
-        if drift_sigma is not None and pid in drift_ids:
-            continue
-        term = terms.get(pid)
-        if term is None:
-            left_out.append(LeftOut(pid, "not a term of the record's error model"))
-            continue
-        chosen.append((term, float(math.sqrt(max(cov[index[pid], index[pid]], 0.0))), index[pid]))
-    if drift_sigma is not None:
-        chosen.extend((t, float(s), None) for t, s in zip(GYRO_DRIFT_TERMS, drift_sigma, strict=True))
-        drift = DriftSource.GIVEN
-    else:
-        drift = DriftSource.RECORD if drift_ids & set(ids) else DriftSource.NONE
-
-    propagated: list[tuple[Term, float, int | None, UnitForcing]] = []
-    for term, sigma, row in chosen:
-        forcing = _term_forcing(term, model, values, scenario)
+    chosen, left_out, drift = _choose(calibration, drift_sigma)
+    propagated: list[_Chosen] = []
+    for item in chosen:
+        forcing = _term_forcing(item.term, calibration.model, calibration.values, scenario)
         if isinstance(forcing, str):
-            left_out.append(LeftOut(term.id, forcing))
+            left_out.append(LeftOut(item.term.id, forcing))
         else:
-            propagated.append((term, sigma, row, forcing))
-
+            propagated.append(replace(item, forcing=forcing))
     h, count = _step_for(duration, step)
-    time = h * np.arange(count + 1)
-    unit = _unit_responses(scenario, [p[3] for p in propagated], h, count, time)  # (steps, 9, m) per unit
-    sigmas = np.array([p[1] for p in propagated])
-    scaled = unit * sigmas[None, None, :]
+    time = np.arange(count + 1, dtype=np.float64) * h
+    unit = _unit_responses(scenario, [p.forcing for p in propagated if p.forcing is not None], h, count, time)  # per unit
+    scaled = unit * np.array([p.sigma for p in propagated])[None, None, :]
     responses = magnitudes(scaled)  # (steps, Q, m)
     rss_series = magnitudes_rss(scaled)
-    # the covariance of the propagated terms: the record's block, the given drift uncorrelated
-    m = len(propagated)
-    P = np.zeros((m, m))
-    for a, (_, sa, ra, _) in enumerate(propagated):
-        for b, (_, sb, rb, _) in enumerate(propagated):
-            if ra is not None and rb is not None:
-                P[a, b] = cov[ra, rb]
-            elif a == b:
-                P[a, b] = sa * sb
-    total_series = magnitudes_covariance(unit, P)
+    total_series = magnitudes_covariance(unit, _covariance_of(propagated, np.asarray(calibration.covariance, dtype=float)))
     budgets = [
-        TermBudget(term.id, term.kind, sigma, term.unit, term.scale, ErrorSummary.of(responses[:, :, k]))
-        for k, (term, sigma, _, _) in enumerate(propagated)
+        TermBudget(p.term.id, p.term.kind, p.sigma, p.term.unit, p.term.scale, ErrorSummary.of(responses[:, :, k]))
+        for k, p in enumerate(propagated)
     ]
-    order = sorted(range(m), key=lambda k: (-budgets[k].summary.position.peak, -budgets[k].summary.heading.peak, budgets[k].id))
+    order = sorted(range(len(budgets)), key=lambda k: (-budgets[k].summary.position.peak, -budgets[k].summary.heading.peak, budgets[k].id))
     return NavigationBudget(
         scenario=scenario,
         duration=float(duration),
@@ -405,7 +429,7 @@ def navigation_budget(
         left_out=tuple(left_out),
         drift=drift,
         time=time,
-        responses=responses[:, :, order] if m else responses,
+        responses=responses[:, :, order] if budgets else responses,
         rss_series=rss_series,
         total_series=total_series,
         serial_number=serial_number,
@@ -464,7 +488,9 @@ def components_from_states(
 
 def magnitudes_rss(components: NDArray[np.float64]) -> NDArray[np.float64]:
     """RSS over the terms (last axis) of :func:`magnitudes`: (steps, len(Quantity))."""
-    return magnitudes(np.sqrt(np.sum(components**2, axis=-1)))[:, :] if components.shape[-1] else np.zeros((components.shape[0], len(Quantity)))
+    if components.shape[-1] == 0:
+        return np.zeros((components.shape[0], len(Quantity)))
+    return magnitudes(np.sqrt(np.sum(components**2, axis=-1)))
 
 
 def magnitudes_covariance(unit: NDArray[np.float64], covariance: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -497,7 +523,7 @@ class NavigationErrors:
     components: NDArray[np.float64]
 
     def __getitem__(self, quantity: Quantity | str) -> NDArray[np.float64]:
-        """The signed series of a component, or the magnitude of a horizontal quantity."""
+        """Return the signed series of a component, or the magnitude of a horizontal quantity."""
         q = Quantity(quantity)
         if q in HORIZONTAL:
             return magnitudes(self.components[:, :, None])[:, list(Quantity).index(q), 0]
@@ -513,7 +539,7 @@ def navigation_errors(
     duration: float,
     step: float = DEFAULT_STEP,
 ) -> NavigationErrors:
-    """The navigation errors of residuals ``{id: true − installed}`` [SI] (``gyro_drift_*``: the drift itself).
+    """Return the navigation errors of residuals ``{id: true − installed}`` [SI] (``gyro_drift_*``: the drift itself).
 
     Linear superposition of each term's response (the budget's model); ``values`` are the installed calibration
     (the linearization point).  Raises ValueError for a term the budget cannot propagate.
@@ -529,6 +555,6 @@ def navigation_errors(
         forcings.append(forcing)
         amounts.append(float(amount))
     h, count = _step_for(duration, step)
-    time = h * np.arange(count + 1)
+    time = np.arange(count + 1, dtype=np.float64) * h
     unit = _unit_responses(scenario, forcings, h, count, time)
     return NavigationErrors(time, unit @ np.array(amounts) if amounts else np.zeros((count + 1, len(COMPONENTS))))

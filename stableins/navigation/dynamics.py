@@ -108,7 +108,7 @@ class NavigationScenario:
 
     @classmethod
     def from_site(cls, site: SiteMetadata, *, latitude: float | None = None, zeta: float | None = None) -> NavigationScenario:
-        """The scenario of a record's site: its latitude, gravity, damping (``SiteMetadata.damping``) and gimbal senses.
+        """Return the scenario of a record's site: its latitude, gravity, damping (``SiteMetadata.damping``) and gimbal senses.
 
         ``latitude`` [rad] replaces the site's (gravity then is normal gravity there, at the site's height);
         ``zeta`` replaces the site's damping ratio (no damping in the site: 0, the pure-inertial INS).

@@ -45,7 +45,7 @@ def harmonics_of(samples: NDArray[np.float64]) -> NDArray[np.complex128]:
 
 
 def phase_grid(samples: int = HARMONIC_SAMPLES) -> NDArray[np.float64]:
-    """The Earth-rate phases ``2πm/M`` the forcing is sampled at."""
+    """Return the Earth-rate phases ``2πm/M`` the forcing is sampled at."""
     return 2.0 * np.pi * np.arange(samples) / samples
 
 
@@ -69,7 +69,7 @@ class Propagator:
 
     @classmethod
     def build(cls, scenario: NavigationScenario, step: float, harmonics: int) -> Propagator:
-        """The map for ``harmonics + 1`` harmonics (0 … K) at step ``h`` [s]."""
+        """Return the map for ``harmonics + 1`` harmonics (0 … K) at step ``h`` [s]."""
         A, B = scenario.matrices()
         n = A.shape[0]
         transition = expm(A * step)

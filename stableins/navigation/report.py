@@ -52,7 +52,7 @@ def _sigma_text(sigma: float, unit: str) -> str:
 
 
 def budget_text(budget: NavigationBudget, *, rows: int | None = None) -> str:
-    """The ranked table of :meth:`NavigationBudget.report`."""
+    """Return the ranked table of :meth:`NavigationBudget.report`."""
     head = ["term", "1σ"] + [c[0] for c in TABLE_COLUMNS]
     body = []
     shown = budget.terms if rows is None else budget.terms[:rows]
@@ -94,7 +94,7 @@ def _scenario_document(budget: NavigationBudget) -> dict[str, Any]:
 
 
 def budget_document(budget: NavigationBudget) -> dict[str, Any]:
-    """The JSON document (engineering units)."""
+    """Return the JSON document (engineering units)."""
     return {
         "serial_number": budget.serial_number,
         "scenario": _scenario_document(budget),
@@ -122,7 +122,11 @@ def budget_figure(budget: NavigationBudget, path: str | None, *, top: int = 6, f
     from stableins.display import layout_with_caption
     from stableins.navigation.budget import Quantity
 
-    panels = ((Quantity.POSITION, "horizontal position [m]", 1.0), (Quantity.VELOCITY, "horizontal velocity [m/s]", 1.0), (Quantity.HEADING, "heading [arcsec]", ARCSEC))
+    panels = (
+        (Quantity.POSITION, "horizontal position [m]", 1.0),
+        (Quantity.VELOCITY, "horizontal velocity [m/s]", 1.0),
+        (Quantity.HEADING, "heading [arcsec]", ARCSEC),
+    )
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
     days = budget.time / 86400.0
     order = list(Quantity)

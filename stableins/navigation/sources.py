@@ -84,7 +84,7 @@ def _forcing(nav_samples: NDArray[np.float64] | None = None, drift_samples: NDAr
 
 
 def accelerometer_forcing(model: ErrorModel, values: Mapping[str, float], term: Term, scenario: NavigationScenario) -> UnitForcing:
-    """Forcing of one unit of an accelerometer term (module docstring).
+    """Return the forcing of one unit of an accelerometer term (module docstring).
 
     Raises
     ------
@@ -97,12 +97,12 @@ def accelerometer_forcing(model: ErrorModel, values: Mapping[str, float], term: 
     nav_to_platform, f_p = _platform_samples(scenario)
     column = alone.jacobian(f_p, values, TermInputs(f_p))[..., alone.index(term.id)]
     gain = core.jacobian_specific_force(f_p, values)
-    delta_platform = np.linalg.solve(gain, column[..., None])[..., 0]
+    delta_platform = np.asarray(np.linalg.solve(gain, column[..., None])[..., 0], dtype=np.float64)
     return _forcing(nav_samples=_to_nav(nav_to_platform, delta_platform))
 
 
 def drift_forcing(axis: int, scenario: NavigationScenario) -> UnitForcing:
-    """Forcing of one rad/s of constant drift of platform gyro ``axis`` (0, 1, 2 = x_p, y_p, z_p)."""
+    """Return the forcing of one rad/s of constant drift of platform gyro ``axis`` (0, 1, 2 = x_p, y_p, z_p)."""
     nav_to_platform, _ = _platform_samples(scenario)
     drift = np.zeros((len(nav_to_platform), 3))
     drift[:, axis] = 1.0
@@ -125,4 +125,3 @@ def gimbal_forcing(index: int, scenario: NavigationScenario) -> UnitForcing:
     samples = np.stack([pitch, roll, wrap], axis=-1) / GIMBAL_STEP
     harmonics = harmonics_of(samples)
     return UnitForcing(np.zeros((harmonics.shape[0], 6), dtype=complex), harmonics)
-
