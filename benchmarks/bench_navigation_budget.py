@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, MICRO_G, PPM, SIDEREAL_DAY
-from stableins.errormodel import GIMBAL_TERMS, GYRO_DRIFT_TERMS, MICRO_G_PER_G2, ErrorModel
+from stableins.errormodel import GIMBAL_TERMS, GYRO_DRIFT_TERMS, MICRO_G_PER_G2, ErrorModel, known_terms
 from stableins.navigation import CalibrationTerms, NavigationScenario, Quantity, navigation_budget, navigation_errors
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import simulate_system
@@ -223,9 +223,9 @@ def main() -> int:
         if term_id == "gyro_drift_z":
             polar_record = result["record"]
         results.append(result)
-        label = "°/h" if term_id.startswith("gyro") else ("″" if term_id.startswith(("beta", "theta")) else "")
-        shown = amount / DEG_PER_HOUR if term_id.startswith("gyro") else amount / ARCSEC if label == "″" else amount
-        print(f"\n{term_id} = {shown:.4g}{label}  (simulator {result['sim_s']:.1f} s, budget {result['budget_s']:.2f} s)")
+        term = known_terms()[term_id]
+        shown = f"{float(term.sigma_to_engineering(amount)):.4g} {term.unit}"  # a residual: counted from 0
+        print(f"\n{term_id} = {shown}  (simulator {result['sim_s']:.1f} s, budget {result['budget_s']:.2f} s)")
         for q, r in result["rows"].items():
             rel = f"{100 * r['relative']:.4f} % of peak" if r["relative"] is not None else "≈ 0 in both (abs)"
             print(f"  {q:15s} peak {unit_of(q, r['peak']):>14s}   max |sim − budget| {unit_of(q, r['error']):>14s}   {rel}")
