@@ -215,6 +215,12 @@ def test_cli_budget_table_json_compare_and_plot(records, capsys):
     assert cli.main(["budget", str(records / "a.json"), "--duration", "12h", "--latitude", "30", "--damping", "0.7"]) == 0
     text = capsys.readouterr().out
     assert "30.0000° N, damping ζ = 0.7" in text and "RSS of the terms" in text and "no gyro drift" in text
+    from stableins.records import CalibrationRecord
+    from stableins.reporting.navigation import record_navigation_budget
+
+    budget = record_navigation_budget(CalibrationRecord.load(records / "a.json"), duration=43200.0)
+    assert "<table" in budget._repr_html_() and "total (correlated)" in budget._repr_html_()
+    assert len(repr(budget).splitlines()) == 1
     assert cli.main(["budget", str(records / "a.json"), "--duration", "12h", "--compare", str(records / "b.json"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     a = {t["id"]: t for t in doc["base"]["terms"]}
@@ -223,6 +229,7 @@ def test_cli_budget_table_json_compare_and_plot(records, capsys):
     assert diff == pytest.approx(b["bias_x"]["errors"]["position"]["peak"] - a["bias_x"]["errors"]["position"]["peak"])
     assert b["bias_x"]["sigma"] < a["bias_x"]["sigma"]  # 1 µg of noise instead of 3: a smaller σ, a smaller error
     assert diff < 0
+    assert doc["labels"] == ["a.json", "b.json"]
     plot = records / "budget.png"
     assert cli.main(["budget", str(records / "a.json"), "--duration", "1d", "--plot", str(plot)]) == 0
     capsys.readouterr()

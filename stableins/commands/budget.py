@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from stableins.commands.arguments import input_file, number, output_file
 from stableins.commands.simulate import parse_duration
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         other = record_navigation_budget(
             other_record, duration=args.duration, drift_sigma=drift, scenario=budget.scenario, path=args.compare
         )
-        comparison = budget.compare(other)
+        comparison = budget.compare(other, labels=(Path(args.record).name, Path(args.compare).name))
         data, text = comparison.to_dict(), comparison.report()
     else:
         data, text = budget.to_dict(), budget.report()

@@ -260,9 +260,14 @@ class NavigationBudget:
 
         return budget_figure(self, path, top=top, file_format=file_format)
 
-    def compare(self, other: NavigationBudget) -> BudgetComparison:
-        """Return the difference ``other − self`` term by term and in the totals."""
-        return BudgetComparison(self, other)
+    def compare(self, other: NavigationBudget, *, labels: tuple[str, str] = ("", "")) -> BudgetComparison:
+        """Return the difference ``other − self`` term by term and in the totals (``labels``: how to name the two, e.g. files)."""
+        return BudgetComparison(self, other, labels)
+
+    def _repr_html_(self) -> str:
+        from stableins.navigation.report import budget_html
+
+        return budget_html(self)
 
 
 @dataclass(frozen=True)
@@ -271,6 +276,7 @@ class BudgetComparison:
 
     base: NavigationBudget
     other: NavigationBudget
+    labels: tuple[str, str] = ("", "")
 
     def report(self) -> str:
         """Return the side-by-side table (text)."""

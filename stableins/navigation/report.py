@@ -93,6 +93,19 @@ def _scenario_document(budget: NavigationBudget) -> dict[str, Any]:
     }
 
 
+def budget_html(budget: NavigationBudget) -> str:
+    """Return the ranked table for Jupyter (:func:`stableins.display.html_result`)."""
+    from stableins.display import html_result, html_table
+
+    head = ["term", "1σ"] + [c[0] for c in TABLE_COLUMNS]
+    rows = [[t.id, _sigma_text(t.sigma_engineering, t.unit)] + [_cell(t.summary, q, w) for _, q, w in TABLE_COLUMNS] for t in budget.terms]
+    rows.append(["RSS of the terms", ""] + [_cell(budget.rss, q, w) for _, q, w in TABLE_COLUMNS])
+    rows.append(["total (correlated)", ""] + [_cell(budget.total, q, w) for _, q, w in TABLE_COLUMNS])
+    units = "position [m], velocity [m/s] (horizontal), attitude [arcsec]; +1σ of each term alone"
+    table = html_table(head, rows, numeric=range(2, len(head)))
+    return html_result(scenario_text(budget), [units], [table], [("notes", list(budget.notes))])
+
+
 def budget_document(budget: NavigationBudget) -> dict[str, Any]:
     """Return the JSON document (engineering units)."""
     return {
@@ -183,8 +196,8 @@ def comparison_text(comparison: BudgetComparison) -> str:
     line = lambda r: "  ".join(c.ljust(widths[i]) if i == 0 else c.rjust(widths[i]) for i, c in enumerate(r))  # noqa: E731
     return "\n".join(
         [
-            f"A: {scenario_text(base)}",
-            f"B: {other.serial_number or 'the unit'} in the same scenario",
+            f"A: {comparison.labels[0] + ': ' if comparison.labels[0] else ''}{scenario_text(base)}",
+            f"B: {comparison.labels[1] + ': ' if comparison.labels[1] else ''}{other.serial_number or 'the unit'} in the same scenario",
             "Peak horizontal position [m] and heading [arcsec] per term (+1σ alone); B − A < 0: B's calibration leaves less.",
             "",
             line(head),
@@ -212,6 +225,7 @@ def comparison_document(comparison: BudgetComparison) -> dict[str, Any]:
     by_a = {t.id: t for t in base.terms}
     by_b = {t.id: t for t in other.terms}
     return {
+        "labels": list(comparison.labels),
         "base": budget_document(base),
         "other": budget_document(other),
         "difference": {
