@@ -10,18 +10,14 @@ budget (docs/navigation-budget.md).  Not to be confused with :mod:`stableins.rep
 from stableins.navigation.budget import (
     BudgetComparison,
     CalibrationTerms,
-    DriftSource,
-    ErrorSummary,
     NavigationBudget,
     NavigationErrors,
-    PeakFinal,
-    Quantity,
-    TermBudget,
     navigation_budget,
     navigation_errors,
 )
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.sources import LeftOut
+from stableins.navigation.summary import DriftSource, ErrorSummary, PeakFinal, Quantity, TermBudget
 
 __all__ = [
     "BudgetComparison",

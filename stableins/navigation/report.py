@@ -9,7 +9,8 @@ from stableins.conventions import ARCSEC
 from stableins.display import number, unit_text
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.navigation.budget import BudgetComparison, ErrorSummary, NavigationBudget
+    from stableins.navigation.budget import BudgetComparison, NavigationBudget
+    from stableins.navigation.summary import ErrorSummary
 
 #: Columns of the text table: (header, quantity, peak or final).
 TABLE_COLUMNS = (
@@ -133,7 +134,7 @@ def budget_figure(budget: NavigationBudget, path: str | None, *, top: int = 6, f
     import numpy as np
 
     from stableins.display import layout_with_caption
-    from stableins.navigation.budget import Quantity
+    from stableins.navigation.summary import Quantity
 
     panels = (
         (Quantity.POSITION, "horizontal position [m]", 1.0),
@@ -208,7 +209,7 @@ def comparison_text(comparison: BudgetComparison) -> str:
 
 def comparison_document(comparison: BudgetComparison) -> dict[str, Any]:
     """JSON of a comparison: both budgets and the differences (other − base) of every peak and final."""
-    from stableins.navigation.budget import Quantity
+    from stableins.navigation.summary import Quantity
 
     base, other = comparison.base, comparison.other
 
