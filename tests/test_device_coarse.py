@@ -7,8 +7,8 @@ from scipy import stats
 
 from stableins.conventions import ARCSEC, DEFAULT_GIMBALS, MICRO_G
 from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_model, solve_coarse
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
 from stableins.procedures.definition import load_procedure
 from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass

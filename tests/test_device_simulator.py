@@ -8,8 +8,8 @@ import pytest
 from stableins.cli import main
 from stableins.conventions import ARCSEC
 from stableins.data.device import save_device
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure

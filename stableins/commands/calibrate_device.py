@@ -171,7 +171,8 @@ def run(args: argparse.Namespace) -> int:
 
 def next_steps(args: argparse.Namespace, record) -> list[str]:
     """What to do next with a device-level record, as a command that runs as written: ask whether the model misses an
-    effect (``stableins diagnose``); then the system stage on a static record taken with the INS compensating by it."""
+    effect (``stableins diagnose``); then the system stage on a static record taken with the INS compensating by it.
+    """
     import shlex
 
     from stableins.commands.noise import noise_arguments

@@ -234,7 +234,8 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
 def flag_text(text: str) -> str:
     """A library message with the system stage's parameters, as its messages name them
     (:data:`stableins.estimators.system.assembly.GYRO_DRIFT_PARAMETER` and ``ESTIMATE_K2_PARAMETER``), replaced by the
-    flags of this command that set them: what the command prints speaks of its flags."""
+    flags of this command that set them: what the command prints speaks of its flags.
+    """
     from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
 
     for parameter, flag in ((GYRO_DRIFT_PARAMETER, "--gyro-drift X Y Z, deg/h"), (ESTIMATE_K2_PARAMETER, "--estimate-k2")):

@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.procedures.rundir import RunFinished
     from stableins.procedures.runner import RunOptions, RunStopped
     from stableins.procedures.session import JournalMismatch
-    from stableins.runs import resume_run, start_run
+    from stableins.runs import RunSetup, resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
@@ -182,12 +182,14 @@ def run(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 unit=args.unit,
                 console=console,
-                options=RunOptions(link_failures=args.link_failures),
-                definition_file=definition_file,
-                prior_file=prior_file(args),
-                timeout=args.timeout,
-                new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
-                fields=parse_settings(args.set),
+                setup=RunSetup(
+                    definition_file=definition_file,
+                    prior_file=prior_file(args),
+                    new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
+                    fields=parse_settings(args.set),
+                    options=RunOptions(link_failures=args.link_failures),
+                    timeout=args.timeout,
+                ),
             )
     except RunFinished as finished:
         args.finished = finished

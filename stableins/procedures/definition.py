@@ -65,7 +65,8 @@ class Step:
 @dataclass(frozen=True)
 class OffsetIteration:
     """Zero-offset re-commanding loop: stop below ``threshold`` [rad] (or within
-    ``noise_sigmas`` of zero), at most ``max_passes`` passes."""
+    ``noise_sigmas`` of zero), at most ``max_passes`` passes.
+    """
 
     threshold: float = 0.1 * ARCSEC
     max_passes: int = 5

@@ -75,7 +75,8 @@ class RunFinished(Exception):
 
 class JournalOnlyDriver:
     """The platform of a finished run, for re-estimating it: every answer comes from the journal, so nothing is asked of a
-    platform (none need be connected); anything beyond the journal is refused."""
+    platform (none need be connected); anything beyond the journal is refused.
+    """
 
     deterministic = False
 

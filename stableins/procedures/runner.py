@@ -24,6 +24,7 @@ columns, what a resume replays); the operator console is :class:`stableins.conso
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -270,7 +271,7 @@ class Runner:
             self.session.context = dict(context)
             self.session.trace = []
             chunk = self.session.operate(
-                "static_chunk", [float(len(self.static_chunks))], call=lambda done=done: _next_chunk(chunks, done, total)
+                "static_chunk", [float(len(self.static_chunks))], call=functools.partial(_next_chunk, chunks, done, total)
             )
             self.static_chunks += self.session.trace
             self.session.trace = None
@@ -387,7 +388,8 @@ class Runner:
 class _IterationConsole:
     """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`): every
     dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
-    :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit)."""
+    :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit).
+    """
 
     def __init__(self, console: RunConsole, session: Session, rate: float) -> None:
         self.console = console

@@ -43,7 +43,8 @@ class Rounded:
 
 def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
     """The one rounding of the certificate (GUM 7.2.6): ``U = k u`` and ``u`` to two significant digits, the value
-    to the decimal place of ``U``.  Every section prints a value and its uncertainty through this function."""
+    to the decimal place of ``U``.  Every section prints a value and its uncertainty through this function.
+    """
     if not math.isfinite(value):
         return Rounded("not stated", "—", "—")
     if not (math.isfinite(u) and u > 0):
@@ -132,7 +133,8 @@ def parameter_rows(
     record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR, budget: Any = None
 ) -> list[ParameterRow]:
     """Results table rows in record order; ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the
-    combined standard uncertainty, else the record's σ (Type A) is used."""
+    combined standard uncertainty, else the record's σ (Type A) is used.
+    """
     rows = []
     for p in record.parameters:
         term = terms.get(p.id)
@@ -313,7 +315,8 @@ NO_STATEMENT = "No statement of conformity: the procedure defines no tolerances 
 def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tuple[str, str, str, str, str, str, str]:
     """One row of the statement of conformity, as the certificate prints it and the console repeats it (:data:`CONFORMITY_HEADER`).
 
-    The measured value and U carry the certificate's one rounding (:func:`gum`, sections 4 and 9); χ²_ν its three decimals."""
+    The measured value and U carry the certificate's one rounding (:func:`gum`, sections 4 and 9); χ²_ν its three decimals.
+    """
 
     def fmt(x: float, significant: int) -> str:
         return number(x, significant) if math.isfinite(x) else "—"
@@ -340,7 +343,8 @@ def conformity_counts(checks: Sequence[Check]) -> str:
 
 def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
     """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
-    and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given."""
+    and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given.
+    """
     if not assessed:
         return [NO_STATEMENT]
     lines = [f"Verdict: {overall_verdict(checks)} ({conformity_counts(checks)})"]

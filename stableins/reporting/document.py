@@ -267,7 +267,8 @@ class NumberedCanvas(canvas_module.Canvas):
 class FloatingDocTemplate(BaseDocTemplate):
     """A document whose figures float: a :class:`Figure` that does not fit in what is left of the page lets the
     flowables after it that do fit go first (never past another figure or a heading that would start a new page),
-    and is placed at the top of the next page — so a rigid figure never leaves half a page empty."""
+    and is placed at the top of the next page — so a rigid figure never leaves half a page empty.
+    """
 
     def handle_flowable(self, flowables: list[Flowable]) -> None:
         first = flowables[0] if flowables else None
