@@ -129,7 +129,7 @@ def chain_product(factors: Sequence[tuple[str, int, NDArray[np.float64]]]) -> ND
 
 
 def nav_to_body(base_dcm: ArrayLike, effects: Mapping[str, float] | None = None) -> NDArray[np.float64]:
-    """True ``C_n^b = C_n^b(surveyed) R2(t_E) R1(t_N) R3(psi_e)`` (module docstring); ``effects`` by id [rad]."""
+    """Return the true ``C_n^b = C_n^b(surveyed) R2(t_E) R1(t_N) R3(psi_e)`` (module docstring); ``effects`` by id [rad]."""
     effects = effects or {}
     c = np.asarray(base_dcm, dtype=float)
     t_north, t_east, azimuth = (float(effects.get(k, 0.0)) for k in ("tilt_north", "tilt_east", "azimuth_error"))
@@ -339,7 +339,7 @@ class GimbalPlatform:
         return self.dcm_body_to_platform_actual(self.actual_angles(readings))
 
     def dcm_nav_to_body(self) -> NDArray[np.float64]:
-        """True ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
+        """Return the true ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
         yaw, pitch, roll = self.base_attitude
         t_north, t_east = self.base_tilt
         tilts = {"tilt_north": t_north, "tilt_east": t_east, "azimuth_error": self.base_azimuth}

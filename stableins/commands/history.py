@@ -22,6 +22,7 @@ PLOT_FORMATS = ("png", "pdf", "svg")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins history`` to ``parser``."""
     from stableins.commands.arguments import number, output_file
 
     parser.add_argument("serial", nargs="?", metavar="SERIAL", help="unit serial number (omit with --fleet or --verify)")
@@ -45,6 +46,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins history``: file, list, verify or summarize calibration records; return the exit code."""
     from stableins.errors import InputError
 
     if (args.due or args.drifted) and not args.fleet:

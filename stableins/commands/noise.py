@@ -31,6 +31,7 @@ BLOCK_SECONDS = 1.0
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins noise`` to ``parser``."""
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="a static (system-level) record, or device-level files")
     from stableins.commands.arguments import input_file, number, output_file
 
@@ -70,7 +71,7 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
 
 
 def noise_arguments(args: argparse.Namespace) -> list[str]:
-    """The noise options of :func:`add_noise_options` this command was given, to pass on to the next command it suggests."""
+    """Return the noise options of :func:`add_noise_options` this command was given, to pass on to the next command it suggests."""
     out = []
     if getattr(args, "noise", None) is not None:
         out += ["--noise", str(args.noise)]
@@ -110,7 +111,7 @@ def given_noise(args: argparse.Namespace):
 
 
 def noise_from_options(args: argparse.Namespace, dwells, default=None):
-    """The noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
+    """Return the noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
 
     Returns ``(model or None, text saying where it comes from)``.
     """
@@ -135,7 +136,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
 
 def system_noise_prior(args: argparse.Namespace, default=None):
-    """The noise model a system-level record starts from (``calibrate system``, ``diagnose`` on a system record).
+    """Return the noise model a system-level record starts from (``calibrate system``, ``diagnose`` on a system record).
 
     Datasheet flags: the bias instability and random walk as given (the system stage measures the white noise in the
     record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
@@ -161,7 +162,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
 
 
 def record_noise(path: Path):
-    """The ``noise_model`` section of a calibration record (InputError when it has none)."""
+    """Return the ``noise_model`` section of a calibration record (InputError when it has none)."""
     from stableins.errors import InputError
     from stableins.records import CalibrationRecord
 
@@ -292,6 +293,7 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins noise``: measure the noise model (Allan analysis) and write it into a record; return the exit code."""
     from dataclasses import replace
 
     from stableins.data.validation import FORMAT_TAGS, read_format_tag

@@ -26,6 +26,7 @@ from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins recal`` to ``parser``."""
     from stableins.commands import run as run_command
 
     run_command.configure(parser)
@@ -37,7 +38,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def apply_estimate(prior, prior_path: Path, estimate_path: Path):
-    """The record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
+    """Return the record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
     from stableins.errors import InputError
     from stableins.records import CalibrationRecord, PriorReference, file_sha256
 
@@ -69,6 +70,7 @@ def apply_estimate(prior, prior_path: Path, estimate_path: Path):
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins recal``: a field recalibration against the unit's record in force; return the exit code."""
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
     from stableins.errors import InputError

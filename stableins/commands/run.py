@@ -24,6 +24,7 @@ EXIT_STOPPED = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins run`` to ``parser``."""
     from stableins.commands.arguments import integer, number, output_directory, seed
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
@@ -70,6 +71,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_settings(items: list[str]) -> dict[str, str]:
+    """Return the ``--set KEY=VALUE`` items as a mapping; InputError naming the item that is not ``KEY=VALUE``."""
     from stableins.errors import InputError
 
     values = {}
@@ -82,7 +84,7 @@ def parse_settings(items: list[str]) -> dict[str, str]:
 
 
 def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple[Any, Path | None]:
-    """The plan for PROCEDURE, and the definition file to copy into the run directory (if any)."""
+    """Return the plan for PROCEDURE, and the definition file to copy into the run directory (if any)."""
     import dataclasses
 
     from stableins.procedures.plan import Plan
@@ -113,6 +115,7 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
 
 
 def prior_file(args: argparse.Namespace) -> Path | None:
+    """Return the prior record of the run: ``--prior``, or the record in force of ``--unit`` in ``--store``."""
     from stableins.errors import InputError
 
     if args.prior:
@@ -140,13 +143,14 @@ def _resumable(rundir: str | None) -> bool:
 
 
 def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
-    """What the person can do next: resume only when there is something to resume."""
+    """Return what the person can do next: resume only when there is something to resume."""
     if _resumable(rundir):
         return f"everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}"
     return "nothing was started (the run directory holds no journal); fix the problem and run the same command again"
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins run``: start or resume a procedure on a platform; return the exit code."""
     from stableins.console import Console
     from stableins.drivers.errors import DriverError
     from stableins.errors import InputError

@@ -59,13 +59,15 @@ class Step:
 
     @property
     def command_degrees(self) -> tuple[float, float, float]:
+        """The commanded readings in degrees."""
         return tuple(math.degrees(a) for a in self.command)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
 class OffsetIteration:
-    """Zero-offset re-commanding loop: stop below ``threshold`` [rad] (or within
-    ``noise_sigmas`` of zero), at most ``max_passes`` passes.
+    """Zero-offset re-commanding loop.
+
+    It stops below ``threshold`` [rad] (or within ``noise_sigmas`` of zero), after at most ``max_passes`` passes.
     """
 
     threshold: float = 0.1 * ARCSEC
@@ -99,9 +101,11 @@ class ProcedureDefinition:
 
     @property
     def positions(self) -> tuple[int, ...]:
+        """The position numbers of the steps, in order."""
         return tuple(s.position for s in self.steps)
 
     def step(self, position: int) -> Step:
+        """Return the step of ``position``."""
         for s in self.steps:
             if s.position == position:
                 return s
@@ -130,7 +134,7 @@ def shipped_procedures() -> tuple[str, ...]:
 
 
 def resolve(name_or_path: str | os.PathLike[str]) -> Path:
-    """A path, or the name of a shipped definition (``"device-coarse"``).
+    """Resolve a path, or the name of a shipped definition (``"device-coarse"``).
 
     A name without ``.toml`` that is not an existing file is looked up among the shipped
     definitions (package data, :data:`PROCEDURE_DIRECTORY`), whatever the working directory.
@@ -184,7 +188,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
-    """The ``[procedure]`` table, validated, and its handedness."""
+    """Return the ``[procedure]`` table, validated, and its handedness."""
     head = data.get("procedure")
     if not isinstance(head, dict):
         raise InputError("missing [procedure] table", path=spath, field="procedure")
@@ -219,7 +223,7 @@ def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
 
 
 def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
-    """``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
+    """Return ``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
     acc_table = table(data.get("acceptance", {}), spath, "acceptance")
     acc_fields = set(_ACCEPTANCE_LIMITS)
     if set(acc_table) - acc_fields:
@@ -255,7 +259,7 @@ def _offset_iteration(data: dict[str, Any], spath: str) -> OffsetIteration:
 
 
 def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str) -> tuple[Step, ...]:
-    """The ``[[step]]`` tables, validated; positions must run 1, 2, ... in order."""
+    """Return the ``[[step]]`` tables, validated; positions must run 1, 2, ... in order."""
     steps_raw = data.get("step")
     if stage == "system" and steps_raw is None:
         steps_raw = []  # a static record: [record] says where and how long
@@ -314,7 +318,7 @@ def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "dev
 
 
 def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
-    """A TOML file as a table; InputError naming the file when it is missing, a directory, too large, not UTF-8 or not TOML."""
+    """Read a TOML file as a table; InputError naming the file when it is missing, a directory, too large, not UTF-8 or not TOML."""
     from stableins.data.jsonio import read_input_bytes
 
     data = read_input_bytes(path, max_bytes=MAX_FILE_BYTES, what=what)

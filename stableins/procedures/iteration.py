@@ -34,18 +34,20 @@ class OffsetIterationError(RuntimeError):
 
 
 class PassObserver(Protocol):
-    """Sees every position of a pass as it is measured (the runner's console: one line per dwell, settle and dwell
-    progress, the dwell's verdict).  Observing changes nothing: the operations and the estimates are the same.
+    """Sees every position of a pass as it is measured.
+
+    The runner's console shows one line per dwell, settle and dwell progress, the dwell's verdict.  Observing changes
+    nothing: the operations and the estimates are the same.
     """
 
     def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
-        """The position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""
+        """Announce that position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""
 
     def phase(self, name: str, done: float, total: float) -> None:
         """``done`` of ``total`` seconds of the phase ``name`` (``"settle"`` or ``"dwell"``) recorded (0 before it starts)."""
 
     def measured(self, block: SampleBlock, summary: DwellSummary) -> None:
-        """The dwell's samples and their summary, with the flags of the procedure's dwell checks."""
+        """Receive the dwell's samples and their summary, with the flags of the procedure's dwell checks."""
 
 
 def wait_until_arrived(

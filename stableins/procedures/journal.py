@@ -63,6 +63,7 @@ class Record:
 
     @property
     def arrays(self) -> dict[str, NDArray[Any]]:
+        """The record's arrays (read back from the journal file unless they are held in memory)."""
         if self.loaded is not None:
             return self.loaded
         if self.path is None or not self.fields.get("_has_arrays"):
@@ -73,6 +74,7 @@ class Record:
         return self.fields[key]
 
     def get(self, key: str, default: Any = None) -> Any:
+        """Return the field ``key`` of the record, or ``default``."""
         return self.fields.get(key, default)
 
 
@@ -153,7 +155,7 @@ def _decode(payload: bytes, offset: int, path: str | None = None, *, with_arrays
 
 
 def _read_arrays(path: str, offset: int) -> dict[str, NDArray[Any]]:
-    """The arrays of the record at ``offset`` (read back and CRC-checked)."""
+    """Read the arrays of the record at ``offset`` (read back and CRC-checked)."""
     with open(path, "rb") as handle:
         handle.seek(offset)
         magic, length, crc = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
@@ -275,6 +277,7 @@ class Journal:
     # ------------------------------------------------------------------ open
     @classmethod
     def create(cls, path: str | os.PathLike[str]) -> Journal:
+        """Create a new journal file (InputError if it exists) and open it for appending."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
@@ -293,6 +296,7 @@ class Journal:
 
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Journal:
+        """Open an existing journal for appending; its records are read back (a torn last record is dropped)."""
         path = Path(path)
         try:
             fd = os.open(path, os.O_WRONLY | os.O_APPEND)
@@ -314,6 +318,7 @@ class Journal:
     # ------------------------------------------------------------------ write
     @property
     def next_seq(self) -> int:
+        """The sequence number of the next record."""
         return len(self.records)
 
     def append(self, kind: str, fields: Mapping[str, Any] | None = None, arrays: Mapping[str, Any] | None = None) -> Record:
@@ -333,6 +338,7 @@ class Journal:
         return record
 
     def close(self) -> None:
+        """Close the journal file."""
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1

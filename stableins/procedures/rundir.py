@@ -74,8 +74,10 @@ class RunFinished(Exception):
 
 
 class JournalOnlyDriver:
-    """The platform of a finished run, for re-estimating it: every answer comes from the journal, so nothing is asked of a
-    platform (none need be connected); anything beyond the journal is refused.
+    """The platform of a finished run, for re-estimating it.
+
+    Every answer comes from the journal, so nothing is asked of a platform (none need be connected); anything beyond
+    the journal is refused.
     """
 
     deterministic = False
@@ -91,18 +93,21 @@ class JournalOnlyDriver:
     command = read_angles = acquire = static_record = _refuse
 
     def status(self) -> dict[str, object]:
+        """Return the replay's state."""
         return {"driver": "journal of a finished run"}
 
     def close(self) -> None:
+        """Release nothing: the journal is read, not held."""
         pass
 
 
 def utc_now() -> str:
+    """Return the current UTC time as ISO 8601, to the second."""
     return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 def check_settings(plan: Plan, values: dict[str, str]) -> None:
-    """A ``--set KEY=VALUE`` that answers a person step of the plan is valid for it (checked before the platform moves).
+    """Check that a ``--set KEY=VALUE`` that answers a person step of the plan is valid for it (checked before the platform moves).
 
     Other keys are the calibration's own fields (laboratory, operator ...), recorded as entries.
     """
@@ -116,7 +121,7 @@ def check_settings(plan: Plan, values: dict[str, str]) -> None:
 
 
 def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
-    """The discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
+    """Return the discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
 
     A unit's model is the one its record in force carries; a procedure may add effects to it.
     """
@@ -139,6 +144,7 @@ def journal_finished(journal: Journal, outcome: RunOutcome) -> None:
 
 
 def exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
+    """Return the accepted dwells as device-level columns, or None for a system-level run or an empty data set."""
     if runner.static_chunks or dataset is None:
         return None
     columns = accepted_columns(runner.entries)
@@ -183,6 +189,7 @@ def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
 
 
 def write_plan(rundir: Path, plan: Plan) -> None:
+    """Write the plan the run executes (``procedure.json``) into the run directory, atomically."""
     from stableins.data.atomic import atomic_write
 
     with atomic_write(rundir / PLAN_NAME) as handle:

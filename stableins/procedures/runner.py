@@ -65,10 +65,10 @@ class RunConsole(Protocol):
         """Print ``text``; ``replay``: marked as answered by the journal."""
 
     def dwell(self, label: str, readings: Any, settle: float, dwell: float, why: str = "", *, replay: bool = False) -> None:
-        """The line that opens a dwell."""
+        """Print the line that opens a dwell."""
 
     def verdict(self, result: CheckResult, *, replay: bool = False, rejected: str = "rejected", indent: str = "  ") -> None:
-        """The verdict of a dwell with its reasons."""
+        """Print the verdict of a dwell with its reasons."""
 
     def progress(self, label: str, done: float, total: float) -> None:
         """Progress of a settle or dwell phase."""
@@ -77,13 +77,13 @@ class RunConsole(Protocol):
         """Ask a person to confirm ``prompt``."""
 
     def enter(self, step: PersonStep) -> str:
-        """The text a person enters for ``step``."""
+        """Return the text a person enters for ``step``."""
 
     def tell(self, text: str) -> None:
-        """A line for the person answering a prompt."""
+        """Print a line for the person answering a prompt."""
 
     def journal_used_up(self, replayed: int) -> None:
-        """The resumed run has replayed its journal (``replayed`` records)."""
+        """Note that the resumed run has replayed its journal (``replayed`` records)."""
 
 
 # --------------------------------------------------------------------------- runner
@@ -131,6 +131,7 @@ class Runner:
         self.static_chunks: list[Record] = []
 
     def execute(self) -> None:
+        """Run every step of the plan in order (journaled; resumable)."""
         total = len(self.plan.steps)
         if self.session.on_live is None:
             self.session.on_live = self.console.journal_used_up
@@ -386,8 +387,9 @@ class Runner:
 
 
 class _IterationConsole:
-    """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`): every
-    dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
+    """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`).
+
+    Every dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
     :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit).
     """
 
@@ -424,7 +426,7 @@ def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
 
 
 def parse_entry(step: PersonStep, text: str) -> Any:
-    """The value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
+    """Return the value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
     if step.minimum is None and step.maximum is None and not _is_number(text):
         if not text:
             raise InputError(f"step {step.name!r}: no value entered", field=step.key, expected=f"a value in {step.unit or 'text'}")

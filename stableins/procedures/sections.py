@@ -30,6 +30,7 @@ def number(
     maximum: float | None = None,
     whole: bool = False,
 ) -> float:
+    """Return ``table[key]`` as a finite number within the given bounds; InputError naming the field otherwise."""
     value = table[key]
     field = f"{where.split()[0]}.{key}"  # "step 3" -> step.dwell, "runner" -> runner.chunk
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
@@ -46,6 +47,7 @@ def number(
 
 
 def table(value: Any, path: str, name: str) -> dict[str, Any]:
+    """Return ``value`` if it is a TOML table; InputError naming ``[name]`` otherwise."""
     if not isinstance(value, dict):
         raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
     return value
@@ -67,9 +69,10 @@ class RunnerSettings:
 
 @dataclass(frozen=True)
 class PersonAction:
-    """``[[person]]``: a step a person carries out before position ``before`` (0: before the first;
-    ``len(steps) + 1``: at the end).  ``action`` is ``"confirm"`` or ``"enter"`` (a value with
-    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses).
+    """``[[person]]``: a step a person carries out before position ``before``.
+
+    ``before`` is 0 before the first position and ``len(steps) + 1`` at the end.  ``action`` is ``"confirm"`` or
+    ``"enter"`` (a value with ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses).
     """
 
     before: int
@@ -84,8 +87,9 @@ class PersonAction:
 
 @dataclass(frozen=True)
 class StaticRecord:
-    """``[record]`` of a system-level procedure: hold the platform at ``command`` [rad] (file: deg),
-    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz].
+    """``[record]`` of a system-level procedure.
+
+    Hold the platform at ``command`` [rad] (file: deg), settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz].
     """
 
     command: tuple[float, float, float]
@@ -107,7 +111,7 @@ _RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rat
 
 
 def _runner_values(table: Any, path: str) -> dict[str, Any]:
-    """The ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
+    """Return the ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
     if not isinstance(table, dict):
         raise InputError("[runner] must be a table", path=path, field="runner")
     unknown = set(table) - set(_RUNNER_KEYS)
@@ -133,16 +137,18 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
 
 
 def runner_settings(table: Any, path: str) -> RunnerSettings:
+    """Return the run settings of ``[runner]`` (retries, chunk)."""
     values = _runner_values(table, path)
     return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
 
 
 def runner_checks(table: Any, path: str) -> dict[str, Any]:
-    """The dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
+    """Return the dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
     return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
 
 
 def people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
+    """Return the ``[[person]]`` steps, validated, in file order."""
     if not isinstance(entries, list):
         raise InputError("person steps are written [[person]]", path=path, field="person")
     from stableins.procedures.plan import check_person_default
@@ -216,6 +222,7 @@ def model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
 
 
 def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
+    """Return the ``[record]`` table of a system-level procedure, validated (None for other stages)."""
     if table is None:
         if stage == "system":
             raise InputError(

@@ -124,7 +124,7 @@ def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence
 
 
 def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
-    """The document of ``stableins diagnose --json``, every field checked (:meth:`DiagnoseReport.from_json`)."""
+    """Read the document of ``stableins diagnose --json``, every field checked (:meth:`DiagnoseReport.from_json`)."""
     from stableins.data.jsonio import load_json_file
     from stableins.discovery.diagnose_report import DOCUMENT
 

@@ -42,8 +42,10 @@ class Rounded:
 
 
 def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
-    """The one rounding of the certificate (GUM 7.2.6): ``U = k u`` and ``u`` to two significant digits, the value
-    to the decimal place of ``U``.  Every section prints a value and its uncertainty through this function.
+    """Round a value and its uncertainty the one way of the certificate (GUM 7.2.6).
+
+    ``U = k u`` and ``u`` to two significant digits, the value to the decimal place of ``U``.  Every section prints
+    a value and its uncertainty through this function.
     """
     if not math.isfinite(value):
         return Rounded("not stated", "—", "—")
@@ -82,6 +84,7 @@ class ParameterRow:
 
     @property
     def estimated(self) -> bool:
+        """Whether the parameter was estimated."""
         return self.status is Status.ESTIMATED
 
     @property
@@ -114,7 +117,7 @@ def number(x: float, significant: int) -> str:
 
 
 def round_to_uncertainty(value: float, u: float) -> str:
-    """The value rounded to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
+    """Round the value to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
     decimals = max(1 - math.floor(math.log10(u)), 0)
     return f"{value:.{decimals}f}".replace("-", MINUS)
 
@@ -132,8 +135,10 @@ def chi2_text(x: float) -> str:
 def parameter_rows(
     record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR, budget: Any = None
 ) -> list[ParameterRow]:
-    """Results table rows in record order; ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the
-    combined standard uncertainty, else the record's σ (Type A) is used.
+    """Return the results table rows in record order.
+
+    ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the combined standard uncertainty, else the
+    record's σ (Type A) is used.
     """
     rows = []
     for p in record.parameters:
@@ -207,7 +212,7 @@ class ChangeRow:
 
 
 def change_rows(comparison: Comparison, terms: Mapping[str, Term]) -> list[ChangeRow]:
-    """The comparison's changes in engineering units (z and the flag are the comparison's own)."""
+    """Return the comparison's changes in engineering units (z and the flag are the comparison's own)."""
     rows = []
     for c in comparison.changes:
         term = terms.get(c.id)
@@ -342,8 +347,10 @@ def conformity_counts(checks: Sequence[Check]) -> str:
 
 
 def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
-    """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
-    and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given.
+    """Return the statement of conformity in plain text, with the certificate's words and numbers.
+
+    The verdict, the counts, and every check that did not pass (its row of the certificate's table).
+    ``assessed``: tolerances were given.
     """
     if not assessed:
         return [NO_STATEMENT]
@@ -368,7 +375,7 @@ def overall_verdict(checks: Sequence[Check]) -> str:
 
 
 def noise_text(document: Mapping[str, Any]) -> str:
-    """The noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
+    """Describe the noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
     import numpy as np
 
     from stableins.noise import ENGINEERING, NoiseModel, NoiseSource
@@ -395,7 +402,7 @@ def noise_text(document: Mapping[str, Any]) -> str:
 
 
 def describe_settings(settings: Mapping[str, Any]) -> str:
-    """The settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
+    """Describe the settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
     from stableins.reporting.symbols import words_for_flags
 
     parts = []

@@ -280,7 +280,7 @@ def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]
 
 
 def step_label(label: str) -> str:
-    """A discovery step's model label with typeset effect names (``+ K3_x`` → ``+ K₃,ₓ`` in mathtext)."""
+    """Return a discovery step's model label with typeset effect names (``+ K3_x`` → ``+ K₃,ₓ`` in mathtext)."""
     import re
 
     from stableins.reporting.symbols import mathtext

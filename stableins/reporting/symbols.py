@@ -1,7 +1,7 @@
-"""Typeset names and plain words for the certificate (reportlab markup and matplotlib mathtext).
+r"""Typeset names and plain words for the certificate (reportlab markup and matplotlib mathtext).
 
-A parameter is printed with the textbook symbol of its term (``beta_xy`` → β\\ :sub:`xy`,
-``theta20`` → θ\\ :sub:`20`, ``K2_x`` → K\\ :sub:`2,x`); the record id is printed once, in the
+A parameter is printed with the textbook symbol of its term (``beta_xy`` → β\ :sub:`xy`,
+``theta20`` → θ\ :sub:`20`, ``K2_x`` → K\ :sub:`2,x`); the record id is printed once, in the
 glossary, so that the certificate can be traced to the record.  Text taken from the record
 (notes, determined combinations) is rewritten for people by :func:`prose`: every parameter id
 becomes its symbol, ``*`` a product dot, ``-`` a true minus sign, command-line flags become
@@ -27,7 +27,7 @@ _SPECIAL = {
 
 
 def parts(parameter_id: str) -> tuple[str, str]:
-    """``(base, subscript)`` of a parameter's symbol; ``subscript`` may be empty.
+    """Return ``(base, subscript)`` of a parameter's symbol; ``subscript`` may be empty.
 
     ``sf_x`` → (SF, x), ``bias_x`` → (δb, x), ``beta_xy`` → (β, xy), ``theta20`` → (θ, 20),
     ``K2_x`` → (K, 2,x), ``Kcc_xxy`` → (K, cc,xxy), ``Kt_bias_x`` → (K, t,b,x), ``lever_x_y`` → (l, x,y),
@@ -60,13 +60,13 @@ def parts(parameter_id: str) -> tuple[str, str]:
 
 
 def markup(parameter_id: str) -> str:
-    """The symbol in reportlab's paragraph markup (``β<sub>xy</sub>``)."""
+    """Return the symbol in reportlab's paragraph markup (``β<sub>xy</sub>``)."""
     base, sub = parts(parameter_id)
     return f"{base}<sub>{sub}</sub>" if sub else base
 
 
 def mathtext(parameter_id: str) -> str:
-    """The symbol in matplotlib mathtext (``$\\beta_{xy}$``)."""
+    r"""Return the symbol in matplotlib mathtext (``$\beta_{xy}$``)."""
     base, sub = parts(parameter_id)
     special = {"δb": r"\delta b", "δψ": r"\delta\psi"}
     symbol = special.get(base) or _MATHTEXT_GREEK.get(base) or rf"\mathrm{{{base}}}"
@@ -75,7 +75,7 @@ def mathtext(parameter_id: str) -> str:
 
 
 def plain(parameter_id: str) -> str:
-    """The symbol as plain text with the subscript run on (``βxy``, ``K2,x``): how a PDF's text layer reads it."""
+    """Return the symbol as plain text with the subscript run on (``βxy``, ``K2,x``): how a PDF's text layer reads it."""
     base, sub = parts(parameter_id)
     return base + sub
 
