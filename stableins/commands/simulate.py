@@ -243,10 +243,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         save_truth(truth, truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
-        if args.level == "device":
-            files = simulate_device(truth, out, seed, args, procedures)
-        else:
-            files = [simulate_system(truth, out, seed, args)]
+        files = simulate_device(truth, out, seed, args, procedures) if args.level == "device" else [simulate_system(truth, out, seed, args)]
     except BaseException:  # nothing left behind: the files this run created go (what was there stays)
         for path in set(out.iterdir()) - before:
             if path.is_file():
@@ -379,9 +376,11 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     metadata = replace(truth.site, sample_rate=rate, start_time=simulation_start(duration))
     path = out / f"system.{suffix}"
     total = int(round(duration * rate))
-    with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:
-        with Progress(total=total, label="simulate system") as progress:
-            for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
-                writer.append(chunk)
-                progress.update(len(chunk["time"]))
+    with (
+        SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer,
+        Progress(total=total, label="simulate system") as progress,
+    ):
+        for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
+            writer.append(chunk)
+            progress.update(len(chunk["time"]))
     return {"path": str(path), "rows": writer.n_samples, "duration_s": duration, "rate_hz": rate}

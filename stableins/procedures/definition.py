@@ -276,7 +276,7 @@ def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str)
 
 
 def _step(raw: Any, where: str, base: dict[str, float], spath: str) -> Step:
-    """One ``[[step]]`` table."""
+    """Read one ``[[step]]`` table."""
     if not isinstance(raw, dict):
         raise InputError(f"{where}: not a table", path=spath, field="step", expected="[[step]] tables")
     unknown = set(raw) - _STEP_KEYS
@@ -288,24 +288,36 @@ def _step(raw: Any, where: str, base: dict[str, float], spath: str) -> Step:
     position = raw["position"]
     if isinstance(position, bool) or not isinstance(position, int):
         raise InputError(f"{where}: position must be an integer", path=spath, field="step.position")
+    angles = _step_angles(raw, where, spath)
+    timing = _step_timing(raw, where, base, spath)
+    expect = raw.get("expect", "")
+    if expect:
+        words = [w.strip().split() for w in str(expect).split(",")]
+        if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
+            raise InputError(f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'")
+    return Step(position, angles, timing["settle"], timing["dwell"], timing["sample_rate"], str(expect))
+
+
+def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, float, float]:
+    """Return the commanded readings of a ``[[step]]`` table [rad] (the file gives degrees)."""
     angles = []
     for key in ("platform", "inner", "middle"):
         deg = number(raw, key, spath, where)
         if abs(deg) > 720.0:
             raise InputError(f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees")
         angles.append(math.radians(deg))
+    return angles[0], angles[1], angles[2]
+
+
+def _step_timing(raw: dict[str, Any], where: str, base: dict[str, float], spath: str) -> dict[str, float]:
+    """Return the settle, dwell and sample rate of a ``[[step]]`` table, the procedure's defaults where it gives none."""
     timing = dict(base)
     for key in ("settle", "dwell", "sample_rate"):
         if key in raw:
             timing[key] = number(raw, key, spath, where, **_TIMING_LIMITS[key])
         if key not in timing:
             raise InputError(f"{where}: no {key} and no default", path=spath, field=f"step.{key}")
-    expect = raw.get("expect", "")
-    if expect:
-        words = [w.strip().split() for w in str(expect).split(",")]
-        if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
-            raise InputError(f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'")
-    return Step(position, (angles[0], angles[1], angles[2]), timing["settle"], timing["dwell"], timing["sample_rate"], str(expect))
+    return timing
 
 
 def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "device-fine") -> dict[str, StageLayout]:

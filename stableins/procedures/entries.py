@@ -19,7 +19,7 @@ from stableins.schema import DEVICE_COLUMNS
 
 
 def dwell_entry(
-    stage: str, pass_number: int, position: int, command: Any, command_time: float, blocks: list[SampleBlock]
+    stage: str, pass_number: int, position: int, *, command: Any, command_time: float, blocks: list[SampleBlock]
 ) -> dict[str, Any]:
     """Return one dwell of a run: where it was commanded, when, and its sample blocks."""
     return {
@@ -62,7 +62,12 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
             )
         entries.append(
             dwell_entry(
-                step.stage, k // n + 1, step.positions[position], command["arguments"], float(command["result"]), [block_from_record(dwell)]
+                step.stage,
+                k // n + 1,
+                step.positions[position],
+                command=command["arguments"],
+                command_time=float(command["result"]),
+                blocks=[block_from_record(dwell)],
             )
         )
     return entries
@@ -144,7 +149,16 @@ def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
             new = iteration_entries(step, mine)
         else:
             blocks = [block_from_record(r) for r in mine if r.get("phase") == "dwell"]
-            new = [dwell_entry(step.stage, step.pass_number, step.position, record["command"], record["command_time"], blocks)]
+            new = [
+                dwell_entry(
+                    step.stage,
+                    step.pass_number,
+                    step.position,
+                    command=record["command"],
+                    command_time=record["command_time"],
+                    blocks=blocks,
+                )
+            ]
         entries += [(e["command_time"], e) for e in new]
     return accepted_columns([e for _, e in sorted(entries, key=lambda pair: pair[0])])
 

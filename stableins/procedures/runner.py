@@ -204,8 +204,8 @@ class Runner:
                     attempt,
                     step.name,
                     error,
-                    link_failures,
-                    "this attempt's samples are set aside (kept in the journal); repeating the step",
+                    failures=link_failures,
+                    consequence="this attempt's samples are set aside (kept in the journal); repeating the step",
                 )
                 continue
             if arrived is None:
@@ -227,7 +227,9 @@ class Runner:
             _, replayed = self.session.decide("verdict", verdict)
             self.console.verdict(result, replay=replayed)
             if result.accepted:
-                self.entries.append(dwell_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
+                self.entries.append(
+                    dwell_entry(step.stage, step.pass_number, step.position, command=readings, command_time=command_time, blocks=blocks)
+                )
                 self.session.accept(blocks)
                 return
             rejections += 1
@@ -283,7 +285,7 @@ class Runner:
         _, replayed = self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
         self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)", replay=replayed)
 
-    def _link_failure(self, index: int, attempt: int, name: str, error: Exception, failures: int, consequence: str) -> int:
+    def _link_failure(self, index: int, attempt: int, name: str, error: Exception, *, failures: int, consequence: str) -> int:
         """Journal a broken link, say what happens next; stop the run after ``options.link_failures`` in a row.
 
         Returns the updated count of consecutive failures (reset to 0 when a replayed stop was passed).
@@ -367,7 +369,12 @@ class Runner:
                 raise RunStopped(message) from None
             except (DriverConnectionError, DriverProtocolError) as error:
                 link_failures = self._link_failure(
-                    index, attempt, step.name, error, link_failures, "the iteration starts again (its samples so far stay in the journal)"
+                    index,
+                    attempt,
+                    step.name,
+                    error,
+                    failures=link_failures,
+                    consequence="the iteration starts again (its samples so far stay in the journal)",
                 )
                 continue
             finally:

@@ -151,48 +151,57 @@ def people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
     """Return the ``[[person]]`` steps, validated, in file order."""
     if not isinstance(entries, list):
         raise InputError("person steps are written [[person]]", path=path, field="person")
+    return tuple(_person(raw, f"person {k}", path, steps) for k, raw in enumerate(entries, start=1))
+
+
+def _person(raw: Any, where: str, path: str, steps: int) -> PersonAction:
+    """Read one ``[[person]]`` table."""
     from stableins.procedures.plan import check_person_default
 
-    people = []
-    for k, raw in enumerate(entries, start=1):
-        where = f"person {k}"
-        if not isinstance(raw, dict):
-            raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
-        unknown = set(raw) - _PERSON_KEYS
-        if unknown:
-            raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
-        for key in ("before", "action", "prompt"):
-            if key not in raw:
-                raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
-        before = raw["before"]
-        if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
-            raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
-        if raw["action"] not in ("confirm", "enter"):
-            raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
-        if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
-            raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
-        if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
-            raise InputError(
-                f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
-            )
-        bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
-        if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
-            raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
-        default = raw.get("default")
-        if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
-            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
-        if isinstance(default, float) and not math.isfinite(default):
-            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
-        for key in ("key", "unit"):
-            if key in raw and not isinstance(raw[key], str):
-                raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
-        check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"person {k}: default")
-        people.append(
-            PersonAction(
-                before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
-            )
+    _check_keys(raw, where, path)
+    before = raw["before"]
+    if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
+        raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
+    if raw["action"] not in ("confirm", "enter"):
+        raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
+    if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
+        raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
+    if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
+        raise InputError(
+            f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
         )
-    return tuple(people)
+    bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
+    if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
+        raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
+    default = _person_default(raw.get("default"), where, path)
+    for key in ("key", "unit"):
+        if key in raw and not isinstance(raw[key], str):
+            raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
+    check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"{where}: default")
+    return PersonAction(
+        before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
+    )
+
+
+def _check_keys(raw: Any, where: str, path: str) -> None:
+    """Check that a ``[[person]]`` entry is a table with the known keys and the required ones."""
+    if not isinstance(raw, dict):
+        raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
+    unknown = set(raw) - _PERSON_KEYS
+    if unknown:
+        raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
+    for key in ("before", "action", "prompt"):
+        if key not in raw:
+            raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
+
+
+def _person_default(default: Any, where: str, path: str) -> Any:
+    """Return a person step's default: None, a text or a finite number."""
+    if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
+        raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
+    if isinstance(default, float) and not math.isfinite(default):
+        raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
+    return default
 
 
 def model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
