@@ -140,18 +140,20 @@ def table(
                 continue
             if r < header_rows:
                 style = right_head if c in align_right else s["head"]
-            elif key_value and c == 0:
-                style = s["head"]
-            elif c in mono:
-                style = s["cell_mono"]
             else:
-                style = right if c in align_right else s["cell"]
+                style = s["head"] if key_value and c == 0 else s["cell_mono"] if c in mono else right if c in align_right else s["cell"]
             text = str(cell) if markup else escape(cell)
             if cell_colours and (r, c) in cell_colours:
                 text = f'<font color="{cell_colours[(r, c)].hexval()}"><b>{text}</b></font>'
             out.append(Paragraph(text, style))
         data.append(out)
     t = Table(data, colWidths=list(widths), repeatRows=header_rows, hAlign="LEFT")
+    t.setStyle(_rules(len(data), header_rows))
+    return t
+
+
+def _rules(n_rows: int, header_rows: int) -> TableStyle:
+    """Return the table's rules and shading: accent lines above and below, a shaded header, zebra rows."""
     commands: list[tuple[Any, ...]] = [
         ("VALIGN", (0, 0), (-1, -1), "TOP"),
         ("LEFTPADDING", (0, 0), (-1, -1), 3),
@@ -166,11 +168,10 @@ def table(
             ("BACKGROUND", (0, 0), (-1, header_rows - 1), SHADE),
             ("LINEBELOW", (0, header_rows - 1), (-1, header_rows - 1), 0.5, ACCENT),
         ]
-    for r in range(header_rows, len(data)):
+    for r in range(header_rows, n_rows):
         if (r - header_rows) % 2 == 1:
             commands.append(("BACKGROUND", (0, r), (-1, r), ZEBRA))
-    t.setStyle(TableStyle(commands))
-    return t
+    return TableStyle(commands)
 
 
 class Figure(Flowable):

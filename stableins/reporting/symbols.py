@@ -16,6 +16,9 @@ from collections.abc import Iterable
 MINUS = "\u2212"
 GREEK = {"beta": "β", "theta": "θ", "phi": "φ", "delta": "δ", "omega": "ω", "zeta": "ζ"}
 _MATHTEXT_GREEK = {"β": r"\beta", "θ": r"\theta", "φ": r"\phi", "δ": r"\delta", "ω": r"\omega", "ζ": r"\zeta"}
+#: Symbols of the heads of parameter ids: ``b`` and ``D`` are the system stage's bias (in units of g) and relative
+#: scale-factor residuals.
+_HEADS = {"sf": "SF", "bias": "δb", "b": "b", "D": "D", **GREEK, "lever": "l"}
 #: Names whose generic form (head with subscripted tail) would read badly.
 _SPECIAL = {
     "tilt_north": ("tilt", "N"),
@@ -40,18 +43,8 @@ def parts(parameter_id: str) -> tuple[str, str]:
         return "θ", match.group(1)
     head, _, tail = parameter_id.partition("_")
     tail = tail.replace("bias", "b").replace("_", ",")
-    if head == "sf":
-        return "SF", tail
-    if head == "bias":
-        return "δb", tail
-    if head == "b":  # a bias residual of the system stage, in units of g
-        return "b", tail
-    if head == "D":  # a relative scale-factor residual of the system stage
-        return "D", tail
-    if head in GREEK:
-        return GREEK[head], tail
-    if head == "lever":
-        return "l", tail
+    if head in _HEADS:
+        return _HEADS[head], tail
     if head.startswith("ang") and head[3:].isdigit():
         return "a", f"{head[3:]},{tail}"
     if len(head) > 1 and head[0] in "KD" and head[1:].isalnum():
