@@ -18,7 +18,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stableins.console import Console
+    from stableins.procedures.rundir import RunOutcome
 
 EXIT_STOPPED = 3
 
@@ -153,48 +157,16 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stableins run``: start or resume a procedure on a platform; return the exit code."""
     from stableins.console import Console
     from stableins.drivers.errors import DriverError
-    from stableins.errors import InputError
     from stableins.output import emit
     from stableins.procedures.rundir import RunFinished
-    from stableins.procedures.runner import RunOptions, RunStopped
+    from stableins.procedures.runner import RunStopped
     from stableins.procedures.session import JournalMismatch
-    from stableins.runs import RunSetup, resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
     args.finished = None
     try:
-        if args.re_estimate and not args.resume:
-            raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
-        if args.resume:
-            if args.procedure or args.out:
-                raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
-            outcome = resume_run(
-                args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate
-            )
-        else:
-            missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
-            if missing:
-                raise InputError(
-                    f"missing {', '.join(missing)}", field=missing[0], expected="PROCEDURE --driver SPEC --out RUNDIR, or --resume RUNDIR"
-                )
-            plan, definition_file = load_plan(args.procedure, args.retries, args.chunk)
-            outcome = start_run(
-                plan,
-                args.out,
-                driver_spec=args.driver,
-                seed=args.seed,
-                unit=args.unit,
-                console=console,
-                setup=RunSetup(
-                    definition_file=definition_file,
-                    prior_file=prior_file(args),
-                    new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
-                    fields=parse_settings(args.set),
-                    options=RunOptions(link_failures=args.link_failures),
-                    timeout=args.timeout,
-                ),
-            )
+        outcome = _start_or_resume(args, console)
     except RunFinished as finished:
         args.finished = finished
         print(
@@ -235,3 +207,39 @@ def run(args: argparse.Namespace) -> int:
     text = [f"{k}: {v}" for k, v in data.items() if v is not None and k != "conformity"]
     emit(args, data, "\n".join(text + [f"  {line}" for line in outcome.conformity]))
     return 0
+
+
+def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
+    """Start the run of PROCEDURE in ``--out``, or resume the run in ``--resume``; return its outcome."""
+    from stableins.errors import InputError
+    from stableins.procedures.runner import RunOptions
+    from stableins.runs import RunSetup, resume_run, start_run
+
+    if args.re_estimate and not args.resume:
+        raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
+    if args.resume:
+        if args.procedure or args.out:
+            raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
+        return resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate)
+    missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
+    if missing:
+        raise InputError(
+            f"missing {', '.join(missing)}", field=missing[0], expected="PROCEDURE --driver SPEC --out RUNDIR, or --resume RUNDIR"
+        )
+    plan, definition_file = load_plan(args.procedure, args.retries, args.chunk)
+    return start_run(
+        plan,
+        args.out,
+        driver_spec=args.driver,
+        seed=args.seed,
+        unit=args.unit,
+        console=console,
+        setup=RunSetup(
+            definition_file=definition_file,
+            prior_file=prior_file(args),
+            new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
+            fields=parse_settings(args.set),
+            options=RunOptions(link_failures=args.link_failures),
+            timeout=args.timeout,
+        ),
+    )
