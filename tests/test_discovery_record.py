@@ -5,6 +5,7 @@ import functools
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -218,7 +219,7 @@ def test_only_instrument_effects_can_be_carried():
 def _procedure_with_model(tmp_path, table, name="device-coarse"):
     text = load_procedure(name).path
     path = tmp_path / f"{name}-model.toml"
-    path.write_text(open(text, encoding="utf-8").read() + "\n" + table + "\n", encoding="utf-8")
+    path.write_text(Path(text).read_text(encoding="utf-8") + "\n" + table + "\n", encoding="utf-8")
     return path
 
 
@@ -338,7 +339,7 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
     world = ErrorModel.standard(nonlinear=True, gimbals=True) + (CATALOGUE["Kcc_xxy"].term(),)
 
     def short(name, table=""):
-        text = open(load_procedure(name).path, encoding="utf-8").read()
+        text = Path(load_procedure(name).path).read_text(encoding="utf-8")
         text = text.replace("dwell = 20.0", "dwell = 4.0").replace("dwell = 600.0", "dwell = 20.0")
         path = tmp_path / f"{name}.toml"
         path.write_text(text + "\n" + table + "\n", encoding="utf-8")

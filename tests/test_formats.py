@@ -446,10 +446,12 @@ def test_sampling_rate_disagreeing_with_metadata(tmp_path):
 
 def test_writer_refuses_time_going_back_across_chunks(tmp_path):
     path = tmp_path / "back.h5"
-    with pytest.raises(InputError, match=r"back\.h5, row 101, field 'time': time does not increase"):
-        with SystemRecordWriter(path, make_metadata()) as writer:
-            writer.append(make_system_chunk(0, 100))
-            writer.append(make_system_chunk(50, 100))
+    with (
+        pytest.raises(InputError, match=r"back\.h5, row 101, field 'time': time does not increase"),
+        SystemRecordWriter(path, make_metadata()) as writer,
+    ):
+        writer.append(make_system_chunk(0, 100))
+        writer.append(make_system_chunk(50, 100))
     assert not path.exists()
 
 
