@@ -25,15 +25,10 @@ from stableins.procedures.entries import accepted_columns, resume_script
 from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import Plan
 from stableins.procedures.rundir import (
-    DATASET_NAME,
     DEFINITION_NAME,
-    FINISHED,
     PRIOR_NAME,
     RECORD_NAME,
     REPORT_NAME,
-    SYSTEM_NAME,
-    JournalOnlyDriver,
-    RunFinished,
     RunOutcome,
     check_settings,
     copy_input,
@@ -41,6 +36,9 @@ from stableins.procedures.rundir import (
     exported_columns,
     journal_finished,
     model_terms,
+    resume_driver,
+    resume_mode,
+    resume_spec,
     utc_now,
     write_plan,
 )
@@ -201,14 +199,14 @@ def resume_run(
             )
         start = journal.records[0]
         plan = Plan.from_dict(start["plan"])
-        re_estimate, journal_finish = _resume_mode(rundir, journal, console, re_estimate=re_estimate)
-        spec = _resume_spec(start["driver"], driver_spec)
+        re_estimate, journal_finish = resume_mode(rundir, journal, console, re_estimate=re_estimate)
+        spec = resume_spec(start["driver"], driver_spec)
         check_settings(plan, console.values)
         verify_inputs(rundir, start)  # before the platform is touched: what is read again is what the run started with
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        driver = _resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
+        driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
@@ -244,64 +242,6 @@ def resume_run(
             return outcome
         finally:
             driver.close()
-
-
-def _resume_mode(rundir: Path, journal: Journal, console: RunConsole, *, re_estimate: bool) -> tuple[bool, bool]:
-    """Decide how a resume proceeds: ``(re_estimate, journal_finish)``.
-
-    A finished run is not run again (:class:`RunFinished`) unless ``re_estimate``; a run whose last step was done but
-    whose outputs were not all written is estimated again from its journal, and then journaled as finished.
-    """
-    complete = next((r for r in journal.records if r.kind == "complete"), None)
-    names = (DATASET_NAME, SYSTEM_NAME, RECORD_NAME, REPORT_NAME)
-    written = any(r.kind == FINISHED for r in journal.records) or (rundir / REPORT_NAME).exists()
-    if complete is not None and not re_estimate:
-        if written:
-            raise RunFinished(rundir, str(complete.get("utc") or ""), [rundir / n for n in names if (rundir / n).exists()])
-        # the last step was done but the run was interrupted while writing its outputs: write them from the journal
-        console.say("the run completed its last step but was interrupted before writing all its outputs: writing them from the journal")
-        re_estimate = True
-    journal_finish = not re_estimate or (complete is not None and not written)
-    if complete is None and re_estimate:
-        raise InputError(
-            "the run is not finished: there is nothing to estimate again yet",
-            path=rundir,
-            field="re_estimate",
-            expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
-        )
-    return re_estimate, journal_finish
-
-
-def _resume_spec(journaled: str, driver_spec: str | None) -> str:
-    """Return the driver a resumed run uses: the journaled one, or a new ``tcp://`` address of a network platform that moved."""
-    if driver_spec is None or driver_spec == journaled:
-        return journaled
-    if not (driver_spec.startswith("tcp://") and journaled.startswith("tcp://")):
-        raise InputError(
-            f"this run was made with --driver {journaled}",
-            field="driver_spec",
-            expected=f"{journaled} (only a tcp:// address may change on resume)",
-        )
-    return driver_spec
-
-
-def _resume_driver(
-    start: Any,
-    spec: str,
-    plan: Plan,
-    *,
-    re_estimate: bool,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
-    timeout: float,
-) -> PlatformDriver:
-    """Open the platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens."""
-    if re_estimate:
-        from stableins.drivers.replay import metadata_from_start
-
-        return JournalOnlyDriver(metadata_from_start(start))
-    if driver_factory is not None:
-        return driver_factory(start.fields)
-    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
 
 
 def verify_inputs(rundir: Path, start: Any) -> None:
