@@ -35,7 +35,7 @@ PER_LINE = 3
 
 
 def require_pandas() -> Any:
-    """The :mod:`pandas` module, or an ImportError that says how to install it (the ``pandas`` extra)."""
+    """Import :mod:`pandas`, or raise an ImportError that says how to install it (the ``pandas`` extra)."""
     try:
         import pandas
     except ImportError as error:  # pragma: no cover - the test extra installs pandas; tested by hiding it
@@ -182,7 +182,7 @@ def html_table(
     titles: Sequence[str] = (),
     status_column: int | None = None,
 ) -> str:
-    """An HTML table; every cell is escaped.
+    """Render an HTML table; every cell is escaped.
 
     ``numeric``: column indices aligned right; ``titles``: a tooltip per row (e.g. a parameter's meaning);
     ``status_column``: the column holding a parameter status (rows not ``estimated`` are greyed, ``unidentifiable`` red).
@@ -206,7 +206,7 @@ def html_table(
 def html_result(
     title: str, lines: Iterable[str] = (), tables: Iterable[str] = (), details: Iterable[tuple[str, Sequence[str]]] = ()
 ) -> str:
-    """A result for Jupyter: a bold title, lines of text, tables (already HTML) and collapsed details.
+    """Render a result for Jupyter: a bold title, lines of text, tables (already HTML) and collapsed details.
 
     ``lines`` and ``details`` are plain text (escaped here); ``tables`` are :func:`html_table` output.
     """
@@ -226,7 +226,7 @@ def parameter_html(
     meanings: Sequence[str] = (),
     extra: str = "",
 ) -> str:
-    """The parameter table in HTML: parameter, value ± 1σ, unit, status (and a last column ``extra`` when rows carry one)."""
+    """Render the parameter table in HTML: parameter, value ± 1σ, unit, status (and a last column ``extra`` when rows carry one)."""
     rows = list(rows)
     columns = ["parameter", "value ± 1σ", "unit", "status"] + ([extra] if extra else [])
     body = []
