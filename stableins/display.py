@@ -129,6 +129,27 @@ def parameter_lines(rows: Iterable[tuple[str, float, float, str, str]]) -> list[
     return lines
 
 
+def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] = (), notes: Sequence[str] = ()) -> list[str]:
+    """Return the text lines of a parameter table ``(id, value, 1σ, unit, status[, determined by])`` in engineering units.
+
+    Unidentifiable parameters show no numbers (their value in a record is only the prior
+    carried through).  Shared by :meth:`stableins.estimators.result.FitResult.report` and the calibration record's report.
+    """
+    sources = any(len(r) > 5 for r in rows)
+    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
+    for parameter_id, value, sigma, unit, status, *source in rows:
+        tail = f" {source[0]}" if source else ""
+        if status == Status.UNIDENTIFIABLE:
+            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
+        else:
+            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status:<15}{tail}".rstrip())
+    if determined:
+        lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
+    if notes:
+        lines += ["", "notes:"] + [f"  {n}" for n in notes]
+    return lines
+
+
 def plural(count: int, word: str) -> str:
     """``1 note``, ``3 notes``."""
     return f"{count} {word}" + ("" if count == 1 else "s")
