@@ -36,6 +36,7 @@ from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary
 from stableins.estimators.system.assembly import (
+    ESTIMATE_K2_PARAMETER,
     combined_terms,
     fit_result,
     fixed_variance,
@@ -50,6 +51,8 @@ from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
+from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, analyse_temperature, thermal_aliases
+from stableins.estimators.system.third_harmonic import explain_third_harmonic
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
@@ -84,6 +87,7 @@ class SystemOptions:
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] unless the prior record has them (§1b)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "gyro_drift", validate_options(self))
@@ -200,6 +204,9 @@ class SystemCalibration(SystemCalibrationView):
     coloured_noise : ColouredNoiseFit or None
         The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
         (None when the record is too short for the model).
+    thermal : ThermalFit or None
+        The temperature sensitivities of bias and scale factor as terms of the system model: their response, posterior,
+        separability, test and the coefficients they leave not separable (:mod:`.thermal`, docs §1b).
     noise_model : NoiseModel
         The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
         from second differences, bias instability and random walk from the residual spectra, with intervals; the given
@@ -219,6 +226,7 @@ class SystemCalibration(SystemCalibrationView):
     notes: tuple[str, ...] = ()
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
+    thermal: ThermalFit | None = None
 
 
 @dataclass(frozen=True)
@@ -234,13 +242,16 @@ class SystemNoise:
     duration : float
         Length of the record [s].
     notes : tuple of str
-        What the decision found (the stage's note).
+        What the decision found (the stage's note) and what the thermal model found.
+    thermal : ThermalFit or None
+        The temperature sensitivities as the stage sees them (:mod:`.thermal`).
     """
 
     noise_model: NoiseModel
     coloured_noise: ColouredNoiseFit | None
     duration: float
     notes: tuple[str, ...] = ()
+    thermal: ThermalFit | None = None
 
 
 def run_system_stage(
@@ -296,6 +307,8 @@ def run_system_stage(
         duration=stage.sums.duration,
         estimate_k2=options.estimate_k2,
         path=stage.path,
+        aliases=thermal_aliases(stage.thermal),
+        alpha=options.noise_false_positive_rate,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
 
@@ -317,7 +330,16 @@ def measure_noise_model(
     """
     stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
     decision = stage.decision
-    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note,))
+    notes = [decision.note, stage.thermal.note]
+    # what explains a third harmonic (discovery on system records names the aliases: docs/discovery.md "System records")
+    v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])
+    third = explain_third_harmonic(
+        v, decision.covariance, stage.latitude, stage.gravity, alpha=options.noise_false_positive_rate, extra=thermal_aliases(stage.thermal)
+    )
+    text = third.note(estimate_k2=False, parameter=ESTIMATE_K2_PARAMETER)
+    if text is not None:
+        notes.append(text)
+    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, tuple(notes), stage.thermal)
 
 
 @dataclass(frozen=True)
@@ -336,6 +358,7 @@ class _Stage:
     curve: solve.FilterCurve
     attitude: solve.AttitudeStep
     decision: solve.NoiseDecision
+    thermal: ThermalFit
 
 
 def _run(
@@ -380,7 +403,12 @@ def _run(
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision)
+    # the temperature sensitivities as terms of the system model (docs §1b): coefficients corrected, σ widened
+    thermal = analyse_temperature(
+        ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate), options, prior_covariance
+    )
+    harmonic, attitude, decision = thermal.apply(harmonic, attitude, decision)
+    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, thermal)
 
 
 def _assemble(
@@ -394,7 +422,7 @@ def _assemble(
     """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
     sums, harmonic, att, decision = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision
     gravity, cov_v, to_combined, transform = stage.gravity, decision.covariance, combination.to_combined, combination.transform
-    notes = [*sums.notes, *stage.attitude.notes, decision.note, *combination.notes]
+    notes = [*sums.notes, *stage.attitude.notes, decision.note, stage.thermal.note, *combination.notes]
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
@@ -440,6 +468,7 @@ def _assemble(
         notes=tuple(notes),
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
+        thermal=stage.thermal,
     )
 
 
