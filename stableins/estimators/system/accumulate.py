@@ -159,6 +159,14 @@ class TemperatureBins:
         self.total += np.bincount(bins, weights=values, minlength=self.total.size)
         self.count += np.bincount(bins, minlength=self.count.size)
 
+    def merged(self, samples: int) -> TemperatureBins:
+        """Return the sums over bins of ``samples`` (a power-of-two multiple of :attr:`samples`, as :class:`SampleBins` merge)."""
+        factor = samples // self.samples
+        size = -(-self.count.size // factor) * factor
+        total, count = np.zeros(size), np.zeros(size)
+        total[: self.total.size], count[: self.count.size] = self.total, self.count
+        return TemperatureBins(samples, total.reshape(-1, factor).sum(axis=1), count.reshape(-1, factor).sum(axis=1))
+
 
 @dataclass(frozen=True)
 class RecordSums:
@@ -190,6 +198,8 @@ class RecordSums:
         What the record-level checks found (gaps, jitter).
     temperature_bins : TemperatureBins or None
         Sums of the temperature column over the filter bins (the thermal model, :mod:`.thermal`; None without one).
+    fine_temperature_bins : TemperatureBins or None
+        The same over the fine bins (the thermal terms taken out of the high band before the noise decision).
     """
 
     information: hm.InformationAccumulator
@@ -206,6 +216,7 @@ class RecordSums:
     temperature: TemperatureSummary | None
     notes: tuple[str, ...]
     temperature_bins: TemperatureBins | None = None
+    fine_temperature_bins: TemperatureBins | None = None
 
 
 class StageAccumulator:
@@ -283,6 +294,7 @@ class StageAccumulator:
         self.filter_bins = SampleBins(self.filter_samples)
         self.temperature_bins = TemperatureBins(self.filter_samples)  # the thermal model's ΔT on the filter bins
         self.fine_bins = SampleBins(max(block, int(round(FINE_BIN_SECONDS * rate / block)) * block), cap=FINE_BINS)
+        self.fine_temperature = TemperatureBins(self.fine_bins.samples)  # merged like the fine bins at the end
         self.checks = StaticChecks(options, rate, path)
         self.checks.latitude = latitude
         self.seen = 0
@@ -347,7 +359,9 @@ class StageAccumulator:
             tc = chunk["temperature"]
             t = self.temperature
             self.temperature = [min(t[0], float(tc.min())), max(t[1], float(tc.max())), t[2] + float(tc.sum()), t[3] + tc.size]
-            self.temperature_bins.add(seen + phase + decimation * np.arange(tc.size), tc)
+            rows = seen + phase + decimation * np.arange(tc.size)
+            self.temperature_bins.add(rows, tc)
+            self.fine_temperature.add(rows, tc)
         self.seen += n
 
     def _time(
@@ -432,6 +446,7 @@ class StageAccumulator:
             temperature=None if t[3] == 0 else TemperatureSummary(t[2] / t[3], t[0], t[1]),
             notes=tuple(notes),
             temperature_bins=self.temperature_bins if t[3] else None,
+            fine_temperature_bins=self.fine_temperature.merged(self.fine_bins.samples) if t[3] else None,
         )
 
 

@@ -9,7 +9,8 @@ noise model the stage puts under its σ; :func:`coloured_note` says what the dec
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Any, cast
 
 import numpy as np
@@ -47,6 +48,7 @@ def coloured_covariance(
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     prior_detected: bool = False,
     given: NDArray[np.float64] | None = None,
+    remove: Callable[[LowBand], list[NDArray[np.float64]]] | None = None,
 ) -> tuple[NDArray[np.float64], Any]:
     """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
@@ -58,6 +60,9 @@ def coloured_covariance(
     of :func:`.spectrum.z_bin_expectations`; it shares the z channel's white level with the low band, which pins that
     level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
     or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.whittle.fit_coloured_noise`.
+    ``remove(bins)``: the part of each residual channel on the low band's bins that a modelled signal explains (the
+    thermal terms, :func:`.thermal.residual_signal`), taken out before the periodograms; the caller passes ``fine_bins``
+    with it taken out too.
     Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
     ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
     ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
@@ -70,6 +75,8 @@ def coloured_covariance(
     if n_keep < 16 or att.block_map is None:
         return units, None
     bins = low_band(filter_bins, keep_bins, rate, x_ls, blocks, att, latitude, loop, case_rotation_period, n_keep)
+    if remove is not None:  # a signal the stage models (the thermal terms, .thermal) is not noise: out of the residuals
+        bins = replace(bins, channels=[c - r for c, r in zip(bins.channels, remove(bins), strict=False)])
     harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
     built = spectrum.periodogram_design(
         bins.channels,

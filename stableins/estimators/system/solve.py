@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -29,10 +29,10 @@ from stableins.conventions import SIDEREAL_DAY
 from stableins.errormodel import MICRO_G_PER_G2
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.accumulate import RecordSums
+from stableins.estimators.system.accumulate import RecordSums, SampleBins
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
-from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
+from stableins.estimators.system.coloured import LowBand, coloured_covariance, coloured_note, measured_noise_model, noise_prior
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
@@ -239,11 +239,13 @@ def decide_noise(
     options: SystemOptions,
     given: NoiseModel | None,
     path: str,
+    remove: tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None = None,
 ) -> NoiseDecision:
     """Step 5: decide on the low-frequency noise and build the covariance of ``v`` under it.
 
     The joint white covariance of ``v`` (cross terms from the vertical path), the coloured noise measured in the
-    residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.
+    residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.  ``remove``: the fine bins and
+    the low band's channels without a signal the stage models (the thermal terms, :meth:`.thermal.ThermalFit.remover`).
     """
     att = attitude.fit
     cov_x = harmonic.covariance
@@ -258,7 +260,7 @@ def decide_noise(
     given_amplitudes, prior, prior_detected = noise_prior(given, gravity)
     units, fit = coloured_covariance(
         sums.filter_bins,
-        sums.fine_bins,
+        sums.fine_bins if remove is None else remove[0],
         sums.filter_bins.n > 0,
         rate,
         harmonic.x_ls,
@@ -272,6 +274,7 @@ def decide_noise(
         prior=prior,
         prior_detected=prior_detected,
         given=given_amplitudes,
+        remove=None if remove is None else remove[1],
     )
     # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
     amplitudes = fit.amplitudes if fit is not None else np.zeros(units.shape[:2])

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -404,9 +404,25 @@ def _run(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
     # the temperature sensitivities as terms of the system model (docs §1b): coefficients corrected, σ widened
-    thermal = analyse_temperature(
-        ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate), options, prior_covariance
-    )
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate)
+    thermal = analyse_temperature(inputs, options, prior_covariance)
+    remove = thermal.remover(inputs)
+    if remove is not None:  # a detected thermal term is signal, not slow noise: decide the noise without it, then refit
+        decision = solve.decide_noise(
+            sums,
+            harmonic,
+            attitude,
+            noise,
+            loop,
+            latitude=latitude,
+            gravity=gravity,
+            rate=rate,
+            options=options,
+            given=noise_model,
+            path=path,
+            remove=remove,
+        )
+        thermal = analyse_temperature(replace(inputs, decision=decision), options, prior_covariance)
     harmonic, attitude, decision = thermal.apply(harmonic, attitude, decision)
     return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, thermal)
 

@@ -39,7 +39,7 @@ note says so and why.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -53,7 +53,7 @@ from stableins.estimators.system.coloured import LowBand, attitude_bin_map, low_
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS
 
 if TYPE_CHECKING:
-    from stableins.estimators.system.accumulate import RecordSums
+    from stableins.estimators.system.accumulate import RecordSums, SampleBins
     from stableins.estimators.system.loop import DampingLoop
     from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision
     from stableins.estimators.system.stage import SystemOptions
@@ -99,6 +99,10 @@ class ThermalFit:
         σ of each combined coefficient without them.
     note : str
         What the stage says about temperature (never absent).
+    mean_temperature : float
+        The record's mean temperature [°C], from which ``ΔT`` is counted (the bias at it is the bias).
+    data_estimate : ndarray (6,) or None
+        The data-only estimate on the separable directions (what :meth:`remover` takes out of the residuals).
     """
 
     terms: tuple[str, ...]
@@ -117,6 +121,48 @@ class ThermalFit:
     thermal_sigma: NDArray[np.float64]
     data_sigma: NDArray[np.float64]
     note: str
+    mean_temperature: float = 0.0
+    data_estimate: NDArray[np.float64] | None = None
+
+    def remover(self, stage: ThermalInputs) -> tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None:
+        """Return the fine bins and the low band's residual channels without the detected thermal terms (None when none is detected).
+
+        The noise decision runs on the residuals of the fits; a thermal term the record separates (a ramp, a step) would
+        otherwise look like random walk there.  The fine bins lose ``n·z_T`` (their high band starts at 30 cycles/day,
+        where what the harmonics absorb of ``z_T`` has no power); the low band's channels lose ``R z_T``, ``R pitch_T``,
+        ``R roll_T`` with each channel's residual maker ``R`` (:func:`.solve.decide_noise`, ``remove``).
+        """
+        fine_t = stage.sums.fine_temperature_bins
+        if not self.detected or self.data_estimate is None or fine_t is None:
+            return None
+        p = self.data_estimate
+        fine = stage.sums.fine_bins
+        n = fine.n.size
+        count = np.zeros(n)
+        total = np.zeros(n)
+        m = min(n, fine_t.count.size)
+        count[:m], total[:m] = fine_t.count[:m], fine_t.total[:m]
+        filled = fine.n > 0
+        have = count > 0
+        centre = np.arange(n, dtype=float)
+        temperature = np.interp(centre, centre[have], total[have] / count[have]) if have.any() else np.full(n, self.mean_temperature)
+        delta = temperature - self.mean_temperature
+        u = np.zeros((n, 3))
+        u[filled, :2] = fine.h[filled, 1:3] / fine.n[filled, None]
+        u[:, 2] = math.sin(stage.latitude)
+        z_t = delta * (u @ (p[:3] / stage.gravity) + (u**2) @ p[3:])
+        cleaned = replace(fine, z=fine.z - np.where(filled, fine.n * z_t, 0.0))
+
+        def remove(band: LowBand) -> list[NDArray[np.float64]]:
+            keep = stage.sums.filter_bins.n > 0
+            delta_band = _bin_temperature(stage.sums, keep, band) - self.mean_temperature
+            z_cols, pitch, roll, _ = _response(stage, band, delta_band)
+            out = [band.makers[0] @ (z_cols @ p)]
+            if len(band.channels) == 3:
+                out += [band.makers[1] @ (pitch @ p), band.makers[2] @ (roll @ p)]
+            return out
+
+        return cleaned, remove
 
     @property
     def applied(self) -> bool:
@@ -231,12 +277,17 @@ def analyse_temperature(
     )
     temperature = _bin_temperature(stage.sums, keep, band)
     weights = band.weights[0]
-    delta_t = temperature - float(np.sum(weights * temperature) / np.sum(weights))
-    z_cols, jacobian = _response(stage, band, delta_t)
+    mean_temperature = float(np.sum(weights * temperature) / np.sum(weights))
+    delta_t = temperature - mean_temperature
+    z_cols, _, _, jacobian = _response(stage, band, delta_t)
     info, gradient, info_raw = _information(stage, band, z_cols)
     posterior = np.linalg.inv(np.diag(1.0 / sigma0**2) + info)
     estimate = posterior @ gradient
     separable, chi2, dof = _separable(info, info_raw, gradient)
+    data_estimate = None
+    if dof:
+        d = separable.T  # (6, k)
+        data_estimate = d @ np.linalg.solve(d.T @ info @ d, d.T @ gradient)
     from scipy.stats import chi2 as chi2_dist
 
     p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
@@ -261,6 +312,8 @@ def analyse_temperature(
         thermal_sigma=np.sqrt(np.diag(thermal_cov)),
         data_sigma=np.sqrt(np.diag(data_cov)),
         note="",
+        mean_temperature=mean_temperature,
+        data_estimate=data_estimate,
     )
     return replace(fit, note=_note(fit, options.noise_false_positive_rate))
 
@@ -280,8 +333,10 @@ def _bin_temperature(sums: RecordSums, keep: NDArray[np.bool_], band: LowBand) -
     return np.interp(band.time, band.time[have], t_sum[have] / t_count[have]) if have.any() else np.zeros(n)
 
 
-def _response(stage: ThermalInputs, band: LowBand, delta_t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Return the six sensitivities' ``z`` on the bins ``(n, 6)`` and their response ``J (17, 6)`` in ``v`` (as the coloured noise's, §1a)."""
+def _response(
+    stage: ThermalInputs, band: LowBand, delta_t: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Return the six sensitivities' ``z``, pitch and roll on the bins ``(n, 6)`` and their response ``J (17, 6)`` in ``v``."""
     n = band.groups.size
     loads = band.mixing[0]  # u_a on the bins
     # δ_a per unit of each sensitivity on the bins: bias ΔT/g on its axis, scale factor ΔT u_a
@@ -296,7 +351,7 @@ def _response(stage: ThermalInputs, band: LowBand, delta_t: NDArray[np.float64])
     jac_x = np.zeros((10, 7))
     jac_x[:, :5] = att.vertical_jacobian @ np.diag(-stage.attitude.along)  # ∂attitude/∂x through the vertical channel
     j_x = band.a_z @ z_cols
-    return z_cols, np.vstack([j_x, attitude_bin_map(att, band.groups, band.merge) @ np.vstack([pitch, roll]) + jac_x @ j_x])
+    return z_cols, pitch, roll, np.vstack([j_x, attitude_bin_map(att, band.groups, band.merge) @ np.vstack([pitch, roll]) + jac_x @ j_x])
 
 
 def _information(
@@ -347,7 +402,7 @@ def _separable(
     scale = np.sqrt(np.clip(np.diag(info_raw), 1e-300, None))
     raw = info_raw / np.outer(scale, scale)
     values, vectors = np.linalg.eigh(raw)
-    keep = values > 1e-12 * max(values.max(), 1e-300)
+    keep = values > 1e-9 * max(values.max(), 1e-300)  # exact collinearities (k_z, s_z and s_x + s_y all enter z as ΔT) are ~1e-12
     if not keep.any():
         return np.zeros((0, 6)), 0.0, 0
     half = vectors[:, keep] / np.sqrt(values[keep])  # raw^{-1/2} on its range
