@@ -12,13 +12,19 @@ paper's Table 2/3 residuals, damping on).  Cases:
   record separates part of the sensitivities; detection and coefficients.
 * ``kcc``: a 10 µg/g² cross-coupling Kcc_xxy: the third-harmonic note (which effects it names, whether it advises the
   K2 estimation), and the coefficients with and without ``estimate_k2`` (the correction the note must not advise).
+* ``diagnose``: discovery on system records (``stableins diagnose``) with a thermal cycle and with Kcc_xxy: the ranking
+  and the notes that name the thermal term and the K2/Kcc alias pair.
+* ``drawn``: the sensitivities drawn from the stage's prior under the daily cycle: σ right on average (rms z ≈ 1)?
 * ``clean``: false alarms on clean records (no thermal sensitivity, the daily cycle or the ramp present; no third
   harmonic): the share of records where the thermal test fires (target: the stage's false-positive rate, 5 %), where the
   third harmonic is flagged (3σ rule on x6, x7), and where a clean record gets "not separable" labels.
 
 Usage::
 
-    python benchmarks/bench_system_thermal.py [--cases thermal ramp kcc clean] [--seeds 20] [--rate 1]
+    python benchmarks/bench_system_thermal.py [--cases thermal ramp kcc clean drawn] [--seeds 20] [--rate 1] [--drift 0.001]
+
+``--drift 0.001`` adds an unknown 0.001 °/h gyro drift per axis to the thermal case: the joint Table 4 acceptance of issue
+16 (drift and temperature), which needs the drift estimation of the system stage as well.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_paper_table4 import SimulatorSource, paper_truth  # noqa: E402
 
-from stableins.conventions import MICRO_G, SIDEREAL_DAY, STANDARD_GRAVITY  # noqa: E402
+from stableins.conventions import DEG_PER_HOUR, MICRO_G, SIDEREAL_DAY, STANDARD_GRAVITY  # noqa: E402
 from stableins.estimators.system.assembly import residuals_from_parameters  # noqa: E402
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix  # noqa: E402
 from stableins.estimators.system.stage import SystemOptions, run_system_stage  # noqa: E402
@@ -54,10 +60,11 @@ class _Source(SimulatorSource):
         self.columns = tuple(n for n in names if temperature or n != "temperature")
 
 
-def _truth(rate, seed, effects, temperature):
+def _truth(rate, seed, effects, temperature, drift=0.0):
     truth = paper_truth(rate, seed)
     noise = NoiseSettings(velocity_random_walk=5e-4, temperature=temperature)
-    return replace(truth, noise=noise, effects=effects)
+    gyro = {"x": drift, "y": drift, "z": drift} if drift else {}
+    return replace(truth, noise=noise, effects=effects, gyro_drift=gyro)
 
 
 def _run(truth, rate, seed, *, temperature=True, estimate_k2=False):
@@ -87,18 +94,18 @@ def _table(label, out, reference):
     return worst
 
 
-def case_thermal(rate, seed):
+def case_thermal(rate, seed, drift=0.0):
     profile = TemperatureProfile(amplitude=2.0, period=86400.0, sensor_noise=0.01)
     effects = {f"Kt_bias_{a}": BIAS_SENSITIVITY for a in "xyz"}
-    truth = _truth(rate, seed, effects, profile)
+    truth = _truth(rate, seed, effects, profile, drift)
     reference = _reference(truth)
-    print(f"\n[thermal] 5 µg/K bias sensitivity per axis, 2 K daily cycle (24 h solar), seed {seed}, {rate:g} Hz")
+    extra = f", unknown gyro drift {drift / DEG_PER_HOUR:g} °/h per axis" if drift else ""
+    print(f"\n[thermal] 5 µg/K bias sensitivity per axis, 2 K daily cycle (24 h solar){extra}, seed {seed}, {rate:g} Hz")
     before = _run(truth, rate, seed, temperature=False)
     after = _run(truth, rate, seed)
     z_before = np.abs(before.combined.values - reference) / before.combined.sigma
-    print(
-        f"  without the temperature column (as main did): largest |error|/σ {z_before.max():.1f} ({COMBINED_COEFFICIENTS[int(z_before.argmax())]})"
-    )
+    worst_name = COMBINED_COEFFICIENTS[int(z_before.argmax())]
+    print(f"  without the temperature column (as main did): largest |error|/σ {z_before.max():.1f} ({worst_name})")
     _table("with the temperature column (this stage):", after, reference)
     print("  note: " + next(n for n in after.notes if n.startswith("temperature"))[:400] + " ...")
 
@@ -161,20 +168,90 @@ def case_clean(rate, seeds, first):
         )
 
 
+def case_drawn(rate, seeds, first):
+    """Draw the sensitivities from the stage's prior (5 µg/K, 5 ppm/K, 1σ) under a 2 K daily cycle: is σ right (rms z ≈ 1)."""
+    from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR
+
+    print(f"\n[drawn] {seeds} records, sensitivities drawn from the prior (5 µg/K, 5 ppm/K 1σ per axis), 2 K daily cycle, {rate:g} Hz")
+    profile = TemperatureProfile(amplitude=2.0, period=86400.0, sensor_noise=0.01)
+    z_all, labelled = [], 0
+    for seed in range(first, first + seeds):
+        rng = np.random.default_rng(seed)
+        effects = {f"Kt_bias_{a}": rng.normal(0.0, DEFAULT_THERMAL_PRIOR[0]) for a in "xyz"}
+        effects |= {f"Kt_sf_{a}": rng.normal(0.0, DEFAULT_THERMAL_PRIOR[1]) for a in "xyz"}
+        truth = _truth(rate, seed, effects, profile)
+        out = _run(truth, rate, seed)
+        labelled += len(out.thermal.not_separable)
+        z_all.append((out.combined.values - _reference(truth)) / out.combined.sigma)
+    z = np.array(z_all)
+    blind = []
+    for seed in range(first, first + min(seeds, 5)):
+        rng = np.random.default_rng(seed)
+        effects = {f"Kt_bias_{a}": rng.normal(0.0, DEFAULT_THERMAL_PRIOR[0]) for a in "xyz"}
+        effects |= {f"Kt_sf_{a}": rng.normal(0.0, DEFAULT_THERMAL_PRIOR[1]) for a in "xyz"}
+        truth = _truth(rate, seed, effects, profile)
+        out = _run(truth, rate, seed, temperature=False)
+        blind.append((out.combined.values - _reference(truth)) / out.combined.sigma)
+    print(
+        f"  with the temperature column: rms z {math.sqrt(np.mean(z**2)):.2f} over {z.size} coefficients (target 1; expected spread "
+        f"±{math.sqrt(1 / (2 * z.size)):.2f}), largest |z| {np.abs(z).max():.1f}; {labelled / seeds:.1f} of 15 coefficients "
+        "labelled not separable per record"
+    )
+    zb = np.array(blind)
+    print(
+        f"  without it (as main did), first {len(blind)} records: rms z {math.sqrt(np.mean(zb**2)):.1f}, largest |z| {np.abs(zb).max():.1f}"
+    )
+
+
+def case_diagnose(seed):
+    """What ``stableins diagnose SYSTEM.h5 --record CAL.json`` says (bench_system_diagnose's pipeline) on two records."""
+    import tempfile
+
+    from bench_system_diagnose import diagnose, write_day
+
+    worlds = {
+        "thermal": (
+            NoiseSettings(velocity_random_walk=4.5e-4, temperature=TemperatureProfile(amplitude=2.0, period=86400.0, sensor_noise=0.01)),
+            {f"Kt_bias_{a}": BIAS_SENSITIVITY for a in "xyz"},
+        ),
+        "kcc": (NoiseSettings(velocity_random_walk=4.5e-4), {"Kcc_xxy": KCC}),
+    }
+    for label, (noise, effects) in worlds.items():
+        with tempfile.TemporaryDirectory() as tmp:
+            record, truth = write_day(Path(tmp), seed, noise, effects)
+            result = diagnose(record, truth)
+        hidden = ", ".join(effects)
+        print(f"\n[diagnose/{label}] a drawn unit with {hidden} hidden, one day at 1 Hz, white 46 µg/√Hz, seed {seed}")
+        top = result.ranking.candidates[:5]
+        print("  ranking (top 5): " + "; ".join(f"{c.id} p={c.p_value:.2g}{' flagged' if c.flagged else ''}" for c in top))
+        for note in result.notes:
+            if note.startswith(("temperature", "third harmonic")):
+                print("  note: " + note)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", nargs="+", default=["thermal", "ramp", "kcc", "clean"])
+    parser.add_argument("--cases", nargs="+", default=["thermal", "ramp", "kcc", "diagnose", "clean", "drawn"])
     parser.add_argument("--seeds", type=int, default=20, help="clean records per temperature history")
     parser.add_argument("--first", type=int, default=100, help="first seed of the clean records")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--rate", type=float, default=1.0)
+    parser.add_argument(
+        "--drift", type=float, default=0.0, help="unknown gyro drift [°/h] per axis in the thermal case (Table 4 joint set-up)"
+    )
     args = parser.parse_args(argv)
     print("Temperature and third harmonic in the system stage (truth simulator, one sidereal day, white N = 5e-4 m/s/√s)")
     for case in args.cases:
         if case == "clean":
             case_clean(args.rate, args.seeds, args.first)
+        elif case == "diagnose":
+            case_diagnose(args.seed)
+        elif case == "drawn":
+            case_drawn(args.rate, args.seeds, args.first)
+        elif case == "thermal":
+            case_thermal(args.rate, args.seed, args.drift * DEG_PER_HOUR)
         else:
-            {"thermal": case_thermal, "ramp": case_ramp, "kcc": case_kcc}[case](args.rate, args.seed)
+            {"ramp": case_ramp, "kcc": case_kcc}[case](args.rate, args.seed)
     return 0
 
 
