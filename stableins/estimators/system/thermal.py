@@ -281,7 +281,7 @@ def analyse_temperature(
     delta_t = temperature - mean_temperature
     z_cols, _, _, jacobian = _response(stage, band, delta_t)
     info, gradient, info_raw = _information(stage, band, z_cols)
-    posterior = np.linalg.inv(np.diag(1.0 / sigma0**2) + info)
+    posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
     estimate = posterior @ gradient
     separable, chi2, dof = _separable(info, info_raw, gradient)
     data_estimate = None

@@ -89,7 +89,7 @@ def signature(
     ``−Δf_E/g = sin S δ_x − cos S δ_y`` on mean, fundamental and second harmonic, in the order of
     :data:`ATTITUDE_COEFFICIENTS` (docs/system-calibration.md §1–2).  Least squares over one turn of ``S``.
     """
-    angle = np.arange(_GRID) * (2 * np.pi / _GRID)
+    angle: NDArray[np.float64] = np.arange(_GRID, dtype=np.float64) * (2 * np.pi / _GRID)
     c, s = math.cos(latitude), math.sin(latitude)
     u = np.stack([c * np.cos(angle), c * np.sin(angle), np.full_like(angle, s)], axis=1)
     d = np.zeros_like(u)
