@@ -375,7 +375,7 @@ def combine(
     text = third.note(estimate_k2=estimate_k2, parameter=ESTIMATE_K2_PARAMETER, reading=_k2_note(harmonic, k2_values, k2_sigma, latitude))
     if text is not None:
         notes.append(text)
-        if (third.significant and not estimate_k2) or (estimate_k2 and not third.k2_alone):
+        if (any(third.significant) and not estimate_k2) or (estimate_k2 and not third.k2_alone):
             warnings.warn(f"{path}: {text}", UserWarning, stacklevel=3)
     combined_values = to_combined @ v
     combined_cov = to_combined @ cov_v @ to_combined.T

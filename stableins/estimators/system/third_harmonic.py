@@ -63,9 +63,6 @@ THIRD_HARMONIC_EFFECTS: tuple[Effect, ...] = (
 #: Units in which the hypotheses' sizes are printed (SI per unit): µg/g² for the products, ppm for the asymmetry.
 _UNIT = {"Ksa": (1e-6, "ppm")}
 
-#: The hypothesis ``estimate_k2`` removes: ΔK2_x and ΔK2_y together.
-K2_HYPOTHESIS = "K2_x + K2_y"
-
 #: Points of the Earth-rate angle over one turn for the signatures (harmonics up to 8 are exact on 64 points; |u_a|
 #: has all odd harmonics, whose aliases from above 64 are below 1e-5 of the third).
 _GRID = 720
@@ -109,40 +106,51 @@ def signature(
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """One explanation of the third harmonic and how the record's coefficients receive it.
+    """One explanation of the third harmonic (an effect for its cosine part x6 and one for its sine part x7).
 
     Attributes
     ----------
-    name : str
-        The effect (or ``K2_x + K2_y``, what ``estimate_k2`` removes).
-    size : tuple of float
-        Least-squares size of each of its terms [SI], with the standard model fitted alongside.
-    sigma : tuple of float
-        Their 1σ.
+    terms : tuple of str
+        The effects, one or two (``K2_x``, ``K2_y`` is what ``estimate_k2`` removes).
+    size, sigma : tuple of float
+        Least-squares size of each [SI] with the standard model fitted alongside, and its 1σ.
     chi2, dof, p_value : float, int, float
-        The fit of the fifteen combined coefficients and ``x6``, ``x7`` with the standard model plus this effect.
+        The fit of the fifteen combined coefficients and ``x6``, ``x7`` with the standard model plus these effects
+        (``p_value`` with σ scaled when no hypothesis fits, :attr:`ThirdHarmonic.scale`).
     consistent : bool
         ``p ≥ α``: the record does not reject it.
-    separation : str
-        What separates it from its aliases.
     """
 
-    name: str
+    terms: tuple[str, ...]
     size: tuple[float, ...]
     sigma: tuple[float, ...]
     chi2: float
     dof: int
     p_value: float
     consistent: bool
-    separation: str
+
+    @property
+    def name(self) -> str:
+        """The effects joined by ``+``."""
+        return " + ".join(self.terms)
 
     def describe(self) -> str:
-        """One phrase: the effect, its size ± 1σ in engineering units, χ²/ν and p."""
-        parts = []
-        for term, value, sigma in zip(self.name.split(" + "), self.size, self.sigma, strict=True):
-            scale, unit = _UNIT.get(term.split("_")[0], (MICRO_G_PER_G2, "µg/g²"))
-            parts.append(f"{term} = {value / scale:.1f} ± {sigma / scale:.1f} {unit}")
-        return f"{', '.join(parts)} (χ² = {self.chi2:.1f}, ν = {self.dof}, p = {self.p_value:.2g})"
+        """One phrase: the effects, their sizes ± 1σ in engineering units, χ²/ν and p."""
+        return f"{_sizes(self.terms, self.size, self.sigma)} (χ² = {self.chi2:.1f}, ν = {self.dof}, p = {self.p_value:.2g})"
+
+
+def _sizes(terms: Sequence[str], size: Sequence[float], sigma: Sequence[float]) -> str:
+    parts = []
+    for term, value, error in zip(terms, size, sigma, strict=True):
+        scale, unit = _UNIT.get(term.split("_")[0], (MICRO_G_PER_G2, "µg/g²"))
+        if term.startswith("Kt_sf"):
+            scale, unit = 1e-6, "ppm/K"
+        parts.append(f"{term} = {value / scale:.1f} ± {error / scale:.1f} {unit}")
+    return ", ".join(parts)
+
+
+#: The two parts of the third harmonic: its cosine (x6) and sine (x7) in z.
+COMPONENTS = ("x6", "x7")
 
 
 @dataclass(frozen=True)
@@ -151,98 +159,126 @@ class ThirdHarmonic:
 
     Attributes
     ----------
-    significant : bool
-        ``x6`` or ``x7`` beyond 3σ (the stage's flag of a third harmonic).
-    baseline_chi2, baseline_dof, baseline_p : float, int, float
+    significant : tuple of bool
+        ``x6``, ``x7`` beyond 3σ (the stage's flag of a third harmonic).
+    baseline_chi2, baseline_dof : float, int
         The standard model alone on the same seventeen numbers.
     hypotheses : tuple of Hypothesis
-        Every hypothesis, best (smallest χ²) first.
+        Every hypothesis (one effect for x6 and one for x7, or one thermal term), best (smallest χ²) first.
     alpha : float
         Level below which a hypothesis is rejected.
+    scale : float
+        χ²/ν of the best hypothesis when even that one is rejected (something else moves the coefficients, e.g. an
+        unknown gyro drift in pitch and roll): the comparison is then relative, with σ scaled by its square root; else 1.
+    candidates : dict
+        ``{component: {effect: separation}}``: the effects that make x6 and those that make x7.
     """
 
-    significant: bool
+    significant: tuple[bool, bool]
     baseline_chi2: float
     baseline_dof: int
-    baseline_p: float
     hypotheses: tuple[Hypothesis, ...]
     alpha: float
+    scale: float
+    candidates: Mapping[str, Mapping[str, str]]
 
     @property
     def consistent(self) -> tuple[Hypothesis, ...]:
         """The hypotheses the record does not reject."""
         return tuple(h for h in self.hypotheses if h.consistent)
 
+    def accepted(self, component: str) -> tuple[str, ...]:
+        """Return the effects of ``component`` (``x6`` or ``x7``) found in a hypothesis the record accepts, best first."""
+        names = self.candidates[component]
+        out: list[str] = []
+        for h in self.consistent:
+            for term in h.terms:
+                if term in names and term not in out:
+                    out.append(term)
+        return tuple(out)
+
     @property
     def k2_alone(self) -> bool:
-        """A residual K2 is the only explanation the record accepts (then ``estimate_k2`` is the correction to make)."""
-        names = [h.name for h in self.consistent]
-        return bool(names) and all(n in (K2_HYPOTHESIS, "K2_x", "K2_y") for n in names)
+        """A residual K2 is the only accepted explanation of every significant part (then ``estimate_k2`` is the correction)."""
+        parts = [c for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig]
+        return bool(parts) and all(self.accepted(c) == (f"K2_{'x' if c == 'x6' else 'y'}",) for c in parts)
+
+    def _k2(self) -> Hypothesis:
+        return next(h for h in self.hypotheses if h.terms == ("K2_x", "K2_y"))
+
+    def _parts(self) -> str:
+        out = []
+        for component, sig in zip(COMPONENTS, self.significant, strict=True):
+            if not sig:
+                continue
+            accepted = self.accepted(component)
+            best = {t: h for h in reversed(self.consistent) for t in h.terms}
+            what = "cos 3S" if component == "x6" else "sin 3S"
+            named = "; ".join(
+                _sizes((t,), (best[t].size[best[t].terms.index(t)],), (best[t].sigma[best[t].terms.index(t)],)) for t in accepted
+            )
+            out.append(f"its {what} part ({component}): " + (named if accepted else "no library effect"))
+        return "; ".join(out)
 
     def note(self, *, estimate_k2: bool, parameter: str, reading: str = "") -> str | None:
         """Return the stage's note on the third harmonic (None when it is not significant and K2 is not being estimated).
 
         ``reading``: the third harmonic read as residual K2 (the stage's sizes), put in the head.
         """
-        if not self.significant and not estimate_k2:
+        if not any(self.significant) and not estimate_k2:
             return None
-        k2 = next(h for h in self.hypotheses if h.name == K2_HYPOTHESIS)
-        accepted = self.consistent
+        k2 = self._k2()
         reading = f"; {reading}" if reading else ""
         head = (
             f"third harmonic of Earth rate in the specific-force error (x6, x7 beyond 3σ; the paper's model has none{reading})"
-            if self.significant
+            if any(self.significant)
             else "K2 estimated from the third harmonic of Earth rate"
         )
-        rejected = [h.name for h in self.hypotheses if not h.consistent]
+        relative = (
+            f" (no hypothesis fits the coefficients: the best leaves χ²_ν = {self.scale:.1f}, something else moves them, e.g. an "
+            "unknown gyro drift in pitch and roll; the comparison is relative, σ scaled by its square root)"
+            if self.scale > 1.0
+            else ""
+        )
+        separations = {t: sep for names in self.candidates.values() for t, sep in names.items()}
+        accepted = [t for c in COMPONENTS for t in self.accepted(c)]
+        separate = "; ".join(f"{t}: {separations[t]}" for t in dict.fromkeys(accepted))
         if estimate_k2:
+            if self.k2_alone:
+                return f"{head}: removed as a residual K2, {k2.describe()}{relative}"
             if k2.consistent:
-                alias = [h.name for h in accepted if h.name not in (K2_HYPOTHESIS, "K2_x", "K2_y")]
-                tail = (
-                    f"; the record cannot tell it from {', '.join(alias)}, which explain the coefficients as well: the K2 correction is "
-                    "right only if the device-level data show the effect is K2 ("
-                    + "; ".join(f"{h.name}: {h.separation}" for h in accepted if h.name in alias)
-                    + ")"
-                    if alias
-                    else ""
+                return (
+                    f"{head}: removed as a residual K2 ({k2.describe()}), but the record cannot tell K2 from other effects that "
+                    f"explain it as well{relative}: {self._parts()}.  The K2 correction ({parameter}) is right only if the "
+                    f"device-level data show the effect is K2; what separates them: {separate}"
                 )
-                return f"{head}: removed as a residual K2, {k2.describe()}{tail}"
             return (
                 f"{head}: a residual K2 does NOT explain the coefficients ({k2.describe()}; the standard model alone: χ² = "
-                f"{self.baseline_chi2:.1f}, ν = {self.baseline_dof}); the K2 correction ({parameter}) biases them. "
-                + (
-                    "Explanations the record accepts: " + "; ".join(h.describe() for h in accepted)
-                    if accepted
-                    else "No single library effect explains them"
-                )
+                f"{self.baseline_chi2:.1f}, ν = {self.baseline_dof}){relative}; the K2 correction ({parameter}) biases them. "
+                f"Explanations the record accepts: {self._parts()}"
             )
         if not accepted:
             return (
-                f"{head}: no single library effect explains the coefficients (standard model: χ² = {self.baseline_chi2:.1f}, "
-                f"ν = {self.baseline_dof}; rejected at α = {self.alpha:g}: {', '.join(rejected)}); do not correct it with K2 "
-                "(stableins diagnose on the record ranks the candidates)"
-            )
-        named = "; ".join(h.describe() for h in accepted)
-        if len(accepted) == 1 and not self.k2_alone:
-            only = accepted[0]
-            return (
-                f"{head}. Explained by {only.name} alone among the library's effects: {named}; the record rejects a residual K2 "
-                f"({k2.describe()}) and {', '.join(n for n in rejected if n != K2_HYPOTHESIS)} at α = {self.alpha:g}. Do not use the K2 "
-                f"estimation ({parameter}): it would bias x2, x3 and the fundamentals. {only.name} is an instrument term the device "
-                f"calibration carries; confirm and estimate it there ({only.separation})"
+                f"{head}: no library effect explains the coefficients (standard model: χ² = {self.baseline_chi2:.1f}, "
+                f"ν = {self.baseline_dof}); do not correct it with K2 (stableins diagnose on the record ranks the candidates)"
             )
         if self.k2_alone:
             return (
-                f"{head}. Explained by a residual K2 and by no other library effect (rejected at α = {self.alpha:g}: "
-                f"{', '.join(rejected)}): {named}. It biases x2, x3 and the fundamentals of pitch and roll; rerun with the K2 "
-                f"estimation on ({parameter}) to remove it"
+                f"{head}: explained by a residual K2 and by no other library effect{relative}: {k2.describe()}. It biases x2, x3 "
+                f"and the fundamentals of pitch and roll; rerun with the K2 estimation on ({parameter}) to remove it"
             )
+        several = any(len(self.accepted(c)) > 1 for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig)
+        k2_text = (
+            "the K2 estimation (" + parameter + ") is right only if the device-level data show the effect is K2"
+            if k2.consistent
+            else f"the record rejects a residual K2 ({k2.describe()}): do not use the K2 estimation ({parameter}), it would bias "
+            "x2, x3 and the fundamentals"
+        )
         return (
-            f"{head}. Several effects explain it equally and this record cannot tell them apart: {named}. Each biases x2, x3 "
-            "and the fundamentals of pitch and roll differently, so no correction is applied or advised: the K2 estimation "
-            f"({parameter}) is right only if the device-level data show the effect is K2. What separates them: "
-            + "; ".join(f"{h.name}: {h.separation}" for h in accepted)
-            + (f". Rejected by the record at α = {self.alpha:g}: {', '.join(rejected)}" if rejected else "")
+            f"{head}{relative}. "
+            + ("Several effects explain it and this record cannot tell them apart: " if several else "Explained by: ")
+            + f"{self._parts()}. Each moves x2, x3 and the fundamentals of pitch and roll differently, so no correction is "
+            f"applied or advised; {k2_text}. What separates them: {separate}"
         )
 
 
@@ -271,11 +307,12 @@ def explain_third_harmonic(
 ) -> ThirdHarmonic:
     """Test each explanation of the third harmonic against the stage's ``v = (x1..x7, attitude)`` and its covariance.
 
-    ``w = (x1..x5, attitude, x6, x7)``, model ``w = G q + s_e a`` (``G`` the standard model's combined coefficients
-    from the residuals and the two mean nuisances, nothing in ``x6``, ``x7``), generalized least squares under
-    ``cov_v``.  ``extra``: further hypotheses ``{name: (signature (17,) per unit, separation)}`` (e.g. a scale-factor
-    temperature sensitivity under the record's thermal cycle).  The third harmonic is significant when ``x6`` or ``x7``
-    is beyond 3σ.
+    ``w = (x1..x5, attitude, x6, x7)``, model ``w = G q + S a`` (``G`` the standard model's combined coefficients from the
+    residuals and the two mean nuisances, nothing in ``x6``, ``x7``; ``S`` the signatures of one effect making x6 and one
+    making x7), generalized least squares under ``cov_v``, every pair.  ``extra``: further single hypotheses ``{name:
+    (signature (17,) per unit, separation)}`` that make both parts (a scale-factor temperature sensitivity under the
+    record's daily cycle).  When even the best hypothesis is rejected, σ is scaled by its ``sqrt(χ²/ν)`` (Birge) and the
+    hypotheses are compared relative to it.  A part is significant when it is beyond 3σ.
     """
     from scipy.stats import chi2 as chi2_dist
 
@@ -286,23 +323,31 @@ def explain_third_harmonic(
     g = np.zeros((17, 14))
     g[:15] = combination_matrix(latitude)
     chi0, nu0, _, _ = _gls(w, whiten, g)
-    columns: dict[str, tuple[NDArray[np.float64], str]] = {}
-    k2 = [signature(d, ax, latitude, gravity) for name, ax, d, _ in effects if name in ("K2_x", "K2_y")]
-    columns[K2_HYPOTHESIS] = (np.stack(k2, axis=1), "the device stages' ±1 g and intermediate positions of the x and y axes")
-    for name, ax, d, separation in effects:
-        columns[name] = (signature(d, ax, latitude, gravity)[:, None], separation)
+    columns = {name: signature(d, ax, latitude, gravity) for name, ax, d, _ in effects}
+    candidates: dict[str, dict[str, str]] = {"x6": {}, "x7": {}}
+    for name, _, _, separation in effects:
+        candidates["x6" if abs(columns[name][5]) > abs(columns[name][6]) else "x7"][name] = separation
+    sets: list[tuple[str, ...]] = [(a, b) for a in candidates["x6"] for b in candidates["x7"]]
     for name, (column, separation) in (extra or {}).items():
-        columns[name] = (np.asarray(column, dtype=float).reshape(17, -1), separation)
+        columns[name] = np.asarray(column, dtype=float).reshape(17)
+        candidates["x6"][name] = separation
+        candidates["x7"][name] = separation
+        sets.append((name,))
+    fits = []
+    for terms in sets:
+        design = np.hstack([g, np.stack([columns[t][order] for t in terms], axis=1)])
+        chi, nu, coef, cov_coef = _gls(w, whiten, design)
+        k = len(terms)
+        fits.append((terms, tuple(coef[-k:]), tuple(np.sqrt(np.diag(cov_coef))[-k:]), chi, nu))
+    best = min(fits, key=lambda f: f[3])
+    p_best = float(chi2_dist.sf(best[3], best[4])) if best[4] > 0 else 1.0
+    scale = max(1.0, best[3] / max(best[4], 1)) if p_best < alpha else 1.0
     hypotheses = []
-    for name, (column, separation) in columns.items():
-        chi, nu, coef, cov_coef = _gls(w, whiten, np.hstack([g, column[order]]))
-        p = float(chi2_dist.sf(chi, nu)) if nu > 0 else 1.0
-        k = column.shape[1]
-        hypotheses.append(Hypothesis(name, tuple(coef[-k:]), tuple(np.sqrt(np.diag(cov_coef))[-k:]), chi, nu, p, p >= alpha, separation))
-    hypotheses.sort(key=lambda h: h.chi2)
-    third = v[5:7] / np.sqrt(np.diag(cov_v)[5:7])
-    p0 = float(chi2_dist.sf(chi0, nu0)) if nu0 > 0 else 1.0
-    return ThirdHarmonic(bool(np.any(np.abs(third) > 3.0)), chi0, nu0, p0, tuple(hypotheses), alpha)
+    for terms, size, sigma, chi, nu in sorted(fits, key=lambda f: f[3]):
+        p = float(chi2_dist.sf(chi / scale, nu)) if nu > 0 else 1.0
+        hypotheses.append(Hypothesis(terms, size, tuple(s * math.sqrt(scale) for s in sigma), chi, nu, p, p >= alpha))
+    third = np.abs(v[5:7]) / np.sqrt(np.diag(cov_v)[5:7])
+    return ThirdHarmonic((bool(third[0] > 3.0), bool(third[1] > 3.0)), chi0, nu0, tuple(hypotheses), alpha, scale, candidates)
 
 
-__all__ = ["K2_HYPOTHESIS", "THIRD_HARMONIC_EFFECTS", "Hypothesis", "ThirdHarmonic", "explain_third_harmonic", "signature"]
+__all__ = ["COMPONENTS", "THIRD_HARMONIC_EFFECTS", "Hypothesis", "ThirdHarmonic", "explain_third_harmonic", "signature"]
