@@ -241,7 +241,8 @@ class ThirdHarmonic:
             else ""
         )
         separations = {t: sep for names in self.candidates.values() for t, sep in names.items()}
-        accepted = [t for c in COMPONENTS for t in self.accepted(c)]
+        significant = [c for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig] or list(COMPONENTS)
+        accepted = [t for c in significant for t in self.accepted(c)]
         separate = "; ".join(f"{t}: {separations[t]}" for t in dict.fromkeys(accepted))
         if estimate_k2:
             if self.k2_alone:
@@ -274,11 +275,15 @@ class ThirdHarmonic:
             else f"the record rejects a residual K2 ({k2.describe()}): do not use the K2 estimation ({parameter}), it would bias "
             "x2, x3 and the fundamentals"
         )
+        if not several:
+            return (
+                f"{head}{relative}. Explained by {self._parts()} alone among the library's effects; {k2_text}. An instrument term "
+                f"the device calibration carries: confirm and estimate it there ({separate})"
+            )
         return (
-            f"{head}{relative}. "
-            + ("Several effects explain it and this record cannot tell them apart: " if several else "Explained by: ")
-            + f"{self._parts()}. Each moves x2, x3 and the fundamentals of pitch and roll differently, so no correction is "
-            f"applied or advised; {k2_text}. What separates them: {separate}"
+            f"{head}{relative}. Several effects explain it and this record cannot tell them apart: {self._parts()}. Each moves "
+            f"x2, x3 and the fundamentals of pitch and roll differently, so no correction is applied or advised; {k2_text}. "
+            f"What separates them: {separate}"
         )
 
 
