@@ -257,7 +257,8 @@ def analyse_temperature(
         return _empty(
             "no temperature column: the temperature sensitivities of bias and scale factor are not modelled.  A temperature cycle "
             "at one cycle per day would alias the Earth-rate harmonics (a 5 µg/K bias sensitivity with a 2 K cycle moves "
-            "(D_x − D_y)/2, φ̄ and β_zx, β_zy by up to 9e-6 rad); record the instrument temperature (docs/system-calibration.md §1b)",
+            "(D_x − D_y)/2, the roll mean and β_zx, β_zy by up to 9e-6 rad); record the instrument temperature "
+            "(docs/system-calibration.md §1b)",
             sigma0,
         )
     keep = stage.sums.filter_bins.n > 0
@@ -476,7 +477,8 @@ def _note(fit: ThermalFit, alpha: float) -> str:
     )
     return (
         f"{head}; the sensitivities are terms of the system model with prior {prior}; {found}; posterior {_format(fit.estimate, sigma)}; "
-        f"coefficients corrected by J·p̂ and σ widened by J P Jᵀ; {moved}.  Identifiability: {alias}"
+        "coefficients corrected by the thermal terms' posterior mean, σ widened by their posterior covariance; "
+        f"{moved}.  Identifiability: {alias}"
     )
 
 
