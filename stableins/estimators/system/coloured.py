@@ -61,7 +61,7 @@ def coloured_covariance(
     level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
     or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.whittle.fit_coloured_noise`.
     ``remove(bins)``: the part of each residual channel on the low band's bins that a modelled signal explains (the
-    thermal terms, :func:`.thermal.residual_signal`), taken out before the periodograms; the caller passes ``fine_bins``
+    thermal terms, :meth:`.thermal.ThermalFit.remover`), taken out before the periodograms; the caller passes ``fine_bins``
     with it taken out too.
     Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
     ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
