@@ -469,7 +469,15 @@ def _assemble(
         residuals=np.zeros(0),
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
-        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",)
+        + (
+            (
+                "not separable from the record's temperature cycle (their σ is mostly the thermal terms', docs "
+                f"system-calibration §1b): {', '.join(stage.thermal.not_separable)}",
+            )
+            if stage.thermal.not_separable
+            else ()
+        ),
         details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     return SystemCalibration(
