@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,6 @@ from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary
 from stableins.estimators.system.assembly import (
-    ESTIMATE_K2_PARAMETER,
     combined_terms,
     fit_result,
     fixed_variance,
@@ -51,8 +50,8 @@ from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
-from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, analyse_temperature, thermal_aliases
-from stableins.estimators.system.third_harmonic import explain_third_harmonic
+from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
@@ -87,7 +86,7 @@ class SystemOptions:
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
-    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] unless the prior record has them (§1b)
+    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "gyro_drift", validate_options(self))
@@ -205,8 +204,7 @@ class SystemCalibration(SystemCalibrationView):
         The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
         (None when the record is too short for the model).
     thermal : ThermalFit or None
-        The temperature sensitivities of bias and scale factor as terms of the system model: their response, posterior,
-        separability, test and the coefficients they leave not separable (:mod:`.thermal`, docs §1b).
+        The bias and scale-factor temperature sensitivities as terms of the system model (:mod:`.thermal`, docs §1b).
     noise_model : NoiseModel
         The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
         from second differences, bias instability and random walk from the residual spectra, with intervals; the given
@@ -242,16 +240,13 @@ class SystemNoise:
     duration : float
         Length of the record [s].
     notes : tuple of str
-        What the decision found (the stage's note) and what the thermal model found.
-    thermal : ThermalFit or None
-        The temperature sensitivities as the stage sees them (:mod:`.thermal`).
+        What the decision, the thermal model and a third harmonic's explanations found.
     """
 
     noise_model: NoiseModel
     coloured_noise: ColouredNoiseFit | None
     duration: float
     notes: tuple[str, ...] = ()
-    thermal: ThermalFit | None = None
 
 
 def run_system_stage(
@@ -307,7 +302,7 @@ def run_system_stage(
         duration=stage.sums.duration,
         estimate_k2=options.estimate_k2,
         path=stage.path,
-        aliases=thermal_aliases(stage.thermal),
+        aliases=stage.thermal.aliases,
         alpha=options.noise_false_positive_rate,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
@@ -330,16 +325,9 @@ def measure_noise_model(
     """
     stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
     decision = stage.decision
-    notes = [decision.note, stage.thermal.note]
-    # what explains a third harmonic (discovery on system records names the aliases: docs/discovery.md "System records")
-    v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])
-    third = explain_third_harmonic(
-        v, decision.covariance, stage.latitude, stage.gravity, alpha=options.noise_false_positive_rate, extra=thermal_aliases(stage.thermal)
-    )
-    text = third.note(estimate_k2=False, parameter=ESTIMATE_K2_PARAMETER)
-    if text is not None:
-        notes.append(text)
-    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, tuple(notes), stage.thermal)
+    v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])  # a third harmonic's explanations (discovery)
+    third = record_note(v, decision.covariance, (stage.latitude, stage.gravity), options.noise_false_positive_rate, stage.thermal.aliases)
+    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note, stage.thermal.note, *third))
 
 
 @dataclass(frozen=True)
@@ -403,27 +391,8 @@ def _run(
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
-    # the temperature sensitivities as terms of the system model (docs §1b): coefficients corrected, σ widened
-    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate)
-    thermal = analyse_temperature(inputs, options, prior_covariance)
-    remove = thermal.remover(inputs)
-    if remove is not None:  # a detected thermal term is signal, not slow noise: decide the noise without it, then refit
-        decision = solve.decide_noise(
-            sums,
-            harmonic,
-            attitude,
-            noise,
-            loop,
-            latitude=latitude,
-            gravity=gravity,
-            rate=rate,
-            options=options,
-            given=noise_model,
-            path=path,
-            remove=remove,
-        )
-        thermal = analyse_temperature(replace(inputs, decision=decision), options, prior_covariance)
-    harmonic, attitude, decision = thermal.apply(harmonic, attitude, decision)
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate, noise, noise_model, path)
+    thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
     return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, thermal)
 
 
@@ -469,15 +438,7 @@ def _assemble(
         residuals=np.zeros(0),
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
-        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",)
-        + (
-            (
-                "not separable from the record's temperature cycle (their σ is mostly the thermal terms', docs "
-                f"system-calibration §1b): {', '.join(stage.thermal.not_separable)}",
-            )
-            if stage.thermal.not_separable
-            else ()
-        ),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}", *stage.thermal.combined_notes),
         details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     return SystemCalibration(

@@ -47,16 +47,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import AXES, MICRO_G, PPM
-from stableins.estimators.system import spectrum
-from stableins.estimators.system.assembly import VIF_LIMIT, k2_map
-from stableins.estimators.system.coloured import LowBand, attitude_bin_map, low_band
+from stableins.estimators.system.assembly import k2_map
+from stableins.estimators.system.coloured import LowBand, low_band
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS
+from stableins.estimators.system.thermal_bins import bin_temperature, daily_fraction, information, response, separable_directions
 
 if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums, SampleBins
     from stableins.estimators.system.loop import DampingLoop
-    from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision
+    from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision, WhiteNoise
     from stableins.estimators.system.stage import SystemOptions
+    from stableins.noise import NoiseModel
 
 #: The thermal terms of the system model (the library's ids): bias sensitivities [m/s²/K], scale-factor ones [1/K].
 THERMAL_TERMS = tuple(f"Kt_bias_{a}" for a in AXES) + tuple(f"Kt_sf_{a}" for a in AXES)
@@ -155,14 +156,27 @@ class ThermalFit:
 
         def remove(band: LowBand) -> list[NDArray[np.float64]]:
             keep = stage.sums.filter_bins.n > 0
-            delta_band = _bin_temperature(stage.sums, keep, band) - self.mean_temperature
-            z_cols, pitch, roll, _ = _response(stage, band, delta_band)
+            delta_band = bin_temperature(stage.sums, keep, band) - self.mean_temperature
+            z_cols, pitch, roll, _ = response(stage, band, delta_band)
             out = [band.makers[0] @ (z_cols @ p)]
             if len(band.channels) == 3:
                 out += [band.makers[1] @ (pitch @ p), band.makers[2] @ (roll @ p)]
             return out
 
         return cleaned, remove
+
+    @property
+    def aliases(self) -> dict[str, tuple[NDArray[np.float64], str]]:
+        """The scale-factor sensitivities as explanations of a third harmonic (:func:`thermal_aliases`)."""
+        return thermal_aliases(self)
+
+    @property
+    def combined_notes(self) -> tuple[str, ...]:
+        """The combined coefficients' note naming those not separable from the temperature cycle (empty when none)."""
+        if not self.not_separable:
+            return ()
+        names = ", ".join(self.not_separable)
+        return (f"not separable from the record's temperature cycle (σ mostly the thermal terms', docs system-calibration §1b): {names}",)
 
     @property
     def applied(self) -> bool:
@@ -236,7 +250,10 @@ def _empty(note: str, sigma: NDArray[np.float64]) -> ThermalFit:
 
 @dataclass(frozen=True)
 class ThermalInputs:
-    """What the thermal model reads of the stage: the pass's sums, the fits up to the noise decision and the site."""
+    """What the thermal model reads of the stage: the pass's sums, the fits up to the noise decision, the site.
+
+    ``noise``, ``given`` and ``path``: what the noise decision needs when it is made again (:func:`thermal_step`).
+    """
 
     sums: RecordSums
     harmonic: HarmonicFit
@@ -246,6 +263,9 @@ class ThermalInputs:
     latitude: float
     gravity: float
     rate: float
+    noise: WhiteNoise | None = None
+    given: NoiseModel | None = None
+    path: str = ""
 
 
 def analyse_temperature(
@@ -276,15 +296,15 @@ def analyse_temperature(
         options.case_rotation_period,
         int(keep.sum()),
     )
-    temperature = _bin_temperature(stage.sums, keep, band)
+    temperature = bin_temperature(stage.sums, keep, band)
     weights = band.weights[0]
     mean_temperature = float(np.sum(weights * temperature) / np.sum(weights))
     delta_t = temperature - mean_temperature
-    z_cols, _, _, jacobian = _response(stage, band, delta_t)
-    info, gradient, info_raw = _information(stage, band, z_cols)
+    z_cols, _, _, jacobian = response(stage, band, delta_t)
+    info, gradient, info_raw = information(stage, band, z_cols)
     posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
     estimate = posterior @ gradient
-    separable, chi2, dof = _separable(info, info_raw, gradient)
+    separable, chi2, dof = separable_directions(info, info_raw, gradient)
     data_estimate = None
     if dof:
         d = separable.T  # (6, k)
@@ -299,7 +319,7 @@ def analyse_temperature(
     fit = ThermalFit(
         terms=THERMAL_TERMS,
         temperature_span=float(np.ptp(temperature)),
-        daily_fraction=_daily_fraction(band, delta_t, stage.latitude),
+        daily_fraction=daily_fraction(band, delta_t, stage.latitude),
         jacobian=jacobian,
         prior_sigma=sigma0,
         estimate=estimate,
@@ -319,63 +339,37 @@ def analyse_temperature(
     return replace(fit, note=_note(fit, options.noise_false_positive_rate))
 
 
-def _bin_temperature(sums: RecordSums, keep: NDArray[np.bool_], band: LowBand) -> NDArray[np.float64]:
-    """Mean temperature on the merged filter bins of ``band`` (bins without a temperature sample interpolated)."""
-    assert sums.temperature_bins is not None
-    n = band.groups.size
-    index = np.unique(np.flatnonzero(keep) // band.merge, return_inverse=True)[1]
-    size = sums.filter_bins.n.size
-    total, count = np.zeros(size), np.zeros(size)
-    m = min(size, sums.temperature_bins.count.size)
-    total[:m], count[:m] = sums.temperature_bins.total[:m], sums.temperature_bins.count[:m]
-    t_sum = np.bincount(index, weights=total[keep], minlength=n)
-    t_count = np.bincount(index, weights=count[keep], minlength=n)
-    have = t_count > 0
-    return np.interp(band.time, band.time[have], t_sum[have] / t_count[have]) if have.any() else np.zeros(n)
+def thermal_step(
+    inputs: ThermalInputs, options: SystemOptions, prior_covariance: Mapping[tuple[str, str], float] | None
+) -> tuple[ThermalFit, HarmonicFit, AttitudeStep, NoiseDecision]:
+    """Return the thermal terms and the stage's fits with them taken out (:meth:`ThermalFit.apply`).
 
-
-def _response(
-    stage: ThermalInputs, band: LowBand, delta_t: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Return the six sensitivities' ``z``, pitch and roll on the bins ``(n, 6)`` and their response ``J (17, 6)`` in ``v``."""
-    n = band.groups.size
-    loads = band.mixing[0]  # u_a on the bins
-    # δ_a per unit of each sensitivity on the bins: bias ΔT/g on its axis, scale factor ΔT u_a
-    inputs = np.zeros((6, 3, n))
-    for a in range(3):
-        inputs[a, a] = delta_t / stage.gravity
-        inputs[3 + a, a] = delta_t * loads[a]
-    z_cols = np.stack([sum(loads[a] * inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
-    pitch = np.stack([sum(band.mixing[1][a] @ inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
-    roll = np.stack([sum(band.mixing[2][a] @ inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
-    att = stage.attitude.fit
-    jac_x = np.zeros((10, 7))
-    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-stage.attitude.along)  # ∂attitude/∂x through the vertical channel
-    j_x = band.a_z @ z_cols
-    return z_cols, pitch, roll, np.vstack([j_x, attitude_bin_map(att, band.groups, band.merge) @ np.vstack([pitch, roll]) + jac_x @ j_x])
-
-
-def _information(
-    stage: ThermalInputs, band: LowBand, z_cols: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Return the ``z`` residuals' information and gradient on the sensitivities, and the information before the harmonic fit.
-
-    Bins' covariance: white ``R/n`` plus the coloured model the stage decided on; the residuals' is ``R_z C R_zᵀ``
-    (pseudo-inverse: rank ``n − 7``).
+    A thermal term the record detects is signal, not slow noise: the noise is decided again without it
+    (:func:`.solve.decide_noise` with :meth:`ThermalFit.remover`) and the terms refitted under that noise.
     """
-    n = band.groups.size
-    loads = band.mixing[0]
-    cov = np.diag(stage.harmonic.residual_variance / band.weights[0])
-    fit = stage.decision.fit
-    amplitudes = fit.amplitudes if fit is not None else np.zeros((len(band.kernels), 3))
-    eye = np.eye(n)
-    for c, kernel in enumerate(band.kernels):
-        cov = cov + np.einsum("a,aij->ij", amplitudes[c], spectrum.component_quadratic(eye, eye, [loads], kernel, per_axis=True))
-    maker = band.makers[0]
-    residual_cov = maker @ cov @ maker.T
-    precision = np.linalg.pinv(0.5 * (residual_cov + residual_cov.T), rcond=1e-10, hermitian=True)
-    z_tilde = maker @ z_cols
-    return z_tilde.T @ precision @ z_tilde, z_tilde.T @ precision @ band.channels[0], z_cols.T @ np.linalg.solve(cov, z_cols)
+    from stableins.estimators.system import solve
+
+    thermal = analyse_temperature(inputs, options, prior_covariance)
+    remove = thermal.remover(inputs)
+    decision = inputs.decision
+    if remove is not None and inputs.noise is not None:
+        decision = solve.decide_noise(
+            inputs.sums,
+            inputs.harmonic,
+            inputs.attitude,
+            inputs.noise,
+            inputs.loop,
+            latitude=inputs.latitude,
+            gravity=inputs.gravity,
+            rate=inputs.rate,
+            options=options,
+            given=inputs.given,
+            path=inputs.path,
+            remove=remove,
+        )
+        thermal = analyse_temperature(replace(inputs, decision=decision), options, prior_covariance)
+    harmonic, attitude, decision = thermal.apply(inputs.harmonic, inputs.attitude, decision)
+    return thermal, harmonic, attitude, decision
 
 
 def thermal_aliases(fit: ThermalFit) -> dict[str, tuple[NDArray[np.float64], str]]:
@@ -390,45 +384,6 @@ def thermal_aliases(fit: ThermalFit) -> dict[str, tuple[NDArray[np.float64], str
         if np.any(column[5:7]) and fit.not_separable:
             out[THERMAL_TERMS[k]] = (column, "a record with a different thermal history, or the sensitivity from a thermal test")
     return out
-
-
-def _separable(
-    info: NDArray[np.float64], info_raw: NDArray[np.float64], gradient: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], float, int]:
-    """Directions of the sensitivities the record separates from the harmonics, and the data-only χ² on them.
-
-    Generalized eigenproblem ``F w = λ F_raw w``: ``λ`` is the share of the thermal signal along ``w`` left after the
-    harmonic fit; directions with ``λ ≥ 1/VIF_LIMIT`` are separable.
-    """
-    scale = np.sqrt(np.clip(np.diag(info_raw), 1e-300, None))
-    raw = info_raw / np.outer(scale, scale)
-    values, vectors = np.linalg.eigh(raw)
-    keep = values > 1e-9 * max(values.max(), 1e-300)  # exact collinearities (k_z, s_z and s_x + s_y all enter z as ΔT) are ~1e-12
-    if not keep.any():
-        return np.zeros((0, 6)), 0.0, 0
-    half = vectors[:, keep] / np.sqrt(values[keep])  # raw^{-1/2} on its range
-    shares, w = np.linalg.eigh(half.T @ (info / np.outer(scale, scale)) @ half)
-    directions = (half @ w[:, shares >= 1.0 / VIF_LIMIT]).T / scale  # in the parameters
-    chi2 = 0.0
-    for d in directions:
-        fd = float(d @ info @ d)
-        if fd > 0:
-            chi2 += float(d @ gradient) ** 2 / fd
-    return directions, chi2, int(directions.shape[0])
-
-
-def _daily_fraction(band: LowBand, delta_t: NDArray[np.float64], latitude: float) -> float:
-    """Share of the weighted variance of ``ΔT`` explained by 1 and 2 cycles per sidereal day (Earth-rate angle of the bins)."""
-    loads = band.mixing[0]
-    weights = band.weights[0]
-    c = math.cos(latitude)
-    cos_s, sin_s = loads[0] / c, loads[1] / c
-    design = np.stack([np.ones_like(cos_s), cos_s, sin_s, cos_s**2 - sin_s**2, 2 * cos_s * sin_s], axis=1)
-    w = np.sqrt(weights)
-    coef = np.linalg.lstsq(design * w[:, None], delta_t * w, rcond=None)[0]
-    total = float(np.sum(weights * delta_t**2))
-    left = float(np.sum(weights * (delta_t - design @ coef) ** 2))
-    return 1.0 - left / total if total > 0 else 0.0
 
 
 def _format(values: NDArray[np.float64], sigma: NDArray[np.float64]) -> str:
@@ -491,4 +446,5 @@ __all__ = [
     "analyse_temperature",
     "prior_sigma",
     "thermal_aliases",
+    "thermal_step",
 ]

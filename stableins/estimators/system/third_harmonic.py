@@ -355,4 +355,23 @@ def explain_third_harmonic(
     return ThirdHarmonic((bool(third[0] > 3.0), bool(third[1] > 3.0)), chi0, nu0, tuple(hypotheses), alpha, scale, candidates)
 
 
-__all__ = ["COMPONENTS", "THIRD_HARMONIC_EFFECTS", "Hypothesis", "ThirdHarmonic", "explain_third_harmonic", "signature"]
+def record_note(
+    v: NDArray[np.float64],
+    cov_v: NDArray[np.float64],
+    site: tuple[float, float],
+    alpha: float,
+    extra: Mapping[str, tuple[NDArray[np.float64], str]] | None = None,
+) -> tuple[str, ...]:
+    """Return the note on a record's third harmonic without the K2 estimation (empty when it is not significant).
+
+    ``site``: latitude [rad] and gravity [m/s²].  What ``stableins diagnose`` reports of a system record
+    (:func:`stableins.estimators.system.stage.measure_noise_model`).
+    """
+    from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER
+
+    third = explain_third_harmonic(v, cov_v, site[0], site[1], alpha=alpha, extra=extra)
+    text = third.note(estimate_k2=False, parameter=ESTIMATE_K2_PARAMETER)
+    return () if text is None else (text,)
+
+
+__all__ = ["COMPONENTS", "THIRD_HARMONIC_EFFECTS", "Hypothesis", "ThirdHarmonic", "explain_third_harmonic", "record_note", "signature"]
