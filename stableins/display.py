@@ -142,7 +142,9 @@ def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] =
         if status == Status.UNIDENTIFIABLE:
             lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
         else:
-            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status:<15}{tail}".rstrip())
+            # four decimals, more for a σ below 1e-3 of its unit (e.g. a gyro drift of 1e-5 °/h), so it never shows as 0
+            places = 4 if not 0.0 < sigma < 1e-3 else min(9, 2 - math.floor(math.log10(sigma)))
+            lines.append(f"{parameter_id:<12} {value:>14.{places}f} {sigma:>10.{places}f} {unit:<8} {status:<15}{tail}".rstrip())
     if determined:
         lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
     if notes:

@@ -433,6 +433,7 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
+    from stableins.estimators.drift import drift_stage
     from stableins.estimators.system.stage import SystemOptions, run_system_stage
 
     if not start.get("prior"):
@@ -441,6 +442,8 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     prior = _load_record(rundir / start["prior"])
     assert dataset is not None  # a run with a static record exports it (system.h5) before its estimation
     record = open_system_record(dataset)
+    if any(getattr(step, "turns", ()) for step in runner.plan.steps):  # indexed: the drift test (docs/drift-test.md)
+        return drift_stage(record, prior, runner.console.say)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
     import warnings
 

@@ -34,6 +34,7 @@ LAYERS: dict[str, int] = {
     "stableins.status": 0,
     "stableins.errors": 0,
     "stableins.platform": 0,
+    "stableins.turns": 0,
     "stableins.noise": 0,
     "stableins.display": 0,
     "stableins.site": 0,

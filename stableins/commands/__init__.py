@@ -14,3 +14,25 @@ def add_entries_option(parser: Any) -> None:
         metavar="KEY=VALUE",
         help="an entry of the calibration (laboratory, customer, operator, location, lab_temperature=21.5 degC ...); repeatable",
     )
+
+
+def add_new_calibration_option(parser: Any) -> None:
+    """``--new-calibration``: a stage that updates a prior record starts a new calibration from it."""
+    parser.add_argument(
+        "--new-calibration",
+        action="store_true",
+        help="start a new calibration from the prior (a record in force) instead of continuing the prior's calibration",
+    )
+
+
+def check_same_unit(metadata: Any, prior: Any, prior_path: Any) -> None:
+    """Raise InputError naming ``prior_path`` when a record's unit (its site metadata) is not the prior record's."""
+    from stableins.errors import InputError
+
+    if metadata.serial_number and prior.serial_number and metadata.serial_number != prior.serial_number:
+        raise InputError(
+            f"the record is of unit {metadata.serial_number!r} but the prior calibration of {prior.serial_number!r}",
+            path=prior_path,
+            field="serial_number",
+            expected="a calibration of the same unit",
+        )

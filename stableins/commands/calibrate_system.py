@@ -20,7 +20,7 @@ import argparse
 from pathlib import Path
 from typing import Any, cast
 
-from stableins.commands import add_entries_option
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit
 from stableins.status import Status
 
 
@@ -99,11 +99,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="accept gaps in the time column (warned about; the fits use the samples present), as 'stableins check --allow-gaps'",
     )
-    parser.add_argument(
-        "--new-calibration",
-        action="store_true",
-        help="start a new calibration from the prior (a record in force) instead of continuing the prior's calibration",
-    )
+    add_new_calibration_option(parser)
     add_entries_option(parser)
 
 
@@ -115,7 +111,6 @@ def run(args: Any) -> int:
     from stableins.commands.noise import system_noise_prior
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
-    from stableins.errors import InputError
     from stableins.estimators.system.sensitivity import with_sensitivities
     from stableins.estimators.system.stage import run_system_stage
     from stableins.output import emit, note
@@ -123,13 +118,7 @@ def run(args: Any) -> int:
 
     prior = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
-    if record.metadata.serial_number and prior.serial_number and record.metadata.serial_number != prior.serial_number:
-        raise InputError(
-            f"the record is of unit {record.metadata.serial_number!r} but the prior calibration of {prior.serial_number!r}",
-            path=args.prior,
-            field="serial_number",
-            expected="a calibration of the same unit",
-        )
+    check_same_unit(record.metadata, prior, args.prior)
     values = prior.values()
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
     options = _options(args)

@@ -93,11 +93,18 @@ class SimulatedDriver:
         """Close the simulated platform."""
         self.platform.close()
 
-    def static_record(self, duration: float, chunk: float) -> Any:
-        """Chunks (dicts of :data:`~stableins.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s."""
+    def static_record(self, duration: float, chunk: float, turns: Any = ()) -> Any:
+        """Chunks (dicts of :data:`~stableins.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s.
+
+        ``turns``: :class:`stableins.turns.PlatformTurn` indexing the platform by torquing during the record.
+        """
         try:
+            from stableins.simulator.indexing import indexed_record_chunks
             from stableins.simulator.system import system_record_chunks
         except ImportError as error:
             raise InputError(f"the simulated system-level recorder is not available ({error})", field="driver_spec") from None
         rate = self.platform.rate
-        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=max(1, int(round(chunk * rate))))
+        samples = max(1, int(round(chunk * rate)))
+        if turns:
+            return indexed_record_chunks(self.truth, duration, tuple(turns), rate=rate, seed=self.seed, chunk_samples=samples)
+        return system_record_chunks(self.truth, duration, rate, self.seed, chunk_samples=samples)

@@ -14,6 +14,7 @@ from typing import Any
 
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
+from stableins.turns import IndexAxis, PlatformTurn, check_turns
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)
@@ -97,6 +98,8 @@ class StaticRecordStep:
     checks: DwellChecks = field(default_factory=DwellChecks)
     why: str = "the platform stays fixed in inertial space while the INS error dynamics are recorded"
     kind: str = "static_record"
+    #: indexing by torquing during the record (times from the record's start)
+    turns: tuple[PlatformTurn, ...] = ()
 
 
 #: Ranges of the thresholds of a plan's dwell checks (SI; every one above its lower end).
@@ -271,6 +274,25 @@ class _Validator:
                 values[key] = self.number(item, f"{where}.{key}", *_CHECK_RANGES[key], above=True)
         return DwellChecks(**values)
 
+    def turns(self, value: Any, where: str, duration: float) -> tuple[PlatformTurn, ...]:
+        """Check the turns of a static-record step (SI) and return them in time order within ``duration``."""
+        out = []
+        for k, item in enumerate(self.list(value, where, 0, 1000)):
+            here = f"{where}[{k}]"
+            d = self.mapping(item, here, {"start", "angle", "axis", "rate"}, {"start", "angle", "axis", "rate"})
+            axis = self.choice(d["axis"], f"{here}.axis", tuple(a.value for a in IndexAxis))
+            start = self.number(d["start"], f"{here}.start", 0.0, MAX_RECORD_SECONDS)
+            angle = self.number(d["angle"], f"{here}.angle", -2 * math.pi, 2 * math.pi)
+            rate = self.number(d["rate"], f"{here}.rate", 0.0, math.pi, above=True)
+            if angle == 0.0:
+                raise self.fail("a turn of 0 rad", f"{here}.angle", "a non-zero angle [rad]")
+            out.append(PlatformTurn(start, angle, IndexAxis(axis), rate))
+        try:
+            check_turns(out, duration)
+        except ValueError as error:
+            raise self.fail(str(error), where, "turns in time order within the record") from None
+        return tuple(out)
+
     def step(self, value: Any, where: str) -> Step:
         """Read one step of a plan document: its ``kind`` and that kind's fields, every value checked."""
         if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
@@ -314,6 +336,8 @@ class _Validator:
         d["duration"] = self.number(d["duration"], f"{where}.duration", 0.0, MAX_RECORD_SECONDS, above=True)
         if "checks" in d:
             d["checks"] = self.checks(d["checks"], f"{where}.checks")
+        if "turns" in d:
+            d["turns"] = self.turns(d["turns"], f"{where}.turns", d["duration"])
 
     def _offset_iteration_fields(self, d: dict[str, Any], where: str) -> None:
         """Check the fields of a zero-offset iteration step in place."""

@@ -254,6 +254,11 @@ class Runner:
             )
         hours = step.duration / 3600.0
         what = f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}"
+        for turn in step.turns:
+            what += (
+                f"\n  index at {turn.start:g} s: {math.degrees(turn.angle):+g} deg about the {turn.axis.value} gimbal axis "
+                f"by torquing ({turn.duration:.1f} s)"
+            )
         self.console.say(what, replay=self.session.replaying)
         self.session.context = {"step": index, "attempt": 1}
         readings = np.asarray(step.readings, dtype=float)
@@ -264,7 +269,7 @@ class Runner:
             raise RunStopped(f"{label}: {arrived}")
         if step.settle > 0:
             self._record(step.settle, "settle", "settle")
-        chunks = recorder(step.duration, self.plan.chunk)
+        chunks = recorder(step.duration, self.plan.chunk, turns=step.turns) if step.turns else recorder(step.duration, self.plan.chunk)
         total = int(round(step.duration * self.rate))
         done = 0
         context = {"step": index, "attempt": 1, "phase": "static"}

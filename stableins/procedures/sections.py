@@ -12,6 +12,7 @@ from typing import Any
 
 from stableins.conventions import ARCSEC
 from stableins.errors import InputError
+from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
 MAX_SECONDS = 86400.0
@@ -96,6 +97,8 @@ class StaticRecord:
     settle: float
     duration: float
     sample_rate: float
+    #: indexing of the platform by torquing during the record (``[[record.index]]``), in time order
+    turns: tuple[PlatformTurn, ...] = ()
 
 
 _RUNNER_KEYS = {
@@ -107,7 +110,8 @@ _RUNNER_KEYS = {
     "max_slew": 1.0,
 }
 _PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}
-_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate"}
+_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate", "index"}
+_INDEX_KEYS = {"at", "axis", "angle", "rate"}
 
 
 def _runner_values(table: Any, path: str) -> dict[str, Any]:
@@ -253,9 +257,43 @@ def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
         if abs(deg) > 720.0:
             raise InputError(f"{deg} deg is not a gimbal angle in degrees", path=path, field=f"record.{key}", expected="degrees")
         angles.append(math.radians(deg))
+    duration = number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS)
     return StaticRecord(
         command=(angles[0], angles[1], angles[2]),
         settle=number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
-        duration=number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS),
+        duration=duration,
         sample_rate=number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
+        turns=index_turns(table.get("index", []), duration, path),
     )
+
+
+def index_turns(entries: Any, duration: float, path: str) -> tuple[PlatformTurn, ...]:
+    """Return the ``[[record.index]]`` turns of the platform by torquing during the record.
+
+    Keys: ``at`` [s], ``axis``, ``angle`` [deg], ``rate`` [deg/s]; checked in time order within the record.
+    """
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise InputError("[[record.index]] must be an array of tables", path=path, field="record.index", expected="at, axis, angle, rate")
+    turns = []
+    for k, entry in enumerate(entries):
+        where = f"record.index[{k}]"
+        unknown, missing = set(entry) - _INDEX_KEYS, {"at", "angle"} - set(entry)
+        if unknown or missing:
+            what = f"unknown keys {sorted(unknown)}" if unknown else f"missing {sorted(missing)}"
+            raise InputError(what, path=path, field=where, expected=f"{sorted(_INDEX_KEYS)} (at and angle required)")
+        axis = entry.get("axis", "platform")
+        if axis not in {a.value for a in IndexAxis}:
+            raise InputError(
+                f"axis {str(axis)[:40]!r}", path=path, field=f"{where}.axis", expected=" or ".join(repr(a.value) for a in IndexAxis)
+            )
+        at = number(entry, "at", path, where, minimum=0.0, maximum=MAX_RECORD_SECONDS)
+        angle = number(entry, "angle", path, where, minimum=-360.0, maximum=360.0)
+        if angle == 0.0:
+            raise InputError("an index of 0 deg", path=path, field=f"{where}.angle", expected="a non-zero angle in degrees, -360 to 360")
+        rate = number(entry, "rate", path, where, positive=True, maximum=180.0) if "rate" in entry else math.degrees(INDEX_RATE)
+        turns.append(PlatformTurn(at, math.radians(angle), IndexAxis(axis), math.radians(rate)))
+    try:
+        check_turns(turns, duration)
+    except ValueError as error:
+        raise InputError(str(error), path=path, field="record.index", expected="turns in time order, within record.duration") from None
+    return tuple(turns)

@@ -84,8 +84,10 @@ from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
+from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
+from stableins.turns import PlatformTurn
 
 STATE_NAMES = (
     "latitude_error",
@@ -231,6 +233,9 @@ class SystemWorld:
         Earth-rate angle ``St0`` at ``t = 0`` [rad].
     initial_misalignment : sequence of 3 float
         ``φ(0)`` in NED [rad].
+    initial_readings, turns : optional
+        Commanded readings at ``t = 0`` [rad] (default: the polar alignment, corrected with the installed
+        offsets) and :class:`stableins.turns.PlatformTurn` during the record (:mod:`stableins.simulator.indexing`).
     """
 
     def __init__(
@@ -240,6 +245,9 @@ class SystemWorld:
         seed: int | None = None,
         earth_angle: float = 0.0,
         initial_misalignment: Sequence[float] = (0.0, 0.0, 0.0),
+        *,
+        initial_readings: Sequence[float] | None = None,
+        turns: Sequence[PlatformTurn] = (),
     ) -> None:
         self.truth = truth
         self.rate = float(rate if rate is not None else truth.site.sample_rate)
@@ -256,7 +264,7 @@ class SystemWorld:
         nominal = np.array([-s1 * earth_angle, 0.0, middle])
         installed_offsets = np.array([truth.installed_calibration.get(g, 0.0) for g in GIMBAL_IDS])
         self.installed_offsets = installed_offsets
-        self.initial_readings = nominal - installed_offsets
+        self.initial_readings = nominal - installed_offsets if initial_readings is None else np.asarray(initial_readings, dtype=float)
         self.initial_actual = self.platform.actual_angles(self.initial_readings)
         self.nav_to_platform_0 = self.platform.dcm_nav_to_platform(self.initial_readings)
         self.nav_to_body = self.platform.dcm_nav_to_body()
@@ -288,6 +296,11 @@ class SystemWorld:
         self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
         self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
         self._next = 0
+        self._indexed = None  # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
+        if initial_readings is not None or turns:
+            self._indexed = IndexedMotion(
+                self.platform, self.nav_to_platform_0, turns, latitude=self.latitude, initial_actual=self.initial_actual, rate=self.rate
+            )
 
     # --------------------------------------------------------------- world pieces
     def gyro_drift(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -339,15 +352,19 @@ class SystemWorld:
         time = index / self.rate
         truth = self.truth
         extra = None
-        if np.any(self._g_drift):
+        if self._indexed is not None:
+            dcm = self._indexed.orientation(time, self.gyro_drift(time), g_drift=self._g_drift, gravity=self.gravity)
+            readings = self._indexed.readings(dcm)
+        elif np.any(self._g_drift):
             # Dg: platform turns at Dg∘f^p; f^p of the drift-free orientation, integrated by sequential sums
             f_free = -self.gravity * self.platform_orientation(time)[:, :, 2]
             steps = np.vstack([self._g_drift_angle[None, :], self._g_drift * f_free / self.rate])
             cumulative = np.cumsum(steps, axis=0)
             extra, self._g_drift_angle = cumulative[:-1], cumulative[-1].copy()
-        dcm = self.platform_orientation(time, extra)
+        if self._indexed is None:
+            dcm = self.platform_orientation(time, extra)
+            readings = self.readings(dcm, time)
         f_p = -self.gravity * dcm[:, :, 2]
-        readings = self.readings(dcm, time)
         temperature = truth.noise.temperature(time)
         zeros = np.zeros((count, 3))
         inputs = TermInputs(
@@ -441,6 +458,13 @@ def system_record_chunks(
     if chunk_samples < 1:
         raise ValueError("chunk_samples must be positive")
     world = SystemWorld(truth, rate, seed, earth_angle, initial_misalignment)
+    yield from stream_world(world, duration, chunk_samples, include_truth=include_truth)
+
+
+def stream_world(
+    world: SystemWorld, duration: float, chunk_samples: int, *, include_truth: bool
+) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Yield ``duration`` [s] of ``world`` in chunks of ``chunk_samples``."""
     total = int(round(duration * world.rate))
     done = 0
     while done < total:
@@ -456,8 +480,17 @@ def simulate_system(
     seed: int | None = None,
     **options,
 ) -> dict[str, NDArray[np.float64]]:
-    """Return a whole (short) system-level record as one dict of columns (see :func:`system_record_chunks`)."""
-    pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
+    """Return a whole (short) system-level record as one dict of columns.
+
+    Options of :func:`system_record_chunks`; with ``turns`` or ``initial_readings`` those of
+    :func:`stableins.simulator.indexing.indexed_record_chunks`.
+    """
+    if "turns" in options or "initial_readings" in options:
+        from stableins.simulator.indexing import indexed_record_chunks
+
+        pieces = list(indexed_record_chunks(truth, duration, options.pop("turns", ()), rate=rate, seed=seed, **options))
+    else:
+        pieces = list(system_record_chunks(truth, duration, rate, seed, **options))
     if not pieces:
         return {c.name: np.zeros(0) for c in SYSTEM_COLUMNS}
     return {name: np.concatenate([p[name] for p in pieces]) for name in pieces[0]}

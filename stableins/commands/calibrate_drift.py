@@ -1,0 +1,110 @@
+"""``stableins calibrate drift RUN --prior CAL.json --out CAL2.json``: the gyro drift from an indexing test.
+
+RUN is the run directory of ``stableins run drift-two-position`` (or ``drift-three-position``), or its
+``system.h5``.  The platform's gimbal readings during the holds give the constant gyro drift ``ε^p``
+(``gyro_drift_x/y/z``), with the base azimuth and tilt as nuisances and a rank report of what the
+data determine (docs/drift-test.md); the accelerometer hold means are a cross-check against the
+record.  The prior record is updated with the drift (a Bayesian update: no σ grows, nothing else
+moves but through its prior correlation with the drift) and written to ``--out`` atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``stableins calibrate drift``."""
+    from stableins.commands.arguments import output_file
+
+    parser.add_argument("run", metavar="RUN", help="run directory of a drift test (or its system.h5)")
+    parser.add_argument(
+        "--prior", required=True, metavar="CAL.json", help="calibration record the INS ran with (zero offsets, accelerometer model)"
+    )
+    parser.add_argument("--out", required=True, type=output_file, metavar="CAL2.json", help="updated calibration record to write")
+    parser.add_argument(
+        "--one-position",
+        action="store_true",
+        help="hold the base at its survey instead of fitting its error (what a single position can do; for comparison only)",
+    )
+    add_new_calibration_option(parser)
+    add_entries_option(parser)
+
+
+def data_file(run: str) -> Path:
+    """Return the system-level record of RUN: ``RUN/system.h5`` for a run directory, else RUN itself."""
+    from stableins.errors import InputError
+    from stableins.procedures.rundir import SYSTEM_NAME
+
+    path = Path(run)
+    if path.is_dir():
+        path = path / SYSTEM_NAME
+        if not path.exists():
+            raise InputError(
+                "the run directory has no system-level record", path=run, field=SYSTEM_NAME, expected="a drift-test run directory"
+            )
+    return path
+
+
+def run(args: Any) -> int:
+    """Estimate the drift, update the prior record, write it, print the report."""
+    from stableins.data.system import open_system_record
+    from stableins.estimators.drift import DriftDetails, drift_from_record, report
+    from stableins.output import emit
+    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+
+    prior = CalibrationRecord.load(args.prior)
+    source = data_file(args.run)
+    record = open_system_record(source)
+    check_same_unit(record.metadata, prior, args.prior)
+    fit = drift_from_record(
+        record,
+        prior.values(),
+        prior_covariance=(prior.ids, prior.covariance),
+        error_model=prior.error_model(),
+        base="survey" if args.one_position else "auto",
+    )
+    time = record.read(["time"])["time"]
+    start, end = data_times(record.metadata, float(time[0]), float(time[-1]))
+    reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
+    updated = prior.updated(
+        fit,
+        new_calibration=args.new_calibration,
+        prior=reference,
+        procedure=str(record.metadata.extra.get("procedure", "drift-two-position")),
+        calibration_entries=parse_entries(args.set),
+        site=record.metadata,
+        inputs=[str(source)],
+        data_start=start,
+        data_end=end,
+        sample_rate=record.sample_rate,
+    )
+    updated.save(args.out)
+    data = {
+        "record": str(source),
+        "prior": args.prior,
+        "out": str(args.out),
+        "gyro_drift_deg_per_hour": _drift_document(fit),
+        "rank": list(fit.details.rank) if isinstance(fit.details, DriftDetails) else [],
+        "settings": fit.settings,
+        "parameters": [
+            {"id": p.id, "value": p.value, "sigma": p.sigma if p.sigma == p.sigma else None, "status": p.status.value}
+            for p in updated.parameters
+            if p.id.startswith("gyro_drift_")
+        ],
+    }
+    emit(args, data, text="\n".join([report(fit), "", updated.report(), "", f"updated calibration written to {args.out}"]))
+    return 0
+
+
+def _drift_document(fit: Any) -> dict[str, dict[str, float]]:
+    from stableins.conventions import DEG_PER_HOUR
+
+    return {
+        t.id: {"value": float(v) / DEG_PER_HOUR, "sigma": float(s) / DEG_PER_HOUR}
+        for t, v, s in zip(fit.terms, fit.values, fit.sigma, strict=True)
+    }
