@@ -50,6 +50,8 @@ from stableins.estimators.system.checks import SamplingSummary, check_metadata
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
+from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
@@ -84,6 +86,7 @@ class SystemOptions:
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "gyro_drift", validate_options(self))
@@ -200,6 +203,8 @@ class SystemCalibration(SystemCalibrationView):
     coloured_noise : ColouredNoiseFit or None
         The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
         (None when the record is too short for the model).
+    thermal : ThermalFit or None
+        The bias and scale-factor temperature sensitivities as terms of the system model (:mod:`.thermal`, docs §1b).
     noise_model : NoiseModel
         The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
         from second differences, bias instability and random walk from the residual spectra, with intervals; the given
@@ -219,6 +224,7 @@ class SystemCalibration(SystemCalibrationView):
     notes: tuple[str, ...] = ()
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
+    thermal: ThermalFit | None = None
 
 
 @dataclass(frozen=True)
@@ -234,7 +240,7 @@ class SystemNoise:
     duration : float
         Length of the record [s].
     notes : tuple of str
-        What the decision found (the stage's note).
+        What the decision, the thermal model and a third harmonic's explanations found.
     """
 
     noise_model: NoiseModel
@@ -296,6 +302,8 @@ def run_system_stage(
         duration=stage.sums.duration,
         estimate_k2=options.estimate_k2,
         path=stage.path,
+        aliases=stage.thermal.aliases,
+        alpha=options.noise_false_positive_rate,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
 
@@ -317,7 +325,9 @@ def measure_noise_model(
     """
     stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
     decision = stage.decision
-    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note,))
+    v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])  # a third harmonic's explanations (discovery)
+    third = record_note(v, decision.covariance, (stage.latitude, stage.gravity), options.noise_false_positive_rate, stage.thermal.aliases)
+    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note, stage.thermal.note, *third))
 
 
 @dataclass(frozen=True)
@@ -336,6 +346,7 @@ class _Stage:
     curve: solve.FilterCurve
     attitude: solve.AttitudeStep
     decision: solve.NoiseDecision
+    thermal: ThermalFit
 
 
 def _run(
@@ -380,7 +391,9 @@ def _run(
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision)
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate, noise, noise_model, path)
+    thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
+    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, thermal)
 
 
 def _assemble(
@@ -394,7 +407,7 @@ def _assemble(
     """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
     sums, harmonic, att, decision = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision
     gravity, cov_v, to_combined, transform = stage.gravity, decision.covariance, combination.to_combined, combination.transform
-    notes = [*sums.notes, *stage.attitude.notes, decision.note, *combination.notes]
+    notes = [*sums.notes, *stage.attitude.notes, decision.note, stage.thermal.note, *combination.notes]
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
@@ -425,7 +438,7 @@ def _assemble(
         residuals=np.zeros(0),
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
-        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}", *stage.thermal.combined_notes),
         details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     return SystemCalibration(
@@ -440,6 +453,7 @@ def _assemble(
         notes=tuple(notes),
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
+        thermal=stage.thermal,
     )
 
 
