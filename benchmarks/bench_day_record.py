@@ -61,9 +61,9 @@ def synthetic_chunks(duration: float, rate: float, chunk: int = CHUNK):
 
 def simulator_chunks(duration: float, rate: float, chunk: int = CHUNK):
     from stableins.simulator.system import system_record_chunks
-    from stableins.simulator.truth import Truth
+    from stableins.simulator.truth import SimulatedSite, Truth
 
-    truth = Truth.draw(1, sample_rate=rate)
+    truth = Truth.draw(1, site=SimulatedSite(sample_rate=rate))
     return system_record_chunks(truth, duration, rate, 1, chunk_samples=chunk), truth.site
 
 

@@ -28,26 +28,26 @@ from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
+from stableins.samples import SampleBlock
 from stableins.simulator.device import simulate_dwells
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 
 def session(seed: int):
-    truth = Truth.draw(seed, sample_rate=10.0)
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=10.0))
     commands = [s.command for s in load_procedure("device-fine").steps]
     sequence = list(commands)
     for k in range(1, 6):
         sequence += (commands[::-1] if k % 2 else commands)[1:]
     c = simulate_dwells(truth, sequence, dwell=20.0, settle=3.0, rate=10.0, seed=seed)
-    args = (
+    samples = SampleBlock(
         c["time"],
         np.stack([c["f_x"], c["f_y"], c["f_z"]], -1),
         np.stack([c["angle_platform"], c["angle_inner"], c["angle_middle"]], -1),
         c["temperature"],
-        c["position"],
-        c["time_since_command"],
     )
-    kw = dict(gravity=truth.site.gravity, reference_temperature=truth.site.reference_temperature, configuration=truth.configuration)
+    args = (samples, c["position"], c["time_since_command"])
+    kw = dict(site=truth.site)
     noise = truth.noise
     slow = NoiseModel.given(noise.velocity_random_walk, noise.bias_instability, noise.acceleration_random_walk, provenance="specification")
     white = NoiseModel.given(noise.velocity_random_walk, provenance="white noise only")

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stableins.simulator.device import simulate_dwells  # noqa: E402
 from stableins.simulator.system import error_dynamics, system_record_chunks  # noqa: E402
-from stableins.simulator.truth import Truth  # noqa: E402
+from stableins.simulator.truth import SimulatedSite, Truth  # noqa: E402
 
 
 def main() -> None:
@@ -41,7 +41,7 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=100.0)
     args = parser.parse_args()
     duration = args.hours * 3600.0
-    truth = Truth.draw(1, sample_rate=args.rate, gyro_drift={"x": 1e-9, "y": -2e-9, "z": 1e-9, "case_amplitude": 1e-8})
+    truth = Truth.draw(1, site=SimulatedSite(sample_rate=args.rate), gyro_drift={"x": 1e-9, "y": -2e-9, "z": 1e-9, "case_amplitude": 1e-8})
     for _ in system_record_chunks(truth, 10.0, args.rate):  # warm-up: imports, caches
         pass
 

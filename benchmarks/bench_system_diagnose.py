@@ -41,7 +41,7 @@ from stableins.discovery.system import diagnose_system_record, measure_noise
 from stableins.errormodel import ErrorModel
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import system_record_chunks
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 WORLDS = {"white": NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC), "quartz": NoiseSettings.quartz()}
 #: Hidden effects for the power check: [SI] values.
@@ -49,7 +49,7 @@ HIDDEN = {"K3_x": 100 * LIBRARY["K3_x"].term.scale, "Kcc_xxy": 30 * LIBRARY["Kcc
 
 
 def write_day(directory: Path, seed: int, noise: NoiseSettings, effects: dict[str, float] | None = None):
-    truth = Truth.draw(seed, sample_rate=1.0, noise=noise, effects=effects or {})
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0), noise=noise, effects=effects or {})
     path = directory / f"system-{seed}.h5"
     with SystemRecordWriter(path, replace(truth.site, sample_rate=1.0), chunk_samples=65536) as writer:
         for chunk in system_record_chunks(truth, SIDEREAL_DAY, 1.0, seed, chunk_samples=65536):
@@ -62,10 +62,12 @@ def diagnose(record, truth, *, white_only: bool = False):
     start = {k: v for k, v in truth.installed_calibration.items() if k in model}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        noise, duration, notes = measure_noise(record, dict(truth.installed_calibration), None, None)
+        measured = measure_noise(record, dict(truth.installed_calibration), None, None)
         if white_only:
-            noise = replace(noise, axes=tuple(replace(a, bias_instability=_exact(0.0), random_walk=_exact(0.0)) for a in noise.axes))
-        return diagnose_system_record(record, model, start, noise, duration=duration, notes=notes)
+            noise = measured.noise_model
+            white = replace(noise, axes=tuple(replace(a, bias_instability=_exact(0.0), random_walk=_exact(0.0)) for a in noise.axes))
+            measured = replace(measured, noise_model=white)
+        return diagnose_system_record(record, model, start, measured)
 
 
 def _exact(value: float):

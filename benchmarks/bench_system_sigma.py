@@ -53,7 +53,7 @@ from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.noise import NoiseModel
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean", "x1")]
 FAMILIES = {
@@ -80,7 +80,7 @@ def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0) -> stage.
     if mode == "prior":
         earlier, _ = run(seed + 5000, noise, "default", days)
         model = earlier.noise_model
-    truth = Truth.draw(seed, sample_rate=1.0, noise=noise)
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0), noise=noise)
     cols = system.simulate_system(truth, days * SIDEREAL_DAY, 1.0, seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -162,7 +162,7 @@ def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
     """Tracemalloc peaks of the stage and of its coloured-noise model against the record length (1 Hz)."""
     import tracemalloc
 
-    truth = Truth.draw(100, sample_rate=1.0)
+    truth = Truth.draw(100, site=SimulatedSite(sample_rate=1.0))
     original = solve.coloured_covariance
     peaks: dict[str, float] = {}
 

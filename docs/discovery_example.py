@@ -21,8 +21,9 @@ from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
+from stableins.samples import SampleBlock
 from stableins.simulator.device import simulate_dwells
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 IMG = Path(__file__).parent / "img"
 HIDDEN = {"Kcc_xxy": 60 * MICRO_G / STANDARD_GRAVITY**2, "nonorth_12": 15 * ARCSEC}
@@ -33,20 +34,21 @@ def main() -> None:
 
     matplotlib.use("Agg")
     IMG.mkdir(exist_ok=True)
-    truth = Truth.draw(7, effects=HIDDEN, sample_rate=10.0)
+    truth = Truth.draw(7, effects=HIDDEN, site=SimulatedSite(sample_rate=10.0))
     commands = [s.command for s in load_procedure("device-fine").steps]
     sequence = commands + commands[::-1][1:]
     c = simulate_dwells(truth, sequence, dwell=60.0, settle=3.0, rate=10.0, seed=7)
-    dwells = dwell_means(
+    samples = SampleBlock(
         c["time"],
         np.stack([c["f_x"], c["f_y"], c["f_z"]], -1),
         np.stack([c["angle_platform"], c["angle_inner"], c["angle_middle"]], -1),
         c["temperature"],
+    )
+    dwells = dwell_means(
+        samples,
         c["position"],
         c["time_since_command"],
-        gravity=truth.site.gravity,
-        reference_temperature=truth.site.reference_temperature,
-        configuration=truth.configuration,
+        site=truth.site,
         # the instrument's slow noise (datasheet values): bias wander correlated between dwells
         noise=NoiseModel.given(
             truth.noise.velocity_random_walk, truth.noise.bias_instability, truth.noise.acceleration_random_walk, provenance="specification"

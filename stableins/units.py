@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 
 #: A number (ASCII decimal, scientific notation allowed) and whatever follows it (the unit).
 QUANTITY = re.compile(r"^([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
@@ -24,3 +25,27 @@ def normalize_unit(unit: str) -> str:
         text = text.replace(old, new)
     text = re.sub(r"(?<=[A-Za-z])(\d)", r"^\1", text)
     return "" if text == "1" else text
+
+
+@dataclass(frozen=True)
+class DisplayUnit:
+    """A unit people read a quantity in, and its size in SI.
+
+    Attributes
+    ----------
+    name : str
+        The unit as shown, e.g. ``"µg"``.
+    scale : float
+        The SI value of one such unit, e.g. ``MICRO_G`` (9.80665e-6 m/s²) for µg: shown = SI / ``scale``.
+    si_name : str
+        The SI unit ``scale`` converts to (``""``: not stated).
+
+    Examples
+    --------
+    >>> DisplayUnit("ppm", 1e-6).scale
+    1e-06
+    """
+
+    name: str
+    scale: float
+    si_name: str = ""

@@ -15,6 +15,7 @@ from stableins.estimators.device import calibrate_device
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.joint import JointProblem, fit_joint
+from stableins.estimators.setting import DeviceSetting
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
@@ -47,7 +48,7 @@ def joint(world):
     fine = [d for d in dwells if d.stage == "fine" and d.usable]
     site = truth.site
     configuration = GimbalConfiguration(tuple(site.gimbal_senses))
-    options = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, start=calibration.coarse)
+    options = dict(setting=DeviceSetting.from_site(site), start=calibration.coarse)
     fit = fit_joint(coarse, fine, stage="coarse+fine", **options)
     model, fm = coarse_model(nonlinear=True), fine_model()
     problem = JointProblem(

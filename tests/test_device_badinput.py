@@ -7,6 +7,7 @@ from device_world import GRAVITY, device_columns, draw_truth
 from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellChecks, dwells_from_columns, summarize_dwell
+from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import load_procedure
 
 PROCEDURE = load_procedure("device-coarse")
@@ -20,7 +21,7 @@ def _columns(**kw):
 
 def _calibrate(cols, **kw):
     dwells = dwells_from_columns(cols, settle=5.0, checks=CHECKS, source="run.csv")
-    return calibrate_coarse(dwells, gravity=GRAVITY, expected_positions=PROCEDURE.positions, source="run.csv", **kw)
+    return calibrate_coarse(dwells, setting=DeviceSetting(GRAVITY), expected_positions=PROCEDURE.positions, source="run.csv", **kw)
 
 
 def _rows(cols, mask):

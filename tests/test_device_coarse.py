@@ -12,6 +12,7 @@ from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_
 from stableins.estimators.design import analyze_design, choose_gauge
 from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
+from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import OffsetIteration, load_procedure
 from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
 
@@ -34,7 +35,7 @@ def _dwells(means, sigma, readings=READINGS, positions=None):
 
 def test_exact_recovery_without_noise_in_the_theta10_gauge():
     truth = draw_truth(np.random.default_rng(11), quadratic=False)
-    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-9), gravity=GRAVITY)
+    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-9), setting=DeviceSetting(GRAVITY))
     expected = gauge_equivalent(truth)
     for k in MODEL.ids:
         assert fit[k][0] == pytest.approx(expected[k], abs=1e-6 * MODEL[k].nominal), k
@@ -53,7 +54,7 @@ def test_gauge_equivalent_reproduces_every_output():
 
 def test_theta10_gauge_is_detected_from_the_design():
     truth = draw_truth(np.random.default_rng(2), quadratic=False)
-    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-5), gravity=GRAVITY)
+    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-5), setting=DeviceSetting(GRAVITY))
     assert fit.rank == 14 and fit.null_space.shape == (15, 1)
     v = dict(zip(MODEL.ids, fit.null_space[:, 0]))
     # first order: θ10 and β_xz, β_yz move together, β_xz − θ10·(−1) ...
@@ -79,8 +80,8 @@ def test_invariant_to_position_order():
     truth = draw_truth(rng, quadratic=False)
     means = outputs(truth, READINGS) + 2e-5 * rng.normal(size=(18, 3))
     dwells = _dwells(means, 2e-5)
-    a = calibrate_coarse(dwells, gravity=GRAVITY)
-    b = calibrate_coarse([dwells[i] for i in rng.permutation(18)], gravity=GRAVITY)
+    a = calibrate_coarse(dwells, setting=DeviceSetting(GRAVITY))
+    b = calibrate_coarse([dwells[i] for i in rng.permutation(18)], setting=DeviceSetting(GRAVITY))
     np.testing.assert_allclose(a.values, b.values, rtol=0, atol=1e-12)
     np.testing.assert_allclose(a.covariance, b.covariance, rtol=1e-9, atol=1e-30)
 
@@ -130,7 +131,8 @@ def test_full_pass_through_the_platform_recovers_truth_within_k_sigma():
     for seed in (1, 2, 3):
         truth = draw_truth(np.random.default_rng(seed), quadratic=False)
         platform = ExactPlatform(truth, sigma=2e-3, seed=seed)
-        fit = calibrate_coarse(measure_pass(platform, PROCEDURE, (0, 0, 0)), gravity=GRAVITY, expected_positions=PROCEDURE.positions)
+        dwells = measure_pass(platform, PROCEDURE, (0, 0, 0))
+        fit = calibrate_coarse(dwells, setting=DeviceSetting(GRAVITY), expected_positions=PROCEDURE.positions)
         expected = gauge_equivalent(truth)
         for k in MODEL.ids:
             value, sigma, status = fit[k]
@@ -194,7 +196,7 @@ def test_offset_iteration_failure_reports_history():
 
 def test_report_and_result_are_frozen():
     truth = draw_truth(np.random.default_rng(12), quadratic=False)
-    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-5), gravity=GRAVITY)
+    fit = calibrate_coarse(_dwells(outputs(truth, READINGS), 1e-5), setting=DeviceSetting(GRAVITY))
     text = fit.report()
     assert "rank = 14 of 15" in text and "gauge" in text
     with pytest.raises(ValueError):

@@ -11,6 +11,7 @@ from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, calibrate_fine, fine_model, solve_fine
+from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import load_procedure
 
 READINGS = np.array([s.command for s in load_procedure("device-fine").steps])
@@ -31,7 +32,7 @@ def _dwells(means, sigma, stage):
 
 def _coarse_and_fine(truth, rng, sigma_coarse, sigma_fine):
     coarse_means = outputs(truth, READINGS) + sigma_coarse * rng.normal(size=(18, 3))
-    coarse = calibrate_coarse(_dwells(coarse_means, max(sigma_coarse, 1e-9), "coarse"), gravity=GRAVITY)
+    coarse = calibrate_coarse(_dwells(coarse_means, max(sigma_coarse, 1e-9), "coarse"), setting=DeviceSetting(GRAVITY))
     fine_means = outputs(truth, READINGS) + sigma_fine * rng.normal(size=(18, 3))
     return coarse, calibrate_fine(_dwells(fine_means, max(sigma_fine, 1e-9), "fine"), coarse, gravity=GRAVITY)
 
@@ -124,7 +125,7 @@ def test_fine_position_off_the_model_is_not_silent():
     truth = draw_truth(np.random.default_rng(25))
     rng = np.random.default_rng(2)
     coarse_means = outputs(truth, READINGS) + 3e-5 * rng.normal(size=(18, 3))
-    coarse = calibrate_coarse(_dwells(coarse_means, 3e-5, "coarse"), gravity=GRAVITY)
+    coarse = calibrate_coarse(_dwells(coarse_means, 3e-5, "coarse"), setting=DeviceSetting(GRAVITY))
     fine_means = outputs(truth, READINGS) + 5e-6 * rng.normal(size=(18, 3))
     clean = calibrate_fine(_dwells(fine_means, 5e-6, "fine"), coarse, gravity=GRAVITY)
     assert not any(n.startswith("warning:") for n in clean.notes)

@@ -14,6 +14,7 @@ from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary, dwells_from_columns
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
+from stableins.estimators.setting import DeviceSetting
 from stableins.noise import NoiseModel, sessions
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
@@ -168,8 +169,10 @@ def test_fusion_equals_the_information_update_in_the_linear_white_noise_limit():
 
     coarse_dwells, fine_dwells = dwells("coarse", 2e-5), dwells("fine", 3e-6)
     config = ExactPlatform(truth).metadata
-    coarse = calibrate_coarse(coarse_dwells, gravity=GRAVITY, nonlinear=True)
-    fused = fit_joint(coarse_dwells, fine_dwells, gravity=GRAVITY, configuration=_config(config), start=coarse, stage="coarse+fine")
+    coarse = calibrate_coarse(coarse_dwells, setting=DeviceSetting(GRAVITY), nonlinear=True)
+    fused = fit_joint(
+        coarse_dwells, fine_dwells, setting=DeviceSetting(GRAVITY, configuration=_config(config)), start=coarse, stage="coarse+fine"
+    )
     # information update: P⁻¹ = P_c⁻¹ + J_fᵀ R_f⁻¹ J_f on the free parameters
     from stableins.estimators.fine import FineProblem, fine_model
 
@@ -221,7 +224,7 @@ def test_fit_result_chi2_uses_whitened_residuals_when_given():
                 )
             )
         ],
-        gravity=GRAVITY,
+        setting=DeviceSetting(GRAVITY),
     )
     assert base.whitened_residuals is None
     assert base.chi2 == pytest.approx(float(np.sum((base.residuals / base.residual_sigma) ** 2)))

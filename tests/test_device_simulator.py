@@ -17,7 +17,7 @@ from stableins.procedures.iteration import iterate_offsets
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import SimulatedPlatform, simulate_dwells
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")
@@ -123,7 +123,7 @@ def test_cli_bad_input_exits_2_without_writing_a_record(tmp_path, capsys):
 def test_exact_recovery_for_tilted_bases_and_other_senses(site, sign):
     from stableins.conventions import GimbalConfiguration
 
-    truth = Truth.draw(12, noise=NoiseSettings.quiet(), **site)
+    truth = Truth.draw(12, noise=NoiseSettings.quiet(), site=SimulatedSite(**site))
     calibration = calibrate_device(_dwells(*_session(truth, 12, fine_rate=5.0, fine_dwell=60.0)), truth.site, layouts=LAYOUTS)
     expected = gauge_equivalent(truth.parameters, GimbalConfiguration(truth.site.gimbal_senses))
     for fit in (calibration.coarse, calibration.fine):

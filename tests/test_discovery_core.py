@@ -15,6 +15,7 @@ from stableins.discovery.ranking import rank
 from stableins.discovery.steps import make_step
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
 from stableins.platform import platform_specific_force
+from stableins.units import DisplayUnit
 
 G = 9.80170
 
@@ -94,7 +95,7 @@ def test_custom_effect_is_ranked_like_library_effects():
         out[..., 0] = inputs.specific_force[..., 0] ** 4
         return out
 
-    term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4, meaning="quartic x")
+    term = custom_effect("K4_x", fourth, unit=DisplayUnit("ug/g^4", MICRO_G / STANDARD_GRAVITY**4), meaning="quartic x")
     library = Library.default()
     library.register(term, separation="many tilt angles")
     assert "K4_x" in library and library["K4_x"].group == "custom"

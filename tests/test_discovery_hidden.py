@@ -23,9 +23,10 @@ from stableins.discovery.library import LIBRARY
 from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.procedures import definition as procedures
+from stableins.samples import SampleBlock
 from stableins.simulator import device as sim_device
 from stableins.simulator.noise import NoiseSettings, TemperatureProfile
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 #: Injected magnitude per effect family [engineering unit of the library term].
 MAGNITUDE = {"K3": 100, "Koq": 100, "Ksa": 100, "Kcq": 60, "Kcc": 60, "Kt_bias": 30, "Kt_sf": 60, "Kd_bias": 60, "Kh": 25}
@@ -44,25 +45,19 @@ def simulate(effects, seed=SEED, temperature=False, slow_noise=False, passes=4):
         noise = dataclasses.replace(noise, bias_instability=0.0, acceleration_random_walk=0.0)
     if temperature:
         noise = dataclasses.replace(noise, temperature=TemperatureProfile(ramp=1 / 1800, amplitude=1.0, period=3000.0, sensor_noise=0.01))
-    truth = Truth.draw(seed, effects=effects, sample_rate=10.0, noise=noise)
+    truth = Truth.draw(seed, effects=effects, site=SimulatedSite(sample_rate=10.0), noise=noise)
     commands = [s.command for s in procedures.load_procedure("device-fine").steps]
     sequence = list(commands)
     for k in range(1, passes):
         sequence += (commands[::-1] if k % 2 else commands)[1:]
     c = sim_device.simulate_dwells(truth, sequence, dwell=20.0, settle=3.0, rate=10.0, seed=seed)
-    site = truth.site
-    dwells = dwell_means(
+    samples = SampleBlock(
         c["time"],
         np.stack([c["f_x"], c["f_y"], c["f_z"]], -1),
         np.stack([c["angle_platform"], c["angle_inner"], c["angle_middle"]], -1),
         c["temperature"],
-        c["position"],
-        c["time_since_command"],
-        gravity=site.gravity,
-        reference_temperature=site.reference_temperature,
-        base_attitude=site.base_attitude,
-        configuration=truth.configuration,
     )
+    dwells = dwell_means(samples, c["position"], c["time_since_command"], site=truth.site)
     return dwells, truth
 
 

@@ -1,5 +1,7 @@
 """Discovery on system-level records (space-stable platform turning at the Earth rate), binned into dwells."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -12,14 +14,14 @@ from stableins.discovery.problem import DwellProblem
 from stableins.errormodel import ErrorModel
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import simulate_system
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)
 DAY = 86164.0
 
 
 def _record(effects, seed=1, hours=DAY / 3600):
-    truth = Truth.draw(seed, sample_rate=10.0, effects=effects, noise=WHITE)
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=10.0), effects=effects, noise=WHITE)
     return simulate_system(truth, hours * 3600.0, rate=10.0, seed=seed), truth
 
 
@@ -85,7 +87,7 @@ class _Record:
 
 
 def _quartz_day(seed, effects=None):
-    truth = Truth.draw(seed, sample_rate=1.0, effects=effects or {})  # the simulator's quartz noise
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0), effects=effects or {})  # the simulator's quartz noise
     return _Record(simulate_system(truth, DAY, rate=1.0, seed=seed), truth.site), truth
 
 
@@ -94,11 +96,11 @@ def _system_diagnosis(record, truth, white_only=False):
     from stableins.noise import NoiseModel
 
     model = ErrorModel.standard(nonlinear=True, gimbals=True)
-    noise, duration, notes = measure_noise(record, dict(truth.installed_calibration), None, None)
+    measured = measure_noise(record, dict(truth.installed_calibration), None, None)
     if white_only:
-        noise = NoiseModel.given(noise.values("white"))
+        measured = replace(measured, noise_model=NoiseModel.given(measured.noise_model.values("white")))
     start = {k: v for k, v in truth.installed_calibration.items() if k in model}
-    return diagnose_system_record(record, model, start, noise, duration=duration, notes=notes)
+    return diagnose_system_record(record, model, start, measured)
 
 
 def test_clean_quartz_days_raise_no_alarm_under_the_stage_noise_model():

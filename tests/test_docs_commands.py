@@ -68,7 +68,11 @@ def _fast(load):
 
 def _fast_draw(draw):
     def fast(cls, seed, **kwargs):
-        kwargs.setdefault("sample_rate", FAST_RATE)
+        from stableins.simulator.truth import DEFAULT_SITE
+
+        site = kwargs.get("site", DEFAULT_SITE)
+        if site.sample_rate == DEFAULT_SITE.sample_rate:  # the default rate (the documents' commands ask for others explicitly)
+            kwargs["site"] = dataclasses.replace(site, sample_rate=FAST_RATE)
         return draw(cls, seed, **kwargs)
 
     return classmethod(fast)

@@ -9,6 +9,7 @@ import pytest
 
 from stableins.console import Console
 from stableins.data.device import load_device
+from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
 from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
@@ -150,7 +151,6 @@ def test_crash_inside_the_iteration_resumes_to_the_same_result(tmp_path, truth):
 
 
 def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_path):
-    from stableins.conventions import GimbalConfiguration
     from stableins.estimators.coarse import calibrate_coarse
     from stableins.estimators.dwell import dwells_from_columns
 
@@ -179,9 +179,7 @@ def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_p
     dwells = [d for d in dwells_from_columns(columns, settle=settle, checks=definition.checks) if d.pass_number == last]
     fit = calibrate_coarse(
         dwells,
-        gravity=site.gravity,
-        base_attitude=site.base_attitude,
-        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        setting=DeviceSetting.from_site(site),
         expected_positions=definition.positions,
         orientation_tolerance=definition.checks.orientation_tolerance,
         nonlinear=True,  # as the iteration does

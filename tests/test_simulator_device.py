@@ -10,14 +10,14 @@ from stableins.errors import InputError
 from stableins.schema import DEVICE_COLUMNS
 from stableins.simulator.device import SimulatedPlatform, simulate_dwells
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 QUIET = NoiseSettings.quiet()
 STILL = {"gain": 0.0}
 
 
 def quiet_truth(seed=1, parameters=None, effects=None, senses=(1, 1, 1, 1), settling=STILL):
-    t = Truth.draw(seed, noise=QUIET, gimbal_senses=senses, effects=effects)
+    t = Truth.draw(seed, noise=QUIET, site=SimulatedSite(gimbal_senses=senses), effects=effects)
     return t.with_changes(parameters=t.parameters if parameters is None else parameters, settling=settling)
 
 

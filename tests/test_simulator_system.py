@@ -9,14 +9,14 @@ from stableins import conventions as cv
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import ModalRecursion, SystemWorld, error_dynamics, simulate_system
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 DEG_H = np.pi / 180 / 3600
 
 
 def ideal(seed=3, senses=(1, 1, 1, 1), **changes):
     """Noise-free truth whose installed calibration equals the truth."""
-    t = Truth.draw(seed, noise=NoiseSettings.quiet(), gimbal_senses=senses)
+    t = Truth.draw(seed, noise=NoiseSettings.quiet(), site=SimulatedSite(gimbal_senses=senses))
     return t.with_changes(installed_calibration=dict(t.parameters), **changes)
 
 

@@ -19,7 +19,7 @@ from stableins.estimators.system.whittle import ColouredSource
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean", "x1")]
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, angle_noise=0.2 * ARCSEC)  # the quartz white level, nothing slow
@@ -27,7 +27,7 @@ QUARTZ = NoiseSettings.quartz()
 
 
 def day(seed, noise, noise_model=None):
-    truth = Truth.draw(seed, sample_rate=1.0, noise=noise)
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0), noise=noise)
     cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -18,15 +18,16 @@ from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combin
 from stableins.estimators.system.stage import run_system_stage
 from stableins.simulator import system
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 
 HARMONIC = [i for i, n in enumerate(COMBINED_COEFFICIENTS) if n not in ("theta_mean", "phi_mean")]
 
 
-def simulated_day(seed, rate=1.0, noise=5e-3, **draw):
+def simulated_day(seed, rate=1.0, noise=5e-3, gyro_drift=None, **site):
     """One sidereal day; white accelerometer noise ``noise`` per sample (the paper's 5e-3 m/s²)."""
     residual = {"scale_factor": 1e-4, "bias": 1e-3, "installation": 10 * ARCSEC, "nonlinearity": 0.0}
-    truth = Truth.draw(seed, sample_rate=rate, noise=NoiseSettings(velocity_random_walk=noise / math.sqrt(rate)), residual=residual, **draw)
+    noise_settings = NoiseSettings(velocity_random_walk=noise / math.sqrt(rate))
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=rate, **site), noise=noise_settings, residual=residual, gyro_drift=gyro_drift)
     cols = system.simulate_system(truth, SIDEREAL_DAY, rate, seed=seed + 100, earth_angle=0.3 * seed)
     return truth, cols
 
@@ -114,7 +115,7 @@ def test_residual_k2_from_third_harmonic():
     from stableins.estimators.system.stage import SystemOptions
 
     residual = {"scale_factor": 1e-4, "bias": 1e-3, "installation": 10 * ARCSEC, "nonlinearity": 20 * MICRO_G_PER_G2}
-    truth = Truth.draw(3, sample_rate=1.0, noise=NoiseSettings(velocity_random_walk=2e-3), residual=residual)
+    truth = Truth.draw(3, site=SimulatedSite(sample_rate=1.0), noise=NoiseSettings(velocity_random_walk=2e-3), residual=residual)
     cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=3)
     _, ref = reference(truth)
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]  # x1 also carries K2_z, not observable
@@ -160,7 +161,7 @@ def test_quartz_noise_low_frequency_power_is_seen():
 
     from stableins.estimators.system.stage import SystemOptions
 
-    truth = Truth.draw(1, sample_rate=1.0)  # default residuals (with K2) and quartz noise
+    truth = Truth.draw(1, site=SimulatedSite(sample_rate=1.0))  # default residuals (with K2) and quartz noise
     cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=1)
     _, ref = reference(truth)
     with warnings.catch_warnings():
@@ -196,7 +197,7 @@ def test_monte_carlo_sigma_with_quartz_noise():
     harmonic = [i for i in HARMONIC if COMBINED_COEFFICIENTS[i] != "x1"]  # x1 also carries K2_z
     normalized = []
     for seed in range(1, 17):
-        truth = Truth.draw(seed, sample_rate=1.0)
+        truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0))
         cols = system.simulate_system(truth, SIDEREAL_DAY, 1.0, seed=seed)
         _, ref = reference(truth)
         with warnings.catch_warnings():

@@ -196,15 +196,13 @@ def build_truth(args: argparse.Namespace) -> Any:
     """Return the truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
     from stableins.data.truth import load_truth
     from stableins.simulator.effects import validate_effects
-    from stableins.simulator.truth import Truth
+    from stableins.simulator.truth import DEFAULT_SITE, SimulatedSite, Truth
 
     if args.truth is not None:
         truth = load_truth(args.truth)
     else:
-        kwargs: dict[str, Any] = {}
-        if args.rate is not None:
-            kwargs["sample_rate"] = args.rate
-        truth = Truth.draw(0 if args.seed is None else args.seed, **kwargs)
+        site = DEFAULT_SITE if args.rate is None else SimulatedSite(sample_rate=args.rate)
+        truth = Truth.draw(0 if args.seed is None else args.seed, site=site)
     if getattr(args, "installed", None) is not None:
         truth = truth.with_changes(installed_calibration=installed_from_record(args.installed, truth))
     if args.hidden:

@@ -371,17 +371,16 @@ def _system(opened: SystemRecord, record: RecordInForce, model: ErrorModel, opti
     ids = record.ids
     covariance = {(a, b): float(record.covariance[i, j]) for i, a in enumerate(ids) for j, b in enumerate(ids)}
     values = record.values()
-    noise, duration, notes = measure_noise(opened, values, covariance, prior, record_terms(ids))
+    measured = measure_noise(opened, values, covariance, prior, record_terms(ids))
+    noise = measured.noise_model
     found = diagnose_system_record(
         opened,
         model,
         {k: v for k, v in values.items() if k in model},
-        noise,
+        measured,
         bin_seconds=options.bin_seconds,
-        duration=duration,
         alpha=options.alpha,
         add=options.add,
-        notes=notes,
     )
     session, diagnosis = found.session, found.diagnosis
     flagged = {(name, k) for name, k, _ in found.flagged_harmonics}

@@ -14,6 +14,8 @@ from stableins.estimators.layout import StageLayout
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
+    from stableins.samples import SampleBlock
+    from stableins.site import SiteMetadata
 
 
 # ----------------------------------------------------------------------------- device dwells
@@ -185,9 +187,7 @@ def dwells_from_dataset(
     return _dwell_set(
         [summaries[k] for k in keep],
         extras,
-        gravity=site.gravity,
-        base_attitude=tuple(site.base_attitude),
-        configuration=GimbalConfiguration(tuple(site.gimbal_senses)),
+        site=site,
         labels=tuple(f"{stage[0]}{summaries[k].pass_number}/{summaries[k].position}" for k in keep),
         initial_readings=initial_readings,
         noise=noise,
@@ -195,17 +195,23 @@ def dwells_from_dataset(
     )
 
 
-def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labels, initial_readings, noise, info) -> DwellSet:
+def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_readings, noise, info) -> DwellSet:
     """Return a :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
 
     ``extras``: per dwell ``(time, time_since_command, temperature − reference, angles)`` of the
-    samples used.  ``noise`` None: measured from the dwells as the device stage does.
+    samples used.  ``site`` gives gravity, base attitude and gimbal senses.  ``noise`` None: measured
+    from the dwells as the device stage does.
     """
     from stableins.discovery.drift import reading_slope
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
     from stableins.platform import platform_specific_force
 
+    gravity = site.gravity
+    yaw, pitch, roll = site.base_attitude
+    base_attitude = (yaw, pitch, roll)
+    s1, s2, s3, s4 = site.gimbal_senses
+    configuration = GimbalConfiguration((s1, s2, s3, s4))
     if noise is None:
         noise = noise_from_dwells(summaries)
     slopes, slope_sigma = zip(*(reading_slope(t, angles) for t, _, _, angles in extras), strict=True)
@@ -222,7 +228,7 @@ def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labe
         temperature=np.array([float(np.mean(temp)) for _, _, temp, _ in extras]),
         slew_direction=slew_directions(nominal, start),
         labels=tuple(labels),
-        base_attitude=tuple(base_attitude),
+        base_attitude=base_attitude,
         configuration=configuration,
         noise={
             "method": "dwell statistics of the device stage (white noise within each dwell, block means where correlated)",
@@ -268,22 +274,19 @@ def slew_directions(
 
 
 def dwell_means(
-    time: ArrayLike,
-    output: ArrayLike,
-    readings: ArrayLike,
-    temperature: ArrayLike,
+    samples: SampleBlock,
     position: ArrayLike,
     time_since_command: ArrayLike,
     *,
-    gravity: float,
-    reference_temperature: float = 25.0,
-    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    site: SiteMetadata,
     labels: Sequence[str] | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
     noise: NoiseModel | None = None,
 ) -> DwellSet:
     """Reduce samples (one dwell per distinct ``position``, in order of appearance) to dwell means.
+
+    ``samples`` holds time [s], accelerometer outputs [m/s²], angle readings [rad] and temperature [°C];
+    ``site`` gives gravity, reference temperature, base attitude and gimbal senses.
 
     Each dwell's mean and 1σ come from the device stage's dwell statistics
     (:func:`stableins.estimators.dwell.summarize_dwell`: white noise from the sample
@@ -295,10 +298,10 @@ def dwell_means(
     """
     from stableins.estimators.dwell import summarize_dwell
 
-    t = np.asarray(time, dtype=float)
-    f = np.asarray(output, dtype=float).reshape(-1, 3)
-    r = np.asarray(readings, dtype=float).reshape(-1, 3)
-    temp = np.asarray(temperature, dtype=float)
+    t = np.asarray(samples.time, dtype=float)
+    f = np.asarray(samples.specific_force, dtype=float).reshape(-1, 3)
+    r = np.asarray(samples.angles, dtype=float).reshape(-1, 3)
+    temp = np.asarray(samples.temperature, dtype=float)
     pos = np.asarray(position)
     since = np.asarray(time_since_command, dtype=float)
     order = list(dict.fromkeys(pos.tolist()))
@@ -310,13 +313,11 @@ def dwell_means(
         if fatal:  # the other checks (clipping, slews ...) are the acquisition's; the caller's samples are taken as they are
             raise ValueError(f"position {p}: {'; '.join(fatal)}")
         summaries.append(summary)
-        extras.append((t[sel], since[sel], temp[sel] - reference_temperature, r[sel]))
+        extras.append((t[sel], since[sel], temp[sel] - site.reference_temperature, r[sel]))
     return _dwell_set(
         summaries,
         extras,
-        gravity=gravity,
-        base_attitude=tuple(base_attitude),
-        configuration=configuration,
+        site=site,
         labels=tuple(labels) if labels is not None else tuple(f"pos {p}" for p in order),
         initial_readings=initial_readings,
         noise=noise,

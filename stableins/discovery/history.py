@@ -426,6 +426,7 @@ class Discovery:
         """
         from stableins.discovery.drift import drift_problem
         from stableins.discovery.ranking import rank
+        from stableins.units import DisplayUnit
 
         dwells = getattr(self.problem, "dwells", None)
         if dwells is None or dwells.reading_slope is None:
@@ -441,7 +442,7 @@ class Discovery:
         arcsec_per_hour = np.pi / 648000 / 3600
         fit = problem.fit(null)
         ranking = rank(
-            problem, fit, terms, alpha=self.alpha, refit_top=refit_top, propose=False, output_unit='"/h', output_scale=arcsec_per_hour
+            problem, fit, terms, alpha=self.alpha, refit_top=refit_top, propose=False, output=DisplayUnit('"/h', arcsec_per_hour)
         )
         self.drift_notes = notes
         return ranking

@@ -56,6 +56,7 @@ from numpy.typing import NDArray
 
 from stableins.discovery.catalogue import Candidate, default_candidates
 from stableins.errormodel import Term, TermInputs, TermKind
+from stableins.units import DisplayUnit
 
 #: Groups whose effects a calibration carries (estimated by the device stages, applied by compensation).
 CALIBRATION_GROUPS = ("instrument",)
@@ -205,9 +206,7 @@ def custom_effect(
     term_id: str,
     regressor: Callable[[TermInputs], NDArray],
     *,
-    unit: str,
-    scale: float,
-    si_unit: str = "",
+    unit: DisplayUnit,
     nominal: float | None = None,
     meaning: str = "user-defined effect",
     excitation: str = "",
@@ -215,6 +214,9 @@ def custom_effect(
     axis: int | None = None,
 ) -> Term:
     """Build an additive Term from a user function ``TermInputs -> (..., 3)`` [m/s² per SI unit].
+
+    ``unit`` is the unit the coefficient is shown in and its SI size; ``nominal`` its typical magnitude [SI]
+    (default one ``unit``).
 
     Examples
     --------
@@ -224,17 +226,18 @@ def custom_effect(
     ...     out = np.zeros_like(inputs.specific_force)
     ...     out[..., 0] = inputs.specific_force[..., 0] ** 4
     ...     return out
-    >>> term = custom_effect("K4_x", fourth, unit="ug/g^4", scale=MICRO_G / STANDARD_GRAVITY**4)
+    >>> from stableins.units import DisplayUnit
+    >>> term = custom_effect("K4_x", fourth, unit=DisplayUnit("ug/g^4", MICRO_G / STANDARD_GRAVITY**4))
     >>> term.kind
     <TermKind.ADDITIVE: 'additive'>
     """
     return Term(
         term_id,
         TermKind.ADDITIVE,
-        si_unit or f"({unit}) in SI",
-        unit,
-        scale,
-        scale if nominal is None else nominal,
+        unit.si_name or f"({unit.name}) in SI",
+        unit.name,
+        unit.scale,
+        unit.scale if nominal is None else nominal,
         meaning,
         axis=axis,
         regressor=regressor,

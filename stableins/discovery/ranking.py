@@ -47,9 +47,13 @@ from stableins.discovery.scores import (
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.status import Status
+from stableins.units import DisplayUnit
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.problem import Problem
+
+#: The unit a candidate's largest predicted change of an output is shown in by default.
+MICRO_G_UNIT = DisplayUnit("µg", MICRO_G)
 
 
 
@@ -282,8 +286,7 @@ def rank(
     refit_top: int = 3,
     separation: dict[str, str] | None = None,
     propose: bool = True,
-    output_unit: str = "µg",
-    output_scale: float = MICRO_G,
+    output: DisplayUnit = MICRO_G_UNIT,
 ) -> Ranking:
     """Rank every candidate not in the model; refit the best ``refit_top`` with the full fitter.
 
@@ -305,8 +308,8 @@ def rank(
         For device dwell problems, test numerically which standard procedure extensions
         (:mod:`stableins.discovery.separation`) separate the excited candidates that are not
         separable or are confused with another, and add the answer to their advice.
-    output_unit, output_scale : str, float
-        How the largest predicted change of an observation is shown (default µg).
+    output : DisplayUnit
+        The unit the largest predicted change of an observation is shown in (default µg).
     """
     from stableins.discovery.library import LIBRARY
 
@@ -371,7 +374,7 @@ def rank(
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
     flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
-    return Ranking(result, tuple(flagged), alpha, n_tested, output_unit, output_scale)
+    return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
 
 
 def _separability(

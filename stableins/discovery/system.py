@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from stableins.discovery.history import Discovery
 from stableins.discovery.ranking import Ranking
 from stableins.errormodel import ErrorModel
 from stableins.noise import NoiseModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.estimators.system.stage import SystemNoise
 
 #: At most this many bins enter the generalized least squares (each axis' covariance is ``(P, P)``): records longer than
 #: ``MAX_BINS`` bins of the requested width get wider bins.  The platform turns by ``ω_ie T`` within a bin; averaging
@@ -146,11 +149,11 @@ def measure_noise(
     covariance: Mapping[tuple[str, str], float] | None,
     prior: NoiseModel | None,
     compensation_terms: Sequence[Any] = (),
-) -> tuple[NoiseModel, float, tuple[str, ...]]:
-    """Return the noise model of the instrument in a system-level record, exactly as the system stage measures it.
+) -> SystemNoise:
+    """Return the noise of the instrument in a system-level record, exactly as the system stage measures it.
 
     :func:`stableins.estimators.system.stage.measure_noise_model` on the record (the installed ``calibration``, the
-    ``prior`` noise model as the stage uses it).  Returns the model, the record's duration [s] and the stage's note.
+    ``prior`` noise model as the stage uses it): the model, the record's duration [s] and the stage's note.
     """
     import warnings
 
@@ -158,28 +161,27 @@ def measure_noise(
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the stage's warnings are about its calibration, not about the noise
-        measured = measure_noise_model(
+        return measure_noise_model(
             record, record.metadata, calibration, covariance, compensation_terms=compensation_terms, noise_model=prior
         )
-    return measured.noise_model, measured.duration, measured.notes
 
 
 def diagnose_system_record(
     record: Any,
     model: ErrorModel,
     start: Mapping[str, float],
-    noise_model: NoiseModel,
+    noise: SystemNoise,
     *,
     bin_seconds: float = 60.0,
-    duration: float | None = None,
     alpha: float = 0.05,
     add: Sequence[str] = (),
-    notes: Sequence[str] = (),
 ) -> SystemDiagnosis:
-    """Bin a system-level record and run discovery under ``noise_model`` and its limits (module docstring).
+    """Bin a system-level record and run discovery under the measured noise model and its limits (module docstring).
 
     ``record``: a :class:`stableins.data.system.SystemRecord` (``metadata``, ``iter_chunks``); ``start`` the parameter
-    values to start from (the calibration record's); ``add`` effects added one step at a time before ranking.
+    values to start from (the calibration record's); ``noise`` the instrument's noise in the record (:func:`measure_noise`:
+    its model, the record's duration, which bounds the number of bins, and the notes carried into the diagnosis);
+    ``add`` effects added one step at a time before ranking.
     """
     from stableins.conventions import GimbalConfiguration
     from stableins.discovery.harmonics import residual_spectra
@@ -187,8 +189,9 @@ def diagnose_system_record(
     from stableins.discovery.problem import DwellProblem
 
     site = record.metadata
+    noise_model, duration = noise.noise_model, noise.duration
     width = float(bin_seconds)
-    extra = list(notes)
+    extra = list(noise.notes)
     if duration is not None and duration / width > MAX_BINS:
         width = math.ceil(duration / MAX_BINS)
         extra.append(f"bins widened from {bin_seconds:g} s to {width:g} s (at most {MAX_BINS} bins under the correlated noise)")

@@ -40,13 +40,13 @@ def open_driver(
 def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
     """Open the embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
     try:
-        from stableins.simulator.truth import Truth
+        from stableins.simulator.truth import SimulatedSite, Truth
     except ImportError as error:  # pragma: no cover - the simulator ships with stableins
         raise InputError(
             f"the simulated platform is not available ({error})", field="driver_spec", expected="tcp://HOST:PORT or replay:PATH"
         ) from None
-    options: dict[str, Any] = {"sample_rate": sample_rate} if sample_rate else {}
-    truth = Truth.draw(seed, **options, serial_number=unit)
+    site = SimulatedSite(sample_rate=sample_rate, serial_number=unit) if sample_rate else SimulatedSite(serial_number=unit)
+    truth = Truth.draw(seed, site=site)
     return SimulatedDriver(truth, seed)
 
 

@@ -48,7 +48,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import (
-    DEFAULT_GIMBALS,
     STANDARD_GRAVITY,
     GimbalConfiguration,
     dcm_nav_to_body,
@@ -63,7 +62,7 @@ from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_w
 from stableins.estimators.orientation import check_orientation
 from stableins.estimators.result import FitResult
 from stableins.estimators.sensitivity import angle_reading_sensitivity
-from stableins.noise import NoiseModel
+from stableins.estimators.setting import DeviceSetting
 from stableins.platform import specific_force_and_jacobian
 
 
@@ -194,15 +193,11 @@ def solve_coarse(
 def calibrate_coarse(
     dwells: Sequence[DwellSummary],
     *,
-    gravity: float,
-    base_attitude: Sequence[float] = (0.0, 0.0, 0.0),
-    configuration: GimbalConfiguration = DEFAULT_GIMBALS,
+    setting: DeviceSetting,
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
     nonlinear: bool = False,
     orientation_tolerance: float = 0.02 * STANDARD_GRAVITY,
-    noise: NoiseModel | None = None,
-    extra_terms: Sequence[Term] = (),
     prior: Mapping[str, float] | None = None,
     source: str = "data",
 ) -> FitResult:
@@ -212,12 +207,11 @@ def calibrate_coarse(
     ----------
     dwells : sequence of DwellSummary
         One pass (one dwell per position).
-    gravity : float
-        Local gravity [m/s²].
-    base_attitude : (yaw, pitch, roll)
-        Base attitude from the site survey [rad].
-    configuration : GimbalConfiguration
-        Gimbal rotation senses.
+    setting : DeviceSetting
+        Gravity, base attitude and gimbal senses of the unit, its noise model (None: white noise measured in each
+        dwell only) and the additive ``extra_terms`` estimated with the standard ones (discovered effects, e.g.
+        the library's ``Kcc_xxy``; regressors of the specific force); an extra term that these positions do not
+        determine is held at its ``prior`` value with status ``unidentifiable``.
     expected_positions : sequence of int, optional
         Positions the procedure defines; a missing one raises :class:`InputError`
         unless ``allow_missing``.
@@ -225,14 +219,6 @@ def calibrate_coarse(
         Also estimate ``K2_*`` (the paper ignores them in this stage).
     orientation_tolerance : float
         Largest allowed difference between a dwell mean and the ideal output [m/s²].
-    noise : NoiseModel, optional
-        The instrument's noise model: its bias instability / random walk add the correlated
-        covariance of the dwell means (:meth:`stableins.noise.NoiseModel.dwell_mean_covariance`);
-        white noise measured in each dwell only when None.
-    extra_terms : sequence of Term
-        Additive terms estimated with the standard ones (discovered effects, e.g. the
-        library's ``Kcc_xxy``; regressors of the specific force).  One that these positions
-        do not determine is held at its ``prior`` value with status ``unidentifiable``.
     prior : mapping, optional
         Prior values of ``extra_terms`` [SI] (default: their reference, 0).
 
@@ -241,11 +227,12 @@ def calibrate_coarse(
     FitResult
         Stage ``"coarse"``, with gauge ``θ10 = 0`` (status ``gauge``).
     """
+    gravity, base_attitude, configuration, noise = setting.gravity, setting.base_attitude, setting.configuration, setting.noise
     base_dcm = dcm_nav_to_body(*base_attitude)
-    model = coarse_model(nonlinear=nonlinear, extra_terms=extra_terms)
-    extra_ids = tuple(t.id for t in extra_terms)
+    model = coarse_model(nonlinear=nonlinear, extra_terms=setting.extra_terms)
+    extra_ids = tuple(t.id for t in setting.extra_terms)
     usable, left_out, notes = _usable_dwells(
-        dwells, gravity, base_dcm, configuration, n=len(model), expected_positions=expected_positions, allow_missing=allow_missing,
+        dwells, setting, base_dcm, n=len(model), expected_positions=expected_positions, allow_missing=allow_missing,
         orientation_tolerance=orientation_tolerance, source=source,
     )
     slow = slow_covariance(usable, noise, source)
@@ -291,9 +278,8 @@ def calibrate_coarse(
 
 def _usable_dwells(
     dwells: Sequence[DwellSummary],
-    gravity: float,
+    setting: DeviceSetting,
     base_dcm: NDArray[np.float64],
-    configuration: GimbalConfiguration,
     *,
     n: int,
     expected_positions: Sequence[int] | None,
@@ -309,7 +295,9 @@ def _usable_dwells(
         Too few usable positions for ``n`` parameters.
     """
     usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source)
-    left_out.update(check_orientation(usable, gravity, base_dcm, configuration, tolerance=orientation_tolerance, source=source))
+    left_out.update(
+        check_orientation(usable, setting.gravity, base_dcm, setting.configuration, tolerance=orientation_tolerance, source=source)
+    )
     usable = sorted((d for d in usable if d.position not in left_out), key=lambda d: d.position)
     if 3 * len(usable) <= n:
         raise InputError(

@@ -26,6 +26,7 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
 from stableins.estimators.orientation import check_orientation
 from stableins.estimators.result import FitResult
+from stableins.estimators.setting import DeviceSetting
 from stableins.estimators.slow_noise import DEFAULT_ALPHA, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.site import SiteMetadata
@@ -234,19 +235,12 @@ class _DeviceFit:
         notes: Sequence[str] = (),
     ) -> FitResult:
         """Return :func:`stableins.estimators.joint.fit_joint` of these dwells with the session's settings."""
-        return fit_joint(
-            coarse_dwells,
-            fine_dwells,
-            gravity=self.site.gravity,
-            base_attitude=self.site.base_attitude,
-            configuration=self.configuration,
-            start=start,
-            nonlinear=nonlinear,
-            noise=self.noise,
-            stage=stage,
-            notes=notes,
-            extra_terms=self.extra_terms,
-        )
+        return fit_joint(coarse_dwells, fine_dwells, setting=self.setting, start=start, nonlinear=nonlinear, stage=stage, notes=notes)
+
+    @property
+    def setting(self) -> DeviceSetting:
+        """The plain values every fit of this session works in."""
+        return DeviceSetting(self.site.gravity, self.site.base_attitude, self.configuration, self.noise, self.extra_terms)
 
 
 def _stage_layouts(layouts: Mapping[str, StageLayout]) -> tuple[StageLayout, StageLayout]:
@@ -276,15 +270,11 @@ def _coarse_passes(
     passes = [
         calibrate_coarse(
             [d for d in coarse_dwells if d.pass_number == p],
-            gravity=session.site.gravity,
-            base_attitude=session.site.base_attitude,
-            configuration=session.configuration,
+            setting=session.setting,
             expected_positions=layout.positions,
             allow_missing=allow_missing,
             orientation_tolerance=layout.checks.orientation_tolerance,
-            noise=session.noise,
             nonlinear=nonlinear,
-            extra_terms=session.extra_terms,
             source=f"{source} (coarse pass {p})",
         )
         for p in numbers

@@ -52,8 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
-from stableins.errormodel import Term
+from stableins.conventions import dcm_nav_to_body
 from stableins.estimators.coarse import CoarseProblem, coarse_model, quality_notes
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
@@ -62,7 +61,7 @@ from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import gauss_newton
 from stableins.estimators.result import FitResult
 from stableins.estimators.sensitivity import angle_reading_sensitivity
-from stableins.noise import NoiseModel
+from stableins.estimators.setting import DeviceSetting
 
 
 @dataclass(frozen=True)
@@ -135,15 +134,11 @@ def fit_joint(
     coarse_dwells: Sequence[DwellSummary],
     fine_dwells: Sequence[DwellSummary] = (),
     *,
-    gravity: float,
-    base_attitude: Sequence[float] = (0.0, 0.0, 0.0),
-    configuration: GimbalConfiguration,
+    setting: DeviceSetting,
     start: FitResult | Mapping[str, float],
     nonlinear: bool = True,
-    noise: NoiseModel | None = None,
     stage: str = "coarse",
     notes: Sequence[str] = (),
-    extra_terms: Sequence[Term] = (),
 ) -> FitResult:
     """GLS fit of usable coarse dwells (any number of passes) and fine dwells; gauge ``θ10 = 0``.
 
@@ -151,20 +146,23 @@ def fit_joint(
     ----------
     coarse_dwells, fine_dwells : sequence of DwellSummary
         Dwells already screened by the coarse and fine stages (usable, in acquisition order).
+    setting : DeviceSetting
+        Gravity, base attitude and gimbal senses of the unit, its noise model and the additive ``extra_terms``
+        (discovered effects) estimated with the standard ones, in the coarse and the fine rows; an extra term
+        that the rows do not determine keeps its ``start`` value with status ``unidentifiable``.
     start : FitResult
         Start values (a coarse pass or the joint coarse fit); missing ids start at their reference.
     nonlinear : bool
         Estimate ``K2_*`` (always when fine dwells are given: the fine rows determine them).
     stage : str
         Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
-    extra_terms : sequence of Term
-        Additive terms (discovered effects) estimated with the standard ones, in the coarse and
-        the fine rows; one that the rows do not determine keeps its ``start`` value with status
-        ``unidentifiable``.
+    notes : sequence of str
+        Notes the result starts with.
     """
+    gravity, noise, extra_terms = setting.gravity, setting.noise, setting.extra_terms
     model = coarse_model(nonlinear=nonlinear or bool(fine_dwells), extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
-    coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*base_attitude), configuration, model)
+    coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*setting.base_attitude), setting.configuration, model)
     fine = None
     columns = np.zeros(0, dtype=np.int64)
     if fine_dwells:

@@ -31,12 +31,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, GimbalConfiguration
-from stableins.errormodel import Term
+from stableins.conventions import ARCSEC
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult
+from stableins.estimators.setting import DeviceSetting
 
 
 @dataclass(frozen=True)
@@ -113,8 +113,10 @@ class OffsetEstimator:
 
     Parameters
     ----------
-    gravity, base_attitude, configuration
-        Local gravity [m/s²], base attitude (yaw, pitch, roll) [rad] and gimbal senses of the site.
+    setting : DeviceSetting
+        Local gravity [m/s²], base attitude (yaw, pitch, roll) [rad] and gimbal senses of the site, and the
+        discovered (additive) terms estimated in every pass and in the joint fit (white noise measured in each
+        dwell when its noise model is None).
     positions : tuple of int
         The positions of a pass (screening: a missing or foreign position is refused).
     orientation_tolerance : float
@@ -125,33 +127,25 @@ class OffsetEstimator:
         Offsets the first pass is re-pointed by [rad].
     nonlinear : bool
         Estimate ``K2_*`` in each pass (default); ``False`` is the paper's 15-parameter stage.
-    extra_terms : sequence of Term
-        Discovered (additive) terms estimated in every pass and in the joint fit.
     """
 
     def __init__(
         self,
         *,
-        gravity: float,
-        base_attitude: tuple[float, float, float],
-        configuration: GimbalConfiguration,
+        setting: DeviceSetting,
         positions: tuple[int, ...],
         orientation_tolerance: float,
         threshold: float,
         noise_sigmas: float,
         initial_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
         nonlinear: bool = True,
-        extra_terms: Sequence[Term] = (),
     ) -> None:
-        self.gravity = gravity
-        self.base_attitude = base_attitude
-        self.configuration = configuration
+        self.setting = setting
         self.positions = positions
         self.orientation_tolerance = orientation_tolerance
         self.threshold = threshold
         self.noise_sigmas = noise_sigmas
         self.nonlinear = nonlinear
-        self.extra_terms = tuple(extra_terms)
         #: the offsets the next pass is re-pointed by (θ10, θ20, θ30) [rad]
         self.offsets = np.array(initial_offsets, dtype=float)
         self.history: list[PassRecord] = []
@@ -165,13 +159,10 @@ class OffsetEstimator:
         self.dwells += dwells
         fit = calibrate_coarse(
             dwells,
-            gravity=self.gravity,
-            base_attitude=self.base_attitude,
-            configuration=self.configuration,
+            setting=self.setting,
             expected_positions=self.positions,
             orientation_tolerance=self.orientation_tolerance,
             nonlinear=self.nonlinear,
-            extra_terms=self.extra_terms,
             source=f"coarse pass {k}",
         )
         self._used += sorted((d for d in dwells if d.position in fit.positions()), key=lambda d: d.position)
@@ -202,13 +193,10 @@ class OffsetEstimator:
         if k > 1:
             joint = fit_joint(
                 self._used,
-                gravity=self.gravity,
-                base_attitude=self.base_attitude,
-                configuration=self.configuration,
+                setting=self.setting,
                 start=fit,
                 nonlinear=self.nonlinear,
                 notes=(f"joint fit of coarse passes 1..{k} (each with its own commanded readings)",),
-                extra_terms=self.extra_terms,
             )
         offsets = (float(self.offsets[0]), float(self.offsets[1]), float(self.offsets[2]))
         return OffsetIterationResult(joint, offsets, tuple(self.history), tuple(self.dwells), fit)

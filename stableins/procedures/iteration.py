@@ -12,15 +12,16 @@ carries the whole pass history.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol, cast
+from typing import Any, Protocol
 
 import numpy as np
 
-from stableins.conventions import ARCSEC, GimbalConfiguration
+from stableins.conventions import ARCSEC
 from stableins.drivers.base import PlatformDriver
 from stableins.errormodel import Term
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
 from stableins.estimators.offset_iteration import OffsetEstimator, OffsetIterationResult, PassRecord, repointed_command
+from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import OffsetIteration, ProcedureDefinition
 from stableins.samples import SampleBlock
 
@@ -155,16 +156,13 @@ def iterate_offsets(
     threshold, max_passes, noise_sigmas = cfg.threshold, cfg.max_passes, cfg.noise_sigmas
     site = driver.metadata
     estimator = OffsetEstimator(
-        gravity=site.gravity,
-        base_attitude=site.base_attitude,
-        configuration=GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(site.gimbal_senses))),
+        setting=DeviceSetting.from_site(site, extra_terms=tuple(extra_terms)),
         positions=procedure.positions,
         orientation_tolerance=procedure.checks.orientation_tolerance,
         threshold=threshold,
         noise_sigmas=noise_sigmas,
         initial_offsets=initial_offsets,
         nonlinear=nonlinear,
-        extra_terms=extra_terms,
     )
     for k in range(1, max_passes + 1):
         offsets = tuple(float(o) for o in estimator.offsets)

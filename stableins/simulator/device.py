@@ -108,6 +108,7 @@ class SimulatedPlatform:
     # ----------------------------------------------------------------- driver API
     @property
     def metadata(self) -> SiteMetadata:
+        """Site metadata of the simulated unit (the truth's site at this platform's sample rate)."""
         return self._metadata
 
     @property
@@ -155,6 +156,7 @@ class SimulatedPlatform:
         return self._commands[-1].duration if self._commands else 0.0
 
     def status(self) -> dict[str, object]:
+        """Return the driver status: session time and sample, commands so far, seed, serial number, closed."""
         return {
             "driver": "simulated",
             "time": self.time,
@@ -167,6 +169,7 @@ class SimulatedPlatform:
         }
 
     def close(self) -> None:
+        """Close the platform: further commands and acquisitions raise ``RuntimeError``."""
         self._closed = True
 
     # ----------------------------------------------------------------- history / resume
@@ -181,6 +184,7 @@ class SimulatedPlatform:
         truth: Truth,
         history: Sequence[dict[str, Any]],
         time: float,
+        *,
         rate: float | None = None,
         seed: int | None = None,
         initial_readings: Sequence[float] = (0.0, 0.0, 0.0),
@@ -315,15 +319,17 @@ class SimulatedPlatform:
 def simulate_dwells(
     truth: Truth,
     readings_list: Sequence[ArrayLike],
+    *,
     dwell: float,
     settle: float,
     rate: float | None = None,
     seed: int | None = None,
     stage: str = "coarse",
     pass_number: int = 1,
-    initial_readings: Sequence[float] = (0.0, 0.0, 0.0),
 ) -> dict[str, NDArray]:
     """Command each reading triple in turn, wait for the slew and ``settle`` seconds, record ``dwell`` seconds.
+
+    The platform starts at readings (0, 0, 0) (:class:`SimulatedPlatform` for other starting readings).
 
     Parameters
     ----------
@@ -349,7 +355,7 @@ def simulate_dwells(
     dict of str to ndarray
         Columns named as :data:`stableins.schema.DEVICE_COLUMNS`.
     """
-    platform = SimulatedPlatform(truth, rate=rate, seed=seed, initial_readings=initial_readings)
+    platform = SimulatedPlatform(truth, rate=rate, seed=seed)
     pieces: list[dict[str, NDArray]] = []
     for position, readings in enumerate(readings_list, start=1):
         r = np.asarray(readings, dtype=float)

@@ -141,12 +141,14 @@ class NoiseSettings:
         return self.bias_instability * np.sqrt(np.log(ratio) / np.pi)
 
     def to_dict(self) -> dict[str, Any]:
+        """Return the settings as a JSON-ready dict (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["bias_instability_time_constants"] = list(self.bias_instability_time_constants)
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> NoiseSettings:
+        """Inverse of :meth:`to_dict` (missing fields take their defaults)."""
         d = dict(d)
         d["temperature"] = TemperatureProfile(**d.get("temperature", {}))
         d["bias_instability_time_constants"] = tuple(d.get("bias_instability_time_constants", (10.0, 100.0, 1000.0, 10000.0, 100000.0)))
@@ -318,6 +320,7 @@ class Quantizer:
         return k % BLOCK_SAMPLES == 0 and (self.restart_each_block or not continuing)
 
     def __call__(self, start: int, specific_force: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return ``specific_force`` (samples from ``start``) as the quantizing counter outputs it [m/s²]."""
         if self.lsb <= 0:
             return specific_force
         rate = self.noise.rate

@@ -99,6 +99,102 @@ def _triple(values: Iterable[float]) -> tuple[float, float, float]:
     return x, y, z
 
 
+def _check_fields(d: Any, source: str | None) -> None:
+    """Check a truth file's object, kind, schema version and field names; raise :class:`InputError` naming the field."""
+    if not isinstance(d, Mapping):
+        raise InputError("a truth file must hold a JSON object", path=source)
+    if d.get("kind", KIND) != KIND:
+        raise InputError(f"not a truth file (kind {d.get('kind')!r})", path=source, field="kind", expected=repr(KIND))
+    version = d.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise InputError(f"unsupported schema_version {version!r}", path=source, field="schema_version", expected=str(SCHEMA_VERSION))
+    for key in ("parameters", "site"):
+        if key not in d:
+            raise InputError("missing field", path=source, field=key)
+    known = {
+        "schema_version",
+        "kind",
+        "parameters",
+        "effects",
+        "site",
+        "noise",
+        "seed",
+        "installed_calibration",
+        "gyro_drift",
+        "damping",
+        "settling",
+    }
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError(
+            f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
+        )
+
+
+def _site(d: Any, source: str | None) -> SiteMetadata:
+    """Read the ``site`` field of a truth file; raise :class:`InputError` on bad content."""
+    if not isinstance(d, Mapping):
+        raise InputError("must be an object", path=source, field="site")
+    try:
+        d = dict(d)
+        d["gimbal_senses"] = tuple(int(s) for s in d.get("gimbal_senses", (1, 1, 1, 1)))
+        d["base_attitude"] = tuple(float(s) for s in d.get("base_attitude", (0.0, 0.0, 0.0)))
+        site = SiteMetadata(**d)
+        GimbalConfiguration(site.gimbal_senses)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"bad site metadata: {exc}", path=source, field="site") from None
+    return site
+
+
+@dataclass(frozen=True)
+class SimulatedSite:
+    """Where a drawn instrument sits and how it samples (:meth:`Truth.draw`).  SI inside.
+
+    Attributes
+    ----------
+    latitude : float
+        Geodetic latitude [rad].
+    height : float
+        Ellipsoidal height [m].
+    sample_rate : float
+        Accelerometer sample rate [Hz].
+    gimbal_senses : tuple of int
+        Rotation senses ``(s1, s2, s3, s4)``, see :mod:`stableins.conventions`.
+    base_attitude : tuple of float
+        True (yaw, pitch, roll) of the base [rad].
+    serial_number : str or None
+        Unit serial number (None: ``SIM-<seed>``).
+    """
+
+    latitude: float = math.radians(40.0)
+    height: float = 0.0
+    sample_rate: float = 100.0
+    gimbal_senses: tuple[int, int, int, int] = (1, 1, 1, 1)
+    base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    serial_number: str | None = None
+
+    def metadata(self, *, serial_number: str, reference_temperature: float) -> SiteMetadata:
+        """Return the site metadata of the simulated world: its gravity is WGS-84 normal gravity, exact there."""
+        senses = self.gimbal_senses
+        return SiteMetadata(
+            serial_number=serial_number,
+            latitude=float(self.latitude),
+            height=float(self.height),
+            gravity=float(normal_gravity(self.latitude, self.height)),
+            # the simulated world's gravity is the normal-gravity formula itself: the site's g is exact there
+            gravity_source="WGS-84 normal gravity (the simulated world's gravity: exact)",
+            gravity_uncertainty=0.0,
+            sample_rate=float(self.sample_rate),
+            gimbal_senses=(senses[0], senses[1], senses[2], senses[3]),
+            base_attitude=_triple(self.base_attitude),
+            reference_temperature=reference_temperature,
+        )
+
+
+#: The default placement of a drawn instrument: 40° N, sea level, 100 Hz, positive senses, level base.
+DEFAULT_SITE = SimulatedSite()
+
+
 @dataclass(frozen=True)
 class Truth:
     """The simulated world (immutable: the mappings are read-only views; use :meth:`with_changes`).
@@ -170,6 +266,7 @@ class Truth:
 
     @property
     def configuration(self) -> GimbalConfiguration:
+        """The true gimbal configuration (the site's rotation senses)."""
         s1, s2, s3, s4 = self.site.gimbal_senses
         return GimbalConfiguration((s1, s2, s3, s4))
 
@@ -205,18 +302,13 @@ class Truth:
         cls,
         seed: int,
         *,
-        latitude: float = math.radians(40.0),
-        height: float = 0.0,
-        sample_rate: float = 100.0,
-        gimbal_senses: tuple[int, int, int, int] = (1, 1, 1, 1),
-        base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        site: SimulatedSite = DEFAULT_SITE,
         effects: Mapping[str, float] | None = None,
         noise: NoiseSettings | None = None,
         nonlinear: bool = True,
         residual: Mapping[str, float] | None = None,
         gyro_drift: Mapping[str, float] | None = None,
         damping: Mapping[str, float] | None = None,
-        serial_number: str | None = None,
     ) -> Truth:
         """Draw a realistic random instrument.
 
@@ -224,7 +316,8 @@ class Truth:
         magnitude of its :class:`stableins.errormodel.Term` (100 ppm, 100 µg, 30″,
         20 µg/g², zero offsets 60″).  The installed calibration is the truth minus a
         residual drawn with :data:`DEFAULT_RESIDUAL` (override per kind with
-        ``residual``).  Noise defaults to :meth:`NoiseSettings.quartz`.
+        ``residual``).  Noise defaults to :meth:`NoiseSettings.quartz`.  ``site`` places
+        the instrument (:class:`SimulatedSite`; its gravity is WGS-84 normal gravity there).
         """
         import numpy as np
 
@@ -233,23 +326,13 @@ class Truth:
         parameters = {t.id: float(t.reference + t.nominal * rng.standard_normal()) for t in model}
         scales = {**DEFAULT_RESIDUAL, **(residual or {})}
         installed = {t.id: float(parameters[t.id] - scales[t.kind] * rng.standard_normal()) for t in model}
-        gravity = float(normal_gravity(latitude, height))
-        site = SiteMetadata(
-            serial_number=serial_number or f"SIM-{seed}",
-            latitude=float(latitude),
-            height=float(height),
-            gravity=gravity,
-            # the simulated world's gravity is the normal-gravity formula itself: the site's g is exact there
-            gravity_source="WGS-84 normal gravity (the simulated world's gravity: exact)",
-            gravity_uncertainty=0.0,
-            sample_rate=float(sample_rate),
-            gimbal_senses=(gimbal_senses[0], gimbal_senses[1], gimbal_senses[2], gimbal_senses[3]),
-            base_attitude=_triple(base_attitude),
+        metadata = site.metadata(
+            serial_number=site.serial_number or f"SIM-{seed}",
             reference_temperature=(noise or NoiseSettings.quartz()).temperature.reference,
         )
         return cls(
             parameters=parameters,
-            site=site,
+            site=metadata,
             effects=dict(effects or {}),
             noise=noise if noise is not None else NoiseSettings.quartz(),
             seed=int(seed),
@@ -260,6 +343,7 @@ class Truth:
 
     # ----------------------------------------------------------------- serialization
     def to_dict(self) -> dict[str, Any]:
+        """Return the truth as a JSON-ready dict (``schema_version`` 1; :meth:`from_dict` reads it back)."""
         return {
             "schema_version": SCHEMA_VERSION,
             "kind": KIND,
@@ -277,50 +361,13 @@ class Truth:
     @classmethod
     def from_dict(cls, d: Any, source: str | None = None) -> Truth:
         """Inverse of :meth:`to_dict`; raises :class:`InputError` naming the field on bad content."""
-        if not isinstance(d, Mapping):
-            raise InputError("a truth file must hold a JSON object", path=source)
-        if d.get("kind", KIND) != KIND:
-            raise InputError(f"not a truth file (kind {d.get('kind')!r})", path=source, field="kind", expected=repr(KIND))
-        version = d.get("schema_version")
-        if version != SCHEMA_VERSION:
-            raise InputError(f"unsupported schema_version {version!r}", path=source, field="schema_version", expected=str(SCHEMA_VERSION))
-        for key in ("parameters", "site"):
-            if key not in d:
-                raise InputError("missing field", path=source, field=key)
-        known = {
-            "schema_version",
-            "kind",
-            "parameters",
-            "effects",
-            "site",
-            "noise",
-            "seed",
-            "installed_calibration",
-            "gyro_drift",
-            "damping",
-            "settling",
-        }
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise InputError(
-                f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
-            )
+        _check_fields(d, source)
         parameters = _float_dict(d["parameters"], "parameters", source)
         _check_parameter_ids(parameters, "parameters", source)
         installed = _float_dict(d.get("installed_calibration", {}), "installed_calibration", source)
         _check_parameter_ids(installed, "installed_calibration", source, effects=True)
         effects = validate_effects(_float_dict(d.get("effects", {}), "effects", source), source)
-        site_d = d["site"]
-        if not isinstance(site_d, Mapping):
-            raise InputError("must be an object", path=source, field="site")
-        try:
-            site_d = dict(site_d)
-            site_d["gimbal_senses"] = tuple(int(s) for s in site_d.get("gimbal_senses", (1, 1, 1, 1)))
-            site_d["base_attitude"] = tuple(float(s) for s in site_d.get("base_attitude", (0.0, 0.0, 0.0)))
-            site = SiteMetadata(**site_d)
-            GimbalConfiguration(site.gimbal_senses)
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"bad site metadata: {exc}", path=source, field="site") from None
+        site = _site(d["site"], source)
         try:
             noise = NoiseSettings.from_dict(d.get("noise", {}))
         except (TypeError, ValueError) as exc:
