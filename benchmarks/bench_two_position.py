@@ -32,7 +32,7 @@ import numpy as np
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE
 from stableins.estimators.drift import estimate_drift
 from stableins.simulator.system import simulate_system
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 from stableins.turns import PlatformTurn
 
 DRIFT = 0.005  # °/h per axis
@@ -55,7 +55,7 @@ def world(seed: int, case: str) -> Truth:
     else:
         effects["azimuth_error"] = 5 * ARCSEC
     drift = {a: s * DRIFT * DEG_PER_HOUR for a, s in zip("xyz", signs, strict=True)}
-    return Truth.draw(seed, sample_rate=RATE, effects=effects, gyro_drift=drift)
+    return Truth.draw(seed, site=SimulatedSite(sample_rate=RATE), effects=effects, gyro_drift=drift)
 
 
 def estimate(truth: Truth, seed: int, *, indexed: bool) -> tuple[np.ndarray, np.ndarray]:

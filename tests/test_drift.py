@@ -27,7 +27,7 @@ from stableins.records import CalibrationRecord
 from stableins.simulator.indexing import earth_rotation, indexed_record_chunks
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import SystemWorld, simulate_system
-from stableins.simulator.truth import Truth
+from stableins.simulator.truth import SimulatedSite, Truth
 from stableins.turns import IndexAxis, PlatformTurn
 
 RATE = 10.0
@@ -53,13 +53,13 @@ def eps(truth):
 
 # ----------------------------------------------------------------------------- the world
 def test_general_kinematics_without_turns_is_the_polar_world():
-    truth = Truth.draw(5, sample_rate=RATE, gyro_drift=DRIFT)
+    truth = Truth.draw(5, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT)
     plain = simulate_system(truth, 300, rate=RATE)
     general = simulate_system(truth, 300, rate=RATE, initial_readings=SystemWorld(truth, RATE).initial_readings)
     for name in ("angle_platform", "angle_inner", "angle_middle", "f_x", "f_z", "velocity_east", "heading"):
         assert np.max(np.abs(general[name] - plain[name])) < 1e-12, name
     # with a g-sensitive drift the two integrate Dg f differently (left sums / trapezoid rule): O(Dg f dt)
-    truth = Truth.draw(5, sample_rate=RATE, noise=NoiseSettings.quiet(), effects={"Dg_x": 3e-9})
+    truth = Truth.draw(5, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet(), effects={"Dg_x": 3e-9})
     plain = simulate_system(truth, 300, rate=RATE)
     general = simulate_system(truth, 300, rate=RATE, initial_readings=SystemWorld(truth, RATE).initial_readings)
     for name in ("angle_platform", "angle_inner", "angle_middle"):
@@ -67,7 +67,7 @@ def test_general_kinematics_without_turns_is_the_polar_world():
 
 
 def test_indexed_samples_do_not_depend_on_chunking():
-    truth = Truth.draw(6, sample_rate=RATE, gyro_drift=DRIFT)
+    truth = Truth.draw(6, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT)
     a = list(indexed_record_chunks(truth, 700, TWO, rate=RATE, chunk_samples=997))
     b = list(indexed_record_chunks(truth, 700, TWO, rate=RATE, chunk_samples=4096))
     for name in ("angle_platform", "angle_middle", "f_y", "velocity_north"):
@@ -77,7 +77,7 @@ def test_indexed_samples_do_not_depend_on_chunking():
 def test_turn_kinematics_exact():
     """Noise-free: the platform's inertial attitude from the readings (true offsets) turns by exactly the command,
     and drifts at −ε^p in its own frame before and after the turn."""
-    truth = Truth.draw(7, sample_rate=RATE, noise=NoiseSettings.quiet(), gyro_drift=DRIFT)
+    truth = Truth.draw(7, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet(), gyro_drift=DRIFT)
     record = simulate_system(truth, 1258, rate=RATE, turns=TWO)
     platform = truth.platform()
     readings = np.stack([record[f"angle_{g}"] for g in ("platform", "inner", "middle")], axis=1)
@@ -95,7 +95,7 @@ def test_turn_kinematics_exact():
 
 def test_commanded_start_orientation():
     """A platform commanded to arbitrary readings is held there in inertial space and drifts at −ε^p."""
-    truth = Truth.draw(9, sample_rate=RATE, noise=NoiseSettings.quiet(), gyro_drift=DRIFT)
+    truth = Truth.draw(9, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet(), gyro_drift=DRIFT)
     start = (0.4, 0.1, 0.3)
     record = simulate_system(truth, 600, rate=RATE, initial_readings=start)
     readings = np.stack([record[f"angle_{g}"] for g in ("platform", "inner", "middle")], axis=1)
@@ -108,7 +108,7 @@ def test_commanded_start_orientation():
 
 
 def test_middle_flip_reverses_the_polar_axis():
-    truth = Truth.draw(8, sample_rate=RATE, noise=NoiseSettings.quiet())
+    truth = Truth.draw(8, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet())
     record = simulate_system(truth, 1857, rate=RATE, turns=THREE)
     f_z = record["f_z"]
     assert f_z[100] > 6.0 and f_z[-100] < -6.0  # g sin L, then −g sin L
@@ -128,7 +128,7 @@ def test_turns_checked():
 def two_position():
     out = []
     for seed in (11, 12, 13):
-        truth = Truth.draw(seed, sample_rate=RATE, gyro_drift=DRIFT, effects=BASE)
+        truth = Truth.draw(seed, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT, effects=BASE)
         out.append((truth, simulate_system(truth, 1258, rate=RATE, turns=TWO), simulate_system(truth, 1258, rate=RATE)))
     return out
 
@@ -160,7 +160,7 @@ def test_one_position_carries_the_misprojection(two_position):
 
 
 def test_three_position_separates_g_sensitive_polar_drift():
-    truth = Truth.draw(14, sample_rate=RATE, gyro_drift=DRIFT, effects={**BASE, "Dg_z": 1e-9})
+    truth = Truth.draw(14, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT, effects={**BASE, "Dg_z": 1e-9})
     three = fit(truth, simulate_system(truth, 1857, rate=RATE, turns=THREE))
     z = (three.values - eps(truth)) / three.sigma
     assert np.all(np.abs(z) < 5), z
@@ -236,7 +236,7 @@ def parse(argv):
 
 
 def test_cli_updates_the_record(tmp_path, capsys):
-    truth = Truth.draw(15, sample_rate=RATE, gyro_drift=DRIFT, effects=BASE)
+    truth = Truth.draw(15, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT, effects=BASE)
     write(tmp_path / "system.h5", truth, TWO, 1258)
     prior = tmp_path / "prior.json"
     before = prior_record(truth)
@@ -255,7 +255,7 @@ def test_cli_updates_the_record(tmp_path, capsys):
 
 
 def test_cli_refuses_a_record_without_an_index(tmp_path):
-    truth = Truth.draw(16, sample_rate=RATE, gyro_drift=DRIFT)
+    truth = Truth.draw(16, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT)
     write(tmp_path / "system.h5", truth, (), 700)
     prior = tmp_path / "prior.json"
     prior_record(truth).save(prior)
@@ -266,9 +266,9 @@ def test_cli_refuses_a_record_without_an_index(tmp_path):
 
 
 def test_cli_refuses_another_units_prior(tmp_path):
-    truth = Truth.draw(17, sample_rate=RATE)
+    truth = Truth.draw(17, site=SimulatedSite(sample_rate=RATE))
     write(tmp_path / "system.h5", truth, TWO, 1258)
-    other = Truth.draw(18, serial_number="OTHER-1")
+    other = Truth.draw(18, site=SimulatedSite(serial_number="OTHER-1"))
     prior = tmp_path / "prior.json"
     prior_record(other).save(prior)
     with pytest.raises(InputError) as error:
@@ -278,7 +278,7 @@ def test_cli_refuses_another_units_prior(tmp_path):
 
 
 def test_record_level_entry_refuses_one_hold(tmp_path):
-    truth = Truth.draw(19, sample_rate=RATE)
+    truth = Truth.draw(19, site=SimulatedSite(sample_rate=RATE))
     write(tmp_path / "one.h5", truth, (), 300)
     from stableins.data.system import open_system_record
 
