@@ -47,6 +47,7 @@ from stableins.estimators.system.attitude import AttitudeBlocks
 from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
+from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS, GimbalBlocks
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
@@ -169,6 +170,9 @@ class RecordSums:
         The temperature column's mean and range (None without one).
     notes : tuple of str
         What the record-level checks found (gaps, jitter).
+    gimbal_blocks : GimbalBlocks or None
+        Block means of the three gimbal readings (the gyro drift, :mod:`.gyro_drift`); None when the record has no
+        inner and middle readings.
     """
 
     information: hm.InformationAccumulator
@@ -184,6 +188,7 @@ class RecordSums:
     checks: StaticChecks
     temperature: TemperatureSummary | None
     notes: tuple[str, ...]
+    gimbal_blocks: GimbalBlocks | None = None
 
 
 class StageAccumulator:
@@ -205,6 +210,8 @@ class StageAccumulator:
         Discovered additive terms of the prior (:class:`.compensation.AdditiveCompensation`).
     has_temperature : bool
         Read the temperature column too.
+    has_gimbals : bool
+        Read the inner and middle readings too (the gyro drift from the gimbal readings, :mod:`.gyro_drift`).
     time_grid : ndarray or None
         The source's time grid (:class:`stableins.data.chunks.GriddedChunkSource`); ``grid_time`` its reconstruction.
     """
@@ -221,6 +228,7 @@ class StageAccumulator:
         path: str,
         compensation_terms: Sequence[Term] = (),
         has_temperature: bool = False,
+        has_gimbals: bool = True,
         time_grid: NDArray[np.float64] | None = None,
         grid_time: Callable[[int, int], NDArray[np.float64]] | None = None,
     ) -> None:
@@ -240,8 +248,10 @@ class StageAccumulator:
         self.general = self.tilted or abs(base[0]) > LEVEL_TOLERANCE
         self.offsets = np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")])
         self.nav_to_body = dcm_nav_to_body(*base)
-        if self.general:
-            columns += ["angle_inner", "angle_middle"]
+        self.has_gimbals = has_gimbals
+        if self.general or has_gimbals:
+            columns += list(GIMBAL_COLUMNS)
+        self.gimbal_blocks: GimbalBlocks | None = None
         self.has_temperature = has_temperature
         if has_temperature:
             columns.append("temperature")  # read at the attitude decimation: what the data carry about the environment
@@ -300,6 +310,8 @@ class StageAccumulator:
         if self.first_time is None:
             self.first_time = span[0]
             self.attitude_blocks = AttitudeBlocks(self.options.attitude_block_seconds, self.first_time)
+            if self.has_gimbals:
+                self.gimbal_blocks = GimbalBlocks(self.options.attitude_block_seconds, self.first_time)
         if self.general:
             s_d = earth_angle_from_kinematics(chunk, slice(None), self.offsets, self.nav_to_body, self.config)
         else:
@@ -318,6 +330,7 @@ class StageAccumulator:
         p0, r0 = self._north_attitude(chunk, pitch_d, roll_d)
         assert self.attitude_blocks is not None  # created at the first chunk
         self.attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
+        self._add_readings(chunk, t_d)
         sparse = slice(phase, None, 10 * decimation)  # the polar check is a record mean: one sample per 10 decimated ones
         self.checks.polar(fx[sparse], fy[sparse], fz[sparse])
         if self.has_temperature and chunk["temperature"].size:
@@ -325,6 +338,11 @@ class StageAccumulator:
             t = self.temperature
             self.temperature = [min(t[0], float(tc.min())), max(t[1], float(tc.max())), t[2] + float(tc.sum()), t[3] + tc.size]
         self.seen += n
+
+    def _add_readings(self, chunk: Mapping[str, NDArray[np.float64]], t_d: NDArray[np.float64]) -> None:
+        """Add the decimated gimbal readings to their blocks (the gyro drift, :mod:`.gyro_drift`)."""
+        if self.gimbal_blocks is not None:
+            self.gimbal_blocks.add_readings(t_d, chunk["angle_platform"], chunk["angle_inner"], chunk["angle_middle"])
 
     def _time(
         self, chunk: Mapping[str, NDArray[np.float64]], n: int, phase: int
@@ -407,6 +425,7 @@ class StageAccumulator:
             checks=self.checks,
             temperature=None if t[3] == 0 else TemperatureSummary(t[2] / t[3], t[0], t[1]),
             notes=tuple(notes),
+            gimbal_blocks=self.gimbal_blocks,
         )
 
 

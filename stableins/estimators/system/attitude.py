@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -110,7 +111,7 @@ class AttitudeBlocks:
     max_blocks: int = 1 << 14
     sums: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
-    _KEYS = ("count", "time", "cos", "sin", "pitch", "roll")
+    _KEYS: ClassVar[tuple[str, ...]] = ("count", "time", "cos", "sin", "pitch", "roll")
 
     def add(
         self,
@@ -121,6 +122,10 @@ class AttitudeBlocks:
         roll: NDArray[np.float64],
     ) -> None:
         """Add decimated samples (time, ``cos S``, ``sin S``, pitch, roll) to their blocks."""
+        self._accumulate(time, {"cos": cos_s, "sin": sin_s, "pitch": pitch, "roll": roll})
+
+    def _accumulate(self, time: NDArray[np.float64], columns: dict[str, NDArray[np.float64]]) -> None:
+        """Add samples of ``columns`` (the keys of :attr:`_KEYS` but count and time) at ``time`` to their blocks."""
         while True:
             index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
             if int(index[-1]) < self.max_blocks:
@@ -129,7 +134,7 @@ class AttitudeBlocks:
         lo = int(index[0])
         local = index - lo
         size = int(local[-1]) + 1
-        values = {"count": None, "time": time - self.start_time, "cos": cos_s, "sin": sin_s, "pitch": pitch, "roll": roll}
+        values = {"count": None, "time": time - self.start_time, **columns}
         needed = lo + size
         for key in self._KEYS:
             arr = self.sums.get(key)

@@ -47,6 +47,8 @@ from stableins.estimators.system.assembly import (
 )
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import SamplingSummary, check_metadata
+from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS, GimbalDrift
+from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, prior_drift
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
@@ -83,6 +85,7 @@ class SystemOptions:
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
+    estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
 
     def __post_init__(self) -> None:
@@ -206,6 +209,11 @@ class SystemCalibration(SystemCalibrationView):
         model when a datasheet model was given.  It goes into the calibration record.
     diagnostics : SystemDiagnostics
         What the stage measured about the record besides its coefficients (noise, checks, sampling, temperature).
+    gyro_drift : GimbalDrift or None
+        The gyro drift the gimbal readings measure (None without inner and middle readings or when not estimated).
+    drift : DriftStep or None
+        The drift removed from pitch and roll and where it came from (docs/system-calibration.md §9); the record's
+        ``gyro_drift_x/y/z`` are in :attr:`result` when the record measured it.
     """
 
     result: FitResult
@@ -219,6 +227,8 @@ class SystemCalibration(SystemCalibrationView):
     notes: tuple[str, ...] = ()
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
+    gyro_drift: GimbalDrift | None = None
+    drift: DriftStep | None = None
 
 
 @dataclass(frozen=True)
@@ -296,6 +306,7 @@ def run_system_stage(
         duration=stage.sums.duration,
         estimate_k2=options.estimate_k2,
         path=stage.path,
+        drift=stage.drift,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
 
@@ -336,6 +347,7 @@ class _Stage:
     curve: solve.FilterCurve
     attitude: solve.AttitudeStep
     decision: solve.NoiseDecision
+    drift: DriftStep
 
 
 def _run(
@@ -363,6 +375,7 @@ def _run(
         path=path,
         compensation_terms=compensation_terms,
         has_temperature="temperature" in source_columns(source),
+        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
         time_grid=grid,
         grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
     )
@@ -376,11 +389,12 @@ def _run(
     curve = solve.FilterCurve(None, np.zeros(0))
     if options.run_filter:
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity, rate)
-    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options)
+    drift = drift_step(sums, metadata, prior, latitude, options)
+    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options, drift)
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision)
+    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift)
 
 
 def _assemble(
@@ -398,8 +412,20 @@ def _assemble(
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
+    drift = stage.drift
+    jacobian = stage.attitude.drift_jacobian
+    if not drift.in_likelihood:  # a drift given with an uncertainty and not measured: its σ is in the coefficients' only
+        cov_v = cov_v + drift_covariance_v(jacobian, drift)
     likelihood, fit = separation_likelihood(
-        prior, stage.latitude, gravity, combination.v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2
+        prior,
+        stage.latitude,
+        gravity,
+        combination.v,
+        cov_v,
+        to_combined,
+        transform,
+        estimate_k2=options.estimate_k2,
+        drift=(jacobian, drift) if drift.in_likelihood and jacobian is not None else None,
     )
     result, corrections = fit_result(
         combination.separation,
@@ -412,8 +438,9 @@ def _assemble(
         transform,
         notes,
         prior_term_covariance(prior_covariance, stage.prior_res_cov, scale),
-        stage_settings(options, noise_model),
+        {**stage_settings(options, noise_model), "gyro_drift_source": stage.drift.source.value},
         k2=(combination.k2_values, k2_covariance) if options.estimate_k2 else None,
+        drift_prior=prior_drift(prior, prior_covariance),
     )
     observable = combination.observable
     combined = FitResult(
@@ -440,6 +467,8 @@ def _assemble(
         notes=tuple(notes),
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
+        gyro_drift=stage.drift.gimbal,
+        drift=stage.drift,
     )
 
 
