@@ -202,6 +202,7 @@ class AttitudeFit:
     drift_sigma: NDArray[np.float64]
     notes: tuple[str, ...] = ()
     block_map: NDArray[np.float64] | None = None  # (10, 2·bins): values ← (pitch, roll) summed over time bins (coloured noise)
+    drift_jacobian: NDArray[np.float64] | None = None  # (10, 3): ∂values/∂ε [rad per rad/s] (``drift_jacobian=True``)
 
 
 def _design(
@@ -254,6 +255,7 @@ def fit_attitude(
     known_drift: Sequence[float] | NDArray[np.float64] | None = None,
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
+    drift_jacobian: bool = False,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -292,13 +294,16 @@ def fit_attitude(
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
+    drift_jacobian : bool
+        Also return ``∂values/∂ε`` (10, 3): the same fit applied to the loop's response to a unit drift along each
+        platform axis (the values are linear in pitch and roll), for the covariance of a removed drift.
     """
     n_blocks = blocks["time"].size
     _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
     slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
-    drift = (gyro_drift, known_drift)
+    drift = (gyro_drift, known_drift, drift_jacobian)
     fits = _fit_channels(blocks, loop, noise_sigma, case_rotation_period, drift, map_bin_seconds, len(names), freqs, slices)
-    beta, residuals, cov_obs, maps, drift_estimate, drift_sigma = fits
+    beta, residuals, cov_obs, maps, drift_estimate, drift_sigma, jacobian_obs = fits
     notes = _drift_notes(drift_estimate, drift_sigma) if gyro_drift == "check" else []
     observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
     transform, vertical_map = _loop_compensation(loop, compensate_loop=compensate_loop)
@@ -339,6 +344,7 @@ def fit_attitude(
         drift_sigma=drift_sigma,
         notes=tuple(notes),
         block_map=(transform @ maps)[order],
+        drift_jacobian=None if jacobian_obs is None else (transform @ jacobian_obs)[order],
     )
 
 
@@ -362,7 +368,7 @@ def _fit_channels(
     loop: DampingLoop,
     noise_sigma: tuple[float, float],
     case_rotation_period: float | None,
-    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None],
+    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None, bool],
     map_bin_seconds: float,
     n_common: int,
     freqs: NDArray[np.float64],
@@ -370,9 +376,9 @@ def _fit_channels(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
 
-    ``drift_settings``: ``(gyro_drift, known_drift)`` of :func:`fit_attitude`.  Returns ``(coefficients (n, 2), block
-    residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means summed per
-    time bin to them, drift estimate (2, 3), its σ)``.
+    ``drift_settings``: ``(gyro_drift, known_drift, drift_jacobian)`` of :func:`fit_attitude`.  Returns ``(coefficients
+    (n, 2), block residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means
+    summed per time bin to them, drift estimate (2, 3), its σ, ∂observed/∂ε (10, 3) or None)``.
     """
     designs: dict[int, NDArray[np.float64]] = {}  # both channels and all passes share the rows: built once per slice
 
@@ -381,10 +387,12 @@ def _fit_channels(
             designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
         return designs[rows.start]
 
-    gyro_drift, known_drift = drift_settings
+    gyro_drift, known_drift, want_jacobian = drift_settings
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
-    drift = drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
+    needed = gyro_drift in ("fit", "check") or known_drift is not None or want_jacobian
+    drift = drift_columns(blocks, loop) if needed else None
+    jacobian = np.zeros((10, 3)) if want_jacobian else None
     if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
         assert drift is not None
         y = y - drift @ (np.asarray(known_drift, dtype=float) / DRIFT_SCALE)
@@ -412,14 +420,40 @@ def _fit_channels(
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = with_drift, inv_d
-        for rows in slices:  # the map from block means to coefficients, summed per time bin, FIT_ROWS blocks at a time
-            part = (columns(rows) @ inv_full[:5].T) * w[rows, None]
-            for k in range(5):
-                maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
+        responses = None if jacobian is None or drift is None else drift[:, ch, :] / DRIFT_SCALE
+        found = _coefficient_map(columns, inv_full, w, slices, map_bin, n_map, responses)
+        maps[5 * ch : 5 * ch + 5, ch * n_map : (ch + 1) * n_map] = found[0]
+        if jacobian is not None:
+            jacobian[5 * ch : 5 * ch + 5] = found[1]
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
-    return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma
+    return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma, jacobian
+
+
+def _coefficient_map(
+    columns: Callable[[slice], NDArray[np.float64]],
+    inv: NDArray[np.float64],
+    w: NDArray[np.float64],
+    slices: list[slice],
+    map_bin: NDArray[np.int64],
+    n_map: int,
+    responses: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return the map from block means to a channel's five coefficients summed per time bin, and the drift Jacobian.
+
+    The map is ``(5, n_map)`` (FIT_ROWS blocks at a time); applied to ``responses`` (blocks, 3), the loop's responses to a
+    unit drift, it gives the Jacobian ``(5, 3)`` (zeros without them).
+    """
+    maps = np.zeros((5, n_map))
+    jacobian = np.zeros((5, 3))
+    for rows in slices:
+        part = (columns(rows) @ inv[:5].T) * w[rows, None]
+        for k in range(5):
+            maps[k] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
+        if responses is not None:
+            jacobian += part.T @ responses[rows]
+    return maps, jacobian
 
 
 def _loop_compensation(loop: DampingLoop, *, compensate_loop: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

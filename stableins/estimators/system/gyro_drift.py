@@ -51,6 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import (
+    ARCSEC,
     DEG_PER_HOUR,
     EARTH_RATE,
     R2,
@@ -73,7 +74,7 @@ DRIFT_IDS = ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")
 CHECK_BIN_SECONDS = 3600.0
 
 #: Default prior σ of the inner-gimbal zero offset's residual [rad] (the nominal magnitude of θ20, 60″).
-INNER_OFFSET_SIGMA = 60.0 * 4.84813681109536e-06
+INNER_OFFSET_SIGMA = 60.0 * ARCSEC
 
 #: Passes of the fit (each removes the fitted nuisances exactly; on noise-free simulator readings the fourth pass
 #: leaves residuals below 3e-10 rad rms).

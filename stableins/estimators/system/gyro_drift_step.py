@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import DEG_PER_HOUR, GimbalConfiguration
+from stableins.conventions import ARCSEC, DEG_PER_HOUR, GimbalConfiguration
 from stableins.estimators.system.attitude import fit_attitude
-from stableins.estimators.system.gyro_drift import DRIFT_IDS, GimbalDrift, fit_gimbal_drift
+from stableins.estimators.system.gyro_drift import DRIFT_IDS, INNER_OFFSET_SIGMA, GimbalDrift, fit_gimbal_drift
 from stableins.estimators.system.loop import DRIFT_SCALE, DampingLoop, drift_columns
 from stableins.site import SiteMetadata
 
@@ -85,8 +85,19 @@ def _deg_h(values: NDArray[np.float64]) -> str:
     return "(" + ", ".join(f"{v / DEG_PER_HOUR:+.2e}" for v in values) + ") deg/h"
 
 
-def drift_step(sums: RecordSums, metadata: SiteMetadata, prior: Mapping[str, float], latitude: float, options: SystemOptions) -> DriftStep:
-    """Measure the drift in the gimbal readings and combine it with a given one (module docstring, step 1)."""
+def drift_step(
+    sums: RecordSums,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    *,
+    latitude: float,
+    options: SystemOptions,
+) -> DriftStep:
+    """Measure the drift in the gimbal readings and combine it with a given one (module docstring, step 1).
+
+    The prior's σ of θ20 (the inner-gimbal zero offset) is the prior of its residual in the fit (nominal 60″ without).
+    """
     from typing import cast
 
     gimbal = None
@@ -101,6 +112,7 @@ def drift_step(sums: RecordSums, metadata: SiteMetadata, prior: Mapping[str, flo
                 GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses))),
                 offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
                 base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
+                inner_offset_sigma=_offset_sigma(prior_covariance),
             )
             notes.append(_gimbal_note(gimbal))
     given = None if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
@@ -131,11 +143,19 @@ def drift_step(sums: RecordSums, metadata: SiteMetadata, prior: Mapping[str, flo
     return DriftStep(np.zeros(3), None, DriftSource.NONE, None, False, tuple(notes))
 
 
+def _offset_sigma(prior_covariance: Mapping[tuple[str, str], float] | None) -> float:
+    """Return the prior σ of the inner-gimbal zero offset θ20 [rad] (its nominal magnitude when the prior has none)."""
+    variance = None if prior_covariance is None else prior_covariance.get(("theta20", "theta20"))
+    if variance is not None and math.isfinite(variance) and variance > 0:
+        return math.sqrt(variance)
+    return INNER_OFFSET_SIGMA
+
+
 def _gimbal_note(gimbal: GimbalDrift) -> str:
     """Return the note on the drift the gimbal readings measure."""
     text = (
         f"{gimbal.describe()}; measured from the platform's orientation in inertial space (exact inverse kinematics of the "
-        f"readings, {gimbal.blocks} blocks) with the base rotation ({np.linalg.norm(gimbal.base_rotation) * 206264.806:.1f} arcsec), "
+        f"readings, {gimbal.blocks} blocks) with the base rotation ({np.linalg.norm(gimbal.base_rotation) / ARCSEC:.1f} arcsec), "
         "the platform-axis sensor's once-per-revolution error and the initial orientation as nuisances"
     )
     if gimbal.low_frequency_ratio > 1.0:

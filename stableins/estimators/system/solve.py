@@ -33,7 +33,7 @@ from stableins.estimators.system.accumulate import RecordSums
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
 from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
-from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, attitude_drift_jacobian, drift_covariance_v, drift_notes
+from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 from stableins.estimators.system.whittle import ColouredNoiseFit
@@ -201,14 +201,12 @@ def fit_attitude_coefficients(
         known_drift=known,
         scale_low_frequency=False,
         map_bin_seconds=sums.filter_bins.samples / rate,
+        drift_jacobian=drift is not None and drift.covariance is not None,
     )
     notes = list(att.notes)
     if drift is not None:
         notes += [*drift.notes, *drift_notes(drift)]
-        jacobian = None
-        if drift.covariance is not None:
-            jacobian = attitude_drift_jacobian(blocks, loop, sigma, options, sums.filter_bins.samples / rate)
-        return AttitudeStep(att, blocks, along, tuple(notes), jacobian)
+        return AttitudeStep(att, blocks, along, tuple(notes), att.drift_jacobian)
     if options.known_gyro_drift is None:
         notes.append(
             "gyro drift not supplied: the attitude coefficients assume none.  A constant drift of 0.001 deg/h along a platform "

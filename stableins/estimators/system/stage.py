@@ -389,7 +389,7 @@ def _run(
     curve = solve.FilterCurve(None, np.zeros(0))
     if options.run_filter:
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity, rate)
-    drift = drift_step(sums, metadata, prior, latitude, options)
+    drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options, drift)
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
