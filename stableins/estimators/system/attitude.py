@@ -373,7 +373,15 @@ def _fit_channels(
     n_common: int,
     freqs: NDArray[np.float64],
     slices: list[slice],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64] | None,
+]:
     """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
 
     ``drift_settings``: ``(gyro_drift, known_drift, drift_jacobian)`` of :func:`fit_attitude`.  Returns ``(coefficients
