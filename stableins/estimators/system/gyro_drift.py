@@ -76,6 +76,10 @@ CHECK_BIN_SECONDS = 3600.0
 #: Default prior σ of the inner-gimbal zero offset's residual [rad] (the nominal magnitude of θ20, 60″).
 INNER_OFFSET_SIGMA = 60.0 * ARCSEC
 
+#: Prior σ of the local slope of the inner and middle angle sensors' errors [rad/rad]: a once-per-revolution error of
+#: amplitude A has slopes up to A (2″, the magnitude of the simulator's effects ``ang1_<gimbal>_c|s``).
+SLOPE_SIGMA = 2.0 * ARCSEC
+
 #: Passes of the fit (each removes the fitted nuisances exactly; on noise-free simulator readings the fourth pass
 #: leaves residuals below 3e-10 rad rms).
 PASSES = 4
@@ -207,32 +211,45 @@ def fit_gimbal_drift(
     polar_body /= np.linalg.norm(polar_body)
     basis = np.linalg.svd(np.eye(3) - np.outer(polar_body, polar_body))[0][:, :2]
     reference = q[0]
-    omega_b, sensor, inner = np.zeros(3), np.zeros(2), 0.0
+    omega_b, sensor, inner, slopes = np.zeros(3), np.zeros(2), 0.0, np.zeros(2)
     cos_r, sin_r = np.cos(readings[:, 0]), np.sin(readings[:, 0])
     s2, s3 = configuration.senses[1], configuration.senses[2]
     # the inner gimbal's axis in the body frame, R2(s3 α3)ᵀ e_x: it moves with the middle angle, a base rotation does not
     inner_body = R2(s3 * angles[:, 2]).swapaxes(1, 2)[:, :, 0]
     inner_reference = inner_body.mean(axis=0)
-    prior = np.zeros((11, 11))
-    prior[10, 10] = 1.0 / inner_offset_sigma**2
+    # the inner and middle angles move a little (the drift tilts the platform): a sensor error's local slope scales that
+    moved = angles[:, 1:] - angles[:, 1:].mean(axis=0)
+    prior = np.diag(np.r_[np.zeros(10), 1.0 / inner_offset_sigma**2, np.full(2, 1.0 / SLOPE_SIGMA**2)])
     sigma = np.ones(3)
     fit = None
     for _ in range(PASSES):
         # remove the fitted nuisances exactly: the inner offset inside the chain, base-fixed ω_b on the right, the z_p
         # sensor error on the left
-        c_true = dcm_body_to_platform(angles[:, 0], angles[:, 1] + inner, angles[:, 2], 0.0, configuration) @ rotation_about(omega_b).T
+        inner_angle = angles[:, 1] + inner + slopes[0] * moved[:, 0]
+        middle_angle = angles[:, 2] + slopes[1] * moved[:, 1]
+        c_true = dcm_body_to_platform(angles[:, 0], inner_angle, middle_angle, 0.0, configuration) @ rotation_about(omega_b).T
         z_turn = rotation_about(np.outer(sensor[0] * cos_r + sensor[1] * sin_r, [0.0, 0.0, 1.0]))
         q = z_turn.swapaxes(1, 2) @ c_true @ dcm_nav_to_body(*base_attitude) @ earth_turn(t, latitude).swapaxes(1, 2)
         e = rotation_vector(q @ reference.T)
         # an inner offset d moves e by −s2 d a_p(t) (a_p = C_b^p b_inner, the axis in the platform frame); taken with the
         # base rotation s2 d b_ref that cancels it to first order, its column is the small s2 C_b^p (b_ref − b_inner(t))
-        design = _design(t, c_true, basis, cos_r, sin_r, inner_column=s2 * np.einsum("nij,nj->ni", c_true, inner_reference - inner_body))
-        fit = _solve(design, e, weight, sigma, prior=prior, current=np.r_[np.zeros(10), inner])
+        # an error k·(α − ᾱ) of the inner (middle) angle turns the platform by −s k (α − ᾱ) about that gimbal's axis
+        chain = np.stack(
+            [
+                s2 * np.einsum("nij,nj->ni", c_true, inner_reference - inner_body),
+                -s2 * np.einsum("nij,nj->ni", c_true, inner_body) * moved[:, :1],
+                -s3 * c_true[:, :, 1] * moved[:, 1:],
+            ],
+            axis=2,
+        )
+        design = _design(t, c_true, basis, cos_r, sin_r, chain=chain)
+        fit = _solve(design, e, weight, sigma, prior=prior, current=np.r_[np.zeros(10), inner, slopes])
         beta, sigma = fit[0], fit[2]
         reference = rotation_about(beta[:3]) @ reference
         omega_b = omega_b + basis @ beta[6:8] + s2 * beta[10] * inner_reference
         sensor = sensor + beta[8:10]
         inner += beta[10]
+        slopes = slopes + beta[11:13]
     assert fit is not None
     beta, cov, sigma, residuals = fit
     ratio = _low_frequency_ratio(t, residuals, weight, sigma)
@@ -257,16 +274,20 @@ def _design(
     cos_r: NDArray[np.float64],
     sin_r: NDArray[np.float64],
     *,
-    inner_column: NDArray[np.float64],
+    chain: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """Design ``(n, 3, 11)``: constant c (3), drift ε (3, column −t), base-fixed ω (2), platform sensor (h_c, h_s), inner offset."""
+    """Return the design ``(n, 3, 13)``.
+
+    Columns: constant c (3), drift ε (3, column −t), base-fixed ω (2), platform sensor (h_c, h_s), and the chain's
+    columns (n, 3, 3): inner offset, inner and middle sensor slopes.
+    """
     n = t.size
-    x = np.zeros((n, 3, 11))
+    x = np.zeros((n, 3, 13))
     x[:, :, 0:3] = np.eye(3)
     x[:, :, 3:6] = -t[:, None, None] * np.eye(3)
     x[:, :, 6:8] = c_bp @ basis
     x[:, 2, 8], x[:, 2, 9] = cos_r, sin_r
-    x[:, :, 10] = inner_column
+    x[:, :, 10:13] = chain
     return x
 
 
