@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, GimbalConfiguration
 from stableins.estimators.system.attitude import fit_attitude
-from stableins.estimators.system.gyro_drift import DRIFT_IDS, INNER_OFFSET_SIGMA, GimbalDrift, fit_gimbal_drift
+from stableins.estimators.system.gyro_drift import DRIFT_IDS, INNER_OFFSET_SIGMA, GimbalBlocks, GimbalDrift, fit_gimbal_drift
 from stableins.estimators.system.loop import DRIFT_SCALE, DampingLoop, drift_columns
 from stableins.site import SiteMetadata
 
@@ -190,6 +190,29 @@ def attitude_drift_jacobian(
             map_bin_seconds=map_bin_seconds,
         )
         out[:, j] = fit.values
+    return out
+
+
+def sensor_error_removed(
+    blocks: dict[str, NDArray[np.float64]], gimbal_blocks: GimbalBlocks | None, gimbal: GimbalDrift | None, latitude: float
+) -> dict[str, NDArray[np.float64]]:
+    """Return the attitude blocks with the platform-axis sensor's once-per-revolution error taken out of roll.
+
+    The navigation computer builds the attitude from the readings: an error ``h(t) = h_c cos r_1 + h_s sin r_1`` of the
+    platform-axis reading turns ``Ĉ_b^p`` by ``h`` about ``z_p`` (:func:`.gyro_drift.fit_gimbal_drift` measures it),
+    so ``C_b^{n'} = rot(h u) C_b^n`` with ``u = C_p^n e_z`` the Earth's axis ``(cos L, 0, −sin L)``: ``φ = h u``, and
+    the north-pointing pair ``(−φ_E, −φ_N)`` is ``(0, −h cos L)``.  It is an output error, not through the loop, at
+    exactly the Earth rate: left in, it moves φ1s, φ1c by up to ``h cos L`` (7e-6 rad for 2″).  Its uncertainty from
+    the gimbal fit (a few 1e-9 rad) is neglected.  The gimbal blocks share the attitude blocks' bins.
+    """
+    if gimbal is None or gimbal_blocks is None:
+        return blocks
+    readings = gimbal_blocks.means()
+    if readings["time"].shape != blocks["time"].shape or not np.allclose(readings["time"], blocks["time"], atol=1e-6):
+        return blocks
+    h = gimbal.sensor_error[0] * np.cos(readings["platform"]) + gimbal.sensor_error[1] * np.sin(readings["platform"])
+    out = dict(blocks)
+    out["roll"] = blocks["roll"] + math.cos(latitude) * h
     return out
 
 

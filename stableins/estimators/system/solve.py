@@ -33,7 +33,7 @@ from stableins.estimators.system.accumulate import RecordSums
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
 from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
-from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes
+from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 from stableins.estimators.system.whittle import ColouredNoiseFit
@@ -184,6 +184,8 @@ def fit_attitude_coefficients(
     ``options.known_gyro_drift`` (or none).
     """
     blocks = sums.attitude_blocks.means()
+    if drift is not None:
+        blocks = sensor_error_removed(blocks, sums.gimbal_blocks, drift.gimbal, latitude)
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
     vertical = -along * harmonic.x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
