@@ -100,6 +100,7 @@ QUICK: dict[str, Quick] = {
         ("--trials", "5", "--writers", "4", "--kills", "5", "--seed", "14"), "5 trials of 4 writers, 5 kills"
     ),
     "bench_journal": Quick((), "the default run (its figures are durations and rates)", volatile=(r"durability costs ([\d.]+) %",)),
+    "bench_navigation_budget": Quick(("--days", "2", "--rate", "0.1"), "2 days with the simulator at 0.1 Hz instead of 5 days at 1 Hz"),
     "bench_noise_device": Quick(("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"),
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),

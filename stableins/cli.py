@@ -72,6 +72,9 @@ COMMANDS: dict[str, Command | Group] = {
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
     "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
     "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
+    "budget": Command(
+        "stableins.commands.budget", "navigation budget: what each calibration term's 1σ and the gyro drift do to navigation"
+    ),
     "report": Command("stableins.commands.report", "write the PDF calibration report of a calibration record (ISO/IEC 17025 7.8)"),
 }
 

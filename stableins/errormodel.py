@@ -232,50 +232,21 @@ GIMBAL_IDS = ("theta10", "theta20", "theta30")
 def _core_terms() -> tuple[Term, ...]:
     terms: list[Term] = []
     for i, a in enumerate(AXES):
-        terms.append(
-            Term(
-                f"sf_{a}",
-                TermKind.SCALE_FACTOR,
-                "1",
-                "ppm",
-                PPM,
-                1e-4,
-                f"scale factor of the {a} accelerometer (SF in Eq. 6, output = f/SF)",
-                axis=i,
-                reference=1.0,
-            )
-        )
+        meaning = f"scale factor of the {a} accelerometer (SF in Eq. 6, output = f/SF)"
+        terms.append(Term(f"sf_{a}", TermKind.SCALE_FACTOR, "1", "ppm", PPM, 1e-4, meaning, axis=i, reference=1.0))
     for i, a in enumerate(AXES):
         terms.append(
             Term(f"bias_{a}", TermKind.BIAS, "m/s^2", "ug", MICRO_G, 100 * MICRO_G, f"bias of the {a} accelerometer (δb in Eq. 6)", axis=i)
         )
     for bid in BETA_IDS:
-        terms.append(
-            Term(
-                bid,
-                TermKind.INSTALLATION,
-                "rad",
-                "arcsec",
-                ARCSEC,
-                30 * ARCSEC,
-                f"{INSTALLATION_MEANING[bid]} (Eq. 5)",
-                axis=AXES.index(bid[5]),
-            )
-        )
+        meaning = f"{INSTALLATION_MEANING[bid]} (Eq. 5)"
+        terms.append(Term(bid, TermKind.INSTALLATION, "rad", "arcsec", ARCSEC, 30 * ARCSEC, meaning, axis=AXES.index(bid[5])))
     for i, a in enumerate(AXES):
-        terms.append(
-            Term(
-                f"K2_{a}",
-                TermKind.NONLINEARITY,
-                "s^2/m",
-                "ug/g^2",
-                MICRO_G_PER_G2,
-                20 * MICRO_G_PER_G2,
-                f"quadratic nonlinearity of the {a} accelerometer (K_nl in Eq. 6)",
-                axis=i,
-                excitation="positions with the axis near +1 g and -1 g and in between",
-            )
-        )
+        meaning = f"quadratic nonlinearity of the {a} accelerometer (K_nl in Eq. 6)"
+        excitation = "positions with the axis near +1 g and -1 g and in between"
+        nominal = 20 * MICRO_G_PER_G2
+        term = Term(f"K2_{a}", TermKind.NONLINEARITY, "s^2/m", "ug/g^2", MICRO_G_PER_G2, nominal, meaning, axis=i, excitation=excitation)
+        terms.append(term)
     return tuple(terms)
 
 

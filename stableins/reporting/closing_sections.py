@@ -119,10 +119,10 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     return out
 
 
-# ---------------------------------------------------------------------- 11 notes
+# ---------------------------------------------------------------------- 12 notes
 def closing(ctx: ReportContext) -> list[Flowable]:
-    """Return section 11: the notes of the record not shown before, and the signatures."""
-    out: list[Flowable] = [*heading("11  Notes and authorization", room_mm=45)]
+    """Return section 12: the notes of the record not shown before, and the signatures."""
+    out: list[Flowable] = [*heading("12  Notes and authorization", room_mm=45)]
     stage_notes = {n for s in ctx.record.stages for n in s.notes} | {f"[{s.name}] {n}" for s in ctx.record.stages for n in s.notes}
     remaining = [n for n in ctx.record.notes if n not in ctx.shown_notes and n not in stage_notes]
     if remaining:

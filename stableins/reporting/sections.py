@@ -26,6 +26,7 @@ from stableins.reporting.context import paragraph as _p
 from stableins.reporting.document import escape, heading
 from stableins.reporting.evidence_sections import evidence
 from stableins.reporting.front_sections import inputs, method, site_environment, title_block
+from stableins.reporting.navigation import navigation_section
 from stableins.reporting.result_sections import correlations, results, uncertainty
 from stableins.reporting.symbols import markup, prose
 
@@ -224,5 +225,6 @@ SECTIONS = (
     discovery,
     change,
     conformity,
+    navigation_section,
     closing,
 )

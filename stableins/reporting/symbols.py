@@ -15,7 +15,7 @@ from collections.abc import Iterable
 
 MINUS = "\u2212"
 GREEK = {"beta": "β", "theta": "θ", "phi": "φ", "delta": "δ", "omega": "ω", "zeta": "ζ"}
-_MATHTEXT_GREEK = {"β": r"\beta", "θ": r"\theta", "φ": r"\phi", "δ": r"\delta", "ω": r"\omega", "ζ": r"\zeta"}
+_MATHTEXT_GREEK = {"ε": r"\varepsilon", "β": r"\beta", "θ": r"\theta", "φ": r"\phi", "δ": r"\delta", "ω": r"\omega", "ζ": r"\zeta"}
 #: Names whose generic form (head with subscripted tail) would read badly.
 _SPECIAL = {
     "tilt_north": ("tilt", "N"),
@@ -23,6 +23,9 @@ _SPECIAL = {
     "azimuth_error": ("δψ", "base"),
     "nonorth_12": ("δ", "⊥12"),
     "nonorth_23": ("δ", "⊥23"),
+    "gyro_drift_x": ("ε", "x"),
+    "gyro_drift_y": ("ε", "y"),
+    "gyro_drift_z": ("ε", "z"),
 }
 
 
