@@ -47,7 +47,7 @@ from stableins.estimators.system.attitude import AttitudeBlocks
 from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
-from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS, GimbalBlocks
+from stableins.estimators.system.gyro_drift import GIMBAL_BLOCKS, GIMBAL_COLUMNS, GimbalBlocks
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
@@ -311,7 +311,7 @@ class StageAccumulator:
             self.first_time = span[0]
             self.attitude_blocks = AttitudeBlocks(self.options.attitude_block_seconds, self.first_time)
             if self.has_gimbals:
-                self.gimbal_blocks = GimbalBlocks(self.options.attitude_block_seconds, self.first_time)
+                self.gimbal_blocks = GimbalBlocks(self.options.attitude_block_seconds, self.first_time, max_blocks=GIMBAL_BLOCKS)
         if self.general:
             s_d = earth_angle_from_kinematics(chunk, slice(None), self.offsets, self.nav_to_body, self.config)
         else:

@@ -67,6 +67,9 @@ from stableins.platform import rotation_about, rotation_vector
 #: The readings besides the platform angle that the drift needs (read at the attitude decimation).
 GIMBAL_COLUMNS = ("angle_inner", "angle_middle")
 
+#: Blocks of gimbal readings at most (pairs merge beyond: 43-s blocks for one day, 5 min for a week).
+GIMBAL_BLOCKS = 1 << 11
+
 #: Names of the three drift parameters (platform axes x, y, z), as the record holds them.
 DRIFT_IDS = ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")
 
@@ -93,7 +96,9 @@ SIGMA_FLOOR = 1e-9
 class GimbalBlocks(AttitudeBlocks):
     """Block means of the three gimbal readings (platform angle unwrapped), on the attitude blocks' time bins.
 
-    Same bins, merging and memory bound as :class:`.attitude.AttitudeBlocks`.
+    Same bins and merging as :class:`.attitude.AttitudeBlocks`, at most :data:`GIMBAL_BLOCKS` of them: the readings are
+    linear in time within a block (the platform angle turns at the Earth rate, the others stand still), so the mean
+    readings are the readings at the mean time whatever the width, and the fit's cost stays small.
     """
 
     _KEYS: ClassVar[tuple[str, ...]] = ("count", "time", "platform", "inner", "middle")

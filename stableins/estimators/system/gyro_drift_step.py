@@ -36,8 +36,10 @@ if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums
     from stableins.estimators.system.stage import SystemOptions
 
-#: Blocks of gimbal readings below which the drift is not estimated (about 4 h of 10-s blocks).
-MINIMUM_BLOCKS = 1440
+#: Span of gimbal readings below which the drift is not estimated [s] (the stage's shortest record, 4 h).
+MINIMUM_SPAN = 4 * 3600.0
+#: Blocks of gimbal readings below which the drift is not estimated (13 parameters are fitted to them).
+MINIMUM_BLOCKS = 100
 
 
 class DriftSource(StrEnum):
@@ -105,7 +107,7 @@ def drift_step(
     blocks = sums.gimbal_blocks
     if options.estimate_gyro_drift and blocks is not None:
         means = blocks.means()
-        if means["time"].size >= MINIMUM_BLOCKS:
+        if means["time"].size >= MINIMUM_BLOCKS and means["time"][-1] - means["time"][0] >= MINIMUM_SPAN:
             gimbal = fit_gimbal_drift(
                 means,
                 latitude,
@@ -203,14 +205,14 @@ def sensor_error_removed(
     so ``C_b^{n'} = rot(h u) C_b^n`` with ``u = C_p^n e_z`` the Earth's axis ``(cos L, 0, −sin L)``: ``φ = h u``, and
     the north-pointing pair ``(−φ_E, −φ_N)`` is ``(0, −h cos L)``.  It is an output error, not through the loop, at
     exactly the Earth rate: left in, it moves φ1s, φ1c by up to ``h cos L`` (7e-6 rad for 2″).  Its uncertainty from
-    the gimbal fit (a few 1e-9 rad) is neglected.  The gimbal blocks share the attitude blocks' bins.
+    the gimbal fit (a few 1e-9 rad) is neglected.  The platform reading at the attitude blocks' times is interpolated
+    from the gimbal blocks (it is linear in time).
     """
     if gimbal is None or gimbal_blocks is None:
         return blocks
     readings = gimbal_blocks.means()
-    if readings["time"].shape != blocks["time"].shape or not np.allclose(readings["time"], blocks["time"], atol=1e-6):
-        return blocks
-    h = gimbal.sensor_error[0] * np.cos(readings["platform"]) + gimbal.sensor_error[1] * np.sin(readings["platform"])
+    platform = np.interp(blocks["time"], readings["time"], readings["platform"])
+    h = gimbal.sensor_error[0] * np.cos(platform) + gimbal.sensor_error[1] * np.sin(platform)
     out = dict(blocks)
     out["roll"] = blocks["roll"] + math.cos(latitude) * h
     return out
@@ -286,6 +288,7 @@ def prior_drift(
 
 __all__ = [
     "MINIMUM_BLOCKS",
+    "MINIMUM_SPAN",
     "DriftSource",
     "DriftStep",
     "attitude_drift_jacobian",

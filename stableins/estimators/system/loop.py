@@ -376,12 +376,13 @@ class DampingLoop:
 def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
     """Return the drift responses ``(n_blocks, 2, 3)`` of pitch and roll on the attitude block times.
 
-    :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid and interpolated
-    over gaps.
+    :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid of the blocks' step
+    (at least :data:`DRIFT_GRID_SECONDS`) and interpolated linearly (the responses are smooth: over 60 s the Earth-rate
+    input departs from a straight line by ``(ω_ie Δt)²/8 = 2e-6`` of itself, the Schuler oscillation by 2e-5).
     """
     t = blocks["time"]
     angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
-    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    step = max(float(np.median(np.diff(t))) if t.size > 1 else 1.0, DRIFT_GRID_SECONDS)
     grid = np.arange(0.0, t[-1] + step, step)
     responses = loop.drift_responses(grid, np.interp(grid, t, angle))
     out = np.empty((t.size, 2, 3))
@@ -390,6 +391,9 @@ def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) 
             out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
     return out * DRIFT_SCALE  # columns of the order of the others
 
+
+#: Smallest step of the grid the drift responses are computed on [s] (:func:`drift_columns`).
+DRIFT_GRID_SECONDS = 60.0
 
 #: Unit of the drift columns [rad/s] (about 0.002 °/h).
 DRIFT_SCALE = 1e-8
