@@ -206,7 +206,7 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     measured = any(s.name == "system" and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
     if not drift and measured:  # a parameter of the record (Type A), not an input: its σ is in the covariance
         source = Source("gyro_drift", "constant drift in the platform frame, measured by the system stage (gimbal readings)",
-                        "—", "—", "the record (gyro_drift_x, _y, _z)",
+                        "—", "—", "the record (gyro_drift_x, gyro_drift_y, gyro_drift_z)",
                         "estimated with the accelerometer terms: its uncertainty is in their σ (Type A)", "not applicable")  # fmt: skip
         return Evaluation(np.zeros(n), source)
     if not drift:
