@@ -150,3 +150,17 @@ def test_drift_responses_mode_by_mode_equal_the_plain_recursion():
     nav = dcm_body_to_platform(-angle, 0.0, np.pi / 2 + loop.latitude)
     slow = loop._drift_responses_stepwise(t, nav, e[:n, :n], e[:n, n : n + 3], e[:n, n + 3 :])
     assert np.abs(fast - slow).max() < 1e-9 * np.abs(slow).max()
+
+
+def test_a_record_with_the_measured_drift_is_a_simulator_installed_calibration(drift_day, tmp_path):
+    """The record carries gyro_drift_x/y/z; ``simulate system --installed`` takes it (the INS does not compensate its gyros)."""
+    from stableins.commands.simulate import installed_from_record
+    from stableins.records import CalibrationRecord
+
+    truth, _, out, _ = drift_day
+    record = CalibrationRecord.from_fit_result(out.result, truth.site.serial_number, site=truth.site)
+    assert np.isfinite(record["gyro_drift_x"].sigma) and record["gyro_drift_x"].unit == "rad/s"
+    path = tmp_path / "cal.json"
+    record.save(path)
+    installed = installed_from_record(path, truth)
+    assert "gyro_drift_x" not in installed and installed["beta_zy"] == record["beta_zy"].value
