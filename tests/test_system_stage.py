@@ -55,7 +55,7 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
         # combination, so 2σ rather than 3σ)
         assert abs(before) > 2 * sigma or abs(before) < 1e-5, name
     assert out.result.rank == 12  # the separation's 9 and the gyro drift's 3 (measured by the gimbal readings)
-    assert np.abs(out.gyro_drift.values / out.gyro_drift.sigma).max() < 4.0  # the synthetic platform does not drift
+    assert np.abs(out.drift.gimbal.values / out.drift.gimbal.sigma).max() < 4.0  # the synthetic platform does not drift
     assert out.result.status[out.result.ids.index("beta_zy")] == "estimated"
     assert out.result.status[out.result.ids.index("bias_x")] == "estimated"  # one vocabulary: a posterior is an estimate
     how = out.result.details.determination
@@ -95,8 +95,8 @@ def test_yawed_base_and_chunking_give_same_answer(day):
     # with the drift measured, the same noise read through another gimbal geometry: the drift differs within its σ
     # (0.2″ per reading gives σ ≈ 4e-8 °/h; 1e-7 °/h moves the attitude coefficients by ~2e-9 rad)
     c = run_system_stage(ArraySource(cols_y), meta_y, installed)
-    difference = c.gyro_drift.values - a.gyro_drift.values
-    assert np.all(np.abs(difference) < 4 * np.hypot(a.gyro_drift.sigma, c.gyro_drift.sigma))
+    difference = c.drift.gimbal.values - a.drift.gimbal.values
+    assert np.all(np.abs(difference) < 4 * np.hypot(a.drift.gimbal.sigma, c.drift.gimbal.sigma))
     np.testing.assert_allclose(c.combined.values, a.combined.values, atol=1e-8)
 
 

@@ -11,7 +11,7 @@ Per chunk (docs/system-calibration.md §6):
   below double-precision round-off of the sums; :func:`.blocksums.harmonic_information` is the per-sample reference it is tested
   against;
 * noise: per-axis sums of squared second differences of the raw outputs on the first samples of each chunk;
-* attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.attitude.AttitudeBlocks`),
+* attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.blocks.AttitudeBlocks`),
   the static-base checks and the platform-rate check (:class:`.checks.StaticChecks`);
 * bins: ``Σz``, ``ΣH`` and counts over ``filter_block_seconds`` (the Kalman filter's curve and the low band of the
   coloured-noise model) and over :data:`FINE_BIN_SECONDS` (its high band) (:class:`SampleBins`).
@@ -43,7 +43,7 @@ from stableins.data.validation import check_finite
 from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.attitude import AttitudeBlocks
+from stableins.estimators.system.blocks import AttitudeBlocks
 from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation

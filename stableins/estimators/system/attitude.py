@@ -39,8 +39,7 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import ClassVar
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,7 +52,7 @@ ROLL_COEFFICIENTS = ("phi_mean", "phi_1s", "phi_1c", "phi_2s", "phi_2c")
 ATTITUDE_COEFFICIENTS = PITCH_COEFFICIENTS + ROLL_COEFFICIENTS
 
 #: Blocks per slice of the design matrix in :func:`fit_attitude`.  The slices are built once and shared by both channels
-#: and all passes; with at most ``AttitudeBlocks.max_blocks`` (2¹⁴) blocks they hold about 3 MiB whatever the record length.
+#: and all passes; with at most ``blocks.AttitudeBlocks.max_blocks`` (2¹⁴) blocks they hold about 3 MiB whatever the record length.
 FIT_ROWS = 4096
 
 #: Default period of the gyro case-rotation residual [s] (Wu et al. 2018 §6.2: 8 minutes).
@@ -89,80 +88,6 @@ def attitude_combinations(latitude: float) -> NDArray[np.float64]:
     put(8, D_x=-0.5 * c, D_y=0.5 * c)
     put(9, beta_yz=0.5 * c, beta_xz=-0.5 * c)
     return m
-
-
-@dataclass
-class AttitudeBlocks:
-    """Block means of the attitude record (streaming accumulator) in bounded memory.
-
-    Blocks are fixed time bins of ``block_seconds`` from ``start_time``; each keeps the sample
-    count and the sums of time, ``cos S``, ``sin S``, pitch and roll.  When the record would need
-    more than ``max_blocks`` bins, adjacent pairs are merged and ``block_seconds`` doubles (sums
-    add exactly, so this equals accumulating with the doubled width from the start): memory is
-    bounded by ``6 · max_blocks`` values whatever the record length, and so is the cost of the fit.  The
-    default, 2¹⁴ bins, keeps the 10-s blocks up to 1.9 days; a week gets 40-s blocks, still 126 times shorter
-    than the Schuler period.  They attenuate the 8-minute case-rotation nuisance by 1.1 % (its amplitude is
-    free, so nothing is biased) and the Earth-rate harmonics by about 1e-6 of their size (the block means of
-    ``cos S`` and ``sin S`` are exact; ``cos 2S`` from them is second order in the block's angle).
-    """
-
-    block_seconds: float
-    start_time: float
-    max_blocks: int = 1 << 14
-    sums: dict[str, NDArray[np.float64]] = field(default_factory=dict)
-
-    _KEYS: ClassVar[tuple[str, ...]] = ("count", "time", "cos", "sin", "pitch", "roll")
-
-    def add(
-        self,
-        time: NDArray[np.float64],
-        cos_s: NDArray[np.float64],
-        sin_s: NDArray[np.float64],
-        pitch: NDArray[np.float64],
-        roll: NDArray[np.float64],
-    ) -> None:
-        """Add decimated samples (time, ``cos S``, ``sin S``, pitch, roll) to their blocks."""
-        self._accumulate(time, {"cos": cos_s, "sin": sin_s, "pitch": pitch, "roll": roll})
-
-    def _accumulate(self, time: NDArray[np.float64], columns: dict[str, NDArray[np.float64]]) -> None:
-        """Add samples of ``columns`` (the keys of :attr:`_KEYS` but count and time) at ``time`` to their blocks."""
-        while True:
-            index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
-            if int(index[-1]) < self.max_blocks:
-                break
-            self._merge_pairs()
-        lo = int(index[0])
-        local = index - lo
-        size = int(local[-1]) + 1
-        values = {"count": None, "time": time - self.start_time, **columns}
-        needed = lo + size
-        for key in self._KEYS:
-            arr = self.sums.get(key)
-            if arr is None:
-                arr = np.zeros(min(max(needed, 1024), self.max_blocks))
-            elif arr.size < needed:
-                arr = np.concatenate([arr, np.zeros(min(max(needed - arr.size, arr.size), self.max_blocks - arr.size))])
-            arr[lo:needed] += np.bincount(local, weights=values[key], minlength=size)
-            self.sums[key] = arr
-
-    def _merge_pairs(self) -> None:
-        """Merge bins ``(2j, 2j+1)`` into bin ``j`` and double ``block_seconds``."""
-        for key, arr in self.sums.items():
-            if arr.size % 2:
-                arr = np.append(arr, 0.0)
-            self.sums[key] = arr.reshape(-1, 2).sum(axis=1)
-        self.block_seconds *= 2.0
-
-    def means(self) -> dict[str, NDArray[np.float64]]:
-        """Return the block means of the non-empty blocks (``count``, ``time`` since the start, ``cos``, ``sin``, pitch, roll)."""
-        count = self.sums["count"]
-        keep = count > 0
-        out = {"count": count[keep]}
-        for key in self._KEYS[1:]:
-            out[key] = self.sums[key][keep] / count[keep]
-        norm = np.hypot(out["cos"], out["sin"])  # block averaging shrinks (cos, sin) by ~1 − (ωT)²/24
-        out["cos"], out["sin"] = out["cos"] / norm, out["sin"] / norm
-        return out
 
 
 @dataclass(frozen=True)
@@ -262,7 +187,7 @@ def fit_attitude(
     Parameters
     ----------
     blocks : dict
-        Block means from :meth:`AttitudeBlocks.means` (``time`` since the record start).
+        Block means from :meth:`.blocks.AttitudeBlocks.means` (``time`` since the record start).
     loop : DampingLoop
         The INS damping loop (from the record's metadata).
     noise_sigma : (float, float)
@@ -295,8 +220,7 @@ def fit_attitude(
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
     drift_jacobian : bool
-        Also return ``∂values/∂ε`` (10, 3): the same fit applied to the loop's response to a unit drift along each
-        platform axis (the values are linear in pitch and roll), for the covariance of a removed drift.
+        Also return ``∂values/∂ε`` (10, 3): the fit's linear map applied to the loop's unit-drift responses.
     """
     n_blocks = blocks["time"].size
     _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
@@ -312,10 +236,7 @@ def fit_attitude(
     jac_vertical = -transform @ vertical_map
     # reorder roll into the paper order (mean, 1s, 1c, 2s, 2c)
     order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
-    values = qs[order]
-    jac_vertical = jac_vertical[order]
-    observed_out = observed[order]
-
+    values, jac_vertical, observed_out = qs[order], jac_vertical[order], observed[order]
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
     ratio, factors, low_notes = _low_frequency(blocks, residuals, noise_sigma, loop)
     notes += low_notes
@@ -326,14 +247,13 @@ def fit_attitude(
     cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
     cov_qs = transform @ cov_obs @ transform.T
     covariance = cov_qs[np.ix_(order, order)]
-    cov_obs_out = cov_obs[np.ix_(order, order)]
     rms = np.sqrt(np.mean(residuals**2, axis=0))
     return AttitudeFit(
         names=ATTITUDE_COEFFICIENTS,
         values=values,
         covariance=covariance,
         observed=observed_out,
-        observed_covariance=cov_obs_out,
+        observed_covariance=cov_obs[np.ix_(order, order)],
         nuisance=nuisance,
         noise_sigma=(float(noise_sigma[0]), float(noise_sigma[1])),
         residual_noise_ratio=(float(ratio[0]), float(ratio[1])),

@@ -61,7 +61,7 @@ from stableins.conventions import (
     earth_rate_nav,
     skew,
 )
-from stableins.estimators.system.attitude import AttitudeBlocks
+from stableins.estimators.system.blocks import AttitudeBlocks
 from stableins.platform import rotation_about, rotation_vector
 
 #: The readings besides the platform angle that the drift needs (read at the attitude decimation).
@@ -96,7 +96,7 @@ SIGMA_FLOOR = 1e-9
 class GimbalBlocks(AttitudeBlocks):
     """Block means of the three gimbal readings (platform angle unwrapped), on the attitude blocks' time bins.
 
-    Same bins and merging as :class:`.attitude.AttitudeBlocks`, at most :data:`GIMBAL_BLOCKS` of them: the readings are
+    Same bins and merging as :class:`.blocks.AttitudeBlocks`, at most :data:`GIMBAL_BLOCKS` of them: the readings are
     linear in time within a block (the platform angle turns at the Earth rate, the others stand still), so the mean
     readings are the readings at the mean time whatever the width, and the fit's cost stays small.
     """

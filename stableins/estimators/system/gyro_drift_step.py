@@ -229,6 +229,19 @@ def drift_covariance_v(jacobian: NDArray[np.float64] | None, step: DriftStep) ->
     return out
 
 
+def likelihood_inputs(
+    step: DriftStep, jacobian: NDArray[np.float64] | None, cov_v: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], DriftStep] | None]:
+    """Return the covariance of ``v`` and the drift argument of :func:`.assembly.separation_likelihood`.
+
+    A drift the record measured is a parameter of the likelihood (``(J, step)``, covariance of ``v`` unchanged); a drift
+    given with an uncertainty and not measured only adds ``J P Jᵀ`` to the attitude coefficients.
+    """
+    if step.in_likelihood and jacobian is not None:
+        return cov_v, (jacobian, step)
+    return cov_v + drift_covariance_v(jacobian, step), None
+
+
 def augment_measurement(
     rows: NDArray[np.float64],
     h_res: NDArray[np.float64],
@@ -296,5 +309,6 @@ __all__ = [
     "drift_covariance_v",
     "drift_notes",
     "drift_step",
+    "likelihood_inputs",
     "prior_drift",
 ]

@@ -11,11 +11,10 @@ r"""The system-level stage over a whole record, streaming in bounded memory: a s
 3. the result (:mod:`.assembly`): the Bayesian update of the prior, the combined coefficients, typed diagnostics
    (:class:`SystemDiagnostics`).
 
-On a turned or tilted base the Earth-rate angle comes from the full gimbal kinematics; a known gyro drift's response is
-removed from pitch and roll.  Checks: sampling (gaps, jitter, order), static base (velocity, attitude excursion),
-platform turning at the Earth rate, polar alignment, record length (short records keep only the combinations they
-determine).  The record is read through the chunk-source protocol (:mod:`stableins.data.chunks`).  See
-docs/system-calibration.md.
+On a turned or tilted base the Earth-rate angle comes from the full gimbal kinematics; the gyro drift, measured in the
+gimbal readings (:mod:`.gyro_drift_step`) or given, is removed from pitch and roll.  Checks: sampling (gaps, jitter,
+order), static base (velocity, attitude excursion), platform turning at the Earth rate, polar alignment, record length
+(short records keep only the combinations they determine).  Read through :mod:`stableins.data.chunks`; docs/system-calibration.md.
 """
 
 from __future__ import annotations
@@ -47,8 +46,8 @@ from stableins.estimators.system.assembly import (
 )
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import SamplingSummary, check_metadata
-from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS, GimbalDrift
-from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, prior_drift
+from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
+from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
@@ -209,11 +208,8 @@ class SystemCalibration(SystemCalibrationView):
         model when a datasheet model was given.  It goes into the calibration record.
     diagnostics : SystemDiagnostics
         What the stage measured about the record besides its coefficients (noise, checks, sampling, temperature).
-    gyro_drift : GimbalDrift or None
-        The gyro drift the gimbal readings measure (None without inner and middle readings or when not estimated).
     drift : DriftStep or None
-        The drift removed from pitch and roll and where it came from (docs/system-calibration.md §9); the record's
-        ``gyro_drift_x/y/z`` are in :attr:`result` when the record measured it.
+        The drift removed from pitch and roll, its source and the gimbal readings' measurement ``drift.gimbal`` (docs §9).
     """
 
     result: FitResult
@@ -227,7 +223,6 @@ class SystemCalibration(SystemCalibrationView):
     notes: tuple[str, ...] = ()
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
-    gyro_drift: GimbalDrift | None = None
     drift: DriftStep | None = None
 
 
@@ -412,20 +407,9 @@ def _assemble(
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
-    drift = stage.drift
-    jacobian = stage.attitude.drift_jacobian
-    if not drift.in_likelihood:  # a drift given with an uncertainty and not measured: its σ is in the coefficients' only
-        cov_v = cov_v + drift_covariance_v(jacobian, drift)
+    cov_v, drift = likelihood_inputs(stage.drift, stage.attitude.drift_jacobian, cov_v)
     likelihood, fit = separation_likelihood(
-        prior,
-        stage.latitude,
-        gravity,
-        combination.v,
-        cov_v,
-        to_combined,
-        transform,
-        estimate_k2=options.estimate_k2,
-        drift=(jacobian, drift) if drift.in_likelihood and jacobian is not None else None,
+        prior, stage.latitude, gravity, combination.v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2, drift=drift
     )
     result, corrections = fit_result(
         combination.separation,
@@ -467,7 +451,6 @@ def _assemble(
         notes=tuple(notes),
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
-        gyro_drift=stage.drift.gimbal,
         drift=stage.drift,
     )
 
@@ -475,6 +458,7 @@ def _assemble(
 def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnostics:
     """Collect the stage's :class:`SystemDiagnostics`."""
     sums, harmonic, att, decision, checks = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision, stage.sums.checks
+    white = decision.covariance - decision.coloured + drift_covariance_v(stage.attitude.drift_jacobian, stage.drift)  # not coloured
     to_combined = combination.to_combined
     return SystemDiagnostics(
         duration=sums.duration,
@@ -485,7 +469,7 @@ def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnos
         z_residual_sigma=math.sqrt(harmonic.residual_variance),
         z_low_frequency_ratio=decision.low_frequency_ratio,
         # without the coloured part
-        combined_sigma_white=np.sqrt(np.diag(to_combined @ (decision.covariance - decision.coloured) @ to_combined.T)),
+        combined_sigma_white=np.sqrt(np.diag(to_combined @ white @ to_combined.T)),
         noise_samples=sums.noise_count,
         noise_bias_x1=harmonic.noise_bias,
         k2_residual=combination.k2_values,
