@@ -88,126 +88,140 @@ def main() -> None:
         else:
             chunks = synthetic_chunks(duration, args.rate)
             site = SiteMetadata("BENCH-1", math.radians(40.0), 0.0, 9.8017, "WGS-84 normal gravity", args.rate)
-
-        # ---------------------------------------------------------- writer
         path = directory / "day.h5"
-        tracemalloc.start()
-        t_source = t_writer = 0.0
-        t0 = time.perf_counter()
-        with SystemRecordWriter(path, site, chunk_samples=CHUNK) as writer:
-            iterator = iter(chunks)
-            while True:
-                a = time.perf_counter()
-                try:
-                    chunk = next(iterator)
-                except StopIteration:
-                    break
-                b = time.perf_counter()
-                writer.append(chunk)
-                c = time.perf_counter()
-                t_source += b - a
-                t_writer += c - b
-            a = time.perf_counter()
-        t_writer += time.perf_counter() - a  # final flush, fsync and rename
-        total = time.perf_counter() - t0
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-        size_mb = path.stat().st_size / 1e6
-        print(f"\nSystemRecordWriter ({args.source} source), {total:.1f} s in all:")
-        print(
-            f"  writer:  {t_writer:6.2f} s  {n_total / t_writer:12.0f} samples/s  {payload_mb / t_writer:7.1f} MB/s   file {size_mb:.0f} MB"
-        )
-        print(f"  source:  {t_source:6.2f} s  {n_total / t_source:12.0f} samples/s  ({args.source})")
-        print(f"  peak traced memory (tracemalloc) during the run: {peak / 1e6:.1f} MB  (record: {payload_mb:.0f} MB)")
-
-        # ---------------------------------------------------------- read back
-        t0 = time.perf_counter()
-        record = open_system_record(path)
-        report = record.check_sampling()
-        rows = 0
-        for chunk in record.iter_chunks(rows=CHUNK):
-            rows += len(chunk["time"])
-        t_read = time.perf_counter() - t0
-        assert rows == n_total == record.n_samples
-        print(f"\nread back (open + check_sampling + iter_chunks, all columns, NaN checks): {t_read:.2f} s")
-        print(f"  {n_total / t_read:.0f} samples/s  {payload_mb / t_read:.1f} MB/s")
-        print(f"  mean rate {report.mean_rate:.6f} Hz, gaps {len(report.gaps)}")
-
-        # ---------------------------------------------------------- baselines
-        block = np.random.default_rng(2).normal(size=(ncol, CHUNK))
-
-        def raw_h5py() -> float:
-            raw = directory / "raw.h5"
-            t0 = time.perf_counter()
-            with h5py.File(raw, "w") as f:
-                datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
-                for start in range(0, n_total, CHUNK):
-                    n = min(CHUNK, n_total - start)
-                    for j, d in enumerate(datasets):
-                        d.resize((start + n,))
-                        d[start:] = block[j, :n]
-            with open(raw, "rb+") as handle:
-                os.fsync(handle.fileno())  # the writer fsyncs too
-            elapsed = time.perf_counter() - t0
-            raw.unlink()
-            return elapsed
-
-        def raw_tofile() -> float:
-            flat = directory / "raw.bin"
-            t0 = time.perf_counter()
-            with open(flat, "wb") as handle:
-                for start in range(0, n_total, CHUNK):
-                    n = min(CHUNK, n_total - start)
-                    block[:, :n].tofile(handle)
-                handle.flush()
-                os.fsync(handle.fileno())
-            elapsed = time.perf_counter() - t0
-            flat.unlink()
-            return elapsed
-
-        t_raw = [raw_h5py() for _ in range(args.repeat)]
-        t_flat = [raw_tofile() for _ in range(args.repeat)]
-        print(f"\nbaselines (same rows x columns of float64; best and worst of {args.repeat}):")
-        for label, times in (("raw h5py chunked append", t_raw), ("numpy tofile", t_flat)):
-            lo, hi = min(times), max(times)
-            rates = f"{n_total / hi:10.0f}..{n_total / lo:10.0f} samples/s  {payload_mb / hi:6.1f}..{payload_mb / lo:6.1f} MB/s"
-            print(f"  {label:<24} {lo:6.2f}..{hi:6.2f} s  {rates}")
-        print(f"  writer time / raw h5py time: {t_writer / max(t_raw):.2f}..{t_writer / min(t_raw):.2f}")
-        print("  (disk figures swing by 2x or more with page-cache state and machine load; compare within one run)")
-
-        # ---------------------------------------------------------- controlled comparison
-        hour = list(synthetic_chunks(3600.0, args.rate))
-        n_hour = sum(len(c["time"]) for c in hour)
-
-        def writer_hour() -> float:
-            t0 = time.perf_counter()
-            with SystemRecordWriter(directory / "hour.h5", site, chunk_samples=CHUNK) as w:
-                for c in hour:
-                    w.append(c)
-            return time.perf_counter() - t0
-
-        def raw_hour() -> float:
-            t0 = time.perf_counter()
-            with h5py.File(directory / "hour-raw.h5", "w") as f:
-                datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
-                start = 0
-                for c in hour:
-                    n = len(c["time"])
-                    for name, d in zip(NAMES, datasets):
-                        d.resize((start + n,))
-                        d[start:] = c[name]
-                    start += n
-            with open(directory / "hour-raw.h5", "rb+") as handle:
-                os.fsync(handle.fileno())
-            return time.perf_counter() - t0
-
-        pairs = [(writer_hour(), raw_hour()) for _ in range(max(3, args.repeat))]
-        w_best, r_best = min(p[0] for p in pairs), min(p[1] for p in pairs)
-        print(f"\ncontrolled: the same 1 h of chunks ({n_hour} samples), writer and raw h5py alternating, best of {len(pairs)}:")
-        print(f"  writer {w_best:.3f} s ({n_hour / w_best:.0f} samples/s), raw h5py {r_best:.3f} s; writer / raw = {w_best / r_best:.2f}")
+        t_writer = write_day(path, site, chunks, n_total, payload_mb, args.source)
+        read_back(path, n_total, payload_mb)
+        baselines(directory, n_total, payload_mb, t_writer, args.repeat)
+        controlled(directory, site, args.rate, args.repeat)
 
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3  # kB on Linux
     print(f"\nprocess max resident set size (ru_maxrss, whole run incl. interpreter and libraries): {rss:.0f} MB")
+
+
+def write_day(path, site, chunks, n_total, payload_mb, source) -> float:
+    """Write the record with SystemRecordWriter; print the writer's and the source's time and the peak memory; return the writer's time."""
+    tracemalloc.start()
+    t_source = t_writer = 0.0
+    t0 = time.perf_counter()
+    with SystemRecordWriter(path, site, chunk_samples=CHUNK) as writer:
+        iterator = iter(chunks)
+        while True:
+            a = time.perf_counter()
+            try:
+                chunk = next(iterator)
+            except StopIteration:
+                break
+            b = time.perf_counter()
+            writer.append(chunk)
+            c = time.perf_counter()
+            t_source += b - a
+            t_writer += c - b
+        a = time.perf_counter()
+    t_writer += time.perf_counter() - a  # final flush, fsync and rename
+    total = time.perf_counter() - t0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    size_mb = path.stat().st_size / 1e6
+    print(f"\nSystemRecordWriter ({source} source), {total:.1f} s in all:")
+    print(f"  writer:  {t_writer:6.2f} s  {n_total / t_writer:12.0f} samples/s  {payload_mb / t_writer:7.1f} MB/s   file {size_mb:.0f} MB")
+    print(f"  source:  {t_source:6.2f} s  {n_total / t_source:12.0f} samples/s  ({source})")
+    print(f"  peak traced memory (tracemalloc) during the run: {peak / 1e6:.1f} MB  (record: {payload_mb:.0f} MB)")
+    return t_writer
+
+
+def read_back(path, n_total, payload_mb) -> None:
+    """Open the record, check its sampling and read every chunk back; print the time."""
+    t0 = time.perf_counter()
+    record = open_system_record(path)
+    report = record.check_sampling()
+    rows = 0
+    for chunk in record.iter_chunks(rows=CHUNK):
+        rows += len(chunk["time"])
+    t_read = time.perf_counter() - t0
+    assert rows == n_total == record.n_samples
+    print(f"\nread back (open + check_sampling + iter_chunks, all columns, NaN checks): {t_read:.2f} s")
+    print(f"  {n_total / t_read:.0f} samples/s  {payload_mb / t_read:.1f} MB/s")
+    print(f"  mean rate {report.mean_rate:.6f} Hz, gaps {len(report.gaps)}")
+
+
+def raw_h5py(directory, block, n_total) -> float:
+    """Write ``n_total`` rows of ``block`` with plain h5py chunked appends (and fsync); return the time."""
+    raw = directory / "raw.h5"
+    t0 = time.perf_counter()
+    with h5py.File(raw, "w") as f:
+        datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
+        for start in range(0, n_total, CHUNK):
+            n = min(CHUNK, n_total - start)
+            for j, d in enumerate(datasets):
+                d.resize((start + n,))
+                d[start:] = block[j, :n]
+    with open(raw, "rb+") as handle:
+        os.fsync(handle.fileno())  # the writer fsyncs too
+    elapsed = time.perf_counter() - t0
+    raw.unlink()
+    return elapsed
+
+
+def raw_tofile(directory, block, n_total) -> float:
+    """Write ``n_total`` rows of ``block`` with numpy tofile (and fsync); return the time."""
+    flat = directory / "raw.bin"
+    t0 = time.perf_counter()
+    with open(flat, "wb") as handle:
+        for start in range(0, n_total, CHUNK):
+            n = min(CHUNK, n_total - start)
+            block[:, :n].tofile(handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    elapsed = time.perf_counter() - t0
+    flat.unlink()
+    return elapsed
+
+
+def baselines(directory, n_total, payload_mb, t_writer, repeat) -> None:
+    """Print the raw h5py and numpy tofile baselines for the same rows and columns, and the writer's time against them."""
+    block = np.random.default_rng(2).normal(size=(len(NAMES), CHUNK))
+    t_raw = [raw_h5py(directory, block, n_total) for _ in range(repeat)]
+    t_flat = [raw_tofile(directory, block, n_total) for _ in range(repeat)]
+    print(f"\nbaselines (same rows x columns of float64; best and worst of {repeat}):")
+    for label, times in (("raw h5py chunked append", t_raw), ("numpy tofile", t_flat)):
+        lo, hi = min(times), max(times)
+        rates = f"{n_total / hi:10.0f}..{n_total / lo:10.0f} samples/s  {payload_mb / hi:6.1f}..{payload_mb / lo:6.1f} MB/s"
+        print(f"  {label:<24} {lo:6.2f}..{hi:6.2f} s  {rates}")
+    print(f"  writer time / raw h5py time: {t_writer / max(t_raw):.2f}..{t_writer / min(t_raw):.2f}")
+    print("  (disk figures swing by 2x or more with page-cache state and machine load; compare within one run)")
+
+
+def controlled(directory, site, rate, repeat) -> None:
+    """Print the writer against raw h5py on the same hour of chunks, alternating, best of several."""
+    hour = list(synthetic_chunks(3600.0, rate))
+    n_hour = sum(len(c["time"]) for c in hour)
+
+    def writer_hour() -> float:
+        t0 = time.perf_counter()
+        with SystemRecordWriter(directory / "hour.h5", site, chunk_samples=CHUNK) as w:
+            for c in hour:
+                w.append(c)
+        return time.perf_counter() - t0
+
+    def raw_hour() -> float:
+        t0 = time.perf_counter()
+        with h5py.File(directory / "hour-raw.h5", "w") as f:
+            datasets = [f.create_dataset(name, shape=(0,), maxshape=(None,), dtype="f8", chunks=(CHUNK,)) for name in NAMES]
+            start = 0
+            for c in hour:
+                n = len(c["time"])
+                for name, d in zip(NAMES, datasets):
+                    d.resize((start + n,))
+                    d[start:] = c[name]
+                start += n
+        with open(directory / "hour-raw.h5", "rb+") as handle:
+            os.fsync(handle.fileno())
+        return time.perf_counter() - t0
+
+    pairs = [(writer_hour(), raw_hour()) for _ in range(max(3, repeat))]
+    w_best, r_best = min(p[0] for p in pairs), min(p[1] for p in pairs)
+    print(f"\ncontrolled: the same 1 h of chunks ({n_hour} samples), writer and raw h5py alternating, best of {len(pairs)}:")
+    print(f"  writer {w_best:.3f} s ({n_hour / w_best:.0f} samples/s), raw h5py {r_best:.3f} s; writer / raw = {w_best / r_best:.2f}")
 
 
 if __name__ == "__main__":

@@ -88,7 +88,8 @@ class SimulatorSource:
 
     def iter_chunks(self, columns=None, rows=1 << 16, *, thin=(), step=1, reuse=False, unchecked=()):
         """The stage's chunk-source contract (stableins.estimators.system.stage.ChunkSource): ``thin`` columns at rows
-        whose index is a multiple of ``step``; every value is checked for NaN/inf by the stage or here."""
+        whose index is a multiple of ``step``; every value is checked for NaN/inf by the stage or here.
+        """
         from stableins.simulator.system import system_record_chunks
 
         first = 0

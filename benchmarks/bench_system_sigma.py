@@ -159,7 +159,7 @@ def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
 
 
 def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
-    """tracemalloc peaks of the stage and of its coloured-noise model against the record length (1 Hz)."""
+    """Tracemalloc peaks of the stage and of its coloured-noise model against the record length (1 Hz)."""
     import tracemalloc
 
     truth = Truth.draw(100, sample_rate=1.0)

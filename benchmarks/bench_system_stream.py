@@ -244,6 +244,80 @@ def stage_rss(path: Path, rows: int) -> tuple[float, float]:
     return imports, total
 
 
+def measure(path: Path, rows: int, days: float, r: int) -> dict:
+    """Time the baselines, the validating reader, the stage and its sections; trace the memory; minimum of ``r`` runs."""
+    import filterpy.kalman  # noqa: F401  one-time import cost (about 1-3 s), not part of the per-sample cost
+    import scipy.linalg  # noqa: F401
+    import scipy.optimize  # noqa: F401
+
+    baseline(path, rows)  # warm the page cache so both passes read from memory
+    stage(path, rows)
+    m: dict = {}
+    m["t_plain"] = min(baseline_plain(path, rows) for _ in range(r))
+    m["t_plain_day"] = min(baseline_plain(path, rows, limit_days=1.0) for _ in range(r))
+    m["t_base"] = min(baseline(path, rows) for _ in range(r))
+    m["t_base_fast"] = min(baseline_plain(path, rows, chunk_cache=False) for _ in range(r))
+    m["t_stage"], _, m["n"] = min(stage(path, rows) for _ in range(r))
+    m["t_base_day"] = min(baseline(path, rows, limit_days=1.0) for _ in range(r))
+    m["t_day"], _, m["n_day"] = min(stage(path, rows, limit_days=1.0) for _ in range(r))
+    _, m["peak"], _ = stage(path, rows, trace=True)
+    _, m["peak_day"], _ = stage(path, rows, limit_days=1.0, trace=True)
+    m["lengths"] = [d for d in (2.0, 3.0, 5.0) if d < days]
+    m["peaks"] = [stage(path, rows, limit_days=d, trace=True)[1] for d in m["lengths"]]
+    m["split"] = min((breakdown(path, rows) for _ in range(r)), key=lambda run: run[0])
+    m["t_validate"] = min(validation(path) for _ in range(r))
+    m["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    m["rss_imports"], m["rss_stage"] = stage_rss(path, rows)
+    return m
+
+
+def report(m: dict, rows: int, r: int) -> None:
+    """Print the figures of :func:`measure` and the targets they are compared with."""
+    n, t_stage, t_validate, peak, peak_day = m["n"], m["t_stage"], m["t_validate"], m["peak"], m["peak_day"]
+    print(f"record: {n:.3e} samples ({n / RATE / 86400:.2f} days at {RATE:g} Hz), chunks of {rows} rows, minimum of {r} runs")
+    for label, tp, tb, ts, count in (
+        ("first day", m["t_plain_day"], m["t_base_day"], m["t_day"], m["n_day"]),
+        ("whole record", m["t_plain"], m["t_base"], t_stage, n),
+    ):
+        print(f"{label}:")
+        print(f"  baseline np.sum over f_x, f_y, f_z (h5py slices) : {tp:7.3f} s  ({tp / count * 1e9:5.1f} ns/sample)")
+        print(f"  the same through the validating reader           : {tb:7.3f} s  ({tb / count * 1e9:5.1f} ns/sample)")
+        print(
+            f"  system stage                                     : {ts:7.3f} s  ({ts / count * 1e9:5.1f} ns/sample)  "
+            f"ratio {ts / tp:.2f} to the h5py baseline (target <= 2), {ts / tb:.2f} to the reader's"
+        )
+    t_base_fast = m["t_base_fast"]
+    print(f"  baseline, h5py slices with the chunk cache off   : {t_base_fast:7.3f} s  -> stage ratio {t_stage / t_base_fast:.2f}")
+    print(
+        f"  validation pass of check / calibrate system (every column, time base, /overview, /time_grid): {t_validate:7.3f} s "
+        f"({t_validate / n * 1e9:5.1f} ns/sample; SystemRecord.validate, before the stage)"
+    )
+    total, timers = m["split"]
+    print(f"where the stage's time goes (whole record, section timers, fastest of {r} runs: {total:.3f} s in all):")
+    for label, seconds in sorted(timers.items(), key=lambda item: -item[1]):
+        print(f"  {label:<48} {seconds:7.3f} s")
+    print(f"  {'the rest (loop numpy work, other post-processing)':<48} {total - sum(timers.values()):7.3f} s")
+    print(
+        f"peak traced memory (tracemalloc): whole record {peak / 2**20:.1f} MiB, first day {peak_day / 2**20:.1f} MiB "
+        "(target <= 256 MiB, flat)"
+    )
+    days_traced = [1.0, *m["lengths"], n / RATE / SIDEREAL_DAY]
+    peaks_traced = [peak_day, *m["peaks"], peak]
+    table = ", ".join(f"{d:.3g} d {p / 2**20:.1f} MiB" for d, p in zip(days_traced, peaks_traced, strict=True))
+    print(f"peak traced memory against record length: {table}")
+    print(
+        "  (flat: the coloured-noise model holds (n, n) kernels of at most COLOURED_BINS = 160 bins, the attitude blocks are capped"
+        " at 2^14, the filter curve at 512 steps; the chunk buffers do not depend on the record length)"
+    )
+    print(
+        f"max RSS of a fresh process running the stage once on the whole record: {m['rss_stage']:.0f} MiB "
+        f"(its imports of numpy, scipy, filterpy, h5py, numba alone: {m['rss_imports']:.0f} MiB; target <= 256 MB = 244 MiB)"
+    )
+    print(f"max RSS of this benchmark process (includes the writer if it ran): {m['rss']:.0f} MiB")
+    print("the stage reads f_x, f_y, f_z at the full rate; time, angle_platform, pitch, roll, velocity_north, velocity_east at 1 Hz")
+    print("from /overview, and reconstructs the full-rate time from /time_grid (docs/formats.md); the baseline reads f_x, f_y, f_z")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default="/tmp/stableins-bench")
@@ -261,70 +335,12 @@ def main(argv: list[str] | None = None) -> int:
         wrote = True
         print(f"wrote {path} ({path.stat().st_size / 1e9:.2f} GB) in {time.perf_counter() - t0:.0f} s")
     try:
-        import filterpy.kalman  # noqa: F401  one-time import cost (about 1-3 s), not part of the per-sample cost
-        import scipy.linalg  # noqa: F401
-        import scipy.optimize  # noqa: F401
-
-        baseline(path, args.rows)  # warm the page cache so both passes read from memory
-        stage(path, args.rows)
-        r = args.repeat
-        t_plain = min(baseline_plain(path, args.rows) for _ in range(r))
-        t_plain_day = min(baseline_plain(path, args.rows, limit_days=1.0) for _ in range(r))
-        t_base = min(baseline(path, args.rows) for _ in range(r))
-        t_base_fast = min(baseline_plain(path, args.rows, chunk_cache=False) for _ in range(r))
-        t_stage, _, n = min(stage(path, args.rows) for _ in range(r))
-        t_base_day = min(baseline(path, args.rows, limit_days=1.0) for _ in range(r))
-        t_day, _, n_day = min(stage(path, args.rows, limit_days=1.0) for _ in range(r))
-        _, peak, _ = stage(path, args.rows, trace=True)
-        _, peak_day, _ = stage(path, args.rows, limit_days=1.0, trace=True)
-        lengths = [d for d in (2.0, 3.0, 5.0) if d < args.days]
-        peaks = [stage(path, args.rows, limit_days=d, trace=True)[1] for d in lengths]
-        split = min((breakdown(path, args.rows) for _ in range(r)), key=lambda run: run[0])
-        t_validate = min(validation(path) for _ in range(r))
-        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-        rss_imports, rss_stage = stage_rss(path, args.rows)
+        m = measure(path, args.rows, args.days, args.repeat)
     finally:
         if wrote and not args.keep:
             path.unlink()
             print(f"deleted {path}")
-    print(f"record: {n:.3e} samples ({n / RATE / 86400:.2f} days at {RATE:g} Hz), chunks of {args.rows} rows, minimum of {r} runs")
-    for label, tp, tb, ts, m in (("first day", t_plain_day, t_base_day, t_day, n_day), ("whole record", t_plain, t_base, t_stage, n)):
-        print(f"{label}:")
-        print(f"  baseline np.sum over f_x, f_y, f_z (h5py slices) : {tp:7.3f} s  ({tp / m * 1e9:5.1f} ns/sample)")
-        print(f"  the same through the validating reader           : {tb:7.3f} s  ({tb / m * 1e9:5.1f} ns/sample)")
-        print(
-            f"  system stage                                     : {ts:7.3f} s  ({ts / m * 1e9:5.1f} ns/sample)  "
-            f"ratio {ts / tp:.2f} to the h5py baseline (target <= 2), {ts / tb:.2f} to the reader's"
-        )
-    print(f"  baseline, h5py slices with the chunk cache off   : {t_base_fast:7.3f} s  -> stage ratio {t_stage / t_base_fast:.2f}")
-    print(
-        f"  validation pass of check / calibrate system (every column, time base, /overview, /time_grid): {t_validate:7.3f} s "
-        f"({t_validate / n * 1e9:5.1f} ns/sample; SystemRecord.validate, before the stage)"
-    )
-    total, timers = split
-    print(f"where the stage's time goes (whole record, section timers, fastest of {r} runs: {total:.3f} s in all):")
-    for label, seconds in sorted(timers.items(), key=lambda item: -item[1]):
-        print(f"  {label:<48} {seconds:7.3f} s")
-    print(f"  {'the rest (loop numpy work, other post-processing)':<48} {total - sum(timers.values()):7.3f} s")
-    print(
-        f"peak traced memory (tracemalloc): whole record {peak / 2**20:.1f} MiB, first day {peak_day / 2**20:.1f} MiB "
-        "(target <= 256 MiB, flat)"
-    )
-    days_traced = [1.0, *lengths, n / RATE / SIDEREAL_DAY]
-    peaks_traced = [peak_day, *peaks, peak]
-    table = ", ".join(f"{d:.3g} d {p / 2**20:.1f} MiB" for d, p in zip(days_traced, peaks_traced, strict=True))
-    print(f"peak traced memory against record length: {table}")
-    print(
-        "  (flat: the coloured-noise model holds (n, n) kernels of at most COLOURED_BINS = 160 bins, the attitude blocks are capped"
-        " at 2^14, the filter curve at 512 steps; the chunk buffers do not depend on the record length)"
-    )
-    print(
-        f"max RSS of a fresh process running the stage once on the whole record: {rss_stage:.0f} MiB "
-        f"(its imports of numpy, scipy, filterpy, h5py, numba alone: {rss_imports:.0f} MiB; target <= 256 MB = 244 MiB)"
-    )
-    print(f"max RSS of this benchmark process (includes the writer if it ran): {rss:.0f} MiB")
-    print("the stage reads f_x, f_y, f_z at the full rate; time, angle_platform, pitch, roll, velocity_north, velocity_east at 1 Hz")
-    print("from /overview, and reconstructs the full-rate time from /time_grid (docs/formats.md); the baseline reads f_x, f_y, f_z")
+    report(m, args.rows, args.repeat)
     return 0
 
 

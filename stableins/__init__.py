@@ -27,7 +27,7 @@ _ROOT = Path(__file__).resolve().parent.parent
 
 
 def _version() -> str:
-    """The version of the code that runs (see the module docstring)."""
+    """Return the version of the code that runs (see the module docstring)."""
     if (_ROOT / ".git").exists() and (_ROOT / "pyproject.toml").is_file():
         try:
             import warnings

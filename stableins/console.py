@@ -71,7 +71,7 @@ class Console:
         self._pending: str | None = None
 
     def journal_used_up(self, replayed: int) -> None:
-        """The resumed run has replayed its journal (``replayed`` records); said before the next live line."""
+        """Note that the resumed run has replayed its journal (``replayed`` records); said before the next live line."""
         self._pending = f"journal replayed ({replayed} records): the run is live from here"
 
     # ------------------------------------------------------------------ lines
@@ -98,13 +98,13 @@ class Console:
         )
 
     def dwell(self, label: str, readings: Any, settle: float, dwell: float, why: str = "", *, replay: bool = False) -> None:
-        """The line that opens a dwell of any stage: where the gimbals are commanded, how long it settles and dwells."""
+        """Print the line that opens a dwell of any stage: where the gimbals are commanded, how long it settles and dwells."""
         degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
         reason = f" — {why}" if why else ""
         self.say(f"{label}: command readings ({degrees}) deg, settle {settle:g} s, dwell {dwell:g} s{reason}", replay=replay)
 
     def verdict(self, result: CheckResult, *, replay: bool = False, rejected: str = "rejected", indent: str = "  ") -> None:
-        """The verdict of a dwell with its reasons: ``accepted: ...`` or ``<rejected>: <reasons> (...)``."""
+        """Print the verdict of a dwell with its reasons: ``accepted: ...`` or ``<rejected>: <reasons> (...)``."""
         if result.accepted:
             self.say(f"{indent}accepted: {result.describe()}", replay=replay)
         else:
@@ -144,7 +144,7 @@ class Console:
             self.tell(f"  {answer!r} is neither yes nor no: please answer y or n" if answer else "  please answer y or n")
 
     def enter(self, step: PersonStep) -> str:
-        """The text a person enters for ``step`` (``--set``, the default with ``--yes``, or asked)."""
+        """Return the text a person enters for ``step`` (``--set``, the default with ``--yes``, or asked)."""
         if step.key in self.values:
             self.say(f"  {step.prompt}: {self.values[step.key]} {step.unit} (--set)")
             return self.values[step.key]
@@ -163,7 +163,7 @@ class Console:
         return answer or ("" if step.default is None else str(step.default))
 
     def tell(self, text: str) -> None:
-        """A line for the person answering a prompt (shown even when quiet: a prompt is being asked)."""
+        """Print a line for the person answering a prompt (shown even when quiet: a prompt is being asked)."""
         self._end_bar()
         print(self._wrap(text), file=self.out, flush=True)
 

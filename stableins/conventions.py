@@ -255,6 +255,7 @@ INSTALLATION_ENTRIES: Final = MappingProxyType(
 
 
 def dcm_platform_to_accelerometer(
+    *,
     beta_xz: ArrayLike,
     beta_xy: ArrayLike,
     beta_yz: ArrayLike,
@@ -328,7 +329,8 @@ def heading_to_north_pointing(pitch: ArrayLike, roll: ArrayLike, yaw: float) -> 
     north-pointing body, as the damping-loop model outputs them.
     """
     cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-    return cos_yaw * pitch + sin_yaw * roll, -sin_yaw * pitch + cos_yaw * roll  # type: ignore[operator]
+    pitch, roll = np.asarray(pitch, dtype=float), np.asarray(roll, dtype=float)
+    return cos_yaw * pitch + sin_yaw * roll, -sin_yaw * pitch + cos_yaw * roll
 
 
 def misalignment_pitch_roll(relative: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

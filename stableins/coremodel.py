@@ -13,10 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import (
-    AXES,
-    dcm_platform_to_accelerometer,
-)
+from stableins.conventions import AXES, INSTALLATION_ENTRIES, dcm_platform_to_accelerometer
 
 
 @dataclass(frozen=True)
@@ -30,7 +27,7 @@ class CoreValues:
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any], *, nonlinear: bool) -> CoreValues:
-        """The core values in ``values`` (term id → value, arrays broadcast together); ``K2`` only if ``nonlinear``."""
+        """Read the core values in ``values`` (term id → value, arrays broadcast together); ``K2`` only if ``nonlinear``."""
         def get(key: str, default: float) -> NDArray[np.float64]:
             return np.asarray(values.get(key, default), dtype=float)
 
@@ -39,9 +36,7 @@ class CoreValues:
             scale_factor=stack("sf", 1.0),
             bias=stack("bias", 0.0),
             quadratic=stack("K2", 0.0) if nonlinear else np.zeros(3),
-            installation=dcm_platform_to_accelerometer(
-                *(get(b, 0.0) for b in ("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx"))
-            ),
+            installation=dcm_platform_to_accelerometer(**{b: get(b, 0.0) for b in INSTALLATION_ENTRIES}),
         )
 
 

@@ -35,7 +35,7 @@ PER_LINE = 3
 
 
 def require_pandas() -> Any:
-    """The :mod:`pandas` module, or an ImportError that says how to install it (the ``pandas`` extra)."""
+    """Import :mod:`pandas`, or raise an ImportError that says how to install it (the ``pandas`` extra)."""
     try:
         import pandas
     except ImportError as error:  # pragma: no cover - the test extra installs pandas; tested by hiding it
@@ -129,6 +129,29 @@ def parameter_lines(rows: Iterable[tuple[str, float, float, str, str]]) -> list[
     return lines
 
 
+def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] = (), notes: Sequence[str] = ()) -> list[str]:
+    """Return the text lines of a parameter table ``(id, value, 1σ, unit, status[, determined by])`` in engineering units.
+
+    Unidentifiable parameters show no numbers (their value in a record is only the prior
+    carried through).  Shared by :meth:`stableins.estimators.result.FitResult.report` and the calibration record's report.
+    """
+    sources = any(len(r) > 5 for r in rows)
+    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
+    for parameter_id, value, sigma, unit, status, *source in rows:
+        tail = f" {source[0]}" if source else ""
+        if status == Status.UNIDENTIFIABLE:
+            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
+        elif 0.0 < sigma < 1e-3:  # e.g. a gyro drift in deg/h (σ ~ 1e-8): fixed point would show 0.0000 ± 0.0000
+            lines.append(f"{parameter_id:<12} {value:>14.6e} {sigma:>10.2e} {unit:<8} {status:<15}{tail}".rstrip())
+        else:
+            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status:<15}{tail}".rstrip())
+    if determined:
+        lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
+    if notes:
+        lines += ["", "notes:"] + [f"  {n}" for n in notes]
+    return lines
+
+
 def plural(count: int, word: str) -> str:
     """``1 note``, ``3 notes``."""
     return f"{count} {word}" + ("" if count == 1 else "s")
@@ -161,7 +184,7 @@ def html_table(
     titles: Sequence[str] = (),
     status_column: int | None = None,
 ) -> str:
-    """An HTML table; every cell is escaped.
+    """Render an HTML table; every cell is escaped.
 
     ``numeric``: column indices aligned right; ``titles``: a tooltip per row (e.g. a parameter's meaning);
     ``status_column``: the column holding a parameter status (rows not ``estimated`` are greyed, ``unidentifiable`` red).
@@ -185,7 +208,7 @@ def html_table(
 def html_result(
     title: str, lines: Iterable[str] = (), tables: Iterable[str] = (), details: Iterable[tuple[str, Sequence[str]]] = ()
 ) -> str:
-    """A result for Jupyter: a bold title, lines of text, tables (already HTML) and collapsed details.
+    """Render a result for Jupyter: a bold title, lines of text, tables (already HTML) and collapsed details.
 
     ``lines`` and ``details`` are plain text (escaped here); ``tables`` are :func:`html_table` output.
     """
@@ -205,7 +228,7 @@ def parameter_html(
     meanings: Sequence[str] = (),
     extra: str = "",
 ) -> str:
-    """The parameter table in HTML: parameter, value ± 1σ, unit, status (and a last column ``extra`` when rows carry one)."""
+    """Render the parameter table in HTML: parameter, value ± 1σ, unit, status (and a last column ``extra`` when rows carry one)."""
     rows = list(rows)
     columns = ["parameter", "value ± 1σ", "unit", "status"] + ([extra] if extra else [])
     body = []

@@ -194,7 +194,7 @@ class Term:
         return self.reference + np.asarray(value, dtype=float) * self.scale
 
     def parse_value(self, text: str, *, si_units: Iterable[str] = ()) -> float:
-        """A value of this term written by a person → SI.
+        """Convert a value of this term written by a person to SI.
 
         ``text`` is a number followed by the term's engineering unit (``"60ug/g2"``, ``"60 µg/g²"``, ``"30 arcsec"``)
         or by its SI unit, or a bare number, which is SI.  Units are compared after :func:`normalize_unit` (``µ`` or
@@ -309,7 +309,7 @@ class ErrorModel:
     # ------------------------------------------------------------- constructors
     @classmethod
     def standard(cls, *, nonlinear: bool = True, gimbals: bool = False) -> ErrorModel:
-        """The paper's model: 12 linear terms, plus ``K2_*`` and ``theta*0`` on request."""
+        """Return the paper's model: 12 linear terms, plus ``K2_*`` and ``theta*0`` on request."""
         terms = [t for t in CORE_TERMS if nonlinear or t.kind != TermKind.NONLINEARITY]
         if gimbals:
             terms += list(GIMBAL_TERMS)
@@ -343,13 +343,16 @@ class ErrorModel:
 
     @property
     def ids(self) -> tuple[str, ...]:
+        """Term ids in model order."""
         return tuple(t.id for t in self.terms)
 
     def index(self, term_id: str) -> int:
+        """Return the position of ``term_id`` in the model."""
         return self.ids.index(term_id)
 
     @property
     def additive_terms(self) -> tuple[Term, ...]:
+        """Terms of kind :attr:`TermKind.ADDITIVE`, in model order."""
         return tuple(t for t in self.terms if t.kind == TermKind.ADDITIVE)
 
     def nominal_values(self) -> dict[str, float]:
@@ -373,7 +376,7 @@ class ErrorModel:
     def forward(
         self, specific_force_platform: ArrayLike, values: Mapping[str, ArrayLike], inputs: TermInputs | None = None
     ) -> NDArray[np.float64]:
-        """True platform-frame specific force → accelerometer output (Eq. 6, exact).
+        """Map the true platform-frame specific force to the accelerometer output (Eq. 6, exact).
 
         Parameters
         ----------
@@ -458,7 +461,7 @@ class ErrorModel:
 
     # ------------------------------------------------------------- internals
     def _core(self, values: Mapping[str, Any]) -> CoreValues:
-        """The core terms' values in ``values`` as arrays (the quadratic term only if the model has it)."""
+        """Return the core terms' values in ``values`` as arrays (the quadratic term only if the model has it)."""
         return CoreValues.from_mapping(values, nonlinear=any(t.kind == TermKind.NONLINEARITY for t in self.terms))
 
     @staticmethod

@@ -45,6 +45,7 @@ class InputError(Exception):
         super().__init__(self.describe())
 
     def describe(self) -> str:
+        """Return the message with where it happened and what was expected."""
         where = []
         if self.path:
             where.append(self.path)

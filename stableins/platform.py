@@ -32,7 +32,7 @@ Everything is vectorized over leading dimensions of the readings.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -129,7 +129,7 @@ def chain_product(factors: Sequence[tuple[str, int, NDArray[np.float64]]]) -> ND
 
 
 def nav_to_body(base_dcm: ArrayLike, effects: Mapping[str, float] | None = None) -> NDArray[np.float64]:
-    """True ``C_n^b = C_n^b(surveyed) R2(t_E) R1(t_N) R3(psi_e)`` (module docstring); ``effects`` by id [rad]."""
+    """Return the true ``C_n^b = C_n^b(surveyed) R2(t_E) R1(t_N) R3(psi_e)`` (module docstring); ``effects`` by id [rad]."""
     effects = effects or {}
     c = np.asarray(base_dcm, dtype=float)
     t_north, t_east, azimuth = (float(effects.get(k, 0.0)) for k in ("tilt_north", "tilt_east", "azimuth_error"))
@@ -231,22 +231,29 @@ def specific_force_and_jacobian(
             m = m @ (-skew(_E[axis]) @ rot if axis == rotation_axis else rot)
         return np.einsum("...ij,...j->...i", prefix[-1], np.einsum("ij,...j->...i", m, f_n))
 
-    senses = configuration.senses
-    columns = []
-    for pid in ids:
-        if pid in GIMBAL_IDS:
-            i = GIMBAL_IDS.index(pid)
-            columns.append(senses[i] * d_factor(GIMBAL_NAMES[i]))
-        elif pid.startswith("nonorth_"):
-            columns.append(d_factor(pid))
-        elif pid in ("tilt_north", "tilt_east", "azimuth_error"):
-            columns.append(d_tilt(("tilt_north", "tilt_east", "azimuth_error").index(pid)))
-        else:  # ang1_<gimbal>_<c|s>
-            _, g, cs = pid.split("_")
-            i = GIMBAL_NAMES.index(g)
-            slope = np.cos(r[..., i]) if cs == "c" else np.sin(r[..., i])
-            columns.append(senses[i] * slope[..., None] * d_factor(g))
-    return f_p, np.stack(columns, axis=-1)
+    return f_p, np.stack([_jacobian_column(pid, r, configuration.senses, d_factor, d_tilt) for pid in ids], axis=-1)
+
+
+def _jacobian_column(
+    pid: str,
+    readings: NDArray[np.float64],
+    senses: Sequence[int],
+    d_factor: Callable[[str], NDArray[np.float64]],
+    d_tilt: Callable[[int], NDArray[np.float64]],
+) -> NDArray[np.float64]:
+    """Return ``∂f^p/∂pid`` from the derivatives by a factor's angle (``d_factor``) and by a base rotation (``d_tilt``)."""
+    if pid in GIMBAL_IDS:
+        i = GIMBAL_IDS.index(pid)
+        return senses[i] * d_factor(GIMBAL_NAMES[i])
+    if pid.startswith("nonorth_"):
+        return d_factor(pid)
+    if pid in ("tilt_north", "tilt_east", "azimuth_error"):
+        return d_tilt(("tilt_north", "tilt_east", "azimuth_error").index(pid))
+    # ang1_<gimbal>_<c|s>
+    _, g, cs = pid.split("_")
+    i = GIMBAL_NAMES.index(g)
+    slope = np.cos(readings[..., i]) if cs == "c" else np.sin(readings[..., i])
+    return senses[i] * slope[..., None] * d_factor(g)
 
 
 def platform_specific_force(
@@ -339,7 +346,7 @@ class GimbalPlatform:
         return self.dcm_body_to_platform_actual(self.actual_angles(readings))
 
     def dcm_nav_to_body(self) -> NDArray[np.float64]:
-        """True ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
+        """Return the true ``C_n^b`` of the base: surveyed attitude, then tilt and azimuth error (module docstring)."""
         yaw, pitch, roll = self.base_attitude
         t_north, t_east = self.base_tilt
         tilts = {"tilt_north": t_north, "tilt_east": t_east, "azimuth_error": self.base_azimuth}

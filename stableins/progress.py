@@ -36,7 +36,7 @@ class Progress:
     """
 
     def __init__(
-        self, total: float | None = None, label: str = "", stream: TextIO | None = None, enabled: bool | None = None, width: int = 30
+        self, total: float | None = None, label: str = "", *, stream: TextIO | None = None, enabled: bool | None = None, width: int = 30
     ) -> None:
         self.total = total
         self.label = label

@@ -11,7 +11,8 @@ the procedures.  The layout of a run directory is in :mod:`stableins.procedures.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
@@ -24,15 +25,10 @@ from stableins.procedures.entries import accepted_columns, resume_script
 from stableins.procedures.journal import Journal, scan
 from stableins.procedures.plan import Plan
 from stableins.procedures.rundir import (
-    DATASET_NAME,
     DEFINITION_NAME,
-    FINISHED,
     PRIOR_NAME,
     RECORD_NAME,
     REPORT_NAME,
-    SYSTEM_NAME,
-    JournalOnlyDriver,
-    RunFinished,
     RunOutcome,
     check_settings,
     copy_input,
@@ -40,12 +36,46 @@ from stableins.procedures.rundir import (
     exported_columns,
     journal_finished,
     model_terms,
+    resume_driver,
+    resume_mode,
+    resume_spec,
     utc_now,
     write_plan,
 )
 from stableins.procedures.runner import RunConsole, Runner, RunOptions
 from stableins.procedures.session import Session
 from stableins.site import SiteMetadata
+
+
+@dataclass(frozen=True)
+class RunSetup:
+    """What a new run starts with besides its plan, its platform and its console.
+
+    Parameters
+    ----------
+    definition_file : path, optional
+        The procedure TOML, copied into the run directory.
+    prior_file : path, optional
+        A calibration record whose zero offsets re-point the gimbals and which a fine or system stage
+        updates; copied into the run directory.
+    new_calibration : bool
+        The run starts a new calibration from the prior (a record in force, e.g. a field
+        recalibration) instead of continuing the prior's calibration (e.g. the fine stage after the
+        coarse stage of the same calibration).
+    fields : mapping of str to str
+        ``--set`` values: the answers to the procedure's prompts and the calibration's own fields.
+    options : RunOptions, optional
+        Runner options that are not part of the procedure.
+    timeout : float
+        Seconds a network platform may take to answer.
+    """
+
+    definition_file: str | os.PathLike[str] | None = None
+    prior_file: str | os.PathLike[str] | None = None
+    new_calibration: bool = False
+    fields: Mapping[str, str] = field(default_factory=dict)
+    options: RunOptions | None = None
+    timeout: float = 10.0
 
 
 def start_run(
@@ -56,23 +86,16 @@ def start_run(
     seed: int | None = None,
     unit: str | None = None,
     console: RunConsole,
-    options: RunOptions | None = None,
     driver: PlatformDriver | None = None,
-    definition_file: str | os.PathLike[str] | None = None,
-    prior_file: str | os.PathLike[str] | None = None,
-    timeout: float = 10.0,
-    new_calibration: bool = False,
-    fields: dict[str, str] | None = None,
+    setup: RunSetup | None = None,
 ) -> RunOutcome:
     """Start a new run of ``plan`` in ``rundir`` (which must not hold a journal yet).
 
-    ``definition_file`` (the procedure TOML) and ``prior_file`` (a calibration record whose
-    zero offsets re-point the gimbals and which a fine or system stage updates) are copied into
-    the run directory first, so that a resumed run needs nothing from outside it.
-    ``new_calibration``: the run starts a new calibration from the prior (a record in force, e.g.
-    a field recalibration) instead of continuing the prior's calibration (e.g. the fine stage
-    after the coarse stage of the same calibration).
+    The definition file and the prior record of ``setup`` (:class:`RunSetup`) are copied into the
+    run directory first, so that a resumed run needs nothing from outside it.
     """
+    setup = setup or RunSetup()
+    definition_file, prior_file, options = setup.definition_file, setup.prior_file, setup.options
     rundir = Path(rundir)
     journal_file = rundir / JOURNAL_NAME
     if journal_file.exists():
@@ -98,7 +121,7 @@ def start_run(
     if prior is not None and unit is not None and prior.serial_number != unit:
         raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="unit", expected=repr(unit))
     check_settings(plan, console.values)
-    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=timeout)
+    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=setup.timeout)
     try:
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
@@ -125,13 +148,13 @@ def start_run(
                     "definition": DEFINITION_NAME if definition_file is not None else None,
                     "prior": PRIOR_NAME if prior_file is not None else None,
                     "prior_path": str(prior_file) if prior_file is not None else None,
-                    "new_calibration": bool(new_calibration),
-                    "fields": dict(fields or {}),
+                    "new_calibration": bool(setup.new_calibration),
+                    "fields": dict(setup.fields),
                     "inputs": digests,  # SHA-256 of the copies: a resume verifies every file it reads again
                 },
             )
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
-            runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options, journal.records[0])
+            runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options=options, start=journal.records[0])
             runner.execute()
             outcome = finish(rundir, runner, metadata, journal.records[0], replayed=0)
             journal_finished(journal, outcome)
@@ -176,30 +199,14 @@ def resume_run(
             )
         start = journal.records[0]
         plan = Plan.from_dict(start["plan"])
-        complete = next((r for r in journal.records if r.kind == "complete"), None)
-        names = (DATASET_NAME, SYSTEM_NAME, RECORD_NAME, REPORT_NAME)
-        written = any(r.kind == FINISHED for r in journal.records) or (rundir / REPORT_NAME).exists()
-        if complete is not None and not re_estimate:
-            if written:
-                raise RunFinished(rundir, str(complete.get("utc") or ""), [rundir / n for n in names if (rundir / n).exists()])
-            # the last step was done but the run was interrupted while writing its outputs: write them from the journal
-            console.say("the run completed its last step but was interrupted before writing all its outputs: writing them from the journal")
-            re_estimate = True
-        journal_finish = not re_estimate or (complete is not None and not written)
-        if complete is None and re_estimate:
-            raise InputError(
-                "the run is not finished: there is nothing to estimate again yet",
-                path=rundir,
-                field="re_estimate",
-                expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
-            )
-        spec = _resume_spec(start["driver"], driver_spec)
+        re_estimate, journal_finish = resume_mode(rundir, journal, console, re_estimate=re_estimate)
+        spec = resume_spec(start["driver"], driver_spec)
         check_settings(plan, console.values)
         verify_inputs(rundir, start)  # before the platform is touched: what is read again is what the run started with
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        driver = _resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
+        driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
         try:
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
@@ -226,7 +233,7 @@ def resume_run(
             session = Session(journal, script, driver, forward=deterministic and not re_estimate)
             if re_estimate:
                 session.on_live = lambda replayed: None  # the journal is the whole run: nothing goes live
-            runner = _runner(rundir, plan, session, console, RunOptions(**start.get("options", {})), start)
+            runner = _runner(rundir, plan, session, console, options=RunOptions(**start.get("options", {})), start=start)
             runner.execute()
             outcome = finish(rundir, runner, metadata, start, replayed=session.replayed)
             outcome.superseded = superseded
@@ -235,38 +242,6 @@ def resume_run(
             return outcome
         finally:
             driver.close()
-
-
-def _resume_spec(journaled: str, driver_spec: str | None) -> str:
-    """The driver a resumed run uses: the journaled one, or a new ``tcp://`` address of a network platform that moved."""
-    if driver_spec is None or driver_spec == journaled:
-        return journaled
-    if not (driver_spec.startswith("tcp://") and journaled.startswith("tcp://")):
-        raise InputError(
-            f"this run was made with --driver {journaled}",
-            field="driver_spec",
-            expected=f"{journaled} (only a tcp:// address may change on resume)",
-        )
-    return driver_spec
-
-
-def _resume_driver(
-    start: Any,
-    spec: str,
-    plan: Plan,
-    *,
-    re_estimate: bool,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
-    timeout: float,
-) -> PlatformDriver:
-    """The platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens."""
-    if re_estimate:
-        from stableins.drivers.replay import metadata_from_start
-
-        return JournalOnlyDriver(metadata_from_start(start))
-    if driver_factory is not None:
-        return driver_factory(start.fields)
-    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
 
 
 def verify_inputs(rundir: Path, start: Any) -> None:
@@ -295,7 +270,8 @@ def verify_inputs(rundir: Path, start: Any) -> None:
             )
 
 
-def _runner(rundir: Path, plan: Plan, session: Session, console: RunConsole, options: RunOptions | None, start: Any) -> Runner:
+def _runner(rundir: Path, plan: Plan, session: Session, console: RunConsole, *, options: RunOptions | None, start: Any) -> Runner:
+    """Build the runner of ``plan`` with the definition, prior zero offsets and discovered terms the start record names."""
     definition = None
     if start.get("definition"):
         from stableins.procedures.definition import load_procedure
@@ -366,7 +342,7 @@ def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, 
 
 
 def _calibration_entries(runner: Runner, start: Any) -> tuple[Any, ...]:
-    """The ``--set`` values no prompt of the procedure asked for: the calibration's own fields (laboratory, customer ...)."""
+    """Return the ``--set`` values no prompt of the procedure asked for: the calibration's own fields (laboratory, customer ...)."""
     from stableins.procedures.plan import PersonStep
     from stableins.records import parse_entries
 
@@ -375,7 +351,7 @@ def _calibration_entries(runner: Runner, start: Any) -> tuple[Any, ...]:
 
 
 def run_entries(runner: Runner) -> tuple[Any, ...]:
-    """What people entered at the procedure's prompts, with the prompt and the unit."""
+    """Return what people entered at the procedure's prompts, with the prompt and the unit."""
     from stableins.procedures.plan import PersonStep
     from stableins.records import Entry
 
@@ -389,7 +365,7 @@ def run_entries(runner: Runner) -> tuple[Any, ...]:
 
 
 def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
-    """What the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
+    """Summarize what the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
     from stableins.estimators.details import SystemDetails
     from stableins.records import temperature_summary
 
@@ -399,17 +375,14 @@ def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> di
     return {"temperature": {**temperature, "unit": "degC"}} if temperature else {}
 
 
-def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any) -> Path | None:
-    """The certificate of the run's record (``stableins.reporting``), if that part of stableins is installed.
+def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any) -> Path:
+    """Write the certificate of the run's record (``stableins.reporting``) and return its path.
 
     It renders ``record.json`` with the evidence stored in it; the change section compares it with the
     record it started from when the run began a new calibration (a recalibration).
     """
-    try:
-        from stableins.reporting import write_report
-    except ImportError:
-        runner.console.say("note: no report writer in this installation; the record is complete without it")
-        return None
+    from stableins.reporting import write_report
+
     target = rundir / REPORT_NAME
     assert outcome.record is not None  # filed by _file before the report is written
     summary = write_report(
@@ -426,7 +399,7 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any)
 
 
 def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Path | None, start: Any) -> Any:
-    """The stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
+    """Run the stage's estimation: the converged coarse fit of the iteration, or the fine stage on the accepted dwells."""
     if runner.iteration is not None:
         return runner.iteration.fit
     if runner.static_chunks:
@@ -455,23 +428,18 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
 
 
 def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:
-    """The system-level stage on the static record, starting from the installed calibration (the prior record)."""
-    try:
-        from stableins.estimators.system.stage import SystemOptions, run_system_stage
-    except ImportError:
-        runner.console.say(
-            "note: no system-level estimator in this installation; the record is in system.h5 for 'stableins calibrate system'"
-        )
-        return None
+    """Run the system-level stage on the static record, starting from the installed calibration (the prior record)."""
     from dataclasses import replace
 
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
+    from stableins.estimators.system.stage import SystemOptions, run_system_stage
 
     if not start.get("prior"):
         runner.console.say("note: no installed calibration (--prior) given; the record is in system.h5 for 'stableins calibrate system'")
         return None
     prior = _load_record(rundir / start["prior"])
+    assert dataset is not None  # a run with a static record exports it (system.h5) before its estimation
     record = open_system_record(dataset)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
     import warnings
@@ -493,6 +461,7 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
 
 
 def _load_record(path: str | os.PathLike[str]) -> Any:
+    """Load a calibration record."""
     from stableins.records import CalibrationRecord
 
     return CalibrationRecord.load(path)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Column:
+    """One column of a data file: name, unit, type and meaning."""
+
     name: str
     unit: str | None
     dtype: str  # "float64", "int32" or "str"
@@ -19,6 +21,7 @@ class Column:
 
     @property
     def header(self) -> str:
+        """The column's header: ``name[unit]``, or ``name`` without a unit."""
         return self.name if self.unit is None else f"{self.name}[{self.unit}]"
 
 
@@ -63,6 +66,7 @@ SYSTEM_COLUMNS: tuple[Column, ...] = (
 
 
 def column(columns: tuple[Column, ...], name: str) -> Column:
+    """Return the column called ``name`` (KeyError when there is none)."""
     for c in columns:
         if c.name == name:
             return c

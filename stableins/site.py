@@ -61,6 +61,7 @@ class SiteMetadata:
     gravity_uncertainty: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """Return the metadata as a JSON-ready dict (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["gimbal_senses"] = list(self.gimbal_senses)
         d["base_attitude"] = list(self.base_attitude)

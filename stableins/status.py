@@ -59,7 +59,7 @@ STATUSES: tuple[str, ...] = tuple(s.value for s in Status)
 
 
 def parse_status(value: object) -> Status | None:
-    """The :class:`Status` named by ``value``, or None when it names none."""
+    """Return the :class:`Status` named by ``value``, or None when it names none."""
     try:
         return Status(value)  # type: ignore[arg-type]
     except ValueError:

@@ -10,8 +10,11 @@ UNIT_SPELLINGS = (("μ", "u"), ("µ", "u"), ("²", "^2"), ("³", "^3"), ("⁴", 
 
 
 def normalize_unit(unit: str) -> str:
-    """A unit as it is compared: no spaces, ``µ``/``μ`` → ``u``, ``²`` → ``^2``, ``g2`` → ``g^2`` (a letter followed by a
-    digit is a power), ``°`` → ``deg``; ``"1"`` (dimensionless) → ``""``.
+    """Return a unit as it is compared.
+
+    No spaces, ``µ``/``μ`` → ``u``, ``²`` → ``^2``, ``g2`` → ``g^2`` (a letter followed by a digit is a power),
+    ``°`` → ``deg``; ``"1"`` (dimensionless) → ``""``.
+
 
     >>> normalize_unit("µg/g²") == normalize_unit("ug/g2") == normalize_unit("ug / g^2") == "ug/g^2"
     True

@@ -104,26 +104,32 @@ def review(pdf: Path, folder: Path) -> list[str]:
     if not results:
         defects.append("no results table found")
     for symbol, tokens in results.items():
-        status = tokens[0] if tokens else ""
-        if status not in STATUSES:
-            defects.append(f"results row {symbol}: no status ({tokens})")
-            continue
-        if status != "estimated":
-            continue
-        value, u, expanded, unit = tokens[1:5]
-        if unit not in UNITS:
-            defects.append(f"results row {symbol}: no unit after its numbers ({tokens})")
-        if decimals(value) != decimals(expanded) or len(expanded.replace(".", "").lstrip("0")) != 2:
-            defects.append(f"results row {symbol}: {value} with U = {expanded} is not GUM-rounded")
-        row = budget.get(symbol)
-        if row is None:
-            defects.append(f"budget table has no row for {symbol}")
-        else:
-            if row[0] not in UNITS:
-                defects.append(f"budget row {symbol}: no unit ({row})")
-            if row[-2:] != [u, expanded]:
-                defects.append(f"budget row {symbol}: u_c, U {row[-2:]} differ from the results table {[u, expanded]}")
-        check = conformity.get(symbol)
-        if check is not None and check[:2] != [value.lstrip("\u2212"), expanded]:
-            defects.append(f"conformity row {symbol}: {check[:2]} differs from the results table ({value}, {expanded})")
+        defects += _result_row_defects(symbol, tokens, budget, conformity)
+    return defects
+
+
+def _result_row_defects(symbol: str, tokens: list[str], budget: dict, conformity: dict) -> list[str]:
+    """The defects of one row of the results table, and of its rows in the budget and conformity tables."""
+    status = tokens[0] if tokens else ""
+    if status not in STATUSES:
+        return [f"results row {symbol}: no status ({tokens})"]
+    if status != "estimated":
+        return []
+    defects = []
+    value, u, expanded, unit = tokens[1:5]
+    if unit not in UNITS:
+        defects.append(f"results row {symbol}: no unit after its numbers ({tokens})")
+    if decimals(value) != decimals(expanded) or len(expanded.replace(".", "").lstrip("0")) != 2:
+        defects.append(f"results row {symbol}: {value} with U = {expanded} is not GUM-rounded")
+    row = budget.get(symbol)
+    if row is None:
+        defects.append(f"budget table has no row for {symbol}")
+    else:
+        if row[0] not in UNITS:
+            defects.append(f"budget row {symbol}: no unit ({row})")
+        if row[-2:] != [u, expanded]:
+            defects.append(f"budget row {symbol}: u_c, U {row[-2:]} differ from the results table {[u, expanded]}")
+    check = conformity.get(symbol)
+    if check is not None and check[:2] != [value.lstrip("\u2212"), expanded]:
+        defects.append(f"conformity row {symbol}: {check[:2]} differs from the results table ({value}, {expanded})")
     return defects

@@ -28,7 +28,9 @@ import random
 import shutil
 import socket
 import threading
+import zlib
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -286,6 +288,22 @@ def _replace(tree: Any, path: tuple, value: Any) -> Any:
     return tree
 
 
+@dataclass(frozen=True)
+class _JsonSite:
+    """A JSON document to mutate and the node drawn for the mutation."""
+
+    text: str
+    tree: Any
+    nodes: list
+    path: tuple
+    value: Any
+    free: bool
+
+    @property
+    def where(self) -> str:
+        return "/".join(map(str, self.path))
+
+
 def mutate_json(text: str, rng: random.Random, op: str, free_paths: tuple[tuple, ...] = ()) -> tuple[bytes, str, bool | None]:
     """One mutation of a JSON document: (new bytes, what was done, must it be refused?).
 
@@ -296,78 +314,111 @@ def mutate_json(text: str, rng: random.Random, op: str, free_paths: tuple[tuple,
     nodes = _paths(tree)[1:]
     path, value = rng.choice(nodes)
     free = any(path[: len(p)] == p for p in free_paths)
-    where = "/".join(map(str, path))
-    if op == "bad_value":  # the loader's limits: always refused
-        token = rng.choice(BAD_JSON_VALUES)
-        marked = json.dumps(_replace(tree, path, _MARK))
-        return marked.replace(json.dumps(_MARK), token).encode(), f"{where} = {token[:20]}", True
-    if op == "wrong_type":
-        if isinstance(value, bool) or value is None or free or isinstance(value, dict | list):
-            token = rng.choice(WRONG_FOR_NUMBER)
-            must = None
-        elif isinstance(value, int | float):
-            token = rng.choice(WRONG_FOR_NUMBER[:4])
-            must = True
-        else:
-            token = rng.choice(WRONG_FOR_TEXT[:4])
-            must = True
-        marked = json.dumps(_replace(tree, path, _MARK))
-        return marked.replace(json.dumps(_MARK), token).encode(), f"{where} = {token[:20]}", must
-    if op == "delete_key":
-        parent_path, key = path[:-1], path[-1]
-        if not isinstance(key, str):
-            return json.dumps(tree).encode(), "no-op", False
-        parent = tree
-        for k in parent_path:
-            parent = parent[k]
-        mutated = json.loads(json.dumps(tree))
-        node = mutated
-        for k in parent_path:
-            node = node[k]
-        del node[key]
-        return json.dumps(mutated).encode(), f"deleted {where}", None
-    if op == "duplicate_key":
-        raw = json.dumps(tree)
-        keys = [k for p, _ in _paths(tree) for k in p[-1:] if isinstance(k, str)]
-        key = rng.choice(keys) if keys else "format"
-        needle = json.dumps(key) + ": "
-        at = raw.find(needle)
-        if at < 0:
-            return raw.encode(), "no-op", False
-        end = raw.find(",", at)
-        if end < 0:
-            return raw.encode(), "no-op", False
-        return (raw[:end] + ", " + raw[at:end] + raw[end:]).encode(), f"key {key} twice", True
-    if op == "truncate":
-        data = text.encode()
-        cut = rng.randrange(1, len(data))
-        piece = data[:cut]
-        try:
-            json.loads(piece)
-            must: bool | None = None
-        except ValueError:
-            must = True
-        return piece, f"cut at byte {cut}", must
-    if op == "bytes":
-        data = bytearray(text.encode())
-        for _ in range(rng.randint(1, 4)):
-            data[rng.randrange(len(data))] = rng.randrange(256)
-        return bytes(data), "byte flips", None
-    if op == "non_utf8":
-        data = bytearray(text.encode())
-        at = rng.randrange(len(data))
-        data[at:at] = b"\xff\xfe"
-        return bytes(data), f"bytes ff fe at {at}", True
-    if op == "bom":
-        return b"\xef\xbb\xbf" + text.encode(), "UTF-8 byte-order mark", False
-    if op == "numbers":  # a number field to another number: negative, zero, huge
-        numeric = [(p, v) for p, v in nodes if isinstance(v, int | float) and not isinstance(v, bool)]
-        if not numeric:
-            return text.encode(), "no-op", False
-        path, value = rng.choice(numeric)
-        new = rng.choice([0, -1, -1e308, 1e308, 1e-320, 2**62, value * -1])
-        return json.dumps(_replace(tree, path, new)).encode(), f"{'/'.join(map(str, path))} = {new!r}", None
-    raise ValueError(op)
+    if op not in _JSON_MUTATIONS:
+        raise ValueError(op)
+    return _JSON_MUTATIONS[op](_JsonSite(text, tree, nodes, path, value, free), rng)
+
+
+def _json_bad_value(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    """The loader's limits: always refused."""
+    token = rng.choice(BAD_JSON_VALUES)
+    marked = json.dumps(_replace(site.tree, site.path, _MARK))
+    return marked.replace(json.dumps(_MARK), token).encode(), f"{site.where} = {token[:20]}", True
+
+
+def _json_wrong_type(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    value = site.value
+    must: bool | None
+    if isinstance(value, bool) or value is None or site.free or isinstance(value, dict | list):
+        token = rng.choice(WRONG_FOR_NUMBER)
+        must = None
+    elif isinstance(value, int | float):
+        token = rng.choice(WRONG_FOR_NUMBER[:4])
+        must = True
+    else:
+        token = rng.choice(WRONG_FOR_TEXT[:4])
+        must = True
+    marked = json.dumps(_replace(site.tree, site.path, _MARK))
+    return marked.replace(json.dumps(_MARK), token).encode(), f"{site.where} = {token[:20]}", must
+
+
+def _json_delete_key(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    parent_path, key = site.path[:-1], site.path[-1]
+    if not isinstance(key, str):
+        return json.dumps(site.tree).encode(), "no-op", False
+    mutated = json.loads(json.dumps(site.tree))
+    node = mutated
+    for k in parent_path:
+        node = node[k]
+    del node[key]
+    return json.dumps(mutated).encode(), f"deleted {site.where}", None
+
+
+def _json_duplicate_key(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    raw = json.dumps(site.tree)
+    keys = [k for p, _ in _paths(site.tree) for k in p[-1:] if isinstance(k, str)]
+    key = rng.choice(keys) if keys else "format"
+    needle = json.dumps(key) + ": "
+    at = raw.find(needle)
+    if at < 0:
+        return raw.encode(), "no-op", False
+    end = raw.find(",", at)
+    if end < 0:
+        return raw.encode(), "no-op", False
+    return (raw[:end] + ", " + raw[at:end] + raw[end:]).encode(), f"key {key} twice", True
+
+
+def _json_truncate(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    data = site.text.encode()
+    cut = rng.randrange(1, len(data))
+    piece = data[:cut]
+    try:
+        json.loads(piece)
+        must: bool | None = None
+    except ValueError:
+        must = True
+    return piece, f"cut at byte {cut}", must
+
+
+def _json_bytes(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    data = bytearray(site.text.encode())
+    for _ in range(rng.randint(1, 4)):
+        data[rng.randrange(len(data))] = rng.randrange(256)
+    return bytes(data), "byte flips", None
+
+
+def _json_non_utf8(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    data = bytearray(site.text.encode())
+    at = rng.randrange(len(data))
+    data[at:at] = b"\xff\xfe"
+    return bytes(data), f"bytes ff fe at {at}", True
+
+
+def _json_bom(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    return b"\xef\xbb\xbf" + site.text.encode(), "UTF-8 byte-order mark", False
+
+
+def _json_numbers(site: _JsonSite, rng: random.Random) -> tuple[bytes, str, bool | None]:
+    """A number field to another number: negative, zero, huge."""
+    numeric = [(p, v) for p, v in site.nodes if isinstance(v, int | float) and not isinstance(v, bool)]
+    if not numeric:
+        return site.text.encode(), "no-op", False
+    path, value = rng.choice(numeric)
+    new = rng.choice([0, -1, -1e308, 1e308, 1e-320, 2**62, value * -1])
+    return json.dumps(_replace(site.tree, path, new)).encode(), f"{'/'.join(map(str, path))} = {new!r}", None
+
+
+_JSON_MUTATIONS: dict[str, Callable[[_JsonSite, random.Random], tuple[bytes, str, bool | None]]] = {
+    "bad_value": _json_bad_value,
+    "wrong_type": _json_wrong_type,
+    "delete_key": _json_delete_key,
+    "duplicate_key": _json_duplicate_key,
+    "truncate": _json_truncate,
+    "bytes": _json_bytes,
+    "non_utf8": _json_non_utf8,
+    "bom": _json_bom,
+    "numbers": _json_numbers,
+}
 
 
 JSON_OPS = ("bad_value", "wrong_type", "delete_key", "duplicate_key", "truncate", "bytes", "non_utf8", "bom", "numbers")
@@ -379,61 +430,72 @@ def mutate_csv(text: str, rng: random.Random, op: str) -> tuple[bytes, str, bool
     header_end = next(k for k, line in enumerate(lines) if not line.startswith("#"))
     data_rows = [k for k in range(header_end + 1, len(lines)) if not lines[k].startswith("#")]
     columns = lines[header_end].rstrip("\n").split(",")
-    numeric = [j for j, name in enumerate(columns) if not name.startswith("stage")]
-    if op == "bad_number":
+    if op in ("bad_number", "non_integer"):
+        return _csv_field(lines, rng, op, data_rows, columns)
+    if op in ("delete_row", "duplicate_row"):
         k = rng.choice(data_rows)
-        fields = lines[k].rstrip("\n").split(",")
-        j = rng.choice(numeric)
-        token = rng.choice(BAD_NUMBER_TOKENS)
-        fields[j] = token
-        lines[k] = ",".join(fields) + "\n"
-        return "".join(lines).encode(), f"row line {k + 1} {columns[j]} = {token!r}", True
-    if op == "non_integer":
-        k = rng.choice(data_rows)
-        fields = lines[k].rstrip("\n").split(",")
-        j = columns.index(rng.choice(["pass", "position"]))
-        fields[j] = rng.choice(["1.5", "-3", "0", "1e300", "2147483648"])
-        lines[k] = ",".join(fields) + "\n"
-        return "".join(lines).encode(), f"line {k + 1} {columns[j]} = {fields[j]}", True
-    if op == "delete_row":
-        k = rng.choice(data_rows)
-        del lines[k]
-        return "".join(lines).encode(), f"deleted line {k + 1}", True
-    if op == "duplicate_row":
-        k = rng.choice(data_rows)
+        if op == "delete_row":
+            del lines[k]
+            return "".join(lines).encode(), f"deleted line {k + 1}", True
         lines.insert(k, lines[k])
         return "".join(lines).encode(), f"line {k + 1} twice", True
-    if op == "truncate":
-        data = "".join(lines).encode()
-        cut = rng.randrange(len(data) // 4, len(data) - 2)
-        return data[:cut], f"cut at byte {cut}", True
+    if op in ("truncate", "bom", "bytes"):
+        return _csv_bytes("".join(lines).encode(), rng, op)
     if op == "long_line":
         k = rng.choice(data_rows)
         extra = rng.choice([10, 70000, 2_000_000])
         lines[k] = lines[k].rstrip("\n") + "1" * extra + "\n"  # more digits of the last number: too long only beyond MAX_LINE
         return "".join(lines).encode(), f"line {k + 1} made {len(lines[k])} characters long", len(lines[k]) > (1 << 20)
     if op == "header":
-        start = next(k for k, line in enumerate(lines) if line.strip() == "# BEGIN HEADER")
-        stop = next(k for k, line in enumerate(lines) if line.strip() == "# END HEADER")
-        document = "".join(line[1:] for line in lines[start + 1 : stop])
-        sub_op = rng.choice(("bad_value", "wrong_type", "delete_key", "duplicate_key", "numbers"))
-        mutated, what, must = mutate_json(document, rng, sub_op, free_paths=(("metadata", "extra"),))
-        try:
-            body = mutated.decode()
-        except UnicodeDecodeError:
-            return "".join(lines).encode(), "no-op", False
-        lines[start + 1 : stop] = ["# " + body + "\n"]
-        return "".join(lines).encode(), f"header {what}", must
-    if op == "bom":
-        return b"\xef\xbb\xbf" + "".join(lines).encode(), "byte-order mark", False
-    if op == "bytes":
-        data = bytearray("".join(lines).encode())
-        for _ in range(rng.randint(1, 4)):
-            data[rng.randrange(len(data))] = rng.randrange(256)
-        return bytes(data), "byte flips", None
+        return _csv_header(lines, rng)
     if op == "empty":
         return "".join(lines[: header_end + 1]).encode() + b"# END OF DATA: 0 rows\n", "no data rows", True
     raise ValueError(op)
+
+
+def _csv_bytes(data: bytes, rng: random.Random, op: str) -> tuple[bytes, str, bool | None]:
+    """A byte-level mutation of a CSV file: cut short, a byte-order mark, or flipped bytes."""
+    if op == "truncate":
+        cut = rng.randrange(len(data) // 4, len(data) - 2)
+        return data[:cut], f"cut at byte {cut}", True
+    if op == "bom":
+        return b"\xef\xbb\xbf" + data, "byte-order mark", False
+    flipped = bytearray(data)
+    for _ in range(rng.randint(1, 4)):
+        flipped[rng.randrange(len(flipped))] = rng.randrange(256)
+    return bytes(flipped), "byte flips", None
+
+
+def _csv_field(lines: list[str], rng: random.Random, op: str, data_rows: list[int], columns: list[str]) -> tuple[bytes, str, bool | None]:
+    """A bad number in a numeric field, or a non-integer pass or position, of one data row."""
+    k = rng.choice(data_rows)
+    fields = lines[k].rstrip("\n").split(",")
+    if op == "bad_number":
+        numeric = [j for j, name in enumerate(columns) if not name.startswith("stage")]
+        j = rng.choice(numeric)
+        token = rng.choice(BAD_NUMBER_TOKENS)
+        fields[j] = token
+        lines[k] = ",".join(fields) + "\n"
+        return "".join(lines).encode(), f"row line {k + 1} {columns[j]} = {token!r}", True
+    j = columns.index(rng.choice(["pass", "position"]))
+    fields[j] = rng.choice(["1.5", "-3", "0", "1e300", "2147483648"])
+    lines[k] = ",".join(fields) + "\n"
+    return "".join(lines).encode(), f"line {k + 1} {columns[j]} = {fields[j]}", True
+
+
+def _csv_header(lines: list[str], rng: random.Random) -> tuple[bytes, str, bool | None]:
+    """A mutation of the JSON header of a CSV file (:func:`mutate_json`)."""
+    start = next(k for k, line in enumerate(lines) if line.strip() == "# BEGIN HEADER")
+    stop = next(k for k, line in enumerate(lines) if line.strip() == "# END HEADER")
+    document = "".join(line[1:] for line in lines[start + 1 : stop])
+    sub_op = rng.choice(("bad_value", "wrong_type", "delete_key", "duplicate_key", "numbers"))
+    mutated, what, must = mutate_json(document, rng, sub_op, free_paths=(("metadata", "extra"),))
+    try:
+        body = mutated.decode()
+    except UnicodeDecodeError:
+        return "".join(lines).encode(), "no-op", False
+    lines[start + 1 : stop] = ["# " + body + "\n"]
+    return "".join(lines).encode(), f"header {what}", must
 
 
 CSV_OPS = ("bad_number", "non_integer", "delete_row", "duplicate_row", "truncate", "long_line", "header", "bom", "bytes", "empty")
@@ -457,63 +519,74 @@ def mutate_h5(path: Path, rng: random.Random, op: str, kind: str) -> tuple[str, 
         path.write_bytes(bytes(data))
         return "byte flips", None
     with h5py.File(path, "r+") as f:
-        if op == "header":
-            sub_op = rng.choice(("bad_value", "wrong_type", "delete_key", "duplicate_key", "truncate", "numbers"))
-            mutated, what, must = mutate_json(f.attrs["header"], rng, sub_op, free_paths=(("metadata", "extra"),))
-            try:
-                f.attrs["header"] = mutated.decode()
-            except UnicodeDecodeError:
-                f.attrs["header"] = np.void(mutated)
-                must = True
-            return f"header {what}", must
-        if op == "rows":
-            value = rng.choice([10**9, -1, f.attrs["rows"] + 1, "12", 1.5])
-            f.attrs["rows"] = value
-            return f"rows = {value!r}", True
-        if op == "incomplete":
-            f.attrs["complete"] = False
-            return "complete = false", True
-        if op == "sparse":  # declare millions of rows without storing them
-            for name in f["columns"]:
-                f["columns"][name].resize((300_000_000,))
-            f.attrs["rows"] = 300_000_000
-            return "300 M rows declared", True
-        if op == "float_position" and kind == "device":
-            old = f["columns/position"][()]
-            del f["columns/position"]
-            values = old.astype(float)
-            values[rng.randrange(values.size)] = 1.5
-            d = f["columns"].create_dataset("position", data=values)
-            d.attrs["meaning"] = "position"
-            return "position stored as float with 1.5", True
-        if op == "nan":
-            names = [n for n in f["columns"] if f["columns"][n].dtype.kind == "f"]
-            name = rng.choice(names)
-            d = f["columns"][name]
-            d[rng.randrange(d.shape[0])] = np.nan
-            return f"NaN in {name}", True
-        if op == "time_back":
-            d = f["columns/time"]
-            k = rng.randrange(1, d.shape[0])
-            d[k] = d[k - 1] - 0.5
-            return f"time runs back at row {k + 1}", True
-        if op == "unit":
-            names = [n for n in f["columns"] if "unit" in f["columns"][n].attrs]
-            name = rng.choice(names)
-            f["columns"][name].attrs["unit"] = rng.choice(["g", "deg", "", "m/s^2 "])
-            return f"unit of {name} changed", True
-        if op == "grid" and "time_grid" in f:
-            grid = f["time_grid"]
-            values = grid[()]
-            column, value = rng.choice([(1, 1e300), (1, -5.0), (1, 7.0), (2, -5.0), (2, 1e-12), (2, 7.0), (2, 1e300), (2, 0.0)])
-            values[0, column] = value
-            grid[...] = values
-            return "garbage /time_grid", True
-        if op == "drop_dataset":
-            names = list(f["columns"])
-            name = rng.choice(names)
-            del f["columns"][name]
-            return f"column {name} removed", True
+        if op in ("header", "rows", "incomplete", "sparse"):
+            return _h5_attributes(f, rng, op)
+        return _h5_columns(f, rng, op, kind)
+
+
+def _h5_attributes(f: Any, rng: random.Random, op: str) -> tuple[str, bool | None]:
+    """A mutation of the attributes of an open HDF5 data file."""
+    if op == "header":
+        sub_op = rng.choice(("bad_value", "wrong_type", "delete_key", "duplicate_key", "truncate", "numbers"))
+        mutated, what, must = mutate_json(f.attrs["header"], rng, sub_op, free_paths=(("metadata", "extra"),))
+        try:
+            f.attrs["header"] = mutated.decode()
+        except UnicodeDecodeError:
+            f.attrs["header"] = np.void(mutated)
+            must = True
+        return f"header {what}", must
+    if op == "rows":
+        value = rng.choice([10**9, -1, f.attrs["rows"] + 1, "12", 1.5])
+        f.attrs["rows"] = value
+        return f"rows = {value!r}", True
+    if op == "incomplete":
+        f.attrs["complete"] = False
+        return "complete = false", True
+    # sparse: declare millions of rows without storing them
+    for name in f["columns"]:
+        f["columns"][name].resize((300_000_000,))
+    f.attrs["rows"] = 300_000_000
+    return "300 M rows declared", True
+
+
+def _h5_columns(f: Any, rng: random.Random, op: str, kind: str) -> tuple[str, bool | None]:
+    """A mutation of the columns (or the time grid) of an open HDF5 data file."""
+    if op == "float_position" and kind == "device":
+        old = f["columns/position"][()]
+        del f["columns/position"]
+        values = old.astype(float)
+        values[rng.randrange(values.size)] = 1.5
+        d = f["columns"].create_dataset("position", data=values)
+        d.attrs["meaning"] = "position"
+        return "position stored as float with 1.5", True
+    if op == "nan":
+        names = [n for n in f["columns"] if f["columns"][n].dtype.kind == "f"]
+        name = rng.choice(names)
+        d = f["columns"][name]
+        d[rng.randrange(d.shape[0])] = np.nan
+        return f"NaN in {name}", True
+    if op == "time_back":
+        d = f["columns/time"]
+        k = rng.randrange(1, d.shape[0])
+        d[k] = d[k - 1] - 0.5
+        return f"time runs back at row {k + 1}", True
+    if op == "unit":
+        names = [n for n in f["columns"] if "unit" in f["columns"][n].attrs]
+        name = rng.choice(names)
+        f["columns"][name].attrs["unit"] = rng.choice(["g", "deg", "", "m/s^2 "])
+        return f"unit of {name} changed", True
+    if op == "grid" and "time_grid" in f:
+        grid = f["time_grid"]
+        values = grid[()]
+        column, value = rng.choice([(1, 1e300), (1, -5.0), (1, 7.0), (2, -5.0), (2, 1e-12), (2, 7.0), (2, 1e300), (2, 0.0)])
+        values[0, column] = value
+        grid[...] = values
+        return "garbage /time_grid", True
+    if op == "drop_dataset":
+        names = list(f["columns"])
+        name = rng.choice(names)
+        del f["columns"][name]
+        return f"column {name} removed", True
     return "no-op", False
 
 
@@ -789,40 +862,43 @@ def _acq_lines(request: str, count: int) -> list[str]:
 def _valid_meta(key: str, value: Any) -> bool:
     """Whether SiteMetadata accepts ``value`` for ``key`` in a META reply (SI, docs/formats.md ranges)."""
     number = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    if key == "serial_number":
-        return isinstance(value, str) and bool(value)
-    if key == "gravity_source":
-        return isinstance(value, str)
-    if key == "latitude":
-        return number and abs(value) <= math.pi / 2
-    if key in ("height", "reference_temperature"):
-        return number
-    if key == "gravity":
-        return number and 9.7 < value < 9.9
-    if key == "sample_rate":
-        return number and value > 0
-    if key == "gimbal_senses":
-        return isinstance(value, list) and len(value) == 4 and all(v in (1, -1) and not isinstance(v, bool) for v in value)
-    if key == "base_attitude":
-        return isinstance(value, list) and len(value) == 3 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    if key == "damping":
-        return isinstance(value, dict) and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value.values())
-    if key == "extra":
-        return isinstance(value, dict)
-    return False
+    check = _META_CHECKS.get(key)
+    return check is not None and check(value, number)
 
 
-def protocol_reply(rng: random.Random, op: str) -> tuple[Any, str, bool]:
-    """A server reply function with one fault of kind ``op``; (reply, what, is the fault one the driver must refuse)."""
-    import zlib
+def _numbers(values: Any) -> bool:
+    return all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
 
-    def crc(lines: list[str]) -> str:
-        value = 0
-        for line in lines:
-            value = zlib.crc32(line.encode(), value)
-        return f"{value:08x}"
 
-    meta = _meta_payload()
+#: What SiteMetadata accepts for each key of a META reply: ``check(value, value is a finite number)``.
+_META_CHECKS: dict[str, Callable[[Any, bool], bool]] = {
+    "serial_number": lambda value, number: isinstance(value, str) and bool(value),
+    "gravity_source": lambda value, number: isinstance(value, str),
+    "latitude": lambda value, number: number and abs(value) <= math.pi / 2,
+    "height": lambda value, number: number,
+    "reference_temperature": lambda value, number: number,
+    "gravity": lambda value, number: number and 9.7 < value < 9.9,
+    "sample_rate": lambda value, number: number and value > 0,
+    "gimbal_senses": lambda value, number: (
+        isinstance(value, list) and len(value) == 4 and all(v in (1, -1) and not isinstance(v, bool) for v in value)
+    ),
+    "base_attitude": lambda value, number: isinstance(value, list) and len(value) == 3 and _numbers(value),
+    "damping": lambda value, number: isinstance(value, dict) and _numbers(value.values()),
+    "extra": lambda value, number: isinstance(value, dict),
+}
+
+Reply = Callable[[str, str, list[str]], bytes]
+
+
+def _crc(lines: list[str]) -> str:
+    value = 0
+    for line in lines:
+        value = zlib.crc32(line.encode(), value)
+    return f"{value:08x}"
+
+
+def _good_reply(meta: str) -> Reply:
+    """The replies of a healthy platform."""
 
     def good(request: str, verb: str, arguments: list[str]) -> bytes:
         if verb == "META":
@@ -833,73 +909,98 @@ def protocol_reply(rng: random.Random, op: str) -> tuple[Any, str, bool]:
             return f"{request} OK 0.0 1.5 0.0\n".encode()
         if verb == "ACQ":
             lines = _acq_lines(request, 10)
-            return f"{request} OK 10\n{''.join(lines)}{request} END 10 {crc(lines)}\n".encode()
+            return f"{request} OK 10\n{''.join(lines)}{request} END 10 {_crc(lines)}\n".encode()
         return f"{request} OK\n".encode()
 
-    if op == "meta":
-        document = json.loads(meta)
-        key = rng.choice(list(document))
-        value = rng.choice(["x", "", -1e300, None, [1, 2], {"a": 1}, 1e6, [1, -1, 1, 1], 0.5])
-        document[key] = value
-        text = json.dumps(document)
-        cut = rng.random() < 0.3
-        if cut:
-            text = text.replace("}", "", 1)
+    return good
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            return f"{request} OK {text}\n".encode() if verb == "META" else good(request, verb, arguments)
 
-        return reply, f"META {key} = {value!r}{' (cut)' if cut else ''}", cut or not _valid_meta(key, value)
-    if op == "count":
-        count = rng.choice(["1000000000000", "-5", "1.5", "1e3", "abc", "", "10 10", "99999999999999999999"])
+def _acq_reply(good: Reply, acquire: Callable[[str], bytes]) -> Reply:
+    """The healthy replies, with ``acquire(request)`` answering ACQ."""
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            if verb == "ACQ":
-                return f"{request} OK {count}\n".encode()
-            return good(request, verb, arguments)
+    def reply(request: str, verb: str, arguments: list[str]) -> bytes:
+        return acquire(request) if verb == "ACQ" else good(request, verb, arguments)
 
-        return reply, f"ACQ count {count!r}", True
-    if op == "sample":
-        token = rng.choice(BAD_NUMBER_TOKENS)
+    return reply
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            if verb == "ACQ":
-                lines = _acq_lines(request, 10)
-                k = rng.randrange(10)
-                fields = lines[k].split(" ")
-                fields[rng.randrange(1, 9)] = token
-                lines[k] = " ".join(fields).rstrip("\n") + "\n"
-                return f"{request} OK 10\n{''.join(lines)}{request} END 10 {crc(lines)}\n".encode()
-            return good(request, verb, arguments)
 
-        return reply, f"sample value {token!r}", True
-    if op == "backwards":
+def _fault_meta(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    document = json.loads(meta)
+    key = rng.choice(list(document))
+    value = rng.choice(["x", "", -1e300, None, [1, 2], {"a": 1}, 1e6, [1, -1, 1, 1], 0.5])
+    document[key] = value
+    text = json.dumps(document)
+    cut = rng.random() < 0.3
+    if cut:
+        text = text.replace("}", "", 1)
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            if verb == "ACQ":
-                lines = _acq_lines(request, 10)
-                lines[5], lines[6] = lines[6], lines[5]
-                return f"{request} OK 10\n{''.join(lines)}{request} END 10 {crc(lines)}\n".encode()
-            return good(request, verb, arguments)
+    def reply(request: str, verb: str, arguments: list[str]) -> bytes:
+        return f"{request} OK {text}\n".encode() if verb == "META" else good(request, verb, arguments)
 
-        return reply, "sample times run back", True
-    if op == "trailer":
+    return reply, f"META {key} = {value!r}{' (cut)' if cut else ''}", cut or not _valid_meta(key, value)
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            if verb == "ACQ":
-                lines = _acq_lines(request, 10)
-                return f"{request} OK 10\n{''.join(lines)}{request} END 9 {crc(lines)}\n".encode()
-            return good(request, verb, arguments)
 
-        return reply, "END count wrong", True
-    if op == "garbage":
-        junk = bytes(rng.randrange(256) for _ in range(rng.randint(1, 60)))
+def _fault_count(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    count = rng.choice(["1000000000000", "-5", "1.5", "1e3", "abc", "", "10 10", "99999999999999999999"])
+    return _acq_reply(good, lambda request: f"{request} OK {count}\n".encode()), f"ACQ count {count!r}", True
 
-        def reply(request: str, verb: str, arguments: list[str]) -> bytes:
-            return junk + b"\n" if verb in ("CMD", "ACQ") else good(request, verb, arguments)
 
-        return reply, f"garbage {junk[:12]!r}", True
-    raise ValueError(op)
+def _fault_sample(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    token = rng.choice(BAD_NUMBER_TOKENS)
+
+    def acquire(request: str) -> bytes:
+        lines = _acq_lines(request, 10)
+        k = rng.randrange(10)
+        fields = lines[k].split(" ")
+        fields[rng.randrange(1, 9)] = token
+        lines[k] = " ".join(fields).rstrip("\n") + "\n"
+        return f"{request} OK 10\n{''.join(lines)}{request} END 10 {_crc(lines)}\n".encode()
+
+    return _acq_reply(good, acquire), f"sample value {token!r}", True
+
+
+def _fault_backwards(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    def acquire(request: str) -> bytes:
+        lines = _acq_lines(request, 10)
+        lines[5], lines[6] = lines[6], lines[5]
+        return f"{request} OK 10\n{''.join(lines)}{request} END 10 {_crc(lines)}\n".encode()
+
+    return _acq_reply(good, acquire), "sample times run back", True
+
+
+def _fault_trailer(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    def acquire(request: str) -> bytes:
+        lines = _acq_lines(request, 10)
+        return f"{request} OK 10\n{''.join(lines)}{request} END 9 {_crc(lines)}\n".encode()
+
+    return _acq_reply(good, acquire), "END count wrong", True
+
+
+def _fault_garbage(rng: random.Random, good: Reply, meta: str) -> tuple[Reply, str, bool]:
+    junk = bytes(rng.randrange(256) for _ in range(rng.randint(1, 60)))
+
+    def reply(request: str, verb: str, arguments: list[str]) -> bytes:
+        return junk + b"\n" if verb in ("CMD", "ACQ") else good(request, verb, arguments)
+
+    return reply, f"garbage {junk[:12]!r}", True
+
+
+_PROTOCOL_FAULTS: dict[str, Callable[[random.Random, Reply, str], tuple[Reply, str, bool]]] = {
+    "meta": _fault_meta,
+    "count": _fault_count,
+    "sample": _fault_sample,
+    "backwards": _fault_backwards,
+    "trailer": _fault_trailer,
+    "garbage": _fault_garbage,
+}
+
+
+def protocol_reply(rng: random.Random, op: str) -> tuple[Any, str, bool]:
+    """A server reply function with one fault of kind ``op``; (reply, what, is the fault one the driver must refuse)."""
+    meta = _meta_payload()
+    if op not in _PROTOCOL_FAULTS:
+        raise ValueError(op)
+    return _PROTOCOL_FAULTS[op](rng, _good_reply(meta), meta)
 
 
 PROTOCOL_OPS = ("meta", "count", "sample", "backwards", "trailer", "garbage")

@@ -8,6 +8,7 @@ import time
 
 from stableins.estimators.layout import DwellChecks
 from stableins.procedures.plan import DwellStep, PersonStep, Plan
+from tests.platform_double import PlatformDouble
 
 POSITIONS = [
     (0.0, 0.0, 0.0),
@@ -51,12 +52,24 @@ def short_plan(
     return Plan("short test procedure", "device", tuple(steps), retries=retries, chunk=chunk)
 
 
+class CrashAfter(PlatformDouble):
+    """The platform double that dies (``KeyboardInterrupt``) at its ``limit + 1``-th acquisition: a run to resume."""
+
+    def __init__(self, seed, limit):
+        super().__init__(seed)
+        self.limit = limit
+
+    def acquire(self, duration):
+        self.limit -= 1
+        if self.limit < 0:
+            raise KeyboardInterrupt  # stands for the process dying here
+        return super().acquire(duration)
+
+
 class PacedDouble:
     """The platform double, slowed down so that a kill lands at varied points of a run."""
 
     def __new__(cls, seed: int, pace: float):
-        from tests.platform_double import PlatformDouble
-
         double = PlatformDouble(seed=seed)
         acquire = double.acquire
 

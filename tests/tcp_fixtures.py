@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -96,48 +97,46 @@ class FaultyRelay:
                 self._threads.append(t)
 
     def _pump(self, source, sink, fault, client, upstream) -> None:
+        with contextlib.suppress(OSError):
+            self._relay(source, sink, fault)
+        for s in (client, upstream):
+            with contextlib.suppress(OSError):
+                s.shutdown(socket.SHUT_RDWR)
+            s.close()
+
+    def _relay(self, source, sink, fault) -> None:
+        """Copy ``source`` to ``sink`` until either closes, applying ``fault`` (kind, byte offset) once on the way."""
         count = 0
         stalled = False
-        try:
-            while not self._stop.is_set():
-                data = source.recv(4096)
-                if not data:
-                    break
-                if stalled:
-                    continue
-                if fault is not None:
-                    kind, at = fault
-                    if count + len(data) > at:
-                        cut = at - count
-                        if kind == "cut":
-                            sink.sendall(data[:cut])
-                            break
-                        if kind == "stall":
-                            sink.sendall(data[:cut])
-                            stalled = True
-                            continue
-                        if kind == "corrupt":
-                            data = data[:cut] + b"#" + data[cut + 1 :]
-                            fault = None
-                count += len(data)
-                sink.sendall(data)
-        except OSError:
-            pass
-        for s in (client, upstream):
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            s.close()
+        while not self._stop.is_set():
+            data = source.recv(4096)
+            if not data:
+                return
+            if stalled:
+                continue
+            if fault is not None:
+                kind, at = fault
+                if count + len(data) > at:
+                    cut = at - count
+                    if kind == "cut":
+                        sink.sendall(data[:cut])
+                        return
+                    if kind == "stall":
+                        sink.sendall(data[:cut])
+                        stalled = True
+                        continue
+                    if kind == "corrupt":
+                        data = data[:cut] + b"#" + data[cut + 1 :]
+                        fault = None
+            count += len(data)
+            sink.sendall(data)
 
     def close(self) -> None:
         self._stop.set()
         self.listener.close()
         for s in self._sockets:
-            try:
+            with contextlib.suppress(OSError):
                 s.close()
-            except OSError:
-                pass
 
     def __enter__(self) -> FaultyRelay:
         return self

@@ -18,20 +18,18 @@ def test_atomic_write_replaces_whole_file(tmp_path):
 def test_atomic_write_keeps_old_file_on_error(tmp_path):
     target = tmp_path / "record.json"
     target.write_text("old")
-    with pytest.raises(RuntimeError):
-        with atomic_write(target) as handle:
-            handle.write("half")
-            raise RuntimeError("crash")
+    with pytest.raises(RuntimeError), atomic_write(target) as handle:
+        handle.write("half")
+        raise RuntimeError("crash")
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["record.json"]
 
 
 def test_atomic_path_for_libraries(tmp_path):
     target = tmp_path / "data.bin"
-    with pytest.raises(ValueError):
-        with atomic_path(target) as tmp:
-            tmp.write_bytes(b"partial")
-            raise ValueError
+    with pytest.raises(ValueError), atomic_path(target) as tmp:
+        tmp.write_bytes(b"partial")
+        raise ValueError
     assert not target.exists() and list(tmp_path.iterdir()) == []
     with atomic_path(target) as tmp:
         tmp.write_bytes(b"whole")

@@ -50,7 +50,7 @@ def test_euler_matches_paper_eq3_first_row():
 
 def test_installation_matrix_small_angle_is_rotation_of_each_axis():
     b = 1e-6
-    c = cv.dcm_platform_to_accelerometer(b, 0, 0, 0, 0, 0)  # beta_xz: x axis turned about z
+    c = cv.dcm_platform_to_accelerometer(beta_xz=b, beta_xy=0, beta_yz=0, beta_yx=0, beta_zy=0, beta_zx=0)  # beta_xz: x axis turned about z
     # the x sensitive axis, turned right-handedly by b about z_p, is R3(b)^T x = (cos b, sin b, 0)
     np.testing.assert_allclose(c[0], cv.R3(b).T @ [1.0, 0, 0], atol=1e-12)
 

@@ -1,5 +1,7 @@
 """Coarse stage: exact recovery, gauge, order invariance, statistical honesty, offset iteration."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from device_world import GRAVITY, TRUTH_MODEL, ExactPlatform, draw_truth, outputs
@@ -7,10 +9,10 @@ from scipy import stats
 
 from stableins.conventions import ARCSEC, DEFAULT_GIMBALS, MICRO_G
 from stableins.estimators.coarse import CoarseProblem, calibrate_coarse, coarse_model, solve_coarse
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.design import analyze_design, choose_gauge
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
-from stableins.procedures.definition import load_procedure
+from stableins.procedures.definition import OffsetIteration, load_procedure
 from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
 
 PROCEDURE = load_procedure("device-coarse")
@@ -142,7 +144,7 @@ def test_offset_iteration_converges_from_60_arcsec():
     truth = draw_truth(np.random.default_rng(4), quadratic=False)
     truth.update(theta20=60 * ARCSEC, theta30=-60 * ARCSEC, theta10=45 * ARCSEC)
     platform = ExactPlatform(truth, sigma=1e-6, seed=4)  # nearly noiseless: the 0.1″ threshold itself is tested
-    result = iterate_offsets(platform, PROCEDURE, noise_sigmas=0.0)
+    result = iterate_offsets(platform, PROCEDURE, stopping=replace(PROCEDURE.offset_iteration, noise_sigmas=0.0))
     assert len(result.history) <= 3
     assert abs(result.history[0].residual[0] - 60 * ARCSEC) < 0.1 * ARCSEC
     last = result.history[-1]
@@ -183,8 +185,9 @@ def test_offset_iteration_result_combines_every_pass():
 
 def test_offset_iteration_failure_reports_history():
     truth = draw_truth(np.random.default_rng(10), quadratic=False)
+    stopping = OffsetIteration(threshold=1e-3 * ARCSEC, max_passes=2, noise_sigmas=0.0)
     with pytest.raises(OffsetIterationError) as info:
-        iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=10), PROCEDURE, max_passes=2, noise_sigmas=0.0, threshold=1e-3 * ARCSEC)
+        iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=10), PROCEDURE, stopping=stopping)
     assert len(info.value.history) == 2 and "pass 1" in str(info.value) and "pass 2" in str(info.value)
     assert str(info.value).count("limit (0.001, 0.001)″ = max(threshold, noise_sigmas·σ): not converged") == 2
 

@@ -9,8 +9,8 @@ import pytest
 from device_world import GRAVITY, ExactPlatform, device_columns, draw_truth, outputs
 
 from stableins.estimators.coarse import calibrate_coarse
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary, dwells_from_columns
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.result import FitResult

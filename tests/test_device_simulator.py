@@ -8,8 +8,8 @@ import pytest
 from stableins.cli import main
 from stableins.conventions import ARCSEC
 from stableins.data.device import save_device
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
@@ -41,7 +41,7 @@ def test_offset_iteration_converges_from_60_arcsec_through_the_simulated_platfor
     truth = Truth.draw(7, noise=NoiseSettings.quiet())
     parameters = dict(truth.parameters, theta20=60 * ARCSEC, theta30=-60 * ARCSEC)
     platform = SimulatedPlatform(truth.with_changes(parameters=parameters))
-    result = iterate_offsets(platform, COARSE, noise_sigmas=0.0)
+    result = iterate_offsets(platform, COARSE, stopping=replace(COARSE.offset_iteration, noise_sigmas=0.0))
     assert 2 <= len(result.history) <= 3
     assert result.history[0].residual[0] == pytest.approx(60 * ARCSEC, abs=0.1 * ARCSEC)
     assert all(abs(r) < 0.1 * ARCSEC for r in result.history[-1].residual)

@@ -14,7 +14,8 @@ from stableins.cli import main
 from stableins.conventions import ARCSEC
 from stableins.data.device import load_device, save_device
 from stableins.discovery.diagnose import DiagnoseOptions, NoiseOrigin, SlowNoiseGiven, diagnose_data
-from stableins.discovery.diagnose_report import CONSISTENT_P_VALUES, DiagnoseReport, DiagnoseStage, NextAction
+from stableins.discovery.diagnose_report import DiagnoseReport, DiagnoseStage, NextAction
+from stableins.discovery.diagnostics import CONSISTENT_P_VALUES
 from stableins.errors import InputError
 from stableins.procedures.definition import device_layouts, load_procedure
 from stableins.records import CalibrationRecord

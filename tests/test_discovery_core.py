@@ -8,11 +8,11 @@ import pytest
 from stableins.conventions import ARCSEC, MICRO_G, STANDARD_GRAVITY
 from stableins.discovery.dwells import DwellSet, slew_directions
 from stableins.discovery.history import Discovery, History
-from stableins.discovery.steps import make_step
 from stableins.discovery.library import LIBRARY, Library, custom_effect
 from stableins.discovery.linear import LinearProblem
 from stableins.discovery.problem import DwellProblem
 from stableins.discovery.ranking import rank
+from stableins.discovery.steps import make_step
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term, TermInputs
 from stableins.platform import platform_specific_force
 

@@ -5,6 +5,7 @@ import functools
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,12 +14,12 @@ from stableins import cli
 from stableins.conventions import MICRO_G
 from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
-from stableins.discovery.steps import Decision
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
+from stableins.discovery.steps import Decision
 from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
 from stableins.errors import InputError
-from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.device import calibrate_device
+from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import dwells_from_columns
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
@@ -218,7 +219,7 @@ def test_only_instrument_effects_can_be_carried():
 def _procedure_with_model(tmp_path, table, name="device-coarse"):
     text = load_procedure(name).path
     path = tmp_path / f"{name}-model.toml"
-    path.write_text(open(text, encoding="utf-8").read() + "\n" + table + "\n", encoding="utf-8")
+    path.write_text(Path(text).read_text(encoding="utf-8") + "\n" + table + "\n", encoding="utf-8")
     return path
 
 
@@ -331,14 +332,14 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
 
     from stableins.console import Console
     from stableins.procedures.planning import plan_from_definition
-    from stableins.runs import start_run
+    from stableins.runs import RunSetup, start_run
 
     monkeypatch.setattr("os.fsync", lambda fd: None)
     truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}
     world = ErrorModel.standard(nonlinear=True, gimbals=True) + (CATALOGUE["Kcc_xxy"].term(),)
 
     def short(name, table=""):
-        text = open(load_procedure(name).path, encoding="utf-8").read()
+        text = Path(load_procedure(name).path).read_text(encoding="utf-8")
         text = text.replace("dwell = 20.0", "dwell = 4.0").replace("dwell = 600.0", "dwell = 20.0")
         path = tmp_path / f"{name}.toml"
         path.write_text(text + "\n" + table + "\n", encoding="utf-8")
@@ -347,14 +348,14 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
     coarse_file = short("device-coarse", '[model]\nadd = ["Kcc_xxy"]')
     coarse = start_run(plan_from_definition(load_procedure(coarse_file)), tmp_path / "coarse", driver_spec="exact",
                        console=Console(yes=True, out=io.StringIO()), driver=ExactPlatform(truth, sigma=3e-4, seed=1, model=world),
-                       definition_file=coarse_file)  # fmt: skip
+                       setup=RunSetup(definition_file=coarse_file))  # fmt: skip
     record = CalibrationRecord.load(coarse.record)
     assert record["Kcc_xxy"].status == "estimated"
     assert abs(record["Kcc_xxy"].value - 4 * KCC) < 4 * record["Kcc_xxy"].sigma
     fine_file = short("device-fine")  # no [model]: the prior record's model is the unit's
     fine = start_run(plan_from_definition(load_procedure(fine_file)), tmp_path / "fine", driver_spec="exact",
                      console=Console(yes=True, quiet=True), driver=ExactPlatform(truth, sigma=3e-4, seed=2, model=world),
-                     definition_file=fine_file, prior_file=coarse.record)  # fmt: skip
+                     setup=RunSetup(definition_file=fine_file, prior_file=coarse.record))  # fmt: skip
     final = CalibrationRecord.load(fine.record)  # the coarse record updated by the fine stage's likelihood
     assert final["Kcc_xxy"].status == "estimated"
     assert [d.stage.split("-")[0] for d in final["Kcc_xxy"].determined_by][-1] == "fine"  # the fine data saw it too

@@ -15,9 +15,9 @@ from test_records import SITE, gimbal_statuses, make_result
 from stableins.conventions import ARCSEC, MICRO_G
 from stableins.discovery.harmonics import harmonic_spectrum
 from stableins.discovery.history import Discovery, ModelHistory
-from stableins.discovery.steps import Decision
 from stableins.discovery.library import LIBRARY
 from stableins.discovery.problem import DwellProblem
+from stableins.discovery.steps import Decision
 from stableins.display import MAX_REPR_LINES, require_pandas, value_sigma
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS, ErrorModel, Term
 from stableins.history_store import HistoryStore

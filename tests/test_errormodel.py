@@ -35,7 +35,7 @@ def test_forward_solves_implicit_eq6_exactly():
     k = np.array([values[f"K2_{a}"] for a in "xyz"])
     from stableins.conventions import dcm_platform_to_accelerometer
 
-    c = dcm_platform_to_accelerometer(*(values[i] for i in ("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx")))
+    c = dcm_platform_to_accelerometer(**{i: values[i] for i in ("beta_xz", "beta_xy", "beta_yz", "beta_yx", "beta_zy", "beta_zx")})
     residual = f_a - ((c @ f_p.T).T / sf + b + k * (f_a - b) ** 2)
     assert np.abs(residual).max() < 1e-13
 

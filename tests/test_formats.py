@@ -364,18 +364,16 @@ def test_save_device_refuses_bad_data_before_touching_the_old_file(tmp_path, suf
 @pytest.mark.parametrize("suffix", [".h5", ".csv"])
 def test_system_writer_crash_leaves_nothing_or_the_old_file(tmp_path, suffix):
     path = tmp_path / f"rec{suffix}"
-    with pytest.raises(RuntimeError):
-        with SystemRecordWriter(path, make_metadata(), chunk_samples=64) as writer:
-            writer.append(make_system_chunk(0, 500))
-            raise RuntimeError("power cut")
+    with pytest.raises(RuntimeError), SystemRecordWriter(path, make_metadata(), chunk_samples=64) as writer:
+        writer.append(make_system_chunk(0, 500))
+        raise RuntimeError("power cut")
     assert list(tmp_path.iterdir()) == []
     with SystemRecordWriter(path, make_metadata(), chunk_samples=64) as writer:
         writer.append(make_system_chunk(0, 100))
     before = path.read_bytes()
-    with pytest.raises(KeyboardInterrupt):
-        with SystemRecordWriter(path, make_metadata(), chunk_samples=64) as writer:
-            writer.append(make_system_chunk(0, 300))
-            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt), SystemRecordWriter(path, make_metadata(), chunk_samples=64) as writer:
+        writer.append(make_system_chunk(0, 300))
+        raise KeyboardInterrupt
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
 
@@ -448,10 +446,12 @@ def test_sampling_rate_disagreeing_with_metadata(tmp_path):
 
 def test_writer_refuses_time_going_back_across_chunks(tmp_path):
     path = tmp_path / "back.h5"
-    with pytest.raises(InputError, match=r"back\.h5, row 101, field 'time': time does not increase"):
-        with SystemRecordWriter(path, make_metadata()) as writer:
-            writer.append(make_system_chunk(0, 100))
-            writer.append(make_system_chunk(50, 100))
+    with (
+        pytest.raises(InputError, match=r"back\.h5, row 101, field 'time': time does not increase"),
+        SystemRecordWriter(path, make_metadata()) as writer,
+    ):
+        writer.append(make_system_chunk(0, 100))
+        writer.append(make_system_chunk(50, 100))
     assert not path.exists()
 
 
@@ -459,15 +459,13 @@ def test_writer_refuses_missing_column_and_nan(tmp_path):
     path = tmp_path / "bad.h5"
     chunk = make_system_chunk(0, 10)
     del chunk["roll"]
-    with pytest.raises(InputError, match="field 'roll'"):
-        with SystemRecordWriter(path, make_metadata()) as writer:
-            writer.append(chunk)
+    with pytest.raises(InputError, match="field 'roll'"), SystemRecordWriter(path, make_metadata()) as writer:
+        writer.append(chunk)
     chunk = make_system_chunk(0, 10)
     chunk["pitch"][4] = np.inf
-    with pytest.raises(InputError, match="row 15, field 'pitch'"):
-        with SystemRecordWriter(path, make_metadata()) as writer:
-            writer.append(make_system_chunk(-10, 10))
-            writer.append(chunk)
+    with pytest.raises(InputError, match="row 15, field 'pitch'"), SystemRecordWriter(path, make_metadata()) as writer:
+        writer.append(make_system_chunk(-10, 10))
+        writer.append(chunk)
     assert not path.exists()
 
 

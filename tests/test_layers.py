@@ -139,23 +139,23 @@ def imports(module: str) -> tuple[tuple[str, int, bool], ...]:
             visit(child, eager=child_eager)
 
     def visit_statement(node: ast.AST, *, eager: bool, recurse: bool = True) -> None:
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                target = _target(alias.name)
-                if target:
-                    found.append((target, node.lineno, eager))
-        elif isinstance(node, ast.ImportFrom):
-            base = _resolve(module, node)
-            if base == "stableins" or base.startswith("stableins."):
-                for alias in node.names:
-                    target = _target(f"{base}.{alias.name}") or _target(base)
-                    if target:
-                        found.append((target, node.lineno, eager))
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found.extend((target, node.lineno, eager) for target in _import_targets(module, node))
         if recurse:
             visit(node, eager=eager and not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef))
 
     visit(tree, eager=True)
     return tuple(found)
+
+
+def _import_targets(module: str, node: ast.Import | ast.ImportFrom) -> list[str]:
+    """The stableins modules one import statement of ``module`` imports."""
+    if isinstance(node, ast.Import):
+        return [target for alias in node.names if (target := _target(alias.name))]
+    base = _resolve(module, node)
+    if not (base == "stableins" or base.startswith("stableins.")):
+        return []
+    return [target for alias in node.names if (target := _target(f"{base}.{alias.name}") or _target(base))]
 
 
 def _is_type_checking(test: ast.expr) -> bool:
@@ -203,13 +203,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
             elif successor in on_stack:
                 low[node] = min(low[node], index[successor])
         if low[node] == index[node]:
-            component = []
-            while True:
-                member = stack.pop()
-                on_stack.discard(member)
-                component.append(member)
-                if member == node:
-                    break
+            component = _pop_component(stack, on_stack, node)
             if len(component) > 1 or node in graph.get(node, ()):
                 components.append(sorted(component))
 
@@ -217,6 +211,17 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         if node not in index:
             connect(node)
     return components
+
+
+def _pop_component(stack: list[str], on_stack: set[str], root: str) -> list[str]:
+    """Pop the strongly connected component whose root is ``root`` off Tarjan's stack."""
+    component = []
+    while True:
+        member = stack.pop()
+        on_stack.discard(member)
+        component.append(member)
+        if member == root:
+            return component
 
 
 def test_no_cycle_between_layers() -> None:

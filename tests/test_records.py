@@ -146,8 +146,7 @@ def test_version_1_records_are_migrated(tmp_path):
 
 @pytest.fixture
 def saved(tmp_path):
-    path = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE).save(tmp_path / "cal.json")
-    return path
+    return CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE).save(tmp_path / "cal.json")
 
 
 def corrupt(path, change):

@@ -320,4 +320,4 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     assert len(words) > 500
     side = 18 * 72 / 25.4 - 1.0  # text frame: 18 mm side margins; header and footer stay 7 mm from the edge
     for x0, y0, x1, y1 in ((float(a), float(b), float(c), float(d)) for a, b, c, d in words):
-        assert side < x0 and x1 < width - side and 20.0 < y0 and y1 < height - 20.0
+        assert side < x0 and x1 < width - side and y0 > 20.0 and y1 < height - 20.0

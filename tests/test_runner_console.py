@@ -19,10 +19,10 @@ from stableins.procedures.plan import PersonStep, Plan
 from stableins.procedures.planning import plan_from_definition
 from stableins.procedures.rundir import RunFinished
 from stableins.procedures.runner import RunStopped
-from stableins.runs import resume_run, start_run
+from stableins.runs import RunSetup, resume_run, start_run
 from tests.device_world import ExactPlatform, draw_truth
 from tests.platform_double import PlatformDouble
-from tests.runner_fixtures import short_plan
+from tests.runner_fixtures import CrashAfter, short_plan
 
 HEADER = re.compile(r"command readings \([-0-9., ]+\) deg, settle [0-9.]+ s, dwell [0-9.]+ s")
 VERDICT = re.compile(r"^(replay )?\s+(accepted|rejected|left out of this pass's fit): ")
@@ -120,7 +120,7 @@ def test_every_dwell_of_every_stage_has_its_line_settle_and_dwell_progress_and_v
         driver_spec="exact",
         console=Console(yes=True, out=out, bars=True),
         driver=Saturating(draw_truth(np.random.default_rng(3)), seed=1),
-        definition_file=coarse,
+        setup=RunSetup(definition_file=coarse),
     )
     passes = len(outcome.runner.iteration.history)
     dwells = 18 * passes
@@ -147,18 +147,6 @@ def test_every_dwell_of_every_stage_has_its_line_settle_and_dwell_progress_and_v
     start_run(short_plan(person=False), tmp_path / "log", driver_spec="double", console=console, driver=PlatformDouble(2))
     assert "[" not in "".join(line for line in out.getvalue().split("\n") if "settle [" in line or "dwell [" in line)
     assert sum(bool(VERDICT.match(line)) for line in out.getvalue().split("\n")) == 6
-
-
-class CrashAfter(PlatformDouble):
-    def __init__(self, seed, limit):
-        super().__init__(seed)
-        self.limit = limit
-
-    def acquire(self, duration):
-        self.limit -= 1
-        if self.limit < 0:
-            raise KeyboardInterrupt  # stands for the process dying here
-        return super().acquire(duration)
 
 
 def test_a_resumed_run_marks_what_it_replays_and_says_where_it_goes_live(tmp_path):

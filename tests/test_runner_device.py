@@ -14,7 +14,7 @@ from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
-from stableins.runs import resume_run, start_run
+from stableins.runs import RunSetup, resume_run, start_run
 from tests.device_world import ExactPlatform, draw_truth
 
 
@@ -75,7 +75,7 @@ def test_coarse_iteration_then_fine_on_the_prior(tmp_path, truth):
         driver_spec="exact",
         console=Console(yes=True, out=out),
         driver=CrashingPlatform(truth, seed=1),
-        definition_file=coarse_file,
+        setup=RunSetup(definition_file=coarse_file),
     )
     text = out.getvalue()
     assert "zero-offset iteration" in text and "converged after" in text
@@ -106,8 +106,7 @@ def test_coarse_iteration_then_fine_on_the_prior(tmp_path, truth):
         driver_spec="exact",
         console=Console(yes=True, quiet=True),
         driver=CrashingPlatform(truth, seed=2),
-        definition_file=fine_file,
-        prior_file=coarse.record,
+        setup=RunSetup(definition_file=fine_file, prior_file=coarse.record),
     )
     final = CalibrationRecord.load(fine.record)
     assert "fine" in final.provenance.stages and "coarse" in final.provenance.stages
@@ -127,7 +126,7 @@ def test_crash_inside_the_iteration_resumes_to_the_same_result(tmp_path, truth):
         driver_spec="exact",
         console=Console(yes=True, quiet=True),
         driver=CrashingPlatform(truth, seed=3),
-        definition_file=coarse_file,
+        setup=RunSetup(definition_file=coarse_file),
     )
     with pytest.raises(Crash):
         start_run(
@@ -136,7 +135,7 @@ def test_crash_inside_the_iteration_resumes_to_the_same_result(tmp_path, truth):
             driver_spec="exact",
             console=Console(yes=True, quiet=True),
             driver=CrashingPlatform(truth, seed=3, limit=50),
-            definition_file=coarse_file,
+            setup=RunSetup(definition_file=coarse_file),
         )
     again = resume_run(
         tmp_path / "run", console=Console(yes=True, quiet=True), driver_factory=lambda start: CrashingPlatform(truth, seed=3)
@@ -164,7 +163,7 @@ def test_exported_dwells_are_what_the_iteration_estimated_on_the_simulator(tmp_p
         seed=9,
         unit="SIM-9",
         console=Console(yes=True, quiet=True),
-        definition_file=coarse_file,
+        setup=RunSetup(definition_file=coarse_file),
     )
     data = load_device(outcome.dataset)
     last = len(outcome.runner.iteration.history)

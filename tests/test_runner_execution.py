@@ -15,7 +15,7 @@ from stableins.procedures.verdict import evaluate_dwell
 from stableins.runs import resume_run, start_run
 from stableins.samples import SampleBlock
 from tests.platform_double import PlatformDouble
-from tests.runner_fixtures import LOOSE, short_plan
+from tests.runner_fixtures import LOOSE, CrashAfter, short_plan
 
 
 def _run(tmp_path, seed=4, plan=None, driver=None, name="run", **console):
@@ -178,18 +178,6 @@ def test_a_start_that_died_before_its_first_record_can_start_again(tmp_path):
     (tmp_path / "run" / "journal.bin").write_bytes(FILE_MAGIC)
     outcome, _ = _run(tmp_path)
     assert len(outcome.runner.entries) == 6
-
-
-class CrashAfter(PlatformDouble):
-    def __init__(self, seed, limit):
-        super().__init__(seed)
-        self.limit = limit
-
-    def acquire(self, duration):
-        self.limit -= 1
-        if self.limit < 0:
-            raise KeyboardInterrupt  # stands for the process dying here
-        return super().acquire(duration)
 
 
 @pytest.mark.parametrize("cut", [1, 37, 300])

@@ -13,7 +13,7 @@ from stableins.drivers.tcp import TcpDriver
 from stableins.procedures.entries import journal_columns
 from stableins.procedures.journal import scan
 from stableins.procedures.runner import RunStopped
-from stableins.runs import resume_run, start_run
+from stableins.runs import RunSetup, resume_run, start_run
 from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 from tests.tcp_fixtures import FaultyRelay, ServerProcess
 
@@ -87,7 +87,7 @@ def test_garbage_stops_after_the_allowed_link_failures_then_resumes(server, tmp_
             unit="NET-1",
             console=Console(yes=True, quiet=True),
             driver=driver,
-            options=RunOptions(link_failures=2),
+            setup=RunSetup(options=RunOptions(link_failures=2)),
         )
     # the cable is fixed: resume on the same platform (not re-simulated: it is a real link)
     outcome = resume_run(tmp_path / "run", console=Console(yes=True, quiet=True), driver_spec=f"tcp://127.0.0.1:{server.port}")

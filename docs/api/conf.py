@@ -32,20 +32,9 @@ numpydoc_xref_param_type = False
 INTERFACE = ("stableins.cli", "stableins.commands", "stableins.output", "stableins.progress", "stableins.__main__", "stableins._version")
 # Modules whose docstrings do not build clean yet, in other engineers' parts of issue 15 (each owner fixes
 # the docstrings and removes the module; the list only shrinks):
-#   discovery.history: ``|f|`` read as an rst substitution (CHANNELS); discovery.library: the table of the
-#   module docstring is malformed (text in the column margin); discovery.ranking and discovery.separation:
-#   ``|corr|`` substitutions; procedures.plan (Checks): ``|slope|`` and ``|mean ... − commanded reading|``
-#   substitutions; procedures.runner: unexpected indentation in the module docstring (line 24).
-#   discovery.separation's name also makes a bare ``separation`` in estimators.system ambiguous.
-#   data.chunks (ChunkSource): a "Parameters of ``iter_chunks``" section numpydoc does not know;
 #   estimators.system.coloured (measured_noise_model): a bullet list ends without a blank line.
 NOT_YET_CLEAN = {
-    "stableins.data.chunks",
     "stableins.estimators.system.coloured",
-    "stableins.discovery.history",
-    "stableins.discovery.library",
-    "stableins.discovery.ranking",
-    "stableins.discovery.separation",
 }
 HERE = Path(__file__).resolve().parent
 GENERATED = HERE / "modules"

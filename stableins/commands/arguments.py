@@ -33,7 +33,10 @@ def number(
     unit: str = "",
     or_zero: bool = False,
 ) -> Callable[[str], float]:
-    """A finite float in ``[minimum, maximum]`` (``(minimum, maximum]`` with ``above``); ``or_zero``: 0 also allowed."""
+    """Return a type that accepts a finite float in ``[minimum, maximum]``.
+
+    ``above`` excludes the minimum (``(minimum, maximum]``); ``or_zero`` also allows 0.
+    """
     what = f"a number{' of ' + unit if unit else ''} in {_bounds(minimum, maximum, above=above)}{' or 0' if or_zero else ''}"
 
     def parse(text: str) -> float:
@@ -58,7 +61,7 @@ def number(
 
 
 def integer(minimum: int | None = None, maximum: int | None = None, *, what: str = "an integer") -> Callable[[str], int]:
-    """A whole number in ``[minimum, maximum]`` (decimal digits; ``1e3`` and ``1.5`` are refused)."""
+    """Return a type that accepts a whole number in ``[minimum, maximum]`` (decimal digits; ``1e3`` and ``1.5`` are refused)."""
     expected = f"{what} in {_bounds(minimum, maximum, above=False)}"
 
     def parse(text: str) -> int:
@@ -80,7 +83,7 @@ seed = integer(*SEED_RANGE, what="a seed")
 
 
 def output_file(text: str) -> Path:
-    """A file to write: not an existing directory, and not inside something that is not a directory."""
+    """Accept a file to write: not an existing directory, and not inside something that is not a directory."""
     path = Path(text)
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path (expected a file to write)")
@@ -95,7 +98,7 @@ def output_file(text: str) -> Path:
 
 
 def output_directory(text: str) -> Path:
-    """A directory to write into: an existing directory or a path that can become one."""
+    """Accept a directory to write into: an existing directory or a path that can become one."""
     path = Path(text)
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path (expected a directory)")
@@ -108,7 +111,7 @@ def output_directory(text: str) -> Path:
 
 
 def input_file(text: str) -> str:
-    """A file to read: it exists and is not a directory (what it holds is checked by the reader)."""
+    """Accept a file to read: it exists and is not a directory (what it holds is checked by the reader)."""
     if os.path.isdir(text):
         raise argparse.ArgumentTypeError(f"{text} is a directory (expected a file)")
     if not os.path.exists(text):

@@ -27,6 +27,7 @@ from stableins.status import Status
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins calibrate device`` to ``parser``."""
     from stableins.commands.arguments import number, output_file
 
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
@@ -83,6 +84,7 @@ def _same_site(datasets) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins calibrate device``: the coarse and fine stages on device-level data; return the exit code."""
     import functools
     from dataclasses import replace
 
@@ -170,8 +172,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def next_steps(args: argparse.Namespace, record) -> list[str]:
-    """What to do next with a device-level record, as a command that runs as written: ask whether the model misses an
-    effect (``stableins diagnose``); then the system stage on a static record taken with the INS compensating by it."""
+    """Return what to do next with a device-level record, as commands that run as written.
+
+    First ask whether the model misses an effect (``stableins diagnose``); then the system stage on a static record
+    taken with the INS compensating by it.
+    """
     import shlex
 
     from stableins.commands.noise import noise_arguments
@@ -187,7 +192,7 @@ def next_steps(args: argparse.Namespace, record) -> list[str]:
 
 
 def data_description(datasets) -> dict:
-    """Data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
+    """Return the data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
     import numpy as np
 
     from stableins.records import data_times, temperature_summary

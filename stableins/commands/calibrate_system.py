@@ -25,6 +25,7 @@ from stableins.status import Status
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins calibrate system`` to ``parser``."""
     from stableins.commands.arguments import integer, number, output_file
 
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
@@ -98,6 +99,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: Any) -> int:
+    """Run ``stableins calibrate system``: the system-level stage on a static record; return the exit code."""
     import warnings
     from dataclasses import replace
 
@@ -234,9 +236,12 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
 
 
 def flag_text(text: str) -> str:
-    """A library message with the system stage's parameters, as its messages name them
-    (:data:`stableins.estimators.system.assembly.GYRO_DRIFT_PARAMETER` and ``ESTIMATE_K2_PARAMETER``), replaced by the
-    flags of this command that set them: what the command prints speaks of its flags."""
+    """Replace the system stage's parameter names in a library message by this command's flags.
+
+    The parameters are named as the library's messages name them
+    (:data:`stableins.estimators.system.assembly.GYRO_DRIFT_PARAMETER` and ``ESTIMATE_K2_PARAMETER``); the flags
+    are those of this command that set them: what the command prints speaks of its flags.
+    """
     from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
 
     for parameter, flag in ((GYRO_DRIFT_PARAMETER, "--gyro-drift X Y Z, deg/h"), (ESTIMATE_K2_PARAMETER, "--estimate-k2")):

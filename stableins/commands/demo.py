@@ -143,6 +143,7 @@ def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: b
 
     from stableins.discovery.library import calibration_limit
     from stableins.records import CalibrationRecord
+    from stableins.reporting.builder import read_discovery
 
     kept: list[str] = []
     tested: dict[str, str] = {}  # effect -> the calibration's verdict when it was left out
@@ -157,42 +158,42 @@ def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: b
         _step(f"model discovery, round {round_}: is an effect missing from the model in force?", [*diagnose, *figures], text)
         print(text.read_text(encoding="utf-8"), file=sys.stderr)
         _step("the same, machine-readable for the report", [*diagnose, "--json"], document)
-        flagged = [c for c in json.loads(document.read_text(encoding="utf-8"))["candidates"] if c.get("flagged")]
+        flagged = [c for c in read_discovery(document).candidates if c.flagged]
         if not flagged:
             said.append(f"round {round_}: nothing flagged; the model in force reaches the noise floor")
             break
         best = flagged[0]
-        found = f"{best['id']} flagged (p = {best['p_value']:.2g}, ΔBIC {best['delta_bic']:+.1f})"
-        why = calibration_limit(best["id"])
+        found = f"{best.id} flagged (p = {best.p_value:.2g}, ΔBIC {best.delta_bic:+.1f})"
+        why = calibration_limit(best.id)
         if why is not None:
             said.append(
                 f"round {round_}: {found} but it cannot be carried into the calibration: {why}. "
-                f"Next step (see it in the model): stableins {' '.join(diagnose)} --add {best['id']}"
+                f"Next step (see it in the model): stableins {' '.join(diagnose)} --add {best.id}"
             )
             break
-        if best["id"] in tested:
+        if best.id in tested:
             said.append(
-                f"round {round_}: {found} again, but the calibration left it out ({tested[best['id']]}): its coarse dwells and "
-                f"the fine stage's |f| do not determine it as the diagnosis of the fine dwells does. Next step: {best['advice']}"
+                f"round {round_}: {found} again, but the calibration left it out ({tested[best.id]}): its coarse dwells and "
+                f"the fine stage's |f| do not determine it as the diagnosis of the fine dwells does. Next step: {best.advice}"
             )
             break
         if round_ == MAX_ROUNDS:
             said.append(
                 f"round {round_}: {found}; the demo stops after {MAX_ROUNDS} effects. "
-                f"Next step: stableins {' '.join(calibrate)} {' '.join('--add ' + a for a in kept)} --add {best['id']}"
+                f"Next step: stableins {' '.join(calibrate)} {' '.join('--add ' + a for a in kept)} --add {best.id}"
             )
             break
         said.append(f"round {round_}: {found}; the demo adds it and recalibrates")
         print(f"\n{said[-1]}", file=sys.stderr)
         _step("recalibration with the discovered effect (the calibration tests it again)",
-              [*calibrate, *(item for a in (*kept, best["id"]) for item in ("--add", a))])  # fmt: skip
+              [*calibrate, *(item for a in (*kept, best.id) for item in ("--add", a))])  # fmt: skip
         history = CalibrationRecord.load(record).discovery
         verdict = history.steps[-1] if history is not None else None
         if verdict is not None and verdict.decision is not None and verdict.decision.in_model:
-            kept.append(best["id"])
+            kept.append(best.id)
         else:
-            tested[best["id"]] = f"{verdict.decision}: {verdict.reason}" if verdict is not None else "no verdict"
-            said.append(f"round {round_}: the calibration left {best['id']} out ({tested[best['id']]})")
+            tested[best.id] = f"{verdict.decision}: {verdict.reason}" if verdict is not None else "no verdict"
+            said.append(f"round {round_}: the calibration left {best.id} out ({tested[best.id]})")
     return kept, document, said
 
 

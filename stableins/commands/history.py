@@ -16,12 +16,20 @@ against the SHA-256 the index holds.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from datetime import datetime
+
+    from stableins.history import Trend
+    from stableins.history_store import HistoryStore
 
 #: Formats of the drift plot, by suffix.
 PLOT_FORMATS = ("png", "pdf", "svg")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins history`` to ``parser``."""
     from stableins.commands.arguments import number, output_file
 
     parser.add_argument("serial", nargs="?", metavar="SERIAL", help="unit serial number (omit with --fleet or --verify)")
@@ -45,6 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins history``: file, list, verify or summarize calibration records; return the exit code."""
     from stableins.errors import InputError
 
     if (args.due or args.drifted) and not args.fleet:
@@ -117,13 +126,11 @@ def _fleet(args: argparse.Namespace) -> int:
 
 
 def _unit(args: argparse.Namespace) -> int:
-    from datetime import timedelta
-
+    """File the records of ``--add``, then show one unit's history: its records, the one in force, changes and drift."""
     from stableins.errors import InputError
-    from stableins.history import CHANGE_THRESHOLD, format_changes, format_trends, parse_date, plot_trends
+    from stableins.history import parse_date
     from stableins.history_store import HistoryStore
-    from stableins.output import emit, note
-    from stableins.records import CalibrationRecord
+    from stableins.output import emit
 
     if args.plot and args.plot.suffix.lower().lstrip(".") not in PLOT_FORMATS:
         raise InputError(
@@ -132,13 +139,7 @@ def _unit(args: argparse.Namespace) -> int:
     store = HistoryStore(args.store)
     store.unit_directory(args.serial)  # a serial number that cannot name a folder is refused before anything is read
     date = parse_date(args.at, "--at") if args.at else None
-    for path in args.add:  # all checked before the first is filed
-        record = CalibrationRecord.load(path)
-        if record.serial_number != args.serial:
-            raise InputError(f"record of unit {record.serial_number!r}", path=path, field="serial_number", expected=repr(args.serial))
-    for path in args.add:
-        entry = store.add(path)
-        note(f"filed {path} as {entry.file} (valid from {entry.valid_from})")
+    _file_records(args, store)
     entries = store.entries(args.serial)
     if not entries:
         raise InputError(f"no calibration records for unit {args.serial!r}", path=store.root, expected="records filed with --add")
@@ -147,6 +148,37 @@ def _unit(args: argparse.Namespace) -> int:
     for e in entries:
         lines.append(f"{e.valid_from:<26} {','.join(e.stages):<22} {e.procedure:<20} {e.file}")
     data: dict = {"serial_number": args.serial, "entries": [e.__dict__ for e in entries]}
+    _in_force(args, store, date, lines, data)
+    _changes(args, store, lines, data)
+    trends = _trends(args, store, lines, data)
+    if args.plot:
+        _plot(args, trends, data)
+    emit(args, data, "\n".join(lines))
+    return 0
+
+
+def _file_records(args: argparse.Namespace, store: HistoryStore) -> None:
+    """File the records of ``--add`` in the store, every one checked to be of the unit before the first is filed."""
+    from stableins.errors import InputError
+    from stableins.output import note
+    from stableins.records import CalibrationRecord
+
+    for path in args.add:
+        record = CalibrationRecord.load(path)
+        if record.serial_number != args.serial:
+            raise InputError(f"record of unit {record.serial_number!r}", path=path, field="serial_number", expected=repr(args.serial))
+    for path in args.add:
+        entry = store.add(path)
+        note(f"filed {path} as {entry.file} (valid from {entry.valid_from})")
+
+
+def _in_force(args: argparse.Namespace, store: HistoryStore, date: datetime | None, lines: list[str], data: dict[str, Any]) -> None:
+    """Add the record in force (at ``--at``, or now) and its staleness to the text and the JSON document."""
+    from datetime import timedelta
+
+    from stableins.errors import InputError
+    from stableins.output import note
+
     try:
         current = store.in_force(args.serial, date)
     except InputError as error:
@@ -160,6 +192,12 @@ def _unit(args: argparse.Namespace) -> int:
             note(f"stableins: warning: {warning}")
         data["in_force"] = current.file
         data["stale"] = warning
+
+
+def _changes(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: dict[str, Any]) -> None:
+    """Add the changes between consecutive records to the text and the JSON document."""
+    from stableins.history import CHANGE_THRESHOLD, format_changes
+
     changes = store.changes(args.serial)
     for old, new, comparison in changes:
         lines += ["", f"{old.valid_from} -> {new.valid_from} ({comparison.describe()}; z = change / σ of the change):"]
@@ -177,6 +215,12 @@ def _unit(args: argparse.Namespace) -> int:
         }
         for o, n, c in changes
     ]
+
+
+def _trends(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: dict[str, Any]) -> list[Trend]:
+    """Add the drift per year of every parameter to the text and the JSON document; return the trends."""
+    from stableins.history import format_trends
+
     trends = store.trends(args.serial)
     if trends:
         lines += ["", "drift per year (weighted straight line; z = drift / σ):", format_trends(trends)]
@@ -191,16 +235,21 @@ def _unit(args: argparse.Namespace) -> int:
             }
             for t in trends
         ]
-    if args.plot:
-        if not trends:
-            raise InputError("a drift plot needs at least two records that estimate the same parameter", field="--plot")
-        from stableins.data.atomic import atomic_path
+    return trends
 
-        figure = plot_trends(trends, args.serial)
-        suffix = args.plot.suffix.lower().lstrip(".")
-        with atomic_path(args.plot) as temporary:
-            figure.savefig(temporary, format=suffix)
-        note(f"drift plot written: {args.plot}")
-        data["plot"] = str(args.plot)
-    emit(args, data, "\n".join(lines))
-    return 0
+
+def _plot(args: argparse.Namespace, trends: list[Trend], data: dict[str, Any]) -> None:
+    """Draw the drift plot of ``--plot`` (atomically)."""
+    from stableins.data.atomic import atomic_path
+    from stableins.errors import InputError
+    from stableins.history import plot_trends
+    from stableins.output import note
+
+    if not trends:
+        raise InputError("a drift plot needs at least two records that estimate the same parameter", field="--plot")
+    figure = plot_trends(trends, args.serial)
+    suffix = args.plot.suffix.lower().lstrip(".")
+    with atomic_path(args.plot) as temporary:
+        figure.savefig(temporary, format=suffix)
+    note(f"drift plot written: {args.plot}")
+    data["plot"] = str(args.plot)

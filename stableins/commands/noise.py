@@ -31,6 +31,7 @@ BLOCK_SECONDS = 1.0
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins noise`` to ``parser``."""
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="a static (system-level) record, or device-level files")
     from stableins.commands.arguments import input_file, number, output_file
 
@@ -70,7 +71,7 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
 
 
 def noise_arguments(args: argparse.Namespace) -> list[str]:
-    """The noise options of :func:`add_noise_options` this command was given, to pass on to the next command it suggests."""
+    """Return the noise options of :func:`add_noise_options` this command was given, to pass on to the next command it suggests."""
     out = []
     if getattr(args, "noise", None) is not None:
         out += ["--noise", str(args.noise)]
@@ -110,7 +111,7 @@ def given_noise(args: argparse.Namespace):
 
 
 def noise_from_options(args: argparse.Namespace, dwells, default=None):
-    """The noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
+    """Return the noise model the options ask for: a datasheet (flags), a record's (``--noise``), ``default``, or None (measure it).
 
     Returns ``(model or None, text saying where it comes from)``.
     """
@@ -135,7 +136,7 @@ def noise_from_options(args: argparse.Namespace, dwells, default=None):
 
 
 def system_noise_prior(args: argparse.Namespace, default=None):
-    """The noise model a system-level record starts from (``calibrate system``, ``diagnose`` on a system record).
+    """Return the noise model a system-level record starts from (``calibrate system``, ``diagnose`` on a system record).
 
     Datasheet flags: the bias instability and random walk as given (the system stage measures the white noise in the
     record); ``--noise CAL.json``: that record's model; else ``default`` (the calibration record's), or None (the stage
@@ -161,7 +162,7 @@ def system_noise_prior(args: argparse.Namespace, default=None):
 
 
 def record_noise(path: Path):
-    """The ``noise_model`` section of a calibration record (InputError when it has none)."""
+    """Return the ``noise_model`` section of a calibration record (InputError when it has none)."""
     from stableins.errors import InputError
     from stableins.records import CalibrationRecord
 
@@ -199,6 +200,38 @@ def static_record_points(record) -> tuple[Any, str]:
         cols = [np.ones(u.shape[0])] + [u[:, i] for i in range(3)] + [u[:, i] * u[:, j] for i in range(3) for j in range(i, 3)]
         return np.stack(cols, axis=-1)
 
+    head_f, head_r, keys, table, rate = _static_blocks(record)
+    full = table[:, 0] >= 0.5 * np.median(table[:, 0])
+    contiguous = np.flatnonzero(full)
+    table = table[full]
+    means_f = table[:, 1:4] / table[:, :1]
+    means_r = table[:, 4:7] / table[:, :1]
+    x_blocks = regressors(means_r)
+    coefficients, *_ = np.linalg.lstsq(x_blocks, means_f, rcond=None)
+    residual_blocks = means_f - x_blocks @ coefficients
+    head = head_f - regressors(head_r) @ coefficients
+    # block means of a gap-free stretch only (a missing block would join two windows across a gap)
+    breaks = np.flatnonzero(np.diff(keys[contiguous]) != 1) + 1
+    segments = np.split(residual_blocks, breaks)
+    short = allan_points([head], rate, max_fraction=8)
+    long = allan_points(segments, 1.0 / BLOCK_SECONDS, max_fraction=8)
+    span = (int(keys[-1]) + 1) * BLOCK_SECONDS
+    text = (
+        f"{record.path}: {span / 3600:.2f} h static record at {rate:g} Hz; gravity signal (1, f^p, f^p f^p per axis) removed; "
+        f"first {head.shape[0]} samples at full rate, {len(residual_blocks)} block means of {BLOCK_SECONDS:g} s"
+    )
+    return merge_points(short, long, BLOCK_SECONDS * 2), text
+
+
+def _static_blocks(record) -> tuple[Any, Any, Any, Any, float]:
+    """Read a static record once, in chunks: its first samples at the full rate and its sums over blocks.
+
+    Returns the first :data:`HEAD_SAMPLES` specific forces and angle readings, the block numbers
+    (:data:`BLOCK_SECONDS` since the first sample), the per-block ``(count, Σf, Σangles)`` table (a block
+    split across two chunks is summed) and the sample rate.
+    """
+    import numpy as np
+
     head_f, head_r = [], []
     head_n = 0
     block_index: list[Any] = []
@@ -234,26 +267,7 @@ def static_record_points(record) -> tuple[Any, str]:
     keys, inverse = np.unique(all_keys, return_inverse=True)  # a block split across two chunks is summed
     table = np.zeros((keys.size, 7))
     np.add.at(table, inverse, np.vstack(block_rows))
-    full = table[:, 0] >= 0.5 * np.median(table[:, 0])
-    contiguous = np.flatnonzero(full)
-    table = table[full]
-    means_f = table[:, 1:4] / table[:, :1]
-    means_r = table[:, 4:7] / table[:, :1]
-    x_blocks = regressors(means_r)
-    coefficients, *_ = np.linalg.lstsq(x_blocks, means_f, rcond=None)
-    residual_blocks = means_f - x_blocks @ coefficients
-    head = np.vstack(head_f) - regressors(np.vstack(head_r)) @ coefficients
-    # block means of a gap-free stretch only (a missing block would join two windows across a gap)
-    breaks = np.flatnonzero(np.diff(keys[contiguous]) != 1) + 1
-    segments = np.split(residual_blocks, breaks)
-    short = allan_points([head], rate, max_fraction=8)
-    long = allan_points(segments, 1.0 / BLOCK_SECONDS, max_fraction=8)
-    span = (int(keys[-1]) + 1) * BLOCK_SECONDS
-    text = (
-        f"{record.path}: {span / 3600:.2f} h static record at {rate:g} Hz; gravity signal (1, f^p, f^p f^p per axis) removed; "
-        f"first {head.shape[0]} samples at full rate, {len(residual_blocks)} block means of {BLOCK_SECONDS:g} s"
-    )
-    return merge_points(short, long, BLOCK_SECONDS * 2), text
+    return np.vstack(head_f), np.vstack(head_r), keys, table, rate
 
 
 def device_segments(datasets) -> tuple[list, list, float, str]:
@@ -292,12 +306,10 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins noise``: measure the noise model (Allan analysis) and write it into a record; return the exit code."""
     from dataclasses import replace
 
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
     from stableins.errors import InputError
-    from stableins.estimators.allan import fit_allan, points_for_model
-    from stableins.noise import NoiseSource
     from stableins.output import emit, note
 
     if not 0.5 < args.confidence < 1.0:
@@ -309,42 +321,12 @@ def run(args: argparse.Namespace) -> int:
         from stableins.records import CalibrationRecord
 
         record = CalibrationRecord.load(args.record)
-    system = [p for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
-    if system and len(args.data) > 1:
-        raise InputError("give one static (system-level) record alone, or device-level files", path=system[0], expected="DATA of one kind")
-    if system:
-        from stableins.data.system import open_system_record
-
-        opened = open_system_record(system[0])
-        serial = opened.metadata.serial_number
-        points, described = static_record_points(opened)
-        model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)
-    else:
-        from stableins.data.device import load_device
-        from stableins.estimators.device import noise_from_dwells
-
-        datasets = [load_device(p) for p in args.data]
-        serial = datasets[0].metadata.serial_number
-        summaries, segments, rate, described = device_segments(datasets)
-        from stableins.estimators.allan import allan_points
-
-        model = noise_from_dwells(summaries, confidence=args.confidence, source=", ".join(str(p) for p in args.data))
-        points = points_for_model(allan_points(segments, rate), model)
+    serial, model, points = _measure(args)
     if record is not None and record.serial_number != serial:
         note(f"warning: record {args.record} is for unit {record.serial_number}, data for {serial}")
     text = model.report()
     if args.plot is not None:
-        from stableins.estimators.allan import plot_allan
-
-        figure = plot_allan(points, model, title=f"{serial}: Allan deviation ({model.source.value})")
-        from stableins.data.atomic import atomic_path
-
-        try:
-            with atomic_path(args.plot) as path:
-                figure.savefig(path, dpi=110, format="png")
-        except OSError as error:
-            raise InputError(f"cannot write the plot: {error.strerror or error}", path=str(args.plot), field="--plot") from None
-        note(f"Allan deviation plot written to {args.plot}")
+        _plot(args.plot, points, model, serial)
     if args.out is not None and record is not None:  # --out requires --record (checked above)
         updated = replace(
             record,
@@ -369,3 +351,49 @@ def run(args: argparse.Namespace) -> int:
     }
     emit(args, result, text)
     return 0
+
+
+def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
+    """Measure the noise model of DATA: ``(serial number, noise model, Allan points)``.
+
+    One static (system-level) record gives its Allan points fitted by :func:`~stableins.estimators.allan.fit_allan`;
+    device-level files give the noise model of their usable dwells.
+    """
+    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.errors import InputError
+    from stableins.estimators.allan import allan_points, fit_allan, points_for_model
+    from stableins.noise import NoiseSource
+
+    system = [p for p in args.data if read_format_tag(p) == FORMAT_TAGS["system"]]
+    if system and len(args.data) > 1:
+        raise InputError("give one static (system-level) record alone, or device-level files", path=system[0], expected="DATA of one kind")
+    if system:
+        from stableins.data.system import open_system_record
+
+        opened = open_system_record(system[0])
+        points, described = static_record_points(opened)
+        model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)
+        return opened.metadata.serial_number, model, points
+    from stableins.data.device import load_device
+    from stableins.estimators.device import noise_from_dwells
+
+    datasets = [load_device(p) for p in args.data]
+    summaries, segments, rate, described = device_segments(datasets)
+    model = noise_from_dwells(summaries, confidence=args.confidence, source=", ".join(str(p) for p in args.data))
+    return datasets[0].metadata.serial_number, model, points_for_model(allan_points(segments, rate), model)
+
+
+def _plot(target: Any, points: Any, model: Any, serial: str) -> None:
+    """Write the Allan deviation plot (PNG, atomically); InputError naming ``--plot`` when it cannot be written."""
+    from stableins.data.atomic import atomic_path
+    from stableins.errors import InputError
+    from stableins.estimators.allan import plot_allan
+    from stableins.output import note
+
+    figure = plot_allan(points, model, title=f"{serial}: Allan deviation ({model.source.value})")
+    try:
+        with atomic_path(target) as path:
+            figure.savefig(path, dpi=110, format="png")
+    except OSError as error:
+        raise InputError(f"cannot write the plot: {error.strerror or error}", path=str(target), field="--plot") from None
+    note(f"Allan deviation plot written to {target}")

@@ -23,9 +23,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from stableins.history import Comparison
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins recal`` to ``parser``."""
     from stableins.commands import run as run_command
 
     run_command.configure(parser)
@@ -37,7 +42,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def apply_estimate(prior, prior_path: Path, estimate_path: Path):
-    """The record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
+    """Return the record in force updated by the stage runs of ``estimate``'s own calibration (their likelihoods), in order."""
     from stableins.errors import InputError
     from stableins.records import CalibrationRecord, PriorReference, file_sha256
 
@@ -69,23 +74,16 @@ def apply_estimate(prior, prior_path: Path, estimate_path: Path):
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins recal``: a field recalibration against the unit's record in force; return the exit code."""
     from stableins.commands import run as run_command
     from stableins.data.atomic import atomic_write
     from stableins.errors import InputError
-    from stableins.history import CHANGE_THRESHOLD, compare, format_changes
+    from stableins.history import compare
     from stableins.history_store import HistoryStore
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
-    if not args.unit:
-        raise InputError("which unit?", field="--unit", expected="the serial number")
-    if not args.store and not args.prior:  # the history store of 'stableins history': $STABLEINS_HISTORY or the default
-        from stableins.history_store import default_store
-
-        args.store = str(default_store())
-    prior_path = run_command.prior_file(args)
-    if prior_path is None:
-        raise InputError("a recalibration needs the unit's previous record", field="--store", expected="--store DIR or --prior RECORD")
+    prior_path = _prior_path(args)
     prior = CalibrationRecord.load(prior_path)
     if args.estimate:
         if args.procedure or args.resume:
@@ -114,16 +112,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("the procedure produced no record", path=record_path, expected="a procedure whose stage estimates")
         record = CalibrationRecord.load(record_path)
     comparison = compare(prior, record)
-    text = [
-        f"field recalibration of {args.unit}: {prior_path} -> {record_path} (certificate {out / 'report.pdf'})",
-        comparison.describe(),
-        "",
-        format_changes(comparison.changes),
-    ]
-    if comparison.significant:
-        text += ["", f"changed (|z| ≥ {CHANGE_THRESHOLD:g}): {', '.join(comparison.significant)}"]
-    if comparison.skipped:
-        text += ["", "not compared: " + "; ".join(comparison.skipped)]
+    heading = f"field recalibration of {args.unit}: {prior_path} -> {record_path} (certificate {out / 'report.pdf'})"
+    text = [heading, *_changes_text(comparison)]
     if args.store and not args.no_file:
         entry = HistoryStore(args.store).add(record_path)
         note(f"filed in {args.store} as {entry.file}: the record in force from {entry.valid_from}")
@@ -141,3 +131,32 @@ def run(args: argparse.Namespace) -> int:
     emit(args, data, "\n".join(text))
     sys.stdout.flush()
     return 0
+
+
+def _prior_path(args: argparse.Namespace) -> Path:
+    """Return the unit's record in force: ``--prior``, or the store's (``--store``, by default the history store)."""
+    from stableins.commands import run as run_command
+    from stableins.errors import InputError
+
+    if not args.unit:
+        raise InputError("which unit?", field="--unit", expected="the serial number")
+    if not args.store and not args.prior:  # the history store of 'stableins history': $STABLEINS_HISTORY or the default
+        from stableins.history_store import default_store
+
+        args.store = str(default_store())
+    prior_path = run_command.prior_file(args)
+    if prior_path is None:
+        raise InputError("a recalibration needs the unit's previous record", field="--store", expected="--store DIR or --prior RECORD")
+    return prior_path
+
+
+def _changes_text(comparison: Comparison) -> list[str]:
+    """Return the comparison with the record in force as text: the relation, the changes, the significant and the skipped."""
+    from stableins.history import CHANGE_THRESHOLD, format_changes
+
+    text = [comparison.describe(), "", format_changes(comparison.changes)]
+    if comparison.significant:
+        text += ["", f"changed (|z| ≥ {CHANGE_THRESHOLD:g}): {', '.join(comparison.significant)}"]
+    if comparison.skipped:
+        text += ["", "not compared: " + "; ".join(comparison.skipped)]
+    return text

@@ -37,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the report; an :class:`~stableins.errors.InputError` reaches the CLI (message, exit status 2)."""
     from stableins.output import emit
-    from stableins.reporting.builder import write_report
+    from stableins.reporting.builder import ReportSettings, write_report
 
     summary = write_report(
         args.out,
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
         data=args.data,
         previous=args.previous,
         procedure=args.procedure,
-        report_id=args.report_id,
         discovery=args.discovery,
+        settings=ReportSettings(report_id=args.report_id),
     )
     data = {
         "path": summary.path,

@@ -18,12 +18,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stableins.console import Console
+    from stableins.procedures.rundir import RunOutcome
 
 EXIT_STOPPED = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins run`` to ``parser``."""
     from stableins.commands.arguments import integer, number, output_directory, seed
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
@@ -70,6 +75,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_settings(items: list[str]) -> dict[str, str]:
+    """Return the ``--set KEY=VALUE`` items as a mapping; InputError naming the item that is not ``KEY=VALUE``."""
     from stableins.errors import InputError
 
     values = {}
@@ -82,7 +88,7 @@ def parse_settings(items: list[str]) -> dict[str, str]:
 
 
 def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple[Any, Path | None]:
-    """The plan for PROCEDURE, and the definition file to copy into the run directory (if any)."""
+    """Return the plan for PROCEDURE, and the definition file to copy into the run directory (if any)."""
     import dataclasses
 
     from stableins.procedures.plan import Plan
@@ -113,6 +119,7 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
 
 
 def prior_file(args: argparse.Namespace) -> Path | None:
+    """Return the prior record of the run: ``--prior``, or the record in force of ``--unit`` in ``--store``."""
     from stableins.errors import InputError
 
     if args.prior:
@@ -140,55 +147,26 @@ def _resumable(rundir: str | None) -> bool:
 
 
 def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
-    """What the person can do next: resume only when there is something to resume."""
+    """Return what the person can do next: resume only when there is something to resume."""
     if _resumable(rundir):
         return f"everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}"
     return "nothing was started (the run directory holds no journal); fix the problem and run the same command again"
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins run``: start or resume a procedure on a platform; return the exit code."""
     from stableins.console import Console
     from stableins.drivers.errors import DriverError
-    from stableins.errors import InputError
     from stableins.output import emit
     from stableins.procedures.rundir import RunFinished
-    from stableins.procedures.runner import RunOptions, RunStopped
+    from stableins.procedures.runner import RunStopped
     from stableins.procedures.session import JournalMismatch
-    from stableins.runs import resume_run, start_run
 
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
     args.finished = None
     try:
-        if args.re_estimate and not args.resume:
-            raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
-        if args.resume:
-            if args.procedure or args.out:
-                raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
-            outcome = resume_run(
-                args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate
-            )
-        else:
-            missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
-            if missing:
-                raise InputError(
-                    f"missing {', '.join(missing)}", field=missing[0], expected="PROCEDURE --driver SPEC --out RUNDIR, or --resume RUNDIR"
-                )
-            plan, definition_file = load_plan(args.procedure, args.retries, args.chunk)
-            outcome = start_run(
-                plan,
-                args.out,
-                driver_spec=args.driver,
-                seed=args.seed,
-                unit=args.unit,
-                console=console,
-                options=RunOptions(link_failures=args.link_failures),
-                definition_file=definition_file,
-                prior_file=prior_file(args),
-                timeout=args.timeout,
-                new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
-                fields=parse_settings(args.set),
-            )
+        outcome = _start_or_resume(args, console)
     except RunFinished as finished:
         args.finished = finished
         print(
@@ -229,3 +207,39 @@ def run(args: argparse.Namespace) -> int:
     text = [f"{k}: {v}" for k, v in data.items() if v is not None and k != "conformity"]
     emit(args, data, "\n".join(text + [f"  {line}" for line in outcome.conformity]))
     return 0
+
+
+def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
+    """Start the run of PROCEDURE in ``--out``, or resume the run in ``--resume``; return its outcome."""
+    from stableins.errors import InputError
+    from stableins.procedures.runner import RunOptions
+    from stableins.runs import RunSetup, resume_run, start_run
+
+    if args.re_estimate and not args.resume:
+        raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
+    if args.resume:
+        if args.procedure or args.out:
+            raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
+        return resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate)
+    missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
+    if missing:
+        raise InputError(
+            f"missing {', '.join(missing)}", field=missing[0], expected="PROCEDURE --driver SPEC --out RUNDIR, or --resume RUNDIR"
+        )
+    plan, definition_file = load_plan(args.procedure, args.retries, args.chunk)
+    return start_run(
+        plan,
+        args.out,
+        driver_spec=args.driver,
+        seed=args.seed,
+        unit=args.unit,
+        console=console,
+        setup=RunSetup(
+            definition_file=definition_file,
+            prior_file=prior_file(args),
+            new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
+            fields=parse_settings(args.set),
+            options=RunOptions(link_failures=args.link_failures),
+            timeout=args.timeout,
+        ),
+    )

@@ -51,7 +51,7 @@ def parse_duration(text: str) -> float:
 
 
 def effect_rows() -> list[dict[str, Any]]:
-    """The simulator's effects with their nominal size in SI (``unit``, ``nominal``) and in engineering units."""
+    """Return the simulator's effects with their nominal size in SI (``unit``, ``nominal``) and in engineering units."""
     from stableins.discovery.library import all_terms
     from stableins.simulator.effects import catalogue_table
 
@@ -73,13 +73,14 @@ def effect_rows() -> list[dict[str, Any]]:
 
 
 def levels() -> tuple[str, ...]:
-    """Simulation levels this installation provides (the system level needs ``stableins.simulator.system``)."""
+    """Return the simulation levels this installation provides (the system level needs ``stableins.simulator.system``)."""
     import importlib.util
 
     return ("device", "system") if importlib.util.find_spec("stableins.simulator.system") else ("device",)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``stableins simulate`` to ``parser``."""
     from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
 
     parser.add_argument("level", nargs="?", choices=levels(), help="device-level dwells or a system-level static record")
@@ -198,7 +199,7 @@ def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
 
 
 def build_truth(args: argparse.Namespace) -> Any:
-    """The truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
+    """Return the truth to simulate: read or drawn, with ``--hidden`` effects added and checked."""
     from stableins.data.truth import load_truth
     from stableins.simulator.effects import validate_effects
     from stableins.simulator.truth import Truth
@@ -220,6 +221,7 @@ def build_truth(args: argparse.Namespace) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``stableins simulate``: data with a known truth, written to a directory; return the exit code."""
     from stableins.data.truth import save_truth
     from stableins.output import emit, note
 
@@ -247,10 +249,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         save_truth(truth, truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
-        if args.level == "device":
-            files = simulate_device(truth, out, seed, args, procedures)
-        else:
-            files = [simulate_system(truth, out, seed, args)]
+        files = simulate_device(truth, out, seed, args, procedures) if args.level == "device" else [simulate_system(truth, out, seed, args)]
     except BaseException:  # nothing left behind: the files this run created go (what was there stays)
         for path in set(out.iterdir()) - before:
             if path.is_file():
@@ -265,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _device_procedures(args: argparse.Namespace) -> list[Any]:
-    """The device-level procedures of this simulation, loaded, validated and with the ``--dwell``/``--settle`` timing."""
+    """Return the device-level procedures of this simulation, loaded, validated and with the ``--dwell``/``--settle`` timing."""
     from stableins.procedures.definition import load_procedure
 
     return [_with_timing(load_procedure(name), args.dwell, args.settle) for name in args.procedure or DEFAULT_PROCEDURES]
@@ -306,7 +305,7 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, 
 
 
 def _with_timing(procedure: Any, dwell: float | None, settle: float | None) -> Any:
-    """The procedure with ``--dwell`` / ``--settle`` applied to every step."""
+    """Return the procedure with ``--dwell`` / ``--settle`` applied to every step."""
     from dataclasses import replace
 
     if dwell is None and settle is None:
@@ -383,9 +382,11 @@ def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) 
     metadata = replace(truth.site, sample_rate=rate, start_time=simulation_start(duration))
     path = out / f"system.{suffix}"
     total = int(round(duration * rate))
-    with SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer:
-        with Progress(total=total, label="simulate system") as progress:
-            for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
-                writer.append(chunk)
-                progress.update(len(chunk["time"]))
+    with (
+        SystemRecordWriter(path, metadata, chunk_samples=chunk_samples) as writer,
+        Progress(total=total, label="simulate system") as progress,
+    ):
+        for chunk in system_record_chunks(truth, duration, rate, seed, chunk_samples=chunk_samples):
+            writer.append(chunk)
+            progress.update(len(chunk["time"]))
     return {"path": str(path), "rows": writer.n_samples, "duration_s": duration, "rate_hz": rate}

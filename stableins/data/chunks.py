@@ -37,24 +37,6 @@ class ChunkSource(Protocol):
     ``iter_chunks`` yields dicts ``{column: ndarray}`` with every column of ``columns`` (all of the source's when
     None), at most ``rows`` rows each, consecutive and in order; a column that is not in the source raises
     :class:`~stableins.errors.InputError` naming it.
-
-    Parameters of ``iter_chunks``
-    -----------------------------
-    columns : sequence of str, optional
-        Columns to read.
-    rows : int
-        Rows per chunk (the last chunk may be shorter).
-    thin : sequence of str
-        Columns wanted only at the rows whose index (0-based, from the first row of the record) is a multiple of
-        ``step``: each chunk then holds them at those rows only.
-    step : int
-        The decimation of the ``thin`` columns.
-    reuse : bool
-        The source may reuse its buffers from chunk to chunk: the arrays are then valid only until the next chunk is
-        requested (one-pass consumers).  A source may ignore it.
-    unchecked : sequence of str
-        Full-rate columns the caller checks for NaN/inf itself (naming the row).  A source may check them anyway; every
-        other column must be checked (:func:`stableins.data.validation.check_finite`).
     """
 
     def iter_chunks(
@@ -67,7 +49,26 @@ class ChunkSource(Protocol):
         reuse: bool = False,
         unchecked: Sequence[str] = (),
     ) -> Iterator[dict[str, Any]]:
-        """Yield the record's chunks (see the class docstring)."""
+        """Yield the record's chunks ``{column: ndarray}``, consecutive and in order (see the class docstring).
+
+        Parameters
+        ----------
+        columns : sequence of str, optional
+            Columns to read.
+        rows : int
+            Rows per chunk (the last chunk may be shorter).
+        thin : sequence of str
+            Columns wanted only at the rows whose index (0-based, from the first row of the record) is a multiple of
+            ``step``: each chunk then holds them at those rows only.
+        step : int
+            The decimation of the ``thin`` columns.
+        reuse : bool
+            The source may reuse its buffers from chunk to chunk: the arrays are then valid only until the next chunk is
+            requested (one-pass consumers).  A source may ignore it.
+        unchecked : sequence of str
+            Full-rate columns the caller checks for NaN/inf itself (naming the row).  A source may check them anyway; every
+            other column must be checked (:func:`stableins.data.validation.check_finite`).
+        """
         ...
 
 

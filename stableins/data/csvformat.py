@@ -87,6 +87,7 @@ def format_rows(data: Mapping[str, Any], schema: Sequence[Column]) -> str:
 
 
 def trailer_text(rows: int) -> str:
+    """Return the trailer line that closes a file of ``rows`` data rows."""
     return f"{TRAILER} {rows} rows\n"
 
 
@@ -121,10 +122,11 @@ def read_line(handle: IO[str], path: str, line_number: int) -> str:
     return line
 
 
-def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
-    """Read the JSON header document and the column headers, lines with ``readline()`` up to the column-header line."""
-    from stableins.data.jsonio import parse_json
+def _scan_header(readline: Any, path: str) -> tuple[str, list[str], str]:
+    """Read lines up to the column-header line: return where the header block stood, its JSON lines and that line.
 
+    The state is ``"before"`` (no BEGIN HEADER seen), ``"inside"`` (no END HEADER) or ``"after"``.
+    """
     json_lines: list[str] = []
     size = 0
     state = "before"
@@ -144,9 +146,15 @@ def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
                 if size > MAX_HEADER:
                     raise InputError(f"header block longer than {MAX_HEADER} characters", path=path, field="header")
             continue
-        if not text.strip():
-            continue
-        break
+        if text.strip():
+            return state, json_lines, text
+
+
+def read_header_block(readline: Any, path: str) -> tuple[Any, list[str]]:
+    """Read the JSON header document and the column headers, lines with ``readline()`` up to the column-header line."""
+    from stableins.data.jsonio import parse_json
+
+    state, json_lines, text = _scan_header(readline, path)
     if state == "before":
         raise InputError("no header block (BEGIN HEADER ... END HEADER)", path=path, expected="the JSON header of docs/formats.md")
     if state == "inside":
@@ -212,35 +220,7 @@ class CsvReader:
     def iter_chunks(self, rows: int = 65536) -> Iterator[dict[str, Any]]:
         """Yield dicts of column arrays of up to ``rows`` rows (and :data:`MAX_CHUNK_TEXT` characters) each, in file order."""
         while True:
-            lines: list[tuple[int, str]] = []
-            text_size = 0
-            full = False
-            while len(lines) < rows:
-                if text_size >= MAX_CHUNK_TEXT:
-                    full = True
-                    break
-                line = self._readline()
-                if not line:
-                    break
-                if line.startswith("#"):
-                    if line.startswith(TRAILER):
-                        self._trailer(line)
-                    continue
-                if not line.strip():
-                    continue
-                if self.trailer_rows is not None:
-                    raise InputError("data after the END OF DATA line", path=self.path, row=self.rows_read + len(lines) + 1)
-                if not line.endswith("\n"):
-                    fields = line.split(",")
-                    if len(fields) != self.n_fields or self.document.get("end_marker"):
-                        raise InputError(
-                            f"file ends mid-row (line {self.line_number} is incomplete); the file was cut short",
-                            path=self.path,
-                            row=self.rows_read + len(lines) + 1,
-                            expected="a complete file",
-                        )
-                lines.append((self.line_number, line))
-                text_size += len(line)
+            lines, full = self._data_lines(rows)
             if lines:
                 chunk = self._parse(lines)
                 self.rows_read += len(lines)
@@ -248,6 +228,41 @@ class CsvReader:
             if len(lines) < rows and not full:
                 break
         self._finish()
+
+    def _data_lines(self, rows: int) -> tuple[list[tuple[int, str]], bool]:
+        """Return the next data lines (line number, text), up to ``rows`` of them, and whether the text size limit stopped them."""
+        lines: list[tuple[int, str]] = []
+        text_size = 0
+        while len(lines) < rows:
+            if text_size >= MAX_CHUNK_TEXT:
+                return lines, True
+            line = self._readline()
+            if not line:
+                break
+            if line.startswith("#"):
+                if line.startswith(TRAILER):
+                    self._trailer(line)
+                continue
+            if not line.strip():
+                continue
+            if self.trailer_rows is not None:
+                raise InputError("data after the END OF DATA line", path=self.path, row=self.rows_read + len(lines) + 1)
+            if not line.endswith("\n"):
+                self._check_last_line(line, row=self.rows_read + len(lines) + 1)
+            lines.append((self.line_number, line))
+            text_size += len(line)
+        return lines, False
+
+    def _check_last_line(self, line: str, *, row: int) -> None:
+        """Raise when a line without its newline (the file's last) is not a complete row."""
+        fields = line.split(",")
+        if len(fields) != self.n_fields or self.document.get("end_marker"):
+            raise InputError(
+                f"file ends mid-row (line {self.line_number} is incomplete); the file was cut short",
+                path=self.path,
+                row=row,
+                expected="a complete file",
+            )
 
     def _trailer(self, line: str) -> None:
         match = _TRAILER_COUNT.fullmatch(line[len(TRAILER) :].strip())
@@ -272,8 +287,9 @@ class CsvReader:
             )
 
     def _parse(self, lines: list[tuple[int, str]]) -> dict[str, Any]:
-        """Columns of a block of data lines: numpy's C parser, or, on any problem, a line-by-line
-        pass that names the row and field.
+        """Return the columns of a block of data lines.
+
+        Read by numpy's C parser, or, on any problem, by a line-by-line pass that names the row and field.
         """
         import io
 
@@ -354,6 +370,7 @@ class CsvReader:
         return {c.name: np.concatenate([ch[c.name] for ch in chunks]) for c in self.schema}
 
     def close(self) -> None:
+        """Close the file (idempotent)."""
         if self._handle is not None:
             self._handle.close()
             self._handle = None

@@ -242,6 +242,7 @@ def _kind_of(path: Path) -> str:
 
 
 def header_document(kind: str, metadata: SiteMetadata) -> dict[str, Any]:
+    """Return the JSON header of a device file of ``kind`` (format tag, schema version, site metadata)."""
     from stableins.data.validation import FORMAT_TAGS
 
     return {"format": FORMAT_TAGS[kind], "schema_version": SCHEMA_VERSION, "end_marker": True, "metadata": metadata_to_document(metadata)}

@@ -23,6 +23,7 @@ half-written file under the final name.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from collections.abc import Mapping, Sequence
@@ -58,6 +59,7 @@ class H5Writer:
         kind: str,
         schema: Sequence[Column],
         document: Mapping[str, Any],
+        *,
         chunk_samples: int = DEFAULT_CHUNK,
         compression: str | None = None,
         overview_step: int = 0,
@@ -220,10 +222,8 @@ class H5Writer:
 
     def _abort(self, error: BaseException | None) -> None:
         if self._file is not None:
-            try:
+            with contextlib.suppress(Exception):  # already failing; the temporary file is removed below
                 self._file.close()
-            except Exception:  # noqa: BLE001 - already failing; the temporary file is removed below
-                pass
             self._file = None
         if self._atomic is not None:
             err = error if error is not None else RuntimeError("aborted")

@@ -89,29 +89,37 @@ class H5Reader:
         for c in self.schema:
             if not hasattr(group[c.name], "dtype"):
                 raise InputError("not a dataset", path=self.path, field=c.name, expected=f"a 1-D dataset /{GROUP}/{c.name}")
-        if "rows" in f.attrs:
-            rows = f.attrs["rows"]
-            if isinstance(rows, bool | np.bool_) or not isinstance(rows, int | np.integer) or not 0 <= int(rows) < 1 << 48:
-                raise InputError(f"attribute rows is {rows!r}", path=self.path, field="rows", expected="a non-negative integer")
-            self.rows = int(rows)
-        else:
-            self.rows = int(group[self.schema[0].name].shape[0]) if group[self.schema[0].name].ndim == 1 else -1
+        self.rows = self._row_count(f, group)
         for c in self.schema:
-            d = group[c.name]
-            if d.ndim != 1 or d.shape[0] != self.rows:
-                raise InputError(
-                    f"dataset has shape {d.shape} but the file has {self.rows} rows; the file is damaged",
-                    path=self.path,
-                    field=c.name,
-                    expected=f"shape ({self.rows},)",
-                )
-            if c.dtype != "str" and d.dtype.kind not in "iuf":
-                raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="an integer or float dataset")
-            if c.dtype == "str" and d.dtype.kind not in "SUO":
-                raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="a string dataset (S16)")
-            _check_storage(d, self.rows, self.path, c.name)
+            self._check_dataset(group[c.name], c)
         self.overview_step = self._overview_step(f)
         self.time_grid = self._time_grid(f)
+
+    def _row_count(self, f: Any, group: Any) -> int:
+        """Return the rows the file states (attribute ``rows``), else the length of its first column (-1: not 1-D)."""
+        import numpy as np
+
+        if "rows" not in f.attrs:
+            return int(group[self.schema[0].name].shape[0]) if group[self.schema[0].name].ndim == 1 else -1
+        rows = f.attrs["rows"]
+        if isinstance(rows, bool | np.bool_) or not isinstance(rows, int | np.integer) or not 0 <= int(rows) < 1 << 48:
+            raise InputError(f"attribute rows is {rows!r}", path=self.path, field="rows", expected="a non-negative integer")
+        return int(rows)
+
+    def _check_dataset(self, d: Any, c: Column) -> None:
+        """Raise unless dataset ``d`` of column ``c`` is 1-D with the file's rows, of the column's type, sanely stored."""
+        if d.ndim != 1 or d.shape[0] != self.rows:
+            raise InputError(
+                f"dataset has shape {d.shape} but the file has {self.rows} rows; the file is damaged",
+                path=self.path,
+                field=c.name,
+                expected=f"shape ({self.rows},)",
+            )
+        if c.dtype != "str" and d.dtype.kind not in "iuf":
+            raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="an integer or float dataset")
+        if c.dtype == "str" and d.dtype.kind not in "SUO":
+            raise InputError(f"dataset has type {d.dtype}", path=self.path, field=c.name, expected="a string dataset (S16)")
+        _check_storage(d, self.rows, self.path, c.name)
 
     def _time_grid(self, f: Any) -> Any:
         """Return the ``/time_grid`` segments ``(n, 3)`` if present and consistent with the file, else None."""
@@ -184,8 +192,10 @@ class H5Reader:
         return self.overview_step, 0 if self.time_grid is None else len(self.time_grid)
 
     def iter_verified(self, rows: int = 1 << 18) -> Iterator[dict[str, Any]]:
-        """Every column, chunk by chunk, each value checked (finite numbers, whole numbers where integers are due), and
-        the derived datasets checked against the rows of each chunk: the one validating pass over a file.
+        """Yield every column, chunk by chunk: the one validating pass over a file.
+
+        Each value is checked (finite numbers, whole numbers where integers are due), and the derived datasets are
+        checked against the rows of each chunk.
 
         Numeric columns are read into buffers reused from chunk to chunk (HDF5's chunk cache off, as the system
         stage reads): the arrays yielded are valid only until the next chunk is requested.
@@ -221,7 +231,7 @@ class H5Reader:
                             check_finite(c.name, values, self.path, first_row=k + 1)
                             full[c.name] = values
                     if grid is not None:
-                        self._check_grid(full["time"], k, stop, tolerance, work[:n], index[:n])
+                        self._check_grid(full["time"], k, stop, tolerance=tolerance, work=work[:n], index=index[:n])
                     for name, view_dataset in views.items():
                         picked = full[name][::step]
                         view = view_dataset[k // step : k // step + picked.size]
@@ -240,7 +250,7 @@ class H5Reader:
             except H5_DAMAGE as error:
                 raise InputError(f"the file cannot be read ({error}); it is truncated or corrupt", path=self.path) from None
 
-    def _check_grid(self, time: Any, start: int, stop: int, tolerance: float, work: Any, index: Any) -> None:
+    def _check_grid(self, time: Any, start: int, stop: int, *, tolerance: float, work: Any, index: Any) -> None:
         """Rows ``start:stop`` of the time column lie on ``/time_grid`` within ``tolerance`` (in place: no temporaries)."""
         import numpy as np
 
@@ -273,8 +283,10 @@ class H5Reader:
         )
 
     def _open(self, *, chunk_cache: bool = True) -> Any:
-        """Open for reading.  ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them
-        straight into the destination instead of through its chunk cache (measured 0.29 → 0.18 s for the
+        """Open for reading.
+
+        ``chunk_cache=False`` for passes that read whole chunks in order: HDF5 then reads them straight into the
+        destination instead of through its chunk cache (measured 0.29 → 0.18 s for the
         forces of a week at 100 Hz).
         """
         return open_h5(self.path, chunk_cache=chunk_cache)
@@ -358,13 +370,7 @@ class H5Reader:
         from_overview = bool(self.overview_step) and step % self.overview_step == 0
         with self._open(chunk_cache=bool(thin_set) and not from_overview) as f:  # strided gathers need the cache
             group = f[GROUP]
-            gathers: dict[str, _ThinColumn | _OverviewColumn] = {}
-            for c in columns:
-                if c.name in thin_set:
-                    if from_overview and c.dtype != "str":
-                        gathers[c.name] = _OverviewColumn(f[OVERVIEW][c.name], self.overview_step, self.path)
-                    else:
-                        gathers[c.name] = _ThinColumn(group[c.name], self.path)
+            gathers = self._gathers(f, [c for c in columns if c.name in thin_set], from_overview=from_overview)
             datasets = {c.name: group[c.name] for c in columns if reuse and c.dtype != "str" and c.name not in gathers}  # looked up once
             buffers: dict[str, Any] = {}
             for k in range(start, stop, rows):
@@ -376,24 +382,38 @@ class H5Reader:
                         values = gathers[c.name].take(first, end, step)
                         check_finite(c.name, values, self.path, first_row=first + 1, row_step=step)
                     elif reuse and c.dtype != "str":
-                        try:
-                            buffer = buffers.get(c.name)
-                            if buffer is None:
-                                buffer = buffers[c.name] = np.empty(rows, dtype=c.dtype)
-                            values = buffer[: end - k]
-                            datasets[c.name].read_direct(values, np.s_[k:end], np.s_[0 : end - k])
-                        except H5_DAMAGE as error:
-                            raise InputError(
-                                f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",
-                                path=self.path,
-                                field=c.name,
-                            ) from None
+                        if c.name not in buffers:
+                            buffers[c.name] = np.empty(rows, dtype=c.dtype)
+                        values = self._read_direct(datasets[c.name], buffers[c.name][: end - k], c.name, k)
                         if c.name not in unchecked_set:
                             check_finite(c.name, values, self.path, first_row=k + 1)
                     else:
                         values = self._read(f, [c.name], k, end)[c.name]
                     out[c.name] = values
                 yield out
+
+    def _gathers(self, f: Any, thin: Sequence[Column], *, from_overview: bool) -> dict[str, _ThinColumn | _OverviewColumn]:
+        """Return the readers of the ``thin`` columns: from ``/overview`` (numeric columns, when it serves), else strided."""
+        gathers: dict[str, _ThinColumn | _OverviewColumn] = {}
+        for c in thin:
+            if from_overview and c.dtype != "str":
+                gathers[c.name] = _OverviewColumn(f[OVERVIEW][c.name], self.overview_step, self.path)
+            else:
+                gathers[c.name] = _ThinColumn(f[GROUP][c.name], self.path)
+        return gathers
+
+    def _read_direct(self, dataset: Any, values: Any, name: str, k: int) -> Any:
+        """Read rows ``k:k + len(values)`` of ``dataset`` into the buffer ``values`` (InputError when the file is damaged)."""
+        import numpy as np
+
+        end = k + len(values)
+        try:
+            dataset.read_direct(values, np.s_[k:end], np.s_[0 : end - k])
+        except H5_DAMAGE as error:
+            raise InputError(
+                f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=name
+            ) from None
+        return values
 
     def _columns(self, names: Sequence[str] | None) -> list[Column]:
         if names is None:

@@ -225,18 +225,21 @@ def load_json_file(
 
 # --------------------------------------------------------------------------- field checks
 def expect_mapping(value: Any, path: Any, field: str, expected: str = "a JSON object") -> Mapping[str, Any]:
+    """Return ``value`` if it is a JSON object, else raise :class:`InputError` naming ``path`` and ``field``."""
     if not isinstance(value, Mapping):
         raise InputError(f"{_shown(value)} is not an object", path=path, field=field, expected=expected)
     return value
 
 
 def expect_list(value: Any, path: Any, field: str, expected: str = "a list") -> list[Any]:
+    """Return ``value`` if it is a list, else raise :class:`InputError` naming ``path`` and ``field``."""
     if not isinstance(value, list):
         raise InputError(f"{_shown(value)} is not a list", path=path, field=field, expected=expected)
     return value
 
 
 def expect_text(value: Any, path: Any, field: str, expected: str = "a string") -> str:
+    """Return ``value`` if it is a string, else raise :class:`InputError` naming ``path`` and ``field``."""
     if not isinstance(value, str):
         raise InputError(f"{_shown(value)} is not a string", path=path, field=field, expected=expected)
     return value

@@ -37,6 +37,7 @@ class SamplingIssue:
     expected: float
 
     def describe(self, path: str) -> str:
+        """Return the irregularity in words, with the file ``path`` and the row."""
         return f"{path}: row {self.row}: {self.kind}: time step {self.step:.6g} s (nominal {self.expected:.6g} s)"
 
 
@@ -77,6 +78,7 @@ class SamplingReport:
 
     @property
     def uniform(self) -> bool:
+        """Whether the record has neither gaps nor jitter."""
         return not self.gaps and not self.n_jitter
 
 
@@ -114,6 +116,7 @@ class SamplingChecker:
         self.max_step_error = 0.0
 
     def update(self, time: Any) -> None:
+        """Check the time stamps of the next chunk (seconds) against the ones seen so far."""
         import numpy as np
 
         time = np.asarray(time, dtype=float)
@@ -151,6 +154,7 @@ class SamplingChecker:
         self.n += time.size
 
     def finish(self) -> SamplingReport:
+        """Return the report of every time stamp seen."""
         span = (self.last or 0.0) - (self.first or 0.0)
         mean_rate = (self.n - 1) / span if self.n > 1 and span > 0 else float("nan")
         return SamplingReport(self.n, mean_rate, tuple(self.gaps), tuple(self.jitter), self.n_jitter, self.max_step_error, self.n_gaps)

@@ -89,7 +89,14 @@ class SystemRecordWriter:
             step = int(round(self.metadata.sample_rate * OVERVIEW_SECONDS)) if self.metadata.sample_rate else 0
             period = 1.0 / self.metadata.sample_rate if self.metadata.sample_rate else None
             self._inner = H5Writer(
-                self.path, "system", SYSTEM_COLUMNS, document, self.chunk_samples, self.compression, overview_step=step, time_period=period
+                self.path,
+                "system",
+                SYSTEM_COLUMNS,
+                document,
+                chunk_samples=self.chunk_samples,
+                compression=self.compression,
+                overview_step=step,
+                time_period=period,
             )
             self._inner.__enter__()
         else:
@@ -185,6 +192,7 @@ class SystemRecord:
 
     @property
     def columns(self) -> tuple[str, ...]:
+        """Column names of a system record, in file order."""
         return NAMES
 
     @property
@@ -267,8 +275,10 @@ class SystemRecord:
         return self._reader.grid_time(start, stop)
 
     def validate(self, *, allow_gaps: bool = False, tolerance: float = 0.01, rows: int = 1 << 18) -> RecordValidation:
-        """Validate the record: the one validation of a system-level record, run by every command that reads one (``check``, ``calibrate system``,
-        ``diagnose``), so that they never disagree about a file.
+        """Validate the record: the one validation of a system-level record.
+
+        Every command that reads one (``check``, ``calibrate system``, ``diagnose``) runs it, so that they never disagree
+        about a file.
 
         One streaming pass (bounded memory) over every column: every value finite, the time strictly increasing and
         sampled at ``metadata.sample_rate`` (:meth:`check_sampling`'s rules: a gap is an error unless ``allow_gaps``, a

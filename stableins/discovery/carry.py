@@ -62,6 +62,7 @@ class CarriedCalibration:
 
     @property
     def kept(self) -> tuple[str, ...]:
+        """Ids of the effects carried into the calibration."""
         return self.history.effects
 
     @property
@@ -146,5 +147,5 @@ def carry_effects(
 
 
 def stage_effects(fit: FitResult) -> tuple[str, ...]:
-    """The additive (discovered) terms a stage result estimates or holds."""
+    """Return the additive (discovered) terms a stage result estimates or holds."""
     return tuple(t.id for t in fit.terms if t.kind == TermKind.ADDITIVE)

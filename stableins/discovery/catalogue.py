@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,6 +48,7 @@ class Candidate:
 
     @property
     def id(self) -> str:
+        """Id of the candidate's term."""
         return self.term.id
 
 
@@ -63,6 +65,38 @@ def _f(inputs: TermInputs) -> NDArray:
 
 def _polynomial(axis: int, function: Callable[[NDArray], NDArray]) -> Callable[[TermInputs], NDArray]:
     return lambda inputs: _on_axis(axis, function(_f(inputs)))
+
+
+def _cubed(f: NDArray, *, i: int) -> NDArray:
+    return f[..., i] ** 3
+
+
+def _signed_square(f: NDArray, *, i: int) -> NDArray:
+    return f[..., i] * np.abs(f[..., i])
+
+
+def _squared(f: NDArray, *, i: int) -> NDArray:
+    return f[..., i] ** 2
+
+
+def _absolute(f: NDArray, *, i: int) -> NDArray:
+    return np.abs(f[..., i])
+
+
+def _product(f: NDArray, *, j: int, k: int) -> NDArray:
+    return f[..., j] * f[..., k]
+
+
+def _series_on_axis(i: int, series: NDArray, _inputs: TermInputs) -> NDArray:
+    return _on_axis(i, series)
+
+
+def _input_times_series(i: int, series: NDArray, inputs: TermInputs) -> NDArray:
+    return _on_axis(i, _f(inputs)[..., i] * series)
+
+
+def _component_on_axis(i: int, series: NDArray, _inputs: TermInputs) -> NDArray:
+    return _on_axis(i, series[..., i])
 
 
 def _needs(term_id: str, name: str, build: Callable[[NDArray, TermInputs], NDArray]) -> Callable[[TermInputs], NDArray]:
@@ -125,7 +159,7 @@ def _instrument_powers() -> list[Candidate]:
                     10 * MICRO_G_PER_G3,
                     f"cubic nonlinearity of the {a} accelerometer (IEEE 1293 K3)",
                     axis=i,
-                    regressor=_polynomial(i, lambda f, i=i: f[..., i] ** 3),
+                    regressor=_polynomial(i, partial(_cubed, i=i)),
                     excitation="the axis at ±1 g and at intermediate inputs (±0.7 g)",
                     aliases=(f"sf_{a}",),
                     source="IEEE Std 1293 model equation",
@@ -145,7 +179,7 @@ def _instrument_powers() -> list[Candidate]:
                     10 * MICRO_G_PER_G2,
                     f"odd quadratic nonlinearity f|f| of the {a} accelerometer (IEEE 1293 Koq)",
                     axis=i,
-                    regressor=_polynomial(i, lambda f, i=i: f[..., i] * np.abs(f[..., i])),
+                    regressor=_polynomial(i, partial(_signed_square, i=i)),
                     excitation="the axis at ±1 g and at intermediate inputs",
                     aliases=(f"sf_{a}",),
                     source="IEEE Std 1293 model equation",
@@ -166,7 +200,7 @@ def _instrument_powers() -> list[Candidate]:
                     f"scale-factor asymmetry of the {a} accelerometer: output gains Ksa·|f| (half the difference of the "
                     "positive- and negative-input scale factors)",
                     axis=i,
-                    regressor=_polynomial(i, lambda f, i=i: np.abs(f[..., i])),
+                    regressor=_polynomial(i, partial(_absolute, i=i)),
                     excitation="the axis at ±1 g and at intermediate inputs",
                     aliases=(f"K2_{a}", f"bias_{a}"),
                     source="IEEE Std 1293 (scale-factor asymmetry)",
@@ -195,7 +229,7 @@ def _instrument_couplings() -> list[Candidate]:
                         10 * MICRO_G_PER_G2,
                         f"sensitivity of the {a} accelerometer to the square of the {b} input (IEEE 1293 Kpp/Koo)",
                         axis=i,
-                        regressor=_polynomial(i, lambda f, j=j: f[..., j] ** 2),
+                        regressor=_polynomial(i, partial(_squared, i=j)),
                         excitation=f"the {b} input at several magnitudes with the {a} axis horizontal and vertical",
                         aliases=(f"bias_{a}",),
                         source="IEEE Std 1293 model equation",
@@ -219,7 +253,7 @@ def _instrument_couplings() -> list[Candidate]:
                         f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} (Cai et al. 2016 Eq. 4 K_a{b}{c}"
                         ", IEEE 1293 Kip/Kio/Kpo)",
                         axis=i,
-                        regressor=_polynomial(i, lambda f, j=j, k=k: f[..., j] * f[..., k]),
+                        regressor=_polynomial(i, partial(_product, j=j, k=k)),
                         excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
                         aliases=(f"beta_{a}{b}" if b != a else f"beta_{a}{c}", f"bias_{a}"),
                         source="Cai et al. 2016 Eq. 4; IEEE Std 1293",
@@ -245,7 +279,7 @@ def _environment() -> list[Candidate]:
                     5 * MICRO_G,
                     f"bias temperature sensitivity of the {a} accelerometer (ΔT from the reference temperature)",
                     axis=i,
-                    regressor=_needs(f"Kt_bias_{a}", "temperature", lambda t, _, i=i: _on_axis(i, t)),
+                    regressor=_needs(f"Kt_bias_{a}", "temperature", partial(_series_on_axis, i)),
                     excitation="a temperature change during the procedure",
                     aliases=(f"bias_{a}", f"Kd_bias_{a}"),
                     source="IEEE Std 1293 (environment sensitivity)",
@@ -266,7 +300,7 @@ def _environment() -> list[Candidate]:
                     5 * PPM,
                     f"scale-factor temperature sensitivity of the {a} accelerometer: output gains Kt_sf·f·ΔT",
                     axis=i,
-                    regressor=_needs(f"Kt_sf_{a}", "temperature", lambda t, inp, i=i: _on_axis(i, _f(inp)[..., i] * t)),
+                    regressor=_needs(f"Kt_sf_{a}", "temperature", partial(_input_times_series, i)),
                     excitation="±1 g positions of the axis at two or more temperatures",
                     aliases=(f"sf_{a}",),
                     source="IEEE Std 1293 (environment sensitivity)",
@@ -287,7 +321,7 @@ def _environment() -> list[Candidate]:
                     20 * MICRO_G / 3600.0,
                     f"linear bias drift in time of the {a} accelerometer (t = session time)",
                     axis=i,
-                    regressor=_needs(f"Kd_bias_{a}", "time", lambda t, _, i=i: _on_axis(i, t)),
+                    regressor=_needs(f"Kd_bias_{a}", "time", partial(_series_on_axis, i)),
                     excitation="repeated positions spread over the session",
                     aliases=(f"bias_{a}", f"Kt_bias_{a}"),
                     source="IEEE Std 1293 (bias drift)",
@@ -308,7 +342,7 @@ def _environment() -> list[Candidate]:
                     5 * MICRO_G,
                     f"hysteresis of the {a} accelerometer: output shift ±Kh after a slew that raised (+1) or lowered (−1) its input",
                     axis=i,
-                    regressor=_needs(f"Kh_{a}", "slew_direction", lambda s, _, i=i: _on_axis(i, s[..., i])),
+                    regressor=_needs(f"Kh_{a}", "slew_direction", partial(_component_on_axis, i)),
                     excitation="each position approached from both directions",
                     aliases=(f"bias_{a}",),
                     source="IEEE Std 1293 (hysteresis)",
@@ -402,7 +436,7 @@ def _equipment() -> list[Candidate]:
             _, g, cs = tid.split("_")
             i = GIMBAL_NAMES.index(g)
             meaning = f"once-per-revolution error of the {g} angle sensor ({'cos' if cs == 'c' else 'sin'} of the reading)"
-            aliases = (f"theta{i + 1}0",)
+            aliases: tuple[str, ...] = (f"theta{i + 1}0",)
             separation = f"positions covering a full revolution of the {g} gimbal at 45° steps"
         else:
             meaning, aliases = _EQUIPMENT_TEXT[tid]

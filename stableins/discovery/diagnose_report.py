@@ -28,6 +28,7 @@ from enum import StrEnum
 from os import PathLike
 from typing import Any
 
+from stableins.discovery.diagnostics import CONSISTENT_P_VALUES
 from stableins.discovery.steps import Step
 from stableins.discovery.summaries import (
     DOCUMENT,
@@ -41,7 +42,6 @@ from stableins.discovery.summaries import (
 from stableins.noise import NoiseModel
 
 __all__ = [
-    "CONSISTENT_P_VALUES",
     "DOCUMENT",
     "OBSERVATION_UNIT",
     "CandidateSummary",
@@ -53,11 +53,6 @@ __all__ = [
     "SpectrumSummary",
     "SystemFindings",
 ]
-
-#: χ²_ν is consistent with the noise floor when ``P(χ² ≥ observed)`` lies strictly between these (its two-sided 99 %
-#: range): the rule of :attr:`stableins.discovery.diagnostics.Diagnosis.consistent`, pinned to it by a test.
-CONSISTENT_P_VALUES = (0.005, 0.995)
-
 
 class DiagnoseStage(StrEnum):
     """What the data of a diagnosis are: device dwells of one stage, or the bins of a system record."""
@@ -183,7 +178,7 @@ class DiagnoseReport:
     # ------------------------------------------------------------------ verdict
     @property
     def consistent(self) -> bool:
-        """Whether ``χ²_ν`` lies within its two-sided 99 % range (:data:`CONSISTENT_P_VALUES`)."""
+        """Whether ``χ²_ν`` lies within its two-sided 99 % range (:data:`stableins.discovery.diagnostics.CONSISTENT_P_VALUES`)."""
         low, high = CONSISTENT_P_VALUES
         return low < self.p_value < high
 

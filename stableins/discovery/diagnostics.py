@@ -33,6 +33,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.problem import Problem
 
 AXIS_NAMES = ("x", "y", "z")
+#: χ²_ν is consistent with the noise floor when ``P(χ² ≥ observed)`` lies strictly between these (its two-sided 99 %
+#: range): the rule of :attr:`Diagnosis.consistent` and of
+#: :attr:`stableins.discovery.diagnose_report.DiagnoseReport.consistent`.
+CONSISTENT_P_VALUES = (0.005, 0.995)
 #: Above this many positions the per-position plots are drawn against time, without per-point labels.
 MAX_NAMED_POSITIONS = 80
 
@@ -79,6 +83,7 @@ class Diagnosis:
 
     @property
     def normalized(self) -> NDArray[np.float64]:
+        """Residuals divided by their 1σ."""
         return self.residuals / self.sigma
 
     @property
@@ -93,11 +98,12 @@ class Diagnosis:
 
     @property
     def consistent(self) -> bool:
-        """χ²_ν within its two-sided 99 % range under the model."""
-        return 0.005 < self.p_value < 0.995
+        """Whether χ²_ν lies within its two-sided 99 % range under the model (:data:`CONSISTENT_P_VALUES`)."""
+        low, high = CONSISTENT_P_VALUES
+        return low < self.p_value < high
 
     def worst(self, count: int = 5) -> list[tuple[str, str, float]]:
-        """The largest normalized residuals: (position, axis, residual/σ)."""
+        """Return the largest normalized residuals: (position, axis, residual/σ)."""
         z = self.normalized
         k = z.shape[1]
         order = np.argsort(-np.abs(z), axis=None)[:count]
@@ -125,6 +131,7 @@ class Diagnosis:
         return "largest residuals: " + ", ".join(f"{p} {a} {z:+.1f}σ" for p, a, z in self.worst())
 
     def report(self) -> str:
+        """Return the diagnosis in words: fit line, residual RMS against the noise floor per axis, the worst residuals."""
         lines = [self._fit_line(), f"{'axis':<5} {'residual RMS':>14} {'noise floor':>12} {'ratio':>7}"]
         lines += [f"{a:<5} {rms:>14} {floor:>12} {ratio:>7}" for a, rms, floor, ratio in self._axis_rows()]
         if self.noise:
@@ -155,7 +162,7 @@ class Diagnosis:
         return html_result("Diagnosis", [self._fit_line(), self._worst_line()], [table], [("noise floor", notes)])
 
     def to_dataframe(self) -> Any:
-        """The residuals as a :class:`pandas.DataFrame`, one row per position and output.
+        """Return the residuals as a :class:`pandas.DataFrame`, one row per position and output.
 
         Columns ``position``, ``output``, ``residual`` and ``sigma`` (in :attr:`unit`), ``normalized`` (residual / 1σ),
         and ``f_x/g``, ``f_y/g``, ``f_z/g`` (the orientation) when known.  Needs pandas (``pip install stableins[pandas]``).
@@ -190,7 +197,7 @@ class Diagnosis:
         return self.time is not None and len(self.position_labels) > MAX_NAMED_POSITIONS
 
     def _position_axis(self) -> str:
-        """What the x axis of the per-position plots shows, with an example of a label explained."""
+        """Return what the x axis of the per-position plots shows, with an example of a label explained."""
         if self._by_time():
             return "time since the start of the record [h]"
         first = self.position_labels[0] if self.position_labels else ""
@@ -222,7 +229,7 @@ class Diagnosis:
         axes = np.atleast_2d(fig.subplots(len(self.outputs), len(panels), sharex=True, squeeze=False))
         by_time = self._by_time()
         for column, diagnosis in enumerate(panels):
-            x = diagnosis.time / 3600.0 if by_time else np.arange(len(diagnosis.position_labels))
+            x = diagnosis.time / 3600.0 if by_time and diagnosis.time is not None else np.arange(len(diagnosis.position_labels))
             for i, ax in enumerate(axes[:, column]):
                 r, sg = diagnosis.residuals[:, i] / self.scale, diagnosis.sigma[:, i] / self.scale
                 ax.fill_between(x, -sg, sg, color="0.88", step="mid", lw=0, label="±1σ noise floor")
@@ -248,7 +255,7 @@ class Diagnosis:
         return fig
 
     def plot_orientation(self, fig: Figure | None = None, *, before: Diagnosis | None = None, next_step: str | None = None) -> Figure:
-        """Normalized residual of each axis against each component of ``f^p`` [g] (3 × 3 panels).
+        """Plot the normalized residual of each axis against each component of ``f^p`` [g] (3 × 3 panels).
 
         A residual that grows with one component of the specific force points at a missing term in that input
         (a scale-factor or cross-coupling effect); ``before`` draws the model before effects were added in grey.
@@ -291,8 +298,8 @@ class Diagnosis:
         return fig
 
 
-def _layout(labels: Sequence[str], m: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Position names and output names from residual labels ``"<position> <output>"``.
+def residual_layout(labels: Sequence[str], m: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Return the position names and output names of ``m`` residuals from their labels ``"<position> <output>"``.
 
     Three outputs per position when the labels end in ``f_x, f_y, f_z`` in turn (device
     dwells); otherwise one output per observation (the fine stage's ``|f|``, system records).
@@ -319,7 +326,7 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
 
     from stableins.discovery.problem import fit_chi2, fit_chi2_red
 
-    positions, outputs = _layout(result.residual_labels, result.residuals.size)
+    positions, outputs = residual_layout(result.residual_labels, result.residuals.size)
     k = len(outputs)
     residuals = result.residuals.reshape(-1, k)
     sigma = result.residual_sigma.reshape(-1, k)

@@ -80,7 +80,7 @@ def drift_problem(
     zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
     drift_terms: Sequence[Term] | None = None,
 ) -> tuple[LinearProblem, ErrorModel, tuple[Term, ...], tuple[str, ...]]:
-    """The reading-slope problem: (problem, null model, candidate terms, notes).
+    """Return the reading-slope problem: (problem, null model, candidate terms, notes).
 
     Parameters
     ----------
@@ -98,7 +98,10 @@ def drift_problem(
 
     slopes = np.asarray(slopes, dtype=float)
     slope_sigma = np.asarray(slope_sigma, dtype=float)
-    platform = GimbalPlatform(zero_offsets=tuple(zero_offsets), configuration=dwells.configuration, base_attitude=dwells.base_attitude)
+    offsets = np.asarray(zero_offsets, dtype=float)
+    platform = GimbalPlatform(
+        zero_offsets=(offsets[0], offsets[1], offsets[2]), configuration=dwells.configuration, base_attitude=dwells.base_attitude
+    )
     actual = platform.actual_angles(dwells.readings)
     g = np.stack([platform.angular_rate(actual, np.eye(3)[k]) for k in range(3)], axis=-1)  # (P, 3 omega, 3 gimbals)
     locked = ~(np.linalg.cond(g) < MAX_CONDITION)

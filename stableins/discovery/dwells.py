@@ -93,10 +93,11 @@ class DwellSet:
 
     @property
     def n_positions(self) -> int:
+        """Number of dwells (positions)."""
         return self.readings.shape[0]
 
     def subset(self, index: ArrayLike) -> DwellSet:
-        """The dwells at ``index`` (positions to leave out, cross-validation)."""
+        """Return the dwells at ``index`` (positions to leave out, cross-validation)."""
         i = np.asarray(index)
         return DwellSet(
             self.readings[i],
@@ -195,7 +196,7 @@ def dwells_from_dataset(
 
 
 def _dwell_set(summaries, extras, *, gravity, base_attitude, configuration, labels, initial_readings, noise, info) -> DwellSet:
-    """A :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
+    """Return a :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
 
     ``extras``: per dwell ``(time, time_since_command, temperature − reference, angles)`` of the
     samples used.  ``noise`` None: measured from the dwells as the device stage does.

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE
-from stableins.discovery.diagnostics import Diagnosis, _layout
+from stableins.discovery.diagnostics import Diagnosis, residual_layout
 from stableins.display import layout_with_caption
 from stableins.estimators.result import FitResult
 
@@ -38,6 +38,7 @@ class HarmonicSpectrum:
     dof: NDArray[np.float64] | None = None  # degrees of freedom of each χ² (2 unless the model explains part of the pair)
 
     def report(self, unit: str = "", scale: float = 1.0) -> str:
+        """Return the table of the harmonics: period, amplitude ± 1σ, χ², dof and p (amplitudes in ``unit``, divided by ``scale``)."""
         dof = np.full(self.harmonics.size, 2.0) if self.dof is None else self.dof
         lines = [f"{'harmonic':>8} {'period [h]':>10} {'amplitude':>12} {'1σ':>10} {'χ²':>8} {'dof':>4} {'p':>9}"]
         for k, a, s, q, d, p in zip(self.harmonics, self.amplitude, self.sigma, self.chi2, dof, self.p_value, strict=True):
@@ -64,13 +65,14 @@ class HarmonicSpectrum:
         cycles: float = 6.0,
         next_step: str | None = None,
     ) -> Figure:
-        """The residual's amplitude at the Earth-rate harmonics (least-squares fit ± 1σ, p of each) over its amplitude spectrum.
+        """Plot the residual's amplitude at the Earth-rate harmonics (least-squares fit ± 1σ, p of each) over its amplitude spectrum.
 
         The x axis is in cycles per sidereal day (``k`` = the ``k``-th harmonic of ω_ie), zoomed on ``0 … cycles``; the
         harmonics are marked with their periods.  ``unit``/``scale``: how amplitudes are shown (e.g. ``"µg"``,
         ``MICRO_G``); ``name``: the output, for the title; ``next_step``: a caption under the figure.
         """
         import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure as RootFigure
 
         fig = ax.figure if ax is not None else plt.figure(figsize=(8.5, 4.6 + (0.35 if next_step else 0.0)))
         ax = ax or fig.add_subplot(111)
@@ -110,7 +112,7 @@ class HarmonicSpectrum:
         ax.grid(alpha=0.3)
         if ax is fig.axes[0] and len(fig.axes) == 1:
             layout_with_caption(fig, next_step, top=1.0)
-        return fig
+        return fig if isinstance(fig, RootFigure) else fig.figure  # an axes of a subfigure: its figure
 
 
 def residual_spectra(
@@ -161,7 +163,7 @@ def harmonic_tests(problem, result: FitResult, time: ArrayLike, harmonics: Seque
     q, _ = np.linalg.qr(whiten(problem, result, problem.design(result)))
     residuals = result.residuals.reshape(m, -1)
     outputs = residuals.shape[1]
-    names = _layout(result.residual_labels, result.residuals.size)[1]
+    names = residual_layout(result.residual_labels, result.residuals.size)[1]
     out = {}
     for a in range(outputs):
         cosine, sine, sigma, chi2, dof = (np.zeros(h.size) for _ in range(5))
@@ -186,7 +188,7 @@ def harmonic_tests(problem, result: FitResult, time: ArrayLike, harmonics: Seque
         n = residuals.shape[0]
         dt = float(np.median(np.diff(t))) if n > 1 else 1.0
         spectrum = np.abs(np.fft.rfft(residuals[:, a] - residuals[:, a].mean())) * 2.0 / n
-        freq = 2 * np.pi * np.fft.rfftfreq(n, dt)
+        freq = np.asarray(2 * np.pi * np.fft.rfftfreq(n, dt), dtype=np.float64)
         out[names[a] if a < len(names) else f"output {a}"] = HarmonicSpectrum(
             h, cosine, sine, sigma, np.hypot(cosine, sine), freq, spectrum, chi2, p, dof
         )
@@ -225,5 +227,5 @@ def harmonic_spectrum(time: ArrayLike, residual: ArrayLike, sigma: float, harmon
     n = r.size
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
     spectrum = np.abs(np.fft.rfft(r - r.mean())) * 2.0 / n
-    freq = 2 * np.pi * np.fft.rfftfreq(n, dt)
+    freq = np.asarray(2 * np.pi * np.fft.rfftfreq(n, dt), dtype=np.float64)
     return HarmonicSpectrum(h, a, b, np.sqrt((sa**2 + sb**2) / 2.0), np.hypot(a, b), freq, spectrum, chi2, stats.chi2.sf(chi2, 2))

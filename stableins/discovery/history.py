@@ -21,14 +21,14 @@ and carries its verdict (:class:`Decision`, Δχ², F-test p, ΔBIC).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from stableins.conventions import MICRO_G
-from stableins.discovery.steps import Decision, Step, _is_number, make_step
+from stableins.discovery.steps import Decision, Step, is_number, make_step
 from stableins.display import clipped, html_result, html_table, layout_with_caption, require_pandas, unit_text, value_sigma
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.result import FitResult
@@ -66,6 +66,7 @@ class ModelHistory:
         return tuple(s.added[0][0] for s in self.steps[1:] if s.decision is not None and s.decision.in_model)
 
     def to_json(self) -> dict:
+        """Return the JSON form stored in a calibration record."""
         return {"stage": self.stage, "alpha": self.alpha, "steps": [s.to_json() for s in self.steps]}
 
     @classmethod
@@ -76,7 +77,7 @@ class ModelHistory:
         stage, alpha, steps = document.get("stage"), document.get("alpha"), document.get("steps")
         if not isinstance(stage, str) or not stage:
             raise ValueError(f"{where}.stage: expected the name of the fit, e.g. 'coarse+fine'")
-        if not _is_number(alpha) or not 0.0 < alpha < 1.0:
+        if not is_number(alpha) or not 0.0 < alpha < 1.0:
             raise ValueError(f"{where}.alpha: expected a false-alarm level between 0 and 1")
         if not isinstance(steps, list) or not steps:
             raise ValueError(f"{where}.steps: expected a non-empty list of steps")
@@ -89,7 +90,7 @@ class ModelHistory:
         return cls(stage, float(alpha), parsed)
 
     def report(self) -> str:
-        """The steps (:meth:`History.report`) and the verdict on every tested effect."""
+        """Return the steps (:meth:`History.report`) and the verdict on every tested effect."""
         lines = [f"model discovery carried into the calibration ({self.stage} fit; an added effect stays when F-test p < {self.alpha:g}):"]
         lines.append(History(self.steps).report())
         verdicts = [s for s in self.steps[1:] if s.decision is not None]
@@ -123,11 +124,11 @@ class ModelHistory:
         return html_result(self._head()[0].upper() + self._head()[1:], history._added_lines(), [table], [("verdicts", verdicts)])
 
     def to_dataframe(self) -> Any:
-        """The steps with their verdicts (:meth:`History.to_dataframe`)."""
+        """Return the steps with their verdicts (:meth:`History.to_dataframe`)."""
         return History(self.steps).to_dataframe()
 
     def plot(self, fig: Figure | None = None, *, title: str | None = None) -> Figure:
-        """The steps with their verdicts (:meth:`History.plot`)."""
+        """Plot the steps with their verdicts (:meth:`History.plot`)."""
         return History(self.steps).plot(fig, title=title)
 
 
@@ -138,6 +139,7 @@ class History:
         self.steps: list[Step] = list(steps)
 
     def append(self, step: Step) -> None:
+        """Append a step."""
         self.steps.append(step)
 
     def __len__(self) -> int:
@@ -181,6 +183,7 @@ class History:
         return lines
 
     def report(self) -> str:
+        """Return the history in words: the table of steps, then the verdict and shifts of each."""
         if not self.steps:
             return "(no steps)"
         lines = self._table_lines()
@@ -239,6 +242,7 @@ class History:
         return pandas.DataFrame.from_records(rows, index="step")
 
     def to_json(self) -> list[dict]:
+        """Return the JSON form of the steps."""
         return [s.to_json() for s in self.steps]
 
     def plot(self, fig: Figure | None = None, *, title: str | None = None, next_step: str | None = None) -> Figure:
@@ -257,61 +261,8 @@ class History:
         fig = fig or plt.figure(figsize=(max(9.0, 3.2 + 2.2 * len(steps)), 4.8 + (0.35 if next_step else 0.0)))
         ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})
         k = np.arange(len(steps))
-        channels = steps[0].channels
-        rms = np.array([s.rms for s in steps]) / MICRO_G
-        floor = np.array([s.noise_floor for s in steps]) / MICRO_G
-        width = 0.7 / len(channels)
-        for i, channel in enumerate(channels):
-            x = k + (i - (len(channels) - 1) / 2) * width
-            colour = f"C{i}"
-            ax1.plot(x, rms[:, i], "o", color=colour, ms=7, label=f"residual RMS {channel}", zorder=3)
-            if len(steps) > 1:
-                ax1.plot(x, rms[:, i], "-", color=colour, lw=0.8, alpha=0.5)
-            ax1.plot(x, floor[:, i], "_", color="k", ms=14, mew=2.0, label="noise floor of that output" if i == 0 else None, zorder=4)
-            below = rms[-1, i] >= floor[-1, i]  # the floor's value on the side away from the RMS marker
-            ax1.annotate(
-                f"{floor[-1, i]:.3g}",
-                (x[-1], floor[-1, i]),
-                xytext=(0, -11 if below else 5),
-                textcoords="offset points",
-                ha="center",
-                fontsize=7,
-            )
-            ax1.vlines(x, floor[:, i], rms[:, i], color=colour, lw=1.0, alpha=0.6)
-            for xi, r, f in zip(x, rms[:, i], floor[:, i], strict=True):
-                offset = 6 if r >= f else -13
-                ax1.annotate(f"{r:.3g}", (xi, r), xytext=(0, offset), textcoords="offset points", ha="center", fontsize=7, color=colour)
-        low, high = float(np.min(np.minimum(rms, floor))), float(np.max(np.maximum(rms, floor)))
-        if high > 8 * low > 0:
-            ax1.set_yscale("log")
-            ax1.set_ylim(low / 1.6, high * 2.2)
-        else:
-            ax1.set_ylim(0.0, high * 1.25)
-        ax1.set_ylabel("residual RMS [µg]")
-        ax1.set_title("residual RMS per output against its noise floor", fontsize=10)
-        ax1.legend(fontsize=7, loc="upper right")
-        chi = np.array([s.chi2_red for s in steps])
-        spread = np.array([np.sqrt(2.0 / max(s.dof, 1)) for s in steps])
-        for j in range(len(steps)):
-            ax2.fill_between(
-                [j - 0.3, j + 0.3], 1 - 2 * spread[j], 1 + 2 * spread[j], color="0.82", lw=0, label="1 ± 2√(2/ν)" if j == 0 else None
-            )
-        ax2.plot(k, chi, "o", color="C3", ms=7, label="χ²_ν", zorder=3)
-        if len(steps) > 1:
-            ax2.plot(k, chi, "-", color="C3", lw=0.8, alpha=0.5)
-        for j, c in enumerate(chi):
-            ax2.annotate(f"{c:.3g}\n(ν = {steps[j].dof})", (j, c), xytext=(8, 0), textcoords="offset points", fontsize=7, va="center")
-        ax2.axhline(1.0, color="k", lw=0.6)
-        top = float(np.max(np.r_[chi, 1 + 2 * spread]))
-        bottom = float(np.min(np.r_[chi, 1 - 2 * spread]))
-        if top > 10 * max(bottom, 0.1):
-            ax2.set_yscale("log")
-            ax2.set_ylim(max(min(bottom, 0.5) / 1.5, 1e-2), top * 2.0)
-        else:
-            ax2.set_ylim(max(0.0, bottom - 0.2 * (top - bottom) - 0.05), top + 0.25 * (top - bottom) + 0.05)
-        ax2.set_ylabel("χ²_ν (expected 1)")
-        ax2.set_title("χ²_ν against its expected band", fontsize=10)
-        ax2.legend(fontsize=7, loc="best")
+        _plot_rms(ax1, steps)
+        _plot_chi2(ax2, steps)
         labels = [s.label + (f"\n({s.decision})" if s.decision is not None and s.decision is not Decision.BASELINE else "") for s in steps]
         for ax in (ax1, ax2):
             ax.set_xlim(-0.6, len(steps) - 0.4)
@@ -323,6 +274,71 @@ class History:
         )
         layout_with_caption(fig, next_step)
         return fig
+
+
+def _plot_rms(ax1: Any, steps: Sequence[Step]) -> None:
+    """Draw each step's residual RMS per channel against that channel's noise floor [µg], values written."""
+    k = np.arange(len(steps))
+    channels = steps[0].channels
+    rms = np.array([s.rms for s in steps]) / MICRO_G
+    floor = np.array([s.noise_floor for s in steps]) / MICRO_G
+    width = 0.7 / len(channels)
+    for i, channel in enumerate(channels):
+        x = k + (i - (len(channels) - 1) / 2) * width
+        colour = f"C{i}"
+        ax1.plot(x, rms[:, i], "o", color=colour, ms=7, label=f"residual RMS {channel}", zorder=3)
+        if len(steps) > 1:
+            ax1.plot(x, rms[:, i], "-", color=colour, lw=0.8, alpha=0.5)
+        ax1.plot(x, floor[:, i], "_", color="k", ms=14, mew=2.0, label="noise floor of that output" if i == 0 else None, zorder=4)
+        below = rms[-1, i] >= floor[-1, i]  # the floor's value on the side away from the RMS marker
+        ax1.annotate(
+            f"{floor[-1, i]:.3g}",
+            (x[-1], floor[-1, i]),
+            xytext=(0, -11 if below else 5),
+            textcoords="offset points",
+            ha="center",
+            fontsize=7,
+        )
+        ax1.vlines(x, floor[:, i], rms[:, i], color=colour, lw=1.0, alpha=0.6)
+        for xi, r, f in zip(x, rms[:, i], floor[:, i], strict=True):
+            offset = 6 if r >= f else -13
+            ax1.annotate(f"{r:.3g}", (xi, r), xytext=(0, offset), textcoords="offset points", ha="center", fontsize=7, color=colour)
+    low, high = float(np.min(np.minimum(rms, floor))), float(np.max(np.maximum(rms, floor)))
+    if high > 8 * low > 0:
+        ax1.set_yscale("log")
+        ax1.set_ylim(low / 1.6, high * 2.2)
+    else:
+        ax1.set_ylim(0.0, high * 1.25)
+    ax1.set_ylabel("residual RMS [µg]")
+    ax1.set_title("residual RMS per output against its noise floor", fontsize=10)
+    ax1.legend(fontsize=7, loc="upper right")
+
+
+def _plot_chi2(ax2: Any, steps: Sequence[Step]) -> None:
+    """Draw each step's χ²_ν with the band ``1 ± 2√(2/ν)``, values written."""
+    k = np.arange(len(steps))
+    chi = np.array([s.chi2_red for s in steps])
+    spread = np.array([np.sqrt(2.0 / max(s.dof, 1)) for s in steps])
+    for j in range(len(steps)):
+        ax2.fill_between(
+            [j - 0.3, j + 0.3], 1 - 2 * spread[j], 1 + 2 * spread[j], color="0.82", lw=0, label="1 ± 2√(2/ν)" if j == 0 else None
+        )
+    ax2.plot(k, chi, "o", color="C3", ms=7, label="χ²_ν", zorder=3)
+    if len(steps) > 1:
+        ax2.plot(k, chi, "-", color="C3", lw=0.8, alpha=0.5)
+    for j, c in enumerate(chi):
+        ax2.annotate(f"{c:.3g}\n(ν = {steps[j].dof})", (j, c), xytext=(8, 0), textcoords="offset points", fontsize=7, va="center")
+    ax2.axhline(1.0, color="k", lw=0.6)
+    top = float(np.max(np.r_[chi, 1 + 2 * spread]))
+    bottom = float(np.min(np.r_[chi, 1 - 2 * spread]))
+    if top > 10 * max(bottom, 0.1):
+        ax2.set_yscale("log")
+        ax2.set_ylim(max(min(bottom, 0.5) / 1.5, 1e-2), top * 2.0)
+    else:
+        ax2.set_ylim(max(0.0, bottom - 0.2 * (top - bottom) - 0.05), top + 0.25 * (top - bottom) + 0.05)
+    ax2.set_ylabel("χ²_ν (expected 1)")
+    ax2.set_title("χ²_ν against its expected band", fontsize=10)
+    ax2.legend(fontsize=7, loc="best")
 
 
 class Discovery:
@@ -363,12 +379,13 @@ class Discovery:
         self._ranking: Ranking | None = None
 
     def diagnose(self) -> Diagnosis:
+        """Return the diagnosis of the current fit (:func:`stableins.discovery.diagnostics.diagnose`)."""
         from stableins.discovery.diagnostics import diagnose
 
         return diagnose(self.problem, self.result)
 
     def figures(self, *, next_step: str | None = None) -> dict[str, Figure]:
-        """The discovery plots of the session (what ``stableins diagnose --plots`` writes), by name.
+        """Return the discovery plots of the session (what ``stableins diagnose --plots`` writes), by name.
 
         ``residuals``: residuals per position of the current model, beside those of the starting model when effects
         were added (:meth:`Diagnosis.plot_positions`); ``orientation``: residuals against orientation, the starting
@@ -401,10 +418,10 @@ class Discovery:
         return self._ranking
 
     def drift(self, refit_top: int = 3) -> Ranking | None:
-        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells (None: too few usable slopes,
-        ``drift_notes`` says why).
+        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells.
 
-        Uses the zero offsets of the current fit for the actual angles; see
+        None when there are too few usable slopes (``drift_notes`` says why).  Uses the zero offsets of the current fit
+        for the actual angles; see
         :mod:`stableins.discovery.drift`.  Needs a dwell problem whose dwells carry slopes.
         """
         from stableins.discovery.drift import drift_problem

@@ -17,16 +17,16 @@ sensitive axes), see :mod:`stableins.errormodel`.
 
 Instrument terms (per axis ``a``; ``b ≠ a``; ``bc ∈ {xy, xz, yz}``):
 
-==================  ===================================  ============
-id                  regressor (on axis a)                unit
-==================  ===================================  ============
-``K3_a``            ``f_a³``                             µg/g³
-``Koq_a``           ``f_a |f_a|``                        µg/g²
-``Ksa_a``           ``|f_a|`` (half the SF difference    ppm
+==================  ======================================  ============
+id                  regressor (on axis a)                   unit
+==================  ======================================  ============
+``K3_a``            ``f_a³``                                µg/g³
+``Koq_a``           ``f_a |f_a|``                           µg/g²
+``Ksa_a``           ``|f_a|`` (half the SF difference       ppm
                     between positive and negative input)
-``Kcq_ab``          ``f_b²``                             µg/g²
-``Kcc_abc``         ``f_b f_c``                          µg/g²
-==================  ===================================  ============
+``Kcq_ab``          ``f_b²``                                µg/g²
+``Kcc_abc``         ``f_b f_c``                             µg/g²
+==================  ======================================  ============
 
 Environment and time: ``Kt_bias_a`` (``ΔT``, µg/K), ``Kt_sf_a`` (``f_a ΔT``, ppm/K),
 ``Kd_bias_a`` (``t``, µg/h), ``Kh_a`` (direction ±1 of the last slew of the axis' input, µg).
@@ -86,6 +86,7 @@ class Library:
 
     @classmethod
     def default(cls) -> Library:
+        """Return a library holding the built-in catalogue (:func:`stableins.discovery.catalogue.default_candidates`)."""
         return cls(default_candidates())
 
     def register(self, item: Candidate | Term, separation: str = "", group: str = "custom") -> Candidate:
@@ -115,9 +116,11 @@ class Library:
 
     @property
     def ids(self) -> tuple[str, ...]:
+        """Ids of the candidates, in registration order."""
         return tuple(self._items)
 
     def terms(self) -> tuple[Term, ...]:
+        """Return the candidates' terms, in registration order."""
         return tuple(c.term for c in self._items.values())
 
 
@@ -131,7 +134,7 @@ def calibration_limit(term_id: str, library: Library | None = None) -> str | Non
 
 
 def calibration_terms(term_ids: Iterable[str], *, source: str = "--add", library: Library | None = None) -> tuple[Term, ...]:
-    """The library terms for effects to be estimated in a calibration, in order, each once.
+    """Return the library terms for effects to be estimated in a calibration, in order, each once.
 
     Raises
     ------
@@ -162,7 +165,7 @@ def calibration_terms(term_ids: Iterable[str], *, source: str = "--add", library
 
 
 def record_terms(parameter_ids: Iterable[str], library: Library | None = None) -> tuple[Term, ...]:
-    """The discovered (additive) terms among a record's parameter ids, in record order."""
+    """Return the discovered (additive) terms among a record's parameter ids, in record order."""
     library = library if library is not None else LIBRARY
     return tuple(library[i].term for i in parameter_ids if i in library)
 
@@ -175,7 +178,7 @@ def all_terms(library: Library | None = None) -> dict[str, Term]:
 
 
 def markdown_table(library: Library | None = None) -> str:
-    """The candidates as a Markdown table (id, unit, meaning, excitation, aliases, separation) for the docs."""
+    """Return the candidates as a Markdown table (id, unit, meaning, excitation, aliases, separation) for the docs."""
     library = library if library is not None else LIBRARY
     rows = ["| id | unit | group | meaning | excitation | aliases into | separated by |", "|---|---|---|---|---|---|---|"]
 

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.discovery.dwells import DwellSet
-from stableins.discovery.problem import _gauge
+from stableins.discovery.problem import gauge_columns
 from stableins.errormodel import ErrorModel, Term
 from stableins.estimators.result import FitResult
 from stableins.status import Status
@@ -55,8 +55,9 @@ class LinearProblem:
         return self.columns[term.id]
 
     def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult:
+        """Return the weighted least-squares fit of ``model`` (terms the data do not determine held at 0 as the gauge)."""
         x = np.stack([self._column(t) for t in model.terms], axis=1) / self.s[:, None]
-        cols, gauge = _gauge(x, list(range(len(model))), model.terms)
+        cols, gauge = gauge_columns(x, list(range(len(model))), model.terms)
         p = np.zeros(len(model))
         sol, *_ = np.linalg.lstsq(x[:, cols], self.y / self.s, rcond=None)
         p[cols] = sol
@@ -83,6 +84,7 @@ class LinearProblem:
         return np.stack(estimated, axis=1) if estimated else np.zeros((self.y.size, 0))
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        """Return the columns the ``terms`` would add to the design."""
         return np.stack([self._column(t) for t in terms], axis=1) if terms else np.zeros((self.y.size, 0))
 
 
@@ -148,7 +150,7 @@ def bins_from_chunks(
             m = b == k
             row = np.concatenate([[m.sum(), t[m].sum(), temp[m].sum()], f[m].sum(axis=0), r[m].sum(axis=0)])
             sums[int(k)] = sums.get(int(k), 0.0) + row
-    if not sums or n_diff == 0:
+    if t0 is None or not sums or n_diff == 0:
         raise ValueError("the record has too few samples to form bins")
     keys = sorted(sums)
     table = np.array([sums[k] for k in keys])
@@ -171,7 +173,7 @@ def bins_from_chunks(
         temperature=table[:, 2] / n - reference_temperature,
         slew_direction=np.zeros((len(n), 3)),
         labels=tuple(f"{(tk - t0) / 3600:.2f}h" for tk in time),
-        base_attitude=tuple(base_attitude),
+        base_attitude=(*base_attitude,),
         configuration=configuration,
         noise={
             "method": f"white noise from second differences, pooled over the record; {bin_seconds:g} s bins",

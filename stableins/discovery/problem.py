@@ -59,14 +59,16 @@ class DiscoveryDetails(StageDetails):
 class Problem(Protocol):
     """What discovery needs from a fitted stage."""
 
-    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult: ...
+    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult:
+        """Return the fit of ``model`` to the data, from ``start`` (ids missing there start at their reference)."""
+        ...
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
-        """``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
+        """Return ``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
         ...
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
-        """``∂prediction/∂p`` of terms not in the model (at value 0), shape (m, len(terms))."""
+        """Return ``∂prediction/∂p`` of terms not in the model (at value 0), shape (m, len(terms))."""
         ...
 
 
@@ -110,14 +112,17 @@ class DwellProblem:
     # ------------------------------------------------------------------ geometry
     @property
     def labels(self) -> tuple[str, ...]:
+        """Residual label of every observation, ``"<position> f_<axis>"``."""
         return tuple(f"{p} f_{a}" for p in self.dwells.labels for a in AXES)
 
     @property
     def position_index(self) -> NDArray[np.int64]:
+        """Position (dwell) of every observation."""
         return np.repeat(np.arange(self.dwells.n_positions), 3)
 
     @property
     def axis_index(self) -> NDArray[np.int64]:
+        """Output axis of every observation."""
         return np.tile(np.arange(3), self.dwells.n_positions)
 
     def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
@@ -141,11 +146,25 @@ class DwellProblem:
         offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in GIMBAL_IDS])
         effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
         kin_ids = self._kinematic_ids(full.terms)
-        geometry = {"zero_offsets": offsets, "base_attitude": d.base_attitude, "effects": effects, "configuration": d.configuration}
-        f_p, d_fp = specific_force_and_jacobian(d.readings, d.gravity, ids=kin_ids, **geometry)
+        f_p, d_fp = specific_force_and_jacobian(
+            d.readings,
+            d.gravity,
+            zero_offsets=offsets,
+            base_attitude=d.base_attitude,
+            effects=effects,
+            configuration=d.configuration,
+            ids=kin_ids,
+        )
         initial = None
         if d.initial_readings is not None:
-            initial = platform_specific_force(np.asarray(d.initial_readings, dtype=float), d.gravity, **geometry)
+            initial = platform_specific_force(
+                np.asarray(d.initial_readings, dtype=float),
+                d.gravity,
+                zero_offsets=offsets,
+                base_attitude=d.base_attitude,
+                effects=effects,
+                configuration=d.configuration,
+            )
         inputs = TermInputs(
             f_p,
             temperature=d.temperature,
@@ -153,7 +172,8 @@ class DwellProblem:
             slew_direction=slew_directions(f_p, initial),
             angular_rate=np.zeros_like(f_p),
             angular_acceleration=np.zeros_like(f_p),
-            extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": kin_ids},
+            # named arrays (TermInputs.extra): the Jacobian's columns and, as an array of strings, the ids they belong to
+            extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": np.asarray(kin_ids)},
         )
         through_kinematics = [k for k, t in enumerate(full.terms) if t.id in kin_ids]
         dynamic = {k: v for k, v in values.items() if k not in effects}  # kinematic effects are already in f^p
@@ -171,7 +191,7 @@ class DwellProblem:
 
         The solver is the one of the device stages (:func:`stableins.estimators.gauss_newton.gauss_newton`,
         column-scaled by each term's typical size, step halved while the cost rises); the parameters
-        these data do not determine are held (gauge, :func:`_gauge`) from the start and, should the
+        these data do not determine are held (gauge, :func:`gauge_columns`) from the start and, should the
         design at the solution lose a direction, the fit is repeated with it held as well.
         """
         from stableins.estimators.gauss_newton import gauss_newton
@@ -196,7 +216,7 @@ class DwellProblem:
         solved = False
         while True:
             _, a = weighted(x)
-            _, new_gauge = _gauge(a[0], [k for k in range(len(model)) if free[k] and ids[k] not in gauge], model.terms)
+            _, new_gauge = gauge_columns(a[0], [k for k in range(len(model)) if free[k] and ids[k] not in gauge], model.terms)
             for gid in new_gauge:
                 gauge.append(gid)
                 notes.append(
@@ -245,12 +265,14 @@ class DwellProblem:
         )
 
     def design(self, result: FitResult) -> NDArray[np.float64]:
+        """Return ``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
         model = ErrorModel(result.terms)
         _, jac, _, _ = self.evaluate(model, result.as_dict())
         cols = [k for k, st in enumerate(result.status) if st == Status.ESTIMATED]
         return jac.reshape(-1, len(model))[:, cols]
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+        """Return ``∂prediction/∂p`` of the candidate ``terms`` at the estimate, shape (m, len(terms))."""
         model = ErrorModel(result.terms)
         _, jac, _, _ = self.evaluate(model, result.as_dict(), extra_terms=tuple(terms))
         return jac.reshape(-1, len(model) + len(terms))[:, len(model) :]
@@ -297,7 +319,7 @@ def _design_report(a: NDArray, model: ErrorModel, free: Sequence[bool], gauge: S
     ids = [model.terms[k].id for k in idx]
     scales = np.array([abs(model.terms[k].nominal) or 1.0 for k in idx])
     smax = np.linalg.norm(a[:, idx] * scales, ord=2) if idx else 0.0
-    rtol = (1.0 / UNDETERMINED_RATIO) / smax if smax > 0 else 1e-8
+    rtol = float((1.0 / UNDETERMINED_RATIO) / smax) if smax > 0 else 1e-8
     analysis = analyze_design(a[:, idx], ids, scales, rtol=max(rtol, 1e-12))
     null = np.zeros((len(model), analysis.null_space.shape[1]))
     null[idx] = analysis.null_space
@@ -318,16 +340,16 @@ _GAUGE_PREFERENCE = {
 }
 
 
-def _gauge(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
-    """Hold columns until every direction of the design is determined (:func:`.design.undetermined`).
+def gauge_columns(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance: float = 1e-9) -> tuple[list[int], list[str]]:
+    """Return the columns kept and the ids held so that every direction of the design is determined.
 
     Columns of the whitened design are scaled by each term's typical size (``nominal``; a term
     without one by its column's norm); a singular value ``s`` then means a combination with
     1σ = ``1/s`` typical sizes.  While the smallest is below ``max(tolerance·s_max,
     1/UNDETERMINED_RATIO)`` (exact null space, or a combination these data cannot determine), the
     parameter with the largest share of that direction is held, preferring gimbal offsets, then
-    additive terms, quadratic coefficients, scale factors, installation angles and biases last.
-    Returns the columns kept and the ids held.
+    additive terms, quadratic coefficients, scale factors, installation angles and biases last
+    (:func:`stableins.estimators.design.undetermined`).
     """
     from stableins.estimators.design import undetermined
 

@@ -1,4 +1,4 @@
-r"""Rank candidate effects against a fitted model: which physical effect is missing?
+r"""Rank candidate effects against a fitted model to find the physical effect it misses.
 
 Notation (whitened with the measured 1σ): residual ``r``, model design ``X`` (estimated
 parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
@@ -18,7 +18,7 @@ parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
   model's column space; below ``1e-3`` (variance inflation 10⁶) the candidate cannot be separated.  The regression
   ``c = (XᵀX)⁻¹Xᵀz`` says where a left-out effect goes: with the effect ``γ`` present and left
   out, the estimates shift by ``c γ``.  The largest contributions ``|c_j|·‖X_j‖`` name the
-  aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (|corr| > 0.99) cannot be
+  aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (``|corr| > 0.99``) cannot be
   told apart from each other with these data; they are reported together.
 * **Flagging** uses a Bonferroni family-wise false-alarm level ``α``: a candidate is flagged
   when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates.
@@ -40,8 +40,7 @@ from stableins.discovery.scores import (
     EXCITATION_TOLERANCE,
     IDENTIFIABLE_TOLERANCE,
     CandidateScore,
-    _candidate_columns,
-    _propose,
+    candidate_columns,
     effect_statistics,
     refit,
 )
@@ -52,6 +51,21 @@ from stableins.status import Status
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.problem import Problem
 
+
+
+def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
+    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
+    from stableins.discovery.separation import describe, separation
+
+    out = []
+    for c in scores:
+        if c.excited and (not c.identifiable or c.confused_with):
+            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
+            text = c.advice.removeprefix("confirm with ")
+            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
+            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
+        out.append(c)
+    return out
 
 def _chi2_red(result: FitResult) -> float:
     from stableins.discovery.problem import fit_chi2_red
@@ -72,10 +86,12 @@ class Ranking:
 
     @property
     def best(self) -> CandidateScore | None:
+        """The highest-ranked candidate (None without candidates)."""
         return self.candidates[0] if self.candidates else None
 
     @property
     def flagged(self) -> tuple[CandidateScore, ...]:
+        """The flagged candidates, best first."""
         return tuple(c for c in self.candidates if c.flagged)
 
     def __getitem__(self, term_id: str) -> CandidateScore:
@@ -89,6 +105,7 @@ class Ranking:
         return [c.id for c in self.candidates].index(term_id) + 1
 
     def report(self, top: int = 10) -> str:
+        """Return the ranking in words: the ``top`` candidates with statistic, p, ΔBIC, estimate, aliases and advice."""
         model = ErrorModel(self.result.terms)
         lines = [
             f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
@@ -118,7 +135,7 @@ class Ranking:
         return self.report()
 
     def next_step(self) -> str:
-        """What to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).
+        """Return what to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).
 
         The best flagged candidate: add it (and whether a calibration can carry it, :func:`stableins.discovery.library.calibration_limit`),
         or how to tell it from the candidates it cannot be told from; nothing flagged: whether χ²_ν is at the noise floor.
@@ -251,6 +268,7 @@ class Ranking:
         return pandas.DataFrame.from_records(rows, index="rank")
 
     def to_json(self) -> list[dict]:
+        """Return the JSON form of every candidate."""
         model = ErrorModel(self.result.terms)
         return [c.to_json(model) for c in self.candidates]
 
@@ -304,7 +322,7 @@ def rank(
     m = r.size
     nu = result.dof
     rss0 = float(r @ r)
-    raw_columns = _candidate_columns(problem, terms, result)
+    raw_columns = candidate_columns(problem, terms, result)
     columns = whiten(problem, result, raw_columns)
     z_perp, norm_z, norm_perp, separability = _separability(x, columns)
     nominal = np.array([abs(t.nominal) for t in terms])
@@ -384,11 +402,11 @@ def _one_step(
 def _refit_best(
     problem: Problem, result: FitResult, scores: list[CandidateScore], *, refit_top: int, nu: int, m: int
 ) -> list[CandidateScore]:
-    """The scores with the best ``refit_top`` identifiable candidates refitted by the full fitter, best first."""
+    """Return the scores with the best ``refit_top`` identifiable candidates refitted by the full fitter, best first."""
     refits = []
     model = ErrorModel(result.terms)
     for c in [c for c in scores if c.identifiable][:refit_top]:
-        refits.append(refit(problem, result, model, c, nu, m))
+        refits.append(refit(problem, result, model, c, nu=nu, m=m))
     by_id = {c.id: c for c in refits}
     scores = [by_id.get(c.id, c) for c in scores]
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))

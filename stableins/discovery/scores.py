@@ -93,9 +93,11 @@ class CandidateScore:
 
     @property
     def estimate_engineering(self) -> tuple[float, float]:
+        """Estimate and 1σ in the term's engineering unit."""
         return float(self.term.to_engineering(self.estimate)), float(self.term.sigma_to_engineering(self.sigma))
 
     def alias_text(self, model: ErrorModel | None = None) -> str:
+        """Return the parameters the candidate is confused with, and their correlation, in words."""
         if not self.aliases:
             return "—"
         parts = []
@@ -108,6 +110,7 @@ class CandidateScore:
         return ", ".join(parts)
 
     def to_json(self, model: ErrorModel | None = None) -> dict:
+        """Return the JSON form of the score (numbers in engineering units; non-finite as null)."""
         value, sigma = self.estimate_engineering
         return {
             "id": self.id,
@@ -137,21 +140,6 @@ def _finite(x: float) -> float | None:
     return x if np.isfinite(x) else None
 
 
-def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
-    """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
-    from stableins.discovery.separation import describe, separation
-
-    out = []
-    for c in scores:
-        if c.excited and (not c.identifiable or c.confused_with):
-            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
-            text = c.advice.removeprefix("confirm with ")
-            head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
-            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
-        out.append(c)
-    return out
-
-
 def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[float, float, float]:
     """``(ΔRSS, p, ΔBIC)`` of adding one effect to a fit with χ² ``rss0`` on ``nu`` degrees of freedom, ``m`` observations.
 
@@ -166,8 +154,12 @@ def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[f
     return float(delta_rss), float(stats.f.sf(f, 1, dof)), float(-delta_rss + np.log(m))
 
 
-def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
-    """Candidate columns; a candidate whose inputs the data lack gets a zero column (not excited)."""
+def candidate_columns(problem: Problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
+    """Return the candidates' columns of ``problem`` at ``result``; one whose inputs the data lack gets a zero column (not excited).
+
+    Like :meth:`stableins.discovery.problem.Problem.candidate_columns`, which raises ``ValueError`` for such a
+    candidate; the ranking needs a column for every candidate.
+    """
     if not terms:
         return np.zeros((result.residuals.size, 0))
     try:
@@ -182,7 +174,7 @@ def _candidate_columns(problem, terms: Sequence[Term], result: FitResult) -> NDA
         return np.stack(cols, axis=1)
 
 
-def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, nu: int, m: int) -> CandidateScore:
+def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: CandidateScore, *, nu: int, m: int) -> CandidateScore:
     """Full refit of ``model + candidate``: ΔRSS, F-test, ΔBIC, estimate and parameter shifts."""
     new = problem.fit(model + candidate.term, start=result.as_dict())
     from stableins.discovery.problem import fit_chi2
@@ -196,7 +188,7 @@ def refit(problem: Problem, result: FitResult, model: ErrorModel, candidate: Can
             continue
         v1 = new[t.id][0]
         shifts[t.id] = (float(v1 - v0), float((v1 - v0) / s0) if s0 > 0 else float("nan"))
-    column = _candidate_columns(problem, [candidate.term], result)[:, 0]
+    column = candidate_columns(problem, [candidate.term], result)[:, 0]
     return CandidateScore(
         **{
             **candidate.__dict__,

@@ -42,8 +42,11 @@ class Separation:
     excitation: float = 0.0
 
     def separates(self, tolerance: float = 1e-3, confusion: float = 0.9) -> bool:
-        """Separable (sin > tolerance), excited (the nominal effect's unabsorbed part exceeds the
-        ranking's excitation threshold) and no longer confused (|corr| < ``confusion``)."""
+        """Return whether the candidate is separated by the tested positions.
+
+        That is: separable (sin > tolerance), excited (the nominal effect's unabsorbed part exceeds the
+        ranking's excitation threshold) and no longer confused (``|corr|`` < ``confusion``).
+        """
         from stableins.discovery.scores import EXCITATION_TOLERANCE
 
         return (
@@ -80,7 +83,7 @@ def _proposal(dwells: DwellSet, name: str) -> DwellSet:
             output=np.zeros((n, 3)),
             sigma=np.broadcast_to(sigma[0], (n, 3)).copy(),
             gravity=dwells.gravity,
-            time=end + 60.0 * np.arange(n),
+            time=np.asarray(end + 60.0 * np.arange(n), dtype=np.float64),
             time_since_command=np.full(n, float(np.median(dwells.time_since_command))),
             temperature=np.full(n, float(np.median(dwells.temperature))),
             slew_direction=np.zeros((n, 3)),

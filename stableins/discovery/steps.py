@@ -97,6 +97,7 @@ class Step:
         return f"<Step {self.label!r}: χ²_ν = {self.chi2_red:.3f} ± {spread:.2f} (ν = {self.dof}); residual RMS [µg] {rms}{verdict}>"
 
     def to_json(self) -> dict:
+        """Return the JSON form stored in a calibration record."""
         out = {
             "label": self.label,
             "model": list(self.model_ids),
@@ -123,71 +124,13 @@ class Step:
     @classmethod
     def from_json(cls, document: Any, where: str = "step") -> Step:
         """Validate a step written by :meth:`to_json`; ``ValueError`` naming the key otherwise."""
-
-        def fail(key: str, expected: str) -> ValueError:
-            return ValueError(f"{where}.{key}: expected {expected}")
-
-        if not isinstance(document, Mapping):
-            raise ValueError(f"{where}: expected an object")
-        for key in ("label", "model", "channels", "residual_rms", "noise_floor", "chi2_red", "dof", "bic"):
-            if key not in document:
-                raise fail(key, "this key (docs/formats.md, discovery)")
-        label, model, channels = document["label"], document["model"], document["channels"]
-        if not isinstance(label, str) or not label:
-            raise fail("label", "a non-empty string")
-        if not isinstance(model, list) or not all(isinstance(i, str) for i in model):
-            raise fail("model", "a list of parameter ids")
-        if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
-            raise fail("channels", "a non-empty list of channel names")
-        arrays = {}
-        for key in ("residual_rms", "noise_floor"):
-            values = document[key]
-            if not isinstance(values, list) or len(values) != len(channels) or not all(_is_number(v) and v >= 0 for v in values):
-                raise fail(key, f"{len(channels)} non-negative numbers [m/s^2], one per channel")
-            arrays[key] = np.array(values, dtype=float)
-        dof = document["dof"]
-        if isinstance(dof, bool) or not isinstance(dof, int) or dof < 0:
-            raise fail("dof", "a non-negative integer")
-        numbers = {}
-        for key in ("chi2_red", "bic", "delta_chi2", "p_value", "delta_bic"):
-            value = document.get(key)
-            if value is not None and not _is_number(value):
-                raise fail(key, "a finite number or null")
-            numbers[key] = math.nan if value is None else float(value)
-        if numbers["chi2_red"] < 0:
-            raise fail("chi2_red", "a non-negative number")
-        if not (math.isnan(numbers["p_value"]) or 0.0 <= numbers["p_value"] <= 1.0):
-            raise fail("p_value", "a probability in [0, 1]")
-        added = []
-        raw_added = document.get("added", [])
-        if not isinstance(raw_added, list):
-            raise fail("added", "a list")
-        for k, item in enumerate(raw_added):
-            if not (isinstance(item, Mapping) and isinstance(item.get("id"), str) and isinstance(item.get("unit"), str)):
-                raise fail(f"added[{k}]", '{"id", "estimate", "sigma", "unit"}')
-            if not (_is_number(item.get("estimate")) and _is_number(item.get("sigma"))):
-                raise fail(f"added[{k}]", "finite numbers for estimate and sigma")
-            added.append((item["id"], float(item["estimate"]), float(item["sigma"]), item["unit"]))
-        shifts = {}
-        raw_shifts = document.get("shifts", {})
-        if not isinstance(raw_shifts, Mapping):
-            raise fail("shifts", "an object")
-        for key, item in raw_shifts.items():
-            if not (isinstance(item, Mapping) and _is_number(item.get("shift")) and isinstance(item.get("unit"), str)):
-                raise fail(f"shifts.{key}", '{"shift", "unit", "in_sigma"}')
-            in_sigma = item.get("in_sigma")
-            if in_sigma is not None and not _is_number(in_sigma):
-                raise fail(f"shifts.{key}.in_sigma", "a finite number or null")
-            shifts[str(key)] = (float(item["shift"]), item["unit"], math.nan if in_sigma is None else float(in_sigma))
-        decision = document.get("decision")
-        if decision is not None:
-            try:
-                decision = Decision(decision)
-            except ValueError:
-                raise fail("decision", " or ".join(repr(str(d)) for d in Decision)) from None
-        reason = document.get("reason", "")
-        if not isinstance(reason, str):
-            raise fail("reason", "a string")
+        fields = _StepFields(where)
+        label, model, channels = fields.head(document)
+        arrays = fields.per_channel(document, channels)
+        dof, numbers = fields.numbers(document)
+        added = fields.added(document.get("added", []))
+        shifts = fields.shifts(document.get("shifts", {}))
+        decision, reason = fields.verdict(document)
         return cls(
             label=label,
             model_ids=tuple(model),
@@ -207,12 +150,106 @@ class Step:
         )
 
 
+@dataclass(frozen=True)
+class _StepFields:
+    """The checks of :meth:`Step.from_json`, in order, each ``ValueError`` naming ``where.key``."""
+
+    where: str
+
+    def fail(self, key: str, expected: str) -> ValueError:
+        return ValueError(f"{self.where}.{key}: expected {expected}")
+
+    def head(self, document: Any) -> tuple[str, list[str], list[str]]:
+        """Return label, model ids and channels, with every required key checked present."""
+        if not isinstance(document, Mapping):
+            raise ValueError(f"{self.where}: expected an object")
+        for key in ("label", "model", "channels", "residual_rms", "noise_floor", "chi2_red", "dof", "bic"):
+            if key not in document:
+                raise self.fail(key, "this key (docs/formats.md, discovery)")
+        label, model, channels = document["label"], document["model"], document["channels"]
+        if not isinstance(label, str) or not label:
+            raise self.fail("label", "a non-empty string")
+        if not isinstance(model, list) or not all(isinstance(i, str) for i in model):
+            raise self.fail("model", "a list of parameter ids")
+        if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
+            raise self.fail("channels", "a non-empty list of channel names")
+        return label, model, channels
+
+    def per_channel(self, document: Mapping[str, Any], channels: list[str]) -> dict[str, np.ndarray]:
+        """Return the residual RMS and the noise floor, one non-negative number per channel."""
+        arrays = {}
+        for key in ("residual_rms", "noise_floor"):
+            values = document[key]
+            if not isinstance(values, list) or len(values) != len(channels) or not all(is_number(v) and v >= 0 for v in values):
+                raise self.fail(key, f"{len(channels)} non-negative numbers [m/s^2], one per channel")
+            arrays[key] = np.array(values, dtype=float)
+        return arrays
+
+    def numbers(self, document: Mapping[str, Any]) -> tuple[int, dict[str, float]]:
+        """Return the degrees of freedom and the statistics (NaN for null)."""
+        dof = document["dof"]
+        if isinstance(dof, bool) or not isinstance(dof, int) or dof < 0:
+            raise self.fail("dof", "a non-negative integer")
+        numbers = {}
+        for key in ("chi2_red", "bic", "delta_chi2", "p_value", "delta_bic"):
+            value = document.get(key)
+            if value is not None and not is_number(value):
+                raise self.fail(key, "a finite number or null")
+            numbers[key] = math.nan if value is None else float(value)
+        if numbers["chi2_red"] < 0:
+            raise self.fail("chi2_red", "a non-negative number")
+        if not (math.isnan(numbers["p_value"]) or 0.0 <= numbers["p_value"] <= 1.0):
+            raise self.fail("p_value", "a probability in [0, 1]")
+        return dof, numbers
+
+    def added(self, raw_added: Any) -> list[tuple[str, float, float, str]]:
+        """Return the effects the step added: (id, estimate, sigma, unit)."""
+        if not isinstance(raw_added, list):
+            raise self.fail("added", "a list")
+        added = []
+        for k, item in enumerate(raw_added):
+            if not (isinstance(item, Mapping) and isinstance(item.get("id"), str) and isinstance(item.get("unit"), str)):
+                raise self.fail(f"added[{k}]", '{"id", "estimate", "sigma", "unit"}')
+            if not (is_number(item.get("estimate")) and is_number(item.get("sigma"))):
+                raise self.fail(f"added[{k}]", "finite numbers for estimate and sigma")
+            added.append((item["id"], float(item["estimate"]), float(item["sigma"]), item["unit"]))
+        return added
+
+    def shifts(self, raw_shifts: Any) -> dict[str, tuple[float, str, float]]:
+        """Return the parameter shifts: id → (shift, unit, shift in σ or NaN)."""
+        if not isinstance(raw_shifts, Mapping):
+            raise self.fail("shifts", "an object")
+        shifts = {}
+        for key, item in raw_shifts.items():
+            if not (isinstance(item, Mapping) and is_number(item.get("shift")) and isinstance(item.get("unit"), str)):
+                raise self.fail(f"shifts.{key}", '{"shift", "unit", "in_sigma"}')
+            in_sigma = item.get("in_sigma")
+            if in_sigma is not None and not is_number(in_sigma):
+                raise self.fail(f"shifts.{key}.in_sigma", "a finite number or null")
+            shifts[str(key)] = (float(item["shift"]), item["unit"], math.nan if in_sigma is None else float(in_sigma))
+        return shifts
+
+    def verdict(self, document: Mapping[str, Any]) -> tuple[Decision | None, str]:
+        """Return the decision (None: not decided) and its reason."""
+        decision = document.get("decision")
+        if decision is not None:
+            try:
+                decision = Decision(decision)
+            except ValueError:
+                raise self.fail("decision", " or ".join(repr(str(d)) for d in Decision)) from None
+        reason = document.get("reason", "")
+        if not isinstance(reason, str):
+            raise self.fail("reason", "a string")
+        return decision, reason
+
+
 def _finite(x: float) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None
 
 
-def _is_number(value: Any) -> TypeGuard[float]:
+def is_number(value: Any) -> TypeGuard[float]:
+    """Return whether a value read from a document is a finite number (a bool is not)."""
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 

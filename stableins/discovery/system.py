@@ -104,7 +104,7 @@ class SystemDiagnosis:
         return (not self.diagnosis.consistent) or bool(self.ranking.flagged) or bool(self.flagged_harmonics)
 
     def report(self, top: int = 10) -> str:
-        """The noise model, the diagnosis with its verdict, the ranking and the harmonic tests."""
+        """Return the noise model, the diagnosis with its verdict, the ranking and the harmonic tests."""
         hi, lo = self.chi2_range
         given = self.upper_model == self.noise_model and self.lower_model == self.noise_model
         span = (
@@ -147,7 +147,7 @@ def measure_noise(
     prior: NoiseModel | None,
     compensation_terms: Sequence[Any] = (),
 ) -> tuple[NoiseModel, float, tuple[str, ...]]:
-    """The noise model of the instrument in a system-level record, exactly as the system stage measures it.
+    """Return the noise model of the instrument in a system-level record, exactly as the system stage measures it.
 
     :func:`stableins.estimators.system.stage.measure_noise_model` on the record (the installed ``calibration``, the
     ``prior`` noise model as the stage uses it).  Returns the model, the record's duration [s] and the stage's note.
@@ -247,7 +247,7 @@ def diagnose_system_record(
 
 
 def with_noise(dwells: DwellSet, noise: NoiseModel) -> DwellSet:
-    """The bins of a system record under ``noise``: white ``N_a²/T`` per bin and axis, slow noise correlated between bins.
+    """Return the bins of a system record under ``noise``: white ``N_a²/T`` per bin and axis, slow noise correlated between bins.
 
     ``dwells`` from :func:`.problem.bins_from_chunks` (its ``noise["lengths"]`` are the bins' durations).  The slow
     covariance is :meth:`stableins.noise.NoiseModel.slow_covariance` of the bins' windows, per axis.

@@ -36,26 +36,32 @@ class RecordingDriver:
 
     @property
     def metadata(self):  # noqa: ANN201 - same as the wrapped driver
+        """Return the wrapped driver's site metadata."""
         return self.driver.metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        """Command the wrapped driver and record the call."""
         time = self.driver.command(readings)
         self._commands.append(_Commanded(cast("tuple[float, float, float]", tuple(float(r) for r in readings)), float(time)))
         return time
 
     def read_angles(self) -> NDArray[np.float64]:
+        """Read the wrapped driver's angles and record the call."""
         return self.driver.read_angles()
 
     def acquire(self, duration: float) -> SampleBlock:
+        """Acquire from the wrapped driver and record the samples."""
         block = self.driver.acquire(duration)
         if self._commands:
             self._commands[-1].dwell = block
         return block
 
     def status(self) -> dict[str, object]:
+        """Return the wrapped driver's status."""
         return self.driver.status()
 
     def close(self) -> None:
+        """Close the wrapped driver."""
         self.driver.close()
 
     def take(self, stage: str, positions: Sequence[int]) -> dict[str, NDArray]:

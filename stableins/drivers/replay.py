@@ -25,7 +25,7 @@ JOURNAL_NAME = "journal.bin"
 
 
 def journal_path(path: str | Path) -> Path:
-    """A run directory or a journal file → the journal file."""
+    """Return the journal file of a run directory (or the journal file itself)."""
     path = Path(path)
     return path / JOURNAL_NAME if path.is_dir() else path
 
@@ -41,6 +41,7 @@ def live_operations(records: list[Any]) -> list[Any]:
 
 
 def metadata_from_start(record: Any) -> SiteMetadata:
+    """Return the site metadata a journal's start record holds."""
     d = dict(record["metadata"])
     d["gimbal_senses"] = tuple(d["gimbal_senses"])
     d["base_attitude"] = tuple(d["base_attitude"])
@@ -48,6 +49,7 @@ def metadata_from_start(record: Any) -> SiteMetadata:
 
 
 def block_from_record(record: Any) -> SampleBlock:
+    """Return the samples a journaled acquisition holds."""
     a = record.arrays
     return SampleBlock(time=a["time"], specific_force=a["specific_force"], angles=a["angles"], temperature=a["temperature"])
 
@@ -70,6 +72,7 @@ class ReplayDriver:
 
     @property
     def metadata(self) -> SiteMetadata:
+        """Return the site metadata of the replayed run."""
         return self._metadata
 
     def _take(self, operation: str, arguments: list[float]) -> Any:
@@ -87,16 +90,20 @@ class ReplayDriver:
         return record
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        """Return the journaled answer to the next command."""
         return float(self._take("command", [float(r) for r in readings])["result"])
 
     def read_angles(self) -> NDArray[np.float64]:
+        """Return the journaled answer to the next angle reading."""
         return np.array(self._take("read_angles", []).arrays["angles"])
 
     def acquire(self, duration: float) -> SampleBlock:
+        """Return the journaled samples of the next acquisition."""
         return block_from_record(self._take("acquire", [float(duration)]))
 
     def status(self) -> dict[str, object]:
+        """Return the replay's position in the journal."""
         return {"driver": "replay", "path": str(self.path), "operation": self._next, "of": len(self._operations)}
 
     def close(self) -> None:
-        pass
+        """Release nothing: the journal was read when the driver was made."""

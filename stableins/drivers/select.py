@@ -18,7 +18,7 @@ def is_deterministic(driver: Any) -> bool:
 def open_driver(
     spec: str, *, seed: int | None = None, unit: str | None = None, sample_rate: float | None = None, timeout: float = 10.0
 ) -> PlatformDriver:
-    """The driver named by ``spec``.
+    """Open the driver named by ``spec``.
 
     ``sim`` builds the embedded simulated platform (:mod:`stableins.simulator`) with a truth
     drawn from ``seed`` and serial number ``unit``; it is deterministic: the same seed and
@@ -38,7 +38,7 @@ def open_driver(
 
 
 def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
-    """The embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
+    """Open the embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
     try:
         from stableins.simulator.truth import Truth
     except ImportError as error:  # pragma: no cover - the simulator ships with stableins
@@ -70,21 +70,27 @@ class SimulatedDriver:
 
     @property
     def metadata(self) -> Any:
+        """Return the simulated platform's site metadata."""
         return self.platform.metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        """Command the simulated gimbals to ``readings`` [rad]; return the platform time."""
         return self.platform.command(readings)
 
     def read_angles(self) -> Any:
+        """Return the simulated angle-sensor readings [rad]."""
         return self.platform.read_angles()
 
     def acquire(self, duration: float) -> Any:
+        """Record ``duration`` seconds of simulated samples."""
         return self.platform.acquire(duration)
 
     def status(self) -> dict[str, object]:
+        """Return the simulated platform's state."""
         return self.platform.status()
 
     def close(self) -> None:
+        """Close the simulated platform."""
         self.platform.close()
 
     def static_record(self, duration: float, chunk: float) -> Any:

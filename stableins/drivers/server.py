@@ -9,6 +9,7 @@ disconnects, as it would on a real platform.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import socket
@@ -82,51 +83,76 @@ class _Session:
                 self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
 
     def handle(self, request_id: str, verb: str, arguments: list[str]) -> bool:
-        if verb == "META":
-            self.send(f"{request_id} OK {json.dumps(self.driver.metadata.to_dict(), allow_nan=False)}\n")
-        elif verb == "CMD":
-            if len(arguments) != 3:
-                raise ValueError("expected three angle-sensor readings [rad]")
-            readings = tuple(_finite(a) for a in arguments)
-            issued = self.driver.command(readings)  # type: ignore[arg-type]
-            self.send(f"{request_id} OK {format_float(issued)}\n")
-        elif verb == "ANG":
-            angles = self.driver.read_angles()
-            self.send(f"{request_id} OK {' '.join(format_float(a) for a in angles)}\n")
-        elif verb == "ACQ":
-            if len(arguments) != 1:
-                raise ValueError("expected one duration [s]")
-            duration = _finite(arguments[0])
-            if duration <= 0:
-                raise ValueError("duration must be positive")
-            block = self.driver.acquire(duration)
-            lines = sample_lines(block)
-            self.send(f"{request_id} OK {len(lines)}\n")
-            try:
-                if self.realtime > 0:  # stream as a real platform would: each sample when it is measured
-                    start, first = time.monotonic(), float(block.time[0]) if len(lines) else 0.0
-                    for k, line in enumerate(lines):
-                        delay = (float(block.time[k]) - first) / self.realtime - (time.monotonic() - start)
-                        if delay > 0:
-                            self.writer.flush()
-                            time.sleep(delay)
-                        self.writer.write(line)
-                else:
-                    for line in lines:
-                        self.writer.write(line)
-            except OSError:
-                raise
-            except Exception as error:  # after OK only samples may follow: a failure drops the connection
-                raise ConnectionAbortedError(f"acquisition failed while streaming: {error}") from error
-            self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
-        elif verb == "STATUS":
-            self.send(f"{request_id} OK {json.dumps(_jsonable(self.driver.status()))}\n")
-        elif verb == "BYE":
-            self.send(f"{request_id} OK\n")
-            return False
-        else:
+        """Answer one request; False when the client said goodbye."""
+        handlers: dict[str, Callable[[str, list[str]], bool]] = {
+            "META": self._meta,
+            "CMD": self._command,
+            "ANG": self._angles,
+            "ACQ": self._acquire,
+            "STATUS": self._status,
+            "BYE": self._bye,
+        }
+        handler = handlers.get(verb)
+        if handler is None:
             self.send(f"{request_id} ERR protocol unknown verb {verb!r}\n")
+            return True
+        return handler(request_id, arguments)
+
+    def _meta(self, request_id: str, arguments: list[str]) -> bool:
+        self.send(f"{request_id} OK {json.dumps(self.driver.metadata.to_dict(), allow_nan=False)}\n")
         return True
+
+    def _command(self, request_id: str, arguments: list[str]) -> bool:
+        if len(arguments) != 3:
+            raise ValueError("expected three angle-sensor readings [rad]")
+        issued = self.driver.command((_finite(arguments[0]), _finite(arguments[1]), _finite(arguments[2])))
+        self.send(f"{request_id} OK {format_float(issued)}\n")
+        return True
+
+    def _angles(self, request_id: str, arguments: list[str]) -> bool:
+        angles = self.driver.read_angles()
+        self.send(f"{request_id} OK {' '.join(format_float(a) for a in angles)}\n")
+        return True
+
+    def _acquire(self, request_id: str, arguments: list[str]) -> bool:
+        if len(arguments) != 1:
+            raise ValueError("expected one duration [s]")
+        duration = _finite(arguments[0])
+        if duration <= 0:
+            raise ValueError("duration must be positive")
+        block = self.driver.acquire(duration)
+        lines = sample_lines(block)
+        self.send(f"{request_id} OK {len(lines)}\n")
+        try:
+            self._stream(block, lines)
+        except OSError:
+            raise
+        except Exception as error:  # after OK only samples may follow: a failure drops the connection
+            raise ConnectionAbortedError(f"acquisition failed while streaming: {error}") from error
+        self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
+        return True
+
+    def _stream(self, block: Any, lines: list[str]) -> None:
+        """Write the sample lines, paced at ``realtime`` × real time when it is positive (each sample when it is measured)."""
+        if self.realtime <= 0:
+            for line in lines:
+                self.writer.write(line)
+            return
+        start, first = time.monotonic(), float(block.time[0]) if len(lines) else 0.0
+        for k, line in enumerate(lines):
+            delay = (float(block.time[k]) - first) / self.realtime - (time.monotonic() - start)
+            if delay > 0:
+                self.writer.flush()
+                time.sleep(delay)
+            self.writer.write(line)
+
+    def _status(self, request_id: str, arguments: list[str]) -> bool:
+        self.send(f"{request_id} OK {json.dumps(_jsonable(self.driver.status()))}\n")
+        return True
+
+    def _bye(self, request_id: str, arguments: list[str]) -> bool:
+        self.send(f"{request_id} OK\n")
+        return False
 
 
 def _finite(text: str) -> float:
@@ -151,6 +177,7 @@ def _jsonable(value: Any) -> Any:
 def serve(
     driver: PlatformDriver,
     port: int = 0,
+    *,
     ready: Callable[[int], None] | None = None,
     log: Callable[[str], None] = print,
     max_connections: int | None = None,
@@ -183,21 +210,7 @@ def serve(
         with platform, connection:
             if state["current"] is not connection:  # replaced before it started
                 return
-            connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
-            writer = connection.makefile("w", encoding="ascii", newline="\n")
-            try:
-                _Session(driver, reader, writer, log, realtime).run()
-            except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
-                log(f"client {peer[0]}:{peer[1]} lost: {error}")
-            else:
-                log(f"client {peer[0]}:{peer[1]} disconnected")
-            finally:
-                for stream in (reader, writer):
-                    try:
-                        stream.close()
-                    except (OSError, ValueError):
-                        pass
+            _serve_connection(driver, connection, peer, log=log, realtime=realtime)
 
     with socket.create_server((LOOPBACK, port), backlog=4) as listener:
         bound = listener.getsockname()[1]
@@ -210,10 +223,8 @@ def serve(
             previous, state["current"] = state["current"], connection
             if previous is not None:
                 log(f"client {peer[0]}:{peer[1]} connected; it replaces the previous client")
-                try:
+                with contextlib.suppress(OSError):
                     previous.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
             else:
                 log(f"client {peer[0]}:{peer[1]} connected")
             thread = threading.Thread(target=session, args=(connection, peer), daemon=True)
@@ -221,3 +232,22 @@ def serve(
             sessions.append(thread)
         for thread in sessions:
             thread.join()
+
+
+def _serve_connection(
+    driver: PlatformDriver, connection: socket.socket, peer: tuple[str, int], *, log: Callable[[str], None], realtime: float
+) -> None:
+    """Run one client's session on ``connection`` and log how it ended."""
+    connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
+    writer = connection.makefile("w", encoding="ascii", newline="\n")
+    try:
+        _Session(driver, reader, writer, log, realtime).run()
+    except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
+        log(f"client {peer[0]}:{peer[1]} lost: {error}")
+    else:
+        log(f"client {peer[0]}:{peer[1]} disconnected")
+    finally:
+        for stream in (reader, writer):
+            with contextlib.suppress(OSError, ValueError):
+                stream.close()

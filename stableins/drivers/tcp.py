@@ -15,6 +15,7 @@ Failure handling, in one place:
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import socket
@@ -86,6 +87,7 @@ class TcpDriver:
     # ------------------------------------------------------------------ link
     @property
     def address(self) -> str:
+        """The ``tcp://host:port`` address of the platform."""
         return f"tcp://{self.host}:{self.port}"
 
     def _connect(self) -> None:
@@ -116,10 +118,8 @@ class TcpDriver:
 
     def _drop(self) -> None:
         if self._socket is not None:
-            try:
+            with contextlib.suppress(OSError):
                 self._socket.close()
-            except OSError:
-                pass
         self._socket, self._buffer = None, b""
 
     def _reconnect(self) -> None:
@@ -128,7 +128,7 @@ class TcpDriver:
         self._connect()
 
     def _read_line(self, deadline: float) -> str:
-        """The next line; the request it belongs to must be answered by ``deadline`` (``time.monotonic()``)."""
+        """Read the next line; the request it belongs to must be answered by ``deadline`` (``time.monotonic()``)."""
         assert self._socket is not None
         while b"\n" not in self._buffer:
             if len(self._buffer) > MAX_LINE:
@@ -196,6 +196,7 @@ class TcpDriver:
     # ------------------------------------------------------------------ PlatformDriver
     @property
     def metadata(self) -> SiteMetadata:
+        """Return the platform's site metadata (asked once, then kept)."""
         if self._metadata is None:
             from stableins.data.jsonio import parse_json
             from stableins.data.metadata import metadata_from_si
@@ -208,10 +209,12 @@ class TcpDriver:
         return self._metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        """Command the gimbals to ``readings`` [rad]; return the platform time."""
         payload = self._call("CMD", *(format_float(r) for r in readings))
         return _number(payload, self.address, "CMD")
 
     def read_angles(self) -> NDArray[np.float64]:
+        """Return the angle-sensor readings [rad]."""
         payload = self._call("ANG")
         values = payload.split()
         if len(values) != 3:
@@ -219,6 +222,7 @@ class TcpDriver:
         return np.array([_number(v, self.address, "ANG") for v in values])
 
     def status(self) -> dict[str, object]:
+        """Return the link's state for logs and error messages."""
         from stableins.data.jsonio import parse_json
 
         try:
@@ -228,6 +232,7 @@ class TcpDriver:
         return {"driver": "tcp", "address": self.address, "reconnects": self.reconnects, "platform": remote}
 
     def acquire(self, duration: float) -> SampleBlock:
+        """Record ``duration`` seconds of samples, checked as they arrive."""
         span = duration if math.isfinite(duration) and duration > 0 else 0.0  # the platform refuses other durations itself
         limit = int(math.ceil(ACQ_COUNT_MARGIN * span * float(self.metadata.sample_rate))) + ACQ_COUNT_SLACK
         request_id = self._next_id
@@ -278,11 +283,10 @@ class TcpDriver:
         )
 
     def close(self) -> None:
+        """Close the connection (saying goodbye to the server when it is up)."""
         if self._socket is not None:
-            try:
+            with contextlib.suppress(DriverError):
                 self._call("BYE", retry=False)
-            except DriverError:
-                pass
         self._drop()
 
 

@@ -24,7 +24,7 @@ The slow-noise test of device dwells is :mod:`stableins.estimators.slow_noise`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -127,12 +127,12 @@ def _basis(tau: NDArray[np.float64]) -> NDArray[np.float64]:
     """Allan variance of unit terms, shape (k, 4) in the order of :data:`stableins.noise.TERMS`."""
     out = np.empty((tau.size, len(TERMS)))
     for k, name in enumerate(TERMS):
-        out[:, k] = NoiseModel.given(**{name: 1.0}).allan_variance(tau)[:, 0]
+        out[:, k] = NoiseModel.given(*(1.0 if term == name else 0.0 for term in TERMS)).allan_variance(tau)[:, 0]
     return out
 
 
 def _edf_for(points: AllanPoints, theta: NDArray[np.float64], basis: NDArray[np.float64]) -> NDArray[np.float64]:
-    """edf of each point and axis from the dominant term of the fitted model."""
+    """Return the edf of each point and axis from the dominant term of the fitted model."""
     edf = np.empty((points.tau.size, 3))
     for a in range(3):
         dominant = np.argmax(basis * theta[a][None], axis=1)
@@ -186,7 +186,20 @@ def _term_scale(a: NDArray, basis: NDArray, k: int) -> float:
     return max(float(np.min(ratio[basis[:, k] > 0])) if np.any(basis[:, k] > 0) else 1.0, 1e-300)
 
 
-def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k: int, confidence: float) -> tuple[float, float]:
+def _geometric_search(excess: Callable[[float], float], lo: float, hi: float) -> float:
+    """Return the upper end of a geometric bisection of ``[lo, hi]`` for the root of ``excess`` (to 1 % of it)."""
+    for _ in range(30):
+        mid = math.sqrt(lo * hi) if lo > 0 else 0.5 * hi
+        if excess(mid) > 0:
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo <= 0.01 * hi:
+            break
+    return hi
+
+
+def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, *, k: int, confidence: float) -> tuple[float, float]:
     """Profile-likelihood interval of ``θ_k`` (one-sided upper limit when the estimate is 0)."""
     from scipy.stats import chi2
 
@@ -198,17 +211,6 @@ def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k:
         _, nll = _fit_axis(a, e, basis, {k: value})
         return nll - best - level
 
-    def search(lo: float, hi: float) -> float:
-        for _ in range(30):
-            mid = math.sqrt(lo * hi) if lo > 0 else 0.5 * hi
-            if excess(mid) > 0:
-                hi = mid
-            else:
-                lo = mid
-            if hi - lo <= 0.01 * hi:
-                break
-        return hi
-
     hi = max(2.0 * theta[k], 1e-3 * _term_scale(a, basis, k))
     for _ in range(40):
         if excess(hi) > 0:
@@ -216,7 +218,7 @@ def _profile_interval(a: NDArray, e: NDArray, basis: NDArray, theta: NDArray, k:
         hi *= 4
     else:
         return (0.0 if at_zero else theta[k], math.inf)
-    upper = search(max(theta[k], 0.0), hi)
+    upper = _geometric_search(excess, max(theta[k], 0.0), hi)
     lower = 0.0
     if not at_zero and excess(0.0) > 0:
         lo_value = 0.0
@@ -257,7 +259,7 @@ def fit_allan(
             if k in held:
                 fitted[name] = NoiseTerm.unbounded()
                 continue
-            lower, upper = _profile_interval(points.variance[:, a], edf[:, a], basis, theta[a], k, confidence)
+            lower, upper = _profile_interval(points.variance[:, a], edf[:, a], basis, theta[a], k=k, confidence=confidence)
             fitted[name] = NoiseTerm(math.sqrt(theta[a, k]), math.sqrt(min(lower, theta[a, k])), math.sqrt(max(upper, theta[a, k])))
         axes.append(AxisNoise(**fitted))
     model = NoiseModel(tuple(axes), source, provenance, confidence)  # type: ignore[arg-type]
@@ -286,7 +288,7 @@ def merge_points(short: AllanPoints, long: AllanPoints, threshold: float) -> All
 
 
 def points_for_model(points: AllanPoints, model: NoiseModel) -> AllanPoints:
-    """The points with the edf of the noise types that dominate ``model`` at each ``τ``."""
+    """Return the points with the edf of the noise types that dominate ``model`` at each ``τ``."""
     from dataclasses import replace
 
     theta = np.stack([model.values(name) ** 2 for name in TERMS], axis=-1)
@@ -303,7 +305,9 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
     lo, hi = points.interval(confidence)
     tau = np.logspace(np.log10(points.tau.min()), np.log10(points.tau.max()), 200)
     fitted = model.allan_deviation(tau)
-    lower = _bound_model(model, "lower").allan_deviation(tau)
+    lower_model = _bound_model(model, "lower")
+    assert lower_model is not None  # lower limits are finite (an unbounded term has lower limit 0)
+    lower = lower_model.allan_deviation(tau)
     upper_model = _bound_model(model, "upper")
     upper = upper_model.allan_deviation(tau) if upper_model is not None else None
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.6), sharey=True, constrained_layout=True)
@@ -336,7 +340,7 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
         ):
             value = model.axes[a].term(name).value
             if value > 0:
-                alone = NoiseModel.given(**{name: value}).allan_deviation(tau)[:, a] / MICRO_G
+                alone = NoiseModel.given(*(value if term == name else 0.0 for term in TERMS)).allan_deviation(tau)[:, a] / MICRO_G
                 ax.loglog(tau, alone, color=colour, lw=0.9, ls=style, label=f"{name.replace('_', ' ')} alone")
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -372,4 +376,4 @@ def _bound_model(model: NoiseModel, side: str) -> NoiseModel | None:
                     return None
             changes[name] = NoiseTerm.exact(value)
         axes.append(replace(axis, **changes))
-    return replace(model, axes=tuple(axes))
+    return replace(model, axes=(axes[0], axes[1], axes[2]))

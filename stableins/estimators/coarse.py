@@ -61,15 +61,14 @@ from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, ga
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.orientation import check_orientation
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
 from stableins.platform import specific_force_and_jacobian
-from stableins.status import Status
 
 
 def coarse_model(*, nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
-    """The coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
+    """Return the coarse model: 12 linear terms + 3 zero offsets (+ ``K2_*`` when ``nonlinear``, + ``extra_terms``)."""
     return ErrorModel.standard(nonlinear=nonlinear, gimbals=True) + tuple(extra_terms)
 
 
@@ -109,6 +108,7 @@ class CoarseProblem:
         base_dcm: NDArray[np.float64],
         configuration: GimbalConfiguration,
         model: ErrorModel,
+        *,
         slow_covariance: NDArray[np.float64] | None = None,
     ) -> CoarseProblem:
         """One trial from dwell summaries: measured readings, means and their 1σ."""
@@ -155,6 +155,7 @@ class CoarseProblem:
         return np.linalg.inv(chol)
 
     def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Return whitened residuals and Jacobian ``L⁻¹ r``, ``L⁻¹ H`` (``L Lᵀ`` the covariance of the dwell means)."""
         out, jac = self.predict(x)
         t = x.shape[0]
         w = self.whitening()
@@ -248,7 +249,9 @@ def calibrate_coarse(
         orientation_tolerance=orientation_tolerance, source=source,
     )
     slow = slow_covariance(usable, noise, source)
-    problem = CoarseProblem.from_dwells(usable, gravity, base_dcm, configuration, model, None if slow is None else slow[None])
+    problem = CoarseProblem.from_dwells(
+        usable, gravity, base_dcm, configuration, model, slow_covariance=None if slow is None else slow[None]
+    )
     if noise is not None:
         notes.append(noise.describe())
     scales = np.array([t.nominal for t in model])
@@ -261,32 +264,26 @@ def calibrate_coarse(
     design = final_design(solution.weighted_jacobian[0], model, scales, tuple(held))
     if design.deficiency == len(fixed):
         gauge = choose_gauge(design, gauge_preference(tuple(held)), scales)
-    notes.extend(_setting_notes(held, start_values, model, left_out, standard_gauge, start, nonlinear=nonlinear))
+    notes.extend(_setting_notes(held, start_values, model, left_out, standard_gauge=standard_gauge, start=start, nonlinear=nonlinear))
     residuals, residual_sigma, labels = _residuals(problem, solution.x, usable)
     notes.extend(quality_notes(solution, design, residuals / residual_sigma, labels))
-    return FitResult(
-        stage="coarse",
-        terms=model.terms,
-        values=solution.x[0].copy(),
-        covariance=solution.covariance[0].copy(),
-        status=tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids),
+    return FitResult.from_solution(
+        "coarse",
+        model.terms,
+        solution,
+        design,
+        held={h: start_values[h] for h in held},
+        gauge_values={g: 0.0 for g in standard_gauge},
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
-        rank=design.rank,
-        singular_values=design.singular_values,
-        null_space=design.null_space,
         determined=gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge),
         notes=tuple(notes),
         positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
         left_out={int(k): v for k, v in sorted(left_out.items())},
-        gauge_values={g: 0.0 for g in standard_gauge},
-        held={h: start_values[h] for h in held},
-        iterations=solution.iterations,
         gravity=float(gravity),
         details=_details(gauge, design, usable, base_attitude, configuration),
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
-        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
         sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
     )
@@ -304,7 +301,7 @@ def _usable_dwells(
     orientation_tolerance: float,
     source: str,
 ) -> tuple[list[DwellSummary], dict[int, str], list[str]]:
-    """The dwells a coarse fit of ``n`` parameters uses (sorted by position), those it leaves out and why, and its notes.
+    """Return the dwells a coarse fit of ``n`` parameters uses (sorted by position), those it leaves out and why, and its notes.
 
     Raises
     ------
@@ -326,7 +323,7 @@ def _usable_dwells(
 def _details(
     gauge: Gauge, design: DesignAnalysis, usable: Sequence[DwellSummary], base_attitude: Sequence[float], configuration: GimbalConfiguration
 ) -> CoarseDetails:
-    """What the coarse fit worked with beyond its parameters."""
+    """Return what the coarse fit worked with beyond its parameters."""
     return CoarseDetails(
         gauge_coefficients=gauge.coefficients,
         base_attitude=tuple(float(a) for a in base_attitude),
@@ -341,12 +338,12 @@ def _setting_notes(
     start_values: Mapping[str, float],
     model: ErrorModel,
     left_out: Mapping[int, str],
+    *,
     standard_gauge: Sequence[str],
     start: DesignAnalysis,
-    *,
     nonlinear: bool,
 ) -> list[str]:
-    """The notes of a coarse fit on its gauge, what it held, what it ignored and which positions it left out."""
+    """Return the notes of a coarse fit on its gauge, what it held, what it ignored and which positions it left out."""
     notes = []
     for g in standard_gauge:
         moved = ", ".join(start.involved()[0])
@@ -383,7 +380,7 @@ def _start_gauge(
     left_out: Mapping[int, str],
     source: str,
 ) -> tuple[DesignAnalysis, Gauge, dict[str, tuple[str, ...]]]:
-    """The design at the starting point, the gauge its null space decides, and the extra terms it holds.
+    """Return the design at the starting point, the gauge its null space decides, and the extra terms it holds.
 
     Raises
     ------
@@ -407,7 +404,7 @@ def _start_gauge(
 def quality_notes(
     solution: GaussNewtonSolution, design: DesignAnalysis, normalized: NDArray[np.float64], labels: tuple[str, ...]
 ) -> list[str]:
-    """The notes of a device fit on its convergence, its goodness of fit and its weakly determined parameters."""
+    """Return the notes of a device fit on its convergence, its goodness of fit and its weakly determined parameters."""
     notes = []
     chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
     if (stalled := convergence_warning(solution)) is not None:

@@ -71,6 +71,7 @@ class DesignAnalysis:
 
     @property
     def deficiency(self) -> int:
+        """Number of directions the design does not determine."""
         return len(self.ids) - self.rank
 
     def involved(self, tol: float = 1e-2) -> list[tuple[str, ...]]:
@@ -175,27 +176,7 @@ def choose_gauge(analysis: DesignAnalysis, preference: Sequence[str] = (), scale
         Relative size below which a null-vector component counts as zero.
     """
     ids = list(analysis.ids)
-    basis = analysis.null_space.copy()  # (n, k)
-    k = basis.shape[1]
-    fixed: list[str] = []
-    order = [i for i in preference if i in ids] + ids
-    for col in range(k):
-        pivot = None
-        for candidate in order:
-            if candidate in fixed:
-                continue
-            r = ids.index(candidate)
-            if abs(basis[r, col]) > tol * np.abs(basis[:, col]).max():
-                pivot = candidate
-                break
-        if pivot is None:  # pragma: no cover - a null vector always has a non-zero component
-            raise RuntimeError("no gauge parameter found for a null direction")
-        r = ids.index(pivot)
-        basis[:, col] /= basis[r, col]
-        for other in range(k):  # eliminate the pivot row from the other vectors
-            if other != col:
-                basis[:, other] -= basis[r, other] * basis[:, col]
-        fixed.append(pivot)
+    basis, fixed = _pivoted_null_space(analysis.null_space, ids, [i for i in preference if i in ids] + ids, tol)
     d = np.ones(len(ids)) if scales is None else np.asarray(scales, dtype=float)
     coefficients: dict[str, dict[str, float]] = {}
     significance: dict[str, dict[str, float]] = {}
@@ -213,14 +194,44 @@ def choose_gauge(analysis: DesignAnalysis, preference: Sequence[str] = (), scale
     return Gauge(tuple(fixed), coefficients, significance)
 
 
+def _pivoted_null_space(
+    null_space: NDArray[np.float64], ids: list[str], order: list[str], tol: float
+) -> tuple[NDArray[np.float64], list[str]]:
+    """Return the null space reduced so that gauge parameter ``i`` has component 1 in vector ``i`` and 0 in the others.
+
+    The gauge parameters are the first ids of ``order`` with a non-zero component (relative ``tol``), one per vector.
+    """
+    basis = null_space.copy()  # (n, k)
+    k = basis.shape[1]
+    fixed: list[str] = []
+    for col in range(k):
+        pivot = None
+        for candidate in order:
+            if candidate in fixed:
+                continue
+            r = ids.index(candidate)
+            if abs(basis[r, col]) > tol * np.abs(basis[:, col]).max():
+                pivot = candidate
+                break
+        if pivot is None:  # pragma: no cover - a null vector always has a non-zero component
+            raise RuntimeError("no gauge parameter found for a null direction")
+        r = ids.index(pivot)
+        basis[:, col] /= basis[r, col]
+        for other in range(k):  # eliminate the pivot row from the other vectors
+            if other != col:
+                basis[:, other] -= basis[r, other] * basis[:, col]
+        fixed.append(pivot)
+    return basis, fixed
+
+
 def undetermined(
     weighted_jacobian: ArrayLike,
     ids: Sequence[str],
     scales: ArrayLike,
     candidates: Sequence[str] | Mapping[str, float],
+    *,
     fixed: Sequence[str] = (),
     ratio: float = UNDETERMINED_RATIO,
-    *,
     tolerance: float = 0.0,
     smallest_only: bool = False,
 ) -> dict[str, tuple[str, ...]]:
@@ -286,7 +297,7 @@ def describe_design(ids: Sequence[str], singular_values: ArrayLike, null_space: 
 
 
 def aligned_null_space(analysis: DesignAnalysis, gauge: Gauge) -> NDArray[np.float64]:
-    """The null space rotated so that each gauge parameter moves in exactly one unit vector.
+    """Return the null space rotated so that each gauge parameter moves in exactly one unit vector.
 
     For the fine stage this gives the readable basis ``β_xz + β_yz``, ``β_zy + β_xy``,
     ``β_yx + β_zx`` instead of an arbitrary rotation of it.

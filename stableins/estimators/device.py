@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, MICRO_G, GimbalConfiguration, dcm_nav_to_body
 from stableins.errormodel import Term
@@ -84,6 +85,7 @@ class DeviceCalibration:
         return lines
 
     def report(self) -> str:
+        """Return every stage's report: coarse (and the passes), fine, fused, the noise model and the largest floor."""
         scope = f"joint fit of {len(self.passes)} passes" if len(self.passes) > 1 else "one pass"
         title = f"== device-level coarse stage ({scope}) =="
         parts = [title, self.coarse.report(), ""]
@@ -126,7 +128,7 @@ class DeviceCalibration:
 def noise_from_dwells(
     dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95, source: str = "the dwells"
 ) -> NoiseModel:
-    """The noise model a device session measures (source ``DEVICE_DWELLS``).
+    """Return the noise model a device session measures (source ``DEVICE_DWELLS``).
 
     * white noise ``N`` per axis from the sample variances, pooled over the usable dwells
       (``N² = s²/rate``; interval from χ² with the pooled degrees of freedom);
@@ -177,7 +179,7 @@ def noise_from_dwells(
 
 
 def with_given_slow_noise(dwells: Sequence[DwellSummary], bias_instability: float, random_walk: float, provenance: str) -> NoiseModel:
-    """A datasheet's bias instability and random walk (same on every axis) with the white noise measured in the dwells."""
+    """Return a datasheet's bias instability and random walk (same on every axis) with the white noise measured in the dwells."""
     measured = noise_from_dwells(dwells)
     b, k = NoiseTerm.exact(bias_instability), NoiseTerm.exact(random_walk)
     axes = tuple(replace(a, bias_instability=b, random_walk=k) for a in measured.axes)
@@ -185,7 +187,7 @@ def with_given_slow_noise(dwells: Sequence[DwellSummary], bias_instability: floa
 
 
 def floor_table(final: FitResult, floor: FitResult, noise: NoiseModel | None) -> list[str]:
-    """What the σ become with the largest floor the data allow (bias instability at its upper limit)."""
+    """Return the table of what the σ become with the largest floor the data allow (bias instability at its upper limit)."""
     b_up = float(np.max(noise.limits("bias_instability")[1])) if noise is not None else float("nan")
     lines = [
         "slow noise not detected: the σ above rest on white noise.  The dwells allow a bias instability up to "
@@ -212,6 +214,129 @@ def floor_ratio(final: FitResult, floor: FitResult) -> float:
     return max(ratios, default=1.0)
 
 
+@dataclass(frozen=True)
+class _DeviceFit:
+    """What every joint fit of one device session shares: site, gimbal senses, noise model, discovered terms."""
+
+    site: SiteMetadata
+    configuration: GimbalConfiguration
+    noise: NoiseModel
+    extra_terms: tuple[Term, ...]
+
+    def fit_joint(
+        self,
+        coarse_dwells: Sequence[DwellSummary],
+        fine_dwells: Sequence[DwellSummary] = (),
+        *,
+        start: FitResult | Mapping[str, float],
+        nonlinear: bool = True,
+        stage: str = "coarse",
+        notes: Sequence[str] = (),
+    ) -> FitResult:
+        """Return :func:`stableins.estimators.joint.fit_joint` of these dwells with the session's settings."""
+        return fit_joint(
+            coarse_dwells,
+            fine_dwells,
+            gravity=self.site.gravity,
+            base_attitude=self.site.base_attitude,
+            configuration=self.configuration,
+            start=start,
+            nonlinear=nonlinear,
+            noise=self.noise,
+            stage=stage,
+            notes=notes,
+            extra_terms=self.extra_terms,
+        )
+
+
+def _stage_layouts(layouts: Mapping[str, StageLayout]) -> tuple[StageLayout, StageLayout]:
+    """Return the coarse and fine layouts, checked to be present and of their stage."""
+    missing = {"coarse", "fine"} - set(layouts)
+    if missing:
+        raise ValueError(f"layouts of the {' and '.join(sorted(missing))} stage missing: layouts maps 'coarse' and 'fine' to a StageLayout")
+    for procedure, stage in ((layouts["coarse"], "coarse"), (layouts["fine"], "fine")):
+        if procedure.stage != stage:
+            raise InputError(
+                f"procedure {procedure.name!r} is a {procedure.stage!r} procedure, given for the {stage} stage",
+                path=procedure.source or None,
+                field="procedure.stage",
+                expected=repr(stage),
+            )
+    return layouts["coarse"], layouts["fine"]
+
+
+def _coarse_passes(
+    session: _DeviceFit, dwells: Sequence[DwellSummary], layout: StageLayout, *, allow_missing: bool, nonlinear: bool, source: str
+) -> tuple[list[FitResult], dict[int, list[DwellSummary]]]:
+    """Return the coarse fit of every pass on its own, and the dwells each pass used (by pass number)."""
+    coarse_dwells = [d for d in dwells if d.stage == "coarse"]
+    if not coarse_dwells:
+        raise InputError("no coarse-stage dwells in the data", path=source, field="stage", expected="rows with stage 'coarse'")
+    numbers = sorted({d.pass_number for d in coarse_dwells})
+    passes = [
+        calibrate_coarse(
+            [d for d in coarse_dwells if d.pass_number == p],
+            gravity=session.site.gravity,
+            base_attitude=session.site.base_attitude,
+            configuration=session.configuration,
+            expected_positions=layout.positions,
+            allow_missing=allow_missing,
+            orientation_tolerance=layout.checks.orientation_tolerance,
+            noise=session.noise,
+            nonlinear=nonlinear,
+            extra_terms=session.extra_terms,
+            source=f"{source} (coarse pass {p})",
+        )
+        for p in numbers
+    ]
+    used = {
+        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.positions()]
+        for p, fit in zip(numbers, passes, strict=True)
+    }
+    return passes, used
+
+
+def _handedness_warning(layout: StageLayout, configuration: GimbalConfiguration) -> str | None:
+    """Return the warning when the coarse sequence was designed for the other gimbal handedness, else None."""
+    if layout.handedness == configuration.handedness:
+        return None
+    return (
+        f"warning: procedure {layout.name!r} is designed for gimbal handedness {layout.handedness:+d}, "
+        f"the unit's gimbal_senses {tuple(configuration.senses)} give {configuration.handedness:+d}: the sequence does not point "
+        "every axis both up and down (docs/conventions.md), so scale factors, biases and K2 of some axes are poorly determined"
+    )
+
+
+def _fine_dwells(session: _DeviceFit, dwells: Sequence[DwellSummary], layout: StageLayout, source: str) -> list[DwellSummary]:
+    """Return the fine-stage dwells, those pointing the wrong way flagged by the orientation check."""
+    fine_dwells = [d for d in dwells if d.stage == "fine"]
+    if not fine_dwells:
+        return []
+    usable = [d for d in fine_dwells if d.usable]
+    base_dcm = dcm_nav_to_body(*session.site.base_attitude)
+    tolerance = layout.checks.orientation_tolerance
+    wrong = check_orientation(usable, session.site.gravity, base_dcm, session.configuration, tolerance=tolerance, source=f"{source} (fine)")
+    return [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
+
+
+def _floor_note(noise: NoiseModel, b_up: NDArray[np.float64], ratio: float) -> str:
+    """Return the note of a measured noise model without slow noise: what the largest floor would do to the σ."""
+    test = noise.test
+    assert test is not None  # a measured noise model carries its slow-noise test
+    text = (
+        f"slow noise not detected in the dwells (p = {test.p_value:.2g} at false-positive rate {test.alpha:g}): "
+        f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
+        f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'), and the random walk "
+        "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
+    )
+    return "warning: " + text if ratio > 1.1 else text
+
+
+def _with_note(fit: FitResult, note: str | None) -> FitResult:
+    """Return ``fit`` with ``note`` appended to its notes (unchanged when None)."""
+    return fit if note is None else replace(fit, notes=fit.notes + (note,))
+
+
 def calibrate_device(
     dwells: Sequence[DwellSummary],
     site: SiteMetadata,
@@ -219,12 +344,11 @@ def calibrate_device(
     layouts: Mapping[str, StageLayout],
     allow_missing: bool = False,
     noise: NoiseModel | None = None,
-    alpha: float = DEFAULT_ALPHA,
     coarse_nonlinear: bool = True,
     extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> DeviceCalibration:
-    """Coarse stage on every coarse pass, then the fine stage if fine dwells are present.
+    """Run the coarse stage on every coarse pass, then the fine stage if fine dwells are present.
 
     ``layouts`` are the positions of the two stages (``{"coarse": ..., "fine": ...}``, e.g. from
     :func:`stableins.procedures.definition.device_layouts`): which positions a pass must hold, the
@@ -233,7 +357,7 @@ def calibrate_device(
     ``noise`` is the instrument's noise model (a calibration record's ``noise_model``, measured
     by ``stableins noise`` on a static record, or a datasheet).  Without it the dwells'
     own (:func:`noise_from_dwells`): the bias instability they measure, with the decision at
-    the false-positive rate ``alpha``; when slow noise is not detected the result says so and
+    the false-positive rate :data:`stableins.estimators.slow_noise.DEFAULT_ALPHA`; when slow noise is not detected the result says so and
     :attr:`DeviceCalibration.floor` shows the σ with the largest floor the dwells allow.
 
     ``coarse_nonlinear`` (default True) also estimates ``K2_*`` in the coarse stage.  The
@@ -245,126 +369,64 @@ def calibrate_device(
     estimated jointly with the standard parameters in every stage that determines them; a stage
     that does not holds them (status ``unidentifiable``) at the value of the stage before.
     """
-    missing = {"coarse", "fine"} - set(layouts)
-    if missing:
-        raise ValueError(f"layouts of the {' and '.join(sorted(missing))} stage missing: layouts maps 'coarse' and 'fine' to a StageLayout")
-    coarse_procedure, fine_procedure = layouts["coarse"], layouts["fine"]
-    for procedure, stage in ((coarse_procedure, "coarse"), (fine_procedure, "fine")):
-        if procedure.stage != stage:
-            raise InputError(
-                f"procedure {procedure.name!r} is a {procedure.stage!r} procedure, given for the {stage} stage",
-                path=procedure.source or None,
-                field="procedure.stage",
-                expected=repr(stage),
-            )
-    configuration = GimbalConfiguration(tuple(site.gimbal_senses))
+    coarse_layout, fine_layout = _stage_layouts(layouts)
+    configuration = GimbalConfiguration((*site.gimbal_senses,))
     measured = noise is None or noise.source is NoiseSource.NONE
-    if measured:
-        noise = noise_from_dwells(dwells, alpha=alpha, source=source)
-    coarse_dwells = [d for d in dwells if d.stage == "coarse"]
-    if not coarse_dwells:
-        raise InputError("no coarse-stage dwells in the data", path=source, field="stage", expected="rows with stage 'coarse'")
-    passes = []
-    for p in sorted({d.pass_number for d in coarse_dwells}):
-        passes.append(
-            calibrate_coarse(
-                [d for d in coarse_dwells if d.pass_number == p],
-                gravity=site.gravity,
-                base_attitude=site.base_attitude,
-                configuration=configuration,
-                expected_positions=coarse_procedure.positions,
-                allow_missing=allow_missing,
-                orientation_tolerance=coarse_procedure.checks.orientation_tolerance,
-                noise=noise,
-                nonlinear=coarse_nonlinear,
-                extra_terms=extra_terms,
-                source=f"{source} (coarse pass {p})",
-            )
-        )
-    pass_dwells = {
-        p: [d for d in coarse_dwells if d.pass_number == p and d.position in fit.positions()]
-        for p, fit in zip(sorted({d.pass_number for d in coarse_dwells}), passes, strict=True)
-    }
+    noise_model = noise_from_dwells(dwells, source=source) if noise is None or measured else noise
+    session = _DeviceFit(site, configuration, noise_model, tuple(extra_terms))
+    passes, pass_dwells = _coarse_passes(
+        session, dwells, coarse_layout, allow_missing=allow_missing, nonlinear=coarse_nonlinear, source=source
+    )
     used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
-    joint = dict(gravity=site.gravity, base_attitude=site.base_attitude, configuration=configuration, noise=noise, extra_terms=extra_terms)
     if len(passes) > 1:
-        coarse = fit_joint(
-            used_coarse,
-            start=passes[-1],
-            nonlinear=coarse_nonlinear,
-            notes=(f"joint fit of coarse passes {', '.join(map(str, sorted(pass_dwells)))} (each with its own readings)",),
-            **joint,
-        )
+        joint_note = f"joint fit of coarse passes {', '.join(map(str, sorted(pass_dwells)))} (each with its own readings)"
+        coarse = session.fit_joint(used_coarse, start=passes[-1], nonlinear=coarse_nonlinear, notes=(joint_note,))
     else:
         coarse = passes[-1]
-    mismatch = None
-    if coarse_procedure.handedness != configuration.handedness:
-        mismatch = (
-            f"warning: procedure {coarse_procedure.name!r} is designed for gimbal handedness {coarse_procedure.handedness:+d}, "
-            f"the unit's gimbal_senses {tuple(configuration.senses)} give {configuration.handedness:+d}: the sequence does not point "
-            "every axis both up and down (docs/conventions.md), so scale factors, biases and K2 of some axes are poorly determined"
-        )
-        coarse = replace(coarse, notes=coarse.notes + (mismatch,))
-        passes[-1] = replace(passes[-1], notes=passes[-1].notes + (mismatch,))
-    fine_dwells = [d for d in dwells if d.stage == "fine"]
+    mismatch = _handedness_warning(coarse_layout, configuration)
+    coarse, passes[-1] = _with_note(coarse, mismatch), _with_note(passes[-1], mismatch)
     fine = fused = None
+    used_fine: list[DwellSummary] = []
+    fine_dwells = _fine_dwells(session, dwells, fine_layout, source)
     if fine_dwells:
-        usable = [d for d in fine_dwells if d.usable]
-        tolerance = fine_procedure.checks.orientation_tolerance
-        base_dcm = dcm_nav_to_body(*site.base_attitude)
-        wrong = check_orientation(usable, site.gravity, base_dcm, configuration, tolerance=tolerance, source=f"{source} (fine)")
-        fine_dwells = [replace(d, flags=d.flags + (wrong[d.position],)) if d.position in wrong else d for d in fine_dwells]
         fine = calibrate_fine(
             fine_dwells,
             coarse,
             gravity=site.gravity,
-            expected_positions=fine_procedure.positions,
+            expected_positions=fine_layout.positions,
             allow_missing=allow_missing,
-            noise=noise,
+            noise=noise_model,
             extra_terms=extra_terms,
             source=f"{source} (fine)",
         )
-        if mismatch is not None:
-            fine = replace(fine, notes=fine.notes + (mismatch,))
+        fine = _with_note(fine, mismatch)
         used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
         start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == Status.ESTIMATED}
-        fused = fit_joint(
+        fused = session.fit_joint(
             used_coarse,
             used_fine,
             start=start,
             stage="coarse+fine",
             notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
             + ((mismatch,) if mismatch is not None else ()),
-            **joint,
         )
     floor = None
-    if measured and noise.test is not None and not noise.test.detected:
-        b_up = noise.limits("bias_instability")[1]
+    if measured and noise_model.test is not None and not noise_model.test.detected:
+        b_up = noise_model.limits("bias_instability")[1]
         if np.all(np.isfinite(b_up)) and np.any(b_up > 0):
-            largest = noise.with_values(bias_instability=b_up)
+            largest = replace(session, noise=noise_model.with_values(bias_instability=b_up))
             if fused is not None:
-                floor = fit_joint(used_coarse, used_fine, start=fused, stage="coarse+fine", **(joint | {"noise": largest}))
+                floor = largest.fit_joint(used_coarse, used_fine, start=fused, stage="coarse+fine")
+                fused = _with_note(fused, _floor_note(noise_model, b_up, floor_ratio(fused, floor)))
             else:
-                floor = fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear, **(joint | {"noise": largest}))
-            ratio = floor_ratio(fused if fused is not None else coarse, floor)
-            text = (
-                f"slow noise not detected in the dwells (p = {noise.test.p_value:.2g} at false-positive rate {noise.test.alpha:g}): "
-                f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
-                f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'), and the random walk "
-                "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
-            )
-            if ratio > 1.1:
-                text = "warning: " + text
-            if fused is not None:
-                fused = replace(fused, notes=fused.notes + (text,))
-            else:
-                coarse = replace(coarse, notes=coarse.notes + (text,))
+                floor = largest.fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear)
+                coarse = _with_note(coarse, _floor_note(noise_model, b_up, floor_ratio(coarse, floor)))
     settings = {
-        "coarse_procedure": coarse_procedure.name,
-        "fine_procedure": fine_procedure.name,
+        "coarse_procedure": coarse_layout.name,
+        "fine_procedure": fine_layout.name,
         "allow_missing": bool(allow_missing),
         "coarse_nonlinear": bool(coarse_nonlinear),
-        "noise_model": noise.to_document(),
+        "noise_model": noise_model.to_document(),
         "effects": [t.id for t in extra_terms],  # discovered terms estimated with the standard ones
     }
-    return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise, floor)
+    return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise_model, floor)

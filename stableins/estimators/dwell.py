@@ -92,6 +92,7 @@ class DwellSummary:
 
     @property
     def usable(self) -> bool:
+        """Whether the dwell passed every check (no flags)."""
         return not self.flags
 
     @property
@@ -101,7 +102,7 @@ class DwellSummary:
 
 
 def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
-    """A rail: samples pinned at an extreme value, robust to coarse quantization.
+    """Return whether the samples rail: pinned at an extreme value, robust to coarse quantization.
 
     Two signatures, either side:
 

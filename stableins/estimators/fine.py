@@ -39,11 +39,11 @@ from numpy.typing import NDArray
 
 from stableins.errormodel import BETA_IDS, ErrorModel, Term
 from stableins.errors import InputError
-from stableins.estimators.design import aligned_null_space
+from stableins.estimators.design import DesignAnalysis, Gauge, aligned_null_space
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
-from stableins.estimators.gauss_newton import convergence_warning, gauss_newton, goodness_of_fit_warning
+from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 from stableins.status import Status
@@ -102,6 +102,7 @@ class FineProblem:
         return f_p, values, d_fp_d_fa, np.einsum("...i,...ik->...k", f_p, d_fp_d_fa)
 
     def weighted(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Return whitened residuals ``½g² − h`` and Jacobian (with the slow-noise covariance when given)."""
         _, h, d_h, sigma_h = self.evaluate(x)
         g = np.asarray(self.gravity, dtype=float)
         g = g[..., None] if g.ndim else g
@@ -128,6 +129,101 @@ def _start_values(model: ErrorModel, coarse: FitResult | Mapping[str, float]) ->
     return {k: float(values.get(k, model[k].reference)) for k in model.ids}, sig
 
 
+def _fine_problem(
+    usable: Sequence[DwellSummary], model: ErrorModel, *, gravity: float, noise: NoiseModel | None, source: str
+) -> FineProblem:
+    """Return the squared-amplitude problem of the usable fine dwells (with their slow-noise covariance)."""
+    slow = slow_covariance(usable, noise, source) if usable else None
+    return FineProblem(
+        means=np.array([d.mean for d in usable])[None] if usable else np.zeros((1, 0, 3)),
+        sigma=np.array([d.sem for d in usable])[None] if usable else np.zeros((1, 0, 3)),
+        gravity=float(gravity),
+        model=model,
+        slow_covariance=slow[None] if slow is not None else None,
+    )
+
+
+def _installation_combinations(
+    gauge: Gauge, model: ErrorModel, x: NDArray[np.float64], cov: NDArray[np.float64]
+) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    """Return the installation-angle differences the fit determines (value, 1σ) and their description."""
+    combos: dict[str, tuple[float, float]] = {}
+    determined = []
+    arcsec = model["beta_xz"].scale
+    for k, coefficients in gauge.coefficients.items():
+        pairs = {held_id: c for held_id, c in coefficients.items() if held_id in GAUGE_PREFERENCE}
+        if k not in BETA_IDS or not pairs:
+            continue
+        (held_id, c), *_ = sorted(pairs.items(), key=lambda kv: -abs(kv[1]))
+        name = f"{k} {'+' if c > 0 else '−'} {held_id}"
+        value = x[model.index(k)] + c * x[model.index(held_id)]
+        sigma = float(np.sqrt(cov[model.index(k), model.index(k)]))
+        combos[name] = (float(value), sigma)
+        determined.append(f"{name} = {value / arcsec:+.3f} ± {sigma / arcsec:.3f} arcsec")
+    determined.append(
+        "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
+    )
+    return combos, determined
+
+
+def _carry_from_coarse(
+    solution: GaussNewtonSolution, model: ErrorModel, carried: Sequence[str], start: Mapping[str, float], coarse_sigma: Mapping[str, float]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return values and covariance with the ``carried`` ids at their coarse value and σ, uncorrelated."""
+    x = solution.x[0].copy()
+    cov = solution.covariance[0].copy()
+    for k in carried:
+        i = model.index(k)
+        x[i] = start[k]
+        cov[i, :] = 0.0
+        cov[:, i] = 0.0
+        cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
+    return x, cov
+
+
+def _stage_notes(gravity: float, left_out: Mapping[int, str]) -> list[str]:
+    """Return the fine stage's fixed notes: installation angles, local gravity, positions left out."""
+    notes = [
+        "installation angles: the fine stage determines only the differences of the pairs (xz, yz), (zy, xy), (yx, zx); its own "
+        "result carries the coarse values, a record it updates takes the differences in combination with the coarse information",
+        f"local gravity {gravity:.7f} m/s^2 is the reference: an error δg scales sf_x, sf_y, sf_z by 1 + δg/g "
+        "(a Type B input of the certificate's uncertainty budget)",
+    ]
+    return notes + [f"position {p} left out: {why}" for p, why in sorted(left_out.items())]
+
+
+def _quality_notes(
+    solution: GaussNewtonSolution, design: DesignAnalysis, normalized: NDArray[np.float64], labels: tuple[str, ...]
+) -> list[str]:
+    """Return the warnings on convergence, goodness of fit and weakly determined parameters (installation angles aside)."""
+    notes = []
+    chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
+    if (stalled := convergence_warning(solution)) is not None:
+        notes.append(stalled)
+    warning = goodness_of_fit_warning(chi2_whitened, normalized.size - design.rank, normalized, labels)
+    if warning is not None:
+        notes.append(warning)
+    weak = [k for k in design.weak if k not in BETA_IDS]
+    if weak:
+        notes.append(
+            f"warning: weakly determined (1σ above the typical magnitude): {', '.join(weak)}; "
+            "the positions used do not excite these terms (an axis that never points both up and down?)"
+        )
+    return notes
+
+
+def _check_determined(left_out: Mapping[int, str], start_design: DesignAnalysis, gauge: Gauge, source: str) -> None:
+    """Raise :class:`InputError` unless the usable positions determine the 12 combinations (pairs held as the gauge)."""
+    if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
+        raise InputError(
+            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
+            f"(left out: {describe_left_out(left_out)})",
+            path=source,
+            field="position",
+            expected="positions with every axis near +1 g, −1 g and in between",
+        )
+
+
 def calibrate_fine(
     dwells: Sequence[DwellSummary],
     coarse: FitResult | Mapping[str, float],
@@ -139,7 +235,7 @@ def calibrate_fine(
     extra_terms: Sequence[Term] = (),
     source: str = "data",
 ) -> FitResult:
-    """Fine stage: 12 determined combinations from the squared-amplitude observation.
+    """Run the fine stage: 12 determined combinations from the squared-amplitude observation.
 
     Parameters
     ----------
@@ -149,6 +245,10 @@ def calibrate_fine(
         Coarse estimate (start values; the installation-angle sums are carried from it).
     gravity : float
         Local gravity [m/s²]; an error ``δg`` scales all three scale factors by ``1 + δg/g``.
+    expected_positions : sequence of int, optional
+        Positions the fine procedure holds (a missing one is an error unless ``allow_missing``).
+    allow_missing : bool
+        Fit without the positions that are missing or unusable.
     noise : NoiseModel, optional
         The instrument's noise model (slow noise correlated between dwells,
         :func:`stableins.estimators.dwell.slow_covariance`); white noise only when None.
@@ -156,19 +256,21 @@ def calibrate_fine(
         Additive terms estimated with the standard ones (discovered effects), starting from
         ``coarse``.  One that the norm observation does not determine is carried through from
         ``coarse`` with status ``unidentifiable``, like the installation-angle pairs.
+    source : str
+        What the dwells were read from (named in messages).
+
+    Returns
+    -------
+    FitResult
+        Stage ``"fine"``: the installation angles carry the coarse values (status ``unidentifiable``),
+        their determined differences are in :attr:`FitResult.combinations`.
     """
     usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source, stage="fine")
     model = fine_model(extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
     start, coarse_sigma = _start_values(model, coarse)
     x0 = model.vector(start)[None]
-    problem = FineProblem(
-        means=np.array([d.mean for d in usable])[None] if usable else np.zeros((1, 0, 3)),
-        sigma=np.array([d.sem for d in usable])[None] if usable else np.zeros((1, 0, 3)),
-        gravity=float(gravity),
-        model=model,
-        slow_covariance=slow[None] if usable and (slow := slow_covariance(usable, noise, source)) is not None else None,
-    )
+    problem = _fine_problem(usable, model, gravity=gravity, noise=noise, source=source)
     if noise is not None:
         notes.append(noise.describe())
     if len(usable) <= 12:
@@ -181,78 +283,28 @@ def calibrate_fine(
     _, a0 = problem.weighted(x0)
     start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, GAUGE_PREFERENCE)
     held = tuple(undetermined)
-    if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
-        raise InputError(
-            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
-            f"(left out: {describe_left_out(left_out)})",
-            path=source,
-            field="position",
-            expected="positions with every axis near +1 g, −1 g and in between",
-        )
+    _check_determined(left_out, start_design, gauge, source)
     solution = solve_fine(problem, x0, gauge.fixed + held)
     design = final_design(solution.weighted_jacobian[0], model, scales, held)
-    x = solution.x[0].copy()
-    cov = solution.covariance[0].copy()
     # Installation angles: the fit moves only the determined differences; report those.
-    combos: dict[str, tuple[float, float]] = {}
-    determined = []
-    arcsec = model["beta_xz"].scale
-    for k, coefficients in gauge.coefficients.items():
-        pairs = {g: c for g, c in coefficients.items() if g in GAUGE_PREFERENCE}
-        if k not in BETA_IDS or not pairs:
-            continue
-        (g, c), *_ = sorted(pairs.items(), key=lambda kv: -abs(kv[1]))
-        name = f"{k} {'+' if c > 0 else '−'} {g}"
-        value = x[model.index(k)] + c * x[model.index(g)]
-        sigma = float(np.sqrt(cov[model.index(k), model.index(k)]))
-        combos[name] = (float(value), sigma)
-        determined.append(f"{name} = {value / arcsec:+.3f} ± {sigma / arcsec:.3f} arcsec")
-    for k in BETA_IDS + held:
-        i = model.index(k)
-        x[i] = start[k]
-        cov[i, :] = 0.0
-        cov[:, i] = 0.0
-        cov[i, i] = coarse_sigma.get(k, 0.0) ** 2
-    status = tuple(Status.UNIDENTIFIABLE if k in BETA_IDS or k in held else Status.ESTIMATED for k in model.ids)
+    combos, determined = _installation_combinations(gauge, model, solution.x[0], solution.covariance[0])
+    x, cov = _carry_from_coarse(solution, model, BETA_IDS + held, start, coarse_sigma)
     if held:
         notes.append(held_terms_note(undetermined, start, model, "fine"))
-    determined.append(
-        "the norm sees only the symmetric part of C_p^a: beta_xz + beta_yz, beta_zy + beta_xy, beta_yx + beta_zx are not observed"
-    )
-    notes.append(
-        "installation angles: the fine stage determines only the differences of the pairs (xz, yz), (zy, xy), (yx, zx); its own "
-        "result carries the coarse values, a record it updates takes the differences in combination with the coarse information"
-    )
-    notes.append(
-        f"local gravity {gravity:.7f} m/s^2 is the reference: an error δg scales sf_x, sf_y, sf_z by 1 + δg/g "
-        "(a Type B input of the certificate's uncertainty budget)"
-    )
-    for p, why in sorted(left_out.items()):
-        notes.append(f"position {p} left out: {why}")
-    f_p, h, _, sigma_h = problem.evaluate(solution.x)
+    notes += _stage_notes(gravity, left_out)
+    _, h, _, sigma_h = problem.evaluate(solution.x)
     if problem.slow_covariance is not None:
         sigma_h = np.sqrt(np.diagonal(problem.observation_covariance(solution.x), axis1=-2, axis2=-1))
     g = float(gravity)
     residuals = ((0.5 * g**2 - h) / g)[0]  # ≈ g − |f^p| [m/s²]
     labels = tuple(f"pos {d.position} |f|" for d in usable)
-    chi2_whitened = float(solution.weighted_residuals[0] @ solution.weighted_residuals[0])
-    if (stalled := convergence_warning(solution)) is not None:
-        notes.append(stalled)
-    warning = goodness_of_fit_warning(chi2_whitened, residuals.size - design.rank, residuals / (sigma_h / g)[0], labels)
-    if warning is not None:
-        notes.append(warning)
-    weak = [k for k in design.weak if k not in BETA_IDS]
-    if weak:
-        notes.append(
-            f"warning: weakly determined (1σ above the typical magnitude): {', '.join(weak)}; "
-            "the positions used do not excite these terms (an axis that never points both up and down?)"
-        )
+    notes += _quality_notes(solution, design, residuals / (sigma_h / g)[0], labels)
     return FitResult(
         stage="fine",
         terms=model.terms,
         values=x,
         covariance=cov,
-        status=status,
+        status=tuple(Status.UNIDENTIFIABLE if k in BETA_IDS or k in held else Status.ESTIMATED for k in model.ids),
         residuals=residuals,
         residual_sigma=(sigma_h / g)[0],
         residual_labels=labels,

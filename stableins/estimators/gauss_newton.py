@@ -27,9 +27,12 @@ Evaluate = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np
 
 @dataclass(frozen=True)
 class GaussNewtonSolution:
-    """Batched solution: ``x (T, n)``, ``covariance (T, n, n)`` (zero rows for fixed
-    parameters), weighted residuals ``(T, m)``, weighted Jacobian ``(T, m, n)``,
-    iterations used, the last scaled step and whether it fell below the tolerance ``(T,)``."""
+    """Batched solution of :func:`gauss_newton`.
+
+    ``x (T, n)``, ``covariance (T, n, n)`` (zero rows for fixed parameters), weighted residuals ``(T, m)``,
+    weighted Jacobian ``(T, m, n)``, iterations used, the last scaled step and whether it fell below the
+    tolerance ``(T,)``.
+    """
 
     x: NDArray[np.float64]
     covariance: NDArray[np.float64]
@@ -94,7 +97,7 @@ COST_SLACK = 1e-6
 def _damped_step(
     evaluate: Evaluate, x: NDArray[np.float64], free: NDArray[np.bool_], delta: NDArray[np.float64], cost: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The full Gauss-Newton step where it does not raise the cost, else the longest of its halvings that does not.
+    """Return the full Gauss-Newton step where it does not raise the cost, else the longest of its halvings that does not.
 
     A well-posed problem takes the full step every time (the iteration is the plain Gauss-Newton one, result for
     result); a trial whose cost rises (or whose model cannot be evaluated at the new point) takes half the step, and so on.
@@ -137,7 +140,7 @@ def _inverse(normal: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def convergence_warning(solution: GaussNewtonSolution, trial: int = 0) -> str | None:
-    """A warning when Gauss-Newton stopped at its iteration limit without converging, else None."""
+    """Return a warning when Gauss-Newton stopped at its iteration limit without converging, else None."""
     if solution.converged is None or bool(solution.converged[trial]):
         return None
     return (
@@ -151,10 +154,11 @@ def goodness_of_fit_warning(
     dof: int,
     normalized_residuals: NDArray[np.float64],
     labels: tuple[str, ...],
+    *,
     quantile: float = 0.999,
     worst: int = 3,
 ) -> str | None:
-    r"""A warning when :math:`\chi^2` exceeds its ``quantile`` under the measured noise, else None.
+    r"""Return a warning when :math:`\chi^2` exceeds its ``quantile`` under the measured noise, else None.
 
     With the covariance built on the measured noise (never scaled by χ²_ν), a χ² far
     beyond :math:`\chi^2_\nu` means the data do not fit the model (a position off its

@@ -60,10 +60,9 @@ from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, he
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import gauss_newton
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.noise import NoiseModel
-from stableins.status import Status
 
 
 @dataclass(frozen=True)
@@ -202,28 +201,22 @@ def fit_joint(
     if noise is not None:
         out_notes.append(noise.describe())
     out_notes += quality_notes(solution, design, residuals / residual_sigma, labels)
-    return FitResult(
-        stage=stage,
-        terms=model.terms,
-        values=solution.x[0].copy(),
-        covariance=solution.covariance[0].copy(),
-        status=tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in fixed else Status.ESTIMATED for k in model.ids),
+    return FitResult.from_solution(
+        stage,
+        model.terms,
+        solution,
+        design,
+        held={k: float(x0[0, model.index(k)]) for k in held},
+        gauge_values={k: 0.0 for k in fixed},
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
-        rank=design.rank,
-        singular_values=design.singular_values,
-        null_space=design.null_space,
         determined=tuple(gauge.describe()) + tuple(f"{k} = 0 by gauge" for k in fixed),
         notes=tuple(out_notes),
         positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in (*coarse_dwells, *fine_dwells)),
-        gauge_values={k: 0.0 for k in fixed},
-        held={k: float(x0[0, model.index(k)]) for k in held},
         passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
-        iterations=solution.iterations,
         gravity=g,
         whitened_residuals=whitened,
-        likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
         settings={
             "stage": stage,
             "nonlinear": bool(nonlinear or bool(fine_dwells)),

@@ -106,7 +106,7 @@ class StageLayout:
     source: str = ""
 
     def settle(self, position: int) -> float:
-        """The settle time of ``position`` [s] (KeyError when the stage has no such position)."""
+        """Return the settle time of ``position`` [s] (KeyError when the stage has no such position)."""
         try:
             return self.settles[self.positions.index(position)]
         except ValueError:

@@ -53,9 +53,11 @@ class PassRecord:
 
     @property
     def converged(self) -> bool:
+        """Whether every residual offset is within its limit."""
         return all(abs(r) <= lim for r, lim in zip(self.residual, self.limit, strict=True))
 
     def describe(self) -> str:
+        """Return the pass in words: residual offsets ± 1σ, the offsets estimated, the limits [arcsec]."""
         r = ", ".join(f"{x / ARCSEC:+.3f}" for x in self.residual)
         s = ", ".join(f"{x / ARCSEC:.3f}" for x in self.sigma)
         e = ", ".join(f"{x / ARCSEC:+.3f}" for x in self.estimated_offsets)
@@ -93,11 +95,12 @@ class OffsetIterationResult:
     last: FitResult | None = field(default=None, repr=False)
 
     def describe(self) -> str:
+        """Return every pass in words, one line each."""
         return "\n".join(p.describe() for p in self.history)
 
 
 def repointed_command(nominal: tuple[float, float, float], offsets: NDArray[np.float64] | tuple[float, ...]) -> tuple[float, float, float]:
-    """Readings that put the gimbals at their nominal angles: ``r = r_nominal − θ̂`` (θ10 not re-commanded)."""
+    """Return the readings that put the gimbals at their nominal angles: ``r = r_nominal − θ̂`` (θ10 not re-commanded)."""
     return (float(nominal[0]), float(nominal[1] - offsets[1]), float(nominal[2] - offsets[2]))
 
 
@@ -191,7 +194,7 @@ class OffsetEstimator:
         return record
 
     def result(self) -> OffsetIterationResult:
-        """The converged iteration: the joint fit of every pass (the last pass alone after one pass)."""
+        """Return the converged iteration: the joint fit of every pass (the last pass alone after one pass)."""
         if self._last is None:
             raise ValueError("no pass has been added")
         fit = joint = self._last

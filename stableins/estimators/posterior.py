@@ -55,6 +55,7 @@ class Posterior:
 
     @property
     def sigma(self) -> NDArray[np.float64]:
+        """Return the posterior 1σ (NaN for ``unidentifiable`` parameters)."""
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
@@ -62,67 +63,86 @@ def _has_prior(status: Status, sigma: float) -> bool:
     return status in (Status.ESTIMATED, Status.FIXED) and math.isfinite(sigma) and sigma > 0.0
 
 
-def bayesian_update(
-    ids: Sequence[str],
-    values: NDArray[np.float64],
-    covariance: NDArray[np.float64],
-    status: Sequence[Status | str],
-    likelihood: Likelihood,
-) -> Posterior:
-    """Posterior of a prior ``(ids, values, covariance, status)`` given a stage's ``likelihood`` (module docstring).
+@dataclass(frozen=True)
+class _Prior:
+    """The prior over the prior's ids followed by the likelihood's new ones (no prior: NaN covariance, unidentifiable)."""
 
-    Parameters of the likelihood not in the prior join with no prior information (their value and σ come
-    from the data alone, if the data determine them).  Raises ``ValueError`` when the prior covariance of
-    the parameters it states is not positive definite.
-    """
-    prior_ids = list(ids)
-    all_ids = prior_ids + [i for i in likelihood.ids if i not in prior_ids]
-    n = len(all_ids)
-    index = {pid: k for k, pid in enumerate(all_ids)}
-    x0 = np.zeros(n)
-    x0[: len(prior_ids)] = np.asarray(values, dtype=float)
-    p0 = np.full((n, n), np.nan)
-    p0[: len(prior_ids), : len(prior_ids)] = np.asarray(covariance, dtype=float)
-    st = [Status(s) for s in status] + [Status.UNIDENTIFIABLE] * (n - len(prior_ids))
-    for k in range(len(prior_ids), n):
-        x0[k] = likelihood.point[likelihood.index(all_ids[k])]
-    sigma0 = np.sqrt(np.abs(np.diag(p0)))
+    ids: tuple[str, ...]
+    values: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    status: tuple[Status, ...]
 
-    # gauges and fixed values without uncertainty are held: the likelihood is conditioned at their values
-    held = {all_ids[k]: float(x0[k]) for k in range(n) if st[k] is Status.GAUGE or (st[k] is Status.FIXED and not sigma0[k] > 0)}
-    lik = likelihood.conditioned({i: v for i, v in held.items() if i in likelihood.ids})
-    seen_mask = lik.seen()
-    estimable = lik.estimable()
-    determination: list[Determination | None] = [None] * n
-    for j, pid in enumerate(lik.ids):
-        if seen_mask[j]:
-            determination[index[pid]] = Determination.ALONE if estimable[j] else Determination.COMBINATION
+    @classmethod
+    def joined(
+        cls,
+        ids: Sequence[str],
+        values: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        status: Sequence[Status | str],
+        likelihood: Likelihood,
+    ) -> _Prior:
+        """Return the prior extended by the likelihood's parameters it does not state (at the likelihood's point)."""
+        prior_ids = list(ids)
+        all_ids = prior_ids + [i for i in likelihood.ids if i not in prior_ids]
+        n = len(all_ids)
+        x0 = np.zeros(n)
+        x0[: len(prior_ids)] = np.asarray(values, dtype=float)
+        p0 = np.full((n, n), np.nan)
+        p0[: len(prior_ids), : len(prior_ids)] = np.asarray(covariance, dtype=float)
+        st = [Status(s) for s in status] + [Status.UNIDENTIFIABLE] * (n - len(prior_ids))
+        for k in range(len(prior_ids), n):
+            x0[k] = likelihood.point[likelihood.index(all_ids[k])]
+        return cls(tuple(all_ids), x0, p0, tuple(st))
 
-    informed = [k for k in range(n) if _has_prior(st[k], sigma0[k]) and all_ids[k] not in held]
-    seen = [index[pid] for j, pid in enumerate(lik.ids) if seen_mask[j]]
-    free = sorted(set(informed) | set(seen))
-    out_x = x0.copy()
-    out_p = p0.copy()
-    out_status = list(st)
-    if not free:
-        return Posterior(tuple(all_ids), out_x, out_p, tuple(out_status), tuple(determination))
+    @property
+    def sigma(self) -> NDArray[np.float64]:
+        """Return the prior 1σ (NaN where the prior states none)."""
+        return np.sqrt(np.abs(np.diag(self.covariance)))
 
-    # information of the free parameters, in scaled coordinates (prior σ, or the data's own scale)
-    lam_d = np.zeros((n, n))
-    h = np.zeros(n)
-    rows = [index[pid] for pid in lik.ids]
-    lam_d[np.ix_(rows, rows)] = lik.information
-    h[rows] = lik.gradient + lik.information @ (lik.point - x0[rows])
-    diag_d = np.sqrt(np.clip(np.diag(lam_d), 0.0, None))
-    scale = np.array([sigma0[k] if k in informed else (1.0 / diag_d[k] if diag_d[k] > 0 else 1.0) for k in range(n)])
+    def held(self) -> dict[str, float]:
+        """Return the gauges and fixed values without uncertainty: the likelihood is conditioned at their values."""
+        sigma0 = self.sigma
+        return {
+            pid: float(self.values[k])
+            for k, pid in enumerate(self.ids)
+            if self.status[k] is Status.GAUGE or (self.status[k] is Status.FIXED and not sigma0[k] > 0)
+        }
 
-    def solve(members: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64], list[int]]:
+
+@dataclass(frozen=True)
+class _Information:
+    """The update's information in scaled coordinates (prior σ, or the data's own scale for uninformed parameters)."""
+
+    prior: _Prior
+    data: NDArray[np.float64]  # Λ_d over all ids
+    rhs: NDArray[np.float64]  # g + Λ_d (x̂ − x0) over all ids
+    scale: NDArray[np.float64]
+    informed: frozenset[int]
+
+    @classmethod
+    def of(cls, prior: _Prior, likelihood: Likelihood, informed: Sequence[int]) -> _Information:
+        """Return the data's information and right-hand side placed over the prior's ids, with the scaling."""
+        n = len(prior.ids)
+        index = {pid: k for k, pid in enumerate(prior.ids)}
+        lam_d = np.zeros((n, n))
+        h = np.zeros(n)
+        rows = [index[pid] for pid in likelihood.ids]
+        lam_d[np.ix_(rows, rows)] = likelihood.information
+        h[rows] = likelihood.gradient + likelihood.information @ (likelihood.point - prior.values[rows])
+        diag_d = np.sqrt(np.clip(np.diag(lam_d), 0.0, None))
+        sigma0 = prior.sigma
+        scale = np.array([sigma0[k] if k in informed else (1.0 / diag_d[k] if diag_d[k] > 0 else 1.0) for k in range(n)])
+        return cls(prior, lam_d, h, scale, frozenset(informed))
+
+    def solve(self, members: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64], list[int]]:
+        """Return the update and posterior covariance of ``members``, or the members neither prior nor data determine."""
+        scale = self.scale
         f = np.array(members, dtype=int)
-        prior_members = [k for k in members if k in informed]
-        lam = lam_d[np.ix_(f, f)] * np.outer(scale[f], scale[f])
+        prior_members = [k for k in members if k in self.informed]
+        lam = self.data[np.ix_(f, f)] * np.outer(scale[f], scale[f])
         if prior_members:
             pos = [members.index(k) for k in prior_members]
-            p_block = p0[np.ix_(prior_members, prior_members)] / np.outer(scale[prior_members], scale[prior_members])
+            p_block = self.prior.covariance[np.ix_(prior_members, prior_members)] / np.outer(scale[prior_members], scale[prior_members])
             try:
                 chol = np.linalg.cholesky(0.5 * (p_block + p_block.T))
             except np.linalg.LinAlgError:
@@ -137,12 +157,89 @@ def bayesian_update(
             return np.zeros(0), np.zeros((0, 0)), loose
         cov = np.linalg.inv(lam)
         cov = 0.5 * (cov + cov.T)
-        delta = cov @ (h[f] * scale[f])
+        delta = cov @ (self.rhs[f] * scale[f])
         return delta * scale[f], cov * np.outer(scale[f], scale[f]), []
 
+
+def _determination(prior: _Prior, likelihood: Likelihood) -> list[Determination | None]:
+    """Return how the (conditioned) likelihood sees each parameter: alone, in combination, or not at all (None)."""
+    index = {pid: k for k, pid in enumerate(prior.ids)}
+    seen_mask = likelihood.seen()
+    estimable = likelihood.estimable()
+    determination: list[Determination | None] = [None] * len(prior.ids)
+    for j, pid in enumerate(likelihood.ids):
+        if seen_mask[j]:
+            determination[index[pid]] = Determination.ALONE if estimable[j] else Determination.COMBINATION
+    return determination
+
+
+def _keep_unreached(
+    out_x: NDArray[np.float64], out_p: NDArray[np.float64], prior: _Prior, members: list[int], *, seen: set[int], informed: set[int]
+) -> None:
+    """Give the members the update does not reach their prior values and covariance exactly (in place).
+
+    Those are the members with no data and no prior covariance with what the data see (the algebra gives
+    the same up to rounding).
+    """
+    f = np.array(members, dtype=int)
+    x0, p0 = prior.values, prior.covariance
+    for k in members:
+        if k in seen or k not in informed:
+            continue
+        coupled = any(p0[k, j] != 0.0 and np.isfinite(p0[k, j]) for j in seen if j in informed)
+        if not coupled:
+            out_x[k] = x0[k]
+            out_p[k, f] = np.where(np.isin(f, list(informed)), p0[k, f], 0.0)
+            out_p[f, k] = out_p[k, f]
+
+
+def _clear_outside(out_p: NDArray[np.float64], out_status: list[Status], members: list[int]) -> None:
+    """Set the cross terms with parameters outside the update to zero, or NaN for unidentifiable ones (in place)."""
+    f = np.array(members, dtype=int)
+    for k in range(len(out_status)):
+        if k in members:
+            continue
+        if out_status[k] is Status.UNIDENTIFIABLE:
+            out_p[k, :] = np.nan
+            out_p[:, k] = np.nan
+        else:
+            out_p[k, f] = 0.0
+            out_p[f, k] = 0.0
+
+
+def bayesian_update(
+    ids: Sequence[str],
+    values: NDArray[np.float64],
+    covariance: NDArray[np.float64],
+    status: Sequence[Status | str],
+    likelihood: Likelihood,
+) -> Posterior:
+    """Return the posterior of a prior ``(ids, values, covariance, status)`` given a stage's ``likelihood`` (module docstring).
+
+    Parameters of the likelihood not in the prior join with no prior information (their value and σ come
+    from the data alone, if the data determine them).  Raises ``ValueError`` when the prior covariance of
+    the parameters it states is not positive definite.
+    """
+    prior = _Prior.joined(ids, values, covariance, status, likelihood)
+    all_ids, n = prior.ids, len(prior.ids)
+    index = {pid: k for k, pid in enumerate(all_ids)}
+    held = prior.held()
+    lik = likelihood.conditioned({i: v for i, v in held.items() if i in likelihood.ids})
+    determination = _determination(prior, lik)
+    sigma0 = prior.sigma
+    informed = [k for k in range(n) if _has_prior(prior.status[k], sigma0[k]) and all_ids[k] not in held]
+    seen_mask = lik.seen()
+    seen = [index[pid] for j, pid in enumerate(lik.ids) if seen_mask[j]]
+    free = sorted(set(informed) | set(seen))
+    out_x = prior.values.copy()
+    out_p = prior.covariance.copy()
+    out_status = list(prior.status)
+    if not free:
+        return Posterior(all_ids, out_x, out_p, tuple(out_status), tuple(determination))
+    information = _Information.of(prior, lik, informed)
     members = list(free)
     while True:
-        delta, cov, loose = solve(members)
+        delta, cov, loose = information.solve(members)
         if not loose:
             break
         members = [k for k in members if k not in loose]  # neither prior nor data determine these
@@ -151,34 +248,16 @@ def bayesian_update(
             out_p[k, :] = np.nan
             out_p[:, k] = np.nan
         if not members:
-            return Posterior(tuple(all_ids), out_x, out_p, tuple(out_status), tuple(determination))
+            return Posterior(all_ids, out_x, out_p, tuple(out_status), tuple(determination))
     f = np.array(members, dtype=int)
-    out_x[f] = x0[f] + delta
+    out_x[f] = prior.values[f] + delta
     out_p[np.ix_(f, f)] = cov
-    # parameters the update does not reach (no data, no prior covariance with what the data see) keep
-    # their prior values and covariance exactly (the algebra gives the same up to rounding)
-    seen_set = set(seen)
+    _keep_unreached(out_x, out_p, prior, members, seen=set(seen), informed=set(informed))
+    _clear_outside(out_p, out_status, members)
     for k in members:
-        if k in seen_set or k not in informed:
-            continue
-        coupled = any(p0[k, j] != 0.0 and np.isfinite(p0[k, j]) for j in seen_set if j in informed)
-        if not coupled:
-            out_x[k] = x0[k]
-            out_p[k, f] = np.where(np.isin(f, informed), p0[k, f], 0.0)
-            out_p[f, k] = out_p[k, f]
-    # cross terms with parameters outside the update (held, unidentifiable, not informed) are zero or NaN
-    outside = [k for k in range(n) if k not in members]
-    for k in outside:
-        if out_status[k] is Status.UNIDENTIFIABLE:
-            out_p[k, :] = np.nan
-            out_p[:, k] = np.nan
-        else:
-            out_p[k, f] = 0.0
-            out_p[f, k] = 0.0
-    for k in members:
-        if k in seen_set:  # the data saw it: its value and σ now rest on data (a prior 'fixed' becomes estimated)
+        if k in seen:  # the data saw it: its value and σ now rest on data (a prior 'fixed' becomes estimated)
             out_status[k] = Status.ESTIMATED
-    return Posterior(tuple(all_ids), out_x, out_p, tuple(out_status), tuple(determination))
+    return Posterior(all_ids, out_x, out_p, tuple(out_status), tuple(determination))
 
 
 __all__ = ["Posterior", "bayesian_update"]

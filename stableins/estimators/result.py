@@ -22,6 +22,9 @@ from stableins.status import STATUSES, Status
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
+    from stableins.estimators.design import DesignAnalysis
+    from stableins.estimators.gauss_newton import GaussNewtonSolution
+
 #: Relative eigenvalue below which a direction of a (correlation-scaled) information matrix counts as not determined.
 INFORMATION_RTOL = 1e-9
 #: A parameter is determined by the data alone when its share in every direction they do not determine is below this
@@ -94,10 +97,11 @@ class Likelihood:
     __hash__ = None  # type: ignore[assignment]
 
     def index(self, parameter_id: str) -> int:
+        """Return the position of ``parameter_id`` in :attr:`ids`."""
         return self.ids.index(parameter_id)
 
     def conditioned(self, held: dict[str, float]) -> Likelihood:
-        """The likelihood of the other parameters with ``held`` ids fixed at the given values."""
+        """Return the likelihood of the other parameters with ``held`` ids fixed at the given values."""
         keep = [k for k, i in enumerate(self.ids) if i not in held]
         fixed = [k for k, i in enumerate(self.ids) if i in held]
         if not fixed:
@@ -128,7 +132,7 @@ class Likelihood:
         return (d > 0) & (loading < ALONE_LOADING)
 
     def rank(self) -> int:
-        """Number of independent combinations the data determine."""
+        """Return the number of independent combinations the data determine."""
         return len(self.ids) - self._scaled()[2].shape[1]
 
     def data_only(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -201,6 +205,7 @@ class InputSensitivity:
         return self.input.partition(".")[0]
 
     def to_json(self) -> dict[str, Any]:
+        """Return the JSON form stored in a calibration record (arrays as lists)."""
         out: dict[str, Any] = {"input": self.input, "unit": self.unit, "ids": list(self.ids), "value": float(self.value)}
         if self.gradient is not None:
             out["gradient"] = self.gradient.tolist()
@@ -208,29 +213,6 @@ class InputSensitivity:
             out["covariance"] = self.covariance.tolist()
         out["step"] = float(self.step)
         return out
-
-
-def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] = (), notes: Sequence[str] = ()) -> list[str]:
-    """Text lines of a parameter table ``(id, value, 1σ, unit, status[, determined by])`` in engineering units.
-
-    Unidentifiable parameters show no numbers (their value in a record is only the prior
-    carried through).  Shared by :meth:`FitResult.report` and the calibration record's report.
-    """
-    sources = any(len(r) > 5 for r in rows)
-    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
-    for parameter_id, value, sigma, unit, status, *source in rows:
-        tail = f" {source[0]}" if source else ""
-        if status == Status.UNIDENTIFIABLE:
-            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
-        elif 0.0 < sigma < 1e-3:  # e.g. a gyro drift in deg/h (σ ~ 1e-8): fixed point would show 0.0000 ± 0.0000
-            lines.append(f"{parameter_id:<12} {value:>14.6e} {sigma:>10.2e} {unit:<8} {status:<15}{tail}".rstrip())
-        else:
-            lines.append(f"{parameter_id:<12} {value:>14.4f} {sigma:>10.4f} {unit:<8} {status:<15}{tail}".rstrip())
-    if determined:
-        lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
-    if notes:
-        lines += ["", "notes:"] + [f"  {n}" for n in notes]
-    return lines
 
 
 @dataclass(frozen=True)
@@ -346,9 +328,39 @@ class FitResult:
             if getattr(self, name) is not None:
                 getattr(self, name).setflags(write=False)
 
+    @classmethod
+    def from_solution(
+        cls,
+        stage: str,
+        terms: tuple[Term, ...],
+        solution: GaussNewtonSolution,
+        design: DesignAnalysis,
+        *,
+        held: Mapping[str, float],
+        gauge_values: Mapping[str, float],
+        **fields: Any,
+    ) -> FitResult:
+        """Return the result of a device fit solved by :func:`stableins.estimators.gauss_newton.gauss_newton`.
+
+        Values, covariance, iterations and the likelihood come from the first batch member of ``solution``;
+        rank, singular values and null space from ``design``.  A parameter in ``held`` has status
+        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  ``fields`` are the
+        stage's own (residuals, labels, notes, settings ...).
+        """
+        ids = tuple(t.id for t in terms)
+        status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauge_values else Status.ESTIMATED for k in ids)
+        return cls(
+            stage=stage, terms=terms, values=solution.x[0].copy(), covariance=solution.covariance[0].copy(), status=status,
+            rank=design.rank, singular_values=design.singular_values, null_space=design.null_space,
+            held=held, gauge_values=gauge_values, iterations=solution.iterations,
+            likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
+            **fields,
+        )
+
     # ----------------------------------------------------------------- access
     @property
     def ids(self) -> tuple[str, ...]:
+        """Parameter ids, in vector order."""
         return tuple(t.id for t in self.terms)
 
     def positions(self, stage: str | None = None) -> frozenset[int]:
@@ -357,6 +369,7 @@ class FitResult:
 
     @property
     def sigma(self) -> NDArray[np.float64]:
+        """1σ of every parameter [SI] (square root of the covariance diagonal)."""
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     @property
@@ -369,6 +382,7 @@ class FitResult:
 
     @property
     def dof(self) -> int:
+        """Residual degrees of freedom ``m − rank``."""
         return int(self.residuals.size - self.rank)
 
     @property
@@ -377,6 +391,7 @@ class FitResult:
         return self.chi2 / self.dof if self.dof > 0 else float("nan")
 
     def correlation(self) -> NDArray[np.float64]:
+        """Return the correlation matrix of the parameters (0 where a σ is 0)."""
         s = self.sigma
         with np.errstate(invalid="ignore", divide="ignore"):
             c = self.covariance / np.outer(s, s)
@@ -388,13 +403,14 @@ class FitResult:
         return float(self.values[k]), float(self.sigma[k]), self.status[k]
 
     def as_dict(self) -> dict[str, float]:
+        """Return ``{id: value}`` of every parameter [SI]."""
         return dict(zip(self.ids, map(float, self.values), strict=True))
 
     # ----------------------------------------------------------------- report
     def rows(self) -> list[tuple[str, float, float, str, Status]]:
         """``(id, value, 1σ, unit, status)`` of every parameter in engineering units (report, repr, HTML, DataFrame)."""
         return [
-            (t.id, float(t.to_engineering(v)), float(t.sigma_to_engineering(s)), t.unit, st)
+            (t.id, float(t.to_engineering(v)), float(t.sigma_to_engineering(s)), t.unit, Status(st))
             for t, v, s, st in zip(self.terms, self.values, self.sigma, self.status, strict=True)
         ]
 
@@ -412,6 +428,8 @@ class FitResult:
             f"rank = {self.rank} of {len(self.terms)}",
             "",
         ]
+        from stableins.display import parameter_table
+
         return "\n".join(lines + parameter_table(self.rows(), self.determined, self.notes))
 
     def __str__(self) -> str:
@@ -436,7 +454,7 @@ class FitResult:
         )
 
     def to_dataframe(self) -> Any:
-        """The parameter table as a :class:`pandas.DataFrame` indexed by parameter id.
+        """Return the parameter table as a :class:`pandas.DataFrame` indexed by parameter id.
 
         Columns ``value``, ``sigma``, ``unit`` (engineering), ``status``, ``value_si``, ``sigma_si``, ``si_unit``,
         ``meaning``; an ``unidentifiable`` parameter has no value (NaN: what a result carries there is only the prior).
@@ -449,23 +467,15 @@ class FitResult:
         for (pid, value, sigma, unit, status), t, v, s in zip(self.rows(), self.terms, self.values, self.sigma, strict=True):
             hidden = status == Status.UNIDENTIFIABLE
             nan = float("nan")
-            records.append(
-                {
-                    "parameter": pid,
-                    "value": nan if hidden else value,
-                    "sigma": nan if hidden else sigma,
-                    "unit": unit,
-                    "status": str(status),
-                    "value_si": nan if hidden else float(v),
-                    "sigma_si": nan if hidden else float(s),
-                    "si_unit": t.si_unit,
-                    "meaning": t.meaning,
-                }
-            )
+            records.append({
+                "parameter": pid, "value": nan if hidden else value, "sigma": nan if hidden else sigma, "unit": unit,
+                "status": str(status), "value_si": nan if hidden else float(v), "sigma_si": nan if hidden else float(s),
+                "si_unit": t.si_unit, "meaning": t.meaning,
+            })
         return pandas.DataFrame.from_records(records, index="parameter")
 
     def plot(self, ax: Any = None) -> Figure:
-        """Normalized residuals (residual / 1σ) per observation with ±1 bands."""
+        """Plot the normalized residuals (residual / 1σ) per observation with ±1 bands."""
         import matplotlib.pyplot as plt
 
         fig = ax.figure if ax is not None else plt.figure(figsize=(10, 4))

@@ -1,4 +1,4 @@
-r"""Slow noise in device dwells: is there more than white noise in the dwells of a device session?
+r"""Slow noise in device dwells: the test for more than white noise in the dwells of a device session.
 
 The dwells of a device session
 measure white noise precisely but bias instability only weakly.  The decision uses, per
@@ -62,7 +62,7 @@ def dwell_test_clusters(n: int) -> tuple[int, ...]:
 
 
 def dwell_allan_ratios(samples: ArrayLike, rate: float) -> tuple[tuple[int, ...], NDArray[np.float64]]:
-    """Normalized overlapping Allan variances ``r_j`` (k, 3) of one dwell at :func:`dwell_test_clusters` (allantools.oadev)."""
+    """Return the normalized overlapping Allan variances ``r_j`` (k, 3) of one dwell at :func:`dwell_test_clusters` (allantools.oadev)."""
     import allantools
 
     x = np.asarray(samples, dtype=float).reshape(-1, 3)
@@ -112,7 +112,7 @@ def slow_noise_test(
     alpha: float = DEFAULT_ALPHA,
     confidence: float = 0.95,
 ) -> DwellSlowNoise:
-    """The slow-noise decision over dwells (module docstring).
+    """Return the slow-noise decision over dwells (module docstring).
 
     ``ratios``: per dwell ``(n, r (k, 3), s² (3,), rate)`` with ``r`` at :func:`dwell_test_clusters` ``(n)``.
     """

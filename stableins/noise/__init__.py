@@ -149,6 +149,7 @@ class NoiseTerm:
 
     @property
     def bounded(self) -> bool:
+        """Whether the upper limit is finite."""
         return math.isfinite(self.upper)
 
 
@@ -162,6 +163,7 @@ class AxisNoise:
     quantization: NoiseTerm = field(default_factory=lambda: NoiseTerm.exact(0.0))
 
     def term(self, name: str) -> NoiseTerm:
+        """Return the term ``name`` (one of :data:`TERMS`)."""
         if name not in TERMS:
             raise KeyError(name)
         return getattr(self, name)
@@ -187,6 +189,7 @@ class SlowNoiseTest:
 
     @property
     def detected(self) -> bool:
+        """Whether slow noise is detected at the false-positive rate."""
         return self.p_value < self.alpha
 
 
@@ -419,68 +422,13 @@ class NoiseModel:
 
     @classmethod
     def from_document(cls, document: Any, path: str | None = None, prefix: str = "noise_model") -> NoiseModel:
-        """Build and validate a model from :meth:`to_document`'s form; :class:`InputError` names the field."""
-        from stableins.errors import InputError  # the one user-error type (no dependencies); imported here to keep this layer pure
+        """Build and validate a model from :meth:`to_document`'s form; :class:`InputError` names the field.
 
-        def fail(message: str, key: str, expected: str) -> InputError:
-            return InputError(message, path=path, field=f"{prefix}.{key}" if key else prefix, expected=expected)
+        The reading is :func:`stableins.noise.document.noise_model_from_document`.
+        """
+        from stableins.noise.document import noise_model_from_document
 
-        def number(value: Any, key: str, *, allow_null: bool = False, lo: float = 0.0) -> float:
-            if value is None and allow_null:
-                return math.inf
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < lo:
-                raise fail(
-                    f"{value!r} is not a finite number >= {lo:g}", key, "a finite non-negative number" + (" or null" if allow_null else "")
-                )
-            return float(value)
-
-        if not isinstance(document, dict):
-            raise fail("not an object", "", '{"source", "provenance", "confidence", "axes": {"x": {...}, ...}}')
-        sources = {s.value: s for s in NoiseSource}
-        if document.get("source") not in sources:
-            raise fail(f"unknown source {document.get('source')!r}", "source", " or ".join(repr(s) for s in sources))
-        provenance = document.get("provenance", "")
-        if not isinstance(provenance, str):
-            raise fail(f"{provenance!r} is not a string", "provenance", "a string")
-        confidence = number(document.get("confidence", 0.95), "confidence")
-        if not 0.0 < confidence < 1.0:
-            raise fail(f"{confidence!r} is not a probability", "confidence", "a number between 0 and 1")
-        units = document.get("units", SI_UNITS)
-        if not isinstance(units, dict) or any(units.get(k, SI_UNITS[k]) != SI_UNITS[k] for k in TERMS):
-            raise fail(f"units {units!r}", "units", f"the SI units {dict(SI_UNITS)}")
-        axes_doc = document.get("axes")
-        if not isinstance(axes_doc, dict) or set(axes_doc) != set(AXES):
-            raise fail("missing or malformed", "axes", 'an object with keys "x", "y", "z"')
-        axes = []
-        for ax in AXES:
-            entry = axes_doc[ax]
-            if not isinstance(entry, dict) or set(entry) != set(TERMS):
-                raise fail("missing or malformed", f"axes.{ax}", f"an object with the keys {', '.join(TERMS)}")
-            terms = {}
-            for name in TERMS:
-                item = entry[name]
-                key = f"axes.{ax}.{name}"
-                if not isinstance(item, dict) or not {"value", "lower", "upper"} <= set(item):
-                    raise fail("missing or malformed", key, '{"value", "lower", "upper"}')
-                value = number(item["value"], f"{key}.value")
-                lower = number(item["lower"], f"{key}.lower")
-                upper = number(item["upper"], f"{key}.upper", allow_null=True)
-                if not lower <= value <= upper:
-                    raise fail(f"interval [{lower}, {upper}] does not hold the value {value}", key, "lower <= value <= upper")
-                terms[name] = NoiseTerm(value, lower, upper)
-            axes.append(AxisNoise(**terms))
-        test = None
-        if document.get("test") is not None:
-            t = document["test"]
-            if not isinstance(t, dict):
-                raise fail("not an object", "test", '{"statistic", "p_value", "alpha"}')
-            statistic = number(t.get("statistic"), "test.statistic", lo=-math.inf)
-            p_value = number(t.get("p_value"), "test.p_value")
-            alpha = number(t.get("alpha"), "test.alpha")
-            if p_value > 1.0 or not 0.0 < alpha < 1.0:
-                raise fail("p_value or alpha outside (0, 1)", "test", "probabilities")
-            test = SlowNoiseTest(statistic, p_value, alpha)
-        return cls(tuple(axes), sources[document["source"]], provenance, confidence, test)  # type: ignore[arg-type]
+        return noise_model_from_document(document, path, prefix)
 
 
 __all__ = [

@@ -59,13 +59,16 @@ class Step:
 
     @property
     def command_degrees(self) -> tuple[float, float, float]:
+        """The commanded readings in degrees."""
         return tuple(math.degrees(a) for a in self.command)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
 class OffsetIteration:
-    """Zero-offset re-commanding loop: stop below ``threshold`` [rad] (or within
-    ``noise_sigmas`` of zero), at most ``max_passes`` passes."""
+    """Zero-offset re-commanding loop.
+
+    It stops below ``threshold`` [rad] (or within ``noise_sigmas`` of zero), after at most ``max_passes`` passes.
+    """
 
     threshold: float = 0.1 * ARCSEC
     max_passes: int = 5
@@ -98,9 +101,11 @@ class ProcedureDefinition:
 
     @property
     def positions(self) -> tuple[int, ...]:
+        """The position numbers of the steps, in order."""
         return tuple(s.position for s in self.steps)
 
     def step(self, position: int) -> Step:
+        """Return the step of ``position``."""
         for s in self.steps:
             if s.position == position:
                 return s
@@ -129,7 +134,7 @@ def shipped_procedures() -> tuple[str, ...]:
 
 
 def resolve(name_or_path: str | os.PathLike[str]) -> Path:
-    """A path, or the name of a shipped definition (``"device-coarse"``).
+    """Resolve a path, or the name of a shipped definition (``"device-coarse"``).
 
     A name without ``.toml`` that is not an existing file is looked up among the shipped
     definitions (package data, :data:`PROCEDURE_DIRECTORY`), whatever the working directory.
@@ -183,7 +188,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
-    """The ``[procedure]`` table, validated, and its handedness."""
+    """Return the ``[procedure]`` table, validated, and its handedness."""
     head = data.get("procedure")
     if not isinstance(head, dict):
         raise InputError("missing [procedure] table", path=spath, field="procedure")
@@ -218,7 +223,7 @@ def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
 
 
 def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
-    """``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
+    """Return ``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
     acc_table = table(data.get("acceptance", {}), spath, "acceptance")
     acc_fields = set(_ACCEPTANCE_LIMITS)
     if set(acc_table) - acc_fields:
@@ -254,7 +259,7 @@ def _offset_iteration(data: dict[str, Any], spath: str) -> OffsetIteration:
 
 
 def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str) -> tuple[Step, ...]:
-    """The ``[[step]]`` tables, validated; positions must run 1, 2, ... in order."""
+    """Return the ``[[step]]`` tables, validated; positions must run 1, 2, ... in order."""
     steps_raw = data.get("step")
     if stage == "system" and steps_raw is None:
         steps_raw = []  # a static record: [record] says where and how long
@@ -271,7 +276,7 @@ def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str)
 
 
 def _step(raw: Any, where: str, base: dict[str, float], spath: str) -> Step:
-    """One ``[[step]]`` table."""
+    """Read one ``[[step]]`` table."""
     if not isinstance(raw, dict):
         raise InputError(f"{where}: not a table", path=spath, field="step", expected="[[step]] tables")
     unknown = set(raw) - _STEP_KEYS
@@ -283,24 +288,36 @@ def _step(raw: Any, where: str, base: dict[str, float], spath: str) -> Step:
     position = raw["position"]
     if isinstance(position, bool) or not isinstance(position, int):
         raise InputError(f"{where}: position must be an integer", path=spath, field="step.position")
+    angles = _step_angles(raw, where, spath)
+    timing = _step_timing(raw, where, base, spath)
+    expect = raw.get("expect", "")
+    if expect:
+        words = [w.strip().split() for w in str(expect).split(",")]
+        if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
+            raise InputError(f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'")
+    return Step(position, angles, timing["settle"], timing["dwell"], timing["sample_rate"], str(expect))
+
+
+def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, float, float]:
+    """Return the commanded readings of a ``[[step]]`` table [rad] (the file gives degrees)."""
     angles = []
     for key in ("platform", "inner", "middle"):
         deg = number(raw, key, spath, where)
         if abs(deg) > 720.0:
             raise InputError(f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees")
         angles.append(math.radians(deg))
+    return angles[0], angles[1], angles[2]
+
+
+def _step_timing(raw: dict[str, Any], where: str, base: dict[str, float], spath: str) -> dict[str, float]:
+    """Return the settle, dwell and sample rate of a ``[[step]]`` table, the procedure's defaults where it gives none."""
     timing = dict(base)
     for key in ("settle", "dwell", "sample_rate"):
         if key in raw:
             timing[key] = number(raw, key, spath, where, **_TIMING_LIMITS[key])
         if key not in timing:
             raise InputError(f"{where}: no {key} and no default", path=spath, field=f"step.{key}")
-    expect = raw.get("expect", "")
-    if expect:
-        words = [w.strip().split() for w in str(expect).split(",")]
-        if len(words) != 3 or any(len(w) != 2 or w[0] != a or w[1] not in _AXIS_WORDS for w, a in zip(words, "xyz")):
-            raise InputError(f"{where}: cannot read {expect!r}", path=spath, field="step.expect", expected="'x <dir>, y <dir>, z <dir>'")
-    return Step(position, (angles[0], angles[1], angles[2]), timing["settle"], timing["dwell"], timing["sample_rate"], str(expect))
+    return timing
 
 
 def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "device-fine") -> dict[str, StageLayout]:
@@ -313,7 +330,7 @@ def device_layouts(coarse: str | Path = "device-coarse", fine: str | Path = "dev
 
 
 def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
-    """A TOML file as a table; InputError naming the file when it is missing, a directory, too large, not UTF-8 or not TOML."""
+    """Read a TOML file as a table; InputError naming the file when it is missing, a directory, too large, not UTF-8 or not TOML."""
     from stableins.data.jsonio import read_input_bytes
 
     data = read_input_bytes(path, max_bytes=MAX_FILE_BYTES, what=what)

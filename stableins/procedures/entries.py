@@ -19,8 +19,9 @@ from stableins.schema import DEVICE_COLUMNS
 
 
 def dwell_entry(
-    stage: str, pass_number: int, position: int, command: Any, command_time: float, blocks: list[SampleBlock]
+    stage: str, pass_number: int, position: int, *, command: Any, command_time: float, blocks: list[SampleBlock]
 ) -> dict[str, Any]:
+    """Return one dwell of a run: where it was commanded, when, and its sample blocks."""
     return {
         "stage": stage,
         "pass": pass_number,
@@ -61,13 +62,19 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
             )
         entries.append(
             dwell_entry(
-                step.stage, k // n + 1, step.positions[position], command["arguments"], float(command["result"]), [block_from_record(dwell)]
+                step.stage,
+                k // n + 1,
+                step.positions[position],
+                command=command["arguments"],
+                command_time=float(command["result"]),
+                blocks=[block_from_record(dwell)],
             )
         )
     return entries
 
 
 def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
+    """Return the sample blocks joined in order."""
     return SampleBlock(
         time=np.concatenate([b.time for b in blocks]),
         specific_force=np.concatenate([b.specific_force for b in blocks]),
@@ -78,7 +85,7 @@ def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
 
 # --------------------------------------------------------------------------- resume script
 def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
-    """Records to replay on resume, and the range of operation records to mark superseded.
+    """Return the records to replay on resume, and the range of operation records to mark superseded.
 
     Deterministic drivers replay everything.  Otherwise operations after the last decision
     (the attempt the crash interrupted) cannot be continued and are superseded.
@@ -100,7 +107,7 @@ def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[R
 
 
 def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
-    """Accepted dwells as device-level columns (:data:`stableins.schema.DEVICE_COLUMNS`), in recording order."""
+    """Return the accepted dwells as device-level columns (:data:`stableins.schema.DEVICE_COLUMNS`), in recording order."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
     for entry in entries:
         block = concatenate(entry["blocks"])
@@ -120,7 +127,7 @@ def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
 
 
 def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
-    """The accepted dwells straight from a journal (no driver, no re-execution): an independent check.
+    """Read the accepted dwells straight from a journal (no driver, no re-execution): an independent check.
 
     Collects, for every accepted verdict (and every converged iteration), the dwell pieces of
     that step and attempt that no resume superseded; raises if a step was accepted twice.
@@ -142,7 +149,16 @@ def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
             new = iteration_entries(step, mine)
         else:
             blocks = [block_from_record(r) for r in mine if r.get("phase") == "dwell"]
-            new = [dwell_entry(step.stage, step.pass_number, step.position, record["command"], record["command_time"], blocks)]
+            new = [
+                dwell_entry(
+                    step.stage,
+                    step.pass_number,
+                    step.position,
+                    command=record["command"],
+                    command_time=record["command_time"],
+                    blocks=blocks,
+                )
+            ]
         entries += [(e["command_time"], e) for e in new]
     return accepted_columns([e for _, e in sorted(entries, key=lambda pair: pair[0])])
 

@@ -21,7 +21,7 @@ from stableins.drivers.base import PlatformDriver
 from stableins.errormodel import Term
 from stableins.estimators.dwell import DwellSummary, summarize_dwell
 from stableins.estimators.offset_iteration import OffsetEstimator, OffsetIterationResult, PassRecord, repointed_command
-from stableins.procedures.definition import ProcedureDefinition
+from stableins.procedures.definition import OffsetIteration, ProcedureDefinition
 from stableins.samples import SampleBlock
 
 
@@ -34,18 +34,20 @@ class OffsetIterationError(RuntimeError):
 
 
 class PassObserver(Protocol):
-    """Sees every position of a pass as it is measured (the runner's console: one line per dwell, settle and dwell
-    progress, the dwell's verdict).  Observing changes nothing: the operations and the estimates are the same.
+    """Sees every position of a pass as it is measured.
+
+    The runner's console shows one line per dwell, settle and dwell progress, the dwell's verdict.  Observing changes
+    nothing: the operations and the estimates are the same.
     """
 
     def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
-        """The position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""
+        """Announce that position ``step`` of pass ``pass_number`` is about to be commanded to the readings ``command`` [rad]."""
 
     def phase(self, name: str, done: float, total: float) -> None:
         """``done`` of ``total`` seconds of the phase ``name`` (``"settle"`` or ``"dwell"``) recorded (0 before it starts)."""
 
     def measured(self, block: SampleBlock, summary: DwellSummary) -> None:
-        """The dwell's samples and their summary, with the flags of the procedure's dwell checks."""
+        """Receive the dwell's samples and their summary, with the flags of the procedure's dwell checks."""
 
 
 def wait_until_arrived(
@@ -120,9 +122,7 @@ def iterate_offsets(
     driver: PlatformDriver,
     procedure: ProcedureDefinition,
     *,
-    threshold: float | None = None,
-    max_passes: int | None = None,
-    noise_sigmas: float | None = None,
+    stopping: OffsetIteration | None = None,
     initial_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
     nonlinear: bool = True,
     progress: Callable[[PassRecord], None] | None = None,
@@ -138,8 +138,8 @@ def iterate_offsets(
         attitude and gimbal senses.
     procedure : ProcedureDefinition
         The coarse procedure (``procedures/device-coarse.toml``).
-    threshold, max_passes, noise_sigmas : optional
-        Override the procedure's ``[offset_iteration]`` table (threshold in rad).
+    stopping : OffsetIteration, optional
+        Replaces the procedure's ``[offset_iteration]`` table (threshold in rad).
     initial_offsets : (θ10, θ20, θ30)
         Offsets already known (e.g. from the last record) [rad].
     nonlinear : bool
@@ -151,10 +151,8 @@ def iterate_offsets(
     observer : PassObserver, optional
         Told of every position, settle and dwell of every pass (:func:`measure_pass`).
     """
-    cfg = procedure.offset_iteration
-    threshold = cfg.threshold if threshold is None else threshold
-    max_passes = cfg.max_passes if max_passes is None else max_passes
-    noise_sigmas = cfg.noise_sigmas if noise_sigmas is None else noise_sigmas
+    cfg = procedure.offset_iteration if stopping is None else stopping
+    threshold, max_passes, noise_sigmas = cfg.threshold, cfg.max_passes, cfg.noise_sigmas
     site = driver.metadata
     estimator = OffsetEstimator(
         gravity=site.gravity,

@@ -63,6 +63,7 @@ class Record:
 
     @property
     def arrays(self) -> dict[str, NDArray[Any]]:
+        """The record's arrays (read back from the journal file unless they are held in memory)."""
         if self.loaded is not None:
             return self.loaded
         if self.path is None or not self.fields.get("_has_arrays"):
@@ -73,6 +74,7 @@ class Record:
         return self.fields[key]
 
     def get(self, key: str, default: Any = None) -> Any:
+        """Return the field ``key`` of the record, or ``default``."""
         return self.fields.get(key, default)
 
 
@@ -153,7 +155,7 @@ def _decode(payload: bytes, offset: int, path: str | None = None, *, with_arrays
 
 
 def _read_arrays(path: str, offset: int) -> dict[str, NDArray[Any]]:
-    """The arrays of the record at ``offset`` (read back and CRC-checked)."""
+    """Read the arrays of the record at ``offset`` (read back and CRC-checked)."""
     with open(path, "rb") as handle:
         handle.seek(offset)
         magic, length, crc = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
@@ -178,49 +180,56 @@ def scan(path: str | os.PathLike[str]) -> ScanResult:
     """
     path = Path(path)
     try:
-        handle = open(path, "rb")
+        with open(path, "rb") as handle:
+            return _scan_file(path, handle)
     except FileNotFoundError:
         raise InputError("no run journal here", path=path, expected="a run directory made by 'stableins run'") from None
-    with handle:
-        size = os.fstat(handle.fileno()).st_size
-        start = handle.read(len(FILE_MAGIC))
-        if start != FILE_MAGIC:
-            if FILE_MAGIC.startswith(start):  # the crash hit while the file header was written
-                return ScanResult([], 0, len(start), "file header incomplete")
-            raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
-        records: list[Record] = []
-        position = len(FILE_MAGIC)
-        torn_reason = None
-        while position < size:
-            head = handle.read(_RECORD_HEAD.size)
-            if len(head) < _RECORD_HEAD.size:
-                torn_reason = "record head incomplete"
-                break
-            magic, length, crc = _RECORD_HEAD.unpack(head)
-            end = position + _RECORD_HEAD.size + length
-            if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
-                _damaged(path, handle, position, "bad record marker", size, end)
-                torn_reason = "bad record marker"
-                break
-            if end > size:
-                torn_reason = "record cut short"
-                break
-            payload = handle.read(length)
-            if zlib.crc32(payload) != crc:
-                _damaged(path, handle, position, "checksum mismatch", size, end)
-                torn_reason = "checksum mismatch"
-                break
-            try:
-                record = _decode(payload, position, str(path), with_arrays=False)
-            except (ValueError, KeyError, UnicodeDecodeError) as error:
-                raise InputError(f"journal record at byte {position} cannot be decoded ({error})", path=path) from None
-            if record.seq != len(records):
-                raise InputError(
-                    f"journal record at byte {position} has sequence number {record.seq}", path=path, expected=str(len(records))
-                )
-            records.append(record)
-            position = end
+
+
+def _scan_file(path: Path, handle: Any) -> ScanResult:
+    """Scan the open journal ``handle`` (:func:`scan`)."""
+    size = os.fstat(handle.fileno()).st_size
+    start = handle.read(len(FILE_MAGIC))
+    if start != FILE_MAGIC:
+        if FILE_MAGIC.startswith(start):  # the crash hit while the file header was written
+            return ScanResult([], 0, len(start), "file header incomplete")
+        raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
+    records: list[Record] = []
+    position = len(FILE_MAGIC)
+    torn_reason = None
+    while position < size:
+        head = handle.read(_RECORD_HEAD.size)
+        if len(head) < _RECORD_HEAD.size:
+            torn_reason = "record head incomplete"
+            break
+        magic, length, crc = _RECORD_HEAD.unpack(head)
+        end = position + _RECORD_HEAD.size + length
+        if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
+            _damaged(path, handle, position, "bad record marker", size=size, end=end)
+            torn_reason = "bad record marker"
+            break
+        if end > size:
+            torn_reason = "record cut short"
+            break
+        payload = handle.read(length)
+        if zlib.crc32(payload) != crc:
+            _damaged(path, handle, position, "checksum mismatch", size=size, end=end)
+            torn_reason = "checksum mismatch"
+            break
+        records.append(_scanned_record(path, payload, position, len(records)))
+        position = end
     return ScanResult(records, position, size - position, torn_reason)
+
+
+def _scanned_record(path: Path, payload: bytes, position: int, expected_seq: int) -> Record:
+    """Decode the record at ``position``; InputError when it cannot be decoded or is out of sequence."""
+    try:
+        record = _decode(payload, position, str(path), with_arrays=False)
+    except (ValueError, KeyError, UnicodeDecodeError) as error:
+        raise InputError(f"journal record at byte {position} cannot be decoded ({error})", path=path) from None
+    if record.seq != expected_seq:
+        raise InputError(f"journal record at byte {position} has sequence number {record.seq}", path=path, expected=str(expected_seq))
+    return record
 
 
 def has_start(path: str | os.PathLike[str]) -> bool:
@@ -249,7 +258,7 @@ def has_start(path: str | os.PathLike[str]) -> bool:
         return False
 
 
-def _damaged(path: Path, handle: Any, position: int, reason: str, size: int, end: int) -> None:
+def _damaged(path: Path, handle: Any, position: int, reason: str, *, size: int, end: int) -> None:
     """Raise unless the bad record is the last thing in the file (then it is a torn write)."""
     if end >= size:
         return
@@ -275,6 +284,7 @@ class Journal:
     # ------------------------------------------------------------------ open
     @classmethod
     def create(cls, path: str | os.PathLike[str]) -> Journal:
+        """Create a new journal file (InputError if it exists) and open it for appending."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
@@ -293,6 +303,7 @@ class Journal:
 
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Journal:
+        """Open an existing journal for appending; its records are read back (a torn last record is dropped)."""
         path = Path(path)
         try:
             fd = os.open(path, os.O_WRONLY | os.O_APPEND)
@@ -314,6 +325,7 @@ class Journal:
     # ------------------------------------------------------------------ write
     @property
     def next_seq(self) -> int:
+        """The sequence number of the next record."""
         return len(self.records)
 
     def append(self, kind: str, fields: Mapping[str, Any] | None = None, arrays: Mapping[str, Any] | None = None) -> Record:
@@ -333,6 +345,7 @@ class Journal:
         return record
 
     def close(self) -> None:
+        """Close the journal file."""
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1

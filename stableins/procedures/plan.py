@@ -9,7 +9,7 @@ edited since.  Procedure files (``procedures/*.toml``) are read by
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any
 
 from stableins.errors import InputError
@@ -116,7 +116,7 @@ _CHECK_RANGES: dict[str, tuple[float, float]] = {
 _WHOLE_CHECKS: dict[str, tuple[int, int]] = {"min_samples": (2, 10**8), "noise_blocks": (2, 1000)}
 
 Step = DwellStep | PersonStep | OffsetIterationStep | StaticRecordStep
-_STEP_TYPES: dict[str, type] = {
+_STEP_TYPES: dict[str, type[Step]] = {
     "dwell": DwellStep,
     "person": PersonStep,
     "offset_iteration": OffsetIterationStep,
@@ -164,6 +164,7 @@ class Plan:
                 raise InputError(f"step {step.name!r}: action {step.action!r}", field="action", expected="'confirm' or 'enter'")
 
     def to_dict(self) -> dict[str, Any]:
+        """Return the plan document (``procedure.json``) that :meth:`from_dict` reads back."""
         return {
             "name": self.name,
             "level": self.level,
@@ -271,63 +272,80 @@ class _Validator:
         return DwellChecks(**values)
 
     def step(self, value: Any, where: str) -> Step:
+        """Read one step of a plan document: its ``kind`` and that kind's fields, every value checked."""
         if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
             kind = value.get("kind") if isinstance(value, dict) else value
             raise self.fail(f"step kind {str(kind)[:40]!r}", f"{where}.kind", " or ".join(repr(k) for k in _STEP_TYPES))
         kind = value["kind"]
-        fields = set(_STEP_TYPES[kind].__dataclass_fields__)
-        required = {f for f, spec in _STEP_TYPES[kind].__dataclass_fields__.items() if spec.default is spec.default_factory is MISSING}
-        d = dict(self.mapping(value, where, fields, required | {"kind"}))
-        at = lambda key: f"{where}.{key}"  # noqa: E731
-        d["name"] = self.text(d["name"], at("name"))
+        step_type = _STEP_TYPES[kind]
+        names = {spec.name for spec in fields(step_type)}
+        required = {spec.name for spec in fields(step_type) if spec.default is spec.default_factory is MISSING}
+        d = dict(self.mapping(value, where, names, required | {"kind"}))
+        d["name"] = self.text(d["name"], f"{where}.name")
         for key in ("why", "prompt", "key", "unit"):
             if key in d:
-                d[key] = self.text(d[key], at(key))
-        if kind == "dwell":
-            d["stage"] = self.choice(d["stage"], at("stage"), ("coarse", "fine"))
-            d["pass_number"] = self.integer(d["pass_number"], at("pass_number"), 1, 10**6)
-            d["position"] = self.integer(d["position"], at("position"), 1, 10**6)
-            d["readings"] = self.readings(d["readings"], at("readings"))
-            d["settle"] = self.number(d["settle"], at("settle"), 0.0, MAX_STEP_SECONDS)
-            d["dwell"] = self.number(d["dwell"], at("dwell"), 0.0, MAX_STEP_SECONDS, above=True)
-            if "checks" in d:
-                d["checks"] = self.checks(d["checks"], at("checks"))
-            if "offset_corrected" in d:
-                d["offset_corrected"] = self.flag(d["offset_corrected"], at("offset_corrected"))
-        elif kind == "static_record":
-            d["readings"] = self.readings(d["readings"], at("readings"))
-            d["settle"] = self.number(d["settle"], at("settle"), 0.0, MAX_STEP_SECONDS)
-            d["duration"] = self.number(d["duration"], at("duration"), 0.0, MAX_RECORD_SECONDS, above=True)
-            if "checks" in d:
-                d["checks"] = self.checks(d["checks"], at("checks"))
-        elif kind == "offset_iteration":
-            positions = self.list(d.get("positions", []), at("positions"), 1, 10**4)
-            d["positions"] = tuple(self.integer(p, f"{at('positions')}[{k}]", 1, 10**6) for k, p in enumerate(positions))
-            n = len(positions)
-            d["settles"] = tuple(
-                self.number(x, f"{at('settles')}[{k}]", 0.0, MAX_STEP_SECONDS)
-                for k, x in enumerate(self.list(d.get("settles", []), at("settles"), n, n))
-            )
-            d["dwells"] = tuple(
-                self.number(x, f"{at('dwells')}[{k}]", 0.0, MAX_STEP_SECONDS, above=True)
-                for k, x in enumerate(self.list(d.get("dwells", []), at("dwells"), n, n))
-            )
-            if "stage" in d:
-                d["stage"] = self.choice(d["stage"], at("stage"), ("coarse",))
-        else:  # person
-            d["action"] = self.choice(d["action"], at("action"), ("confirm", "enter"))
-            for key in ("minimum", "maximum"):
-                if key in d:
-                    d[key] = self.optional_number(d[key], at(key))
-            default = d.get("default")
-            if isinstance(default, bool) or not (default is None or isinstance(default, str | int | float)):
-                raise self.fail(f"default {str(default)[:40]!r}", at("default"), "a number, a text or null")
-            check_person_default(d.get("minimum"), d.get("maximum"), default, self.path, at("default"))
-        return _STEP_TYPES[kind](**d)
+                d[key] = self.text(d[key], f"{where}.{key}")
+        readers = {
+            "dwell": self._dwell_fields,
+            "static_record": self._static_record_fields,
+            "offset_iteration": self._offset_iteration_fields,
+            "person": self._person_fields,
+        }
+        readers[kind](d, where)
+        return step_type(**d)
+
+    def _dwell_fields(self, d: dict[str, Any], where: str) -> None:
+        """Check the fields of a dwell step in place."""
+        d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse", "fine"))
+        d["pass_number"] = self.integer(d["pass_number"], f"{where}.pass_number", 1, 10**6)
+        d["position"] = self.integer(d["position"], f"{where}.position", 1, 10**6)
+        d["readings"] = self.readings(d["readings"], f"{where}.readings")
+        d["settle"] = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
+        d["dwell"] = self.number(d["dwell"], f"{where}.dwell", 0.0, MAX_STEP_SECONDS, above=True)
+        if "checks" in d:
+            d["checks"] = self.checks(d["checks"], f"{where}.checks")
+        if "offset_corrected" in d:
+            d["offset_corrected"] = self.flag(d["offset_corrected"], f"{where}.offset_corrected")
+
+    def _static_record_fields(self, d: dict[str, Any], where: str) -> None:
+        """Check the fields of a static-record step in place."""
+        d["readings"] = self.readings(d["readings"], f"{where}.readings")
+        d["settle"] = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
+        d["duration"] = self.number(d["duration"], f"{where}.duration", 0.0, MAX_RECORD_SECONDS, above=True)
+        if "checks" in d:
+            d["checks"] = self.checks(d["checks"], f"{where}.checks")
+
+    def _offset_iteration_fields(self, d: dict[str, Any], where: str) -> None:
+        """Check the fields of a zero-offset iteration step in place."""
+        at = f"{where}.positions"
+        positions = self.list(d.get("positions", []), at, 1, 10**4)
+        d["positions"] = tuple(self.integer(p, f"{at}[{k}]", 1, 10**6) for k, p in enumerate(positions))
+        n = len(positions)
+        d["settles"] = tuple(
+            self.number(x, f"{where}.settles[{k}]", 0.0, MAX_STEP_SECONDS)
+            for k, x in enumerate(self.list(d.get("settles", []), f"{where}.settles", n, n))
+        )
+        d["dwells"] = tuple(
+            self.number(x, f"{where}.dwells[{k}]", 0.0, MAX_STEP_SECONDS, above=True)
+            for k, x in enumerate(self.list(d.get("dwells", []), f"{where}.dwells", n, n))
+        )
+        if "stage" in d:
+            d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse",))
+
+    def _person_fields(self, d: dict[str, Any], where: str) -> None:
+        """Check the fields of a person step in place."""
+        d["action"] = self.choice(d["action"], f"{where}.action", ("confirm", "enter"))
+        for key in ("minimum", "maximum"):
+            if key in d:
+                d[key] = self.optional_number(d[key], f"{where}.{key}")
+        default = d.get("default")
+        if isinstance(default, bool) or not (default is None or isinstance(default, str | int | float)):
+            raise self.fail(f"default {str(default)[:40]!r}", f"{where}.default", "a number, a text or null")
+        check_person_default(d.get("minimum"), d.get("maximum"), default, self.path, f"{where}.default")
 
 
 def check_person_default(minimum: float | None, maximum: float | None, default: Any, path: Any, where: str) -> None:
-    """A person step's bounds are ordered, and its default (what an unattended run enters) obeys them."""
+    """Check that a person step's bounds are ordered and that its default (what an unattended run enters) obeys them."""
     if minimum is not None and maximum is not None and minimum > maximum:
         raise InputError(f"minimum {minimum:g} above maximum {maximum:g}", path=path, field=where, expected="minimum <= maximum")
     if default is None or (minimum is None and maximum is None):

@@ -19,7 +19,7 @@ from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep
 
 
 def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: float | None = None) -> Plan:
-    """The plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`).
+    """Return the plan that carries out ``definition`` (a :class:`~stableins.procedures.definition.ProcedureDefinition`).
 
     ``[runner]`` gives the retries and journal chunk (``retries``/``chunk``
     override it); ``[[person]]`` entries are placed before the position they name.

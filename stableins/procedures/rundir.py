@@ -17,15 +17,19 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from stableins.drivers.base import PlatformDriver
+from stableins.drivers.select import open_driver
+from stableins.errors import InputError
 from stableins.procedures.entries import accepted_columns
 from stableins.procedures.journal import Journal
 from stableins.procedures.plan import Plan
-from stableins.procedures.runner import Runner
+from stableins.procedures.runner import RunConsole, Runner
 from stableins.site import SiteMetadata
 
 DATASET_NAME = "device.h5"
@@ -74,8 +78,11 @@ class RunFinished(Exception):
 
 
 class JournalOnlyDriver:
-    """The platform of a finished run, for re-estimating it: every answer comes from the journal, so nothing is asked of a
-    platform (none need be connected); anything beyond the journal is refused."""
+    """The platform of a finished run, for re-estimating it.
+
+    Every answer comes from the journal, so nothing is asked of a platform (none need be connected); anything beyond
+    the journal is refused.
+    """
 
     deterministic = False
 
@@ -90,18 +97,21 @@ class JournalOnlyDriver:
     command = read_angles = acquire = static_record = _refuse
 
     def status(self) -> dict[str, object]:
+        """Return the replay's state."""
         return {"driver": "journal of a finished run"}
 
     def close(self) -> None:
+        """Release nothing: the journal is read, not held."""
         pass
 
 
 def utc_now() -> str:
+    """Return the current UTC time as ISO 8601, to the second."""
     return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 def check_settings(plan: Plan, values: dict[str, str]) -> None:
-    """A ``--set KEY=VALUE`` that answers a person step of the plan is valid for it (checked before the platform moves).
+    """Check that a ``--set KEY=VALUE`` that answers a person step of the plan is valid for it (checked before the platform moves).
 
     Other keys are the calibration's own fields (laboratory, operator ...), recorded as entries.
     """
@@ -115,7 +125,7 @@ def check_settings(plan: Plan, values: dict[str, str]) -> None:
 
 
 def model_terms(definition: Any, prior: Any) -> tuple[Any, ...]:
-    """The discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
+    """Return the discovered terms a stage of this run estimates: the prior record's, then the definition's ``[model] add``.
 
     A unit's model is the one its record in force carries; a procedure may add effects to it.
     """
@@ -138,6 +148,7 @@ def journal_finished(journal: Journal, outcome: RunOutcome) -> None:
 
 
 def exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
+    """Return the accepted dwells as device-level columns, or None for a system-level run or an empty data set."""
     if runner.static_chunks or dataset is None:
         return None
     columns = accepted_columns(runner.entries)
@@ -182,7 +193,66 @@ def export(rundir: Path, runner: Runner, metadata: SiteMetadata) -> Path | None:
 
 
 def write_plan(rundir: Path, plan: Plan) -> None:
+    """Write the plan the run executes (``procedure.json``) into the run directory, atomically."""
     from stableins.data.atomic import atomic_write
 
     with atomic_write(rundir / PLAN_NAME) as handle:
         json.dump(plan.to_dict(), handle, indent=2)
+
+
+def resume_mode(rundir: Path, journal: Journal, console: RunConsole, *, re_estimate: bool) -> tuple[bool, bool]:
+    """Decide how a resume proceeds: ``(re_estimate, journal_finish)``.
+
+    A finished run is not run again (:class:`RunFinished`) unless ``re_estimate``; a run whose last step was done but
+    whose outputs were not all written is estimated again from its journal, and then journaled as finished.
+    """
+    complete = next((r for r in journal.records if r.kind == "complete"), None)
+    names = (DATASET_NAME, SYSTEM_NAME, RECORD_NAME, REPORT_NAME)
+    written = any(r.kind == FINISHED for r in journal.records) or (rundir / REPORT_NAME).exists()
+    if complete is not None and not re_estimate:
+        if written:
+            raise RunFinished(rundir, str(complete.get("utc") or ""), [rundir / n for n in names if (rundir / n).exists()])
+        # the last step was done but the run was interrupted while writing its outputs: write them from the journal
+        console.say("the run completed its last step but was interrupted before writing all its outputs: writing them from the journal")
+        re_estimate = True
+    journal_finish = not re_estimate or (complete is not None and not written)
+    if complete is None and re_estimate:
+        raise InputError(
+            "the run is not finished: there is nothing to estimate again yet",
+            path=rundir,
+            field="re_estimate",
+            expected=f"a finished run, or 'stableins run --resume {rundir}' to continue this one",
+        )
+    return re_estimate, journal_finish
+
+
+def resume_spec(journaled: str, driver_spec: str | None) -> str:
+    """Return the driver a resumed run uses: the journaled one, or a new ``tcp://`` address of a network platform that moved."""
+    if driver_spec is None or driver_spec == journaled:
+        return journaled
+    if not (driver_spec.startswith("tcp://") and journaled.startswith("tcp://")):
+        raise InputError(
+            f"this run was made with --driver {journaled}",
+            field="driver_spec",
+            expected=f"{journaled} (only a tcp:// address may change on resume)",
+        )
+    return driver_spec
+
+
+def resume_driver(
+    start: Any,
+    spec: str,
+    plan: Plan,
+    *,
+    re_estimate: bool,
+    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
+    timeout: float,
+) -> PlatformDriver:
+    """Open the platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens."""
+    if re_estimate:
+        from stableins.drivers.replay import metadata_from_start
+
+        return JournalOnlyDriver(metadata_from_start(start))
+    if driver_factory is not None:
+        return driver_factory(start.fields)
+    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)

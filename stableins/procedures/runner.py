@@ -24,6 +24,7 @@ columns, what a resume replays); the operator console is :class:`stableins.conso
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -64,10 +65,10 @@ class RunConsole(Protocol):
         """Print ``text``; ``replay``: marked as answered by the journal."""
 
     def dwell(self, label: str, readings: Any, settle: float, dwell: float, why: str = "", *, replay: bool = False) -> None:
-        """The line that opens a dwell."""
+        """Print the line that opens a dwell."""
 
     def verdict(self, result: CheckResult, *, replay: bool = False, rejected: str = "rejected", indent: str = "  ") -> None:
-        """The verdict of a dwell with its reasons."""
+        """Print the verdict of a dwell with its reasons."""
 
     def progress(self, label: str, done: float, total: float) -> None:
         """Progress of a settle or dwell phase."""
@@ -76,13 +77,13 @@ class RunConsole(Protocol):
         """Ask a person to confirm ``prompt``."""
 
     def enter(self, step: PersonStep) -> str:
-        """The text a person enters for ``step``."""
+        """Return the text a person enters for ``step``."""
 
     def tell(self, text: str) -> None:
-        """A line for the person answering a prompt."""
+        """Print a line for the person answering a prompt."""
 
     def journal_used_up(self, replayed: int) -> None:
-        """The resumed run has replayed its journal (``replayed`` records)."""
+        """Note that the resumed run has replayed its journal (``replayed`` records)."""
 
 
 # --------------------------------------------------------------------------- runner
@@ -130,6 +131,7 @@ class Runner:
         self.static_chunks: list[Record] = []
 
     def execute(self) -> None:
+        """Run every step of the plan in order (journaled; resumable)."""
         total = len(self.plan.steps)
         if self.session.on_live is None:
             self.session.on_live = self.console.journal_used_up
@@ -202,8 +204,8 @@ class Runner:
                     attempt,
                     step.name,
                     error,
-                    link_failures,
-                    "this attempt's samples are set aside (kept in the journal); repeating the step",
+                    failures=link_failures,
+                    consequence="this attempt's samples are set aside (kept in the journal); repeating the step",
                 )
                 continue
             if arrived is None:
@@ -225,7 +227,9 @@ class Runner:
             _, replayed = self.session.decide("verdict", verdict)
             self.console.verdict(result, replay=replayed)
             if result.accepted:
-                self.entries.append(dwell_entry(step.stage, step.pass_number, step.position, readings, command_time, blocks))
+                self.entries.append(
+                    dwell_entry(step.stage, step.pass_number, step.position, command=readings, command_time=command_time, blocks=blocks)
+                )
                 self.session.accept(blocks)
                 return
             rejections += 1
@@ -270,7 +274,7 @@ class Runner:
             self.session.context = dict(context)
             self.session.trace = []
             chunk = self.session.operate(
-                "static_chunk", [float(len(self.static_chunks))], call=lambda done=done: _next_chunk(chunks, done, total)
+                "static_chunk", [float(len(self.static_chunks))], call=functools.partial(_next_chunk, chunks, done, total)
             )
             self.static_chunks += self.session.trace
             self.session.trace = None
@@ -281,7 +285,7 @@ class Runner:
         _, replayed = self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
         self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)", replay=replayed)
 
-    def _link_failure(self, index: int, attempt: int, name: str, error: Exception, failures: int, consequence: str) -> int:
+    def _link_failure(self, index: int, attempt: int, name: str, error: Exception, *, failures: int, consequence: str) -> int:
         """Journal a broken link, say what happens next; stop the run after ``options.link_failures`` in a row.
 
         Returns the updated count of consecutive failures (reset to 0 when a replayed stop was passed).
@@ -365,7 +369,12 @@ class Runner:
                 raise RunStopped(message) from None
             except (DriverConnectionError, DriverProtocolError) as error:
                 link_failures = self._link_failure(
-                    index, attempt, step.name, error, link_failures, "the iteration starts again (its samples so far stay in the journal)"
+                    index,
+                    attempt,
+                    step.name,
+                    error,
+                    failures=link_failures,
+                    consequence="the iteration starts again (its samples so far stay in the journal)",
                 )
                 continue
             finally:
@@ -385,9 +394,11 @@ class Runner:
 
 
 class _IterationConsole:
-    """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`): every
-    dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
-    :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit)."""
+    """The console of the zero-offset iteration (:class:`~stableins.procedures.iteration.PassObserver`).
+
+    Every dwell of every pass is shown as a dwell of any other stage (:meth:`Console.dwell`, :meth:`Console.progress`,
+    :meth:`Console.verdict`); its verdict is the estimator's own check of the dwell (used, or left out of the pass's fit).
+    """
 
     def __init__(self, console: RunConsole, session: Session, rate: float) -> None:
         self.console = console
@@ -422,7 +433,7 @@ def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
 
 
 def parse_entry(step: PersonStep, text: str) -> Any:
-    """The value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
+    """Return the value a person entered for ``step`` (a number within the step's range, or text); InputError otherwise."""
     if step.minimum is None and step.maximum is None and not _is_number(text):
         if not text:
             raise InputError(f"step {step.name!r}: no value entered", field=step.key, expected=f"a value in {step.unit or 'text'}")

@@ -30,6 +30,7 @@ def number(
     maximum: float | None = None,
     whole: bool = False,
 ) -> float:
+    """Return ``table[key]`` as a finite number within the given bounds; InputError naming the field otherwise."""
     value = table[key]
     field = f"{where.split()[0]}.{key}"  # "step 3" -> step.dwell, "runner" -> runner.chunk
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
@@ -46,6 +47,7 @@ def number(
 
 
 def table(value: Any, path: str, name: str) -> dict[str, Any]:
+    """Return ``value`` if it is a TOML table; InputError naming ``[name]`` otherwise."""
     if not isinstance(value, dict):
         raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
     return value
@@ -67,9 +69,10 @@ class RunnerSettings:
 
 @dataclass(frozen=True)
 class PersonAction:
-    """``[[person]]``: a step a person carries out before position ``before`` (0: before the first;
-    ``len(steps) + 1``: at the end).  ``action`` is ``"confirm"`` or ``"enter"`` (a value with
-    ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses).
+    """``[[person]]``: a step a person carries out before position ``before``.
+
+    ``before`` is 0 before the first position and ``len(steps) + 1`` at the end.  ``action`` is ``"confirm"`` or
+    ``"enter"`` (a value with ``unit`` in ``[minimum, maximum]``; ``default`` is what an unattended run uses).
     """
 
     before: int
@@ -84,8 +87,9 @@ class PersonAction:
 
 @dataclass(frozen=True)
 class StaticRecord:
-    """``[record]`` of a system-level procedure: hold the platform at ``command`` [rad] (file: deg),
-    settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz].
+    """``[record]`` of a system-level procedure.
+
+    Hold the platform at ``command`` [rad] (file: deg), settle [s], then record ``duration`` [s] at ``sample_rate`` [Hz].
     """
 
     command: tuple[float, float, float]
@@ -107,7 +111,7 @@ _RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rat
 
 
 def _runner_values(table: Any, path: str) -> dict[str, Any]:
-    """The ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
+    """Return the ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
     if not isinstance(table, dict):
         raise InputError("[runner] must be a table", path=path, field="runner")
     unknown = set(table) - set(_RUNNER_KEYS)
@@ -133,60 +137,71 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
 
 
 def runner_settings(table: Any, path: str) -> RunnerSettings:
+    """Return the run settings of ``[runner]`` (retries, chunk)."""
     values = _runner_values(table, path)
     return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
 
 
 def runner_checks(table: Any, path: str) -> dict[str, Any]:
-    """The dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
+    """Return the dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
     return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
 
 
 def people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:
+    """Return the ``[[person]]`` steps, validated, in file order."""
     if not isinstance(entries, list):
         raise InputError("person steps are written [[person]]", path=path, field="person")
+    return tuple(_person(raw, f"person {k}", path, steps) for k, raw in enumerate(entries, start=1))
+
+
+def _person(raw: Any, where: str, path: str, steps: int) -> PersonAction:
+    """Read one ``[[person]]`` table."""
     from stableins.procedures.plan import check_person_default
 
-    people = []
-    for k, raw in enumerate(entries, start=1):
-        where = f"person {k}"
-        if not isinstance(raw, dict):
-            raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
-        unknown = set(raw) - _PERSON_KEYS
-        if unknown:
-            raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
-        for key in ("before", "action", "prompt"):
-            if key not in raw:
-                raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
-        before = raw["before"]
-        if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
-            raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
-        if raw["action"] not in ("confirm", "enter"):
-            raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
-        if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
-            raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
-        if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
-            raise InputError(
-                f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
-            )
-        bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
-        if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
-            raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
-        default = raw.get("default")
-        if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
-            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
-        if isinstance(default, float) and not math.isfinite(default):
-            raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
-        for key in ("key", "unit"):
-            if key in raw and not isinstance(raw[key], str):
-                raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
-        check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"person {k}: default")
-        people.append(
-            PersonAction(
-                before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
-            )
+    _check_keys(raw, where, path)
+    before = raw["before"]
+    if isinstance(before, bool) or not isinstance(before, int) or not 0 <= before <= steps + 1:
+        raise InputError(f"{where}: before = {before!r}", path=path, field="person.before", expected=f"a position 0 .. {steps + 1}")
+    if raw["action"] not in ("confirm", "enter"):
+        raise InputError(f"{where}: action {raw['action']!r}", path=path, field="person.action", expected="'confirm' or 'enter'")
+    if not isinstance(raw["prompt"], str) or not raw["prompt"].strip():
+        raise InputError(f"{where}: empty prompt", path=path, field="person.prompt", expected="what the person must do")
+    if raw["action"] == "enter" and not isinstance(raw.get("key"), str):
+        raise InputError(
+            f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
         )
-    return tuple(people)
+    bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
+    if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
+        raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
+    default = _person_default(raw.get("default"), where, path)
+    for key in ("key", "unit"):
+        if key in raw and not isinstance(raw[key], str):
+            raise InputError(f"{where}: {raw[key]!r} is not a string", path=path, field=f"person.{key}")
+    check_person_default(bounds["minimum"], bounds["maximum"], default, path, f"{where}: default")
+    return PersonAction(
+        before, raw["action"], raw["prompt"].strip(), str(raw.get("key", "")), str(raw.get("unit", "")), **bounds, default=default
+    )
+
+
+def _check_keys(raw: Any, where: str, path: str) -> None:
+    """Check that a ``[[person]]`` entry is a table with the known keys and the required ones."""
+    if not isinstance(raw, dict):
+        raise InputError(f"{where}: not a table", path=path, field="person", expected="[[person]] tables")
+    unknown = set(raw) - _PERSON_KEYS
+    if unknown:
+        raise InputError(f"{where}: unknown keys {sorted(unknown)}", path=path, field="person", expected=f"{sorted(_PERSON_KEYS)}")
+    for key in ("before", "action", "prompt"):
+        if key not in raw:
+            raise InputError(f"{where}: missing", path=path, field=f"person.{key}")
+
+
+def _person_default(default: Any, where: str, path: str) -> Any:
+    """Return a person step's default: None, a text or a finite number."""
+    if isinstance(default, bool) or (default is not None and not isinstance(default, str | int | float)):
+        raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a number or text")
+    if isinstance(default, float) and not math.isfinite(default):
+        raise InputError(f"{where}: default {default!r}", path=path, field="person.default", expected="a finite number or text")
+    return default
 
 
 def model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
@@ -216,6 +231,7 @@ def model_add(table: Any, stage: str, path: str) -> tuple[str, ...]:
 
 
 def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
+    """Return the ``[record]`` table of a system-level procedure, validated (None for other stages)."""
     if table is None:
         if stage == "system":
             raise InputError(

@@ -8,6 +8,7 @@ times are finite and never run back.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import deque
 from collections.abc import Callable
@@ -73,6 +74,7 @@ class Session:
 
     @property
     def replaying(self) -> bool:
+        """Whether journaled records are still to be replayed."""
         return bool(self.script)
 
     def _next(self, kind: str, describe: str) -> Record:
@@ -88,47 +90,58 @@ class Session:
 
     # ------------------------------------------------------------------ driver operations
     def operate(self, operation: str, arguments: list[float], call: Callable[[], Any] | None = None) -> Any:
-        """One driver operation, journaled (live) or answered from the journal (replay).
+        """Perform one driver operation, journaled (live) or answered from the journal (replay).
 
         ``call`` performs operations other than command / read_angles / acquire (e.g. the next
         chunk of a static record, ``static_chunk``).
         """
         if call is None:
-            call = {
-                "command": lambda: self.driver.command(tuple(arguments)),  # type: ignore[arg-type]
-                "read_angles": self.driver.read_angles,
-                "acquire": lambda: self.driver.acquire(arguments[0]),
-            }[operation]
+            call = self._driver_call(operation, arguments)
         self.last_replayed = bool(self.script)
         if self.script:
-            record = self._next("op", f"{operation} {arguments}")
-            if record["operation"] != operation or not np.allclose(record["arguments"], arguments, rtol=0, atol=1e-12):
-                raise JournalMismatch(
-                    f"resuming: the procedure asks for {operation} {arguments}, the journal has {record['operation']} {record['arguments']}"
-                )
-            if record.get("error"):
-                if self.forward:  # keep the fresh platform in step: it did this operation too
-                    try:
-                        call()
-                    except DriverError:
-                        pass
-                raise _ERROR_TYPES.get(record["error_type"], DriverError)(record["error"])
-            result = _result_of(record)
-            if self.forward:
-                _check_same(operation, result, call(), record.seq)
-            if self.trace is not None:
-                self.trace.append(record)
-            if operation == "static_chunk":
-                self.static_clock = _latest_time(operation, result, self.static_clock)
-            else:
-                self.clock = _latest_time(operation, result, self.clock)
-            return result
+            return self._replay(operation, arguments, call)
         if not self._live:
             self._live = True
             if self.replayed and not self.forward:
                 # a real platform after a resume: its clock may have restarted with its power, which is harmless as long
                 # as nothing it records comes before the data already accepted
                 self.clock = (self.floor, True)
+        return self._operate_live(operation, arguments, call)
+
+    def _driver_call(self, operation: str, arguments: list[float]) -> Callable[[], Any]:
+        """Return the driver call of a command, read_angles or acquire operation."""
+        calls: dict[str, Callable[[], Any]] = {
+            "command": lambda: self.driver.command((arguments[0], arguments[1], arguments[2])),
+            "read_angles": self.driver.read_angles,
+            "acquire": lambda: self.driver.acquire(arguments[0]),
+        }
+        return calls[operation]
+
+    def _replay(self, operation: str, arguments: list[float], call: Callable[[], Any]) -> Any:
+        """Answer an operation from the next journaled record (and forward it to a deterministic platform)."""
+        record = self._next("op", f"{operation} {arguments}")
+        if record["operation"] != operation or not np.allclose(record["arguments"], arguments, rtol=0, atol=1e-12):
+            raise JournalMismatch(
+                f"resuming: the procedure asks for {operation} {arguments}, the journal has {record['operation']} {record['arguments']}"
+            )
+        if record.get("error"):
+            if self.forward:  # keep the fresh platform in step: it did this operation too
+                with contextlib.suppress(DriverError):
+                    call()
+            raise _ERROR_TYPES.get(record["error_type"], DriverError)(record["error"])
+        result = _result_of(record)
+        if self.forward:
+            _check_same(operation, result, call(), record.seq)
+        if self.trace is not None:
+            self.trace.append(record)
+        if operation == "static_chunk":
+            self.static_clock = _latest_time(operation, result, self.static_clock)
+        else:
+            self.clock = _latest_time(operation, result, self.clock)
+        return result
+
+    def _operate_live(self, operation: str, arguments: list[float], call: Callable[[], Any]) -> Any:
+        """Perform an operation on the platform, check its clock and journal its result (or its error)."""
         try:
             result = call()
             if operation == "static_chunk":  # before anything is journaled
@@ -178,7 +191,7 @@ class Session:
         return self.journal.append(kind, {**self.context, **fields}), False
 
     def enter(self, kind: str, step: int, ask: Callable[[], Any]) -> Any:
-        """A value from a person: from the journal when replaying, else asked and journaled."""
+        """Return a value from a person: from the journal when replaying, else asked and journaled."""
         if self.script:
             return self._next(kind, f"step {step}'s input")["value"]
         value = ask()
@@ -194,22 +207,27 @@ class SessionDriver:
 
     @property
     def metadata(self) -> Any:
+        """The platform's site metadata."""
         return self.session.driver.metadata
 
     def command(self, readings: tuple[float, float, float]) -> float:
+        """Command the gimbals to ``readings`` [rad] through the session; return the platform time."""
         return self.session.operate("command", [float(r) for r in readings])
 
     def read_angles(self) -> NDArray[np.float64]:
+        """Read the gimbal angles [rad] through the session."""
         return self.session.operate("read_angles", [])
 
     def acquire(self, duration: float) -> SampleBlock:
+        """Record ``duration`` seconds of samples through the session."""
         return self.session.operate("acquire", [float(duration)])
 
     def status(self) -> dict[str, object]:
+        """Return the platform's status (not journaled)."""
         return self.session.driver.status()
 
     def close(self) -> None:
-        pass
+        """Leave the platform open: the session's owner closes it."""
 
 
 def _result_of(record: Record) -> Any:
@@ -253,7 +271,7 @@ def _sample_times(operation: str, result: Any) -> Any:
 
 
 def _latest_time(operation: str, result: Any, clock: tuple[float, bool]) -> tuple[float, bool]:
-    """The clock after an operation (journaled results: already checked)."""
+    """Return the clock after an operation (journaled results: already checked)."""
     if operation == "command":
         return max(clock[0], float(result)), clock[1] and clock[0] >= float(result)
     time = _sample_times(operation, result)

@@ -39,7 +39,7 @@ def source_text(record: CalibrationRecord, parameter_id: str) -> str:
 
 def report(record: CalibrationRecord) -> str:
     """Return a plain-text table in engineering units: value, 1σ, status and the stage that last determined each parameter."""
-    from stableins.estimators.result import parameter_table
+    from stableins.display import parameter_table
 
     run = ", ".join(s.name for s in record.stages_run) or "none"
     lines = [f"calibration record of {record.serial_number} (stages run: {run}; {record.calibration.software})", ""]

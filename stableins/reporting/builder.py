@@ -50,6 +50,28 @@ class ReportSummary:
 
 
 @dataclass(frozen=True)
+class ReportSettings:
+    """What a certificate states beyond its record and files, given directly rather than read from them.
+
+    Attributes
+    ----------
+    tolerances : Tolerances, optional
+        Conformity limits (override the procedure's ``[tolerances]`` table).
+    uncertainty : UncertaintyInputs, optional
+        Type B inputs (override the procedure's ``[uncertainty]`` table; :mod:`stableins.reporting.budget`).
+    report_id : str, optional
+        Id to print; by default :func:`report_id_for`.
+    issued : datetime, optional
+        Date of issue (default: now, UTC).
+    """
+
+    tolerances: Tolerances | None = None
+    uncertainty: UncertaintyInputs | None = None
+    report_id: str | None = None
+    issued: dt.datetime | None = None
+
+
+@dataclass(frozen=True)
 class LoadedRecord:
     """A record read through the one reader (:meth:`CalibrationRecord.load`), with the file it came from."""
 
@@ -124,7 +146,7 @@ def stored_evidence(record: CalibrationRecord, where: str) -> list[StageEvidence
 
 
 def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
-    """The document of ``stableins diagnose --json``, every field checked (:meth:`DiagnoseReport.from_json`)."""
+    """Read the document of ``stableins diagnose --json``, every field checked (:meth:`DiagnoseReport.from_json`)."""
     from stableins.data.jsonio import load_json_file
     from stableins.discovery.diagnose_report import DOCUMENT
 
@@ -138,11 +160,8 @@ def write_report(
     data: Sequence[str | PathLike[str]] = (),
     previous: CalibrationRecord | str | PathLike[str] | None = None,
     procedure: str | PathLike[str] | None = None,
-    tolerances: Tolerances | None = None,
-    report_id: str | None = None,
-    issued: dt.datetime | None = None,
     discovery: str | PathLike[str] | None = None,
-    uncertainty: UncertaintyInputs | None = None,
+    settings: ReportSettings | None = None,
 ) -> ReportSummary:
     """Write the calibration certificate of ``record`` to ``out`` (PDF).
 
@@ -163,16 +182,10 @@ def write_report(
         Previous calibration record of the unit, for the change section (:func:`stableins.history.compare`).
     procedure : path, optional
         Procedure definition (TOML) whose ``[tolerances]`` table gives the conformity limits.
-    tolerances : Tolerances, optional
-        Limits given directly (overrides ``procedure``).
-    report_id : str, optional
-        Id to print; by default :func:`report_id_for`.
-    issued : datetime, optional
-        Date of issue (default: now, UTC).
     discovery : path, optional
         Output of ``stableins diagnose --json`` (ranked candidates and refit history).
-    uncertainty : UncertaintyInputs, optional
-        Type B inputs given directly (overrides the procedure's ``[uncertainty]`` table; :mod:`stableins.reporting.budget`).
+    settings : ReportSettings, optional
+        Limits, Type B inputs, id and date of issue given directly (:class:`ReportSettings`).
 
     Returns
     -------
@@ -181,6 +194,8 @@ def write_report(
     import stableins
     from stableins.discovery.library import record_terms
 
+    settings = settings or ReportSettings()
+    uncertainty, issued = settings.uncertainty, settings.issued
     loaded = LoadedRecord.of(record)
     view = loaded.record
     previous_loaded = LoadedRecord.of(previous) if previous is not None else None
@@ -193,7 +208,7 @@ def write_report(
     rows = content.parameter_rows(view, terms, budget=budget)
     if previous_loaded is not None:
         inputs.append(InputFile("previous record", file_name(previous_loaded.path), previous_loaded.sha256 or "—", "read by this report"))
-    tolerances, procedure_inputs = _tolerances(procedure, tolerances)
+    tolerances, procedure_inputs = _tolerances(procedure, settings.tolerances)
     inputs += procedure_inputs
     comparison, changes, previous_rows = _previous(previous_loaded, view, terms, uncertainty)
     checks = content.conformity(rows, changes, stages, tolerances)
@@ -207,7 +222,7 @@ def write_report(
     ctx = ReportContext(
         record=view,
         record_path=loaded.path,
-        report_id=report_id or report_id_for(loaded, [f.sha256 for f in inputs]),
+        report_id=settings.report_id or report_id_for(loaded, [f.sha256 for f in inputs]),
         issued=issued.strftime("%Y-%m-%d %H:%M UTC"),
         rows=rows,
         budget=budget,

@@ -42,8 +42,11 @@ class Rounded:
 
 
 def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
-    """The one rounding of the certificate (GUM 7.2.6): ``U = k u`` and ``u`` to two significant digits, the value
-    to the decimal place of ``U``.  Every section prints a value and its uncertainty through this function."""
+    """Round a value and its uncertainty the one way of the certificate (GUM 7.2.6).
+
+    ``U = k u`` and ``u`` to two significant digits, the value to the decimal place of ``U``.  Every section prints
+    a value and its uncertainty through this function.
+    """
     if not math.isfinite(value):
         return Rounded("not stated", "—", "—")
     if not (math.isfinite(u) and u > 0):
@@ -81,6 +84,7 @@ class ParameterRow:
 
     @property
     def estimated(self) -> bool:
+        """Whether the parameter was estimated."""
         return self.status is Status.ESTIMATED
 
     @property
@@ -113,7 +117,7 @@ def number(x: float, significant: int) -> str:
 
 
 def round_to_uncertainty(value: float, u: float) -> str:
-    """The value rounded to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
+    """Round the value to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
     decimals = max(1 - math.floor(math.log10(u)), 0)
     return f"{value:.{decimals}f}".replace("-", MINUS)
 
@@ -131,8 +135,11 @@ def chi2_text(x: float) -> str:
 def parameter_rows(
     record: CalibrationRecord, terms: Mapping[str, Term], k: float = COVERAGE_FACTOR, budget: Any = None
 ) -> list[ParameterRow]:
-    """Results table rows in record order; ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the
-    combined standard uncertainty, else the record's σ (Type A) is used."""
+    """Return the results table rows in record order.
+
+    ``budget`` (:class:`~stableins.reporting.budget.Budget`) gives the combined standard uncertainty, else the
+    record's σ (Type A) is used.
+    """
     rows = []
     for p in record.parameters:
         term = terms.get(p.id)
@@ -205,7 +212,7 @@ class ChangeRow:
 
 
 def change_rows(comparison: Comparison, terms: Mapping[str, Term]) -> list[ChangeRow]:
-    """The comparison's changes in engineering units (z and the flag are the comparison's own)."""
+    """Return the comparison's changes in engineering units (z and the flag are the comparison's own)."""
     rows = []
     for c in comparison.changes:
         term = terms.get(c.id)
@@ -249,8 +256,17 @@ def conformity(
     stages: Sequence[StageEvidence],
     tolerances: Tolerances,
 ) -> list[Check]:
-    """Every check the tolerances ask for, in table order."""
-    rule, k = tolerances.decision_rule, tolerances.coverage_factor
+    """Return every check the tolerances ask for, in table order."""
+    checks = _value_checks(rows, tolerances) + _uncertainty_checks(rows, tolerances)
+    if tolerances.stability:
+        checks += _stability_checks(rows, changes, tolerances)
+    if tolerances.chi2_red_max is not None:
+        checks += _fit_checks(stages, tolerances.chi2_red_max)
+    return checks
+
+
+def _value_checks(rows: Sequence[ParameterRow], tolerances: Tolerances) -> list[Check]:
+    """Return the checks of ``|x|`` against ``[tolerances.limits]``, with the decision rule."""
     checks: list[Check] = []
     for row in rows:
         limit = limit_for(tolerances.limits, row.id)
@@ -259,8 +275,15 @@ def conformity(
         if not row.estimated:
             checks.append(Check(CheckKind.VALUE, row.id, row.value, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, row.status.value))
         else:
-            expanded = k * row.u
-            checks.append(Check(CheckKind.VALUE, row.id, row.value, expanded, limit, row.unit, decide(row.value, expanded, limit, rule)))
+            expanded = tolerances.coverage_factor * row.u
+            verdict = decide(row.value, expanded, limit, tolerances.decision_rule)
+            checks.append(Check(CheckKind.VALUE, row.id, row.value, expanded, limit, row.unit, verdict))
+    return checks
+
+
+def _uncertainty_checks(rows: Sequence[ParameterRow], tolerances: Tolerances) -> list[Check]:
+    """Return the checks of ``U`` against ``[tolerances.uncertainty]``."""
+    checks: list[Check] = []
     for row in rows:
         limit = limit_for(tolerances.uncertainty, row.id)
         if limit is None:
@@ -268,33 +291,40 @@ def conformity(
         if not row.estimated:
             checks.append(Check(CheckKind.UNCERTAINTY, row.id, math.nan, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, row.status.value))
         else:
-            expanded = k * row.u
+            expanded = tolerances.coverage_factor * row.u
             verdict = Verdict.PASS if expanded <= limit else Verdict.FAIL
             checks.append(Check(CheckKind.UNCERTAINTY, row.id, expanded, math.nan, limit, row.unit, verdict))
-    if tolerances.stability:
-        by_id = {c.id: c for c in changes or ()}
-        for row in rows:
-            limit = limit_for(tolerances.stability, row.id)
-            if limit is None:
-                continue
-            change = by_id.get(row.id)
-            if change is None:
-                reason = "no previous calibration given" if changes is None else "not re-measured, or not estimated in both calibrations"
-                checks.append(Check(CheckKind.STABILITY, row.id, math.nan, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, reason))
-            else:
-                expanded = k * change.u_delta
-                checks.append(
-                    Check(CheckKind.STABILITY, row.id, change.delta, expanded, limit, row.unit, decide(change.delta, expanded, limit, rule))
-                )
-    if tolerances.chi2_red_max is not None:
-        if not stages:
-            checks.append(
-                Check(CheckKind.FIT, "χ²_ν", math.nan, math.nan, tolerances.chi2_red_max, "", Verdict.NOT_ASSESSED, "no residual evidence")
-            )
-        for stage in stages:
-            value = stage.chi2_red
-            verdict = Verdict.PASS if value <= tolerances.chi2_red_max else Verdict.FAIL
-            checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", value, math.nan, tolerances.chi2_red_max, "", verdict))
+    return checks
+
+
+def _stability_checks(rows: Sequence[ParameterRow], changes: Sequence[ChangeRow] | None, tolerances: Tolerances) -> list[Check]:
+    """Return the checks of the change since the previous calibration against ``[tolerances.stability]``."""
+    checks: list[Check] = []
+    by_id = {c.id: c for c in changes or ()}
+    for row in rows:
+        limit = limit_for(tolerances.stability, row.id)
+        if limit is None:
+            continue
+        change = by_id.get(row.id)
+        if change is None:
+            reason = "no previous calibration given" if changes is None else "not re-measured, or not estimated in both calibrations"
+            checks.append(Check(CheckKind.STABILITY, row.id, math.nan, math.nan, limit, row.unit, Verdict.NOT_ASSESSED, reason))
+        else:
+            expanded = tolerances.coverage_factor * change.u_delta
+            verdict = decide(change.delta, expanded, limit, tolerances.decision_rule)
+            checks.append(Check(CheckKind.STABILITY, row.id, change.delta, expanded, limit, row.unit, verdict))
+    return checks
+
+
+def _fit_checks(stages: Sequence[StageEvidence], chi2_red_max: float) -> list[Check]:
+    """Return the checks of each stage's ``χ²_ν`` against ``[tolerances.fit] chi2_red_max``."""
+    checks: list[Check] = []
+    if not stages:
+        checks.append(Check(CheckKind.FIT, "χ²_ν", math.nan, math.nan, chi2_red_max, "", Verdict.NOT_ASSESSED, "no residual evidence"))
+    for stage in stages:
+        value = stage.chi2_red
+        verdict = Verdict.PASS if value <= chi2_red_max else Verdict.FAIL
+        checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", value, math.nan, chi2_red_max, "", verdict))
     return checks
 
 
@@ -313,7 +343,8 @@ NO_STATEMENT = "No statement of conformity: the procedure defines no tolerances 
 def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tuple[str, str, str, str, str, str, str]:
     """One row of the statement of conformity, as the certificate prints it and the console repeats it (:data:`CONFORMITY_HEADER`).
 
-    The measured value and U carry the certificate's one rounding (:func:`gum`, sections 4 and 9); χ²_ν its three decimals."""
+    The measured value and U carry the certificate's one rounding (:func:`gum`, sections 4 and 9); χ²_ν its three decimals.
+    """
 
     def fmt(x: float, significant: int) -> str:
         return number(x, significant) if math.isfinite(x) else "—"
@@ -339,8 +370,11 @@ def conformity_counts(checks: Sequence[Check]) -> str:
 
 
 def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
-    """The statement of conformity in plain text, with the certificate's words and numbers: the verdict, the counts,
-    and every check that did not pass (its row of the certificate's table).  ``assessed``: tolerances were given."""
+    """Return the statement of conformity in plain text, with the certificate's words and numbers.
+
+    The verdict, the counts, and every check that did not pass (its row of the certificate's table).
+    ``assessed``: tolerances were given.
+    """
     if not assessed:
         return [NO_STATEMENT]
     lines = [f"Verdict: {overall_verdict(checks)} ({conformity_counts(checks)})"]
@@ -364,7 +398,7 @@ def overall_verdict(checks: Sequence[Check]) -> str:
 
 
 def noise_text(document: Mapping[str, Any]) -> str:
-    """The noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
+    """Describe the noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
     import numpy as np
 
     from stableins.noise import ENGINEERING, NoiseModel, NoiseSource
@@ -391,8 +425,18 @@ def noise_text(document: Mapping[str, Any]) -> str:
 
 
 def describe_settings(settings: Mapping[str, Any]) -> str:
-    """The settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
+    """Describe the settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
     from stableins.reporting.symbols import words_for_flags
+
+    parts = _noise_settings(settings) + _device_settings(settings)
+    if settings.get("stage") == "system":
+        parts += _system_settings(settings)
+    return words_for_flags("; ".join(parts)) or "defaults"
+
+
+def _noise_settings(settings: Mapping[str, Any]) -> list[str]:
+    """Return the noise model of a stage's settings in words (and the slow-noise model of the first schema-2 records)."""
+    from stableins.conventions import MICRO_G
 
     parts = []
     slow = settings.get("slow_noise")  # records of the first schema-2 version
@@ -402,11 +446,18 @@ def describe_settings(settings: Mapping[str, Any]) -> str:
     if isinstance(model, Mapping):
         parts.append(noise_text(model))
     if isinstance(slow, Mapping):
-        ug = 9.80665e-6
         parts.append(
-            f"bias instability {float(slow.get('bias_instability', 0.0)) / ug:.2g} µg, random walk "
+            f"bias instability {float(slow.get('bias_instability', 0.0)) / MICRO_G:.2g} µg, random walk "
             f"{float(slow.get('random_walk', 0.0)):.2g} m/s²/√s ({slow.get('source', '')})"
         )
+    return parts
+
+
+def _device_settings(settings: Mapping[str, Any]) -> list[str]:
+    """Return the procedures and the options of a stage's settings that change its estimates, in words."""
+    from stableins.reporting.symbols import plain
+
+    parts = []
     procedures = [str(settings[k]) for k in ("coarse_procedure", "fine_procedure") if k in settings]
     if procedures:
         parts.append("procedures " + " and ".join(procedures))
@@ -416,27 +467,28 @@ def describe_settings(settings: Mapping[str, Any]) -> str:
         parts.append("missing positions allowed")
     effects = settings.get("effects")
     if isinstance(effects, list) and effects:
-        from stableins.reporting.symbols import plain
-
         parts.append("discovered effects estimated: " + ", ".join(plain(str(e)) for e in effects))
     if "estimate_k2" in settings:
         parts.append("K₂,x and K₂,y from the third harmonic" if settings["estimate_k2"] else "K₂ not estimated")
-    if settings.get("stage") == "system":
-        drift = settings.get("known_gyro_drift")
-        measured = str(settings.get("gyro_drift_source", "")).endswith("gimbal readings")
-        if measured:
-            parts.append("gyro drift measured from the gimbal readings (gyro_drift_x, _y, _z in the record)")
-        if drift is not None:
-            parts.append(
-                "gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)"
-            )
-        elif not measured:
-            parts.append("gyro drift not given (assumed zero)")
-        uncertainty = settings.get("gyro_drift_uncertainty")
-        if isinstance(uncertainty, int | float):
-            parts.append(f"gyro drift uncertainty given: {math.degrees(float(uncertainty)) * 3600.0:.2g} °/h per axis")
-        if settings.get("gyro_drift") not in (None, "ignore"):
-            parts.append("gyro drift fitted as a nuisance" if settings["gyro_drift"] == "fit" else "gyro drift checked")
-        if settings.get("compensate_loop") is False:
-            parts.append("no damping-loop compensation")
-    return words_for_flags("; ".join(parts)) or "defaults"
+    return parts
+
+
+def _system_settings(settings: Mapping[str, Any]) -> list[str]:
+    """Return the gyro-drift and damping-loop settings of a system stage, in words."""
+    parts = []
+    drift = settings.get("known_gyro_drift")
+    measured = str(settings.get("gyro_drift_source", "")).endswith("gimbal readings")
+    if measured:
+        parts.append("gyro drift measured from the gimbal readings (gyro_drift_x, _y, _z in the record)")
+    if drift is not None:
+        parts.append("gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)")
+    elif not measured:
+        parts.append("gyro drift not given (assumed zero)")
+    uncertainty = settings.get("gyro_drift_uncertainty")
+    if isinstance(uncertainty, int | float):
+        parts.append(f"gyro drift uncertainty given: {math.degrees(float(uncertainty)) * 3600.0:.2g} °/h per axis")
+    if settings.get("gyro_drift") not in (None, "ignore"):
+        parts.append("gyro drift fitted as a nuisance" if settings["gyro_drift"] == "fit" else "gyro drift checked")
+    if settings.get("compensate_loop") is False:
+        parts.append("no damping-loop compensation")
+    return parts

@@ -120,7 +120,7 @@ def table(
     key_value: bool = False,
     markup: bool = False,
 ) -> Table:
-    """A ruled table whose cells wrap inside ``widths`` (fractions of the text width if they sum to ≤ 1).
+    """Return a ruled table whose cells wrap inside ``widths`` (fractions of the text width if they sum to ≤ 1).
 
     Strings become Paragraphs (so long text wraps instead of running off the page); with ``markup`` they
     are reportlab markup already (``β<sub>xy</sub>``; the caller escapes), else they are escaped here.
@@ -140,18 +140,20 @@ def table(
                 continue
             if r < header_rows:
                 style = right_head if c in align_right else s["head"]
-            elif key_value and c == 0:
-                style = s["head"]
-            elif c in mono:
-                style = s["cell_mono"]
             else:
-                style = right if c in align_right else s["cell"]
+                style = s["head"] if key_value and c == 0 else s["cell_mono"] if c in mono else right if c in align_right else s["cell"]
             text = str(cell) if markup else escape(cell)
             if cell_colours and (r, c) in cell_colours:
                 text = f'<font color="{cell_colours[(r, c)].hexval()}"><b>{text}</b></font>'
             out.append(Paragraph(text, style))
         data.append(out)
     t = Table(data, colWidths=list(widths), repeatRows=header_rows, hAlign="LEFT")
+    t.setStyle(_rules(len(data), header_rows))
+    return t
+
+
+def _rules(n_rows: int, header_rows: int) -> TableStyle:
+    """Return the table's rules and shading: accent lines above and below, a shaded header, zebra rows."""
     commands: list[tuple[Any, ...]] = [
         ("VALIGN", (0, 0), (-1, -1), "TOP"),
         ("LEFTPADDING", (0, 0), (-1, -1), 3),
@@ -166,11 +168,10 @@ def table(
             ("BACKGROUND", (0, 0), (-1, header_rows - 1), SHADE),
             ("LINEBELOW", (0, header_rows - 1), (-1, header_rows - 1), 0.5, ACCENT),
         ]
-    for r in range(header_rows, len(data)):
+    for r in range(header_rows, n_rows):
         if (r - header_rows) % 2 == 1:
             commands.append(("BACKGROUND", (0, r), (-1, r), ZEBRA))
-    t.setStyle(TableStyle(commands))
-    return t
+    return TableStyle(commands)
 
 
 class Figure(Flowable):
@@ -187,6 +188,7 @@ class Figure(Flowable):
         self.hAlign = "CENTER"
 
     def wrap(self, available_width: float, available_height: float) -> tuple[float, float]:
+        """Fit the figure and its caption into the space left, shrinking it down to ``min_scale``."""
         self.width = available_width
         _, self.caption_height = self.caption.wrap(available_width, available_height)
         self.caption_height += self.caption.getSpaceBefore() + self.caption.getSpaceAfter()
@@ -197,9 +199,11 @@ class Figure(Flowable):
         return self.width, self.height
 
     def split(self, available_width: float, available_height: float) -> list[Flowable]:
+        """Refuse to split: a figure moves whole to the next frame."""
         return []
 
     def draw(self) -> None:
+        """Draw the image centred, with its caption below."""
         from reportlab.lib.utils import ImageReader
 
         width = self.natural_width * self.scale
@@ -210,7 +214,7 @@ class Figure(Flowable):
 
 
 def figure(png: bytes, width_fraction: float, aspect: float, caption: str, min_scale: float = 0.8) -> Figure:
-    """A high-dpi PNG figure at a fraction of the text width, with its caption (:class:`Figure`).
+    """Return a high-dpi PNG figure at a fraction of the text width, with its caption (:class:`Figure`).
 
     ``aspect`` is height / width of the figure as drawn by matplotlib.
     """
@@ -228,10 +232,12 @@ class NumberedCanvas(canvas_module.Canvas):
         self._pages: list[dict[str, Any]] = []
 
     def showPage(self) -> None:  # noqa: N802 (reportlab API)
+        """Keep the page's state: the furniture (page x of n) is drawn when the total is known."""
         self._pages.append(dict(self.__dict__))
         self._startPage()
 
     def save(self) -> None:
+        """Draw the furniture on every kept page, then write the document."""
         total = len(self._pages)
         for state in self._pages:
             self.__dict__.update(state)
@@ -265,11 +271,15 @@ class NumberedCanvas(canvas_module.Canvas):
 
 
 class FloatingDocTemplate(BaseDocTemplate):
-    """A document whose figures float: a :class:`Figure` that does not fit in what is left of the page lets the
-    flowables after it that do fit go first (never past another figure or a heading that would start a new page),
-    and is placed at the top of the next page — so a rigid figure never leaves half a page empty."""
+    """A document whose figures float.
+
+    A :class:`Figure` that does not fit in what is left of the page lets the flowables after it that do fit go first
+    (never past another figure or a heading that would start a new page), and is placed at the top of the next
+    page — so a rigid figure never leaves half a page empty.
+    """
 
     def handle_flowable(self, flowables: list[Flowable]) -> None:
+        """Place the next flowable, letting flowables that fit go before a figure that does not."""
         first = flowables[0] if flowables else None
         if isinstance(first, Figure) and len(flowables) > 1:
             frame = self.frame
@@ -317,9 +327,10 @@ def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial
 
 
 def spacer(height_mm: float) -> Spacer:
+    """Return vertical space of ``height_mm`` millimetres."""
     return Spacer(1, height_mm * mm)
 
 
 def heading(text: str, level: str = "h1", room_mm: float = 30.0) -> list[Flowable]:
-    """A heading that never ends a page: it moves to the next page unless ``room_mm`` of the frame remain below it."""
+    """Return a heading that never ends a page: it moves to the next page unless ``room_mm`` of the frame remain below it."""
     return [CondPageBreak(room_mm * mm), Paragraph(text, styles()[level])]

@@ -12,14 +12,17 @@ import io
 import math
 from collections.abc import Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stableins.conventions import MICRO_G
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
 
 #: Printed width of a full-width figure [inch] (A4 minus 2 × 18 mm margins).
 FULL_WIDTH = (210.0 - 36.0) / 25.4
 DPI = 300
-STYLE = {
+STYLE: dict[RcKeyType, Any] = {
     "font.family": "DejaVu Sans",
     "font.size": 8.0,
     "axes.titlesize": 8.5,
@@ -180,7 +183,7 @@ def normalized_residuals(stage: Any) -> tuple[bytes, float]:
 
 
 def coefficient_label(name: str) -> str:
-    """mathtext of a system stage's combined coefficient (``x1`` → x₁, ``theta_1c`` → θ₁c, ``phi_mean`` → φ̄)."""
+    """Mathtext of a system stage's combined coefficient (``x1`` → x₁, ``theta_1c`` → θ₁c, ``phi_mean`` → φ̄)."""
     import re
 
     if re.fullmatch(r"x\d", name):
@@ -201,9 +204,9 @@ def discovery_steps(steps: Sequence[dict[str, Any]]) -> tuple[bytes, float]:
         fig = _figure(FULL_WIDTH, 2.4)
         ax = fig.add_subplot(111)
         ax.plot(range(len(rms)), rms, "o-", color="#1f3a5f", ms=4)
-        floor = [s.get("noise_floor") for s in steps]
-        if all(f is not None for f in floor) and floor:
-            ax.plot(range(len(rms)), [float(f) for f in floor], "--", color="0.4", label="noise floor")
+        floor = [float(s["noise_floor"]) for s in steps if s.get("noise_floor") is not None]
+        if floor and len(floor) == len(steps):
+            ax.plot(range(len(rms)), floor, "--", color="0.4", label="noise floor")
             ax.legend(frameon=False)
         ax.set_xticks(range(len(rms)), labels, rotation=20, ha="right")
         from matplotlib.ticker import FuncFormatter
@@ -277,7 +280,7 @@ def changes(items: Sequence[Any], threshold: float = 3.0) -> tuple[bytes, float]
 
 
 def step_label(label: str) -> str:
-    """A discovery step's model label with typeset effect names (``+ K3_x`` → ``+ K₃,ₓ`` in mathtext)."""
+    """Return a discovery step's model label with typeset effect names (``+ K3_x`` → ``+ K₃,ₓ`` in mathtext)."""
     import re
 
     from stableins.reporting.symbols import mathtext

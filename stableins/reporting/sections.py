@@ -33,7 +33,10 @@ from stableins.reporting.symbols import markup, prose
 
 # ---------------------------------------------------------------------- 8 discovery
 def discovery(ctx: ReportContext) -> list[Flowable]:
-    """The model in force (the record's discovery history) and, when given, the diagnosis (``stableins diagnose --json``)."""
+    """Return the model-discovery section: the model in force (the record's discovery history) and the diagnosis.
+
+    The diagnosis (``stableins diagnose --json``) is shown when given.
+    """
     out: list[Flowable] = [*heading("8  Model discovery", room_mm=50)]
     history = ctx.record.discovery.to_json() if ctx.record.discovery is not None else None
     if history:
@@ -53,12 +56,12 @@ def discovery(ctx: ReportContext) -> list[Flowable]:
 
 
 def _label(text: str, ids: Any = ()) -> str:
-    """A model label of a discovery step (``+ K3_x``) with typeset names."""
+    """Return a model label of a discovery step (``+ K3_x``) with typeset names."""
     return prose(text, ids)
 
 
 def _model_history(ctx: ReportContext, history: dict[str, Any]) -> list[Flowable]:
-    """The record's ``discovery`` section: every effect tested in the calibration, its verdict, the fit after each step."""
+    """Return the record's ``discovery`` section: every effect tested in the calibration, its verdict, the fit after each step."""
     from stableins.conventions import MICRO_G
 
     steps = [s for s in history.get("steps", []) if isinstance(s, dict)]
@@ -110,7 +113,7 @@ def _model_history(ctx: ReportContext, history: dict[str, Any]) -> list[Flowable
 
 
 def advice_text(advice: str) -> str:
-    """A candidate's advice as a sentence: "to confirm, repeat ..." rather than "confirm with repeat ..."."""
+    """Return a candidate's advice as a sentence: "to confirm, repeat ..." rather than "confirm with repeat ..."."""
     advice = advice.strip()
     if advice.startswith("confirm with "):
         advice = "to confirm: " + advice.removeprefix("confirm with ")
@@ -118,7 +121,7 @@ def advice_text(advice: str) -> str:
 
 
 def _estimate_text(estimate: float, sigma: float, unit: str) -> str:
-    """A candidate's estimate ± 1σ rounded to its σ ("—" when there is none)."""
+    """Return a candidate's estimate ± 1σ rounded to its σ ("—" when there is none)."""
     if not math.isfinite(estimate):
         return "—"
     if math.isfinite(sigma) and sigma > 0:
@@ -127,7 +130,7 @@ def _estimate_text(estimate: float, sigma: float, unit: str) -> str:
 
 
 def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
-    """The output of ``stableins diagnose --json``: the refit history and the ranked candidates."""
+    """Return the section on the output of ``stableins diagnose --json``: the refit history and the ranked candidates."""
     from stableins.conventions import MICRO_G
 
     def number(x: float, text: str) -> str:

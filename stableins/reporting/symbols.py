@@ -1,7 +1,7 @@
-"""Typeset names and plain words for the certificate (reportlab markup and matplotlib mathtext).
+r"""Typeset names and plain words for the certificate (reportlab markup and matplotlib mathtext).
 
-A parameter is printed with the textbook symbol of its term (``beta_xy`` → β\\ :sub:`xy`,
-``theta20`` → θ\\ :sub:`20`, ``K2_x`` → K\\ :sub:`2,x`); the record id is printed once, in the
+A parameter is printed with the textbook symbol of its term (``beta_xy`` → β\ :sub:`xy`,
+``theta20`` → θ\ :sub:`20`, ``K2_x`` → K\ :sub:`2,x`); the record id is printed once, in the
 glossary, so that the certificate can be traced to the record.  Text taken from the record
 (notes, determined combinations) is rewritten for people by :func:`prose`: every parameter id
 becomes its symbol, ``*`` a product dot, ``-`` a true minus sign, command-line flags become
@@ -16,6 +16,9 @@ from collections.abc import Iterable
 MINUS = "\u2212"
 GREEK = {"beta": "β", "theta": "θ", "phi": "φ", "delta": "δ", "omega": "ω", "zeta": "ζ"}
 _MATHTEXT_GREEK = {"ε": r"\varepsilon", "β": r"\beta", "θ": r"\theta", "φ": r"\phi", "δ": r"\delta", "ω": r"\omega", "ζ": r"\zeta"}
+#: Symbols of the heads of parameter ids: ``b`` and ``D`` are the system stage's bias (in units of g) and relative
+#: scale-factor residuals.
+_HEADS = {"sf": "SF", "bias": "δb", "b": "b", "D": "D", **GREEK, "lever": "l"}
 #: Names whose generic form (head with subscripted tail) would read badly.
 _SPECIAL = {
     "tilt_north": ("tilt", "N"),
@@ -30,7 +33,7 @@ _SPECIAL = {
 
 
 def parts(parameter_id: str) -> tuple[str, str]:
-    """``(base, subscript)`` of a parameter's symbol; ``subscript`` may be empty.
+    """Return ``(base, subscript)`` of a parameter's symbol; ``subscript`` may be empty.
 
     ``sf_x`` → (SF, x), ``bias_x`` → (δb, x), ``beta_xy`` → (β, xy), ``theta20`` → (θ, 20),
     ``K2_x`` → (K, 2,x), ``Kcc_xxy`` → (K, cc,xxy), ``Kt_bias_x`` → (K, t,b,x), ``lever_x_y`` → (l, x,y),
@@ -43,18 +46,8 @@ def parts(parameter_id: str) -> tuple[str, str]:
         return "θ", match.group(1)
     head, _, tail = parameter_id.partition("_")
     tail = tail.replace("bias", "b").replace("_", ",")
-    if head == "sf":
-        return "SF", tail
-    if head == "bias":
-        return "δb", tail
-    if head == "b":  # a bias residual of the system stage, in units of g
-        return "b", tail
-    if head == "D":  # a relative scale-factor residual of the system stage
-        return "D", tail
-    if head in GREEK:
-        return GREEK[head], tail
-    if head == "lever":
-        return "l", tail
+    if head in _HEADS:
+        return _HEADS[head], tail
     if head.startswith("ang") and head[3:].isdigit():
         return "a", f"{head[3:]},{tail}"
     if len(head) > 1 and head[0] in "KD" and head[1:].isalnum():
@@ -63,13 +56,13 @@ def parts(parameter_id: str) -> tuple[str, str]:
 
 
 def markup(parameter_id: str) -> str:
-    """The symbol in reportlab's paragraph markup (``β<sub>xy</sub>``)."""
+    """Return the symbol in reportlab's paragraph markup (``β<sub>xy</sub>``)."""
     base, sub = parts(parameter_id)
     return f"{base}<sub>{sub}</sub>" if sub else base
 
 
 def mathtext(parameter_id: str) -> str:
-    """The symbol in matplotlib mathtext (``$\\beta_{xy}$``)."""
+    r"""Return the symbol in matplotlib mathtext (``$\beta_{xy}$``)."""
     base, sub = parts(parameter_id)
     special = {"δb": r"\delta b", "δψ": r"\delta\psi"}
     symbol = special.get(base) or _MATHTEXT_GREEK.get(base) or rf"\mathrm{{{base}}}"
@@ -78,7 +71,7 @@ def mathtext(parameter_id: str) -> str:
 
 
 def plain(parameter_id: str) -> str:
-    """The symbol as plain text with the subscript run on (``βxy``, ``K2,x``): how a PDF's text layer reads it."""
+    """Return the symbol as plain text with the subscript run on (``βxy``, ``K2,x``): how a PDF's text layer reads it."""
     base, sub = parts(parameter_id)
     return base + sub
 

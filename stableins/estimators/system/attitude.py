@@ -63,7 +63,7 @@ def attitude_combinations(latitude: float) -> NDArray[np.float64]:
     """Matrix ``(10, 12)`` mapping residuals (``harmonics.RESIDUAL_NAMES``) to the quasi-static coefficients.
 
     The means contain only the accelerometer part; base tilt and gimbal zero offsets
-    add to them (:mod:`.separation` gives them nuisance columns).
+    add to them (:mod:`stableins.estimators.system.separation` gives them nuisance columns).
     """
     from stableins.estimators.system.harmonics import RESIDUAL_NAMES
 

@@ -118,12 +118,12 @@ def specific_force_error_platform(earth_angle: ArrayLike, latitude: float, resid
 
     Used for reference values and tests; the estimator never needs it.
     """
-    from stableins.conventions import dcm_platform_to_accelerometer
+    from stableins.conventions import INSTALLATION_ENTRIES, dcm_platform_to_accelerometer
 
     s = np.asarray(earth_angle, dtype=float)
     p = dict(zip(RESIDUAL_NAMES, np.asarray(residuals, dtype=float), strict=True))
     u = np.stack([np.cos(s) * np.cos(latitude), np.sin(s) * np.cos(latitude), np.full_like(s, np.sin(latitude))], axis=-1)
-    dc = dcm_platform_to_accelerometer(p["beta_xz"], p["beta_xy"], p["beta_yz"], p["beta_yx"], p["beta_zy"], p["beta_zx"]) - np.eye(3)
+    dc = dcm_platform_to_accelerometer(**{b: p[b] for b in INSTALLATION_ENTRIES}) - np.eye(3)
     d = np.array([p["D_x"], p["D_y"], p["D_z"]])
     b = np.array([p["b_x"], p["b_y"], p["b_z"]])
     return -d * u + u @ dc.T + b

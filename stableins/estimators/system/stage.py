@@ -7,7 +7,7 @@ r"""The system-level stage over a whole record, streaming in bounded memory: a s
 2. the solve steps (:mod:`.solve`), each returning a small frozen result: white noise, the harmonic states (x1..x5 of
    the paper plus the third harmonic x6, x7 that measures a residual K2), the filter's convergence curve, the
    loop-compensated attitude coefficients, the low-frequency noise decision, the combined coefficients and their
-   separation into accelerometer corrections (:mod:`.separation`);
+   separation into accelerometer corrections (:mod:`stableins.estimators.system.separation`);
 3. the result (:mod:`.assembly`): the Bayesian update of the prior, the combined coefficients, typed diagnostics
    (:class:`SystemDiagnostics`).
 
