@@ -107,6 +107,11 @@ QUICK: dict[str, Quick] = {
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
+    "bench_system_thermal": Quick(
+        ("--cases", "thermal", "kcc", "clean", "--seeds", "2", "--first", "100"),
+        "the daily-cycle and Kcc_xxy cases and 2 clean records per temperature history instead of all six cases with 20 seeds",
+        volatile=(r"\((\d+) s\)",),  # the wall time of each history
+    ),
     "bench_system_stream": Quick(
         ("--dir", "{work}", "--days", "1", "--repeat", "1"),
         "one day at 100 Hz instead of a week, one timed run",

@@ -143,3 +143,19 @@ def test_cli_noise_model_in_and_out(files, capsys):
     assert calibrate_system.run(parse(argv)) == 0
     flags = CalibrationRecord.load(out3).noise_model
     assert flags.source is NoiseSource.DATASHEET and flags.values("random_walk")[0] == 1e-7
+
+
+def test_cli_thermal_prior_and_json_thermal(files, capsys):
+    """--thermal-prior sets the thermal terms' prior; --json carries the thermal model; a bad prior exits 2 (argparse)."""
+    import json
+
+    tmp, path, prior, _, _ = files
+    out = tmp / "cal-thermal.json"
+    argv = [str(path), "--prior", str(prior), "--out", str(out), "--json", "--thermal-prior", "2", "3"]
+    assert calibrate_system.run(parse(argv)) == 0
+    thermal = json.loads(capsys.readouterr().out)["thermal"]
+    assert thermal["terms"][0] == "Kt_bias_x" and thermal["prior_sigma"] == pytest.approx([2, 2, 2, 3, 3, 3])
+    assert thermal["not_separable"] == [] and "temperature" in thermal["note"]
+    with pytest.raises(SystemExit) as exc:
+        parse([str(path), "--prior", str(prior), "--out", str(out), "--thermal-prior", "-1", "5"])
+    assert exc.value.code == 2

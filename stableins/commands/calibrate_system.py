@@ -59,6 +59,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="also estimate the residual quadratic coefficients K2_x, K2_y from the third harmonic, remove their bias (not in the paper)",
     )
     parser.add_argument(
+        "--thermal-prior",
+        type=number(1e-6, 1e6),
+        nargs=2,
+        metavar=("UG_PER_K", "PPM_PER_K"),
+        help=(
+            "1σ of the accelerometers' bias [ug/K] and scale-factor [ppm/K] temperature sensitivities, the thermal terms of the "
+            "system model when the prior record has none (default 5 5); a daily temperature cycle makes them alias the Earth-rate "
+            "harmonics, and the coefficients they could move are reported as not separable (docs/system-calibration.md §1b)"
+        ),
+    )
+    parser.add_argument(
         "--gyro-drift",
         type=number(-100.0, 100.0, unit="deg/h"),
         nargs=3,
@@ -173,7 +184,9 @@ def _options(args: Any) -> Any:
     """Return the system stage's options (:class:`~stableins.estimators.system.stage.SystemOptions`) the flags set, in SI."""
     import math
 
+    from stableins.conventions import MICRO_G, PPM
     from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR
 
     return SystemOptions(
         chunk_rows=args.chunk_rows,
@@ -181,6 +194,9 @@ def _options(args: Any) -> Any:
         compensate_loop=not args.no_loop_compensation,
         couplings=not args.no_couplings,
         estimate_k2=args.estimate_k2,
+        thermal_prior=DEFAULT_THERMAL_PRIOR
+        if args.thermal_prior is None
+        else (args.thermal_prior[0] * MICRO_G, args.thermal_prior[1] * PPM),
         known_gyro_drift=None
         if args.gyro_drift is None
         else cast("tuple[float, float, float]", tuple(math.radians(v) / 3600.0 for v in args.gyro_drift)),
@@ -232,6 +248,7 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
             "false_positive_rate": fit.alpha,
         },
         "diagnostics": outcome.diagnostics.to_dict(),
+        "thermal": None if outcome.thermal is None else outcome.thermal.to_dict(),
     }
 
 

@@ -142,6 +142,33 @@ class TemperatureSummary:
         return {"mean": self.mean, "min": self.min, "max": self.max}
 
 
+@dataclass
+class TemperatureBins:
+    """Sums and counts of the temperature column over bins of ``samples`` consecutive samples (global index), as the filter bins."""
+
+    samples: int
+    total: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    count: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def add(self, rows: NDArray[np.int64], values: NDArray[np.float64]) -> None:
+        """Add the temperatures read at global rows ``rows``."""
+        bins = rows // self.samples
+        size = int(bins[-1]) + 1
+        if self.count.size < size:
+            grow = max(size, 2 * self.count.size) - self.count.size
+            self.total, self.count = np.concatenate([self.total, np.zeros(grow)]), np.concatenate([self.count, np.zeros(grow)])
+        self.total += np.bincount(bins, weights=values, minlength=self.total.size)
+        self.count += np.bincount(bins, minlength=self.count.size)
+
+    def merged(self, samples: int) -> TemperatureBins:
+        """Return the sums over bins of ``samples`` (a power-of-two multiple of :attr:`samples`, as :class:`SampleBins` merge)."""
+        factor = samples // self.samples
+        size = -(-self.count.size // factor) * factor
+        total, count = np.zeros(size), np.zeros(size)
+        total[: self.total.size], count[: self.count.size] = self.total, self.count
+        return TemperatureBins(samples, total.reshape(-1, factor).sum(axis=1), count.reshape(-1, factor).sum(axis=1))
+
+
 @dataclass(frozen=True)
 class RecordSums:
     """What one pass over the record leaves for the solve steps (:meth:`StageAccumulator.finish`).
@@ -173,6 +200,10 @@ class RecordSums:
     gimbal_blocks : GimbalBlocks or None
         Block means of the three gimbal readings (the gyro drift, :mod:`.gyro_drift`); None when the record has no
         inner and middle readings.
+    temperature_bins : TemperatureBins or None
+        Sums of the temperature column over the filter bins (the thermal model, :mod:`.thermal`; None without one).
+    fine_temperature_bins : TemperatureBins or None
+        The same over the fine bins (the thermal terms taken out of the high band before the noise decision).
     """
 
     information: hm.InformationAccumulator
@@ -189,6 +220,8 @@ class RecordSums:
     temperature: TemperatureSummary | None
     notes: tuple[str, ...]
     gimbal_blocks: GimbalBlocks | None = None
+    temperature_bins: TemperatureBins | None = None
+    fine_temperature_bins: TemperatureBins | None = None
 
 
 class StageAccumulator:
@@ -269,7 +302,9 @@ class StageAccumulator:
         self.noise_sums = np.zeros(3)
         self.noise_count = 0
         self.filter_bins = SampleBins(self.filter_samples)
+        self.temperature_bins = TemperatureBins(self.filter_samples)  # the thermal model's ΔT on the filter bins
         self.fine_bins = SampleBins(max(block, int(round(FINE_BIN_SECONDS * rate / block)) * block), cap=FINE_BINS)
+        self.fine_temperature = TemperatureBins(self.fine_bins.samples)  # merged like the fine bins at the end
         self.checks = StaticChecks(options, rate, path)
         self.checks.latitude = latitude
         self.seen = 0
@@ -337,6 +372,9 @@ class StageAccumulator:
             tc = chunk["temperature"]
             t = self.temperature
             self.temperature = [min(t[0], float(tc.min())), max(t[1], float(tc.max())), t[2] + float(tc.sum()), t[3] + tc.size]
+            rows = seen + phase + decimation * np.arange(tc.size)
+            self.temperature_bins.add(rows, tc)
+            self.fine_temperature.add(rows, tc)
         self.seen += n
 
     def _add_readings(self, chunk: Mapping[str, NDArray[np.float64]], t_d: NDArray[np.float64]) -> None:
@@ -426,6 +464,8 @@ class StageAccumulator:
             temperature=None if t[3] == 0 else TemperatureSummary(t[2] / t[3], t[0], t[1]),
             notes=tuple(notes),
             gimbal_blocks=self.gimbal_blocks,
+            temperature_bins=self.temperature_bins if t[3] else None,
+            fine_temperature_bins=self.fine_temperature.merged(self.fine_bins.samples) if t[3] else None,
         )
 
 
@@ -438,6 +478,7 @@ __all__ = [
     "RecordSums",
     "SampleBins",
     "StageAccumulator",
+    "TemperatureBins",
     "TemperatureSummary",
     "earth_angle_from_kinematics",
 ]

@@ -9,7 +9,8 @@ noise model the stage puts under its σ; :func:`coloured_note` says what the dec
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Any, cast
 
 import numpy as np
@@ -47,6 +48,7 @@ def coloured_covariance(
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     prior_detected: bool = False,
     given: NDArray[np.float64] | None = None,
+    remove: Callable[[LowBand], list[NDArray[np.float64]]] | None = None,
 ) -> tuple[NDArray[np.float64], Any]:
     """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
@@ -58,6 +60,9 @@ def coloured_covariance(
     of :func:`.spectrum.z_bin_expectations`; it shares the z channel's white level with the low band, which pins that
     level where the coloured noise is weak and makes the coloured excess below it visible.  The decision (coloured noise
     or not, false-positive rate ``alpha``), the amplitudes and their intervals: :func:`.whittle.fit_coloured_noise`.
+    ``remove(bins)``: the part of each residual channel on the low band's bins that a modelled signal explains (the
+    thermal terms, :meth:`.thermal.ThermalFit.remover`), taken out before the periodograms; the caller passes ``fine_bins``
+    with it taken out too.
     Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
     ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
     ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
@@ -69,7 +74,9 @@ def coloured_covariance(
     n_keep = int(keep_bins.sum())
     if n_keep < 16 or att.block_map is None:
         return units, None
-    bins = _low_band(filter_bins, keep_bins, rate, x_ls, blocks, att, latitude, loop, case_rotation_period, n_keep)
+    bins = low_band(filter_bins, keep_bins, rate, x_ls, blocks, att, latitude, loop, case_rotation_period, n_keep)
+    if remove is not None:  # a signal the stage models (the thermal terms, .thermal) is not noise: out of the residuals
+        bins = replace(bins, channels=[c - r for c, r in zip(bins.channels, remove(bins), strict=False)])
     harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
     built = spectrum.periodogram_design(
         bins.channels,
@@ -98,16 +105,8 @@ def coloured_covariance(
         prior_detected=prior_detected,
         given=given,
     )
-    # attitude blocks → the same bins (block time since the record start)
-    assert att.block_map is not None
     n = bins.groups.size
-    n_map = att.block_map.shape[1] // 2
-    map_group = np.clip(np.searchsorted(bins.groups, np.arange(n_map) // bins.merge), 0, n - 1)  # 600-s bins of the fit → groups
-    a_att = np.zeros((10, 2 * n))
-    for ch in range(2):
-        part = att.block_map[:, ch * n_map : (ch + 1) * n_map]
-        for k in range(10):
-            a_att[k, ch * n : (ch + 1) * n] = np.bincount(map_group, weights=part[k], minlength=n)
+    a_att = attitude_bin_map(att, bins.groups, bins.merge)
     j = np.zeros((17, 3 * n))
     j[:7, :n] = bins.a_z
     j[7:, :n] = jac_x @ bins.a_z
@@ -118,8 +117,26 @@ def coloured_covariance(
     return units, fit
 
 
+def attitude_bin_map(att: AttitudeFit, groups: NDArray[np.int64], merge: int) -> NDArray[np.float64]:
+    """Return the attitude fit's map ``(10, 2n)`` from the (pitch, roll) bin means on the merged filter bins to its coefficients.
+
+    ``att.block_map`` sums the blocks per filter bin (block time since the record start); ``groups`` are the merged bins
+    (``merge`` filter bins each) of :func:`low_band`.
+    """
+    assert att.block_map is not None
+    n = groups.size
+    n_map = att.block_map.shape[1] // 2
+    map_group = np.clip(np.searchsorted(groups, np.arange(n_map) // merge), 0, n - 1)  # 600-s bins of the fit → groups
+    a_att = np.zeros((10, 2 * n))
+    for ch in range(2):
+        part = att.block_map[:, ch * n_map : (ch + 1) * n_map]
+        for k in range(10):
+            a_att[k, ch * n : (ch + 1) * n] = np.bincount(map_group, weights=part[k], minlength=n)
+    return a_att
+
+
 @dataclass(frozen=True)
-class _LowBand:
+class LowBand:
     """The residual channels on the (merged) filter bins and what the periodogram design needs of them."""
 
     groups: NDArray[np.int64]
@@ -136,7 +153,7 @@ class _LowBand:
     gains: list[Any]
 
 
-def _low_band(
+def low_band(
     filter_bins: SampleBins,
     keep_bins: NDArray[np.bool_],
     rate: float,
@@ -147,7 +164,7 @@ def _low_band(
     loop: DampingLoop,
     case_rotation_period: float | None,
     n_keep: int,
-) -> _LowBand:
+) -> LowBand:
     """Build the low band: the z, pitch and roll residuals on the filter bins merged to at most :data:`COLOURED_BINS`.
 
     With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
@@ -194,7 +211,7 @@ def _low_band(
             gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
     # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
     # per day; longer records also between the harmonics, where the random walk's power is largest)
-    return _LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains)
+    return LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains)
 
 
 def _high_band(

@@ -44,6 +44,11 @@ def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def _check_thermal_prior(prior: object) -> None:
+    if not isinstance(prior, tuple | list) or len(prior) != 2 or not all(_is_number(v) and v > 0 for v in prior):
+        raise _option_error("thermal_prior", prior, "two positive numbers: 1σ of Kt_bias [m/s²/K] and of Kt_sf [1/K]")
+
+
 def validate_options(options: SystemOptions) -> GyroDrift:
     """Check every option of ``options`` (InputError naming the option and what it expects); the ``gyro_drift`` choice."""
     for name in _POSITIVE_INTS:
@@ -71,6 +76,7 @@ def validate_options(options: SystemOptions) -> GyroDrift:
         not _is_number(options.gyro_drift_uncertainty) or options.gyro_drift_uncertainty < 0
     ):
         raise _option_error("gyro_drift_uncertainty", options.gyro_drift_uncertainty, "a finite number [rad/s] ≥ 0, or None")
+    _check_thermal_prior(options.thermal_prior)
     if not _is_number(options.noise_false_positive_rate) or not 0 < options.noise_false_positive_rate < 1:
         raise _option_error("noise_false_positive_rate", options.noise_false_positive_rate, "a probability between 0 and 1")
     return gyro_drift

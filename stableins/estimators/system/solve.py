@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -29,13 +29,14 @@ from stableins.conventions import SIDEREAL_DAY
 from stableins.errormodel import MICRO_G_PER_G2
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.accumulate import RecordSums
+from stableins.estimators.system.accumulate import RecordSums, SampleBins
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
-from stableins.estimators.system.coloured import coloured_covariance, coloured_note, measured_noise_model, noise_prior
+from stableins.estimators.system.coloured import LowBand, coloured_covariance, coloured_note, measured_noise_model, noise_prior
 from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+from stableins.estimators.system.third_harmonic import explain_third_harmonic
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 
@@ -260,11 +261,13 @@ def decide_noise(
     options: SystemOptions,
     given: NoiseModel | None,
     path: str,
+    remove: tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None = None,
 ) -> NoiseDecision:
     """Step 5: decide on the low-frequency noise and build the covariance of ``v`` under it.
 
     The joint white covariance of ``v`` (cross terms from the vertical path), the coloured noise measured in the
-    residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.
+    residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.  ``remove``: the fine bins and
+    the low band's channels without a signal the stage models (the thermal terms, :meth:`.thermal.ThermalFit.remover`).
     """
     att = attitude.fit
     cov_x = harmonic.covariance
@@ -279,7 +282,7 @@ def decide_noise(
     given_amplitudes, prior, prior_detected = noise_prior(given, gravity)
     units, fit = coloured_covariance(
         sums.filter_bins,
-        sums.fine_bins,
+        sums.fine_bins if remove is None else remove[0],
         sums.filter_bins.n > 0,
         rate,
         harmonic.x_ls,
@@ -293,6 +296,7 @@ def decide_noise(
         prior=prior,
         prior_detected=prior_detected,
         given=given_amplitudes,
+        remove=None if remove is None else remove[1],
     )
     # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
     amplitudes = fit.amplitudes if fit is not None else np.zeros(units.shape[:2])
@@ -347,15 +351,14 @@ class Combination:
 
 
 def _k2_note(harmonic: HarmonicFit, k2_values: NDArray[np.float64], k2_sigma: NDArray[np.float64], latitude: float) -> str:
-    """Return the note on the third harmonic's residual K2 when the K2 estimation is off."""
+    """Return the size of the third harmonic as residual K2 (what it would be if it were K2) and the bias it causes."""
     cos_l = math.cos(latitude)
     bias = 3 * cos_l**2 * np.abs(harmonic.x_hat[5:7]).max()
     return (
-        "third harmonic of Earth rate in the specific-force error: residual quadratic coefficients "
+        "read as residual quadratic coefficients "
         f"ΔK2_x = {k2_values[0] / MICRO_G_PER_G2:.1f} ± {k2_sigma[0] / MICRO_G_PER_G2:.1f} µg/g², "
-        f"ΔK2_y = {k2_values[1] / MICRO_G_PER_G2:.1f} ± {k2_sigma[1] / MICRO_G_PER_G2:.1f} µg/g²; they bias x2, x3 and the "
-        f"fundamentals of pitch and roll by up to {bias:.2e} rad (the paper's model has no K2); "
-        f"rerun with the K2 estimation on ({ESTIMATE_K2_PARAMETER}) to remove them"
+        f"ΔK2_y = {k2_values[1] / MICRO_G_PER_G2:.1f} ± {k2_sigma[1] / MICRO_G_PER_G2:.1f} µg/g², it biases x2, x3 and the "
+        f"fundamentals of pitch and roll by up to {bias:.2e} rad"
     )
 
 
@@ -372,12 +375,16 @@ def combine(
     estimate_k2: bool,
     path: str,
     drift: DriftStep | None = None,
+    aliases: Mapping[str, tuple[NDArray[np.float64], str]] | None = None,
+    alpha: float = 0.05,
 ) -> Combination:
     """Step 6: the combined coefficients, what the record determines of them, and their separation.
 
-    ``drift``: the drift removed from pitch and roll; its covariance is propagated into the attitude coefficients'.
-
-    Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.
+    Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.  A third
+    harmonic is explained by every hypothesis the record accepts (:func:`.third_harmonic.explain_third_harmonic`, level
+    ``alpha``; ``aliases`` adds further ones, e.g. the thermal terms'); the note names them all and advises the K2
+    correction only when K2 is the one explanation.  ``drift``: the drift removed from pitch and roll; its covariance is
+    propagated into the attitude coefficients'.
     """
     cov_v = decision.covariance
     if drift is not None:
@@ -389,19 +396,25 @@ def combine(
     # third harmonic: residual quadratic coefficients (x6 = gΔK_x/4, x7 = −gΔK_y/4)
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
     k2_sigma = 4.0 * np.sqrt(np.diag(cov_x)[5:7]) / gravity
-    k2_significant = np.abs(k2_values) > 3.0 * k2_sigma
     to_combined = k2_map(latitude, estimate_k2=estimate_k2)
-    if k2_significant.any() and not estimate_k2:
-        text = _k2_note(harmonic, k2_values, k2_sigma, latitude)
+    third = explain_third_harmonic(v, cov_v, latitude, gravity, alpha=alpha, extra=aliases)
+    text = third.note(estimate_k2=estimate_k2, parameter=ESTIMATE_K2_PARAMETER, reading=_k2_note(harmonic, k2_values, k2_sigma, latitude))
+    if text is not None:
         notes.append(text)
-        warnings.warn(f"{path}: {text}", UserWarning, stacklevel=3)
+        if (any(third.significant) and not estimate_k2) or (estimate_k2 and not third.k2_alone):
+            warnings.warn(f"{path}: {text}", UserWarning, stacklevel=3)
     combined_values = to_combined @ v
     combined_cov = to_combined @ cov_v @ to_combined.T
     transform, observable, kept = observable_directions(combined_cov)
     if duration < 0.98 * SIDEREAL_DAY or not observable.all():
         hidden = [n for n, ok in zip(COMBINED_COEFFICIENTS, observable, strict=True) if not ok]
+        why = (
+            f"record of {duration / 3600:.2f} h (< one sidereal day)"
+            if duration < 0.98 * SIDEREAL_DAY
+            else f"record of {duration / 3600:.2f} h whose temperature cycle aliases the harmonics (the thermal terms' σ, docs §1b)"
+        )
         notes.append(
-            f"record of {duration / 3600:.2f} h (< one sidereal day): the data determine {kept} of 15 combinations of the combined "
+            f"{why}: the data determine {kept} of 15 combinations of the combined "
             f"coefficients (variance inflation ≤ {VIF_LIMIT:g}); "
             + (
                 f"not observable on their own and reported as unidentifiable: {', '.join(hidden)}; the separation uses only the "

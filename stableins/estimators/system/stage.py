@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,7 +32,7 @@ from stableins.estimators.details import CombinedDetails
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
-from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary
+from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator
 from stableins.estimators.system.assembly import (
     combined_terms,
     fit_result,
@@ -45,12 +44,15 @@ from stableins.estimators.system.assembly import (
     stage_settings,
 )
 from stableins.estimators.system.attitude import AttitudeFit
-from stableins.estimators.system.checks import SamplingSummary, check_metadata
+from stableins.estimators.system.checks import check_metadata
+from stableins.estimators.system.diagnostics import SystemDiagnostics
 from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
 from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
+from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
@@ -86,98 +88,10 @@ class SystemOptions:
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
     estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "gyro_drift", validate_options(self))
-
-
-@dataclass(frozen=True)
-class SystemDiagnostics:
-    """What the system stage measured about the record besides its coefficients (:attr:`SystemCalibration.diagnostics`).
-
-    Attributes
-    ----------
-    duration : float
-        Last minus first time stamp [s].
-    samples : int
-        Samples in the record.
-    block_length : int
-        Samples per block of the harmonic sums.
-    attitude_block_seconds : float
-        Width of the attitude blocks [s] (doubled from the option's value beyond 2^14 blocks).
-    axis_noise_sigma : ndarray, shape (3,)
-        White noise of one sample per axis [m/s²] (second differences).
-    z_residual_sigma : float
-        rms of the ``z`` residuals of the harmonic fit.
-    z_low_frequency_ratio : float
-        Variance of x2 over its white-noise variance (1 without low-frequency noise).
-    combined_sigma_white : ndarray, shape (15,)
-        σ of the combined coefficients without the coloured part.
-    noise_samples : int
-        Second differences per axis.
-    noise_bias_x1 : float
-        ``E|n|²/(2g²)``, removed from x1.
-    k2_residual, k2_residual_sigma : ndarray, shape (2,)
-        Residual ``K2_x``, ``K2_y`` from the third harmonic [s²/m] and their σ.
-    third_harmonic : ndarray, shape (2,)
-        The third-harmonic states x6, x7.
-    attitude_noise_sigma : tuple of float
-        σ of one sample of pitch and roll from the accelerometer noise [rad].
-    attitude_residual_rms : ndarray
-        rms of the attitude fit's residuals (pitch, roll) [rad].
-    attitude_noise_ratio : ndarray
-        Those rms over the expected white-noise level.
-    platform_rate_ratio : float
-        Rate of the platform-axis angle over the Earth rate.
-    max_velocity : float
-        Largest horizontal velocity output [m/s].
-    attitude_excursion : float
-        Range of pitch or roll over the record [rad].
-    loop : DampingLoop
-        The damping-loop model the attitude fit used.
-    sampling : SamplingSummary
-        Gaps and jitter of the time column.
-    temperature : TemperatureSummary or None
-        Mean and range of the temperature column (None without one).
-    time_span : tuple of float
-        First and last time stamp [s].
-    """
-
-    duration: float
-    samples: int
-    block_length: int
-    attitude_block_seconds: float
-    axis_noise_sigma: NDArray[np.float64]
-    z_residual_sigma: float
-    z_low_frequency_ratio: float
-    combined_sigma_white: NDArray[np.float64]
-    noise_samples: int
-    noise_bias_x1: float
-    k2_residual: NDArray[np.float64]
-    k2_residual_sigma: NDArray[np.float64]
-    third_harmonic: NDArray[np.float64]
-    attitude_noise_sigma: tuple[float, float]
-    attitude_residual_rms: Any
-    attitude_noise_ratio: Any
-    platform_rate_ratio: float
-    max_velocity: float
-    attitude_excursion: float
-    loop: DampingLoop
-    sampling: SamplingSummary
-    temperature: TemperatureSummary | None
-    time_span: tuple[float | None, float | None]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the JSON form (``calibrate system --json``): every attribute but ``loop``, in order; sampling and temperature as dicts."""
-        out: dict[str, Any] = {}
-        for name in self.__dataclass_fields__:
-            value = getattr(self, name)
-            if name == "loop":
-                continue
-            if isinstance(value, SamplingSummary | TemperatureSummary):
-                value = value.to_dict()
-            out[name] = value
-        return out
 
 
 @dataclass(frozen=True, repr=False)
@@ -202,6 +116,8 @@ class SystemCalibration(SystemCalibrationView):
     coloured_noise : ColouredNoiseFit or None
         The low-frequency noise of the accelerometers found in the residuals: decision, amplitudes, intervals
         (None when the record is too short for the model).
+    thermal : ThermalFit or None
+        The bias and scale-factor temperature sensitivities as terms of the system model (:mod:`.thermal`, docs §1b).
     noise_model : NoiseModel
         The instrument's noise model under every σ of this stage, per axis (:func:`_measured_noise_model`): white noise
         from second differences, bias instability and random walk from the residual spectra, with intervals; the given
@@ -224,6 +140,7 @@ class SystemCalibration(SystemCalibrationView):
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
     drift: DriftStep | None = None
+    thermal: ThermalFit | None = None
 
 
 @dataclass(frozen=True)
@@ -239,7 +156,7 @@ class SystemNoise:
     duration : float
         Length of the record [s].
     notes : tuple of str
-        What the decision found (the stage's note).
+        What the decision, the thermal model and a third harmonic's explanations found.
     """
 
     noise_model: NoiseModel
@@ -302,6 +219,8 @@ def run_system_stage(
         estimate_k2=options.estimate_k2,
         path=stage.path,
         drift=stage.drift,
+        aliases=stage.thermal.aliases,
+        alpha=options.noise_false_positive_rate,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
 
@@ -323,7 +242,9 @@ def measure_noise_model(
     """
     stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
     decision = stage.decision
-    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note,))
+    v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])  # a third harmonic's explanations (discovery)
+    third = record_note(v, decision.covariance, (stage.latitude, stage.gravity), options.noise_false_positive_rate, stage.thermal.aliases)
+    return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note, stage.thermal.note, *third))
 
 
 @dataclass(frozen=True)
@@ -343,6 +264,7 @@ class _Stage:
     attitude: solve.AttitudeStep
     decision: solve.NoiseDecision
     drift: DriftStep
+    thermal: ThermalFit
 
 
 def _run(
@@ -389,7 +311,9 @@ def _run(
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift)
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate, noise, noise_model, path)
+    thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
+    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
 
 
 def _assemble(
@@ -403,7 +327,7 @@ def _assemble(
     """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
     sums, harmonic, att, decision = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision
     gravity, cov_v, to_combined, transform = stage.gravity, decision.covariance, combination.to_combined, combination.transform
-    notes = [*sums.notes, *stage.attitude.notes, decision.note, *combination.notes]
+    notes = [*sums.notes, *stage.attitude.notes, decision.note, stage.thermal.note, *combination.notes]
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
@@ -436,7 +360,7 @@ def _assemble(
         residuals=np.zeros(0),
         residual_sigma=np.zeros(0),
         rank=int(observable.sum()),
-        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}",),
+        notes=(f"x1 corrected for the noise bias E|n|²/(2g²) = {harmonic.noise_bias:.3e}", *stage.thermal.combined_notes),
         details=CombinedDetails(observed_attitude=att.observed, observed_attitude_covariance=att.observed_covariance, transform=transform),
     )
     return SystemCalibration(
@@ -452,6 +376,7 @@ def _assemble(
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
         drift=stage.drift,
+        thermal=stage.thermal,
     )
 
 
