@@ -97,7 +97,8 @@ def system(world) -> None:
     base = run()
     one = time.perf_counter() - start
     start = time.perf_counter()
-    found = {s.input: s for s in sensitivity.system_sensitivities(source, meta, values, covariance, SystemOptions(), base=base)}
+    as_input = SystemOptions(estimate_gyro_drift=False)  # the drift an input taken as known (its Type B sensitivity)
+    found = {s.input: s for s in sensitivity.system_sensitivities(source, meta, values, covariance, as_input, base=base)}
     print(f"3. system stage (synthetic day at 1 Hz): one run {one:.2f} s; {len(found)} sensitivities {time.perf_counter() - start:.2f} s")
     lik = base.result.likelihood
     dg = 30.0 * MGAL
@@ -108,8 +109,8 @@ def system(world) -> None:
     print(f"   gravity: |re-run − Λ v| / |Λ v| = {relative:.2e}   (compared against: 0)")
     drift, zeta = 4 * sensitivity.DRIFT_STEP, 4 * sensitivity.LOOP_STEP * 0.5
     for name, options, metadata, step in (
-        ("gyro_drift.x", SystemOptions(known_gyro_drift=(drift, 0.0, 0.0)), meta, drift),
-        ("damping_loop.zeta", SystemOptions(), replace(meta, damping={"zeta": 0.5 + zeta}), zeta),
+        ("gyro_drift.x", SystemOptions(known_gyro_drift=(drift, 0.0, 0.0), estimate_gyro_drift=False), meta, drift),
+        ("damping_loop.zeta", SystemOptions(estimate_gyro_drift=False), replace(meta, damping={"zeta": 0.5 + zeta}), zeta),
     ):
         again = (run(options, metadata).result.likelihood.gradient - lik.gradient) / step
         reference = found[name].gradient
@@ -122,7 +123,7 @@ def system(world) -> None:
     p = np.nan_to_num(np.asarray(record.covariance))
     gradient = np.array([found["gyro_drift.x"].gradient[lik.ids.index(i)] if i in lik.ids else 0.0 for i in record.ids])
     for degrees in (1e-5, 1e-3):
-        moved = run(SystemOptions(known_gyro_drift=(degrees * DEG_PER_HOUR, 0.0, 0.0)))
+        moved = run(SystemOptions(known_gyro_drift=(degrees * DEG_PER_HOUR, 0.0, 0.0), estimate_gyro_drift=False))
         remade = prior.updated(moved.result, site=meta, procedure="system-static")
         change = np.array([remade[i].value - record[i].value for i in record.ids]) / sigma
         linear = p @ gradient * degrees * DEG_PER_HOUR / sigma

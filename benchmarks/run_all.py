@@ -105,6 +105,7 @@ QUICK: dict[str, Quick] = {
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
+    "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
     "bench_system_thermal": Quick(
         ("--cases", "thermal", "kcc", "clean", "--seeds", "2", "--first", "100"),

@@ -141,6 +141,8 @@ def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] =
         tail = f" {source[0]}" if source else ""
         if status == Status.UNIDENTIFIABLE:
             lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
+        elif 0.0 < sigma < 1e-3:  # e.g. a gyro drift in deg/h (σ ~ 1e-8): fixed point would show 0.0000 ± 0.0000
+            lines.append(f"{parameter_id:<12} {value:>14.6e} {sigma:>10.2e} {unit:<8} {status:<15}{tail}".rstrip())
         else:
             # four decimals, more for a σ below 1e-3 of its unit (e.g. a gyro drift of 1e-5 °/h), so it never shows as 0
             places = 4 if not 0.0 < sigma < 1e-3 else min(9, 2 - math.floor(math.log10(sigma)))

@@ -445,3 +445,16 @@ def rotation_about(axis_angle: ArrayLike) -> NDArray[np.float64]:
     s = np.where(angle > 1e-4, np.sin(angle) / safe, 1.0 - angle**2 / 6.0)
     c = np.where(angle > 1e-4, (1.0 - np.cos(angle)) / safe**2, 0.5 - angle**2 / 24.0)
     return np.eye(3) - s * k + c * (k @ k)
+
+
+def rotation_vector(dcm: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of :func:`rotation_about`: the vector ``θ`` with ``rotation_about(θ) = dcm`` (``|θ| < π``), vectorized.
+
+    ``rotation_about(θ) = exp(−[θ×])``, so ``θ`` is minus the rotation vector of ``dcm`` as an active rotation.
+    """
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.asarray(dcm, dtype=float)
+    flat = matrix.reshape(-1, 3, 3)
+    out = -Rotation.from_matrix(flat).as_rotvec()
+    return out.reshape(matrix.shape[:-2] + (3,))

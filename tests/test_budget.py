@@ -99,7 +99,7 @@ def system(device):
     run, meta = budget_world.system_day(prior, gravity_uncertainty=0.05 * MGAL)
     source, values, covariance = run.source, run.values, run.covariance
     base = run()
-    found = system_sensitivity.system_sensitivities(source, meta, values, covariance, SystemOptions(), base=base)
+    found = system_sensitivity.system_sensitivities(source, meta, values, covariance, SystemOptions(estimate_gyro_drift=False), base=base)
     record = prior.updated(replace(base.result, sensitivities=found), site=meta, procedure="system-static")
     return run, base, found, record, meta
 
@@ -124,8 +124,8 @@ def test_system_sensitivities_are_linear_in_the_step_and_the_polar_drift_is_invi
     lik = base.result.likelihood
     drift, zeta = 4 * system_sensitivity.DRIFT_STEP, 4 * system_sensitivity.LOOP_STEP * 0.5
     for name, options, metadata, step in (
-        ("gyro_drift.x", SystemOptions(known_gyro_drift=(drift, 0.0, 0.0)), meta, drift),
-        ("damping_loop.zeta", SystemOptions(), replace(meta, damping={"zeta": 0.5 + zeta}), zeta),
+        ("gyro_drift.x", SystemOptions(known_gyro_drift=(drift, 0.0, 0.0), estimate_gyro_drift=False), meta, drift),
+        ("damping_loop.zeta", SystemOptions(estimate_gyro_drift=False), replace(meta, damping={"zeta": 0.5 + zeta}), zeta),
     ):
         again = (run(options, metadata).result.likelihood.gradient - lik.gradient) / step
         np.testing.assert_allclose(again, by_input[name].gradient, atol=0.01 * np.abs(by_input[name].gradient).max())
@@ -143,7 +143,7 @@ def test_the_budget_of_a_record_is_the_record_re_made_with_the_input_perturbed(s
     run, _, found, record, meta = system
     prior = device[4]
     drift = 1e-5 * DEG_PER_HOUR
-    moved = run(SystemOptions(known_gyro_drift=(drift, 0.0, 0.0)))
+    moved = run(SystemOptions(known_gyro_drift=(drift, 0.0, 0.0), estimate_gyro_drift=False))
     remade = prior.updated(moved.result, site=meta, procedure="system-static")
     observed = _differences(record, remade)
     x_axis = next(s for s in found if s.input == "gyro_drift.x")

@@ -313,7 +313,7 @@ def test_timed_block_information_equals_per_sample(jitter):
 
 
 def test_attitude_blocks_merge_pairs_equals_wider_blocks_and_stays_bounded():
-    from stableins.estimators.system.attitude import AttitudeBlocks
+    from stableins.estimators.system.blocks import AttitudeBlocks
 
     rng = np.random.default_rng(11)
     t = 100.0 + np.arange(0.0, 20000.0, 1.0)

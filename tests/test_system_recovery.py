@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from stableins.conventions import ARCSEC, SIDEREAL_DAY
+from stableins.conventions import ARCSEC, DEG_PER_HOUR, SIDEREAL_DAY
 from stableins.data.chunks import ArraySource
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, determined_combinations
@@ -50,7 +50,7 @@ def test_recovers_combined_coefficients_within_k_sigma(seed):
     assert np.abs(ref[HARMONIC]).max() > 20 * white.max()  # real signal, not noise
     assert 1e-6 < white[HARMONIC].max() < 5e-6
     assert np.all(out.combined.sigma >= white * (1 - 1e-9))
-    assert out.result.rank == 9
+    assert out.result.rank == 12  # the separation's 9 and the gyro drift's 3 (measured by the gimbal readings)
     assert 0.1 < out.result.chi2_red < 4.0
 
 
@@ -65,7 +65,8 @@ def test_corrected_calibration_removes_determined_errors():
         assert abs(vec[:12] @ p_after) < 4 * sigma, name  # what remains is noise
         assert abs(value - vec[:12] @ p_before) < 4 * sigma, name
     # the residual specific-force harmonics of the corrected calibration are small: run the stage again on the same world
-    corrected = truth.with_changes(installed_calibration={**truth.installed_calibration, **out.result.as_dict()})
+    installed = {k: v for k, v in out.result.as_dict().items() if not k.startswith("gyro_drift")}  # the gyros are not compensated
+    corrected = truth.with_changes(installed_calibration={**truth.installed_calibration, **installed})
     cols2 = system.simulate_system(corrected, SIDEREAL_DAY, 1.0, seed=103, earth_angle=0.9)
     again = run_system_stage(ArraySource(cols2), corrected.site, corrected.installed_calibration)
     assert np.abs(again.combined.values[1:5] / again.combined.sigma[1:5]).max() < 4.0  # x2..x5 now consistent with zero
@@ -131,20 +132,34 @@ def test_residual_k2_from_third_harmonic():
         assert status == "estimated" and abs(value - truth.parameters[f"K2_{axis}"]) < 4 * sigma
 
 
-def test_gyro_drift_biases_attitude_unless_known():
-    """0.001°/h of gyro drift drives the loop's Earth-rate resonance: the attitude coefficients are biased unless the drift is given."""
+def test_gyro_drift_biases_attitude_unless_known_or_measured():
+    """0.001°/h of gyro drift drives the loop's Earth-rate resonance: the attitude coefficients are biased unless the drift
+    is given or measured (the gimbal readings, docs/system-calibration.md §9)."""
     from stableins.estimators.system.stage import SystemOptions
 
     drift = {"x": 1e-3 * ARCSEC, "y": -2e-3 * ARCSEC, "z": 1.5e-3 * ARCSEC}  # 1°/h = 3600″ per 3600 s = 1″/s
     truth, cols = simulated_day(2, gyro_drift=drift)
     _, ref = reference(truth)
-    plain = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
+    plain = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_gyro_drift=False))
     z_plain = ((plain.combined.values - ref) / plain.combined.sigma)[HARMONIC]
     assert np.abs(z_plain[:4]).max() < 4.0  # x2..x5: the specific-force states do not see the gyros
     assert np.abs(z_plain).max() > 5.0
+    assert any("gyro drift not supplied" in n for n in plain.notes)
     known = SystemOptions(known_gyro_drift=(drift["x"], drift["y"], drift["z"]))
     fixed = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=known)
     assert np.abs(((fixed.combined.values - ref) / fixed.combined.sigma)[HARMONIC]).max() < 4.0
+    assert "gyro_drift_x" not in fixed.result.ids  # held exactly: not a parameter of the update
+    measured = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
+    assert np.abs(((measured.combined.values - ref) / measured.combined.sigma)[HARMONIC]).max() < 4.0
+    assert not any("gyro drift not supplied" in n for n in measured.notes)
+    result = measured.result
+    index = [result.ids.index(f"gyro_drift_{a}") for a in "xyz"]
+    # x_p, y_p as the installed θ10 defines them (the platform-axis zero offset, not observable from gravity): the truth
+    # turned by its residual, ε + δθ10 (e_z × ε) (noise-free angles here: σ is the model floor, 3e-11 °/h)
+    true = np.array([drift[a] for a in "xyz"])
+    turn = truth.parameters["theta10"] - truth.installed_calibration["theta10"]
+    z = (result.values[index] - true - turn * np.cross([0.0, 0.0, 1.0], true)) / result.sigma[index]
+    assert np.abs(z).max() < 4.0 and result.sigma[index].max() < 5e-5 * DEG_PER_HOUR
 
 
 @pytest.mark.parametrize(("senses", "latitude_deg"), [((-1, 1, -1, 1), 40.0), ((1, 1, 1, 1), -35.0), ((-1, -1, 1, -1), 60.0)])

@@ -75,9 +75,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         nargs=3,
         metavar=("X", "Y", "Z"),
         help=(
-            "known constant gyro drift in the platform frame [deg/h], from the gyro calibration; its response is removed from "
-            "pitch and roll.  Without it the attitude coefficients assume zero drift (0.001 deg/h biases them by up to 1.9e-5 rad; "
-            "this stage cannot estimate it from one record)"
+            "constant gyro drift in the platform frame [deg/h] known from elsewhere (a gyro calibration): held exactly and removed "
+            "from pitch and roll, or with --gyro-drift-uncertainty combined with what the record's gimbal readings measure.  "
+            "Without it the stage measures the drift in the gimbal readings (inner and middle angles needed), removes it and "
+            "writes gyro_drift_x/y/z with their sigma to the record (docs/system-calibration.md section 9)"
         ),
     )
     parser.add_argument(
@@ -86,8 +87,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="U",
         help=(
             "standard uncertainty of the gyro drift per platform axis [deg/h] (of the value given, or of zero when none is given), "
-            "from the gyro calibration; the certificate's uncertainty budget uses it (default: the procedure's or 0.00058 deg/h, "
-            "a rectangular distribution over the 0.001 deg/h bound of Wu et al. 2018)"
+            "from the gyro calibration: a given drift with it is a measurement the stage combines with the gimbal readings'; "
+            "when the drift is not measured the certificate's uncertainty budget uses it (default: the procedure's or "
+            "0.00058 deg/h, a rectangular distribution over the 0.001 deg/h bound of Wu et al. 2018)"
         ),
     )
     parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")

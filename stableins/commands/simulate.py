@@ -172,15 +172,21 @@ def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
     effect catalogue's output effects know are refused; ids the record lacks keep the truth's
     installed value.  Unidentifiable parameters carry their prior value in a record, which is
-    what an INS would be loaded with.
+    what an INS would be loaded with.  The record's gyro drift (``gyro_drift_x/y/z``, written by the system stage or a
+    drift test) is not installed: the simulated navigation computer does not compensate its gyros (the platform drifts
+    with the truth's ``gyro_drift``).
     """
+    from stableins.errormodel import GYRO_DRIFT_TERMS
     from stableins.records import CalibrationRecord
     from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
     installed = dict(truth.installed_calibration)
     known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
+    drift_ids = {t.id for t in GYRO_DRIFT_TERMS}
     for parameter_id, value in record.values().items():
+        if parameter_id in drift_ids:
+            continue
         if parameter_id not in known:
             raise InputError(
                 f"parameter {parameter_id!r} is not part of the simulated instrument",

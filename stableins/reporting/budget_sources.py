@@ -184,6 +184,11 @@ def angle_sensors(record: CalibrationRecord, inputs: UncertaintyInputs, propagat
     return Evaluation(np.zeros(n), source)
 
 
+#: ``gyro_drift_source`` settings of a system stage that measured the drift
+#: (:class:`stableins.estimators.system.gyro_drift_step.DriftSource`).
+MEASURED_DRIFT = ("gimbal readings", "given and gimbal readings")
+
+
 def _drift_uncertainty(stage: Any, inputs: UncertaintyInputs) -> tuple[float, str]:
     """Return ``(u, origin)`` of the gyro drift per axis: the stage's setting, the procedure's, or the paper's bound."""
     stated = stage.settings.get("gyro_drift_uncertainty")
@@ -198,6 +203,12 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     """Evaluate the gyro drift, the system stage's input, per platform axis (axes independent)."""
     n, covariance = propagation.n, propagation.covariance
     drift = stored.get("gyro_drift", [])
+    measured = any(s.name == "system" and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
+    if not drift and measured:  # a parameter of the record (Type A), not an input: its σ is in the covariance
+        source = Source("gyro_drift", "constant drift in the platform frame, measured by the system stage (gimbal readings)",
+                        "—", "—", "the record (gyro_drift_x, gyro_drift_y, gyro_drift_z)",
+                        "estimated with the accelerometer terms: its uncertainty is in their σ (Type A)", "not applicable")  # fmt: skip
+        return Evaluation(np.zeros(n), source)
     if not drift:
         return Evaluation(np.zeros(n), _system_input_missing(record, "gyro_drift", "constant drift in the platform frame"))
     vectors: dict[Any, NDArray[np.float64]] = {}

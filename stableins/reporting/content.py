@@ -477,11 +477,13 @@ def _system_settings(settings: Mapping[str, Any]) -> list[str]:
     """Return the gyro-drift and damping-loop settings of a system stage, in words."""
     parts = []
     drift = settings.get("known_gyro_drift")
-    parts.append(
-        "gyro drift not given (assumed zero)"
-        if drift is None
-        else "gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)"
-    )
+    measured = str(settings.get("gyro_drift_source", "")).endswith("gimbal readings")
+    if measured:
+        parts.append("gyro drift measured from the gimbal readings (gyro_drift_x, _y, _z in the record)")
+    if drift is not None:
+        parts.append("gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)")
+    elif not measured:
+        parts.append("gyro drift not given (assumed zero)")
     uncertainty = settings.get("gyro_drift_uncertainty")
     if isinstance(uncertainty, int | float):
         parts.append(f"gyro drift uncertainty given: {math.degrees(float(uncertainty)) * 3600.0:.2g} °/h per axis")

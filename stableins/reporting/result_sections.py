@@ -107,17 +107,21 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
         decimals = content.decimals_of(row.u)
         term_scale = row.u / budget.combined_of(row.id) if budget.combined_of(row.id) > 0 else math.nan
 
-        def cell(si: float, group: str = "", decimals: int = decimals, scale: float = term_scale) -> str:
+        tiny = decimals > SCIENTIFIC_DECIMALS  # e.g. a gyro drift in °/h (σ ~ 3e-8): two significant digits, not 10 decimals
+
+        form = ".1e" if tiny else f".{decimals}f"
+
+        def cell(si: float, group: str = "", form: str = form, scale: float = term_scale) -> str:
             state = budget.state(group) if group else "evaluated"
             if state != "evaluated":
                 return "n.e." if state == "not evaluated" else "—"
-            return f"{si * scale:.{decimals}f}"
+            return "0" if form == ".1e" and si == 0.0 else f"{si * scale:{form}}"
 
         r = row.rounded()
         rows.append(
             [row.symbol, escape(row.unit), cell(budget.type_a[budget.ids.index(row.id)])]
             + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
-            + [r.u, r.expanded]
+            + ([f"{row.u:.1e}", f"{k * row.u:.1e}"] if tiny else [r.u, r.expanded])
         )
     widths = [0.12, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.12]
     out.append(document.table(rows, widths, align_right=tuple(range(2, 10)), markup=True))
@@ -136,6 +140,10 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
             out.append(paragraph(prose(condition)))
     out.append(paragraph(_uncertainty_statement(ctx), "small"))
     return out
+
+
+#: Beyond this many decimals the budget table writes a parameter's uncertainties in scientific notation.
+SCIENTIFIC_DECIMALS = 5
 
 
 def _uncertainty_statement(ctx: ReportContext) -> str:
@@ -182,4 +190,3 @@ def correlations(ctx: ReportContext) -> list[Flowable]:
     )
     out.append(document.figure(png, figures.CORRELATION_WIDTH / figures.FULL_WIDTH, aspect, caption, min_scale=0.75))
     return out
-

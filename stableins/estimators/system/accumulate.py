@@ -11,7 +11,7 @@ Per chunk (docs/system-calibration.md §6):
   below double-precision round-off of the sums; :func:`.blocksums.harmonic_information` is the per-sample reference it is tested
   against;
 * noise: per-axis sums of squared second differences of the raw outputs on the first samples of each chunk;
-* attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.attitude.AttitudeBlocks`),
+* attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.blocks.AttitudeBlocks`),
   the static-base checks and the platform-rate check (:class:`.checks.StaticChecks`);
 * bins: ``Σz``, ``ΣH`` and counts over ``filter_block_seconds`` (the Kalman filter's curve and the low band of the
   coloured-noise model) and over :data:`FINE_BIN_SECONDS` (its high band) (:class:`SampleBins`).
@@ -43,10 +43,11 @@ from stableins.data.validation import check_finite
 from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.attitude import AttitudeBlocks
+from stableins.estimators.system.blocks import AttitudeBlocks
 from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
 from stableins.estimators.system.checks import StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
+from stableins.estimators.system.gyro_drift import GIMBAL_BLOCKS, GIMBAL_COLUMNS, GimbalBlocks
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
@@ -196,6 +197,9 @@ class RecordSums:
         The temperature column's mean and range (None without one).
     notes : tuple of str
         What the record-level checks found (gaps, jitter).
+    gimbal_blocks : GimbalBlocks or None
+        Block means of the three gimbal readings (the gyro drift, :mod:`.gyro_drift`); None when the record has no
+        inner and middle readings.
     temperature_bins : TemperatureBins or None
         Sums of the temperature column over the filter bins (the thermal model, :mod:`.thermal`; None without one).
     fine_temperature_bins : TemperatureBins or None
@@ -215,6 +219,7 @@ class RecordSums:
     checks: StaticChecks
     temperature: TemperatureSummary | None
     notes: tuple[str, ...]
+    gimbal_blocks: GimbalBlocks | None = None
     temperature_bins: TemperatureBins | None = None
     fine_temperature_bins: TemperatureBins | None = None
 
@@ -238,6 +243,8 @@ class StageAccumulator:
         Discovered additive terms of the prior (:class:`.compensation.AdditiveCompensation`).
     has_temperature : bool
         Read the temperature column too.
+    has_gimbals : bool
+        Read the inner and middle readings too (the gyro drift from the gimbal readings, :mod:`.gyro_drift`).
     time_grid : ndarray or None
         The source's time grid (:class:`stableins.data.chunks.GriddedChunkSource`); ``grid_time`` its reconstruction.
     """
@@ -254,6 +261,7 @@ class StageAccumulator:
         path: str,
         compensation_terms: Sequence[Term] = (),
         has_temperature: bool = False,
+        has_gimbals: bool = True,
         time_grid: NDArray[np.float64] | None = None,
         grid_time: Callable[[int, int], NDArray[np.float64]] | None = None,
     ) -> None:
@@ -273,8 +281,10 @@ class StageAccumulator:
         self.general = self.tilted or abs(base[0]) > LEVEL_TOLERANCE
         self.offsets = np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")])
         self.nav_to_body = dcm_nav_to_body(*base)
-        if self.general:
-            columns += ["angle_inner", "angle_middle"]
+        self.has_gimbals = has_gimbals
+        if self.general or has_gimbals:
+            columns += list(GIMBAL_COLUMNS)
+        self.gimbal_blocks: GimbalBlocks | None = None
         self.has_temperature = has_temperature
         if has_temperature:
             columns.append("temperature")  # read at the attitude decimation: what the data carry about the environment
@@ -335,6 +345,8 @@ class StageAccumulator:
         if self.first_time is None:
             self.first_time = span[0]
             self.attitude_blocks = AttitudeBlocks(self.options.attitude_block_seconds, self.first_time)
+            if self.has_gimbals:
+                self.gimbal_blocks = GimbalBlocks(self.options.attitude_block_seconds, self.first_time, max_blocks=GIMBAL_BLOCKS)
         if self.general:
             s_d = earth_angle_from_kinematics(chunk, slice(None), self.offsets, self.nav_to_body, self.config)
         else:
@@ -353,6 +365,7 @@ class StageAccumulator:
         p0, r0 = self._north_attitude(chunk, pitch_d, roll_d)
         assert self.attitude_blocks is not None  # created at the first chunk
         self.attitude_blocks.add(t_d, np.cos(s_d), np.sin(s_d), p0, r0)
+        self._add_readings(chunk, t_d)
         sparse = slice(phase, None, 10 * decimation)  # the polar check is a record mean: one sample per 10 decimated ones
         self.checks.polar(fx[sparse], fy[sparse], fz[sparse])
         if self.has_temperature and chunk["temperature"].size:
@@ -363,6 +376,11 @@ class StageAccumulator:
             self.temperature_bins.add(rows, tc)
             self.fine_temperature.add(rows, tc)
         self.seen += n
+
+    def _add_readings(self, chunk: Mapping[str, NDArray[np.float64]], t_d: NDArray[np.float64]) -> None:
+        """Add the decimated gimbal readings to their blocks (the gyro drift, :mod:`.gyro_drift`)."""
+        if self.gimbal_blocks is not None:
+            self.gimbal_blocks.add_readings(t_d, chunk["angle_platform"], chunk["angle_inner"], chunk["angle_middle"])
 
     def _time(
         self, chunk: Mapping[str, NDArray[np.float64]], n: int, phase: int
@@ -445,6 +463,7 @@ class StageAccumulator:
             checks=self.checks,
             temperature=None if t[3] == 0 else TemperatureSummary(t[2] / t[3], t[0], t[1]),
             notes=tuple(notes),
+            gimbal_blocks=self.gimbal_blocks,
             temperature_bins=self.temperature_bins if t[3] else None,
             fine_temperature_bins=self.fine_temperature.merged(self.fine_bins.samples) if t[3] else None,
         )

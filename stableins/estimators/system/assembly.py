@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.errormodel import CORE_TERMS, Term, TermKind
+from stableins.errormodel import CORE_TERMS, Term, TermKind, known_terms
 from stableins.estimators.details import SystemDetails
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.system import harmonics as hm
@@ -25,6 +25,7 @@ from stableins.noise import NoiseModel
 from stableins.status import Determination, Status
 
 if TYPE_CHECKING:
+    from stableins.estimators.system.gyro_drift_step import DriftStep
     from stableins.estimators.system.stage import SystemOptions
 
 #: How the stage's messages name its inputs: parameters of :class:`~stableins.estimators.system.stage.SystemOptions`
@@ -242,6 +243,7 @@ def separation_likelihood(
     transform: NDArray[np.float64],
     *,
     estimate_k2: bool,
+    drift: tuple[NDArray[np.float64], DriftStep] | None = None,
 ) -> tuple[Likelihood, SeparationFit]:
     r"""Return what the record says about the accelerometer parameters: a :class:`Likelihood` (docs/system-calibration.md §4).
 
@@ -253,7 +255,9 @@ def separation_likelihood(
     on the complement of their columns.  With whitened ``A = R^{-1/2} H`` and ``r = R^{-1/2} w`` (at ``q = 0``,
     the installed calibration), ``Λ_q = A_pᵀ A_p``, ``g_q = A_pᵀ r_p``; in the record's parameters
     ``x = x_0 + J q`` (``J``: the installed scale factor for ``D``, ``g`` for a bias residual, 1 for angles and K2),
-    ``Λ = J⁻¹ Λ_q J⁻¹``, ``g = J⁻¹ g_q`` at the point ``x_0``.
+    ``Λ = J⁻¹ Λ_q J⁻¹``, ``g = J⁻¹ g_q`` at the point ``x_0``.  With ``drift`` (the attitude coefficients' Jacobian
+    and the drift step) the gyro drift ``gyro_drift_x/y/z`` joins ``q``, linearized at the drift removed
+    (:func:`.gyro_drift_step.augment_measurement`).
     """
     from stableins.estimators.system.separation import combination_matrix
 
@@ -274,6 +278,14 @@ def separation_likelihood(
         jac += [1.0, 1.0]
     w = rows @ v
     cov_w = rows @ cov_v @ rows.T
+    if drift is not None:
+        from stableins.estimators.system.gyro_drift import DRIFT_IDS
+        from stableins.estimators.system.gyro_drift_step import augment_measurement
+
+        h_res, h_nuisance, cov_w, w, drift_scale = augment_measurement(rows, h_res, h_nuisance, cov_w, w, jacobian=drift[0], step=drift[1])
+        labels += [f"gyro drift {a} (gimbal readings)" for a in "xyz"]
+        ids += list(DRIFT_IDS)
+        jac += [float(s) for s in drift_scale]
     sd = np.sqrt(np.diag(cov_w))
     chol = np.linalg.cholesky(cov_w / np.outer(sd, sd)) * sd[:, None]
     whiten = np.linalg.inv(chol)
@@ -286,6 +298,8 @@ def separation_likelihood(
     information = (a_p.T @ a_p) * np.outer(j_inv, j_inv)
     gradient = (a_p.T @ r_p) * j_inv
     point = np.array([float(prior.get(i, 1.0 if i.startswith("sf_") else 0.0)) for i in ids])
+    if drift is not None:
+        point[-3:] = drift[1].values  # the measurement is linearized at the drift removed
     likelihood = Likelihood(tuple(ids), point, information, gradient)
     # the stage's own least-squares fit of the measurement (residuals, χ², ν = measurements − rank)
     a_full = np.hstack([a_res, a_nui])
@@ -309,14 +323,28 @@ def fit_result(
     prior_cov: NDArray[np.float64],
     settings: dict[str, Any],
     k2: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    drift_prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
-    """Return the stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS)."""
+    """Return the stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS).
+
+    When the likelihood measures the gyro drift its terms follow; ``drift_prior`` (values, covariance) is the prior's
+    drift when it states one (:func:`.gyro_drift_step.prior_drift`), else the drift comes from the data alone.
+    """
     from stableins.estimators.posterior import bayesian_update
 
     terms = tuple(CORE_TERMS)
     ids = [t.id for t in terms]
     prior_values = np.array([float(prior.get(t.id, t.reference)) for t in terms])
+    if drift_prior is not None and "gyro_drift_x" in likelihood.ids:
+        n = len(ids)
+        ids += ["gyro_drift_x", "gyro_drift_y", "gyro_drift_z"]
+        prior_values = np.concatenate([prior_values, drift_prior[0]])
+        prior_cov = np.block([[prior_cov, np.zeros((n, 3))], [np.zeros((3, n)), drift_prior[1]]])
     post = bayesian_update(ids, prior_values, prior_cov, [Status.ESTIMATED] * len(ids), likelihood)
+    catalogue = known_terms()
+    terms = tuple(catalogue[i] for i in post.ids)
+    ids = list(post.ids)
+    prior_values = np.concatenate([prior_values, post.values[len(prior_values) :]])  # new parameters: no prior value
     corrections = {t.id: float(post.values[k] - prior_values[k]) for k, t in enumerate(terms) if post.determination[k] is not None}
     determined = tuple(
         f"{name} = {value:.4e} ± {sigma:.2e}" + ("" if ok else " (NOT determined by these data)")

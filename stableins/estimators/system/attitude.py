@@ -39,7 +39,7 @@ the sandwich estimator, exact for white noise).  The residual periodogram betwee
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,7 +52,7 @@ ROLL_COEFFICIENTS = ("phi_mean", "phi_1s", "phi_1c", "phi_2s", "phi_2c")
 ATTITUDE_COEFFICIENTS = PITCH_COEFFICIENTS + ROLL_COEFFICIENTS
 
 #: Blocks per slice of the design matrix in :func:`fit_attitude`.  The slices are built once and shared by both channels
-#: and all passes; with at most ``AttitudeBlocks.max_blocks`` (2¹⁴) blocks they hold about 3 MiB whatever the record length.
+#: and all passes; with at most ``blocks.AttitudeBlocks.max_blocks`` (2¹⁴) blocks they hold about 3 MiB whatever the record length.
 FIT_ROWS = 4096
 
 #: Default period of the gyro case-rotation residual [s] (Wu et al. 2018 §6.2: 8 minutes).
@@ -88,76 +88,6 @@ def attitude_combinations(latitude: float) -> NDArray[np.float64]:
     put(8, D_x=-0.5 * c, D_y=0.5 * c)
     put(9, beta_yz=0.5 * c, beta_xz=-0.5 * c)
     return m
-
-
-@dataclass
-class AttitudeBlocks:
-    """Block means of the attitude record (streaming accumulator) in bounded memory.
-
-    Blocks are fixed time bins of ``block_seconds`` from ``start_time``; each keeps the sample
-    count and the sums of time, ``cos S``, ``sin S``, pitch and roll.  When the record would need
-    more than ``max_blocks`` bins, adjacent pairs are merged and ``block_seconds`` doubles (sums
-    add exactly, so this equals accumulating with the doubled width from the start): memory is
-    bounded by ``6 · max_blocks`` values whatever the record length, and so is the cost of the fit.  The
-    default, 2¹⁴ bins, keeps the 10-s blocks up to 1.9 days; a week gets 40-s blocks, still 126 times shorter
-    than the Schuler period.  They attenuate the 8-minute case-rotation nuisance by 1.1 % (its amplitude is
-    free, so nothing is biased) and the Earth-rate harmonics by about 1e-6 of their size (the block means of
-    ``cos S`` and ``sin S`` are exact; ``cos 2S`` from them is second order in the block's angle).
-    """
-
-    block_seconds: float
-    start_time: float
-    max_blocks: int = 1 << 14
-    sums: dict[str, NDArray[np.float64]] = field(default_factory=dict)
-
-    _KEYS = ("count", "time", "cos", "sin", "pitch", "roll")
-
-    def add(
-        self,
-        time: NDArray[np.float64],
-        cos_s: NDArray[np.float64],
-        sin_s: NDArray[np.float64],
-        pitch: NDArray[np.float64],
-        roll: NDArray[np.float64],
-    ) -> None:
-        """Add decimated samples (time, ``cos S``, ``sin S``, pitch, roll) to their blocks."""
-        while True:
-            index = np.floor((time - self.start_time) / self.block_seconds).astype(np.int64)
-            if int(index[-1]) < self.max_blocks:
-                break
-            self._merge_pairs()
-        lo = int(index[0])
-        local = index - lo
-        size = int(local[-1]) + 1
-        values = {"count": None, "time": time - self.start_time, "cos": cos_s, "sin": sin_s, "pitch": pitch, "roll": roll}
-        needed = lo + size
-        for key in self._KEYS:
-            arr = self.sums.get(key)
-            if arr is None:
-                arr = np.zeros(min(max(needed, 1024), self.max_blocks))
-            elif arr.size < needed:
-                arr = np.concatenate([arr, np.zeros(min(max(needed - arr.size, arr.size), self.max_blocks - arr.size))])
-            arr[lo:needed] += np.bincount(local, weights=values[key], minlength=size)
-            self.sums[key] = arr
-
-    def _merge_pairs(self) -> None:
-        """Merge bins ``(2j, 2j+1)`` into bin ``j`` and double ``block_seconds``."""
-        for key, arr in self.sums.items():
-            if arr.size % 2:
-                arr = np.append(arr, 0.0)
-            self.sums[key] = arr.reshape(-1, 2).sum(axis=1)
-        self.block_seconds *= 2.0
-
-    def means(self) -> dict[str, NDArray[np.float64]]:
-        """Return the block means of the non-empty blocks (``count``, ``time`` since the start, ``cos``, ``sin``, pitch, roll)."""
-        count = self.sums["count"]
-        keep = count > 0
-        out = {"count": count[keep]}
-        for key in self._KEYS[1:]:
-            out[key] = self.sums[key][keep] / count[keep]
-        norm = np.hypot(out["cos"], out["sin"])  # block averaging shrinks (cos, sin) by ~1 − (ωT)²/24
-        out["cos"], out["sin"] = out["cos"] / norm, out["sin"] / norm
-        return out
 
 
 @dataclass(frozen=True)
@@ -197,6 +127,7 @@ class AttitudeFit:
     drift_sigma: NDArray[np.float64]
     notes: tuple[str, ...] = ()
     block_map: NDArray[np.float64] | None = None  # (10, 2·bins): values ← (pitch, roll) summed over time bins (coloured noise)
+    drift_jacobian: NDArray[np.float64] | None = None  # (10, 3): ∂values/∂ε [rad per rad/s] (``drift_jacobian=True``)
 
 
 def _design(
@@ -249,13 +180,14 @@ def fit_attitude(
     known_drift: Sequence[float] | NDArray[np.float64] | None = None,
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
+    drift_jacobian: bool = False,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
     Parameters
     ----------
     blocks : dict
-        Block means from :meth:`AttitudeBlocks.means` (``time`` since the record start).
+        Block means from :meth:`.blocks.AttitudeBlocks.means` (``time`` since the record start).
     loop : DampingLoop
         The INS damping loop (from the record's metadata).
     noise_sigma : (float, float)
@@ -287,13 +219,15 @@ def fit_attitude(
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
+    drift_jacobian : bool
+        Also return ``∂values/∂ε`` (10, 3): the fit's linear map applied to the loop's unit-drift responses.
     """
     n_blocks = blocks["time"].size
     _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
     slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
-    drift = (gyro_drift, known_drift)
+    drift = (gyro_drift, known_drift, drift_jacobian)
     fits = _fit_channels(blocks, loop, noise_sigma, case_rotation_period, drift, map_bin_seconds, len(names), freqs, slices)
-    beta, residuals, cov_obs, maps, drift_estimate, drift_sigma = fits
+    beta, residuals, cov_obs, maps, drift_estimate, drift_sigma, jacobian_obs = fits
     notes = _drift_notes(drift_estimate, drift_sigma) if gyro_drift == "check" else []
     observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
     transform, vertical_map = _loop_compensation(loop, compensate_loop=compensate_loop)
@@ -302,10 +236,7 @@ def fit_attitude(
     jac_vertical = -transform @ vertical_map
     # reorder roll into the paper order (mean, 1s, 1c, 2s, 2c)
     order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
-    values = qs[order]
-    jac_vertical = jac_vertical[order]
-    observed_out = observed[order]
-
+    values, jac_vertical, observed_out = qs[order], jac_vertical[order], observed[order]
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
     ratio, factors, low_notes = _low_frequency(blocks, residuals, noise_sigma, loop)
     notes += low_notes
@@ -316,14 +247,13 @@ def fit_attitude(
     cov_obs = cov_obs * np.outer(scale_obs, scale_obs)
     cov_qs = transform @ cov_obs @ transform.T
     covariance = cov_qs[np.ix_(order, order)]
-    cov_obs_out = cov_obs[np.ix_(order, order)]
     rms = np.sqrt(np.mean(residuals**2, axis=0))
     return AttitudeFit(
         names=ATTITUDE_COEFFICIENTS,
         values=values,
         covariance=covariance,
         observed=observed_out,
-        observed_covariance=cov_obs_out,
+        observed_covariance=cov_obs[np.ix_(order, order)],
         nuisance=nuisance,
         noise_sigma=(float(noise_sigma[0]), float(noise_sigma[1])),
         residual_noise_ratio=(float(ratio[0]), float(ratio[1])),
@@ -334,6 +264,7 @@ def fit_attitude(
         drift_sigma=drift_sigma,
         notes=tuple(notes),
         block_map=(transform @ maps)[order],
+        drift_jacobian=None if jacobian_obs is None else (transform @ jacobian_obs)[order],
     )
 
 
@@ -357,17 +288,25 @@ def _fit_channels(
     loop: DampingLoop,
     noise_sigma: tuple[float, float],
     case_rotation_period: float | None,
-    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None],
+    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None, bool],
     map_bin_seconds: float,
     n_common: int,
     freqs: NDArray[np.float64],
     slices: list[slice],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64] | None,
+]:
     """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
 
-    ``drift_settings``: ``(gyro_drift, known_drift)`` of :func:`fit_attitude`.  Returns ``(coefficients (n, 2), block
-    residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means summed per
-    time bin to them, drift estimate (2, 3), its σ)``.
+    ``drift_settings``: ``(gyro_drift, known_drift, drift_jacobian)`` of :func:`fit_attitude`.  Returns ``(coefficients
+    (n, 2), block residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means
+    summed per time bin to them, drift estimate (2, 3), its σ, ∂observed/∂ε (10, 3) or None)``.
     """
     designs: dict[int, NDArray[np.float64]] = {}  # both channels and all passes share the rows: built once per slice
 
@@ -376,10 +315,12 @@ def _fit_channels(
             designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
         return designs[rows.start]
 
-    gyro_drift, known_drift = drift_settings
+    gyro_drift, known_drift, want_jacobian = drift_settings
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
-    drift = drift_columns(blocks, loop) if gyro_drift in ("fit", "check") or known_drift is not None else None
+    needed = gyro_drift in ("fit", "check") or known_drift is not None or want_jacobian
+    drift = drift_columns(blocks, loop) if needed else None
+    jacobian = np.zeros((10, 3)) if want_jacobian else None
     if known_drift is not None:  # a drift known from the gyro calibration: remove its response exactly
         assert drift is not None
         y = y - drift @ (np.asarray(known_drift, dtype=float) / DRIFT_SCALE)
@@ -407,14 +348,40 @@ def _fit_channels(
             if gyro_drift == "fit":
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = with_drift, inv_d
-        for rows in slices:  # the map from block means to coefficients, summed per time bin, FIT_ROWS blocks at a time
-            part = (columns(rows) @ inv_full[:5].T) * w[rows, None]
-            for k in range(5):
-                maps[5 * ch + k, ch * n_map : (ch + 1) * n_map] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
+        responses = None if jacobian is None or drift is None else drift[:, ch, :] / DRIFT_SCALE
+        found = _coefficient_map(columns, inv_full, w, slices, map_bin, n_map, responses)
+        maps[5 * ch : 5 * ch + 5, ch * n_map : (ch + 1) * n_map] = found[0]
+        if jacobian is not None:
+            jacobian[5 * ch : 5 * ch + 5] = found[1]
         beta[:, ch] = coef
         residuals[:, ch] = res
         cov_obs[5 * ch : 5 * ch + 5, 5 * ch : 5 * ch + 5] = d[:, None] * inv[:5, :5] * d[None, :]
-    return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma
+    return beta, residuals, cov_obs, maps, drift_estimate, drift_sigma, jacobian
+
+
+def _coefficient_map(
+    columns: Callable[[slice], NDArray[np.float64]],
+    inv: NDArray[np.float64],
+    w: NDArray[np.float64],
+    slices: list[slice],
+    map_bin: NDArray[np.int64],
+    n_map: int,
+    responses: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return the map from block means to a channel's five coefficients summed per time bin, and the drift Jacobian.
+
+    The map is ``(5, n_map)`` (FIT_ROWS blocks at a time); applied to ``responses`` (blocks, 3), the loop's responses to a
+    unit drift, it gives the Jacobian ``(5, 3)`` (zeros without them).
+    """
+    maps = np.zeros((5, n_map))
+    jacobian = np.zeros((5, 3))
+    for rows in slices:
+        part = (columns(rows) @ inv[:5].T) * w[rows, None]
+        for k in range(5):
+            maps[k] += np.bincount(map_bin[rows], weights=part[:, k], minlength=n_map)
+        if responses is not None:
+            jacobian += part.T @ responses[rows]
+    return maps, jacobian
 
 
 def _loop_compensation(loop: DampingLoop, *, compensate_loop: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -204,7 +204,8 @@ class DampingLoop:
         On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
         polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
         Earth-rate mode at resonance (a ``t·sin`` growth in the tilts).  Exact first-order-hold
-        discretization on the given (uniform) grid.
+        discretization on the given (uniform) grid, run mode by mode (:func:`scipy.signal.lfilter` in the eigenbasis
+        of the transition matrix; :meth:`_drift_responses_stepwise`, the plain recursion, is the reference).
         """
         from scipy.linalg import expm
 
@@ -221,9 +222,41 @@ class DampingLoop:
         e = expm(big)
         phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + 3], e[:n, n + 3 :]
         out = np.zeros((t.size, 2, 3))
+        if t.size < 2:
+            return out
+        step = np.diff(t) / dt
+        # x_{k+1} = Φ x_k + d_k from rest; in the eigenbasis of Φ each mode is a first-order recursion (lfilter)
+        lam, vectors = np.linalg.eig(phi)
+        if not np.linalg.cond(vectors) < 1e8:  # (nearly) defective: the plain recursion
+            return self._drift_responses_stepwise(t, nav_to_platform, phi, gamma0, gamma1)
+        from scipy.signal import lfilter
+
+        to_modes = np.linalg.inv(vectors)
         for j in range(3):
             eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
-            x = np.zeros(n)
+            drive = step[:, None] * (eps_n[:-1] @ gamma0.T + np.diff(eps_n, axis=0) @ gamma1.T)
+            modal = drive @ to_modes.T
+            z = np.empty_like(modal)
+            for i in range(n):
+                z[:, i] = lfilter([1.0], [1.0, -lam[i]], modal[:, i])
+            out[1:, :, j] = (z @ (c @ vectors).T).real
+        return out
+
+    def _drift_responses_stepwise(
+        self,
+        t: NDArray[np.float64],
+        nav_to_platform: NDArray[np.float64],
+        phi: NDArray[np.float64],
+        gamma0: NDArray[np.float64],
+        gamma1: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """:meth:`drift_responses` by the plain state recursion (reference; used when Φ is nearly defective)."""
+        c = self.output_matrix()
+        dt = float(np.median(np.diff(t)))
+        out = np.zeros((t.size, 2, 3))
+        for j in range(3):
+            eps_n = nav_to_platform[:, j, :]
+            x = np.zeros(phi.shape[0])
             for k in range(t.size):
                 out[k, :, j] = c @ x
                 if k + 1 < t.size:
@@ -343,12 +376,13 @@ class DampingLoop:
 def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
     """Return the drift responses ``(n_blocks, 2, 3)`` of pitch and roll on the attitude block times.
 
-    :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid and interpolated
-    over gaps.
+    :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid of the blocks' step
+    (at least :data:`DRIFT_GRID_SECONDS`) and interpolated linearly (the responses are smooth: over 60 s the Earth-rate
+    input departs from a straight line by ``(ω_ie Δt)²/8 = 2e-6`` of itself, the Schuler oscillation by 2e-5).
     """
     t = blocks["time"]
     angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
-    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    step = max(float(np.median(np.diff(t))) if t.size > 1 else 1.0, DRIFT_GRID_SECONDS)
     grid = np.arange(0.0, t[-1] + step, step)
     responses = loop.drift_responses(grid, np.interp(grid, t, angle))
     out = np.empty((t.size, 2, 3))
@@ -357,6 +391,9 @@ def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) 
             out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
     return out * DRIFT_SCALE  # columns of the order of the others
 
+
+#: Smallest step of the grid the drift responses are computed on [s] (:func:`drift_columns`).
+DRIFT_GRID_SECONDS = 60.0
 
 #: Unit of the drift columns [rad/s] (about 0.002 °/h).
 DRIFT_SCALE = 1e-8

@@ -33,7 +33,7 @@ _POSITIVE_FLOATS = (
     "rate_tolerance",
     "polar_tolerance",
 )
-_FLAGS = ("couplings", "compensate_loop", "run_filter", "estimate_k2")
+_FLAGS = ("couplings", "compensate_loop", "run_filter", "estimate_k2", "estimate_gyro_drift")
 
 
 def _option_error(name: str, value: object, expected: str) -> InputError:

@@ -1,7 +1,8 @@
 r"""Type B sensitivities of the system stage: the stage re-run with each input it takes as known perturbed.
 
-The system stage takes as known the constant gyro drift in the platform frame (zero unless given,
-``SystemOptions.known_gyro_drift``) and the parameters of the INS damping loop
+The system stage takes as known the constant gyro drift in the platform frame when it does not measure it (zero
+unless given, ``SystemOptions.known_gyro_drift``; a drift measured from the gimbal readings is a parameter of the
+update instead, docs/system-calibration.md §9, and has no sensitivity here) and the parameters of the INS damping loop
 (``SiteMetadata.damping``: ζ, ω_s, vertical gains k1, k2, k3), through which it reads the attitude
 harmonics.  An error in either moves the attitude coefficients and, through the separation, the
 stage's likelihood: its information vector :math:`\eta = \Lambda\hat x + g` (at :math:`\hat x = x_0`, the
@@ -80,7 +81,9 @@ def system_sensitivities(
 
     out = []
     drift = np.zeros(3) if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
-    for axis, name in enumerate("xyz"):
+    # a drift the record measured (the gimbal readings) is a parameter of the update, not an input taken as known
+    measured = getattr(base, "drift", None) is not None and base.drift.in_likelihood
+    for axis, name in enumerate("xyz" if not measured else ""):
         moved = drift.copy()
         moved[axis] += DRIFT_STEP
         outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata)

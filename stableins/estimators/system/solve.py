@@ -33,6 +33,7 @@ from stableins.estimators.system.accumulate import RecordSums, SampleBins
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
 from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
 from stableins.estimators.system.coloured import LowBand, coloured_covariance, coloured_note, measured_noise_model, noise_prior
+from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
@@ -157,37 +158,58 @@ def filter_curve(
 class AttitudeStep:
     """The Fourier fit of pitch and roll (:class:`.attitude.AttitudeFit`) and what the next steps need of it.
 
-    The block means it ran on, the projection ``along`` of x1..x5 on the vertical, and the notes of the step.
+    The block means it ran on, the projection ``along`` of x1..x5 on the vertical, the notes of the step, and the
+    drift's Jacobian ``∂values/∂ε`` (10, 3) when the drift removed carries an uncertainty (:mod:`.gyro_drift_step`).
     """
 
     fit: AttitudeFit
     blocks: dict[str, NDArray[np.float64]]
     along: NDArray[np.float64]
     notes: tuple[str, ...]
+    drift_jacobian: NDArray[np.float64] | None = None
 
 
 def fit_attitude_coefficients(
-    sums: RecordSums, harmonic: HarmonicFit, noise: WhiteNoise, loop: DampingLoop, latitude: float, rate: float, options: SystemOptions
+    sums: RecordSums,
+    harmonic: HarmonicFit,
+    noise: WhiteNoise,
+    loop: DampingLoop,
+    latitude: float,
+    rate: float,
+    options: SystemOptions,
+    drift: DriftStep | None = None,
 ) -> AttitudeStep:
-    """Step 4: the loop-compensated attitude coefficients (the vertical channel from x1..x5)."""
+    """Step 4: the loop-compensated attitude coefficients (the vertical channel from x1..x5), the gyro drift removed.
+
+    ``drift``: the drift measured or given (:func:`.gyro_drift_step.drift_step`); without it, the given
+    ``options.known_gyro_drift`` (or none).
+    """
     blocks = sums.attitude_blocks.means()
+    if drift is not None:
+        blocks = sensor_error_removed(blocks, sums.gimbal_blocks, drift.gimbal, latitude)
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
     vertical = -along * harmonic.x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
     decimation = sums.decimation
+    sigma = (noise.sigma_pitch / math.sqrt(decimation), noise.sigma_roll / math.sqrt(decimation))
+    known = options.known_gyro_drift if drift is None else (None if drift.source is DriftSource.NONE else drift.values)
     att = fit_attitude(
         blocks,
         loop,
-        (noise.sigma_pitch / math.sqrt(decimation), noise.sigma_roll / math.sqrt(decimation)),
+        sigma,
         case_rotation_period=options.case_rotation_period,
         compensate_loop=options.compensate_loop,
         vertical=vertical,
         gyro_drift=options.gyro_drift,
-        known_drift=options.known_gyro_drift,
+        known_drift=known,
         scale_low_frequency=False,
         map_bin_seconds=sums.filter_bins.samples / rate,
+        drift_jacobian=drift is not None and drift.covariance is not None,
     )
     notes = list(att.notes)
+    if drift is not None:
+        notes += [*drift.notes, *drift_notes(drift)]
+        return AttitudeStep(att, blocks, along, tuple(notes), att.drift_jacobian)
     if options.known_gyro_drift is None:
         notes.append(
             "gyro drift not supplied: the attitude coefficients assume none.  A constant drift of 0.001 deg/h along a platform "
@@ -352,6 +374,7 @@ def combine(
     duration: float,
     estimate_k2: bool,
     path: str,
+    drift: DriftStep | None = None,
     aliases: Mapping[str, tuple[NDArray[np.float64], str]] | None = None,
     alpha: float = 0.05,
 ) -> Combination:
@@ -360,9 +383,12 @@ def combine(
     Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.  A third
     harmonic is explained by every hypothesis the record accepts (:func:`.third_harmonic.explain_third_harmonic`, level
     ``alpha``; ``aliases`` adds further ones, e.g. the thermal terms'); the note names them all and advises the K2
-    correction only when K2 is the one explanation.
+    correction only when K2 is the one explanation.  ``drift``: the drift removed from pitch and roll; its covariance is
+    propagated into the attitude coefficients'.
     """
     cov_v = decision.covariance
+    if drift is not None:
+        cov_v = cov_v + drift_covariance_v(attitude.drift_jacobian, drift)
     cov_x = cov_v[:7, :7]
     x_hat = harmonic.x_hat
     v = np.concatenate([x_hat, attitude.fit.values])

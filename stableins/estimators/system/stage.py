@@ -11,11 +11,10 @@ r"""The system-level stage over a whole record, streaming in bounded memory: a s
 3. the result (:mod:`.assembly`): the Bayesian update of the prior, the combined coefficients, typed diagnostics
    (:class:`SystemDiagnostics`).
 
-On a turned or tilted base the Earth-rate angle comes from the full gimbal kinematics; a known gyro drift's response is
-removed from pitch and roll.  Checks: sampling (gaps, jitter, order), static base (velocity, attitude excursion),
-platform turning at the Earth rate, polar alignment, record length (short records keep only the combinations they
-determine).  The record is read through the chunk-source protocol (:mod:`stableins.data.chunks`).  See
-docs/system-calibration.md.
+On a turned or tilted base the Earth-rate angle comes from the full gimbal kinematics; the gyro drift, measured in the
+gimbal readings (:mod:`.gyro_drift_step`) or given, is removed from pitch and roll.  Checks: sampling (gaps, jitter,
+order), static base (velocity, attitude excursion), platform turning at the Earth rate, polar alignment, record length
+(short records keep only the combinations they determine).  Read through :mod:`stableins.data.chunks`; docs/system-calibration.md.
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,7 +32,7 @@ from stableins.estimators.details import CombinedDetails
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
-from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator, TemperatureSummary
+from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator
 from stableins.estimators.system.assembly import (
     combined_terms,
     fit_result,
@@ -46,7 +44,10 @@ from stableins.estimators.system.assembly import (
     stage_settings,
 )
 from stableins.estimators.system.attitude import AttitudeFit
-from stableins.estimators.system.checks import SamplingSummary, check_metadata
+from stableins.estimators.system.checks import check_metadata
+from stableins.estimators.system.diagnostics import SystemDiagnostics
+from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
+from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
@@ -85,100 +86,12 @@ class SystemOptions:
     known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
     gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
     estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
+    estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
     noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
     thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "gyro_drift", validate_options(self))
-
-
-@dataclass(frozen=True)
-class SystemDiagnostics:
-    """What the system stage measured about the record besides its coefficients (:attr:`SystemCalibration.diagnostics`).
-
-    Attributes
-    ----------
-    duration : float
-        Last minus first time stamp [s].
-    samples : int
-        Samples in the record.
-    block_length : int
-        Samples per block of the harmonic sums.
-    attitude_block_seconds : float
-        Width of the attitude blocks [s] (doubled from the option's value beyond 2^14 blocks).
-    axis_noise_sigma : ndarray, shape (3,)
-        White noise of one sample per axis [m/s²] (second differences).
-    z_residual_sigma : float
-        rms of the ``z`` residuals of the harmonic fit.
-    z_low_frequency_ratio : float
-        Variance of x2 over its white-noise variance (1 without low-frequency noise).
-    combined_sigma_white : ndarray, shape (15,)
-        σ of the combined coefficients without the coloured part.
-    noise_samples : int
-        Second differences per axis.
-    noise_bias_x1 : float
-        ``E|n|²/(2g²)``, removed from x1.
-    k2_residual, k2_residual_sigma : ndarray, shape (2,)
-        Residual ``K2_x``, ``K2_y`` from the third harmonic [s²/m] and their σ.
-    third_harmonic : ndarray, shape (2,)
-        The third-harmonic states x6, x7.
-    attitude_noise_sigma : tuple of float
-        σ of one sample of pitch and roll from the accelerometer noise [rad].
-    attitude_residual_rms : ndarray
-        rms of the attitude fit's residuals (pitch, roll) [rad].
-    attitude_noise_ratio : ndarray
-        Those rms over the expected white-noise level.
-    platform_rate_ratio : float
-        Rate of the platform-axis angle over the Earth rate.
-    max_velocity : float
-        Largest horizontal velocity output [m/s].
-    attitude_excursion : float
-        Range of pitch or roll over the record [rad].
-    loop : DampingLoop
-        The damping-loop model the attitude fit used.
-    sampling : SamplingSummary
-        Gaps and jitter of the time column.
-    temperature : TemperatureSummary or None
-        Mean and range of the temperature column (None without one).
-    time_span : tuple of float
-        First and last time stamp [s].
-    """
-
-    duration: float
-    samples: int
-    block_length: int
-    attitude_block_seconds: float
-    axis_noise_sigma: NDArray[np.float64]
-    z_residual_sigma: float
-    z_low_frequency_ratio: float
-    combined_sigma_white: NDArray[np.float64]
-    noise_samples: int
-    noise_bias_x1: float
-    k2_residual: NDArray[np.float64]
-    k2_residual_sigma: NDArray[np.float64]
-    third_harmonic: NDArray[np.float64]
-    attitude_noise_sigma: tuple[float, float]
-    attitude_residual_rms: Any
-    attitude_noise_ratio: Any
-    platform_rate_ratio: float
-    max_velocity: float
-    attitude_excursion: float
-    loop: DampingLoop
-    sampling: SamplingSummary
-    temperature: TemperatureSummary | None
-    time_span: tuple[float | None, float | None]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the JSON form (``calibrate system --json``): every attribute but ``loop``, in order; sampling and temperature as dicts."""
-        out: dict[str, Any] = {}
-        for name in self.__dataclass_fields__:
-            value = getattr(self, name)
-            if name == "loop":
-                continue
-            if isinstance(value, SamplingSummary | TemperatureSummary):
-                value = value.to_dict()
-            out[name] = value
-        return out
 
 
 @dataclass(frozen=True, repr=False)
@@ -211,6 +124,8 @@ class SystemCalibration(SystemCalibrationView):
         model when a datasheet model was given.  It goes into the calibration record.
     diagnostics : SystemDiagnostics
         What the stage measured about the record besides its coefficients (noise, checks, sampling, temperature).
+    drift : DriftStep or None
+        The drift removed from pitch and roll, its source and the gimbal readings' measurement ``drift.gimbal`` (docs §9).
     """
 
     result: FitResult
@@ -224,6 +139,7 @@ class SystemCalibration(SystemCalibrationView):
     notes: tuple[str, ...] = ()
     coloured_noise: ColouredNoiseFit | None = None
     noise_model: NoiseModel | None = None
+    drift: DriftStep | None = None
     thermal: ThermalFit | None = None
 
 
@@ -302,6 +218,7 @@ def run_system_stage(
         duration=stage.sums.duration,
         estimate_k2=options.estimate_k2,
         path=stage.path,
+        drift=stage.drift,
         aliases=stage.thermal.aliases,
         alpha=options.noise_false_positive_rate,
     )
@@ -346,6 +263,7 @@ class _Stage:
     curve: solve.FilterCurve
     attitude: solve.AttitudeStep
     decision: solve.NoiseDecision
+    drift: DriftStep
     thermal: ThermalFit
 
 
@@ -374,6 +292,7 @@ def _run(
         path=path,
         compensation_terms=compensation_terms,
         has_temperature="temperature" in source_columns(source),
+        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
         time_grid=grid,
         grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
     )
@@ -387,13 +306,14 @@ def _run(
     curve = solve.FilterCurve(None, np.zeros(0))
     if options.run_filter:
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity, rate)
-    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options)
+    drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
+    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options, drift)
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
     inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate, noise, noise_model, path)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, thermal)
+    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
 
 
 def _assemble(
@@ -411,8 +331,9 @@ def _assemble(
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
+    cov_v, drift = likelihood_inputs(stage.drift, stage.attitude.drift_jacobian, cov_v)
     likelihood, fit = separation_likelihood(
-        prior, stage.latitude, gravity, combination.v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2
+        prior, stage.latitude, gravity, combination.v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2, drift=drift
     )
     result, corrections = fit_result(
         combination.separation,
@@ -425,8 +346,9 @@ def _assemble(
         transform,
         notes,
         prior_term_covariance(prior_covariance, stage.prior_res_cov, scale),
-        stage_settings(options, noise_model),
+        {**stage_settings(options, noise_model), "gyro_drift_source": stage.drift.source.value},
         k2=(combination.k2_values, k2_covariance) if options.estimate_k2 else None,
+        drift_prior=prior_drift(prior, prior_covariance),
     )
     observable = combination.observable
     combined = FitResult(
@@ -453,6 +375,7 @@ def _assemble(
         notes=tuple(notes),
         coloured_noise=decision.fit,
         noise_model=decision.noise_model,
+        drift=stage.drift,
         thermal=stage.thermal,
     )
 
@@ -460,6 +383,7 @@ def _assemble(
 def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnostics:
     """Collect the stage's :class:`SystemDiagnostics`."""
     sums, harmonic, att, decision, checks = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision, stage.sums.checks
+    white = decision.covariance - decision.coloured + drift_covariance_v(stage.attitude.drift_jacobian, stage.drift)  # not coloured
     to_combined = combination.to_combined
     return SystemDiagnostics(
         duration=sums.duration,
@@ -470,7 +394,7 @@ def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnos
         z_residual_sigma=math.sqrt(harmonic.residual_variance),
         z_low_frequency_ratio=decision.low_frequency_ratio,
         # without the coloured part
-        combined_sigma_white=np.sqrt(np.diag(to_combined @ (decision.covariance - decision.coloured) @ to_combined.T)),
+        combined_sigma_white=np.sqrt(np.diag(to_combined @ white @ to_combined.T)),
         noise_samples=sums.noise_count,
         noise_bias_x1=harmonic.noise_bias,
         k2_residual=combination.k2_values,

@@ -31,8 +31,13 @@ class SystemCalibrationView:
         return [
             f"{hours:.2f} h record, {d.samples} samples; "
             f"separation χ²_ν = {sep.chi2 / max(sep.dof, 1):.2f} (ν = {sep.dof}); "
-            f"the data determine {self.result.rank} of {len(self.result.terms)} directions of the accelerometer terms"
+            f"the data determine {self.result.rank} of {len(self.result.terms)} directions of the {self._what()}"
         ]
+
+    def _what(self) -> str:
+        """Return what the result's terms are: the accelerometer terms, and the gyro drift when the record measured it."""
+        drift = any(t.id.startswith("gyro_drift") for t in self.result.terms)
+        return "accelerometer and gyro-drift terms" if drift else "accelerometer terms"
 
     def _rows(self) -> list[tuple[str, float, float, str, Status, str, str]]:
         """``(id, updated value, 1σ, unit, status, correction, determination)`` in engineering units."""
@@ -47,7 +52,7 @@ class SystemCalibrationView:
     def __repr__(self) -> str:
         from stableins.display import clipped, parameter_lines, plural
 
-        lines = [f"<SystemCalibration: the system stage's update of {len(self.result.terms)} accelerometer terms>", *self._summary_lines()]
+        lines = [f"<SystemCalibration: the system stage's update of {len(self.result.terms)} {self._what()}>", *self._summary_lines()]
         lines += parameter_lines(r[:5] for r in self._rows())
         lines.append("combined coefficients [µrad]: " + ", ".join(f"{i} {v:+.2f}" for i, v, *_ in self.combined.rows()[:5]) + " …")
         more = f"{plural(len(self.notes), 'note')}; " if self.notes else ""
