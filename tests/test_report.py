@@ -22,7 +22,7 @@ from stableins.conventions import MICRO_G  # noqa: E402
 from stableins.errors import InputError  # noqa: E402
 from stableins.history import compare  # noqa: E402
 from stableins.records import CalibrationRecord, file_sha256  # noqa: E402
-from stableins.reporting import content  # noqa: E402
+from stableins.reporting import content, rounding  # noqa: E402
 from stableins.reporting.symbols import plain  # noqa: E402
 from stableins.reporting.tolerances import Tolerances, decide  # noqa: E402
 
@@ -184,9 +184,16 @@ def test_tolerance_patterns_and_bad_tables():
 
 
 def test_gum_rounding():
-    assert content.round_to_uncertainty(-260.8049, 0.6512) == "\u2212260.80"
-    assert content.round_to_uncertainty(12345.6, 23.0) == "12346"
-    assert content.number(0.0123456, 2) == "0.012"
+    assert rounding.round_to_uncertainty(-260.8049, 0.6512) == "\u2212260.80"
+    assert rounding.round_to_uncertainty(12345.6, 23.0) == "12346"
+    assert rounding.number(0.0123456, 2) == "0.012"
+
+
+def test_gum_writes_tiny_uncertainties_with_a_power_of_ten():
+    # a gyro drift of 3.6e-8 °/h: fixed point to the last digit of U would need eight decimals
+    assert rounding.gum(-3.566e-8, 3.25e-8) == rounding.Rounded("\u22123.6×10⁻⁸", "3.2×10⁻⁸", "6.5×10⁻⁸")
+    assert rounding.gum(1e-7, 0.6e-7).u == "0.60×10⁻⁷"  # u keeps two significant digits below U's power
+    assert rounding.gum(174.94, 1.25) == rounding.Rounded("174.9", "1.2", "2.5")  # above 1e-3: fixed point as before
 
 
 def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):

@@ -92,7 +92,8 @@ class Propagation:
                 best = (relative, pid, value, term.unit)
         if best is None:
             return "no effect on the parameters"
-        from stableins.reporting.content import number, unit_text
+        from stableins.reporting.content import unit_text
+        from stableins.reporting.rounding import number
 
         return f"largest on {best[1]}: {number(best[2], 2)} {unit_text(best[3])}"
 
@@ -336,6 +337,6 @@ def _name(source: str) -> str:
 
 def _mgal(u: float) -> str:
     """Return an uncertainty of g in mGal as text."""
-    from stableins.reporting.content import number
+    from stableins.reporting.rounding import number
 
     return number(u / MGAL, 2) if u else "0"

@@ -8,10 +8,10 @@ from typing import Any
 from reportlab.platypus import Flowable, KeepTogether
 
 from stableins.history import CHANGE_THRESHOLD
-from stableins.reporting import content, document, figures
-from stableins.reporting.content import MINUS
+from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.context import ReportContext, file_name, fmt, paragraph, period
 from stableins.reporting.document import escape, heading
+from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import markup
 from stableins.reporting.tolerances import RULE_TEXT
 
@@ -51,7 +51,7 @@ def change(ctx: ReportContext) -> list[Flowable]:
             now_text = now.rounded().value if now is not None else fmt(c.new, 5)
             before_text = before.rounded().value if before is not None else fmt(c.old, 5)
             delta = (
-                f"{content.round_to_uncertainty(c.delta, c.u_delta)}" if math.isfinite(c.u_delta) and c.u_delta > 0 else fmt(c.delta, 3)
+                f"{rounding.round_to_uncertainty(c.delta, c.u_delta)}" if math.isfinite(c.u_delta) and c.u_delta > 0 else fmt(c.delta, 3)
             )
             rows.append(
                 [markup(c.id), before_text, now_text, delta, fmt(c.u_delta, 2), z, "yes" if c.significant else "no", escape(c.unit)]

@@ -23,42 +23,12 @@ from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms i
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import StageEvidence
+from stableins.reporting.rounding import COVERAGE_FACTOR, Rounded, gum, number
 from stableins.reporting.tolerances import Tolerances, Verdict, decide, limit_for
 from stableins.status import Status
 
+
 #: Coverage factor of the expanded uncertainty (GUM 6.2; about 95 % for a normal distribution).
-COVERAGE_FACTOR = 2.0
-
-MINUS = "\u2212"
-
-
-@dataclass(frozen=True)
-class Rounded:
-    """A value with its standard and expanded uncertainty as printed (GUM 7.2.6, :func:`gum`)."""
-
-    value: str
-    u: str
-    expanded: str
-
-
-def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
-    """Round a value and its uncertainty the one way of the certificate (GUM 7.2.6).
-
-    ``U = k u`` and ``u`` to two significant digits, the value to the decimal place of ``U``.  Every section prints
-    a value and its uncertainty through this function.
-    """
-    if not math.isfinite(value):
-        return Rounded("not stated", "—", "—")
-    if not (math.isfinite(u) and u > 0):
-        return Rounded(number(value, 6), "—", "—")
-    expanded = k * u
-    decimals = max(1 - math.floor(math.log10(expanded)), 0)
-    text = f"{value:.{decimals}f}"
-    if float(text) == 0.0:
-        text = text.lstrip("-")
-    return Rounded(text.replace("-", MINUS), number(u, 2), number(expanded, 2))
-
-
 @dataclass(frozen=True)
 class ParameterRow:
     """One row of the results table, in engineering units (``nan`` where no value is stated).
@@ -106,25 +76,6 @@ class ParameterRow:
         """``(value, u, U)`` as text (:meth:`rounded`)."""
         r = self.rounded()
         return r.value, r.u, r.expanded
-
-
-def number(x: float, significant: int) -> str:
-    """``x`` to ``significant`` significant digits, fixed-point, with a true minus sign."""
-    if x == 0 or not math.isfinite(x):
-        return "0" if x == 0 else str(x)
-    decimals = max(significant - 1 - math.floor(math.log10(abs(x))), 0)
-    return f"{x:.{decimals}f}".replace("-", MINUS)
-
-
-def round_to_uncertainty(value: float, u: float) -> str:
-    """Round the value to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
-    decimals = max(1 - math.floor(math.log10(u)), 0)
-    return f"{value:.{decimals}f}".replace("-", MINUS)
-
-
-def decimals_of(u: float) -> int:
-    """Decimal places of ``u`` given to two significant digits."""
-    return max(1 - math.floor(math.log10(u)), 0) if u > 0 and math.isfinite(u) else 0
 
 
 def chi2_text(x: float) -> str:
@@ -178,8 +129,8 @@ def parameter_rows(
 
 
 def unit_text(unit: str) -> str:
-    """Engineering unit as printed (``ug`` → ``µg``, ``^2`` → ``²``)."""
-    return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³")
+    """Engineering unit as printed (``ug`` → ``µg``, ``^2`` → ``²``, ``deg/h`` → ``°/h``)."""
+    return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³").replace("deg/h", "°/h")
 
 
 def unit_words(text: str) -> str:

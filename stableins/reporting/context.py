@@ -12,10 +12,11 @@ from reportlab.platypus import Paragraph
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord
-from stableins.reporting import content, document
+from stableins.reporting import document, rounding
 from stableins.reporting.budget import Budget
-from stableins.reporting.content import MINUS, ChangeRow, Check, ParameterRow
+from stableins.reporting.content import ChangeRow, Check, ParameterRow
 from stableins.reporting.evidence import StageEvidence
+from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import prose
 from stableins.reporting.tolerances import Tolerances
 
@@ -80,7 +81,7 @@ def paragraph(text: str, style: str = "body") -> Paragraph:
 
 def fmt(x: float, significant: int = 3) -> str:
     """Return a number to ``significant`` digits as the certificate prints it (a dash when not finite)."""
-    return content.number(x, significant) if math.isfinite(x) else "—"
+    return rounding.number(x, significant) if math.isfinite(x) else "—"
 
 
 def degrees(radians: float) -> str:

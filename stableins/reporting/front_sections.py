@@ -7,9 +7,9 @@ from typing import Any
 from reportlab.platypus import Flowable
 
 from stableins.reporting import content, document
-from stableins.reporting.content import MINUS
 from stableins.reporting.context import NOT_RECORDED, ReportContext, degrees, entry_text, file_name, paragraph, period, span
 from stableins.reporting.document import escape, heading
+from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import prose
 
 

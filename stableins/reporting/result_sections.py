@@ -7,11 +7,11 @@ from typing import Any
 
 from reportlab.platypus import Flowable
 
-from stableins.reporting import content, document, figures
+from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.budget import GROUPS, SHORT, TITLES
-from stableins.reporting.content import MINUS
 from stableins.reporting.context import NOT_RECORDED, ReportContext, paragraph
 from stableins.reporting.document import escape, heading
+from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import markup, prose
 
 
@@ -19,7 +19,7 @@ from stableins.reporting.symbols import markup, prose
 def results(ctx: ReportContext) -> list[Flowable]:
     """Return section 4: every parameter's value, expanded uncertainty, status and the stage that determined it."""
     out: list[Flowable] = [*heading("4  Results", room_mm=60)]
-    k = content.COVERAGE_FACTOR
+    k = rounding.COVERAGE_FACTOR
     out.append(
         paragraph(
             "Values of the record in force after this calibration, in engineering units: scale factors SF as deviation from 1 in ppm, "
@@ -35,7 +35,7 @@ def results(ctx: ReportContext) -> list[Flowable]:
     for row in ctx.rows:
         r = row.rounded()
         rows.append([row.symbol, row.status.value, r.value, r.u, r.expanded, escape(row.unit), escape(row.source)])
-    out.append(document.table(rows, [0.11, 0.14, 0.11, 0.08, 0.10, 0.09, 0.37], align_right=(2, 3, 4), markup=True))
+    out.append(document.table(rows, [0.11, 0.14, 0.12, 0.10, 0.11, 0.09, 0.33], align_right=(2, 3, 4), markup=True))
     carried = [r for r in ctx.rows if r.estimated and not r.measured]
     if carried:
         out.append(
@@ -75,7 +75,7 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
     """Return section 5, the uncertainty budget (GUM): Type A from the record, each Type B input, combined u, k and U per parameter."""
     out: list[Flowable] = [*heading("5  Uncertainty budget", room_mm=50)]
     budget = ctx.budget
-    k = content.COVERAGE_FACTOR
+    k = rounding.COVERAGE_FACTOR
     if budget is None:
         out.append(paragraph("<b>Not evaluated</b>: no budget was computed for this record."))
         return out
@@ -104,7 +104,7 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
     for row in ctx.rows:
         if not row.estimated or not (row.u > 0):
             continue
-        decimals = content.decimals_of(row.u)
+        decimals = rounding.decimals_of(row.u)
         term_scale = row.u / budget.combined_of(row.id) if budget.combined_of(row.id) > 0 else math.nan
 
         tiny = decimals > SCIENTIFIC_DECIMALS  # e.g. a gyro drift in °/h (σ ~ 3e-8): two significant digits, not 10 decimals

@@ -4,7 +4,7 @@ Each builder takes the :class:`ReportContext` and returns flowables.  A section 
 evidence the record does not carry says so ("not performed" / "not recorded"); no
 number is ever made up.  Parameters are printed with their typeset symbols
 (:mod:`stableins.reporting.symbols`), values and uncertainties through the one GUM rounding
-(:func:`stableins.reporting.content.gum`), text from the record through
+(:func:`stableins.reporting.rounding.gum`), text from the record through
 :func:`stableins.reporting.symbols.prose` (no command-line syntax, no machine paths).
 """
 
@@ -16,9 +16,8 @@ from typing import Any
 from reportlab.platypus import Flowable
 
 from stableins.discovery.diagnose_report import DiagnoseReport
-from stableins.reporting import content, document, figures
+from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.closing_sections import change, closing, conformity
-from stableins.reporting.content import MINUS
 from stableins.reporting.context import ReportContext
 from stableins.reporting.context import file_name as _name
 from stableins.reporting.context import fmt as _fmt
@@ -28,6 +27,7 @@ from stableins.reporting.evidence_sections import evidence
 from stableins.reporting.front_sections import inputs, method, site_environment, title_block
 from stableins.reporting.navigation import navigation_section
 from stableins.reporting.result_sections import correlations, results, uncertainty
+from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import markup, prose
 
 
@@ -125,7 +125,7 @@ def _estimate_text(estimate: float, sigma: float, unit: str) -> str:
     if not math.isfinite(estimate):
         return "—"
     if math.isfinite(sigma) and sigma > 0:
-        return f"{content.round_to_uncertainty(estimate, sigma)} ± {content.number(sigma, 2)} {unit}"
+        return f"{rounding.round_to_uncertainty(estimate, sigma)} ± {rounding.number(sigma, 2)} {unit}"
     return f"{_fmt(estimate, 3)} {unit}"
 
 
