@@ -166,8 +166,9 @@ class ModalRecursion:
 
     @property
     def _partner(self) -> NDArray[np.int64]:
-        """Index of each complex mode's conjugate partner (−1 for real modes); the real
-        system's response is the sum over one mode of each pair, doubled, so only half
+        """Index of each complex mode's conjugate partner (−1 for real modes).
+
+        The real system's response is the sum over one mode of each pair, doubled, so only half
         of the complex modes are filtered.
         """
         cached = self.__dict__.get("_partner_cache")
@@ -183,6 +184,7 @@ class ModalRecursion:
 
     @classmethod
     def discretize(cls, A: NDArray[np.float64], B: NDArray[np.float64], dt: float) -> ModalRecursion:
+        """Return the exact zero-order-hold recursion of ``x' = A x + B u`` over ``dt`` [s], mode by mode ("Numerics" above)."""
         mu, v = np.linalg.eig(A)
         condition = np.linalg.cond(v)
         if not condition < 1e10:

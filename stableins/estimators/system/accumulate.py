@@ -353,7 +353,7 @@ class StageAccumulator:
             s_d = earth_rate_angle(chunk["angle_platform"] + self.theta10, self.config)
         pitch_d, roll_d = chunk["pitch"], chunk["roll"]
         # static checks and the unwrapped Earth-rate angle at the decimated samples
-        s_knots = self.checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], chunk["velocity_east"])
+        s_knots = self.checks.slow(t_d, s_d, pitch_d, roll_d, chunk["velocity_north"], ve=chunk["velocity_east"])
         centre_angle = self._centre_angle(block_time, t_d, s_knots, span)
         zs, hs, counts = self.harmonics.add_sums(centre_angle, sums, sum_z2)
         # filter bins (600 s) and the fine bins of the coloured-noise model's high band, by global sample index

@@ -349,7 +349,7 @@ def _fit_channels(
                 coef, res, inv = coef_d[:n_common], res_d, inv_d[:n_common, :n_common]
                 columns, inv_full = with_drift, inv_d
         responses = None if jacobian is None or drift is None else drift[:, ch, :] / DRIFT_SCALE
-        found = _coefficient_map(columns, inv_full, w, slices, map_bin, n_map, responses)
+        found = _coefficient_map(columns, inv_full, w, slices, map_bin, n_map=n_map, responses=responses)
         maps[5 * ch : 5 * ch + 5, ch * n_map : (ch + 1) * n_map] = found[0]
         if jacobian is not None:
             jacobian[5 * ch : 5 * ch + 5] = found[1]
@@ -365,6 +365,7 @@ def _coefficient_map(
     w: NDArray[np.float64],
     slices: list[slice],
     map_bin: NDArray[np.int64],
+    *,
     n_map: int,
     responses: NDArray[np.float64] | None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -421,8 +422,8 @@ def _low_frequency(
             w,
             noise_sigma[ch] ** 2,
             (3.5 * EARTH_FREQUENCY, 30.0 * EARTH_FREQUENCY),
-            gain,
-            grid,
+            gain=gain,
+            gain_frequencies=grid,
             max_frequencies=64,
         )
         if rho.size:

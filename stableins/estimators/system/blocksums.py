@@ -84,7 +84,7 @@ def _centre(t, step_low, step_high):  # slices: indices from 0 let LLVM drop the
     return centre, irregular
 
 
-def _moments(fx, fy, fz, t, centre, omega, angle_step, p):
+def _moments(fx, fy, fz, t, centre, omega, angle_step, p):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
     """Σ z δ^p, Σ δ^p, Σ z² of one block: ``δ = ω(t − t̄)``, or with no stamps (``t`` empty) ``δ_j = (j − (m−1)/2)·angle_step``."""
     m = fx.size
     stamped = t.size > 0
@@ -106,7 +106,7 @@ def _moments(fx, fy, fz, t, centre, omega, angle_step, p):
     return n0, n1, n2, n3, m1, m2, m3, zz
 
 
-def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, step_high, out, centres):
+def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, step_high, out, centres):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
     n = fx.size
     n_blocks = (n + block - 1) // block
     total = 0.0
@@ -151,7 +151,7 @@ def _second_differences(fx, fy, fz, m, out):
         out[2] += c * c
 
 
-def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):
+def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
     nk = 2 * order + 1
     for b in range(centre_angle.size):
         n0, n1, n2, n3 = sums[b, 0], sums[b, 1], sums[b, 2], sums[b, 3]
@@ -267,6 +267,7 @@ def harmonic_sums(
     order: int,
     cos_latitude: float,
     trig_sums: NDArray[np.float64],
+    *,
     z_sums: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     r"""Trigonometric and z sums of the blocks (compiled), accumulated into ``trig_sums`` and ``z_sums`` in place.
@@ -381,7 +382,7 @@ class BlockHarmonics:
         """
         self.sum_z2 += float(sum_z2)
         self.count += int(round(float(sums[:, 7].sum())))
-        h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, self.z_sums)
+        h = harmonic_sums(centre_angle, sums, self.order, math.cos(self.latitude), self.trig_sums, z_sums=self.z_sums)
         return sums[:, 0], h, sums[:, 7]
 
     def accumulator(self) -> hm.InformationAccumulator:

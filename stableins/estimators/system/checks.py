@@ -125,7 +125,7 @@ class StaticChecks:
             self.first_time = span[0]
         self.last_time = span[1]
 
-    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, ve: NDArray) -> NDArray[np.float64]:
+    def slow(self, t: NDArray, s: NDArray, pitch: NDArray, roll: NDArray, vn: NDArray, *, ve: NDArray) -> NDArray[np.float64]:
         """Static-base checks on the decimated samples; returns the Earth-rate angle unwrapped across chunks."""
         if t.size == 0:
             return s

@@ -92,7 +92,7 @@ def coloured_covariance(
     if built is None:
         return units, None
     design, observed, n_ch = built
-    design, observed, n_high, top = _high_band(fine_bins, rate, x_ls, latitude, bins.high, design, observed, n_ch)
+    design, observed, n_high, top = _high_band(fine_bins, rate, x_ls, latitude, bins.high, design=design, observed=observed, n_ch=n_ch)
     fit = whittle.fit_coloured_noise(
         design,
         observed,
@@ -220,6 +220,7 @@ def _high_band(
     x_ls: NDArray[np.float64],
     latitude: float,
     high: float,
+    *,
     design: NDArray[np.float64],
     observed: NDArray[np.float64],
     n_ch: int,
@@ -334,6 +335,7 @@ def measured_noise_model(
     rate: float,
     fit: ColouredNoiseFit | None,
     gravity: float,
+    *,
     given: NoiseModel | None,
     path: str,
     duration: float,

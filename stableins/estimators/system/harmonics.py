@@ -241,8 +241,8 @@ def kalman_filter(
     noise_variance: ArrayLike,
     prior_mean: ArrayLike,
     prior_covariance: ArrayLike,
-    process_noise: ArrayLike | None = None,
     *,
+    process_noise: ArrayLike | None = None,
     smooth: bool = False,
 ) -> FilterHistory:
     """Sequential filter with filterpy's ``KalmanFilter`` (``F = I``; Joseph-form update).

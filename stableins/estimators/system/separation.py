@@ -103,6 +103,7 @@ def separate(
     covariance: ArrayLike,
     latitude: float,
     prior_sigma: Mapping[str, float] | None = None,
+    *,
     rank_tolerance: float = 1e-8,
     transform: ArrayLike | None = None,
 ) -> Separation:

@@ -125,6 +125,7 @@ def filter_curve(
     prior_res_cov: NDArray[np.float64],
     k2_variance: Mapping[str, float],
     latitude: float,
+    *,
     gravity: float,
     rate: float,
 ) -> FilterCurve:
@@ -175,6 +176,7 @@ def fit_attitude_coefficients(
     noise: WhiteNoise,
     loop: DampingLoop,
     latitude: float,
+    *,
     rate: float,
     options: SystemOptions,
     drift: DriftStep | None = None,
@@ -310,7 +312,9 @@ def decide_noise(
             "the record is too short for the low-frequency noise model (fewer than 16 bins of "
             f"{sums.filter_bins.samples / rate:.0f} s or four Fourier frequencies): σ is the white-noise σ"
         )
-    measured = measured_noise_model(noise.axis_variance, sums.noise_count, rate, fit, gravity, given, path, sums.duration)
+    measured = measured_noise_model(
+        noise.axis_variance, sums.noise_count, rate, fit, gravity, given=given, path=path, duration=sums.duration
+    )
     return NoiseDecision(cov_v, coloured, fit, float(cov_v[1, 1] / white_x2), measured, note)
 
 

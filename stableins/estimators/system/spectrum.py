@@ -46,6 +46,7 @@ def spectral_ratios(
     weight: NDArray[np.float64],
     white_variance: float,
     band: tuple[float, float],
+    *,
     gain: NDArray[np.float64] | None = None,
     gain_frequencies: NDArray[np.float64] | None = None,
     max_frequencies: int | None = None,

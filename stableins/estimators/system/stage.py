@@ -222,7 +222,7 @@ def run_system_stage(
         aliases=stage.thermal.aliases,
         alpha=options.noise_false_positive_rate,
     )
-    return _assemble(stage, combination, prior, prior_covariance, options, noise_model)
+    return _assemble(stage, combination, prior, prior_covariance, options, noise_model=noise_model)
 
 
 def measure_noise_model(
@@ -305,9 +305,9 @@ def _run(
     prior_res_cov = prior_residual_covariance(prior, prior_covariance, gravity)
     curve = solve.FilterCurve(None, np.zeros(0))
     if options.run_filter:
-        curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity, rate)
+        curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity=gravity, rate=rate)
     drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
-    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate, options, drift)
+    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
     decision = solve.decide_noise(
         sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
     )
@@ -322,6 +322,7 @@ def _assemble(
     prior: Mapping[str, float],
     prior_covariance: Mapping[tuple[str, str], float] | None,
     options: SystemOptions,
+    *,
     noise_model: NoiseModel | None,
 ) -> SystemCalibration:
     """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""

@@ -24,6 +24,7 @@ def whittle_fit(
     free: NDArray[np.bool_] | None = None,
     offset: NDArray[np.float64] | None = None,
     start: NDArray[np.float64] | None = None,
+    *,
     penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], float]:
     r"""Maximum of the Whittle likelihood ``ℓ(θ) = −Σ_k [log E_k + P_k/E_k]``, ``E = design @ θ + offset``, over ``θ ≥ 0``.
@@ -253,7 +254,7 @@ def fit_coloured_noise(
     level = 2.0 * float(gammaincinv(0.5, confidence))  # the χ²₁ quantile
     lower, upper = np.zeros(kinds), np.zeros(kinds)
     for c in range(channels, p):
-        lower[c - channels], upper[c - channels] = _profile_interval(design, observed, best, best_loglik, c, level, penalty)
+        lower[c - channels], upper[c - channels] = _profile_interval(design, observed, best, best_loglik, c, level=level, penalty=penalty)
     return ColouredNoiseFit(
         amplitudes=used,
         maximum_likelihood=theta[amp].copy(),
@@ -284,6 +285,7 @@ def _profile_interval(
     theta: NDArray[np.float64],
     loglik: float,
     column: int,
+    *,
     level: float,
     penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[float, float]:
