@@ -342,6 +342,7 @@ def measured_noise_model(
       profile-likelihood intervals (:class:`.whittle.ColouredNoiseFit`); not detected: 0 with the upper limit;
     * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
       all of the second differences' variance (``20 Q²/dt²``).
+
     With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
     are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
     """
