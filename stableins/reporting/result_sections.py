@@ -105,15 +105,13 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
         if not row.estimated or not (row.u > 0):
             continue
         term_scale = row.u / budget.combined_of(row.id) if budget.combined_of(row.id) > 0 else math.nan
-        # written as the results table writes u (rounding.gum): fixed point to u's decimal place, or m×10ⁿ at U's power
-        # when U is tiny (a gyro drift in °/h, σ ~ 3e-8), never 10 decimals
-        tiny = rounding.written_times_ten(row.u, row.coverage)
 
-        def cell(si: float, group: str = "", *, row: content.ParameterRow = row, scale: float = term_scale, tiny: bool = tiny) -> str:
+        def cell(si: float, group: str = "", *, row: content.ParameterRow = row, scale: float = term_scale) -> str:
             state = budget.state(group) if group else "evaluated"
             if state != "evaluated":
                 return "n.e." if state == "not evaluated" else "—"
-            return "0" if tiny and si == 0.0 else rounding.like_uncertainty(si * scale, row.u, row.coverage)
+            # as the results table writes u (rounding.gum): to u's decimal place, m×10ⁿ at U's power when U is tiny
+            return rounding.like_uncertainty(si * scale, row.u, row.coverage)
 
         r = row.rounded()
         rows.append(

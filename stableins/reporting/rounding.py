@@ -86,18 +86,15 @@ def like_uncertainty(x: float, u: float, k: float = COVERAGE_FACTOR) -> str:
     """Write ``x`` the way :func:`gum` writes the uncertainty ``u``: to the decimal place of ``u`` at two significant digits.
 
     Fixed point, or ``m×10ⁿ`` at the power of ``U = k u`` when ``U`` is below :data:`SMALLEST_FIXED_POINT` (the
-    contributions of the uncertainty budget beside ``u`` and ``U``).
+    contributions of the uncertainty budget beside ``u`` and ``U``); there a number below ``u``'s last digit is
+    written ``0``, without a power of ten.
     """
     expanded = k * u
     if expanded < SMALLEST_FIXED_POINT:
         power = math.floor(math.log10(expanded))
-        return times_ten(x, power, _u_decimals(u, power))
+        decimals = _u_decimals(u, power)
+        return "0" if round(x / 10.0**power, decimals) == 0.0 else times_ten(x, power, decimals)
     return f"{x:.{decimals_of(u)}f}".replace("-", MINUS)
-
-
-def written_times_ten(u: float, k: float = COVERAGE_FACTOR) -> bool:
-    """Return whether :func:`gum` writes a value with uncertainty ``u`` as ``m×10ⁿ`` (``k u`` below :data:`SMALLEST_FIXED_POINT`)."""
-    return math.isfinite(u) and u > 0 and k * u < SMALLEST_FIXED_POINT
 
 
 def scientific(x: float, significant: int = 2) -> str:
