@@ -196,6 +196,16 @@ def test_gum_writes_tiny_uncertainties_with_a_power_of_ten():
     assert rounding.gum(174.94, 1.25) == rounding.Rounded("174.9", "1.2", "2.5")  # above 1e-3: fixed point as before
 
 
+def test_budget_contributions_are_written_as_the_results_table_writes_u():
+    """One notation for a parameter's numbers: the budget's cells (like_uncertainty) as gum writes u, tiny or not."""
+    for u in (3.25e-8, 0.6e-7, 2.4e-4, 0.0123, 1.25):
+        assert rounding.like_uncertainty(u, u) == rounding.gum(0.0, u).u
+    assert "×10" in rounding.like_uncertainty(2.4e-4, 2.4e-4) and "×10" not in rounding.like_uncertainty(6e-4, 6e-4)  # U < 1e-3
+    assert rounding.like_uncertainty(1.04e-8, 3.25e-8) == "1.0×10⁻⁸"  # a contribution at U's power, never 1.0e-08
+    assert rounding.like_uncertainty(-4e-12, 3.25e-8) == "0" == rounding.like_uncertainty(0.0, 3.25e-8)  # below u's last digit
+    assert rounding.superscript(-12) == "⁻¹²" and rounding.scientific(5e-7) == "5.0 × 10⁻⁷"
+
+
 def test_bad_input_exits_2_and_writes_nothing(files, tmp_path, capsys):
     out = tmp_path / "r.pdf"
     (tmp_path / "broken.json").write_text('{"schema_version": 2, "serial_number": "X", "parameters": [')

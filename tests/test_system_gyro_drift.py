@@ -113,7 +113,7 @@ def test_drift_given_without_uncertainty_is_held_and_compared(drift_day):
 
 def test_drift_jacobian_of_the_attitude_fit_is_the_fit_of_the_drift_responses(drift_day):
     """∂(attitude values)/∂ε from the fit's own linear map equals three fits of the loop's unit-drift responses."""
-    from stableins.estimators.system.attitude import fit_attitude
+    from stableins.estimators.system.attitude import AttitudeDrift, AttitudeModel, fit_attitude
     from stableins.estimators.system.gyro_drift_step import attitude_drift_jacobian
     from stableins.estimators.system.loop import DampingLoop
 
@@ -125,7 +125,7 @@ def test_drift_jacobian_of_the_attitude_fit_is_the_fit_of_the_drift_responses(dr
     blocks = {"time": t, "count": np.full(t.size, 10.0), "cos": np.cos(s), "sin": np.sin(s),
               "pitch": 1e-6 * rng.standard_normal(t.size), "roll": 1e-6 * rng.standard_normal(t.size)}  # fmt: skip
     options = SystemOptions()
-    fit = fit_attitude(blocks, loop, (1e-6, 1e-6), scale_low_frequency=False, drift_jacobian=True)
+    fit = fit_attitude(blocks, AttitudeModel(loop), (1e-6, 1e-6), scale_low_frequency=False, drift=AttitudeDrift(jacobian=True))
     reference = attitude_drift_jacobian(blocks, loop, (1e-6, 1e-6), options, 600.0)
     assert isinstance(loop, DampingLoop)
     np.testing.assert_allclose(fit.drift_jacobian, reference, rtol=1e-9, atol=1e-12 * np.abs(reference).max())

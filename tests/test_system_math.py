@@ -11,7 +11,7 @@ from stableins import conventions as cv
 from stableins.errormodel import ErrorModel
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.assembly import residuals_from_parameters
-from stableins.estimators.system.attitude import attitude_combinations, fit_attitude
+from stableins.estimators.system.attitude import AttitudeDrift, AttitudeModel, attitude_combinations, fit_attitude
 from stableins.estimators.system.blocksums import BlockHarmonics, harmonic_information, observation
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, separate
@@ -115,9 +115,9 @@ def test_attitude_fit_compensates_loop_exactly(couplings):
     y = loop.simulate(t, np.stack([dn[:, 0], -dn[:, 1]], 1))
     blocks = dict(count=np.ones_like(t), time=t, cos=np.cos(s), sin=np.sin(s), pitch=y[:, 0], roll=y[:, 1])
     ref = attitude_combinations(LAT) @ p
-    fit = fit_attitude(blocks, loop, (5e-4, 5e-4))
+    fit = fit_attitude(blocks, AttitudeModel(loop), (5e-4, 5e-4))
     assert np.abs(fit.values - ref).max() < 1e-10
-    biased = fit_attitude(blocks, loop, (5e-4, 5e-4), compensate_loop=False)
+    biased = fit_attitude(blocks, AttitudeModel(loop, compensate_loop=False), (5e-4, 5e-4))
     assert np.abs(biased.values - ref).max() > 2e-6  # the quasi-static reading is off by several 1e-6 rad
 
 
@@ -231,7 +231,7 @@ def test_stage_compensation_equals_error_model_inverse():
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
 def test_block_sums_compiled_equal_numpy_reference(jitter):
     """The compiled per-sample pass equals its numpy reference (z, moments, block times, Σz², irregular steps)."""
-    from stableins.estimators.system.blocksums import block_sums, block_sums_reference
+    from stableins.estimators.system.blocksums import BlockPass, block_sums, block_sums_reference
     from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(6)
@@ -240,7 +240,7 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
         t = 50.0 + np.arange(n) / 100.0 + (rng.uniform(-jitter, jitter, n) / 100.0 if jitter else 0.0)
         f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
         packed = Compensation.from_values(installed).packed(9.8)
-        args = (*(f_a[:, k].copy() for k in range(3)), t, packed, 256, cv.EARTH_RATE, (0.0099, 0.0101))
+        args = (*(f_a[:, k].copy() for k in range(3)), t, BlockPass(packed, 256, cv.EARTH_RATE, (0.0099, 0.0101)))
         got, expected = block_sums(*args), block_sums_reference(*args)
         # round-off scale per block and column: Σ|z||δ|^p, Σ|δ|^p, plus p·Σ|z||δ|^(p−1)·ε_c for the round-off ε_c of the centre
         z = observation(f_a[:, 0], f_a[:, 1], f_a[:, 2], packed)
@@ -272,7 +272,7 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
 
 def test_block_sums_z_equals_error_model_inverse():
     """z of the compiled pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
-    from stableins.estimators.system.blocksums import block_sums
+    from stableins.estimators.system.blocksums import BlockPass, block_sums
     from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(5)
@@ -281,14 +281,14 @@ def test_block_sums_z_equals_error_model_inverse():
     f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
     expected = 0.5 * (np.sum(ErrorModel.standard().inverse(f_a, installed) ** 2, axis=1) / 9.8**2 - 1.0)
     packed = Compensation.from_values(installed).packed(9.8)
-    sums, *_ = block_sums(*(f_a[:, k].copy() for k in range(3)), np.arange(n) / 100.0, packed, 1, cv.EARTH_RATE, (0.0, 1.0))
+    sums, *_ = block_sums(*(f_a[:, k].copy() for k in range(3)), np.arange(n) / 100.0, BlockPass(packed, 1, cv.EARTH_RATE, (0.0, 1.0)))
     np.testing.assert_allclose(sums[:, 0], expected, rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
 def test_timed_block_information_equals_per_sample(jitter):
     """``S = S_c + ω_ie (t − t̄)`` per block (uniform grid or jittered stamps) equals the per-sample information."""
-    from stableins.estimators.system.blocksums import block_sums
+    from stableins.estimators.system.blocksums import BlockPass, block_sums
 
     rng = np.random.default_rng(1)
     rate = 100.0
@@ -303,7 +303,9 @@ def test_timed_block_information_equals_per_sample(jitter):
     block = BlockHarmonics(LAT, 256, order=3)
     for start in range(0, n, 65536):
         sl = slice(start, start + 65536)
-        sums, centres, z2, _ = block_sums(fx[sl], np.zeros(fx[sl].size), np.zeros(fx[sl].size), t[sl], packed, 256, cv.EARTH_RATE, (0, 1))
+        sums, centres, z2, _ = block_sums(
+            fx[sl], np.zeros(fx[sl].size), np.zeros(fx[sl].size), t[sl], BlockPass(packed, 256, cv.EARTH_RATE, (0, 1))
+        )
         block.add_sums(0.7 + cv.EARTH_RATE * (centres - t[0]), sums, z2)
     acc = block.accumulator()
     np.testing.assert_allclose(acc.information, ref.information, rtol=1e-11, atol=1e-11 * n)
@@ -341,9 +343,9 @@ def test_attitude_fit_independent_of_row_slicing(monkeypatch):
     y = 1e-5 * np.stack([np.cos(s + 0.2), np.sin(s - 0.1)], axis=1) + rng.normal(0, 1e-6, (t.size, 2))
     blocks = dict(count=np.full_like(t, 10.0), time=t, cos=np.cos(s), sin=np.sin(s), pitch=y[:, 0], roll=y[:, 1])
     loop = DampingLoop(LAT, G, 0.5)
-    whole = fit_attitude(blocks, loop, (5e-4, 5e-4), gyro_drift="check")
+    whole = fit_attitude(blocks, AttitudeModel(loop), (5e-4, 5e-4), drift=AttitudeDrift("check"))
     monkeypatch.setattr(attitude_module, "FIT_ROWS", 97)  # 90 slices, the last partial
-    sliced = fit_attitude(blocks, loop, (5e-4, 5e-4), gyro_drift="check")
+    sliced = fit_attitude(blocks, AttitudeModel(loop), (5e-4, 5e-4), drift=AttitudeDrift("check"))
     assert whole.block_residuals.shape == (t.size, 2)
     np.testing.assert_allclose(sliced.values, whole.values, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(sliced.covariance, whole.covariance, rtol=1e-9, atol=1e-24)

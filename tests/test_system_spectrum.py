@@ -121,9 +121,10 @@ def test_expected_periodogram_matches_the_mean_periodogram_of_drawn_noise(kind):
     for _ in range(draws):
         axes = chol @ rng.standard_normal((n, 3))
         channels = [maker @ sum(dense[p][a] @ axes[:, a] for a in range(3)) for p in range(3)]
-        _, observed, _ = spectrum.periodogram_design(channels, [maker] * 3, [count] * 3, time, [], mixing, band)  # ordinates only
+        residuals = spectrum.ResidualChannels(channels, [maker] * 3, [count] * 3)
+        _, observed, _ = spectrum.periodogram_design(residuals, time, [], mixing, band)  # ordinates only
         total = observed if total is None else total + observed
-    design, _, n_ch = spectrum.periodogram_design(channels, [maker] * 3, [count] * 3, time, [kernel], mixing, band)
+    design, _, n_ch = spectrum.periodogram_design(residuals, time, [kernel], mixing, band)
     expected = design[:, n_ch]
     ratio = total / draws / expected
     # mean of 400 ordinates: ~5 % standard error each (coloured ordinates are close to exponential)
@@ -151,7 +152,8 @@ def test_white_gain_of_a_loop_filtered_white_noise_on_bins():
     for _ in range(300):
         pitch = lp.simulate(fine_time, rng.standard_normal((n_fine, 2)))[:, 0]
         binned = pitch[: n * per_bin].reshape(n, per_bin).mean(axis=1)
-        design, observed, _ = spectrum.periodogram_design([maker @ binned], [maker], [count], time, [], zero, band, white_gains=gain)
+        residuals = spectrum.ResidualChannels([maker @ binned], [maker], [count], gain)
+        design, observed, _ = spectrum.periodogram_design(residuals, time, [], zero, band)
         total = observed if total is None else total + observed
     shape = total / design[:, 0]
     # the white column has the right shape across the band: the ratio is flat (level free), low vs high third
@@ -194,7 +196,7 @@ def test_component_quadratic_memory_does_not_grow_with_the_stacked_size():
 
 
 def testattitude_residual_maker_equals_the_block_fit_for_noise_constant_within_bins():
-    from stableins.estimators.system.attitude import _design
+    from stableins.estimators.system.attitude import AttitudeModel, _design
     from stableins.estimators.system.coloured import attitude_residual_maker
 
     rng = np.random.default_rng(2)
@@ -206,7 +208,7 @@ def testattitude_residual_maker_equals_the_block_fit_for_noise_constant_within_b
     block_bin = np.floor(block_time / WIDTH).astype(np.int64)
     n = int(block_bin.max()) + 1
     bin_count = np.bincount(block_bin, weights=blocks["count"], minlength=n)
-    maker = attitude_residual_maker(blocks, block_bin, bin_count, lp, 480.0)
+    maker = attitude_residual_maker(blocks, block_bin, bin_count, AttitudeModel(lp, 480.0))
     values = np.cumsum(rng.standard_normal(n))  # a random walk on the bins, constant within each
     y = values[block_bin]
     x = _design(blocks, lp, 480.0)[0]

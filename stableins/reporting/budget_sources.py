@@ -28,8 +28,8 @@ from stableins.reporting.budget import (
     Source,
     UncertaintyInputs,
     gravity_direction,
-    scientific,
 )
+from stableins.reporting.rounding import scientific
 
 _NORMAL_GRAVITY_TEXT = (
     "assumed: the normal-gravity formula omits the local gravity anomaly (tens of mGal, beyond 100 mGal in mountains); "

@@ -104,24 +104,20 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
     for row in ctx.rows:
         if not row.estimated or not (row.u > 0):
             continue
-        decimals = rounding.decimals_of(row.u)
         term_scale = row.u / budget.combined_of(row.id) if budget.combined_of(row.id) > 0 else math.nan
 
-        tiny = decimals > SCIENTIFIC_DECIMALS  # e.g. a gyro drift in °/h (σ ~ 3e-8): two significant digits, not 10 decimals
-
-        form = ".1e" if tiny else f".{decimals}f"
-
-        def cell(si: float, group: str = "", form: str = form, scale: float = term_scale) -> str:
+        def cell(si: float, group: str = "", *, row: content.ParameterRow = row, scale: float = term_scale) -> str:
             state = budget.state(group) if group else "evaluated"
             if state != "evaluated":
                 return "n.e." if state == "not evaluated" else "—"
-            return "0" if form == ".1e" and si == 0.0 else f"{si * scale:{form}}"
+            # as the results table writes u (rounding.gum): to u's decimal place, m×10ⁿ at U's power when U is tiny
+            return rounding.like_uncertainty(si * scale, row.u, row.coverage)
 
         r = row.rounded()
         rows.append(
             [row.symbol, escape(row.unit), cell(budget.type_a[budget.ids.index(row.id)])]
             + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
-            + ([f"{row.u:.1e}", f"{k * row.u:.1e}"] if tiny else [r.u, r.expanded])
+            + [r.u, r.expanded]
         )
     widths = [0.12, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.12]
     out.append(document.table(rows, widths, align_right=tuple(range(2, 10)), markup=True))
@@ -140,10 +136,6 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
             out.append(paragraph(prose(condition)))
     out.append(paragraph(_uncertainty_statement(ctx), "small"))
     return out
-
-
-#: Beyond this many decimals the budget table writes a parameter's uncertainties in scientific notation.
-SCIENTIFIC_DECIMALS = 5
 
 
 def _uncertainty_statement(ctx: ReportContext) -> str:

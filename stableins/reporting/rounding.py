@@ -2,8 +2,10 @@
 
 One place for every rounding rule of the certificate: :func:`gum` rounds a value with its standard and
 expanded uncertainty (``U = k u`` and ``u`` to two significant digits, the value to the decimal place of
-``U``; below :data:`SMALLEST_FIXED_POINT` written as ``m×10ⁿ``), :func:`number` and
-:func:`round_to_uncertainty` the single numbers around it.
+``U``; below :data:`SMALLEST_FIXED_POINT` written as ``m×10ⁿ`` at the power of ``U``, :func:`times_ten`);
+:func:`like_uncertainty` writes a number the way :func:`gum` writes ``u`` (the budget's contributions);
+:func:`number`, :func:`round_to_uncertainty` and :func:`scientific` the single numbers around it;
+:func:`superscript` the exponents.
 """
 
 from __future__ import annotations
@@ -53,16 +55,52 @@ SMALLEST_FIXED_POINT = 1e-3
 def _gum_scientific(value: float, u: float, expanded: float) -> Rounded:
     """Round as :func:`gum` does, written as mantissa×10ⁿ with the power of ``U`` (``−3.6×10⁻⁸``)."""
     power = math.floor(math.log10(expanded))
-    superscript = str(power).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+    return Rounded(times_ten(value, power, 1), times_ten(u, power, _u_decimals(u, power)), times_ten(expanded, power, 1))
 
-    def scaled(x: float, decimals: int = 1) -> str:
-        text = f"{x / 10.0**power:.{decimals}f}"
-        if float(text) == 0.0:
-            text = text.lstrip("-")
-        return f"{text}×10{superscript}".replace("-", MINUS)
 
-    # U's mantissa lies in [1, 10): one decimal is two significant digits; u = U/k may fall below 1
-    return Rounded(scaled(value), scaled(u, 1 if u / 10.0**power >= 1 else 2), scaled(expanded))
+def _u_decimals(u: float, power: int) -> int:
+    """Return the decimals of ``u``'s mantissa at ``U``'s power (two significant digits).
+
+    U's mantissa lies in [1, 10): one decimal is two significant digits; ``u = U/k`` may fall below 1 and then keeps two.
+    """
+    return 1 if u / 10.0**power >= 1 else 2
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def superscript(power: int) -> str:
+    """Return an integer in superscript digits (``−8`` → ``⁻⁸``), the exponent of ``×10ⁿ``."""
+    return str(power).translate(_SUPERSCRIPT)
+
+
+def times_ten(x: float, power: int, decimals: int) -> str:
+    """Write ``x`` as ``m×10ⁿ`` at the given power, the mantissa with ``decimals`` decimals (``−3.6×10⁻⁸``; never ``−0``)."""
+    text = f"{x / 10.0**power:.{decimals}f}"
+    if float(text) == 0.0:
+        text = text.lstrip("-")
+    return f"{text}×10{superscript(power)}".replace("-", MINUS)
+
+
+def like_uncertainty(x: float, u: float, k: float = COVERAGE_FACTOR) -> str:
+    """Write ``x`` the way :func:`gum` writes the uncertainty ``u``: to the decimal place of ``u`` at two significant digits.
+
+    Fixed point, or ``m×10ⁿ`` at the power of ``U = k u`` when ``U`` is below :data:`SMALLEST_FIXED_POINT` (the
+    contributions of the uncertainty budget beside ``u`` and ``U``); there a number below ``u``'s last digit is
+    written ``0``, without a power of ten.
+    """
+    expanded = k * u
+    if expanded < SMALLEST_FIXED_POINT:
+        power = math.floor(math.log10(expanded))
+        decimals = _u_decimals(u, power)
+        return "0" if round(x / 10.0**power, decimals) == 0.0 else times_ten(x, power, decimals)
+    return f"{x:.{decimals_of(u)}f}".replace("-", MINUS)
+
+
+def scientific(x: float, significant: int = 2) -> str:
+    """Write a number in scientific notation for people, ``5.0 × 10⁻⁷`` (prose; tables use :func:`times_ten`)."""
+    mantissa, exponent = f"{x:.{significant - 1}e}".split("e")
+    return f"{mantissa} × 10{superscript(int(exponent))}".replace("-", MINUS)
 
 
 def number(x: float, significant: int) -> str:

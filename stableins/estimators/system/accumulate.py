@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,14 +44,11 @@ from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.blocks import AttitudeBlocks
-from stableins.estimators.system.blocksums import BlockHarmonics, block_length, block_sums, second_difference_sums
-from stableins.estimators.system.checks import StaticChecks
+from stableins.estimators.system.blocksums import BlockHarmonics, BlockPass, block_length, block_sums, second_difference_sums
+from stableins.estimators.system.checks import StageContext, StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
 from stableins.estimators.system.gyro_drift import GIMBAL_BLOCKS, GIMBAL_COLUMNS, GimbalBlocks
 from stableins.site import SiteMetadata
-
-if TYPE_CHECKING:
-    from stableins.estimators.system.stage import SystemOptions
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
 #: (HDF5 records with a /time_grid: time only at the attitude decimation, the rest reconstructed).
@@ -224,6 +221,21 @@ class RecordSums:
     fine_temperature_bins: TemperatureBins | None = None
 
 
+@dataclass(frozen=True)
+class SourceContents:
+    """What a record's source provides besides the specific force and the attitude (:class:`StageAccumulator`).
+
+    ``has_temperature``: a temperature column; ``has_gimbals``: the inner and middle gimbal readings (the gyro drift,
+    :mod:`.gyro_drift`); ``time_grid``: the source's time grid (:class:`stableins.data.chunks.GriddedChunkSource`) and
+    ``grid_time`` its reconstruction of the stamps of rows ``[start, stop)``.
+    """
+
+    has_temperature: bool = False
+    has_gimbals: bool = True
+    time_grid: NDArray[np.float64] | None = None
+    grid_time: Callable[[int, int], NDArray[np.float64]] | None = None
+
+
 class StageAccumulator:
     """The stage's streaming pass: ``add(chunk)`` for each chunk in order, then ``finish()`` (see the module docstring).
 
@@ -233,38 +245,27 @@ class StageAccumulator:
         Gimbal senses and base attitude of the record.
     prior : mapping
         Installed calibration (record values) the outputs are compensated with.
-    options : SystemOptions
-        Chunk size, decimation, bin widths, limits of the checks.
-    latitude, gravity, rate : float
-        Checked site values (:func:`.checks.check_metadata`) [rad, m/s², Hz].
-    path : str
-        The record's name in messages.
+    context : StageContext
+        The record's name, its checked site values (:func:`.checks.check_metadata`) and the options (chunk size,
+        decimation, bin widths, limits of the checks).
     compensation_terms : sequence of Term
         Discovered additive terms of the prior (:class:`.compensation.AdditiveCompensation`).
-    has_temperature : bool
-        Read the temperature column too.
-    has_gimbals : bool
-        Read the inner and middle readings too (the gyro drift from the gimbal readings, :mod:`.gyro_drift`).
-    time_grid : ndarray or None
-        The source's time grid (:class:`stableins.data.chunks.GriddedChunkSource`); ``grid_time`` its reconstruction.
+    source : SourceContents
+        What the source provides besides the specific force (temperature, gimbal readings, a time grid).
     """
 
     def __init__(
         self,
         metadata: SiteMetadata,
         prior: Mapping[str, float],
-        options: SystemOptions,
+        context: StageContext,
         *,
-        latitude: float,
-        gravity: float,
-        rate: float,
-        path: str,
         compensation_terms: Sequence[Term] = (),
-        has_temperature: bool = False,
-        has_gimbals: bool = True,
-        time_grid: NDArray[np.float64] | None = None,
-        grid_time: Callable[[int, int], NDArray[np.float64]] | None = None,
+        source: SourceContents = SourceContents(),
     ) -> None:
+        path, options, site = context.path, context.options, context.site
+        latitude, gravity, rate = site.latitude, site.gravity, site.rate
+        has_temperature, has_gimbals, time_grid = source.has_temperature, source.has_gimbals, source.time_grid
         self.path, self.options = path, options
         self.config = GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses)))
         self.theta10 = float(prior.get("theta10", 0.0))
@@ -298,6 +299,7 @@ class StageAccumulator:
         self.harmonics = BlockHarmonics(latitude, block)
         self.packed = compensation.packed(gravity)
         self.step_range = (0.99 / rate, 1.01 / rate)
+        self.block_pass = BlockPass(self.packed, block, EARTH_RATE, self.step_range)
         self.attitude_blocks: AttitudeBlocks | None = None
         self.noise_sums = np.zeros(3)
         self.noise_count = 0
@@ -312,7 +314,7 @@ class StageAccumulator:
         self.columns = columns
         self.thin = [c for c in columns if c not in FAST_COLUMNS]
         # an HDF5 record's /time_grid: uniformly sampled stretches are reconstructed, not read (time then comes at 1 Hz only)
-        self.grid, self.grid_time = time_grid, grid_time
+        self.grid, self.grid_time = time_grid, source.grid_time
         if time_grid is not None:
             self.thin.append("time")
         self.knot_time: float | None = None  # last Earth-rate-angle knot of the previous chunk
@@ -330,9 +332,7 @@ class StageAccumulator:
         phase = (-seen) % decimation
         time, t_d, uniform = self._time(chunk, n, phase)
         # the one pass over every sample: z and its per-block moments, block mean times, irregular steps
-        sums, block_time, sum_z2, irregular = block_sums(
-            fx, fy, fz, time, self.packed, self.block, EARTH_RATE, self.step_range, grid=uniform
-        )
+        sums, block_time, sum_z2, irregular = block_sums(fx, fy, fz, time, self.block_pass, grid=uniform)
         if not (math.isfinite(sum_z2) and np.isfinite(sums[:, 0]).all()):  # a NaN or ±inf force propagates into Σz²
             for name, values in zip(FORCE_COLUMNS, (fx, fy, fz), strict=True):
                 check_finite(name, values, self.path, first_row=seen + 1)
@@ -473,6 +473,7 @@ __all__ = [
     "FAST_COLUMNS",
     "FINE_BINS",
     "FINE_BIN_SECONDS",
+    "SourceContents",
     "FORCE_COLUMNS",
     "SLOW_COLUMNS",
     "RecordSums",

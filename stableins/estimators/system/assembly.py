@@ -25,6 +25,7 @@ from stableins.noise import NoiseModel
 from stableins.status import Determination, Status
 
 if TYPE_CHECKING:
+    from stableins.estimators.system.checks import RecordSite
     from stableins.estimators.system.gyro_drift_step import DriftStep
     from stableins.estimators.system.stage import SystemOptions
 
@@ -235,13 +236,12 @@ class SeparationFit:
 
 def separation_likelihood(
     prior: Mapping[str, float],
-    latitude: float,
-    gravity: float,
+    site: RecordSite,
     v: NDArray[np.float64],
     cov_v: NDArray[np.float64],
+    *,
     to_combined: NDArray[np.float64],
     transform: NDArray[np.float64],
-    *,
     estimate_k2: bool,
     drift: tuple[NDArray[np.float64], DriftStep] | None = None,
 ) -> tuple[Likelihood, SeparationFit]:
@@ -261,6 +261,7 @@ def separation_likelihood(
     """
     from stableins.estimators.system.separation import combination_matrix
 
+    latitude, gravity = site.latitude, site.gravity
     n_res = len(hm.RESIDUAL_NAMES)
     rows = transform @ to_combined  # (k, 17)
     g_full = combination_matrix(latitude)  # (15, 14): residuals, then the two nuisances
@@ -310,28 +311,44 @@ def separation_likelihood(
     return likelihood, fit
 
 
+@dataclass(frozen=True)
+class StagePrior:
+    """The installed calibration the system stage updates (:func:`fit_result`).
+
+    Attributes
+    ----------
+    values : mapping
+        The record's values [SI].
+    covariance : ndarray
+        Their covariance over :data:`CORE_TERMS` (:func:`prior_term_covariance`).
+    drift : (ndarray (3,), ndarray (3, 3)) or None
+        Values and covariance of the gyro drift when the prior states one (:func:`.gyro_drift_step.prior_drift`).
+    """
+
+    values: Mapping[str, float]
+    covariance: NDArray[np.float64]
+    drift: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+
+
 def fit_result(
     sep: Separation,
     fit: SeparationFit,
     likelihood: Likelihood,
-    prior: Mapping[str, float],
-    prior_res_cov: NDArray[np.float64],
-    scale: Mapping[str, float],
-    gravity: float,
-    transform: NDArray[np.float64],
+    installed: StagePrior,
     notes: list[str],
-    prior_cov: NDArray[np.float64],
+    *,
     settings: dict[str, Any],
     k2: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-    drift_prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
     """Return the stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS).
 
-    When the likelihood measures the gyro drift its terms follow; ``drift_prior`` (values, covariance) is the prior's
-    drift when it states one (:func:`.gyro_drift_step.prior_drift`), else the drift comes from the data alone.
+    When the likelihood measures the gyro drift its terms follow, with the prior's drift when it states one
+    (``installed.drift``), else the drift comes from the data alone.  ``k2``: the residual ``K2_x``, ``K2_y`` of the
+    third harmonic and their covariance when the stage estimates them.
     """
     from stableins.estimators.posterior import bayesian_update
 
+    prior, prior_cov, drift_prior = installed.values, installed.covariance, installed.drift
     terms = tuple(CORE_TERMS)
     ids = [t.id for t in terms]
     prior_values = np.array([float(prior.get(t.id, t.reference)) for t in terms])
@@ -398,6 +415,7 @@ __all__ = [
     "GYRO_DRIFT_PARAMETER",
     "VIF_LIMIT",
     "SeparationFit",
+    "StagePrior",
     "combined_terms",
     "fit_result",
     "fixed_variance",

@@ -59,6 +59,50 @@ FIT_ROWS = 4096
 CASE_ROTATION_PERIOD = 480.0
 
 
+@dataclass(frozen=True)
+class AttitudeModel:
+    """What the observed pitch and roll pass through besides the accelerometer harmonics (:func:`fit_attitude`).
+
+    Attributes
+    ----------
+    loop : DampingLoop
+        The INS damping loop (from the record's metadata).
+    case_rotation_period : float or None
+        Period of the gyro case-rotation residual [s]; ``None`` leaves it out.
+    compensate_loop : bool
+        Map the harmonics through ``M_k⁻¹`` (default).  ``False`` reproduces the paper's quasi-static reading (biased
+        by the loop's gain and phase).
+    """
+
+    loop: DampingLoop
+    case_rotation_period: float | None = CASE_ROTATION_PERIOD
+    compensate_loop: bool = True
+
+
+@dataclass(frozen=True)
+class AttitudeDrift:
+    """How the attitude fit treats a constant gyro drift (:func:`fit_attitude`).
+
+    Attributes
+    ----------
+    mode : {"check", "fit", "ignore"}
+        The loop's response to a constant gyro drift along each platform axis (:meth:`DampingLoop.drift_responses`,
+        from rest at the record start).  The equatorial components turn at the Earth rate in the n-frame and drive the
+        undamped Earth-rate mode at resonance: 0.001°/h moves the attitude coefficients by ~2e-5 rad.  Over one day the
+        response is nearly collinear with the fundamentals (fitting it as a nuisance, ``"fit"``, inflates their σ about
+        tenfold; ``"check"`` fits it only to warn, which at 0.001°/h and 1 Hz is not significant either), so by default
+        (``"ignore"``) it is left out: give ``known``.
+    known : array (3,), optional
+        Gyro drift in the platform frame [rad/s] known from elsewhere: its response is removed.
+    jacobian : bool
+        Also return ``∂values/∂ε`` (10, 3): the fit's linear map applied to the loop's unit-drift responses.
+    """
+
+    mode: str = "ignore"
+    known: Sequence[float] | NDArray[np.float64] | None = None
+    jacobian: bool = False
+
+
 def attitude_combinations(latitude: float) -> NDArray[np.float64]:
     """Matrix ``(10, 12)`` mapping residuals (``harmonics.RESIDUAL_NAMES``) to the quasi-static coefficients.
 
@@ -170,17 +214,13 @@ def _design(
 
 def fit_attitude(
     blocks: dict[str, NDArray[np.float64]],
-    loop: DampingLoop,
+    model: AttitudeModel,
     noise_sigma: tuple[float, float],
-    case_rotation_period: float | None = CASE_ROTATION_PERIOD,
     *,
-    compensate_loop: bool = True,
     vertical: NDArray[np.float64] | None = None,
-    gyro_drift: str = "ignore",
-    known_drift: Sequence[float] | NDArray[np.float64] | None = None,
+    drift: AttitudeDrift = AttitudeDrift(),
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
-    drift_jacobian: bool = False,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -188,30 +228,17 @@ def fit_attitude(
     ----------
     blocks : dict
         Block means from :meth:`.blocks.AttitudeBlocks.means` (``time`` since the record start).
-    loop : DampingLoop
-        The INS damping loop (from the record's metadata).
+    model : AttitudeModel
+        The damping loop (compensated or not) and the gyro case-rotation period.
     noise_sigma : (float, float)
         Per-sample σ of the quasi-static pitch and roll inputs ``Δf_N/g``, ``Δf_E/g``,
         measured from the accelerometer noise [rad].
-    case_rotation_period : float or None
-        Period of the gyro case-rotation residual [s]; ``None`` leaves it out.
-    compensate_loop : bool
-        Map the harmonics through ``M_k⁻¹`` (default).  ``False`` reproduces the
-        paper's quasi-static reading (biased by the loop's gain and phase).
     vertical : ndarray (5,), optional
         Mean and harmonics ``(mean, cos S, sin S, cos 2S, sin 2S)`` of ``Δf_D/g``; their
         response through the vertical channel is removed before the compensation.  The
         result's ``vertical_jacobian`` is ``∂values/∂vertical`` for the covariance.
-    gyro_drift : {"check", "fit", "ignore"}
-        The loop's response to a constant gyro drift along each platform axis
-        (:meth:`DampingLoop.drift_responses`, from rest at the record start).  The equatorial
-        components turn at the Earth rate in the n-frame and drive the undamped Earth-rate mode
-        at resonance: 0.001°/h moves the attitude coefficients by ~2e-5 rad.  Over one day the
-        response is nearly collinear with the fundamentals (fitting it as a nuisance, ``"fit"``,
-        inflates their σ about tenfold; ``"check"`` fits it only to warn, which at 0.001°/h and 1 Hz is not
-        significant either), so by default (``"ignore"``) it is left out: pass ``known_drift``.
-    known_drift : array (3,), optional
-        Gyro drift in the platform frame [rad/s] known from elsewhere: its response is removed.
+    drift : AttitudeDrift
+        How a constant gyro drift is treated (left out by default), a known drift removed, its Jacobian.
     scale_low_frequency : bool
         Scale the covariance by the residual spectrum extrapolated to the harmonics (stand-alone use).  The
         system stage passes ``False`` and adds the coloured-noise covariance of its joint model
@@ -219,18 +246,21 @@ def fit_attitude(
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
-    drift_jacobian : bool
-        Also return ``∂values/∂ε`` (10, 3): the fit's linear map applied to the loop's unit-drift responses.
+
+    Returns
+    -------
+    AttitudeFit
+        The loop-compensated coefficients, their covariance and the fit's diagnostics.
     """
     n_blocks = blocks["time"].size
-    _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, case_rotation_period)
+    loop = model.loop
+    _, names, freqs = _design({k: blocks[k][:1] for k in ("time", "cos", "sin")}, loop, model.case_rotation_period)
     slices = [slice(i, min(i + FIT_ROWS, n_blocks)) for i in range(0, n_blocks, FIT_ROWS)]
-    drift = (gyro_drift, known_drift, drift_jacobian)
-    fits = _fit_channels(blocks, loop, noise_sigma, case_rotation_period, drift, map_bin_seconds, len(names), freqs, slices)
+    fits = _fit_channels(blocks, model, noise_sigma, drift, map_bin_seconds, layout=(len(names), freqs, slices))
     beta, residuals, cov_obs, maps, drift_estimate, drift_sigma, jacobian_obs = fits
-    notes = _drift_notes(drift_estimate, drift_sigma) if gyro_drift == "check" else []
+    notes = _drift_notes(drift_estimate, drift_sigma) if drift.mode == "check" else []
     observed = np.concatenate([beta[:5, 0], beta[:5, 1]])  # (mean, 1c, 1s, 2c, 2s) per channel
-    transform, vertical_map = _loop_compensation(loop, compensate_loop=compensate_loop)
+    transform, vertical_map = _loop_compensation(loop, compensate_loop=model.compensate_loop)
     v = np.zeros(5) if vertical is None else np.asarray(vertical, dtype=float)
     qs = transform @ (observed - vertical_map @ v)
     jac_vertical = -transform @ vertical_map
@@ -285,14 +315,12 @@ def _drift_notes(drift_estimate: NDArray[np.float64], drift_sigma: NDArray[np.fl
 
 def _fit_channels(
     blocks: dict[str, NDArray[np.float64]],
-    loop: DampingLoop,
+    model: AttitudeModel,
     noise_sigma: tuple[float, float],
-    case_rotation_period: float | None,
-    drift_settings: tuple[str, Sequence[float] | NDArray[np.float64] | None, bool],
+    drift_settings: AttitudeDrift,
     map_bin_seconds: float,
-    n_common: int,
-    freqs: NDArray[np.float64],
-    slices: list[slice],
+    *,
+    layout: tuple[int, NDArray[np.float64], list[slice]],
 ) -> tuple[
     NDArray[np.float64],
     NDArray[np.float64],
@@ -304,18 +332,20 @@ def _fit_channels(
 ]:
     """Fit pitch and roll on the blocks (the drift responses as columns with ``gyro_drift="fit"``).
 
-    ``drift_settings``: ``(gyro_drift, known_drift, drift_jacobian)`` of :func:`fit_attitude`.  Returns ``(coefficients
+    ``drift_settings``: ``drift`` of :func:`fit_attitude`; ``layout``: the number of common columns, their frequencies
+    and the slices of blocks the design is built in.  Returns ``(coefficients
     (n, 2), block residuals, covariance of the observed (mean, 1c, 1s, 2c, 2s) per channel, the map from the block means
     summed per time bin to them, drift estimate (2, 3), its σ, ∂observed/∂ε (10, 3) or None)``.
     """
     designs: dict[int, NDArray[np.float64]] = {}  # both channels and all passes share the rows: built once per slice
+    loop, (n_common, freqs, slices) = model.loop, layout
 
     def common(rows: slice) -> NDArray[np.float64]:
         if rows.start not in designs:
-            designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+            designs[rows.start] = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, model.case_rotation_period)[0]
         return designs[rows.start]
 
-    gyro_drift, known_drift, want_jacobian = drift_settings
+    gyro_drift, known_drift, want_jacobian = drift_settings.mode, drift_settings.known, drift_settings.jacobian
     w = blocks["count"]
     y = np.stack([blocks["pitch"], blocks["roll"]], axis=1)
     needed = gyro_drift in ("fit", "check") or known_drift is not None or want_jacobian

@@ -197,15 +197,35 @@ def _kernel() -> Any:
     return _KERNEL
 
 
+@dataclass(frozen=True)
+class BlockPass:
+    """What the per-block pass needs besides the samples: the installed calibration and the record's sampling.
+
+    Attributes
+    ----------
+    packed : ndarray (12,)
+        :func:`coefficients` of the installed calibration.
+    block : int
+        Samples per block (the last block of a chunk may be shorter).
+    omega : float
+        Rate of the Earth-rate angle [rad/s].
+    step_range : (float, float)
+        Accepted time steps ``[low, high]`` [s]; steps outside are counted.
+    """
+
+    packed: NDArray[np.float64]
+    block: int
+    omega: float
+    step_range: tuple[float, float]
+
+
 def block_sums(
     fx: NDArray[np.float64],
     fy: NDArray[np.float64],
     fz: NDArray[np.float64],
     time: NDArray[np.float64] | None,
-    packed: NDArray[np.float64],
-    block: int,
-    omega: float,
-    step_range: tuple[float, float],
+    settings: BlockPass,
+    *,
     grid: tuple[float, float] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
     """Per-block sums of one chunk (compiled pass).
@@ -216,14 +236,8 @@ def block_sums(
         Raw accelerometer outputs [m/s²] (finite).
     time : ndarray (n,) or None
         Time stamps [s]; None with ``grid``.
-    packed : ndarray (12,)
-        :func:`coefficients` of the installed calibration.
-    block : int
-        Samples per block (the last block of the chunk may be shorter).
-    omega : float
-        Rate of the Earth-rate angle [rad/s].
-    step_range : (float, float)
-        Accepted time steps ``[low, high]`` [s]; steps outside are counted.
+    settings : BlockPass
+        The installed calibration, block length, Earth-rate-angle rate and accepted time steps.
     grid : (float, float), optional
         ``(t_0, period)``: uniformly sampled chunk, ``t_j = t_0 + j·period`` (the stamps are not read).
 
@@ -238,6 +252,7 @@ def block_sums(
     irregular : int
         Number of time steps inside the chunk outside ``step_range``.
     """
+    packed, block, omega, step_range = settings.packed, settings.block, settings.omega, settings.step_range
     n = fx.size
     n_blocks = -(-n // block)
     sums = np.empty((n_blocks, len(SUM_COLUMNS)))
@@ -319,12 +334,10 @@ def block_sums_reference(
     fy: NDArray[np.float64],
     fz: NDArray[np.float64],
     time: NDArray[np.float64],
-    packed: NDArray[np.float64],
-    block: int,
-    omega: float,
-    step_range: tuple[float, float],
+    settings: BlockPass,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
     """Compute the same sums with numpy array operations (the reference :func:`block_sums` is tested against)."""
+    packed, block, omega, step_range = settings.packed, settings.block, settings.omega, settings.step_range
     z = observation(fx, fy, fz, packed)
     n = z.size
     starts = np.arange(0, n, block)
@@ -430,6 +443,7 @@ def block_length(sample_rate: float, limit: float = 2e-4) -> int:
 __all__ = [
     "SUM_COLUMNS",
     "BlockHarmonics",
+    "BlockPass",
     "block_length",
     "block_sums",
     "block_sums_reference",

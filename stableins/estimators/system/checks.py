@@ -15,7 +15,49 @@ from stableins.errors import InputError
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
+    from stableins.estimators.system.loop import DampingLoop
     from stableins.estimators.system.stage import SystemOptions
+
+
+@dataclass(frozen=True)
+class RecordSite:
+    """The checked site values of a record (:func:`check_metadata`).
+
+    Attributes
+    ----------
+    latitude : float
+        Geodetic latitude of the site [rad].
+    gravity : float
+        Local gravity [m/s²].
+    rate : float
+        Sample rate of the record [Hz].
+    """
+
+    latitude: float
+    gravity: float
+    rate: float
+
+
+@dataclass(frozen=True)
+class StageContext:
+    """What every step of one run of the system stage knows: the record's name, its site, the damping loop, the options.
+
+    Attributes
+    ----------
+    path : str
+        The record's name in messages.
+    site : RecordSite
+        Checked latitude, gravity and sample rate.
+    loop : DampingLoop
+        The INS damping loop (from the record's metadata).
+    options : SystemOptions
+        The stage's settings.
+    """
+
+    path: str
+    site: RecordSite
+    loop: DampingLoop
+    options: SystemOptions
 
 
 @dataclass(frozen=True)
@@ -49,8 +91,8 @@ class SamplingSummary:
         }
 
 
-def check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, float]:
-    """Latitude, gravity and sample rate of a system record, checked: ``(latitude, gravity, rate)``."""
+def check_metadata(metadata: SiteMetadata, path: str) -> RecordSite:
+    """Return the latitude, gravity and sample rate of a system record, checked (:class:`RecordSite`)."""
     lat = metadata.latitude
     if lat is None or not np.isfinite(lat) or abs(lat) > np.pi / 2:
         raise InputError("latitude is missing or not a latitude", path=path, field="metadata.latitude", expected="geodetic latitude in rad")
@@ -62,7 +104,7 @@ def check_metadata(metadata: SiteMetadata, path: str) -> tuple[float, float, flo
     rate = metadata.sample_rate
     if rate is None or not np.isfinite(rate) or rate <= 0:
         raise InputError("sample rate is missing", path=path, field="metadata.sample_rate", expected="a positive rate in Hz")
-    return float(lat), float(g), float(rate)
+    return RecordSite(float(lat), float(g), float(rate))
 
 
 class StaticChecks:
@@ -216,4 +258,4 @@ class StaticChecks:
         return SamplingSummary(tuple(self.gaps[:10]), len(self.gaps), self.gap_time, self.jitter)
 
 
-__all__ = ["SamplingSummary", "StaticChecks", "check_metadata"]
+__all__ = ["RecordSite", "SamplingSummary", "StageContext", "StaticChecks", "check_metadata"]

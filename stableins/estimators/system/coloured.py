@@ -19,9 +19,9 @@ from numpy.typing import NDArray
 from stableins.conventions import MICRO_G
 from stableins.estimators.system import spectrum, whittle
 from stableins.estimators.system.accumulate import SampleBins
-from stableins.estimators.system.attitude import AttitudeFit
-from stableins.estimators.system.loop import DampingLoop
-from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
+from stableins.estimators.system.attitude import AttitudeFit, AttitudeModel
+from stableins.estimators.system.checks import RecordSite
+from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource, NoisePrior
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 
 #: At most this many bins enter the coloured-noise model (longer records: wider bins, so its memory, about 4 MiB,
@@ -30,29 +30,45 @@ from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 COLOURED_BINS = 160
 
 
+@dataclass(frozen=True)
+class ResidualFits:
+    """The stage's fits whose residuals the coloured-noise model reads (:func:`coloured_covariance`, :func:`low_band`).
+
+    Attributes
+    ----------
+    x_ls : ndarray (7,)
+        The least-squares harmonic states ``x1..x7``.
+    blocks : dict
+        The attitude block means the attitude fit ran on (``time``, ``count``, ``cos``, ``sin``, ...).
+    attitude : AttitudeFit
+        The attitude fit (its block residuals and ``block_map``).
+    jac_x : ndarray (10, 7)
+        ``∂(attitude coefficients)/∂x`` through the vertical channel.
+    model : AttitudeModel
+        The damping loop and the case-rotation period the attitude fit was designed with.
+    """
+
+    x_ls: NDArray[np.float64]
+    blocks: dict[str, NDArray[np.float64]]
+    attitude: AttitudeFit
+    jac_x: NDArray[np.float64]
+    model: AttitudeModel
+
+
 def coloured_covariance(
     filter_bins: SampleBins,
     fine_bins: SampleBins,
-    keep_bins: NDArray[np.bool_],
-    rate: float,
-    x_ls: NDArray[np.float64],
-    blocks: dict[str, NDArray[np.float64]],
-    att: AttitudeFit,
-    jac_x: NDArray[np.float64],
-    latitude: float,
-    loop: DampingLoop,
-    case_rotation_period: float | None = None,
+    site: RecordSite,
+    fits: ResidualFits,
     *,
     alpha: float = 0.05,
     confidence: float = 0.95,
-    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-    prior_detected: bool = False,
-    given: NDArray[np.float64] | None = None,
+    prior: NoisePrior | None = None,
     remove: Callable[[LowBand], list[NDArray[np.float64]]] | None = None,
-) -> tuple[NDArray[np.float64], Any]:
+) -> tuple[NDArray[np.float64], ColouredNoiseFit | None]:
     """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
-    The z, pitch and roll residuals on the filter bins (merged to at most :data:`COLOURED_BINS`) give the low band: residual
+    The z, pitch and roll residuals on the filter bins with samples (merged to at most :data:`COLOURED_BINS`) give the low band: residual
     periodograms between 3.5 and 30 cycles/day (at most 0.45/bin width) with exact expectations for what the fits absorb
     (:func:`attitude_residual_maker` for pitch and roll), for the Earth-rate modulation of x and y
     (:func:`.spectrum.axis_loadings`) and for the damping loop (:func:`.spectrum.loop_bin_mixing`).  The z residual on the
@@ -71,28 +87,19 @@ def coloured_covariance(
     too short for the model (the covariance is then white).
     """
     units = np.zeros((len(spectrum.COLOURED_KINDS), 3, 17, 17))
-    n_keep = int(keep_bins.sum())
-    if n_keep < 16 or att.block_map is None:
+    if int(np.count_nonzero(filter_bins.n > 0)) < 16 or fits.attitude.block_map is None:
         return units, None
-    bins = low_band(filter_bins, keep_bins, rate, x_ls, blocks, att, latitude, loop, case_rotation_period, n_keep)
+    bins = low_band(filter_bins, site, fits)
     if remove is not None:  # a signal the stage models (the thermal terms, .thermal) is not noise: out of the residuals
         bins = replace(bins, channels=[c - r for c, r in zip(bins.channels, remove(bins), strict=False)])
     harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
-    built = spectrum.periodogram_design(
-        bins.channels,
-        bins.makers,
-        bins.weights,
-        bins.time,
-        bins.kernels,
-        bins.mixing[: len(bins.channels)],
-        (0.0, bins.high),
-        white_gains=bins.gains,
-        exclude=harmonics,
-    )
+    channels = spectrum.ResidualChannels(bins.channels, bins.makers, bins.weights, bins.gains)
+    mixing = bins.mixing[: len(bins.channels)]
+    built = spectrum.periodogram_design(channels, bins.time, bins.kernels, mixing, (0.0, bins.high), exclude=harmonics)
     if built is None:
         return units, None
     design, observed, n_ch = built
-    design, observed, n_high, top = _high_band(fine_bins, rate, x_ls, latitude, bins.high, design=design, observed=observed, n_ch=n_ch)
+    design, observed, n_high, top = _high_band(fine_bins, site, fits.x_ls, bins.high, design=design, observed=observed, n_ch=n_ch)
     fit = whittle.fit_coloured_noise(
         design,
         observed,
@@ -101,15 +108,13 @@ def coloured_covariance(
         confidence=confidence,
         ordinates=(int(observed.size - n_high), n_high),
         band=(_lowest_frequency(bins.time, bins.wide, harmonics), bins.high, top),
-        prior=prior,
-        prior_detected=prior_detected,
-        given=given,
+        prior=NoisePrior() if prior is None else prior,
     )
     n = bins.groups.size
-    a_att = attitude_bin_map(att, bins.groups, bins.merge)
+    a_att = attitude_bin_map(fits.attitude, bins.groups, bins.merge)
     j = np.zeros((17, 3 * n))
     j[:7, :n] = bins.a_z
-    j[7:, :n] = jac_x @ bins.a_z
+    j[7:, :n] = fits.jac_x @ bins.a_z
     j[7:, n:] = a_att
     for c, kernel in enumerate(bins.kernels):
         unit = spectrum.component_quadratic(j, j, bins.mixing, kernel, per_axis=True)
@@ -153,24 +158,16 @@ class LowBand:
     gains: list[Any]
 
 
-def low_band(
-    filter_bins: SampleBins,
-    keep_bins: NDArray[np.bool_],
-    rate: float,
-    x_ls: NDArray[np.float64],
-    blocks: dict[str, NDArray[np.float64]],
-    att: AttitudeFit,
-    latitude: float,
-    loop: DampingLoop,
-    case_rotation_period: float | None,
-    n_keep: int,
-) -> LowBand:
-    """Build the low band: the z, pitch and roll residuals on the filter bins merged to at most :data:`COLOURED_BINS`.
+def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits) -> LowBand:
+    """Build the low band: the z, pitch and roll residuals on the filter bins with samples, merged to at most :data:`COLOURED_BINS`.
 
     With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
     mixing.
     """
-    width = filter_bins.samples / rate
+    x_ls, blocks, att, loop, latitude = fits.x_ls, fits.blocks, fits.attitude, fits.model.loop, site.latitude
+    keep_bins = filter_bins.n > 0
+    n_keep = int(np.count_nonzero(keep_bins))
+    width = filter_bins.samples / site.rate
     merge = max(1, -(-n_keep // COLOURED_BINS))
     ids = np.flatnonzero(keep_bins) // merge
     groups, index = np.unique(ids, return_inverse=True)
@@ -199,7 +196,7 @@ def low_band(
     channels, makers, weights = [residual], [r_z], [count]
     gains: list[Any] = [None]
     if (att_count > 0).all():
-        r_att = attitude_residual_maker(blocks, block_bin, att_count, loop, case_rotation_period)
+        r_att = attitude_residual_maker(blocks, block_bin, att_count, fits.model)
         for ch in range(2):
             res = np.bincount(block_bin, weights=blocks["count"] * att.block_residuals[:, ch], minlength=n) / att_count
             channels.append(res)
@@ -216,9 +213,8 @@ def low_band(
 
 def _high_band(
     fine_bins: SampleBins,
-    rate: float,
+    site: RecordSite,
     x_ls: NDArray[np.float64],
-    latitude: float,
     high: float,
     *,
     design: NDArray[np.float64],
@@ -237,14 +233,14 @@ def _high_band(
     top = high
     n_high = 0
     if last >= 16:
-        fine_width = fine_bins.samples / rate
+        fine_width = fine_bins.samples / site.rate
         k = np.arange(int(math.floor(high * last * fine_width)) + 1, int(math.floor(0.45 * last)) + 1)
         k = k[k / (last * fine_width) > high]
         if k.size:
             filled = fine_count > 0
             fine_residual = np.zeros(last)
             fine_residual[filled] = (fine_bins.z[:last][filled] - fine_bins.h[:last][filled] @ x_ls) / fine_count[filled]
-            expected = spectrum.z_bin_expectations(k, last, fine_width, latitude, float(fine_count.sum()) / last)
+            expected = spectrum.z_bin_expectations(k, last, fine_width, site.latitude, float(fine_count.sum()) / last)
             rows = np.zeros((k.size, design.shape[1]))
             rows[:, 0] = expected[:, 0]  # the z channel's white level, shared with the low band
             rows[:, n_ch:] = expected[:, 1:]
@@ -293,26 +289,24 @@ def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: f
     return f"no low-frequency noise ({fit.describe()}): σ is the white-noise σ; {bound}"
 
 
-def noise_prior(
-    model: NoiseModel | None, gravity: float
-) -> tuple[NDArray[np.float64] | None, tuple[NDArray[np.float64], NDArray[np.float64]] | None, bool]:
-    """Return what a prior noise model says about the coloured amplitudes: ``(given, prior, prior_detected)``.
+def noise_prior(model: NoiseModel | None, gravity: float) -> NoisePrior:
+    """Return what a prior noise model says about the coloured amplitudes (:class:`.whittle.NoisePrior`).
 
     A datasheet model: the amplitudes per axis, used as they are (``given``, ``(2, 3)``).  A measured model (device dwells,
     an earlier static record): a Gaussian prior on each amplitude (one value for the three axes, the mean over the axes)
-    with its centre at the model's value and its standard deviation from the model's interval (two-sided when the term
-    was detected, one-sided from its upper limit otherwise; none when the term is not bounded); ``prior_detected`` when
-    a slow term was detected.  Nothing known (no model, source ``none``): no prior.
+    (``gaussian``) with its centre at the model's value and its standard deviation from the model's interval (two-sided
+    when the term was detected, one-sided from its upper limit otherwise; none when the term is not bounded);
+    ``detected`` when a slow term was detected.  Nothing known (no model, source ``none``): no prior.
     """
     from scipy.special import ndtri  # the normal quantile
 
     from stableins.estimators.system.spectrum import allan_to_amplitudes
 
     if model is None or model.source is NoiseSource.NONE:
-        return None, None, False
+        return NoisePrior()
     values = allan_to_amplitudes(model.values("random_walk"), model.values("bias_instability"), gravity)  # (2, 3)
     if model.source is NoiseSource.DATASHEET:
-        return values, None, False
+        return NoisePrior(given=values)
     (k_lo, k_hi), (b_lo, b_hi) = model.limits("random_walk"), model.limits("bias_instability")
     lower = allan_to_amplitudes(k_lo, b_lo, gravity).mean(axis=1)
     upper = allan_to_amplitudes(k_hi, b_hi, gravity).mean(axis=1)
@@ -321,7 +315,7 @@ def noise_prior(
     sd = np.where(lower > 0, (upper - lower) / (2.0 * two_sided), (upper - centre) / one_sided)
     sd = np.where(np.isfinite(upper) & (sd > 0), sd, np.inf)
     detected = bool(np.any(np.concatenate([k_lo, b_lo]) > 0))
-    return None, (centre, sd), detected
+    return NoisePrior(gaussian=(centre, sd), detected=detected)
 
 
 #: Effective degrees of freedom per second difference of white noise: consecutive second differences are correlated
@@ -348,6 +342,7 @@ def measured_noise_model(
       profile-likelihood intervals (:class:`.whittle.ColouredNoiseFit`); not detected: 0 with the upper limit;
     * quantization: not separable from the white noise at the sample rate: 0, with the upper limit at which it would make
       all of the second differences' variance (``20 Q²/dt²``).
+
     With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
     are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
     """
@@ -410,8 +405,7 @@ def attitude_residual_maker(
     blocks: dict[str, NDArray[np.float64]],
     block_bin: NDArray[np.int64],
     bin_count: NDArray[np.float64],
-    loop: DampingLoop,
-    case_rotation_period: float | None,
+    model: AttitudeModel,
 ) -> NDArray[np.float64]:
     """Residual maker ``(n, n)`` of the attitude fit on the bins: ``R = I − X̄ (XᵀWX)⁻¹ X̄ᵀ W̄``.
 
@@ -430,7 +424,7 @@ def attitude_residual_maker(
     normal = None
     for start in range(0, blocks["time"].size, FIT_ROWS):
         rows = slice(start, start + FIT_ROWS)
-        x = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, loop, case_rotation_period)[0]
+        x = _design({k: blocks[k][rows] for k in ("time", "cos", "sin")}, model.loop, model.case_rotation_period)[0]
         wx = x * blocks["count"][rows, None]
         part = np.einsum("bi,bj->ij", wx, x)  # einsum, not BLAS (docs §6)
         sums = np.stack([np.bincount(block_bin[rows], weights=wx[:, k], minlength=n) for k in range(x.shape[1])], axis=1)
@@ -444,6 +438,8 @@ def attitude_residual_maker(
 __all__ = [
     "COLOURED_BINS",
     "SECOND_DIFFERENCE_DOF",
+    "LowBand",
+    "ResidualFits",
     "attitude_residual_maker",
     "coloured_covariance",
     "coloured_note",

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, GimbalConfiguration
-from stableins.estimators.system.attitude import fit_attitude
+from stableins.estimators.system.attitude import AttitudeModel, fit_attitude
 from stableins.estimators.system.gyro_drift import DRIFT_IDS, INNER_OFFSET_SIGMA, GimbalBlocks, GimbalDrift, fit_gimbal_drift
 from stableins.estimators.system.loop import DRIFT_SCALE, DampingLoop, drift_columns
 from stableins.site import SiteMetadata
@@ -182,15 +182,8 @@ def attitude_drift_jacobian(
     for j in range(3):
         unit = dict(blocks)
         unit["pitch"], unit["roll"] = responses[:, 0, j], responses[:, 1, j]
-        fit = fit_attitude(
-            unit,
-            loop,
-            noise_sigma,
-            case_rotation_period=options.case_rotation_period,
-            compensate_loop=options.compensate_loop,
-            scale_low_frequency=False,
-            map_bin_seconds=map_bin_seconds,
-        )
+        model = AttitudeModel(loop, options.case_rotation_period, compensate_loop=options.compensate_loop)
+        fit = fit_attitude(unit, model, noise_sigma, scale_low_frequency=False, map_bin_seconds=map_bin_seconds)
         out[:, j] = fit.values
     return out
 

@@ -51,6 +51,19 @@ def _check_thermal_prior(prior: object) -> None:
 
 def validate_options(options: SystemOptions) -> GyroDrift:
     """Check every option of ``options`` (InputError naming the option and what it expects); the ``gyro_drift`` choice."""
+    _check_counts_and_scales(options)
+    for name in _FLAGS:
+        if not isinstance(getattr(options, name), bool):
+            raise _option_error(name, getattr(options, name), "True or False")
+    gyro_drift = _check_drift(options)
+    _check_thermal_prior(options.thermal_prior)
+    if not _is_number(options.noise_false_positive_rate) or not 0 < options.noise_false_positive_rate < 1:
+        raise _option_error("noise_false_positive_rate", options.noise_false_positive_rate, "a probability between 0 and 1")
+    return gyro_drift
+
+
+def _check_counts_and_scales(options: SystemOptions) -> None:
+    """Check the integer counts, the positive scales, the minimum duration and the case-rotation period."""
     for name in _POSITIVE_INTS:
         value = getattr(options, name)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -62,9 +75,10 @@ def validate_options(options: SystemOptions) -> GyroDrift:
         raise _option_error("minimum_duration", options.minimum_duration, "a finite number of seconds ≥ 0")
     if options.case_rotation_period is not None and (not _is_number(options.case_rotation_period) or options.case_rotation_period <= 0):
         raise _option_error("case_rotation_period", options.case_rotation_period, "a positive number of seconds, or None")
-    for name in _FLAGS:
-        if not isinstance(getattr(options, name), bool):
-            raise _option_error(name, getattr(options, name), "True or False")
+
+
+def _check_drift(options: SystemOptions) -> GyroDrift:
+    """Check the gyro-drift options (choice, known drift, its uncertainty) and return the ``gyro_drift`` choice."""
     try:
         gyro_drift = GyroDrift(options.gyro_drift)
     except ValueError:
@@ -76,7 +90,4 @@ def validate_options(options: SystemOptions) -> GyroDrift:
         not _is_number(options.gyro_drift_uncertainty) or options.gyro_drift_uncertainty < 0
     ):
         raise _option_error("gyro_drift_uncertainty", options.gyro_drift_uncertainty, "a finite number [rad/s] ≥ 0, or None")
-    _check_thermal_prior(options.thermal_prior)
-    if not _is_number(options.noise_false_positive_rate) or not 0 < options.noise_false_positive_rate < 1:
-        raise _option_error("noise_false_positive_rate", options.noise_false_positive_rate, "a probability between 0 and 1")
     return gyro_drift

@@ -31,8 +31,16 @@ from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.accumulate import RecordSums, SampleBins
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
-from stableins.estimators.system.attitude import AttitudeFit, fit_attitude
-from stableins.estimators.system.coloured import LowBand, coloured_covariance, coloured_note, measured_noise_model, noise_prior
+from stableins.estimators.system.attitude import AttitudeDrift, AttitudeFit, AttitudeModel, fit_attitude
+from stableins.estimators.system.checks import StageContext
+from stableins.estimators.system.coloured import (
+    LowBand,
+    ResidualFits,
+    coloured_covariance,
+    coloured_note,
+    measured_noise_model,
+    noise_prior,
+)
 from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
@@ -169,6 +177,20 @@ class AttitudeStep:
     notes: tuple[str, ...]
     drift_jacobian: NDArray[np.float64] | None = None
 
+    @property
+    def x_jacobian(self) -> NDArray[np.float64]:
+        """Return ``∂(attitude coefficients)/∂x`` (10, 7) through the vertical channel (zero for x6, x7)."""
+        jac_x = np.zeros((10, 7))
+        jac_x[:, :5] = self.fit.vertical_jacobian @ np.diag(-self.along)
+        return jac_x
+
+
+def residual_fits(harmonic: HarmonicFit, attitude: AttitudeStep, context: StageContext) -> ResidualFits:
+    """Return the fits whose residuals the coloured-noise model reads (:class:`.coloured.ResidualFits`)."""
+    options = context.options
+    model = AttitudeModel(context.loop, options.case_rotation_period, compensate_loop=options.compensate_loop)
+    return ResidualFits(harmonic.x_ls, attitude.blocks, attitude.fit, attitude.x_jacobian, model)
+
 
 def fit_attitude_coefficients(
     sums: RecordSums,
@@ -197,16 +219,12 @@ def fit_attitude_coefficients(
     known = options.known_gyro_drift if drift is None else (None if drift.source is DriftSource.NONE else drift.values)
     att = fit_attitude(
         blocks,
-        loop,
+        AttitudeModel(loop, options.case_rotation_period, compensate_loop=options.compensate_loop),
         sigma,
-        case_rotation_period=options.case_rotation_period,
-        compensate_loop=options.compensate_loop,
         vertical=vertical,
-        gyro_drift=options.gyro_drift,
-        known_drift=known,
+        drift=AttitudeDrift(options.gyro_drift, known, jacobian=drift is not None and drift.covariance is not None),
         scale_low_frequency=False,
         map_bin_seconds=sums.filter_bins.samples / rate,
-        drift_jacobian=drift is not None and drift.covariance is not None,
     )
     notes = list(att.notes)
     if drift is not None:
@@ -255,14 +273,9 @@ def decide_noise(
     harmonic: HarmonicFit,
     attitude: AttitudeStep,
     noise: WhiteNoise,
-    loop: DampingLoop,
     *,
-    latitude: float,
-    gravity: float,
-    rate: float,
-    options: SystemOptions,
+    context: StageContext,
     given: NoiseModel | None,
-    path: str,
     remove: tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None = None,
 ) -> NoiseDecision:
     """Step 5: decide on the low-frequency noise and build the covariance of ``v`` under it.
@@ -272,32 +285,23 @@ def decide_noise(
     the low band's channels without a signal the stage models (the thermal terms, :meth:`.thermal.ThermalFit.remover`).
     """
     att = attitude.fit
+    gravity, rate, path = context.site.gravity, context.site.rate, context.path
     cov_x = harmonic.covariance
     cov_v = np.zeros((17, 17))
     cov_v[:7, :7] = cov_x
-    jac_x = np.zeros((10, 7))
-    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-attitude.along)  # ∂attitude/∂x through the vertical channel
+    fits = residual_fits(harmonic, attitude, context)
+    jac_x = fits.jac_x  # ∂attitude/∂x through the vertical channel
     cov_v[7:, 7:] = att.covariance + jac_x @ cov_x @ jac_x.T
     cov_v[7:, :7] = jac_x @ cov_x
     cov_v[:7, 7:] = cov_v[7:, :7].T
     # coloured (low-frequency) accelerometer noise measured in the residuals: joint covariance of x and the attitude
-    given_amplitudes, prior, prior_detected = noise_prior(given, gravity)
     units, fit = coloured_covariance(
         sums.filter_bins,
         sums.fine_bins if remove is None else remove[0],
-        sums.filter_bins.n > 0,
-        rate,
-        harmonic.x_ls,
-        attitude.blocks,
-        att,
-        jac_x,
-        latitude,
-        loop,
-        options.case_rotation_period,
-        alpha=options.noise_false_positive_rate,
-        prior=prior,
-        prior_detected=prior_detected,
-        given=given_amplitudes,
+        context.site,
+        fits,
+        alpha=context.options.noise_false_positive_rate,
+        prior=noise_prior(given, gravity),
         remove=None if remove is None else remove[1],
     )
     # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
@@ -370,26 +374,24 @@ def combine(
     harmonic: HarmonicFit,
     attitude: AttitudeStep,
     decision: NoiseDecision,
-    prior: Mapping[str, float],
     prior_res_cov: NDArray[np.float64],
     *,
-    latitude: float,
-    gravity: float,
+    context: StageContext,
     duration: float,
-    estimate_k2: bool,
-    path: str,
     drift: DriftStep | None = None,
     aliases: Mapping[str, tuple[NDArray[np.float64], str]] | None = None,
-    alpha: float = 0.05,
 ) -> Combination:
     """Step 6: the combined coefficients, what the record determines of them, and their separation.
 
     Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.  A third
     harmonic is explained by every hypothesis the record accepts (:func:`.third_harmonic.explain_third_harmonic`, level
-    ``alpha``; ``aliases`` adds further ones, e.g. the thermal terms'); the note names them all and advises the K2
-    correction only when K2 is the one explanation.  ``drift``: the drift removed from pitch and roll; its covariance is
-    propagated into the attitude coefficients'.
+    ``context.options.noise_false_positive_rate``; ``aliases`` adds further ones, e.g. the thermal terms'); the note
+    names them all and advises the K2 correction only when K2 is the one explanation (``options.estimate_k2``: the
+    residual K2 is estimated).  ``prior_res_cov``: the prior's covariance of the residuals.  ``drift``: the drift removed
+    from pitch and roll; its covariance is propagated into the attitude coefficients'.
     """
+    latitude, gravity, path = context.site.latitude, context.site.gravity, context.path
+    estimate_k2, alpha = context.options.estimate_k2, context.options.noise_false_positive_rate
     cov_v = decision.covariance
     if drift is not None:
         cov_v = cov_v + drift_covariance_v(attitude.drift_jacobian, drift)
@@ -468,5 +470,6 @@ __all__ = [
     "filter_curve",
     "fit_attitude_coefficients",
     "fit_harmonics",
+    "residual_fits",
     "white_noise",
 ]

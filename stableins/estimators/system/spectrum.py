@@ -28,6 +28,7 @@ covariance (:func:`component_quadratic`).  docs/system-calibration.md §1a.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -274,15 +275,35 @@ def axis_loadings(channel: str, cos_s: NDArray[np.float64], sin_s: NDArray[np.fl
     return np.stack([sin_s, -cos_s, zero], axis=1)
 
 
+@dataclass(frozen=True)
+class ResidualChannels:
+    """The residual channels on common bins whose periodograms :func:`periodogram_design` builds, one entry per channel.
+
+    Attributes
+    ----------
+    residuals : list of ndarray (n,)
+        The bin-mean residuals of each channel's fit.
+    residual_makers : list of ndarray (n, n)
+        The residual maker ``R_p`` of each channel's fit on the bins.
+    weights : list of ndarray (n,)
+        The bin weights (samples per bin).
+    white_gains : list of callable or None, optional
+        ``|G(f)|²`` of a loop filtering the channel's white noise, a function of frequency [Hz] (None: 1).
+    """
+
+    residuals: list[NDArray[np.float64]]
+    residual_makers: list[NDArray[np.float64]]
+    weights: list[NDArray[np.float64]]
+    white_gains: list[Any] | None = None
+
+
 def periodogram_design(
-    residuals: list[NDArray[np.float64]],
-    residual_makers: list[NDArray[np.float64]],
-    weights: list[NDArray[np.float64]],
+    channels: ResidualChannels,
     time: NDArray[np.float64],
     kernels: list[NDArray[np.float64]],
     mixing: list[list[NDArray[np.float64]]],
     band: tuple[float, float],
-    white_gains: list[Any] | None = None,
+    *,
     exclude: tuple[float, ...] = (),
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int] | None:
     r"""Periodogram ordinates of the channels' residuals and their expectations per unit noise level.
@@ -296,8 +317,8 @@ def periodogram_design(
 
     exact for what the fit absorbed, for the Earth-rate modulation of the x and y axes and for a loop filtering the
     channel (``M_pa`` = ``mixing[p][a]``, :func:`component_quadratic`; ``C_c`` the bin kernel of component ``c``,
-    :func:`bin_process_kernel`, one amplitude for the three axes).  ``white_gains[p]``, a function of frequency [Hz],
-    is ``|G(f)|²`` of the loop for the white noise (stationary: its periodogram is its spectrum times ``|G|²``).
+    :func:`bin_process_kernel`, one amplitude for the three axes).  ``channels.white_gains[p]``, a function of frequency
+    [Hz], is ``|G(f)|²`` of the loop for the white noise (stationary: its periodogram is its spectrum times ``|G|²``).
 
     ``exclude``: frequencies [Hz] left out with their neighbours within half a Fourier spacing (the harmonics the fits
     absorb, where a residual ordinate carries nothing).
@@ -306,6 +327,7 @@ def periodogram_design(
     channels' ordinates one after the other), or ``None`` when the band holds fewer than four Fourier frequencies or
     there are fewer than eight bins.
     """
+    residuals, residual_makers, weights, white_gains = channels.residuals, channels.residual_makers, channels.weights, channels.white_gains
     n_ch = len(residuals)
     n_bins = time.size
     span = float(time[-1] - time[0]) + (float(np.median(np.diff(time))) if n_bins > 1 else 0.0)

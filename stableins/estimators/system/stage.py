@@ -32,8 +32,9 @@ from stableins.estimators.details import CombinedDetails
 from stableins.estimators.result import FitResult
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
-from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, StageAccumulator
+from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, SourceContents, StageAccumulator
 from stableins.estimators.system.assembly import (
+    StagePrior,
     combined_terms,
     fit_result,
     fixed_variance,
@@ -44,7 +45,7 @@ from stableins.estimators.system.assembly import (
     stage_settings,
 )
 from stableins.estimators.system.attitude import AttitudeFit
-from stableins.estimators.system.checks import check_metadata
+from stableins.estimators.system.checks import StageContext, check_metadata
 from stableins.estimators.system.diagnostics import SystemDiagnostics
 from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
 from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
@@ -211,16 +212,11 @@ def run_system_stage(
         harmonic,
         attitude,
         decision,
-        prior,
         stage.prior_res_cov,
-        latitude=stage.latitude,
-        gravity=stage.gravity,
+        context=stage.context,
         duration=stage.sums.duration,
-        estimate_k2=options.estimate_k2,
-        path=stage.path,
         drift=stage.drift,
         aliases=stage.thermal.aliases,
-        alpha=options.noise_false_positive_rate,
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model=noise_model)
 
@@ -243,7 +239,8 @@ def measure_noise_model(
     stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
     decision = stage.decision
     v = np.concatenate([stage.harmonic.x_hat, stage.attitude.fit.values])  # a third harmonic's explanations (discovery)
-    third = record_note(v, decision.covariance, (stage.latitude, stage.gravity), options.noise_false_positive_rate, stage.thermal.aliases)
+    site = stage.context.site
+    third = record_note(v, decision.covariance, (site.latitude, site.gravity), options.noise_false_positive_rate, stage.thermal.aliases)
     return SystemNoise(decision.noise_model, decision.fit, stage.sums.duration, (decision.note, stage.thermal.note, *third))
 
 
@@ -251,11 +248,7 @@ def measure_noise_model(
 class _Stage:
     """The pass and the solve steps up to the noise decision (shared by the stage and :func:`measure_noise_model`)."""
 
-    path: str
-    latitude: float
-    gravity: float
-    rate: float
-    loop: DampingLoop
+    context: StageContext
     sums: RecordSums
     noise: solve.WhiteNoise
     harmonic: solve.HarmonicFit
@@ -279,23 +272,18 @@ def _run(
 ) -> _Stage:
     """Run the one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
     path = source_path(source)
-    latitude, gravity, rate = check_metadata(metadata, path)
+    site = check_metadata(metadata, path)
+    latitude, gravity, rate = site.latitude, site.gravity, site.rate
     loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
+    context = StageContext(path, site, loop, options)
     grid = source_time_grid(source)
-    accumulator = StageAccumulator(
-        metadata,
-        prior,
-        options,
-        latitude=latitude,
-        gravity=gravity,
-        rate=rate,
-        path=path,
-        compensation_terms=compensation_terms,
+    contents = SourceContents(
         has_temperature="temperature" in source_columns(source),
         has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
         time_grid=grid,
         grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
     )
+    accumulator = StageAccumulator(metadata, prior, context, compensation_terms=compensation_terms, source=contents)
     rows, thin, step = accumulator.chunk_rows, accumulator.thin, accumulator.decimation
     for chunk in source.iter_chunks(accumulator.columns, rows=rows, thin=thin, step=step, reuse=True, unchecked=FORCE_COLUMNS):
         accumulator.add(chunk)
@@ -308,12 +296,10 @@ def _run(
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity=gravity, rate=rate)
     drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
-    decision = solve.decide_noise(
-        sums, harmonic, attitude, noise, loop, latitude=latitude, gravity=gravity, rate=rate, options=options, given=noise_model, path=path
-    )
-    inputs = ThermalInputs(sums, harmonic, attitude, decision, loop, latitude, gravity, rate, noise, noise_model, path)
+    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model)
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
-    return _Stage(path, latitude, gravity, rate, loop, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
+    return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
 
 
 def _assemble(
@@ -327,29 +313,31 @@ def _assemble(
 ) -> SystemCalibration:
     """Assemble the stage's result: the Bayesian update of the prior, the combined coefficients and the diagnostics."""
     sums, harmonic, att, decision = stage.sums, stage.harmonic, stage.attitude.fit, stage.decision
-    gravity, cov_v, to_combined, transform = stage.gravity, decision.covariance, combination.to_combined, combination.transform
+    gravity, cov_v, to_combined, transform = stage.context.site.gravity, decision.covariance, combination.to_combined, combination.transform
     notes = [*sums.notes, *stage.attitude.notes, decision.note, stage.thermal.note, *combination.notes]
     scale = residual_scale(prior, gravity)
     cov_x = cov_v[:7, :7]
     k2_covariance = cov_x[5:7, 5:7] * np.outer([4.0 / gravity, -4.0 / gravity], [4.0 / gravity, -4.0 / gravity])
     cov_v, drift = likelihood_inputs(stage.drift, stage.attitude.drift_jacobian, cov_v)
     likelihood, fit = separation_likelihood(
-        prior, stage.latitude, gravity, combination.v, cov_v, to_combined, transform, estimate_k2=options.estimate_k2, drift=drift
+        prior,
+        stage.context.site,
+        combination.v,
+        cov_v,
+        to_combined=to_combined,
+        transform=transform,
+        estimate_k2=options.estimate_k2,
+        drift=drift,
     )
+    installed = StagePrior(prior, prior_term_covariance(prior_covariance, stage.prior_res_cov, scale), prior_drift(prior, prior_covariance))
     result, corrections = fit_result(
         combination.separation,
         fit,
         likelihood,
-        prior,
-        stage.prior_res_cov,
-        scale,
-        gravity,
-        transform,
+        installed,
         notes,
-        prior_term_covariance(prior_covariance, stage.prior_res_cov, scale),
-        {**stage_settings(options, noise_model), "gyro_drift_source": stage.drift.source.value},
+        settings={**stage_settings(options, noise_model), "gyro_drift_source": stage.drift.source.value},
         k2=(combination.k2_values, k2_covariance) if options.estimate_k2 else None,
-        drift_prior=prior_drift(prior, prior_covariance),
     )
     observable = combination.observable
     combined = FitResult(
@@ -407,7 +395,7 @@ def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnos
         platform_rate_ratio=checks.rate_ratio,
         max_velocity=checks.max_velocity,
         attitude_excursion=checks.excursion,
-        loop=stage.loop,
+        loop=stage.context.loop,
         sampling=checks.summary(),
         temperature=sums.temperature,
         time_span=(checks.first_time, checks.last_time),

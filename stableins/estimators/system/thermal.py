@@ -54,7 +54,7 @@ from stableins.estimators.system.thermal_bins import bin_temperature, daily_frac
 
 if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums, SampleBins
-    from stableins.estimators.system.loop import DampingLoop
+    from stableins.estimators.system.checks import StageContext
     from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision, WhiteNoise
     from stableins.estimators.system.stage import SystemOptions
     from stableins.noise import NoiseModel
@@ -150,8 +150,8 @@ class ThermalFit:
         delta = temperature - self.mean_temperature
         u = np.zeros((n, 3))
         u[filled, :2] = fine.h[filled, 1:3] / fine.n[filled, None]
-        u[:, 2] = math.sin(stage.latitude)
-        z_t = delta * (u @ (p[:3] / stage.gravity) + (u**2) @ p[3:])
+        u[:, 2] = math.sin(stage.context.site.latitude)
+        z_t = delta * (u @ (p[:3] / stage.context.site.gravity) + (u**2) @ p[3:])
         cleaned = replace(fine, z=fine.z - np.where(filled, fine.n * z_t, 0.0))
 
         def remove(band: LowBand) -> list[NDArray[np.float64]]:
@@ -250,22 +250,18 @@ def _empty(note: str, sigma: NDArray[np.float64]) -> ThermalFit:
 
 @dataclass(frozen=True)
 class ThermalInputs:
-    """What the thermal model reads of the stage: the pass's sums, the fits up to the noise decision, the site.
+    """What the thermal model reads of the stage: the pass's sums, the fits up to the noise decision, the stage's context.
 
-    ``noise``, ``given`` and ``path``: what the noise decision needs when it is made again (:func:`thermal_step`).
+    ``noise`` and ``given``: what the noise decision needs when it is made again (:func:`thermal_step`).
     """
 
     sums: RecordSums
     harmonic: HarmonicFit
     attitude: AttitudeStep
     decision: NoiseDecision
-    loop: DampingLoop
-    latitude: float
-    gravity: float
-    rate: float
+    context: StageContext
     noise: WhiteNoise | None = None
     given: NoiseModel | None = None
-    path: str = ""
 
 
 def analyse_temperature(
@@ -284,18 +280,9 @@ def analyse_temperature(
     keep = stage.sums.filter_bins.n > 0
     if int(keep.sum()) < 16 or stage.attitude.fit.block_map is None:
         return _empty("the record is too short for the thermal model (fewer than 16 bins): temperature sensitivities not modelled", sigma0)
-    band = low_band(
-        stage.sums.filter_bins,
-        keep,
-        stage.rate,
-        stage.harmonic.x_ls,
-        stage.attitude.blocks,
-        stage.attitude.fit,
-        stage.latitude,
-        stage.loop,
-        options.case_rotation_period,
-        int(keep.sum()),
-    )
+    from stableins.estimators.system.solve import residual_fits
+
+    band = low_band(stage.sums.filter_bins, stage.context.site, residual_fits(stage.harmonic, stage.attitude, stage.context))
     temperature = bin_temperature(stage.sums, keep, band)
     weights = band.weights[0]
     mean_temperature = float(np.sum(weights * temperature) / np.sum(weights))
@@ -312,14 +299,14 @@ def analyse_temperature(
     from scipy.stats import chi2 as chi2_dist
 
     p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
-    to_combined = k2_map(stage.latitude, estimate_k2=options.estimate_k2)
+    to_combined = k2_map(stage.context.site.latitude, estimate_k2=options.estimate_k2)
     thermal_cov = to_combined @ jacobian @ posterior @ jacobian.T @ to_combined.T
     data_cov = to_combined @ stage.decision.covariance @ to_combined.T
     share = np.diag(thermal_cov) / np.diag(data_cov + thermal_cov)
     fit = ThermalFit(
         terms=THERMAL_TERMS,
         temperature_span=float(np.ptp(temperature)),
-        daily_fraction=daily_fraction(band, delta_t, stage.latitude),
+        daily_fraction=daily_fraction(band, delta_t, stage.context.site.latitude),
         jacobian=jacobian,
         prior_sigma=sigma0,
         estimate=estimate,
@@ -354,18 +341,7 @@ def thermal_step(
     decision = inputs.decision
     if remove is not None and inputs.noise is not None:
         decision = solve.decide_noise(
-            inputs.sums,
-            inputs.harmonic,
-            inputs.attitude,
-            inputs.noise,
-            inputs.loop,
-            latitude=inputs.latitude,
-            gravity=inputs.gravity,
-            rate=inputs.rate,
-            options=options,
-            given=inputs.given,
-            path=inputs.path,
-            remove=remove,
+            inputs.sums, inputs.harmonic, inputs.attitude, inputs.noise, context=inputs.context, given=inputs.given, remove=remove
         )
         thermal = analyse_temperature(replace(inputs, decision=decision), options, prior_covariance)
     harmonic, attitude, decision = thermal.apply(inputs.harmonic, inputs.attitude, decision)

@@ -46,7 +46,7 @@ def response(
     # δ_a per unit of each sensitivity on the bins: bias ΔT/g on its axis, scale factor ΔT u_a
     inputs = np.zeros((6, 3, n))
     for a in range(3):
-        inputs[a, a] = delta_t / stage.gravity
+        inputs[a, a] = delta_t / stage.context.site.gravity
         inputs[3 + a, a] = delta_t * loads[a]
     z_cols = np.stack([sum(loads[a] * inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
     pitch = np.stack([sum(band.mixing[1][a] @ inputs[p, a] for a in range(3)) for p in range(6)], axis=1)

@@ -45,20 +45,8 @@ def whittle_fit(
     a = design[:, free] * scale
     base = np.zeros(observed.size) if offset is None else np.asarray(offset, dtype=float)
     floor = 1e-12 * mean
-    if start is None:
-        u = np.full(a.shape[1], 1.0 / a.shape[1])
-    else:
-        u = np.maximum(np.asarray(start, dtype=float)[free] / scale, 0.0)
-        if not np.any(a @ u + base > floor):
-            u = np.full(a.shape[1], 1.0 / a.shape[1])
-
-    if penalty is None:
-        centre, weight = np.zeros(a.shape[1]), np.zeros(a.shape[1])
-    else:
-        sd = np.asarray(penalty[1], dtype=float)[free] / scale
-        centre = np.asarray(penalty[0], dtype=float)[free] / scale
-        weight = np.where(np.isfinite(sd) & (sd > 0), 1.0 / np.where(sd > 0, sd, 1.0) ** 2, 0.0)
-        centre = np.where(weight > 0, centre, 0.0)
+    u = _scaled_start(a, base, floor, None if start is None else np.asarray(start, dtype=float)[free] / scale)
+    centre, weight = _scaled_penalty(penalty, free, scale)
 
     def loglik(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         e = np.maximum(a @ v + base, floor)
@@ -95,6 +83,33 @@ def whittle_fit(
     theta = np.zeros(p)
     theta[free] = u * scale
     return theta, value
+
+
+def _scaled_start(
+    a: NDArray[np.float64], base: NDArray[np.float64], floor: float, start: NDArray[np.float64] | None
+) -> NDArray[np.float64]:
+    """Return the start of :func:`whittle_fit` on the scaled columns ``a``: ``start`` clipped at 0, or equal weights.
+
+    Equal weights ``1/p`` when no start is given or when the clipped start leaves every expectation at the floor.
+    """
+    if start is not None:
+        u = np.maximum(start, 0.0)
+        if np.any(a @ u + base > floor):
+            return u
+    return np.full(a.shape[1], 1.0 / a.shape[1])
+
+
+def _scaled_penalty(
+    penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None, free: NDArray[np.bool_], scale: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return the Gaussian prior of :func:`whittle_fit` on the scaled free columns: ``(centre, 1/sd²)`` (weight 0: none)."""
+    n = int(np.count_nonzero(free))
+    if penalty is None:
+        return np.zeros(n), np.zeros(n)
+    sd = np.asarray(penalty[1], dtype=float)[free] / scale
+    centre = np.asarray(penalty[0], dtype=float)[free] / scale
+    weight = np.where(np.isfinite(sd) & (sd > 0), 1.0 / np.where(sd > 0, sd, 1.0) ** 2, 0.0)
+    return np.where(weight > 0, centre, 0.0), weight
 
 
 def _chi_bar_squared_sf(statistic: float, correlation: float | None) -> float:
@@ -186,6 +201,26 @@ class ColouredNoiseFit:
         )
 
 
+@dataclass(frozen=True)
+class NoisePrior:
+    """What a noise model known before the record says about the coloured amplitudes (:func:`.coloured.noise_prior`).
+
+    Attributes
+    ----------
+    given : ndarray (2, 3) or None
+        The amplitudes per kind and axis, used as they are (a datasheet model).
+    gaussian : (ndarray (2,), ndarray (2,)) or None
+        ``(mean, sd)`` of a Gaussian prior on each amplitude, one value for the three axes (an earlier measurement of
+        the instrument; ``sd = inf``: nothing known).
+    detected : bool
+        The earlier measurement detected a slow term.
+    """
+
+    given: NDArray[np.float64] | None = None
+    gaussian: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    detected: bool = False
+
+
 def fit_coloured_noise(
     design: NDArray[np.float64],
     observed: NDArray[np.float64],
@@ -195,9 +230,7 @@ def fit_coloured_noise(
     confidence: float = 0.95,
     ordinates: tuple[int, int] = (0, 0),
     band: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-    prior_detected: bool = False,
-    given: NDArray[np.float64] | None = None,
+    prior: NoisePrior = NoisePrior(),
 ) -> ColouredNoiseFit:
     """Decide whether the residuals carry coloured noise, with a calibrated false-positive rate, and fit its amplitudes.
 
@@ -210,10 +243,10 @@ def fit_coloured_noise(
     Why a decision and not always the maximum: with white noise the maximum is above 0 in about 60 % of one-day records
     and a random-walk amplitude far below detection multiplies the variance at the harmonics (docs §1a).
 
-    ``prior = (mean, sd)`` of the amplitudes (an earlier measurement of the instrument; ``sd = inf``: nothing known):
-    the amplitudes are then the posterior mode (:func:`whittle_fit` with the penalty) when the record or the prior
-    (``prior_detected``) shows coloured noise, else 0.  ``given`` ``(2, 3)``: the amplitudes per axis, used as they are
-    (the record's own fit and decision are still reported).
+    ``prior.gaussian = (mean, sd)`` of the amplitudes (an earlier measurement of the instrument; ``sd = inf``: nothing
+    known): the amplitudes are then the posterior mode (:func:`whittle_fit` with the penalty) when the record or the prior
+    (``prior.detected``) shows coloured noise, else 0.  ``prior.given`` ``(2, 3)``: the amplitudes per axis, used as they
+    are (the record's own fit and decision are still reported).
     """
     from scipy.special import gammaincinv
 
@@ -238,17 +271,17 @@ def fit_coloured_noise(
     penalty = None
     best, best_loglik = theta, loglik
     source = ColouredSource.DATA
-    if given is not None:
+    if prior.given is not None:
         source = ColouredSource.GIVEN
-        used = np.asarray(given, dtype=float).reshape(kinds, 3)
-    elif prior is not None:
+        used = np.asarray(prior.given, dtype=float).reshape(kinds, 3)
+    elif prior.gaussian is not None:
         source = ColouredSource.PRIOR
         penalty = (
-            np.concatenate([np.zeros(channels), np.asarray(prior[0], dtype=float)]),
-            np.concatenate([np.full(channels, np.inf), np.asarray(prior[1], dtype=float)]),
+            np.concatenate([np.zeros(channels), np.asarray(prior.gaussian[0], dtype=float)]),
+            np.concatenate([np.full(channels, np.inf), np.asarray(prior.gaussian[1], dtype=float)]),
         )
         best, best_loglik = whittle_fit(design, observed, start=theta, penalty=penalty)
-        used = np.repeat(best[amp][:, None], 3, axis=1) if (detected or prior_detected) else np.zeros((kinds, 3))
+        used = np.repeat(best[amp][:, None], 3, axis=1) if (detected or prior.detected) else np.zeros((kinds, 3))
     else:
         used = np.repeat(theta[amp][:, None], 3, axis=1) if detected else np.zeros((kinds, 3))
     level = 2.0 * float(gammaincinv(0.5, confidence))  # the χ²₁ quantile
