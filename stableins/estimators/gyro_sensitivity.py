@@ -58,6 +58,10 @@ from stableins.status import Status
 SLOPE_SKIP = 0.5
 #: Dwells whose gimbal-rate map is worse conditioned than this are left out (near gimbal lock).
 MAX_CONDITION = 1e3
+#: Relative singular value (column-scaled design) below which a direction counts as not determined.  A direction
+#: seen only through the arcsecond scatter of the mean readings (``f_z`` of positions that only turn the platform
+#: axis varies by 1e-9 relative) would otherwise pass as determined with a σ 1e9 times the others'.
+RANK_RTOL = 1e-6
 #: False-alarm level of the ``D_g = 0`` test.
 FLAG_ALPHA = 0.01
 GIMBALS = ("platform", "inner", "middle")
@@ -284,7 +288,7 @@ def estimate_gyro_sensitivity(
     scale = np.linalg.norm(design, axis=0)
     scale[scale == 0] = 1.0
     u, s, vt = np.linalg.svd(design / scale, full_matrices=False)
-    rank = int(np.sum(s > s[0] * 1e-9))
+    rank = int(np.sum(s > s[0] * RANK_RTOL))
     inverse = vt[:rank].T / s[:rank]
     x = inverse @ (u[:, :rank].T @ y) / scale
     covariance = (inverse @ inverse.T) / np.outer(scale, scale)
