@@ -113,10 +113,7 @@ def run(args: argparse.Namespace) -> int:
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
     layouts = {"coarse": coarse_procedure.layout, "fine": fine_procedure.layout}
-    # the model: the procedures' [model] add, then --add (each effect once, tested in this order)
-    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
-    effect_ids += [e for e in args.add if e not in effect_ids]
-    # a gyro g-sensitivity is not an accelerometer output: the gyro stage estimates it from the reading slopes
+    effect_ids = _effect_ids(args, coarse_procedure, fine_procedure)
     gyro_added = [e for e in effect_ids if e in GYRO_IDS]
     effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
     datasets = [load_device(path) for path in args.data]
@@ -162,12 +159,7 @@ def run(args: argparse.Namespace) -> int:
     record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added)
     if history is not None:
         record = replace(record, discovery=history)  # the record's report below shows it
-    text = calibration.report()
-    if gyro is not None:
-        from stableins.estimators.gyro_sensitivity import report as gyro_report
-
-        text += "\n\n" + gyro_report(gyro)
-    text += "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
+    text = calibration.report() + _gyro_text(gyro) + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     steps = next_steps(args, record)
@@ -188,6 +180,23 @@ def run(args: argparse.Namespace) -> int:
     }
     emit(args, result, text)
     return 0
+
+
+def _effect_ids(args: argparse.Namespace, coarse_procedure, fine_procedure) -> list[str]:
+    """Return the effects to carry: the procedures' ``[model] add``, then ``--add`` (each once, tested in this order).
+
+    A gyro g-sensitivity ``Dg_ab`` among them is not an accelerometer output: the gyro stage estimates it from the
+    reading slopes (:func:`_gyro_stage`).
+    """
+    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
+    return effect_ids + [e for e in args.add if e not in effect_ids]
+
+
+def _gyro_text(gyro) -> str:
+    """Return the gyro stage's report, as a paragraph of the console text ("" without the stage)."""
+    from stableins.estimators.gyro_sensitivity import report
+
+    return "" if gyro is None else "\n\n" + report(gyro)
 
 
 def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str]):

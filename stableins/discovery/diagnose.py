@@ -281,9 +281,7 @@ def diagnose_data(
 def _model_in_force(record: RecordInForce, add: Sequence[str], record_name: str) -> ErrorModel:
     """Return the standard model with the zero offsets and the record's discovered effects (the effects to add not in it)."""
     from stableins.discovery.library import record_terms
-    from stableins.errormodel import ErrorModel
-
-    from stableins.errormodel import GYRO_G_TERMS
+    from stableins.errormodel import GYRO_G_TERMS, ErrorModel
 
     gyro = {t.id for t in GYRO_G_TERMS}
     model = ErrorModel.standard(nonlinear=True, gimbals=True)

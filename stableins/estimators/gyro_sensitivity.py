@@ -294,7 +294,19 @@ def estimate_gyro_sensitivity(
     covariance = (inverse @ inverse.T) / np.outer(scale, scale)
     residual = y - design @ x
     null = vt[rank:].T
-    details = _details(x, covariance, ids, null, noise=noise, residual=residual, alpha=alpha, used=keep, names=names, left_out=left_out)
+    statistic, p_value, test_dof = _flag_test(x, covariance, ids, null)
+    details = GyroSensitivityDetails(
+        angle_noise=(float(noise[0]), float(noise[1]), float(noise[2])),
+        dwells_used=tuple(n for n, k in zip(names, keep, strict=True) if k),
+        left_out=left_out,
+        rank_report=rank_report(ids, null, int(keep.sum())),
+        chi2=float(residual @ residual),
+        dof=int(residual.size - rank),
+        statistic=statistic,
+        p_value=p_value,
+        test_dof=test_dof,
+        alpha=alpha,
+    )
     status = tuple(Status.ESTIMATED if np.linalg.norm(null[k]) < 1e-6 else Status.UNIDENTIFIABLE for k in range(len(ids)))
     information = (design / scale).T @ (design / scale) * np.outer(scale, scale)  # Λ = AᵀA of the whitened design
     residual_sigma = np.broadcast_to(sigma, (int(keep.sum()), 3)).ravel()
@@ -317,38 +329,16 @@ def estimate_gyro_sensitivity(
     )
 
 
-def _details(
-    x: NDArray[np.float64],
-    covariance: NDArray[np.float64],
-    ids: Sequence[str],
-    null: NDArray[np.float64],
-    *,
-    noise: NDArray[np.float64],
-    residual: NDArray[np.float64],
-    alpha: float,
-    used: NDArray[np.bool_],
-    names: Sequence[str],
-    left_out: tuple[str, ...],
-) -> GyroSensitivityDetails:
+def _flag_test(
+    x: NDArray[np.float64], covariance: NDArray[np.float64], ids: Sequence[str], null: NDArray[np.float64]
+) -> tuple[float, float, int]:
+    """``(W, p, dof)`` of the ``D_g = 0`` test over the determined g-sensitivities (NaN, NaN, 0 without any)."""
     tested = [k for k, i in enumerate(ids) if i.startswith("Dg_") and np.linalg.norm(null[k]) < 1e-6]
-    if tested:
-        block = covariance[np.ix_(tested, tested)]
-        statistic = float(x[tested] @ np.linalg.solve(block, x[tested]))
-        p_value = float(stats.chi2.sf(statistic, len(tested)))
-    else:
-        statistic, p_value = float("nan"), float("nan")
-    return GyroSensitivityDetails(
-        angle_noise=(float(noise[0]), float(noise[1]), float(noise[2])),
-        dwells_used=tuple(n for n, k in zip(names, used, strict=True) if k),
-        left_out=left_out,
-        rank_report=rank_report(ids, null, int(used.sum())),
-        chi2=float(residual @ residual),
-        dof=int(residual.size - (len(ids) - null.shape[1])),
-        statistic=statistic,
-        p_value=p_value,
-        test_dof=len(tested),
-        alpha=alpha,
-    )
+    if not tested:
+        return float("nan"), float("nan"), 0
+    block = covariance[np.ix_(tested, tested)]
+    statistic = float(x[tested] @ np.linalg.solve(block, x[tested]))
+    return statistic, float(stats.chi2.sf(statistic, len(tested))), len(tested)
 
 
 def rank_report(ids: Sequence[str], null: NDArray[np.float64], dwells: int) -> tuple[str, ...]:
@@ -393,7 +383,8 @@ def gyro_from_datasets(
     site = datasets[0].metadata
     pieces, readings, labels = [], [], []
     for ds in datasets:
-        usable = {(s.stage, s.pass_number, s.position) for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path)) if s.usable}
+        summaries = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
+        usable = {(s.stage, s.pass_number, s.position) for s in summaries if s.usable}
         for d in ds.dwells():
             if (d.stage, d.pass_number, d.position) not in usable:
                 continue
