@@ -19,9 +19,8 @@ MICRO_G_PER_G2 = 1e-6 * G / G**2
 def _nonlinear(f, k2, kcross):
     """Cai Eq. 6's nonlinear part ``K_a2 f⁽²⁾ + K_cross f⁽cross⁾`` (K_cross rows: x: xy, xz; y: yx, yz; z: zx, zy)."""
     squares = k2 * f**2
-    cross = np.array(
-        [kcross[0] * f[0] * f[1] + kcross[1] * f[0] * f[2], kcross[2] * f[1] * f[0] + kcross[3] * f[1] * f[2], kcross[4] * f[2] * f[0] + kcross[5] * f[2] * f[1]]
-    )
+    x, y, z = f
+    cross = np.array([kcross[0] * x * y + kcross[1] * x * z, kcross[2] * y * x + kcross[3] * y * z, kcross[4] * z * x + kcross[5] * z * y])
     return squares + cross
 
 
