@@ -49,8 +49,8 @@ def session(seed: int, g_sensitivity: float, dwell: float):
     return truth, columns
 
 
-def fit(truth, c):
-    """The estimator on the simulated dwells (zero offsets of the truth: a 1″ error moves J by 5e-6)."""
+def dwell_pieces(c):
+    """Split simulated columns into dwells: ``[(time, angles (n, 3))]`` and the mean readings (P, 3)."""
     position = c["position"]
     pieces, readings = [], []
     for p in np.unique(position):
@@ -58,9 +58,15 @@ def fit(truth, c):
         angles = np.stack([c["angle_platform"][rows], c["angle_inner"][rows], c["angle_middle"][rows]], -1)
         pieces.append((c["time"][rows], angles))
         readings.append(angles.mean(axis=0))
+    return pieces, np.array(readings)
+
+
+def fit(truth, c):
+    """The estimator on the simulated dwells (zero offsets of the truth: a 1″ error moves J by 5e-6)."""
+    pieces, readings = dwell_pieces(c)
     site = truth.site
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(np.array(readings), site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude)
+    geometry = SlopeGeometry.of(readings, site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude)
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry), pieces
 
 

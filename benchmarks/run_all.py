@@ -85,7 +85,7 @@ QUICK: dict[str, Quick] = {
         "half an hour at 100 Hz instead of 24 h, one repetition",
         volatile=(r"\d[\d.]*\.\.\s*\d[\d.]*", r"writer / raw = [\d.]+"),  # best..worst of the baselines, their ratios
     ),
-    "bench_cai_table3": Quick(("--seeds", "2", "--rate", "10"), "2 sessions at 10 Hz instead of 10 at 100 Hz (white noise: same dwell means)"),
+    "bench_cai_table3": Quick(("--seeds", "2", "--rate", "10"), "2 sessions at 10 Hz instead of 10 at 100 Hz (same dwell means)"),
     "bench_demo_loop": Quick(("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"),
     "bench_device_montecarlo": Quick(
         ("--trials", "1000", "--sim-devices", "2", "--workers", "1", "--seed", "20260101"),

@@ -7,7 +7,9 @@ diagnose --add Dg_xz estimates it from the slopes).
 """
 
 import json
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,18 +32,14 @@ from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.truth import Truth
 from stableins.status import Status
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_device_gsensitivity import dwell_pieces  # noqa: E402
+
 WHITE = NoiseSettings(velocity_random_walk=4.5e-4, quantization=1e-5, angle_noise=0.2 * ARCSEC)
 
 
 def _dwells(columns):
-    position = columns["position"]
-    pieces, readings = [], []
-    for p in np.unique(position):
-        rows = position == p
-        angles = np.stack([columns["angle_platform"][rows], columns["angle_inner"][rows], columns["angle_middle"][rows]], -1)
-        pieces.append((columns["time"][rows], angles))
-        readings.append(angles.mean(axis=0))
-    return pieces, np.array(readings)
+    return dwell_pieces(columns)
 
 
 def _fit(truth, commands, *, dwell=60.0, rate=100.0, seed=5):
