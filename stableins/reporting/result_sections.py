@@ -121,7 +121,7 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
         rows.append(
             [row.symbol, escape(row.unit), cell(budget.type_a[budget.ids.index(row.id)])]
             + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
-            + ([f"{row.u:.1e}", f"{k * row.u:.1e}"] if tiny else [r.u, r.expanded])
+            + [r.u, r.expanded]  # the results table's own strings (m×10ⁿ at U's power for tiny values)
         )
     widths = [0.12, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.12]
     out.append(document.table(rows, widths, align_right=tuple(range(2, 10)), markup=True))
