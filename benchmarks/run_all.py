@@ -85,11 +85,13 @@ QUICK: dict[str, Quick] = {
         "half an hour at 100 Hz instead of 24 h, one repetition",
         volatile=(r"\d[\d.]*\.\.\s*\d[\d.]*", r"writer / raw = [\d.]+"),  # best..worst of the baselines, their ratios
     ),
+    "bench_cai_table3": Quick(("--seeds", "2", "--rate", "10"), "2 sessions at 10 Hz instead of 10 at 100 Hz (same dwell means)"),
     "bench_demo_loop": Quick(("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"),
     "bench_device_montecarlo": Quick(
         ("--trials", "1000", "--sim-devices", "2", "--workers", "1", "--seed", "20260101"),
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
     ),
+    "bench_device_gsensitivity": Quick(("--seeds", "2"), "2 sessions with g-sensitivity and 2 clean ones instead of 20 each"),
     "bench_discovery_false_alarms": Quick(("3",), "3 clean sessions (seeds 100-102) instead of 20"),
     "bench_fuzz": Quick(
         ("--scale", "0.05", "--seed", "7"),

@@ -22,9 +22,9 @@ from stableins.reporting.symbols import plain
 MIN_FILL = 0.75
 #: The text frame of the A4 page [mm from the top]: below the header, above the footer (stableins.reporting.document).
 FRAME_TOP, FRAME_BOTTOM, PAGE_HEIGHT = 23.6, 297.0 - 20.8, 297.0
-UNITS = {"ppm", "µg", "arcsec", "µg/g²", "µg/g³", "µg/K", "ppm/K", "µg/h", "mm", "°/h/g"}
+UNITS = {"ppm", "µg", "arcsec", "µg/g²", "µg/g³", "µg/K", "ppm/K", "µg/h", "mm", "°/h", "°/h/g"}
 STATUSES = ("estimated", "gauge", "fixed", "unidentifiable")
-_PATH = re.compile(r"(?<![\w.])/(?:[\w.+-]+/)+[\w.+-]*|[A-Za-z]:\\|\b[\w.-]+/[\w.-]+\.(?:h5|csv|json|toml|pdf|bin|txt)\b")
+_PATH = re.compile(r"(?<![\w.°])/(?:[\w.+-]+/)+[\w.+-]*|[A-Za-z]:\\|\b[\w.-]+/[\w.-]+\.(?:h5|csv|json|toml|pdf|bin|txt)\b")
 _FLAG = re.compile(r"(?<![\w-])--[a-z]")
 
 
@@ -79,7 +79,16 @@ def value_checks(text: str) -> dict[str, list[str]]:
 
 
 def decimals(text: str) -> int:
-    return len(text.partition(".")[2])
+    return len(mantissa(text).partition(".")[2])
+
+
+def mantissa(text: str) -> str:
+    """The number before a ``×10ⁿ`` (tiny values are written at the power of their U)."""
+    return text.partition("×10")[0]
+
+
+def power(text: str) -> str:
+    return text.partition("×10")[2]
 
 
 def review(pdf: Path, folder: Path) -> list[str]:
@@ -119,7 +128,11 @@ def _result_row_defects(symbol: str, tokens: list[str], budget: dict, conformity
     value, u, expanded, unit = tokens[1:5]
     if unit not in UNITS:
         defects.append(f"results row {symbol}: no unit after its numbers ({tokens})")
-    if decimals(value) != decimals(expanded) or len(expanded.replace(".", "").lstrip("0")) != 2:
+    if (
+        decimals(value) != decimals(expanded)
+        or power(value) != power(expanded)
+        or len(mantissa(expanded).replace(".", "").lstrip("0")) != 2
+    ):
         defects.append(f"results row {symbol}: {value} with U = {expanded} is not GUM-rounded")
     row = budget.get(symbol)
     if row is None:

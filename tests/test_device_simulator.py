@@ -98,7 +98,7 @@ def test_cli_calibrates_simulated_files_and_writes_a_record(tmp_path, capsys):
     record = CalibrationRecord.load(out)
     assert record["theta10"].status == "gauge"
     assert record["K2_x"].status == "estimated" and record["beta_xz"].status == "estimated"  # β from the coarse stage
-    assert record.provenance.stages == ("coarse+fine",) and record.calibration.procedure == "device-coarse + device-fine"
+    assert record.provenance.stages == ("coarse+fine", "gyro") and record.calibration.procedure == "device-coarse + device-fine"
     assert record.stages[0].environment["temperature"]["unit"] == "degC"
     expected = gauge_equivalent(truth.parameters)
     assert abs(record["sf_x"].value - expected["sf_x"]) < 5 * record["sf_x"].sigma

@@ -270,7 +270,7 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     }
     assert "bias instability 2 µg" in flat  # the settings the calibration ran with
     assert "recomputed" not in flat
-    assert text.count("verified:") == 2  # both data files match the record's SHA-256
+    assert text.count("verified:") == 4  # both data files match the record's SHA-256, for each stage that read them (coarse+fine, gyro)
     diagnosis = json.loads((tmp_path / "diag.json").read_text())
     assert "From diag.json (stableins diagnose)" in flat and "Refit history" in flat
     assert plain(diagnosis["candidates"][0]["id"]) in text  # typeset: Kh_x prints as K with subscript h,x

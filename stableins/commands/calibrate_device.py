@@ -25,6 +25,9 @@ from pathlib import Path
 from stableins.commands import add_entries_option
 from stableins.status import Status
 
+#: The gyro g-sensitivity ids (``--add Dg_ab`` goes to the gyro stage, not to the accelerometer model).
+GYRO_IDS = frozenset(f"Dg_{a}{b}" for a in "xyz" for b in "xyz")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate device`` to ``parser``."""
@@ -63,6 +66,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--keep-unsupported",
         action="store_true",
         help="keep an added effect even when the data do not show it (default: left out of the record, with its verdict)",
+    )
+    parser.add_argument(
+        "--no-gyro",
+        action="store_true",
+        help="skip the gyro stage (gyro drift and the nine g-sensitivities from the reading slopes); with --add Dg_ab "
+        "it estimates the drift and only the g-sensitivities added",
     )
     add_entries_option(parser)
 
@@ -104,9 +113,9 @@ def run(args: argparse.Namespace) -> int:
     coarse_procedure = load_procedure(args.coarse_procedure)
     fine_procedure = load_procedure(args.fine_procedure)
     layouts = {"coarse": coarse_procedure.layout, "fine": fine_procedure.layout}
-    # the model: the procedures' [model] add, then --add (each effect once, tested in this order)
-    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
-    effects = calibration_terms(effect_ids + [e for e in args.add if e not in effect_ids])
+    effect_ids = _effect_ids(args, coarse_procedure, fine_procedure)
+    gyro_added = [e for e in effect_ids if e in GYRO_IDS]
+    effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
     datasets = [load_device(path) for path in args.data]
     _same_site(datasets)
     summaries = []
@@ -147,9 +156,10 @@ def run(args: argparse.Namespace) -> int:
         **data_description(datasets),
         entries=parse_entries(args.set),
     )
+    record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added)
     if history is not None:
         record = replace(record, discovery=history)  # the record's report below shows it
-    text = calibration.report() + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
+    text = calibration.report() + _gyro_text(gyro) + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     steps = next_steps(args, record)
@@ -165,10 +175,87 @@ def run(args: argparse.Namespace) -> int:
         "discovery": None if history is None else history.to_json(),
         "noise_model": None if calibration.noise is None else calibration.noise.to_document(),
         "largest_floor": None if calibration.floor is None else _summary(calibration.floor),
+        "gyro": None if gyro is None else gyro_document(gyro),
         "next": [line.strip() for line in steps if line.startswith("  ")],
     }
     emit(args, result, text)
     return 0
+
+
+def _effect_ids(args: argparse.Namespace, coarse_procedure, fine_procedure) -> list[str]:
+    """Return the effects to carry: the procedures' ``[model] add``, then ``--add`` (each once, tested in this order).
+
+    A gyro g-sensitivity ``Dg_ab`` among them is not an accelerometer output: the gyro stage estimates it from the
+    reading slopes (:func:`_gyro_stage`).
+    """
+    effect_ids = list(dict.fromkeys([*coarse_procedure.model_add, *fine_procedure.model_add]))
+    return effect_ids + [e for e in args.add if e not in effect_ids]
+
+
+def _gyro_text(gyro) -> str:
+    """Return the gyro stage's report, as a paragraph of the console text ("" without the stage)."""
+    from stableins.estimators.gyro_sensitivity import report
+
+    return "" if gyro is None else "\n\n" + report(gyro)
+
+
+def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str]):
+    """Return the record updated by the gyro stage on the same dwells, and the stage's fit (None when skipped, with a note).
+
+    A Bayesian update of the device record: the twelve gyro numbers join from the reading slopes alone, nothing
+    else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").
+    """
+    from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
+    from stableins.estimators.gyro_sensitivity import gyro_from_datasets
+    from stableins.output import note
+
+    if args.no_gyro and not added:
+        return record, None
+    terms = GYRO_DRIFT_TERMS + tuple(t for t in GYRO_G_TERMS if not args.no_gyro or t.id in added)
+    values = record.values()
+    try:
+        fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms)
+    except ValueError as error:
+        note(f"stableins: gyro stage skipped: {error}")
+        return record, None
+    description = data_description(datasets)
+    updated = record.updated(
+        fit,
+        procedure=record.calibration.procedure,
+        inputs=[str(p) for p in args.data],
+        data_start=description["data_start"],
+        data_end=description["data_end"],
+        site=datasets[0].metadata,
+    )
+    return updated, fit
+
+
+def gyro_document(fit) -> dict:
+    """Return the gyro stage as JSON: each number in °/h or °/h/g with 1σ, the D_g = 0 test, the noise, the rank report."""
+    from stableins.conventions import ARCSEC
+    from stableins.estimators.gyro_sensitivity import GyroSensitivityDetails
+
+    details = fit.details
+    assert isinstance(details, GyroSensitivityDetails)
+    return {
+        "parameters": {
+            t.id: {"value": float(v) / t.scale, "sigma": float(s) / t.scale, "unit": t.unit, "status": str(st)}
+            for t, v, s, st in zip(fit.terms, fit.values, fit.sigma, fit.status, strict=True)
+        },
+        "g_sensitivity_test": {
+            "statistic": details.statistic if details.test_dof else None,
+            "dof": details.test_dof,
+            "p_value": details.p_value if details.test_dof else None,
+            "alpha": details.alpha,
+            "flagged": details.flagged,
+        },
+        "angle_noise_arcsec": [n / ARCSEC for n in details.angle_noise],
+        "chi2_red": details.chi2 / max(details.dof, 1),
+        "dof": details.dof,
+        "dwells_used": len(details.dwells_used),
+        "rank": list(details.rank_report),
+        "left_out": list(details.left_out),
+    }
 
 
 def next_steps(args: argparse.Namespace, record) -> list[str]:

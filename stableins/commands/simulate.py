@@ -172,18 +172,19 @@ def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
     effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
     effect catalogue's output effects know are refused; ids the record lacks keep the truth's
     installed value.  Unidentifiable parameters carry their prior value in a record, which is
-    what an INS would be loaded with.  The record's gyro drift (``gyro_drift_x/y/z``, written by the system stage or a
-    drift test) is not installed: the simulated navigation computer does not compensate its gyros (the platform drifts
-    with the truth's ``gyro_drift``).
+    what an INS would be loaded with.  The record's gyro drift (``gyro_drift_x/y/z``, written by the system stage, a
+    drift test or the device gyro stage) and g-sensitivity (``Dg_ab``, the device gyro stage) are not installed: the
+    simulated navigation computer does not compensate its gyros (the platform drifts with the truth's ``gyro_drift``
+    and ``Dg_ab`` effects).
     """
-    from stableins.errormodel import GYRO_DRIFT_TERMS
+    from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS
     from stableins.records import CalibrationRecord
     from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
     installed = dict(truth.installed_calibration)
     known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
-    drift_ids = {t.id for t in GYRO_DRIFT_TERMS}
+    drift_ids = {t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS}
     for parameter_id, value in record.values().items():
         if parameter_id in drift_ids:
             continue

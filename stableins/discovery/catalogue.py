@@ -248,19 +248,32 @@ def _instrument_couplings() -> list[Candidate]:
                         "ug/g^2",
                         MICRO_G_PER_G2,
                         10 * MICRO_G_PER_G2,
-                        f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} (Cai et al. 2016 Eq. 4 K_a{b}{c}"
+                        f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} ({_cross_coupling_source(a, b, c)}"
                         ", IEEE 1293 Kip/Kio/Kpo)",
                         axis=i,
                         regressor=_polynomial(i, partial(_product, j=j, k=k)),
                         excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
                         aliases=(f"beta_{a}{b}" if b != a else f"beta_{a}{c}", f"bias_{a}"),
-                        source="Cai et al. 2016 Eq. 4; IEEE Std 1293",
+                        source="Cai et al. 2016 Eqs. 4 and 6; IEEE Std 1293" if a in (b, c) else "IEEE Std 1293 (not in Cai et al. 2016)",
                     ),
                     "instrument",
                     f"45° positions in the {b}{c} plane with both signs of f_{b}·f_{c}",
                 )
             )
     return out
+
+
+def _cross_coupling_source(a: str, b: str, c: str) -> str:
+    """Cai et al. 2016 Eq. 4's symbol for ``Kcc_abc``, or that Cai does not model it.
+
+    Cai's K_cross (Eq. 6) couples accelerometer ``a`` to ``f_a`` times one other axis: ``K_axy, K_axz`` (x),
+    ``K_ayx, K_ayz`` (y), ``K_azx, K_azy`` (z), i.e. ``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``.  The three products of the
+    two *other* axes (``Kcc_xyz, Kcc_yxz, Kcc_zxy``) are not in Cai's model.
+    """
+    if a not in (b, c):
+        return "not in Cai et al. 2016, whose K_cross couples an accelerometer to its own input times another"
+    other = c if b == a else b
+    return f"Cai et al. 2016 Eq. 4 K_a{a}{other}"
 
 
 def _environment() -> list[Candidate]:

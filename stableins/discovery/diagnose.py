@@ -43,6 +43,7 @@ from stableins.discovery.diagnose_report import (
     CandidateSummary,
     DiagnoseReport,
     DiagnoseStage,
+    DriftEstimate,
     DriftSummary,
     SpectrumSummary,
     SystemFindings,
@@ -206,7 +207,15 @@ class DiagnoseResult:
         else:
             parts = [self.diagnosis.report(), self.ranking.report(top=top)]
             if self.drift is not None:
-                parts.append("platform drift within dwells (angle-reading slopes):\n" + self.drift.report(top=3))
+                model = "\n".join(
+                    f"  {m.id:<13} {m.value:+.6f} ± {m.sigma:.6f} {m.unit}" for m in DriftEstimate.from_fit(self.drift.result)
+                )
+                parts.append(
+                    "platform drift within dwells (angle-reading slopes), the drift model fitted:\n"
+                    + model
+                    + "\nthe g-sensitivities not in it, ranked:\n"
+                    + self.drift.report(top=9)
+                )
         return "\n\n".join([*parts, self.session.history.report()])
 
     def figures(self) -> dict[str, Figure]:
@@ -272,10 +281,12 @@ def diagnose_data(
 def _model_in_force(record: RecordInForce, add: Sequence[str], record_name: str) -> ErrorModel:
     """Return the standard model with the zero offsets and the record's discovered effects (the effects to add not in it)."""
     from stableins.discovery.library import record_terms
-    from stableins.errormodel import ErrorModel
+    from stableins.errormodel import GYRO_G_TERMS, ErrorModel
 
+    gyro = {t.id for t in GYRO_G_TERMS}
     model = ErrorModel.standard(nonlinear=True, gimbals=True)
-    model = model + [t for t in record_terms(record.ids) if t.id not in model]
+    # the record's gyro numbers are not accelerometer outputs: the drift section ranks all nine Dg_ab on the slopes
+    model = model + [t for t in record_terms(record.ids) if t.id not in model and t.id not in gyro]
     for effect in add:
         if effect in model:
             raise InputError(f"effect {effect!r} is already in the model of {record_name}", field="add")
@@ -345,7 +356,13 @@ def _device(
         left_out=tuple(dwells.noise.get("left_out", [])),
         drift=None
         if drift is None
-        else DriftSummary(drift.result.chi2_red, drift.result.dof, CandidateSummary.from_ranking(drift), left_out=drift_notes),
+        else DriftSummary(
+            drift.result.chi2_red,
+            drift.result.dof,
+            CandidateSummary.from_ranking(drift),
+            left_out=drift_notes,
+            model=DriftEstimate.from_fit(drift.result),
+        ),
     )
     return DiagnoseResult(report, session, diagnosis, ranking, origin, drift=drift, drift_notes=drift_notes)
 

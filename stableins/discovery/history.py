@@ -377,6 +377,8 @@ class Discovery:
         self.results: list[FitResult] = [self.result]
         self.history = History([make_step(self.result, "standard model")])
         self._ranking: Ranking | None = None
+        #: Gyro g-sensitivities added to the drift model (:meth:`add` of a ``Dg_ab``): estimated from the reading slopes.
+        self.drift_added: tuple[Term, ...] = ()
 
     def diagnose(self) -> Diagnosis:
         """Return the diagnosis of the current fit (:func:`stableins.discovery.diagnostics.diagnose`)."""
@@ -418,7 +420,10 @@ class Discovery:
         return self._ranking
 
     def drift(self, refit_top: int = 3) -> Ranking | None:
-        """Rank the platform-drift candidates ``Dg_*`` on the reading slopes within dwells.
+        """Rank the platform-drift candidates ``Dg_ab`` on the reading slopes within dwells.
+
+        The null model holds a constant reading rate per gimbal, the constant gyro drift and the ``Dg_ab`` added
+        (:attr:`drift_added`); its fit is the ranking's ``result``.
 
         None when there are too few usable slopes (``drift_notes`` says why).  Uses the zero offsets of the current fit
         for the actual angles; see
@@ -433,7 +438,9 @@ class Discovery:
             raise ValueError("these data carry no reading slopes (device dwells are needed)")
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in GIMBAL_IDS]
-        problem, null, terms, notes = drift_problem(dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets)
+        problem, null, terms, notes = drift_problem(
+            dwells, dwells.reading_slope, dwells.reading_slope_sigma, offsets, added=self.drift_added
+        )
         if problem.y.size <= len(null) + len(terms):
             self.drift_notes = notes + (
                 f"only {problem.y.size // 3} dwell(s) with usable reading slopes: too few to rank the drift candidates",
@@ -451,8 +458,19 @@ class Discovery:
         return effect if isinstance(effect, Term) else self.library[effect].term
 
     def add(self, *effects: str | Term) -> FitResult:
-        """``model + effect`` and refit; the step goes into the history."""
-        terms = [self._term(e) for e in effects]
+        """``model + effect`` and refit; the step goes into the history.
+
+        A gyro g-sensitivity ``Dg_ab`` is not an accelerometer output: it joins the drift model instead
+        (:attr:`drift_added`, as the record's ``GYRO_G_SENSITIVITY`` term, estimated by :meth:`drift` from the reading
+        slopes) and the accelerometer fit is returned unchanged.
+        """
+        from stableins.errormodel import GYRO_G_TERMS
+
+        gyro = {t.id: t for t in GYRO_G_TERMS}
+        self.drift_added += tuple(gyro[e if isinstance(e, str) else e.id] for e in effects if (e if isinstance(e, str) else e.id) in gyro)
+        terms = [self._term(e) for e in effects if (e if isinstance(e, str) else e.id) not in gyro]
+        if not terms:
+            return self.result
         previous = self.result
         self.model = self.model + terms
         self.result = self.problem.fit(self.model, start=previous.as_dict())

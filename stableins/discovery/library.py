@@ -11,8 +11,9 @@ the regressors follow the IEEE Std 1293-2018 accelerometer model equation
     E/K_1 = K_0 + a_i + K_2 a_i^2 + K_3 a_i^3 + K_{oq} a_i|a_i| + K_{ip} a_i a_p + K_{io} a_i a_o
             + K_{po} a_p a_o + K_{pp} a_p^2 + K_{oo} a_o^2 + \dots
 
-and Cai et al. 2016 Eqs. 4, 9–12 (cross-coupling ``K_axy f_x f_y`` is our ``Kcc_xxy``; size
-effect ``−(ω_y² + ω_z²) r_x``).  Inputs are platform-frame (``f^p`` on the nominal
+and Cai et al. 2016 Eqs. 4, 9–12 (cross-coupling ``K_axy f_x f_y`` is our ``Kcc_xxy``; Cai's six are
+``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``, an accelerometer's own input times another; ``Kcc_xyz, Kcc_yxz, Kcc_zxy``
+are not in Cai's model; size effect ``−(ω_y² + ω_z²) r_x``).  Inputs are platform-frame (``f^p`` on the nominal
 sensitive axes), see :mod:`stableins.errormodel`.
 
 Instrument terms (per axis ``a``; ``b ≠ a``; ``bc ∈ {xy, xz, yz}``):

@@ -250,12 +250,16 @@ class DriftSummary:
         The drift candidates, best first.
     left_out : tuple of str
         Dwells left out of the drift analysis, and why.
+    model : tuple of DriftEstimate
+        The drift model's gyro numbers fitted to the slopes: ``gyro_drift_x/y/z`` (°/h) and each ``Dg_ab`` added
+        (°/h/g), with 1σ.
     """
 
     chi2_red: float
     dof: int
     candidates: tuple[CandidateSummary, ...]
     left_out: tuple[str, ...] = ()
+    model: tuple[DriftEstimate, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """Return the ``drift`` section of the document."""
@@ -264,6 +268,7 @@ class DriftSummary:
             "dof": self.dof,
             "candidates": [c.to_json() for c in self.candidates],
             "left_out": list(self.left_out),
+            "model": [m.to_json() for m in self.model],
         }
 
     @classmethod
@@ -279,6 +284,55 @@ class DriftSummary:
             dof=r.integer(r.get(item, "dof", where), join(where, "dof")),
             candidates=candidates,
             left_out=r.texts(r.get(item, "left_out", where), join(where, "left_out")),
+            model=r.items(item.get("model", []), join(where, "model"), lambda v, w: DriftEstimate.from_json(v, path, where=w)),
+        )
+
+
+@dataclass(frozen=True)
+class DriftEstimate:
+    """One gyro number of the drift model fitted to the reading slopes, in its engineering unit.
+
+    Attributes
+    ----------
+    id : str
+        ``gyro_drift_a`` or ``Dg_ab``.
+    value, sigma : float
+        Estimate and 1σ in ``unit``.
+    unit : str
+        ``°/h`` or ``°/h/g``.
+    """
+
+    id: str
+    value: float
+    sigma: float
+    unit: str
+
+    @classmethod
+    def from_fit(cls, fit: Any) -> tuple[DriftEstimate, ...]:
+        """Return the gyro numbers of a drift-model fit (its terms of kind GYRO_DRIFT and GYRO_G_SENSITIVITY)."""
+        from stableins.errormodel import TermKind
+
+        kinds = (TermKind.GYRO_DRIFT, TermKind.GYRO_G_SENSITIVITY)
+        return tuple(
+            cls(t.id, float(v) / t.scale, float(s) / t.scale, "°/h" if t.kind is TermKind.GYRO_DRIFT else "°/h/g")
+            for t, v, s in zip(fit.terms, fit.values, fit.sigma, strict=True)
+            if t.kind in kinds
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the JSON form."""
+        return {"id": self.id, "value": finite(self.value), "sigma": finite(self.sigma), "unit": self.unit}
+
+    @classmethod
+    def from_json(cls, document: Any, path: str | PathLike[str] | None = None, *, where: str = "model") -> DriftEstimate:
+        """Read the form written by :meth:`to_json` (InputError naming the field otherwise)."""
+        r = Reader(path)
+        item = r.mapping(document, where)
+        return cls(
+            id=r.text(r.get(item, "id", where), join(where, "id")),
+            value=r.number(r.get(item, "value", where), join(where, "value")),
+            sigma=r.number(r.get(item, "sigma", where), join(where, "sigma")),
+            unit=r.text(r.get(item, "unit", where), join(where, "unit")),
         )
 
 

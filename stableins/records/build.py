@@ -212,7 +212,7 @@ def next_calibration(
     """Return the calibration a stage run joins: a new one (a recalibration), or the record's with the procedure and entries added."""
     if new_calibration:
         return Calibration.new(procedure, entries, prior)
-    names = [n for n in (*record.calibration.procedure.split(" + "), procedure) if n]
+    names = [n for n in (*record.calibration.procedure.split(" + "), *procedure.split(" + ")) if n]
     merged = {e.key: e for e in (*record.calibration.entries, *entries)}
     return replace(record.calibration, procedure=" + ".join(dict.fromkeys(names)), entries=tuple(merged.values()))
 

@@ -1,0 +1,447 @@
+r"""Gyro drift and the full gyro g-sensitivity from the angle-reading slopes within device-level dwells.
+
+Observation equation (derived here; Cai et al. 2016 Eq. 1 is the gyro model, not this estimator)
+------------------------------------------------------------------------------------------------
+A stabilised platform whose gyro about platform axis ``a`` reads ``ε_a + Σ_b Dg_ab f^p_b`` too much turns at
+``w = −(ε^p + D_g f^p)`` while it holds a position (:func:`stableins.conventions.platform_drift_rate`).  The angle
+sensors measure the actual gimbal angles, so the turn is in the readings: with the exact gimbal-rate map
+``ω_bp^p = J(α) α̇`` (:meth:`stableins.platform.GimbalPlatform.angular_rate`, column ``k`` the platform rate per
+unit rate of gimbal ``k`` at the dwell's actual angles ``α = r + θ0``)
+
+.. math::
+    \dot r = J(\alpha)^{-1} w = -J(\alpha)^{-1}\,(\varepsilon^p + D_g f^p), \qquad f^p = C_n^p(\alpha)\,(0, 0, -g)^T,
+
+linear in the 12 numbers ``ε^p`` (``gyro_drift_x/y/z``) and ``D_g`` (``Dg_ab``).  The slope of each reading is a
+least-squares line over the second half of the dwell (:data:`SLOPE_SKIP`: the servo's settling transient is in
+the first part).  ``f^p`` changes within a dwell by the drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+
+Noise model (measured, one for every σ and flag)
+------------------------------------------------
+White angle noise per gimbal, measured in the data: the residual scatter about each dwell's line, pooled over the
+dwells used, ``σ_k² = Σ_dwells RSS / Σ_dwells (n − 2)``.  A slope's 1σ is ``σ_k / sqrt(Σ (t − t̄)²)``.  The
+fit's covariance rests on it (not scaled by χ²_ν); χ²_ν of the slopes tests the model.
+``benchmarks/bench_device_gsensitivity.py`` measures the Monte Carlo rms z of the 12 numbers.
+
+What the data determine (rank report)
+-------------------------------------
+The slopes give the full platform rate ``w`` at every dwell (``J`` is invertible away from gimbal lock; dwells
+with ``cond J >`` :data:`MAX_CONDITION` are left out).  So the 12 numbers are determined exactly when the vectors
+``(1, f^p)`` of the dwells span ``R⁴`` — Wu's 18 positions put ``f^p`` along ``±x, ±y, ±z`` and between.  Positions
+that only turn about one axis (``f^p`` in a plane, or ``f_z`` never reversed) leave combinations free: the report
+names the null directions of the column-scaled design.  Not visible at device level at all: the mounting of the
+gyros in the platform (the frame ``p`` is defined by the gimbal kinematics), and a gyro scale factor (the
+platform is not torqued during a dwell).
+
+Flag
+----
+``D_g = 0`` is tested with ``W = \hat d^T C_d^{-1} \hat d`` over the g-sensitivities estimated (χ² with as many
+degrees of freedom under ``D_g = 0``); flagged when its p-value is below :data:`FLAG_ALPHA`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import stats
+
+from stableins.conventions import AXES, DEG_PER_HOUR, DEG_PER_HOUR_PER_G, GimbalConfiguration, platform_drift_rate
+from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
+from stableins.estimators.details import StageDetails
+from stableins.estimators.result import FitResult, Likelihood
+from stableins.status import Status
+
+#: Fraction of each dwell left out at its start before fitting reading slopes (servo settling).
+SLOPE_SKIP = 0.5
+#: Dwells whose gimbal-rate map is worse conditioned than this are left out (near gimbal lock).
+MAX_CONDITION = 1e3
+#: Relative singular value (column-scaled design) below which a direction counts as not determined.  A direction
+#: seen only through the arcsecond scatter of the mean readings (``f_z`` of positions that only turn the platform
+#: axis varies by 1e-9 relative) would otherwise pass as determined with a σ 1e9 times the others'.
+RANK_RTOL = 1e-6
+#: False-alarm level of the ``D_g = 0`` test.
+FLAG_ALPHA = 0.01
+GIMBALS = ("platform", "inner", "middle")
+#: The twelve numbers of the stage, in vector order: ``gyro_drift_x/y/z``, then ``Dg_xx, Dg_xy, …, Dg_zz``.
+GYRO_TERMS: tuple[Term, ...] = GYRO_DRIFT_TERMS + GYRO_G_TERMS
+
+
+@dataclass(frozen=True, eq=False)
+class ReadingSlopes:
+    """Least-squares lines through the angle readings of each dwell (after the settling part).
+
+    Attributes
+    ----------
+    slope : ndarray (P, 3)
+        Reading rate per dwell and gimbal (platform, inner, middle) [rad/s].
+    rss : ndarray (P, 3)
+        Residual sum of squares about each line [rad²].
+    dof : ndarray (P,)
+        Samples used minus 2.
+    sxx : ndarray (P,)
+        ``Σ (t − t̄)²`` of the samples used [s²].
+    distinct : ndarray (P, 3) of bool
+        Whether the reading took at least 3 values (a quiet or coarsely quantized sensor has no scatter to weigh by).
+    """
+
+    slope: NDArray[np.float64]
+    rss: NDArray[np.float64]
+    dof: NDArray[np.float64]
+    sxx: NDArray[np.float64]
+    distinct: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, dwells: Sequence[tuple[ArrayLike, ArrayLike]], skip: float = SLOPE_SKIP) -> ReadingSlopes:
+        """Fit the lines of ``(time (n,), angles (n, 3))`` per dwell, leaving out the first ``skip`` of each."""
+        rows = [_line(t, a, skip) for t, a in dwells]
+        return cls(*(np.array([r[k] for r in rows]) for k in range(5)))
+
+    def sigma(self) -> NDArray[np.float64]:
+        """Return the 1σ of each slope from its own dwell's scatter (NaN where the reading is constant)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.sqrt(self.rss / np.maximum(self.dof, 1.0)[:, None] / self.sxx[:, None])
+        return np.where(self.distinct & (self.sxx[:, None] > 0), s, np.nan)
+
+    def angle_noise(self, keep: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """Return the white angle noise per gimbal [rad, 1σ per sample], pooled over the dwells ``keep``."""
+        return np.sqrt(self.rss[keep].sum(axis=0) / max(float(self.dof[keep].sum()), 1.0))
+
+
+def _line(time: ArrayLike, angles: ArrayLike, skip: float) -> tuple[NDArray, NDArray, float, float, NDArray]:
+    t_all = np.asarray(time, dtype=float)
+    keep = t_all >= t_all[0] + skip * (t_all[-1] - t_all[0])
+    t = t_all[keep]
+    a = np.asarray(angles, dtype=float).reshape(t_all.size, -1)[keep]
+    x = t - t.mean()
+    sxx = float(x @ x)
+    slope = x @ (a - a.mean(axis=0)) / sxx if sxx > 0 else np.zeros(a.shape[1])
+    residual = a - a.mean(axis=0) - np.outer(x, slope)
+    distinct = np.array([np.unique(a[:, k]).size >= 3 for k in range(a.shape[1])])
+    return slope, (residual**2).sum(axis=0), float(max(t.size - 2, 0)), sxx, distinct
+
+
+def reading_slope(time: ArrayLike, angles: ArrayLike, skip: float = SLOPE_SKIP) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares slope of each angle reading [rad/s] and its 1σ from the scatter about the line (one dwell).
+
+    The first ``skip`` fraction of the dwell is left out: the gimbal servo's settling transient (a damped oscillation
+    after the slew) is in the readings there and biases a slope although it hardly moves a mean.  Simulated with the
+    default settling (0.5 Hz, ζ = 0.2) and a 3 s settle, slopes over whole dwells gave χ²_ν ≈ 3 on clean data; over
+    the second half 0.83–1.24 (3 or 10 s settle, 20 or 60 s dwells, ν ≈ 78).  A reading that takes fewer than 3
+    values has NaN σ.
+    """
+    lines = ReadingSlopes.of([(time, angles)], skip)
+    return lines.slope[0], lines.sigma()[0]
+
+
+@dataclass(frozen=True, eq=False)
+class SlopeGeometry:
+    """The dwells' geometry for the reading-slope equation: gimbal-rate maps and specific force.
+
+    Attributes
+    ----------
+    rate_map : ndarray (P, 3, 3)
+        ``J(α)``: platform rate [rad/s] per unit rate of each gimbal (columns platform, inner, middle).
+    specific_force : ndarray (P, 3)
+        ``f^p`` of each dwell [m/s²].
+    locked : ndarray (P,) of bool
+        Dwells near gimbal lock (``cond J >`` :data:`MAX_CONDITION`).
+    """
+
+    rate_map: NDArray[np.float64]
+    specific_force: NDArray[np.float64]
+    locked: NDArray[np.bool_]
+
+    @classmethod
+    def of(
+        cls,
+        readings: ArrayLike,
+        gravity: float,
+        *,
+        zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
+        base_attitude: ArrayLike = (0.0, 0.0, 0.0),
+        configuration: GimbalConfiguration | None = None,
+    ) -> SlopeGeometry:
+        """From the dwells' mean readings (P, 3) [rad], the zero offsets ``θ10, θ20, θ30`` and the site."""
+        from stableins.platform import DEFAULT_GIMBALS, GimbalPlatform, platform_specific_force
+
+        offsets = np.asarray(zero_offsets, dtype=float)
+        base = np.asarray(base_attitude, dtype=float)
+        config = configuration or DEFAULT_GIMBALS
+        platform = GimbalPlatform(
+            zero_offsets=(offsets[0], offsets[1], offsets[2]), configuration=config, base_attitude=(base[0], base[1], base[2])
+        )
+        actual = platform.actual_angles(np.asarray(readings, dtype=float))
+        rate_map = np.stack([platform.angular_rate(actual, np.eye(3)[k]) for k in range(3)], axis=-1)
+        f_p = platform_specific_force(readings, gravity, zero_offsets=offsets, base_attitude=base, configuration=config)
+        return cls(rate_map, f_p, ~(np.linalg.cond(rate_map) < MAX_CONDITION))
+
+    def column(self, term_id: str) -> NDArray[np.float64]:
+        """Return the reading rates (P, 3) [rad/s] per unit of ``gyro_drift_a`` or ``Dg_ab`` [SI] (module docstring)."""
+        drift, sensitivity = np.zeros(3), np.zeros((3, 3))
+        axis = term_id.removeprefix("gyro_drift_").removeprefix("Dg_")
+        if term_id.startswith("gyro_drift_") and axis in AXES:
+            drift[AXES.index(axis)] = 1.0
+        elif term_id.startswith("Dg_") and len(axis) == 2 and set(axis) <= set(AXES):
+            sensitivity[AXES.index(axis[0]), AXES.index(axis[1])] = 1.0
+        else:
+            raise ValueError(f"{term_id!r} is not a gyro drift or g-sensitivity id")
+        omega = platform_drift_rate(drift, sensitivity, self.specific_force)
+        safe = np.where(self.locked[:, None, None], np.eye(3), self.rate_map)
+        return np.where(self.locked[:, None], 0.0, np.linalg.solve(safe, omega[..., None])[..., 0])
+
+
+@dataclass(frozen=True, eq=False)
+class GyroSensitivityDetails(StageDetails):
+    """What the gyro-sensitivity stage worked with, beyond the twelve numbers.
+
+    Attributes
+    ----------
+    angle_noise : tuple of float
+        Measured white angle noise per gimbal (platform, inner, middle) [rad, 1σ per sample].
+    dwells_used : tuple of str
+        Labels of the dwells whose slopes entered.
+    left_out : tuple of str
+        Dwells left out and why (near gimbal lock, constant readings).
+    rank_report : tuple of str
+        What the dwells determine and what they do not.
+    chi2 : float
+        ``Σ (r/σ)²`` of the slope residuals.
+    dof : int
+        Slopes minus parameters.
+    statistic : float
+        ``W`` of the ``D_g = 0`` test (NaN without g-sensitivities).
+    p_value : float
+        Its p-value (χ² with :attr:`test_dof` degrees of freedom).
+    test_dof : int
+        Number of g-sensitivities tested.
+    alpha : float
+        The test's false-alarm level.
+    """
+
+    angle_noise: tuple[float, float, float]
+    dwells_used: tuple[str, ...]
+    left_out: tuple[str, ...]
+    rank_report: tuple[str, ...]
+    chi2: float
+    dof: int
+    statistic: float
+    p_value: float
+    test_dof: int
+    alpha: float
+
+    @property
+    def flagged(self) -> bool:
+        """Whether the data show a g-sensitivity (``D_g = 0`` rejected at :attr:`alpha`)."""
+        return bool(self.p_value < self.alpha)
+
+
+def estimate_gyro_sensitivity(
+    slopes: ReadingSlopes,
+    geometry: SlopeGeometry,
+    *,
+    labels: Sequence[str] | None = None,
+    terms: Sequence[Term] = GYRO_TERMS,
+    alpha: float = FLAG_ALPHA,
+) -> FitResult:
+    """Estimate ``gyro_drift_*`` and ``Dg_ab`` from the reading slopes (module docstring).
+
+    Parameters
+    ----------
+    slopes : ReadingSlopes
+        The lines through the readings of each dwell.
+    geometry : SlopeGeometry
+        The dwells' gimbal-rate maps and specific force (same order).
+    labels : sequence of str, optional
+        Dwell labels for the report (default ``"dwell k"``).
+    terms : sequence of Term
+        The parameters to estimate (default all twelve, :data:`GYRO_TERMS`; a subset, e.g. the three drifts and
+        one ``Dg_ab``, is what ``stableins diagnose --add Dg_xz`` carries).
+    alpha : float
+        False-alarm level of the ``D_g = 0`` flag.
+
+    Returns
+    -------
+    FitResult
+        Stage ``"gyro"``: the parameters with covariance from the measured angle noise, the slope residuals,
+        a :class:`~stableins.estimators.result.Likelihood` for the record's Bayesian update and
+        :class:`GyroSensitivityDetails`.  Raises ``ValueError`` when too few dwells have usable slopes.
+    """
+    n_dwells = slopes.slope.shape[0]
+    names = list(labels) if labels is not None else [f"dwell {k + 1}" for k in range(n_dwells)]
+    unweighable = ~np.all(slopes.distinct & np.isfinite(slopes.slope), axis=1) | ~(slopes.sxx > 0)
+    keep = ~geometry.locked & ~unweighable
+    left_out = tuple(
+        f"{lbl} ({'near gimbal lock' if lock else 'readings constant within the dwell: the slope cannot be weighed'})"
+        for lbl, lock, bad in zip(names, geometry.locked, unweighable, strict=True)
+        if lock or bad
+    )
+    ids = [t.id for t in terms]
+    if 3 * int(keep.sum()) <= len(ids):
+        raise ValueError(f"only {int(keep.sum())} dwell(s) with usable reading slopes: too few for {len(ids)} parameters")
+    noise = slopes.angle_noise(keep)
+    sigma = noise[None, :] / np.sqrt(slopes.sxx[keep])[:, None]
+    y = (slopes.slope[keep] / sigma).ravel()
+    design = np.stack([(geometry.column(i)[keep] / sigma).ravel() for i in ids], axis=1)
+    scale = np.linalg.norm(design, axis=0)
+    scale[scale == 0] = 1.0
+    u, s, vt = np.linalg.svd(design / scale, full_matrices=False)
+    rank = int(np.sum(s > s[0] * RANK_RTOL))
+    inverse = vt[:rank].T / s[:rank]
+    x = inverse @ (u[:, :rank].T @ y) / scale
+    covariance = (inverse @ inverse.T) / np.outer(scale, scale)
+    residual = y - design @ x
+    null = vt[rank:].T
+    statistic, p_value, test_dof = _flag_test(x, covariance, ids, null)
+    details = GyroSensitivityDetails(
+        angle_noise=(float(noise[0]), float(noise[1]), float(noise[2])),
+        dwells_used=tuple(n for n, k in zip(names, keep, strict=True) if k),
+        left_out=left_out,
+        rank_report=rank_report(ids, null, int(keep.sum())),
+        chi2=float(residual @ residual),
+        dof=int(residual.size - rank),
+        statistic=statistic,
+        p_value=p_value,
+        test_dof=test_dof,
+        alpha=alpha,
+    )
+    status = tuple(Status.ESTIMATED if np.linalg.norm(null[k]) < 1e-6 else Status.UNIDENTIFIABLE for k in range(len(ids)))
+    information = (design / scale).T @ (design / scale) * np.outer(scale, scale)  # Λ = AᵀA of the whitened design
+    residual_sigma = np.broadcast_to(sigma, (int(keep.sum()), 3)).ravel()
+    return FitResult(
+        stage="gyro",
+        terms=tuple(terms),
+        values=x,
+        covariance=covariance,
+        status=status,
+        residuals=residual * residual_sigma,
+        residual_sigma=residual_sigma.copy(),
+        residual_labels=tuple(f"{lbl} d{g}/dt" for lbl, k in zip(names, keep, strict=True) if k for g in GIMBALS),
+        rank=rank,
+        singular_values=s,
+        null_space=null,
+        notes=details.rank_report + ((f"{len(left_out)} dwell(s) left out: " + "; ".join(left_out),) if left_out else ()),
+        likelihood=Likelihood(tuple(ids), x, information, np.zeros(len(ids))),
+        settings={"skip": SLOPE_SKIP, "alpha": alpha, "parameters": ids, "noise": "white angle noise per gimbal, pooled"},
+        details=details,
+    )
+
+
+def _flag_test(
+    x: NDArray[np.float64], covariance: NDArray[np.float64], ids: Sequence[str], null: NDArray[np.float64]
+) -> tuple[float, float, int]:
+    """``(W, p, dof)`` of the ``D_g = 0`` test over the determined g-sensitivities (NaN, NaN, 0 without any)."""
+    tested = [k for k, i in enumerate(ids) if i.startswith("Dg_") and np.linalg.norm(null[k]) < 1e-6]
+    if not tested:
+        return float("nan"), float("nan"), 0
+    block = covariance[np.ix_(tested, tested)]
+    statistic = float(x[tested] @ np.linalg.solve(block, x[tested]))
+    return statistic, float(stats.chi2.sf(statistic, len(tested))), len(tested)
+
+
+def rank_report(ids: Sequence[str], null: NDArray[np.float64], dwells: int) -> tuple[str, ...]:
+    """Return the rank report: how many of the parameters the dwells determine, the free combinations, what no dwell shows."""
+    determined = len(ids) - null.shape[1]
+    lines = [f"{dwells} dwells, 3 reading slopes each: {determined} of {len(ids)} gyro numbers determined"]
+    for k in range(null.shape[1]):
+        v = null[:, k] / np.abs(null[:, k]).max()
+        combo = " ".join(f"{c:+.2f}·{i}" for c, i in zip(v, ids, strict=True) if abs(c) > 1e-3)
+        lines.append(f"not observable (the dwells' (1, f^p) do not span R⁴): {combo}; reported unidentifiable")
+    lines.append(
+        "not visible at device level: the gyros' mounting in the platform (p is defined by the gimbals) and their scale "
+        "factors (the platform is not torqued within a dwell)"
+    )
+    return tuple(lines)
+
+
+def gyro_from_datasets(
+    datasets: Sequence[Any],
+    *,
+    layouts: Mapping[str, Any],
+    zero_offsets: ArrayLike,
+    terms: Sequence[Term] = GYRO_TERMS,
+    alpha: float = FLAG_ALPHA,
+) -> FitResult:
+    """:func:`estimate_gyro_sensitivity` on the usable dwells of device-level data files (coarse and fine alike).
+
+    Parameters
+    ----------
+    datasets : sequence of DeviceDataset
+        :func:`stableins.data.device.load_device` results of one unit and site.
+    layouts : mapping of str to StageLayout
+        Each stage's positions, settle times and dwell checks (the samples before the settle time are dropped,
+        and dwells the device stages leave out are left out here too).
+    zero_offsets : array_like (3,)
+        ``θ10, θ20, θ30`` of the calibration, for the actual angles.
+    terms, alpha
+        As :func:`estimate_gyro_sensitivity`.
+    """
+    from stableins.estimators.dwell import dwells_from_columns
+
+    site = datasets[0].metadata
+    pieces, readings, labels = [], [], []
+    for ds in datasets:
+        summaries = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
+        usable = {(s.stage, s.pass_number, s.position) for s in summaries if s.usable}
+        for d in ds.dwells():
+            if (d.stage, d.pass_number, d.position) not in usable:
+                continue
+            layout = layouts.get(d.stage)
+            settle = layout.settle(d.position) if layout is not None and d.position in layout.positions else 0.0
+            use = np.asarray(d.time_since_command) >= settle
+            if int(use.sum()) < 6:
+                continue
+            pieces.append((np.asarray(d.time)[use], np.asarray(d.angles)[use]))
+            readings.append(np.asarray(d.angles)[use].mean(axis=0))
+            labels.append(f"{d.stage} pass {d.pass_number} position {d.position}")
+    if not pieces:
+        raise ValueError("no usable dwells with readings")
+    s1, s2, s3, s4 = site.gimbal_senses
+    geometry = SlopeGeometry.of(
+        np.array(readings), site.gravity, zero_offsets=zero_offsets, base_attitude=site.base_attitude,
+        configuration=GimbalConfiguration((s1, s2, s3, s4)),
+    )  # fmt: skip
+    return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry, labels=labels, terms=terms, alpha=alpha)
+
+
+def report(result: FitResult) -> str:
+    """Text report: drifts in °/h, g-sensitivities in °/h/g with σ and z, the ``D_g = 0`` test, the noise and rank."""
+    details = result.details
+    assert isinstance(details, GyroSensitivityDetails)
+    lines = ["gyro drift and g-sensitivity from the reading slopes within dwells (platform frame):"]
+    for term, value, sig, status in zip(result.terms, result.values, result.sigma, result.status, strict=True):
+        unit, scale = ("°/h", DEG_PER_HOUR) if term.id.startswith("gyro_drift_") else ("°/h/g", DEG_PER_HOUR_PER_G)
+        if status is Status.UNIDENTIFIABLE:
+            lines.append(f"  {term.id:<13} unidentifiable")
+            continue
+        lines.append(f"  {term.id:<13} {value / scale:+.6f} ± {sig / scale:.6f} {unit:<6} z = {value / sig:+.1f}")
+    if details.test_dof:
+        verdict = "FLAGGED: the gyros are g-sensitive" if details.flagged else "not flagged"
+        lines.append(
+            f"D_g = 0 test: W = {details.statistic:.1f} on {details.test_dof} dof, p = {details.p_value:.3g} "
+            f"(flag below α = {details.alpha:g}): {verdict}"
+        )
+    noise = ", ".join(f"{n / (np.pi / 648000):.3f}" for n in details.angle_noise)
+    lines.append(f"angle noise measured within the dwells (platform, inner, middle): {noise} arcsec per sample")
+    lines.append(f"χ²_ν of the slopes = {details.chi2 / max(details.dof, 1):.2f} (ν = {details.dof})")
+    lines += [f"  {line}" for line in details.rank_report]
+    lines += [f"  {line}" for line in details.left_out]
+    return "\n".join(lines)
+
+
+__all__ = [
+    "FLAG_ALPHA",
+    "GYRO_TERMS",
+    "MAX_CONDITION",
+    "SLOPE_SKIP",
+    "GyroSensitivityDetails",
+    "ReadingSlopes",
+    "SlopeGeometry",
+    "estimate_gyro_sensitivity",
+    "gyro_from_datasets",
+    "rank_report",
+    "reading_slope",
+    "report",
+]
