@@ -42,8 +42,10 @@ _SECTIONS = {
     "procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "uncertainty", "model",
 }  # fmt: skip
 #: Stages a definition may declare.
-STAGES = ("coarse", "fine", "system")
+STAGES = ("coarse", "fine", "rotating", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
+#: Largest commanded reading of a step [deg]: four turns, the cumulative middle-gimbal reading of device-rotating.
+MAX_STEP_DEGREES = 1440.0
 
 
 @dataclass(frozen=True)
@@ -303,8 +305,11 @@ def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, fl
     angles = []
     for key in ("platform", "inner", "middle"):
         deg = number(raw, key, spath, where)
-        if abs(deg) > 720.0:
-            raise InputError(f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees")
+        if abs(deg) > MAX_STEP_DEGREES:
+            raise InputError(
+                f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}",
+                expected=f"degrees, at most {MAX_STEP_DEGREES:g} in magnitude (cumulative readings of a rotating path)",
+            )  # fmt: skip
         angles.append(math.radians(deg))
     return angles[0], angles[1], angles[2]
 
