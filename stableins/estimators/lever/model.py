@@ -64,8 +64,11 @@ from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
 from stableins.status import Status
 
-#: Shortest window that still averages the readings' smoothing span [s], and the default.
+#: Default window of the means [s].
 DEFAULT_WINDOW = 0.5
+#: A parameter whose 1σ exceeds this many times its nominal size (20 mm, 1 ms) is not determined by the slews
+#: (a lever arm along the only axis of rotation: its regressor is the readings' noise).
+UNDETERMINED = 1e3
 
 
 class LeverSet(StrEnum):
@@ -399,6 +402,12 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
     if misfit:  # the model leaves structure above the noise: σ scaled by √χ²_ν (Birge ratio), and said
         cov_all = cov_all * chi2_nu
     n = len(terms)
+    loose = [t.id for k, t in enumerate(terms) if not math.sqrt(cov_all[k, k]) < UNDETERMINED * t.nominal]
+    if loose:
+        raise InputError(
+            f"{source}: the slews do not determine {', '.join(loose)}", field="angle_middle",
+            expected="slews about at least two platform axes (the device-rotating procedure), or the three lever arms of Cai",
+        )  # fmt: skip
     cov = 0.5 * (cov_all[:n, :n] + cov_all[:n, :n].T)
     values = x[:n]
     likelihood = Likelihood(tuple(t.id for t in terms), values, np.linalg.inv(cov), np.zeros(n))
