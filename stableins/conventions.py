@@ -97,7 +97,8 @@ def asynchrony_error(tau: ArrayLike, angular_rate: ArrayLike, specific_force: Ar
     [rad/s] and ``specific_force`` ``f^p`` [m/s²], shape (..., 3).  The estimator's regressor; the simulator
     does not use it (it evaluates the whole accelerometer input at ``t − τ``).
     """
-    return ASYNC_SIGN * np.asarray(tau, dtype=float)[..., None] * np.cross(np.asarray(angular_rate, dtype=float), np.asarray(specific_force, dtype=float))
+    omega = np.asarray(angular_rate, dtype=float)
+    return ASYNC_SIGN * np.asarray(tau, dtype=float)[..., None] * np.cross(omega, np.asarray(specific_force, dtype=float))
 
 
 # --------------------------------------------------------------------------- WGS-84

@@ -48,8 +48,6 @@ from stableins.conventions import (
     INSTALLATION_ENTRIES,
     INSTALLATION_MEANING,
     MICRO_G,
-    MILLIMETRE,
-    MILLISECOND,
     PPM,
     STANDARD_GRAVITY,
 )
@@ -83,12 +81,9 @@ class TermKind(StrEnum):
     #: from system records or the two-position drift test (Zhang et al. 2023); it does not enter
     #: :meth:`ErrorModel.forward`.
     GYRO_DRIFT = "gyro_drift"
-    #: Lever arm ``lever_a_b`` of accelerometer ``a`` along platform axis ``b`` [m] (size effect, Cai et al. 2016
-    #: Eqs. 9-12): reads ``e_a·(ω̇×r + ω×(ω×r))`` while the platform turns; zero at rest, so it does not enter
-    #: :meth:`ErrorModel.forward` (estimated from the slews of a rotating procedure, :mod:`stableins.estimators.lever`).
+    #: Lever arm ``lever_a_b`` [m] (:mod:`stableins.rotationterms`): zero at rest, not in :meth:`ErrorModel.forward`.
     LEVER_ARM = "lever_arm"
-    #: Time asynchrony ``τ`` of the accelerometer samples against the angle readings [s] (``δf = τ ω×f^p``,
-    #: :func:`stableins.conventions.asynchrony_error`); zero at rest, so it does not enter :meth:`ErrorModel.forward`.
+    #: Time asynchrony ``t_async`` [s] (:mod:`stableins.rotationterms`): zero at rest, not in :meth:`ErrorModel.forward`.
     TIME_ASYNCHRONY = "time_asynchrony"
 
 
@@ -283,42 +278,11 @@ GYRO_DRIFT_TERMS: tuple[Term, ...] = tuple(
 )
 
 
-#: The nine lever arms ``lever_a_b`` [m], mm at the edges (:attr:`TermKind.LEVER_ARM`; a-major order).
-LEVER_TERMS: tuple[Term, ...] = tuple(
-    Term(
-        f"lever_{a}_{b}",
-        TermKind.LEVER_ARM,
-        "m",
-        "mm",
-        MILLIMETRE,
-        20 * MILLIMETRE,
-        f"lever arm of the {a} accelerometer: its proof mass along {b}_p from the rotation centre (size effect)",
-        axis=i,
-        excitation="gimbal slews (stableins run device-rotating)",
-        source="Cai et al. 2016 Eqs. 9-12 (along-axis components); the full vector: docs/conventions.md",
-    )
-    for i, a in enumerate(AXES)
-    for b in AXES
-)
-#: Cai's three along-axis lever arms ``lever_x_x``, ``lever_y_y``, ``lever_z_z``.
-CAI_LEVER_IDS: tuple[str, ...] = tuple(f"lever_{a}_{a}" for a in AXES)
-#: The accelerometer–angle-reading time asynchrony ``τ`` [s], ms at the edges (:attr:`TermKind.TIME_ASYNCHRONY`).
-TIME_ASYNC_TERM = Term(
-    "t_async",
-    TermKind.TIME_ASYNCHRONY,
-    "s",
-    "ms",
-    MILLISECOND,
-    MILLISECOND,
-    "time asynchrony of the accelerometer samples against the angle readings (> 0: the accelerometers lag)",
-    excitation="gimbal slews (stableins run device-rotating)",
-    source="docs/conventions.md 'Lever arms and time asynchrony' (not in Cai et al. 2016)",
-)
-
-
 def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
     """Terms by id: the core, gimbal, gyro-drift, lever-arm and asynchrony terms, plus any given (e.g. discovered additive terms)."""
-    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS + LEVER_TERMS + (TIME_ASYNC_TERM,)}
+    from stableins.rotationterms import ROTATION_TERMS  # built from Term: imported here, not at the top
+
+    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS + ROTATION_TERMS}
     out.update({t.id: t for t in extra})
     return out
 

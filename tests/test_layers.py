@@ -30,6 +30,7 @@ LAYERS: dict[str, int] = {
     "stableins.conventions": 0,
     "stableins.errormodel": 0,
     "stableins.coremodel": 0,
+    "stableins.rotationterms": 0,
     "stableins.units": 0,
     "stableins.status": 0,
     "stableins.errors": 0,

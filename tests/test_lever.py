@@ -139,7 +139,9 @@ def test_one_axis_of_rotation_does_not_determine_nine_arms():
 
 
 # ----------------------------------------------------------------------------- the procedure
-CAI_UP = ["ENU", "EUS", "EDN", "EUS", "UWS", "DES", "UWS", "SWD", "NWU", "SWD", "DWN", "NWU", "UWS", "WDS", "DES", "EUS", "ESD", "EDN", "ENU"]
+#: Cai's Table 1: where body X, Y, Z point (ENU) at the start and after each of the 18 rotations.
+CAI_UP = ("ENU", "EUS", "EDN", "EUS", "UWS", "DES", "UWS", "SWD", "NWU", "SWD")
+CAI_UP += ("DWN", "NWU", "UWS", "WDS", "DES", "EUS", "ESD", "EDN", "ENU")
 
 
 def test_rotating_procedure_is_cai_table_1():

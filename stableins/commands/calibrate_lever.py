@@ -59,7 +59,7 @@ def data_file(run: str) -> Path:
 def run(args: Any) -> int:
     """Estimate the lever arms and τ, update the prior record, write it, print the report."""
     from stableins.data.device import load_device
-    from stableins.estimators.lever import LeverOptions, LeverSet, lever_from_dataset, report
+    from stableins.estimators.lever import LeverDetails, LeverOptions, LeverSet, lever_from_dataset, report
     from stableins.output import emit
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -88,6 +88,7 @@ def run(args: Any) -> int:
     )
     updated.save(args.out)
     ids = {t.id for t in fit.terms}
+    assert isinstance(fit.details, LeverDetails)
     data = {
         "data": str(source),
         "prior": args.prior,
@@ -107,7 +108,7 @@ def run(args: Any) -> int:
 
 
 def _document(fit: Any) -> dict[str, dict[str, float | str]]:
-    """The estimates in engineering units (mm, ms) with 1σ, as the report prints them."""
+    """Return the estimates in engineering units (mm, ms) with 1σ, as the report prints them."""
     return {
         t.id: {"value": float(v) / t.scale, "sigma": float(s) / t.scale, "unit": t.unit}
         for t, v, s in zip(fit.terms, fit.values, fit.sigma, strict=True)

@@ -10,7 +10,8 @@ should sense, ``f^p(r) = C_n^p(r + θ_0) f^n``, and its motion ``ω``, ``ω̇``
 
 .. math::
     y_a = \hat f^p_a - f^p_a = \sum_b \ell_{ab}\, e_a\!\cdot\!\big(\dot\omega\times e_b + \omega\times(\omega\times e_b)\big)
-          + \tau\, e_a\!\cdot\!(\omega\times f^p) + \sum_b M_{ab} f^p_b + k_a (f^p_a)^2 + \sum_{i=2,3} \frac{\partial f^p_a}{\partial\theta_{i0}}\delta\theta_{i0} + c_{a,s} + n_a ,
+          + \tau\, e_a\!\cdot\!(\omega\times f^p) + \sum_b M_{ab} f^p_b + k_a (f^p_a)^2
+          + \sum_{i=2,3} \frac{\partial f^p_a}{\partial\theta_{i0}}\delta\theta_{i0} + c_{a,s} + n_a ,
 
 * ``ℓ_ab`` the lever arms (``lever_a_b``; Cai's three ``ℓ_aa`` by default, all nine on request),
 * ``τ`` the time asynchrony (``t_async``, :func:`stableins.conventions.asynchrony_error`),
@@ -54,13 +55,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, asynchrony_error
-from stableins.errormodel import CAI_LEVER_IDS, LEVER_TERMS, TIME_ASYNC_TERM, ErrorModel, Term, TermInputs
+from stableins.errormodel import ErrorModel, Term, TermInputs
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.lever.kinematics import Motion, Segment, find_segments, motion, window_means
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 from stableins.platform import GimbalPlatform
+from stableins.rotationterms import CAI_LEVER_IDS, LEVER_TERMS, TIME_ASYNC_TERM
 from stableins.site import SiteMetadata
 from stableins.status import Status
 
@@ -207,18 +209,26 @@ def estimate_lever(
         configuration=GimbalConfiguration(tuple(site.gimbal_senses)),  # type: ignore[arg-type]
         base_attitude=site.base_attitude,
     )
-    pieces = _pieces(time, site.sample_rate, source)
+    record = _Record(time, readings, output, _pieces(time, site.sample_rate, source))
     terms = _terms(options)
-    design = _design(
-        time, readings, output, _Context(platform, site, prior_values, error_model, columns.get("temperature")), pieces, terms, options,
-        noise_model or NoiseModel.unknown(),
-    )  # fmt: skip
+    context = _Context(platform, site, prior_values, error_model, columns.get("temperature"))
+    design = _design(record, context, terms, options, noise_model or NoiseModel.unknown())
     if not design.windows:
         raise InputError(
             f"{source}: no slew found (the platform never turned faster than 0.06 °/s)", field="angle_middle",
             expected="a record that keeps its slews: stableins run device-rotating",
         )  # fmt: skip
     return _solve(design, terms, options, source, site.gravity)
+
+
+@dataclass(frozen=True)
+class _Record:
+    """The samples: time, readings, outputs, and the sample ranges recorded without a gap."""
+
+    time: NDArray[np.float64]
+    readings: NDArray[np.float64]
+    output: NDArray[np.float64]
+    pieces: list[tuple[int, int]]
 
 
 @dataclass(frozen=True)
@@ -260,17 +270,9 @@ def _regressors(motion_: Motion, f_p: NDArray[np.float64], terms: Sequence[Term]
     return out
 
 
-def _design(
-    time: NDArray[np.float64],
-    readings: NDArray[np.float64],
-    output: NDArray[np.float64],
-    context: _Context,
-    pieces: Sequence[tuple[int, int]],
-    terms: Sequence[Term],
-    options: LeverOptions,
-    noise: NoiseModel,
-) -> _Design:
+def _design(record: _Record, context: _Context, terms: Sequence[Term], options: LeverOptions, noise: NoiseModel) -> _Design:
     """Window means of every slew, whitened by the noise model (module docstring)."""
+    time, readings, output, pieces = record.time, record.readings, record.output, record.pieces
     rate = context.site.sample_rate
     length = max(1, int(round(options.window * rate)))
     slews: list[tuple[NDArray, NDArray, NDArray, Segment]] = []  # (y windows, X windows, starts, segment)
@@ -289,7 +291,7 @@ def _design(
         return _Design(np.zeros(0), np.zeros((0, 0)), [], 0, np.zeros(3), ())
     white = _white_variance(slews, time, length, rate, noise)
     described = tuple(s[3].describe(time) for s in slews)
-    return _whiten(slews, white, noise, length / rate, [t.id for t in terms], described)
+    return _whiten(slews, white, noise, window=length / rate, names=[t.id for t in terms], described=described)
 
 
 def _nav_to_platform(platform: GimbalPlatform, actual: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -303,7 +305,7 @@ def _f_nav(gravity: float) -> NDArray[np.float64]:
 
 
 def _compensated(output: NDArray, f_p: NDArray, time: NDArray, context: _Context) -> NDArray[np.float64]:
-    """The accelerometer outputs compensated by the prior record into the platform frame."""
+    """Compensate the accelerometer outputs by the prior record into the platform frame."""
     model = context.model or ErrorModel.standard(nonlinear=True)
     temperature = None if context.temperature is None else np.asarray(context.temperature, dtype=float)
     inputs = TermInputs(f_p, None if temperature is None else temperature - context.site.reference_temperature, time)
@@ -316,8 +318,11 @@ NUISANCE_NAMES: tuple[str, ...] = tuple(f"M_{a}{b}" for a in "xyz" for b in "xyz
 
 
 def _nuisance_regressors(readings: NDArray, f_p: NDArray[np.float64], context: _Context) -> NDArray[np.float64]:
-    """Regressors (N, 3, 14) of the nuisances :data:`NUISANCE_NAMES`: ``M_ab f^p_b`` and ``K2_a (f^p_a)²`` on axis ``a``,
-    ``∂f^p/∂θ_i0`` (central differences of the exact kinematics) on all axes."""
+    """Return the regressors (N, 3, 14) of the nuisances :data:`NUISANCE_NAMES`.
+
+    ``M_ab f^p_b`` and ``K2_a (f^p_a)²`` on axis ``a``; ``∂f^p/∂θ_i0`` (central differences of the exact
+    kinematics) on all axes.
+    """
     out = np.zeros(f_p.shape + (len(NUISANCE_NAMES),))
     for a in range(3):
         out[:, a, 3 * a : 3 * a + 3] = f_p
@@ -355,7 +360,7 @@ def _white_variance(slews: list, time: NDArray, length: int, rate: float, noise:
 
 
 def _whiten(
-    slews: list, white: NDArray[np.float64], noise: NoiseModel, window: float, names: list[str], described: tuple[str, ...]
+    slews: list, white: NDArray[np.float64], noise: NoiseModel, *, window: float, names: list[str], described: tuple[str, ...]
 ) -> _Design:
     """Stack the slews, whitened per axis by the Cholesky factor of their window-mean covariance, with a level per slew and axis."""
     from scipy.linalg import cholesky, solve_triangular
@@ -442,7 +447,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
 
 
 def _flags(values: NDArray[np.float64], cov: NDArray[np.float64], terms: tuple[Term, ...], alpha: float) -> tuple[Flag, ...]:
-    """The lever and asynchrony significance tests (module docstring)."""
+    """Return the lever and asynchrony significance tests (module docstring)."""
     from scipy.stats import chi2
 
     arms = [k for k, t in enumerate(terms) if t.id != TIME_ASYNC_TERM.id]

@@ -9,17 +9,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G, MILLIMETRE, MILLISECOND
-from stableins.errormodel import TIME_ASYNC_TERM
 from stableins.errors import InputError
 from stableins.estimators.lever.model import LeverDetails, LeverOptions, estimate_lever
 from stableins.estimators.result import FitResult
+from stableins.rotationterms import TIME_ASYNC_TERM
 
 #: Stage of the device-level data set that keeps its slews (``stableins run device-rotating``).
 ROTATING_STAGE = "rotating"
 
 
 def rotating_columns(columns: Mapping[str, NDArray[Any]], source: str) -> dict[str, NDArray[Any]]:
-    """The rows of a device data set's rotating stage (all of them when it has no stage column), in time order.
+    """Return the rows of a device data set's rotating stage (all of them when it has no stage column), in time order.
 
     Raises :class:`InputError` naming ``source`` when the data set holds no rotating stage.
     """
