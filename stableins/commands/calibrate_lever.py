@@ -15,7 +15,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, update_prior
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +61,7 @@ def run(args: Any) -> int:
     from stableins.data.device import load_device
     from stableins.estimators.lever import LeverDetails, LeverOptions, LeverSet, lever_from_dataset, report
     from stableins.output import emit
-    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord
 
     prior = CalibrationRecord.load(args.prior)
     source = data_file(args.run)
@@ -72,21 +72,8 @@ def run(args: Any) -> int:
     )
     fit = lever_from_dataset(dataset, prior, options)
     time = dataset.columns["time"]
-    start, end = data_times(dataset.metadata, float(time[0]), float(time[-1]))
-    reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
-    updated = prior.updated(
-        fit,
-        new_calibration=args.new_calibration,
-        prior=reference,
-        procedure=str(dataset.metadata.extra.get("procedure", "device-rotating")),
-        calibration_entries=parse_entries(args.set),
-        site=dataset.metadata,
-        inputs=[str(source)],
-        data_start=start,
-        data_end=end,
-        sample_rate=dataset.metadata.sample_rate,
-    )
-    updated.save(args.out)
+    procedure = str(dataset.metadata.extra.get("procedure", "device-rotating"))
+    updated = update_prior(args, prior, fit, data=(source, dataset.metadata, (time[0], time[-1])), procedure=procedure)
     ids = {t.id for t in fit.terms}
     assert isinstance(fit.details, LeverDetails)
     data = {

@@ -137,7 +137,7 @@ class LeverDetails(StageDetails):
     nuisance : mapping of str to (float, float)
         The linear nuisance ``M_ab`` (value, 1σ) [1].
     correlation : float
-        Largest |correlation| between ``τ`` and a lever arm (0 when ``τ`` is held).
+        Largest absolute correlation between ``τ`` and a lever arm (0 when ``τ`` is held).
     """
 
     slews: tuple[str, ...]
