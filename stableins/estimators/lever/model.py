@@ -62,9 +62,9 @@ from stableins.estimators.lever.kinematics import Motion, Segment, find_segments
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.noise import NoiseModel
 from stableins.platform import GimbalPlatform
-from stableins.rotationterms import CAI_LEVER_IDS, LEVER_TERMS, TIME_ASYNC_TERM
 from stableins.site import SiteMetadata
 from stableins.status import Status
+from stableins.terms import CAI_LEVER_IDS, LEVER_TERMS, TIME_ASYNC_TERM
 
 #: Default window of the means [s].
 DEFAULT_WINDOW = 0.5

@@ -12,7 +12,7 @@ from stableins.conventions import MICRO_G, MILLIMETRE, MILLISECOND
 from stableins.errors import InputError
 from stableins.estimators.lever.model import LeverDetails, LeverOptions, estimate_lever
 from stableins.estimators.result import FitResult
-from stableins.rotationterms import TIME_ASYNC_TERM
+from stableins.terms import TIME_ASYNC_TERM
 
 #: Stage of the device-level data set that keeps its slews (``stableins run device-rotating``).
 ROTATING_STAGE = "rotating"
