@@ -169,6 +169,11 @@ def test_pause_is_configurable_and_steps_are_validated(tmp_path):
     with pytest.raises(InputError) as error:
         load_procedure(path)
     assert error.value.field == "step.middle" and str(path) in str(error.value)
+    head, *steps = text.split("\n[[step]]")
+    path.write_text(head + "".join("\n[[step]]" + s for s in steps[:4]))  # the middle gimbal alone, about y_p
+    with pytest.raises(InputError, match="lever_y_y") as error:
+        load_procedure(path)
+    assert error.value.field == "step" and str(path) in str(error.value)
 
 
 # ----------------------------------------------------------------------------- a run and the CLI

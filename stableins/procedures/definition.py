@@ -170,6 +170,8 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     if head["stage"] not in STAGES:
         raise InputError(f"unknown stage {head['stage']!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
     steps = _steps(data, head["stage"], base, spath)
+    if head["stage"] == "rotating":
+        _check_rotations(steps, spath)
     return ProcedureDefinition(
         name=head["name"],
         stage=head["stage"],
@@ -187,6 +189,18 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
         uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
     )
+
+
+def _check_rotations(steps: tuple[Step, ...], spath: str) -> None:
+    """Refuse a rotating procedure that does not turn the platform about two of its axes (Cai's three arms undetermined)."""
+    from stableins.estimators.lever.kinematics import unexcited_arms
+
+    missing = unexcited_arms([s.command for s in steps])
+    if missing:
+        raise InputError(
+            f"no move between the steps turns the platform so as to excite {', '.join(missing)}", path=spath, field="step",
+            expected="moves about at least two platform axes (the middle gimbal and the platform axis, as device-rotating)",
+        )  # fmt: skip
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:

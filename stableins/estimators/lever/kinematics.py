@@ -131,3 +131,25 @@ def window_means(values: NDArray[np.float64], first: int, stop: int, length: int
     count = (stop - first) // length
     block = values[first : first + count * length]
     return block.reshape((count, length) + values.shape[1:]).mean(axis=1)
+
+
+def unexcited_arms(commands: list[tuple[float, float, float]], platform: GimbalPlatform | None = None) -> tuple[str, ...]:
+    """Cai's along-axis arms (``lever_a_a``) that no move between consecutive commanded readings [rad] excites.
+
+    ``ℓ_aa`` reads the centripetal ``(|ω|² − ω_a²) ℓ_aa``: a turn excites it unless it is about ``a_p``.  The
+    rotation axis of a move of one gimbal at the start of the move comes from the gimbal kinematics (a move of
+    several gimbals at once is counted by each of them).  A procedure whose moves leave an arm unexcited cannot
+    determine it; checked before the platform moves.
+    """
+    platform = platform or GimbalPlatform()
+    excited = np.zeros(3, dtype=bool)
+    for before, after in zip(commands[:-1], commands[1:], strict=True):
+        for gimbal in range(3):
+            if abs(after[gimbal] - before[gimbal]) < 1e-9:
+                continue
+            rate = np.zeros(3)
+            rate[gimbal] = 1.0
+            axis = platform.angular_rate(platform.actual_angles(np.asarray(before, dtype=float)), rate)
+            axis = axis / np.linalg.norm(axis)
+            excited |= 1.0 - axis**2 > 0.1
+    return tuple(f"lever_{a}_{a}" for a, on in zip("xyz", excited, strict=True) if not on)
