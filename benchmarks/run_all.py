@@ -122,6 +122,7 @@ QUICK: dict[str, Quick] = {
     ),
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
     "bench_two_position": Quick(("--seeds", "5"), "5 seeds per case instead of 100"),
+    "bench_lever_arms": Quick(("--seeds", "1", "--cai-seeds", "1", "--clean", "2"), "1 seed per case (2 clean) instead of 4, 2 and 20"),
 }
 
 TIME_UNIT = r"(?:s|ms|µs|us|ns|min|seconds?|sec)\b"

@@ -77,6 +77,32 @@ DEG_PER_HOUR: Final = np.pi / (180.0 * 3600.0)
 #: One degree per hour per standard g [rad/s per m/s²] (gyro g-sensitivity ``Dg_ab`` at the edges).
 DEG_PER_HOUR_PER_G: Final = DEG_PER_HOUR / STANDARD_GRAVITY
 
+#: One millisecond [s] (the accelerometer–angle-reading time asynchrony at the edges).
+MILLISECOND: Final = 1e-3
+#: One millimetre [m] (lever arms at the edges).
+MILLIMETRE: Final = 1e-3
+
+# --------------------------------------------------------------------------- timing
+#: Sign of the time asynchrony ``τ`` (``t_async``, docs/conventions.md "Time asynchrony"): ``τ > 0`` means the
+#: accelerometer sample stamped ``t`` was taken at ``t − τ`` (the accelerometers lag the angle readings).  On a
+#: static base ``f^n`` is constant and ``Ċ_n^p = −[ω×] C_n^p`` (``ω = ω_bp^p``), so the recorded output errs by
+#: ``f^p(t − τ) − f^p(t) = −τ ḟ^p = +τ ω × f^p``, i.e. ``δf = ASYNC_SIGN · τ · ω × f^p``.
+ASYNC_SIGN: Final = 1.0
+
+
+def asynchrony_error(tau: ArrayLike, angular_rate: ArrayLike, specific_force: ArrayLike) -> NDArray[np.float64]:
+    r"""First-order output error of a time asynchrony ``τ`` [s]: ``δf = τ ω × f^p`` (:data:`ASYNC_SIGN`).
+
+    .. math:: \delta f^p = f^p(t-\tau) - f^p(t) = -\tau \dot f^p = \tau\, \omega_{bp}^p \times f^p
+
+    (static base: ``f^n`` constant, ``\dot C_n^p = -[\omega\times] C_n^p``).  ``angular_rate`` ``ω_bp^p``
+    [rad/s] and ``specific_force`` ``f^p`` [m/s²], shape (..., 3).  The estimator's regressor; the simulator
+    does not use it (it evaluates the whole accelerometer input at ``t − τ``).
+    """
+    omega = np.asarray(angular_rate, dtype=float)
+    return ASYNC_SIGN * np.asarray(tau, dtype=float)[..., None] * np.cross(omega, np.asarray(specific_force, dtype=float))
+
+
 # --------------------------------------------------------------------------- WGS-84
 WGS84_SEMI_MAJOR_AXIS: Final = 6378137.0  # a [m]
 WGS84_FLATTENING: Final = 1.0 / 298.257223563  # f

@@ -405,6 +405,8 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
     if runner.static_chunks:
         return _estimate_system(rundir, runner, dataset, start)
     definition = runner.definition
+    if definition is not None and definition.stage == "rotating":
+        return _estimate_lever(rundir, runner, metadata, start)
     if definition is None or definition.stage != "fine":
         return None
     if not start.get("prior"):
@@ -425,6 +427,16 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         extra_terms=runner.extra_terms,
         source=source,
     )
+
+
+def _estimate_lever(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any) -> Any:
+    """Run the lever-arm stage on the slews of a rotating run, starting from the unit's record (the prior)."""
+    from stableins.estimators.lever import lever_stage
+
+    if not start.get("prior"):
+        runner.console.say("note: no calibration record (--prior) given; the slews are in device.h5 for 'stableins calibrate lever'")
+        return None
+    return lever_stage(accepted_columns(runner.entries), metadata, _load_record(rundir / start["prior"]), runner.console.say)
 
 
 def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: Any) -> Any:

@@ -26,6 +26,8 @@ from stableins.conventions import (
     GIMBAL_OFFSET_MEANING,
     INSTALLATION_MEANING,
     MICRO_G,
+    MILLIMETRE,
+    MILLISECOND,
     PPM,
     STANDARD_GRAVITY,
 )
@@ -63,6 +65,13 @@ class TermKind(StrEnum):
     #: :func:`stableins.conventions.platform_drift_rate`; Cai et al. 2016 Eq. 1, coefficient G); it does not
     #: enter :meth:`ErrorModel.forward`.
     GYRO_G_SENSITIVITY = "gyro_g_sensitivity"
+    #: Lever arm ``lever_a_b`` of accelerometer ``a`` along platform axis ``b`` [m] (size effect, Cai et al. 2016
+    #: Eqs. 9-12): reads ``e_a·(ω̇×r + ω×(ω×r))`` while the platform turns; zero at rest, so it does not enter
+    #: :meth:`ErrorModel.forward` (estimated from the slews of a rotating procedure, :mod:`stableins.estimators.lever`).
+    LEVER_ARM = "lever_arm"
+    #: Time asynchrony ``τ`` of the accelerometer samples against the angle readings [s] (``δf = τ ω×f^p``,
+    #: :func:`stableins.conventions.asynchrony_error`); zero at rest, so it does not enter :meth:`ErrorModel.forward`.
+    TIME_ASYNCHRONY = "time_asynchrony"
 
 
 @dataclass(frozen=True)
@@ -277,8 +286,43 @@ GYRO_G_TERMS: tuple[Term, ...] = tuple(
 )
 
 
+#: The nine lever arms ``lever_a_b`` [m], mm at the edges (:attr:`TermKind.LEVER_ARM`; a-major order).
+LEVER_TERMS: tuple[Term, ...] = tuple(
+    Term(
+        f"lever_{a}_{b}",
+        TermKind.LEVER_ARM,
+        "m",
+        "mm",
+        MILLIMETRE,
+        20 * MILLIMETRE,
+        f"lever arm of the {a} accelerometer: its proof mass along {b}_p from the rotation centre (size effect)",
+        axis=i,
+        excitation="gimbal slews (stableins run device-rotating)",
+        source="Cai et al. 2016 Eqs. 9-12 (along-axis components); the full vector: docs/conventions.md",
+    )
+    for i, a in enumerate(AXES)
+    for b in AXES
+)
+#: Cai's three along-axis lever arms ``lever_x_x``, ``lever_y_y``, ``lever_z_z``.
+CAI_LEVER_IDS: tuple[str, ...] = tuple(f"lever_{a}_{a}" for a in AXES)
+#: The accelerometer–angle-reading time asynchrony ``τ`` [s], ms at the edges (:attr:`TermKind.TIME_ASYNCHRONY`).
+TIME_ASYNC_TERM = Term(
+    "t_async",
+    TermKind.TIME_ASYNCHRONY,
+    "s",
+    "ms",
+    MILLISECOND,
+    MILLISECOND,
+    "time asynchrony of the accelerometer samples against the angle readings (> 0: the accelerometers lag)",
+    excitation="gimbal slews (stableins run device-rotating)",
+    source="docs/conventions.md 'Lever arms and time asynchrony' (not in Cai et al. 2016)",
+)
+#: The record terms of a turning platform (lever arms, asynchrony): zero at rest, not in ``ErrorModel.forward``.
+ROTATION_TERMS: tuple[Term, ...] = LEVER_TERMS + (TIME_ASYNC_TERM,)
+
+
 def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
-    """Terms by id: the core, gimbal and gyro terms, plus any given (e.g. discovered additive terms)."""
-    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS + GYRO_G_TERMS}
+    """Terms by id: the core, gimbal, gyro, lever-arm and asynchrony terms, plus any given (e.g. discovered additive terms)."""
+    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS + GYRO_G_TERMS + ROTATION_TERMS}
     out.update({t.id: t for t in extra})
     return out

@@ -36,7 +36,10 @@ def _signal(model, values, f_p, inputs, term, value):
 
 
 def test_every_simulated_effect_has_its_library_candidate():
-    assert set(CATALOGUE) == set(LIBRARY.ids)
+    # the timing effect t_async is zero at rest: the lever stage estimates it from slews (a record term), not discovery
+    timing = {k for k, e in CATALOGUE.items() if e.kind == "timing"}
+    assert timing == {"t_async"}
+    assert set(CATALOGUE) - timing == set(LIBRARY.ids)
 
 
 @pytest.mark.parametrize("seed", [1, 2])

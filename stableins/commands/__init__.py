@@ -36,3 +36,33 @@ def check_same_unit(metadata: Any, prior: Any, prior_path: Any) -> None:
             field="serial_number",
             expected="a calibration of the same unit",
         )
+
+
+def update_prior(
+    args: Any, prior: Any, fit: Any, *, data: tuple[Any, Any, tuple[float, float]], procedure: str, sample_rate: float | None = None
+) -> Any:
+    """Write the prior record updated by a stage's fit to ``args.out`` (a Bayesian update) and return it.
+
+    ``args`` carries ``prior`` (its path), ``out``, ``new_calibration`` and ``set`` (the calibration's entries);
+    ``data`` is ``(source file, site metadata, (first, last) session time [s])`` of the stage's data; ``sample_rate``
+    [Hz] defaults to the metadata's.
+    """
+    from stableins.records import PriorReference, data_times, file_sha256, parse_entries
+
+    source, metadata, (first, last) = data
+    start, end = data_times(metadata, float(first), float(last))
+    reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
+    updated = prior.updated(
+        fit,
+        new_calibration=args.new_calibration,
+        prior=reference,
+        procedure=procedure,
+        calibration_entries=parse_entries(args.set),
+        site=metadata,
+        inputs=[str(source)],
+        data_start=start,
+        data_end=end,
+        sample_rate=metadata.sample_rate if sample_rate is None else sample_rate,
+    )
+    updated.save(args.out)
+    return updated

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, update_prior
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -55,7 +55,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.estimators.drift import DriftDetails, drift_from_record, report
     from stableins.output import emit
-    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord
 
     prior = CalibrationRecord.load(args.prior)
     source = data_file(args.run)
@@ -69,21 +69,9 @@ def run(args: Any) -> int:
         base="survey" if args.one_position else "auto",
     )
     time = record.read(["time"])["time"]
-    start, end = data_times(record.metadata, float(time[0]), float(time[-1]))
-    reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
-    updated = prior.updated(
-        fit,
-        new_calibration=args.new_calibration,
-        prior=reference,
-        procedure=str(record.metadata.extra.get("procedure", "drift-two-position")),
-        calibration_entries=parse_entries(args.set),
-        site=record.metadata,
-        inputs=[str(source)],
-        data_start=start,
-        data_end=end,
-        sample_rate=record.sample_rate,
-    )
-    updated.save(args.out)
+    procedure = str(record.metadata.extra.get("procedure", "drift-two-position"))
+    times = (source, record.metadata, (time[0], time[-1]))
+    updated = update_prior(args, prior, fit, data=times, procedure=procedure, sample_rate=record.sample_rate)
     data = {
         "record": str(source),
         "prior": args.prior,

@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from numpy.typing import NDArray
 
 #: Stage names allowed in the ``stage`` column.
-STAGES = ("coarse", "fine")
+STAGES = ("coarse", "fine", "rotating")
 CSV_SUFFIXES = (".csv",)
 H5_SUFFIXES = (".h5", ".hdf5", ".hdf")
 
@@ -165,7 +165,7 @@ def check_device_rows(columns: Mapping[str, Any], path: str | None, first_row: i
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError(
-            f"unknown stage {str(stage[k])[:40]!r}", path=path, row=first_row + k, field="stage", expected="'coarse' or 'fine'"
+            f"unknown stage {str(stage[k])[:40]!r}", path=path, row=first_row + k, field="stage", expected="'coarse', 'fine' or 'rotating'"
         )
     for name in ("pass", "position"):
         bad = columns[name] < 1

@@ -168,15 +168,19 @@ def calibration_terms(term_ids: Iterable[str], *, source: str = "--add", library
 
 def record_terms(parameter_ids: Iterable[str], library: Library | None = None) -> tuple[Term, ...]:
     """Return the discovered (additive) terms among a record's parameter ids, in record order."""
+    from stableins.errormodel import known_terms
+
     library = library if library is not None else LIBRARY
-    return tuple(library[i].term for i in parameter_ids if i in library)
+    own = known_terms()  # the record's own terms (lever arms, asynchrony ...) are not additive output terms
+    return tuple(library[i].term for i in parameter_ids if i in library and i not in own)
 
 
 def all_terms(library: Library | None = None) -> dict[str, Term]:
     """Every term a calibration record may carry, by id: the standard and gimbal terms and the library's."""
     from stableins.errormodel import known_terms
 
-    return known_terms((library if library is not None else LIBRARY).terms())
+    own = known_terms()
+    return known_terms(t for t in (library if library is not None else LIBRARY).terms() if t.id not in own)
 
 
 def markdown_table(library: Library | None = None) -> str:

@@ -42,8 +42,10 @@ _SECTIONS = {
     "procedure", "defaults", "acceptance", "offset_iteration", "step", "runner", "person", "record", "tolerances", "uncertainty", "model",
 }  # fmt: skip
 #: Stages a definition may declare.
-STAGES = ("coarse", "fine", "system")
+STAGES = ("coarse", "fine", "rotating", "system")
 _AXIS_WORDS = {"up", "down", "level", "+45", "-45"}
+#: Largest commanded reading of a step [deg]: four turns, the cumulative middle-gimbal reading of device-rotating.
+MAX_STEP_DEGREES = 1440.0
 
 
 @dataclass(frozen=True)
@@ -168,6 +170,8 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     if head["stage"] not in STAGES:
         raise InputError(f"unknown stage {head['stage']!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
     steps = _steps(data, head["stage"], base, spath)
+    if head["stage"] == "rotating":
+        _check_rotations(steps, spath)
     return ProcedureDefinition(
         name=head["name"],
         stage=head["stage"],
@@ -185,6 +189,18 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
         uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
     )
+
+
+def _check_rotations(steps: tuple[Step, ...], spath: str) -> None:
+    """Refuse a rotating procedure that does not turn the platform about two of its axes (Cai's three arms undetermined)."""
+    from stableins.estimators.lever.kinematics import unexcited_arms
+
+    missing = unexcited_arms([s.command for s in steps])
+    if missing:
+        raise InputError(
+            f"no move between the steps turns the platform so as to excite {', '.join(missing)}", path=spath, field="step",
+            expected="moves about at least two platform axes (the middle gimbal and the platform axis, as device-rotating)",
+        )  # fmt: skip
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
@@ -303,8 +319,11 @@ def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, fl
     angles = []
     for key in ("platform", "inner", "middle"):
         deg = number(raw, key, spath, where)
-        if abs(deg) > 720.0:
-            raise InputError(f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}", expected="degrees")
+        if abs(deg) > MAX_STEP_DEGREES:
+            raise InputError(
+                f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}",
+                expected=f"degrees, at most {MAX_STEP_DEGREES:g} in magnitude (cumulative readings of a rotating path)",
+            )  # fmt: skip
         angles.append(math.radians(deg))
     return angles[0], angles[1], angles[2]
 

@@ -148,7 +148,8 @@ def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
         if record.kind == "iteration":
             new = iteration_entries(step, mine)
         else:
-            blocks = [block_from_record(r) for r in mine if r.get("phase") == "dwell"]
+            phases = ("slew", "settle", "dwell") if getattr(step, "keep_slew", False) else ("dwell",)
+            blocks = [block_from_record(r) for r in mine if r.get("phase") in phases and r.get("operation") == "acquire"]
             new = [
                 dwell_entry(
                     step.stage,

@@ -25,6 +25,8 @@ MAX_STEP_SECONDS = 86400.0
 MAX_RECORD_SECONDS = 30 * 86400.0
 #: Most steps of a plan.
 MAX_STEPS = 1_000_000
+#: Largest commanded reading [rad]: four turns (the cumulative middle-gimbal reading of device-rotating).
+MAX_READING = 8 * math.pi
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,8 @@ class DwellStep:
     why: str = ""
     offset_corrected: bool = False
     kind: str = "dwell"
+    #: keep the slew (and settle) samples with the dwell (a rotating procedure: the lever arms are in the slews)
+    keep_slew: bool = False
 
 
 @dataclass(frozen=True)
@@ -262,7 +266,7 @@ class _Validator:
 
     def readings(self, value: Any, where: str) -> tuple[float, float, float]:
         items = self.list(value, where, 3, 3)
-        return tuple(self.number(x, f"{where}[{k}]", -4 * math.pi, 4 * math.pi) for k, x in enumerate(items))  # type: ignore[return-value]
+        return tuple(self.number(x, f"{where}[{k}]", -MAX_READING, MAX_READING) for k, x in enumerate(items))  # type: ignore[return-value]
 
     def checks(self, value: Any, where: str) -> DwellChecks:
         d = self.mapping(value, where, set(DwellChecks.__dataclass_fields__), set())
@@ -318,7 +322,7 @@ class _Validator:
 
     def _dwell_fields(self, d: dict[str, Any], where: str) -> None:
         """Check the fields of a dwell step in place."""
-        d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse", "fine"))
+        d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse", "fine", "rotating"))
         d["pass_number"] = self.integer(d["pass_number"], f"{where}.pass_number", 1, 10**6)
         d["position"] = self.integer(d["position"], f"{where}.position", 1, 10**6)
         d["readings"] = self.readings(d["readings"], f"{where}.readings")
@@ -326,8 +330,9 @@ class _Validator:
         d["dwell"] = self.number(d["dwell"], f"{where}.dwell", 0.0, MAX_STEP_SECONDS, above=True)
         if "checks" in d:
             d["checks"] = self.checks(d["checks"], f"{where}.checks")
-        if "offset_corrected" in d:
-            d["offset_corrected"] = self.flag(d["offset_corrected"], f"{where}.offset_corrected")
+        for key in ("offset_corrected", "keep_slew"):
+            if key in d:
+                d[key] = self.flag(d[key], f"{where}.{key}")
 
     def _static_record_fields(self, d: dict[str, Any], where: str) -> None:
         """Check the fields of a static-record step in place."""

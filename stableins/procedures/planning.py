@@ -3,7 +3,8 @@
 * A coarse definition that re-points (``repoint = true``, ``[offset_iteration]``) becomes one
   zero-offset iteration step: passes of all positions until the offsets converge.
 * Any other definition becomes one dwell step per position, re-pointed by the current
-  zero-offset estimate (from the unit's previous record) when ``repoint`` is set.
+  zero-offset estimate (from the unit's previous record) when ``repoint`` is set; a rotating
+  definition's steps keep their slews (``keep_slew``).
 
 Every dwell step carries the definition's one set of dwell checks
 (:class:`~stableins.estimators.layout.DwellChecks`: ``[acceptance]`` and the thresholds of
@@ -57,6 +58,7 @@ def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: 
                 checks=checks,
                 why=f"ideal axes: {s.expect}" if s.expect else "",
                 offset_corrected=bool(definition.repoint),
+                keep_slew=definition.stage == "rotating",
             )
             for s in definition.steps
         ]

@@ -194,9 +194,10 @@ class Runner:
             self.console.dwell(f"{label}{again}", readings, step.settle, step.dwell, step.why, replay=self.session.replaying)
             try:
                 command_time = self.session.operate("command", [float(r) for r in readings])
-                arrived = self._wait_until_reached(readings, step.checks)
+                slew: list[SampleBlock] = []
+                arrived = self._wait_until_reached(readings, step.checks, keep=slew if step.keep_slew else None)
                 if arrived is None and step.settle > 0:
-                    self._record(step.settle, "settle", "settle")
+                    slew += self._record(step.settle, "settle", "settle")
                 blocks = self._record(step.dwell, "dwell", "dwell") if arrived is None else []
             except (DriverConnectionError, DriverProtocolError) as error:
                 link_failures = self._link_failure(
@@ -227,8 +228,9 @@ class Runner:
             _, replayed = self.session.decide("verdict", verdict)
             self.console.verdict(result, replay=replayed)
             if result.accepted:
+                kept = (slew + blocks) if step.keep_slew else blocks
                 self.entries.append(
-                    dwell_entry(step.stage, step.pass_number, step.position, command=readings, command_time=command_time, blocks=blocks)
+                    dwell_entry(step.stage, step.pass_number, step.position, command=readings, command_time=command_time, blocks=kept)
                 )
                 self.session.accept(blocks)
                 return
@@ -306,8 +308,10 @@ class Runner:
             failures = 0
         return failures
 
-    def _wait_until_reached(self, readings: NDArray[np.float64], checks: DwellChecks) -> str | None:
-        """Record (and discard) short pieces until the platform is at the commanded readings.
+    def _wait_until_reached(
+        self, readings: NDArray[np.float64], checks: DwellChecks, keep: list[SampleBlock] | None = None
+    ) -> str | None:
+        """Record short pieces until the platform is at the commanded readings (discarded, or appended to ``keep``).
 
         Returns ``None`` on arrival, else why it did not arrive within ``checks.max_slew``.
         The settle time counts from arrival: slews take as long as they take (10°/s is typical).
@@ -320,6 +324,8 @@ class Runner:
             self.session.context = context
             block = self.session.operate("acquire", [piece])
             waited += piece
+            if keep is not None:
+                keep.append(block)
             if len(block) == 0 or not np.all(np.isfinite(block.angles)):
                 continue
             offsets = np.angle(np.exp(1j * (block.angles - readings)))

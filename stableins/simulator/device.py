@@ -26,7 +26,9 @@ move it within a dwell.  Every sample is computed from first principles:
    injected output effects (:mod:`stableins.simulator.effects`), evaluated with the
    temperature, session time, slew direction and platform angular rate/acceleration
    (``ω_bp^p`` of the platform relative to the static base; the Earth rate is left
-   out of the size effect, ``ω_ie² r < 1e-10 m/s²``).
+   out of the size effect, ``ω_ie² r < 1e-10 m/s²``).  With the timing effect ``t_async``
+   (``τ``) the accelerometer's input of sample ``t`` (``f^p``, ``ω``, ``ω̇``) is that of the
+   exact path at ``t − τ``; the angle readings stay at ``t``.
 5. Additive noise, then quantization of the velocity increments with the remainder
    carried (:mod:`stableins.simulator.noise`).
 
@@ -100,6 +102,8 @@ class SimulatedPlatform:
         self._drift = np.array([truth.gyro_drift.get(a, 0.0) for a in "xyz"])
         self._g_sensitivity = fx.g_sensitivity(truth.effects)
         self._needs_rates = fx.needs(truth.effects, "lever_")
+        #: time asynchrony τ [s]: the accelerometer input is the path's at t − τ (effects "timing")
+        self._async = float(truth.effects.get("t_async", 0.0))
         s = truth.settling
         self._omega = 2 * np.pi * s["frequency"]
         self._zeta = s["damping"]
@@ -223,6 +227,11 @@ class SimulatedPlatform:
         truth = self.truth
         time = index / self.rate
         readings, rates, dcm, segment, settle_time = self._motion(index)
+        shift = -self._async  # the accelerometer samples the path at t − τ; the readings stay at t
+        if shift:
+            sampled, rates, dcm, _, _ = self._motion(index, shift)
+        else:
+            sampled = readings
         f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)
         temperature = truth.noise.temperature(time)
         slew_direction = np.zeros((len(index), 3))
@@ -238,9 +247,9 @@ class SimulatedPlatform:
         )
         if self._needs_rates:
             h = 1e-3
-            w = self.platform.angular_rate(self.platform.actual_angles(readings), rates)
-            w_plus = self._angular_rate_at(index, h)
-            w_minus = self._angular_rate_at(index, -h)
+            w = self.platform.angular_rate(self.platform.actual_angles(sampled), rates)
+            w_plus = self._angular_rate_at(index, shift + h)
+            w_minus = self._angular_rate_at(index, shift - h)
             inputs = TermInputs(f_p, inputs.temperature, inputs.time, slew_direction, w, (w_plus - w_minus) / (2 * h))
         f_a = self._model.forward(f_p, self._values, inputs)
         f_a = f_a + self.noise.accelerometer(int(index[0]), len(index))
@@ -292,9 +301,12 @@ class SimulatedPlatform:
             settle_time[rows] = after
         return readings, rates, segment, settle_time
 
-    def _motion(self, index: NDArray[np.int64]):
-        """Return the readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end."""
-        readings, rates, segment, settle_time = self._path(index)
+    def _motion(self, index: NDArray[np.int64], shift: float = 0.0):
+        """Return the readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end.
+
+        ``shift`` [s]: the motion at ``t + shift`` (the time asynchrony's sampling instant).
+        """
+        readings, rates, segment, settle_time = self._path(index, shift)
         dcm = self.platform.dcm_nav_to_platform(readings)
         if (np.any(self._drift) or np.any(self._g_sensitivity)) and np.any(settle_time > 0):
             f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)

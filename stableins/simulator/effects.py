@@ -12,6 +12,12 @@ simulator's own physics, written here; they do not come from any estimator.
 ``geometry`` effects change the platform kinematics (:mod:`stableins.platform`) or
 the platform's motion (:mod:`stableins.simulator.device`).
 
+``timing`` effects shift when the instrument samples: ``t_async`` = ``τ`` [s], the
+accelerometer sample stamped ``t`` is the accelerometer's whole input (specific force,
+lever-arm accelerations) at ``t − τ`` on the exact slew path, while the angle readings
+stay at ``t`` (device-level simulator; docs/conventions.md "Lever arms and time
+asynchrony": to first order ``δf = τ ω × f^p``, a formula the simulator does not use).
+
 ===============  ==============================================================
 id               added output of accelerometer ``a`` (axis a in x, y, z)
 ===============  ==============================================================
@@ -96,7 +102,7 @@ class Effect:
     id, unit, nominal, meaning :
         Stable id, SI unit, typical magnitude [SI], one-line meaning.
     kind : str
-        ``"output"`` (adds to the accelerometer output) or ``"geometry"``.
+        ``"output"`` (adds to the accelerometer output), ``"geometry"`` or ``"timing"``.
     regressor : callable or None
         For output effects: ``TermInputs -> (..., 3)`` output change per unit value.
     axis : int or None
@@ -327,12 +333,22 @@ def _geometry_effects() -> list[Effect]:
     return effects
 
 
+#: The timing effect: time asynchrony of the accelerometer samples against the angle readings [s].
+TIME_ASYNC = Effect(
+    "t_async",
+    "s",
+    1e-4,
+    "time asynchrony: the accelerometer sample stamped t is taken at t - t_async (> 0: the accelerometers lag the angle readings)",
+    "timing",
+)
+
+
 def _build() -> dict[str, Effect]:
-    """Build the catalogue: every effect by id, per accelerometer axis first, then the geometry."""
+    """Build the catalogue: every effect by id, per accelerometer axis first, then the geometry and the timing."""
     effects: list[Effect] = []
     for i, a in enumerate(AXES):
         effects += _nonlinearity_effects(i, a) + _environment_effects(i, a)
-    effects += _geometry_effects()
+    effects += _geometry_effects() + [TIME_ASYNC]
     catalogue = {e.id: e for e in effects}
     assert len(catalogue) == len(effects), "effect ids are unique"
     return catalogue
