@@ -173,7 +173,6 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
     for number in range(1, options.iterations + 1):
         noise = (white, quantization, layout.noise.stop - layout.noise.start)
         builder = StepBuilder(site, scan, lin, step=options.step, substeps=options.substeps, noise=noise)
-        )
         steps = steps_of(builder.batches(source, options.rows), layout, disc, slow)
         estimate, rank = run_filters(steps, np.zeros(layout.size), [p0, p0_diffuse])
         new = _linearization(lin, estimate, layout)
