@@ -46,7 +46,7 @@ def steps_of(
     for batch in batches:
         transitions = step_matrices(disc, layout, batch.inputs, decay)
         for k, geometry in enumerate(batch.geometry):
-            rows = 3 if geometry.hold < 0 else 9
+            rows = 3 if geometry.hold < 0 else 12
             h = observation_rows(layout, geometry, disc.step)[:rows]
             q = noise_covariance(disc, layout, batch.density_nav[k], slow)
             yield Step(transitions[k], q, batch.observations[k, :rows], h, batch.covariances[k, :rows, :rows], float(batch.time[k]))

@@ -82,11 +82,17 @@ class StateLayout:
     random_walk: bool = True
 
     @property
+    def turns(self) -> int:
+        """Number of turns (``holds − 1``), each with a torquing-error state ``k_j`` (3)."""
+        return max(self.holds - 1, 0)
+
+    @property
     def names(self) -> tuple[str, ...]:
         """State names, in order."""
         noise = [f"rw_{a}" for a in AXES] if self.random_walk else []
         noise += [f"gm{int(t)}_{a}" for t in self.slow_times for a in AXES]
         holds = [f"c_rho{k}_{a}" for k in range(self.holds) for a in AXES] + [f"c_att{k}_{a}" for k in range(self.holds) for a in AXES]
+        holds = [f"turn{j}_{a}" for j in range(self.turns) for a in AXES] + holds
         theta = [f"theta_{a}" for a in AXES]
         return (*LOOP_STATES, *theta, *noise, *CORE_IDS, *GYRO_IDS, *BASE_IDS, *OFFSET_IDS, *holds)
 
@@ -127,9 +133,18 @@ class StateLayout:
         """Zero-offset residuals."""
         return slice(self.base.stop, self.base.stop + 3)
 
+    @property
+    def turn_errors(self) -> slice:
+        """Torquing errors ``k_j`` (3 per turn, platform frame, per radian turned)."""
+        return slice(self.offsets.stop, self.offsets.stop + 3 * self.turns)
+
+    def turn_error(self, turn: int) -> slice:
+        """``e_j``."""
+        return slice(self.offsets.stop + 3 * turn, self.offsets.stop + 3 * turn + 3)
+
     def hold_constant(self, kind: str, hold: int) -> slice:
         """``c^ρ_k`` (``kind="rho"``) or ``c^d_k`` (``"att"``)."""
-        start = self.offsets.stop + (0 if kind == "rho" else 3 * self.holds) + 3 * hold
+        start = self.turn_errors.stop + (0 if kind == "rho" else 3 * self.holds) + 3 * hold
         return slice(start, start + 3)
 
     @property
@@ -142,7 +157,7 @@ class StateLayout:
         out = np.ones(self.size)
         for k, name in enumerate(self.names[self.accelerometer.start : self.offsets.stop]):
             out[self.accelerometer.start + k] = _scale_of(name)
-        out[self.hold_constant("rho", 0).start :] = _SCALE["theta"]
+        out[self.offsets.stop :] = _SCALE["theta"]
         return out
 
 
@@ -174,9 +189,13 @@ def input_matrix() -> NDArray[np.float64]:
 
 
 def input_map(
-    nav_to_platform: NDArray[np.float64], accelerometer: NDArray[np.float64], specific_force: NDArray[np.float64], noise_columns: int
+    nav_to_platform: NDArray[np.float64],
+    accelerometer: NDArray[np.float64],
+    specific_force: NDArray[np.float64],
+    turn_rates: NDArray[np.float64],
+    noise_columns: int,
 ) -> NDArray[np.float64]:
-    """``U(t)`` (n, 9, m): inputs ``(Δf^n, ε^n, θ̇)`` per unit of ``[accelerometer residuals, gyro terms, slow noise]`` (SI).
+    """``U(t)`` (n, 9, m): inputs ``(Δf^n, ε^n, θ̇)`` per unit of ``[accelerometer residuals, gyro terms, torquing, slow noise]``.
 
     Parameters
     ----------
@@ -186,21 +205,27 @@ def input_map(
         ``J_f⁻¹ J_p``: platform specific-force error per residual.
     specific_force : ndarray (n, 3)
         ``f^p``.
+    turn_rates : ndarray (n, T)
+        ``|ω_cmd|`` of each turn [rad/s] (zero outside it): the torquing error ``k_j`` (platform frame, per radian
+        turned) turns the platform at ``|ω_cmd| k_j`` like a drift ``ε = −|ω_cmd| k_j``.
     noise_columns : int
         Slow-noise states (3 per process); each adds ``C_p^n`` to ``Δf^n``.
     """
-    n = len(nav_to_platform)
+    n, turns = len(nav_to_platform), turn_rates.shape[1]
     to_nav = nav_to_platform.swapaxes(1, 2)
-    out = np.zeros((n, 9, 15 + 12 + noise_columns))
+    gyro = 27 + 3 * turns
+    out = np.zeros((n, 9, gyro + noise_columns))
     out[:, 0:3, 0:15] = to_nav @ accelerometer
-    eps = np.zeros((n, 3, 12))  # ε_eff per gyro term
+    eps = np.zeros((n, 3, 12 + 3 * turns))  # ε_eff per gyro term and torquing error
     eps[:, :, 0:3] = np.eye(3)
     for a in range(3):
         eps[:, a, 3 + 3 * a : 6 + 3 * a] = -specific_force
-    out[:, 3:6, 15:27] = to_nav @ eps
-    out[:, 6:9, 15:27] = -eps
+    for j in range(turns):
+        eps[:, :, 12 + 3 * j : 15 + 3 * j] = -turn_rates[:, j, None, None] * np.eye(3)
+    out[:, 3:6, 15:gyro] = to_nav @ eps
+    out[:, 6:9, 15:gyro] = -eps
     for k in range(noise_columns // 3):
-        out[:, 0:3, 27 + 3 * k : 30 + 3 * k] = to_nav
+        out[:, 0:3, gyro + 3 * k : gyro + 3 + 3 * k] = to_nav
     return out
 
 
@@ -261,7 +286,10 @@ def _van_loan(a: NDArray[np.float64], qc: NDArray[np.float64], step: float) -> N
 
 
 def step_matrices(
-    disc: Discretization, layout: StateLayout, inputs: NDArray[np.float64], decay_steps: NDArray[np.float64]
+    disc: Discretization,
+    layout: StateLayout,
+    inputs: NDArray[np.float64],
+    decay_steps: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """``F_k`` (s, n, n) for ``s`` steps from the input maps ``U`` at their substeps (s, m, 9, 27 + noise).
 
@@ -273,9 +301,12 @@ def step_matrices(
     scales = layout.scales()
     out = np.zeros((s, n, n))
     out[:, :12, :12] = disc.transition
+    gyro = 27 + 3 * layout.turns
     params = inputs[:, :, :, :27] * scales[layout.accelerometer.start : layout.gyro.stop]
     out[:, :12, layout.accelerometer.start : layout.gyro.stop] = np.einsum("jab,sjbc->sac", disc.weights, params)
-    noise = inputs[:, :, :, 27:] * decay_steps[None, :, None, :]
+    torquing = inputs[:, :, :, 27:gyro] * scales[layout.turn_errors]
+    out[:, :12, layout.turn_errors] = np.einsum("jab,sjbc->sac", disc.weights, torquing)
+    noise = inputs[:, :, :, gyro:] * decay_steps[None, :, None, :]
     out[:, :12, layout.noise] = np.einsum("jab,sjbc->sac", disc.weights, noise)
     k = layout.noise.start
     if layout.random_walk:
@@ -325,6 +356,8 @@ class StepGeometry:
         Mean ``J_α`` (columns: rotation of the platform per radian of each gimbal angle).
     specific_force_mean : ndarray (3,)
         Mean ``f^p``.
+    offset_map_end : ndarray (3, 3)
+        ``J_α`` at the step's end.
     """
 
     hold: int
@@ -332,12 +365,13 @@ class StepGeometry:
     nav_to_platform_mean: NDArray[np.float64]
     offset_map_mean: NDArray[np.float64]
     specific_force_mean: NDArray[np.float64]
+    offset_map_end: NDArray[np.float64]
 
 
 def observation_rows(layout: StateLayout, geometry: StepGeometry, step: float) -> NDArray[np.float64]:
-    """``H`` (9, n) for ``(v, ρ̄, d)`` (module docstring); only the first three rows apply in a turn."""
+    """``H`` (12, n) for ``(v, ρ̄, d, ψ)`` (module docstring); only the first three rows apply in a turn."""
     scales = layout.scales()
-    h = np.zeros((9, layout.size))
+    h = np.zeros((12, layout.size))
     h[0, 3] = h[1, 4] = h[2, 7] = 1.0
     if geometry.hold < 0:
         return h * scales
@@ -354,6 +388,9 @@ def observation_rows(layout: StateLayout, geometry: StepGeometry, step: float) -
     h[6:9, layout.hold_constant("att", geometry.hold)] = np.eye(3)
     h[6:9, theta] = np.eye(3)
     h[6:9, 0:3] = -geometry.nav_to_platform_end
+    h[9:12, 0:3] = np.eye(3)
+    h[9:12, layout.offsets] = -geometry.nav_to_platform_end.T @ geometry.offset_map_end
+    h[9:12, layout.base] = -np.eye(3)
     return h * scales
 
 

@@ -67,6 +67,14 @@ class RecordScan:
         """Number of holds (``turns + 1``)."""
         return len(self.turns) + 1
 
+    def turn_rates(self, time: NDArray[np.float64], rates: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``(n, turns)``: the platform's inertial rate [rad/s] at ``time`` in the column of the turn it belongs to."""
+        out = np.zeros((len(time), len(self.turns)))
+        for j, (a, b) in enumerate(self.turns):
+            inside = (time >= a) & (time <= b)
+            out[inside, j] = rates[inside]
+        return out
+
     def hold_of(self, first: float, last: float) -> int:
         """Hold index of the window ``[first, last]``, −1 when it overlaps a turn."""
         for k, (a, b) in enumerate(self.turns):
@@ -233,27 +241,31 @@ class StepBuilder:
         mean_angles = angles.mean(axis=2)
         mean_time = data["time"].reshape(s, m, r).mean(axis=2)
         installed = self.lin.installed_offsets()
-        # forcing geometry at the linearization point (offsets and base corrected by the estimate)
+        point = installed + self.lin.offsets
+        # geometry at the linearization point (zero offsets and base corrected by the estimate): the forcing, ρ and ψ
         base = self.survey @ (np.eye(3) - skew(self.lin.base))
-        nav_to_platform = self._body_to_platform(mean_angles, installed + self.lin.offsets) @ base
+        nav_to_platform = self._body_to_platform(mean_angles, point) @ base
         f_p = -self.site.gravity * nav_to_platform[..., :, 2]
         flat = f_p.reshape(-1, 3)
         accel = self.lin.accelerometer_map(flat)
-        inputs = input_map(nav_to_platform.reshape(-1, 3, 3), accel, flat, self.noise_columns).reshape(s, m, 9, -1)
-        # observations: readings with the installed offsets and the survey (the states are relative to them)
-        observed = self._body_to_platform(mean_angles, installed) @ self.survey
-        inertial = observed @ self._earth(mean_time).swapaxes(-1, -2)
+        inertial = nav_to_platform @ self._earth(mean_time).swapaxes(-1, -2)
+        rates = self._inertial_rates(angles, data["time"].reshape(s, m, r), (point, base)).ravel()
+        turn_rates = self.scan.turn_rates(mean_time.ravel(), rates)
+        inputs = input_map(nav_to_platform.reshape(-1, 3, 3), accel, flat, turn_rates, self.noise_columns).reshape(s, m, 9, -1)
         end = slice(self.rows_step - 1, None, self.rows_step)
         end_angles = np.stack([data[a][end] for a in _ANGLES], axis=1)
         end_time = data["time"][end]
-        computed = self._body_to_platform(end_angles, installed) @ dcm_nav_to_body(
-            data["heading"][end], data["pitch"][end], data["roll"][end]
-        )
-        computed_inertial = computed @ self._earth(end_time).swapaxes(-1, -2)
-        end_nav_to_platform = self._body_to_platform(end_angles, installed) @ self.survey
-        offset_map = self._offset_map(mean_angles, installed)
-        z = np.zeros((s, 9))
-        cov = np.zeros((s, 9, 9))
+        output = dcm_nav_to_body(data["heading"][end], data["pitch"][end], data["roll"][end])
+        # d: the computer's platform from its attitude output and the readings with the offsets it used (noise cancels)
+        computed_inertial = self._body_to_platform(end_angles, installed) @ output @ self._earth(end_time).swapaxes(-1, -2)
+        end_nav_to_platform = self._body_to_platform(end_angles, point) @ base
+        offset_map = self._offset_map(mean_angles, point)
+        offset_end = self._offset_map(end_angles, point)
+        # ψ: the output against the base at the point; the computer's offsets are the installed ones
+        known = np.einsum("sji,sjk,k->si", end_nav_to_platform, offset_end, self.lin.offsets)
+        survey_attitude = rotation_vector(output.swapaxes(1, 2) @ base) + known
+        z = np.zeros((s, 12))
+        cov = np.zeros((s, 12, 12))
         z[:, 0], z[:, 1], z[:, 2] = data["velocity_north"][end], data["velocity_east"][end], data["velocity_down"][end]
         q2 = self.quantization**2
         geometry = []
@@ -261,9 +273,8 @@ class StepBuilder:
             first = float(data["time"][k * self.rows_step])
             hold = self.scan.hold_of(first - 1.0 / self.scan.rate, float(end_time[k]))
             cov[k, :3, :3] = nav_to_platform[k, -1].T @ np.diag(q2) @ nav_to_platform[k, -1]
-            geometry.append(
-                StepGeometry(hold, end_nav_to_platform[k], observed[k].mean(axis=0), offset_map[k].mean(axis=0), f_p[k].mean(axis=0))
-            )
+            means = (nav_to_platform[k].mean(axis=0), offset_map[k].mean(axis=0), f_p[k].mean(axis=0))
+            geometry.append(StepGeometry(hold, end_nav_to_platform[k], *means, offset_end[k]))
             if hold < 0:
                 continue
             ref_rho = self.references.setdefault(("rho", hold), inertial[k, 0])
@@ -273,8 +284,20 @@ class StepBuilder:
             jm = geometry[-1].offset_map_mean
             cov[k, 3:6, 3:6] = jm @ np.diag(self.scan.angle_noise**2) @ jm.T / self.rows_step
             cov[k, 6:9, 6:9] = np.eye(3) * ATTITUDE_FLOOR**2
+            z[k, 9:12] = survey_attitude[k]
+            je = end_nav_to_platform[k].T @ offset_end[k]
+            cov[k, 9:12, 9:12] = je @ np.diag(self.scan.angle_noise**2) @ je.T
         density = np.einsum("sij,j,sjk->sik", nav_to_platform[:, m // 2].swapaxes(1, 2), self.white, nav_to_platform[:, m // 2])
         return StepBatch(end_time, inputs, geometry, z, cov, density)
+
+    def _inertial_rates(
+        self, angles: NDArray[np.float64], time: NDArray[np.float64], point: tuple[NDArray[np.float64], NDArray[np.float64]]
+    ) -> NDArray[np.float64]:
+        """``|ω|`` [rad/s] (s, m): the platform's inertial turn from the first to the last sample of each substep (central)."""
+        ends = [self._body_to_platform(angles[:, :, k], point[0]) @ point[1] @ self._earth(time[:, :, k]).swapaxes(-1, -2) for k in (0, -1)]
+        span = time[:, :, -1] - time[:, :, 0]
+        angle = np.linalg.norm(rotation_vector(ends[1] @ ends[0].swapaxes(-1, -2)), axis=-1)
+        return angle / np.where(span > 0, span, 1.0)
 
     def _offset_map(self, angles: NDArray[np.float64], installed: NDArray[np.float64]) -> NDArray[np.float64]:
         """``J_α`` (…, 3, 3): rotation vector of ``Ĉ_b^p(α + h e_i) Ĉ_b^p(α)ᵀ`` per radian (central differences)."""
@@ -290,4 +313,4 @@ class StepBuilder:
 
 #: Standard deviation assigned to the attitude observation ``d`` [rad]: it carries no sensor noise (the angle noise
 #: cancels); this covers the second-order terms the linear model leaves out (``|θ||φ|`` ≲ 1e-8 rad over a day).
-ATTITUDE_FLOOR = 1e-8
+ATTITUDE_FLOOR = 1e-7

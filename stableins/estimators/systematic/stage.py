@@ -29,6 +29,7 @@ from stableins.estimators.systematic.model import (
     white_density,
 )
 from stableins.estimators.systematic.observations import Linearization, RecordScan, StepBuilder, scan_record
+from stableins.estimators.systematic.rank import FREE_PRIOR, GroupRank, group_rank, resolution
 from stableins.noise import FLICKER_VARIANCE_PER_B2, NoiseModel
 from stableins.site import SiteMetadata
 
@@ -102,7 +103,18 @@ class Prior:
 
 @dataclass(frozen=True)
 class PassResult:
-    """The outcome of the last pass: both filters, the layout, the scan, and how many passes ran."""
+    """The outcome of the last pass: both filters, the layout, the scan, how many passes ran, and the last pass's point.
+
+    The offset and base states of the filters are relative to ``point`` (:meth:`totals` adds it); the accelerometer and
+    gyro states are relative to the installed calibration.
+    """
+
+    def totals(self, run: FilterRun) -> NDArray[np.float64]:
+        """Return the states of ``run`` in SI, offsets and base error as totals (point + estimate)."""
+        x = run.x * self.layout.scales()
+        x[self.layout.offsets] += self.point.offsets
+        x[self.layout.base] += self.point.base
+        return x
 
     layout: StateLayout
     scan: RecordScan
@@ -112,6 +124,7 @@ class PassResult:
     diffuse_covariance: NDArray[np.float64]
     passes: int
     changes: tuple[float, ...]
+    point: Linearization
 
 
 #: Prior 1σ of the free nuisances (base error, zero-offset residuals) and of the hold constants [rad]: wide
@@ -125,7 +138,7 @@ def initial_covariance(layout: StateLayout, prior: Prior, options: SystematicOpt
     sigma = np.zeros(layout.size)
     sigma[0:3] = options.misalignment_sigma
     sigma[3:5], sigma[7] = 0.1, 0.1
-    sigma[5], sigma[6], sigma[8] = 1e-5, 10.0, 1e-4
+    sigma[5], sigma[6], sigma[8] = 1e-5, 10.0, 1e-2
     sigma[9:12] = 1e-7
     sigma[layout.noise] = _noise_prior(layout, prior.noise_model)
     scales = layout.scales()
@@ -135,7 +148,7 @@ def initial_covariance(layout: StateLayout, prior: Prior, options: SystematicOpt
         default = term.nominal if term is not None else options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
         if name in GYRO_IDS and name not in prior.ids:
             default = options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
-        sigma[index] = prior.sigma(name, default) / scales[index]
+        sigma[index] = FREE_PRIOR if diffuse else prior.sigma(name, default) / scales[index]
     base = FREE_ANGLE if diffuse else np.asarray(options.base_sigma)
     sigma[layout.base] = base / scales[layout.base]
     sigma[layout.offsets.start :] = FREE_ANGLE / scales[layout.offsets.start :]
@@ -170,24 +183,26 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
     lin = Linearization(prior.values, prior.error_model)
     changes: list[float] = []
     estimate = rank = None
+    point = lin
     for number in range(1, options.iterations + 1):
         noise = (white, quantization, layout.noise.stop - layout.noise.start)
         builder = StepBuilder(site, scan, lin, step=options.step, substeps=options.substeps, noise=noise)
         steps = steps_of(builder.batches(source, options.rows), layout, disc, slow)
-        estimate, rank = run_filters(steps, np.zeros(layout.size), [p0, p0_diffuse])
-        new = _linearization(lin, estimate, layout)
-        changes.append(_change(lin, new, estimate, layout))
-        lin = new
+        x0 = np.zeros(layout.size)
+        x0[layout.base] = -lin.base / layout.scales()[layout.base]  # the survey's prior is on the total base error
+        estimate, rank = run_filters(steps, x0, [p0, p0_diffuse])
+        point, lin = lin, _linearization(lin, estimate, layout)
+        changes.append(_change(point, lin, estimate, layout))
         if changes[-1] < options.tolerance or number == options.iterations:
             break
     assert estimate is not None and rank is not None
-    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes))
+    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes), point)
 
 
 def _linearization(old: Linearization, run: FilterRun, layout: StateLayout) -> Linearization:
     """Return the linearization point of the next pass: the installed values plus the estimated residuals."""
     x = run.x * layout.scales()
-    return Linearization(old.values, old.error_model, x[layout.accelerometer], x[layout.offsets], x[layout.base])
+    return Linearization(old.values, old.error_model, x[layout.accelerometer], old.offsets + x[layout.offsets], old.base + x[layout.base])
 
 
 def _change(old: Linearization, new: Linearization, run: FilterRun, layout: StateLayout) -> float:
@@ -199,3 +214,26 @@ def _change(old: Linearization, new: Linearization, run: FilterRun, layout: Stat
         (new.base - old.base) / sigma[layout.base],
     ]
     return float(max(np.max(np.abs(m)) for m in moves))
+
+
+#: The groups of the rank report: name and the state names' test.
+RANK_GROUPS = (
+    ("accelerometer", lambda n: n.startswith(("sf_", "bias_", "beta_"))),
+    ("nonlinearity", lambda n: n.startswith("K2_")),
+    ("gyro", lambda n: n in GYRO_IDS),
+    ("nuisance", lambda n: n.startswith("base_") or n.endswith("_residual")),
+)
+
+
+def rank_report(result: PassResult) -> tuple[GroupRank, ...]:
+    """Return what the record's orientations determine, group by group (:mod:`.rank`), from the free-prior filter."""
+    names = result.layout.names
+    scales = result.layout.scales()
+    out = []
+    for group, member in RANK_GROUPS:
+        index = [k for k, n in enumerate(names) if member(n)]
+        block = np.ix_(index, index)
+        information = np.linalg.inv(result.rank.P[block]) - np.linalg.inv(result.diffuse_covariance[block])
+        units = np.array([resolution(names[k]) / scales[k] for k in index])
+        out.append(group_rank(group, tuple(names[k] for k in index), information, units))
+    return tuple(out)
