@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -86,7 +87,7 @@ class StateLayout:
         """Number of turns (``holds − 1``), each with a torquing-error state ``k_j`` (3)."""
         return max(self.holds - 1, 0)
 
-    @property
+    @cached_property
     def names(self) -> tuple[str, ...]:
         """State names, in order."""
         noise = [f"rw_{a}" for a in AXES] if self.random_walk else []
@@ -153,6 +154,11 @@ class StateLayout:
         return slice(self.accelerometer.start, self.size)
 
     def scales(self) -> NDArray[np.float64]:
+        """Return (a copy of) the unit of each state."""
+        return self._scales.copy()
+
+    @cached_property
+    def _scales(self) -> NDArray[np.float64]:
         """Return the unit of each state (1 for the dynamic and noise states, :data:`_SCALE` for the parameters)."""
         out = np.ones(self.size)
         for k, name in enumerate(self.names[self.accelerometer.start : self.offsets.stop]):

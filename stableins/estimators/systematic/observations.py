@@ -162,6 +162,37 @@ class Linearization:
         return np.linalg.solve(model.jacobian_specific_force(specific_force, values), jac)
 
 
+@dataclass(frozen=True)
+class HoldSummary:
+    """One orientation the record held: when, and the specific force it showed in the platform frame.
+
+    Attributes
+    ----------
+    index : int
+    start, end : float
+        First and last step end in the hold [s].
+    specific_force : tuple of float
+        Mean ``f^p/g`` over the hold.
+    polar_angle : float
+        Mean angle between ``z_p`` and the Earth's axis [rad] (0: polar-aligned).
+    """
+
+    index: int
+    start: float
+    end: float
+    specific_force: tuple[float, float, float]
+    polar_angle: float
+
+
+@dataclass
+class _HoldSums:
+    count: int = 0
+    start: float = np.inf
+    end: float = -np.inf
+    force: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    polar: float = 0.0
+
+
 @dataclass
 class StepBatch:
     """Consecutive filter steps: end times, input maps, geometry, observations and their covariances."""
@@ -214,6 +245,7 @@ class StepBuilder:
         self.axis = skew(earth_rate_nav(site.latitude) / EARTH_RATE)
         self.white, self.quantization, self.noise_columns = noise
         self.references: dict[tuple[str, int], NDArray[np.float64]] = {}
+        self._holds: dict[int, _HoldSums] = {}
 
     def _earth(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
         theta = EARTH_RATE * (time - self.scan.start)
@@ -277,6 +309,7 @@ class StepBuilder:
             geometry.append(StepGeometry(hold, end_nav_to_platform[k], *means, offset_end[k]))
             if hold < 0:
                 continue
+            self._summarize(hold, float(end_time[k]), means[2], end_nav_to_platform[k])
             ref_rho = self.references.setdefault(("rho", hold), inertial[k, 0])
             ref_att = self.references.setdefault(("att", hold), computed_inertial[k])
             z[k, 3:6] = rotation_vector(inertial[k] @ ref_rho.T).mean(axis=0)
@@ -289,6 +322,23 @@ class StepBuilder:
             cov[k, 9:12, 9:12] = je @ np.diag(self.scan.angle_noise**2) @ je.T
         density = np.einsum("sij,j,sjk->sik", nav_to_platform[:, m // 2].swapaxes(1, 2), self.white, nav_to_platform[:, m // 2])
         return StepBatch(end_time, inputs, geometry, z, cov, density)
+
+    def _summarize(self, hold: int, time: float, force: NDArray[np.float64], nav_to_platform: NDArray[np.float64]) -> None:
+        sums = self._holds.setdefault(hold, _HoldSums())
+        sums.count += 1
+        sums.start, sums.end = min(sums.start, time), max(sums.end, time)
+        sums.force += force / self.site.gravity
+        axis = earth_rate_nav(self.site.latitude) / EARTH_RATE
+        sums.polar += float(np.arccos(np.clip(nav_to_platform[2] @ axis, -1.0, 1.0)))
+
+    def holds(self) -> tuple[HoldSummary, ...]:
+        """Return the holds seen so far (:class:`HoldSummary`), in order."""
+        out = []
+        for k in sorted(self._holds):
+            h = self._holds[k]
+            f = h.force / h.count
+            out.append(HoldSummary(k, h.start, h.end, (float(f[0]), float(f[1]), float(f[2])), h.polar / h.count))
+        return tuple(out)
 
     def _inertial_rates(
         self, angles: NDArray[np.float64], time: NDArray[np.float64], point: tuple[NDArray[np.float64], NDArray[np.float64]]

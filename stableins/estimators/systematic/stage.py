@@ -28,7 +28,7 @@ from stableins.estimators.systematic.model import (
     slow_noise_times,
     white_density,
 )
-from stableins.estimators.systematic.observations import Linearization, RecordScan, StepBuilder, scan_record
+from stableins.estimators.systematic.observations import HoldSummary, Linearization, RecordScan, StepBuilder, scan_record
 from stableins.estimators.systematic.rank import FREE_PRIOR, GroupRank, group_rank, resolution
 from stableins.noise import FLICKER_VARIANCE_PER_B2, NoiseModel
 from stableins.site import SiteMetadata
@@ -125,6 +125,7 @@ class PassResult:
     passes: int
     changes: tuple[float, ...]
     point: Linearization
+    holds: tuple[HoldSummary, ...]
 
 
 #: Prior 1σ of the free nuisances (base error, zero-offset residuals) and of the hold constants [rad]: wide
@@ -196,7 +197,7 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
         if changes[-1] < options.tolerance or number == options.iterations:
             break
     assert estimate is not None and rank is not None
-    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes), point)
+    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes), point, builder.holds())
 
 
 def _linearization(old: Linearization, run: FilterRun, layout: StateLayout) -> Linearization:
