@@ -5,7 +5,8 @@ Continuous model (static base, NED, the damped loop of :class:`stableins.estimat
     ẋ_nav = A x_nav + B_f Δf^n + B_ε ε^n,      Δf^n = C_p^n Δf^p,   ε^n = C_p^n ε^p_eff
     θ̇     = −ε^p_eff                           (the platform's drift angle, platform frame)
     Δf^p  = J_f⁻¹ J_p Δp + n_rw + Σ_τ n_τ + n_white                       (accelerometer residuals and noise)
-    ε^p_eff,a = ε_a − Σ_b Dg_ab f^p_b                                    (gyro drift and g-sensitivity, WAVE4)
+    ε^p_eff   = ε^p + D_g f^p          (gyro error: drift and g-sensitivity; the platform turns at w = −ε^p_eff,
+                                        :func:`stableins.conventions.platform_drift_rate`)
 
 ``J_p = ∂f^a/∂p`` and ``J_f = ∂f^a/∂f^p`` are :meth:`stableins.errormodel.ErrorModel.jacobian` and
 ``jacobian_specific_force`` at the linearization point (the installed calibration, then the estimate), so the
@@ -37,15 +38,14 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from stableins.conventions import AXES
-from stableins.errormodel import CORE_IDS, GIMBAL_IDS, GYRO_DRIFT_TERMS
+from stableins.errormodel import CORE_IDS, GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
 from stableins.estimators.system.loop import LOOP_STATES, DampingLoop
 from stableins.noise import FLICKER_TIME_CONSTANTS, FLICKER_VARIANCE_PER_B2
 
 #: Gauss-Markov processes of the flicker sum faster than this [s] are folded into the white noise.
 FOLD_TIME = 999.0
-#: Gyro g-sensitivity ids ``Dg_ab``: drift rate about ``a_p`` per specific force along ``b_p`` (WAVE4).
-G_IDS: tuple[str, ...] = tuple(f"Dg_{a}{b}" for a in AXES for b in AXES)
-GYRO_IDS: tuple[str, ...] = tuple(t.id for t in GYRO_DRIFT_TERMS) + G_IDS
+#: The gyro terms: drift ``ε^p`` and g-sensitivity ``Dg_ab`` (:data:`stableins.errormodel.GYRO_G_TERMS`).
+GYRO_IDS: tuple[str, ...] = tuple(t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS)
 #: Base error ``δ`` (NED rotation vector of the true base relative to the survey) and zero-offset residuals.
 BASE_IDS = ("base_north", "base_east", "base_down")
 OFFSET_IDS = tuple(f"{g}_residual" for g in GIMBAL_IDS)
@@ -225,7 +225,7 @@ def input_map(
     eps = np.zeros((n, 3, 12 + 3 * turns))  # ε_eff per gyro term and torquing error
     eps[:, :, 0:3] = np.eye(3)
     for a in range(3):
-        eps[:, a, 3 + 3 * a : 6 + 3 * a] = -specific_force
+        eps[:, a, 3 + 3 * a : 6 + 3 * a] = specific_force
     for j in range(turns):
         eps[:, :, 12 + 3 * j : 15 + 3 * j] = -turn_rates[:, j, None, None] * np.eye(3)
     out[:, 3:6, 15:gyro] = to_nav @ eps
@@ -387,7 +387,7 @@ def observation_rows(layout: StateLayout, geometry: StepGeometry, step: float) -
     eps = np.zeros((3, 12))
     eps[:, :3] = np.eye(3)
     for a in range(3):
-        eps[a, 3 + 3 * a : 6 + 3 * a] = -geometry.specific_force_mean
+        eps[a, 3 + 3 * a : 6 + 3 * a] = geometry.specific_force_mean
     h[3:6, layout.gyro] = 0.5 * step * eps
     h[3:6, layout.offsets] = -geometry.offset_map_mean
     h[3:6, layout.base] = -geometry.nav_to_platform_mean

@@ -21,6 +21,7 @@ from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.drift.holds import MOVE_MARGIN, MOVING_RATE, rotation_vector
 from stableins.estimators.systematic.model import StepGeometry, input_map
+from stableins.platform import rotation_about
 from stableins.site import SiteMetadata
 
 #: Record columns the systematic stage reads.
@@ -275,7 +276,7 @@ class StepBuilder:
         installed = self.lin.installed_offsets()
         point = installed + self.lin.offsets
         # geometry at the linearization point (zero offsets and base corrected by the estimate): the forcing, ρ and ψ
-        base = self.survey @ (np.eye(3) - skew(self.lin.base))
+        base = self.survey @ rotation_about(self.lin.base)  # exact: a first-order base leaves Ω×O(δ²) as an apparent drift
         nav_to_platform = self._body_to_platform(mean_angles, point) @ base
         f_p = -self.site.gravity * nav_to_platform[..., :, 2]
         flat = f_p.reshape(-1, 3)

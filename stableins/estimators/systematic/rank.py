@@ -20,8 +20,23 @@ from numpy.typing import NDArray
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import MICRO_G_PER_G2
 
-#: Prior 1σ of every parameter in the rank filter, in state units (:meth:`StateLayout.scales`): free.
-FREE_PRIOR = 1e3
+#: Prior 1σ of the parameters in the rank filter [SI], by id prefix: free (100× their resolution and more), yet
+#: narrow enough to keep the filter's covariance well conditioned.
+FREE_PRIOR: dict[str, float] = {
+    "sf_": 1e-3,
+    "bias_": 1e-2,
+    "beta_": 1e-3,
+    "K2_": 1e-4,
+    "gyro_drift_": 0.01 * DEG_PER_HOUR,
+    "Dg_": 0.01 * DEG_PER_HOUR / STANDARD_GRAVITY,
+}
+
+
+def free_prior(name: str) -> float:
+    """:data:`FREE_PRIOR` of parameter ``name`` [SI]."""
+    return next(v for k, v in FREE_PRIOR.items() if name.startswith(k))
+
+
 #: The resolution each kind of parameter must reach to count as determined [SI], by id prefix.
 RESOLUTION: dict[str, float] = {
     "sf_": 10 * PPM,

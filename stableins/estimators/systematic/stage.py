@@ -29,7 +29,7 @@ from stableins.estimators.systematic.model import (
     white_density,
 )
 from stableins.estimators.systematic.observations import HoldSummary, Linearization, RecordScan, StepBuilder, scan_record
-from stableins.estimators.systematic.rank import FREE_PRIOR, GroupRank, group_rank, resolution
+from stableins.estimators.systematic.rank import GroupRank, free_prior, group_rank, resolution
 from stableins.noise import FLICKER_VARIANCE_PER_B2, NoiseModel
 from stableins.site import SiteMetadata
 
@@ -126,6 +126,7 @@ class PassResult:
     changes: tuple[float, ...]
     point: Linearization
     holds: tuple[HoldSummary, ...]
+    estimate_prior_mean: NDArray[np.float64]
 
 
 #: Prior 1σ of the free nuisances (base error, zero-offset residuals) and of the hold constants [rad]: wide
@@ -149,11 +150,20 @@ def initial_covariance(layout: StateLayout, prior: Prior, options: SystematicOpt
         default = term.nominal if term is not None else options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
         if name in GYRO_IDS and name not in prior.ids:
             default = options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
-        sigma[index] = FREE_PRIOR if diffuse else prior.sigma(name, default) / scales[index]
+        sigma[index] = (free_prior(name) if diffuse else prior.sigma(name, default)) / scales[index]
     base = FREE_ANGLE if diffuse else np.asarray(options.base_sigma)
     sigma[layout.base] = base / scales[layout.base]
     sigma[layout.offsets.start :] = FREE_ANGLE / scales[layout.offsets.start :]
     return np.diag(sigma**2)
+
+
+def prior_mean(layout: StateLayout, prior: Prior) -> NDArray[np.float64]:
+    """``x₀`` in state units: zero, except the gyro terms, which are states themselves (the record's values, if any)."""
+    x0 = np.zeros(layout.size)
+    scales = layout.scales()
+    for k, name in enumerate(layout.names[layout.gyro]):
+        x0[layout.gyro.start + k] = float(prior.values.get(name, 0.0)) / scales[layout.gyro.start + k]
+    return x0
 
 
 def _noise_prior(layout: StateLayout, noise: NoiseModel) -> NDArray[np.float64]:
@@ -189,7 +199,7 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
         noise = (white, quantization, layout.noise.stop - layout.noise.start)
         builder = StepBuilder(site, scan, lin, step=options.step, substeps=options.substeps, noise=noise)
         steps = steps_of(builder.batches(source, options.rows), layout, disc, slow)
-        x0 = np.zeros(layout.size)
+        x0 = prior_mean(layout, prior)
         x0[layout.base] = -lin.base / layout.scales()[layout.base]  # the survey's prior is on the total base error
         estimate, rank = run_filters(steps, x0, [p0, p0_diffuse])
         point, lin = lin, _linearization(lin, estimate, layout)
@@ -197,7 +207,7 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
         if changes[-1] < options.tolerance or number == options.iterations:
             break
     assert estimate is not None and rank is not None
-    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes), point, builder.holds())
+    return PassResult(layout, scan, estimate, rank, p0, p0_diffuse, len(changes), tuple(changes), point, builder.holds(), x0)
 
 
 def _linearization(old: Linearization, run: FilterRun, layout: StateLayout) -> Linearization:
