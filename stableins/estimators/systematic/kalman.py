@@ -12,6 +12,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 from filterpy.kalman import KalmanFilter
 from numpy.typing import NDArray
 
@@ -111,8 +112,18 @@ def rts_smooth(run: FilterRun) -> tuple[NDArray[np.float64], NDArray[np.float64]
     fs = np.array([h[2] for h in run.history])
     qs = np.array([h[3] for h in run.history])
     # filterpy pairs F[k+1] with the prediction from step k to k+1
-    x_smooth, p_smooth, _, _ = kf.rts_smoother(xs, ps, Fs=fs, Qs=qs, inv=np.linalg.pinv)
+    x_smooth, p_smooth, _, _ = kf.rts_smoother(xs, ps, Fs=fs, Qs=qs, inv=_spd_inverse)
     return x_smooth, p_smooth
+
+
+def _spd_inverse(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverse of a predicted covariance through its Cholesky factor (symmetrized): the smoother's gain stays accurate."""
+    symmetric = 0.5 * (matrix + matrix.T)
+    try:
+        factor = scipy.linalg.cho_factor(symmetric)
+    except np.linalg.LinAlgError:  # numerically semi-definite (no process noise anywhere): the plain inverse
+        return np.asarray(np.linalg.inv(symmetric), dtype=np.float64)
+    return np.asarray(scipy.linalg.cho_solve(factor, np.eye(len(matrix))), dtype=np.float64)
 
 
 def batch_least_squares(

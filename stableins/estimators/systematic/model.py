@@ -53,6 +53,12 @@ OFFSET_IDS = tuple(f"{g}_residual" for g in GIMBAL_IDS)
 _SCALE = {"sf": 1e-6, "bias": 1e-5, "beta": 1e-6, "K2": 1e-7, "gyro": 5e-9, "Dg": 5e-10, "base": 1e-5, "theta": 1e-5}
 
 
+#: Units of the loop states (:data:`LOOP_STATES`: rad, m/s, rad, m, m/s, m/s²) and of ``θ`` [rad] in the filter.
+_DYNAMIC_SCALE = np.array([1e-5, 1e-5, 1e-5, 1e-3, 1e-3, 1e-7, 1.0, 1e-3, 1e-5, 1e-6, 1e-6, 1e-6])
+#: Unit of the slow accelerometer noise states [m/s²].
+_NOISE_SCALE = 1e-5
+
+
 def _scale_of(name: str) -> float:
     for prefix, value in (("Dg_", "Dg"), ("gyro_drift", "gyro"), ("base_", "base"), ("theta", "theta")):
         if name.startswith(prefix):
@@ -159,8 +165,9 @@ class StateLayout:
 
     @cached_property
     def _scales(self) -> NDArray[np.float64]:
-        """Return the unit of each state (1 for the dynamic and noise states, :data:`_SCALE` for the parameters)."""
-        out = np.ones(self.size)
+        """Return the unit of each state (:data:`_DYNAMIC_SCALE`, :data:`_SCALE`): the filter works near unit variances."""
+        out = np.full(self.size, _NOISE_SCALE)
+        out[:12] = _DYNAMIC_SCALE
         for k, name in enumerate(self.names[self.accelerometer.start : self.offsets.stop]):
             out[self.accelerometer.start + k] = _scale_of(name)
         out[self.offsets.stop :] = _SCALE["theta"]
@@ -308,10 +315,8 @@ def step_matrices(
     out = np.zeros((s, n, n))
     out[:, :12, :12] = disc.transition
     gyro = 27 + 3 * layout.turns
-    params = inputs[:, :, :, :27] * scales[layout.accelerometer.start : layout.gyro.stop]
-    out[:, :12, layout.accelerometer.start : layout.gyro.stop] = np.einsum("jab,sjbc->sac", disc.weights, params)
-    torquing = inputs[:, :, :, 27:gyro] * scales[layout.turn_errors]
-    out[:, :12, layout.turn_errors] = np.einsum("jab,sjbc->sac", disc.weights, torquing)
+    out[:, :12, layout.accelerometer.start : layout.gyro.stop] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, :27])
+    out[:, :12, layout.turn_errors] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, 27:gyro])
     noise = inputs[:, :, :, gyro:] * decay_steps[None, :, None, :]
     out[:, :12, layout.noise] = np.einsum("jab,sjbc->sac", disc.weights, noise)
     k = layout.noise.start
@@ -323,7 +328,7 @@ def step_matrices(
         k += 3
     idx = np.arange(layout.parameters.start, n)
     out[:, idx, idx] = 1.0
-    return out
+    return out * (scales[None, None, :] / scales[None, :, None])  # in state units
 
 
 def noise_covariance(
@@ -343,7 +348,8 @@ def noise_covariance(
     for tau, sigma in zip(layout.slow_times, sigmas, strict=True):
         q[range(k, k + 3), range(k, k + 3)] = np.asarray(sigma, dtype=float) ** 2 * (1.0 - np.exp(-2.0 * disc.step / tau))
         k += 3
-    return q
+    scales = layout.scales()
+    return q / np.outer(scales, scales)  # in state units
 
 
 @dataclass(frozen=True)

@@ -137,13 +137,14 @@ FREE_ANGLE = 1e-3
 
 def initial_covariance(layout: StateLayout, prior: Prior, options: SystematicOptions, *, diffuse: bool) -> NDArray[np.float64]:
     """``P0`` in state units (the parameters scaled by :meth:`StateLayout.scales`)."""
+    scales = layout.scales()
     sigma = np.zeros(layout.size)
     sigma[0:3] = options.misalignment_sigma
     sigma[3:5], sigma[7] = 0.1, 0.1
     sigma[5], sigma[6], sigma[8] = 1e-5, 10.0, 1e-2
     sigma[9:12] = 1e-7
-    sigma[layout.noise] = _noise_prior(layout, prior.noise_model)
-    scales = layout.scales()
+    sigma[:12] /= scales[:12]
+    sigma[layout.noise] = _noise_prior(layout, prior.noise_model) / scales[layout.noise]
     for k, name in enumerate(parameter_ids(layout)):
         index = layout.accelerometer.start + k
         term = known_terms().get(name)
