@@ -139,9 +139,19 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
         notes=tuple(g.describe() for g in details.rank),
         details=details,
         likelihood=likelihood,
-        settings={"step": step, "passes": result.passes, "holds": len(result.holds)},
+        settings={"step": step, "passes": result.passes, "orientations": [_orientation(h) for h in result.holds]},
     )
     return SystematicCalibration(fit, details)
+
+
+def _orientation(hold: HoldSummary) -> dict[str, object]:
+    """One orientation as the record stores it (JSON)."""
+    return {
+        "start_h": hold.start / 3600.0,
+        "end_h": hold.end / 3600.0,
+        "specific_force_g": list(hold.specific_force),
+        "polar_angle_deg": float(np.degrees(hold.polar_angle)),
+    }
 
 
 def _record_value(prior: Prior, term_id: str) -> float:
