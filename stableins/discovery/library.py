@@ -245,5 +245,3 @@ def custom_effect(
         aliases=aliases,
         source="user-defined",
     )
-
-

@@ -139,4 +139,3 @@ def closing(ctx: ReportContext) -> list[Flowable]:
     out.append(document.spacer(4))
     out.append(paragraph("End of report.", "small"))
     return out
-

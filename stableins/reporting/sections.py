@@ -215,7 +215,6 @@ def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
     return out
 
 
-
 SECTIONS = (
     title_block,
     method,

@@ -63,6 +63,8 @@ class FilterRun:
     chi2: float = 0.0
     dof: int = 0
     history: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = field(default_factory=list)
+    #: Whitened innovations ``L⁻¹ν`` (``L Lᵀ = S``) of every ``innovation_stride``-th step: each component ~ N(0, 1).
+    innovations: list[NDArray[np.float64]] = field(default_factory=list)
 
 
 def run_filter(steps: Iterable[Step], x0: NDArray[np.float64], P0: NDArray[np.float64], *, keep_history: bool = False) -> FilterRun:
@@ -75,17 +77,29 @@ def run_filter(steps: Iterable[Step], x0: NDArray[np.float64], P0: NDArray[np.fl
 
 
 def run_filters(
-    steps: Iterable[Step], x0: NDArray[np.float64], priors: Sequence[NDArray[np.float64]], *, keep_history: bool = False
+    steps: Iterable[Step],
+    x0: NDArray[np.float64],
+    priors: Sequence[NDArray[np.float64]],
+    *,
+    keep_history: bool = False,
+    innovation_stride: int = 0,
 ) -> list[FilterRun]:
-    """One filter per prior covariance, side by side over the same (streamed) steps."""
+    """One filter per prior covariance, side by side over the same (streamed) steps.
+
+    ``innovation_stride`` > 0 keeps the first filter's whitened innovations of every that many steps (bounded: the
+    fit evidence of the record).
+    """
     filters = []
     for P0 in priors:
         kf = KalmanFilter(dim_x=len(x0), dim_z=3)
         kf.x, kf.P = np.array(x0, dtype=float), np.array(P0, dtype=float)
         filters.append((kf, FilterRun(kf.x, kf.P)))
-    for step in steps:
+    for number, step in enumerate(steps):
         for kf, run in filters:
             _advance(kf, run, step, keep_history=keep_history)
+        if innovation_stride and number % innovation_stride == 0:
+            kf, run = filters[0]
+            run.innovations.append(np.linalg.solve(np.linalg.cholesky(0.5 * (kf.S + kf.S.T)), kf.y))
     for kf, run in filters:
         run.x, run.P = kf.x.copy(), kf.P.copy()
     return [run for _, run in filters]

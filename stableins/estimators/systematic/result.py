@@ -120,6 +120,7 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
     information = _symmetric(np.linalg.inv(cov) - np.linalg.inv(cov0))
     gradient = np.linalg.solve(cov, x - x0)
     likelihood = Likelihood(ids, point, information, gradient)
+    innovations = np.concatenate(result.estimate.innovations) if result.estimate.innovations else np.zeros(0)
     terms = known_terms()
     totals = result.totals(result.estimate)
     sigma = np.sqrt(np.diag(result.estimate.P)) * layout.scales()
@@ -133,8 +134,8 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
         values=values,
         covariance=_symmetric(cov),
         status=(Status.ESTIMATED,) * len(ids),
-        residuals=np.zeros(0),
-        residual_sigma=np.zeros(0),
+        residuals=innovations,
+        residual_sigma=np.ones(len(innovations)),
         rank=sum(g.rank for g in details.rank if g.group != "nuisance"),
         notes=tuple(g.describe() for g in details.rank),
         details=details,

@@ -129,6 +129,8 @@ class PassResult:
     estimate_prior_mean: NDArray[np.float64]
 
 
+#: About how many steps' innovations the result keeps as its fit evidence (bounded whatever the record's length).
+EVIDENCE_STEPS = 200
 #: Prior 1σ of the free nuisances (base error, zero-offset residuals) and of the hold constants [rad]: wide
 #: against anything the data determine (arcseconds), narrow enough to keep the filter's covariance well conditioned
 #: (the hold constants are near zero by construction: each hold's reference is its own first observation).
@@ -202,7 +204,8 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
         steps = steps_of(builder.batches(source, options.rows), layout, disc, slow)
         x0 = prior_mean(layout, prior)
         x0[layout.base] = -lin.base / layout.scales()[layout.base]  # the survey's prior is on the total base error
-        estimate, rank = run_filters(steps, x0, [p0, p0_diffuse])
+        stride = max(1, scan.samples // builder.rows_step // EVIDENCE_STEPS)
+        estimate, rank = run_filters(steps, x0, [p0, p0_diffuse], innovation_stride=stride)
         point, lin = lin, _linearization(lin, estimate, layout)
         changes.append(_change(point, lin, estimate, layout))
         if changes[-1] < options.tolerance or number == options.iterations:
