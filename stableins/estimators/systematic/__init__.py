@@ -8,7 +8,7 @@ the rank report, :mod:`~stableins.estimators.systematic.result` the result and t
 """
 
 from stableins.estimators.systematic.rank import GroupRank
-from stableins.estimators.systematic.record import prior_from_record, systematic_calibration
+from stableins.estimators.systematic.record import prior_from_record, systematic_calibration, systematic_stage
 from stableins.estimators.systematic.result import SystematicCalibration, SystematicDetails
 from stableins.estimators.systematic.stage import Prior, SystematicOptions
 
@@ -20,4 +20,5 @@ __all__ = [
     "SystematicOptions",
     "prior_from_record",
     "systematic_calibration",
+    "systematic_stage",
 ]

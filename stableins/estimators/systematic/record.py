@@ -66,3 +66,10 @@ def prior_from_record(record: Any) -> Prior:
     """:class:`Prior` of a :class:`stableins.records.CalibrationRecord` (its values, covariance, error and noise model)."""
     noise = record.noise_model if record.noise_model is not None else NoiseModel.unknown()
     return Prior(dict(record.values()), tuple(record.ids), np.asarray(record.covariance, dtype=float), record.error_model(), noise)
+
+
+def systematic_stage(record: Any, prior: Any, say: Any) -> Any:
+    """Return the fit a ``system-indexed`` run ends with (its report said): the stage on the record with the prior record."""
+    outcome = systematic_calibration(record, record.metadata, prior_from_record(prior))
+    say(outcome.report())
+    return outcome.fit
