@@ -277,3 +277,5 @@ class ErrorModel:
                 assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 total = total + value[..., None] * t.regressor(full)
         return total
+
+

@@ -280,7 +280,9 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
     layouts = device_layouts()
     summaries, segments = [], []
     for ds in datasets:
-        stats = {(s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))}
+        stats = {
+            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
+        }
         for d in ds.dwells():
             s = stats[(d.stage, d.pass_number, d.position)]
             if not s.usable:

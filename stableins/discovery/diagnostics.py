@@ -349,3 +349,5 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
         scale=scale,
         time=np.asarray(problem.dwells.time, dtype=float) if problem is not None and hasattr(problem, "dwells") else None,
     )
+
+

@@ -144,7 +144,6 @@ def dwells_from_dataset(
     """
     from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
-
     if not datasets:
         raise InputError("no data files given", field="DATA")
     site = datasets[0].metadata

@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
 
+
 # ----------------------------------------------------------------------------- system records
 @dataclass(frozen=True)
 class HarmonicSpectrum:

@@ -245,3 +245,5 @@ def custom_effect(
         aliases=aliases,
         source="user-defined",
     )
+
+

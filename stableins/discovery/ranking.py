@@ -56,6 +56,7 @@ if TYPE_CHECKING:  # pragma: no cover
 MICRO_G_UNIT = DisplayUnit("µg", MICRO_G)
 
 
+
 def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
     """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
     from stableins.discovery.separation import describe, separation
@@ -69,7 +70,6 @@ def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: di
             c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
         out.append(c)
     return out
-
 
 def _chi2_red(result: FitResult) -> float:
     from stableins.discovery.problem import fit_chi2_red

@@ -15,6 +15,7 @@ from stableins.estimators.result import FitResult
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
+
     pass
 
 

@@ -118,9 +118,8 @@ class DeviceCalibration:
         lines = [f"<DeviceCalibration: stage {self.final.stage!r} recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
         lines += parameter_lines(self.final.rows())
         return clipped(
-            lines,
-            "(print(calibration) for every stage, calibration.final for the recorded fit, "
-            "CalibrationRecord.from_device(calibration, site) for the record)",
+            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, "
+            "CalibrationRecord.from_device(calibration, site) for the record)"
         )
 
     def _repr_html_(self) -> str:

@@ -284,8 +284,10 @@ def homogeneity_degree(term: Term, gravity: float) -> int | None:
     return degree if np.allclose(ratios, degree, atol=1e-6) else None
 
 
+
 def scientific(x: float, significant: int = 2) -> str:
     """``5.0 × 10⁻⁷``: a number in scientific notation for people."""
     mantissa, exponent = f"{x:.{significant - 1}e}".split("e")
     power = str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
     return f"{mantissa} × 10{power}".replace("-", "\u2212")
+

@@ -139,3 +139,4 @@ def closing(ctx: ReportContext) -> list[Flowable]:
     out.append(document.spacer(4))
     out.append(paragraph("End of report.", "small"))
     return out
+

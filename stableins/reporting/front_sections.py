@@ -50,6 +50,7 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
     ]
 
 
+
 # ---------------------------------------------------------------------- 1 method
 def method(ctx: ReportContext) -> list[Flowable]:
     """Return section 1: the procedure and method, the stages run and their settings."""
@@ -169,3 +170,4 @@ def inputs(ctx: ReportContext) -> list[Flowable]:
     out.append(document.table([[escape(c) if i != 3 else c for i, c in enumerate(r)] for r in rows], [0.14, 0.25, 0.41, 0.20],
                               mono=(2,), markup=True))  # fmt: skip
     return out
+

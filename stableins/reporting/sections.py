@@ -215,6 +215,7 @@ def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
     return out
 
 
+
 SECTIONS = (
     title_block,
     method,

@@ -126,7 +126,9 @@ def _check_fields(d: Any, source: str | None) -> None:
     }
     unknown = sorted(set(d) - known)
     if unknown:
-        raise InputError(f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}")
+        raise InputError(
+            f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
+        )
 
 
 def _site(d: Any, source: str | None) -> SiteMetadata:
