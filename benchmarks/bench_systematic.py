@@ -143,9 +143,10 @@ print(time.time() - start, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 
 
 def speed(hours: float, seed: int) -> None:
     """Part 5: records of ``hours`` and ``hours/2`` at 100 Hz written to HDF5, the stage in a fresh process."""
+    from systematic_world import turns
+
     from stableins.data.system import SystemRecordWriter
     from stableins.simulator.indexing import indexed_record_chunks
-    from systematic_world import turns
 
     print(f"== 5. speed and memory at 100 Hz ({os.cpu_count()} cores) ==")
     for duration in (hours * 1800.0, hours * 3600.0):

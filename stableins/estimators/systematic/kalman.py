@@ -156,9 +156,9 @@ def batch_least_squares(
     # x_k = T_k u, u = (x_0, η_1, …): T_k built step by step
     transfer = np.zeros((n, total))
     transfer[:, :n] = np.eye(n)
-    rows, rhs = [_whiten(P0, np.eye(n, total), np.asarray(x0, dtype=float))], []
-    rhs.append(rows[0][1])
-    rows[0] = rows[0][0]
+    first, value = _whiten(P0, np.eye(n, total), np.asarray(x0, dtype=float))
+    rows: list[NDArray[np.float64]] = [first]
+    rhs: list[NDArray[np.float64]] = [value]
     col = n
     for step, factor, width in zip(steps, factors, widths, strict=True):
         transfer = step.F @ transfer

@@ -160,7 +160,7 @@ class Linearization:
             values[name] = float(values.get(name, 1.0 if name.startswith("sf_") else 0.0)) + float(delta)
         model = self.error_model if all(i in self.error_model for i in CORE_IDS) else ErrorModel.standard(nonlinear=True)
         jac = model.jacobian(specific_force, values)[..., [model.index(i) for i in CORE_IDS]]
-        return np.linalg.solve(model.jacobian_specific_force(specific_force, values), jac)
+        return np.asarray(np.linalg.solve(model.jacobian_specific_force(specific_force, values), jac), dtype=np.float64)
 
 
 @dataclass(frozen=True)
