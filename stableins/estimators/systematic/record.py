@@ -45,13 +45,7 @@ def systematic_calibration(
             "no damping loop in the metadata", path=source_path(source), field="damping.zeta", expected="the INS's damping ratio"
         )
     _check_noise(prior.noise_model, source_path(source))
-    passes = run_passes(source, site, prior, options)
-    if passes.scan.holds < 2:
-        raise InputError(
-            "the record holds one orientation: the systematic stage needs the platform indexed to at least two",
-            path=source_path(source), field="angle_platform", expected="a record of 'stableins run system-indexed'",
-        )  # fmt: skip
-    return build_result(passes, prior, options.step)
+    return build_result(run_passes(source, site, prior, options), prior, options.step)
 
 
 def _check_noise(noise: NoiseModel, path: str) -> None:

@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC
-from stableins.data.chunks import ChunkSource
+from stableins.data.chunks import ChunkSource, source_path
 from stableins.errormodel import ErrorModel, known_terms
+from stableins.errors import InputError
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.systematic.kalman import FilterRun, run_filters, steps_of
 from stableins.estimators.systematic.model import (
@@ -187,6 +188,11 @@ def noise_inputs(noise: NoiseModel) -> tuple[NDArray[np.float64], NDArray[np.flo
 def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: SystematicOptions) -> PassResult:
     """Run the outer loop: scan once, then passes until no parameter moves by more than ``options.tolerance`` σ."""
     scan = scan_record(source, site.sample_rate, options.rows)
+    if scan.holds < 2:  # before any pass: the filter needs the orientations
+        raise InputError(
+            "the record holds one orientation: the systematic stage needs the platform indexed to at least two",
+            path=source_path(source), field="angle_platform", expected="a record of 'stableins run system-indexed'",
+        )  # fmt: skip
     walk = bool(np.any(prior.noise_model.values("random_walk") > 0))
     layout = StateLayout(scan.holds, slow_noise_times(), random_walk=walk)
     loop = DampingLoop.from_metadata(site.damping, site.latitude, site.gravity)
