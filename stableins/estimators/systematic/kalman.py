@@ -1,9 +1,9 @@
 """The Kalman filter (filterpy, feedforward) and RTS smoother over the steps, and the same model in batch least squares.
 
 Feedforward: the filter estimates the errors of the linearization point and never feeds them back into the
-record's processing within a pass; the outer loop (:mod:`.stage`) re-linearizes and runs a new pass.  Parameters
-are constants (zero process noise), so the smoothed parameters equal the filter's final ones and the batch
-least-squares solution (tests).
+record's processing within a pass; the outer loop (:mod:`~stableins.estimators.systematic.stage`)
+re-linearizes and runs a new pass.  Parameters are constants (zero process noise), so the smoothed
+parameters equal the filter's final ones and the batch least-squares solution (tests).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ class Step:
 def steps_of(
     batches: Iterable[StepBatch], layout: StateLayout, disc: Discretization, slow: tuple[NDArray[np.float64], NDArray[np.float64]]
 ) -> Iterator[Step]:
-    """Yield the model's steps (:mod:`.model`) for the record's batches."""
+    """Yield the model's steps (:mod:`~stableins.estimators.systematic.model`) for the record's batches."""
     decay = noise_decay(layout, disc)
     for batch in batches:
         transitions = step_matrices(disc, layout, batch.inputs, decay)

@@ -4,7 +4,7 @@ Two passes over the record, both in bounded memory (:mod:`stableins.data.chunks`
 turns (the gimbal readings at 1 Hz moving faster than :data:`stableins.estimators.drift.holds.MOVING_RATE`, with
 :data:`~stableins.estimators.drift.holds.MOVE_MARGIN` either side) and measures the angle-sensor noise; then
 :class:`StepBuilder` turns each filter step of ``Δ`` seconds into its input maps at ``m`` substeps (geometry from the
-substep means of the readings) and its observations (module docstring of :mod:`.model`).
+substep means of the readings) and its observations (module docstring of :mod:`~stableins.estimators.systematic.model`).
 """
 
 from __future__ import annotations

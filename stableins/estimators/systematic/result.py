@@ -36,7 +36,7 @@ class SystematicDetails(StageDetails):
     holds : tuple of HoldSummary
         The orientations the record held.
     rank : tuple of GroupRank
-        What they determine, group by group (:mod:`.rank`).
+        What they determine, group by group (:mod:`~stableins.estimators.systematic.rank`).
     nuisance : mapping of str to (float, float)
         Base error and zero-offset residuals (totals), value and 1σ [rad].
     passes : int

@@ -1,10 +1,12 @@
 """The systematic stage: passes of the filter over the record, re-linearized until the estimate settles.
 
-Each pass streams the record twice through :mod:`.observations` (a scan, then the steps) and runs two filters
-on the same steps (:mod:`.kalman`): the *estimate* filter (the record's prior on the accelerometer terms, the
-survey's on the base error, zero offsets free) and the *rank* filter (every nuisance free), whose information
-is the data's alone (:mod:`.rank`).  The next pass linearizes the forcing at the estimate (the geometry of the
-base error and the zero offsets, the accelerometer Jacobians), as PSINS iterates whole passes, but feedforward.
+Each pass streams the record twice through :mod:`~stableins.estimators.systematic.observations` (a scan,
+then the steps) and runs two filters on the same steps (:mod:`~stableins.estimators.systematic.kalman`):
+the *estimate* filter (the record's prior on the accelerometer terms, the survey's on the base error, zero
+offsets free) and the *rank* filter (every nuisance free), whose information is the data's alone
+(:mod:`~stableins.estimators.systematic.rank`).  The next pass linearizes the forcing and the observations at
+the estimate (the base error and the zero offsets, the accelerometer Jacobians), as PSINS iterates whole
+passes, but feedforward.
 """
 
 from __future__ import annotations
@@ -247,7 +249,7 @@ RANK_GROUPS = (
 
 
 def rank_report(result: PassResult) -> tuple[GroupRank, ...]:
-    """Return what the record's orientations determine, group by group (:mod:`.rank`), from the free-prior filter."""
+    """Return what the record's orientations determine, group by group, from the free-prior filter (module ``rank``)."""
     names = result.layout.names
     scales = result.layout.scales()
     out = []
