@@ -49,7 +49,7 @@ from stableins.estimators.systematic import SystematicOptions, systematic_calibr
 from stableins.estimators.systematic.kalman import batch_least_squares, rts_smooth, run_filter, steps_of  # noqa: E402
 from stableins.estimators.systematic.model import Discretization, StateLayout  # noqa: E402
 from stableins.estimators.systematic.observations import Linearization, StepBuilder, scan_record  # noqa: E402
-from stableins.estimators.systematic.stage import initial_covariance, noise_inputs, prior_mean  # noqa: E402
+from stableins.estimators.systematic.passes import initial_covariance, noise_inputs, prior_mean  # noqa: E402
 
 FAMILIES = {
     "scale factor": ("sf_",),

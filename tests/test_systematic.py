@@ -28,7 +28,7 @@ from stableins.estimators.systematic import SystematicOptions, systematic_calibr
 from stableins.estimators.systematic.kalman import batch_least_squares, rts_smooth, run_filter, steps_of
 from stableins.estimators.systematic.model import Discretization, StateLayout, slow_noise_times
 from stableins.estimators.systematic.observations import Linearization, StepBuilder, scan_record
-from stableins.estimators.systematic.stage import initial_covariance, noise_inputs, prior_mean
+from stableins.estimators.systematic.passes import initial_covariance, noise_inputs, prior_mean
 from stableins.platform import rotation_about
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord

@@ -1,7 +1,7 @@
 """The Kalman filter (filterpy, feedforward) and RTS smoother over the steps, and the same model in batch least squares.
 
 Feedforward: the filter estimates the errors of the linearization point and never feeds them back into the
-record's processing within a pass; the outer loop (:mod:`~stableins.estimators.systematic.stage`)
+record's processing within a pass; the outer loop (:mod:`~stableins.estimators.systematic.passes`)
 re-linearizes and runs a new pass.  Parameters are constants (zero process noise), so the smoothed
 parameters equal the filter's final ones and the batch least-squares solution (tests).
 """

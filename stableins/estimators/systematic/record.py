@@ -9,8 +9,8 @@ import numpy as np
 from stableins.data.chunks import ChunkSource, source_columns, source_path
 from stableins.errors import InputError
 from stableins.estimators.systematic.observations import COLUMNS
+from stableins.estimators.systematic.passes import Prior, SystematicOptions, run_passes
 from stableins.estimators.systematic.result import SystematicCalibration, build_result
-from stableins.estimators.systematic.stage import Prior, SystematicOptions, run_passes
 from stableins.noise import NoiseModel
 from stableins.site import SiteMetadata
 

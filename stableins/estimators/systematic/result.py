@@ -22,8 +22,8 @@ from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.systematic.model import BASE_IDS, OFFSET_IDS, parameter_ids
 from stableins.estimators.systematic.observations import HoldSummary
+from stableins.estimators.systematic.passes import PassResult, Prior, rank_report
 from stableins.estimators.systematic.rank import GroupRank
-from stableins.estimators.systematic.stage import PassResult, Prior, rank_report
 from stableins.status import Status
 
 
