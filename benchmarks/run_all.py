@@ -123,6 +123,10 @@ QUICK: dict[str, Quick] = {
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
     "bench_two_position": Quick(("--seeds", "5"), "5 seeds per case instead of 100"),
     "bench_lever_arms": Quick(("--seeds", "1", "--cai-seeds", "1", "--clean", "2"), "1 seed per case (2 clean) instead of 4, 2 and 20"),
+    "bench_systematic": Quick(
+        ("--seeds", "4", "--mc-hours", "4", "--hours", "8", "--speed-hours", "2"),
+        "8-h rank and drift record, 4 Monte Carlo seeds of 4 h, 2-h speed record instead of 24 h, 40 seeds of 8 h, a day",
+    ),
 }
 
 TIME_UNIT = r"(?:s|ms|µs|us|ns|min|seconds?|sec)\b"

@@ -454,6 +454,10 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     prior = _load_record(rundir / start["prior"])
     assert dataset is not None  # a run with a static record exports it (system.h5) before its estimation
     record = open_system_record(dataset)
+    if runner.plan.name == "system-indexed":  # the systematic stage (docs/systematic-calibration.md)
+        from stableins.estimators.systematic import systematic_stage
+
+        return systematic_stage(record, prior, runner.console.say)
     if any(getattr(step, "turns", ()) for step in runner.plan.steps):  # indexed: the drift test (docs/drift-test.md)
         return drift_stage(record, prior, runner.console.say)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}

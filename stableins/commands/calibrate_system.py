@@ -101,12 +101,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="accept gaps in the time column (warned about; the fits use the samples present), as 'stableins check --allow-gaps'",
     )
+    parser.add_argument(
+        "--systematic",
+        action="store_true",
+        help=(
+            "systematic calibration of an indexed record (stableins run system-indexed): one Kalman filter and RTS smoother "
+            "over the platform's orientations, accelerometer residuals, gyro drift and g-sensitivity (docs/systematic-calibration.md)"
+        ),
+    )
     add_new_calibration_option(parser)
     add_entries_option(parser)
 
 
 def run(args: Any) -> int:
     """Run ``stableins calibrate system``: the system-level stage on a static record; return the exit code."""
+    if getattr(args, "systematic", False):
+        from stableins.commands.calibrate_systematic import run as run_systematic
+
+        return run_systematic(args)
     import warnings
     from dataclasses import replace
 

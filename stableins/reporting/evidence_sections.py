@@ -86,6 +86,7 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
             out += _notes(ctx, f"Notes of the {s.stage} stage", s.notes)
     out += heading("System-level stage", "h2", room_mm=40)
     out += _system(ctx)
+    out += _systematic(ctx)
     return out
 
 
@@ -153,10 +154,32 @@ def _system(ctx: ReportContext) -> list[Flowable]:
     return out
 
 
+def _systematic(ctx: ReportContext) -> list[Flowable]:
+    """Return the systematic stage's orientations and what they determined (docs/systematic-calibration.md)."""
+    runs = [s for s in ctx.record.stages_run if s.name == "systematic"]
+    out: list[Flowable] = []
+    for run in runs:
+        out += heading("Systematic stage: orientations", "h2", room_mm=40)
+        out.append(
+            paragraph(
+                "One Kalman filter over the orientations the platform was indexed to by torquing (the residuals above are its "
+                "whitened innovations). Each orientation: the hold, the mean specific force in the platform frame and the angle "
+                "of the platform's z axis from the Earth's axis."
+            )
+        )
+        rows: list[list[Any]] = [["Orientation", "Hold [h]", "f<sup>p</sup>/g", "z<sub>p</sub> from the Earth's axis"]]
+        for k, hold in enumerate(run.settings.get("orientations", ())):
+            force = ", ".join(f"{v:+.3f}" for v in hold["specific_force_g"]).replace("-", MINUS)
+            rows.append([str(k + 1), f"{hold['start_h']:.2f} – {hold['end_h']:.2f}", f"({force})", f"{hold['polar_angle_deg']:.1f}°"])
+        if len(rows) > 1:
+            out.append(document.table(rows, [0.16, 0.24, 0.36, 0.24], align_right=(), markup=True))
+        out.append(paragraph("What they determine: the notes of the systematic stage (above); what they do not determine is not moved."))
+    return out
+
+
 def _notes(ctx: ReportContext, title: str, notes: Any) -> list[Flowable]:
     """Return a stage's notes, one per line, in words (:meth:`ReportContext.text`)."""
     notes = [n for n in notes if n]
     if not notes:
         return []
     return [paragraph(f"<b>{escape(title)}</b>", "small"), *(paragraph("• " + ctx.text(n), "note") for n in notes)]
-

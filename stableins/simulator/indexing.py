@@ -17,10 +17,13 @@ rotation alone: the product, in time order, of one frame rotation per turn of
 ``\dot C = -[\omega_{ip}\times] C`` leaves
 
 .. math::
-    \dot X = -[(T^T w)\times]\, X \quad\Rightarrow\quad X(t) = \mathrm{rot}\Bigl(\int_0^t T^T w\,dt\Bigr)
+    \dot X = -[(T^T w)\times]\, X \quad\Rightarrow\quad X(t) = \mathrm{rot}(\theta), \quad
+    \dot\theta = T^T w + \tfrac12\, \theta \times T^T w + O(\theta^2 w)
 
-exactly while the direction of ``T^T w`` is fixed and to second order in the drift angle otherwise
-(``|∫w| ≈ 1.5e-5`` rad after 10 min at 0.005 °/h: an error below 1e-10 rad).  Large commanded
+(Bortz 1971): the sum ``∫ T^T w`` alone is exact only while the direction of ``T^T w`` is fixed; when it
+turns (a hold after an index, a g-sensitive drift) the drift rotations compose, and the second-order term
+matters to an estimator that resolves the drift to 1e-7 °/h (issue 18: ``½|θ₁||w|`` ≈ 1e-12 rad/s after
+12 h of 0.001 °/h); the term left out is third order (~1e-15 rad/s after a day).  Large commanded
 angles are exact; the drift is integrated in the frame of the platform before the turns, so a drift
 during a turn and a drift after it act about the right axes.  ``C_n^p = T X C_{n_0}^{p_0}
 \exp(\Omega t[u\times])`` as in :mod:`stableins.simulator.system`.  The integral is the trapezoid rule
@@ -98,7 +101,8 @@ class IndexedMotion:
         self.alternate_branch = bool(np.cos(platform.configuration.senses[1] * initial_actual[1]) < 0.0)
         self.axes = self._resolve_axes()
         self._previous_actual = np.asarray(initial_actual, dtype=float).copy()
-        self._integral = np.zeros(3)  # ∫ Tᵀ w dt up to the last sample
+        self._integral = np.zeros(3)  # the rotation vector θ of X up to the last sample (Bortz, second order)
+        self._first_order = np.zeros(3)  # ∫ Tᵀ w dt up to the last sample
         self._last_integrand: NDArray[np.float64] | None = None
 
     # ------------------------------------------------------------------ commanded rotation
@@ -143,8 +147,12 @@ class IndexedMotion:
         steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)
         if self._last_integrand is None:
             steps[0] = 0.0  # the first sample of the record is t = 0
-        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
+        first = np.cumsum(np.vstack([self._first_order[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
+        before = np.vstack([self._first_order[None, :], first[:-1]])
+        # Bortz: θ' = Tᵀw + ½ θ × Tᵀw, so that the drift rotations compose (second order) when Tᵀw turns
+        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps + 0.5 * np.cross(before, steps)]), axis=0)[1:]
         self._integral, self._last_integrand = cumulative[-1].copy(), integrand[-1].copy()
+        self._first_order = first[-1].copy()
         return commanded @ rotation_about(cumulative) @ self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
 
     # ------------------------------------------------------------------ readings

@@ -1,0 +1,73 @@
+"""The indexed world of the systematic-calibration tests and benchmark (issue 18): truth, record, prior.
+
+The record comes from the truth simulator (stableins.simulator: exact kinematics, time-domain INS error dynamics);
+the prior is what a device-level calibration leaves (the installed calibration with the residual σ the truth was
+drawn with, the unit's noise model).  Nothing here calls estimator code except to build its input types.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
+from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel, known_terms
+from stableins.estimators.systematic import Prior
+from stableins.noise import NoiseModel
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.system import simulate_system
+from stableins.simulator.truth import DEFAULT_RESIDUAL, SimulatedSite, Truth
+from stableins.turns import IndexAxis, PlatformTurn
+
+#: 0.001 °/h per axis (the acceptance's drift), signs mixed.
+DRIFT = {"x": 0.001 * DEG_PER_HOUR, "y": -0.001 * DEG_PER_HOUR, "z": 0.001 * DEG_PER_HOUR}
+#: A g-sensitivity with every kind of entry (diagonal, off-diagonal) [rad/s per m/s²].
+G_SENSITIVITY = {"Dg_xy": 0.002 * DEG_PER_HOUR_PER_G, "Dg_yy": 0.001 * DEG_PER_HOUR_PER_G, "Dg_zx": -0.001 * DEG_PER_HOUR_PER_G}
+#: Base errors of the simulated site (right-handed about north, east, down).
+BASE = {"tilt_north": 10 * ARCSEC, "tilt_east": -8 * ARCSEC, "azimuth_error": 30 * ARCSEC}
+#: The index of procedures/system-indexed.toml: 60° about the middle gimbal axis.
+INDEX_ANGLE = math.radians(60.0)
+
+
+def indexed_truth(seed: int, *, rate: float, noise: NoiseSettings | None = None, g_sensitivity: bool = True) -> Truth:
+    """A random instrument (Truth.draw) with the drift, g-sensitivity and base errors above."""
+    effects = {**BASE, **(G_SENSITIVITY if g_sensitivity else {})}
+    return Truth.draw(seed, site=SimulatedSite(sample_rate=rate), gyro_drift=DRIFT, effects=effects, noise=noise)
+
+
+def turns(duration: float) -> tuple[PlatformTurn, ...]:
+    """One index in the middle of the record (two holds of ``duration/2``)."""
+    return (PlatformTurn(duration / 2, INDEX_ANGLE, IndexAxis.MIDDLE),)
+
+
+def indexed_record(truth: Truth, duration: float, **options) -> dict[str, np.ndarray]:
+    """A whole indexed record (two holds) as one dict of columns."""
+    return simulate_system(truth, duration, turns=turns(duration), **options)
+
+
+def noise_model(truth: Truth) -> NoiseModel:
+    """The unit's noise model: the simulator's settings in the noise module's terms (quantization Δ/√12)."""
+    n = truth.noise
+    return NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, n.quantization / math.sqrt(12.0))
+
+
+def unit_prior(truth: Truth) -> Prior:
+    """The record a device-level calibration leaves: installed values, the residual σ the truth was drawn with."""
+    ids = tuple(CORE_IDS) + tuple(GIMBAL_IDS)
+    terms = known_terms()
+    sigma = np.array([DEFAULT_RESIDUAL[str(terms[i].kind)] for i in ids])
+    return Prior(dict(truth.installed_calibration), ids, np.diag(sigma**2), ErrorModel.standard(nonlinear=True), noise_model(truth))
+
+
+def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
+    """The true value of each id: the parameter, the gyro drift or the g-sensitivity (0 when not injected)."""
+    out = []
+    for name in ids:
+        if name.startswith("gyro_drift_"):
+            out.append(truth.gyro_drift.get(name[-1], 0.0))
+        elif name.startswith("Dg_"):
+            out.append(truth.effects.get(name, 0.0))
+        else:
+            out.append(truth.parameters[name])
+    return np.array(out, dtype=float)

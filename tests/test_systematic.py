@@ -1,0 +1,291 @@
+"""Systematic calibration over indexed orientations (issue 18): the model against the truth simulator, the filter,
+the RTS smoother and batch least squares against each other, the rank report, the record update and the CLI.
+
+The observation and state equations (stableins/estimators/systematic/model.py, docs/systematic-calibration.md) are
+derived independently of the simulator's kinematics and error dynamics; these tests check the one against the
+other with fixed seeds and k·σ bounds (the Monte Carlo campaign is benchmarks/bench_systematic.py).
+"""
+
+import argparse
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from systematic_world import DRIFT, indexed_record, indexed_truth, true_values, turns, unit_prior
+
+from stableins.commands import calibrate_system
+from stableins.conventions import DEG_PER_HOUR
+from stableins.data.chunks import ArraySource
+from stableins.data.system import SystemRecordWriter
+from stableins.errormodel import CORE_IDS, CORE_TERMS, GIMBAL_IDS, GIMBAL_TERMS, ErrorModel
+from stableins.errors import InputError
+from stableins.estimators.drift.holds import rotation_vector
+from stableins.estimators.result import FitResult
+from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.systematic import SystematicOptions, systematic_calibration
+from stableins.estimators.systematic.kalman import batch_least_squares, rts_smooth, run_filter, steps_of
+from stableins.estimators.systematic.model import Discretization, StateLayout, slow_noise_times
+from stableins.estimators.systematic.observations import Linearization, StepBuilder, scan_record
+from stableins.estimators.systematic.passes import initial_covariance, noise_inputs, prior_mean
+from stableins.platform import rotation_about
+from stableins.procedures.definition import load_procedure
+from stableins.records import CalibrationRecord
+from stableins.simulator.indexing import IndexedMotion, earth_rotation
+from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.system import SystemWorld
+from stableins.turns import IndexAxis, PlatformTurn
+
+
+def _steps(truth, record, lin, layout=None, step=30.0, substeps=30):
+    """The model's steps for a record, linearized at ``lin``."""
+    site = truth.site
+    scan = scan_record(ArraySource(record), site.sample_rate, 1 << 14)
+    layout = layout or StateLayout(scan.holds, slow_noise_times())
+    loop = DampingLoop.from_metadata(site.damping, site.latitude, site.gravity)
+    disc = Discretization.of(loop, step, substeps)
+    white, quantization, slow = noise_inputs(unit_prior(truth).noise_model)
+    slow = (slow[0], slow[1][: len(layout.slow_times)])
+    builder = StepBuilder(
+        site, scan, lin, step=step, substeps=substeps, noise=(white, quantization, layout.noise.stop - layout.noise.start)
+    )
+    return layout, list(steps_of(builder.batches(ArraySource(record), 1 << 14), layout, disc, slow))
+
+
+# ----------------------------------------------------------------------------- the model against the world
+def test_model_reproduces_the_noise_free_world():
+    """F and H propagate the true parameters to the simulator's outputs (velocity, readings, attitude)."""
+    truth = indexed_truth(3, rate=10.0, noise=NoiseSettings.quiet())
+    record = indexed_record(truth, 7200.0, rate=10.0)
+    residual = truth.calibration_residual()
+    offsets = np.array([residual[g] for g in GIMBAL_IDS])
+    base = np.array([truth.effects["tilt_north"], truth.effects["tilt_east"], truth.effects["azimuth_error"]])
+    accel = np.array([residual[i] for i in CORE_IDS])
+    lin = Linearization(dict(truth.installed_calibration), ErrorModel.standard(nonlinear=True), accel, offsets, base)
+    layout, steps = _steps(truth, record, lin)
+    x = np.zeros(layout.size)
+    names = layout.names
+    x[layout.accelerometer] = accel
+    x[layout.gyro] = true_values(truth, names[layout.gyro])
+    x = x / layout.scales()
+    worst = np.zeros(12)
+    signal = np.zeros(12)
+    hold_first = {}
+    for k, step in enumerate(steps):
+        x = step.F @ x
+        r = step.z - step.H @ x
+        if len(r) == 12:  # per-hold constants of ρ and d: the first step of the hold defines them
+            hold = 0 if step.time < 3600 else 1
+            hold_first.setdefault(hold, r[3:9].copy())
+            r[3:9] -= hold_first[hold]
+        worst[: len(r)] = np.maximum(worst[: len(r)], np.abs(r))
+        signal[: len(r)] = np.maximum(signal[: len(r)], np.abs(step.z))
+        assert k < 2 or np.all(np.isfinite(r))
+    assert np.all(worst[:3] < 5e-4 * signal[:3].max()), (worst[:3], signal[:3])  # velocity: 0.05 m/s to 2e-5 (in the turn)
+    assert np.all(worst[3:12] < 1e-8), worst[3:12]  # readings, attitude with readings, attitude vs survey [rad]
+    assert signal[3:6].max() > 1e-5  # the drift moved the readings
+
+
+def test_accelerometer_block_is_the_error_model_jacobian():
+    """``J_f⁻¹ J_p`` equals finite differences of inverse(forward(f, true), installed)."""
+    truth = indexed_truth(4, rate=10.0)
+    values = dict(truth.installed_calibration)
+    model = ErrorModel.standard(nonlinear=True)
+    lin = Linearization(values, model)
+    f = np.array([[3.1, -4.0, 7.9], [0.0, 0.0, 9.8], [-6.9, 6.9, 0.5]])
+    jac = lin.accelerometer_map(f)
+    for k, name in enumerate(CORE_IDS):
+        step = 1e-6 if not name.startswith("K2") else 1e-7
+        plus, minus = dict(values), dict(values)
+        plus[name], minus[name] = values[name] + step, values[name] - step
+        delta = model.inverse(model.forward(f, plus), values) - model.inverse(model.forward(f, minus), values)
+        assert np.allclose(delta / (2 * step), jac[:, :, k], rtol=1e-5, atol=1e-7 * np.abs(jac[:, :, k]).max()), name
+
+
+def test_indexed_drift_composes_rotations():
+    """After an index the world's drift is the product of the drift rotations (Bortz), not the rotation of their sum."""
+    truth = indexed_truth(5, rate=1.0, noise=NoiseSettings.quiet(), g_sensitivity=False)
+    truth = truth.with_changes(gyro_drift={"x": 0.3 * DEG_PER_HOUR, "y": 0.0, "z": 0.0})
+    index = (PlatformTurn(600.0, math.radians(60.0), IndexAxis.MIDDLE),)
+    world = SystemWorld(truth, 1.0, initial_readings=SystemWorld(truth, 1.0).initial_readings, turns=index)
+    motion = world._indexed
+    assert isinstance(motion, IndexedMotion)
+    time = np.arange(0.0, 7201.0)
+    dcm = motion.orientation(time, world.gyro_drift(time), g_sensitivity=np.zeros((3, 3)), gravity=world.gravity)
+    w = -world.gyro_drift(time[:1])[0]  # constant drift: Tᵀw is constant in each hold, turns during the index
+    end = index[0].end
+    fine = np.arange(600.0 + 0.005, end, 0.01)  # the index itself: sequential composition at 100 Hz
+    exact = rotation_about(w * 600.0)
+    for step in np.einsum("nji,j->ni", motion.commanded(fine), w) * 0.01:
+        exact = rotation_about(step) @ exact
+    after = motion.commanded(np.array([end]))[0].T @ w
+    exact = rotation_about(after * (7200.0 - end)) @ exact
+    u = np.vstack([np.tile(w * 0.01, (60000, 1)), np.einsum("nji,j->ni", motion.commanded(fine), w) * 0.01, after * (7200.0 - end)])
+    earth = earth_rotation(motion.earth_axis, time[-1:])[0]
+    x_world = motion.commanded(time[-1:])[0].T @ dcm[-1] @ (motion.nav_to_platform_0 @ earth).T
+    first_order = rotation_about(u.sum(axis=0))
+    assert np.linalg.norm(rotation_vector(first_order @ exact.T)) > 1e-6  # what a sum of drift angles would leave
+    assert np.linalg.norm(rotation_vector(x_world @ exact.T)) < 1e-8  # third order: θ³ ~ 1e-6 · 1e-2
+
+
+# ----------------------------------------------------------------------------- filter, smoother, batch
+@pytest.fixture(scope="module")
+def short_steps():
+    """An hour, two holds, the loop's white noise; the observation σ ×100 (conditioning of the identity, not physics)."""
+    truth = indexed_truth(6, rate=2.0)
+    record = indexed_record(truth, 2400.0, rate=2.0)
+    lin = Linearization(dict(truth.installed_calibration), ErrorModel.standard(nonlinear=True))
+    layout = StateLayout(2, (), random_walk=False)
+    layout, steps = _steps(truth, record, lin, layout=layout, step=60.0, substeps=30)
+    steps = [replace(s, R=s.R * 1e4) for s in steps]
+    prior = unit_prior(truth)
+    return layout, steps, prior_mean(layout, prior), initial_covariance(layout, prior, SystematicOptions(), diffuse=False)
+
+
+def test_filter_and_smoother_agree(short_steps):
+    """Zero process noise on the parameters: the smoothed parameters at any time are the filter's final ones."""
+    layout, steps, x0, p0 = short_steps
+    run = run_filter(steps, x0, p0, keep_history=True)
+    smoothed, _ = rts_smooth(run)
+    record = slice(layout.accelerometer.start, layout.gyro.stop)
+    final = run.x[record]
+    size = np.abs(final).max()
+    for k in (0, len(steps) // 2):
+        assert np.abs(smoothed[k][record] - final).max() < 2e-9 * size  # measured 1.1e-9: the smoother inverts P_k+1|k
+    assert np.abs(final - x0[record]).max() > 1.0  # the data moved the parameters (state units: nominal)
+
+
+def test_filter_and_batch_least_squares_agree(short_steps):
+    """The same linear model solved at once (here without process noise: the batch's unknowns are the initial state)."""
+    layout, steps, x0, p0 = short_steps
+    steps = [replace(s, Q=np.zeros_like(s.Q)) for s in steps]
+    run = run_filter(steps, x0, p0)
+    batch, batch_cov = batch_least_squares(steps, x0, p0)
+    record = slice(layout.accelerometer.start, layout.gyro.stop)
+    final = run.x[record]
+    assert np.abs(batch[record] - final).max() < 1e-9 * np.abs(final).max()
+    assert np.allclose(np.sqrt(np.diag(batch_cov)[record]), np.sqrt(np.diag(run.P)[record]), rtol=1e-8)
+
+
+# ----------------------------------------------------------------------------- the stage
+@pytest.fixture(scope="module")
+def eight_hours():
+    truth = indexed_truth(7, rate=5.0)
+    record = indexed_record(truth, 8 * 3600.0, rate=5.0)
+    result = systematic_calibration(ArraySource(record), truth.site, unit_prior(truth), SystematicOptions(iterations=2))
+    return truth, result
+
+
+def test_stage_recovers_the_truth_within_k_sigma(eight_hours):
+    truth, result = eight_hours
+    ids = tuple(t.id for t in result.fit.terms)
+    z = (result.fit.values - true_values(truth, ids)) / result.fit.sigma
+    assert np.all(np.abs(z) < 4.5), dict(zip(ids, np.round(z, 2), strict=True))
+    drift = result.fit.values[[ids.index(f"gyro_drift_{a}") for a in "xyz"]]
+    sigma = result.fit.sigma[[ids.index(f"gyro_drift_{a}") for a in "xyz"]]
+    assert np.all(sigma < 1e-4 * DEG_PER_HOUR)
+    assert np.allclose(drift, [DRIFT[a] for a in "xyz"], atol=4 * sigma.max())
+
+
+def test_rank_report_names_the_gauges(eight_hours):
+    _, result = eight_hours
+    rank = {g.group: g for g in result.details.rank}
+    assert rank["gyro"].rank == 12
+    gauges = " ".join(d.name for d in rank["accelerometer"].gauge)
+    assert "rotation of the triad about z_p" in gauges and "common scale factor" in gauges
+    assert any(set(dict(d.loadings)) == {"base_east", "theta30_residual"} for d in rank["nuisance"].gauge)
+    assert [round(math.degrees(h.polar_angle)) for h in result.details.holds] == [0, 60]
+    assert "orientation 2" in result.report() and "<pre>" in result._repr_html_()
+
+
+def test_likelihood_moves_nothing_undetermined(eight_hours):
+    """The record update (Bayesian): the data's information has the gauges in its null space, no σ grows."""
+    truth, result = eight_hours
+    lik = result.fit.likelihood
+    ids = lik.ids
+    triad = np.zeros(len(ids))
+    triad[ids.index("beta_xz")] = triad[ids.index("beta_yz")] = 1.0
+    common = np.zeros(len(ids))
+    common[[ids.index(f"sf_{a}") for a in "xyz"]] = 1.0
+    top = np.linalg.eigvalsh(lik.information).max()
+    for v in (triad, common):
+        v = v / np.linalg.norm(v)
+        assert v @ lik.information @ v < 1e-6 * top
+    record = CalibrationRecord.from_fit_result(_device_fit(truth), truth.site.serial_number, noise_model=unit_prior(truth).noise_model)
+    updated = record.updated(result.fit)
+    before = dict(zip(record.ids, np.sqrt(np.diag(record.covariance)), strict=True))
+    after = dict(zip(updated.ids, np.sqrt(np.diag(updated.covariance)), strict=True))
+    assert all(after[i] <= before[i] * (1 + 1e-9) for i in before if np.isfinite(after[i]))
+    assert all(f"Dg_{a}{b}" in after and np.isfinite(after[f"Dg_{a}{b}"]) for a in "xyz" for b in "xyz")
+
+
+def _device_fit(truth):
+    terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS)
+    prior = unit_prior(truth)
+    return FitResult(
+        "fine",
+        terms,
+        np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms]),
+        prior.covariance,
+        ("estimated",) * len(terms),
+        np.zeros(0),
+        np.zeros(0),
+    )
+
+
+# ----------------------------------------------------------------------------- procedure and CLI
+def test_procedure_ships_with_its_index():
+    definition = load_procedure("system-indexed")
+    (step,) = [s for s in definition.steps if getattr(s, "turns", ())] or [definition.record]
+    (turn,) = step.turns
+    assert turn.axis is IndexAxis.MIDDLE and math.isclose(turn.angle, math.radians(60.0)) and turn.start == 43200.0
+
+
+def _parse(argv):
+    parser = argparse.ArgumentParser()
+    calibrate_system.configure(parser)
+    parser.add_argument("--json", action="store_true")
+    return parser.parse_args(argv)
+
+
+def _write(path, truth, duration, indexed=True):
+    with SystemRecordWriter(path, truth.site) as writer:
+        record = indexed_record(truth, duration, rate=truth.site.sample_rate) if indexed else None
+        if record is None:
+            from stableins.simulator.system import simulate_system
+
+            record = simulate_system(truth, duration, rate=truth.site.sample_rate)
+        writer.append(record)
+
+
+def test_cli_updates_the_record(tmp_path, capsys):
+    truth = indexed_truth(8, rate=2.0)
+    _write(tmp_path / "system.h5", truth, 4 * 3600.0)
+    record = CalibrationRecord.from_fit_result(_device_fit(truth), truth.site.serial_number, noise_model=unit_prior(truth).noise_model)
+    record.save(tmp_path / "cal.json")
+    args = _parse(
+        [str(tmp_path / "system.h5"), "--prior", str(tmp_path / "cal.json"), "--systematic", "--out", str(tmp_path / "cal2.json"), "--json"]
+    )
+    assert calibrate_system.run(args) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert len(document["orientations"]) == 2 and document["rank"]
+    updated = CalibrationRecord.load(tmp_path / "cal2.json")
+    ids = set(updated.ids)
+    assert {"gyro_drift_x", "Dg_xy"} <= ids
+    gyro = document["gyro"]["gyro_drift_y"]
+    assert abs(gyro["value"] - DRIFT["y"] / DEG_PER_HOUR) < 5 * gyro["sigma"]
+
+
+def test_cli_refuses_a_record_with_one_orientation(tmp_path, capsys):
+    truth = indexed_truth(9, rate=1.0)
+    _write(tmp_path / "system.h5", truth, 3600.0, indexed=False)
+    record = CalibrationRecord.from_fit_result(_device_fit(truth), truth.site.serial_number, noise_model=unit_prior(truth).noise_model)
+    record.save(tmp_path / "cal.json")
+    args = _parse(
+        [str(tmp_path / "system.h5"), "--prior", str(tmp_path / "cal.json"), "--systematic", "--out", str(tmp_path / "cal2.json")]
+    )
+    with pytest.raises(InputError) as error:
+        calibrate_system.run(args)
+    assert error.value.field == "angle_platform" and not (tmp_path / "cal2.json").exists()
+    assert turns(100.0)[0].start == 50.0
