@@ -336,3 +336,93 @@ def optimize_dwells(
             field="budget", expected=f"at least {_scaled_dwells(plan, np.full_like(u0, box[0][0])).lab_time / 3600:.3g} h",
         )  # fmt: skip
     return result
+
+
+def grid_candidates(step: float, *, platform: tuple[float, float], inner: tuple[float, float], middle: tuple[float, float]) -> NDArray[np.float64]:
+    """Every gimbal triple (platform, inner, middle) [rad] on a grid of ``step`` [rad] within the closed ranges given [rad]."""
+    axes = [np.arange(lo, hi + 1e-9, step) for lo, hi in (platform, inner, middle)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _unit_information(
+    commands: NDArray[np.float64], model: ErrorModel, setting: DeviceSetting, noise: NoiseModel
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """White-noise information per second of dwell, ``(c, n, n)``, of a coarse and of a fine dwell at each command."""
+    from stableins.conventions import dcm_nav_to_body
+    from stableins.estimators.fine import FineProblem, fine_model
+
+    c = len(commands)
+    white = noise.values("white")
+    x = model.vector({k: model[k].reference for k in model.ids})[None]
+    probe = CoarseProblem(
+        commands[None], np.zeros((1, c, 3)), np.ones((1, c, 3)), setting.gravity, dcm_nav_to_body(*setting.base_attitude),
+        setting.configuration, model,
+    )  # fmt: skip
+    means, jac = probe.predict(x)
+    weighted = jac[0] / white[None, :, None]  # (c, 3, n)
+    coarse = np.einsum("cai,caj->cij", weighted, weighted)
+    fm = fine_model(setting.extra_terms)
+    xf = fm.vector({k: fm[k].reference for k in fm.ids})[None]
+    _, _, d_h_d_p, sigma_h = FineProblem(means, np.broadcast_to(white, means.shape), float(setting.gravity), fm).evaluate(xf)
+    columns = [model.index(k) for k in fm.ids]
+    row = np.zeros((c, len(model)))
+    row[:, columns] = d_h_d_p[0] / sigma_h[0][:, None]
+    return coarse, np.einsum("ci,cj->cij", row, row)
+
+
+def _criterion_batch(info: NDArray[np.float64], free: NDArray[np.bool_], scales: NDArray[np.float64], criterion: Criterion) -> NDArray[np.float64]:
+    """A or D criterion of a batch of information matrices ``(b, n, n)`` on the free parameters scaled by ``scales``; inf when singular."""
+    block = info[:, free][:, :, free] * np.outer(scales, scales)
+    eigen = np.linalg.eigvalsh(block)
+    ok = eigen[:, 0] > 1e-12 * eigen[:, -1]
+    out = np.full(len(block), np.inf)
+    if criterion is Criterion.D:
+        out[ok] = -np.log(eigen[ok]).sum(axis=1)
+    else:
+        out[ok] = (1.0 / eigen[ok]).sum(axis=1)
+    return out
+
+
+def exchange_positions(
+    plan: DevicePlan,
+    candidates: NDArray[np.float64],
+    noise: NoiseModel,
+    setting: DeviceSetting,
+    *,
+    scales: Mapping[str, float],
+    criterion: Criterion = Criterion.A,
+    sweeps: int = 4,
+) -> DevicePlan:
+    """Replace positions by candidates (Fedorov exchange, module docstring) at the plan's dwell times; returns the new plan.
+
+    ``scales`` (SI, per parameter) weight the criterion (the targets, or the typical sizes).  A coarse position is only
+    replaced by one that keeps a single coarse pass able to determine every parameter beyond the ``θ10`` gauge.
+    """
+    model = coarse_model(nonlinear=plan.fine is not None, extra_terms=setting.extra_terms)
+    free = np.array([k != GAUGE for k in model.ids])
+    s = np.array([scales.get(k, model[k].nominal) for k in model.ids])[free]
+    cand = _unit_information(candidates, model, setting, noise)
+    commands = {st.stage: st.commands.copy() for st in plan.stages}
+    current = {st.stage: _unit_information(st.commands, model, setting, noise)[k] for k, st in enumerate(plan.stages)}
+    weight = {st.stage: st.dwell * st.passes for st in plan.stages}
+    for _ in range(sweeps):
+        changed = False
+        for k, st in enumerate(plan.stages):
+            for j in range(len(st.commands)):
+                total = sum(np.einsum("j,jab->ab", weight[name], current[name]) for name in current)
+                values = _criterion_batch(total[None] - weight[st.stage][j] * current[st.stage][j] + weight[st.stage][j] * cand[k], free, s, criterion)
+                if st.stage == "coarse":  # one pass alone must still determine everything (the offsets it re-points by)
+                    one = np.einsum("j,jab->ab", st.dwell, current["coarse"]) - st.dwell[j] * current["coarse"][j]
+                    values[~np.isfinite(_criterion_batch(one[None] + st.dwell[j] * cand[0], free, s, Criterion.D))] = np.inf
+                best = int(np.argmin(values))
+                if values[best] < _criterion_batch(total[None], free, s, criterion)[0] - 1e-9 * abs(values[best]):
+                    commands[st.stage][j] = candidates[best]
+                    current[st.stage][j] = cand[k][best]
+                    changed = True
+        if not changed:
+            break
+    return replace(
+        plan,
+        coarse=replace(plan.coarse, commands=commands["coarse"]),
+        fine=None if plan.fine is None else replace(plan.fine, commands=commands["fine"]),
+    )
