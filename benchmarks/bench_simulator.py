@@ -31,7 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stableins.simulator.device import simulate_dwells  # noqa: E402
-from stableins.simulator.system import error_dynamics, system_record_chunks  # noqa: E402
+from stableins.simulator.error_dynamics import error_dynamics  # noqa: E402
+from stableins.simulator.system import system_record_chunks  # noqa: E402
 from stableins.simulator.truth import SimulatedSite, Truth  # noqa: E402
 
 

@@ -74,6 +74,8 @@ MICRO_G: Final = 1e-6 * STANDARD_GRAVITY
 PPM: Final = 1e-6
 #: One degree per hour [rad/s] (gyro drift at the edges).
 DEG_PER_HOUR: Final = np.pi / (180.0 * 3600.0)
+#: One degree per hour per standard g [rad/s per m/s²] (gyro g-sensitivity ``Dg_ab`` at the edges).
+DEG_PER_HOUR_PER_G: Final = DEG_PER_HOUR / STANDARD_GRAVITY
 
 # --------------------------------------------------------------------------- WGS-84
 WGS84_SEMI_MAJOR_AXIS: Final = 6378137.0  # a [m]
@@ -87,6 +89,36 @@ WGS84_SOMIGLIANA_K: Final = 0.00193185265241  # k = (b gamma_p)/(a gamma_e) - 1
 SIDEREAL_DAY: Final = 2.0 * np.pi / EARTH_RATE  # [s]
 #: Mean Earth radius used for the Schuler frequency of the error dynamics [m].
 EARTH_RADIUS: Final = 6371000.0
+
+
+def platform_drift_rate(
+    drift: ArrayLike, g_sensitivity: ArrayLike, specific_force: ArrayLike
+) -> NDArray[np.float64]:
+    r"""Return the inertial turn rate ``w`` [rad/s] of a stabilized platform whose gyros err.
+
+    The stabilization loop nulls the gyro outputs, so a gyro output error turns the platform the
+    other way: with the constant drift ``ε^p`` and the g-sensitivity matrix ``D_g`` (row ``a``: the
+    gyro about platform axis ``a``; column ``b``: specific force along platform axis ``b``; Cai et
+    al. 2016 Eq. 1, coefficient G)
+
+    .. math:: w = -(\varepsilon^p + D_g f^p) .
+
+    Parameters
+    ----------
+    drift : array_like (..., 3)
+        Constant gyro drift ``ε^p`` [rad/s].
+    g_sensitivity : array_like (3, 3)
+        ``D_g``, entry ``[a, b]`` = ``Dg_ab`` [rad/s per m/s²].
+    specific_force : array_like (..., 3)
+        Platform-frame specific force ``f^p`` [m/s²].
+
+    Returns
+    -------
+    ndarray (..., 3)
+        ``w`` in the platform frame [rad/s].
+    """
+    force = np.asarray(specific_force, dtype=float)
+    return -(np.asarray(drift, dtype=float) + np.einsum("ab,...b->...a", np.asarray(g_sensitivity, dtype=float), force))
 
 
 def normal_gravity(latitude: ArrayLike, height: ArrayLike = 0.0) -> NDArray[np.float64]:

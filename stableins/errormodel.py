@@ -26,259 +26,54 @@ depend on ``f^p`` (they are 1e-4 relative at most; three iterations reach 1e-16)
 Parameter ids are stable (see ``docs/conventions.md``): ``sf_x`` (dimensionless
 scale factor near 1), ``bias_x`` [m/s²], ``beta_xy`` ... ``beta_zy`` [rad], ``K2_x``
 [s²/m], ``theta10``, ``theta20``, ``theta30`` [rad].  Engineering units (ppm, µg,
-arcsec, µg/g²) exist only at the edges through :meth:`Term.to_engineering`.
+arcsec, µg/g²) exist only at the edges through :meth:`Term.to_engineering`.  The terms themselves
+(:class:`Term`, :class:`TermKind`, :class:`TermInputs` and the tables of core, gimbal and gyro terms)
+live in :mod:`stableins.terms` and are re-exported here.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, replace
-from enum import StrEnum
-from types import MappingProxyType
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import (
-    ARCSEC,
-    AXES,
-    DEG_PER_HOUR,
-    GIMBAL_OFFSET_MEANING,
-    INSTALLATION_ENTRIES,
-    INSTALLATION_MEANING,
-    MICRO_G,
-    PPM,
-    STANDARD_GRAVITY,
-)
+from stableins.conventions import INSTALLATION_ENTRIES
 from stableins.coremodel import CoreValues, solve_quadratic
-from stableins.units import QUANTITY, normalize_unit
-
-
-class TermKind(StrEnum):
-    """What a :class:`Term` is, and so how it enters the model (docs/conventions.md, "Term kinds").
-
-    A ``TermKind`` is a ``str``: records, JSON and reports keep the words below.
-    """
-
-    #: Scale factor ``SF`` of one accelerometer (dimensionless, near 1; Wu et al. 2018 Eq. 6).
-    SCALE_FACTOR = "scale_factor"
-    #: Bias ``δb`` of one accelerometer [m/s²] (Eq. 6).
-    BIAS = "bias"
-    #: One of the six installation angles ``β`` of ``C_p^a`` [rad] (Eq. 5).
-    INSTALLATION = "installation"
-    #: Quadratic nonlinearity ``K2`` of one accelerometer [s²/m] (Eq. 6).
-    NONLINEARITY = "nonlinearity"
-    #: Zero offset ``θi0`` of a gimbal angle sensor [rad] (Section 3); enters through the kinematics.
-    GIMBAL = "gimbal"
-    #: An effect outside the core model; enters through its regressor (model discovery, hidden effects).
-    ADDITIVE = "additive"
-    #: A combined quasi-static pitch/roll coefficient of the system stage [rad] (Eqs. 21-25, 29-38): a
-    #: combination of core parameters the system stage estimates; it does not enter :meth:`ErrorModel.forward`.
-    COMBINED = "combined"
-    #: Constant drift ``ε^p`` of one platform gyro [rad/s] (output error in the platform frame; the platform
-    #: turns at ``−ε^p`` in inertial space): a property of the platform the accelerometers ride on, estimated
-    #: from system records or the two-position drift test (Zhang et al. 2023); it does not enter
-    #: :meth:`ErrorModel.forward`.
-    GYRO_DRIFT = "gyro_drift"
-
-
-@dataclass(frozen=True)
-class TermInputs:
-    """What a regressor may look at, sample by sample (leading dims ``...``).
-
-    Attributes
-    ----------
-    specific_force : ndarray (..., 3)
-        Platform-frame specific force ``f^p`` [m/s²] (the input along the nominal
-        sensitive axes).
-    temperature : ndarray (...), optional
-        Instrument temperature minus the reference temperature [K].
-    time : ndarray (...), optional
-        Time since the start of the session [s].
-    slew_direction : ndarray (..., 3), optional
-        Sign (+1/−1/0) of the last slew seen by each sensitive axis' input (hysteresis).
-    angular_rate, angular_acceleration : ndarray (..., 3), optional
-        Platform angular rate [rad/s] and acceleration [rad/s²] in the p-frame.
-    extra : mapping, optional
-        Further named arrays for user-defined regressors.
-    """
-
-    specific_force: NDArray[np.float64]
-    temperature: NDArray[np.float64] | None = None
-    time: NDArray[np.float64] | None = None
-    slew_direction: NDArray[np.float64] | None = None
-    angular_rate: NDArray[np.float64] | None = None
-    angular_acceleration: NDArray[np.float64] | None = None
-    extra: Mapping[str, NDArray[np.float64]] = field(default_factory=lambda: MappingProxyType({}))
-
-    def require(self, name: str, term_id: str) -> NDArray[np.float64]:
-        """Return input ``name`` or raise a message naming the term that needs it."""
-        value = getattr(self, name, None) if name != "extra" else None
-        if value is None:
-            value = self.extra.get(name)
-        if value is None:
-            raise ValueError(f"term {term_id!r} needs the input {name!r}, which these data do not provide")
-        return np.asarray(value, dtype=float)
-
-
-Regressor = Callable[[TermInputs], NDArray[np.float64]]
-
-
-@dataclass(frozen=True)
-class Term:
-    """One named parameter of the error model.
-
-    Attributes
-    ----------
-    id : str
-        Stable identifier used in records, reports and scripts.
-    kind : TermKind
-        :class:`TermKind` (a string given here is converted; an unknown one is an error): scale factor, bias,
-        installation, nonlinearity, gimbal (angle-sensor zero offset), additive (enters through a regressor) or
-        combined (a system-stage combined coefficient).
-    si_unit, unit : str
-        SI unit of the value, and the engineering unit shown to people.
-    scale : float
-        SI value of one engineering unit (``value_si = reference + value_eng*scale``).
-    nominal : float
-        Typical magnitude [SI], used for priors, simulation draws and plots.
-    meaning : str
-        Physical meaning, one sentence.
-    axis : int or None
-        Sensitive axis (0, 1, 2) the term belongs to, if any.
-    reference : float
-        Value the engineering unit is counted from (1 for scale factors, else 0).
-    regressor : callable or None
-        For additive terms: ``TermInputs -> (..., 3)`` output change per unit
-        parameter [m/s² per SI unit].
-    excitation : str
-        What a procedure must do to excite the term.
-    aliases : tuple of str
-        Parameters the term is absorbed into when it is left out of the model.
-    source : str
-        Where the term's equation comes from.
-    """
-
-    id: str
-    kind: TermKind
-    si_unit: str
-    unit: str
-    scale: float
-    nominal: float
-    meaning: str
-    axis: int | None = None
-    reference: float = 0.0
-    regressor: Regressor | None = field(default=None, compare=False)
-    excitation: str = "static positions"
-    aliases: tuple[str, ...] = ()
-    source: str = "Wu et al. 2018 Eq. 6"
-
-    def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "kind", TermKind(self.kind))
-        except ValueError:
-            known = ", ".join(k.value for k in TermKind)
-            raise ValueError(f"term {self.id!r}: unknown kind {self.kind!r} (expected one of {known})") from None
-
-    def to_engineering(self, value: ArrayLike) -> NDArray[np.float64]:
-        """SI value → engineering unit (deviation from :attr:`reference`)."""
-        return (np.asarray(value, dtype=float) - self.reference) / self.scale
-
-    def sigma_to_engineering(self, sigma: ArrayLike) -> NDArray[np.float64]:
-        """SI standard deviation → engineering unit."""
-        return np.asarray(sigma, dtype=float) / self.scale
-
-    def from_engineering(self, value: ArrayLike) -> NDArray[np.float64]:
-        """Engineering unit → SI value."""
-        return self.reference + np.asarray(value, dtype=float) * self.scale
-
-    def parse_value(self, text: str, *, si_units: Iterable[str] = ()) -> float:
-        """Convert a value of this term written by a person to SI.
-
-        ``text`` is a number followed by the term's engineering unit (``"60ug/g2"``, ``"60 µg/g²"``, ``"30 arcsec"``)
-        or by its SI unit, or a bare number, which is SI.  Units are compared after :func:`normalize_unit` (``µ`` or
-        ``u``, ``g2``, ``g^2`` or ``g²``, spaces ignored).  ``si_units`` are further spellings of the SI unit.
-
-        Raises
-        ------
-        ValueError
-            The number is not a finite ASCII decimal, or the unit is neither the engineering nor the SI unit; the message
-            says what is expected.
-        """
-        match = QUANTITY.match(text.strip())
-        spellings = [self.unit, self.si_unit, *si_units]
-        si = " or ".join(dict.fromkeys(s for s in spellings[1:] if s and s != "1")) or "dimensionless"
-        expected = f"a number in {self.unit}, or in SI ({si}; a bare number is SI), e.g. {self.id}=10{self.unit.replace('^', '')}"
-        if match is None or not match.group(1).isascii():
-            raise ValueError(f"{text!r} is not a value of {self.id} (expected {expected})")
-        number, unit = float(match.group(1)), normalize_unit(match.group(2))
-        if not np.isfinite(number):
-            raise ValueError(f"{text!r}: a value of {self.id} must be finite (expected {expected})")
-        if unit == "" or unit in {normalize_unit(s) for s in spellings[1:] if s}:
-            return number
-        if unit == normalize_unit(self.unit):
-            return float(self.from_engineering(number))
-        raise ValueError(f"{text!r}: {match.group(2).strip()!r} is not a unit of {self.id} (expected {expected})")
-
-
-MICRO_G_PER_G2 = MICRO_G / STANDARD_GRAVITY**2
-
-#: Order of the six installation angles (alphabetical) and their C_p^a positions.
-BETA_IDS = ("beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
-GIMBAL_IDS = ("theta10", "theta20", "theta30")
-
-
-def _core_terms() -> tuple[Term, ...]:
-    terms: list[Term] = []
-    for i, a in enumerate(AXES):
-        meaning = f"scale factor of the {a} accelerometer (SF in Eq. 6, output = f/SF)"
-        terms.append(Term(f"sf_{a}", TermKind.SCALE_FACTOR, "1", "ppm", PPM, 1e-4, meaning, axis=i, reference=1.0))
-    for i, a in enumerate(AXES):
-        terms.append(
-            Term(f"bias_{a}", TermKind.BIAS, "m/s^2", "ug", MICRO_G, 100 * MICRO_G, f"bias of the {a} accelerometer (δb in Eq. 6)", axis=i)
-        )
-    for bid in BETA_IDS:
-        meaning = f"{INSTALLATION_MEANING[bid]} (Eq. 5)"
-        terms.append(Term(bid, TermKind.INSTALLATION, "rad", "arcsec", ARCSEC, 30 * ARCSEC, meaning, axis=AXES.index(bid[5])))
-    for i, a in enumerate(AXES):
-        meaning = f"quadratic nonlinearity of the {a} accelerometer (K_nl in Eq. 6)"
-        excitation = "positions with the axis near +1 g and -1 g and in between"
-        nominal = 20 * MICRO_G_PER_G2
-        term = Term(f"K2_{a}", TermKind.NONLINEARITY, "s^2/m", "ug/g^2", MICRO_G_PER_G2, nominal, meaning, axis=i, excitation=excitation)
-        terms.append(term)
-    return tuple(terms)
-
-
-CORE_TERMS: tuple[Term, ...] = _core_terms()
-GIMBAL_TERMS: tuple[Term, ...] = tuple(
-    Term(g, TermKind.GIMBAL, "rad", "arcsec", ARCSEC, 60 * ARCSEC, GIMBAL_OFFSET_MEANING[g], source="Wu et al. 2018 Section 3")
-    for g in GIMBAL_IDS
-)
-CORE_IDS = tuple(t.id for t in CORE_TERMS)
-#: The constant platform gyro drifts ``ε^p`` (x, y, z platform axes) [rad/s], °/h at the edges.
-GYRO_DRIFT_TERMS: tuple[Term, ...] = tuple(
-    Term(
-        f"gyro_drift_{a}",
-        TermKind.GYRO_DRIFT,
-        "rad/s",
-        "deg/h",
-        DEG_PER_HOUR,
-        0.001 * DEG_PER_HOUR,
-        f"constant drift of the {a}_p platform gyro (output error; the platform turns at -ε about {a}_p)",
-        axis=i,
-        excitation="a static record (system level) or a two-position drift test",
-        source="Wu et al. 2018 Section 4 (drift neglected there); Zhang et al. 2023 Eqs. 1-4",
-    )
-    for i, a in enumerate(AXES)
+from stableins.terms import (
+    BETA_IDS,
+    CORE_IDS,
+    CORE_TERMS,
+    GIMBAL_IDS,
+    GIMBAL_TERMS,
+    GYRO_DRIFT_TERMS,
+    GYRO_G_TERMS,
+    MICRO_G_PER_G2,
+    Regressor,
+    Term,
+    TermInputs,
+    TermKind,
+    known_terms,
 )
 
-
-def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
-    """Terms by id: the core, gimbal and gyro-drift terms, plus any given (e.g. discovered additive terms)."""
-    out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS}
-    out.update({t.id: t for t in extra})
-    return out
+__all__ = [
+    "BETA_IDS",
+    "CORE_IDS",
+    "CORE_TERMS",
+    "GIMBAL_IDS",
+    "GIMBAL_TERMS",
+    "GYRO_DRIFT_TERMS",
+    "GYRO_G_TERMS",
+    "MICRO_G_PER_G2",
+    "ErrorModel",
+    "Regressor",
+    "Term",
+    "TermInputs",
+    "TermKind",
+    "known_terms",
+]
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,7 @@ def test_diagnose_ranks_the_hidden_effect_first_and_adding_it_restores_chi2(sess
     assert 0.5 < out["chi2_red"] < 1.6  # ν ≈ 36: 1 ± 0.24
     assert out["history"][1]["added"][0]["id"] == "nonorth_12"
     assert not any(c["flagged"] for c in out["candidates"])
-    assert {c["id"] for c in out["drift"]["candidates"]} == {"Dg_x", "Dg_y", "Dg_z"}
+    assert {c["id"] for c in out["drift"]["candidates"]} == {"Dg_xx", "Dg_yy", "Dg_zz"}
     assert not any(c["flagged"] for c in out["drift"]["candidates"])
 
 

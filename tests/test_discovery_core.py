@@ -23,8 +23,9 @@ G = 9.80170
 def test_library_ids_units_and_regressors():
     ids = LIBRARY.ids
     for a in "xyz":
-        for stem in ("K3", "Koq", "Ksa", "Kt_bias", "Kt_sf", "Kd_bias", "Kh", "Dg"):
+        for stem in ("K3", "Koq", "Ksa", "Kt_bias", "Kt_sf", "Kd_bias", "Kh"):
             assert f"{stem}_{a}" in ids
+        assert {f"Dg_{a}{b}" for b in "xyz"} <= set(ids)
     assert {"Kcc_xxy", "Kcq_xy", "lever_x_y", "nonorth_12", "tilt_east", "ang1_middle_s"} <= set(ids)
     f = np.array([[1.0, 2.0, -3.0]])
     inputs = TermInputs(f)

@@ -195,11 +195,11 @@ def test_platform_drift_is_found_in_the_reading_slopes():
     """``Dg``: the angle sensors follow the drifting platform; the reading slopes within dwells show it."""
     from stableins.discovery.drift import drift_problem
 
-    for effect_id in ("Dg_x", "Dg_y", "Dg_z", None):
-        value = 0.05 * LIBRARY["Dg_x"].term.scale  # 0.05 °/h/g
+    for effect_id in ("Dg_xx", "Dg_yy", "Dg_zz", None):
+        value = 0.05 * LIBRARY["Dg_xx"].term.scale  # 0.05 °/h/g
         dwells, truth = simulate({effect_id: value} if effect_id else {}, passes=2)
         session = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True))
-        assert not session.rank(refit_top=0, propose=False)[f"Dg_{'x' if effect_id is None else effect_id[-1]}"].excited
+        assert not session.rank(refit_top=0, propose=False)["Dg_xx" if effect_id is None else effect_id].excited
         ranking = session.drift()
         if effect_id is None:
             assert not ranking.flagged

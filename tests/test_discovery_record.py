@@ -207,7 +207,7 @@ def test_library_and_simulator_define_the_carried_effects_alike():
 
 def test_only_instrument_effects_can_be_carried():
     assert calibration_limit("Kcc_xxy") is None
-    for term_id, word in (("nonorth_12", "kinematics"), ("Kt_bias_x", "temperature"), ("Dg_x", "gyros"), ("lever_x_y", "rotation")):
+    for term_id, word in (("nonorth_12", "kinematics"), ("Kt_bias_x", "temperature"), ("Dg_xx", "gyros"), ("lever_x_y", "rotation")):
         with pytest.raises(InputError, match=word):
             calibration_terms([term_id])
     with pytest.raises(InputError, match="unknown effect"):

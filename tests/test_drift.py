@@ -59,7 +59,7 @@ def test_general_kinematics_without_turns_is_the_polar_world():
     for name in ("angle_platform", "angle_inner", "angle_middle", "f_x", "f_z", "velocity_east", "heading"):
         assert np.max(np.abs(general[name] - plain[name])) < 1e-12, name
     # with a g-sensitive drift the two integrate Dg f differently (left sums / trapezoid rule): O(Dg f dt)
-    truth = Truth.draw(5, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet(), effects={"Dg_x": 3e-9})
+    truth = Truth.draw(5, site=SimulatedSite(sample_rate=RATE), noise=NoiseSettings.quiet(), effects={"Dg_xx": 3e-9})
     plain = simulate_system(truth, 300, rate=RATE)
     general = simulate_system(truth, 300, rate=RATE, initial_readings=SystemWorld(truth, RATE).initial_readings)
     for name in ("angle_platform", "angle_inner", "angle_middle"):
@@ -160,16 +160,16 @@ def test_one_position_carries_the_misprojection(two_position):
 
 
 def test_three_position_separates_g_sensitive_polar_drift():
-    truth = Truth.draw(14, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT, effects={**BASE, "Dg_z": 1e-9})
+    truth = Truth.draw(14, site=SimulatedSite(sample_rate=RATE), gyro_drift=DRIFT, effects={**BASE, "Dg_zz": 1e-9})
     three = fit(truth, simulate_system(truth, 1857, rate=RATE, turns=THREE))
     z = (three.values - eps(truth)) / three.sigma
     assert np.all(np.abs(z) < 5), z
-    value, sigma = three.details.nuisance["Dg_z"]
+    value, sigma = three.details.nuisance["Dg_zz"]
     assert abs(value - 1e-9) < 5 * sigma
     two = fit(truth, simulate_system(truth, 1258, rate=RATE, turns=TWO))
     g_sin = truth.site.gravity * math.sin(truth.site.latitude)
-    assert abs(two.values[2] - (eps(truth)[2] - 1e-9 * g_sin)) < 5 * two.sigma[2]  # rate −ε_z + Dg_z f_z
-    assert any("Dg_z" in line and "estimated" in line for line in three.details.rank)
+    assert abs(two.values[2] - (eps(truth)[2] + 1e-9 * g_sin)) < 5 * two.sigma[2]  # rate −(ε_z + Dg_zz f_z)
+    assert any("Dg_zz" in line and "estimated" in line for line in three.details.rank)
     assert any("drift-three-position separates" in line for line in two.details.rank)
 
 

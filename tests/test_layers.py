@@ -29,6 +29,7 @@ LAYERS: dict[str, int] = {
     "stableins._version": 0,
     "stableins.conventions": 0,
     "stableins.errormodel": 0,
+    "stableins.terms": 0,
     "stableins.coremodel": 0,
     "stableins.units": 0,
     "stableins.status": 0,

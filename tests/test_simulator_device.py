@@ -114,12 +114,13 @@ def test_hysteresis_depends_on_the_direction_of_approach():
 
 def test_g_sensitive_drift_moves_the_readings_during_the_dwell():
     dg = 1e-6  # exaggerated to be visible: rad/s per m/s^2
-    truth = quiet_truth(parameters={}, effects={"Dg_z": dg})
-    # platform axis horizontal-ish: f^p_z = -g at zero readings, so the platform turns about z_p at -dg*g
+    truth = quiet_truth(parameters={}, effects={"Dg_zz": dg})
+    # platform axis horizontal-ish: f^p_z = -g at zero readings; the gyro errs by dg f_z = -dg g, so the platform
+    # turns about z_p at -dg f_z = +dg g (conventions.platform_drift_rate)
     d = simulate_dwells(truth, [(0, 0, 0.0)], dwell=10.0, settle=0.0, rate=10)
     slope = np.polyfit(d["time"], d["angle_platform"], 1)[0]
     # C_b^p = R3(alpha1)...: turning the platform frame by an angle w about z_p adds w to alpha1 (s1 = +1)
-    assert slope == pytest.approx(-dg * truth.site.gravity, rel=1e-6)
+    assert slope == pytest.approx(dg * truth.site.gravity, rel=1e-6)
 
 
 def test_quantization_carries_the_remainder():
@@ -138,7 +139,7 @@ def test_quantization_carries_the_remainder():
 
 
 def test_reproducible_across_block_splits_and_restore():
-    truth = Truth.draw(2, effects={"lever_x_y": 0.02, "Dg_z": 1e-8, "Kh_x": 5e-5, "nonorth_12": 5e-5, "Kt_bias_x": 1e-5})
+    truth = Truth.draw(2, effects={"lever_x_y": 0.02, "Dg_zz": 1e-8, "Kh_x": 5e-5, "nonorth_12": 5e-5, "Kt_bias_x": 1e-5})
 
     def run(splits):
         p = SimulatedPlatform(truth, rate=100, seed=5)
@@ -222,3 +223,23 @@ def test_temperature_and_time_effects():
     np.testing.assert_allclose(b["f_x"] - a["f_x"], 1e-6 * t, atol=1e-15)
     np.testing.assert_allclose(b["f_y"] - a["f_y"], 1e-5 * d_t, atol=1e-15)
     np.testing.assert_allclose(b["f_z"] - a["f_z"], 2e-5 * d_t * -base.site.gravity, rtol=1e-9)
+
+
+def test_gyro_drift_and_g_sensitivity_turn_the_platform_at_minus_the_gyro_error():
+    """Device level: between two samples of a dwell the platform turns by ``w Δt``, ``w = −(ε^p + D_g f^p)``."""
+    drift = {"x": 2e-7, "y": -1e-7, "z": 3e-7}
+    effects = {"Dg_xz": 4e-8, "Dg_yx": -3e-8, "Dg_zy": 5e-8, "Dg_yy": 2e-8}
+    truth = quiet_truth(effects=effects).with_changes(gyro_drift=drift)
+    readings = (0.2, 0.3, 0.4)
+    d = simulate_dwells(truth, [readings], dwell=10.0, settle=0.0, rate=10)
+    platform = truth.platform()
+    angles = np.stack([d["angle_platform"], d["angle_inner"], d["angle_middle"]], axis=-1)
+    dcm = platform.dcm_nav_to_platform(angles[[1, -1]])
+    from stableins.platform import rotation_vector
+
+    turned = rotation_vector(dcm[1] @ dcm[0].T)  # frame rotation C(t2) = rot(θ) C(t1)
+    f_p = dcm[0] @ cv.specific_force_nav(truth.site.gravity)
+    g_matrix = np.array([[effects.get(f"Dg_{a}{b}", 0.0) for b in "xyz"] for a in "xyz"])
+    expected = -(np.array([drift[a] for a in "xyz"]) + g_matrix @ f_p) * (d["time"][-1] - d["time"][1])
+    np.testing.assert_allclose(turned, expected, rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(expected, cv.platform_drift_rate([drift[a] for a in "xyz"], g_matrix, f_p) * (d["time"][-1] - d["time"][1]))

@@ -7,8 +7,9 @@ from scipy.linalg import expm
 
 from stableins import conventions as cv
 from stableins.schema import SYSTEM_COLUMNS
+from stableins.simulator.error_dynamics import ModalRecursion, error_dynamics
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.system import ModalRecursion, SystemWorld, error_dynamics, simulate_system
+from stableins.simulator.system import SystemWorld, simulate_system
 from stableins.simulator.truth import SimulatedSite, Truth
 
 DEG_H = np.pi / 180 / 3600
@@ -160,7 +161,7 @@ def test_modal_recursion_matches_direct_zoh_recursion():
 
 
 def test_record_does_not_depend_on_chunk_size():
-    truth = Truth.draw(5, gyro_drift={"x": 1e-9, "case_amplitude": 1e-8}, effects={"Dg_x": 1e-9, "Kt_bias_x": 1e-5, "nonorth_12": 2e-5})
+    truth = Truth.draw(5, gyro_drift={"x": 1e-9, "case_amplitude": 1e-8}, effects={"Dg_xx": 1e-9, "Kt_bias_x": 1e-5, "nonorth_12": 2e-5})
     a = simulate_system(truth, 200, rate=100, chunk_samples=1 << 16)
     b = simulate_system(truth, 200, rate=100, chunk_samples=7777)
     for name in a:
@@ -268,3 +269,32 @@ def test_specific_force_error_matches_the_first_order_system_level_states():
     ]
     assert np.max(np.abs(expected)) > 1e-6  # a real residual
     np.testing.assert_allclose(x, expected, atol=1e-8)  # second-order terms ~ residual × parameters
+
+
+def test_g_sensitivity_turns_the_platform_and_drives_the_attitude_error_alike():
+    """System level: ``D_g f^p`` is a gyro error: the platform turns at ``−D_g f^p`` and ``φ' = −C_p^n D_g f^p``."""
+    from stableins.platform import rotation_vector
+
+    effects = {"Dg_xz": 3e-8, "Dg_yz": -2e-8, "Dg_zz": 4e-8, "Dg_xy": 1e-8}
+    truth = ideal().with_changes(effects=effects)
+    world, still = SystemWorld(truth, rate=10.0), SystemWorld(ideal(), rate=10.0)
+    d, s = world.chunk(201, include_truth=True), still.chunk(201)
+    t = d["time"]
+    g_matrix = np.array([[effects.get(f"Dg_{a}{b}", 0.0) for b in "xyz"] for a in "xyz"])
+    start = world.nav_to_platform_0
+    f_p = -truth.site.gravity * start[:, 2]
+    expected_rate = -(g_matrix @ f_p)  # conventions.platform_drift_rate with ε = 0
+    # the platform, as its readings show it: after 20 s it has turned by w t from where the drift-free one is
+    def nav_to_platform(columns, k):
+        readings = np.array([columns[f"angle_{g}"][k] for g in ("platform", "inner", "middle")])
+        return world.platform.dcm_body_to_platform(readings) @ world.nav_to_body
+
+    turned = rotation_vector(nav_to_platform(d, -1) @ nav_to_platform(s, -1).T)
+    np.testing.assert_allclose(turned, expected_rate * t[-1], rtol=1e-3, atol=1e-13)
+    # the navigation computer's attitude error is driven by the same gyro error, in the local frame
+    phi = np.stack([d[f"truth_phi_{n}"] for n in ("north", "east", "down")], axis=-1)
+    rate = (phi[-1] - phi[0]) / (t[-1] - t[0])
+    middle = still.platform_orientation(t[[100]])[0]  # C_n^p turns with the Earth (1.5e-3 rad in 20 s): mid-point rule
+    f_middle = -truth.site.gravity * middle[:, 2]
+    # the Earth-rate couplings (Ω φ ≈ Ω t/2 relative: 7e-4 over 20 s) are the only difference
+    np.testing.assert_allclose(rate, middle.T @ (-(g_matrix @ f_middle)), rtol=2e-3, atol=1e-14)

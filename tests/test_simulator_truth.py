@@ -74,7 +74,7 @@ def test_unreadable_files(tmp_path):
 def test_catalogue_has_units_nominals_and_meanings():
     ids = set(CATALOGUE)
     for a in "xyz":
-        assert {f"K3_{a}", f"Koq_{a}", f"Ksa_{a}", f"Kt_bias_{a}", f"Kt_sf_{a}", f"Kd_bias_{a}", f"Kh_{a}", f"Dg_{a}"} <= ids
+        assert {f"K3_{a}", f"Koq_{a}", f"Ksa_{a}", f"Kt_bias_{a}", f"Kt_sf_{a}", f"Kd_bias_{a}", f"Kh_{a}", f"Dg_{a}{a}"} <= ids
     assert {"Kcc_xxy", "Kcc_xyz", "Kcc_zxy", "Kcq_xy", "Kcq_zx", "lever_x_y", "nonorth_12", "nonorth_23", "tilt_north", "tilt_east"} <= ids
     assert "Kcq_xx" not in ids and "Kcc_xyx" not in ids
     assert {"ang1_platform_c", "ang1_inner_s", "ang1_middle_c"} <= ids

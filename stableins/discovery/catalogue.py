@@ -6,20 +6,18 @@ Each is an additive error-model term with its group and the procedure that separ
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import Term, TermInputs, TermKind
+from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.errormodel import GYRO_G_TERMS, Term, TermInputs, TermKind
 
 G0 = STANDARD_GRAVITY
 MICRO_G_PER_G2 = MICRO_G / G0**2
 MICRO_G_PER_G3 = MICRO_G / G0**3
-#: °/h per g expressed in rad/s per (m/s²).
-DEG_PER_HOUR_PER_G = DEG_PER_HOUR / G0
 
 #: Groups of candidates, for reports.
 GROUPS = ("instrument", "environment", "rotation", "equipment", "custom")
@@ -381,25 +379,12 @@ def _rotation() -> list[Candidate]:
                     needs=("angular_rate", "angular_acceleration"),
                 )
             )
-    for i, a in enumerate(AXES):
-        tid = f"Dg_{a}"
+    for term in GYRO_G_TERMS:
+        # the discovery candidate is the record's term as an additive effect with a zero output regressor: the
+        # accelerometers stay consistent with the readings; the reading slopes show it (stableins.discovery.drift)
         out.append(
             Candidate(
-                Term(
-                    tid,
-                    TermKind.ADDITIVE,
-                    "rad/s/(m/s^2)",
-                    "deg/h/g",
-                    DEG_PER_HOUR_PER_G,
-                    0.01 * DEG_PER_HOUR_PER_G,
-                    f"g-sensitivity of the {a}-axis stabilisation gyro: the platform drifts about p-axis {a} at Dg·f_{a} "
-                    "while it holds a position, tilting the input of the other accelerometers",
-                    axis=i,
-                    regressor=_drift(i, tid),
-                    excitation="dwells with the axis vertical; seen in the slopes of the angle readings within dwells",
-                    aliases=(),
-                    source="Cai et al. 2016 Eq. 1 (gyro g-sensitivity G)",
-                ),
+                replace(term, kind=TermKind.ADDITIVE, regressor=_drift(term.axis or 0, term.id)),
                 "rotation",
                 "the reading-slope analysis (Discovery.drift, stableins.discovery.drift) on dwells away from gimbal lock",
                 needs=(),

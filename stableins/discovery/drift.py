@@ -1,20 +1,21 @@
-r"""Platform drift within dwells, seen by the angle sensors (gyro g-sensitivity ``Dg_a``).
+r"""Platform drift within dwells, seen by the angle sensors (gyro g-sensitivity ``Dg_ab``).
 
-A stabilised platform whose gyro is g-sensitive drifts about platform axis ``a`` at the rate
-``Dg_a f^p_a`` while it holds a position (Cai et al. 2016 Eq. 1, coefficient G).  The angle
+A stabilised platform whose gyro about platform axis ``a`` errs by ``Σ_b Dg_ab f^p_b`` (Cai et al.
+2016 Eq. 1, coefficient G) turns at ``w = −D_g f^p`` while it holds a position
+(:func:`stableins.conventions.platform_drift_rate`).  The angle
 sensors measure the actual gimbal angles, so the drift is *in the readings*: the accelerometer
 outputs stay consistent with the measured readings and the dwell-mean residuals do not show
 it.  What shows it is the slope of the readings within each dwell.  With the gimbal-rate map
 ``ω_bp^p = G(α) α̇`` (:meth:`stableins.platform.GimbalPlatform.angular_rate`, exact), a drift
-``ω = Σ_a Dg_a f^p_a e_a`` makes the readings move at
+``ω = w = −D_g f^p`` makes the readings move at
 
 .. math:: \dot r = G(\alpha)^{-1}\, \omega
 
 This module measures the reading slopes (least-squares line per dwell and gimbal, 1σ from the
 scatter about it), and builds a :class:`~stableins.discovery.linear.LinearProblem`: the null
-model is a constant reading rate per gimbal (servo creep), the candidates are ``Dg_x, Dg_y,
-Dg_z``.  Dwells near gimbal lock (``cond G > 1e3``) are left out: there the readings cannot
-follow the platform.
+model is a constant reading rate per gimbal (servo creep), the default candidates are the
+diagonal ``Dg_xx, Dg_yy, Dg_zz`` (any ``Dg_ab`` may be given).  Dwells near gimbal lock
+(``cond G > 1e3``) are left out: there the readings cannot follow the platform.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stableins.conventions import AXES, platform_drift_rate
 from stableins.discovery.dwells import DwellSet
 from stableins.discovery.linear import LinearProblem
 from stableins.errormodel import ErrorModel, Term, TermKind
@@ -118,11 +120,12 @@ def drift_problem(
     f_p = platform_specific_force(
         dwells.readings, dwells.gravity, zero_offsets=zero_offsets, base_attitude=dwells.base_attitude, configuration=dwells.configuration
     )
-    terms = tuple(drift_terms) if drift_terms is not None else tuple(LIBRARY[f"Dg_{a}"].term for a in "xyz")
+    terms = tuple(drift_terms) if drift_terms is not None else tuple(LIBRARY[f"Dg_{a}{a}"].term for a in AXES)
     columns: dict[str, NDArray] = {}
-    for a, term in enumerate(terms):
-        omega = np.zeros_like(f_p)
-        omega[:, a] = f_p[:, a]
+    for term in terms:
+        unit = np.zeros((3, 3))
+        unit[AXES.index(term.id[3]), AXES.index(term.id[4])] = 1.0  # Dg_ab
+        omega = platform_drift_rate(np.zeros(3), unit, f_p)
         columns[term.id] = np.linalg.solve(g[keep], omega[keep][..., None])[..., 0].reshape(-1)
     nuisance = _nuisance_terms()
     n = int(keep.sum())

@@ -31,8 +31,8 @@ id                  regressor (on axis a)                   unit
 Environment and time: ``Kt_bias_a`` (``ΔT``, µg/K), ``Kt_sf_a`` (``f_a ΔT``, ppm/K),
 ``Kd_bias_a`` (``t``, µg/h), ``Kh_a`` (direction ±1 of the last slew of the axis' input, µg).
 Rotation and platform: ``lever_a_b`` (accelerometer ``a`` displaced by ``r`` along platform
-axis ``b``: ``e_a·(ω̇×e_b + ω×(ω×e_b))``, mm), ``Dg_a`` (gyro g-sensitivity: the platform
-drifts about ``p``-axis ``a`` at ``Dg_a f_a``, °/h/g; the angle sensors measure the drift, so
+axis ``b``: ``e_a·(ω̇×e_b + ω×(ω×e_b))``, mm), ``Dg_ab`` (gyro g-sensitivity, a gyro output
+error ``Dg_ab f_b`` about ``p``-axis ``a``: the platform turns at ``−D_g f^p``, °/h/g; the angle sensors measure the drift, so
 its regressor on ``f^a`` against measured readings is zero: it is found from the slopes of the
 readings within dwells, :mod:`stableins.discovery.drift`).
 Test equipment (through the exact kinematics of :mod:`stableins.platform`,

@@ -12,10 +12,14 @@ move it within a dwell.  Every sample is computed from first principles:
    ``ω_d = ω sqrt(1-ζ²)``, ``τ`` time since the end of the slew, ``Δr`` the slew).
    The angle sensors read the actual motion plus white noise.
 2. Exact kinematics: ``C_n^p`` from :class:`stableins.platform.GimbalPlatform`
-   (offsets, senses, base attitude and tilt, non-orthogonality, sensor errors).  With
-   ``Dg_a`` effects the platform also drifts about ``p``-axis ``a`` at the rate
-   ``Dg_a f^p_a`` from the end of each slew (the readings follow by exact inverse
-   kinematics).
+   (offsets, senses, base attitude and tilt, non-orthogonality, sensor errors).  With a
+   constant gyro drift ``ε^p`` (``truth.gyro_drift`` x, y, z) or g-sensitivity effects
+   ``Dg_ab`` the gyro-held platform also turns, from the end of each slew, at
+   ``w = −(ε^p + D_g f^p)`` (:func:`stableins.conventions.platform_drift_rate`, with ``f^p``
+   of the commanded orientation: the drift angle stays below 1e-4 rad, so the change of
+   ``f^p`` it causes is a 1e-4 relative effect on a 1e-4 rad angle); the readings follow by exact
+   inverse kinematics.  (The gyro-case-rotation residual of ``truth.gyro_drift`` is a
+   system-level effect, left out here.)
 3. ``f^p = C_n^p f^n`` with ``f^n = (0, 0, −g)``.
 4. Accelerometer output from the full nonlinear forward model
    :meth:`stableins.errormodel.ErrorModel.forward` with the true parameters plus the
@@ -41,7 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import specific_force_nav
+from stableins.conventions import platform_drift_rate, specific_force_nav
 from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.samples import SampleBlock
@@ -93,7 +97,8 @@ class SimulatedPlatform:
         self._values = values
         self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
         self._gravity_nav = specific_force_nav(truth.site.gravity)
-        self._drift = np.array([truth.effects.get(f"Dg_{a}", 0.0) for a in "xyz"])
+        self._drift = np.array([truth.gyro_drift.get(a, 0.0) for a in "xyz"])
+        self._g_sensitivity = fx.g_sensitivity(truth.effects)
         self._needs_rates = fx.needs(truth.effects, "lever_")
         s = truth.settling
         self._omega = 2 * np.pi * s["frequency"]
@@ -291,9 +296,9 @@ class SimulatedPlatform:
         """Return the readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end."""
         readings, rates, segment, settle_time = self._path(index)
         dcm = self.platform.dcm_nav_to_platform(readings)
-        if np.any(self._drift) and np.any(settle_time > 0):
+        if (np.any(self._drift) or np.any(self._g_sensitivity)) and np.any(settle_time > 0):
             f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)
-            angle = self._drift * f_p * np.clip(settle_time, 0.0, None)[:, None]
+            angle = platform_drift_rate(self._drift, self._g_sensitivity, f_p) * np.clip(settle_time, 0.0, None)[:, None]
             drifting = settle_time > 0
             dcm[drifting] = rotation_about(angle[drifting]) @ dcm[drifting]
             readings = readings.copy()

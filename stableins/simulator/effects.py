@@ -33,9 +33,10 @@ id               added output of accelerometer ``a`` (axis a in x, y, z)
                  angular rate: non-zero only while the platform moves (slews, settling)
 ===============  ==============================================================
 
-Geometry effects: ``Dg_a`` (platform drifts about p-axis a at the rate
-``Dg_a f_a`` after each slew, right-handed, as a g-sensitive gyro would make a
-stabilized platform drift; the angle sensors see it), ``nonorth_12``, ``nonorth_23``
+Geometry effects: ``Dg_ab`` (g-sensitivity of the gyro about p-axis a to the specific force
+along p-axis b, a gyro output error: the stabilized platform turns at ``−D_g f^p``,
+:func:`stableins.conventions.platform_drift_rate`, after each slew; the angle sensors see it),
+``nonorth_12``, ``nonorth_23``
 (gimbal-axis non-orthogonality, :mod:`stableins.platform`), ``tilt_north``,
 ``tilt_east`` (base tilt), ``azimuth_error`` (base azimuth), ``ang1_<gimbal>_c`` / ``_s`` (once-per-revolution angle
 sensor error ``c cos r + s sin r``).
@@ -99,7 +100,7 @@ class Effect:
     regressor : callable or None
         For output effects: ``TermInputs -> (..., 3)`` output change per unit value.
     axis : int or None
-        Accelerometer axis (output effects) or platform axis (``Dg_a``).
+        Accelerometer axis (output effects) or gyro axis (``Dg_ab``: ``a``).
     """
 
     id: str
@@ -280,14 +281,16 @@ def _geometry_effects() -> list[Effect]:
     """Effects on the geometry of the platform: g-sensitive drift, non-orthogonality, base tilt, angle sensors."""
     effects = [
         Effect(
-            f"Dg_{a}",
+            f"Dg_{a}{b}",
             "rad s/m",
             0.01 * DEG_PER_HOUR / _G,
-            f"g-sensitive platform drift about {a}_p during a dwell: rate Dg f_{a} [rad/s per m/s^2]",
+            f"g-sensitivity of the {a}_p gyro to f_{b} (the platform turns at -Dg f_{b} about {a}_p during a dwell) "
+            "[rad/s per m/s^2]",
             "geometry",
             axis=i,
         )
         for i, a in enumerate(AXES)
+        for b in AXES
     ]
     effects += [
         Effect(
@@ -377,6 +380,11 @@ def validate_effects(effects: Mapping[str, float], source: str | None = None) ->
 def output_terms(effects: Mapping[str, float]) -> tuple[Term, ...]:
     """Additive error-model terms for the non-zero output effects in ``effects``."""
     return tuple(CATALOGUE[k].term() for k, v in effects.items() if CATALOGUE[k].kind == "output" and v != 0.0)
+
+
+def g_sensitivity(effects: Mapping[str, float]) -> NDArray[np.float64]:
+    """Return the gyro g-sensitivity matrix ``D_g`` (3, 3) [rad/s per m/s²] of the ``Dg_ab`` effects (zero if none)."""
+    return np.array([[float(effects.get(f"Dg_{a}{b}", 0.0)) for b in AXES] for a in AXES])
 
 
 def needs(effects: Mapping[str, float], prefix: str) -> bool:

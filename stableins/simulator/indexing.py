@@ -3,10 +3,12 @@ r"""Commanded platform orientations and indexing mid-record by torquing (system 
 A space-stable platform is moved in inertial space only through its gyros: the torquers add a
 commanded rate ``ω_cmd`` to the platform's inertial rate, and the gimbal servos follow.  With the
 gyro drift ``ε^p`` (the stabilization loop nulls the gyro output, so the platform turns at
-``−ε^p``) and a g-sensitive drift ``Dg∘f^p`` the platform's inertial rate in its own frame is
+``−ε^p``) and a g-sensitive gyro error ``D_g f^p`` the platform's inertial rate in its own frame is
 
 .. math::
-    \omega_{ip}^p = \omega_{cmd}^p(t) + w(t), \qquad w = -\varepsilon^p(t) + D_g \circ f^p .
+    \omega_{ip}^p = \omega_{cmd}^p(t) + w(t), \qquad w = -(\varepsilon^p(t) + D_g f^p)
+
+(:func:`stableins.conventions.platform_drift_rate`).
 
 Write the platform attitude as ``C_i^p(t) = T(t)\,X(t)\,C_i^{p_0}`` where ``T`` is the commanded
 rotation alone: the product, in time order, of one frame rotation per turn of
@@ -40,7 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, earth_rate_nav, skew
+from stableins.conventions import EARTH_RATE, earth_rate_nav, platform_drift_rate, skew
 from stableins.platform import GimbalPlatform, rotation_about
 from stableins.turns import IndexAxis, PlatformTurn, check_turns
 
@@ -126,17 +128,16 @@ class IndexedMotion:
 
     # ------------------------------------------------------------------ orientation
     def orientation(
-        self, time: NDArray[np.float64], drift: NDArray[np.float64], *, g_drift: NDArray[np.float64], gravity: float
+        self, time: NDArray[np.float64], drift: NDArray[np.float64], *, g_sensitivity: NDArray[np.float64], gravity: float
     ) -> NDArray[np.float64]:
         """Return the true ``C_n^p`` (n, 3, 3) at the next samples ``time`` (consecutive, continuing the last call).
 
-        ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_drift``: ``Dg`` (3,) [rad s/m].
+        ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_sensitivity``: ``D_g`` (3, 3) [rad/s per m/s²], with ``f^p`` of the
+        drift-free orientation.
         """
         commanded = self.commanded(time)
         free = commanded @ self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
-        rate = -drift
-        if np.any(g_drift):
-            rate = rate + g_drift * (-gravity * free[:, :, 2])
+        rate = platform_drift_rate(drift, g_sensitivity, -gravity * free[:, :, 2])
         integrand = np.einsum("nji,nj->ni", commanded, rate)
         previous = integrand[0] if self._last_integrand is None else self._last_integrand
         steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)

@@ -18,7 +18,9 @@ and the platform-axis reading falls as ``-s1 ω_ie t`` (``St = St0 + ω_ie t``,
 the stabilization loop nulls the gyro outputs, so a gyro drift ``ε^p`` (output error,
 constant in the platform frame, plus an optional gyro-case-rotation residual
 ``a (cos(2πt/P + φ), sin(2πt/P + φ), 0)``) turns the platform at ``-ε^p`` in inertial
-space; ``Dg_a`` effects add ``Dg_a f^p_a`` about ``p``-axis ``a``.  The gimbal readings
+space; g-sensitivity effects ``Dg_ab`` add the gyro error ``D_g f^p``, so the platform turns at
+``w = −(ε^p + D_g f^p)`` (:func:`stableins.conventions.platform_drift_rate`) and the navigation
+computer's attitude error is driven by the same total gyro error.  The gimbal readings
 are the exact inverse kinematics of ``C_b^p = C_n^p C_b^n`` (continuous, not wrapped).
 The accelerometers output :meth:`stableins.errormodel.ErrorModel.forward` of
 ``f^p = C_n^p (0, 0, -g)`` with the true parameters and output effects, plus noise
@@ -73,152 +75,31 @@ depend on it (noise is keyed by sample index, :mod:`stableins.simulator.noise`).
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE, dcm_body_to_platform, earth_rate_nav, euler_from_dcm, polar_alignment_readings, skew
+from stableins.conventions import (
+    EARTH_RATE,
+    dcm_body_to_platform,
+    earth_rate_nav,
+    euler_from_dcm,
+    platform_drift_rate,
+    polar_alignment_readings,
+    skew,
+)
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
+from stableins.simulator.error_dynamics import ModalRecursion, error_dynamics
 from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.truth import Truth
 from stableins.turns import PlatformTurn
 
-STATE_NAMES = (
-    "latitude_error",
-    "velocity_north",
-    "velocity_east",
-    "phi_north",
-    "phi_east",
-    "phi_down",
-    "height_error",
-    "velocity_down",
-    "vertical_integrator",
-)
-INPUT_NAMES = ("df_north", "df_east", "df_down", "drift_north", "drift_east", "drift_down")
 TRUTH_COLUMNS = ("truth_phi_north", "truth_phi_east", "truth_phi_down", "truth_df_north", "truth_df_east", "truth_df_down")
-
-
-def error_dynamics(latitude: float, damping: dict[str, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Continuous INS error dynamics ``x' = A x + B u`` of the module docstring.
-
-    Parameters
-    ----------
-    latitude : float
-        [rad].
-    damping : dict
-        ``gravity``, ``R``, ``horizontal_gain`` (``c``), ``k1``, ``k2``, ``k3``
-        (:func:`stableins.simulator.truth.damping_parameters`).
-
-    Returns
-    -------
-    A : ndarray (9, 9), B : ndarray (9, 6)
-        States :data:`STATE_NAMES`, inputs :data:`INPUT_NAMES`.
-    """
-    g, radius, c = damping["gravity"], damping["R"], damping["horizontal_gain"]
-    k1, k2, k3 = damping["k1"], damping["k2"], damping["k3"]
-    w = EARTH_RATE
-    sl, cl, tl = np.sin(latitude), np.cos(latitude), np.tan(latitude)
-    A = np.zeros((9, 9))
-    L, VN, VE, PN, PE, PD, H, VD, BV = range(9)
-    A[L, VN] = 1 / radius
-    A[VN, PE], A[VN, VE], A[VN, VN] = g, -2 * w * sl, -c
-    A[VE, PN], A[VE, VN], A[VE, VD], A[VE, VE] = -g, 2 * w * sl, 2 * w * cl, -c
-    A[PN, L], A[PN, PE], A[PN, VE] = -w * sl, -w * sl, 1 / radius
-    A[PE, PN], A[PE, PD], A[PE, VN] = w * sl, w * cl, -1 / radius
-    A[PD, L], A[PD, PE], A[PD, VE] = -w * cl, -w * cl, -tl / radius
-    A[H, VD], A[H, H] = -1.0, -k1
-    A[VD, VE], A[VD, H], A[VD, BV] = -2 * w * cl, -2 * g / radius + k2, 1.0
-    A[BV, H] = k3
-    B = np.zeros((9, 6))
-    B[VN, 0] = B[VE, 1] = B[VD, 2] = 1.0
-    B[PN, 3] = B[PE, 4] = B[PD, 5] = -1.0
-    return A, B
-
-
-@dataclass(frozen=True)
-class ModalRecursion:
-    """Exact ZOH discretization of ``x' = A x + B u`` in modal form (module docstring).
-
-    The arrays are complex (real only when every eigenvalue of ``A`` is real, as numpy's ``eig`` returns them).
-
-    Attributes
-    ----------
-    eigenvalues : ndarray (m,) complex
-        ``λ = exp(μ dt)``.
-    input_gain : ndarray (m, p) complex
-        ``diag((λ − 1)/μ) V⁻¹ B``.
-    modes : ndarray (m, m) complex
-        ``V``.
-    to_modes : ndarray (m, m) complex
-        ``V⁻¹``.
-    """
-
-    eigenvalues: NDArray[np.inexact[Any]]
-    input_gain: NDArray[np.inexact[Any]]
-    modes: NDArray[np.inexact[Any]]
-    to_modes: NDArray[np.inexact[Any]]
-
-    @property
-    def _partner(self) -> NDArray[np.int64]:
-        """Index of each complex mode's conjugate partner (−1 for real modes).
-
-        The real system's response is the sum over one mode of each pair, doubled, so only half
-        of the complex modes are filtered.
-        """
-        cached = self.__dict__.get("_partner_cache")
-        if cached is None:
-            lam = self.eigenvalues
-            cached = np.full(len(lam), -1)
-            for i in range(len(lam)):
-                if lam[i].imag != 0 and cached[i] < 0:
-                    j = int(np.argmin(np.abs(lam - np.conj(lam[i])) + np.where(np.arange(len(lam)) == i, np.inf, 0)))
-                    cached[i], cached[j] = j, i
-            self.__dict__["_partner_cache"] = cached
-        return cached
-
-    @classmethod
-    def discretize(cls, A: NDArray[np.float64], B: NDArray[np.float64], dt: float) -> ModalRecursion:
-        """Return the exact zero-order-hold recursion of ``x' = A x + B u`` over ``dt`` [s], mode by mode ("Numerics" above)."""
-        mu, v = np.linalg.eig(A)
-        condition = np.linalg.cond(v)
-        if not condition < 1e10:
-            raise ValueError(f"error dynamics are (nearly) defective, eigenvector condition {condition:.2e}")
-        v_inv = np.linalg.inv(v)
-        phi = np.exp(mu * dt)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            hold = np.where(mu != 0, np.expm1(mu * dt) / np.where(mu != 0, mu, 1.0), dt)
-        return cls(phi, hold[:, None] * (v_inv @ B), v, v_inv)
-
-    def run(self, u: NDArray[np.float64], z0: NDArray[np.inexact[Any]]) -> tuple[NDArray[np.float64], NDArray[np.inexact[Any]]]:
-        """States ``x_k`` for inputs ``u_k`` (n, p), modal state ``z0`` at the first sample; returns (x, z after the last input)."""
-        from scipy.signal import lfilter
-
-        n, p = u.shape
-        m = len(self.eigenvalues)
-        x = np.zeros((n, m))
-        z_end = np.empty(m, dtype=complex)
-        for i in range(m):
-            lam = self.eigenvalues[i]
-            if lam.imag < 0 and self._partner[i] >= 0:
-                continue  # the conjugate of its partner's mode: filled in below
-            w = np.zeros(n, dtype=complex)
-            for j in range(p):  # fixed summation order: identical results for any chunking
-                if self.input_gain[i, j] != 0:
-                    w += self.input_gain[i, j] * u[:, j]
-            z, zf = lfilter([0.0, 1.0], [1.0, -lam], w, zi=[z0[i]])
-            z_end[i] = zf[0]
-            partner = self._partner[i]
-            weight = 2.0 if partner >= 0 else 1.0  # a conjugate pair adds up to twice the real part
-            x += weight * (self.modes[None, :, i] * z[:, None]).real
-            if partner >= 0:
-                z_end[partner] = np.conj(zf[0])
-        return x, z_end
 
 
 class SystemWorld:
@@ -283,7 +164,7 @@ class SystemWorld:
             {k: v for k, v in self._installed.items() if k in fx.CATALOGUE}
         )
         self._needs_rates = fx.needs(truth.effects, "lever_")
-        self._g_drift = np.array([truth.effects.get(f"Dg_{a}", 0.0) for a in "xyz"])
+        self._g_sensitivity = fx.g_sensitivity(truth.effects)
         drift = truth.gyro_drift
         self._drift = np.array([drift.get(a, 0.0) for a in "xyz"])
         self._case = (drift.get("case_amplitude", 0.0), drift.get("case_period", 480.0), drift.get("case_phase", 0.0))
@@ -296,7 +177,7 @@ class SystemWorld:
         x0 = np.zeros(9)
         x0[3:6] = np.asarray(initial_misalignment, dtype=float)
         self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
-        self._g_drift_angle = np.zeros(3)  # integral of Dg f^p up to the next sample
+        self._g_drift_angle = np.zeros(3)  # integral of -D_g f^p up to the next sample
         self._next = 0
         self._indexed = None  # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
         if initial_readings is not None or turns:
@@ -355,12 +236,13 @@ class SystemWorld:
         truth = self.truth
         extra = None
         if self._indexed is not None:
-            dcm = self._indexed.orientation(time, self.gyro_drift(time), g_drift=self._g_drift, gravity=self.gravity)
+            dcm = self._indexed.orientation(time, self.gyro_drift(time), g_sensitivity=self._g_sensitivity, gravity=self.gravity)
             readings = self._indexed.readings(dcm)
-        elif np.any(self._g_drift):
-            # Dg: platform turns at Dg∘f^p; f^p of the drift-free orientation, integrated by sequential sums
+        elif np.any(self._g_sensitivity):
+            # Dg: platform turns at -D_g f^p; f^p of the drift-free orientation, integrated by sequential sums
             f_free = -self.gravity * self.platform_orientation(time)[:, :, 2]
-            steps = np.vstack([self._g_drift_angle[None, :], self._g_drift * f_free / self.rate])
+            rate = platform_drift_rate(np.zeros(3), self._g_sensitivity, f_free)
+            steps = np.vstack([self._g_drift_angle[None, :], rate / self.rate])
             cumulative = np.cumsum(steps, axis=0)
             extra, self._g_drift_angle = cumulative[:-1], cumulative[-1].copy()
         if self._indexed is None:
@@ -383,7 +265,7 @@ class SystemWorld:
         # navigation computer
         f_hat = self._computer.inverse(f_a, self._installed, inputs)
         df_n = np.einsum("nji,nj->ni", dcm, f_hat - f_p)
-        eps_n = np.einsum("nji,nj->ni", dcm, self.gyro_drift(time))
+        eps_n = np.einsum("nji,nj->ni", dcm, -platform_drift_rate(self.gyro_drift(time), self._g_sensitivity, f_p))
         x, self._z = self.recursion.run(np.hstack([df_n, eps_n]), self._z)
         phi = x[:, 3:6]
         body_to_platform_hat = dcm_body_to_platform(

@@ -99,7 +99,7 @@ class DriftDetails(StageDetails):
     holds : tuple of Hold
     nuisance : mapping of str to (float, float)
         Fitted nuisances, value and 1σ [SI]: ``tilt_east``, ``tilt_north_sin_azimuth_cos`` (rad),
-        ``Dg_z`` (rad s/m), when determined.
+        ``Dg_zz`` (rad s/m), when determined.
     rank : tuple of str
         The rank report: what is determined, what is held and why.
     biases : tuple of BiasCheck
@@ -202,7 +202,7 @@ def estimate_drift(
     y, design, names = _design(time, readings + np.asarray(offsets, dtype=float), inertial, nav_to_platform, hold_list,
                                latitude=latitude, gravity=gravity, configuration=configuration)  # fmt: skip
     drift_names = ["eps_x", "eps_y", "eps_z"]
-    used = [n for n in names if n.startswith(("c", "eps_", "ang1_")) or n in ("Dg_z", "theta20_residual")]
+    used = [n for n in names if n.startswith(("c", "eps_", "ang1_")) or n in ("Dg_zz", "theta20_residual")]
     members = ["tilt_east", "tilt_north_sin_azimuth_cos"]
     chosen = {
         "base": base != "survey" and len(hold_list) > 1 and _separable(design, y, names, used=used, members=members, drift=drift_names)
@@ -252,7 +252,7 @@ def _design(
     """Observations ``φ`` (N, 3), design (N, 3, p) and the column names (module docstring's equation).
 
     Columns: per hold 3 intercepts ``c{k}_{i}``; ``eps_x/y/z``; the base ``δ = B β`` (``tilt_east``,
-    ``tilt_north_sin_azimuth_cos``); ``Dg_z`` when ``f_z`` reverses; ``theta20_residual`` when the inner axis
+    ``tilt_north_sin_azimuth_cos``); ``Dg_zz`` when ``f_z`` reverses; ``theta20_residual`` when the inner axis
     reverses in the local frame; the platform angle sensor's once-per-revolution error ``ang1_platform_c/s``.
     """
     platform = GimbalPlatform(configuration=configuration)
@@ -264,7 +264,7 @@ def _design(
     fz_signs = {int(np.sign(h.specific_force[2])) for h in holds if abs(h.specific_force[2]) > gravity / 4}
     names = [f"c{k}_{i}" for k in range(len(holds)) for i in "xyz"] + ["eps_x", "eps_y", "eps_z", "tilt_east", "tilt_north_sin_azimuth_cos"]
     if fz_signs == {-1, 1}:
-        names.append("Dg_z")
+        names.append("Dg_zz")
     if np.min(directions @ directions.T) < -0.5:
         names.append("theta20_residual")
     names += ["ang1_platform_c", "ang1_platform_s"]
@@ -279,8 +279,9 @@ def _design(
         a[:, :, column[f"c{index}_x"] : column[f"c{index}_x"] + 3] = np.eye(3)
         a[:, :, column["eps_x"] : column["eps_x"] + 3] = -dt[:, None, None] * np.eye(3)
         a[:, :, column["tilt_east"] : column["tilt_east"] + 2] = -nav_to_platform[sl] @ basis
-        if "Dg_z" in column:
-            a[:, 2, column["Dg_z"]] = dt * -gravity * nav_to_platform[sl, 2, 2]
+        if "Dg_zz" in column:
+            # the platform turns at -Dg_zz f_z about z_p (conventions.platform_drift_rate), f_z = -g C_n^p[2, 2]
+            a[:, 2, column["Dg_zz"]] = dt * gravity * nav_to_platform[sl, 2, 2]
         if "theta20_residual" in column:
             a[:, :, column["theta20_residual"]] = inner_p[sl]
         reading = actual[sl, 0]  # the sensor's angle: reading + offset (the error is a function of the reading; same to 1e-4)
@@ -348,10 +349,10 @@ def _rank_report(latitude: float, holds: int, chosen: Mapping[str, bool], used: 
             f"base tilt East and t_N sin L + azimuth cos L: not separable from gyro_drift_x/y ({why}); gauge: held at the survey, "
             f"so gyro_drift_x/y carry Ω·|u×δ| ({per_arcsec:.2g} °/h per arcsec of azimuth error)"
         )
-    if "Dg_z" in used:
-        lines.append("g-sensitive drift along z_p (Dg_z): estimated as a nuisance (f_z reverses)")
+    if "Dg_zz" in used:
+        lines.append("g-sensitive drift along z_p (Dg_zz): estimated as a nuisance (f_z reverses)")
     else:
-        lines.append("gyro_drift_z includes any g-sensitive drift Dg_z·f_z (f_z never reverses; drift-three-position separates it)")
+        lines.append("gyro_drift_z includes any g-sensitive drift Dg_zz·f_z (f_z never reverses; drift-three-position separates it)")
     if "theta20_residual" in used:
         lines.append("inner zero-offset residual: estimated as a nuisance (the middle gimbal's flip reverses the inner axis)")
     else:
