@@ -86,13 +86,19 @@ def test_task_seed_comes_from_identity_not_order():
     [
         ("[campaign]\ndevices = 0\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n", "campaign.devices"),
         ("[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-fine'\n[[noise]]\nname='q'\n", "procedure[0].coarse"),
-        ("[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\npreset='mems'\n", "noise[0].preset"),
-        ("[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n[[hidden]]\nname='h'\neffects={nope=1.0}\n",
-         "hidden[0].effects"),
+        (
+            "[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\npreset='mems'\n",
+            "noise[0].preset",
+        ),
+        (
+            "[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n"
+            "[[hidden]]\nname='h'\neffects={nope=1.0}\n",
+            "hidden[0].effects",
+        ),
         ("[campaign]\ndevices = 1\n[[procedure]]\nname='a__b'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n", "procedure[0].name"),
         ("[campaign]\ndevices = 1\n[[noise]]\nname='q'\n", "procedure"),
     ],
-)  # fmt: skip
+)
 def test_bad_campaign_file_names_the_field(tmp_path, text, field):
     path = tmp_path / "c.toml"
     path.write_text(text, encoding="utf-8")
@@ -146,19 +152,47 @@ def test_distributed_scheduler_and_worker_give_the_local_table_and_resume(tmp_pa
     try:
         processes.append(
             subprocess.Popen(
-                [str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(scheduler_file)],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=tmp_path,
+                [
+                    str(BIN / "dask"),
+                    "scheduler",
+                    "--host",
+                    "127.0.0.1",
+                    "--port",
+                    "0",
+                    "--no-dashboard",
+                    "--scheduler-file",
+                    str(scheduler_file),
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env=env,
+                cwd=tmp_path,
             )
-        )  # fmt: skip
+        )
         address = _wait_for(scheduler_file, processes)["address"]
         assert address.startswith("tcp://127.0.0.1:")
         processes.append(
             subprocess.Popen(
-                [str(BIN / "dask"), "worker", address, "--host", "127.0.0.1", "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-                 "--death-timeout", "60"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=tmp_path,
+                [
+                    str(BIN / "dask"),
+                    "worker",
+                    address,
+                    "--host",
+                    "127.0.0.1",
+                    "--nworkers",
+                    "1",
+                    "--nthreads",
+                    "1",
+                    "--no-dashboard",
+                    "--death-timeout",
+                    "60",
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env=env,
+                cwd=tmp_path,
             )
-        )  # fmt: skip
+        )
         out = tmp_path / "distributed"
         command = [str(BIN / "stableins"), "campaign", str(config_path), "--out", str(out), "--scheduler", address, "--no-plot"]
         assert subprocess.run(command, capture_output=True, timeout=180, check=False).returncode == 0

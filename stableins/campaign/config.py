@@ -57,7 +57,7 @@ class CalibrationNoise(StrEnum):
 
 
 def noise_presets() -> dict[str, NoiseSettings]:
-    """The simulator noise presets a campaign can name."""
+    """Return the simulator noise presets a campaign can name."""
     quartz = NoiseSettings.quartz()
     return {"quartz": quartz, "white": dataclasses.replace(quartz, bias_instability=0.0, acceleration_random_walk=0.0)}
 
@@ -134,22 +134,24 @@ class CampaignConfig:
         )
 
     def procedure(self, name: str) -> ProcedureSpec:
-        """The procedure named ``name``."""
+        """Return the procedure named ``name``."""
         return next(p for p in self.procedures if p.name == name)
 
     def noise(self, name: str) -> NoiseSpec:
-        """The noise model named ``name``."""
+        """Return the noise model named ``name``."""
         return next(n for n in self.noises if n.name == name)
 
     def hidden_effects(self, name: str) -> HiddenSpec:
-        """The hidden-effect set named ``name``."""
+        """Return the hidden-effect set named ``name``."""
         return next(h for h in self.hidden if h.name == name)
 
 
 def _integer(table: Mapping[str, Any], key: str, where: str, path: str, *, minimum: int, default: int | None = None) -> int:
     value = table.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise InputError(f"{value!r} is not a whole number ≥ {minimum}", path=path, field=f"{where}.{key}", expected=f"an integer ≥ {minimum}")
+        raise InputError(
+            f"{value!r} is not a whole number ≥ {minimum}", path=path, field=f"{where}.{key}", expected=f"an integer ≥ {minimum}"
+        )
     return value
 
 
@@ -186,7 +188,9 @@ def _procedure(raw: Any, where: str, path: str, seen: set[str]) -> ProcedureSpec
         candidate = base / ref
         loaded[stage] = load_procedure(candidate if candidate.suffix == ".toml" and candidate.exists() else ref)
         if loaded[stage].stage != stage:
-            raise InputError(f"{ref} is a {loaded[stage].stage} procedure", path=path, field=f"{where}.{stage}", expected=f"a {stage} procedure")
+            raise InputError(
+                f"{ref} is a {loaded[stage].stage} procedure", path=path, field=f"{where}.{stage}", expected=f"a {stage} procedure"
+            )
     if "coarse" not in loaded:
         raise InputError("a procedure needs its coarse stage", path=path, field=f"{where}.coarse")
     rate = table.get("sample_rate")

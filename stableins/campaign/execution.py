@@ -60,12 +60,16 @@ def _claim_directory(config: CampaignConfig, out: Path) -> None:
         try:
             held = json.loads(marker.read_text(encoding="utf-8"))["digest"]
         except (OSError, ValueError, KeyError, TypeError):
-            raise InputError("not a campaign's marker", path=marker, expected="the campaign.json that `stableins campaign` writes") from None
+            raise InputError(
+                "not a campaign's marker", path=marker, expected="the campaign.json that `stableins campaign` writes"
+            ) from None
         if held != digest:
             raise InputError(
-                "this directory holds a campaign of another file (or its procedures changed)", path=out, field="campaign.json",
+                "this directory holds a campaign of another file (or its procedures changed)",
+                path=out,
+                field="campaign.json",
                 expected=f"the campaign with digest {held[:16]}…, or a new --out directory",
-            )  # fmt: skip
+            )
         return
     (out / "tasks").mkdir(parents=True, exist_ok=True)
     with atomic_write(marker) as handle:
@@ -84,7 +88,7 @@ def _save(out: Path, task: Task, rows: list[dict[str, Any]]) -> None:
 
 
 def load_rows(out: Path, tasks: Sequence[Task]) -> list[dict[str, Any]]:
-    """The rows of every finished task, in task order (NaN for the empty cells)."""
+    """Return the rows of every finished task, in task order (NaN for the empty cells)."""
     rows = []
     for task in tasks:
         path = task_file(out, task)
@@ -95,14 +99,16 @@ def load_rows(out: Path, tasks: Sequence[Task]) -> list[dict[str, Any]]:
 
 @contextmanager
 def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
-    """A Dask client: of ``scheduler`` (an address), else of a local cluster of ``workers`` processes on 127.0.0.1."""
+    """Yield a Dask client: of ``scheduler`` (an address), else of a local cluster of ``workers`` processes on 127.0.0.1."""
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT)
         except (OSError, TimeoutError) as error:
-            raise InputError(f"no Dask scheduler answers: {error}", field="--scheduler", expected="tcp://HOST:PORT of a running scheduler") from None
+            raise InputError(
+                f"no Dask scheduler answers: {error}", field="--scheduler", expected="tcp://HOST:PORT of a running scheduler"
+            ) from None
         with client:
             client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
             yield client
@@ -168,6 +174,6 @@ def _take(queue: Iterator[Task], n: int) -> list[Task]:
 
 
 def _task_of(rows: list[dict[str, Any]]) -> Task:
-    """The task a result belongs to, from its rows."""
+    """Return the task a result belongs to, from its rows."""
     first = rows[0]
     return Task(int(first["seed"]), str(first["procedure"]), str(first["noise"]), str(first["hidden"]))

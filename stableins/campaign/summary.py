@@ -132,16 +132,24 @@ def summarize(rows: Sequence[Mapping[str, Any]], design: Mapping[tuple[str, str]
         err = np.array([r["estimate"] - r["truth"] for r in group], dtype=float)
         out.append(
             ParameterSummary(
-                procedure, noise, hidden, parameter, str(group[0]["unit"]), len(group), float(np.sqrt(np.mean(z**2))),
-                float(np.mean(z)), float(np.sqrt(np.mean(err**2))), float(np.median([r["sigma"] for r in group])),
+                procedure,
+                noise,
+                hidden,
+                parameter,
+                str(group[0]["unit"]),
+                len(group),
+                float(np.sqrt(np.mean(z**2))),
+                float(np.mean(z)),
+                float(np.sqrt(np.mean(err**2))),
+                float(np.median([r["sigma"] for r in group])),
                 float(design.get((procedure, noise), {}).get(parameter, math.nan)),
             )
-        )  # fmt: skip
+        )
     return out
 
 
 def diagnosis_rates(rows: Sequence[Mapping[str, Any]]) -> list[RateSummary]:
-    """Detection rate per hidden-effect set, false-alarm rate where nothing is hidden (tasks, not rows)."""
+    """Return the detection rate per hidden-effect set, false-alarm rate where nothing is hidden (tasks, not rows)."""
     tasks: dict[str, Mapping[str, Any]] = {}
     for row in rows:
         tasks.setdefault(row["task"], row)
@@ -159,7 +167,7 @@ def diagnosis_rates(rows: Sequence[Mapping[str, Any]]) -> list[RateSummary]:
 
 
 def summary_text(parameters: Sequence[ParameterSummary], rates: Sequence[RateSummary], *, diagnosed: bool) -> str:
-    """The summary as a table for a terminal or a file."""
+    """Return the summary as a table for a terminal or a file."""
     lines = []
     head = f"{'procedure':<14}{'noise':<9}{'hidden':<12}{'parameter':<10}{'n':>6}{'rms z':>8}{'mean z':>8}"
     head += f"{'measured σ':>12}{'design σ':>11}{'meas/des':>9}{'effic.':>8}  unit"
@@ -171,7 +179,9 @@ def summary_text(parameters: Sequence[ParameterSummary], rates: Sequence[RateSum
         )
     if parameters:
         lo, hi = parameters[0].z_band
-        lines.append(f"rms z: 1 for honest σ (99.9 % band for n = {parameters[0].n}: [{lo:.3f}, {hi:.3f}]); efficiency = (design σ / measured σ)²")
+        lines.append(
+            f"rms z: 1 for honest σ (99.9 % band for n = {parameters[0].n}: [{lo:.3f}, {hi:.3f}]); efficiency = (design σ / measured σ)²"
+        )
     if diagnosed:
         for r in rates:
             lines.append(f"{r.kind} rate, {r.procedure} / {r.noise} / {r.hidden}: {r.hits}/{r.n} = {r.rate:.3f} ± {r.sigma:.3f}")

@@ -22,9 +22,27 @@ from stableins.noise import NoiseModel
 
 #: Columns of the results table, in order (docs/campaigns.md).
 COLUMNS = (
-    "task", "procedure", "noise", "hidden", "seed", "parameter", "unit", "truth", "estimate", "sigma", "z", "status",
-    "chi2_red", "warnings", "flagged", "best_effect", "detected", "simulate_s", "calibrate_s", "diagnose_s",
-)  # fmt: skip
+    "task",
+    "procedure",
+    "noise",
+    "hidden",
+    "seed",
+    "parameter",
+    "unit",
+    "truth",
+    "estimate",
+    "sigma",
+    "z",
+    "status",
+    "chi2_red",
+    "warnings",
+    "flagged",
+    "best_effect",
+    "detected",
+    "simulate_s",
+    "calibrate_s",
+    "diagnose_s",
+)
 
 
 @dataclass(frozen=True)
@@ -44,9 +62,14 @@ def _stage_columns(truth: Any, spec: ProcedureSpec, stage: str, seed: int) -> di
     steps = list(definition.steps) * passes
     rate = spec.sample_rate or definition.steps[0].sample_rate
     columns = simulate_dwells(
-        truth, [s.command for s in steps], dwell=[s.dwell for s in steps], settle=[s.settle for s in steps], rate=rate, seed=seed,
+        truth,
+        [s.command for s in steps],
+        dwell=[s.dwell for s in steps],
+        settle=[s.settle for s in steps],
+        rate=rate,
+        seed=seed,
         stage=stage,
-    )  # fmt: skip
+    )
     m = len(definition.steps)
     index = columns["position"] - 1
     columns["position"] = (index % m + 1).astype(np.int32)
@@ -55,10 +78,12 @@ def _stage_columns(truth: Any, spec: ProcedureSpec, stage: str, seed: int) -> di
 
 
 def calibration_noise(settings: Any, calibrate: CalibrationNoise) -> NoiseModel | None:
-    """The noise model a task's calibration is given: the simulated instrument's datasheet, or none (measured in the dwells)."""
+    """Return the noise model a task's calibration is given: the simulated instrument's datasheet, or none (measured in the dwells)."""
     if calibrate is CalibrationNoise.DWELLS:
         return None
-    return NoiseModel.given(settings.velocity_random_walk, settings.bias_instability, settings.acceleration_random_walk, settings.quantization)
+    return NoiseModel.given(
+        settings.velocity_random_walk, settings.bias_instability, settings.acceleration_random_walk, settings.quantization
+    )
 
 
 @dataclass(frozen=True)
@@ -92,6 +117,7 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.device_gauge import gauge_equivalent
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.procedures.definition import load_procedure
     from stableins.simulator.truth import Truth
 
     config = data.config
@@ -100,7 +126,8 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     truth = Truth.draw(task.seed, noise=noise_spec.settings, effects=dict(hidden.effects))
     stages = ["coarse"] + (["fine"] if spec.fine is not None else [])
     columns = {stage: _stage_columns(truth, spec, stage, task.stream_seed + k) for k, stage in enumerate(stages)}
-    layouts = {"coarse": spec.coarse.layout, **({"fine": spec.fine.layout} if spec.fine is not None else {})}
+    # a coarse-only procedure still names the fine layout calibrate_device expects (unused without fine dwells)
+    layouts = {"coarse": spec.coarse.layout, "fine": (spec.fine or load_procedure("device-fine")).layout}
     t1 = time.perf_counter()
     dwells = [d for stage in stages for d in dwells_from_columns(columns[stage], layouts=layouts)]
     noise = calibration_noise(noise_spec.settings, noise_spec.calibrate)
@@ -120,18 +147,35 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
         detected = "yes" if best is not None and (best[0] in hidden.effects or set(best[1]) & set(hidden.effects)) else "no"
     warnings = sum(1 for n in final.notes if n.startswith("warning"))
     common = {
-        "task": task.key, "procedure": task.procedure, "noise": task.noise, "hidden": task.hidden, "seed": task.seed,
-        "chi2_red": round(float(final.chi2_red), 6), "warnings": warnings, "flagged": " ".join(found["flagged"]),
-        "best_effect": "" if found["best"] is None else found["best"][0], "detected": detected,
-        "simulate_s": round(t1 - t0, 3), "calibrate_s": round(t2 - t1, 3), "diagnose_s": round(t3 - t2, 3),
-    }  # fmt: skip
+        "task": task.key,
+        "procedure": task.procedure,
+        "noise": task.noise,
+        "hidden": task.hidden,
+        "seed": task.seed,
+        "chi2_red": round(float(final.chi2_red), 6),
+        "warnings": warnings,
+        "flagged": " ".join(found["flagged"]),
+        "best_effect": "" if found["best"] is None else found["best"][0],
+        "detected": detected,
+        "simulate_s": round(t1 - t0, 3),
+        "calibrate_s": round(t2 - t1, 3),
+        "diagnose_s": round(t3 - t2, 3),
+    }
     rows = []
     for term in final.terms:
         value, sigma, status = final[term.id]
         true = truth_values.get(term.id, term.reference)
         z = (value - true) / sigma if sigma > 0 and status == "estimated" else math.nan
         rows.append(
-            {**common, "parameter": term.id, "unit": term.unit, "truth": float(term.to_engineering(true)),
-             "estimate": float(term.to_engineering(value)), "sigma": float(term.sigma_to_engineering(sigma)), "z": z, "status": status}
-        )  # fmt: skip
+            {
+                **common,
+                "parameter": term.id,
+                "unit": term.unit,
+                "truth": float(term.to_engineering(true)),
+                "estimate": float(term.to_engineering(value)),
+                "sigma": float(term.sigma_to_engineering(sigma)),
+                "z": z,
+                "status": status,
+            }
+        )
     return rows

@@ -20,7 +20,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins campaign`` to ``parser``."""
     parser.description = HELP
     parser.add_argument("config", metavar="CONFIG", type=input_file, help="campaign file (TOML, docs/campaigns.md)")
-    parser.add_argument("--out", type=output_directory, required=True, metavar="DIR", help="results directory (resumed when it holds the campaign)")
+    parser.add_argument(
+        "--out", type=output_directory, required=True, metavar="DIR", help="results directory (resumed when it holds the campaign)"
+    )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=integer(1, 1024), metavar="N", help="local cluster of N worker processes (default: one per CPU)")
     where.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
@@ -54,10 +56,15 @@ def run(args: argparse.Namespace) -> int:
     )
     files = [str(outputs.table), str(outputs.summary)] + ([str(outputs.plot)] if outputs.plot else [])
     data = {
-        "campaign": config.name, "tasks": ran.total, "resumed": ran.resumed, "ran": ran.ran, "workers": ran.workers, "seconds": elapsed,
+        "campaign": config.name,
+        "tasks": ran.total,
+        "resumed": ran.resumed,
+        "ran": ran.ran,
+        "workers": ran.workers,
+        "seconds": elapsed,
         "files": files,
         "parameters": [{**s.__dict__, "efficiency": s.efficiency} for s in outputs.parameters],
         "rates": [{**r.__dict__, "rate": r.rate, "sigma": r.sigma} for r in outputs.rates],
-    }  # fmt: skip
+    }
     emit(args, data, "\n".join([head, outputs.text, *[f"wrote {f}" for f in files]]))
     return 0

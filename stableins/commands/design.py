@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from stableins.commands.arguments import input_file, integer, number, output_directory
+from stableins.commands.arguments import integer, number, output_directory
 from stableins.commands.noise import add_noise_options
 
 HELP = "expected σ of a procedure before the platform moves; dwells and positions for σ targets or a time budget"
@@ -42,9 +42,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sample-rate", type=number(0.0, 1e4, above=True, unit="Hz"), metavar="HZ", help="sample rate of every dwell")
     add_noise_options(parser)
     parser.add_argument(
-        "--white", type=number(0.0, 1.0, above=True, unit="m/s/sqrt(s)"), metavar="N",
+        "--white",
+        type=number(0.0, 1.0, above=True, unit="m/s/sqrt(s)"),
+        metavar="N",
         help="white noise N [m/s/sqrt(s)] of the datasheet (with --bias-instability, --random-walk); --noise CAL.json gives all",
-    )  # fmt: skip
+    )
     parser.add_argument("--quantization", type=number(0.0, 1.0, unit="m/s"), default=0.0, metavar="Q", help="velocity quantum [m/s]")
     goal = parser.add_mutually_exclusive_group()
     goal.add_argument("--target", type=_target, action="append", default=[], metavar="ID=SIGMA", help="1σ target [engineering unit]")
@@ -53,14 +55,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--criterion", choices=("A", "D"), default="A", help="optimality criterion with --budget (default A)")
     parser.add_argument("--grid", type=number(1.0, 90.0, unit="deg"), metavar="DEG", help="also choose positions from a grid of this step")
     parser.add_argument("--min-dwell", type=number(0.1, 86400.0, unit="s"), default=5.0, metavar="S", help="shortest dwell (default 5 s)")
-    parser.add_argument("--max-dwell", type=number(1.0, 86400.0, unit="s"), default=3600.0, metavar="S", help="longest dwell (default 3600 s)")
-    parser.add_argument("--out", type=output_directory, metavar="DIR", help="write the designed procedures here (NAME-coarse.toml, NAME-fine.toml)")
+    parser.add_argument(
+        "--max-dwell", type=number(1.0, 86400.0, unit="s"), default=3600.0, metavar="S", help="longest dwell (default 3600 s)"
+    )
+    parser.add_argument(
+        "--out", type=output_directory, metavar="DIR", help="write the designed procedures here (NAME-coarse.toml, NAME-fine.toml)"
+    )
     parser.add_argument("--name", default="designed", help="name of the designed procedures (default 'designed')")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
 
 
 def _noise(args: argparse.Namespace) -> Any:
-    """The noise model of the options: a record's, or the datasheet's N, B, K, Q."""
+    """Return the noise model of the options: a record's, or the datasheet's N, B, K, Q."""
     from stableins.commands.noise import record_noise
     from stableins.conventions import MICRO_G
     from stableins.errors import InputError
@@ -71,9 +77,18 @@ def _noise(args: argparse.Namespace) -> Any:
             raise InputError("give either --noise CAL.json or the datasheet values, not both", field="--noise")
         return record_noise(args.noise)
     if args.white is None:
-        raise InputError("the design needs a noise model", field="--white", expected="--noise CAL.json, or --white N (+ --bias-instability, --random-walk)")
-    return NoiseModel.given(args.white, (args.bias_instability or 0.0) * MICRO_G, args.random_walk or 0.0, args.quantization,
-                            provenance="datasheet values given to stableins design")  # fmt: skip
+        raise InputError(
+            "the design needs a noise model",
+            field="--white",
+            expected="--noise CAL.json, or --white N (+ --bias-instability, --random-walk)",
+        )
+    return NoiseModel.given(
+        args.white,
+        (args.bias_instability or 0.0) * MICRO_G,
+        args.random_walk or 0.0,
+        args.quantization,
+        provenance="datasheet values given to stableins design",
+    )
 
 
 def _targets(args: argparse.Namespace, start: Any) -> dict[str, float] | None:
@@ -88,7 +103,11 @@ def _targets(args: argparse.Namespace, start: Any) -> dict[str, float] | None:
     for pattern, sigma in args.target:
         ids = [k for k in start.ids if fnmatch.fnmatchcase(k, pattern) and start.sigma[k] > 0]
         if not ids:
-            raise InputError(f"no estimated parameter matches {pattern!r}", field="--target", expected=", ".join(k for k in start.ids if start.sigma[k] > 0))
+            raise InputError(
+                f"no estimated parameter matches {pattern!r}",
+                field="--target",
+                expected=", ".join(k for k in start.ids if start.sigma[k] > 0),
+            )
         out.update({k: sigma * start.model[k].scale for k in ids})
     return out
 
@@ -110,11 +129,18 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate the procedure, optimize on request, print; write the designed procedures last."""
     import numpy as np
 
+    from stableins.conventions import STANDARD_GRAVITY
     from stableins.errors import InputError
-    from stableins.estimators.experiment import Criterion, DwellBounds, exchange_positions, expected_precision, grid_candidates, optimize_dwells
+    from stableins.estimators.experiment import (
+        Criterion,
+        DwellBounds,
+        exchange_positions,
+        expected_precision,
+        grid_candidates,
+        optimize_dwells,
+    )
     from stableins.estimators.setting import DeviceSetting
     from stableins.output import emit
-    from stableins.conventions import STANDARD_GRAVITY
 
     if args.min_dwell >= args.max_dwell:
         raise InputError("--min-dwell must be below --max-dwell", field="--min-dwell")
@@ -128,9 +154,13 @@ def run(args: argparse.Namespace) -> int:
     if targets is not None or args.budget is not None:
         if args.grid is not None:
             d = math.radians
-            candidates = grid_candidates(d(args.grid), platform=(0.0, d(360 - args.grid)), inner=(0.0, d(360 - args.grid)), middle=(d(-135), 0.0))
+            candidates = grid_candidates(
+                d(args.grid), platform=(0.0, d(360 - args.grid)), inner=(0.0, d(360 - args.grid)), middle=(d(-135), 0.0)
+            )
             scales = targets or {k: start.model[k].nominal for k in start.ids}
-            plan = exchange_positions(plan, candidates, noise, setting, scales=scales, criterion=criterion if targets is None else Criterion.A)
+            plan = exchange_positions(
+                plan, candidates, noise, setting, scales=scales, criterion=criterion if targets is None else Criterion.A
+            )
         bounds = DwellBounds(args.min_dwell, args.max_dwell)
         budget = None if args.budget is None else args.budget * 3600.0
         result = optimize_dwells(plan, noise, setting, targets=targets, budget=budget, criterion=criterion, bounds=bounds)
@@ -139,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
 
         result = expected_precision(replace(result.plan, coarse=rounded[0], fine=rounded[1] if len(rounded) > 1 else None), noise, setting)
     written = _write(args, coarse, fine, result) if result is not None else []
-    data, text = _report(args, start, result, targets, written, noise)
+    data, text = _report(args, start, result, targets, written=written, noise=noise)
     emit(args, data, text)
     return 0
 
@@ -150,13 +180,23 @@ def _write(args: argparse.Namespace, coarse: Any, fine: Any, result: Any) -> lis
     if args.out is None:
         return []
     source = f"stableins design {Path(coarse.path).stem}" + (f" --fine {Path(fine.path).stem}" if fine is not None else "")
-    out = [str(write_procedure(args.out / f"{args.name}-coarse.toml", coarse, result.plan.coarse, name=f"{args.name}-coarse", source=source).path)]
+    out = [
+        str(
+            write_procedure(
+                args.out / f"{args.name}-coarse.toml", coarse, result.plan.coarse, name=f"{args.name}-coarse", source=source
+            ).path
+        )
+    ]
     if fine is not None:
-        out.append(str(write_procedure(args.out / f"{args.name}-fine.toml", fine, result.plan.fine, name=f"{args.name}-fine", source=source).path))
+        out.append(
+            str(write_procedure(args.out / f"{args.name}-fine.toml", fine, result.plan.fine, name=f"{args.name}-fine", source=source).path)
+        )
     return out
 
 
-def _report(args: argparse.Namespace, start: Any, result: Any, targets: Any, written: list[str], noise: Any) -> tuple[dict[str, Any], str]:
+def _report(
+    args: argparse.Namespace, start: Any, result: Any, targets: Any, *, written: list[str], noise: Any
+) -> tuple[dict[str, Any], str]:
     from stableins.estimators.design import describe_design
 
     lines = [f"noise model: {noise.describe()}", "", f"{'parameter':<10}{'unit':<8}{'σ (given)':>11}"]
@@ -185,8 +225,11 @@ def _report(args: argparse.Namespace, start: Any, result: Any, targets: Any, wri
             lines.append(f"{s.stage} dwells [s]: " + " ".join(f"{t:g}" for t in s.dwell))
     lines += [f"wrote {p}" for p in written]
     data = {
-        "parameters": rows, "lab_time": start.lab_time, "rank": start.analysis.rank,
-        "designed_lab_time": None if result is None else result.lab_time, "procedures": written,
+        "parameters": rows,
+        "lab_time": start.lab_time,
+        "rank": start.analysis.rank,
+        "designed_lab_time": None if result is None else result.lab_time,
+        "procedures": written,
         "designed_dwells": None if result is None else {s.stage: s.dwell.tolist() for s in result.plan.stages},
-    }  # fmt: skip
+    }
     return data, "\n".join(lines)

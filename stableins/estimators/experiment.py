@@ -196,9 +196,14 @@ def _dwells(stage: PlannedStage, setting: DeviceSetting, noise: NoiseModel, mode
     from stableins.conventions import dcm_nav_to_body
 
     probe = CoarseProblem(
-        commands[None], np.zeros((1, len(commands), 3)), np.ones((1, len(commands), 3)), setting.gravity,
-        dcm_nav_to_body(*setting.base_attitude), setting.configuration, model,
-    )  # fmt: skip
+        commands[None],
+        np.zeros((1, len(commands), 3)),
+        np.ones((1, len(commands), 3)),
+        setting.gravity,
+        dcm_nav_to_body(*setting.base_attitude),
+        setting.configuration,
+        model,
+    )
     means = probe.predict(nominal[None])[0][0]
     white = noise.values("white")
     out = []
@@ -206,11 +211,19 @@ def _dwells(stage: PlannedStage, setting: DeviceSetting, noise: NoiseModel, mode
     for k, (command, mean, t, start) in enumerate(zip(commands, means, dwell, starts)):
         out.append(
             DwellSummary(
-                position=k % m + 1, stage=stage.stage, pass_number=k // m + 1, command=command, angles=command, mean=mean,
-                sem=white / math.sqrt(t), noise=white * math.sqrt(stage.sample_rate), samples=int(t * stage.sample_rate) + 1,
-                duration=float(t), start=float(start),
+                position=k % m + 1,
+                stage=stage.stage,
+                pass_number=k // m + 1,
+                command=command,
+                angles=command,
+                mean=mean,
+                sem=white / math.sqrt(t),
+                noise=white * math.sqrt(stage.sample_rate),
+                samples=int(t * stage.sample_rate) + 1,
+                duration=float(t),
+                start=float(start),
             )
-        )  # fmt: skip
+        )
     return out
 
 
@@ -225,7 +238,7 @@ def expected_precision(plan: DevicePlan, noise: NoiseModel, setting: DeviceSetti
     """
     if not np.all(noise.values("white") > 0):
         raise InputError("the noise model needs a white noise N > 0 on every axis", field="noise_model.white", expected="N [m/s/√s] > 0")
-    model = coarse_model(nonlinear=plan.fine is not None, extra_terms=setting.extra_terms)
+    model = coarse_model(nonlinear=True, extra_terms=setting.extra_terms)
     coarse = _dwells(plan.coarse, setting, noise, model, plan.slew_rate)
     fine = [] if plan.fine is None else _dwells(plan.fine, setting, noise, model, plan.slew_rate)
     x = model.vector({k: model[k].reference for k in model.ids})[None]
@@ -248,7 +261,7 @@ def expected_precision(plan: DevicePlan, noise: NoiseModel, setting: DeviceSetti
 
 
 def scaled_criterion(result: DesignResult, criterion: Criterion, scales: Mapping[str, float]) -> float:
-    """A: ``Σ (σ_k/s_k)²``; D: ``log det`` of the covariance scaled by ``s_k`` (parameters with a scale, gauge excluded)."""
+    """Return the criterion: A ``Σ (σ_k/s_k)²``, D ``log det`` of the covariance scaled by ``s_k`` (gauge excluded)."""
     idx = [result.ids.index(k) for k in scales if k != GAUGE]
     s = np.array([scales[result.ids[i]] for i in idx])
     cov = result.covariance[np.ix_(idx, idx)] / np.outer(s, s)
@@ -266,7 +279,7 @@ class DwellBounds:
 
 
 def _scaled_dwells(plan: DevicePlan, u: NDArray[np.float64]) -> DevicePlan:
-    """The plan with dwell times ``exp(u)``: coarse positions first, then fine."""
+    """Return the plan with dwell times ``exp(u)``: coarse positions first, then fine."""
     m = len(plan.coarse.commands)
     t = np.exp(u)
     coarse = plan.coarse.with_dwell(t[:m])
@@ -313,32 +326,44 @@ def optimize_dwells(
         goal = np.log(np.array([targets[k] for k in keys]))
         time_scale = plan.lab_time
         solution = minimize(
-            lambda u: _scaled_dwells(plan, u).lab_time / time_scale, u0, method="SLSQP", bounds=box,
-            constraints=[{"type": "ineq", "fun": lambda u: goal - log_sigma(u, keys)}], options={"maxiter": 200, "ftol": 1e-6},
-        )  # fmt: skip
+            lambda u: _scaled_dwells(plan, u).lab_time / time_scale,
+            u0,
+            method="SLSQP",
+            bounds=box,
+            constraints=[{"type": "ineq", "fun": lambda u: goal - log_sigma(u, keys)}],
+            options={"maxiter": 200, "ftol": 1e-6},
+        )
         result = evaluate(solution.x)
         missed = [k for k in keys if result.sigma[k] > targets[k] * 1.001]
         if missed:
             raise InputError(
                 f"the targets of {', '.join(missed)} cannot be reached with dwells of {bounds.minimum:g}–{bounds.maximum:g} s "
-                "at these positions", field="targets", expected="larger targets, longer --max-dwell, or other positions",
-            )  # fmt: skip
+                "at these positions",
+                field="targets",
+                expected="larger targets, longer --max-dwell, or other positions",
+            )
         return result
     solution = minimize(
-        lambda u: scaled_criterion(evaluate(u), criterion, scales), u0, method="SLSQP", bounds=box,
+        lambda u: scaled_criterion(evaluate(u), criterion, scales),
+        u0,
+        method="SLSQP",
+        bounds=box,
         constraints=[{"type": "ineq", "fun": lambda u: 1.0 - _scaled_dwells(plan, u).lab_time / float(budget or 1.0)}],
         options={"maxiter": 200, "ftol": 1e-8},
-    )  # fmt: skip
+    )
     result = evaluate(solution.x)
     if result.lab_time > float(budget or 0.0) * 1.001:
         raise InputError(
             f"the budget {float(budget or 0.0) / 3600:.3g} h is shorter than the slews, settles and shortest dwells of these positions",
-            field="budget", expected=f"at least {_scaled_dwells(plan, np.full_like(u0, box[0][0])).lab_time / 3600:.3g} h",
-        )  # fmt: skip
+            field="budget",
+            expected=f"at least {_scaled_dwells(plan, np.full_like(u0, box[0][0])).lab_time / 3600:.3g} h",
+        )
     return result
 
 
-def grid_candidates(step: float, *, platform: tuple[float, float], inner: tuple[float, float], middle: tuple[float, float]) -> NDArray[np.float64]:
+def grid_candidates(
+    step: float, *, platform: tuple[float, float], inner: tuple[float, float], middle: tuple[float, float]
+) -> NDArray[np.float64]:
     """Every gimbal triple (platform, inner, middle) [rad] on a grid of ``step`` [rad] within the closed ranges given [rad]."""
     axes = [np.arange(lo, hi + 1e-9, step) for lo, hi in (platform, inner, middle)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -355,9 +380,14 @@ def _unit_information(
     white = noise.values("white")
     x = model.vector({k: model[k].reference for k in model.ids})[None]
     probe = CoarseProblem(
-        commands[None], np.zeros((1, c, 3)), np.ones((1, c, 3)), setting.gravity, dcm_nav_to_body(*setting.base_attitude),
-        setting.configuration, model,
-    )  # fmt: skip
+        commands[None],
+        np.zeros((1, c, 3)),
+        np.ones((1, c, 3)),
+        setting.gravity,
+        dcm_nav_to_body(*setting.base_attitude),
+        setting.configuration,
+        model,
+    )
     means, jac = probe.predict(x)
     weighted = jac[0] / white[None, :, None]  # (c, 3, n)
     coarse = np.einsum("cai,caj->cij", weighted, weighted)
@@ -370,8 +400,10 @@ def _unit_information(
     return coarse, np.einsum("ci,cj->cij", row, row)
 
 
-def _criterion_batch(info: NDArray[np.float64], free: NDArray[np.bool_], scales: NDArray[np.float64], criterion: Criterion) -> NDArray[np.float64]:
-    """A or D criterion of a batch of information matrices ``(b, n, n)`` on the free parameters scaled by ``scales``; inf when singular."""
+def _criterion_batch(
+    info: NDArray[np.float64], free: NDArray[np.bool_], scales: NDArray[np.float64], criterion: Criterion
+) -> NDArray[np.float64]:
+    """Return the A or D criterion of information matrices ``(b, n, n)``, free parameters scaled by ``scales``; inf if singular."""
     block = info[:, free][:, :, free] * np.outer(scales, scales)
     eigen = np.linalg.eigvalsh(block)
     ok = eigen[:, 0] > 1e-12 * eigen[:, -1]
@@ -398,7 +430,7 @@ def exchange_positions(
     ``scales`` (SI, per parameter) weight the criterion (the targets, or the typical sizes).  A coarse position is only
     replaced by one that keeps a single coarse pass able to determine every parameter beyond the ``θ10`` gauge.
     """
-    model = coarse_model(nonlinear=plan.fine is not None, extra_terms=setting.extra_terms)
+    model = coarse_model(nonlinear=True, extra_terms=setting.extra_terms)
     free = np.array([k != GAUGE for k in model.ids])
     s = np.array([scales.get(k, model[k].nominal) for k in model.ids])[free]
     cand = _unit_information(candidates, model, setting, noise)
@@ -410,7 +442,9 @@ def exchange_positions(
         for k, st in enumerate(plan.stages):
             for j in range(len(st.commands)):
                 total = sum(np.einsum("j,jab->ab", weight[name], current[name]) for name in current)
-                values = _criterion_batch(total[None] - weight[st.stage][j] * current[st.stage][j] + weight[st.stage][j] * cand[k], free, s, criterion)
+                values = _criterion_batch(
+                    total[None] - weight[st.stage][j] * current[st.stage][j] + weight[st.stage][j] * cand[k], free, s, criterion
+                )
                 if st.stage == "coarse":  # one pass alone must still determine everything (the offsets it re-points by)
                     one = np.einsum("j,jab->ab", st.dwell, current["coarse"]) - st.dwell[j] * current["coarse"][j]
                     values[~np.isfinite(_criterion_batch(one[None] + st.dwell[j] * cand[0], free, s, Criterion.D))] = np.inf

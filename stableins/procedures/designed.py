@@ -70,9 +70,16 @@ def procedure_text(template: ProcedureDefinition, stage: PlannedStage, *, name: 
     for k, (command, dwell, settle) in enumerate(zip(stage.commands, stage.dwell, stage.settle), start=1):
         platform, inner, middle = (round(math.degrees(a), 9) for a in command)
         lines += [
-            "[[step]]", f"position = {k}", f"platform = {platform!r}", f"inner = {inner!r}", f"middle = {middle!r}",
-            f"settle = {round(float(settle), 3)!r}", f"dwell = {round(float(dwell), 1)!r}", f"sample_rate = {float(stage.sample_rate)!r}", "",
-        ]  # fmt: skip
+            "[[step]]",
+            f"position = {k}",
+            f"platform = {platform!r}",
+            f"inner = {inner!r}",
+            f"middle = {middle!r}",
+            f"settle = {round(float(settle), 3)!r}",
+            f"dwell = {round(float(dwell), 1)!r}",
+            f"sample_rate = {float(stage.sample_rate)!r}",
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -89,18 +96,22 @@ def write_procedure(path: str | Path, template: ProcedureDefinition, stage: Plan
 
 
 def planned_stage(definition: ProcedureDefinition, *, passes: int = 1, sample_rate: float | None = None) -> PlannedStage:
-    """The plan of a procedure definition: its positions, dwell and settle times (``passes`` runs of a coarse stage)."""
+    """Return the plan of a procedure definition: its positions, dwell and settle times (``passes`` runs of a coarse stage)."""
     steps = definition.steps
     return PlannedStage(
-        definition.stage, np.array([s.command for s in steps]), np.array([s.dwell for s in steps]), np.array([s.settle for s in steps]),
-        sample_rate or steps[0].sample_rate, passes,
-    )  # fmt: skip
+        definition.stage,
+        np.array([s.command for s in steps]),
+        np.array([s.dwell for s in steps]),
+        np.array([s.settle for s in steps]),
+        sample_rate or steps[0].sample_rate,
+        passes,
+    )
 
 
 def device_plan(
     coarse: ProcedureDefinition, fine: ProcedureDefinition | None = None, *, passes: int = 2, sample_rate: float | None = None
 ) -> DevicePlan:
-    """The plan of a coarse procedure run ``passes`` times and an optional fine procedure."""
+    """Return the plan of a coarse procedure run ``passes`` times and an optional fine procedure."""
     return DevicePlan(
         planned_stage(coarse, passes=passes, sample_rate=sample_rate),
         None if fine is None else planned_stage(fine, sample_rate=sample_rate),
