@@ -227,6 +227,27 @@ def _dwells(stage: PlannedStage, setting: DeviceSetting, noise: NoiseModel, mode
     return out
 
 
+def _weighted_design(
+    plan: DevicePlan, noise: NoiseModel, setting: DeviceSetting
+) -> tuple[ErrorModel, NDArray[np.float64], list[DwellSummary]]:
+    """The joint model, the whitened Jacobian ``A`` of the whole plan at the nominal instrument, and the coarse dwells."""
+    if not np.all(noise.values("white") > 0):
+        raise InputError("the noise model needs a white noise N > 0 on every axis", field="noise_model.white", expected="N [m/s/√s] > 0")
+    model = coarse_model(nonlinear=True, extra_terms=setting.extra_terms)
+    coarse = _dwells(plan.coarse, setting, noise, model, plan.slew_rate)
+    fine = [] if plan.fine is None else _dwells(plan.fine, setting, noise, model, plan.slew_rate)
+    x = model.vector({k: model[k].reference for k in model.ids})[None]
+    return model, joint_problem(coarse, fine, setting=replace(setting, noise=noise), model=model).weighted(x)[1][0], coarse
+
+
+def _bound(model: ErrorModel, a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(A_fᵀ A_f)⁻¹`` on the free parameters (``θ10`` the gauge: zero row and column)."""
+    free = np.array([k != GAUGE for k in model.ids])
+    cov = np.zeros((len(model), len(model)))
+    cov[np.ix_(free, free)] = np.linalg.inv(a[:, free].T @ a[:, free])
+    return cov
+
+
 def expected_precision(plan: DevicePlan, noise: NoiseModel, setting: DeviceSetting) -> DesignResult:
     """Cramér-Rao bound of ``plan`` under ``noise`` (module docstring): σ, rank, null space, lab time.
 
@@ -236,28 +257,19 @@ def expected_precision(plan: DevicePlan, noise: NoiseModel, setting: DeviceSetti
         The noise model has no white noise (the bound would be infinite information), or the design does not
         determine the parameters beyond the ``θ10`` gauge.
     """
-    if not np.all(noise.values("white") > 0):
-        raise InputError("the noise model needs a white noise N > 0 on every axis", field="noise_model.white", expected="N [m/s/√s] > 0")
-    model = coarse_model(nonlinear=True, extra_terms=setting.extra_terms)
-    coarse = _dwells(plan.coarse, setting, noise, model, plan.slew_rate)
-    fine = [] if plan.fine is None else _dwells(plan.fine, setting, noise, model, plan.slew_rate)
-    x = model.vector({k: model[k].reference for k in model.ids})[None]
+    model, a, coarse = _weighted_design(plan, noise, setting)
     scales = np.array([t.nominal for t in model])
-    a = joint_problem(coarse, fine, setting=replace(setting, noise=noise), model=model).weighted(x)[1][0]
     analysis = analyze_design(a, model.ids, scales)
+    x = model.vector({k: model[k].reference for k in model.ids})[None]
     m = len(plan.coarse.commands)
     one = joint_problem(coarse[:m], [], setting=replace(setting, noise=noise), model=model).weighted(x)[1][0]
     coarse_pass = analyze_design(one, model.ids, scales)
-    free = np.array([k != GAUGE for k in model.ids])
-    if analysis.rank < free.sum():
+    if analysis.rank < len(model) - 1:
         from stableins.estimators.design import describe_design
 
         lines = describe_design(model.ids, analysis.singular_values, analysis.null_space)
         raise InputError("the design does not determine the parameters beyond the θ10 gauge: " + "; ".join(lines[1:]), field="positions")
-    info = a[:, free].T @ a[:, free]
-    cov = np.zeros((len(model), len(model)))
-    cov[np.ix_(free, free)] = np.linalg.inv(info)
-    return DesignResult(plan, model.ids, cov, analysis, coarse_pass, model)
+    return DesignResult(plan, model.ids, _bound(model, a), analysis, coarse_pass, model)
 
 
 def scaled_criterion(result: DesignResult, criterion: Criterion, scales: Mapping[str, float]) -> float:
@@ -314,12 +326,28 @@ def optimize_dwells(
     u0 = np.log(np.clip(np.concatenate([s.dwell for s in plan.stages]), bounds.minimum, bounds.maximum))
     box = [(math.log(bounds.minimum), math.log(bounds.maximum))] * len(u0)
 
-    def evaluate(u: NDArray[np.float64]) -> DesignResult:
-        return expected_precision(_scaled_dwells(plan, u), noise, setting)
+    cache: dict[bytes, tuple[tuple[str, ...], NDArray[np.float64]]] = {}
+
+    def bound_of(u: NDArray[np.float64]) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+        key = np.asarray(u, dtype=float).tobytes()
+        if key not in cache:
+            model, a, _ = _weighted_design(_scaled_dwells(plan, u), noise, setting)
+            cache[key] = (model.ids, _bound(model, a))
+        return cache[key]
 
     def log_sigma(u: NDArray[np.float64], keys: Sequence[str]) -> NDArray[np.float64]:
-        sigma = evaluate(u).sigma
-        return np.log(np.array([sigma[k] for k in keys]))
+        names, cov = bound_of(u)
+        return 0.5 * np.log(np.array([cov[names.index(k), names.index(k)] for k in keys]))
+
+    def criterion_of(u: NDArray[np.float64]) -> float:
+        names, cov = bound_of(u)
+        idx = [names.index(k) for k in ids]
+        scale = np.array([scales[k] for k in ids])
+        block = cov[np.ix_(idx, idx)] / np.outer(scale, scale)
+        return float(np.trace(block)) if criterion is Criterion.A else float(np.linalg.slogdet(block)[1])
+
+    def evaluate(u: NDArray[np.float64]) -> DesignResult:
+        return expected_precision(_scaled_dwells(plan, u), noise, setting)
 
     if targets is not None:
         keys = [k for k in targets if k in ids]
@@ -344,7 +372,7 @@ def optimize_dwells(
             )
         return result
     solution = minimize(
-        lambda u: scaled_criterion(evaluate(u), criterion, scales),
+        criterion_of,
         u0,
         method="SLSQP",
         bounds=box,
