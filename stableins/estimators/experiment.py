@@ -230,7 +230,7 @@ def _dwells(stage: PlannedStage, setting: DeviceSetting, noise: NoiseModel, mode
 def _weighted_design(
     plan: DevicePlan, noise: NoiseModel, setting: DeviceSetting
 ) -> tuple[ErrorModel, NDArray[np.float64], list[DwellSummary]]:
-    """The joint model, the whitened Jacobian ``A`` of the whole plan at the nominal instrument, and the coarse dwells."""
+    """Return the joint model, the whitened Jacobian ``A`` of the whole plan at the nominal instrument, and the coarse dwells."""
     if not np.all(noise.values("white") > 0):
         raise InputError("the noise model needs a white noise N > 0 on every axis", field="noise_model.white", expected="N [m/s/√s] > 0")
     model = coarse_model(nonlinear=True, extra_terms=setting.extra_terms)
