@@ -206,14 +206,16 @@ def plot_summary(parameters: Sequence[ParameterSummary], rows: Sequence[Mapping[
         by = {s.parameter: s for s in parameters if (s.procedure, s.noise, s.hidden) == group}
         ratio = [by[n].measured_sigma / by[n].design_sigma if n in by else np.nan for n in names]
         rms = [by[n].rms_z if n in by else np.nan for n in names]
-        left.bar(x + (k - (len(groups) - 1) / 2) * width, ratio, width, label=f"{' / '.join(group)}: measured σ / design σ")
-        left.plot(x + (k - (len(groups) - 1) / 2) * width, rms, "k_", markersize=10, label="rms z" if k == 0 else None)
+        offset = x + (k - (len(groups) - 1) / 2) * width
+        spread = [1 / math.sqrt(2 * by[n].n) if n in by else np.nan for n in names]  # 1σ of a σ estimated from n devices
+        left.errorbar(offset, ratio, yerr=spread, fmt="o", capsize=2, label=f"{' / '.join(group)}: measured σ / design σ (±1σ)")
+        left.plot(offset, rms, "k_", markersize=10, label="rms z" if k == 0 else None)
     left.axhline(1.0, color="grey", lw=0.8)
     left.axhspan(0.95, 1.05, color="green", alpha=0.12, label="±5 %")
     left.set_xticks(x, names, rotation=60, fontsize=8)
     left.set_ylabel("ratio")
     left.set_title(f"σ measured over {parameters[0].n if parameters else 0} devices vs the design's Cramér-Rao bound")
-    left.legend(fontsize=7, loc="upper right")
+    left.legend(fontsize=7, loc="lower left")
     z = np.array([r["z"] for r in rows if r["status"] == "estimated"], dtype=float)
     z = z[np.isfinite(z)]
     right.hist(z, bins=60, range=(-5, 5), density=True, color="tab:blue", alpha=0.7, label=f"z = err/σ ({z.size})")
