@@ -80,12 +80,18 @@ QUICK: dict[str, Quick] = {
         volatile=(r"\s{2,}\d+\s+(\d+\.\d+)\s+\d+",),  # the 'time [s]' column of the table
     ),
     "bench_budget": Quick(("--seed", "13"), "the default run (one device world, one synthetic day at 1 Hz); seed pinned"),
+    "bench_campaign": Quick(
+        ("--devices", "4", "--out", "{work}"),
+        "4 devices of the paper procedure instead of 1000, no designed procedure, no scaling run",
+        volatile=(r"ran \d+ tasks.*$", r"^A\. .*$"),  # wall times, per-calibration time and the uptime lines
+    ),
     "bench_day_record": Quick(
         ("--hours", "0.5", "--repeat", "1", "--dir", "{work}"),
         "half an hour at 100 Hz instead of 24 h, one repetition",
         volatile=(r"\d[\d.]*\.\.\s*\d[\d.]*", r"writer / raw = [\d.]+"),  # best..worst of the baselines, their ratios
     ),
     "bench_cai_table3": Quick(("--seeds", "2", "--rate", "10"), "2 sessions at 10 Hz instead of 10 at 100 Hz (same dwell means)"),
+    "bench_design": Quick(("--quick",), "the bound of the paper procedure only (no optimization)"),
     "bench_demo_loop": Quick(("--seed", "2018", "Kcc_xxy=6e-6"), "one hidden-effect case (Kcc_xxy) of the four; the demo itself unchanged"),
     "bench_device_montecarlo": Quick(
         ("--trials", "1000", "--sim-devices", "2", "--workers", "1", "--seed", "20260101"),

@@ -77,6 +77,8 @@ COMMANDS: dict[str, Command | Group] = {
     "budget": Command(
         "stableins.commands.budget", "navigation budget: what each calibration term's 1σ and the gyro drift do to navigation"
     ),
+    "design": Command("stableins.commands.design", "expected σ of a procedure before the platform moves; dwells for σ targets or a budget"),
+    "campaign": Command("stableins.commands.campaign", "Monte Carlo campaign of simulated calibrations on Dask (docs/campaigns.md)"),
     "report": Command("stableins.commands.report", "write the PDF calibration report of a calibration record (ISO/IEC 17025 7.8)"),
 }
 

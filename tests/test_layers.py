@@ -58,6 +58,7 @@ LAYERS: dict[str, int] = {
     "stableins.history": 6,
     "stableins.history_store": 6,
     "stableins.runs": 6,
+    "stableins.campaign": 6,
     "stableins.reporting": 6,
     # 7 interface
     "stableins.commands": 7,

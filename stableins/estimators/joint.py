@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import dcm_nav_to_body
+from stableins.errormodel import ErrorModel
 from stableins.estimators.coarse import CoarseProblem, coarse_model, quality_notes
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
@@ -130,6 +131,26 @@ class JointProblem:
         return np.einsum("tij,tj->ti", w, residual), w @ jacobian
 
 
+def joint_problem(
+    coarse_dwells: Sequence[DwellSummary], fine_dwells: Sequence[DwellSummary], *, setting: DeviceSetting, model: ErrorModel
+) -> JointProblem:
+    """Return the :class:`JointProblem` of usable coarse dwells (any passes) and fine dwells under ``setting``'s noise model.
+
+    ``model`` is the joint model (:func:`~stableins.estimators.coarse.coarse_model`, with ``K2_*`` when there are fine
+    dwells).  Also the design's Cramér-Rao bound (:mod:`stableins.estimators.experiment`) is evaluated on this problem.
+    """
+    base = dcm_nav_to_body(*setting.base_attitude)
+    coarse = CoarseProblem.from_dwells(coarse_dwells, setting.gravity, base, setting.configuration, model)
+    fine = None
+    columns = np.zeros(0, dtype=np.int64)
+    if fine_dwells:
+        fm = fine_model(setting.extra_terms)
+        means = np.array([d.mean for d in fine_dwells])[None]
+        fine = FineProblem(means, np.array([d.sem for d in fine_dwells])[None], float(setting.gravity), fm)
+        columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
+    return JointProblem(coarse, fine, columns, slow_covariance([*coarse_dwells, *fine_dwells], setting.noise))
+
+
 def fit_joint(
     coarse_dwells: Sequence[DwellSummary],
     fine_dwells: Sequence[DwellSummary] = (),
@@ -162,14 +183,7 @@ def fit_joint(
     gravity, noise, extra_terms = setting.gravity, setting.noise, setting.extra_terms
     model = coarse_model(nonlinear=nonlinear or bool(fine_dwells), extra_terms=extra_terms)
     extra_ids = tuple(t.id for t in extra_terms)
-    coarse = CoarseProblem.from_dwells(coarse_dwells, gravity, dcm_nav_to_body(*setting.base_attitude), setting.configuration, model)
-    fine = None
-    columns = np.zeros(0, dtype=np.int64)
-    if fine_dwells:
-        fm = fine_model(extra_terms)
-        fine = FineProblem(np.array([d.mean for d in fine_dwells])[None], np.array([d.sem for d in fine_dwells])[None], float(gravity), fm)
-        columns = np.array([model.index(k) for k in fm.ids], dtype=np.int64)
-    problem = JointProblem(coarse, fine, columns, slow_covariance([*coarse_dwells, *fine_dwells], noise))
+    problem = joint_problem(coarse_dwells, fine_dwells, setting=setting, model=model)
     given = start.as_dict() if isinstance(start, FitResult) else dict(start)
     x0 = model.vector({k: given.get(k, model[k].reference) for k in model.ids})[None]
     scales = np.array([t.nominal for t in model])

@@ -337,8 +337,8 @@ def simulate_dwells(
     truth: Truth,
     readings_list: Sequence[ArrayLike],
     *,
-    dwell: float,
-    settle: float,
+    dwell: float | Sequence[float],
+    settle: float | Sequence[float],
     rate: float | None = None,
     seed: int | None = None,
     stage: str = "coarse",
@@ -354,11 +354,11 @@ def simulate_dwells(
     readings_list : sequence of (3,) array_like
         Commanded angle-sensor readings (platform, inner, middle) [rad], in order;
         positions are numbered 1..N in this order.
-    dwell : float
-        Recorded time per position [s].
-    settle : float
+    dwell : float or sequence of float
+        Recorded time per position [s] (one for all, or one per reading).
+    settle : float or sequence of float
         Time between the end of the slew and the start of recording [s] (0 keeps the
-        settling transient in the record).
+        settling transient in the record); one for all, or one per reading.
     rate : float, optional
         Sample rate [Hz] (default ``truth.site.sample_rate``).
     seed : int, optional
@@ -374,11 +374,13 @@ def simulate_dwells(
     """
     platform = SimulatedPlatform(truth, rate=rate, seed=seed)
     pieces: list[dict[str, NDArray]] = []
+    dwells = np.broadcast_to(np.asarray(dwell, dtype=float), (len(readings_list),))
+    settles = np.broadcast_to(np.asarray(settle, dtype=float), (len(readings_list),))
     for position, readings in enumerate(readings_list, start=1):
         r = np.asarray(readings, dtype=float)
         t_command = platform.command(tuple(r))
-        platform.wait(platform.slew_duration() + settle)
-        block = platform.acquire(dwell)
+        platform.wait(platform.slew_duration() + float(settles[position - 1]))
+        block = platform.acquire(float(dwells[position - 1]))
         n = len(block)
         pieces.append(
             {
