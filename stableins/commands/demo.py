@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import Any, cast
 
@@ -235,10 +236,19 @@ def run(args: argparse.Namespace) -> int:
     lines.append(f"  effects added to the calibration: {', '.join(added) or 'none'}; hidden in the simulated instrument: {hidden_ids}")
     lines += ["", "final calibration against the simulator's truth (θ10 = 0 gauge):",
               f"{'parameter':<10} {'truth':>12} {'estimate':>12} {'error':>10} {'1σ':>9} {'error/σ':>8}  unit"]  # fmt: skip
-    row = "{id:<10} {truth:>12.3f} {estimate:>12.3f} {error:>10.3f} {sigma:>9.3f} {z:>8.2f}  {unit}"
-    lines += [row.format(**r) for r in rows]
+    lines += [_verdict_row(r) for r in rows]
     worst = max((abs(r["z"]) for r in rows), default=float("nan"))
     lines.append(f"largest |error|/σ = {worst:.2f} over {len(rows)} estimated parameters; files in {out}/")
     print("", file=sys.stderr)
     emit(args, {"out": str(out), "added": added, "discovery": said, "verdict": rows}, "\n".join(lines))
     return 0
+
+
+def _verdict_row(row: dict) -> str:
+    """One line of the demo's final table: three decimals, or enough for two significant digits of a tiny 1σ."""
+    sigma = abs(float(row["sigma"]))
+    decimals = 3 if not math.isfinite(sigma) or sigma <= 0 or sigma >= 0.01 else min(9, 1 - math.floor(math.log10(sigma)))
+    return (
+        f"{row['id']:<10} {row['truth']:>12.{decimals}f} {row['estimate']:>12.{decimals}f} {row['error']:>10.{decimals}f} "
+        f"{row['sigma']:>9.{decimals}f} {row['z']:>8.2f}  {row['unit']}"
+    )
