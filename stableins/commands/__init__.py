@@ -2,7 +2,23 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
+
+
+def run_data_file(run: str, name: str, *, missing: str, expected: str) -> Path:
+    """Return ``RUN/name`` for a run directory, else RUN itself; a directory without it is an InputError.
+
+    ``missing`` says what the directory lacks and ``expected`` what RUN should be, in the message.
+    """
+    from stableins.errors import InputError
+
+    path = Path(run)
+    if path.is_dir():
+        path = path / name
+        if not path.exists():
+            raise InputError(missing, path=run, field=name, expected=expected)
+    return path
 
 
 def add_entries_option(parser: Any) -> None:

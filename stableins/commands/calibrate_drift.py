@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, update_prior
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, run_data_file, update_prior
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -37,17 +37,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def data_file(run: str) -> Path:
     """Return the system-level record of RUN: ``RUN/system.h5`` for a run directory, else RUN itself."""
-    from stableins.errors import InputError
     from stableins.procedures.rundir import SYSTEM_NAME
 
-    path = Path(run)
-    if path.is_dir():
-        path = path / SYSTEM_NAME
-        if not path.exists():
-            raise InputError(
-                "the run directory has no system-level record", path=run, field=SYSTEM_NAME, expected="a drift-test run directory"
-            )
-    return path
+    return run_data_file(run, SYSTEM_NAME, missing="the run directory has no system-level record", expected="a drift-test run directory")
 
 
 def run(args: Any) -> int:

@@ -15,7 +15,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, update_prior
+from stableins.commands import add_entries_option, add_new_calibration_option, check_same_unit, run_data_file, update_prior
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -42,18 +42,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def data_file(run: str) -> Path:
     """Return the device data set of RUN: ``RUN/device.h5`` for a run directory, else RUN itself."""
-    from stableins.errors import InputError
     from stableins.procedures.rundir import DATASET_NAME
 
-    path = Path(run)
-    if path.is_dir():
-        path = path / DATASET_NAME
-        if not path.exists():
-            raise InputError(
-                "the run directory has no device-level data set", path=run, field=DATASET_NAME,
-                expected="a run directory of 'stableins run device-rotating'",
-            )  # fmt: skip
-    return path
+    return run_data_file(
+        run,
+        DATASET_NAME,
+        missing="the run directory has no device-level data set",
+        expected="a run directory of 'stableins run device-rotating'",
+    )
 
 
 def run(args: Any) -> int:
