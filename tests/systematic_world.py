@@ -13,6 +13,7 @@ import numpy as np
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
 from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel, known_terms
+from stableins.estimators.result import FitResult
 from stableins.estimators.systematic import Prior
 from stableins.noise import NoiseModel
 from stableins.simulator.noise import NoiseSettings
@@ -71,3 +72,18 @@ def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
         else:
             out.append(truth.parameters[name])
     return np.array(out, dtype=float)
+
+
+def prior_pull(fit: FitResult, prior: Prior, true: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The record's prior's part of the stage's error, for a linear-Gaussian posterior ``P`` (Bayes' rule).
+
+    ``x̂ − t = P P0⁻¹ (x0 − t) + P Λ (x_data − t)``: the first term is the prior's pull, fixed by the drawn residual
+    ``t − x0``; drawn from ``N(0, P0)`` its covariance is ``P P0⁻¹ P``.  Returns the pull [SI] and the diagonal of
+    ``P P0⁻¹ P`` on the fit's terms, and the positions of the terms the prior holds (those whose residuals are drawn).
+    """
+    ids = tuple(t.id for t in fit.terms)
+    held = [k for k, i in enumerate(ids) if i in prior.ids]
+    p0 = np.diag(prior.covariance)[[prior.ids.index(ids[k]) for k in held]]
+    x0 = np.array([prior.values[ids[k]] for k in held])
+    gain = fit.covariance[:, held] / p0  # P P0⁻¹ on the prior's terms
+    return gain @ (x0 - true[held]), np.einsum("ij,j,ij->i", gain, p0, gain), held
