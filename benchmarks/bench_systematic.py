@@ -13,8 +13,9 @@ Prints, against the acceptance of issue 18:
    [0.9, 1.1].  Records of ``--mc-hours`` hours (two holds) at 2 Hz; every seed draws a new instrument, residuals,
    base errors and noise.  Printed with its sampling σ and, for the accelerometer families, the mean z² split into
    the prior's pull and the data's part against their expectations (:func:`monte_carlo`).  With 40 seeds an rms z
-   has a sampling σ of 0.05–0.07, so a correct filter leaves one of six families outside the band in about 4 of 10
-   campaigns; the default 200 seeds (σ ≈ 0.03) make the band a test.  ``--mc-log FILE`` keeps the per-seed z.
+   has a sampling σ of 0.05–0.08, so a correct filter leaves one of the six families outside the band in 56 % of
+   campaigns (z drawn with the posterior's correlations); the default 200 seeds (σ 0.024–0.038) in 1 %.
+   ``--mc-log FILE`` keeps the per-seed z.
 5. **Speed and memory** — a day at 100 Hz (HDF5) through the whole stage: wall time (target ≤ 60 s on 2 cores)
    and the peak memory of the stage for half a day and a day (flat in record length).
 
