@@ -77,9 +77,18 @@ def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
 def prior_pull(fit: FitResult, prior: Prior, true: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """The record's prior's part of the stage's error, for a linear-Gaussian posterior ``P`` (Bayes' rule).
 
-    ``x̂ − t = P P0⁻¹ (x0 − t) + P Λ (x_data − t)``: the first term is the prior's pull, fixed by the drawn residual
-    ``t − x0``; drawn from ``N(0, P0)`` its covariance is ``P P0⁻¹ P``.  Returns the pull [SI] and the diagonal of
-    ``P P0⁻¹ P`` on the fit's terms, and the positions of the terms the prior holds (those whose residuals are drawn).
+    ``x̂ − t = P P0⁻¹ (x0 − t) + P Λ (x_data − t)``: the first term is the prior's pull, fixed by the residual
+    ``t − x0`` the seed drew; drawn from ``N(0, P0)`` it has the covariance ``P P0⁻¹ P``.  The second is the data's
+    noise, of covariance ``P − P P0⁻¹ P`` when ``P`` is right.
+
+    Returns
+    -------
+    pull : ndarray
+        ``P P0⁻¹ (x0 − t)`` on the fit's terms [SI] (``P0`` block-diagonal: only the prior's terms pull).
+    variance : ndarray
+        The diagonal of ``P P0⁻¹ P`` [SI²].
+    held : list of int
+        Positions of the terms the prior holds (whose residuals the seed drew).
     """
     ids = tuple(t.id for t in fit.terms)
     held = [k for k, i in enumerate(ids) if i in prior.ids]
