@@ -55,7 +55,8 @@ def run(args: Any) -> int:
 def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
     """Return the ``--json`` document: orientations, rank, gyro terms (°/h, °/h/g), cross-couplings (µg/g²), the record's parameters."""
     scale = {"gyro_drift_": DEG_PER_HOUR, "Dg_": DEG_PER_HOUR_PER_G}
-    gyro, cross = {}, {}
+    gyro: dict[str, dict[str, float]] = {}
+    cross: dict[str, dict[str, float | bool | None]] = {}
     for term, value, sigma in zip(outcome.fit.terms, outcome.fit.values, outcome.fit.sigma, strict=True):
         unit = next((v for k, v in scale.items() if term.id.startswith(k)), None)
         if unit is not None:

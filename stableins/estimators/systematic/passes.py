@@ -258,8 +258,7 @@ def _change(old: Linearization, new: Linearization, run: FilterRun, layout: Stat
 #: The groups of the rank report: name and the state names' test.
 RANK_GROUPS = (
     ("accelerometer", lambda n: n.startswith(("sf_", "bias_", "beta_"))),
-    ("nonlinearity", lambda n: n.startswith("K2_")),
-    ("cross-coupling", lambda n: n.startswith("Kcc_")),
+    ("nonlinearity", lambda n: n.startswith(("K2_", "Kcc_"))),  # the f_i f_j terms: K2 and any cross-couplings
     ("gyro", lambda n: n in GYRO_IDS),
     ("nuisance", lambda n: n.startswith("base_") or n.endswith("_residual")),
 )
@@ -272,8 +271,6 @@ def rank_report(result: PassResult) -> tuple[GroupRank, ...]:
     out = []
     for group, member in RANK_GROUPS:
         index = [k for k, n in enumerate(names) if member(n)]
-        if not index:  # no cross-coupling states
-            continue
         block = np.ix_(index, index)
         information = np.linalg.inv(result.rank.P[block]) - np.linalg.inv(result.diffuse_covariance[block])
         units = np.array([resolution(names[k]) / scales[k] for k in index])

@@ -85,7 +85,7 @@ class GroupRank:
     Attributes
     ----------
     group : str
-        ``"accelerometer"``, ``"nonlinearity"``, ``"gyro"`` or ``"nuisance"``.
+        ``"accelerometer"``, ``"nonlinearity"`` (``K2`` and any cross-couplings), ``"gyro"`` or ``"nuisance"``.
     ids : tuple of str
     directions : tuple of Direction
         Most determined first.
