@@ -199,7 +199,9 @@ def cross_coupling(hours: float, seed: int) -> None:
     information = np.linalg.inv(passes.rank.P[block]) - np.linalg.inv(passes.diffuse_covariance[block])
     units = np.array([resolution(layout.names[k]) / scales[k] for k in index])
     joint = group_rank("accelerometer block", layout.accelerometer_ids, information, units)
-    print(f"  all accelerometer terms together: {joint.rank} of {len(joint.ids)} determined")
+    print(f"  all accelerometer terms together: {joint.rank} of {len(joint.ids)} determined; the others:")
+    for d in joint.gauge:
+        print(f"      σ = {d.sigma:8.3g} resolution units: {d.name}")
     covariance = np.linalg.inv(information * np.outer(units, units))
     combinations = {i: {i: 1.0} for i in CAI_KCC}
     combinations |= {f"radial f_{a}·f": {f"K2_{a}": 1.0, **{k: 1.0 for k in CAI_KCC if k[4] != a and a in k[5:]}} for a in "xyz"}
