@@ -321,6 +321,64 @@ TIME_ASYNC_TERM = Term(
 ROTATION_TERMS: tuple[Term, ...] = LEVER_TERMS + (TIME_ASYNC_TERM,)
 
 
+def _cross_coupling_source(a: str, b: str, c: str) -> str:
+    """Cai et al. 2016 Eq. 4's symbol for ``Kcc_abc``, or that Cai does not model it.
+
+    Cai's K_cross (Eq. 6) couples accelerometer ``a`` to ``f_a`` times one other axis: ``K_axy, K_axz`` (x),
+    ``K_ayx, K_ayz`` (y), ``K_azx, K_azy`` (z), i.e. ``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``.  The three products of the
+    two *other* axes (``Kcc_xyz, Kcc_yxz, Kcc_zxy``) are not in Cai's model.
+    """
+    if a not in (b, c):
+        return "not in Cai et al. 2016, whose K_cross couples an accelerometer to its own input times another"
+    other = c if b == a else b
+    return f"Cai et al. 2016 Eq. 4 K_a{a}{other}"
+
+
+def _product_on_axis(i: int, j: int, k: int) -> Regressor:
+    """Regressor ``e_i f_j f_k`` (``f = f^p`` on the nominal sensitive axes)."""
+
+    def regressor(inputs: TermInputs) -> NDArray[np.float64]:
+        f = np.asarray(inputs.specific_force, dtype=float)
+        out = np.zeros(f.shape)
+        out[..., i] = f[..., j] * f[..., k]
+        return out
+
+    return regressor
+
+
+def _cross_coupling_terms() -> tuple[Term, ...]:
+    terms = []
+    for i, a in enumerate(AXES):
+        for b, c in (("x", "y"), ("x", "z"), ("y", "z")):
+            j, k = AXES.index(b), AXES.index(c)
+            terms.append(
+                Term(
+                    f"Kcc_{a}{b}{c}",
+                    TermKind.ADDITIVE,
+                    "s^2/m",
+                    "ug/g^2",
+                    MICRO_G_PER_G2,
+                    10 * MICRO_G_PER_G2,
+                    f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} ({_cross_coupling_source(a, b, c)}"
+                    ", IEEE 1293 Kip/Kio/Kpo)",
+                    axis=i,
+                    regressor=_product_on_axis(i, j, k),
+                    excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
+                    aliases=(f"beta_{a}{b}" if b != a else f"beta_{a}{c}", f"bias_{a}"),
+                    source="Cai et al. 2016 Eqs. 4 and 6; IEEE Std 1293" if a in (b, c) else "IEEE Std 1293 (not in Cai et al. 2016)",
+                )
+            )
+    return tuple(terms)
+
+
+#: The nine cross-couplings ``Kcc_abc`` [s²/m], µg/g² at the edges: accelerometer ``a`` + ``Kcc f_b f_c`` (``b < c``),
+#: an additive term (:attr:`TermKind.ADDITIVE`; the discovery library's instrument candidates, carried into a record
+#: by ``calibrate device --add``).  Not in :func:`known_terms`: a record holds them as discovered terms.
+CROSS_COUPLING_TERMS: tuple[Term, ...] = _cross_coupling_terms()
+#: Cai et al. 2016's six (K_cross, Eq. 4): an accelerometer's own input times another's.
+CAI_CROSS_COUPLING_IDS: tuple[str, ...] = tuple(t.id for t in CROSS_COUPLING_TERMS if t.id[4] in t.id[5:])
+
+
 def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:
     """Terms by id: the core, gimbal, gyro, lever-arm and asynchrony terms, plus any given (e.g. discovered additive terms)."""
     out = {t.id: t for t in CORE_TERMS + GIMBAL_TERMS + GYRO_DRIFT_TERMS + GYRO_G_TERMS + ROTATION_TERMS}
