@@ -24,6 +24,7 @@ from stableins.conventions import (
     DEG_PER_HOUR,
     DEG_PER_HOUR_PER_G,
     GIMBAL_OFFSET_MEANING,
+    INSTALLATION_ENTRIES,
     INSTALLATION_MEANING,
     MICRO_G,
     MILLIMETRE,
@@ -334,6 +335,19 @@ def _cross_coupling_source(a: str, b: str, c: str) -> str:
     return f"Cai et al. 2016 Eq. 4 K_a{a}{other}"
 
 
+def _installation_aliases(a: str, b: str, c: str) -> tuple[str, ...]:
+    """Return the installation angles that read like ``Kcc_abc`` where one factor of ``f_b·f_c`` stays constant.
+
+    Row ``a`` of ``C_p^a`` takes the other axis ``o`` in through the angle at ``[a, o]``
+    (:data:`stableins.conventions.INSTALLATION_ENTRIES`; row x: ``f_y`` through ``beta_xz``, ``f_z`` through
+    ``beta_xy``).  With ``f_a`` constant, ``Kcc_a·a·o`` reads as that angle (``Kcc_xxy`` as ``beta_xz``, ``Kcc_zxz`` as
+    ``beta_zy``); a product of the two other axes reads as either of row ``a``'s angles.
+    """
+    others = [o for o in (b, c) if o != a] if a in (b, c) else [b, c]
+    at = {(row, col): beta for beta, (row, col, _) in INSTALLATION_ENTRIES.items()}
+    return tuple(at[AXES.index(a), AXES.index(o)] for o in others)
+
+
 def _product_on_axis(i: int, j: int, k: int) -> Regressor:
     """Regressor ``e_i f_j f_k`` (``f = f^p`` on the nominal sensitive axes)."""
 
@@ -364,7 +378,7 @@ def _cross_coupling_terms() -> tuple[Term, ...]:
                     axis=i,
                     regressor=_product_on_axis(i, j, k),
                     excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
-                    aliases=(f"beta_{a}{b}" if b != a else f"beta_{a}{c}", f"bias_{a}"),
+                    aliases=(*_installation_aliases(a, b, c), f"bias_{a}"),
                     source="Cai et al. 2016 Eqs. 4 and 6; IEEE Std 1293" if a in (b, c) else "IEEE Std 1293 (not in Cai et al. 2016)",
                 )
             )
