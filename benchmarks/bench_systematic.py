@@ -16,7 +16,8 @@ Prints, against the acceptance of issue 18:
    and the peak memory of the stage for half a day and a day (flat in record length).
 
 Run: ``nice -n 10 .venv/bin/python benchmarks/bench_systematic.py`` (about 25 min on one core);
-``--quick``-like settings: ``--seeds 4 --mc-hours 4 --hours 8 --speed-hours 2``.
+``--quick``-like settings: ``--seeds 4 --mc-hours 4 --hours 8 --speed-hours 2``; ``--parts 3`` runs one part (here
+the equivalence, a few seconds).
 """
 
 from __future__ import annotations
@@ -172,11 +173,18 @@ def main() -> None:
     parser.add_argument("--mc-hours", type=float, default=8.0, help="Monte Carlo record length [h] (default 8)")
     parser.add_argument("--speed-hours", type=float, default=24.0, help="record length of the speed test [h] (default 24)")
     parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument(
+        "--parts", type=int, nargs="+", choices=(1, 2, 3, 4, 5), default=[1, 2, 3, 4, 5], help="parts to run (1 and 2 run together)"
+    )
     args = parser.parse_args()
-    rank_and_drift(args.hours, args.seed)
-    equivalence()
-    monte_carlo(args.seeds, args.mc_hours)
-    speed(args.speed_hours, args.seed)
+    if {1, 2} & set(args.parts):
+        rank_and_drift(args.hours, args.seed)
+    if 3 in args.parts:
+        equivalence()
+    if 4 in args.parts:
+        monte_carlo(args.seeds, args.mc_hours)
+    if 5 in args.parts:
+        speed(args.speed_hours, args.seed)
     print(f"cpu {resource.getrusage(resource.RUSAGE_SELF).ru_utime:.0f} s")
 
 
