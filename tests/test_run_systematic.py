@@ -33,6 +33,7 @@ from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.runs import RunSetup, start_run
 from stableins.status import Status
+from tests import certificate_checks
 from tests.tcp_fixtures import ROOT
 
 SEED, UNIT, RATE = 5, "SYS-IDX-5", 2.0
@@ -62,7 +63,7 @@ before = 0
 action = "confirm"
 prompt = "The INS navigates on a static base"
 """
-POPPLER = shutil.which("pdftotext")
+POPPLER = shutil.which("pdftotext") and shutil.which("pdftoppm")
 
 
 def _cli(*argv: str) -> subprocess.CompletedProcess[str]:
@@ -140,8 +141,9 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
     result = _cli("report", str(out), "--out", str(pdf))
     assert result.returncode == 0, result.stderr
     if not POPPLER:
-        pytest.skip("pdftotext (Debian package poppler-utils) is not installed: the certificates are written, not read back")
+        pytest.skip("pdftotext/pdftoppm (Debian package poppler-utils) are not installed: the certificates are written, not read back")
     for certificate in (run / "report.pdf", pdf):
+        assert certificate_checks.review(certificate, folder) == []  # units, one GUM rounding in every table, no paths
         text = _pdf_text(certificate)
         assert "Systematic stage: orientations" in text
         for k, o in enumerate(orientations, start=1):
