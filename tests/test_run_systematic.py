@@ -24,6 +24,7 @@ import pytest
 from systematic_world import prior_record
 
 from stableins.console import Console
+from stableins.conventions import DEG_PER_HOUR, DEG_PER_HOUR_PER_G
 from stableins.data.system import open_system_record
 from stableins.drivers.select import simulated_platform
 from stableins.errors import InputError
@@ -131,6 +132,12 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         assert (by_id[pid]["sigma"] is None) == (not math.isfinite(p.sigma)), pid
         if by_id[pid]["sigma"] is not None:
             assert by_id[pid]["sigma"] == pytest.approx(p.sigma, rel=1e-12), pid
+    for pid, entry in document["gyro"].items():  # °/h and °/h/g: the record's numbers
+        unit = DEG_PER_HOUR if pid.startswith("gyro_drift_") else DEG_PER_HOUR_PER_G
+        assert entry["value"] * unit == pytest.approx(record[pid].value, rel=1e-12) and entry["sigma"] * unit == pytest.approx(
+            record[pid].sigma, rel=1e-12
+        )
+    assert len(document["gyro"]) == 12
     for ours, theirs in zip(orientations, document["orientations"], strict=True):
         assert ours["start_h"] * 3600.0 == pytest.approx(theirs["start_s"]) and ours["end_h"] * 3600.0 == pytest.approx(theirs["end_s"])
         assert ours["polar_angle_deg"] == pytest.approx(math.degrees(theirs["polar_angle_rad"]))

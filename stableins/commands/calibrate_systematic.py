@@ -52,13 +52,17 @@ def run(args: Any) -> int:
 
 
 def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
-    """Return the ``--json`` document: orientations, rank report, gyro terms (°/h, °/h/g) and the updated record's parameters."""
+    """Return the ``--json`` document: orientations, rank report, gyro terms (°/h, °/h/g) and the updated record's parameters.
+
+    ``gyro`` holds the updated record's gyro terms (the numbers the record and its certificate carry; for terms new to
+    the record the data's own, without the stage's wide prior on them), ``null`` σ where the record has none.
+    """
     scale = {"gyro_drift_": DEG_PER_HOUR, "Dg_": DEG_PER_HOUR_PER_G}
     gyro = {}
-    for term, value, sigma in zip(outcome.fit.terms, outcome.fit.values, outcome.fit.sigma, strict=True):
-        unit = next((v for k, v in scale.items() if term.id.startswith(k)), None)
+    for p in updated.parameters:
+        unit = next((v for k, v in scale.items() if p.id.startswith(k)), None)
         if unit is not None:
-            gyro[term.id] = {"value": float(value) / unit, "sigma": float(sigma) / unit}
+            gyro[p.id] = {"value": p.value / unit, "sigma": p.sigma / unit if p.sigma == p.sigma else None}
     return {
         "record": str(args.record),
         "prior": str(args.prior),
