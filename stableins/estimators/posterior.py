@@ -146,7 +146,7 @@ class _Information:
         r"""Return the information of the data about the other parameters with ``loose`` marginalized (no prior on them).
 
         The likelihood is Gaussian in the parameters and ``loose`` have no prior, so integrating them out leaves the
-        Schur complement (Bishop 2006 Eq. 2.83; the same as profiling them):
+        Schur complement (Bishop 2006 §2.3.2, the marginal of a Gaussian in its precision; the same as profiling them):
 
         .. math::
             \Lambda' = \Lambda_{rr} - \Lambda_{rl}\Lambda_{ll}^{+}\Lambda_{lr}, \qquad
