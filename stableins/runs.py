@@ -35,6 +35,7 @@ from stableins.procedures.rundir import (
     copy_input,
     export,
     exported_columns,
+    install_prior,
     journal_finished,
     model_terms,
     resume_driver,
@@ -124,6 +125,7 @@ def start_run(
     check_settings(plan, console.values)
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=setup.timeout)
     try:
+        install_prior(driver, plan, prior, prior_file)  # a simulated INS navigates with --prior, as a real one is loaded
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
@@ -210,6 +212,7 @@ def resume_run(
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
         driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
         try:
+            install_prior(driver, plan, _load_record(rundir / start["prior"]) if start.get("prior") else None, start.get("prior"))
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
                 raise InputError(

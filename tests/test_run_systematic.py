@@ -33,6 +33,7 @@ from stableins.procedures.plan import Plan, StaticRecordStep, SystemEstimation
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.runs import RunSetup, start_run
+from stableins.simulator.indexing import indexed_record_chunks
 from stableins.status import Status
 from tests import certificate_checks
 from tests.tcp_fixtures import ROOT
@@ -78,11 +79,17 @@ def _pdf_text(pdf: Path) -> str:
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
-    """The definition and the record the simulated INS navigates with (its installed calibration)."""
+    """The definition and the unit's record: a device calibration of the simulated instrument (its own draw of the
+    residuals, not the simulator's default installed calibration), which the run loads into the simulated INS."""
     folder = tmp_path_factory.mktemp("indexed")
     (folder / "short.toml").write_text(SHORT)
     truth = simulated_platform(SEED, UNIT, RATE).truth
-    prior_record(truth).save(folder / "cal.json")
+    rng = np.random.default_rng(SEED)
+    sigma = np.sqrt(np.diag(prior_record(truth).covariance))
+    calibrated = {pid: truth.parameters[pid] - s * rng.standard_normal() for pid, s in zip(prior_record(truth).ids, sigma, strict=True)}
+    record = prior_record(truth.with_changes(installed_calibration={**truth.installed_calibration, **calibrated}))
+    assert all(record[pid].value != truth.installed_calibration[pid] for pid in record.ids)
+    record.save(folder / "cal.json")
     return folder, truth
 
 
@@ -104,13 +111,19 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
     assert "systematic calibration over 2 orientations" in console
     data = open_system_record(run / "system.h5").read()
     assert len(data["time"]) == int(7200 * RATE)
+    # the simulated INS navigated with --prior, as a real one is loaded with the calibration it runs with
+    prior = CalibrationRecord.load(folder / "cal.json")
+    turns = load_procedure(folder / "short.toml").record.turns
+    world = indexed_record_chunks(truth.with_installed(prior.values()), 7200.0, turns, rate=RATE, seed=SEED, chunk_samples=600)
+    first = next(world)
+    for name in ("f_x", "velocity_north", "velocity_east", "pitch", "heading"):
+        np.testing.assert_array_equal(data[name][:600], first[name], err_msg=name)
     record = CalibrationRecord.load(run / "record.json")
     assert record.stages_run[-1].name == "systematic"
     orientations = record.stages_run[-1].settings["orientations"]
     assert [round(o["polar_angle_deg"]) for o in orientations] == [0, 60]  # polar-aligned, then the index
     assert orientations[0]["end_h"] <= 1.0 <= orientations[1]["start_h"]
     # a Bayesian update of the prior: no σ grows, no parameter of the prior loses its σ; within 4σ of the simulator's truth
-    prior = CalibrationRecord.load(folder / "cal.json")
     for pid in prior.ids:
         assert record[pid].status is Status.ESTIMATED and record[pid].sigma <= prior[pid].sigma * (1 + 1e-9), pid
         assert abs(record[pid].value - truth.parameters[pid]) < 4 * record[pid].sigma, pid
