@@ -12,9 +12,11 @@ import math
 import numpy as np
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
-from stableins.errormodel import CORE_IDS, GIMBAL_IDS, MICRO_G_PER_G2, ErrorModel, known_terms
+from stableins.errormodel import CORE_IDS, CORE_TERMS, GIMBAL_IDS, GIMBAL_TERMS, MICRO_G_PER_G2, ErrorModel, known_terms
+from stableins.estimators.result import FitResult
 from stableins.estimators.systematic import Prior
 from stableins.noise import NoiseModel
+from stableins.records import CalibrationRecord
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import simulate_system
 from stableins.simulator.truth import DEFAULT_RESIDUAL, SimulatedSite, Truth
@@ -85,3 +87,12 @@ def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
         else:
             out.append(truth.parameters[name])
     return np.array(out, dtype=float)
+
+
+def prior_record(truth: Truth) -> CalibrationRecord:
+    """:func:`unit_prior` as the calibration record the INS runs with (a device-level record: the installed values)."""
+    terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS)
+    prior = unit_prior(truth)
+    values = np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms])
+    fit = FitResult("fine", terms, values, prior.covariance, ("estimated",) * len(terms), np.zeros(0), np.zeros(0))
+    return CalibrationRecord.from_fit_result(fit, truth.site.serial_number, noise_model=prior.noise_model)

@@ -53,16 +53,22 @@ def run(args: Any) -> int:
 
 
 def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
-    """Return the ``--json`` document: orientations, rank, gyro terms (°/h, °/h/g), cross-couplings (µg/g²), the record's parameters."""
+    """Return the ``--json`` document: orientations, rank, gyro terms (°/h, °/h/g), cross-couplings (µg/g²), the record's parameters.
+
+    ``gyro`` holds the updated record's gyro terms (the numbers the record and its certificate carry; for terms new to
+    the record the data's own, without the stage's wide prior on them), ``null`` σ where the record has none;
+    ``cross_coupling`` the record's cross-couplings and, ``"written": false``, those the stage left out.
+    """
     scale = {"gyro_drift_": DEG_PER_HOUR, "Dg_": DEG_PER_HOUR_PER_G}
-    gyro: dict[str, dict[str, float]] = {}
+    gyro: dict[str, dict[str, float | None]] = {}
     cross: dict[str, dict[str, float | bool | None]] = {}
-    for term, value, sigma in zip(outcome.fit.terms, outcome.fit.values, outcome.fit.sigma, strict=True):
-        unit = next((v for k, v in scale.items() if term.id.startswith(k)), None)
+    for p in updated.parameters:
+        unit = next((v for k, v in scale.items() if p.id.startswith(k)), None)
+        sigma = p.sigma if p.sigma == p.sigma else None
         if unit is not None:
-            gyro[term.id] = {"value": float(value) / unit, "sigma": float(sigma) / unit}
-        elif term.id.startswith("Kcc_"):
-            cross[term.id] = {"value": float(term.to_engineering(value)), "sigma": float(term.sigma_to_engineering(sigma))}
+            gyro[p.id] = {"value": p.value / unit, "sigma": None if sigma is None else sigma / unit}
+        elif p.id.startswith("Kcc_"):
+            cross[p.id] = {"value": p.value / MICRO_G_PER_G2, "sigma": None if sigma is None else sigma / MICRO_G_PER_G2}
     for term_id, sigma in outcome.details.left_out.items():
         cross[term_id] = {"value": None, "sigma": float(sigma) / MICRO_G_PER_G2, "written": False}
     return {
