@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
+from stableins.display import value_sigma
 from stableins.errormodel import MICRO_G_PER_G2, known_terms
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
@@ -94,18 +95,22 @@ class SystematicCalibration:
         lines.append("gyro terms (platform frame):")
         for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
             if term.id.startswith("gyro_drift_"):
-                lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR:+.6f} ± {sigma / DEG_PER_HOUR:.6f} °/h")
+                lines.append(f"  {term.id:<14} {value_sigma(value / DEG_PER_HOUR, sigma / DEG_PER_HOUR, '°/h')}")
             elif term.id.startswith("Dg_"):
-                lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR_PER_G:+.6f} ± {sigma / DEG_PER_HOUR_PER_G:.6f} °/h/g")
+                lines.append(f"  {term.id:<14} {value_sigma(value / DEG_PER_HOUR_PER_G, sigma / DEG_PER_HOUR_PER_G, '°/h/g')}")
         if any(term.id.startswith("Kcc_") for term in self.fit.terms) or d.left_out:
             lines.append("cross-couplings (µg/g²):")
         for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
             if term.id.startswith("Kcc_"):
-                lines.append(f"  {term.id:<14} {term.to_engineering(value):+.2f} ± {term.sigma_to_engineering(sigma):.2f}")
+                lines.append(f"  {term.id:<14} {value_sigma(term.to_engineering(value), term.sigma_to_engineering(sigma))}")
         for name, sigma in d.left_out.items():
             lines.append(f"  {name:<14} not determined (σ {sigma / MICRO_G_PER_G2:.1f}): not written to the record")
         lines.append("nuisances: " + ", ".join(f"{k} {v / ARCSEC:+.2f} ± {s / ARCSEC:.2f}″" for k, (v, s) in d.nuisance.items()))
-        lines.append(f"innovations: χ²/ν = {d.chi2 / max(d.dof, 1):.3f} (ν = {d.dof})")
+        lines.append(
+            f"innovations of every step: χ²/ν = {d.chi2 / max(d.dof, 1):.3f} (ν = {d.dof}); the record's evidence "
+            f"({len(self.fit.residuals)} whitened innovations kept, less the rank; the certificate's figure): "
+            f"χ²_ν = {self.fit.chi2_red:.3f} (ν = {self.fit.dof})"
+        )
         return "\n".join(lines)
 
     def __str__(self) -> str:
