@@ -14,14 +14,20 @@ Prints, against the acceptance of issue 18:
    base errors and noise.  Printed with its sampling σ and, for the accelerometer families, the mean z² split into
    the prior's pull and the data's part against their expectations (:func:`monte_carlo`).  With 40 seeds an rms z
    has a sampling σ of 0.05–0.08, so a correct filter leaves one of the six families outside the band in 56 % of
-   campaigns (z drawn with the posterior's correlations); the default 200 seeds (σ 0.024–0.038) in 1 %.
-   ``--mc-log FILE`` keeps the per-seed z.
+   campaigns (z drawn with the posterior's correlations); with 200 seeds (σ 0.024–0.038) in 1 %: use
+   ``--parts 4 --seeds 200`` or more to test the band.  ``--mc-log FILE`` keeps the per-seed z (resumable).
 5. **Speed and memory** — a day at 100 Hz (HDF5) through the whole stage: wall time (target ≤ 60 s on 2 cores)
    and the peak memory of the stage for half a day and a day (flat in record length).
+6. **Cross-coupling** — ``SystematicOptions(cross_coupling=True)`` on the record of part 1 with Cai et al. 2016's
+   six ``Kcc`` hidden (his Table 3 lab values, µg/g²): what the two orientations determine of the quadratic terms
+   (``K2`` and ``Kcc``), which cross-couplings enter the record, and their ``z``.
+7. **Cross-coupling Monte Carlo** — ``--seeds`` records of ``--mc-hours`` at 2 Hz with six cross-couplings drawn with
+   σ 15 µg/g² hidden: rms z per family with ``cross_coupling=True`` under the quartz noise and under a tenth of it
+   (which cross-couplings are written, and their z), and without the option (the unmodelled ``Kcc`` bias the rest).
 
-Run: ``nice -n 10 .venv/bin/python benchmarks/bench_systematic.py`` (about 35 min on one core; the Monte Carlo
-about 4 s a seed); ``--parts 4`` runs one part; ``--quick``-like settings: ``--seeds 4 --mc-hours 4 --hours 8
---speed-hours 2``.
+Run: ``nice -n 10 .venv/bin/python benchmarks/bench_systematic.py`` (about 35 min on one core);
+``--quick``-like settings: ``--seeds 4 --mc-hours 4 --hours 8 --speed-hours 2``; ``--parts 3`` runs one part (here
+the equivalence, a few seconds), ``--parts 6 7`` the cross-coupling parts.
 """
 
 from __future__ import annotations
@@ -45,17 +51,20 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from systematic_world import indexed_record, indexed_truth, prior_pull, true_values, unit_prior  # noqa: E402
+from systematic_world import indexed_record, indexed_truth, prior_pull, true_values, unit_prior, with_cross_coupling  # noqa: E402
 
 from stableins.conventions import DEG_PER_HOUR  # noqa: E402
 from stableins.data.chunks import ArraySource  # noqa: E402
-from stableins.errormodel import ErrorModel  # noqa: E402
+from stableins.errormodel import MICRO_G_PER_G2, ErrorModel  # noqa: E402
 from stableins.estimators.system.loop import DampingLoop  # noqa: E402
 from stableins.estimators.systematic import SystematicOptions, systematic_calibration  # noqa: E402
 from stableins.estimators.systematic.kalman import batch_least_squares, rts_smooth, run_filter, steps_of  # noqa: E402
 from stableins.estimators.systematic.model import Discretization, StateLayout  # noqa: E402
 from stableins.estimators.systematic.observations import Linearization, StepBuilder, scan_record  # noqa: E402
-from stableins.estimators.systematic.passes import initial_covariance, noise_inputs, prior_mean  # noqa: E402
+from stableins.estimators.systematic.passes import initial_covariance, noise_inputs, prior_mean, run_passes  # noqa: E402
+from stableins.estimators.systematic.rank import group_rank, resolution  # noqa: E402
+from stableins.estimators.systematic.result import build_result  # noqa: E402
+from stableins.simulator.noise import NoiseSettings  # noqa: E402
 
 FAMILIES = {
     "scale factor": ("sf_",),
@@ -207,24 +216,121 @@ def speed(hours: float, seed: int) -> None:
         )
 
 
+#: Cai et al. 2016's six cross-couplings, his Table 3 lab values (µg/g²; K_axy, K_axz, K_ayx, K_ayz, K_azx, K_azy).
+CAI_KCC = {"Kcc_xxy": -2.0, "Kcc_xxz": -22.6, "Kcc_yxy": 7.8, "Kcc_yyz": 16.5, "Kcc_zxz": -0.5, "Kcc_zyz": 1.6}
+
+
+def cross_coupling(hours: float, seed: int) -> None:
+    """Part 6: the six cross-couplings as states on the record of part 1 with Cai's six hidden."""
+    truth = with_cross_coupling(indexed_truth(seed, rate=10.0), {k: v * MICRO_G_PER_G2 for k, v in CAI_KCC.items()})
+    record = indexed_record(truth, hours * 3600.0, rate=10.0)
+    start = time.time()
+    prior, options = unit_prior(truth), SystematicOptions(cross_coupling=True)
+    passes = run_passes(ArraySource(record), truth.site, prior, options)
+    result = build_result(passes, prior, options.step)
+    print(f"== 6. cross-coupling: Cai's six as states, {hours:g} h at 10 Hz (seed {seed}, {time.time() - start:.0f} s) ==")
+    for group in result.details.rank:
+        print(f"  {group.describe()}")
+        if group.group == "nonlinearity":
+            for d in group.directions:
+                print(f"      σ = {d.sigma:8.3g} resolution units: {d.name}")
+    # all 21 accelerometer terms together, from the data alone (rank filter, everything else free), resolution units
+    layout, scales = passes.layout, passes.layout.scales()
+    index = list(range(layout.accelerometer.start, layout.accelerometer.stop))
+    block = np.ix_(index, index)
+    information = np.linalg.inv(passes.rank.P[block]) - np.linalg.inv(passes.diffuse_covariance[block])
+    units = np.array([resolution(layout.names[k]) / scales[k] for k in index])
+    joint = group_rank("accelerometer block", layout.accelerometer_ids, information, units)
+    print(f"  all accelerometer terms together: {joint.rank} of {len(joint.ids)} determined; the others:")
+    for d in joint.gauge:
+        print(f"      σ = {d.sigma:8.3g} resolution units: {d.name}")
+    covariance = np.linalg.inv(information * np.outer(units, units))
+    combinations = {i: {i: 1.0} for i in CAI_KCC}
+    combinations |= {f"radial f_{a}·f": {f"K2_{a}": 1.0, **{k: 1.0 for k in CAI_KCC if k[4] != a and a in k[5:]}} for a in "xyz"}
+    for name, loading in combinations.items():
+        v = np.array([loading.get(i, 0.0) for i in layout.accelerometer_ids])
+        v /= np.linalg.norm(v)
+        sigma = math.sqrt(v @ covariance @ v)
+        print(f"  data alone, every other accelerometer term free: {name} σ = {sigma:.3g} resolution units ({' + '.join(loading)})")
+    ids = tuple(t.id for t in result.fit.terms)
+    z = (result.fit.values - true_values(truth, ids)) / result.fit.sigma
+    for name in CAI_KCC:
+        if name in ids:
+            k = ids.index(name)
+            value, sigma = result.fit.values[k] / MICRO_G_PER_G2, result.fit.sigma[k] / MICRO_G_PER_G2
+            print(f"  {name}: {value:+7.2f} ± {sigma:5.2f} µg/g², truth {CAI_KCC[name]:+6.1f}, z = {z[k]:+.2f}  (written to the record)")
+        else:
+            sigma = result.details.left_out[name] / MICRO_G_PER_G2
+            print(f"  {name}: σ {sigma:.1f} µg/g² > 5: not determined, left out of the record (truth {CAI_KCC[name]:+.1f})")
+    accel = np.array([not i.startswith(("gyro_", "Dg_")) for i in ids])
+    worst = max((k for k in range(len(ids)) if not accel[k]), key=lambda k: abs(z[k]))
+    print(
+        f"  accelerometer terms written: max |z| = {np.abs(z[accel]).max():.2f}, rms z = {math.sqrt(float(np.mean(z[accel] ** 2))):.3f} "
+        f"over {int(accel.sum())}; gyro terms: max |z| = {abs(z[worst]):.2f} ({ids[worst]})"
+    )
+
+
+def cross_coupling_monte_carlo(seeds: int, hours: float) -> None:
+    """Part 7."""
+    quartz = NoiseSettings.quartz()
+    tenth = replace(
+        quartz,
+        velocity_random_walk=0.1 * quartz.velocity_random_walk,
+        bias_instability=0.1 * quartz.bias_instability,
+        acceleration_random_walk=0.1 * quartz.acceleration_random_walk,
+        quantization=0.1 * quartz.quantization,
+    )
+    families = {**FAMILIES, "cross-coupling Kcc": ("Kcc_",)}
+    runs = (("quartz noise", quartz, True), ("a tenth of it", tenth, True), ("quartz, without the option", quartz, False))
+    for label, noise, option in runs:
+        z: dict[str, list[float]] = {name: [] for name in families}
+        written: dict[str, int] = {}
+        start = time.time()
+        for seed in range(1, seeds + 1):
+            rng = np.random.default_rng(1000 + seed)
+            kcc = {i: rng.normal(0.0, 15.0) * MICRO_G_PER_G2 for i in CAI_KCC}
+            truth = with_cross_coupling(indexed_truth(200 + seed, rate=2.0, noise=noise), kcc)
+            record = indexed_record(truth, hours * 3600.0, rate=2.0)
+            result = systematic_calibration(ArraySource(record), truth.site, unit_prior(truth), SystematicOptions(cross_coupling=option))
+            ids = tuple(t.id for t in result.fit.terms)
+            scores = (result.fit.values - true_values(truth, ids)) / result.fit.sigma
+            for name, prefixes in families.items():
+                z[name] += [float(s) for i, s in zip(ids, scores, strict=True) if i.startswith(prefixes)]
+            for i in ids:
+                if i.startswith("Kcc_"):
+                    written[i] = written.get(i, 0) + 1
+        print(f"== 7. cross-coupling Monte Carlo, {label}: {seeds} seeds, {hours:g} h at 2 Hz ({time.time() - start:.0f} s) ==")
+        for name, values in z.items():
+            if values:
+                rms = math.sqrt(float(np.mean(np.square(values))))
+                print(f"  {name:<18} rms z = {rms:.3f} over {len(values)} values; max |z| = {np.max(np.abs(values)):.2f}")
+        print(f"  cross-couplings written (of {seeds} seeds): {written or 'none'}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hours", type=float, default=24.0, help="record length of parts 1-2 [h] (default 24)")
-    parser.add_argument("--seeds", type=int, default=200, help="Monte Carlo seeds 101.. (default 200: σ of an rms z ≈ 0.03)")
+    parser.add_argument("--seeds", type=int, default=40, help="Monte Carlo seeds (default 40)")
     parser.add_argument("--mc-hours", type=float, default=8.0, help="Monte Carlo record length [h] (default 8)")
-    parser.add_argument("--mc-log", type=Path, help="JSON lines of the per-seed z (appended as they come; a rerun resumes)")
+    parser.add_argument("--mc-log", type=Path, help="part 4: JSON lines of the per-seed z (appended as they come; a rerun resumes)")
     parser.add_argument("--speed-hours", type=float, default=24.0, help="record length of the speed test [h] (default 24)")
     parser.add_argument("--seed", type=int, default=3)
-    parser.add_argument("--parts", default="12345", help="which parts to run, e.g. 4 (default all: 12345)")
+    parser.add_argument(
+        "--parts", type=int, nargs="+", choices=range(1, 8), default=list(range(1, 8)), help="parts to run (1 and 2 run together)"
+    )
     args = parser.parse_args()
-    if "1" in args.parts or "2" in args.parts:
-        rank_and_drift(args.hours, args.seed)
-    if "3" in args.parts:
-        equivalence()
-    if "4" in args.parts:
-        monte_carlo(args.seeds, args.mc_hours, args.mc_log)
-    if "5" in args.parts:
-        speed(args.speed_hours, args.seed)
+    parts = {
+        1: lambda: rank_and_drift(args.hours, args.seed),
+        3: equivalence,
+        4: lambda: monte_carlo(args.seeds, args.mc_hours, args.mc_log),
+        5: lambda: speed(args.speed_hours, args.seed),
+        6: lambda: cross_coupling(args.hours, args.seed),
+        7: lambda: cross_coupling_monte_carlo(args.seeds, args.mc_hours),
+    }
+    wanted = set(args.parts) | ({1} if 2 in args.parts else set())
+    for number, part in parts.items():
+        if number in wanted:
+            part()
     print(f"cpu {resource.getrusage(resource.RUSAGE_SELF).ru_utime:.0f} s")
 
 

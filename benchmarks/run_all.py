@@ -131,7 +131,7 @@ QUICK: dict[str, Quick] = {
     "bench_lever_arms": Quick(("--seeds", "1", "--cai-seeds", "1", "--clean", "2"), "1 seed per case (2 clean) instead of 4, 2 and 20"),
     "bench_systematic": Quick(
         ("--seeds", "4", "--mc-hours", "4", "--hours", "8", "--speed-hours", "2"),
-        "8-h rank and drift record, 4 Monte Carlo seeds of 4 h, 2-h speed record instead of 24 h, 200 seeds of 8 h, a day",
+        "8-h rank and drift record, 4 Monte Carlo seeds of 4 h, 2-h speed record instead of 24 h, 40 seeds of 8 h, a day",
     ),
 }
 

@@ -136,17 +136,16 @@ def parameter_table(rows: Sequence[tuple[Any, ...]], determined: Sequence[str] =
     carried through).  Shared by :meth:`stableins.estimators.result.FitResult.report` and the calibration record's report.
     """
     sources = any(len(r) > 5 for r in rows)
-    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>10} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
+    lines = [f"{'parameter':<12} {'value':>14} {'1 sigma':>11} {'unit':<8} {'status':<15}" + (" last determined by" if sources else "")]
     for parameter_id, value, sigma, unit, status, *source in rows:
         tail = f" {source[0]}" if source else ""
         if status == Status.UNIDENTIFIABLE:
-            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>10} {unit:<8} {status:<15}{tail}".rstrip())
-        elif 0.0 < sigma < 1e-3:  # e.g. a gyro drift in deg/h (σ ~ 1e-8): fixed point would show 0.0000 ± 0.0000
-            lines.append(f"{parameter_id:<12} {value:>14.6e} {sigma:>10.2e} {unit:<8} {status:<15}{tail}".rstrip())
+            lines.append(f"{parameter_id:<12} {'—':>14} {'—':>11} {unit:<8} {status:<15}{tail}".rstrip())
         else:
-            # four decimals, more for a σ below 1e-3 of its unit (e.g. a gyro drift of 1e-5 °/h), so it never shows as 0
-            places = 4 if not 0.0 < sigma < 1e-3 else min(9, 2 - math.floor(math.log10(sigma)))
-            lines.append(f"{parameter_id:<12} {value:>14.{places}f} {sigma:>10.{places}f} {unit:<8} {status:<15}{tail}".rstrip())
+            # four decimals; for a σ below 1e-3 of its unit (a gyro drift of 1e-7 °/h) two significant digits of σ and
+            # the value to the same place, as value_sigma writes them (four decimals would show 0.0000 ± 0.0000)
+            places = 4 if not 0.0 < sigma < 1e-3 else 1 - math.floor(math.log10(sigma))
+            lines.append(f"{parameter_id:<12} {value:>14.{places}f} {sigma:>11.{places}f} {unit:<8} {status:<15}{tail}".rstrip())
     if determined:
         lines += ["", "determined combinations:"] + [f"  {d}" for d in determined]
     if notes:

@@ -23,7 +23,8 @@ from stableins.drivers.select import is_deterministic, open_driver
 from stableins.errors import InputError
 from stableins.procedures.entries import accepted_columns, resume_script
 from stableins.procedures.journal import Journal, scan
-from stableins.procedures.plan import Plan
+from stableins.procedures.plan import Plan, StaticRecordStep, SystemEstimation
+from stableins.procedures.reachable import check_reachable
 from stableins.procedures.rundir import (
     DEFINITION_NAME,
     PRIOR_NAME,
@@ -34,6 +35,7 @@ from stableins.procedures.rundir import (
     copy_input,
     export,
     exported_columns,
+    install_prior,
     journal_finished,
     model_terms,
     resume_driver,
@@ -123,9 +125,11 @@ def start_run(
     check_settings(plan, console.values)
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=setup.timeout)
     try:
+        install_prior(driver, plan, prior, prior_file)  # a simulated INS navigates with --prior, as a real one is loaded
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
+        check_reachable(plan, metadata, definition_file)  # an index that locks the gimbals: refused before anything moves
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
@@ -208,6 +212,7 @@ def resume_run(
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
         driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
         try:
+            install_prior(driver, plan, _load_record(rundir / start["prior"]) if start.get("prior") else None, start.get("prior"))
             metadata = driver.metadata
             if metadata.serial_number != start["unit"]:
                 raise InputError(
@@ -454,11 +459,12 @@ def _estimate_system(rundir: Path, runner: Runner, dataset: Path | None, start: 
     prior = _load_record(rundir / start["prior"])
     assert dataset is not None  # a run with a static record exports it (system.h5) before its estimation
     record = open_system_record(dataset)
-    if runner.plan.name == "system-indexed":  # the systematic stage (docs/systematic-calibration.md)
+    estimation = next(s.estimation for s in runner.plan.steps if isinstance(s, StaticRecordStep))
+    if estimation is SystemEstimation.SYSTEMATIC:  # the systematic stage (docs/systematic-calibration.md)
         from stableins.estimators.systematic import systematic_stage
 
         return systematic_stage(record, prior, runner.console.say)
-    if any(getattr(step, "turns", ()) for step in runner.plan.steps):  # indexed: the drift test (docs/drift-test.md)
+    if estimation is SystemEstimation.DRIFT:  # indexed: the drift test (docs/drift-test.md)
         return drift_stage(record, prior, runner.console.say)
     covariance = {(a, b): float(prior.covariance[i, j]) for i, a in enumerate(prior.ids) for j, b in enumerate(prior.ids)}
     import warnings

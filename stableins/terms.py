@@ -24,6 +24,7 @@ from stableins.conventions import (
     DEG_PER_HOUR,
     DEG_PER_HOUR_PER_G,
     GIMBAL_OFFSET_MEANING,
+    INSTALLATION_ENTRIES,
     INSTALLATION_MEANING,
     MICRO_G,
     MILLIMETRE,
@@ -319,6 +320,77 @@ TIME_ASYNC_TERM = Term(
 )
 #: The record terms of a turning platform (lever arms, asynchrony): zero at rest, not in ``ErrorModel.forward``.
 ROTATION_TERMS: tuple[Term, ...] = LEVER_TERMS + (TIME_ASYNC_TERM,)
+
+
+def _cross_coupling_source(a: str, b: str, c: str) -> str:
+    """Cai et al. 2016 Eq. 4's symbol for ``Kcc_abc``, or that Cai does not model it.
+
+    Cai's K_cross (Eq. 6) couples accelerometer ``a`` to ``f_a`` times one other axis: ``K_axy, K_axz`` (x),
+    ``K_ayx, K_ayz`` (y), ``K_azx, K_azy`` (z), i.e. ``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``.  The three products of the
+    two *other* axes (``Kcc_xyz, Kcc_yxz, Kcc_zxy``) are not in Cai's model.
+    """
+    if a not in (b, c):
+        return "not in Cai et al. 2016, whose K_cross couples an accelerometer to its own input times another"
+    other = c if b == a else b
+    return f"Cai et al. 2016 Eq. 4 K_a{a}{other}"
+
+
+def _installation_aliases(a: str, b: str, c: str) -> tuple[str, ...]:
+    """Return the installation angles that read like ``Kcc_abc`` where one factor of ``f_b·f_c`` stays constant.
+
+    Row ``a`` of ``C_p^a`` takes the other axis ``o`` in through the angle at ``[a, o]``
+    (:data:`stableins.conventions.INSTALLATION_ENTRIES`; row x: ``f_y`` through ``beta_xz``, ``f_z`` through
+    ``beta_xy``).  With ``f_a`` constant, ``Kcc_a·a·o`` reads as that angle (``Kcc_xxy`` as ``beta_xz``, ``Kcc_zxz`` as
+    ``beta_zy``); a product of the two other axes reads as either of row ``a``'s angles.
+    """
+    others = [o for o in (b, c) if o != a] if a in (b, c) else [b, c]
+    at = {(row, col): beta for beta, (row, col, _) in INSTALLATION_ENTRIES.items()}
+    return tuple(at[AXES.index(a), AXES.index(o)] for o in others)
+
+
+def _product_on_axis(i: int, j: int, k: int) -> Regressor:
+    """Regressor ``e_i f_j f_k`` (``f = f^p`` on the nominal sensitive axes)."""
+
+    def regressor(inputs: TermInputs) -> NDArray[np.float64]:
+        f = np.asarray(inputs.specific_force, dtype=float)
+        out = np.zeros(f.shape)
+        out[..., i] = f[..., j] * f[..., k]
+        return out
+
+    return regressor
+
+
+def _cross_coupling_terms() -> tuple[Term, ...]:
+    terms = []
+    for i, a in enumerate(AXES):
+        for b, c in (("x", "y"), ("x", "z"), ("y", "z")):
+            j, k = AXES.index(b), AXES.index(c)
+            terms.append(
+                Term(
+                    f"Kcc_{a}{b}{c}",
+                    TermKind.ADDITIVE,
+                    "s^2/m",
+                    "ug/g^2",
+                    MICRO_G_PER_G2,
+                    10 * MICRO_G_PER_G2,
+                    f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} ({_cross_coupling_source(a, b, c)}"
+                    ", IEEE 1293 Kip/Kio/Kpo)",
+                    axis=i,
+                    regressor=_product_on_axis(i, j, k),
+                    excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
+                    aliases=(*_installation_aliases(a, b, c), f"bias_{a}"),
+                    source="Cai et al. 2016 Eqs. 4 and 6; IEEE Std 1293" if a in (b, c) else "IEEE Std 1293 (not in Cai et al. 2016)",
+                )
+            )
+    return tuple(terms)
+
+
+#: The nine cross-couplings ``Kcc_abc`` [s²/m], µg/g² at the edges: accelerometer ``a`` + ``Kcc f_b f_c`` (``b < c``),
+#: an additive term (:attr:`TermKind.ADDITIVE`; the discovery library's instrument candidates, carried into a record
+#: by ``calibrate device --add``).  Not in :func:`known_terms`: a record holds them as discovered terms.
+CROSS_COUPLING_TERMS: tuple[Term, ...] = _cross_coupling_terms()
+#: Cai et al. 2016's six (K_cross, Eq. 4): an accelerometer's own input times another's.
+CAI_CROSS_COUPLING_IDS: tuple[str, ...] = tuple(t.id for t in CROSS_COUPLING_TERMS if t.id[4] in t.id[5:])
 
 
 def known_terms(extra: Iterable[Term] = ()) -> dict[str, Term]:

@@ -12,13 +12,15 @@ import math
 import numpy as np
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
-from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel, known_terms
+from stableins.errormodel import CORE_IDS, CORE_TERMS, GIMBAL_IDS, GIMBAL_TERMS, MICRO_G_PER_G2, ErrorModel, known_terms
 from stableins.estimators.result import FitResult
 from stableins.estimators.systematic import Prior
 from stableins.noise import NoiseModel
+from stableins.records import CalibrationRecord
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import simulate_system
 from stableins.simulator.truth import DEFAULT_RESIDUAL, SimulatedSite, Truth
+from stableins.terms import CROSS_COUPLING_TERMS
 from stableins.turns import IndexAxis, PlatformTurn
 
 #: 0.001 °/h per axis (the acceptance's drift), signs mixed.
@@ -29,12 +31,19 @@ G_SENSITIVITY = {"Dg_xy": 0.002 * DEG_PER_HOUR_PER_G, "Dg_yy": 0.001 * DEG_PER_H
 BASE = {"tilt_north": 10 * ARCSEC, "tilt_east": -8 * ARCSEC, "azimuth_error": 30 * ARCSEC}
 #: The index of procedures/system-indexed.toml: 60° about the middle gimbal axis.
 INDEX_ANGLE = math.radians(60.0)
+#: 1σ of a cross-coupling carried into the device-level record (``calibrate device --add``; README: ±4.0 µg/g²) [s²/m].
+CROSS_COUPLING_SIGMA = 5 * MICRO_G_PER_G2
 
 
 def indexed_truth(seed: int, *, rate: float, noise: NoiseSettings | None = None, g_sensitivity: bool = True) -> Truth:
     """A random instrument (Truth.draw) with the drift, g-sensitivity and base errors above."""
     effects = {**BASE, **(G_SENSITIVITY if g_sensitivity else {})}
     return Truth.draw(seed, site=SimulatedSite(sample_rate=rate), gyro_drift=DRIFT, effects=effects, noise=noise)
+
+
+def with_cross_coupling(truth: Truth, true: dict[str, float], installed: dict[str, float] | None = None) -> Truth:
+    """The truth with hidden cross-couplings ``true`` (simulator effects) and those the INS compensates with (``installed``)."""
+    return truth.with_changes(effects={**truth.effects, **true}, installed_calibration={**truth.installed_calibration, **(installed or {})})
 
 
 def turns(duration: float) -> tuple[PlatformTurn, ...]:
@@ -54,20 +63,26 @@ def noise_model(truth: Truth) -> NoiseModel:
 
 
 def unit_prior(truth: Truth) -> Prior:
-    """The record a device-level calibration leaves: installed values, the residual σ the truth was drawn with."""
-    ids = tuple(CORE_IDS) + tuple(GIMBAL_IDS)
-    terms = known_terms()
-    sigma = np.array([DEFAULT_RESIDUAL[str(terms[i].kind)] for i in ids])
-    return Prior(dict(truth.installed_calibration), ids, np.diag(sigma**2), ErrorModel.standard(nonlinear=True), noise_model(truth))
+    """The record a device-level calibration leaves: installed values, the residual σ the truth was drawn with.
+
+    Cross-couplings the INS compensates with (``truth.installed_calibration``) are the record's discovered terms
+    (``calibrate device --add``), with :data:`CROSS_COUPLING_SIGMA`.
+    """
+    carried = tuple(t for t in CROSS_COUPLING_TERMS if t.id in truth.installed_calibration)
+    ids = tuple(CORE_IDS) + tuple(GIMBAL_IDS) + tuple(t.id for t in carried)
+    terms = known_terms(carried)
+    sigma = np.array([CROSS_COUPLING_SIGMA if i.startswith("Kcc_") else DEFAULT_RESIDUAL[str(terms[i].kind)] for i in ids])
+    model = ErrorModel.standard(nonlinear=True) + carried
+    return Prior(dict(truth.installed_calibration), ids, np.diag(sigma**2), model, noise_model(truth))
 
 
 def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
-    """The true value of each id: the parameter, the gyro drift or the g-sensitivity (0 when not injected)."""
+    """The true value of each id: the parameter, the gyro drift, the g-sensitivity or cross-coupling (0 when not injected)."""
     out = []
     for name in ids:
         if name.startswith("gyro_drift_"):
             out.append(truth.gyro_drift.get(name[-1], 0.0))
-        elif name.startswith("Dg_"):
+        elif name.startswith(("Dg_", "Kcc_")):
             out.append(truth.effects.get(name, 0.0))
         else:
             out.append(truth.parameters[name])
@@ -96,3 +111,12 @@ def prior_pull(fit: FitResult, prior: Prior, true: np.ndarray) -> tuple[np.ndarr
     x0 = np.array([prior.values[ids[k]] for k in held])
     gain = fit.covariance[:, held] / p0  # P P0⁻¹ on the prior's terms
     return gain @ (x0 - true[held]), np.einsum("ij,j,ij->i", gain, p0, gain), held
+
+
+def prior_record(truth: Truth) -> CalibrationRecord:
+    """:func:`unit_prior` as the calibration record the INS runs with (a device-level record: the installed values)."""
+    terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS)
+    prior = unit_prior(truth)
+    values = np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms])
+    fit = FitResult("fine", terms, values, prior.covariance, ("estimated",) * len(terms), np.zeros(0), np.zeros(0))
+    return CalibrationRecord.from_fit_result(fit, truth.site.serial_number, noise_model=prior.noise_model)

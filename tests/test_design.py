@@ -144,3 +144,25 @@ def test_design_cli(tmp_path, capsys):
     designed = load_procedure(tmp_path / "designed-coarse.toml")
     assert len(designed.steps) == 18 and "wrote" in out
     assert main(["design", "device-coarse", *noise, "--target", "nothing*=3"]) == 2
+
+
+def test_stableins_run_executes_the_designed_procedure_with_its_dwells(tmp_path, capsys):
+    """Issue 19: the TOML that ``design --out`` writes is what ``stableins run`` executes, position by position."""
+    from stableins.data.device import load_device
+
+    quick = ["--white", "4.5e-4", "--passes", "1", "--target", "sf_*=5", "--out", str(tmp_path / "d")]
+    assert main(["design", "device-coarse", *quick]) == 0
+    designed = load_procedure(tmp_path / "d" / "designed-coarse.toml")
+    dwells = np.array([s.dwell for s in designed.steps])
+    assert dwells.min() < 0.5 * dwells.max()  # the design made the dwells unequal: the check below can fail
+    run = tmp_path / "run"
+    assert main(["run", str(tmp_path / "d" / "designed-coarse.toml"), "--driver", "sim", "--unit", "SN19", "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert (run / "record.json").exists() and (run / "report.pdf").exists()
+    recorded = load_device(run / "device.h5").dwells(stage="coarse")
+    assert len(recorded) == 2 * len(designed.steps)  # the zero-offset iteration's two passes
+    for dwell in recorded:
+        duration = len(dwell.time) / designed.steps[dwell.position - 1].sample_rate
+        assert duration == pytest.approx(dwells[dwell.position - 1], abs=0.11)
+        if dwell.pass_number == 1:  # pass 2 re-commands with the estimated zero offsets taken out
+            assert np.allclose(dwell.command, designed.steps[dwell.position - 1].command, atol=1e-9)

@@ -133,3 +133,21 @@ def test_term_kind_is_an_enum_that_serializes_as_its_word() -> None:
     assert term.kind is TermKind.ADDITIVE
     with pytest.raises(ValueError, match="unknown kind 'additve'"):
         Term("k3", "additve", "1", "1", 1.0, 1.0, "typo")
+
+
+def test_cross_coupling_aliases_are_the_installation_angles_that_read_alike():
+    """With f_a held, ``Kcc_a·a·o f_a f_o`` is linear in f_o: the same column as the angle of row a that takes f_o in."""
+    from stableins.errormodel import ErrorModel
+    from stableins.terms import CAI_CROSS_COUPLING_IDS, CROSS_COUPLING_TERMS, TermInputs
+
+    rng = np.random.default_rng(7)
+    model = ErrorModel.standard(nonlinear=False)
+    values = {t.id: t.reference for t in model.terms}
+    for term in (t for t in CROSS_COUPLING_TERMS if t.id in CAI_CROSS_COUPLING_IDS):
+        a = "xyz".index(term.id[4])
+        f = rng.normal(size=(50, 3)) * 9.8
+        f[:, a] = 5.0  # f_a held
+        kcc = term.regressor(TermInputs(specific_force=f))[:, a]
+        beta = term.aliases[0]
+        column = model.jacobian(f, values)[:, a, model.ids.index(beta)]
+        assert abs(np.corrcoef(kcc, column)[0, 1]) > 1 - 1e-9, (term.id, beta)

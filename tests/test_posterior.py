@@ -97,3 +97,38 @@ def test_likelihood_data_only_matches_least_squares():
     solution, *_ = np.linalg.lstsq(a, r, rcond=None)
     assert values[2] == pytest.approx(solution[2]) and np.isnan(values[0])
     assert sigma[2] == pytest.approx(np.sqrt(np.linalg.pinv(a.T @ a)[2, 2]))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_parameters_the_data_leave_free_are_integrated_out_not_held(seed):
+    """New parameters the data determine only in part (here only c + d) are marginalized: the record's parameters get the
+    σ of a joint Kalman update with the new ones under an uninformative prior, and keep their prior status."""
+    rng = np.random.default_rng(seed)
+    ids = ["a", "b", "c", "d"]
+    p0 = np.diag([1.0, 4.0])
+    # observations of a, b and of c + d together (the direction c − d is free): c + d is coupled to a and b
+    h = rng.normal(size=(5, 4))
+    h[:, 3] = h[:, 2]
+    y = rng.normal(size=5)
+    likelihood = Likelihood.from_weighted(ids, np.zeros(4), h, y)
+    post = bayesian_update(["a", "b"], np.zeros(2), p0, [Status.ESTIMATED] * 2, likelihood)
+    assert post.status == (Status.ESTIMATED, Status.ESTIMATED, Status.UNIDENTIFIABLE, Status.UNIDENTIFIABLE)
+    # reference: the data see c and d only as s = c + d; with s free (no prior) the joint posterior of (a, b, s) is regular
+    reduced = h[:, :3]
+    information = reduced.T @ reduced
+    information[:2, :2] += np.linalg.inv(p0)
+    covariance = np.linalg.inv(information)
+    np.testing.assert_allclose(post.covariance[:2, :2], covariance[:2, :2], rtol=1e-9)
+    np.testing.assert_allclose(post.values[:2], (covariance @ reduced.T @ y)[:2], rtol=1e-9)
+    assert np.all(post.sigma[:2] <= np.sqrt(np.diag(p0)) * (1 + 1e-9))
+
+
+def test_a_weakly_determined_new_direction_never_takes_a_stated_prior_with_it():
+    """New parameters c, d that the data see as c + d well and as c − d barely (below the rank tolerance), coupled to a
+    parameter with a prior: c and d are left undetermined, the prior's parameter keeps an estimate and a σ (before,
+    rounding put a into the undetermined direction and the record lost its σ: issue 18, a short system-indexed run)."""
+    h = np.array([[1e3, 1e3, 1e3 * (1 + 1e-5)], [0.0, 1.0, 1.0], [0.0, 1e-4, -1e-4]])  # rows: a + c + d, c + d, c − d
+    likelihood = Likelihood(("a", "c", "d"), np.zeros(3), h.T @ h, np.zeros(3))
+    post = bayesian_update(["a"], np.zeros(1), np.array([[1.0]]), [Status.ESTIMATED], likelihood)
+    assert post.status == (Status.ESTIMATED, Status.UNIDENTIFIABLE, Status.UNIDENTIFIABLE)
+    assert 0.0 < post.sigma[0] <= 1.0

@@ -109,6 +109,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
             "over the platform's orientations, accelerometer residuals, gyro drift and g-sensitivity (docs/systematic-calibration.md)"
         ),
     )
+    parser.add_argument(
+        "--cross-coupling",
+        action="store_true",
+        help=(
+            "with --systematic: also estimate Cai et al. 2016's six accelerometer cross-couplings (Kcc_xxy, xxz, yxy, yyz, zxz, "
+            "zyz); those the prior record holds are always estimated.  A new one is written only if the orientations determine "
+            "it (docs/systematic-calibration.md section 5)"
+        ),
+    )
     add_new_calibration_option(parser)
     add_entries_option(parser)
 
@@ -119,6 +128,10 @@ def run(args: Any) -> int:
         from stableins.commands.calibrate_systematic import run as run_systematic
 
         return run_systematic(args)
+    if getattr(args, "cross_coupling", False):
+        from stableins.errors import InputError
+
+        raise InputError("--cross-coupling needs --systematic (the stage over indexed orientations)", field="--cross-coupling")
     import warnings
     from dataclasses import replace
 

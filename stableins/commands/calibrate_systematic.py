@@ -11,6 +11,7 @@ from dataclasses import replace
 from typing import Any
 
 from stableins.conventions import DEG_PER_HOUR, DEG_PER_HOUR_PER_G
+from stableins.errormodel import MICRO_G_PER_G2
 
 
 def run(args: Any) -> int:
@@ -18,7 +19,7 @@ def run(args: Any) -> int:
     from stableins.commands import check_same_unit
     from stableins.commands.noise import system_noise_prior
     from stableins.data.system import open_system_record
-    from stableins.estimators.systematic import prior_from_record, systematic_calibration
+    from stableins.estimators.systematic import SystematicOptions, prior_from_record, systematic_calibration
     from stableins.output import emit
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -30,7 +31,7 @@ def run(args: Any) -> int:
     prior = prior_from_record(prior_record)
     if noise is not None:
         prior = replace(prior, noise_model=noise)
-    outcome = systematic_calibration(record, record.metadata, prior)
+    outcome = systematic_calibration(record, record.metadata, prior, SystematicOptions(cross_coupling=args.cross_coupling))
     holds = outcome.details.holds
     start, end = data_times(record.metadata, holds[0].start, holds[-1].end)
     updated = prior_record.updated(
@@ -52,13 +53,24 @@ def run(args: Any) -> int:
 
 
 def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
-    """Return the ``--json`` document: orientations, rank report, gyro terms (°/h, °/h/g) and the updated record's parameters."""
+    """Return the ``--json`` document: orientations, rank, gyro terms (°/h, °/h/g), cross-couplings (µg/g²), the record's parameters.
+
+    ``gyro`` holds the updated record's gyro terms (the numbers the record and its certificate carry; for terms new to
+    the record the data's own, without the stage's wide prior on them), ``null`` σ where the record has none;
+    ``cross_coupling`` the record's cross-couplings and, ``"written": false``, those the stage left out.
+    """
     scale = {"gyro_drift_": DEG_PER_HOUR, "Dg_": DEG_PER_HOUR_PER_G}
-    gyro = {}
-    for term, value, sigma in zip(outcome.fit.terms, outcome.fit.values, outcome.fit.sigma, strict=True):
-        unit = next((v for k, v in scale.items() if term.id.startswith(k)), None)
+    gyro: dict[str, dict[str, float | None]] = {}
+    cross: dict[str, dict[str, float | bool | None]] = {}
+    for p in updated.parameters:
+        unit = next((v for k, v in scale.items() if p.id.startswith(k)), None)
+        sigma = p.sigma if p.sigma == p.sigma else None
         if unit is not None:
-            gyro[term.id] = {"value": float(value) / unit, "sigma": float(sigma) / unit}
+            gyro[p.id] = {"value": p.value / unit, "sigma": None if sigma is None else sigma / unit}
+        elif p.id.startswith("Kcc_"):
+            cross[p.id] = {"value": p.value / MICRO_G_PER_G2, "sigma": None if sigma is None else sigma / MICRO_G_PER_G2}
+    for term_id, sigma in outcome.details.left_out.items():
+        cross[term_id] = {"value": None, "sigma": float(sigma) / MICRO_G_PER_G2, "written": False}
     return {
         "record": str(args.record),
         "prior": str(args.prior),
@@ -69,6 +81,7 @@ def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
         ],
         "rank": [g.describe() for g in outcome.details.rank],
         "gyro": gyro,
+        "cross_coupling": cross,
         "chi2_per_dof": outcome.details.chi2 / max(outcome.details.dof, 1),
         "parameters": [
             {"id": p.id, "value": p.value, "sigma": p.sigma if p.sigma == p.sigma else None, "status": p.status.value}

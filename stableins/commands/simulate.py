@@ -165,38 +165,14 @@ def simulation_start(duration: float) -> str:
 
 
 def installed_from_record(path: Path, truth: Any) -> dict[str, float]:
-    """Parameter values of a calibration record, as the calibration the simulated INS runs with.
+    """Parameter values of a calibration record, as the calibration the simulated INS runs with (:meth:`Truth.with_installed`).
 
-    The record's discovered (additive) terms are installed too: the navigation computer
-    compensates with them (``ErrorModel.inverse`` with the simulator's own definition of the
-    effect, :mod:`stableins.simulator.effects`).  Ids neither the truth's error model nor the
-    effect catalogue's output effects know are refused; ids the record lacks keep the truth's
-    installed value.  Unidentifiable parameters carry their prior value in a record, which is
-    what an INS would be loaded with.  The record's gyro drift (``gyro_drift_x/y/z``, written by the system stage, a
-    drift test or the device gyro stage) and g-sensitivity (``Dg_ab``, the device gyro stage) are not installed: the
-    simulated navigation computer does not compensate its gyros (the platform drifts with the truth's ``gyro_drift``
-    and ``Dg_ab`` effects).
+    Unidentifiable parameters carry their prior value in a record, which is what an INS would be loaded with.
     """
-    from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS
     from stableins.records import CalibrationRecord
-    from stableins.simulator.truth import INSTALLED_EFFECT_IDS, PARAMETER_IDS
 
     record = CalibrationRecord.load(path)
-    installed = dict(truth.installed_calibration)
-    known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
-    drift_ids = {t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS}
-    for parameter_id, value in record.values().items():
-        if parameter_id in drift_ids:
-            continue
-        if parameter_id not in known:
-            raise InputError(
-                f"parameter {parameter_id!r} is not part of the simulated instrument",
-                path=path,
-                field=parameter_id,
-                expected="standard parameters or output effects of 'stableins simulate --list-effects'",
-            )
-        installed[parameter_id] = float(value)
-    return installed
+    return dict(truth.with_installed(record.values(), source=str(path)).installed_calibration)
 
 
 def build_truth(args: argparse.Namespace) -> Any:

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import GYRO_G_TERMS, Term, TermInputs, TermKind
+from stableins.terms import CROSS_COUPLING_TERMS
 
 G0 = STANDARD_GRAVITY
 MICRO_G_PER_G2 = MICRO_G / G0**2
@@ -79,10 +80,6 @@ def _squared(f: NDArray, *, i: int) -> NDArray:
 
 def _absolute(f: NDArray, *, i: int) -> NDArray:
     return np.abs(f[..., i])
-
-
-def _product(f: NDArray, *, j: int, k: int) -> NDArray:
-    return f[..., j] * f[..., k]
 
 
 def _series_on_axis(i: int, series: NDArray, _inputs: TermInputs) -> NDArray:
@@ -236,44 +233,10 @@ def _instrument_couplings() -> list[Candidate]:
                     f"positions where f_{b}² takes at least two values while the other inputs are fixed",
                 )
             )
-    for i, a in enumerate(AXES):
-        for b, c in (("x", "y"), ("x", "z"), ("y", "z")):
-            j, k = AXES.index(b), AXES.index(c)
-            out.append(
-                Candidate(
-                    Term(
-                        f"Kcc_{a}{b}{c}",
-                        TermKind.ADDITIVE,
-                        "s^2/m",
-                        "ug/g^2",
-                        MICRO_G_PER_G2,
-                        10 * MICRO_G_PER_G2,
-                        f"cross-coupling of the {a} accelerometer to the product f_{b}·f_{c} ({_cross_coupling_source(a, b, c)}"
-                        ", IEEE 1293 Kip/Kio/Kpo)",
-                        axis=i,
-                        regressor=_polynomial(i, partial(_product, j=j, k=k)),
-                        excitation=f"positions with f_{b} and f_{c} both non-zero (45° between the two axes), both signs",
-                        aliases=(f"beta_{a}{b}" if b != a else f"beta_{a}{c}", f"bias_{a}"),
-                        source="Cai et al. 2016 Eqs. 4 and 6; IEEE Std 1293" if a in (b, c) else "IEEE Std 1293 (not in Cai et al. 2016)",
-                    ),
-                    "instrument",
-                    f"45° positions in the {b}{c} plane with both signs of f_{b}·f_{c}",
-                )
-            )
+    for term in CROSS_COUPLING_TERMS:  # defined with the record's terms (stableins.terms): the systematic stage estimates them
+        b, c = term.id[-2], term.id[-1]
+        out.append(Candidate(term, "instrument", f"45° positions in the {b}{c} plane with both signs of f_{b}·f_{c}"))
     return out
-
-
-def _cross_coupling_source(a: str, b: str, c: str) -> str:
-    """Cai et al. 2016 Eq. 4's symbol for ``Kcc_abc``, or that Cai does not model it.
-
-    Cai's K_cross (Eq. 6) couples accelerometer ``a`` to ``f_a`` times one other axis: ``K_axy, K_axz`` (x),
-    ``K_ayx, K_ayz`` (y), ``K_azx, K_azy`` (z), i.e. ``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``.  The three products of the
-    two *other* axes (``Kcc_xyz, Kcc_yxz, Kcc_zxy``) are not in Cai's model.
-    """
-    if a not in (b, c):
-        return "not in Cai et al. 2016, whose K_cross couples an accelerometer to its own input times another"
-    other = c if b == a else b
-    return f"Cai et al. 2016 Eq. 4 K_a{a}{other}"
 
 
 def _environment() -> list[Candidate]:

@@ -93,6 +93,15 @@ class SimulatedDriver:
         """Close the simulated platform."""
         self.platform.close()
 
+    def install(self, values: Any, *, source: str | None = None) -> None:
+        """Load the navigation computer with a calibration record's values (``Truth.with_installed``).
+
+        A system-level run starts from the calibration the INS navigates with (``--prior``), which on a real platform
+        is what was loaded into it; the simulated INS is loaded with it the same way.  Device-level samples do not
+        depend on it.
+        """
+        self.truth = self.truth.with_installed(values, source=source)
+
     def static_record(self, duration: float, chunk: float, turns: Any = ()) -> Any:
         """Chunks (dicts of :data:`~stableins.schema.SYSTEM_COLUMNS`) of a static record of ``duration`` s.
 

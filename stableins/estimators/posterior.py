@@ -20,7 +20,10 @@ Consequences, each tested (``tests/test_posterior.py``):
   in that information's metric, are the prior's.  A parameter correlated in the prior with one the data
   see moves by :math:`P_0 H^T S^{-1}(\cdot)` — the prior's own correlation, as Bayes requires.
 * **Gauges are held**: a ``gauge`` parameter (σ = 0 by convention) conditions the likelihood at its value.
-* Parameters neither the prior nor the data determine stay ``unidentifiable``.
+* Parameters neither the prior nor the data determine stay ``unidentifiable`` — only parameters without a prior can
+  (a stated prior bounds every direction it enters) — and are integrated out of the data's information about the
+  others (Schur complement, :meth:`_Information.marginalized`): the others' σ is what a joint update with an
+  uninformative prior on them gives, not the smaller σ of holding them at the likelihood's point.
 
 For an unbiased stage the errors obey :math:`\mathrm{Cov}(x_1 - x, x_0 - x) = P_1` (Kalman), hence
 :math:`\mathrm{Var}(x_1 - x_0) = P_0 - P_1` — the change statistic of :mod:`stableins.history`.
@@ -37,6 +40,11 @@ from numpy.typing import NDArray
 
 from stableins.estimators.result import INFORMATION_RTOL, Likelihood
 from stableins.status import Determination, Status
+
+#: Relative eigenvalue (of the unit-diagonal information of the parameters being marginalized) below which a direction
+#: counts as unseen by the data in :meth:`_Information.marginalized`: far below :data:`INFORMATION_RTOL`, since a weakly
+#: determined direction still couples to the rest and must be integrated out, not dropped.
+MARGINAL_RTOL = 1e-14
 
 
 @dataclass(frozen=True)
@@ -134,6 +142,33 @@ class _Information:
         scale = np.array([sigma0[k] if k in informed else (1.0 / diag_d[k] if diag_d[k] > 0 else 1.0) for k in range(n)])
         return cls(prior, lam_d, h, scale, frozenset(informed))
 
+    def marginalized(self, loose: Sequence[int]) -> _Information:
+        r"""Return the information of the data about the other parameters with ``loose`` marginalized (no prior on them).
+
+        The likelihood is Gaussian in the parameters and ``loose`` have no prior, so integrating them out leaves the
+        Schur complement (Bishop 2006 §2.3.2, the marginal of a Gaussian in its precision; the same as profiling them):
+
+        .. math::
+            \Lambda' = \Lambda_{rr} - \Lambda_{rl}\Lambda_{ll}^{+}\Lambda_{lr}, \qquad
+            h' = h_r - \Lambda_{rl}\Lambda_{ll}^{+} h_l
+
+        (``Λ_ll⁺``: pseudo-inverse in the data's own scale, directions below :data:`MARGINAL_RTOL` of its largest
+        eigenvalue dropped: those the data do not see at all, hence do not couple to the rest either).  Leaving them
+        out instead (conditioning on their likelihood point) would credit the other parameters with information the
+        data only hold jointly with the loose ones.
+        """
+        loose_index = np.array(sorted(loose), dtype=int)
+        scale = self.scale[loose_index]
+        block = self.data[np.ix_(loose_index, loose_index)] * np.outer(scale, scale)
+        pinv = np.linalg.pinv(0.5 * (block + block.T), rcond=MARGINAL_RTOL, hermitian=True)
+        coupling = self.data[:, loose_index] * scale[None, :]
+        data = self.data - coupling @ pinv @ coupling.T
+        rhs = self.rhs - coupling @ pinv @ (self.rhs[loose_index] * scale)
+        data[loose_index, :] = 0.0
+        data[:, loose_index] = 0.0
+        rhs[loose_index] = 0.0
+        return _Information(self.prior, 0.5 * (data + data.T), rhs, self.scale, self.informed)
+
     def solve(self, members: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64], list[int]]:
         """Return the update and posterior covariance of ``members``, or the members neither prior nor data determine."""
         scale = self.scale
@@ -152,7 +187,9 @@ class _Information:
         eigenvalues, vectors = np.linalg.eigh(0.5 * (lam + lam.T))
         top = max(float(eigenvalues.max(initial=0.0)), 1e-300)
         null = vectors[:, eigenvalues <= INFORMATION_RTOL * top]
-        loose = [members[i] for i in np.flatnonzero(np.linalg.norm(null, axis=1) > 1e-6)] if null.size else []
+        # only a parameter without a prior can be left undetermined: a stated prior bounds every direction it enters
+        loading = np.linalg.norm(null, axis=1) if null.size else np.zeros(len(members))
+        loose = [members[i] for i in np.flatnonzero(loading > 1e-6) if members[i] not in self.informed]
         if loose:
             return np.zeros(0), np.zeros((0, 0)), loose
         cov = np.linalg.inv(lam)
@@ -243,6 +280,7 @@ def bayesian_update(
         if not loose:
             break
         members = [k for k in members if k not in loose]  # neither prior nor data determine these
+        information = information.marginalized(loose)  # what the data say about the rest, whatever their values
         for k in loose:
             out_status[k] = Status.UNIDENTIFIABLE
             out_p[k, :] = np.nan

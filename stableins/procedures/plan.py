@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, asdict, dataclass, field, fields
+from enum import StrEnum
 from typing import Any
 
 from stableins.errors import InputError
@@ -91,9 +92,38 @@ class OffsetIterationStep:
     kind: str = "offset_iteration"
 
 
+class SystemEstimation(StrEnum):
+    """The estimation a system-level record ends with (``[record] estimation`` of a procedure, docs/procedures.md).
+
+    ``SYSTEM``: the system stage on a static record (docs/system-calibration.md), no index; ``DRIFT``: the drift test
+    (docs/drift-test.md), an indexed record; ``SYSTEMATIC``: the systematic stage (docs/systematic-calibration.md),
+    an indexed record.
+    """
+
+    SYSTEM = "system"
+    DRIFT = "drift"
+    SYSTEMATIC = "systematic"
+
+    @classmethod
+    def default(cls, *, indexed: bool) -> SystemEstimation:
+        """Return what a record ends with when its procedure does not say: the drift test if indexed, else the system stage."""
+        return cls.DRIFT if indexed else cls.SYSTEM
+
+    def problem(self, *, indexed: bool) -> str:
+        """Return why a record indexed (or not) cannot end with this estimation; ``""`` when it can."""
+        if self is SystemEstimation.SYSTEM and indexed:
+            return "the system stage reads a record held in one orientation, and this one is indexed"
+        if self is not SystemEstimation.SYSTEM and not indexed:
+            return f"the {self.value} estimation needs at least two orientations: an index during the record"
+        return ""
+
+
 @dataclass(frozen=True)
 class StaticRecordStep:
-    """System-level static record: hold ``readings`` [rad], settle [s], record ``duration`` [s] with the INS outputs."""
+    """System-level static record: hold ``readings`` [rad], settle [s], record ``duration`` [s] with the INS outputs.
+
+    ``turns`` index the platform by torquing during the record; ``estimation`` is what the run ends with.
+    """
 
     name: str
     readings: tuple[float, float, float]
@@ -104,6 +134,11 @@ class StaticRecordStep:
     kind: str = "static_record"
     #: indexing by torquing during the record (times from the record's start)
     turns: tuple[PlatformTurn, ...] = ()
+    #: the estimation the run ends with (the system stage, the drift test or the systematic stage)
+    estimation: SystemEstimation = SystemEstimation.SYSTEM
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "estimation", SystemEstimation(self.estimation))
 
 
 #: Ranges of the thresholds of a plan's dwell checks (SI; every one above its lower end).
@@ -343,6 +378,15 @@ class _Validator:
             d["checks"] = self.checks(d["checks"], f"{where}.checks")
         if "turns" in d:
             d["turns"] = self.turns(d["turns"], f"{where}.turns", d["duration"])
+        indexed = bool(d.get("turns"))
+        if "estimation" in d:
+            options = tuple(e.value for e in SystemEstimation)
+            d["estimation"] = SystemEstimation(self.choice(d["estimation"], f"{where}.estimation", options))
+        else:  # a plan written before the field: what its record ended with then
+            d["estimation"] = SystemEstimation.default(indexed=indexed)
+        problem = d["estimation"].problem(indexed=indexed)
+        if problem:
+            raise self.fail(problem, f"{where}.estimation", "'system' for a record without turns, 'drift' or 'systematic' with turns")
 
     def _offset_iteration_fields(self, d: dict[str, Any], where: str) -> None:
         """Check the fields of a zero-offset iteration step in place."""

@@ -32,9 +32,17 @@ def plan_from_definition(definition: Any, *, retries: int | None = None, chunk: 
     if definition.stage == "system":
         record = definition.record
         sample_rate = record.sample_rate
-        work: list = [StaticRecordStep(
-                f"{definition.name}: static record", record.command, record.settle, record.duration, checks, turns=record.turns
-            )]
+        work: list = [
+            StaticRecordStep(
+                f"{definition.name}: static record",
+                record.command,
+                record.settle,
+                record.duration,
+                checks,
+                turns=record.turns,
+                estimation=record.estimation,
+            )
+        ]
     elif definition.stage == "coarse" and definition.repoint:
         work = [
             OffsetIterationStep(

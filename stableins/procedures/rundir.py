@@ -17,6 +17,7 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -256,3 +257,15 @@ def resume_driver(
     if driver_factory is not None:
         return driver_factory(start.fields)
     return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
+
+
+def install_prior(driver: PlatformDriver, plan: Plan, prior: Any, source: str | os.PathLike[str] | None) -> None:
+    """Load a simulated INS with the record a system-level run starts from (what a real INS runs with), if it can be loaded.
+
+    ``prior``: the :class:`~stableins.records.CalibrationRecord` of ``--prior`` (None: nothing to load).  A network
+    platform is loaded by its operator; the simulated one (:meth:`~stableins.drivers.select.SimulatedDriver.install`)
+    here, at the start of the run and again when it is resumed, so that the samples replay.
+    """
+    install = getattr(driver, "install", None)
+    if prior is not None and plan.level == "system" and install is not None:
+        install(prior.values(), source=None if source is None else str(source))

@@ -12,6 +12,7 @@ from typing import Any
 
 from stableins.conventions import ARCSEC
 from stableins.errors import InputError
+from stableins.procedures.plan import SystemEstimation
 from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
@@ -99,6 +100,8 @@ class StaticRecord:
     sample_rate: float
     #: indexing of the platform by torquing during the record (``[[record.index]]``), in time order
     turns: tuple[PlatformTurn, ...] = ()
+    #: what the run ends with (``estimation``; by default the drift test for an indexed record, else the system stage)
+    estimation: SystemEstimation = SystemEstimation.SYSTEM
 
 
 _RUNNER_KEYS = {
@@ -110,7 +113,7 @@ _RUNNER_KEYS = {
     "max_slew": 1.0,
 }
 _PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}
-_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate", "index"}
+_RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rate", "index", "estimation"}
 _INDEX_KEYS = {"at", "axis", "angle", "rate"}
 
 
@@ -258,13 +261,31 @@ def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
             raise InputError(f"{deg} deg is not a gimbal angle in degrees", path=path, field=f"record.{key}", expected="degrees")
         angles.append(math.radians(deg))
     duration = number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS)
+    turns = index_turns(table.get("index", []), duration, path)
     return StaticRecord(
         command=(angles[0], angles[1], angles[2]),
         settle=number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
         duration=duration,
         sample_rate=number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
-        turns=index_turns(table.get("index", []), duration, path),
+        turns=turns,
+        estimation=_estimation(table, path, indexed=bool(turns)),
     )
+
+
+def _estimation(table: dict[str, Any], path: str, *, indexed: bool) -> SystemEstimation:
+    """``[record] estimation``: what the run ends with; checked against the record's indexing."""
+    if "estimation" not in table:
+        return SystemEstimation.default(indexed=indexed)
+    options = " or ".join(repr(e.value) for e in SystemEstimation)
+    try:
+        estimation = SystemEstimation(table["estimation"])
+    except ValueError:
+        raise InputError(f"{str(table['estimation'])[:40]!r}", path=path, field="record.estimation", expected=options) from None
+    problem = estimation.problem(indexed=indexed)
+    if problem:
+        expected = "an [[record.index]] turn" if not indexed else "'drift' or 'systematic' for an indexed record"
+        raise InputError(problem, path=path, field="record.estimation", expected=expected)
+    return estimation
 
 
 def index_turns(entries: Any, duration: float, path: str) -> tuple[PlatformTurn, ...]:

@@ -38,9 +38,9 @@ def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
     if not (math.isfinite(u) and u > 0):
         return Rounded(number(value, 6), "—", "—")
     expanded = k * u
-    if expanded < SMALLEST_FIXED_POINT:
+    if _rounded(expanded) < SMALLEST_FIXED_POINT:
         return _gum_scientific(value, u, expanded)
-    decimals = max(1 - math.floor(math.log10(expanded)), 0)
+    decimals = max(1 - _power(expanded), 0)
     text = f"{value:.{decimals}f}"
     if float(text) == 0.0:
         text = text.lstrip("-")
@@ -54,7 +54,7 @@ SMALLEST_FIXED_POINT = 1e-3
 
 def _gum_scientific(value: float, u: float, expanded: float) -> Rounded:
     """Round as :func:`gum` does, written as mantissa×10ⁿ with the power of ``U`` (``−3.6×10⁻⁸``)."""
-    power = math.floor(math.log10(expanded))
+    power = _power(expanded)
     return Rounded(times_ten(value, power, 1), times_ten(u, power, _u_decimals(u, power)), times_ten(expanded, power, 1))
 
 
@@ -63,7 +63,7 @@ def _u_decimals(u: float, power: int) -> int:
 
     U's mantissa lies in [1, 10): one decimal is two significant digits; ``u = U/k`` may fall below 1 and then keeps two.
     """
-    return 1 if u / 10.0**power >= 1 else 2
+    return 1 if _rounded(u) / 10.0**power >= 1 else 2
 
 
 _SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
@@ -90,8 +90,8 @@ def like_uncertainty(x: float, u: float, k: float = COVERAGE_FACTOR) -> str:
     written ``0``, without a power of ten.
     """
     expanded = k * u
-    if expanded < SMALLEST_FIXED_POINT:
-        power = math.floor(math.log10(expanded))
+    if _rounded(expanded) < SMALLEST_FIXED_POINT:
+        power = _power(expanded)
         decimals = _u_decimals(u, power)
         return "0" if round(x / 10.0**power, decimals) == 0.0 else times_ten(x, power, decimals)
     return f"{x:.{decimals_of(u)}f}".replace("-", MINUS)
@@ -107,16 +107,30 @@ def number(x: float, significant: int) -> str:
     """``x`` to ``significant`` significant digits, fixed-point, with a true minus sign."""
     if x == 0 or not math.isfinite(x):
         return "0" if x == 0 else str(x)
-    decimals = max(significant - 1 - math.floor(math.log10(abs(x))), 0)
+    decimals = max(significant - 1 - _power(x, significant), 0)
     return f"{x:.{decimals}f}".replace("-", MINUS)
 
 
 def round_to_uncertainty(value: float, u: float) -> str:
     """Round the value to the last digit of ``u`` given to two significant digits (GUM 7.2.6)."""
-    decimals = max(1 - math.floor(math.log10(u)), 0)
+    decimals = max(1 - _power(u), 0)
     return f"{value:.{decimals}f}".replace("-", MINUS)
 
 
 def decimals_of(u: float) -> int:
     """Decimal places of ``u`` given to two significant digits."""
-    return max(1 - math.floor(math.log10(u)), 0) if u > 0 and math.isfinite(u) else 0
+    return max(1 - _power(u), 0) if u > 0 and math.isfinite(u) else 0
+
+
+def _rounded(x: float, significant: int = 2) -> float:
+    """``|x|`` rounded to ``significant`` significant digits (9.989 → 10)."""
+    return abs(float(f"{x:.{significant - 1}e}"))
+
+
+def _power(x: float, significant: int = 2) -> int:
+    """Return the power of ten of ``x`` rounded to ``significant`` digits: 9.989 at two digits is 10, power 1, not 0.
+
+    Every decimal place above is counted from it, so that ``U = 9.989`` is written ``10`` (two significant digits, not
+    ``10.0``) and the value to the units (GUM 7.2.6).
+    """
+    return math.floor(math.log10(_rounded(x, significant)))

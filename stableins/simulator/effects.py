@@ -26,7 +26,7 @@ id               added output of accelerometer ``a`` (axis a in x, y, z)
 ``Ksa_a``        ``Ksa |f_a|``: scale factor ``1 + Ksa`` for positive input and
                  ``1 − Ksa`` for negative input; ``(SF₊ − SF₋)/SF = 2 Ksa``
 ``Kcq_ab``       ``Kcq f_b²`` (b ≠ a)
-``Kcc_abc``      ``Kcc f_b f_c`` (b < c in x < y < z; Cai et al. 2016 K_abc)
+``Kcc_abc``      ``Kcc f_b f_c`` (b < c in x < y < z; Cai et al. 2016 K_abc where a is b or c, else IEEE Std 1293)
 ``Kt_bias_a``    ``Kt ΔT``
 ``Kt_sf_a``      ``Kt ΔT f_a`` (scale factor changes by ``Kt`` per kelvin)
 ``Kd_bias_a``    ``Kd t``
@@ -219,7 +219,8 @@ def _cross_coupling_effect(i: int, a: str, j: int, k: int) -> Effect:
         f"Kcc_{a}{AXES[j]}{AXES[k]}",
         "s^2/m",
         10 * MICRO_G / _G**2,
-        f"cross-coupling: {a} accelerometer + Kcc f_{AXES[j]} f_{AXES[k]} (Cai et al. 2016)",
+        f"cross-coupling: {a} accelerometer + Kcc f_{AXES[j]} f_{AXES[k]} "
+        + ("(Cai et al. 2016 K_cross)" if a in (AXES[j], AXES[k]) else "(IEEE Std 1293; not in Cai et al. 2016)"),
         "output",
         _on_axis(i, lambda x: _f(x, j) * _f(x, k)),
         i,

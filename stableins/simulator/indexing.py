@@ -181,6 +181,48 @@ class IndexedMotion:
         return self.platform.readings_from_actual(actual)
 
 
+def inner_gimbal_lock(
+    platform: GimbalPlatform,
+    turns: Sequence[PlatformTurn],
+    duration: float,
+    *,
+    latitude: float,
+    initial_readings: Sequence[float],
+    rate: float,
+) -> float | None:
+    r"""First time [s] at which the commanded orientations bring the inner gimbal to lock, or None if they never do.
+
+    The drift-free orientation ``C_n^p(t) = T(t) C_n^{p_0} \exp(Ωt[u×])`` of :class:`IndexedMotion` (the platform held
+    in inertial space from ``initial_readings`` and indexed by ``turns``, the Earth turning under it) on a 1-s grid in
+    the holds and on the record's clock (``rate``, at least 100 Hz) during the turns; lock as in
+    :meth:`IndexedMotion.readings`, ``|cos α₂| <`` :data:`LOCK_COSINE`.  Between grid points ``sin α₂ = −M₂₁`` moves
+    at most as fast as the platform turns relative to the base, so the grid misses a lock by less than
+    ``(ω h)²/8`` in ``sin α₂`` (3e-8 at the turn's 10°/s and 100 Hz; 7e-10 in a hold), against the band
+    ``1 − \sqrt{1 − LOCK\_COSINE^2}`` = 5e-7.  What a procedure asks of a platform, checked before it moves
+    (:func:`stableins.runs.start_run`); the world itself refuses a lock sample by sample.
+    """
+    readings = np.asarray(initial_readings, dtype=float)
+    motion = IndexedMotion(
+        platform,
+        platform.dcm_nav_to_platform(readings),
+        turns,
+        latitude=latitude,
+        initial_actual=platform.actual_angles(readings),
+        rate=rate,
+    )
+    spacing = min(1.0 / rate, 0.01)
+    grid = [np.arange(0.0, duration, 1.0), np.array([duration])]
+    grid += [np.arange(turn.start, min(turn.end, duration), spacing) for turn in turns]
+    times = np.unique(np.concatenate(grid))
+    for chunk in np.array_split(times, len(times) // (1 << 16) + 1):
+        free = motion.commanded(chunk) @ motion.nav_to_platform_0 @ earth_rotation(motion.earth_axis, chunk)
+        actual = motion._actual(free @ motion.nav_to_body.T)
+        locked = np.flatnonzero(np.abs(np.cos(platform.configuration.senses[1] * actual[:, 1])) < LOCK_COSINE)
+        if locked.size:
+            return float(chunk[locked[0]])
+    return None
+
+
 def indexed_record_chunks(
     truth: Truth,
     duration: float,

@@ -296,6 +296,34 @@ class Truth:
         """Return a copy with some fields replaced (dataclasses.replace)."""
         return replace(self, **changes)
 
+    def with_installed(self, values: Mapping[str, float], *, source: str | None = None) -> Truth:
+        """Return the truth whose navigation computer compensates with ``values`` (a calibration record's values).
+
+        The record's discovered (additive) terms are installed too: the navigation computer compensates with them
+        (``ErrorModel.inverse`` with the simulator's own definition of the effect, :mod:`stableins.simulator.effects`).
+        Ids the record lacks keep this truth's installed value.  The gyro drift (``gyro_drift_x/y/z``) and
+        g-sensitivity (``Dg_ab``) are not installed: the simulated navigation computer does not compensate its gyros
+        (the platform drifts with the truth's ``gyro_drift`` and ``Dg_ab`` effects).  An id neither the error model
+        nor the effect catalogue's output effects know is refused (:class:`InputError` naming ``source`` and the id).
+        """
+        from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS
+
+        installed = dict(self.installed_calibration)
+        known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
+        drift_ids = {t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS}
+        for parameter_id, value in values.items():
+            if parameter_id in drift_ids:
+                continue
+            if parameter_id not in known:
+                raise InputError(
+                    f"parameter {parameter_id!r} is not part of the simulated instrument",
+                    path=source,
+                    field=parameter_id,
+                    expected="standard parameters or output effects of 'stableins simulate --list-effects'",
+                )
+            installed[parameter_id] = float(value)
+        return replace(self, installed_calibration=installed)
+
     # ----------------------------------------------------------------- drawing
     @classmethod
     def draw(

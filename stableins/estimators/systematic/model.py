@@ -38,9 +38,10 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from stableins.conventions import AXES
-from stableins.errormodel import CORE_IDS, GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
+from stableins.errormodel import CORE_IDS, GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS, ErrorModel
 from stableins.estimators.system.loop import LOOP_STATES, DampingLoop
 from stableins.noise import FLICKER_TIME_CONSTANTS, FLICKER_VARIANCE_PER_B2
+from stableins.terms import CAI_CROSS_COUPLING_IDS, CROSS_COUPLING_TERMS
 
 #: Gauss-Markov processes of the flicker sum faster than this [s] are folded into the white noise.
 FOLD_TIME = 999.0
@@ -50,7 +51,19 @@ GYRO_IDS: tuple[str, ...] = tuple(t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS)
 BASE_IDS = ("base_north", "base_east", "base_down")
 OFFSET_IDS = tuple(f"{g}_residual" for g in GIMBAL_IDS)
 #: Nominal scales of the parameter states (the filter works in these units).
-_SCALE = {"sf": 1e-6, "bias": 1e-5, "beta": 1e-6, "K2": 1e-7, "gyro": 5e-9, "Dg": 5e-10, "base": 1e-5, "theta": 1e-5}
+_SCALE = {"sf": 1e-6, "bias": 1e-5, "beta": 1e-6, "K2": 1e-7, "Kcc": 1e-7, "gyro": 5e-9, "Dg": 5e-10, "base": 1e-5, "theta": 1e-5}
+#: The optional accelerometer terms of the block: the cross-couplings ``Kcc_abc`` (:data:`stableins.terms.CROSS_COUPLING_TERMS`).
+CROSS_COUPLING_IDS: tuple[str, ...] = tuple(t.id for t in CROSS_COUPLING_TERMS)
+
+
+def accelerometer_ids(error_model: ErrorModel, *, cross_coupling: bool = False) -> tuple[str, ...]:
+    """Return the accelerometer residuals the filter estimates: the core ids, then the cross-couplings in library order.
+
+    The cross-couplings are those the record's error model holds (a record calibrated with ``--add Kcc_xxy``), and
+    with ``cross_coupling`` also Cai et al. 2016's six (:data:`stableins.terms.CAI_CROSS_COUPLING_IDS`).
+    """
+    wanted = {i for i in error_model.ids if i in CROSS_COUPLING_IDS} | (set(CAI_CROSS_COUPLING_IDS) if cross_coupling else set())
+    return CORE_IDS + tuple(i for i in CROSS_COUPLING_IDS if i in wanted)
 
 
 #: Units of the loop states (:data:`LOOP_STATES`: rad, m/s, rad, m, m/s, m/s²) and of ``θ`` [rad] in the filter.
@@ -71,7 +84,7 @@ class StateLayout:
     """Names and positions of the filter states.
 
     Order: the loop states (:data:`LOOP_STATES`), the drift angle ``θ`` (3), the slow accelerometer noise (random walk
-    3, Gauss-Markov 3 per kept correlation time), the accelerometer residuals (the core ids), the gyro terms
+    3, Gauss-Markov 3 per kept correlation time), the accelerometer residuals (:attr:`accelerometer_ids`), the gyro terms
     (:data:`GYRO_IDS`), the base error and zero-offset residuals, then per hold ``c^ρ_k`` and ``c^d_k``.
 
     Attributes
@@ -82,11 +95,20 @@ class StateLayout:
         Correlation times [s] of the Gauss-Markov states.
     random_walk : bool
         Whether the random walk has states.
+    accelerometer_ids : tuple of str
+        The accelerometer residuals (:func:`accelerometer_ids`): the core ids, then any cross-couplings.  The one
+        place the block's terms are named: the Jacobians, priors, rank groups and the record update follow it.
     """
 
     holds: int
     slow_times: tuple[float, ...]
     random_walk: bool = True
+    accelerometer_ids: tuple[str, ...] = CORE_IDS
+
+    def __post_init__(self) -> None:
+        core, extra = self.accelerometer_ids[: len(CORE_IDS)], self.accelerometer_ids[len(CORE_IDS) :]
+        if core != CORE_IDS or not set(extra) <= set(CROSS_COUPLING_IDS):
+            raise ValueError(f"the accelerometer block is the core ids then cross-couplings, not {self.accelerometer_ids}")
 
     @property
     def turns(self) -> int:
@@ -101,7 +123,7 @@ class StateLayout:
         holds = [f"c_rho{k}_{a}" for k in range(self.holds) for a in AXES] + [f"c_att{k}_{a}" for k in range(self.holds) for a in AXES]
         holds = [f"turn{j}_{a}" for j in range(self.turns) for a in AXES] + holds
         theta = [f"theta_{a}" for a in AXES]
-        return (*LOOP_STATES, *theta, *noise, *CORE_IDS, *GYRO_IDS, *BASE_IDS, *OFFSET_IDS, *holds)
+        return (*LOOP_STATES, *theta, *noise, *self.accelerometer_ids, *GYRO_IDS, *BASE_IDS, *OFFSET_IDS, *holds)
 
     @property
     def size(self) -> int:
@@ -120,9 +142,9 @@ class StateLayout:
 
     @property
     def accelerometer(self) -> slice:
-        """Accelerometer residuals (:data:`stableins.errormodel.CORE_IDS`)."""
+        """Accelerometer residuals (:attr:`accelerometer_ids`)."""
         start = self.noise.stop
-        return slice(start, start + len(CORE_IDS))
+        return slice(start, start + len(self.accelerometer_ids))
 
     @property
     def gyro(self) -> slice:
@@ -214,8 +236,8 @@ def input_map(
     ----------
     nav_to_platform : ndarray (n, 3, 3)
         ``C_n^p`` at the substeps.
-    accelerometer : ndarray (n, 3, 15)
-        ``J_f⁻¹ J_p``: platform specific-force error per residual.
+    accelerometer : ndarray (n, 3, a)
+        ``J_f⁻¹ J_p``: platform specific-force error per residual (the layout's accelerometer block).
     specific_force : ndarray (n, 3)
         ``f^p``.
     turn_rates : ndarray (n, T)
@@ -224,19 +246,19 @@ def input_map(
     noise_columns : int
         Slow-noise states (3 per process); each adds ``C_p^n`` to ``Δf^n``.
     """
-    n, turns = len(nav_to_platform), turn_rates.shape[1]
+    n, turns, accel = len(nav_to_platform), turn_rates.shape[1], accelerometer.shape[2]
     to_nav = nav_to_platform.swapaxes(1, 2)
-    gyro = 27 + 3 * turns
+    gyro = accel + 12 + 3 * turns
     out = np.zeros((n, 9, gyro + noise_columns))
-    out[:, 0:3, 0:15] = to_nav @ accelerometer
+    out[:, 0:3, 0:accel] = to_nav @ accelerometer
     eps = np.zeros((n, 3, 12 + 3 * turns))  # ε_eff per gyro term and torquing error
     eps[:, :, 0:3] = np.eye(3)
     for a in range(3):
         eps[:, a, 3 + 3 * a : 6 + 3 * a] = specific_force
     for j in range(turns):
         eps[:, :, 12 + 3 * j : 15 + 3 * j] = -turn_rates[:, j, None, None] * np.eye(3)
-    out[:, 3:6, 15:gyro] = to_nav @ eps
-    out[:, 6:9, 15:gyro] = -eps
+    out[:, 3:6, accel:gyro] = to_nav @ eps
+    out[:, 6:9, accel:gyro] = -eps
     for k in range(noise_columns // 3):
         out[:, 0:3, gyro + 3 * k : gyro + 3 + 3 * k] = to_nav
     return out
@@ -304,7 +326,7 @@ def step_matrices(
     inputs: NDArray[np.float64],
     decay_steps: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """``F_k`` (s, n, n) for ``s`` steps from the input maps ``U`` at their substeps (s, m, 9, 27 + noise).
+    """``F_k`` (s, n, n) for ``s`` steps from the input maps ``U`` at their substeps (s, m, 9, a + 12 + 3T + noise).
 
     ``decay_steps`` (m, noise) is ``e^{−(j+½)h/τ}`` per substep and noise column (1 for the random walk), so a
     Gauss-Markov state's decay inside the step enters its forcing.
@@ -314,9 +336,10 @@ def step_matrices(
     scales = layout.scales()
     out = np.zeros((s, n, n))
     out[:, :12, :12] = disc.transition
-    gyro = 27 + 3 * layout.turns
-    out[:, :12, layout.accelerometer.start : layout.gyro.stop] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, :27])
-    out[:, :12, layout.turn_errors] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, 27:gyro])
+    params = layout.gyro.stop - layout.accelerometer.start  # accelerometer residuals and gyro terms
+    gyro = params + 3 * layout.turns
+    out[:, :12, layout.accelerometer.start : layout.gyro.stop] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, :params])
+    out[:, :12, layout.turn_errors] = np.einsum("jab,sjbc->sac", disc.weights, inputs[:, :, :, params:gyro])
     noise = inputs[:, :, :, gyro:] * decay_steps[None, :, None, :]
     out[:, :12, layout.noise] = np.einsum("jab,sjbc->sac", disc.weights, noise)
     k = layout.noise.start

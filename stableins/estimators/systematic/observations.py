@@ -17,12 +17,13 @@ from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE, GimbalConfiguration, dcm_body_to_platform, dcm_nav_to_body, earth_rate_nav, skew
 from stableins.data.chunks import ChunkSource, source_path
-from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel
+from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel, known_terms
 from stableins.errors import InputError
 from stableins.estimators.drift.holds import MOVE_MARGIN, MOVING_RATE, rotation_vector
 from stableins.estimators.systematic.model import StepGeometry, input_map
 from stableins.platform import rotation_about
 from stableins.site import SiteMetadata
+from stableins.terms import CROSS_COUPLING_TERMS
 
 #: Record columns the systematic stage reads.
 COLUMNS = (
@@ -137,29 +138,50 @@ class Linearization:
         The installed calibration (record values) [SI].
     error_model : ErrorModel
         The record's model (its Jacobians define the accelerometer part of ``F``).
-    accelerometer : ndarray (15,)
-        Current estimate of the residuals (core ids), added to ``values`` for the Jacobians.
+    accelerometer : ndarray (a,), optional
+        Current estimate of the residuals ``ids`` (default zero), added to ``values`` for the Jacobians.
     offsets, base : ndarray (3,)
         Current estimate of the zero-offset residuals and the base error (geometry of the forcing).
+    ids : tuple of str
+        The residuals, :attr:`~stableins.estimators.systematic.model.StateLayout.accelerometer_ids` (the core ids by
+        default); a cross-coupling the record's model does not hold joins it at its reference value (0).
     """
 
     values: Mapping[str, float]
     error_model: ErrorModel
-    accelerometer: NDArray[np.float64] = field(default_factory=lambda: np.zeros(len(CORE_IDS)))
+    accelerometer: NDArray[np.float64] | None = None
     offsets: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     base: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    ids: tuple[str, ...] = CORE_IDS
+
+    def __post_init__(self) -> None:
+        if self.accelerometer is None:
+            object.__setattr__(self, "accelerometer", np.zeros(len(self.ids)))
+        elif len(self.accelerometer) != len(self.ids):
+            raise ValueError(f"{len(self.accelerometer)} residuals for {len(self.ids)} ids")
+
+    @property
+    def residuals(self) -> NDArray[np.float64]:
+        """The current estimate of the residuals ``ids`` [SI]."""
+        assert self.accelerometer is not None  # set in __post_init__
+        return self.accelerometer
 
     def installed_offsets(self) -> NDArray[np.float64]:
         """Installed zero offsets ``θ_i0`` [rad]."""
         return np.array([float(self.values.get(g, 0.0)) for g in GIMBAL_IDS])
 
+    def model(self) -> ErrorModel:
+        """Return the record's error model with every term of ``ids`` it lacks (the core terms, a new cross-coupling)."""
+        terms = known_terms(CROSS_COUPLING_TERMS)
+        return self.error_model + tuple(terms[i] for i in self.ids if i not in self.error_model)
+
     def accelerometer_map(self, specific_force: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``J_f⁻¹ J_p`` (n, 3, 15) at the linearization point for the core ids."""
+        """``J_f⁻¹ J_p`` (n, 3, a) at the linearization point for ``ids`` (:meth:`ErrorModel.jacobian`, additive terms too)."""
+        model = self.model()
         values = dict(self.values)
-        for name, delta in zip(CORE_IDS, self.accelerometer, strict=True):
-            values[name] = float(values.get(name, 1.0 if name.startswith("sf_") else 0.0)) + float(delta)
-        model = self.error_model if all(i in self.error_model for i in CORE_IDS) else ErrorModel.standard(nonlinear=True)
-        jac = model.jacobian(specific_force, values)[..., [model.index(i) for i in CORE_IDS]]
+        for name, delta in zip(self.ids, self.residuals, strict=True):
+            values[name] = float(values.get(name, model[name].reference)) + float(delta)
+        jac = model.jacobian(specific_force, values)[..., [model.index(i) for i in self.ids]]
         return np.asarray(np.linalg.solve(model.jacobian_specific_force(specific_force, values), jac), dtype=np.float64)
 
 

@@ -27,6 +27,7 @@ from stableins.estimators.systematic.model import (
     GYRO_IDS,
     Discretization,
     StateLayout,
+    accelerometer_ids,
     parameter_ids,
     slow_noise_times,
     white_density,
@@ -35,6 +36,10 @@ from stableins.estimators.systematic.observations import HoldSummary, Linearizat
 from stableins.estimators.systematic.rank import GroupRank, free_prior, group_rank, resolution
 from stableins.noise import FLICKER_VARIANCE_PER_B2, NoiseModel
 from stableins.site import SiteMetadata
+
+#: Prior 1σ of the terms a record may not hold, by family [SI]: wide against what the data determine (0.01 °/h,
+#: 0.01 °/h/g, 98 µg/g²); the record update removes it (:attr:`SystematicOptions.new_term_sigma`).
+NEW_TERM_SIGMA: dict[str, float] = {"gyro_drift": 5e-8, "Dg": 5e-9, "Kcc": 1e-5}
 
 
 @dataclass(frozen=True)
@@ -58,8 +63,12 @@ class SystematicOptions:
     misalignment_sigma : float
         Prior 1σ of the INS's initial attitude error ``φ(0)`` [rad].
     new_term_sigma : mapping
-        Prior 1σ of gyro terms the record does not hold (``gyro_drift``, ``Dg``) [SI]; the record update removes it
-        (they enter with the data's information alone).
+        Prior 1σ of terms the record does not hold, by family (``gyro_drift``, ``Dg``, ``Kcc``; the others from
+        :data:`NEW_TERM_SIGMA`) [SI]; the record update removes it (they enter with the data's information alone).
+    cross_coupling : bool
+        Keyword only.  Estimate Cai et al. 2016's six cross-couplings (``Kcc_xxy, xxz, yxy, yyz, zxz, zyz``) besides
+        the core residuals and any cross-coupling the record's error model holds (those are always estimated;
+        :func:`~stableins.estimators.systematic.model.accelerometer_ids`).
     """
 
     step: float = 30.0
@@ -69,7 +78,16 @@ class SystematicOptions:
     rows: int = 1 << 18
     base_sigma: tuple[float, float, float] = (20 * ARCSEC, 20 * ARCSEC, 120 * ARCSEC)
     misalignment_sigma: float = 1e-3
-    new_term_sigma: Mapping[str, float] = field(default_factory=lambda: {"gyro_drift": 5e-8, "Dg": 5e-9})
+    new_term_sigma: Mapping[str, float] = field(default_factory=lambda: dict(NEW_TERM_SIGMA))
+    cross_coupling: bool = field(default=False, kw_only=True)
+
+    def term_sigma(self, term_id: str) -> float:
+        """Prior 1σ [SI] of ``term_id`` when the record does not hold it: a core term's nominal, else by family."""
+        term = known_terms().get(term_id)
+        if term is not None and term_id not in GYRO_IDS:
+            return term.nominal
+        family = "Dg" if term_id.startswith("Dg_") else "Kcc" if term_id.startswith("Kcc_") else "gyro_drift"
+        return {**NEW_TERM_SIGMA, **self.new_term_sigma}[family]
 
 
 @dataclass(frozen=True)
@@ -152,11 +170,7 @@ def initial_covariance(layout: StateLayout, prior: Prior, options: SystematicOpt
     sigma[layout.noise] = _noise_prior(layout, prior.noise_model) / scales[layout.noise]
     for k, name in enumerate(parameter_ids(layout)):
         index = layout.accelerometer.start + k
-        term = known_terms().get(name)
-        default = term.nominal if term is not None else options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
-        if name in GYRO_IDS and name not in prior.ids:
-            default = options.new_term_sigma["Dg" if name.startswith("Dg_") else "gyro_drift"]
-        sigma[index] = (free_prior(name) if diffuse else prior.sigma(name, default)) / scales[index]
+        sigma[index] = (free_prior(name) if diffuse else prior.sigma(name, options.term_sigma(name))) / scales[index]
     base = FREE_ANGLE if diffuse else np.asarray(options.base_sigma)
     sigma[layout.base] = base / scales[layout.base]
     sigma[layout.offsets.start :] = FREE_ANGLE / scales[layout.offsets.start :]
@@ -196,13 +210,14 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
             path=source_path(source), field="angle_platform", expected="a record of 'stableins run system-indexed'",
         )  # fmt: skip
     walk = bool(np.any(prior.noise_model.values("random_walk") > 0))
-    layout = StateLayout(scan.holds, slow_noise_times(), random_walk=walk)
+    block = accelerometer_ids(prior.error_model, cross_coupling=options.cross_coupling)
+    layout = StateLayout(scan.holds, slow_noise_times(), random_walk=walk, accelerometer_ids=block)
     loop = DampingLoop.from_metadata(site.damping, site.latitude, site.gravity)
     disc = Discretization.of(loop, options.step, options.substeps)
     white, quantization, slow = noise_inputs(prior.noise_model)
     p0 = initial_covariance(layout, prior, options, diffuse=False)
     p0_diffuse = initial_covariance(layout, prior, options, diffuse=True)
-    lin = Linearization(prior.values, prior.error_model)
+    lin = Linearization(prior.values, prior.error_model, ids=layout.accelerometer_ids)
     changes: list[float] = []
     estimate = rank = None
     point = lin
@@ -225,14 +240,15 @@ def run_passes(source: ChunkSource, site: SiteMetadata, prior: Prior, options: S
 def _linearization(old: Linearization, run: FilterRun, layout: StateLayout) -> Linearization:
     """Return the linearization point of the next pass: the installed values plus the estimated residuals."""
     x = run.x * layout.scales()
-    return Linearization(old.values, old.error_model, x[layout.accelerometer], old.offsets + x[layout.offsets], old.base + x[layout.base])
+    accelerometer, offsets, base = x[layout.accelerometer], old.offsets + x[layout.offsets], old.base + x[layout.base]
+    return Linearization(old.values, old.error_model, accelerometer, offsets, base, ids=layout.accelerometer_ids)
 
 
 def _change(old: Linearization, new: Linearization, run: FilterRun, layout: StateLayout) -> float:
     """Largest move of the linearization point between passes, in posterior σ."""
     sigma = np.sqrt(np.diag(run.P)) * layout.scales()
     moves = [
-        (new.accelerometer - old.accelerometer) / sigma[layout.accelerometer],
+        (new.residuals - old.residuals) / sigma[layout.accelerometer],
         (new.offsets - old.offsets) / sigma[layout.offsets],
         (new.base - old.base) / sigma[layout.base],
     ]
@@ -242,7 +258,7 @@ def _change(old: Linearization, new: Linearization, run: FilterRun, layout: Stat
 #: The groups of the rank report: name and the state names' test.
 RANK_GROUPS = (
     ("accelerometer", lambda n: n.startswith(("sf_", "bias_", "beta_"))),
-    ("nonlinearity", lambda n: n.startswith("K2_")),
+    ("nonlinearity", lambda n: n.startswith(("K2_", "Kcc_"))),  # the f_i f_j terms: K2 and any cross-couplings
     ("gyro", lambda n: n in GYRO_IDS),
     ("nuisance", lambda n: n.startswith("base_") or n.endswith("_residual")),
 )

@@ -27,6 +27,7 @@ FREE_PRIOR: dict[str, float] = {
     "bias_": 1e-2,
     "beta_": 1e-3,
     "K2_": 1e-4,
+    "Kcc_": 1e-4,
     "gyro_drift_": 0.01 * DEG_PER_HOUR,
     "Dg_": 0.01 * DEG_PER_HOUR / STANDARD_GRAVITY,
 }
@@ -43,6 +44,7 @@ RESOLUTION: dict[str, float] = {
     "bias_": 10 * MICRO_G,
     "beta_": 3 * ARCSEC,
     "K2_": 5 * MICRO_G_PER_G2,
+    "Kcc_": 5 * MICRO_G_PER_G2,
     "gyro_drift_": 1e-4 * DEG_PER_HOUR,
     "Dg_": 1e-4 * DEG_PER_HOUR / STANDARD_GRAVITY,
     "base_": 5 * ARCSEC,
@@ -83,7 +85,7 @@ class GroupRank:
     Attributes
     ----------
     group : str
-        ``"accelerometer"``, ``"nonlinearity"``, ``"gyro"`` or ``"nuisance"``.
+        ``"accelerometer"``, ``"nonlinearity"`` (``K2`` and any cross-couplings), ``"gyro"`` or ``"nuisance"``.
     ids : tuple of str
     directions : tuple of Direction
         Most determined first.

@@ -11,20 +11,22 @@ from __future__ import annotations
 
 import html
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
-from stableins.errormodel import known_terms
+from stableins.display import value_sigma
+from stableins.errormodel import MICRO_G_PER_G2, known_terms
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.estimators.systematic.model import BASE_IDS, OFFSET_IDS, parameter_ids
 from stableins.estimators.systematic.observations import HoldSummary
 from stableins.estimators.systematic.passes import PassResult, Prior, rank_report
-from stableins.estimators.systematic.rank import GroupRank
+from stableins.estimators.systematic.rank import GroupRank, resolution
 from stableins.status import Status
+from stableins.terms import CROSS_COUPLING_TERMS
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +49,9 @@ class SystematicDetails(StageDetails):
         Normalized innovations of the last pass's estimate filter: ``Σ νᵀS⁻¹ν`` and the number of observations.
     step : float
         Filter step [s].
+    left_out : mapping of str to float
+        Cross-couplings the record does not hold that these data do not determine (1σ above their resolution), with
+        their σ [SI]: they stay out of the record, marginalized under their wide prior (:func:`handed_over`).
     """
 
     holds: tuple[HoldSummary, ...]
@@ -57,6 +62,7 @@ class SystematicDetails(StageDetails):
     chi2: float
     dof: int
     step: float
+    left_out: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,11 +95,22 @@ class SystematicCalibration:
         lines.append("gyro terms (platform frame):")
         for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
             if term.id.startswith("gyro_drift_"):
-                lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR:+.6f} ± {sigma / DEG_PER_HOUR:.6f} °/h")
+                lines.append(f"  {term.id:<14} {value_sigma(value / DEG_PER_HOUR, sigma / DEG_PER_HOUR, '°/h')}")
             elif term.id.startswith("Dg_"):
-                lines.append(f"  {term.id:<14} {value / DEG_PER_HOUR_PER_G:+.6f} ± {sigma / DEG_PER_HOUR_PER_G:.6f} °/h/g")
+                lines.append(f"  {term.id:<14} {value_sigma(value / DEG_PER_HOUR_PER_G, sigma / DEG_PER_HOUR_PER_G, '°/h/g')}")
+        if any(term.id.startswith("Kcc_") for term in self.fit.terms) or d.left_out:
+            lines.append("cross-couplings (µg/g²):")
+        for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
+            if term.id.startswith("Kcc_"):
+                lines.append(f"  {term.id:<14} {value_sigma(term.to_engineering(value), term.sigma_to_engineering(sigma))}")
+        for name, sigma in d.left_out.items():
+            lines.append(f"  {name:<14} not determined (σ {sigma / MICRO_G_PER_G2:.1f}): not written to the record")
         lines.append("nuisances: " + ", ".join(f"{k} {v / ARCSEC:+.2f} ± {s / ARCSEC:.2f}″" for k, (v, s) in d.nuisance.items()))
-        lines.append(f"innovations: χ²/ν = {d.chi2 / max(d.dof, 1):.3f} (ν = {d.dof})")
+        lines.append(
+            f"innovations of every step: χ²/ν = {d.chi2 / max(d.dof, 1):.3f} (ν = {d.dof}); the record's evidence "
+            f"({len(self.fit.residuals)} whitened innovations kept, less the rank; the certificate's figure): "
+            f"χ²_ν = {self.fit.chi2_red:.3f} (ν = {self.fit.dof})"
+        )
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -103,11 +120,32 @@ class SystematicCalibration:
         return f"<pre>{html.escape(self.report())}</pre>"
 
 
+def handed_over(result: PassResult, prior: Prior) -> tuple[tuple[str, ...], dict[str, float]]:
+    """Return the ids whose information the record gets, and the cross-couplings left out with their σ [SI].
+
+    Every accelerometer and gyro state, except a cross-coupling the record does not hold (it entered under the wide
+    prior :data:`~stableins.estimators.systematic.passes.NEW_TERM_SIGMA`) whose σ from these data stays above its
+    resolution (:func:`~stableins.estimators.systematic.rank.resolution`): the INS would compensate with a value that
+    is noise.  It stays a nuisance: the information handed over is marginalized under its wide prior.
+    """
+    layout = result.layout
+    sigma = np.sqrt(np.diag(result.estimate.P)) * layout.scales()
+    ids: list[str] = []
+    left: dict[str, float] = {}
+    for k, name in enumerate(parameter_ids(layout), start=layout.accelerometer.start):
+        new = not np.isfinite(prior.sigma(name, np.inf))
+        if name.startswith("Kcc_") and new and sigma[k] > resolution(name):
+            left[name] = float(sigma[k])
+        else:
+            ids.append(name)
+    return tuple(ids), left
+
+
 def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCalibration:
     """Return the frozen result of the passes: posterior values, the data-only likelihood, the rank report."""
     layout = result.layout
-    ids = parameter_ids(layout)
-    index = np.arange(layout.accelerometer.start, layout.gyro.stop)
+    ids, left_out = handed_over(result, prior)
+    index = np.array([layout.names.index(i) for i in ids])
     scales = layout.scales()[index]
     x = result.estimate.x[index] * scales
     cov = result.estimate.P[np.ix_(index, index)] * np.outer(scales, scales)
@@ -115,19 +153,20 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
     x0 = result.estimate_prior_mean[index] * scales
     point = np.array([_record_value(prior, i) for i in ids])
     # accelerometer states are residuals of the installed values; gyro states are the terms themselves
-    accel = len(ids) - 12
-    values = point + np.concatenate([x[:accel], x[accel:] - point[accel:]])
+    residual = np.array([i in layout.accelerometer_ids for i in ids])
+    values = np.where(residual, point + x, x)
     information = _symmetric(np.linalg.inv(cov) - np.linalg.inv(cov0))
     gradient = np.linalg.solve(cov, x - x0)
     likelihood = Likelihood(ids, point, information, gradient)
     innovations = np.concatenate(result.estimate.innovations) if result.estimate.innovations else np.zeros(0)
-    terms = known_terms()
+    terms = known_terms(CROSS_COUPLING_TERMS)
     totals = result.totals(result.estimate)
     sigma = np.sqrt(np.diag(result.estimate.P)) * layout.scales()
     nuisance = {n: (float(totals[k]), float(sigma[k])) for k, n in enumerate(layout.names) if n in BASE_IDS + OFFSET_IDS}
     details = SystematicDetails(
-        result.holds, rank_report(result), nuisance, result.passes, result.changes, result.estimate.chi2, result.estimate.dof, step
-    )
+        result.holds, rank_report(result), nuisance, result.passes, result.changes, result.estimate.chi2, result.estimate.dof, step,
+        left_out,
+    )  # fmt: skip
     fit = FitResult(
         stage="systematic",
         terms=tuple(terms[i] for i in ids),
@@ -137,7 +176,7 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
         residuals=innovations,
         residual_sigma=np.ones(len(innovations)),
         rank=sum(g.rank for g in details.rank if g.group != "nuisance"),
-        notes=tuple(g.describe() for g in details.rank),
+        notes=tuple(g.describe() for g in details.rank) + _left_out_note(left_out),
         details=details,
         likelihood=likelihood,
         settings={"step": step, "passes": result.passes, "orientations": [_orientation(h) for h in result.holds]},
@@ -155,8 +194,15 @@ def _orientation(hold: HoldSummary) -> dict[str, object]:
     }
 
 
+def _left_out_note(left_out: Mapping[str, float]) -> tuple[str, ...]:
+    if not left_out:
+        return ()
+    text = ", ".join(f"{k} (σ {s / MICRO_G_PER_G2:.1f} µg/g²)" for k, s in left_out.items())
+    return (f"cross-couplings not determined by these orientations, not written to the record: {text}",)
+
+
 def _record_value(prior: Prior, term_id: str) -> float:
-    term = known_terms()[term_id]
+    term = known_terms(CROSS_COUPLING_TERMS)[term_id]
     return float(prior.values.get(term_id, term.reference))
 
 
