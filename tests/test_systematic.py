@@ -26,7 +26,7 @@ from systematic_world import (
 )
 
 from stableins.commands import calibrate_system
-from stableins.conventions import DEG_PER_HOUR
+from stableins.conventions import DEG_PER_HOUR, DEG_PER_HOUR_PER_G
 from stableins.data.chunks import ArraySource
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import GIMBAL_IDS, ErrorModel
@@ -177,6 +177,35 @@ def test_indexed_drift_composes_rotations():
     first_order = rotation_about(u.sum(axis=0))
     assert np.linalg.norm(rotation_vector(first_order @ exact.T)) > 1e-6  # what a sum of drift angles would leave
     assert np.linalg.norm(rotation_vector(x_world @ exact.T)) < 1e-8  # third order: θ³ ~ 1e-6 · 1e-2
+
+
+def test_indexed_world_senses_g_on_the_drifted_platform():
+    """``D_g`` acts on ``f^p`` of the drifted platform: the world follows ``X' = [Tᵀw×] X``, ``w = −(ε + D_g f^p)``
+    with ``f^p = −g (T X C_n^{p0} E)[:, 2]`` integrated sequentially (1 s, midpoint), not ``f^p`` of the drift-free
+    orientation (``D_g g |θ|`` apart: 2.9e-4 rad after 2 h here)."""
+    truth = indexed_truth(5, rate=1.0, noise=NoiseSettings.quiet(), g_sensitivity=False)
+    effects = {**truth.effects, "Dg_xy": 1.0 * DEG_PER_HOUR_PER_G, "Dg_zx": -1.0 * DEG_PER_HOUR_PER_G}
+    truth = truth.with_changes(gyro_drift={"x": 0.3 * DEG_PER_HOUR, "y": 0.0, "z": 0.0}, effects=effects)
+    index = (PlatformTurn(600.0, math.radians(60.0), IndexAxis.MIDDLE),)
+    world = SystemWorld(truth, 1.0, initial_readings=SystemWorld(truth, 1.0).initial_readings, turns=index)
+    motion = world._indexed
+    assert isinstance(motion, IndexedMotion)
+    time = np.arange(0.0, 7201.0)
+    g_sensitivity = world._g_sensitivity
+    dcm = motion.orientation(time, world.gyro_drift(time), g_sensitivity=g_sensitivity, gravity=world.gravity)
+    mid = time[:-1] + 0.5
+    commanded, tail = motion.commanded(mid), motion.nav_to_platform_0 @ earth_rotation(motion.earth_axis, mid)
+    drift = world.gyro_drift(mid)
+    exact, free = np.eye(3), np.eye(3)
+    for k in range(len(mid)):
+        for x, actual in ((exact, True), (free, False)):
+            f_p = -world.gravity * (commanded[k] @ (x if actual else np.eye(3)) @ tail[k])[:, 2]
+            w = -(drift[k] + g_sensitivity @ f_p)
+            x[:] = rotation_about(commanded[k].T @ w) @ x
+    earth = earth_rotation(motion.earth_axis, time[-1:])[0]
+    x_world = motion.commanded(time[-1:])[0].T @ dcm[-1] @ (motion.nav_to_platform_0 @ earth).T
+    assert np.linalg.norm(rotation_vector(free @ exact.T)) > 2e-4  # what f^p of the drift-free orientation leaves (2.9e-4)
+    assert np.linalg.norm(rotation_vector(x_world @ exact.T)) < 1e-5  # 3.2e-6: θ⁰ − θ = 2.9e-4 rad at this D_g (500×)
 
 
 # ----------------------------------------------------------------------------- filter, smoother, batch
