@@ -430,5 +430,6 @@ class TurnSum:
 
 
 #: Standard deviation assigned to the attitude observation ``d`` [rad]: it carries no sensor noise (the angle noise
-#: cancels); this covers the second-order terms the linear model leaves out (``|θ||φ|`` ≲ 1e-8 rad over a day).
+#: cancels); this covers single-precision attitude outputs (6e-8 rad near 1 rad) and the loop's discretization (the
+#: composition term ``½ θ × C_n^p φ`` is taken out by :class:`TurnSum`).
 ATTITUDE_FLOOR = 1e-7
