@@ -99,7 +99,7 @@ def rank_and_drift(hours: float, seed: int) -> None:
             value, sigma, true = (
                 v / DEG_PER_HOUR_PER_G for v in (result.fit.values[k], result.fit.sigma[k], true_values(truth, (name,))[0])
             )
-            print(f"  {name}: {value:+.7f} ± {sigma:.2e}, truth {true:+.4f}, z = {z[k]:+.2f}")
+            print(f"  {name}: {value:+.4e} ± {sigma:.2e}, truth {true:+.4f}, z = {z[k]:+.2f}")
     gyro_terms = np.array([i.startswith(("gyro_", "Dg_")) for i in ids])
     for label, chosen in (("gyro", gyro_terms), ("accelerometer", ~gyro_terms)):
         worst = int(np.argmax(np.where(chosen, np.abs(z), -1.0)))
