@@ -8,7 +8,8 @@ gyro drift ``ε^p`` (the stabilization loop nulls the gyro output, so the platfo
 .. math::
     \omega_{ip}^p = \omega_{cmd}^p(t) + w(t), \qquad w = -(\varepsilon^p(t) + D_g f^p)
 
-(:func:`stableins.conventions.platform_drift_rate`).
+(:func:`stableins.conventions.platform_drift_rate`), ``f^p`` of the true, drifted orientation (the gyros sense
+the specific force along their own axes; :meth:`IndexedMotion.orientation`).
 
 Write the platform attitude as ``C_i^p(t) = T(t)\,X(t)\,C_i^{p_0}`` where ``T`` is the commanded
 rotation alone: the product, in time order, of one frame rotation per turn of
@@ -62,10 +63,6 @@ def earth_rotation(axis: NDArray[np.float64], time: NDArray[np.float64]) -> NDAr
     return np.eye(3) + np.sin(theta)[:, None, None] * axis + (1.0 - np.cos(theta))[:, None, None] * (axis @ axis)
 
 
-#: The drift sums carried from chunk to chunk: ``∫ Tᵀw dt``, ``θ`` and the last ``Tᵀw`` (None before the first sample).
-DriftSums = tuple[NDArray[np.float64], NDArray[np.float64], "NDArray[np.float64] | None"]
-
-
 class IndexedMotion:
     """Orientation of a platform started at a commanded orientation and indexed by the given turns.
 
@@ -105,10 +102,9 @@ class IndexedMotion:
         self.alternate_branch = bool(np.cos(platform.configuration.senses[1] * initial_actual[1]) < 0.0)
         self.axes = self._resolve_axes()
         self._previous_actual = np.asarray(initial_actual, dtype=float).copy()
-        # the drift sums up to the last sample: (∫ Tᵀw dt, θ of X (Bortz, second order), the last Tᵀw); the first with
-        # the gyros' D_g on f^p of the drift-free orientation, the second (the world's) on that of the drifted one
-        self._free: DriftSums = (np.zeros(3), np.zeros(3), None)
-        self._drifted: DriftSums = (np.zeros(3), np.zeros(3), None)
+        self._integral = np.zeros(3)  # the rotation vector θ of X up to the last sample (Bortz, second order)
+        self._first_order = np.zeros(3)  # ∫ Tᵀ w dt up to the last sample
+        self._last_integrand: NDArray[np.float64] | None = None
 
     # ------------------------------------------------------------------ commanded rotation
     def _resolve_axes(self) -> tuple[NDArray[np.float64], ...]:
@@ -141,41 +137,39 @@ class IndexedMotion:
     ) -> NDArray[np.float64]:
         """Return the true ``C_n^p`` (n, 3, 3) at the next samples ``time`` (consecutive, continuing the last call).
 
-        ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_sensitivity``: ``D_g`` (3, 3) [rad/s per m/s²].  The gyros sense
-        ``f^p`` of the drifted platform: ``D_g f^p`` is evaluated on the orientation drifted by ``θ⁰``, the drift
-        angle integrated with ``f^p`` of the drift-free orientation (both sums sequential: chunking-proof).  ``θ⁰``
-        differs from ``θ`` by ``∫ D_g g θ dt`` ≈ 1e-7 rad in a day, so the rate is right to ≈ 1e-15 rad/s; the
-        drift-free ``f^p`` alone was off by ``D_g g |θ|`` ≈ 3e-12 rad/s after 12 h of 0.001 °/h (4σ of a day's
-        drift in the systematic stage).
+        ``drift``: ``ε^p(t)`` (n, 3) [rad/s]; ``g_sensitivity``: ``D_g`` (3, 3) [rad/s per m/s²], with ``f^p`` of the
+        true (drifted) orientation: a predictor with ``f^p`` of the drift-free orientation, then a corrector with
+        ``f^p`` of the predicted one (the predictor's error, ``D_g (θ × f)`` ≈ ``|D_g g| |θ|``, would be 1e-12 rad/s
+        after a day of 0.002 °/h/g, whose own ``θ`` swings by ``|D_g g|/Ω`` ≈ 1e-4 rad; the corrector leaves
+        ``|D_g g|² |θ| /Ω``).
         """
         commanded = self.commanded(time)
         tail = self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
         free = commanded @ tail
-        rate = platform_drift_rate(drift, g_sensitivity, -gravity * free[:, :, 2])
-        theta, self._free = self._drift_integral(commanded, rate, self._free)
+        cumulative, first, integrand = self._drift_angle(commanded, platform_drift_rate(drift, g_sensitivity, -gravity * free[:, :, 2]))
         if np.any(g_sensitivity):
-            drifted = commanded @ rotation_about(theta) @ tail
-            rate = platform_drift_rate(drift, g_sensitivity, -gravity * drifted[:, :, 2])
-            theta, self._drifted = self._drift_integral(commanded, rate, self._drifted)
-        else:
-            self._drifted = self._free
-        return commanded @ rotation_about(theta) @ tail
+            predicted = commanded @ rotation_about(cumulative) @ tail
+            cumulative, first, integrand = self._drift_angle(
+                commanded, platform_drift_rate(drift, g_sensitivity, -gravity * predicted[:, :, 2])
+            )
+        self._integral, self._last_integrand = cumulative[-1].copy(), integrand[-1].copy()
+        self._first_order = first[-1].copy()
+        return commanded @ rotation_about(cumulative) @ tail
 
-    def _drift_integral(
-        self, commanded: NDArray[np.float64], rate: NDArray[np.float64], sums: DriftSums
-    ) -> tuple[NDArray[np.float64], DriftSums]:
-        """``θ`` (n, 3) at the next samples from the platform rate ``w``, and the sums after them (continuing ``sums``)."""
-        first_order, integral, last = sums
+    def _drift_angle(
+        self, commanded: NDArray[np.float64], rate: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``θ`` of ``X`` at the samples (Bortz, second order), ``∫ Tᵀ w`` and the integrand ``Tᵀ w``, from the carried state."""
         integrand = np.einsum("nji,nj->ni", commanded, rate)
-        previous = integrand[0] if last is None else last
+        previous = integrand[0] if self._last_integrand is None else self._last_integrand
         steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)
-        if last is None:
+        if self._last_integrand is None:
             steps[0] = 0.0  # the first sample of the record is t = 0
-        first = np.cumsum(np.vstack([first_order[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
-        before = np.vstack([first_order[None, :], first[:-1]])
+        first = np.cumsum(np.vstack([self._first_order[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
+        before = np.vstack([self._first_order[None, :], first[:-1]])
         # Bortz: θ' = Tᵀw + ½ θ × Tᵀw, so that the drift rotations compose (second order) when Tᵀw turns
-        cumulative = np.cumsum(np.vstack([integral[None, :], steps + 0.5 * np.cross(before, steps)]), axis=0)[1:]
-        return cumulative, (first[-1].copy(), cumulative[-1].copy(), integrand[-1].copy())
+        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps + 0.5 * np.cross(before, steps)]), axis=0)[1:]
+        return cumulative, first, integrand
 
     # ------------------------------------------------------------------ readings
     def _actual(self, body_to_platform: NDArray[np.float64]) -> NDArray[np.float64]:

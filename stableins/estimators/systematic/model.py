@@ -21,9 +21,11 @@ Observations at the end of each filter step (the rows of :func:`observation_rows
     ρ̄      = c^ρ_k + θ + (Δ/2) ε^p_eff − J̄_α Δθ_0 − C̄_n^p δ + n_α        (gimbal readings, step mean)
     d      = c^d_k + θ − C_n^p φ                                         (INS attitude with the readings)
 
-``ρ`` is the rotation vector of ``M̂(t) M̂_ref^T`` with ``M̂ = Ĉ_b^p(r + θ_inst) C_n^{b,s} E(t)^T`` the platform's
-inertial attitude from the readings; ``d`` that of the computer's ``C_n^{p'} E^T`` with ``C_n^{p'} = Ĉ_b^p C_n^{b'}``
-(the attitude output times the same readings: the angle noise cancels).  ``δ`` is the base error
+``ρ`` is the turn of ``M̂ = Ĉ_b^p(r + θ_inst) C_n^{b,s} E(t)^T``, the platform's inertial attitude from the
+readings, since the hold's reference; ``d`` that of the computer's ``P = C_n^{p'} E^T`` with ``C_n^{p'} = Ĉ_b^p
+C_n^{b'}`` (the attitude output times the same readings: the angle noise cancels).  Both are sums of step increments
+(:class:`stableins.estimators.systematic.observations.TurnSum`), not rotation vectors of products, so that they are
+linear in ``θ`` and ``φ`` as written.  ``δ`` is the base error
 (``C_n^b = C_n^{b,s}(I − [δ×])``), ``Δθ_0`` the zero-offset residuals, ``c_k`` a constant per hold.
 """
 

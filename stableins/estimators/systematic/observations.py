@@ -268,6 +268,7 @@ class StepBuilder:
         self.axis = skew(earth_rate_nav(site.latitude) / EARTH_RATE)
         self.white, self.quantization, self.noise_columns = noise
         self.references: dict[tuple[str, int], NDArray[np.float64]] = {}
+        self._sums: dict[tuple[str, int], TurnSum] = {}
         self._holds: dict[int, _HoldSums] = {}
 
     def _earth(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -314,6 +315,7 @@ class StepBuilder:
         # d: the computer's platform from its attitude output and the readings with the offsets it used (noise cancels)
         computed_inertial = self._body_to_platform(end_angles, installed) @ output @ self._earth(end_time).swapaxes(-1, -2)
         end_nav_to_platform = self._body_to_platform(end_angles, point) @ base
+        end_inertial = end_nav_to_platform @ self._earth(end_time).swapaxes(-1, -2)  # M at the step ends (the point)
         offset_map = self._offset_map(mean_angles, point)
         offset_end = self._offset_map(end_angles, point)
         # ψ: the output against the base at the point; the computer's offsets are the installed ones
@@ -333,10 +335,11 @@ class StepBuilder:
             if hold < 0:
                 continue
             self._summarize(hold, float(end_time[k]), means[2], end_nav_to_platform[k])
-            ref_rho = self.references.setdefault(("rho", hold), inertial[k, 0])
-            ref_att = self.references.setdefault(("att", hold), computed_inertial[k])
-            z[k, 3:6] = rotation_vector(inertial[k] @ ref_rho.T).mean(axis=0)
-            z[k, 6:9] = rotation_vector(computed_inertial[k] @ ref_att.T)
+            # ρ and d: the platform's turn as the sum of its increments (θ = ∫w, no composition terms; TurnSum)
+            z[k, 3:6] = self._turned("rho", hold, inertial[k, 0]) + rotation_vector(inertial[k] @ inertial[k, 0].T).mean(axis=0)
+            computer = rotation_vector(computed_inertial[k] @ end_inertial[k].T)  # rv(P Mᵀ) = −C_n^p φ
+            turned = self._turned("end", hold, end_inertial[k])
+            z[k, 6:9] = computer + turned - self.references.setdefault(("att", hold), computer)
             jm = geometry[-1].offset_map_mean
             cov[k, 3:6, 3:6] = jm @ np.diag(self.scan.angle_noise**2) @ jm.T / self.rows_step
             cov[k, 6:9, 6:9] = np.eye(3) * ATTITUDE_FLOOR**2
@@ -345,6 +348,11 @@ class StepBuilder:
             cov[k, 9:12, 9:12] = je @ np.diag(self.scan.angle_noise**2) @ je.T
         density = np.einsum("sij,j,sjk->sik", nav_to_platform[:, m // 2].swapaxes(1, 2), self.white, nav_to_platform[:, m // 2])
         return StepBatch(end_time, inputs, geometry, z, cov, density)
+
+    def _turned(self, kind: str, hold: int, attitude: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return the sum of the increments of ``attitude`` (``M``) since the hold's first step (:class:`TurnSum`)."""
+        turned = self._sums.setdefault((kind, hold), TurnSum(attitude))
+        return turned.advance(attitude)
 
     def _summarize(self, hold: int, time: float, force: NDArray[np.float64], nav_to_platform: NDArray[np.float64]) -> None:
         sums = self._holds.setdefault(hold, _HoldSums())
@@ -384,6 +392,44 @@ class StepBuilder:
         return np.stack(columns, axis=-1)
 
 
+@dataclass
+class TurnSum:
+    r"""The platform's inertial turn since a hold's first step as the sum of its step increments: the filter's ``θ``.
+
+    The filter's ``θ̇ = −ε_eff`` (platform frame) is linear: ``θ = ∫w``.  The rotation vector of ``M M_refᵀ``
+    (``M = C_n^p E^T`` from the readings) is not: it obeys Bortz's ``ρ̇ = w + ½ ρ × w + …``, and with a drift
+    (``ρ ≈ ε t``, 2e-4 rad after 12 h of 0.001 °/h) across a g-sensitive drift turning at the Earth's rate
+    (``|D_g g|`` ≈ 1e-8 rad/s) the term integrates to ~1e-8 rad, a systematic error the linear ``H`` cannot follow
+    (docs/systematic-calibration.md §3, issue 18).  The sum of the increments ``rv(M_k M_{k−1}ᵀ)`` over filter steps
+    is ``∫w`` to ``½|Δθ||w|Δ`` per step (1e-19 rad); the readings' noise telescopes (first order), so ``R`` is
+    unchanged.  ``d`` is formed the same way: ``P = R M`` with ``R = P Mᵀ = rot(−C_n^p φ)`` exactly (``P`` the
+    computer's inertial attitude), so
+
+    .. math:: d = \mathrm{rv}(P M^T) + \textstyle\sum \mathrm{rv}(M_k M_{k-1}^T) - \mathrm{rv}(P_{ref} M_{ref}^T)
+              = θ - C_n^p φ + c
+
+    without the composition term ``½ θ × C_n^p φ`` of ``rv(P P_refᵀ)`` (1e-7 rad after a day of 0.001 °/h); the
+    readings' noise cancels between the terms to first order, as it did in ``P``.
+
+    Attributes
+    ----------
+    last : ndarray (3, 3)
+        ``M`` of the last step.
+    total : ndarray (3,)
+        The sum of the increments so far [rad].
+    """
+
+    last: NDArray[np.float64]
+    total: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+
+    def advance(self, attitude: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Add the increment from the last ``M`` to ``attitude``; return the sum."""
+        self.total = self.total + rotation_vector(attitude @ self.last.T)
+        self.last = attitude
+        return self.total
+
+
 #: Standard deviation assigned to the attitude observation ``d`` [rad]: it carries no sensor noise (the angle noise
-#: cancels); this covers the second-order terms the linear model leaves out (``|θ||φ|`` ≲ 1e-8 rad over a day).
+#: cancels); this covers single-precision attitude outputs (6e-8 rad near 1 rad) and the loop's discretization (the
+#: composition term ``½ θ × C_n^p φ`` is taken out by :class:`TurnSum`).
 ATTITUDE_FLOOR = 1e-7

@@ -102,7 +102,7 @@ class SystematicCalibration:
             lines.append("cross-couplings (µg/g²):")
         for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
             if term.id.startswith("Kcc_"):
-                lines.append(f"  {term.id:<14} {value_sigma(term.to_engineering(value), term.sigma_to_engineering(sigma))}")
+                lines.append(f"  {term.id:<14} {value_sigma(float(term.to_engineering(value)), float(term.sigma_to_engineering(sigma)))}")
         for name, sigma in d.left_out.items():
             lines.append(f"  {name:<14} not determined (σ {sigma / MICRO_G_PER_G2:.1f}): not written to the record")
         lines.append("nuisances: " + ", ".join(f"{k} {v / ARCSEC:+.2f} ± {s / ARCSEC:.2f}″" for k, (v, s) in d.nuisance.items()))
