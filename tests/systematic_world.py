@@ -89,6 +89,30 @@ def true_values(truth: Truth, ids: tuple[str, ...]) -> np.ndarray:
     return np.array(out, dtype=float)
 
 
+def prior_pull(fit: FitResult, prior: Prior, true: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The record's prior's part of the stage's error, for a linear-Gaussian posterior ``P`` (Bayes' rule).
+
+    ``x̂ − t = P P0⁻¹ (x0 − t) + P Λ (x_data − t)``: the first term is the prior's pull, fixed by the residual
+    ``t − x0`` the seed drew; drawn from ``N(0, P0)`` it has the covariance ``P P0⁻¹ P``.  The second is the data's
+    noise, of covariance ``P − P P0⁻¹ P`` when ``P`` is right.
+
+    Returns
+    -------
+    pull : ndarray
+        ``P P0⁻¹ (x0 − t)`` on the fit's terms [SI] (``P0`` block-diagonal: only the prior's terms pull).
+    variance : ndarray
+        The diagonal of ``P P0⁻¹ P`` [SI²].
+    held : list of int
+        Positions of the terms the prior holds (whose residuals the seed drew).
+    """
+    ids = tuple(t.id for t in fit.terms)
+    held = [k for k, i in enumerate(ids) if i in prior.ids]
+    p0 = np.diag(prior.covariance)[[prior.ids.index(ids[k]) for k in held]]
+    x0 = np.array([prior.values[ids[k]] for k in held])
+    gain = fit.covariance[:, held] / p0  # P P0⁻¹ on the prior's terms
+    return gain @ (x0 - true[held]), np.einsum("ij,j,ij->i", gain, p0, gain), held
+
+
 def prior_record(truth: Truth) -> CalibrationRecord:
     """:func:`unit_prior` as the calibration record the INS runs with (a device-level record: the installed values)."""
     terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS)
