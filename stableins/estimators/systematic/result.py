@@ -92,7 +92,10 @@ class SystematicCalibration:
             )
         lines.append("what they determine (σ ≤ 1 resolution unit):")
         lines += [f"  {g.describe()}" for g in d.rank]
-        lines.append("gyro terms (platform frame):")
+        lines.append(
+            "gyro terms (platform frame; the stage's posterior, with its wide prior on terms the record does not hold: the "
+            "record update removes that prior, so the record's numbers can differ where the data leave a direction loose):"
+        )
         for term, value, sigma in zip(self.fit.terms, self.fit.values, self.fit.sigma, strict=True):
             if term.id.startswith("gyro_drift_"):
                 lines.append(f"  {term.id:<14} {value_sigma(value / DEG_PER_HOUR, sigma / DEG_PER_HOUR, '°/h')}")
