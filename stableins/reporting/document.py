@@ -91,7 +91,7 @@ def styles() -> dict[str, ParagraphStyle]:
             "caption", parent=body, fontName=FONT_ITALIC, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, spaceBefore=2, spaceAfter=8
         ),
         "note": ParagraphStyle(
-            "note", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.3, leftIndent=8, firstLineIndent=-6, spaceAfter=1
+            "note", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.55, leftIndent=8, firstLineIndent=-6, spaceAfter=1
         ),
         "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
         "cell_mono": ParagraphStyle(
