@@ -14,10 +14,9 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, AXES, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errormodel import GYRO_G_TERMS, Term, TermInputs, TermKind
-from stableins.terms import CROSS_COUPLING_TERMS
+from stableins.terms import CROSS_COUPLING_TERMS, MICRO_G_PER_G2
 
 G0 = STANDARD_GRAVITY
-MICRO_G_PER_G2 = MICRO_G / G0**2
 MICRO_G_PER_G3 = MICRO_G / G0**3
 
 #: Groups of candidates, for reports.
