@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
@@ -41,10 +40,10 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
+from stableins.identifiers import FILE_STEM_RULE, SEED_RANGE, is_file_stem
 from stableins.procedures.definition import ProcedureDefinition, load_procedure, read_toml
 from stableins.simulator.noise import NoiseSettings
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 #: Largest campaign accepted (tasks), so that a typo cannot queue a billion simulations.
 MAX_TASKS = 1_000_000
 
@@ -157,8 +156,8 @@ def _integer(table: Mapping[str, Any], key: str, where: str, path: str, *, minim
 
 def _name(table: Mapping[str, Any], where: str, path: str, seen: set[str]) -> str:
     value = table.get("name")
-    if not isinstance(value, str) or not _NAME.match(value) or "__" in value:
-        raise InputError(f"{value!r} is not a name", path=path, field=f"{where}.name", expected="letters, digits, '_', '.', '-' (no '__')")
+    if not is_file_stem(value):
+        raise InputError(f"{value!r} is not a name", path=path, field=f"{where}.name", expected=FILE_STEM_RULE)
     if value in seen:
         raise InputError(f"the name {value!r} is used twice", path=path, field=f"{where}.name")
     seen.add(value)
@@ -215,6 +214,7 @@ def _noise(raw: Any, where: str, path: str, seen: set[str]) -> NoiseSpec:
 
 def _hidden(raw: Any, where: str, path: str, seen: set[str]) -> HiddenSpec:
     from stableins.discovery.library import LIBRARY
+    from stableins.simulator.effects import validate_effects
 
     table = _keys(raw, {"name", "effects"}, where, path)
     name = _name(table, where, path, seen)
@@ -224,6 +224,10 @@ def _hidden(raw: Any, where: str, path: str, seen: set[str]) -> HiddenSpec:
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise InputError(f"{value!r} is not a number", path=path, field=f"{where}.effects.{effect}", expected=LIBRARY[effect].term.unit)
         values[effect] = float(LIBRARY[effect].term.from_engineering(value))
+        try:  # the simulator's own bounds, before any task runs
+            validate_effects({effect: values[effect]}, source=path)
+        except InputError as error:
+            raise InputError(error.message, path=path, field=f"{where}.effects.{effect}", expected=error.expected) from None
     return HiddenSpec(name, values)
 
 
@@ -243,6 +247,13 @@ def load_campaign(path: str | Path) -> CampaignConfig:
     name = _name({"name": head.get("name", Path(spath).stem)}, "campaign", spath, set())
     first_seed = _integer(head, "first_seed", "campaign", spath, minimum=0, default=1)
     devices = _integer(head, "devices", "campaign", spath, minimum=1)
+    if first_seed + devices - 1 > SEED_RANGE[1]:
+        raise InputError(
+            f"seeds {first_seed} to {first_seed + devices - 1}",
+            path=spath,
+            field="campaign.first_seed",
+            expected=f"first_seed + devices - 1 <= {SEED_RANGE[1]} (the largest seed)",
+        )
     diagnose = head.get("diagnose", False)
     if not isinstance(diagnose, bool):
         raise InputError(f"{diagnose!r}", path=spath, field="campaign.diagnose", expected="true or false")
