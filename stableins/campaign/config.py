@@ -18,6 +18,7 @@ Format (TOML, docs/campaigns.md)::
     [[noise]]
     name = "quartz"
     preset = "quartz"           # the simulator's NoiseSettings preset: quartz, white (quartz without slow noise)
+    # world = "lab"             # or a named world (stableins simulate --list-worlds): its noise, effects, temperature
     calibrate = "datasheet"     # the noise model the calibration is given: datasheet (the preset's N, B, K, Q) or dwells
 
     [[hidden]]
@@ -79,6 +80,7 @@ class NoiseSpec:
     name: str
     settings: NoiseSettings
     calibrate: CalibrationNoise
+    world: str = "default"  #: a named world of :mod:`stableins.simulator.worlds` (its noise is ``settings``)
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,9 @@ def _procedure(raw: Any, where: str, path: str, seen: set[str]) -> ProcedureSpec
 
 
 def _noise(raw: Any, where: str, path: str, seen: set[str]) -> NoiseSpec:
-    table = _keys(raw, {"name", "preset", "calibrate"}, where, path)
+    from stableins.simulator.worlds import world
+
+    table = _keys(raw, {"name", "preset", "calibrate", "world"}, where, path)
     name = _name(table, where, path, seen)
     presets = noise_presets()
     preset = table.get("preset", "quartz")
@@ -209,7 +213,13 @@ def _noise(raw: Any, where: str, path: str, seen: set[str]) -> NoiseSpec:
     calibrate = table.get("calibrate", CalibrationNoise.DATASHEET.value)
     if calibrate not in {c.value for c in CalibrationNoise}:
         raise InputError(f"{calibrate!r}", path=path, field=f"{where}.calibrate", expected=" or ".join(c.value for c in CalibrationNoise))
-    return NoiseSpec(name, presets[preset], CalibrationNoise(calibrate))
+    named = world(str(table.get("world", "default")), source=path, field=f"{where}.world")
+    if named.noise is not None and "preset" in table:
+        raise InputError(
+            f"world {named.name!r} has its own noise", path=path, field=f"{where}.preset", expected="a preset or a world, not both"
+        )
+    settings = presets[preset] if named.noise is None else named.noise
+    return NoiseSpec(name, settings, CalibrationNoise(calibrate), named.name)
 
 
 def _hidden(raw: Any, where: str, path: str, seen: set[str]) -> HiddenSpec:

@@ -6,6 +6,7 @@
     stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden Kcc_xxy=60ug/g2 --out sim2/
     stableins simulate --list-effects
+    stableins simulate device --world lab --out sim/   # a named world (docs/simulator.md, "Worlds"; --list-worlds)
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
 per procedure, or ``system.h5``) and
@@ -140,6 +141,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "then fine dwells at the re-pointed positions)",
     )
     parser.add_argument(
+        "--world",
+        metavar="NAME",
+        help="a named world on the drawn (or --truth) instrument: slow noise, thermal history, drift ... "
+        "(default: the simulator's default world); see --list-worlds and docs/simulator.md 'Worlds'",
+    )
+    parser.add_argument("--list-worlds", action="store_true", help="list the named worlds (what each adds, its numbers, their source)")
+    parser.add_argument(
         "--list-effects", action="store_true", help="list the injectable effects (id, nominal size in engineering and SI units, meaning)"
     )
 
@@ -186,6 +194,10 @@ def build_truth(args: argparse.Namespace) -> Any:
     else:
         site = DEFAULT_SITE if args.rate is None else SimulatedSite(sample_rate=args.rate)
         truth = Truth.draw(0 if args.seed is None else args.seed, site=site)
+    if getattr(args, "world", None) is not None:
+        from stableins.simulator.worlds import apply_world, world
+
+        truth = apply_world(truth, world(args.world, field="--world"))
     if getattr(args, "installed", None) is not None:
         truth = truth.with_changes(installed_calibration=installed_from_record(args.installed, truth))
     if args.hidden:
@@ -207,6 +219,12 @@ def run(args: argparse.Namespace) -> int:
         lines += [row.format(**r) for r in rows]
         lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
         emit(args, {"effects": rows}, "\n".join(lines))
+        return 0
+    if getattr(args, "list_worlds", False):
+        from stableins.simulator.worlds import WORLDS
+
+        rows = [{"name": w.name, "summary": w.summary, "slow_noise": w.slow_noise, "sources": list(w.sources)} for w in WORLDS.values()]
+        emit(args, {"worlds": rows}, "\n".join(line for w in WORLDS.values() for line in w.describe()))
         return 0
     if args.level is None:
         raise InputError("which level?", field="LEVEL", expected="'device' or 'system' (or --list-effects)")
