@@ -1,15 +1,18 @@
-"""Identifiers a user gives: names that become part of file names, and seeds of the simulated world.
+"""Identifiers a user gives: names that become part of file names, serial numbers, seeds, time stamps.
 
 A name the user types (``design --name``, a campaign's task names) becomes part of a file name under an output
 directory.  It must neither leave that directory (``../x``, ``a/b``), nor hide (``.x``), nor be empty: one
 pattern, :data:`FILE_STEM`, decides, so every command that writes ``DIR/NAME-something`` refuses the same names
 (docs/formats.md, "Names").  A seed names a simulated unit and its random streams: every command and campaign
-admits the same range, :data:`SEED_RANGE`.
+admits the same range, :data:`SEED_RANGE`.  A unit's serial number names its folder in the history store and its
+report ids, so it obeys :data:`SERIAL_NUMBER` wherever it is read.  A time stamp of a record (``created``,
+``data_start``, ``data_end``) is ISO 8601 with its offset (:func:`check_timestamp`).
 """
 
 from __future__ import annotations
 
 import re
+from datetime import UTC, datetime
 from typing import TypeGuard
 
 from stableins.errors import InputError
@@ -40,4 +43,66 @@ def check_file_stem(text: object, *, field: str, path: str | None = None) -> str
     """
     if not is_file_stem(text):
         raise InputError(f"{str(text)[:70]!r} cannot name a file", path=path, field=field, expected=FILE_STEM_RULE)
+    return text
+
+
+#: A serial number that can name a folder on every file system stableins runs on (the history store's unit folders).
+SERIAL_NUMBER = re.compile(r"[^\x00-\x1f/\\:*?\"<>|]{1,128}")
+#: What :data:`SERIAL_NUMBER` admits, in words.
+SERIAL_NUMBER_RULE = "1 to 128 printable characters without / \\ : * ? \" < > |, not starting with '.' or a space"
+
+
+def check_serial_number(serial: object, *, field: str = "serial_number", path: str | None = None) -> str:
+    """Return ``serial`` if it can name a unit's folder and its reports.
+
+    Raises
+    ------
+    InputError
+        ``serial`` holds a path separator or a character a file system refuses, starts with ``.`` or a space, or is
+        empty (docs/formats.md, "Names").
+    """
+    if not isinstance(serial, str) or not SERIAL_NUMBER.fullmatch(serial) or serial.strip() != serial or serial.startswith("."):
+        raise InputError(
+            f"serial number {str(serial)[:40]!r} cannot name a history folder or a report",
+            path=path,
+            field=field,
+            expected=SERIAL_NUMBER_RULE,
+        )
+    return serial
+
+
+def parse_timestamp(text: object, *, field: str, path: str | None = None) -> datetime:
+    """Read an ISO 8601 date or date-time (``2026-03-01``, ``2026-03-01T12:00:00Z``); a time without offset is UTC.
+
+    Raises
+    ------
+    InputError
+        Not a string, or not ISO 8601 (``"yesterday"``, ``"soon"``).
+    """
+    try:
+        value = datetime.fromisoformat(text.replace("Z", "+00:00")) if isinstance(text, str) else None
+    except ValueError:
+        value = None
+    if value is None:
+        raise InputError(
+            f"cannot read {str(text)[:40]!r} as a date",
+            path=path,
+            field=field,
+            expected="ISO 8601, e.g. 2026-03-01 or 2026-03-01T12:00:00Z",
+        )
+    return value if value.tzinfo else value.replace(tzinfo=UTC)
+
+
+def check_timestamp(text: object, *, field: str, path: str | None = None, optional: bool = False) -> str:
+    """Return ``text`` if :func:`parse_timestamp` reads it; ``optional``: the empty string (a time not known) passes.
+
+    Raises
+    ------
+    InputError
+        As :func:`parse_timestamp`.
+    """
+    if optional and text == "":
+        return ""
+    parse_timestamp(text, field=field, path=path)
+    assert isinstance(text, str)
     return text

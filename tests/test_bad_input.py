@@ -72,6 +72,10 @@ RECORD_MUTATIONS = [
     (("covariance", "matrix", 1), '{"a": 1}', "field 'covariance.matrix'", "square list"),
     (("site",), "[1, 2]", "field", "not a JSON object"),
     (("stages", 0, "inputs", 0, "sha256"), '"abc"', "field 'stages[0].inputs'", "not a SHA-256"),
+    # issue 31: these passed check, diagnose, report and run --prior
+    (("serial_number",), '"../../x"', "field 'serial_number'", "cannot name a history folder"),
+    (("calibration", "created"), '"yesterday"', "field 'calibration.created'", "as a date"),
+    (("stages", 0, "data_end"), '"soon"', "field 'stages[0].data_end'", "as a date"),
 ]
 
 
@@ -509,6 +513,33 @@ def test_resume_verifies_every_input_it_reads_again(ws, tmp_path):
     assert status == 0, err
 
 
+def test_a_specific_force_no_instrument_gives_is_refused_by_check_as_by_calibrate(ws, tmp_path):
+    """f_x = 1e300 in 200 rows passed ``check`` and ``calibrate device`` (issue 31): the schema's limits, every reader."""
+    lines = ws.device_csv.read_text().splitlines(keepends=True)
+    header = next(k for k, line in enumerate(lines) if line.startswith("time[s]"))
+    names = [c.split("[")[0] for c in lines[header].strip().split(",")]
+    column = names.index("f_x")
+    for k in range(header + 11, header + 211):
+        cells = lines[k].rstrip("\n").split(",")
+        cells[column] = "1e300"
+        lines[k] = ",".join(cells) + "\n"
+    bad = tmp_path / "huge.csv"
+    bad.write_text("".join(lines))
+    message = refused(["check", bad], str(bad), "row 11", "field 'f_x'", "beyond what an instrument can give")
+    assert refused(["calibrate", "device", bad, "--out", tmp_path / "o.json"]) == message
+    assert refused(["diagnose", bad, "--record", ws.record]) == message
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("content", [None, b""], ids=["device", "empty"])
+def test_check_refuses_what_no_command_writes(tmp_path, content):
+    """``check /dev/null`` said "ok (text report; lines 0)" (issue 31): a device file and an empty file are refused."""
+    path = Path("/dev/null") if content is None else tmp_path / "empty.txt"
+    if content is not None:
+        path.write_bytes(content)
+    refused(["check", path], str(path), "not a regular file" if content is None else "the file is empty")
+
+
 # =========================================================================== two readers, two verdicts
 @pytest.fixture(scope="module")
 def system_files(tmp_path_factory):
@@ -531,6 +562,8 @@ def _agree(tmp: Path, path: Path, prior: Path, *fragments: str) -> None:
     check = refused(["check", path], str(path), *fragments)
     calibrate = refused(["calibrate", "system", path, "--prior", prior, "--out", tmp / "out.json"], str(path), *fragments)
     assert check == calibrate
+    drift = refused(["calibrate", "drift", path, "--prior", prior, "--out", tmp / "out.json"], str(path), *fragments)
+    assert check == drift  # issue 31: calibrate drift wrote a record from a file check refuses
     assert not (tmp / "out.json").exists()
 
 
@@ -547,6 +580,7 @@ def test_check_and_calibrate_system_give_one_verdict(system_files):
     _agree(tmp, wrong_rate, prior, "field 'time'", "sample rate is wrong")
     for name, edit, fragments in (
         ("nan.h5", lambda f: f["columns/f_x"].__setitem__(1000, np.nan), ("row 1001", "field 'f_x'", "not finite")),
+        ("pitch.h5", lambda f: f["columns/pitch"].__setitem__(700, np.inf), ("row 701", "field 'pitch'", "not finite")),
         ("back.h5", lambda f: f["columns/time"].__setitem__(500, 0.25), ("row 501", "time_grid")),
         ("grid.h5", lambda f: f["time_grid"].__setitem__((0, 2), 1e-12), ("time_grid",)),
         ("grid2.h5", lambda f: f["time_grid"].__setitem__((0, 2), -1.0), ("time_grid", "damaged")),
