@@ -531,6 +531,24 @@ def test_a_specific_force_no_instrument_gives_is_refused_by_check_as_by_calibrat
     assert not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "message"), [("serial_number", "../../x", "cannot name a history folder"), ("start_time", "soon", "as a date")]
+)
+def test_data_file_metadata_serial_and_start_time_are_checked(ws, tmp_path, key, value, message):
+    """A data file's serial number names folders and report ids; its start time is a date (issue 31)."""
+    text = ws.device_csv.read_text()
+    assert '#     "serial_number": "' in text
+    entry = f'#     "{key}": {json.dumps(value)},\n'
+    bad = tmp_path / "meta.csv"
+    if key == "serial_number":
+        start = text.index('#     "serial_number": ')
+        bad.write_text(text[:start] + entry + text[text.index("\n", start) + 1 :])
+    else:
+        start = text.index('#     "serial_number": ')
+        bad.write_text(text[:start] + entry + text[start:])
+    refused(["check", bad], str(bad), f"field 'metadata.{key}'", message)
+
+
 @pytest.mark.parametrize("content", [None, b""], ids=["device", "empty"])
 def test_check_refuses_what_no_command_writes(tmp_path, content):
     """``check /dev/null`` said "ok (text report; lines 0)" (issue 31): a device file and an empty file are refused."""

@@ -145,20 +145,14 @@ class _Reader:
 
     def strings(self) -> tuple[str, str, str]:
         """Return the serial number, the gravity source and the start time (ISO 8601, or empty)."""
-        serial = self.document["serial_number"]
-        if not isinstance(serial, str) or not serial:
-            raise self.fail(f"serial number {serial!r}", "serial_number", "a non-empty string")
+        from stableins.identifiers import check_serial_number, check_timestamp
+
+        serial = check_serial_number(self.document["serial_number"], field="metadata.serial_number", path=self.path)
         source = self.document["gravity_source"]
         if not isinstance(source, str):
             raise self.fail(f"gravity source {source!r}", "gravity_source", "a string")
         start_time = self.document.get("start_time", "")
-        if start_time:
-            from datetime import datetime
-
-            try:
-                datetime.fromisoformat(str(start_time).replace("Z", "+00:00"))
-            except ValueError:
-                raise self.fail(f"start time {start_time!r}", "start_time", "an ISO 8601 time such as 2026-03-01T12:00:00Z") from None
+        check_timestamp(start_time, field="metadata.start_time", path=self.path, optional=True)
         return serial, source, str(start_time)
 
 
