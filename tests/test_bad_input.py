@@ -482,18 +482,32 @@ def test_procedure_validated_completely_before_the_platform_moves(tmp_path):
     assert load_procedure(path).positions == (1, 2)
 
 
-def test_duplicate_positions_found_in_linear_time(tmp_path):
-    from stableins.procedures.definition import load_procedure
+def test_procedure_steps_and_size_are_bounded_before_work(tmp_path):
+    """At most MAX_PROCEDURE_STEPS steps, checked before each is validated; a file over 1 MiB is refused before it is parsed.
 
-    steps = "".join(f"[[step]]\nposition = {k}\nplatform = 0.0\ninner = {k % 90}.0\nmiddle = 0.0\n" for k in range(1, 50_001))
+    Issue 31: a 64-MiB TOML with a million steps took 31 s and 937 MiB before it was refused.
+    """
+    from stableins.procedures.definition import MAX_FILE_BYTES, MAX_PROCEDURE_STEPS, load_procedure
+
+    head = '[procedure]\nname = "long"\nstage = "coarse"\n[defaults]\ndwell = 1.0\nsample_rate = 100.0\n'
+
+    def steps(n: int) -> str:
+        return "".join(f"[[step]]\nposition = {k}\nplatform = 0.0\ninner = {k % 90}.0\nmiddle = 0.0\n" for k in range(1, n + 1))
+
     path = tmp_path / "long.toml"
-    path.write_text('[procedure]\nname = "long"\nstage = "coarse"\n[defaults]\ndwell = 1.0\nsample_rate = 100.0\n' + steps)
-    started = time.perf_counter()
-    assert len(load_procedure(path).steps) == 50_000
-    path.write_text(path.read_text().replace("position = 40000\n", "position = 39999\n"))
-    with pytest.raises(InputError, match=r"duplicated positions \[39999\]"):
+    path.write_text(head + steps(MAX_PROCEDURE_STEPS))
+    assert path.stat().st_size < MAX_FILE_BYTES
+    assert len(load_procedure(path).steps) == MAX_PROCEDURE_STEPS
+    path.write_text(path.read_text().replace("position = 4000\n", "position = 3999\n"))
+    with pytest.raises(InputError, match=r"duplicated positions \[3999\]"):
         load_procedure(path)
-    assert time.perf_counter() - started < 20.0  # was 109 s for one load (quadratic)
+    path.write_text(head + "[[step]]\nposition = 1\nplatform = 0.0\ninner = 1.0\nmiddle = 0.0\n" * (MAX_PROCEDURE_STEPS + 1))
+    with pytest.raises(InputError) as error:
+        load_procedure(path)
+    assert error.value.field == "step" and f"at most {MAX_PROCEDURE_STEPS}" in str(error.value)
+    path.write_text(head + "# padding\n" * (MAX_FILE_BYTES // 10 + 1))
+    refused(["run", path, "--driver", "sim", "--out", tmp_path / "run"], str(path))
+    assert not (tmp_path / "run").exists()
 
 
 def test_resume_verifies_every_input_it_reads_again(ws, tmp_path):

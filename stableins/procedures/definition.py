@@ -126,8 +126,11 @@ class ProcedureDefinition:
         return sum(s.settle + s.dwell for s in self.steps)
 
 
-#: Largest procedure file read [bytes] (50 000 steps are about 5 MB).
-MAX_FILE_BYTES = 64 << 20
+#: Largest procedure (or campaign) file read [bytes]: 10,000 steps are about 0.5 MB; parsing 1 MiB of TOML takes
+#: under a second, so a refused file costs no more.
+MAX_FILE_BYTES = 1 << 20
+#: Most ``[[step]]`` entries a procedure may hold (the 18-position coarse stage has 18; a designed one tens).
+MAX_PROCEDURE_STEPS = 10_000
 
 
 def shipped_procedures() -> tuple[str, ...]:
@@ -281,6 +284,8 @@ def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str)
         steps_raw = []  # a static record: [record] says where and how long
     elif not isinstance(steps_raw, list) or not steps_raw:
         raise InputError("no [[step]] entries", path=spath, field="step")
+    if len(steps_raw) > MAX_PROCEDURE_STEPS:
+        raise InputError(f"{len(steps_raw)} [[step]] entries", path=spath, field="step", expected=f"at most {MAX_PROCEDURE_STEPS}")
     steps = [_step(raw, f"step {k}", base, spath) for k, raw in enumerate(steps_raw, start=1)]
     positions = [s.position for s in steps]
     if positions != list(range(1, len(steps) + 1)):  # linear in the number of steps
