@@ -563,6 +563,18 @@ def test_data_file_metadata_serial_and_start_time_are_checked(ws, tmp_path, key,
     refused(["check", bad], str(bad), f"field 'metadata.{key}'", message)
 
 
+@pytest.mark.parametrize(
+    "extra",
+    [["--gyro-drift", "1", "0", "0"], ["--estimate-k2"], ["--case-rotation-period", "600"], ["--thermal-prior", "5", "5"]],
+    ids=lambda extra: extra[0],
+)
+def test_systematic_refuses_the_static_stages_options(ws, tmp_path, extra):
+    """Issue 31: with --systematic these were ignored (parameters bit-identical); now one message naming the option."""
+    argv = ["calibrate", "system", ws.system_h5, "--prior", ws.record, "--systematic", "--out", tmp_path / "o.json", *extra]
+    refused(argv, f"field '{extra[0]}'", "not to --systematic")
+    assert not (tmp_path / "o.json").exists()
+
+
 @pytest.mark.parametrize("content", [None, b""], ids=["device", "empty"])
 def test_check_refuses_what_no_command_writes(tmp_path, content):
     """``check /dev/null`` said "ok (text report; lines 0)" (issue 31): a device file and an empty file are refused."""
