@@ -575,6 +575,17 @@ def test_systematic_refuses_the_static_stages_options(ws, tmp_path, extra):
     assert not (tmp_path / "o.json").exists()
 
 
+def test_recal_names_the_prior_of_another_unit_not_the_estimate(ws, tmp_path):
+    """Issue 31: ``recal --prior BAD.json --estimate GOOD.json`` named GOOD.json."""
+    document = json.loads(ws.record.read_text())
+    document["serial_number"] = "OTHER-UNIT"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(document))
+    err = refused(["recal", "--unit", ws.serial, "--prior", bad, "--estimate", ws.record, "--out", tmp_path / "r"], str(bad))
+    assert str(ws.record) not in err and "OTHER-UNIT" in err
+    assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.parametrize("content", [None, b""], ids=["device", "empty"])
 def test_check_refuses_what_no_command_writes(tmp_path, content):
     """``check /dev/null`` said "ok (text report; lines 0)" (issue 31): a device file and an empty file are refused."""

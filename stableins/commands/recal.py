@@ -85,6 +85,10 @@ def run(args: argparse.Namespace) -> int:
 
     prior_path = _prior_path(args)
     prior = CalibrationRecord.load(prior_path)
+    if args.unit and prior.serial_number != args.unit:  # the record in force is named, not the estimate checked against it
+        raise InputError(
+            f"the record in force is of unit {prior.serial_number!r}", path=prior_path, field="serial_number", expected=repr(args.unit)
+        )
     if args.estimate:
         if args.procedure or args.resume:
             raise InputError("give either --estimate or a PROCEDURE to run", field="--estimate")
