@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from stableins.conventions import ARCSEC
+from stableins.conventions import ARCSEC, MICRO_G
 from stableins.errors import InputError
 from stableins.procedures.plan import SystemEstimation
 from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
@@ -108,8 +108,8 @@ _RUNNER_KEYS = {
     "retries": 1.0,
     "chunk": 1.0,
     "angle_tolerance": ARCSEC,
-    "scatter_max": 9.80665e-6,
-    "slope_max": 9.80665e-6,
+    "scatter_max": MICRO_G,
+    "slope_max": MICRO_G,
     "max_slew": 1.0,
 }
 _PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}
