@@ -148,13 +148,19 @@ def main(argv: list[str] | None = None) -> int:
 
     for w in args.worlds:
         world(w, field="--worlds")
-    jobs = [(args.level, w, s, args.rate) for w in args.worlds for s in range(args.first_seed, args.first_seed + args.seeds)]
+    # seeds outermost: a run stopped early has every world at the same number of seeds
+    jobs = [(args.level, w, s, args.rate) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds]
     t0 = time.perf_counter()
-    if args.workers > 1:
-        with ProcessPoolExecutor(args.workers) as pool:
-            results = list(pool.map(_job, jobs))
-    else:
-        results = [_job(j) for j in jobs]
+    results = []
+    with ProcessPoolExecutor(max(args.workers, 1)) as pool:
+        for r in pool.map(_job, jobs):  # one line per session as it completes (a long run shows its progress)
+            results.append(r)
+            worst = max((abs(v) for v in r.z_default.values()), default=math.nan)
+            print(
+                f"  {r.world:<13} seed {r.seed:>4}: chi2_nu {r.chi2_red:.3f}, slow noise {'detected' if r.detected else 'not detected'}, "
+                f"max |z| {worst:.2f}, {r.seconds:.0f} s",
+                flush=True,
+            )
     print(
         f"bench_worlds: level {args.level}, {args.seeds} seeds per world from {args.first_seed}, rate {args.rate:g} Hz, "
         f"{time.perf_counter() - t0:.0f} s"
