@@ -67,6 +67,9 @@ COMMANDS: dict[str, Command | Group] = {
             "device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration"),
             "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
             "drift": Command("stableins.commands.calibrate_drift", "gyro drift from an indexing test (drift-two-position)"),
+            "thermal": Command(
+                "stableins.commands.calibrate_thermal", "temperature sensitivities Kt_bias, Kt_sf from a thermal test (device-thermal)"
+            ),
             "lever": Command("stableins.commands.calibrate_lever", "lever arms and time asynchrony from the slews of device-rotating"),
         },
     ),
