@@ -98,7 +98,7 @@ QUICK: dict[str, Quick] = {
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
     ),
     "bench_device_gsensitivity": Quick(("--seeds", "2"), "2 sessions with g-sensitivity and 2 clean ones instead of 20 each"),
-    "bench_discovery_false_alarms": Quick(("3",), "3 clean sessions (seeds 100-102) instead of 20"),
+    "bench_discovery_false_alarms": Quick(("--seeds", "2"), "2 sessions per case (clean, 4σ, 5σ, each outside effect) instead of 20"),
     "bench_fuzz": Quick(
         ("--scale", "0.05", "--seed", "7"),
         "5 % of the cases (about 120), hypothesis seed 7 instead of the clock",
