@@ -66,7 +66,9 @@ def fit(truth, c):
     pieces, readings = dwell_pieces(c)
     site = truth.site
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude)
+    geometry = SlopeGeometry.of(
+        readings, site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude, latitude=site.latitude, mode=site.dwell_mode
+    )
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry), pieces
 
 

@@ -46,7 +46,9 @@ def _fit(truth, commands, *, dwell=60.0, rate=100.0, seed=5):
     columns = simulate_dwells(truth, commands, dwell=dwell, settle=5.0, rate=rate, seed=seed)
     pieces, readings = _dwells(columns)
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude)
+    geometry = SlopeGeometry.of(
+        readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude, latitude=truth.site.latitude
+    )
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry), geometry, pieces
 
 
@@ -56,14 +58,19 @@ def _wu_forward_and_back():
 
 
 def test_twelve_numbers_recovered_from_wu_forward_and_back():
-    """Cai's simulated G (all nine 0.001 °/h/g) and 0.05 °/h of drift: within 4σ, 1σ ≤ 2e-4 °/h/g, χ²_ν in its band."""
+    """Cai's simulated G (all nine 0.001 °/h/g) and 0.05 °/h of drift: within 4σ, 1σ ≤ 2.5e-4 °/h/g, χ²_ν in its band.
+
+    (1σ ≤ 2e-4 °/h/g, Cai's Table 2 level, without the torquers' scale factors as nuisances; with them the largest is
+    2.3e-4 on this session.)
+    """
     g = 0.001 * DEG_PER_HOUR_PER_G
     truth = Truth.draw(5, effects={f"Dg_{a}{b}": g for a in AXES for b in AXES}, gyro_drift={a: 0.05 * DEG_PER_HOUR for a in AXES})
     fit, _, _ = _fit(truth, _wu_forward_and_back())
     expected = np.array([0.05 * DEG_PER_HOUR] * 3 + [g] * 9)
     z = (fit.values - expected) / fit.sigma
     assert np.all(np.abs(z) < 4), z
-    assert np.all(fit.sigma[3:] < 2e-4 * DEG_PER_HOUR_PER_G)
+    assert np.all(fit.sigma[3:] < 2.5e-4 * DEG_PER_HOUR_PER_G)
+    assert [name for name, _, _ in fit.details.nuisance] == ["torquer_scale_x", "torquer_scale_y", "torquer_scale_z"]
     details = fit.details
     assert details.flagged and len(details.dwells_used) == 27 and len(details.left_out) == 8  # inner at 90°: gimbal lock
     assert abs(details.chi2 / details.dof - 1) < 4 * np.sqrt(2 / details.dof)
@@ -84,7 +91,9 @@ def test_observation_equation_matches_the_simulator_without_noise():
     columns = simulate_dwells(truth, commands, dwell=20.0, settle=5.0, rate=10.0, seed=2)
     pieces, readings = _dwells(columns)
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude)
+    geometry = SlopeGeometry.of(
+        readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude, latitude=truth.site.latitude
+    )
     values = {**{f"gyro_drift_{a}": drift[a] for a in AXES}, **effects}
     predicted = sum(v * geometry.column(k) for k, v in values.items())
     measured = np.array([reading_slope(t, a)[0] for t, a in pieces])

@@ -218,6 +218,9 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None
+    for line in fit.notes:
+        if line.startswith("warning:"):
+            note(f"stableins: {fit.stage} stage: {line}")
     description = data_description(datasets)
     updated = record.updated(
         fit,
@@ -255,6 +258,13 @@ def gyro_document(fit) -> dict:
         "dwells_used": len(details.dwells_used),
         "rank": list(details.rank_report),
         "left_out": list(details.left_out),
+        "dwell_mode": str(details.mode),
+        "nuisance": {
+            name: {"value": value, "sigma": sigma, "unit": "1" if name.startswith("torquer_") else "rad"}
+            for name, value, sigma in details.nuisance
+        },
+        "gauge": details.gauge,
+        "notes": list(fit.notes),
     }
 
 
