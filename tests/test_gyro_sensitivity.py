@@ -174,3 +174,30 @@ def test_diagnose_add_dg_xz_estimates_it_from_the_slopes(device_files, capsys):
     assert len(drift["candidates"]) == 8 and not any(c["flagged"] for c in drift["candidates"])
     assert 0.5 < drift["chi2_red"] < 1.6
     assert "Dg_xz" not in out["model"]  # not an accelerometer term
+
+
+def test_calibrate_device_follows_the_declared_dwell_mode(device_files, capsys):
+    """earth_rate: torquer nuisances and the gauge in --json; caged: no gyro numbers, a note; inertial: refused (exit 2)."""
+    from stableins.data.device import load_device
+    from stableins.dwell_mode import DwellMode
+
+    tmp, files = device_files
+    capsys.readouterr()
+    assert main(["calibrate", "device", *files, "--out", str(tmp / "mode.json"), "--bias-instability", "0", "--json"]) == 0
+    gyro = json.loads(capsys.readouterr().out)["gyro"]
+    assert gyro["dwell_mode"] == "earth_rate" and set(gyro["nuisance"]) == {f"torquer_scale_{a}" for a in AXES}
+    assert "θ10 = 0" in gyro["gauge"] and gyro["notes"][0] == gyro["gauge"]
+    for mode in (DwellMode.CAGED, DwellMode.INERTIAL):
+        declared = []
+        for path in files:
+            data = load_device(path)
+            target = tmp / f"{mode}-{Path(path).name}"
+            declared.append(str(save_device(target, data.columns, replace(data.metadata, dwell_mode=mode))))
+        code = main(["calibrate", "device", *declared, "--out", str(tmp / f"{mode}.json"), "--bias-instability", "0", "--json"])
+        captured = capsys.readouterr()
+        if mode is DwellMode.CAGED:
+            assert code == 0 and json.loads(captured.out)["gyro"] is None
+            assert "gyro stage skipped: the platform was caged" in captured.err
+        else:
+            assert code == 2 and "metadata.dwell_mode" in captured.err and "Traceback" not in captured.err
+            assert not (tmp / f"{mode}.json").exists()

@@ -90,6 +90,16 @@ def _same_site(datasets) -> None:
                     field=name,
                     expected="all files of one calibration from the same unit and site",
                 )
+    from stableins.dwell_mode import DwellMode
+
+    for dataset in datasets:  # the accelerometer stages take dwells held to the base (docs/conventions.md)
+        if dataset.metadata.dwell_mode is DwellMode.INERTIAL:
+            raise InputError(
+                "the platform was inertially held during the dwells: it turns 15 deg/h against gravity (2.5 deg in a "
+                "600-s dwell), and the accelerometer stages take dwells held to the base",
+                path=dataset.path, field="metadata.dwell_mode",
+                expected='caged or earth_rate (docs/conventions.md, "The platform during a dwell")',
+            )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,8 +14,9 @@ model is a constant reading rate per gimbal (servo creep) and the constant gyro 
 already added and the nuisances of the dwell mode (torqued at the Earth rate: the torquers' scale-factor errors,
 docs/conventions.md "The platform during a dwell"); the candidates are the nine ``Dg_ab``.  Only dwells torqued at
 the Earth rate are ranked here: caged dwells carry no gyro information, and inertially held ones turn at 15 °/h
-(the gyro stage of ``stableins calibrate device`` models them).  Dwells near gimbal lock (``cond J >`` 1e3) are left out:
-there the readings cannot follow the platform.  The slopes are weighed by the angle noise measured within the
+(the gyro stage, ``gyro_from_datasets``, models them; ``stableins calibrate device`` refuses them: its
+accelerometer stages need dwells held to the base).  Dwells near gimbal lock (``cond J >`` 1e3) are left out: there
+the platform is caged.  The slopes are weighed by the angle noise measured within the
 dwells (per dwell and gimbal).
 """
 

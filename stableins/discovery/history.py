@@ -443,7 +443,7 @@ class Discovery:
                 + (
                     "(caged dwells carry no gyro information)"
                     if dwells.dwell_mode is DwellMode.CAGED
-                    else "(the gyro stage of 'stableins calibrate device' models inertially held dwells)"
+                    else "(the gyro stage, stableins.estimators.gyro_sensitivity.gyro_from_datasets, models inertially held dwells)"
                 ),
             )
             return None
