@@ -157,3 +157,15 @@ def test_a_steady_drift_is_not_a_slew():
     slewed = steady.copy()
     slewed[3000:, 1] += 40 * ARCSEC
     assert steady_trend_departure(t, slewed)[1] > 20 * ARCSEC
+
+
+def test_run_refuses_a_platform_that_holds_its_dwells_otherwise(tmp_path, capsys):
+    """The procedure declares caged, the simulated platform torques at the Earth rate: exit 2 before anything moves."""
+    from stableins.cli import main
+
+    procedure = load_procedure("device-coarse")
+    caged = tmp_path / "caged.toml"
+    caged.write_text(Path(procedure.path).read_text().replace('dwell_mode = "earth_rate"', 'dwell_mode = "caged"'))
+    assert main(["run", str(caged), "--driver", "sim", "--unit", "SN1", "--out", str(tmp_path / "run")]) == 2
+    assert "procedure.dwell_mode" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # nothing half-written

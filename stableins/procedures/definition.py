@@ -123,6 +123,22 @@ class ProcedureDefinition:
             self.name, self.stage, self.positions, tuple(s.settle for s in self.steps), self.handedness, self.checks, self.path
         )
 
+    def check_dwell_mode(self, metadata: Any) -> None:
+        """Refuse a platform whose metadata declare another dwell mode than this procedure (before anything moves).
+
+        Raises
+        ------
+        InputError
+            Naming ``procedure.dwell_mode``, what the procedure declares and what the platform does.
+        """
+        held = getattr(metadata, "dwell_mode", None)
+        if held is not None and held != self.dwell_mode:
+            raise InputError(
+                f"the procedure declares dwell_mode {self.dwell_mode} but the platform holds its dwells as {held} (its metadata)",
+                path=self.path or None, field="procedure.dwell_mode",
+                expected=f'{held} (docs/conventions.md, "The platform during a dwell")',
+            )  # fmt: skip
+
     @property
     def duration(self) -> float:
         """Total settle + dwell time [s] (slews not included)."""

@@ -129,12 +129,6 @@ class Runner:
         self.iteration: Any = None
         #: journal records of the system-level static record, in order (if the plan has one)
         self.static_chunks: list[Record] = []
-        declared, held = getattr(definition, "dwell_mode", None), getattr(session.driver.metadata, "dwell_mode", None)
-        if declared is not None and held is not None and declared != held:  # before the platform moves
-            raise InputError(
-                f"the procedure declares dwell_mode {declared} but the platform holds its dwells as {held} (its metadata)",
-                field="procedure.dwell_mode", expected=f'{held} (docs/conventions.md, "The platform during a dwell")',
-            )  # fmt: skip
 
     def execute(self) -> None:
         """Run every step of the plan in order (journaled; resumable)."""
