@@ -133,7 +133,7 @@ def start_run(
         if definition_file is not None:  # the platform holds its dwells as the procedure declares
             from stableins.procedures.definition import load_procedure
 
-            load_procedure(definition_file).check_dwell_mode(metadata)
+            load_procedure(Path(definition_file)).check_dwell_mode(metadata)
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
