@@ -130,6 +130,10 @@ def start_run(
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
         check_reachable(plan, metadata, definition_file)  # an index that locks the gimbals: refused before anything moves
+        if definition_file is not None:  # the platform holds its dwells as the procedure declares
+            from stableins.procedures.definition import load_procedure
+
+            load_procedure(Path(definition_file)).check_dwell_mode(metadata)
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:

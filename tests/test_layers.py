@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "stableins": 0,
     "stableins._version": 0,
     "stableins.conventions": 0,
+    "stableins.dwell_mode": 0,
     "stableins.errormodel": 0,
     "stableins.terms": 0,
     "stableins.coremodel": 0,

@@ -234,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
     procedures = _device_procedures(args) if args.level == "device" else []  # all checked before anything is written
+    if procedures:
+        truth = _held_as_declared(truth, procedures)
     existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
     before = set(out.iterdir())
@@ -254,6 +256,17 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
     return 0
+
+
+def _held_as_declared(truth: Any, procedures: list[Any]) -> Any:
+    """Return the truth whose platform holds its dwells as the procedures declare (``[procedure] dwell_mode``)."""
+    from dataclasses import replace
+
+    modes = {p.dwell_mode for p in procedures}
+    if len(modes) > 1:
+        named = ", ".join(f"{p.name}: {p.dwell_mode}" for p in procedures)
+        raise InputError(f"the procedures declare different dwell modes ({named})", field="--procedure", expected="one dwell_mode")
+    return truth.with_changes(site=replace(truth.site, dwell_mode=modes.pop()))
 
 
 def _device_procedures(args: argparse.Namespace) -> list[Any]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.site import SiteMetadata
 
 # --------------------------------------------------------------------------- file documents
@@ -56,6 +57,7 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
             "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
             "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
             "extra": dict(metadata.extra),
+            "dwell_mode": str(metadata.dwell_mode),
         }
         | ({"start_time": metadata.start_time} if metadata.start_time else {})
         | (
@@ -155,6 +157,14 @@ class _Reader:
         check_timestamp(start_time, field="metadata.start_time", path=self.path, optional=True)
         return serial, source, str(start_time)
 
+    def dwell_mode(self) -> DwellMode:
+        """Return how the platform was held during the dwells (the default when the document does not say)."""
+        value = self.document.get("dwell_mode", str(DEFAULT_DWELL_MODE))
+        if not isinstance(value, str) or value not in {m.value for m in DwellMode}:
+            expected = " or ".join(repr(m.value) for m in DwellMode) + ' (docs/conventions.md, "The platform during a dwell")'
+            raise self.fail(f"dwell mode {str(value)[:60]!r}", "dwell_mode", expected)
+        return DwellMode(value)
+
 
 def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
     """Inverse of :func:`metadata_to_document`, validating keys, units and ranges.
@@ -204,6 +214,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         extra=extra,
         start_time=start_time,
         gravity_uncertainty=gravity_uncertainty,
+        dwell_mode=read.dwell_mode(),
     )
 
 

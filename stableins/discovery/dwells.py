@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.estimators.layout import StageLayout
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -67,6 +68,10 @@ class DwellSet:
     reading_slope, reading_slope_sigma : ndarray (P, 3), optional
         Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
         (:mod:`stableins.discovery.drift`).
+    dwell_mode : DwellMode
+        How the platform was held during the dwells (the data files' metadata).
+    latitude : float
+        Site latitude [rad] (the Earth rate of the torqued dwells).
     """
 
     readings: NDArray[np.float64]
@@ -85,6 +90,8 @@ class DwellSet:
     slow_covariance: NDArray[np.float64] | None = None
     reading_slope: NDArray[np.float64] | None = None
     reading_slope_sigma: NDArray[np.float64] | None = None
+    dwell_mode: DwellMode = DEFAULT_DWELL_MODE
+    latitude: float = 0.0
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -148,6 +155,8 @@ class DwellSet:
             None if self.slow_covariance is None else self.slow_covariance[:, i][:, :, i],
             None if self.reading_slope is None else self.reading_slope[i],
             None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
+            self.dwell_mode,
+            self.latitude,
         )
 
 
@@ -308,6 +317,8 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
         slow_covariance=slow_covariance(summaries, noise),
         reading_slope=np.array(slopes),
         reading_slope_sigma=np.array(slope_sigma),
+        dwell_mode=site.dwell_mode,
+        latitude=float(site.latitude),
     )
 
 

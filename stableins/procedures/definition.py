@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.conventions import ARCSEC
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks, StageLayout
 from stableins.procedures import sections
@@ -100,6 +101,8 @@ class ProcedureDefinition:
     tolerances: dict[str, Any] | None = None
     #: the ``[uncertainty]`` table as written (Type B inputs, validated by :mod:`stableins.reporting.budget`), None if absent
     uncertainty: dict[str, Any] | None = None
+    #: ``[procedure] dwell_mode``: how the platform is held during the dwells (docs/conventions.md, "The platform during a dwell")
+    dwell_mode: DwellMode = DEFAULT_DWELL_MODE
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -119,6 +122,22 @@ class ProcedureDefinition:
         return StageLayout(
             self.name, self.stage, self.positions, tuple(s.settle for s in self.steps), self.handedness, self.checks, self.path
         )
+
+    def check_dwell_mode(self, metadata: Any) -> None:
+        """Refuse a platform whose metadata declare another dwell mode than this procedure (before anything moves).
+
+        Raises
+        ------
+        InputError
+            Naming ``procedure.dwell_mode``, what the procedure declares and what the platform does.
+        """
+        held = getattr(metadata, "dwell_mode", None)
+        if held is not None and held != self.dwell_mode:
+            raise InputError(
+                f"the procedure declares dwell_mode {self.dwell_mode} but the platform holds its dwells as {held} (its metadata)",
+                path=self.path or None, field="procedure.dwell_mode",
+                expected=f'{held} (docs/conventions.md, "The platform during a dwell")',
+            )  # fmt: skip
 
     @property
     def duration(self) -> float:
@@ -191,6 +210,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         model_add=sections.model_add(data.get("model", {}), head["stage"], spath),
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
         uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
+        dwell_mode=_dwell_mode(head, spath),
     )
 
 
@@ -204,6 +224,15 @@ def _check_rotations(steps: tuple[Step, ...], spath: str) -> None:
             f"no move between the steps turns the platform so as to excite {', '.join(missing)}", path=spath, field="step",
             expected="moves about at least two platform axes (the middle gimbal and the platform axis, as device-rotating)",
         )  # fmt: skip
+
+
+def _dwell_mode(head: dict[str, Any], spath: str) -> DwellMode:
+    """Return ``[procedure] dwell_mode`` (the default when absent)."""
+    value = head.get("dwell_mode", str(DEFAULT_DWELL_MODE))
+    if not isinstance(value, str) or value not in {m.value for m in DwellMode}:
+        expected = " or ".join(f'"{m.value}"' for m in DwellMode) + ' (docs/conventions.md, "The platform during a dwell")'
+        raise InputError(f"{str(value)[:60]!r} is not a dwell mode", path=spath, field="procedure.dwell_mode", expected=expected)
+    return DwellMode(value)
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
