@@ -68,6 +68,7 @@ COMMANDS: dict[str, Command | Group] = {
             "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
             "drift": Command("stableins.commands.calibrate_drift", "gyro drift from an indexing test (drift-two-position)"),
             "lever": Command("stableins.commands.calibrate_lever", "lever arms and time asynchrony from the slews of device-rotating"),
+            "poses": Command("stableins.commands.calibrate_poses", "a triad from the static poses of a real log (any columns and units)"),
         },
     ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
