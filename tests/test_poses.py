@@ -9,7 +9,8 @@ from device_world import GRAVITY, draw_truth, outputs
 from stableins.cli import main
 from stableins.conventions import STANDARD_GRAVITY
 from stableins.data.holds import detect_holds, read_holds, write_holds
-from stableins.data.rawlog import LogLayout, UnitKind, layout_from_options, parse_unit, read_raw_log
+from stableins.data.logmap import layout_from_options
+from stableins.data.rawlog import LogLayout, UnitKind, parse_unit, read_raw_log
 from stableins.errormodel import ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse

@@ -41,7 +41,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--range", dest="full_scale", metavar="LOW:HIGH", help="the converter's range in the file's units (clipping is read from it)"
     )
     parser.add_argument(
-        "--time-unit", choices=("s", "ms", "us", "ns", "iso"), help="unit of the time column (default s; iso: ISO 8601 timestamps)"
+        "--time-unit",
+        choices=("s", "ms", "us", "ns", "samples", "iso"),
+        help="unit of the time column (default s; samples: a counter at --rate; iso: ISO 8601)",
     )
     parser.add_argument(
         "--rate", type=number(0.0, 1e7, above=True, unit="Hz"), metavar="HZ", help="sample rate, when the log has no time column"
@@ -54,7 +56,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--window", type=number(0.0, 60.0, above=True, unit="s"), default=0.5, help="hold detection: test window [s] (default 0.5)"
     )
     parser.add_argument(
-        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=2.0, help="shortest hold kept [s] (default 2)"
+        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, help="shortest hold kept [s] (default 1.5)"
     )
     parser.add_argument(
         "--false-split",
@@ -84,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stableins calibrate poses``; return the exit code."""
     from stableins.conventions import STANDARD_GRAVITY
     from stableins.data.holds import detect_holds, read_holds
-    from stableins.data.rawlog import layout_from_options, read_raw_log
+    from stableins.data.logmap import layout_from_options
+    from stableins.data.rawlog import read_raw_log
     from stableins.errors import InputError
     from stableins.output import emit, note
 

@@ -107,7 +107,7 @@ def detect_holds(
     specific_force: NDArray[np.float64],
     *,
     window: float = 0.5,
-    min_hold: float = 2.0,
+    min_hold: float = 1.5,
     false_split: float = 1e-6,
     resolution: NDArray[np.float64] | None = None,
     source: str = "log",

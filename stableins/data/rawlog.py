@@ -53,8 +53,8 @@ AXES = ("f_x", "f_y", "f_z")
 #: The unit spellings :func:`parse_unit` accepts (named in its messages).
 UNIT_SPELLINGS = "m/s2, g, counts:S/g, counts:S/(m/s2), dv:W (W in m/s per pulse)"
 
-#: Time units of a numeric time column, in seconds.
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: Time units of a numeric time column, in seconds (``samples``: a sample counter, at ``rate``).
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "samples": float("nan")}
 
 
 class UnitKind(enum.Enum):
@@ -143,9 +143,10 @@ class LogLayout:
         The converter's range per axis in the file's units (lowest, highest), or None (declared by
         none; the HDF5 integer dtype's range is used then).
     time_unit : str
-        ``s``, ``ms``, ``us``, ``ns`` (a numeric time column) or ``iso`` (ISO 8601 timestamps).
+        ``s``, ``ms``, ``us``, ``ns`` (a numeric time column), ``samples`` (a sample counter, at ``rate``) or
+        ``iso`` (ISO 8601 timestamps).
     rate : float or None
-        Sample rate [Hz] when the log has no time column (time = row index / rate).
+        Sample rate [Hz] of a sample counter, or when the log has no time column (time = row index / rate).
     """
 
     columns: Mapping[str, str]
@@ -164,10 +165,12 @@ class LogLayout:
                 raise InputError(f"no column given for {axis}", field="--columns", expected=f"{axis}=COLUMN")
             if axis not in self.units:
                 raise InputError(f"no unit given for {axis}", field="--units", expected=UNIT_SPELLINGS)
-        if "time" not in self.columns and self.rate is None:
-            raise InputError("no time column and no sample rate", field="--columns", expected="time=COLUMN, or --rate HZ")
+        if ("time" not in self.columns or self.time_unit == "samples") and self.rate is None:
+            raise InputError(
+                "no time in seconds and no sample rate", field="--rate", expected="time=COLUMN in s, ms, us, ns or iso, or --rate HZ"
+            )
         if self.time_unit not in (*TIME_UNITS, "iso"):
-            raise InputError(f"unknown time unit {self.time_unit!r}", field="--time-unit", expected="s, ms, us, ns or iso")
+            raise InputError(f"unknown time unit {self.time_unit!r}", field="--time-unit", expected="s, ms, us, ns, samples or iso")
 
 
 @dataclass(frozen=True)
@@ -271,7 +274,8 @@ def _time(raw: Mapping[str, Any], layout: LogLayout, source: str, n: int) -> tup
         start = str(stamps[0].astype("datetime64[us]"))
         time = (stamps - stamps[0]).astype(np.int64) * 1e-9
     else:
-        time = np.asarray(raw["time"], dtype=float) * TIME_UNITS[layout.time_unit]
+        scale = 1.0 / layout.rate if layout.time_unit == "samples" and layout.rate else TIME_UNITS[layout.time_unit]
+        time = np.asarray(raw["time"], dtype=float) * scale
     steps = np.diff(time)
     bad = np.flatnonzero(~(steps > 0))
     if bad.size:
@@ -287,7 +291,12 @@ def _time(raw: Mapping[str, Any], layout: LogLayout, source: str, n: int) -> tup
 
 
 def _csv_lines(path: str) -> Iterator[str]:
-    with open(path, encoding="utf-8", errors="replace") as handle:
+    """Yield the non-empty, non-comment lines of a text log (``.gz`` and ``.xz`` read compressed)."""
+    import gzip
+    import lzma
+
+    opener: Any = {".gz": gzip.open, ".xz": lzma.open}.get(Path(path).suffix, open)
+    with opener(path, "rt", encoding="utf-8", errors="replace") as handle:
         for line in handle:
             if line.strip() and not line.lstrip().startswith("#"):
                 yield line
@@ -392,106 +401,3 @@ def _read_hdf5(source: str, layout: LogLayout) -> tuple[dict[str, NDArray[Any]],
         out["time"] = out["time"].astype(str)
     full = tuple(r for r in ranges if r is not None)
     return out, (full if len(full) == 3 else None)
-
-
-def layout_from_options(
-    columns: str | None,
-    units: str | None,
-    *,
-    zero: str | None = None,
-    full_scale: str | None = None,
-    time_unit: str | None = None,
-    rate: float | None = None,
-) -> LogLayout:
-    """Return the layout the command-line options (or a mapping TOML file given as ``columns``) state.
-
-    ``columns``: ``time=t,f_x=acc_x,...`` or a TOML file with a ``[columns]`` table and optionally ``units``
-    (one spelling or a table per axis), ``zero``, ``range``, ``time_unit``, ``rate``; options given on the command
-    line take precedence.  ``units``: one spelling for all three axes or ``f_x=...,f_y=...,f_z=...``.
-    ``zero``: one number or three comma-separated; ``full_scale``: ``LOW:HIGH`` (all axes) in the file's units.
-    """
-    document: dict[str, Any] = {}
-    if columns is not None and columns.endswith(".toml"):
-        document = _mapping_file(columns)
-        mapping = {str(k): str(v) for k, v in document.get("columns", {}).items()}
-    else:
-        mapping = _pairs(columns or "", "--columns")
-    unit_text: Any = units if units is not None else document.get("units")
-    if unit_text is None:
-        raise InputError("no unit given for the axes", field="--units", expected=UNIT_SPELLINGS)
-    if isinstance(unit_text, Mapping):
-        unit_map = {str(k): str(v) for k, v in unit_text.items()}
-    elif "=" in str(unit_text):
-        unit_map = _pairs(str(unit_text), "--units")
-    else:
-        unit_map = {a: str(unit_text) for a in AXES}
-    parsed = {a: parse_unit(unit_map[a], field_name=f"--units {a}") for a in AXES if a in unit_map}
-    unknown = set(unit_map) - set(AXES)
-    if unknown:
-        raise InputError(f"unknown axis {sorted(unknown)[0]!r}", field="--units", expected="f_x, f_y, f_z")
-    zero_value: Any = zero if zero is not None else document.get("zero", 0.0)
-    zeros = _three(zero_value, "--zero")
-    range_value: Any = full_scale if full_scale is not None else document.get("range")
-    ranges = None
-    if range_value is not None:
-        low, high = _range(range_value)
-        ranges = ((low, high),) * 3
-    return LogLayout(
-        columns=mapping,
-        units=parsed,
-        zero=zeros,
-        full_scale=ranges,
-        time_unit=time_unit or str(document.get("time_unit", "s")),
-        rate=rate if rate is not None else document.get("rate"),
-    )
-
-
-def _mapping_file(path: str) -> dict[str, Any]:
-    import tomllib
-
-    try:
-        with open(path, "rb") as handle:
-            document = tomllib.load(handle)
-    except OSError as error:
-        raise InputError(f"cannot read the mapping file: {error.strerror}", path=path, field="--columns") from None
-    except tomllib.TOMLDecodeError as error:
-        raise InputError(f"not TOML: {error}", path=path, field="--columns") from None
-    if not isinstance(document.get("columns"), dict):
-        raise InputError("no [columns] table", path=path, field="columns", expected="[columns] f_x = 'acc_x' ...")
-    return document
-
-
-def _pairs(text: str, option: str) -> dict[str, str]:
-    out = {}
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        key, sep, value = part.partition("=")
-        if not sep or not key.strip() or not value.strip():
-            raise InputError(f"{part!r} is not NAME=VALUE", field=option, expected="e.g. time=t,f_x=acc_x,f_y=acc_y,f_z=acc_z")
-        out[key.strip()] = value.strip()
-    return out
-
-
-def _three(value: Any, option: str) -> tuple[float, float, float]:
-    items = value if isinstance(value, list) else str(value).split(",")
-    try:
-        numbers = [float(v) for v in items]
-    except ValueError:
-        raise InputError(f"{value!r} is not a number or three", field=option, expected="e.g. 32768 or 32768,32768,32768") from None
-    if len(numbers) == 1:
-        numbers *= 3
-    if len(numbers) != 3 or not all(np.isfinite(numbers)):
-        raise InputError(f"{value!r}: one number or three", field=option, expected="e.g. 32768 or 32768,32768,32768")
-    return (numbers[0], numbers[1], numbers[2])
-
-
-def _range(value: Any) -> tuple[float, float]:
-    items = value if isinstance(value, list) else str(value).split(":")
-    try:
-        low, high = (float(v) for v in items)
-    except ValueError:
-        raise InputError(
-            f"{value!r} is not LOW:HIGH", field="--range", expected="the converter's range, e.g. 0:65535 or -32768:32767"
-        ) from None
-    if not low < high:
-        raise InputError(f"{value!r}: LOW must be below HIGH", field="--range", expected="e.g. 0:65535")
-    return low, high
