@@ -71,6 +71,7 @@ COMMANDS: dict[str, Command | Group] = {
                 "stableins.commands.calibrate_thermal", "temperature sensitivities Kt_bias, Kt_sf from a thermal test (device-thermal)"
             ),
             "lever": Command("stableins.commands.calibrate_lever", "lever arms and time asynchrony from the slews of device-rotating"),
+            "poses": Command("stableins.commands.calibrate_poses", "a triad from the static poses of a real log (any columns and units)"),
         },
     ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),

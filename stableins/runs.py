@@ -422,7 +422,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         expected = "the unit's coarse record (--prior RECORD or --store)"
         raise InputError("the fine stage starts from a coarse estimate", field="prior_file", expected=expected)
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.fine import calibrate_fine
+    from stableins.estimators.fine import calibrate_fine, fine_model
 
     columns = accepted_columns(runner.entries)
     source = str(dataset or rundir / JOURNAL_NAME)
@@ -433,7 +433,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         prior.values(),
         gravity=metadata.gravity,
         expected_positions=definition.positions,
-        extra_terms=runner.extra_terms,
+        model=fine_model(runner.extra_terms),
         source=source,
     )
 

@@ -102,34 +102,21 @@ class DwellSummary:
 
 
 def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
-    """Return whether the samples rail: pinned at an extreme value, robust to coarse quantization.
+    """Return whether the samples rail: at least 3 at an extreme value within one quantization step of the range.
 
-    Two signatures, either side:
-
-    * the extreme value lies within one quantization step of the stated full-scale
-      range (``full_scale``, the procedure's ``saturation``) and is shared by at least
-      3 samples: the output sits at its range limit;
-    * the quantization is fine compared with the noise (step ≤ σ/2, σ from the median
-      absolute deviation, robust to the clipped tail) and the extreme value holds more
-      samples (at least 3 and 2 %) than the next value inward: a healthy noise tail thins
-      out outwards, a rail piles up.
-
-    With a quantization step comparable to or larger than the noise, a healthy dwell
-    takes only a few values whose counts need not thin out outwards, and a rail inside
-    the range cannot be told from it by one dwell's samples: only the first test applies.
+    Clipping is read from the converter's range only (``full_scale``, the procedure's ``saturation``,
+    or the range a raw log declares, :mod:`stableins.data.rawlog`), never from the shape of the
+    histogram: a healthy dwell of coarse integer counts takes a few values whose counts need not thin
+    out outwards (issue 26: real dwells 400–1300 counts from zero on a 16-bit converter were taken for
+    rails).  Without a finite range nothing is taken as clipped.
     """
+    if not np.isfinite(full_scale):
+        return False
     levels, counts = np.unique(x[np.isfinite(x)], return_counts=True)
     if levels.size == 0:
         return False
     step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
-    sigma = 1.4826 * float(np.median(np.abs(x - np.median(x))))
-    fine_quantization = levels.size > 2 and step <= 0.5 * sigma
-    for extreme, count, inward in ((levels[-1], counts[-1], counts[-2:-1]), (levels[0], counts[0], counts[1:2])):
-        if count >= 3 and abs(extreme) >= full_scale - max(step, 0.0) and np.isfinite(full_scale):
-            return True
-        if fine_quantization and count >= max(3, 0.02 * x.size) and count > (inward[0] if inward.size else 0):
-            return True
-    return False
+    return any(count >= 3 and abs(extreme) >= full_scale - step for extreme, count in ((levels[-1], counts[-1]), (levels[0], counts[0])))
 
 
 def steady_trend_departure(time: ArrayLike, angles: ArrayLike) -> NDArray[np.float64]:
