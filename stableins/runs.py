@@ -33,6 +33,7 @@ from stableins.procedures.rundir import (
     REPORT_NAME,
     TRUTH_NAME,
     RunOutcome,
+    check_capabilities,
     check_settings,
     copy_input,
     export,
@@ -161,6 +162,7 @@ def _start_locked(
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
         check_reachable(plan, metadata, definition_file)  # an index that locks the gimbals: refused before anything moves
+        check_capabilities(driver, plan)  # a network platform without the INS's outputs: refused before anything moves
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
@@ -237,7 +239,7 @@ def resume_run(
     """
     rundir = Path(rundir)
     if not rundir.is_dir():
-        raise InputError("no run directory here", path=rundir, expected="a run directory made by 'stableins run'")
+        raise InputError("no run journal here (no such directory)", path=rundir, expected="a run directory made by 'stableins run'")
     with RunLock.acquire(rundir):  # before anything is written: one run per directory
         return _resume_locked(rundir, console=console, driver_spec=driver_spec, driver_factory=driver_factory, timeout=timeout,
                               re_estimate=re_estimate)  # fmt: skip
@@ -276,11 +278,7 @@ def _resume_locked(
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        truth = None
-        if start.get("truth"):  # a known world (run --truth): simulated again, as verified above
-            from stableins.data.truth import load_truth
-
-            truth = load_truth(rundir / str(start["truth"]))
+        truth = _kept_truth(rundir, start)  # a known world (run --truth): simulated again, as verified above
         driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout, truth=truth)
         try:
             install_prior(driver, plan, _load_record(rundir / start["prior"]) if start.get("prior") else None, start.get("prior"))
@@ -289,6 +287,8 @@ def _resume_locked(
                 raise InputError(
                     f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="driver_spec"
                 )
+            if not re_estimate:
+                check_capabilities(driver, plan)
             deterministic = is_deterministic(driver)
             script, superseded = resume_script(journal.records, deterministic=deterministic or re_estimate)
             if re_estimate:
@@ -318,6 +318,15 @@ def _resume_locked(
             return outcome
         finally:
             driver.close()
+
+
+def _kept_truth(rundir: Path, start: Any) -> Any:
+    """Return the simulated world a run started with ``--truth`` or ``--hidden`` keeps (``truth.json``), or None."""
+    if not start.get("truth"):
+        return None
+    from stableins.data.truth import load_truth
+
+    return load_truth(rundir / str(start["truth"]))
 
 
 def scan_has_records(path: Path) -> bool:

@@ -76,7 +76,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--chunk",
         type=number(*CHUNK_RANGE, unit="seconds"),
-        help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default 10)",
+        help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default: the procedure's)",
     )
     parser.add_argument(
         "--link-failures", type=integer(1, 100), default=3, help="consecutive link failures of one step before stopping (1 to 100)"

@@ -48,7 +48,7 @@ def open_driver(
     raise InputError(f"unknown driver {spec!r}", field="driver_spec", expected=SPEC_HELP)
 
 
-def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
+def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> SimulatedDriver:
     """Open the embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
     try:
         from stableins.simulator.truth import SimulatedSite, Truth

@@ -266,6 +266,22 @@ def resume_driver(
     return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout, truth=truth)
 
 
+def check_capabilities(driver: PlatformDriver, plan: Plan) -> None:
+    """Refuse, before the platform moves, a platform that cannot do what the plan needs (a network platform without ``NAV``).
+
+    Raises
+    ------
+    DriverProtocolError
+        Naming the protocol version and capabilities the platform stated and the one the plan needs.
+    """
+    from stableins.drivers.server import NAV_CAPABILITY
+    from stableins.procedures.plan import StaticRecordStep
+
+    require = getattr(driver, "require", None)
+    if require is not None and any(isinstance(step, StaticRecordStep) for step in plan.steps):
+        require(NAV_CAPABILITY, f"the static record of {plan.name!r} (the INS's velocity and attitude outputs)")
+
+
 def install_prior(driver: PlatformDriver, plan: Plan, prior: Any, source: str | os.PathLike[str] | None) -> None:
     """Load a simulated INS with the record a system-level run starts from (what a real INS runs with), if it can be loaded.
 
