@@ -76,6 +76,9 @@ COMMANDS: dict[str, Command | Group] = {
     ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
+    "protocol-check": Command(
+        "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"
+    ),
     "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
     "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
     "budget": Command(
