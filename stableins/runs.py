@@ -115,6 +115,31 @@ def start_run(
         return _start_locked(plan, rundir, driver_spec=driver_spec, seed=seed, unit=unit, console=console, driver=driver, setup=setup)
 
 
+def _needed_prior(plan: Plan, prior_file: str | os.PathLike[str] | None, *, unit: str | None, definition: bool) -> Any:
+    """Return the unit's record the run starts from (None without ``--prior``): checked before anything moves.
+
+    A procedure's system-level stage and its fine stage need one (they estimate corrections to it, or re-point by its
+    zero offsets); it must be of ``unit``.
+    """
+    prior = _load_record(prior_file) if prior_file is not None else None
+    fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
+    if definition and plan.level == "system" and prior is None:
+        raise InputError(
+            "the system-level stage estimates corrections to the calibration the INS navigates with",
+            field="prior_file",
+            expected="--prior RECORD (the unit's record in force) or --store DIR",
+        )
+    if definition and fine and prior is None:
+        raise InputError(
+            "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
+            field="prior_file",
+            expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
+        )
+    if prior is not None and unit is not None and prior.serial_number != unit:
+        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="unit", expected=repr(unit))
+    return prior
+
+
 def _start_locked(
     plan: Plan,
     rundir: Path,
@@ -137,22 +162,7 @@ def _start_locked(
                 "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
             )
         journal_file.unlink()  # a start that died before its first record (an earlier version): nothing happened, start afresh
-    prior = _load_record(prior_file) if prior_file is not None else None
-    fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
-    if definition_file is not None and plan.level == "system" and prior is None:
-        raise InputError(
-            "the system-level stage estimates corrections to the calibration the INS navigates with",
-            field="prior_file",
-            expected="--prior RECORD (the unit's record in force) or --store DIR",
-        )
-    if definition_file is not None and fine and prior is None:
-        raise InputError(
-            "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
-            field="prior_file",
-            expected="--prior RECORD (e.g. the coarse run's record.json) or --store DIR with the unit's history",
-        )
-    if prior is not None and unit is not None and prior.serial_number != unit:
-        raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="unit", expected=repr(unit))
+    prior = _needed_prior(plan, prior_file, unit=unit, definition=definition_file is not None)
     check_settings(plan, console.values)
     rate, truth = plan.sample_rate, setup.truth
     driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=rate, timeout=setup.timeout, truth=truth)

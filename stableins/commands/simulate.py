@@ -212,19 +212,8 @@ def run(args: argparse.Namespace) -> int:
     from stableins.data.truth import save_truth
     from stableins.output import emit, note
 
-    if args.list_effects:
-        rows = effect_rows()
-        lines = [f"{'id':<16} {'nominal':>9} {'unit':<9} {'nominal (SI)':>12} {'SI unit':<14} meaning"]
-        row = "{id:<16} {nominal_engineering:>9.3g} {engineering_unit:<9} {nominal:>12.3g} {unit:<14} {meaning}"
-        lines += [row.format(**r) for r in rows]
-        lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
-        emit(args, {"effects": rows}, "\n".join(lines))
-        return 0
-    if getattr(args, "list_worlds", False):
-        from stableins.simulator.worlds import WORLDS
-
-        rows = [{"name": w.name, "summary": w.summary, "slow_noise": w.slow_noise, "sources": list(w.sources)} for w in WORLDS.values()]
-        emit(args, {"worlds": rows}, "\n".join(line for w in WORLDS.values() for line in w.describe()))
+    if args.list_effects or getattr(args, "list_worlds", False):
+        _list_catalogue(args)
         return 0
     if args.level is None:
         raise InputError("which level?", field="LEVEL", expected="'device' or 'system' (or --list-effects)")
@@ -256,6 +245,24 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
     return 0
+
+
+def _list_catalogue(args: argparse.Namespace) -> None:
+    """Print what the simulator can inject (``--list-effects``) or the worlds it draws (``--list-worlds``)."""
+    from stableins.output import emit
+
+    if args.list_effects:
+        rows = effect_rows()
+        lines = [f"{'id':<16} {'nominal':>9} {'unit':<9} {'nominal (SI)':>12} {'SI unit':<14} meaning"]
+        row = "{id:<16} {nominal_engineering:>9.3g} {engineering_unit:<9} {nominal:>12.3g} {unit:<14} {meaning}"
+        lines += [row.format(**r) for r in rows]
+        lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
+        emit(args, {"effects": rows}, "\n".join(lines))
+        return
+    from stableins.simulator.worlds import WORLDS
+
+    worlds = [{"name": w.name, "summary": w.summary, "slow_noise": w.slow_noise, "sources": list(w.sources)} for w in WORLDS.values()]
+    emit(args, {"worlds": worlds}, "\n".join(line for w in WORLDS.values() for line in w.describe()))
 
 
 def _held_as_declared(truth: Any, procedures: list[Any]) -> Any:
