@@ -98,7 +98,7 @@ QUICK: dict[str, Quick] = {
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
     ),
     "bench_device_gsensitivity": Quick(("--seeds", "2"), "2 sessions with g-sensitivity and 2 clean ones instead of 20 each"),
-    "bench_discovery_false_alarms": Quick(("3",), "3 clean sessions (seeds 100-102) instead of 20"),
+    "bench_discovery_false_alarms": Quick(("--seeds", "2"), "2 sessions per case (clean, 4σ, 5σ, each outside effect) instead of 20"),
     "bench_fuzz": Quick(
         ("--scale", "0.05", "--seed", "7"),
         "5 % of the cases (about 120), hypothesis seed 7 instead of the clock",
@@ -111,6 +111,7 @@ QUICK: dict[str, Quick] = {
     "bench_navigation_budget": Quick(("--days", "2", "--rate", "0.1"), "2 days with the simulator at 0.1 Hz instead of 5 days at 1 Hz"),
     "bench_noise_device": Quick(("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"),
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
+    "bench_real_data": Quick((), "the default run (two shipped real logs; no Monte Carlo)"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),

@@ -1,6 +1,14 @@
-"""What a reviewer checks on a rendered certificate (pdftoppm, pdftotext): used by the report, recal and budget tests.
+"""What a reviewer checks on a rendered certificate and its technical report (pdftoppm, pdftotext): used by the report, recal
+and budget tests.
 
-:func:`review` returns the defects found (an empty list for a certificate a quality manager would sign):
+:func:`review` returns the defects found (an empty list for a certificate a quality manager would sign).  The certificate:
+
+* at most :data:`MAX_CERTIFICATE_PAGES` pages, ending with "End of certificate.";
+* a statement of conformity: a verdict with its decision rule and specification, or "No statement of conformity";
+* the technical report named by the SHA-256 of the file beside it (``NAME-technical.pdf``);
+* every results row with a unit, GUM-rounded, and the same value and U as the technical report's results table.
+
+The technical report:
 
 * no near-empty page: on every page but the last, the text frame is used down to at least
   :data:`MIN_FILL` of its height (the old certificate's page 3, the tail of one table, ended at 40 %);
@@ -91,8 +99,66 @@ def power(text: str) -> str:
     return text.partition("×10")[2]
 
 
+MAX_CERTIFICATE_PAGES = 3
+
+
+def technical_of(certificate: Path) -> Path:
+    """The technical report written beside ``certificate`` (``report.pdf`` → ``report-technical.pdf``)."""
+    return certificate.with_name(f"{certificate.stem}-technical{certificate.suffix}")
+
+
 def review(pdf: Path, folder: Path) -> list[str]:
-    """Every defect a reviewer would see (module docstring)."""
+    """Every defect a reviewer would see on the certificate ``pdf`` and its technical report (module docstring)."""
+    import hashlib
+
+    technical = technical_of(pdf)
+    if not technical.exists():
+        return [f"no technical report beside the certificate ({technical.name})"]
+    defects = [f"technical report: {d}" for d in review_technical(technical, folder)]
+    pages = pages_text(pdf)
+    if len(pages) > MAX_CERTIFICATE_PAGES:
+        defects.append(f"the certificate has {len(pages)} pages (at most {MAX_CERTIFICATE_PAGES})")
+    if "End of certificate." not in pages[-1]:
+        defects.append("the last page does not end the certificate")
+    text = "\n".join(pages)
+    flat = "".join(text.split())
+    if hashlib.sha256(technical.read_bytes()).hexdigest() not in flat:
+        defects.append("the certificate does not name the technical report by its SHA-256")
+    if not (re.search(r"Verdict: (PASS|FAIL|CONDITIONAL PASS|CONDITIONAL FAIL|NOT ASSESSED)", text) and "Decision rule" in text) and (
+        "No statement of conformity" not in text
+    ):
+        defects.append("no statement of conformity with its decision rule")
+    defects += _machine_text(text)
+    return defects + _certificate_rows(text, "\n".join(pages_text(technical)))
+
+
+def _certificate_rows(text: str, technical: str) -> list[str]:
+    """The defects of the certificate's results table: units, GUM rounding, the technical report's numbers."""
+    defects = []
+    rows = table_rows(text, r"\n\s*1\s+Results", r"\n\s*2\s+Statement of conformity")
+    detail = table_rows(technical, r"\n\s*4\s+Results", r"\n\s*5\s+Uncertainty budget")
+    if not rows:
+        defects.append("no results table on the certificate")
+    for symbol, tokens in rows.items():
+        value, expanded, unit = (tokens + ["", "", ""])[:3]
+        if unit not in UNITS:
+            defects.append(f"certificate row {symbol}: no unit after its numbers ({tokens})")
+        elif len(mantissa(expanded).replace(".", "").lstrip("0")) != 2 or decimals(value) != decimals(expanded):
+            defects.append(f"certificate row {symbol}: {value} with U = {expanded} is not GUM-rounded")
+        other = detail.get(symbol)
+        if other is None or other[1:2] + other[3:4] != [value, expanded]:
+            defects.append(f"certificate row {symbol}: {value}, {expanded} differs from the technical report ({other})")
+    return defects
+
+
+def _machine_text(text: str) -> list[str]:
+    """Machine paths and command-line syntax in a document's text."""
+    defects = [f"machine path on the certificate: {match.group(0)!r}" for match in _PATH.finditer(text)]
+    return defects + [f"command-line syntax on the certificate: {line.strip()!r}" for line in text.splitlines() if _FLAG.search(line)]
+
+
+def review_technical(pdf: Path, folder: Path) -> list[str]:
+    """Every defect a reviewer would see on a technical report (module docstring)."""
     defects = []
     pages = pages_text(pdf)
     used = fill(pdf, folder)
@@ -102,11 +168,7 @@ def review(pdf: Path, folder: Path) -> list[str]:
     if "End of report." not in pages[-1]:
         defects.append("the last page does not end the report")
     text = "\n".join(pages)
-    for match in _PATH.finditer(text):
-        defects.append(f"machine path on the certificate: {match.group(0)!r}")
-    for line in text.splitlines():
-        if _FLAG.search(line):
-            defects.append(f"command-line syntax on the certificate: {line.strip()!r}")
+    defects += _machine_text(text)
     results = table_rows(text, r"\n\s*4\s+Results", r"\n\s*5\s+Uncertainty budget")
     budget = table_rows(text, r"Budget per parameter", r"\n\s*6\s+Correlation")
     conformity = value_checks(text)

@@ -308,3 +308,41 @@ def test_slow_noise_whitening_is_the_generalized_least_squares_metric():
     white = problem.whiten(result.residuals)
     assert fit_chi2(result) == pytest.approx(white @ white, rel=1e-12)
     np.testing.assert_allclose(result.residual_sigma, np.sqrt(dwells.sigma**2 + np.diag(slow)[:, None]).reshape(-1))
+
+
+def test_a_candidate_is_named_only_if_it_brings_chi2_into_its_band():
+    """Issue 25: an effect of a form the candidates lack is said to be outside the library, and no candidate is named.
+
+    The world has a cubic term the library knows and a ripple it does not: the cubic is significant (its F-test p is
+    far below α/N) but adding it leaves χ²_ν far above its 95 % band, so it is not flagged.  Without the ripple the
+    cubic is flagged and explains the residual.
+    """
+    from scipy import stats
+
+    from stableins.discovery.scores import band_upper
+
+    rng = np.random.default_rng(8)
+    m = 120
+    x = np.linspace(-1, 1, m)
+    columns = {"a": np.ones(m), "b": x, "c": x**2, "cubic": x**3, "step": (x > 0.3).astype(float)}
+    terms = {k: Term(k, "additive", "1", "1", 1.0, 0.01, k, regressor=lambda i: i.specific_force) for k in columns}
+    model = ErrorModel((terms["a"], terms["b"], terms["c"]))
+    noise = rng.normal(0, 0.01, m)
+    for ripple, outside in ((0.03, True), (0.0, False)):
+        y = 1.0 + 0.5 * x + 0.05 * x**3 + ripple * np.sin(9 * np.pi * x) + noise
+        problem = LinearProblem(y, 0.01, columns)
+        result = problem.fit(model)
+        ranking = rank(problem, result, [terms["cubic"], terms["step"]], refit_top=2)
+        cubic = ranking["cubic"]
+        assert cubic.p_value < 1e-4 < ranking.alpha / ranking.n_tested  # significant either way
+        after = (result.chi2 - cubic.statistic) / (result.dof - 1)
+        assert cubic.chi2_red_with == pytest.approx(after, rel=1e-9)
+        upper = stats.chi2.ppf(0.975, result.dof - 1) / (result.dof - 1)
+        assert cubic.explains == (after <= upper) and band_upper(result.dof - 1) == pytest.approx(upper)
+        assert ranking.outside_library is outside and bool(ranking.flagged) is not outside
+        assert cubic.flagged is not outside and cubic.explains is not outside
+        if outside:
+            assert ranking.next_step().startswith("outside the library: χ²_ν =") and "the best, cubic, would leave" in ranking.next_step()
+            assert "no certificate" in ranking.next_step()
+        else:
+            assert ranking.best.id == "cubic" and "cubic" in ranking.next_step()

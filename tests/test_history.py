@@ -245,7 +245,8 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     z = {c["id"]: c["significance"] for c in document["changes"]}
     assert z["bias_x"] > 5 and abs(z["bias_y"]) < 3
     # exactly one new record, filed, the record in force; its certificate
-    assert sorted(p.name for p in (tmp_path / "recal").iterdir()) == ["recal-changes.txt", "record.json", "report.pdf"]
+    written = sorted(p.name for p in (tmp_path / "recal").iterdir())
+    assert written == ["recal-changes.txt", "record.json", "report-technical.pdf", "report.pdf"]
     entries = HistoryStore(store).entries("INS-7")
     in_force = HistoryStore(store).in_force("INS-7")
     assert len(entries) == 2 and (store / "INS-7" / in_force.file).read_bytes() == (tmp_path / "recal" / "record.json").read_bytes()

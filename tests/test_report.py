@@ -43,7 +43,7 @@ decision_rule = "guarded"
 [tolerances.stability]
 "bias_*" = 30.0
 [tolerances.fit]
-chi2_red_max = 2.0
+interval = 0.95
 """
 BIAS_STEP_UG = 60.0
 
@@ -88,8 +88,22 @@ def test_full_report_pages_and_required_fields(files, capsys):
     )
     assert status == 0
     printed = capsys.readouterr().out
-    report_id = re.search(r"report (SI-\S+),", printed).group(1)
-    pages, text = _render(out)
+    report_id = re.search(r"certificate (SI-\S+),", printed).group(1)
+    technical = files / "full-technical.pdf"
+    assert f"{technical}: technical report" in printed
+    # the certificate: at most three pages, identification, results with U, verdict with its rule and specification
+    pages, certificate = _render(out)
+    assert len(pages) <= 3
+    for i in range(1, len(pages) + 1):
+        assert f"page {i} of {len(pages)}" in certificate
+    assert certificate.count(report_id) >= len(pages)
+    flat = " ".join(certificate.split())
+    assert "Inertial Sensor Laboratory, Building 4" in flat and "Navigation Systems Division" in flat
+    assert "Verdict: FAIL" in certificate and "Decision rule: Binary guarded acceptance" in flat and "proc.toml" in flat
+    assert file_sha256(technical) in "".join(certificate.split())  # the technical report, named by its digest
+    assert "End of certificate." in certificate
+    # the technical report: the evidence behind it, the same report id on every page
+    pages, text = _render(technical)
     n = len(pages)
     assert 4 <= n <= 12
     for i in range(1, n + 1):  # every page carries "page i of n" and the report id
@@ -144,7 +158,11 @@ def test_sections_without_evidence_say_so(files, tmp_path):
     (tmp_path / "bare.json").write_text(json.dumps(record))
     out = tmp_path / "bare.pdf"
     assert cli.main(["report", str(tmp_path / "bare.json"), "--out", str(out)]) == 0
-    pages, text = _render(out)
+    _, certificate = _render(out)
+    flat = " ".join(certificate.split())
+    assert "DRAFT: the laboratory, customer, operator are not stated" in flat and "Laboratory not stated" in flat
+    assert "No statement of conformity: no procedure of this calibration defines tolerances" in flat
+    pages, text = _render(tmp_path / "bare-technical.pdf")
     flat = " ".join(text.split())
     assert f"page {len(pages)} of {len(pages)}" in text
     assert "Residual analysis: not performed" in flat
@@ -264,8 +282,11 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     summary = json.loads(capsys.readouterr().out)
     pages, text = _render(out)
     flat = " ".join(text.split())
-    assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text
+    assert summary["pages"] == len(pages) and f"page {len(pages)} of {len(pages)}" in text and len(pages) <= 3
     assert certificate_checks.review(out, tmp_path) == []
+    assert summary["technical_report"]["sha256"] == file_sha256(tmp_path / "cal-technical.pdf")
+    pages, text = _render(tmp_path / "cal-technical.pdf")  # the evidence is in the technical report
+    flat = " ".join(text.split())
     chi2 = {
         m.group(1): float(m.group(2))
         for m in re.finditer(r"^\s*(coarse\+fine|coarse|fine)\s+coarse\+fine\s+\d+\s+\d+ / \d+\s+([\d.]+)", text, re.M)
@@ -291,7 +312,7 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
                         "data_start": prov.data_start, "data_end": prov.data_end}  # fmt: skip
     (tmp_path / "v1.json").write_text(json.dumps(v1))
     assert cli.main(["report", str(tmp_path / "v1.json"), "--data", str(coarse), str(fine), "--out", str(tmp_path / "v1.pdf")]) == 0
-    _, text1 = _render(tmp_path / "v1.pdf")
+    _, text1 = _render(tmp_path / "v1-technical.pdf")
     flat1 = " ".join(text1.split())
     assert "recomputed from" in flat1 and "defaults of 'stableins calibrate device'" in flat1
     assert "record migrated from schema version 1" in flat1
@@ -328,11 +349,13 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     (tmp_path / "rich.json").write_text(json.dumps(record))
     out = tmp_path / "rich.pdf"
     assert cli.main(["report", str(tmp_path / "rich.json"), "--procedure", str(files / "proc.toml"), "--out", str(out)]) == 0
+    assert certificate_checks.review(out, tmp_path) == []
+    _, certificate = _render(out)
+    assert "µg/g³" in certificate  # the results' units as printed
+    out = tmp_path / "rich-technical.pdf"
     pages, text = _render(out)
     flat = " ".join(text.split())
     assert plain("K3_x") in text and plain("Kh_y") in text and "not supported" in text and "Model in force" in text
-    assert certificate_checks.review(out, tmp_path) == []
-    assert "µg/g³" in text  # the verdict's units as printed
     numbers = [int(n) for n in re.findall(r"Figure (\d+)\.", flat)]
     assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) == 3  # correlation, residuals, discovery
     bbox = subprocess.run(["pdftotext", "-bbox", str(out), "-"], check=True, capture_output=True, text=True, timeout=60).stdout

@@ -164,7 +164,7 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         pytest.skip("pdftotext/pdftoppm (Debian package poppler-utils) are not installed: the certificates are written, not read back")
     for certificate in (run / "report.pdf", pdf):
         assert certificate_checks.review(certificate, folder) == []  # units, one GUM rounding in every table, no paths
-        text = _pdf_text(certificate)
+        text = _pdf_text(certificate_checks.technical_of(certificate))  # the evidence: in the technical report
         assert "Systematic stage: orientations" in text
         for k, o in enumerate(orientations, start=1):
             assert f"{k} {o['start_h']:.2f} – {o['end_h']:.2f}" in text and f"{o['polar_angle_deg']:.1f}°" in text

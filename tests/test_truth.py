@@ -89,8 +89,8 @@ def test_recal_writes_one_record_in_force_whose_certificate_shows_it(tmp_path, c
     # a Bayesian update: no σ grew
     for p in record.parameters:
         assert not (p.sigma > before[p.id].sigma * (1 + 1e-9)), p.id
-    # its certificate shows its values and what was entered
-    text = pdf_text(out / "report.pdf")
+    # its certificate's technical report shows its values and what was entered
+    text = pdf_text(out / "report-technical.pdf")
     flat = " ".join(text.split())
     rows = {m.group(1): (m.group(2), m.group(4)) for m in re.finditer(r"^(\S+)\s+estimated\s+(\S+)\s+(\S+)\s+(\S+)\s", text, re.M)}
     for pid in ("sf_x", "bias_y", "beta_zx", "K2_z", "theta30"):
@@ -167,7 +167,7 @@ def test_recal_history_and_certificate_agree_on_every_change_flag(tmp_path, caps
         recal = json.loads(capsys.readouterr().out)
         assert cli.main(["history", serial, "--store", str(store), "--json"]) == 0
         history = json.loads(capsys.readouterr().out)
-        certificate = flagged_on_certificate(pdf_text(tmp_path / serial / "report.pdf"))
+        certificate = flagged_on_certificate(pdf_text(tmp_path / serial / "report-technical.pdf"))  # its change section
         flags[serial] = (set(recal["significant"]), set(history["changes"][-1]["significant"]), certificate)
         # the same z everywhere: recal's JSON and history's JSON
         z_recal = {c["id"]: c["significance"] for c in recal["changes"]}

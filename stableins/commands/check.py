@@ -77,10 +77,18 @@ def _head(file: Path) -> bytes:
         from stableins.errors import InputError
 
         raise InputError("no such file", path=file)  # as the data readers say it
-    if not file.is_file():  # a directory: the reader's one message
+    if not file.is_file():  # a directory: the reader's one message; a device or a pipe: this one
         read_input_bytes(file, max_bytes=MAX_WHOLE_FILE, what="a file written by stableins")
+        from stableins.errors import InputError
+
+        raise InputError("not a regular file (a device, a pipe or a socket)", path=file, expected="a file written by stableins")
     with open(file, "rb") as handle:
-        return handle.read(64)
+        head = handle.read(64)
+    if not head:
+        from stableins.errors import InputError
+
+        raise InputError("the file is empty", path=file, expected="a file written by stableins (none is empty)")
+    return head
 
 
 def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:

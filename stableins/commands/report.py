@@ -31,7 +31,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report-id", help="report id to print (default: derived from the serial number, date and input digests)")
     from stableins.commands.arguments import output_file
 
-    parser.add_argument("--out", required=True, type=output_file, metavar="REPORT.pdf", help="PDF to write (written atomically)")
+    parser.add_argument(
+        "--out", required=True, type=output_file, metavar="REPORT.pdf", help="certificate to write (at most 3 pages; written atomically)"
+    )
+    parser.add_argument(
+        "--technical",
+        type=output_file,
+        metavar="TECHNICAL.pdf",
+        help="technical report the certificate names by its SHA-256 (default: REPORT-technical.pdf beside the certificate)",
+    )
+    who = {"laboratory": "the calibration laboratory", "customer": "the customer", "operator": "the person who performed it"}
+    for key, text in who.items():
+        parser.add_argument(f"--{key}", metavar="NAME", help=f"{text} (else the record's entry; without all three: a DRAFT)")
+    parser.add_argument(
+        "--no-statement",
+        action="store_true",
+        help="make no statement of conformity (by default the tolerances of the calibration's procedure decide PASS or FAIL)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +62,14 @@ def run(args: argparse.Namespace) -> int:
         previous=args.previous,
         procedure=args.procedure,
         discovery=args.discovery,
-        settings=ReportSettings(report_id=args.report_id),
+        settings=ReportSettings(
+            report_id=args.report_id,
+            laboratory=args.laboratory,
+            customer=args.customer,
+            operator=args.operator,
+            no_statement=args.no_statement,
+        ),
+        technical=args.technical,
     )
     data = {
         "path": summary.path,
@@ -54,8 +77,17 @@ def run(args: argparse.Namespace) -> int:
         "pages": summary.pages,
         "verdict": summary.verdict,
         "sha256": summary.sha256,
+        "technical_report": {"path": summary.technical, "pages": summary.technical_pages, "sha256": summary.technical_sha256},
+        "draft": list(summary.missing),
     }
     data["conformity"] = list(summary.conformity)
-    text = [f"{summary.path}: report {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}"]
-    emit(args, data, "\n".join(text + [f"  {line}" for line in summary.conformity if summary.verdict != "NO STATEMENT"]))
+    text = [f"{summary.path}: certificate {summary.report_id}, {summary.pages} pages, conformity: {summary.verdict}"]
+    text += [f"  {line}" for line in summary.conformity if summary.verdict != "NO STATEMENT"]
+    text.append(f"{summary.technical}: technical report, {summary.technical_pages} pages, SHA-256 {summary.technical_sha256}")
+    if summary.missing:
+        flags = " ".join(f"--{k} NAME" for k in summary.missing)
+        text.append(f"DRAFT: {', '.join(summary.missing)} not stated; next: the same command with {flags}")
+    else:
+        text.append(f"next: sign it: stableins report ... --sign KEY.pem, or check it: stableins check {summary.path}")
+    emit(args, data, "\n".join(text))
     return 0

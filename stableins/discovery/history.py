@@ -431,11 +431,22 @@ class Discovery:
         """
         from stableins.discovery.drift import drift_problem
         from stableins.discovery.ranking import rank
+        from stableins.dwell_mode import DwellMode
         from stableins.units import DisplayUnit
 
         dwells = getattr(self.problem, "dwells", None)
         if dwells is None or dwells.reading_slope is None:
             raise ValueError("these data carry no reading slopes (device dwells are needed)")
+        if dwells.dwell_mode is not DwellMode.EARTH_RATE:
+            self.drift_notes: tuple[str, ...] = (
+                f"dwell mode {dwells.dwell_mode}: the drift candidates are ranked on dwells torqued at the Earth rate only "
+                + (
+                    "(caged dwells carry no gyro information)"
+                    if dwells.dwell_mode is DwellMode.CAGED
+                    else "(the gyro stage, stableins.estimators.gyro_sensitivity.gyro_from_datasets, models inertially held dwells)"
+                ),
+            )
+            return None
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in GIMBAL_IDS]
         problem, null, terms, notes = drift_problem(

@@ -21,7 +21,10 @@ parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
   aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (``|corr| > 0.99``) cannot be
   told apart from each other with these data; they are reported together.
 * **Flagging** uses a Bonferroni family-wise false-alarm level ``α``: a candidate is flagged
-  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates.
+  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates, *and* adding it
+  brings ``χ²_ν`` into its 95 % band (:func:`stableins.discovery.scores.explains`): a candidate is named only
+  if it explains the residual.  When ``χ²`` rejects the model and no candidate explains it, the effect is
+  outside the library (:attr:`Ranking.outside_library`; its signature: :mod:`stableins.discovery.signature`).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from stableins.discovery.scores import (
     CandidateScore,
     candidate_columns,
     effect_statistics,
+    explains,
     refit,
 )
 from stableins.errormodel import ErrorModel, Term
@@ -113,7 +117,8 @@ class Ranking:
         model = ErrorModel(self.result.terms)
         lines = [
             f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
-            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates",
+            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates; * named: significant and bringing "
+            "χ²_ν into its 95 % band",
             f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δobs|':>13}  identifiable / aliases",
         ]
         for k, c in enumerate(self.candidates[:top], 1):
@@ -123,6 +128,10 @@ class Ranking:
             ident = "yes" if c.identifiable else ("not excited" if not c.excited else "NO: aliases " + c.alias_text(model))
             if c.confused_with:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
+            if c.explains_with:
+                ident += f"; explains the residual with {', '.join(c.explains_with)} (neither does alone)"
+            if c.identifiable and c.p_value < self.alpha / self.n_tested and not c.explains:
+                ident += f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
                 f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
@@ -138,30 +147,52 @@ class Ranking:
     def __str__(self) -> str:
         return self.report()
 
+    @property
+    def p_value(self) -> float:
+        """``P(χ² ≥ observed)`` of the fit the candidates are ranked against (NaN without degrees of freedom)."""
+        from scipy import stats
+
+        nu = self.result.dof
+        return float(stats.chi2.sf(self.result.chi2, nu)) if nu > 0 else float("nan")
+
+    @property
+    def outside_library(self) -> bool:
+        """Whether χ² rejects the model and no candidate explains it (the residual is outside the library).
+
+        Rejected: ``P(χ² ≥ observed)`` below the lower limit of :data:`~stableins.discovery.diagnostics.CONSISTENT_P_VALUES`;
+        explained: some candidate is flagged (:func:`stableins.discovery.scores.explains`).
+        """
+        from stableins.discovery.diagnostics import CONSISTENT_P_VALUES
+
+        return self.p_value < CONSISTENT_P_VALUES[0] and not self.flagged
+
+    def outside_text(self) -> str:
+        """Why the residual is outside the library, in words: χ²_ν, P, and what the best candidate would leave."""
+        head = f"χ²_ν = {_chi2_red(self.result):.3g} (ν = {self.result.dof}, P = {self.p_value:.2g}) and no library effect explains it"
+        best = next((c for c in self.candidates if c.identifiable), None)
+        if best is None:
+            return head
+        return f"{head} (the best, {best.id}, would leave χ²_ν = {best.chi2_red_with:.3g}, above its 95 % band)"
+
     def next_step(self) -> str:
         """Return what to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).
 
         The best flagged candidate: add it (and whether a calibration can carry it, :func:`stableins.discovery.library.calibration_limit`),
         or how to tell it from the candidates it cannot be told from; nothing flagged: whether χ²_ν is at the noise floor.
         """
-        from scipy import stats
-
         from stableins.discovery.library import LIBRARY, calibration_limit
 
         best = next((c for c in self.candidates if c.flagged), None)
         if best is None:
-            nu = self.result.dof
-            p = float(stats.chi2.sf(self.result.chi2, nu)) if nu > 0 else float("nan")
-            if not p < 0.005:
-                return "nothing flagged and χ²_ν at the noise floor: the model is complete for these data; nothing to add"
-            return (
-                f"nothing flagged although χ²_ν = {self.result.chi2_red:.2f} is above the noise floor (p = {p:.2g}): look at the largest "
-                "residuals (a disturbed dwell?) and the noise model (slow noise between dwells) before adding terms"
-            )
+            if self.outside_library:
+                return f"outside the library: {self.outside_text()}; no certificate until it is understood"
+            return "nothing flagged and χ²_ν at the noise floor: the model is complete for these data; nothing to add"
         value, sigma = best.estimate_engineering
         from stableins.display import unit_text, value_sigma
 
         found = f"{best.id} = {value_sigma(value, sigma, unit_text(best.term.unit))} (p = {best.p_value:.2g})"
+        if best.explains_with:
+            found += f", which with {', '.join(best.explains_with)} brings χ²_ν into its band (add it first)"
         if best.confused_with:
             advice = best.advice.removeprefix("confirm with ")
             return f"{found} cannot be told from {', '.join(best.confused_with)} with these data; to separate them: {advice}"
@@ -373,8 +404,55 @@ def rank(
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
-    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
+    flagged = []
+    for c in scores:
+        after, explained = explains(rss0, c.statistic, nu) if c.identifiable else (float("nan"), False)
+        significant = bool(c.identifiable and c.p_value < alpha / n_tested)
+        named = {"flagged": significant and explained, "chi2_red_with": after, "explains": explained}
+        flagged.append(CandidateScore(**{**c.__dict__, **named}))
+    if not any(c.flagged for c in flagged):
+        flagged = _pairs(flagged, {t.id: k for k, t in enumerate(terms)}, z_perp, r, nu=nu, level=alpha / n_tested)
     return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
+
+
+#: Significant candidates tried as the first of a pair (:func:`_pairs`).
+PAIR_FIRST = 3
+
+
+def _pairs(
+    scores: list[CandidateScore], column: dict[str, int], z_perp: NDArray[np.float64], r: NDArray[np.float64], *, nu: int, level: float
+) -> list[CandidateScore]:
+    r"""Name the best significant candidate that, with one other candidate, brings χ² into its 95 % band.
+
+    Two effects present at once: neither alone explains the residual, the two together do.  For the ``PAIR_FIRST``
+    best significant candidates ``i`` (F-test p below the Bonferroni level) and every other identifiable ``j``, the fall
+    of χ² on adding both is the projection of the whitened residual on their unabsorbed columns,
+    ``ΔRSS_ij = ‖P_{[z⊥_i, z⊥_j]} r‖²`` (one Gauss–Newton step).  ``i`` is named (flagged, ``explains_with = (j,)``)
+    when ``χ² − ΔRSS_ij ≤ χ²_{0.975}(ν − 2)`` and ``j`` is significant once ``i`` is in the model (``F(1, ν − 2)`` of
+    ``ΔRSS_ij − ΔRSS_i`` below the same level).  The first named is the one to add first; the next ranking names the second.
+    """
+    from scipy import stats
+
+    from stableins.discovery.scores import band_upper
+
+    rss0 = float(r @ r)
+    dof = max(nu - 2, 1)
+    for first in [c for c in scores if c.identifiable and c.p_value < level][:PAIR_FIRST]:
+        single = float(r @ z_perp[:, column[first.id]]) ** 2 / float(z_perp[:, column[first.id]] @ z_perp[:, column[first.id]])
+        best: tuple[float, str] | None = None
+        for other in scores:
+            if other.id == first.id or not other.identifiable:
+                continue
+            pair = z_perp[:, [column[first.id], column[other.id]]]
+            fitted, *_ = np.linalg.lstsq(pair, r, rcond=None)
+            rss2 = rss0 - float(np.sum((pair @ fitted) ** 2))
+            conditional = float(stats.f.sf((rss0 - single - rss2) / max(rss2 / dof, 1e-300), 1, dof))
+            if rss2 / dof <= band_upper(dof) and conditional < level and (best is None or rss2 < best[0]):
+                best = (rss2, other.id)
+        if best is not None:
+            named = CandidateScore(**{**first.__dict__, "flagged": True, "explains": True, "explains_with": (best[1],)})
+            return [named if c.id == first.id else c for c in scores]
+    return scores
 
 
 def _separability(

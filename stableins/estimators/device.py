@@ -21,11 +21,11 @@ from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.fine import calibrate_fine
+from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
 from stableins.estimators.orientation import check_orientation
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, InputSensitivity
 from stableins.estimators.setting import DeviceSetting
 from stableins.estimators.slow_noise import DEFAULT_ALPHA, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
@@ -316,10 +316,58 @@ def _floor_note(noise: NoiseModel, b_up: NDArray[np.float64], ratio: float) -> s
     text = (
         f"slow noise not detected in the dwells (p = {test.p_value:.2g} at false-positive rate {test.alpha:g}): "
         f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
-        f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'), and the random walk "
-        "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
+        f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'; the certificate's U "
+        "includes it as the Type B input 'slow noise not resolved'), and the random walk is not bounded.  Measure the noise "
+        "model on a static record ('stableins noise') or give it (--noise)"
     )
     return "warning: " + text if ratio > 1.1 else text
+
+
+#: The input of the unresolved slow noise in a stage run's sensitivities (the certificate's budget column).
+SLOW_NOISE_INPUT = "slow_noise.unresolved"
+
+
+def slow_noise_sensitivity(final: FitResult, floor: FitResult) -> InputSensitivity | None:
+    r"""Return the unresolved slow noise as an input of the stage: what the largest floor adds to its estimate's covariance.
+
+    When the dwells do not resolve the slow noise, the stage's σ rest on white noise while the data allow a bias
+    instability up to its upper limit.  Refitted with that largest floor the stage's estimate has covariance
+    :math:`\Sigma_f`; the recorded one is :math:`\Sigma`.  The stage enters the record through
+    :math:`\eta = \Lambda\hat x + g`, so the extra error of :math:`\hat x` reaches the record as
+    :math:`P\,S\,P` with :math:`S = \Lambda(\Sigma_f - \Sigma)\Lambda` (docs/reports.md, "Uncertainty budget"),
+    stored here as a set of inputs of unit variance.  For a data-only record :math:`P = \Lambda^{+}` and the
+    combined variance is that of the largest floor: the upper limit, taken whole (the note's "up to … larger").
+
+    Returns None when the stage has no likelihood or the floor adds nothing.
+    """
+    likelihood = final.likelihood
+    if likelihood is None:
+        return None
+    ids = [i for i in likelihood.ids if i in final.ids and i in floor.ids and final[i][2] == Status.ESTIMATED]
+    if not ids:
+        return None
+    a = [final.ids.index(i) for i in ids]
+    b = [floor.ids.index(i) for i in ids]
+    extra = np.asarray(floor.covariance)[np.ix_(b, b)] - np.asarray(final.covariance)[np.ix_(a, a)]
+    extra = 0.5 * (extra + extra.T)
+    values, vectors = np.linalg.eigh(extra)
+    extra = (vectors * np.clip(values, 0.0, None)) @ vectors.T  # a larger floor never makes an estimate better
+    if not np.any(extra):
+        return None
+    keep = [likelihood.ids.index(i) for i in ids]
+    information = np.asarray(likelihood.information)
+    n = len(likelihood.ids)
+    covariance = np.zeros((n, n))
+    lam = information[:, keep]
+    covariance += lam @ extra @ lam.T
+    return InputSensitivity(SLOW_NOISE_INPUT, "1", likelihood.ids, 0.0, covariance=0.5 * (covariance + covariance.T))
+
+
+def _with_floor(fit: FitResult, floor: FitResult, note: str) -> FitResult:
+    """Return ``fit`` with the floor's note and the unresolved slow noise among its sensitivities (:func:`slow_noise_sensitivity`)."""
+    sensitivity = slow_noise_sensitivity(fit, floor)
+    extra = (sensitivity,) if sensitivity is not None else ()
+    return replace(fit, notes=fit.notes + (note,), sensitivities=tuple(fit.sensitivities) + extra)
 
 
 def _with_note(fit: FitResult, note: str | None) -> FitResult:
@@ -386,7 +434,7 @@ def calibrate_device(
             expected_positions=fine_layout.positions,
             allow_missing=allow_missing,
             noise=noise_model,
-            extra_terms=extra_terms,
+            model=fine_model(extra_terms),
             source=f"{source} (fine)",
         )
         fine = _with_note(fine, mismatch)
@@ -407,10 +455,10 @@ def calibrate_device(
             largest = replace(session, noise=noise_model.with_values(bias_instability=b_up))
             if fused is not None:
                 floor = largest.fit_joint(used_coarse, used_fine, start=fused, stage="coarse+fine")
-                fused = _with_note(fused, _floor_note(noise_model, b_up, floor_ratio(fused, floor)))
+                fused = _with_floor(fused, floor, _floor_note(noise_model, b_up, floor_ratio(fused, floor)))
             else:
                 floor = largest.fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear)
-                coarse = _with_note(coarse, _floor_note(noise_model, b_up, floor_ratio(coarse, floor)))
+                coarse = _with_floor(coarse, floor, _floor_note(noise_model, b_up, floor_ratio(coarse, floor)))
     settings = {
         "coarse_procedure": coarse_layout.name,
         "fine_procedure": fine_layout.name,

@@ -33,6 +33,7 @@ from typing import Any, Protocol, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.conventions import ARCSEC
 from stableins.drivers.errors import DriverConnectionError, DriverError, DriverProtocolError
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
@@ -252,7 +253,7 @@ class Runner:
         if recorder is None:
             raise RunStopped(
                 f"{label}: this platform driver does not record the INS outputs a system-level static record needs "
-                "(the simulated platform does; the network protocol does not yet)"
+                "(the simulated platform does; a network platform does when its greeting states NAV, docs/protocol.md)"
             )
         hours = step.duration / 3600.0
         what = f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}"
@@ -320,10 +321,14 @@ class Runner:
         waited = 0.0
         context = dict(self.session.context, phase="slew")
         error = math.inf
+        degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
+        label = f"slewing: waiting for arrival at ({degrees}) deg within {checks.angle_tolerance / ARCSEC:g} arcsec"
         while waited < checks.max_slew - 1e-9:
             self.session.context = context
             block = self.session.operate("acquire", [piece])
             waited += piece
+            if not self.session.last_replayed:  # what the platform is waiting for, second by second (at most max_slew)
+                self.console.progress(label, waited, checks.max_slew)
             if keep is not None:
                 keep.append(block)
             if len(block) == 0 or not np.all(np.isfinite(block.angles)):

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.conventions import MICRO_G
 from stableins.estimators.layout import DwellChecks
 from stableins.samples import SampleBlock
 
@@ -42,8 +43,8 @@ class CheckResult:
     def describe(self) -> str:
         """Return the checked quantities of the dwell as one line of text, in engineering units."""
         return (
-            f"reached within {math.degrees(self.angle_error) * 3600:.1f} arcsec, scatter {self.scatter / 9.80665e-6:.1f} µg, "
-            f"slope {self.slope / 9.80665e-6:.2f} µg/s, {self.samples}/{self.expected_samples} samples"
+            f"reached within {math.degrees(self.angle_error) * 3600:.1f} arcsec, scatter {self.scatter / MICRO_G:.1f} µg, "
+            f"slope {self.slope / MICRO_G:.2f} µg/s, {self.samples}/{self.expected_samples} samples"
         )
 
 
@@ -65,13 +66,12 @@ def evaluate_dwell(command: NDArray[np.float64], block: SampleBlock, checks: Dwe
             f"platform not at the commanded angles: off by {math.degrees(angle_error) * 3600:.1f} arcsec "
             f"(limit {math.degrees(checks.angle_tolerance) * 3600:.1f})"
         )
-    micro_g = 9.80665e-6
     if scatter > checks.scatter_max:
-        reasons.append(f"not still: scatter {scatter / micro_g:.1f} µg (limit {checks.scatter_max / micro_g:.1f})")
+        reasons.append(f"not still: scatter {scatter / MICRO_G:.1f} µg (limit {checks.scatter_max / MICRO_G:.1f})")
     if excess > checks.slope_max:
         reasons.append(
-            f"not still: slope {slope / micro_g:.2f} ± {slope_sigma / micro_g:.2f} µg/s on {'xyz'[axis]} "
-            f"(limit {checks.slope_max / micro_g:.2f} µg/s beyond {SLOPE_SIGMAS:g}σ)"
+            f"not still: slope {slope / MICRO_G:.2f} ± {slope_sigma / MICRO_G:.2f} µg/s on {'xyz'[axis]} "
+            f"(limit {checks.slope_max / MICRO_G:.2f} µg/s beyond {SLOPE_SIGMAS:g}σ)"
         )
     return CheckResult(not reasons, tuple(reasons), angle_error, scatter, slope, n, expected)
 

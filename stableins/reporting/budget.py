@@ -8,7 +8,9 @@ the inputs are
 * the calibration data (Type A, GUM 4.2): the record's covariance :math:`P`, from the noise measured in
   the data and propagated by least squares and the Bayesian update of each stage;
 * what the stages take as known (Type B, GUM 4.3): the local gravity, the static accuracy of the gimbal
-  angle sensors, the instrument temperature, the gyro drift and the damping-loop parameters.
+  angle sensors, the instrument temperature, the gyro drift and the damping-loop parameters; and the slow
+  noise a device stage's dwells allow but do not resolve (its σ rest on white noise; the covariance its
+  largest floor adds, :func:`stableins.estimators.device.slow_noise_sensitivity`, the upper limit taken whole).
 
 **Sensitivity through the record.**  Every stage k enters the record through the information vector
 :math:`\eta_k = \Lambda_k \hat x_k + g_k` of its likelihood; the record's values are
@@ -66,15 +68,23 @@ ANGLE_SENSOR_BOUND = 1.0 * ARCSEC
 #: Gyro drift "less than 0.001 °/h" (Wu et al. 2018 §6): ±0.001 °/h rectangular per platform axis.
 GYRO_DRIFT_BOUND = 0.001 * DEG_PER_HOUR
 #: Budget columns, in the order printed.
-GROUPS = ("gravity", "angle_sensors", "temperature", "gyro_drift", "damping_loop")
+GROUPS = ("gravity", "angle_sensors", "temperature", "gyro_drift", "damping_loop", "slow_noise")
 TITLES = {
     "gravity": "local gravity g",
     "angle_sensors": "gimbal angle sensors",
     "temperature": "instrument temperature",
     "gyro_drift": "gyro drift",
     "damping_loop": "damping-loop parameters",
+    "slow_noise": "slow noise not resolved",
 }
-SHORT = {"gravity": "g", "angle_sensors": "angle sensors", "temperature": "temp.", "gyro_drift": "gyro drift", "damping_loop": "loop"}
+SHORT = {
+    "gravity": "g",
+    "angle_sensors": "angle sensors",
+    "temperature": "temp.",
+    "gyro_drift": "gyro drift",
+    "damping_loop": "loop",
+    "slow_noise": "slow noise",
+}
 _KEYS = {"gravity", "angle_sensor", "gyro_drift", "damping_loop", "temperature_sensitivity"}
 
 
@@ -237,6 +247,7 @@ def uncertainty_budget(
         "gyro_drift": evaluate.gyro_drift(record, inputs, propagation, stored),
         "damping_loop": evaluate.damping_loop(record, inputs, propagation, stored),
         "temperature": evaluate.temperature(record, inputs, propagation),
+        "slow_noise": evaluate.slow_noise(record, propagation, stored),
     }
     return Budget(
         record.ids,

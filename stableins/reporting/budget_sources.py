@@ -340,3 +340,50 @@ def _mgal(u: float) -> str:
     from stableins.reporting.rounding import number
 
     return number(u / MGAL, 2) if u else "0"
+
+
+def slow_noise(record: CalibrationRecord, propagation: Propagation, stored: Stored) -> Evaluation:
+    """Evaluate the slow noise the device dwells allow but do not resolve: ``P (Σ S_k) P``, the upper limit taken whole.
+
+    A device stage whose measured noise model found no slow noise stores ``S = Λ(Σ_f − Σ)Λ``, with ``Σ_f`` its estimate's
+    covariance refitted at the largest floor the dwells allow (:func:`stableins.estimators.device.slow_noise_sensitivity`).
+    """
+    n, covariance = propagation.n, propagation.covariance
+    entries = stored.get("slow_noise", [])
+    if not entries:
+        why = "the noise model was given or measured with its slow noise resolved (no device stage reported an unresolved floor)"
+        return Evaluation(np.zeros(n), Source("slow_noise", "—", "—", "—", "—", why, "not applicable"))
+    total = np.zeros((n, n))
+    limits = []
+    for stage, s in entries:
+        if s.covariance is not None:
+            total += propagation.to_record_matrix(s.ids, s.covariance)
+        limits += _bias_instability_limit(stage)
+    cov = covariance @ total @ covariance
+    contribution = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    upper = f"up to {max(limits):.2g} µg (upper limit the dwells allow)" if limits else "the upper limit the dwells allow"
+    source = Source(
+        "slow_noise",
+        "bias instability not detected in the dwells (the σ rest on white noise)",
+        upper,
+        "upper limit, taken whole",
+        "the device stage's slow-noise test and the refit with the largest floor",
+        f"the difference between the largest floor's covariance and the recorded one, through the record "
+        f"({propagation.largest(contribution)})",
+    )
+    return Evaluation(contribution, source)
+
+
+def _bias_instability_limit(stage: Any) -> list[float]:
+    """Return the upper limit of the bias instability [µg] the stage's measured noise model states (empty if none)."""
+    from stableins.conventions import MICRO_G
+    from stableins.noise import NoiseModel
+
+    document = stage.settings.get("noise_model") if isinstance(stage.settings, Mapping) else None
+    if not isinstance(document, Mapping):
+        return []
+    try:
+        upper = NoiseModel.from_document(document).limits("bias_instability")[1]
+    except (KeyError, ValueError, TypeError):
+        return []
+    return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []

@@ -34,6 +34,11 @@ from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
 
 TITLE = "Calibration certificate"
+TECHNICAL_TITLE = "Technical report"
+#: The file name of the technical report beside a certificate ``NAME.pdf`` when none is given.
+TECHNICAL_SUFFIX = "-technical"
+#: The entries a certificate needs to identify who calibrated what for whom (ISO/IEC 17025 7.8.2.1 b, e, o).
+IDENTIFICATION = ("laboratory", "customer", "operator")
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,12 @@ class ReportSummary:
     sha256: str
     #: the certificate's statement of conformity in plain text (:func:`stableins.reporting.content.conformity_text`)
     conformity: tuple[str, ...] = ()
+    #: the technical report the certificate references by its SHA-256, its pages and digest
+    technical: str = ""
+    technical_pages: int = 0
+    technical_sha256: str = ""
+    #: identification the certificate lacks (laboratory, customer, operator): it is a watermarked draft
+    missing: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -63,12 +74,21 @@ class ReportSettings:
         Id to print; by default :func:`report_id_for`.
     issued : datetime, optional
         Date of issue (default: now, UTC).
+    laboratory, customer, operator : str, optional
+        Who calibrated, for whom, and who performed it (ISO/IEC 17025 7.8.2.1 b, e, o); each overrides the record's
+        entry of that name.  A certificate without all three is a watermarked DRAFT.
+    no_statement : bool
+        Make no statement of conformity even where the procedure defines tolerances (the customer did not ask for one).
     """
 
     tolerances: Tolerances | None = None
     uncertainty: UncertaintyInputs | None = None
     report_id: str | None = None
     issued: dt.datetime | None = None
+    laboratory: str | None = None
+    customer: str | None = None
+    operator: str | None = None
+    no_statement: bool = False
 
 
 @dataclass(frozen=True)
@@ -162,8 +182,15 @@ def write_report(
     procedure: str | PathLike[str] | None = None,
     discovery: str | PathLike[str] | None = None,
     settings: ReportSettings | None = None,
+    technical: str | PathLike[str] | None = None,
 ) -> ReportSummary:
-    """Write the calibration certificate of ``record`` to ``out`` (PDF).
+    """Write the calibration certificate of ``record`` to ``out`` and its technical report beside it (PDF).
+
+    Two documents from one context, so every number that appears in both is the same number: the
+    certificate (at most three pages: identification, results with U (k = 2), the statement of conformity
+    with its decision rule and specification, traceability, signatures) and the technical report (the
+    evidence, residuals, noise model, discovery history, budget derivation and notes), which the
+    certificate names by its SHA-256.
 
     The certificate renders the record: its values, statuses, the stage that last determined each
     parameter, the stages run and their settings, entries, environment and the residual evidence stored
@@ -186,6 +213,8 @@ def write_report(
         Output of ``stableins diagnose --json`` (ranked candidates and refit history).
     settings : ReportSettings, optional
         Limits, Type B inputs, id and date of issue given directly (:class:`ReportSettings`).
+    technical : path, optional
+        Technical report to write (default: ``out`` with ``-technical`` before its suffix).
 
     Returns
     -------
@@ -208,7 +237,10 @@ def write_report(
     rows = content.parameter_rows(view, terms, budget=budget)
     if previous_loaded is not None:
         inputs.append(InputFile("previous record", file_name(previous_loaded.path), previous_loaded.sha256 or "—", "read by this report"))
-    tolerances, procedure_inputs = _tolerances(procedure, settings.tolerances)
+    chosen = procedure if procedure is not None else _record_procedure(view, settings)
+    tolerances, procedure_inputs = _tolerances(chosen, settings.tolerances)
+    if settings.no_statement:
+        tolerances = Tolerances.from_mapping(None, source=content.NO_STATEMENT_ASKED)
     inputs += procedure_inputs
     comparison, changes, previous_rows = _previous(previous_loaded, view, terms, uncertainty)
     checks = content.conformity(rows, changes, stages, tolerances)
@@ -240,12 +272,81 @@ def write_report(
         discovery=discovery_document,
         discovery_source=discovery_source,
     )
-    pdf, pages = _render(ctx)
+    technical_path = Path(technical) if technical is not None else technical_path_for(out)
+    if technical_path.resolve() == Path(out).resolve():
+        raise InputError("the technical report would overwrite the certificate", path=str(technical), expected="another file name")
+    ctx.identification = _identification(view, settings)
+    ctx.simulated = is_simulated(view)
+    technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE)
+    digest = hashlib.sha256(technical_pdf).hexdigest()
+    ctx.technical = InputFile("technical report", technical_path.name, digest, f"{technical_pages} pages")
+    ctx.figures = 0
+    pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE)
+    with atomic_write(technical_path, "wb") as handle:
+        handle.write(technical_pdf)
     with atomic_write(out, "wb") as handle:
         handle.write(pdf)
     verdict = content.overall_verdict(checks) if not tolerances.empty else "NO STATEMENT"
-    statement = tuple(content.conformity_text(checks, assessed=not tolerances.empty, coverage_factor=tolerances.coverage_factor))
-    return ReportSummary(str(out), ctx.report_id, pages, verdict, hashlib.sha256(pdf).hexdigest(), statement)
+    statement = tuple(
+        content.conformity_text(checks, assessed=not tolerances.empty, coverage_factor=tolerances.coverage_factor, reason=tolerances.source)
+    )
+    return ReportSummary(
+        str(out),
+        ctx.report_id,
+        pages,
+        verdict,
+        hashlib.sha256(pdf).hexdigest(),
+        statement,
+        str(technical_path),
+        technical_pages,
+        ctx.technical.sha256,
+        tuple(k for k in IDENTIFICATION if not ctx.identification.get(k)),
+    )
+
+
+def technical_path_for(out: str | PathLike[str]) -> Path:
+    """Return the technical report beside the certificate ``out``: ``cert.pdf`` → ``cert-technical.pdf``."""
+    path = Path(out)
+    return path.with_name(f"{path.stem}{TECHNICAL_SUFFIX}{path.suffix or '.pdf'}")
+
+
+def is_simulated(record: CalibrationRecord) -> bool:
+    """Return whether the record was made from simulated data (the simulator's site metadata say so)."""
+    site = record.site
+    if site is None:
+        return False
+    return bool(site.extra.get("simulated")) or "simulated" in site.gravity_source.lower()
+
+
+def _identification(record: CalibrationRecord, settings: ReportSettings) -> dict[str, str]:
+    """Return laboratory, customer and operator: given to the report, else the record's entries, else its site's extra fields."""
+    from stableins.reporting.context import entry_text
+
+    extra = record.site.extra if record.site else {}
+    out = {}
+    for key in IDENTIFICATION:
+        given = getattr(settings, key)
+        text = given if given is not None else entry_text(record, key) or str(extra.get(key, "") or "")
+        out[key] = text.strip()
+    return out
+
+
+def _record_procedure(record: CalibrationRecord, settings: ReportSettings) -> str | None:
+    """Return the shipped procedure whose ``[tolerances]`` the certificate applies by default.
+
+    The last stage run of the calibration whose procedure defines tolerances decides (``device-coarse + device-fine``:
+    the later one first); None when no stage's procedure defines any, or when limits are given directly.
+    """
+    if settings.tolerances is not None or settings.no_statement:
+        return None
+    from stableins.procedures.definition import PROCEDURE_DIRECTORY
+
+    for run in reversed(record.stages_run):  # a shipped definition of the name the stage ran (a file is given with --procedure)
+        for name in reversed([n.strip() for n in (run.procedure or "").split("+") if n.strip()]):
+            path = PROCEDURE_DIRECTORY / f"{name}.toml"
+            if path.is_file() and not Tolerances.from_procedure_file(str(path)).empty:
+                return name
+    return None
 
 
 def _evidence(view: CalibrationRecord, where: str, data: Sequence[str | PathLike[str]]) -> tuple[list[StageEvidence], list[str]]:
@@ -302,19 +403,24 @@ def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | 
     return tolerances, [read]
 
 
-def _render(ctx: ReportContext) -> tuple[bytes, int]:
-    """Return the PDF of the report laid out from ``ctx``, and its number of pages."""
+def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes, int]:
+    """Return the PDF of one document laid out from ``ctx`` (the certificate or its technical report), and its number of pages."""
     import stableins
 
-    story = [flowable for section in sections.SECTIONS for flowable in section(ctx)]
+    ctx.shown_notes = set()
+    story = [flowable for section in parts for flowable in section(ctx)]
     buffer = io.BytesIO()
     pages = document.build(
         story,
         buffer,
-        title=TITLE,
+        title=title,
         report_id=ctx.report_id,
         serial=ctx.record.serial_number,
         footer=f"stableins {stableins.__version__}  ·  issued {ctx.issued}  ·  not to be reproduced except in full",
         subject=f"Accelerometer calibration of unit {ctx.record.serial_number}",
+        marks=document.PageMarks(
+            watermark="DRAFT" if any(not ctx.identification.get(k) for k in IDENTIFICATION) else "",
+            banner="SIMULATED DATA: not a calibration of a physical unit" if ctx.simulated else "",
+        ),
     )
     return buffer.getvalue(), pages

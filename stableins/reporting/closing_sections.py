@@ -84,7 +84,8 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [*heading("10  Statement of conformity", room_mm=50)]
     t = ctx.tolerances
     if t.empty:
-        out.append(paragraph(escape(content.NO_STATEMENT).replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
+        text = escape(content.no_statement_text(t.source))
+        out.append(paragraph(text.replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
         return out
     verdict = content.overall_verdict(ctx.checks)
     colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
@@ -121,21 +122,14 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
 
 # ---------------------------------------------------------------------- 12 notes
 def closing(ctx: ReportContext) -> list[Flowable]:
-    """Return section 12: the notes of the record not shown before, and the signatures."""
-    out: list[Flowable] = [*heading("12  Notes and authorization", room_mm=45)]
+    """Return section 12: the notes of the record not shown before (the certificate carries the signatures)."""
+    out: list[Flowable] = [*heading("12  Notes", room_mm=45)]
     stage_notes = {n for s in ctx.record.stages for n in s.notes} | {f"[{s.name}] {n}" for s in ctx.record.stages for n in s.notes}
     remaining = [n for n in ctx.record.notes if n not in ctx.shown_notes and n not in stage_notes]
     if remaining:
         out.append(document.table([["Notes from the calibration record"]] + [[ctx.text(n)] for n in remaining], [1.0], markup=True))
     else:
         out.append(paragraph("Every note of the calibration record is shown with the stage it belongs to (sections 4 and 7)."))
-    out.append(document.spacer(6))
-    rows = [["", "Name", "Function", "Signature and date"], ["Performed by", "", "", ""], ["Authorized by", "", "", ""]]
-    signature = document.table(rows, [0.18, 0.30, 0.22, 0.30])
-    signature.setStyle(
-        [("ROWBACKGROUNDS", (0, 1), (-1, -1), [None]), ("TOPPADDING", (0, 1), (-1, -1), 14), ("GRID", (0, 0), (-1, -1), 0.4, document.RULE)]
-    )
-    out.append(KeepTogether([paragraph("Persons authorizing the report (ISO/IEC 17025 7.8.2.1 o)", "h2"), signature]))
     out.append(document.spacer(4))
     out.append(paragraph("End of report.", "small"))
     return out

@@ -211,8 +211,8 @@ def conformity(
     checks = _value_checks(rows, tolerances) + _uncertainty_checks(rows, tolerances)
     if tolerances.stability:
         checks += _stability_checks(rows, changes, tolerances)
-    if tolerances.chi2_red_max is not None:
-        checks += _fit_checks(stages, tolerances.chi2_red_max)
+    if tolerances.chi2_interval is not None:
+        checks += _fit_checks(stages, tolerances.chi2_interval)
     return checks
 
 
@@ -267,15 +267,22 @@ def _stability_checks(rows: Sequence[ParameterRow], changes: Sequence[ChangeRow]
     return checks
 
 
-def _fit_checks(stages: Sequence[StageEvidence], chi2_red_max: float) -> list[Check]:
-    """Return the checks of each stage's ``χ²_ν`` against ``[tolerances.fit] chi2_red_max``."""
+def _fit_checks(stages: Sequence[StageEvidence], interval: float) -> list[Check]:
+    """Return the checks of each fit's ``χ²_ν`` against the upper end of its central ``interval`` for noise alone.
+
+    The limit is :meth:`StageEvidence.chi2_red_interval` — the χ² distribution with the fit's ν, the interval the
+    evidence of fit states — so a good fit fails with probability (1 − interval)/2 whatever ν.
+    """
     checks: list[Check] = []
     if not stages:
-        checks.append(Check(CheckKind.FIT, "χ²_ν", math.nan, math.nan, chi2_red_max, "", Verdict.NOT_ASSESSED, "no residual evidence"))
+        checks.append(Check(CheckKind.FIT, "χ²_ν", math.nan, math.nan, math.nan, "", Verdict.NOT_ASSESSED, "no residual evidence"))
     for stage in stages:
-        value = stage.chi2_red
-        verdict = Verdict.PASS if value <= chi2_red_max else Verdict.FAIL
-        checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", value, math.nan, chi2_red_max, "", verdict))
+        if stage.dof <= 0:
+            checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", math.nan, math.nan, math.nan, "", Verdict.NOT_ASSESSED, "ν = 0"))
+            continue
+        value, limit = stage.chi2_red, stage.chi2_red_interval(interval)[1]
+        verdict = Verdict.PASS if value <= limit else Verdict.FAIL
+        checks.append(Check(CheckKind.FIT, f"χ²_ν ({stage.stage})", value, math.nan, limit, "", verdict))
     return checks
 
 
@@ -288,7 +295,11 @@ CHECK_KINDS = {
 }
 VERDICTS = tuple(Verdict)
 CONFORMITY_HEADER = ("Check", "Subject", "Measured |x|", "U", "Limit T", "Unit", "Result")
-NO_STATEMENT = "No statement of conformity: the procedure defines no tolerances ([tolerances] table absent), so none is made."
+NO_STATEMENT = (
+    "No statement of conformity: no procedure of this calibration defines tolerances ([tolerances] table) and none were given, "
+    "so none is made."
+)
+NOT_ASKED = "No statement of conformity: none was asked for."
 
 
 def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tuple[str, str, str, str, str, str, str]:
@@ -320,14 +331,24 @@ def conformity_counts(checks: Sequence[Check]) -> str:
     return ", ".join(f"{n} {v}" for v in VERDICTS if (n := sum(1 for c in checks if c.verdict == v)))
 
 
-def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR) -> list[str]:
+def no_statement_text(reason: str) -> str:
+    """Return why a certificate makes no statement of conformity: none asked for, or no tolerances defined."""
+    return NOT_ASKED if reason == NO_STATEMENT_ASKED else NO_STATEMENT
+
+
+#: The source of the empty tolerances of a certificate whose statement of conformity was not asked for.
+NO_STATEMENT_ASKED = "no statement asked for"
+
+
+def conformity_text(checks: Sequence[Check], *, assessed: bool, coverage_factor: float = COVERAGE_FACTOR, reason: str = "") -> list[str]:
     """Return the statement of conformity in plain text, with the certificate's words and numbers.
 
     The verdict, the counts, and every check that did not pass (its row of the certificate's table).
-    ``assessed``: tolerances were given.
+    ``assessed``: tolerances were given; ``reason``: the source of the tolerances (:data:`NO_STATEMENT_ASKED` when none
+    was asked for).
     """
     if not assessed:
-        return [NO_STATEMENT]
+        return [no_statement_text(reason)]
     lines = [f"Verdict: {overall_verdict(checks)} ({conformity_counts(checks)})"]
     for check in checks:
         if check.verdict != Verdict.PASS:
@@ -362,6 +383,9 @@ def noise_text(document: Mapping[str, Any]) -> str:
         shown = f"{np.max(values):.2g}" if np.allclose(values, np.max(values), rtol=0.02) else "/".join(f"{v:.2g}" for v in values)
         return f"{shown} {unit_text(unit).replace('sqrt(Hz)', '√Hz').replace('sqrt(s)', '√s')}"
 
+    def scale_of(name: str) -> float:
+        return float(ENGINEERING[name][1])
+
     white = f"white noise measured in the dwells: {amount('white')}"
     slow = ("bias_instability", "random_walk")
     names = {"bias_instability": "bias instability", "random_walk": "random walk"}
@@ -371,6 +395,12 @@ def noise_text(document: Mapping[str, Any]) -> str:
     if model.source is NoiseSource.NONE:
         return f"{white}; slow noise not given and not bounded"
     where = "in a static record" if model.source is NoiseSource.STATIC_RECORD else "in the dwells"
+    if model.test is not None and not model.test.detected:  # the console's words: not detected, and the upper limit the data allow
+        upper = model.limits("bias_instability")[1]
+        bound = (
+            f"up to {float(np.max(upper)) / scale_of('bias_instability'):.2g} µg, in U" if np.all(np.isfinite(upper)) else "not bounded"
+        )
+        return f"{white}; slow noise not detected {where} (bias instability {bound}; random walk not bounded)"
     measured = [f"{names[n]} measured {where}: {amount(n)}" for n in slow]
     return "; ".join([white, *measured])
 

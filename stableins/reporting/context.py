@@ -58,6 +58,12 @@ class ReportContext:
     discovery: DiagnoseReport | None = None
     discovery_source: str = "calibration record"
     shown_notes: set[str] = field(default_factory=set)
+    #: laboratory, customer, operator ("" where not stated: the documents are a DRAFT)
+    identification: dict[str, str] = field(default_factory=dict)
+    #: made from simulated data (every page says so)
+    simulated: bool = False
+    #: the technical report, named with its SHA-256 by the certificate (None while it is itself laid out)
+    technical: InputFile | None = None
 
     def figure_label(self) -> str:
         """Return "Figure n.", n counting the figures in the order they are laid out."""

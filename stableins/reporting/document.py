@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from reportlab.lib import colors
@@ -267,7 +268,65 @@ class NumberedCanvas(canvas_module.Canvas):
         self.setFillColor(colors.black)
         self.setFont(FONT_BOLD, 8)
         self.drawRightString(PAGE_WIDTH - MARGIN, bottom, f"page {self._pageNumber} of {total}")
+        if f.get("banner"):  # simulated data: said on every page, between the header rule and the text
+            self.setFillColor(VERDICT_COLOURS["fail"])
+            self.setFont(FONT_BOLD, 7.5)
+            self.drawCentredString(PAGE_WIDTH / 2, top - 5.5 * mm, f["banner"])
+        if f.get("watermark"):
+            self.setFillColor(colors.Color(0.75, 0.2, 0.2, alpha=0.16))
+            self.translate(PAGE_WIDTH / 2, PAGE_HEIGHT / 2)
+            self.rotate(55)
+            self.drawPath(_outline(self, f["watermark"], 110), stroke=0, fill=1)
         self.restoreState()
+
+
+@dataclass(frozen=True)
+class PageMarks:
+    """What every page of a document says beyond its furniture: a watermark across it, a banner under its header."""
+
+    watermark: str = ""
+    banner: str = ""
+
+
+def _outline(canvas: Any, text: str, size: float) -> Any:
+    """Return ``text`` in bold as a filled outline centred on the origin.
+
+    A watermark drawn as shapes, not as text, never mixes into the text layer a reader (or pdftotext) extracts.
+    """
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.path import Path as MplPath
+    from matplotlib.textpath import TextPath
+
+    glyphs = TextPath((0, 0), text, size=size, prop=FontProperties(family="DejaVu Sans", weight="bold"))
+    box = glyphs.get_extents()
+    dx, dy = -(box.x0 + box.x1) / 2, -(box.y0 + box.y1) / 2
+    path = canvas.beginPath()
+    vertices, codes = glyphs.vertices + (dx, dy), glyphs.codes
+    i, start, here = 0, (0.0, 0.0), (0.0, 0.0)
+    while i < len(codes):
+        code = codes[i]
+        if code == MplPath.MOVETO:
+            start = here = (float(vertices[i][0]), float(vertices[i][1]))
+            path.moveTo(*start)
+            i += 1
+        elif code == MplPath.LINETO:
+            here = (float(vertices[i][0]), float(vertices[i][1]))
+            path.lineTo(*here)
+            i += 1
+        elif code == MplPath.CURVE3:  # quadratic Bézier as the equivalent cubic
+            (x0, y0), (cx, cy), (x1, y1) = here, vertices[i], vertices[i + 1]
+            path.curveTo(x0 + 2 / 3 * (cx - x0), y0 + 2 / 3 * (cy - y0), x1 + 2 / 3 * (cx - x1), y1 + 2 / 3 * (cy - y1), x1, y1)
+            here = (float(x1), float(y1))
+            i += 2
+        elif code == MplPath.CURVE4:
+            path.curveTo(*vertices[i], *vertices[i + 1], *vertices[i + 2])
+            here = (float(vertices[i + 2][0]), float(vertices[i + 2][1]))
+            i += 3
+        else:  # CLOSEPOLY, STOP
+            path.close()
+            here = start
+            i += 1
+    return path
 
 
 class FloatingDocTemplate(BaseDocTemplate):
@@ -301,8 +360,22 @@ class FloatingDocTemplate(BaseDocTemplate):
         return height + flowable.getSpaceBefore() + flowable.getSpaceAfter() <= room
 
 
-def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial: str, footer: str, subject: str = "") -> int:
-    """Lay out ``story`` into ``out`` (a path or binary file object); returns the page count."""
+def build(
+    story: list[Flowable],
+    out: Any,
+    *,
+    title: str,
+    report_id: str,
+    serial: str,
+    footer: str,
+    subject: str = "",
+    marks: PageMarks | None = None,
+) -> int:
+    """Lay out ``story`` into ``out`` (a path or binary file object); returns the page count.
+
+    ``marks``: a watermark across every page (a DRAFT) and a line under the header of every page (simulated data).
+    """
+    marks = marks or PageMarks()
     register_fonts()
     doc = FloatingDocTemplate(
         out,
@@ -321,6 +394,7 @@ def build(story: list[Flowable], out: Any, *, title: str, report_id: str, serial
     )
     doc.addPageTemplates([PageTemplate(id="page", frames=[frame])])
     furniture = {"title": title, "report_id": report_id, "serial": serial, "footer": footer}
+    furniture |= {"watermark": marks.watermark, "banner": marks.banner}
     canvas_class = type("ReportCanvas", (NumberedCanvas,), {"furniture": furniture})
     doc.build(story, canvasmaker=canvas_class)
     return doc.page

@@ -19,10 +19,10 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
     extra = r.site.extra if r.site else {}
 
     def field_text(key: str, default: str) -> str:
-        return entry_text(r, key) or str(extra.get(key, default))
+        return ctx.identification.get(key) or entry_text(r, key) or str(extra.get(key, default))
 
     rows = [
-        ["Report id", ctx.report_id],
+        ["Technical report of", f"calibration certificate {ctx.report_id}"],
         ["Item calibrated", f"tri-axis accelerometer of a space-stable (gimbaled) INS, unit serial number {r.serial_number}"],
         ["Laboratory", field_text("laboratory", NOT_RECORDED)],
         ["Customer", field_text("customer", NOT_RECORDED)],
@@ -37,9 +37,22 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
             f"(record schema {r.schema_version})",
         ],
     ]
-    return [
-        paragraph("Calibration certificate", "title"),
-        paragraph("On-system calibration of the tri-axis accelerometer of a space-stable inertial navigation system", "subtitle"),
+    out = [
+        paragraph("Technical report", "title"),
+        paragraph(
+            f"Evidence and derivations behind calibration certificate {escape(ctx.report_id)}: the certificate states the results "
+            "and conformity; every number here that it states is the same number",
+            "subtitle",
+        ),
+    ]
+    if ctx.simulated:
+        out.append(
+            paragraph(
+                f'<font color="{document.VERDICT_COLOURS["fail"].hexval()}"><b>Simulated data</b>: produced by the stableins truth '
+                "simulator; the results describe a simulated unit, not a physical one.</font>"
+            )
+        )
+    return out + [
         document.table(rows, [0.24, 0.76], header_rows=0, key_value=True),
         document.spacer(2),
         paragraph(

@@ -119,12 +119,13 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
             + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
             + [r.u, r.expanded]
         )
-    widths = [0.12, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.08, 0.10, 0.12]
-    out.append(document.table(rows, widths, align_right=tuple(range(2, 10)), markup=True))
+    widths = [0.11, 0.08, 0.09, 0.08, 0.09, 0.07, 0.09, 0.07, 0.09, 0.12, 0.11]
+    out.append(document.table(rows, widths, align_right=tuple(range(2, 11)), markup=True))
     not_evaluated = [TITLES[s.group] for s in budget.sources if s.state == "not evaluated"]
     text = (
         "Standard uncertainties in the unit of each parameter, given to the decimal place of u<sub>c</sub> (a contribution below "
-        "it shows as 0). Columns: local gravity g, gimbal angle sensors, instrument temperature (temp.), gyro drift, damping loop; "
+        "it shows as 0). Columns: local gravity g, gimbal angle sensors, instrument temperature (temp.), gyro drift, damping loop, "
+        "slow noise the dwells allow but do not resolve; "
         "—: the input does not apply to this record or is stated as a condition of validity (see the inputs above)."
     )
     if not_evaluated:

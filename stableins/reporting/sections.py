@@ -17,6 +17,7 @@ from reportlab.platypus import Flowable
 
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.reporting import content, document, figures, rounding
+from stableins.reporting.certificate_sections import CERTIFICATE_SECTIONS  # noqa: F401 - the certificate, beside its technical report
 from stableins.reporting.closing_sections import change, closing, conformity
 from stableins.reporting.context import ReportContext
 from stableins.reporting.context import file_name as _name
@@ -216,7 +217,8 @@ def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
 
 
 
-SECTIONS = (
+#: The technical report: everything behind the certificate's numbers, section by section.
+TECHNICAL_SECTIONS = (
     title_block,
     method,
     site_environment,

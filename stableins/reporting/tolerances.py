@@ -20,7 +20,9 @@ A procedure TOML may carry a ``[tolerances]`` table (schema proposal, see
     "bias_*" = 100.0
 
     [tolerances.fit]
-    chi2_red_max = 2.0          # the model must explain the data to this level
+    interval = 0.95             # each fit's χ²_ν must not exceed the upper end of its central 95 % interval
+                                # for noise alone (χ² distribution with the fit's ν): one criterion, the one
+                                # the evidence of fit states
 
 Keys are parameter ids or shell-style patterns (``fnmatch``); an exact id wins over a
 pattern, then the longest pattern.
@@ -39,7 +41,9 @@ measured ``|x|``, expanded uncertainty ``U``):
   **fail** ``|x| > T + U``.
 
 Uncertainty limits compare the stated ``U`` itself (no measurement of ``U``, so no guard
-band); χ²_ν is compared with its maximum directly.
+band); χ²_ν is compared with the upper end of its interval for noise alone, whose probability of failing a
+good fit is (1 − interval)/2 whatever ν (a fixed χ²_ν ≤ 2.0 would fail about 6 % of good fits with ν = 6 and
+none with ν = 1000).
 """
 
 from __future__ import annotations
@@ -99,13 +103,13 @@ class Tolerances:
     limits: Mapping[str, float] = field(default_factory=dict)
     uncertainty: Mapping[str, float] = field(default_factory=dict)
     stability: Mapping[str, float] = field(default_factory=dict)
-    chi2_red_max: float | None = None
+    chi2_interval: float | None = None
     source: str = ""
 
     @property
     def empty(self) -> bool:
-        """Return whether no tolerance is set (no limits, uncertainty or stability limits and no χ² limit)."""
-        return not (self.limits or self.uncertainty or self.stability or self.chi2_red_max is not None)
+        """Return whether no tolerance is set (no limits, uncertainty or stability limits and no χ² criterion)."""
+        return not (self.limits or self.uncertainty or self.stability or self.chi2_interval is not None)
 
     @classmethod
     def from_mapping(cls, table: Any, source: str = "procedure") -> Tolerances:
@@ -125,16 +129,26 @@ class Tolerances:
             )
         k = _positive(table.get("coverage_factor", 2.0), source, "tolerances.coverage_factor")
         fit = table.get("fit", {})
-        if not isinstance(fit, Mapping) or set(fit) - {"chi2_red_max"}:
-            raise InputError("[tolerances.fit] takes only chi2_red_max", path=source, field="tolerances.fit")
-        chi2_max = fit.get("chi2_red_max")
+        if isinstance(fit, Mapping) and "chi2_red_max" in fit:
+            raise InputError(
+                "chi2_red_max is replaced by interval: a fixed maximum of χ²_ν fails a share of good fits that depends on ν",
+                path=source,
+                field="tolerances.fit.chi2_red_max",
+                expected="interval = 0.95 (each fit's χ²_ν within the upper end of its interval for noise alone)",
+            )
+        if not isinstance(fit, Mapping) or set(fit) - {"interval"}:
+            raise InputError("[tolerances.fit] takes only interval", path=source, field="tolerances.fit")
+        interval = fit.get("interval")
+        if interval is not None and not (isinstance(interval, float) and 0.5 <= interval < 1.0):
+            expected = "a number from 0.5 to 1, e.g. 0.95"
+            raise InputError(f"not a probability: {interval!r}", path=source, field="tolerances.fit.interval", expected=expected)
         return cls(
             decision_rule=DecisionRule(rule),
             coverage_factor=k,
             limits=_limits(table.get("limits", {}), source, "limits"),
             uncertainty=_limits(table.get("uncertainty", {}), source, "uncertainty"),
             stability=_limits(table.get("stability", {}), source, "stability"),
-            chi2_red_max=None if chi2_max is None else _positive(chi2_max, source, "tolerances.fit.chi2_red_max"),
+            chi2_interval=interval,
             source=source,
         )
 
