@@ -278,7 +278,8 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
         if fit is None
         else {
             "source": fit.source.name.lower(),
-            "detected": fit.detected,
+            "detected": fit.data_detected,
+            "used_in_sigma": fit.detected,
             "likelihood_ratio": fit.statistic,
             "p_value": fit.p_value,
             "false_positive_rate": fit.alpha,

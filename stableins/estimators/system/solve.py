@@ -45,7 +45,7 @@ from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, 
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, GROWTH_LIMIT, Separation, separate, without_growth
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
-from stableins.estimators.system.whittle import ColouredNoiseFit
+from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:
@@ -311,6 +311,8 @@ def decide_noise(
     cov_v = cov_v + coloured
     if fit is not None:
         note = coloured_note(fit, units, white_x2, gravity)
+        if fit.source is ColouredSource.CONTRADICTED:
+            warnings.warn(f"{path}: {note}", UserWarning, stacklevel=3)
     else:
         note = (
             "the record is too short for the low-frequency noise model (fewer than 16 bins of "
