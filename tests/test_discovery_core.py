@@ -375,3 +375,25 @@ def test_residual_signature_says_where_the_residual_lives():
     assert signature.earth_harmonics[0].harmonic == 2
     assert ResidualSignature.from_json(json.loads(json.dumps(signature.to_json()))) == signature
     assert any("2× inner angle on f_x" in line for line in signature.lines())
+
+
+def test_a_candidate_that_leaves_another_significant_is_not_named():
+    """Two effects: the larger brings χ² into its band, but the other is still significant once it is added: not named."""
+    rng = np.random.default_rng(8)
+    m = 120
+    x = np.linspace(-1, 1, m)
+    columns = {"a": np.ones(m), "b": x, "c": x**2, "cubic": x**3, "step": (x > 0.3).astype(float)}
+    terms = {k: Term(k, "additive", "1", "1", 1.0, 0.01, k, regressor=lambda i: i.specific_force) for k in columns}
+    model = ErrorModel((terms["a"], terms["b"], terms["c"]))
+    y = 1.0 + 0.5 * x + 0.05 * x**3 + 0.02 * columns["step"] + rng.normal(0, 0.01, m)
+    problem = LinearProblem(y, 0.01, columns)
+    ranking = rank(problem, problem.fit(model), [terms["cubic"], terms["step"]], refit_top=2)
+    best = ranking.best
+    assert best.id == "cubic" and best.chi2_red_with < 1.3  # in its band on its own ...
+    assert best.leaves == ("step",) and not best.explains and not best.flagged  # ... but the step is still there
+    assert ranking.outside_library and "step still significant" in ranking.report()
+    library = Library()
+    for name in ("cubic", "step"):
+        library.register(terms[name])
+    session = Discovery(problem, model, library=library)
+    assert [s.label for s in session.auto(max_steps=3).steps] == ["standard model", "+ cubic", "+ step"]  # the greedy loop

@@ -129,7 +129,11 @@ class Ranking:
             if c.confused_with:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
             if c.identifiable and c.p_value < self.alpha / self.n_tested and not c.explains:
-                ident += f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
+                ident += (
+                    f"; significant, but with it {', '.join(c.leaves)} still significant: not named"
+                    if c.leaves
+                    else f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
+                )
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
                 f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
@@ -401,12 +405,44 @@ def rank(
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
     flagged = []
+    index = {t.id: k for k, t in enumerate(terms)}
     for c in scores:
         after, explained = explains(rss0, c.statistic, nu) if c.identifiable else (float("nan"), False)
         significant = bool(c.identifiable and c.p_value < alpha / n_tested)
-        named = {"flagged": significant and explained, "chi2_red_with": after, "explains": explained}
-        flagged.append(CandidateScore(**{**c.__dict__, **named}))
+        remaining: tuple[int, ...] = ()
+        if significant and explained:
+            remaining = _still_significant(index[c.id], z_perp, r, identifiable, nu=nu, level=alpha / n_tested)
+        alone = explained and not remaining
+        named = {"flagged": significant and alone, "chi2_red_with": after, "explains": alone}
+        flagged.append(CandidateScore(**{**c.__dict__, **named, "leaves": tuple(terms[j].id for j in remaining)}))
     return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
+
+
+def _still_significant(
+    k: int, z_perp: NDArray[np.float64], r: NDArray[np.float64], identifiable: NDArray[np.bool_], *, nu: int, level: float
+) -> tuple[int, ...]:
+    r"""Return the candidates still significant once candidate ``k`` is added: then ``k`` alone does not explain the residual.
+
+    One Gauss–Newton step: with ``u = z⊥_k/‖z⊥_k‖`` the residual becomes ``r' = r − u uᵀr`` and each other column
+    ``z'_j = z⊥_j − u uᵀz⊥_j``; ``ΔRSS_j = (z'_jᵀr')²/‖z'_j‖²`` against ``F(1, ν − 2)``, significant below the same
+    Bonferroni level.  A column ``k`` takes (nearly) whole (``‖z'_j‖ < 1e-3 ‖z⊥_j‖``: indistinguishable) is skipped.
+    """
+    from scipy import stats
+
+    u = z_perp[:, k] / np.linalg.norm(z_perp[:, k])
+    rest = r - u * float(u @ r)
+    columns = z_perp - np.outer(u, u @ z_perp)
+    norms = np.linalg.norm(columns, axis=0)
+    rss1 = float(rest @ rest)
+    dof = max(nu - 2, 1)
+    out = []
+    for j in np.flatnonzero(identifiable):
+        if j == k or norms[j] < 1e-3 * max(float(np.linalg.norm(z_perp[:, j])), 1e-300):
+            continue
+        delta = float(columns[:, j] @ rest) ** 2 / norms[j] ** 2
+        if float(stats.f.sf(delta / max((rss1 - delta) / dof, 1e-300), 1, dof)) < level:
+            out.append(int(j))
+    return tuple(out)
 
 
 

@@ -71,7 +71,10 @@ class CandidateScore:
     chi2_red_with : float
         ``χ²_ν`` of the fit with the effect added: ``(χ² − ΔRSS)/(ν − 1)`` (NaN when not identifiable).
     explains : bool
-        Whether adding the effect brings ``χ²_ν`` into its 95 % band (:data:`EXPLAINED_BAND`, :func:`explains`).
+        Whether the effect alone explains the residual: adding it brings ``χ²_ν`` into its 95 % band
+        (:data:`EXPLAINED_BAND`, :func:`explains`) and leaves no other candidate significant (``leaves`` empty).
+    leaves : tuple of str
+        The candidates still significant once this one is added (the residual is not this effect alone).
     """
 
     id: str
@@ -93,6 +96,7 @@ class CandidateScore:
     flagged: bool = False
     chi2_red_with: float = float("nan")
     explains: bool = False
+    leaves: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         from stableins.display import number, unit_text, value_sigma
@@ -145,6 +149,7 @@ class CandidateScore:
             "flagged": self.flagged,
             "chi2_red_with": _finite(self.chi2_red_with),
             "explains": self.explains,
+            "leaves": list(self.leaves),
             "advice": self.advice,
         }
 
