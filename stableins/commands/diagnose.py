@@ -189,7 +189,6 @@ def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
     command = ["stableins", "calibrate", "device", *data, *noise_arguments(args)]
     command += [item for effect in (*step.keep, step.effect) for item in ("--add", effect)] + ["--out", str(out)]
     confused = f"; with these data it is indistinguishable from {', '.join(step.confused_with)}" if step.confused_with else ""
-    confused += f"; {step.reason}, which the next diagnosis tests" if step.reason else ""
     return [
         f"next: carry {step.effect} into the calibration (it is tested again there and kept only if the data show it{confused}):",
         f"  {shlex.join(command)}",

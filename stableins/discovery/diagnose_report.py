@@ -94,8 +94,7 @@ class NextStep:
         The best flagged effect (None for :attr:`NextAction.CERTIFY`).
     reason : str
         :attr:`NextAction.INSPECT`: why a calibration does not carry the effect; :attr:`NextAction.OUTSIDE`: why the
-        residual is outside the library; :attr:`NextAction.CERTIFY`: a residual below the noise floor, said;
-        :attr:`NextAction.CARRY`: the other effect it explains the residual with, when it does not alone.
+        residual is outside the library; :attr:`NextAction.CERTIFY`: a residual below the noise floor, said.
     confused_with : tuple of str
         :attr:`NextAction.CARRY`: candidates the data cannot tell from the effect.
     keep : tuple of str
@@ -265,8 +264,7 @@ class DiagnoseReport:
         if self.stage is DiagnoseStage.SYSTEM:
             return NextStep(NextAction.INSPECT, best.id, reason="the system stage does not estimate added effects")
         keep = tuple(i for i in self.history[0].model_ids if i in LIBRARY)  # the discovered effects of the model in force
-        together = f"with {', '.join(best.explains_with)} it brings χ²_ν into its band" if best.explains_with else ""
-        return NextStep(NextAction.CARRY, best.id, reason=together, confused_with=best.confused_with, keep=keep)
+        return NextStep(NextAction.CARRY, best.id, confused_with=best.confused_with, keep=keep)
 
     # ------------------------------------------------------------------ the document
     def to_json(self) -> dict[str, Any]:

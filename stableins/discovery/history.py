@@ -491,10 +491,21 @@ class Discovery:
         return self.result
 
     def auto(self, max_steps: int = 5) -> History:
-        """Add the best flagged, identifiable candidate until none is flagged (or ``max_steps``)."""
+        """Add candidates one at a time, greedily, until χ² is in its band and nothing is flagged (or ``max_steps``).
+
+        Each step adds the best candidate if it is flagged (significant and explaining the residual alone), or, while
+        χ² rejects the model (:attr:`Ranking.outside_library`), if it is significant (F-test p below the Bonferroni
+        level): two effects present at once explain the residual only together.  Greedy: with an effect outside the
+        library the steps add the library effects that take part of it; the last step's χ²_ν says whether the
+        model reached its band (:meth:`History.report`).
+        """
         for _ in range(max_steps):
-            best = self.rank(refit_top=1, propose=False).best
-            if best is None or not best.flagged:
+            ranking = self.rank(refit_top=1, propose=False)
+            best = ranking.best
+            if best is None:
+                break
+            significant = best.identifiable and best.p_value < ranking.alpha / ranking.n_tested
+            if not (best.flagged or (ranking.outside_library and significant)):
                 break
             self.add(best.term)
         return self.history

@@ -128,10 +128,12 @@ class Ranking:
             ident = "yes" if c.identifiable else ("not excited" if not c.excited else "NO: aliases " + c.alias_text(model))
             if c.confused_with:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
-            if c.explains_with:
-                ident += f"; explains the residual with {', '.join(c.explains_with)} (neither does alone)"
             if c.identifiable and c.p_value < self.alpha / self.n_tested and not c.explains:
-                ident += f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
+                ident += (
+                    f"; significant, but with it {', '.join(c.leaves)} still significant: not named"
+                    if c.leaves
+                    else f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
+                )
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
                 f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
@@ -191,8 +193,6 @@ class Ranking:
         from stableins.display import unit_text, value_sigma
 
         found = f"{best.id} = {value_sigma(value, sigma, unit_text(best.term.unit))} (p = {best.p_value:.2g})"
-        if best.explains_with:
-            found += f", which with {', '.join(best.explains_with)} brings χ²_ν into its band (add it first)"
         if best.confused_with:
             advice = best.advice.removeprefix("confirm with ")
             return f"{found} cannot be told from {', '.join(best.confused_with)} with these data; to separate them: {advice}"
@@ -405,54 +405,45 @@ def rank(
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
     flagged = []
+    index = {t.id: k for k, t in enumerate(terms)}
     for c in scores:
         after, explained = explains(rss0, c.statistic, nu) if c.identifiable else (float("nan"), False)
         significant = bool(c.identifiable and c.p_value < alpha / n_tested)
-        named = {"flagged": significant and explained, "chi2_red_with": after, "explains": explained}
-        flagged.append(CandidateScore(**{**c.__dict__, **named}))
-    if not any(c.flagged for c in flagged):
-        flagged = _pairs(flagged, {t.id: k for k, t in enumerate(terms)}, z_perp, r, nu=nu, level=alpha / n_tested)
+        remaining: tuple[int, ...] = ()
+        if significant and explained:
+            remaining = _still_significant(index[c.id], z_perp, r, identifiable, nu=nu, level=alpha / n_tested)
+        alone = explained and not remaining
+        named = {"flagged": significant and alone, "chi2_red_with": after, "explains": alone}
+        flagged.append(CandidateScore(**{**c.__dict__, **named, "leaves": tuple(terms[j].id for j in remaining)}))
     return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
 
 
-#: Significant candidates tried as the first of a pair (:func:`_pairs`).
-PAIR_FIRST = 3
+def _still_significant(
+    k: int, z_perp: NDArray[np.float64], r: NDArray[np.float64], identifiable: NDArray[np.bool_], *, nu: int, level: float
+) -> tuple[int, ...]:
+    r"""Return the candidates still significant once candidate ``k`` is added: then ``k`` alone does not explain the residual.
 
-
-def _pairs(
-    scores: list[CandidateScore], column: dict[str, int], z_perp: NDArray[np.float64], r: NDArray[np.float64], *, nu: int, level: float
-) -> list[CandidateScore]:
-    r"""Name the best significant candidate that, with one other candidate, brings χ² into its 95 % band.
-
-    Two effects present at once: neither alone explains the residual, the two together do.  For the ``PAIR_FIRST``
-    best significant candidates ``i`` (F-test p below the Bonferroni level) and every other identifiable ``j``, the fall
-    of χ² on adding both is the projection of the whitened residual on their unabsorbed columns,
-    ``ΔRSS_ij = ‖P_{[z⊥_i, z⊥_j]} r‖²`` (one Gauss–Newton step).  ``i`` is named (flagged, ``explains_with = (j,)``)
-    when ``χ² − ΔRSS_ij ≤ χ²_{0.975}(ν − 2)`` and ``j`` is significant once ``i`` is in the model (``F(1, ν − 2)`` of
-    ``ΔRSS_ij − ΔRSS_i`` below the same level).  The first named is the one to add first; the next ranking names the second.
+    One Gauss–Newton step: with ``u = z⊥_k/‖z⊥_k‖`` the residual becomes ``r' = r − u uᵀr`` and each other column
+    ``z'_j = z⊥_j − u uᵀz⊥_j``; ``ΔRSS_j = (z'_jᵀr')²/‖z'_j‖²`` against ``F(1, ν − 2)``, significant below the same
+    Bonferroni level.  A column ``k`` takes (nearly) whole (``‖z'_j‖ < 1e-3 ‖z⊥_j‖``: indistinguishable) is skipped.
     """
     from scipy import stats
 
-    from stableins.discovery.scores import band_upper
-
-    rss0 = float(r @ r)
+    u = z_perp[:, k] / np.linalg.norm(z_perp[:, k])
+    rest = r - u * float(u @ r)
+    columns = z_perp - np.outer(u, u @ z_perp)
+    norms = np.linalg.norm(columns, axis=0)
+    rss1 = float(rest @ rest)
     dof = max(nu - 2, 1)
-    for first in [c for c in scores if c.identifiable and c.p_value < level][:PAIR_FIRST]:
-        single = float(r @ z_perp[:, column[first.id]]) ** 2 / float(z_perp[:, column[first.id]] @ z_perp[:, column[first.id]])
-        best: tuple[float, str] | None = None
-        for other in scores:
-            if other.id == first.id or not other.identifiable:
-                continue
-            pair = z_perp[:, [column[first.id], column[other.id]]]
-            fitted, *_ = np.linalg.lstsq(pair, r, rcond=None)
-            rss2 = rss0 - float(np.sum((pair @ fitted) ** 2))
-            conditional = float(stats.f.sf((rss0 - single - rss2) / max(rss2 / dof, 1e-300), 1, dof))
-            if rss2 / dof <= band_upper(dof) and conditional < level and (best is None or rss2 < best[0]):
-                best = (rss2, other.id)
-        if best is not None:
-            named = CandidateScore(**{**first.__dict__, "flagged": True, "explains": True, "explains_with": (best[1],)})
-            return [named if c.id == first.id else c for c in scores]
-    return scores
+    out = []
+    for j in np.flatnonzero(identifiable):
+        if j == k or norms[j] < 1e-3 * max(float(np.linalg.norm(z_perp[:, j])), 1e-300):
+            continue
+        delta = float(columns[:, j] @ rest) ** 2 / norms[j] ** 2
+        if float(stats.f.sf(delta / max((rss1 - delta) / dof, 1e-300), 1, dof)) < level:
+            out.append(int(j))
+    return tuple(out)
+
 
 
 def _separability(

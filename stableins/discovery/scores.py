@@ -71,11 +71,10 @@ class CandidateScore:
     chi2_red_with : float
         ``χ²_ν`` of the fit with the effect added: ``(χ² − ΔRSS)/(ν − 1)`` (NaN when not identifiable).
     explains : bool
-        Whether adding the effect brings ``χ²_ν`` into its 95 % band (:data:`EXPLAINED_BAND`, :func:`explains`), alone
-        or with the candidates of ``explains_with``.
-    explains_with : tuple of str
-        The other candidate that, added with this one, brings ``χ²_ν`` into its band when neither does alone (two
-        effects present; :func:`stableins.discovery.ranking.rank`); empty when it explains alone.
+        Whether the effect alone explains the residual: adding it brings ``χ²_ν`` into its 95 % band
+        (:data:`EXPLAINED_BAND`, :func:`explains`) and leaves no other candidate significant (``leaves`` empty).
+    leaves : tuple of str
+        The candidates still significant once this one is added (the residual is not this effect alone).
     """
 
     id: str
@@ -97,7 +96,7 @@ class CandidateScore:
     flagged: bool = False
     chi2_red_with: float = float("nan")
     explains: bool = False
-    explains_with: tuple[str, ...] = ()
+    leaves: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         from stableins.display import number, unit_text, value_sigma
@@ -150,7 +149,7 @@ class CandidateScore:
             "flagged": self.flagged,
             "chi2_red_with": _finite(self.chi2_red_with),
             "explains": self.explains,
-            "explains_with": list(self.explains_with),
+            "leaves": list(self.leaves),
             "advice": self.advice,
         }
 

@@ -150,10 +150,10 @@ class CandidateSummary:
     chi2_red_with : float
         ``χ²_ν`` with the effect added (NaN when not identifiable).
     explains : bool
-        Whether adding it brings ``χ²_ν`` into its 95 % band (:func:`stableins.discovery.scores.explains`), alone or
-        with ``explains_with``.
-    explains_with : tuple of str
-        The other candidate it explains the residual with, when neither does alone.
+        Whether it alone explains the residual: adding it brings ``χ²_ν`` into its 95 % band
+        (:func:`stableins.discovery.scores.explains`) and leaves no other candidate significant.
+    leaves : tuple of str
+        The candidates still significant once it is added.
     """
 
     id: str
@@ -175,7 +175,7 @@ class CandidateSummary:
     advice: str
     chi2_red_with: float = math.nan
     explains: bool = False
-    explains_with: tuple[str, ...] = ()
+    leaves: tuple[str, ...] = ()
 
     @classmethod
     def from_ranking(cls, ranking: Ranking) -> tuple[CandidateSummary, ...]:
@@ -205,7 +205,7 @@ class CandidateSummary:
             "flagged": self.flagged,
             "chi2_red_with": finite(self.chi2_red_with),
             "explains": self.explains,
-            "explains_with": list(self.explains_with),
+            "leaves": list(self.leaves),
             "advice": self.advice,
         }
 
@@ -249,7 +249,7 @@ class CandidateSummary:
             # documents written before these keys existed read as they were meant: a flagged candidate explained
             chi2_red_with=r.number(item.get("chi2_red_with"), join(where, "chi2_red_with")),
             explains=r.boolean(item.get("explains", flag("flagged")), join(where, "explains")),
-            explains_with=r.texts(item.get("explains_with", []), join(where, "explains_with")),
+            leaves=r.texts(item.get("leaves", []), join(where, "leaves")),
         )
 
 
