@@ -83,8 +83,8 @@ def dwell_statistics(command: Any, block: SampleBlock) -> tuple[float, float, fl
 
     Returns ``(angle_error, scatter, slope, slope_sigma, excess, axis)``: the largest absolute difference of the
     readings' least-squares line at the dwell's first sample and the command (wrapped to ±π) [rad]; the largest
-    residual standard deviation about the per-axis least-squares line [m/s²]; the slope [m/s² per s] and its 1σ on the axis ``axis`` where ``|b| − 3σ_b``
-    (``excess``) is largest.
+    residual standard deviation about the per-axis least-squares line [m/s²]; the slope [m/s² per s] and its 1σ on
+    the axis ``axis`` where ``|b| − 3σ_b`` (``excess``) is largest.
     """
     n = len(block.time)
     finite = n > 0 and all(np.all(np.isfinite(a)) for a in (block.time, block.specific_force, block.angles, block.temperature))
