@@ -434,7 +434,7 @@ def estimate_gyro_sensitivity(
         residuals=residual * residual_sigma,
         residual_sigma=residual_sigma.copy(),
         residual_labels=residual_labels,
-        rank=int(np.sum([determined[k] for k in range(n)])),
+        rank=rank,  # of the whole design, nuisances included (as the drift test's): ν = slopes − rank everywhere
         singular_values=s,
         null_space=null,
         notes=(gauge,) + notes + ((warning,) if warning is not None else ()),
@@ -505,7 +505,10 @@ def rank_report(
         combo = " ".join(f"{c:+.2f}·{i}" for c, i in zip(v, ids, strict=True) if abs(c) > 1e-3)
         lines.append(f"not observable (the dwells' (1, f^p) do not span R⁴, or a nuisance takes it): {combo}; reported unidentifiable")
     if nuisance:
-        lines.append(f"nuisance parameters of the dwell mode {mode}, estimated with them and marginalized: {', '.join(nuisance)}")
+        lines.append(
+            f"nuisance parameters of the dwell mode {mode}, estimated with them and marginalized (the design's rank and ν count "
+            f"them): {', '.join(nuisance)}"
+        )
     scale_factors = {
         DwellMode.EARTH_RATE: "their scale factors beyond the torquers' (the platform is torqued only at the Earth rate)",
         DwellMode.INERTIAL: "their scale factors (the platform is not torqued within a dwell)",
