@@ -132,6 +132,7 @@ def _arguments() -> argparse.Namespace:
     parser.add_argument("--mode", choices=[m.value for m in DwellMode], default=DwellMode.EARTH_RATE.value)
     parser.add_argument("--torquer", type=float, default=0.0, help="torquer scale-factor error per axis [ppm]")
     parser.add_argument("--end-to-end", type=int, default=0, help="sessions through simulate/calibrate/diagnose (CLI)")
+    parser.add_argument("--start-seed", type=int, default=0, help="first seed of the --end-to-end sessions")
     return parser.parse_args()
 
 
@@ -143,7 +144,7 @@ def main() -> None:
     start = time.time()
     print(f"dwell mode {args.mode}, torquer scale-factor error {args.torquer:g} ppm per axis")
     if args.end_to_end:
-        end_to_end(args.end_to_end, g_true)
+        end_to_end(args.end_to_end, g_true, args.start_seed)
         if not args.seeds:
             return
     if WORLD["mode"] is DwellMode.CAGED:
@@ -220,7 +221,7 @@ def in_gauge(truth: Truth, numbers: np.ndarray) -> np.ndarray:
     return np.concatenate([drift, sensitivity.ravel()])
 
 
-def end_to_end(sessions: int, g_sensitivity: float) -> None:
+def end_to_end(sessions: int, g_sensitivity: float, start: int = 0) -> None:
     """``simulate device`` → ``calibrate device --json`` → ``diagnose`` per seed; exit codes, tracebacks, rms z."""
     from stableins.data.truth import save_truth
 
@@ -228,19 +229,19 @@ def end_to_end(sessions: int, g_sensitivity: float) -> None:
     truth_vector = np.array([WORLD["drift"]] * 3 + [g_sensitivity] * 9)  # °/h, °/h/g
     z_all, codes, tracebacks, warnings = [], [], 0, 0
     print(f"end to end: {sessions} sessions through the command line (the procedures' dwell mode)")
-    for seed in range(sessions):
+    for seed in range(start, start + sessions):
         with tempfile.TemporaryDirectory() as tmp:
             here = Path(tmp)
             truth = world_truth(seed, g_sensitivity)
             save_truth(truth, here / "truth.json")
+            simulate = [*stableins, "simulate", "device", "--truth", str(here / "truth.json"), "--seed", str(seed)]
+            first = subprocess.run([*simulate, "--out", str(here / "sim")], capture_output=True, text=True, check=False)
+            data = [str(p) for p in sorted((here / "sim").glob("device-*.*"))]  # csv or h5 by size (a third pass: h5)
             steps = [
-                [*stableins, "simulate", "device", "--truth", str(here / "truth.json"), "--seed", str(seed), "--out", str(here / "sim")],
-                [*stableins, "calibrate", "device", str(here / "sim/device-coarse.csv"), str(here / "sim/device-fine.h5"),
-                 "--out", str(here / "cal.json"), "--json"],
-                [*stableins, "diagnose", str(here / "sim/device-coarse.csv"), str(here / "sim/device-fine.h5"),
-                 "--record", str(here / "cal.json")],
-            ]  # fmt: skip
-            done = [subprocess.run(step, capture_output=True, text=True, check=False) for step in steps]
+                [*stableins, "calibrate", "device", *data, "--out", str(here / "cal.json"), "--json"],
+                [*stableins, "diagnose", *data, "--record", str(here / "cal.json")],
+            ]
+            done = [first, *(subprocess.run(step, capture_output=True, text=True, check=False) for step in steps)]
             codes.append(tuple(d.returncode for d in done))
             tracebacks += sum("Traceback" in d.stderr for d in done)
             warnings += "gyro stage: warning" in done[1].stderr

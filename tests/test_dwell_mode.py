@@ -169,3 +169,21 @@ def test_run_refuses_a_platform_that_holds_its_dwells_otherwise(tmp_path, capsys
     assert main(["run", str(caged), "--driver", "sim", "--unit", "SN1", "--out", str(tmp_path / "run")]) == 2
     assert "procedure.dwell_mode" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()  # nothing half-written
+
+
+def test_runner_verdict_takes_a_steady_drift_after_arrival_as_reached():
+    """A 600-s dwell whose readings drift 40″ from the command: reached (line at the start), not 'not at the angles'."""
+    from stableins.estimators.layout import DwellChecks
+    from stableins.procedures.verdict import evaluate_dwell
+    from stableins.samples import SampleBlock
+
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 600.0, 0.1)
+    command = np.array([0.3, 0.2, -0.1])
+    angles = command + np.outer(t, [40 * ARCSEC / 600, -20 * ARCSEC / 600, 0.0]) + 0.2 * ARCSEC * rng.standard_normal((t.size, 3))
+    force = np.array([0.0, 0.0, -9.8]) + 4.5e-4 * rng.standard_normal((t.size, 3))
+    block = SampleBlock(t, force, angles, np.full(t.size, 25.0))
+    verdict = evaluate_dwell(command, block, DwellChecks(), 600.0, 10.0)
+    assert verdict.accepted and verdict.angle_error < 0.1 * ARCSEC
+    late = SampleBlock(t, force, angles + 30 * ARCSEC, block.temperature)  # never arrived
+    assert not evaluate_dwell(command, late, DwellChecks(), 600.0, 10.0).accepted

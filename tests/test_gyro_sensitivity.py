@@ -75,7 +75,8 @@ def test_twelve_numbers_recovered_from_wu_forward_and_back():
     assert details.flagged and len(details.dwells_used) == 27 and len(details.left_out) == 8  # inner at 90°: gimbal lock
     assert abs(details.chi2 / details.dof - 1) < 4 * np.sqrt(2 / details.dof)
     assert np.allclose(details.angle_noise, 0.2 * ARCSEC, rtol=0.05)  # the measured noise model
-    assert fit.rank == 12 and all(s is Status.ESTIMATED for s in fit.status)
+    assert fit.rank == 15 and all(s is Status.ESTIMATED for s in fit.status)  # 12 + the 3 torquer nuisances
+    assert fit.dof == details.dof and fit.chi2_red == pytest.approx(details.chi2 / details.dof)  # one ν everywhere
     assert fit.likelihood is not None and fit.likelihood.rank() == 12
     text = report(fit)
     assert "Dg_xz" in text and "°/h/g" in text and "FLAGGED" in text and "12 of 12" in text

@@ -2,24 +2,45 @@ r"""Gyro drift and the full gyro g-sensitivity from the angle-reading slopes wit
 
 Observation equation (derived here; Cai et al. 2016 Eq. 1 is the gyro model, not this estimator)
 ------------------------------------------------------------------------------------------------
-A stabilised platform whose gyro about platform axis ``a`` reads ``ε_a + Σ_b Dg_ab f^p_b`` too much turns at
-``w = −(ε^p + D_g f^p)`` while it holds a position (:func:`stableins.conventions.platform_drift_rate`).  The angle
-sensors measure the actual gimbal angles, so the turn is in the readings: with the exact gimbal-rate map
+How the platform is held during a dwell is the data's :class:`~stableins.dwell_mode.DwellMode` (docs/conventions.md,
+"The platform during a dwell"; :func:`stableins.conventions.dwell_platform_rate`).  A stabilised platform whose gyro
+about platform axis ``a`` reads ``ε_a + Σ_b Dg_ab f^p_b`` too much turns relative to the base at
+
+.. math::
+    \omega_{bp}^p = w + k \circ \omega_{ie}^p \ \text{(torqued at the Earth rate)}, \qquad
+    \omega_{bp}^p = w - \omega_{ie}^p \ \text{(inertially held)}, \qquad w = -(\varepsilon^p + D_g f^p)
+
+(:func:`stableins.conventions.platform_drift_rate`; ``k`` the torquers' scale-factor errors).  The angle sensors
+measure the actual gimbal angles, so the turn is in the readings: with the exact gimbal-rate map
 ``ω_bp^p = J(α) α̇`` (:meth:`stableins.platform.GimbalPlatform.angular_rate`, column ``k`` the platform rate per
 unit rate of gimbal ``k`` at the dwell's actual angles ``α = r + θ0``)
 
 .. math::
-    \dot r = J(\alpha)^{-1} w = -J(\alpha)^{-1}\,(\varepsilon^p + D_g f^p), \qquad f^p = C_n^p(\alpha)\,(0, 0, -g)^T,
+    \dot r = J(\alpha)^{-1} \omega_{bp}^p, \qquad f^p = C_n^p(\alpha)\,(0, 0, -g)^T,
 
-linear in the 12 numbers ``ε^p`` (``gyro_drift_x/y/z``) and ``D_g`` (``Dg_ab``).  The slope of each reading is a
-least-squares line over the second half of the dwell (:data:`SLOPE_SKIP`: the servo's settling transient is in
-the first part).  ``f^p`` changes within a dwell by the drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+linear in the 12 numbers ``ε^p`` (``gyro_drift_x/y/z``) and ``D_g`` (``Dg_ab``) and in the mode's nuisances
+(:attr:`SlopeGeometry.nuisance`): torqued, the three ``k`` (their columns ``J⁻¹(e_a ω_ie,a^p)``); inertially held,
+the Earth's exact turn is subtracted from the readings first (:func:`remove_earth_turn`: 15 °/h is not a line over
+a dwell) and the offsets and the base azimuth it depends on are the nuisances (finite-difference columns).  The
+nuisances are estimated with the twelve and marginalized (the twelve's covariance is the block of the joint one,
+their information the Schur complement).  Caged dwells carry no gyro information: the stage raises ``ValueError``
+saying so.  The slope of each reading is a least-squares line over the second half of the dwell
+(:data:`SLOPE_SKIP`: the servo's settling transient is in the first part).  ``f^p`` changes within a dwell by the
+drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+
+Gauge
+-----
+The numbers are in the platform frame of the device gauge ``θ10 = 0`` (docs/device-calibration.md §2): with a true
+``θ10`` the x and y indices of ``ε^p`` and ``D_g`` belong to ``p`` turned by ``θ10`` about ``z_p``
+(:func:`gauge_statement`, printed and carried in the notes).
 
 Noise model (measured, one for every σ and flag)
 ------------------------------------------------
 White angle noise per gimbal, measured in the data: the residual scatter about each dwell's line, pooled over the
 dwells used, ``σ_k² = Σ_dwells RSS / Σ_dwells (n − 2)``.  A slope's 1σ is ``σ_k / sqrt(Σ (t − t̄)²)``.  The
-fit's covariance rests on it (not scaled by χ²_ν); χ²_ν of the slopes tests the model.
+fit's covariance rests on it (not scaled by χ²_ν); χ²_ν of the slopes tests the model, and χ² beyond its 99.9 %
+quantile gives the accelerometer stages' warning (:func:`stableins.estimators.gauss_newton.goodness_of_fit_warning`:
+same rule, same wording, in the notes and :attr:`GyroSensitivityDetails.chi2_warning`).
 ``benchmarks/bench_device_gsensitivity.py`` measures the Monte Carlo rms z of the 12 numbers.
 
 What the data determine (rank report)
@@ -29,8 +50,8 @@ with ``cond J >`` :data:`MAX_CONDITION` are left out).  So the 12 numbers are de
 ``(1, f^p)`` of the dwells span ``R⁴`` — Wu's 18 positions put ``f^p`` along ``±x, ±y, ±z`` and between.  Positions
 that only turn about one axis (``f^p`` in a plane, or ``f_z`` never reversed) leave combinations free: the report
 names the null directions of the column-scaled design.  Not visible at device level at all: the mounting of the
-gyros in the platform (the frame ``p`` is defined by the gimbal kinematics), and a gyro scale factor (the
-platform is not torqued during a dwell).
+gyros in the platform (the frame ``p`` is defined by the gimbal kinematics), and a gyro scale factor beyond the
+torquers' (the platform is torqued at most at the Earth rate during a dwell).
 
 Flag
 ----
@@ -413,7 +434,7 @@ def estimate_gyro_sensitivity(
         residuals=residual * residual_sigma,
         residual_sigma=residual_sigma.copy(),
         residual_labels=residual_labels,
-        rank=int(np.sum([determined[k] for k in range(n)])),
+        rank=rank,  # of the whole design, nuisances included (as the drift test's): ν = slopes − rank everywhere
         singular_values=s,
         null_space=null,
         notes=(gauge,) + notes + ((warning,) if warning is not None else ()),
@@ -484,7 +505,10 @@ def rank_report(
         combo = " ".join(f"{c:+.2f}·{i}" for c, i in zip(v, ids, strict=True) if abs(c) > 1e-3)
         lines.append(f"not observable (the dwells' (1, f^p) do not span R⁴, or a nuisance takes it): {combo}; reported unidentifiable")
     if nuisance:
-        lines.append(f"nuisance parameters of the dwell mode {mode}, estimated with them and marginalized: {', '.join(nuisance)}")
+        lines.append(
+            f"nuisance parameters of the dwell mode {mode}, estimated with them and marginalized (the design's rank and ν count "
+            f"them): {', '.join(nuisance)}"
+        )
     scale_factors = {
         DwellMode.EARTH_RATE: "their scale factors beyond the torquers' (the platform is torqued only at the Earth rate)",
         DwellMode.INERTIAL: "their scale factors (the platform is not torqued within a dwell)",
