@@ -275,3 +275,36 @@ def test_bad_real_world_input_is_one_message_and_nothing_written(tmp_path, capsy
     assert message in err and "Traceback" not in err
     assert err.count("stableins: error") <= 1
     assert not out.exists() and not (tmp_path / "h.csv").exists()
+
+
+def test_hdf5_log_takes_its_range_from_the_integer_dtype(tmp_path):
+    import h5py
+
+    time, counts, _ = _counts_log(np.random.default_rng(9), poses=12)
+    signed = (counts - ZERO).astype(np.int16)
+    signed[100, 2] = np.iinfo(np.int16).max  # one sample at the converter's rail, inside hold 1
+    path = tmp_path / "log.h5"
+    with h5py.File(path, "w") as handle:
+        handle["imu/t"] = time
+        handle["imu/acc"] = signed
+    layout = layout_from_options("time=imu/t,f_x=imu/acc:0,f_y=imu/acc:1,f_z=imu/acc:2", f"counts:{COUNTS_PER_G:g}/g")
+    log = read_raw_log(path, layout)
+    assert log.range_source == "HDF5 dtype" and log.full_scale[0] == (-32768.0, 32767.0)
+    assert np.flatnonzero(log.railed).tolist() == [100]
+    holds = detect_holds(log.time, log.specific_force, resolution=log.resolution).holds
+    dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
+    flagged = [d.position for d in dwells if not d.usable]
+    assert all(d.usable for d in dwells if not (holds[d.position - 1].first <= 100 < holds[d.position - 1].stop))
+    assert len(flagged) <= 1
+    with pytest.raises(InputError, match="no dataset 'imu/q'"):
+        read_raw_log(path, layout_from_options("time=imu/t,f_x=imu/q,f_y=imu/acc:1,f_z=imu/acc:2", "g"))
+
+
+def test_check_reads_a_holds_table(tmp_path, capsys):
+    table = tmp_path / "holds.csv"
+    table.write_text("hold,start,end,samples,mean_x,mean_y,mean_z,std_x,std_y,std_z,orientation\n1,0.5,3.0,,,,,,,,+x\n2,4.0,6.0,,,,,,,,\n")
+    assert main(["check", str(table)]) == 0
+    assert "holds table" in capsys.readouterr().out
+    table.write_text("hold,start,end,orientation\n1,0.5,3.0,up\n")
+    assert main(["check", str(table)]) == 2
+    assert "unknown orientation 'up'" in capsys.readouterr().err

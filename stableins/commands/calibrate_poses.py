@@ -187,7 +187,7 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
     start, end = _data_times(log)
     record = CalibrationRecord.from_fit_result(
         fit,
-        serial_number=args.serial or Path(source).stem,
+        serial_number=args.serial or Path(source).name.removesuffix(".xz").removesuffix(".gz").rsplit(".", 1)[0],
         inputs=[source],
         procedure="poses",
         data_start=start,

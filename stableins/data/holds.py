@@ -190,15 +190,15 @@ def write_holds(
             )
 
 
-def read_holds(path: str | os.PathLike[str], time: NDArray[np.float64]) -> tuple[Hold, ...]:
-    """Read a holds table (``start``, ``end`` [s from the first sample], optional ``orientation``) against the log's time."""
+def read_holds_table(path: str | os.PathLike[str]) -> list[tuple[float, float, str]]:
+    """Read and check a holds table: ``(start, end, orientation)`` per row, in time order and disjoint (``stableins check``)."""
     source = str(path)
     try:
         with open(path, newline="", encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
     except OSError as error:
         raise InputError(f"cannot read the holds table: {error.strerror}", path=source, field="--holds") from None
-    holds: list[Hold] = []
+    out: list[tuple[float, float, str]] = []
     for k, row in enumerate(rows, 1):
         for name in ("start", "end"):
             if row.get(name) in (None, ""):
@@ -207,32 +207,31 @@ def read_holds(path: str | os.PathLike[str], time: NDArray[np.float64]) -> tuple
             start, end = float(row["start"]), float(row["end"])
         except ValueError:
             raise InputError("start and end must be numbers", path=source, row=k, field="start", expected="seconds") from None
-        if not (0.0 <= start < end <= time[-1] + 1e-9):
+        if not (0.0 <= start < end):
             raise InputError(
-                f"hold {start:g} ... {end:g} s is not inside the log (0 ... {time[-1]:g} s)",
-                path=source,
-                row=k,
-                field="start",
-                expected="0 <= start < end",
+                f"hold {start:g} ... {end:g} s: start must be below end", path=source, row=k, field="start", expected="0 <= start < end"
             )
         orientation = (row.get("orientation") or "").strip()
         if orientation and orientation not in ORIENTATIONS:
-            raise InputError(
-                f"unknown orientation {orientation!r}",
-                path=source,
-                row=k,
-                field="orientation",
-                expected=", ".join(ORIENTATIONS) + " or empty",
-            )
-        first = int(np.searchsorted(time, start - 1e-9))
-        stop = int(np.searchsorted(time, end + 1e-9))
-        if holds and first < holds[-1].stop:
+            expected = ", ".join(ORIENTATIONS) + " or empty"
+            raise InputError(f"unknown orientation {orientation!r}", path=source, row=k, field="orientation", expected=expected)
+        if out and start <= out[-1][1]:
             raise InputError(
                 "holds overlap or are not in time order", path=source, row=k, field="start", expected="increasing, disjoint holds"
             )
-        holds.append(Hold(first, stop, orientation))
-    if not holds:
+        out.append((start, end, orientation))
+    if not out:
         raise InputError("the holds table has no rows", path=source, field="--holds", expected=", ".join(TABLE_COLUMNS))
+    return out
+
+
+def read_holds(path: str | os.PathLike[str], time: NDArray[np.float64]) -> tuple[Hold, ...]:
+    """Read a holds table (``start``, ``end`` [s from the first sample], optional ``orientation``) against the log's time."""
+    holds = []
+    for k, (start, end, orientation) in enumerate(read_holds_table(path), 1):
+        if end > time[-1] + 1e-9:
+            raise InputError(f"hold {start:g} ... {end:g} s ends after the log (0 ... {time[-1]:g} s)", path=str(path), row=k, field="end")
+        holds.append(Hold(int(np.searchsorted(time, start - 1e-9)), int(np.searchsorted(time, end + 1e-9)), orientation))
     return tuple(holds)
 
 
