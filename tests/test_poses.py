@@ -32,9 +32,10 @@ def _directions(rng, n):
     return v / np.linalg.norm(v, axis=1)[:, None]
 
 
-def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None):
+def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None, hidden=None):
     """A continuous log in offset-binary counts: holds of random orientation joined by shaky hand motion."""
-    model = ErrorModel.standard(nonlinear=True)
+    model = ErrorModel.standard(nonlinear=True) + ((hidden[0],) if hidden else ())
+    truth = {**TRUTH, **({hidden[0].id: hidden[1]} if hidden else {})}
     up = _directions(rng, poses)
     t_hold, t_move = int(hold * RATE), int(move * RATE)
     parts = []
@@ -47,7 +48,7 @@ def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None):
             path = GRAVITY * path / np.linalg.norm(path, axis=1)[:, None]
             parts.append(path + 0.3 * GRAVITY * np.sin(np.pi * s) * rng.normal(size=(t_move, 3)))
     f = np.vstack(parts)
-    out = model.forward(f, TRUTH) + noise_g * STANDARD_GRAVITY * rng.normal(size=f.shape)
+    out = model.forward(f, truth) + noise_g * STANDARD_GRAVITY * rng.normal(size=f.shape)
     counts = np.round(out / STANDARD_GRAVITY * COUNTS_PER_G + ZERO)
     if rail is not None:
         counts = np.minimum(counts, rail)
@@ -308,3 +309,22 @@ def test_check_reads_a_holds_table(tmp_path, capsys):
     table.write_text("hold,start,end,orientation\n1,0.5,3.0,up\n")
     assert main(["check", str(table)]) == 2
     assert "unknown orientation 'up'" in capsys.readouterr().err
+
+
+def test_diagnose_finds_a_hidden_effect_in_the_holds_and_add_carries_it(tmp_path, capsys):
+    from stableins.discovery.library import calibration_terms
+
+    term = calibration_terms(["K3_x"])[0]
+    time, counts, _ = _counts_log(np.random.default_rng(10), poses=40, hidden=(term, 300 * term.scale))
+    log = tmp_path / "log.csv"
+    _write_csv(log, time, counts)
+    code, _ = _cli(tmp_path, log, "--gravity", f"{GRAVITY}", "--diagnose")
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "next: carry the flagged effect K3_x into the calibration" in err and "--add K3_x" in err
+    code, out = _cli(tmp_path, log, "--gravity", f"{GRAVITY}", "--add", "K3_x", "--json")
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    k3 = result["parameters"]["K3_x"]
+    assert abs(k3["value"] - 300 * term.scale) < 4 * k3["sigma"]
+    assert any(n.startswith("added effect K3_x") and "kept" in n for n in result["notes"])

@@ -79,6 +79,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=output_file, metavar="RECORD.json", help="calibration record to write (required unless --detect-only)"
     )
+    parser.add_argument(
+        "--diagnose", action="store_true", help="model discovery on the holds: refit with each instrument effect of the library, rank, flag"
+    )
+    parser.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="estimate this effect with the standard terms (repeatable; kept when its F-test p < 0.05)",
+    )
     add_noise_options(parser)
 
 
@@ -140,9 +150,12 @@ def run(args: argparse.Namespace) -> int:
         + "\n\n== calibration record (what the certificate shows) ==\n"
         + record.report()
     )
+    scan = _diagnose(args, log, holds, gravity, source) if args.diagnose else None
+    if scan is not None:
+        text += "\n\n" + scan.report()
     _write_all(args, log, holds, record)
     note(f"calibration record written to {args.out}")
-    steps = _next_steps(args, fit)
+    steps = _next_steps(args, fit, scan)
     for line in steps:
         note(line)
     emit(
@@ -160,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
             },
             "left_out": {str(k): v for k, v in fit.left_out.items()},
             "notes": list(fit.notes),
+            "diagnose": None if scan is None else {"flagged": scan.flagged, "report": scan.report()},
             "next": [line.strip() for line in steps if line.startswith("  ")],
         },
         text,
@@ -177,13 +191,14 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
     dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
     given, noise_text = noise_from_options(args, dwells)
     noise = given if given is not None else noise_from_dwells(dwells, source=f"the holds of {source}")
-    fit = calibrate_poses(
-        dwells,
-        gravity=gravity,
-        orientations=[h.orientation for h in holds],
-        noise=noise if (given is not None or noise.has_slow_noise) else None,
-        source=source,
-    )
+    fit_noise = noise if (given is not None or noise.has_slow_noise) else None
+
+    def refit(extra):
+        return calibrate_poses(
+            dwells, gravity=gravity, orientations=[h.orientation for h in holds], noise=fit_noise, extra_terms=extra, source=source
+        )
+
+    fit = _with_added(refit, args.add)
     start, end = _data_times(log)
     record = CalibrationRecord.from_fit_result(
         fit,
@@ -195,6 +210,34 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
         noise_model=noise,
     )
     return fit, record, noise_text if given is not None else noise.describe()
+
+
+def _with_added(refit, added: list[str]):
+    """Return the pose fit with the ``--add`` effects the data show (each F-tested in order at 0.05; a note for each)."""
+    from dataclasses import replace
+
+    from stableins.discovery.library import calibration_terms
+    from stableins.discovery.scores import effect_statistics
+    from stableins.status import Status
+
+    fit = refit(())
+    kept: list = []
+    notes: list[str] = []
+    for term in calibration_terms(added):
+        trial = refit((*kept, term))
+        value, sigma, status = trial[term.id]
+        estimate = f"{term.id} = {float(term.to_engineering(value)):+.4g} ± {float(term.sigma_to_engineering(sigma)):.2g} {term.unit}"
+        if status != Status.ESTIMATED:
+            notes.append(f"added effect {term.id}: not determined by these holds; left out")
+            continue
+        _, p, _ = effect_statistics(max(fit.chi2 - trial.chi2, 0.0), fit.chi2, fit.dof, fit.residuals.size)
+        if p < 0.05:
+            kept.append(term)
+            fit = trial
+            notes.append(f"added effect {estimate}: F-test p = {p:.2g} < 0.05, kept")
+        else:
+            notes.append(f"added effect {estimate}: F-test p = {p:.2g} >= 0.05, the holds do not show it; left out")
+    return replace(fit, notes=fit.notes + tuple(notes)) if notes else fit
 
 
 def _data_times(log) -> tuple[str, str]:
@@ -230,18 +273,49 @@ def _write_all(args: argparse.Namespace, log, holds, record) -> None:
     _write_views(args, log, holds)
 
 
-def _next_steps(args: argparse.Namespace, fit) -> list[str]:
-    """Return what to do next: when the model does not fit, ask model discovery; show the holds either way."""
+def _diagnose(args: argparse.Namespace, log, holds, gravity: float, source: str):
+    """Model discovery on the holds (:func:`stableins.discovery.poses.scan_poses`); None for labelled holds."""
+    from stableins.commands.noise import noise_from_options
+    from stableins.discovery.poses import scan_poses
+    from stableins.estimators.device import noise_from_dwells
+    from stableins.estimators.poses import calibrate_poses, summarize_holds
+
+    if any(h.orientation for h in holds):
+        return None
+    dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
+    given, _ = noise_from_options(args, dwells)
+    noise = given if given is not None else noise_from_dwells(dwells)
+    fit_noise = noise if (given is not None or noise.has_slow_noise) else None
+    return scan_poses(lambda extra: calibrate_poses(dwells, gravity=gravity, noise=fit_noise, extra_terms=extra, source=source))
+
+
+def _next_steps(args: argparse.Namespace, fit, scan) -> list[str]:
+    """Return what to do next: model discovery when the model does not fit, the flagged effect carried in when it found one."""
     import shlex
 
-    lines = []
-    if fit.dof > 0 and fit.chi2_red > 1 + 3 * (2 / fit.dof) ** 0.5:
-        command = ["stableins", "calibrate", "poses", str(args.log), "--columns", args.columns]
-        command += [x for pair in (("--units", args.units), ("--zero", args.zero), ("--range", args.full_scale)) if pair[1] for x in pair]
-        command += ["--detect-only", "--write-holds", "holds.csv", "--plot", "holds.png"]
-        lines += [
-            f"next: the model does not fit the holds (chi2_red {fit.chi2_red:.3g} for nu = {fit.dof}); look at the holds and their "
-            "residuals (the largest are named above): motion inside a hold, or an effect the model lacks",
-            f"  {shlex.join(command)}",
+    command = ["stableins", "calibrate", "poses", str(args.log), "--columns", args.columns]
+    options = (("--units", args.units), ("--zero", args.zero), ("--range", args.full_scale), ("--time-unit", args.time_unit))
+    command += [x for pair in options if pair[1] for x in pair]
+    command += [
+        x for pair in (("--rate", args.rate), ("--gravity", args.gravity)) if pair[1] is not None for x in (pair[0], f"{pair[1]:g}")
+    ]
+    command += ["--holds", str(args.holds)] if args.holds is not None else []
+    if scan is not None and scan.flagged:
+        added = [x for a in (*args.add, scan.flagged) for x in ("--add", a)]
+        return [
+            f"next: carry the flagged effect {scan.flagged} into the calibration",
+            f"  {shlex.join([*command, *added, '--out', str(args.out)])}",
         ]
-    return lines
+    if fit.dof > 0 and fit.chi2_red > 1 + 3 * (2 / fit.dof) ** 0.5:
+        if scan is None:
+            return [
+                f"next: the model does not fit the holds (chi2_red {fit.chi2_red:.3g} for nu = {fit.dof}); is it missing an effect? "
+                "(model discovery on the holds)",
+                f"  {shlex.join([*command, '--diagnose', '--out', str(args.out)])}",
+            ]
+        return [
+            "next: no library effect explains the misfit; look at the holds and the largest residuals named above "
+            "(motion inside a hold?), or give the noise model of a static record (--noise CAL.json from 'stableins noise')",
+            f"  {shlex.join([*command, '--detect-only', '--write-holds', 'holds.csv', '--plot', 'holds.png'])}",
+        ]
+    return []
