@@ -328,3 +328,20 @@ def test_diagnose_finds_a_hidden_effect_in_the_holds_and_add_carries_it(tmp_path
     k3 = result["parameters"]["K3_x"]
     assert abs(k3["value"] - 300 * term.scale) < 4 * k3["sigma"]
     assert any(n.startswith("added effect K3_x") and "kept" in n for n in result["notes"])
+
+
+def test_mapping_file_and_per_axis_units(tmp_path):
+    mapping = tmp_path / "logger.toml"
+    toml = ["zero = [100, 200, 300]", 'time_unit = "ms"', "[units]", 'f_x = "counts:1000/g"', 'f_y = "counts:2000/g"', 'f_z = "g"']
+    toml += ["[columns]", 'time = "ms"', 'f_x = "a"', 'f_y = "b"', 'f_z = "c"']
+    mapping.write_text("\n".join(toml) + "\n")
+    log_path = tmp_path / "log.csv"
+    log_path.write_text("ms,a,b,c\n0,1100,2200,1.0\n10,1100,2200,1.0\n20,1100,2200,1.0\n")
+    log = read_raw_log(log_path, layout_from_options(str(mapping), None))
+    np.testing.assert_allclose(log.time, [0.0, 0.01, 0.02])
+    np.testing.assert_allclose(log.specific_force[0], [STANDARD_GRAVITY, STANDARD_GRAVITY, STANDARD_GRAVITY * (1.0 - 300)])
+    # options on the command line take precedence over the file
+    log = read_raw_log(log_path, layout_from_options(str(mapping), "f_x=g,f_y=g,f_z=g", zero="0"))
+    np.testing.assert_allclose(log.specific_force[0], np.array([1100, 2200, 1.0]) * STANDARD_GRAVITY)
+    with pytest.raises(InputError, match="unknown axis 'f_q'"):
+        layout_from_options(str(mapping), "f_q=g")
