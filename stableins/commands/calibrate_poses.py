@@ -108,7 +108,6 @@ def run(args: argparse.Namespace) -> int:
     )
     log = read_raw_log(args.log, layout)
     source = str(args.log)
-    detection = None
     if args.holds is not None:
         holds = read_holds(args.holds, log.time)
         how = f"{len(holds)} holds read from {args.holds}"
@@ -141,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         emit(args, {"holds": len(holds), "detection": how}, f"{how}\n{clipping}")
         return 0
     gravity = args.gravity if args.gravity is not None else STANDARD_GRAVITY
-    fit, record, noise_text = _calibrate(args, log, holds, gravity, source)
+    fit, record, noise_text, refit = _calibrate(args, log, holds, gravity, source)
     text = (
         f"{how}\n{clipping}\n"
         + ("" if args.gravity is not None else f"local gravity not given: standard gravity {STANDARD_GRAVITY} m/s^2 (--gravity G)\n")
@@ -150,7 +149,11 @@ def run(args: argparse.Namespace) -> int:
         + "\n\n== calibration record (what the certificate shows) ==\n"
         + record.report()
     )
-    scan = _diagnose(args, log, holds, gravity, source) if args.diagnose else None
+    scan = None
+    if args.diagnose and not any(h.orientation for h in holds):  # model discovery on the holds of unknown orientation
+        from stableins.discovery.poses import scan_poses
+
+        scan = scan_poses(refit)
     if scan is not None:
         text += "\n\n" + scan.report()
     _write_all(args, log, holds, record)
@@ -182,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str):
-    """Return the fit, its record and where the noise model comes from."""
+    """Return the fit, its record, where the noise model comes from, and the fit as a function of added terms (``--diagnose``)."""
     from stableins.commands.noise import noise_from_options
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.poses import calibrate_poses, summarize_holds
@@ -212,7 +215,7 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
     )
     serial = args.serial or Path(source).name.removesuffix(".xz").removesuffix(".gz").rsplit(".", 1)[0]
     record = CalibrationRecord.from_fit_result(fit, serial_number=serial, procedure="poses", stage=stage, noise_model=noise)
-    return fit, record, noise_text if given is not None else noise.describe()
+    return fit, record, noise_text if given is not None else noise.describe(), refit
 
 
 def _with_added(refit, added: list[str]):
@@ -274,22 +277,6 @@ def _write_all(args: argparse.Namespace, log, holds, record) -> None:
     except OSError as error:
         raise InputError(f"cannot write the record: {error.strerror or error}", path=str(args.out), field="--out") from None
     _write_views(args, log, holds)
-
-
-def _diagnose(args: argparse.Namespace, log, holds, gravity: float, source: str):
-    """Model discovery on the holds (:func:`stableins.discovery.poses.scan_poses`); None for labelled holds."""
-    from stableins.commands.noise import noise_from_options
-    from stableins.discovery.poses import scan_poses
-    from stableins.estimators.device import noise_from_dwells
-    from stableins.estimators.poses import calibrate_poses, summarize_holds
-
-    if any(h.orientation for h in holds):
-        return None
-    dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
-    given, _ = noise_from_options(args, dwells)
-    noise = given if given is not None else noise_from_dwells(dwells)
-    fit_noise = noise if (given is not None or noise.has_slow_noise) else None
-    return scan_poses(lambda extra: calibrate_poses(dwells, gravity=gravity, noise=fit_noise, extra_terms=extra, source=source))
 
 
 def _next_steps(args: argparse.Namespace, fit, scan) -> list[str]:
