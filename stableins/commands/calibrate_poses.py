@@ -53,10 +53,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--serial", metavar="SN", help="serial number of the unit (default: the log's file name)")
     parser.add_argument(
-        "--window", type=number(0.0, 60.0, above=True, unit="s"), default=0.5, help="hold detection: test window [s] (default 0.5)"
+        "--window",
+        type=number(0.0, 60.0, above=True, unit="s"),
+        default=0.5,
+        metavar="S",
+        help="hold detection: test window [s] (default 0.5)",
     )
     parser.add_argument(
-        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, help="shortest hold kept [s] (default 1.5)"
+        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, metavar="S", help="shortest hold kept [s] (default 1.5)"
     )
     parser.add_argument(
         "--false-split",
