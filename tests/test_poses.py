@@ -32,9 +32,10 @@ def _directions(rng, n):
     return v / np.linalg.norm(v, axis=1)[:, None]
 
 
-def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None):
+def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None, hidden=None):
     """A continuous log in offset-binary counts: holds of random orientation joined by shaky hand motion."""
-    model = ErrorModel.standard(nonlinear=True)
+    model = ErrorModel.standard(nonlinear=True) + ((hidden[0],) if hidden else ())
+    truth = {**TRUTH, **({hidden[0].id: hidden[1]} if hidden else {})}
     up = _directions(rng, poses)
     t_hold, t_move = int(hold * RATE), int(move * RATE)
     parts = []
@@ -47,7 +48,7 @@ def _counts_log(rng, poses=32, hold=8.0, move=2.0, noise_g=4e-4, rail=None):
             path = GRAVITY * path / np.linalg.norm(path, axis=1)[:, None]
             parts.append(path + 0.3 * GRAVITY * np.sin(np.pi * s) * rng.normal(size=(t_move, 3)))
     f = np.vstack(parts)
-    out = model.forward(f, TRUTH) + noise_g * STANDARD_GRAVITY * rng.normal(size=f.shape)
+    out = model.forward(f, truth) + noise_g * STANDARD_GRAVITY * rng.normal(size=f.shape)
     counts = np.round(out / STANDARD_GRAVITY * COUNTS_PER_G + ZERO)
     if rail is not None:
         counts = np.minimum(counts, rail)
@@ -275,3 +276,72 @@ def test_bad_real_world_input_is_one_message_and_nothing_written(tmp_path, capsy
     assert message in err and "Traceback" not in err
     assert err.count("stableins: error") <= 1
     assert not out.exists() and not (tmp_path / "h.csv").exists()
+
+
+def test_hdf5_log_takes_its_range_from_the_integer_dtype(tmp_path):
+    import h5py
+
+    time, counts, _ = _counts_log(np.random.default_rng(9), poses=12)
+    signed = (counts - ZERO).astype(np.int16)
+    signed[100, 2] = np.iinfo(np.int16).max  # one sample at the converter's rail, inside hold 1
+    path = tmp_path / "log.h5"
+    with h5py.File(path, "w") as handle:
+        handle["imu/t"] = time
+        handle["imu/acc"] = signed
+    layout = layout_from_options("time=imu/t,f_x=imu/acc:0,f_y=imu/acc:1,f_z=imu/acc:2", f"counts:{COUNTS_PER_G:g}/g")
+    log = read_raw_log(path, layout)
+    assert log.range_source == "HDF5 dtype" and log.full_scale[0] == (-32768.0, 32767.0)
+    assert np.flatnonzero(log.railed).tolist() == [100]
+    holds = detect_holds(log.time, log.specific_force, resolution=log.resolution).holds
+    dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
+    flagged = [d.position for d in dwells if not d.usable]
+    assert all(d.usable for d in dwells if not (holds[d.position - 1].first <= 100 < holds[d.position - 1].stop))
+    assert len(flagged) <= 1
+    with pytest.raises(InputError, match="no dataset 'imu/q'"):
+        read_raw_log(path, layout_from_options("time=imu/t,f_x=imu/q,f_y=imu/acc:1,f_z=imu/acc:2", "g"))
+
+
+def test_check_reads_a_holds_table(tmp_path, capsys):
+    table = tmp_path / "holds.csv"
+    table.write_text("hold,start,end,samples,mean_x,mean_y,mean_z,std_x,std_y,std_z,orientation\n1,0.5,3.0,,,,,,,,+x\n2,4.0,6.0,,,,,,,,\n")
+    assert main(["check", str(table)]) == 0
+    assert "holds table" in capsys.readouterr().out
+    table.write_text("hold,start,end,orientation\n1,0.5,3.0,up\n")
+    assert main(["check", str(table)]) == 2
+    assert "unknown orientation 'up'" in capsys.readouterr().err
+
+
+def test_diagnose_finds_a_hidden_effect_in_the_holds_and_add_carries_it(tmp_path, capsys):
+    from stableins.discovery.library import calibration_terms
+
+    term = calibration_terms(["K3_x"])[0]
+    time, counts, _ = _counts_log(np.random.default_rng(10), poses=40, hidden=(term, 300 * term.scale))
+    log = tmp_path / "log.csv"
+    _write_csv(log, time, counts)
+    code, _ = _cli(tmp_path, log, "--gravity", f"{GRAVITY}", "--diagnose")
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "next: carry the flagged effect K3_x into the calibration" in err and "--add K3_x" in err
+    code, out = _cli(tmp_path, log, "--gravity", f"{GRAVITY}", "--add", "K3_x", "--json")
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    k3 = result["parameters"]["K3_x"]
+    assert abs(k3["value"] - 300 * term.scale) < 4 * k3["sigma"]
+    assert any(n.startswith("added effect K3_x") and "kept" in n for n in result["notes"])
+
+
+def test_mapping_file_and_per_axis_units(tmp_path):
+    mapping = tmp_path / "logger.toml"
+    toml = ["zero = [100, 200, 300]", 'time_unit = "ms"', "[units]", 'f_x = "counts:1000/g"', 'f_y = "counts:2000/g"', 'f_z = "g"']
+    toml += ["[columns]", 'time = "ms"', 'f_x = "a"', 'f_y = "b"', 'f_z = "c"']
+    mapping.write_text("\n".join(toml) + "\n")
+    log_path = tmp_path / "log.csv"
+    log_path.write_text("ms,a,b,c\n0,1100,2200,1.0\n10,1100,2200,1.0\n20,1100,2200,1.0\n")
+    log = read_raw_log(log_path, layout_from_options(str(mapping), None))
+    np.testing.assert_allclose(log.time, [0.0, 0.01, 0.02])
+    np.testing.assert_allclose(log.specific_force[0], [STANDARD_GRAVITY, STANDARD_GRAVITY, STANDARD_GRAVITY * (1.0 - 300)])
+    # options on the command line take precedence over the file
+    log = read_raw_log(log_path, layout_from_options(str(mapping), "f_x=g,f_y=g,f_z=g", zero="0"))
+    np.testing.assert_allclose(log.specific_force[0], np.array([1100, 2200, 1.0]) * STANDARD_GRAVITY)
+    with pytest.raises(InputError, match="unknown axis 'f_q'"):
+        layout_from_options(str(mapping), "f_q=g")

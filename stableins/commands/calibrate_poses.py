@@ -53,10 +53,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--serial", metavar="SN", help="serial number of the unit (default: the log's file name)")
     parser.add_argument(
-        "--window", type=number(0.0, 60.0, above=True, unit="s"), default=0.5, help="hold detection: test window [s] (default 0.5)"
+        "--window",
+        type=number(0.0, 60.0, above=True, unit="s"),
+        default=0.5,
+        metavar="S",
+        help="hold detection: test window [s] (default 0.5)",
     )
     parser.add_argument(
-        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, help="shortest hold kept [s] (default 1.5)"
+        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, metavar="S", help="shortest hold kept [s] (default 1.5)"
     )
     parser.add_argument(
         "--false-split",
@@ -79,6 +83,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=output_file, metavar="RECORD.json", help="calibration record to write (required unless --detect-only)"
     )
+    parser.add_argument(
+        "--diagnose", action="store_true", help="model discovery on the holds: refit with each instrument effect of the library, rank, flag"
+    )
+    parser.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="estimate this effect with the standard terms (repeatable; kept when its F-test p < 0.05)",
+    )
     add_noise_options(parser)
 
 
@@ -98,7 +112,6 @@ def run(args: argparse.Namespace) -> int:
     )
     log = read_raw_log(args.log, layout)
     source = str(args.log)
-    detection = None
     if args.holds is not None:
         holds = read_holds(args.holds, log.time)
         how = f"{len(holds)} holds read from {args.holds}"
@@ -131,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         emit(args, {"holds": len(holds), "detection": how}, f"{how}\n{clipping}")
         return 0
     gravity = args.gravity if args.gravity is not None else STANDARD_GRAVITY
-    fit, record, noise_text = _calibrate(args, log, holds, gravity, source)
+    fit, record, noise_text, refit = _calibrate(args, log, holds, gravity, source)
     text = (
         f"{how}\n{clipping}\n"
         + ("" if args.gravity is not None else f"local gravity not given: standard gravity {STANDARD_GRAVITY} m/s^2 (--gravity G)\n")
@@ -140,9 +153,16 @@ def run(args: argparse.Namespace) -> int:
         + "\n\n== calibration record (what the certificate shows) ==\n"
         + record.report()
     )
+    scan = None
+    if args.diagnose and not any(h.orientation for h in holds):  # model discovery on the holds of unknown orientation
+        from stableins.discovery.poses import scan_poses
+
+        scan = scan_poses(refit)
+    if scan is not None:
+        text += "\n\n" + scan.report()
     _write_all(args, log, holds, record)
     note(f"calibration record written to {args.out}")
-    steps = _next_steps(args, fit)
+    steps = _next_steps(args, fit, scan)
     for line in steps:
         note(line)
     emit(
@@ -160,6 +180,7 @@ def run(args: argparse.Namespace) -> int:
             },
             "left_out": {str(k): v for k, v in fit.left_out.items()},
             "notes": list(fit.notes),
+            "diagnose": None if scan is None else {"flagged": scan.flagged, "report": scan.report()},
             "next": [line.strip() for line in steps if line.startswith("  ")],
         },
         text,
@@ -168,33 +189,65 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str):
-    """Return the fit, its record and where the noise model comes from."""
+    """Return the fit, its record, where the noise model comes from, and the fit as a function of added terms (``--diagnose``)."""
     from stableins.commands.noise import noise_from_options
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.poses import calibrate_poses, summarize_holds
-    from stableins.records import CalibrationRecord
+    from stableins.records import CalibrationRecord, StageRun, temperature_summary
 
     dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
     given, noise_text = noise_from_options(args, dwells)
     noise = given if given is not None else noise_from_dwells(dwells, source=f"the holds of {source}")
-    fit = calibrate_poses(
-        dwells,
-        gravity=gravity,
-        orientations=[h.orientation for h in holds],
-        noise=noise if (given is not None or noise.has_slow_noise) else None,
-        source=source,
-    )
+    fit_noise = noise if (given is not None or noise.has_slow_noise) else None
+
+    def refit(extra):
+        return calibrate_poses(
+            dwells, gravity=gravity, orientations=[h.orientation for h in holds], noise=fit_noise, extra_terms=extra, source=source
+        )
+
+    fit = _with_added(refit, args.add)
     start, end = _data_times(log)
-    record = CalibrationRecord.from_fit_result(
+    stage = StageRun.from_fit(
         fit,
-        serial_number=args.serial or Path(source).stem,
-        inputs=[source],
+        calibration="",  # set to the new calibration's id by from_fit_result
         procedure="poses",
+        inputs=[source],
         data_start=start,
         data_end=end,
-        noise_model=noise,
+        sample_rate=log.rate,
+        environment=None if log.temperature is None else temperature_summary(log.temperature),
     )
-    return fit, record, noise_text if given is not None else noise.describe()
+    serial = args.serial or Path(source).name.removesuffix(".xz").removesuffix(".gz").rsplit(".", 1)[0]
+    record = CalibrationRecord.from_fit_result(fit, serial_number=serial, procedure="poses", stage=stage, noise_model=noise)
+    return fit, record, noise_text if given is not None else noise.describe(), refit
+
+
+def _with_added(refit, added: list[str]):
+    """Return the pose fit with the ``--add`` effects the data show (each F-tested in order at 0.05; a note for each)."""
+    from dataclasses import replace
+
+    from stableins.discovery.library import calibration_terms
+    from stableins.discovery.scores import effect_statistics
+    from stableins.status import Status
+
+    fit = refit(())
+    kept: list = []
+    notes: list[str] = []
+    for term in calibration_terms(added):
+        trial = refit((*kept, term))
+        value, sigma, status = trial[term.id]
+        estimate = f"{term.id} = {float(term.to_engineering(value)):+.4g} ± {float(term.sigma_to_engineering(sigma)):.2g} {term.unit}"
+        if status != Status.ESTIMATED:
+            notes.append(f"added effect {term.id}: not determined by these holds; left out")
+            continue
+        _, p, _ = effect_statistics(max(fit.chi2 - trial.chi2, 0.0), fit.chi2, fit.dof, fit.residuals.size)
+        if p < 0.05:
+            kept.append(term)
+            fit = trial
+            notes.append(f"added effect {estimate}: F-test p = {p:.2g} < 0.05, kept")
+        else:
+            notes.append(f"added effect {estimate}: F-test p = {p:.2g} >= 0.05, the holds do not show it; left out")
+    return replace(fit, notes=fit.notes + tuple(notes)) if notes else fit
 
 
 def _data_times(log) -> tuple[str, str]:
@@ -230,18 +283,33 @@ def _write_all(args: argparse.Namespace, log, holds, record) -> None:
     _write_views(args, log, holds)
 
 
-def _next_steps(args: argparse.Namespace, fit) -> list[str]:
-    """Return what to do next: when the model does not fit, ask model discovery; show the holds either way."""
+def _next_steps(args: argparse.Namespace, fit, scan) -> list[str]:
+    """Return what to do next: model discovery when the model does not fit, the flagged effect carried in when it found one."""
     import shlex
 
-    lines = []
-    if fit.dof > 0 and fit.chi2_red > 1 + 3 * (2 / fit.dof) ** 0.5:
-        command = ["stableins", "calibrate", "poses", str(args.log), "--columns", args.columns]
-        command += [x for pair in (("--units", args.units), ("--zero", args.zero), ("--range", args.full_scale)) if pair[1] for x in pair]
-        command += ["--detect-only", "--write-holds", "holds.csv", "--plot", "holds.png"]
-        lines += [
-            f"next: the model does not fit the holds (chi2_red {fit.chi2_red:.3g} for nu = {fit.dof}); look at the holds and their "
-            "residuals (the largest are named above): motion inside a hold, or an effect the model lacks",
-            f"  {shlex.join(command)}",
+    command = ["stableins", "calibrate", "poses", str(args.log), "--columns", args.columns]
+    options = (("--units", args.units), ("--zero", args.zero), ("--range", args.full_scale), ("--time-unit", args.time_unit))
+    command += [x for pair in options if pair[1] for x in pair]
+    command += [
+        x for pair in (("--rate", args.rate), ("--gravity", args.gravity)) if pair[1] is not None for x in (pair[0], f"{pair[1]:g}")
+    ]
+    command += ["--holds", str(args.holds)] if args.holds is not None else []
+    if scan is not None and scan.flagged:
+        added = [x for a in (*args.add, scan.flagged) for x in ("--add", a)]
+        return [
+            f"next: carry the flagged effect {scan.flagged} into the calibration",
+            f"  {shlex.join([*command, *added, '--out', str(args.out)])}",
         ]
-    return lines
+    if fit.dof > 0 and fit.chi2_red > 1 + 3 * (2 / fit.dof) ** 0.5:
+        if scan is None:
+            return [
+                f"next: the model does not fit the holds (chi2_red {fit.chi2_red:.3g} for nu = {fit.dof}); is it missing an effect? "
+                "(model discovery on the holds)",
+                f"  {shlex.join([*command, '--diagnose', '--out', str(args.out)])}",
+            ]
+        return [
+            "next: no library effect explains the misfit; look at the holds and the largest residuals named above "
+            "(motion inside a hold?), or give the noise model of a static record (--noise CAL.json from 'stableins noise')",
+            f"  {shlex.join([*command, '--detect-only', '--write-holds', 'holds.csv', '--plot', 'holds.png'])}",
+        ]
+    return []

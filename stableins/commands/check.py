@@ -17,6 +17,7 @@ diagnosis (``diagnose --json``)               the reader of ``report --discovery
 demo verdict (``verdict.json``)               every row's fields and types
 history store index (``history.sqlite``)      ``HistoryStore.verify`` (the index and every filed record's SHA-256)
 certificate (``.pdf``), plots (PNG, SVG)      the file's structure (header, trailer, page count; image size)
+holds table (``calibrate poses``)             ``read_holds_table`` (what ``calibrate poses --holds`` reads)
 text reports (``.txt``)                       UTF-8 text
 ===========================================  =====================================================================
 
@@ -92,7 +93,11 @@ def _head(file: Path) -> bytes:
 
 
 def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
+    """Check device data or a system record (or a holds table: a CSV file too)."""
     import warnings
+
+    if _head(Path(path)).startswith(b"hold,start,end"):
+        return _holds(path)
 
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
     from stableins.errors import InputError
@@ -298,6 +303,14 @@ def _pdf(path: str) -> dict[str, Any]:
     if pages == 0:
         raise InputError("the PDF has no pages", path=path, field="pages", expected="a PDF with at least one page")
     return summary
+
+
+def _holds(path: str) -> dict[str, Any]:
+    """Check a holds table (``calibrate poses --write-holds``) as ``--holds`` reads it."""
+    from stableins.data.holds import read_holds_table
+
+    rows = read_holds_table(path)
+    return {"file": path, "kind": "holds table", "holds": len(rows), "labelled": sum(1 for *_, o in rows if o)}
 
 
 def _png(path: str, head: bytes) -> dict[str, Any]:

@@ -40,7 +40,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.errormodel import ErrorModel
+from stableins.errormodel import ErrorModel, Term
 from stableins.errors import InputError
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.dwell import DwellSummary, describe_left_out, summarize_dwell
@@ -106,6 +106,7 @@ def calibrate_poses(
     orientations: Sequence[str] | None = None,
     noise: NoiseModel | None = None,
     start: Mapping[str, float] | FitResult | None = None,
+    extra_terms: Sequence[Term] = (),
     source: str = "log",
 ) -> FitResult:
     """Calibrate from the holds of a log (module docstring): known orientation when every hold is labelled.
@@ -123,6 +124,9 @@ def calibrate_poses(
     start : mapping or FitResult, optional
         Start values (default: :func:`start_values`).  With the fine stage's coarse start the
         unknown-orientation fit is the fine stage's, term for term.
+    extra_terms : sequence of Term
+        Discovered effects estimated with the standard terms (unknown orientation only; model discovery on the
+        holds, :mod:`stableins.discovery.poses`).
 
     Returns
     -------
@@ -141,6 +145,10 @@ def calibrate_poses(
                 field="orientation",
                 expected="every hold labelled (+x ... -z: the six-position test) or none (unknown orientation)",
             )
+        if extra_terms:
+            raise InputError(
+                "the six-position test estimates no added effect", path=source, field="--add", expected="holds of unknown orientation"
+            )
         return six_position(dwells, labels, gravity=gravity, source=source)
     usable = [d for d in dwells if d.usable]
     left_out = {d.position: "; ".join(d.flags) for d in dwells if not d.usable}
@@ -157,7 +165,12 @@ def calibrate_poses(
     for model in (PoseModel.TWELVE, PoseModel.NINE):
         try:
             fit = calibrate_fine(
-                dwells, first, gravity=gravity, noise=noise, source=source, model=fine_model(nonlinear=model is PoseModel.TWELVE)
+                dwells,
+                first,
+                gravity=gravity,
+                noise=noise,
+                source=source,
+                model=fine_model(extra_terms, nonlinear=model is PoseModel.TWELVE),
             )
         except InputError as error:
             if model is PoseModel.NINE:
