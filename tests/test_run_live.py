@@ -16,6 +16,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from stableins.console import Console
 from stableins.conventions import ARCSEC, EARTH_RATE
@@ -137,6 +138,7 @@ def test_a_static_record_prints_its_quick_look_while_it_records(tmp_path):
     assert len(looks) == 8 and "(2000 samples)" in looks[-1] and "orientation held" in looks[-1], out.getvalue()
 
 
+@pytest.mark.slow
 def test_the_coarse_iterations_dwells_are_journaled_a_second_at_a_time_with_the_same_samples(tmp_path):
     text = resolve("device-coarse").read_text()
     text = re.sub(r"^dwell = .*$", "dwell = 3.0", text, count=1, flags=re.M)

@@ -24,6 +24,7 @@ from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.runs import RunSetup, resume_run, start_run
 from tests.tcp_fixtures import ROOT, ServerProcess
+from tests.test_run_systematic import SHORT as SYSTEMATIC_2H  # system-indexed with two holds of an hour at 2 Hz
 
 SEED, UNIT, RATE = 5, "NAV-1", 10.0
 DRIFT = """
@@ -70,6 +71,7 @@ def _same_record(a, b):
         assert (data_a[name] == data_b[name]).all(), name
 
 
+@pytest.mark.slow
 def test_drift_test_over_tcp_equals_the_simulated_run_and_resumes_to_identical_data(inputs, tmp_path):
     reference = _run(inputs, tmp_path / "sim", "sim")
     with ServerProcess(seed=SEED, simulator=True, unit=UNIT, rate=RATE, installed=inputs / "cal.json") as server:
@@ -103,22 +105,6 @@ def test_drift_test_over_tcp_equals_the_simulated_run_and_resumes_to_identical_d
     assert "resume" in kinds and kinds[-1] == "finished"
 
 
-SYSTEMATIC = """
-[procedure]
-name = "system-indexed-2h"
-stage = "system"
-[record]
-duration = 7200.0
-sample_rate = 2.0
-estimation = "systematic"
-[[record.index]]
-at = 3600.0
-axis = "middle"
-angle = 60.0
-rate = 10.0
-[runner]
-chunk = 600.0
-"""
 STATIC_DAY = """
 [procedure]
 name = "system-static-1hz"
@@ -138,7 +124,7 @@ chunk = 3600.0
     [
         ("drift-two-position", 10.0, ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")),
         ("drift-three-position", 10.0, ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")),
-        (SYSTEMATIC, 2.0, ("gyro_drift_x", "Dg_zz", "bias_x", "sf_y")),
+        (SYSTEMATIC_2H, 2.0, ("gyro_drift_x", "Dg_zz", "bias_x", "sf_y")),
         (STATIC_DAY, 1.0, ("bias_x", "bias_y", "sf_z", "beta_zx")),
     ],
     ids=["drift-two-position", "drift-three-position", "system-indexed-2h", "system-static-day-1hz"],
