@@ -4,12 +4,18 @@ DIR``; that command, or ``stableins run --resume DIR``, files exactly one new re
 from __future__ import annotations
 
 import io
+import json
 import re
 import shlex
+import shutil
+
+from systematic_world import prior_record
 
 from stableins import cli
+from stableins.drivers.select import simulated_platform
 from stableins.history_store import HistoryStore
 from stableins.procedures.definition import resolve
+from tests.runner_fixtures import SIM_CHECKS, SMALL_MOVES, short_plan
 
 
 def _short(name: str, target, *, dwell: float, settle: float):
@@ -23,7 +29,7 @@ def _short(name: str, target, *, dwell: float, settle: float):
 
 def _interrupted_recal(tmp_path, capsys, monkeypatch, store, name):
     """A recalibration whose last prompt is answered "n" (its record not written); returns the continuation the console gives."""
-    definition = _short("field-recal-device", tmp_path / "recal.toml", dwell=5.0, settle=0.5)
+    definition = _short("field-recal-device", tmp_path / "recal.toml", dwell=2.0, settle=0.2)
     out = tmp_path / name
     monkeypatch.setattr("sys.stdin", io.StringIO("y\nn\n"))  # confirm the start, decline the last step
     argv = ["recal", definition, "--unit", "SN27", "--store", store, "--driver", "sim", "--seed", "5", "--out", out,
@@ -36,45 +42,52 @@ def _interrupted_recal(tmp_path, capsys, monkeypatch, store, name):
     return shlex.split(match.group(1))
 
 
-def _prior_in_stores(tmp_path, capsys, stores):
-    coarse = _short("device-coarse", tmp_path / "coarse.toml", dwell=5.0, settle=0.5)
-    argv = ["run", str(coarse), "--driver", "sim", "--unit", "SN27", "--seed", "4", "--out", str(tmp_path / "coarse"), "--yes", "--quiet"]
-    assert cli.main(argv) == 0
-    for store in stores:
-        assert cli.main(["history", "SN27", "--store", str(store), "--add", str(tmp_path / "coarse" / "record.json")]) == 0
+def _prior_in_store(tmp_path, capsys, store):
+    """The unit's record in force: a device-level record of the simulated unit (seed 5) filed in ``store``."""
+    prior_record(simulated_platform(5, "SN27", 100.0).truth).save(tmp_path / "cal.json")
+    assert cli.main(["history", "SN27", "--store", str(store), "--add", str(tmp_path / "cal.json")]) == 0
     capsys.readouterr()
 
 
-def test_an_interrupted_recal_resumed_as_the_console_says_files_exactly_one_record(tmp_path, capsys, monkeypatch):
-    stores = [tmp_path / "store1", tmp_path / "store2"]
-    _prior_in_stores(tmp_path, capsys, stores)
-    # as the console says: stableins recal --resume DIR
-    command = _interrupted_recal(tmp_path, capsys, monkeypatch, stores[0], "recal1")
-    assert command[:3] == ["stableins", "recal", "--resume"] and command[3] == str(tmp_path / "recal1")
-    assert cli.main([*command[1:], "--yes"]) == 0
-    out = capsys.readouterr().out
-    assert "changed (|z| ≥ 3)" in out or "significant" in out  # the change table of the recalibration
-    assert re.search(r"^sf_x\s", out, re.M), out
-    entries = HistoryStore(stores[0]).entries("SN27")
-    assert len(entries) == 2  # the coarse record and exactly one new record
-    assert (stores[0] / "SN27" / entries[-1].file).read_bytes() == (tmp_path / "recal1" / "record.json").read_bytes()
-    # resumed again: finished, nothing filed twice
-    assert cli.main([*command[1:], "--yes"]) == 0
-    assert len(HistoryStore(stores[0]).entries("SN27")) == 2
-    # the same through 'stableins run --resume DIR' on a recalibration's directory
-    _interrupted_recal(tmp_path, capsys, monkeypatch, stores[1], "recal2")
-    assert cli.main(["run", "--resume", str(tmp_path / "recal2"), "--yes"]) == 0
-    out = capsys.readouterr().out
-    assert re.search(r"^sf_x\s", out, re.M), out
-    entries = HistoryStore(stores[1]).entries("SN27")
+def _filed(store, rundir):
+    """The store's records of SN27: exactly the record in force and the recalibration's record."""
+    entries = HistoryStore(store).entries("SN27")
     assert len(entries) == 2
-    assert (stores[1] / "SN27" / entries[-1].file).read_bytes() == (tmp_path / "recal2" / "record.json").read_bytes()
-    assert (tmp_path / "recal2" / "recal-changes.txt").exists()
+    assert (store / "SN27" / entries[-1].file).read_bytes() == (rundir / "record.json").read_bytes()
+
+
+def test_an_interrupted_recal_resumed_as_the_console_says_files_exactly_one_record(tmp_path, capsys, monkeypatch):
+    store = tmp_path / "store"
+    _prior_in_store(tmp_path, capsys, store)
+    command = _interrupted_recal(tmp_path, capsys, monkeypatch, store, "recal")
+    # the same interrupted recalibration, its store as it was, for 'stableins run --resume' below
+    shutil.copytree(store, tmp_path / "store-before")
+    shutil.copytree(tmp_path / "recal", tmp_path / "recal-before")
+    # as the console says: stableins recal --resume DIR
+    assert command[:3] == ["stableins", "recal", "--resume"] and command[3] == str(tmp_path / "recal")
+    assert cli.main([*command[1:], "--yes"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^sf_x\s", out, re.M) and "field recalibration of SN27" in out, out  # the change table
+    _filed(store, tmp_path / "recal")
+    assert cli.main([*command[1:], "--yes"]) == 0  # resumed again: finished, nothing filed twice
+    assert len(HistoryStore(store).entries("SN27")) == 2
+    # the same through 'stableins run --resume DIR' on a recalibration's directory
+    shutil.rmtree(store)
+    shutil.rmtree(tmp_path / "recal")
+    shutil.copytree(tmp_path / "store-before", store)
+    shutil.copytree(tmp_path / "recal-before", tmp_path / "recal")
+    capsys.readouterr()
+    assert cli.main(["run", "--resume", str(tmp_path / "recal"), "--yes"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^sf_x\s", out, re.M), out
+    _filed(store, tmp_path / "recal")
+    assert (tmp_path / "recal" / "recal-changes.txt").exists()
 
 
 def test_recal_resume_of_a_plain_run_names_the_right_command(tmp_path, capsys):
-    coarse = _short("device-coarse", tmp_path / "coarse.toml", dwell=2.0, settle=0.5)
-    assert cli.main(["run", str(coarse), "--driver", "sim", "--seed", "4", "--out", str(tmp_path / "run"), "--yes", "--quiet"]) == 0
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(short_plan(dwell=1.0, checks=SIM_CHECKS, positions=SMALL_MOVES[:2], person=False).to_dict()))
+    assert cli.main(["run", str(plan), "--driver", "sim", "--seed", "4", "--out", str(tmp_path / "run"), "--yes", "--quiet"]) == 0
     capsys.readouterr()
     assert cli.main(["recal", "--resume", str(tmp_path / "run"), "--yes"]) == 2
     err = capsys.readouterr().err

@@ -4,6 +4,11 @@ interrupted in the record resumes to identical data; a controller without the ca
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+
 import pytest
 from systematic_world import prior_record
 
@@ -13,12 +18,13 @@ from stableins.drivers.errors import DriverProtocolError
 from stableins.drivers.select import simulated_platform
 from stableins.drivers.server import PROTOCOL_VERSION
 from stableins.drivers.tcp import connect, parse_greeting
-from stableins.procedures.definition import load_procedure
-from stableins.procedures.journal import scan
+from stableins.procedures.definition import load_procedure, resolve
+from stableins.procedures.journal import KILL_AFTER_ENV, scan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.runs import RunSetup, resume_run, start_run
-from tests.tcp_fixtures import ServerProcess
+from tests.tcp_fixtures import ROOT, ServerProcess
+from tests.test_run_systematic import SHORT as SYSTEMATIC_2H  # system-indexed with two holds of an hour at 2 Hz
 
 SEED, UNIT, RATE = 5, "NAV-1", 10.0
 DRIFT = """
@@ -65,6 +71,7 @@ def _same_record(a, b):
         assert (data_a[name] == data_b[name]).all(), name
 
 
+@pytest.mark.slow
 def test_drift_test_over_tcp_equals_the_simulated_run_and_resumes_to_identical_data(inputs, tmp_path):
     reference = _run(inputs, tmp_path / "sim", "sim")
     with ServerProcess(seed=SEED, simulator=True, unit=UNIT, rate=RATE, installed=inputs / "cal.json") as server:
@@ -96,6 +103,74 @@ def test_drift_test_over_tcp_equals_the_simulated_run_and_resumes_to_identical_d
     _same_record(resumed.dataset, reference.dataset)
     kinds = [r.kind for r in scan(tmp_path / "killed" / "journal.bin").records]
     assert "resume" in kinds and kinds[-1] == "finished"
+
+
+STATIC_DAY = """
+[procedure]
+name = "system-static-1hz"
+stage = "system"
+[record]
+settle = 1.0
+duration = 86400.0
+sample_rate = 1.0
+[runner]
+chunk = 3600.0
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("definition", "rate", "parameters"),
+    [
+        ("drift-two-position", 10.0, ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")),
+        ("drift-three-position", 10.0, ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z")),
+        (SYSTEMATIC_2H, 2.0, ("gyro_drift_x", "Dg_zz", "bias_x", "sf_y")),
+        (STATIC_DAY, 1.0, ("bias_x", "bias_y", "sf_z", "beta_zx")),
+    ],
+    ids=["drift-two-position", "drift-three-position", "system-indexed-2h", "system-static-day-1hz"],
+)
+def test_every_system_level_procedure_over_tcp_ends_with_the_same_record_as_the_simulated_run(tmp_path, definition, rate, parameters):
+    if definition.lstrip().startswith("["):
+        path = tmp_path / "definition.toml"
+        path.write_text(definition)
+    else:
+        path = resolve(definition)
+    prior_record(simulated_platform(SEED, UNIT, rate).truth).save(tmp_path / "cal.json")
+    plan = plan_from_definition(load_procedure(path))
+    setup = RunSetup(definition_file=path, prior_file=tmp_path / "cal.json")
+    outcomes = {}
+    with ServerProcess(seed=SEED, simulator=True, unit=UNIT, rate=rate, installed=tmp_path / "cal.json") as server:
+        for spec in ("sim", f"tcp://127.0.0.1:{server.port}"):
+            name = spec.split(":")[0]
+            console = Console(yes=True, quiet=True)
+            outcomes[name] = start_run(plan, tmp_path / name, driver_spec=spec, seed=SEED, unit=UNIT, console=console, setup=setup)
+    _same_record(outcomes["tcp"].dataset, outcomes["sim"].dataset)
+    ours, theirs = CalibrationRecord.load(outcomes["tcp"].record), CalibrationRecord.load(outcomes["sim"].record)
+    assert ours.ids == theirs.ids
+    for pid in parameters:
+        assert (ours[pid].value, ours[pid].sigma) == (theirs[pid].value, theirs[pid].sigma), pid
+
+
+def test_kill_9_in_the_record_over_tcp_then_resume_gives_identical_data(inputs, tmp_path):
+    reference = _run(inputs, tmp_path / "sim", "sim")
+    records = scan(tmp_path / "sim" / "journal.bin").records
+    chunks = [k for k, r in enumerate(records) if r.kind == "op" and r["operation"] == "static_chunk"]
+    kill_after = chunks[4] + 1  # the process dies once the fifth chunk of the record is on disk
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    with ServerProcess(seed=SEED, simulator=True, unit=UNIT, rate=RATE, installed=inputs / "cal.json") as server:
+        rundir = tmp_path / "tcp"
+        argv = ["run", str(inputs / "drift.toml"), "--driver", f"tcp://127.0.0.1:{server.port}", "--seed", str(SEED), "--unit", UNIT,
+                "--prior", str(inputs / "cal.json"), "--out", str(rundir), "--yes", "--quiet"]  # fmt: skip
+        killed = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, capture_output=True, text=True,
+                                env=env | {KILL_AFTER_ENV: str(kill_after)}, timeout=300)  # fmt: skip
+        assert killed.returncode == -signal.SIGKILL, killed.stderr
+        assert len(scan(rundir / "journal.bin").records) == kill_after
+        resumed = subprocess.run([sys.executable, "-m", "stableins.cli", "run", "--resume", str(rundir), "--yes", "--quiet"], cwd=ROOT,
+                                 capture_output=True, text=True, env=env, timeout=300)  # fmt: skip
+        assert resumed.returncode == 0, resumed.stderr
+    _same_record(rundir / "system.h5", reference.dataset)
+    ours, theirs = CalibrationRecord.load(rundir / "record.json"), CalibrationRecord.load(reference.record)
+    assert [ours[f"gyro_drift_{a}"].value for a in "xyz"] == [theirs[f"gyro_drift_{a}"].value for a in "xyz"]
 
 
 def test_a_controller_without_navigation_outputs_is_told_what_is_missing(inputs, tmp_path):

@@ -41,6 +41,10 @@ _RECORD_HEAD = struct.Struct("<4sII")
 _HEADER_LENGTH = struct.Struct("<I")
 #: Largest payload accepted when reading (guards against a corrupted length field) [bytes].
 MAX_PAYLOAD = 1 << 31
+#: Test hook: with ``STABLEINS_KILL_AFTER_RECORDS=N`` in its environment, a process kills itself (SIGKILL, as
+#: ``kill -9``) right after the journal it writes holds N records on disk: a deterministic crash for the resume
+#: tests (tests/test_run_network_system.py), where killing from outside would depend on timing.
+KILL_AFTER_ENV = "STABLEINS_KILL_AFTER_RECORDS"
 #: Suffix of a journal being created under a temporary name (see :meth:`Journal.create`).
 _UNLINKED_SUFFIX = ".new"
 _DTYPES = {"float64": "<f8", "int64": "<i8", "uint8": "u1"}
@@ -302,6 +306,8 @@ class Journal:
         self.records = records
         self._fd = handle
         self.recovered = torn
+        kill = os.environ.get(KILL_AFTER_ENV, "")
+        self._kill_after = int(kill) if kill.isdigit() else None
 
     # ------------------------------------------------------------------ open
     @classmethod
@@ -383,6 +389,10 @@ class Journal:
         os.fsync(self._fd)
         record = _decode(blob[_RECORD_HEAD.size :], offset, str(self.path), with_arrays=False)
         self.records.append(record)
+        if self._kill_after is not None and len(self.records) >= self._kill_after:
+            import signal
+
+            os.kill(os.getpid(), signal.SIGKILL)  # the test hook (KILL_AFTER_ENV): dies as on kill -9, the record on disk
         return record
 
     def close(self) -> None:
