@@ -282,10 +282,15 @@ class NumberedCanvas(canvas_module.Canvas):
 
 @dataclass(frozen=True)
 class PageMarks:
-    """What every page of a document says beyond its furniture: a watermark across it, a banner under its header."""
+    """What a document says beyond its furniture.
+
+    A watermark across every page, a banner under every header, and the document information's keywords (a
+    certificate's manifest of inputs, :mod:`stableins.reporting.signing`).
+    """
 
     watermark: str = ""
     banner: str = ""
+    keywords: str = ""
 
 
 def _outline(canvas: Any, text: str, size: float) -> Any:
@@ -388,6 +393,7 @@ def build(
         author="stableins",
         subject=subject,
         creator="stableins (reportlab)",
+        keywords=marks.keywords,
     )
     frame = Frame(
         doc.leftMargin, doc.bottomMargin, doc.width, doc.height, id="body", leftPadding=0, rightPadding=0, topPadding=0, bottomPadding=0
