@@ -274,6 +274,13 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     argv = ["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json"), "--bias-instability", "2", "--json"]
     assert cli.main(argv) == 0
     printed = json.loads(capsys.readouterr().out)
+    # dates consistent end to end: the device session ends before the system day that would be simulated next (ending now)
+    from datetime import UTC, datetime, timedelta
+
+    from stableins.conventions import SIDEREAL_DAY
+
+    data_end = datetime.fromisoformat(CalibrationRecord.load(tmp_path / "cal.json").provenance.data_end)
+    assert datetime.now(UTC) - data_end > timedelta(seconds=float(SIDEREAL_DAY))
     assert cli.main(["diagnose", str(coarse), str(fine), "--record", str(tmp_path / "cal.json"), "--stage", "coarse", "--json"]) == 0
     (tmp_path / "diag.json").write_text(capsys.readouterr().out)
     out = tmp_path / "cal.pdf"
