@@ -250,6 +250,9 @@ def test_unresolved_slow_noise_enters_u_as_the_largest_floor(device):
     record = CalibrationRecord.from_device(calibration, truth.site)
     budget = uncertainty_budget(record)
     assert budget.state("slow_noise") == "evaluated" and "up to" in budget.source("slow_noise").uncertainty
+    # the record's notes say what the console says: not detected, up to the limit; never "bias instability 0 µg"
+    described = [n for s in record.stages for n in s.notes if n.startswith("noise model (")]
+    assert described and all("slow noise not detected: bias instability up to" in n and "instability 0 µg" not in n for n in described)
     compared = 0
     for k, pid in enumerate(record.ids):
         if budget.type_a[k] > 0 and pid in floor.ids and floor[pid][1] > 0:

@@ -94,7 +94,8 @@ def styles() -> dict[str, ParagraphStyle]:
         "note": ParagraphStyle(
             "note", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.55, leftIndent=8, firstLineIndent=-6, spaceAfter=1
         ),
-        "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
+        # 1.4× leading: a subscript (D with g,xy) never touches the row below
+        "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.4, spaceAfter=0),
         "cell_mono": ParagraphStyle(
             "cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0
         ),
