@@ -315,22 +315,27 @@ def _named_inputs(path: str, data: bytes) -> dict[str, Any]:
     if not rows:
         return {}
     folder = Path(path).parent
-    verified, absent = [], []
+    by_name: dict[str, list[dict[str, str]]] = {}
     for row in rows:
-        candidate = folder / row["name"]
+        by_name.setdefault(row["name"], []).append(row)
+    verified, absent = 0, []
+    for name, named in by_name.items():  # two inputs may share a file name (device.h5 of two calibrations): one must match
+        candidate = folder / name
         if not candidate.is_file():
-            absent.append(row["name"])
+            absent.append(name)
             continue
         actual = file_sha256(candidate)
-        if actual != row["sha256"]:
+        matching = [r for r in named if r["sha256"] == actual]
+        if not matching:
             raise InputError(
-                f"{row['name']} ({row['role']}) has SHA-256 {actual}, the certificate names {row['sha256']}: it is not the file "
+                f"{name} ({named[0]['role']}) has SHA-256 {actual}, the certificate names {named[0]['sha256']}: it is not the file "
                 "the certificate was made from",
                 path=path,
                 field="inputs",
             )
-        verified.append(row["name"])
-    out: dict[str, Any] = {"inputs": f"{len(verified)} of {len(rows)} verified by SHA-256"}
+        verified += len(matching)
+        absent += [f"{name} ({r['role']}, another file of that name)" for r in named if r["sha256"] != actual]
+    out: dict[str, Any] = {"inputs": f"{verified} of {len(rows)} verified by SHA-256"}
     if absent:
         out["not beside it"] = ", ".join(sorted(set(absent)))
     return out
