@@ -206,6 +206,11 @@ def html_table(
     return f'<table style="{_STYLE}"><thead>{head}</thead><tbody>{"".join(body)}</tbody></table>'
 
 
+def typeset(text: str) -> str:
+    """Return escaped HTML text with the plain-text notations typeset: ``χ²_ν`` → χ²<sub>ν</sub> (no literal underscore)."""
+    return text.replace("χ²_ν", "χ²<sub>ν</sub>").replace("chi2_red", "χ²<sub>ν</sub>")
+
+
 def html_result(
     title: str, lines: Iterable[str] = (), tables: Iterable[str] = (), details: Iterable[tuple[str, Sequence[str]]] = ()
 ) -> str:
@@ -214,11 +219,14 @@ def html_result(
     ``lines`` and ``details`` are plain text (escaped here); ``tables`` are :func:`html_table` output.
     """
     parts = [f'<div class="stableins-result"><strong>{escape(title)}</strong>']
-    parts += [f'<div style="margin:0.2em 0">{escape(line)}</div>' for line in lines if line]
+    for line in lines:
+        if line:
+            colour = ";color:#b3261e" if line.startswith("warning:") else ""
+            parts.append(f'<div style="margin:0.2em 0{colour}">{typeset(escape(line))}</div>')
     parts += list(tables)
     for summary, items in details:
         if items:
-            body = "".join(f"<li>{escape(item)}</li>" for item in items)
+            body = "".join(f"<li>{typeset(escape(item))}</li>" for item in items)
             parts.append(f"<details><summary>{escape(summary)}</summary><ul>{body}</ul></details>")
     parts.append("</div>")
     return "".join(parts)

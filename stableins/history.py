@@ -56,6 +56,9 @@ CHANGE_THRESHOLD = 3.0
 #: Default age after which the record in force is reported stale.
 DEFAULT_MAX_AGE = timedelta(days=180)
 SECONDS_PER_YEAR = 365.25 * 86400.0
+#: The shortest span of records over which a drift per year is stated: two records minutes apart say nothing about a
+#: year (their difference over 55 s, scaled to a year, is noise times 5.7e5), and a calibration interval is months.
+MIN_DRIFT_SPAN_DAYS = 30.0
 
 
 def parse_date(text: str, field: str = "date") -> datetime:
@@ -130,6 +133,20 @@ class Trend:
     slope: float
     slope_sigma: float
     chi2_red_constant: float
+    #: the values the records themselves state (after every Bayesian update), beside the data-only ``values`` the
+    #: drift is fitted to; empty when not given
+    record_values: tuple[float, ...] = ()
+    record_sigmas: tuple[float, ...] = ()
+
+    @property
+    def span_days(self) -> float:
+        """Days from the first record to the last."""
+        return (self.times[-1] - self.times[0]).total_seconds() / 86400.0 if self.times else 0.0
+
+    @property
+    def too_short(self) -> bool:
+        """Whether the records span less than :data:`MIN_DRIFT_SPAN_DAYS`: no drift per year is stated."""
+        return self.span_days < MIN_DRIFT_SPAN_DAYS
 
     @property
     def significance(self) -> float:
@@ -213,14 +230,18 @@ def _spread(term: Any, value: Any) -> Any:
 
 
 def trend(points: list[tuple[datetime, float, float]], parameter: str = "", unit: str = "") -> Trend:
-    """Weighted straight-line drift of ``(time, value, sigma)`` points (module docstring)."""
+    """Weighted straight-line drift of ``(time, value, sigma)`` points (module docstring).
+
+    Over a span shorter than :data:`MIN_DRIFT_SPAN_DAYS` no drift is stated (slope NaN, :attr:`Trend.too_short`).
+    """
     import numpy as np
 
     times = [p[0] for p in points]
     t = np.array([(p[0] - times[0]).total_seconds() / SECONDS_PER_YEAR for p in points])
     x = np.array([p[1] for p in points])
     s = np.array([p[2] for p in points])
-    if len(points) < 2 or not np.all(s > 0):
+    short = len(points) >= 2 and (max(times) - min(times)).total_seconds() < MIN_DRIFT_SPAN_DAYS * 86400.0
+    if len(points) < 2 or not np.all(s > 0) or short:
         return Trend(parameter, unit, tuple(times), tuple(x), tuple(s), math.nan, math.nan, math.nan)
     w = 1.0 / s**2
     mean_t = np.sum(w * t) / np.sum(w)
@@ -271,15 +292,33 @@ def format_trends(trends: list[Trend]) -> str:
     from stableins.discovery.library import all_terms
 
     terms = all_terms()  # discovered terms in engineering units too
+    short = [t for t in trends if t.too_short]
+    if short and len(short) == len(trends):
+        span = max(t.span_days for t in trends)
+        return (
+            f"no drift stated: the records span {_span_text(span)}, less than the {MIN_DRIFT_SPAN_DAYS:g} days a drift per year "
+            "needs (a difference over minutes, scaled to a year, is noise)"
+        )
     lines = [f"{'parameter':<12} {'records':>7} {'drift / year':>14} {'σ':>10} {'unit':<8} {'z':>6} {'χ²_ν const':>10}"]
     for t in trends:
         term = terms.get(t.id)
         unit = term.unit if term else t.unit
+        if t.too_short:
+            lines.append(f"{t.id:<12} {len(t.values):>7} {'—':>14} {'—':>10} {unit:<8} {'—':>6}  (span {_span_text(t.span_days)})")
+            continue
         z = t.significance
         flag = "  <-- drifting" if abs(z) >= 3 else ""
         slope, sigma = float(_spread(term, t.slope)), float(_spread(term, t.slope_sigma))
         lines.append(f"{t.id:<12} {len(t.values):>7} {slope:>14.4f} {sigma:>10.4f} {unit:<8} {z:>6.2f} {t.chi2_red_constant:>10.2f}{flag}")
     return "\n".join(lines)
+
+
+def _span_text(days: float) -> str:
+    """Return a span of time for people: seconds, hours or days."""
+    seconds = days * 86400.0
+    if seconds < 3600.0:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 3600.0:.1f} h" if seconds < 86400.0 else f"{days:.1f} d"
 
 
 def plot_trends(trends: list[Trend], serial: str) -> Figure:
@@ -296,7 +335,14 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
     fig, axes = plt.subplots(rows, columns, figsize=(4.5 * columns, 2.8 * rows), squeeze=False)
     for ax, t in zip(axes.flat, trends):
         term = terms.get(t.id)
-        ax.errorbar(t.times, _value(term, t.values), yerr=_spread(term, t.sigmas), fmt="o", ms=4, capsize=2)
+        if t.record_values:  # what each record states, and the data-only estimates the drift is fitted to
+            ax.errorbar(t.times, _value(term, t.record_values), yerr=_spread(term, t.record_sigmas), fmt="o", ms=4, capsize=2,
+                        label="record")  # fmt: skip
+            if not np.allclose(t.record_values, t.values, rtol=0.0, atol=1e-3 * float(np.min(t.sigmas))):
+                ax.errorbar(t.times, _value(term, t.values), yerr=_spread(term, t.sigmas), fmt="s", ms=3, mfc="none", capsize=2,
+                            alpha=0.7, label="its data alone")  # fmt: skip
+        else:
+            ax.errorbar(t.times, _value(term, t.values), yerr=_spread(term, t.sigmas), fmt="o", ms=4, capsize=2)
         if math.isfinite(t.slope):
             years = np.array([(d - t.times[0]).total_seconds() / SECONDS_PER_YEAR for d in t.times])
             w = 1.0 / np.asarray(t.sigmas) ** 2
@@ -304,11 +350,25 @@ def plot_trends(trends: list[Trend], serial: str) -> Figure:
             mean_x = np.sum(w * np.asarray(t.values)) / np.sum(w)
             line = mean_x + t.slope * (years - mean_t)
             ax.plot(t.times, _value(term, line), "-", lw=1, label=f"{t.significance:+.1f}σ drift")
+        elif t.too_short:
+            ax.set_xlabel(f"span {_span_text(t.span_days)}: no drift stated", fontsize=7)
+        if t.record_values or math.isfinite(t.slope):
             ax.legend(fontsize=7)
-        ax.set_title(f"{t.id} [{term.unit if term else t.unit}]", fontsize=9)
+        ax.set_title(f"{_mathtext(t.id)} [{_unit_text(term.unit if term else t.unit)}]", fontsize=9)
         ax.tick_params(axis="x", labelrotation=30, labelsize=7)
     for ax in list(axes.flat)[len(trends) :]:
         ax.set_visible(False)
     fig.suptitle(f"calibration history of {serial}")
     fig.tight_layout()
     return fig
+
+
+def _mathtext(parameter: str) -> str:
+    """Return a parameter id as matplotlib mathtext (``sf_x`` → sf with subscript x), never with a literal underscore."""
+    base, _, sub = parameter.partition("_")
+    return base if not sub else f"{base}$_{{{sub.replace('_', ',')}}}$"
+
+
+def _unit_text(unit: str) -> str:
+    """Return an engineering unit as printed (µg, °/h)."""
+    return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³").replace("deg/h", "°/h")

@@ -501,6 +501,9 @@ def _write_report(rundir: Path, runner: Runner, outcome: RunOutcome, start: Any)
     runner.console.say(f"report written: {target}")
     outcome.verdict, outcome.conformity = summary.verdict, tuple(summary.conformity)
     runner.console.say("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
+    if summary.missing:  # who calibrated what for whom (ISO/IEC 17025 7.8.2.1): asked for with --set, else a DRAFT
+        given = " ".join(f"--set {k}=..." for k in summary.missing)
+        runner.console.say(f"the certificate is a DRAFT: {', '.join(summary.missing)} not stated (give {given})")
     return target
 
 

@@ -716,3 +716,18 @@ def test_an_entry_out_of_range_is_asked_again_not_fatal(tmp_path, monkeypatch):
 def test_an_injected_effect_beyond_the_model_is_refused_and_leaves_nothing(tmp_path):
     err = refused(["simulate", "device", "--hidden", "K3_x=1e300", "--out", tmp_path / "sim"], "effects.K3_x", "nominal size")
     assert "Traceback" not in err and not (tmp_path / "sim").exists()
+
+
+def test_a_file_of_another_kind_is_named_by_its_content_not_its_size(tmp_path, capsys):
+    """calibrate system cal.json --prior system.h5: "this is an HDF5 data file, not a calibration record", not its size."""
+    from stableins.records import CalibrationRecord
+
+    h5 = tmp_path / "system.h5"
+    h5.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(70 << 20))  # larger than any record may be
+    with pytest.raises(InputError, match=r"this is an HDF5 data file, not a calibration record .*\(arguments swapped\?\)") as error:
+        CalibrationRecord.load(h5)
+    assert "bytes" not in str(error.value)
+    pdf = tmp_path / "report.pdf"
+    pdf.write_bytes(b"%PDF-1.4\n%%EOF\n")
+    with pytest.raises(InputError, match="this is a PDF document, not"):
+        CalibrationRecord.load(pdf)

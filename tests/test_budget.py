@@ -250,6 +250,9 @@ def test_unresolved_slow_noise_enters_u_as_the_largest_floor(device):
     record = CalibrationRecord.from_device(calibration, truth.site)
     budget = uncertainty_budget(record)
     assert budget.state("slow_noise") == "evaluated" and "up to" in budget.source("slow_noise").uncertainty
+    # the record's notes say what the console says: not detected, up to the limit; never "bias instability 0 µg"
+    described = [n for s in record.stages for n in s.notes if n.startswith("noise model (")]
+    assert described and all("slow noise not detected: bias instability up to" in n and "instability 0 µg" not in n for n in described)
     compared = 0
     for k, pid in enumerate(record.ids):
         if budget.type_a[k] > 0 and pid in floor.ids and floor[pid][1] > 0:
@@ -259,3 +262,24 @@ def test_unresolved_slow_noise_enters_u_as_the_largest_floor(device):
     assert max(budget.contributions["slow_noise"] / np.where(budget.type_a > 0, budget.type_a, np.inf)) > 0.3  # it matters
     # a datasheet noise model (the fixture's record): nothing unresolved, the column does not apply
     assert uncertainty_budget(device[4]).state("slow_noise") == "not applicable"
+
+
+def test_calibrate_device_takes_what_load_device_returns(tmp_path):
+    """calibrate_device(load_device(...)) works — the datasets summarized as the CLI does — and gives the dwells' result."""
+    from stableins.data.device import load_device, save_device
+    from stableins.discovery.dwells import dwells_from_dataset
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.simulator.device import simulate_dwells
+    from stableins.simulator.truth import Truth
+
+    truth = Truth.draw(21)
+    columns = simulate_dwells(truth, [s.command for s in COARSE.steps], dwell=20.0, settle=5.0, rate=20.0, seed=211, stage="coarse")
+    path = save_device(tmp_path / "coarse.csv", columns, replace(truth.site, sample_rate=20.0))
+    dataset = load_device(path)
+    from_files = calibrate_device(dataset, layouts=LAYOUTS)
+    summaries = dwells_from_columns(dataset.columns, layouts=LAYOUTS, source=str(path))
+    from_dwells = calibrate_device(summaries, dataset.metadata, layouts=LAYOUTS)
+    np.testing.assert_array_equal(from_files.final.values, from_dwells.final.values)
+    assert calibrate_device([dataset], layouts=LAYOUTS).final.values.tolist() == from_files.final.values.tolist()
+    with pytest.raises(TypeError, match="not a DwellSet"):
+        calibrate_device(dwells_from_dataset([dataset], layouts=LAYOUTS), layouts=LAYOUTS)

@@ -284,3 +284,17 @@ def test_spectrum_plot_zooms_on_the_harmonics(agg):
     assert ax.get_ylim()[1] < 10 * 2.0  # no 1e-16 .. 1e1 decades
     assert "cycles per sidereal day" in ax.get_xlabel() and "[µg]" in ax.get_ylabel()
     assert "2×ω_ie\n12.0 h" in [x.get_text() for x in ax.texts] and "next: something" in _texts(fig)
+
+
+def test_a_fit_with_bad_chi2_warns_in_its_repr_report_and_html():
+    """χ²_ν above the upper end of its 95 % interval (χ² distribution of ν) is said in repr, str and HTML; a good fit is not."""
+    good = make_result()  # 20 residuals of 1σ ≈ 1
+    bad = dataclasses.replace(good, residuals=good.residuals * math.sqrt(5.0) / math.sqrt(max(good.chi2_red, 1e-9)))
+    assert bad.chi2_red == pytest.approx(5.0)
+    for text in (repr(bad), str(bad)):
+        assert "warning: χ²_ν = 5.000 is above" in text and "95 % interval" in text
+    page = bad._repr_html_()
+    well_formed(page)
+    assert "warning: χ²<sub>ν</sub> = 5.000 is above" in page and "χ²_ν" not in page
+    calm = dataclasses.replace(good, residuals=good.residuals / math.sqrt(good.chi2_red))  # χ²_ν = 1 exactly
+    assert calm.fit_warning() is None and "warning" not in repr(calm) and "warning" not in calm._repr_html_()

@@ -207,6 +207,32 @@ def test_history_changes_trends_and_plot(tmp_path):
     assert len([ax for ax in fig.axes if ax.get_visible()]) == 3
 
 
+def test_two_records_a_minute_apart_state_no_drift(tmp_path, capsys):
+    """55 s between two records cannot carry a drift per year: history prints none (and says why), the plot shows the records."""
+    store = HistoryStore(tmp_path / "store")
+    rng = np.random.default_rng(3)
+    for k, date in enumerate(("2026-11-28T10:00:00+00:00", "2026-11-28T10:00:55+00:00")):
+        path = tmp_path / f"r{k}.json"
+        make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), date).save(path)
+        store.add(path)
+    trends = store.trends("INS-7")
+    assert trends and all(t.too_short and math.isnan(t.slope) and math.isnan(t.significance) for t in trends)
+    record = HistoryStore(tmp_path / "store").load("INS-7", store.entries("INS-7")[0])
+    assert trends[0].record_values[0] == record[trends[0].id].value  # the plot's points are the records' own values
+    text = format_trends(trends)
+    assert "no drift stated" in text and "55 s" in text and "per year" in text and "ppm" not in text
+    from stableins import cli
+
+    assert cli.main(["history", "INS-7", "--store", str(tmp_path / "store"), "--plot", str(tmp_path / "h.png")]) == 0
+    out = capsys.readouterr().out
+    assert "no drift stated: the records span 55 s" in out and "drifting" not in out
+    # 40 days apart: the drift is stated
+    late = tmp_path / "late.json"
+    make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2027-01-07T10:00:00+00:00").save(late)
+    store.add(late)
+    assert all(math.isfinite(t.slope) for t in store.trends("INS-7"))
+
+
 def _cli(*argv):
     import os
     import subprocess

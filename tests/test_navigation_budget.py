@@ -107,6 +107,39 @@ def test_polar_drift_gives_an_east_velocity_of_R_cosL_eps_and_a_longitude_rate_o
         assert slope == pytest.approx(eps, rel=tolerance)
 
 
+def test_a_polar_g_sensitivity_is_a_polar_drift_of_dg_g_sinl_within_one_percent():
+    """On a static base Dg_zz is a polar drift ε = Dg_zz g sinL: the budget propagates it (it once said "does not act on
+    navigation"), and an independent propagation — the longitude error of a polar drift, R cosL ε t (the derivation
+    the test above checks) — agrees within 1 %."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G
+
+    gravity, duration = 9.8017, 5 * 86400.0
+    sigma = 5.7e-6 * DEG_PER_HOUR_PER_G  # the issue's σ(Dg_zz)
+    scenario = NavigationScenario(LATITUDE, gravity, zeta=0.5, vertical_gains=(2 / 300, 2 / 300**2 + 2 * gravity / 6371e3, 1 / 300**3))
+    model = ErrorModel.standard()  # the gyro terms are known to the budget by id (stableins.terms.known_terms)
+    ids = ("Dg_zz",)
+    budget = navigation_budget(CalibrationTerms(model, {}, ids, np.array([[sigma**2]])), scenario, duration=duration, step=120.0)
+    eps = sigma * gravity * math.sin(LATITUDE)  # the polar drift it is
+    expected = scenario.radius * math.cos(LATITUDE) * eps * duration  # m: the longitude error of a polar drift after 5 days
+    assert 35.0 < expected < 39.0  # the issue's 37 m
+    assert budget.term("Dg_zz").summary.position.final == pytest.approx(expected, rel=0.01)
+    # the same as a given polar drift ε through the budget's own drift path
+    drift = navigation_errors(model, {}, {"gyro_drift_z": eps}, scenario, duration=duration, step=120.0)
+    g_sensitive = navigation_errors(model, {}, {"Dg_zz": sigma}, scenario, duration=duration, step=120.0)
+    np.testing.assert_allclose(g_sensitive[Quantity.POSITION_EAST], drift[Quantity.POSITION_EAST], rtol=1e-6, atol=1e-9)
+    # across the polar axis the specific force turns with the Earth: a modulated drift, far smaller than the polar one
+    across = navigation_budget(CalibrationTerms(model, {}, ("Dg_xx",), np.array([[sigma**2]])), scenario, duration=duration, step=120.0)
+    assert across.term("Dg_xx").summary.position.final < 0.05 * expected
+
+
+def test_budget_refuses_a_duration_without_a_unit(records, capsys):
+    assert cli.main(["budget", str(records / "a.json"), "--duration", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "--duration" in err and "5d" in err and "unit" in err
+    assert cli.main(["budget", str(records / "a.json"), "--duration", "5d", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)
+
+
 def test_navigation_frame_forcing_is_the_harmonic_model_of_the_system_docs():
     """Δf^n/g = (−sinL(cosS δx + sinS δy) + cosL δz, −sinS δx + cosS δy, −u·δ) with δ of docs/system-calibration.md §0."""
     scenario = NavigationScenario(LATITUDE, 9.80)

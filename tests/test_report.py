@@ -274,6 +274,13 @@ def test_pipeline_certificate_shows_the_fits_the_calibration_printed(tmp_path, c
     argv = ["calibrate", "device", str(coarse), str(fine), "--out", str(tmp_path / "cal.json"), "--bias-instability", "2", "--json"]
     assert cli.main(argv) == 0
     printed = json.loads(capsys.readouterr().out)
+    # dates consistent end to end: the device session ends before the system day that would be simulated next (ending now)
+    from datetime import UTC, datetime, timedelta
+
+    from stableins.conventions import SIDEREAL_DAY
+
+    data_end = datetime.fromisoformat(CalibrationRecord.load(tmp_path / "cal.json").provenance.data_end)
+    assert datetime.now(UTC) - data_end > timedelta(seconds=float(SIDEREAL_DAY))
     assert cli.main(["diagnose", str(coarse), str(fine), "--record", str(tmp_path / "cal.json"), "--stage", "coarse", "--json"]) == 0
     (tmp_path / "diag.json").write_text(capsys.readouterr().out)
     out = tmp_path / "cal.pdf"
@@ -366,3 +373,59 @@ def test_every_word_inside_the_page_and_optional_sections_render(files, tmp_path
     side = 18 * 72 / 25.4 - 1.0  # text frame: 18 mm side margins; header and footer stay 7 mm from the edge
     for x0, y0, x1, y1 in ((float(a), float(b), float(c), float(d)) for a, b, c, d in words):
         assert side < x0 and x1 < width - side and y0 > 20.0 and y1 < height - 20.0
+
+
+def _self_signed(folder: Path) -> tuple[Path, Path]:
+    """A self-signed RSA key and certificate (PEM), as a laboratory's quality manager would hold."""
+    import datetime as dt
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import NameOID
+
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "Quality Manager, Test Laboratory")])
+    now = dt.datetime.now(dt.UTC)
+    usage = x509.KeyUsage(True, True, False, False, False, True, True, False, False)
+    cert = (
+        x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key()).serial_number(7)
+        .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=30))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True).add_extension(usage, critical=True)
+        .sign(key, hashes.SHA256())
+    )  # fmt: skip
+    key_path, cert_path = folder / "key.pem", folder / "cert.pem"
+    key_path.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
+    cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    return key_path, cert_path
+
+
+def test_signed_certificate_verifies_and_one_changed_byte_fails_with_the_reason(files, tmp_path, capsys):
+    """report --sign signs the certificate (PAdES); check verifies the signature and the SHA-256 of the inputs it names."""
+    key, cert = _self_signed(tmp_path)
+    for name in ("device.csv", "record.json", "proc.toml"):
+        shutil.copy(files / name, tmp_path / name)
+    data = tmp_path / "device.csv"
+    out = tmp_path / "signed.pdf"
+    argv = ["report", str(tmp_path / "record.json"), "--data", str(data), "--procedure", str(tmp_path / "proc.toml"), "--operator", "A. P."]
+    assert cli.main([*argv, "--sign", str(key), "--sign-cert", str(cert), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert cli.main(["check", str(out), "--trust", str(cert), "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)["files"][0]
+    signature = found["signature"]
+    assert signature.startswith("intact and valid, signed by Common Name: Quality Manager") and "signer trusted" in signature
+    assert found["inputs"] == "4 of 4 verified by SHA-256"  # record, data, procedure and the technical report beside it
+    # one byte changed inside what the signature covers: check fails and says why
+    changed = bytearray(out.read_bytes())
+    at = changed.index(b"/Title (") + 10
+    changed[at] ^= 0x01
+    (tmp_path / "changed.pdf").write_bytes(bytes(changed))
+    assert cli.main(["check", str(tmp_path / "changed.pdf")]) == 2
+    assert "the signed bytes were changed after signing" in capsys.readouterr().err
+    # an input it names changed: check names it
+    data.write_text(data.read_text() + "0.1,0.2\n")
+    assert cli.main(["check", str(out)]) == 2
+    assert "device.csv (" in capsys.readouterr().err
+    # a key that is not one: an input error naming the file, nothing written
+    assert cli.main([*argv, "--sign", str(data), "--out", str(tmp_path / "bad.pdf")]) == 2
+    assert not (tmp_path / "bad.pdf").exists() and not (tmp_path / "bad-technical.pdf").exists()

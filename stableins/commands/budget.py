@@ -26,7 +26,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("record", metavar="CAL.json", type=input_file, help="calibration record")
     parser.add_argument(
-        "--duration", type=parse_duration, default=5 * 86400.0, metavar="DURATION", help="navigation time, e.g. 12h, 5d (default 5d)"
+        "--duration",
+        type=duration_with_unit,
+        default=5 * 86400.0,
+        metavar="DURATION",
+        help="navigation time with its unit, e.g. 12h, 5d, 3600s (default 5d)",
     )
     parser.add_argument(
         "--latitude", type=number(-89.0, 89.0, unit="degrees"), metavar="DEG", help="latitude [deg] (default: the record's site)"
@@ -50,6 +54,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def duration_with_unit(text: str) -> float:
+    """Return a navigation time with its unit (``5d``, ``12h``, ``3600s``) in seconds; refuse a bare number (not read as seconds)."""
+    if text.strip().replace(".", "", 1).isdigit():
+        raise argparse.ArgumentTypeError(f"{text!r} has no unit: give one, e.g. {text.strip()}d (days), {text.strip()}h or {text.strip()}s")
+    return parse_duration(text)
 
 
 def run(args: argparse.Namespace) -> int:

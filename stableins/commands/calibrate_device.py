@@ -173,8 +173,6 @@ def run(args: argparse.Namespace) -> int:
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
     steps = next_steps(args, record)
-    for line in steps:
-        note(line)
     result = {
         "record": str(args.out),
         "stages": ["coarse"] + (["fine"] if calibration.fine is not None else []),
@@ -189,7 +187,19 @@ def run(args: argparse.Namespace) -> int:
         "next": [line.strip() for line in steps if line.startswith("  ")],
     }
     emit(args, result, text)
+    _last_lines(steps)
     return 0
+
+
+def _last_lines(steps: list[str]) -> None:
+    """Say the next steps after the report (stdout flushed first): the next step is the last line, not scrolled away above it."""
+    import sys
+
+    from stableins.output import note
+
+    sys.stdout.flush()
+    for line in steps:
+        note(line)
 
 
 def _effect_ids(args: argparse.Namespace, coarse_procedure, fine_procedure) -> list[str]:

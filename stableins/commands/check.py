@@ -35,6 +35,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins check`` to ``parser``."""
     parser.add_argument("files", nargs="+", metavar="FILE", help="any file stableins writes: data, records, truth, plans, journals, ...")
     parser.add_argument("--allow-gaps", action="store_true", help="report gaps in system records as warnings instead of errors")
+    parser.add_argument(
+        "--trust", nargs="+", default=[], metavar="CERT.pem", help="trust anchors: a signed certificate's signer must chain to one"
+    )
 
 
 #: First bytes of binary files stableins writes.
@@ -43,7 +46,7 @@ PDF_MAGIC, PNG_MAGIC, HDF5_MAGIC, SQLITE_MAGIC = b"%PDF-", b"\x89PNG\r\n\x1a\n",
 MAX_WHOLE_FILE = 256 << 20
 
 
-def summarize(path: str, *, allow_gaps: bool = False) -> dict[str, Any]:
+def summarize(path: str, *, allow_gaps: bool = False, trust: tuple[str, ...] = ()) -> dict[str, Any]:
     """Recognize and validate one file and describe it (raises InputError naming the file, the field and what was expected)."""
     from stableins.procedures.journal import FILE_MAGIC
 
@@ -57,7 +60,7 @@ def summarize(path: str, *, allow_gaps: bool = False) -> dict[str, Any]:
     if head.startswith(SQLITE_MAGIC):
         return _store(path)
     if head.startswith(PDF_MAGIC):
-        return _pdf(path)
+        return _pdf(path, trust)
     if head.startswith(PNG_MAGIC):
         return _png(path, head)
     if suffix == ".csv" or head.startswith(b"# stableins-device"):
@@ -282,7 +285,7 @@ def _store(path: str) -> dict[str, Any]:
     }
 
 
-def _pdf(path: str) -> dict[str, Any]:
+def _pdf(path: str, trust: tuple[str, ...] = ()) -> dict[str, Any]:
     import re
 
     from stableins.data.jsonio import read_input_bytes
@@ -291,7 +294,8 @@ def _pdf(path: str) -> dict[str, Any]:
     data = read_input_bytes(path, max_bytes=MAX_WHOLE_FILE, what="a PDF written by stableins")
     if b"%%EOF" not in data[-1024:]:
         raise InputError("the PDF has no end-of-file marker (cut short?)", path=path, field="%%EOF", expected="a complete PDF")
-    pages = len(re.findall(rb"/Type\s*/Page(?![s\w])", data))
+    # page objects by number: an incremental update (a signature) rewrites a page under the same number
+    pages = len(set(re.findall(rb"(\d+) \d+ obj\s*<<(?:(?!endobj).)*?/Type\s*/Page(?![s\w])", data, re.S)))
 
     def info(key: str) -> str:
         match = re.search(rb"/" + key.encode() + rb" \(((?:[^()\\]|\\.)*)\)", data)
@@ -299,9 +303,18 @@ def _pdf(path: str) -> dict[str, Any]:
 
     summary: dict[str, Any] = {"file": path, "kind": "PDF document", "pages": pages}
     if info("Author") == "stableins" and info("Title"):
-        summary.update(kind="calibration certificate (PDF)", title=info("Title"), subject=info("Subject"))
+        kind = "technical report (PDF)" if info("Title").startswith("Technical report") else "calibration certificate (PDF)"
+        summary.update(kind=kind, title=info("Title"), subject=info("Subject"))
     if pages == 0:
         raise InputError("the PDF has no pages", path=path, field="pages", expected="a PDF with at least one page")
+    summary.update(_named_inputs(path, data))
+    from stableins.reporting import signing
+
+    if signing.is_signed(data):
+        found = signing.verify(data, path, trust)
+        summary["signature"] = f"intact and valid, signed by {found.signer}" + (
+            ", signer trusted" if found.trusted else " (no trust anchor given: the signer is not vouched for)"
+        )
     return summary
 
 
@@ -311,6 +324,42 @@ def _holds(path: str) -> dict[str, Any]:
 
     rows = read_holds_table(path)
     return {"file": path, "kind": "holds table", "holds": len(rows), "labelled": sum(1 for *_, o in rows if o)}
+
+
+def _named_inputs(path: str, data: bytes) -> dict[str, Any]:
+    """Compare the SHA-256 of every input a certificate names with the file of that name beside it (a mismatch is an error)."""
+    from stableins.errors import InputError
+    from stableins.records import file_sha256
+    from stableins.reporting.signing import read_manifest
+
+    rows = read_manifest(data)
+    if not rows:
+        return {}
+    folder = Path(path).parent
+    by_name: dict[str, list[dict[str, str]]] = {}
+    for row in rows:
+        by_name.setdefault(row["name"], []).append(row)
+    verified, absent = 0, []
+    for name, named in by_name.items():  # two inputs may share a file name (device.h5 of two calibrations): one must match
+        candidate = folder / name
+        if not candidate.is_file():
+            absent.append(name)
+            continue
+        actual = file_sha256(candidate)
+        matching = [r for r in named if r["sha256"] == actual]
+        if not matching:
+            raise InputError(
+                f"{name} ({named[0]['role']}) has SHA-256 {actual}, the certificate names {named[0]['sha256']}: it is not the file "
+                "the certificate was made from",
+                path=path,
+                field="inputs",
+            )
+        verified += len(matching)
+        absent += [f"{name} ({r['role']}, another file of that name)" for r in named if r["sha256"] != actual]
+    out: dict[str, Any] = {"inputs": f"{verified} of {len(rows)} verified by SHA-256"}
+    if absent:
+        out["not beside it"] = ", ".join(sorted(set(absent)))
+    return out
 
 
 def _png(path: str, head: bytes) -> dict[str, Any]:
@@ -346,7 +395,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stableins check``: validate every file and print what each holds; exit 2 when one is not valid."""
     from stableins.output import emit
 
-    summaries = [summarize(path, allow_gaps=args.allow_gaps) for path in args.files]
+    summaries = [summarize(path, allow_gaps=args.allow_gaps, trust=tuple(args.trust)) for path in args.files]
     lines = []
     for s in summaries:
         details = ", ".join(f"{k} {v}" for k, v in s.items() if k not in ("file", "kind", "warnings"))

@@ -105,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
         summary = write_report(out / "report.pdf", record_path, previous=prior_path)
         note("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
+        if summary.missing:
+            note(f"the certificate is a DRAFT: {', '.join(summary.missing)} not stated (give --set KEY=NAME for each)")
     else:
         args.prior = str(prior_path)
         args.new_calibration = True  # a recalibration starts a new calibration from the record in force

@@ -43,6 +43,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     who = {"laboratory": "the calibration laboratory", "customer": "the customer", "operator": "the person who performed it"}
     for key, text in who.items():
         parser.add_argument(f"--{key}", metavar="NAME", help=f"{text} (else the record's entry; without all three: a DRAFT)")
+    parser.add_argument("--sign", metavar="KEY.pem", help="sign the certificate (PAdES; needs the 'sign' extra, pyHanko) with this PEM key")
+    parser.add_argument("--sign-cert", metavar="CERT.pem", help="the signing key's X.509 certificate (default: in KEY.pem)")
     parser.add_argument(
         "--no-statement",
         action="store_true",
@@ -68,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
             customer=args.customer,
             operator=args.operator,
             no_statement=args.no_statement,
+            sign_key=args.sign,
+            sign_certificate=args.sign_cert,
         ),
         technical=args.technical,
     )
@@ -87,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
     if summary.missing:
         flags = " ".join(f"--{k} NAME" for k in summary.missing)
         text.append(f"DRAFT: {', '.join(summary.missing)} not stated; next: the same command with {flags}")
+    elif args.sign is None:
+        text.append(f"next: sign it (the same command with --sign KEY.pem), then: stableins check {summary.path}")
     else:
-        text.append(f"next: sign it: stableins report ... --sign KEY.pem, or check it: stableins check {summary.path}")
+        text.append(f"signed; next: stableins check {summary.path} (signature and the SHA-256 of every input it names)")
     emit(args, data, "\n".join(text))
     return 0

@@ -165,6 +165,16 @@ def prepare_directory(out: Path | None) -> Path:
     return out
 
 
+def _device_lead() -> float:
+    """Return how long before now a simulated device session ends [s]: one sidereal day and ten minutes.
+
+    A system day simulated next (ending now) then starts after the device calibration it is compensated with.
+    """
+    from stableins.conventions import SIDEREAL_DAY
+
+    return float(SIDEREAL_DAY) + 600.0
+
+
 def simulation_start(duration: float) -> str:
     """UTC time of time 0 of simulated data lasting ``duration`` seconds: they end now (to the second)."""
     from datetime import UTC, datetime, timedelta
@@ -304,7 +314,10 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, 
     else:
         sessions = _iterated_session(truth, procedures, rate, seed)
     files = []
-    start = simulation_start(max(float(c["time"][-1]) for _, c in sessions if len(c["time"])) if sessions else 0.0)
+    # dated so that the system day 'simulate system' writes next (ending now) starts after them, as on a real
+    # platform: the device calibration first, then the day that compensates with it (DEVICE_LEAD before now)
+    span = max(float(c["time"][-1]) for _, c in sessions if len(c["time"])) if sessions else 0.0
+    start = simulation_start(span + _device_lead())
     with Progress(total=len(sessions), label="write device data") as progress:
         for procedure, columns in sessions:
             metadata = replace(truth.site, sample_rate=rate, extra={**truth.site.extra, "procedure": procedure.name}, start_time=start)

@@ -210,6 +210,29 @@ def read_input_bytes(path: str | os.PathLike[str], *, max_bytes: int, what: str)
     return data
 
 
+#: First bytes of files stableins reads or writes that are not JSON, and what each is.
+OTHER_KINDS = (
+    (b"\x89HDF\r\n\x1a\n", "an HDF5 data file"),
+    (b"%PDF-", "a PDF document"),
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"SQLite format 3\x00", "an SQLite database (a history store's index)"),
+    (b"# stableins-device", "a device data file (CSV)"),
+    (b"PK\x03\x04", "a ZIP archive"),
+)
+
+
+def _refuse_other_kinds(path: str | os.PathLike[str], what: str) -> None:
+    """Raise :class:`InputError` when the file's first bytes say it is another kind of file than the JSON ``what``."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(32)
+    except OSError:
+        return  # read_input_bytes says why
+    for magic, kind in OTHER_KINDS:
+        if head.startswith(magic):
+            raise InputError(f"this is {kind}, not {what} (arguments swapped?)", path=path)
+
+
 def load_json_file(
     path: str | os.PathLike[str],
     *,
@@ -218,7 +241,12 @@ def load_json_file(
     allow_nan: bool = False,
     what: str = "a JSON document",
 ) -> Any:
-    """Read and parse a JSON file under the limits of the module docstring (InputError naming the file and field)."""
+    """Read and parse a JSON file under the limits of the module docstring (InputError naming the file and field).
+
+    A file that is recognizably something else (an HDF5 data file, a PDF, a device CSV ...) is named as what it is,
+    before its size is judged: "this is an HDF5 data file, not a calibration record (arguments swapped?)".
+    """
+    _refuse_other_kinds(path, what)
     data = read_input_bytes(path, max_bytes=max_bytes, what=what)
     return parse_json(data, path=path, max_bytes=max_bytes, max_depth=max_depth, allow_nan=allow_nan, what=what)
 

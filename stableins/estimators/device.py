@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -375,9 +376,39 @@ def _with_note(fit: FitResult, note: str | None) -> FitResult:
     return fit if note is None else replace(fit, notes=fit.notes + (note,))
 
 
+def _dwells_and_site(
+    given: Any, site: SiteMetadata | None, layouts: Mapping[str, StageLayout]
+) -> tuple[list[DwellSummary], SiteMetadata]:
+    """Return the dwell summaries and the site of what :func:`calibrate_device` was given.
+
+    What :func:`stableins.data.device.load_device` returns (one dataset or a list) is summarized as ``stableins
+    calibrate device`` does (:func:`stableins.estimators.dwell.dwells_from_columns`), with the site of the first
+    dataset unless one is given; dwell summaries are taken as they are.
+    """
+    from stableins.data.device import DeviceDataset
+
+    items = [given] if isinstance(given, DeviceDataset) else list(given) if isinstance(given, Sequence) else None
+    if items is None:
+        raise TypeError(
+            f"calibrate_device takes the datasets load_device returns or dwell summaries (dwells_from_columns), not a "
+            f"{type(given).__name__}; discovery's DwellSet holds dwell means for the model search (stableins.discovery)"
+        )
+    if items and all(isinstance(d, DeviceDataset) for d in items):
+        from stableins.estimators.dwell import dwells_from_columns
+
+        summaries = [w for d in items for w in dwells_from_columns(d.columns, layouts=layouts, source=str(d.path or "data"))]
+        return summaries, site if site is not None else items[0].metadata
+    summaries = [d for d in items if isinstance(d, DwellSummary)]
+    if len(summaries) != len(items):
+        raise TypeError("calibrate_device takes datasets (load_device) or dwell summaries (dwells_from_columns), not a mixture")
+    if site is None:
+        raise TypeError("calibrate_device needs the site (SiteMetadata) with dwell summaries; datasets carry their own")
+    return summaries, site
+
+
 def calibrate_device(
-    dwells: Sequence[DwellSummary],
-    site: SiteMetadata,
+    dwells: Sequence[DwellSummary] | Any,
+    site: SiteMetadata | None = None,
     *,
     layouts: Mapping[str, StageLayout],
     allow_missing: bool = False,
@@ -387,6 +418,10 @@ def calibrate_device(
     source: str = "data",
 ) -> DeviceCalibration:
     """Run the coarse stage on every coarse pass, then the fine stage if fine dwells are present.
+
+    ``dwells`` are dwell summaries (:func:`stableins.estimators.dwell.dwells_from_columns`) or what
+    :func:`stableins.data.device.load_device` returns (one dataset or a list of them, summarized here; ``site``
+    then defaults to the first dataset's).
 
     ``layouts`` are the positions of the two stages (``{"coarse": ..., "fine": ...}``, e.g. from
     :func:`stableins.procedures.definition.device_layouts`): which positions a pass must hold, the
@@ -407,6 +442,7 @@ def calibrate_device(
     estimated jointly with the standard parameters in every stage that determines them; a stage
     that does not holds them (status ``unidentifiable``) at the value of the stage before.
     """
+    dwells, site = _dwells_and_site(dwells, site, layouts)
     coarse_layout, fine_layout = _stage_layouts(layouts)
     configuration = GimbalConfiguration((*site.gimbal_senses,))
     measured = noise is None or noise.source is NoiseSource.NONE

@@ -420,6 +420,23 @@ class FitResult:
         spread = np.sqrt(2 / max(self.dof, 1))
         return f"χ²_ν = {self.chi2_red:.3f} (ν = {self.dof}, expected 1 ± {spread:.2f}); rank {self.rank} of {len(self.terms)}"
 
+    def fit_warning(self) -> str | None:
+        """Return a warning when χ²_ν lies above the upper end of its 95 % interval for noise alone (χ² distribution of ν).
+
+        The same interval as the certificate's evidence of fit and its fit check (:mod:`stableins.reporting.tolerances`).
+        """
+        if self.dof <= 0 or not np.isfinite(self.chi2_red):
+            return None
+        from scipy.stats import chi2
+
+        high = float(chi2.ppf(0.975, self.dof) / self.dof)
+        if self.chi2_red <= high:
+            return None
+        return (
+            f"warning: χ²_ν = {self.chi2_red:.3f} is above {high:.3f}, the upper end of its 95 % interval for noise alone "
+            f"(ν = {self.dof}): effects outside the model, or a noise model too small; the σ may understate the errors"
+        )
+
     def report(self) -> str:
         """Plain-text report in engineering units."""
         lines = [
@@ -428,6 +445,9 @@ class FitResult:
             f"rank = {self.rank} of {len(self.terms)}",
             "",
         ]
+        warning = self.fit_warning()
+        if warning:
+            lines.insert(2, warning)
         from stableins.display import parameter_table
 
         return "\n".join(lines + parameter_table(self.rows(), self.determined, self.notes))
@@ -439,6 +459,8 @@ class FitResult:
         from stableins.display import clipped, parameter_lines, plural, status_counts
 
         lines = [f"<FitResult: stage {self.stage!r}, {len(self.terms)} parameters ({status_counts(self.status)})>", self._fit_line()]
+        warning = self.fit_warning()
+        lines += [warning] if warning else []
         lines += parameter_lines(self.rows())
         more = f"{plural(len(self.notes), 'note')}; " if self.notes else ""
         return clipped(lines, f"({more}print(result) for the full report, result.to_dataframe() for the table)")
@@ -448,7 +470,7 @@ class FitResult:
 
         return html_result(
             f"FitResult: stage {self.stage!r}, {len(self.terms)} parameters",
-            [self._fit_line()],
+            [self._fit_line(), self.fit_warning() or ""],
             [parameter_html(self.rows(), [t.meaning for t in self.terms])],
             [("determined combinations", self.determined), ("notes", self.notes)],
         )
@@ -485,7 +507,7 @@ class FitResult:
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_xlabel("observation")
         ax.set_ylabel("residual / 1σ")
-        ax.set_title(f"{self.stage}: χ²_ν = {self.chi2_red:.2f}")
+        ax.set_title(rf"{self.stage}: $\chi^2_\nu$ = {self.chi2_red:.2f}")
         if self.residual_labels and len(self.residual_labels) <= 60:
             ax.set_xticks(k, self.residual_labels, rotation=90, fontsize=6)
         fig.tight_layout()

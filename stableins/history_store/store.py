@@ -272,15 +272,24 @@ class HistoryStore:
 
         The points are each record's data-only estimates (:func:`stableins.history.data_only`).
         """
+        from dataclasses import replace
+
         entries = self.entries(serial)
         series: dict[str, list[tuple[datetime, float, float]]] = {}
+        stated: dict[str, list[tuple[float, float]]] = {}
         units: dict[str, str] = {}
         for entry in entries:
             record = self.load(serial, entry)
             for pid, (value, sigma) in data_only(record).items():
                 series.setdefault(pid, []).append((entry.time, value, sigma))
+                stated.setdefault(pid, []).append((record[pid].value, record[pid].sigma))
                 units[pid] = record[pid].unit
-        return [trend(points, pid, units[pid]) for pid, points in series.items() if len(points) >= 2]
+        out = []
+        for pid, points in series.items():
+            if len(points) >= 2:
+                values, sigmas = zip(*stated[pid], strict=True)
+                out.append(replace(trend(points, pid, units[pid]), record_values=tuple(values), record_sigmas=tuple(sigmas)))
+        return out
 
     def fleet(
         self, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE, drift_sigmas: float = DRIFT_SIGMAS

@@ -31,7 +31,15 @@ from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind, known_terms
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.propagation import Propagator
-from stableins.navigation.sources import ACCELEROMETER_KINDS, LeftOut, UnitForcing, accelerometer_forcing, drift_forcing, gimbal_forcing
+from stableins.navigation.sources import (
+    ACCELEROMETER_KINDS,
+    LeftOut,
+    UnitForcing,
+    accelerometer_forcing,
+    drift_forcing,
+    g_sensitivity_forcing,
+    gimbal_forcing,
+)
 from stableins.navigation.summary import (
     COMPONENTS,
     HORIZONTAL,
@@ -187,6 +195,9 @@ def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], sc
     """Return the unit forcing of a term, or the reason it is left out."""
     if term.kind == TermKind.GYRO_DRIFT:
         return drift_forcing(term.axis if term.axis is not None else 0, scenario)
+    if term.kind == TermKind.GYRO_G_SENSITIVITY:  # Dg_ab: a drift of gyro a proportional to the specific force along b
+        gyro_axis, force_axis = ("xyz".index(c) for c in term.id.removeprefix("Dg_"))
+        return g_sensitivity_forcing(gyro_axis, force_axis, scenario)
     if term.kind == TermKind.GIMBAL:
         return gimbal_forcing(GIMBAL_IDS.index(term.id), scenario)
     if term.kind == TermKind.COMBINED:

@@ -109,6 +109,20 @@ def drift_forcing(axis: int, scenario: NavigationScenario) -> UnitForcing:
     return _forcing(drift_samples=_to_nav(nav_to_platform, drift))
 
 
+def g_sensitivity_forcing(gyro_axis: int, force_axis: int, scenario: NavigationScenario) -> UnitForcing:
+    r"""Return the forcing of one rad/s per m/s² of g-sensitivity ``Dg_ab`` (gyro ``gyro_axis``, specific force ``force_axis``).
+
+    On a static base the specific force is the reaction to gravity, ``f_p = C_n^p (0, 0, −g)ᵀ`` (the samples of
+    :func:`_platform_samples`), so the g-sensitivity is a drift :math:`\varepsilon_a = D_{g,ab} f_{p,b}` of gyro ``a``
+    (output error, as ``gyro_drift_a``; Cai et al. 2016 Eq. 1): constant along the polar axis (``f_{p,z} = g sin L`` on a
+    polar-aligned platform) and modulated at the Earth rate across it.
+    """
+    nav_to_platform, specific_force = _platform_samples(scenario)
+    drift = np.zeros((len(nav_to_platform), 3))
+    drift[:, gyro_axis] = specific_force[:, force_axis]
+    return _forcing(drift_samples=_to_nav(nav_to_platform, drift))
+
+
 def gimbal_forcing(index: int, scenario: NavigationScenario) -> UnitForcing:
     """Output-attitude error (pitch, roll, heading) of one radian of residual zero offset of gimbal ``index`` (0, 1, 2)."""
     config = scenario.configuration

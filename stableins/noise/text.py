@@ -31,6 +31,13 @@ def describe(model: NoiseModel) -> str:
     if model.provenance:
         parts[0] += f": {model.provenance}"
     parts[0] += ")"
+    if model.test is not None and not model.test.detected:  # the console's words: not detected, and what the data allow
+        b_up = model.limits("bias_instability")[1] / MICRO_G
+        k_up = model.limits("random_walk")[1] / MICRO_G
+        b_text = f"up to {_triple(b_up, 0.01)} µg" if np.all(np.isfinite(b_up)) else "not bounded"
+        k_text = f"up to {_triple(k_up, 0.01)} µg/√s" if np.all(np.isfinite(k_up)) else "not bounded"
+        parts.append(f"slow noise not detected: bias instability {b_text}, random walk {k_text}")
+        return "; ".join(parts)
     parts.append(f"bias instability {_triple(b)} µg, random walk {_triple(k)} µg/√s")
     if not model.slow_noise_bounded:
         parts.append("slow noise not bounded by the data")

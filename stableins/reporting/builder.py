@@ -79,6 +79,9 @@ class ReportSettings:
         entry of that name.  A certificate without all three is a watermarked DRAFT.
     no_statement : bool
         Make no statement of conformity even where the procedure defines tolerances (the customer did not ask for one).
+    sign_key, sign_certificate : path, optional
+        Sign the certificate (PAdES, :mod:`stableins.reporting.signing`) with this PEM private key and its X.509
+        certificate (default: in the key's file).
     """
 
     tolerances: Tolerances | None = None
@@ -89,6 +92,8 @@ class ReportSettings:
     customer: str | None = None
     operator: str | None = None
     no_statement: bool = False
+    sign_key: str | None = None
+    sign_certificate: str | None = None
 
 
 @dataclass(frozen=True)
@@ -282,6 +287,10 @@ def write_report(
     ctx.technical = InputFile("technical report", technical_path.name, digest, f"{technical_pages} pages")
     ctx.figures = 0
     pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE)
+    if settings.sign_key is not None:
+        from stableins.reporting.signing import sign
+
+        pdf = sign(pdf, settings.sign_key, settings.sign_certificate)
     with atomic_write(technical_path, "wb") as handle:
         handle.write(technical_pdf)
     with atomic_write(out, "wb") as handle:
@@ -406,9 +415,12 @@ def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | 
 def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes, int]:
     """Return the PDF of one document laid out from ``ctx`` (the certificate or its technical report), and its number of pages."""
     import stableins
+    from stableins.reporting.signing import manifest_text
 
     ctx.shown_notes = set()
     story = [flowable for section in parts for flowable in section(ctx)]
+    named = [(f.role, f.name, f.sha256) for f in ctx.inputs] + ([(ctx.technical.role, ctx.technical.name, ctx.technical.sha256)]
+                                                                if ctx.technical is not None else [])  # fmt: skip
     buffer = io.BytesIO()
     pages = document.build(
         story,
@@ -421,6 +433,7 @@ def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes
         marks=document.PageMarks(
             watermark="DRAFT" if any(not ctx.identification.get(k) for k in IDENTIFICATION) else "",
             banner="SIMULATED DATA: not a calibration of a physical unit" if ctx.simulated else "",
+            keywords=manifest_text(named),
         ),
     )
     return buffer.getvalue(), pages

@@ -94,7 +94,8 @@ def styles() -> dict[str, ParagraphStyle]:
         "note": ParagraphStyle(
             "note", parent=body, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.55, leftIndent=8, firstLineIndent=-6, spaceAfter=1
         ),
-        "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.25, spaceAfter=0),
+        # 1.4× leading: a subscript (D with g,xy) never touches the row below
+        "cell": ParagraphStyle("cell", parent=body, fontSize=SMALL_SIZE + 0.5, leading=(SMALL_SIZE + 0.5) * 1.4, spaceAfter=0),
         "cell_mono": ParagraphStyle(
             "cell_mono", parent=body, fontName=FONT_MONO, fontSize=SMALL_SIZE, leading=SMALL_SIZE * 1.25, spaceAfter=0
         ),
@@ -282,10 +283,15 @@ class NumberedCanvas(canvas_module.Canvas):
 
 @dataclass(frozen=True)
 class PageMarks:
-    """What every page of a document says beyond its furniture: a watermark across it, a banner under its header."""
+    """What a document says beyond its furniture.
+
+    A watermark across every page, a banner under every header, and the document information's keywords (a
+    certificate's manifest of inputs, :mod:`stableins.reporting.signing`).
+    """
 
     watermark: str = ""
     banner: str = ""
+    keywords: str = ""
 
 
 def _outline(canvas: Any, text: str, size: float) -> Any:
@@ -388,6 +394,7 @@ def build(
         author="stableins",
         subject=subject,
         creator="stableins (reportlab)",
+        keywords=marks.keywords,
     )
     frame = Frame(
         doc.leftMargin, doc.bottomMargin, doc.width, doc.height, id="body", leftPadding=0, rightPadding=0, topPadding=0, bottomPadding=0

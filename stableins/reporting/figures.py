@@ -151,7 +151,7 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
         if positions and len(positions) <= 40:
             axes[-1].set_xticks(positions)
         per = "per position" if "|f|" in groups else "per position and axis"
-        axes[0].set_title(f"{stage.stage} stage: residual (observed − model) {per}; χ²_ν = {stage.chi2_red:.3f}, ν = {stage.dof}")
+        axes[0].set_title(rf"{stage.stage} stage: residual (observed − model) {per}; $\chi^2_\nu$ = {stage.chi2_red:.3f}, ν = {stage.dof}")
         return _png(fig)
 
 
@@ -162,7 +162,7 @@ def normalized_residuals(stage: Any) -> tuple[bytes, float]:
     r = np.asarray(stage.residuals) / np.asarray(stage.sigma)
     names = [coefficient_label(x) for x in stage.labels] if stage.labels and len(stage.labels) <= 40 else None
     with _style():
-        fig = _figure(FULL_WIDTH, 2.1)
+        fig = _figure(FULL_WIDTH, 2.5 if names and len(names) > 24 else 2.2)
         ax = fig.add_subplot(111)
         x = np.arange(1, r.size + 1)
         ax.axhspan(-1, 1, color="0.85", label="±1σ (noise alone)", linewidth=0, zorder=0)
@@ -172,13 +172,18 @@ def normalized_residuals(stage: Any) -> tuple[bytes, float]:
         ax.set_ylim(-limit, limit)
         if names:
             ax.set_xticks(x, names)
+            if len(names) > 24:  # many labels: turned and smaller, so that neighbours never overlap
+                ax.tick_params(axis="x", labelrotation=60, labelsize=6.5)
+                for label in ax.get_xticklabels():
+                    label.set_horizontalalignment("right")
+                    label.set_rotation_mode("anchor")
             ax.set_xlabel("combined coefficient" if stage.stage == "system" else "observation")
         else:
             ax.set_xlabel("observation number")
         ax.set_xlim(0.4, r.size + 0.6)
-        ax.set_ylabel("residual / σ (dimensionless)")
-        ax.set_title(f"{stage.stage} stage: normalized residuals; χ²_ν = {stage.chi2_red:.3f}, ν = {stage.dof}")
-        ax.legend(loc="upper right", frameon=False, ncols=2)
+        ax.set_ylabel("residual / σ")
+        ax.set_title(rf"{stage.stage} stage: residual / σ; $\chi^2_\nu$ = {stage.chi2_red:.3f}, ν = {stage.dof}", loc="left")
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), frameon=False, ncols=2, borderaxespad=0.1)
         return _png(fig)
 
 
@@ -188,6 +193,9 @@ def coefficient_label(name: str) -> str:
 
     if re.fullmatch(r"x\d", name):
         return f"$x_{name[1]}$"
+    drift = re.fullmatch(r"gyro drift ([xyz])\b.*", name)  # the system stage's measured drift: ε with its platform axis
+    if drift:
+        return rf"$\varepsilon_{{{drift.group(1)}}}$"
     head, _, tail = name.partition("_")
     greek = {"theta": r"\theta", "phi": r"\varphi"}.get(head)
     if greek is None:

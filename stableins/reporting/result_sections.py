@@ -119,7 +119,7 @@ def uncertainty(ctx: ReportContext) -> list[Flowable]:
             + [cell(budget.contribution(g, row.id), g) for g in GROUPS]
             + [r.u, r.expanded]
         )
-    widths = [0.11, 0.08, 0.09, 0.08, 0.09, 0.07, 0.09, 0.07, 0.09, 0.12, 0.11]
+    widths = [0.11, 0.07, 0.12, 0.05, 0.09, 0.07, 0.07, 0.06, 0.08, 0.12, 0.11]
     out.append(document.table(rows, widths, align_right=tuple(range(2, 11)), markup=True))
     not_evaluated = [TITLES[s.group] for s in budget.sources if s.state == "not evaluated"]
     text = (
