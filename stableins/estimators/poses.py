@@ -183,10 +183,20 @@ def calibrate_poses(
             tried.append(f"K2 not determined ({error.message})")
             continue
         stated = f"model: {model.value}" + (f"; {tried[0]}" if tried else "")
-        notes = (stated, "no coarse stage: the installation-angle sums the norm cannot see are held at 0") + fit.notes
+        installation = (
+            "installation angles: the norm determines only the differences of the pairs (xz, yz), (zy, xy), (yx, zx); "
+            "with no coarse stage the sums it cannot see are held at 0 (reported unidentifiable)"
+        )
+        own = tuple(_hold_wording(n) for n in fit.notes if not n.startswith("installation angles: the fine stage"))
+        notes = (stated, installation, *own)
         settings = {**fit.settings, "stage": STAGE, "model": model.name}
         return replace(fit, stage=STAGE, notes=notes, settings=settings)
     raise AssertionError("unreachable")
+
+
+def _hold_wording(note: str) -> str:
+    """Return a fine-stage note in the words of a log: its positions are the holds."""
+    return "hold " + note.removeprefix("position ") if note.startswith("position ") else note
 
 
 def six_position(dwells: Sequence[DwellSummary], labels: Sequence[str], *, gravity: float, source: str = "log") -> FitResult:
