@@ -12,7 +12,6 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from datetime import timedelta
 from pathlib import Path
 
@@ -115,37 +114,53 @@ def test_four_simultaneous_history_add_commands_keep_all_four(tmp_path):
 
 
 WRITER = """
-import sys
+import os, signal, sys
 sys.path.insert(0, {root!r})
 from stableins.history_store import HistoryStore
 store = HistoryStore({store!r})
-for path in {paths!r}:
+replace = os.replace
+
+
+def dying(source, target, *args, **kwargs):  # the filing's file appears (or not) and the process dies before its commit
+    if {files_appear!r}:
+        replace(source, target, *args, **kwargs)
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+for k, path in enumerate({paths!r}):
+    if k == {killed!r}:
+        os.replace = dying  # inside the filing's transaction: its row inserted, not committed
     store.add(path)
     print(path, flush=True)
 """
 
 
 def test_kill_9_of_a_writer_leaves_the_store_consistent(tmp_path):
+    """A writer killed inside a filing's transaction, at a seeded record, before or after the file appears.
+
+    The kill is the writer's own (at its ``os.replace`` of the chosen filing), so it interrupts a filing under any load
+    (issue 31: a kill after a random delay never asserted that it interrupted anything).
+    """
     rng = np.random.default_rng(14)
     store = HistoryStore(tmp_path / "store")
     filed = 0
     for k in range(4):
         paths = [str(p) for p in write_records(tmp_path / f"batch{k}", "INS-9", 30, start_day=40 * k)]
-        script = WRITER.format(root=str(ROOT), store=str(store.root), paths=paths)
+        killed = int(rng.integers(1, 29))
+        script = WRITER.format(root=str(ROOT), store=str(store.root), paths=paths, killed=killed, files_appear=k % 2 == 1)
         process = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        process.stdout.readline()  # the first record is filed: the writer is in its loop
-        time.sleep(float(rng.uniform(0.0, 0.15)))
-        process.send_signal(signal.SIGKILL)
-        reported = 1 + len(process.stdout.read().splitlines())
-        process.wait(10)
+        reported = len(process.stdout.read().splitlines())
+        assert process.wait(60) == -signal.SIGKILL
         process.stdout.close()
+        assert reported == killed  # the kill interrupted the filing of record `killed`, after `killed` were filed
         consistent(store)
         entries = store.entries("INS-9")
-        assert reported <= len(entries) - filed <= reported + 1  # what it said it filed is there; at most one more
+        assert len(entries) - filed == reported  # what it said it filed is there; the interrupted filing is not
         filed = len(entries)
-        # a record the killed writer did not get to is filed normally afterwards (a file left from the kill is rewritten)
-        store.add(paths[-1])
-        filed += store.entries("INS-9")[-1].file != entries[-1].file
+        # the record the killed writer was filing is filed normally afterwards (a file left from the kill is rewritten)
+        entry = store.add(paths[killed])
+        filed += 1
+        assert store.entries("INS-9")[-1] == entry and len(store.entries("INS-9")) == filed
         consistent(store)
 
 
