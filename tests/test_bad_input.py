@@ -575,6 +575,18 @@ def test_systematic_refuses_the_static_stages_options(ws, tmp_path, extra):
     assert not (tmp_path / "o.json").exists()
 
 
+def test_noise_refuses_another_units_record_and_a_plot_that_is_not_png(ws, tmp_path):
+    """Issue 31: ``noise system.h5 --record OTHER-UNIT.json`` wrote a record for the wrong unit with a warning only;
+    ``noise --plot a.txt`` wrote PNG bytes to a .txt."""
+    document = json.loads(ws.record.read_text())
+    document["serial_number"] = "OTHER-UNIT"
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(document))
+    refused(["noise", ws.system_h5, "--record", other, "--out", tmp_path / "o.json"], str(other), "OTHER-UNIT", "field 'serial_number'")
+    refused(["noise", ws.system_h5, "--plot", tmp_path / "a.txt"], "--plot", "ending in .png")
+    assert not (tmp_path / "o.json").exists() and not (tmp_path / "a.txt").exists()
+
+
 def test_recal_names_the_prior_of_another_unit_not_the_estimate(ws, tmp_path):
     """Issue 31: ``recal --prior BAD.json --estimate GOOD.json`` named GOOD.json."""
     document = json.loads(ws.record.read_text())

@@ -98,6 +98,18 @@ def output_file(text: str) -> Path:
     return path
 
 
+def png_file(text: str) -> Path:
+    """Accept a PNG figure to write (``--plot``): a file to write whose name ends in ``.png``.
+
+    A figure written as PNG bytes under another suffix (``--plot a.txt``) would be a file no program reads as what its
+    name says (issue 31).
+    """
+    path = output_file(text)
+    if path.suffix.lower() != ".png":
+        raise argparse.ArgumentTypeError(f"{text}: a PNG figure is written here (expected a file name ending in .png)")
+    return path
+
+
 def output_directory(text: str) -> Path:
     """Accept a directory to write into: an existing directory or a path that can become one."""
     path = Path(text)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate poses`` to ``parser``."""
-    from stableins.commands.arguments import input_file, number, output_file
+    from stableins.commands.arguments import input_file, number, output_file, png_file
     from stableins.commands.noise import add_noise_options
 
     parser.add_argument("log", type=input_file, metavar="LOG", help="the log: CSV (any delimiter, header optional) or HDF5")
@@ -78,7 +78,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--write-holds", type=output_file, metavar="HOLDS.csv", help="write the holds table (start, end, mean, std, orientation)"
     )
-    parser.add_argument("--plot", type=output_file, metavar="PNG", help="draw the log with its holds")
+    parser.add_argument("--plot", type=png_file, metavar="PNG", help="draw the log with its holds")
     parser.add_argument("--detect-only", action="store_true", help="find the holds, write --write-holds/--plot, fit nothing")
     parser.add_argument(
         "--out", type=output_file, metavar="RECORD.json", help="calibration record to write (required unless --detect-only)"

@@ -26,7 +26,7 @@ from stableins.status import Status
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate system`` to ``parser``."""
-    from stableins.commands.arguments import integer, number, output_file
+    from stableins.commands.arguments import integer, number, output_file, png_file
 
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
     parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS compensated the record with")
@@ -92,7 +92,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
             "0.00058 deg/h, a rectangular distribution over the 0.001 deg/h bound of Wu et al. 2018)"
         ),
     )
-    parser.add_argument("--plot", type=output_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
+    parser.add_argument("--plot", type=png_file, metavar="PNG", help="also write the filter convergence and attitude residual plot")
     from stableins.commands.noise import add_noise_options
 
     add_noise_options(parser)  # default: the prior record's noise model (docs/system-calibration.md §1a)

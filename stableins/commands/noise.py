@@ -31,13 +31,13 @@ BLOCK_SECONDS = 1.0
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins noise`` to ``parser``."""
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="a static (system-level) record, or device-level files")
-    from stableins.commands.arguments import input_file, number, output_file
+    from stableins.commands.arguments import input_file, number, output_file, png_file
 
     parser.add_argument("--record", type=input_file, metavar="CAL.json", help="calibration record to copy with the measured noise model")
     parser.add_argument(
         "--out", type=output_file, metavar="CAL2.json", help="where to write the record with the noise model (needs --record)"
     )
-    parser.add_argument("--plot", type=output_file, metavar="PNG", help="plot the Allan deviation with the fitted model and its bounds")
+    parser.add_argument("--plot", type=png_file, metavar="PNG", help="plot the Allan deviation with the fitted model and its bounds")
     parser.add_argument(
         "--confidence", type=number(0.5, 1.0, above=True), default=0.95, help="confidence level of the intervals (default 0.95)"
     )
@@ -329,8 +329,13 @@ def run(args: argparse.Namespace) -> int:
 
         record = CalibrationRecord.load(args.record)
     serial, model, points = _measure(args)
-    if record is not None and record.serial_number != serial:
-        note(f"warning: record {args.record} is for unit {record.serial_number}, data for {serial}")
+    if record is not None and record.serial_number != serial:  # one truth per unit: never another unit's noise model
+        raise InputError(
+            f"the record is of unit {record.serial_number!r}, the data of {serial!r}",
+            path=str(args.record),
+            field="serial_number",
+            expected=f"the record of unit {serial!r}",
+        )
     text = model.report()
     if args.plot is not None:
         _plot(args.plot, points, model, serial)
