@@ -1,6 +1,14 @@
 """Gyro drift and the full g-sensitivity from the reading slopes within device dwells (issue 17 part 1).
 
-Run:  PYTHONPATH=. python benchmarks/bench_device_gsensitivity.py [--seeds N] [--dwell S]
+Run:  PYTHONPATH=. python benchmarks/bench_device_gsensitivity.py [--seeds N] [--dwell S] [--drift DEG_PER_H]
+          [--g DEG_PER_H_PER_G] [--mode caged|earth_rate|inertial] [--torquer PPM] [--end-to-end N]
+
+The platform holds its dwells as ``--mode`` says (docs/conventions.md, "The platform during a dwell"; default
+``earth_rate``, the paper's procedure); ``--torquer`` gives the torquers a scale-factor error (ppm, every axis), which
+the stage estimates as a nuisance.  ``--end-to-end N`` runs N sessions through the command line as a user does —
+``stableins simulate device`` (zero-offset iteration, fine dwells) with the drift and ``D_g``, ``stableins calibrate
+device --json``, ``stableins diagnose`` — and prints exit codes, whether any traceback appeared, and the rms z of the
+twelve gyro numbers of the record against the truth (the calibrated zero offsets, not the truth's).
 
 Each session: Wu's 18 positions (procedure device-coarse) forward and back (35 dwells: the turning position once),
 60-s dwells after the procedure's 5-s settle, 100 Hz, by stableins.simulator with its default quartz noise and
@@ -19,16 +27,24 @@ A white-noise prediction of the σ is printed beside the measured one.
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
+import tempfile
 import time
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
-from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
+from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, DEG_PER_HOUR_PER_G, earth_rate_nav
 from stableins.discovery.dwells import dwell_means
 from stableins.discovery.history import Discovery
 from stableins.discovery.problem import DwellProblem
+from stableins.dwell_mode import DwellMode
 from stableins.errormodel import ErrorModel
-from stableins.estimators.gyro_sensitivity import ReadingSlopes, SlopeGeometry, estimate_gyro_sensitivity
+from stableins.estimators.gyro_sensitivity import ReadingSlopes, SlopeGeometry, estimate_gyro_sensitivity, remove_earth_turn
+from stableins.platform import GimbalPlatform
 from stableins.procedures.definition import load_procedure
 from stableins.samples import SampleBlock
 from stableins.simulator.device import simulate_dwells
@@ -36,17 +52,26 @@ from stableins.simulator.truth import Truth
 
 DRIFT = 0.05  # °/h
 G = 0.001  # °/h/g
+#: The world of this run (``main`` sets them from the options).
+WORLD = {"drift": DRIFT, "mode": DwellMode.EARTH_RATE, "torquer": 0.0}
 
 
 def session(seed: int, g_sensitivity: float, dwell: float):
     """Simulate one two-pass session; return (truth, columns)."""
-    effects = {f"Dg_{a}{b}": g_sensitivity * DEG_PER_HOUR_PER_G for a in AXES for b in AXES} if g_sensitivity else {}
-    truth = Truth.draw(seed, effects=effects, gyro_drift={a: DRIFT * DEG_PER_HOUR for a in AXES})
+    truth = world_truth(seed, g_sensitivity)
     procedure = load_procedure("device-coarse")
     commands = [s.command for s in procedure.steps]
     settle = procedure.steps[0].settle
     columns = simulate_dwells(truth, commands + commands[::-1][1:], dwell=dwell, settle=settle, seed=seed)
     return truth, columns
+
+
+def world_truth(seed: int, g_sensitivity: float) -> Truth:
+    """The truth of one session: drift, ``D_g``, torquers and dwell mode of :data:`WORLD`."""
+    effects = {f"Dg_{a}{b}": g_sensitivity * DEG_PER_HOUR_PER_G for a in AXES for b in AXES} if g_sensitivity else {}
+    gyro = {a: WORLD["drift"] * DEG_PER_HOUR for a in AXES} | {f"torquer_scale_{a}": WORLD["torquer"] * 1e-6 for a in AXES}
+    truth = Truth.draw(seed, effects=effects, gyro_drift=gyro)
+    return truth.with_changes(site=replace(truth.site, dwell_mode=WORLD["mode"]))
 
 
 def dwell_pieces(c):
@@ -66,7 +91,14 @@ def fit(truth, c):
     pieces, readings = dwell_pieces(c)
     site = truth.site
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude)
+    if site.dwell_mode is DwellMode.INERTIAL:  # the Earth's turn removed as gyro_from_datasets does (surveyed base)
+        platform = GimbalPlatform(zero_offsets=tuple(offsets), base_attitude=site.base_attitude)
+        removed = [remove_earth_turn(t, a, platform, earth_rate_nav(site.latitude)) for t, a in pieces]
+        pieces = [(t, r) for (t, _), (r, _) in zip(pieces, removed, strict=True)]
+        readings = np.array([centre for _, centre in removed])
+    geometry = SlopeGeometry.of(
+        readings, site.gravity, zero_offsets=offsets, base_attitude=site.base_attitude, latitude=site.latitude, mode=site.dwell_mode
+    )
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry), pieces
 
 
@@ -90,19 +122,43 @@ def predicted_sigma(result, pieces) -> float:
     return float(np.max(sigma[3:]) * (0.2 * ARCSEC) / measured.mean())
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--clean-seeds", type=int, default=None, help="sessions of part (b) (default: --seeds)")
     parser.add_argument("--dwell", type=float, default=60.0)
-    args = parser.parse_args()
+    parser.add_argument("--drift", type=float, default=DRIFT, help="gyro drift per axis [deg/h] (default 0.05)")
+    parser.add_argument("--g", type=float, default=G, help="every Dg_ab [deg/h/g] of part (a) (default 0.001)")
+    parser.add_argument("--mode", choices=[m.value for m in DwellMode], default=DwellMode.EARTH_RATE.value)
+    parser.add_argument("--torquer", type=float, default=0.0, help="torquer scale-factor error per axis [ppm]")
+    parser.add_argument("--end-to-end", type=int, default=0, help="sessions through simulate/calibrate/diagnose (CLI)")
+    parser.add_argument("--start-seed", type=int, default=0, help="first seed of the --end-to-end sessions")
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = _arguments()
+    WORLD.update(drift=args.drift, mode=DwellMode(args.mode), torquer=args.torquer)
+    g_true = args.g
     clean = args.seeds if args.clean_seeds is None else args.clean_seeds
     start = time.time()
-    truth_vector = np.array([DRIFT * DEG_PER_HOUR] * 3 + [G * DEG_PER_HOUR_PER_G] * 9)
+    print(f"dwell mode {args.mode}, torquer scale-factor error {args.torquer:g} ppm per axis")
+    if args.end_to_end:
+        end_to_end(args.end_to_end, g_true, args.start_seed)
+        if not args.seeds:
+            return
+    if WORLD["mode"] is DwellMode.CAGED:
+        truth, c = session(0, g_true, args.dwell)
+        try:
+            fit(truth, c)
+        except ValueError as error:
+            print(f"caged: the gyro stage writes nothing and says: {error}")
+        return
+    truth_vector = np.array([args.drift * DEG_PER_HOUR] * 3 + [g_true * DEG_PER_HOUR_PER_G] * 9)
     z_all, worst_sigma, within, flags_a = [], 0.0, 0, 0
-    print(f"(a) truth drift {DRIFT} °/h per axis, all nine Dg_ab = {G} °/h/g; {args.dwell:g}-s dwells, two passes")
+    print(f"(a) truth drift {args.drift} °/h per axis, all nine Dg_ab = {g_true} °/h/g; {args.dwell:g}-s dwells, two passes")
     for seed in range(args.seeds):
-        truth, c = session(seed, G, args.dwell)
+        truth, c = session(seed, g_true, args.dwell)
         result, pieces = fit(truth, c)
         z = (result.values - truth_vector) / result.sigma
         z_all.append(z)
@@ -125,7 +181,14 @@ def main() -> None:
     print(f"  Monte Carlo rms z per number (target ≈ 1; ± {1 / np.sqrt(2 * args.seeds):.2f} at 1σ for {args.seeds} seeds):")
     print("    " + ", ".join(f"{t.id} {r:.2f}" for t, r in zip(result.terms, rms, strict=True)))
     print(f"  pooled rms z {np.sqrt(np.mean(z_all**2)):.3f}; the g-sensitivity flagged in {flags_a}/{args.seeds} (it is there)")
-    print(f"(b) clean data: drift {DRIFT} °/h, Dg = 0")
+    if clean:
+        clean_sessions(args, clean)
+    print(f"{time.time() - start:.0f} s")
+
+
+def clean_sessions(args: argparse.Namespace, clean: int) -> None:
+    """Part (b): clean data (the drift, ``D_g`` = 0): the ``D_g = 0`` test's and diagnose's false alarms."""
+    print(f"(b) clean data: drift {args.drift} °/h, Dg = 0")
     alarms, diagnose_alarms, z_clean = 0, 0, []
     for seed in range(1000, 1000 + clean):
         truth, c = session(seed, 0.0, args.dwell)
@@ -142,7 +205,68 @@ def main() -> None:
     print(f"  D_g = 0 test at α = 0.01: {alarms}/{clean} clean sessions flagged (target ≤ 1 of 20, i.e. ≤ 5 %; expected 1 %)")
     print(f"  diagnose drift section (Bonferroni α = 0.05 over 9): {diagnose_alarms}/{clean} flagged (target ≤ 5 %)")
     print(f"  rms z of the nine Dg on clean data {np.sqrt(np.mean(np.array(z_clean) ** 2)):.3f} (target ≈ 1)")
-    print(f"{time.time() - start:.0f} s")
+
+
+def in_gauge(truth: Truth, numbers: np.ndarray) -> np.ndarray:
+    """The twelve true numbers in the frame of the device gauge ``θ10 = 0`` (docs/conventions.md, "The platform during a dwell").
+
+    The record's frame is ``p`` turned by ``θ10`` about ``z_p``: ``v_gauge = R3(−s1 θ10) v``, so ``ε ↦ R ε`` and
+    ``D_g ↦ R D_g Rᵀ`` (a true θ10 of 60″ moves ``gyro_drift_x/y`` of 0.05 °/h by 1.5e-5 °/h, 3.7σ of a session).
+    """
+    from stableins.conventions import R3
+
+    rotation = R3(-truth.site.gimbal_senses[0] * truth.parameters["theta10"])
+    drift = rotation @ numbers[:3]
+    sensitivity = rotation @ numbers[3:].reshape(3, 3) @ rotation.T
+    return np.concatenate([drift, sensitivity.ravel()])
+
+
+def end_to_end(sessions: int, g_sensitivity: float, start: int = 0) -> None:
+    """``simulate device`` → ``calibrate device --json`` → ``diagnose`` per seed; exit codes, tracebacks, rms z."""
+    from stableins.data.truth import save_truth
+
+    stableins = [str(Path(sys.executable).with_name("stableins"))]  # the console script of this environment
+    truth_vector = np.array([WORLD["drift"]] * 3 + [g_sensitivity] * 9)  # °/h, °/h/g
+    z_all, codes, tracebacks, warnings = [], [], 0, 0
+    print(f"end to end: {sessions} sessions through the command line (the procedures' dwell mode)")
+    for seed in range(start, start + sessions):
+        with tempfile.TemporaryDirectory() as tmp:
+            here = Path(tmp)
+            truth = world_truth(seed, g_sensitivity)
+            save_truth(truth, here / "truth.json")
+            simulate = [*stableins, "simulate", "device", "--truth", str(here / "truth.json"), "--seed", str(seed)]
+            first = subprocess.run([*simulate, "--out", str(here / "sim")], capture_output=True, text=True, check=False)
+            data = [str(p) for p in sorted((here / "sim").glob("device-*.*"))]  # csv or h5 by size (a third pass: h5)
+            steps = [
+                [*stableins, "calibrate", "device", *data, "--out", str(here / "cal.json"), "--json"],
+                [*stableins, "diagnose", *data, "--record", str(here / "cal.json")],
+            ]
+            done = [first, *(subprocess.run(step, capture_output=True, text=True, check=False) for step in steps)]
+            codes.append(tuple(d.returncode for d in done))
+            tracebacks += sum("Traceback" in d.stderr for d in done)
+            warnings += "gyro stage: warning" in done[1].stderr
+            if done[1].returncode == 0:
+                gyro = json.loads(done[1].stdout)["gyro"]
+                if gyro is not None:
+                    ids = [f"gyro_drift_{a}" for a in AXES] + [f"Dg_{a}{b}" for a in AXES for b in AXES]
+                    value = np.array([gyro["parameters"][i]["value"] for i in ids])
+                    sigma = np.array([gyro["parameters"][i]["sigma"] for i in ids])
+                    z_all.append((value - in_gauge(truth, truth_vector)) / sigma)
+                    print(f"  seed {seed}: exit codes {codes[-1]}, max|z| {np.abs(z_all[-1]).max():.2f}, "
+                          f"χ²_ν {gyro['chi2_red']:.2f}", flush=True)  # fmt: skip
+                    continue
+            print(f"  seed {seed}: exit codes {codes[-1]}; no gyro numbers", flush=True)
+    ok = sum(c == (0, 0, 0) for c in codes)
+    print(f"  simulate, calibrate and diagnose exit 0 in {ok}/{sessions} sessions; tracebacks: {tracebacks}; "
+          f"gyro χ² warnings {warnings}/{sessions}")  # fmt: skip
+    if z_all:
+        z = np.array(z_all)
+        rms = np.sqrt(np.mean(z**2, axis=0))
+        print(f"  rms z per number over {len(z_all)} sessions (target 0.9–1.1; ± {1 / np.sqrt(2 * len(z_all)):.2f} at 1σ):")
+        ids = [*(f"gyro_drift_{a}" for a in AXES), *(f"Dg_{a}{b}" for a in AXES for b in AXES)]
+        print("    " + ", ".join(f"{i} {r:.2f}" for i, r in zip(ids, rms, strict=True)))
+        print(f"  pooled rms z {np.sqrt(np.mean(z**2)):.3f} over {z.size}; drifts {np.sqrt(np.mean(z[:, :3] ** 2)):.3f}, "
+              f"D_g {np.sqrt(np.mean(z[:, 3:] ** 2)):.3f}")  # fmt: skip
 
 
 if __name__ == "__main__":

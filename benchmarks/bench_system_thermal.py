@@ -15,13 +15,17 @@ paper's Table 2/3 residuals, damping on).  Cases:
 * ``diagnose``: discovery on system records (``stableins diagnose``) with a thermal cycle and with Kcc_xxy: the ranking
   and the notes that name the thermal term and the K2/Kcc alias pair.
 * ``drawn``: the sensitivities drawn from the stage's prior under the daily cycle: σ right on average (rms z ≈ 1)?
+* ``prior`` (issue 25): a 5 µg/K bias sensitivity with a 2 K peak-to-peak daily cycle, with the default thermal prior
+  and with the prior of the device-level thermal stage (``stableins calibrate thermal`` on a simulated device-thermal
+  session of the same unit): every combination the stage calls determined against the same record without the cycle
+  (acceptance: within 3σ and 1e-6 rad).  Not in the default ``--cases`` (3 system records and a device session a seed).
 * ``clean``: false alarms on clean records (no thermal sensitivity, the daily cycle or the ramp present; no third
   harmonic): the share of records where the thermal test fires (target: the stage's false-positive rate, 5 %), where the
   third harmonic is flagged (3σ rule on x6, x7), and where a clean record gets "not separable" labels.
 
 Usage::
 
-    python benchmarks/bench_system_thermal.py [--cases thermal ramp kcc clean drawn] [--seeds 20] [--rate 1] [--drift 0.001]
+    python benchmarks/bench_system_thermal.py [--cases thermal ramp kcc clean drawn prior] [--seeds 20] [--rate 1] [--drift 0.001]
 
 ``--drift 0.001`` adds an unknown 0.001 °/h gyro drift per axis to the thermal case: the joint Table 4 acceptance of issue
 16 (drift and temperature), which needs the drift estimation of the system stage as well.
@@ -50,6 +54,8 @@ from stableins.schema import SYSTEM_COLUMNS  # noqa: E402
 from stableins.simulator.noise import NoiseSettings, TemperatureProfile  # noqa: E402
 
 BIAS_SENSITIVITY = 5 * MICRO_G  # [m/s²/K] on each axis
+DEVICE_CYCLE = 5.0  # [K] amplitude of the device-level thermal test's chamber cycle
+DEVICE_PERIOD = 3.3 * 3600.0  # [s] its period (the device-thermal procedure's length)
 KCC = 10 * MICRO_G / STANDARD_GRAVITY**2  # 10 µg/g²
 
 
@@ -67,11 +73,15 @@ def _truth(rate, seed, effects, temperature, drift=0.0):
     return replace(truth, noise=noise, effects=effects, gyro_drift=gyro)
 
 
-def _run(truth, rate, seed, *, temperature=True, estimate_k2=False):
+def _run(truth, rate, seed, *, temperature=True, estimate_k2=False, prior=None):
+    """The stage on the truth's record; ``prior``: (values, covariance) added to the installed calibration (a thermal prior)."""
+    values, covariance = ({}, None) if prior is None else prior
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         source = _Source(truth, SIDEREAL_DAY, rate, seed, temperature=temperature)
-        return run_system_stage(source, truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=estimate_k2))
+        return run_system_stage(
+            source, truth.site, {**truth.installed_calibration, **values}, covariance, options=SystemOptions(estimate_k2=estimate_k2)
+        )
 
 
 def _reference(truth):
@@ -140,6 +150,76 @@ def case_kcc(rate, seed):
         print(f"  estimate_k2={k2}: x3 {z[2]:+.1f}σ, θ1s {z[7]:+.1f}σ, φ1c {z[12]:+.1f}σ; separation χ²_ν {chi:.2f}")
         note = next((n for n in out.notes if n.startswith("third harmonic") or n.startswith("K2 estimated")), "(no third-harmonic note)")
         print("  note: " + note)
+
+
+def _device_prior(seed, effects):
+    """The device-level thermal stage on a simulated device-thermal session of a unit with ``effects``: (values, covariance)."""
+    from bench_device_thermal import session
+
+    from stableins.discovery.library import LIBRARY
+    from stableins.estimators.thermal_sensitivity import THERMAL_TERM_IDS, estimate_thermal
+    from stableins.noise import NoiseModel
+    from stableins.simulator.truth import Truth
+
+    quartz = NoiseSettings.quartz()
+    profile = TemperatureProfile(amplitude=DEVICE_CYCLE, period=DEVICE_PERIOD, sensor_noise=0.01)
+    device_truth = Truth.draw(seed, effects=effects, noise=replace(quartz, temperature=profile))
+    data = session(device_truth, seed)
+    model = NoiseModel.given(quartz.velocity_random_walk, quartz.bias_instability, quartz.acceleration_random_walk)
+    terms = tuple(LIBRARY[i].term for i in THERMAL_TERM_IDS)
+    fit = estimate_thermal(data.dwells(), terms, gravity=data.metadata.gravity, noise_model=model)
+    values = dict(zip(THERMAL_TERM_IDS, fit.values.tolist(), strict=True))
+    covariance = {(a, b): float(fit.covariance[i, j]) for i, a in enumerate(THERMAL_TERM_IDS) for j, b in enumerate(THERMAL_TERM_IDS)}
+    return values, covariance, fit
+
+
+def _determined(out):
+    """Names, values, σ and 'determined' of the named combinations the stage reports."""
+    return {name: (value, sigma, ok) for name, (value, sigma, ok) in out.separation.combinations.items()}
+
+
+def case_prior(rate, seeds, first):
+    """Issue 25 acceptance: a daily 2-K (peak to peak) cycle at 5 µg/K with the device-level thermal prior.
+
+    Per seed: the record without the cycle (the reference), with the cycle and the default prior (5 µg/K, 5 ppm/K), and
+    with the cycle and the prior from the device-level thermal stage on a simulated device-thermal session of the same
+    unit (quartz noise, a ±5 K chamber cycle over 3.3 h).  For every combination the stage calls determined: its shift
+    from the no-cycle value, in rad and over its σ (acceptance: within 3σ and 1e-6 rad).
+    """
+    print(
+        f"\n[prior] 5 µg/K bias sensitivity per axis, 2 K peak-to-peak daily cycle, {seeds} seeds from {first}, {rate:g} Hz; "
+        f"device-level prior from a device-thermal session (±{DEVICE_CYCLE:g} K over {DEVICE_PERIOD / 3600:.1f} h, quartz noise)"
+    )
+    cycle = TemperatureProfile(amplitude=1.0, period=86400.0, sensor_noise=0.01)
+    effects = {f"Kt_bias_{a}": BIAS_SENSITIVITY for a in "xyz"}
+    worst = {"default": [0.0, 0.0, 0, 0], "device": [0.0, 0.0, 0, 0]}  # |shift| rad, |shift|/σ, determined, failing
+    for seed in range(first, first + seeds):
+        start = time.perf_counter()
+        reference = _determined(_run(_truth(rate, seed, effects, TemperatureProfile(sensor_noise=0.01)), rate, seed))
+        truth = _truth(rate, seed, effects, cycle)
+        values, covariance, fit = _device_prior(seed, effects)
+        runs = {"default": _run(truth, rate, seed), "device": _run(truth, rate, seed, prior=(values, covariance))}
+        line = []
+        for label, out in runs.items():
+            combos = _determined(out)
+            shifts = [(abs(v - reference[n][0]), abs(v - reference[n][0]) / s, s) for n, (v, s, ok) in combos.items() if ok]
+            named = sum(1 for _, _, ok in combos.values() if ok)
+            bad = sum(1 for d, z, _ in shifts if d > 1e-6 or z > 3)
+            w = worst[label]
+            w[0] = max(w[0], max((d for d, _, _ in shifts), default=0.0))
+            w[1] = max(w[1], max((z for _, z, _ in shifts), default=0.0))
+            w[2] += named
+            w[3] += bad
+            top = max((d for d, _, _ in shifts), default=0.0)
+            sig = max((s for _, _, s in shifts), default=0.0)
+            line.append(f"{label}: {named}/7 determined, largest shift {top:.1e} rad, largest σ {sig:.1e}, failing {bad}")
+        kt = ", ".join(f"{v / MICRO_G:.2f}±{e / MICRO_G:.2f}" for v, e in zip(fit.values[:3], fit.sigma[:3], strict=True))
+        print(f"  seed {seed}: Kt_bias (device) {kt} µg/K | " + " | ".join(line) + f" ({time.perf_counter() - start:.0f} s)")
+    for label, (d, z, named, bad) in worst.items():
+        print(
+            f"  {label:>7} prior: {named} determined combinations over {seeds} seeds, largest shift from the no-cycle value "
+            f"{d:.2e} rad ({z:.2f}σ); outside 3σ or 1e-6 rad: {bad}"
+        )
 
 
 def case_clean(rate, seeds, first):
@@ -250,6 +330,8 @@ def main(argv=None):
             case_diagnose(args.seed)
         elif case == "drawn":
             case_drawn(args.rate, args.seeds, args.first)
+        elif case == "prior":
+            case_prior(args.rate, args.seeds, args.first)
         elif case == "thermal":
             case_thermal(args.rate, args.seed, args.drift * DEG_PER_HOUR)
         else:

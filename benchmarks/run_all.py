@@ -97,8 +97,9 @@ QUICK: dict[str, Quick] = {
         ("--trials", "1000", "--sim-devices", "2", "--workers", "1", "--seed", "20260101"),
         "1,000 Part A trials (the minimum) instead of 10,000; 2 simulator devices instead of 48; one worker",
     ),
+    "bench_device_thermal": Quick(("--seeds", "2", "--first", "1"), "2 thermal sessions instead of 20"),
     "bench_device_gsensitivity": Quick(("--seeds", "2"), "2 sessions with g-sensitivity and 2 clean ones instead of 20 each"),
-    "bench_discovery_false_alarms": Quick(("3",), "3 clean sessions (seeds 100-102) instead of 20"),
+    "bench_discovery_false_alarms": Quick(("--seeds", "2"), "2 sessions per case (clean, 4σ, 5σ, each outside effect) instead of 20"),
     "bench_fuzz": Quick(
         ("--scale", "0.05", "--seed", "7"),
         "5 % of the cases (about 120), hypothesis seed 7 instead of the clock",
@@ -111,6 +112,7 @@ QUICK: dict[str, Quick] = {
     "bench_navigation_budget": Quick(("--days", "2", "--rate", "0.1"), "2 days with the simulator at 0.1 Hz instead of 5 days at 1 Hz"),
     "bench_noise_device": Quick(("--seeds", "2", "--workers", "1", "--first-seed", "1"), "2 seeds per case instead of 40; one worker"),
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
+    "bench_real_data": Quick(("--seeds", "2"), "2 static logs for the false-split rate instead of 10; the real logs unchanged"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),
@@ -126,8 +128,10 @@ QUICK: dict[str, Quick] = {
         volatile=(r"ratio ([\d.]+) to the h5py", r"([\d.]+) to the reader's", r"stage ratio ([\d.]+)"),  # ratios of times
         unordered=(r"^  [\w(].{46,}\s\d+\.\d{3} s$",),  # "where the stage's time goes", sorted by time
     ),
+    "bench_run_truth_drift": Quick(("--seeds", "1"), "1 seed of run --truth + calibrate drift instead of 20"),
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
     "bench_two_position": Quick(("--seeds", "5"), "5 seeds per case instead of 100"),
+    "bench_worlds": Quick(("--seeds", "2", "--first-seed", "1"), "2 device sessions per world instead of 10"),
     "bench_lever_arms": Quick(("--seeds", "1", "--cai-seeds", "1", "--clean", "2"), "1 seed per case (2 clean) instead of 4, 2 and 20"),
     "bench_systematic": Quick(
         ("--seeds", "4", "--mc-hours", "4", "--hours", "8", "--speed-hours", "2"),

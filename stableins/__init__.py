@@ -26,7 +26,7 @@ from pathlib import Path
 _ROOT = Path(__file__).resolve().parent.parent
 
 
-def _version() -> str:
+def _code_version() -> str:
     """Return the version of the code that runs (see the module docstring)."""
     if (_ROOT / ".git").exists() and (_ROOT / "pyproject.toml").is_file():
         try:
@@ -59,7 +59,7 @@ def _version() -> str:
 
 def __getattr__(name: str) -> str:
     if name == "__version__":
-        value = _version()
+        value = _code_version()
         globals()["__version__"] = value  # computed once per process
         return value
     raise AttributeError(f"module 'stableins' has no attribute {name!r}")

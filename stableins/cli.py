@@ -67,11 +67,18 @@ COMMANDS: dict[str, Command | Group] = {
             "device": Command("stableins.commands.calibrate_device", "device-level coarse + fine calibration"),
             "system": Command("stableins.commands.calibrate_system", "system-level (third stage) calibration from a static record"),
             "drift": Command("stableins.commands.calibrate_drift", "gyro drift from an indexing test (drift-two-position)"),
+            "thermal": Command(
+                "stableins.commands.calibrate_thermal", "temperature sensitivities Kt_bias, Kt_sf from a thermal test (device-thermal)"
+            ),
             "lever": Command("stableins.commands.calibrate_lever", "lever arms and time asynchrony from the slews of device-rotating"),
+            "poses": Command("stableins.commands.calibrate_poses", "a triad from the static poses of a real log (any columns and units)"),
         },
     ),
     "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
+    "protocol-check": Command(
+        "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"
+    ),
     "recal": Command("stableins.commands.recal", "field recalibration with the unit's previous record as the prior"),
     "history": Command("stableins.commands.history", "a unit's calibration records: in force, stale, changes, drift"),
     "budget": Command(

@@ -66,6 +66,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stableins.dwell_mode import DwellMode
+
 # --------------------------------------------------------------------------- units
 #: Standard gravity, used only for engineering units (µg, µg/g²), never as local g.
 STANDARD_GRAVITY: Final = 9.80665
@@ -145,6 +147,42 @@ def platform_drift_rate(
     """
     force = np.asarray(specific_force, dtype=float)
     return -(np.asarray(drift, dtype=float) + np.einsum("ab,...b->...a", np.asarray(g_sensitivity, dtype=float), force))
+
+
+def dwell_platform_rate(
+    mode: DwellMode, drift_rate: ArrayLike, earth_rate: ArrayLike, torquer_scale: ArrayLike = (0.0, 0.0, 0.0)
+) -> NDArray[np.float64]:
+    r"""Return the platform's rate relative to the base within a dwell, ``ω_bp^p`` [rad/s], in the platform frame.
+
+    .. math::
+        \omega_{bp}^p = \omega_{ip}^p - \omega_{ie}^p = \begin{cases}
+            0 & \text{caged (the angle loops hold the readings)} \\
+            w + k \circ \omega_{ie}^p & \text{torqued at the computed Earth rate } (1 + k) \circ \omega_{ie}^p \\
+            w - \omega_{ie}^p & \text{inertially held (not torqued)}
+        \end{cases}
+
+    with the gyro-error rate ``w = −(ε^p + D_g f^p)`` (:func:`platform_drift_rate`) and ``k`` the torquers'
+    scale-factor error per platform axis (a torquer turns the platform at ``(1 + k_a)`` times the commanded rate).
+    Derivation: the stabilization loop nulls the gyro outputs ``ω_ip^p − ω_cmd^p + ε^p + D_g f^p``, so
+    ``ω_ip^p = ω_cmd^p + w``; the base turns at ``ω_ie`` (static base).
+
+    Parameters
+    ----------
+    mode : DwellMode
+    drift_rate : array_like (..., 3)
+        ``w`` [rad/s].
+    earth_rate : array_like (..., 3)
+        ``ω_ie^p = C_n^p ω_ie^n`` [rad/s] (:func:`earth_rate_nav`).
+    torquer_scale : array_like (3,)
+        ``k`` (dimensionless; only the torqued mode uses it).
+    """
+    w = np.asarray(drift_rate, dtype=float)
+    earth = np.asarray(earth_rate, dtype=float)
+    if mode is DwellMode.CAGED:
+        return np.zeros(np.broadcast_shapes(w.shape, earth.shape))
+    if mode is DwellMode.EARTH_RATE:
+        return w + np.asarray(torquer_scale, dtype=float) * earth
+    return w - earth
 
 
 def normal_gravity(latitude: ArrayLike, height: ArrayLike = 0.0) -> NDArray[np.float64]:

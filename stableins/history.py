@@ -39,10 +39,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
 from stableins.errors import InputError
+from stableins.identifiers import parse_timestamp
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -61,14 +62,8 @@ MIN_DRIFT_SPAN_DAYS = 30.0
 
 
 def parse_date(text: str, field: str = "date") -> datetime:
-    """ISO 8601 date or date-time; naive times are UTC."""
-    try:
-        value = datetime.fromisoformat(text.replace("Z", "+00:00"))
-    except (ValueError, AttributeError):
-        raise InputError(
-            f"cannot read {text!r} as a date", field=field, expected="ISO 8601, e.g. 2026-03-01 or 2026-03-01T12:00:00Z"
-        ) from None
-    return value if value.tzinfo else value.replace(tzinfo=UTC)
+    """ISO 8601 date or date-time; naive times are UTC (:func:`stableins.identifiers.parse_timestamp`)."""
+    return parse_timestamp(text, field=field)
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,11 @@ from stableins.conventions import (
 )
 from stableins.errormodel import GIMBAL_IDS
 
+#: A gimbal-rate map ``J`` (:meth:`GimbalPlatform.rate_map`) worse conditioned than this is near gimbal lock: no
+#: gimbal turns the platform about one direction (inner gimbal at ±90°, platform and middle axes aligned; Wu's
+#: positions 3, 4, 5 and 14).  There a gyro-stabilized platform cannot be held: the angle loops cage it
+#: (docs/conventions.md, "The platform during a dwell").
+GIMBAL_LOCK_CONDITION = 1e3
 #: Gimbal names in angle-sensor order (platform z, inner x, middle y), as in the data schema.
 GIMBAL_NAMES = ("platform", "inner", "middle")
 #: Ids of the kinematic (test-equipment) effects, in [rad].
@@ -383,6 +388,15 @@ class GimbalPlatform:
         w0, w2 = c12 * v0 - s12 * v2, s12 * v0 + c12 * v2
         ca, sa = np.cos(a), np.sin(a)
         return np.stack([ca * w0 + sa * v1, -sa * w0 + ca * v1, w2 + r1], axis=-1)
+
+    def rate_map(self, actual: ArrayLike) -> NDArray[np.float64]:
+        """Return ``J(α)`` (..., 3, 3): ``ω_bp^p`` per unit rate of each gimbal (columns platform, inner, middle)."""
+        alpha = np.asarray(actual, dtype=float)
+        return np.stack([self.angular_rate(alpha, np.eye(3)[k]) for k in range(3)], axis=-1)
+
+    def near_gimbal_lock(self, actual: ArrayLike) -> NDArray[np.bool_]:
+        """Return whether the gimbals cannot turn the platform about some direction (``cond J >`` :data:`GIMBAL_LOCK_CONDITION`)."""
+        return np.asarray(~(np.linalg.cond(self.rate_map(actual)) < GIMBAL_LOCK_CONDITION))
 
     # ------------------------------------------------------------------ inverse kinematics
     def actual_from_dcm(

@@ -22,15 +22,18 @@ from stableins.drivers.replay import JOURNAL_NAME
 from stableins.drivers.select import is_deterministic, open_driver
 from stableins.errors import InputError
 from stableins.procedures.entries import accepted_columns, resume_script
-from stableins.procedures.journal import Journal, scan
+from stableins.procedures.journal import Journal, has_start, remove_unlinked, scan
 from stableins.procedures.plan import Plan, StaticRecordStep, SystemEstimation
 from stableins.procedures.reachable import check_reachable
 from stableins.procedures.rundir import (
     DEFINITION_NAME,
+    PLAN_NAME,
     PRIOR_NAME,
     RECORD_NAME,
     REPORT_NAME,
+    TRUTH_NAME,
     RunOutcome,
+    check_capabilities,
     check_settings,
     copy_input,
     export,
@@ -44,6 +47,7 @@ from stableins.procedures.rundir import (
     utc_now,
     write_plan,
 )
+from stableins.procedures.runlock import RunLock
 from stableins.procedures.runner import RunConsole, Runner, RunOptions
 from stableins.procedures.session import Session
 from stableins.site import SiteMetadata
@@ -70,6 +74,14 @@ class RunSetup:
         Runner options that are not part of the procedure.
     timeout : float
         Seconds a network platform may take to answer.
+    recal : mapping, optional
+        The run is a field recalibration (``stableins recal``): ``store`` (the history store its record is filed in,
+        or None) and ``file`` (whether to file it); kept in the start record so that a resume, by ``recal --resume``
+        or ``run --resume``, files the one new record and prints its changes as the recalibration would have.
+    truth : Truth, optional
+        The simulated platform simulates this :class:`~stableins.simulator.truth.Truth` (``run --truth``,
+        ``--hidden``) instead of drawing one from the seed; written into the run directory (``truth.json``), which
+        a resume simulates again.
     """
 
     definition_file: str | os.PathLike[str] | None = None
@@ -78,6 +90,8 @@ class RunSetup:
     fields: Mapping[str, str] = field(default_factory=dict)
     options: RunOptions | None = None
     timeout: float = 10.0
+    recal: Mapping[str, Any] | None = None
+    truth: Any = None
 
 
 def start_run(
@@ -96,25 +110,26 @@ def start_run(
     The definition file and the prior record of ``setup`` (:class:`RunSetup`) are copied into the
     run directory first, so that a resumed run needs nothing from outside it.
     """
-    setup = setup or RunSetup()
-    definition_file, prior_file, options = setup.definition_file, setup.prior_file, setup.options
     rundir = Path(rundir)
-    journal_file = rundir / JOURNAL_NAME
-    if journal_file.exists():
-        if scan(journal_file).records:
-            raise InputError(
-                "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
-            )
-        journal_file.unlink()  # a start that died before its first record: nothing happened, start afresh
+    with RunLock.acquire(rundir):  # before anything is written: one run per directory
+        return _start_locked(plan, rundir, driver_spec=driver_spec, seed=seed, unit=unit, console=console, driver=driver, setup=setup)
+
+
+def _needed_prior(plan: Plan, prior_file: str | os.PathLike[str] | None, *, unit: str | None, definition: bool) -> Any:
+    """Return the unit's record the run starts from (None without ``--prior``): checked before anything moves.
+
+    A procedure's system-level stage and its fine stage need one (they estimate corrections to it, or re-point by its
+    zero offsets); it must be of ``unit``.
+    """
     prior = _load_record(prior_file) if prior_file is not None else None
     fine = any(getattr(step, "stage", "") == "fine" for step in plan.steps)
-    if definition_file is not None and plan.level == "system" and prior is None:
+    if definition and plan.level == "system" and prior is None:
         raise InputError(
             "the system-level stage estimates corrections to the calibration the INS navigates with",
             field="prior_file",
             expected="--prior RECORD (the unit's record in force) or --store DIR",
         )
-    if definition_file is not None and fine and prior is None:
+    if definition and fine and prior is None:
         raise InputError(
             "the fine stage starts from the unit's coarse estimate and re-points by its zero offsets",
             field="prior_file",
@@ -122,22 +137,60 @@ def start_run(
         )
     if prior is not None and unit is not None and prior.serial_number != unit:
         raise InputError(f"the prior record is of unit {prior.serial_number!r}", path=prior_file, field="unit", expected=repr(unit))
+    return prior
+
+
+def _start_locked(
+    plan: Plan,
+    rundir: Path,
+    *,
+    driver_spec: str,
+    seed: int | None,
+    unit: str | None,
+    console: RunConsole,
+    driver: PlatformDriver | None,
+    setup: RunSetup | None,
+) -> RunOutcome:
+    """:func:`start_run` while this process holds the run directory's lock."""
+    setup = setup or RunSetup()
+    definition_file, prior_file, options = setup.definition_file, setup.prior_file, setup.options
+    journal_file = rundir / JOURNAL_NAME
+    remove_unlinked(journal_file)  # a start killed before its journal existed: nothing happened
+    if journal_file.exists():
+        if has_start(journal_file):
+            raise InputError(
+                "this run directory already holds a run", path=rundir, expected="a new directory, or 'stableins run --resume RUNDIR'"
+            )
+        journal_file.unlink()  # a start that died before its first record (an earlier version): nothing happened, start afresh
+    prior = _needed_prior(plan, prior_file, unit=unit, definition=definition_file is not None)
     check_settings(plan, console.values)
-    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=plan.sample_rate, timeout=setup.timeout)
+    rate, truth = plan.sample_rate, setup.truth
+    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=rate, timeout=setup.timeout, truth=truth)
     try:
         install_prior(driver, plan, prior, prior_file)  # a simulated INS navigates with --prior, as a real one is loaded
         metadata = driver.metadata
         if unit is not None and metadata.serial_number != unit:
             raise InputError(f"the platform reports unit {metadata.serial_number!r}", field="unit", expected=repr(unit))
         check_reachable(plan, metadata, definition_file)  # an index that locks the gimbals: refused before anything moves
+        if definition_file is not None:  # the platform holds its dwells as the procedure declares
+            from stableins.procedures.definition import load_procedure
+
+            load_procedure(Path(definition_file)).check_dwell_mode(metadata)
+        check_capabilities(driver, plan)  # a network platform without the INS's outputs: refused before anything moves
         digests = {}
         for source, name in ((definition_file, DEFINITION_NAME), (prior_file, PRIOR_NAME)):
             if source is not None:
                 digests[name] = copy_input(Path(source), rundir / name)
+        if setup.truth is not None:  # the world the simulated platform runs, kept with the run (and simulated again on resume)
+            from stableins.data.truth import save_truth
+            from stableins.records import file_sha256
+
+            save_truth(setup.truth, rundir / TRUTH_NAME)
+            digests[TRUTH_NAME] = file_sha256(rundir / TRUTH_NAME)
         write_plan(rundir, plan)
-        journal = Journal.create(journal_file)
-        with journal:
-            journal.append(
+        journal = Journal.create(
+            journal_file,
+            first=(
                 "start",
                 {
                     "version": stableins.__version__,
@@ -155,8 +208,12 @@ def start_run(
                     "new_calibration": bool(setup.new_calibration),
                     "fields": dict(setup.fields),
                     "inputs": digests,  # SHA-256 of the copies: a resume verifies every file it reads again
+                    "recal": dict(setup.recal) if setup.recal is not None else None,
+                    "truth": TRUTH_NAME if setup.truth is not None else None,
                 },
-            )
+            ),
+        )
+        with journal:
             console.say(f"run of {plan.name!r} on unit {metadata.serial_number} ({driver_spec}) in {rundir}")
             runner = _runner(rundir, plan, Session(journal, [], driver, forward=False), console, options=options, start=journal.records[0])
             runner.execute()
@@ -195,7 +252,32 @@ def resume_run(
         ``re_estimate`` of a run that is not complete; a changed input; a journal without a start record.
     """
     rundir = Path(rundir)
-    journal = Journal.open(rundir / JOURNAL_NAME)
+    if not rundir.is_dir():
+        raise InputError("no run journal here (no such directory)", path=rundir, expected="a run directory made by 'stableins run'")
+    with RunLock.acquire(rundir):  # before anything is written: one run per directory
+        return _resume_locked(rundir, console=console, driver_spec=driver_spec, driver_factory=driver_factory, timeout=timeout,
+                              re_estimate=re_estimate)  # fmt: skip
+
+
+def _resume_locked(
+    rundir: Path,
+    *,
+    console: RunConsole,
+    driver_spec: str | None,
+    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
+    timeout: float,
+    re_estimate: bool,
+) -> RunOutcome:
+    """:func:`resume_run` while this process holds the run directory's lock."""
+    journal_file = rundir / JOURNAL_NAME
+    started = journal_file.exists() or (rundir / PLAN_NAME).exists()
+    if started and not has_start(journal_file) and not scan_has_records(journal_file):
+        raise InputError(
+            "the run in this directory was stopped before its first record: nothing was done, so there is nothing to resume",
+            path=rundir,
+            expected="the command that started it, run again (it starts afresh in the same directory)",
+        )
+    journal = Journal.open(journal_file)
     with journal:
         if not journal.records or journal.records[0].kind != "start":
             raise InputError(
@@ -210,7 +292,8 @@ def resume_run(
         if journal.recovered is not None:
             torn = journal.recovered
             console.say(f"journal: dropped a torn last record ({torn.torn_bytes} bytes, {torn.torn_reason}) left by the interruption")
-        driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout)
+        truth = _kept_truth(rundir, start)  # a known world (run --truth): simulated again, as verified above
+        driver = resume_driver(start, spec, plan, re_estimate=re_estimate, driver_factory=driver_factory, timeout=timeout, truth=truth)
         try:
             install_prior(driver, plan, _load_record(rundir / start["prior"]) if start.get("prior") else None, start.get("prior"))
             metadata = driver.metadata
@@ -218,6 +301,8 @@ def resume_run(
                 raise InputError(
                     f"the platform reports unit {metadata.serial_number!r}, this run is of unit {start['unit']!r}", field="driver_spec"
                 )
+            if not re_estimate:
+                check_capabilities(driver, plan)
             deterministic = is_deterministic(driver)
             script, superseded = resume_script(journal.records, deterministic=deterministic or re_estimate)
             if re_estimate:
@@ -247,6 +332,22 @@ def resume_run(
             return outcome
         finally:
             driver.close()
+
+
+def _kept_truth(rundir: Path, start: Any) -> Any:
+    """Return the simulated world a run started with ``--truth`` or ``--hidden`` keeps (``truth.json``), or None."""
+    if not start.get("truth"):
+        return None
+    from stableins.data.truth import load_truth
+
+    return load_truth(rundir / str(start["truth"]))
+
+
+def scan_has_records(path: Path) -> bool:
+    """Whether the journal at ``path`` exists and holds a whole record (False for a missing, empty or header-only file)."""
+    if not path.exists():
+        return False
+    return bool(scan(path).records)
 
 
 def verify_inputs(rundir: Path, start: Any) -> None:
@@ -421,7 +522,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         expected = "the unit's coarse record (--prior RECORD or --store)"
         raise InputError("the fine stage starts from a coarse estimate", field="prior_file", expected=expected)
     from stableins.estimators.dwell import dwells_from_columns
-    from stableins.estimators.fine import calibrate_fine
+    from stableins.estimators.fine import calibrate_fine, fine_model
 
     columns = accepted_columns(runner.entries)
     source = str(dataset or rundir / JOURNAL_NAME)
@@ -432,7 +533,7 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         prior.values(),
         gravity=metadata.gravity,
         expected_positions=definition.positions,
-        extra_terms=runner.extra_terms,
+        model=fine_model(runner.extra_terms),
         source=source,
     )
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
+
 
 @dataclass(frozen=True)
 class SiteMetadata:
@@ -44,6 +46,11 @@ class SiteMetadata:
     start_time : str
         ISO 8601 UTC time of the data's time 0 (``time[s]`` counts from it); ``""`` when unknown.
         Gives the calibration date: the record's data start and end times.
+    dwell_mode : DwellMode
+        How the platform is held while it dwells at a position (caged, torqued at the computed Earth rate, or
+        inertially held; docs/conventions.md, "The platform during a dwell").  Default
+        :data:`~stableins.conventions.DEFAULT_DWELL_MODE` (torqued at the computed Earth rate), what files that do
+        not declare it were taken with.
     """
 
     serial_number: str
@@ -59,10 +66,16 @@ class SiteMetadata:
     extra: dict[str, Any] = field(default_factory=dict)
     start_time: str = ""
     gravity_uncertainty: float | None = None
+    dwell_mode: DwellMode = DEFAULT_DWELL_MODE
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.dwell_mode, DwellMode):
+            object.__setattr__(self, "dwell_mode", DwellMode(self.dwell_mode))
 
     def to_dict(self) -> dict[str, Any]:
         """Return the metadata as a JSON-ready dict (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["gimbal_senses"] = list(self.gimbal_senses)
         d["base_attitude"] = list(self.base_attitude)
+        d["dwell_mode"] = str(self.dwell_mode)
         return d

@@ -192,6 +192,8 @@ def _record(serial: str) -> Any:
 
 def _discovery_document() -> dict[str, Any]:
     """A complete ``diagnose --json`` document of a system record (every kind of field the reader checks)."""
+    from scipy.stats import chi2
+
     from stableins.discovery.diagnose_report import OBSERVATION_UNIT
     from stableins.noise import NoiseModel
 
@@ -206,12 +208,14 @@ def _discovery_document() -> dict[str, Any]:
                  "predicted": {"estimate": 1.5, "sigma": 2.0, "unit": "ug/g^2", "max_output_change": 1e-6,
                                "max_output_change_unit": OBSERVATION_UNIT},
                  "identifiable": True, "excited": True, "separability": 0.4, "aliases": [{"id": "bias_x", "shift_per_unit": 0.3}],
-                 "confused_with": ["Kcc_xxz"], "refit": False, "flagged": False, "advice": "confirm with 45° positions"}  # fmt: skip
+                 "confused_with": ["Kcc_xxz"], "refit": False, "flagged": False, "chi2_red_with": 1.12, "explains": True,
+                 "leaves": [], "advice": "confirm with 45° positions"}  # fmt: skip
     spectrum = {"harmonics": [1, 2], "amplitude": [1e-6, 2e-6], "sigma": [1e-6, 1e-6], "chi2": [1.0, 4.0], "dof": [2.0, 2.0],
                 "p_value": [0.6, 0.14], "flagged": [False, False], "unit": "m/s^2"}  # fmt: skip
     return {
         "stage": "system", "noise_model": noise, "chi2_red": 1.1, "chi2_red_range": [1.05, 1.2], "dof": 30, "expected_spread": 0.26,
-        "p_value": 0.3, "consistent": True, "alarm": False, "bin_seconds": 60.0, "model": ["bias_x", "sf_x", "K3_x"],
+        "p_value": 0.3, "p_value_range": [float(chi2.sf(31.5, 30)), float(chi2.sf(36.0, 30))], "consistent": True, "alarm": False,
+        "bin_seconds": 60.0, "verdict": "consistent", "outside_library": False, "signature": None, "model": ["bias_x", "sf_x", "K3_x"],
         "residual_rms": [2e-5, 2e-5, 3e-5], "noise_floor": [1e-5, 1e-5, 1e-5], "candidates": [candidate, dict(candidate, id="K3_y")],
         "history": [step, added], "left_out": [], "next": ["next: nothing is flagged", "  stableins report cal.json"], "drift": None,
         "notes": ["bins of 60 s"], "spectra": {"f_x": spectrum, "f_y": spectrum},

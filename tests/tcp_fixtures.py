@@ -29,12 +29,19 @@ class ServerProcess:
     """
 
     def __init__(
-        self, seed: int = 0, simulator: bool = False, unit: str = "NET-1", rate: float | None = None, realtime: float = 0.0
+        self,
+        seed: int = 0,
+        simulator: bool = False,
+        unit: str = "NET-1",
+        rate: float | None = None,
+        realtime: float = 0.0,
+        installed: str | os.PathLike[str] | None = None,
     ) -> None:
         if simulator:
             argv = [sys.executable, "-m", "stableins.cli", "serve-sim", "--port", "0", "--seed", str(seed), "--unit", unit, "--quiet"]
             argv += ["--rate", str(rate)] if rate else []
             argv += ["--realtime", str(realtime)] if realtime else []
+            argv += ["--installed", str(installed)] if installed is not None else []
         else:
             argv = [sys.executable, "-c", SERVER_SCRIPT.format(root=str(ROOT), seed=seed)]
         env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -72,6 +72,10 @@ RECORD_MUTATIONS = [
     (("covariance", "matrix", 1), '{"a": 1}', "field 'covariance.matrix'", "square list"),
     (("site",), "[1, 2]", "field", "not a JSON object"),
     (("stages", 0, "inputs", 0, "sha256"), '"abc"', "field 'stages[0].inputs'", "not a SHA-256"),
+    # issue 31: these passed check, diagnose, report and run --prior
+    (("serial_number",), '"../../x"', "field 'serial_number'", "cannot name a history folder"),
+    (("calibration", "created"), '"yesterday"', "field 'calibration.created'", "as a date"),
+    (("stages", 0, "data_end"), '"soon"', "field 'stages[0].data_end'", "as a date"),
 ]
 
 
@@ -478,18 +482,32 @@ def test_procedure_validated_completely_before_the_platform_moves(tmp_path):
     assert load_procedure(path).positions == (1, 2)
 
 
-def test_duplicate_positions_found_in_linear_time(tmp_path):
-    from stableins.procedures.definition import load_procedure
+def test_procedure_steps_and_size_are_bounded_before_work(tmp_path):
+    """At most MAX_PROCEDURE_STEPS steps, checked before each is validated; a file over 1 MiB is refused before it is parsed.
 
-    steps = "".join(f"[[step]]\nposition = {k}\nplatform = 0.0\ninner = {k % 90}.0\nmiddle = 0.0\n" for k in range(1, 50_001))
+    Issue 31: a 64-MiB TOML with a million steps took 31 s and 937 MiB before it was refused.
+    """
+    from stableins.procedures.definition import MAX_FILE_BYTES, MAX_PROCEDURE_STEPS, load_procedure
+
+    head = '[procedure]\nname = "long"\nstage = "coarse"\n[defaults]\ndwell = 1.0\nsample_rate = 100.0\n'
+
+    def steps(n: int) -> str:
+        return "".join(f"[[step]]\nposition = {k}\nplatform = 0.0\ninner = {k % 90}.0\nmiddle = 0.0\n" for k in range(1, n + 1))
+
     path = tmp_path / "long.toml"
-    path.write_text('[procedure]\nname = "long"\nstage = "coarse"\n[defaults]\ndwell = 1.0\nsample_rate = 100.0\n' + steps)
-    started = time.perf_counter()
-    assert len(load_procedure(path).steps) == 50_000
-    path.write_text(path.read_text().replace("position = 40000\n", "position = 39999\n"))
-    with pytest.raises(InputError, match=r"duplicated positions \[39999\]"):
+    path.write_text(head + steps(MAX_PROCEDURE_STEPS))
+    assert path.stat().st_size < MAX_FILE_BYTES
+    assert len(load_procedure(path).steps) == MAX_PROCEDURE_STEPS
+    path.write_text(path.read_text().replace("position = 4000\n", "position = 3999\n"))
+    with pytest.raises(InputError, match=r"duplicated positions \[3999\]"):
         load_procedure(path)
-    assert time.perf_counter() - started < 20.0  # was 109 s for one load (quadratic)
+    path.write_text(head + "[[step]]\nposition = 1\nplatform = 0.0\ninner = 1.0\nmiddle = 0.0\n" * (MAX_PROCEDURE_STEPS + 1))
+    with pytest.raises(InputError) as error:
+        load_procedure(path)
+    assert error.value.field == "step" and f"at most {MAX_PROCEDURE_STEPS}" in str(error.value)
+    path.write_text(head + "# padding\n" * (MAX_FILE_BYTES // 10 + 1))
+    refused(["run", path, "--driver", "sim", "--out", tmp_path / "run"], str(path))
+    assert not (tmp_path / "run").exists()
 
 
 def test_resume_verifies_every_input_it_reads_again(ws, tmp_path):
@@ -507,6 +525,74 @@ def test_resume_verifies_every_input_it_reads_again(ws, tmp_path):
     copy.write_bytes(started_with)
     status, err = run(["run", "--resume", tmp_path / "run", "--yes", "--set", "lab=21"])
     assert status == 0, err
+
+
+def test_a_specific_force_no_instrument_gives_is_refused_by_check_as_by_calibrate(ws, tmp_path):
+    """f_x = 1e300 in 200 rows passed ``check`` and ``calibrate device`` (issue 31): the schema's limits, every reader."""
+    lines = ws.device_csv.read_text().splitlines(keepends=True)
+    header = next(k for k, line in enumerate(lines) if line.startswith("time[s]"))
+    names = [c.split("[")[0] for c in lines[header].strip().split(",")]
+    column = names.index("f_x")
+    for k in range(header + 11, header + 211):
+        cells = lines[k].rstrip("\n").split(",")
+        cells[column] = "1e300"
+        lines[k] = ",".join(cells) + "\n"
+    bad = tmp_path / "huge.csv"
+    bad.write_text("".join(lines))
+    message = refused(["check", bad], str(bad), "row 11", "field 'f_x'", "beyond what an instrument can give")
+    assert refused(["calibrate", "device", bad, "--out", tmp_path / "o.json"]) == message
+    assert refused(["diagnose", bad, "--record", ws.record]) == message
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"), [("serial_number", "../../x", "cannot name a history folder"), ("start_time", "soon", "as a date")]
+)
+def test_data_file_metadata_serial_and_start_time_are_checked(ws, tmp_path, key, value, message):
+    """A data file's serial number names folders and report ids; its start time is a date (issue 31)."""
+    text = ws.device_csv.read_text()
+    assert '#     "serial_number": "' in text
+    entry = f'#     "{key}": {json.dumps(value)},\n'
+    bad = tmp_path / "meta.csv"
+    if key == "serial_number":
+        start = text.index('#     "serial_number": ')
+        bad.write_text(text[:start] + entry + text[text.index("\n", start) + 1 :])
+    else:
+        start = text.index('#     "serial_number": ')
+        bad.write_text(text[:start] + entry + text[start:])
+    refused(["check", bad], str(bad), f"field 'metadata.{key}'", message)
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [["--gyro-drift", "1", "0", "0"], ["--estimate-k2"], ["--case-rotation-period", "600"], ["--thermal-prior", "5", "5"]],
+    ids=lambda extra: extra[0],
+)
+def test_systematic_refuses_the_static_stages_options(ws, tmp_path, extra):
+    """Issue 31: with --systematic these were ignored (parameters bit-identical); now one message naming the option."""
+    argv = ["calibrate", "system", ws.system_h5, "--prior", ws.record, "--systematic", "--out", tmp_path / "o.json", *extra]
+    refused(argv, f"field '{extra[0]}'", "not to --systematic")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_recal_names_the_prior_of_another_unit_not_the_estimate(ws, tmp_path):
+    """Issue 31: ``recal --prior BAD.json --estimate GOOD.json`` named GOOD.json."""
+    document = json.loads(ws.record.read_text())
+    document["serial_number"] = "OTHER-UNIT"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(document))
+    err = refused(["recal", "--unit", ws.serial, "--prior", bad, "--estimate", ws.record, "--out", tmp_path / "r"], str(bad))
+    assert str(ws.record) not in err and "OTHER-UNIT" in err
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("content", [None, b""], ids=["device", "empty"])
+def test_check_refuses_what_no_command_writes(tmp_path, content):
+    """``check /dev/null`` said "ok (text report; lines 0)" (issue 31): a device file and an empty file are refused."""
+    path = Path("/dev/null") if content is None else tmp_path / "empty.txt"
+    if content is not None:
+        path.write_bytes(content)
+    refused(["check", path], str(path), "not a regular file" if content is None else "the file is empty")
 
 
 # =========================================================================== two readers, two verdicts
@@ -531,6 +617,8 @@ def _agree(tmp: Path, path: Path, prior: Path, *fragments: str) -> None:
     check = refused(["check", path], str(path), *fragments)
     calibrate = refused(["calibrate", "system", path, "--prior", prior, "--out", tmp / "out.json"], str(path), *fragments)
     assert check == calibrate
+    drift = refused(["calibrate", "drift", path, "--prior", prior, "--out", tmp / "out.json"], str(path), *fragments)
+    assert check == drift  # issue 31: calibrate drift wrote a record from a file check refuses
     assert not (tmp / "out.json").exists()
 
 
@@ -547,6 +635,7 @@ def test_check_and_calibrate_system_give_one_verdict(system_files):
     _agree(tmp, wrong_rate, prior, "field 'time'", "sample rate is wrong")
     for name, edit, fragments in (
         ("nan.h5", lambda f: f["columns/f_x"].__setitem__(1000, np.nan), ("row 1001", "field 'f_x'", "not finite")),
+        ("pitch.h5", lambda f: f["columns/pitch"].__setitem__(700, np.inf), ("row 701", "field 'pitch'", "not finite")),
         ("back.h5", lambda f: f["columns/time"].__setitem__(500, 0.25), ("row 501", "time_grid")),
         ("grid.h5", lambda f: f["time_grid"].__setitem__((0, 2), 1e-12), ("time_grid",)),
         ("grid2.h5", lambda f: f["time_grid"].__setitem__((0, 2), -1.0), ("time_grid", "damaged")),

@@ -97,6 +97,17 @@ def test_task_seed_comes_from_identity_not_order():
         ),
         ("[campaign]\ndevices = 1\n[[procedure]]\nname='a__b'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n", "procedure[0].name"),
         ("[campaign]\ndevices = 1\n[[noise]]\nname='q'\n", "procedure"),
+        ("[campaign]\ndevices = 1\n[[procedure]]\nname='../x'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n", "procedure[0].name"),
+        (  # the last seed beyond the range every command admits (issue 31: first_seed = 2**64 - 1 ran)
+            "[campaign]\nfirst_seed = 18446744073709551615\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n"
+            "[[noise]]\nname='q'\n",
+            "campaign.first_seed",
+        ),
+        (  # the simulator's bound on an effect, checked before any task runs (issue 31: failed in a worker)
+            "[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n"
+            "[[hidden]]\nname='h'\neffects={Kcc_xxy=1e30}\n",
+            "hidden[0].effects.Kcc_xxy",
+        ),
     ],
 )
 def test_bad_campaign_file_names_the_field(tmp_path, text, field):
@@ -113,6 +124,36 @@ def test_campaign_cli_bad_file_exit_2_and_nothing_written(tmp_path, capsys):
     assert main(["campaign", str(path), "--out", str(tmp_path / "out"), "--workers", "1"]) == 2
     assert "campaign.devices" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("address", ["ftp://x", "tcp://", "tcp://host", "127.0.0.1:8786", "tcp://h:99999"])
+def test_campaign_refuses_a_scheduler_address_before_writing(tmp_path, capsys, address):
+    """A malformed ``--scheduler`` is one message naming the option, exit 2, and nothing written (issue 31)."""
+    path = tmp_path / "c.toml"
+    path.write_text("[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n")
+    assert main(["campaign", str(path), "--out", str(tmp_path / "out"), "--scheduler", address]) == 2
+    err = capsys.readouterr().err
+    assert "--scheduler" in err and "tcp://HOST:PORT" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_campaign_with_no_scheduler_answering_writes_nothing(tmp_path, capsys, monkeypatch):
+    """A well-formed address where nothing listens: exit 2 naming ``--scheduler``; the directory is not claimed."""
+    import socket
+
+    import stableins.campaign.execution
+
+    monkeypatch.setattr(stableins.campaign.execution, "CONNECT_TIMEOUT", 1.0)  # nothing answers: no need to wait 30 s
+
+    with socket.socket() as probe:  # a port nothing listens on: bound, never listening
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+        path = tmp_path / "c.toml"
+        path.write_text("[campaign]\ndevices = 1\n[[procedure]]\nname='a'\ncoarse='device-coarse'\n[[noise]]\nname='q'\n")
+        code = main(["campaign", str(path), "--out", str(tmp_path / "out"), "--scheduler", f"tcp://127.0.0.1:{port}"])
+    assert code == 2
+    assert "--scheduler" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "campaign.json").exists() and not (tmp_path / "out" / "tasks").exists()
 
 
 def _stop(process: subprocess.Popen) -> None:

@@ -146,6 +146,26 @@ def test_design_cli(tmp_path, capsys):
     assert main(["design", "device-coarse", *noise, "--target", "nothing*=3"]) == 2
 
 
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        (["--match", "--name", "../../escaped"], "--name"),  # issue 31: wrote two directories above --out
+        (["--match", "--name", ""], "--name"),
+        (["--match", "--name", "a/b"], "--name"),
+        (["--match", "--name", ".hidden"], "--name"),
+        (["--match", "--criterion", "D"], "--criterion"),  # issue 31: the criterion applies to --budget only
+        (["--grid", "45"], "--grid"),  # nothing to optimize: the grid would be ignored
+    ],
+)
+def test_design_refuses_names_and_options_that_would_not_apply(tmp_path, capsys, extra, field):
+    """A name that could leave ``--out`` and an option that would be ignored: exit 2 naming it; nothing written."""
+    out = tmp_path / "sub" / "O"
+    code = main(["design", "device-coarse", "--white", "2e-5", "--passes", "1", "--out", str(out), *extra])
+    assert code == 2
+    assert field in capsys.readouterr().err
+    assert not any(tmp_path.rglob("*.toml"))
+
+
 def test_stableins_run_executes_the_designed_procedure_with_its_dwells(tmp_path, capsys):
     """Issue 19: the TOML that ``design --out`` writes is what ``stableins run`` executes, position by position."""
     from stableins.data.device import load_device

@@ -308,3 +308,92 @@ def test_slow_noise_whitening_is_the_generalized_least_squares_metric():
     white = problem.whiten(result.residuals)
     assert fit_chi2(result) == pytest.approx(white @ white, rel=1e-12)
     np.testing.assert_allclose(result.residual_sigma, np.sqrt(dwells.sigma**2 + np.diag(slow)[:, None]).reshape(-1))
+
+
+def test_a_candidate_is_named_only_if_it_brings_chi2_into_its_band():
+    """Issue 25: an effect of a form the candidates lack is said to be outside the library, and no candidate is named.
+
+    The world has a cubic term the library knows and a ripple it does not: the cubic is significant (its F-test p is
+    far below α/N) but adding it leaves χ²_ν far above its 95 % band, so it is not flagged.  Without the ripple the
+    cubic is flagged and explains the residual.
+    """
+    from scipy import stats
+
+    from stableins.discovery.scores import band_upper
+
+    rng = np.random.default_rng(8)
+    m = 120
+    x = np.linspace(-1, 1, m)
+    columns = {"a": np.ones(m), "b": x, "c": x**2, "cubic": x**3, "step": (x > 0.3).astype(float)}
+    terms = {k: Term(k, "additive", "1", "1", 1.0, 0.01, k, regressor=lambda i: i.specific_force) for k in columns}
+    model = ErrorModel((terms["a"], terms["b"], terms["c"]))
+    noise = rng.normal(0, 0.01, m)
+    for ripple, outside in ((0.03, True), (0.0, False)):
+        y = 1.0 + 0.5 * x + 0.05 * x**3 + ripple * np.sin(9 * np.pi * x) + noise
+        problem = LinearProblem(y, 0.01, columns)
+        result = problem.fit(model)
+        ranking = rank(problem, result, [terms["cubic"], terms["step"]], refit_top=2)
+        cubic = ranking["cubic"]
+        assert cubic.p_value < 1e-4 < ranking.alpha / ranking.n_tested  # significant either way
+        after = (result.chi2 - cubic.statistic) / (result.dof - 1)
+        assert cubic.chi2_red_with == pytest.approx(after, rel=1e-9)
+        upper = stats.chi2.ppf(0.975, result.dof - 1) / (result.dof - 1)
+        assert cubic.explains == (after <= upper) and band_upper(result.dof - 1) == pytest.approx(upper)
+        assert ranking.outside_library is outside and bool(ranking.flagged) is not outside
+        assert cubic.flagged is not outside and cubic.explains is not outside
+        if outside:
+            assert ranking.next_step().startswith("outside the library: χ²_ν =") and "the best, cubic, would leave" in ranking.next_step()
+            assert "no certificate" in ranking.next_step()
+        else:
+            assert ranking.best.id == "cubic" and "cubic" in ranking.next_step()
+
+
+def test_residual_signature_says_where_the_residual_lives():
+    """The signature of a residual outside the library: outputs, positions and the gimbal-angle harmonic carrying it."""
+    from types import SimpleNamespace
+
+    from stableins.discovery.signature import ResidualSignature, residual_signature
+
+    rng = np.random.default_rng(3)
+    angles = np.deg2rad(np.arange(0.0, 360.0, 15.0))  # the inner gimbal turned in 15° steps
+    readings = np.stack([np.zeros_like(angles), angles, np.zeros_like(angles)], 1)
+    z = rng.normal(size=(angles.size, 3))
+    z[:, 0] += 6.0 * np.sin(2.0 * angles)  # a twice-per-revolution residual on x only
+    diagnosis = SimpleNamespace(
+        normalized=z, outputs=("f_x", "f_y", "f_z"), position_labels=tuple(f"p{k}" for k in range(angles.size)),
+        result=SimpleNamespace(dof=3 * angles.size - 12),
+    )  # fmt: skip
+    signature = residual_signature(diagnosis, readings=readings, earth_harmonics=[("f_y", 2, 1e-4)])
+    shares = {o.output: o.share for o in signature.outputs}
+    assert shares["f_x"] > 0.8 and sum(shares.values()) == pytest.approx(1.0)
+    assert signature.outputs[0].chi2 == pytest.approx(float(z[:, 0] @ z[:, 0]))
+    top = signature.gimbal_harmonics[0]
+    assert (top.gimbal, top.harmonic, top.output) == ("inner", 2, "f_x") and top.fraction > 0.8
+    assert all(h.output == "f_x" for h in signature.gimbal_harmonics)  # only the outputs carrying the excess are searched
+    # the positions with the largest excess are those at 45° + k·90° (|sin 2θ| = 1)
+    assert {round(np.rad2deg(angles[int(p.position[1:])])) % 90 for p in signature.positions[:3]} <= {30, 45, 60}
+    assert signature.earth_harmonics[0].harmonic == 2
+    assert ResidualSignature.from_json(json.loads(json.dumps(signature.to_json()))) == signature
+    assert any("2× inner angle on f_x" in line for line in signature.lines())
+
+
+def test_a_candidate_that_leaves_another_significant_is_not_named():
+    """Two effects: the larger brings χ² into its band, but the other is still significant once it is added: not named."""
+    rng = np.random.default_rng(8)
+    m = 120
+    x = np.linspace(-1, 1, m)
+    columns = {"a": np.ones(m), "b": x, "c": x**2, "cubic": x**3, "step": (x > 0.3).astype(float)}
+    terms = {k: Term(k, "additive", "1", "1", 1.0, 0.01, k, regressor=lambda i: i.specific_force) for k in columns}
+    model = ErrorModel((terms["a"], terms["b"], terms["c"]))
+    y = 1.0 + 0.5 * x + 0.05 * x**3 + 0.02 * columns["step"] + rng.normal(0, 0.01, m)
+    problem = LinearProblem(y, 0.01, columns)
+    ranking = rank(problem, problem.fit(model), [terms["cubic"], terms["step"]], refit_top=2)
+    best = ranking.best
+    assert best.id == "cubic" and best.chi2_red_with < 1.3  # in its band on its own ...
+    assert best.leaves == ("step",) and not best.explains and not best.flagged  # ... but the step is still there
+    assert ranking.outside_library and "step still significant" in ranking.report()
+    library = Library()
+    for name in ("cubic", "step"):
+        library.register(terms[name])
+    session = Discovery(problem, model, library=library)
+    assert [s.label for s in session.auto(max_steps=3).steps] == ["standard model", "+ cubic", "+ step"]  # the greedy loop

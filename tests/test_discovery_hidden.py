@@ -211,3 +211,78 @@ def test_platform_drift_is_found_in_the_reading_slopes():
         estimate, sigma, _ = fit[effect_id]
         assert abs(estimate - value) < 5 * sigma
         assert 0.6 < fit.chi2_red < 1.5
+
+
+def _one_session(truth, stages, *, rate=10.0):
+    """Columns of one simulated session running ``stages`` ((name, commands, dwell [s]) ...) on one platform, in order.
+
+    Like :func:`stableins.simulator.device.simulate_dwells`, but the platform (and its hysteresis state) carries over
+    from stage to stage, as on the instrument and in ``stableins simulate device``.
+    """
+    platform = sim_device.SimulatedPlatform(truth, rate=rate, seed=truth.seed)
+    pieces = {}
+    for stage, commands, dwell in stages:
+        rows = []
+        for position, readings in enumerate(commands, start=1):
+            t_command = platform.command(tuple(readings))
+            platform.wait(platform.slew_duration() + 6.0)
+            block = platform.acquire(dwell)
+            n = len(block)
+            rows.append(
+                {
+                    "time": block.time,
+                    "stage": np.full(n, stage),
+                    "pass": np.full(n, 1, dtype=np.int32),
+                    "position": np.full(n, position, dtype=np.int32),
+                    "time_since_command": block.time - t_command,
+                    "command_platform": np.full(n, readings[0]),
+                    "command_inner": np.full(n, readings[1]),
+                    "command_middle": np.full(n, readings[2]),
+                    "angle_platform": block.angles[:, 0],
+                    "angle_inner": block.angles[:, 1],
+                    "angle_middle": block.angles[:, 2],
+                    "f_x": block.specific_force[:, 0],
+                    "f_y": block.specific_force[:, 1],
+                    "f_z": block.specific_force[:, 2],
+                    "temperature": block.temperature,
+                }
+            )
+        pieces[stage] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    return pieces
+
+
+def test_fine_stage_hysteresis_state_carries_over_from_the_coarse_stage(tmp_path):
+    """Issue 25: the fine stage starts in the hysteresis state the coarse stage left (one platform, one session).
+
+    Before the fix discovery restarted the state at 0 for the fine dwells, so the first fine dwells of an axis that
+    had not travelled yet carried no hysteresis: adding the true ``Kh_x`` gave 0.98 of it and χ²_ν = 1.99 (ν = 36)
+    here, 0.92 and χ²_ν = 4.6 on a ``stableins simulate device --hidden Kh_x=2e-4`` session.
+    """
+    from stableins.data.device import load_device, save_device
+    from stableins.discovery.dwells import dwells_from_dataset
+    from stableins.simulator.effects import hysteresis_state
+
+    quiet = NoiseSettings(velocity_random_walk=2e-5, quantization=1e-7, angle_noise=0.05 * ARCSEC)
+    kh = 5e-5  # 5.1 µg, ~8σ of one fine dwell mean
+    truth = Truth.draw(11, effects={"Kh_x": kh}, site=SimulatedSite(sample_rate=10.0), noise=quiet)
+    coarse = [s.command for s in procedures.load_procedure("device-coarse").steps]
+    fine = [s.command for s in procedures.load_procedure("device-fine").steps]
+    columns = _one_session(truth, [("coarse", coarse, 4.0), ("fine", fine, 10.0)])
+    files = [save_device(tmp_path / f"{name}.csv", c, truth.site) for name, c in columns.items()]
+    data = [load_device(f) for f in files]
+    dwells = dwells_from_dataset(data, layouts=procedures.device_layouts(), stage="fine")
+    # the simulator's own recursion over the commanded path, coarse then fine, from the readings (0, 0, 0)
+    platform = sim_device.SimulatedPlatform(truth, rate=10.0)
+    g = truth.site.gravity
+    path = [platform.platform.specific_force_platform(np.asarray(r, dtype=float), g) for r in [(0.0, 0.0, 0.0), *coarse, *fine]]
+    state, states = np.zeros(3), []
+    for before, after in zip(path[:-1], path[1:]):
+        state = hysteresis_state(state, after - before)
+        states.append(state)
+    np.testing.assert_array_equal(dwells.slew_direction, np.array(states[len(coarse) :]))
+    session = Discovery(DwellProblem(dwells), ErrorModel.standard(nonlinear=True, gimbals=True))
+    session.add("Kh_x")
+    estimate, sigma, _ = session.result["Kh_x"]
+    assert abs(estimate - kh) < 4 * sigma, (estimate / kh, sigma / kh)
+    nu = session.result.dof
+    assert session.result.chi2_red < 1 + 3 * np.sqrt(2 / nu), session.history.report()

@@ -112,6 +112,13 @@ def test_clean_quartz_days_raise_no_alarm_under_the_stage_noise_model():
         assert not result.alarm, (result.diagnosis.chi2_red, [c.id for c in result.ranking.flagged], result.flagged_harmonics)
         hi, lo = result.chi2_range
         assert hi <= result.diagnosis.chi2_red <= lo  # more slow noise, smaller χ²
+        # P printed beside χ²_ν is that χ²_ν's (continuous in it; issue 25: it jumped from 0.5 to 0.415 between χ²_ν
+        # 1.025 and 1.026); the verdict rests on its range over the noise models allowed
+        from scipy.stats import chi2
+
+        nu = result.diagnosis.result.dof
+        assert result.diagnosis.p_value == pytest.approx(float(chi2.sf(result.diagnosis.chi2_red * nu, nu)), rel=1e-9)
+        assert result.diagnosis.p_range == pytest.approx((float(chi2.sf(hi * nu, nu)), float(chi2.sf(lo * nu, nu))), rel=1e-9)
         assert abs(result.diagnosis.chi2_red - 1.0) < 4 * result.diagnosis.spread + 0.05
         assert result.noise_model.axes[0].bias_instability.detected
     white = _system_diagnosis(record, truth, white_only=True)

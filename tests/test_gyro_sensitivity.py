@@ -46,7 +46,9 @@ def _fit(truth, commands, *, dwell=60.0, rate=100.0, seed=5):
     columns = simulate_dwells(truth, commands, dwell=dwell, settle=5.0, rate=rate, seed=seed)
     pieces, readings = _dwells(columns)
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude)
+    geometry = SlopeGeometry.of(
+        readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude, latitude=truth.site.latitude
+    )
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry), geometry, pieces
 
 
@@ -56,19 +58,25 @@ def _wu_forward_and_back():
 
 
 def test_twelve_numbers_recovered_from_wu_forward_and_back():
-    """Cai's simulated G (all nine 0.001 °/h/g) and 0.05 °/h of drift: within 4σ, 1σ ≤ 2e-4 °/h/g, χ²_ν in its band."""
+    """Cai's simulated G (all nine 0.001 °/h/g) and 0.05 °/h of drift: within 4σ, 1σ ≤ 2.5e-4 °/h/g, χ²_ν in its band.
+
+    (1σ ≤ 2e-4 °/h/g, Cai's Table 2 level, without the torquers' scale factors as nuisances; with them the largest is
+    2.3e-4 on this session.)
+    """
     g = 0.001 * DEG_PER_HOUR_PER_G
     truth = Truth.draw(5, effects={f"Dg_{a}{b}": g for a in AXES for b in AXES}, gyro_drift={a: 0.05 * DEG_PER_HOUR for a in AXES})
     fit, _, _ = _fit(truth, _wu_forward_and_back())
     expected = np.array([0.05 * DEG_PER_HOUR] * 3 + [g] * 9)
     z = (fit.values - expected) / fit.sigma
     assert np.all(np.abs(z) < 4), z
-    assert np.all(fit.sigma[3:] < 2e-4 * DEG_PER_HOUR_PER_G)
+    assert np.all(fit.sigma[3:] < 2.5e-4 * DEG_PER_HOUR_PER_G)
+    assert [name for name, _, _ in fit.details.nuisance] == ["torquer_scale_x", "torquer_scale_y", "torquer_scale_z"]
     details = fit.details
     assert details.flagged and len(details.dwells_used) == 27 and len(details.left_out) == 8  # inner at 90°: gimbal lock
     assert abs(details.chi2 / details.dof - 1) < 4 * np.sqrt(2 / details.dof)
     assert np.allclose(details.angle_noise, 0.2 * ARCSEC, rtol=0.05)  # the measured noise model
-    assert fit.rank == 12 and all(s is Status.ESTIMATED for s in fit.status)
+    assert fit.rank == 15 and all(s is Status.ESTIMATED for s in fit.status)  # 12 + the 3 torquer nuisances
+    assert fit.dof == details.dof and fit.chi2_red == pytest.approx(details.chi2 / details.dof)  # one ν everywhere
     assert fit.likelihood is not None and fit.likelihood.rank() == 12
     text = report(fit)
     assert "Dg_xz" in text and "°/h/g" in text and "FLAGGED" in text and "12 of 12" in text
@@ -84,7 +92,9 @@ def test_observation_equation_matches_the_simulator_without_noise():
     columns = simulate_dwells(truth, commands, dwell=20.0, settle=5.0, rate=10.0, seed=2)
     pieces, readings = _dwells(columns)
     offsets = [truth.parameters[k] for k in ("theta10", "theta20", "theta30")]
-    geometry = SlopeGeometry.of(readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude)
+    geometry = SlopeGeometry.of(
+        readings, truth.site.gravity, zero_offsets=offsets, base_attitude=truth.site.base_attitude, latitude=truth.site.latitude
+    )
     values = {**{f"gyro_drift_{a}": drift[a] for a in AXES}, **effects}
     predicted = sum(v * geometry.column(k) for k, v in values.items())
     measured = np.array([reading_slope(t, a)[0] for t, a in pieces])
@@ -165,3 +175,30 @@ def test_diagnose_add_dg_xz_estimates_it_from_the_slopes(device_files, capsys):
     assert len(drift["candidates"]) == 8 and not any(c["flagged"] for c in drift["candidates"])
     assert 0.5 < drift["chi2_red"] < 1.6
     assert "Dg_xz" not in out["model"]  # not an accelerometer term
+
+
+def test_calibrate_device_follows_the_declared_dwell_mode(device_files, capsys):
+    """earth_rate: torquer nuisances and the gauge in --json; caged: no gyro numbers, a note; inertial: refused (exit 2)."""
+    from stableins.data.device import load_device
+    from stableins.dwell_mode import DwellMode
+
+    tmp, files = device_files
+    capsys.readouterr()
+    assert main(["calibrate", "device", *files, "--out", str(tmp / "mode.json"), "--bias-instability", "0", "--json"]) == 0
+    gyro = json.loads(capsys.readouterr().out)["gyro"]
+    assert gyro["dwell_mode"] == "earth_rate" and set(gyro["nuisance"]) == {f"torquer_scale_{a}" for a in AXES}
+    assert "θ10 = 0" in gyro["gauge"] and gyro["notes"][0] == gyro["gauge"]
+    for mode in (DwellMode.CAGED, DwellMode.INERTIAL):
+        declared = []
+        for path in files:
+            data = load_device(path)
+            target = tmp / f"{mode}-{Path(path).name}"
+            declared.append(str(save_device(target, data.columns, replace(data.metadata, dwell_mode=mode))))
+        code = main(["calibrate", "device", *declared, "--out", str(tmp / f"{mode}.json"), "--bias-instability", "0", "--json"])
+        captured = capsys.readouterr()
+        if mode is DwellMode.CAGED:
+            assert code == 0 and json.loads(captured.out)["gyro"] is None
+            assert "gyro stage skipped: the platform was caged" in captured.err
+        else:
+            assert code == 2 and "metadata.dwell_mode" in captured.err and "Traceback" not in captured.err
+            assert not (tmp / f"{mode}.json").exists()

@@ -6,6 +6,7 @@ The wheel itself is built, installed into a fresh venv outside the checkout and 
 
 import os
 import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -54,7 +55,7 @@ def _git(*args: str) -> str:
 
 def test_the_version_comes_from_git_and_names_the_commit():
     """In a checkout the version is computed from git: it changes with every commit and names it."""
-    version = stableins._version()  # computed now (stableins.__version__ is cached at its first use)
+    version = stableins._code_version()  # computed now (stableins.__version__ is cached at its first use)
     head = _git("rev-parse", "HEAD")
     assert version != "0.1.0"
     local = version.partition("+")[2]
@@ -98,3 +99,23 @@ def test_an_installed_package_reads_its_stamp_not_git(tmp_path):
     namespace: dict = {}
     exec(stamp.read_text(), namespace)
     assert version == namespace["version"] and Path(root) == tmp_path / "site"
+
+
+def test_importing_every_submodule_keeps_the_version_readable():
+    """A tool that imports every submodule (Sphinx autodoc, pkgutil walkers) imports ``stableins._version`` too.
+
+    The submodule then lands in the package namespace; the version must still be computed (issue 29: a function
+    named ``_version`` was shadowed by the submodule and ``stableins.__version__`` raised ``TypeError``).
+    """
+    code = (
+        "import importlib, pkgutil, stableins\n"
+        "for m in pkgutil.walk_packages(stableins.__path__, 'stableins.'):\n"
+        "    if m.name.endswith('__main__'):\n"
+        "        continue\n"
+        "    importlib.import_module(m.name)\n"
+        "import stableins._version\n"
+        "print(stableins.__version__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == stableins._code_version()

@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "stableins": 0,
     "stableins._version": 0,
     "stableins.conventions": 0,
+    "stableins.dwell_mode": 0,
     "stableins.errormodel": 0,
     "stableins.terms": 0,
     "stableins.coremodel": 0,
@@ -41,6 +42,7 @@ LAYERS: dict[str, int] = {
     "stableins.site": 0,
     "stableins.schema": 0,
     "stableins.samples": 0,
+    "stableins.identifiers": 0,
     "stableins.navigation": 0,
     # 1 world
     "stableins.simulator": 1,

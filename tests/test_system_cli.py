@@ -159,3 +159,29 @@ def test_cli_thermal_prior_and_json_thermal(files, capsys):
     with pytest.raises(SystemExit) as exc:
         parse([str(path), "--prior", str(prior), "--out", str(out), "--thermal-prior", "-1", "5"])
     assert exc.value.code == 2
+
+
+def test_the_records_thermal_sensitivities_are_the_thermal_prior_not_a_compensation(files):
+    """A record carrying Kt_bias/Kt_sf from ``calibrate thermal`` (issue 25): the system stage takes their values and σ
+    as its thermal prior (the INS does not compensate temperature), runs, and leaves them as they were."""
+    from stableins.conventions import MICRO_G, PPM
+    from stableins.discovery.library import LIBRARY
+    from stableins.estimators.thermal_sensitivity import THERMAL_TERM_IDS
+
+    tmp, path, prior, _, _ = files
+    terms = tuple(LIBRARY[i].term for i in THERMAL_TERM_IDS)
+    values = np.array([2 * MICRO_G] * 3 + [1 * PPM] * 3)
+    sigma = np.array([0.3 * MICRO_G] * 3 + [0.3 * PPM] * 3)
+    from stableins.estimators.result import Likelihood
+
+    likelihood = Likelihood(THERMAL_TERM_IDS, values, np.diag(sigma**-2), np.zeros(6))
+    thermal = FitResult(
+        "thermal", terms, values, np.diag(sigma**2), ("estimated",) * 6, np.zeros(0), np.zeros(0), likelihood=likelihood
+    )
+    with_kt = tmp / "prior-kt.json"
+    CalibrationRecord.load(prior).updated(thermal, procedure="device-thermal").save(with_kt)
+    out = tmp / "cal-kt.json"
+    assert calibrate_system.run(parse([str(path), "--prior", str(with_kt), "--out", str(out), "--chunk-rows", "8192"])) == 0
+    written = CalibrationRecord.load(out)
+    for pid, v, s in zip(THERMAL_TERM_IDS, values, sigma, strict=True):
+        assert written[pid].value == pytest.approx(v) and written[pid].sigma == pytest.approx(s)

@@ -93,10 +93,13 @@ def test_a_datasheet_model_gives_the_amplitudes_and_comes_back_unchanged():
     np.testing.assert_allclose(fit.amplitudes[1], (QUARTZ.bias_instability / g) ** 2 * math.log(10) / math.pi * np.ones(3), rtol=3e-3)
     assert any("as given in the noise model" in n for n in out.notes)
     assert np.abs(normalized).max() < 4.0
-    # a white datasheet (no slow noise) keeps σ white even on a record whose own fit would find some
+    # a white datasheet (no slow noise) on a record with slow noise: rejected by the record and not used (issue 25)
     white_sheet = NoiseModel.given(QUARTZ.velocity_random_walk)
-    out, _ = day(4, QUARTZ, noise_model=white_sheet)
-    np.testing.assert_allclose(out.combined.sigma, out.diagnostics.combined_sigma_white, rtol=1e-12)
+    out, normalized = day(4, QUARTZ, noise_model=white_sheet)
+    assert out.coloured_noise.source is ColouredSource.CONTRADICTED and out.noise_model.source is NoiseSource.STATIC_RECORD
+    assert np.all(out.combined.sigma > 1.5 * out.diagnostics.combined_sigma_white)  # the σ follow the record
+    assert "REJECTED" in out.noise_model.provenance and any("REJECTED by the record" in n for n in out.notes)
+    assert np.abs(normalized).max() < 4.0
 
 
 def test_a_measured_prior_narrows_the_amplitudes():

@@ -350,3 +350,25 @@ def test_decision_with_a_noiseless_channel():
     observed = np.concatenate([rng.exponential(z[:, 0] * 1e-6), np.zeros(m)])
     fit = whittle.fit_coloured_noise(design, observed, 2)
     assert np.isfinite(fit.p_value) and not fit.detected and fit.white_levels[1] == 0.0
+
+
+def test_a_given_datasheet_is_rejected_at_its_false_alarm_rate_and_when_the_record_contradicts_it():
+    """Issue 25: a datasheet whose slow amplitudes are true is rejected in about α of the draws (likelihood-ratio
+    test with the white levels free); one with no slow noise on a record that has it is rejected, and the σ then follow
+    the record's maximum-likelihood amplitudes (source CONTRADICTED)."""
+    rng = np.random.default_rng(9)
+    design = _white_design(rng)
+    coloured = np.array([1e-6, 0.0, 1e-6 * 0.4 / design[:, 2].mean() * design[:, 0].mean()])
+    true_sheet = whittle.NoisePrior(given=np.repeat(coloured[1:, None], 3, axis=1))
+    draws, alpha = 300, 0.05
+    rejected = 0
+    for _ in range(draws):
+        fit = whittle.fit_coloured_noise(design, rng.exponential(design @ coloured), 1, alpha=alpha, prior=true_sheet)
+        rejected += fit.source is whittle.ColouredSource.CONTRADICTED
+        if fit.source is whittle.ColouredSource.GIVEN:
+            np.testing.assert_allclose(fit.amplitudes, true_sheet.given)
+    assert rejected / draws < alpha + 3.5 * math.sqrt(alpha * (1 - alpha) / draws), rejected
+    zero_sheet = whittle.NoisePrior(given=np.zeros((2, 3)))
+    fit = whittle.fit_coloured_noise(design, rng.exponential(design @ coloured), 1, alpha=alpha, prior=zero_sheet)
+    assert fit.source is whittle.ColouredSource.CONTRADICTED and fit.data_detected
+    np.testing.assert_allclose(fit.amplitudes, np.repeat(fit.maximum_likelihood[:, None], 3, axis=1))

@@ -317,7 +317,7 @@ def test_array_source_keeps_the_chunk_contract():
     from stableins.data.chunks import ArraySource as Source
 
     n = 1000
-    cols = {"time": np.arange(n, dtype=float), "pitch": np.arange(n) * 2.0}
+    cols = {"time": np.arange(n, dtype=float), "pitch": np.arange(n) * 0.5}  # within the ±1000 rad of an attitude
     chunks = list(Source(cols).iter_chunks(["time", "pitch"], rows=96, thin=["pitch"], step=10))
     assert [len(c["time"]) for c in chunks] == [96] * 10 + [40]
     np.testing.assert_array_equal(np.concatenate([c["time"] for c in chunks]), cols["time"])

@@ -11,6 +11,7 @@ import pytest
 
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.drivers.select import simulated_platform
+from stableins.drivers.server import greeting
 from stableins.drivers.tcp import TcpDriver, connect, parse_address
 from stableins.errors import InputError
 from tests.platform_double import PlatformDouble
@@ -66,7 +67,7 @@ def test_disconnect_in_the_middle_of_a_dwell(server):
 
 
 def test_idempotent_requests_are_resent_after_a_disconnect(server):
-    with FaultyRelay(server.port, fault=("cut", len("STABLEINS-PLATFORM 1\n") + 3)) as relay:
+    with FaultyRelay(server.port, fault=("cut", len(greeting(("NAV",)) + "\n") + 3)) as relay:  # serve-sim states NAV
         driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.3, 0.0, 0.0))  # its reply is cut; sent again on a new connection
         driver.acquire(8.0)  # the slew (17° at 10°/s, 2.7 s) and its settling transient (~1e-5 rad at 4 s)
@@ -164,7 +165,7 @@ def test_the_timeout_counts_silence_not_the_length_of_a_dwell():
 def test_a_new_client_takes_over_from_one_that_vanished(server):
     # a client whose host lost power never closes its connection; the next client must not wait for it
     stale = socket.create_connection(("127.0.0.1", server.port), timeout=30)
-    assert stale.recv(100).startswith(b"STABLEINS-PLATFORM 1")
+    assert stale.recv(100).startswith(b"STABLEINS-PLATFORM ")
     start = time.monotonic()
     driver = TcpDriver("127.0.0.1", server.port, timeout=30)
     assert len(driver.acquire(0.5)) == 10

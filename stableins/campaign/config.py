@@ -18,6 +18,7 @@ Format (TOML, docs/campaigns.md)::
     [[noise]]
     name = "quartz"
     preset = "quartz"           # the simulator's NoiseSettings preset: quartz, white (quartz without slow noise)
+    # world = "lab"             # or a named world (stableins simulate --list-worlds): its noise, effects, temperature
     calibrate = "datasheet"     # the noise model the calibration is given: datasheet (the preset's N, B, K, Q) or dwells
 
     [[hidden]]
@@ -33,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
@@ -41,10 +41,10 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
+from stableins.identifiers import FILE_STEM_RULE, SEED_RANGE, is_file_stem
 from stableins.procedures.definition import ProcedureDefinition, load_procedure, read_toml
 from stableins.simulator.noise import NoiseSettings
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 #: Largest campaign accepted (tasks), so that a typo cannot queue a billion simulations.
 MAX_TASKS = 1_000_000
 
@@ -80,6 +80,7 @@ class NoiseSpec:
     name: str
     settings: NoiseSettings
     calibrate: CalibrationNoise
+    world: str = "default"  #: a named world of :mod:`stableins.simulator.worlds` (its noise is ``settings``)
 
 
 @dataclass(frozen=True)
@@ -157,8 +158,8 @@ def _integer(table: Mapping[str, Any], key: str, where: str, path: str, *, minim
 
 def _name(table: Mapping[str, Any], where: str, path: str, seen: set[str]) -> str:
     value = table.get("name")
-    if not isinstance(value, str) or not _NAME.match(value) or "__" in value:
-        raise InputError(f"{value!r} is not a name", path=path, field=f"{where}.name", expected="letters, digits, '_', '.', '-' (no '__')")
+    if not is_file_stem(value):
+        raise InputError(f"{value!r} is not a name", path=path, field=f"{where}.name", expected=FILE_STEM_RULE)
     if value in seen:
         raise InputError(f"the name {value!r} is used twice", path=path, field=f"{where}.name")
     seen.add(value)
@@ -201,7 +202,9 @@ def _procedure(raw: Any, where: str, path: str, seen: set[str]) -> ProcedureSpec
 
 
 def _noise(raw: Any, where: str, path: str, seen: set[str]) -> NoiseSpec:
-    table = _keys(raw, {"name", "preset", "calibrate"}, where, path)
+    from stableins.simulator.worlds import world
+
+    table = _keys(raw, {"name", "preset", "calibrate", "world"}, where, path)
     name = _name(table, where, path, seen)
     presets = noise_presets()
     preset = table.get("preset", "quartz")
@@ -210,11 +213,18 @@ def _noise(raw: Any, where: str, path: str, seen: set[str]) -> NoiseSpec:
     calibrate = table.get("calibrate", CalibrationNoise.DATASHEET.value)
     if calibrate not in {c.value for c in CalibrationNoise}:
         raise InputError(f"{calibrate!r}", path=path, field=f"{where}.calibrate", expected=" or ".join(c.value for c in CalibrationNoise))
-    return NoiseSpec(name, presets[preset], CalibrationNoise(calibrate))
+    named = world(str(table.get("world", "default")), source=path, field=f"{where}.world")
+    if named.noise is not None and "preset" in table:
+        raise InputError(
+            f"world {named.name!r} has its own noise", path=path, field=f"{where}.preset", expected="a preset or a world, not both"
+        )
+    settings = presets[preset] if named.noise is None else named.noise
+    return NoiseSpec(name, settings, CalibrationNoise(calibrate), named.name)
 
 
 def _hidden(raw: Any, where: str, path: str, seen: set[str]) -> HiddenSpec:
     from stableins.discovery.library import LIBRARY
+    from stableins.simulator.effects import validate_effects
 
     table = _keys(raw, {"name", "effects"}, where, path)
     name = _name(table, where, path, seen)
@@ -224,6 +234,10 @@ def _hidden(raw: Any, where: str, path: str, seen: set[str]) -> HiddenSpec:
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise InputError(f"{value!r} is not a number", path=path, field=f"{where}.effects.{effect}", expected=LIBRARY[effect].term.unit)
         values[effect] = float(LIBRARY[effect].term.from_engineering(value))
+        try:  # the simulator's own bounds, before any task runs
+            validate_effects({effect: values[effect]}, source=path)
+        except InputError as error:
+            raise InputError(error.message, path=path, field=f"{where}.effects.{effect}", expected=error.expected) from None
     return HiddenSpec(name, values)
 
 
@@ -243,6 +257,13 @@ def load_campaign(path: str | Path) -> CampaignConfig:
     name = _name({"name": head.get("name", Path(spath).stem)}, "campaign", spath, set())
     first_seed = _integer(head, "first_seed", "campaign", spath, minimum=0, default=1)
     devices = _integer(head, "devices", "campaign", spath, minimum=1)
+    if first_seed + devices - 1 > SEED_RANGE[1]:
+        raise InputError(
+            f"seeds {first_seed} to {first_seed + devices - 1}",
+            path=spath,
+            field="campaign.first_seed",
+            expected=f"first_seed + devices - 1 <= {SEED_RANGE[1]} (the largest seed)",
+        )
     diagnose = head.get("diagnose", False)
     if not isinstance(diagnose, bool):
         raise InputError(f"{diagnose!r}", path=spath, field="campaign.diagnose", expected="true or false")

@@ -52,28 +52,36 @@ def config_digest(config: CampaignConfig) -> str:
     return h.hexdigest()
 
 
+def _holds_campaign(config: CampaignConfig, out: Path) -> bool:
+    """Whether ``out`` holds this campaign already (read only); :class:`InputError` if it holds another."""
+    marker = out / "campaign.json"
+    if not marker.exists():
+        return False
+    try:
+        held = json.loads(marker.read_text(encoding="utf-8"))["digest"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError("not a campaign's marker", path=marker, expected="the campaign.json that `stableins campaign` writes") from None
+    if held != config_digest(config):
+        raise InputError(
+            "this directory holds a campaign of another file (or its procedures changed)",
+            path=out,
+            field="campaign.json",
+            expected=f"the campaign with digest {held[:16]}…, or a new --out directory",
+        )
+    return True
+
+
 def _claim_directory(config: CampaignConfig, out: Path) -> None:
     """Create ``out`` (or check that it holds this campaign) and write ``campaign.json`` with the digest."""
-    marker = out / "campaign.json"
-    digest = config_digest(config)
-    if marker.exists():
-        try:
-            held = json.loads(marker.read_text(encoding="utf-8"))["digest"]
-        except (OSError, ValueError, KeyError, TypeError):
-            raise InputError(
-                "not a campaign's marker", path=marker, expected="the campaign.json that `stableins campaign` writes"
-            ) from None
-        if held != digest:
-            raise InputError(
-                "this directory holds a campaign of another file (or its procedures changed)",
-                path=out,
-                field="campaign.json",
-                expected=f"the campaign with digest {held[:16]}…, or a new --out directory",
-            )
+    if _holds_campaign(config, out):
         return
     (out / "tasks").mkdir(parents=True, exist_ok=True)
-    with atomic_write(marker) as handle:
-        json.dump({"campaign": config.name, "file": config.path, "digest": digest, "tasks": len(config.tasks())}, handle, indent=1)
+    with atomic_write(out / "campaign.json") as handle:
+        json.dump(
+            {"campaign": config.name, "file": config.path, "digest": config_digest(config), "tasks": len(config.tasks())},
+            handle,
+            indent=1,
+        )
 
 
 def task_file(out: Path, task: Task) -> Path:
@@ -105,12 +113,19 @@ def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     if scheduler is not None:
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT)
-        except (OSError, TimeoutError) as error:
+        except (OSError, TimeoutError, ValueError) as error:
             raise InputError(
                 f"no Dask scheduler answers: {error}", field="--scheduler", expected="tcp://HOST:PORT of a running scheduler"
             ) from None
         with client:
-            client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+            try:
+                client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError) as error:
+                raise InputError(
+                    f"the scheduler has no worker after {CONNECT_TIMEOUT:g} s: {error}",
+                    field="--scheduler",
+                    expected="a scheduler with at least one `dask worker` attached",
+                ) from None
             yield client
         return
     n = workers or os.cpu_count() or 1
@@ -136,7 +151,7 @@ def run_campaign(
     from distributed import as_completed
 
     out = Path(out)
-    _claim_directory(config, out)
+    _holds_campaign(config, out)  # another campaign's directory is refused before anything connects or is written
     tasks = config.tasks()
     pending = [t for t in tasks if not task_file(out, t).exists()]
     resumed = len(tasks) - len(pending)
@@ -144,8 +159,10 @@ def run_campaign(
     if progress is not None:
         progress(done, len(tasks))
     if not pending:
+        _claim_directory(config, out)
         return CampaignRun(len(tasks), resumed, 0, 0, "none (nothing to run)")
-    with _client(scheduler, workers) as client:
+    with _client(scheduler, workers) as client:  # a scheduler that does not answer leaves nothing written
+        _claim_directory(config, out)
         n_workers = max(1, len(client.scheduler_info()["workers"]))
         data = client.scatter(TaskData(config), broadcast=True)
         queue = iter(pending)

@@ -119,11 +119,12 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.procedures.definition import load_procedure
     from stableins.simulator.truth import Truth
+    from stableins.simulator.worlds import apply_world
 
     config = data.config
     spec, noise_spec, hidden = config.procedure(task.procedure), config.noise(task.noise), config.hidden_effects(task.hidden)
     t0 = time.perf_counter()
-    truth = Truth.draw(task.seed, noise=noise_spec.settings, effects=dict(hidden.effects))
+    truth = apply_world(Truth.draw(task.seed, noise=noise_spec.settings, effects=dict(hidden.effects)), noise_spec.world)
     stages = ["coarse"] + (["fine"] if spec.fine is not None else [])
     columns = {stage: _stage_columns(truth, spec, stage, task.stream_seed + k) for k, stage in enumerate(stages)}
     # a coarse-only procedure still names the fine layout calibrate_device expects (unused without fine dwells)

@@ -15,8 +15,9 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+from stableins.identifiers import FILE_STEM_RULE, SEED_RANGE, is_file_stem
+
 #: Seeds of the random generators (numpy's SeedSequence takes non-negative integers).
-SEED_RANGE = (0, 2**63 - 1)
 
 
 def _bounds(minimum: float | None, maximum: float | None, *, above: bool) -> str:
@@ -108,6 +109,13 @@ def output_directory(text: str) -> Path:
     if probe.exists() and not probe.is_dir():
         raise argparse.ArgumentTypeError(f"{probe} is a file, not a directory (expected a directory)")
     return path
+
+
+def file_stem(text: str) -> str:
+    """Accept a name that becomes part of a file name inside an output directory (``stableins.identifiers``)."""
+    if not is_file_stem(text):
+        raise argparse.ArgumentTypeError(f"{text[:70]!r} cannot name a file (expected {FILE_STEM_RULE})")
+    return text
 
 
 def input_file(text: str) -> str:

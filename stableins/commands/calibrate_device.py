@@ -90,6 +90,16 @@ def _same_site(datasets) -> None:
                     field=name,
                     expected="all files of one calibration from the same unit and site",
                 )
+    from stableins.dwell_mode import DwellMode
+
+    for dataset in datasets:  # the accelerometer stages take dwells held to the base (docs/conventions.md)
+        if dataset.metadata.dwell_mode is DwellMode.INERTIAL:
+            raise InputError(
+                "the platform was inertially held during the dwells: it turns 15 deg/h against gravity (2.5 deg in a "
+                "600-s dwell), and the accelerometer stages take dwells held to the base",
+                path=dataset.path, field="metadata.dwell_mode",
+                expected='caged or earth_rate (docs/conventions.md, "The platform during a dwell")',
+            )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -228,6 +238,9 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None
+    for line in fit.notes:
+        if line.startswith("warning:"):
+            note(f"stableins: {fit.stage} stage: {line}")
     description = data_description(datasets)
     updated = record.updated(
         fit,
@@ -265,6 +278,13 @@ def gyro_document(fit) -> dict:
         "dwells_used": len(details.dwells_used),
         "rank": list(details.rank_report),
         "left_out": list(details.left_out),
+        "dwell_mode": str(details.mode),
+        "nuisance": {
+            name: {"value": value, "sigma": sigma, "unit": "1" if name.startswith("torquer_") else "rad"}
+            for name, value, sigma in details.nuisance
+        },
+        "gauge": details.gauge,
+        "notes": list(fit.notes),
     }
 
 

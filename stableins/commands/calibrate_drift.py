@@ -52,6 +52,7 @@ def run(args: Any) -> int:
     prior = CalibrationRecord.load(args.prior)
     source = data_file(args.run)
     record = open_system_record(source)
+    record.validate()  # the validation 'stableins check' runs, before any estimate (a row of inf, time going back)
     check_same_unit(record.metadata, prior, args.prior)
     fit = drift_from_record(
         record,

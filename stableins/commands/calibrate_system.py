@@ -122,11 +122,33 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_entries_option(parser)
 
 
+#: Options of the static stage that the systematic stage has no use for: (option, attribute, value when not given).
+STATIC_ONLY_OPTIONS: tuple[tuple[str, str, Any], ...] = (
+    ("--case-rotation-period", "case_rotation_period", 480.0),
+    ("--no-loop-compensation", "no_loop_compensation", False),
+    ("--no-couplings", "no_couplings", False),
+    ("--chunk-rows", "chunk_rows", 1 << 18),
+    ("--estimate-k2", "estimate_k2", False),
+    ("--thermal-prior", "thermal_prior", None),
+    ("--gyro-drift", "gyro_drift", None),
+    ("--gyro-drift-uncertainty", "gyro_drift_uncertainty", None),
+    ("--plot", "plot", None),
+)
+
+
 def run(args: Any) -> int:
     """Run ``stableins calibrate system``: the system-level stage on a static record; return the exit code."""
     if getattr(args, "systematic", False):
         from stableins.commands.calibrate_systematic import run as run_systematic
+        from stableins.errors import InputError
 
+        given = [option for option, name, unset in STATIC_ONLY_OPTIONS if getattr(args, name, unset) != unset]
+        if given:  # issue 31: they were silently ignored (parameters bit-identical to without them)
+            raise InputError(
+                f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the static stage, not to --systematic",
+                field=given[0],
+                expected="--systematic with the prior, the noise model, --cross-coupling, --allow-gaps, --set (docs/cli.md)",
+            )
         return run_systematic(args)
     if getattr(args, "cross_coupling", False):
         from stableins.errors import InputError
@@ -256,7 +278,8 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
         if fit is None
         else {
             "source": fit.source.name.lower(),
-            "detected": fit.detected,
+            "detected": fit.data_detected,
+            "used_in_sigma": fit.detected,
             "likelihood_ratio": fit.statistic,
             "p_value": fit.p_value,
             "false_positive_rate": fit.alpha,

@@ -16,6 +16,21 @@ from stableins.commands.arguments import input_file, integer, output_directory
 HELP = "Monte Carlo campaign of simulated calibrations on Dask (seeds × procedures × noise models × hidden effects)"
 
 
+def scheduler_address(text: str) -> str:
+    """Accept a Dask scheduler address ``tcp://HOST:PORT`` or ``tls://HOST:PORT`` (argparse type)."""
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(text)
+        port = parts.port
+    except ValueError:
+        port = None
+        parts = urlsplit("")
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None or parts.path not in ("", "/"):
+        raise argparse.ArgumentTypeError(f"{text[:80]!r} is not a scheduler address (expected tcp://HOST:PORT or tls://HOST:PORT)")
+    return text
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins campaign`` to ``parser``."""
     parser.description = HELP
@@ -25,7 +40,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=integer(1, 1024), metavar="N", help="local cluster of N worker processes (default: one per CPU)")
-    where.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    where.add_argument("--scheduler", type=scheduler_address, metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
     parser.add_argument("--no-plot", action="store_true", help="do not draw summary.png")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 

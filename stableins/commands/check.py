@@ -17,6 +17,7 @@ diagnosis (``diagnose --json``)               the reader of ``report --discovery
 demo verdict (``verdict.json``)               every row's fields and types
 history store index (``history.sqlite``)      ``HistoryStore.verify`` (the index and every filed record's SHA-256)
 certificate (``.pdf``), plots (PNG, SVG)      the file's structure (header, trailer, page count; image size)
+holds table (``calibrate poses``)             ``read_holds_table`` (what ``calibrate poses --holds`` reads)
 text reports (``.txt``)                       UTF-8 text
 ===========================================  =====================================================================
 
@@ -80,14 +81,26 @@ def _head(file: Path) -> bytes:
         from stableins.errors import InputError
 
         raise InputError("no such file", path=file)  # as the data readers say it
-    if not file.is_file():  # a directory: the reader's one message
+    if not file.is_file():  # a directory: the reader's one message; a device or a pipe: this one
         read_input_bytes(file, max_bytes=MAX_WHOLE_FILE, what="a file written by stableins")
+        from stableins.errors import InputError
+
+        raise InputError("not a regular file (a device, a pipe or a socket)", path=file, expected="a file written by stableins")
     with open(file, "rb") as handle:
-        return handle.read(64)
+        head = handle.read(64)
+    if not head:
+        from stableins.errors import InputError
+
+        raise InputError("the file is empty", path=file, expected="a file written by stableins (none is empty)")
+    return head
 
 
 def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
+    """Check device data or a system record (or a holds table: a CSV file too)."""
     import warnings
+
+    if _head(Path(path)).startswith(b"hold,start,end"):
+        return _holds(path)
 
     from stableins.data.validation import FORMAT_TAGS, read_format_tag
     from stableins.errors import InputError
@@ -303,6 +316,14 @@ def _pdf(path: str, trust: tuple[str, ...] = ()) -> dict[str, Any]:
             ", signer trusted" if found.trusted else " (no trust anchor given: the signer is not vouched for)"
         )
     return summary
+
+
+def _holds(path: str) -> dict[str, Any]:
+    """Check a holds table (``calibrate poses --write-holds``) as ``--holds`` reads it."""
+    from stableins.data.holds import read_holds_table
+
+    rows = read_holds_table(path)
+    return {"file": path, "kind": "holds table", "holds": len(rows), "labelled": sum(1 for *_, o in rows if o)}
 
 
 def _named_inputs(path: str, data: bytes) -> dict[str, Any]:

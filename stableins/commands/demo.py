@@ -159,7 +159,11 @@ def discovery_loop(out: Path, data: list[str], datasheet: list[str], *, plots: b
         _step(f"model discovery, round {round_}: is an effect missing from the model in force?", [*diagnose, *figures], text)
         print(text.read_text(encoding="utf-8"), file=sys.stderr)
         _step("the same, machine-readable for the report", [*diagnose, "--json"], document)
-        flagged = [c for c in read_discovery(document).candidates if c.flagged]
+        found_report = read_discovery(document)
+        flagged = [c for c in found_report.candidates if c.flagged]
+        if not flagged and found_report.outside_library:
+            said.append(f"round {round_}: outside the library: {found_report.outside_text()}; no certificate until the cause is found")
+            break
         if not flagged:
             said.append(f"round {round_}: nothing flagged; the model in force reaches the noise floor")
             break

@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from stableins.commands.arguments import integer, number, output_directory
+from stableins.commands.arguments import file_stem, integer, number, output_directory
 from stableins.commands.noise import add_noise_options
 
 HELP = "expected σ of a procedure before the platform moves; dwells and positions for σ targets or a time budget"
@@ -52,7 +52,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     goal.add_argument("--target", type=_target, action="append", default=[], metavar="ID=SIGMA", help="1σ target [engineering unit]")
     goal.add_argument("--match", action="store_true", help="targets: this procedure's own σ on every parameter (least time for it)")
     goal.add_argument("--budget", type=number(0.0, 1e7, above=True, unit="h"), metavar="HOURS", help="lab-time budget [h]")
-    parser.add_argument("--criterion", choices=("A", "D"), default="A", help="optimality criterion with --budget (default A)")
+    parser.add_argument("--criterion", choices=("A", "D"), help="optimality criterion with --budget (default A)")
     parser.add_argument("--grid", type=number(1.0, 90.0, unit="deg"), metavar="DEG", help="also choose positions from a grid of this step")
     parser.add_argument("--min-dwell", type=number(0.1, 86400.0, unit="s"), default=5.0, metavar="S", help="shortest dwell (default 5 s)")
     parser.add_argument(
@@ -61,7 +61,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=output_directory, metavar="DIR", help="write the designed procedures here (NAME-coarse.toml, NAME-fine.toml)"
     )
-    parser.add_argument("--name", default="designed", help="name of the designed procedures (default 'designed')")
+    parser.add_argument("--name", type=file_stem, default="designed", help="name of the designed procedures (default 'designed')")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
 
 
@@ -144,13 +144,23 @@ def run(args: argparse.Namespace) -> int:
 
     if args.min_dwell >= args.max_dwell:
         raise InputError("--min-dwell must be below --max-dwell", field="--min-dwell")
+    if args.criterion is not None and args.budget is None:
+        raise InputError(
+            "the optimality criterion applies to a lab-time budget only (targets are met in least lab time)",
+            field="--criterion",
+            expected="--budget HOURS with --criterion, or no --criterion",
+        )
+    if args.grid is not None and args.budget is None and not args.match and not args.target:
+        raise InputError(
+            "a position grid needs something to optimize", field="--grid", expected="--budget, --match or --target with --grid"
+        )
     noise = _noise(args)
     coarse, fine, plan = _plan(args)
     setting = DeviceSetting(STANDARD_GRAVITY)
     start = expected_precision(plan, noise, setting)
     targets = _targets(args, start)
     result = None
-    criterion = Criterion(args.criterion)
+    criterion = Criterion(args.criterion or "A")
     if targets is not None or args.budget is not None:
         if args.grid is not None:
             d = math.radians
@@ -219,7 +229,9 @@ def _report(
         lines += ["  " + x for x in describe_design(r.ids, r.analysis.singular_values, r.analysis.null_space)[1:]]
     if result is not None:
         lines.append(f"designed / given lab time: {result.lab_time / start.lab_time:.3f}")
-        criterion = f"{args.criterion}-optimal within {args.budget:g} h" if args.budget is not None else "least lab time for the targets"
+        criterion = "least lab time for the targets"
+        if args.budget is not None:
+            criterion = f"{args.criterion or 'A'}-optimal within {args.budget:g} h"
         lines.append(f"criterion: {criterion}" + (f"; positions from a {args.grid:g}° grid" if args.grid else "; positions as given"))
         for s in result.plan.stages:
             lines.append(f"{s.stage} dwells [s]: " + " ".join(f"{t:g}" for t in s.dwell))

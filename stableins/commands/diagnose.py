@@ -155,8 +155,9 @@ def _write_plots(directory: Path, figures: dict[str, Figure]) -> None:
 def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
     """Word the next step of a diagnosis and give it as a command that runs as written.
 
-    Carry the best flagged effect into the calibration, look at an effect a calibration cannot carry, or certify the
-    record when nothing is flagged (:attr:`stableins.discovery.diagnose_report.DiagnoseReport.next_step`).
+    Carry the best flagged effect into the calibration, look at an effect a calibration cannot carry, say that the
+    residual is outside the library (no certificate; the plots of the residuals), or certify the record when nothing is
+    flagged (:attr:`stableins.discovery.diagnose_report.DiagnoseReport.next_step`).
     """
     import shlex
 
@@ -165,11 +166,20 @@ def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
 
     data = [str(p) for p in args.data]
     record_path = Path(args.record)
+    if step.action is NextAction.OUTSIDE:
+        plots = record_path.with_name(f"{record_path.stem}-residuals")
+        command = ["stableins", "diagnose", *data, "--record", str(record_path), *noise_arguments(args), "--plots", str(plots)]
+        return [
+            f"next: outside the library: {step.reason}. No certificate until the cause is found: the signature above says "
+            "which outputs, positions and harmonics carry the residual; see them:",
+            f"  {shlex.join(command)}",
+        ]
     if step.action is NextAction.CERTIFY or step.effect is None:
         certificate = record_path.with_name(f"{record_path.stem}-report.pdf")
         command = ["stableins", "report", str(record_path), "--data", *data, "--out", str(certificate)]
+        floor = step.reason or "the model in force reaches the noise floor"
         return [
-            f"next: nothing is flagged at α = {args.alpha:g}: the model in force reaches the noise floor; its certificate:",
+            f"next: nothing is flagged at α = {args.alpha:g}: {floor}; its certificate:",
             f"  {shlex.join(command)}",
         ]
     if step.action is NextAction.INSPECT:

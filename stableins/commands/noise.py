@@ -24,8 +24,6 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-#: Samples of a static record kept at the full rate for the short averaging times.
-HEAD_SAMPLES = 1 << 18
 #: Block length [s] of the block means that carry the long averaging times.
 BLOCK_SECONDS = 1.0
 
@@ -178,16 +176,19 @@ def record_noise(path: Path):
 def static_record_points(record) -> tuple[Any, str]:
     """Allan points of a system-level (static) record with the slowly turning gravity signal removed.
 
-    One pass over the record in chunks (bounded memory): the first :data:`HEAD_SAMPLES`
-    samples at the full rate for the short averaging times, 1-s block means of the whole
-    record for the long ones.  The signal is the least-squares fit, per axis, of
-    ``1, f^p_i, f^p_i f^p_j`` (nominal ``f^p`` from the angle readings): bias, scale factor,
-    misalignment and quadratic terms, whatever their values.
+    Two passes over the record in chunks (bounded memory).  The first sums 1-s blocks; the signal is
+    the least-squares fit, per axis, of ``1, f^p_i, f^p_i f^p_j`` to the block means (nominal ``f^p`` from
+    the angle readings): bias, scale factor, misalignment and quadratic terms, whatever their values.
+    The block means of the residual carry the long averaging times.  The second pass removes the signal
+    from every sample and accumulates the overlapping Allan variance of the whole record at the short
+    ones (:class:`stableins.estimators.streaming_allan.StreamingAllan`; a gap in the time column ends a
+    segment).
     """
     import numpy as np
 
     from stableins.conventions import GimbalConfiguration, dcm_nav_to_body
     from stableins.estimators.allan import allan_points, merge_points
+    from stableins.estimators.streaming_allan import StreamingAllan, octave_clusters
     from stableins.platform import platform_specific_force
 
     site = record.metadata
@@ -200,7 +201,7 @@ def static_record_points(record) -> tuple[Any, str]:
         cols = [np.ones(u.shape[0])] + [u[:, i] for i in range(3)] + [u[:, i] * u[:, j] for i in range(3) for j in range(i, 3)]
         return np.stack(cols, axis=-1)
 
-    head_f, head_r, keys, table, rate = _static_blocks(record)
+    keys, table, rate = _static_blocks(record)
     full = table[:, 0] >= 0.5 * np.median(table[:, 0])
     contiguous = np.flatnonzero(full)
     table = table[full]
@@ -209,31 +210,44 @@ def static_record_points(record) -> tuple[Any, str]:
     x_blocks = regressors(means_r)
     coefficients, *_ = np.linalg.lstsq(x_blocks, means_f, rcond=None)
     residual_blocks = means_f - x_blocks @ coefficients
-    head = head_f - regressors(head_r) @ coefficients
     # block means of a gap-free stretch only (a missing block would join two windows across a gap)
     breaks = np.flatnonzero(np.diff(keys[contiguous]) != 1) + 1
     segments = np.split(residual_blocks, breaks)
-    short = allan_points([head], rate, max_fraction=8)
-    long = allan_points(segments, 1.0 / BLOCK_SECONDS, max_fraction=8)
     span = (int(keys[-1]) + 1) * BLOCK_SECONDS
+    # short averaging times: every sample, up to the block length (the block means take over from 2 blocks on)
+    short = StreamingAllan(octave_clusters(int(4 * BLOCK_SECONDS * rate), max_fraction=1), rate)
+    samples = 0
+    previous = None
+    for chunk in record.iter_chunks(("time", "f_x", "f_y", "f_z", "angle_platform", "angle_inner", "angle_middle")):
+        t = np.asarray(chunk["time"], dtype=float)
+        if t.size == 0:
+            continue
+        f = np.stack([np.asarray(chunk[k], dtype=float) for k in ("f_x", "f_y", "f_z")], axis=-1)
+        r = np.stack([np.asarray(chunk[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=-1)
+        residual = f - regressors(r) @ coefficients
+        steps = np.diff(np.r_[t[0] if previous is None else previous, t])
+        for k, piece in enumerate(np.split(residual, np.flatnonzero(steps > 1.5 / rate))):  # a gap before each piece but the first
+            if k:
+                short.gap()
+            short.add(piece)
+        samples += t.size
+        previous = t[-1]
+    long = allan_points(segments, 1.0 / BLOCK_SECONDS, max_fraction=8)
     text = (
         f"{record.path}: {span / 3600:.2f} h static record at {rate:g} Hz; gravity signal (1, f^p, f^p f^p per axis) removed; "
-        f"first {head.shape[0]} samples at full rate, {len(residual_blocks)} block means of {BLOCK_SECONDS:g} s"
+        f"all {samples} samples at full rate for the short averaging times, {len(residual_blocks)} block means of {BLOCK_SECONDS:g} s"
     )
-    return merge_points(short, long, BLOCK_SECONDS * 2), text
+    return merge_points(short.points(), long, BLOCK_SECONDS * 2), text
 
 
-def _static_blocks(record) -> tuple[Any, Any, Any, Any, float]:
-    """Read a static record once, in chunks: its first samples at the full rate and its sums over blocks.
+def _static_blocks(record) -> tuple[Any, Any, float]:
+    """Read a static record once, in chunks: its sums over blocks.
 
-    Returns the first :data:`HEAD_SAMPLES` specific forces and angle readings, the block numbers
-    (:data:`BLOCK_SECONDS` since the first sample), the per-block ``(count, Σf, Σangles)`` table (a block
-    split across two chunks is summed) and the sample rate.
+    Returns the block numbers (:data:`BLOCK_SECONDS` since the first sample), the per-block
+    ``(count, Σf, Σangles)`` table (a block split across two chunks is summed) and the sample rate.
     """
     import numpy as np
 
-    head_f, head_r = [], []
-    head_n = 0
     block_index: list[Any] = []
     block_rows: list[Any] = []
     t0 = None
@@ -248,11 +262,6 @@ def _static_blocks(record) -> tuple[Any, Any, Any, Any, float]:
             rate = 1.0 / float(np.median(np.diff(t)))
         f = np.stack([np.asarray(chunk[k], dtype=float) for k in ("f_x", "f_y", "f_z")], axis=-1)
         r = np.stack([np.asarray(chunk[f"angle_{g}"], dtype=float) for g in ("platform", "inner", "middle")], axis=-1)
-        if head_n < HEAD_SAMPLES:
-            take = min(HEAD_SAMPLES - head_n, t.size)
-            head_f.append(f[:take])
-            head_r.append(r[:take])
-            head_n += take
         b = np.floor((t - t0) / BLOCK_SECONDS).astype(np.int64)
         keys, inverse = np.unique(b, return_inverse=True)
         sums = np.zeros((keys.size, 7))
@@ -267,7 +276,7 @@ def _static_blocks(record) -> tuple[Any, Any, Any, Any, float]:
     keys, inverse = np.unique(all_keys, return_inverse=True)  # a block split across two chunks is summed
     table = np.zeros((keys.size, 7))
     np.add.at(table, inverse, np.vstack(block_rows))
-    return np.vstack(head_f), np.vstack(head_r), keys, table, rate
+    return keys, table, rate
 
 
 def device_segments(datasets) -> tuple[list, list, float, str]:
@@ -280,9 +289,7 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
     layouts = device_layouts()
     summaries, segments = [], []
     for ds in datasets:
-        stats = {
-            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
-        }
+        stats = {(s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))}
         for d in ds.dwells():
             s = stats[(d.stage, d.pass_number, d.position)]
             if not s.usable:

@@ -7,6 +7,8 @@
     # or apply a calibration made elsewhere from new data (e.g. 'stableins calibrate device' on field data, or
     # 'stableins calibrate system --new-calibration' with the record in force as --prior): its stages update the record in force
     stableins recal --unit INS-7 --store cal/ --estimate other.json --out runs/recal-2026-06
+    # an interrupted recalibration (a prompt declined, the link lost, kill -9) continues as a recalibration
+    stableins recal --resume runs/recal-2026-06      # or 'stableins run --resume runs/recal-2026-06': the same
 
 Exactly one new record is written, ``OUT/record.json``: the record in force updated by the new
 stage(s), a Bayesian update (no σ grows, nothing moves along what the new data do not see).  It
@@ -16,6 +18,10 @@ certificate is ``OUT/report.pdf``.  The store is ``--store DIR``, else ``$STABLE
 force directly.  Every parameter's change is printed with its significance
 (:func:`stableins.history.compare`: the new record descends from the old one, σ² of a change =
 σ²_old − σ²_new; flagged at |z| ≥ 3), the same numbers the certificate shows.
+
+The run of a recalibration keeps the store and whether to file in its journal's start record, so a resume
+(``recal --resume RUNDIR`` or ``run --resume RUNDIR``, no other option needed) files the one new record and
+prints its changes exactly as the uninterrupted recalibration would have.
 """
 
 from __future__ import annotations
@@ -83,8 +89,12 @@ def run(args: argparse.Namespace) -> int:
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord
 
-    prior_path = _prior_path(args)
+    prior_path = _resumed_prior(args) if args.resume and not args.estimate else _prior_path(args)
     prior = CalibrationRecord.load(prior_path)
+    if args.unit and prior.serial_number != args.unit:  # the record in force is named, not the estimate checked against it
+        raise InputError(
+            f"the record in force is of unit {prior.serial_number!r}", path=prior_path, field="serial_number", expected=repr(args.unit)
+        )
     if args.estimate:
         if args.procedure or args.resume:
             raise InputError("give either --estimate or a PROCEDURE to run", field="--estimate")
@@ -100,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         args.prior = str(prior_path)
         args.new_calibration = True  # a recalibration starts a new calibration from the record in force
+        args.recal = {"store": str(args.store) if args.store else None, "file": not args.no_file}  # kept for its resume
         args.emit_result = False  # one result on stdout: the recalibration's
         status = run_command.run(args)
         if status != 0:
@@ -133,6 +144,44 @@ def run(args: argparse.Namespace) -> int:
     emit(args, data, "\n".join(text))
     sys.stdout.flush()
     return 0
+
+
+def resume_arguments(args: argparse.Namespace) -> argparse.Namespace:
+    """Return the arguments of ``run --resume RUNDIR`` as ``recal --resume RUNDIR``'s (a recalibration's run resumes as one)."""
+    values = vars(args) | {"estimate": None, "no_file": False}
+    return argparse.Namespace(**values)
+
+
+def _resumed_prior(args: argparse.Namespace) -> Path:
+    """Set unit, store and filing of ``recal --resume RUNDIR`` from the run's start record; return the record in force it started from.
+
+    The record in force is the run's copy (``RUNDIR/prior.json``, whose SHA-256 the resume checks against the journal).
+    """
+    from stableins.commands.run import recal_settings
+    from stableins.drivers.replay import JOURNAL_NAME
+    from stableins.errors import InputError
+    from stableins.procedures.journal import start_record
+    from stableins.procedures.rundir import PRIOR_NAME
+
+    rundir = Path(args.resume)
+    settings = recal_settings(rundir)
+    if settings is None:
+        raise InputError(
+            "this run directory holds no field recalibration that can be resumed",
+            path=rundir,
+            expected=f"a directory made by 'stableins recal PROCEDURE ... --out DIR' (a run of 'stableins run': run --resume {rundir})",
+        )
+    start = start_record(rundir / JOURNAL_NAME)
+    assert start is not None  # recal_settings read it
+    if args.unit and args.unit != start["unit"]:
+        raise InputError(f"this recalibration is of unit {start['unit']!r}", path=rundir, field="--unit", expected=repr(start["unit"]))
+    if args.store and str(args.store) != settings.get("store"):
+        where = settings.get("store")
+        raise InputError(f"this recalibration files its record in {where}", path=rundir, field="--store", expected="no --store, or it")
+    args.unit = start["unit"]
+    args.store = settings.get("store")
+    args.no_file = bool(args.no_file or not settings.get("file", True))
+    return rundir / PRIOR_NAME
 
 
 def _prior_path(args: argparse.Namespace) -> Path:

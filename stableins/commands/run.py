@@ -16,6 +16,7 @@ is finished and changes nothing (``--re-estimate`` estimates it again from its j
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -29,7 +30,7 @@ EXIT_STOPPED = 3
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins run`` to ``parser``."""
-    from stableins.commands.arguments import integer, number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, input_file, integer, number, output_directory, seed
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
     parser.add_argument("procedure", nargs="?", metavar="PROCEDURE", help="procedure name, .toml definition or .json plan")
@@ -44,6 +45,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "record and certificate anew",
     )
     parser.add_argument("--seed", type=seed, help="seed of the simulated platform (sim): same seed, same samples")
+    parser.add_argument(
+        "--truth",
+        type=input_file,
+        metavar="TRUTH.json",
+        help="sim: simulate this world (a truth.json of 'stableins simulate') instead of drawing one from --seed; "
+        "the run directory keeps the truth it ran (truth.json)",
+    )
+    parser.add_argument(
+        "--hidden",
+        type=effect_magnitude,
+        action="append",
+        default=[],
+        metavar="ID=VALUE",
+        help="sim: inject an effect of the simulator's catalogue (as 'stableins simulate --hidden'; repeatable)",
+    )
     parser.add_argument("--yes", action="store_true", help="unattended: confirm every prompt, take defaults")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="value for a person step (repeatable)")
     parser.add_argument("--prior", metavar="RECORD", help="the unit's previous record (zero offsets to re-point; fine stage builds on it)")
@@ -60,7 +76,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--chunk",
         type=number(*CHUNK_RANGE, unit="seconds"),
-        help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default 10)",
+        help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default: the procedure's)",
     )
     parser.add_argument(
         "--link-failures", type=integer(1, 100), default=3, help="consecutive link failures of one step before stopping (1 to 100)"
@@ -118,6 +134,40 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
     return (dataclasses.replace(plan, **changes) if changes else plan), definition_file
 
 
+def simulated_truth(args: argparse.Namespace, sample_rate: float | None) -> Any:
+    """Return the world of ``--truth`` / ``--hidden`` for the simulated platform, or None (a truth drawn from ``--seed``).
+
+    ``--truth`` is read as written (its sample rate set to the procedure's); ``--hidden`` alone adds effects to the
+    truth drawn from ``--seed`` with serial number ``--unit``.  Checked before anything is written or moves.
+    """
+    from stableins.errors import InputError
+
+    if args.truth is None and not args.hidden:
+        return None
+    if args.driver != "sim":
+        field = "--truth" if args.truth is not None else "--hidden"
+        raise InputError(f"{field} describes the world of the simulated platform", field=field, expected="--driver sim")
+    from dataclasses import replace
+
+    from stableins.data.truth import load_truth
+    from stableins.simulator.effects import validate_effects
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    if args.truth is not None:
+        truth = load_truth(args.truth)
+        if sample_rate:
+            truth = truth.with_changes(site=replace(truth.site, sample_rate=float(sample_rate)))
+    else:
+        site = SimulatedSite(serial_number=args.unit)
+        if sample_rate:
+            site = replace(site, sample_rate=float(sample_rate))
+        truth = Truth.draw(0 if args.seed is None else args.seed, site=site)
+    if args.hidden:
+        effects = dict(truth.effects) | dict(args.hidden)
+        truth = truth.with_changes(effects=validate_effects(effects, source="--hidden"))
+    return truth
+
+
 def prior_file(args: argparse.Namespace) -> Path | None:
     """Return the prior record of the run: ``--prior``, or the record in force of ``--unit`` in ``--store``."""
     from stableins.errors import InputError
@@ -146,10 +196,22 @@ def _resumable(rundir: str | None) -> bool:
     return rundir is not None and has_start(Path(rundir) / JOURNAL_NAME)
 
 
+def recal_settings(rundir: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """Return the field-recalibration settings the run in RUNDIR was started with (``stableins recal``), or None."""
+    from stableins.drivers.replay import JOURNAL_NAME
+    from stableins.procedures.journal import start_record
+
+    start = start_record(Path(rundir) / JOURNAL_NAME)
+    settings = start.get("recal") if start is not None else None
+    return dict(settings) if isinstance(settings, dict) else None
+
+
 def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
-    """Return what the person can do next: resume only when there is something to resume."""
+    """Return what the person can do next: resume only when there is something to resume (as a recalibration if it is one)."""
     if _resumable(rundir):
-        return f"everything accepted so far is in {rundir}; continue with: stableins run --resume {rundir}"
+        assert rundir is not None
+        command = "recal" if recal_settings(rundir) is not None else "run"
+        return f"everything accepted so far is in {rundir}; continue with: stableins {command} --resume {rundir}"
     return "nothing was started (the run directory holds no journal); fix the problem and run the same command again"
 
 
@@ -162,6 +224,10 @@ def run(args: argparse.Namespace) -> int:
     from stableins.procedures.runner import RunStopped
     from stableins.procedures.session import JournalMismatch
 
+    if args.resume and getattr(args, "emit_result", True) and recal_settings(args.resume) is not None:
+        from stableins.commands import recal
+
+        return recal.run(recal.resume_arguments(args))  # a field recalibration resumes as one: it files its record
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
     args.finished = None
@@ -218,8 +284,10 @@ def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
     if args.re_estimate and not args.resume:
         raise InputError("--re-estimate estimates a finished run again", field="--re-estimate", expected="--resume RUNDIR as well")
     if args.resume:
-        if args.procedure or args.out:
-            raise InputError("--resume continues a run as it was started", field="--resume", expected="no PROCEDURE and no --out")
+        if args.procedure or args.out or args.truth is not None or args.hidden:
+            raise InputError(
+                "--resume continues a run as it was started", field="--resume", expected="no PROCEDURE, --out, --truth or --hidden"
+            )
         return resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate)
     missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
     if missing:
@@ -227,6 +295,7 @@ def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
             f"missing {', '.join(missing)}", field=missing[0], expected="PROCEDURE --driver SPEC --out RUNDIR, or --resume RUNDIR"
         )
     plan, definition_file = load_plan(args.procedure, args.retries, args.chunk)
+    truth = simulated_truth(args, plan.sample_rate)
     return start_run(
         plan,
         args.out,
@@ -241,5 +310,7 @@ def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
             fields=parse_settings(args.set),
             options=RunOptions(link_failures=args.link_failures),
             timeout=args.timeout,
+            recal=getattr(args, "recal", None),
+            truth=truth,
         ),
     )

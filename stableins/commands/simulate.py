@@ -6,6 +6,7 @@
     stableins simulate system --seed 3 --out sim/ [--duration 1d] [--rate 100]
     stableins simulate device --truth sim/truth.json --hidden Kcc_xxy=60ug/g2 --out sim2/
     stableins simulate --list-effects
+    stableins simulate device --world lab --out sim/   # a named world (docs/simulator.md, "Worlds"; --list-worlds)
 
 The directory receives the data (``device-coarse.csv``, ``device-fine.h5`` ... one file
 per procedure, or ``system.h5``) and
@@ -140,6 +141,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "then fine dwells at the re-pointed positions)",
     )
     parser.add_argument(
+        "--world",
+        metavar="NAME",
+        help="a named world on the drawn (or --truth) instrument: slow noise, thermal history, drift ... "
+        "(default: the simulator's default world); see --list-worlds and docs/simulator.md 'Worlds'",
+    )
+    parser.add_argument("--list-worlds", action="store_true", help="list the named worlds (what each adds, its numbers, their source)")
+    parser.add_argument(
         "--list-effects", action="store_true", help="list the injectable effects (id, nominal size in engineering and SI units, meaning)"
     )
 
@@ -196,6 +204,10 @@ def build_truth(args: argparse.Namespace) -> Any:
     else:
         site = DEFAULT_SITE if args.rate is None else SimulatedSite(sample_rate=args.rate)
         truth = Truth.draw(0 if args.seed is None else args.seed, site=site)
+    if getattr(args, "world", None) is not None:
+        from stableins.simulator.worlds import apply_world, world
+
+        truth = apply_world(truth, world(args.world, field="--world"))
     if getattr(args, "installed", None) is not None:
         truth = truth.with_changes(installed_calibration=installed_from_record(args.installed, truth))
     if args.hidden:
@@ -210,13 +222,8 @@ def run(args: argparse.Namespace) -> int:
     from stableins.data.truth import save_truth
     from stableins.output import emit, note
 
-    if args.list_effects:
-        rows = effect_rows()
-        lines = [f"{'id':<16} {'nominal':>9} {'unit':<9} {'nominal (SI)':>12} {'SI unit':<14} meaning"]
-        row = "{id:<16} {nominal_engineering:>9.3g} {engineering_unit:<9} {nominal:>12.3g} {unit:<14} {meaning}"
-        lines += [row.format(**r) for r in rows]
-        lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
-        emit(args, {"effects": rows}, "\n".join(lines))
+    if args.list_effects or getattr(args, "list_worlds", False):
+        _list_catalogue(args)
         return 0
     if args.level is None:
         raise InputError("which level?", field="LEVEL", expected="'device' or 'system' (or --list-effects)")
@@ -226,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--duration applies to system-level simulation only (device timing comes from the procedure)", field="--duration")
     truth = build_truth(args)
     procedures = _device_procedures(args) if args.level == "device" else []  # all checked before anything is written
+    if procedures:
+        truth = _held_as_declared(truth, procedures)
     existed = args.out is not None and Path(args.out).exists()
     out = prepare_directory(args.out)
     before = set(out.iterdir())
@@ -246,6 +255,35 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"{f['path']}: {f['rows']} rows" for f in files] + [f"truth: {truth_path}"]
     emit(args, result, "\n".join(lines))
     return 0
+
+
+def _list_catalogue(args: argparse.Namespace) -> None:
+    """Print what the simulator can inject (``--list-effects``) or the worlds it draws (``--list-worlds``)."""
+    from stableins.output import emit
+
+    if args.list_effects:
+        rows = effect_rows()
+        lines = [f"{'id':<16} {'nominal':>9} {'unit':<9} {'nominal (SI)':>12} {'SI unit':<14} meaning"]
+        row = "{id:<16} {nominal_engineering:>9.3g} {engineering_unit:<9} {nominal:>12.3g} {unit:<14} {meaning}"
+        lines += [row.format(**r) for r in rows]
+        lines.append("--hidden ID=VALUE takes VALUE in the engineering unit (Kcc_xxy=60ug/g2) or in SI (a bare number: Kcc_xxy=6e-6)")
+        emit(args, {"effects": rows}, "\n".join(lines))
+        return
+    from stableins.simulator.worlds import WORLDS
+
+    worlds = [{"name": w.name, "summary": w.summary, "slow_noise": w.slow_noise, "sources": list(w.sources)} for w in WORLDS.values()]
+    emit(args, {"worlds": worlds}, "\n".join(line for w in WORLDS.values() for line in w.describe()))
+
+
+def _held_as_declared(truth: Any, procedures: list[Any]) -> Any:
+    """Return the truth whose platform holds its dwells as the procedures declare (``[procedure] dwell_mode``)."""
+    from dataclasses import replace
+
+    modes = {p.dwell_mode for p in procedures}
+    if len(modes) > 1:
+        named = ", ".join(f"{p.name}: {p.dwell_mode}" for p in procedures)
+        raise InputError(f"the procedures declare different dwell modes ({named})", field="--procedure", expected="one dwell_mode")
+    return truth.with_changes(site=replace(truth.site, dwell_mode=modes.pop()))
 
 
 def _device_procedures(args: argparse.Namespace) -> list[Any]:

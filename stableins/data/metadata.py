@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.site import SiteMetadata
 
 # --------------------------------------------------------------------------- file documents
@@ -56,6 +57,7 @@ def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
             "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
             "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
             "extra": dict(metadata.extra),
+            "dwell_mode": str(metadata.dwell_mode),
         }
         | ({"start_time": metadata.start_time} if metadata.start_time else {})
         | (
@@ -145,21 +147,23 @@ class _Reader:
 
     def strings(self) -> tuple[str, str, str]:
         """Return the serial number, the gravity source and the start time (ISO 8601, or empty)."""
-        serial = self.document["serial_number"]
-        if not isinstance(serial, str) or not serial:
-            raise self.fail(f"serial number {serial!r}", "serial_number", "a non-empty string")
+        from stableins.identifiers import check_serial_number, check_timestamp
+
+        serial = check_serial_number(self.document["serial_number"], field="metadata.serial_number", path=self.path)
         source = self.document["gravity_source"]
         if not isinstance(source, str):
             raise self.fail(f"gravity source {source!r}", "gravity_source", "a string")
         start_time = self.document.get("start_time", "")
-        if start_time:
-            from datetime import datetime
-
-            try:
-                datetime.fromisoformat(str(start_time).replace("Z", "+00:00"))
-            except ValueError:
-                raise self.fail(f"start time {start_time!r}", "start_time", "an ISO 8601 time such as 2026-03-01T12:00:00Z") from None
+        check_timestamp(start_time, field="metadata.start_time", path=self.path, optional=True)
         return serial, source, str(start_time)
+
+    def dwell_mode(self) -> DwellMode:
+        """Return how the platform was held during the dwells (the default when the document does not say)."""
+        value = self.document.get("dwell_mode", str(DEFAULT_DWELL_MODE))
+        if not isinstance(value, str) or value not in {m.value for m in DwellMode}:
+            expected = " or ".join(repr(m.value) for m in DwellMode) + ' (docs/conventions.md, "The platform during a dwell")'
+            raise self.fail(f"dwell mode {str(value)[:60]!r}", "dwell_mode", expected)
+        return DwellMode(value)
 
 
 def metadata_from_document(document: Any, path: str | None = None) -> SiteMetadata:
@@ -210,6 +214,7 @@ def metadata_from_document(document: Any, path: str | None = None) -> SiteMetada
         extra=extra,
         start_time=start_time,
         gravity_uncertainty=gravity_uncertainty,
+        dwell_mode=read.dwell_mode(),
     )
 
 

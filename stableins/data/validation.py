@@ -12,8 +12,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from stableins.errors import InputError
-from stableins.schema import SCHEMA_VERSION, Column
+from stableins.schema import SCHEMA_VERSION, Column, column_limits
 
+#: The physical limits of every bounded column, by name (stableins.schema).
+_LIMITS = column_limits()
 _HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
 
 #: File kinds and the ``format`` tag written in their header.
@@ -77,21 +79,35 @@ def check_header_document(document: Any, kind: str, path: Any) -> None:
 
 
 def check_finite(name: str, values: Any, path: Any, first_row: int = 1, row_step: int = 1) -> None:
-    """Raise for the first NaN or infinity of a float column.
+    """Raise for the first NaN or infinity of a float column, or a value outside the column's physical limits.
 
     ``first_row`` is the row number of ``values[0]``; ``row_step`` the rows between consecutive values
-    (values taken at every ``row_step``-th row of the record).
+    (values taken at every ``row_step``-th row of the record).  The limits are those of :mod:`stableins.schema`
+    (``Column.limits``: what any instrument can write there, e.g. ±10⁴ m/s² of specific force), so every reader
+    of every file kind refuses the same values (docs/formats.md, "What the readers check").
     """
     import numpy as np
 
     values = np.asarray(values)
     if values.dtype.kind != "f":
         return
+    limits = _LIMITS.get(name)
     with np.errstate(over="ignore", invalid="ignore"):  # a sum of large finite values may overflow: then look (below)
         total = np.add.reduce(values, axis=None)
-    if np.isfinite(total):  # NaN and ±inf propagate into the sum: one pass, no temporary
-        return
+    if np.isfinite(total) and (limits is None or values.size == 0 or limits[0] <= values.min() and values.max() <= limits[1]):
+        return  # NaN and ±inf propagate into the sum: one pass, no temporary; the limits: two more
     bad = ~np.isfinite(values)  # a non-finite value, or finite values whose sum overflowed: look
+    if limits is not None and not bad.any():
+        outside = (values < limits[0]) | (values > limits[1])
+        if outside.any():
+            k = int(np.argmax(outside))
+            raise InputError(
+                f"value {values[k].item()!r} is beyond what an instrument can give",
+                path=path,
+                row=first_row + k * row_step,
+                field=name,
+                expected=f"a value from {limits[0]:g} to {limits[1]:g} (docs/formats.md)",
+            )
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError(

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -48,6 +48,7 @@ from stableins.discovery.diagnose_report import (
     SpectrumSummary,
     SystemFindings,
 )
+from stableins.discovery.signature import residual_signature
 from stableins.errors import InputError
 from stableins.noise import NoiseModel
 
@@ -216,6 +217,13 @@ class DiagnoseResult:
                     + "\nthe g-sensitivities not in it, ranked:\n"
                     + self.drift.report(top=9)
                 )
+        if self.report.signature is not None:
+            parts.append(
+                "outside the library: "
+                + self.report.outside_text()
+                + "\nthe residual's signature:\n"
+                + "\n".join(f"  {line}" for line in self.report.signature.lines())
+            )
         return "\n\n".join([*parts, self.session.history.report()])
 
     def figures(self) -> dict[str, Figure]:
@@ -364,6 +372,8 @@ def _device(
             model=DriftEstimate.from_fit(drift.result),
         ),
     )
+    if report.outside_library:
+        report = replace(report, signature=residual_signature(diagnosis, readings=dwells.readings))
     return DiagnoseResult(report, session, diagnosis, ranking, origin, drift=drift, drift_notes=drift_notes)
 
 
@@ -411,4 +421,6 @@ def _system(opened: SystemRecord, record: RecordInForce, model: ErrorModel, opti
         ),
         system=SystemFindings(found.chi2_range, found.bin_seconds, tuple(found.notes)),
     )
+    if report.outside_library:
+        report = replace(report, signature=residual_signature(diagnosis, earth_harmonics=found.flagged_harmonics))
     return DiagnoseResult(report, session, diagnosis, found.ranking, origin, system=found)

@@ -16,8 +16,12 @@ The document, key by key (SI units; ``null`` where a number is not finite):
 * ``left_out``: the dwells left out, in words; ``next``: the next step in words and as a command;
 * ``drift``: the platform-drift candidates ranked on the angle-reading slopes (:class:`DriftSummary`), device only;
 * ``spectra``: per output, the residual at the Earth-rate harmonics (:class:`SpectrumSummary`), system only;
-* system records also: ``chi2_red_range`` (the slow noise at its upper and lower limits), ``consistent``, ``alarm``,
-  ``bin_seconds``, ``notes`` (:class:`SystemFindings`).
+* ``verdict``: where ``χ²`` lies against its two-sided 99 % range (:class:`~stableins.discovery.diagnostics.FitVerdict`:
+  ``consistent``, ``above the noise floor`` — something is missing —, ``below the noise floor``);
+* ``outside_library``: χ² rejects the model and no candidate explains it; ``signature``: then, which outputs, positions
+  and harmonics carry the residual (:class:`~stableins.discovery.signature.ResidualSignature`), else null;
+* system records also: ``chi2_red_range`` and ``p_value_range`` (the slow noise at its upper and lower limits; the
+  verdict holds for every model between), ``consistent``, ``alarm``, ``bin_seconds``, ``notes`` (:class:`SystemFindings`).
 """
 
 from __future__ import annotations
@@ -28,7 +32,8 @@ from enum import StrEnum
 from os import PathLike
 from typing import Any
 
-from stableins.discovery.diagnostics import CONSISTENT_P_VALUES
+from stableins.discovery.diagnostics import FitVerdict
+from stableins.discovery.signature import ResidualSignature
 from stableins.discovery.steps import Step
 from stableins.discovery.summaries import (
     DOCUMENT,
@@ -73,6 +78,8 @@ class NextAction(StrEnum):
     CARRY = "carry"
     #: A calibration cannot carry the best flagged effect: add it in discovery and see what it changes.
     INSPECT = "inspect"
+    #: χ² rejects the model and no library effect explains it: look at the residual's signature; no certificate.
+    OUTSIDE = "outside the library"
 
 
 @dataclass(frozen=True)
@@ -86,7 +93,8 @@ class NextStep:
     effect : str or None
         The best flagged effect (None for :attr:`NextAction.CERTIFY`).
     reason : str
-        :attr:`NextAction.INSPECT`: why a calibration does not carry the effect.
+        :attr:`NextAction.INSPECT`: why a calibration does not carry the effect; :attr:`NextAction.OUTSIDE`: why the
+        residual is outside the library; :attr:`NextAction.CERTIFY`: a residual below the noise floor, said.
     confused_with : tuple of str
         :attr:`NextAction.CARRY`: candidates the data cannot tell from the effect.
     keep : tuple of str
@@ -152,6 +160,9 @@ class DiagnoseReport:
     next : tuple of str
         The next step in words and as a command, as the interface words :attr:`next_step` (``stableins diagnose``
         fills it; empty from :func:`stableins.discovery.diagnose.diagnose_data`).
+    signature : ResidualSignature or None
+        When the residual is outside the library (:attr:`outside_library`): which outputs, positions and harmonics
+        carry it; else None.
     """
 
     stage: DiagnoseStage
@@ -170,6 +181,7 @@ class DiagnoseReport:
     spectra: tuple[SpectrumSummary, ...] = ()
     system: SystemFindings | None = None
     next: tuple[str, ...] = ()
+    signature: ResidualSignature | None = None
 
     def __post_init__(self) -> None:
         if (self.stage is DiagnoseStage.SYSTEM) != (self.system is not None):
@@ -179,10 +191,43 @@ class DiagnoseReport:
 
     # ------------------------------------------------------------------ verdict
     @property
+    def p_value_range(self) -> tuple[float, float]:
+        """``P(χ² ≥ observed)`` with the slow noise at its upper and at its lower limits (system records; else ``p_value`` twice)."""
+        if self.system is None or self.dof <= 0:
+            return (self.p_value, self.p_value)
+        from scipy.stats import chi2
+
+        hi, lo = self.system.chi2_red_range
+        return (float(chi2.sf(hi * self.dof, self.dof)), float(chi2.sf(lo * self.dof, self.dof)))
+
+    @property
+    def verdict(self) -> FitVerdict:
+        """Where ``χ²`` lies against its two-sided 99 % range for every noise model allowed (:class:`FitVerdict`)."""
+        span = self.p_value_range
+        return FitVerdict.of(max(span), min(span))
+
+    @property
     def consistent(self) -> bool:
         """Whether ``χ²_ν`` lies within its two-sided 99 % range (:data:`stableins.discovery.diagnostics.CONSISTENT_P_VALUES`)."""
-        low, high = CONSISTENT_P_VALUES
-        return low < self.p_value < high
+        return self.verdict is FitVerdict.CONSISTENT
+
+    @property
+    def outside_library(self) -> bool:
+        """χ² rejects the model (too high) and no candidate explains it (none flagged): the effect is outside the library."""
+        return self.verdict is FitVerdict.ABOVE and not self.flagged
+
+    def outside_text(self) -> str:
+        """Why the residual is outside the library, in words: ``χ²_ν`` and P the verdict rests on, and the best candidate's ``χ²_ν``.
+
+        For a system record: with the slow noise at its upper limits (the first of ``chi2_red_range``, ``p_value_range``).
+        """
+        chi2_red = self.chi2_red if self.system is None else self.system.chi2_red_range[0]
+        p = max(self.p_value_range)
+        head = f"χ²_ν = {chi2_red:.3g} (ν = {self.dof}, P = {p:.2g}) and no library effect explains it"
+        best = next((c for c in self.candidates if c.identifiable), None)
+        if best is None:
+            return head
+        return f"{head} (the best, {best.id}, would leave χ²_ν = {best.chi2_red_with:.3g}, above its 95 % band)"
 
     @property
     def flagged(self) -> tuple[CandidateSummary, ...]:
@@ -192,18 +237,25 @@ class DiagnoseReport:
     @property
     def alarm(self) -> bool:
         """Whether anything says the model misses something: the verdict, a flagged candidate or a flagged harmonic."""
-        return (not self.consistent) or bool(self.flagged) or any(any(s.flagged) for s in self.spectra)
+        too_high = self.verdict is FitVerdict.ABOVE  # a χ² below the range says the σ are conservative, not that anything is missing
+        return too_high or bool(self.flagged) or any(any(s.flagged) for s in self.spectra)
 
     @property
     def next_step(self) -> NextStep:
         """What to do next, as data.
 
         Carry the best flagged effect into the calibration; look at one a calibration cannot carry (or any, for a system
-        record: the system stage does not estimate added effects); or certify the record when nothing is flagged.
+        record: the system stage does not estimate added effects); say that the residual is outside the library when χ²
+        rejects the model and no candidate explains it (a candidate is flagged only if it does,
+        :func:`stableins.discovery.scores.explains`); or certify the record when nothing is flagged and χ² is not too high.
         """
         from stableins.discovery.library import LIBRARY, calibration_limit
 
         if not self.flagged:
+            if self.outside_library:
+                return NextStep(NextAction.OUTSIDE, reason=self.outside_text())
+            if self.verdict is FitVerdict.BELOW:
+                return NextStep(NextAction.CERTIFY, reason="the residuals are below the noise floor (its σ are conservative)")
             return NextStep(NextAction.CERTIFY)
         best = self.flagged[0]
         why = calibration_limit(best.id)
@@ -227,7 +279,13 @@ class DiagnoseReport:
             out["chi2_red_range"] = [finite(x) for x in system.chi2_red_range]
         out |= {"dof": self.dof, "expected_spread": finite(self.expected_spread), "p_value": finite(self.p_value)}
         if system is not None:
+            out["p_value_range"] = [finite(x) for x in self.p_value_range]
             out |= {"consistent": self.consistent, "alarm": self.alarm, "bin_seconds": system.bin_seconds}
+        out |= {
+            "verdict": str(self.verdict),
+            "outside_library": self.outside_library,
+            "signature": None if self.signature is None else self.signature.to_json(),
+        }
         out |= {
             "model": list(self.model),
             "residual_rms": list(self.residual_rms),
@@ -274,11 +332,17 @@ class DiagnoseReport:
             spectra=tuple(SpectrumSummary.from_json(name, item, path) for name, item in spectra.items()),
             system=_system_findings(r, d) if stage is DiagnoseStage.SYSTEM else None,
             next=r.texts(r.get(d, "next", ""), "next"),
+            signature=None if d.get("signature") is None else ResidualSignature.from_json(d["signature"], path),
         )
-        if stage is DiagnoseStage.SYSTEM:  # written from the p-value and the flags: they must agree
-            for key, derived in (("consistent", report.consistent), ("alarm", report.alarm)):
-                if r.boolean(r.get(d, key, ""), key) != derived:
-                    raise r.fail(f"{d[key]} contradicts the p-value and the flags of the document", key, str(derived).lower())
+        derived_keys: list[tuple[str, Any]] = []
+        if stage is DiagnoseStage.SYSTEM:  # written from the p-values and the flags: they must agree
+            derived_keys += [("consistent", report.consistent), ("alarm", report.alarm)]
+        derived_keys += [("outside_library", report.outside_library)] if "outside_library" in d else []
+        for key, derived in derived_keys:
+            if r.boolean(r.get(d, key, ""), key) != derived:
+                raise r.fail(f"{d[key]} contradicts the p-value and the flags of the document", key, str(derived).lower())
+        if "verdict" in d and r.text(d["verdict"], "verdict") != str(report.verdict):
+            raise r.fail(f"{d['verdict']!r:.60} contradicts the p-value of the document", "verdict", repr(str(report.verdict)))
         return report
 
 

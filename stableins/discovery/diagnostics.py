@@ -13,9 +13,11 @@ For any fitted stage (a :class:`~stableins.estimators.result.FitResult`):
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,8 +37,44 @@ if TYPE_CHECKING:  # pragma: no cover
 AXIS_NAMES = ("x", "y", "z")
 #: χ²_ν is consistent with the noise floor when ``P(χ² ≥ observed)`` lies strictly between these (its two-sided 99 %
 #: range): the rule of :attr:`Diagnosis.consistent` and of
-#: :attr:`stableins.discovery.diagnose_report.DiagnoseReport.consistent`.
+#: :attr:`stableins.discovery.diagnose_report.DiagnoseReport.consistent`.  Below the lower limit χ² is too high (the
+#: model misses something); above the upper limit it is too low (the noise model overstates the scatter): :class:`FitVerdict`.
 CONSISTENT_P_VALUES = (0.005, 0.995)
+
+
+class FitVerdict(StrEnum):
+    """Where ``χ²`` of a fit lies against its two-sided 99 % range (:data:`CONSISTENT_P_VALUES`): the tail matters."""
+
+    #: Within the range: the residuals are at the noise floor.
+    CONSISTENT = "consistent"
+    #: Too high (``P(χ² ≥ observed)`` below 0.005, for every noise model allowed): the model misses something.
+    ABOVE = "above the noise floor"
+    #: Too low (``P`` above 0.995, for every noise model allowed): the noise model overstates the scatter; nothing is missing.
+    BELOW = "below the noise floor"
+    #: No degrees of freedom (``P`` undefined): χ² tests nothing.
+    UNTESTED = "untested"
+
+    @classmethod
+    def of(cls, p_most: float, p_least: float) -> FitVerdict:
+        """Return the verdict from ``P(χ² ≥ observed)`` under the largest noise allowed (``p_most``) and the smallest (``p_least``)."""
+        low, high = CONSISTENT_P_VALUES
+        if math.isnan(p_most) or math.isnan(p_least):
+            return cls.UNTESTED
+        if p_most <= low:
+            return cls.ABOVE
+        if p_least >= high:
+            return cls.BELOW
+        return cls.CONSISTENT
+
+    def words(self) -> str:
+        """Return the verdict as the diagnosis prints it."""
+        return {
+            FitVerdict.CONSISTENT: "consistent with the noise floor",
+            FitVerdict.ABOVE: "NOT consistent with the noise floor: something is missing",
+            FitVerdict.BELOW: "below the noise floor: the residuals scatter less than the noise model says (its σ are conservative); "
+            "nothing is missing",
+            FitVerdict.UNTESTED: "untested: no degrees of freedom",
+        }[self]
 #: Above this many positions the per-position plots are drawn against time, without per-point labels.
 MAX_NAMED_POSITIONS = 80
 
@@ -65,6 +103,9 @@ class Diagnosis:
         How residuals are shown (default µg).
     time : ndarray (P,) or None
         Time of each position [s] (dwell problems), for plots of many bins against time.
+    p_range : (float, float) or None
+        System records: ``P(χ² ≥ observed)`` with the slow noise at its upper and at its lower limits (the verdict holds
+        for every noise model between); None: the one noise model, ``(p_value, p_value)``.
     """
 
     result: FitResult
@@ -80,6 +121,7 @@ class Diagnosis:
     unit: str = "µg"
     scale: float = MICRO_G
     time: NDArray[np.float64] | None = None
+    p_range: tuple[float, float] | None = None
 
     @property
     def normalized(self) -> NDArray[np.float64]:
@@ -97,10 +139,15 @@ class Diagnosis:
         return np.sqrt(np.mean(self.sigma**2, axis=0))
 
     @property
+    def fit_verdict(self) -> FitVerdict:
+        """Where χ² lies against its two-sided 99 % range, for every noise model allowed (:class:`FitVerdict`)."""
+        span = self.p_range if self.p_range is not None else (self.p_value, self.p_value)
+        return FitVerdict.of(max(span), min(span))
+
+    @property
     def consistent(self) -> bool:
         """Whether χ²_ν lies within its two-sided 99 % range under the model (:data:`CONSISTENT_P_VALUES`)."""
-        low, high = CONSISTENT_P_VALUES
-        return low < self.p_value < high
+        return self.fit_verdict is FitVerdict.CONSISTENT
 
     def worst(self, count: int = 5) -> list[tuple[str, str, float]]:
         """Return the largest normalized residuals: (position, axis, residual/σ)."""
@@ -111,13 +158,16 @@ class Diagnosis:
 
     @property
     def verdict(self) -> str:
-        """``consistent with the noise floor`` or ``NOT consistent ...: something is missing``."""
-        return "consistent with the noise floor" if self.consistent else "NOT consistent with the noise floor: something is missing"
+        """The verdict in words (:meth:`FitVerdict.words`): consistent, above the floor (something missing) or below it."""
+        return self.fit_verdict.words()
 
     def _fit_line(self) -> str:
+        span = ""
+        if self.p_range is not None and self.p_range != (self.p_value, self.p_value):
+            span = f" ({self.p_range[0]:.3g} to {self.p_range[1]:.3g} over the noise models allowed)"
         return (
             f"{self.result.stage}: χ²_ν = {self.chi2_red:.3f} (ν = {self.result.dof}, expected 1 ± {self.spread:.3f}); "
-            f"P(χ² ≥ observed) = {self.p_value:.3g} — {self.verdict}"
+            f"P(χ² ≥ observed) = {self.p_value:.3g}{span} — {self.verdict}"
         )
 
     def _axis_rows(self) -> list[list[str]]:
@@ -150,7 +200,7 @@ class Diagnosis:
             f"  {a:<5} residual RMS {rms:>12}   noise floor {floor:>12}   ratio {ratio:>5}" for a, rms, floor, ratio in self._axis_rows()
         ]
         lines.append(self._worst_line())
-        if not self.consistent:
+        if self.fit_verdict is FitVerdict.ABOVE:
             lines.append("next: rank the candidate effects (Discovery.rank(), or stableins diagnose prints the ranking)")
         return clipped(lines, "(print(diagnosis) for the report, diagnosis.to_dataframe() for the residuals, diagnosis.plot_positions())")
 

@@ -11,8 +11,12 @@ holds the slope fit, the geometry and the estimator of all twelve numbers).
 This module builds the discovery form of it, a :class:`~stableins.discovery.linear.LinearProblem`: the null
 model is a constant reading rate per gimbal (servo creep) and the constant gyro drift ``gyro_drift_x/y/z``
 (a drift is not a missing effect: the stage ``stableins calibrate device`` estimates it), plus any ``Dg_ab``
-already added; the candidates are the nine ``Dg_ab``.  Dwells near gimbal lock (``cond J >`` 1e3) are left out:
-there the readings cannot follow the platform.  The slopes are weighed by the angle noise measured within the
+already added and the nuisances of the dwell mode (torqued at the Earth rate: the torquers' scale-factor errors,
+docs/conventions.md "The platform during a dwell"); the candidates are the nine ``Dg_ab``.  Only dwells torqued at
+the Earth rate are ranked here: caged dwells carry no gyro information, and inertially held ones turn at 15 °/h
+(the gyro stage, ``gyro_from_datasets``, models them; ``stableins calibrate device`` refuses them: its
+accelerometer stages need dwells held to the base).  Dwells near gimbal lock (``cond J >`` 1e3) are left out: there
+the platform is caged.  The slopes are weighed by the angle noise measured within the
 dwells (per dwell and gimbal).
 """
 
@@ -39,6 +43,15 @@ def _nuisance_terms() -> tuple[Term, ...]:
             f"reading_rate_{g}", TermKind.ADDITIVE, "rad/s", "arcsec/h", arcsec_per_hour, 1e-9, f"constant {g} reading rate", regressor=zero
         )
         for g in GIMBALS
+    )
+
+
+def _mode_terms(geometry: SlopeGeometry) -> tuple[Term, ...]:
+    """Return the dwell mode's nuisance parameters as null-model terms (torqued dwells: the torquers' scale-factor errors)."""
+    zero = lambda inputs: np.zeros_like(inputs.specific_force)  # noqa: E731  (never evaluated through the error model)
+    return tuple(
+        Term(name, TermKind.ADDITIVE, "1", "ppm", 1e-6, 1e-6, f"nuisance of the dwell mode {geometry.mode}", regressor=zero)
+        for name, _ in geometry.nuisance
     )
 
 
@@ -72,7 +85,13 @@ def drift_problem(
     slopes = np.asarray(slopes, dtype=float)
     slope_sigma = np.asarray(slope_sigma, dtype=float)
     geometry = SlopeGeometry.of(
-        dwells.readings, dwells.gravity, zero_offsets=zero_offsets, base_attitude=dwells.base_attitude, configuration=dwells.configuration
+        dwells.readings,
+        dwells.gravity,
+        zero_offsets=zero_offsets,
+        base_attitude=dwells.base_attitude,
+        configuration=dwells.configuration,
+        mode=dwells.dwell_mode,
+        latitude=dwells.latitude,
     )
     # a reading that does not move within a dwell (a quiet or coarsely quantized angle sensor) has a slope whose
     # 1σ from the scatter is 0: it cannot be weighed, and is left out like a dwell near gimbal lock
@@ -94,6 +113,10 @@ def drift_problem(
         col = np.zeros((n, 3))
         col[:, k] = 1.0
         columns[term.id] = col.reshape(-1)
+    mode_terms = _mode_terms(geometry)
+    for term, (_, column) in zip(mode_terms, geometry.nuisance, strict=True):
+        columns[term.id] = column[keep].reshape(-1)
+    nuisance = nuisance + mode_terms
     labels = [f"{lbl} d{gm}/dt" for lbl, k in zip(dwells.labels, keep, strict=True) if k for gm in GIMBALS]
     problem = LinearProblem(slopes[keep].reshape(-1), slope_sigma[keep].reshape(-1), columns, labels, stage="reading slopes")
     return problem, ErrorModel(nuisance + GYRO_DRIFT_TERMS + tuple(added)), tuple(drift_terms), notes

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.estimators.layout import StageLayout
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -40,8 +41,13 @@ class DwellSet:
     temperature : ndarray (P,)
         Mean temperature minus the reference temperature [K].
     slew_direction : ndarray (P, 3)
-        Sign of the last change of each axis' input (+1 rose, −1 fell, 0 unchanged) from
-        the nominal geometry; :class:`DwellProblem` recomputes it from the fitted ``f^p``.
+        Hysteresis state of each axis at each dwell: the sign of the last slew that moved its input
+        beyond :data:`HYSTERESIS_THRESHOLD` (+1 rose, −1 fell, 0 before any such slew), over every
+        position the platform visited before the dwell, in the nominal geometry
+        (:func:`slew_directions`; dwells left out by the checks and the dwells of an earlier stage
+        included, :func:`dwells_from_dataset`).  :class:`DwellProblem` uses it as it is: the
+        threshold (about 3.5′ of tilt) makes it independent of the arcsecond-level geometry the fit
+        estimates.
     labels : tuple of str
         Name of each position.
     base_attitude : tuple
@@ -51,8 +57,9 @@ class DwellSet:
     noise : dict
         How ``sigma`` was measured (method, per-axis floors ...).
     initial_readings : tuple or None
-        Angle-sensor readings before the first command (for the slew into the first
-        position); None: unknown, no slew direction for the first position.
+        Angle-sensor readings before the first command of these dwells (the slew into the first
+        position); None: unknown.  Where the platform stood before the dwells: the start of
+        :meth:`following` (proposals of further positions, :mod:`stableins.discovery.separation`).
     slow_covariance : ndarray (3, P, P), optional
         Covariance of the dwell means beyond their white 1σ, per axis: slow noise (bias
         instability, random walk) correlated between dwells, and quantization
@@ -61,6 +68,10 @@ class DwellSet:
     reading_slope, reading_slope_sigma : ndarray (P, 3), optional
         Slope of each angle reading within the dwell [rad/s] and its 1σ: platform drift
         (:mod:`stableins.discovery.drift`).
+    dwell_mode : DwellMode
+        How the platform was held during the dwells (the data files' metadata).
+    latitude : float
+        Site latitude [rad] (the Earth rate of the torqued dwells).
     """
 
     readings: NDArray[np.float64]
@@ -79,6 +90,8 @@ class DwellSet:
     slow_covariance: NDArray[np.float64] | None = None
     reading_slope: NDArray[np.float64] | None = None
     reading_slope_sigma: NDArray[np.float64] | None = None
+    dwell_mode: DwellMode = DEFAULT_DWELL_MODE
+    latitude: float = 0.0
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -97,6 +110,30 @@ class DwellSet:
     def n_positions(self) -> int:
         """Number of dwells (positions)."""
         return self.readings.shape[0]
+
+    @property
+    def final_readings(self) -> tuple[float, float, float]:
+        """Mean readings of the last dwell (where the platform stands after these dwells) [rad]."""
+        last = self.readings[-1]
+        return (float(last[0]), float(last[1]), float(last[2]))
+
+    def nominal_specific_force(self) -> NDArray[np.float64]:
+        """``f^p`` of every dwell in the nominal geometry (no zero offsets, no equipment effects) [m/s²]."""
+        from stableins.platform import platform_specific_force
+
+        return platform_specific_force(self.readings, self.gravity, base_attitude=self.base_attitude, configuration=self.configuration)
+
+    def following(self, previous: DwellSet) -> DwellSet:
+        """Return these dwells as visited after ``previous``: the hysteresis states continue from its last dwell.
+
+        For positions proposed after the data (:mod:`stableins.discovery.separation`): the first slew starts at the
+        last dwell of ``previous`` with its hysteresis state (:func:`slew_directions`).
+        """
+        from dataclasses import replace
+
+        start = previous.nominal_specific_force()[-1]
+        states = slew_directions(self.nominal_specific_force(), start, state=previous.slew_direction[-1])
+        return replace(self, slew_direction=states, initial_readings=previous.final_readings)
 
     def subset(self, index: ArrayLike) -> DwellSet:
         """Return the dwells at ``index`` (positions to leave out, cross-validation)."""
@@ -118,6 +155,8 @@ class DwellSet:
             None if self.slow_covariance is None else self.slow_covariance[:, i][:, :, i],
             None if self.reading_slope is None else self.reading_slope[i],
             None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
+            self.dwell_mode,
+            self.latitude,
         )
 
 
@@ -141,9 +180,15 @@ def dwells_from_dataset(
     of slow bias wander between dwells exactly as the device stages do
     (:func:`stableins.estimators.dwell.slow_covariance`); None measures it from the dwells as
     ``stableins calibrate device`` does (:func:`stableins.estimators.device.noise_from_dwells`).
+
+    The hysteresis state of each dwell (``slew_direction``) follows every position the platform visited from
+    ``initial_readings`` on: the dwells the checks leave out, and those of an earlier stage in the data (give the
+    coarse file with the fine one: a fine stage starts in the state the coarse stage left).  Files whose clocks
+    overlap are separate sessions, each starting at ``initial_readings``.
     """
     from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
+
     if not datasets:
         raise InputError("no data files given", field="DATA")
     site = datasets[0].metadata
@@ -157,9 +202,15 @@ def dwells_from_dataset(
         pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
     if stage is None:
         stage = "fine" if any(d.stage == "fine" for d, _ in pairs) else "coarse"
-    pairs = sorted(((d, s) for d, s in pairs if d.stage == stage), key=lambda pair: float(pair[0].time[0]) if len(pair[0].time) else 0.0)
-    if not pairs:
+    pairs = sorted(pairs, key=lambda pair: _start_time(pair[0]))
+    ours = [p for p in pairs if p[0].stage == stage]
+    if not ours:
         raise InputError(f"no {stage}-stage dwells in the data", field="stage", expected="rows with stage 'coarse' or 'fine'")
+    first, last = _start_time(ours[0][0]), _start_time(ours[-1][0])
+    if any(first <= _start_time(d) <= last for d, _ in pairs if d.stage != stage):
+        pairs = ours  # the other stage's clock overlaps this one's: separate sessions, each starting afresh
+    visited = _visited_states(pairs, site, initial_readings)  # every dwell the platform visited, left-out ones included
+    pairs, visited = ours, [v for p, v in zip(pairs, visited, strict=True) if p[0].stage == stage]
     raw = [d for d, _ in pairs]
     summaries = [s for _, s in pairs]
     keep = [k for k, sm in enumerate(summaries) if sm.usable]
@@ -192,10 +243,36 @@ def dwells_from_dataset(
         initial_readings=initial_readings,
         noise=noise,
         info={"left_out": left_out, "stage": stage},
+        states=np.array([visited[k] for k in keep]),
     )
 
 
-def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_readings, noise, info) -> DwellSet:
+def _start_time(dwell) -> float:
+    return float(dwell.time[0]) if len(dwell.time) else 0.0
+
+
+def _visited_states(pairs: Sequence, site: SiteMetadata, initial_readings: tuple[float, float, float] | None) -> list[NDArray[np.float64]]:
+    """Hysteresis state at each raw dwell of ``pairs`` (time order, every stage): the platform's whole visit history.
+
+    The truth simulator's state carries over every command of the session (:func:`stableins.simulator.effects.hysteresis_state`):
+    a fine stage starts in the state the coarse stage left, and a dwell the checks leave out was visited all the same.
+    """
+    from stableins.platform import platform_specific_force
+
+    s1, s2, s3, s4 = site.gimbal_senses
+    configuration = GimbalConfiguration((s1, s2, s3, s4))
+    yaw, pitch, roll = site.base_attitude
+    attitude = (yaw, pitch, roll)
+    readings = []
+    for d, summary in pairs:
+        angles = np.asarray(d.angles, dtype=float).reshape(-1, 3)
+        readings.append(angles.mean(axis=0) if len(angles) else np.asarray(summary.angles, dtype=float))
+    f = platform_specific_force(np.array(readings), site.gravity, base_attitude=attitude, configuration=configuration)
+    start = None if initial_readings is None else _initial(initial_readings, site.gravity, attitude, configuration)
+    return list(slew_directions(f, start))
+
+
+def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_readings, noise, info, states=None) -> DwellSet:
     """Return a :class:`DwellSet` from the device stage's dwell summaries (the one dwell-mean uncertainty) and per-dwell raw extras.
 
     ``extras``: per dwell ``(time, time_since_command, temperature − reference, angles)`` of the
@@ -226,7 +303,7 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
         time=np.array([float(np.mean(t)) for t, *_ in extras]),
         time_since_command=np.array([float(np.mean(tc)) for _, tc, _, _ in extras]),
         temperature=np.array([float(np.mean(temp)) for _, _, temp, _ in extras]),
-        slew_direction=slew_directions(nominal, start),
+        slew_direction=slew_directions(nominal, start) if states is None else np.asarray(states, dtype=float).reshape(-1, 3),
         labels=tuple(labels),
         base_attitude=base_attitude,
         configuration=configuration,
@@ -240,6 +317,8 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
         slow_covariance=slow_covariance(summaries, noise),
         reading_slope=np.array(slopes),
         reading_slope_sigma=np.array(slope_sigma),
+        dwell_mode=site.dwell_mode,
+        latitude=float(site.latitude),
     )
 
 
@@ -250,7 +329,11 @@ HYSTERESIS_THRESHOLD = 1e-2
 
 
 def slew_directions(
-    specific_force_platform: ArrayLike, initial: ArrayLike | None = None, tolerance: float = HYSTERESIS_THRESHOLD
+    specific_force_platform: ArrayLike,
+    initial: ArrayLike | None = None,
+    tolerance: float = HYSTERESIS_THRESHOLD,
+    *,
+    state: ArrayLike | None = None,
 ) -> NDArray[np.float64]:
     """Hysteresis state of each axis: sign of the last slew that moved its input by more than ``tolerance``.
 
@@ -258,19 +341,21 @@ def slew_directions(
     as it was (the input did not travel; nothing reverses the hysteresis loop).  This
     makes the state independent of arcsecond-level geometry such as the unobservable
     zero offset ``θ10``.  ``initial`` is ``f^p`` at the initial readings, before the first
-    command: the first slew's change is measured from it; the state is 0 until a slew moves
-    the input beyond ``tolerance`` (with ``initial=None`` the first dwell sets no state).
+    command: the first slew's change is measured from it; ``state`` is the state there (default 0:
+    no slew has moved the input yet; the truth simulator starts so,
+    :func:`stableins.simulator.effects.hysteresis_state`).  With ``initial=None`` the first dwell
+    sets no state.  The recursion is the simulator's: ``h⁺ = sign(Δf)`` where ``|Δf| > tolerance``, else ``h``.
     """
     f = np.asarray(specific_force_platform, dtype=float)
     before = f[:1] if initial is None else np.asarray(initial, dtype=float).reshape(1, 3)
     d = np.diff(f, axis=0, prepend=before)
-    state = np.zeros_like(f)
-    current = np.zeros(f.shape[1:])
+    out = np.zeros_like(f)
+    current = np.zeros(f.shape[1:]) if state is None else np.asarray(state, dtype=float).reshape(f.shape[1:])
     for k in range(f.shape[0]):
         moved = np.abs(d[k]) > tolerance
         current = np.where(moved, np.sign(d[k]), current)
-        state[k] = current
-    return state
+        out[k] = current
+    return out
 
 
 def dwell_means(

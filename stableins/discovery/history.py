@@ -431,11 +431,22 @@ class Discovery:
         """
         from stableins.discovery.drift import drift_problem
         from stableins.discovery.ranking import rank
+        from stableins.dwell_mode import DwellMode
         from stableins.units import DisplayUnit
 
         dwells = getattr(self.problem, "dwells", None)
         if dwells is None or dwells.reading_slope is None:
             raise ValueError("these data carry no reading slopes (device dwells are needed)")
+        if dwells.dwell_mode is not DwellMode.EARTH_RATE:
+            self.drift_notes: tuple[str, ...] = (
+                f"dwell mode {dwells.dwell_mode}: the drift candidates are ranked on dwells torqued at the Earth rate only "
+                + (
+                    "(caged dwells carry no gyro information)"
+                    if dwells.dwell_mode is DwellMode.CAGED
+                    else "(the gyro stage, stableins.estimators.gyro_sensitivity.gyro_from_datasets, models inertially held dwells)"
+                ),
+            )
+            return None
         values = self.result.as_dict()
         offsets = [values.get(i, 0.0) for i in GIMBAL_IDS]
         problem, null, terms, notes = drift_problem(
@@ -480,10 +491,21 @@ class Discovery:
         return self.result
 
     def auto(self, max_steps: int = 5) -> History:
-        """Add the best flagged, identifiable candidate until none is flagged (or ``max_steps``)."""
+        """Add candidates one at a time, greedily, until χ² is in its band and nothing is flagged (or ``max_steps``).
+
+        Each step adds the best candidate if it is flagged (significant and explaining the residual alone), or, while
+        χ² rejects the model (:attr:`Ranking.outside_library`), if it is significant (F-test p below the Bonferroni
+        level): two effects present at once explain the residual only together.  Greedy: with an effect outside the
+        library the steps add the library effects that take part of it; the last step's χ²_ν says whether the
+        model reached its band (:meth:`History.report`).
+        """
         for _ in range(max_steps):
-            best = self.rank(refit_top=1, propose=False).best
-            if best is None or not best.flagged:
+            ranking = self.rank(refit_top=1, propose=False)
+            best = ranking.best
+            if best is None:
+                break
+            significant = best.identifiable and best.p_value < ranking.alpha / ranking.n_tested
+            if not (best.flagged or (ranking.outside_library and significant)):
                 break
             self.add(best.term)
         return self.history

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import AXES
-from stableins.discovery.dwells import DwellSet, slew_directions
+from stableins.discovery.dwells import DwellSet
 from stableins.errormodel import ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.details import StageDetails
@@ -139,7 +139,7 @@ class DwellProblem:
         every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
         """
         from stableins.errormodel import GIMBAL_IDS
-        from stableins.platform import KINEMATIC_IDS, platform_specific_force, specific_force_and_jacobian
+        from stableins.platform import KINEMATIC_IDS, specific_force_and_jacobian
 
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
@@ -155,21 +155,11 @@ class DwellProblem:
             configuration=d.configuration,
             ids=kin_ids,
         )
-        initial = None
-        if d.initial_readings is not None:
-            initial = platform_specific_force(
-                np.asarray(d.initial_readings, dtype=float),
-                d.gravity,
-                zero_offsets=offsets,
-                base_attitude=d.base_attitude,
-                effects=effects,
-                configuration=d.configuration,
-            )
         inputs = TermInputs(
             f_p,
             temperature=d.temperature,
             time=d.time,
-            slew_direction=slew_directions(f_p, initial),
+            slew_direction=d.slew_direction,  # the visit history's states (DwellSet.slew_direction)
             angular_rate=np.zeros_like(f_p),
             angular_acceleration=np.zeros_like(f_p),
             # named arrays (TermInputs.extra): the Jacobian's columns and, as an array of strings, the ids they belong to

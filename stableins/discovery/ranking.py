@@ -21,7 +21,10 @@ parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
   aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (``|corr| > 0.99``) cannot be
   told apart from each other with these data; they are reported together.
 * **Flagging** uses a Bonferroni family-wise false-alarm level ``α``: a candidate is flagged
-  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates.
+  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates, *and* adding it
+  brings ``χ²_ν`` into its 95 % band (:func:`stableins.discovery.scores.explains`): a candidate is named only
+  if it explains the residual.  When ``χ²`` rejects the model and no candidate explains it, the effect is
+  outside the library (:attr:`Ranking.outside_library`; its signature: :mod:`stableins.discovery.signature`).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from stableins.discovery.scores import (
     CandidateScore,
     candidate_columns,
     effect_statistics,
+    explains,
     refit,
 )
 from stableins.errormodel import ErrorModel, Term
@@ -113,7 +117,8 @@ class Ranking:
         model = ErrorModel(self.result.terms)
         lines = [
             f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
-            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates",
+            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates; * named: significant and bringing "
+            "χ²_ν into its 95 % band",
             f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δobs|':>13}  identifiable / aliases",
         ]
         for k, c in enumerate(self.candidates[:top], 1):
@@ -123,6 +128,12 @@ class Ranking:
             ident = "yes" if c.identifiable else ("not excited" if not c.excited else "NO: aliases " + c.alias_text(model))
             if c.confused_with:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
+            if c.identifiable and c.p_value < self.alpha / self.n_tested and not c.explains:
+                ident += (
+                    f"; significant, but with it {', '.join(c.leaves)} still significant: not named"
+                    if c.leaves
+                    else f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
+                )
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
                 f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
@@ -138,26 +149,46 @@ class Ranking:
     def __str__(self) -> str:
         return self.report()
 
+    @property
+    def p_value(self) -> float:
+        """``P(χ² ≥ observed)`` of the fit the candidates are ranked against (NaN without degrees of freedom)."""
+        from scipy import stats
+
+        nu = self.result.dof
+        return float(stats.chi2.sf(self.result.chi2, nu)) if nu > 0 else float("nan")
+
+    @property
+    def outside_library(self) -> bool:
+        """Whether χ² rejects the model and no candidate explains it (the residual is outside the library).
+
+        Rejected: ``P(χ² ≥ observed)`` below the lower limit of :data:`~stableins.discovery.diagnostics.CONSISTENT_P_VALUES`;
+        explained: some candidate is flagged (:func:`stableins.discovery.scores.explains`).
+        """
+        from stableins.discovery.diagnostics import CONSISTENT_P_VALUES
+
+        return self.p_value < CONSISTENT_P_VALUES[0] and not self.flagged
+
+    def outside_text(self) -> str:
+        """Why the residual is outside the library, in words: χ²_ν, P, and what the best candidate would leave."""
+        head = f"χ²_ν = {_chi2_red(self.result):.3g} (ν = {self.result.dof}, P = {self.p_value:.2g}) and no library effect explains it"
+        best = next((c for c in self.candidates if c.identifiable), None)
+        if best is None:
+            return head
+        return f"{head} (the best, {best.id}, would leave χ²_ν = {best.chi2_red_with:.3g}, above its 95 % band)"
+
     def next_step(self) -> str:
         """Return what to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).
 
         The best flagged candidate: add it (and whether a calibration can carry it, :func:`stableins.discovery.library.calibration_limit`),
         or how to tell it from the candidates it cannot be told from; nothing flagged: whether χ²_ν is at the noise floor.
         """
-        from scipy import stats
-
         from stableins.discovery.library import LIBRARY, calibration_limit
 
         best = next((c for c in self.candidates if c.flagged), None)
         if best is None:
-            nu = self.result.dof
-            p = float(stats.chi2.sf(self.result.chi2, nu)) if nu > 0 else float("nan")
-            if not p < 0.005:
-                return "nothing flagged and χ²_ν at the noise floor: the model is complete for these data; nothing to add"
-            return (
-                f"nothing flagged although χ²_ν = {self.result.chi2_red:.2f} is above the noise floor (p = {p:.2g}): look at the largest "
-                "residuals (a disturbed dwell?) and the noise model (slow noise between dwells) before adding terms"
-            )
+            if self.outside_library:
+                return f"outside the library: {self.outside_text()}; no certificate until it is understood"
+            return "nothing flagged and χ²_ν at the noise floor: the model is complete for these data; nothing to add"
         value, sigma = best.estimate_engineering
         from stableins.display import unit_text, value_sigma
 
@@ -373,8 +404,46 @@ def rank(
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
-    flagged = [CandidateScore(**{**c.__dict__, "flagged": bool(c.identifiable and c.p_value < alpha / n_tested)}) for c in scores]
+    flagged = []
+    index = {t.id: k for k, t in enumerate(terms)}
+    for c in scores:
+        after, explained = explains(rss0, c.statistic, nu) if c.identifiable else (float("nan"), False)
+        significant = bool(c.identifiable and c.p_value < alpha / n_tested)
+        remaining: tuple[int, ...] = ()
+        if significant and explained:
+            remaining = _still_significant(index[c.id], z_perp, r, identifiable, nu=nu, level=alpha / n_tested)
+        alone = explained and not remaining
+        named = {"flagged": significant and alone, "chi2_red_with": after, "explains": alone}
+        flagged.append(CandidateScore(**{**c.__dict__, **named, "leaves": tuple(terms[j].id for j in remaining)}))
     return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
+
+
+def _still_significant(
+    k: int, z_perp: NDArray[np.float64], r: NDArray[np.float64], identifiable: NDArray[np.bool_], *, nu: int, level: float
+) -> tuple[int, ...]:
+    r"""Return the candidates still significant once candidate ``k`` is added: then ``k`` alone does not explain the residual.
+
+    One Gauss–Newton step: with ``u = z⊥_k/‖z⊥_k‖`` the residual becomes ``r' = r − u uᵀr`` and each other column
+    ``z'_j = z⊥_j − u uᵀz⊥_j``; ``ΔRSS_j = (z'_jᵀr')²/‖z'_j‖²`` against ``F(1, ν − 2)``, significant below the same
+    Bonferroni level.  A column ``k`` takes (nearly) whole (``‖z'_j‖ < 1e-3 ‖z⊥_j‖``: indistinguishable) is skipped.
+    """
+    from scipy import stats
+
+    u = z_perp[:, k] / np.linalg.norm(z_perp[:, k])
+    rest = r - u * float(u @ r)
+    columns = z_perp - np.outer(u, u @ z_perp)
+    norms = np.linalg.norm(columns, axis=0)
+    rss1 = float(rest @ rest)
+    dof = max(nu - 2, 1)
+    out = []
+    for j in np.flatnonzero(identifiable):
+        if j == k or norms[j] < 1e-3 * max(float(np.linalg.norm(z_perp[:, j])), 1e-300):
+            continue
+        delta = float(columns[:, j] @ rest) ** 2 / norms[j] ** 2
+        if float(stats.f.sf(delta / max((rss1 - delta) / dof, 1e-300), 1, dof)) < level:
+            out.append(int(j))
+    return tuple(out)
+
 
 
 def _separability(

@@ -23,6 +23,10 @@ IDENTIFIABLE_TOLERANCE = 1e-3
 EXCITATION_TOLERANCE = 0.05
 #: ``|corr|`` of projected columns above which two candidates cannot be told apart.
 CONFUSION_CORRELATION = 0.99
+#: The band ``χ²_ν`` must come back into for a candidate to explain the residual: its two-sided 95 % range under the model
+#: with the candidate (``ν − 1`` degrees of freedom); a candidate is *named* (flagged) only if adding it brings ``χ²``
+#: to or below the band's upper edge (:func:`explains`).
+EXPLAINED_BAND = 0.95
 
 
 @dataclass(frozen=True)
@@ -62,6 +66,15 @@ class CandidateScore:
         Refit only: shift of each model parameter [SI] and in units of its 1σ.
     advice : str
         What would separate the effect (when not identifiable) or confirm it.
+    flagged : bool
+        Significant at the family-wise level (Bonferroni) *and* explaining the residual (``explains``).
+    chi2_red_with : float
+        ``χ²_ν`` of the fit with the effect added: ``(χ² − ΔRSS)/(ν − 1)`` (NaN when not identifiable).
+    explains : bool
+        Whether the effect alone explains the residual: adding it brings ``χ²_ν`` into its 95 % band
+        (:data:`EXPLAINED_BAND`, :func:`explains`) and leaves no other candidate significant (``leaves`` empty).
+    leaves : tuple of str
+        The candidates still significant once this one is added (the residual is not this effect alone).
     """
 
     id: str
@@ -81,6 +94,9 @@ class CandidateScore:
     shifts: dict = field(default_factory=dict)
     advice: str = ""
     flagged: bool = False
+    chi2_red_with: float = float("nan")
+    explains: bool = False
+    leaves: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         from stableins.display import number, unit_text, value_sigma
@@ -131,8 +147,31 @@ class CandidateScore:
             "confused_with": list(self.confused_with),
             "refit": self.refit,
             "flagged": self.flagged,
+            "chi2_red_with": _finite(self.chi2_red_with),
+            "explains": self.explains,
+            "leaves": list(self.leaves),
             "advice": self.advice,
         }
+
+
+def band_upper(nu: int, level: float = EXPLAINED_BAND) -> float:
+    """Upper edge of the two-sided ``level`` range of ``χ²_ν`` on ``nu`` degrees of freedom: ``χ²_{(1+level)/2}(ν)/ν``."""
+    from scipy import stats
+
+    return float(stats.chi2.ppf(0.5 + level / 2.0, nu) / nu) if nu > 0 else float("inf")
+
+
+def explains(chi2_before: float, delta_rss: float, nu: int) -> tuple[float, bool]:
+    r"""``χ²_ν`` with an effect added and whether it lies in its 95 % band (at or below the upper edge).
+
+    .. math:: \chi^2_{\nu,1} = \frac{\chi^2_0 - \Delta RSS}{\nu - 1} \le \frac{\chi^2_{0.975}(\nu - 1)}{\nu - 1}
+
+    A value below the band is not a failure to explain (the noise floor is then overstated).  ``chi2_before`` is the
+    whitened χ² of the model (``ν`` degrees of freedom), ``delta_rss`` the fall the effect brings (refit or one step).
+    """
+    dof = max(nu - 1, 1)
+    after = max(chi2_before - delta_rss, 0.0) / dof
+    return float(after), bool(after <= band_upper(dof))
 
 
 def _finite(x: float) -> float | None:

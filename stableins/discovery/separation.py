@@ -122,7 +122,7 @@ def separation(
     z0 = whiten(problem, result, problem.candidate_columns(terms, result))
     out = []
     for name in proposals:
-        extra = DwellProblem(_proposal(problem.dwells, name))
+        extra = DwellProblem(_proposal(problem.dwells, name).following(problem.dwells))  # visited after the data
         x = np.vstack([x0, extra.whiten(extra.design(result))])
         z = np.vstack([z0, extra.whiten(extra.candidate_columns(terms, result))])
         q, _ = np.linalg.qr(x)

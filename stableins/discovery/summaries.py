@@ -144,9 +144,16 @@ class CandidateSummary:
     refit : bool
         Whether the numbers come from a full refit.
     flagged : bool
-        Whether the effect is flagged at the family-wise false-alarm level.
+        Whether the effect is named: significant at the family-wise false-alarm level and explaining the residual.
     advice : str
         What would separate or confirm it.
+    chi2_red_with : float
+        ``χ²_ν`` with the effect added (NaN when not identifiable).
+    explains : bool
+        Whether it alone explains the residual: adding it brings ``χ²_ν`` into its 95 % band
+        (:func:`stableins.discovery.scores.explains`) and leaves no other candidate significant.
+    leaves : tuple of str
+        The candidates still significant once it is added.
     """
 
     id: str
@@ -166,6 +173,9 @@ class CandidateSummary:
     refit: bool
     flagged: bool
     advice: str
+    chi2_red_with: float = math.nan
+    explains: bool = False
+    leaves: tuple[str, ...] = ()
 
     @classmethod
     def from_ranking(cls, ranking: Ranking) -> tuple[CandidateSummary, ...]:
@@ -193,6 +203,9 @@ class CandidateSummary:
             "confused_with": list(self.confused_with),
             "refit": self.refit,
             "flagged": self.flagged,
+            "chi2_red_with": finite(self.chi2_red_with),
+            "explains": self.explains,
+            "leaves": list(self.leaves),
             "advice": self.advice,
         }
 
@@ -233,6 +246,10 @@ class CandidateSummary:
             refit=flag("refit"),
             flagged=flag("flagged"),
             advice=r.text(r.get(item, "advice", where), join(where, "advice")),
+            # documents written before these keys existed read as they were meant: a flagged candidate explained
+            chi2_red_with=r.number(item.get("chi2_red_with"), join(where, "chi2_red_with")),
+            explains=r.boolean(item.get("explains", flag("flagged")), join(where, "explains")),
+            leaves=r.texts(item.get("leaves", []), join(where, "leaves")),
         )
 
 

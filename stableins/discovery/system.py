@@ -62,9 +62,9 @@ class SystemDiagnosis:
     upper_model, lower_model : NoiseModel
         The same with the slow terms (bias instability, random walk) at their upper and lower limits.
     diagnosis : Diagnosis
-        Residuals against the floor under ``noise_model``; its p-value is the verdict over the allowed models (see
-        the module docstring): the upper model's ``P(χ² ≥ observed)`` when that is below ½, the lower model's when that
-        is above ½, else ½.
+        Residuals against the floor under ``noise_model``, with ``P(χ² ≥ observed)`` under it (a continuous function of
+        the χ²_ν printed beside it) and its range over the allowed models (``p_range``: the upper model's, the lower
+        model's), on which the verdict rests (see the module docstring).
     chi2_range : (float, float)
         ``χ²_ν`` with the slow terms at their upper and at their lower limits.
     ranking : Ranking
@@ -104,7 +104,10 @@ class SystemDiagnosis:
     @property
     def alarm(self) -> bool:
         """Anything that says the model is missing something: the verdict, a flagged candidate or a flagged harmonic."""
-        return (not self.diagnosis.consistent) or bool(self.ranking.flagged) or bool(self.flagged_harmonics)
+        from stableins.discovery.diagnostics import FitVerdict
+
+        too_high = self.diagnosis.fit_verdict is FitVerdict.ABOVE
+        return too_high or bool(self.ranking.flagged) or bool(self.flagged_harmonics)
 
     def report(self, top: int = 10) -> str:
         """Return the noise model, the diagnosis with its verdict, the ranking and the harmonic tests."""
@@ -229,10 +232,11 @@ def diagnose_system_record(
     nu = main.result.dof
     from scipy.stats import chi2 as chi2_dist
 
+    # the verdict over the allowed models: too high needs even the upper model's P below the limit, too low the lower
+    # model's above it (Diagnosis.fit_verdict); P printed is the measured model's, the one of the χ²_ν printed
     p_hi = float(chi2_dist.sf(chi2_hi * nu, nu))
     p_lo = float(chi2_dist.sf(chi2_lo * nu, nu))
-    p = p_hi if p_hi < 0.5 else (p_lo if p_lo > 0.5 else 0.5)
-    diagnosis = replace(diagnosis, p_value=p)
+    diagnosis = replace(diagnosis, p_range=(p_hi, p_lo))
     ranking = sessions["upper"].rank(refit_top=1, propose=False)
     spectra = residual_spectra(binned.time, sessions["upper"].diagnose(), problem=sessions["upper"].problem)
     return SystemDiagnosis(

@@ -16,15 +16,26 @@ def is_deterministic(driver: Any) -> bool:
 
 
 def open_driver(
-    spec: str, *, seed: int | None = None, unit: str | None = None, sample_rate: float | None = None, timeout: float = 10.0
+    spec: str,
+    *,
+    seed: int | None = None,
+    unit: str | None = None,
+    sample_rate: float | None = None,
+    timeout: float = 10.0,
+    truth: Any = None,
 ) -> PlatformDriver:
     """Open the driver named by ``spec``.
 
     ``sim`` builds the embedded simulated platform (:mod:`stableins.simulator`) with a truth
-    drawn from ``seed`` and serial number ``unit``; it is deterministic: the same seed and
-    the same sequence of operations give the same samples.
+    drawn from ``seed`` and serial number ``unit``, or with ``truth`` (a
+    :class:`~stableins.simulator.truth.Truth`, its noise drawn from ``seed``); it is deterministic:
+    the same truth, the same seed and the same sequence of operations give the same samples.
     """
+    if truth is not None and spec != "sim":
+        raise InputError("a known truth is simulated by the simulated platform only", field="--truth", expected="--driver sim")
     if spec == "sim":
+        if truth is not None:
+            return SimulatedDriver(truth, truth.seed if seed is None else seed)
         return simulated_platform(seed=0 if seed is None else seed, unit=unit, sample_rate=sample_rate)
     if spec.startswith("tcp://"):
         from stableins.drivers.tcp import connect
@@ -37,7 +48,7 @@ def open_driver(
     raise InputError(f"unknown driver {spec!r}", field="driver_spec", expected=SPEC_HELP)
 
 
-def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> PlatformDriver:
+def simulated_platform(seed: int, unit: str | None = None, sample_rate: float | None = None) -> SimulatedDriver:
     """Open the embedded simulated platform: truth drawn from ``seed``, noise from ``seed``."""
     try:
         from stableins.simulator.truth import SimulatedSite, Truth

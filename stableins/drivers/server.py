@@ -19,9 +19,59 @@ import zlib
 from collections.abc import Callable
 from typing import Any, TextIO
 
+import numpy as np
+
 from stableins.drivers.base import PlatformDriver
 
-PROTOCOL_GREETING = "STABLEINS-PLATFORM 1"
+#: The protocol's name, first word of the greeting ``STABLEINS-PLATFORM <version> [<capability> ...]``.
+PROTOCOL_NAME = "STABLEINS-PLATFORM"
+#: Version of docs/protocol.md this server speaks (1: device level only; 2: the greeting states capabilities).
+PROTOCOL_VERSION = 2
+#: Capability of a platform whose INS streams its navigation outputs (``REC`` and ``NAV``, docs/protocol.md).
+NAV_CAPABILITY = "NAV"
+#: The greeting of a version-1 platform (no capabilities).
+PROTOCOL_GREETING = f"{PROTOCOL_NAME} 1"
+#: Order of the values of an ``N`` line (the system-level record's columns, :data:`stableins.schema.SYSTEM_COLUMNS`).
+NAV_FIELDS = (
+    "time",
+    "angle_platform",
+    "angle_inner",
+    "angle_middle",
+    "f_x",
+    "f_y",
+    "f_z",
+    "velocity_north",
+    "velocity_east",
+    "velocity_down",
+    "roll",
+    "pitch",
+    "heading",
+    "temperature",
+)
+
+
+def greeting(capabilities: tuple[str, ...]) -> str:
+    """Return the greeting of a version-2 platform with ``capabilities``."""
+    return " ".join((PROTOCOL_NAME, str(PROTOCOL_VERSION), *capabilities))
+
+
+def turns_to_json(turns: Any) -> list[dict[str, Any]]:
+    """Return the indexing turns of a static record as the JSON of a ``REC`` request."""
+    return [{"start": t.start, "angle": t.angle, "axis": t.axis.value, "rate": t.rate} for t in turns]
+
+
+def turns_from_json(items: Any) -> tuple[Any, ...]:
+    """Return the turns of a ``REC`` request (ValueError on anything else)."""
+    from stableins.turns import IndexAxis, PlatformTurn
+
+    if not isinstance(items, list):
+        raise ValueError("turns must be a list")
+    turns = []
+    for item in items:
+        if not isinstance(item, dict) or set(item) != {"start", "angle", "axis", "rate"}:
+            raise ValueError("a turn has start, angle, axis and rate")
+        turns.append(PlatformTurn(float(item["start"]), float(item["angle"]), IndexAxis(item["axis"]), float(item["rate"])))
+    return tuple(turns)
 #: The server binds this address only: a calibration platform is not a network service.
 LOOPBACK = "127.0.0.1"
 
@@ -51,19 +101,35 @@ def checksum(lines: list[str]) -> str:
 class _Session:
     """One client connection: reads requests, answers them from the driver."""
 
-    def __init__(self, driver: PlatformDriver, reader: TextIO, writer: TextIO, log: Callable[[str], None], realtime: float = 0.0) -> None:
+    def __init__(
+        self,
+        driver: PlatformDriver,
+        reader: TextIO,
+        writer: TextIO,
+        log: Callable[[str], None],
+        realtime: float = 0.0,
+        *,
+        record: dict[str, Any] | None = None,
+    ) -> None:
         self.driver = driver
         self.reader = reader
         self.writer = writer
         self.log = log
         self.realtime = realtime
+        #: the static record in progress (its chunk iterator), kept by the server across connections
+        self.record: dict[str, Any] = record if record is not None else {}
 
     def send(self, text: str) -> None:
         self.writer.write(text)
         self.writer.flush()
 
+    @property
+    def capabilities(self) -> tuple[str, ...]:
+        """What this platform offers beyond version 1: ``NAV`` when its driver records the INS's outputs."""
+        return (NAV_CAPABILITY,) if callable(getattr(self.driver, "static_record", None)) else ()
+
     def run(self) -> None:
-        self.send(PROTOCOL_GREETING + "\n")
+        self.send(greeting(self.capabilities) + "\n")
         for line in self.reader:
             words = line.split()
             if not words:
@@ -92,6 +158,8 @@ class _Session:
             "STATUS": self._status,
             "BYE": self._bye,
         }
+        if NAV_CAPABILITY in self.capabilities:
+            handlers.update(REC=self._start_record, NAV=self._navigation)
         handler = handlers.get(verb)
         if handler is None:
             self.send(f"{request_id} ERR protocol unknown verb {verb!r}\n")
@@ -132,15 +200,56 @@ class _Session:
         self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
         return True
 
+    def _start_record(self, request_id: str, arguments: list[str]) -> bool:
+        """``REC <json>``: start a static record of the INS's outputs (``duration``, ``chunk`` [s], ``turns``)."""
+        request = json.loads(" ".join(arguments))
+        if not isinstance(request, dict) or set(request) != {"duration", "chunk", "turns"}:
+            raise ValueError("expected a JSON object with duration, chunk and turns")
+        duration, chunk = float(request["duration"]), float(request["chunk"])
+        if not (math.isfinite(duration) and duration > 0 and math.isfinite(chunk) and chunk > 0):
+            raise ValueError("duration and chunk must be positive")
+        turns = turns_from_json(request["turns"])
+        recorder = self.driver.static_record  # type: ignore[attr-defined]
+        chunks = recorder(duration, chunk, turns=turns) if turns else recorder(duration, chunk)
+        self.record.clear()
+        self.record.update(chunks=iter(chunks), sent=0)
+        self.send(f"{request_id} OK\n")
+        return True
+
+    def _navigation(self, request_id: str, arguments: list[str]) -> bool:
+        """``NAV``: the next chunk of the record in progress, ``N`` lines of the INS's outputs (time, angles, f, v, attitude, T)."""
+        chunks = self.record.get("chunks")
+        if chunks is None:
+            raise RuntimeError("no record in progress (send REC first)")
+        piece = next(chunks, None)
+        if piece is None:
+            raise RuntimeError(f"the record is complete ({self.record['sent']} samples sent)")
+        columns = [np.asarray(piece[name], dtype=float) for name in NAV_FIELDS]
+        lines = ["N " + " ".join(format_float(c[k]) for c in columns) + "\n" for k in range(len(columns[0]))]
+        self.record["sent"] += len(lines)
+        self.send(f"{request_id} OK {len(lines)}\n")
+        try:
+            self._stream(columns[0], lines)
+        except OSError:
+            raise
+        except Exception as error:  # after OK only lines of the chunk may follow: a failure drops the connection
+            raise ConnectionAbortedError(f"record failed while streaming: {error}") from error
+        self.send(f"{request_id} END {len(lines)} {checksum(lines)}\n")
+        return True
+
     def _stream(self, block: Any, lines: list[str]) -> None:
-        """Write the sample lines, paced at ``realtime`` × real time when it is positive (each sample when it is measured)."""
+        """Write the lines, paced at ``realtime`` × real time when it is positive (each sample when it is measured).
+
+        ``block``: the samples (a :class:`~stableins.samples.SampleBlock`) or their times.
+        """
         if self.realtime <= 0:
             for line in lines:
                 self.writer.write(line)
             return
-        start, first = time.monotonic(), float(block.time[0]) if len(lines) else 0.0
+        times = np.asarray(getattr(block, "time", block), dtype=float)
+        start, first = time.monotonic(), float(times[0]) if len(lines) else 0.0
         for k, line in enumerate(lines):
-            delay = (float(block.time[k]) - first) / self.realtime - (time.monotonic() - start)
+            delay = (float(times[k]) - first) / self.realtime - (time.monotonic() - start)
             if delay > 0:
                 self.writer.flush()
                 time.sleep(delay)
@@ -204,13 +313,14 @@ def serve(
     """
     platform = threading.Lock()  # one session talks to the driver at a time
     state: dict[str, Any] = {"current": None}
+    record: dict[str, Any] = {}  # the static record in progress: the platform's, it survives a reconnection
     sessions: list[threading.Thread] = []
 
     def session(connection: socket.socket, peer: tuple[str, int]) -> None:
         with platform, connection:
             if state["current"] is not connection:  # replaced before it started
                 return
-            _serve_connection(driver, connection, peer, log=log, realtime=realtime)
+            _serve_connection(driver, connection, peer, log=log, realtime=realtime, record=record)
 
     with socket.create_server((LOOPBACK, port), backlog=4) as listener:
         bound = listener.getsockname()[1]
@@ -235,14 +345,20 @@ def serve(
 
 
 def _serve_connection(
-    driver: PlatformDriver, connection: socket.socket, peer: tuple[str, int], *, log: Callable[[str], None], realtime: float
+    driver: PlatformDriver,
+    connection: socket.socket,
+    peer: tuple[str, int],
+    *,
+    log: Callable[[str], None],
+    realtime: float,
+    record: dict[str, Any] | None = None,
 ) -> None:
     """Run one client's session on ``connection`` and log how it ended."""
     connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     reader = connection.makefile("r", encoding="ascii", newline="\n", errors="replace")
     writer = connection.makefile("w", encoding="ascii", newline="\n")
     try:
-        _Session(driver, reader, writer, log, realtime).run()
+        _Session(driver, reader, writer, log, realtime, record=record).run()
     except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
         log(f"client {peer[0]}:{peer[1]} lost: {error}")
     else:

@@ -21,13 +21,14 @@ import re
 import socket
 import time
 import zlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
-from stableins.drivers.server import PROTOCOL_GREETING, format_float
+from stableins.drivers.server import NAV_CAPABILITY, NAV_FIELDS, PROTOCOL_NAME, PROTOCOL_VERSION, format_float
 from stableins.errors import InputError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
@@ -82,6 +83,8 @@ class TcpDriver:
         self._next_id = 1
         self.reconnects = 0
         self._metadata: SiteMetadata | None = None
+        #: protocol version and capabilities the platform's greeting states (docs/protocol.md)
+        self.version, self.capabilities = 0, frozenset[str]()
         self._connect()
 
     # ------------------------------------------------------------------ link
@@ -108,11 +111,11 @@ class TcpDriver:
                 self._drop()
                 last = error
                 continue
-            if greeting != PROTOCOL_GREETING:
+            try:
+                self.version, self.capabilities = parse_greeting(greeting)
+            except ValueError as error:
                 self._drop()
-                raise DriverProtocolError(
-                    f"{self.address} is not a stableins platform: it greeted with {greeting[:60]!r}, expected {PROTOCOL_GREETING!r}"
-                )
+                raise DriverProtocolError(f"{self.address} is not a stableins platform: {error}") from None
             return
         raise DriverConnectionError(f"cannot connect to the platform at {self.address} after {self.reconnect_attempts} attempts: {last}")
 
@@ -282,12 +285,112 @@ class TcpDriver:
             time=rows[:, 0].copy(), specific_force=rows[:, 1:4].copy(), angles=rows[:, 4:7].copy(), temperature=rows[:, 7].copy()
         )
 
+    def require(self, capability: str, purpose: str) -> None:
+        """Raise :class:`DriverProtocolError` naming what is missing unless the platform's greeting states ``capability``.
+
+        Called before the platform moves (a system-level run needs ``NAV``), so that a controller without it gets one
+        clear message instead of a failure in the middle of a run.
+        """
+        if capability not in self.capabilities:
+            stated = f"capabilities {' '.join(sorted(self.capabilities))}" if self.capabilities else "no capabilities"
+            raise DriverProtocolError(
+                f"the platform at {self.address} speaks protocol version {self.version} with {stated}: {purpose} needs the "
+                f"capability {capability} (docs/protocol.md, version {PROTOCOL_VERSION}: greeting "
+                f"'{PROTOCOL_NAME} {PROTOCOL_VERSION} {capability}', requests REC and NAV)"
+            )
+
+    def static_record(self, duration: float, chunk: float, turns: Any = ()) -> Iterator[dict[str, NDArray[np.float64]]]:
+        """Chunks of a static record of the INS's outputs (dicts of :data:`~stableins.drivers.server.NAV_FIELDS`), as they arrive.
+
+        ``REC`` starts the record on the platform (``turns``: the indexing it carries out during the record), then each
+        ``NAV`` brings its next chunk, checked as an ``ACQ`` is (count, numbers, times, CRC-32).  A broken link ends the
+        record (:class:`DriverConnectionError`): a record is not stitched across a gap, the run repeats it on resume.
+        """
+        import json
+
+        from stableins.drivers.server import turns_to_json
+
+        self.require(NAV_CAPABILITY, "a system-level static record (the INS's velocity and attitude outputs)")
+        request = json.dumps({"duration": float(duration), "chunk": float(chunk), "turns": turns_to_json(turns)}, allow_nan=False)
+        self._call("REC", request, retry=False)
+        rate = float(self.metadata.sample_rate)
+        total = int(round(duration * rate))
+        done = 0
+        last = -math.inf
+        while done < total:
+            columns = self._navigation_chunk(chunk, rate, last)
+            if not len(columns["time"]):
+                raise DriverProtocolError(f"{self.address} sent an empty chunk after {done} of {total} samples of the record")
+            last = float(columns["time"][-1])
+            done += len(columns["time"])
+            yield columns
+
+    def _navigation_chunk(self, chunk: float, rate: float, after: float) -> dict[str, NDArray[np.float64]]:
+        """One ``NAV`` request: the next chunk of the record, checked as it arrives."""
+        limit = int(math.ceil(ACQ_COUNT_MARGIN * chunk * rate)) + ACQ_COUNT_SLACK
+        request_id = self._next_id
+        self._next_id += 1
+        deadline = time.monotonic() + self.timeout + ACQ_TIME_FACTOR * chunk
+        width = len(NAV_FIELDS)
+        try:
+            self._send(request_id, "NAV", ())
+            count_text = self._reply(request_id, "NAV", deadline)
+            if not _COUNT.fullmatch(count_text) or int(count_text) > limit:
+                raise DriverProtocolError(
+                    f"{self.address} announced {count_text[:40]!r} navigation samples for a chunk of {chunk:g} s at {rate:g} Hz "
+                    f"(expected a whole number up to {limit})"
+                )
+            count = int(count_text)
+            rows = np.empty((count, width))
+            crc = 0
+            for k in range(count):
+                line = self._read_line(deadline)
+                crc = zlib.crc32((line + "\n").encode("ascii"), crc)
+                values = line.split(" ")
+                if len(values) != width + 1 or values[0] != "N":
+                    raise DriverProtocolError(f"{self.address} sent {line[:80]!r} as navigation sample {k + 1} of {count} (garbage)")
+                rows[k] = [_number(v, self.address, "NAV") for v in values[1:]]
+                previous = rows[k - 1, 0] if k else after
+                if not rows[k, 0] > previous:
+                    raise DriverProtocolError(
+                        f"{self.address}: navigation sample {k + 1} of {count} has time {rows[k, 0]!r} s, not after {previous!r} s"
+                    )
+            end = self._read_line(deadline).split(" ")
+            if end[:3] != [str(request_id), "END", str(count)] or len(end) != 4 or end[3] != f"{crc:08x}":
+                raise DriverProtocolError(
+                    f"{self.address}: navigation trailer {' '.join(end)[:80]!r} does not match {count} samples with CRC {crc:08x}"
+                )
+        except DriverError:
+            self._drop()
+            raise
+        return {name: rows[:, j].copy() for j, name in enumerate(NAV_FIELDS)}
+
     def close(self) -> None:
         """Close the connection (saying goodbye to the server when it is up)."""
         if self._socket is not None:
             with contextlib.suppress(DriverError):
                 self._call("BYE", retry=False)
         self._drop()
+
+
+def parse_greeting(line: str) -> tuple[int, frozenset[str]]:
+    """``STABLEINS-PLATFORM <version> [<capability> ...]`` → ``(version, capabilities)``; ValueError naming what is wrong.
+
+    Version 1 states no capabilities (device level only); version 2 states them; a later version is refused (this
+    client does not know what it changed).
+    """
+    words = line.split(" ")
+    if len(words) < 2 or words[0] != PROTOCOL_NAME or not words[1].isdigit():
+        raise ValueError(f"it greeted with {line[:60]!r}, expected '{PROTOCOL_NAME} <version> [<capability> ...]'")
+    version = int(words[1])
+    if not 1 <= version <= PROTOCOL_VERSION:
+        raise ValueError(f"it speaks protocol version {words[1][:10]}; this stableins speaks versions 1 to {PROTOCOL_VERSION}")
+    capabilities = words[2:]
+    if version == 1 and capabilities:
+        raise ValueError(f"its version-1 greeting {line[:60]!r} states capabilities (only version 2 does)")
+    if not all(c.isalnum() and c.isupper() for c in capabilities):
+        raise ValueError(f"it greeted with {line[:60]!r}: capabilities are upper-case words")
+    return version, frozenset(capabilities)
 
 
 def _number(text: str, address: str, verb: str) -> float:

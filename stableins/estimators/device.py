@@ -22,7 +22,7 @@ from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.design import describe_design
 from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.fine import calibrate_fine
+from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
 from stableins.estimators.orientation import check_orientation
@@ -470,7 +470,7 @@ def calibrate_device(
             expected_positions=fine_layout.positions,
             allow_missing=allow_missing,
             noise=noise_model,
-            extra_terms=extra_terms,
+            model=fine_model(extra_terms),
             source=f"{source} (fine)",
         )
         fine = _with_note(fine, mismatch)

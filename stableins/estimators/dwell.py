@@ -15,7 +15,7 @@ otherwise the more precise ``σ_w`` (``n − 1`` degrees of freedom instead of `
 
 Checks (:class:`~stableins.estimators.layout.DwellChecks`, from the procedure's ``[acceptance]`` table)
 flag a dwell and leave it out: too few samples to measure noise, clipped or saturated samples, a slew inside
-the dwell (angle readings move), non-finite values.
+the dwell (angle readings depart from a steady trend: a steady gyro drift is not a slew), non-finite values.
 """
 
 from __future__ import annotations
@@ -102,34 +102,39 @@ class DwellSummary:
 
 
 def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
-    """Return whether the samples rail: pinned at an extreme value, robust to coarse quantization.
+    """Return whether the samples rail: at least 3 at an extreme value within one quantization step of the range.
 
-    Two signatures, either side:
-
-    * the extreme value lies within one quantization step of the stated full-scale
-      range (``full_scale``, the procedure's ``saturation``) and is shared by at least
-      3 samples: the output sits at its range limit;
-    * the quantization is fine compared with the noise (step ≤ σ/2, σ from the median
-      absolute deviation, robust to the clipped tail) and the extreme value holds more
-      samples (at least 3 and 2 %) than the next value inward: a healthy noise tail thins
-      out outwards, a rail piles up.
-
-    With a quantization step comparable to or larger than the noise, a healthy dwell
-    takes only a few values whose counts need not thin out outwards, and a rail inside
-    the range cannot be told from it by one dwell's samples: only the first test applies.
+    Clipping is read from the converter's range only (``full_scale``, the procedure's ``saturation``,
+    or the range a raw log declares, :mod:`stableins.data.rawlog`), never from the shape of the
+    histogram: a healthy dwell of coarse integer counts takes a few values whose counts need not thin
+    out outwards (issue 26: real dwells 400–1300 counts from zero on a 16-bit converter were taken for
+    rails).  Without a finite range nothing is taken as clipped.
     """
+    if not np.isfinite(full_scale):
+        return False
     levels, counts = np.unique(x[np.isfinite(x)], return_counts=True)
     if levels.size == 0:
         return False
     step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
-    sigma = 1.4826 * float(np.median(np.abs(x - np.median(x))))
-    fine_quantization = levels.size > 2 and step <= 0.5 * sigma
-    for extreme, count, inward in ((levels[-1], counts[-1], counts[-2:-1]), (levels[0], counts[0], counts[1:2])):
-        if count >= 3 and abs(extreme) >= full_scale - max(step, 0.0) and np.isfinite(full_scale):
-            return True
-        if fine_quantization and count >= max(3, 0.02 * x.size) and count > (inward[0] if inward.size else 0):
-            return True
-    return False
+    return any(count >= 3 and abs(extreme) >= full_scale - step for extreme, count in ((levels[-1], counts[-1]), (levels[0], counts[0])))
+
+
+def steady_trend_departure(time: ArrayLike, angles: ArrayLike) -> NDArray[np.float64]:
+    """Return the peak-to-peak residual of each angle reading about its least-squares line [rad] (3,).
+
+    A platform held by its gyros turns steadily within a dwell (a gyro drift of 0.05 °/h moves a reading 30″ in
+    600 s; docs/conventions.md, "The platform during a dwell"): the dwell is still usable, and its slope is what the
+    gyro stage measures.  A slew inside the dwell is not a steady trend, so the check is on what a line does not
+    explain, not on the range.
+    """
+    t = np.asarray(time, dtype=float)
+    a = np.asarray(angles, dtype=float).reshape(t.size, -1)
+    if t.size < 3:
+        return np.ptp(a, axis=0) if t.size else np.zeros(a.shape[1])
+    x = t - t.mean()
+    sxx = float(x @ x)
+    slope = x @ (a - a.mean(axis=0)) / sxx if sxx > 0 else np.zeros(a.shape[1])
+    return np.asarray(np.ptp(a - np.outer(x, slope), axis=0), dtype=np.float64)
 
 
 def summarize_dwell(
@@ -179,12 +184,12 @@ def summarize_dwell(
     elif n >= checks.min_samples and any(_clipped(f[:, i], checks.saturation) for i in range(3)):
         axes = [ax for i, ax in enumerate("xyz") if _clipped(f[:, i], checks.saturation)]
         flags.append(f"clipped samples on axis {', '.join(axes)}: output pinned at its extreme value")
-    span = np.ptp(a, axis=0) if n > 0 else np.zeros(3)
+    span = steady_trend_departure(t, a)
     if np.any(span > checks.max_angle_span):
         gimbal = ("platform", "inner", "middle")[int(np.argmax(span))]
         flags.append(
-            f"slew inside the dwell: {gimbal} angle reading spans {span.max() / ARCSEC:.1f} arcsec "
-            f"(limit {checks.max_angle_span / ARCSEC:.1f})"
+            f"slew inside the dwell: {gimbal} angle reading departs from a steady trend by {span.max() / ARCSEC:.1f} arcsec "
+            f"peak to peak (limit {checks.max_angle_span / ARCSEC:.1f})"
         )
     with np.errstate(invalid="ignore"):
         mean = f.mean(axis=0)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.errormodel import BETA_IDS, ErrorModel, Term
+from stableins.errormodel import BETA_IDS, CORE_IDS, ErrorModel, Term
 from stableins.errors import InputError
 from stableins.estimators.design import DesignAnalysis, Gauge, aligned_null_space
 from stableins.estimators.details import UsedDwell
@@ -52,9 +52,9 @@ from stableins.status import Status
 GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
 
 
-def fine_model(extra_terms: Sequence[Term] = ()) -> ErrorModel:
-    """Scale factors, biases, installation angles and quadratic coefficients (15 terms), + ``extra_terms``."""
-    return ErrorModel.standard(nonlinear=True) + tuple(extra_terms)
+def fine_model(extra_terms: Sequence[Term] = (), *, nonlinear: bool = True) -> ErrorModel:
+    """Scale factors, biases, installation angles and quadratic coefficients (15 terms; 12 without), + ``extra_terms``."""
+    return ErrorModel.standard(nonlinear=nonlinear) + tuple(extra_terms)
 
 
 @dataclass(frozen=True)
@@ -216,7 +216,7 @@ def _check_determined(left_out: Mapping[int, str], start_design: DesignAnalysis,
     """Raise :class:`InputError` unless the usable positions determine the 12 combinations (pairs held as the gauge)."""
     if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
         raise InputError(
-            f"the usable fine-stage positions do not determine the 12 combinations: null directions involve {start_design.involved()} "
+            f"the usable fine-stage positions do not determine the model's combinations: null directions involve {start_design.involved()} "
             f"(left out: {describe_left_out(left_out)})",
             path=source,
             field="position",
@@ -232,7 +232,7 @@ def calibrate_fine(
     expected_positions: Sequence[int] | None = None,
     allow_missing: bool = False,
     noise: NoiseModel | None = None,
-    extra_terms: Sequence[Term] = (),
+    model: ErrorModel | None = None,
     source: str = "data",
 ) -> FitResult:
     """Run the fine stage: 12 determined combinations from the squared-amplitude observation.
@@ -252,10 +252,9 @@ def calibrate_fine(
     noise : NoiseModel, optional
         The instrument's noise model (slow noise correlated between dwells,
         :func:`stableins.estimators.dwell.slow_covariance`); white noise only when None.
-    extra_terms : sequence of Term
-        Additive terms estimated with the standard ones (discovered effects), starting from
-        ``coarse``.  One that the norm observation does not determine is carried through from
-        ``coarse`` with status ``unidentifiable``, like the installation-angle pairs.
+    model : ErrorModel, optional
+        Default :func:`fine_model`.  ``fine_model(extra_terms)``: discovered effects, from ``coarse``; one the norm does
+        not determine is carried through (``unidentifiable``).  ``fine_model(nonlinear=False)``: 9 combinations, no K2.
     source : str
         What the dwells were read from (named in messages).
 
@@ -266,19 +265,17 @@ def calibrate_fine(
         their determined differences are in :attr:`FitResult.combinations`.
     """
     usable, left_out, notes = screen_dwells(dwells, expected_positions, allow_missing=allow_missing, source=source, stage="fine")
-    model = fine_model(extra_terms)
-    extra_ids = tuple(t.id for t in extra_terms)
+    model = fine_model() if model is None else model
+    extra_ids = tuple(k for k in model.ids if k not in CORE_IDS)
+    combinations = 9 + sum(1 for k in model.ids if k.startswith("K2_"))
     start, coarse_sigma = _start_values(model, coarse)
     x0 = model.vector(start)[None]
     problem = _fine_problem(usable, model, gravity=gravity, noise=noise, source=source)
     if noise is not None:
         notes.append(noise.describe())
-    if len(usable) <= 12:
-        raise InputError(
-            f"only {len(usable)} usable fine-stage positions; 12 combinations need at least 13. Left out: {describe_left_out(left_out)}",
-            path=source,
-            field="position",
-        )
+    if len(usable) <= combinations:
+        need = f"{combinations} combinations need at least {combinations + 1}. Left out: {describe_left_out(left_out)}"
+        raise InputError(f"only {len(usable)} usable fine-stage positions; {need}", path=source, field="position")
     scales = np.array([t.nominal for t in model])
     _, a0 = problem.weighted(x0)
     start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, GAUGE_PREFERENCE)

@@ -2,24 +2,45 @@ r"""Gyro drift and the full gyro g-sensitivity from the angle-reading slopes wit
 
 Observation equation (derived here; Cai et al. 2016 Eq. 1 is the gyro model, not this estimator)
 ------------------------------------------------------------------------------------------------
-A stabilised platform whose gyro about platform axis ``a`` reads ``ε_a + Σ_b Dg_ab f^p_b`` too much turns at
-``w = −(ε^p + D_g f^p)`` while it holds a position (:func:`stableins.conventions.platform_drift_rate`).  The angle
-sensors measure the actual gimbal angles, so the turn is in the readings: with the exact gimbal-rate map
+How the platform is held during a dwell is the data's :class:`~stableins.dwell_mode.DwellMode` (docs/conventions.md,
+"The platform during a dwell"; :func:`stableins.conventions.dwell_platform_rate`).  A stabilised platform whose gyro
+about platform axis ``a`` reads ``ε_a + Σ_b Dg_ab f^p_b`` too much turns relative to the base at
+
+.. math::
+    \omega_{bp}^p = w + k \circ \omega_{ie}^p \ \text{(torqued at the Earth rate)}, \qquad
+    \omega_{bp}^p = w - \omega_{ie}^p \ \text{(inertially held)}, \qquad w = -(\varepsilon^p + D_g f^p)
+
+(:func:`stableins.conventions.platform_drift_rate`; ``k`` the torquers' scale-factor errors).  The angle sensors
+measure the actual gimbal angles, so the turn is in the readings: with the exact gimbal-rate map
 ``ω_bp^p = J(α) α̇`` (:meth:`stableins.platform.GimbalPlatform.angular_rate`, column ``k`` the platform rate per
 unit rate of gimbal ``k`` at the dwell's actual angles ``α = r + θ0``)
 
 .. math::
-    \dot r = J(\alpha)^{-1} w = -J(\alpha)^{-1}\,(\varepsilon^p + D_g f^p), \qquad f^p = C_n^p(\alpha)\,(0, 0, -g)^T,
+    \dot r = J(\alpha)^{-1} \omega_{bp}^p, \qquad f^p = C_n^p(\alpha)\,(0, 0, -g)^T,
 
-linear in the 12 numbers ``ε^p`` (``gyro_drift_x/y/z``) and ``D_g`` (``Dg_ab``).  The slope of each reading is a
-least-squares line over the second half of the dwell (:data:`SLOPE_SKIP`: the servo's settling transient is in
-the first part).  ``f^p`` changes within a dwell by the drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+linear in the 12 numbers ``ε^p`` (``gyro_drift_x/y/z``) and ``D_g`` (``Dg_ab``) and in the mode's nuisances
+(:attr:`SlopeGeometry.nuisance`): torqued, the three ``k`` (their columns ``J⁻¹(e_a ω_ie,a^p)``); inertially held,
+the Earth's exact turn is subtracted from the readings first (:func:`remove_earth_turn`: 15 °/h is not a line over
+a dwell) and the offsets and the base azimuth it depends on are the nuisances (finite-difference columns).  The
+nuisances are estimated with the twelve and marginalized (the twelve's covariance is the block of the joint one,
+their information the Schur complement).  Caged dwells carry no gyro information: the stage raises ``ValueError``
+saying so.  The slope of each reading is a least-squares line over the second half of the dwell
+(:data:`SLOPE_SKIP`: the servo's settling transient is in the first part).  ``f^p`` changes within a dwell by the
+drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+
+Gauge
+-----
+The numbers are in the platform frame of the device gauge ``θ10 = 0`` (docs/device-calibration.md §2): with a true
+``θ10`` the x and y indices of ``ε^p`` and ``D_g`` belong to ``p`` turned by ``θ10`` about ``z_p``
+(:func:`gauge_statement`, printed and carried in the notes).
 
 Noise model (measured, one for every σ and flag)
 ------------------------------------------------
 White angle noise per gimbal, measured in the data: the residual scatter about each dwell's line, pooled over the
 dwells used, ``σ_k² = Σ_dwells RSS / Σ_dwells (n − 2)``.  A slope's 1σ is ``σ_k / sqrt(Σ (t − t̄)²)``.  The
-fit's covariance rests on it (not scaled by χ²_ν); χ²_ν of the slopes tests the model.
+fit's covariance rests on it (not scaled by χ²_ν); χ²_ν of the slopes tests the model, and χ² beyond its 99.9 %
+quantile gives the accelerometer stages' warning (:func:`stableins.estimators.gauss_newton.goodness_of_fit_warning`:
+same rule, same wording, in the notes and :attr:`GyroSensitivityDetails.chi2_warning`).
 ``benchmarks/bench_device_gsensitivity.py`` measures the Monte Carlo rms z of the 12 numbers.
 
 What the data determine (rank report)
@@ -29,8 +50,8 @@ with ``cond J >`` :data:`MAX_CONDITION` are left out).  So the 12 numbers are de
 ``(1, f^p)`` of the dwells span ``R⁴`` — Wu's 18 positions put ``f^p`` along ``±x, ±y, ±z`` and between.  Positions
 that only turn about one axis (``f^p`` in a plane, or ``f_z`` never reversed) leave combinations free: the report
 names the null directions of the column-scaled design.  Not visible at device level at all: the mounting of the
-gyros in the platform (the frame ``p`` is defined by the gimbal kinematics), and a gyro scale factor (the
-platform is not torqued during a dwell).
+gyros in the platform (the frame ``p`` is defined by the gimbal kinematics), and a gyro scale factor beyond the
+torquers' (the platform is torqued at most at the Earth rate during a dwell).
 
 Flag
 ----
@@ -48,16 +69,27 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from stableins.conventions import AXES, DEG_PER_HOUR, DEG_PER_HOUR_PER_G, GimbalConfiguration, platform_drift_rate
+from stableins.conventions import (
+    AXES,
+    DEFAULT_GIMBALS,
+    DEG_PER_HOUR,
+    DEG_PER_HOUR_PER_G,
+    GimbalConfiguration,
+    earth_rate_nav,
+    platform_drift_rate,
+)
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
+from stableins.estimators.gauss_newton import goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood
+from stableins.platform import GIMBAL_LOCK_CONDITION, GimbalPlatform, platform_specific_force, rotation_about
 from stableins.status import Status
 
 #: Fraction of each dwell left out at its start before fitting reading slopes (servo settling).
 SLOPE_SKIP = 0.5
-#: Dwells whose gimbal-rate map is worse conditioned than this are left out (near gimbal lock).
-MAX_CONDITION = 1e3
+#: Dwells whose gimbal-rate map is worse conditioned than this are left out (near gimbal lock; the platform is caged there).
+MAX_CONDITION = GIMBAL_LOCK_CONDITION
 #: Relative singular value (column-scaled design) below which a direction counts as not determined.  A direction
 #: seen only through the arcsecond scatter of the mean readings (``f_z`` of positions that only turn the platform
 #: axis varies by 1e-9 relative) would otherwise pass as determined with a σ 1e9 times the others'.
@@ -138,7 +170,7 @@ def reading_slope(time: ArrayLike, angles: ArrayLike, skip: float = SLOPE_SKIP) 
 
 @dataclass(frozen=True, eq=False)
 class SlopeGeometry:
-    """The dwells' geometry for the reading-slope equation: gimbal-rate maps and specific force.
+    """The dwells' geometry for the reading-slope equation: gimbal-rate maps, specific force, Earth rate and the mode.
 
     Attributes
     ----------
@@ -148,11 +180,22 @@ class SlopeGeometry:
         ``f^p`` of each dwell [m/s²].
     locked : ndarray (P,) of bool
         Dwells near gimbal lock (``cond J >`` :data:`MAX_CONDITION`).
+    mode : DwellMode
+        How the platform was held during the dwells (docs/conventions.md, "The platform during a dwell").
+    earth_rate : ndarray (P, 3)
+        ``ω_ie^p`` of each dwell [rad/s].
+    nuisance : tuple of (str, ndarray (P, 3))
+        The mode's nuisance parameters and their reading-rate columns: the torquers' scale-factor errors
+        ``torquer_scale_x/y/z`` (torqued at the Earth rate), or the attitude errors the Earth rate reveals
+        (inertially held: ``theta10``, ``theta20``, ``theta30`` [rad] and the base azimuth ``azimuth_error`` [rad]).
     """
 
     rate_map: NDArray[np.float64]
     specific_force: NDArray[np.float64]
     locked: NDArray[np.bool_]
+    mode: DwellMode = DEFAULT_DWELL_MODE
+    earth_rate: NDArray[np.float64] | None = None
+    nuisance: tuple[tuple[str, NDArray[np.float64]], ...] = ()
 
     @classmethod
     def of(
@@ -163,20 +206,53 @@ class SlopeGeometry:
         zero_offsets: ArrayLike = (0.0, 0.0, 0.0),
         base_attitude: ArrayLike = (0.0, 0.0, 0.0),
         configuration: GimbalConfiguration | None = None,
+        latitude: float,
+        mode: DwellMode = DEFAULT_DWELL_MODE,
     ) -> SlopeGeometry:
-        """From the dwells' mean readings (P, 3) [rad], the zero offsets ``θ10, θ20, θ30`` and the site."""
-        from stableins.platform import DEFAULT_GIMBALS, GimbalPlatform, platform_specific_force
+        """From the dwells' mean readings (P, 3) [rad], the zero offsets ``θ10, θ20, θ30``, the site and the dwell mode.
 
+        ``latitude`` [rad] gives the Earth rate ``ω_ie^n`` of the mode's expectation (:func:`earth_rate_nav`).
+        """
         offsets = np.asarray(zero_offsets, dtype=float)
         base = np.asarray(base_attitude, dtype=float)
         config = configuration or DEFAULT_GIMBALS
-        platform = GimbalPlatform(
-            zero_offsets=(offsets[0], offsets[1], offsets[2]), configuration=config, base_attitude=(base[0], base[1], base[2])
-        )
-        actual = platform.actual_angles(np.asarray(readings, dtype=float))
-        rate_map = np.stack([platform.angular_rate(actual, np.eye(3)[k]) for k in range(3)], axis=-1)
-        f_p = platform_specific_force(readings, gravity, zero_offsets=offsets, base_attitude=base, configuration=config)
-        return cls(rate_map, f_p, ~(np.linalg.cond(rate_map) < MAX_CONDITION))
+        r = np.asarray(readings, dtype=float)
+
+        def earth_rates(offsets: NDArray[np.float64], base: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+            platform = GimbalPlatform(
+                zero_offsets=(offsets[0], offsets[1], offsets[2]), configuration=config, base_attitude=(base[0], base[1], base[2])
+            )
+            rate_map = platform.rate_map(platform.actual_angles(r))
+            omega = np.einsum("pij,j->pi", platform.dcm_nav_to_platform(r), earth_rate_nav(latitude))
+            return rate_map, omega, platform.near_gimbal_lock(platform.actual_angles(r))
+
+        rate_map, omega, locked = earth_rates(offsets, base)
+        f_p = platform_specific_force(r, gravity, zero_offsets=offsets, base_attitude=base, configuration=config)
+        safe = np.where(locked[:, None, None], np.eye(3), rate_map)
+
+        def readings_rate(platform_rate: NDArray[np.float64], maps: NDArray[np.float64] = safe) -> NDArray[np.float64]:
+            return np.where(locked[:, None], 0.0, np.linalg.solve(maps, platform_rate[..., None])[..., 0])
+
+        nuisance: list[tuple[str, NDArray[np.float64]]] = []
+        if mode is DwellMode.EARTH_RATE:
+            for k, axis in enumerate(AXES):
+                nuisance.append((f"torquer_scale_{axis}", readings_rate(np.eye(3)[k] * omega)))
+        elif mode is DwellMode.INERTIAL:
+            # the Earth-rate slope -J⁻¹ ω_ie^p depends on the attitude: its derivative in each offset and the azimuth
+            step = 1e-6
+            for name, change in (
+                ("theta10", (0, step)), ("theta20", (1, step)), ("theta30", (2, step)), ("azimuth_error", (3, step)),
+            ):  # fmt: skip
+                index, h = change
+                moved_offsets, moved_base = offsets.copy(), base.copy()
+                if index < 3:
+                    moved_offsets[index] += h
+                else:
+                    moved_base[0] += h  # yaw of the base: the azimuth
+                maps, moved, _ = earth_rates(moved_offsets, moved_base)
+                maps = np.where(locked[:, None, None], np.eye(3), maps)
+                nuisance.append((name, (readings_rate(-moved, maps) - readings_rate(-omega)) / h))
+        return cls(rate_map, f_p, locked, mode, omega, tuple(nuisance))
 
     def column(self, term_id: str) -> NDArray[np.float64]:
         """Return the reading rates (P, 3) [rad/s] per unit of ``gyro_drift_a`` or ``Dg_ab`` [SI] (module docstring)."""
@@ -219,6 +295,16 @@ class GyroSensitivityDetails(StageDetails):
         Number of g-sensitivities tested.
     alpha : float
         The test's false-alarm level.
+    mode : DwellMode
+        How the platform was held during the dwells (what the slopes' expectation assumes).
+    nuisance : tuple of (str, float, float)
+        The mode's nuisance parameters, estimated with the twelve and marginalized out of their covariance:
+        ``(id, value, 1σ)`` in SI (``torquer_scale_*`` dimensionless, the attitude errors in rad).
+    chi2_warning : str or None
+        The goodness-of-fit warning (χ² beyond its 99.9 % quantile; the accelerometer stages' rule and wording,
+        :func:`stableins.estimators.gauss_newton.goodness_of_fit_warning`), None when the fit is within it.
+    gauge : str
+        The frame the numbers are in (the device gauge ``θ10 = 0``; module docstring).
     """
 
     angle_noise: tuple[float, float, float]
@@ -231,6 +317,10 @@ class GyroSensitivityDetails(StageDetails):
     p_value: float
     test_dof: int
     alpha: float
+    mode: DwellMode = DEFAULT_DWELL_MODE
+    nuisance: tuple[tuple[str, float, float], ...] = ()
+    chi2_warning: str | None = None
+    gauge: str = ""
 
     @property
     def flagged(self) -> bool:
@@ -271,6 +361,11 @@ def estimate_gyro_sensitivity(
     """
     n_dwells = slopes.slope.shape[0]
     names = list(labels) if labels is not None else [f"dwell {k + 1}" for k in range(n_dwells)]
+    if geometry.mode is DwellMode.CAGED:
+        raise ValueError(
+            "the platform was caged to the base by its angle loops during the dwells (dwell_mode caged): the readings "
+            "carry no gyro information"
+        )
     unweighable = ~np.all(slopes.distinct & np.isfinite(slopes.slope), axis=1) | ~(slopes.sxx > 0)
     keep = ~geometry.locked & ~unweighable
     left_out = tuple(
@@ -279,37 +374,57 @@ def estimate_gyro_sensitivity(
         if lock or bad
     )
     ids = [t.id for t in terms]
-    if 3 * int(keep.sum()) <= len(ids):
-        raise ValueError(f"only {int(keep.sum())} dwell(s) with usable reading slopes: too few for {len(ids)} parameters")
+    nuisance_ids = [name for name, _ in geometry.nuisance]
+    n_all = len(ids) + len(nuisance_ids)
+    if 3 * int(keep.sum()) <= n_all:
+        raise ValueError(f"only {int(keep.sum())} dwell(s) with usable reading slopes: too few for {n_all} parameters")
     noise = slopes.angle_noise(keep)
     sigma = noise[None, :] / np.sqrt(slopes.sxx[keep])[:, None]
     y = (slopes.slope[keep] / sigma).ravel()
-    design = np.stack([(geometry.column(i)[keep] / sigma).ravel() for i in ids], axis=1)
+    columns = [geometry.column(i)[keep] for i in ids] + [column[keep] for _, column in geometry.nuisance]
+    design = np.stack([(c / sigma).ravel() for c in columns], axis=1)
     scale = np.linalg.norm(design, axis=0)
     scale[scale == 0] = 1.0
     u, s, vt = np.linalg.svd(design / scale, full_matrices=False)
     rank = int(np.sum(s > s[0] * RANK_RTOL))
     inverse = vt[:rank].T / s[:rank]
-    x = inverse @ (u[:, :rank].T @ y) / scale
-    covariance = (inverse @ inverse.T) / np.outer(scale, scale)
-    residual = y - design @ x
-    null = vt[rank:].T
+    x_all = inverse @ (u[:, :rank].T @ y) / scale
+    covariance_all = (inverse @ inverse.T) / np.outer(scale, scale)
+    residual = y - design @ x_all
+    null_all = vt[rank:].T
+    n = len(ids)
+    x, covariance = x_all[:n], covariance_all[:n, :n]  # the nuisances marginalized out (a Gaussian's marginal)
+    null = _null_of_subset(null_all[:n])
     statistic, p_value, test_dof = _flag_test(x, covariance, ids, null)
+    chi2, dof = float(residual @ residual), int(residual.size - rank)
+    residual_labels = tuple(f"{lbl} d{g}/dt" for lbl, k in zip(names, keep, strict=True) if k for g in GIMBALS)
+    warning = goodness_of_fit_warning(chi2, dof, residual, residual_labels)
+    gauge = gauge_statement(geometry.mode)
+    determined = [np.linalg.norm(null_all[k]) < 1e-6 for k in range(n_all)]
+    nuisance = tuple(
+        (name, float(x_all[n + j]), float(np.sqrt(covariance_all[n + j, n + j])) if determined[n + j] else float("nan"))
+        for j, name in enumerate(nuisance_ids)
+    )
     details = GyroSensitivityDetails(
         angle_noise=(float(noise[0]), float(noise[1]), float(noise[2])),
         dwells_used=tuple(n for n, k in zip(names, keep, strict=True) if k),
         left_out=left_out,
-        rank_report=rank_report(ids, null, int(keep.sum())),
-        chi2=float(residual @ residual),
-        dof=int(residual.size - rank),
+        rank_report=rank_report(ids, null, int(keep.sum()), mode=geometry.mode, nuisance=nuisance_ids),
+        chi2=chi2,
+        dof=dof,
         statistic=statistic,
         p_value=p_value,
         test_dof=test_dof,
         alpha=alpha,
+        mode=geometry.mode,
+        nuisance=nuisance,
+        chi2_warning=warning,
+        gauge=gauge,
     )
-    status = tuple(Status.ESTIMATED if np.linalg.norm(null[k]) < 1e-6 else Status.UNIDENTIFIABLE for k in range(len(ids)))
-    information = (design / scale).T @ (design / scale) * np.outer(scale, scale)  # Λ = AᵀA of the whitened design
+    status = tuple(Status.ESTIMATED if determined[k] else Status.UNIDENTIFIABLE for k in range(n))
+    information = _marginal_information(design / scale, scale, n)
     residual_sigma = np.broadcast_to(sigma, (int(keep.sum()), 3)).ravel()
+    notes = details.rank_report + ((f"{len(left_out)} dwell(s) left out: " + "; ".join(left_out),) if left_out else ())
     return FitResult(
         stage="gyro",
         terms=tuple(terms),
@@ -318,15 +433,53 @@ def estimate_gyro_sensitivity(
         status=status,
         residuals=residual * residual_sigma,
         residual_sigma=residual_sigma.copy(),
-        residual_labels=tuple(f"{lbl} d{g}/dt" for lbl, k in zip(names, keep, strict=True) if k for g in GIMBALS),
-        rank=rank,
+        residual_labels=residual_labels,
+        rank=rank,  # of the whole design, nuisances included (as the drift test's): ν = slopes − rank everywhere
         singular_values=s,
         null_space=null,
-        notes=details.rank_report + ((f"{len(left_out)} dwell(s) left out: " + "; ".join(left_out),) if left_out else ()),
+        notes=(gauge,) + notes + ((warning,) if warning is not None else ()),
         likelihood=Likelihood(tuple(ids), x, information, np.zeros(len(ids))),
-        settings={"skip": SLOPE_SKIP, "alpha": alpha, "parameters": ids, "noise": "white angle noise per gimbal, pooled"},
+        settings={
+            "skip": SLOPE_SKIP,
+            "alpha": alpha,
+            "parameters": ids,
+            "noise": "white angle noise per gimbal, pooled",
+            "dwell_mode": str(geometry.mode),
+            "nuisance": nuisance_ids,
+        },
         details=details,
     )
+
+
+def gauge_statement(mode: DwellMode) -> str:
+    """Return the sentence that says which frame the gyro numbers are in and how the platform was held."""
+    held = {
+        DwellMode.EARTH_RATE: "torqued at the computed Earth rate (torquer scale factors estimated as nuisances)",
+        DwellMode.INERTIAL: "inertially held (the Earth rate subtracted; the offsets and the base azimuth estimated as nuisances)",
+        DwellMode.CAGED: "caged",
+    }[mode]
+    return (
+        f"gauge: the platform frame of the device gauge θ10 = 0 (x_p, y_p as the platform-gimbal reading 0 puts them, "
+        f"z_p the platform axis): with a true θ10 the x and y indices of ε^p and D_g belong to p turned by θ10 about "
+        f"z_p; dwells {held}"
+    )
+
+
+def _null_of_subset(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Orthonormal basis (n, k) of the null directions' projection on the first ``n`` parameters (empty when none)."""
+    if rows.shape[1] == 0:
+        return np.zeros((rows.shape[0], 0))
+    u, s, _ = np.linalg.svd(rows, full_matrices=False)
+    return np.asarray(u[:, s > 1e-6], dtype=np.float64)
+
+
+def _marginal_information(scaled: NDArray[np.float64], scale: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    """Return the information on the first ``n`` parameters with the others marginalized (Schur complement of ``AᵀA``)."""
+    full = scaled.T @ scaled * np.outer(scale, scale)
+    if full.shape[0] == n:
+        return np.asarray(full, dtype=np.float64)
+    a, b, c = full[:n, :n], full[:n, n:], full[n:, n:]
+    return np.asarray(a - b @ np.linalg.pinv(c, hermitian=True) @ b.T, dtype=np.float64)
 
 
 def _flag_test(
@@ -341,18 +494,27 @@ def _flag_test(
     return statistic, float(stats.chi2.sf(statistic, len(tested))), len(tested)
 
 
-def rank_report(ids: Sequence[str], null: NDArray[np.float64], dwells: int) -> tuple[str, ...]:
+def rank_report(
+    ids: Sequence[str], null: NDArray[np.float64], dwells: int, *, mode: DwellMode = DEFAULT_DWELL_MODE, nuisance: Sequence[str] = ()
+) -> tuple[str, ...]:
     """Return the rank report: how many of the parameters the dwells determine, the free combinations, what no dwell shows."""
-    determined = len(ids) - null.shape[1]
+    determined = int(sum(np.linalg.norm(null[k]) < 1e-6 for k in range(len(ids))))
     lines = [f"{dwells} dwells, 3 reading slopes each: {determined} of {len(ids)} gyro numbers determined"]
     for k in range(null.shape[1]):
         v = null[:, k] / np.abs(null[:, k]).max()
         combo = " ".join(f"{c:+.2f}·{i}" for c, i in zip(v, ids, strict=True) if abs(c) > 1e-3)
-        lines.append(f"not observable (the dwells' (1, f^p) do not span R⁴): {combo}; reported unidentifiable")
-    lines.append(
-        "not visible at device level: the gyros' mounting in the platform (p is defined by the gimbals) and their scale "
-        "factors (the platform is not torqued within a dwell)"
-    )
+        lines.append(f"not observable (the dwells' (1, f^p) do not span R⁴, or a nuisance takes it): {combo}; reported unidentifiable")
+    if nuisance:
+        lines.append(
+            f"nuisance parameters of the dwell mode {mode}, estimated with them and marginalized (the design's rank and ν count "
+            f"them): {', '.join(nuisance)}"
+        )
+    scale_factors = {
+        DwellMode.EARTH_RATE: "their scale factors beyond the torquers' (the platform is torqued only at the Earth rate)",
+        DwellMode.INERTIAL: "their scale factors (the platform is not torqued within a dwell)",
+        DwellMode.CAGED: "anything (the angle loops hold the platform)",
+    }[mode]
+    lines.append(f"not visible at device level: the gyros' mounting in the platform (p is defined by the gimbals) and {scale_factors}")
     return tuple(lines)
 
 
@@ -398,19 +560,65 @@ def gyro_from_datasets(
             labels.append(f"{d.stage} pass {d.pass_number} position {d.position}")
     if not pieces:
         raise ValueError("no usable dwells with readings")
+    modes = sorted({str(ds.metadata.dwell_mode) for ds in datasets})
+    if len(modes) > 1:
+        raise ValueError(f"the data files declare different dwell modes ({', '.join(modes)}): run the gyro stage on one mode")
+    mode = site.dwell_mode
     s1, s2, s3, s4 = site.gimbal_senses
+    configuration = GimbalConfiguration((s1, s2, s3, s4))
+    if mode is DwellMode.INERTIAL:
+        platform = GimbalPlatform(
+            zero_offsets=tuple(np.asarray(zero_offsets, dtype=float)), configuration=configuration, base_attitude=site.base_attitude
+        )
+        removed = [remove_earth_turn(t, a, platform, earth_rate_nav(site.latitude)) for t, a in pieces]
+        pieces = [(t, a) for (t, _), (a, _) in zip(pieces, removed, strict=True)]
+        readings = [centre for _, centre in removed]
     geometry = SlopeGeometry.of(
         np.array(readings), site.gravity, zero_offsets=zero_offsets, base_attitude=site.base_attitude,
-        configuration=GimbalConfiguration((s1, s2, s3, s4)),
+        configuration=configuration, mode=mode, latitude=site.latitude,
     )  # fmt: skip
     return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry, labels=labels, terms=terms, alpha=alpha)
+
+
+def remove_earth_turn(
+    time: ArrayLike,
+    angles: ArrayLike,
+    platform: GimbalPlatform,
+    earth_rate: ArrayLike,
+    *,
+    skip: float = SLOPE_SKIP,
+    iterations: int = 3,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Return the readings of an inertially held dwell less the Earth's turn, and the readings at its centre.
+
+    An inertially held platform turns relative to the base exactly as ``C_n^p(t) = C_n^p(t_c) exp((t − t_c)[ω_ie^n×])``
+    without gyro errors (docs/conventions.md, "The platform during a dwell"): 15 °/h, 2.5° in a 600-s dwell, so the
+    readings are not a line (their curvature is ~10″ over 300 s).  The exact path through the centre reading
+    ``r_c`` (at ``t_c``, the mean time of the part :func:`reading_slope` fits) is computed by inverse kinematics and
+    subtracted; what stays is the gyro errors' turn, a line.  ``r_c`` is the mean of what stays (a line's mean is its
+    value at ``t_c``), iterated.  The attitude this uses (offsets, base) errs: the gyro stage estimates the errors as
+    nuisances (:class:`SlopeGeometry`).
+    """
+    t = np.asarray(time, dtype=float)
+    a = np.asarray(angles, dtype=float).reshape(t.size, 3)
+    used = t >= t[0] + skip * (t[-1] - t[0])
+    t_c = float(t[used].mean())
+    centre = a[used].mean(axis=0)
+    remainder = a
+    for _ in range(iterations):
+        start = platform.dcm_nav_to_platform(centre)
+        turned = start @ rotation_about(-(t - t_c)[:, None] * np.asarray(earth_rate, dtype=float))
+        path = platform.readings_from_dcm_nav_to_platform(turned, np.broadcast_to(centre, (t.size, 3)))
+        remainder = a - (path - centre)
+        centre = remainder[used].mean(axis=0)
+    return remainder, centre
 
 
 def report(result: FitResult) -> str:
     """Text report: drifts in °/h, g-sensitivities in °/h/g with σ and z, the ``D_g = 0`` test, the noise and rank."""
     details = result.details
     assert isinstance(details, GyroSensitivityDetails)
-    lines = ["gyro drift and g-sensitivity from the reading slopes within dwells (platform frame):"]
+    lines = [f"gyro drift and g-sensitivity from the reading slopes within dwells (platform frame; dwell mode {details.mode}):"]
     for term, value, sig, status in zip(result.terms, result.values, result.sigma, result.status, strict=True):
         unit, scale = ("°/h", DEG_PER_HOUR) if term.id.startswith("gyro_drift_") else ("°/h/g", DEG_PER_HOUR_PER_G)
         if status is Status.UNIDENTIFIABLE:
@@ -423,9 +631,15 @@ def report(result: FitResult) -> str:
             f"D_g = 0 test: W = {details.statistic:.1f} on {details.test_dof} dof, p = {details.p_value:.3g} "
             f"(flag below α = {details.alpha:g}): {verdict}"
         )
+    for name, value, sig in details.nuisance:
+        unit, scale = ("ppm", 1e-6) if name.startswith("torquer_scale_") else ("arcsec", np.pi / 648000)
+        lines.append(f"  nuisance {name:<15} {value / scale:+.3f} ± {sig / scale:.3f} {unit}")
     noise = ", ".join(f"{n / (np.pi / 648000):.3f}" for n in details.angle_noise)
     lines.append(f"angle noise measured within the dwells (platform, inner, middle): {noise} arcsec per sample")
     lines.append(f"χ²_ν of the slopes = {details.chi2 / max(details.dof, 1):.2f} (ν = {details.dof})")
+    if details.chi2_warning is not None:
+        lines.append(details.chi2_warning)
+    lines.append(details.gauge)
     lines += [f"  {line}" for line in details.rank_report]
     lines += [f"  {line}" for line in details.left_out]
     return "\n".join(lines)
@@ -441,7 +655,9 @@ __all__ = [
     "SlopeGeometry",
     "estimate_gyro_sensitivity",
     "gyro_from_datasets",
+    "gauge_statement",
     "rank_report",
     "reading_slope",
+    "remove_earth_turn",
     "report",
 ]

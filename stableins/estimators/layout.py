@@ -41,8 +41,9 @@ class DwellChecks:
         Largest difference between the measured and the commanded orientation's specific force [m/s²]
         (default 0.02 g).
     angle_tolerance : float
-        Largest absolute difference of mean measured reading and commanded reading of any gimbal [rad]: the platform has
-        arrived and stayed there (default 20″).
+        Largest absolute difference of the measured readings' least-squares line at the dwell's start and the commanded
+        reading of any gimbal [rad]: the platform has arrived (default 20″; a steady gyro drift after that is not an
+        error, docs/conventions.md "The platform during a dwell").
     scatter_max : float
         Largest standard deviation of any accelerometer axis about its straight-line fit [m/s²]
         ("still"; default 5000 µg, well above the per-sample white noise of a navigation-grade

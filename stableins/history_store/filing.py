@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from stableins.errors import InputError
 from stableins.history import data_only, parse_date
 from stableins.history_store.schema import MAX_RECORD_BYTES, Entry
+from stableins.identifiers import check_serial_number
 from stableins.records.stages import utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -24,25 +25,15 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: A SHA-256 digest as the index keeps it.
 SHA256 = re.compile(r"[0-9a-f]{64}")
-#: A serial number that can name a folder on every file system stableins runs on.
-_SERIAL = re.compile(r"[^\x00-\x1f/\\:*?\"<>|]{1,128}")
-
-
 def check_serial(serial: str) -> str:
-    """Return ``serial`` if it can name a unit's folder.
+    """Return ``serial`` if it can name a unit's folder (:func:`stableins.identifiers.check_serial_number`).
 
     Raises
     ------
     InputError
         The serial number cannot name a folder.
     """
-    if not isinstance(serial, str) or not _SERIAL.fullmatch(serial) or serial.strip() != serial or serial.startswith("."):
-        raise InputError(
-            f"serial number {str(serial)[:40]!r} cannot name a history folder",
-            field="serial",
-            expected="1 to 128 printable characters without / \\ : * ? \" < > |, not starting with '.' or a space",
-        )
-    return serial
+    return check_serial_number(serial, field="serial")
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.conventions import ARCSEC
+from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks, StageLayout
 from stableins.procedures import sections
@@ -100,6 +101,8 @@ class ProcedureDefinition:
     tolerances: dict[str, Any] | None = None
     #: the ``[uncertainty]`` table as written (Type B inputs, validated by :mod:`stableins.reporting.budget`), None if absent
     uncertainty: dict[str, Any] | None = None
+    #: ``[procedure] dwell_mode``: how the platform is held during the dwells (docs/conventions.md, "The platform during a dwell")
+    dwell_mode: DwellMode = DEFAULT_DWELL_MODE
 
     @property
     def positions(self) -> tuple[int, ...]:
@@ -120,14 +123,33 @@ class ProcedureDefinition:
             self.name, self.stage, self.positions, tuple(s.settle for s in self.steps), self.handedness, self.checks, self.path
         )
 
+    def check_dwell_mode(self, metadata: Any) -> None:
+        """Refuse a platform whose metadata declare another dwell mode than this procedure (before anything moves).
+
+        Raises
+        ------
+        InputError
+            Naming ``procedure.dwell_mode``, what the procedure declares and what the platform does.
+        """
+        held = getattr(metadata, "dwell_mode", None)
+        if held is not None and held != self.dwell_mode:
+            raise InputError(
+                f"the procedure declares dwell_mode {self.dwell_mode} but the platform holds its dwells as {held} (its metadata)",
+                path=self.path or None, field="procedure.dwell_mode",
+                expected=f'{held} (docs/conventions.md, "The platform during a dwell")',
+            )  # fmt: skip
+
     @property
     def duration(self) -> float:
         """Total settle + dwell time [s] (slews not included)."""
         return sum(s.settle + s.dwell for s in self.steps)
 
 
-#: Largest procedure file read [bytes] (50 000 steps are about 5 MB).
-MAX_FILE_BYTES = 64 << 20
+#: Largest procedure (or campaign) file read [bytes]: 10,000 steps are about 0.5 MB; parsing 1 MiB of TOML takes
+#: under a second, so a refused file costs no more.
+MAX_FILE_BYTES = 1 << 20
+#: Most ``[[step]]`` entries a procedure may hold (the 18-position coarse stage has 18; a designed one tens).
+MAX_PROCEDURE_STEPS = 10_000
 
 
 def shipped_procedures() -> tuple[str, ...]:
@@ -188,6 +210,7 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
         model_add=sections.model_add(data.get("model", {}), head["stage"], spath),
         tolerances=None if data.get("tolerances") is None else data["tolerances"],
         uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
+        dwell_mode=_dwell_mode(head, spath),
     )
 
 
@@ -201,6 +224,15 @@ def _check_rotations(steps: tuple[Step, ...], spath: str) -> None:
             f"no move between the steps turns the platform so as to excite {', '.join(missing)}", path=spath, field="step",
             expected="moves about at least two platform axes (the middle gimbal and the platform axis, as device-rotating)",
         )  # fmt: skip
+
+
+def _dwell_mode(head: dict[str, Any], spath: str) -> DwellMode:
+    """Return ``[procedure] dwell_mode`` (the default when absent)."""
+    value = head.get("dwell_mode", str(DEFAULT_DWELL_MODE))
+    if not isinstance(value, str) or value not in {m.value for m in DwellMode}:
+        expected = " or ".join(f'"{m.value}"' for m in DwellMode) + ' (docs/conventions.md, "The platform during a dwell")'
+        raise InputError(f"{str(value)[:60]!r} is not a dwell mode", path=spath, field="procedure.dwell_mode", expected=expected)
+    return DwellMode(value)
 
 
 def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
@@ -281,6 +313,8 @@ def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str)
         steps_raw = []  # a static record: [record] says where and how long
     elif not isinstance(steps_raw, list) or not steps_raw:
         raise InputError("no [[step]] entries", path=spath, field="step")
+    if len(steps_raw) > MAX_PROCEDURE_STEPS:
+        raise InputError(f"{len(steps_raw)} [[step]] entries", path=spath, field="step", expected=f"at most {MAX_PROCEDURE_STEPS}")
     steps = [_step(raw, f"step {k}", base, spath) for k, raw in enumerate(steps_raw, start=1)]
     positions = [s.position for s in steps]
     if positions != list(range(1, len(steps) + 1)):  # linear in the number of steps

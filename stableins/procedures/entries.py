@@ -36,8 +36,9 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
     """Dwells of a zero-offset iteration from its operations.
 
     Per position the iteration commands, lets time pass until arrival and settling (acquisitions
-    whose samples are discarded) and records the dwell last: the dwell of a command is its last
-    acquisition before the next command, and its length must be the position's dwell.
+    whose samples are discarded) and records the dwell last, in one or more acquisitions (pieces of
+    at most the run's chunk): the dwell of a command is its last acquisitions before the next
+    command whose lengths add up to the position's dwell.
     """
     n = len(step.positions)
     groups: list[tuple[Record, list[Record]]] = []
@@ -53,12 +54,12 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
         if not acquisitions:
             continue
         position = k % n
-        dwell = acquisitions[-1]
         expected = step.dwells[position] if step.dwells else None
-        if expected is not None and abs(float(dwell["arguments"][0]) - expected) > 1e-9:
+        pieces = _dwell_pieces(acquisitions, expected)
+        if pieces is None:
             raise JournalMismatch(
-                f"zero-offset iteration: the last acquisition after command {k + 1} lasts {dwell['arguments'][0]} s, "
-                f"position {step.positions[position]} dwells {expected} s"
+                f"zero-offset iteration: the last acquisitions after command {k + 1} do not add up to the "
+                f"{expected} s that position {step.positions[position]} dwells"
             )
         entries.append(
             dwell_entry(
@@ -67,10 +68,24 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
                 step.positions[position],
                 command=command["arguments"],
                 command_time=float(command["result"]),
-                blocks=[block_from_record(dwell)],
+                blocks=[block_from_record(piece) for piece in pieces],
             )
         )
     return entries
+
+
+def _dwell_pieces(acquisitions: list[Record], expected: float | None) -> list[Record] | None:
+    """Return the trailing acquisitions that make up a dwell of ``expected`` seconds (the last alone when None), or None."""
+    if expected is None:
+        return acquisitions[-1:]
+    total = 0.0
+    for start in range(len(acquisitions) - 1, -1, -1):
+        total += float(acquisitions[start]["arguments"][0])
+        if abs(total - expected) <= 1e-9 * max(1.0, expected):
+            return acquisitions[start:]
+        if total > expected:
+            return None
+    return None
 
 
 def concatenate(blocks: list[SampleBlock]) -> SampleBlock:

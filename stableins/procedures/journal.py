@@ -41,6 +41,12 @@ _RECORD_HEAD = struct.Struct("<4sII")
 _HEADER_LENGTH = struct.Struct("<I")
 #: Largest payload accepted when reading (guards against a corrupted length field) [bytes].
 MAX_PAYLOAD = 1 << 31
+#: Test hook: with ``STABLEINS_KILL_AFTER_RECORDS=N`` in its environment, a process kills itself (SIGKILL, as
+#: ``kill -9``) right after the journal it writes holds N records on disk: a deterministic crash for the resume
+#: tests (tests/test_run_network_system.py), where killing from outside would depend on timing.
+KILL_AFTER_ENV = "STABLEINS_KILL_AFTER_RECORDS"
+#: Suffix of a journal being created under a temporary name (see :meth:`Journal.create`).
+_UNLINKED_SUFFIX = ".new"
 _DTYPES = {"float64": "<f8", "int64": "<i8", "uint8": "u1"}
 ArrayLikeOrNone = Any
 
@@ -237,25 +243,45 @@ def has_start(path: str | os.PathLike[str]) -> bool:
 
     Reads only the file header and the first record.
     """
+    return start_record(path) is not None
+
+
+def start_record(path: str | os.PathLike[str]) -> Record | None:
+    """Return the whole ``start`` record that opens the journal at ``path``, or None (no journal, or none that starts so).
+
+    Reads only the file header and the first record.
+    """
     try:
         with open(path, "rb") as handle:
             if handle.read(len(FILE_MAGIC)) != FILE_MAGIC:
-                return False
+                return None
             head = handle.read(_RECORD_HEAD.size)
             if len(head) < _RECORD_HEAD.size:
-                return False
+                return None
             magic, length, crc = _RECORD_HEAD.unpack(head)
             if magic != RECORD_MAGIC or length > MAX_PAYLOAD:
-                return False
+                return None
             payload = handle.read(length)
     except OSError:
-        return False
+        return None
     if len(payload) != length or zlib.crc32(payload) != crc:
-        return False
+        return None
     try:
-        return _decode(payload, len(FILE_MAGIC), str(path), with_arrays=False).kind == "start"
+        record = _decode(payload, len(FILE_MAGIC), str(path), with_arrays=False)
     except (ValueError, KeyError, UnicodeDecodeError):
-        return False
+        return None
+    return record if record.kind == "start" else None
+
+
+def remove_unlinked(path: str | os.PathLike[str]) -> None:
+    """Remove what a :meth:`Journal.create` of ``path`` killed before it linked the journal left (temporary files).
+
+    Call only while holding the run directory's lock (:mod:`stableins.procedures.runlock`): no other process creates
+    the journal then.
+    """
+    path = Path(path)
+    for leftover in path.parent.glob(f"{path.name}.*{_UNLINKED_SUFFIX}"):
+        leftover.unlink(missing_ok=True)
 
 
 def _damaged(path: Path, handle: Any, position: int, reason: str, *, size: int, end: int) -> None:
@@ -280,26 +306,47 @@ class Journal:
         self.records = records
         self._fd = handle
         self.recovered = torn
+        kill = os.environ.get(KILL_AFTER_ENV, "")
+        self._kill_after = int(kill) if kill.isdigit() else None
 
     # ------------------------------------------------------------------ open
     @classmethod
-    def create(cls, path: str | os.PathLike[str]) -> Journal:
-        """Create a new journal file (InputError if it exists) and open it for appending."""
+    def create(cls, path: str | os.PathLike[str], first: tuple[str, Mapping[str, Any]] | None = None) -> Journal:
+        """Create a new journal file (InputError if it exists) and open it for appending.
+
+        ``first``: the kind and fields of the first record (a run's ``start``), written with the file header in one
+        step: the file is written and fsync-ed under a temporary name and then linked to ``path``, so a journal never
+        exists without its first record (a process killed before the link leaves no journal, only the temporary file,
+        which :func:`remove_unlinked` clears).
+        """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
-        except FileExistsError:
-            raise InputError("a run journal already exists here", path=path, expected="a new run directory, or --resume") from None
+        if path.exists():
+            raise InputError("a run journal already exists here", path=path, expected="a new run directory, or --resume")
+        blob = FILE_MAGIC + (encode(0, first[0], first[1]) if first is not None else b"")
+        temporary = path.with_name(f"{path.name}.{os.getpid()}{_UNLINKED_SUFFIX}")
+        fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
         try:
             _lock(fd, path)
+            written = 0
+            while written < len(blob):
+                written += os.write(fd, blob[written:])
+            os.fsync(fd)
+            try:
+                os.link(temporary, path)
+            except FileExistsError:
+                raise InputError("a run journal already exists here", path=path, expected="a new run directory, or --resume") from None
         except BaseException:
             os.close(fd)
+            temporary.unlink(missing_ok=True)
             raise
-        os.write(fd, FILE_MAGIC)
-        os.fsync(fd)
+        temporary.unlink()
         fsync_directory(path.parent)
-        return cls(path, [], fd)
+        records = []
+        if first is not None:
+            payload = blob[len(FILE_MAGIC) + _RECORD_HEAD.size :]
+            records.append(_decode(payload, len(FILE_MAGIC), str(path), with_arrays=False))
+        return cls(path, records, fd)
 
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Journal:
@@ -342,6 +389,10 @@ class Journal:
         os.fsync(self._fd)
         record = _decode(blob[_RECORD_HEAD.size :], offset, str(self.path), with_arrays=False)
         self.records.append(record)
+        if self._kill_after is not None and len(self.records) >= self._kill_after:
+            import signal
+
+            os.kill(os.getpid(), signal.SIGKILL)  # the test hook (KILL_AFTER_ENV): dies as on kill -9, the record on disk
         return record
 
     def close(self) -> None:

@@ -19,6 +19,9 @@ from stableins.turns import IndexAxis, PlatformTurn, check_turns
 
 #: ``chunk`` [s]: dwells are journaled in pieces this long (a piece must hold samples; a day-long piece is no journal).
 CHUNK_RANGE = (0.1, 3600.0)
+#: Default ``chunk`` [s]: a dwell reaches the journal and the console one second of data at a time (issue 27: an
+#: operator of a real platform sees the dwell progress, and a crash loses at most a second).
+DEFAULT_CHUNK = 1.0
 #: ``retries``: repeats of a rejected dwell.
 RETRIES_RANGE = (0, 100)
 #: Longest settle, dwell or slew of one step [s], and longest static record [s].
@@ -190,7 +193,7 @@ class Plan:
     level: str
     steps: tuple[Step, ...]
     retries: int = 2
-    chunk: float = 10.0
+    chunk: float = DEFAULT_CHUNK
     sample_rate: float | None = None
     description: str = ""
 
@@ -237,7 +240,7 @@ class Plan:
             level=level,
             steps=tuple(steps),
             retries=v.integer(d.get("retries", 2), "retries", *RETRIES_RANGE),
-            chunk=v.number(d.get("chunk", 10.0), "chunk", *CHUNK_RANGE),
+            chunk=v.number(d.get("chunk", 10.0), "chunk", *CHUNK_RANGE),  # a plan written before the default changed
             sample_rate=None if rate is None else v.number(rate, "sample_rate", 0.0, 1e4, above=True),
             description=v.text(d.get("description", ""), "description"),
         )

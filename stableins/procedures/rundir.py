@@ -12,6 +12,8 @@ Layout of ``RUNDIR`` (see ``docs/procedures.md``)::
                       update), or the stage's own record when it has no prior to update; it carries the stage
                       run (data identities and times, settings, entries, fits, likelihood)
     report.pdf        the certificate of record.json (when the report writer is installed)
+    truth.json        the simulated world of a run with ``--driver sim --truth`` or ``--hidden`` (the answer to compare with)
+    run.lock          while a process runs in the directory: its lock (:mod:`stableins.procedures.runlock`)
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ DEFINITION_NAME = "procedure.toml"
 PRIOR_NAME = "prior.json"
 RECORD_NAME = "record.json"
 REPORT_NAME = "report.pdf"
+TRUTH_NAME = "truth.json"
 
 
 @dataclass
@@ -248,15 +251,35 @@ def resume_driver(
     re_estimate: bool,
     driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
     timeout: float,
+    truth: Any = None,
 ) -> PlatformDriver:
-    """Open the platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens."""
+    """Open the platform of a resumed run: the journal alone (re-estimating), the factory's, or the one ``spec`` opens.
+
+    ``truth``: the known world of a simulated run started with one (``RUNDIR/truth.json``).
+    """
     if re_estimate:
         from stableins.drivers.replay import metadata_from_start
 
         return JournalOnlyDriver(metadata_from_start(start))
     if driver_factory is not None:
         return driver_factory(start.fields)
-    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout)
+    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout, truth=truth)
+
+
+def check_capabilities(driver: PlatformDriver, plan: Plan) -> None:
+    """Refuse, before the platform moves, a platform that cannot do what the plan needs (a network platform without ``NAV``).
+
+    Raises
+    ------
+    DriverProtocolError
+        Naming the protocol version and capabilities the platform stated and the one the plan needs.
+    """
+    from stableins.drivers.server import NAV_CAPABILITY
+    from stableins.procedures.plan import StaticRecordStep
+
+    require = getattr(driver, "require", None)
+    if require is not None and any(isinstance(step, StaticRecordStep) for step in plan.steps):
+        require(NAV_CAPABILITY, f"the static record of {plan.name!r} (the INS's velocity and attitude outputs)")
 
 
 def install_prior(driver: PlatformDriver, plan: Plan, prior: Any, source: str | os.PathLike[str] | None) -> None:

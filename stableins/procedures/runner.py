@@ -33,18 +33,23 @@ from typing import Any, Protocol, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.conventions import ARCSEC
 from stableins.drivers.errors import DriverConnectionError, DriverError, DriverProtocolError
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
 from stableins.procedures.entries import concatenate, dwell_entry, iteration_entries
 from stableins.procedures.journal import Record
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
+from stableins.procedures.quicklook import QuickLook
 from stableins.procedures.session import Session, SessionDriver
 from stableins.procedures.verdict import CheckResult, estimator_verdict, evaluate_dwell
 from stableins.samples import SampleBlock
 
 #: Exit status of a run that stopped and can be resumed (2 is reserved for bad input).
 EXIT_STOPPED = 3
+#: A static record prints its quick look (:class:`~stableins.procedures.quicklook.QuickLook`) this many times (and at
+#: least a chunk apart): a day-long record every 3 h, the 21-min drift test every 2.6 min.
+QUICK_LOOKS = 8
 
 
 class RunStopped(Exception):
@@ -252,7 +257,7 @@ class Runner:
         if recorder is None:
             raise RunStopped(
                 f"{label}: this platform driver does not record the INS outputs a system-level static record needs "
-                "(the simulated platform does; the network protocol does not yet)"
+                "(the simulated platform does; a network platform does when its greeting states NAV, docs/protocol.md)"
             )
         hours = step.duration / 3600.0
         what = f"{label}: hold the platform, record {hours:.2f} h at {self.rate:g} Hz — {step.why}"
@@ -277,6 +282,9 @@ class Runner:
         context = {"step": index, "attempt": 1, "phase": "static"}
         self.static_chunks = []
         self.session.static_clock = (-math.inf, False)  # the record's own time base starts with it
+        look = QuickLook(self.rate, step.checks.angle_tolerance, step.turns)  # what the operator sees during a long record
+        interval = max(self.plan.chunk, step.duration / QUICK_LOOKS)
+        next_look = interval
         while done < total:
             self.session.context = dict(context)
             self.session.trace = []
@@ -286,8 +294,14 @@ class Runner:
             self.static_chunks += self.session.trace
             self.session.trace = None
             done += len(chunk["time"])
+            look.update(chunk)
+            due = done / self.rate >= next_look - 1e-9 or done >= total
+            while next_look <= done / self.rate + 1e-9:
+                next_look += interval
             if not self.session.last_replayed:
                 self.console.progress("static record", done / self.rate, total / self.rate)
+                if due:
+                    self.console.say(f"  {look.describe()}")
         self.session.context = {"step": index}
         _, replayed = self.session.decide("static_record", {"step": index, "samples": done, "duration": step.duration})
         self.console.say(f"  recorded {done} samples ({done / self.rate / 3600.0:.2f} h)", replay=replayed)
@@ -320,10 +334,14 @@ class Runner:
         waited = 0.0
         context = dict(self.session.context, phase="slew")
         error = math.inf
+        degrees = ", ".join(f"{math.degrees(r):.4f}" for r in readings)
+        label = f"slewing: waiting for arrival at ({degrees}) deg within {checks.angle_tolerance / ARCSEC:g} arcsec"
         while waited < checks.max_slew - 1e-9:
             self.session.context = context
             block = self.session.operate("acquire", [piece])
             waited += piece
+            if not self.session.last_replayed:  # what the platform is waiting for, second by second (at most max_slew)
+                self.console.progress(label, waited, checks.max_slew)
             if keep is not None:
                 keep.append(block)
             if len(block) == 0 or not np.all(np.isfinite(block.angles)):
@@ -364,13 +382,16 @@ class Runner:
             self.session.context = {"step": index, "attempt": attempt, "phase": "iteration"}
             self.session.trace = []
             try:
+                observer = _IterationConsole(self.console, self.session, self.rate)
+                # the dwells journaled and shown a chunk at a time, as every other dwell
+                driver = SessionDriver(self.session, piece=self.plan.chunk, on_piece=observer.piece)
                 result = iterate_offsets(
-                    SessionDriver(self.session),
+                    driver,
                     self.definition,
                     initial_offsets=cast("tuple[float, float, float]", tuple(float(o) for o in self.offsets)),
                     progress=lambda record: self.console.say(f"  {record.describe()}", replay=self.session.last_replayed),
                     extra_terms=self.extra_terms,
-                    observer=_IterationConsole(self.console, self.session, self.rate),
+                    observer=observer,
                 )
             except OffsetIterationError as error:
                 message = f"step {step.name!r}: {error}"
@@ -418,6 +439,7 @@ class _IterationConsole:
         self.command: tuple[float, ...] = ()
         self.dwell = 0.0
         self.live = True
+        self.current = ("", 0.0)  # the phase being recorded: name, length [s]
 
     def position(self, pass_number: int, step: Any, command: tuple[float, float, float]) -> None:
         self.command, self.dwell = command, float(step.dwell)
@@ -428,7 +450,14 @@ class _IterationConsole:
     def phase(self, name: str, done: float, total: float) -> None:
         if done == 0.0:
             self.live = not self.session.replaying
+            self.current = (name, total)
         if self.live:
+            self.console.progress(name, done, total)
+
+    def piece(self, done: float) -> None:
+        """Show that ``done`` seconds of the current settle or dwell are recorded (a piece arrived)."""
+        name, total = self.current
+        if self.live and name and done < total:  # its end is shown by phase()
             self.console.progress(name, done, total)
 
     def measured(self, block: SampleBlock, summary: Any) -> None:

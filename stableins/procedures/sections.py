@@ -10,9 +10,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from stableins.conventions import ARCSEC
+from stableins.conventions import ARCSEC, MICRO_G
 from stableins.errors import InputError
-from stableins.procedures.plan import SystemEstimation
+from stableins.procedures.plan import DEFAULT_CHUNK, SystemEstimation
 from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
@@ -60,13 +60,14 @@ class RunnerSettings:
     """``[runner]``: how ``stableins run`` executes a procedure.
 
     ``retries``: repeats of a rejected dwell before the run stops; ``chunk`` [s]: dwells are
-    journaled in pieces of at most this length.  The table's thresholds (``angle_tolerance``,
+    journaled in pieces of at most this length (default :data:`~stableins.procedures.plan.DEFAULT_CHUNK`, 1 s: the
+    journal and the console follow a dwell second by second).  The table's thresholds (``angle_tolerance``,
     ``scatter_max``, ``slope_max``, ``max_slew``) are dwell checks: they go to the procedure's
     :class:`~stableins.estimators.layout.DwellChecks`.
     """
 
     retries: int = 2
-    chunk: float = 10.0
+    chunk: float = DEFAULT_CHUNK
 
 
 @dataclass(frozen=True)
@@ -108,8 +109,8 @@ _RUNNER_KEYS = {
     "retries": 1.0,
     "chunk": 1.0,
     "angle_tolerance": ARCSEC,
-    "scatter_max": 9.80665e-6,
-    "slope_max": 9.80665e-6,
+    "scatter_max": MICRO_G,
+    "slope_max": MICRO_G,
     "max_slew": 1.0,
 }
 _PERSON_KEYS = {"before", "action", "prompt", "key", "unit", "minimum", "maximum", "default"}

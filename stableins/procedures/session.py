@@ -202,8 +202,12 @@ class Session:
 class SessionDriver:
     """The session seen as a :class:`~stableins.drivers.base.PlatformDriver`, for estimators that drive the platform themselves."""
 
-    def __init__(self, session: Session) -> None:
+    def __init__(self, session: Session, *, piece: float | None = None, on_piece: Callable[[float], None] | None = None) -> None:
         self.session = session
+        #: longest journaled acquisition [s] (the run's chunk): a long acquisition is journaled, and shown, piece by piece
+        self.piece = piece
+        #: told the seconds recorded after every live piece of an acquisition (the console's progress)
+        self.on_piece = on_piece
 
     @property
     def metadata(self) -> Any:
@@ -219,8 +223,20 @@ class SessionDriver:
         return self.session.operate("read_angles", [])
 
     def acquire(self, duration: float) -> SampleBlock:
-        """Record ``duration`` seconds of samples through the session."""
-        return self.session.operate("acquire", [float(duration)])
+        """Record ``duration`` seconds of samples through the session, in journaled pieces of at most :attr:`piece` seconds."""
+        if self.piece is None or duration <= self.piece:
+            return self.session.operate("acquire", [float(duration)])
+        from stableins.procedures.entries import concatenate
+
+        blocks = []
+        done = 0.0
+        while duration - done > 1e-9:
+            length = min(self.piece, duration - done)
+            blocks.append(self.session.operate("acquire", [float(length)]))
+            done += length
+            if self.on_piece is not None and not self.session.last_replayed:
+                self.on_piece(done)
+        return concatenate(blocks)
 
     def status(self) -> dict[str, object]:
         """Return the platform's status (not journaled)."""

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 from stableins.data.metadata import metadata_from_document
 from stableins.errors import InputError
+from stableins.identifiers import check_serial_number, check_timestamp
 from stableins.records.check import check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.record import CalibrationRecord
@@ -45,6 +46,9 @@ class _Reader:
         if not isinstance(value, str):
             raise self.fail(f"{value!r} is not a string", key, "a string")
         return value
+
+    def timestamp(self, value: Any, key: str, *, optional: bool) -> str:
+        return check_timestamp(value, field=key, path=self.path, optional=optional)
 
     def texts(self, value: Any, key: str) -> tuple[str, ...]:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
@@ -150,8 +154,10 @@ class _Reader:
         if not isinstance(fits, list) or not all(isinstance(f, dict) for f in fits):
             raise self.fail("not a list of objects", f"{where}.fits", "fit evidence objects")
         texts = {name: self.text(s[name], f"{where}.{name}") for name in ("id", "name", "calibration")}
-        for name in ("procedure", "software", "created", "data_start", "data_end"):
+        for name in ("procedure", "software"):
             texts[name] = self.text(s.get(name, ""), f"{where}.{name}")
+        for name in ("created", "data_start", "data_end"):
+            texts[name] = self.timestamp(s.get(name, ""), f"{where}.{name}", optional=True)
         return StageRun(
             **texts,
             sample_rate=rate,
@@ -228,13 +234,13 @@ class _Reader:
             prior = PriorReference(
                 self.text(prior.get("sha256", ""), "calibration.prior.sha256"),
                 self.text(prior.get("path", ""), "calibration.prior.path"),
-                self.text(prior.get("created", ""), "calibration.prior.created"),
+                self.timestamp(prior.get("created", ""), "calibration.prior.created", optional=True),
             )
         return Calibration(
             id=self.text(c["id"], "calibration.id"),
             procedure=self.text(c.get("procedure", ""), "calibration.procedure"),
             software=self.text(c.get("software", ""), "calibration.software"),
-            created=self.text(c.get("created", ""), "calibration.created"),
+            created=self.timestamp(c.get("created", ""), "calibration.created", optional=True),
             prior=prior,
             entries=self.entries(c.get("entries", []), "calibration.entries"),
         )
@@ -304,7 +310,7 @@ class _Reader:
         optional = self.optional(document)
         record = CalibrationRecord.__new__(CalibrationRecord)
         fields = {
-            "serial_number": self.text(document["serial_number"], "serial_number"),
+            "serial_number": check_serial_number(document["serial_number"], field="serial_number", path=self.path),
             "parameters": parameters,
             "covariance": matrix,
             "calibration": calibration,

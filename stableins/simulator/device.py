@@ -1,9 +1,8 @@
 r"""Device level: a simulated gimbaled platform that slews, settles and records.
 
 :class:`SimulatedPlatform` implements :class:`stableins.drivers.base.PlatformDriver`.
-The gimbal servos hold the angle-sensor readings at the command (the platform is
-slaved to the base during device-level calibration), so the Earth's rotation does not
-move it within a dwell.  Every sample is computed from first principles:
+How the platform is held within a dwell is the site's dwell mode (caged, torqued at the
+computed Earth rate, inertially held; docs/conventions.md "The platform during a dwell").  Every sample is computed from first principles:
 
 1. Gimbal readings follow the command: a cosine-profile slew from the readings at
    the command to the commanded readings (peak rate ``settling['slew_rate']``),
@@ -12,13 +11,19 @@ move it within a dwell.  Every sample is computed from first principles:
    ``ω_d = ω sqrt(1-ζ²)``, ``τ`` time since the end of the slew, ``Δr`` the slew).
    The angle sensors read the actual motion plus white noise.
 2. Exact kinematics: ``C_n^p`` from :class:`stableins.platform.GimbalPlatform`
-   (offsets, senses, base attitude and tilt, non-orthogonality, sensor errors).  With a
-   constant gyro drift ``ε^p`` (``truth.gyro_drift`` x, y, z) or g-sensitivity effects
-   ``Dg_ab`` the gyro-held platform also turns, from the end of each slew, at
-   ``w = −(ε^p + D_g f^p)`` (:func:`stableins.conventions.platform_drift_rate`, with ``f^p``
-   of the commanded orientation: the drift angle stays below 1e-4 rad, so the change of
-   ``f^p`` it causes is a 1e-4 relative effect on a 1e-4 rad angle); the readings follow by exact
-   inverse kinematics.  (The gyro-case-rotation residual of ``truth.gyro_drift`` is a
+   (offsets, senses, base attitude and tilt, non-orthogonality, sensor errors).  From the end
+   of each slew the platform moves relative to the base as the site's dwell mode says
+   (``truth.site.dwell_mode``, docs/conventions.md "The platform during a dwell",
+   :func:`stableins.conventions.dwell_platform_rate`): caged, not at all; torqued at the
+   computed Earth rate, at ``w + k ∘ ω_ie^p`` with the gyro-error rate ``w = −(ε^p + D_g f^p)``
+   (``truth.gyro_drift`` x, y, z and the ``Dg_ab`` effects) and the torquers' scale-factor
+   error ``k`` (``truth.gyro_drift`` ``torquer_scale_x/y/z``); inertially held, exactly
+   ``C_n^p(τ) = rot(τ w) C_n^p exp(τ [ω_ie^n ×])``.  ``w`` and ``ω_ie^p`` are those of the
+   orientation at ``τ`` without the gyro-error turn (that turn stays below 1e-4 rad, so the
+   change of ``f^p`` it causes is a 1e-4 relative effect on a 1e-4 rad angle).  A position near
+   gimbal lock (:data:`stableins.platform.GIMBAL_LOCK_CONDITION`) is held to the base: no gimbal
+   turns the platform about one direction, so the angle loops cage it.  The readings follow by
+   exact inverse kinematics.  (The gyro-case-rotation residual of ``truth.gyro_drift`` is a
    system-level effect, left out here.)
 3. ``f^p = C_n^p f^n`` with ``f^n = (0, 0, −g)``.
 4. Accelerometer output from the full nonlinear forward model
@@ -47,7 +52,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import platform_drift_rate, specific_force_nav
+from stableins.conventions import dwell_platform_rate, earth_rate_nav, platform_drift_rate, specific_force_nav
+from stableins.dwell_mode import DwellMode
 from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.samples import SampleBlock
@@ -64,6 +70,7 @@ class _Command:
     target: NDArray[np.float64]  # commanded readings
     duration: float  # slew duration [s]
     slew_direction: NDArray[np.float64]  # hysteresis state per axis after the slew (effects.hysteresis_state)
+    held: bool = False  # near gimbal lock: the angle loops cage the platform (platform.GIMBAL_LOCK_CONDITION)
 
 
 class SimulatedPlatform:
@@ -100,6 +107,9 @@ class SimulatedPlatform:
         self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
         self._gravity_nav = specific_force_nav(truth.site.gravity)
         self._drift = np.array([truth.gyro_drift.get(a, 0.0) for a in "xyz"])
+        self._torquer = np.array([truth.gyro_drift.get(f"torquer_scale_{a}", 0.0) for a in "xyz"])
+        self._mode = truth.site.dwell_mode
+        self._earth_rate_nav = earth_rate_nav(truth.site.latitude)
         self._g_sensitivity = fx.g_sensitivity(truth.effects)
         self._needs_rates = fx.needs(truth.effects, "lever_")
         #: time asynchrony τ [s]: the accelerometer input is the path's at t − τ (effects "timing")
@@ -138,7 +148,8 @@ class SimulatedPlatform:
         f_end = self.platform.specific_force_platform(target, self.truth.site.gravity)
         previous = self._commands[-1].slew_direction if self._commands else np.zeros(3)
         state = fx.hysteresis_state(previous, f_end - f_start)
-        self._commands.append(_Command(self._sample, start, target, duration, state))
+        held = bool(self.platform.near_gimbal_lock(self.platform.actual_angles(target)))
+        self._commands.append(_Command(self._sample, start, target, duration, state, held))
         return self.time
 
     def read_angles(self) -> NDArray[np.float64]:
@@ -304,17 +315,36 @@ class SimulatedPlatform:
     def _motion(self, index: NDArray[np.int64], shift: float = 0.0):
         """Return the readings (as the sensors see them, noise-free), reading rates, ``C_n^p``, segment, time since slew end.
 
-        ``shift`` [s]: the motion at ``t + shift`` (the time asynchrony's sampling instant).
+        ``shift`` [s]: the motion at ``t + shift`` (the time asynchrony's sampling instant).  From the end of each slew
+        the platform moves relative to the base as the site's :class:`~stableins.dwell_mode.DwellMode` says
+        (:func:`stableins.conventions.dwell_platform_rate`): caged, not at all; torqued at the computed Earth rate,
+        ``C_n^p(τ) = rot(τ (w + k ∘ ω_ie^p)) C_n^p``; inertially held, exactly
+        ``C_n^p(τ) = rot(τ w) C_n^p exp(τ [ω_ie^n ×])`` (the base turns under it).  ``rot`` is
+        :func:`stableins.platform.rotation_about`; a position near gimbal lock is held to the base (:attr:`_Command.held`).
         """
         readings, rates, segment, settle_time = self._path(index, shift)
         dcm = self.platform.dcm_nav_to_platform(readings)
-        if (np.any(self._drift) or np.any(self._g_sensitivity)) and np.any(settle_time > 0):
-            f_p = np.einsum("...ij,j->...i", dcm, self._gravity_nav)
-            angle = platform_drift_rate(self._drift, self._g_sensitivity, f_p) * np.clip(settle_time, 0.0, None)[:, None]
-            drifting = settle_time > 0
-            dcm[drifting] = rotation_about(angle[drifting]) @ dcm[drifting]
-            readings = readings.copy()
-            readings[drifting] = self.platform.readings_from_dcm_nav_to_platform(dcm[drifting], readings[drifting])
+        held = np.array([c.held for c in self._commands], dtype=bool)
+        drifting = (settle_time > 0) & (segment >= 0)
+        if np.any(drifting):
+            drifting[drifting] = ~held[segment[drifting]]
+        mode = self._mode
+        if mode is DwellMode.CAGED or not np.any(drifting):
+            return readings, rates, dcm, segment, settle_time
+        if mode is DwellMode.EARTH_RATE and not (np.any(self._drift) or np.any(self._g_sensitivity) or np.any(self._torquer)):
+            return readings, rates, dcm, segment, settle_time
+        tau = np.clip(settle_time, 0.0, None)[drifting, None]
+        moved = dcm[drifting]
+        if mode is DwellMode.INERTIAL:
+            moved = moved @ rotation_about(-tau * self._earth_rate_nav)  # exp(τ [ω_ie^n ×]): the base turns under it
+        f_p = np.einsum("...ij,j->...i", moved, self._gravity_nav)
+        earth_p = np.einsum("...ij,j->...i", moved, self._earth_rate_nav)
+        w = platform_drift_rate(self._drift, self._g_sensitivity, f_p)
+        # inertially held: the Earth's turn is already in ``moved``
+        angle = w * tau if mode is DwellMode.INERTIAL else dwell_platform_rate(mode, w, earth_p, self._torquer) * tau
+        dcm[drifting] = rotation_about(angle) @ moved
+        readings = readings.copy()
+        readings[drifting] = self.platform.readings_from_dcm_nav_to_platform(dcm[drifting], readings[drifting])
         return readings, rates, dcm, segment, settle_time
 
     def _nominal_readings(self, sample: int) -> NDArray[np.float64]:

@@ -41,7 +41,8 @@ id               added output of accelerometer ``a`` (axis a in x, y, z)
 
 Geometry effects: ``Dg_ab`` (g-sensitivity of the gyro about p-axis a to the specific force
 along p-axis b, a gyro output error: the stabilized platform turns at ``−D_g f^p``,
-:func:`stableins.conventions.platform_drift_rate`, after each slew; the angle sensors see it),
+:func:`stableins.conventions.platform_drift_rate`, after each slew, as the site's dwell mode says; the angle sensors
+see it),
 ``nonorth_12``, ``nonorth_23``
 (gimbal-axis non-orthogonality, :mod:`stableins.platform`), ``tilt_north``,
 ``tilt_east`` (base tilt), ``azimuth_error`` (base azimuth), ``ang1_<gimbal>_c`` / ``_s`` (once-per-revolution angle

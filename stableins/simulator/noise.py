@@ -58,9 +58,12 @@ BLOCK_SAMPLES = 16384
 
 @dataclass(frozen=True)
 class TemperatureProfile:
-    """Instrument temperature ``T(t) = reference + offset + ramp·t + amplitude·sin(2π t/period + phase)`` [°C].
+    """Instrument temperature ``T(t) = reference + offset + ramp·t + amplitude·sin(2π t/period + phase) + warmup·e^{−t/τ_w}`` [°C].
 
-    ``sensor_noise`` is the white noise of the temperature sensor [K, 1σ per sample].
+    ``sensor_noise`` is the white noise of the temperature sensor [K, 1σ per sample].  ``warmup`` [K] is the
+    excess of a warm-up transient at session time 0 (negative: the unit starts cold) decaying with the time
+    constant ``warmup_time_constant`` ``τ_w`` [s]; 0 (the default) leaves it out, and the dict of the
+    settings then omits both fields, so files written without one are unchanged.
     """
 
     reference: float = 25.0
@@ -70,11 +73,16 @@ class TemperatureProfile:
     period: float = 86400.0
     phase: float = 0.0
     sensor_noise: float = 0.0
+    warmup: float = 0.0
+    warmup_time_constant: float = 1800.0
 
     def __call__(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
         """Return the true temperature [°C] at session time ``time`` [s]."""
         t = np.asarray(time, dtype=float)
-        return self.reference + self.offset + self.ramp * t + self.amplitude * np.sin(2 * np.pi * t / self.period + self.phase)
+        out = self.reference + self.offset + self.ramp * t + self.amplitude * np.sin(2 * np.pi * t / self.period + self.phase)
+        if self.warmup != 0.0:
+            out = out + self.warmup * np.exp(-t / self.warmup_time_constant)
+        return out
 
 
 @dataclass(frozen=True)
@@ -144,6 +152,9 @@ class NoiseSettings:
         """Return the settings as a JSON-ready dict (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["bias_instability_time_constants"] = list(self.bias_instability_time_constants)
+        if self.temperature.warmup == 0.0:  # no warm-up transient: the fields are left out (files as before)
+            d["temperature"].pop("warmup")
+            d["temperature"].pop("warmup_time_constant")
         return d
 
     @classmethod

@@ -131,6 +131,10 @@ def _check_fields(d: Any, source: str | None) -> None:
         )
 
 
+#: Keys of a truth's ``gyro_drift``: the constant drift, the gyro-case-rotation residual, the torquers' scale-factor error.
+GYRO_KEYS = ("x", "y", "z", "case_amplitude", "case_period", "case_phase", "torquer_scale_x", "torquer_scale_y", "torquer_scale_z")
+
+
 def _site(d: Any, source: str | None) -> SiteMetadata:
     """Read the ``site`` field of a truth file; raise :class:`InputError` on bad content."""
     if not isinstance(d, Mapping):
@@ -220,7 +224,9 @@ class Truth:
         System level: ``x``, ``y``, ``z`` constant gyro drift in the platform frame
         [rad/s]; ``case_amplitude`` [rad/s], ``case_period`` [s] (default 480 s) and
         ``case_phase`` [rad] of the residual of gyro-case rotation (a drift vector of
-        that amplitude rotating about ``z_p``).
+        that amplitude rotating about ``z_p``); ``torquer_scale_x/y/z`` (dimensionless): the scale-factor error
+        ``k`` of the gyro torquers (a torquer turns the platform at ``1 + k`` times the commanded rate; device
+        dwells torqued at the computed Earth rate, :func:`stableins.conventions.dwell_platform_rate`).
     damping : dict
         ``zeta`` and ``vertical_time_constant`` [s] of the INS damping loops.
     settling : dict
@@ -247,13 +253,9 @@ class Truth:
         object.__setattr__(self, "damping", MappingProxyType({**DEFAULT_DAMPING, **self.damping}))
         object.__setattr__(self, "settling", MappingProxyType({**DEFAULT_SETTLING, **self.settling}))
         object.__setattr__(self, "gyro_drift", MappingProxyType(dict(self.gyro_drift)))
-        unknown = set(self.gyro_drift) - {"x", "y", "z", "case_amplitude", "case_period", "case_phase"}
+        unknown = set(self.gyro_drift) - set(GYRO_KEYS)
         if unknown:
-            raise InputError(
-                f"unknown gyro_drift keys {sorted(unknown)}",
-                field="gyro_drift",
-                expected="x, y, z, case_amplitude, case_period, case_phase",
-            )
+            raise InputError(f"unknown gyro_drift keys {sorted(unknown)}", field="gyro_drift", expected=", ".join(GYRO_KEYS))
         # the site carries the damping the world uses (derived from ``damping`` and the site's gravity)
         derived = self.damping_parameters()
         if self.site.damping != derived:

@@ -274,6 +274,13 @@ def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: f
     factor = (white_x2 + float(np.einsum("ca,ca->", fit.amplitudes, units[:, :, 1, 1]))) / white_x2
     used = amplitudes_to_allan(fit.amplitudes.mean(axis=1), gravity)
     levels = f"bias instability {used[1] / MICRO_G:.3g} ug and random walk {used[0]:.3g} m/s^2/sqrt(s)"
+    if fit.source is ColouredSource.CONTRADICTED:
+        return (
+            f"the GIVEN noise model's low-frequency noise is REJECTED by the record (likelihood-ratio test of the given "
+            f"amplitudes, false-alarm rate {fit.alpha:g}): it is not used; σ follow the record's own measurement ({levels}, maximum "
+            f"likelihood, one value for the three axes), which makes the variance of x2 {factor:.1f}x the white-noise value; "
+            f"{fit.describe()}; {bound}.  Correct the datasheet values (or give none: the stage measures them)"
+        )
     if fit.source is ColouredSource.GIVEN:
         return (
             f"low-frequency noise as given in the noise model ({levels}) makes the variance of x2 {factor:.1f}x the white-noise "
@@ -344,7 +351,9 @@ def measured_noise_model(
       all of the second differences' variance (``20 Q²/dt²``).
 
     With a datasheet model given to the stage, its bias instability, random walk and quantization are the ones used and
-    are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.
+    are kept (source ``datasheet``); the white noise is the record's, as under every σ of the stage.  A datasheet the
+    record rejects (:func:`.whittle.given_rejected`) is not: the record's own measurement is the model (source ``static
+    record``), and its provenance says the datasheet was contradicted.
     """
     from dataclasses import replace
 
@@ -360,7 +369,7 @@ def measured_noise_model(
     white_hi = white * math.sqrt(dof / (2.0 * float(gammaincinv(0.5 * dof, tail))))
     q_upper = np.sqrt(6.0 * axis_variance / 20.0) / rate
     whites = [NoiseTerm(float(white[a]), float(white_lo[a]), float(white_hi[a])) for a in range(3)]
-    if given is not None and given.source is NoiseSource.DATASHEET:
+    if given is not None and given.source is NoiseSource.DATASHEET and (fit is None or fit.source is not ColouredSource.CONTRADICTED):
         axes = cast("tuple[AxisNoise, AxisNoise, AxisNoise]", tuple(replace(axis, white=whites[a]) for a, axis in enumerate(given.axes)))
         provenance = (
             f"white noise measured in the system-level record {path} ({count} second differences per axis); bias instability, "
@@ -383,6 +392,7 @@ def measured_noise_model(
             "bias instability and random walk from the residual spectra, one value for the three axes ("
             + fit.describe()
             + ("; with the prior noise model" if fit.source is ColouredSource.PRIOR else "")
+            + ("; the given datasheet model is REJECTED by the record and not used" if fit.source is ColouredSource.CONTRADICTED else "")
             + ")"
         )
     per_axis = tuple(

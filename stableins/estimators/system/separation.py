@@ -30,7 +30,7 @@ mimic anyway.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,6 +40,10 @@ from stableins.estimators.system.harmonics import RESIDUAL_NAMES, STATE_NAMES, s
 
 COMBINED_COEFFICIENTS = STATE_NAMES + ATTITUDE_COEFFICIENTS
 NUISANCE_NAMES = ("pitch_offset", "roll_offset")
+#: A combination whose σ grew more than this factor over its σ without a nuisance the record cannot separate (the
+#: thermal terms under a daily cycle, docs/system-calibration.md §1b) is not called determined: the data no longer pin it,
+#: the nuisance's prior does (issue 25).
+GROWTH_LIMIT = 10.0
 
 
 def combination_matrix(latitude: float) -> NDArray[np.float64]:
@@ -177,3 +181,21 @@ def separate(
         chi2=chi2,
         dof=len(c) - rank,
     )
+
+
+def without_growth(sep: Separation, reference: Separation, limit: float = GROWTH_LIMIT) -> tuple[Separation, tuple[str, ...]]:
+    """Return ``sep`` with every combination whose σ grew more than ``limit`` times over ``reference``'s marked not determined.
+
+    ``reference``: the same separation under the covariance without the inseparable nuisance (e.g. the thermal terms'
+    part ``J P Jᵀ``, :class:`.thermal.ThermalFit`), i.e. the σ the record would give without it.  A combination
+    determined by the structure of the day (null space) but whose σ is then mostly the nuisance's prior is determined by
+    that prior, not by the data.  Returns the separation and the names of the combinations so relabelled.
+    """
+    combos = dict(sep.combinations)
+    grown = []
+    for name, (value, sigma, ok) in sep.combinations.items():
+        base = reference.combinations.get(name, (0.0, 0.0, False))[1]
+        if ok and base > 0 and sigma > limit * base:
+            combos[name] = (value, sigma, False)
+            grown.append(name)
+    return replace(sep, combinations=combos), tuple(grown)

@@ -43,9 +43,9 @@ from stableins.estimators.system.coloured import (
 )
 from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
 from stableins.estimators.system.loop import DampingLoop
-from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation, separate
+from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, GROWTH_LIMIT, Separation, separate, without_growth
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
-from stableins.estimators.system.whittle import ColouredNoiseFit
+from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:
@@ -311,6 +311,8 @@ def decide_noise(
     cov_v = cov_v + coloured
     if fit is not None:
         note = coloured_note(fit, units, white_x2, gravity)
+        if fit.source is ColouredSource.CONTRADICTED:
+            warnings.warn(f"{path}: {note}", UserWarning, stacklevel=3)
     else:
         note = (
             "the record is too short for the low-frequency noise model (fewer than 16 bins of "
@@ -320,6 +322,22 @@ def decide_noise(
         noise.axis_variance, sums.noise_count, rate, fit, gravity, given=given, path=path, duration=sums.duration
     )
     return NoiseDecision(cov_v, coloured, fit, float(cov_v[1, 1] / white_x2), measured, note)
+
+
+@dataclass(frozen=True)
+class ThermalPart:
+    """What the thermal terms (:class:`.thermal.ThermalFit`) hand the combination step (:func:`combine`).
+
+    Attributes
+    ----------
+    aliases : mapping
+        The thermal terms as explanations of a third harmonic (:attr:`.thermal.ThermalFit.aliases`).
+    covariance : ndarray (17, 17)
+        Their part of the covariance of ``v`` (:attr:`.thermal.ThermalFit.covariance_v`).
+    """
+
+    aliases: Mapping[str, tuple[NDArray[np.float64], str]]
+    covariance: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -379,16 +397,19 @@ def combine(
     context: StageContext,
     duration: float,
     drift: DriftStep | None = None,
-    aliases: Mapping[str, tuple[NDArray[np.float64], str]] | None = None,
+    thermal: ThermalPart | None = None,
 ) -> Combination:
     """Step 6: the combined coefficients, what the record determines of them, and their separation.
 
     Raises :class:`~stableins.errors.InputError` when the record determines nothing the stage can certify.  A third
     harmonic is explained by every hypothesis the record accepts (:func:`.third_harmonic.explain_third_harmonic`, level
-    ``context.options.noise_false_positive_rate``; ``aliases`` adds further ones, e.g. the thermal terms'); the note
+    ``context.options.noise_false_positive_rate``; ``thermal.aliases`` adds further ones, the thermal terms'); the note
     names them all and advises the K2 correction only when K2 is the one explanation (``options.estimate_k2``: the
     residual K2 is estimated).  ``prior_res_cov``: the prior's covariance of the residuals.  ``drift``: the drift removed
-    from pitch and roll; its covariance is propagated into the attitude coefficients'.
+    from pitch and roll; its covariance is propagated into the attitude coefficients'.  ``inseparable``: the part of the
+    covariance of ``v`` a nuisance the record cannot separate adds (the thermal terms' ``J P Jᵀ`` under a daily cycle,
+    docs §1b); a combination whose σ grew more than :data:`.separation.GROWTH_LIMIT` times over its σ without that part
+    is not called determined (:func:`.separation.without_growth`).
     """
     latitude, gravity, path = context.site.latitude, context.site.gravity, context.path
     estimate_k2, alpha = context.options.estimate_k2, context.options.noise_false_positive_rate
@@ -403,11 +424,11 @@ def combine(
     k2_values = np.array([4.0 * x_hat[5] / gravity, -4.0 * x_hat[6] / gravity])
     k2_sigma = 4.0 * np.sqrt(np.diag(cov_x)[5:7]) / gravity
     to_combined = k2_map(latitude, estimate_k2=estimate_k2)
-    third = explain_third_harmonic(v, cov_v, latitude, gravity, alpha=alpha, extra=aliases)
+    third = explain_third_harmonic(v, cov_v, latitude, gravity, alpha=alpha, extra=None if thermal is None else thermal.aliases)
     text = third.note(estimate_k2=estimate_k2, parameter=ESTIMATE_K2_PARAMETER, reading=_k2_note(harmonic, k2_values, k2_sigma, latitude))
     if text is not None:
         notes.append(text)
-        if (any(third.significant) and not estimate_k2) or (estimate_k2 and not third.k2_alone):
+        if any(third.significant) and not (estimate_k2 and third.k2_alone):  # within 3σ: a note, not a warning
             warnings.warn(f"{path}: {text}", UserWarning, stacklevel=3)
     combined_values = to_combined @ v
     combined_cov = to_combined @ cov_v @ to_combined.T
@@ -434,6 +455,19 @@ def combine(
     # what the data determine (data-only separation)
     prior_sigma = {n: math.sqrt(prior_res_cov[i, i]) for i, n in enumerate(hm.RESIDUAL_NAMES)}
     sep = separate(list(COMBINED_COEFFICIENTS), combined_values, combined_cov, latitude, prior_sigma=prior_sigma, transform=transform)
+    if thermal is not None and np.any(thermal.covariance):
+        own = combined_cov - to_combined @ thermal.covariance @ to_combined.T
+        own_transform = observable_directions(own)[0]  # what the record determines without the thermal terms
+        reference = separate(list(COMBINED_COEFFICIENTS), combined_values, own, latitude, prior_sigma=prior_sigma, transform=own_transform)
+        sep, grown = without_growth(sep, reference)
+        if grown:
+            notes.append(
+                f"not determined by these data: {', '.join(grown)}: their σ grew more than {GROWTH_LIMIT:g}× over the σ the "
+                "record gives without the thermal terms it cannot separate (a daily temperature cycle, docs §1b); what pins them is "
+                "the thermal prior, not the record.  A sensitivity measured in a device-level thermal test (stableins calibrate "
+                "thermal) and carried in the record makes them determined again"
+            )
+            warnings.warn(f"{path}: {notes[-1]}", UserWarning, stacklevel=3)
     _check_determined(sep, kept, duration, path)
     return Combination(v, to_combined, combined_values, combined_cov, transform, observable, sep, k2_values, k2_sigma, tuple(notes))
 
@@ -464,6 +498,7 @@ __all__ = [
     "FilterCurve",
     "HarmonicFit",
     "NoiseDecision",
+    "ThermalPart",
     "WhiteNoise",
     "combine",
     "decide_noise",

@@ -52,7 +52,7 @@ from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covaria
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import GyroDrift, validate_options
 from stableins.estimators.system.separation import Separation
-from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
 from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
@@ -216,7 +216,7 @@ def run_system_stage(
         context=stage.context,
         duration=stage.sums.duration,
         drift=stage.drift,
-        aliases=stage.thermal.aliases,
+        thermal=solve.ThermalPart(stage.thermal.aliases, stage.thermal.covariance_v),
     )
     return _assemble(stage, combination, prior, prior_covariance, options, noise_model=noise_model)
 
@@ -273,6 +273,8 @@ def _run(
     """Run the one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
     path = source_path(source)
     site = check_metadata(metadata, path)
+    # the record's thermal sensitivities are the thermal terms' prior (docs §1b), not a compensation of the outputs
+    compensation_terms = tuple(t for t in compensation_terms if t.id not in THERMAL_TERMS)
     latitude, gravity, rate = site.latitude, site.gravity, site.rate
     loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
     context = StageContext(path, site, loop, options)
@@ -297,7 +299,7 @@ def _run(
     drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
     decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model)
-    inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model)
+    inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
     return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
 

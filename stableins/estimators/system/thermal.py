@@ -19,21 +19,24 @@ harmonics 0–3 the stage fits.  What separates them: a temperature history with
 cycle of another period, a record with a different thermal history) or a sensitivity measured elsewhere (a thermal
 test, given in the record).
 
-**What the stage does** (:func:`analyse_temperature`).  The six sensitivities are nuisance parameters ``p`` with a
+**What the stage does** (:func:`analyse_temperature`). The six sensitivities are nuisance parameters ``p`` with a
 prior (the calibration record's entries for ``Kt_bias_a``, ``Kt_sf_a`` when it has them, else
-``SystemOptions.thermal_prior``: 5 µg/K and 5 ppm/K, 1σ).  Their response ``J`` in ``v = (x1..x7, attitude)`` is
-computed with the record's own ``ΔT`` on the filter bins: ``z`` through the harmonic fit's map, pitch and roll through
-the loop's bin mixing (:func:`.spectrum.loop_bin_mixing`) and the attitude fit's map, plus the vertical path, exactly as
-the coloured noise is propagated (§1a).  The ``z`` residuals determine the part of ``p`` the harmonics do not absorb:
-with ``Z̃ = R_z Z`` the thermal regressors after the harmonic fit and ``C`` the bins' noise covariance (white ``R/n``
-plus the coloured model), ``F = Z̃ᵀ C̃⁺ Z̃``, ``g = Z̃ᵀ C̃⁺ e`` (``e`` the residuals).  Posterior ``P = (P₀⁻¹ + F)⁻¹``,
-``p̂ = P g``; the coefficients become ``v − J p̂`` with covariance ``+ J P Jᵀ`` (the residuals are uncorrelated with the
-least-squares coefficients under white noise: Frisch–Waugh).  A direction of ``p`` is **separable** when the fraction of
-its thermal signal the harmonics leave in the residuals (generalized eigenvalue of ``F`` against the information before
-the fit) is at least ``1/VIF_LIMIT``; a thermal term is **detected** when the data-only χ² of the separable directions
-exceeds its ``1 − α`` quantile (α the stage's false-positive rate).  A combined coefficient whose variance is more than
-half the thermal part ``J P Jᵀ`` is **not separable** from the thermal cycle: it keeps its value with the larger σ, the
-note says so and why.
+``SystemOptions.thermal_prior``: 5 µg/K and 5 ppm/K, 1σ), centred on the record's values of them (a device-level
+thermal test, ``stableins calibrate thermal``, docs/thermal-calibration.md) or on 0. Their response ``J`` in ``v``
+(x1..x7, attitude) is computed with the record's own ``ΔT`` on the filter bins: ``z`` through the harmonic fit's
+map, pitch and roll through the loop's bin mixing (:func:`.spectrum.loop_bin_mixing`) and the attitude fit's map, plus
+the vertical path, exactly as the coloured noise is propagated (§1a). The ``z`` residuals determine the part of ``p``
+the harmonics do not absorb: with ``Z̃ = R_z Z`` the thermal regressors after the harmonic fit and ``C`` the bins'
+noise covariance (white ``R/n`` plus the coloured model), ``F = Z̃ᵀ C̃⁺ Z̃``, ``g = Z̃ᵀ C̃⁺ e`` (``e`` the residuals).
+Posterior ``P = (P₀⁻¹ + F)⁻¹``, ``p̂ = P (P₀⁻¹ p₀ + g)`` (``p₀`` the prior mean); the coefficients become ``v − J p̂``
+with covariance ``+ J P Jᵀ`` (the residuals are uncorrelated with the least-squares coefficients under white noise:
+Frisch–Waugh). A direction of ``p`` is **separable** when the fraction of its thermal signal the harmonics leave in
+the residuals (generalized eigenvalue of ``F`` against the information before the fit) is at least ``1/VIF_LIMIT``; a
+thermal term is **detected** when the data-only χ² of the separable directions exceeds its ``1 − α`` quantile (α the
+stage's false-positive rate). A combined coefficient whose variance is more than half the thermal part ``J P Jᵀ`` is
+**not separable** from the thermal cycle: it keeps its value with the larger σ, the note says so and why; a named
+combination whose σ grew more than :data:`.separation.GROWTH_LIMIT` (10) times over its σ without the thermal part is
+not called determined (:func:`.separation.without_growth`, issue 25).
 """
 
 from __future__ import annotations
@@ -179,6 +182,11 @@ class ThermalFit:
         return (f"not separable from the record's temperature cycle (σ mostly the thermal terms', docs system-calibration §1b): {names}",)
 
     @property
+    def covariance_v(self) -> NDArray[np.float64]:
+        """The thermal terms' part of the covariance of ``v = (x1..x7, attitude)``: ``J P Jᵀ`` (zero when not applied)."""
+        return np.asarray(self.jacobian @ self.covariance @ self.jacobian.T, dtype=np.float64)
+
+    @property
     def applied(self) -> bool:
         """Whether the stage's coefficients were corrected and their covariance widened (a temperature column that varies)."""
         return bool(np.any(self.jacobian))
@@ -214,6 +222,19 @@ class ThermalFit:
             "not_separable": list(self.not_separable),
             "note": self.note,
         }
+
+
+def prior_mean(prior: Mapping[str, float] | None) -> NDArray[np.float64]:
+    """Return the prior mean of :data:`THERMAL_TERMS`: the record's values where it has them, else 0 [SI].
+
+    The values come from a device-level thermal test (``stableins calibrate thermal``, docs/thermal-calibration.md).
+    """
+    out = np.zeros(len(THERMAL_TERMS))
+    for k, term in enumerate(THERMAL_TERMS):
+        value = None if prior is None else prior.get(term)
+        if value is not None and math.isfinite(value):
+            out[k] = float(value)
+    return out
 
 
 def prior_sigma(prior_covariance: Mapping[tuple[str, str], float] | None, default: tuple[float, float]) -> NDArray[np.float64]:
@@ -252,7 +273,9 @@ def _empty(note: str, sigma: NDArray[np.float64]) -> ThermalFit:
 class ThermalInputs:
     """What the thermal model reads of the stage: the pass's sums, the fits up to the noise decision, the stage's context.
 
-    ``noise`` and ``given``: what the noise decision needs when it is made again (:func:`thermal_step`).
+    ``noise`` and ``given``: what the noise decision needs when it is made again (:func:`thermal_step`).  ``prior``: the
+    calibration record's values; its :data:`THERMAL_TERMS` (a device-level thermal test) are the prior mean of the
+    sensitivities (:func:`prior_mean`).
     """
 
     sums: RecordSums
@@ -262,6 +285,7 @@ class ThermalInputs:
     context: StageContext
     noise: WhiteNoise | None = None
     given: NoiseModel | None = None
+    prior: Mapping[str, float] | None = None
 
 
 def analyse_temperature(
@@ -290,7 +314,7 @@ def analyse_temperature(
     z_cols, _, _, jacobian = response(stage, band, delta_t)
     info, gradient, info_raw = information(stage, band, z_cols)
     posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
-    estimate = posterior @ gradient
+    estimate = posterior @ (prior_mean(stage.prior) / sigma0**2 + gradient)
     separable, chi2, dof = separable_directions(info, info_raw, gradient)
     data_estimate = None
     if dof:
@@ -420,6 +444,7 @@ __all__ = [
     "ThermalFit",
     "ThermalInputs",
     "analyse_temperature",
+    "prior_mean",
     "prior_sigma",
     "thermal_aliases",
     "thermal_step",

@@ -245,6 +245,12 @@ class ThirdHarmonic:
         accepted = [t for c in significant for t in self.accepted(c)]
         separate = "; ".join(f"{t}: {separations[t]}" for t in dict.fromkeys(accepted))
         if estimate_k2:
+            if not any(self.significant):
+                return (
+                    f"{head}: removed as a residual K2, {k2.describe()}{relative}; the third harmonic is within 3σ, so the "
+                    "record neither needs the correction nor tells K2 from another effect; what separates them: "
+                    + ("; ".join(f"{t}: {sep}" for t, sep in separations.items() if not t.startswith("K2_")) or "device-level data")
+                )
             if self.k2_alone:
                 return f"{head}: removed as a residual K2, {k2.describe()}{relative}"
             if k2.consistent:

@@ -137,6 +137,8 @@ class ColouredSource(Enum):
     PRIOR = "the record and the prior noise model"
     #: Given (a datasheet): the amplitudes are the given ones; the record's own fit is reported beside them.
     GIVEN = "given"
+    #: Given, but the record rejects the given amplitudes (:func:`given_rejected`): the record's own are used.
+    CONTRADICTED = "contradicted"
 
 
 @dataclass(frozen=True)
@@ -274,6 +276,9 @@ def fit_coloured_noise(
     if prior.given is not None:
         source = ColouredSource.GIVEN
         used = np.asarray(prior.given, dtype=float).reshape(kinds, 3)
+        if given_rejected(design, observed, theta, loglik, channels, given=used.mean(axis=1), alpha=alpha):
+            source = ColouredSource.CONTRADICTED  # the σ follow the data: the record's maximum-likelihood amplitudes
+            used = np.repeat(theta[amp][:, None], 3, axis=1)
     elif prior.gaussian is not None:
         source = ColouredSource.PRIOR
         penalty = (
@@ -302,6 +307,35 @@ def fit_coloured_noise(
         ordinates=ordinates,
         band=band,
     )
+
+
+def given_rejected(
+    design: NDArray[np.float64],
+    observed: NDArray[np.float64],
+    theta: NDArray[np.float64],
+    loglik: float,
+    channels: int,
+    *,
+    given: NDArray[np.float64],
+    alpha: float,
+) -> bool:
+    """Whether the record rejects given amplitudes (a datasheet): a likelihood-ratio test at false-alarm rate ``alpha``.
+
+    ``2(ℓ̂ − max_{θ_c = given_c ∀c} ℓ)`` (the white levels free) against the χ² quantile with as many degrees of freedom
+    as amplitudes (Wilks; on the boundary, a given 0 where the maximum is 0 adds nothing, which keeps the test at or below
+    ``alpha``).  A datasheet the record contradicts is not used silently (issue 25): the stage then uses the record's
+    amplitudes and says so.
+    """
+    from scipy.stats import chi2
+
+    free = np.zeros(design.shape[1], dtype=bool)
+    free[:channels] = True
+    offset = design[:, channels:] @ np.asarray(given, dtype=float)
+    start = theta.copy()
+    start[channels:] = 0.0
+    _, held = whittle_fit(design, observed, free, offset, start)
+    statistic = max(0.0, 2.0 * (loglik - held))
+    return bool(statistic > float(chi2.ppf(1.0 - alpha, design.shape[1] - channels)))
 
 
 def _small_amplitudes(design: NDArray[np.float64], theta0: NDArray[np.float64], channels: int) -> NDArray[np.float64]:

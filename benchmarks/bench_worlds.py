@@ -1,0 +1,175 @@
+"""Issue 25: the calibration in the named worlds of the simulator — the instrument for the issue's figures.
+
+Run:  nice -n 10 .venv/bin/python benchmarks/bench_worlds.py [--seeds 10] [--worlds white flicker ...] [--workers 1]
+      [--rate 10] [--level device]
+
+Per world (docs/simulator.md, "Worlds") and seed: a drawn instrument in that world through the session
+``stableins simulate device`` records (the coarse zero-offset iteration, then the 18 fine dwells of 600 s, all on
+one time base: the world's slow noise, temperature history and drift run across the whole session), at ``--rate``
+(the dwell mean's white noise is ``N/√T`` at any rate: the σ do not depend on it, the time does), then
+``calibrate device`` with no noise flags (the default path: the noise model from the dwells) and with the true
+noise given (the world's N, B, K: a datasheet that is right).  Printed per world:
+
+* rms z = (estimate − truth)/σ per parameter family (sf, bias, β, K2, θ20/θ30) for both, target [0.9, 1.1];
+* the fused fit's mean χ²_ν and the fraction of sessions with its p < 0.05 (target mean 1 ± 0.23, 5 %);
+* the slow-noise decision: detected in what fraction of sessions (on ``white``, the false-alarm rate, target
+  ≤ 5 %; elsewhere its power).
+
+``--level system`` is the hook for the system stage (issue 25 part 3, ``w25sys``): add a runner to :data:`LEVELS`
+with the signature of :func:`device_session` (world name, seed, options → :class:`SessionResult`) and the
+tables print for it unchanged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+FAMILIES = {
+    "sf": ("sf_x", "sf_y", "sf_z"),
+    "bias": ("bias_x", "bias_y", "bias_z"),
+    "beta": ("beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy"),
+    "K2": ("K2_x", "K2_y", "K2_z"),
+    "theta": ("theta20", "theta30"),
+}
+DEFAULT_WORLDS = ("white", "flicker", "random-walk", "gauss-markov", "quartz", "thermal", "drift", "lab")
+
+
+@dataclass(frozen=True)
+class SessionResult:
+    """What one session in one world gives: z per parameter for each noise path, χ²_ν, the slow-noise decision."""
+
+    world: str
+    seed: int
+    z_default: dict[str, float]
+    z_given: dict[str, float]
+    chi2_red: float
+    chi2_p: float
+    chi2_red_given: float
+    detected: bool
+    seconds: float
+
+
+def _z(fit, truth) -> dict[str, float]:
+    from stableins.estimators.device_gauge import gauge_equivalent
+
+    g = gauge_equivalent(truth.parameters, truth.configuration)
+    return {k: (fit[k][0] - g[k]) / fit[k][1] for k in fit.ids if fit[k][2] == "estimated" and fit[k][1] > 0 and k in g}
+
+
+def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
+    """One device session in ``world_name`` (module docstring), calibrated on the default path and with the true noise."""
+    import argparse as _argparse
+
+    from scipy.stats import chi2
+
+    from stableins.commands.simulate import _device_procedures, _iterated_session
+    from stableins.estimators.device import calibrate_device, with_given_slow_noise
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.procedures.definition import device_layouts
+    from stableins.simulator.truth import Truth
+    from stableins.simulator.worlds import apply_world
+
+    t0 = time.perf_counter()
+    truth = apply_world(Truth.draw(seed), world_name)
+    procedures = _device_procedures(_argparse.Namespace(procedure=None, dwell=None, settle=None))
+    sessions = _iterated_session(truth, procedures, rate, seed + 104729)
+    layouts = device_layouts()
+    dwells = [d for _, columns in sessions for d in dwells_from_columns(columns, layouts=layouts)]
+    default = calibrate_device(dwells, truth.site, layouts=layouts)
+    n = truth.noise
+    given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
+    reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
+    fit = default.final
+    return SessionResult(
+        world_name,
+        seed,
+        _z(fit, truth),
+        _z(reference.final, truth),
+        float(fit.chi2_red),
+        float(chi2.sf(fit.chi2, fit.dof)) if fit.dof > 0 else math.nan,
+        float(reference.final.chi2_red),
+        bool(default.noise.test is not None and default.noise.test.detected),
+        time.perf_counter() - t0,
+    )
+
+
+#: Session runners by level (the system level: issue 25 part 3 adds its runner here).
+LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {"device": device_session}
+
+
+def _job(args: tuple[str, str, int, float]) -> SessionResult:
+    level, world_name, seed, rate = args
+    return LEVELS[level](world_name, seed, rate)
+
+
+def rms(values: list[float]) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values else math.nan
+
+
+def table(results: list[SessionResult], worlds: list[str]) -> list[str]:
+    head = f"{'world':<13} {'path':<6} " + " ".join(f"{f:>6}" for f in FAMILIES) + f" {'chi2_nu':>8} {'p<.05':>6} {'slow det':>8} {'n':>3}"
+    lines = [head]
+    for w in worlds:
+        rows = [r for r in results if r.world == w]
+        if not rows:
+            continue
+        for path in ("none", "true"):
+            zs = [r.z_default if path == "none" else r.z_given for r in rows]
+            fam = " ".join(f"{rms([z[k] for z in zs for k in ids if k in z]):>6.2f}" for ids in FAMILIES.values())
+            if path == "none":
+                chi = float(np.mean([r.chi2_red for r in rows]))
+                pfrac = float(np.mean([r.chi2_p < 0.05 for r in rows]))
+                det = float(np.mean([r.detected for r in rows]))
+                extra = f" {chi:>8.3f} {100 * pfrac:>5.0f}% {100 * det:>7.0f}%"
+            else:
+                extra = f" {float(np.mean([r.chi2_red_given for r in rows])):>8.3f} {'':>6} {'':>8}"
+            lines.append(f"{w:<13} {path:<6} {fam}{extra} {len(rows):>3}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=10, help="sessions per world (seeds 1..N)")
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--worlds", nargs="+", default=list(DEFAULT_WORLDS))
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--rate", type=float, default=10.0, help="sample rate of the simulated session [Hz]")
+    parser.add_argument("--level", choices=sorted(LEVELS), default="device")
+    args = parser.parse_args(argv)
+    from stableins.simulator.worlds import world
+
+    for w in args.worlds:
+        world(w, field="--worlds")
+    # seeds outermost: a run stopped early has every world at the same number of seeds
+    jobs = [(args.level, w, s, args.rate) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds]
+    t0 = time.perf_counter()
+    results = []
+    with ProcessPoolExecutor(max(args.workers, 1)) as pool:
+        for r in pool.map(_job, jobs):  # one line per session as it completes (a long run shows its progress)
+            results.append(r)
+            worst = max((abs(v) for v in r.z_default.values()), default=math.nan)
+            print(
+                f"  {r.world:<13} seed {r.seed:>4}: chi2_nu {r.chi2_red:.3f}, slow noise {'detected' if r.detected else 'not detected'}, "
+                f"max |z| {worst:.2f}, {r.seconds:.0f} s",
+                flush=True,
+            )
+    print(
+        f"bench_worlds: level {args.level}, {args.seeds} seeds per world from {args.first_seed}, rate {args.rate:g} Hz, "
+        f"{time.perf_counter() - t0:.0f} s"
+    )
+    print("path none: calibrate device with no noise flags (default); true: the world's N, B, K given (datasheet)")
+    print("rms z per family (target 0.9-1.1); chi2_nu: fused fit, mean; p<.05: share of sessions; slow det: slow noise detected")
+    print("\n".join(table(results, args.worlds)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
