@@ -145,8 +145,9 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         assert (by_id[pid]["sigma"] is None) == (not math.isfinite(p.sigma)), pid
         if by_id[pid]["sigma"] is not None:
             assert by_id[pid]["sigma"] == pytest.approx(p.sigma, rel=1e-12), pid
-    for pid, entry in document["gyro"].items():  # °/h and °/h/g: the record's numbers
+    for pid, entry in document["gyro"].items():  # °/h and °/h/g, named: the record's numbers
         unit = DEG_PER_HOUR if pid.startswith("gyro_drift_") else DEG_PER_HOUR_PER_G
+        assert entry["unit"] == ("°/h" if pid.startswith("gyro_drift_") else "°/h/g")
         assert entry["value"] * unit == pytest.approx(record[pid].value, rel=1e-12) and entry["sigma"] * unit == pytest.approx(
             record[pid].sigma, rel=1e-12
         )

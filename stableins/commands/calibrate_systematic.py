@@ -55,22 +55,25 @@ def run(args: Any) -> int:
 def document(args: Any, outcome: Any, updated: Any) -> dict[str, Any]:
     """Return the ``--json`` document: orientations, rank, gyro terms (°/h, °/h/g), cross-couplings (µg/g²), the record's parameters.
 
+    Every entry in an engineering unit names it (``"unit": "°/h"``); ``parameters`` are SI, as the record.
+
     ``gyro`` holds the updated record's gyro terms (the numbers the record and its certificate carry; for terms new to
     the record the data's own, without the stage's wide prior on them), ``null`` σ where the record has none;
     ``cross_coupling`` the record's cross-couplings and, ``"written": false``, those the stage left out.
     """
-    scale = {"gyro_drift_": DEG_PER_HOUR, "Dg_": DEG_PER_HOUR_PER_G}
-    gyro: dict[str, dict[str, float | None]] = {}
-    cross: dict[str, dict[str, float | bool | None]] = {}
+    scale = {"gyro_drift_": (DEG_PER_HOUR, "°/h"), "Dg_": (DEG_PER_HOUR_PER_G, "°/h/g")}
+    gyro: dict[str, dict[str, float | str | None]] = {}
+    cross: dict[str, dict[str, float | str | bool | None]] = {}
     for p in updated.parameters:
         unit = next((v for k, v in scale.items() if p.id.startswith(k)), None)
         sigma = p.sigma if p.sigma == p.sigma else None
         if unit is not None:
-            gyro[p.id] = {"value": p.value / unit, "sigma": None if sigma is None else sigma / unit}
+            gyro[p.id] = {"value": p.value / unit[0], "sigma": None if sigma is None else sigma / unit[0], "unit": unit[1]}
         elif p.id.startswith("Kcc_"):
-            cross[p.id] = {"value": p.value / MICRO_G_PER_G2, "sigma": None if sigma is None else sigma / MICRO_G_PER_G2}
+            value, s = p.value / MICRO_G_PER_G2, None if sigma is None else sigma / MICRO_G_PER_G2
+            cross[p.id] = {"value": value, "sigma": s, "unit": "µg/g²"}
     for term_id, sigma in outcome.details.left_out.items():
-        cross[term_id] = {"value": None, "sigma": float(sigma) / MICRO_G_PER_G2, "written": False}
+        cross[term_id] = {"value": None, "sigma": float(sigma) / MICRO_G_PER_G2, "unit": "µg/g²", "written": False}
     return {
         "record": str(args.record),
         "prior": str(args.prior),
