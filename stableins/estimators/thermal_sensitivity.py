@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 THERMAL_TERM_IDS = tuple(f"Kt_bias_{a}" for a in AXES) + tuple(f"Kt_sf_{a}" for a in AXES)
 #: Least peak-to-peak of the dwells' mean temperatures [K].
 MIN_SPAN = 0.5
-#: Largest |correlation| of ΔT with time (after the orientation intercepts) that still separates the drift.
+#: Largest absolute correlation of ΔT with time (after the orientation intercepts) that still separates the drift.
 MAX_TIME_CORRELATION = 0.95
 #: Dwells whose commanded readings agree within this [rad] are one orientation.
 SAME_ORIENTATION = 1e-6
@@ -67,7 +67,7 @@ class ThermalDetails(StageDetails):
     temperature_span : float
         Peak-to-peak of the dwells' mean temperatures [K].
     time_correlation : float
-        |correlation| of ΔT with time after the intercepts (1: a ramp, not separable from a drift).
+        absolute correlation of ΔT with time after the intercepts (1: a ramp, not separable from a drift).
     drift, drift_sigma : ndarray (3,)
         The bias drift ``d_a`` per axis and its σ [m/s³] (a nuisance).
     chi2, dof : ndarray (3,), int
