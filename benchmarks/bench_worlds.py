@@ -15,6 +15,9 @@ noise given (the world's N, B, K: a datasheet that is right).  Printed per world
 * the slow-noise decision: detected in what fraction of sessions (on ``white``, the false-alarm rate, target
   ≤ 5 %; elsewhere its power).
 
+``--level independent`` draws the sessions with the independent generator (benchmarks/worlds/independent.py, written
+from the documents alone) instead of the simulator: the worlds white, flicker, random-walk, quartz, thermal, drift.
+
 ``--level system`` is the hook for the system stage (issue 25 part 3, ``w25sys``): add a runner to :data:`LEVELS`
 with the signature of :func:`device_session` (world name, seed, options → :class:`SessionResult`) and the
 tables print for it unchanged.
@@ -23,6 +26,7 @@ tables print for it unchanged.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -101,8 +105,79 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     )
 
 
+def independent_session(world_name: str, seed: int, rate: float) -> SessionResult:
+    """One device session from the independent generator (benchmarks/worlds/independent.py) with the world's noise.
+
+    The generator knows white, flicker (FFT-shaped 1/f), random walk, a thermal bias term and a bias drift; the world's
+    other contents (Gauss-Markov, quantization, angle-sensor harmonics) are not in it, so only the worlds ``white``,
+    ``flicker``, ``random-walk``, ``quartz``, ``thermal`` and ``drift`` are accepted.  Same calibrations as
+    :func:`device_session`; the truth is the generator's (θ20, θ30 re-commanded exactly, as a converged iteration).
+    """
+    import importlib.util
+    from pathlib import Path
+
+    from scipy.stats import chi2
+
+    from stableins.conventions import GimbalConfiguration
+    from stableins.estimators.device import calibrate_device, with_given_slow_noise
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.procedures.definition import device_layouts
+    from stableins.simulator.truth import Truth
+    from stableins.simulator.worlds import WORLDS
+
+    spec = importlib.util.spec_from_file_location("independent_world", Path(__file__).parent / "worlds" / "independent.py")
+    assert spec is not None and spec.loader is not None
+    ind = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("independent_world", ind)
+    spec.loader.exec_module(ind)
+    if world_name not in ("white", "flicker", "random-walk", "quartz", "thermal", "drift"):
+        raise SystemExit(f"--level independent: world {world_name!r} is not in the independent generator")
+    t0 = time.perf_counter()
+    n = WORLDS[world_name].noise
+    assert n is not None
+    effects = WORLDS[world_name].effects
+    base = ind.draw_instrument(seed)
+    thermal = tuple(effects.get(f"Kt_bias_{a}", 0.0) for a in "xyz")
+    instrument = ind.Instrument(
+        base.parameters,
+        base.gravity,
+        thermal_bias=thermal,
+        drift_bias=tuple(effects.get(f"Kd_bias_{a}", 0.0) for a in "xyz"),
+        temperature={"amplitude": 1.0, "warmup": -4.0} if any(thermal) else {},
+    )
+    readings = [tuple(math.radians(v) for v in p) for p in ind.POSITIONS_DEG]
+    fine = [(r[0], r[1] - instrument.value("theta20"), r[2] - instrument.value("theta30")) for r in readings]
+    stages = [("coarse", 1, readings, 5.0, 20.0), ("coarse", 2, fine, 5.0, 20.0), ("fine", 1, fine, 5.0, 600.0)]
+    noise = ind.Noise(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk)
+    columns = ind.session(instrument, stages, rate=rate, noise=noise, seed=seed)
+    # the site of a drawn unit (40° N, level, positive senses) with the generator's gravity and rate
+    site = dataclasses.replace(Truth.draw(seed).site, gravity=instrument.gravity, sample_rate=rate)
+    layouts = device_layouts()
+    dwells = [d for stage in ("coarse", "fine") for d in dwells_from_columns(columns[stage], layouts=layouts)]
+    default = calibrate_device(dwells, site, layouts=layouts)
+    given = with_given_slow_noise(dwells, noise.bias_instability, noise.random_walk, "the generator's truth")
+    reference = calibrate_device(dwells, site, layouts=layouts, noise=given)
+
+    class _Truth:
+        parameters = dict(instrument.parameters)
+        configuration = GimbalConfiguration((1, 1, 1, 1))
+
+    fit = default.final
+    return SessionResult(
+        world_name,
+        seed,
+        _z(fit, _Truth),
+        _z(reference.final, _Truth),
+        float(fit.chi2_red),
+        float(chi2.sf(fit.chi2, fit.dof)) if fit.dof > 0 else math.nan,
+        float(reference.final.chi2_red),
+        bool(default.noise.test is not None and default.noise.test.detected),
+        time.perf_counter() - t0,
+    )
+
+
 #: Session runners by level (the system level: issue 25 part 3 adds its runner here).
-LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {"device": device_session}
+LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {"device": device_session, "independent": independent_session}
 
 
 def _job(args: tuple[str, str, int, float]) -> SessionResult:

@@ -26,9 +26,10 @@ from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
 from stableins.estimators.orientation import check_orientation
+from stableins.estimators.residual_noise import ResidualSlowNoise, given_noise_test, residual_slow_noise
 from stableins.estimators.result import FitResult, InputSensitivity
 from stableins.estimators.setting import DeviceSetting
-from stableins.estimators.slow_noise import DEFAULT_ALPHA, slow_noise_test
+from stableins.estimators.slow_noise import DEFAULT_ALPHA, DwellSlowNoise, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -127,6 +128,37 @@ class DeviceCalibration:
         return self.final._repr_html_()
 
 
+def dwell_slow_noise(dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95) -> DwellSlowNoise:
+    """Return the within-dwell Allan decision of :func:`stableins.estimators.slow_noise.slow_noise_test` on the usable dwells."""
+    usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
+    ratios = [(d.samples, d.allan_ratios, d.noise**2, d.rate) for d in usable if d.allan_ratios is not None]
+    return slow_noise_test(ratios, alpha=alpha, confidence=confidence)
+
+
+def noise_from_residuals(white: NoiseModel, residual: ResidualSlowNoise, source: str) -> NoiseModel:
+    """Return the session's noise model: white noise from ``white`` (the dwells), slow noise from the residuals' REML estimate.
+
+    Bias instability: the estimate, lower limit 0 unless the combined decision detects slow noise (then the estimate's
+    own), upper limit the profile limit; random walk: the estimate, not bounded above (a session cannot separate it
+    from bias instability well); the decision is the combined test (:mod:`stableins.estimators.residual_noise`).
+    """
+    detected = residual.test.detected
+    b = NoiseTerm(residual.bias_instability, residual.bias_instability if detected else 0.0, residual.bias_instability_upper)
+    k = NoiseTerm(residual.random_walk, residual.random_walk if detected else 0.0, math.inf)
+    axes = tuple(replace(a, bias_instability=b, random_walk=k) for a in white.axes)
+    provenance = (
+        f"measured in the dwells of {source}: white noise from the sample variances; slow noise "
+        f"({'detected' if detected else 'not detected'}, p = {residual.test.p_value:.3g} at false-positive rate "
+        f"{residual.test.alpha:g}: residual scatter between passes at each position p = {residual.residual_p:.3g}, "
+        f"Allan variance inside the dwells p = {residual.allan_p:.3g}) estimated by restricted maximum likelihood from "
+        f"{residual.rows} within-position contrasts of the dwell-mean residuals and the within-dwell Allan variance: "
+        f"B = {residual.bias_instability / MICRO_G:.3g} ug (upper {residual.bias_instability_upper / MICRO_G:.3g} ug), "
+        f"K = {residual.random_walk:.3g} m/s^2/sqrt(s) (not bounded above); the σ use these values, detected or not "
+        "(docs/noise.md §3)"
+    )
+    return NoiseModel(axes, NoiseSource.DEVICE_DWELLS, provenance, white.confidence, residual.test)  # type: ignore[arg-type]
+
+
 def noise_from_dwells(
     dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95, source: str = "the dwells"
 ) -> NoiseModel:
@@ -151,8 +183,7 @@ def noise_from_dwells(
     total = dof.sum()
     q = (1.0 - confidence) / 2.0
     lo, hi = total / chi2.ppf(1 - q, total), total / chi2.ppf(q, total)
-    ratios = [(d.samples, d.allan_ratios, d.noise**2, d.rate) for d in usable if d.allan_ratios is not None]
-    slow = slow_noise_test(ratios, alpha=alpha, confidence=confidence)
+    slow = dwell_slow_noise(usable, alpha=alpha, confidence=confidence)
     z = norm.ppf(confidence)
     # detected: the unbiased estimate of B² with its interval; not detected: 0 with the upper limit.  (Using the
     # non-significant estimate instead inflates σ on white noise, grossly so for short dwells, where it is mostly noise.)
@@ -314,12 +345,18 @@ def _floor_note(noise: NoiseModel, b_up: NDArray[np.float64], ratio: float) -> s
     """Return the note of a measured noise model without slow noise: what the largest floor would do to the σ."""
     test = noise.test
     assert test is not None  # a measured noise model carries its slow-noise test
+    b, k = float(np.max(noise.values("bias_instability"))), float(np.max(noise.values("random_walk")))
+    resting = (
+        "the σ rest on white noise"
+        if b == 0 and k == 0
+        else f"the σ rest on the slow noise the residuals estimate (B = {b / MICRO_G:.2g} ug, K = {k:.2g} m/s^2/sqrt(s))"
+    )
     text = (
         f"slow noise not detected in the dwells (p = {test.p_value:.2g} at false-positive rate {test.alpha:g}): "
-        f"the σ rest on white noise.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
+        f"{resting}.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
         f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'; the certificate's U "
-        "includes it as the Type B input 'slow noise not resolved'), and the random walk is not bounded.  Measure the noise "
-        "model on a static record ('stableins noise') or give it (--noise)"
+        "includes it as the Type B input 'slow noise not resolved'), and the random walk "
+        "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
     )
     return "warning: " + text if ratio > 1.1 else text
 
@@ -406,6 +443,71 @@ def _dwells_and_site(
     return summaries, site
 
 
+@dataclass(frozen=True)
+class _Stages:
+    """The fits of one device session under one noise model."""
+
+    session: _DeviceFit
+    coarse: FitResult
+    fine: FitResult | None
+    passes: tuple[FitResult, ...]
+    fused: FitResult | None
+    used_coarse: list[DwellSummary]
+    used_fine: list[DwellSummary]
+
+
+def _run_stages(
+    session: _DeviceFit,
+    dwells: Sequence[DwellSummary],
+    coarse_layout: StageLayout,
+    fine_layout: StageLayout,
+    *,
+    allow_missing: bool,
+    coarse_nonlinear: bool,
+    extra_terms: Sequence[Term],
+    source: str,
+) -> _Stages:
+    """Coarse passes, their joint fit, the fine stage and the fused fit of one session under ``session.noise``."""
+    site, configuration, noise_model = session.site, session.configuration, session.noise
+    passes, pass_dwells = _coarse_passes(
+        session, dwells, coarse_layout, allow_missing=allow_missing, nonlinear=coarse_nonlinear, source=source
+    )
+    used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
+    if len(passes) > 1:
+        joint_note = f"joint fit of coarse passes {', '.join(map(str, sorted(pass_dwells)))} (each with its own readings)"
+        coarse = session.fit_joint(used_coarse, start=passes[-1], nonlinear=coarse_nonlinear, notes=(joint_note,))
+    else:
+        coarse = passes[-1]
+    mismatch = _handedness_warning(coarse_layout, configuration)
+    coarse, passes[-1] = _with_note(coarse, mismatch), _with_note(passes[-1], mismatch)
+    fine = fused = None
+    used_fine: list[DwellSummary] = []
+    fine_dwells = _fine_dwells(session, dwells, fine_layout, source)
+    if fine_dwells:
+        fine = calibrate_fine(
+            fine_dwells,
+            coarse,
+            gravity=site.gravity,
+            expected_positions=fine_layout.positions,
+            allow_missing=allow_missing,
+            noise=noise_model,
+            model=fine_model(extra_terms),
+            source=f"{source} (fine)",
+        )
+        fine = _with_note(fine, mismatch)
+        used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
+        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == Status.ESTIMATED}
+        fused = session.fit_joint(
+            used_coarse,
+            used_fine,
+            start=start,
+            stage="coarse+fine",
+            notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
+            + ((mismatch,) if mismatch is not None else ()),
+        )
+    return _Stages(session, coarse, fine, tuple(passes), fused, used_coarse, used_fine)
+
+
 def calibrate_device(
     dwells: Sequence[DwellSummary] | Any,
     site: SiteMetadata | None = None,
@@ -447,43 +549,59 @@ def calibrate_device(
     configuration = GimbalConfiguration((*site.gimbal_senses,))
     measured = noise is None or noise.source is NoiseSource.NONE
     noise_model = noise_from_dwells(dwells, source=source) if noise is None or measured else noise
-    session = _DeviceFit(site, configuration, noise_model, tuple(extra_terms))
-    passes, pass_dwells = _coarse_passes(
-        session, dwells, coarse_layout, allow_missing=allow_missing, nonlinear=coarse_nonlinear, source=source
-    )
-    used_coarse = [d for p in sorted(pass_dwells) for d in sorted(pass_dwells[p], key=lambda d: d.position)]
-    if len(passes) > 1:
-        joint_note = f"joint fit of coarse passes {', '.join(map(str, sorted(pass_dwells)))} (each with its own readings)"
-        coarse = session.fit_joint(used_coarse, start=passes[-1], nonlinear=coarse_nonlinear, notes=(joint_note,))
-    else:
-        coarse = passes[-1]
-    mismatch = _handedness_warning(coarse_layout, configuration)
-    coarse, passes[-1] = _with_note(coarse, mismatch), _with_note(passes[-1], mismatch)
-    fine = fused = None
-    used_fine: list[DwellSummary] = []
-    fine_dwells = _fine_dwells(session, dwells, fine_layout, source)
-    if fine_dwells:
-        fine = calibrate_fine(
-            fine_dwells,
-            coarse,
-            gravity=site.gravity,
-            expected_positions=fine_layout.positions,
+
+    def stages(model: NoiseModel) -> _Stages:
+        return _run_stages(
+            _DeviceFit(site, configuration, model, tuple(extra_terms)),
+            dwells,
+            coarse_layout,
+            fine_layout,
             allow_missing=allow_missing,
-            noise=noise_model,
-            model=fine_model(extra_terms),
-            source=f"{source} (fine)",
+            coarse_nonlinear=coarse_nonlinear,
+            extra_terms=extra_terms,
+            source=source,
         )
-        fine = _with_note(fine, mismatch)
-        used_fine = sorted((d for d in fine_dwells if d.position in fine.positions()), key=lambda d: d.position)
-        start = coarse.as_dict() | {k: v for k, v, st in zip(fine.ids, fine.values, fine.status, strict=True) if st == Status.ESTIMATED}
-        fused = session.fit_joint(
-            used_coarse,
-            used_fine,
-            start=start,
-            stage="coarse+fine",
-            notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
-            + ((mismatch,) if mismatch is not None else ()),
+
+    run = stages(noise_model)
+    if measured and noise_model.test is not None:
+        # the default path: slow noise from the residual scatter between passes at each position and the Allan variance
+        # inside the dwells (REML, stableins.estimators.residual_noise); the σ use it, detected or not
+        within = dwell_slow_noise(dwells)
+        residual = residual_slow_noise(
+            run.used_coarse,
+            run.used_fine,
+            setting=run.session.setting,
+            fit=run.fused or run.coarse,
+            allan=(within.b2, within.b2_sigma, within.test.p_value),
         )
+        noise_model = noise_from_residuals(noise_model, residual, source)
+        run = stages(noise_model)
+    rejected_note = None
+    if not measured and noise_model.source is not NoiseSource.NONE:
+        # a given model (datasheet, another record's) the residuals reject is said, and the σ follow the data
+        final = run.fused or run.coarse
+        within = dwell_slow_noise(dwells)
+        evidence = (within.b2, within.b2_sigma, within.test.p_value)
+        check = given_noise_test(run.used_coarse, run.used_fine, setting=run.session.setting, fit=final, model=noise_model, allan=evidence)
+        if check.rejected:
+            residual = residual_slow_noise(
+                run.used_coarse,
+                run.used_fine,
+                setting=run.session.setting,
+                fit=run.fused or run.coarse,
+                allan=(within.b2, within.b2_sigma, within.test.p_value),
+            )
+            given_text = noise_model.describe()
+            noise_model = noise_from_residuals(noise_from_dwells(dwells, source=source), residual, source)
+            rejected_note = (
+                f"warning: the given noise model ({given_text}) is rejected by the dwells (residuals between passes and "
+                f"Allan variance inside the dwells: likelihood ratio {check.statistic:.3g}, p = {check.p_value:.2g} < {check.alpha:g}): "
+                "the σ use the noise model the data "
+                f"measure instead (B = {residual.bias_instability / MICRO_G:.3g} ug, K = {residual.random_walk:.3g} m/s^2/sqrt(s))"
+            )
+            run = stages(noise_model)
+    session, coarse, fine, passes, fused = run.session, run.coarse, run.fine, list(run.passes), run.fused
+    used_coarse, used_fine = run.used_coarse, run.used_fine
     floor = None
     if measured and noise_model.test is not None and not noise_model.test.detected:
         b_up = noise_model.limits("bias_instability")[1]
@@ -495,6 +613,11 @@ def calibrate_device(
             else:
                 floor = largest.fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear)
                 coarse = _with_floor(coarse, floor, _floor_note(noise_model, b_up, floor_ratio(coarse, floor)))
+    if rejected_note is not None:
+        if fused is not None:
+            fused = _with_note(fused, rejected_note)
+        else:
+            coarse = _with_note(coarse, rejected_note)
     settings = {
         "coarse_procedure": coarse_layout.name,
         "fine_procedure": fine_layout.name,
