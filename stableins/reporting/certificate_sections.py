@@ -17,7 +17,7 @@ from reportlab.platypus import Flowable, KeepTogether
 
 from stableins.reporting import content, document, rounding
 from stableins.reporting.budget import TITLES
-from stableins.reporting.context import NOT_RECORDED, ReportContext, file_name, paragraph, period
+from stableins.reporting.context import NOT_RECORDED, ReportContext, file_name, no_statement, paragraph, period, verdict_colour_hex
 from stableins.reporting.document import escape, heading
 from stableins.reporting.rounding import COVERAGE_FACTOR
 from stableins.reporting.symbols import markup, prose
@@ -148,11 +148,9 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [*heading("2  Statement of conformity", room_mm=45)]
     t = ctx.tolerances
     if t.empty:
-        text = escape(content.no_statement_text(t.source))
-        out.append(paragraph(text.replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
-        return out
+        return [*out, no_statement(t)]
     verdict = content.overall_verdict(ctx.checks)
-    colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
+    colour = verdict_colour_hex(verdict)
     spec = next((f for f in ctx.inputs if f.role == "procedure"), None)
     specification = (
         f"the [tolerances] table of the procedure {escape(spec.name)} (SHA-256 {spec.sha256[:16]}…)"
@@ -160,7 +158,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
         else escape(file_name(t.source))
     )
     counts = content.conformity_counts(ctx.checks)
-    out.append(paragraph(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>  ({counts})', "verdict"))
+    out.append(paragraph(f'Verdict: <font color="{colour}">{verdict}</font>  ({counts})', "verdict"))
     out.append(
         paragraph(
             f"<b>Specification</b>: {specification}. <b>Decision rule</b>: {escape(RULE_TEXT[t.decision_rule])} "

@@ -9,7 +9,7 @@ from reportlab.platypus import Flowable, KeepTogether
 
 from stableins.history import CHANGE_THRESHOLD
 from stableins.reporting import content, document, figures, rounding
-from stableins.reporting.context import ReportContext, file_name, fmt, paragraph, period
+from stableins.reporting.context import ReportContext, file_name, fmt, no_statement, paragraph, period, verdict_colour_hex
 from stableins.reporting.document import escape, heading
 from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import markup
@@ -84,11 +84,9 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out: list[Flowable] = [*heading("10  Statement of conformity", room_mm=50)]
     t = ctx.tolerances
     if t.empty:
-        text = escape(content.no_statement_text(t.source))
-        out.append(paragraph(text.replace("No statement of conformity", "<b>No statement of conformity</b>", 1)))
-        return out
+        return [*out, no_statement(t)]
     verdict = content.overall_verdict(ctx.checks)
-    colour = document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"])
+    colour = verdict_colour_hex(verdict)
     out.append(
         paragraph(
             f"Tolerances: {escape(file_name(t.source))}. Decision rule: {escape(RULE_TEXT[t.decision_rule])} "
@@ -108,7 +106,7 @@ def conformity(ctx: ReportContext) -> list[Flowable]:
     out.append(
         KeepTogether(
             [
-                paragraph(f'Verdict: <font color="{colour.hexval()}">{verdict}</font>', "verdict"),
+                paragraph(f'Verdict: <font color="{colour}">{verdict}</font>', "verdict"),
                 paragraph(
                     f"{content.conformity_counts(ctx.checks)}. Checks marked 'not assessed' concern parameters without a stated value "
                     "or evidence and do not enter the verdict.",

@@ -85,6 +85,19 @@ def paragraph(text: str, style: str = "body") -> Paragraph:
     return Paragraph(text, document.styles()[style])
 
 
+def no_statement(tolerances: Tolerances) -> Paragraph:
+    """Return the paragraph that says why no statement of conformity is made (certificate and technical report alike)."""
+    from stableins.reporting.content import no_statement_text
+
+    text = document.escape(no_statement_text(tolerances.source))
+    return paragraph(text.replace("No statement of conformity", "<b>No statement of conformity</b>", 1))
+
+
+def verdict_colour_hex(verdict: str) -> str:
+    """Return the colour a verdict is printed in, as reportlab markup wants it (``#rrggbb``)."""
+    return document.VERDICT_COLOURS.get(verdict.lower(), document.VERDICT_COLOURS["not assessed"]).hexval()
+
+
 def fmt(x: float, significant: int = 3) -> str:
     """Return a number to ``significant`` digits as the certificate prints it (a dash when not finite)."""
     return rounding.number(x, significant) if math.isfinite(x) else "—"
