@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -72,8 +73,6 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     """One device session in ``world_name`` (module docstring), calibrated on the default path and with the true noise."""
     import argparse as _argparse
 
-    from scipy.stats import chi2
-
     from stableins.commands.simulate import _device_procedures, _iterated_session
     from stableins.estimators.device import calibrate_device, with_given_slow_noise
     from stableins.estimators.dwell import dwells_from_columns
@@ -91,6 +90,13 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     n = truth.noise
     given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
     reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
+    return _session_result(world_name, seed, default, reference, truth, t0)
+
+
+def _session_result(world_name: str, seed: int, default: Any, reference: Any, truth: Any, t0: float) -> SessionResult:
+    """The figures of one session: z of the default path and of the true-noise path, χ²_ν, p, detection, time."""
+    from scipy.stats import chi2
+
     fit = default.final
     return SessionResult(
         world_name,
@@ -115,8 +121,6 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     """
     import importlib.util
     from pathlib import Path
-
-    from scipy.stats import chi2
 
     from stableins.conventions import GimbalConfiguration
     from stableins.estimators.device import calibrate_device, with_given_slow_noise
@@ -162,18 +166,7 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
         parameters = dict(instrument.parameters)
         configuration = GimbalConfiguration((1, 1, 1, 1))
 
-    fit = default.final
-    return SessionResult(
-        world_name,
-        seed,
-        _z(fit, _Truth),
-        _z(reference.final, _Truth),
-        float(fit.chi2_red),
-        float(chi2.sf(fit.chi2, fit.dof)) if fit.dof > 0 else math.nan,
-        float(reference.final.chi2_red),
-        bool(default.noise.test is not None and default.noise.test.detected),
-        time.perf_counter() - t0,
-    )
+    return _session_result(world_name, seed, default, reference, _Truth, t0)
 
 
 #: Session runners by level (the system level: issue 25 part 3 adds its runner here).
