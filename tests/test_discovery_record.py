@@ -16,7 +16,7 @@ from stableins.data.truth import load_truth
 from stableins.discovery.carry import carry_effects
 from stableins.discovery.library import LIBRARY, calibration_limit, calibration_terms, record_terms
 from stableins.discovery.steps import Decision
-from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, TermInputs
+from stableins.errormodel import MICRO_G_PER_G2, ErrorModel, Term, TermInputs, TermKind
 from stableins.errors import InputError
 from stableins.estimators.device import calibrate_device
 from stableins.estimators.device_gauge import gauge_equivalent
@@ -26,6 +26,7 @@ from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.effects import CATALOGUE
+from stableins.simulator.physics import Accelerometer, SensorInputs
 from stableins.simulator.truth import Truth
 
 COARSE = load_procedure("device-coarse")
@@ -186,11 +187,11 @@ def test_compensation_with_the_record_inverts_the_model_with_its_discovered_term
     """``record.error_model().inverse`` undoes the instrument including the effect, defined by the simulator."""
     model = ErrorModel.standard(nonlinear=True)
     truth = {"sf_x": 1 + 3e-4, "bias_y": 40 * MICRO_G, "beta_xz": 2e-4, "K2_z": 30 * MICRO_G_PER_G2, "Kcc_xxy": KCC}
-    world = model + (CATALOGUE["Kcc_xxy"].term(),)
+    world = Accelerometer(truth, (("Kcc_xxy", CATALOGUE["Kcc_xxy"].regressor),))  # the simulator's model and effect
     rng = np.random.default_rng(3)
     f_p = rng.normal(size=(200, 3))
     f_p *= 9.8 / np.linalg.norm(f_p, axis=1, keepdims=True)
-    f_a = world.forward(f_p, truth)
+    f_a = world.output(f_p)
     compensation = model + record_terms(["sf_x", "Kcc_xxy"])
     assert np.abs(compensation.inverse(f_a, truth) - f_p).max() < 1e-12
     assert np.abs(model.inverse(f_a, truth) - f_p).max() > 1e-5  # without the term: tens of µg
@@ -201,7 +202,7 @@ def test_library_and_simulator_define_the_carried_effects_alike():
     f = np.random.default_rng(5).normal(size=(50, 3)) * 7.0
     for term_id in (c.id for c in LIBRARY if calibration_limit(c.id) is None):
         ours = LIBRARY[term_id].term.regressor(TermInputs(f))
-        world = CATALOGUE[term_id].regressor(TermInputs(f))
+        world = CATALOGUE[term_id].regressor(SensorInputs(f))
         assert np.allclose(ours, world, rtol=1e-12, atol=0.0), term_id
 
 
@@ -336,7 +337,10 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
 
     monkeypatch.setattr("os.fsync", lambda fd: None)
     truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}
-    world = ErrorModel.standard(nonlinear=True, gimbals=True) + (CATALOGUE["Kcc_xxy"].term(),)
+    effect = CATALOGUE["Kcc_xxy"]  # the simulator's definition of the effect, as an additive term of the exact platform's model
+    term = Term(effect.id, TermKind.ADDITIVE, effect.unit, effect.unit, 1.0, effect.nominal, effect.meaning, axis=effect.axis,
+                regressor=effect.regressor)
+    world = ErrorModel.standard(nonlinear=True, gimbals=True) + (term,)
 
     def short(name, table=""):
         text = Path(load_procedure(name).path).read_text(encoding="utf-8")

@@ -259,6 +259,61 @@ def test_the_simulator_imports_no_data_drivers_estimators_or_discovery() -> None
     assert not bad
 
 
+#: The estimators' model: the simulator must not import it, even inside a function (issue 31), so that a sign or
+#: axis error in it cannot hide in every simulate-then-fit test.  ``stableins.terms`` and ``stableins.coremodel`` are
+#: its parts (:mod:`stableins.errormodel` re-exports them).
+ESTIMATORS_MODEL = ("stableins.errormodel", "stableins.terms", "stableins.coremodel", "stableins.estimators", "stableins.discovery")
+#: Names of :mod:`stableins.conventions` that are the estimators' installation matrix and its sign table.
+ESTIMATORS_INSTALLATION = {"dcm_platform_to_accelerometer", "INSTALLATION_ENTRIES"}
+
+
+def _simulator_uses_of_the_estimators_model(found: dict[str, Path]) -> list[str]:
+    bad = []
+    for module, path in found.items():
+        if not module.startswith("stableins.simulator"):
+            continue
+        for target, line, _ in imports(module):
+            if any(target == m or target.startswith(m + ".") for m in ESTIMATORS_MODEL):
+                bad.append(f"{module}:{line} imports {target}")
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else None
+            if isinstance(node, ast.alias):
+                name = node.name
+            if name in ESTIMATORS_INSTALLATION:
+                bad.append(f"{module}:{getattr(node, 'lineno', '?')} uses conventions.{name}")
+    return bad
+
+
+def test_the_simulator_never_imports_the_estimators_model() -> None:
+    """No module of ``stableins.simulator`` imports errormodel, terms, coremodel, estimators or discovery (functions too)."""
+    assert not _simulator_uses_of_the_estimators_model(modules())
+
+
+def test_the_simulator_model_check_can_fail(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """An import of the error model inside a function, or the estimators' installation matrix, is found."""
+    fake = _synthetic_package(
+        tmp_path,
+        {
+            "stableins.simulator.device": "def f():\n    from stableins.errormodel import ErrorModel\n",
+            "stableins.simulator.system": "from stableins import conventions\nC = conventions.dcm_platform_to_accelerometer\n",
+            "stableins.simulator.truth": "from stableins.conventions import INSTALLATION_ENTRIES\n",
+            "stableins.errormodel": "",
+            "stableins.conventions": "",
+        },
+    )
+    monkeypatch.setattr(f"{__name__}.modules", lambda: fake)
+    imports.cache_clear()
+    try:
+        bad = _simulator_uses_of_the_estimators_model(fake)
+    finally:
+        imports.cache_clear()
+    assert bad == [
+        "stableins.simulator.device:2 imports stableins.errormodel",
+        "stableins.simulator.system:2 uses conventions.dcm_platform_to_accelerometer",
+        "stableins.simulator.truth:1 uses conventions.INSTALLATION_ENTRIES",
+    ]
+
+
 def test_docs_hold_the_layer_table() -> None:
     """docs/architecture.md lists every entry of :data:`LAYERS` in the row of its layer."""
     rows = {}

@@ -15,6 +15,7 @@ from stableins.discovery.library import LIBRARY
 from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import KINEMATIC_IDS, GimbalPlatform, specific_force_and_jacobian
 from stableins.simulator.effects import CATALOGUE
+from stableins.simulator.physics import Accelerometer, SensorInputs
 
 G = 9.80170
 OUTPUT_IDS = tuple(k for k, e in CATALOGUE.items() if e.kind == "output")
@@ -31,8 +32,14 @@ def _world(seed: int, n: int = 40):
 
 
 def _signal(model, values, f_p, inputs, term, value):
-    """Output with the term at ``value`` minus the output without it."""
+    """Output with the term at ``value`` minus the output without it (the estimators' model)."""
     return (model + (term,)).forward(f_p, values | {term.id: value}, inputs) - model.forward(f_p, values, inputs)
+
+
+def _simulated_signal(values, f_p, inputs, effect_id, value):
+    """The same with the simulator's own model and its definition of the effect (:mod:`stableins.simulator.physics`)."""
+    effect = ((effect_id, CATALOGUE[effect_id].regressor),)
+    return Accelerometer(values | {effect_id: value}, effect).output(f_p, inputs) - Accelerometer(values).output(f_p, inputs)
 
 
 def test_every_simulated_effect_has_its_library_candidate():
@@ -47,17 +54,17 @@ def test_output_effects_give_the_library_signal(seed):
     rng, readings, base, model, values = _world(seed)
     f_p = GimbalPlatform(base_attitude=base).specific_force_platform(readings, G)
     n = len(readings)
-    inputs = TermInputs(
-        f_p,
-        temperature=rng.normal(0, 2, n),
-        time=rng.uniform(0, 1e4, n),
-        slew_direction=rng.choice([-1.0, 0.0, 1.0], (n, 3)),
-        angular_rate=rng.normal(0, 0.3, (n, 3)),
-        angular_acceleration=rng.normal(0, 0.3, (n, 3)),
-    )
+    sampled = {
+        "temperature": rng.normal(0, 2, n),
+        "time": rng.uniform(0, 1e4, n),
+        "slew_direction": rng.choice([-1.0, 0.0, 1.0], (n, 3)),
+        "angular_rate": rng.normal(0, 0.3, (n, 3)),
+        "angular_acceleration": rng.normal(0, 0.3, (n, 3)),
+    }
+    inputs = TermInputs(f_p, **sampled)
     for tid in OUTPUT_IDS:
         value = 3.0 * CATALOGUE[tid].nominal
-        simulated = _signal(model, values, f_p, inputs, CATALOGUE[tid].term(), value)
+        simulated = _simulated_signal(values, f_p, SensorInputs(f_p, **sampled), tid, value)
         library = _signal(model, values, f_p, inputs, LIBRARY[tid].term, value)
         assert np.max(np.abs(simulated)) > 0.0, tid  # the random attitudes and inputs excite every effect
         np.testing.assert_allclose(library, simulated, rtol=1e-12, atol=1e-12 * np.max(np.abs(simulated)), err_msg=tid)

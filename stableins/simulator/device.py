@@ -26,8 +26,9 @@ computed Earth rate, inertially held; docs/conventions.md "The platform during a
    exact inverse kinematics.  (The gyro-case-rotation residual of ``truth.gyro_drift`` is a
    system-level effect, left out here.)
 3. ``f^p = C_n^p f^n`` with ``f^n = (0, 0, −g)``.
-4. Accelerometer output from the full nonlinear forward model
-   :meth:`stableins.errormodel.ErrorModel.forward` with the true parameters plus the
+4. Accelerometer output from the full nonlinear model, the simulator's own
+   (:meth:`stableins.simulator.physics.Accelerometer.output`, Eq. 6 written again from
+   docs/conventions.md, not the estimators' :mod:`stableins.errormodel`) with the true parameters plus the
    injected output effects (:mod:`stableins.simulator.effects`), evaluated with the
    temperature, session time, slew direction and platform angular rate/acceleration
    (``ω_bp^p`` of the platform relative to the static base; the Earth rate is left
@@ -54,11 +55,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import dwell_platform_rate, earth_rate_nav, platform_drift_rate, specific_force_nav
 from stableins.dwell_mode import DwellMode
-from stableins.errormodel import ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.samples import SampleBlock
 from stableins.simulator import effects as fx
 from stableins.simulator.noise import BLOCK_SAMPLES, NoiseGenerator, Quantizer
+from stableins.simulator.physics import Accelerometer, SensorInputs
 from stableins.simulator.truth import Truth
 from stableins.site import SiteMetadata
 
@@ -103,8 +104,7 @@ class SimulatedPlatform:
         self._closed = False
         values = dict(truth.parameters)
         values.update({k: v for k, v in truth.effects.items() if fx.CATALOGUE[k].kind == "output"})
-        self._values = values
-        self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
+        self._accelerometer = Accelerometer(values, fx.output_effects(truth.effects))
         self._gravity_nav = specific_force_nav(truth.site.gravity)
         self._drift = np.array([truth.gyro_drift.get(a, 0.0) for a in "xyz"])
         self._torquer = np.array([truth.gyro_drift.get(f"torquer_scale_{a}", 0.0) for a in "xyz"])
@@ -250,7 +250,7 @@ class SimulatedPlatform:
         if np.any(has):
             directions = np.array([c.slew_direction for c in self._commands])
             slew_direction[has] = directions[segment[has]]
-        inputs = TermInputs(
+        inputs = SensorInputs(
             specific_force=f_p,
             temperature=temperature - truth.site.reference_temperature,
             time=time,
@@ -261,8 +261,8 @@ class SimulatedPlatform:
             w = self.platform.angular_rate(self.platform.actual_angles(sampled), rates)
             w_plus = self._angular_rate_at(index, shift + h)
             w_minus = self._angular_rate_at(index, shift - h)
-            inputs = TermInputs(f_p, inputs.temperature, inputs.time, slew_direction, w, (w_plus - w_minus) / (2 * h))
-        f_a = self._model.forward(f_p, self._values, inputs)
+            inputs = SensorInputs(f_p, inputs.temperature, inputs.time, slew_direction, w, (w_plus - w_minus) / (2 * h))
+        f_a = self._accelerometer.output(f_p, inputs)
         f_a = f_a + self.noise.accelerometer(int(index[0]), len(index))
         return f_a, readings, temperature
 

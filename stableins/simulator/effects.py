@@ -3,8 +3,8 @@ r"""Extra physical effects the world can contain, injectable by id with a magnit
 Two kinds:
 
 ``output`` effects add to the accelerometer output *before* the quadratic
-nonlinearity of Eq. 6 (they enter ``w`` of :meth:`stableins.errormodel.ErrorModel.forward`
-as additive terms), each as ``value × regressor``.  The regressors below are the
+nonlinearity of Eq. 6 (they enter ``w`` of :meth:`stableins.simulator.physics.Accelerometer.output`
+as additive effects), each as ``value × regressor``.  The regressors below are the
 simulator's own physics, written here; they do not come from any estimator.
 ``f`` is the platform-frame specific force ``f^p`` along the nominal sensitive axes,
 ``ΔT`` the temperature minus the reference, ``t`` the session time.
@@ -59,8 +59,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
-from stableins.errormodel import Term, TermInputs, TermKind
 from stableins.errors import InputError
+from stableins.simulator.physics import Regressor, SensorInputs
 
 _G = STANDARD_GRAVITY
 
@@ -105,7 +105,7 @@ class Effect:
     kind : str
         ``"output"`` (adds to the accelerometer output), ``"geometry"`` or ``"timing"``.
     regressor : callable or None
-        For output effects: ``TermInputs -> (..., 3)`` output change per unit value.
+        For output effects: ``SensorInputs -> (..., 3)`` output change per unit value.
     axis : int or None
         Accelerometer axis (output effects) or gyro axis (``Dg_ab``: ``a``).
     """
@@ -115,29 +115,12 @@ class Effect:
     nominal: float
     meaning: str
     kind: str
-    regressor: Callable[[TermInputs], NDArray[np.float64]] | None = None
+    regressor: Regressor | None = None
     axis: int | None = None
 
-    def term(self) -> Term:
-        """Return the effect as an additive :class:`stableins.errormodel.Term` for the forward model."""
-        if self.kind != "output":
-            raise ValueError(f"effect {self.id!r} is a geometry effect, not an output term")
-        return Term(
-            self.id,
-            TermKind.ADDITIVE,
-            self.unit,
-            self.unit,
-            1.0,
-            self.nominal,
-            self.meaning,
-            axis=self.axis,
-            regressor=self.regressor,
-            source="stableins.simulator.effects",
-        )
 
-
-def _on_axis(axis: int, values: Callable[[TermInputs], NDArray[np.float64]]) -> Callable[[TermInputs], NDArray[np.float64]]:
-    def regressor(inputs: TermInputs) -> NDArray[np.float64]:
+def _on_axis(axis: int, values: Callable[[SensorInputs], NDArray[np.float64]]) -> Callable[[SensorInputs], NDArray[np.float64]]:
+    def regressor(inputs: SensorInputs) -> NDArray[np.float64]:
         v = values(inputs)
         out = np.zeros(np.shape(v) + (3,))
         out[..., axis] = v
@@ -146,16 +129,16 @@ def _on_axis(axis: int, values: Callable[[TermInputs], NDArray[np.float64]]) -> 
     return regressor
 
 
-def _f(inputs: TermInputs, i: int) -> NDArray[np.float64]:
+def _f(inputs: SensorInputs, i: int) -> NDArray[np.float64]:
     return np.asarray(inputs.specific_force, dtype=float)[..., i]
 
 
-def _broadcast_scalar(inputs: TermInputs, name: str, term_id: str) -> NDArray[np.float64]:
+def _broadcast_scalar(inputs: SensorInputs, name: str, term_id: str) -> NDArray[np.float64]:
     v = inputs.require(name, term_id)
     return np.broadcast_to(v, np.shape(inputs.specific_force)[:-1])
 
 
-def _lever_matrix(inputs: TermInputs, term_id: str) -> NDArray[np.float64]:
+def _lever_matrix(inputs: SensorInputs, term_id: str) -> NDArray[np.float64]:
     from stableins.conventions import skew
 
     w = inputs.require("angular_rate", term_id)
@@ -395,9 +378,14 @@ def validate_effects(effects: Mapping[str, float], source: str | None = None) ->
     return out
 
 
-def output_terms(effects: Mapping[str, float]) -> tuple[Term, ...]:
-    """Additive error-model terms for the non-zero output effects in ``effects``."""
-    return tuple(CATALOGUE[k].term() for k, v in effects.items() if CATALOGUE[k].kind == "output" and v != 0.0)
+def output_effects(effects: Mapping[str, float]) -> tuple[tuple[str, Regressor], ...]:
+    """``(id, regressor)`` of the non-zero output effects in ``effects``, in their order (for ``physics.Accelerometer``)."""
+    out = []
+    for key, value in effects.items():
+        regressor = CATALOGUE[key].regressor
+        if CATALOGUE[key].kind == "output" and value != 0.0 and regressor is not None:
+            out.append((key, regressor))
+    return tuple(out)
 
 
 def g_sensitivity(effects: Mapping[str, float]) -> NDArray[np.float64]:

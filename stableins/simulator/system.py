@@ -22,14 +22,14 @@ space; g-sensitivity effects ``Dg_ab`` add the gyro error ``D_g f^p``, so the pl
 ``w = −(ε^p + D_g f^p)`` (:func:`stableins.conventions.platform_drift_rate`) and the navigation
 computer's attitude error is driven by the same total gyro error.  The gimbal readings
 are the exact inverse kinematics of ``C_b^p = C_n^p C_b^n`` (continuous, not wrapped).
-The accelerometers output :meth:`stableins.errormodel.ErrorModel.forward` of
-``f^p = C_n^p (0, 0, -g)`` with the true parameters and output effects, plus noise
-and quantization.
+The accelerometers output :meth:`stableins.simulator.physics.Accelerometer.output` (the
+simulator's own Eq. 6, not the estimators' model) of ``f^p = C_n^p (0, 0, -g)`` with the true
+parameters and output effects, plus noise and quantization.
 
 The navigation computer
 -----------------------
 It compensates the raw outputs with ``installed_calibration`` (exact inverse model,
-:meth:`~stableins.errormodel.ErrorModel.inverse`), giving ``\hat f^p``; the
+:meth:`stableins.simulator.physics.Accelerometer.specific_force`), giving ``\hat f^p``; the
 specific-force error in the navigation frame is
 ``Δf^n = C_p^n (\hat f^p − f^p)`` (noise included).  It keeps its platform-to-local
 DCM ``C_p^{n'} = C_n^{n'} C_p^n`` with ``C_n^{n'} = I − [φ×]`` and outputs the attitude
@@ -89,13 +89,13 @@ from stableins.conventions import (
     polar_alignment_readings,
     skew,
 )
-from stableins.errormodel import GIMBAL_IDS, ErrorModel, TermInputs
 from stableins.platform import rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
 from stableins.simulator.error_dynamics import ModalRecursion, error_dynamics
 from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
+from stableins.simulator.physics import GIMBAL_IDS, Accelerometer, SensorInputs
 from stableins.simulator.truth import Truth
 from stableins.turns import PlatformTurn
 
@@ -155,13 +155,13 @@ class SystemWorld:
         k = skew(axis)
         self._ck, self._ck2 = self.nav_to_platform_0 @ k, self.nav_to_platform_0 @ k @ k
         # error model of the world and of the navigation computer
-        self._values = dict(truth.parameters)
-        self._values.update({key: v for key, v in truth.effects.items() if fx.CATALOGUE[key].kind == "output"})
-        self._model = ErrorModel.standard(nonlinear=True) + fx.output_terms(truth.effects)
+        values = dict(truth.parameters)
+        values.update({key: v for key, v in truth.effects.items() if fx.CATALOGUE[key].kind == "output"})
+        self._accelerometer = Accelerometer(values, fx.output_effects(truth.effects))
         # the INS compensates with its installed calibration: the standard terms and any installed output effects
         self._installed = dict(truth.installed_calibration)
-        self._computer = ErrorModel.standard(nonlinear=True) + fx.output_terms(
-            {k: v for k, v in self._installed.items() if k in fx.CATALOGUE}
+        self._computer = Accelerometer(
+            self._installed, fx.output_effects({k: v for k, v in self._installed.items() if k in fx.CATALOGUE})
         )
         self._needs_rates = fx.needs(truth.effects, "lever_")
         self._g_sensitivity = fx.g_sensitivity(truth.effects)
@@ -251,7 +251,7 @@ class SystemWorld:
         f_p = -self.gravity * dcm[:, :, 2]
         temperature = truth.noise.temperature(time)
         zeros = np.zeros((count, 3))
-        inputs = TermInputs(
+        inputs = SensorInputs(
             specific_force=f_p,
             temperature=temperature - truth.site.reference_temperature,
             time=time,
@@ -259,11 +259,11 @@ class SystemWorld:
             angular_rate=zeros if self._needs_rates else None,
             angular_acceleration=zeros if self._needs_rates else None,
         )
-        f_a = self._model.forward(f_p, self._values, inputs) + self.noise.accelerometer(start, count)
+        f_a = self._accelerometer.output(f_p, inputs) + self.noise.accelerometer(start, count)
         f_a = self.quantizer(start, f_a)
         measured = readings + self.noise.angles(start, count)
         # navigation computer
-        f_hat = self._computer.inverse(f_a, self._installed, inputs)
+        f_hat = self._computer.specific_force(f_a, inputs)
         df_n = np.einsum("nji,nj->ni", dcm, f_hat - f_p)
         eps_n = np.einsum("nji,nj->ni", dcm, -platform_drift_rate(self.gyro_drift(time), self._g_sensitivity, f_p))
         x, self._z = self.recursion.run(np.hstack([df_n, eps_n]), self._z)

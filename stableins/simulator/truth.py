@@ -14,17 +14,15 @@ from types import MappingProxyType
 from typing import Any
 
 from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
-from stableins.errormodel import GIMBAL_IDS, MICRO_G_PER_G2, ErrorModel
 from stableins.errors import InputError
 from stableins.simulator.effects import CATALOGUE, validate_effects
 from stableins.simulator.noise import NoiseSettings
+from stableins.simulator.physics import GIMBAL_IDS, GYRO_IDS, MICRO_G_PER_G2, PARAMETER_IDS, REFERENCE, parameter_table
 from stableins.site import SiteMetadata
 
 SCHEMA_VERSION = 1
 KIND = "stableins.truth"
 
-#: Parameter ids a truth may set (the paper's model with gimbal offsets).
-PARAMETER_IDS = ErrorModel.standard(nonlinear=True, gimbals=True).ids
 #: Ids the installed calibration may also hold: output effects of the catalogue (discovered terms of a
 #: calibration record, which the navigation computer compensates like the others).
 INSTALLED_EFFECT_IDS = tuple(k for k, e in CATALOGUE.items() if e.kind == "output")
@@ -289,10 +287,8 @@ class Truth:
 
     def calibration_residual(self) -> dict[str, float]:
         """Return true minus installed calibration, by id [SI] (ids in either)."""
-        model = ErrorModel.standard(nonlinear=True, gimbals=True)
-        ref = {t.id: t.reference for t in model}
         ids = [i for i in PARAMETER_IDS if i in self.parameters or i in self.installed_calibration]
-        return {i: self.parameters.get(i, ref[i]) - self.installed_calibration.get(i, ref[i]) for i in ids}
+        return {i: self.parameters.get(i, REFERENCE[i]) - self.installed_calibration.get(i, REFERENCE[i]) for i in ids}
 
     def with_changes(self, **changes: Any) -> Truth:
         """Return a copy with some fields replaced (dataclasses.replace)."""
@@ -302,17 +298,16 @@ class Truth:
         """Return the truth whose navigation computer compensates with ``values`` (a calibration record's values).
 
         The record's discovered (additive) terms are installed too: the navigation computer compensates with them
-        (``ErrorModel.inverse`` with the simulator's own definition of the effect, :mod:`stableins.simulator.effects`).
+        (:meth:`stableins.simulator.physics.Accelerometer.specific_force` with the simulator's own definition of the
+        effect, :mod:`stableins.simulator.effects`).
         Ids the record lacks keep this truth's installed value.  The gyro drift (``gyro_drift_x/y/z``) and
         g-sensitivity (``Dg_ab``) are not installed: the simulated navigation computer does not compensate its gyros
         (the platform drifts with the truth's ``gyro_drift`` and ``Dg_ab`` effects).  An id neither the error model
         nor the effect catalogue's output effects know is refused (:class:`InputError` naming ``source`` and the id).
         """
-        from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS
-
         installed = dict(self.installed_calibration)
         known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
-        drift_ids = {t.id for t in GYRO_DRIFT_TERMS + GYRO_G_TERMS}
+        drift_ids = set(GYRO_IDS)
         for parameter_id, value in values.items():
             if parameter_id in drift_ids:
                 continue
@@ -343,8 +338,8 @@ class Truth:
         """Draw a realistic random instrument.
 
         Each parameter is drawn as ``reference + nominal × N(0, 1)`` with the nominal
-        magnitude of its :class:`stableins.errormodel.Term` (100 ppm, 100 µg, 30″,
-        20 µg/g², zero offsets 60″).  The installed calibration is the truth minus a
+        magnitude of the simulator's parameter table (:data:`stableins.simulator.physics.PARAMETERS`: 100 ppm,
+        100 µg, 30″, 20 µg/g², zero offsets 60″).  The installed calibration is the truth minus a
         residual drawn with :data:`DEFAULT_RESIDUAL` (override per kind with
         ``residual``).  Noise defaults to :meth:`NoiseSettings.quartz`.  ``site`` places
         the instrument (:class:`SimulatedSite`; its gravity is WGS-84 normal gravity there).
@@ -352,16 +347,16 @@ class Truth:
         import numpy as np
 
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7477]))
-        model = ErrorModel.standard(nonlinear=nonlinear, gimbals=True)
-        parameters = {t.id: float(t.reference + t.nominal * rng.standard_normal()) for t in model}
+        table = parameter_table(nonlinear=nonlinear)
+        drawn = {p.id: float(p.reference + p.nominal * rng.standard_normal()) for p in table}
         scales = {**DEFAULT_RESIDUAL, **(residual or {})}
-        installed = {t.id: float(parameters[t.id] - scales[t.kind] * rng.standard_normal()) for t in model}
+        installed = {p.id: float(drawn[p.id] - scales[p.kind] * rng.standard_normal()) for p in table}
         metadata = site.metadata(
             serial_number=site.serial_number or f"SIM-{seed}",
             reference_temperature=(noise or NoiseSettings.quartz()).temperature.reference,
         )
         return cls(
-            parameters=parameters,
+            parameters=drawn,
             site=metadata,
             effects=dict(effects or {}),
             noise=noise if noise is not None else NoiseSettings.quartz(),
