@@ -74,7 +74,7 @@ COMMANDS: dict[str, Command | Group] = {
             "poses": Command("stableins.commands.calibrate_poses", "a triad from the static poses of a real log (any columns and units)"),
         },
     ),
-    "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "run": Command("stableins.commands.run_command", "carry out a calibration procedure on a platform (journaled, resumable)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
     "protocol-check": Command(
         "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"

@@ -24,9 +24,9 @@ from stableins.procedures.definition import load_procedure
 from stableins.procedures.plan import Plan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
-from stableins.simulator.indexing import earth_rotation, indexed_record_chunks
+from stableins.simulator.indexing import earth_rotation
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.system import SystemWorld, simulate_system
+from stableins.simulator.system import SystemWorld, indexed_record_chunks, simulate_system
 from stableins.simulator.truth import SimulatedSite, Truth
 from stableins.turns import IndexAxis, PlatformTurn
 

@@ -67,17 +67,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
-    """Run one CLI command as a user would type it; its standard output goes to ``stdout`` if given."""
-    import contextlib
+    """Run one CLI command as a user would type it, in a process of its own (``python -m stableins.cli ARGV``).
+
+    Its standard output goes to ``stdout`` if given.
+    """
+    import subprocess
     import sys
 
-    from stableins import cli
-
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
-    with contextlib.ExitStack() as stack:
-        if stdout is not None:
-            stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(stdout, "w", encoding="utf-8"))))
-        status = cli.main(argv)
+    sys.stdout.flush()
+    if stdout is None:
+        status = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], check=False).returncode
+    else:
+        with open(stdout, "w", encoding="utf-8") as sink:
+            status = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=sink, check=False).returncode
     if status != 0:
         raise SystemExit(status)
 

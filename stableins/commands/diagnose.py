@@ -99,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _load(paths: list[Path], *, allow_gaps: bool) -> tuple[Any, str]:
     """Return the device datasets, or the one system record validated as 'stableins check' does, and the serial number."""
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.data.format_tag import read_format_tag
+    from stableins.data.validation import FORMAT_TAGS
     from stableins.errors import InputError
     from stableins.output import note
 

@@ -371,7 +371,8 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
     One static (system-level) record gives its Allan points fitted by :func:`~stableins.estimators.allan.fit_allan`;
     device-level files give the noise model of their usable dwells.
     """
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.data.format_tag import read_format_tag
+    from stableins.data.validation import FORMAT_TAGS
     from stableins.errors import InputError
     from stableins.estimators.allan import allan_points, fit_allan, points_for_model
     from stableins.noise import NoiseSource

@@ -158,9 +158,8 @@ def _resumed_prior(args: argparse.Namespace) -> Path:
     The record in force is the run's copy (``RUNDIR/prior.json``, whose SHA-256 the resume checks against the journal).
     """
     from stableins.commands.run import recal_settings
-    from stableins.drivers.replay import JOURNAL_NAME
     from stableins.errors import InputError
-    from stableins.procedures.journal import start_record
+    from stableins.procedures.journal import JOURNAL_NAME, start_record
     from stableins.procedures.rundir import PRIOR_NAME
 
     rundir = Path(args.resume)

@@ -279,9 +279,9 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
     samples used.  ``site`` gives gravity, base attitude and gimbal senses.  ``noise`` None: measured
     from the dwells as the device stage does.
     """
-    from stableins.discovery.drift import reading_slope
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
+    from stableins.estimators.gyro_sensitivity import reading_slope
     from stableins.platform import platform_specific_force
 
     gravity = site.gravity

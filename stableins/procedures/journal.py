@@ -34,6 +34,8 @@ from numpy.typing import NDArray
 
 from stableins.data.atomic import fsync_directory
 from stableins.errors import InputError
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 FILE_MAGIC = b"STABLEINS-JOURNAL 1\n"
 RECORD_MAGIC = b"\xa5JR1"
@@ -49,6 +51,39 @@ KILL_AFTER_ENV = "STABLEINS_KILL_AFTER_RECORDS"
 _UNLINKED_SUFFIX = ".new"
 _DTYPES = {"float64": "<f8", "int64": "<i8", "uint8": "u1"}
 ArrayLikeOrNone = Any
+
+#: The journal's file name in a run directory.
+JOURNAL_NAME = "journal.bin"
+
+
+def journal_path(path: str | Path) -> Path:
+    """Return the journal file of a run directory (or the journal file itself)."""
+    path = Path(path)
+    return path / JOURNAL_NAME if path.is_dir() else path
+
+
+def live_operations(records: list[Any]) -> list[Any]:
+    """Operation records that stand: drop those a resume superseded (see :mod:`stableins.procedures.runner`)."""
+    superseded: set[int] = set()
+    for record in records:
+        if record.kind == "resume":
+            first, last = record["superseded"] if record.get("superseded") else (0, -1)
+            superseded.update(range(first, last + 1))
+    return [r for r in records if r.kind == "op" and r.seq not in superseded]
+
+
+def metadata_from_start(record: Any) -> SiteMetadata:
+    """Return the site metadata a journal's start record holds."""
+    d = dict(record["metadata"])
+    d["gimbal_senses"] = tuple(d["gimbal_senses"])
+    d["base_attitude"] = tuple(d["base_attitude"])
+    return SiteMetadata(**d)
+
+
+def block_from_record(record: Any) -> SampleBlock:
+    """Return the samples a journaled acquisition holds."""
+    a = record.arrays
+    return SampleBlock(time=a["time"], specific_force=a["specific_force"], angles=a["angles"], temperature=a["temperature"])
 
 
 @dataclass(frozen=True)

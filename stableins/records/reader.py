@@ -6,14 +6,13 @@ Every problem is an :class:`stableins.errors.InputError` naming the file and the
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from stableins.data.metadata import metadata_from_document
 from stableins.errors import InputError
 from stableins.identifiers import check_serial_number, check_timestamp
-from stableins.records.check import check_record
+from stableins.records.content import RecordContent, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
-from stableins.records.record import CalibrationRecord
 from stableins.records.schema import RECORD_FORMAT, RECORD_SCHEMA_VERSION, migrate_v1
 from stableins.records.stages import Calibration, InputFile, PriorReference, StageRun
 from stableins.status import STATUSES, Determination, Status
@@ -21,15 +20,17 @@ from stableins.status import STATUSES, Determination, Status
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.estimators.result import InputSensitivity, Likelihood
 
+#: The record type read (:class:`stableins.records.CalibrationRecord`, given by the caller).
+R = TypeVar("R", bound=RecordContent)
 #: What a parameter object holds (errors show it).
 _PARAMETER_KEYS = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
 
 
-def read_document(document: Any, path: str | None = None) -> CalibrationRecord:
-    """Return the record a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
+def read_document(cls: type[R], document: Any, path: str | None = None) -> R:
+    """Return the record (of type ``cls``) a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
     if isinstance(document, dict) and document.get("format") == RECORD_FORMAT and document.get("schema_version") == 1:
         document = migrate_v1(document, path)
-    return _Reader(path).record(document)
+    return _Reader(path).record(cls, document)
 
 
 class _Reader:
@@ -300,7 +301,7 @@ class _Reader:
                 raise self.fail(what, where, "the discovery section of docs/formats.md") from None
         return optional
 
-    def record(self, document: Any) -> CalibrationRecord:
+    def record(self, cls: type[R], document: Any) -> R:
         document = self.header(document)
         stages = self.stages(document["stages"])
         parameters = self.parameters(document["parameters"], {s.id for s in stages})
@@ -308,7 +309,7 @@ class _Reader:
         calibration = self.calibration(document["calibration"])
         site = None if document.get("site") is None else metadata_from_document(document["site"], self.path)
         optional = self.optional(document)
-        record = CalibrationRecord.__new__(CalibrationRecord)
+        record = cls.__new__(cls)
         fields = {
             "serial_number": check_serial_number(document["serial_number"], field="serial_number", path=self.path),
             "parameters": parameters,

@@ -2,7 +2,8 @@ r"""The Type B input groups of the uncertainty budget, one evaluation each (:mod
 
 Each evaluation propagates one input group through the record, :math:`\delta x = P \sum_k \partial\eta_k/\partial q\,\delta q`
 (the module docstring of :mod:`stableins.reporting.budget`), and returns the group's standard uncertainty of every
-parameter with the :class:`~stableins.reporting.budget.Source` the certificate lists.
+parameter with the :class:`~stableins.reporting.budget.Source` the certificate lists;
+:func:`uncertainty_budget` gathers them into the record's :class:`~stableins.reporting.budget.Budget`.
 """
 
 from __future__ import annotations
@@ -22,14 +23,17 @@ from stableins.errormodel import Term
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
     ANGLE_SENSOR_BOUND,
+    GROUPS,
     GYRO_DRIFT_BOUND,
     MGAL,
     NORMAL_GRAVITY_UNCERTAINTY,
+    Budget,
     Source,
     UncertaintyInputs,
     gravity_direction,
 )
 from stableins.reporting.rounding import scientific
+from stableins.status import Status
 
 _NORMAL_GRAVITY_TEXT = (
     "assumed: the normal-gravity formula omits the local gravity anomaly (tens of mGal, beyond 100 mGal in mountains); "
@@ -387,3 +391,34 @@ def _bias_instability_limit(stage: Any) -> list[float]:
     except (KeyError, ValueError, TypeError):
         return []
     return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []
+
+
+def uncertainty_budget(
+    record: CalibrationRecord, inputs: UncertaintyInputs | None = None, terms: Mapping[str, Term] | None = None
+) -> Budget:
+    """Return the budget of every parameter of ``record`` (:mod:`stableins.reporting.budget`), with ``inputs`` from the procedure."""
+    from stableins.discovery.library import all_terms
+
+    inputs = inputs or UncertaintyInputs()
+    covariance = np.nan_to_num(np.asarray(record.covariance, dtype=float))
+    held = [k for k, p in enumerate(record.parameters) if p.status in (Status.GAUGE, Status.UNIDENTIFIABLE)]
+    covariance[held, :] = 0.0
+    covariance[:, held] = 0.0
+    type_a = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    propagation = Propagation(record.ids, covariance, type_a, dict(terms or all_terms()))
+    stored = stored_sensitivities(record)
+    evaluations = {
+        "gravity": gravity(record, inputs, propagation),
+        "angle_sensors": angle_sensors(record, inputs, propagation, stored),
+        "gyro_drift": gyro_drift(record, inputs, propagation, stored),
+        "damping_loop": damping_loop(record, inputs, propagation, stored),
+        "temperature": temperature(record, inputs, propagation),
+        "slow_noise": slow_noise(record, propagation, stored),
+    }
+    return Budget(
+        record.ids,
+        type_a,
+        {g: evaluations[g].contribution for g in GROUPS},
+        tuple(evaluations[g].source for g in GROUPS),
+        evaluations["temperature"].conditions,
+    )

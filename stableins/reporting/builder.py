@@ -28,7 +28,8 @@ from stableins.errors import InputError
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
-from stableins.reporting.budget import UncertaintyInputs, uncertainty_budget
+from stableins.reporting.budget import UncertaintyInputs
+from stableins.reporting.budget_sources import uncertainty_budget
 from stableins.reporting.context import InputFile, ReportContext, file_name
 from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
