@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from stableins.errormodel import CORE_TERMS, Term, TermKind, known_terms
 from stableins.estimators.details import SystemDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.options import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation
@@ -382,7 +382,7 @@ def fit_result(
         ),
     ]
     result = FitResult(
-        stage="system",
+        stage=Stage.SYSTEM,
         terms=terms,
         values=np.array(post.values, dtype=float),
         covariance=np.array(post.covariance, dtype=float),

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
 from stableins.errormodel import Term
 from stableins.estimators.details import CombinedDetails
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, SourceContents, StageAccumulator
@@ -309,7 +309,7 @@ def _assemble(
     )
     observable = combination.observable
     combined = FitResult(
-        stage="system-combined",
+        stage=Stage.SYSTEM_COMBINED,
         terms=combined_terms(),
         values=combination.values,
         covariance=combination.covariance,
