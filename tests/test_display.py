@@ -20,6 +20,7 @@ from stableins.discovery.problem import DwellProblem
 from stableins.discovery.steps import Decision
 from stableins.display import MAX_REPR_LINES, require_pandas, value_sigma
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS, ErrorModel, Term
+from stableins.estimators.result import Stage
 from stableins.history_store import HistoryStore
 from stableins.noise import NoiseModel
 from stableins.records import CalibrationRecord
@@ -103,11 +104,13 @@ def test_fit_result_repr_html_and_dataframe(session):
 def test_html_escapes_every_text():
     evil = "<script>alert('x')</script>"
     term = Term("b<i>", "bias", "m/s^2", "ug", MICRO_G, 1e-4, evil)
-    result = dataclasses.replace(make_result(terms=(term,) + tuple(CORE_TERMS[:2])), notes=(evil,), determined=("a & b",), stage="<stage>")
+    base = make_result(terms=(term,) + tuple(CORE_TERMS[:2]))
+    result = dataclasses.replace(base, notes=(evil,), determined=("a & b",), stage=Stage.SYSTEM_BINS)
     page = result._repr_html_()
     well_formed(page)
     assert "<script>" not in page and "<i>" not in page
-    assert "&lt;script&gt;" in page and "b&lt;i&gt;" in page and "a &amp; b" in page and "&lt;stage&gt;" in page
+    assert "&lt;script&gt;" in page and "b&lt;i&gt;" in page and "a &amp; b" in page
+    assert "system bins" in page  # a stage is a Stage member: it holds no markup
 
 
 def test_record_repr_html_dataframe_with_discovery_and_noise(session):

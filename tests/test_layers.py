@@ -249,32 +249,9 @@ def module_graph() -> dict[str, set[str]]:
     return graph
 
 
-#: Strongly connected components still allowed (being broken up by issue 29): none may grow, and none may appear.
-KNOWN_CYCLES: tuple[frozenset[str], ...] = (
-    frozenset(
-        f"stableins.estimators.system.{name}"
-        for name in (
-            "accumulate",
-            "assembly",
-            "checks",
-            "coloured",
-            "diagnostics",
-            "gyro_drift_step",
-            "options",
-            "solve",
-            "stage",
-            "thermal",
-            "thermal_bins",
-            "third_harmonic",
-            "view",
-        )
-    ),
-)
-
-
 def test_no_import_cycle_between_modules() -> None:
     """No strongly connected component of more than one module, counting imports in functions and under TYPE_CHECKING."""
-    cycles = [cycle for cycle in _cycles(module_graph()) if not any(set(cycle) <= known for known in KNOWN_CYCLES)]
+    cycles = _cycles(module_graph())
     assert not cycles, "import cycles (every import counted):\n" + "\n".join(" <-> ".join(cycle) for cycle in cycles)
 
 

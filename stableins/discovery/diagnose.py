@@ -50,6 +50,7 @@ from stableins.discovery.diagnose_report import (
 )
 from stableins.discovery.signature import residual_signature
 from stableins.errors import InputError
+from stableins.estimators.result import Stage
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -348,7 +349,7 @@ def _device(
     noise, origin = _device_noise(datasets, options.noise, record.noise_model, layouts)
     stage = None if options.stage is None else str(options.stage)
     dwells = dwells_from_dataset(datasets, layouts=layouts, stage=stage, noise=noise)
-    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} dwells")
+    problem = DwellProblem(dwells, stage=Stage.FINE_DWELLS if dwells.noise["stage"] == Stage.FINE else Stage.COARSE_DWELLS)
     session = Discovery(problem, model, alpha=options.alpha, start=_start(record, model))
     for effect in options.add:
         session.add(effect)

@@ -30,7 +30,7 @@ from stableins.discovery.dwells import DwellSet
 from stableins.errormodel import ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.details import StageDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.status import Status
 
 
@@ -83,7 +83,7 @@ class DwellProblem:
         Parameters held at a given value (status ``"fixed"``), e.g. from a record.
     """
 
-    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: str = "device dwells") -> None:
+    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: Stage = Stage.DEVICE_DWELLS) -> None:
         self.dwells = dwells
         self.fixed = dict(fixed or {})
         self.stage = stage

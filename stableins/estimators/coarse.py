@@ -60,7 +60,7 @@ from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, ga
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.orientation import check_orientation
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.estimators.setting import DeviceSetting
 from stableins.platform import specific_force_and_jacobian
@@ -255,7 +255,7 @@ def calibrate_coarse(
     residuals, residual_sigma, labels = _residuals(problem, solution.x, usable)
     notes.extend(quality_notes(solution, design, residuals / residual_sigma, labels))
     return FitResult.from_solution(
-        "coarse",
+        Stage.COARSE,
         model.terms,
         solution,
         design,

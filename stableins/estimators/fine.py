@@ -44,7 +44,7 @@ from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.status import Status
 
@@ -297,7 +297,7 @@ def calibrate_fine(
     labels = tuple(f"pos {d.position} |f|" for d in usable)
     notes += _quality_notes(solution, design, residuals / (sigma_h / g)[0], labels)
     return FitResult(
-        stage="fine",
+        stage=Stage.FINE,
         terms=model.terms,
         values=x,
         covariance=cov,

@@ -82,7 +82,7 @@ from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
 from stableins.estimators.gauss_newton import goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GIMBAL_LOCK_CONDITION, GimbalPlatform, platform_specific_force, rotation_about
 from stableins.status import Status
 
@@ -426,7 +426,7 @@ def estimate_gyro_sensitivity(
     residual_sigma = np.broadcast_to(sigma, (int(keep.sum()), 3)).ravel()
     notes = details.rank_report + ((f"{len(left_out)} dwell(s) left out: " + "; ".join(left_out),) if left_out else ())
     return FitResult(
-        stage="gyro",
+        stage=Stage.GYRO,
         terms=tuple(terms),
         values=x,
         covariance=covariance,

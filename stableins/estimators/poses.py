@@ -46,12 +46,12 @@ from stableins.estimators.details import UsedDwell
 from stableins.estimators.dwell import DwellSummary, describe_left_out, summarize_dwell
 from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.layout import DwellChecks
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.status import Status
 
 #: The stage name of a pose calibration in results and records.
-STAGE = "poses"
+STAGE = Stage.POSES
 
 #: Dwell checks of a hold: the converter's range is checked by the reader (``railed`` samples), not here.
 POSE_CHECKS = DwellChecks(saturation=np.inf)

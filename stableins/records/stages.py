@@ -240,6 +240,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
     χ² is :attr:`FitResult.chi2` (whitened where the noise is correlated between observations); console,
     JSON and certificate all print this number.
     """
+    from stableins.estimators.result import Stage
 
     def num(x: float) -> float | None:
         return float(x) if math.isfinite(x) else None
@@ -251,7 +252,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
         "residual_labels": list(fit.residual_labels),
         "residuals": [float(x) for x in fit.residuals],
         "residual_sigma": [float(x) for x in fit.residual_sigma],
-        "residual_unit": "m/s^2" if fit.stage != "system" else "rad",
+        "residual_unit": "m/s^2" if fit.stage != Stage.SYSTEM else "rad",
         "chi2": num(fit.chi2),
         "dof": int(fit.dof),
         "chi2_red": num(fit.chi2_red),

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
+from stableins.estimators.result import Stage
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
     ANGLE_SENSOR_BOUND,
@@ -178,7 +179,7 @@ def angle_sensors(record: CalibrationRecord, inputs: UncertaintyInputs, propagat
         source = Source("angle_sensors", "static readings of the three gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
                         "rectangular" if inputs.angle_sensor is None else "normal", angle_origin, effect)  # fmt: skip
         return Evaluation(contribution, source)
-    device = [s for s in record.stages if s.name in ("coarse", "coarse+fine")]
+    device = [s for s in record.stages if s.name in (Stage.COARSE, Stage.DEVICE)]
     why = (
         "no stage of the record reads the gimbal angles (the fine and system stages do not)"
         if not device
@@ -208,7 +209,7 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     """Evaluate the gyro drift, the system stage's input, per platform axis (axes independent)."""
     n, covariance = propagation.n, propagation.covariance
     drift = stored.get("gyro_drift", [])
-    measured = any(s.name == "system" and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
+    measured = any(s.name == Stage.SYSTEM and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
     if not drift and measured:  # a parameter of the record (Type A), not an input: its σ is in the covariance
         source = Source("gyro_drift", "constant drift in the platform frame, measured by the system stage (gimbal readings)",
                         "—", "—", "the record (gyro_drift_x, gyro_drift_y, gyro_drift_z)",
@@ -303,7 +304,7 @@ def temperature(record: CalibrationRecord, inputs: UncertaintyInputs, propagatio
 
 def _system_input_missing(record: CalibrationRecord, group: str, value: str) -> Source:
     """Return the source of a system-stage input the record stores no sensitivity for: not applicable, or not evaluated."""
-    system = any(s.name == "system" for s in record.stages)
+    system = any(s.name == Stage.SYSTEM for s in record.stages)
     effect = (
         "the record's system stage stores no sensitivity (written by an earlier version): not evaluated"
         if system

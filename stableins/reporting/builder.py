@@ -25,6 +25,7 @@ from typing import Any
 from stableins.data.atomic import atomic_write
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.errors import InputError
+from stableins.estimators.result import Stage
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
@@ -365,7 +366,7 @@ def _evidence(view: CalibrationRecord, where: str, data: Sequence[str | PathLike
 
     evidence_notes: list[str] = []
     stages = stored_evidence(view, where)
-    bare = [run for run in view.stages_run if not run.fits and run.name != "system"]
+    bare = [run for run in view.stages_run if not run.fits and run.name != Stage.SYSTEM]
     if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
         from stableins.reporting.replay import device_fits
 

@@ -78,7 +78,7 @@ from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.drift.accelerometer import BiasCheck, BiasInputs, bias_checks
 from stableins.estimators.drift.holds import MIN_HOLD, Hold, find_holds, rotation_vector
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -222,7 +222,7 @@ def estimate_drift(
         tuple(hold_list), nuisance, rank, biases, (float(sigma_axis[0]), float(sigma_axis[1]), float(sigma_axis[2])), chosen["base"]
     )
     return FitResult(
-        stage="drift",
+        stage=Stage.DRIFT,
         terms=GYRO_DRIFT_TERMS,
         values=eps,
         covariance=cov_eps,

@@ -59,7 +59,7 @@ from stableins.errormodel import ErrorModel, Term, TermInputs
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.lever.kinematics import Motion, Segment, find_segments, motion, window_means
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
@@ -430,7 +430,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
     if misfit:
         notes += (f"χ²_ν = {chi2_nu:.2f} above 1 + 3√(2/ν): the σ are scaled by √χ²_ν = {math.sqrt(chi2_nu):.2f}",)
     return FitResult(
-        stage="lever",
+        stage=Stage.LEVER,
         terms=terms,
         values=values,
         covariance=cov,

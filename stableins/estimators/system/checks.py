@@ -16,7 +16,7 @@ from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
     from stableins.estimators.system.loop import DampingLoop
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
 
 #: Steps of the sequential Kalman filter's convergence curve at most (filter bins merged beyond 3.5 days).

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
 from stableins.errormodel import Term
 from stableins.estimators.details import CombinedDetails
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, SourceContents, StageAccumulator
@@ -50,49 +50,15 @@ from stableins.estimators.system.diagnostics import SystemDiagnostics
 from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
 from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
 from stableins.estimators.system.loop import DampingLoop
-from stableins.estimators.system.options import GyroDrift, validate_options
+from stableins.estimators.system.options import SystemOptions
 from stableins.estimators.system.separation import Separation
-from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.thermal import THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
 from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 from stableins.site import SiteMetadata
 from stableins.status import Status
-
-
-@dataclass(frozen=True)
-class SystemOptions:
-    """Settings of the system stage (defaults follow docs/system-calibration.md).
-
-    Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
-    :class:`~stableins.errors.InputError` naming the option and what it expects.
-    """
-
-    chunk_rows: int = 1 << 18
-    attitude_decimation_seconds: float = 1.0
-    attitude_block_seconds: float = 10.0
-    filter_block_seconds: float = 600.0
-    case_rotation_period: float | None = 480.0
-    couplings: bool = True
-    compensate_loop: bool = True
-    velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
-    attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
-    rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
-    polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
-    minimum_duration: float = 4 * 3600.0  # [s]
-    noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
-    run_filter: bool = True
-    gyro_drift: GyroDrift = GyroDrift.IGNORE  # see GyroDrift
-    known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
-    gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
-    estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
-    estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
-    noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
-    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "gyro_drift", validate_options(self))
 
 
 @dataclass(frozen=True, repr=False)
@@ -343,7 +309,7 @@ def _assemble(
     )
     observable = combination.observable
     combined = FitResult(
-        stage="system-combined",
+        stage=Stage.SYSTEM_COMBINED,
         terms=combined_terms(),
         values=combination.values,
         covariance=combination.covariance,
