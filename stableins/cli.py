@@ -11,6 +11,8 @@ Conventions shared by every command:
 
 - ``--json``: the result goes to stdout as one JSON document (progress and messages go
   to stderr), see :func:`stableins.output.emit`;
+- progress bars (:mod:`stableins.progress`) are drawn on stderr only when it is a terminal, never with ``--json`` or
+  ``--quiet``;
 - a user error (:class:`~stableins.errors.InputError`, bad arguments) prints
   ``stableins: error: <message>`` and exits with status 2, never a traceback;
 - Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
@@ -135,6 +137,8 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
             module.configure(parser)
             if not any(action.dest == "json" for action in parser._actions):
                 parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+            if not any(action.dest == "quiet" for action in parser._actions):
+                parser.add_argument("--quiet", action="store_true", help="draw no progress bars (none are drawn off a terminal either)")
             parser.set_defaults(_run=module.run)
 
 
@@ -181,7 +185,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, "_run", None) is None:
             parser.print_help(sys.stderr)
             return EXIT_USAGE
-        return int(args._run(args) or 0)
+        from stableins.progress import silence
+
+        silence(quiet=bool(getattr(args, "json", False) or getattr(args, "quiet", False)))  # progress is for a person at a terminal
+        try:
+            return int(args._run(args) or 0)
+        finally:
+            silence(quiet=False)
     except InputError as error:
         from stableins.commands.flags import as_flag
 

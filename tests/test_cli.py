@@ -16,7 +16,7 @@ import pytest
 
 from stableins import __version__, cli
 from stableins.data.device import save_device
-from stableins.progress import Progress
+from stableins.progress import Progress, silence
 from tests.test_formats import data_line_index, edit_lines, make_device_columns, make_metadata, make_system_chunk
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -245,10 +245,34 @@ def test_progress_draws_a_bar_on_a_terminal():
         progress.update(2)
     text = stream.getvalue()
     assert text.startswith("\rsimulate [") and "[########] 100%" in text and text.endswith("\n")
+    # a step whose size becomes known later (a callback saying done, total), and --json/--quiet silence every bar
+    stream = FakeTerminal()
+    with Progress(label="report", stream=stream, width=8) as progress:
+        progress.set(1, 4)
+        assert "[##......]  25%" in progress.line()
+    silence()
+    try:
+        quiet = FakeTerminal()
+        with Progress(total=4, label="x", stream=quiet) as progress:
+            progress.update(4)
+        assert quiet.getvalue() == "" and progress.done == 4
+    finally:
+        silence(quiet=False)
+
+
+def test_json_and_quiet_silence_progress(monkeypatch):
+    from stableins import progress
+    from stableins.cli import main
+
+    seen = []
+    monkeypatch.setattr("stableins.commands.simulate.run", lambda args: seen.append(progress.silenced()) or 0)
+    for flags in (["--json"], [], ["--quiet"]):
+        assert main(["simulate", "--list-effects", *flags]) == 0
+    assert seen == [True, False, True] and not progress.silenced()  # the command's own run; restored after it
 
 
 def test_progress_is_silent_in_a_real_pipe():
-    code = "from stableins.progress import Progress\np = Progress(100)\nfor _ in range(100): p.update()\np.close()\n"
+    code = "from stableins.progress import Progress, silence\np = Progress(100)\nfor _ in range(100): p.update()\np.close()\n"
     done = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60
     )

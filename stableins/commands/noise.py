@@ -382,9 +382,11 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
         raise InputError("give one static (system-level) record alone, or device-level files", path=system[0], expected="DATA of one kind")
     if system:
         from stableins.data.system import open_system_record
+        from stableins.progress import CountedSource, Progress
 
         opened = open_system_record(system[0])
-        points, described = static_record_points(opened)
+        with Progress(total=2 * opened.n_samples, label="Allan deviation: two passes over the record") as bar:
+            points, described = static_record_points(CountedSource(opened, bar))
         model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)
         return opened.metadata.serial_number, model, points
     from stableins.data.device import load_device

@@ -79,15 +79,25 @@ def _noise_line(record: RecordContent) -> str | None:
     return f"noise model: {model.get('source', '')}" + (f" ({model['provenance']})" if model.get("provenance") else "")
 
 
-def text_repr(record: RecordContent) -> str:
-    """Return the record's short text form: counts, calibration, the first parameter rows, discovery and noise model."""
-    from stableins.display import clipped, parameter_lines, status_counts
+def summary(record: RecordContent) -> list[str]:
+    """Return the record's short form as lines: counts, calibration, the parameters grouped by kind, discovery, noise model.
+
+    The ``repr`` of a record and the default console of ``stableins calibrate device`` (about a screen; the full report
+    with ``--verbose``).
+    """
+    from stableins.display import parameter_lines, status_counts
 
     counts = status_counts(p.status for p in record.parameters)
     head = f"<CalibrationRecord of {record.serial_number}: {len(record.parameters)} parameters ({counts})>"
     lines = [head, *_summary_lines(record), *parameter_lines(row[:5] for row in parameter_rows(record))]
-    lines += [line for line in (_discovery_line(record), _noise_line(record)) if line]
-    return clipped(lines, "(print(record) for the full report, record.to_dataframe() for the table)")
+    return lines + [line for line in (_discovery_line(record), _noise_line(record)) if line]
+
+
+def text_repr(record: RecordContent) -> str:
+    """Return the record's short text form: counts, calibration, the first parameter rows, discovery and noise model."""
+    from stableins.display import clipped
+
+    return clipped(summary(record), "(print(record) for the full report, record.to_dataframe() for the table)")
 
 
 def html_repr(record: RecordContent) -> str:

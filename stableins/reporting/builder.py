@@ -16,7 +16,7 @@ import datetime as dt
 import hashlib
 import io
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
@@ -84,6 +84,9 @@ class ReportSettings:
     sign_key, sign_certificate : path, optional
         Sign the certificate (PAdES, :mod:`stableins.reporting.signing`) with this PEM private key and its X.509
         certificate (default: in the key's file).
+    progress : callable, optional
+        ``progress(done, total)``, called as the sections of the two documents are laid out and each is built (a
+        console's progress bar).
     """
 
     tolerances: Tolerances | None = None
@@ -96,6 +99,7 @@ class ReportSettings:
     no_statement: bool = False
     sign_key: str | None = None
     sign_certificate: str | None = None
+    progress: Callable[[int, int], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -284,11 +288,12 @@ def write_report(
         raise InputError("the technical report would overwrite the certificate", path=str(technical), expected="another file name")
     ctx.identification = _identification(view, settings)
     ctx.simulated = is_simulated(view)
-    technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE)
+    steps = _Steps(len(sections.TECHNICAL_SECTIONS) + len(sections.CERTIFICATE_SECTIONS) + 2, settings.progress)
+    technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE, steps)
     digest = hashlib.sha256(technical_pdf).hexdigest()
     ctx.technical = InputFile("technical report", technical_path.name, digest, f"{technical_pages} pages")
     ctx.figures = 0
-    pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE)
+    pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE, steps)
     if settings.sign_key is not None:
         from stableins.reporting.signing import sign
 
@@ -414,13 +419,30 @@ def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | 
     return tolerances, [read]
 
 
-def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes, int]:
+@dataclass
+class _Steps:
+    """The steps of :func:`write_report` done so far, told to its ``progress(done, total)``."""
+
+    total: int
+    progress: Callable[[int, int], None] | None
+    done: int = 0
+
+    def step(self) -> None:
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+
+
+def _render(ctx: ReportContext, parts: Sequence[Any], title: str, steps: _Steps) -> tuple[bytes, int]:
     """Return the PDF of one document laid out from ``ctx`` (the certificate or its technical report), and its number of pages."""
     import stableins
     from stableins.reporting.signing import manifest_text
 
     ctx.shown_notes = set()
-    story = [flowable for section in parts for flowable in section(ctx)]
+    story = []
+    for section in parts:
+        story += section(ctx)
+        steps.step()
     named = [(f.role, f.name, f.sha256) for f in ctx.inputs] + ([(ctx.technical.role, ctx.technical.name, ctx.technical.sha256)]
                                                                 if ctx.technical is not None else [])  # fmt: skip
     buffer = io.BytesIO()
@@ -438,4 +460,5 @@ def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes
             keywords=manifest_text(named),
         ),
     )
+    steps.step()
     return buffer.getvalue(), pages

@@ -81,9 +81,10 @@ def system_sensitivities(
 
     out = []
     drift = np.zeros(3) if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
-    # a drift the record measured (the gimbal readings) is a parameter of the update, not an input taken as known
-    measured = getattr(base, "drift", None) is not None and base.drift.in_likelihood
-    for axis, name in enumerate("xyz" if not measured else ""):
+    inputs = perturbed_inputs(base, metadata)
+    for axis, name in enumerate("xyz"):
+        if f"gyro_drift.{name}" not in inputs:
+            continue
         moved = drift.copy()
         moved[axis] += DRIFT_STEP
         outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata)
@@ -92,7 +93,7 @@ def system_sensitivities(
     damping = dict(metadata.damping or {})
     for key in LOOP_PARAMETERS:
         value = damping.get(key)
-        if value is None or not (isinstance(value, int | float) and math.isfinite(value) and value != 0.0):
+        if f"damping_loop.{key}" not in inputs or not isinstance(value, int | float):
             continue
         step = LOOP_STEP * abs(float(value))
         outcome = run(options, replace(metadata, damping={**damping, key: float(value) + step}))
@@ -102,6 +103,26 @@ def system_sensitivities(
             )
         )
     return tuple(out)
+
+
+def perturbed_inputs(base: Any, metadata: SiteMetadata) -> tuple[str, ...]:
+    """Return the inputs :func:`system_sensitivities` perturbs, one re-run of the stage each (a console shows their count).
+
+    ``gyro_drift.x/y/z`` unless the record measured the drift (the gimbal readings: it is then a parameter of the
+    update, not an input taken as known), then ``damping_loop.KEY`` for each parameter of :data:`LOOP_PARAMETERS` the
+    metadata state as a finite, non-zero number.  None when the stage's result has no likelihood.
+    """
+    if base.result.likelihood is None:
+        return ()
+    measured = getattr(base, "drift", None) is not None and base.drift.in_likelihood
+    drift = () if measured else tuple(f"gyro_drift.{axis}" for axis in "xyz")
+    damping = dict(metadata.damping or {})
+    loop = tuple(
+        f"damping_loop.{key}"
+        for key in LOOP_PARAMETERS
+        if isinstance(damping.get(key), int | float) and math.isfinite(damping[key]) and damping[key] != 0.0
+    )
+    return drift + loop
 
 
 def with_sensitivities(
