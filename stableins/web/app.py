@@ -89,6 +89,7 @@ def create_app(settings: ServeSettings) -> Any:
     )
     templates = Jinja2Templates(directory=str(PACKAGE / "templates"))
     templates.env.globals["version"] = stableins.__version__
+    templates.env.filters["days"] = _days
 
     @app.exception_handler(InputError)
     async def _input_error(request: Request, error: InputError) -> Response:
@@ -261,6 +262,17 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
         initial = json.dumps({"runs": runs}).replace("</", "<\\/")
         return templates.TemplateResponse(request, "runs.html", {"runs": runs, "initial": initial, "page": "runs",
                                                                   "run_root": settings.run_root})  # fmt: skip
+
+
+def _days(days: float) -> str:
+    """Return a span of days for people: whole days from one day on, else hours (or minutes, seconds)."""
+    days = abs(days)
+    if days >= 1.0:
+        return f"{days:.0f} d"
+    seconds = days * 86400.0
+    if seconds >= 3600.0:
+        return f"{seconds / 3600.0:.0f} h"
+    return f"{seconds / 60.0:.0f} min" if seconds >= 60.0 else f"{seconds:.0f} s"
 
 
 def _download(name: str, body: bytes, *, record: str) -> dict[str, str]:

@@ -30,7 +30,7 @@
         title: { text: t.id + " [" + t.unit + "]", font: { size: 13 } },
         margin: { l: 60, r: 10, t: 32, b: 40 }, legend: { orientation: "h", y: -0.25, font: { size: 10 } },
         xaxis: { type: "date" }, yaxis: { zeroline: false }
-      }, { displaylogo: false, responsive: true });
+      }, { displayModeBar: false, responsive: true });
       box.setAttribute("data-drawn", "true");
     });
   }
