@@ -2,8 +2,9 @@
 
 The store and the run root are made by the toolkit's own commands (``stableins run`` on the simulated platform,
 ``stableins history --add``); the server runs as a user starts it (``stableins serve``, a process of its own); the
-browser is Debian's Chromium driven by Selenium.  Each page is saved as a screenshot under ``docs/img/`` (the
-pictures docs/fleet.md shows).  Skipped, with the reason, only where Chromium, chromedriver or Selenium are missing
+browser is Debian's Chromium driven by Selenium.  Each page is saved as a screenshot, in the test's folder or, with
+``STABLEINS_SCREENSHOTS=docs/img``, where docs/fleet.md shows them (``fleet.png``, ``unit.png``, ``runs.png``,
+``runs-live.png``).  Skipped, with the reason, only where Chromium, chromedriver or Selenium are missing
 (``make system-deps`` installs them).
 """
 
@@ -23,7 +24,6 @@ from browser import Server, browser, missing_reason, quit_browser, wait_for
 from stableins import cli
 
 ROOT = Path(__file__).resolve().parents[1]
-IMAGES = ROOT / "docs" / "img"
 pytestmark = pytest.mark.skipif(missing_reason() is not None, reason=missing_reason() or "")
 
 
@@ -53,13 +53,21 @@ def lab(tmp_path_factory):
 
 
 @pytest.fixture()
+def images(tmp_path) -> Path:
+    """Where the screenshots go: ``$STABLEINS_SCREENSHOTS`` (docs/img for the documentation), else the test's folder."""
+    folder = Path(os.environ.get("STABLEINS_SCREENSHOTS") or tmp_path / "screenshots")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@pytest.fixture()
 def chromium(tmp_path):
     driver = browser(tmp_path / "downloads")
     yield driver
     quit_browser(driver)
 
 
-def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, tmp_path):
+def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, images, tmp_path):
     from selenium.webdriver.common.by import By
 
     server = Server("--store", str(lab / "store"), "--runs", str(lab / "runs"), "--policy", str(lab / "policy.toml"))
@@ -71,8 +79,7 @@ def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, tmp_path):
         assert [r.get_attribute("data-serial") for r in rows] == ["SN-B", "SN-A"]
         assert "overdue" in rows[0].get_attribute("class") and "overdue by" in rows[0].text
         assert "PASS" in rows[0].text and "PASS" in rows[1].text
-        IMAGES.mkdir(parents=True, exist_ok=True)
-        chromium.save_screenshot(str(IMAGES / "fleet.png"))
+        chromium.save_screenshot(str(images / "fleet.png"))
         # search
         box = chromium.find_element(By.ID, "search")
         box.send_keys("SN-A")
@@ -84,7 +91,7 @@ def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, tmp_path):
         plots = chromium.find_elements(By.CSS_SELECTOR, ".trend .plot[data-drawn='true']")
         assert len(plots) >= 15  # every parameter the two coarse calibrations determine from their own data
         assert len(chromium.find_elements(By.CSS_SELECTOR, "#history tbody tr")) == 2
-        chromium.save_screenshot(str(IMAGES / "unit.png"))
+        chromium.save_screenshot(str(images / "unit.png"))
         # the certificate of the record in force, downloaded, with the SHA-256 of the file the run wrote
         link = chromium.find_elements(By.CSS_SELECTOR, "#history tbody tr.in-force a.document.certificate")[0]
         expected = hashlib.sha256((lab / "runs" / "a2" / "report.pdf").read_bytes()).hexdigest()
@@ -98,12 +105,12 @@ def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, tmp_path):
         names = [r.get_attribute("data-run") for r in chromium.find_elements(By.CSS_SELECTOR, "#runs-body tr")]
         assert sorted(names) == ["a1", "a2", "b1"]
         assert all("finished" in r.text for r in chromium.find_elements(By.CSS_SELECTOR, "#runs-body tr"))
-        chromium.save_screenshot(str(IMAGES / "runs.png"))
+        chromium.save_screenshot(str(images / "runs.png"))
     finally:
         server.stop()
 
 
-def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chromium):
+def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chromium, images):
     """``run --driver tcp://`` against ``serve-sim --realtime 1``: the page's journal count catches up within 2 s."""
     from selenium.webdriver.common.by import By
 
@@ -141,7 +148,7 @@ def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chr
             time.sleep(1.0)
         row = chromium.find_element(By.CSS_SELECTOR, "#runs-body tr[data-run='live']")
         assert "running" in row.text and "coarse" in row.text and "SN-LIVE" in row.text
-        chromium.save_screenshot(str(IMAGES / "runs-live.png"))
+        chromium.save_screenshot(str(images / "runs-live.png"))
         assert max(lags) < 2.0, lags
     finally:
         if server is not None:

@@ -24,7 +24,7 @@
       cell(tr, text(r.step) + "/" + r.steps + (r.step_name ? " " + r.step_name : ""));
       cell(tr, text(r.stage) + (r.phase ? " (" + r.phase + ")" : ""));
       cell(tr, r.position ? r.position + (r.pass ? " (pass " + r.pass + ")" : "") : "—");
-      cell(tr, Math.round(r.dwell_seconds) + " / " + Math.round(r.dwell_planned) + " s");
+      cell(tr, r.state === "running" ? Math.round(r.dwell_seconds) + " s (plan " + Math.round(r.dwell_planned) + " s)" : "—");
       cell(tr, String(r.samples), "samples num");
       cell(tr, (r.remaining_is_lower_bound ? "≥ " : "") + duration(r.remaining_seconds));
       cell(tr, String(r.journal_records), "records num");
