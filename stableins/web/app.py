@@ -46,10 +46,12 @@ class ServeSettings:
     token: str | None = None
     limits: Limits = field(default_factory=Limits)
     secure_cookie: bool = False
+    #: seconds the fleet (and the certificate index) is reused before it is read again
+    fleet_ttl: float = FLEET_TTL
 
 
 class _Data:
-    """The store, the certificate index and the run watcher, with the fleet reused for :data:`FLEET_TTL` seconds."""
+    """The store, the certificate index and the run watcher, with the fleet reused for ``settings.fleet_ttl`` seconds."""
 
     def __init__(self, settings: ServeSettings) -> None:
         self.settings = settings
@@ -60,7 +62,7 @@ class _Data:
 
     def fleet(self) -> list[FleetRow]:
         now = time.monotonic()
-        if self._fleet is None or now - self._fleet[0] > FLEET_TTL:
+        if self._fleet is None or now - self._fleet[0] >= self.settings.fleet_ttl:
             self.certificates.refresh()
             self._fleet = (time.monotonic(), fleet_rows(self.store, self.settings.policy, self.certificates))
         return self._fleet[1]
