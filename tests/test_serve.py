@@ -244,3 +244,32 @@ def test_a_runs_progress_is_read_from_its_journal_as_it_grows(lab):
     journal.close()
     done = c.get("/api/runs/day1/r1").json()
     assert done["state"] == "finished" and done["remaining_seconds"] == 0.0 and done["journal_records"] == 29
+
+
+def test_a_static_records_quick_look_is_the_runners(lab):
+    """The runs page's quick look of a system-level static record is the runner's own QuickLook over the journaled chunks."""
+    from stableins.conventions import EARTH_RATE
+    from stableins.procedures.journal import Journal
+    from stableins.procedures.quicklook import QuickLook
+
+    folder = lab / "runs" / "day"
+    folder.mkdir()
+    step = {"name": "one day", "kind": "static_record", "settle": 0.0, "duration": 7200.0, "checks": {"angle_tolerance": 1e-4}}
+    (folder / "procedure.json").write_text(json.dumps({"name": "system-static", "sample_rate": 1.0, "steps": [step]}), encoding="utf-8")
+    journal = Journal.create(folder / "journal.bin", ("start", {"unit": "SN-DAY", "utc": "2026-01-01T00:00:00+00:00"}))
+    rng = np.random.default_rng(5)
+    look = QuickLook(1.0, 1e-4)
+    for k in range(12):  # 12 chunks of 300 s at 1 Hz: an hour
+        t = k * 300.0 + np.arange(300.0)
+        chunk = {"time": t, "velocity_north": 0.02 * np.cos(EARTH_RATE * t) + rng.normal(0, 1e-3, t.size),
+                 "velocity_east": 0.01 * np.sin(EARTH_RATE * t) + rng.normal(0, 1e-3, t.size), "angle_platform": np.zeros(t.size),
+                 "angle_inner": np.zeros(t.size), "angle_middle": np.zeros(t.size)}  # fmt: skip
+        journal.append("op", {"step": 0, "attempt": 1, "phase": "static", "operation": "static_chunk", "arguments": [float(k)]}, chunk)
+        look.update(chunk)
+    journal.close()
+    run = client(lab).get("/api/runs/day").json()
+    assert (run["stage"], run["samples"], run["position"]) == ("system", 3600, None)
+    assert run["quicklook"]["text"] == look.describe() and run["quicklook"]["hours"] == pytest.approx(1.0)
+    assert run["remaining_seconds"] == pytest.approx(3600.0)
+    page = client(lab).get("/runs")
+    assert "SN-DAY" in page.text
