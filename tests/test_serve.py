@@ -119,8 +119,9 @@ def test_records_download_verified_and_a_tampered_one_is_refused(lab):
     path = lab / "store" / "STEADY" / entry.file
     path.write_bytes(path.read_bytes().replace(b'"STEADY"', b'"STEADY" '))
     refused = client(lab).get(f"/units/STEADY/records/{entry.sha256}")
-    assert refused.status_code == 400 and "changed after it was filed" in refused.json()["detail"]
-    assert client(lab).get("/api/units/STEADY").status_code == 400  # the unit's page reads its records verified too
+    assert refused.status_code == 409 and "changed after it was filed" in refused.json()["detail"]
+    assert str(lab) not in refused.json()["detail"] and "STORE/STEADY/" in refused.json()["detail"]  # no server paths
+    assert client(lab).get("/api/units/STEADY").status_code == 409  # the unit's page reads its records verified too
     assert client(lab).get(f"/units/OLD/records/{entry.sha256}").status_code == 404  # another unit's record
 
 

@@ -95,10 +95,16 @@ def create_app(settings: ServeSettings) -> Any:
 
     @app.exception_handler(InputError)
     async def _input_error(request: Request, error: InputError) -> Response:
-        status = 404 if "no " in error.message[:40] or "missing" in error.message else 400
+        # 404: nothing of that name; 409: a record or document that fails its SHA-256 check; 400: anything else
+        status = 404 if error.message.startswith("no ") else 409 if error.field == "sha256" else 400
+        message = str(error)
+        folders = [(settings.run_root, "RUNS")] + ([(data.store.root, "STORE")] if data.store.url is None else [])
+        for folder, name in folders:  # no server paths in answers
+            if folder is not None:
+                message = message.replace(str(Path(folder).resolve()), name).replace(str(folder), name)
         if request.url.path.startswith("/api/") or "text/html" not in request.headers.get("accept", ""):
-            return JSONResponse({"detail": str(error)}, status_code=status)
-        return templates.TemplateResponse(request, "error.html", {"message": str(error), "status": status}, status_code=status)
+            return JSONResponse({"detail": message}, status_code=status)
+        return templates.TemplateResponse(request, "error.html", {"message": message, "status": status}, status_code=status)
 
     _static_routes(app)
     _fleet_routes(app, data, templates)
