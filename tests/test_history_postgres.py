@@ -179,3 +179,28 @@ def test_a_password_never_shows_and_an_unreachable_server_is_one_clear_error(tmp
     argv = [sys.executable, "-m", "stableins.cli", "history", "--fleet"]
     done = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 2 and "secret" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_schema_is_sqlites_table_for_table_and_column_for_column(server, tmp_path):
+    import sqlite3
+
+    import psycopg
+
+    url = server.database()
+    path = tmp_path / "one.json"
+    record("PG-2", 1).save(path)
+    HistoryStore(url).add(path)
+    HistoryStore(tmp_path / "store").add(path)
+    lite = sqlite3.connect(tmp_path / "store" / "history.sqlite")
+    tables = [r[0] for r in lite.execute("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")]
+    sqlite_columns = {t: [r[1] for r in lite.execute(f"PRAGMA table_info({t})")] for t in tables}
+    with psycopg.connect(url) as connection:
+        rows = connection.execute(
+            "SELECT table_name, column_name FROM information_schema.columns WHERE table_schema = current_schema() "
+            "ORDER BY table_name, ordinal_position"
+        ).fetchall()
+    postgres_columns: dict[str, list[str]] = {}
+    for table, column in rows:
+        postgres_columns.setdefault(table, []).append(column)
+    assert postgres_columns.pop("files") == ["serial", "name", "data"]  # the records' bytes: no shared folder
+    assert postgres_columns == sqlite_columns
