@@ -77,6 +77,7 @@ COMMANDS: dict[str, Command | Group] = {
         },
     ),
     "run": Command("stableins.commands.run_command", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "serve": Command("stableins.commands.serve", "the fleet, a unit's history and the runs in a browser, read-only (docs/fleet.md)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
     "protocol-check": Command(
         "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"

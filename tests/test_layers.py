@@ -66,6 +66,7 @@ LAYERS: dict[str, int] = {
     # 7 interface
     "stableins.commands": 7,
     "stableins.cli": 7,
+    "stableins.web": 7,
     "stableins.output": 7,
     "stableins.progress": 7,
     "stableins.console": 7,
