@@ -46,12 +46,14 @@ _TYPES = (
 )
 
 
-def postgres_schema() -> tuple[str, ...]:
-    """Return the statements that create the store in PostgreSQL: SQLite's schema in PostgreSQL's types, and ``files``."""
-    from stableins.history_store.schema import SCHEMA
+def postgres_schema(sqlite_schema: Iterable[str]) -> tuple[str, ...]:
+    """Return the statements that create the store in PostgreSQL: SQLite's schema in PostgreSQL's types, and ``files``.
 
+    ``sqlite_schema`` is :data:`stableins.history_store.schema.SCHEMA`, handed in by the schema module (which imports
+    this one), so the two schemas differ only in :data:`_TYPES`.
+    """
     statements = []
-    for statement in SCHEMA:
+    for statement in sqlite_schema:
         for sqlite, postgres in _TYPES:
             statement = statement.replace(sqlite, postgres)
         statements.append(statement)

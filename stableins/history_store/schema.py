@@ -146,7 +146,7 @@ def prepare(connection: Connection, index_path: Path | str) -> None:
         with transaction(connection):  # several processes may start on a new store at once: one creates it
             found = _meta(connection)
             if not found:
-                for statement in postgres_schema() if postgres else SCHEMA:
+                for statement in postgres_schema(SCHEMA) if postgres else SCHEMA:
                     connection.execute(statement)
                 found = {"format": STORE_FORMAT, "schema_version": str(STORE_SCHEMA_VERSION), "created": utc_now()}
                 connection.executemany("INSERT INTO meta (key, value) VALUES (?, ?)", list(found.items()))
