@@ -383,6 +383,7 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
         from stableins.data.system import open_system_record
 
         opened = open_system_record(system[0])
+        opened.validate(allow_gaps=True)  # what check runs (time order, rate, derived datasets); a gap ends an Allan segment
         points, described = static_record_points(opened)
         model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)
         return opened.metadata.serial_number, model, points
