@@ -179,3 +179,22 @@ def test_what_the_fuzz_found_is_refused(command_inputs, tmp_path):
     result = fz.run_cli(argv, "huge", True, out)
     assert result.status == 2 and "field 'f_x'" in result.stderr and "sample 5000" in result.stderr, result.describe()
     assert not list(out.iterdir())
+
+
+def test_what_the_benchmark_found_is_refused(command_inputs, tmp_path):
+    """bench_fuzz.py --only-newer (seed 31) found these two accepted: a fit's evidence of the wrong type in a record
+    (recal --estimate wrote a record with it) and a full-width digit as --zero of calibrate poses."""
+    import json
+
+    document = json.loads(command_inputs.estimate.read_text(encoding="utf-8"))
+    document["stages"][0]["fits"][0]["parameter_ids"][1] = [1]
+    bad = tmp_path / "estimate.json"
+    bad.write_text(json.dumps(document), encoding="utf-8")
+    result = fz.run_cli(["check", str(bad)], "fits", True)
+    assert result.status == 2 and "stages[0].fits[0].parameter_ids" in result.stderr, result.describe()
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = ["calibrate", "poses", str(command_inputs.raw_log), "--columns", "time=t,f_x=ax,f_y=ay,f_z=az", "--units",
+            "counts:4096/g", "--zero", "\uff15", "--out", str(out / "c.json")]  # fmt: skip
+    result = fz.run_cli(argv, "zero", True, out)
+    assert result.status == 2 and "--zero" in result.stderr, result.describe()
