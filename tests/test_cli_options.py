@@ -25,6 +25,13 @@ TESTS = Path(__file__).resolve().parent
 
 #: ``"command --option"`` → ``"test_file.py::test_name"``: a test that runs the command with the option, exit 0.
 RUN_BY: dict[str, str] = {
+    "calibrate device --set": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --noise": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --keep-unsupported": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --coarse-procedure": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --coarse-linear": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --alpha": "test_cli_options.py::test_calibrate_device_options",
+    "calibrate device --allow-missing": "test_cli_options.py::test_calibrate_device_options",
     "demo --json": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
     "demo --hidden": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
     "demo --rate": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
@@ -134,16 +141,9 @@ RUN_BY: dict[str, str] = {
     "simulate --truth": "test_noise_cli.py::test_noise_from_a_static_system_record_recovers_the_simulated_terms",
     "simulate --world": "test_worlds.py::test_cli_world_and_list",
 }
-#: Options no test runs successfully yet (only shrinks; issue 31 left 118 of 226).
+#: Options no test runs successfully yet (only shrinks; issue 31 left 111 of 226).
 NOT_YET_RUN: frozenset[str] = frozenset(
     {
-        "calibrate device --allow-missing",
-        "calibrate device --alpha",
-        "calibrate device --coarse-linear",
-        "calibrate device --coarse-procedure",
-        "calibrate device --keep-unsupported",
-        "calibrate device --noise",
-        "calibrate device --set",
         "calibrate drift --json",
         "calibrate drift --new-calibration",
         "calibrate drift --one-position",
@@ -378,3 +378,22 @@ def test_history_verify_finds_a_changed_record(ws, tmp_path):
     filed[0].write_text(filed[0].read_text().replace("stableins test", "stableins TEST"))
     status, _ = _main(["history", ws.serial, "--store", store, "--verify"])
     assert status != 0
+
+
+def test_calibrate_device_options(ws, tmp_path):
+    first, second = tmp_path / "a.json", tmp_path / "b.json"
+    argv = ["calibrate", "device", ws.device_csv, "--coarse-procedure", "device-coarse", "--coarse-linear", "--set", "laboratory=Lab L",
+            "--add", "Kcc_xxy", "--keep-unsupported", "--alpha", "0.01", "--out", first, "--json"]  # fmt: skip
+    status, out = _main(argv)
+    assert status == 0
+    record = json.loads(first.read_text())
+    settings = record["stages"][-1]["settings"]
+    assert settings["coarse_procedure"] == "device-coarse" and settings["coarse_nonlinear"] is False  # --coarse-procedure, --coarse-linear
+    assert {"key": "laboratory", "value": "Lab L", "unit": ""} in record["calibration"]["entries"]  # --set
+    assert "Kcc_xxy" in [p["id"] for p in record["parameters"]]  # --add, kept by --keep-unsupported whatever its test says
+    assert json.loads(out)["discovery"]["alpha"] == 0.01  # --alpha
+    status, _ = _main(["calibrate", "device", ws.device_csv, "--noise", first, "--allow-missing", "--out", second])
+    assert status == 0
+    again = json.loads(second.read_text())["stages"][-1]["settings"]
+    assert again["allow_missing"] is True and again["coarse_nonlinear"] is True  # --allow-missing; the default nonlinear coarse stage
+    assert again["noise_model"]["axes"] == settings["noise_model"]["axes"]  # --noise: the model of that record, not re-measured
