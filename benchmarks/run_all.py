@@ -124,6 +124,11 @@ QUICK: dict[str, Quick] = {
     "bench_paper_table4": Quick(("--rate", "1", "--seed", "1"), "one sidereal day at 1 Hz instead of 100 Hz"),
     "bench_real_data": Quick(("--seeds", "2"), "2 static logs for the false-split rate instead of 10; the real logs unchanged"),
     "bench_simulator": Quick(("--hours", "0.5"), "half an hour at 100 Hz instead of 24 h", volatile=(r"simulator/floor = ([\d.]+)",)),
+    "bench_suite_under_load": Quick(
+        ("--runs", "1", "--load", "1", "--", "-q", "-n", "0", "tests/test_layers.py"),
+        "one run of tests/test_layers.py under one busy process instead of five runs of the suite under four",
+        volatile=(r"; (\d+) s;",),
+    ),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),
     "bench_system_bias_drift": Quick((), "the default run: the bound only (part 2, the stage's channels, is --seeds N)"),

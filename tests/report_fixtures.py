@@ -137,3 +137,11 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
         calibration=calibration,
     )
     return rec.to_document()
+
+
+def procedure_with(tables: str, base: str = "device-fine") -> str:
+    """A shipped procedure whose conformity tables are ``tables`` (``report --procedure`` reads a whole procedure, as ``run`` does)."""
+    from stableins.procedures.definition import PROCEDURE_DIRECTORY
+
+    text = (PROCEDURE_DIRECTORY / f"{base}.toml").read_text(encoding="utf-8")
+    return text[: text.index("\n[tolerances]\n")] + "\n" + tables

@@ -179,9 +179,8 @@ def test_sensitivities_survive_the_record_file(system, tmp_path):
         CalibrationRecord.from_document(document, "bad.json")
 
 
-PROCEDURE = """
-name = "budget-test"
-[uncertainty]
+PROCEDURE = rf.procedure_with(
+    """[uncertainty]
 gyro_drift = 0.001
 damping_loop = 0.01
 [uncertainty.temperature_sensitivity]
@@ -193,6 +192,7 @@ damping_loop = 0.01
 [tolerances.fit]
 interval = 0.95
 """
+)
 
 
 @needs_poppler

@@ -289,16 +289,6 @@ def test_emit_json_handles_numpy_and_non_finite(capsys):
 
 
 # --------------------------------------------------------------------------- simulate
-def _simulate_available() -> bool:
-    import importlib.util
-
-    return "simulate" in cli.COMMANDS and importlib.util.find_spec("stableins.procedures") is not None
-
-
-#: ``simulate device`` needs the procedure definitions (branch device); registered once they are on main.
-requires_simulate = pytest.mark.skipif(not _simulate_available(), reason="simulate is registered once stableins.procedures is on main")
-
-
 def simulate(tmp_path: Path, *extra: str, name: str = "sim") -> tuple[int, Path]:
     out = tmp_path / name
     # one pass at the nominal commands: these tests are about the files, not the zero-offset iteration
@@ -319,7 +309,6 @@ def simulate(tmp_path: Path, *extra: str, name: str = "sim") -> tuple[int, Path]
     return cli.main(argv), out
 
 
-@requires_simulate
 def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
     from stableins.data.device import load_device
     from stableins.data.truth import load_truth
@@ -341,7 +330,6 @@ def test_simulate_device_writes_data_and_truth(tmp_path, capsys):
     np.testing.assert_allclose(g, truth.site.gravity, rtol=2e-3)
 
 
-@requires_simulate
 def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, capsys):
     from stableins.data.device import load_device
     from stableins.data.truth import load_truth
@@ -362,7 +350,6 @@ def test_simulate_is_reproducible_and_hidden_effects_reach_the_data(tmp_path, ca
     np.testing.assert_array_equal(c.columns["f_y"], a.columns["f_y"])
 
 
-@requires_simulate
 @pytest.mark.parametrize(
     ("argv", "fragment"),
     [
@@ -382,7 +369,6 @@ def test_simulate_bad_arguments_exit_2(tmp_path, capsys, argv, fragment):
     assert not (out / "device-coarse.csv").exists()
 
 
-@requires_simulate
 def test_simulate_into_an_unwritable_place_exits_2(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
@@ -391,14 +377,12 @@ def test_simulate_into_an_unwritable_place_exits_2(tmp_path, capsys):
     assert status == 2 and "argument --out" in err and f"{blocker} is a file, not a directory" in err  # refused when parsed
 
 
-@requires_simulate
 def test_simulate_list_effects(capsys):
     assert cli.main(["simulate", "device", "--list-effects", "--json"]) == 0
     effects = {e["id"]: e for e in json.loads(capsys.readouterr().out)["effects"]}
     assert effects["K3_x"]["unit"] == "s^4/m^2"
 
 
-@requires_simulate
 def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
     from stableins.data.system import open_system_record
     from stableins.data.truth import load_truth
@@ -419,7 +403,6 @@ def test_simulate_system_streams_a_valid_record(tmp_path, capsys):
     assert "device-level simulation only" in capsys.readouterr().err
 
 
-@requires_simulate
 def test_simulate_device_runs_the_zero_offset_iteration_then_fine_at_repointed_positions(tmp_path, capsys):
     from stableins.conventions import ARCSEC
     from stableins.data.device import load_device

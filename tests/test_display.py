@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import html.parser
+import importlib.util
 import math
 import sys
 
@@ -25,7 +26,8 @@ from stableins.history_store import HistoryStore
 from stableins.noise import NoiseModel
 from stableins.records import CalibrationRecord
 
-pandas = pytest.importorskip("pandas")  # the test extra installs it; to_dataframe() needs it
+#: to_dataframe() needs pandas (the ``pandas`` extra; the test extra installs it): only the tests that call it skip without it.
+needs_pandas = pytest.mark.skipif(importlib.util.find_spec("pandas") is None, reason="pandas (the 'pandas' extra) is not installed")
 
 
 @pytest.fixture(scope="module")
@@ -85,6 +87,7 @@ def test_value_sigma_rounds_to_the_uncertainty():
     assert value_sigma(3.0, math.nan) == "3"
 
 
+@needs_pandas
 def test_fit_result_repr_html_and_dataframe(session):
     discovery, _, _ = session
     fit = discovery.result
@@ -113,6 +116,7 @@ def test_html_escapes_every_text():
     assert "system bins" in page  # a stage is a Stage member: it holds no markup
 
 
+@needs_pandas
 def test_record_repr_html_dataframe_with_discovery_and_noise(session):
     discovery, _, _ = session
     decisions = [Decision.BASELINE, Decision.NOT_SUPPORTED]
@@ -138,6 +142,7 @@ def test_record_repr_html_dataframe_with_discovery_and_noise(session):
     assert frame.loc["sf_y", "determined_by"].startswith("coarse")
 
 
+@needs_pandas
 def test_diagnosis_ranking_history_reprs(session):
     discovery, before, ranking = session
     check_repr(before, "Diagnosis", f"χ²_ν = {before.chi2_red:.3f}", "NOT consistent", "next: rank")
@@ -171,6 +176,7 @@ def test_next_step_says_what_to_do(session):
     assert carried.best.id == "Kcc_xxy" and "calibrate device --add Kcc_xxy" in carried.next_step()
 
 
+@needs_pandas
 def test_noise_model_and_spectrum_and_store_reprs(tmp_path):
     model = NoiseModel.given([45 * MICRO_G, 46 * MICRO_G, 47 * MICRO_G], 2 * MICRO_G, provenance="datasheet")
     check_repr(model, "NoiseModel (datasheet", "2 on every axis", "x 45")
@@ -185,6 +191,7 @@ def test_noise_model_and_spectrum_and_store_reprs(tmp_path):
     assert store.to_dataframe("INS-0042").empty
 
 
+@needs_pandas
 def test_unit_history_dataframe(tmp_path):
     record = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE)
     path = record.save(tmp_path / "cal.json")

@@ -6,7 +6,6 @@ import doctest
 import importlib
 import pkgutil
 import re
-import time
 from pathlib import Path
 
 import pytest
@@ -15,8 +14,6 @@ import stableins
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK = ROOT / "docs" / "discovery-loop.ipynb"
-#: Wall-clock budget of the whole notebook (about 25 s on one core; kernel start included).
-NOTEBOOK_SECONDS = 150.0
 
 
 def _doctest_modules() -> list[str]:
@@ -93,11 +90,8 @@ def test_discovery_notebook_runs_and_finds_the_hidden_effect(tmp_path):
     nbformat = pytest.importorskip("nbformat")  # the test extra installs nbformat, nbclient and ipykernel
     nbclient = pytest.importorskip("nbclient")
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    start = time.perf_counter()
     client = nbclient.NotebookClient(notebook, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
-    client.execute()
-    elapsed = time.perf_counter() - start
-    assert elapsed < NOTEBOOK_SECONDS, f"the notebook took {elapsed:.0f} s"
+    client.execute()  # the timeout is a guard against a hung cell, not a bound this test asserts (issue 31)
     text, html, images = [], [], 0
     for cell in notebook.cells:
         for output in cell.get("outputs", []):

@@ -341,7 +341,11 @@ def test_mapping_file_and_per_axis_units(tmp_path):
     np.testing.assert_allclose(log.time, [0.0, 0.01, 0.02])
     np.testing.assert_allclose(log.specific_force[0], [STANDARD_GRAVITY, STANDARD_GRAVITY, STANDARD_GRAVITY * (1.0 - 300)])
     # options on the command line take precedence over the file
-    log = read_raw_log(log_path, layout_from_options(str(mapping), "f_x=g,f_y=g,f_z=g", zero="0"))
-    np.testing.assert_allclose(log.specific_force[0], np.array([1100, 2200, 1.0]) * STANDARD_GRAVITY)
+    log = read_raw_log(log_path, layout_from_options(str(mapping), "f_x=g,f_y=g,f_z=g", zero="1099.5,2199,0"))
+    np.testing.assert_allclose(log.specific_force[0], np.array([0.5, 1.0, 1.0]) * STANDARD_GRAVITY)
+    # converted, a value beyond any accelerometer (the data files' limits, ±10000 m/s^2) is refused naming the sample
+    with pytest.raises(InputError, match="sample 1: 10787.3 m/s\\^2 is beyond any accelerometer") as caught:
+        read_raw_log(log_path, layout_from_options(str(mapping), "f_x=g,f_y=g,f_z=g", zero="0"))
+    assert caught.value.field == "f_x"
     with pytest.raises(InputError, match="unknown axis 'f_q'"):
         layout_from_options(str(mapping), "f_q=g")

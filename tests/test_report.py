@@ -29,9 +29,8 @@ from stableins.reporting.tolerances import Tolerances, decide  # noqa: E402
 POPPLER = shutil.which("pdftoppm") and shutil.which("pdftotext")
 needs_poppler = pytest.mark.skipif(not POPPLER, reason="pdftoppm/pdftotext (Debian package poppler-utils) are not installed")
 
-PROCEDURE = """
-name = "wu2018-18-position"
-[tolerances]
+PROCEDURE = rf.procedure_with(
+    """[tolerances]
 decision_rule = "guarded"
 [tolerances.limits]
 "bias_*" = 500.0
@@ -45,6 +44,7 @@ decision_rule = "guarded"
 [tolerances.fit]
 interval = 0.95
 """
+)
 BIAS_STEP_UG = 60.0
 
 

@@ -385,6 +385,7 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
         from stableins.progress import CountedSource, Progress
 
         opened = open_system_record(system[0])
+        opened.validate(allow_gaps=True)  # what check runs (time order, rate, derived datasets); a gap ends an Allan segment
         with Progress(total=2 * opened.n_samples, label="Allan deviation: two passes over the record") as bar:
             points, described = static_record_points(CountedSource(opened, bar))
         model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)

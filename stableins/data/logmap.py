@@ -111,8 +111,10 @@ def _pairs(text: str, option: str) -> dict[str, str]:
 def _three(value: Any, option: str) -> tuple[float, float, float]:
     items = value if isinstance(value, list) else str(value).split(",")
     try:
+        if any(isinstance(v, str) and (not v.isascii() or "_" in v) for v in items):  # float() reads 1_0 and full-width digits
+            raise ValueError
         numbers = [float(v) for v in items]
-    except ValueError:
+    except (TypeError, ValueError):
         raise InputError(f"{value!r} is not a number or three", field=option, expected="e.g. 32768 or 32768,32768,32768") from None
     if len(numbers) == 1:
         numbers *= 3

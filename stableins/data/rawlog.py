@@ -253,8 +253,27 @@ def read_raw_log(path: str | os.PathLike[str], layout: LogLayout) -> RawLog:
     if any(layout.units[a].kind is UnitKind.PULSES for a in AXES):  # the first sample has no interval
         time, force, railed = time[1:], force[1:], railed[1:]
         raw = {k: v[1:] for k, v in raw.items()}
+    _check_specific_force(force, layout, source)
     temperature = raw.get("temperature")
     return RawLog(source, time - time[0], force, railed, temperature, start, resolution, full_scale, range_source, layout)
+
+
+def _check_specific_force(force: NDArray[np.float64], layout: LogLayout, source: str) -> None:
+    """Refuse a converted specific force beyond what any accelerometer can read (the data files' limits, docs/formats.md)."""
+    from stableins.schema import column_limits
+
+    limits = column_limits()
+    for i, axis in enumerate(AXES):
+        low, high = limits[axis]
+        outside = ~((force[:, i] >= low) & (force[:, i] <= high))
+        if np.any(outside):
+            k = int(np.argmax(outside))
+            raise InputError(
+                f"sample {k + 1}: {force[k, i]:.6g} m/s^2 is beyond any accelerometer",
+                path=source,
+                field=axis,
+                expected=f"a specific force in [{low:g}, {high:g}] m/s^2 once converted with --units and --zero",
+            )
 
 
 def _time(raw: Mapping[str, Any], layout: LogLayout, source: str, n: int) -> tuple[NDArray[np.float64], str]:

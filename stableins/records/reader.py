@@ -154,6 +154,8 @@ class _Reader:
         fits = s.get("fits", [])
         if not isinstance(fits, list) or not all(isinstance(f, dict) for f in fits):
             raise self.fail("not a list of objects", f"{where}.fits", "fit evidence objects")
+        for j, fit in enumerate(fits):
+            self.fit(fit, f"{where}.fits[{j}]")
         texts = {name: self.text(s[name], f"{where}.{name}") for name in ("id", "name", "calibration")}
         for name in ("procedure", "software"):
             texts[name] = self.text(s.get(name, ""), f"{where}.{name}")
@@ -172,6 +174,30 @@ class _Reader:
             notes=self.texts(s.get("notes", []), f"{where}.notes"),
             sensitivities=self.sensitivities(s.get("sensitivities", []), f"{where}.sensitivities"),
         )
+
+    def fit(self, fit: dict[str, Any], where: str) -> None:
+        """Check the fields of one fit's residual evidence (:func:`stableins.records.stages.fit_evidence`) that are present."""
+        checks = {
+            "stage": self.text, "residual_unit": self.text, "parameter_ids": self.texts, "residual_labels": self.texts,
+            "rank": self.count, "dof": self.count, "residuals": self.numbers, "residual_sigma": self.numbers,
+            "chi2": self.optional_number, "chi2_red": self.optional_number,
+        }  # fmt: skip
+        for name, check in checks.items():
+            if name in fit:
+                check(fit[name], f"{where}.{name}")
+
+    def count(self, value: Any, key: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise self.fail(f"{value!r} is not a count", key, "a whole number >= 0")
+        return value
+
+    def numbers(self, value: Any, key: str) -> tuple[float, ...]:
+        if not isinstance(value, list):
+            raise self.fail("not a list", key, "a list of finite numbers")
+        return tuple(self.number(x, key) for x in value)
+
+    def optional_number(self, value: Any, key: str) -> float | None:
+        return None if value is None else self.number(value, key)
 
     def sensitivities(self, value: Any, key: str) -> tuple[InputSensitivity, ...]:
         if not isinstance(value, list):

@@ -219,7 +219,8 @@ def write_report(
     previous : path or CalibrationRecord, optional
         Previous calibration record of the unit, for the change section (:func:`stableins.history.compare`).
     procedure : path, optional
-        Procedure definition (TOML) whose ``[tolerances]`` table gives the conformity limits.
+        Procedure definition (TOML) whose ``[tolerances]`` table gives the conformity limits; validated as ``stableins
+        run`` validates it (:func:`stableins.procedures.definition.load_procedure`) before anything is read or written.
     discovery : path, optional
         Output of ``stableins diagnose --json`` (ranked candidates and refit history).
     settings : ReportSettings, optional
@@ -236,6 +237,7 @@ def write_report(
 
     settings = settings or ReportSettings()
     uncertainty, issued = settings.uncertainty, settings.issued
+    _check_procedure(procedure)
     loaded = LoadedRecord.of(record)
     view = loaded.record
     previous_loaded = LoadedRecord.of(previous) if previous is not None else None
@@ -404,6 +406,14 @@ def _previous(
         previous_loaded.record, previous_terms, budget=uncertainty_budget(previous_loaded.record, uncertainty, previous_terms)
     )
     return comparison, changes, previous_rows
+
+
+def _check_procedure(procedure: str | PathLike[str] | None) -> None:
+    """Validate a procedure given to the report as ``stableins run`` validates it (unknown sections, an empty file ...)."""
+    if procedure is not None:
+        from stableins.procedures.definition import load_procedure
+
+        load_procedure(str(procedure))
 
 
 def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | None) -> tuple[Tolerances, list[InputFile]]:
