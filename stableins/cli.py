@@ -12,7 +12,8 @@ Conventions shared by every command:
 - ``--json``: the result goes to stdout as one JSON document (progress and messages go
   to stderr), see :func:`stableins.output.emit`;
 - a user error (:class:`~stableins.errors.InputError`, bad arguments) prints
-  ``stableins: error: <message>`` and exits with status 2, never a traceback;
+  ``stableins: error: <message>`` and exits with status 2, never a traceback; data that do not
+  determine what was asked (:class:`~stableins.errors.NotDeterminedError`) the same, with status 4;
 - Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
   prints ``stableins: error: <message>`` and exits with status 1.
 """
@@ -91,6 +92,8 @@ COMMANDS: dict[str, Command | Group] = {
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The data do not determine what was asked (:class:`~stableins.errors.NotDeterminedError`); nothing was written.
+EXIT_NOT_DETERMINED = 4
 EXIT_INTERRUPTED = 130
 
 
@@ -153,7 +156,7 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stableins`` console script; returns the exit status."""
-    from stableins.errors import InputError
+    from stableins.errors import InputError, NotDeterminedError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -163,11 +166,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.print_help(sys.stderr)
             return EXIT_USAGE
         return int(args._run(args) or 0)
-    except InputError as error:
+    except (InputError, NotDeterminedError) as error:
         from stableins.commands.flags import as_flag
 
         print(f"stableins: error: {as_flag(error)}", file=sys.stderr)
-        return error.exit_status
+        return EXIT_USAGE if isinstance(error, InputError) else EXIT_NOT_DETERMINED
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, TypedDict, TypeVar, Unpack, cast
 
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.records.content import RecordContent
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
@@ -257,7 +257,7 @@ def apply_stage(
         raise InputError(f"stage run {stage.id} is already part of this record", field="stages", expected="a new stage run")
     post = bayesian_update(record.ids, record.values_array(), record.covariance, [p.status for p in record.parameters], likelihood)
     if not any(d is not None for d in post.determination):
-        raise InputError(
+        raise NotDeterminedError(
             f"the {stage.name} stage's data determine no parameter of the record; no record written",
             field="stage",
             expected="data that determine at least one parameter",
