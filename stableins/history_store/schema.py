@@ -15,7 +15,7 @@ from typing import Any
 
 from stableins.errors import InputError
 from stableins.history import parse_date
-from stableins.records.stages import utc_now
+from stableins.identifiers import utc_now
 
 STORE_NAME = "history.sqlite"
 STORE_FORMAT = "stableins-history-store"
