@@ -39,7 +39,6 @@ KNOWN_DUPLICATES = {
     "next_steps": {"stableins.commands.calibrate_device", "stableins.commands.diagnose"},
     "number": {"stableins.commands.arguments", "stableins.display", "stableins.procedures.sections", "stableins.reporting.rounding"},
     "observation_rows": {"stableins.estimators.system.harmonics", "stableins.estimators.systematic.model"},
-    "parameter_rows": {"stableins.records.display", "stableins.reporting.content"},
     "prior_mean": {"stableins.estimators.system.thermal", "stableins.estimators.systematic.passes"},
     "rank_report": {"stableins.estimators.gyro_sensitivity", "stableins.estimators.systematic.passes"},
     "report": {
@@ -51,7 +50,6 @@ KNOWN_DUPLICATES = {
     },
     "residual_scale": {"stableins.estimators.system.assembly", "stableins.reporting.figures"},
     "results": {"stableins.reporting.certificate_sections", "stableins.reporting.result_sections"},
-    "rotation_vector": {"stableins.estimators.drift.holds", "stableins.platform"},
     "simulate_system": {"stableins.commands.simulate", "stableins.simulator.system"},
     "summarize": {"stableins.campaign.summary", "stableins.commands.check"},
     "table": {"stableins.procedures.sections", "stableins.reporting.document"},
