@@ -14,7 +14,8 @@ Conventions shared by every command:
 - progress bars (:mod:`stableins.progress`) are drawn on stderr only when it is a terminal, never with ``--json`` or
   ``--quiet``;
 - a user error (:class:`~stableins.errors.InputError`, bad arguments) prints
-  ``stableins: error: <message>`` and exits with status 2, never a traceback;
+  ``stableins: error: <message>`` and exits with status 2, never a traceback; data that do not
+  determine what was asked (:class:`~stableins.errors.NotDeterminedError`) the same, with status 4;
 - Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
   prints ``stableins: error: <message>`` and exits with status 1.
 """
@@ -94,6 +95,8 @@ COMMANDS: dict[str, Command | Group] = {
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The data do not determine what was asked (:class:`~stableins.errors.NotDeterminedError`); nothing was written.
+EXIT_NOT_DETERMINED = 4
 EXIT_INTERRUPTED = 130
 
 
@@ -176,7 +179,7 @@ def single_threaded_blas() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stableins`` console script; returns the exit status."""
-    from stableins.errors import InputError
+    from stableins.errors import InputError, NotDeterminedError
 
     single_threaded_blas()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -193,11 +196,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(args._run(args) or 0)
         finally:
             silence(quiet=False)
-    except InputError as error:
+    except (InputError, NotDeterminedError) as error:
         from stableins.commands.flags import as_flag
 
         print(f"stableins: error: {as_flag(error)}", file=sys.stderr)
-        return error.exit_status
+        return EXIT_USAGE if isinstance(error, InputError) else EXIT_NOT_DETERMINED
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

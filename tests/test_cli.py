@@ -99,6 +99,11 @@ def fake_commands(tmp_path, monkeypatch):
         "def run(args):\n    from stableins.errors import InputError\n"
         "    raise InputError('bad thing', path='f.csv', row=3, field='f_x', expected='a number')\n"
     )
+    (package / "not_determined.py").write_text(
+        "def configure(parser):\n    pass\n\n"
+        "def run(args):\n    from stableins.errors import NotDeterminedError\n"
+        "    raise NotDeterminedError('the data determine no parameter', field='stage', expected='one sidereal day')\n"
+    )
     (package / "disk_full.py").write_text(
         "def configure(parser):\n    pass\n\ndef run(args):\n    import errno, os\n"
         "    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'out/system.h5')\n"
@@ -114,6 +119,7 @@ def fake_commands(tmp_path, monkeypatch):
         ),
         "interrupt": cli.Command("fakecmds.interrupt", "raises KeyboardInterrupt"),
         "crash": cli.Command("fakecmds.crash_input", "raises InputError"),
+        "undetermined": cli.Command("fakecmds.not_determined", "raises NotDeterminedError"),
         "disk-full": cli.Command("fakecmds.disk_full", "raises OSError(ENOSPC)"),
     }
     monkeypatch.setattr(cli, "COMMANDS", table)
@@ -144,11 +150,22 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     assert cli.main(["crash"]) == 2
     err = capsys.readouterr().err
     assert err.strip() == "stableins: error: f.csv, row 3, field 'f_x': bad thing (expected a number)"
+    assert cli.main(["undetermined"]) == 4  # the data do not determine what was asked: a status of its own
+    err = capsys.readouterr().err
+    assert err.strip() == "stableins: error: field 'stage': the data determine no parameter (expected one sidereal day)"
     assert cli.main(["interrupt"]) == 130
     assert cli.main(["disk-full"]) == 1
     assert (
         capsys.readouterr().err.strip() == "stableins: interrupted\nstableins: error: [Errno 28] No space left on device: 'out/system.h5'"
     )
+
+
+def test_the_two_errors_are_value_errors_and_distinct():
+    from stableins.errors import InputError, NotDeterminedError
+
+    assert issubclass(InputError, ValueError) and issubclass(NotDeterminedError, ValueError)
+    assert not issubclass(NotDeterminedError, InputError) and not issubclass(InputError, NotDeterminedError)
+    assert not hasattr(InputError("x"), "exit_status")  # the CLI maps the statuses, the error carries none
 
 
 # --------------------------------------------------------------------------- bad input through the CLI

@@ -12,7 +12,7 @@ import pytest
 from system_synthetic import paper_residuals, record
 
 from stableins.data.chunks import ArraySource
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
@@ -192,14 +192,14 @@ def test_short_record_fits_only_what_is_observable():
     # 8 h resolve some combinations of the harmonics but none that separates a parameter: nothing is estimated
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(InputError, match="lack one sidereal day") as info:
+        with pytest.raises(NotDeterminedError, match="lack one sidereal day") as info:
             run(cols8, meta, installed)
     assert "no record was written" in str(info.value) and "8.00 h" in str(info.value)
     cols9, meta = record(true, installed, rate=1.0, duration=9 * 3600.0, seed=3)
     # 9 h: the named combinations are determined, but by exactly as many resolved combinations (ν = 0): not certifiable
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(InputError, match="ν = 0"):
+        with pytest.raises(NotDeterminedError, match="ν = 0"):
             run(cols9, meta, installed)
     cols, meta = record(true, installed, rate=1.0, duration=12 * 3600.0, seed=3)
     with pytest.warns(UserWarning, match="not observable"):

@@ -265,6 +265,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").
     """
     from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
+    from stableins.errors import InputError
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets
     from stableins.output import note
 
@@ -274,6 +275,8 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     values = record.values()
     try:
         fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms)
+    except InputError:
+        raise  # bad input is refused, not skipped
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None

@@ -22,6 +22,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from stableins.drivers.base import PlatformDriver
+from stableins.errors import InputError, NotDeterminedError
 
 #: The protocol's name, first word of the greeting ``STABLEINS-PLATFORM <version> [<capability> ...]``.
 PROTOCOL_NAME = "STABLEINS-PLATFORM"
@@ -142,11 +143,12 @@ class _Session:
             try:
                 if not self.handle(request_id, verb, arguments):
                     return
-            except (ValueError, IndexError) as error:
-                self.send(f"{request_id} ERR protocol {verb}: {error}\n")
-            except Exception as error:  # the platform failed: tell the client, keep serving
-                message = str(error).replace("\n", " ")
-                self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
+            except Exception as error:
+                if isinstance(error, ValueError | IndexError) and not isinstance(error, InputError | NotDeterminedError):
+                    self.send(f"{request_id} ERR protocol {verb}: {error}\n")
+                else:  # the platform failed (or refused a value): tell the client, keep serving
+                    message = str(error).replace("\n", " ")
+                    self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
 
     def handle(self, request_id: str, verb: str, arguments: list[str]) -> bool:
         """Answer one request; False when the client said goodbye."""

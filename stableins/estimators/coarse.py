@@ -53,7 +53,7 @@ from stableins.conventions import (
     dcm_nav_to_body,
 )
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, choose_gauge
 from stableins.estimators.details import CoarseDetails, UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, gauge_preference, held_terms_note, hold_and_gauge
@@ -379,7 +379,7 @@ def _start_gauge(
     _, a_start = problem.weighted(x_start)
     start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
     if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
-        raise InputError(
+        raise NotDeterminedError(
             f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
             f"(left out: {describe_left_out(left_out)})",
             path=source,

@@ -362,7 +362,7 @@ class FitResult:
                 getattr(self, name).setflags(write=False)
 
     @classmethod
-    def from_solution(
+    def from_solution(  # noqa: PLR0913 - the stage's own FitResult fields, each typed and named at the call
         cls,
         stage: Stage,
         terms: tuple[Term, ...],
@@ -371,14 +371,27 @@ class FitResult:
         *,
         held: Mapping[str, float],
         gauge_values: Mapping[str, float],
-        **fields: Any,
+        residuals: NDArray[np.float64],
+        residual_sigma: NDArray[np.float64],
+        residual_labels: tuple[str, ...] = (),
+        determined: tuple[str, ...] = (),
+        notes: tuple[str, ...] = (),
+        positions_used: tuple[UsedDwell, ...] = (),
+        left_out: Mapping[int, str] | None = None,
+        passes: tuple[int, ...] = (),
+        gravity: float | None = None,
+        details: StageDetails | None = None,
+        whitened_residuals: NDArray[np.float64] | None = None,
+        settings: dict[str, Any] | None = None,
+        sensitivities: tuple[InputSensitivity, ...] = (),
     ) -> FitResult:
         """Return the result of a device fit solved by :func:`stableins.estimators.gauss_newton.gauss_newton`.
 
         Values, covariance, iterations and the likelihood come from the first batch member of ``solution``;
         rank, singular values and null space from ``design``.  A parameter in ``held`` has status
-        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  ``fields`` are the
-        stage's own (residuals, labels, notes, settings ...).
+        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  The keyword arguments
+        after them are the stage's own fields of :class:`FitResult` (residuals, labels, notes, settings ...),
+        each as the class documents it.
         """
         ids = tuple(t.id for t in terms)
         status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauge_values else Status.ESTIMATED for k in ids)
@@ -387,7 +400,10 @@ class FitResult:
             rank=design.rank, singular_values=design.singular_values, null_space=design.null_space,
             held=held, gauge_values=gauge_values, iterations=solution.iterations,
             likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-            **fields,
+            residuals=residuals, residual_sigma=residual_sigma, residual_labels=residual_labels, determined=determined, notes=notes,
+            positions_used=positions_used, left_out={} if left_out is None else left_out, passes=passes, gravity=gravity,
+            details=details, whitened_residuals=whitened_residuals, settings={} if settings is None else settings,
+            sensitivities=sensitivities,
         )
 
     # ----------------------------------------------------------------- access

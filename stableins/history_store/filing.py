@@ -16,8 +16,7 @@ from typing import TYPE_CHECKING
 from stableins.errors import InputError
 from stableins.history import data_only, parse_date
 from stableins.history_store.schema import MAX_RECORD_BYTES, Connection, Entry
-from stableins.identifiers import check_serial_number
-from stableins.records.stages import utc_now
+from stableins.identifiers import check_serial_number, utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord

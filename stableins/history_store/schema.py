@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from stableins.errors import InputError
 from stableins.history import parse_date
-from stableins.records.stages import utc_now
+from stableins.identifiers import utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.history_store.postgres import PostgresConnection

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.display import number, unit_text
 from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind, known_terms
+from stableins.errors import InputError
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.propagation import Propagator
 from stableins.navigation.sources import (
@@ -194,6 +195,8 @@ def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], sc
     if term.kind in ACCELEROMETER_KINDS:
         try:
             return accelerometer_forcing(model, values, term, scenario)
+        except InputError:
+            raise
         except ValueError as error:
             return f"{error}; on a static base at the reference temperature it adds nothing the budget can compute"
     return f"kind {term.kind} does not act on navigation"  # pragma: no cover - every kind is listed above

@@ -22,12 +22,12 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from stableins.drivers.base import PlatformDriver
 from stableins.errors import InputError
+from stableins.identifiers import utc_now
 from stableins.procedures.entries import accepted_columns
 from stableins.procedures.journal import Journal, metadata_from_start
 from stableins.procedures.plan import Plan
@@ -107,11 +107,6 @@ class JournalOnlyDriver:
     def close(self) -> None:
         """Release nothing: the journal is read, not held."""
         pass
-
-
-def utc_now() -> str:
-    """Return the current UTC time as ISO 8601, to the second."""
-    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 def check_settings(plan: Plan, values: dict[str, str]) -> None:

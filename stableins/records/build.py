@@ -10,10 +10,10 @@ import math
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, TypedDict, TypeVar, Unpack, cast
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
 
-from stableins.errors import InputError
-from stableins.records.content import RecordContent
+from stableins.errors import InputError, NotDeterminedError
+from stableins.records.content import RecordContent, RecordT
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
 from stableins.site import SiteMetadata
@@ -25,8 +25,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
 
 
-#: The record type a builder returns (:class:`stableins.records.CalibrationRecord`, given by its caller).
-R = TypeVar("R", bound=RecordContent)
 
 class DeviceFields(TypedDict, total=False):
     """Keyword arguments of :meth:`CalibrationRecord.from_device` (what describes the stage run and the calibration)."""
@@ -77,7 +75,7 @@ class UpdateFields(RunFields, total=False):
 _UPDATE_ONLY = ("stage", "new_calibration", "prior", "calibration_entries", "site", "noise_model")
 
 
-def record_from_device(cls: type[R], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> R:
+def record_from_device(cls: type[RecordT], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> RecordT:
     """Return the record of a device-level calibration (:meth:`CalibrationRecord.from_device`)."""
     procedure = fields.get("procedure", "")
     started = Calibration.new(procedure, fields.get("entries", ()))
@@ -97,7 +95,7 @@ def record_from_device(cls: type[R], calibration: DeviceCalibration, site: SiteM
     return record_from_fit(cls, calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
 
 
-def record_from_fit(cls: type[R], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> R:
+def record_from_fit(cls: type[RecordT], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> RecordT:
     """Return the first record of a calibration, one data-only stage (:meth:`CalibrationRecord.from_fit_result`)."""
     import numpy as np
 
@@ -166,7 +164,7 @@ def _estimable(result: FitResult) -> dict[str, bool]:
     return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
 
 
-def update_record(record: R, result: FitResult, **fields: Unpack[UpdateFields]) -> R:
+def update_record(record: RecordT, result: FitResult, **fields: Unpack[UpdateFields]) -> RecordT:
     """Return ``record`` updated by a later stage's likelihood (:meth:`CalibrationRecord.updated`)."""
     if result.likelihood is None:
         raise InputError(
@@ -195,13 +193,13 @@ def update_record(record: R, result: FitResult, **fields: Unpack[UpdateFields]) 
 
 
 def update_by_run(
-    record: R,
+    record: RecordT,
     stage: StageRun,
     *,
     new_calibration: bool = False,
     prior: PriorReference | None = None,
     site: SiteMetadata | None = None,
-) -> R:
+) -> RecordT:
     """Return ``record`` updated by a stage run of another record (:meth:`CalibrationRecord.updated_by_run`)."""
     if stage.likelihood is None:
         raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
@@ -221,8 +219,8 @@ def next_calibration(
 
 
 def apply_stage(
-    record: R, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
-) -> R:
+    record: RecordT, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
+) -> RecordT:
     """Return the posterior of ``record`` given ``stage.likelihood``, with ``stage`` appended (as a run of ``calibration``).
 
     Parameters
@@ -257,7 +255,7 @@ def apply_stage(
         raise InputError(f"stage run {stage.id} is already part of this record", field="stages", expected="a new stage run")
     post = bayesian_update(record.ids, record.values_array(), record.covariance, [p.status for p in record.parameters], likelihood)
     if not any(d is not None for d in post.determination):
-        raise InputError(
+        raise NotDeterminedError(
             f"the {stage.name} stage's data determine no parameter of the record; no record written",
             field="stage",
             expected="data that determine at least one parameter",

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 from stableins.errors import InputError
 from stableins.records.parameters import Entry, Parameter
@@ -159,6 +159,10 @@ class RecordContent:
         merged = {e.key: e for e in self.calibration.entries}
         merged.update({e.key: e for e in entries})
         return replace(self, calibration=replace(self.calibration, entries=tuple(merged.values())))
+
+
+#: The record type a builder or the reader makes (:class:`stableins.records.CalibrationRecord`, given by its caller).
+RecordT = TypeVar("RecordT", bound=RecordContent)
 
 
 def check_record(record: RecordContent, path: str | None) -> None:

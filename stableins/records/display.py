@@ -11,7 +11,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.records.content import RecordContent
 
 
-def parameter_rows(record: RecordContent) -> list[tuple[str, float, float, str, str, str]]:
+def record_rows(record: RecordContent) -> list[tuple[str, float, float, str, str, str]]:
     """Return ``(id, value, σ, unit, status, determined by)`` in engineering units where the id is a known term."""
     from stableins.discovery.library import all_terms
 
@@ -43,7 +43,7 @@ def report(record: RecordContent) -> str:
 
     run = ", ".join(s.name for s in record.stages_run) or "none"
     lines = [f"calibration record of {record.serial_number} (stages run: {run}; {record.calibration.software})", ""]
-    lines += parameter_table(parameter_rows(record), record.determined, record.notes)
+    lines += parameter_table(record_rows(record), record.determined, record.notes)
     if record.discovery is not None:
         lines += ["", record.discovery.report()]
     return "\n".join(lines)
@@ -89,7 +89,7 @@ def summary(record: RecordContent) -> list[str]:
 
     counts = status_counts(p.status for p in record.parameters)
     head = f"<CalibrationRecord of {record.serial_number}: {len(record.parameters)} parameters ({counts})>"
-    lines = [head, *_summary_lines(record), *parameter_lines(row[:5] for row in parameter_rows(record))]
+    lines = [head, *_summary_lines(record), *parameter_lines(row[:5] for row in record_rows(record))]
     return lines + [line for line in (_discovery_line(record), _noise_line(record)) if line]
 
 
@@ -107,7 +107,7 @@ def html_repr(record: RecordContent) -> str:
 
     terms = all_terms()
     meanings = [terms[p.id].meaning if p.id in terms else "" for p in record.parameters]
-    tables = [parameter_html(parameter_rows(record), meanings, extra="last determined by")]
+    tables = [parameter_html(record_rows(record), meanings, extra="last determined by")]
     if record.discovery is not None:
         tables.append(record.discovery._repr_html_())
     return html_result(
@@ -124,7 +124,7 @@ def dataframe(record: RecordContent) -> Any:
 
     pandas = require_pandas()
     out = []
-    for (pid, value, sigma, unit, status, source), p in zip(parameter_rows(record), record.parameters, strict=True):
+    for (pid, value, sigma, unit, status, source), p in zip(record_rows(record), record.parameters, strict=True):
         hidden = p.status is Status.UNIDENTIFIABLE
         nan = math.nan
         out.append(

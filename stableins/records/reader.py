@@ -6,12 +6,12 @@ Every problem is an :class:`stableins.errors.InputError` naming the file and the
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from stableins.data.metadata import metadata_from_document
 from stableins.errors import InputError
 from stableins.identifiers import check_serial_number, check_timestamp
-from stableins.records.content import RecordContent, check_record
+from stableins.records.content import RecordT, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.schema import RECORD_FORMAT, RECORD_SCHEMA_VERSION, migrate_v1
 from stableins.records.stages import Calibration, InputFile, PriorReference, StageRun
@@ -20,13 +20,11 @@ from stableins.status import STATUSES, Determination, Status
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.estimators.result import InputSensitivity, Likelihood
 
-#: The record type read (:class:`stableins.records.CalibrationRecord`, given by the caller).
-R = TypeVar("R", bound=RecordContent)
 #: What a parameter object holds (errors show it).
 _PARAMETER_KEYS = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
 
 
-def read_document(cls: type[R], document: Any, path: str | None = None) -> R:
+def read_document(cls: type[RecordT], document: Any, path: str | None = None) -> RecordT:
     """Return the record (of type ``cls``) a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
     if isinstance(document, dict) and document.get("format") == RECORD_FORMAT and document.get("schema_version") == 1:
         document = migrate_v1(document, path)
@@ -327,7 +325,7 @@ class _Reader:
                 raise self.fail(what, where, "the discovery section of docs/formats.md") from None
         return optional
 
-    def record(self, cls: type[R], document: Any) -> R:
+    def record(self, cls: type[RecordT], document: Any) -> RecordT:
         document = self.header(document)
         stages = self.stages(document["stages"])
         parameters = self.parameters(document["parameters"], {s.id for s in stages})

@@ -153,7 +153,7 @@ class CalibrationRecord(RecordContent):
     # ------------------------------------------------------------------ people
     def rows(self) -> list[tuple[str, float, float, str, str, str]]:
         """Return ``(id, value, σ, unit, status, determined by)`` in engineering units where the id is a known term."""
-        return display.parameter_rows(self)
+        return display.record_rows(self)
 
     def source_text(self, parameter_id: str) -> str:
         """Return which stage last determined the parameter, how, and whether in this calibration (console and certificate)."""

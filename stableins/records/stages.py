@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 from stableins.errors import InputError
+from stableins.identifiers import utc_now
 from stableins.records.parameters import Entry
 from stableins.site import SiteMetadata
 
@@ -35,11 +36,6 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     except OSError as error:
         raise InputError(f"cannot read input file to hash it: {error.strerror}", path=path) from None
     return digest.hexdigest()
-
-
-def utc_now() -> str:
-    """Return the current time, ISO 8601 UTC to the second."""
-    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.estimators.result import Stage
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
@@ -389,6 +390,8 @@ def _bias_instability_limit(stage: Any) -> list[float]:
         return []
     try:
         upper = NoiseModel.from_document(document).limits("bias_instability")[1]
+    except InputError:
+        raise  # a stored noise model that does not read is an error, not a missing one
     except (KeyError, ValueError, TypeError):
         return []
     return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []
