@@ -184,6 +184,17 @@ def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
     return DiagnoseReport.from_json(load_json_file(path, what=DOCUMENT), path)
 
 
+def _discovery_input(discovery: str | PathLike[str] | None, inputs: list[InputFile]) -> tuple[DiagnoseReport | None, str]:
+    """Return the ``diagnose --json`` document given to the report and its file name, naming it among ``inputs``.
+
+    ``(None, "")`` when none is given: the record's own discovery history is then the report's (``ctx.record.discovery``).
+    """
+    if discovery is None:
+        return None, ""
+    inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+    return read_discovery(discovery), Path(discovery).name
+
+
 def write_report(
     out: str | PathLike[str],
     record: CalibrationRecord | str | PathLike[str],
@@ -258,10 +269,7 @@ def write_report(
     comparison, changes, previous_rows = _previous(previous_loaded, view, terms, uncertainty)
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = None, ""  # the record's own history is ctx.record.discovery
-    if discovery is not None:
-        discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
-        inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+    discovery_document, discovery_source = _discovery_input(discovery, inputs)
 
     issued = issued or dt.datetime.now(dt.UTC)
     ctx = ReportContext(
