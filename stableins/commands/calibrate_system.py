@@ -161,7 +161,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
     from stableins.estimators.system.sensitivity import with_sensitivities
-    from stableins.estimators.system.stage import run_system_stage
+    from stableins.estimators.system.stage import record_sums, run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -176,12 +176,12 @@ def run(args: Any) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
+        terms = record_terms(prior.ids)
+        sums = record_sums(record, record.metadata, values, options, compensation_terms=terms)  # one pass, for the sensitivities too
         outcome = run_system_stage(
-            record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
+            record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums
         )
-    outcome = with_sensitivities(
-        outcome, record, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
-    )
+    outcome = with_sensitivities(outcome, record, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums)
     for w in caught:
         note(f"stableins: warning: {flag_text(str(w.message))}")
     start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
