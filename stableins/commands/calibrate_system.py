@@ -213,19 +213,21 @@ def run(args: Any) -> int:
 
 
 def _stage(record: Any, values: Any, covariance: Any, options: Any, *, terms: Any, noise: Any) -> Any:
-    """Return the system stage's outcome on ``record`` with its Type B sensitivities, a progress bar over each pass."""
-    from stableins.estimators.system.sensitivity import perturbed_inputs, with_sensitivities
-    from stableins.estimators.system.stage import run_system_stage
+    """Return the system stage's outcome on ``record`` with its Type B sensitivities, a progress bar over the one pass.
+
+    The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) is made once: the stage and every
+    re-run of the sensitivities start from its sums (issue 30).
+    """
+    from stableins.estimators.system.sensitivity import with_sensitivities
+    from stableins.estimators.system.stage import record_sums, run_system_stage
     from stableins.progress import CountedSource, Progress
 
     with Progress(total=record.n_samples, label="system stage: one pass over the record") as bar:
-        outcome = run_system_stage(
-            CountedSource(record, bar), record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise
-        )
-    reruns = len(perturbed_inputs(outcome, record.metadata))
-    with Progress(total=reruns * record.n_samples, label=f"Type B sensitivities: {reruns} re-runs of the stage") as bar:
-        source = CountedSource(record, bar)
-        return with_sensitivities(outcome, source, values, covariance, options, compensation_terms=terms, noise_model=noise)
+        sums = record_sums(CountedSource(record, bar), record.metadata, values, options, compensation_terms=terms)
+    outcome = run_system_stage(
+        record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums
+    )
+    return with_sensitivities(outcome, record, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums)
 
 
 def _options(args: Any) -> Any:

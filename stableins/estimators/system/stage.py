@@ -141,6 +141,7 @@ def run_system_stage(
     *,
     compensation_terms: Sequence[Term] = (),
     noise_model: NoiseModel | None = None,
+    sums: RecordSums | None = None,
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -165,6 +166,10 @@ def run_system_stage(
         The instrument's noise model as known before this record (the calibration record's).  A datasheet model gives
         the amplitudes of the low-frequency noise as they are; a measured one (device dwells, an earlier static record)
         is a prior on them (docs/system-calibration.md §1a).  The white level is always measured in the record.
+    sums : RecordSums, optional
+        The stage's pass over this record (:func:`record_sums` with the same source, prior, compensation terms and
+        options), when already made: the pass is then not repeated.  The known gyro drift and the damping loop do not
+        enter it, so the Type B sensitivities (:mod:`.sensitivity`) re-run only the solve steps on it.
 
     Returns
     -------
@@ -172,7 +177,9 @@ def run_system_stage(
         With :attr:`SystemCalibration.noise_model`, the noise model under its σ: measured in this record (source
         ``static record``), or with a datasheet model its slow terms as given and the record's white noise.
     """
-    stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
+    stage = _run(
+        source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model, sums=sums
+    )
     harmonic, attitude, decision = stage.harmonic, stage.attitude, stage.decision
     combination = solve.combine(
         harmonic,
@@ -235,27 +242,14 @@ def _run(
     *,
     compensation_terms: Sequence[Term],
     noise_model: NoiseModel | None,
+    sums: RecordSums | None = None,
 ) -> _Stage:
-    """Run the one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
-    path = source_path(source)
-    site = check_metadata(metadata, path)
-    # the record's thermal sensitivities are the thermal terms' prior (docs §1b), not a compensation of the outputs
-    compensation_terms = tuple(t for t in compensation_terms if t.id not in THERMAL_TERMS)
-    latitude, gravity, rate = site.latitude, site.gravity, site.rate
-    loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
-    context = StageContext(path, site, loop, options)
-    grid = source_time_grid(source)
-    contents = SourceContents(
-        has_temperature="temperature" in source_columns(source),
-        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
-        time_grid=grid,
-        grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
-    )
-    accumulator = StageAccumulator(metadata, prior, context, compensation_terms=compensation_terms, source=contents)
-    rows, thin, step = accumulator.chunk_rows, accumulator.thin, accumulator.decimation
-    for chunk in source.iter_chunks(accumulator.columns, rows=rows, thin=thin, step=step, reuse=True, unchecked=FORCE_COLUMNS):
-        accumulator.add(chunk)
-    sums = accumulator.finish()
+    """Run the pass over the record (:class:`.accumulate.StageAccumulator`; ``sums`` when given) and the solve steps 1-5 (:mod:`.solve`)."""
+    context, compensation_terms = _context(source, metadata, options, compensation_terms)
+    latitude, gravity, rate = context.site.latitude, context.site.gravity, context.site.rate
+    loop = context.loop
+    if sums is None:
+        sums = _accumulate(source, metadata, prior, context, compensation_terms)
     noise = solve.white_noise(sums, latitude, gravity)
     harmonic = solve.fit_harmonics(sums, noise, gravity)
     prior_res_cov = prior_residual_covariance(prior, prior_covariance, gravity)
@@ -268,6 +262,54 @@ def _run(
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
     return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
+
+
+def record_sums(
+    source: ChunkSource,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    options: SystemOptions = SystemOptions(),
+    *,
+    compensation_terms: Sequence[Term] = (),
+) -> RecordSums:
+    """Make the stage's one pass over the record (step 1 of the module docstring), for :func:`run_system_stage`'s ``sums``.
+
+    It depends on the record, the prior it compensates with, the compensation terms, the site's gimbal senses and base
+    attitude and the pass options (chunk, block and decimation settings), not on the damping loop nor on a known gyro
+    drift: those enter only the solve steps.
+    """
+    context, compensation_terms = _context(source, metadata, options, compensation_terms)
+    return _accumulate(source, metadata, prior, context, compensation_terms)
+
+
+def _context(
+    source: ChunkSource, metadata: SiteMetadata, options: SystemOptions, compensation_terms: Sequence[Term]
+) -> tuple[StageContext, tuple[Term, ...]]:
+    """Return the run's :class:`StageContext` (metadata checked) and the compensation terms the pass applies."""
+    path = source_path(source)
+    site = check_metadata(metadata, path)
+    # the record's thermal sensitivities are the thermal terms' prior (docs §1b), not a compensation of the outputs
+    terms = tuple(t for t in compensation_terms if t.id not in THERMAL_TERMS)
+    loop = DampingLoop.from_metadata(metadata.damping, site.latitude, site.gravity, couplings=options.couplings)
+    return StageContext(path, site, loop, options), terms
+
+
+def _accumulate(
+    source: ChunkSource, metadata: SiteMetadata, prior: Mapping[str, float], context: StageContext, compensation_terms: tuple[Term, ...]
+) -> RecordSums:
+    """Make the one pass over the record (:class:`.accumulate.StageAccumulator`)."""
+    grid = source_time_grid(source)
+    contents = SourceContents(
+        has_temperature="temperature" in source_columns(source),
+        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
+        time_grid=grid,
+        grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
+    )
+    accumulator = StageAccumulator(metadata, prior, context, compensation_terms=compensation_terms, source=contents)
+    rows, thin, step = accumulator.chunk_rows, accumulator.thin, accumulator.decimation
+    for chunk in source.iter_chunks(accumulator.columns, rows=rows, thin=thin, step=step, reuse=True, unchecked=FORCE_COLUMNS):
+        accumulator.add(chunk)
+    return accumulator.finish()
 
 
 def _assemble(
@@ -376,5 +418,6 @@ __all__ = [
     "SystemNoise",
     "SystemOptions",
     "measure_noise_model",
+    "record_sums",
     "run_system_stage",
 ]
