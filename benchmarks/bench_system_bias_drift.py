@@ -79,7 +79,7 @@ def part_one() -> None:
         power3 = float(ncx2.sf(chi2.isf(alpha, 3), 3, lam3))
         power1 = float(ncx2.sf(chi2.isf(alpha, 1), 1, lam1))
         print(f"{days:>5} {floor:>10.2f} {z_rw:>12.2f} {z_fl:>17.2f} {z:>7.2f} {xy:>7.2f} {power3:>14.3f} {power1:>14.3f}")
-    print("  (sigma in ug/day; 'z (RW only)' is the K/sqrt(T) floor plus the mean's cost)")
+    print("  (sigma in ug/day; every column has the white noise: 'RW only' is white + random walk, 'flicker only' white + flicker)")
 
 
 def _white_covariance(time: np.ndarray, weights: np.ndarray, gain, level: float) -> np.ndarray:

@@ -26,9 +26,10 @@ noise given (the world's N, B, K: a datasheet that is right).  Printed per world
 ``--level independent`` draws the sessions with the independent generator (benchmarks/worlds/independent.py, written
 from the documents alone) instead of the simulator: the worlds white, flicker, random-walk, quartz, thermal, drift.
 
-``--level system`` is the hook for the system stage (issue 25 part 3, ``w25sys``): add a runner to :data:`LEVELS`
-with the signature of :func:`device_session` (world name, seed, options → :class:`SessionResult`) and the
-tables print for it unchanged.
+``--level system`` runs the system stage (:func:`system_session`): one sidereal day per record through the truth
+simulator at ``--rate`` (use 1 Hz), calibrated with no noise model and with the world's noise as a datasheet; the
+families are the harmonic coefficients x2-x5 and those of pitch and roll (:data:`SYSTEM_FAMILIES`).  The ``gyro``
+world is refused by the stage (an uncompensated 0.05 deg/h equatorial drift; docs/system-calibration.md §9).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 # one worker, one thread: a threaded BLAS on the small REML matrices of a shared 2-core machine is 10× slower
@@ -71,9 +72,10 @@ class SessionResult:
     chi2_red_given: float
     detected: bool
     seconds: float
-    z_type_b: dict[str, float]
-    z_white: dict[str, float]
-    white_rejected: bool
+    #: Device level only (the system level has no Type B refit nor a white-datasheet path): empty there.
+    z_type_b: dict[str, float] = field(default_factory=dict)
+    z_white: dict[str, float] = field(default_factory=dict)
+    white_rejected: bool = False
 
 
 def _z(fit, truth, floor=None) -> dict[str, float]:
@@ -197,8 +199,77 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     return _session_result(world_name, seed, default, reference, white, _Truth, t0)
 
 
-#: Session runners by level (the system level: issue 25 part 3 adds its runner here).
-LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {"device": device_session, "independent": independent_session}
+#: The system stage's families: the harmonic coefficients of the specific force and of the level attitude errors (x1 and
+#: the attitude means left out, as in bench_system_sigma.py; x6, x7 are removed by ``estimate_k2``).
+SYSTEM_FAMILIES = {
+    "x2-x5": ("x2", "x3", "x4", "x5"),
+    "pitch": ("theta_1c", "theta_1s", "theta_2c", "theta_2s"),
+    "roll": ("phi_1s", "phi_1c", "phi_2s", "phi_2c"),
+}
+
+
+def system_session(world_name: str, seed: int, rate: float) -> SessionResult:
+    """One sidereal day in ``world_name`` through the system stage: default path (no noise model) and the world's noise given.
+
+    The truth simulator's static record at ``rate`` (1 Hz: the stage's harmonics and its 600-s coloured-noise bins do not
+    need more; the white level per bin is the same, the second differences see the quantization differently), the stage
+    with ``estimate_k2`` (the drawn residuals include K2).  z = (estimate − truth)/σ of the combined coefficients
+    (:data:`SYSTEM_FAMILIES`); χ²_ν is the separation's; "detected" is the record's own slow-noise test.
+    """
+    import warnings
+
+    from scipy.stats import chi2
+
+    from stableins.conventions import SIDEREAL_DAY
+    from stableins.data.chunks import ArraySource
+    from stableins.estimators.system.assembly import residuals_from_parameters
+    from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
+    from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    from stableins.noise import NoiseModel
+    from stableins.simulator import system
+    from stableins.simulator.truth import SimulatedSite, Truth
+    from stableins.simulator.worlds import apply_world
+
+    t0 = time.perf_counter()
+    truth = apply_world(Truth.draw(seed, site=SimulatedSite(sample_rate=rate)), world_name)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, rate, seed=seed)
+    n = truth.noise
+    given = NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, provenance="the world's truth")
+    p = residuals_from_parameters(truth.parameters, truth.installed_calibration, truth.site.gravity)
+    reference = combination_matrix(truth.site.latitude) @ np.r_[p, 0.0, 0.0]
+    names = [k for ids in SYSTEM_FAMILIES.values() for k in ids]
+    index = [COMBINED_COEFFICIENTS.index(k) for k in names]
+    outs = []
+    for model in (None, given):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = run_system_stage(
+                ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True), noise_model=model
+            )
+        z = (out.combined.values - reference) / out.combined.sigma
+        outs.append((out, {k: float(z[i]) for k, i in zip(names, index, strict=True)}))
+    (default, z_default), (with_given, z_given) = outs
+    sep = default.separation
+    fit = default.coloured_noise
+    return SessionResult(
+        world_name,
+        seed,
+        z_default,
+        z_given,
+        float(sep.chi2 / max(sep.dof, 1)),
+        float(chi2.sf(sep.chi2, sep.dof)) if sep.dof > 0 else math.nan,
+        float(with_given.separation.chi2 / max(with_given.separation.dof, 1)),
+        bool(fit is not None and fit.data_detected),
+        time.perf_counter() - t0,
+    )
+
+
+#: Session runners by level.
+LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {
+    "device": device_session,
+    "independent": independent_session,
+    "system": system_session,
+}
 
 
 def _job(args: tuple[str, str, int, float]) -> SessionResult:
@@ -220,10 +291,10 @@ def coverage(zs: list[dict[str, float]]) -> float:
 PATHS = ("none", "none+B", "true", "white")
 
 
-def table(results: list[SessionResult], worlds: list[str]) -> list[str]:
+def table(results: list[SessionResult], worlds: list[str], families: dict[str, tuple[str, ...]] = FAMILIES) -> list[str]:
     head = (
         f"{'world':<13} {'path':<6} "
-        + " ".join(f"{f:>6}" for f in FAMILIES)
+        + " ".join(f"{f:>6}" for f in families)
         + f" {'chi2_nu':>8} {'p<.05':>6} {'slow det':>8} {'U cov':>6} {'rej':>5} {'n':>3}"
     )
     lines = [head]
@@ -235,7 +306,9 @@ def table(results: list[SessionResult], worlds: list[str]) -> list[str]:
             zs = {"none": [r.z_default for r in rows], "none+B": [r.z_type_b for r in rows], "true": [r.z_given for r in rows]}.get(
                 path, [r.z_white for r in rows]
             )
-            fam = " ".join(f"{rms([z[k] for z in zs for k in ids if k in z]):>6.2f}" for ids in FAMILIES.values())
+            if not any(zs):
+                continue  # a path this level does not run
+            fam = " ".join(f"{rms([z[k] for z in zs for k in ids if k in z]):>6.2f}" for ids in families.values())
             chi, pfrac, det, rej = "", "", "", ""
             if path == "none":
                 chi = f"{float(np.mean([r.chi2_red for r in rows])):.3f}"
@@ -279,6 +352,15 @@ def main(argv: list[str] | None = None) -> int:
         f"bench_worlds: level {args.level}, {args.seeds} seeds per world from {args.first_seed}, rate {args.rate:g} Hz, "
         f"{time.perf_counter() - t0:.0f} s"
     )
+    if args.level == "system":
+        print(
+            f"system level: one sidereal day per record at {args.rate:g} Hz (reduced from the 10-100 Hz of a real record: the "
+            "stage's harmonics and 600-s coloured-noise bins need no more), calibrate system with --estimate-k2"
+        )
+        print("path none: no noise model (default); true: the world's N, B, K given (datasheet)")
+        print("rms z per family (target 0.9-1.1); chi2_nu: the separation's, mean; p<.05: share of records; slow det: the record's test")
+        print("\n".join(table(results, args.worlds, SYSTEM_FAMILIES)))
+        return 0
     print("path none: calibrate device with no noise flags (default); true: the world's N, B, K given (datasheet)")
     print("path none+B: the default path's z over u_A (+) the Type B 'slow noise not resolved' (the certificate's u)")
     print("path white: B = K = 0 given (a wrong datasheet on slow-noise worlds)")
