@@ -117,7 +117,9 @@ class DiagnoseOptions:
     stage : DiagnoseStage or None
         Device data: the dwells of this stage (``coarse`` or ``fine``); None: fine when present, else coarse.
     alpha : float
-        Family-wise false-alarm level of the flags, in (0, 1).
+        Family-wise false-alarm level of the flags, in (0, 1) (:func:`stableins.discovery.ranking.family_level`).  With
+        the χ² verdict's upper 0.5 % (the two-sided 99 % range) the default 0.025 makes a clean session raise an alarm
+        3 % of the time (docs/discovery.md "False alarms").
     noise : NoiseModel, SlowNoiseGiven or None
         The noise model to use, or a datasheet's slow noise; None: the record's, else measured in the data.
     bin_seconds : float
@@ -126,7 +128,7 @@ class DiagnoseOptions:
 
     add: tuple[str, ...] = ()
     stage: DiagnoseStage | None = None
-    alpha: float = 0.05
+    alpha: float = 0.025
     noise: NoiseModel | SlowNoiseGiven | None = None
     bin_seconds: float = 60.0
 

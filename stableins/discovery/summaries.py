@@ -154,6 +154,8 @@ class CandidateSummary:
         (:func:`stableins.discovery.scores.explains`) and leaves no other candidate significant.
     leaves : tuple of str
         The candidates still significant once it is added.
+    signature_p : float
+        p-value of the residual with it added along directions fixed in the laboratory (NaN: not tested).
     """
 
     id: str
@@ -176,6 +178,7 @@ class CandidateSummary:
     chi2_red_with: float = math.nan
     explains: bool = False
     leaves: tuple[str, ...] = ()
+    signature_p: float = math.nan
 
     @classmethod
     def from_ranking(cls, ranking: Ranking) -> tuple[CandidateSummary, ...]:
@@ -206,6 +209,7 @@ class CandidateSummary:
             "chi2_red_with": finite(self.chi2_red_with),
             "explains": self.explains,
             "leaves": list(self.leaves),
+            "signature_p": finite(self.signature_p),
             "advice": self.advice,
         }
 
@@ -250,6 +254,7 @@ class CandidateSummary:
             chi2_red_with=r.number(item.get("chi2_red_with"), join(where, "chi2_red_with")),
             explains=r.boolean(item.get("explains", flag("flagged")), join(where, "explains")),
             leaves=r.texts(item.get("leaves", []), join(where, "leaves")),
+            signature_p=r.number(item.get("signature_p"), join(where, "signature_p")),
         )
 
 

@@ -219,7 +219,7 @@ def diagnose_system_record(
     )
 
     def session(noise: NoiseModel) -> Discovery:
-        s = Discovery(DwellProblem(with_noise(binned, noise), stage=Stage.SYSTEM_BINS), model, alpha=alpha, start=start)
+        s = Discovery(DwellProblem(with_noise(binned, noise), stage=Stage.SYSTEM_BINS, static=False), model, alpha=alpha, start=start)
         for effect in add:
             s.add(effect)
         return s
