@@ -140,7 +140,8 @@ def _arguments() -> argparse.Namespace:
     parser.add_argument("--mode", choices=[m.value for m in DwellMode], default=DwellMode.EARTH_RATE.value)
     parser.add_argument("--torquer", type=float, default=0.0, help="torquer scale-factor error per axis [ppm]")
     parser.add_argument("--end-to-end", type=int, default=0, help="sessions through simulate/calibrate/diagnose (CLI)")
-    parser.add_argument("--start-seed", type=int, default=0, help="first seed of the --end-to-end sessions")
+    parser.add_argument("--start-seed", type=int, default=0, help="first seed of the --end-to-end / --independent sessions")
+    parser.add_argument("--independent", type=int, default=0, help="sessions of the independent generator through calibrate device")
     parser.add_argument(
         "--world", choices=list(WORLDS), default="default",
         help="the simulator's world (noise, thermal history, effects); the drift and D_g are this run's",
@@ -157,8 +158,10 @@ def main() -> None:
     print(f"world {args.world}, dwell mode {args.mode}, torquer scale-factor error {args.torquer:g} ppm per axis")
     if args.end_to_end:
         end_to_end(args.end_to_end, g_true, args.start_seed)
-        if not args.seeds:
-            return
+    if args.independent:
+        independent(args.independent, g_true, args.start_seed)
+    if (args.end_to_end or args.independent) and not args.seeds:
+        return
     if WORLD["mode"] is DwellMode.CAGED:
         truth, c = session(0, g_true, args.dwell)
         try:
@@ -225,9 +228,14 @@ def in_gauge(truth: Truth, numbers: np.ndarray) -> np.ndarray:
     The record's frame is ``p`` turned by ``θ10`` about ``z_p``: ``v_gauge = R3(−s1 θ10) v``, so ``ε ↦ R ε`` and
     ``D_g ↦ R D_g Rᵀ`` (a true θ10 of 60″ moves ``gyro_drift_x/y`` of 0.05 °/h by 1.5e-5 °/h, 3.7σ of a session).
     """
+    return turned_to_gauge(truth.parameters["theta10"], truth.site.gimbal_senses[0], numbers)
+
+
+def turned_to_gauge(theta10: float, sense: int, numbers: np.ndarray) -> np.ndarray:
+    """:func:`in_gauge` from the true ``θ10`` and the platform gimbal's sense ``s1``."""
     from stableins.conventions import R3
 
-    rotation = R3(-truth.site.gimbal_senses[0] * truth.parameters["theta10"])
+    rotation = R3(-sense * theta10)
     drift = rotation @ numbers[:3]
     sensitivity = rotation @ numbers[3:].reshape(3, 3) @ rotation.T
     return np.concatenate([drift, sensitivity.ravel()])
@@ -267,12 +275,62 @@ def end_to_end(sessions: int, g_sensitivity: float, start: int = 0) -> None:
                     sigmas.append(sigma)
                     chi2.append(gyro["chi2_red"])
                     print(f"  seed {seed}: exit codes {codes[-1]}, max|z| {np.abs(z_all[-1]).max():.2f}, "
-                          f"χ²_ν {gyro['chi2_red']:.2f}", flush=True)  # fmt: skip
+                          f"χ²_ν {gyro['chi2_red']:.2f}, z " + " ".join(f"{v:+.2f}" for v in z_all[-1]), flush=True)  # fmt: skip
+                    if len(z_all) % 10 == 0 and seed < start + sessions - 1:
+                        summarize(np.array(z_all), np.array(sigmas), ids)  # so far
                     continue
             print(f"  seed {seed}: exit codes {codes[-1]}; no gyro numbers", flush=True)
     ok = sum(c == (0, 0, 0) for c in codes)
     print(f"  simulate, calibrate and diagnose exit 0 in {ok}/{sessions} sessions; tracebacks: {tracebacks}; "
           f"gyro χ² warnings {warnings}/{sessions}")  # fmt: skip
+    if z_all:
+        summarize(np.array(z_all), np.array(sigmas), ids)
+        print(f"  mean χ²_ν of the slopes {np.mean(chi2):.3f} (range {min(chi2):.2f}–{max(chi2):.2f})")
+
+
+def independent(sessions: int, g_sensitivity: float, start: int = 0, rate: float = 10.0) -> None:
+    """Sessions of the independent generator (benchmarks/worlds/independent.py) with the gyro, ``calibrate device --json``.
+
+    The generator turns the platform from docs/conventions.md alone (earth_rate, no torquer error), with 0.2″ of
+    white angle noise per sample, at ``rate`` (its default 10 Hz); its coarse passes are 20 s, its fine dwells 600 s.
+    """
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("independent_world", Path(__file__).parent / "worlds" / "independent.py")
+    assert spec is not None and spec.loader is not None
+    ind = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("independent_world", ind)
+    spec.loader.exec_module(ind)
+    stableins = [str(Path(sys.executable).with_name("stableins"))]
+    drift = float(WORLD["drift"])  # type: ignore[arg-type]
+    truth_vector = np.array([drift] * 3 + [g_sensitivity] * 9)  # °/h, °/h/g
+    ids = [*(f"gyro_drift_{a}" for a in AXES), *(f"Dg_{a}{b}" for a in AXES for b in AXES)]
+    z_all, sigmas, chi2, failures = [], [], [], 0
+    print(f"independent generator: {sessions} sessions at {rate:g} Hz, seeds {start}…{start + sessions - 1}, calibrate device")
+    for seed in range(start, start + sessions):
+        with tempfile.TemporaryDirectory() as tmp:
+            here = Path(tmp)
+            options = ["--seed", str(seed), "--out", str(here), "--rate", str(rate), "--gyro-drift", str(drift)]
+            ind.main([*options, "--g-sensitivity", str(g_sensitivity), "--angle-noise", "0.2"])
+            files = [str(here / "device-coarse.csv"), str(here / "device-fine.csv")]
+            done = subprocess.run([*stableins, "calibrate", "device", *files, "--out", str(here / "cal.json"), "--json"],
+                                  capture_output=True, text=True, check=False)  # fmt: skip
+            gyro = json.loads(done.stdout)["gyro"] if done.returncode == 0 else None
+            if gyro is None:
+                failures += 1
+                print(f"  seed {seed}: exit {done.returncode}; no gyro numbers {done.stderr[-300:]}", flush=True)
+                continue
+            truth = json.loads((here / "truth-independent.json").read_text(encoding="utf-8"))
+            expected = turned_to_gauge(truth["parameters"]["theta10"], 1, truth_vector)
+            value = np.array([gyro["parameters"][i]["value"] for i in ids])
+            sigma = np.array([gyro["parameters"][i]["sigma"] for i in ids])
+            z_all.append((value - expected) / sigma)
+            sigmas.append(sigma)
+            chi2.append(gyro["chi2_red"])
+            print(f"  seed {seed}: χ²_ν {gyro['chi2_red']:.2f}, z " + " ".join(f"{v:+.2f}" for v in z_all[-1]), flush=True)
+            if len(z_all) % 10 == 0 and seed < start + sessions - 1:
+                summarize(np.array(z_all), np.array(sigmas), ids)
+    print(f"  calibrate device without gyro numbers in {failures}/{sessions}")
     if z_all:
         summarize(np.array(z_all), np.array(sigmas), ids)
         print(f"  mean χ²_ν of the slopes {np.mean(chi2):.3f} (range {min(chi2):.2f}–{max(chi2):.2f})")

@@ -209,8 +209,8 @@ def test_long_dwells_evaluate_the_geometry_where_each_line_is_fitted(tmp_path):
 
     A 0.05 °/h drift turns the platform 7″ between a 600-s dwell's mean reading and the centre of its second half,
     a 4e-5 relative change of ``J``: 0.1–0.5σ of a slope with the default 0.2″ angle noise, a bias of up to 0.57σ in
-    ``gyro_drift_x`` (docs/device-calibration.md §4c).  With 0.002″ of angle noise it would be ~50σ; the stage, which
-    evaluates the geometry at :attr:`ReadingSlopes.centre`, recovers the truth within 4σ.
+    ``gyro_drift_x`` at 100 Hz (docs/device-calibration.md §4c).  With 0.002″ of angle noise at 2 Hz the dwell means
+    give 9.7σ; the stage, which evaluates the geometry at :attr:`ReadingSlopes.centre`, recovers the truth within 4σ.
     """
     from stableins.data.device import load_device
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets

@@ -64,7 +64,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.history import Discovery
     from stableins.discovery.ranking import Ranking
     from stableins.discovery.system import SystemDiagnosis
-    from stableins.errormodel import ErrorModel
+    from stableins.errormodel import ErrorModel, Term
     from stableins.estimators.layout import StageLayout
 
 
@@ -214,12 +214,14 @@ class DiagnoseResult:
                 model = "\n".join(
                     f"  {m.id:<13} {m.value:+.6f} ± {m.sigma:.6f} {m.unit}" for m in DriftEstimate.from_fit(self.drift.result)
                 )
-                parts.append(
-                    "platform drift within dwells (angle-reading slopes), the drift model fitted:\n"
-                    + model
-                    + "\nthe g-sensitivities not in it, ranked:\n"
-                    + self.drift.report(top=9)
+                fit = self.drift.result
+                ranked = (
+                    "\nthe g-sensitivities not in it, ranked:\n" + self.drift.report(top=9)
+                    if self.drift.candidates
+                    else f"\nall nine g-sensitivities are in it (the record's gyro stage): χ²_ν = {fit.chi2_red:.3f} (ν = {fit.dof}), "
+                    "nothing to rank"
                 )
+                parts.append("platform drift within dwells (angle-reading slopes), the drift model fitted:\n" + model + ranked)
         if self.report.signature is not None:
             parts.append(
                 "outside the library: "
@@ -318,6 +320,17 @@ def _fit(session: Discovery, diagnosis: Diagnosis) -> dict[str, Any]:
     }
 
 
+def _record_g_sensitivities(record: RecordInForce, *, exclude: Sequence[str] = ()) -> tuple[Term, ...]:
+    """Return the ``Dg_ab`` the record determines (finite σ), less ``exclude``: the model in force of the drift section."""
+    import numpy as np
+
+    from stableins.errormodel import GYRO_G_TERMS
+
+    ids = list(record.ids)
+    sigma = dict(zip(ids, np.sqrt(np.abs(np.diag(np.asarray(record.covariance, dtype=float)))), strict=True)) if ids else {}
+    return tuple(t for t in GYRO_G_TERMS if t.id not in exclude and np.isfinite(sigma.get(t.id, np.nan)) and sigma[t.id] > 0)
+
+
 def _start(record: RecordInForce, model: ErrorModel) -> dict[str, float]:
     return {k: v for k, v in record.values().items() if k in model}
 
@@ -355,6 +368,9 @@ def _device(
     session = Discovery(problem, model, alpha=options.alpha, start=_start(record, model))
     for effect in options.add:
         session.add(effect)
+    # the record's gyro stage is part of the model in force: its determined g-sensitivities join the drift model (the
+    # drift section ranks only the Dg_ab the record lacks; a record made with --no-gyro keeps all nine as candidates)
+    session.drift_added += _record_g_sensitivities(record, exclude=options.add)
     diagnosis = session.diagnose()
     ranking = session.rank()
     drift = session.drift()

@@ -85,8 +85,8 @@ def drift_problem(
 
     slopes = np.asarray(slopes, dtype=float)
     slope_sigma = np.asarray(slope_sigma, dtype=float)
-    geometry = SlopeGeometry.of(
-        dwells.readings,
+    geometry = SlopeGeometry.of(  # at the centre of the samples each slope is fitted on (gyro_sensitivity.ReadingSlopes)
+        dwells.readings if dwells.reading_centre is None else dwells.reading_centre,
         dwells.gravity,
         zero_offsets=zero_offsets,
         base_attitude=dwells.base_attitude,
