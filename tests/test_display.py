@@ -6,6 +6,7 @@ import dataclasses
 import html.parser
 import importlib.util
 import math
+import re
 import sys
 
 import numpy as np
@@ -250,10 +251,17 @@ def test_discovery_figures_show_before_and_after_with_models_named(session, agg)
     residuals = figures["residuals"]
     titles = [ax.get_title() for ax in residuals.axes if ax.get_title()]
     assert any(t.startswith("before: standard model\n") for t in titles)
-    assert any(t.startswith("after: standard model + nonorth_23\n") for t in titles)
+    assert any(t.startswith("after: standard model + $\\mathregular{nonorth}_{\\mathregular{23}}$\n") for t in titles)
     for fig in figures.values():
         text = _texts(fig)
-        assert "next: add nonorth_23" in text  # the caption says what to do next
+        assert "next: add nonorth_23" in text  # the caption says what to do next (a name to type keeps its underscore)
+        # titles, labels, ticks and legends typeset χ²_ν, f_x, nonorth_23 in mathtext: no literal underscore (issue 28)
+        shown = [fig._suptitle.get_text()] if fig._suptitle is not None else []
+        for ax in fig.axes:
+            shown += [ax.get_title(), ax.get_xlabel(), ax.get_ylabel(), *(t.get_text() for t in ax.get_xticklabels())]
+            shown += [t.get_text() for t in ax.get_legend().get_texts()] if ax.get_legend() is not None else []
+        shown += [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+        assert not [t for t in shown if "_" in re.sub(r"\$[^$]*\$", "", t)]
         for ax in fig.axes:
             if ax.get_xlabel():
                 assert "[" in ax.get_xlabel() or "dwell" in ax.get_xlabel() or "model" in ax.get_xlabel()
