@@ -162,6 +162,14 @@ class HistoryStore:
                 return []
             return [row[0] for row in connection.execute("SELECT DISTINCT serial FROM records ORDER BY serial")]
 
+    def state(self) -> tuple[int, int]:
+        """Return (records filed, largest row id): it changes whenever a record is filed (what a reader caches by)."""
+        with self._database(create=False) as connection:
+            if connection is None:
+                return (0, 0)
+            count, last = connection.execute("SELECT count(*), coalesce(max(id), 0) FROM records").fetchone()
+        return int(count), int(last)
+
     def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
         """File a record in its unit's history (idempotent: the same bytes are filed once).
 

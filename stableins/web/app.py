@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
-from stableins.history_store import HistoryStore
+from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
 from stableins.web.fleet import FleetRow, fleet_rows, select, unit_document
 from stableins.web.policy import Policy
@@ -32,8 +32,8 @@ from stableins.web.security import Guard, Limits
 PACKAGE = Path(__file__).resolve().parent
 #: Seconds between two looks at the journals while an event stream is open.
 EVENT_INTERVAL = 0.25
-#: Seconds a fleet (and the certificate index) is reused before it is read again.
-FLEET_TTL = 2.0
+#: Seconds the fleet's records in force and drifts are reused, unless a record is filed meanwhile.
+FLEET_TTL = 60.0
 
 
 @dataclass
@@ -46,26 +46,35 @@ class ServeSettings:
     token: str | None = None
     limits: Limits = field(default_factory=Limits)
     secure_cookie: bool = False
-    #: seconds the fleet (and the certificate index) is reused before it is read again
+    #: seconds the fleet's records in force and drifts are reused unless a record is filed meanwhile (0: never)
     fleet_ttl: float = FLEET_TTL
 
 
 class _Data:
-    """The store, the certificate index and the run watcher, with the fleet reused for ``settings.fleet_ttl`` seconds."""
+    """The store, the certificate index and the run watcher; the fleet kept while the store's state is the same.
+
+    :meth:`HistoryStore.fleet` (records in force, drifting parameters) depends on the store alone and is read again
+    when a record is filed (:meth:`HistoryStore.state`) or after ``settings.fleet_ttl`` seconds; the due dates, which
+    move with the clock, and the certificates found under the run root are worked out for every request.
+    """
 
     def __init__(self, settings: ServeSettings) -> None:
         self.settings = settings
         self.store = HistoryStore(settings.store)
         self.certificates = CertificateIndex(settings.run_root)
         self.runs = RunWatcher(settings.run_root)
-        self._fleet: tuple[float, list[FleetRow]] | None = None
+        self._units: tuple[float, tuple[int, int], list[UnitStatus]] | None = None
 
     def fleet(self) -> list[FleetRow]:
+        from datetime import timedelta
+
         now = time.monotonic()
-        if self._fleet is None or now - self._fleet[0] >= self.settings.fleet_ttl:
-            self.certificates.refresh()
-            self._fleet = (time.monotonic(), fleet_rows(self.store, self.settings.policy, self.certificates))
-        return self._fleet[1]
+        state = self.store.state()
+        if self._units is None or self._units[1] != state or now - self._units[0] >= self.settings.fleet_ttl:
+            units = self.store.fleet(None, timedelta(days=self.settings.policy.default), DRIFT_SIGMAS)
+            self._units = (now, state, units)
+        self.certificates.refresh()
+        return fleet_rows(self._units[2], self.settings.policy, self.certificates)
 
     def unit(self, serial: str) -> dict[str, Any]:
         self.certificates.refresh()
