@@ -67,6 +67,7 @@ def chromium(tmp_path):
     quit_browser(driver)
 
 
+@pytest.mark.slow  # three runs of device-coarse make the store and the run root (about 15 s of CPU), then the pages
 def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, images, tmp_path):
     from selenium.webdriver.common.by import By
 
