@@ -194,9 +194,13 @@ def test_serve_refuses_to_listen_beyond_localhost_without_a_token(tmp_path):
 
 
 def test_the_openapi_document_lists_the_api(lab):
-    paths = client(lab).get("/api/openapi.json").json()["paths"]
+    document = client(lab).get("/api/openapi.json").json()
+    paths = document["paths"]
     assert {"/api/fleet", "/api/units/{serial}", "/api/runs", "/api/runs/events", "/api/runs/{name}"} <= set(paths)
     assert all(set(operations) == {"get"} for operations in paths.values())
+    schemas = document["components"]["schemas"]
+    assert {"Fleet", "FleetUnit", "Unit", "Change", "TrendSeries", "RunProgress", "QuickLook"} <= set(schemas)
+    assert "significance" in schemas["Drifting"]["properties"] and "pass" in schemas["RunProgress"]["properties"]
 
 
 def _plan(rate: float) -> dict:
