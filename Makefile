@@ -22,10 +22,12 @@ demo: setup
 # `stableins serve` drive headless Chromium (tests/test_serve_browser.py); postgresql gives the server the
 # PostgreSQL history-store tests start (tests/test_history_postgres.py).  Without root, the tests that need a
 # missing one are skipped with the reason.
-SYSTEM_DEPS := pdftoppm:poppler-utils chromium:chromium chromedriver:chromium-driver pg_ctlcluster:postgresql
+# (program:package; PostgreSQL's initdb is not on PATH on Debian, and psql alone is only the client)
+SYSTEM_DEPS := pdftoppm:poppler-utils chromium:chromium chromedriver:chromium-driver
 system-deps:
 	@missing=""; for pair in $(SYSTEM_DEPS); do \
 	  command -v "$${pair%%:*}" >/dev/null 2>&1 || missing="$$missing $${pair#*:}"; done; \
+	ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1 || missing="$$missing postgresql"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \

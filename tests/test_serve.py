@@ -194,9 +194,13 @@ def test_serve_refuses_to_listen_beyond_localhost_without_a_token(tmp_path):
 
 
 def test_the_openapi_document_lists_the_api(lab):
-    paths = client(lab).get("/api/openapi.json").json()["paths"]
+    document = client(lab).get("/api/openapi.json").json()
+    paths = document["paths"]
     assert {"/api/fleet", "/api/units/{serial}", "/api/runs", "/api/runs/events", "/api/runs/{name}"} <= set(paths)
     assert all(set(operations) == {"get"} for operations in paths.values())
+    schemas = document["components"]["schemas"]
+    assert {"Fleet", "FleetUnit", "Unit", "Change", "TrendSeries", "RunProgress", "QuickLook"} <= set(schemas)
+    assert "significance" in schemas["Drifting"]["properties"] and "pass" in schemas["RunProgress"]["properties"]
 
 
 def _plan(rate: float) -> dict:
@@ -245,6 +249,10 @@ def test_a_runs_progress_is_read_from_its_journal_as_it_grows(lab):
     journal.close()
     done = c.get("/api/runs/day1/r1").json()
     assert done["state"] == "finished" and done["remaining_seconds"] == 0.0 and done["journal_records"] == 29
+    (folder / "journal.bin").unlink()  # another run in the same directory: read from its start
+    Journal.create(folder / "journal.bin", ("start", {"unit": "SN-10", "utc": "2026-01-02T00:00:00+00:00"})).close()
+    again = c.get("/api/runs/day1/r1").json()
+    assert (again["unit"], again["state"], again["journal_records"], again["samples"]) == ("SN-10", "running", 1, 0)
 
 
 def test_a_static_records_quick_look_is_the_runners(lab):

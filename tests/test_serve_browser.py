@@ -67,6 +67,7 @@ def chromium(tmp_path):
     quit_browser(driver)
 
 
+@pytest.mark.slow  # three runs of device-coarse make the store and the run root (about 15 s of CPU), then the pages
 def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, images, tmp_path):
     from selenium.webdriver.common.by import By
 
@@ -149,6 +150,7 @@ def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chr
         row = chromium.find_element(By.CSS_SELECTOR, "#runs-body tr[data-run='live']")
         assert "running" in row.text and "coarse" in row.text and "SN-LIVE" in row.text
         chromium.save_screenshot(str(images / "runs-live.png"))
+        print(f"page behind the journal by {[round(x, 3) for x in lags]} s")
         assert max(lags) < 2.0, lags
     finally:
         if server is not None:

@@ -162,6 +162,14 @@ class HistoryStore:
                 return []
             return [row[0] for row in connection.execute("SELECT DISTINCT serial FROM records ORDER BY serial")]
 
+    def state(self) -> tuple[int, int]:
+        """Return (records filed, largest row id): it changes whenever a record is filed (what a reader caches by)."""
+        with self._database(create=False) as connection:
+            if connection is None:
+                return (0, 0)
+            count, last = connection.execute("SELECT count(*), coalesce(max(id), 0) FROM records").fetchone()
+        return int(count), int(last)
+
     def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
         """File a record in its unit's history (idempotent: the same bytes are filed once).
 
@@ -359,13 +367,37 @@ class HistoryStore:
             return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
         return None
 
+    def records(self, serial: str) -> list[tuple[Entry, CalibrationRecord]]:
+        """Return the unit's entries with their records, oldest first, every record read verified by its SHA-256.
+
+        One read of the store for them all (on PostgreSQL one query, not one connection per record).
+        """
+        from stableins.data.jsonio import parse_json
+        from stableins.records import CalibrationRecord
+
+        entries = self.entries(serial)
+        stored: dict[str, bytes] | None = None
+        if self.url is not None and entries:
+            with self._database(create=False) as connection:
+                query = "SELECT name, data FROM files WHERE serial = ?"
+                rows = [] if connection is None else connection.execute(query, (serial,)).fetchall()
+            stored = {name: bytes(data) for name, data in rows}
+        out = []
+        for entry in entries:
+            path = self.unit_directory(serial) / entry.file
+            if stored is None:
+                data = verified_bytes(path, entry.sha256)
+            elif entry.file in stored:
+                data = checked_digest(stored[entry.file], entry.sha256, f"{self.location} {serial}/{entry.file}")
+            else:
+                data = self.verified_data(serial, entry)  # missing: the same refusal as a single read
+            out.append((entry, CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))))
+        return out
+
     def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
         """Return consecutive pairs of records with every parameter's change and significance (:func:`stableins.history.compare`)."""
-        entries = self.entries(serial)
-        out = []
-        for old, new in zip(entries, entries[1:]):
-            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
-        return out
+        loaded = self.records(serial)
+        return [(old, new, compare(before, after)) for (old, before), (new, after) in zip(loaded, loaded[1:])]
 
     def to_dataframe(self, serial: str) -> Any:
         """Return the unit's calibration history as a :class:`pandas.DataFrame`, one row per record, oldest first.
@@ -378,8 +410,7 @@ class HistoryStore:
 
         pandas = require_pandas()
         rows = []
-        for entry in self.entries(serial):
-            record = self.load(serial, entry)
+        for entry, record in self.records(serial):
             row: dict[str, Any] = {
                 "valid_from": entry.time,
                 "file": entry.file,
@@ -401,12 +432,10 @@ class HistoryStore:
         """
         from dataclasses import replace
 
-        entries = self.entries(serial)
         series: dict[str, list[tuple[datetime, float, float]]] = {}
         stated: dict[str, list[tuple[float, float]]] = {}
         units: dict[str, str] = {}
-        for entry in entries:
-            record = self.load(serial, entry)
+        for entry, record in self.records(serial):
             for pid, (value, sigma) in data_only(record).items():
                 series.setdefault(pid, []).append((entry.time, value, sigma))
                 stated.setdefault(pid, []).append((record[pid].value, record[pid].sigma))

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
-from stableins.history_store import HistoryStore
+from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
 from stableins.web.fleet import FleetRow, fleet_rows, select, unit_document
 from stableins.web.policy import Policy
@@ -32,8 +32,8 @@ from stableins.web.security import Guard, Limits
 PACKAGE = Path(__file__).resolve().parent
 #: Seconds between two looks at the journals while an event stream is open.
 EVENT_INTERVAL = 0.25
-#: Seconds a fleet (and the certificate index) is reused before it is read again.
-FLEET_TTL = 2.0
+#: Seconds the fleet's records in force and drifts are reused, unless a record is filed meanwhile.
+FLEET_TTL = 60.0
 
 
 @dataclass
@@ -46,30 +46,63 @@ class ServeSettings:
     token: str | None = None
     limits: Limits = field(default_factory=Limits)
     secure_cookie: bool = False
-    #: seconds the fleet (and the certificate index) is reused before it is read again
+    #: seconds the fleet's records in force and drifts are reused unless a record is filed meanwhile (0: never)
     fleet_ttl: float = FLEET_TTL
 
 
 class _Data:
-    """The store, the certificate index and the run watcher, with the fleet reused for ``settings.fleet_ttl`` seconds."""
+    """The store, the certificate index and the run watcher; the fleet kept while the store's state is the same.
+
+    :meth:`HistoryStore.fleet` (records in force, drifting parameters) depends on the store alone and is read again
+    when a record is filed (:meth:`HistoryStore.state`) or after ``settings.fleet_ttl`` seconds; the due dates, which
+    move with the clock, and the certificates found under the run root are worked out for every request.
+    """
 
     def __init__(self, settings: ServeSettings) -> None:
         self.settings = settings
         self.store = HistoryStore(settings.store)
         self.certificates = CertificateIndex(settings.run_root)
         self.runs = RunWatcher(settings.run_root)
-        self._fleet: tuple[float, list[FleetRow]] | None = None
+        self._units: tuple[float, tuple[int, int], list[UnitStatus]] | None = None
 
     def fleet(self) -> list[FleetRow]:
+        from datetime import timedelta
+
         now = time.monotonic()
-        if self._fleet is None or now - self._fleet[0] >= self.settings.fleet_ttl:
-            self.certificates.refresh()
-            self._fleet = (time.monotonic(), fleet_rows(self.store, self.settings.policy, self.certificates))
-        return self._fleet[1]
+        state = self.store.state()
+        if self._units is None or self._units[1] != state or now - self._units[0] >= self.settings.fleet_ttl:
+            units = self.store.fleet(None, timedelta(days=self.settings.policy.default), DRIFT_SIGMAS)
+            self._units = (now, state, units)
+        self.certificates.refresh()
+        return fleet_rows(self._units[2], self.settings.policy, self.certificates)
 
     def unit(self, serial: str) -> dict[str, Any]:
         self.certificates.refresh()
         return unit_document(self.store, serial, self.settings.policy, self.certificates)
+
+    def entry(self, serial: str, digest: str) -> Any:
+        """Return the unit's entry of the record with SHA-256 ``digest`` (InputError: none filed for this unit)."""
+        for entry in self.store.entries(serial):
+            if entry.sha256 == digest:
+                return entry
+        raise InputError(f"no record with SHA-256 {digest[:64]!r} is filed for unit {serial!r}", field="sha256")
+
+    def document(self, serial: str, digest: str) -> tuple[Any, bytes, Any]:
+        """Return (the certificate, its bytes, the entry of its record) of the PDF with SHA-256 ``digest``, all verified.
+
+        The PDF must be under the run root, name a record filed for ``serial`` whose bytes still have their SHA-256,
+        and still have the SHA-256 it had when indexed.
+        """
+        self.certificates.refresh()
+        found = self.certificates.by_sha256(digest)
+        if found is None:
+            raise InputError(f"no certificate with SHA-256 {digest[:64]!r} under the run root", field="sha256")
+        entry = self.entry(serial, found.record_sha256)
+        self.store.verified_data(serial, entry)  # the record it certifies is intact
+        body = found.path.read_bytes()
+        if hashlib.sha256(body).hexdigest() != found.sha256:
+            raise InputError("the document changed since it was indexed", path=found.path.name, field="sha256", expected=found.sha256)
+        return found, body, entry
 
 
 def create_app(settings: ServeSettings) -> Any:
@@ -141,6 +174,8 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
     from fastapi import Query, Request
     from fastapi.responses import HTMLResponse, Response
 
+    from stableins.web import models
+
     settings = data.settings
 
     def _fleet(q: str, *, overdue: bool, drifting: bool, conformity: str) -> dict[str, Any]:
@@ -155,7 +190,11 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
             "shown": [r.to_json() for r in shown],
         }
 
-    @app.get("/api/fleet", summary="Every unit: record in force, calibration and due dates, conformity, drifting parameters")
+    @app.get(
+        "/api/fleet",
+        response_model=models.Fleet,
+        summary="Every unit: record in force, calibration and due dates, conformity, drifting parameters",
+    )
     def api_fleet(
         *,
         q: str = Query("", max_length=100, description="serial number or procedure contains this (any case)"),
@@ -183,7 +222,13 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
     from fastapi import Request
     from fastapi.responses import HTMLResponse, Response
 
-    @app.get("/api/units/{serial}", summary="A unit's records, their certificates, the changes between them and every parameter's trend")
+    from stableins.web import models
+
+    @app.get(
+        "/api/units/{serial}",
+        response_model=models.Unit,
+        summary="A unit's records, their certificates, the changes between them and every parameter's trend",
+    )
     def api_unit(serial: str) -> dict[str, Any]:
         """Return the unit's records (each read verified by its SHA-256), changes and trends.
 
@@ -198,34 +243,24 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
         plots = json.dumps(document["trends"]).replace("</", "<\\/")
         return templates.TemplateResponse(request, "unit.html", {"unit": document, "plots": plots, "page": "fleet"})
 
-    def _entry(serial: str, digest: str) -> Any:
-        for entry in data.store.entries(serial):
-            if entry.sha256 == digest:
-                return entry
-        raise InputError(f"no record with SHA-256 {digest[:64]!r} is filed for unit {serial!r}", field="sha256")
-
     @app.get("/units/{serial}/records/{sha256}", summary="A filed record, its SHA-256 verified against the index on the way out")
     def record_file(serial: str, sha256: str) -> Response:
-        entry = _entry(serial, sha256)
+        entry = data.entry(serial, sha256)
         body = data.store.verified_data(serial, entry)
         return Response(body, media_type="application/json", headers=_download(entry.file, body, record=entry.sha256))
 
     @app.get("/units/{serial}/documents/{sha256}", summary="A certificate or technical report of a filed record, verified on the way out")
-    def document_file(serial: str, sha256: str) -> Response:
+    def document_file(serial: str, sha256: str, *, inline: bool = False) -> Response:
         """Return the PDF, which must name a record filed for this unit (read verified) and still have its indexed SHA-256.
 
-        The response names both digests (``X-Record-SHA256``, ``X-Content-SHA256``).
+        The response names both digests (``X-Record-SHA256``, ``X-Content-SHA256``); ``?inline=true`` opens it in the
+        browser instead of saving it.
         """
-        data.certificates.refresh()
-        found = data.certificates.by_sha256(sha256)
-        if found is None:
-            raise InputError(f"no certificate with SHA-256 {sha256[:64]!r} under the run root", field="sha256")
-        entry = _entry(serial, found.record_sha256)
-        data.store.verified_data(serial, entry)  # the record it certifies is intact
-        body = found.path.read_bytes()
-        if hashlib.sha256(body).hexdigest() != found.sha256:
-            raise InputError("the document changed since it was indexed", path=found.path.name, field="sha256", expected=found.sha256)
-        return Response(body, media_type="application/pdf", headers=_download(found.path.name, body, record=entry.sha256))
+        found, body, entry = data.document(serial, sha256)
+        headers = _download(found.path.name, body, record=entry.sha256)
+        if inline:  # opened in the browser's PDF viewer rather than saved
+            headers["content-disposition"] = headers["content-disposition"].replace("attachment", "inline", 1)
+        return Response(body, media_type="application/pdf", headers=headers)
 
 
 
@@ -235,9 +270,15 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
     from fastapi.concurrency import run_in_threadpool
     from fastapi.responses import HTMLResponse, Response, StreamingResponse
 
+    from stableins.web import models
+
     settings = data.settings
 
-    @app.get("/api/runs", summary="Every run under the run root with its progress, running ones first")
+    @app.get(
+        "/api/runs",
+        response_model=models.Runs,
+        summary="Every run under the run root with its progress, running ones first",
+    )
     def api_runs() -> dict[str, Any]:
         return {"run_root": str(settings.run_root) if settings.run_root else None, "runs": data.runs.all()}
 
@@ -260,7 +301,11 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"cache-control": "no-cache"})
 
-    @app.get("/api/runs/{name:path}", summary="One run's progress: stage, position, dwell, samples, remaining time, quick look")
+    @app.get(
+        "/api/runs/{name:path}",
+        response_model=models.RunProgress,
+        summary="One run's progress: stage, position, dwell, samples, remaining time, quick look",
+    )
     def api_run(name: str) -> dict[str, Any]:
         return data.runs.progress(name)
 

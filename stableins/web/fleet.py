@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from typing import Any
 
 from stableins.history import CHANGE_THRESHOLD, SECONDS_PER_YEAR
-from stableins.history_store import DRIFT_SIGMAS, HistoryStore
+from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
 from stableins.web.policy import Policy
 
@@ -55,11 +55,13 @@ class FleetRow:
         }
 
 
-def fleet_rows(store: HistoryStore, policy: Policy, certificates: CertificateIndex, date: datetime | None = None) -> list[FleetRow]:
-    """Return every unit of the store, overdue first (most overdue first), then by due date, then by serial."""
+def fleet_rows(
+    units: list[UnitStatus], policy: Policy, certificates: CertificateIndex, date: datetime | None = None
+) -> list[FleetRow]:
+    """Return the units of :meth:`HistoryStore.fleet`, overdue first (most overdue first), then by due date, then by serial."""
     date = date or datetime.now(UTC)
     rows = []
-    for unit in store.fleet(date, timedelta(days=policy.default), DRIFT_SIGMAS):
+    for unit in units:
         entry = unit.in_force
         if entry is None:
             rows.append(FleetRow(unit.serial, unit.records, None, None, "", None, None, None, True, "", unit.drifting))

@@ -102,7 +102,9 @@ class RunWatcher:
         """Return the progress of run ``name`` as JSON values (:meth:`directory` for the names accepted)."""
         folder = self.directory(name)
         with self._lock:
-            state = self._states.setdefault(folder, _State())
+            state = self._states.get(folder)
+            if state is None or _shrunk(folder / JOURNAL, state.valid_length):  # a new run in the same directory: read anew
+                state = self._states[folder] = _State()
             plan = self._plan(folder)
             self._read(folder, state, plan)
             return _describe(name, folder, state, plan)
@@ -130,11 +132,22 @@ class RunWatcher:
         except InputError as error:
             state.error = error.message
             return
+        except OSError as error:
+            state.error = f"cannot read the journal ({error.strerror})"
+            return
         rate = float(plan.get("sample_rate") or 0.0)
         for record in found.records:
             _apply(state, record, plan, rate)
         state.records += len(found.records)
         state.valid_length = found.valid_length or state.valid_length
+
+
+def _shrunk(journal: Path, length: int) -> bool:
+    """Whether the journal is now shorter than what was read of it (replaced by another run's)."""
+    try:
+        return journal.stat().st_size < length
+    except OSError:
+        return False
 
 
 def _negated(text: str) -> float:
