@@ -287,7 +287,7 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
     """
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
-    from stableins.estimators.gyro_sensitivity import reading_slope
+    from stableins.estimators.gyro_sensitivity import ReadingSlopes
     from stableins.platform import platform_specific_force
 
     gravity = site.gravity
@@ -297,8 +297,6 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
     configuration = GimbalConfiguration((s1, s2, s3, s4))
     if noise is None:
         noise = noise_from_dwells(summaries)
-    from stableins.estimators.gyro_sensitivity import ReadingSlopes
-
     lines = ReadingSlopes.of([(t, angles) for t, _, _, angles in extras])
     readings = np.array([x.angles for x in summaries])
     start = None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)

@@ -139,7 +139,7 @@ class ResidualSignature:
     @classmethod
     def from_json(cls, document: Any, path: Any = None, where: str = "signature") -> ResidualSignature:
         """Read the form :meth:`to_json` writes (:class:`~stableins.errors.InputError` naming the field otherwise)."""
-        from stableins.discovery.summaries import Reader, join
+        from stableins.discovery.fields import Reader, join
 
         r = Reader(path)
         d = r.mapping(document, where)
