@@ -33,8 +33,9 @@ COLOURED_BINS = 160
 #: What the note says when the record carries slow noise: one day cannot tell a slow bias drift from it (docs §8, the bound).
 DRIFT_CAVEAT = (
     "A slow bias drift (a ramp) is not told apart from this slow noise on one day (with the noise known, a drift's sigma "
-    "is about 5 ug/day per axis on one day, 2.7 on two): it is covered by these sigma, not named; telling 10 ug/day apart "
-    "needs two days or more with the instrument's noise model known (docs/system-calibration.md section 8)"
+    "is about 5 ug/day per axis on one day, 2.7 on two): it is not named, and these sigma cover it only in part (10 ug/day "
+    "per axis: rms z 1.45 on x2..x5); telling it apart needs two days or more with the instrument's noise model known "
+    "(docs/system-calibration.md sections 8 and 10)"
 )
 
 
