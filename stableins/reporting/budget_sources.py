@@ -359,6 +359,6 @@ def slow_noise(record: CalibrationRecord, propagation: Propagation, stored: Stor
     else:
         why = (
             "the σ rest on the slow noise the dwells measure (REML, docs/noise.md §3); the largest floor the dwells allow "
-            "is shown in the technical report, not added (measured coverage of U without it: docs/noise.md §5 E)"
+            "is stated in the stage notes, not added (measured coverage of U without it: docs/noise.md §5 E)"
         )
     return Evaluation(np.zeros(n), Source("slow_noise", "—", "—", "—", "—", why, "not applicable"))
