@@ -65,3 +65,17 @@ def test_a_residual_along_the_laboratory_columns_is_a_signature_left_and_noise_i
         ps.append(_signature_left(0, candidate, 8.0 * candidate[:, 0] + e, laboratory, nu=nu))
     assert abs(np.mean(np.array(ps) < 0.05) - 0.05) < 4 * np.sqrt(0.05 * 0.95 / 400)
     assert m == perp.shape[0]
+
+
+def test_a_pair_the_positions_cannot_separate_is_named_as_one_group():
+    """K3_x and Koq_x are 0.995 correlated on the fine positions: the next step names both and how to separate them."""
+    from stableins.discovery.history import Discovery
+    from stableins.discovery.problem import DwellProblem
+    from stableins.errormodel import ErrorModel
+    from tests.test_discovery_hidden import _magnitude, simulate
+
+    dwells, _ = simulate({"K3_x": _magnitude("K3_x")})
+    ranking = Discovery(DwellProblem(dwells), ErrorModel.standard(gimbals=True), alpha=0.025).rank(refit_top=2)
+    assert set(ranking.group) >= {"K3_x", "Koq_x"} and ranking.best.flagged, ranking.report()
+    text = ranking.next_step()
+    assert " or ".join(ranking.group) in text and "these data cannot tell them apart" in text and "separates them" in text

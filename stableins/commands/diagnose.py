@@ -190,7 +190,8 @@ def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
     out = record_path.with_name(f"{record_path.stem}-{step.effect}.json")
     command = ["stableins", "calibrate", "device", *data, *noise_arguments(args)]
     command += [item for effect in (*step.keep, step.effect) for item in ("--add", effect)] + ["--out", str(out)]
-    confused = f"; with these data it is indistinguishable from {', '.join(step.confused_with)}" if step.confused_with else ""
+    group = " or ".join((step.effect, *step.confused_with))
+    confused = f"; {group}: these data cannot tell them apart, the ranking names positions that separate them" if step.confused_with else ""
     return [
         f"next: carry {step.effect} into the calibration (it is tested again there and kept only if the data show it{confused}):",
         f"  {shlex.join(command)}",
