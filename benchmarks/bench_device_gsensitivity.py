@@ -2,6 +2,13 @@
 
 Run:  PYTHONPATH=. python benchmarks/bench_device_gsensitivity.py [--seeds N] [--dwell S] [--drift DEG_PER_H]
           [--g DEG_PER_H_PER_G] [--mode caged|earth_rate|inertial] [--torquer PPM] [--end-to-end N]
+          [--independent N] [--start-seed K] [--world NAME]
+
+``--end-to-end`` and ``--independent`` print each session's twelve z, then the rms z per number and per family
+(``gyro_drift``, ``gyro_g_sensitivity``, its diagonal and off-diagonal), the mean z per number (a bias), the pooled
+rms z, the largest 1σ and the mean χ²_ν of the slopes (also every 10 sessions, so a run cut short still reports).
+``--independent N`` draws the sessions with benchmarks/worlds/independent.py (written from docs/conventions.md alone)
+and calibrates them with ``stableins calibrate device``; ``--world`` puts the simulator's sessions in a named world.
 
 The platform holds its dwells as ``--mode`` says (docs/conventions.md, "The platform during a dwell"; default
 ``earth_rate``, the paper's procedure); ``--torquer`` gives the torquers a scale-factor error (ppm, every axis), which
