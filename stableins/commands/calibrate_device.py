@@ -128,9 +128,8 @@ def run(args: argparse.Namespace) -> int:
     effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
     datasets = [load_device(path) for path in args.data]
     _same_site(datasets)
-    summaries = []
-    for dataset in datasets:
-        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
+    per_file = [dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path)) for dataset in datasets]
+    summaries = [s for found in per_file for s in found]  # each file summarized once (the gyro stage reuses them)
     site = datasets[0].metadata
     source = ", ".join(str(p) for p in args.data)
     noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
@@ -166,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         **data_description(datasets),
         entries=parse_entries(args.set),
     )
-    record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added)
+    record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added, summaries=per_file)
     if history is not None:
         record = replace(record, discovery=history)  # the record's report below shows it
     text = calibration.report() + _gyro_text(gyro) + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
@@ -219,11 +218,12 @@ def _gyro_text(gyro) -> str:
     return "" if gyro is None else "\n\n" + report(gyro)
 
 
-def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str]):
+def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str], *, summaries=None):
     """Return the record updated by the gyro stage on the same dwells, and the stage's fit (None when skipped, with a note).
 
     A Bayesian update of the device record: the twelve gyro numbers join from the reading slopes alone, nothing
-    else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").
+    else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").  ``summaries``: each file's dwell
+    summaries, already made for the device stages.
     """
     from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets
@@ -234,7 +234,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     terms = GYRO_DRIFT_TERMS + tuple(t for t in GYRO_G_TERMS if not args.no_gyro or t.id in added)
     values = record.values()
     try:
-        fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms)
+        fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms, summaries=summaries)
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None
