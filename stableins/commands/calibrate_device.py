@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
     # the steps a person waits for: reading each file, its dwells, each fit of the calibration, the gyro stage
     bar = Progress(total=2 * len(args.data) + 1 + len(effects) + 1, label="calibrate device")
-    datasets, summaries = _read(args.data, layouts, bar)
+    datasets, per_file, summaries = _read(args.data, layouts, bar)  # each file summarized once (the gyro stage reuses them)
     bar.describe("calibrate device: the coarse and fine fits" + (f" (+ {len(effects)} added effects, one at a time)" if effects else ""))
     site = datasets[0].metadata
     noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         **data_description(datasets),
         entries=parse_entries(args.set),
     )
-    record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added)
+    record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added, summaries=per_file)
     bar.update()
     bar.close()
     if history is not None:
@@ -211,8 +211,8 @@ def _summary_text(record, fit, args: argparse.Namespace) -> str:
     return "\n".join([*lines, f"the full report (every stage, the noise model, the gyro stage, the discovery history): {where}"])
 
 
-def _read(paths: list[Path], layouts, bar) -> tuple[list, list]:
-    """Return the device datasets of ``paths`` (one unit, one site) and their dwells, telling ``bar`` each step."""
+def _read(paths: list[Path], layouts, bar) -> tuple[list, list, list]:
+    """Return the device datasets of ``paths`` (one unit, one site), each file's dwells and all of them, telling ``bar`` each step."""
     from stableins.data.device import load_device
     from stableins.estimators.dwell import dwells_from_columns
 
@@ -222,12 +222,12 @@ def _read(paths: list[Path], layouts, bar) -> tuple[list, list]:
         datasets.append(load_device(path))
         bar.update()
     _same_site(datasets)
-    summaries = []
+    per_file = []
     for dataset in datasets:
         bar.describe(f"calibrate device: the dwells of {dataset.path}")
-        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
+        per_file.append(dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path)))
         bar.update()
-    return datasets, summaries
+    return datasets, per_file, [s for found in per_file for s in found]
 
 
 def _last_lines(steps: list[str]) -> None:
@@ -258,11 +258,12 @@ def _gyro_text(gyro) -> str:
     return "" if gyro is None else "\n\n" + report(gyro)
 
 
-def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str]):
+def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str], *, summaries=None):
     """Return the record updated by the gyro stage on the same dwells, and the stage's fit (None when skipped, with a note).
 
     A Bayesian update of the device record: the twelve gyro numbers join from the reading slopes alone, nothing
-    else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").
+    else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").  ``summaries``: each file's dwell
+    summaries, already made for the device stages.
     """
     from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
     from stableins.errors import InputError
@@ -274,7 +275,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     terms = GYRO_DRIFT_TERMS + tuple(t for t in GYRO_G_TERMS if not args.no_gyro or t.id in added)
     values = record.values()
     try:
-        fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms)
+        fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms, summaries=summaries)
     except InputError:
         raise  # bad input is refused, not skipped
     except ValueError as error:

@@ -304,8 +304,9 @@ def dwells_from_columns(
         seen.add(key)
         order.append(key)
     out = []
-    for key in order:
-        rows = np.flatnonzero((stage == key[0]) & (pass_ == key[1]) & (position == key[2]))
+    ends = np.r_[starts[1:], stage.size]
+    for key, first, end in zip(order, starts, ends, strict=True):
+        rows = np.arange(first, end)  # a key is one run of rows: a second run of it raised above
         if np.any(np.diff(since[rows]) < 0):
             raise InputError(
                 f"position {key[2]} was commanded twice in {key[0]} pass {key[1]} (time_since_command restarts)",

@@ -533,6 +533,7 @@ def gyro_from_datasets(
     zero_offsets: ArrayLike,
     terms: Sequence[Term] = GYRO_TERMS,
     alpha: float = FLAG_ALPHA,
+    summaries: Sequence[Sequence[Any]] | None = None,
 ) -> FitResult:
     """:func:`estimate_gyro_sensitivity` on the usable dwells of device-level data files (coarse and fine alike).
 
@@ -547,14 +548,17 @@ def gyro_from_datasets(
         ``θ10, θ20, θ30`` of the calibration, for the actual angles.
     terms, alpha
         As :func:`estimate_gyro_sensitivity`.
+    summaries : sequence of sequences of DwellSummary, optional
+        Each dataset's dwell summaries, :func:`stableins.estimators.dwell.dwells_from_columns` with these ``layouts``
+        (``calibrate device`` has them already: each file is summarized once); made here when not given.
     """
     from stableins.estimators.dwell import dwells_from_columns
 
     site = datasets[0].metadata
     pieces, labels = [], []
-    for ds in datasets:
-        summaries = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
-        usable = {(s.stage, s.pass_number, s.position) for s in summaries if s.usable}
+    for i, ds in enumerate(datasets):
+        found = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path)) if summaries is None else summaries[i]
+        usable = {(s.stage, s.pass_number, s.position) for s in found if s.usable}
         for d in ds.dwells():
             if (d.stage, d.pass_number, d.position) not in usable:
                 continue

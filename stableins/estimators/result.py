@@ -476,9 +476,9 @@ class FitResult:
         """
         if self.dof <= 0 or not np.isfinite(self.chi2_red):
             return None
-        from scipy.stats import chi2
+        from stableins.estimators.distributions import chi2_ppf
 
-        high = float(chi2.ppf(0.975, self.dof) / self.dof)
+        high = chi2_ppf(0.975, self.dof) / self.dof
         if self.chi2_red <= high:
             return None
         return (

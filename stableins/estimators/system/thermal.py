@@ -318,9 +318,9 @@ def analyse_temperature(
     if dof:
         d = separable.T  # (6, k)
         data_estimate = d @ np.linalg.solve(d.T @ info @ d, d.T @ gradient)
-    from scipy.stats import chi2 as chi2_dist
+    from stableins.estimators.distributions import chi2_sf
 
-    p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
+    p_value = chi2_sf(chi2, dof) if dof else 1.0
     to_combined = k2_map(stage.context.site.latitude, estimate_k2=options.estimate_k2)
     thermal_cov = to_combined @ jacobian @ posterior @ jacobian.T @ to_combined.T
     data_cov = to_combined @ stage.decision.covariance @ to_combined.T

@@ -325,7 +325,7 @@ def explain_third_harmonic(
     record's daily cycle).  When even the best hypothesis is rejected, σ is scaled by its ``sqrt(χ²/ν)`` (Birge) and the
     hypotheses are compared relative to it.  A part is significant when it is beyond 3σ.
     """
-    from scipy.stats import chi2 as chi2_dist
+    from stableins.estimators.distributions import chi2_sf
 
     order = np.r_[0:5, 7:17, 5:7]  # v → w
     w, cov = v[order], cov_v[np.ix_(order, order)]
@@ -351,11 +351,11 @@ def explain_third_harmonic(
         k = len(terms)
         fits.append((terms, tuple(coef[-k:]), tuple(np.sqrt(np.diag(cov_coef))[-k:]), chi, nu))
     best = min(fits, key=lambda f: f[3])
-    p_best = float(chi2_dist.sf(best[3], best[4])) if best[4] > 0 else 1.0
+    p_best = chi2_sf(best[3], best[4]) if best[4] > 0 else 1.0
     scale = max(1.0, best[3] / max(best[4], 1)) if p_best < alpha else 1.0
     hypotheses = []
     for terms, size, sigma, chi, nu in sorted(fits, key=lambda f: f[3]):
-        p = float(chi2_dist.sf(chi / scale, nu)) if nu > 0 else 1.0
+        p = chi2_sf(chi / scale, nu) if nu > 0 else 1.0
         hypotheses.append(Hypothesis(terms, size, tuple(s * math.sqrt(scale) for s in sigma), chi, nu, p, p >= alpha))
     third = np.abs(v[5:7]) / np.sqrt(np.diag(cov_v)[5:7])
     return ThirdHarmonic((bool(third[0] > 3.0), bool(third[1] > 3.0)), chi0, nu0, tuple(hypotheses), alpha, scale, candidates)

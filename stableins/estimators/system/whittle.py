@@ -326,7 +326,7 @@ def given_rejected(
     ``alpha``).  A datasheet the record contradicts is not used silently (issue 25): the stage then uses the record's
     amplitudes and says so.
     """
-    from scipy.stats import chi2
+    from stableins.estimators.distributions import chi2_ppf
 
     free = np.zeros(design.shape[1], dtype=bool)
     free[:channels] = True
@@ -335,7 +335,7 @@ def given_rejected(
     start[channels:] = 0.0
     _, held = whittle_fit(design, observed, free, offset, start)
     statistic = max(0.0, 2.0 * (loglik - held))
-    return bool(statistic > float(chi2.ppf(1.0 - alpha, design.shape[1] - channels)))
+    return bool(statistic > chi2_ppf(1.0 - alpha, design.shape[1] - channels))
 
 
 def _small_amplitudes(design: NDArray[np.float64], theta0: NDArray[np.float64], channels: int) -> NDArray[np.float64]:
