@@ -67,7 +67,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
-    """Run one CLI command as a user would type it; its standard output goes to ``stdout`` if given."""
+    """Run one CLI command as a user would type it; its standard output goes to ``stdout`` if given, else to stderr.
+
+    The demo's own standard output is its result alone (the final table, or with ``--json`` one JSON document): the
+    steps' reports are progress, on stderr like every command's messages.
+    """
     import contextlib
     import sys
 
@@ -77,6 +81,8 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
     with contextlib.ExitStack() as stack:
         if stdout is not None:
             stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(stdout, "w", encoding="utf-8"))))
+        else:
+            stack.enter_context(contextlib.redirect_stdout(sys.stderr))
         status = cli.main(argv)
     if status != 0:
         raise SystemExit(status)
