@@ -27,7 +27,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: pytest's closing line, e.g. "12 passed, 1 skipped in 3.2s" or "1 failed, 11 passed in 4.0s".
-SUMMARY = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)")
+SUMMARY = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected|warnings?)")
+#: The whole closing line: counts, then the time, between optional rules of '='.
+CLOSING = re.compile(rf"=*\s*{SUMMARY.pattern}(, {SUMMARY.pattern})*( in [\d.]+s.*)?\s*=*")
 
 
 def burn(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]
@@ -40,12 +42,13 @@ def burn(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-
 
 def counts(output: str) -> dict[str, int]:
     """The counts of pytest's last summary line in ``output``."""
-    lines = [line for line in output.splitlines() if SUMMARY.search(line) and (" in " in line or "no tests ran" in line)]
+    lines = [line for line in output.splitlines() if CLOSING.fullmatch(line.strip())]
     if not lines:
         return {}
     found: dict[str, int] = {}
     for number, word in SUMMARY.findall(lines[-1]):
-        found["errors" if word.startswith("error") else word] = int(number)
+        if not word.startswith("warning"):
+            found["errors" if word.startswith("error") else word] = int(number)
     return found
 
 
@@ -67,7 +70,7 @@ def main() -> int:
         for run in range(1, args.runs + 1):
             started = time.perf_counter()
             result = subprocess.run(
-                [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *pytest_args],
+                [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *pytest_args],  # -q comes from pyproject's addopts
                 cwd=ROOT,
                 capture_output=True,
                 text=True,
