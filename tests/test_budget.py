@@ -239,25 +239,32 @@ def test_gravity_default_and_temperature_sensitivity():
     assert without.state("temperature") == "condition" and "24.62 to 25.07 °C" in without.conditions[0]
 
 
-def test_unresolved_slow_noise_is_said_and_not_added_to_u(device):
-    """Slow noise the dwells do not resolve: the σ rest on the REML estimate (the default path), and U is not widened
-    by the largest floor on top of it (issue 25: counted twice; coverage measured in docs/noise.md §5 E).
+def test_unresolved_slow_noise_enters_u_as_the_largest_floor(device):
+    """The note "the σ would be up to n× larger" is in U: with the noise model measured in the dwells and no slow noise
+    detected, u_A ⊕ u(slow noise) of a data-only record is the σ of the refit with the largest floor the dwells allow.
 
     Seed 1 of the quartz world: its dwells do not resolve the slow noise (the default path's test, REML on the
     contrasts between passes and the Allan variance inside the dwells, detects it in seed 13, the fixture's)."""
     truth, dwells, _, _, _ = budget_world.device(1)
     calibration = calibrate_device(dwells, truth.site, layouts=LAYOUTS)  # no noise model given: measured in the dwells
     assert calibration.noise is not None and calibration.noise.test is not None and not calibration.noise.test.detected
-    assert calibration.floor is not None  # the largest floor is still computed and shown
+    floor = calibration.floor
+    assert floor is not None
     record = CalibrationRecord.from_device(calibration, truth.site)
     budget = uncertainty_budget(record)
-    assert budget.state("slow_noise") == "not applicable" and "not added" in budget.source("slow_noise").effect
-    assert not np.any(budget.contributions["slow_noise"])
+    assert budget.state("slow_noise") == "evaluated" and "up to" in budget.source("slow_noise").uncertainty
     # the record's notes say what the console says: not detected, up to the limit; never "bias instability 0 µg"
     described = [n for s in record.stages for n in s.notes if n.startswith("noise model (")]
     assert described and all("slow noise not detected: bias instability up to" in n and "instability 0 µg" not in n for n in described)
-    # a datasheet noise model (the fixture's record): nothing unresolved, and the reason says so
-    assert "no device stage reported" in uncertainty_budget(device[4]).source("slow_noise").effect
+    compared = 0
+    for k, pid in enumerate(record.ids):
+        if budget.type_a[k] > 0 and pid in floor.ids and floor[pid][1] > 0:
+            assert math.hypot(budget.type_a[k], budget.contributions["slow_noise"][k]) == pytest.approx(floor[pid][1], rel=1e-9), pid
+            compared += 1
+    assert compared >= 15
+    assert max(budget.contributions["slow_noise"] / np.where(budget.type_a > 0, budget.type_a, np.inf)) > 0.3  # it matters
+    # a datasheet noise model (the fixture's record): nothing unresolved, the column does not apply
+    assert uncertainty_budget(device[4]).state("slow_noise") == "not applicable"
 
 
 def test_calibrate_device_takes_what_load_device_returns(tmp_path):

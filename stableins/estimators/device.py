@@ -354,8 +354,8 @@ def _floor_note(noise: NoiseModel, b_up: NDArray[np.float64], ratio: float) -> s
     text = (
         f"slow noise not detected in the dwells (p = {test.p_value:.2g} at false-positive rate {test.alpha:g}): "
         f"{resting}.  The dwells allow a bias instability up to {float(np.max(b_up)) / MICRO_G:.2g} ug; "
-        f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'; shown, not added to the "
-        "certificate's U: U on the dwells' own estimate covers at its nominal rate, docs/noise.md §5 E), and the random walk "
+        f"with that largest floor the σ would be up to {ratio:.2f}× larger (report: 'largest floor'; the certificate's U "
+        "includes it as the Type B input 'slow noise not resolved'), and the random walk "
         "is not bounded.  Measure the noise model on a static record ('stableins noise') or give it (--noise)"
     )
     return "warning: " + text if ratio > 1.1 else text

@@ -8,9 +8,9 @@ the inputs are
 * the calibration data (Type A, GUM 4.2): the record's covariance :math:`P`, from the noise measured in
   the data and propagated by least squares and the Bayesian update of each stage;
 * what the stages take as known (Type B, GUM 4.3): the local gravity, the static accuracy of the gimbal
-  angle sensors, the instrument temperature, the gyro drift and the damping-loop parameters.  The slow
-  noise a device stage's dwells do not resolve is listed and not added: the σ rest on the slow noise the
-  dwells measure, and U without it covers at its nominal rate (:func:`~stableins.reporting.budget_sources.slow_noise`).
+  angle sensors, the instrument temperature, the gyro drift and the damping-loop parameters; and the slow
+  noise a device stage's dwells allow but do not resolve (its σ rest on white noise; the covariance its
+  largest floor adds, :func:`stableins.estimators.device.slow_noise_sensitivity`, the upper limit taken whole).
 
 **Sensitivity through the record.**  Every stage k enters the record through the information vector
 :math:`\eta_k = \Lambda_k \hat x_k + g_k` of its likelihood; the record's values are

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
+from stableins.errors import InputError
 from stableins.estimators.result import Stage
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
@@ -348,25 +349,52 @@ def _mgal(u: float) -> str:
 
 
 def slow_noise(record: CalibrationRecord, propagation: Propagation, stored: Stored) -> Evaluation:
-    """Return the slow noise a device stage's dwells do not resolve: not an input of U (issue 25's measurement).
+    """Evaluate the slow noise the device dwells allow but do not resolve: ``P (Σ S_k) P``, the upper limit taken whole.
 
-    The device stages' σ rest on the slow noise the dwells measure (REML on the contrasts between passes with the
-    Allan evidence, :mod:`stableins.estimators.residual_noise`), detected or not.  Adding the largest floor the dwells
-    allow (:func:`stableins.estimators.device.slow_noise_sensitivity`, stored by the stage) on top counted the slow
-    noise twice: ``benchmarks/bench_worlds.py --seeds 40`` measured the coverage of U (k = 2) without it at 92.8–96.9 %
-    over the simulator's and the independent generator's slow-noise worlds (nominal 95.4 %), while with it the bias
-    and scale-factor σ of white sessions came out 1.5× too large (rms z 0.60–0.64; docs/noise.md §5 E).  The largest
-    floor stays in the technical report's table ("σ recorded / σ largest floor") as information.
+    A device stage whose measured noise model found no slow noise stores ``S = Λ(Σ_f − Σ)Λ``, with ``Σ_f`` its estimate's
+    covariance refitted at the largest floor the dwells allow (:func:`stableins.estimators.device.slow_noise_sensitivity`).
     """
-    n = propagation.n
-    if not stored.get("slow_noise", []):
+    n, covariance = propagation.n, propagation.covariance
+    entries = stored.get("slow_noise", [])
+    if not entries:
         why = "the noise model was given or measured with its slow noise resolved (no device stage reported an unresolved floor)"
-    else:
-        why = (
-            "the σ rest on the slow noise the dwells measure (REML, docs/noise.md §3); the largest floor the dwells allow "
-            "is stated in the stage notes, not added (measured coverage of U without it: docs/noise.md §5 E)"
-        )
-    return Evaluation(np.zeros(n), Source("slow_noise", "—", "—", "—", "—", why, "not applicable"))
+        return Evaluation(np.zeros(n), Source("slow_noise", "—", "—", "—", "—", why, "not applicable"))
+    total = np.zeros((n, n))
+    limits = []
+    for stage, s in entries:
+        if s.covariance is not None:
+            total += propagation.to_record_matrix(s.ids, s.covariance)
+        limits += _bias_instability_limit(stage)
+    cov = covariance @ total @ covariance
+    contribution = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    upper = f"up to {max(limits):.2g} µg (upper limit the dwells allow)" if limits else "the upper limit the dwells allow"
+    source = Source(
+        "slow_noise",
+        "bias instability not detected in the dwells (the σ rest on white noise)",
+        upper,
+        "upper limit, taken whole",
+        "the device stage's slow-noise test and the refit with the largest floor",
+        f"the difference between the largest floor's covariance and the recorded one, through the record "
+        f"({propagation.largest(contribution)})",
+    )
+    return Evaluation(contribution, source)
+
+
+def _bias_instability_limit(stage: Any) -> list[float]:
+    """Return the upper limit of the bias instability [µg] the stage's measured noise model states (empty if none)."""
+    from stableins.conventions import MICRO_G
+    from stableins.noise import NoiseModel
+
+    document = stage.settings.get("noise_model") if isinstance(stage.settings, Mapping) else None
+    if not isinstance(document, Mapping):
+        return []
+    try:
+        upper = NoiseModel.from_document(document).limits("bias_instability")[1]
+    except InputError:
+        raise  # a stored noise model that does not read is an error, not a missing one
+    except (KeyError, ValueError, TypeError):
+        return []
+    return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []
 
 
 def uncertainty_budget(
