@@ -34,6 +34,7 @@ from typing import Any
 
 from stableins.discovery.diagnostics import FitVerdict
 from stableins.discovery.fields import DOCUMENT, Reader, finite
+from stableins.discovery.scores import not_named_because
 from stableins.discovery.signature import ResidualSignature
 from stableins.discovery.steps import Step
 from stableins.discovery.summaries import (
@@ -225,7 +226,7 @@ class DiagnoseReport:
         best = next((c for c in self.candidates if c.identifiable), None)
         if best is None:
             return head
-        return f"{head} (the best, {best.id}, would leave χ²_ν = {best.chi2_red_with:.3g}, above its 95 % band)"
+        return f"{head} (the best, {best.id}, {not_named_because(best.chi2_red_with, best.leaves, best.signature_p)})"
 
     @property
     def flagged(self) -> tuple[CandidateSummary, ...]:

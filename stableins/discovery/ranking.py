@@ -58,6 +58,7 @@ from stableins.discovery.scores import (
     candidate_columns,
     effect_statistics,
     explains,
+    not_named_because,
     refit,
 )
 from stableins.errormodel import ErrorModel, Term
@@ -205,7 +206,7 @@ class Ranking:
         best = next((c for c in self.candidates if c.identifiable), None)
         if best is None:
             return head
-        return f"{head} (the best, {best.id}, would leave χ²_ν = {best.chi2_red_with:.3g}, above its 95 % band)"
+        return f"{head} (the best, {best.id}, {not_named_because(best.chi2_red_with, best.leaves, best.signature_p)})"
 
     def next_step(self) -> str:
         """Return what to do next, in one sentence (the reports and the ``diagnose --plots`` captions end with it).

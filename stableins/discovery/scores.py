@@ -40,6 +40,23 @@ GROUP_MARGIN = 1.959963984540054**2
 EXPLAINED_BAND = 0.95
 
 
+
+def not_named_because(chi2_red_with: float, leaves: Sequence[str], signature_p: float) -> str:
+    """Return why the best identifiable candidate is not named, in words (the naming rule of :mod:`stableins.discovery.ranking`).
+
+    In the rule's order: ``χ²_ν`` with it above its 95 % band; other candidates still significant with it
+    (``leaves``); the residual with it still following a laboratory-fixed direction (``signature_p`` below
+    :data:`SIGNATURE_ALPHA`).
+    """
+    if leaves:
+        return f"would leave χ²_ν = {chi2_red_with:.3g} with {', '.join(leaves)} still significant"
+    if signature_p < SIGNATURE_ALPHA:
+        return (
+            f"would leave χ²_ν = {chi2_red_with:.3g}, but a residual that still follows a laboratory-fixed direction "
+            f"(p = {signature_p:.2g})"
+        )
+    return f"would leave χ²_ν = {chi2_red_with:.3g}, above its 95 % band"
+
 @dataclass(frozen=True)
 class CandidateScore:
     """One candidate's standing against the current model.
