@@ -199,7 +199,7 @@ def test_the_openapi_document_lists_the_api(lab):
     assert {"/api/fleet", "/api/units/{serial}", "/api/runs", "/api/runs/events", "/api/runs/{name}"} <= set(paths)
     assert all(set(operations) == {"get"} for operations in paths.values())
     schemas = document["components"]["schemas"]
-    assert {"Fleet", "FleetUnit", "Unit", "Change", "TrendSeries", "RunProgress", "QuickLook"} <= set(schemas)
+    assert {"Fleet", "FleetUnit", "Unit", "RecordChange", "TrendSeries", "RunProgress", "QuickLookDocument"} <= set(schemas)
     assert "significance" in schemas["Drifting"]["properties"] and "pass" in schemas["RunProgress"]["properties"]
 
 

@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
             f"the record in force is of unit {prior.serial_number!r}", path=prior_path, field="serial_number", expected=repr(args.unit)
         )
     if not args.resume:  # a resumed recalibration has them in its journal's start record
-        args.set = [*args.set, *identification(args, prior)]
+        args.set = [*args.set, *identification_entries(args, prior)]
     if args.estimate:
         if args.procedure or args.resume:
             raise InputError("give either --estimate or a PROCEDURE to run", field="--estimate")
@@ -172,7 +172,7 @@ def _estimate_record(args: argparse.Namespace, prior, prior_path: Path, out: Pat
     return record, record_path
 
 
-def identification(args: argparse.Namespace, prior) -> list[str]:
+def identification_entries(args: argparse.Namespace, prior) -> list[str]:
     """Return ``KEY=NAME`` settings of the operator, laboratory and customer, asked before the platform moves.
 
     Each is the flag's (``--operator`` ...), else ``--set KEY=NAME``'s, else (laboratory, customer) the record in force's,

@@ -75,7 +75,7 @@ PARAMETER_IDS: tuple[str, ...] = tuple(p.id for p in PARAMETERS)
 REFERENCE: Mapping[str, float] = {p.id: p.reference for p in PARAMETERS}
 
 
-def parameter_table(*, nonlinear: bool = True) -> tuple[ParameterSpec, ...]:
+def simulated_parameters(*, nonlinear: bool = True) -> tuple[ParameterSpec, ...]:
     """Return the parameter table, without the quadratic nonlinearities unless ``nonlinear``."""
     return tuple(p for p in PARAMETERS if nonlinear or p.kind != "nonlinearity")
 

@@ -17,7 +17,7 @@ from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConf
 from stableins.errors import InputError
 from stableins.simulator.effects import CATALOGUE, validate_effects
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.physics import GIMBAL_IDS, GYRO_IDS, MICRO_G_PER_G2, PARAMETER_IDS, REFERENCE, parameter_table
+from stableins.simulator.physics import GIMBAL_IDS, GYRO_IDS, MICRO_G_PER_G2, PARAMETER_IDS, REFERENCE, simulated_parameters
 from stableins.site import SiteMetadata
 
 SCHEMA_VERSION = 1
@@ -347,7 +347,7 @@ class Truth:
         import numpy as np
 
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7477]))
-        table = parameter_table(nonlinear=nonlinear)
+        table = simulated_parameters(nonlinear=nonlinear)
         drawn = {p.id: float(p.reference + p.nominal * rng.standard_normal()) for p in table}
         scales = {**DEFAULT_RESIDUAL, **(residual or {})}
         installed = {p.id: float(drawn[p.id] - scales[p.kind] * rng.standard_normal()) for p in table}

@@ -79,7 +79,7 @@ class ParameterChange(BaseModel):
     significant: bool = Field(description="|z| ≥ 3")
 
 
-class Change(BaseModel):
+class RecordChange(BaseModel):
     """The changes from one record to the next."""
 
     from_: str = Field(alias="from")
@@ -120,11 +120,11 @@ class Unit(BaseModel):
     change_threshold: float
     drift_threshold: float
     records: list[RecordEntry]
-    changes: list[Change]
+    changes: list[RecordChange]
     trends: list[TrendSeries]
 
 
-class QuickLook(BaseModel):
+class QuickLookDocument(BaseModel):
     """The running quick look at a system-level static record (stableins.procedures.quicklook)."""
 
     text: str
@@ -156,7 +156,7 @@ class RunProgress(BaseModel):
     samples: int
     remaining_seconds: float | None = Field(description="platform time the plan still needs")
     remaining_is_lower_bound: bool
-    quicklook: QuickLook | None
+    quicklook: QuickLookDocument | None
     error: str | None
 
 
