@@ -231,11 +231,14 @@ class DampingLoop:
         if not np.linalg.cond(vectors) < 1e8:  # (nearly) defective: the plain recursion
             return self._drift_responses_stepwise(t, nav_to_platform, phi, gamma0, gamma1)
         to_modes = np.linalg.inv(vectors)
+        modal = []
         for j in range(3):
             eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
             drive = step[:, None] * (eps_n[:-1] @ gamma0.T + np.diff(eps_n, axis=0) @ gamma1.T)
-            z = modal_recursion(lam, drive @ to_modes.T)
-            out[1:, :, j] = (z @ (c @ vectors).T).real
+            modal.append(drive @ to_modes.T)
+        z = modal_recursion(np.tile(lam, 3), np.concatenate(modal, axis=1))  # the three axes' modes side by side
+        for j in range(3):
+            out[1:, :, j] = (z[:, j * n : (j + 1) * n] @ (c @ vectors).T).real
         return out
 
     def _drift_responses_stepwise(
