@@ -17,12 +17,21 @@ setup: $(BIN)/stableins
 demo: setup
 	$(BIN)/stableins demo --out $(OUT)
 
-# Debian's poppler-utils (pdftoppm, pdftotext) let the report test render the PDF.
+# Debian's packages the suite uses, installed with apt when root (CI runs as root): poppler-utils (pdftoppm,
+# pdftotext) lets the report test render the PDF; chromium and chromium-driver let the browser tests of
+# `stableins serve` drive headless Chromium (tests/test_serve_browser.py); postgresql gives the server the
+# PostgreSQL history-store tests start (tests/test_history_postgres.py).  Without root, the tests that need a
+# missing one are skipped with the reason.
+# (program:package; PostgreSQL's initdb is not on PATH on Debian, and psql alone is only the client)
+SYSTEM_DEPS := pdftoppm:poppler-utils chromium:chromium chromedriver:chromium-driver
 system-deps:
-	@command -v pdftoppm >/dev/null 2>&1 || { \
+	@missing=""; for pair in $(SYSTEM_DEPS); do \
+	  command -v "$${pair%%:*}" >/dev/null 2>&1 || missing="$$missing $${pair#*:}"; done; \
+	ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1 || missing="$$missing postgresql"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    apt-get update -qq >/dev/null && apt-get install -y -qq poppler-utils >/dev/null; \
-	  else echo "note: poppler-utils not installed (no root/apt): the PDF rendering test will be skipped" >&2; fi; }
+	    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "note: not installed (no root/apt):$$missing; the tests that need them will be skipped" >&2; fi; fi
 
 test: setup system-deps lint
 	MPLBACKEND=Agg $(BIN)/python -m pytest -n auto

@@ -137,7 +137,8 @@ def system(world) -> None:
 def budget_of(path: str) -> None:
     from stableins.discovery.library import all_terms
     from stableins.records import CalibrationRecord
-    from stableins.reporting.budget import GROUPS, uncertainty_budget
+    from stableins.reporting.budget import GROUPS
+    from stableins.reporting.budget_sources import uncertainty_budget
 
     record = CalibrationRecord.load(path)
     budget = uncertainty_budget(record)

@@ -8,12 +8,17 @@ quartz white noise (velocity random walk, quantization, angle noise; bias instab
 white-noise sessions; slow noise is issue 25 parts 1–2).  The files are diagnosed as ``stableins diagnose``
 does (:func:`stableins.discovery.diagnose.diagnose_data`, fine dwells, noise measured in the dwells, α = 0.05).
 
-* **clean** (seeds 100 …): no effect.  A false alarm is ``report.alarm`` (χ² too high, or a candidate named).
+* **clean** (seeds 100 …): no effect.  A false alarm is ``report.alarm`` (χ² above its two-sided 99 % range, or a
+  candidate named).  The flags' threshold is not tuned to these seeds: it is fixed in each session from the null
+  distribution of the largest statistic in that session's own geometry (:func:`stableins.discovery.ranking.family_level`,
+  its own random draws), at the default family-wise level α = 0.025, so the designed rate is 0.5 % + 2.5 % = 3 %.
 * **library** (seeds 300 …, at 4σ and at 5σ): one library effect per session, cycling through a fixed list of
   identifiable ones, of size k·σ with σ the candidate's own 1σ in the clean session of the same seed (so its
-  estimate is about k σ).  Counted: the true effect ranked first; ranked first or named as indistinguishable from
-  the first (``confused_with``); named (flagged); and, adding the true effect to the model, χ²_ν within the upper
-  edge of its 95 % band (and within the two-sided band).
+  estimate is about k σ).  Counted: the true effect ranked first; ranked first or in the best group the ranking
+  names as indistinguishable (``Ranking.group``: correlation above 0.99, or ΔRSS within 1.96² of the best's when the
+  best is significant; the report says "X or Y: these data cannot tell them apart"), with the group's mean size;
+  named (flagged); and, adding the true effect to the model, χ²_ν within the upper edge of its 95 % band (and within
+  the two-sided band).
 * **outside** (seeds 500 …, at 8σ): an effect of a form the library lacks, injected by a world hook on the
   simulated samples (not through any estimator's model): ``magnetic`` (a bias along the north direction in the
   platform frame, sensitivities 1, −0.6, 0.3 on x, y, z: a magnetic field seen by each accelerometer
@@ -33,11 +38,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one worker, one thread (a threaded BLAS on small matrices is slower)
+import numpy as np  # noqa: E402
 from scipy import stats
 
 from stableins.data.device import load_device, save_device
@@ -194,7 +201,7 @@ def run_clean(seeds: range, directory: Path) -> None:
 
 def run_library(seeds: range, k: float, directory: Path) -> None:
     first = first_or_twin = named = inside = inside_two = total = 0
-    misses = []
+    misses, sizes = [], []
     for j, seed in enumerate(seeds):
         effect = LIBRARY_EFFECTS[j % len(LIBRARY_EFFECTS)]
         _, clean = clean_case(seed, directory)
@@ -206,6 +213,7 @@ def run_library(seeds: range, k: float, directory: Path) -> None:
         truth = white_truth(seed, {effect: size})
         result = diagnose(truth, session_columns(truth), directory)
         best = result.ranking.best
+        sizes.append(len(result.ranking.group))
         total += 1
         first += best.id == effect
         first_or_twin += best.id == effect or effect in best.confused_with
@@ -217,10 +225,11 @@ def run_library(seeds: range, k: float, directory: Path) -> None:
         inside += session.result.chi2_red <= high
         inside_two += low <= session.result.chi2_red <= high
         if best.id != effect:
-            misses.append(f"{seed}:{effect}→{best.id}")
+            misses.append(f"{seed}:{effect}→{' or '.join(result.ranking.group)}")
     print(f"library at {k:g}σ: {total} sessions; true effect ranked first {first}/{total} ({100 * first / max(total, 1):.0f} %), "
           f"first or indistinguishable from the first {first_or_twin}/{total} ({100 * first_or_twin / max(total, 1):.0f} %), "
-          f"named {named}/{total}; adding it: χ²_ν ≤ upper edge of its 95 % band {inside}/{total} "
+          f"named {named}/{total}; the best group's size: mean {np.mean(sizes):.2f}, largest {max(sizes, default=0)}; "
+          f"adding it: χ²_ν ≤ upper edge of its 95 % band {inside}/{total} "
           f"({100 * inside / max(total, 1):.0f} %), within the two-sided band {inside_two}/{total}; "
           f"not first: {', '.join(misses) or 'none'}", flush=True)  # fmt: skip
 
@@ -258,6 +267,7 @@ def main() -> None:
         "--cases", default="clean,library,outside", help="comma-separated: clean, library, outside (outside-model: 8σ from the model only)"
     )
     parser.add_argument("--clean-seeds", type=int, default=None, help="clean sessions (default --seeds)")
+    parser.add_argument("--outside-seeds", type=int, default=None, help="sessions per outside effect (default --seeds)")
     args = parser.parse_args()
     cases = set(args.cases.split(","))
     start = time.process_time()
@@ -268,10 +278,11 @@ def main() -> None:
         if "library" in cases:
             for k in (4.0, 5.0):
                 run_library(range(300, 300 + args.seeds), k, directory)
+        outside = range(500, 500 + (args.outside_seeds or args.seeds))
         if "outside" in cases:
-            run_outside(range(500, 500 + args.seeds), directory)
+            run_outside(outside, directory)
         if "outside-model" in cases:
-            run_outside(range(500, 500 + args.seeds), directory, from_library=False)
+            run_outside(outside, directory, from_library=False)
     print(f"{time.process_time() - start:.0f} s of CPU")
 
 

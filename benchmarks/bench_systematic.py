@@ -211,7 +211,7 @@ def speed(hours: float, seed: int) -> None:
     from systematic_world import turns
 
     from stableins.data.system import SystemRecordWriter
-    from stableins.simulator.indexing import indexed_record_chunks
+    from stableins.simulator.system import indexed_record_chunks
 
     print(f"== 5. speed and memory at 100 Hz ({os.cpu_count()} cores) ==")
     for duration in (hours * 1800.0, hours * 3600.0):

@@ -13,14 +13,23 @@ noise given (the world's N, B, K: a datasheet that is right).  Printed per world
 * rms z = (estimate − truth)/σ per parameter family (sf, bias, β, K2, θ20/θ30) for both, target [0.9, 1.1];
 * the fused fit's mean χ²_ν and the fraction of sessions with its p < 0.05 (target mean 1 ± 0.23, 5 %);
 * the slow-noise decision: detected in what fraction of sessions (on ``white``, the false-alarm rate, target
-  ≤ 5 %; elsewhere its power).
+  ≤ 5 %; elsewhere its power);
+* the coverage of the certificate's expanded uncertainty U (k = 2) on the default path, share of estimated
+  parameters with ``|estimate − truth| ≤ U`` (nominal 95.4 %), two ways: U from the recorded σ alone, and U with the
+  Type B input "slow noise not resolved" (for a data-only record ``u_A ⊕ u_B`` is the σ of the refit at the largest
+  floor the dwells allow, :func:`stableins.reporting.budget_sources.slow_noise`; where slow noise is detected there is
+  no such input and the two agree).  The other Type B inputs (gravity, angle sensors, temperature) are not in it;
+* a wrong datasheet (``white`` path: B = K = 0 given, as ``--bias-instability 0 --random-walk 0``): how often the
+  dwells reject it (``rej``: on ``white`` it is the true model, so its false rejection rate, designed 1 %) and the
+  rms z that result (the σ follow the data when it is rejected).
 
 ``--level independent`` draws the sessions with the independent generator (benchmarks/worlds/independent.py, written
 from the documents alone) instead of the simulator: the worlds white, flicker, random-walk, quartz, thermal, drift.
 
-``--level system`` is the hook for the system stage (issue 25 part 3, ``w25sys``): add a runner to :data:`LEVELS`
-with the signature of :func:`device_session` (world name, seed, options → :class:`SessionResult`) and the
-tables print for it unchanged.
+``--level system`` runs the system stage (:func:`system_session`): one sidereal day per record through the truth
+simulator at ``--rate`` (use 1 Hz), calibrated with no noise model and with the world's noise as a datasheet; the
+families are the harmonic coefficients x2-x5 and those of pitch and roll (:data:`SYSTEM_FAMILIES`).  The ``gyro``
+world is refused by the stage (an uncompensated 0.05 deg/h equatorial drift; docs/system-calibration.md §9).
 """
 
 from __future__ import annotations
@@ -28,14 +37,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
+# one worker, one thread: a threaded BLAS on the small REML matrices of a shared 2-core machine is 10× slower
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+import numpy as np  # noqa: E402
 
 FAMILIES = {
     "sf": ("sf_x", "sf_y", "sf_z"),
@@ -60,13 +72,26 @@ class SessionResult:
     chi2_red_given: float
     detected: bool
     seconds: float
+    #: Device level only (the system level has no Type B refit nor a white-datasheet path): empty there.
+    z_type_b: dict[str, float] = field(default_factory=dict)
+    z_white: dict[str, float] = field(default_factory=dict)
+    white_rejected: bool = False
 
 
-def _z(fit, truth) -> dict[str, float]:
+def _z(fit, truth, floor=None) -> dict[str, float]:
+    """(estimate − truth)/σ per estimated parameter; with ``floor`` (a refit at the largest floor) its σ, u_A ⊕ u_B."""
     from stableins.estimators.device_gauge import gauge_equivalent
 
     g = gauge_equivalent(truth.parameters, truth.configuration)
-    return {k: (fit[k][0] - g[k]) / fit[k][1] for k in fit.ids if fit[k][2] == "estimated" and fit[k][1] > 0 and k in g}
+    scale = floor if floor is not None else fit
+    return {
+        k: (fit[k][0] - g[k]) / max(fit[k][1], scale[k][1] if k in scale.ids else 0.0)
+        for k in fit.ids
+        if fit[k][2] == "estimated" and fit[k][1] > 0 and k in g
+    }
+
+
+_REJECTED = "is rejected by the dwells"
 
 
 def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
@@ -90,11 +115,12 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     n = truth.noise
     given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
     reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
-    return _session_result(world_name, seed, default, reference, truth, t0)
+    white = calibrate_device(dwells, truth.site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
+    return _session_result(world_name, seed, default, reference, white, truth, t0)
 
 
-def _session_result(world_name: str, seed: int, default: Any, reference: Any, truth: Any, t0: float) -> SessionResult:
-    """The figures of one session: z of the default path and of the true-noise path, χ²_ν, p, detection, time."""
+def _session_result(world_name: str, seed: int, default: Any, reference: Any, white: Any, truth: Any, t0: float) -> SessionResult:
+    """The figures of one session: z of the default path, with U's Type B, of the true-noise and white-datasheet paths."""
     from scipy.stats import chi2
 
     fit = default.final
@@ -108,6 +134,9 @@ def _session_result(world_name: str, seed: int, default: Any, reference: Any, tr
         float(reference.final.chi2_red),
         bool(default.noise.test is not None and default.noise.test.detected),
         time.perf_counter() - t0,
+        _z(fit, truth, default.floor),
+        _z(white.final, truth),
+        any(_REJECTED in note for note in white.final.notes),
     )
 
 
@@ -161,16 +190,86 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     default = calibrate_device(dwells, site, layouts=layouts)
     given = with_given_slow_noise(dwells, noise.bias_instability, noise.random_walk, "the generator's truth")
     reference = calibrate_device(dwells, site, layouts=layouts, noise=given)
+    white = calibrate_device(dwells, site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
 
     class _Truth:
         parameters = dict(instrument.parameters)
         configuration = GimbalConfiguration((1, 1, 1, 1))
 
-    return _session_result(world_name, seed, default, reference, _Truth, t0)
+    return _session_result(world_name, seed, default, reference, white, _Truth, t0)
 
 
-#: Session runners by level (the system level: issue 25 part 3 adds its runner here).
-LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {"device": device_session, "independent": independent_session}
+#: The system stage's families: the harmonic coefficients of the specific force and of the level attitude errors (x1 and
+#: the attitude means left out, as in bench_system_sigma.py; x6, x7 are removed by ``estimate_k2``).
+SYSTEM_FAMILIES = {
+    "x2-x5": ("x2", "x3", "x4", "x5"),
+    "pitch": ("theta_1c", "theta_1s", "theta_2c", "theta_2s"),
+    "roll": ("phi_1s", "phi_1c", "phi_2s", "phi_2c"),
+}
+
+
+def system_session(world_name: str, seed: int, rate: float) -> SessionResult:
+    """One sidereal day in ``world_name`` through the system stage: default path (no noise model) and the world's noise given.
+
+    The truth simulator's static record at ``rate`` (1 Hz: the stage's harmonics and its 600-s coloured-noise bins do not
+    need more; the white level per bin is the same, the second differences see the quantization differently), the stage
+    with ``estimate_k2`` (the drawn residuals include K2).  z = (estimate − truth)/σ of the combined coefficients
+    (:data:`SYSTEM_FAMILIES`); χ²_ν is the separation's; "detected" is the record's own slow-noise test.
+    """
+    import warnings
+
+    from scipy.stats import chi2
+
+    from stableins.conventions import SIDEREAL_DAY
+    from stableins.data.chunks import ArraySource
+    from stableins.estimators.system.assembly import residuals_from_parameters
+    from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
+    from stableins.estimators.system.stage import SystemOptions, run_system_stage
+    from stableins.noise import NoiseModel
+    from stableins.simulator import system
+    from stableins.simulator.truth import SimulatedSite, Truth
+    from stableins.simulator.worlds import apply_world
+
+    t0 = time.perf_counter()
+    truth = apply_world(Truth.draw(seed, site=SimulatedSite(sample_rate=rate)), world_name)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, rate, seed=seed)
+    n = truth.noise
+    given = NoiseModel.given(n.velocity_random_walk, n.bias_instability, n.acceleration_random_walk, provenance="the world's truth")
+    p = residuals_from_parameters(truth.parameters, truth.installed_calibration, truth.site.gravity)
+    reference = combination_matrix(truth.site.latitude) @ np.r_[p, 0.0, 0.0]
+    names = [k for ids in SYSTEM_FAMILIES.values() for k in ids]
+    index = [COMBINED_COEFFICIENTS.index(k) for k in names]
+    outs = []
+    for model in (None, given):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = run_system_stage(
+                ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_k2=True), noise_model=model
+            )
+        z = (out.combined.values - reference) / out.combined.sigma
+        outs.append((out, {k: float(z[i]) for k, i in zip(names, index, strict=True)}))
+    (default, z_default), (with_given, z_given) = outs
+    sep = default.separation
+    fit = default.coloured_noise
+    return SessionResult(
+        world_name,
+        seed,
+        z_default,
+        z_given,
+        float(sep.chi2 / max(sep.dof, 1)),
+        float(chi2.sf(sep.chi2, sep.dof)) if sep.dof > 0 else math.nan,
+        float(with_given.separation.chi2 / max(with_given.separation.dof, 1)),
+        bool(fit is not None and fit.data_detected),
+        time.perf_counter() - t0,
+    )
+
+
+#: Session runners by level.
+LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {
+    "device": device_session,
+    "independent": independent_session,
+    "system": system_session,
+}
 
 
 def _job(args: tuple[str, str, int, float]) -> SessionResult:
@@ -182,24 +281,44 @@ def rms(values: list[float]) -> float:
     return float(np.sqrt(np.mean(np.square(values)))) if values else math.nan
 
 
-def table(results: list[SessionResult], worlds: list[str]) -> list[str]:
-    head = f"{'world':<13} {'path':<6} " + " ".join(f"{f:>6}" for f in FAMILIES) + f" {'chi2_nu':>8} {'p<.05':>6} {'slow det':>8} {'n':>3}"
+def coverage(zs: list[dict[str, float]]) -> float:
+    """Share of the parameters with |z| ≤ 2 (U at k = 2 covers the truth)."""
+    values = [abs(v) for z in zs for v in z.values()]
+    return float(np.mean([v <= 2.0 for v in values])) if values else math.nan
+
+
+#: The paths of the table: none (default), none+B (default, z over u_A ⊕ u_B), true (world's noise given), white (B = K = 0 given).
+PATHS = ("none", "none+B", "true", "white")
+
+
+def table(results: list[SessionResult], worlds: list[str], families: dict[str, tuple[str, ...]] = FAMILIES) -> list[str]:
+    head = (
+        f"{'world':<13} {'path':<6} "
+        + " ".join(f"{f:>6}" for f in families)
+        + f" {'chi2_nu':>8} {'p<.05':>6} {'slow det':>8} {'U cov':>6} {'rej':>5} {'n':>3}"
+    )
     lines = [head]
     for w in worlds:
         rows = [r for r in results if r.world == w]
         if not rows:
             continue
-        for path in ("none", "true"):
-            zs = [r.z_default if path == "none" else r.z_given for r in rows]
-            fam = " ".join(f"{rms([z[k] for z in zs for k in ids if k in z]):>6.2f}" for ids in FAMILIES.values())
+        for path in PATHS:
+            zs = {"none": [r.z_default for r in rows], "none+B": [r.z_type_b for r in rows], "true": [r.z_given for r in rows]}.get(
+                path, [r.z_white for r in rows]
+            )
+            if not any(zs):
+                continue  # a path this level does not run
+            fam = " ".join(f"{rms([z[k] for z in zs for k in ids if k in z]):>6.2f}" for ids in families.values())
+            chi, pfrac, det, rej = "", "", "", ""
             if path == "none":
-                chi = float(np.mean([r.chi2_red for r in rows]))
-                pfrac = float(np.mean([r.chi2_p < 0.05 for r in rows]))
-                det = float(np.mean([r.detected for r in rows]))
-                extra = f" {chi:>8.3f} {100 * pfrac:>5.0f}% {100 * det:>7.0f}%"
-            else:
-                extra = f" {float(np.mean([r.chi2_red_given for r in rows])):>8.3f} {'':>6} {'':>8}"
-            lines.append(f"{w:<13} {path:<6} {fam}{extra} {len(rows):>3}")
+                chi = f"{float(np.mean([r.chi2_red for r in rows])):.3f}"
+                pfrac = f"{100 * float(np.mean([r.chi2_p < 0.05 for r in rows])):.0f}%"
+                det = f"{100 * float(np.mean([r.detected for r in rows])):.0f}%"
+            elif path == "true":
+                chi = f"{float(np.mean([r.chi2_red_given for r in rows])):.3f}"
+            elif path == "white":
+                rej = f"{100 * float(np.mean([r.white_rejected for r in rows])):.0f}%"
+            lines.append(f"{w:<13} {path:<6} {fam} {chi:>8} {pfrac:>6} {det:>8} {100 * coverage(zs):>5.1f}% {rej:>5} {len(rows):>3}")
     return lines
 
 
@@ -233,8 +352,22 @@ def main(argv: list[str] | None = None) -> int:
         f"bench_worlds: level {args.level}, {args.seeds} seeds per world from {args.first_seed}, rate {args.rate:g} Hz, "
         f"{time.perf_counter() - t0:.0f} s"
     )
+    if args.level == "system":
+        print(
+            f"system level: one sidereal day per record at {args.rate:g} Hz (reduced from the 10-100 Hz of a real record: the "
+            "stage's harmonics and 600-s coloured-noise bins need no more), calibrate system with --estimate-k2"
+        )
+        print("path none: no noise model (default); true: the world's N, B, K given (datasheet)")
+        print("rms z per family (target 0.9-1.1); chi2_nu: the separation's, mean; p<.05: share of records; slow det: the record's test")
+        print("\n".join(table(results, args.worlds, SYSTEM_FAMILIES)))
+        return 0
     print("path none: calibrate device with no noise flags (default); true: the world's N, B, K given (datasheet)")
-    print("rms z per family (target 0.9-1.1); chi2_nu: fused fit, mean; p<.05: share of sessions; slow det: slow noise detected")
+    print("path none+B: the default path's z over u_A (+) the Type B 'slow noise not resolved' (the certificate's u)")
+    print("path white: B = K = 0 given (a wrong datasheet on slow-noise worlds)")
+    print(
+        "rms z per family (target 0.9-1.1); chi2_nu: fused fit, mean; p<.05: share of sessions; slow det: slow noise detected; "
+        "U cov: share of parameters within U (k = 2, nominal 95.4 %); rej: white datasheet rejected by the dwells"
+    )
     print("\n".join(table(results, args.worlds)))
     return 0
 

@@ -79,6 +79,16 @@ QUICK: dict[str, Quick] = {
         "16 MB long line / JSON / declared-rows files instead of 256 MB",
         volatile=(r"\s{2,}\d+\s+(\d+\.\d+)\s+\d+",),  # the 'time [s]' column of the table
     ),
+    "bench_cli": Quick(
+        ("--dir", "{work}", "--rate", "10", "--repeat", "1"),
+        "the system record at 10 Hz instead of 100 Hz, one run of each command and read instead of the best of 3",
+        volatile=(
+            r"^(?:calibrate-\w+|diagnose|report|help|import)\s+(.*)$",  # the table: times and their ratios
+            r"load average ([\d.]+)",
+            r"^setup: .*: (.*)$",
+            r"^stage only .*: (.*)$",
+        ),
+    ),
     "bench_budget": Quick(("--seed", "13"), "the default run (one device world, one synthetic day at 1 Hz); seed pinned"),
     "bench_campaign": Quick(
         ("--devices", "4", "--out", "{work}"),
@@ -121,6 +131,8 @@ QUICK: dict[str, Quick] = {
     ),
     "bench_system_diagnose": Quick(("--seeds", "2", "--first", "1"), "2 seeds per world instead of 24"),
     "bench_system_drift": Quick(("--seeds", "2", "--first", "1"), "2 seeds instead of 20"),
+    "bench_system_bias_drift": Quick((), "the default run: the bound only (part 2, the stage's channels, is --seeds N)"),
+    "bench_flicker_below_record": Quick((), "the default run (closed forms, under a second)"),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
     "bench_system_thermal": Quick(
         ("--cases", "thermal", "kcc", "clean", "--seeds", "2", "--first", "100"),

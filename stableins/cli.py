@@ -11,8 +11,11 @@ Conventions shared by every command:
 
 - ``--json``: the result goes to stdout as one JSON document (progress and messages go
   to stderr), see :func:`stableins.output.emit`;
+- progress bars (:mod:`stableins.progress`) are drawn on stderr only when it is a terminal, never with ``--json`` or
+  ``--quiet``;
 - a user error (:class:`~stableins.errors.InputError`, bad arguments) prints
-  ``stableins: error: <message>`` and exits with status 2, never a traceback;
+  ``stableins: error: <message>`` and exits with status 2, never a traceback; data that do not
+  determine what was asked (:class:`~stableins.errors.NotDeterminedError`) the same, with status 4;
 - Ctrl-C exits with status 130; an operating-system error (disk full, permission denied)
   prints ``stableins: error: <message>`` and exits with status 1.
 """
@@ -74,7 +77,8 @@ COMMANDS: dict[str, Command | Group] = {
             "poses": Command("stableins.commands.calibrate_poses", "a triad from the static poses of a real log (any columns and units)"),
         },
     ),
-    "run": Command("stableins.commands.run", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "run": Command("stableins.commands.run_command", "carry out a calibration procedure on a platform (journaled, resumable)"),
+    "serve": Command("stableins.commands.serve", "the fleet, a unit's history and the runs in a browser, read-only (docs/fleet.md)"),
     "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
     "protocol-check": Command(
         "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"
@@ -91,6 +95,8 @@ COMMANDS: dict[str, Command | Group] = {
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The data do not determine what was asked (:class:`~stableins.errors.NotDeterminedError`); nothing was written.
+EXIT_NOT_DETERMINED = 4
 EXIT_INTERRUPTED = 130
 
 
@@ -135,6 +141,8 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
             module.configure(parser)
             if not any(action.dest == "json" for action in parser._actions):
                 parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+            if not any(action.dest == "quiet" for action in parser._actions):
+                parser.add_argument("--quiet", action="store_true", help="draw no progress bars (none are drawn off a terminal either)")
             parser.set_defaults(_run=module.run)
 
 
@@ -151,10 +159,29 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
     return parser
 
 
+#: Thread-count variables of the linear-algebra libraries (OpenBLAS, MKL, OpenMP builds), read when they load.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def single_threaded_blas() -> None:
+    """Default the linear-algebra libraries to one thread (a variable the user set is kept).
+
+    The commands' matrices are small (tens to a few hundred rows): a second BLAS thread gains nothing there, and
+    on a shared machine its spinning threads multiplied a command's CPU time up to sevenfold (issue 30:
+    ``calibrate device`` 29.7 s of CPU with the default threads, 4.1 s with one).  Only libraries loaded after
+    the call see it: the CLI calls it before a command imports numpy; workers inherit it.
+    """
+    import os
+
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stableins`` console script; returns the exit status."""
-    from stableins.errors import InputError
+    from stableins.errors import InputError, NotDeterminedError
 
+    single_threaded_blas()
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         parser = build_parser(argv)
@@ -162,12 +189,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, "_run", None) is None:
             parser.print_help(sys.stderr)
             return EXIT_USAGE
-        return int(args._run(args) or 0)
-    except InputError as error:
+        from stableins.progress import silence
+
+        silence(quiet=bool(getattr(args, "json", False) or getattr(args, "quiet", False)))  # progress is for a person at a terminal
+        try:
+            return int(args._run(args) or 0)
+        finally:
+            silence(quiet=False)
+    except (InputError, NotDeterminedError) as error:
         from stableins.commands.flags import as_flag
 
         print(f"stableins: error: {as_flag(error)}", file=sys.stderr)
-        return error.exit_status
+        return EXIT_USAGE if isinstance(error, InputError) else EXIT_NOT_DETERMINED
     except KeyboardInterrupt:
         print("stableins: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

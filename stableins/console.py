@@ -162,6 +162,25 @@ class Console:
         answer = self._ask(f"  {step.prompt}{unit}{default}: ").strip()
         return answer or ("" if step.default is None else str(step.default))
 
+    def name(self, key: str, prompt: str) -> str:
+        """Return a name a person types for ``key`` (an operator, a laboratory), empty when none is stated.
+
+        ``--set key=NAME`` answers it; unattended (``--yes``) it is not asked and none is stated.  Pressing Enter states
+        none, and so does a closed standard input (a script): what needs the name (a certificate) says so.
+        """
+        if key in self.values:
+            self.say(f"  {prompt}: {self.values[key]} (--set)")
+            return self.values[key]
+        if self.yes:
+            self.say(f"  {prompt}: not stated (--yes)")
+            return ""
+        self._end_bar()
+        try:
+            return self._ask(f"  {prompt} [Enter: not stated]: ").strip()
+        except RunStopped:
+            self.say(f"  {prompt}: not stated (standard input is closed)")
+            return ""
+
     def tell(self, text: str) -> None:
         """Print a line for the person answering a prompt (shown even when quiet: a prompt is being asked)."""
         self._end_bar()

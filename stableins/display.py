@@ -187,14 +187,15 @@ def html_table(
 ) -> str:
     """Render an HTML table; every cell is escaped.
 
-    ``numeric``: column indices aligned right; ``titles``: a tooltip per row (e.g. a parameter's meaning);
+    Cells are typeset (:func:`typeset`: ``χ²_ν``, ``f_x``).  ``numeric``: column indices aligned right; ``titles``: a
+    tooltip per row (e.g. a parameter's meaning);
     ``status_column``: the column holding a parameter status (rows not ``estimated`` are greyed, ``unidentifiable`` red).
     """
     right = set(numeric)
 
     def cell(k: int, value: Any, tag: str = "td") -> str:
         align = "right" if k in right else "left"
-        return f'<{tag} style="{_CELL};text-align:{align}">{escape(value)}</{tag}>'
+        return f'<{tag} style="{_CELL};text-align:{align}">{typeset(escape(value))}</{tag}>'
 
     head = "<tr>" + "".join(cell(k, c, "th") for k, c in enumerate(columns)) + "</tr>"
     body = []
@@ -207,8 +208,12 @@ def html_table(
 
 
 def typeset(text: str) -> str:
-    """Return escaped HTML text with the plain-text notations typeset: ``χ²_ν`` → χ²<sub>ν</sub> (no literal underscore)."""
-    return text.replace("χ²_ν", "χ²<sub>ν</sub>").replace("chi2_red", "χ²<sub>ν</sub>")
+    """Return escaped HTML text with the plain-text notations typeset, no literal underscore.
+
+    ``χ²_ν`` → χ²<sub>ν</sub>, the outputs ``f_x`` → f<sub>x</sub> (parameter ids stay as they are typed).
+    """
+    text = text.replace("χ²_ν", "χ²<sub>ν</sub>").replace("chi2_red", "χ²<sub>ν</sub>")
+    return re.sub(r"\bf_([xyz])\b", r"<i>f</i><sub>\1</sub>", text)
 
 
 def html_result(
@@ -250,6 +255,31 @@ def parameter_html(
 
 
 # ----------------------------------------------------------------------------- figures
+#: An identifier with a subscript, as results name outputs and effects (``f_x``, ``Kcc_xxy``, ``K3_x``).
+_SUBSCRIPTED = re.compile(r"(?<![\w$\\^])([A-Za-z][A-Za-z0-9]*)_([A-Za-z0-9]+(?:_[A-Za-z0-9]+)*)\b")
+
+
+def plot_text(text: str) -> str:
+    r"""Return ``text`` for a matplotlib title, label or legend, subscripts typeset in mathtext, never a literal underscore.
+
+    ``χ²_ν`` becomes :math:`\chi^2_\nu` and an identifier ``name_sub`` (an output ``f_x``, an effect ``Kcc_xxy``) the name
+    with its subscript (``$\mathregular{Kcc}_{\mathregular{xxy}}$``); text already in mathtext (``$...$``) is left as it
+    is.  Commands to type (a figure's caption) keep their underscores: they are not passed here.
+    """
+    if "$" in text:
+        return text
+    text = text.replace("χ²_ν", r"$\chi^2_\nu$")
+    return _SUBSCRIPTED.sub(_subscripted, text)
+
+
+def _subscripted(match: re.Match[str]) -> str:
+    """``f_x`` → ``$f_{x}$`` (a one-letter symbol in italics), ``Kcc_xxy`` → upright name and subscript."""
+    name, subscript = match.group(1), match.group(2).replace("_", ",")
+    if len(name) == 1:
+        return rf"${name}_{{{subscript}}}$"
+    return rf"$\mathregular{{{name}}}_{{\mathregular{{{subscript}}}}}$"
+
+
 def layout_with_caption(fig: Any, text: str | None, top: float = 0.94) -> None:
     """Lay a matplotlib figure out (``tight_layout`` under a suptitle ending at ``top``) with ``text`` wrapped under it.
 
@@ -260,6 +290,8 @@ def layout_with_caption(fig: Any, text: str | None, top: float = 0.94) -> None:
     bottom = 0.0
     if text:
         wrapped = textwrap.fill(text, max(60, int(fig.get_figwidth() * 14)))
+        if "$" not in wrapped:  # a command in the caption keeps its underscores; χ²_ν is typeset
+            wrapped = wrapped.replace("χ²_ν", r"$\chi^2_\nu$")
         fig.text(0.5, 0.008, wrapped, ha="center", va="bottom", fontsize=9, style="italic", color="#7a2e00")
         bottom = (0.2 + 0.16 * (wrapped.count("\n") + 1)) / fig.get_figheight()
     fig.tight_layout(rect=(0.0, bottom, 1.0, top))

@@ -1,7 +1,11 @@
-"""The one exception type for bad user input.
+"""The two exceptions a person is told about: bad input, and a question the data do not answer.
 
-Everything that reads user files or arguments raises :class:`InputError`; the CLI
-turns it into a one-paragraph message on stderr and exit status 2, never a traceback.
+:class:`InputError`: a user file or argument is wrong (the message names the file, row or field and what
+was expected).  :class:`NotDeterminedError`: the input is well formed but the data do not determine what
+was asked (a stage whose data determine no parameter of the record, positions whose design leaves a
+direction free, a record too short for the stage).  Both are value errors (:class:`ValueError`) and carry no exit
+status: the CLI maps each to its own (docs/cli.md, "Exit status") and prints one paragraph on stderr,
+never a traceback.
 """
 
 from __future__ import annotations
@@ -9,8 +13,8 @@ from __future__ import annotations
 from os import PathLike
 
 
-class InputError(Exception):
-    """Bad input, described for a person.
+class _DescribedError(ValueError):
+    """An error described for a person: what is wrong, where, and what was expected.
 
     Parameters
     ----------
@@ -25,8 +29,6 @@ class InputError(Exception):
     expected : str, optional
         What was expected instead.
     """
-
-    exit_status = 2
 
     def __init__(
         self,
@@ -57,3 +59,11 @@ class InputError(Exception):
         if self.expected:
             text += f" (expected {self.expected})"
         return text
+
+
+class InputError(_DescribedError):
+    """Bad input, described for a person (parameters: :class:`_DescribedError`'s)."""
+
+
+class NotDeterminedError(_DescribedError):
+    """The data do not determine what was asked; nothing is written (parameters: :class:`_DescribedError`'s)."""

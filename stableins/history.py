@@ -234,27 +234,24 @@ def trend(points: list[tuple[datetime, float, float]], parameter: str = "", unit
 
     Over a span shorter than :data:`MIN_DRIFT_SPAN_DAYS` no drift is stated (slope NaN, :attr:`Trend.too_short`).
     """
-    import numpy as np
-
-    times = [p[0] for p in points]
-    t = np.array([(p[0] - times[0]).total_seconds() / SECONDS_PER_YEAR for p in points])
-    x = np.array([p[1] for p in points])
-    s = np.array([p[2] for p in points])
+    times = [p[0] for p in points]  # plain floats: a fleet asks this of thousands of short series (numpy costs more there)
+    t = [(p[0] - times[0]).total_seconds() / SECONDS_PER_YEAR for p in points]
+    x = [float(p[1]) for p in points]
+    s = [float(p[2]) for p in points]
     short = len(points) >= 2 and (max(times) - min(times)).total_seconds() < MIN_DRIFT_SPAN_DAYS * 86400.0
-    if len(points) < 2 or not np.all(s > 0) or short:
+    if len(points) < 2 or not all(sk > 0 for sk in s) or short:
         return Trend(parameter, unit, tuple(times), tuple(x), tuple(s), math.nan, math.nan, math.nan)
-    w = 1.0 / s**2
-    mean_t = np.sum(w * t) / np.sum(w)
-    dt = t - mean_t
-    sxx = np.sum(w * dt**2)
-    mean_x = np.sum(w * x) / np.sum(w)
-    chi2_constant = float(np.sum(w * (x - mean_x) ** 2) / (len(x) - 1))
+    w = [1.0 / sk**2 for sk in s]
+    total = sum(w)
+    mean_t = sum(wk * tk for wk, tk in zip(w, t)) / total
+    dt = [tk - mean_t for tk in t]
+    sxx = sum(wk * dk**2 for wk, dk in zip(w, dt))
+    mean_x = sum(wk * xk for wk, xk in zip(w, x)) / total
+    chi2_constant = sum(wk * (xk - mean_x) ** 2 for wk, xk in zip(w, x)) / (len(x) - 1)
     if sxx <= 0:
         return Trend(parameter, unit, tuple(times), tuple(x), tuple(s), math.nan, math.nan, chi2_constant)
-    slope = float(np.sum(w * dt * (x - mean_x)) / sxx)
-    return Trend(
-        parameter, unit, tuple(times), tuple(map(float, x)), tuple(map(float, s)), slope, float(1.0 / math.sqrt(sxx)), chi2_constant
-    )
+    slope = sum(wk * dk * (xk - mean_x) for wk, dk, xk in zip(w, dt, x)) / sxx
+    return Trend(parameter, unit, tuple(times), tuple(x), tuple(s), slope, 1.0 / math.sqrt(sxx), chi2_constant)
 
 
 def data_only(record: CalibrationRecord) -> dict[str, tuple[float, float]]:

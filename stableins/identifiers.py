@@ -71,6 +71,11 @@ def check_serial_number(serial: object, *, field: str = "serial_number", path: s
     return serial
 
 
+def utc_now() -> str:
+    """Return the current UTC time as ISO 8601, to the second (the time stamps stableins writes)."""
+    return datetime.now(UTC).replace(microsecond=0).isoformat()
+
+
 def parse_timestamp(text: object, *, field: str, path: str | None = None) -> datetime:
     """Read an ISO 8601 date or date-time (``2026-03-01``, ``2026-03-01T12:00:00Z``); a time without offset is UTC.
 

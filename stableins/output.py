@@ -50,5 +50,7 @@ def emit(args: Any, data: dict[str, Any], text: str | None = None) -> None:
 
 
 def note(message: str) -> None:
-    """Print a message for the person at the terminal (stderr)."""
-    print(message, file=sys.stderr)
+    """Print a message for the person at the terminal (stderr; above a progress bar being drawn)."""
+    from stableins.progress import write
+
+    write(message)

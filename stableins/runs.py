@@ -18,13 +18,13 @@ from typing import Any, cast
 
 import stableins
 from stableins.drivers.base import PlatformDriver
-from stableins.drivers.replay import JOURNAL_NAME
-from stableins.drivers.select import is_deterministic, open_driver
+from stableins.drivers.select import is_deterministic
 from stableins.errors import InputError
 from stableins.procedures.entries import accepted_columns, resume_script
-from stableins.procedures.journal import Journal, has_start, remove_unlinked, scan
+from stableins.procedures.journal import JOURNAL_NAME, Journal, has_start, remove_unlinked, scan
 from stableins.procedures.plan import Plan, StaticRecordStep, SystemEstimation
 from stableins.procedures.reachable import check_reachable
+from stableins.procedures.replay import open_run_driver
 from stableins.procedures.rundir import (
     DEFINITION_NAME,
     PLAN_NAME,
@@ -165,7 +165,7 @@ def _start_locked(
     prior = _needed_prior(plan, prior_file, unit=unit, definition=definition_file is not None)
     check_settings(plan, console.values)
     rate, truth = plan.sample_rate, setup.truth
-    driver = driver or open_driver(driver_spec, seed=seed, unit=unit, sample_rate=rate, timeout=setup.timeout, truth=truth)
+    driver = driver or open_run_driver(driver_spec, seed=seed, unit=unit, sample_rate=rate, timeout=setup.timeout, truth=truth)
     try:
         install_prior(driver, plan, prior, prior_file)  # a simulated INS navigates with --prior, as a real one is loaded
         metadata = driver.metadata

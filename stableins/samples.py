@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,3 +32,13 @@ class SampleBlock:
 
     def __len__(self) -> int:
         return len(self.time)
+
+    @classmethod
+    def concatenate(cls, blocks: Sequence[SampleBlock]) -> SampleBlock:
+        """Return the sample blocks joined in order."""
+        return cls(
+            time=np.concatenate([b.time for b in blocks]),
+            specific_force=np.concatenate([b.specific_force for b in blocks]),
+            angles=np.concatenate([b.angles for b in blocks]),
+            temperature=np.concatenate([b.temperature for b in blocks]),
+        )

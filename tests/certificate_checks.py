@@ -91,12 +91,27 @@ def decimals(text: str) -> int:
 
 
 def mantissa(text: str) -> str:
-    """The number before a ``×10ⁿ`` (tiny values are written at the power of their U)."""
+    """The number before a ``×10ⁿ`` (tiny values are written ``m×10ⁿ``, 1 ≤ m < 10)."""
     return text.partition("×10")[0]
 
 
 def power(text: str) -> str:
     return text.partition("×10")[2]
+
+
+def last_place(text: str) -> int:
+    """The power of ten of a number's last digit (``7×10⁻⁶`` → −6, ``1.3×10⁻⁵`` → −6, ``2.4`` → −1): GUM 7.2.6 puts the
+    value's last digit where U's is."""
+    exponent = power(text).translate(str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789"))
+    return (int(exponent) if exponent else 0) - decimals(text)
+
+
+def one_style(text: str) -> bool:
+    """Whether a number in ``m×10ⁿ`` has its mantissa in [1, 10) (one exponent style in a column), or is fixed point."""
+    if "×10" not in text:
+        return True
+    digits = mantissa(text).lstrip("\u2212-")
+    return digits[:1] in set("123456789")
 
 
 MAX_CERTIFICATE_PAGES = 3
@@ -143,8 +158,10 @@ def _certificate_rows(text: str, technical: str) -> list[str]:
         value, expanded, unit = (tokens + ["", "", ""])[:3]
         if unit not in UNITS:
             defects.append(f"certificate row {symbol}: no unit after its numbers ({tokens})")
-        elif len(mantissa(expanded).replace(".", "").lstrip("0")) != 2 or decimals(value) != decimals(expanded):
+        elif len(mantissa(expanded).replace(".", "").lstrip("0")) != 2 or (value != "0" and last_place(value) != last_place(expanded)):
             defects.append(f"certificate row {symbol}: {value} with U = {expanded} is not GUM-rounded")
+        if not (one_style(value) and one_style(expanded)):
+            defects.append(f"certificate row {symbol}: {value}, {expanded}: a mantissa outside [1, 10)")
         other = detail.get(symbol)
         if other is None or other[1:2] + other[3:4] != [value, expanded]:
             defects.append(f"certificate row {symbol}: {value}, {expanded} differs from the technical report ({other})")
@@ -190,12 +207,10 @@ def _result_row_defects(symbol: str, tokens: list[str], budget: dict, conformity
     value, u, expanded, unit = tokens[1:5]
     if unit not in UNITS:
         defects.append(f"results row {symbol}: no unit after its numbers ({tokens})")
-    if (
-        decimals(value) != decimals(expanded)
-        or power(value) != power(expanded)
-        or len(mantissa(expanded).replace(".", "").lstrip("0")) != 2
-    ):
+    if (value != "0" and last_place(value) != last_place(expanded)) or len(mantissa(expanded).replace(".", "").lstrip("0")) != 2:
         defects.append(f"results row {symbol}: {value} with U = {expanded} is not GUM-rounded")
+    if not all(one_style(x) for x in (value, u, expanded)):
+        defects.append(f"results row {symbol}: {value}, {u}, {expanded}: a mantissa outside [1, 10)")
     row = budget.get(symbol)
     if row is None:
         defects.append(f"budget table has no row for {symbol}")

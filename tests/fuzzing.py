@@ -209,7 +209,7 @@ def _discovery_document() -> dict[str, Any]:
                                "max_output_change_unit": OBSERVATION_UNIT},
                  "identifiable": True, "excited": True, "separability": 0.4, "aliases": [{"id": "bias_x", "shift_per_unit": 0.3}],
                  "confused_with": ["Kcc_xxz"], "refit": False, "flagged": False, "chi2_red_with": 1.12, "explains": True,
-                 "leaves": [], "advice": "confirm with 45° positions"}  # fmt: skip
+                 "leaves": [], "signature_p": None, "advice": "confirm with 45° positions"}  # fmt: skip
     spectrum = {"harmonics": [1, 2], "amplitude": [1e-6, 2e-6], "sigma": [1e-6, 1e-6], "chi2": [1.0, 4.0], "dof": [2.0, 2.0],
                 "p_value": [0.6, 0.14], "flagged": [False, False], "unit": "m/s^2"}  # fmt: skip
     return {

@@ -37,8 +37,8 @@ from stableins.reporting.budget import (  # noqa: E402
     NORMAL_GRAVITY_UNCERTAINTY,
     UncertaintyInputs,
     gravity_direction,
-    uncertainty_budget,
 )
+from stableins.reporting.budget_sources import uncertainty_budget  # noqa: E402
 
 COARSE = load_procedure("device-coarse")
 FINE = load_procedure("device-fine")

@@ -16,7 +16,7 @@ import pytest
 
 from stableins import __version__, cli
 from stableins.data.device import save_device
-from stableins.progress import Progress
+from stableins.progress import Progress, silence
 from tests.test_formats import data_line_index, edit_lines, make_device_columns, make_metadata, make_system_chunk
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,6 +99,11 @@ def fake_commands(tmp_path, monkeypatch):
         "def run(args):\n    from stableins.errors import InputError\n"
         "    raise InputError('bad thing', path='f.csv', row=3, field='f_x', expected='a number')\n"
     )
+    (package / "not_determined.py").write_text(
+        "def configure(parser):\n    pass\n\n"
+        "def run(args):\n    from stableins.errors import NotDeterminedError\n"
+        "    raise NotDeterminedError('the data determine no parameter', field='stage', expected='one sidereal day')\n"
+    )
     (package / "disk_full.py").write_text(
         "def configure(parser):\n    pass\n\ndef run(args):\n    import errno, os\n"
         "    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), 'out/system.h5')\n"
@@ -114,6 +119,7 @@ def fake_commands(tmp_path, monkeypatch):
         ),
         "interrupt": cli.Command("fakecmds.interrupt", "raises KeyboardInterrupt"),
         "crash": cli.Command("fakecmds.crash_input", "raises InputError"),
+        "undetermined": cli.Command("fakecmds.not_determined", "raises NotDeterminedError"),
         "disk-full": cli.Command("fakecmds.disk_full", "raises OSError(ENOSPC)"),
     }
     monkeypatch.setattr(cli, "COMMANDS", table)
@@ -144,11 +150,22 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     assert cli.main(["crash"]) == 2
     err = capsys.readouterr().err
     assert err.strip() == "stableins: error: f.csv, row 3, field 'f_x': bad thing (expected a number)"
+    assert cli.main(["undetermined"]) == 4  # the data do not determine what was asked: a status of its own
+    err = capsys.readouterr().err
+    assert err.strip() == "stableins: error: field 'stage': the data determine no parameter (expected one sidereal day)"
     assert cli.main(["interrupt"]) == 130
     assert cli.main(["disk-full"]) == 1
     assert (
         capsys.readouterr().err.strip() == "stableins: interrupted\nstableins: error: [Errno 28] No space left on device: 'out/system.h5'"
     )
+
+
+def test_the_two_errors_are_value_errors_and_distinct():
+    from stableins.errors import InputError, NotDeterminedError
+
+    assert issubclass(InputError, ValueError) and issubclass(NotDeterminedError, ValueError)
+    assert not issubclass(NotDeterminedError, InputError) and not issubclass(InputError, NotDeterminedError)
+    assert not hasattr(InputError("x"), "exit_status")  # the CLI maps the statuses, the error carries none
 
 
 # --------------------------------------------------------------------------- bad input through the CLI
@@ -245,10 +262,34 @@ def test_progress_draws_a_bar_on_a_terminal():
         progress.update(2)
     text = stream.getvalue()
     assert text.startswith("\rsimulate [") and "[########] 100%" in text and text.endswith("\n")
+    # a step whose size becomes known later (a callback saying done, total), and --json/--quiet silence every bar
+    stream = FakeTerminal()
+    with Progress(label="report", stream=stream, width=8) as progress:
+        progress.set(1, 4)
+        assert "[##......]  25%" in progress.line()
+    silence()
+    try:
+        quiet = FakeTerminal()
+        with Progress(total=4, label="x", stream=quiet) as progress:
+            progress.update(4)
+        assert quiet.getvalue() == "" and progress.done == 4
+    finally:
+        silence(quiet=False)
+
+
+def test_json_and_quiet_silence_progress(monkeypatch):
+    from stableins import progress
+    from stableins.cli import main
+
+    seen = []
+    monkeypatch.setattr("stableins.commands.simulate.run", lambda args: seen.append(progress.silenced()) or 0)
+    for flags in (["--json"], [], ["--quiet"]):
+        assert main(["simulate", "--list-effects", *flags]) == 0
+    assert seen == [True, False, True] and not progress.silenced()  # the command's own run; restored after it
 
 
 def test_progress_is_silent_in_a_real_pipe():
-    code = "from stableins.progress import Progress\np = Progress(100)\nfor _ in range(100): p.update()\np.close()\n"
+    code = "from stableins.progress import Progress, silence\np = Progress(100)\nfor _ in range(100): p.update()\np.close()\n"
     done = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60
     )

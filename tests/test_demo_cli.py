@@ -2,9 +2,10 @@
 
 Every option of the command is given (``--out``, ``--seed``, ``--duration``, ``--hidden``, ``--rate``, ``--json``) and
 its effect asserted: the directory, the seed and hidden effect of the simulated truth, the length and rate of the
-system record (one day at 1 Hz: the system stage needs a sidereal day), and the JSON document on stdout, whose verdict must be the ``verdict.json`` the demo writes.  The verdict
-itself is checked as a k·σ bound: every estimated parameter of the final record within 4.5 σ of the simulator's truth
-(for 26 normal errors the chance of one beyond is 2e-4), and the hidden effect found and kept.
+system record (one day at 1 Hz: the system stage needs a sidereal day), and the JSON document on stdout, whose verdict
+must be the ``verdict.json`` the demo writes.  The verdict itself is checked as a k·σ bound: every estimated parameter
+of the final record within 4.5 σ of the simulator's truth (for 26 normal errors the chance of one beyond is 2e-4),
+and the hidden effect found and kept.
 """
 
 from __future__ import annotations

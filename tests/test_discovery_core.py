@@ -200,10 +200,10 @@ def test_harmonic_spectrum_recovers_earth_rate_harmonics():
 
 def test_diagnose_any_stage_result_from_its_labels():
     from stableins.discovery.diagnostics import diagnose
-    from stableins.estimators.result import FitResult
+    from stableins.estimators.result import FitResult, Stage
 
     terms = ErrorModel.standard().terms[:2]
-    common = dict(stage="s", terms=terms, values=np.zeros(2), covariance=np.eye(2), status=("estimated",) * 2, rank=2)
+    common = dict(stage=Stage.LINEAR, terms=terms, values=np.zeros(2), covariance=np.eye(2), status=("estimated",) * 2, rank=2)
     three = FitResult(
         **common,
         residuals=np.arange(12.0) * 1e-6,

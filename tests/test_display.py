@@ -6,6 +6,7 @@ import dataclasses
 import html.parser
 import importlib.util
 import math
+import re
 import sys
 
 import numpy as np
@@ -21,6 +22,7 @@ from stableins.discovery.problem import DwellProblem
 from stableins.discovery.steps import Decision
 from stableins.display import MAX_REPR_LINES, require_pandas, value_sigma
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS, ErrorModel, Term
+from stableins.estimators.result import Stage
 from stableins.history_store import HistoryStore
 from stableins.noise import NoiseModel
 from stableins.records import CalibrationRecord
@@ -106,11 +108,13 @@ def test_fit_result_repr_html_and_dataframe(session):
 def test_html_escapes_every_text():
     evil = "<script>alert('x')</script>"
     term = Term("b<i>", "bias", "m/s^2", "ug", MICRO_G, 1e-4, evil)
-    result = dataclasses.replace(make_result(terms=(term,) + tuple(CORE_TERMS[:2])), notes=(evil,), determined=("a & b",), stage="<stage>")
+    base = make_result(terms=(term,) + tuple(CORE_TERMS[:2]))
+    result = dataclasses.replace(base, notes=(evil,), determined=("a & b",), stage=Stage.SYSTEM_BINS)
     page = result._repr_html_()
     well_formed(page)
     assert "<script>" not in page and "<i>" not in page
-    assert "&lt;script&gt;" in page and "b&lt;i&gt;" in page and "a &amp; b" in page and "&lt;stage&gt;" in page
+    assert "&lt;script&gt;" in page and "b&lt;i&gt;" in page and "a &amp; b" in page
+    assert "system bins" in page  # a stage is a Stage member: it holds no markup
 
 
 @needs_pandas
@@ -247,10 +251,17 @@ def test_discovery_figures_show_before_and_after_with_models_named(session, agg)
     residuals = figures["residuals"]
     titles = [ax.get_title() for ax in residuals.axes if ax.get_title()]
     assert any(t.startswith("before: standard model\n") for t in titles)
-    assert any(t.startswith("after: standard model + nonorth_23\n") for t in titles)
+    assert any(t.startswith("after: standard model + $\\mathregular{nonorth}_{\\mathregular{23}}$\n") for t in titles)
     for fig in figures.values():
         text = _texts(fig)
-        assert "next: add nonorth_23" in text  # the caption says what to do next
+        assert "next: add nonorth_23" in text  # the caption says what to do next (a name to type keeps its underscore)
+        # titles, labels, ticks and legends typeset χ²_ν, f_x, nonorth_23 in mathtext: no literal underscore (issue 28)
+        shown = [fig._suptitle.get_text()] if fig._suptitle is not None else []
+        for ax in fig.axes:
+            shown += [ax.get_title(), ax.get_xlabel(), ax.get_ylabel(), *(t.get_text() for t in ax.get_xticklabels())]
+            shown += [t.get_text() for t in ax.get_legend().get_texts()] if ax.get_legend() is not None else []
+        shown += [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+        assert not [t for t in shown if "_" in re.sub(r"\$[^$]*\$", "", t)]
         for ax in fig.axes:
             if ax.get_xlabel():
                 assert "[" in ax.get_xlabel() or "dwell" in ax.get_xlabel() or "model" in ax.get_xlabel()

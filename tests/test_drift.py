@@ -17,16 +17,16 @@ from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE, earth_rate_n
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
 from stableins.errors import InputError
-from stableins.estimators.drift import drift_from_record, estimate_drift, find_holds, rotation_vector
+from stableins.estimators.drift import drift_from_record, estimate_drift, find_holds, small_angle_vector
 from stableins.estimators.result import FitResult
 from stableins.platform import rotation_about
 from stableins.procedures.definition import load_procedure
 from stableins.procedures.plan import Plan
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
-from stableins.simulator.indexing import earth_rotation, indexed_record_chunks
+from stableins.simulator.indexing import earth_rotation
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.system import SystemWorld, simulate_system
+from stableins.simulator.system import SystemWorld, indexed_record_chunks, simulate_system
 from stableins.simulator.truth import SimulatedSite, Truth
 from stableins.turns import IndexAxis, PlatformTurn
 
@@ -89,7 +89,7 @@ def test_turn_kinematics_exact():
     expected = rotation_about([0.0, 0.0, math.pi])
     assert np.max(np.abs(relative - expected)) < 2e-5  # drift angles are ~5e-6 rad over 200 s
     for first, last in ((1000, 5000), (8000, 12000)):
-        rate = rotation_vector(inertial[last] @ inertial[first].T) / (record["time"][last] - record["time"][first])
+        rate = small_angle_vector(inertial[last] @ inertial[first].T) / (record["time"][last] - record["time"][first])
         assert np.allclose(rate, -eps(truth), atol=1e-12), rate  # 0.005 °/h = 2.4e-8 rad/s
 
 
@@ -102,7 +102,7 @@ def test_commanded_start_orientation():
     assert np.allclose(readings[0], start, atol=1e-9)
     axis = skew(earth_rate_nav(truth.site.latitude) / EARTH_RATE)
     inertial = truth.platform().dcm_nav_to_platform(readings) @ earth_rotation(axis, record["time"]).swapaxes(1, 2)
-    rate = rotation_vector(inertial[-1] @ inertial[0].T) / record["time"][-1]
+    rate = small_angle_vector(inertial[-1] @ inertial[0].T) / record["time"][-1]
     assert np.allclose(rate, -eps(truth), atol=1e-12)
     assert np.ptp(readings[:, 1]) > 1e-3  # not polar: the Earth's turn moves more than the platform gimbal
 

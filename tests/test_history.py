@@ -233,7 +233,7 @@ def test_two_records_a_minute_apart_state_no_drift(tmp_path, capsys):
     assert all(math.isfinite(t.slope) for t in store.trends("INS-7"))
 
 
-def _cli(*argv):
+def _cli(*argv, answers=None):
     import os
     import subprocess
     import sys
@@ -241,7 +241,38 @@ def _cli(*argv):
     from tests.tcp_fixtures import ROOT
 
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
-    return subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    stdin = {"input": answers} if answers is not None else {"stdin": subprocess.DEVNULL}
+    return subprocess.run(
+        [sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60, **stdin
+    )
+
+
+def test_recal_asks_for_the_operator_laboratory_and_customer(tmp_path):
+    import json
+    from dataclasses import replace
+
+    from stableins.records import CalibrationRecord, parse_entries
+
+    store, rng = tmp_path / "store", np.random.default_rng(4)
+    first = make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00")
+    first.with_entries(parse_entries(["customer=Navy Yard"])).save(tmp_path / "first.json")
+    assert _cli("history", "INS-7", "--store", str(store), "--add", str(tmp_path / "first.json")).returncode == 0
+    other = make_record(TRUTH + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00")
+    run = replace(other.stages[0], likelihood=estimate([p.value for p in other.parameters], other.covariance).likelihood)
+    (tmp_path / "estimate.json").write_text(json.dumps(replace(other, stages=(run,)).to_document()))
+    argv = ["recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"), "--no-file"]
+    # asked at the terminal: the operator, then the laboratory; the customer is the record in force's
+    result = _cli(*argv, "--out", str(tmp_path / "a"), answers="A. Tester\nPTB\n")
+    assert result.returncode == 0, result.stderr
+    assert "Operator (the person performing this recalibration) [Enter: not stated]:" in result.stderr
+    assert "Customer: Navy Yard (the record in force's)" in result.stderr and "DRAFT" not in result.stderr
+    record = CalibrationRecord.load(tmp_path / "a" / "record.json")
+    assert {e.key: e.text() for e in record.calibration.entries} == {"operator": "A. Tester", "laboratory": "PTB", "customer": "Navy Yard"}
+    # Enter states none: the certificate is a DRAFT and says which flag gives it; the flags answer without a prompt
+    result = _cli(*argv, "--out", str(tmp_path / "b"), answers="\n\n")
+    assert result.returncode == 0 and "the certificate is a DRAFT: laboratory, operator not stated" in result.stderr, result.stderr
+    result = _cli(*argv, "--out", str(tmp_path / "c"), "--operator", "B", "--laboratory", "L", answers="")
+    assert result.returncode == 0 and "[Enter: not stated]" not in result.stderr and "DRAFT" not in result.stderr, result.stderr
 
 
 def test_cli_history_and_recal_with_an_estimate(tmp_path):

@@ -73,3 +73,39 @@ def test_flicker_synthesis_has_the_documented_allan_floor():
         d = theta[2 * m :] - 2 * theta[m:-m] + theta[: -2 * m]
         values.append(np.mean(d**2) / (2 * (m / rate) ** 2))
     assert abs(math.sqrt(np.mean(values)) / (0.664 * b) - 1.0) < 0.15
+
+
+def test_same_gyro_turn_within_the_dwells():
+    """Gyro drift, g-sensitivity and torquer errors (earth_rate): the generator's readings and outputs are the simulator's.
+
+    The generator turns the platform from the command by ``exp(−[τ ω_bp^p×])`` and reads the gimbal angles back from
+    its own chain (docs/conventions.md, "The platform during a dwell"); the simulator's slew is made instantaneous.
+    Equal to 1e-10 rad (readings) and 1e-9 g (outputs) over 40 s at 0.5 °/h, positions near gimbal lock held.
+    """
+    from stableins.conventions import AXES, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
+
+    ind = _module()
+    site = SimulatedSite(gimbal_senses=(1, -1, 1, 1), base_attitude=(0.2, 0.001, -0.002))
+    drift = {"x": 0.5 * DEG_PER_HOUR, "y": -0.3 * DEG_PER_HOUR, "z": 0.4 * DEG_PER_HOUR}
+    torquer = {"torquer_scale_x": 2e-3, "torquer_scale_y": -1e-3, "torquer_scale_z": 3e-3}
+    sensitivity = np.array([[1.0, -2.0, 0.5], [0.3, 2.0, -1.0], [-0.7, 0.2, 1.5]]) * 0.05 * DEG_PER_HOUR_PER_G
+    effects = {f"Dg_{a}{b}": float(sensitivity[i, j]) for i, a in enumerate(AXES) for j, b in enumerate(AXES)}
+    truth = Truth.draw(6, site=site, noise=NoiseSettings.quiet(), effects=effects, gyro_drift={**drift, **torquer})
+    truth = truth.with_changes(settling={"gain": 0.0, "slew_rate": 1e9, "frequency": 0.5, "damping": 0.2})
+    readings = [tuple(math.radians(v) for v in p) for p in ind.POSITIONS_DEG][:8]
+    simulated = simulate_dwells(truth, readings, dwell=40.0, settle=1.0, rate=1.0, seed=1)
+    instrument = ind.Instrument(
+        dict(truth.parameters), truth.site.gravity, senses=site.gimbal_senses, base_attitude=site.base_attitude,
+        latitude_deg=math.degrees(truth.site.latitude),
+    )  # fmt: skip
+    gyro = ind.Gyro(tuple(drift[a] for a in AXES), tuple(map(tuple, sensitivity)), tuple(torquer.values()))
+    columns = ind.session(instrument, [("coarse", 1, readings, 1.0, 40.0)], rate=1.0, noise=ind.Noise(), seed=1, gyro=gyro)["coarse"]
+    commanded = np.repeat(np.array(readings), 40, axis=0)
+    for name in ("angle_platform", "angle_inner", "angle_middle"):
+        assert np.max(np.abs(simulated[name] - columns[name])) < 1e-10, name
+    turned = np.stack([columns[n] for n in ("angle_platform", "angle_inner", "angle_middle")], -1) - commanded
+    assert np.max(np.abs(turned)) > 1e-5  # the platform did turn (20″ in 41 s at 0.5 °/h)
+    held = np.abs(turned).max(axis=1).reshape(8, 40).max(axis=1) == 0.0
+    assert held.tolist() == [False, False, True, True, True, False, False, False]  # inner gimbal at 90°: held
+    for axis in "xyz":
+        assert np.max(np.abs(simulated[f"f_{axis}"] - columns[f"f_{axis}"])) < 1e-9 * truth.site.gravity, axis

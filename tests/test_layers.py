@@ -1,11 +1,12 @@
 """Imports run one way: the layer table of docs/architecture.md, enforced over the whole package.
 
 Every module of ``stableins`` is parsed with :mod:`ast` (nothing is imported), and every import
-statement counts: module level, inside functions and under ``if TYPE_CHECKING``.  A module may
-import only from its own layer or a lower one; the layers form no cycle; and the modules
-themselves form no import cycle at module level (the imports executed when a module is first
-imported: lazy imports inside functions do not take part in that cycle check, but they do obey the
-layers).
+statement counts: module level, inside functions and under ``if TYPE_CHECKING`` (issue 29).  A module
+may import only from its own layer or a lower one; the layers form no cycle; the modules themselves
+form no import cycle, counting every import (a lazy import inside a function or one under
+``TYPE_CHECKING`` ties two modules as much as one at the top); the commands never import the CLI
+that dispatches to them; and no driver reads a run's journal (the replay driver is handed the
+recorded operations, :mod:`stableins.procedures.replay`).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ LAYERS: dict[str, int] = {
     # 7 interface
     "stableins.commands": 7,
     "stableins.cli": 7,
+    "stableins.web": 7,
     "stableins.output": 7,
     "stableins.progress": 7,
     "stableins.console": 7,
@@ -238,13 +240,44 @@ def test_no_cycle_between_layers() -> None:
     assert not _cycles(graph)
 
 
-def test_no_import_cycle_between_modules() -> None:
+def module_graph() -> dict[str, set[str]]:
+    """The import graph of the package's modules, every import statement counted (a module importing itself aside)."""
     graph: dict[str, set[str]] = {}
     for module in modules():
-        for target, _, eager in imports(module):
-            if eager and target != module:
+        for target, _, _ in imports(module):
+            if target != module:
                 graph.setdefault(module, set()).add(target)
-    assert not _cycles(graph)
+    return graph
+
+
+def test_no_import_cycle_between_modules() -> None:
+    """No strongly connected component of more than one module, counting imports in functions and under TYPE_CHECKING."""
+    cycles = _cycles(module_graph())
+    assert not cycles, "import cycles (every import counted):\n" + "\n".join(" <-> ".join(cycle) for cycle in cycles)
+
+
+def test_commands_never_import_the_cli() -> None:
+    """The CLI dispatches to the commands; a command runs another as a user would (a process of its own)."""
+    bad = [
+        f"{module}:{line} imports {target}"
+        for module in modules()
+        if module.startswith("stableins.commands")
+        for target, line, _ in imports(module)
+        if target == "stableins.cli"
+    ]
+    assert not bad
+
+
+def test_drivers_never_read_journals() -> None:
+    """A driver talks to a platform (or plays recorded answers back); reading a run's journal is the procedures' job."""
+    bad = [
+        f"{module}:{line} imports {target}"
+        for module in modules()
+        if module.startswith("stableins.drivers")
+        for target, line, _ in imports(module)
+        if target.startswith("stableins.procedures")
+    ]
+    assert not bad
 
 
 def test_the_simulator_imports_no_data_drivers_estimators_or_discovery() -> None:
@@ -355,9 +388,13 @@ def test_the_parser_sees_lazy_and_type_checking_imports(monkeypatch: pytest.Monk
     imports.cache_clear()
     try:
         found = {module: imports(module) for module in fake}
+        graph = module_graph()
     finally:
         imports.cache_clear()
     assert found["stableins.conventions"] == (("stableins.records", 3, False),)
     assert found["stableins.records"] == (("stableins.commands", 2, False),)
     assert found["stableins.commands"] == (("stableins.records", 1, True), ("stableins.records", 2, True))
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert graph["stableins.conventions"] == {"stableins.records"}  # the TYPE_CHECKING import is an edge
+    assert graph["stableins.records"] == {"stableins.commands"}  # and so is the import inside a function
+    assert _cycles(graph) == [["stableins.commands", "stableins.records"]]  # a cycle through a lazy import

@@ -10,7 +10,7 @@ import pytest
 
 from stableins import cli
 from stableins import conventions as cv
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.lever import LeverOptions, LeverSet, estimate_lever
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
@@ -134,7 +134,7 @@ def test_no_slew_is_refused():
 def test_one_axis_of_rotation_does_not_determine_nine_arms():
     truth = Truth.draw(8)
     path = [(0.0, 0.0, math.radians(a)) for a in (90.0, 180.0)]
-    with pytest.raises(InputError, match="do not determine"):
+    with pytest.raises(NotDeterminedError, match="do not determine"):
         estimate_lever(_slews(truth, path, 20.0), truth.site, truth.installed_calibration, options=LeverOptions(arms=LeverSet.FULL))
 
 

@@ -238,6 +238,17 @@ def test_cli_writes_the_record_holds_and_plot(tmp_path, capsys):
     result = json.loads(capsys.readouterr().out)
     assert result["holds"] == 16 and result["model"] == "TWELVE"
     assert out.exists() and (tmp_path / "h.csv").exists() and (tmp_path / "h.png").stat().st_size > 1000
+    # its certificate says what was done: static poses of a triad, not a gimbal self-calibration (issue 28)
+    from certificate_checks import pages_text, technical_of
+
+    from stableins.reporting import write_report
+
+    write_report(tmp_path / "cert.pdf", out)
+    certificate = " ".join("\n".join(pages_text(tmp_path / "cert.pdf")).split())
+    technical = " ".join("\n".join(pages_text(technical_of(tmp_path / "cert.pdf"))).split())
+    assert "Calibration of a tri-axis accelerometer from static poses" in certificate and "calibrated from static poses" in certificate
+    assert "Static poses of an accelerometer triad" in technical and "calibrated from static poses" in technical
+    assert not any(word in text for word in ("gimbaled", "self-calibration", "on the system") for text in (certificate, technical))
 
 
 @pytest.mark.parametrize(

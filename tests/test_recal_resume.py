@@ -33,7 +33,7 @@ def _interrupted_recal(tmp_path, capsys, monkeypatch, store, name):
     out = tmp_path / name
     monkeypatch.setattr("sys.stdin", io.StringIO("y\nn\n"))  # confirm the start, decline the last step
     argv = ["recal", definition, "--unit", "SN27", "--store", store, "--driver", "sim", "--seed", "5", "--out", out,
-            "--set", "site_temperature=22"]  # fmt: skip
+            "--set", "site_temperature=22", "--operator", "A. Tester", "--laboratory", "Lab", "--customer", "Owner"]  # fmt: skip
     assert cli.main(list(map(str, argv))) == 3
     err = capsys.readouterr().err
     match = re.search(r"continue with: (stableins .*)$", err, re.M)

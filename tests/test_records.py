@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.records import CalibrationRecord, file_sha256, parse_entries
 from stableins.site import SiteMetadata
@@ -119,7 +119,7 @@ def test_a_stage_that_determines_nothing_writes_no_record():
     from dataclasses import replace
 
     blind = replace(blind, likelihood=Likelihood(blind.ids, blind.values, np.zeros((3, 3)), np.zeros(3)))
-    with pytest.raises(InputError, match="determine no parameter"):
+    with pytest.raises(NotDeterminedError, match="determine no parameter"):
         coarse.updated(blind)
     with pytest.raises(InputError, match="no likelihood"):
         coarse.updated(make_result(terms=CORE_TERMS[:3], stage="fine"))

@@ -215,7 +215,11 @@ def test_gum_rounding():
 def test_gum_writes_tiny_uncertainties_with_a_power_of_ten():
     # a gyro drift of 3.6e-8 °/h: fixed point to the last digit of U would need eight decimals
     assert rounding.gum(-3.566e-8, 3.25e-8) == rounding.Rounded("\u22123.6×10⁻⁸", "3.2×10⁻⁸", "6.5×10⁻⁸")
-    assert rounding.gum(1e-7, 0.6e-7).u == "0.60×10⁻⁷"  # u keeps two significant digits below U's power
+    assert rounding.gum(1e-7, 0.6e-7).u == "6.0×10⁻⁸"  # u keeps two significant digits, at its own power
+    # one style in a column: every mantissa in [1, 10), each number to U's last digit (GUM 7.2.6), 0 below it
+    assert rounding.gum(0.7e-5, 0.65e-5) == rounding.Rounded("7×10⁻⁶", "6.5×10⁻⁶", "1.3×10⁻⁵")
+    assert rounding.gum(9.96e-6, 0.5e-5) == rounding.Rounded("1.0×10⁻⁵", "5.0×10⁻⁶", "1.0×10⁻⁵")  # 9.96 rounds up a power
+    assert rounding.gum(-4e-8, 1.6e-6).value == "0"
     assert rounding.gum(174.94, 1.25) == rounding.Rounded("174.9", "1.2", "2.5")  # above 1e-3: fixed point as before
 
 

@@ -178,7 +178,7 @@ def test_a_controller_without_navigation_outputs_is_told_what_is_missing(inputs,
         spec = f"tcp://127.0.0.1:{server.port}"
         with pytest.raises(DriverProtocolError, match="without the capability NAV|needs the capability NAV") as refused:
             _run(inputs, tmp_path / "run", spec, unit=None)
-    assert f"protocol version {PROTOCOL_VERSION} with no capabilities" in str(refused.value)
+    assert f"protocol version {PROTOCOL_VERSION} with capabilities METACRC" in str(refused.value)  # NAV is the one missing
     assert not (tmp_path / "run" / "journal.bin").exists()  # refused before anything moved or was journaled
 
 

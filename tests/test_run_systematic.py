@@ -33,7 +33,7 @@ from stableins.procedures.plan import Plan, StaticRecordStep, SystemEstimation
 from stableins.procedures.planning import plan_from_definition
 from stableins.records import CalibrationRecord
 from stableins.runs import RunSetup, start_run
-from stableins.simulator.indexing import indexed_record_chunks
+from stableins.simulator.system import indexed_record_chunks
 from stableins.status import Status
 from tests import certificate_checks
 from tests.tcp_fixtures import ROOT

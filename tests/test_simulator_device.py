@@ -244,3 +244,15 @@ def test_gyro_drift_and_g_sensitivity_turn_the_platform_at_minus_the_gyro_error(
     expected = -(np.array([drift[a] for a in "xyz"]) + g_matrix @ f_p) * (d["time"][-1] - d["time"][1])
     np.testing.assert_allclose(turned, expected, rtol=1e-4, atol=1e-12)
     np.testing.assert_allclose(expected, cv.platform_drift_rate([drift[a] for a in "xyz"], g_matrix, f_p) * (d["time"][-1] - d["time"][1]))
+
+
+def test_the_wait_for_a_slew_lets_time_pass_at_one_sample_per_second():
+    """At 1 Hz a half-second poll records no sample; the wait polls one sample period and the platform arrives."""
+    from stableins.procedures.iteration import wait_until_arrived
+
+    platform = SimulatedPlatform(quiet_truth(seed=3), rate=1.0, seed=3)
+    command = (0.0, float(np.radians(45.0)), 0.0)
+    platform.command(command)
+    waited = wait_until_arrived(platform, command, tolerance=float(np.radians(1.0 / 3600.0)))
+    assert 0.0 < waited < 300.0
+    assert np.max(np.abs(platform.read_angles() - np.asarray(command))) <= np.radians(1.0 / 3600.0)

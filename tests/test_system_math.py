@@ -366,3 +366,19 @@ def test_second_difference_sums_equal_numpy_and_measure_white_noise():
     # E[(Δ²n)²] = 6σ²: the estimate's relative σ is about √(35/18/N) ≈ 0.4 % here
     np.testing.assert_allclose(np.sqrt(out / 149_998 / 6.0), sigma, rtol=0.015)
     assert second_difference_sums(*f, 2, out) == 0
+
+
+@pytest.mark.parametrize("complex_modes", [True, False])
+def test_modal_recursion_is_lfilter_to_the_last_bit(complex_modes: bool) -> None:
+    """The loop's modal recursion (written out so that scipy.signal is not imported) computes lfilter's numbers exactly."""
+    from scipy.signal import lfilter
+
+    from stableins.estimators.system.loop import modal_recursion
+
+    rng = np.random.default_rng(30)
+    lam = 0.999 * np.exp(rng.normal(0.0, 0.01, 7) + (1j * rng.normal(0.0, 0.1, 7) if complex_modes else 0.0))
+    drive = rng.normal(size=(500, 7)) + (1j * rng.normal(size=(500, 7)) if complex_modes else 0.0)
+    expected = np.stack([lfilter([1.0], [1.0, -lam[i]], drive[:, i]) for i in range(7)], axis=1)
+    found = modal_recursion(lam, drive)
+    assert found.dtype == expected.dtype
+    assert np.array_equal(found, expected)

@@ -115,3 +115,16 @@ def test_a_measured_prior_narrows_the_amplitudes():
     assert "prior noise model" in combined.noise_model.provenance
     assert np.abs(normalized).max() < 4.0
     assert combined.noise_model.values("bias_instability")[0] / MICRO_G == pytest.approx(2.0, rel=0.6)
+
+
+def test_coloured_note_says_a_slow_bias_drift_is_not_told_apart_only_when_slow_noise_is_used():
+    """Issue 25: one day cannot tell a 10 µg/day drift from slow noise (docs/system-calibration.md §8); the note says so."""
+    from stableins.estimators.system.coloured import DRIFT_CAVEAT, coloured_note
+    from stableins.estimators.system.whittle import ColouredNoiseFit
+
+    units = np.full((2, 3, 17, 17), 1e-12)
+    common = {"lower": np.zeros(2), "upper": np.array([1e-15, 3e-12]), "alpha": 0.05, "confidence": 0.95}
+    detected = ColouredNoiseFit(np.full((2, 3), 1e-12), np.array([1e-12, 1e-12]), statistic=60.0, p_value=1e-12, **common)
+    white = ColouredNoiseFit(np.zeros((2, 3)), np.zeros(2), statistic=0.5, p_value=0.6, **common)
+    assert DRIFT_CAVEAT in coloured_note(detected, units, 1e-12, 9.8)
+    assert DRIFT_CAVEAT not in coloured_note(white, units, 1e-12, 9.8)

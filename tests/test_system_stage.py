@@ -12,7 +12,7 @@ import pytest
 from system_synthetic import paper_residuals, record
 
 from stableins.data.chunks import ArraySource
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
@@ -192,14 +192,14 @@ def test_short_record_fits_only_what_is_observable():
     # 8 h resolve some combinations of the harmonics but none that separates a parameter: nothing is estimated
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(InputError, match="lack one sidereal day") as info:
+        with pytest.raises(NotDeterminedError, match="lack one sidereal day") as info:
             run(cols8, meta, installed)
     assert "no record was written" in str(info.value) and "8.00 h" in str(info.value)
     cols9, meta = record(true, installed, rate=1.0, duration=9 * 3600.0, seed=3)
     # 9 h: the named combinations are determined, but by exactly as many resolved combinations (ν = 0): not certifiable
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(InputError, match="ν = 0"):
+        with pytest.raises(NotDeterminedError, match="ν = 0"):
             run(cols9, meta, installed)
     cols, meta = record(true, installed, rate=1.0, duration=12 * 3600.0, seed=3)
     with pytest.warns(UserWarning, match="not observable"):
@@ -387,3 +387,30 @@ def test_system_options_are_validated_at_construction() -> None:
         with pytest.raises(InputError) as bad:
             SystemOptions(**{name: value})
         assert bad.value.field == name
+
+
+def _rate_checks(ratio: float, options: SystemOptions | None = None):
+    """Static checks fed one day of a platform-axis angle turning at ``ratio`` × the Earth rate (nothing else moves)."""
+    from stableins.conventions import EARTH_RATE
+    from stableins.estimators.system.checks import StaticChecks
+
+    checks = StaticChecks(options or SystemOptions(), 1.0, "r.h5")
+    t = np.arange(0.0, 86164.0, 60.0)
+    zero = np.zeros_like(t)
+    checks.time(None, (float(t[0]), float(t[-1])), 0, 0)
+    checks.slow(t, np.mod(ratio * EARTH_RATE * t, 2 * np.pi), zero, zero, zero, ve=zero)
+    checks.finish(t.size, [])
+    return checks
+
+
+def test_platform_rate_check_passes_a_realistic_z_gyro_drift_and_stops_a_caged_or_reversed_platform():
+    """A z_p gyro drift of 0.05 °/h (Cai et al., before calibration) moves the rate by 3.3e-3: measured, not refused (issue 25)."""
+    from stableins.conventions import DEG_PER_HOUR, EARTH_RATE
+
+    ratio = 1.0 + 0.05 * DEG_PER_HOUR / EARTH_RATE
+    assert _rate_checks(ratio).rate_ratio == pytest.approx(ratio, abs=1e-9)
+    with pytest.raises(InputError, match="Earth rate"):  # the old 2e-3 tolerance refused it
+        _rate_checks(ratio, SystemOptions(rate_tolerance=2e-3))
+    for wrong in (-1.0, 0.0, 1.1):  # wrong sense s1, a platform caged to the base, a turning base
+        with pytest.raises(InputError, match="Earth rate"):
+            _rate_checks(wrong)

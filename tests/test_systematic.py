@@ -31,7 +31,7 @@ from stableins.data.chunks import ArraySource
 from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import GIMBAL_IDS, ErrorModel
 from stableins.errors import InputError
-from stableins.estimators.drift.holds import rotation_vector
+from stableins.estimators.drift.holds import small_angle_vector
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.systematic import SystematicOptions, systematic_calibration
 from stableins.estimators.systematic.kalman import batch_least_squares, rts_smooth, run_filter, steps_of
@@ -194,8 +194,8 @@ def test_indexed_drift_composes_rotations():
     earth = earth_rotation(motion.earth_axis, time[-1:])[0]
     x_world = motion.commanded(time[-1:])[0].T @ dcm[-1] @ (motion.nav_to_platform_0 @ earth).T
     first_order = rotation_about(u.sum(axis=0))
-    assert np.linalg.norm(rotation_vector(first_order @ exact.T)) > 1e-6  # what a sum of drift angles would leave
-    assert np.linalg.norm(rotation_vector(x_world @ exact.T)) < 1e-8  # third order: θ³ ~ 1e-6 · 1e-2
+    assert np.linalg.norm(small_angle_vector(first_order @ exact.T)) > 1e-6  # what a sum of drift angles would leave
+    assert np.linalg.norm(small_angle_vector(x_world @ exact.T)) < 1e-8  # third order: θ³ ~ 1e-6 · 1e-2
 
 
 def test_g_sensitive_drift_uses_the_drifted_specific_force():
@@ -229,10 +229,10 @@ def test_g_sensitive_drift_uses_the_drifted_specific_force():
         k4 = rate(t + h, x + h * k3)
         x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     x_world = dcm[-1] @ (start @ earth_rotation(motion.earth_axis, time[-1:])[0]).T
-    swing = np.linalg.norm(rotation_vector(x_world))
+    swing = np.linalg.norm(small_angle_vector(x_world))
     assert swing > 1e-3  # θ moved (the effect scales with it)
     # measured 1.1e-6 of the swing (the trapezoid and Bortz's third order); f^p of the drift-free orientation: 1.9e-3
-    assert np.linalg.norm(rotation_vector(x_world @ x.T)) < 1e-5 * swing
+    assert np.linalg.norm(small_angle_vector(x_world @ x.T)) < 1e-5 * swing
 
 
 # ----------------------------------------------------------------------------- filter, smoother, batch

@@ -67,7 +67,7 @@ def test_disconnect_in_the_middle_of_a_dwell(server):
 
 
 def test_idempotent_requests_are_resent_after_a_disconnect(server):
-    with FaultyRelay(server.port, fault=("cut", len(greeting(("NAV",)) + "\n") + 3)) as relay:  # serve-sim states NAV
+    with FaultyRelay(server.port, fault=("cut", len(greeting(("NAV", "METACRC")) + "\n") + 3)) as relay:  # serve-sim's greeting
         driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.3, 0.0, 0.0))  # its reply is cut; sent again on a new connection
         driver.acquire(8.0)  # the slew (17° at 10°/s, 2.7 s) and its settling transient (~1e-5 rad at 4 s)
@@ -77,7 +77,7 @@ def test_idempotent_requests_are_resent_after_a_disconnect(server):
 
 
 def test_silence_times_out_with_a_clear_error(server):
-    with FaultyRelay(server.port, fault=("stall", 25)) as relay:
+    with FaultyRelay(server.port, fault=("stall", len(greeting(("NAV", "METACRC")) + "\n"))) as relay:  # after the greeting
         driver = TcpDriver("127.0.0.1", relay.port, timeout=0.3, reconnect_delay=0.05)
         driver.command((0.0, 0.0, 0.0))  # times out once, reconnects, answered on the clean connection
         assert driver.reconnects == 1 and relay.connections == 2  # one timeout, one new connection: no waiting it out
@@ -93,10 +93,19 @@ def test_stall_during_acquisition_is_an_interruption_not_a_hang(server):
         driver.close()
 
 
-@pytest.mark.parametrize("at", [40, 900, 2500])  # in META's serial number key, in the first ACQ reply, in a later one
+def _damping_key_offset() -> int:
+    """Where the served stream carries a free-form key of the META reply's ``damping`` table (serve-sim, seed 11, NET-1)."""
+    import json
+
+    text = json.dumps(simulated_platform(11, "NET-1", 20.0).metadata.to_dict(), allow_nan=False)
+    return len(greeting(("NAV", "METACRC")) + "\n") + len("1 OK ") + text.index("horizontal_gain") + 3
+
+
+# in META's serial number key, inside a free-form key of its damping table, in the first ACQ reply, in a later one
+@pytest.mark.parametrize("at", [48, _damping_key_offset(), 900, 2500])
 def test_garbage_in_a_reply_is_detected(server, at):
-    """A byte replaced in a reply is refused.  (The META reply, about 700 bytes with the dwell mode, has no CRC: a byte
-    changed inside a free-form key of its ``damping`` table would pass; the ACQ replies carry their CRC-32.)"""
+    """A byte replaced in a reply is refused: the ACQ replies carry their CRC-32, and so does the META reply of a platform
+    that states METACRC (a byte changed inside a free-form key of its ``damping`` table is still valid JSON)."""
     with FaultyRelay(server.port, fault=("corrupt", at)) as relay:
         driver = TcpDriver("127.0.0.1", relay.port, timeout=30, reconnect_delay=0.05)
         driver.command((0.0, 0.5, 0.0))
@@ -106,6 +115,38 @@ def test_garbage_in_a_reply_is_detected(server, at):
         # the connection was dropped; the next request opens a clean one
         assert len(driver.acquire(0.5)) == 10
         driver.close()
+
+
+def test_meta_crc_is_asked_only_of_a_platform_that_states_it():
+    """A version-2 platform without METACRC gets the plain ``META`` and is read as before (docs/protocol.md)."""
+    import json
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    metadata = simulated_platform(3, "OLD-2", 20.0).metadata
+    asked = []
+
+    def answer():
+        connection, _ = listener.accept()
+        stream = connection.makefile("rw", newline="\n")
+        stream.write(greeting(("NAV",)) + "\n")
+        stream.flush()
+        for line in stream:
+            request_id, *words = line.split()
+            asked.append(" ".join(words))
+            stream.write(f"{request_id} OK {json.dumps(metadata.to_dict())}\n" if words[0] == "META" else f"{request_id} OK\n")
+            stream.flush()
+            if words[0] == "BYE":
+                break
+        connection.close()
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    driver = TcpDriver("127.0.0.1", port, timeout=5, reconnect_attempts=1)
+    assert driver.metadata == metadata and asked[0] == "META"
+    driver.close()
+    thread.join(timeout=5)
+    listener.close()
 
 
 def test_a_server_that_is_not_a_platform():

@@ -45,7 +45,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the paper's 15-parameter coarse stage (ignores K2; biased for instruments with quadratic terms)",
     )
-    parser.add_argument("--report", type=output_file, metavar="FILE", help="also write the text report to FILE")
+    parser.add_argument(
+        "--report", type=output_file, metavar="FILE", help="also write the full text report (every stage, noise model, gyro stage) to FILE"
+    )
+    parser.add_argument(
+        "--verbose", action="store_true", help="print the full text report (by default: the record's summary, about a screen)"
+    )
     from stableins.commands.noise import add_noise_options
 
     add_noise_options(parser)
@@ -108,14 +113,13 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from stableins.commands.noise import noise_from_options
-    from stableins.data.device import load_device
     from stableins.discovery.carry import carry_effects
     from stableins.discovery.library import calibration_terms
     from stableins.errors import InputError
     from stableins.estimators.device import calibrate_device
-    from stableins.estimators.dwell import dwells_from_columns
     from stableins.output import emit, note
     from stableins.procedures.definition import load_procedure
+    from stableins.progress import Progress
     from stableins.records import CalibrationRecord, parse_entries
 
     if not 0.0 < args.alpha < 1.0:
@@ -126,13 +130,11 @@ def run(args: argparse.Namespace) -> int:
     effect_ids = _effect_ids(args, coarse_procedure, fine_procedure)
     gyro_added = [e for e in effect_ids if e in GYRO_IDS]
     effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
-    datasets = [load_device(path) for path in args.data]
-    _same_site(datasets)
-    summaries = []
-    for dataset in datasets:
-        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
+    # the steps a person waits for: reading each file, its dwells, each fit of the calibration, the gyro stage
+    bar = Progress(total=2 * len(args.data) + 1 + len(effects) + 1, label="calibrate device")
+    datasets, summaries = _read(args.data, layouts, bar)
+    bar.describe("calibrate device: the coarse and fine fits" + (f" (+ {len(effects)} added effects, one at a time)" if effects else ""))
     site = datasets[0].metadata
-    source = ", ".join(str(p) for p in args.data)
     noise, _ = noise_from_options(args, summaries)  # ranges checked when parsed (stableins.commands.arguments)
     calibrate = functools.partial(
         calibrate_device,
@@ -142,18 +144,24 @@ def run(args: argparse.Namespace) -> int:
         allow_missing=args.allow_missing,
         noise=noise,
         coarse_nonlinear=not args.coarse_linear,
-        source=source,
+        source=", ".join(str(p) for p in args.data),
     )
     history = None
     if effects:
         carried = carry_effects(
-            lambda extra: calibrate(extra_terms=extra), effects, alpha=args.alpha, keep_unsupported=args.keep_unsupported
+            lambda extra: calibrate(extra_terms=extra),
+            effects,
+            alpha=args.alpha,
+            keep_unsupported=args.keep_unsupported,
+            progress=lambda step: bar.update(),
         )
         calibration, history = carried.calibration, carried.history
         for step in carried.left_out:
             note(f"stableins: warning: {step.added[0][0]} {step.decision}: {step.reason}")
     else:
         calibration = calibrate()
+        bar.update()
+    bar.describe("calibrate device: the gyro stage")
     for fit in [f for f in (*calibration.passes, calibration.fine, calibration.fused) if f is not None]:
         for line in fit.notes:
             if line.startswith("warning:"):
@@ -167,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
         entries=parse_entries(args.set),
     )
     record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added)
+    bar.update()
+    bar.close()
     if history is not None:
         record = replace(record, discovery=history)  # the record's report below shows it
     text = calibration.report() + _gyro_text(gyro) + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
@@ -186,9 +196,38 @@ def run(args: argparse.Namespace) -> int:
         "gyro": None if gyro is None else gyro_document(gyro),
         "next": [line.strip() for line in steps if line.startswith("  ")],
     }
-    emit(args, result, text)
+    emit(args, result, text if args.verbose else _summary_text(record, calibration.final, args))
     _last_lines(steps)
     return 0
+
+
+def _summary_text(record, fit, args: argparse.Namespace) -> str:
+    """Return what ``calibrate device`` prints by default: the record's summary, its fit's χ²_ν and where the full report is."""
+    from stableins.records.display import summary
+
+    lines = summary(record)
+    lines.insert(2, f"{fit.stage} fit: χ²_ν = {fit.chi2_red:.3f} (ν = {fit.dof})")
+    where = f"in {args.report}" if args.report is not None else "with --verbose (or --report FILE)"
+    return "\n".join([*lines, f"the full report (every stage, the noise model, the gyro stage, the discovery history): {where}"])
+
+
+def _read(paths: list[Path], layouts, bar) -> tuple[list, list]:
+    """Return the device datasets of ``paths`` (one unit, one site) and their dwells, telling ``bar`` each step."""
+    from stableins.data.device import load_device
+    from stableins.estimators.dwell import dwells_from_columns
+
+    datasets = []
+    for path in paths:
+        bar.describe(f"calibrate device: reading {path}")
+        datasets.append(load_device(path))
+        bar.update()
+    _same_site(datasets)
+    summaries = []
+    for dataset in datasets:
+        bar.describe(f"calibrate device: the dwells of {dataset.path}")
+        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
+        bar.update()
+    return datasets, summaries
 
 
 def _last_lines(steps: list[str]) -> None:
@@ -226,6 +265,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     else moves (docs/device-calibration.md, "Gyro drift and g-sensitivity").
     """
     from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
+    from stableins.errors import InputError
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets
     from stableins.output import note
 
@@ -235,6 +275,8 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     values = record.values()
     try:
         fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms)
+    except InputError:
+        raise  # bad input is refused, not skipped
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None

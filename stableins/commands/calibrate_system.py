@@ -160,8 +160,6 @@ def run(args: Any) -> int:
     from stableins.commands.noise import system_noise_prior
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
-    from stableins.estimators.system.sensitivity import with_sensitivities
-    from stableins.estimators.system.stage import run_system_stage
     from stableins.output import emit, note
     from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
 
@@ -176,12 +174,7 @@ def run(args: Any) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
-        outcome = run_system_stage(
-            record, record.metadata, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
-        )
-    outcome = with_sensitivities(
-        outcome, record, values, covariance, options, compensation_terms=record_terms(prior.ids), noise_model=noise
-    )
+        outcome = _stage(record, values, covariance, options, terms=record_terms(prior.ids), noise=noise)
     for w in caught:
         note(f"stableins: warning: {flag_text(str(w.message))}")
     start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
@@ -211,9 +204,30 @@ def run(args: Any) -> int:
     certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
     command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
     data["next"] = [command]
-    note(f"next: the calibration certificate of {args.out}:\n  {command}")
     emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
+    import sys
+
+    sys.stdout.flush()  # the next step is the last line, not scrolled away above the report
+    note(f"next: the calibration certificate of {args.out}:\n  {command}")
     return 0
+
+
+def _stage(record: Any, values: Any, covariance: Any, options: Any, *, terms: Any, noise: Any) -> Any:
+    """Return the system stage's outcome on ``record`` with its Type B sensitivities, a progress bar over the one pass.
+
+    The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) is made once: the stage and every
+    re-run of the sensitivities start from its sums (issue 30).
+    """
+    from stableins.estimators.system.sensitivity import with_sensitivities
+    from stableins.estimators.system.stage import record_sums, run_system_stage
+    from stableins.progress import CountedSource, Progress
+
+    with Progress(total=record.n_samples, label="system stage: one pass over the record") as bar:
+        sums = record_sums(CountedSource(record, bar), record.metadata, values, options, compensation_terms=terms)
+    outcome = run_system_stage(
+        record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums
+    )
+    return with_sensitivities(outcome, record, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums)
 
 
 def _options(args: Any) -> Any:

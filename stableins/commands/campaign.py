@@ -56,13 +56,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_campaign(args.config)
     start = time.perf_counter()
     with Progress(total=len(config.tasks()), label="tasks") as bar:
-        last = [0]
-
-        def progress(done: int, total: int) -> None:
-            bar.update(done - last[0])
-            last[0] = done
-
-        ran = run_campaign(config, args.out, scheduler=args.scheduler, workers=args.workers, progress=progress)
+        ran = run_campaign(config, args.out, scheduler=args.scheduler, workers=args.workers, progress=bar.set)
     elapsed = time.perf_counter() - start
     outputs = write_outputs(config, args.out, plot=not args.no_plot)
     head = (

@@ -102,7 +102,8 @@ def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
     if _head(Path(path)).startswith(b"hold,start,end"):
         return _holds(path)
 
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.data.format_tag import read_format_tag
+    from stableins.data.validation import FORMAT_TAGS
     from stableins.errors import InputError
 
     tag = read_format_tag(path)

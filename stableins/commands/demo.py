@@ -67,23 +67,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
-    """Run one CLI command as a user would type it; its standard output goes to ``stdout`` if given, else to stderr.
+    """Run one CLI command as a user would type it, in a process of its own (``python -m stableins.cli ARGV``).
 
-    The demo's own standard output is its result alone (the final table, or with ``--json`` one JSON document): the
-    steps' reports are progress, on stderr like every command's messages.
+    Its standard output goes to ``stdout`` if given, else to stderr: the demo's own standard output is its result alone
+    (the final table, or with ``--json`` one JSON document), and the steps' reports are progress, on stderr like every
+    command's messages.
     """
-    import contextlib
+    import subprocess
     import sys
 
-    from stableins import cli
-
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
-    with contextlib.ExitStack() as stack:
-        if stdout is not None:
-            stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(stdout, "w", encoding="utf-8"))))
-        else:
-            stack.enter_context(contextlib.redirect_stdout(sys.stderr))
-        status = cli.main(argv)
+    sys.stdout.flush()
+    if stdout is None:
+        result = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=subprocess.PIPE, text=True, check=False)
+        sys.stderr.write(result.stdout)
+        status = result.returncode
+    else:
+        with open(stdout, "w", encoding="utf-8") as sink:
+            status = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=sink, check=False).returncode
     if status != 0:
         raise SystemExit(status)
 

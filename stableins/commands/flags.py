@@ -7,7 +7,7 @@ so the library knows nothing of the CLI and the user reads the flag they typed.
 
 from __future__ import annotations
 
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 
 #: Library parameter (``InputError.field``) → the flag that sets it.
 FLAGS = {
@@ -22,7 +22,7 @@ FLAGS = {
 }
 
 
-def as_flag(error: InputError) -> InputError:
+def as_flag(error: InputError | NotDeterminedError) -> InputError | NotDeterminedError:
     """``error`` naming the command-line flag of the parameter it names (unchanged when it names no parameter)."""
     flag = FLAGS.get(error.field or "")
     if flag is not None:

@@ -8,9 +8,11 @@
     stableins history --store cal/ --fleet                                # every unit: in force, age, due, drifting
     stableins history --store cal/ --fleet --due --drifted               # only the units that need attention
     stableins history --store cal/ --verify                               # every filed record against its SHA-256
+    stableins history --migrate cal/ postgresql://lab@db/history          # copy a store into another (SQLite <-> PostgreSQL)
 
-The store is a SQLite index beside the records (:mod:`stableins.history_store`); every record read is checked
-against the SHA-256 the index holds.
+The store is a SQLite index beside the records, or a PostgreSQL database shared by several stations
+(``--store postgresql://...``; :mod:`stableins.history_store`); every record read is checked against the SHA-256 the
+index holds.
 """
 
 from __future__ import annotations
@@ -33,7 +35,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from stableins.commands.arguments import number, output_file
 
     parser.add_argument("serial", nargs="?", metavar="SERIAL", help="unit serial number (omit with --fleet or --verify)")
-    parser.add_argument("--store", metavar="DIR", help="history store (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)")
+    parser.add_argument(
+        "--store",
+        metavar="DIR",
+        help="history store: a directory or a postgresql:// URL (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)",
+    )
     parser.add_argument("--add", nargs="+", default=[], metavar="RECORD", help="file these calibration records first")
     parser.add_argument("--at", metavar="DATE", help="which record was in force at this ISO 8601 date (default: now)")
     parser.add_argument(
@@ -50,12 +56,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--verify", action="store_true", help="check the index and every filed record against its SHA-256 (exit 2 if any fails)"
     )
+    parser.add_argument(
+        "--migrate",
+        nargs=2,
+        metavar=("SRC", "DST"),
+        help="copy every record of store SRC into store DST (directories or postgresql:// URLs), each verified by its SHA-256",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stableins history``: file, list, verify or summarize calibration records; return the exit code."""
     from stableins.errors import InputError
 
+    if args.migrate:
+        if args.serial or args.add or args.fleet or args.verify or args.store or args.plot:
+            raise InputError("--migrate SRC DST copies a whole store", field="--migrate", expected="no SERIAL, --store or other action")
+        return _migrate(args)
     if (args.due or args.drifted) and not args.fleet:
         raise InputError("--due and --drifted select units of the fleet", field="--due", expected="--fleet as well")
     if args.fleet or (args.verify and not args.serial):
@@ -71,6 +87,26 @@ def run(args: argparse.Namespace) -> int:
     return _unit(args)
 
 
+def _migrate(args: argparse.Namespace) -> int:
+    from stableins.errors import InputError
+    from stableins.history_store import HistoryStore
+    from stableins.history_store.transfer import transfer
+    from stableins.output import emit
+
+    source, target = HistoryStore(args.migrate[0]), HistoryStore(args.migrate[1])
+    done = transfer(source, target)
+    problems = target.verify()
+    text = (
+        f"migrated {source.location} -> {target.location}: {done.units} unit(s), {done.records} record(s) read verified, "
+        f"{done.filed} filed ({done.records - done.filed} already there); target verified: {len(problems)} problem(s)"
+    )
+    emit(args, {"source": source.location, "target": target.location, "units": done.units, "records": done.records,
+                "filed": done.filed, "problems": problems}, text)  # fmt: skip
+    if problems:
+        raise InputError(f"{len(problems)} problem(s) in the migrated store; the first: {problems[0]}", path=target.location)
+    return 0
+
+
 def _verify(args: argparse.Namespace) -> int:
     from stableins.errors import InputError
     from stableins.history_store import HistoryStore
@@ -78,9 +114,9 @@ def _verify(args: argparse.Namespace) -> int:
 
     store = HistoryStore(args.store)
     problems = store.verify(args.serial)
-    emit(args, {"store": str(store.root), "problems": problems}, "\n".join(problems) or f"{store.root}: every filed record verified")
+    emit(args, {"store": store.location, "problems": problems}, "\n".join(problems) or f"{store.location}: every filed record verified")
     if problems:
-        raise InputError(f"{len(problems)} problem(s) in the history store; the first: {problems[0]}", path=store.root)
+        raise InputError(f"{len(problems)} problem(s) in the history store; the first: {problems[0]}", path=store.location)
     return 0
 
 
@@ -96,7 +132,8 @@ def _fleet(args: argparse.Namespace) -> int:
     units = store.fleet(date, timedelta(days=args.max_age))
     shown = [u for u in units if (not args.due or u.due) and (not args.drifted or u.drifting)]
     lines = [
-        f"fleet of {store.root}: {len(units)} unit(s), {sum(u.due for u in units)} due, {sum(bool(u.drifting) for u in units)} drifting",
+        f"fleet of {store.location}: {len(units)} unit(s), {sum(u.due for u in units)} due, "
+        f"{sum(bool(u.drifting) for u in units)} drifting",
         "",
     ]
     lines.append(f"{'unit':<16} {'records':>7} {'in force since':<26} {'age [d]':>8} {'due':<4} drifting (z = drift/σ per year)")
@@ -106,7 +143,7 @@ def _fleet(args: argparse.Namespace) -> int:
         drift = ", ".join(f"{p} {z:+.1f}" for p, z in u.drifting) or "-"
         lines.append(f"{u.serial:<16} {u.records:>7} {since:<26} {age:>8} {'yes' if u.due else 'no':<4} {drift}")
     data = {
-        "store": str(store.root),
+        "store": store.location,
         "max_age_days": args.max_age,
         "units": [
             {
@@ -142,8 +179,8 @@ def _unit(args: argparse.Namespace) -> int:
     _file_records(args, store)
     entries = store.entries(args.serial)
     if not entries:
-        raise InputError(f"no calibration records for unit {args.serial!r}", path=store.root, expected="records filed with --add")
-    lines = [f"calibration history of {args.serial} ({store.root})", ""]
+        raise InputError(f"no calibration records for unit {args.serial!r}", path=store.location, expected="records filed with --add")
+    lines = [f"calibration history of {args.serial} ({store.location})", ""]
     lines.append(f"{'valid from':<26} {'stages':<22} {'procedure':<20} file")
     for e in entries:
         lines.append(f"{e.valid_from:<26} {','.join(e.stages):<22} {e.procedure:<20} {e.file}")

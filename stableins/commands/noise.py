@@ -371,7 +371,8 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
     One static (system-level) record gives its Allan points fitted by :func:`~stableins.estimators.allan.fit_allan`;
     device-level files give the noise model of their usable dwells.
     """
-    from stableins.data.validation import FORMAT_TAGS, read_format_tag
+    from stableins.data.format_tag import read_format_tag
+    from stableins.data.validation import FORMAT_TAGS
     from stableins.errors import InputError
     from stableins.estimators.allan import allan_points, fit_allan, points_for_model
     from stableins.noise import NoiseSource
@@ -381,10 +382,12 @@ def _measure(args: argparse.Namespace) -> tuple[str, Any, Any]:
         raise InputError("give one static (system-level) record alone, or device-level files", path=system[0], expected="DATA of one kind")
     if system:
         from stableins.data.system import open_system_record
+        from stableins.progress import CountedSource, Progress
 
         opened = open_system_record(system[0])
         opened.validate(allow_gaps=True)  # what check runs (time order, rate, derived datasets); a gap ends an Allan segment
-        points, described = static_record_points(opened)
+        with Progress(total=2 * opened.n_samples, label="Allan deviation: two passes over the record") as bar:
+            points, described = static_record_points(CountedSource(opened, bar))
         model, points = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=described, confidence=args.confidence)
         return opened.metadata.serial_number, model, points
     from stableins.data.device import load_device

@@ -35,6 +35,15 @@ if TYPE_CHECKING:
     from stableins.history import Comparison
 
 
+#: Who the certificate names (ISO/IEC 17025 7.8.2.1), as recal asks for them: the operator every time, the laboratory
+#: and the customer when the record in force names none.
+IDENTIFICATION = {
+    "operator": "Operator (the person performing this recalibration)",
+    "laboratory": "Laboratory (the calibration laboratory issuing the certificate)",
+    "customer": "Customer (for whom the unit is calibrated)",
+}
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins recal`` to ``parser``."""
     from stableins.commands import run as run_command
@@ -42,6 +51,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     run_command.configure(parser)
     parser.add_argument("--estimate", metavar="RECORD", help="a record of new data whose own stages update the record in force")
     parser.add_argument("--no-file", action="store_true", help="do not file the new record in the history store")
+    for key, text in IDENTIFICATION.items():
+        parser.add_argument(
+            f"--{key}", metavar="NAME", help=f"{text.lower()} (asked when not given; without all three the certificate is a DRAFT)"
+        )
     for action in parser._actions:
         if action.dest == "store":
             action.help = "history store with the unit's record in force (default $STABLEINS_HISTORY or ~/.local/share/stableins/history)"
@@ -95,18 +108,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"the record in force is of unit {prior.serial_number!r}", path=prior_path, field="serial_number", expected=repr(args.unit)
         )
+    if not args.resume:  # a resumed recalibration has them in its journal's start record
+        args.set = [*args.set, *identification(args, prior)]
     if args.estimate:
         if args.procedure or args.resume:
             raise InputError("give either --estimate or a PROCEDURE to run", field="--estimate")
         out = Path(args.out) if args.out else Path(args.estimate).parent
-        record = apply_estimate(prior, prior_path, Path(args.estimate))
-        record_path = record.save(out / "record.json")
-        from stableins.reporting import write_report
-
-        summary = write_report(out / "report.pdf", record_path, previous=prior_path)
-        note("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
-        if summary.missing:
-            note(f"the certificate is a DRAFT: {', '.join(summary.missing)} not stated (give --set KEY=NAME for each)")
+        record, record_path = _estimate_record(args, prior, prior_path, out)
     else:
         args.prior = str(prior_path)
         args.new_calibration = True  # a recalibration starts a new calibration from the record in force
@@ -146,6 +154,55 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _estimate_record(args: argparse.Namespace, prior, prior_path: Path, out: Path):
+    """Write ``OUT/record.json`` (the record in force updated by ``--estimate``, with who) and its certificate; return both."""
+    from stableins.commands.run import parse_settings
+    from stableins.output import note
+    from stableins.records import parse_entries
+    from stableins.reporting import write_report
+
+    given = parse_settings(args.set)
+    record = apply_estimate(prior, prior_path, Path(args.estimate))
+    record = record.with_entries(parse_entries(f"{k}={given[k]}" for k in IDENTIFICATION if given.get(k)))
+    record_path = record.save(out / "record.json")
+    summary = write_report(out / "report.pdf", record_path, previous=prior_path)
+    note("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
+    if summary.missing:
+        note(f"the certificate is a DRAFT: {', '.join(summary.missing)} not stated (give --{' NAME --'.join(summary.missing)} NAME)")
+    return record, record_path
+
+
+def identification(args: argparse.Namespace, prior) -> list[str]:
+    """Return ``KEY=NAME`` settings of the operator, laboratory and customer, asked before the platform moves.
+
+    Each is the flag's (``--operator`` ...), else ``--set KEY=NAME``'s, else (laboratory, customer) the record in force's,
+    else asked as the procedure asks for the site temperature (:meth:`stableins.console.Console.name`; not asked with
+    ``--yes``).  One not stated leaves the certificate a DRAFT, as ``stableins report`` does.
+    """
+    from stableins.commands.run import parse_settings
+    from stableins.console import Console
+    from stableins.reporting.context import entry_text
+
+    given = parse_settings(args.set)
+    console = Console(yes=args.yes, values={k: v for k, v in given.items() if k in IDENTIFICATION}, quiet=args.quiet)
+    out = []
+    for key, prompt in IDENTIFICATION.items():
+        flag = getattr(args, key, None)
+        carried = entry_text(prior, key) if key != "operator" and key not in given else None
+        if flag:
+            name = flag.strip()
+        elif carried:
+            name = carried
+            console.say(f"  {prompt.split(' (')[0]}: {carried} (the record in force's)")
+        elif key in given:
+            continue  # already among --set
+        else:
+            name = console.name(key, prompt)
+        if name:
+            out.append(f"{key}={name}")
+    return out
+
+
 def resume_arguments(args: argparse.Namespace) -> argparse.Namespace:
     """Return the arguments of ``run --resume RUNDIR`` as ``recal --resume RUNDIR``'s (a recalibration's run resumes as one)."""
     values = vars(args) | {"estimate": None, "no_file": False}
@@ -158,9 +215,8 @@ def _resumed_prior(args: argparse.Namespace) -> Path:
     The record in force is the run's copy (``RUNDIR/prior.json``, whose SHA-256 the resume checks against the journal).
     """
     from stableins.commands.run import recal_settings
-    from stableins.drivers.replay import JOURNAL_NAME
     from stableins.errors import InputError
-    from stableins.procedures.journal import start_record
+    from stableins.procedures.journal import JOURNAL_NAME, start_record
     from stableins.procedures.rundir import PRIOR_NAME
 
     rundir = Path(args.resume)

@@ -55,26 +55,29 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the report; an :class:`~stableins.errors.InputError` reaches the CLI (message, exit status 2)."""
     from stableins.output import emit
+    from stableins.progress import Progress
     from stableins.reporting.builder import ReportSettings, write_report
 
-    summary = write_report(
-        args.out,
-        args.record,
-        data=args.data,
-        previous=args.previous,
-        procedure=args.procedure,
-        discovery=args.discovery,
-        settings=ReportSettings(
-            report_id=args.report_id,
-            laboratory=args.laboratory,
-            customer=args.customer,
-            operator=args.operator,
-            no_statement=args.no_statement,
-            sign_key=args.sign,
-            sign_certificate=args.sign_cert,
-        ),
-        technical=args.technical,
-    )
+    with Progress(label="certificate and technical report: sections laid out") as bar:
+        summary = write_report(
+            args.out,
+            args.record,
+            data=args.data,
+            previous=args.previous,
+            procedure=args.procedure,
+            discovery=args.discovery,
+            settings=ReportSettings(
+                report_id=args.report_id,
+                laboratory=args.laboratory,
+                customer=args.customer,
+                operator=args.operator,
+                no_statement=args.no_statement,
+                sign_key=args.sign,
+                sign_certificate=args.sign_cert,
+                progress=bar.set,
+            ),
+            technical=args.technical,
+        )
     data = {
         "path": summary.path,
         "report_id": summary.report_id,

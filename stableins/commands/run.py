@@ -11,6 +11,9 @@ PROCEDURE is the name of a shipped definition (``device-coarse``, found from any
 file, or a plan ``.json`` (``procedure.json`` of an earlier run).  ``--resume`` of a finished run says it
 is finished and changes nothing (``--re-estimate`` estimates it again from its journal).  Exit status: 0 done, 2 bad input,
 3 stopped (a step failed its retries, the link failed, a person declined): resume with --resume.
+This module is the procedure run that ``stableins run`` and ``stableins recal`` both build on; the CLI's
+``run`` is :mod:`stableins.commands.run_command`, which hands a field recalibration's run over to
+:mod:`stableins.commands.recal` (so this module never imports the command that imports it).
 """
 
 from __future__ import annotations
@@ -190,16 +193,14 @@ def prior_file(args: argparse.Namespace) -> Path | None:
 
 def _resumable(rundir: str | None) -> bool:
     """Whether RUNDIR holds a run that ``--resume`` can continue (a journal that starts with its start record)."""
-    from stableins.drivers.replay import JOURNAL_NAME
-    from stableins.procedures.journal import has_start
+    from stableins.procedures.journal import JOURNAL_NAME, has_start
 
     return rundir is not None and has_start(Path(rundir) / JOURNAL_NAME)
 
 
 def recal_settings(rundir: str | os.PathLike[str]) -> dict[str, Any] | None:
     """Return the field-recalibration settings the run in RUNDIR was started with (``stableins recal``), or None."""
-    from stableins.drivers.replay import JOURNAL_NAME
-    from stableins.procedures.journal import start_record
+    from stableins.procedures.journal import JOURNAL_NAME, start_record
 
     start = start_record(Path(rundir) / JOURNAL_NAME)
     settings = start.get("recal") if start is not None else None
@@ -216,7 +217,7 @@ def _how_to_continue(rundir: str | None, args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``stableins run``: start or resume a procedure on a platform; return the exit code."""
+    """Start or resume a procedure on a platform (``stableins run``, and the run of ``stableins recal``); return the exit code."""
     from stableins.console import Console
     from stableins.drivers.errors import DriverError
     from stableins.output import emit
@@ -224,10 +225,6 @@ def run(args: argparse.Namespace) -> int:
     from stableins.procedures.runner import RunStopped
     from stableins.procedures.session import JournalMismatch
 
-    if args.resume and getattr(args, "emit_result", True) and recal_settings(args.resume) is not None:
-        from stableins.commands import recal
-
-        return recal.run(recal.resume_arguments(args))  # a field recalibration resumes as one: it files its record
     console = Console(yes=args.yes, values=parse_settings(args.set), quiet=args.quiet)
     rundir = args.resume or args.out
     args.finished = None

@@ -50,6 +50,7 @@ from stableins.discovery.diagnose_report import (
 )
 from stableins.discovery.signature import residual_signature
 from stableins.errors import InputError
+from stableins.estimators.result import Stage
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -63,7 +64,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.history import Discovery
     from stableins.discovery.ranking import Ranking
     from stableins.discovery.system import SystemDiagnosis
-    from stableins.errormodel import ErrorModel
+    from stableins.errormodel import ErrorModel, Term
     from stableins.estimators.layout import StageLayout
 
 
@@ -116,7 +117,9 @@ class DiagnoseOptions:
     stage : DiagnoseStage or None
         Device data: the dwells of this stage (``coarse`` or ``fine``); None: fine when present, else coarse.
     alpha : float
-        Family-wise false-alarm level of the flags, in (0, 1).
+        Family-wise false-alarm level of the flags, in (0, 1) (:func:`stableins.discovery.ranking.family_level`).  With
+        the χ² verdict's upper 0.5 % (the two-sided 99 % range) the default 0.025 makes a clean session raise an alarm
+        3 % of the time (docs/discovery.md "False alarms").
     noise : NoiseModel, SlowNoiseGiven or None
         The noise model to use, or a datasheet's slow noise; None: the record's, else measured in the data.
     bin_seconds : float
@@ -125,7 +128,7 @@ class DiagnoseOptions:
 
     add: tuple[str, ...] = ()
     stage: DiagnoseStage | None = None
-    alpha: float = 0.05
+    alpha: float = 0.025
     noise: NoiseModel | SlowNoiseGiven | None = None
     bin_seconds: float = 60.0
 
@@ -211,12 +214,14 @@ class DiagnoseResult:
                 model = "\n".join(
                     f"  {m.id:<13} {m.value:+.6f} ± {m.sigma:.6f} {m.unit}" for m in DriftEstimate.from_fit(self.drift.result)
                 )
-                parts.append(
-                    "platform drift within dwells (angle-reading slopes), the drift model fitted:\n"
-                    + model
-                    + "\nthe g-sensitivities not in it, ranked:\n"
-                    + self.drift.report(top=9)
+                fit = self.drift.result
+                ranked = (
+                    "\nthe g-sensitivities not in it, ranked:\n" + self.drift.report(top=9)
+                    if self.drift.candidates
+                    else f"\nall nine g-sensitivities are in it (the record's gyro stage): χ²_ν = {fit.chi2_red:.3f} (ν = {fit.dof}), "
+                    "nothing to rank"
                 )
+                parts.append("platform drift within dwells (angle-reading slopes), the drift model fitted:\n" + model + ranked)
         if self.report.signature is not None:
             parts.append(
                 "outside the library: "
@@ -315,6 +320,17 @@ def _fit(session: Discovery, diagnosis: Diagnosis) -> dict[str, Any]:
     }
 
 
+def _record_g_sensitivities(record: RecordInForce, *, exclude: Sequence[str] = ()) -> tuple[Term, ...]:
+    """Return the ``Dg_ab`` the record determines (finite σ), less ``exclude``: the model in force of the drift section."""
+    import numpy as np
+
+    from stableins.errormodel import GYRO_G_TERMS
+
+    ids = list(record.ids)
+    sigma = dict(zip(ids, np.sqrt(np.abs(np.diag(np.asarray(record.covariance, dtype=float)))), strict=True)) if ids else {}
+    return tuple(t for t in GYRO_G_TERMS if t.id not in exclude and np.isfinite(sigma.get(t.id, np.nan)) and sigma[t.id] > 0)
+
+
 def _start(record: RecordInForce, model: ErrorModel) -> dict[str, float]:
     return {k: v for k, v in record.values().items() if k in model}
 
@@ -348,10 +364,13 @@ def _device(
     noise, origin = _device_noise(datasets, options.noise, record.noise_model, layouts)
     stage = None if options.stage is None else str(options.stage)
     dwells = dwells_from_dataset(datasets, layouts=layouts, stage=stage, noise=noise)
-    problem = DwellProblem(dwells, stage=f"{dwells.noise['stage']} dwells")
+    problem = DwellProblem(dwells, stage=Stage.FINE_DWELLS if dwells.noise["stage"] == Stage.FINE else Stage.COARSE_DWELLS)
     session = Discovery(problem, model, alpha=options.alpha, start=_start(record, model))
     for effect in options.add:
         session.add(effect)
+    # the record's gyro stage is part of the model in force: its determined g-sensitivities join the drift model (the
+    # drift section ranks only the Dg_ab the record lacks; a record made with --no-gyro keeps all nine as candidates)
+    session.drift_added += _record_g_sensitivities(record, exclude=options.add)
     diagnosis = session.diagnose()
     ranking = session.rank()
     drift = session.drift()

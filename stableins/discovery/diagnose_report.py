@@ -33,17 +33,15 @@ from os import PathLike
 from typing import Any
 
 from stableins.discovery.diagnostics import FitVerdict
+from stableins.discovery.fields import DOCUMENT, Reader, finite
 from stableins.discovery.signature import ResidualSignature
 from stableins.discovery.steps import Step
 from stableins.discovery.summaries import (
-    DOCUMENT,
     OBSERVATION_UNIT,
     CandidateSummary,
     DriftEstimate,
     DriftSummary,
-    Reader,
     SpectrumSummary,
-    finite,
 )
 from stableins.noise import NoiseModel
 

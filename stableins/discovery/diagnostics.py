@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
 from stableins.discovery.problem import DiscoveryDetails
-from stableins.display import layout_with_caption
+from stableins.display import layout_with_caption, plot_text
 from stableins.errormodel import TermKind
 from stableins.estimators.result import FitResult
 
@@ -290,10 +290,11 @@ class Diagnosis:
                         x, r, yerr=sg, fmt="o", ms=3.5, lw=1, capsize=2, color="C0" if diagnosis is self else "0.45", label="residual ± 1σ"
                     )
                 ax.axhline(0.0, color="k", lw=0.6)
-                ax.set_ylabel(f"{self.outputs[i]} residual [{self.unit}]")
+                ax.set_ylabel(plot_text(f"{self.outputs[i]} residual [{self.unit}]"))
                 ax.grid(alpha=0.3)
             head = f"{'before' if diagnosis is before else 'after' if before is not None else 'model'}: {diagnosis.model_name}"
-            axes[0, column].set_title(f"{head}\nχ²_ν = {diagnosis.chi2_red:.3g} (expected 1 ± {diagnosis.spread:.2g})", fontsize=10)
+            title_text = plot_text(f"{head}\nχ²_ν = {diagnosis.chi2_red:.3g} (expected 1 ± {diagnosis.spread:.2g})")
+            axes[0, column].set_title(title_text, fontsize=10)
             axes[-1, column].set_xlabel(self._position_axis() if column == len(panels) - 1 or len(panels) == 1 else "", fontsize=9)
             if not by_time and len(x) <= MAX_NAMED_POSITIONS:
                 axes[-1, column].set_xticks(x, diagnosis.position_labels, rotation=90, fontsize=7)
@@ -322,11 +323,11 @@ class Diagnosis:
                 if before is not None and before.orientation is not None:
                     ax.scatter(
                         before.orientation[:, j], before.normalized[:, i], s=14, facecolors="none", edgecolors="0.55",
-                        label=f"before: {before.model_name} (χ²_ν = {before.chi2_red:.3g})",
+                        label=plot_text(f"before: {before.model_name} (χ²_ν = {before.chi2_red:.3g})"),
                     )  # fmt: skip
                 ax.scatter(
                     self.orientation[:, j], self.normalized[:, i], s=12, color="C0",
-                    label=f"{'after' if before is not None else 'model'}: {self.model_name} (χ²_ν = {self.chi2_red:.3g})",
+                    label=plot_text(f"{'after' if before is not None else 'model'}: {self.model_name} (χ²_ν = {self.chi2_red:.3g})"),
                 )  # fmt: skip
                 ax.axhspan(-1.0, 1.0, color="0.9", zorder=0)
                 ax.axhline(0.0, color="k", lw=0.6)

@@ -31,6 +31,7 @@ from stableins.discovery.dwells import DwellSet
 from stableins.discovery.linear import LinearProblem
 from stableins.errormodel import GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind
 from stableins.estimators.gyro_sensitivity import GIMBALS, MAX_CONDITION, SLOPE_SKIP, SlopeGeometry, reading_slope
+from stableins.estimators.result import Stage
 
 __all__ = ["GIMBALS", "MAX_CONDITION", "SLOPE_SKIP", "drift_problem", "reading_slope"]
 
@@ -84,8 +85,8 @@ def drift_problem(
 
     slopes = np.asarray(slopes, dtype=float)
     slope_sigma = np.asarray(slope_sigma, dtype=float)
-    geometry = SlopeGeometry.of(
-        dwells.readings,
+    geometry = SlopeGeometry.of(  # at the centre of the samples each slope is fitted on (gyro_sensitivity.ReadingSlopes)
+        dwells.readings if dwells.reading_centre is None else dwells.reading_centre,
         dwells.gravity,
         zero_offsets=zero_offsets,
         base_attitude=dwells.base_attitude,
@@ -118,5 +119,5 @@ def drift_problem(
         columns[term.id] = column[keep].reshape(-1)
     nuisance = nuisance + mode_terms
     labels = [f"{lbl} d{gm}/dt" for lbl, k in zip(dwells.labels, keep, strict=True) if k for gm in GIMBALS]
-    problem = LinearProblem(slopes[keep].reshape(-1), slope_sigma[keep].reshape(-1), columns, labels, stage="reading slopes")
+    problem = LinearProblem(slopes[keep].reshape(-1), slope_sigma[keep].reshape(-1), columns, labels, stage=Stage.READING_SLOPES)
     return problem, ErrorModel(nuisance + GYRO_DRIFT_TERMS + tuple(added)), tuple(drift_terms), notes

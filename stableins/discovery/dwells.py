@@ -72,6 +72,10 @@ class DwellSet:
         How the platform was held during the dwells (the data files' metadata).
     latitude : float
         Site latitude [rad] (the Earth rate of the torqued dwells).
+    reading_centre : ndarray (P, 3), optional
+        Mean reading of the samples each reading slope is fitted on [rad]
+        (:attr:`stableins.estimators.gyro_sensitivity.ReadingSlopes.centre`): where the drift analysis evaluates the
+        geometry (None: :attr:`readings`).
     """
 
     readings: NDArray[np.float64]
@@ -92,6 +96,7 @@ class DwellSet:
     reading_slope_sigma: NDArray[np.float64] | None = None
     dwell_mode: DwellMode = DEFAULT_DWELL_MODE
     latitude: float = 0.0
+    reading_centre: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         p = self.readings.shape[0]
@@ -157,6 +162,7 @@ class DwellSet:
             None if self.reading_slope_sigma is None else self.reading_slope_sigma[i],
             self.dwell_mode,
             self.latitude,
+            None if self.reading_centre is None else self.reading_centre[i],
         )
 
 
@@ -279,9 +285,9 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
     samples used.  ``site`` gives gravity, base attitude and gimbal senses.  ``noise`` None: measured
     from the dwells as the device stage does.
     """
-    from stableins.discovery.drift import reading_slope
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.dwell import slow_covariance
+    from stableins.estimators.gyro_sensitivity import ReadingSlopes
     from stableins.platform import platform_specific_force
 
     gravity = site.gravity
@@ -291,7 +297,7 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
     configuration = GimbalConfiguration((s1, s2, s3, s4))
     if noise is None:
         noise = noise_from_dwells(summaries)
-    slopes, slope_sigma = zip(*(reading_slope(t, angles) for t, _, _, angles in extras), strict=True)
+    lines = ReadingSlopes.of([(t, angles) for t, _, _, angles in extras])
     readings = np.array([x.angles for x in summaries])
     start = None if initial_readings is None else _initial(initial_readings, gravity, base_attitude, configuration)
     nominal = platform_specific_force(readings, gravity, base_attitude=base_attitude, configuration=configuration)
@@ -315,10 +321,11 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
         },
         initial_readings=initial_readings,
         slow_covariance=slow_covariance(summaries, noise),
-        reading_slope=np.array(slopes),
-        reading_slope_sigma=np.array(slope_sigma),
+        reading_slope=lines.slope,
+        reading_slope_sigma=lines.sigma(),
         dwell_mode=site.dwell_mode,
         latitude=float(site.latitude),
+        reading_centre=lines.centre,
     )
 
 

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import EARTH_RATE
 from stableins.discovery.diagnostics import Diagnosis, residual_layout
-from stableins.display import layout_with_caption
+from stableins.display import layout_with_caption, plot_text
 from stableins.estimators.result import FitResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -105,9 +105,9 @@ class HarmonicSpectrum:
                 ax.annotate(f"p = {p:.2g}", (k, a), xytext=(6, 0), textcoords="offset points", fontsize=7, va="center")
         ax.set_xlim(0.0, cycles + 0.3)
         ax.set_ylim(0.0, top)
-        ax.set_xlabel("frequency [cycles per sidereal day] (k = k-th harmonic of the Earth rate ω_ie)")
+        ax.set_xlabel(r"frequency [cycles per sidereal day] (k = k-th harmonic of the Earth rate $\omega_{ie}$)")
         ax.set_ylabel(f"residual amplitude [{unit or 'SI'}]")
-        ax.set_title(f"Residual{' of ' + name if name else ''} at the Earth-rate harmonics", fontsize=10)
+        ax.set_title(plot_text(f"Residual{' of ' + name if name else ''} at the Earth-rate harmonics"), fontsize=10)
         ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.87), ncol=2)
         ax.grid(alpha=0.3)
         if ax is fig.axes[0] and len(fig.axes) == 1:

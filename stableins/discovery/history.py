@@ -29,7 +29,7 @@ import numpy as np
 
 from stableins.conventions import MICRO_G
 from stableins.discovery.steps import Decision, Step, is_number, make_step
-from stableins.display import clipped, html_result, html_table, layout_with_caption, require_pandas, unit_text, value_sigma
+from stableins.display import clipped, html_result, html_table, layout_with_caption, plot_text, require_pandas, unit_text, value_sigma
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.result import FitResult
 
@@ -263,14 +263,16 @@ class History:
         k = np.arange(len(steps))
         _plot_rms(ax1, steps)
         _plot_chi2(ax2, steps)
-        labels = [s.label + (f"\n({s.decision})" if s.decision is not None and s.decision is not Decision.BASELINE else "") for s in steps]
+        shown = [s.decision if s.decision is not None and s.decision is not Decision.BASELINE else None for s in steps]
+        labels = [plot_text(s.label) + (f"\n({d})" if d is not None else "") for s, d in zip(steps, shown, strict=True)]
         for ax in (ax1, ax2):
             ax.set_xlim(-0.6, len(steps) - 0.4)
             ax.set_xticks(k, labels, rotation=20 if len(steps) > 3 else 0, ha="right" if len(steps) > 3 else "center", fontsize=8)
             ax.set_xlabel("model at each step (effect added)")
             ax.grid(alpha=0.3, which="both", axis="y")
         fig.suptitle(
-            title or f"Model discovery: {len(steps)} step{'s' if len(steps) != 1 else ''}, last model: {steps[-1].label}", fontsize=11
+            title or plot_text(f"Model discovery: {len(steps)} step{'s' if len(steps) != 1 else ''}, last model: {steps[-1].label}"),
+            fontsize=11,
         )
         layout_with_caption(fig, next_step)
         return fig
@@ -286,7 +288,7 @@ def _plot_rms(ax1: Any, steps: Sequence[Step]) -> None:
     for i, channel in enumerate(channels):
         x = k + (i - (len(channels) - 1) / 2) * width
         colour = f"C{i}"
-        ax1.plot(x, rms[:, i], "o", color=colour, ms=7, label=f"residual RMS {channel}", zorder=3)
+        ax1.plot(x, rms[:, i], "o", color=colour, ms=7, label=plot_text(f"residual RMS {channel}"), zorder=3)
         if len(steps) > 1:
             ax1.plot(x, rms[:, i], "-", color=colour, lw=0.8, alpha=0.5)
         ax1.plot(x, floor[:, i], "_", color="k", ms=14, mew=2.0, label="noise floor of that output" if i == 0 else None, zorder=4)
@@ -307,11 +309,21 @@ def _plot_rms(ax1: Any, steps: Sequence[Step]) -> None:
     if high > 8 * low > 0:
         ax1.set_yscale("log")
         ax1.set_ylim(low / 1.6, high * 2.2)
+        _plain_ticks(ax1)
     else:
         ax1.set_ylim(0.0, high * 1.25)
     ax1.set_ylabel("residual RMS [µg]")
     ax1.set_title("residual RMS per output against its noise floor", fontsize=10)
     ax1.legend(fontsize=7, loc="upper right")
+
+
+def _plain_ticks(ax: Any) -> None:
+    """Label a logarithmic y axis in plain numbers (``2``, ``10``, ``30``), the style of the values written beside the points."""
+    from matplotlib.ticker import FuncFormatter
+
+    plain = FuncFormatter(lambda value, _: f"{value:g}")
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(plain)
 
 
 def _plot_chi2(ax2: Any, steps: Sequence[Step]) -> None:
@@ -323,7 +335,7 @@ def _plot_chi2(ax2: Any, steps: Sequence[Step]) -> None:
         ax2.fill_between(
             [j - 0.3, j + 0.3], 1 - 2 * spread[j], 1 + 2 * spread[j], color="0.82", lw=0, label="1 ± 2√(2/ν)" if j == 0 else None
         )
-    ax2.plot(k, chi, "o", color="C3", ms=7, label="χ²_ν", zorder=3)
+    ax2.plot(k, chi, "o", color="C3", ms=7, label=plot_text("χ²_ν"), zorder=3)
     if len(steps) > 1:
         ax2.plot(k, chi, "-", color="C3", lw=0.8, alpha=0.5)
     for j, c in enumerate(chi):
@@ -334,10 +346,11 @@ def _plot_chi2(ax2: Any, steps: Sequence[Step]) -> None:
     if top > 10 * max(bottom, 0.1):
         ax2.set_yscale("log")
         ax2.set_ylim(max(min(bottom, 0.5) / 1.5, 1e-2), top * 2.0)
+        _plain_ticks(ax2)
     else:
         ax2.set_ylim(max(0.0, bottom - 0.2 * (top - bottom) - 0.05), top + 0.25 * (top - bottom) + 0.05)
-    ax2.set_ylabel("χ²_ν (expected 1)")
-    ax2.set_title("χ²_ν against its expected band", fontsize=10)
+    ax2.set_ylabel(plot_text("χ²_ν (expected 1)"))
+    ax2.set_title(plot_text("χ²_ν against its expected band"), fontsize=10)
     ax2.legend(fontsize=7, loc="best")
 
 

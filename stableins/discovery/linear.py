@@ -12,7 +12,7 @@ from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
 from stableins.discovery.dwells import DwellSet
 from stableins.discovery.problem import gauge_columns
 from stableins.errormodel import ErrorModel, Term
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -41,7 +41,7 @@ class LinearProblem:
         sigma: ArrayLike,
         columns: Mapping[str, ArrayLike],
         labels: Sequence[str] | None = None,
-        stage: str = "linear",
+        stage: Stage = Stage.LINEAR,
     ) -> None:
         self.y = np.asarray(observations, dtype=float)
         self.s = np.broadcast_to(np.asarray(sigma, dtype=float), self.y.shape).copy()

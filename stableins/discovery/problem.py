@@ -30,7 +30,7 @@ from stableins.discovery.dwells import DwellSet
 from stableins.errormodel import ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.details import StageDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.status import Status
 
 
@@ -81,12 +81,21 @@ class DwellProblem:
         The observations.
     fixed : mapping, optional
         Parameters held at a given value (status ``"fixed"``), e.g. from a record.
+    stage : Stage
+        What the rows are.
+    static : bool
+        The rows are the static dwells of a device session (independent once whitened): the ranking fixes its flags'
+        level from the exact null distribution and tests a candidate's residual for a laboratory-fixed signature
+        (:func:`stableins.discovery.ranking.rank`).  False for a system record's bins.
     """
 
-    def __init__(self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: str = "device dwells") -> None:
+    def __init__(
+        self, dwells: DwellSet, fixed: Mapping[str, float] | None = None, stage: Stage = Stage.DEVICE_DWELLS, *, static: bool = True
+    ) -> None:
         self.dwells = dwells
         self.fixed = dict(fixed or {})
         self.stage = stage
+        self.static = static
         self._inverse_factor = None
         if dwells.slow_covariance is not None:
             c = np.asarray(dwells.slow_covariance, dtype=float)

@@ -20,9 +20,19 @@ parameters only), candidate column ``z``, hat matrix ``H = X(XᵀX)⁻¹Xᵀ``.
   out, the estimates shift by ``c γ``.  The largest contributions ``|c_j|·‖X_j‖`` name the
   aliased parameters.  Candidates whose ``z⊥`` are nearly parallel (``|corr| > 0.99``) cannot be
   told apart from each other with these data; they are reported together.
-* **Flagging** uses a Bonferroni family-wise false-alarm level ``α``: a candidate is flagged
-  when its p-value is below ``α / N`` with ``N`` the number of identifiable candidates, *and* adding it
-  brings ``χ²_ν`` into its 95 % band (:func:`stableins.discovery.scores.explains`): a candidate is named only
+* **The best group.**  When the best candidate is significant, every candidate whose ``ΔRSS`` is within
+  :data:`~stableins.discovery.scores.GROUP_MARGIN` (``1.96²``) of the best's joins it as one group
+  (:attr:`Ranking.group`, in :attr:`CandidateScore.confused_with`): a rival beats the true effect by more than that
+  margin with probability at most 2.5 % whatever their correlation (the derivation at the constant), so the data
+  cannot tell the group's members apart; the report names them together, with positions that would separate them.
+* **Flagging** uses a family-wise false-alarm level ``α`` fixed from the null distribution of the largest statistic
+  in this fit's own geometry (:func:`family_level`: with no effect the whitened residual is ``(I − H) e``,
+  ``e ~ N(0, I)``, so the largest ``ΔRSS_j/RSS`` over the identifiable candidates is drawn exactly; its ``1 − α``
+  quantile is the threshold, the per-candidate level it gives is at least Bonferroni's ``α / N``, and the rate is ``α``
+  rather than at most ``α``): a candidate is flagged when its p-value is below that level, *and* adding it
+  brings ``χ²_ν`` into its 95 % band (:func:`stableins.discovery.scores.explains`), no other candidate stays
+  significant with it, and (device dwells) the residual with it leaves no signature along a direction fixed in the
+  laboratory (:func:`stableins.discovery.signature.laboratory_columns`): a candidate is named only
   if it explains the residual.  When ``χ²`` rejects the model and no candidate explains it, the effect is
   outside the library (:attr:`Ranking.outside_library`; its signature: :mod:`stableins.discovery.signature`).
 """
@@ -41,7 +51,9 @@ from stableins.discovery.problem import whiten
 from stableins.discovery.scores import (
     CONFUSION_CORRELATION,
     EXCITATION_TOLERANCE,
+    GROUP_MARGIN,
     IDENTIFIABLE_TOLERANCE,
+    SIGNATURE_ALPHA,
     CandidateScore,
     candidate_columns,
     effect_statistics,
@@ -91,6 +103,12 @@ class Ranking:
     n_tested: int
     output_unit: str = "µg"
     output_scale: float = MICRO_G
+    level: float | None = None
+
+    @property
+    def p_level(self) -> float:
+        """The per-candidate p-value below which a candidate is significant (:func:`family_level`; Bonferroni without it)."""
+        return self.level if self.level is not None else self.alpha / max(self.n_tested, 1)
 
     @property
     def best(self) -> CandidateScore | None:
@@ -101,6 +119,14 @@ class Ranking:
     def flagged(self) -> tuple[CandidateScore, ...]:
         """The flagged candidates, best first."""
         return tuple(c for c in self.candidates if c.flagged)
+
+    @property
+    def group(self) -> tuple[str, ...]:
+        """The best candidate and those these data cannot tell from it (:attr:`CandidateScore.confused_with`); empty without one."""
+        best = self.best
+        if best is None or not best.identifiable:
+            return ()
+        return (best.id, *best.confused_with)
 
     def __getitem__(self, term_id: str) -> CandidateScore:
         for c in self.candidates:
@@ -117,7 +143,8 @@ class Ranking:
         model = ErrorModel(self.result.terms)
         lines = [
             f"candidates ranked against the {self.result.stage} fit (χ²_ν = {_chi2_red(self.result):.3f}, ν = {self.result.dof}); "
-            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates; * named: significant and bringing "
+            f"flag level α = {self.alpha:g} family-wise over {self.n_tested} identifiable candidates (p < {self.p_level:.2g}); "
+            "* named: significant and bringing "
             "χ²_ν into its 95 % band",
             f"{'rank':>4} {'id':<14} {'ΔRSS':>9} {'p':>9} {'ΔBIC':>8} {'estimate ± 1σ':>26} {'max |Δobs|':>13}  identifiable / aliases",
         ]
@@ -128,12 +155,16 @@ class Ranking:
             ident = "yes" if c.identifiable else ("not excited" if not c.excited else "NO: aliases " + c.alias_text(model))
             if c.confused_with:
                 ident += f"; indistinguishable from {', '.join(c.confused_with)}"
-            if c.identifiable and c.p_value < self.alpha / self.n_tested and not c.explains:
-                ident += (
-                    f"; significant, but with it {', '.join(c.leaves)} still significant: not named"
-                    if c.leaves
-                    else f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
-                )
+            if c.identifiable and c.p_value < self.p_level and not c.explains:
+                if c.leaves:
+                    ident += f"; significant, but with it {', '.join(c.leaves)} still significant: not named"
+                elif c.signature_p < SIGNATURE_ALPHA:
+                    ident += (
+                        f"; significant, but the residual with it still follows a direction fixed in the laboratory "
+                        f"(p = {c.signature_p:.2g}): not named"
+                    )
+                else:
+                    ident += f"; significant, but χ²_ν with it {c.chi2_red_with:.3g} is above its 95 % band: not named"
             lines.append(
                 f"{k:>4}{mark}{c.id:<14} {c.statistic:>9.2f} {c.p_value:>9.2g} {c.delta_bic:>8.1f} {est:>26} "
                 f"{c.predicted / self.output_scale:>8.3g} {self.output_unit:<4}  {ident}{' (refit)' if c.refit else ''}"
@@ -195,7 +226,8 @@ class Ranking:
         found = f"{best.id} = {value_sigma(value, sigma, unit_text(best.term.unit))} (p = {best.p_value:.2g})"
         if best.confused_with:
             advice = best.advice.removeprefix("confirm with ")
-            return f"{found} cannot be told from {', '.join(best.confused_with)} with these data; to separate them: {advice}"
+            group = " or ".join((best.id, *best.confused_with))
+            return f"{group}: these data cannot tell them apart ({found}); a position set that separates them: {advice}"
         if best.id not in LIBRARY:
             return f"next: add {found} to the model and refit"
         why = calibration_limit(best.id)
@@ -404,18 +436,158 @@ def rank(
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
+    first = {t.id: f"confirm with {separation.get(t.id, t.excitation)}" for t in terms}
+    # static dwells (DwellProblem.static): the exact family level and the laboratory signature; else Bonferroni's α/N
+    static = bool(getattr(problem, "static", False))
+    level = family_level(x, z_perp[:, identifiable], nu=nu, alpha=alpha) if static else alpha / n_tested
+    scores = _best_group(problem, result, scores, {t.id: t for t in terms}, first, level=level, propose=propose)
+    whitened = _Whitened(r, z_perp, identifiable, _laboratory(problem, result, x) if static else None)
+    flagged = _named(scores, [t.id for t in terms], whitened, rss0=rss0, nu=nu, level=level)
+    return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale, level)
+
+
+#: Draws of the null distribution of the largest statistic (:func:`family_level`), and the fixed seed that makes it
+#: deterministic (the same data give the same flags).
+NULL_DRAWS = 8000
+NULL_SEED = 20251129
+
+
+def family_level(x: NDArray[np.float64], z_perp: NDArray[np.float64], *, nu: int, alpha: float) -> float:
+    r"""Return the per-candidate p-value level at which the family of candidates raises a false flag with probability ``α``.
+
+    With no effect the whitened residual is ``r = (I − H) e``, ``e ~ N(0, I_m)``, and the F-test of candidate ``j``
+    is monotone in ``t_j = (u_jᵀ r)²/‖r‖²`` (``u_j = z⊥_j/‖z⊥_j‖``).  The ``1 − α`` quantile ``t*`` of
+    ``max_j t_j`` over :data:`NULL_DRAWS` draws (seed :data:`NULL_SEED`) gives ``F* = (ν − 1) t*/(1 − t*)`` and the
+    level ``P(F(1, ν − 1) > F*)``: the family-wise rate is ``α`` in this fit's own geometry (Westfall & Young 1993,
+    *Resampling-Based Multiple Testing*, the single-step max-T method), where Bonferroni's ``α/N`` is conservative for
+    correlated candidates.  ``x`` is the whitened design, ``z_perp`` the identifiable candidates' columns orthogonal to it.
+    """
+    from scipy import stats
+
+    norms = np.linalg.norm(z_perp, axis=0)
+    n = int(np.count_nonzero(norms > 0))
+    if n == 0 or nu < 2:
+        return alpha / max(n, 1)
+    units = z_perp[:, norms > 0] / norms[norms > 0]
+    q, _ = np.linalg.qr(x)
+    rng = np.random.default_rng(NULL_SEED)
+    largest = []
+    for _ in range(NULL_DRAWS // 500):
+        e = rng.standard_normal((x.shape[0], 500))
+        e -= q @ (q.T @ e)
+        largest.append(np.max((units.T @ e) ** 2, axis=0) / np.sum(e * e, axis=0))
+    t = float(np.quantile(np.concatenate(largest), 1.0 - alpha))
+    f = (nu - 1) * t / max(1.0 - t, 1e-300)
+    return max(float(stats.f.sf(f, 1, nu - 1)), alpha / n)
+
+
+@dataclass(frozen=True)
+class _Whitened:
+    """The whitened residual, the candidates' columns orthogonal to the model, which are identifiable, the laboratory columns."""
+
+    r: NDArray[np.float64]
+    z_perp: NDArray[np.float64]
+    identifiable: NDArray[np.bool_]
+    laboratory: NDArray[np.float64] | None
+
+
+def _named(scores: list[CandidateScore], ids: list[str], w: _Whitened, *, rss0: float, nu: int, level: float) -> list[CandidateScore]:
+    """Return the scores with the naming rule applied (module docstring, "Flagging").
+
+    Named: significant at ``level`` (Bonferroni), adding it brings ``χ²_ν`` into its band, no other candidate stays
+    significant with it, and (device dwells) the residual with it has no signature left along a laboratory-fixed
+    direction (:func:`_signature_left`).
+    """
     flagged = []
-    index = {t.id: k for k, t in enumerate(terms)}
+    index = {i: k for k, i in enumerate(ids)}
     for c in scores:
         after, explained = explains(rss0, c.statistic, nu) if c.identifiable else (float("nan"), False)
-        significant = bool(c.identifiable and c.p_value < alpha / n_tested)
+        significant = bool(c.identifiable and c.p_value < level)
         remaining: tuple[int, ...] = ()
         if significant and explained:
-            remaining = _still_significant(index[c.id], z_perp, r, identifiable, nu=nu, level=alpha / n_tested)
-        alone = explained and not remaining
-        named = {"flagged": significant and alone, "chi2_red_with": after, "explains": alone}
-        flagged.append(CandidateScore(**{**c.__dict__, **named, "leaves": tuple(terms[j].id for j in remaining)}))
-    return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale)
+            remaining = _still_significant(index[c.id], w.z_perp, w.r, w.identifiable, nu=nu, level=level)
+        signature_p = float("nan")
+        if significant and explained and not remaining and w.laboratory is not None:
+            signature_p = _signature_left(index[c.id], w.z_perp, w.r, w.laboratory, nu=nu)
+        alone = explained and not remaining and not signature_p < SIGNATURE_ALPHA
+        named = {"flagged": significant and alone, "chi2_red_with": after, "explains": alone, "signature_p": signature_p}
+        flagged.append(CandidateScore(**{**c.__dict__, **named, "leaves": tuple(ids[j] for j in remaining)}))
+    return flagged
+
+
+def _best_group(
+    problem: Problem,
+    result: FitResult,
+    scores: list[CandidateScore],
+    by_id: dict[str, Term],
+    advice: dict[str, str],
+    *,
+    level: float,
+    propose: bool,
+) -> list[CandidateScore]:
+    """Return the scores with the best group joined (module docstring, "The best group"), when the best is significant.
+
+    Every identifiable candidate whose ``ΔRSS`` is within :data:`GROUP_MARGIN` of the best's is added to the best's
+    ``confused_with`` and the best to each of theirs; the best's advice then names positions that separate them.
+    """
+    best = scores[0] if scores else None
+    if best is None or not best.identifiable or not best.p_value < level:
+        return scores
+    rivals = [c.id for c in scores[1:] if c.identifiable and best.statistic - c.statistic <= GROUP_MARGIN]
+    joined = tuple(dict.fromkeys((*best.confused_with, *rivals)))
+    if joined == best.confused_with:
+        return scores
+    out = []
+    for c in scores:
+        if c.id == best.id:
+            c = CandidateScore(**{**c.__dict__, "confused_with": joined, "advice": advice[c.id]})
+            if propose and hasattr(problem, "dwells"):
+                c = _propose(problem, result, [c], by_id)[0]
+        elif c.id in rivals:
+            c = CandidateScore(**{**c.__dict__, "confused_with": tuple(dict.fromkeys((*c.confused_with, best.id)))})
+        out.append(c)
+    return out
+
+
+def _laboratory(problem: Problem, result: FitResult, x: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """Return the laboratory-direction columns of device dwells, whitened, orthonormal and orthogonal to the model.
+
+    :func:`stableins.discovery.signature.laboratory_columns`, less their part in the span of the whitened design ``x``;
+    None for other problems or when the model spans them.
+    """
+    from stableins.discovery.signature import laboratory_columns
+
+    dwells = getattr(problem, "dwells", None)
+    if dwells is None:
+        return None
+    columns = whiten(problem, result, laboratory_columns(dwells.readings, dwells.base_attitude, dwells.configuration))
+    q, _ = np.linalg.qr(x)
+    columns = columns - q @ (q.T @ columns)
+    u, s, _ = np.linalg.svd(columns, full_matrices=False)
+    keep = s > 1e-6 * max(float(s[0]) if s.size else 0.0, 1e-300)
+    return u[:, keep] if np.any(keep) else None
+
+
+def _signature_left(k: int, z_perp: NDArray[np.float64], r: NDArray[np.float64], laboratory: NDArray[np.float64], *, nu: int) -> float:
+    r"""Return the p-value of the residual, with candidate ``k`` added, along the laboratory directions (module docstring).
+
+    One Gauss–Newton step as in :func:`_still_significant`: ``r' = r − u uᵀr``; the laboratory columns ``L`` (orthonormal,
+    orthogonal to the model) less their part along ``u``; ``F = (‖Qᵀr'‖²/d) / ((‖r'‖² − ‖Qᵀr'‖²)/(ν − 1 − d))`` against
+    ``F(d, ν − 1 − d)`` with ``Q`` an orthonormal basis of those ``d`` columns.
+    """
+    from scipy import stats
+
+    u = z_perp[:, k] / np.linalg.norm(z_perp[:, k])
+    rest = r - u * float(u @ r)
+    columns = laboratory - np.outer(u, u @ laboratory)
+    q, s, _ = np.linalg.svd(columns, full_matrices=False)
+    q = q[:, s > 1e-6 * max(float(s[0]) if s.size else 0.0, 1e-300)]
+    d = q.shape[1]
+    dof = nu - 1 - d
+    if d == 0 or dof < 1:
+        return float("nan")
+    taken = float(np.sum((q.T @ rest) ** 2))
+    return float(stats.f.sf((taken / d) / max((float(rest @ rest) - taken) / dof, 1e-300), d, dof))
 
 
 def _still_significant(

@@ -23,6 +23,17 @@ IDENTIFIABLE_TOLERANCE = 1e-3
 EXCITATION_TOLERANCE = 0.05
 #: ``|corr|`` of projected columns above which two candidates cannot be told apart.
 CONFUSION_CORRELATION = 0.99
+#: Level of the test for a signature left after a candidate (:func:`stableins.discovery.signature.laboratory_columns`):
+#: a candidate whose residual still follows a laboratory-fixed direction at ``p`` below it is not named.  Under a true
+#: library effect the residual with it is noise, so the test refuses a true name with probability ``SIGNATURE_ALPHA``.
+SIGNATURE_ALPHA = 0.05
+#: Likelihood margin of the best group: a candidate whose ΔRSS is within this of the best significant candidate's is
+#: named with it as one group (these data cannot tell them apart).  With the true effect ``c`` of size ``a`` (whitened)
+#: and a rival ``j`` at correlation ``ρ`` of their projected columns, ``ΔRSS_j − ΔRSS_c ≈ N(−s², 4s²)`` with
+#: ``s = a√(1 − ρ²)`` (to first order in the noise), so ``P(ΔRSS_j − ΔRSS_c > M) = Φ(−(M + s²)/(2s)) ≤ Φ(−√M)``
+#: for every ``s`` (the bound is reached at ``s = √M``): with ``M = 1.96²`` a rival beats the true effect by more than
+#: the margin with probability at most 2.5 % whatever its correlation, so the group holds the truth (docs/discovery.md).
+GROUP_MARGIN = 1.959963984540054**2
 #: The band ``χ²_ν`` must come back into for a candidate to explain the residual: its two-sided 95 % range under the model
 #: with the candidate (``ν − 1`` degrees of freedom); a candidate is *named* (flagged) only if adding it brings ``χ²``
 #: to or below the band's upper edge (:func:`explains`).
@@ -75,6 +86,10 @@ class CandidateScore:
         (:data:`EXPLAINED_BAND`, :func:`explains`) and leaves no other candidate significant (``leaves`` empty).
     leaves : tuple of str
         The candidates still significant once this one is added (the residual is not this effect alone).
+    signature_p : float
+        Device dwells: p-value of the residual with the effect added along directions fixed in the laboratory
+        (:func:`stableins.discovery.signature.laboratory_columns`, F-test); below :data:`SIGNATURE_ALPHA` a signature is
+        left and the effect is not named.  NaN when not tested.
     """
 
     id: str
@@ -97,6 +112,7 @@ class CandidateScore:
     chi2_red_with: float = float("nan")
     explains: bool = False
     leaves: tuple[str, ...] = ()
+    signature_p: float = float("nan")
 
     def __repr__(self) -> str:
         from stableins.display import number, unit_text, value_sigma
@@ -150,6 +166,7 @@ class CandidateScore:
             "chi2_red_with": _finite(self.chi2_red_with),
             "explains": self.explains,
             "leaves": list(self.leaves),
+            "signature_p": _finite(self.signature_p),
             "advice": self.advice,
         }
 

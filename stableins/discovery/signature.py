@@ -15,6 +15,14 @@ With normalized residuals ``z = r/σ`` (diagonal 1σ; ``P`` positions × ``c`` o
   (:class:`stableins.discovery.system.SystemDiagnosis`), carried in from the spectra.
 
 It describes; it does not name a cause.  docs/discovery.md "Outside the library".
+
+**A signature left after a candidate** (device dwells, :func:`laboratory_columns`): the library's effects are
+functions of the specific force in the platform frame (the vertical seen by the platform), of the gimbal angles and of
+time; an effect that follows a direction fixed in the laboratory *other than the vertical* (a magnetic field, a
+heat source, an air flow: each output's direction cosines with north and east, ``(C_n^p)_{aN}``, ``(C_n^p)_{aE}``,
+six columns over the three outputs) is none of them.  Before a candidate is named, the residual with it added is
+tested on these columns (:func:`stableins.discovery.ranking.rank`): a significant part left there means the
+candidate takes only part of an effect it is not (the residual still has a signature), so it is not named.
 """
 
 from __future__ import annotations
@@ -131,7 +139,7 @@ class ResidualSignature:
     @classmethod
     def from_json(cls, document: Any, path: Any = None, where: str = "signature") -> ResidualSignature:
         """Read the form :meth:`to_json` writes (:class:`~stableins.errors.InputError` naming the field otherwise)."""
-        from stableins.discovery.summaries import Reader, join
+        from stableins.discovery.fields import Reader, join
 
         r = Reader(path)
         d = r.mapping(document, where)
@@ -171,6 +179,27 @@ class ResidualSignature:
             gimbal_harmonics=r.items(r.get(d, "gimbal_harmonics", where), join(where, "gimbal_harmonics"), gimbal),
             earth_harmonics=r.items(r.get(d, "earth_harmonics", where), join(where, "earth_harmonics"), earth),
         )
+
+
+def laboratory_columns(readings: NDArray[np.float64], base_attitude: Sequence[float], configuration: Any) -> NDArray[np.float64]:
+    """Return the six columns (``P·3``, 6) of an output along a direction fixed in the laboratory other than the vertical.
+
+    Column ``(j, a)``: output ``a``'s direction cosine with the local-level axis ``j`` (north, east),
+    ``(C_n^p)_{aj}`` with ``C_n^p = C_b^p(readings) C_n^b`` (docs/conventions.md), on output ``a`` only, rows in the
+    dwell problem's order (position-major, outputs x, y, z).  Module docstring.
+    """
+    from stableins.conventions import dcm_body_to_platform, dcm_nav_to_body
+
+    r = np.asarray(readings, dtype=float)
+    c = dcm_body_to_platform(r[:, 0], r[:, 1], r[:, 2], configuration=configuration) @ dcm_nav_to_body(*base_attitude)
+    p = r.shape[0]
+    columns = []
+    for j in (0, 1):
+        for a in range(3):
+            column = np.zeros((p, 3))
+            column[:, a] = c[:, a, j]
+            columns.append(column.reshape(-1))
+    return np.stack(columns, axis=1)
 
 
 def residual_signature(

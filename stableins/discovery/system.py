@@ -40,6 +40,7 @@ from stableins.discovery.harmonics import HarmonicSpectrum
 from stableins.discovery.history import Discovery
 from stableins.discovery.ranking import Ranking
 from stableins.errormodel import ErrorModel
+from stableins.estimators.result import Stage
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -218,7 +219,7 @@ def diagnose_system_record(
     )
 
     def session(noise: NoiseModel) -> Discovery:
-        s = Discovery(DwellProblem(with_noise(binned, noise), stage="system bins"), model, alpha=alpha, start=start)
+        s = Discovery(DwellProblem(with_noise(binned, noise), stage=Stage.SYSTEM_BINS, static=False), model, alpha=alpha, start=start)
         for effect in add:
             s.add(effect)
         return s

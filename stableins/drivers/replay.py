@@ -6,10 +6,14 @@ in the recorded order.  The procedure must ask for the same operations as it did
 same commands and dwell durations); the first request that differs stops the replay with a
 message naming both, so a recording is never silently applied to a different procedure.
 Operations of interrupted attempts that a resume superseded are skipped, as are failed ones.
+A driver reads no journal: :func:`stableins.procedures.replay.replay_driver` reads the run's journal and
+hands this driver the recorded operations.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,41 +21,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.drivers.errors import DriverError
-from stableins.errors import InputError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
 
-JOURNAL_NAME = "journal.bin"
 
+@dataclass(frozen=True)
+class RecordedOperation:
+    """One operation as the platform answered it when the run was recorded.
 
-def journal_path(path: str | Path) -> Path:
-    """Return the journal file of a run directory (or the journal file itself)."""
-    path = Path(path)
-    return path / JOURNAL_NAME if path.is_dir() else path
+    ``answer`` returns the recorded answer when the replay reaches it (a float for ``command``, the angles
+    [rad] for ``read_angles``, a :class:`~stableins.samples.SampleBlock` for ``acquire``), so a recording
+    of any length plays back in bounded memory.
+    """
 
-
-def live_operations(records: list[Any]) -> list[Any]:
-    """Operation records that stand: drop those a resume superseded (see :mod:`stableins.procedures.runner`)."""
-    superseded: set[int] = set()
-    for record in records:
-        if record.kind == "resume":
-            first, last = record["superseded"] if record.get("superseded") else (0, -1)
-            superseded.update(range(first, last + 1))
-    return [r for r in records if r.kind == "op" and r.seq not in superseded]
-
-
-def metadata_from_start(record: Any) -> SiteMetadata:
-    """Return the site metadata a journal's start record holds."""
-    d = dict(record["metadata"])
-    d["gimbal_senses"] = tuple(d["gimbal_senses"])
-    d["base_attitude"] = tuple(d["base_attitude"])
-    return SiteMetadata(**d)
-
-
-def block_from_record(record: Any) -> SampleBlock:
-    """Return the samples a journaled acquisition holds."""
-    a = record.arrays
-    return SampleBlock(time=a["time"], specific_force=a["specific_force"], angles=a["angles"], temperature=a["temperature"])
+    operation: str
+    arguments: tuple[float, ...]
+    answer: Callable[[], Any]
+    #: The record's number in the recording, named by the error of a mismatch.
+    seq: int
 
 
 class ReplayDriver:
@@ -59,15 +46,10 @@ class ReplayDriver:
 
     deterministic = True
 
-    def __init__(self, path: str | Path) -> None:
-        from stableins.procedures.journal import scan
-
-        self.path = journal_path(path)
-        records = scan(self.path).records
-        if not records or records[0].kind != "start":
-            raise InputError("the journal has no start record", path=self.path, expected="a journal written by 'stableins run'")
-        self._metadata = metadata_from_start(records[0])
-        self._operations = [r for r in live_operations(records) if not r.get("error")]
+    def __init__(self, metadata: SiteMetadata, operations: Sequence[RecordedOperation], path: str | Path) -> None:
+        self.path = Path(path)
+        self._metadata = metadata
+        self._operations = list(operations)
         self._next = 0
 
     @property
@@ -75,15 +57,15 @@ class ReplayDriver:
         """Return the site metadata of the replayed run."""
         return self._metadata
 
-    def _take(self, operation: str, arguments: list[float]) -> Any:
+    def _take(self, operation: str, arguments: list[float]) -> RecordedOperation:
         if self._next >= len(self._operations):
             raise DriverError(f"replay of {self.path}: the recording ends here, but the procedure asks for {operation} {arguments}")
         record = self._operations[self._next]
-        recorded = record["arguments"]
-        if record["operation"] != operation or len(recorded) != len(arguments) or not np.allclose(recorded, arguments, rtol=0, atol=1e-12):
+        recorded = list(record.arguments)
+        if record.operation != operation or len(recorded) != len(arguments) or not np.allclose(recorded, arguments, rtol=0, atol=1e-12):
             raise DriverError(
                 f"replay of {self.path}: the procedure asks for {operation} {arguments} but the recording has "
-                f"{record['operation']} {recorded} at operation {self._next + 1} (record {record.seq}); "
+                f"{record.operation} {recorded} at operation {self._next + 1} (record {record.seq}); "
                 "a recording plays back only the procedure and options it was made with"
             )
         self._next += 1
@@ -91,19 +73,20 @@ class ReplayDriver:
 
     def command(self, readings: tuple[float, float, float]) -> float:
         """Return the journaled answer to the next command."""
-        return float(self._take("command", [float(r) for r in readings])["result"])
+        return float(self._take("command", [float(r) for r in readings]).answer())
 
     def read_angles(self) -> NDArray[np.float64]:
         """Return the journaled answer to the next angle reading."""
-        return np.array(self._take("read_angles", []).arrays["angles"])
+        return np.array(self._take("read_angles", []).answer())
 
     def acquire(self, duration: float) -> SampleBlock:
         """Return the journaled samples of the next acquisition."""
-        return block_from_record(self._take("acquire", [float(duration)]))
+        block: SampleBlock = self._take("acquire", [float(duration)]).answer()
+        return block
 
     def status(self) -> dict[str, object]:
         """Return the replay's position in the journal."""
         return {"driver": "replay", "path": str(self.path), "operation": self._next, "of": len(self._operations)}
 
     def close(self) -> None:
-        """Release nothing: the journal was read when the driver was made."""
+        """Release nothing: the recording was read when the driver was made."""

@@ -30,6 +30,8 @@ def open_driver(
     drawn from ``seed`` and serial number ``unit``, or with ``truth`` (a
     :class:`~stableins.simulator.truth.Truth`, its noise drawn from ``seed``); it is deterministic:
     the same truth, the same seed and the same sequence of operations give the same samples.
+    ``replay:PATH`` (a recorded run) is opened by :func:`stableins.procedures.replay.open_run_driver`,
+    which reads the run's journal.
     """
     if truth is not None and spec != "sim":
         raise InputError("a known truth is simulated by the simulated platform only", field="--truth", expected="--driver sim")
@@ -41,10 +43,6 @@ def open_driver(
         from stableins.drivers.tcp import connect
 
         return connect(spec, timeout=timeout)
-    if spec.startswith("replay:"):
-        from stableins.drivers.replay import ReplayDriver
-
-        return ReplayDriver(spec[len("replay:") :])
     raise InputError(f"unknown driver {spec!r}", field="driver_spec", expected=SPEC_HELP)
 
 
@@ -119,8 +117,7 @@ class SimulatedDriver:
         ``turns``: :class:`stableins.turns.PlatformTurn` indexing the platform by torquing during the record.
         """
         try:
-            from stableins.simulator.indexing import indexed_record_chunks
-            from stableins.simulator.system import system_record_chunks
+            from stableins.simulator.system import indexed_record_chunks, system_record_chunks
         except ImportError as error:
             raise InputError(f"the simulated system-level recorder is not available ({error})", field="driver_spec") from None
         rate = self.platform.rate

@@ -22,6 +22,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from stableins.drivers.base import PlatformDriver
+from stableins.errors import InputError, NotDeterminedError
 
 #: The protocol's name, first word of the greeting ``STABLEINS-PLATFORM <version> [<capability> ...]``.
 PROTOCOL_NAME = "STABLEINS-PLATFORM"
@@ -29,6 +30,8 @@ PROTOCOL_NAME = "STABLEINS-PLATFORM"
 PROTOCOL_VERSION = 2
 #: Capability of a platform whose INS streams its navigation outputs (``REC`` and ``NAV``, docs/protocol.md).
 NAV_CAPABILITY = "NAV"
+#: Capability of a platform that answers ``META CRC`` with the metadata's CRC-32 after its JSON (docs/protocol.md).
+META_CRC_CAPABILITY = "METACRC"
 #: The greeting of a version-1 platform (no capabilities).
 PROTOCOL_GREETING = f"{PROTOCOL_NAME} 1"
 #: Order of the values of an ``N`` line (the system-level record's columns, :data:`stableins.schema.SYSTEM_COLUMNS`).
@@ -90,6 +93,11 @@ def sample_lines(block: Any) -> list[str]:
     return lines
 
 
+def metadata_checksum(text: str) -> str:
+    """CRC-32 (hex) of a ``META`` reply's JSON text, as ``META CRC`` sends it after the JSON (docs/protocol.md)."""
+    return f"{zlib.crc32(text.encode('ascii')):08x}"
+
+
 def checksum(lines: list[str]) -> str:
     """CRC-32 (hex) of the concatenated sample lines, newlines included."""
     crc = 0
@@ -125,8 +133,8 @@ class _Session:
 
     @property
     def capabilities(self) -> tuple[str, ...]:
-        """What this platform offers beyond version 1: ``NAV`` when its driver records the INS's outputs."""
-        return (NAV_CAPABILITY,) if callable(getattr(self.driver, "static_record", None)) else ()
+        """What this platform offers beyond version 1: ``NAV`` when its driver records the INS's outputs; ``METACRC``."""
+        return ((NAV_CAPABILITY,) if callable(getattr(self.driver, "static_record", None)) else ()) + (META_CRC_CAPABILITY,)
 
     def run(self) -> None:
         self.send(greeting(self.capabilities) + "\n")
@@ -142,11 +150,12 @@ class _Session:
             try:
                 if not self.handle(request_id, verb, arguments):
                     return
-            except (ValueError, IndexError) as error:
-                self.send(f"{request_id} ERR protocol {verb}: {error}\n")
-            except Exception as error:  # the platform failed: tell the client, keep serving
-                message = str(error).replace("\n", " ")
-                self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
+            except Exception as error:
+                if isinstance(error, ValueError | IndexError) and not isinstance(error, InputError | NotDeterminedError):
+                    self.send(f"{request_id} ERR protocol {verb}: {error}\n")
+                else:  # the platform failed (or refused a value): tell the client, keep serving
+                    message = str(error).replace("\n", " ")
+                    self.send(f"{request_id} ERR driver {type(error).__name__}: {message}\n")
 
     def handle(self, request_id: str, verb: str, arguments: list[str]) -> bool:
         """Answer one request; False when the client said goodbye."""
@@ -167,7 +176,11 @@ class _Session:
         return handler(request_id, arguments)
 
     def _meta(self, request_id: str, arguments: list[str]) -> bool:
-        self.send(f"{request_id} OK {json.dumps(self.driver.metadata.to_dict(), allow_nan=False)}\n")
+        if [a.upper() for a in arguments] not in ([], ["CRC"]):
+            raise ValueError("expected nothing, or CRC")
+        text = json.dumps(self.driver.metadata.to_dict(), allow_nan=False)
+        crc = f" {metadata_checksum(text)}" if arguments else ""  # META CRC (capability METACRC); plain META as in version 2
+        self.send(f"{request_id} OK {text}{crc}\n")
         return True
 
     def _command(self, request_id: str, arguments: list[str]) -> bool:

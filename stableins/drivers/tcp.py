@@ -28,7 +28,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
-from stableins.drivers.server import NAV_CAPABILITY, NAV_FIELDS, PROTOCOL_NAME, PROTOCOL_VERSION, format_float
+from stableins.drivers.server import (
+    META_CRC_CAPABILITY,
+    NAV_CAPABILITY,
+    NAV_FIELDS,
+    PROTOCOL_NAME,
+    PROTOCOL_VERSION,
+    format_float,
+    metadata_checksum,
+)
 from stableins.errors import InputError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
@@ -204,7 +212,15 @@ class TcpDriver:
             from stableins.data.jsonio import parse_json
             from stableins.data.metadata import metadata_from_si
 
-            payload = self._call("META")
+            payload = self._call("META", "CRC") if META_CRC_CAPABILITY in self.capabilities else self._call("META")
+            if META_CRC_CAPABILITY in self.capabilities:
+                payload, _, crc = payload.rpartition(" ")
+                if crc != metadata_checksum(payload):
+                    self._drop()
+                    raise DriverProtocolError(
+                        f"{self.address}: the META reply's CRC {crc[:8]!r} does not match its {len(payload)} characters "
+                        f"(CRC {metadata_checksum(payload)}; garbage on the link?)"
+                    )
             try:
                 self._metadata = metadata_from_si(parse_json(payload, field="META", what="site metadata"), f"META reply of {self.address}")
             except InputError as error:

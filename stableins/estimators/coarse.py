@@ -53,14 +53,14 @@ from stableins.conventions import (
     dcm_nav_to_body,
 )
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, choose_gauge
 from stableins.estimators.details import CoarseDetails, UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, gauge_preference, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.orientation import check_orientation
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.estimators.setting import DeviceSetting
 from stableins.platform import specific_force_and_jacobian
@@ -255,7 +255,7 @@ def calibrate_coarse(
     residuals, residual_sigma, labels = _residuals(problem, solution.x, usable)
     notes.extend(quality_notes(solution, design, residuals / residual_sigma, labels))
     return FitResult.from_solution(
-        "coarse",
+        Stage.COARSE,
         model.terms,
         solution,
         design,
@@ -379,7 +379,7 @@ def _start_gauge(
     _, a_start = problem.weighted(x_start)
     start, gauge, held = hold_and_gauge(a_start[0], model, scales, extra_ids, GAUGE_PREFERENCE)
     if any(g not in GAUGE_PREFERENCE for g in gauge.fixed) or start.deficiency > 1:
-        raise InputError(
+        raise NotDeterminedError(
             f"the usable positions do not determine the parameters: null directions involve {start.involved()} "
             f"(left out: {describe_left_out(left_out)})",
             path=source,

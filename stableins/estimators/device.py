@@ -27,7 +27,7 @@ from stableins.estimators.joint import fit_joint
 from stableins.estimators.layout import StageLayout
 from stableins.estimators.orientation import check_orientation
 from stableins.estimators.residual_noise import ResidualSlowNoise, given_noise_test, residual_slow_noise
-from stableins.estimators.result import FitResult, InputSensitivity
+from stableins.estimators.result import FitResult, InputSensitivity, Stage
 from stableins.estimators.setting import DeviceSetting
 from stableins.estimators.slow_noise import DEFAULT_ALPHA, DwellSlowNoise, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
@@ -117,7 +117,7 @@ class DeviceCalibration:
             fits.append(f"fine χ²_ν = {self.fine.chi2_red:.3f}")
         if self.fused is not None:
             fits.append(f"fused χ²_ν = {self.fused.chi2_red:.3f} (ν = {self.fused.dof})")
-        lines = [f"<DeviceCalibration: stage {self.final.stage!r} recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
+        lines = [f"<DeviceCalibration: stage '{self.final.stage}' recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
         lines += parameter_lines(self.final.rows())
         return clipped(
             lines, "(print(calibration) for every stage, calibration.final for the recorded fit, "
@@ -263,7 +263,7 @@ class _DeviceFit:
         *,
         start: FitResult | Mapping[str, float],
         nonlinear: bool = True,
-        stage: str = "coarse",
+        stage: Stage = Stage.COARSE,
         notes: Sequence[str] = (),
     ) -> FitResult:
         """Return :func:`stableins.estimators.joint.fit_joint` of these dwells with the session's settings."""
@@ -501,7 +501,7 @@ def _run_stages(
             used_coarse,
             used_fine,
             start=start,
-            stage="coarse+fine",
+            stage=Stage.DEVICE,
             notes=("coarse passes and fine stage fused by joint GLS (docs/device-calibration.md)",)
             + ((mismatch,) if mismatch is not None else ()),
         )
@@ -608,7 +608,7 @@ def calibrate_device(
         if np.all(np.isfinite(b_up)) and np.any(b_up > 0):
             largest = replace(session, noise=noise_model.with_values(bias_instability=b_up))
             if fused is not None:
-                floor = largest.fit_joint(used_coarse, used_fine, start=fused, stage="coarse+fine")
+                floor = largest.fit_joint(used_coarse, used_fine, start=fused, stage=Stage.DEVICE)
                 fused = _with_floor(fused, floor, _floor_note(noise_model, b_up, floor_ratio(fused, floor)))
             else:
                 floor = largest.fit_joint(used_coarse, start=coarse, nonlinear=coarse_nonlinear)

@@ -38,13 +38,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import BETA_IDS, CORE_IDS, ErrorModel, Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, aligned_null_space
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.status import Status
 
@@ -213,9 +213,9 @@ def _quality_notes(
 
 
 def _check_determined(left_out: Mapping[int, str], start_design: DesignAnalysis, gauge: Gauge, source: str) -> None:
-    """Raise :class:`InputError` unless the usable positions determine the 12 combinations (pairs held as the gauge)."""
+    """Raise :class:`NotDeterminedError` unless the usable positions determine the 12 combinations (pairs held as the gauge)."""
     if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
-        raise InputError(
+        raise NotDeterminedError(
             f"the usable fine-stage positions do not determine the model's combinations: null directions involve {start_design.involved()} "
             f"(left out: {describe_left_out(left_out)})",
             path=source,
@@ -297,7 +297,7 @@ def calibrate_fine(
     labels = tuple(f"pos {d.position} |f|" for d in usable)
     notes += _quality_notes(solution, design, residuals / (sigma_h / g)[0], labels)
     return FitResult(
-        stage="fine",
+        stage=Stage.FINE,
         terms=model.terms,
         values=x,
         covariance=cov,

@@ -26,7 +26,10 @@ nuisances are estimated with the twelve and marginalized (the twelve's covarianc
 their information the Schur complement).  Caged dwells carry no gyro information: the stage raises ``ValueError``
 saying so.  The slope of each reading is a least-squares line over the second half of the dwell
 (:data:`SLOPE_SKIP`: the servo's settling transient is in the first part).  ``f^p`` changes within a dwell by the
-drift angle only (< 1e-4 rad), a 1e-4 relative effect.
+drift angle only (< 1e-4 rad), a 1e-4 relative effect.  ``J`` and ``f^p`` are evaluated at the centre of the samples
+each line is fitted on (:attr:`ReadingSlopes.centre`), where a least-squares line's slope is the path's derivative to
+second order: the drift turns the readings along ``J(α(t))⁻¹ w``, and at the dwell's mean reading instead (7″ away in
+a 600-s dwell at 0.05 °/h) ``J`` errs by 4e-5 relative, 0.1–0.5σ of a fine dwell's slope.
 
 Gauge
 -----
@@ -82,7 +85,7 @@ from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
 from stableins.estimators.gauss_newton import goodness_of_fit_warning
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GIMBAL_LOCK_CONDITION, GimbalPlatform, platform_specific_force, rotation_about
 from stableins.status import Status
 
@@ -117,6 +120,10 @@ class ReadingSlopes:
         ``Σ (t − t̄)²`` of the samples used [s²].
     distinct : ndarray (P, 3) of bool
         Whether the reading took at least 3 values (a quiet or coarsely quantized sensor has no scatter to weigh by).
+    centre : ndarray (P, 3)
+        The mean reading of the samples used [rad]: the line's value at their mean time, where its slope is the
+        reading rate (a least-squares line through a smooth path has the path's derivative at the centre of the
+        samples, to second order).  The geometry (:class:`SlopeGeometry`) is evaluated there.
     """
 
     slope: NDArray[np.float64]
@@ -124,12 +131,13 @@ class ReadingSlopes:
     dof: NDArray[np.float64]
     sxx: NDArray[np.float64]
     distinct: NDArray[np.bool_]
+    centre: NDArray[np.float64]
 
     @classmethod
     def of(cls, dwells: Sequence[tuple[ArrayLike, ArrayLike]], skip: float = SLOPE_SKIP) -> ReadingSlopes:
         """Fit the lines of ``(time (n,), angles (n, 3))`` per dwell, leaving out the first ``skip`` of each."""
         rows = [_line(t, a, skip) for t, a in dwells]
-        return cls(*(np.array([r[k] for r in rows]) for k in range(5)))
+        return cls(*(np.array([r[k] for r in rows]) for k in range(6)))
 
     def sigma(self) -> NDArray[np.float64]:
         """Return the 1σ of each slope from its own dwell's scatter (NaN where the reading is constant)."""
@@ -142,7 +150,7 @@ class ReadingSlopes:
         return np.sqrt(self.rss[keep].sum(axis=0) / max(float(self.dof[keep].sum()), 1.0))
 
 
-def _line(time: ArrayLike, angles: ArrayLike, skip: float) -> tuple[NDArray, NDArray, float, float, NDArray]:
+def _line(time: ArrayLike, angles: ArrayLike, skip: float) -> tuple[NDArray, NDArray, float, float, NDArray, NDArray]:
     t_all = np.asarray(time, dtype=float)
     keep = t_all >= t_all[0] + skip * (t_all[-1] - t_all[0])
     t = t_all[keep]
@@ -152,7 +160,7 @@ def _line(time: ArrayLike, angles: ArrayLike, skip: float) -> tuple[NDArray, NDA
     slope = x @ (a - a.mean(axis=0)) / sxx if sxx > 0 else np.zeros(a.shape[1])
     residual = a - a.mean(axis=0) - np.outer(x, slope)
     distinct = np.array([np.unique(a[:, k]).size >= 3 for k in range(a.shape[1])])
-    return slope, (residual**2).sum(axis=0), float(max(t.size - 2, 0)), sxx, distinct
+    return slope, (residual**2).sum(axis=0), float(max(t.size - 2, 0)), sxx, distinct, a.mean(axis=0)
 
 
 def reading_slope(time: ArrayLike, angles: ArrayLike, skip: float = SLOPE_SKIP) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -426,7 +434,7 @@ def estimate_gyro_sensitivity(
     residual_sigma = np.broadcast_to(sigma, (int(keep.sum()), 3)).ravel()
     notes = details.rank_report + ((f"{len(left_out)} dwell(s) left out: " + "; ".join(left_out),) if left_out else ())
     return FitResult(
-        stage="gyro",
+        stage=Stage.GYRO,
         terms=tuple(terms),
         values=x,
         covariance=covariance,
@@ -543,7 +551,7 @@ def gyro_from_datasets(
     from stableins.estimators.dwell import dwells_from_columns
 
     site = datasets[0].metadata
-    pieces, readings, labels = [], [], []
+    pieces, labels = [], []
     for ds in datasets:
         summaries = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
         usable = {(s.stage, s.pass_number, s.position) for s in summaries if s.usable}
@@ -556,7 +564,6 @@ def gyro_from_datasets(
             if int(use.sum()) < 6:
                 continue
             pieces.append((np.asarray(d.time)[use], np.asarray(d.angles)[use]))
-            readings.append(np.asarray(d.angles)[use].mean(axis=0))
             labels.append(f"{d.stage} pass {d.pass_number} position {d.position}")
     if not pieces:
         raise ValueError("no usable dwells with readings")
@@ -572,12 +579,15 @@ def gyro_from_datasets(
         )
         removed = [remove_earth_turn(t, a, platform, earth_rate_nav(site.latitude)) for t, a in pieces]
         pieces = [(t, a) for (t, _), (a, _) in zip(pieces, removed, strict=True)]
-        readings = [centre for _, centre in removed]
+    slopes = ReadingSlopes.of(pieces)
+    # the geometry where each line's slope is the reading rate: the centre of the samples fitted (ReadingSlopes.centre);
+    # a 0.05 °/h drift moves the readings 7″ between the dwell's mean and that centre in a 600-s dwell, a 4e-5 relative
+    # change of J, 0.1–0.5σ of such a dwell's slope
     geometry = SlopeGeometry.of(
-        np.array(readings), site.gravity, zero_offsets=zero_offsets, base_attitude=site.base_attitude,
+        slopes.centre, site.gravity, zero_offsets=zero_offsets, base_attitude=site.base_attitude,
         configuration=configuration, mode=mode, latitude=site.latitude,
     )  # fmt: skip
-    return estimate_gyro_sensitivity(ReadingSlopes.of(pieces), geometry, labels=labels, terms=terms, alpha=alpha)
+    return estimate_gyro_sensitivity(slopes, geometry, labels=labels, terms=terms, alpha=alpha)
 
 
 def remove_earth_turn(

@@ -60,7 +60,7 @@ from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, he
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import gauss_newton
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.estimators.setting import DeviceSetting
 
@@ -158,7 +158,7 @@ def fit_joint(
     setting: DeviceSetting,
     start: FitResult | Mapping[str, float],
     nonlinear: bool = True,
-    stage: str = "coarse",
+    stage: Stage = Stage.COARSE,
     notes: Sequence[str] = (),
 ) -> FitResult:
     """GLS fit of usable coarse dwells (any number of passes) and fine dwells; gauge ``θ10 = 0``.
@@ -175,8 +175,8 @@ def fit_joint(
         Start values (a coarse pass or the joint coarse fit); missing ids start at their reference.
     nonlinear : bool
         Estimate ``K2_*`` (always when fine dwells are given: the fine rows determine them).
-    stage : str
-        Stage name of the result (``"coarse"`` for all passes, ``"coarse+fine"`` fused).
+    stage : Stage
+        Which fit the result is (:attr:`Stage.COARSE` for all passes, :attr:`Stage.DEVICE` fused).
     notes : sequence of str
         Notes the result starts with.
     """

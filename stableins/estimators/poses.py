@@ -41,17 +41,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.dwell import DwellSummary, describe_left_out, summarize_dwell
 from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.layout import DwellChecks
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.status import Status
 
 #: The stage name of a pose calibration in results and records.
-STAGE = "poses"
+STAGE = Stage.POSES
 
 #: Dwell checks of a hold: the converter's range is checked by the reader (``railed`` samples), not here.
 POSE_CHECKS = DwellChecks(saturation=np.inf)
@@ -172,9 +172,9 @@ def calibrate_poses(
                 source=source,
                 model=fine_model(extra_terms, nonlinear=model is PoseModel.TWELVE),
             )
-        except InputError as error:
+        except (InputError, NotDeterminedError) as error:
             if model is PoseModel.NINE:
-                raise InputError(
+                raise type(error)(
                     f"the holds determine neither model: {'; '.join(tried)}; {error.message}",
                     path=source,
                     field="holds",

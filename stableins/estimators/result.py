@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -215,14 +216,45 @@ class InputSensitivity:
         return out
 
 
+class Stage(StrEnum):
+    """Which fit a :class:`FitResult` is: a stage of a calibration, or one of discovery's refits.
+
+    A member is its string (``Stage.SYSTEM == "system"``): records, reports and JSON documents keep the names
+    they always wrote, and a record's stage run read back compares equal to the member.
+    """
+
+    COARSE = "coarse"
+    FINE = "fine"
+    #: The device calibration: the coarse passes and the fine stage fused by joint GLS (:mod:`stableins.estimators.joint`).
+    DEVICE = "coarse+fine"
+    SYSTEM = "system"
+    #: The system stage's fifteen combined coefficients (``x1..x5``, pitch and roll).
+    SYSTEM_COMBINED = "system-combined"
+    DRIFT = "drift"
+    GYRO = "gyro"
+    LEVER = "lever"
+    SYSTEMATIC = "systematic"
+    THERMAL = "thermal"
+    POSES = "poses"
+    #: Discovery's refit of device dwells (:class:`stableins.discovery.problem.DwellProblem`), of all of them ...
+    DEVICE_DWELLS = "device dwells"
+    #: ... of one device stage's dwells ...
+    COARSE_DWELLS = "coarse dwells"
+    FINE_DWELLS = "fine dwells"
+    #: ... of a system record's bins, of the gimbal-reading slopes, or of a linear problem.
+    SYSTEM_BINS = "system bins"
+    READING_SLOPES = "reading slopes"
+    LINEAR = "linear"
+
+
 @dataclass(frozen=True)
 class FitResult:
     """Outcome of one estimation stage.
 
     Attributes
     ----------
-    stage : str
-        ``"coarse"``, ``"fine"``, ``"system"`` ...
+    stage : Stage
+        Which fit this is (a string is converted: ``"coarse"``, ``"fine"``, ``"system"`` ...).
     terms : tuple of Term
         Parameters in vector order (ids, units, meaning).
     values : ndarray (n,)
@@ -284,7 +316,7 @@ class FitResult:
         damping loop): the Type B part of a certificate's uncertainty budget.
     """
 
-    stage: str
+    stage: Stage
     terms: tuple[Term, ...]
     values: NDArray[np.float64]
     covariance: NDArray[np.float64]
@@ -318,6 +350,7 @@ class FitResult:
         bad = set(self.status) - set(STATUSES)
         if bad:
             raise ValueError(f"FitResult: unknown status {sorted(bad)}")
+        object.__setattr__(self, "stage", Stage(self.stage))
         object.__setattr__(self, "status", tuple(Status(s) for s in self.status))
         for name in ("left_out", "gauge_values", "held", "combinations"):
             object.__setattr__(self, name, dict(getattr(self, name)))
@@ -329,23 +362,36 @@ class FitResult:
                 getattr(self, name).setflags(write=False)
 
     @classmethod
-    def from_solution(
+    def from_solution(  # noqa: PLR0913 - the stage's own FitResult fields, each typed and named at the call
         cls,
-        stage: str,
+        stage: Stage,
         terms: tuple[Term, ...],
         solution: GaussNewtonSolution,
         design: DesignAnalysis,
         *,
         held: Mapping[str, float],
         gauge_values: Mapping[str, float],
-        **fields: Any,
+        residuals: NDArray[np.float64],
+        residual_sigma: NDArray[np.float64],
+        residual_labels: tuple[str, ...] = (),
+        determined: tuple[str, ...] = (),
+        notes: tuple[str, ...] = (),
+        positions_used: tuple[UsedDwell, ...] = (),
+        left_out: Mapping[int, str] | None = None,
+        passes: tuple[int, ...] = (),
+        gravity: float | None = None,
+        details: StageDetails | None = None,
+        whitened_residuals: NDArray[np.float64] | None = None,
+        settings: dict[str, Any] | None = None,
+        sensitivities: tuple[InputSensitivity, ...] = (),
     ) -> FitResult:
         """Return the result of a device fit solved by :func:`stableins.estimators.gauss_newton.gauss_newton`.
 
         Values, covariance, iterations and the likelihood come from the first batch member of ``solution``;
         rank, singular values and null space from ``design``.  A parameter in ``held`` has status
-        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  ``fields`` are the
-        stage's own (residuals, labels, notes, settings ...).
+        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  The keyword arguments
+        after them are the stage's own fields of :class:`FitResult` (residuals, labels, notes, settings ...),
+        each as the class documents it.
         """
         ids = tuple(t.id for t in terms)
         status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauge_values else Status.ESTIMATED for k in ids)
@@ -354,7 +400,10 @@ class FitResult:
             rank=design.rank, singular_values=design.singular_values, null_space=design.null_space,
             held=held, gauge_values=gauge_values, iterations=solution.iterations,
             likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-            **fields,
+            residuals=residuals, residual_sigma=residual_sigma, residual_labels=residual_labels, determined=determined, notes=notes,
+            positions_used=positions_used, left_out={} if left_out is None else left_out, passes=passes, gravity=gravity,
+            details=details, whitened_residuals=whitened_residuals, settings={} if settings is None else settings,
+            sensitivities=sensitivities,
         )
 
     # ----------------------------------------------------------------- access
@@ -458,7 +507,7 @@ class FitResult:
     def __repr__(self) -> str:
         from stableins.display import clipped, parameter_lines, plural, status_counts
 
-        lines = [f"<FitResult: stage {self.stage!r}, {len(self.terms)} parameters ({status_counts(self.status)})>", self._fit_line()]
+        lines = [f"<FitResult: stage '{self.stage}', {len(self.terms)} parameters ({status_counts(self.status)})>", self._fit_line()]
         warning = self.fit_warning()
         lines += [warning] if warning else []
         lines += parameter_lines(self.rows())
@@ -469,7 +518,7 @@ class FitResult:
         from stableins.display import html_result, parameter_html
 
         return html_result(
-            f"FitResult: stage {self.stage!r}, {len(self.terms)} parameters",
+            f"FitResult: stage '{self.stage}', {len(self.terms)} parameters",
             [self._fit_line(), self.fit_warning() or ""],
             [parameter_html(self.rows(), [t.meaning for t in self.terms])],
             [("determined combinations", self.determined), ("notes", self.notes)],

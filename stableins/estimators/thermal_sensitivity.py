@@ -39,7 +39,7 @@ from stableins.conventions import AXES, MICRO_G, PPM
 from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.status import Status
 
@@ -257,7 +257,7 @@ def estimate_thermal(
     likelihood = Likelihood(ids, values.copy(), information, np.zeros(6))
     notes = _notes(details, values, np.sqrt(np.diag(covariance)))
     return FitResult(
-        stage="thermal",
+        stage=Stage.THERMAL,
         terms=tuple(terms),
         values=values,
         covariance=0.5 * (covariance + covariance.T),

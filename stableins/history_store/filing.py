@@ -8,7 +8,6 @@ import json
 import math
 import os
 import re
-import sqlite3
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,9 +15,8 @@ from typing import TYPE_CHECKING
 
 from stableins.errors import InputError
 from stableins.history import data_only, parse_date
-from stableins.history_store.schema import MAX_RECORD_BYTES, Entry
-from stableins.identifiers import check_serial_number
-from stableins.records.stages import utc_now
+from stableins.history_store.schema import MAX_RECORD_BYTES, Connection, Entry
+from stableins.identifiers import check_serial_number, utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord
@@ -55,25 +53,41 @@ def read_filing(record_path: str | os.PathLike[str], *, prior: str, evidence: st
     InputError
         ``prior`` is not a SHA-256 digest, a file is refused, the estimate is of another unit, the record has no time.
     """
+    data, record = read_record(record_path)
+    evidence_data, evidence_record = read_record(evidence) if evidence is not None else (None, None)
+    return filing_of(data, record, prior=prior, evidence_data=evidence_data, evidence_record=evidence_record, source=record_path)
+
+
+def filing_of(
+    data: bytes,
+    record: CalibrationRecord,
+    *,
+    prior: str,
+    evidence_data: bytes | None = None,
+    evidence_record: CalibrationRecord | None = None,
+    source: str | os.PathLike[str],
+) -> Filing:
+    """Return the filing of a record's bytes (and of the estimate kept beside it), read from ``source``.
+
+    Raises
+    ------
+    InputError
+        ``prior`` is not a SHA-256 digest, the estimate is of another unit, the record has no time.
+    """
     if prior and not SHA256.fullmatch(prior):
         raise InputError(f"prior {prior[:70]!r} is not a SHA-256 digest", field="prior", expected="64 lower-case hexadecimal digits")
-    data, record = read_record(record_path)
     digest = hashlib.sha256(data).hexdigest()
-    evidence_data: bytes | None = None
-    evidence_record: CalibrationRecord | None = None
-    if evidence is not None:
-        evidence_data, evidence_record = read_record(evidence)
-        if evidence_record.serial_number != record.serial_number:
-            raise InputError(
-                f"the estimate is of unit {evidence_record.serial_number!r}, the record of {record.serial_number!r}",
-                path=evidence,
-                field="serial_number",
-                expected="the data-only estimate of the same unit",
-            )
+    if evidence_record is not None and evidence_record.serial_number != record.serial_number:
+        raise InputError(
+            f"the estimate is of unit {evidence_record.serial_number!r}, the record of {record.serial_number!r}",
+            path=source,
+            field="serial_number",
+            expected="the data-only estimate of the same unit",
+        )
     check_serial(record.serial_number)
     valid_from = record.provenance.data_end or record.provenance.created
     if not valid_from:
-        raise InputError("record has neither a data end time nor a creation time", path=record_path, field="provenance.data_end")
+        raise InputError("record has neither a data end time nor a creation time", path=source, field="provenance.data_end")
     stamp = parse_date(valid_from, "provenance.data_end").strftime("%Y%m%dT%H%M%SZ")
     entry = Entry(
         f"{stamp}-{digest[:8]}.json",
@@ -90,14 +104,14 @@ def read_filing(record_path: str | os.PathLike[str], *, prior: str, evidence: st
 
 
 def insert_entry(
-    connection: sqlite3.Connection, serial: str, entry: Entry, record: CalibrationRecord, evidence: CalibrationRecord | None
+    connection: Connection, serial: str, entry: Entry, record: CalibrationRecord, evidence: CalibrationRecord | None
 ) -> None:
     """Index a record: its row, and the values of its parameters, of the estimate beside it and of its data alone."""
     now = utc_now()
-    connection.execute("INSERT OR IGNORE INTO units (serial, first_filed) VALUES (?, ?)", (serial, now))
+    connection.execute("INSERT INTO units (serial, first_filed) VALUES (?, ?) ON CONFLICT DO NOTHING", (serial, now))
     cursor = connection.execute(
         "INSERT INTO records (serial, file, sha256, valid_from, valid_from_utc, created, procedure, stages, prior, evidence, "
-        "evidence_sha256, filed) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        "evidence_sha256, filed) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
         (
             serial,
             entry.file,
@@ -113,16 +127,17 @@ def insert_entry(
             now,
         ),
     )
+    record_id = cursor.fetchone()[0]
     rows = []
     for source, which in (("record", record), ("evidence", evidence)):
         if which is None:
             continue
         for p in which.parameters:
             sigma = p.sigma if math.isfinite(p.sigma) else None
-            rows.append((cursor.lastrowid, source, p.id, p.value, sigma, p.unit, getattr(p.status, "value", str(p.status))))
+            rows.append((record_id, source, p.id, p.value, sigma, p.unit, getattr(p.status, "value", str(p.status))))
     # what the record's own calibration determines from its data alone: the points of the drift (fleet queries)
     for pid, (value, sigma) in data_only(record).items():
-        rows.append((cursor.lastrowid, "data_only", pid, value, sigma, record[pid].unit, "estimated"))
+        rows.append((record_id, "data_only", pid, value, sigma, record[pid].unit, "estimated"))
     connection.executemany("INSERT INTO parameters (record, source, id, value, sigma, unit, status) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
 
@@ -151,11 +166,22 @@ def verified_bytes(path: Path, digest: str) -> bytes:
             "the filed record is missing", path=path, field="sha256", expected=f"the file the history index lists, SHA-256 {digest}"
         )
     data = read_input_bytes(path, max_bytes=MAX_RECORD_BYTES, what="a filed calibration record")
+    return checked_digest(data, digest, path)
+
+
+def checked_digest(data: bytes, digest: str, where: str | os.PathLike[str]) -> bytes:
+    """Return ``data``, refused unless its SHA-256 is ``digest`` (the index's); ``where`` names the file in the message.
+
+    Raises
+    ------
+    InputError
+        The SHA-256 of ``data`` differs.
+    """
     found = hashlib.sha256(data).hexdigest()
     if found != digest:
         raise InputError(
             f"the filed record was changed after it was filed (its SHA-256 is now {found})",
-            path=path,
+            path=where,
             field="sha256",
             expected=f"SHA-256 {digest}, as the history index holds",
         )

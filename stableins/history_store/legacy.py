@@ -19,7 +19,7 @@ from stableins.errors import InputError
 from stableins.history import parse_date
 from stableins.history_store.filing import SHA256, insert_entry, verified_bytes
 from stableins.history_store.schema import MAX_RECORD_BYTES, Entry, find_entry, transaction
-from stableins.records.stages import utc_now
+from stableins.identifiers import utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
     from stableins.records import CalibrationRecord

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from stableins.history import trend
+from stableins.history import parse_date, trend
 from stableins.history_store.schema import Entry, entry_from_row
 
 #: ``|drift| / σ`` beyond which a unit counts as drifting in fleet queries.
@@ -68,29 +68,30 @@ def fleet_status(
     by_record: dict[int, list[tuple[str, float, float]]] = {}
     for record_id, pid, value, sigma in values:
         by_record.setdefault(record_id, []).append((pid, value, sigma if sigma is not None else math.nan))
-    units: dict[str, list[tuple[int, Entry]]] = {}
-    for row in rows:
-        units.setdefault(row[1], []).append((row[0], entry_from_row(row[2:])))
+    units: dict[str, list[tuple[int, datetime, tuple[Any, ...]]]] = {}
+    for row in rows:  # each time parsed once; an Entry is made only for the record in force
+        units.setdefault(row[1], []).append((row[0], parse_date(row[3], "valid_from"), row))
     out = []
     for serial, items in units.items():
-        earlier = [e for _, e in items if e.time <= date]
-        current = earlier[-1] if earlier else None
-        age = (date - current.time).total_seconds() / 86400.0 if current is not None else None
+        earlier = [item for item in items if item[1] <= date]
+        current = entry_from_row(earlier[-1][2][2:]) if earlier else None
+        since = earlier[-1][1] if earlier else None
+        age = (date - since).total_seconds() / 86400.0 if since is not None else None
         drifting = _drifting(items, by_record, drift_sigmas)
-        due = current is None or (date - current.time) > max_age
+        due = since is None or (date - since) > max_age
         out.append(UnitStatus(serial, len(items), current, age, due, drifting))
     return out
 
 
 def _drifting(
-    items: list[tuple[int, Entry]], by_record: dict[int, list[tuple[str, float, float]]], drift_sigmas: float
+    items: list[tuple[int, datetime, tuple[Any, ...]]], by_record: dict[int, list[tuple[str, float, float]]], drift_sigmas: float
 ) -> tuple[tuple[str, float], ...]:
     """Return the parameters of one unit whose drift reaches ``drift_sigmas``, with their z, sorted by id."""
     series: dict[str, list[tuple[datetime, float, float]]] = {}
-    for record_id, entry in items:
+    for record_id, time, _ in items:
         for pid, value, sigma in by_record.get(record_id, []):
             if math.isfinite(sigma) and sigma > 0:
-                series.setdefault(pid, []).append((entry.time, value, sigma))
+                series.setdefault(pid, []).append((time, value, sigma))
     drifting = []
     for pid, points in sorted(series.items()):
         if len(points) >= 2:

@@ -11,11 +11,17 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from stableins.errors import InputError
 from stableins.history import parse_date
-from stableins.records.stages import utc_now
+from stableins.identifiers import utc_now
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.history_store.postgres import PostgresConnection
+
+#: A connection to the store's index: SQLite's, or PostgreSQL's through :class:`~stableins.history_store.postgres.PostgresConnection`.
+Connection: TypeAlias = "sqlite3.Connection | PostgresConnection"
 
 STORE_NAME = "history.sqlite"
 STORE_FORMAT = "stableins-history-store"
@@ -60,9 +66,16 @@ SCHEMA = (
 ENTRY_COLUMNS = "file, valid_from, created, sha256, procedure, stages, prior, evidence, evidence_sha256"
 
 
-def default_store() -> Path:
-    """Return the default store directory: ``$STABLEINS_HISTORY``, else ``~/.local/share/stableins/history``."""
+def default_store() -> Path | str:
+    """Return the default store: ``$STABLEINS_HISTORY`` (a directory or a ``postgresql://`` URL), else the user's folder.
+
+    The user's folder is ``~/.local/share/stableins/history``.
+    """
+    from stableins.history_store.postgres import is_url
+
     env = os.environ.get("STABLEINS_HISTORY")
+    if env and is_url(env):
+        return env
     return Path(env) if env else Path.home() / ".local" / "share" / "stableins" / "history"
 
 
@@ -93,7 +106,7 @@ def entry_from_row(row: tuple[Any, ...]) -> Entry:
 
 
 @contextlib.contextmanager
-def transaction(connection: sqlite3.Connection) -> Iterator[None]:
+def transaction(connection: Connection) -> Iterator[None]:
     """Run ``BEGIN IMMEDIATE`` … ``COMMIT`` (rolled back on any exception): writers queue for SQLite's write lock."""
     connection.execute("BEGIN IMMEDIATE")
     try:
@@ -104,29 +117,36 @@ def transaction(connection: sqlite3.Connection) -> Iterator[None]:
     connection.execute("COMMIT")
 
 
-def find_entry(connection: sqlite3.Connection, serial: str, digest: str) -> Entry | None:
+def find_entry(connection: Connection, serial: str, digest: str) -> Entry | None:
     """Return the unit's entry of the record with this SHA-256, None if it is not filed."""
     row = connection.execute(f"SELECT {ENTRY_COLUMNS} FROM records WHERE serial = ? AND sha256 = ?", (serial, digest)).fetchone()
     return None if row is None else entry_from_row(row)
 
 
-def prepare(connection: sqlite3.Connection, index_path: Path) -> None:
+def prepare(connection: Connection, index_path: Path | str) -> None:
     """Set WAL mode, create the schema and check the format (idempotent; safe when several processes start at once).
+
+    On PostgreSQL (:class:`~stableins.history_store.postgres.PostgresConnection`) the schema is
+    :data:`stableins.history_store.postgres.SCHEMA`, created under the write lock.
 
     Raises
     ------
     InputError
         The database is not a stableins history index, or of another schema version.
     """
-    _write_ahead_log(connection)
-    connection.execute("PRAGMA synchronous=FULL")
-    connection.execute("PRAGMA foreign_keys=ON")
+    from stableins.history_store.postgres import PostgresConnection, postgres_schema
+
+    postgres = isinstance(connection, PostgresConnection)
+    if not isinstance(connection, PostgresConnection):
+        _write_ahead_log(connection)
+        connection.execute("PRAGMA synchronous=FULL")
+        connection.execute("PRAGMA foreign_keys=ON")
     found = _meta(connection)
     if not found:
         with transaction(connection):  # several processes may start on a new store at once: one creates it
             found = _meta(connection)
             if not found:
-                for statement in SCHEMA:
+                for statement in postgres_schema(SCHEMA) if postgres else SCHEMA:
                     connection.execute(statement)
                 found = {"format": STORE_FORMAT, "schema_version": str(STORE_SCHEMA_VERSION), "created": utc_now()}
                 connection.executemany("INSERT INTO meta (key, value) VALUES (?, ?)", list(found.items()))
@@ -154,8 +174,13 @@ def _write_ahead_log(connection: sqlite3.Connection) -> None:
             time.sleep(0.01 + 0.002 * attempt)
 
 
-def _meta(connection: sqlite3.Connection) -> dict[str, str]:
-    exists = connection.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone()
+def _meta(connection: Connection) -> dict[str, str]:
+    from stableins.history_store.postgres import PostgresConnection
+
+    if isinstance(connection, PostgresConnection):
+        exists = "meta" in connection.tables()
+    else:
+        exists = connection.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone() is not None
     if not exists:
         return {}
     return dict(connection.execute("SELECT key, value FROM meta").fetchall())

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 import shlex
 import sqlite3
-from collections.abc import Iterator
+import tempfile
+from collections.abc import Iterable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,14 +17,24 @@ from typing import TYPE_CHECKING, Any
 from stableins.data.atomic import fsync_directory
 from stableins.errors import InputError
 from stableins.history import DEFAULT_MAX_AGE, Comparison, Trend, compare, data_only, trend
-from stableins.history_store.filing import Filing, check_serial, insert_entry, read_filing, stage_file, verified_bytes
+from stableins.history_store.filing import (
+    Filing,
+    check_serial,
+    checked_digest,
+    insert_entry,
+    read_filing,
+    stage_file,
+    verified_bytes,
+)
 from stableins.history_store.legacy import legacy_units, migrate
+from stableins.history_store.postgres import PostgresConnection, is_url, redacted
 from stableins.history_store.queries import DRIFT_SIGMAS, UnitStatus, fleet_status
 from stableins.history_store.schema import (
     BUSY_TIMEOUT,
     ENTRY_COLUMNS,
     STORE_FORMAT,
     STORE_NAME,
+    Connection,
     Entry,
     default_store,
     entry_from_row,
@@ -37,22 +49,50 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 class HistoryStore:
-    """Per-serial store of calibration records indexed in SQLite (:mod:`stableins.history_store`)."""
+    """Per-serial store of calibration records indexed in SQLite, or in PostgreSQL (:mod:`stableins.history_store`).
+
+    Parameters
+    ----------
+    root : path or str, optional
+        The store's directory (SQLite), or a ``postgresql://`` URL (:mod:`stableins.history_store.postgres`);
+        default :func:`default_store`.
+
+    Attributes
+    ----------
+    location : str
+        What messages name the store by: its directory, or its URL without the password.
+    url : str or None
+        The PostgreSQL URL (None for SQLite).
+    root : Path
+        The store's directory; for PostgreSQL, the local folder where :meth:`record_path` puts verified copies.
+    """
 
     def __init__(self, root: str | os.PathLike[str] | None = None) -> None:
-        self.root = Path(root) if root is not None else default_store()
-        self.index_path = self.root / STORE_NAME
+        location = root if root is not None else default_store()
+        self.url: str | None = str(location) if is_url(location) else None
+        if self.url is not None:
+            key = hashlib.sha256(self.url.encode()).hexdigest()[:16]
+            self.root = Path(tempfile.gettempdir()) / f"stableins-history-{os.getuid()}" / key
+            self.location = redacted(self.url)
+        else:
+            self.root = Path(location)
+            self.location = str(self.root)
+        self.index_path: Path | str = self.location if self.url is not None else self.root / STORE_NAME
 
     def __repr__(self) -> str:
-        return f"HistoryStore({str(self.root)!r})"
+        return f"HistoryStore({self.location!r})"
 
     # ------------------------------------------------------------------ database
     @contextlib.contextmanager
-    def _database(self, *, create: bool) -> Iterator[sqlite3.Connection | None]:
+    def _database(self, *, create: bool) -> Iterator[Connection | None]:
         """Yield a connection (None when the store does not exist and ``create`` is false); migrate old stores first."""
+        if self.url is not None:
+            with self._postgres(create=create) as connection:
+                yield connection
+            return
         if self.root.exists() and not self.root.is_dir():
             raise InputError("is a file, not a directory", path=self.root, field="root", expected="a history store directory")
-        if not self.index_path.exists():
+        if not (self.root / STORE_NAME).exists():
             if not create and not legacy_units(self.root):
                 yield None
                 return
@@ -61,7 +101,7 @@ class HistoryStore:
             except OSError as error:
                 raise InputError(f"cannot create the history store ({error.strerror})", path=self.root, field="root") from None
         try:
-            connection = sqlite3.connect(self.index_path, timeout=BUSY_TIMEOUT, isolation_level=None)
+            connection = sqlite3.connect(self.root / STORE_NAME, timeout=BUSY_TIMEOUT, isolation_level=None)
         except sqlite3.Error as error:
             raise InputError(f"cannot open the history index ({error})", path=self.index_path) from None
         try:
@@ -73,6 +113,28 @@ class HistoryStore:
                 f"the history index cannot be used ({error}); it is damaged or not a stableins history index",
                 path=self.index_path,
                 expected=f"a {STORE_FORMAT} SQLite database",
+            ) from None
+        finally:
+            connection.close()
+
+    @contextlib.contextmanager
+    def _postgres(self, *, create: bool) -> Iterator[Connection | None]:
+        """Yield a connection to the PostgreSQL store (None when it has no schema yet and ``create`` is false)."""
+        import psycopg
+
+        assert self.url is not None
+        connection = PostgresConnection(self.url)
+        try:
+            if not create and "meta" not in connection.tables():
+                yield None
+                return
+            prepare(connection, self.location)
+            yield connection
+        except psycopg.Error as error:
+            raise InputError(
+                f"the history store cannot be used ({str(error).strip()[:300]})",
+                path=self.location,
+                expected=f"a {STORE_FORMAT} PostgreSQL database",
             ) from None
         finally:
             connection.close()
@@ -100,6 +162,14 @@ class HistoryStore:
                 return []
             return [row[0] for row in connection.execute("SELECT DISTINCT serial FROM records ORDER BY serial")]
 
+    def state(self) -> tuple[int, int]:
+        """Return (records filed, largest row id): it changes whenever a record is filed (what a reader caches by)."""
+        with self._database(create=False) as connection:
+            if connection is None:
+                return (0, 0)
+            count, last = connection.execute("SELECT count(*), coalesce(max(id), 0) FROM records").fetchone()
+        return int(count), int(last)
+
     def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
         """File a record in its unit's history (idempotent: the same bytes are filed once).
 
@@ -121,21 +191,50 @@ class HistoryStore:
             The record's entry (the one already filed when the same bytes were filed before).
         """
         filing = read_filing(record_path, prior=prior, evidence=evidence)
-        serial = filing.record.serial_number
-        directory = self.unit_directory(serial)
+        self.unit_directory(filing.record.serial_number)
+        return self.add_filings([filing])[0]
+
+    def add_filings(self, filings: Iterable[Filing]) -> list[Entry]:
+        """File records already read (:func:`~stableins.history_store.filing.filing_of`), each in its own transaction.
+
+        One connection serves them all (:meth:`add` files one; ``history --migrate`` and the fleet benchmark file many).
+        """
+        entries = []
         with self._database(create=True) as connection:
             assert connection is not None
-            existing = find_entry(connection, serial, filing.entry.sha256)
-            if existing is not None:
-                return existing
-            try:
-                directory.mkdir(parents=True, exist_ok=True)
-            except OSError as error:
-                raise InputError(f"cannot create the unit's folder ({error.strerror})", path=directory) from None
-            return self._file(connection, directory, filing)
+            for filing in filings:
+                serial = filing.record.serial_number
+                directory = self.unit_directory(serial)
+                existing = find_entry(connection, serial, filing.entry.sha256)
+                if existing is not None:
+                    entries.append(existing)
+                elif self.url is not None:
+                    entries.append(self._file_in_database(connection, filing))
+                else:
+                    try:
+                        directory.mkdir(parents=True, exist_ok=True)
+                    except OSError as error:
+                        raise InputError(f"cannot create the unit's folder ({error.strerror})", path=directory) from None
+                    entries.append(self._file(connection, directory, filing))
+        return entries
 
     @staticmethod
-    def _file(connection: sqlite3.Connection, directory: Path, filing: Filing) -> Entry:
+    def _file_in_database(connection: Connection, filing: Filing) -> Entry:
+        """Index a filing and store its bytes in one transaction (PostgreSQL: the bytes appear with their row)."""
+        entry, serial = filing.entry, filing.record.serial_number
+        with transaction(connection):
+            existing = find_entry(connection, serial, entry.sha256)  # filed by another station meanwhile
+            if existing is not None:
+                return existing
+            insert_entry(connection, serial, entry, filing.record, filing.evidence_record)
+            files = [(serial, entry.file, filing.data)]
+            if filing.evidence_data is not None:
+                files.append((serial, entry.evidence, filing.evidence_data))
+            connection.executemany("INSERT INTO files (serial, name, data) VALUES (?, ?, ?)", files)
+        return entry
+
+    @staticmethod
+    def _file(connection: Connection, directory: Path, filing: Filing) -> Entry:
         """Write the filing's files and index them in one transaction (the files appear with their row)."""
         entry, serial = filing.entry, filing.record.serial_number
         staged = [stage_file(directory, entry.file, filing.data)]
@@ -158,9 +257,22 @@ class HistoryStore:
 
     # ------------------------------------------------------------------ reading records
     def record_path(self, serial: str, entry: Entry, *, evidence: bool = False) -> Path:
-        """Return the path of a filed record after its SHA-256 was checked against the index (InputError otherwise)."""
-        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
-        verified_bytes(path, digest)
+        """Return the path of a filed record after its SHA-256 was checked against the index (InputError otherwise).
+
+        On PostgreSQL the verified bytes are written (atomically) to ``root/<serial>/<file>``, a local folder of this
+        user's, and that copy's path is returned.
+        """
+        if self.url is None:
+            path, digest = self._file_and_digest(serial, entry, evidence=evidence)
+            verified_bytes(path, digest)
+            return path
+        from stableins.data.atomic import atomic_write
+
+        name = entry.evidence if evidence and entry.evidence else entry.file
+        path = self.unit_directory(serial) / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(path, "wb") as handle:
+            handle.write(self.verified_data(serial, entry, evidence=evidence))
         return path
 
     def _file_and_digest(self, serial: str, entry: Entry, *, evidence: bool) -> tuple[Path, str]:
@@ -168,13 +280,35 @@ class HistoryStore:
             return self.unit_directory(serial) / entry.evidence, entry.evidence_sha256
         return self.unit_directory(serial) / entry.file, entry.sha256
 
+    def verified_data(self, serial: str, entry: Entry, *, evidence: bool = False) -> bytes:
+        """Return the bytes of a filed record (or of the estimate kept beside it), refused unless their SHA-256 is the index's.
+
+        Raises
+        ------
+        InputError
+            The file is missing, or its SHA-256 differs from the one its row holds.
+        """
+        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
+        if self.url is None:
+            return verified_bytes(path, digest)
+        where = f"{self.location} {serial}/{path.name}"
+        with self._database(create=False) as connection:
+            row = None if connection is None else connection.execute(
+                "SELECT data FROM files WHERE serial = ? AND name = ?", (serial, path.name)
+            ).fetchone()
+        if row is None:
+            raise InputError(
+                "the filed record is missing", path=where, field="sha256", expected=f"the file the history index lists, SHA-256 {digest}"
+            )
+        return checked_digest(bytes(row[0]), digest, where)
+
     def load(self, serial: str, entry: Entry, *, evidence: bool = False) -> CalibrationRecord:
         """Return a filed record (or the estimate kept beside it), refused unless its bytes have the SHA-256 the index holds."""
         from stableins.data.jsonio import parse_json
         from stableins.records import CalibrationRecord
 
-        path, digest = self._file_and_digest(serial, entry, evidence=evidence)
-        data = verified_bytes(path, digest)
+        path, _ = self._file_and_digest(serial, entry, evidence=evidence)
+        data = self.verified_data(serial, entry, evidence=evidence)
         return CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))
 
     def verify(self, serial: str | None = None) -> list[str]:
@@ -183,16 +317,17 @@ class HistoryStore:
         with self._database(create=False) as connection:
             if connection is None:
                 return problems
-            result = connection.execute("PRAGMA integrity_check").fetchone()[0]
-            if result != "ok":
-                problems.append(f"{self.index_path}: SQLite integrity check: {result}")
+            if self.url is None:
+                result = connection.execute("PRAGMA integrity_check").fetchone()[0]
+                if result != "ok":
+                    problems.append(f"{self.index_path}: SQLite integrity check: {result}")
             query = f"SELECT serial, {ENTRY_COLUMNS} FROM records" + (" WHERE serial = ?" if serial else "") + " ORDER BY serial, id"
             rows = connection.execute(query, (serial,) if serial else ()).fetchall()
         for row in rows:
             entry = entry_from_row(row[1:])
             for evidence in (False, True) if entry.evidence else (False,):
                 try:
-                    verified_bytes(*self._file_and_digest(row[0], entry, evidence=evidence))
+                    self.verified_data(row[0], entry, evidence=evidence)
                 except InputError as error:
                     problems.append(str(error))
         return problems
@@ -211,8 +346,8 @@ class HistoryStore:
         if not entries:
             raise InputError(
                 f"no calibration records for unit {serial!r}",
-                path=self.root,
-                expected=f"a record filed with 'stableins history {shlex.quote(serial)} --store {shlex.quote(str(self.root))} "
+                path=self.location,
+                expected=f"a record filed with 'stableins history {shlex.quote(serial)} --store {shlex.quote(self.location)} "
                 "--add RECORD.json'",
             )
         earlier = [e for e in entries if e.time <= date]
@@ -232,13 +367,37 @@ class HistoryStore:
             return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
         return None
 
+    def records(self, serial: str) -> list[tuple[Entry, CalibrationRecord]]:
+        """Return the unit's entries with their records, oldest first, every record read verified by its SHA-256.
+
+        One read of the store for them all (on PostgreSQL one query, not one connection per record).
+        """
+        from stableins.data.jsonio import parse_json
+        from stableins.records import CalibrationRecord
+
+        entries = self.entries(serial)
+        stored: dict[str, bytes] | None = None
+        if self.url is not None and entries:
+            with self._database(create=False) as connection:
+                query = "SELECT name, data FROM files WHERE serial = ?"
+                rows = [] if connection is None else connection.execute(query, (serial,)).fetchall()
+            stored = {name: bytes(data) for name, data in rows}
+        out = []
+        for entry in entries:
+            path = self.unit_directory(serial) / entry.file
+            if stored is None:
+                data = verified_bytes(path, entry.sha256)
+            elif entry.file in stored:
+                data = checked_digest(stored[entry.file], entry.sha256, f"{self.location} {serial}/{entry.file}")
+            else:
+                data = self.verified_data(serial, entry)  # missing: the same refusal as a single read
+            out.append((entry, CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))))
+        return out
+
     def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
         """Return consecutive pairs of records with every parameter's change and significance (:func:`stableins.history.compare`)."""
-        entries = self.entries(serial)
-        out = []
-        for old, new in zip(entries, entries[1:]):
-            out.append((old, new, compare(self.load(serial, old), self.load(serial, new))))
-        return out
+        loaded = self.records(serial)
+        return [(old, new, compare(before, after)) for (old, before), (new, after) in zip(loaded, loaded[1:])]
 
     def to_dataframe(self, serial: str) -> Any:
         """Return the unit's calibration history as a :class:`pandas.DataFrame`, one row per record, oldest first.
@@ -251,8 +410,7 @@ class HistoryStore:
 
         pandas = require_pandas()
         rows = []
-        for entry in self.entries(serial):
-            record = self.load(serial, entry)
+        for entry, record in self.records(serial):
             row: dict[str, Any] = {
                 "valid_from": entry.time,
                 "file": entry.file,
@@ -274,12 +432,10 @@ class HistoryStore:
         """
         from dataclasses import replace
 
-        entries = self.entries(serial)
         series: dict[str, list[tuple[datetime, float, float]]] = {}
         stated: dict[str, list[tuple[float, float]]] = {}
         units: dict[str, str] = {}
-        for entry in entries:
-            record = self.load(serial, entry)
+        for entry, record in self.records(serial):
             for pid, (value, sigma) in data_only(record).items():
                 series.setdefault(pid, []).append((entry.time, value, sigma))
                 stated.setdefault(pid, []).append((record[pid].value, record[pid].sigma))

@@ -28,7 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
+from stableins.display import number, unit_text
 from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind, known_terms
+from stableins.errors import InputError
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.propagation import Propagator
 from stableins.navigation.sources import (
@@ -122,9 +124,7 @@ class NavigationBudget:
 
     def report(self, *, rows: int | None = None) -> str:
         """Return the ranked table (text)."""
-        from stableins.navigation.report import budget_text
-
-        return budget_text(self, rows=rows)
+        return _budget_text(self, rows=rows)
 
     def __str__(self) -> str:
         return self.report()
@@ -137,27 +137,21 @@ class NavigationBudget:
 
     def to_dict(self) -> dict[str, Any]:
         """Return the JSON document of ``stableins budget --json`` (engineering units: m, m/s, arcsec; σ in the term's unit)."""
-        from stableins.navigation.report import budget_document
-
-        return budget_document(self)
+        return _budget_document(self)
 
     def plot(self, path: str | None = None, *, top: int = 6, file_format: str | None = None) -> Any:
         """Figure: the largest error up to each time, per term (the ``top`` largest) and the totals (log scale).
 
         With ``path`` it is written there (``file_format``: png, pdf or svg; default from the suffix) and closed.
         """
-        from stableins.navigation.report import budget_figure
-
-        return budget_figure(self, path, top=top, file_format=file_format)
+        return _budget_figure(self, path, top=top, file_format=file_format)
 
     def compare(self, other: NavigationBudget, *, labels: tuple[str, str] = ("", "")) -> BudgetComparison:
         """Return the difference ``other − self`` term by term and in the totals (``labels``: how to name the two, e.g. files)."""
         return BudgetComparison(self, other, labels)
 
     def _repr_html_(self) -> str:
-        from stableins.navigation.report import budget_html
-
-        return budget_html(self)
+        return _budget_html(self)
 
 
 @dataclass(frozen=True)
@@ -170,18 +164,14 @@ class BudgetComparison:
 
     def report(self) -> str:
         """Return the side-by-side table (text)."""
-        from stableins.navigation.report import comparison_text
-
-        return comparison_text(self)
+        return _comparison_text(self)
 
     def __str__(self) -> str:
         return self.report()
 
     def to_dict(self) -> dict[str, Any]:
         """Return both budgets and the differences (JSON of ``--compare``)."""
-        from stableins.navigation.report import comparison_document
-
-        return comparison_document(self)
+        return _comparison_document(self)
 
 
 def _step_for(duration: float, step: float) -> tuple[float, int]:
@@ -205,6 +195,8 @@ def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], sc
     if term.kind in ACCELEROMETER_KINDS:
         try:
             return accelerometer_forcing(model, values, term, scenario)
+        except InputError:
+            raise
         except ValueError as error:
             return f"{error}; on a static base at the reference temperature it adds nothing the budget can compute"
     return f"kind {term.kind} does not act on navigation"  # pragma: no cover - every kind is listed above
@@ -442,3 +434,228 @@ def navigation_errors(
     time = np.arange(count + 1, dtype=np.float64) * h
     unit = _unit_responses(scenario, forcings, h, count, time)
     return NavigationErrors(time, unit @ np.array(amounts) if amounts else np.zeros((count + 1, len(COMPONENTS))))
+
+
+# --------------------------------------------------------------------------- how a budget shows itself
+#: Columns of the text table: (header, quantity, peak or final).
+_TABLE_COLUMNS = (
+    ("pos peak", "position", "peak"),
+    ("pos final", "position", "final"),
+    ("vel peak", "velocity", "peak"),
+    ("vel final", "velocity", "final"),
+    ("pitch pk", "pitch", "peak"),
+    ("roll pk", "roll", "peak"),
+    ("head pk", "heading", "peak"),
+    ("head final", "heading", "final"),
+)
+
+
+def _days(seconds: float) -> str:
+    days = seconds / 86400.0
+    return f"{number(days, 4)} d" if days >= 1 else f"{number(seconds / 3600.0, 4)} h"
+
+
+def _scenario_text(budget: NavigationBudget) -> str:
+    """One line: unit, duration, latitude, damping."""
+    s = budget.scenario
+    hemisphere = "N" if s.latitude >= 0 else "S"
+    damping = f"damping ζ = {number(s.zeta, 3)}" if s.zeta > 0 else "undamped (pure inertial, ζ = 0)"
+    vertical = "vertical channel held by a height reference" if s.vertical_gains is not None else "vertical channel left out"
+    return (
+        f"Navigation budget of {budget.serial_number or 'the unit'} over {_days(budget.duration)} at "
+        f"{abs(math.degrees(s.latitude)):.4f}° {hemisphere}, {damping}, {vertical}"
+    )
+
+
+def _cell(summary: ErrorSummary, quantity: str, which: str) -> str:
+    pf = summary[quantity]
+    value = getattr(pf, which)
+    return number(value / ARCSEC if quantity in ("pitch", "roll", "heading") else value, 3)
+
+
+def _sigma_text(sigma: float, unit: str) -> str:
+    return f"{number(sigma, 3)} {unit_text(unit)}".strip()
+
+
+def _budget_text(budget: NavigationBudget, *, rows: int | None = None) -> str:
+    """Return the ranked table of :meth:`NavigationBudget.report`."""
+    head = ["term", "1σ"] + [c[0] for c in _TABLE_COLUMNS]
+    body = []
+    shown = budget.terms if rows is None else budget.terms[:rows]
+    for t in shown:
+        body.append([t.id, _sigma_text(t.sigma_engineering, t.unit)] + [_cell(t.summary, q, w) for _, q, w in _TABLE_COLUMNS])
+    if rows is not None and len(budget.terms) > rows:
+        body.append([f"({len(budget.terms) - rows} more)", ""] + [""] * len(_TABLE_COLUMNS))
+    body.append(["RSS of the terms", ""] + [_cell(budget.rss, q, w) for _, q, w in _TABLE_COLUMNS])
+    body.append(["total (correlated)", ""] + [_cell(budget.total, q, w) for _, q, w in _TABLE_COLUMNS])
+    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
+    line = lambda r: "  ".join(c.ljust(widths[i]) if i < 2 else c.rjust(widths[i]) for i, c in enumerate(r))  # noqa: E731
+    lines = [
+        _scenario_text(budget),
+        "Each term: a residual of +1σ alone.  Position and velocity horizontal [m, m/s], attitude [arcsec] of a",
+        "level, north-pointing INS; peak over the navigation time and the final value.",
+        "",
+        line(head),
+        *(line(r) for r in body),
+    ]
+    notes = budget.notes
+    if notes:
+        lines.append("")
+        lines.extend(f"note: {n}" for n in notes)
+    return "\n".join(lines)
+
+
+def _scenario_document(budget: NavigationBudget) -> dict[str, Any]:
+    s = budget.scenario
+    return {
+        "latitude_deg": math.degrees(s.latitude),
+        "gravity": s.gravity,
+        "zeta": s.zeta,
+        "radius": s.radius,
+        "vertical_loop": s.vertical_gains is not None,
+        "earth_angle_deg": math.degrees(s.earth_angle),
+        "duration_s": budget.duration,
+        "step_s": budget.step,
+    }
+
+
+def _budget_html(budget: NavigationBudget) -> str:
+    """Return the ranked table for Jupyter (:func:`stableins.display.html_result`)."""
+    from stableins.display import html_result, html_table
+
+    head = ["term", "1σ"] + [c[0] for c in _TABLE_COLUMNS]
+    rows = [[t.id, _sigma_text(t.sigma_engineering, t.unit)] + [_cell(t.summary, q, w) for _, q, w in _TABLE_COLUMNS] for t in budget.terms]
+    rows.append(["RSS of the terms", ""] + [_cell(budget.rss, q, w) for _, q, w in _TABLE_COLUMNS])
+    rows.append(["total (correlated)", ""] + [_cell(budget.total, q, w) for _, q, w in _TABLE_COLUMNS])
+    units = "position [m], velocity [m/s] (horizontal), attitude [arcsec]; +1σ of each term alone"
+    table = html_table(head, rows, numeric=range(2, len(head)))
+    return html_result(_scenario_text(budget), [units], [table], [("notes", list(budget.notes))])
+
+
+def _budget_document(budget: NavigationBudget) -> dict[str, Any]:
+    """Return the JSON document (engineering units)."""
+    return {
+        "serial_number": budget.serial_number,
+        "scenario": _scenario_document(budget),
+        "drift": budget.drift.value,
+        "terms": [
+            {"id": t.id, "kind": t.kind.value, "sigma": t.sigma_engineering, "unit": t.unit, "errors": t.summary.to_dict()}
+            for t in budget.terms
+        ],
+        "rss": budget.rss.to_dict(),
+        "total": budget.total.to_dict(),
+        "left_out": [{"id": item.id, "reason": item.reason} for item in budget.left_out],
+        "notes": list(budget.notes),
+    }
+
+
+def _budget_figure(budget: NavigationBudget, path: str | None, *, top: int = 6, file_format: str | None = None) -> Any:
+    """Three panels (horizontal position, horizontal velocity, heading): the largest error up to each time."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from stableins.display import layout_with_caption
+
+    panels = (
+        (Quantity.POSITION, "horizontal position [m]", 1.0),
+        (Quantity.VELOCITY, "horizontal velocity [m/s]", 1.0),
+        (Quantity.HEADING, "heading [arcsec]", ARCSEC),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
+    days = budget.time / 86400.0
+    order = list(Quantity)
+    shown = budget.terms[:top]
+    for ax, (quantity, label, scale) in zip(axes, panels, strict=True):
+        q = order.index(quantity)
+        floor = None
+        for k, term in enumerate(shown):
+            series = np.maximum.accumulate(budget.responses[:, q, k]) / scale
+            ax.plot(days, series, lw=1.2, label=f"{term.id} ({_sigma_text(term.sigma_engineering, term.unit)})")
+            positive = series[series > 0]
+            if positive.size:
+                floor = positive.min() if floor is None else min(floor, positive.min())
+        ax.plot(days, np.maximum.accumulate(budget.rss_series[:, q]) / scale, "k--", lw=1.6, label="RSS of the terms")
+        ax.plot(days, np.maximum.accumulate(budget.total_series[:, q]) / scale, "k", lw=2.0, label="total (correlated)")
+        ax.set_yscale("log")
+        top_value = max(np.max(budget.rss_series[:, q]), np.max(budget.total_series[:, q])) / scale
+        if top_value > 0:
+            ax.set_ylim(max(floor or top_value * 1e-4, top_value * 1e-4), top_value * 2.0)
+        ax.set_xlabel("navigation time [days]")
+        ax.set_title(f"largest {label} up to t", fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7, loc="lower right")
+    layout_with_caption(fig, _scenario_text(budget), top=0.88)
+    if path is not None:
+        fig.savefig(path, dpi=110, format=file_format)
+        plt.close(fig)
+    return fig
+
+
+def _comparison_text(comparison: BudgetComparison) -> str:
+    """Term by term: peak horizontal position and heading of both records and the difference (other − base)."""
+    base, other = comparison.base, comparison.other
+    ids = list(dict.fromkeys([t.id for t in base.terms] + [t.id for t in other.terms]))
+    head = ["term", "1σ A", "1σ B", "pos pk A", "pos pk B", "B − A", "head pk A", "head pk B", "B − A"]
+    rows = []
+
+    def cells(a: Any, b: Any) -> list[str]:
+        pa = a.position.peak if a else math.nan
+        pb = b.position.peak if b else math.nan
+        ha = a.heading.peak / ARCSEC if a else math.nan
+        hb = b.heading.peak / ARCSEC if b else math.nan
+        return [number(pa, 3), number(pb, 3), number(pb - pa, 3), number(ha, 3), number(hb, 3), number(hb - ha, 3)]
+
+    for pid in ids:
+        ta = next((t for t in base.terms if t.id == pid), None)
+        tb = next((t for t in other.terms if t.id == pid), None)
+        sa = _sigma_text(ta.sigma_engineering, ta.unit) if ta else "—"
+        sb = _sigma_text(tb.sigma_engineering, tb.unit) if tb else "—"
+        rows.append([pid, sa, sb, *cells(ta.summary if ta else None, tb.summary if tb else None)])
+    rows.append(["RSS of the terms", "", "", *cells(base.rss, other.rss)])
+    rows.append(["total (correlated)", "", "", *cells(base.total, other.total)])
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
+    line = lambda r: "  ".join(c.ljust(widths[i]) if i == 0 else c.rjust(widths[i]) for i, c in enumerate(r))  # noqa: E731
+    return "\n".join(
+        [
+            f"A: {comparison.labels[0] + ': ' if comparison.labels[0] else ''}{_scenario_text(base)}",
+            f"B: {comparison.labels[1] + ': ' if comparison.labels[1] else ''}{other.serial_number or 'the unit'} in the same scenario",
+            "Peak horizontal position [m] and heading [arcsec] per term (+1σ alone); B − A < 0: B's calibration leaves less.",
+            "",
+            line(head),
+            *(line(r) for r in rows),
+        ]
+    )
+
+
+def _comparison_document(comparison: BudgetComparison) -> dict[str, Any]:
+    """JSON of a comparison: both budgets and the differences (other − base) of every peak and final."""
+    base, other = comparison.base, comparison.other
+
+    def difference(a: ErrorSummary | None, b: ErrorSummary | None) -> dict[str, dict[str, float | None]]:
+        out: dict[str, dict[str, float | None]] = {}
+        for q in Quantity:
+            if a is None or b is None:
+                out[q.value] = {"peak": None, "final": None, "unit": q.unit}  # type: ignore[dict-item]
+            else:
+                out[q.value] = {"peak": (b[q].peak - a[q].peak) / q.scale, "final": (b[q].final - a[q].final) / q.scale, "unit": q.unit}  # type: ignore[dict-item]
+        return out
+
+    ids = list(dict.fromkeys([t.id for t in base.terms] + [t.id for t in other.terms]))
+    by_a = {t.id: t for t in base.terms}
+    by_b = {t.id: t for t in other.terms}
+    return {
+        "labels": list(comparison.labels),
+        "base": _budget_document(base),
+        "other": _budget_document(other),
+        "difference": {
+            "terms": {
+                pid: difference(by_a[pid].summary if pid in by_a else None, by_b[pid].summary if pid in by_b else None) for pid in ids
+            },
+            "rss": difference(base.rss, other.rss),
+            "total": difference(base.total, other.total),
+        },
+    }

@@ -45,8 +45,10 @@ Dwells on separate time bases (a file or pass whose clock restarts, :func:`sessi
 independent draws of the slow noise.  That is exact for the truth simulator; for a real
 instrument record the stages of one calibration on one time base.
 
-This module is the physics layer: it imports numpy and the project's conventions only (and,
-when reading a document, the user-error type :class:`stableins.errors.InputError`).
+This module is the physics layer: it imports numpy and the project's conventions, the user-error type
+:class:`stableins.errors.InputError` (reading a document, :func:`noise_model_from_document`) and
+:mod:`stableins.display` (how a model shows itself: one line, a table, ``repr``, Jupyter, pandas; engineering
+units µg/√Hz, µg, µg/√s, µg·√s as :data:`ENGINEERING` scales them).
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.conventions import MICRO_G
+from stableins.display import clipped, html_result, html_table, require_pandas, unit_text
+from stableins.errors import InputError
 from stableins.noise.windows import gauss_markov_allan, gauss_markov_window_covariance, random_walk_window_covariance, sessions
 
 #: Correlation times [s] of the Gauss-Markov sum representing flicker noise: 1 s to about
@@ -367,40 +371,28 @@ class NoiseModel:
     # ------------------------------------------------------------------ text
     def describe(self) -> str:
         """Return one line: source and the slow terms (engineering units)."""
-        from stableins.noise import text
-
-        return text.describe(self)
+        return _text_describe(self)
 
     def summary(self) -> str:
         """Return one short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
-        from stableins.noise import text
-
-        return text.summary(self)
+        return _text_summary(self)
 
     def report(self) -> str:
         """Return the table of every term per axis with its interval, in engineering units."""
-        from stableins.noise import text
-
-        return text.report(self)
+        return _text_report(self)
 
     def __str__(self) -> str:
         return self.report()
 
     def __repr__(self) -> str:
-        from stableins.noise import text
-
-        return text.short_repr(self)
+        return _text_short_repr(self)
 
     def _repr_html_(self) -> str:  # Jupyter
-        from stableins.noise import text
-
-        return text.html(self)
+        return _text_html(self)
 
     def to_dataframe(self) -> Any:
-        """Return every term and axis as a :class:`pandas.DataFrame` (columns: :func:`stableins.noise.text.dataframe`)."""
-        from stableins.noise import text
-
-        return text.dataframe(self)
+        """Return every term and axis as a :class:`pandas.DataFrame` (columns: :func:`_text_dataframe`)."""
+        return _text_dataframe(self)
 
     # ------------------------------------------------------------------ documents
     def to_document(self) -> dict[str, Any]:
@@ -424,11 +416,241 @@ class NoiseModel:
     def from_document(cls, document: Any, path: str | None = None, prefix: str = "noise_model") -> NoiseModel:
         """Build and validate a model from :meth:`to_document`'s form; :class:`InputError` names the field.
 
-        The reading is :func:`stableins.noise.document.noise_model_from_document`.
+        The reading is :func:`noise_model_from_document`.
         """
-        from stableins.noise.document import noise_model_from_document
-
         return noise_model_from_document(document, path, prefix)
+
+
+# --------------------------------------------------------------------------- how a model shows itself
+def _triple(v: NDArray[np.float64], rtol: float = 1e-5) -> str:
+    """One number when the three axes agree (to ``rtol``), else x/y/z."""
+    return f"{np.max(v):.3g}" if np.allclose(v, np.max(v), rtol=rtol, atol=0.0) else "/".join(f"{x:.3g}" for x in v)
+
+
+def _text_describe(model: NoiseModel) -> str:
+    """Return one line: source and the slow terms (engineering units)."""
+    b = model.values("bias_instability") / MICRO_G
+    k = model.values("random_walk") / MICRO_G
+    parts = [f"noise model ({model.source.value}"]
+    if model.provenance:
+        parts[0] += f": {model.provenance}"
+    parts[0] += ")"
+    if model.test is not None and not model.test.detected:  # the console's words: not detected, and what the data allow
+        b_up = model.limits("bias_instability")[1] / MICRO_G
+        k_up = model.limits("random_walk")[1] / MICRO_G
+        b_text = f"up to {_triple(b_up, 0.01)} µg" if np.all(np.isfinite(b_up)) else "not bounded"
+        k_text = f"up to {_triple(k_up, 0.01)} µg/√s" if np.all(np.isfinite(k_up)) else "not bounded"
+        parts.append(f"slow noise not detected: bias instability {b_text}, random walk {k_text}")
+        return "; ".join(parts)
+    parts.append(f"bias instability {_triple(b)} µg, random walk {_triple(k)} µg/√s")
+    if not model.slow_noise_bounded:
+        parts.append("slow noise not bounded by the data")
+    return "; ".join(parts)
+
+
+def _text_summary(model: NoiseModel) -> str:
+    """Return one short line for tables (certificate settings): source, N, B and K with their upper limits, the decision."""
+
+    def term(name: str, unit: str, *, limit: bool = True) -> str:
+        v = model.values(name) / MICRO_G
+        up = model.limits(name)[1] / MICRO_G
+        text = f"{_triple(v, 0.01)} {unit}"
+        if not limit:
+            return text
+        if np.all(np.isinf(up)):
+            return text + " (not bounded)" if np.all(v == 0) else text
+        if not np.allclose(up, v):
+            text += f" (≤ {_triple(up, 0.01)})"
+        return text
+
+    parts = [
+        f"noise model ({model.source.value}): white {term('white', 'µg/√Hz', limit=False)}",
+        f"bias instability {term('bias_instability', 'µg')}",
+        f"random walk {term('random_walk', 'µg/√s')}",
+    ]
+    if model.test is not None:
+        parts.append(f"slow noise {'detected' if model.test.detected else 'not detected'} (p = {model.test.p_value:.2g})")
+    return ", ".join(parts[:3]) + ("; " + parts[3] if len(parts) > 3 else "")
+
+
+def _text_report(model: NoiseModel) -> str:
+    """Return the table of every term per axis with its interval, in engineering units."""
+    level = f"{100 * model.confidence:g} %"
+    lines = [f"noise model: {model.source.value}" + (f" ({model.provenance})" if model.provenance else "")]
+    lines.append(f"{'term':<40} {'axis':>4} {'value':>12} {level + ' interval':>28}  unit")
+    for label, axis, value, interval, unit in _text_term_rows(model):
+        lines.append(f"{label if axis == AXES[0] else '':<40} {axis:>4} {value:>12} {interval:>28}  {unit}")
+    decision = _text_test_line(model)
+    if decision is not None:
+        lines.append(decision)
+    return "\n".join(lines)
+
+
+def _text_term_rows(model: NoiseModel) -> list[list[str]]:
+    """Return one row per term and axis: label, axis, value, interval (engineering units)."""
+    rows = []
+    for name in TERMS:
+        unit, scale = ENGINEERING[name]
+        for a, axis in enumerate(model.axes):
+            term = axis.term(name)
+            upper = "not bounded" if not term.bounded else f"{term.upper / scale:.4g}"
+            rows.append([LABELS[name], AXES[a], f"{term.value / scale:.4g}", f"[{term.lower / scale:.4g}, {upper}]", unit])
+    return rows
+
+
+def _text_test_line(model: NoiseModel) -> str | None:
+    """Return the slow-noise decision in one line, None without a test."""
+    if model.test is None:
+        return None
+    t = model.test
+    verdict = "detected" if t.detected else "not detected"
+    return (
+        f"slow noise {verdict}: statistic {t.statistic:+.2f} (0 ± 1 under white noise), p = {t.p_value:.3g} "
+        f"(false-positive rate {t.alpha:g})"
+    )
+
+
+def _text_short_repr(model: NoiseModel) -> str:
+    """Return the ``repr``: one line per term, clipped for a terminal."""
+    lines = [f"<NoiseModel ({model.source.value}{': ' + model.provenance if model.provenance else ''})>"]
+    for name in TERMS:
+        unit, scale = ENGINEERING[name]
+        cells = []
+        for axis in model.axes:
+            term = axis.term(name)
+            upper = "∞" if not term.bounded else f"{term.upper / scale:.3g}"
+            interval = "" if term.lower == term.value == term.upper else f" [{term.lower / scale:.3g}, {upper}]"
+            cells.append(f"{term.value / scale:.3g}{interval}")
+        same = len(set(cells)) == 1
+        shown = f"{cells[0]} on every axis" if same else "   ".join(f"{a} {c}" for a, c in zip(AXES, cells, strict=True))
+        lines.append(f"  {LABELS[name]} [{unit_text(unit)}]: {shown}")
+    lines.append(_text_test_line(model) or f"intervals at {100 * model.confidence:g} % confidence")
+    return clipped(lines, "(print(model) for the table)")
+
+
+def _text_html(model: NoiseModel) -> str:
+    """Return the Jupyter rendering: the table of :func:`_text_term_rows`."""
+    rows = [[label, axis, value, interval, unit_text(unit)] for label, axis, value, interval, unit in _text_term_rows(model)]
+    table = html_table(["term", "axis", "value", f"{100 * model.confidence:g} % interval", "unit"], rows, numeric=(2, 3))
+    return html_result(f"Noise model: {model.source.value}", [model.provenance, _text_test_line(model) or ""], [table])
+
+
+def _text_dataframe(model: NoiseModel) -> Any:
+    """Return every term and axis as a :class:`pandas.DataFrame` (needs pandas).
+
+    Columns ``term``, ``axis``, ``value``, ``lower``, ``upper``, ``unit``; engineering units, ``upper``
+    infinite where the data do not bound the term.
+    """
+    pandas = require_pandas()
+    rows = []
+    for name in TERMS:
+        unit, scale = ENGINEERING[name]
+        for a, axis in enumerate(model.axes):
+            term = axis.term(name)
+            rows.append(
+                {
+                    "term": name,
+                    "axis": AXES[a],
+                    "value": term.value / scale,
+                    "lower": term.lower / scale,
+                    "upper": term.upper / scale,
+                    "unit": unit,
+                }
+            )
+    return pandas.DataFrame.from_records(rows)
+
+
+# --------------------------------------------------------------------------- its JSON form read back
+@dataclass(frozen=True)
+class _Fields:
+    """Checks of the fields of one document, with the file and the prefix its error messages name."""
+
+    path: str | None
+    prefix: str
+
+    def fail(self, message: str, key: str, expected: str) -> InputError:
+        """Return the error for field ``key`` (the prefix alone when empty)."""
+        return InputError(message, path=self.path, field=f"{self.prefix}.{key}" if key else self.prefix, expected=expected)
+
+    def number(self, value: Any, key: str, *, allow_null: bool = False, lo: float = 0.0) -> float:
+        """Return ``value`` as a finite number ``>= lo`` (null: infinite, when ``allow_null``)."""
+        if value is None and allow_null:
+            return math.inf
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < lo:
+            raise self.fail(
+                f"{value!r} is not a finite number >= {lo:g}", key, "a finite non-negative number" + (" or null" if allow_null else "")
+            )
+        return float(value)
+
+    def header(self, document: Any) -> tuple[NoiseSource, str, float]:
+        """Return source, provenance and confidence, with the units checked to be SI."""
+        if not isinstance(document, dict):
+            raise self.fail("not an object", "", '{"source", "provenance", "confidence", "axes": {"x": {...}, ...}}')
+        sources = {s.value: s for s in NoiseSource}
+        if document.get("source") not in sources:
+            raise self.fail(f"unknown source {document.get('source')!r}", "source", " or ".join(repr(s) for s in sources))
+        provenance = document.get("provenance", "")
+        if not isinstance(provenance, str):
+            raise self.fail(f"{provenance!r} is not a string", "provenance", "a string")
+        confidence = self.number(document.get("confidence", 0.95), "confidence")
+        if not 0.0 < confidence < 1.0:
+            raise self.fail(f"{confidence!r} is not a probability", "confidence", "a number between 0 and 1")
+        units = document.get("units", SI_UNITS)
+        if not isinstance(units, dict) or any(units.get(k, SI_UNITS[k]) != SI_UNITS[k] for k in TERMS):
+            raise self.fail(f"units {units!r}", "units", f"the SI units {dict(SI_UNITS)}")
+        return sources[document["source"]], provenance, confidence
+
+    def axes(self, axes_doc: Any) -> tuple[AxisNoise, AxisNoise, AxisNoise]:
+        """Return the three axes' terms."""
+        if not isinstance(axes_doc, dict) or set(axes_doc) != set(AXES):
+            raise self.fail("missing or malformed", "axes", 'an object with keys "x", "y", "z"')
+        x, y, z = (self.axis(axes_doc[ax], ax) for ax in AXES)
+        return x, y, z
+
+    def axis(self, entry: Any, ax: str) -> AxisNoise:
+        """Return the terms of axis ``ax``."""
+        if not isinstance(entry, dict) or set(entry) != set(TERMS):
+            raise self.fail("missing or malformed", f"axes.{ax}", f"an object with the keys {', '.join(TERMS)}")
+        terms = {}
+        for name in TERMS:
+            item = entry[name]
+            key = f"axes.{ax}.{name}"
+            if not isinstance(item, dict) or not {"value", "lower", "upper"} <= set(item):
+                raise self.fail("missing or malformed", key, '{"value", "lower", "upper"}')
+            value = self.number(item["value"], f"{key}.value")
+            lower = self.number(item["lower"], f"{key}.lower")
+            upper = self.number(item["upper"], f"{key}.upper", allow_null=True)
+            if not lower <= value <= upper:
+                raise self.fail(f"interval [{lower}, {upper}] does not hold the value {value}", key, "lower <= value <= upper")
+            terms[name] = NoiseTerm(value, lower, upper)
+        return AxisNoise(**terms)
+
+    def test(self, t: Any) -> SlowNoiseTest | None:
+        """Return the slow-noise test (None when the document has none)."""
+        if t is None:
+            return None
+        if not isinstance(t, dict):
+            raise self.fail("not an object", "test", '{"statistic", "p_value", "alpha"}')
+        statistic = self.number(t.get("statistic"), "test.statistic", lo=-math.inf)
+        p_value = self.number(t.get("p_value"), "test.p_value")
+        alpha = self.number(t.get("alpha"), "test.alpha")
+        if p_value > 1.0 or not 0.0 < alpha < 1.0:
+            raise self.fail("p_value or alpha outside (0, 1)", "test", "probabilities")
+        return SlowNoiseTest(statistic, p_value, alpha)
+
+
+def noise_model_from_document(document: Any, path: str | None = None, prefix: str = "noise_model") -> NoiseModel:
+    """Return the model a :meth:`~stableins.noise.NoiseModel.to_document` form describes, every field validated.
+
+    Raises
+    ------
+    InputError
+        A field is missing or malformed: names ``path`` and the field under ``prefix``, and what was expected.
+    """
+    fields = _Fields(path, prefix)
+    source, provenance, confidence = fields.header(document)
+    axes = fields.axes(document.get("axes"))
+    return NoiseModel(axes, source, provenance, confidence, fields.test(document.get("test")))
 
 
 __all__ = [
@@ -441,5 +663,6 @@ __all__ = [
     "NoiseTerm",
     "SlowNoiseTest",
     "TERMS",
+    "noise_model_from_document",
     "sessions",
 ]

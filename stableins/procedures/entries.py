@@ -10,8 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.drivers.replay import block_from_record, live_operations
-from stableins.procedures.journal import Record
+from stableins.procedures.journal import Record, block_from_record, live_operations
 from stableins.procedures.plan import OffsetIterationStep, Plan
 from stableins.procedures.session import JournalMismatch
 from stableins.samples import SampleBlock
@@ -88,16 +87,6 @@ def _dwell_pieces(acquisitions: list[Record], expected: float | None) -> list[Re
     return None
 
 
-def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
-    """Return the sample blocks joined in order."""
-    return SampleBlock(
-        time=np.concatenate([b.time for b in blocks]),
-        specific_force=np.concatenate([b.specific_force for b in blocks]),
-        angles=np.concatenate([b.angles for b in blocks]),
-        temperature=np.concatenate([b.temperature for b in blocks]),
-    )
-
-
 # --------------------------------------------------------------------------- resume script
 def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[Record], tuple[int, int] | None]:
     """Return the records to replay on resume, and the range of operation records to mark superseded.
@@ -125,7 +114,7 @@ def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
     """Return the accepted dwells as device-level columns (:data:`stableins.schema.DEVICE_COLUMNS`), in recording order."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
     for entry in entries:
-        block = concatenate(entry["blocks"])
+        block = SampleBlock.concatenate(entry["blocks"])
         n = len(block)
         parts["time"].append(block.time)
         parts["stage"].append(np.full(n, entry["stage"], dtype=object))

@@ -56,8 +56,11 @@ def wait_until_arrived(
 ) -> float:
     """Let time pass (``acquire(poll)``, discarded) until the readings are within ``tolerance`` of ``command``.
 
-    Returns the time waited [s]; raises ``RuntimeError`` after ``timeout`` seconds.
+    ``poll`` is at least one sample period of the platform: a shorter acquisition records no sample and lets no time
+    pass (at 1 Hz a 0.5-s poll never advanced the session).  Returns the time waited [s]; raises ``RuntimeError`` after
+    ``timeout`` seconds.
     """
+    poll = max(poll, 1.0 / driver.metadata.sample_rate)
     waited = 0.0
     target = np.asarray(command, dtype=float)
     while np.max(np.abs(np.asarray(driver.read_angles(), dtype=float) - target)) > tolerance:

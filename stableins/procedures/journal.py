@@ -34,6 +34,8 @@ from numpy.typing import NDArray
 
 from stableins.data.atomic import fsync_directory
 from stableins.errors import InputError
+from stableins.samples import SampleBlock
+from stableins.site import SiteMetadata
 
 FILE_MAGIC = b"STABLEINS-JOURNAL 1\n"
 RECORD_MAGIC = b"\xa5JR1"
@@ -49,6 +51,39 @@ KILL_AFTER_ENV = "STABLEINS_KILL_AFTER_RECORDS"
 _UNLINKED_SUFFIX = ".new"
 _DTYPES = {"float64": "<f8", "int64": "<i8", "uint8": "u1"}
 ArrayLikeOrNone = Any
+
+#: The journal's file name in a run directory.
+JOURNAL_NAME = "journal.bin"
+
+
+def journal_path(path: str | Path) -> Path:
+    """Return the journal file of a run directory (or the journal file itself)."""
+    path = Path(path)
+    return path / JOURNAL_NAME if path.is_dir() else path
+
+
+def live_operations(records: list[Any]) -> list[Any]:
+    """Operation records that stand: drop those a resume superseded (see :mod:`stableins.procedures.runner`)."""
+    superseded: set[int] = set()
+    for record in records:
+        if record.kind == "resume":
+            first, last = record["superseded"] if record.get("superseded") else (0, -1)
+            superseded.update(range(first, last + 1))
+    return [r for r in records if r.kind == "op" and r.seq not in superseded]
+
+
+def metadata_from_start(record: Any) -> SiteMetadata:
+    """Return the site metadata a journal's start record holds."""
+    d = dict(record["metadata"])
+    d["gimbal_senses"] = tuple(d["gimbal_senses"])
+    d["base_attitude"] = tuple(d["base_attitude"])
+    return SiteMetadata(**d)
+
+
+def block_from_record(record: Any) -> SampleBlock:
+    """Return the samples a journaled acquisition holds."""
+    a = record.arrays
+    return SampleBlock(time=a["time"], specific_force=a["specific_force"], angles=a["angles"], temperature=a["temperature"])
 
 
 @dataclass(frozen=True)
@@ -192,16 +227,40 @@ def scan(path: str | os.PathLike[str]) -> ScanResult:
         raise InputError("no run journal here", path=path, expected="a run directory made by 'stableins run'") from None
 
 
-def _scan_file(path: Path, handle: Any) -> ScanResult:
-    """Scan the open journal ``handle`` (:func:`scan`)."""
+def follow(path: str | os.PathLike[str], position: int = 0, first_seq: int = 0) -> ScanResult:
+    """Read the whole records of a journal that follow byte ``position`` (a previous scan's ``valid_length``).
+
+    What a reader watching a run uses (``stableins serve``): each call reads only what was appended since the last,
+    and a record still being written is left for the next call (reported as torn, not returned).  ``first_seq`` is
+    the sequence number the first new record must carry (the number of records read so far).
+
+    Raises
+    ------
+    InputError
+        The file is missing, not a journal, or damaged before its last record.
+    """
+    if position <= 0:
+        return scan(path)
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            handle.seek(position)
+            return _scan_file(path, handle, position=position, first_seq=first_seq)
+    except FileNotFoundError:
+        raise InputError("no run journal here", path=path, expected="a run directory made by 'stableins run'") from None
+
+
+def _scan_file(path: Path, handle: Any, *, position: int = 0, first_seq: int = 0) -> ScanResult:
+    """Scan the open journal ``handle`` (:func:`scan`; from ``position`` for :func:`follow`)."""
     size = os.fstat(handle.fileno()).st_size
-    start = handle.read(len(FILE_MAGIC))
-    if start != FILE_MAGIC:
-        if FILE_MAGIC.startswith(start):  # the crash hit while the file header was written
-            return ScanResult([], 0, len(start), "file header incomplete")
-        raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
+    if position == 0:
+        start = handle.read(len(FILE_MAGIC))
+        if start != FILE_MAGIC:
+            if FILE_MAGIC.startswith(start):  # the crash hit while the file header was written
+                return ScanResult([], 0, len(start), "file header incomplete")
+            raise InputError("not a stableins run journal", path=path, expected=f"a file starting with {FILE_MAGIC!r}")
+        position = len(FILE_MAGIC)
     records: list[Record] = []
-    position = len(FILE_MAGIC)
     torn_reason = None
     while position < size:
         head = handle.read(_RECORD_HEAD.size)
@@ -222,7 +281,7 @@ def _scan_file(path: Path, handle: Any) -> ScanResult:
             _damaged(path, handle, position, "checksum mismatch", size=size, end=end)
             torn_reason = "checksum mismatch"
             break
-        records.append(_scanned_record(path, payload, position, len(records)))
+        records.append(_scanned_record(path, payload, position, first_seq + len(records)))
         position = end
     return ScanResult(records, position, size - position, torn_reason)
 

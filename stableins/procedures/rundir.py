@@ -22,16 +22,16 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from stableins.drivers.base import PlatformDriver
-from stableins.drivers.select import open_driver
 from stableins.errors import InputError
+from stableins.identifiers import utc_now
 from stableins.procedures.entries import accepted_columns
-from stableins.procedures.journal import Journal
+from stableins.procedures.journal import Journal, metadata_from_start
 from stableins.procedures.plan import Plan
+from stableins.procedures.replay import open_run_driver
 from stableins.procedures.runner import RunConsole, Runner
 from stableins.site import SiteMetadata
 
@@ -107,11 +107,6 @@ class JournalOnlyDriver:
     def close(self) -> None:
         """Release nothing: the journal is read, not held."""
         pass
-
-
-def utc_now() -> str:
-    """Return the current UTC time as ISO 8601, to the second."""
-    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 def check_settings(plan: Plan, values: dict[str, str]) -> None:
@@ -258,12 +253,10 @@ def resume_driver(
     ``truth``: the known world of a simulated run started with one (``RUNDIR/truth.json``).
     """
     if re_estimate:
-        from stableins.drivers.replay import metadata_from_start
-
         return JournalOnlyDriver(metadata_from_start(start))
     if driver_factory is not None:
         return driver_factory(start.fields)
-    return open_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout, truth=truth)
+    return open_run_driver(spec, seed=start["seed"], unit=start["unit"], sample_rate=plan.sample_rate, timeout=timeout, truth=truth)
 
 
 def check_capabilities(driver: PlatformDriver, plan: Plan) -> None:

@@ -37,7 +37,7 @@ from stableins.conventions import ARCSEC
 from stableins.drivers.errors import DriverConnectionError, DriverError, DriverProtocolError
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
-from stableins.procedures.entries import concatenate, dwell_entry, iteration_entries
+from stableins.procedures.entries import dwell_entry, iteration_entries
 from stableins.procedures.journal import Record
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 from stableins.procedures.quicklook import QuickLook
@@ -215,7 +215,7 @@ class Runner:
                 )
                 continue
             if arrived is None:
-                result = evaluate_dwell(readings, concatenate(blocks), step.checks, step.dwell, self.rate)
+                result = evaluate_dwell(readings, SampleBlock.concatenate(blocks), step.checks, step.dwell, self.rate)
             else:
                 result = CheckResult(False, (arrived,), math.inf, math.inf, math.inf, 0, int(round(step.dwell * self.rate)))
             verdict = {

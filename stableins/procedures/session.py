@@ -19,8 +19,7 @@ from numpy.typing import NDArray
 
 from stableins.drivers.base import PlatformDriver
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
-from stableins.drivers.replay import block_from_record
-from stableins.procedures.journal import Journal, Record
+from stableins.procedures.journal import Journal, Record, block_from_record
 from stableins.samples import SampleBlock
 
 _ERROR_TYPES: dict[str, type[DriverError]] = {
@@ -226,8 +225,6 @@ class SessionDriver:
         """Record ``duration`` seconds of samples through the session, in journaled pieces of at most :attr:`piece` seconds."""
         if self.piece is None or duration <= self.piece:
             return self.session.operate("acquire", [float(duration)])
-        from stableins.procedures.entries import concatenate
-
         blocks = []
         done = 0.0
         while duration - done > 1e-9:
@@ -236,7 +233,7 @@ class SessionDriver:
             done += length
             if self.on_piece is not None and not self.session.last_replayed:
                 self.on_piece(done)
-        return concatenate(blocks)
+        return SampleBlock.concatenate(blocks)
 
     def status(self) -> dict[str, object]:
         """Return the platform's status (not journaled)."""

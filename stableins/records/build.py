@@ -12,9 +12,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
 
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
+from stableins.records.content import RecordContent, RecordT
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
-from stableins.records.record import CalibrationRecord
 from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
 from stableins.site import SiteMetadata
 from stableins.status import Determination, Status
@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.estimators.device import DeviceCalibration
     from stableins.estimators.result import FitResult
     from stableins.noise import NoiseModel
+
 
 
 class DeviceFields(TypedDict, total=False):
@@ -74,7 +75,7 @@ class UpdateFields(RunFields, total=False):
 _UPDATE_ONLY = ("stage", "new_calibration", "prior", "calibration_entries", "site", "noise_model")
 
 
-def record_from_device(calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> CalibrationRecord:
+def record_from_device(cls: type[RecordT], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> RecordT:
     """Return the record of a device-level calibration (:meth:`CalibrationRecord.from_device`)."""
     procedure = fields.get("procedure", "")
     started = Calibration.new(procedure, fields.get("entries", ()))
@@ -91,10 +92,10 @@ def record_from_device(calibration: DeviceCalibration, site: SiteMetadata, **fie
         fits=fits,
         settings=calibration.settings or calibration.final.settings,
     )
-    return record_from_fit(calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
+    return record_from_fit(cls, calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
 
 
-def record_from_fit(result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> CalibrationRecord:
+def record_from_fit(cls: type[RecordT], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> RecordT:
     """Return the first record of a calibration, one data-only stage (:meth:`CalibrationRecord.from_fit_result`)."""
     import numpy as np
 
@@ -121,7 +122,7 @@ def record_from_fit(result: FitResult, serial_number: str | None = None, **field
         stage = replace(stage, calibration=calibration.id)
     covariance = np.array(result.covariance, dtype=float)
     parameters = _first_parameters(result, stage.id, covariance)
-    return CalibrationRecord(
+    return cls(
         serial_number=serial_number,
         parameters=parameters,
         covariance=covariance,
@@ -163,7 +164,7 @@ def _estimable(result: FitResult) -> dict[str, bool]:
     return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
 
 
-def update_record(record: CalibrationRecord, result: FitResult, **fields: Unpack[UpdateFields]) -> CalibrationRecord:
+def update_record(record: RecordT, result: FitResult, **fields: Unpack[UpdateFields]) -> RecordT:
     """Return ``record`` updated by a later stage's likelihood (:meth:`CalibrationRecord.updated`)."""
     if result.likelihood is None:
         raise InputError(
@@ -192,13 +193,13 @@ def update_record(record: CalibrationRecord, result: FitResult, **fields: Unpack
 
 
 def update_by_run(
-    record: CalibrationRecord,
+    record: RecordT,
     stage: StageRun,
     *,
     new_calibration: bool = False,
     prior: PriorReference | None = None,
     site: SiteMetadata | None = None,
-) -> CalibrationRecord:
+) -> RecordT:
     """Return ``record`` updated by a stage run of another record (:meth:`CalibrationRecord.updated_by_run`)."""
     if stage.likelihood is None:
         raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
@@ -207,7 +208,7 @@ def update_by_run(
 
 
 def next_calibration(
-    record: CalibrationRecord, procedure: str, entries: Iterable[Entry], *, new_calibration: bool, prior: PriorReference | None
+    record: RecordContent, procedure: str, entries: Iterable[Entry], *, new_calibration: bool, prior: PriorReference | None
 ) -> Calibration:
     """Return the calibration a stage run joins: a new one (a recalibration), or the record's with the procedure and entries added."""
     if new_calibration:
@@ -218,14 +219,14 @@ def next_calibration(
 
 
 def apply_stage(
-    record: CalibrationRecord, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
-) -> CalibrationRecord:
+    record: RecordT, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
+) -> RecordT:
     """Return the posterior of ``record`` given ``stage.likelihood``, with ``stage`` appended (as a run of ``calibration``).
 
     Parameters
     ----------
     record : CalibrationRecord
-        The prior.
+        The prior (the posterior is of its type).
     stage : StageRun
         The stage run; its likelihood must not be None.
     calibration : Calibration
@@ -254,7 +255,7 @@ def apply_stage(
         raise InputError(f"stage run {stage.id} is already part of this record", field="stages", expected="a new stage run")
     post = bayesian_update(record.ids, record.values_array(), record.covariance, [p.status for p in record.parameters], likelihood)
     if not any(d is not None for d in post.determination):
-        raise InputError(
+        raise NotDeterminedError(
             f"the {stage.name} stage's data determine no parameter of the record; no record written",
             field="stage",
             expected="data that determine at least one parameter",
@@ -271,7 +272,7 @@ def apply_stage(
         s = float(sigma[k]) if post.status[k] is not Status.UNIDENTIFIABLE else math.nan
         parameters.append(Parameter(pid, float(post.values[k]), unit, s, post.status[k], sources))
     noise_model = carried.get("noise_model")
-    return CalibrationRecord(
+    return type(record)(
         serial_number=record.serial_number,
         parameters=tuple(parameters),
         covariance=post.covariance,

@@ -11,9 +11,8 @@ from typing import TYPE_CHECKING, Any
 from stableins.data.metadata import metadata_from_document
 from stableins.errors import InputError
 from stableins.identifiers import check_serial_number, check_timestamp
-from stableins.records.check import check_record
+from stableins.records.content import RecordT, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
-from stableins.records.record import CalibrationRecord
 from stableins.records.schema import RECORD_FORMAT, RECORD_SCHEMA_VERSION, migrate_v1
 from stableins.records.stages import Calibration, InputFile, PriorReference, StageRun
 from stableins.status import STATUSES, Determination, Status
@@ -25,11 +24,11 @@ if TYPE_CHECKING:  # pragma: no cover
 _PARAMETER_KEYS = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
 
 
-def read_document(document: Any, path: str | None = None) -> CalibrationRecord:
-    """Return the record a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
+def read_document(cls: type[RecordT], document: Any, path: str | None = None) -> RecordT:
+    """Return the record (of type ``cls``) a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
     if isinstance(document, dict) and document.get("format") == RECORD_FORMAT and document.get("schema_version") == 1:
         document = migrate_v1(document, path)
-    return _Reader(path).record(document)
+    return _Reader(path).record(cls, document)
 
 
 class _Reader:
@@ -326,7 +325,7 @@ class _Reader:
                 raise self.fail(what, where, "the discovery section of docs/formats.md") from None
         return optional
 
-    def record(self, document: Any) -> CalibrationRecord:
+    def record(self, cls: type[RecordT], document: Any) -> RecordT:
         document = self.header(document)
         stages = self.stages(document["stages"])
         parameters = self.parameters(document["parameters"], {s.id for s in stages})
@@ -334,7 +333,7 @@ class _Reader:
         calibration = self.calibration(document["calibration"])
         site = None if document.get("site") is None else metadata_from_document(document["site"], self.path)
         optional = self.optional(document)
-        record = CalibrationRecord.__new__(CalibrationRecord)
+        record = cls.__new__(cls)
         fields = {
             "serial_number": check_serial_number(document["serial_number"], field="serial_number", path=self.path),
             "parameters": parameters,

@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 from stableins.errors import InputError
+from stableins.identifiers import utc_now
 from stableins.records.parameters import Entry
 from stableins.site import SiteMetadata
 
@@ -35,11 +36,6 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     except OSError as error:
         raise InputError(f"cannot read input file to hash it: {error.strerror}", path=path) from None
     return digest.hexdigest()
-
-
-def utc_now() -> str:
-    """Return the current time, ISO 8601 UTC to the second."""
-    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 @dataclass(frozen=True)
@@ -240,6 +236,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
     χ² is :attr:`FitResult.chi2` (whitened where the noise is correlated between observations); console,
     JSON and certificate all print this number.
     """
+    from stableins.estimators.result import Stage
 
     def num(x: float) -> float | None:
         return float(x) if math.isfinite(x) else None
@@ -251,7 +248,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
         "residual_labels": list(fit.residual_labels),
         "residuals": [float(x) for x in fit.residuals],
         "residual_sigma": [float(x) for x in fit.residual_sigma],
-        "residual_unit": "m/s^2" if fit.stage != "system" else "rad",
+        "residual_unit": "m/s^2" if fit.stage != Stage.SYSTEM else "rad",
         "chi2": num(fit.chi2),
         "dof": int(fit.dof),
         "chi2_red": num(fit.chi2_red),

@@ -14,10 +14,10 @@ from stableins.records.schema import RECORD_FORMAT
 from stableins.records.stages import Calibration, StageRun
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.records.record import CalibrationRecord
+    from stableins.records.content import RecordContent
 
 
-def record_document(record: CalibrationRecord) -> dict[str, Any]:
+def record_document(record: RecordContent) -> dict[str, Any]:
     """Return the record's JSON-ready dict (non-finite numbers as ``null``; :meth:`CalibrationRecord.to_document`)."""
     document: dict[str, Any] = {
         "format": RECORD_FORMAT,
@@ -52,7 +52,7 @@ def record_document(record: CalibrationRecord) -> dict[str, Any]:
     return document
 
 
-def save_record(record: CalibrationRecord, path: str | os.PathLike[str]) -> Path:
+def save_record(record: RecordContent, path: str | os.PathLike[str]) -> Path:
     """Write the record atomically (a reader sees the old file or the whole new one) and return its path."""
     from stableins.data.atomic import atomic_write
 

@@ -58,7 +58,6 @@ from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term, TermKind
 from stableins.errors import InputError
 from stableins.records import CalibrationRecord
-from stableins.status import Status
 
 MGAL = 1e-5  # m/s²
 #: Normal gravity omits the local gravity anomaly, tens of mGal in general and beyond 100 mGal in mountains.
@@ -224,38 +223,6 @@ class Budget:
     def source(self, group: str) -> Source | None:
         """Return the source of an input group (None: not in the budget)."""
         return next((s for s in self.sources if s.group == group), None)
-
-
-def uncertainty_budget(
-    record: CalibrationRecord, inputs: UncertaintyInputs | None = None, terms: Mapping[str, Term] | None = None
-) -> Budget:
-    """Return the budget of every parameter of ``record`` (module docstring), with ``inputs`` from the procedure."""
-    from stableins.discovery.library import all_terms
-    from stableins.reporting import budget_sources as evaluate  # the evaluations build on this module's types
-
-    inputs = inputs or UncertaintyInputs()
-    covariance = np.nan_to_num(np.asarray(record.covariance, dtype=float))
-    held = [k for k, p in enumerate(record.parameters) if p.status in (Status.GAUGE, Status.UNIDENTIFIABLE)]
-    covariance[held, :] = 0.0
-    covariance[:, held] = 0.0
-    type_a = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    propagation = evaluate.Propagation(record.ids, covariance, type_a, dict(terms or all_terms()))
-    stored = evaluate.stored_sensitivities(record)
-    evaluations = {
-        "gravity": evaluate.gravity(record, inputs, propagation),
-        "angle_sensors": evaluate.angle_sensors(record, inputs, propagation, stored),
-        "gyro_drift": evaluate.gyro_drift(record, inputs, propagation, stored),
-        "damping_loop": evaluate.damping_loop(record, inputs, propagation, stored),
-        "temperature": evaluate.temperature(record, inputs, propagation),
-        "slow_noise": evaluate.slow_noise(record, propagation, stored),
-    }
-    return Budget(
-        record.ids,
-        type_a,
-        {g: evaluations[g].contribution for g in GROUPS},
-        tuple(evaluations[g].source for g in GROUPS),
-        evaluations["temperature"].conditions,
-    )
 
 
 def gravity_direction(record: CalibrationRecord, terms: Mapping[str, Term]) -> dict[str, float]:

@@ -2,7 +2,8 @@ r"""The Type B input groups of the uncertainty budget, one evaluation each (:mod
 
 Each evaluation propagates one input group through the record, :math:`\delta x = P \sum_k \partial\eta_k/\partial q\,\delta q`
 (the module docstring of :mod:`stableins.reporting.budget`), and returns the group's standard uncertainty of every
-parameter with the :class:`~stableins.reporting.budget.Source` the certificate lists.
+parameter with the :class:`~stableins.reporting.budget.Source` the certificate lists;
+:func:`uncertainty_budget` gathers them into the record's :class:`~stableins.reporting.budget.Budget`.
 """
 
 from __future__ import annotations
@@ -19,17 +20,22 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
+from stableins.errors import InputError
+from stableins.estimators.result import Stage
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
     ANGLE_SENSOR_BOUND,
+    GROUPS,
     GYRO_DRIFT_BOUND,
     MGAL,
     NORMAL_GRAVITY_UNCERTAINTY,
+    Budget,
     Source,
     UncertaintyInputs,
     gravity_direction,
 )
 from stableins.reporting.rounding import scientific
+from stableins.status import Status
 
 _NORMAL_GRAVITY_TEXT = (
     "assumed: the normal-gravity formula omits the local gravity anomaly (tens of mGal, beyond 100 mGal in mountains); "
@@ -174,7 +180,7 @@ def angle_sensors(record: CalibrationRecord, inputs: UncertaintyInputs, propagat
         source = Source("angle_sensors", "static readings of the three gimbal angle sensors", f"{u_angle / ARCSEC:.2g}″ per reading",
                         "rectangular" if inputs.angle_sensor is None else "normal", angle_origin, effect)  # fmt: skip
         return Evaluation(contribution, source)
-    device = [s for s in record.stages if s.name in ("coarse", "coarse+fine")]
+    device = [s for s in record.stages if s.name in (Stage.COARSE, Stage.DEVICE)]
     why = (
         "no stage of the record reads the gimbal angles (the fine and system stages do not)"
         if not device
@@ -204,7 +210,7 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     """Evaluate the gyro drift, the system stage's input, per platform axis (axes independent)."""
     n, covariance = propagation.n, propagation.covariance
     drift = stored.get("gyro_drift", [])
-    measured = any(s.name == "system" and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
+    measured = any(s.name == Stage.SYSTEM and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
     if not drift and measured:  # a parameter of the record (Type A), not an input: its σ is in the covariance
         source = Source("gyro_drift", "constant drift in the platform frame, measured by the system stage (gimbal readings)",
                         "—", "—", "the record (gyro_drift_x, gyro_drift_y, gyro_drift_z)",
@@ -299,7 +305,7 @@ def temperature(record: CalibrationRecord, inputs: UncertaintyInputs, propagatio
 
 def _system_input_missing(record: CalibrationRecord, group: str, value: str) -> Source:
     """Return the source of a system-stage input the record stores no sensitivity for: not applicable, or not evaluated."""
-    system = any(s.name == "system" for s in record.stages)
+    system = any(s.name == Stage.SYSTEM for s in record.stages)
     effect = (
         "the record's system stage stores no sensitivity (written by an earlier version): not evaluated"
         if system
@@ -384,6 +390,39 @@ def _bias_instability_limit(stage: Any) -> list[float]:
         return []
     try:
         upper = NoiseModel.from_document(document).limits("bias_instability")[1]
+    except InputError:
+        raise  # a stored noise model that does not read is an error, not a missing one
     except (KeyError, ValueError, TypeError):
         return []
     return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []
+
+
+def uncertainty_budget(
+    record: CalibrationRecord, inputs: UncertaintyInputs | None = None, terms: Mapping[str, Term] | None = None
+) -> Budget:
+    """Return the budget of every parameter of ``record`` (:mod:`stableins.reporting.budget`), with ``inputs`` from the procedure."""
+    from stableins.discovery.library import all_terms
+
+    inputs = inputs or UncertaintyInputs()
+    covariance = np.nan_to_num(np.asarray(record.covariance, dtype=float))
+    held = [k for k, p in enumerate(record.parameters) if p.status in (Status.GAUGE, Status.UNIDENTIFIABLE)]
+    covariance[held, :] = 0.0
+    covariance[:, held] = 0.0
+    type_a = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    propagation = Propagation(record.ids, covariance, type_a, dict(terms or all_terms()))
+    stored = stored_sensitivities(record)
+    evaluations = {
+        "gravity": gravity(record, inputs, propagation),
+        "angle_sensors": angle_sensors(record, inputs, propagation, stored),
+        "gyro_drift": gyro_drift(record, inputs, propagation, stored),
+        "damping_loop": damping_loop(record, inputs, propagation, stored),
+        "temperature": temperature(record, inputs, propagation),
+        "slow_noise": slow_noise(record, propagation, stored),
+    }
+    return Budget(
+        record.ids,
+        type_a,
+        {g: evaluations[g].contribution for g in GROUPS},
+        tuple(evaluations[g].source for g in GROUPS),
+        evaluations["temperature"].conditions,
+    )

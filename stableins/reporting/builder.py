@@ -16,7 +16,7 @@ import datetime as dt
 import hashlib
 import io
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
@@ -25,10 +25,12 @@ from typing import Any
 from stableins.data.atomic import atomic_write
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.errors import InputError
+from stableins.estimators.result import Stage
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
-from stableins.reporting.budget import UncertaintyInputs, uncertainty_budget
+from stableins.reporting.budget import UncertaintyInputs
+from stableins.reporting.budget_sources import uncertainty_budget
 from stableins.reporting.context import InputFile, ReportContext, file_name
 from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
@@ -82,6 +84,9 @@ class ReportSettings:
     sign_key, sign_certificate : path, optional
         Sign the certificate (PAdES, :mod:`stableins.reporting.signing`) with this PEM private key and its X.509
         certificate (default: in the key's file).
+    progress : callable, optional
+        ``progress(done, total)``, called as the sections of the two documents are laid out and each is built (a
+        console's progress bar).
     """
 
     tolerances: Tolerances | None = None
@@ -94,6 +99,7 @@ class ReportSettings:
     no_statement: bool = False
     sign_key: str | None = None
     sign_certificate: str | None = None
+    progress: Callable[[int, int], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -178,6 +184,17 @@ def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
     return DiagnoseReport.from_json(load_json_file(path, what=DOCUMENT), path)
 
 
+def _discovery_input(discovery: str | PathLike[str] | None, inputs: list[InputFile]) -> tuple[DiagnoseReport | None, str]:
+    """Return the ``diagnose --json`` document given to the report and its file name, naming it among ``inputs``.
+
+    ``(None, "")`` when none is given: the record's own discovery history is then the report's (``ctx.record.discovery``).
+    """
+    if discovery is None:
+        return None, ""
+    inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+    return read_discovery(discovery), Path(discovery).name
+
+
 def write_report(
     out: str | PathLike[str],
     record: CalibrationRecord | str | PathLike[str],
@@ -252,10 +269,7 @@ def write_report(
     comparison, changes, previous_rows = _previous(previous_loaded, view, terms, uncertainty)
     checks = content.conformity(rows, changes, stages, tolerances)
 
-    discovery_document, discovery_source = None, ""  # the record's own history is ctx.record.discovery
-    if discovery is not None:
-        discovery_document, discovery_source = read_discovery(discovery), Path(discovery).name
-        inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+    discovery_document, discovery_source = _discovery_input(discovery, inputs)
 
     issued = issued or dt.datetime.now(dt.UTC)
     ctx = ReportContext(
@@ -284,11 +298,12 @@ def write_report(
         raise InputError("the technical report would overwrite the certificate", path=str(technical), expected="another file name")
     ctx.identification = _identification(view, settings)
     ctx.simulated = is_simulated(view)
-    technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE)
+    steps = _Steps(len(sections.TECHNICAL_SECTIONS) + len(sections.CERTIFICATE_SECTIONS) + 2, settings.progress)
+    technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE, steps)
     digest = hashlib.sha256(technical_pdf).hexdigest()
     ctx.technical = InputFile("technical report", technical_path.name, digest, f"{technical_pages} pages")
     ctx.figures = 0
-    pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE)
+    pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE, steps)
     if settings.sign_key is not None:
         from stableins.reporting.signing import sign
 
@@ -366,7 +381,7 @@ def _evidence(view: CalibrationRecord, where: str, data: Sequence[str | PathLike
 
     evidence_notes: list[str] = []
     stages = stored_evidence(view, where)
-    bare = [run for run in view.stages_run if not run.fits and run.name != "system"]
+    bare = [run for run in view.stages_run if not run.fits and run.name != Stage.SYSTEM]
     if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
         from stableins.reporting.replay import device_fits
 
@@ -422,13 +437,30 @@ def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | 
     return tolerances, [read]
 
 
-def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes, int]:
+@dataclass
+class _Steps:
+    """The steps of :func:`write_report` done so far, told to its ``progress(done, total)``."""
+
+    total: int
+    progress: Callable[[int, int], None] | None
+    done: int = 0
+
+    def step(self) -> None:
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+
+
+def _render(ctx: ReportContext, parts: Sequence[Any], title: str, steps: _Steps) -> tuple[bytes, int]:
     """Return the PDF of one document laid out from ``ctx`` (the certificate or its technical report), and its number of pages."""
     import stableins
     from stableins.reporting.signing import manifest_text
 
     ctx.shown_notes = set()
-    story = [flowable for section in parts for flowable in section(ctx)]
+    story = []
+    for section in parts:
+        story += section(ctx)
+        steps.step()
     named = [(f.role, f.name, f.sha256) for f in ctx.inputs] + ([(ctx.technical.role, ctx.technical.name, ctx.technical.sha256)]
                                                                 if ctx.technical is not None else [])  # fmt: skip
     buffer = io.BytesIO()
@@ -446,4 +478,5 @@ def _render(ctx: ReportContext, parts: Sequence[Any], title: str) -> tuple[bytes
             keywords=manifest_text(named),
         ),
     )
+    steps.step()
     return buffer.getvalue(), pages

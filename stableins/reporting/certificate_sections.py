@@ -17,7 +17,18 @@ from reportlab.platypus import Flowable, KeepTogether
 
 from stableins.reporting import content, document, rounding
 from stableins.reporting.budget import TITLES
-from stableins.reporting.context import NOT_RECORDED, ReportContext, file_name, no_statement, paragraph, period, verdict_colour_hex
+from stableins.reporting.context import (
+    NOT_RECORDED,
+    ReportContext,
+    angle_reference,
+    file_name,
+    from_poses,
+    item_calibrated,
+    no_statement,
+    paragraph,
+    period,
+    verdict_colour_hex,
+)
 from stableins.reporting.document import escape, heading
 from stableins.reporting.rounding import COVERAGE_FACTOR
 from stableins.reporting.symbols import markup, prose
@@ -40,11 +51,11 @@ def identification(ctx: ReportContext) -> list[Flowable]:
     technical = ctx.technical
     rows = [
         ["Certificate number", ctx.report_id],
-        ["Item calibrated", f"tri-axis accelerometer of a space-stable (gimbaled) INS, serial number {r.serial_number}"],
+        ["Item calibrated", item_calibrated(r)],
         ["Laboratory", ident.get("laboratory") or NOT_STATED],
         ["Customer", ident.get("customer") or NOT_STATED],
         ["Operator", ident.get("operator") or NOT_STATED],
-        ["Location", str(extra.get("location", "on the system, at its site (section 3)"))],
+        ["Location", str(extra.get("location", NOT_RECORDED if from_poses(r) else "on the system, at its site (section 3)"))],
         ["Calibration performed", period(r)],
         ["Procedure", r.calibration.procedure or NOT_RECORDED],
         ["Date of issue", ctx.issued],
@@ -59,7 +70,12 @@ def identification(ctx: ReportContext) -> list[Flowable]:
     ]
     out: list[Flowable] = [
         paragraph("Calibration certificate", "title"),
-        paragraph("On-system calibration of the tri-axis accelerometer of a space-stable inertial navigation system", "subtitle"),
+        paragraph(
+            "Calibration of a tri-axis accelerometer from static poses"
+            if from_poses(r)
+            else "On-system calibration of the tri-axis accelerometer of a space-stable inertial navigation system",
+            "subtitle",
+        ),
     ]
     missing = draft(ctx)
     if missing:
@@ -207,9 +223,8 @@ def traceability(ctx: ReportContext) -> list[Flowable]:
         out.append(
             paragraph(
                 f"<b>Reference</b>: local gravity g = {site.gravity:.7f} m/s² ({escape(site.gravity_source)}{u_g}) at latitude "
-                f"{math.degrees(site.latitude):.6f}°. Scale factors are traceable to the SI through g and its source; angles are "
-                "realized by the system's own gimbal angle sensors, whose zero offsets are part of the model; biases and "
-                "installation angles are determined relative to these references.",
+                f"{math.degrees(site.latitude):.6f}°. Scale factors are traceable to the SI through g and its source. "
+                f"{angle_reference(ctx.record)} Biases and installation angles are determined relative to these references.",
                 "small",
             )
         )

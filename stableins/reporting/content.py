@@ -407,10 +407,11 @@ def noise_text(document: Mapping[str, Any]) -> str:
 
 def describe_settings(settings: Mapping[str, Any]) -> str:
     """Describe the settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
+    from stableins.estimators.result import Stage
     from stableins.reporting.symbols import words_for_flags
 
     parts = _noise_settings(settings) + _device_settings(settings)
-    if settings.get("stage") == "system":
+    if settings.get("stage") == Stage.SYSTEM:
         parts += _system_settings(settings)
     return words_for_flags("; ".join(parts)) or "defaults"
 

@@ -121,6 +121,32 @@ def entry_text(record: CalibrationRecord, key: str) -> str | None:
     return None
 
 
+#: The procedure name of a record made from a log of static poses (``stableins calibrate poses``).
+POSES_PROCEDURE = "poses"
+
+
+def from_poses(record: CalibrationRecord) -> bool:
+    """Return whether the record was made from static poses of a triad (``calibrate poses``), not on a gimbaled system."""
+    return bool(record.stages_run) and all(s.procedure == POSES_PROCEDURE for s in record.stages_run)
+
+
+def item_calibrated(record: CalibrationRecord) -> str:
+    """Return what the documents say was calibrated: the accelerometer of a gimbaled INS, or a triad from its static poses."""
+    if from_poses(record):
+        return f"tri-axis accelerometer (a triad, calibrated from static poses), serial number {record.serial_number}"
+    return f"tri-axis accelerometer of a space-stable (gimbaled) INS, serial number {record.serial_number}"
+
+
+def angle_reference(record: CalibrationRecord) -> str:
+    """Return how the documents say angles are realized (traceability): the gimbals' angle sensors, or the triad's own axes."""
+    if from_poses(record):
+        return (
+            "No angle reference took part: the squared amplitude of the outputs is compared with g², so the triad's "
+            "non-orthogonality is determined relative to its own axes and its orientation is not."
+        )
+    return "Angles are realized by the system's own gimbal angle sensors, whose zero offsets are part of the model."
+
+
 def period(record: CalibrationRecord) -> str:
     """Return when the calibration was performed: the times of its data, else when the record was created."""
     p = record.provenance

@@ -18,6 +18,8 @@ from stableins.reporting.symbols import prose
 # ---------------------------------------------------------------------- 7 evidence
 def evidence(ctx: ReportContext) -> list[Flowable]:
     """Return section 7: the residual evidence of every stage's fit and the system stage's separated combinations."""
+    from stableins.estimators.result import Stage
+
     out: list[Flowable] = [*heading("7  Evidence that the model fits", room_mm=50)]
     for note in ctx.evidence_notes:
         out.append(paragraph(prose(note) + ".", "small"))
@@ -77,7 +79,7 @@ def evidence(ctx: ReportContext) -> list[Flowable]:
                 )
             else:
                 png, aspect = figures.normalized_residuals(s)
-                what = "combined coefficient" if s.stage == "system" else "observation"
+                what = "combined coefficient" if s.stage == Stage.SYSTEM else "observation"
                 caption = (
                     f"{ctx.figure_label()} {escape(s.stage.capitalize())} stage: residual of each {what} of the fit divided by its 1σ; "
                     "the grey band is ±1σ, the spread expected from noise alone."
@@ -126,12 +128,14 @@ def system_combination_rows(record: CalibrationRecord, lines: Any) -> list[tuple
 
 
 def _system(ctx: ReportContext) -> list[Flowable]:
-    runs = [s for s in ctx.record.stages_run if s.name == "system"]
+    from stableins.estimators.result import Stage
+
+    runs = [s for s in ctx.record.stages_run if s.name == Stage.SYSTEM]
     if not runs:
         return [paragraph("<b>Not performed</b>: no system-level stage ran in this calibration.")]
     out: list[Flowable] = []
     for run in runs:
-        fit = next((f for f in run.fits if f.get("stage") == "system"), None)
+        fit = next((f for f in run.fits if f.get("stage") == Stage.SYSTEM), None)
         chi2 = (
             f"χ²<sub>ν</sub> = {content.chi2_text(float(fit['chi2_red']))} with ν = {fit.get('dof')} (table and figure above). "
             if fit is not None and fit.get("chi2_red") is not None
@@ -156,7 +160,9 @@ def _system(ctx: ReportContext) -> list[Flowable]:
 
 def _systematic(ctx: ReportContext) -> list[Flowable]:
     """Return the systematic stage's orientations and what they determined (docs/systematic-calibration.md)."""
-    runs = [s for s in ctx.record.stages_run if s.name == "systematic"]
+    from stableins.estimators.result import Stage
+
+    runs = [s for s in ctx.record.stages_run if s.name == Stage.SYSTEMATIC]
     out: list[Flowable] = []
     for run in runs:
         out += heading("Systematic stage: orientations", "h2", room_mm=40)

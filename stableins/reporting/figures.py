@@ -159,6 +159,8 @@ def normalized_residuals(stage: Any) -> tuple[bytes, float]:
     """Residual / 1σ of every observation (named on the axis when the labels are few), with the ±1 band."""
     import numpy as np
 
+    from stableins.estimators.result import Stage
+
     r = np.asarray(stage.residuals) / np.asarray(stage.sigma)
     names = [coefficient_label(x) for x in stage.labels] if stage.labels and len(stage.labels) <= 40 else None
     with _style():
@@ -177,7 +179,7 @@ def normalized_residuals(stage: Any) -> tuple[bytes, float]:
                 for label in ax.get_xticklabels():
                     label.set_horizontalalignment("right")
                     label.set_rotation_mode("anchor")
-            ax.set_xlabel("combined coefficient" if stage.stage == "system" else "observation")
+            ax.set_xlabel("combined coefficient" if stage.stage == Stage.SYSTEM else "observation")
         else:
             ax.set_xlabel("observation number")
         ax.set_xlim(0.4, r.size + 0.6)

@@ -7,7 +7,19 @@ from typing import Any
 from reportlab.platypus import Flowable
 
 from stableins.reporting import content, document
-from stableins.reporting.context import NOT_RECORDED, ReportContext, degrees, entry_text, file_name, paragraph, period, span
+from stableins.reporting.context import (
+    NOT_RECORDED,
+    ReportContext,
+    angle_reference,
+    degrees,
+    entry_text,
+    file_name,
+    from_poses,
+    item_calibrated,
+    paragraph,
+    period,
+    span,
+)
 from stableins.reporting.document import escape, heading
 from stableins.reporting.rounding import MINUS
 from stableins.reporting.symbols import prose
@@ -23,11 +35,11 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
 
     rows = [
         ["Technical report of", f"calibration certificate {ctx.report_id}"],
-        ["Item calibrated", f"tri-axis accelerometer of a space-stable (gimbaled) INS, unit serial number {r.serial_number}"],
+        ["Item calibrated", item_calibrated(r)],
         ["Laboratory", field_text("laboratory", NOT_RECORDED)],
         ["Customer", field_text("customer", NOT_RECORDED)],
         ["Operator", field_text("operator", NOT_RECORDED)],
-        ["Location of calibration", field_text("location", "on the system, at the site described in section 2")],
+        ["Location of calibration", field_text("location", NOT_RECORDED if from_poses(r) else "on the system, at its site (section 2)")],
         ["Calibration performed", period(r)],
         ["Procedure", r.calibration.procedure or NOT_RECORDED],
         ["Date of issue", ctx.issued],
@@ -69,15 +81,7 @@ def method(ctx: ReportContext) -> list[Flowable]:
     """Return section 1: the procedure and method, the stages run and their settings."""
     r = ctx.record
     out: list[Flowable] = [*heading("1  Procedure and method")]
-    out.append(
-        paragraph(
-            "Multi-position self-calibration on the system's own gimbals: the platform is turned to a sequence of positions and the "
-            "accelerometer outputs are compared with local gravity resolved through the exact gimbal kinematics; at system level the "
-            "Earth-rate harmonics of the specific-force error on a static base are separated into accelerometer corrections (after "
-            "Wu et al., Sensors 2018, 18, 2888, with the physics re-derived and sign errors corrected). Each stage is a Bayesian update "
-            "of the record before it: no uncertainty grows, nothing moves along what its data do not determine."
-        )
-    )
+    out.append(paragraph(_method_text(r)))
     rows: list[list[Any]] = [["Stage", "Procedure", "Data (UTC)", "Sample rate", "Settings"]]
     for s in r.stages_run:
         rate = f"{s.sample_rate:g} Hz" if s.sample_rate else NOT_RECORDED
@@ -104,6 +108,27 @@ def method(ctx: ReportContext) -> list[Flowable]:
             )
         )
     return out
+
+
+def _method_text(record: Any) -> str:
+    """Return what was done: static poses of a triad (``calibrate poses``), or the gimbals' multi-position self-calibration."""
+    update = (
+        "Each stage is a Bayesian update of the record before it: no uncertainty grows, nothing moves along what its data do not "
+        "determine."
+    )
+    if from_poses(record):
+        return (
+            "Static poses of an accelerometer triad: the triad was held at rest in a number of orientations, recorded by other "
+            "means as one continuous log; the static holds were found in the log, and the squared amplitude of the compensated "
+            "outputs of each hold was compared with local gravity, |f| = g, whatever the orientation (or, with holds labelled "
+            "+x … −z, the six-position test). No gimbal and no orientation reference took part. " + update
+        )
+    return (
+        "Multi-position self-calibration on the system's own gimbals: the platform is turned to a sequence of positions and the "
+        "accelerometer outputs are compared with local gravity resolved through the exact gimbal kinematics; at system level the "
+        "Earth-rate harmonics of the specific-force error on a static base are separated into accelerometer corrections (after "
+        "Wu et al., Sensors 2018, 18, 2888, with the physics re-derived and sign errors corrected). " + update
+    )
 
 
 # ---------------------------------------------------------------------- 2 site
@@ -149,8 +174,8 @@ def site_environment(ctx: ReportContext) -> list[Flowable]:
         out.append(
             paragraph(
                 "Metrological traceability: the reference quantity of this calibration is the local gravity g stated above; scale "
-                "factors are traceable to the SI through it and its source. Angles are realized by the system's own gimbal angle sensors, "
-                "whose zero offsets are part of the model. Biases and installation angles are determined relative to these references.",
+                f"factors are traceable to the SI through it and its source. {angle_reference(ctx.record)} Biases and installation "
+                "angles are determined relative to these references.",
                 "small",
             )
         )

@@ -18,6 +18,8 @@ from stableins.reporting.symbols import markup, prose
 # ---------------------------------------------------------------------- 4 results
 def results(ctx: ReportContext) -> list[Flowable]:
     """Return section 4: every parameter's value, expanded uncertainty, status and the stage that determined it."""
+    from stableins.estimators.result import Stage
+
     out: list[Flowable] = [*heading("4  Results", room_mm=60)]
     k = rounding.COVERAGE_FACTOR
     out.append(
@@ -52,7 +54,7 @@ def results(ctx: ReportContext) -> list[Flowable]:
         rows = [["Parameter", "Status", "Why"]]
         rows += [[r.symbol, r.status.value, ctx.text(r.why) if r.why else NOT_RECORDED] for r in not_estimated]
         out.append(document.table(rows, [0.14, 0.16, 0.70], markup=True))
-    determined = [(s.name, d) for s in ctx.record.stages_run if s.name != "system" for d in s.determined]  # system: section 7
+    determined = [(s.name, d) for s in ctx.record.stages_run if s.name != Stage.SYSTEM for d in s.determined]  # system: section 7
     if determined:
         out += heading("Combinations the data determine", "h2", room_mm=20)
         rows = [["Stage", "Combination"]] + [[escape(n), ctx.text(d)] for n, d in determined]

@@ -2,7 +2,7 @@
 
 One place for every rounding rule of the certificate: :func:`gum` rounds a value with its standard and
 expanded uncertainty (``U = k u`` and ``u`` to two significant digits, the value to the decimal place of
-``U``; below :data:`SMALLEST_FIXED_POINT` written as ``m×10ⁿ`` at the power of ``U``, :func:`times_ten`);
+``U``; below :data:`SMALLEST_FIXED_POINT` each written ``m×10ⁿ`` with ``1 ≤ m < 10``, to that digit, :func:`times_ten`);
 :func:`like_uncertainty` writes a number the way :func:`gum` writes ``u`` (the budget's contributions);
 :func:`number`, :func:`round_to_uncertainty` and :func:`scientific` the single numbers around it;
 :func:`superscript` the exponents.
@@ -53,7 +53,7 @@ SMALLEST_FIXED_POINT = 1e-3
 
 
 def _gum_scientific(value: float, u: float, expanded: float) -> Rounded:
-    """Round as :func:`gum` does, written as mantissa×10ⁿ with the power of ``U`` (``−3.6×10⁻⁸``)."""
+    """Round as :func:`gum` does, each number written ``m×10ⁿ`` (``1 ≤ m < 10``) to ``U``'s last digit (``−3.6×10⁻⁸``)."""
     power = _power(expanded)
     return Rounded(times_ten(value, power, 1), times_ten(u, power, _u_decimals(u, power)), times_ten(expanded, power, 1))
 
@@ -75,25 +75,33 @@ def superscript(power: int) -> str:
 
 
 def times_ten(x: float, power: int, decimals: int) -> str:
-    """Write ``x`` as ``m×10ⁿ`` at the given power, the mantissa with ``decimals`` decimals (``−3.6×10⁻⁸``; never ``−0``)."""
-    text = f"{x / 10.0**power:.{decimals}f}"
-    if float(text) == 0.0:
-        text = text.lstrip("-")
-    return f"{text}×10{superscript(power)}".replace("-", MINUS)
+    """Write ``x`` to the digit ``10^(power − decimals)`` in one style, ``m×10ⁿ`` with ``1 ≤ m < 10`` (``−3.6×10⁻⁸``).
+
+    The last digit is where the GUM puts it (``power`` and ``decimals`` of ``U``'s mantissa, :func:`gum`); the power of
+    ten is the number's own, so a column of a table never mixes ``0.8×10⁻⁵`` with ``1.8×10⁻⁵``: ``8×10⁻⁶`` beside it.
+    A number below the last digit is ``0``.
+    """
+    place = power - decimals
+    steps = round(x / 10.0**place)  # the number in units of its last digit
+    if steps == 0:
+        return "0"
+    digits = str(abs(steps))
+    mantissa = digits[0] + (f".{digits[1:]}" if len(digits) > 1 else "")
+    sign = MINUS if steps < 0 else ""
+    return f"{sign}{mantissa}×10{superscript(place + len(digits) - 1)}"
 
 
 def like_uncertainty(x: float, u: float, k: float = COVERAGE_FACTOR) -> str:
     """Write ``x`` the way :func:`gum` writes the uncertainty ``u``: to the decimal place of ``u`` at two significant digits.
 
-    Fixed point, or ``m×10ⁿ`` at the power of ``U = k u`` when ``U`` is below :data:`SMALLEST_FIXED_POINT` (the
-    contributions of the uncertainty budget beside ``u`` and ``U``); there a number below ``u``'s last digit is
-    written ``0``, without a power of ten.
+    Fixed point, or ``m×10ⁿ`` (``1 ≤ m < 10``) to ``u``'s last digit when ``U = k u`` is below
+    :data:`SMALLEST_FIXED_POINT` (the contributions of the uncertainty budget beside ``u`` and ``U``); there a number
+    below ``u``'s last digit is written ``0``, without a power of ten.
     """
     expanded = k * u
     if _rounded(expanded) < SMALLEST_FIXED_POINT:
         power = _power(expanded)
-        decimals = _u_decimals(u, power)
-        return "0" if round(x / 10.0**power, decimals) == 0.0 else times_ten(x, power, decimals)
+        return times_ten(x, power, _u_decimals(u, power))
     return f"{x:.{decimals_of(u)}f}".replace("-", MINUS)
 
 

@@ -40,8 +40,7 @@ brings the inner gimbal within 0.06° of ±90° (the lock of the three-gimbal ch
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,9 +48,6 @@ from numpy.typing import NDArray
 from stableins.conventions import EARTH_RATE, earth_rate_nav, platform_drift_rate, skew
 from stableins.platform import GimbalPlatform, rotation_about
 from stableins.turns import IndexAxis, PlatformTurn, check_turns
-
-if TYPE_CHECKING:
-    from stableins.simulator.truth import Truth
 
 #: Absolute cosine of the inner gimbal angle below which the three-gimbal chain is at lock.
 LOCK_COSINE = 1e-3
@@ -237,29 +233,3 @@ def inner_gimbal_lock(
         if locked.size:
             return float(chunk[locked[0]])
     return None
-
-
-def indexed_record_chunks(
-    truth: Truth,
-    duration: float,
-    turns: Sequence[PlatformTurn],
-    *,
-    rate: float | None = None,
-    seed: int | None = None,
-    chunk_samples: int = 1 << 16,
-    initial_readings: Sequence[float] | None = None,
-    include_truth: bool = False,
-) -> Iterator[dict[str, NDArray[np.float64]]]:
-    """Stream a system-level record of a platform indexed by torquing (bounded memory).
-
-    As :func:`stableins.simulator.system.system_record_chunks` (``St0 = 0``, ``φ(0) = 0``), with ``turns``
-    (:class:`stableins.turns.PlatformTurn`, in time order, ending within ``duration``) and, optionally, the
-    commanded readings ``initial_readings`` [rad] at ``t = 0`` instead of the polar alignment.
-    """
-    from stableins.simulator.system import SystemWorld, stream_world
-
-    if chunk_samples < 1:
-        raise ValueError("chunk_samples must be positive")
-    check_turns(turns, duration)
-    world = SystemWorld(truth, rate, seed, initial_readings=initial_readings, turns=turns)
-    yield from stream_world(world, duration, chunk_samples, include_truth=include_truth)

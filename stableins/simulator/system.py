@@ -97,7 +97,7 @@ from stableins.simulator.indexing import IndexedMotion
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.physics import GIMBAL_IDS, Accelerometer, SensorInputs
 from stableins.simulator.truth import Truth
-from stableins.turns import PlatformTurn
+from stableins.turns import PlatformTurn, check_turns
 
 TRUTH_COLUMNS = ("truth_phi_north", "truth_phi_east", "truth_phi_down", "truth_df_north", "truth_df_east", "truth_df_down")
 
@@ -357,6 +357,30 @@ def stream_world(
         done += n
 
 
+def indexed_record_chunks(
+    truth: Truth,
+    duration: float,
+    turns: Sequence[PlatformTurn],
+    *,
+    rate: float | None = None,
+    seed: int | None = None,
+    chunk_samples: int = 1 << 16,
+    initial_readings: Sequence[float] | None = None,
+    include_truth: bool = False,
+) -> Iterator[dict[str, NDArray[np.float64]]]:
+    """Stream a system-level record of a platform indexed by torquing (bounded memory).
+
+    As :func:`system_record_chunks` (``St0 = 0``, ``φ(0) = 0``), with ``turns``
+    (:class:`stableins.turns.PlatformTurn`, in time order, ending within ``duration``) and, optionally, the
+    commanded readings ``initial_readings`` [rad] at ``t = 0`` instead of the polar alignment.
+    """
+    if chunk_samples < 1:
+        raise ValueError("chunk_samples must be positive")
+    check_turns(turns, duration)
+    world = SystemWorld(truth, rate, seed, initial_readings=initial_readings, turns=turns)
+    yield from stream_world(world, duration, chunk_samples, include_truth=include_truth)
+
+
 def simulate_system(
     truth: Truth,
     duration: float,
@@ -367,11 +391,9 @@ def simulate_system(
     """Return a whole (short) system-level record as one dict of columns.
 
     Options of :func:`system_record_chunks`; with ``turns`` or ``initial_readings`` those of
-    :func:`stableins.simulator.indexing.indexed_record_chunks`.
+    :func:`indexed_record_chunks`.
     """
     if "turns" in options or "initial_readings" in options:
-        from stableins.simulator.indexing import indexed_record_chunks
-
         pieces = list(indexed_record_chunks(truth, duration, options.pop("turns", ()), rate=rate, seed=seed, **options))
     else:
         pieces = list(system_record_chunks(truth, duration, rate, seed, **options))

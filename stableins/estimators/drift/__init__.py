@@ -6,7 +6,7 @@ the accelerometer cross-check, :mod:`~stableins.estimators.drift.record` the rec
 """
 
 from stableins.estimators.drift.accelerometer import BiasCheck
-from stableins.estimators.drift.holds import Hold, find_holds, rotation_vector
+from stableins.estimators.drift.holds import Hold, find_holds, small_angle_vector
 from stableins.estimators.drift.model import DriftDetails, estimate_drift
 from stableins.estimators.drift.record import DRIFT_COLUMNS, drift_from_record, drift_stage, report
 
@@ -20,5 +20,5 @@ __all__ = [
     "estimate_drift",
     "find_holds",
     "report",
-    "rotation_vector",
+    "small_angle_vector",
 ]

@@ -31,8 +31,12 @@ class Hold:
         return self.end - self.start
 
 
-def rotation_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Small-angle vector ``θ`` of a frame rotation ``C = I − [θ×] + O(θ²)`` (…, 3)."""
+def small_angle_vector(dcm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Small-angle vector ``θ`` of a frame rotation ``C = I − [θ×] + O(θ²)`` (…, 3).
+
+    First order in ``θ``; the exact inverse of :func:`stableins.platform.rotation_about` is
+    :func:`stableins.platform.rotation_vector`.
+    """
     return 0.5 * np.stack([dcm[..., 1, 2] - dcm[..., 2, 1], dcm[..., 2, 0] - dcm[..., 0, 2], dcm[..., 0, 1] - dcm[..., 1, 0]], axis=-1)
 
 

@@ -77,8 +77,8 @@ from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.drift.accelerometer import BiasCheck, BiasInputs, bias_checks
-from stableins.estimators.drift.holds import MIN_HOLD, Hold, find_holds, rotation_vector
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.drift.holds import MIN_HOLD, Hold, find_holds, small_angle_vector
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -222,7 +222,7 @@ def estimate_drift(
         tuple(hold_list), nuisance, rank, biases, (float(sigma_axis[0]), float(sigma_axis[1]), float(sigma_axis[2])), chosen["base"]
     )
     return FitResult(
-        stage="drift",
+        stage=Stage.DRIFT,
         terms=GYRO_DRIFT_TERMS,
         values=eps,
         covariance=cov_eps,
@@ -287,7 +287,7 @@ def _design(
         reading = actual[sl, 0]  # the sensor's angle: reading + offset (the error is a function of the reading; same to 1e-4)
         a[:, :, column["ang1_platform_c"]] = -outer_p[sl] * np.cos(reading)[:, None]
         a[:, :, column["ang1_platform_s"]] = -outer_p[sl] * np.sin(reading)[:, None]
-        rows_y.append(rotation_vector(inertial[sl] @ inertial[mid].T))
+        rows_y.append(small_angle_vector(inertial[sl] @ inertial[mid].T))
         rows_a.append(a)
     return np.concatenate(rows_y), np.concatenate(rows_a), names
 

@@ -56,10 +56,10 @@ from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, asynchrony_error
 from stableins.errormodel import ErrorModel, Term, TermInputs
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.lever.kinematics import Motion, Segment, find_segments, motion, window_means
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.noise import NoiseModel
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
@@ -394,7 +394,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
     u, s, vt = np.linalg.svd(A / scale, full_matrices=False)
     if s[-1] < 1e-10 * s[0]:
         weak = [design.names[k] for k in np.argsort(-np.abs(vt[-1]))[:3]]
-        raise InputError(
+        raise NotDeterminedError(
             f"{source}: the slews do not determine {', '.join(weak)}", field="angle_middle",
             expected="slews about at least two platform axes (the device-rotating procedure), or the three lever arms of Cai",
         )  # fmt: skip
@@ -409,7 +409,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
     n = len(terms)
     loose = [t.id for k, t in enumerate(terms) if not math.sqrt(cov_all[k, k]) < UNDETERMINED * t.nominal]
     if loose:
-        raise InputError(
+        raise NotDeterminedError(
             f"{source}: the slews do not determine {', '.join(loose)}", field="angle_middle",
             expected="slews about at least two platform axes (the device-rotating procedure), or the three lever arms of Cai",
         )  # fmt: skip
@@ -430,7 +430,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
     if misfit:
         notes += (f"χ²_ν = {chi2_nu:.2f} above 1 + 3√(2/ν): the σ are scaled by √χ²_ν = {math.sqrt(chi2_nu):.2f}",)
     return FitResult(
-        stage="lever",
+        stage=Stage.LEVER,
         terms=terms,
         values=values,
         covariance=cov,

@@ -18,8 +18,9 @@ from numpy.typing import NDArray
 
 from stableins.errormodel import CORE_TERMS, Term, TermKind, known_terms
 from stableins.estimators.details import SystemDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.estimators.system import harmonics as hm
+from stableins.estimators.system.options import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation
 from stableins.noise import NoiseModel
 from stableins.status import Determination, Status
@@ -27,12 +28,8 @@ from stableins.status import Determination, Status
 if TYPE_CHECKING:
     from stableins.estimators.system.checks import RecordSite
     from stableins.estimators.system.gyro_drift_step import DriftStep
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
-#: How the stage's messages name its inputs: parameters of :class:`~stableins.estimators.system.stage.SystemOptions`
-#: (``stableins calibrate system`` translates them to its flags, a certificate to plain words).
-GYRO_DRIFT_PARAMETER = "known_gyro_drift, rad/s"
-ESTIMATE_K2_PARAMETER = "estimate_k2=True"
 
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
 VIF_LIMIT = 30.0
@@ -385,7 +382,7 @@ def fit_result(
         ),
     ]
     result = FitResult(
-        stage="system",
+        stage=Stage.SYSTEM,
         terms=terms,
         values=np.array(post.values, dtype=float),
         covariance=np.array(post.covariance, dtype=float),

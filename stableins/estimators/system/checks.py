@@ -10,13 +10,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RATE
+from stableins.conventions import DEG_PER_HOUR, EARTH_RATE
 from stableins.errors import InputError
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
     from stableins.estimators.system.loop import DampingLoop
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
 
 @dataclass(frozen=True)
@@ -105,6 +105,17 @@ def check_metadata(metadata: SiteMetadata, path: str) -> RecordSite:
     if rate is None or not np.isfinite(rate) or rate <= 0:
         raise InputError("sample rate is missing", path=path, field="metadata.sample_rate", expected="a positive rate in Hz")
     return RecordSite(float(lat), float(g), float(rate))
+
+
+#: What a platform drifting in inertial space does to a static record: an equatorial gyro drift ``ε`` turns z_p off the
+#: Earth's axis by ``ε t`` (0.05 °/h, Cai et al.'s figure before calibration: 1.2° over a day), far outside the polar
+#: alignment the harmonic model rests on (``polar_tolerance``, 1e-3 rad: a mean offset ``ε T/2`` of 1e-3 rad over one
+#: day is 0.005 °/h).  docs/system-calibration.md §9.
+_GYRO_CAUSE = (
+    "an uncompensated equatorial gyro drift does this too: it turns z_p off the Earth's axis by drift x time, 1.2 deg a "
+    "day at 0.05 deg/h; the system stage needs the INS to compensate its gyros (the device-level gyro calibration "
+    "installed) to about 0.005 deg/h or better"
+)
 
 
 class StaticChecks:
@@ -211,14 +222,17 @@ class StaticChecks:
                 f"(first beyond {self.options.velocity_limit:g} m/s at t = {self.moving_at:.1f} s)",
                 path=self.path,
                 field="velocity_north/velocity_east",
-                expected="a static base (velocity outputs are then navigation errors: Schuler transients of Δf/ω_s, a few m/s at most)",
+                expected=(
+                    "a static base (velocity outputs are then navigation errors: Schuler transients of Δf/ω_s, a few m/s at most) "
+                    f"and compensated gyros ({_GYRO_CAUSE})"
+                ),
             )
         if excursion > self.options.attitude_limit:
             raise InputError(
                 f"the base is not static or not level: pitch/roll vary by {excursion:.3g} rad over the record",
                 path=self.path,
                 field="pitch/roll",
-                expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base",
+                expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base ({_GYRO_CAUSE})",
             )
         if self.polar_sums[0] > 0:
             mean_uz = self.polar_sums[1] / self.polar_sums[0]
@@ -229,14 +243,17 @@ class StaticChecks:
                     f"with the platform's x-y plane, the latitude is {math.degrees(self.latitude):.3f}°",
                     path=self.path,
                     field="f_z",
-                    expected="z_p on the Earth's spin axis (f_z/g = sin L), as the system-level method requires",
+                    expected=f"z_p on the Earth's spin axis (f_z/g = sin L), as the system-level method requires ({_GYRO_CAUSE})",
                 )
         if np.isfinite(self.rate_ratio) and abs(self.rate_ratio - 1.0) > self.options.rate_tolerance:
             raise InputError(
                 f"the platform-axis angle turns at {self.rate_ratio:.4f} x the Earth rate",
                 path=self.path,
                 field="angle_platform",
-                expected="a platform fixed in inertial space on a static base (angle rate = Earth rate, correct sense s1)",
+                expected=(
+                    "a platform fixed in inertial space on a static base (angle rate = Earth rate, correct sense s1; a z_p gyro drift "
+                    f"moves the rate by ε_z/ω_ie and is measured up to {self.options.rate_tolerance * EARTH_RATE / DEG_PER_HOUR:.2g} deg/h)"
+                ),
             )
         if self.gaps:
             first = self.gaps[0]

@@ -30,6 +30,15 @@ from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 COLOURED_BINS = 160
 
 
+#: What the note says when the record carries slow noise: one day cannot tell a slow bias drift from it (docs §8, the bound).
+DRIFT_CAVEAT = (
+    "A slow bias drift (a ramp) is not told apart from this slow noise on one day (with the noise known, a drift's sigma "
+    "is about 5 ug/day per axis on one day, 2.7 on two): it is not named, and these sigma cover it only in part (10 ug/day "
+    "per axis: rms z 1.45 on x2..x5); telling it apart needs two days or more with the instrument's noise model known "
+    "(docs/system-calibration.md sections 8 and 10)"
+)
+
+
 @dataclass(frozen=True)
 class ResidualFits:
     """The stage's fits whose residuals the coloured-noise model reads (:func:`coloured_covariance`, :func:`low_band`).
@@ -291,7 +300,7 @@ def coloured_note(fit: ColouredNoiseFit, units: NDArray[np.float64], white_x2: f
         return (
             f"the residuals carry low-frequency noise of the accelerometers ({fit.describe()}): {levels} ({how}, one value for "
             f"the three axes) make the variance of x2 {factor:.1f}x the white-noise value; the covariance of all coefficients "
-            f"includes it; {bound}"
+            f"includes it; {bound}.  {DRIFT_CAVEAT}"
         )
     return f"no low-frequency noise ({fit.describe()}): σ is the white-noise σ; {bound}"
 
@@ -447,6 +456,7 @@ def attitude_residual_maker(
 
 __all__ = [
     "COLOURED_BINS",
+    "DRIFT_CAVEAT",
     "SECOND_DIFFERENCE_DOF",
     "LowBand",
     "ResidualFits",

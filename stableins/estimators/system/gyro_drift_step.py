@@ -34,7 +34,7 @@ from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
 #: Span of gimbal readings below which the drift is not estimated [s] (the stage's shortest record, 4 h).
 MINIMUM_SPAN = 4 * 3600.0
@@ -269,7 +269,7 @@ def drift_notes(step: DriftStep) -> list[str]:
     """Return the standing note when the drift is neither measured nor given (the attitude coefficients assume none)."""
     if step.source is not DriftSource.NONE:
         return []
-    from stableins.estimators.system.assembly import GYRO_DRIFT_PARAMETER
+    from stableins.estimators.system.options import GYRO_DRIFT_PARAMETER
 
     why = "the record has no inner and middle gimbal readings to measure it" if step.gimbal is None else "it was not estimated"
     return [

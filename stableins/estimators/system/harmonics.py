@@ -245,7 +245,14 @@ def kalman_filter(
     process_noise: ArrayLike | None = None,
     smooth: bool = False,
 ) -> FilterHistory:
-    """Sequential filter with filterpy's ``KalmanFilter`` (``F = I``; Joseph-form update).
+    """Sequential Kalman filter (``F = I``; Joseph-form update), filterpy's ``KalmanFilter`` step for step.
+
+    The steps are filterpy's ``predict`` and ``update`` (``x = F x``, ``P = F P Fᵀ + Q``; ``y = z − H x``,
+    ``S = H P Hᵀ + R``, ``K = P Hᵀ S⁻¹``, ``x = x + K y``, ``P = (I − K H) P (I − K H)ᵀ + K R Kᵀ``; Brown & Hwang,
+    *Introduction to Random Signals and Applied Kalman Filtering*, 4th ed., §4.2), the same numpy calls in the same
+    order, so the numbers are filterpy's to the last bit; written out here because importing ``filterpy.kalman``
+    imports ``scipy.stats`` (through its EKF module), which cost ``calibrate system`` about a second (issue 30).
+    The RTS smoother (``smooth``) is filterpy's.
 
     Parameters
     ----------
@@ -261,29 +268,35 @@ def kalman_filter(
     smooth : bool
         Also run filterpy's RTS smoother.
     """
-    from filterpy.kalman import KalmanFilter
-
     h = np.asarray(h, dtype=float)
     z = np.asarray(z, dtype=float)
     n, k = h.shape
     r = np.broadcast_to(np.asarray(noise_variance, dtype=float), (n,))
     q = np.zeros((k, k)) if process_noise is None else np.asarray(process_noise, dtype=float)
-    kf = KalmanFilter(dim_x=k, dim_z=1)
-    kf.x = np.asarray(prior_mean, dtype=float).reshape(k, 1).copy()
-    kf.P = np.asarray(prior_covariance, dtype=float).copy()
-    kf.F = np.eye(k)
-    kf.Q = q
+    x = np.asarray(prior_mean, dtype=float).reshape(k, 1).copy()
+    p = np.asarray(prior_covariance, dtype=float).copy()
+    f = identity = np.eye(k)
     means = np.empty((n, k))
     covs = np.empty((n, k, k))
     r_mat = np.empty((1, 1))
     for i in range(n):
-        kf.predict()
+        x = np.dot(f, x)  # predict
+        p = np.dot(np.dot(f, p), f.T) + q
         r_mat[0, 0] = r[i]
-        kf.update(z[i : i + 1].reshape(1, 1), R=r_mat, H=h[i : i + 1])
-        kf.P = 0.5 * (kf.P + kf.P.T)
-        means[i] = kf.x[:, 0]
-        covs[i] = kf.P
+        row = h[i : i + 1]
+        y = z[i : i + 1].reshape(1, 1) - np.dot(row, x)  # update
+        pht = np.dot(p, row.T)
+        gain = np.dot(pht, np.linalg.inv(np.dot(row, pht) + r_mat))
+        x = x + np.dot(gain, y)
+        i_kh = identity - np.dot(gain, row)
+        p = np.dot(np.dot(i_kh, p), i_kh.T) + np.dot(np.dot(gain, r_mat), gain.T)
+        p = 0.5 * (p + p.T)
+        means[i] = x[:, 0]
+        covs[i] = p
     if not smooth:
         return FilterHistory(means, covs)
+    from filterpy.kalman import KalmanFilter
+
+    kf = KalmanFilter(dim_x=k, dim_z=1)
     xs, ps, _, _ = kf.rts_smoother(means[:, :, None], covs, Fs=[np.eye(k)] * n, Qs=[q] * n)
     return FilterHistory(means, covs, xs[:, :, 0], ps)

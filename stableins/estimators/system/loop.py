@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -204,7 +205,7 @@ class DampingLoop:
         On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
         polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
         Earth-rate mode at resonance (a ``t·sin`` growth in the tilts).  Exact first-order-hold
-        discretization on the given (uniform) grid, run mode by mode (:func:`scipy.signal.lfilter` in the eigenbasis
+        discretization on the given (uniform) grid, run mode by mode (:func:`modal_recursion` in the eigenbasis
         of the transition matrix; :meth:`_drift_responses_stepwise`, the plain recursion, is the reference).
         """
         from scipy.linalg import expm
@@ -229,16 +230,11 @@ class DampingLoop:
         lam, vectors = np.linalg.eig(phi)
         if not np.linalg.cond(vectors) < 1e8:  # (nearly) defective: the plain recursion
             return self._drift_responses_stepwise(t, nav_to_platform, phi, gamma0, gamma1)
-        from scipy.signal import lfilter
-
         to_modes = np.linalg.inv(vectors)
         for j in range(3):
             eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
             drive = step[:, None] * (eps_n[:-1] @ gamma0.T + np.diff(eps_n, axis=0) @ gamma1.T)
-            modal = drive @ to_modes.T
-            z = np.empty_like(modal)
-            for i in range(n):
-                z[:, i] = lfilter([1.0], [1.0, -lam[i]], modal[:, i])
+            z = modal_recursion(lam, drive @ to_modes.T)
             out[1:, :, j] = (z @ (c @ vectors).T).real
         return out
 
@@ -371,6 +367,48 @@ class DampingLoop:
             if k + 1 < len(time):
                 x = phi @ x + gamma0 @ forcing[k] + gamma1 @ (forcing[k + 1] - forcing[k])
         return out
+
+
+def modal_recursion(lam: NDArray[np.complex128] | NDArray[np.float64], drive: NDArray[Any]) -> NDArray[Any]:
+    r"""First-order recursions ``z_k = λ_i z_{k−1} + d_k`` from rest (``z_0 = d_0``), one per column ``i`` of ``drive``.
+
+    What :func:`scipy.signal.lfilter` ``([1], [1, −λ_i], d[:, i])`` computes, with its arithmetic: a complex
+    product as ``(λ_r z_r − λ_i z_i, λ_r z_i + λ_i z_r)`` with each product rounded, then ``+ d_k``, so the numbers are
+    its to the last bit; stepped over all columns at once in numpy.  Written out because importing
+    :mod:`scipy.signal` imports :mod:`scipy.stats` (its peak finding), a second of ``calibrate system`` (issue 30).
+
+    Parameters
+    ----------
+    lam : ndarray (n,)
+        The modes' factors ``λ_i`` (complex, or real when every one is real).
+    drive : ndarray (steps, n)
+        The inputs ``d_k`` of each mode.
+
+    Returns
+    -------
+    ndarray (steps, n)
+        ``z``, complex unless ``lam`` and ``drive`` are both real.
+    """
+    steps = drive.shape[0]
+    if not (np.iscomplexobj(lam) or np.iscomplexobj(drive)):
+        out = np.empty(drive.shape)
+        if steps:
+            out[0] = drive[0]
+        for k in range(1, steps):
+            out[k] = lam * out[k - 1] + drive[k]
+        return out
+    lam_r, lam_i = np.real(lam), np.imag(lam)
+    d_r, d_i = np.ascontiguousarray(np.real(drive), dtype=float), np.ascontiguousarray(np.imag(drive), dtype=float)
+    z_r, z_i = np.empty(drive.shape), np.empty(drive.shape)
+    if steps:
+        z_r[0], z_i[0] = d_r[0], d_i[0]
+    for k in range(1, steps):
+        a_r, a_i = z_r[k - 1], z_i[k - 1]
+        z_r[k] = (lam_r * a_r - lam_i * a_i) + d_r[k]
+        z_i[k] = (lam_r * a_i + lam_i * a_r) + d_i[k]
+    out_c = np.empty(drive.shape, dtype=complex)
+    out_c.real, out_c.imag = z_r, z_i
+    return out_c
 
 
 def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:

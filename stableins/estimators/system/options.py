@@ -1,15 +1,21 @@
-"""Options of the system stage: the gyro-drift choice and the validation of :class:`.stage.SystemOptions`."""
+"""Options of the system stage: :class:`SystemOptions`, the gyro-drift choice and their validation at construction."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING
 
+from stableins.conventions import MICRO_G, PPM
 from stableins.errors import InputError
 
-if TYPE_CHECKING:  # pragma: no cover
-    from stableins.estimators.system.stage import SystemOptions
+#: Default prior σ of the sensitivities when the calibration record has none: 5 µg/K and 5 ppm/K (the library's
+#: nominal magnitudes of navigation-grade quartz accelerometers).
+DEFAULT_THERMAL_PRIOR = (5.0 * MICRO_G, 5.0 * PPM)
+#: How the stage's messages name its inputs: parameters of :class:`SystemOptions`
+#: (``stableins calibrate system`` translates them to its flags, a certificate to plain words).
+GYRO_DRIFT_PARAMETER = "known_gyro_drift, rad/s"
+ESTIMATE_K2_PARAMETER = "estimate_k2=True"
 
 
 class GyroDrift(StrEnum):
@@ -21,6 +27,43 @@ class GyroDrift(StrEnum):
     FIT = "fit"
     #: Fit it only to warn when it is significant.
     CHECK = "check"
+
+
+@dataclass(frozen=True)
+class SystemOptions:
+    """Settings of the system stage (defaults follow docs/system-calibration.md).
+
+    Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
+    :class:`~stableins.errors.InputError` naming the option and what it expects.
+    """
+
+    chunk_rows: int = 1 << 18
+    attitude_decimation_seconds: float = 1.0
+    attitude_block_seconds: float = 10.0
+    filter_block_seconds: float = 600.0
+    case_rotation_period: float | None = 480.0
+    couplings: bool = True
+    compensate_loop: bool = True
+    velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
+    attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
+    # relative deviation of the platform-angle rate from the Earth rate: a wrong sense s1 is off by 2, a caged platform by 1; a
+    # z_p gyro drift ε_z shifts it by ε_z/ω_ie (0.05 °/h: 3.3e-3), which the stage measures (docs §9), so 0.05 (0.75 °/h)
+    rate_tolerance: float = 0.05
+    polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
+    minimum_duration: float = 4 * 3600.0  # [s]
+    noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
+    run_filter: bool = True
+    gyro_drift: GyroDrift = GyroDrift.IGNORE  # see GyroDrift
+    known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
+    gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
+    estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
+    estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
+    noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
+    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gyro_drift", validate_options(self))
+
 
 
 _POSITIVE_INTS = ("chunk_rows", "noise_samples_per_chunk")

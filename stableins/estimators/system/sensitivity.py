@@ -7,9 +7,13 @@ update instead, docs/system-calibration.md §9, and has no sensitivity here) and
 harmonics.  An error in either moves the attitude coefficients and, through the separation, the
 stage's likelihood: its information vector :math:`\eta = \Lambda\hat x + g` (at :math:`\hat x = x_0`, the
 installed calibration, so only :math:`g` moves).  Each input :math:`q` is perturbed by a small step
-:math:`h` and the whole stage re-run (the same data, the same code path)::
+:math:`h` and the stage's solve steps re-run (the same data, the same code path)::
 
     ∂η/∂q = (g(q + h) − g(q)) / h
+
+The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) does not depend on either input, so
+it is made once and every re-run starts from its sums (issue 30: the pass is most of the stage's time on a long
+record); the Kalman filter's convergence curve, which does not enter the likelihood, is not re-run either.
 
 The steps are small against the inputs' uncertainty (1e-6 °/h for the drift, 1e-4 relative for the
 loop), where the stage is linear: the coloured-noise model it re-fits to the residuals moves by
@@ -42,7 +46,7 @@ LOOP_STEP = 1e-4
 LOOP_PARAMETERS = ("zeta", "omega_s", "schuler_frequency", "k1", "k2", "k3")
 
 
-def system_sensitivities(
+def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its result and its pass
     source: Any,
     metadata: SiteMetadata,
     prior: Mapping[str, float],
@@ -52,23 +56,38 @@ def system_sensitivities(
     compensation_terms: Sequence[Term] = (),
     noise_model: Any = None,
     base: Any = None,
+    sums: Any = None,
 ) -> tuple[InputSensitivity, ...]:
     """:class:`InputSensitivity` of the stage's likelihood to the gyro drift (x, y, z) and the damping-loop parameters.
 
     Parameters are those of :func:`stableins.estimators.system.stage.run_system_stage`; ``base`` is its
     result with the inputs as given (run here when not given); ``noise_model`` is the noise model the stage was
-    given (docs/system-calibration.md §1a), the same in every re-run.  Each input costs one more run of the stage.
+    given (docs/system-calibration.md §1a), the same in every re-run; ``sums`` is the stage's pass over ``source``
+    (:func:`~stableins.estimators.system.stage.record_sums`, made here when not given).  Each input costs one more
+    run of the stage's solve steps on those sums.
     """
-    from stableins.estimators.system.stage import run_system_stage
+    from stableins.estimators.system.stage import record_sums, run_system_stage
 
-    def run(opts: Any, meta: SiteMetadata) -> Any:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if sums is None:
+            sums = record_sums(source, metadata, prior, options, compensation_terms=compensation_terms)
+
+    def run(opts: Any, meta: SiteMetadata, *, curve: bool = False) -> Any:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return run_system_stage(
-                source, meta, prior, prior_covariance, opts, compensation_terms=compensation_terms, noise_model=noise_model
+                source,
+                meta,
+                prior,
+                prior_covariance,
+                opts if curve else replace(opts, run_filter=False),
+                compensation_terms=compensation_terms,
+                noise_model=noise_model,
+                sums=sums,
             )
 
-    base = base if base is not None else run(options, metadata)
+    base = base if base is not None else run(options, metadata, curve=True)
     likelihood = base.result.likelihood
     if likelihood is None:
         return ()
@@ -81,9 +100,10 @@ def system_sensitivities(
 
     out = []
     drift = np.zeros(3) if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
-    # a drift the record measured (the gimbal readings) is a parameter of the update, not an input taken as known
-    measured = getattr(base, "drift", None) is not None and base.drift.in_likelihood
-    for axis, name in enumerate("xyz" if not measured else ""):
+    inputs = perturbed_inputs(base, metadata)
+    for axis, name in enumerate("xyz"):
+        if f"gyro_drift.{name}" not in inputs:
+            continue
         moved = drift.copy()
         moved[axis] += DRIFT_STEP
         outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata)
@@ -92,7 +112,7 @@ def system_sensitivities(
     damping = dict(metadata.damping or {})
     for key in LOOP_PARAMETERS:
         value = damping.get(key)
-        if value is None or not (isinstance(value, int | float) and math.isfinite(value) and value != 0.0):
+        if f"damping_loop.{key}" not in inputs or not isinstance(value, int | float):
             continue
         step = LOOP_STEP * abs(float(value))
         outcome = run(options, replace(metadata, damping={**damping, key: float(value) + step}))
@@ -104,6 +124,26 @@ def system_sensitivities(
     return tuple(out)
 
 
+def perturbed_inputs(base: Any, metadata: SiteMetadata) -> tuple[str, ...]:
+    """Return the inputs :func:`system_sensitivities` perturbs, one re-run of the stage each (a console shows their count).
+
+    ``gyro_drift.x/y/z`` unless the record measured the drift (the gimbal readings: it is then a parameter of the
+    update, not an input taken as known), then ``damping_loop.KEY`` for each parameter of :data:`LOOP_PARAMETERS` the
+    metadata state as a finite, non-zero number.  None when the stage's result has no likelihood.
+    """
+    if base.result.likelihood is None:
+        return ()
+    measured = getattr(base, "drift", None) is not None and base.drift.in_likelihood
+    drift = () if measured else tuple(f"gyro_drift.{axis}" for axis in "xyz")
+    damping = dict(metadata.damping or {})
+    loop = tuple(
+        f"damping_loop.{key}"
+        for key in LOOP_PARAMETERS
+        if isinstance(damping.get(key), int | float) and math.isfinite(damping[key]) and damping[key] != 0.0
+    )
+    return drift + loop
+
+
 def with_sensitivities(
     outcome: Any,
     source: Any,
@@ -113,8 +153,12 @@ def with_sensitivities(
     *,
     compensation_terms: Sequence[Term] = (),
     noise_model: Any = None,
+    sums: Any = None,
 ) -> Any:
-    """Return the stage's outcome (``SystemCalibration``) with :func:`system_sensitivities` on its result, for the record."""
+    """Return the stage's outcome (``SystemCalibration``) with :func:`system_sensitivities` on its result, for the record.
+
+    ``sums``: the stage's pass over ``source`` that gave ``outcome`` (made again here when not given).
+    """
     found = system_sensitivities(
         source,
         source.metadata,
@@ -124,6 +168,7 @@ def with_sensitivities(
         compensation_terms=compensation_terms,
         noise_model=noise_model,
         base=outcome,
+        sums=sums,
     )
     return replace(outcome, result=replace(outcome.result, sensitivities=found))
 

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import SIDEREAL_DAY
 from stableins.errormodel import MICRO_G_PER_G2
-from stableins.errors import InputError
+from stableins.errors import NotDeterminedError
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.accumulate import RecordSums, SampleBins
 from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER, VIF_LIMIT, k2_map, observable_directions
@@ -49,7 +49,7 @@ from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
 from stableins.noise import NoiseModel
 
 if TYPE_CHECKING:
-    from stableins.estimators.system.stage import SystemOptions
+    from stableins.estimators.system.options import SystemOptions
 
 
 #: Steps of the sequential Kalman filter's convergence curve at most (filter bins merged beyond 3.5 days).
@@ -481,7 +481,7 @@ def _check_determined(sep: Separation, kept: int, duration: float, path: str) ->
             else f"the {kept} combinations it resolves are all used by the {sep.rank} the separation estimates (ν = 0): its χ²_ν is "
             "undefined and nothing is left to test the model"
         )
-        raise InputError(
+        raise NotDeterminedError(
             f"the record of {duration / 3600:.2f} h determines nothing the stage can certify: {what}; over less than one sidereal day "
             "the Earth-rate harmonics are not separable from one another (the data lack one sidereal day). Nothing was estimated "
             "and no record was written",

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from stableins.data.chunks import ChunkSource, source_columns, source_path, source_time_grid
 from stableins.errormodel import Term
 from stableins.estimators.details import CombinedDetails
-from stableins.estimators.result import FitResult
+from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system import solve
 from stableins.estimators.system.accumulate import FORCE_COLUMNS, RecordSums, SourceContents, StageAccumulator
@@ -50,49 +50,15 @@ from stableins.estimators.system.diagnostics import SystemDiagnostics
 from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
 from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
 from stableins.estimators.system.loop import DampingLoop
-from stableins.estimators.system.options import GyroDrift, validate_options
+from stableins.estimators.system.options import SystemOptions
 from stableins.estimators.system.separation import Separation
-from stableins.estimators.system.thermal import DEFAULT_THERMAL_PRIOR, THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
+from stableins.estimators.system.thermal import THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
 from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
 from stableins.estimators.system.whittle import ColouredNoiseFit
 from stableins.noise import NoiseModel
 from stableins.site import SiteMetadata
 from stableins.status import Status
-
-
-@dataclass(frozen=True)
-class SystemOptions:
-    """Settings of the system stage (defaults follow docs/system-calibration.md).
-
-    Validated at construction: a value of the wrong type or out of range, or an unknown ``gyro_drift``, raises
-    :class:`~stableins.errors.InputError` naming the option and what it expects.
-    """
-
-    chunk_rows: int = 1 << 18
-    attitude_decimation_seconds: float = 1.0
-    attitude_block_seconds: float = 10.0
-    filter_block_seconds: float = 600.0
-    case_rotation_period: float | None = 480.0
-    couplings: bool = True
-    compensate_loop: bool = True
-    velocity_limit: float = 5.0  # [m/s] beyond this the base is not static (3e-3 m/s² gives ~2.5 m/s of Schuler transient)
-    attitude_limit: float = 5e-3  # [rad] excursion of pitch/roll around their mean beyond which the base is not static
-    rate_tolerance: float = 2e-3  # relative deviation of the platform-angle rate from the Earth rate
-    polar_tolerance: float = 1e-3  # [rad] angle between z_p and the Earth's axis (from the mean f_z/|f|)
-    minimum_duration: float = 4 * 3600.0  # [s]
-    noise_samples_per_chunk: int = 1 << 15  # second differences per chunk: N to 0.6 % from one day at 1 Hz
-    run_filter: bool = True
-    gyro_drift: GyroDrift = GyroDrift.IGNORE  # see GyroDrift
-    known_gyro_drift: tuple[float, float, float] | None = None  # [rad/s] in the platform frame, response removed
-    gyro_drift_uncertainty: float | None = None  # [rad/s] standard uncertainty per axis of the drift (given or assumed zero)
-    estimate_k2: bool = False  # remove residual K2_x, K2_y (from the third harmonic) and update them in the record
-    estimate_gyro_drift: bool = True  # measure ε^p in the gimbal readings, remove it, update gyro_drift_* (docs §9)
-    noise_false_positive_rate: float = 0.05  # of the decision "the residuals carry low-frequency noise" (docs §1a)
-    thermal_prior: tuple[float, float] = DEFAULT_THERMAL_PRIOR  # 1σ of Kt_bias [m/s²/K], Kt_sf [1/K] (docs §1b)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "gyro_drift", validate_options(self))
 
 
 @dataclass(frozen=True, repr=False)
@@ -175,6 +141,7 @@ def run_system_stage(
     *,
     compensation_terms: Sequence[Term] = (),
     noise_model: NoiseModel | None = None,
+    sums: RecordSums | None = None,
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -199,6 +166,10 @@ def run_system_stage(
         The instrument's noise model as known before this record (the calibration record's).  A datasheet model gives
         the amplitudes of the low-frequency noise as they are; a measured one (device dwells, an earlier static record)
         is a prior on them (docs/system-calibration.md §1a).  The white level is always measured in the record.
+    sums : RecordSums, optional
+        The stage's pass over this record (:func:`record_sums` with the same source, prior, compensation terms and
+        options), when already made: the pass is then not repeated.  The known gyro drift and the damping loop do not
+        enter it, so the Type B sensitivities (:mod:`.sensitivity`) re-run only the solve steps on it.
 
     Returns
     -------
@@ -206,7 +177,9 @@ def run_system_stage(
         With :attr:`SystemCalibration.noise_model`, the noise model under its σ: measured in this record (source
         ``static record``), or with a datasheet model its slow terms as given and the record's white noise.
     """
-    stage = _run(source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model)
+    stage = _run(
+        source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model, sums=sums
+    )
     harmonic, attitude, decision = stage.harmonic, stage.attitude, stage.decision
     combination = solve.combine(
         harmonic,
@@ -269,27 +242,14 @@ def _run(
     *,
     compensation_terms: Sequence[Term],
     noise_model: NoiseModel | None,
+    sums: RecordSums | None = None,
 ) -> _Stage:
-    """Run the one pass over the record (:class:`.accumulate.StageAccumulator`) and the solve steps 1-5 (:mod:`.solve`)."""
-    path = source_path(source)
-    site = check_metadata(metadata, path)
-    # the record's thermal sensitivities are the thermal terms' prior (docs §1b), not a compensation of the outputs
-    compensation_terms = tuple(t for t in compensation_terms if t.id not in THERMAL_TERMS)
-    latitude, gravity, rate = site.latitude, site.gravity, site.rate
-    loop = DampingLoop.from_metadata(metadata.damping, latitude, gravity, couplings=options.couplings)
-    context = StageContext(path, site, loop, options)
-    grid = source_time_grid(source)
-    contents = SourceContents(
-        has_temperature="temperature" in source_columns(source),
-        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
-        time_grid=grid,
-        grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
-    )
-    accumulator = StageAccumulator(metadata, prior, context, compensation_terms=compensation_terms, source=contents)
-    rows, thin, step = accumulator.chunk_rows, accumulator.thin, accumulator.decimation
-    for chunk in source.iter_chunks(accumulator.columns, rows=rows, thin=thin, step=step, reuse=True, unchecked=FORCE_COLUMNS):
-        accumulator.add(chunk)
-    sums = accumulator.finish()
+    """Run the pass over the record (:class:`.accumulate.StageAccumulator`; ``sums`` when given) and the solve steps 1-5 (:mod:`.solve`)."""
+    context, compensation_terms = _context(source, metadata, options, compensation_terms)
+    latitude, gravity, rate = context.site.latitude, context.site.gravity, context.site.rate
+    loop = context.loop
+    if sums is None:
+        sums = _accumulate(source, metadata, prior, context, compensation_terms)
     noise = solve.white_noise(sums, latitude, gravity)
     harmonic = solve.fit_harmonics(sums, noise, gravity)
     prior_res_cov = prior_residual_covariance(prior, prior_covariance, gravity)
@@ -302,6 +262,54 @@ def _run(
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
     return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
+
+
+def record_sums(
+    source: ChunkSource,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    options: SystemOptions = SystemOptions(),
+    *,
+    compensation_terms: Sequence[Term] = (),
+) -> RecordSums:
+    """Make the stage's one pass over the record (step 1 of the module docstring), for :func:`run_system_stage`'s ``sums``.
+
+    It depends on the record, the prior it compensates with, the compensation terms, the site's gimbal senses and base
+    attitude and the pass options (chunk, block and decimation settings), not on the damping loop nor on a known gyro
+    drift: those enter only the solve steps.
+    """
+    context, compensation_terms = _context(source, metadata, options, compensation_terms)
+    return _accumulate(source, metadata, prior, context, compensation_terms)
+
+
+def _context(
+    source: ChunkSource, metadata: SiteMetadata, options: SystemOptions, compensation_terms: Sequence[Term]
+) -> tuple[StageContext, tuple[Term, ...]]:
+    """Return the run's :class:`StageContext` (metadata checked) and the compensation terms the pass applies."""
+    path = source_path(source)
+    site = check_metadata(metadata, path)
+    # the record's thermal sensitivities are the thermal terms' prior (docs §1b), not a compensation of the outputs
+    terms = tuple(t for t in compensation_terms if t.id not in THERMAL_TERMS)
+    loop = DampingLoop.from_metadata(metadata.damping, site.latitude, site.gravity, couplings=options.couplings)
+    return StageContext(path, site, loop, options), terms
+
+
+def _accumulate(
+    source: ChunkSource, metadata: SiteMetadata, prior: Mapping[str, float], context: StageContext, compensation_terms: tuple[Term, ...]
+) -> RecordSums:
+    """Make the one pass over the record (:class:`.accumulate.StageAccumulator`)."""
+    grid = source_time_grid(source)
+    contents = SourceContents(
+        has_temperature="temperature" in source_columns(source),
+        has_gimbals=not source_columns(source) or set(GIMBAL_COLUMNS) <= set(source_columns(source)),
+        time_grid=grid,
+        grid_time=None if grid is None else getattr(source, "grid_time"),  # noqa: B009  (a GriddedChunkSource)
+    )
+    accumulator = StageAccumulator(metadata, prior, context, compensation_terms=compensation_terms, source=contents)
+    rows, thin, step = accumulator.chunk_rows, accumulator.thin, accumulator.decimation
+    for chunk in source.iter_chunks(accumulator.columns, rows=rows, thin=thin, step=step, reuse=True, unchecked=FORCE_COLUMNS):
+        accumulator.add(chunk)
+    return accumulator.finish()
 
 
 def _assemble(
@@ -343,7 +351,7 @@ def _assemble(
     )
     observable = combination.observable
     combined = FitResult(
-        stage="system-combined",
+        stage=Stage.SYSTEM_COMBINED,
         terms=combined_terms(),
         values=combination.values,
         covariance=combination.covariance,
@@ -410,5 +418,6 @@ __all__ = [
     "SystemNoise",
     "SystemOptions",
     "measure_noise_model",
+    "record_sums",
     "run_system_stage",
 ]

@@ -52,21 +52,19 @@ from numpy.typing import NDArray
 from stableins.conventions import AXES, MICRO_G, PPM
 from stableins.estimators.system.assembly import k2_map
 from stableins.estimators.system.coloured import LowBand, low_band
+from stableins.estimators.system.options import DEFAULT_THERMAL_PRIOR
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS
 from stableins.estimators.system.thermal_bins import bin_temperature, daily_fraction, information, response, separable_directions
 
 if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums, SampleBins
     from stableins.estimators.system.checks import StageContext
+    from stableins.estimators.system.options import SystemOptions
     from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision, WhiteNoise
-    from stableins.estimators.system.stage import SystemOptions
     from stableins.noise import NoiseModel
 
 #: The thermal terms of the system model (the library's ids): bias sensitivities [m/s²/K], scale-factor ones [1/K].
 THERMAL_TERMS = tuple(f"Kt_bias_{a}" for a in AXES) + tuple(f"Kt_sf_{a}" for a in AXES)
-#: Default prior σ of the sensitivities when the calibration record has none: 5 µg/K and 5 ppm/K (the library's
-#: nominal magnitudes of navigation-grade quartz accelerometers).
-DEFAULT_THERMAL_PRIOR = (5.0 * MICRO_G, 5.0 * PPM)
 #: A combined coefficient is "not separable" from the thermal cycle when the thermal part is this share of its variance.
 THERMAL_SHARE_LIMIT = 0.5
 #: Thermal σ below this fraction of the smallest data σ of the combined coefficients: the note says "negligible".
@@ -160,7 +158,7 @@ class ThermalFit:
         def remove(band: LowBand) -> list[NDArray[np.float64]]:
             keep = stage.sums.filter_bins.n > 0
             delta_band = bin_temperature(stage.sums, keep, band) - self.mean_temperature
-            z_cols, pitch, roll, _ = response(stage, band, delta_band)
+            z_cols, pitch, roll, _ = response(stage.context.site.gravity, stage.attitude, band, delta_band)
             out = [band.makers[0] @ (z_cols @ p)]
             if len(band.channels) == 3:
                 out += [band.makers[1] @ (pitch @ p), band.makers[2] @ (roll @ p)]
@@ -311,8 +309,8 @@ def analyse_temperature(
     weights = band.weights[0]
     mean_temperature = float(np.sum(weights * temperature) / np.sum(weights))
     delta_t = temperature - mean_temperature
-    z_cols, _, _, jacobian = response(stage, band, delta_t)
-    info, gradient, info_raw = information(stage, band, z_cols)
+    z_cols, _, _, jacobian = response(stage.context.site.gravity, stage.attitude, band, delta_t)
+    info, gradient, info_raw = information(stage.harmonic, stage.decision, band, z_cols)
     posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
     estimate = posterior @ (prior_mean(stage.prior) / sigma0**2 + gradient)
     separable, chi2, dof = separable_directions(info, info_raw, gradient)

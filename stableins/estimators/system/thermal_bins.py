@@ -19,7 +19,7 @@ from stableins.estimators.system.coloured import LowBand, attitude_bin_map
 
 if TYPE_CHECKING:
     from stableins.estimators.system.accumulate import RecordSums
-    from stableins.estimators.system.thermal import ThermalInputs
+    from stableins.estimators.system.solve import AttitudeStep, HarmonicFit, NoiseDecision
 
 
 def bin_temperature(sums: RecordSums, keep: NDArray[np.bool_], band: LowBand) -> NDArray[np.float64]:
@@ -38,38 +38,42 @@ def bin_temperature(sums: RecordSums, keep: NDArray[np.bool_], band: LowBand) ->
 
 
 def response(
-    stage: ThermalInputs, band: LowBand, delta_t: NDArray[np.float64]
+    gravity: float, attitude: AttitudeStep, band: LowBand, delta_t: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Return the six sensitivities' ``z``, pitch and roll on the bins ``(n, 6)`` and their response ``J (17, 6)`` in ``v``."""
+    """Return the six sensitivities' ``z``, pitch and roll on the bins ``(n, 6)`` and their response ``J (17, 6)`` in ``v``.
+
+    ``gravity`` [m/s²] of the site; ``attitude``: the stage's attitude step (its Fourier fit and vertical channel).
+    """
     n = band.groups.size
     loads = band.mixing[0]  # u_a on the bins
     # δ_a per unit of each sensitivity on the bins: bias ΔT/g on its axis, scale factor ΔT u_a
     inputs = np.zeros((6, 3, n))
     for a in range(3):
-        inputs[a, a] = delta_t / stage.context.site.gravity
+        inputs[a, a] = delta_t / gravity
         inputs[3 + a, a] = delta_t * loads[a]
     z_cols = np.stack([sum(loads[a] * inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
     pitch = np.stack([sum(band.mixing[1][a] @ inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
     roll = np.stack([sum(band.mixing[2][a] @ inputs[p, a] for a in range(3)) for p in range(6)], axis=1)
-    att = stage.attitude.fit
+    att = attitude.fit
     jac_x = np.zeros((10, 7))
-    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-stage.attitude.along)  # ∂attitude/∂x through the vertical channel
+    jac_x[:, :5] = att.vertical_jacobian @ np.diag(-attitude.along)  # ∂attitude/∂x through the vertical channel
     j_x = band.a_z @ z_cols
     return z_cols, pitch, roll, np.vstack([j_x, attitude_bin_map(att, band.groups, band.merge) @ np.vstack([pitch, roll]) + jac_x @ j_x])
 
 
 def information(
-    stage: ThermalInputs, band: LowBand, z_cols: NDArray[np.float64]
+    harmonic: HarmonicFit, decision: NoiseDecision, band: LowBand, z_cols: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Return the ``z`` residuals' information and gradient on the sensitivities, and the information before the harmonic fit.
 
     Bins' covariance: white ``R/n`` plus the coloured model the stage decided on; the residuals' is ``R_z C R_zᵀ``
-    (pseudo-inverse: rank ``n − 7``).
+    (pseudo-inverse: rank ``n − 7``).  ``harmonic``: the stage's harmonic fit (its residual variance); ``decision``: its
+    noise decision (the coloured model).
     """
     n = band.groups.size
     loads = band.mixing[0]
-    cov = np.diag(stage.harmonic.residual_variance / band.weights[0])
-    fit = stage.decision.fit
+    cov = np.diag(harmonic.residual_variance / band.weights[0])
+    fit = decision.fit
     amplitudes = fit.amplitudes if fit is not None else np.zeros((len(band.kernels), 3))
     eye = np.eye(n)
     for c, kernel in enumerate(band.kernels):

@@ -373,7 +373,7 @@ def record_note(
     ``site``: latitude [rad] and gravity [m/s²].  What ``stableins diagnose`` reports of a system record
     (:func:`stableins.estimators.system.stage.measure_noise_model`).
     """
-    from stableins.estimators.system.assembly import ESTIMATE_K2_PARAMETER
+    from stableins.estimators.system.options import ESTIMATE_K2_PARAMETER
 
     third = explain_third_harmonic(v, cov_v, site[0], site[1], alpha=alpha, extra=extra)
     text = third.note(estimate_k2=False, parameter=ESTIMATE_K2_PARAMETER)

@@ -11,7 +11,7 @@ from stableins.estimators.system.separation import Separation
 from stableins.status import Status
 
 if TYPE_CHECKING:
-    from stableins.estimators.system.stage import SystemDiagnostics
+    from stableins.estimators.system.diagnostics import SystemDiagnostics
 
 
 class SystemCalibrationView:

@@ -19,7 +19,7 @@ from stableins.conventions import EARTH_RATE, GimbalConfiguration, dcm_body_to_p
 from stableins.data.chunks import ChunkSource, source_path
 from stableins.errormodel import CORE_IDS, GIMBAL_IDS, ErrorModel, known_terms
 from stableins.errors import InputError
-from stableins.estimators.drift.holds import MOVE_MARGIN, MOVING_RATE, rotation_vector
+from stableins.estimators.drift.holds import MOVE_MARGIN, MOVING_RATE, small_angle_vector
 from stableins.estimators.systematic.model import StepGeometry, input_map
 from stableins.platform import rotation_about
 from stableins.site import SiteMetadata
@@ -320,7 +320,7 @@ class StepBuilder:
         offset_end = self._offset_map(end_angles, point)
         # ψ: the output against the base at the point; the computer's offsets are the installed ones
         known = np.einsum("sji,sjk,k->si", end_nav_to_platform, offset_end, self.lin.offsets)
-        survey_attitude = rotation_vector(output.swapaxes(1, 2) @ base) + known
+        survey_attitude = small_angle_vector(output.swapaxes(1, 2) @ base) + known
         z = np.zeros((s, 12))
         cov = np.zeros((s, 12, 12))
         z[:, 0], z[:, 1], z[:, 2] = data["velocity_north"][end], data["velocity_east"][end], data["velocity_down"][end]
@@ -336,8 +336,8 @@ class StepBuilder:
                 continue
             self._summarize(hold, float(end_time[k]), means[2], end_nav_to_platform[k])
             # ρ and d: the platform's turn as the sum of its increments (θ = ∫w, no composition terms; TurnSum)
-            z[k, 3:6] = self._turned("rho", hold, inertial[k, 0]) + rotation_vector(inertial[k] @ inertial[k, 0].T).mean(axis=0)
-            computer = rotation_vector(computed_inertial[k] @ end_inertial[k].T)  # rv(P Mᵀ) = −C_n^p φ
+            z[k, 3:6] = self._turned("rho", hold, inertial[k, 0]) + small_angle_vector(inertial[k] @ inertial[k, 0].T).mean(axis=0)
+            computer = small_angle_vector(computed_inertial[k] @ end_inertial[k].T)  # rv(P Mᵀ) = −C_n^p φ
             turned = self._turned("end", hold, end_inertial[k])
             z[k, 6:9] = computer + turned - self.references.setdefault(("att", hold), computer)
             jm = geometry[-1].offset_map_mean
@@ -377,7 +377,7 @@ class StepBuilder:
         """``|ω|`` [rad/s] (s, m): the platform's inertial turn from the first to the last sample of each substep (central)."""
         ends = [self._body_to_platform(angles[:, :, k], point[0]) @ point[1] @ self._earth(time[:, :, k]).swapaxes(-1, -2) for k in (0, -1)]
         span = time[:, :, -1] - time[:, :, 0]
-        angle = np.linalg.norm(rotation_vector(ends[1] @ ends[0].swapaxes(-1, -2)), axis=-1)
+        angle = np.linalg.norm(small_angle_vector(ends[1] @ ends[0].swapaxes(-1, -2)), axis=-1)
         return angle / np.where(span > 0, span, 1.0)
 
     def _offset_map(self, angles: NDArray[np.float64], installed: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -388,7 +388,7 @@ class StepBuilder:
             step[i] = _ANGLE_STEP
             plus = self._body_to_platform(angles, installed + step)
             minus = self._body_to_platform(angles, installed - step)
-            columns.append(rotation_vector(plus @ minus.swapaxes(-1, -2)) / (2 * _ANGLE_STEP))
+            columns.append(small_angle_vector(plus @ minus.swapaxes(-1, -2)) / (2 * _ANGLE_STEP))
         return np.stack(columns, axis=-1)
 
 
@@ -424,7 +424,7 @@ class TurnSum:
 
     def advance(self, attitude: NDArray[np.float64]) -> NDArray[np.float64]:
         """Add the increment from the last ``M`` to ``attitude``; return the sum."""
-        self.total = self.total + rotation_vector(attitude @ self.last.T)
+        self.total = self.total + small_angle_vector(attitude @ self.last.T)
         self.last = attitude
         return self.total
 

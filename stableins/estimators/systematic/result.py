@@ -20,7 +20,7 @@ from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
 from stableins.display import value_sigma
 from stableins.errormodel import MICRO_G_PER_G2, known_terms
 from stableins.estimators.details import StageDetails
-from stableins.estimators.result import FitResult, Likelihood
+from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.estimators.systematic.model import BASE_IDS, OFFSET_IDS, parameter_ids
 from stableins.estimators.systematic.observations import HoldSummary
 from stableins.estimators.systematic.passes import PassResult, Prior, rank_report
@@ -171,7 +171,7 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
         left_out,
     )  # fmt: skip
     fit = FitResult(
-        stage="systematic",
+        stage=Stage.SYSTEMATIC,
         terms=tuple(terms[i] for i in ids),
         values=values,
         covariance=_symmetric(cov),

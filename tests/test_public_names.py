@@ -1,0 +1,130 @@
+"""One vocabulary (issue 29): a public class or function is defined once in the package, and ``dict[str, Any]`` is rare.
+
+Every module of ``stableins`` is parsed with :mod:`ast`.  A public name is a module-level class or function whose name
+does not start with ``_``; the command protocol (``configure`` and ``run`` of every ``stableins.commands`` module, the
+interface :mod:`stableins.cli` dispatches to) and the generated ``stableins._version`` are not counted.  The names still
+defined in more than one module are listed in :data:`KNOWN_DUPLICATES`, to be renamed or merged: the list may only
+shrink (a new duplicate fails, and so does a listed name that is no longer one).  The ``dict[str, Any]`` annotations
+are counted the same way against :data:`DICT_ANY_CEILING`, which may only come down (issue 29's target: 50).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from collections import defaultdict
+from pathlib import Path
+
+import stableins
+
+PACKAGE = Path(stableins.__file__).resolve().parent
+
+#: Public names defined in more than one module today (issue 29: rename or merge them); never add to this list.
+KNOWN_DUPLICATES = {
+    "DriftSource": {"stableins.estimators.system.gyro_drift_step", "stableins.navigation.summary"},
+    "Entry": {"stableins.history_store.schema", "stableins.records.parameters"},
+    "Hold": {"stableins.data.holds", "stableins.estimators.drift.holds"},
+    "InputFile": {"stableins.records.stages", "stableins.reporting.context"},
+    "Separation": {"stableins.discovery.separation", "stableins.estimators.system.separation"},
+    "Step": {
+        "stableins.discovery.steps",
+        "stableins.estimators.systematic.kalman",
+        "stableins.procedures.definition",
+        "stableins.procedures.plan",
+    },
+    "batch_least_squares": {"stableins.estimators.system.harmonics", "stableins.estimators.systematic.kalman"},
+    "conformity": {"stableins.reporting.certificate_sections", "stableins.reporting.closing_sections", "stableins.reporting.content"},
+    "data_file": {"stableins.commands.calibrate_drift", "stableins.commands.calibrate_lever"},
+    "escape": {"stableins.display", "stableins.reporting.document"},
+    "next_steps": {"stableins.commands.calibrate_device", "stableins.commands.diagnose"},
+    "number": {"stableins.commands.arguments", "stableins.display", "stableins.procedures.sections", "stableins.reporting.rounding"},
+    "observation_rows": {"stableins.estimators.system.harmonics", "stableins.estimators.systematic.model"},
+    "prior_mean": {"stableins.estimators.system.thermal", "stableins.estimators.systematic.passes"},
+    "rank_report": {"stableins.estimators.gyro_sensitivity", "stableins.estimators.systematic.passes"},
+    "report": {
+        "stableins.commands.calibrate_system",
+        "stableins.estimators.drift.record",
+        "stableins.estimators.gyro_sensitivity",
+        "stableins.estimators.lever.record",
+        "stableins.records.display",
+    },
+    "residual_scale": {"stableins.estimators.system.assembly", "stableins.reporting.figures"},
+    "results": {"stableins.reporting.certificate_sections", "stableins.reporting.result_sections"},
+    "simulate_system": {"stableins.commands.simulate", "stableins.simulator.system"},
+    "summarize": {"stableins.campaign.summary", "stableins.commands.check"},
+    "table": {"stableins.procedures.sections", "stableins.reporting.document"},
+    "unit_text": {"stableins.display", "stableins.reporting.content"},
+}
+
+#: ``dict[str, Any]`` annotations in the package today; may only come down (issue 29's target: 50).
+DICT_ANY_CEILING = 182
+
+_COMMAND_PROTOCOL = {"configure", "run"}
+_DICT_ANY = re.compile(r"\bdict\[str,\s*Any\]")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def public_definitions() -> dict[str, set[str]]:
+    """Every public module-level class and function of the package: name -> the modules defining it."""
+    found: dict[str, set[str]] = defaultdict(set)
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = _module_name(path)
+        if module == "stableins._version":
+            continue
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if not isinstance(node, ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef) or node.name.startswith("_"):
+                continue
+            if module.startswith("stableins.commands.") and node.name in _COMMAND_PROTOCOL:
+                continue
+            found[node.name].add(module)
+    return found
+
+
+def dict_any_annotations() -> int:
+    """The number of ``dict[str, Any]`` annotations (arguments, returns, variables, fields) in the package."""
+    count = 0
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            annotations: list[ast.expr | None] = []
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                arguments = node.args
+                every = [*arguments.posonlyargs, *arguments.args, *arguments.kwonlyargs, arguments.vararg, arguments.kwarg]
+                annotations += [a.annotation for a in every if a is not None] + [node.returns]
+            elif isinstance(node, ast.AnnAssign):
+                annotations.append(node.annotation)
+            count += sum(len(_DICT_ANY.findall(ast.unparse(a))) for a in annotations if a is not None)
+    return count
+
+
+def test_no_new_duplicate_public_name() -> None:
+    duplicates = {name: modules for name, modules in public_definitions().items() if len(modules) > 1}
+    new = {name: sorted(modules) for name, modules in duplicates.items() if not modules <= KNOWN_DUPLICATES.get(name, set())}
+    assert not new, f"public names defined in more than one module (give each concept one name): {new}"
+    gone = sorted(name for name in KNOWN_DUPLICATES if name not in duplicates)
+    assert not gone, f"no longer defined twice: take them off KNOWN_DUPLICATES: {gone}"
+
+
+def test_dict_any_annotations_do_not_grow() -> None:
+    count = dict_any_annotations()
+    assert count <= DICT_ANY_CEILING, f"{count} dict[str, Any] annotations, more than {DICT_ANY_CEILING}: type the new ones"
+    assert count == DICT_ANY_CEILING, f"{count} dict[str, Any] annotations: lower DICT_ANY_CEILING to {count}"
+
+
+def test_the_counts_see_what_they_count(tmp_path: Path, monkeypatch) -> None:
+    """The checks above can fail: a second definition and an annotation are found."""
+    package = tmp_path / "stableins"
+    (package / "commands").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "a.py").write_text("from typing import Any\nclass Step: ...\ndef f(x: dict[str, Any]) -> dict[str, Any]: ...\n")
+    (package / "b.py").write_text("def Step(): ...\ndef _private(): ...\nrows: dict[str, Any] = {}\n")
+    (package / "commands" / "x.py").write_text("def run(args): ...\ndef configure(parser): ...\n")
+    (package / "commands" / "y.py").write_text("def run(args): ...\n")
+    monkeypatch.setattr(f"{__name__}.PACKAGE", package)
+    assert {name: modules for name, modules in public_definitions().items() if len(modules) > 1} == {"Step": {"stableins.a", "stableins.b"}}
+    assert dict_any_annotations() == 3
