@@ -230,7 +230,8 @@ def case_recal_estimate(ci: CommandInputs, rng: random.Random, op: str) -> fz.Re
     data, what, must = fz.mutate_json(ci.estimate.read_text(encoding="utf-8"), rng, op, free_paths=(("site", "extra"),))
     path = fz._write(directory, "estimate.json", data)
     out = directory / "recal"
-    argv = ["recal", "--unit", ci.device_serial, "--prior", str(ci.in_force), "--estimate", str(path), "--out", str(out), "--no-file"]
+    argv = ["recal", "--unit", ci.device_serial, "--prior", str(ci.in_force), "--estimate", str(path), "--out", str(out)]
+    argv += ["--no-file", "--yes"]  # --yes: no prompt for the operator (the fuzz has no person at the keyboard)
     return fz.run_cli(argv, f"recal estimate {what}", must, directory)
 
 
@@ -283,7 +284,8 @@ NUMERIC_OPTIONS: tuple[tuple[tuple[str, ...], str, int], ...] = (
     ((*POSES[:6], "counts:4096/g", *POSES[7:]), "--zero", 1),
     (("calibrate", "lever", "{device}", "--prior", "{noisy}", "--out", "{out}/c.json"), "--window", 1),
     (("calibrate", "system", "{system}", "--prior", "{noisy}", "--systematic", "--out", "{out}/c.json"), "--bias-instability", 1),
-    (("recal", "--unit", "TEST-1", "--prior", "{in_force}", "--estimate", "{estimate}", "--out", "{out}/r", "--no-file"), "--retries", 1),
+    (("recal", "--unit", "TEST-1", "--prior", "{in_force}", "--estimate", "{estimate}", "--out", "{out}/r", "--no-file", "--yes"),
+     "--retries", 1),
 )
 
 

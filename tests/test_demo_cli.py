@@ -3,30 +3,33 @@
 Every option of the command is given (``--out``, ``--seed``, ``--duration``, ``--hidden``, ``--rate``, ``--json``) and
 its effect asserted: the directory, the seed and hidden effect of the simulated truth, the length and rate of the
 system record (one day at 1 Hz: the system stage needs a sidereal day), and the JSON document on stdout, whose verdict
-must be the ``verdict.json`` the demo writes. The verdict itself is checked as a k·σ bound: every estimated parameter
-of the final record within 4.5 σ of the simulator's truth (for 26 normal errors the chance of one beyond is 2e-4), and
-the hidden effect found and kept.
+must be the ``verdict.json`` the demo writes.  The verdict itself is checked as a k·σ bound: every estimated parameter
+of the final record within 4.5 σ of the simulator's truth (for 26 normal errors the chance of one beyond is 2e-4),
+and the hidden effect found and kept.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
-import subprocess
-import sys
 
 import h5py
 import numpy as np
 import pytest
 
+from stableins import cli
+
 
 @pytest.mark.slow
 def test_demo_runs_to_completion_with_every_option_and_its_verdict_holds(tmp_path):
     out = tmp_path / "demo"
-    # as a user types it, in a process of its own (the demo runs each step so too)
-    argv = ["demo", "--out", str(out), "--seed", "2018", "--duration", "24h", "--rate", "1", "--hidden", "Kcc_xxy=60ug/g2", "--json"]
-    done = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], capture_output=True, text=True, check=False)
-    assert done.returncode == 0, done.stderr[-2000:]
-    document = json.loads(done.stdout)
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        status = cli.main(["demo", "--out", str(out), "--seed", "2018", "--duration", "24h", "--rate", "1",
+                           "--hidden", "Kcc_xxy=60ug/g2", "--json"])  # fmt: skip
+    assert status == 0, stderr.getvalue()[-2000:]
+    document = json.loads(stdout.getvalue())
     truth = json.loads((out / "truth.json").read_text())
     assert document["out"] == str(out) and truth["seed"] == 2018
     assert truth["effects"]["Kcc_xxy"] == pytest.approx(60e-6 * 9.80665 / 9.80665**2, rel=1e-12)

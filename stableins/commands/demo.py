@@ -70,7 +70,7 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
     """Run one CLI command as a user would type it, in a process of its own (``python -m stableins.cli ARGV``).
 
     Its standard output goes to ``stdout`` if given, else to stderr: the demo's own standard output is its result alone
-    (the final table, or with ``--json`` one JSON document); the steps' reports are progress, on stderr like every
+    (the final table, or with ``--json`` one JSON document), and the steps' reports are progress, on stderr like every
     command's messages.
     """
     import subprocess
@@ -79,7 +79,9 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
     sys.stdout.flush()
     if stdout is None:
-        status = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=sys.stderr, check=False).returncode
+        result = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=subprocess.PIPE, text=True, check=False)
+        sys.stderr.write(result.stdout)
+        status = result.returncode
     else:
         with open(stdout, "w", encoding="utf-8") as sink:
             status = subprocess.run([sys.executable, "-m", "stableins.cli", *argv], stdout=sink, check=False).returncode
