@@ -108,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"the record in force is of unit {prior.serial_number!r}", path=prior_path, field="serial_number", expected=repr(args.unit)
         )
+    if args.estimate:  # read (and refused) before anyone is asked who they are
+        CalibrationRecord.load(args.estimate)
     if not args.resume:  # a resumed recalibration has them in its journal's start record
         args.set = [*args.set, *identification_entries(args, prior)]
     if args.estimate:
