@@ -79,6 +79,17 @@ QUICK: dict[str, Quick] = {
         "16 MB long line / JSON / declared-rows files instead of 256 MB",
         volatile=(r"\s{2,}\d+\s+(\d+\.\d+)\s+\d+",),  # the 'time [s]' column of the table
     ),
+    "bench_fleet": Quick(
+        ("--units", "20", "--records", "5"),
+        "20 units x 5 records instead of 1,000 x 20 (the pages' times are not the acceptance figure at this size)",
+        volatile=(
+            r"^built .*: ([\d.]+ s)$",
+            r"load average of the machine: (.*)$",
+            r"^/\S*\s+\d+ KiB\s+(.*)$",
+            r"^/fleet as served\s+(.*)$",
+            r"^slowest page: (.*)$",
+        ),
+    ),
     "bench_cli": Quick(
         ("--dir", "{work}", "--rate", "10", "--repeat", "1"),
         "the system record at 10 Hz instead of 100 Hz, one run of each command and read instead of the best of 3",

@@ -199,7 +199,7 @@ class Console:
 def _ask(prompt: str) -> str:
     try:
         return input(prompt)
-    except EOFError:
+    except (EOFError, OSError):  # closed, or not readable at all (a detached process; a test harness capturing it)
         raise RunStopped(
             "a person must answer a prompt but standard input is closed; run with --yes (and --set) for unattended runs"
         ) from None

@@ -160,11 +160,12 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     )
 
 
-def test_the_two_errors_are_value_errors_and_distinct():
+def test_the_two_errors_are_distinct_and_no_value_errors():
+    """Neither is a ValueError: an ``except ValueError`` elsewhere must not swallow a described error (stableins/errors.py)."""
     from stableins.errors import InputError, NotDeterminedError
 
-    assert issubclass(InputError, ValueError) and issubclass(NotDeterminedError, ValueError)
-    assert not issubclass(NotDeterminedError, InputError) and not issubclass(InputError, NotDeterminedError)
+    assert not issubclass(InputError, NotDeterminedError) and not issubclass(NotDeterminedError, InputError)
+    assert not issubclass(InputError, ValueError) and not issubclass(NotDeterminedError, ValueError)
     assert not hasattr(InputError("x"), "exit_status")  # the CLI maps the statuses, the error carries none
 
 

@@ -179,7 +179,8 @@ def test_recal_history_and_certificate_agree_on_every_change_flag(tmp_path, caps
     assert flags["UNIT-B"][0] == set()  # nothing changed: |z| ≥ 3 has probability 0.27 % per parameter
 
 
-def test_a_stage_on_six_hours_writes_no_record_and_exits_2_with_the_reason(tmp_path, capsys):
+def test_a_stage_on_six_hours_writes_no_record_and_exits_4_with_the_reason(tmp_path, capsys):
+    """Six hours do not determine the combinations (NotDeterminedError): exit 4, the reason, no record (docs/cli.md)."""
     from stableins.data.truth import load_truth
 
     assert cli.main(["simulate", "system", "--seed", "3", "--duration", "6h", "--rate", "1", "--out", str(tmp_path)]) == 0
@@ -193,7 +194,7 @@ def test_a_stage_on_six_hours_writes_no_record_and_exits_2_with_the_reason(tmp_p
     prior.save(tmp_path / "prior.json")
     capsys.readouterr()
     out = tmp_path / "cal.json"
-    assert cli.main(["calibrate", "system", str(tmp_path / "system.h5"), "--prior", str(tmp_path / "prior.json"), "--out", str(out)]) == 2
+    assert cli.main(["calibrate", "system", str(tmp_path / "system.h5"), "--prior", str(tmp_path / "prior.json"), "--out", str(out)]) == 4
     error = capsys.readouterr().err
     assert "6.00 h" in error and "lack one sidereal day" in error and "no record was written" in error and "Traceback" not in error
     assert not out.exists()
