@@ -92,7 +92,7 @@ def test_cli_calibrates_simulated_files_and_writes_a_record(tmp_path, capsys):
     for name, columns in (("coarse", coarse), ("fine", fine)):
         files.append(str(save_device(tmp_path / f"device-{name}.csv", columns, replace(truth.site, extra={"procedure": name}))))
     out = tmp_path / "record.json"
-    assert main(["calibrate", "device", *files, "--out", str(out), "--bias-instability", "0"]) == 0
+    assert main(["calibrate", "device", *files, "--out", str(out), "--bias-instability", "0", "--verbose"]) == 0
     text = capsys.readouterr().out
     assert "rank = 17 of 18" in text and "rank = 12 of 15" in text and "beta_xz − beta_yz" in text
     record = CalibrationRecord.load(out)

@@ -132,7 +132,7 @@ def test_wrong_unit_on_the_network(server, tmp_path):
 
 
 def test_replay_driver_plays_a_run_back_through_the_same_path(tmp_path):
-    from stableins.drivers.select import open_driver
+    from stableins.procedures.replay import open_run_driver
 
     first = start_run(PLAN, tmp_path / "a", driver_spec="sim", seed=5, unit="R-1", console=Console(yes=True, quiet=True))
     again = start_run(
@@ -140,7 +140,7 @@ def test_replay_driver_plays_a_run_back_through_the_same_path(tmp_path):
         tmp_path / "b",
         driver_spec=f"replay:{tmp_path / 'a'}",
         console=Console(yes=True, quiet=True),
-        driver=open_driver(f"replay:{tmp_path / 'a'}"),
+        driver=open_run_driver(f"replay:{tmp_path / 'a'}"),
     )
     a, b = load_device(first.dataset).columns, load_device(again.dataset).columns
     for name in a:
@@ -157,5 +157,5 @@ def test_replay_driver_plays_a_run_back_through_the_same_path(tmp_path):
             tmp_path / "c",
             driver_spec="replay",
             console=Console(yes=True, quiet=True),
-            driver=open_driver(f"replay:{tmp_path / 'a'}"),
+            driver=open_run_driver(f"replay:{tmp_path / 'a'}"),
         )
