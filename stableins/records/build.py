@@ -13,7 +13,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
 
 from stableins.errors import InputError, NotDeterminedError
-from stableins.records.content import RecordContent, RecordT
+from stableins.records.content import RecordContent, _RecordT
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
 from stableins.site import SiteMetadata
@@ -75,7 +75,7 @@ class UpdateFields(RunFields, total=False):
 _UPDATE_ONLY = ("stage", "new_calibration", "prior", "calibration_entries", "site", "noise_model")
 
 
-def record_from_device(cls: type[RecordT], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> RecordT:
+def record_from_device(cls: type[_RecordT], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> _RecordT:
     """Return the record of a device-level calibration (:meth:`CalibrationRecord.from_device`)."""
     procedure = fields.get("procedure", "")
     started = Calibration.new(procedure, fields.get("entries", ()))
@@ -95,7 +95,7 @@ def record_from_device(cls: type[RecordT], calibration: DeviceCalibration, site:
     return record_from_fit(cls, calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
 
 
-def record_from_fit(cls: type[RecordT], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> RecordT:
+def record_from_fit(cls: type[_RecordT], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> _RecordT:
     """Return the first record of a calibration, one data-only stage (:meth:`CalibrationRecord.from_fit_result`)."""
     import numpy as np
 
@@ -164,7 +164,7 @@ def _estimable(result: FitResult) -> dict[str, bool]:
     return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
 
 
-def update_record(record: RecordT, result: FitResult, **fields: Unpack[UpdateFields]) -> RecordT:
+def update_record(record: _RecordT, result: FitResult, **fields: Unpack[UpdateFields]) -> _RecordT:
     """Return ``record`` updated by a later stage's likelihood (:meth:`CalibrationRecord.updated`)."""
     if result.likelihood is None:
         raise InputError(
@@ -193,13 +193,13 @@ def update_record(record: RecordT, result: FitResult, **fields: Unpack[UpdateFie
 
 
 def update_by_run(
-    record: RecordT,
+    record: _RecordT,
     stage: StageRun,
     *,
     new_calibration: bool = False,
     prior: PriorReference | None = None,
     site: SiteMetadata | None = None,
-) -> RecordT:
+) -> _RecordT:
     """Return ``record`` updated by a stage run of another record (:meth:`CalibrationRecord.updated_by_run`)."""
     if stage.likelihood is None:
         raise InputError(f"stage run {stage.id} carries no likelihood: it cannot update a record", field="stages")
@@ -219,8 +219,8 @@ def next_calibration(
 
 
 def apply_stage(
-    record: RecordT, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
-) -> RecordT:
+    record: _RecordT, stage: StageRun, calibration: Calibration, units: Mapping[str, str], **carried: Unpack[Carried]
+) -> _RecordT:
     """Return the posterior of ``record`` given ``stage.likelihood``, with ``stage`` appended (as a run of ``calibration``).
 
     Parameters

@@ -162,7 +162,7 @@ class RecordContent:
 
 
 #: The record type a builder or the reader makes (:class:`stableins.records.CalibrationRecord`, given by its caller).
-RecordT = TypeVar("RecordT", bound=RecordContent)
+_RecordT = TypeVar("_RecordT", bound=RecordContent)
 
 
 def check_record(record: RecordContent, path: str | None) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from stableins.data.metadata import metadata_from_document
 from stableins.errors import InputError
 from stableins.identifiers import check_serial_number, check_timestamp
-from stableins.records.content import RecordT, check_record
+from stableins.records.content import _RecordT, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.schema import RECORD_FORMAT, RECORD_SCHEMA_VERSION, migrate_v1
 from stableins.records.stages import Calibration, InputFile, PriorReference, StageRun
@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
 _PARAMETER_KEYS = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
 
 
-def read_document(cls: type[RecordT], document: Any, path: str | None = None) -> RecordT:
+def read_document(cls: type[_RecordT], document: Any, path: str | None = None) -> _RecordT:
     """Return the record (of type ``cls``) a JSON document holds, validated (:meth:`CalibrationRecord.from_document`)."""
     if isinstance(document, dict) and document.get("format") == RECORD_FORMAT and document.get("schema_version") == 1:
         document = migrate_v1(document, path)
@@ -325,7 +325,7 @@ class _Reader:
                 raise self.fail(what, where, "the discovery section of docs/formats.md") from None
         return optional
 
-    def record(self, cls: type[RecordT], document: Any) -> RecordT:
+    def record(self, cls: type[_RecordT], document: Any) -> _RecordT:
         document = self.header(document)
         stages = self.stages(document["stages"])
         parameters = self.parameters(document["parameters"], {s.id for s in stages})

@@ -169,7 +169,7 @@ def run_system_stage(
     sums : RecordSums, optional
         The stage's pass over this record (:func:`record_sums` with the same source, prior, compensation terms and
         options), when already made: the pass is then not repeated.  The known gyro drift and the damping loop do not
-        enter it, so the Type B sensitivities (:mod:`.sensitivity`) re-run only the solve steps on it.
+        enter it, so the Type B sensitivities (:mod:`stableins.estimators.system.sensitivity`) re-run only the solve steps on it.
 
     Returns
     -------
