@@ -227,25 +227,8 @@ def _one_session(truth, stages, *, rate=10.0):
             t_command = platform.command(tuple(readings))
             platform.wait(platform.slew_duration() + 6.0)
             block = platform.acquire(dwell)
-            n = len(block)
             rows.append(
-                {
-                    "time": block.time,
-                    "stage": np.full(n, stage),
-                    "pass": np.full(n, 1, dtype=np.int32),
-                    "position": np.full(n, position, dtype=np.int32),
-                    "time_since_command": block.time - t_command,
-                    "command_platform": np.full(n, readings[0]),
-                    "command_inner": np.full(n, readings[1]),
-                    "command_middle": np.full(n, readings[2]),
-                    "angle_platform": block.angles[:, 0],
-                    "angle_inner": block.angles[:, 1],
-                    "angle_middle": block.angles[:, 2],
-                    "f_x": block.specific_force[:, 0],
-                    "f_y": block.specific_force[:, 1],
-                    "f_z": block.specific_force[:, 2],
-                    "temperature": block.temperature,
-                }
+                sim_device.dwell_columns(block, stage=stage, pass_number=1, position=position, command=readings, command_time=t_command)
             )
         pieces[stage] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     return pieces
