@@ -198,13 +198,13 @@ class H5Reader:
         checked against the rows of each chunk.
 
         Numeric columns are read into buffers reused from chunk to chunk (HDF5's chunk cache off, as the system
-        stage reads): the arrays yielded are valid only until the next chunk is requested.
+        stage reads): the arrays yielded are valid only until the next chunk is requested.  Chunks hold ``rows`` rows
+        (the last fewer), whatever the overview's step: the system stage validates in its own pass, at its own chunks.
         """
         import numpy as np
 
         step, grid = self.overview_step, self.time_grid
         names = [c.name for c in self.schema]
-        rows = max(step, rows - rows % step) if step else rows  # chunks start on overview rows
         tolerance = TIME_GRID_TOLERANCE * float(grid[:, 2].min()) if grid is not None else 0.0
         buffers = {c.name: np.empty(min(rows, max(self.rows, 1))) for c in self.schema if c.dtype != "str"}
         work = np.empty(min(rows, max(self.rows, 1)))
@@ -232,9 +232,10 @@ class H5Reader:
                             full[c.name] = values
                     if grid is not None:
                         self._check_grid(full["time"], k, stop, tolerance=tolerance, work=work[:n], index=index[:n])
+                    first = (-k) % step if step else 0  # the chunk's first row that is a multiple of the overview step
                     for name, view_dataset in views.items():
-                        picked = full[name][::step]
-                        view = view_dataset[k // step : k // step + picked.size]
+                        picked = full[name][first::step]
+                        view = view_dataset[(k + first) // step : (k + first) // step + picked.size]
                         bad = np.flatnonzero(view != picked)
                         if bad.size:
                             j = int(bad[0])
@@ -242,7 +243,7 @@ class H5Reader:
                                 f"overview value {float(view[j])!r} differs from the column's row ({float(picked[j])!r}); "
                                 "the file was changed after it was written",
                                 path=self.path,
-                                row=k + j * step + 1,
+                                row=k + first + j * step + 1,
                                 field=f"/{OVERVIEW}/{name}",
                                 expected=f"every {step}-th row of /{GROUP}/{name}",
                             )

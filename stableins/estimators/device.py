@@ -172,7 +172,7 @@ def noise_from_dwells(
       cannot separate the random walk from bias instability: ``K`` is 0, not bounded;
     * quantization: not measured (0, not bounded).
     """
-    from scipy.stats import chi2, norm
+    from stableins.estimators.distributions import chi2_ppf, norm_ppf
 
     usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
     if not usable:
@@ -182,9 +182,9 @@ def noise_from_dwells(
     pooled = (dof[:, None] * n2).sum(axis=0) / dof.sum()
     total = dof.sum()
     q = (1.0 - confidence) / 2.0
-    lo, hi = total / chi2.ppf(1 - q, total), total / chi2.ppf(q, total)
+    lo, hi = total / chi2_ppf(1 - q, total), total / chi2_ppf(q, total)
     slow = dwell_slow_noise(usable, alpha=alpha, confidence=confidence)
-    z = norm.ppf(confidence)
+    z = norm_ppf(confidence)
     # detected: the unbiased estimate of B² with its interval; not detected: 0 with the upper limit.  (Using the
     # non-significant estimate instead inflates σ on white noise, grossly so for short dwells, where it is mostly noise.)
     if slow.test.detected:

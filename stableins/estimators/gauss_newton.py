@@ -166,11 +166,11 @@ def goodness_of_fit_warning(
     the errors, and the user must be told.  The message names the observations with the
     largest normalized residuals (``residual / 1σ``).
     """
-    from scipy.stats import chi2 as chi2_distribution
+    from stableins.estimators.distributions import chi2_ppf
 
     if dof <= 0 or not np.isfinite(chi2):
         return None
-    limit = float(chi2_distribution.ppf(quantile, dof))
+    limit = chi2_ppf(quantile, dof)
     if chi2 <= limit:
         return None
     z = np.asarray(normalized_residuals, dtype=float)
