@@ -26,14 +26,14 @@ from stableins.status import Status
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate system`` to ``parser``."""
-    from stableins.commands.arguments import integer, number, output_file, png_file
+    from stableins.commands.arguments import integer, output_file, png_file, real
 
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
     parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS compensated the record with")
     parser.add_argument("--out", required=True, type=output_file, metavar="CAL2.json", help="updated calibration record to write")
     parser.add_argument(
         "--case-rotation-period",
-        type=number(60.0, 3600.0, unit="seconds", or_zero=True),
+        type=real(60.0, 3600.0, unit="seconds", or_zero=True),
         default=480.0,
         metavar="SECONDS",
         help="period of the gyro case-rotation residual fitted as a nuisance, 60 to 3600 s (default 480 s; 0 leaves it out)",
@@ -60,7 +60,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--thermal-prior",
-        type=number(1e-6, 1e6),
+        type=real(1e-6, 1e6),
         nargs=2,
         metavar=("UG_PER_K", "PPM_PER_K"),
         help=(
@@ -71,7 +71,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--gyro-drift",
-        type=number(-100.0, 100.0, unit="deg/h"),
+        type=real(-100.0, 100.0, unit="deg/h"),
         nargs=3,
         metavar=("X", "Y", "Z"),
         help=(
@@ -83,7 +83,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--gyro-drift-uncertainty",
-        type=number(0.0, 100.0, unit="deg/h"),
+        type=real(0.0, 100.0, unit="deg/h"),
         metavar="U",
         help=(
             "standard uncertainty of the gyro drift per platform axis [deg/h] (of the value given, or of zero when none is given), "
@@ -209,7 +209,7 @@ def run(args: Any) -> int:
     certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
     command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
     data["next"] = [command]
-    emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
+    emit(args, data, text=flag_text(system_report(outcome, updated, str(args.out))))
     import sys
 
     sys.stdout.flush()  # the next step is the last line, not scrolled away above the report
@@ -325,7 +325,7 @@ def flag_text(text: str) -> str:
     return text
 
 
-def report(outcome: Any, record: Any, out: str) -> str:
+def system_report(outcome: Any, record: Any, out: str) -> str:
     """Text report: combined coefficients, the stage's fit, and the record written (its statuses and σ, as in the PDF)."""
     c = outcome.combined
     r = outcome.result

@@ -28,12 +28,14 @@ if TYPE_CHECKING:
     from stableins.console import Console
     from stableins.procedures.rundir import RunOutcome
 
+#: Exit status of a run that stopped and can be resumed (2 is bad input, 4 data that do not determine what was asked:
+#: :mod:`stableins.cli`); defined here only, the command that returns it.
 EXIT_STOPPED = 3
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins run`` to ``parser``."""
-    from stableins.commands.arguments import effect_magnitude, input_file, integer, number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, input_file, integer, output_directory, real, seed
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
     parser.add_argument("procedure", nargs="?", metavar="PROCEDURE", help="procedure name, .toml definition or .json plan")
@@ -78,7 +80,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--chunk",
-        type=number(*CHUNK_RANGE, unit="seconds"),
+        type=real(*CHUNK_RANGE, unit="seconds"),
         help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default: the procedure's)",
     )
     parser.add_argument(
@@ -86,7 +88,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--timeout",
-        type=number(0.1, 3600.0, unit="seconds"),
+        type=real(0.1, 3600.0, unit="seconds"),
         default=10.0,
         help="network driver: longest silence accepted [s], 0.1 to 3600 (default 10)",
     )

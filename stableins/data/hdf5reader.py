@@ -23,7 +23,7 @@ from stableins.data.hdf5format import (
     read_header_attribute,
 )
 from stableins.data.validation import check_finite, check_header_document, match_columns
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.schema import Column
 
 
@@ -68,6 +68,8 @@ class H5Reader:
         with self._open() as f:
             try:
                 self._read_structure(f, kind)
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(f"the HDF5 metadata cannot be read ({error}); the file is corrupt", path=self.path) from None
 
@@ -248,6 +250,8 @@ class H5Reader:
                                 expected=f"every {step}-th row of /{GROUP}/{name}",
                             )
                     yield full
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(f"the file cannot be read ({error}); it is truncated or corrupt", path=self.path) from None
 
@@ -308,6 +312,8 @@ class H5Reader:
         for c in self._columns(names):
             try:
                 values = (f[GROUP][c.name] if datasets is None else datasets[c.name])[start:stop]
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(
                     f"rows {start + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=c.name
@@ -410,6 +416,8 @@ class H5Reader:
         end = k + len(values)
         try:
             dataset.read_direct(values, np.s_[k:end], np.s_[0 : end - k])
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except H5_DAMAGE as error:
             raise InputError(
                 f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=name
@@ -447,6 +455,8 @@ class _ThinColumn:
             return np.zeros(0, dtype=self.dataset.dtype)
         try:
             return self.dataset[first:stop:step]
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except H5_DAMAGE as error:
             raise InputError(
                 f"rows {first + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt",
@@ -478,6 +488,8 @@ class _OverviewColumn:
             end = min(self.dataset.shape[0], max(b, a + OVERVIEW_WINDOW))
             try:
                 self.window = self.dataset[a:end]
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(
                     f"overview rows {a + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.data.device import CSV_SUFFIXES, H5_SUFFIXES, header_document
+from stableins.data.hdf5format import DEFAULT_CHUNK
 from stableins.data.metadata import metadata_from_document
 from stableins.data.sampling import SamplingChecker, SamplingReport, SamplingWarning
 from stableins.data.validation import check_finite, check_increasing
@@ -23,7 +24,6 @@ from stableins.errors import InputError
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.site import SiteMetadata
 
-DEFAULT_CHUNK = 65536
 #: HDF5 system records carry an ``/overview`` of every column at this period [s] (one row per second): the system
 #: stage reads attitude, velocity and gimbal angles at 1 Hz from it (docs/formats.md).
 OVERVIEW_SECONDS = 1.0

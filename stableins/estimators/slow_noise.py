@@ -33,7 +33,7 @@ from stableins.noise import NoiseModel, SlowNoiseTest
 #: Cluster sizes of the dwell test, as fractions of the dwell's samples.
 TEST_FRACTIONS = (4, 8, 16, 32)
 #: False-positive rate of the slow-noise decision.
-DEFAULT_ALPHA = 0.05
+SLOW_NOISE_ALPHA = 0.05
 
 
 # ----------------------------------------------------------------------------- device dwells
@@ -155,7 +155,7 @@ class DwellSlowNoise:
 def slow_noise_test(
     ratios: Sequence[tuple[int, NDArray[np.float64], NDArray[np.float64], float]],
     *,
-    alpha: float = DEFAULT_ALPHA,
+    alpha: float = SLOW_NOISE_ALPHA,
     confidence: float = 0.95,
 ) -> DwellSlowNoise:
     """Return the slow-noise decision over dwells (module docstring).
