@@ -87,6 +87,36 @@ def _deg_h(values: NDArray[np.float64]) -> str:
     return "(" + ", ".join(f"{v / DEG_PER_HOUR:+.2e}" for v in values) + ") deg/h"
 
 
+def measure_gimbals(
+    sums: RecordSums,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    *,
+    latitude: float,
+) -> GimbalDrift | None:
+    """Fit the gimbal readings (:func:`.gyro_drift.fit_gimbal_drift`); None without them or when too few or too short.
+
+    The prior's σ of θ20 (the inner-gimbal zero offset) is the prior of its residual in the fit (nominal 60″ without).
+    """
+    from typing import cast
+
+    blocks = sums.gimbal_blocks
+    if blocks is None:
+        return None
+    means = blocks.means()
+    if means["time"].size < MINIMUM_BLOCKS or means["time"][-1] - means["time"][0] < MINIMUM_SPAN:
+        return None
+    return fit_gimbal_drift(
+        means,
+        latitude,
+        GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses))),
+        offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
+        base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
+        inner_offset_sigma=_offset_sigma(prior_covariance),
+    )
+
+
 def drift_step(
     sums: RecordSums,
     metadata: SiteMetadata,
@@ -98,24 +128,13 @@ def drift_step(
 ) -> DriftStep:
     """Measure the drift in the gimbal readings and combine it with a given one (module docstring, step 1).
 
-    The prior's σ of θ20 (the inner-gimbal zero offset) is the prior of its residual in the fit (nominal 60″ without).
+    The gimbal fit is :func:`measure_gimbals` (only with ``options.estimate_gyro_drift``).
     """
-    from typing import cast
-
     gimbal = None
     notes: list[str] = []
-    blocks = sums.gimbal_blocks
-    if options.estimate_gyro_drift and blocks is not None:
-        means = blocks.means()
-        if means["time"].size >= MINIMUM_BLOCKS and means["time"][-1] - means["time"][0] >= MINIMUM_SPAN:
-            gimbal = fit_gimbal_drift(
-                means,
-                latitude,
-                GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses))),
-                offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
-                base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
-                inner_offset_sigma=_offset_sigma(prior_covariance),
-            )
+    if options.estimate_gyro_drift:
+        gimbal = measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
+        if gimbal is not None:
             notes.append(_gimbal_note(gimbal))
     given = None if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
     uncertainty = options.gyro_drift_uncertainty
@@ -302,6 +321,7 @@ __all__ = [
     "drift_covariance_v",
     "drift_notes",
     "drift_step",
+    "measure_gimbals",
     "likelihood_inputs",
     "prior_drift",
 ]
