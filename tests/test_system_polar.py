@@ -77,3 +77,28 @@ def test_an_equatorial_drift_that_turns_z_p_off_the_pole_is_refused_naming_it():
         run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
     assert "compensate its gyros" in str(err.value)
     assert math.isfinite(float(str(err.value).split("mrad at its end")[0].split()[-1]))
+
+
+@pytest.mark.slow
+def test_cli_gyro_z_world_runs_and_the_gyro_world_is_refused_naming_the_drift(tmp_path, capsys):
+    """`simulate system --world gyro-z`, `calibrate system`, `diagnose`: exit 0; the `gyro` world (0.05 °/h on every axis,
+    uncompensated): `calibrate system` exits 2 naming the gyro drift, no traceback."""
+    from stableins import cli
+    from stableins.data.truth import load_truth
+    from tests.test_system_cli import prior_record
+
+    for name, code in (("gyro-z", 0), ("gyro", 2)):
+        sim = tmp_path / name
+        assert cli.main(["simulate", "system", "--world", name, "--seed", "3", "--rate", "1", "--out", str(sim)]) == 0
+        prior = tmp_path / f"{name}-prior.json"
+        prior_record(load_truth(sim / "truth.json").installed_calibration, serial="SIM-3").save(prior)
+        out = tmp_path / f"{name}-cal.json"
+        capsys.readouterr()
+        assert cli.main(["calibrate", "system", str(sim / "system.h5"), "--prior", str(prior), "--out", str(out)]) == code
+        captured = capsys.readouterr()
+        assert "Traceback" not in captured.err
+        if code:
+            assert "gyro" in captured.err and not out.exists()
+            continue
+        assert "gyro drift from the gimbal readings" in captured.out
+        assert cli.main(["diagnose", str(sim / "system.h5"), "--record", str(out)]) == 0

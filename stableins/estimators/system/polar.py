@@ -22,7 +22,9 @@ platform's orientation, and the rows ``u(S)`` of the harmonic model are off by `
 residuals ``δ``: an error ``μ |δ|`` (1e-3 rad × 1e-4 = 1e-7 against σ of about 1e-6 for the combined coefficients).  A
 polar misalignment beyond ``polar_tolerance`` (1e-3 rad) is refused.  The measurement's own σ is below 1e-7 rad (the
 angle sensors' noise over thousands of blocks), far inside the tolerance, so the check's false refusals on a polar-aligned
-platform are those of a misalignment truly beyond it (measured: ``benchmarks/bench_system_polar.py``).
+platform are those of a misalignment truly beyond it (``benchmarks/bench_system_polar.py --seeds 40``: 0 of 40 clean
+records and 0 of 40 with 0.05 °/h along z_p refused, largest misalignment 0.11 mrad; 40 of 40 tilted bases of 2e-3 rad
+refused).
 """
 
 from __future__ import annotations
