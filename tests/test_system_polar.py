@@ -61,6 +61,7 @@ def test_a_realistic_z_gyro_drift_is_measured_not_refused():
     diagnostics = out.diagnostics
     assert abs(diagnostics.platform_rate_ratio - 1.0) == pytest.approx(drift / EARTH_RATE, rel=1e-3)
     assert diagnostics.polar_misalignment < 1e-4  # the installed zero offsets' residuals, a few arcsec
+    assert any(n.startswith("polar alignment from the gimbal readings") for n in out.notes)
     value, sigma, _ = out.result["gyro_drift_z"]
     assert abs(value - drift) < 4 * sigma and sigma < 1e-4 * drift
     _, ref = reference(truth)

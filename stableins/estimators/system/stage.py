@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -270,6 +270,8 @@ def _run(
     gimbal = drift.gimbal if drift.gimbal is not None else measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
     polar = None if gimbal is None else polar_alignment(gimbal)
     check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path)
+    if polar is not None:
+        drift = replace(drift, notes=(*drift.notes, polar.describe()))
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
     decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model)
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
