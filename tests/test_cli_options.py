@@ -145,6 +145,16 @@ RUN_BY: dict[str, str] = {
     "simulate --settle": "test_cli.py::test_simulate_device_writes_data_and_truth",
     "simulate --truth": "test_noise_cli.py::test_noise_from_a_static_system_record_recovers_the_simulated_terms",
     "simulate --world": "test_worlds.py::test_cli_world_and_list",
+    "run --new-calibration": "test_cli_options_more.py::test_run_new_calibration_starts_its_own",
+    "run --timeout": "test_cli_options_more.py::test_run_link_failures_and_timeout_over_tcp",
+    "run --link-failures": "test_cli_options_more.py::test_run_link_failures_and_timeout_over_tcp",
+    "recal --re-estimate": "test_cli_options_more.py::test_recal_options",
+    "recal --new-calibration": "test_cli_options_more.py::test_recal_options",
+    "recal --retries": "test_cli_options_more.py::test_recal_options",
+    "recal --chunk": "test_cli_options_more.py::test_recal_options",
+    "recal --hidden": "test_cli_options_more.py::test_recal_options",
+    "recal --truth": "test_cli_options_more.py::test_recal_options",
+    "recal --prior": "test_cli_options_more.py::test_recal_options",
     "protocol-check --quiet": "test_protocol_check.py::test_protocol_check_options_duration_timeout_json_quiet",
     "protocol-check --json": "test_protocol_check.py::test_protocol_check_options_duration_timeout_json_quiet",
     "protocol-check --timeout": "test_protocol_check.py::test_protocol_check_options_duration_timeout_json_quiet",
@@ -273,18 +283,8 @@ RUN_BY: dict[str, str] = {
 NOT_YET_RUN: frozenset[str] = frozenset(
     {
         "demo --quiet",
-        "recal --chunk",
-        "recal --hidden",
         "recal --link-failures",
-        "recal --new-calibration",
-        "recal --prior",
-        "recal --re-estimate",
-        "recal --retries",
         "recal --timeout",
-        "recal --truth",
-        "run --link-failures",
-        "run --new-calibration",
-        "run --timeout",
     }
 )
 

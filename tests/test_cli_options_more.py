@@ -122,3 +122,80 @@ def test_run_chunk_retries_timeout_and_store(ws, tmp_path):
     assert not (tmp_path / "default" / "prior.json").exists()
     status, _, err = _main([*common, "--out", tmp_path / "timeout", "--timeout", "5"])
     assert status == 2 and "--timeout" in err and "tcp://HOST:PORT" in err and not (tmp_path / "timeout").exists()
+
+
+@pytest.mark.slow
+def test_recal_options(ws, tmp_path):
+    """recal with --prior, --truth and --hidden, --chunk, --retries, --new-calibration; then --resume --re-estimate;
+    --timeout refused with the simulated platform (about 15 s of CPU: two field recalibrations and a re-estimate)."""
+    from stableins.data.truth import load_truth, save_truth
+    from stableins.records import CalibrationRecord
+    from stableins.simulator.truth import Truth
+
+    truth = Truth.draw(4)
+    truth = truth.with_changes(site=replace(truth.site, serial_number=ws.serial))
+    save_truth(truth, tmp_path / "truth.json")
+    out = tmp_path / "recal"
+    argv = ["recal", "field-recal-device", "--unit", ws.serial, "--prior", ws.record, "--driver", "sim", "--out", out, "--yes", "--quiet",
+            "--truth", tmp_path / "truth.json", "--hidden", "K3_x=100ug/g3", "--chunk", "0.5", "--retries", "3", "--new-calibration",
+            "--json"]  # fmt: skip
+    status, stdout, err = _main(argv)
+    assert status == 0, err[-1000:]
+    assert json.loads(stdout)["prior"] == str(ws.record)
+    assert (out / "prior.json").read_bytes() == ws.record.read_bytes()  # --prior: the record it starts from
+    kept = load_truth(out / "truth.json")
+    assert kept.seed == truth.seed and kept.parameters == truth.parameters  # --truth: that world
+    assert kept.effects["K3_x"] == pytest.approx(100e-6 / 9.80665**2, rel=1e-9) and "K3_x" not in truth.effects  # --hidden
+    executed = json.loads((out / "procedure.json").read_text(encoding="utf-8"))
+    assert (executed["chunk"], executed["retries"]) == (0.5, 3)  # --chunk, --retries
+    record, prior = CalibrationRecord.load(out / "record.json"), CalibrationRecord.load(ws.record)
+    assert record.calibration.id != prior.calibration.id and record.calibration.prior is not None  # --new-calibration
+    before = record.values()
+    (out / "record.json").unlink()
+    status, stdout, err = _main(["recal", "--resume", out, "--re-estimate", "--json"])
+    assert status == 0 and "again from its journal" in err, err[-1000:]  # --re-estimate: from the journal alone
+    assert CalibrationRecord.load(out / "record.json").values() == pytest.approx(before, rel=0, abs=1e-15)
+    status, _, err = _main([*argv[:9], tmp_path / "no", "--yes", "--timeout", "5"])
+    assert status == 2 and "--timeout" in err and not (tmp_path / "no").exists()  # --timeout: for a network platform only
+
+
+def test_run_link_failures_and_timeout_over_tcp(tmp_path):
+    """--link-failures: one cut link is survived with 2 allowed and stops the run with 1; --timeout: a stalled link is
+    given up after that many seconds of silence (then repeated on a new connection)."""
+    from tests.tcp_fixtures import FaultyRelay, ServerProcess
+
+    plan = _plan(tmp_path / "plan.json")
+    statuses = {}
+    with ServerProcess(seed=3, simulator=True, unit="LINK-1") as server:
+        for name, fault, options in (("cut1", "cut", ["--link-failures", "1"]), ("cut2", "cut", ["--link-failures", "2"]),
+                                     ("stall", "stall", ["--link-failures", "2", "--timeout", "1"])):  # fmt: skip
+            with FaultyRelay(server.port, fault=(fault, 20_000)) as relay:
+                argv = ["run", plan, "--driver", f"tcp://127.0.0.1:{relay.port}", "--out", tmp_path / name, "--yes", "--quiet", *options]
+                statuses[name] = _main(argv)[0]
+    assert statuses == {"cut1": 3, "cut2": 0, "stall": 0}  # --link-failures 1: stopped (resumable) at the first cut; 2: finished
+    errors = {}
+    for name in statuses:
+        failed = [r for r in scan(tmp_path / name / "journal.bin").records if r.kind == "op" and r.get("error")]
+        assert len(failed) == 1, name  # the one fault, in each run
+        errors[name] = str(failed[0]["error"])
+    assert "did not answer within 1 s" in errors["stall"]  # --timeout 1: the silence given up after 1 s (default 10 s)
+
+
+@pytest.mark.slow
+def test_run_new_calibration_starts_its_own(ws, tmp_path):
+    """run --prior REC --new-calibration: a field recalibration that starts a calibration of its own from REC.
+
+    Without the option the run continues REC's calibration, whose fine stage needs that calibration's coarse dwells:
+    it is refused (after the run; see the report of issue 31), so the option is what makes this run succeed.
+    """
+    import hashlib
+
+    from stableins.records import CalibrationRecord
+
+    argv = ["run", "field-recal-device", "--driver", "sim", "--seed", "4", "--unit", ws.serial, "--prior", ws.record, "--yes", "--quiet"]
+    status, _, err = _main([*argv, "--out", tmp_path / "new", "--new-calibration"])
+    assert status == 0, err[-1000:]
+    prior, new = CalibrationRecord.load(ws.record), CalibrationRecord.load(tmp_path / "new" / "record.json")
+    assert new.calibration.id != prior.calibration.id  # --new-calibration: its own calibration ...
+    assert new.calibration.prior is not None and new.calibration.prior.sha256 == hashlib.sha256(ws.record.read_bytes()).hexdigest()
+    assert new.provenance.stages == ("fine",)  # ... of the one stage this run measured, from the prior REC
