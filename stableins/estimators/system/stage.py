@@ -273,7 +273,10 @@ def _run(
     if polar is not None:
         drift = replace(drift, notes=(*drift.notes, polar.describe()))
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
-    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model)
+    # with a temperature column, the thermal test's first decision fits the attitude white levels (an unmodelled thermal
+    # signal goes there, not into the slow amplitudes); the thermal step decides again with them held (docs §1a, §1b)
+    held = sums.temperature_bins is None
+    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model, hold_attitude_white=held)
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
     return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal, polar)
