@@ -105,6 +105,7 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     from stableins.commands.simulate import _device_procedures, _iterated_session
     from stableins.estimators.device import calibrate_device, with_given_slow_noise
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.procedures.definition import device_layouts
     from stableins.simulator.truth import Truth
     from stableins.simulator.worlds import apply_world
@@ -114,7 +115,8 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     procedures = _device_procedures(_argparse.Namespace(procedure=None, dwell=None, settle=None))
     sessions = _iterated_session(truth, procedures, rate, seed + 104729)
     layouts = device_layouts()
-    dwells = [d for _, columns in sessions for d in dwells_from_columns(columns, layouts=layouts)]
+    setting = DeviceSetting.from_site(truth.site)  # as calibrate device: the measured turn within a dwell is not noise
+    dwells = [d for _, columns in sessions for d in dwells_from_columns(columns, layouts=layouts, setting=setting)]
     default = calibrate_device(dwells, truth.site, layouts=layouts)
     n = truth.noise
     given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
@@ -158,6 +160,7 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     from stableins.conventions import GimbalConfiguration
     from stableins.estimators.device import calibrate_device, with_given_slow_noise
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.procedures.definition import device_layouts
     from stableins.simulator.truth import Truth
     from stableins.simulator.worlds import WORLDS
@@ -190,7 +193,8 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     # the site of a drawn unit (40° N, level, positive senses) with the generator's gravity and rate
     site = dataclasses.replace(Truth.draw(seed).site, gravity=instrument.gravity, sample_rate=rate)
     layouts = device_layouts()
-    dwells = [d for stage in ("coarse", "fine") for d in dwells_from_columns(columns[stage], layouts=layouts)]
+    setting = DeviceSetting.from_site(site)
+    dwells = [d for stage in ("coarse", "fine") for d in dwells_from_columns(columns[stage], layouts=layouts, setting=setting)]
     default = calibrate_device(dwells, site, layouts=layouts)
     given = with_given_slow_noise(dwells, noise.bias_instability, noise.random_walk, "the generator's truth")
     reference = calibrate_device(dwells, site, layouts=layouts, noise=given)

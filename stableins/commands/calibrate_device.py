@@ -215,6 +215,7 @@ def _read(paths: list[Path], layouts, bar) -> tuple[list, list, list]:
     """Return the device datasets of ``paths`` (one unit, one site), each file's dwells and all of them, telling ``bar`` each step."""
     from stableins.data.device import load_device
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
 
     datasets = []
     for path in paths:
@@ -225,7 +226,8 @@ def _read(paths: list[Path], layouts, bar) -> tuple[list, list, list]:
     per_file = []
     for dataset in datasets:
         bar.describe(f"calibrate device: the dwells of {dataset.path}")
-        per_file.append(dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path)))
+        setting = DeviceSetting.from_site(dataset.metadata)
+        per_file.append(dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path), setting=setting))
         bar.update()
     return datasets, per_file, [s for found in per_file for s in found]
 

@@ -284,12 +284,17 @@ def device_segments(datasets) -> tuple[list, list, float, str]:
     import numpy as np
 
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.procedures.definition import device_layouts
 
     layouts = device_layouts()
     summaries, segments = [], []
     for ds in datasets:
-        stats = {(s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))}
+        setting = DeviceSetting.from_site(ds.metadata)
+        stats = {
+            (s.stage, s.pass_number, s.position): s
+            for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=setting)
+        }
         for d in ds.dwells():
             s = stats[(d.stage, d.pass_number, d.position)]
             if not s.usable:

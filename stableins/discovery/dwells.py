@@ -194,6 +194,7 @@ def dwells_from_dataset(
     """
     from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
 
     if not datasets:
         raise InputError("no data files given", field="DATA")
@@ -203,7 +204,8 @@ def dwells_from_dataset(
     pairs = []
     for ds in datasets:
         statistics = {
-            (s.stage, s.pass_number, s.position): s for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))
+            (s.stage, s.pass_number, s.position): s
+            for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
         }
         pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
     if stage is None:

@@ -433,7 +433,13 @@ def _dwells_and_site(
     if items and all(isinstance(d, DeviceDataset) for d in items):
         from stableins.estimators.dwell import dwells_from_columns
 
-        summaries = [w for d in items for w in dwells_from_columns(d.columns, layouts=layouts, source=str(d.path or "data"))]
+        summaries = [
+            w
+            for d in items
+            for w in dwells_from_columns(
+                d.columns, layouts=layouts, source=str(d.path or "data"), setting=DeviceSetting.from_site(d.metadata)
+            )
+        ]
         return summaries, site if site is not None else items[0].metadata
     summaries = [d for d in items if isinstance(d, DwellSummary)]
     if len(summaries) != len(items):

@@ -553,11 +553,16 @@ def gyro_from_datasets(
         (``calibrate device`` has them already: each file is summarized once); made here when not given.
     """
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
 
     site = datasets[0].metadata
     pieces, labels = [], []
     for i, ds in enumerate(datasets):
-        found = dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path)) if summaries is None else summaries[i]
+        found = (
+            dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
+            if summaries is None
+            else summaries[i]
+        )
         usable = {(s.stage, s.pass_number, s.position) for s in found if s.usable}
         for d in ds.dwells():
             if (d.stage, d.pass_number, d.position) not in usable:

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stableins.display import unit_text
 from stableins.errors import InputError
 from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
-from stableins.reporting.content import unit_text
 from stableins.web.certificates import CertificateIndex
 from stableins.web.fleet import FleetRow, fleet_rows, select, unit_document
 from stableins.web.policy import Policy
