@@ -6,7 +6,7 @@ from device_world import GRAVITY, draw_truth, outputs
 
 from stableins.estimators.device import noise_from_dwells
 from stableins.estimators.dwell import slow_covariance, summarize_dwell
-from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine
+from stableins.estimators.fine import FINE_GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine
 from stableins.estimators.slow_noise import dwell_allan_ratios, dwell_test_clusters, slow_noise_test, white_allan_covariance
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.procedures.definition import load_procedure
@@ -88,7 +88,7 @@ def test_fine_stage_sigma_is_honest_only_with_the_slow_noise_model():
     """Simulator quartz noise (white + 2 µg bias instability + random walk), 18 × 600 s at 2 Hz."""
     readings = np.array([s.command for s in load_procedure("device-fine").steps])
     model = fine_model()
-    free = np.array([k not in GAUGE_PREFERENCE for k in model.ids])
+    free = np.array([k not in FINE_GAUGE_PREFERENCE for k in model.ids])
     settings = NoiseSettings.quartz()
     noise_model = NoiseModel.given(settings.velocity_random_walk, settings.bias_instability, settings.acceleration_random_walk)
     rate, n, gap = 2.0, 1200, 70
@@ -135,3 +135,33 @@ def test_the_decision_sets_the_model_used(detected):
     assert np.all(b > 0) if detected else np.all(b == 0)
     assert np.all(np.isfinite(model.limits("bias_instability")[1]))
     assert not model.slow_noise_bounded  # the random walk cannot be told from bias instability in dwells
+
+
+def test_the_measured_turn_within_a_dwell_is_not_taken_for_noise():
+    """A platform turning steadily (30″ in 600 s, a 0.05 °/h gyro drift) moves the outputs by a ramp the readings explain.
+
+    With the unit's setting the ramp the exact kinematics predict from the readings is taken out of the scatter: the
+    noise is the white level and no correlated noise is noted; the mean is the recorded one.  Without it the ramp is
+    read as noise.
+    """
+    from stableins.estimators.dwell import turn_explained_outputs
+    from stableins.estimators.setting import DeviceSetting
+    from stableins.platform import platform_specific_force
+
+    rate, seconds, sigma = 10.0, 600.0, 1e-4
+    t = np.arange(int(seconds * rate)) / rate
+    rng = np.random.default_rng(7)
+    turn = np.radians(30.0 / 3600.0) * t[:, None] / seconds * np.array([1.0, -0.7, 0.5])
+    readings = np.radians([90.0, 45.0, 0.0]) + turn + np.radians(0.2 / 3600.0) * rng.normal(size=(t.size, 3))
+    setting = DeviceSetting(GRAVITY, (0.3, 0.01, -0.02))
+    exact = platform_specific_force(np.radians([90.0, 45.0, 0.0]) + turn, GRAVITY, base_attitude=setting.base_attitude)
+    samples = exact + sigma * rng.normal(size=exact.shape)
+    change = turn_explained_outputs(readings, setting)
+    assert np.allclose(change.mean(axis=0), 0.0, atol=1e-12)
+    assert np.sqrt(np.mean((change - (exact - exact.mean(axis=0))) ** 2)) < 0.15 * sigma  # the readings' noise: g·0.2″ ≈ 1 µg
+    plain = summarize_dwell(t, samples, readings, readings[0], position=6, stage="fine")
+    turned = summarize_dwell(t, samples, readings, readings[0], position=6, stage="fine", setting=setting)
+    assert np.all(np.abs(turned.noise / sigma - 1.0) < 0.05)
+    assert not turned.notes
+    assert np.array_equal(turned.mean, plain.mean)
+    assert np.max(plain.noise / sigma) > 1.2  # the ramp (g·30″ ≈ 1.4e-3 m/s² end to end) taken for noise

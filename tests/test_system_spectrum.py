@@ -18,6 +18,7 @@ import pytest
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY
 from stableins.estimators.system import spectrum, whittle
 from stableins.estimators.system.loop import DampingLoop
+from stableins.noise import FLICKER_TIME_CONSTANTS
 
 LATITUDE = math.radians(40.0)
 WIDTH = 600.0
@@ -70,7 +71,7 @@ def test_bin_kernels_are_the_bin_means_of_the_processes():
     assert rw[0, 2] == pytest.approx(300.0) and rw[2, 1] == pytest.approx(900.0)
     fl = spectrum.bin_process_kernel("flicker", time, WIDTH)
     # a long Gauss-Markov process is almost constant over a bin: its bin-mean variance → 1 per process
-    taus = np.array(spectrum.FLICKER_TIME_CONSTANTS)
+    taus = np.array(FLICKER_TIME_CONSTANTS)
     x = WIDTH / taus
     assert fl[0, 0] == pytest.approx(np.sum(2 * (x - 1 + np.exp(-x)) / x**2))
     assert fl[0, 2] == pytest.approx(np.sum(np.exp(-4200.0 / taus) * (np.sinh(x / 2) / (x / 2)) ** 2))
@@ -290,7 +291,7 @@ def test_high_band_expectation_matches_drawn_noise_after_the_harmonic_fit():
                 axes = np.cumsum(rng.normal(0.0, math.sqrt(step), (m, 3)), axis=0)
             else:  # unit-variance Gauss-Markov processes, stationary start
                 axes = np.zeros((m, 3))
-                for tau in spectrum.FLICKER_TIME_CONSTANTS:
+                for tau in FLICKER_TIME_CONSTANTS:
                     a = math.exp(-step / tau)
                     drive = rng.normal(0.0, math.sqrt(1 - a * a), (m, 3))
                     drive[0] = rng.normal(0.0, 1.0, 3)

@@ -117,6 +117,7 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.device_gauge import gauge_equivalent
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.procedures.definition import load_procedure
     from stableins.simulator.truth import Truth
     from stableins.simulator.worlds import apply_world
@@ -130,7 +131,8 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     # a coarse-only procedure still names the fine layout calibrate_device expects (unused without fine dwells)
     layouts = {"coarse": spec.coarse.layout, "fine": (spec.fine or load_procedure("device-fine")).layout}
     t1 = time.perf_counter()
-    dwells = [d for stage in stages for d in dwells_from_columns(columns[stage], layouts=layouts)]
+    setting = DeviceSetting.from_site(truth.site)
+    dwells = [d for stage in stages for d in dwells_from_columns(columns[stage], layouts=layouts, setting=setting)]
     noise = calibration_noise(noise_spec.settings, noise_spec.calibrate)
     calibration = calibrate_device(dwells, truth.site, layouts=layouts, noise=noise)
     final = calibration.fused or calibration.coarse

@@ -342,12 +342,17 @@ def _device_noise(
     """Return the device stages' noise model: ``given``, a datasheet's slow noise, the record's, or measured in the dwells."""
     from stableins.estimators.device import noise_from_dwells, with_given_slow_noise
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
 
     if isinstance(given, NoiseModel):
         return given, NoiseOrigin.GIVEN
     if given is None and default is not None:
         return default, NoiseOrigin.RECORD
-    summaries = [s for ds in datasets for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path))]
+    summaries = [
+        s
+        for ds in datasets
+        for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
+    ]
     if isinstance(given, SlowNoiseGiven):
         return with_given_slow_noise(summaries, given.bias_instability, given.random_walk, given.provenance), NoiseOrigin.DATASHEET
     return noise_from_dwells(summaries, source=", ".join(str(ds.path) for ds in datasets)), NoiseOrigin.MEASURED

@@ -9,6 +9,11 @@ comes from the data of the same dwell, honestly for correlated noise:
   instability; it is the Allan deviation at ``τ = T/B`` divided by ``√B`` for a
   constant signal).
 
+With the unit's setting (gravity, surveyed base attitude, gimbal senses) the part of the outputs that the measured
+turn of the platform within the dwell explains is taken out of the samples before their scatter is measured
+(:func:`turn_explained_outputs`): a platform held by its gyros turns steadily (0.05 °/h moves a reading 30″ in 600 s,
+``g·30″ ≈ 145 µg`` on the outputs), a ramp that is no noise.  The mean is that of the outputs as recorded.
+
 Under white noise ``(σ_B/σ_w)² ~ χ²_{B−1}/(B−1)``.  When the ratio exceeds its 99.9 %
 quantile the noise is correlated and ``σ_B`` is used (the dwell gets a note);
 otherwise the more precise ``σ_w`` (``n − 1`` degrees of freedom instead of ``B − 1``).
@@ -29,7 +34,9 @@ from numpy.typing import ArrayLike, NDArray
 from stableins.conventions import ARCSEC
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks, StageLayout
+from stableins.estimators.setting import DeviceSetting
 from stableins.noise import NoiseModel
+from stableins.platform import platform_specific_force
 
 #: The checks of a dwell when none are given (the defaults of docs/procedures.md).
 _DEFAULT_CHECKS = DwellChecks()
@@ -137,46 +144,31 @@ def steady_trend_departure(time: ArrayLike, angles: ArrayLike) -> NDArray[np.flo
     return np.asarray(np.ptp(a - np.outer(x, slope), axis=0), dtype=np.float64)
 
 
-def summarize_dwell(
-    time: ArrayLike,
-    specific_force: ArrayLike,
-    angles: ArrayLike,
-    command: ArrayLike,
-    *,
-    position: int,
-    stage: str = "coarse",
-    pass_number: int = 1,
-    checks: DwellChecks = _DEFAULT_CHECKS,
-) -> DwellSummary:
-    """Mean, its honest 1σ and acceptance flags of one dwell (samples after settling).
+def turn_explained_outputs(angles: ArrayLike, setting: DeviceSetting) -> NDArray[np.float64]:
+    r"""Return the change of the outputs that the measured turn of the platform within a dwell explains [m/s²] (n, 3).
 
-    Parameters
-    ----------
-    time : array_like (n,)
-        Sample times [s].
-    specific_force : array_like (n, 3)
-        Accelerometer outputs [m/s²].
-    angles : array_like (n, 3)
-        Angle-sensor readings [rad].
-    command : array_like (3,)
-        Commanded readings [rad].
+    .. math:: \Delta y(t) = f^p(r(t)) - \overline{f^p(r)}
+
+    with ``f^p(r)`` the exact static specific force at the readings ``r`` (:func:`stableins.platform.platform_specific_force`:
+    the gimbal chain under the surveyed base attitude, docs/conventions.md) and the bar the mean over the dwell, so the
+    dwell mean is unchanged.  The instrument's own errors (scale factors, installation angles, zero offsets: ~1e-4
+    relative) are left out: they change ``Δy`` by 1e-4 of itself, 0.015 µg for the 30″ a 0.05 °/h gyro drift turns the
+    platform in 600 s.  The angle sensors' white noise (0.2″ per sample) enters as ``g·0.2″ ≈ 1 µg`` per sample against
+    the outputs' ~100 µg: its share of the scatter is 1e-4.
     """
-    from scipy.stats import chi2
-
-    t = np.asarray(time, dtype=float)
-    f = np.asarray(specific_force, dtype=float).reshape(-1, 3)
     a = np.asarray(angles, dtype=float).reshape(-1, 3)
+    if a.shape[0] == 0:
+        return np.zeros((0, 3))
+    f_p = platform_specific_force(a, setting.gravity, base_attitude=setting.base_attitude, configuration=setting.configuration)
+    return np.asarray(f_p - f_p.mean(axis=0), dtype=np.float64)
+
+
+def _dwell_flags(t: NDArray[np.float64], f: NDArray[np.float64], a: NDArray[np.float64], checks: DwellChecks) -> list[str]:
+    """Why a dwell must be left out: non-finite, too few or saturated/clipped samples, a slew inside it (module docstring)."""
     n = f.shape[0]
     flags: list[str] = []
-    notes: list[str] = []
-    nan3 = np.full(3, np.nan)
-    if n == 0:
-        return DwellSummary(
-            position, stage, pass_number, np.asarray(command, float), nan3, nan3, nan3, nan3, 0, 0.0, ("no samples after settling",)
-        )
     if not (np.all(np.isfinite(f)) and np.all(np.isfinite(a))):
         flags.append("non-finite samples (NaN or inf)")
-    duration = float(t[-1] - t[0]) if n > 1 else 0.0
     if n < max(checks.min_samples, 2 * checks.noise_blocks):
         flags.append(f"too short to measure noise: {n} samples (need at least {max(checks.min_samples, 2 * checks.noise_blocks)})")
     if np.any(np.abs(f) >= checks.saturation):
@@ -191,8 +183,56 @@ def summarize_dwell(
             f"slew inside the dwell: {gimbal} angle reading departs from a steady trend by {span.max() / ARCSEC:.1f} arcsec "
             f"peak to peak (limit {checks.max_angle_span / ARCSEC:.1f})"
         )
+    return flags
+
+
+def summarize_dwell(  # noqa: PLR0913 - the dwell's samples, where it was commanded, and the unit's setting
+    time: ArrayLike,
+    specific_force: ArrayLike,
+    angles: ArrayLike,
+    command: ArrayLike,
+    *,
+    position: int,
+    stage: str = "coarse",
+    pass_number: int = 1,
+    checks: DwellChecks = _DEFAULT_CHECKS,
+    setting: DeviceSetting | None = None,
+) -> DwellSummary:
+    """Mean, its honest 1σ and acceptance flags of one dwell (samples after settling).
+
+    Parameters
+    ----------
+    time : array_like (n,)
+        Sample times [s].
+    specific_force : array_like (n, 3)
+        Accelerometer outputs [m/s²].
+    angles : array_like (n, 3)
+        Angle-sensor readings [rad].
+    command : array_like (3,)
+        Commanded readings [rad].
+    setting : DeviceSetting, optional
+        Where the unit stands (gravity, base attitude, gimbal senses): the outputs' change that the measured turn
+        explains (:func:`turn_explained_outputs`) is taken out before the noise (standard deviation, block means,
+        Allan ratios) is measured.  None: the samples as recorded.
+    """
+    from stableins.estimators.distributions import chi2_ppf
+
+    t = np.asarray(time, dtype=float)
+    f = np.asarray(specific_force, dtype=float).reshape(-1, 3)
+    a = np.asarray(angles, dtype=float).reshape(-1, 3)
+    n = f.shape[0]
+    notes: list[str] = []
+    nan3 = np.full(3, np.nan)
+    if n == 0:
+        return DwellSummary(
+            position, stage, pass_number, np.asarray(command, float), nan3, nan3, nan3, nan3, 0, 0.0, ("no samples after settling",)
+        )
+    duration = float(t[-1] - t[0]) if n > 1 else 0.0
+    flags = _dwell_flags(t, f, a, checks)
     with np.errstate(invalid="ignore"):
         mean = f.mean(axis=0)
+        if setting is not None and not flags:
+            f = f - turn_explained_outputs(a, setting)  # the scatter about the measured turn (the mean is unchanged)
         noise = f.std(axis=0, ddof=1) if n > 1 else np.full(3, np.nan)
     sem = noise / np.sqrt(n)
     if n >= 2 * checks.noise_blocks:
@@ -202,7 +242,7 @@ def summarize_dwell(
         sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = (sem_block / np.maximum(sem, checks.noise_floor)) ** 2
-        limit = chi2.ppf(checks.correlation_quantile, b - 1) / (b - 1)
+        limit = chi2_ppf(checks.correlation_quantile, b - 1) / (b - 1)
         if np.any(ratio > limit):
             notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
             sem = np.where(ratio > limit, sem_block, sem)
@@ -257,6 +297,7 @@ def dwells_from_columns(
     checks: DwellChecks = _DEFAULT_CHECKS,
     layouts: Mapping[str, StageLayout] | None = None,
     source: str = "data",
+    setting: DeviceSetting | None = None,
 ) -> list[DwellSummary]:
     """Split device-level samples (``DEVICE_COLUMNS`` names) into dwells and summarize them.
 
@@ -266,7 +307,9 @@ def dwells_from_columns(
     (a position the layout does not define keeps ``settle``/``checks``; the stage
     rejects it later).  A position that appears twice within one stage and pass, or is
     commanded twice (``time_since_command`` restarts), raises :class:`InputError`.
-    This is the one path from samples to dwell summaries (CLI, tests, benchmarks).
+    This is the one path from samples to dwell summaries (CLI, tests, benchmarks).  With ``setting`` (the unit's
+    :class:`~stableins.estimators.setting.DeviceSetting`, e.g. ``DeviceSetting.from_site(dataset.metadata)``) the
+    outputs' change that the measured turn within each dwell explains is left out of its noise (:func:`summarize_dwell`).
     """
     required = ("stage", "pass", "position", "time", "time_since_command", "f_x", "f_y", "f_z")
     for name in required:
@@ -330,6 +373,7 @@ def dwells_from_columns(
                 stage=key[0],
                 pass_number=key[1],
                 checks=step_checks,
+                setting=setting,
             )
         )
     return out

@@ -88,6 +88,7 @@ def measure_pass(
     ``observer`` (optional) is told of every position, the settle and dwell phases and every dwell's summary.
     """
     checks = procedure.checks
+    setting = DeviceSetting.from_site(driver.metadata)
     dwells = []
     for step in procedure.steps:
         command = repointed_command(step.command, offsets) if procedure.repoint else step.command
@@ -115,6 +116,7 @@ def measure_pass(
             stage=stage,
             pass_number=pass_number,
             checks=checks,
+            setting=setting,
         )
         if observer is not None:
             observer.measured(block, summary)

@@ -43,6 +43,7 @@ def device_fits(
     from stableins.data.device import load_device
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.noise import NoiseModel
     from stableins.procedures.definition import load_procedure
 
@@ -59,7 +60,8 @@ def device_fits(
     layouts = {stage: load_procedure(name).layout for stage, name in names.items()}
     summaries = []
     for dataset in datasets:
-        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path))
+        setting = DeviceSetting.from_site(dataset.metadata)
+        summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path), setting=setting)
     source = ", ".join(str(d.path) for d in datasets)
     noise = settings.get("noise_model")
     calibration = calibrate_device(

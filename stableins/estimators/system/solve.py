@@ -42,7 +42,14 @@ from stableins.estimators.system.coloured import (
     measured_noise_model,
     noise_prior,
 )
-from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
+from stableins.estimators.system.gyro_drift_step import (
+    DriftSource,
+    DriftStep,
+    drift_covariance_v,
+    drift_notes,
+    g_sensitivity_removed,
+    sensor_error_removed,
+)
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, GROWTH_LIMIT, Separation, separate, without_growth
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
@@ -212,6 +219,7 @@ def fit_attitude_coefficients(
     blocks = sums.attitude_blocks.means()
     if drift is not None:
         blocks = sensor_error_removed(blocks, sums.gimbal_blocks, drift.gimbal, latitude)
+        blocks = g_sensitivity_removed(blocks, loop, drift.g_sensitivity)
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
     vertical = -along * harmonic.x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)

@@ -222,7 +222,7 @@ class ThermalFit:
         }
 
 
-def prior_mean(prior: Mapping[str, float] | None) -> NDArray[np.float64]:
+def thermal_prior_mean(prior: Mapping[str, float] | None) -> NDArray[np.float64]:
     """Return the prior mean of :data:`THERMAL_TERMS`: the record's values where it has them, else 0 [SI].
 
     The values come from a device-level thermal test (``stableins calibrate thermal``, docs/thermal-calibration.md).
@@ -273,7 +273,7 @@ class ThermalInputs:
 
     ``noise`` and ``given``: what the noise decision needs when it is made again (:func:`thermal_step`).  ``prior``: the
     calibration record's values; its :data:`THERMAL_TERMS` (a device-level thermal test) are the prior mean of the
-    sensitivities (:func:`prior_mean`).
+    sensitivities (:func:`thermal_prior_mean`).
     """
 
     sums: RecordSums
@@ -312,7 +312,7 @@ def analyse_temperature(
     z_cols, _, _, jacobian = response(stage.context.site.gravity, stage.attitude, band, delta_t)
     info, gradient, info_raw = information(stage.harmonic, stage.decision, band, z_cols)
     posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
-    estimate = posterior @ (prior_mean(stage.prior) / sigma0**2 + gradient)
+    estimate = posterior @ (thermal_prior_mean(stage.prior) / sigma0**2 + gradient)
     separable, chi2, dof = separable_directions(info, info_raw, gradient, regressors=z_cols)
     data_estimate = None
     if dof:
@@ -445,7 +445,7 @@ __all__ = [
     "ThermalFit",
     "ThermalInputs",
     "analyse_temperature",
-    "prior_mean",
+    "thermal_prior_mean",
     "prior_sigma",
     "thermal_aliases",
     "thermal_step",
