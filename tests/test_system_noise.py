@@ -78,6 +78,11 @@ def test_quartz_record_noise_model_against_the_simulator():
     assert NoiseModel.from_document(model.to_document()) == model
     fit = out.coloured_noise
     assert fit.source is ColouredSource.DATA and fit.data_detected and fit.p_value < 1e-6
+    # issue 25: the pitch and roll white levels are held at the accelerometers' white noise through the loop (N² per
+    # 1-Hz attitude sample in rad²), not fitted on their ~26 ordinates (roll's fitted level was 0.26x of it on this day)
+    gravity = Truth.draw(3, site=SimulatedSite(sample_rate=1.0), noise=QUARTZ).site.gravity
+    expected = (QUARTZ.velocity_random_walk / gravity) ** 2
+    np.testing.assert_allclose(fit.white_levels[1:], expected, rtol=0.03)
 
 
 def test_a_datasheet_model_gives_the_amplitudes_and_comes_back_unchanged():

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, cast
 
 import numpy as np
@@ -116,9 +116,9 @@ def coloured_covariance(
     design, observed, n_high, top = _high_band(fine_bins, site, fits.x_ls, bins.high, design=design, observed=observed, n_ch=n_ch)
     offset = None
     held = np.zeros(0)
-    if loop_inputs is not None and n_ch > 1:  # pitch and roll white levels held at the measured noise (coefficient 1)
-        offset = design[:, 1:n_ch].sum(axis=1)
-        held = np.array([float(np.sum(loop_inputs * weights)) for weights in bins.loads_at_blocks])
+    if loop_inputs is not None and n_ch > 1:  # pitch and roll white levels held at the measured noise
+        held = bins.quasi_static @ np.asarray(loop_inputs, dtype=float)
+        offset = design[:, 1:n_ch] @ held
         design = np.delete(design, np.s_[1:n_ch], axis=1)
         n_ch = 1
     fit = whittle.fit_coloured_noise(
@@ -193,19 +193,21 @@ class LowBand:
     makers: list[NDArray[np.float64]]
     weights: list[NDArray[np.float64]]
     gains: list[Any]
-    #: Per attitude channel (pitch, roll): the DC weights of the loop's three inputs (unit: none), for the held white level.
-    loads_at_blocks: tuple[NDArray[np.float64], ...] = ()
+    #: ``|G_pi(0)|²`` (2, 3): the loop's quasi-static gain from each input to pitch and roll; a channel's white level is
+    #: ``Σ_i |G_pi(0)|² v_i`` (the quasi-static attitude's white variance), its gain's shape ``Σ_i |G_pi(f)|² v_i`` over it.
+    quasi_static: NDArray[np.float64] = field(default_factory=lambda: np.eye(2, 3))
 
 
 def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits, *, loop_inputs: NDArray[np.float64] | None = None) -> LowBand:
     """Build the low band: the z, pitch and roll residuals on the filter bins with samples, merged to at most :data:`COLOURED_BINS`.
 
     With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
-    mixing.  ``loop_inputs``: the white variances of the loop's three inputs (:func:`coloured_covariance`); given, the
-    pitch and roll white gains are ``Σ_i |G_pi(f)|² v_i sinc²(f w)`` (a level of 1 is the measured noise), else
-    ``Σ_i |G_pi(f)|² sinc²(f w)`` (equal inputs, level fitted).
+    mixing.  ``loop_inputs``: the white variances ``v_i`` of the loop's three inputs (:func:`coloured_covariance`; without
+    them, equal ones): the pitch and roll white gains are ``Σ_i |G_pi(f)|² v_i sinc²(f w) / Σ_i |G_pi(0)|² v_i``, so a
+    channel's white level is the white variance of its quasi-static attitude per attitude sample.
     """
     inputs = np.ones(3) if loop_inputs is None else np.asarray(loop_inputs, dtype=float)
+    quasi_static = np.abs(fits.model.loop.frequency_response(0.0)) ** 2  # (2, 3)
     x_ls, blocks, att, loop, latitude = fits.x_ls, fits.blocks, fits.attitude, fits.model.loop, site.latitude
     keep_bins = filter_bins.n > 0
     n_keep = int(np.count_nonzero(keep_bins))
@@ -247,13 +249,15 @@ def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits, *, l
             # white accelerometer noise through the loop (three independent inputs), then averaged over the bin: the
             # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
             # beyond the bins' Nyquist frequency)
+            share = inputs / float(quasi_static[ch] @ inputs)
             gains.append(
-                lambda f, ch=ch: float(np.sum(inputs * np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2)
+                lambda f, ch=ch, share=share: float(
+                    np.sum(share * np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2
+                )
             )
     # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
     # per day; longer records also between the harmonics, where the random walk's power is largest)
-    dc = np.abs(loop.frequency_response(0.0)) ** 2  # (2, 3): the loop's DC gain per input, the quasi-static attitude
-    return LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains, (dc[0], dc[1]))
+    return LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains, quasi_static)
 
 
 def _high_band(
