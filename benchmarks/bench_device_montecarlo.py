@@ -42,7 +42,7 @@ from stableins import conventions as cv  # noqa: E402
 from stableins.errormodel import ErrorModel  # noqa: E402
 from stableins.estimators.coarse import CoarseProblem, coarse_model, solve_coarse  # noqa: E402
 from stableins.estimators.device_gauge import gauge_equivalent
-from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine  # noqa: E402
+from stableins.estimators.fine import FINE_GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine  # noqa: E402
 from stableins.procedures.definition import load_procedure  # noqa: E402
 
 GRAVITY = float(cv.normal_gravity(np.radians(40.0)))
@@ -212,7 +212,7 @@ def part_a_fine(rng, exact_q, biased, model, gq, timings) -> bool:
     t0 = time.perf_counter()
     fsol = solve_fine(FineProblem(fine_means, fine_sig, GRAVITY, fmodel), x0)
     timings["fine"] = time.perf_counter() - t0
-    ffree = np.array([k not in GAUGE_PREFERENCE for k in fmodel.ids])
+    ffree = np.array([k not in FINE_GAUGE_PREFERENCE for k in fmodel.ids])
     # truth in the fine gauge: sums held at the coarse values, differences = truth's (gauge-equivalent)
     xf = np.stack([gq[k] for k in fmodel.ids], axis=-1)
     for a, b in (("beta_xz", "beta_yz"), ("beta_zy", "beta_xy"), ("beta_yx", "beta_zx")):
@@ -220,8 +220,9 @@ def part_a_fine(rng, exact_q, biased, model, gq, timings) -> bool:
         xf[:, ia] = gq[a] - gq[b] + x0[:, ib]  # estimate of a = (a − b) + b_held
         xf[:, ib] = x0[:, ib]
     fcrb = crb_of(FineProblem, (fine_means, np.full(fine_means.shape, fine_true), GRAVITY, fmodel), xf, ffree, fine_true)
-    fids = [k for k in fmodel.ids if k not in GAUGE_PREFERENCE]
-    labels = [f"{k} − {dict(zip(('beta_xz', 'beta_zy', 'beta_yx'), GAUGE_PREFERENCE))[k]}" if k.startswith("beta") else k for k in fids]
+    fids = [k for k in fmodel.ids if k not in FINE_GAUGE_PREFERENCE]
+    partner = dict(zip(("beta_xz", "beta_zy", "beta_yx"), FINE_GAUGE_PREFERENCE))
+    labels = [f"{k} − {partner[k]}" if k.startswith("beta") else k for k in fids]
     return statistics(
         "fine stage (12 combinations, 600 s dwells, devices with K2; √CRB = bound of the NORM observation ½|f^p|² = ½g² "
         "alone, angle sums held at the coarse values — not the bound of the fused record, see Part B)",

@@ -139,6 +139,9 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
         else:
             module = importlib.import_module(entry.module)
             module.configure(parser)
+            if getattr(module, "SERVER", False):  # prints its address and serves until stopped: no result, no progress bar
+                parser.set_defaults(_run=module.run)
+                continue
             if not any(action.dest == "json" for action in parser._actions):
                 parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
             if not any(action.dest == "quiet" for action in parser._actions):

@@ -72,12 +72,22 @@ from stableins.dwell_mode import DwellMode
 #: Standard gravity, used only for engineering units (µg, µg/g²), never as local g.
 STANDARD_GRAVITY: Final = 9.80665
 ARCSEC: Final = np.pi / (180.0 * 3600.0)
+#: One arcsecond per hour [rad/s] (platform drift rates at the edges).
+ARCSEC_PER_HOUR: Final = ARCSEC / 3600.0
 MICRO_G: Final = 1e-6 * STANDARD_GRAVITY
+#: µg/g² in SI [s²/m] (the quadratic nonlinearity at the edges; docs/conventions.md, "Units").
+MICRO_G_PER_G2: Final = MICRO_G / STANDARD_GRAVITY**2
 PPM: Final = 1e-6
 #: One degree per hour [rad/s] (gyro drift at the edges).
 DEG_PER_HOUR: Final = np.pi / (180.0 * 3600.0)
 #: One degree per hour per standard g [rad/s per m/s²] (gyro g-sensitivity ``Dg_ab`` at the edges).
 DEG_PER_HOUR_PER_G: Final = DEG_PER_HOUR / STANDARD_GRAVITY
+
+#: Input excursion [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``), the one definition of the
+#: truth simulator and of discovery's dwells.  A real accelerometer's hysteresis follows the excursion of its input: a
+#: change much smaller than the loop (here arcsecond-level geometry, ~1e-4 m/s²) does not reverse the magnetic/flexure
+#: state, so the state keeps its last value.
+HYSTERESIS_THRESHOLD: Final = 1e-2
 
 #: One millisecond [s] (the accelerometer–angle-reading time asynchrony at the edges).
 MILLISECOND: Final = 1e-3
@@ -449,6 +459,8 @@ INSTALLATION_MEANING: Final = {
 }
 
 #: What each gimbal zero offset is (Wu et al. 2018 Section 3).
+#: The angle-sensor zero offsets ``θ_i0`` of the platform, inner and middle gimbal, by id [rad].
+GIMBAL_IDS: Final = ("theta10", "theta20", "theta30")
 GIMBAL_OFFSET_MEANING: Final = {
     "theta10": "zero offset of the platform-axis (z_p) angle sensor",
     "theta20": "zero offset of the inner-gimbal (x) angle sensor",

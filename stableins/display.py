@@ -172,7 +172,7 @@ _CELL = "padding:1px 8px;border-bottom:1px solid #ddd"
 _STATUS_COLOUR = {"estimated": "", "fixed": "#555", "gauge": "#555", "unidentifiable": "#a00"}
 
 
-def escape(text: Any) -> str:
+def escape_html(text: Any) -> str:
     """HTML-escaped ``str(text)`` (quotes too)."""
     return html.escape(str(text), quote=True)
 
@@ -195,12 +195,12 @@ def html_table(
 
     def cell(k: int, value: Any, tag: str = "td") -> str:
         align = "right" if k in right else "left"
-        return f'<{tag} style="{_CELL};text-align:{align}">{typeset(escape(value))}</{tag}>'
+        return f'<{tag} style="{_CELL};text-align:{align}">{typeset(escape_html(value))}</{tag}>'
 
     head = "<tr>" + "".join(cell(k, c, "th") for k, c in enumerate(columns)) + "</tr>"
     body = []
     for r, row in enumerate(rows):
-        title = f' title="{escape(titles[r])}"' if r < len(titles) and titles[r] else ""
+        title = f' title="{escape_html(titles[r])}"' if r < len(titles) and titles[r] else ""
         status = str(row[status_column]) if status_column is not None else ""
         colour = f' style="color:{_STATUS_COLOUR[status]}"' if _STATUS_COLOUR.get(status) else ""
         body.append(f"<tr{title}{colour}>" + "".join(cell(k, v) for k, v in enumerate(row)) + "</tr>")
@@ -223,16 +223,16 @@ def html_result(
 
     ``lines`` and ``details`` are plain text (escaped here); ``tables`` are :func:`html_table` output.
     """
-    parts = [f'<div class="stableins-result"><strong>{escape(title)}</strong>']
+    parts = [f'<div class="stableins-result"><strong>{escape_html(title)}</strong>']
     for line in lines:
         if line:
             colour = ";color:#b3261e" if line.startswith("warning:") else ""
-            parts.append(f'<div style="margin:0.2em 0{colour}">{typeset(escape(line))}</div>')
+            parts.append(f'<div style="margin:0.2em 0{colour}">{typeset(escape_html(line))}</div>')
     parts += list(tables)
     for summary, items in details:
         if items:
-            body = "".join(f"<li>{typeset(escape(item))}</li>" for item in items)
-            parts.append(f"<details><summary>{escape(summary)}</summary><ul>{body}</ul></details>")
+            body = "".join(f"<li>{typeset(escape_html(item))}</li>" for item in items)
+            parts.append(f"<details><summary>{escape_html(summary)}</summary><ul>{body}</ul></details>")
     parts.append("</div>")
     return "".join(parts)
 

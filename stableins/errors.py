@@ -6,9 +6,10 @@ was asked (a stage whose data determine no parameter of the record, positions wh
 direction free, a record too short for the stage).  Both carry no exit status: the CLI maps each to its own
 (docs/cli.md, "Exit status") and prints one paragraph on stderr, never a traceback.
 
-Neither is a :class:`ValueError` (issue 29 asked for it): 74 ``except ValueError`` (or tuples with it) in the package
-would then swallow a described error and re-word it without its file, row and field (measured: the HDF5 reader's
-overview check lost its field that way).  Each of those sites has to be read before the base can change.
+Both are ValueErrors (issue 29), so code that expects a ``ValueError`` from a parser or a constructor sees them
+too.  Every ``except ValueError`` of the package whose ``try`` calls code that can raise one of them first lets the
+described error pass through as it is (``except (InputError, NotDeterminedError): raise``), so its file, row and field
+are never re-worded away; the sites that catch only ``float()``, numpy or JSON parsing need none.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 from os import PathLike
 
 
-class _DescribedError(Exception):
+class _DescribedError(ValueError):
     """An error described for a person: what is wrong, where, and what was expected.
 
     Parameters

@@ -1,7 +1,7 @@
 r"""Calibration history of each unit: change significance and drift across a unit's records.
 
 The records themselves are kept by the history store (:mod:`stableins.history_store`: SQLite index, records
-verified by their SHA-256 when read); ``HistoryStore`` and ``Entry`` are importable from here too.  An entry
+verified by their SHA-256 when read); ``HistoryStore`` and ``HistoryEntry`` are importable from :mod:`stableins.history_store`.  An entry
 is *in force* from its ``valid_from`` time (the end of the data it was estimated from, or its creation time)
 until the next entry's.  A record older than ``max_age`` at the date asked about is *stale*: it is still
 returned, with a warning.

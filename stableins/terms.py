@@ -23,14 +23,15 @@ from stableins.conventions import (
     AXES,
     DEG_PER_HOUR,
     DEG_PER_HOUR_PER_G,
+    GIMBAL_IDS,
     GIMBAL_OFFSET_MEANING,
     INSTALLATION_ENTRIES,
     INSTALLATION_MEANING,
     MICRO_G,
+    MICRO_G_PER_G2,
     MILLIMETRE,
     MILLISECOND,
     PPM,
-    STANDARD_GRAVITY,
 )
 from stableins.units import QUANTITY, normalize_unit
 
@@ -214,11 +215,8 @@ class Term:
         raise ValueError(f"{text!r}: {match.group(2).strip()!r} is not a unit of {self.id} (expected {expected})")
 
 
-MICRO_G_PER_G2 = MICRO_G / STANDARD_GRAVITY**2
-
 #: Order of the six installation angles (alphabetical) and their C_p^a positions.
 BETA_IDS = ("beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
-GIMBAL_IDS = ("theta10", "theta20", "theta30")
 
 
 def _core_terms() -> tuple[Term, ...]:

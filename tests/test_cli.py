@@ -160,13 +160,29 @@ def test_input_error_and_interrupt_statuses(fake_commands, capsys):
     )
 
 
-def test_the_two_errors_are_distinct_and_no_value_errors():
-    """Neither is a ValueError: an ``except ValueError`` elsewhere must not swallow a described error (stableins/errors.py)."""
+def test_the_two_errors_are_distinct_value_errors():
+    """Both are ValueErrors (issue 29), distinct, and carry no exit status (the CLI maps them)."""
     from stableins.errors import InputError, NotDeterminedError
 
     assert not issubclass(InputError, NotDeterminedError) and not issubclass(NotDeterminedError, InputError)
-    assert not issubclass(InputError, ValueError) and not issubclass(NotDeterminedError, ValueError)
+    assert issubclass(InputError, ValueError) and issubclass(NotDeterminedError, ValueError)
     assert not hasattr(InputError("x"), "exit_status")  # the CLI maps the statuses, the error carries none
+
+
+def test_an_except_value_error_lets_the_described_error_through():
+    """The diagnosis document's ``stage`` is read inside ``except ValueError`` (an unknown stage is re-worded there).
+
+    A stage that is no string raises the reader's InputError, a ValueError now: it passes through with its own words,
+    its file and its field, not the re-wording meant for an unknown stage.
+    """
+    from stableins.discovery.diagnose_report import DiagnoseReport
+    from stableins.errors import InputError
+
+    with pytest.raises(InputError) as raised:
+        DiagnoseReport.from_json({"stage": 5}, "d.json")
+    assert str(raised.value) == "d.json, field 'stage': 5 is not a string (expected a string)"
+    with pytest.raises(InputError, match="'fine-ish' is not a stage"):
+        DiagnoseReport.from_json({"stage": "fine-ish"}, "d.json")
 
 
 # --------------------------------------------------------------------------- bad input through the CLI

@@ -10,13 +10,13 @@ from stableins.errormodel import BETA_IDS
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.device_gauge import gauge_equivalent
 from stableins.estimators.dwell import DwellSummary
-from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, calibrate_fine, fine_model, solve_fine
+from stableins.estimators.fine import FINE_GAUGE_PREFERENCE, FineProblem, calibrate_fine, fine_model, solve_fine
 from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import load_procedure
 
 READINGS = np.array([s.command for s in load_procedure("device-fine").steps])
 MODEL = fine_model()
-FREE = np.array([k not in GAUGE_PREFERENCE for k in MODEL.ids])
+FREE = np.array([k not in FINE_GAUGE_PREFERENCE for k in MODEL.ids])
 
 
 def _vector(values):

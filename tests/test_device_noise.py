@@ -6,7 +6,7 @@ from device_world import GRAVITY, draw_truth, outputs
 
 from stableins.estimators.device import noise_from_dwells
 from stableins.estimators.dwell import slow_covariance, summarize_dwell
-from stableins.estimators.fine import GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine
+from stableins.estimators.fine import FINE_GAUGE_PREFERENCE, FineProblem, fine_model, solve_fine
 from stableins.estimators.slow_noise import dwell_allan_ratios, dwell_test_clusters, slow_noise_test, white_allan_covariance
 from stableins.noise import NoiseModel, NoiseSource
 from stableins.procedures.definition import load_procedure
@@ -88,7 +88,7 @@ def test_fine_stage_sigma_is_honest_only_with_the_slow_noise_model():
     """Simulator quartz noise (white + 2 µg bias instability + random walk), 18 × 600 s at 2 Hz."""
     readings = np.array([s.command for s in load_procedure("device-fine").steps])
     model = fine_model()
-    free = np.array([k not in GAUGE_PREFERENCE for k in model.ids])
+    free = np.array([k not in FINE_GAUGE_PREFERENCE for k in model.ids])
     settings = NoiseSettings.quartz()
     noise_model = NoiseModel.given(settings.velocity_random_walk, settings.bias_instability, settings.acceleration_random_walk)
     rate, n, gap = 2.0, 1200, 70

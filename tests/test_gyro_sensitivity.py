@@ -22,8 +22,8 @@ from stableins.estimators.gyro_sensitivity import (
     ReadingSlopes,
     SlopeGeometry,
     estimate_gyro_sensitivity,
+    gyro_report,
     reading_slope,
-    report,
 )
 from stableins.procedures.definition import load_procedure
 from stableins.records import CalibrationRecord
@@ -78,7 +78,7 @@ def test_twelve_numbers_recovered_from_wu_forward_and_back():
     assert fit.rank == 15 and all(s is Status.ESTIMATED for s in fit.status)  # 12 + the 3 torquer nuisances
     assert fit.dof == details.dof and fit.chi2_red == pytest.approx(details.chi2 / details.dof)  # one ν everywhere
     assert fit.likelihood is not None and fit.likelihood.rank() == 12
-    text = report(fit)
+    text = gyro_report(fit)
     assert "Dg_xz" in text and "°/h/g" in text and "FLAGGED" in text and "12 of 12" in text
 
 

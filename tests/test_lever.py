@@ -234,6 +234,30 @@ def test_cli_calibrate_lever_all_arms(rotating_run, capsys):
     assert CalibrationRecord.load(out)["lever_z_x"].sigma > 0
 
 
+def test_cli_calibrate_lever_options(rotating_run, capsys, monkeypatch):
+    """Issue 31: --no-asynchrony, --window, --new-calibration, --set and --quiet, each against the run without it."""
+    from test_cli_options_quiet import quiet_main
+
+    run, prior = str(rotating_run / "run"), str(rotating_run / "prior.json")
+    base_out, options_out = rotating_run / "base.json", rotating_run / "options.json"
+    assert cli.main(["calibrate", "lever", run, "--prior", prior, "--out", str(base_out), "--json"]) == 0
+    base = json.loads(capsys.readouterr().out)
+    argv = ["calibrate", "lever", run, "--prior", prior, "--out", str(options_out), "--no-asynchrony", "--window", "1",
+            "--new-calibration", "--set", "laboratory=Lab L", "--json"]  # fmt: skip
+    assert cli.main(argv) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert "t_async" in base["lever"] and "t_async" not in document["lever"]  # --no-asynchrony: τ held at zero, not estimated
+    assert "t_async" not in CalibrationRecord.load(options_out).ids or CalibrationRecord.load(options_out)["t_async"].value == 0.0
+    assert (base["settings"]["window"], document["settings"]["window"]) == (0.5, 1.0)  # --window: the means over 1 s
+    assert document["lever"]["lever_x_x"]["value"] != base["lever"]["lever_x_x"]["value"]
+    before, continued, started = (CalibrationRecord.load(p) for p in (prior, base_out, options_out))
+    assert continued.calibration.id == before.calibration.id != started.calibration.id  # --new-calibration
+    assert ("laboratory", "Lab L") in [(e.key, e.value) for e in started.calibration.entries]  # --set
+    argv = ["calibrate", "lever", run, "--prior", prior, "--out", rotating_run / "quiet.json", "--quiet"]
+    status, _, err, seen = quiet_main(monkeypatch, argv, "stableins.commands.calibrate_lever")
+    assert status == 0 and seen == [True], err[-1000:]  # --quiet: silenced while it works
+
+
 def test_cli_refuses_data_without_slews(rotating_run, tmp_path, capsys):
     from stableins.data.device import load_device, save_device
 

@@ -213,6 +213,46 @@ def test_serve_sim_conforms(upstream, capsys):
     assert "CONFORMS: every clause passed" in out and out.count("PASS ") == len(CLAUSES)
 
 
+def test_protocol_check_options_duration_timeout_json_quiet(upstream, capsys, monkeypatch):
+    """Issue 31: --duration sets the length of the test acquisitions, --timeout the silence accepted; --json, --quiet."""
+    import json
+
+    from test_cli_options_quiet import quiet_main
+
+    samples: dict[str, int] = {}
+
+    def counted(key: str) -> Fault:
+        def fault(line, state):
+            samples[key] = samples.get(key, 0) + line.startswith("S ")
+            return [line]
+
+        return fault
+
+    for duration in ("0.25", "1"):
+        proxy = Proxy(upstream.port, counted(duration))
+        try:
+            argv = ["protocol-check", f"tcp://127.0.0.1:{proxy.port}", "--envelope", "1", "--duration", duration, "--json"]
+            assert cli.main(argv) == 0
+        finally:
+            proxy.close()
+        document = json.loads(capsys.readouterr().out)  # --json: one document, every clause passed
+        assert document["conforms"] and [c["clause"] for c in document["clauses"]] == list(CLAUSES)
+    assert samples["1"] == pytest.approx(4 * samples["0.25"], rel=0.2)  # --duration: 4x longer acquisitions, 4x the samples
+
+    def late_angles(line, state):  # every ANG reply 0.6 s late: beyond a 0.3 s --timeout, well within 60 s
+        return [0.6, line] if state["verbs"].get(line.split(" ", 1)[0]) == "ANG" else [line]
+
+    for timeout, expected in (("0.3", 1), ("60", 0)):
+        proxy = Proxy(upstream.port, late_angles)
+        try:
+            argv = ["protocol-check", f"tcp://127.0.0.1:{proxy.port}", "--envelope", "1", "--timeout", timeout, "--quiet"]
+            status, out, _, seen = quiet_main(monkeypatch, argv, "stableins.commands.protocol_check")
+        finally:
+            proxy.close()
+        assert status == expected and seen == [True], out  # --timeout; --quiet: silenced while it works
+    assert "CONFORMS: every clause passed" in out
+
+
 @pytest.mark.parametrize("clause", sorted(FAULTS))
 def test_a_faulty_controller_fails_the_clause_it_breaks(upstream, clause):
     proxy = Proxy(upstream.port, FAULTS[clause])

@@ -4,7 +4,8 @@ Every module of ``stableins`` is parsed with :mod:`ast`.  A public name is a mod
 does not start with ``_``; the command protocol (``configure`` and ``run`` of every ``stableins.commands`` module, the
 interface :mod:`stableins.cli` dispatches to) and the generated ``stableins._version`` are not counted.  The names still
 defined in more than one module are listed in :data:`KNOWN_DUPLICATES`, to be renamed or merged: the list may only
-shrink (a new duplicate fails, and so does a listed name that is no longer one).  The ``dict[str, Any]`` annotations
+shrink (a new duplicate fails, and so does a listed name that is no longer one); public module-level constants
+(``UPPER_CASE`` names assigned) likewise, against :data:`KNOWN_DUPLICATE_CONSTANTS`.  The ``dict[str, Any]`` annotations
 are counted the same way against :data:`DICT_ANY_CEILING`, which may only come down (issue 29's target: 50).
 """
 
@@ -19,42 +20,13 @@ import stableins
 
 PACKAGE = Path(stableins.__file__).resolve().parent
 
-#: Public names defined in more than one module today (issue 29: rename or merge them); never add to this list.
-KNOWN_DUPLICATES = {
-    "DriftSource": {"stableins.estimators.system.gyro_drift_step", "stableins.navigation.summary"},
-    "Entry": {"stableins.history_store.schema", "stableins.records.parameters"},
-    "Hold": {"stableins.data.holds", "stableins.estimators.drift.holds"},
-    "InputFile": {"stableins.records.stages", "stableins.reporting.context"},
-    "Separation": {"stableins.discovery.separation", "stableins.estimators.system.separation"},
-    "Step": {
-        "stableins.discovery.steps",
-        "stableins.estimators.systematic.kalman",
-        "stableins.procedures.definition",
-        "stableins.procedures.plan",
-    },
-    "batch_least_squares": {"stableins.estimators.system.harmonics", "stableins.estimators.systematic.kalman"},
-    "conformity": {"stableins.reporting.certificate_sections", "stableins.reporting.closing_sections", "stableins.reporting.content"},
-    "data_file": {"stableins.commands.calibrate_drift", "stableins.commands.calibrate_lever"},
-    "escape": {"stableins.display", "stableins.reporting.document"},
-    "next_steps": {"stableins.commands.calibrate_device", "stableins.commands.diagnose"},
-    "number": {"stableins.commands.arguments", "stableins.display", "stableins.procedures.sections", "stableins.reporting.rounding"},
-    "observation_rows": {"stableins.estimators.system.harmonics", "stableins.estimators.systematic.model"},
-    "prior_mean": {"stableins.estimators.system.thermal", "stableins.estimators.systematic.passes"},
-    "rank_report": {"stableins.estimators.gyro_sensitivity", "stableins.estimators.systematic.passes"},
-    "report": {
-        "stableins.commands.calibrate_system",
-        "stableins.estimators.drift.record",
-        "stableins.estimators.gyro_sensitivity",
-        "stableins.estimators.lever.record",
-        "stableins.records.display",
-    },
-    "residual_scale": {"stableins.estimators.system.assembly", "stableins.reporting.figures"},
-    "results": {"stableins.reporting.certificate_sections", "stableins.reporting.result_sections"},
-    "simulate_system": {"stableins.commands.simulate", "stableins.simulator.system"},
-    "summarize": {"stableins.campaign.summary", "stableins.commands.check"},
-    "table": {"stableins.procedures.sections", "stableins.reporting.document"},
-    "unit_text": {"stableins.display", "stableins.reporting.content"},
-}
+#: Public names defined in more than one module (issue 29: 24 once, 22, now none); never add to this list.
+KNOWN_DUPLICATES: dict[str, set[str]] = {}
+
+#: Public module-level constants (``UPPER_CASE = ...``) defined in more than one module: one concept, one name, defined
+#: once (issue 29: 30 when first counted, among them ``AXES`` three times; now none).  Like :data:`KNOWN_DUPLICATES`,
+#: this list may only shrink.
+KNOWN_DUPLICATE_CONSTANTS: dict[str, set[str]] = {}
 
 #: ``dict[str, Any]`` annotations in the package today; may only come down (issue 29's target: 50).  182 when the
 #: count was made; 206 after the merge of work done beside it: the fleet web app's JSON documents (``stableins.web``,
@@ -64,6 +36,7 @@ DICT_ANY_CEILING = 206
 
 _COMMAND_PROTOCOL = {"configure", "run"}
 _DICT_ANY = re.compile(r"\bdict\[str,\s*Any\]")
+_CONSTANT = re.compile(r"[A-Z][A-Z0-9_]*")
 
 
 def _module_name(path: Path) -> str:
@@ -86,6 +59,21 @@ def public_definitions() -> dict[str, set[str]]:
             if module.startswith("stableins.commands.") and node.name in _COMMAND_PROTOCOL:
                 continue
             found[node.name].add(module)
+    return found
+
+
+def public_constants() -> dict[str, set[str]]:
+    """Every public module-level constant of the package (an ``UPPER_CASE`` name assigned): name -> the modules defining it."""
+    found: dict[str, set[str]] = defaultdict(set)
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = _module_name(path)
+        if module == "stableins._version":
+            continue
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+            for target in targets:
+                if isinstance(target, ast.Name) and _CONSTANT.fullmatch(target.id):
+                    found[target.id].add(module)
     return found
 
 
@@ -113,6 +101,14 @@ def test_no_new_duplicate_public_name() -> None:
     assert not gone, f"no longer defined twice: take them off KNOWN_DUPLICATES: {gone}"
 
 
+def test_no_new_duplicate_constant() -> None:
+    duplicates = {name: modules for name, modules in public_constants().items() if len(modules) > 1}
+    new = {name: sorted(modules) for name, modules in duplicates.items() if not modules <= KNOWN_DUPLICATE_CONSTANTS.get(name, set())}
+    assert not new, f"constants defined in more than one module (import the one definition, or name each concept): {new}"
+    gone = sorted(name for name in KNOWN_DUPLICATE_CONSTANTS if name not in duplicates)
+    assert not gone, f"no longer defined twice: take them off KNOWN_DUPLICATE_CONSTANTS: {gone}"
+
+
 def test_dict_any_annotations_do_not_grow() -> None:
     count = dict_any_annotations()
     assert count <= DICT_ANY_CEILING, f"{count} dict[str, Any] annotations, more than {DICT_ANY_CEILING}: type the new ones"
@@ -124,10 +120,13 @@ def test_the_counts_see_what_they_count(tmp_path: Path, monkeypatch) -> None:
     package = tmp_path / "stableins"
     (package / "commands").mkdir(parents=True)
     (package / "__init__.py").write_text("")
-    (package / "a.py").write_text("from typing import Any\nclass Step: ...\ndef f(x: dict[str, Any]) -> dict[str, Any]: ...\n")
-    (package / "b.py").write_text("def Step(): ...\ndef _private(): ...\nrows: dict[str, Any] = {}\n")
+    (package / "a.py").write_text(
+        "from typing import Any\nclass Step: ...\ndef f(x: dict[str, Any]) -> dict[str, Any]: ...\nAXES: tuple = ()\n_HIDDEN = 2\n"
+    )
+    (package / "b.py").write_text("def Step(): ...\ndef _private(): ...\nrows: dict[str, Any] = {}\nAXES = 1\n_HIDDEN = 2\n")
     (package / "commands" / "x.py").write_text("def run(args): ...\ndef configure(parser): ...\n")
     (package / "commands" / "y.py").write_text("def run(args): ...\n")
     monkeypatch.setattr(f"{__name__}.PACKAGE", package)
     assert {name: modules for name, modules in public_definitions().items() if len(modules) > 1} == {"Step": {"stableins.a", "stableins.b"}}
+    assert {name: modules for name, modules in public_constants().items() if len(modules) > 1} == {"AXES": {"stableins.a", "stableins.b"}}
     assert dict_any_annotations() == 3

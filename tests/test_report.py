@@ -204,10 +204,10 @@ def test_tolerance_patterns_and_bad_tables():
 def test_gum_rounding():
     assert rounding.round_to_uncertainty(-260.8049, 0.6512) == "\u2212260.80"
     assert rounding.round_to_uncertainty(12345.6, 23.0) == "12346"
-    assert rounding.number(0.0123456, 2) == "0.012"
+    assert rounding.significant_digits(0.0123456, 2) == "0.012"
     # U just below a power of ten rounds up to it: two significant digits of U = 9.989 are "10", the value to the units
     assert rounding.gum(-22.3477, 4.9946) == rounding.Rounded("\u221222", "5.0", "10")
-    assert rounding.number(9.996, 2) == "10" and rounding.number(0.0999, 2) == "0.10"
+    assert rounding.significant_digits(9.996, 2) == "10" and rounding.significant_digits(0.0999, 2) == "0.10"
     assert rounding.round_to_uncertainty(1.2345, 0.0999) == "1.23" and rounding.decimals_of(0.0999) == 2
     assert rounding.gum(3.0e-8, 4.99e-4) == rounding.Rounded("0.0000", "0.00050", "0.0010")  # U = 0.000998: 0.0010
 

@@ -107,7 +107,10 @@ def test_a_unit_has_the_changes_and_trends_of_history(lab):
     told = {t["id"]: t for t in history["trends"]}["bias_x"]
     assert trend["significance"] == pytest.approx(told["significance"], rel=1e-12)
     assert len(trend["values"]) == len(trend["sigmas"]) == len(trend["line"]) == 5
-    assert client(lab).get("/units/DRIFTER").status_code == 200
+    page = client(lab).get("/units/DRIFTER")
+    assert page.status_code == 200
+    assert trend["unit"] == "ug"  # the API keeps the record's unit; the page prints it as the certificate does
+    assert "µg/year" in page.text and "[µg]" in page.text and "ug/year" not in page.text and "[ug]" not in page.text
 
 
 def test_records_download_verified_and_a_tampered_one_is_refused(lab):
@@ -152,6 +155,18 @@ def test_a_run_linked_from_outside_the_run_root_is_not_served(lab):
     os.symlink(outside, lab / "runs" / "linked")
     assert client(lab).get("/api/runs").json()["runs"] == []
     assert client(lab).get("/api/runs/linked").status_code == 404
+
+
+def test_head_answers_what_get_would_without_the_body(lab):
+    c = client(lab)
+    for path in ("/fleet", "/api/fleet", "/units/DRIFTER", "/api/units/DRIFTER"):
+        got, head = c.get(path), c.head(path)
+        assert head.status_code == got.status_code == 200, path
+        assert head.content == b"" and head.headers["content-type"] == got.headers["content-type"], path
+        assert head.headers["content-security-policy"] == got.headers["content-security-policy"]
+    assert c.head("/api/units/NOBODY").status_code == c.get("/api/units/NOBODY").status_code == 404
+    stream = c.head("/api/runs/events")  # a stream's head is answered without opening the stream
+    assert stream.status_code == 200 and stream.headers["content-type"] == "text/event-stream" and stream.content == b""
 
 
 def test_read_only_and_request_sizes(lab):

@@ -44,7 +44,7 @@ def test_states_reproduce_exact_squared_amplitude(seed):
     z = hm.squared_amplitude_observation(compensated, G)
     x = hm.state_combinations(LAT) @ residuals_from_parameters(true, installed, G)
     delta = np.linalg.norm(compensated - f_p, axis=1) / G
-    assert np.abs(z - hm.observation_rows(s, LAT) @ x).max() < 2.0 * delta.max() ** 2 + 1e-12
+    assert np.abs(z - hm.harmonic_rows(s, LAT) @ x).max() < 2.0 * delta.max() ** 2 + 1e-12
     assert np.abs(x).max() > 1e-5  # the test has signal
 
 
@@ -62,7 +62,7 @@ def test_attitude_coefficients_from_gimbal_kinematics():
     np.testing.assert_allclose(basis @ m[:5], pitch, atol=1e-15)
     np.testing.assert_allclose(basis[:, [0, 2, 1, 4, 3]] @ m[5:], roll, atol=1e-15)
     # the n-frame error is horizontal-consistent: the down component equals −u·δ (along-gravity error)
-    assert np.abs(dn[:, 2] + hm.observation_rows(s, LAT) @ (hm.state_combinations(LAT) @ p)).max() < 1e-15
+    assert np.abs(dn[:, 2] + hm.harmonic_rows(s, LAT) @ (hm.state_combinations(LAT) @ p)).max() < 1e-15
 
 
 def test_uncoupled_loop_gain_and_lag():
@@ -124,7 +124,7 @@ def test_attitude_fit_compensates_loop_exactly(couplings):
 def test_filter_smoother_batch_information_agree():
     rng = np.random.default_rng(7)
     s = np.linspace(0, 2 * np.pi, 3000)
-    h = hm.observation_rows(s, LAT)
+    h = hm.harmonic_rows(s, LAT)
     x_true = rng.normal(0, 1e-4, 5)
     r = (5e-4) ** 2
     z = h @ x_true + rng.normal(0, 5e-4, s.size)
@@ -133,7 +133,7 @@ def test_filter_smoother_batch_information_agree():
     for k in range(0, s.size, 700):
         acc.add(h[k : k + 700], z[k : k + 700])
     xi, pi = acc.solve(r, x0, p0)
-    xb, pb = hm.batch_least_squares(h, z, r, x0, p0)
+    xb, pb = hm.regularized_least_squares(h, z, r, x0, p0)
     hist = hm.kalman_filter(h, z, r, x0, p0, smooth=True)
     scale = np.abs(xi).max()
     assert np.abs(xb - xi).max() < 1e-9 * scale
@@ -150,7 +150,7 @@ def test_rts_smoother_with_process_noise():
     """With Q > 0 the state is not static: smoothed and filtered differ, the smoother is never less certain at the end."""
     rng = np.random.default_rng(8)
     s = np.linspace(0, 2 * np.pi, 400)
-    h = hm.observation_rows(s, LAT)
+    h = hm.harmonic_rows(s, LAT)
     z = h @ rng.normal(0, 1e-4, 5) + rng.normal(0, 5e-4, s.size)
     q = np.eye(5) * 1e-12
     hist = hm.kalman_filter(h, z, (5e-4) ** 2, np.zeros(5), np.eye(5) * 1e-8, process_noise=q, smooth=True)

@@ -18,6 +18,7 @@ import pytest
 from stableins.conventions import EARTH_RATE, SIDEREAL_DAY
 from stableins.estimators.system import spectrum, whittle
 from stableins.estimators.system.loop import DampingLoop
+from stableins.noise import FLICKER_TIME_CONSTANTS
 
 LATITUDE = math.radians(40.0)
 WIDTH = 600.0
@@ -70,7 +71,7 @@ def test_bin_kernels_are_the_bin_means_of_the_processes():
     assert rw[0, 2] == pytest.approx(300.0) and rw[2, 1] == pytest.approx(900.0)
     fl = spectrum.bin_process_kernel("flicker", time, WIDTH)
     # a long Gauss-Markov process is almost constant over a bin: its bin-mean variance → 1 per process
-    taus = np.array(spectrum.FLICKER_TIME_CONSTANTS)
+    taus = np.array(FLICKER_TIME_CONSTANTS)
     x = WIDTH / taus
     assert fl[0, 0] == pytest.approx(np.sum(2 * (x - 1 + np.exp(-x)) / x**2))
     assert fl[0, 2] == pytest.approx(np.sum(np.exp(-4200.0 / taus) * (np.sinh(x / 2) / (x / 2)) ** 2))
@@ -290,7 +291,7 @@ def test_high_band_expectation_matches_drawn_noise_after_the_harmonic_fit():
                 axes = np.cumsum(rng.normal(0.0, math.sqrt(step), (m, 3)), axis=0)
             else:  # unit-variance Gauss-Markov processes, stationary start
                 axes = np.zeros((m, 3))
-                for tau in spectrum.FLICKER_TIME_CONSTANTS:
+                for tau in FLICKER_TIME_CONSTANTS:
                     a = math.exp(-step / tau)
                     drive = rng.normal(0.0, math.sqrt(1 - a * a), (m, 3))
                     drive[0] = rng.normal(0.0, 1.0, 3)
@@ -372,3 +373,46 @@ def test_a_given_datasheet_is_rejected_at_its_false_alarm_rate_and_when_the_reco
     fit = whittle.fit_coloured_noise(design, rng.exponential(design @ coloured), 1, alpha=alpha, prior=zero_sheet)
     assert fit.source is whittle.ColouredSource.CONTRADICTED and fit.data_detected
     np.testing.assert_allclose(fit.amplitudes, np.repeat(fit.maximum_likelihood[:, None], 3, axis=1))
+
+
+def test_held_white_levels_keep_the_decision_calibrated_and_narrow_the_amplitudes():
+    """Issue 25: the pitch and roll white levels held at the measured noise (``offset``) instead of fitted.
+
+    A second channel (26 low-band ordinates, the attitude's) whose white level is known: held, the decision keeps its
+    false-positive rate on white ordinates, and with coloured ordinates the amplitudes scatter less than with the level
+    fitted (the fitted level trades with them)."""
+    rng = np.random.default_rng(11)
+    z = _white_design(rng)
+    kl = np.arange(4, 30)
+    attitude = np.stack([np.full(kl.size, 2.0 / 86164), 3.0 * 86164 / (2 * np.pi * kl) ** 2 / 86164, 3e4 / kl / 86164], axis=1)
+    design = np.zeros((z.shape[0] + kl.size, 4))
+    design[: z.shape[0], [0, 2, 3]] = z
+    design[z.shape[0] :, [1, 2, 3]] = attitude
+    held = design[:, 1] * 1e-6  # the attitude channel's white level, known
+    reduced = np.delete(design, 1, axis=1)
+    white = np.array([1e-6, 1e-6, 0.0, 0.0])
+    draws, alpha = 300, 0.05
+    detected = sum(
+        whittle.fit_coloured_noise(reduced, rng.exponential(design @ white), 1, alpha=alpha, offset=held).data_detected
+        for _ in range(draws)
+    )
+    assert abs(detected / draws - alpha) < 3.5 * math.sqrt(alpha * (1 - alpha) / draws), detected
+    coloured = white + np.array([0.0, 0.0, 2e-7 / z[:, 1].mean() * z[:, 0].mean(), 2e-7 / z[:, 2].mean() * z[:, 0].mean()])
+    fitted, kept = [], []
+    for _ in range(200):
+        observed = rng.exponential(design @ coloured)
+        fitted.append(whittle.fit_coloured_noise(design, observed, 2).maximum_likelihood)
+        kept.append(whittle.fit_coloured_noise(reduced, observed, 1, offset=held).maximum_likelihood)
+    spread_fitted, spread_held = np.std(fitted, axis=0), np.std(kept, axis=0)
+    assert np.all(spread_held < spread_fitted), (spread_held, spread_fitted)
+    assert np.all(np.abs(np.mean(kept, axis=0) - coloured[2:]) < 4 * spread_held / math.sqrt(200) + 0.3 * coloured[2:])
+
+
+def test_loop_input_variances_of_isotropic_white_noise():
+    """Equal white noise on the three axes: each loop input carries it, per attitude sample (d samples each)."""
+    from stableins.estimators.system.coloured import loop_input_variances
+
+    v = loop_input_variances(np.full(3, 4e-8), LATITUDE, 9.8, 10.0)
+    np.testing.assert_allclose(v, np.full(3, 4e-8 / 9.8**2 / 10.0), rtol=1e-12)
+    w = loop_input_variances(np.array([1.0, 3.0, 0.0]), 0.0, 1.0, 1.0)  # at the equator: N sees z, E and D see x, y
+    np.testing.assert_allclose(w, [0.0, 2.0, 2.0], atol=1e-15)

@@ -233,3 +233,27 @@ def test_daily_cycle_grown_combinations_are_not_determined_and_the_device_prior_
     for name, (value, sigma, _) in combos.items():
         shift = abs(value - reference[name][0])
         assert shift < 1e-6 and shift < 3 * sigma, (name, shift, sigma)
+
+
+def test_separable_directions_leave_out_what_z_does_not_reach():
+    """Issue 25: two sensitivities that enter ``z`` as the same column (``k_z`` and ``s_z``: ΔT) give a direction ``z``
+    does not reach; given the regressors it is not separable, whatever round-off the information matrices carry."""
+    from stableins.estimators.system.thermal_bins import separable_directions
+
+    rng = np.random.default_rng(4)
+    n = 144
+    t = np.linspace(0.0, 1.0, n)
+    cols = np.stack([t, np.sin(7 * t), np.cos(5 * t), t**2, np.sin(11 * t), 0.0 * t], axis=1)
+    cols[:, 5] = 0.4 * cols[:, 3] * (1 + 1e-6 * rng.standard_normal(n))  # reached only to 1e-6: not separable
+    noise = np.diag(rng.uniform(0.5, 2.0, 6)) * 1e-7  # round-off-like information along every direction
+    info = cols.T @ cols + noise
+    gradient = cols.T @ rng.standard_normal(n)
+    directions, _, dof = separable_directions(info, info, gradient, regressors=cols)
+    assert dof == 5, dof
+    null = np.zeros(6)
+    null[3], null[5] = 0.4, -1.0
+    null /= np.linalg.norm(null)
+    coef = np.linalg.lstsq(directions.T, null, rcond=None)[0]
+    assert np.linalg.norm(directions.T @ coef - null) > 0.1  # the unreached direction is not in their span
+    _, _, dof_without = separable_directions(info, info, gradient)
+    assert dof_without == 6  # what the information matrices alone let through

@@ -26,7 +26,7 @@ def _bounds(minimum: float | None, maximum: float | None, *, above: bool) -> str
     return f"{'(' if above or minimum is None else '['}{low}, {high}{']' if maximum is not None else ')'}"
 
 
-def number(
+def real(
     minimum: float | None = None,
     maximum: float | None = None,
     *,

@@ -11,10 +11,10 @@ import argparse
 import math
 from pathlib import Path
 
-from stableins.commands.arguments import input_file, number, output_file
+from stableins.commands.arguments import input_file, output_file, real
 from stableins.commands.simulate import parse_duration
 
-HELP = "navigation budget: what each calibration term's 1σ and the gyro drift do to position, velocity and attitude"
+_HELP = "navigation budget: what each calibration term's 1σ and the gyro drift do to position, velocity and attitude"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,18 +33,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="navigation time with its unit, e.g. 12h, 5d, 3600s (default 5d)",
     )
     parser.add_argument(
-        "--latitude", type=number(-89.0, 89.0, unit="degrees"), metavar="DEG", help="latitude [deg] (default: the record's site)"
+        "--latitude", type=real(-89.0, 89.0, unit="degrees"), metavar="DEG", help="latitude [deg] (default: the record's site)"
     )
     parser.add_argument(
         "--damping",
-        type=number(0.0, 5.0),
+        type=real(0.0, 5.0),
         metavar="ZETA",
         help="damping ratio of the horizontal loops, 0 = pure inertial (default: the site's, 0 without one)",
     )
     parser.add_argument(
         "--drift",
         nargs=3,
-        type=number(0.0, 10.0, unit="deg/h"),
+        type=real(0.0, 10.0, unit="deg/h"),
         metavar=("X", "Y", "Z"),
         help="1σ of the constant platform gyro drift per axis [deg/h] (default: the record's gyro_drift_* terms)",
     )

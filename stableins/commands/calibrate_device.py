@@ -26,12 +26,12 @@ from stableins.commands import add_entries_option
 from stableins.status import Status
 
 #: The gyro g-sensitivity ids (``--add Dg_ab`` goes to the gyro stage, not to the accelerometer model).
-GYRO_IDS = frozenset(f"Dg_{a}{b}" for a in "xyz" for b in "xyz")
+G_SENSITIVITY_IDS = frozenset(f"Dg_{a}{b}" for a in "xyz" for b in "xyz")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate device`` to ``parser``."""
-    from stableins.commands.arguments import number, output_file
+    from stableins.commands.arguments import output_file, real
 
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files (CSV or HDF5), coarse and/or fine")
     parser.add_argument("--out", type=output_file, required=True, metavar="RECORD.json", help="calibration record to write")
@@ -63,7 +63,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--alpha",
-        type=number(0.0, 0.5, above=True),
+        type=real(0.0, 0.5, above=True),
         default=0.05,
         help="false-alarm level of the F-test that keeps an added effect (default 0.05)",
     )
@@ -128,8 +128,8 @@ def run(args: argparse.Namespace) -> int:
     fine_procedure = load_procedure(args.fine_procedure)
     layouts = {"coarse": coarse_procedure.layout, "fine": fine_procedure.layout}
     effect_ids = _effect_ids(args, coarse_procedure, fine_procedure)
-    gyro_added = [e for e in effect_ids if e in GYRO_IDS]
-    effects = calibration_terms([e for e in effect_ids if e not in GYRO_IDS])
+    gyro_added = [e for e in effect_ids if e in G_SENSITIVITY_IDS]
+    effects = calibration_terms([e for e in effect_ids if e not in G_SENSITIVITY_IDS])
     # the steps a person waits for: reading each file, its dwells, each fit of the calibration, the gyro stage
     bar = Progress(total=2 * len(args.data) + 1 + len(effects) + 1, label="calibrate device")
     datasets, per_file, summaries = _read(args.data, layouts, bar)  # each file summarized once (the gyro stage reuses them)
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     text = calibration.report() + _gyro_text(gyro) + "\n\n== calibration record (what the certificate shows) ==\n" + record.report()
     _write_all_or_nothing(record, args.out, text, args.report)
     note(f"calibration record written to {args.out}" + (f", report to {args.report}" if args.report is not None else ""))
-    steps = next_steps(args, record)
+    steps = device_next_steps(args, record)
     result = {
         "record": str(args.out),
         "stages": ["coarse"] + (["fine"] if calibration.fine is not None else []),
@@ -255,9 +255,9 @@ def _effect_ids(args: argparse.Namespace, coarse_procedure, fine_procedure) -> l
 
 def _gyro_text(gyro) -> str:
     """Return the gyro stage's report, as a paragraph of the console text ("" without the stage)."""
-    from stableins.estimators.gyro_sensitivity import report
+    from stableins.estimators.gyro_sensitivity import gyro_report
 
-    return "" if gyro is None else "\n\n" + report(gyro)
+    return "" if gyro is None else "\n\n" + gyro_report(gyro)
 
 
 def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list[str], *, summaries=None):
@@ -268,7 +268,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     summaries, already made for the device stages.
     """
     from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, GYRO_G_TERMS
-    from stableins.errors import InputError
+    from stableins.errors import InputError, NotDeterminedError
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets
     from stableins.output import note
 
@@ -280,6 +280,8 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
         fit = gyro_from_datasets(datasets, layouts=layouts, zero_offsets=[values[g] for g in GIMBAL_IDS], terms=terms, summaries=summaries)
     except InputError:
         raise  # bad input is refused, not skipped
+    except NotDeterminedError:
+        raise  # a described error passes through as it is (issue 29)
     except ValueError as error:
         note(f"stableins: gyro stage skipped: {error}")
         return record, None
@@ -333,7 +335,7 @@ def gyro_document(fit) -> dict:
     }
 
 
-def next_steps(args: argparse.Namespace, record) -> list[str]:
+def device_next_steps(args: argparse.Namespace, record) -> list[str]:
     """Return what to do next with a device-level record, as commands that run as written.
 
     First ask whether the model misses an effect (``stableins diagnose``); then the system stage on a static record

@@ -35,7 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_entries_option(parser)
 
 
-def data_file(run: str) -> Path:
+def drift_record_file(run: str) -> Path:
     """Return the system-level record of RUN: ``RUN/system.h5`` for a run directory, else RUN itself."""
     from stableins.procedures.rundir import SYSTEM_NAME
 
@@ -45,12 +45,12 @@ def data_file(run: str) -> Path:
 def run(args: Any) -> int:
     """Estimate the drift, update the prior record, write it, print the report."""
     from stableins.data.system import open_system_record
-    from stableins.estimators.drift import DriftDetails, drift_from_record, report
+    from stableins.estimators.drift import DriftDetails, drift_from_record, drift_report
     from stableins.output import emit
     from stableins.records import CalibrationRecord
 
     prior = CalibrationRecord.load(args.prior)
-    source = data_file(args.run)
+    source = drift_record_file(args.run)
     record = open_system_record(source)
     record.validate()  # the validation 'stableins check' runs, before any estimate (a row of inf, time going back)
     check_same_unit(record.metadata, prior, args.prior)
@@ -78,7 +78,7 @@ def run(args: Any) -> int:
             if p.id.startswith("gyro_drift_")
         ],
     }
-    emit(args, data, text="\n".join([report(fit), "", updated.report(), "", f"updated calibration written to {args.out}"]))
+    emit(args, data, text="\n".join([drift_report(fit), "", updated.report(), "", f"updated calibration written to {args.out}"]))
     return 0
 
 

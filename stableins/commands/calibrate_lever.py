@@ -20,7 +20,7 @@ from stableins.commands import add_entries_option, add_new_calibration_option, c
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``stableins calibrate lever``."""
-    from stableins.commands.arguments import number, output_file
+    from stableins.commands.arguments import output_file, real
 
     parser.add_argument("run", metavar="RUN", help="run directory of device-rotating (or its device.h5)")
     parser.add_argument(
@@ -34,13 +34,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--no-asynchrony", action="store_true", help="hold the time asynchrony t_async at zero instead of estimating it"
     )
     parser.add_argument(
-        "--window", type=number(0.05, 5.0, unit="seconds"), default=0.5, help="window of the means [s], 0.05 to 5 (default 0.5)"
+        "--window", type=real(0.05, 5.0, unit="seconds"), default=0.5, help="window of the means [s], 0.05 to 5 (default 0.5)"
     )
     add_new_calibration_option(parser)
     add_entries_option(parser)
 
 
-def data_file(run: str) -> Path:
+def lever_data_file(run: str) -> Path:
     """Return the device data set of RUN: ``RUN/device.h5`` for a run directory, else RUN itself."""
     from stableins.procedures.rundir import DATASET_NAME
 
@@ -55,12 +55,12 @@ def data_file(run: str) -> Path:
 def run(args: Any) -> int:
     """Estimate the lever arms and τ, update the prior record, write it, print the report."""
     from stableins.data.device import load_device
-    from stableins.estimators.lever import LeverDetails, LeverOptions, LeverSet, lever_from_dataset, report
+    from stableins.estimators.lever import LeverDetails, LeverOptions, LeverSet, lever_from_dataset, lever_report
     from stableins.output import emit
     from stableins.records import CalibrationRecord
 
     prior = CalibrationRecord.load(args.prior)
-    source = data_file(args.run)
+    source = lever_data_file(args.run)
     dataset = load_device(source)
     check_same_unit(dataset.metadata, prior, args.prior)
     options = LeverOptions(
@@ -86,7 +86,7 @@ def run(args: Any) -> int:
             if p.id in ids
         ],
     }
-    emit(args, data, text="\n".join([report(fit), "", updated.report(), "", f"updated calibration written to {args.out}"]))
+    emit(args, data, text="\n".join([lever_report(fit), "", updated.report(), "", f"updated calibration written to {args.out}"]))
     return 0
 
 

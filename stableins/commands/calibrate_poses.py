@@ -20,7 +20,7 @@ from pathlib import Path
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate poses`` to ``parser``."""
-    from stableins.commands.arguments import input_file, number, output_file, png_file
+    from stableins.commands.arguments import input_file, output_file, png_file, real
     from stableins.commands.noise import add_noise_options
 
     parser.add_argument("log", type=input_file, metavar="LOG", help="the log: CSV (any delimiter, header optional) or HDF5")
@@ -46,25 +46,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="unit of the time column (default s; samples: a counter at --rate; iso: ISO 8601)",
     )
     parser.add_argument(
-        "--rate", type=number(0.0, 1e7, above=True, unit="Hz"), metavar="HZ", help="sample rate, when the log has no time column"
+        "--rate", type=real(0.0, 1e7, above=True, unit="Hz"), metavar="HZ", help="sample rate, when the log has no time column"
     )
     parser.add_argument(
-        "--gravity", type=number(9.7, 9.9, unit="m/s^2"), metavar="G", help="local gravity [m/s^2] (default 9.80665, stated)"
+        "--gravity", type=real(9.7, 9.9, unit="m/s^2"), metavar="G", help="local gravity [m/s^2] (default 9.80665, stated)"
     )
     parser.add_argument("--serial", metavar="SN", help="serial number of the unit (default: the log's file name)")
     parser.add_argument(
         "--window",
-        type=number(0.0, 60.0, above=True, unit="s"),
+        type=real(0.0, 60.0, above=True, unit="s"),
         default=0.5,
         metavar="S",
         help="hold detection: test window [s] (default 0.5)",
     )
     parser.add_argument(
-        "--min-hold", type=number(0.0, 3600.0, above=True, unit="s"), default=1.5, metavar="S", help="shortest hold kept [s] (default 1.5)"
+        "--min-hold", type=real(0.0, 3600.0, above=True, unit="s"), default=1.5, metavar="S", help="shortest hold kept [s] (default 1.5)"
     )
     parser.add_argument(
         "--false-split",
-        type=number(0.0, 0.5, above=True),
+        type=real(0.0, 0.5, above=True),
         default=1e-6,
         metavar="ALPHA",
         help="probability that a static window is taken for motion (default 1e-6)",

@@ -26,14 +26,14 @@ from stableins.status import Status
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins calibrate system`` to ``parser``."""
-    from stableins.commands.arguments import integer, number, output_file, png_file
+    from stableins.commands.arguments import integer, output_file, png_file, real
 
     parser.add_argument("record", metavar="RECORD", help="system-level record (.h5, or .csv for short records)")
     parser.add_argument("--prior", required=True, metavar="CAL.json", help="calibration record the INS compensated the record with")
     parser.add_argument("--out", required=True, type=output_file, metavar="CAL2.json", help="updated calibration record to write")
     parser.add_argument(
         "--case-rotation-period",
-        type=number(60.0, 3600.0, unit="seconds", or_zero=True),
+        type=real(60.0, 3600.0, unit="seconds", or_zero=True),
         default=480.0,
         metavar="SECONDS",
         help="period of the gyro case-rotation residual fitted as a nuisance, 60 to 3600 s (default 480 s; 0 leaves it out)",
@@ -60,7 +60,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--thermal-prior",
-        type=number(1e-6, 1e6),
+        type=real(1e-6, 1e6),
         nargs=2,
         metavar=("UG_PER_K", "PPM_PER_K"),
         help=(
@@ -71,7 +71,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--gyro-drift",
-        type=number(-100.0, 100.0, unit="deg/h"),
+        type=real(-100.0, 100.0, unit="deg/h"),
         nargs=3,
         metavar=("X", "Y", "Z"),
         help=(
@@ -83,7 +83,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--gyro-drift-uncertainty",
-        type=number(0.0, 100.0, unit="deg/h"),
+        type=real(0.0, 100.0, unit="deg/h"),
         metavar="U",
         help=(
             "standard uncertainty of the gyro drift per platform axis [deg/h] (of the value given, or of zero when none is given), "
@@ -161,7 +161,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
     from stableins.output import emit, note
-    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord, InputFile, PriorReference, data_times, file_sha256, parse_entries
 
     prior = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
@@ -171,10 +171,15 @@ def run(args: Any) -> int:
     options = _options(args)
     entries = parse_entries(args.set)
     noise, _ = system_noise_prior(args, default=prior.noise_model)
-    with warnings.catch_warnings(record=True) as caught:
+    from concurrent.futures import ThreadPoolExecutor
+
+    # issue 30: the record's SHA-256 is computed in a thread while the pass reads the file (both from the page cache,
+    # the hash releasing the interpreter), and the validation 'stableins check' runs is made inside the pass
+    with ThreadPoolExecutor(max_workers=1) as hashing, warnings.catch_warnings(record=True) as caught:
+        digest = hashing.submit(file_sha256, args.record)
         warnings.simplefilter("always")
-        record.validate(allow_gaps=args.allow_gaps)  # the validation 'stableins check' runs: the two never disagree
-        outcome = _stage(record, values, covariance, options, terms=record_terms(prior.ids), noise=noise)
+        outcome = _stage(record, values, covariance, options, terms=record_terms(prior.ids), noise=noise, allow_gaps=args.allow_gaps)
+        data_file = InputFile(str(args.record), digest.result())
     for w in caught:
         note(f"stableins: warning: {flag_text(str(w.message))}")
     start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
@@ -187,7 +192,7 @@ def run(args: Any) -> int:
         procedure=str(record.metadata.extra.get("procedure", "system-static")),
         calibration_entries=entries,
         site=record.metadata,
-        inputs=[args.record],
+        inputs=[data_file],
         data_start=start,
         data_end=end,
         sample_rate=record.sample_rate,
@@ -204,7 +209,7 @@ def run(args: Any) -> int:
     certificate = Path(args.out).with_name(f"{Path(args.out).stem}-report.pdf")
     command = shlex.join(["stableins", "report", str(args.out), "--data", str(args.record), "--out", str(certificate)])
     data["next"] = [command]
-    emit(args, data, text=flag_text(report(outcome, updated, str(args.out))))
+    emit(args, data, text=flag_text(system_report(outcome, updated, str(args.out))))
     import sys
 
     sys.stdout.flush()  # the next step is the last line, not scrolled away above the report
@@ -212,18 +217,21 @@ def run(args: Any) -> int:
     return 0
 
 
-def _stage(record: Any, values: Any, covariance: Any, options: Any, *, terms: Any, noise: Any) -> Any:
+def _stage(record: Any, values: Any, covariance: Any, options: Any, *, terms: Any, noise: Any, allow_gaps: bool) -> Any:
     """Return the system stage's outcome on ``record`` with its Type B sensitivities, a progress bar over the one pass.
 
-    The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) is made once: the stage and every
-    re-run of the sensitivities start from its sums (issue 30).
+    The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) is made once: it validates the
+    record as it reads it (:meth:`~stableins.data.system.SystemRecord.validating`: what ``stableins check`` runs, the
+    two never disagree; a problem raises before anything is written), and the stage and every re-run of the
+    sensitivities start from its sums (issue 30).
     """
     from stableins.estimators.system.sensitivity import with_sensitivities
     from stableins.estimators.system.stage import record_sums, run_system_stage
     from stableins.progress import CountedSource, Progress
 
+    source = record.validating(allow_gaps=allow_gaps)
     with Progress(total=record.n_samples, label="system stage: one pass over the record") as bar:
-        sums = record_sums(CountedSource(record, bar), record.metadata, values, options, compensation_terms=terms)
+        sums = record_sums(CountedSource(source, bar), record.metadata, values, options, compensation_terms=terms)
     outcome = run_system_stage(
         record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums
     )
@@ -317,7 +325,7 @@ def flag_text(text: str) -> str:
     return text
 
 
-def report(outcome: Any, record: Any, out: str) -> str:
+def system_report(outcome: Any, record: Any, out: str) -> str:
     """Text report: combined coefficients, the stage's fit, and the record written (its statuses and σ, as in the PDF)."""
     c = outcome.combined
     r = outcome.result

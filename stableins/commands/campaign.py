@@ -13,7 +13,7 @@ import time
 
 from stableins.commands.arguments import input_file, integer, output_directory
 
-HELP = "Monte Carlo campaign of simulated calibrations on Dask (seeds × procedures × noise models × hidden effects)"
+_HELP = "Monte Carlo campaign of simulated calibrations on Dask (seeds × procedures × noise models × hidden effects)"
 
 
 def scheduler_address(text: str) -> str:
@@ -33,7 +33,7 @@ def scheduler_address(text: str) -> str:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins campaign`` to ``parser``."""
-    parser.description = HELP
+    parser.description = _HELP
     parser.add_argument("config", metavar="CONFIG", type=input_file, help="campaign file (TOML, docs/campaigns.md)")
     parser.add_argument(
         "--out", type=output_directory, required=True, metavar="DIR", help="results directory (resumed when it holds the campaign)"

@@ -46,7 +46,7 @@ PDF_MAGIC, PNG_MAGIC, HDF5_MAGIC, SQLITE_MAGIC = b"%PDF-", b"\x89PNG\r\n\x1a\n",
 MAX_WHOLE_FILE = 256 << 20
 
 
-def summarize(path: str, *, allow_gaps: bool = False, trust: tuple[str, ...] = ()) -> dict[str, Any]:
+def describe_file(path: str, *, allow_gaps: bool = False, trust: tuple[str, ...] = ()) -> dict[str, Any]:
     """Recognize and validate one file and describe it (raises InputError naming the file, the field and what was expected)."""
     from stableins.procedures.journal import FILE_MAGIC
 
@@ -396,7 +396,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stableins check``: validate every file and print what each holds; exit 2 when one is not valid."""
     from stableins.output import emit
 
-    summaries = [summarize(path, allow_gaps=args.allow_gaps, trust=tuple(args.trust)) for path in args.files]
+    summaries = [describe_file(path, allow_gaps=args.allow_gaps, trust=tuple(args.trust)) for path in args.files]
     lines = []
     for s in summaries:
         details = ", ".join(f"{k} {v}" for k, v in s.items() if k not in ("file", "kind", "warnings"))

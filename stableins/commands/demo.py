@@ -38,7 +38,7 @@ MAX_ROUNDS = 3
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins demo`` to ``parser``."""
-    from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, output_directory, real, seed
     from stableins.commands.simulate import parse_duration
 
     parser.add_argument(
@@ -59,7 +59,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--rate",
-        type=number(0.0, 10000.0, above=True, unit="Hz"),
+        type=real(0.0, 10000.0, above=True, unit="Hz"),
         default=10.0,
         metavar="HZ",
         help="system-level sample rate [Hz] (default 10)",

@@ -15,10 +15,10 @@ import math
 from pathlib import Path
 from typing import Any
 
-from stableins.commands.arguments import file_stem, integer, number, output_directory
+from stableins.commands.arguments import file_stem, integer, output_directory, real
 from stableins.commands.noise import add_noise_options
 
-HELP = "expected σ of a procedure before the platform moves; dwells and positions for σ targets or a time budget"
+_HELP = "expected σ of a procedure before the platform moves; dwells and positions for σ targets or a time budget"
 
 
 def _target(text: str) -> tuple[str, float]:
@@ -35,28 +35,28 @@ def _target(text: str) -> tuple[str, float]:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins design`` to ``parser``."""
-    parser.description = __doc__.split("\n\n")[1].replace("\n", " ") if __doc__ else HELP
+    parser.description = __doc__.split("\n\n")[1].replace("\n", " ") if __doc__ else _HELP
     parser.add_argument("procedure", metavar="PROCEDURE", help="coarse procedure: a shipped name (device-coarse) or a TOML file")
     parser.add_argument("--fine", metavar="FINE", help="fine procedure run after the coarse passes (e.g. device-fine)")
     parser.add_argument("--passes", type=integer(1, 20), default=2, help="coarse passes (the zero-offset iteration; default 2)")
-    parser.add_argument("--sample-rate", type=number(0.0, 1e4, above=True, unit="Hz"), metavar="HZ", help="sample rate of every dwell")
+    parser.add_argument("--sample-rate", type=real(0.0, 1e4, above=True, unit="Hz"), metavar="HZ", help="sample rate of every dwell")
     add_noise_options(parser)
     parser.add_argument(
         "--white",
-        type=number(0.0, 1.0, above=True, unit="m/s/sqrt(s)"),
+        type=real(0.0, 1.0, above=True, unit="m/s/sqrt(s)"),
         metavar="N",
         help="white noise N [m/s/sqrt(s)] of the datasheet (with --bias-instability, --random-walk); --noise CAL.json gives all",
     )
-    parser.add_argument("--quantization", type=number(0.0, 1.0, unit="m/s"), default=0.0, metavar="Q", help="velocity quantum [m/s]")
+    parser.add_argument("--quantization", type=real(0.0, 1.0, unit="m/s"), default=0.0, metavar="Q", help="velocity quantum [m/s]")
     goal = parser.add_mutually_exclusive_group()
     goal.add_argument("--target", type=_target, action="append", default=[], metavar="ID=SIGMA", help="1σ target [engineering unit]")
     goal.add_argument("--match", action="store_true", help="targets: this procedure's own σ on every parameter (least time for it)")
-    goal.add_argument("--budget", type=number(0.0, 1e7, above=True, unit="h"), metavar="HOURS", help="lab-time budget [h]")
+    goal.add_argument("--budget", type=real(0.0, 1e7, above=True, unit="h"), metavar="HOURS", help="lab-time budget [h]")
     parser.add_argument("--criterion", choices=("A", "D"), help="optimality criterion with --budget (default A)")
-    parser.add_argument("--grid", type=number(1.0, 90.0, unit="deg"), metavar="DEG", help="also choose positions from a grid of this step")
-    parser.add_argument("--min-dwell", type=number(0.1, 86400.0, unit="s"), default=5.0, metavar="S", help="shortest dwell (default 5 s)")
+    parser.add_argument("--grid", type=real(1.0, 90.0, unit="deg"), metavar="DEG", help="also choose positions from a grid of this step")
+    parser.add_argument("--min-dwell", type=real(0.1, 86400.0, unit="s"), default=5.0, metavar="S", help="shortest dwell (default 5 s)")
     parser.add_argument(
-        "--max-dwell", type=number(1.0, 86400.0, unit="s"), default=3600.0, metavar="S", help="longest dwell (default 3600 s)"
+        "--max-dwell", type=real(1.0, 86400.0, unit="s"), default=3600.0, metavar="S", help="longest dwell (default 3600 s)"
     )
     parser.add_argument(
         "--out", type=output_directory, metavar="DIR", help="write the designed procedures here (NAME-coarse.toml, NAME-fine.toml)"

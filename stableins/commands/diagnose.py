@@ -36,18 +36,18 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins diagnose``."""
-    from stableins.commands.arguments import integer, number, output_directory
+    from stableins.commands.arguments import integer, output_directory, real
 
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="device-level data files or one system record (CSV or HDF5)")
     parser.add_argument(
-        "--bin", type=number(1.0, 86400.0, unit="seconds"), default=60.0, metavar="S", help="system records: bin length [s] (default 60)"
+        "--bin", type=real(1.0, 86400.0, unit="seconds"), default=60.0, metavar="S", help="system records: bin length [s] (default 60)"
     )
     parser.add_argument("--record", type=Path, required=True, metavar="CAL.json", help="calibration record to start from")
     parser.add_argument("--add", action="append", default=[], metavar="ID", help="add this effect and refit (repeatable, in order)")
     parser.add_argument("--stage", choices=("coarse", "fine"), help="which dwells to use (default: fine if present, else coarse)")
     parser.add_argument(
         "--alpha",
-        type=number(0.0, 0.5, above=True),
+        type=real(0.0, 0.5, above=True),
         default=0.025,
         help="family-wise false-alarm level for flagging candidates, in (0, 0.5] (default 0.025: with the χ² verdict's 0.5 %%, "
         "a clean session raises an alarm 3 %% of the time)",
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                 note(f"drift analysis: {line}")
     if args.plots is not None:
         _write_plots(args.plots, result.figures())
-    steps = next_steps(args, report.next_step)
+    steps = diagnosis_next_steps(args, report.next_step)
     if args.json:
         for line in steps:
             note(line)
@@ -154,7 +154,7 @@ def _write_plots(directory: Path, figures: dict[str, Figure]) -> None:
     note(f"plots written to {directory}")
 
 
-def next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
+def diagnosis_next_steps(args: argparse.Namespace, step: NextStep) -> list[str]:
     """Word the next step of a diagnosis and give it as a command that runs as written.
 
     Carry the best flagged effect into the calibration, look at an effect a calibration cannot carry, say that the

@@ -32,7 +32,7 @@ PLOT_FORMATS = ("png", "pdf", "svg")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins history`` to ``parser``."""
-    from stableins.commands.arguments import number, output_file
+    from stableins.commands.arguments import output_file, real
 
     parser.add_argument("serial", nargs="?", metavar="SERIAL", help="unit serial number (omit with --fleet or --verify)")
     parser.add_argument(
@@ -44,7 +44,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--at", metavar="DATE", help="which record was in force at this ISO 8601 date (default: now)")
     parser.add_argument(
         "--max-age",
-        type=number(0.0, 36525.0, unit="days"),
+        type=real(0.0, 36525.0, unit="days"),
         default=180.0,
         metavar="DAYS",
         help="older records in force are stale, 0 to 36525 days (default 180)",

@@ -31,7 +31,7 @@ BLOCK_SECONDS = 1.0
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins noise`` to ``parser``."""
     parser.add_argument("data", nargs="+", type=Path, metavar="DATA", help="a static (system-level) record, or device-level files")
-    from stableins.commands.arguments import input_file, number, output_file, png_file
+    from stableins.commands.arguments import input_file, output_file, png_file, real
 
     parser.add_argument("--record", type=input_file, metavar="CAL.json", help="calibration record to copy with the measured noise model")
     parser.add_argument(
@@ -39,14 +39,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--plot", type=png_file, metavar="PNG", help="plot the Allan deviation with the fitted model and its bounds")
     parser.add_argument(
-        "--confidence", type=number(0.5, 1.0, above=True), default=0.95, help="confidence level of the intervals (default 0.95)"
+        "--confidence", type=real(0.5, 1.0, above=True), default=0.95, help="confidence level of the intervals (default 0.95)"
     )
 
 
 # ----------------------------------------------------------------------------- shared options
 def add_noise_options(parser: argparse.ArgumentParser) -> None:
     """``--noise CAL.json``, ``--bias-instability UG``, ``--random-walk K`` (calibrate device and system, diagnose)."""
-    from stableins.commands.arguments import input_file, number
+    from stableins.commands.arguments import input_file, real
 
     parser.add_argument(
         "--noise",
@@ -56,13 +56,13 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--bias-instability",
-        type=number(0.0, 1e5, unit="µg"),
+        type=real(0.0, 1e5, unit="µg"),
         metavar="UG",
         help="instrument bias instability B [ug] (Allan floor 0.664 B) from a datasheet; white noise is measured in the dwells",
     )
     parser.add_argument(
         "--random-walk",
-        type=number(0.0, 1.0, unit="m/s^2/sqrt(s)"),
+        type=real(0.0, 1.0, unit="m/s^2/sqrt(s)"),
         metavar="K",
         help="acceleration random walk K [m/s^2/sqrt(s)] from a datasheet",
     )

@@ -19,21 +19,21 @@ import math
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins protocol-check`` to ``parser``."""
-    from stableins.commands.arguments import number
+    from stableins.commands.arguments import real
 
     parser.add_argument("address", metavar="tcp://HOST:PORT", help="the controller to check")
     parser.add_argument(
         "--envelope",
-        type=number(0.0, 90.0, above=True, unit="degrees"),
+        type=real(0.0, 90.0, above=True, unit="degrees"),
         required=True,
         metavar="DEG",
         help="the gimbals move at most this far from where they are found [deg] (half of it about the inner axis, then back)",
     )
     parser.add_argument(
-        "--timeout", type=number(0.1, 3600.0, unit="seconds"), default=10.0, help="longest silence accepted [s] (default 10)"
+        "--timeout", type=real(0.1, 3600.0, unit="seconds"), default=10.0, help="longest silence accepted [s] (default 10)"
     )
     parser.add_argument(
-        "--duration", type=number(0.05, 60.0, unit="seconds"), default=0.5, help="length of the test acquisitions [s] (default 0.5)"
+        "--duration", type=real(0.05, 60.0, unit="seconds"), default=0.5, help="length of the test acquisitions [s] (default 0.5)"
     )
 
 

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 
 #: Who the certificate names (ISO/IEC 17025 7.8.2.1), as recal asks for them: the operator every time, the laboratory
 #: and the customer when the record in force names none.
-IDENTIFICATION = {
+RECAL_IDENTIFICATION = {
     "operator": "Operator (the person performing this recalibration)",
     "laboratory": "Laboratory (the calibration laboratory issuing the certificate)",
     "customer": "Customer (for whom the unit is calibrated)",
@@ -51,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     run_command.configure(parser)
     parser.add_argument("--estimate", metavar="RECORD", help="a record of new data whose own stages update the record in force")
     parser.add_argument("--no-file", action="store_true", help="do not file the new record in the history store")
-    for key, text in IDENTIFICATION.items():
+    for key, text in RECAL_IDENTIFICATION.items():
         parser.add_argument(
             f"--{key}", metavar="NAME", help=f"{text.lower()} (asked when not given; without all three the certificate is a DRAFT)"
         )
@@ -165,7 +165,7 @@ def _estimate_record(args: argparse.Namespace, prior, prior_path: Path, out: Pat
 
     given = parse_settings(args.set)
     record = apply_estimate(prior, prior_path, Path(args.estimate))
-    record = record.with_entries(parse_entries(f"{k}={given[k]}" for k in IDENTIFICATION if given.get(k)))
+    record = record.with_entries(parse_entries(f"{k}={given[k]}" for k in RECAL_IDENTIFICATION if given.get(k)))
     record_path = record.save(out / "record.json")
     summary = write_report(out / "report.pdf", record_path, previous=prior_path)
     note("statement of conformity of the certificate:\n" + "\n".join(f"  {line}" for line in summary.conformity))
@@ -186,9 +186,9 @@ def identification_entries(args: argparse.Namespace, prior) -> list[str]:
     from stableins.reporting.context import entry_text
 
     given = parse_settings(args.set)
-    console = Console(yes=args.yes, values={k: v for k, v in given.items() if k in IDENTIFICATION}, quiet=args.quiet)
+    console = Console(yes=args.yes, values={k: v for k, v in given.items() if k in RECAL_IDENTIFICATION}, quiet=args.quiet)
     out = []
-    for key, prompt in IDENTIFICATION.items():
+    for key, prompt in RECAL_IDENTIFICATION.items():
         flag = getattr(args, key, None)
         carried = entry_text(prior, key) if key != "operator" and key not in given else None
         if flag:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "write the PDF calibration report of a calibration record"
+_HELP = "write the PDF calibration report of a calibration record"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -28,12 +28,16 @@ if TYPE_CHECKING:
     from stableins.console import Console
     from stableins.procedures.rundir import RunOutcome
 
+#: Exit status of a run that stopped and can be resumed (2 is bad input, 4 data that do not determine what was asked:
+#: :mod:`stableins.cli`); defined here only, the command that returns it.
 EXIT_STOPPED = 3
+#: ``--timeout`` when none is given: the longest silence accepted from a network platform [s].
+NETWORK_TIMEOUT = 10.0
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins run`` to ``parser``."""
-    from stableins.commands.arguments import effect_magnitude, input_file, integer, number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, input_file, integer, output_directory, real, seed
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
     parser.add_argument("procedure", nargs="?", metavar="PROCEDURE", help="procedure name, .toml definition or .json plan")
@@ -78,7 +82,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--chunk",
-        type=number(*CHUNK_RANGE, unit="seconds"),
+        type=real(*CHUNK_RANGE, unit="seconds"),
         help=f"journal dwells in pieces of at most this many seconds, {CHUNK_RANGE[0]:g} to {CHUNK_RANGE[1]:g} (default: the procedure's)",
     )
     parser.add_argument(
@@ -86,11 +90,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--timeout",
-        type=number(0.1, 3600.0, unit="seconds"),
-        default=10.0,
-        help="network driver: longest silence accepted [s], 0.1 to 3600 (default 10)",
+        type=real(0.1, 3600.0, unit="seconds"),
+        help=f"network driver: longest silence accepted [s], 0.1 to 3600 (default {NETWORK_TIMEOUT:g}); refused with another driver",
     )
     parser.add_argument("--quiet", action="store_true", help="say nothing but errors")
+
+
+def network_timeout(args: argparse.Namespace) -> float:
+    """Return ``--timeout`` (default :data:`NETWORK_TIMEOUT`): the silence a network platform may keep.
+
+    The simulated and the replayed platforms never wait, so there it would be ignored: refused instead (issue 31).
+    """
+    from stableins.errors import InputError
+
+    if args.timeout is None:
+        return NETWORK_TIMEOUT
+    if args.driver and not str(args.driver).startswith("tcp://"):
+        raise InputError(
+            f"--timeout is the silence a network platform may keep; the {args.driver} platform does not wait",
+            field="--timeout",
+            expected="--driver tcp://HOST:PORT with --timeout, or no --timeout",
+        )
+    return float(args.timeout)
 
 
 def parse_settings(items: list[str]) -> dict[str, str]:
@@ -285,7 +306,8 @@ def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
             raise InputError(
                 "--resume continues a run as it was started", field="--resume", expected="no PROCEDURE, --out, --truth or --hidden"
             )
-        return resume_run(args.resume, console=console, driver_spec=args.driver, timeout=args.timeout, re_estimate=args.re_estimate)
+        timeout = network_timeout(args)
+        return resume_run(args.resume, console=console, driver_spec=args.driver, timeout=timeout, re_estimate=args.re_estimate)
     missing = [name for name, value in (("PROCEDURE", args.procedure), ("--driver", args.driver), ("--out", args.out)) if not value]
     if missing:
         raise InputError(
@@ -306,7 +328,7 @@ def _start_or_resume(args: argparse.Namespace, console: Console) -> RunOutcome:
             new_calibration=bool(args.new_calibration or (args.store and not args.prior)),
             fields=parse_settings(args.set),
             options=RunOptions(link_failures=args.link_failures),
-            timeout=args.timeout,
+            timeout=network_timeout(args),
             recal=getattr(args, "recal", None),
             truth=truth,
         ),

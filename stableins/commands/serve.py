@@ -17,12 +17,17 @@ import os
 
 #: Where a token comes from when no --token-file is given.
 TOKEN_ENV = "STABLEINS_SERVE_TOKEN"
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+#: A server: it prints its address and serves until stopped, so the CLI adds no ``--json`` (no result document) and
+#: no ``--quiet`` of progress bars (it draws none); given, they are refused as unknown options (issue 31).
+SERVER = True
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins serve`` to ``parser``."""
-    from stableins.commands.arguments import input_file, integer, number
+    from stableins.commands.arguments import input_file, integer, real
 
     parser.add_argument(
         "--store",
@@ -34,7 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; any other needs a token)")
     parser.add_argument("--port", type=integer(0, 65535), default=8000, help="TCP port (default 8000; 0: any free port)")
     parser.add_argument("--token-file", type=input_file, metavar="FILE", help=f"the token every request must carry (default ${TOKEN_ENV})")
-    parser.add_argument("--rate", type=number(0.0, 10000.0, above=True), default=20.0, help="requests per second per client (default 20)")
+    parser.add_argument("--rate", type=real(0.0, 10000.0, above=True), default=20.0, help="requests per second per client (default 20)")
     parser.add_argument("--burst", type=integer(1, 100000), default=60, help="requests at once per client (default 60)")
     parser.add_argument("--secure-cookie", action="store_true", help="mark the token cookie Secure (behind an HTTPS reverse proxy)")
 
@@ -55,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.web.security import Limits
 
     token = _token(args)
-    if args.host not in LOOPBACK and token is None:
+    if args.host not in LOOPBACK_HOSTS and token is None:
         raise InputError(
             f"bound to {args.host} the server is reachable from other machines: it needs a token",
             field="--host",

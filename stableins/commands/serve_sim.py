@@ -9,21 +9,25 @@ from __future__ import annotations
 import argparse
 import sys
 
+#: A server: it prints its address and serves until stopped, so the CLI adds no ``--json`` (no result document) and
+#: no ``--quiet`` of progress bars (it draws none); given, they are refused as unknown options (issue 31).
+SERVER = True
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins serve-sim`` to ``parser``."""
-    from stableins.commands.arguments import input_file, integer, number, seed
+    from stableins.commands.arguments import input_file, integer, real, seed
 
     parser.add_argument("--port", type=integer(0, 65535), required=True, help="TCP port on 127.0.0.1 (0: any free port)")
     parser.add_argument("--seed", type=seed, help="seed of the simulated truth and noise (default 0, or the --truth file's)")
     parser.add_argument("--unit", help="serial number the simulated unit reports")
-    parser.add_argument("--rate", type=number(0.0, 10000.0, above=True, unit="Hz"), help="sample rate [Hz] (default: the simulator's)")
+    parser.add_argument("--rate", type=real(0.0, 10000.0, above=True, unit="Hz"), help="sample rate [Hz] (default: the simulator's)")
     parser.add_argument(
         "--connections", type=integer(1, 10**9), help="stop after this many client connections (default: serve until interrupted)"
     )
     parser.add_argument(
         "--realtime",
-        type=number(0.0, 1000.0),
+        type=real(0.0, 1000.0),
         default=0.0,
         metavar="FACTOR",
         help="stream samples at FACTOR x real time (1: like hardware; 0: at once)",

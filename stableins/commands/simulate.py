@@ -82,7 +82,7 @@ def levels() -> tuple[str, ...]:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins simulate`` to ``parser``."""
-    from stableins.commands.arguments import effect_magnitude, number, output_directory, seed
+    from stableins.commands.arguments import effect_magnitude, output_directory, real, seed
 
     parser.add_argument("level", nargs="?", choices=levels(), help="device-level dwells or a system-level static record")
     parser.add_argument("--out", type=output_directory, metavar="DIR", help="output directory (created if needed)")
@@ -105,7 +105,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help=f"data format (default: csv for device files under {CSV_ROW_LIMIT} rows, h5 otherwise and for system records)",
     )
     parser.add_argument(
-        "--rate", type=number(0.0, 10000.0, above=True, unit="Hz"), metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)"
+        "--rate", type=real(0.0, 10000.0, above=True, unit="Hz"), metavar="HZ", help="sample rate [Hz] (default: the truth's, 100 Hz)"
     )
     parser.add_argument(
         "--duration",
@@ -121,12 +121,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--dwell",
-        type=number(0.0, 86400.0, above=True, unit="seconds"),
+        type=real(0.0, 86400.0, above=True, unit="seconds"),
         metavar="S",
         help="device: override the procedure's dwell time [s]",
     )
     parser.add_argument(
-        "--settle", type=number(0.0, 86400.0, unit="seconds"), metavar="S", help="device: override the procedure's settling time [s]"
+        "--settle", type=real(0.0, 86400.0, unit="seconds"), metavar="S", help="device: override the procedure's settling time [s]"
     )
     parser.add_argument(
         "--installed",
@@ -243,7 +243,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         save_truth(truth, truth_path)  # first: every data file in DIR has its truth beside it
         note(f"truth written to {truth_path}")
-        files = simulate_device(truth, out, seed, args, procedures) if args.level == "device" else [simulate_system(truth, out, seed, args)]
+        files = (
+            simulate_device(truth, out, seed, args, procedures)
+            if args.level == "device"
+            else [simulate_system_file(truth, out, seed, args)]
+        )
     except BaseException:  # nothing left behind: the files this run created go (what was there stays)
         for path in set(out.iterdir()) - before:
             if path.is_file():
@@ -390,7 +394,7 @@ def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int)
     return sessions
 
 
-def simulate_system(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+def simulate_system_file(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     """``system.<format>``, streamed chunk by chunk."""
     from dataclasses import replace
 

@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from numpy.typing import NDArray
 
 #: Stage names allowed in the ``stage`` column.
-STAGES = ("coarse", "fine", "rotating")
+DEVICE_STAGES = ("coarse", "fine", "rotating")
 CSV_SUFFIXES = (".csv",)
 H5_SUFFIXES = (".h5", ".hdf5", ".hdf")
 
@@ -161,7 +161,7 @@ def check_device_rows(columns: Mapping[str, Any], path: str | None, first_row: i
             raise InputError(f"column has {len(columns[c.name])} rows, 'time' has {n}", path=path, field=c.name, expected=f"{n} rows")
         check_finite(c.name, columns[c.name], path, first_row=first_row)
     stage = columns["stage"]
-    bad = ~np.isin(stage, STAGES)
+    bad = ~np.isin(stage, DEVICE_STAGES)
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError(

@@ -30,7 +30,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from stableins.data.validation import FORMAT_TAGS
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.schema import Column
 
 GROUP = "columns"
@@ -265,6 +265,8 @@ def read_header_attribute(f: Any, path: Any) -> Any:
         header = f.attrs["header"]
     except KeyError:
         raise InputError("no 'header' attribute: not a stableins HDF5 file", path=path, field="header") from None
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except H5_DAMAGE as error:
         raise InputError(f"the 'header' attribute cannot be read ({error}); the file is corrupt", path=path, field="header") from None
     if not isinstance(header, str | bytes):

@@ -23,7 +23,7 @@ from stableins.data.hdf5format import (
     read_header_attribute,
 )
 from stableins.data.validation import check_finite, check_header_document, match_columns
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.schema import Column
 
 
@@ -68,6 +68,8 @@ class H5Reader:
         with self._open() as f:
             try:
                 self._read_structure(f, kind)
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(f"the HDF5 metadata cannot be read ({error}); the file is corrupt", path=self.path) from None
 
@@ -198,13 +200,13 @@ class H5Reader:
         checked against the rows of each chunk.
 
         Numeric columns are read into buffers reused from chunk to chunk (HDF5's chunk cache off, as the system
-        stage reads): the arrays yielded are valid only until the next chunk is requested.
+        stage reads): the arrays yielded are valid only until the next chunk is requested.  Chunks hold ``rows`` rows
+        (the last fewer), whatever the overview's step: the system stage validates in its own pass, at its own chunks.
         """
         import numpy as np
 
         step, grid = self.overview_step, self.time_grid
         names = [c.name for c in self.schema]
-        rows = max(step, rows - rows % step) if step else rows  # chunks start on overview rows
         tolerance = TIME_GRID_TOLERANCE * float(grid[:, 2].min()) if grid is not None else 0.0
         buffers = {c.name: np.empty(min(rows, max(self.rows, 1))) for c in self.schema if c.dtype != "str"}
         work = np.empty(min(rows, max(self.rows, 1)))
@@ -232,9 +234,10 @@ class H5Reader:
                             full[c.name] = values
                     if grid is not None:
                         self._check_grid(full["time"], k, stop, tolerance=tolerance, work=work[:n], index=index[:n])
+                    first = (-k) % step if step else 0  # the chunk's first row that is a multiple of the overview step
                     for name, view_dataset in views.items():
-                        picked = full[name][::step]
-                        view = view_dataset[k // step : k // step + picked.size]
+                        picked = full[name][first::step]
+                        view = view_dataset[(k + first) // step : (k + first) // step + picked.size]
                         bad = np.flatnonzero(view != picked)
                         if bad.size:
                             j = int(bad[0])
@@ -242,11 +245,13 @@ class H5Reader:
                                 f"overview value {float(view[j])!r} differs from the column's row ({float(picked[j])!r}); "
                                 "the file was changed after it was written",
                                 path=self.path,
-                                row=k + j * step + 1,
+                                row=k + first + j * step + 1,
                                 field=f"/{OVERVIEW}/{name}",
                                 expected=f"every {step}-th row of /{GROUP}/{name}",
                             )
                     yield full
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(f"the file cannot be read ({error}); it is truncated or corrupt", path=self.path) from None
 
@@ -307,6 +312,8 @@ class H5Reader:
         for c in self._columns(names):
             try:
                 values = (f[GROUP][c.name] if datasets is None else datasets[c.name])[start:stop]
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(
                     f"rows {start + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=c.name
@@ -409,6 +416,8 @@ class H5Reader:
         end = k + len(values)
         try:
             dataset.read_direct(values, np.s_[k:end], np.s_[0 : end - k])
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except H5_DAMAGE as error:
             raise InputError(
                 f"rows {k + 1}..{end} cannot be read ({error}); the file is truncated or corrupt", path=self.path, field=name
@@ -446,6 +455,8 @@ class _ThinColumn:
             return np.zeros(0, dtype=self.dataset.dtype)
         try:
             return self.dataset[first:stop:step]
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except H5_DAMAGE as error:
             raise InputError(
                 f"rows {first + 1}..{stop} cannot be read ({error}); the file is truncated or corrupt",
@@ -477,6 +488,8 @@ class _OverviewColumn:
             end = min(self.dataset.shape[0], max(b, a + OVERVIEW_WINDOW))
             try:
                 self.window = self.dataset[a:end]
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except H5_DAMAGE as error:
                 raise InputError(
                     f"overview rows {a + 1}..{end} cannot be read ({error}); the file is truncated or corrupt",

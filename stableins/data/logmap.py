@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from stableins.data.rawlog import AXES, UNIT_SPELLINGS, LogLayout, parse_unit
+from stableins.data.rawlog import LOG_UNIT_SPELLINGS, OUTPUT_COLUMNS, LogLayout, parse_unit
 from stableins.errors import InputError
 
 
@@ -55,15 +55,15 @@ def layout_from_options(
         mapping = _pairs(columns or "", "--columns")
     unit_text: Any = units if units is not None else document.get("units")
     if unit_text is None:
-        raise InputError("no unit given for the axes", field="--units", expected=UNIT_SPELLINGS)
+        raise InputError("no unit given for the axes", field="--units", expected=LOG_UNIT_SPELLINGS)
     if isinstance(unit_text, Mapping):
         unit_map = {str(k): str(v) for k, v in unit_text.items()}
     elif "=" in str(unit_text):
         unit_map = _pairs(str(unit_text), "--units")
     else:
-        unit_map = {a: str(unit_text) for a in AXES}
-    parsed = {a: parse_unit(unit_map[a], field_name=f"--units {a}") for a in AXES if a in unit_map}
-    unknown = set(unit_map) - set(AXES)
+        unit_map = {a: str(unit_text) for a in OUTPUT_COLUMNS}
+    parsed = {a: parse_unit(unit_map[a], field_name=f"--units {a}") for a in OUTPUT_COLUMNS if a in unit_map}
+    unknown = set(unit_map) - set(OUTPUT_COLUMNS)
     if unknown:
         raise InputError(f"unknown axis {sorted(unknown)[0]!r}", field="--units", expected="f_x, f_y, f_z")
     zero_value: Any = zero if zero is not None else document.get("zero", 0.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
@@ -10,7 +11,7 @@ from stableins.site import SiteMetadata
 # --------------------------------------------------------------------------- file documents
 #: Units accepted in files for each physical quantity of :class:`SiteMetadata`, with the
 #: factor that converts the file value to SI (the first unit is the one written).
-ANGLE_UNITS: dict[str, float] = {"deg": 0.017453292519943295, "rad": 1.0}
+ANGLE_UNITS: dict[str, float] = {"deg": math.radians(1.0), "rad": 1.0}  # math: this module must not load numpy (conventions does)
 QUANTITY_UNITS: dict[str, dict[str, float]] = {
     "latitude": ANGLE_UNITS,
     "height": {"m": 1.0},

@@ -48,10 +48,10 @@ CHUNK_ROWS = 200_000
 
 #: The fields a layout maps: time, the three axes, an optional temperature.
 FIELDS = ("time", "f_x", "f_y", "f_z", "temperature")
-AXES = ("f_x", "f_y", "f_z")
+OUTPUT_COLUMNS = ("f_x", "f_y", "f_z")
 
 #: The unit spellings :func:`parse_unit` accepts (named in its messages).
-UNIT_SPELLINGS = "m/s2, g, counts:S/g, counts:S/(m/s2), dv:W (W in m/s per pulse)"
+LOG_UNIT_SPELLINGS = "m/s2, g, counts:S/g, counts:S/(m/s2), dv:W (W in m/s per pulse)"
 
 #: Time units of a numeric time column, in seconds (``samples``: a sample counter, at ``rate``).
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "samples": float("nan")}
@@ -86,9 +86,9 @@ class AxisUnit:
 
 
 def parse_unit(text: str, *, field_name: str = "--units", source: str | None = None) -> AxisUnit:
-    """Return the unit ``text`` spells (:data:`UNIT_SPELLINGS`); :class:`InputError` naming ``field_name`` otherwise."""
+    """Return the unit ``text`` spells (:data:`LOG_UNIT_SPELLINGS`); :class:`InputError` naming ``field_name`` otherwise."""
     spelled = text.strip().replace(" ", "").replace("^", "").replace("²", "2")
-    expected = UNIT_SPELLINGS
+    expected = LOG_UNIT_SPELLINGS
     if spelled in ("m/s2", "ms-2"):
         return AxisUnit(UnitKind.SPECIFIC_FORCE, 1.0, text)
     if spelled == "g":
@@ -160,11 +160,11 @@ class LogLayout:
         for name in self.columns:
             if name not in FIELDS:
                 raise InputError(f"unknown field {name!r}", field="--columns", expected=", ".join(FIELDS))
-        for axis in AXES:
+        for axis in OUTPUT_COLUMNS:
             if axis not in self.columns:
                 raise InputError(f"no column given for {axis}", field="--columns", expected=f"{axis}=COLUMN")
             if axis not in self.units:
-                raise InputError(f"no unit given for {axis}", field="--units", expected=UNIT_SPELLINGS)
+                raise InputError(f"no unit given for {axis}", field="--units", expected=LOG_UNIT_SPELLINGS)
         if ("time" not in self.columns or self.time_unit == "samples") and self.rate is None:
             raise InputError(
                 "no time in seconds and no sample rate", field="--rate", expected="time=COLUMN in s, ms, us, ns or iso, or --rate HZ"
@@ -233,7 +233,7 @@ def read_raw_log(path: str | os.PathLike[str], layout: LogLayout) -> RawLog:
     if n < 2:
         raise InputError(f"only {n} samples", path=source, expected="a log of many samples")
     time, start = _time(raw, layout, source, n)
-    counts = np.stack([raw[a] for a in AXES], axis=-1)
+    counts = np.stack([raw[a] for a in OUTPUT_COLUMNS], axis=-1)
     railed = np.zeros(n, dtype=bool)
     if full_scale is not None:
         low = np.array([r[0] for r in full_scale])
@@ -241,7 +241,7 @@ def read_raw_log(path: str | os.PathLike[str], layout: LogLayout) -> RawLog:
         railed = np.any((counts <= low) | (counts >= high), axis=1)
     force = np.empty_like(counts)
     resolution = np.zeros(3)
-    for i, axis in enumerate(AXES):
+    for i, axis in enumerate(OUTPUT_COLUMNS):
         unit = layout.units[axis]
         if unit.kind is UnitKind.PULSES:
             dt = np.diff(time)
@@ -250,7 +250,7 @@ def read_raw_log(path: str | os.PathLike[str], layout: LogLayout) -> RawLog:
         else:
             force[:, i] = (counts[:, i] - layout.zero[i]) * unit.scale
             resolution[i] = unit.scale if unit.kind is UnitKind.COUNTS else 0.0
-    if any(layout.units[a].kind is UnitKind.PULSES for a in AXES):  # the first sample has no interval
+    if any(layout.units[a].kind is UnitKind.PULSES for a in OUTPUT_COLUMNS):  # the first sample has no interval
         time, force, railed = time[1:], force[1:], railed[1:]
         raw = {k: v[1:] for k, v in raw.items()}
     _check_specific_force(force, layout, source)
@@ -263,7 +263,7 @@ def _check_specific_force(force: NDArray[np.float64], layout: LogLayout, source:
     from stableins.schema import column_limits
 
     limits = column_limits()
-    for i, axis in enumerate(AXES):
+    for i, axis in enumerate(OUTPUT_COLUMNS):
         low, high = limits[axis]
         outside = ~((force[:, i] >= low) & (force[:, i] <= high))
         if np.any(outside):
@@ -411,7 +411,7 @@ def _read_hdf5(source: str, layout: LogLayout) -> tuple[dict[str, NDArray[Any]],
             data = dataset[:, int(col)] if col else dataset[()]
             if np.asarray(data).ndim != 1:
                 raise InputError(f"dataset {dataset_path!r} is not one column", path=source, field=name, expected=f"{dataset_path}:COLUMN")
-            if name in AXES:
+            if name in OUTPUT_COLUMNS:
                 ranges.append(
                     (float(np.iinfo(dataset.dtype).min), float(np.iinfo(dataset.dtype).max)) if dataset.dtype.kind in "iu" else None
                 )

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.data.device import CSV_SUFFIXES, H5_SUFFIXES, header_document
+from stableins.data.hdf5format import DEFAULT_CHUNK
 from stableins.data.metadata import metadata_from_document
 from stableins.data.sampling import SamplingChecker, SamplingReport, SamplingWarning
 from stableins.data.validation import check_finite, check_increasing
@@ -23,7 +24,6 @@ from stableins.errors import InputError
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.site import SiteMetadata
 
-DEFAULT_CHUNK = 65536
 #: HDF5 system records carry an ``/overview`` of every column at this period [s] (one row per second): the system
 #: stage reads attitude, velocity and gimbal angles at 1 Hz from it (docs/formats.md).
 OVERVIEW_SECONDS = 1.0
@@ -291,12 +291,28 @@ class SystemRecord:
             The first problem, naming the row and the column (or dataset).
         """
         checker = SamplingChecker(self.sample_rate, self.path, tolerance=tolerance)
-        if self._reader is None:
-            chunks: Iterator[dict[str, Any]] = self.iter_chunks(rows=rows)
-        else:
-            chunks = self._reader.iter_verified(rows)
-        for chunk in chunks:
+        for chunk in self._verified_chunks(rows):
             checker.update(chunk["time"])
+        return self._validation(checker, allow_gaps=allow_gaps)
+
+    def validating(self, *, allow_gaps: bool = False, tolerance: float = 0.01) -> ValidatingRecord:
+        """Return this record as a chunk source that runs :meth:`validate` while it is read (one pass, not two).
+
+        A stage that reads the record once (``calibrate system``) reads it through this source: every chunk is
+        validated before it is handed on, and the time-base verdict is given after the last chunk (before the stage
+        finishes its pass), so the first problem raises :class:`InputError` naming its row and column as
+        :meth:`validate` would, and nothing has been written yet.
+        """
+        return ValidatingRecord(self, allow_gaps=allow_gaps, tolerance=tolerance)
+
+    def _verified_chunks(self, rows: int) -> Iterator[dict[str, Any]]:
+        """Every column, chunk by chunk, each value and (HDF5) the derived datasets checked (:meth:`validate`'s reading)."""
+        if self._reader is None:
+            return self.iter_chunks(rows=rows)
+        return self._reader.iter_verified(rows)
+
+    def _validation(self, checker: SamplingChecker, *, allow_gaps: bool) -> RecordValidation:
+        """Return the verdict of a validating pass whose time column ``checker`` has seen (raises on the first problem)."""
         report = self._sampling_verdict(checker.finish(), allow_gaps=allow_gaps)
         grid = None if self._reader is None else self._reader.time_grid
         step, segments = (0 if self._reader is None else self._reader.overview_step), (0 if grid is None else len(grid))
@@ -354,6 +370,59 @@ class SystemRecord:
             more = f" (and {len(report.gaps) + report.n_jitter - 3} more)" if len(report.gaps) + report.n_jitter > 3 else ""
             warnings.warn(SamplingWarning(f"irregular sampling: {text}{more}", self.path, issues), stacklevel=3)
         return report
+
+
+class ValidatingRecord:
+    """A system record as a chunk source (:class:`stableins.data.chunks.ChunkSource`) that validates what it reads.
+
+    Made by :meth:`SystemRecord.validating`.  :meth:`iter_chunks` reads every column of every row once, checks them as
+    :meth:`SystemRecord.validate` does (finite values, time increasing, ``/overview`` and ``/time_grid`` equal to the
+    columns), hands on the columns asked for (the ``thin`` ones at every ``step``-th row of the record, copied), and
+    after the last chunk gives the time-base verdict (:attr:`validation`): a gap, a wrong rate raise
+    :class:`InputError`, jitter warns.  Everything else (``path``, ``metadata``, ``columns``, the time grid) is the
+    record's.
+    """
+
+    def __init__(self, record: SystemRecord, *, allow_gaps: bool, tolerance: float) -> None:
+        self.record = record
+        self.allow_gaps = allow_gaps
+        self.tolerance = tolerance
+        self.validation: RecordValidation | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.record, name)
+
+    def iter_chunks(
+        self,
+        columns: Sequence[str] | None = None,
+        rows: int = DEFAULT_CHUNK,
+        *,
+        thin: Sequence[str] = (),
+        step: int = 1,
+        reuse: bool = False,
+        unchecked: Sequence[str] = (),
+    ) -> Iterator[dict[str, Any]]:
+        """Yield ``{column: ndarray}`` chunks of ``rows`` rows as :meth:`SystemRecord.iter_chunks` does, validating all.
+
+        The full-rate arrays are the reader's buffers (valid until the next chunk is asked for, as with ``reuse``);
+        every value is checked, ``unchecked`` included.
+        """
+        import numpy as np
+
+        record = self.record
+        names = list(NAMES if columns is None else columns)
+        unknown = [n for n in names if n not in NAMES]
+        if unknown:
+            raise InputError(f"unknown column {unknown[0]!r}", path=record.path, field=unknown[0], expected="one of " + ", ".join(NAMES))
+        thin_set = set(thin)
+        checker = SamplingChecker(record.sample_rate, record.path, tolerance=self.tolerance)
+        first = 0
+        for chunk in record._verified_chunks(rows):
+            checker.update(chunk["time"])
+            phase = (-first) % step
+            first += len(chunk["time"])
+            yield {n: np.array(chunk[n][phase::step]) if n in thin_set else chunk[n] for n in names}
+        self.validation = record._validation(checker, allow_gaps=self.allow_gaps)
 
 
 def open_system_record(path: str | os.PathLike[str]) -> SystemRecord:

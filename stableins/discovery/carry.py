@@ -33,14 +33,14 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from stableins.discovery.history import ModelHistory
-from stableins.discovery.steps import Decision, Step, make_step
+from stableins.discovery.steps import Decision, ModelStep, make_step
 from stableins.errormodel import Term, TermKind
 from stableins.estimators.device import DeviceCalibration
 from stableins.estimators.result import FitResult
 from stableins.status import Status
 
 #: Default false-alarm level of the test that keeps one named effect.
-DEFAULT_ALPHA = 0.05
+KEEP_ALPHA = 0.05
 #: Shifts of existing parameters a step keeps (the largest in units of their previous 1σ).
 SHIFTS_KEPT = 6
 
@@ -66,7 +66,7 @@ class CarriedCalibration:
         return self.history.effects
 
     @property
-    def left_out(self) -> tuple[Step, ...]:
+    def left_out(self) -> tuple[ModelStep, ...]:
         """Steps of effects that did not stay in the model."""
         return tuple(s for s in self.history.steps[1:] if s.decision is not None and not s.decision.in_model)
 
@@ -75,9 +75,9 @@ def carry_effects(
     calibrate: Callable[[Sequence[Term]], DeviceCalibration],
     effects: Sequence[Term],
     *,
-    alpha: float = DEFAULT_ALPHA,
+    alpha: float = KEEP_ALPHA,
     keep_unsupported: bool = False,
-    progress: Callable[[Step], Any] | None = None,
+    progress: Callable[[ModelStep], Any] | None = None,
 ) -> CarriedCalibration:
     """Add ``effects`` one by one to the device calibration and keep those the data show.
 

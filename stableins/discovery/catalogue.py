@@ -20,7 +20,7 @@ G0 = STANDARD_GRAVITY
 MICRO_G_PER_G3 = MICRO_G / G0**3
 
 #: Groups of candidates, for reports.
-GROUPS = ("instrument", "environment", "rotation", "equipment", "custom")
+CANDIDATE_GROUPS = ("instrument", "environment", "rotation", "equipment", "custom")
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class Candidate:
     term : Term
         The additive error-model term (id, regressor, units, meaning, excitation, aliases).
     group : str
-        One of :data:`GROUPS`.
+        One of :data:`CANDIDATE_GROUPS`.
     separation : str
         A procedure that separates the effect from the standard model's parameters.
     needs : tuple of str
@@ -425,5 +425,5 @@ def _equipment() -> list[Candidate]:
 
 
 def default_candidates() -> list[Candidate]:
-    """Return the shipped candidates, group by group (:data:`GROUPS`)."""
+    """Return the shipped candidates, group by group (:data:`CANDIDATE_GROUPS`)."""
     return _instrument_powers() + _instrument_couplings() + _environment() + _rotation() + _equipment()

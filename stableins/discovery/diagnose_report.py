@@ -12,7 +12,7 @@ The document, key by key (SI units; ``null`` where a number is not finite):
 * ``chi2_red``, ``dof``, ``expected_spread`` (``sqrt(2/ν)``), ``p_value``: the fit of the model in force;
 * ``model``: its parameter ids; ``residual_rms``, ``noise_floor``: per output [m/s²];
 * ``candidates``: every candidate effect not in the model, best first (:class:`CandidateSummary`);
-* ``history``: the steps (:meth:`stableins.discovery.history.Step.to_json`);
+* ``history``: the steps (:meth:`stableins.discovery.steps.ModelStep.to_json`);
 * ``left_out``: the dwells left out, in words; ``next``: the next step in words and as a command;
 * ``drift``: the platform-drift candidates ranked on the angle-reading slopes (:class:`DriftSummary`), device only;
 * ``spectra``: per output, the residual at the Earth-rate harmonics (:class:`SpectrumSummary`), system only;
@@ -36,7 +36,7 @@ from stableins.discovery.diagnostics import FitVerdict
 from stableins.discovery.fields import DOCUMENT, Reader, finite
 from stableins.discovery.scores import not_named_because
 from stableins.discovery.signature import ResidualSignature
-from stableins.discovery.steps import Step
+from stableins.discovery.steps import ModelStep
 from stableins.discovery.summaries import (
     OBSERVATION_UNIT,
     CandidateSummary,
@@ -44,6 +44,7 @@ from stableins.discovery.summaries import (
     DriftSummary,
     SpectrumSummary,
 )
+from stableins.errors import InputError, NotDeterminedError
 from stableins.noise import NoiseModel
 
 __all__ = [
@@ -146,7 +147,7 @@ class DiagnoseReport:
         Residual RMS and RMS of the measured 1σ per output [m/s²].
     candidates : tuple of CandidateSummary
         Every candidate effect not in the model, best first.
-    history : tuple of Step
+    history : tuple of ModelStep
         The model at each step: the model in force, then one step per effect added.
     left_out : tuple of str
         Dwells left out (flagged by the dwell checks), in words.
@@ -174,7 +175,7 @@ class DiagnoseReport:
     residual_rms: tuple[float, ...]
     noise_floor: tuple[float, ...]
     candidates: tuple[CandidateSummary, ...]
-    history: tuple[Step, ...]
+    history: tuple[ModelStep, ...]
     left_out: tuple[str, ...] = ()
     drift: DriftSummary | None = None
     spectra: tuple[SpectrumSummary, ...] = ()
@@ -307,6 +308,8 @@ class DiagnoseReport:
         d = r.mapping(document, "", DOCUMENT)
         try:
             stage = DiagnoseStage(r.text(r.get(d, "stage", ""), "stage"))
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError:
             raise r.fail(f"{d['stage']!r:.60} is not a stage", "stage", " or ".join(repr(str(s)) for s in DiagnoseStage)) from None
         history = r.items(r.get(d, "history", ""), "history", r.step)

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
-from stableins.discovery.problem import DiscoveryDetails
+from stableins.discovery.problem import DiscoveryDetails, DwellProblem
 from stableins.display import layout_with_caption, plot_text
 from stableins.errormodel import TermKind
 from stableins.estimators.result import FitResult
@@ -32,7 +32,7 @@ from stableins.estimators.result import FitResult
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from stableins.discovery.problem import Problem
+    from stableins.estimators.leastsquares import Problem
 
 AXIS_NAMES = ("x", "y", "z")
 #: χ²_ν is consistent with the noise floor when ``P(χ² ≥ observed)`` lies strictly between these (its two-sided 99 %
@@ -381,9 +381,10 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
     k = len(outputs)
     residuals = result.residuals.reshape(-1, k)
     sigma = result.residual_sigma.reshape(-1, k)
-    if problem is not None and hasattr(problem, "dwells"):
-        positions = tuple(problem.dwells.labels)
-    orientation = problem.orientation(result)[::3] if problem is not None and hasattr(problem, "orientation") else None
+    dwells = problem if isinstance(problem, DwellProblem) else None  # device dwells: their labels, orientation and times
+    if dwells is not None:
+        positions = tuple(dwells.dwells.labels)
+    orientation = dwells.orientation(result)[::3] if dwells is not None else None
     nu = result.dof
     return Diagnosis(
         result=result,
@@ -398,7 +399,7 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
         outputs=outputs,
         unit=unit,
         scale=scale,
-        time=np.asarray(problem.dwells.time, dtype=float) if problem is not None and hasattr(problem, "dwells") else None,
+        time=np.asarray(dwells.dwells.time, dtype=float) if dwells is not None else None,
     )
 
 

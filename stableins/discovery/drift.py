@@ -27,23 +27,24 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stableins.conventions import ARCSEC_PER_HOUR
 from stableins.discovery.dwells import DwellSet
 from stableins.discovery.linear import LinearProblem
 from stableins.errormodel import GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind
-from stableins.estimators.gyro_sensitivity import GIMBALS, MAX_CONDITION, SLOPE_SKIP, SlopeGeometry, reading_slope
+from stableins.estimators.gyro_sensitivity import MAX_CONDITION, SLOPE_SKIP, SlopeGeometry, reading_slope
 from stableins.estimators.result import Stage
+from stableins.platform import GIMBAL_NAMES
 
-__all__ = ["GIMBALS", "MAX_CONDITION", "SLOPE_SKIP", "drift_problem", "reading_slope"]
+__all__ = ["MAX_CONDITION", "SLOPE_SKIP", "drift_problem", "reading_slope"]
 
 
 def _nuisance_terms() -> tuple[Term, ...]:
     zero = lambda inputs: np.zeros_like(inputs.specific_force)  # noqa: E731  (never evaluated through the error model)
-    arcsec_per_hour = np.pi / 648000 / 3600
     return tuple(
         Term(
-            f"reading_rate_{g}", TermKind.ADDITIVE, "rad/s", "arcsec/h", arcsec_per_hour, 1e-9, f"constant {g} reading rate", regressor=zero
+            f"reading_rate_{g}", TermKind.ADDITIVE, "rad/s", "arcsec/h", ARCSEC_PER_HOUR, 1e-9, f"constant {g} reading rate", regressor=zero
         )
-        for g in GIMBALS
+        for g in GIMBAL_NAMES
     )
 
 
@@ -118,6 +119,6 @@ def drift_problem(
     for term, (_, column) in zip(mode_terms, geometry.nuisance, strict=True):
         columns[term.id] = column[keep].reshape(-1)
     nuisance = nuisance + mode_terms
-    labels = [f"{lbl} d{gm}/dt" for lbl, k in zip(dwells.labels, keep, strict=True) if k for gm in GIMBALS]
+    labels = [f"{lbl} d{gm}/dt" for lbl, k in zip(dwells.labels, keep, strict=True) if k for gm in GIMBAL_NAMES]
     problem = LinearProblem(slopes[keep].reshape(-1), slope_sigma[keep].reshape(-1), columns, labels, stage=Stage.READING_SLOPES)
     return problem, ErrorModel(nuisance + GYRO_DRIFT_TERMS + tuple(added)), tuple(drift_terms), notes

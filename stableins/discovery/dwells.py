@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import DEFAULT_GIMBALS, GimbalConfiguration
+from stableins.conventions import DEFAULT_GIMBALS, HYSTERESIS_THRESHOLD, GimbalConfiguration
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.estimators.layout import StageLayout
 
@@ -329,12 +329,6 @@ def _dwell_set(summaries, extras, *, site: SiteMetadata, labels, initial_reading
         latitude=float(site.latitude),
         reading_centre=lines.centre,
     )
-
-
-#: Input change [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``); the truth
-#: simulator uses the same definition (``stableins.simulator.effects.HYSTERESIS_THRESHOLD``, kept
-#: equal by tests/test_discovery_hidden.py).
-HYSTERESIS_THRESHOLD = 1e-2
 
 
 def slew_directions(

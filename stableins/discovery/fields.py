@@ -12,8 +12,8 @@ from collections.abc import Callable, Mapping
 from os import PathLike
 from typing import Any
 
-from stableins.discovery.steps import Step
-from stableins.errors import InputError
+from stableins.discovery.steps import ModelStep
+from stableins.errors import InputError, NotDeterminedError
 
 #: What the document is, for messages.
 DOCUMENT = "the output of 'stableins diagnose --json'"
@@ -91,13 +91,15 @@ class Reader:
         """Return a list of numbers (:meth:`number` each)."""
         return self.items(value, where, lambda v, w: self.number(v, w, nullable=nullable, minimum=minimum))
 
-    def step(self, value: Any, where: str) -> Step:
-        """Return a history step (:meth:`stableins.discovery.history.Step.from_json`, its ``ValueError`` as InputError naming the field)."""
+    def step(self, value: Any, where: str) -> ModelStep:
+        """Return a history step (:meth:`~stableins.discovery.steps.ModelStep.from_json`; its ValueError as InputError naming the field)."""
         item = self.mapping(value, where)
         if item.get("residual_rms_unit", "m/s^2") != "m/s^2":
             raise self.fail(f"{item['residual_rms_unit']!r:.60}", join(where, "residual_rms_unit"), "'m/s^2'")
         try:
-            return Step.from_json(item, where)
+            return ModelStep.from_json(item, where)
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             field, _, expected = str(error).partition(": ")
             raise self.fail("malformed", field, expected.removeprefix("expected ")) from None

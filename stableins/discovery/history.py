@@ -12,7 +12,7 @@ r"""The discovery loop: fit, rank, add an effect, refit — and the history of s
 
 ``BIC = χ² + k ln m`` with the measured σ (k estimated parameters, m observations).
 
-The same :class:`Step` is the unit of the history a calibration record carries
+The same :class:`ModelStep` is the unit of the history a calibration record carries
 (:class:`ModelHistory`, the record's ``discovery`` section, docs/formats.md): there every
 step after the first tests one effect added to the calibration (``calibrate device --add``)
 and carries its verdict (:class:`Decision`, Δχ², F-test p, ΔBIC).
@@ -27,8 +27,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stableins.conventions import MICRO_G
-from stableins.discovery.steps import Decision, Step, is_number, make_step
+from stableins.conventions import ARCSEC_PER_HOUR, MICRO_G
+from stableins.discovery.problem import DwellProblem
+from stableins.discovery.steps import Decision, ModelStep, is_number, make_step
 from stableins.display import clipped, html_result, html_table, layout_with_caption, plot_text, require_pandas, unit_text, value_sigma
 from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
 from stableins.estimators.result import FitResult
@@ -38,8 +39,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from stableins.discovery.diagnostics import Diagnosis
     from stableins.discovery.library import Library
-    from stableins.discovery.problem import Problem
     from stableins.discovery.ranking import Ranking
+    from stableins.estimators.leastsquares import Problem
 
 
 @dataclass(frozen=True)
@@ -52,13 +53,13 @@ class ModelHistory:
         The fit whose model grew (``"coarse+fine"``: the fused device-level fit).
     alpha : float
         False-alarm level of the F-test that keeps an added effect.
-    steps : tuple of Step
+    steps : tuple of ModelStep
         The baseline first, then one step per effect tested, each with its :class:`Decision`.
     """
 
     stage: str
     alpha: float
-    steps: tuple[Step, ...]
+    steps: tuple[ModelStep, ...]
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -81,7 +82,7 @@ class ModelHistory:
             raise ValueError(f"{where}.alpha: expected a false-alarm level between 0 and 1")
         if not isinstance(steps, list) or not steps:
             raise ValueError(f"{where}.steps: expected a non-empty list of steps")
-        parsed = tuple(Step.from_json(step, f"{where}.steps[{k}]") for k, step in enumerate(steps))
+        parsed = tuple(ModelStep.from_json(step, f"{where}.steps[{k}]") for k, step in enumerate(steps))
         if parsed[0].decision is not Decision.BASELINE:
             raise ValueError(f"{where}.steps[0].decision: expected 'baseline' (the model before any effect was added)")
         for k, step in enumerate(parsed[1:], start=1):
@@ -135,17 +136,17 @@ class ModelHistory:
 class History:
     """Steps of the discovery loop, printed and plotted."""
 
-    def __init__(self, steps: Iterable[Step] = ()) -> None:
-        self.steps: list[Step] = list(steps)
+    def __init__(self, steps: Iterable[ModelStep] = ()) -> None:
+        self.steps: list[ModelStep] = list(steps)
 
-    def append(self, step: Step) -> None:
+    def append(self, step: ModelStep) -> None:
         """Append a step."""
         self.steps.append(step)
 
     def __len__(self) -> int:
         return len(self.steps)
 
-    def __getitem__(self, k: int) -> Step:
+    def __getitem__(self, k: int) -> ModelStep:
         return self.steps[k]
 
     def _columns(self) -> list[str]:
@@ -278,7 +279,7 @@ class History:
         return fig
 
 
-def _plot_rms(ax1: Any, steps: Sequence[Step]) -> None:
+def _plot_rms(ax1: Any, steps: Sequence[ModelStep]) -> None:
     """Draw each step's residual RMS per channel against that channel's noise floor [µg], values written."""
     k = np.arange(len(steps))
     channels = steps[0].channels
@@ -326,7 +327,7 @@ def _plain_ticks(ax: Any) -> None:
     ax.yaxis.set_minor_formatter(plain)
 
 
-def _plot_chi2(ax2: Any, steps: Sequence[Step]) -> None:
+def _plot_chi2(ax2: Any, steps: Sequence[ModelStep]) -> None:
     """Draw each step's χ²_ν with the band ``1 ± 2√(2/ν)``, values written."""
     k = np.arange(len(steps))
     chi = np.array([s.chi2_red for s in steps])
@@ -447,8 +448,8 @@ class Discovery:
         from stableins.dwell_mode import DwellMode
         from stableins.units import DisplayUnit
 
-        dwells = getattr(self.problem, "dwells", None)
-        if dwells is None or dwells.reading_slope is None:
+        dwells = self.problem.dwells if isinstance(self.problem, DwellProblem) else None
+        if dwells is None or dwells.reading_slope is None or dwells.reading_slope_sigma is None:
             raise ValueError("these data carry no reading slopes (device dwells are needed)")
         if dwells.dwell_mode is not DwellMode.EARTH_RATE:
             self.drift_notes: tuple[str, ...] = (
@@ -470,10 +471,9 @@ class Discovery:
                 f"only {problem.y.size // 3} dwell(s) with usable reading slopes: too few to rank the drift candidates",
             )
             return None
-        arcsec_per_hour = np.pi / 648000 / 3600
         fit = problem.fit(null)
         ranking = rank(
-            problem, fit, terms, alpha=self.alpha, refit_top=refit_top, propose=False, output=DisplayUnit('"/h', arcsec_per_hour)
+            problem, fit, terms, alpha=self.alpha, refit_top=refit_top, propose=False, output=DisplayUnit('"/h', ARCSEC_PER_HOUR)
         )
         self.drift_notes = notes
         return ranking

@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 # ----------------------------------------------------------------------------- generic linear problem
 class LinearProblem:
-    """A linear least-squares problem ``y = X p + e``, ``e ~ N(0, diag σ²)``.
+    """A linear least-squares problem ``y = X p + e``, ``e ~ N(0, diag σ²)`` (a :class:`~stableins.estimators.leastsquares.Problem`).
 
     Parameters
     ----------
@@ -48,6 +48,12 @@ class LinearProblem:
         self.columns = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
         self.labels = tuple(labels) if labels is not None else tuple(f"obs {i}" for i in range(self.y.size))
         self.stage = stage
+        self.static = False  # the ranking's Bonferroni level (Problem.static)
+
+    def whiten(self, v: ArrayLike) -> NDArray[np.float64]:
+        """``v / σ`` for observation-ordered vectors (m,) or matrices (m, k): the observations are independent."""
+        v = np.asarray(v, dtype=float)
+        return v / (self.s if v.ndim == 1 else self.s[:, None])
 
     def _column(self, term: Term) -> NDArray:
         if term.id not in self.columns:

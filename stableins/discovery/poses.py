@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from stableins.discovery.library import CALIBRATION_GROUPS, LIBRARY, Library
 from stableins.discovery.scores import effect_statistics
 from stableins.errormodel import Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.result import FitResult
 from stableins.status import Status
 
@@ -127,6 +127,8 @@ def scan_poses(refit: Callable[[Sequence[Term]], FitResult], *, alpha: float = 0
         term = candidate.term
         try:
             fit = refit((term,))
+        except NotDeterminedError:
+            raise  # a described error passes through as it is (issue 29)
         except (InputError, ValueError, TypeError, AttributeError, KeyError, IndexError):  # its inputs are not in the poses
             skipped.append(term.id)
             continue

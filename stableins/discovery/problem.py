@@ -2,12 +2,14 @@ r"""Least-squares problems that model discovery works on.
 
 Discovery needs four things from a fitted stage: the weighted residuals, their 1σ from
 noise measured in the data, the design (∂prediction/∂parameter at the estimate) and the
-column of any candidate term.  :class:`Problem` is that interface; two implementations:
+column of any candidate term.  :class:`stableins.estimators.leastsquares.Problem` is that
+interface (declared in the estimators layer, beside the forward model); two implementations:
 
 * :class:`DwellProblem` — device level.  Observations are dwell means of the three
-  accelerometer outputs per position; the prediction is the exact forward model
-  ``f^a = forward(f^p(readings, θ_0, base), p)`` (Wu et al. 2018 Eq. 6 with the exact gimbal
-  kinematics of :mod:`stableins.platform`).  The fit is Gauss–Newton; the
+  accelerometer outputs per position; the prediction is the coarse stage's dwell forward model
+  ``f^a = forward(f^p(readings, θ_0, base), p)``, :func:`stableins.estimators.leastsquares.dwell_forward`
+  (Wu et al. 2018 Eq. 6 with the exact gimbal kinematics of :mod:`stableins.platform`), defined
+  once for the stages and discovery.  The fit is Gauss–Newton; the
   zero offset ``θ10`` (and anything else in the null space of the design) is held at its
   prior value as an explicit gauge, marked ``"gauge"``.
 * :class:`LinearProblem` — any linear(ized) problem given as observations, 1σ, model
@@ -20,16 +22,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import AXES
+from stableins.conventions import AXES, dcm_nav_to_body
 from stableins.discovery.dwells import DwellSet
 from stableins.errormodel import ErrorModel, Term, TermInputs, TermKind
 from stableins.estimators.design import UNDETERMINED_RATIO  # a combination with 1σ above this many typical sizes is a gauge
 from stableins.estimators.details import StageDetails
+from stableins.estimators.leastsquares import DwellForward, Problem, dwell_forward
 from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.status import Status
 
@@ -54,22 +57,6 @@ class DiscoveryDetails(StageDetails):
     prediction: NDArray[np.float64]
     noise: Mapping[str, Any]
     slow_noise: bool
-
-
-class Problem(Protocol):
-    """What discovery needs from a fitted stage."""
-
-    def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None) -> FitResult:
-        """Return the fit of ``model`` to the data, from ``start`` (ids missing there start at their reference)."""
-        ...
-
-    def design(self, result: FitResult) -> NDArray[np.float64]:
-        """Return ``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
-        ...
-
-    def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
-        """Return ``∂prediction/∂p`` of terms not in the model (at value 0), shape (m, len(terms))."""
-        ...
 
 
 class DwellProblem:
@@ -134,55 +121,33 @@ class DwellProblem:
         """Output axis of every observation."""
         return np.tile(np.arange(3), self.dwells.n_positions)
 
-    def _kinematic_ids(self, terms: Sequence[Term]) -> tuple[str, ...]:
-        from stableins.errormodel import GIMBAL_IDS
-        from stableins.platform import KINEMATIC_IDS
+    def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> DwellForward:
+        """Return the dwell forward model over ``model + extra_terms`` at ``values`` on these dwells.
 
-        return tuple(i for i in GIMBAL_IDS + KINEMATIC_IDS if i in {t.id for t in terms} or i in GIMBAL_IDS)
+        Prediction (P, 3), Jacobian (P, 3, n), ``f^p`` and inputs: the coarse stage's
+        :func:`stableins.estimators.leastsquares.dwell_forward`.
 
-    def evaluate(self, model: ErrorModel, values: Mapping[str, float], extra_terms: Sequence[Term] = ()) -> tuple:
-        """Prediction (P, 3), Jacobian (P, 3, n) over ``model + extra_terms``, ``f^p`` and inputs.
-
-        Zero offsets and kinematic (test-equipment) effects act through the exact kinematics:
-        ``f^p`` is computed with their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``;
-        every other term goes through :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
+        Zero offsets and kinematic (test-equipment) effects act through the exact kinematics: ``f^p`` is computed with
+        their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``; every other term goes through
+        :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
         """
-        from stableins.errormodel import GIMBAL_IDS
-        from stableins.platform import KINEMATIC_IDS, specific_force_and_jacobian
-
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
-        offsets = np.array([float(values.get(i, 0.0)) if i in full else 0.0 for i in GIMBAL_IDS])
-        effects = {i: float(values.get(i, 0.0)) for i in KINEMATIC_IDS if i in full}
-        kin_ids = self._kinematic_ids(full.terms)
-        f_p, d_fp = specific_force_and_jacobian(
+        return dwell_forward(
+            full,
+            values,
             d.readings,
             d.gravity,
-            zero_offsets=offsets,
-            base_attitude=d.base_attitude,
-            effects=effects,
+            base_dcm=dcm_nav_to_body(*d.base_attitude),
             configuration=d.configuration,
-            ids=kin_ids,
+            inputs=TermInputs(
+                np.zeros((d.n_positions, 3)),  # f^p, given by the model
+                temperature=d.temperature,
+                time=d.time,
+                slew_direction=d.slew_direction,  # the visit history's states (DwellSet.slew_direction)
+                extra={"time_since_command": d.time_since_command},
+            ),
         )
-        inputs = TermInputs(
-            f_p,
-            temperature=d.temperature,
-            time=d.time,
-            slew_direction=d.slew_direction,  # the visit history's states (DwellSet.slew_direction)
-            angular_rate=np.zeros_like(f_p),
-            angular_acceleration=np.zeros_like(f_p),
-            # named arrays (TermInputs.extra): the Jacobian's columns and, as an array of strings, the ids they belong to
-            extra={"time_since_command": d.time_since_command, "platform_jacobian": d_fp, "platform_jacobian_ids": np.asarray(kin_ids)},
-        )
-        through_kinematics = [k for k, t in enumerate(full.terms) if t.id in kin_ids]
-        dynamic = {k: v for k, v in values.items() if k not in effects}  # kinematic effects are already in f^p
-        prediction = full.forward(f_p, dynamic, inputs)
-        jac = full.jacobian(f_p, dynamic, inputs)
-        if through_kinematics:
-            j_fp = full.jacobian_specific_force(f_p, dynamic, inputs)
-            for k in through_kinematics:
-                jac[..., k] = np.einsum("...ij,...j->...i", j_fp, d_fp[..., kin_ids.index(full.terms[k].id)])
-        return prediction, jac, f_p, inputs
 
     # ------------------------------------------------------------------ fit
     def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:
@@ -206,7 +171,8 @@ class DwellProblem:
         scales = np.array([abs(t.nominal) or 1.0 for t in model.terms])
 
         def weighted(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            prediction, jac, _, _ = self.evaluate(model, dict(zip(ids, x[0], strict=True)))
+            forward = self.evaluate(model, dict(zip(ids, x[0], strict=True)))
+            prediction, jac = forward.output, forward.jacobian
             return self.whiten(y - prediction.reshape(-1))[None], self.whiten(jac.reshape(-1, len(model)))[None]
 
         x = np.array([[values[i] for i in ids]])
@@ -229,7 +195,8 @@ class DwellProblem:
                 x = gauss_newton(weighted, x, mask, scales, max_iterations=iterations).x
             solved = True
         values = dict(zip(ids, (float(v) for v in x[0]), strict=True))
-        prediction, jac, f_p, _ = self.evaluate(model, values)
+        forward = self.evaluate(model, values)
+        prediction, jac, f_p = forward.output, forward.jacobian, forward.specific_force
         a = self.whiten(jac.reshape(-1, len(model)))
         cols = [k for k in range(len(model)) if free[k] and model.terms[k].id not in gauge]
         normal = a[:, cols].T @ a[:, cols]
@@ -266,14 +233,14 @@ class DwellProblem:
     def design(self, result: FitResult) -> NDArray[np.float64]:
         """Return ``∂prediction/∂p`` at the estimate for the parameters with status ``"estimated"``, shape (m, k)."""
         model = ErrorModel(result.terms)
-        _, jac, _, _ = self.evaluate(model, result.as_dict())
+        jac = self.evaluate(model, result.as_dict()).jacobian
         cols = [k for k, st in enumerate(result.status) if st == Status.ESTIMATED]
         return jac.reshape(-1, len(model))[:, cols]
 
     def candidate_columns(self, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
         """Return ``∂prediction/∂p`` of the candidate ``terms`` at the estimate, shape (m, len(terms))."""
         model = ErrorModel(result.terms)
-        _, jac, _, _ = self.evaluate(model, result.as_dict(), extra_terms=tuple(terms))
+        jac = self.evaluate(model, result.as_dict(), extra_terms=tuple(terms)).jacobian
         return jac.reshape(-1, len(model) + len(terms))[:, len(model) :]
 
     def orientation(self, result: FitResult | None = None) -> NDArray[np.float64]:
@@ -296,10 +263,9 @@ def fit_chi2_red(result: FitResult) -> float:
 
 
 def whiten(problem: Problem | None, result: FitResult, v: ArrayLike) -> NDArray[np.float64]:
-    """``R^{-1/2} v`` with the problem's noise model (diagonal 1σ when it has none)."""
-    w = getattr(problem, "whiten", None)
-    if w is not None:
-        return w(v)
+    """``R^{-1/2} v`` with the problem's noise model (:meth:`Problem.whiten`); the fit's diagonal 1σ without a problem."""
+    if problem is not None:
+        return problem.whiten(v)
     v = np.asarray(v, dtype=float)
     s = result.residual_sigma
     return v / (s if v.ndim == 1 else s[:, None])

@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
-from stableins.discovery.problem import whiten
+from stableins.discovery.problem import DwellProblem, whiten
 from stableins.discovery.scores import (
     CONFUSION_CORRELATION,
     EXCITATION_TOLERANCE,
@@ -67,14 +67,14 @@ from stableins.status import Status
 from stableins.units import DisplayUnit
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.discovery.problem import Problem
+    from stableins.estimators.leastsquares import Problem
 
 #: The unit a candidate's largest predicted change of an output is shown in by default.
 MICRO_G_UNIT = DisplayUnit("µg", MICRO_G)
 
 
 
-def _propose(problem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
+def _propose(problem: DwellProblem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
     """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
     from stableins.discovery.separation import describe, separation
 
@@ -433,16 +433,15 @@ def rank(
             )
         )
     scores.sort(key=lambda c: (not c.identifiable, -c.statistic))
-    if propose and hasattr(problem, "dwells"):
+    if propose and isinstance(problem, DwellProblem):
         scores = _propose(problem, result, scores, {t.id: t for t in terms})
 
     scores = _refit_best(problem, result, scores, refit_top=refit_top, nu=nu, m=m)
     first = {t.id: f"confirm with {separation.get(t.id, t.excitation)}" for t in terms}
     # static dwells (DwellProblem.static): the exact family level and the laboratory signature; else Bonferroni's α/N
-    static = bool(getattr(problem, "static", False))
-    level = family_level(x, z_perp[:, identifiable], nu=nu, alpha=alpha) if static else alpha / n_tested
+    level = family_level(x, z_perp[:, identifiable], nu=nu, alpha=alpha) if problem.static else alpha / n_tested
     scores = _best_group(problem, result, scores, {t.id: t for t in terms}, first, level=level, propose=propose)
-    whitened = _Whitened(r, z_perp, identifiable, _laboratory(problem, result, x) if static else None)
+    whitened = _Whitened(r, z_perp, identifiable, _laboratory(problem, result, x) if problem.static else None)
     flagged = _named(scores, [t.id for t in terms], whitened, rss0=rss0, nu=nu, level=level)
     return Ranking(result, tuple(flagged), alpha, n_tested, output.name, output.scale, level)
 
@@ -542,7 +541,7 @@ def _best_group(
     for c in scores:
         if c.id == best.id:
             c = CandidateScore(**{**c.__dict__, "confused_with": joined, "advice": advice[c.id]})
-            if propose and hasattr(problem, "dwells"):
+            if propose and isinstance(problem, DwellProblem):
                 c = _propose(problem, result, [c], by_id)[0]
         elif c.id in rivals:
             c = CandidateScore(**{**c.__dict__, "confused_with": tuple(dict.fromkeys((*c.confused_with, best.id)))})
@@ -558,9 +557,9 @@ def _laboratory(problem: Problem, result: FitResult, x: NDArray[np.float64]) -> 
     """
     from stableins.discovery.signature import laboratory_columns
 
-    dwells = getattr(problem, "dwells", None)
-    if dwells is None:
+    if not isinstance(problem, DwellProblem):
         return None
+    dwells = problem.dwells
     columns = whiten(problem, result, laboratory_columns(dwells.readings, dwells.base_attitude, dwells.configuration))
     q, _ = np.linalg.qr(x)
     columns = columns - q @ (q.T @ columns)

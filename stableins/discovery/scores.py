@@ -10,11 +10,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.result import FitResult
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.discovery.problem import Problem
+    from stableins.estimators.leastsquares import Problem
 
 
 #: Below this ‖z⊥‖/‖z‖ a candidate is not separable from the model with these data.
@@ -230,18 +231,22 @@ def effect_statistics(delta_rss: float, rss0: float, nu: int, m: int) -> tuple[f
 def candidate_columns(problem: Problem, terms: Sequence[Term], result: FitResult) -> NDArray[np.float64]:
     """Return the candidates' columns of ``problem`` at ``result``; one whose inputs the data lack gets a zero column (not excited).
 
-    Like :meth:`stableins.discovery.problem.Problem.candidate_columns`, which raises ``ValueError`` for such a
+    Like :meth:`stableins.estimators.leastsquares.Problem.candidate_columns`, which raises ``ValueError`` for such a
     candidate; the ranking needs a column for every candidate.
     """
     if not terms:
         return np.zeros((result.residuals.size, 0))
     try:
         return problem.candidate_columns(terms, result)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except ValueError:
         cols = []
         for t in terms:
             try:
                 cols.append(problem.candidate_columns([t], result)[:, 0])
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except ValueError:
                 cols.append(np.zeros(result.residuals.size))
         return np.stack(cols, axis=1)

@@ -33,7 +33,7 @@ PROPOSALS = ("tumble_30", "azimuth_180", "reverse", "closing_pass", "temperature
 
 
 @dataclass(frozen=True)
-class Separation:
+class ProposalSeparation:
     """How one proposal changes a candidate's separability."""
 
     proposal: str
@@ -101,7 +101,7 @@ def separation(
     candidate: Term,
     partners: Sequence[Term] = (),
     proposals: Sequence[str] = PROPOSALS,
-) -> list[Separation]:
+) -> list[ProposalSeparation]:
     """Separability of ``candidate`` (and its correlation with ``partners``) with each proposal added.
 
     Parameters
@@ -132,11 +132,11 @@ def separation(
         corr = {}
         for k, t in enumerate(partners, start=1):
             corr[t.id] = float(perp[:, 0] @ perp[:, k] / max(norms[0] * norms[k], 1e-300))
-        out.append(Separation(name, sep, corr, float(norms[0] * abs(candidate.nominal))))
+        out.append(ProposalSeparation(name, sep, corr, float(norms[0] * abs(candidate.nominal))))
     return out
 
 
-def describe(results: Sequence[Separation]) -> str:
+def describe(results: Sequence[ProposalSeparation]) -> str:
     """One line: which proposals separate the candidate."""
     good = [r.proposal for r in results if r.separates()]
     return ("separated by: " + ", ".join(good)) if good else "none of the standard extensions separates it"

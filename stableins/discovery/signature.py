@@ -33,13 +33,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stableins.platform import GIMBAL_NAMES  # the gimbal angles, columns of the dwell readings
+
 if TYPE_CHECKING:  # pragma: no cover
     from numpy.typing import NDArray
 
     from stableins.discovery.diagnostics import Diagnosis
 
-#: Names of the gimbal angles (columns of the dwell readings).
-GIMBALS = ("platform", "inner", "middle")
 #: Harmonics of the gimbal angles tested.
 GIMBAL_HARMONICS = (1, 2, 3, 4)
 #: At most this many positions and harmonics are shown.
@@ -254,7 +254,7 @@ def _gimbal_harmonics(
     """
     p = z.shape[0]
     found: list[GimbalHarmonic] = []
-    for g, gimbal in enumerate(GIMBALS):
+    for g, gimbal in enumerate(GIMBAL_NAMES):
         for k in GIMBAL_HARMONICS:
             x = np.stack([np.cos(k * readings[:, g]), np.sin(k * readings[:, g])], axis=1)
             if np.linalg.matrix_rank(x, tol=1e-9) == 0:

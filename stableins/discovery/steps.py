@@ -39,7 +39,7 @@ CHANNELS = ("f_x", "f_y", "f_z", "|f|")
 
 
 @dataclass(frozen=True)
-class Step:
+class ModelStep:
     """One model in the history.
 
     Attributes
@@ -94,7 +94,7 @@ class Step:
             if self.decision is not None
             else ""
         )
-        return f"<Step {self.label!r}: χ²_ν = {self.chi2_red:.3f} ± {spread:.2f} (ν = {self.dof}); residual RMS [µg] {rms}{verdict}>"
+        return f"<ModelStep {self.label!r}: χ²_ν = {self.chi2_red:.3f} ± {spread:.2f} (ν = {self.dof}); residual RMS [µg] {rms}{verdict}>"
 
     def to_json(self) -> dict:
         """Return the JSON form stored in a calibration record."""
@@ -122,7 +122,7 @@ class Step:
         return out
 
     @classmethod
-    def from_json(cls, document: Any, where: str = "step") -> Step:
+    def from_json(cls, document: Any, where: str = "step") -> ModelStep:
         """Validate a step written by :meth:`to_json`; ``ValueError`` naming the key otherwise."""
         fields = _StepFields(where)
         label, model, channels = fields.head(document)
@@ -152,7 +152,7 @@ class Step:
 
 @dataclass(frozen=True)
 class _StepFields:
-    """The checks of :meth:`Step.from_json`, in order, each ``ValueError`` naming ``where.key``."""
+    """The checks of :meth:`ModelStep.from_json`, in order, each ``ValueError`` naming ``where.key``."""
 
     where: str
 
@@ -265,7 +265,7 @@ def _per_channel(result: FitResult, values) -> tuple[tuple[str, ...], np.ndarray
     return ("all",), np.sqrt(np.mean(v**2, keepdims=True))
 
 
-def make_step(result: FitResult, label: str, previous: FitResult | None = None) -> Step:
+def make_step(result: FitResult, label: str, previous: FitResult | None = None) -> ModelStep:
     """Summarize a fit as a history step (and what changed since ``previous``)."""
     from stableins.discovery.problem import fit_chi2, fit_chi2_red
 
@@ -286,7 +286,7 @@ def make_step(result: FitResult, label: str, previous: FitResult | None = None) 
                 shifts[t.id] = (float(dv / t.scale), t.unit, float(dv / s0) if s0 > 0 else float("nan"))
     channels, rms = _per_channel(result, result.residuals)
     _, floor = _per_channel(result, result.residual_sigma)
-    return Step(
+    return ModelStep(
         label=label,
         model_ids=result.ids,
         rms=rms,

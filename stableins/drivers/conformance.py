@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 from stableins.drivers.server import NAV_CAPABILITY, NAV_FIELDS
 from stableins.drivers.tcp import ACQ_COUNT_MARGIN, ACQ_COUNT_SLACK, ACQ_TIME_FACTOR, parse_greeting
+from stableins.errors import InputError, NotDeterminedError
 
 #: The clauses of docs/protocol.md the check reports, with what each requires.
 CLAUSES: dict[str, str] = {
@@ -181,6 +182,8 @@ class ConformanceCheck:
         greeting = link.line(time.monotonic() + self.timeout, "greeting")
         try:
             version, self.capabilities = parse_greeting(greeting)
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             link.close()
             raise ClauseFailure("greeting", str(error)) from None

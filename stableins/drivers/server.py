@@ -372,6 +372,8 @@ def _serve_connection(
     writer = connection.makefile("w", encoding="ascii", newline="\n")
     try:
         _Session(driver, reader, writer, log, realtime, record=record).run()
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except (ConnectionError, BrokenPipeError, OSError, ValueError) as error:
         log(f"client {peer[0]}:{peer[1]} lost: {error}")
     else:

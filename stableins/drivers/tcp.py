@@ -37,12 +37,12 @@ from stableins.drivers.server import (
     format_float,
     metadata_checksum,
 )
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
 
 #: Longest line accepted from the platform [characters] (a sample line is ~200).
-MAX_LINE = 65536
+MAX_REPLY_LINE = 65536
 #: An ``ACQ`` reply must be complete within ``timeout + ACQ_TIME_FACTOR × duration`` seconds (a platform streams a
 #: dwell in real time; twice that allows a slow link), any other reply within ``timeout``: a controller that
 #: trickles bytes cannot hold a request for longer.
@@ -121,6 +121,8 @@ class TcpDriver:
                 continue
             try:
                 self.version, self.capabilities = parse_greeting(greeting)
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except ValueError as error:
                 self._drop()
                 raise DriverProtocolError(f"{self.address} is not a stableins platform: {error}") from None
@@ -142,8 +144,8 @@ class TcpDriver:
         """Read the next line; the request it belongs to must be answered by ``deadline`` (``time.monotonic()``)."""
         assert self._socket is not None
         while b"\n" not in self._buffer:
-            if len(self._buffer) > MAX_LINE:
-                raise DriverProtocolError(f"{self.address} sent a line longer than {MAX_LINE} characters (garbage?)")
+            if len(self._buffer) > MAX_REPLY_LINE:
+                raise DriverProtocolError(f"{self.address} sent a line longer than {MAX_REPLY_LINE} characters (garbage?)")
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise DriverConnectionError(f"{self.address} did not complete its reply in time (it sends, but too slowly)")

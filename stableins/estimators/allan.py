@@ -299,8 +299,7 @@ def plot_allan(points: AllanPoints, model: NoiseModel, *, title: str = "", confi
     """Allan deviation per axis [µg] against τ [s]: measured points with their interval, the model and its bounds."""
     import matplotlib.pyplot as plt
 
-    from stableins.conventions import MICRO_G
-    from stableins.noise import AXES
+    from stableins.conventions import AXES, MICRO_G
 
     lo, hi = points.interval(confidence)
     tau = np.logspace(np.log10(points.tau.min()), np.log10(points.tau.max()), 200)

@@ -52,18 +52,18 @@ from stableins.conventions import (
     GimbalConfiguration,
     dcm_nav_to_body,
 )
-from stableins.errormodel import GIMBAL_IDS, ErrorModel, Term
+from stableins.errormodel import ErrorModel, Term
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, choose_gauge
 from stableins.estimators.details import CoarseDetails, UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, gauge_preference, held_terms_note, hold_and_gauge
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
+from stableins.estimators.leastsquares import dwell_forward
 from stableins.estimators.orientation import check_orientation
 from stableins.estimators.result import FitResult, Stage
 from stableins.estimators.sensitivity import angle_reading_sensitivity
 from stableins.estimators.setting import DeviceSetting
-from stableins.platform import specific_force_and_jacobian
 
 
 def coarse_model(*, nonlinear: bool = False, extra_terms: Sequence[Term] = ()) -> ErrorModel:
@@ -123,22 +123,16 @@ class CoarseProblem:
         )
 
     def predict(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``."""
+        """Return the model outputs ``(T, m, 3)`` and Jacobian ``(T, m, 3, n)`` at parameters ``x (T, n)``.
+
+        The dwell forward model, :func:`stableins.estimators.leastsquares.dwell_forward`.
+        """
         model = self.model
         values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
-        theta = np.stack([x[..., model.index(g)] for g in GIMBAL_IDS], axis=-1)[..., None, :]
         g = np.asarray(self.gravity, dtype=float)
         g = g[..., None] if g.ndim else g
-        f_p, d_theta = specific_force_and_jacobian(
-            self.readings, g, zero_offsets=theta, base_dcm=self.base_dcm, configuration=self.configuration, ids=GIMBAL_IDS
-        )
-        out = model.forward(f_p, values)
-        jac = model.jacobian(f_p, values)
-        d_fp = model.jacobian_specific_force(f_p, values)
-        jac_theta = d_fp @ d_theta
-        for i, gid in enumerate(GIMBAL_IDS):
-            jac[..., model.index(gid)] = jac_theta[..., i]
-        return out, jac
+        forward = dwell_forward(model, values, self.readings, g, base_dcm=self.base_dcm, configuration=self.configuration)
+        return forward.output, forward.jacobian
 
     #: Optional covariance of the dwell means beyond their white 1σ, ``(T, 3, m, m)`` per axis
     #: (:func:`stableins.estimators.dwell.slow_covariance`).

@@ -29,7 +29,7 @@ from stableins.estimators.orientation import check_orientation
 from stableins.estimators.residual_noise import ResidualSlowNoise, given_noise_test, residual_slow_noise
 from stableins.estimators.result import FitResult, InputSensitivity, Stage
 from stableins.estimators.setting import DeviceSetting
-from stableins.estimators.slow_noise import DEFAULT_ALPHA, DwellSlowNoise, slow_noise_test
+from stableins.estimators.slow_noise import SLOW_NOISE_ALPHA, DwellSlowNoise, slow_noise_test
 from stableins.noise import AxisNoise, NoiseModel, NoiseSource, NoiseTerm
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -128,7 +128,7 @@ class DeviceCalibration:
         return self.final._repr_html_()
 
 
-def dwell_slow_noise(dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95) -> DwellSlowNoise:
+def dwell_slow_noise(dwells: Sequence[DwellSummary], *, alpha: float = SLOW_NOISE_ALPHA, confidence: float = 0.95) -> DwellSlowNoise:
     """Return the within-dwell Allan decision of :func:`stableins.estimators.slow_noise.slow_noise_test` on the usable dwells."""
     usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
     ratios = [(d.samples, d.allan_ratios, d.noise**2, d.rate) for d in usable if d.allan_ratios is not None]
@@ -160,7 +160,7 @@ def noise_from_residuals(white: NoiseModel, residual: ResidualSlowNoise, source:
 
 
 def noise_from_dwells(
-    dwells: Sequence[DwellSummary], *, alpha: float = DEFAULT_ALPHA, confidence: float = 0.95, source: str = "the dwells"
+    dwells: Sequence[DwellSummary], *, alpha: float = SLOW_NOISE_ALPHA, confidence: float = 0.95, source: str = "the dwells"
 ) -> NoiseModel:
     """Return the noise model a device session measures (source ``DEVICE_DWELLS``).
 
@@ -172,7 +172,7 @@ def noise_from_dwells(
       cannot separate the random walk from bias instability: ``K`` is 0, not bounded;
     * quantization: not measured (0, not bounded).
     """
-    from scipy.stats import chi2, norm
+    from stableins.estimators.distributions import chi2_ppf, norm_ppf
 
     usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
     if not usable:
@@ -182,9 +182,9 @@ def noise_from_dwells(
     pooled = (dof[:, None] * n2).sum(axis=0) / dof.sum()
     total = dof.sum()
     q = (1.0 - confidence) / 2.0
-    lo, hi = total / chi2.ppf(1 - q, total), total / chi2.ppf(q, total)
+    lo, hi = total / chi2_ppf(1 - q, total), total / chi2_ppf(q, total)
     slow = dwell_slow_noise(usable, alpha=alpha, confidence=confidence)
-    z = norm.ppf(confidence)
+    z = norm_ppf(confidence)
     # detected: the unbiased estimate of B² with its interval; not detected: 0 with the upper limit.  (Using the
     # non-significant estimate instead inflates σ on white noise, grossly so for short dwells, where it is mostly noise.)
     if slow.test.detected:
@@ -538,7 +538,7 @@ def calibrate_device(
     ``noise`` is the instrument's noise model (a calibration record's ``noise_model``, measured
     by ``stableins noise`` on a static record, or a datasheet).  Without it the dwells'
     own (:func:`noise_from_dwells`): the bias instability they measure, with the decision at
-    the false-positive rate :data:`stableins.estimators.slow_noise.DEFAULT_ALPHA`; when slow noise is not detected the result says so and
+    the false-positive rate :data:`stableins.estimators.slow_noise.SLOW_NOISE_ALPHA`; when slow noise is not detected the result says so and
     :attr:`DeviceCalibration.floor` shows the σ with the largest floor the dwells allow.
 
     ``coarse_nonlinear`` (default True) also estimates ``K2_*`` in the coarse stage.  The

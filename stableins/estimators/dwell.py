@@ -215,7 +215,7 @@ def summarize_dwell(  # noqa: PLR0913 - the dwell's samples, where it was comman
         explains (:func:`turn_explained_outputs`) is taken out before the noise (standard deviation, block means,
         Allan ratios) is measured.  None: the samples as recorded.
     """
-    from scipy.stats import chi2
+    from stableins.estimators.distributions import chi2_ppf
 
     t = np.asarray(time, dtype=float)
     f = np.asarray(specific_force, dtype=float).reshape(-1, 3)
@@ -242,7 +242,7 @@ def summarize_dwell(  # noqa: PLR0913 - the dwell's samples, where it was comman
         sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = (sem_block / np.maximum(sem, checks.noise_floor)) ** 2
-        limit = chi2.ppf(checks.correlation_quantile, b - 1) / (b - 1)
+        limit = chi2_ppf(checks.correlation_quantile, b - 1) / (b - 1)
         if np.any(ratio > limit):
             notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
             sem = np.where(ratio > limit, sem_block, sem)

@@ -49,7 +49,7 @@ from stableins.noise import NoiseModel
 from stableins.status import Status
 
 #: Held at their coarse values (one of each pair the norm cannot separate).
-GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
+FINE_GAUGE_PREFERENCE = ("beta_yz", "beta_xy", "beta_zx")
 
 
 def fine_model(extra_terms: Sequence[Term] = (), *, nonlinear: bool = True) -> ErrorModel:
@@ -112,7 +112,7 @@ class FineProblem:
         return np.einsum("tij,tj->ti", w, 0.5 * g**2 - h), np.einsum("tij,tjn->tin", w, d_h)
 
 
-def solve_fine(problem: FineProblem, x0: NDArray[np.float64], fixed: Sequence[str] = GAUGE_PREFERENCE, max_iterations: int = 12):
+def solve_fine(problem: FineProblem, x0: NDArray[np.float64], fixed: Sequence[str] = FINE_GAUGE_PREFERENCE, max_iterations: int = 12):
     """Batched Gauss-Newton; ``fixed`` ids keep their ``x0`` values (the gauge)."""
     model = problem.model
     free = np.array([k not in fixed for k in model.ids])
@@ -151,7 +151,7 @@ def _installation_combinations(
     determined = []
     arcsec = model["beta_xz"].scale
     for k, coefficients in gauge.coefficients.items():
-        pairs = {held_id: c for held_id, c in coefficients.items() if held_id in GAUGE_PREFERENCE}
+        pairs = {held_id: c for held_id, c in coefficients.items() if held_id in FINE_GAUGE_PREFERENCE}
         if k not in BETA_IDS or not pairs:
             continue
         (held_id, c), *_ = sorted(pairs.items(), key=lambda kv: -abs(kv[1]))
@@ -214,7 +214,7 @@ def _quality_notes(
 
 def _check_determined(left_out: Mapping[int, str], start_design: DesignAnalysis, gauge: Gauge, source: str) -> None:
     """Raise :class:`NotDeterminedError` unless the usable positions determine the 12 combinations (pairs held as the gauge)."""
-    if start_design.deficiency != 3 or set(gauge.fixed) != set(GAUGE_PREFERENCE):
+    if start_design.deficiency != 3 or set(gauge.fixed) != set(FINE_GAUGE_PREFERENCE):
         raise NotDeterminedError(
             f"the usable fine-stage positions do not determine the model's combinations: null directions involve {start_design.involved()} "
             f"(left out: {describe_left_out(left_out)})",
@@ -278,7 +278,7 @@ def calibrate_fine(
         raise InputError(f"only {len(usable)} usable fine-stage positions; {need}", path=source, field="position")
     scales = np.array([t.nominal for t in model])
     _, a0 = problem.weighted(x0)
-    start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, GAUGE_PREFERENCE)
+    start_design, gauge, undetermined = hold_and_gauge(a0[0], model, scales, extra_ids, FINE_GAUGE_PREFERENCE)
     held = tuple(undetermined)
     _check_determined(left_out, start_design, gauge, source)
     solution = solve_fine(problem, x0, gauge.fixed + held)

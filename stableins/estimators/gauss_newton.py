@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.errors import InputError, NotDeterminedError
+
 Evaluate = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
 
 
@@ -112,6 +114,8 @@ def _damped_step(
                 r, a = evaluate(trial)
                 new_cost = np.einsum("tm,tm->t", r, r)
             ok = np.isfinite(new_cost) & np.isfinite(a).all(axis=(-2, -1)) & (new_cost <= cost * (1.0 + COST_SLACK) + 1e-300)
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):  # e.g. the quadratic model's fold
             ok = np.zeros(x.shape[:-1], dtype=bool)
         if ok.all():
@@ -166,11 +170,11 @@ def goodness_of_fit_warning(
     the errors, and the user must be told.  The message names the observations with the
     largest normalized residuals (``residual / 1σ``).
     """
-    from scipy.stats import chi2 as chi2_distribution
+    from stableins.estimators.distributions import chi2_ppf
 
     if dof <= 0 or not np.isfinite(chi2):
         return None
-    limit = float(chi2_distribution.ppf(quantile, dof))
+    limit = chi2_ppf(quantile, dof)
     if chi2 <= limit:
         return None
     z = np.asarray(normalized_residuals, dtype=float)

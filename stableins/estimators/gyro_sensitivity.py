@@ -73,6 +73,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
 from stableins.conventions import (
+    ARCSEC,
     AXES,
     DEFAULT_GIMBALS,
     DEG_PER_HOUR,
@@ -86,7 +87,7 @@ from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
 from stableins.estimators.gauss_newton import goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood, Stage
-from stableins.platform import GIMBAL_LOCK_CONDITION, GimbalPlatform, platform_specific_force, rotation_about
+from stableins.platform import GIMBAL_LOCK_CONDITION, GIMBAL_NAMES, GimbalPlatform, platform_specific_force, rotation_about
 from stableins.status import Status
 
 #: Fraction of each dwell left out at its start before fitting reading slopes (servo settling).
@@ -99,7 +100,6 @@ MAX_CONDITION = GIMBAL_LOCK_CONDITION
 RANK_RTOL = 1e-6
 #: False-alarm level of the ``D_g = 0`` test.
 FLAG_ALPHA = 0.01
-GIMBALS = ("platform", "inner", "middle")
 #: The twelve numbers of the stage, in vector order: ``gyro_drift_x/y/z``, then ``Dg_xx, Dg_xy, …, Dg_zz``.
 GYRO_TERMS: tuple[Term, ...] = GYRO_DRIFT_TERMS + GYRO_G_TERMS
 
@@ -405,7 +405,7 @@ def estimate_gyro_sensitivity(
     null = _null_of_subset(null_all[:n])
     statistic, p_value, test_dof = _flag_test(x, covariance, ids, null)
     chi2, dof = float(residual @ residual), int(residual.size - rank)
-    residual_labels = tuple(f"{lbl} d{g}/dt" for lbl, k in zip(names, keep, strict=True) if k for g in GIMBALS)
+    residual_labels = tuple(f"{lbl} d{g}/dt" for lbl, k in zip(names, keep, strict=True) if k for g in GIMBAL_NAMES)
     warning = goodness_of_fit_warning(chi2, dof, residual, residual_labels)
     gauge = gauge_statement(geometry.mode)
     determined = [np.linalg.norm(null_all[k]) < 1e-6 for k in range(n_all)]
@@ -417,7 +417,7 @@ def estimate_gyro_sensitivity(
         angle_noise=(float(noise[0]), float(noise[1]), float(noise[2])),
         dwells_used=tuple(n for n, k in zip(names, keep, strict=True) if k),
         left_out=left_out,
-        rank_report=rank_report(ids, null, int(keep.sum()), mode=geometry.mode, nuisance=nuisance_ids),
+        rank_report=gyro_rank_report(ids, null, int(keep.sum()), mode=geometry.mode, nuisance=nuisance_ids),
         chi2=chi2,
         dof=dof,
         statistic=statistic,
@@ -502,7 +502,7 @@ def _flag_test(
     return statistic, float(stats.chi2.sf(statistic, len(tested))), len(tested)
 
 
-def rank_report(
+def gyro_rank_report(
     ids: Sequence[str], null: NDArray[np.float64], dwells: int, *, mode: DwellMode = DEFAULT_DWELL_MODE, nuisance: Sequence[str] = ()
 ) -> tuple[str, ...]:
     """Return the rank report: how many of the parameters the dwells determine, the free combinations, what no dwell shows."""
@@ -633,7 +633,7 @@ def remove_earth_turn(
     return remainder, centre
 
 
-def report(result: FitResult) -> str:
+def gyro_report(result: FitResult) -> str:
     """Text report: drifts in °/h, g-sensitivities in °/h/g with σ and z, the ``D_g = 0`` test, the noise and rank."""
     details = result.details
     assert isinstance(details, GyroSensitivityDetails)
@@ -651,9 +651,9 @@ def report(result: FitResult) -> str:
             f"(flag below α = {details.alpha:g}): {verdict}"
         )
     for name, value, sig in details.nuisance:
-        unit, scale = ("ppm", 1e-6) if name.startswith("torquer_scale_") else ("arcsec", np.pi / 648000)
+        unit, scale = ("ppm", 1e-6) if name.startswith("torquer_scale_") else ("arcsec", ARCSEC)
         lines.append(f"  nuisance {name:<15} {value / scale:+.3f} ± {sig / scale:.3f} {unit}")
-    noise = ", ".join(f"{n / (np.pi / 648000):.3f}" for n in details.angle_noise)
+    noise = ", ".join(f"{n / ARCSEC:.3f}" for n in details.angle_noise)
     lines.append(f"angle noise measured within the dwells (platform, inner, middle): {noise} arcsec per sample")
     lines.append(f"χ²_ν of the slopes = {details.chi2 / max(details.dof, 1):.2f} (ν = {details.dof})")
     if details.chi2_warning is not None:
@@ -675,8 +675,8 @@ __all__ = [
     "estimate_gyro_sensitivity",
     "gyro_from_datasets",
     "gauge_statement",
-    "rank_report",
+    "gyro_rank_report",
     "reading_slope",
     "remove_earth_turn",
-    "report",
+    "gyro_report",
 ]

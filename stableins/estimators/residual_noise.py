@@ -185,7 +185,7 @@ def _restricted_loglik(c: _Components, b: float, k: float) -> float:
 
 def _score_p(c: _Components) -> tuple[float, float]:
     """Residual score test at θ = 0 (module docstring): standardized statistic and p-value."""
-    from scipy.stats import chi2
+    from stableins.estimators.distributions import chi2_sf
 
     vi = np.linalg.inv(c.white)
     p0 = vi
@@ -201,7 +201,7 @@ def _score_p(c: _Components) -> tuple[float, float]:
     if not (mean > 0 and var > 0):
         return 0.0, 1.0
     g, h = var / (2.0 * mean), 2.0 * mean**2 / var
-    return (u - mean) / math.sqrt(var), float(chi2.sf(u / g, h))
+    return (u - mean) / math.sqrt(var), chi2_sf(u / g, h)
 
 
 def residual_slow_noise(
@@ -221,7 +221,8 @@ def residual_slow_noise(
     :func:`stableins.estimators.slow_noise.slow_noise_test` (None: residuals alone).
     """
     from scipy.optimize import minimize
-    from scipy.stats import chi2, norm
+
+    from stableins.estimators.distributions import chi2_sf, norm_ppf
 
     c = _components(coarse_dwells, fine_dwells, setting, fit)
     b_a = s_a = math.nan
@@ -240,7 +241,7 @@ def residual_slow_noise(
     best = min((minimize(objective, np.array(s), method="L-BFGS-B", bounds=[(0.0, 1e6), (0.0, 1e6)]) for s in starts), key=lambda r: r.fun)
     b_hat, k_hat = (max(float(v), 0.0) for v in best.x)
     # upper limit of b with k profiled: where the objective rises by z²/2 (one-sided)
-    z = float(norm.ppf(confidence))
+    z = norm_ppf(confidence)
     target = float(best.fun) + 0.5 * z**2
 
     def profile(b: float) -> float:
@@ -255,7 +256,7 @@ def residual_slow_noise(
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if profile(mid) < target else (lo, mid)
     statistic, residual_p = _score_p(c)
-    combined = float(chi2.sf(-2.0 * (math.log(max(residual_p, 1e-300)) + math.log(max(allan_p, 1e-300))), 4))
+    combined = chi2_sf(-2.0 * (math.log(max(residual_p, 1e-300)) + math.log(max(allan_p, 1e-300))), 4)
     rows, params = c.design.shape
     return ResidualSlowNoise(
         math.sqrt(b_hat) * UNIT_B,
@@ -315,7 +316,8 @@ def given_noise_test(
     :func:`residual_slow_noise`); the statistic ``2 (max ℓ − ℓ(θ_given))`` is referred to χ²₂.
     """
     from scipy.optimize import minimize
-    from scipy.stats import chi2
+
+    from stableins.estimators.distributions import chi2_sf
 
     c = _components(coarse_dwells, fine_dwells, setting, fit)
     b_given = float(np.mean(model.values("bias_instability") ** 2)) / UNIT_B**2
@@ -338,4 +340,4 @@ def given_noise_test(
     best = min((minimize(objective, np.array(s), method="L-BFGS-B", bounds=[(0.0, 1e6), (0.0, 1e6)]) for s in starts), key=lambda r: r.fun)
     statistic = max(2.0 * (-float(best.fun) - given), 0.0)
     b_hat, k_hat = (max(float(v), 0.0) for v in best.x)
-    return GivenNoiseTest(statistic, float(chi2.sf(statistic, 2)), alpha, math.sqrt(b_hat) * UNIT_B, math.sqrt(k_hat) * UNIT_K)
+    return GivenNoiseTest(statistic, chi2_sf(statistic, 2), alpha, math.sqrt(b_hat) * UNIT_B, math.sqrt(k_hat) * UNIT_K)

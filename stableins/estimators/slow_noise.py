@@ -33,7 +33,7 @@ from stableins.noise import NoiseModel, SlowNoiseTest
 #: Cluster sizes of the dwell test, as fractions of the dwell's samples.
 TEST_FRACTIONS = (4, 8, 16, 32)
 #: False-positive rate of the slow-noise decision.
-DEFAULT_ALPHA = 0.05
+SLOW_NOISE_ALPHA = 0.05
 
 
 # ----------------------------------------------------------------------------- device dwells
@@ -46,9 +46,7 @@ def white_allan_covariance(n: int, clusters: tuple[int, ...]) -> NDArray[np.floa
             big_i, big_j = n - 2 * mi + 1, n - 2 * mj + 1
             hi = np.r_[-np.ones(mi), np.ones(mi)] / mi
             hj = np.r_[-np.ones(mj), np.ones(mj)] / mj
-            from scipy.signal import fftconvolve
-
-            g = fftconvolve(hi, hj[::-1], mode="full")  # g[k]: h_j starting (k − len(h_j) + 1) samples after h_i
+            g = _fftconvolve(hi, hj[::-1])  # g[k]: h_j starting (k − len(h_j) + 1) samples after h_i
             delta = np.arange(g.size) - (hj.size - 1)
             count = np.clip(np.minimum(big_i, big_j - delta) - np.maximum(0, -delta), 0, None)
             trace = float(np.sum(count * g**2)) / (4.0 * big_i * big_j)
@@ -61,10 +59,58 @@ def dwell_test_clusters(n: int) -> tuple[int, ...]:
     return tuple(sorted({n // f for f in TEST_FRACTIONS if n // f >= 2}, reverse=True))
 
 
-def dwell_allan_ratios(samples: ArrayLike, rate: float) -> tuple[tuple[int, ...], NDArray[np.float64]]:
-    """Return the normalized overlapping Allan variances ``r_j`` (k, 3) of one dwell at :func:`dwell_test_clusters` (allantools.oadev)."""
-    import allantools
+def _fftconvolve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``scipy.signal.fftconvolve(a, b, mode="full")`` of two real 1-D arrays, its operations one by one (equal to the bit).
 
+    :mod:`scipy.signal` imports :mod:`scipy.stats`, about a second of every device command (issue 30); :mod:`scipy.fft`
+    does not.  scipy 1.17 (``signal._signaltools._freq_domain_conv``): real FFTs of the next fast length, their
+    product, the inverse, the first ``len(a) + len(b) − 1`` values.
+    """
+    from scipy import fft
+
+    shape = a.size + b.size - 1
+    length = fft.next_fast_len(shape, True)
+    product = fft.rfftn(a, [length], axes=[0]) * fft.rfftn(b, [length], axes=[0])
+    return np.asarray(fft.irfftn(product, [length], axes=[0])[:shape]).copy()
+
+
+def overlapping_allan_deviation(
+    frequency: NDArray[np.float64], rate: float, clusters: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Return ``(τ, σ_A(τ))``, the overlapping Allan deviation of finite frequency data at ``τ = m/rate``.
+
+    .. math:: \sigma^2_A(m\tau_0) = \frac{1}{2 (m\tau_0)^2 (N - 2m)} \sum_{n=1}^{N-2m} (x_{n+2m} - 2x_{n+m} + x_n)^2
+
+    with ``x`` the phase (the cumulative sum of the frequency less its mean, times ``τ₀``; NIST SP 1065 Eq. 11).
+    This is ``allantools.oadev(frequency, rate=rate, data_type="freq", taus=clusters / rate)`` (allantools 2024.06)
+    operation by operation, equal to the bit (tests/test_slow_noise_oadev.py), without importing allantools, which
+    imports :mod:`scipy.stats` and :mod:`scipy.signal` (about a second of every device command, issue 30).  ``m`` are
+    rounded, kept in ``0 < m < N + 1``, sorted and made unique; results from fewer than two terms are dropped.
+    """
+    dt = 1.0 / float(rate)
+    freq = frequency - np.nanmean(frequency)
+    phase = np.insert(np.cumsum(freq) * dt, 0, 0)
+    rate = float(rate)
+    m = np.round(np.asarray(clusters / rate) * rate)
+    m = np.unique(m[(m < len(phase)) & (m > 0) & (m <= len(phase))])
+    taus = m / rate
+    devs = np.zeros_like(taus)
+    terms = np.zeros_like(taus)
+    for k, mj in enumerate(m):
+        j = int(mj)
+        n = max(len(phase) - 2 * j, 0) or 1
+        v = phase[2 * j :][:n] - 2 * phase[j:][:n] + phase[:n]
+        devs[k] = np.sqrt(np.sum(v * v) / (2.0 * n)) / j * rate
+        terms[k] = n
+    keep = terms > 1
+    return taus[keep], devs[keep]
+
+
+def dwell_allan_ratios(samples: ArrayLike, rate: float) -> tuple[tuple[int, ...], NDArray[np.float64]]:
+    """Return the normalized overlapping Allan variances ``r_j`` (k, 3) of one dwell at :func:`dwell_test_clusters`.
+
+    The deviations are :func:`overlapping_allan_deviation` (``allantools.oadev``'s, to the bit).
+    """
     x = np.asarray(samples, dtype=float).reshape(-1, 3)
     clusters = dwell_test_clusters(x.shape[0])
     ratios = np.full((len(clusters), 3), np.nan)
@@ -75,7 +121,7 @@ def dwell_allan_ratios(samples: ArrayLike, rate: float) -> tuple[tuple[int, ...]
     for a in range(3):
         if not s2[a] > 0:
             continue
-        tau_used, dev, _, _ = allantools.oadev(x[:, a], rate=rate, data_type="freq", taus=m / rate)
+        tau_used, dev = overlapping_allan_deviation(x[:, a], rate, m)
         index = np.searchsorted(-m, -np.rint(np.asarray(tau_used) * rate).astype(np.int64))
         ratios[index, a] = np.asarray(dev) ** 2 * m[index] / s2[a]
     return clusters, ratios
@@ -109,14 +155,14 @@ class DwellSlowNoise:
 def slow_noise_test(
     ratios: Sequence[tuple[int, NDArray[np.float64], NDArray[np.float64], float]],
     *,
-    alpha: float = DEFAULT_ALPHA,
+    alpha: float = SLOW_NOISE_ALPHA,
     confidence: float = 0.95,
 ) -> DwellSlowNoise:
     """Return the slow-noise decision over dwells (module docstring).
 
     ``ratios``: per dwell ``(n, r (k, 3), s² (3,), rate)`` with ``r`` at :func:`dwell_test_clusters` ``(n)``.
     """
-    from scipy.stats import chi2, norm
+    from stableins.estimators.distributions import chi2_sf, norm_ppf
 
     unit_b = NoiseModel.given(bias_instability=1.0)
     unit_k = NoiseModel.given(random_walk=1.0)
@@ -148,11 +194,11 @@ def slow_noise_test(
     # Satterthwaite: Σ wᵀr ≈ g χ²_h with the exact mean and variance under white noise
     g = v_total / (2.0 * mean_total)
     h = 2.0 * mean_total**2 / v_total
-    p_value = float(chi2.sf((s_total + mean_total) / g, h))
+    p_value = chi2_sf((s_total + mean_total) / g, h)
     statistic = s_total / math.sqrt(v_total)
     b2 = s_total / d_total
     b2_sigma = math.sqrt(v_total) / d_total
-    z = norm.ppf(confidence)
+    z = norm_ppf(confidence)
     b_upper = math.sqrt(max(b2, 0.0) + z * b2_sigma)
     k_upper = math.sqrt(max(s_total, 0.0) / dk_total + z * math.sqrt(v_total) / dk_total)
     return DwellSlowNoise(SlowNoiseTest(statistic, p_value, alpha), b2, b2_sigma, b_upper, k_upper, used)

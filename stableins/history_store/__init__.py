@@ -43,7 +43,7 @@ from stableins.history_store.schema import (
     STORE_FORMAT,
     STORE_NAME,
     STORE_SCHEMA_VERSION,
-    Entry,
+    HistoryEntry,
     default_store,
 )
 from stableins.history_store.store import HistoryStore
@@ -57,7 +57,7 @@ __all__ = [
     "STORE_FORMAT",
     "STORE_NAME",
     "STORE_SCHEMA_VERSION",
-    "Entry",
+    "HistoryEntry",
     "HistoryStore",
     "UnitStatus",
     "default_store",

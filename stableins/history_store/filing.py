@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from stableins.errors import InputError
 from stableins.history import data_only, parse_date
-from stableins.history_store.schema import MAX_RECORD_BYTES, Connection, Entry
+from stableins.history_store.schema import MAX_RECORD_BYTES, Connection, HistoryEntry
 from stableins.identifiers import check_serial_number, utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -42,7 +42,7 @@ class Filing:
     record: CalibrationRecord
     evidence_data: bytes | None
     evidence_record: CalibrationRecord | None
-    entry: Entry
+    entry: HistoryEntry
 
 
 def read_filing(record_path: str | os.PathLike[str], *, prior: str, evidence: str | os.PathLike[str] | None) -> Filing:
@@ -89,7 +89,7 @@ def filing_of(
     if not valid_from:
         raise InputError("record has neither a data end time nor a creation time", path=source, field="provenance.data_end")
     stamp = parse_date(valid_from, "provenance.data_end").strftime("%Y%m%dT%H%M%SZ")
-    entry = Entry(
+    entry = HistoryEntry(
         f"{stamp}-{digest[:8]}.json",
         valid_from,
         record.provenance.created,
@@ -104,7 +104,7 @@ def filing_of(
 
 
 def insert_entry(
-    connection: Connection, serial: str, entry: Entry, record: CalibrationRecord, evidence: CalibrationRecord | None
+    connection: Connection, serial: str, entry: HistoryEntry, record: CalibrationRecord, evidence: CalibrationRecord | None
 ) -> None:
     """Index a record: its row, and the values of its parameters, of the estimate beside it and of its data alone."""
     now = utc_now()

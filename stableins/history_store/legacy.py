@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from stableins.errors import InputError
 from stableins.history import parse_date
 from stableins.history_store.filing import SHA256, insert_entry, verified_bytes
-from stableins.history_store.schema import MAX_RECORD_BYTES, Entry, find_entry, transaction
+from stableins.history_store.schema import MAX_RECORD_BYTES, HistoryEntry, find_entry, transaction
 from stableins.identifiers import utc_now
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -55,7 +55,7 @@ def migrate(connection: sqlite3.Connection, root: Path) -> None:
             os.replace(index, folder / f"{INDEX_NAME}.migrated")
 
 
-def legacy_entries(index: Path, folder: Path) -> Iterator[tuple[Entry, datetime, CalibrationRecord, CalibrationRecord | None]]:
+def legacy_entries(index: Path, folder: Path) -> Iterator[tuple[HistoryEntry, datetime, CalibrationRecord, CalibrationRecord | None]]:
     """Yield the entries of an old ``index.json``, each checked against its file (and read for its parameters).
 
     Raises
@@ -91,7 +91,9 @@ def _legacy_fields(raw: Any, index: Path, where: str) -> tuple[dict[str, str], t
     return fields, stages
 
 
-def _legacy_entry(raw: Any, index: Path, folder: Path, where: str) -> tuple[Entry, datetime, CalibrationRecord, CalibrationRecord | None]:
+def _legacy_entry(
+    raw: Any, index: Path, folder: Path, where: str
+) -> tuple[HistoryEntry, datetime, CalibrationRecord, CalibrationRecord | None]:
     """Return one entry of an old index with its time, its record (verified) and the estimate kept beside it."""
     from stableins.data.jsonio import parse_json, read_input_bytes
     from stableins.records import CalibrationRecord
@@ -107,7 +109,7 @@ def _legacy_entry(raw: Any, index: Path, folder: Path, where: str) -> tuple[Entr
         evidence_data = read_input_bytes(evidence_path, max_bytes=MAX_RECORD_BYTES, what="the estimate the history index lists")
         evidence = CalibrationRecord.from_document(parse_json(evidence_data, path=evidence_path), str(evidence_path))
         evidence_digest = hashlib.sha256(evidence_data).hexdigest()
-    entry = Entry(
+    entry = HistoryEntry(
         fields["file"],
         fields["valid_from"],
         fields["created"],

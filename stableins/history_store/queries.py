@@ -8,7 +8,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from stableins.history import parse_date, trend
-from stableins.history_store.schema import Entry, entry_from_row
+from stableins.history_store.schema import HistoryEntry, entry_from_row
 
 #: ``|drift| / σ`` beyond which a unit counts as drifting in fleet queries.
 DRIFT_SIGMAS = 3.0
@@ -24,7 +24,7 @@ class UnitStatus:
         The unit's serial number.
     records : int
         Records filed.
-    in_force : Entry or None
+    in_force : HistoryEntry or None
         The record in force at the date asked about (None: none yet).
     age_days : float or None
         Age of the record in force at that date [days].
@@ -36,7 +36,7 @@ class UnitStatus:
 
     serial: str
     records: int
-    in_force: Entry | None
+    in_force: HistoryEntry | None
     age_days: float | None
     due: bool
     drifting: tuple[tuple[str, float], ...]
@@ -69,7 +69,7 @@ def fleet_status(
     for record_id, pid, value, sigma in values:
         by_record.setdefault(record_id, []).append((pid, value, sigma if sigma is not None else math.nan))
     units: dict[str, list[tuple[int, datetime, tuple[Any, ...]]]] = {}
-    for row in rows:  # each time parsed once; an Entry is made only for the record in force
+    for row in rows:  # each time parsed once; an HistoryEntry is made only for the record in force
         units.setdefault(row[1], []).append((row[0], parse_date(row[3], "valid_from"), row))
     out = []
     for serial, items in units.items():

@@ -62,7 +62,7 @@ SCHEMA = (
     "CREATE TABLE IF NOT EXISTS migrations (serial TEXT PRIMARY KEY, source TEXT NOT NULL, migrated TEXT NOT NULL)",
     "CREATE INDEX IF NOT EXISTS records_by_unit ON records(serial, valid_from_utc)",
 )
-#: The columns of ``records`` an :class:`Entry` is read from, in its field order.
+#: The columns of ``records`` an :class:`HistoryEntry` is read from, in its field order.
 ENTRY_COLUMNS = "file, valid_from, created, sha256, procedure, stages, prior, evidence, evidence_sha256"
 
 
@@ -80,7 +80,7 @@ def default_store() -> Path | str:
 
 
 @dataclass(frozen=True)
-class Entry:
+class HistoryEntry:
     """One record in a unit's history (a row of the index)."""
 
     file: str
@@ -99,10 +99,10 @@ class Entry:
         return parse_date(self.valid_from, "valid_from")
 
 
-def entry_from_row(row: tuple[Any, ...]) -> Entry:
+def entry_from_row(row: tuple[Any, ...]) -> HistoryEntry:
     """Return the entry of a row of :data:`ENTRY_COLUMNS`."""
     file, valid_from, created, sha256, procedure, stages, prior, evidence, evidence_sha256 = row
-    return Entry(file, valid_from, created, sha256, procedure, tuple(json.loads(stages)), prior, evidence, evidence_sha256)
+    return HistoryEntry(file, valid_from, created, sha256, procedure, tuple(json.loads(stages)), prior, evidence, evidence_sha256)
 
 
 @contextlib.contextmanager
@@ -117,7 +117,7 @@ def transaction(connection: Connection) -> Iterator[None]:
     connection.execute("COMMIT")
 
 
-def find_entry(connection: Connection, serial: str, digest: str) -> Entry | None:
+def find_entry(connection: Connection, serial: str, digest: str) -> HistoryEntry | None:
     """Return the unit's entry of the record with this SHA-256, None if it is not filed."""
     row = connection.execute(f"SELECT {ENTRY_COLUMNS} FROM records WHERE serial = ? AND sha256 = ?", (serial, digest)).fetchone()
     return None if row is None else entry_from_row(row)

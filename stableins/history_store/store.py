@@ -35,7 +35,7 @@ from stableins.history_store.schema import (
     STORE_FORMAT,
     STORE_NAME,
     Connection,
-    Entry,
+    HistoryEntry,
     default_store,
     entry_from_row,
     find_entry,
@@ -144,7 +144,7 @@ class HistoryStore:
         """Return ``DIR/<serial>`` (InputError for a serial number that cannot name a folder)."""
         return self.root / check_serial(serial)
 
-    def entries(self, serial: str) -> list[Entry]:
+    def entries(self, serial: str) -> list[HistoryEntry]:
         """Return the unit's entries, oldest first; empty if it has none."""
         self.unit_directory(serial)
         with self._database(create=False) as connection:
@@ -170,7 +170,7 @@ class HistoryStore:
             count, last = connection.execute("SELECT count(*), coalesce(max(id), 0) FROM records").fetchone()
         return int(count), int(last)
 
-    def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> Entry:
+    def add(self, record_path: str | os.PathLike[str], *, prior: str = "", evidence: str | os.PathLike[str] | None = None) -> HistoryEntry:
         """File a record in its unit's history (idempotent: the same bytes are filed once).
 
         The record (and the data-only ``evidence`` estimate kept beside it) is validated from the very bytes that are
@@ -187,14 +187,14 @@ class HistoryStore:
 
         Returns
         -------
-        Entry
+        HistoryEntry
             The record's entry (the one already filed when the same bytes were filed before).
         """
         filing = read_filing(record_path, prior=prior, evidence=evidence)
         self.unit_directory(filing.record.serial_number)
         return self.add_filings([filing])[0]
 
-    def add_filings(self, filings: Iterable[Filing]) -> list[Entry]:
+    def add_filings(self, filings: Iterable[Filing]) -> list[HistoryEntry]:
         """File records already read (:func:`~stableins.history_store.filing.filing_of`), each in its own transaction.
 
         One connection serves them all (:meth:`add` files one; ``history --migrate`` and the fleet benchmark file many).
@@ -219,7 +219,7 @@ class HistoryStore:
         return entries
 
     @staticmethod
-    def _file_in_database(connection: Connection, filing: Filing) -> Entry:
+    def _file_in_database(connection: Connection, filing: Filing) -> HistoryEntry:
         """Index a filing and store its bytes in one transaction (PostgreSQL: the bytes appear with their row)."""
         entry, serial = filing.entry, filing.record.serial_number
         with transaction(connection):
@@ -234,7 +234,7 @@ class HistoryStore:
         return entry
 
     @staticmethod
-    def _file(connection: Connection, directory: Path, filing: Filing) -> Entry:
+    def _file(connection: Connection, directory: Path, filing: Filing) -> HistoryEntry:
         """Write the filing's files and index them in one transaction (the files appear with their row)."""
         entry, serial = filing.entry, filing.record.serial_number
         staged = [stage_file(directory, entry.file, filing.data)]
@@ -256,7 +256,7 @@ class HistoryStore:
         return entry
 
     # ------------------------------------------------------------------ reading records
-    def record_path(self, serial: str, entry: Entry, *, evidence: bool = False) -> Path:
+    def record_path(self, serial: str, entry: HistoryEntry, *, evidence: bool = False) -> Path:
         """Return the path of a filed record after its SHA-256 was checked against the index (InputError otherwise).
 
         On PostgreSQL the verified bytes are written (atomically) to ``root/<serial>/<file>``, a local folder of this
@@ -275,12 +275,12 @@ class HistoryStore:
             handle.write(self.verified_data(serial, entry, evidence=evidence))
         return path
 
-    def _file_and_digest(self, serial: str, entry: Entry, *, evidence: bool) -> tuple[Path, str]:
+    def _file_and_digest(self, serial: str, entry: HistoryEntry, *, evidence: bool) -> tuple[Path, str]:
         if evidence and entry.evidence:
             return self.unit_directory(serial) / entry.evidence, entry.evidence_sha256
         return self.unit_directory(serial) / entry.file, entry.sha256
 
-    def verified_data(self, serial: str, entry: Entry, *, evidence: bool = False) -> bytes:
+    def verified_data(self, serial: str, entry: HistoryEntry, *, evidence: bool = False) -> bytes:
         """Return the bytes of a filed record (or of the estimate kept beside it), refused unless their SHA-256 is the index's.
 
         Raises
@@ -302,7 +302,7 @@ class HistoryStore:
             )
         return checked_digest(bytes(row[0]), digest, where)
 
-    def load(self, serial: str, entry: Entry, *, evidence: bool = False) -> CalibrationRecord:
+    def load(self, serial: str, entry: HistoryEntry, *, evidence: bool = False) -> CalibrationRecord:
         """Return a filed record (or the estimate kept beside it), refused unless its bytes have the SHA-256 the index holds."""
         from stableins.data.jsonio import parse_json
         from stableins.records import CalibrationRecord
@@ -333,7 +333,7 @@ class HistoryStore:
         return problems
 
     # ------------------------------------------------------------------ questions
-    def in_force(self, serial: str, date: datetime | None = None) -> Entry:
+    def in_force(self, serial: str, date: datetime | None = None) -> HistoryEntry:
         """Return the entry in force at ``date`` (now by default).
 
         Raises
@@ -359,7 +359,7 @@ class HistoryStore:
             )
         return earlier[-1]
 
-    def staleness(self, entry: Entry, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE) -> str | None:
+    def staleness(self, entry: HistoryEntry, date: datetime | None = None, max_age: timedelta = DEFAULT_MAX_AGE) -> str | None:
         """Return a warning if ``entry`` is older than ``max_age`` at ``date``, else ``None``."""
         date = date or datetime.now(UTC)
         age = date - entry.time
@@ -367,7 +367,7 @@ class HistoryStore:
             return f"the record in force is {age.days} days old (limit {max_age.days} days): recalibrate (stableins recal)"
         return None
 
-    def records(self, serial: str) -> list[tuple[Entry, CalibrationRecord]]:
+    def records(self, serial: str) -> list[tuple[HistoryEntry, CalibrationRecord]]:
         """Return the unit's entries with their records, oldest first, every record read verified by its SHA-256.
 
         One read of the store for them all (on PostgreSQL one query, not one connection per record).
@@ -394,7 +394,7 @@ class HistoryStore:
             out.append((entry, CalibrationRecord.from_document(parse_json(data, path=path, what="a calibration record"), str(path))))
         return out
 
-    def changes(self, serial: str) -> list[tuple[Entry, Entry, Comparison]]:
+    def changes(self, serial: str) -> list[tuple[HistoryEntry, HistoryEntry, Comparison]]:
         """Return consecutive pairs of records with every parameter's change and significance (:func:`stableins.history.compare`)."""
         loaded = self.records(serial)
         return [(old, new, compare(before, after)) for (old, before), (new, after) in zip(loaded, loaded[1:])]

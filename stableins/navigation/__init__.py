@@ -17,12 +17,12 @@ from stableins.navigation.budget import (
 )
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.sources import LeftOut
-from stableins.navigation.summary import DriftSource, ErrorSummary, PeakFinal, Quantity, TermBudget
+from stableins.navigation.summary import BudgetDriftSource, ErrorSummary, PeakFinal, Quantity, TermBudget
 
 __all__ = [
     "BudgetComparison",
     "CalibrationTerms",
-    "DriftSource",
+    "BudgetDriftSource",
     "ErrorSummary",
     "LeftOut",
     "NavigationBudget",

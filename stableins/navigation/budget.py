@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.display import number, unit_text
 from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel, Term, TermKind, known_terms
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.navigation.dynamics import NavigationScenario
 from stableins.navigation.propagation import Propagator
 from stableins.navigation.sources import (
@@ -45,7 +45,7 @@ from stableins.navigation.sources import (
 from stableins.navigation.summary import (
     COMPONENTS,
     HORIZONTAL,
-    DriftSource,
+    BudgetDriftSource,
     ErrorSummary,
     Quantity,
     TermBudget,
@@ -57,7 +57,7 @@ from stableins.navigation.summary import (
 #: Default step of the time grid [s].
 DEFAULT_STEP = 60.0
 #: Most time steps of a budget (a longer duration takes a longer step).
-MAX_STEPS = 20000
+MAX_TIME_STEPS = 20000
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ class NavigationBudget:
         RSS of the terms (independent), and the total with the record's covariance.
     left_out : tuple of LeftOut
         Record terms not propagated, with the reason.
-    drift : DriftSource
+    drift : BudgetDriftSource
         Where the gyro-drift σ comes from (none: the budget has no gyro drift, and says so).
     time : ndarray (steps,)
         [s].
@@ -94,7 +94,7 @@ class NavigationBudget:
     rss: ErrorSummary
     total: ErrorSummary
     left_out: tuple[LeftOut, ...]
-    drift: DriftSource
+    drift: BudgetDriftSource
     time: NDArray[np.float64]
     responses: NDArray[np.float64]
     rss_series: NDArray[np.float64]
@@ -112,7 +112,7 @@ class NavigationBudget:
     def notes(self) -> tuple[str, ...]:
         """What the reader must know to read the numbers right."""
         out = []
-        if self.drift == DriftSource.NONE:
+        if self.drift == BudgetDriftSource.NONE:
             out.append(
                 "no gyro drift: the record carries no gyro_drift_* terms and none was given (--drift X Y Z); "
                 "on a real platform the drift usually dominates position and heading errors"
@@ -176,8 +176,8 @@ class BudgetComparison:
 
 def _step_for(duration: float, step: float) -> tuple[float, int]:
     count = max(1, int(math.ceil(duration / step - 1e-9)))
-    if count > MAX_STEPS:
-        count = MAX_STEPS
+    if count > MAX_TIME_STEPS:
+        count = MAX_TIME_STEPS
     return duration / count, count
 
 
@@ -197,6 +197,8 @@ def _term_forcing(term: Term, model: ErrorModel, values: Mapping[str, float], sc
             return accelerometer_forcing(model, values, term, scenario)
         except InputError:
             raise
+        except NotDeterminedError:
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             return f"{error}; on a static base at the reference temperature it adds nothing the budget can compute"
     return f"kind {term.kind} does not act on navigation"  # pragma: no cover - every kind is listed above
@@ -223,7 +225,7 @@ class _Chosen:
     forcing: UnitForcing | None = None
 
 
-def _choose(calibration: CalibrationTerms, drift_sigma: Sequence[float] | None) -> tuple[list[_Chosen], list[LeftOut], DriftSource]:
+def _choose(calibration: CalibrationTerms, drift_sigma: Sequence[float] | None) -> tuple[list[_Chosen], list[LeftOut], BudgetDriftSource]:
     """Return the terms with a finite, positive 1σ, those left out and why, and where the drift comes from."""
     terms = known_terms(calibration.model.terms)
     cov = np.asarray(calibration.covariance, dtype=float)
@@ -244,8 +246,8 @@ def _choose(calibration: CalibrationTerms, drift_sigma: Sequence[float] | None) 
             chosen.append(_Chosen(term, math.sqrt(variance), row))
     if drift_sigma is not None:
         chosen.extend(_Chosen(t, float(sigma), None) for t, sigma in zip(GYRO_DRIFT_TERMS, drift_sigma, strict=True))
-        return chosen, left_out, DriftSource.GIVEN
-    return chosen, left_out, DriftSource.RECORD if drift_ids & set(calibration.ids) else DriftSource.NONE
+        return chosen, left_out, BudgetDriftSource.GIVEN
+    return chosen, left_out, BudgetDriftSource.RECORD if drift_ids & set(calibration.ids) else BudgetDriftSource.NONE
 
 
 def _covariance_of(chosen: Sequence[_Chosen], covariance: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -280,7 +282,7 @@ def navigation_budget(
     duration : float
         Navigation time [s].
     step : float
-        Time grid [s] (at most :data:`MAX_STEPS` steps).
+        Time grid [s] (at most :data:`MAX_TIME_STEPS` steps).
     drift_sigma : sequence of 3 float, optional
         1σ of the constant platform gyro drift ``(x_p, y_p, z_p)`` [rad/s]: replaces the record's ``gyro_drift_*``
         σ (uncorrelated with the other terms), or adds them when the record has none.

@@ -59,7 +59,7 @@ HORIZONTAL = {
 }
 
 
-class DriftSource(StrEnum):
+class BudgetDriftSource(StrEnum):
     """Where the budget's gyro drift σ comes from."""
 
     RECORD = "record"

@@ -62,7 +62,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import MICRO_G
+from stableins.conventions import AXES, MICRO_G
 from stableins.display import clipped, html_result, html_table, require_pandas, unit_text
 from stableins.errors import InputError
 from stableins.noise.windows import gauss_markov_allan, gauss_markov_window_covariance, random_walk_window_covariance, sessions
@@ -76,7 +76,6 @@ FLICKER_VARIANCE_PER_B2 = math.log(10.0) / math.pi
 #: Allan deviation floor of ideal flicker per unit ``B``: ``sqrt(2 ln 2/π) = 0.664``.
 FLICKER_FLOOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 
-AXES = ("x", "y", "z")
 #: The four terms, their SI units and engineering units (scale: SI per engineering unit).
 TERMS: tuple[str, ...] = ("white", "bias_instability", "random_walk", "quantization")
 SI_UNITS: Mapping[str, str] = {
@@ -654,7 +653,6 @@ def noise_model_from_document(document: Any, path: str | None = None, prefix: st
 
 
 __all__ = [
-    "AXES",
     "FLICKER_FLOOR",
     "FLICKER_TIME_CONSTANTS",
     "AxisNoise",

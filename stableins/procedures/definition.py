@@ -29,8 +29,8 @@ from stableins.procedures.sections import (
     PersonAction,
     RunnerSettings,
     StaticRecord,
-    number,
-    table,
+    toml_number,
+    toml_table,
 )
 
 #: Where the definitions shipped with stableins live: package data, found by name from any directory.
@@ -257,14 +257,14 @@ def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
 
 def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
     """``[defaults]``: settle (0 when absent), dwell and sample rate for every step."""
-    defaults = table(data.get("defaults", {}), spath, "defaults")
+    defaults = toml_table(data.get("defaults", {}), spath, "defaults")
     unknown = set(defaults) - set(_TIMING_LIMITS)
     if unknown:
         raise InputError(f"unknown keys {sorted(unknown)}", path=spath, field="defaults", expected=f"{sorted(_TIMING_LIMITS)}")
     base = {}
     for key, fallback in (("settle", 0.0), ("dwell", None), ("sample_rate", None)):
         if key in defaults:
-            base[key] = number(defaults, key, spath, "defaults", **_TIMING_LIMITS[key])
+            base[key] = toml_number(defaults, key, spath, "defaults", **_TIMING_LIMITS[key])
         elif fallback is not None:
             base[key] = fallback
     return base
@@ -272,13 +272,13 @@ def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
 
 def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
     """Return ``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
-    acc_table = table(data.get("acceptance", {}), spath, "acceptance")
+    acc_table = toml_table(data.get("acceptance", {}), spath, "acceptance")
     acc_fields = set(_ACCEPTANCE_LIMITS)
     if set(acc_table) - acc_fields:
         raise InputError(
             f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}"
         )
-    acc_values: dict[str, Any] = {k: number(acc_table, k, spath, "acceptance", **_ACCEPTANCE_LIMITS[k]) for k in acc_table}
+    acc_values: dict[str, Any] = {k: toml_number(acc_table, k, spath, "acceptance", **_ACCEPTANCE_LIMITS[k]) for k in acc_table}
     for k in ("min_samples", "noise_blocks"):
         if k in acc_values:
             acc_values[k] = int(acc_values[k])
@@ -289,7 +289,7 @@ def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
 
 def _offset_iteration(data: dict[str, Any], spath: str) -> OffsetIteration:
     """``[offset_iteration]``: threshold (arcsec in the file), max passes, noise sigmas."""
-    it_table = table(data.get("offset_iteration", {}), spath, "offset_iteration")
+    it_table = toml_table(data.get("offset_iteration", {}), spath, "offset_iteration")
     it_fields = {"threshold", "max_passes", "noise_sigmas"}
     if set(it_table) - it_fields:
         raise InputError(f"unknown keys {sorted(set(it_table) - it_fields)}", path=spath, field="offset_iteration")
@@ -298,7 +298,7 @@ def _offset_iteration(data: dict[str, Any], spath: str) -> OffsetIteration:
         "max_passes": {"minimum": 1.0, "maximum": 100.0, "whole": True},
         "noise_sigmas": {"minimum": 0.0, "maximum": 100.0},
     }
-    it_values: dict[str, Any] = {k: number(it_table, k, spath, "offset_iteration", **it_limits[k]) for k in it_table}
+    it_values: dict[str, Any] = {k: toml_number(it_table, k, spath, "offset_iteration", **it_limits[k]) for k in it_table}
     if "threshold" in it_values:
         it_values["threshold"] *= ARCSEC
     if "max_passes" in it_values:
@@ -352,7 +352,7 @@ def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, fl
     """Return the commanded readings of a ``[[step]]`` table [rad] (the file gives degrees)."""
     angles = []
     for key in ("platform", "inner", "middle"):
-        deg = number(raw, key, spath, where)
+        deg = toml_number(raw, key, spath, where)
         if abs(deg) > MAX_STEP_DEGREES:
             raise InputError(
                 f"{where}: {deg} deg is not a gimbal angle in degrees", path=spath, field=f"step.{key}",
@@ -367,7 +367,7 @@ def _step_timing(raw: dict[str, Any], where: str, base: dict[str, float], spath:
     timing = dict(base)
     for key in ("settle", "dwell", "sample_rate"):
         if key in raw:
-            timing[key] = number(raw, key, spath, where, **_TIMING_LIMITS[key])
+            timing[key] = toml_number(raw, key, spath, where, **_TIMING_LIMITS[key])
         if key not in timing:
             raise InputError(f"{where}: no {key} and no default", path=spath, field=f"step.{key}")
     return timing

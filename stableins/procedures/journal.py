@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.atomic import fsync_directory
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
 
@@ -290,6 +290,8 @@ def _scanned_record(path: Path, payload: bytes, position: int, expected_seq: int
     """Decode the record at ``position``; InputError when it cannot be decoded or is out of sequence."""
     try:
         record = _decode(payload, position, str(path), with_arrays=False)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except (ValueError, KeyError, UnicodeDecodeError) as error:
         raise InputError(f"journal record at byte {position} cannot be decoded ({error})", path=path) from None
     if record.seq != expected_seq:
@@ -327,6 +329,8 @@ def start_record(path: str | os.PathLike[str]) -> Record | None:
         return None
     try:
         record = _decode(payload, len(FILE_MAGIC), str(path), with_arrays=False)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except (ValueError, KeyError, UnicodeDecodeError):
         return None
     return record if record.kind == "start" else None

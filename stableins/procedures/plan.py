@@ -13,7 +13,7 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from enum import StrEnum
 from typing import Any
 
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.layout import DwellChecks
 from stableins.turns import IndexAxis, PlatformTurn, check_turns
 
@@ -21,7 +21,7 @@ from stableins.turns import IndexAxis, PlatformTurn, check_turns
 CHUNK_RANGE = (0.1, 3600.0)
 #: Default ``chunk`` [s]: a dwell reaches the journal and the console one second of data at a time (issue 27: an
 #: operator of a real platform sees the dwell progress, and a crash loses at most a second).
-DEFAULT_CHUNK = 1.0
+DEFAULT_CHUNK_SECONDS = 1.0
 #: ``retries``: repeats of a rejected dwell.
 RETRIES_RANGE = (0, 100)
 #: Longest settle, dwell or slew of one step [s], and longest static record [s].
@@ -160,8 +160,8 @@ _CHECK_RANGES: dict[str, tuple[float, float]] = {
 #: Whole-number checks and their ranges.
 _WHOLE_CHECKS: dict[str, tuple[int, int]] = {"min_samples": (2, 10**8), "noise_blocks": (2, 1000)}
 
-Step = DwellStep | PersonStep | OffsetIterationStep | StaticRecordStep
-_STEP_TYPES: dict[str, type[Step]] = {
+PlanStep = DwellStep | PersonStep | OffsetIterationStep | StaticRecordStep
+_STEP_TYPES: dict[str, type[PlanStep]] = {
     "dwell": DwellStep,
     "person": PersonStep,
     "offset_iteration": OffsetIterationStep,
@@ -191,9 +191,9 @@ class Plan:
 
     name: str
     level: str
-    steps: tuple[Step, ...]
+    steps: tuple[PlanStep, ...]
     retries: int = 2
-    chunk: float = DEFAULT_CHUNK
+    chunk: float = DEFAULT_CHUNK_SECONDS
     sample_rate: float | None = None
     description: str = ""
 
@@ -233,7 +233,7 @@ class Plan:
         d = v.mapping(d, "", {"name", "level", "retries", "chunk", "sample_rate", "description", "steps"}, {"name", "level", "steps"})
         level = v.choice(d["level"], "level", ("device", "system", "recal"))
         raw_steps = v.list(d["steps"], "steps", 1, MAX_STEPS)
-        steps: list[Step] = [v.step(item, f"steps[{k}]") for k, item in enumerate(raw_steps)]
+        steps: list[PlanStep] = [v.step(item, f"steps[{k}]") for k, item in enumerate(raw_steps)]
         rate = d.get("sample_rate")
         return cls(
             name=v.text(d["name"], "name"),
@@ -331,11 +331,13 @@ class _Validator:
             out.append(PlatformTurn(start, angle, IndexAxis(axis), rate))
         try:
             check_turns(out, duration)
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             raise self.fail(str(error), where, "turns in time order within the record") from None
         return tuple(out)
 
-    def step(self, value: Any, where: str) -> Step:
+    def step(self, value: Any, where: str) -> PlanStep:
         """Read one step of a plan document: its ``kind`` and that kind's fields, every value checked."""
         if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in _STEP_TYPES:
             kind = value.get("kind") if isinstance(value, dict) else value

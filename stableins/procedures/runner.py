@@ -45,8 +45,6 @@ from stableins.procedures.session import Session, SessionDriver
 from stableins.procedures.verdict import CheckResult, estimator_verdict, evaluate_dwell
 from stableins.samples import SampleBlock
 
-#: Exit status of a run that stopped and can be resumed (2 is reserved for bad input).
-EXIT_STOPPED = 3
 #: A static record prints its quick look (:class:`~stableins.procedures.quicklook.QuickLook`) this many times (and at
 #: least a chunk apart): a day-long record every 3 h, the 21-min drift test every 2.6 min.
 QUICK_LOOKS = 8
@@ -420,7 +418,7 @@ class Runner:
             self.entries += accepted
             for entry in accepted:
                 self.session.accept(entry["blocks"])
-            seconds = ", ".join(f"{o / 4.84813681109536e-06:+.2f}" for o in self.offsets)
+            seconds = ", ".join(f"{o / ARCSEC:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec", replay=replayed)
             return
 
@@ -498,7 +496,6 @@ def _is_number(text: str) -> bool:
 
 
 __all__ = [
-    "EXIT_STOPPED",
     "RunConsole",
     "RunOptions",
     "RunStopped",

@@ -11,17 +11,16 @@ from dataclasses import dataclass
 from typing import Any
 
 from stableins.conventions import ARCSEC, MICRO_G
-from stableins.errors import InputError
-from stableins.procedures.plan import DEFAULT_CHUNK, SystemEstimation
+from stableins.errors import InputError, NotDeterminedError
+from stableins.procedures.plan import DEFAULT_CHUNK_SECONDS, MAX_RECORD_SECONDS, SystemEstimation
 from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
 MAX_SECONDS = 86400.0
-MAX_RECORD_SECONDS = 30 * 86400.0
 MAX_RATE = 1e4
 
 
-def number(
+def toml_number(
     table: dict,
     key: str,
     path: str,
@@ -48,7 +47,7 @@ def number(
     return float(value)
 
 
-def table(value: Any, path: str, name: str) -> dict[str, Any]:
+def toml_table(value: Any, path: str, name: str) -> dict[str, Any]:
     """Return ``value`` if it is a TOML table; InputError naming ``[name]`` otherwise."""
     if not isinstance(value, dict):
         raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
@@ -60,14 +59,14 @@ class RunnerSettings:
     """``[runner]``: how ``stableins run`` executes a procedure.
 
     ``retries``: repeats of a rejected dwell before the run stops; ``chunk`` [s]: dwells are
-    journaled in pieces of at most this length (default :data:`~stableins.procedures.plan.DEFAULT_CHUNK`, 1 s: the
+    journaled in pieces of at most this length (default :data:`~stableins.procedures.plan.DEFAULT_CHUNK_SECONDS`, 1 s: the
     journal and the console follow a dwell second by second).  The table's thresholds (``angle_tolerance``,
     ``scatter_max``, ``slope_max``, ``max_slew``) are dwell checks: they go to the procedure's
     :class:`~stableins.estimators.layout.DwellChecks`.
     """
 
     retries: int = 2
-    chunk: float = DEFAULT_CHUNK
+    chunk: float = DEFAULT_CHUNK_SECONDS
 
 
 @dataclass(frozen=True)
@@ -138,7 +137,7 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
     values: dict[str, Any] = {}
     for key, factor in _RUNNER_KEYS.items():
         if key in table:
-            values[key] = number(table, key, path, "runner", **limits[key]) * factor
+            values[key] = toml_number(table, key, path, "runner", **limits[key]) * factor
     if "retries" in values:
         values["retries"] = int(values["retries"])
     return values
@@ -178,7 +177,7 @@ def _person(raw: Any, where: str, path: str, steps: int) -> PersonAction:
         raise InputError(
             f"{where}: an 'enter' step names its value", path=path, field="person.key", expected="a key, e.g. 'lab_temperature'"
         )
-    bounds = {b: number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
+    bounds = {b: toml_number(raw, b, path, where) if b in raw else None for b in ("minimum", "maximum")}
     if bounds["minimum"] is not None and bounds["maximum"] is not None and bounds["minimum"] > bounds["maximum"]:
         raise InputError(f"{where}: minimum above maximum", path=path, field="person.minimum")
     default = _person_default(raw.get("default"), where, path)
@@ -257,17 +256,17 @@ def static_record(table: Any, stage: str, path: str) -> StaticRecord | None:
         raise InputError(what, path=path, field="record", expected=f"{sorted(_RECORD_KEYS)} (duration and sample_rate required)")
     angles = []
     for key in ("platform", "inner", "middle"):
-        deg = number(table, key, path, "record") if key in table else 0.0
+        deg = toml_number(table, key, path, "record") if key in table else 0.0
         if abs(deg) > 720.0:
             raise InputError(f"{deg} deg is not a gimbal angle in degrees", path=path, field=f"record.{key}", expected="degrees")
         angles.append(math.radians(deg))
-    duration = number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS)
+    duration = toml_number(table, "duration", path, "record", positive=True, maximum=MAX_RECORD_SECONDS)
     turns = index_turns(table.get("index", []), duration, path)
     return StaticRecord(
         command=(angles[0], angles[1], angles[2]),
-        settle=number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
+        settle=toml_number(table, "settle", path, "record", minimum=0.0, maximum=MAX_SECONDS) if "settle" in table else 0.0,
         duration=duration,
-        sample_rate=number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
+        sample_rate=toml_number(table, "sample_rate", path, "record", positive=True, maximum=MAX_RATE),
         turns=turns,
         estimation=_estimation(table, path, indexed=bool(turns)),
     )
@@ -280,6 +279,8 @@ def _estimation(table: dict[str, Any], path: str, *, indexed: bool) -> SystemEst
     options = " or ".join(repr(e.value) for e in SystemEstimation)
     try:
         estimation = SystemEstimation(table["estimation"])
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except ValueError:
         raise InputError(f"{str(table['estimation'])[:40]!r}", path=path, field="record.estimation", expected=options) from None
     problem = estimation.problem(indexed=indexed)
@@ -308,14 +309,16 @@ def index_turns(entries: Any, duration: float, path: str) -> tuple[PlatformTurn,
             raise InputError(
                 f"axis {str(axis)[:40]!r}", path=path, field=f"{where}.axis", expected=" or ".join(repr(a.value) for a in IndexAxis)
             )
-        at = number(entry, "at", path, where, minimum=0.0, maximum=MAX_RECORD_SECONDS)
-        angle = number(entry, "angle", path, where, minimum=-360.0, maximum=360.0)
+        at = toml_number(entry, "at", path, where, minimum=0.0, maximum=MAX_RECORD_SECONDS)
+        angle = toml_number(entry, "angle", path, where, minimum=-360.0, maximum=360.0)
         if angle == 0.0:
             raise InputError("an index of 0 deg", path=path, field=f"{where}.angle", expected="a non-zero angle in degrees, -360 to 360")
-        rate = number(entry, "rate", path, where, positive=True, maximum=180.0) if "rate" in entry else math.degrees(INDEX_RATE)
+        rate = toml_number(entry, "rate", path, where, positive=True, maximum=180.0) if "rate" in entry else math.degrees(INDEX_RATE)
         turns.append(PlatformTurn(at, math.radians(angle), IndexAxis(axis), math.radians(rate)))
     try:
         check_turns(turns, duration)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except ValueError as error:
         raise InputError(str(error), path=path, field="record.index", expected="turns in time order, within record.duration") from None
     return tuple(turns)

@@ -9,7 +9,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from stableins.data.metadata import metadata_from_document
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.identifiers import check_serial_number, check_timestamp
 from stableins.records.content import _RecordT, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
@@ -131,6 +131,8 @@ class _Reader:
         information = self.matrix(value.get("information"), n, f"{key}.information", nulls=False)
         try:
             return Likelihood(ids, point, information, gradient)
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             raise self.fail(str(error), key) from None
 
@@ -220,6 +222,8 @@ class _Reader:
                 covariance,
                 self.number(item.get("step", 0.0), f"{where}.step"),
             )
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except ValueError as error:
             raise self.fail(str(error), where, "a gradient or a covariance over the ids") from None
 
@@ -320,6 +324,8 @@ class _Reader:
 
             try:
                 optional["discovery"] = ModelHistory.from_json(document["discovery"])
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except ValueError as error:
                 where, _, what = str(error).partition(": ")
                 raise self.fail(what, where, "the discovery section of docs/formats.md") from None

@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term, TermKind
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.records import CalibrationRecord
 
 MGAL = 1e-5  # m/s²
@@ -252,6 +252,8 @@ def homogeneity_degree(term: Term, gravity: float) -> int | None:
     try:
         once = np.asarray(term.regressor(TermInputs(directions)), dtype=float)
         twice = np.asarray(term.regressor(TermInputs(2.0 * directions)), dtype=float)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except (ValueError, TypeError, KeyError):
         return None
     mask = np.abs(once) > 1e-12 * max(float(np.abs(once).max(initial=0.0)), 1e-300)

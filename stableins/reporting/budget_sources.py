@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.result import Stage
 from stableins.records import CalibrationRecord
 from stableins.reporting.budget import (
@@ -98,10 +98,10 @@ class Propagation:
                 best = (relative, pid, value, term.unit)
         if best is None:
             return "no effect on the parameters"
-        from stableins.reporting.content import unit_text
-        from stableins.reporting.rounding import number
+        from stableins.reporting.content import printed_unit
+        from stableins.reporting.rounding import significant_digits
 
-        return f"largest on {best[1]}: {number(best[2], 2)} {unit_text(best[3])}"
+        return f"largest on {best[1]}: {significant_digits(best[2], 2)} {printed_unit(best[3])}"
 
 
 @dataclass(frozen=True)
@@ -343,9 +343,9 @@ def _name(source: str) -> str:
 
 def _mgal(u: float) -> str:
     """Return an uncertainty of g in mGal as text."""
-    from stableins.reporting.rounding import number
+    from stableins.reporting.rounding import significant_digits
 
-    return number(u / MGAL, 2) if u else "0"
+    return significant_digits(u / MGAL, 2) if u else "0"
 
 
 def slow_noise(record: CalibrationRecord, propagation: Propagation, stored: Stored) -> Evaluation:
@@ -392,6 +392,8 @@ def _bias_instability_limit(stage: Any) -> list[float]:
         upper = NoiseModel.from_document(document).limits("bias_instability")[1]
     except InputError:
         raise  # a stored noise model that does not read is an error, not a missing one
+    except NotDeterminedError:
+        raise  # a described error passes through as it is (issue 29)
     except (KeyError, ValueError, TypeError):
         return []
     return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []

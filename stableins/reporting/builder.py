@@ -31,7 +31,7 @@ from stableins.records import CalibrationRecord, file_sha256
 from stableins.reporting import content, document, sections
 from stableins.reporting.budget import UncertaintyInputs
 from stableins.reporting.budget_sources import uncertainty_budget
-from stableins.reporting.context import InputFile, ReportContext, file_name
+from stableins.reporting.context import ReportContext, ReportInput, file_name
 from stableins.reporting.evidence import StageEvidence, stage_evidence
 from stableins.reporting.tolerances import Tolerances
 
@@ -135,7 +135,7 @@ def report_id_for(loaded: LoadedRecord, digests: Iterable[str]) -> str:
     return "-".join(x for x in ("SI", serial, date, digest.hexdigest()[:8].upper()) if x)
 
 
-def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) -> list[InputFile]:
+def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) -> list[ReportInput]:
     """Rows of the inputs table; a data file the record does not list is an :class:`InputError`."""
     record = loaded.record
     hashed = [(p, file_sha256(p)) for p in data]
@@ -144,14 +144,14 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
     recorded = {f.sha256 for _, f in listed}
     rows = []
     if loaded.path:
-        rows.append(InputFile("calibration record", Path(loaded.path).name, loaded.sha256, "read by this report"))
+        rows.append(ReportInput("calibration record", Path(loaded.path).name, loaded.sha256, "read by this report"))
     this = {s.id for s in record.stages_run}
     for stage, f in listed:
         role = f"{stage.name} data" + ("" if stage.id in this else " (earlier calibration)")
         check = (
             f"verified: {given[f.sha256]} given to this report" if f.sha256 in given else "listed in the record; not given to this report"
         )
-        rows.append(InputFile(role, Path(f.path).name, f.sha256, check))
+        rows.append(ReportInput(role, Path(f.path).name, f.sha256, check))
     for path, digest in hashed:
         if digest in recorded:
             continue
@@ -161,7 +161,7 @@ def collect_inputs(loaded: LoadedRecord, data: Sequence[str | PathLike[str]]) ->
                 path=path,
                 expected="a data file this calibration was made from",
             )
-        rows.append(InputFile("data", Path(path).name, digest, "the record lists no inputs"))
+        rows.append(ReportInput("data", Path(path).name, digest, "the record lists no inputs"))
     return rows
 
 
@@ -184,14 +184,14 @@ def read_discovery(path: str | PathLike[str]) -> DiagnoseReport:
     return DiagnoseReport.from_json(load_json_file(path, what=DOCUMENT), path)
 
 
-def _discovery_input(discovery: str | PathLike[str] | None, inputs: list[InputFile]) -> tuple[DiagnoseReport | None, str]:
+def _discovery_input(discovery: str | PathLike[str] | None, inputs: list[ReportInput]) -> tuple[DiagnoseReport | None, str]:
     """Return the ``diagnose --json`` document given to the report and its file name, naming it among ``inputs``.
 
     ``(None, "")`` when none is given: the record's own discovery history is then the report's (``ctx.record.discovery``).
     """
     if discovery is None:
         return None, ""
-    inputs.append(InputFile("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
+    inputs.append(ReportInput("model discovery", Path(discovery).name, file_sha256(discovery), "read by this report"))
     return read_discovery(discovery), Path(discovery).name
 
 
@@ -260,7 +260,7 @@ def write_report(
     budget = uncertainty_budget(view, uncertainty, terms)
     rows = content.parameter_rows(view, terms, budget=budget)
     if previous_loaded is not None:
-        inputs.append(InputFile("previous record", file_name(previous_loaded.path), previous_loaded.sha256 or "—", "read by this report"))
+        inputs.append(ReportInput("previous record", file_name(previous_loaded.path), previous_loaded.sha256 or "—", "read by this report"))
     chosen = procedure if procedure is not None else _record_procedure(view, settings)
     tolerances, procedure_inputs = _tolerances(chosen, settings.tolerances)
     if settings.no_statement:
@@ -301,7 +301,7 @@ def write_report(
     steps = _Steps(len(sections.TECHNICAL_SECTIONS) + len(sections.CERTIFICATE_SECTIONS) + 2, settings.progress)
     technical_pdf, technical_pages = _render(ctx, sections.TECHNICAL_SECTIONS, TECHNICAL_TITLE, steps)
     digest = hashlib.sha256(technical_pdf).hexdigest()
-    ctx.technical = InputFile("technical report", technical_path.name, digest, f"{technical_pages} pages")
+    ctx.technical = ReportInput("technical report", technical_path.name, digest, f"{technical_pages} pages")
     ctx.figures = 0
     pdf, pages = _render(ctx, sections.CERTIFICATE_SECTIONS, TITLE, steps)
     if settings.sign_key is not None:
@@ -424,7 +424,7 @@ def _check_procedure(procedure: str | PathLike[str] | None) -> None:
         load_procedure(str(procedure))
 
 
-def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | None) -> tuple[Tolerances, list[InputFile]]:
+def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | None) -> tuple[Tolerances, list[ReportInput]]:
     """Return the conformity limits (given, the procedure's ``[tolerances]`` table, or none) and the procedure as an input."""
     if procedure is None:
         return (tolerances if tolerances is not None else Tolerances.from_mapping(None)), []
@@ -433,7 +433,7 @@ def _tolerances(procedure: str | PathLike[str] | None, tolerances: Tolerances | 
     resolved = resolve(procedure)  # a shipped definition's name ("system-static") or a TOML file
     if tolerances is None:
         tolerances = Tolerances.from_procedure_file(str(resolved))
-    read = InputFile("procedure", Path(resolved).name, file_sha256(resolved), "tolerances and uncertainty inputs read from it")
+    read = ReportInput("procedure", Path(resolved).name, file_sha256(resolved), "tolerances and uncertainty inputs read from it")
     return tolerances, [read]
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from reportlab.platypus import Flowable, KeepTogether
 
+from stableins.conventions import STANDARD_GRAVITY
 from stableins.reporting import content, document, rounding
 from stableins.reporting.budget import TITLES
 from stableins.reporting.context import (
@@ -105,14 +106,14 @@ def identification(ctx: ReportContext) -> list[Flowable]:
     return out
 
 
-def results(ctx: ReportContext) -> list[Flowable]:
+def certificate_results(ctx: ReportContext) -> list[Flowable]:
     """Return section 1: each estimated parameter's value, U (k = 2), the limits it was checked against and the result."""
     out: list[Flowable] = [*heading("1  Results", room_mm=60)]
     k = COVERAGE_FACTOR
     out.append(
         paragraph(
             "Values of the calibration record in force after this calibration, in engineering units: scale factors SF as deviation "
-            "from 1 in ppm, biases δb in µg, angles in arcsec, K<sub>2</sub> in µg/g² (g = 9.80665 m/s² for units only). "
+            f"from 1 in ppm, biases δb in µg, angles in arcsec, K<sub>2</sub> in µg/g² (g = {STANDARD_GRAVITY:g} m/s² for units only). "
             f"U is the expanded uncertainty U = k·u<sub>c</sub> with coverage factor k = {k:g}, about 95 % coverage for a normal "
             "distribution (GUM 6.3); u<sub>c</sub> combines the Type A uncertainty of the data with the Type B inputs of section 3 "
             "(budget: technical report, section 5). U has two significant digits and the value the last digit of U (GUM 7.2.6).",
@@ -149,7 +150,7 @@ def results(ctx: ReportContext) -> list[Flowable]:
 
 
 def _limit(x: float) -> str:
-    return rounding.number(x, 4) if math.isfinite(x) else "—"
+    return rounding.significant_digits(x, 4) if math.isfinite(x) else "—"
 
 
 def _worst(checks: list[content.Check]) -> str:
@@ -159,7 +160,7 @@ def _worst(checks: list[content.Check]) -> str:
     return next((str(v) for v in order if v in found), "")
 
 
-def conformity(ctx: ReportContext) -> list[Flowable]:
+def certificate_conformity(ctx: ReportContext) -> list[Flowable]:
     """Return section 2: the verdict, the specification it was judged against, the decision rule and the fit checks."""
     out: list[Flowable] = [*heading("2  Statement of conformity", room_mm=45)]
     t = ctx.tolerances
@@ -268,4 +269,4 @@ def signatures(ctx: ReportContext) -> list[Flowable]:
     ]
 
 
-CERTIFICATE_SECTIONS = (identification, results, conformity, traceability, signatures)
+CERTIFICATE_SECTIONS = (identification, certificate_results, certificate_conformity, traceability, signatures)

@@ -11,8 +11,7 @@ from stableins.history import CHANGE_THRESHOLD
 from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.context import ReportContext, file_name, fmt, no_statement, paragraph, period, verdict_colour_hex
 from stableins.reporting.document import escape, heading
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import markup
+from stableins.reporting.symbols import MINUS, markup
 from stableins.reporting.tolerances import RULE_TEXT
 
 
@@ -79,7 +78,7 @@ def change(ctx: ReportContext) -> list[Flowable]:
 
 
 # ---------------------------------------------------------------------- 10 conformity
-def conformity(ctx: ReportContext) -> list[Flowable]:
+def conformity_statement(ctx: ReportContext) -> list[Flowable]:
     """Return section 10: the statement of conformity with the procedure's tolerances and decision rule."""
     out: list[Flowable] = [*heading("10  Statement of conformity", room_mm=50)]
     t = ctx.tolerances

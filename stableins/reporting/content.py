@@ -23,7 +23,7 @@ from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms i
 from stableins.history import Comparison
 from stableins.records import CalibrationRecord
 from stableins.reporting.evidence import StageEvidence
-from stableins.reporting.rounding import COVERAGE_FACTOR, Rounded, gum, number
+from stableins.reporting.rounding import COVERAGE_FACTOR, Rounded, gum, significant_digits
 from stableins.reporting.tolerances import Tolerances, Verdict, decide, limit_for
 from stableins.status import Status
 
@@ -69,7 +69,7 @@ class ParameterRow:
         if self.status is Status.UNIDENTIFIABLE or not math.isfinite(self.value):
             return Rounded("not stated", "—", "—")
         if self.status in (Status.FIXED, Status.GAUGE) or not (self.u > 0):
-            return Rounded(number(self.value, 6) if self.value else "0", "—", "—")
+            return Rounded(significant_digits(self.value, 6) if self.value else "0", "—", "—")
         return gum(self.value, self.u, self.coverage)
 
     def formatted(self) -> tuple[str, str, str]:
@@ -100,7 +100,7 @@ def parameter_rows(
             value = float(term.to_engineering(p.value)) if math.isfinite(p.value) else math.nan
             u = float(term.sigma_to_engineering(combined)) if math.isfinite(combined) else math.nan
             type_a = float(term.sigma_to_engineering(sigma)) if math.isfinite(sigma) else math.nan
-            unit, meaning = unit_text(term.unit), term.meaning
+            unit, meaning = printed_unit(term.unit), term.meaning
         else:
             value, u, type_a, unit, meaning = p.value, combined, sigma, p.unit or "SI", "parameter not in the standard model (SI units)"
         if p.status is Status.UNIDENTIFIABLE:  # the record may carry the prior value: never show it as a result
@@ -128,13 +128,13 @@ def parameter_rows(
     return rows
 
 
-def unit_text(unit: str) -> str:
+def printed_unit(unit: str) -> str:
     """Engineering unit as printed (``ug`` → ``µg``, ``^2`` → ``²``, ``deg/h`` → ``°/h``)."""
     return unit.replace("ug", "µg").replace("^2", "²").replace("^3", "³").replace("deg/h", "°/h")
 
 
 def unit_words(text: str) -> str:
-    """:func:`unit_text` applied to the units inside a sentence (``ug`` only as a word of its own)."""
+    """:func:`printed_unit` applied to the units inside a sentence (``ug`` only as a word of its own)."""
     return re.sub(r"(?<![A-Za-z])ug(?![A-Za-z])", "µg", text).replace("^2", "²").replace("^3", "³")
 
 
@@ -169,7 +169,7 @@ def change_rows(comparison: Comparison, terms: Mapping[str, Term]) -> list[Chang
         term = terms.get(c.id)
         value = (lambda x, t=term: float(t.to_engineering(x))) if term else float
         spread = (lambda x, t=term: float(t.sigma_to_engineering(x))) if term else float
-        unit = unit_text(term.unit) if term else c.unit
+        unit = printed_unit(term.unit) if term else c.unit
         rows.append(
             ChangeRow(
                 c.id, unit, value(c.new), value(c.old), spread(c.difference), spread(c.sigma_difference), c.significance, c.significant
@@ -309,14 +309,14 @@ def conformity_row(check: Check, coverage_factor: float = COVERAGE_FACTOR) -> tu
     """
 
     def fmt(x: float, significant: int) -> str:
-        return number(x, significant) if math.isfinite(x) else "—"
+        return significant_digits(x, significant) if math.isfinite(x) else "—"
 
     measured, expanded = "—", "—"
     if check.verdict != Verdict.NOT_ASSESSED and math.isfinite(check.measured):
         if check.kind == CheckKind.FIT:
             measured = chi2_text(abs(check.measured))
         elif check.kind == CheckKind.UNCERTAINTY:
-            measured = number(abs(check.measured), 2)
+            measured = significant_digits(abs(check.measured), 2)
         elif math.isfinite(check.expanded) and check.expanded > 0:
             rounded = gum(abs(check.measured), check.expanded / coverage_factor, coverage_factor)
             measured, expanded = rounded.value, rounded.expanded
@@ -381,7 +381,7 @@ def noise_text(document: Mapping[str, Any]) -> str:
         unit, scale = ENGINEERING[name]
         values = model.values(name) / scale
         shown = f"{np.max(values):.2g}" if np.allclose(values, np.max(values), rtol=0.02) else "/".join(f"{v:.2g}" for v in values)
-        return f"{shown} {unit_text(unit).replace('sqrt(Hz)', '√Hz').replace('sqrt(s)', '√s')}"
+        return f"{shown} {printed_unit(unit).replace('sqrt(Hz)', '√Hz').replace('sqrt(s)', '√s')}"
 
     def scale_of(name: str) -> float:
         return float(ENGINEERING[name][1])

@@ -16,15 +16,14 @@ from stableins.reporting import document, rounding
 from stableins.reporting.budget import Budget
 from stableins.reporting.content import ChangeRow, Check, ParameterRow
 from stableins.reporting.evidence import StageEvidence
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import prose
+from stableins.reporting.symbols import MINUS, prose
 from stableins.reporting.tolerances import Tolerances
 
 NOT_RECORDED = "not recorded"
 
 
 @dataclass(frozen=True)
-class InputFile:
+class ReportInput:
     """One input of the report and its SHA-256, with how it was checked."""
 
     role: str
@@ -42,7 +41,7 @@ class ReportContext:
     issued: str
     rows: list[ParameterRow]
     stages: list[StageEvidence]
-    inputs: list[InputFile]
+    inputs: list[ReportInput]
     tolerances: Tolerances
     checks: list[Check]
     budget: Budget | None = None
@@ -63,7 +62,7 @@ class ReportContext:
     #: made from simulated data (every page says so)
     simulated: bool = False
     #: the technical report, named with its SHA-256 by the certificate (None while it is itself laid out)
-    technical: InputFile | None = None
+    technical: ReportInput | None = None
 
     def figure_label(self) -> str:
         """Return "Figure n.", n counting the figures in the order they are laid out."""
@@ -100,7 +99,7 @@ def verdict_colour_hex(verdict: str) -> str:
 
 def fmt(x: float, significant: int = 3) -> str:
     """Return a number to ``significant`` digits as the certificate prints it (a dash when not finite)."""
-    return rounding.number(x, significant) if math.isfinite(x) else "—"
+    return rounding.significant_digits(x, significant) if math.isfinite(x) else "—"
 
 
 def degrees(radians: float) -> str:

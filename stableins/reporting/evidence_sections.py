@@ -11,8 +11,7 @@ from stableins.records import CalibrationRecord
 from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.context import ReportContext, fmt, paragraph
 from stableins.reporting.document import escape, heading
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import prose
+from stableins.reporting.symbols import MINUS, prose
 
 
 # ---------------------------------------------------------------------- 7 evidence
@@ -151,7 +150,7 @@ def _system(ctx: ReportContext) -> list[Flowable]:
         )
         rows: list[list[Any]] = [["Combination", "Correction ± 1σ (these data alone)", "Unit", "Determined"]]
         for name, value, sigma, unit, determined in system_combination_rows(ctx.record, run.determined):
-            text = f"{rounding.round_to_uncertainty(value, sigma)} ± {rounding.number(sigma, 2)}" if sigma > 0 else fmt(value)
+            text = f"{rounding.round_to_uncertainty(value, sigma)} ± {rounding.significant_digits(sigma, 2)}" if sigma > 0 else fmt(value)
             rows.append([name, text.replace("-", MINUS), unit, "yes" if determined else "no (short record)"])
         if len(rows) > 1:
             out.append(document.table(rows, [0.50, 0.26, 0.10, 0.14], align_right=(1,), markup=True))

@@ -68,7 +68,7 @@ def _png(fig: Any) -> tuple[bytes, float]:
     return buffer.getvalue(), float(height / width)
 
 
-def residual_scale(unit: str) -> tuple[float, str]:
+def plotted_residual_scale(unit: str) -> tuple[float, str]:
     """Divisor and label turning residuals in ``unit`` into the unit plotted."""
     if unit in ("m/s^2", "m/s²"):
         return MICRO_G, "µg"
@@ -117,7 +117,7 @@ def residuals_by_position(stage: Any) -> tuple[bytes, float]:
     """Residual of every position, one panel per axis, with the ±1σ noise floor of each observation."""
     import numpy as np
 
-    scale, unit = residual_scale(stage.unit)
+    scale, unit = plotted_residual_scale(stage.unit)
     groups = stage.by_position_axis()
     keys = [k for k in ("x", "y", "z", "|f|") if k in groups]
     colours = dict(AXIS_COLOURS, **{"|f|": "#1f3a5f"})

@@ -21,8 +21,7 @@ from stableins.reporting.context import (
     span,
 )
 from stableins.reporting.document import escape, heading
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import prose
+from stableins.reporting.symbols import MINUS, prose
 
 
 def title_block(ctx: ReportContext) -> list[Flowable]:

@@ -92,7 +92,7 @@ def navigation_section(ctx: ReportContext) -> list[Flowable]:
     from reportlab.platypus import KeepTogether
 
     from stableins.conventions import ARCSEC
-    from stableins.reporting.content import unit_text
+    from stableins.reporting.content import printed_unit
     from stableins.reporting.context import fmt
     from stableins.reporting.context import paragraph as p
     from stableins.reporting.document import escape, heading, table
@@ -152,7 +152,11 @@ def navigation_section(ctx: ReportContext) -> list[Flowable]:
 
     for term in budget.terms[:CERTIFICATE_ROWS]:
         rows.append(
-            [markup(term.id), f"{fmt(term.sigma_engineering)} {escape(unit_text(term.unit).replace('deg/h', '°/h'))}", *cells(term.summary)]
+            [
+                markup(term.id),
+                f"{fmt(term.sigma_engineering)} {escape(printed_unit(term.unit).replace('deg/h', '°/h'))}",
+                *cells(term.summary),
+            ]
         )
     rows.append(["RSS of the terms", "", *cells(budget.rss)])
     rows.append(["<b>Total</b> (correlated)", "", *cells(total)])

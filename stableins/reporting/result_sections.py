@@ -7,12 +7,12 @@ from typing import Any
 
 from reportlab.platypus import Flowable
 
+from stableins.conventions import STANDARD_GRAVITY
 from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.budget import GROUPS, SHORT, TITLES
 from stableins.reporting.context import NOT_RECORDED, ReportContext, paragraph
 from stableins.reporting.document import escape, heading
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import markup, prose
+from stableins.reporting.symbols import MINUS, markup, prose
 
 
 # ---------------------------------------------------------------------- 4 results
@@ -25,8 +25,9 @@ def results(ctx: ReportContext) -> list[Flowable]:
     out.append(
         paragraph(
             "Values of the record in force after this calibration, in engineering units: scale factors SF as deviation from 1 in ppm, "
-            "biases δb in µg, angles in arcsec, quadratic nonlinearity K<sub>2</sub> in µg/g² (1 g = 9.80665 m/s², the conventional "
-            f"value, for units only). u is the combined standard uncertainty of section 5 (Type A and Type B); U = k·u with k = {k:g}. "
+            "biases δb in µg, angles in arcsec, quadratic nonlinearity K<sub>2</sub> in µg/g² "
+            f"(1 g = {STANDARD_GRAVITY:g} m/s², the conventional value, for units only). u is the combined standard uncertainty of "
+            f"section 5 (Type A and Type B); U = k·u with k = {k:g}. "
             "U and u are given to two significant digits and the value to the last digit of U (GUM 7.2.6). 'Last determined by' "
             "names the stage whose data last saw the parameter, alone or only in combination with others; a parameter no stage of "
             "this calibration saw is 'carried over' from an earlier one."

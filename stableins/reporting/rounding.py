@@ -4,7 +4,7 @@ One place for every rounding rule of the certificate: :func:`gum` rounds a value
 expanded uncertainty (``U = k u`` and ``u`` to two significant digits, the value to the decimal place of
 ``U``; below :data:`SMALLEST_FIXED_POINT` each written ``m×10ⁿ`` with ``1 ≤ m < 10``, to that digit, :func:`times_ten`);
 :func:`like_uncertainty` writes a number the way :func:`gum` writes ``u`` (the budget's contributions);
-:func:`number`, :func:`round_to_uncertainty` and :func:`scientific` the single numbers around it;
+:func:`significant_digits`, :func:`round_to_uncertainty` and :func:`scientific` the single numbers around it;
 :func:`superscript` the exponents.
 """
 
@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-COVERAGE_FACTOR = 2.0
+from stableins.reporting.symbols import MINUS
 
-MINUS = "\u2212"
+COVERAGE_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
     if not math.isfinite(value):
         return Rounded("not stated", "—", "—")
     if not (math.isfinite(u) and u > 0):
-        return Rounded(number(value, 6), "—", "—")
+        return Rounded(significant_digits(value, 6), "—", "—")
     expanded = k * u
     if _rounded(expanded) < SMALLEST_FIXED_POINT:
         return _gum_scientific(value, u, expanded)
@@ -44,7 +44,7 @@ def gum(value: float, u: float, k: float = COVERAGE_FACTOR) -> Rounded:
     text = f"{value:.{decimals}f}"
     if float(text) == 0.0:
         text = text.lstrip("-")
-    return Rounded(text.replace("-", MINUS), number(u, 2), number(expanded, 2))
+    return Rounded(text.replace("-", MINUS), significant_digits(u, 2), significant_digits(expanded, 2))
 
 
 #: Below this expanded uncertainty (in the engineering unit) the certificate writes ``m×10ⁿ``: a fixed-point
@@ -111,7 +111,7 @@ def scientific(x: float, significant: int = 2) -> str:
     return f"{mantissa} × 10{superscript(int(exponent))}".replace("-", MINUS)
 
 
-def number(x: float, significant: int) -> str:
+def significant_digits(x: float, significant: int) -> str:
     """``x`` to ``significant`` significant digits, fixed-point, with a true minus sign."""
     if x == 0 or not math.isfinite(x):
         return "0" if x == 0 else str(x)

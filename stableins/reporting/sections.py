@@ -18,7 +18,7 @@ from reportlab.platypus import Flowable
 from stableins.discovery.diagnose_report import DiagnoseReport
 from stableins.reporting import content, document, figures, rounding
 from stableins.reporting.certificate_sections import CERTIFICATE_SECTIONS  # noqa: F401 - the certificate, beside its technical report
-from stableins.reporting.closing_sections import change, closing, conformity
+from stableins.reporting.closing_sections import change, closing, conformity_statement
 from stableins.reporting.context import ReportContext
 from stableins.reporting.context import file_name as _name
 from stableins.reporting.context import fmt as _fmt
@@ -28,8 +28,7 @@ from stableins.reporting.evidence_sections import evidence
 from stableins.reporting.front_sections import inputs, method, site_environment, title_block
 from stableins.reporting.navigation import navigation_section
 from stableins.reporting.result_sections import correlations, results, uncertainty
-from stableins.reporting.rounding import MINUS
-from stableins.reporting.symbols import markup, prose
+from stableins.reporting.symbols import MINUS, markup, prose
 
 
 # ---------------------------------------------------------------------- 8 discovery
@@ -126,7 +125,7 @@ def _estimate_text(estimate: float, sigma: float, unit: str) -> str:
     if not math.isfinite(estimate):
         return "—"
     if math.isfinite(sigma) and sigma > 0:
-        return f"{rounding.round_to_uncertainty(estimate, sigma)} ± {rounding.number(sigma, 2)} {unit}"
+        return f"{rounding.round_to_uncertainty(estimate, sigma)} ± {rounding.significant_digits(sigma, 2)} {unit}"
     return f"{_fmt(estimate, 3)} {unit}"
 
 
@@ -151,7 +150,7 @@ def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
                 markup(c.id),
                 number(c.p_value, f"{c.p_value:.2g}"),
                 number(c.delta_bic, f"{c.delta_bic:.1f}".replace("-", MINUS)),
-                _estimate_text(c.estimate, c.sigma, escape(content.unit_text(c.unit))),
+                _estimate_text(c.estimate, c.sigma, escape(content.printed_unit(c.unit))),
                 "yes" if c.flagged else "no",
                 prose(advice_text(c.advice)),
             ]
@@ -229,7 +228,7 @@ TECHNICAL_SECTIONS = (
     evidence,
     discovery,
     change,
-    conformity,
+    conformity_statement,
     navigation_section,
     closing,
 )

@@ -58,17 +58,11 @@ from types import MappingProxyType
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, MICRO_G, PPM, STANDARD_GRAVITY
+from stableins.conventions import ARCSEC, AXES, DEG_PER_HOUR, HYSTERESIS_THRESHOLD, MICRO_G, PPM, STANDARD_GRAVITY
 from stableins.errors import InputError
 from stableins.simulator.physics import Regressor, SensorInputs
 
 _G = STANDARD_GRAVITY
-
-#: Input excursion [m/s²] a slew must exceed to set an axis' hysteresis state (``Kh_a``).
-#: A real accelerometer's hysteresis follows the excursion of its input: a change much
-#: smaller than the loop (here arcsecond-level geometry, ~1e-4 m/s²) does not reverse the
-#: magnetic/flexure state, so the state keeps its last value.
-HYSTERESIS_THRESHOLD = 1e-2
 
 
 def hysteresis_state(

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import EARTH_RATE
 
-STATE_NAMES = (
+SIMULATED_STATES = (
     "latitude_error",
     "velocity_north",
     "velocity_east",
@@ -27,7 +27,7 @@ STATE_NAMES = (
     "velocity_down",
     "vertical_integrator",
 )
-INPUT_NAMES = ("df_north", "df_east", "df_down", "drift_north", "drift_east", "drift_down")
+SIMULATED_INPUTS = ("df_north", "df_east", "df_down", "drift_north", "drift_east", "drift_down")
 
 
 
@@ -45,7 +45,7 @@ def error_dynamics(latitude: float, damping: dict[str, float]) -> tuple[NDArray[
     Returns
     -------
     A : ndarray (9, 9), B : ndarray (9, 6)
-        States :data:`STATE_NAMES`, inputs :data:`INPUT_NAMES`.
+        States :data:`SIMULATED_STATES`, inputs :data:`SIMULATED_INPUTS`.
     """
     g, radius, c = damping["gravity"], damping["R"], damping["horizontal_gain"]
     k1, k2, k3 = damping["k1"], damping["k2"], damping["k3"]

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import STANDARD_GRAVITY
+from stableins.conventions import ARCSEC, STANDARD_GRAVITY
 
 #: Samples per random block.
 BLOCK_SAMPLES = 16384
@@ -133,7 +133,7 @@ class NoiseSettings:
             bias_instability=2e-6 * STANDARD_GRAVITY,
             acceleration_random_walk=1e-7,
             quantization=1e-5,
-            angle_noise=0.2 * np.pi / 648000.0,
+            angle_noise=0.2 * ARCSEC,
             temperature=TemperatureProfile(sensor_noise=0.01),
         )
 

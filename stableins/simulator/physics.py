@@ -32,18 +32,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stableins.conventions import ARCSEC, AXES, MICRO_G, STANDARD_GRAVITY
-
-#: µg/g² in SI [s²/m] (docs/conventions.md, "Units").
-MICRO_G_PER_G2 = MICRO_G / STANDARD_GRAVITY**2
+from stableins.conventions import ARCSEC, AXES, GIMBAL_IDS, MICRO_G, MICRO_G_PER_G2
 
 #: The six installation angles, in the order of the parameter table.
 INSTALLATION_IDS = ("beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
-#: The angle-sensor zero offsets (platform, inner, middle gimbal) [rad].
-GIMBAL_IDS = ("theta10", "theta20", "theta30")
 #: The platform's gyro numbers a calibration record may carry and the simulated navigation computer does not
 #: install: constant drifts ``gyro_drift_a`` and g-sensitivities ``Dg_ab`` (docs/conventions.md, "Term kinds").
-GYRO_IDS = tuple(f"gyro_drift_{a}" for a in AXES) + tuple(f"Dg_{a}{b}" for a in AXES for b in AXES)
+UNINSTALLED_GYRO_IDS = tuple(f"gyro_drift_{a}" for a in AXES) + tuple(f"Dg_{a}{b}" for a in AXES for b in AXES)
 
 
 @dataclass(frozen=True)

@@ -14,13 +14,13 @@ from types import MappingProxyType
 from typing import Any
 
 from stableins.conventions import ARCSEC, EARTH_RADIUS, MICRO_G, PPM, GimbalConfiguration, normal_gravity
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.simulator.effects import CATALOGUE, validate_effects
 from stableins.simulator.noise import NoiseSettings
-from stableins.simulator.physics import GIMBAL_IDS, GYRO_IDS, MICRO_G_PER_G2, PARAMETER_IDS, REFERENCE, simulated_parameters
+from stableins.simulator.physics import GIMBAL_IDS, MICRO_G_PER_G2, PARAMETER_IDS, REFERENCE, UNINSTALLED_GYRO_IDS, simulated_parameters
 from stableins.site import SiteMetadata
 
-SCHEMA_VERSION = 1
+TRUTH_SCHEMA_VERSION = 1
 KIND = "stableins.truth"
 
 #: Ids the installed calibration may also hold: output effects of the catalogue (discovered terms of a
@@ -104,8 +104,8 @@ def _check_fields(d: Any, source: str | None) -> None:
     if d.get("kind", KIND) != KIND:
         raise InputError(f"not a truth file (kind {d.get('kind')!r})", path=source, field="kind", expected=repr(KIND))
     version = d.get("schema_version")
-    if version != SCHEMA_VERSION:
-        raise InputError(f"unsupported schema_version {version!r}", path=source, field="schema_version", expected=str(SCHEMA_VERSION))
+    if version != TRUTH_SCHEMA_VERSION:
+        raise InputError(f"unsupported schema_version {version!r}", path=source, field="schema_version", expected=str(TRUTH_SCHEMA_VERSION))
     for key in ("parameters", "site"):
         if key not in d:
             raise InputError("missing field", path=source, field=key)
@@ -143,6 +143,8 @@ def _site(d: Any, source: str | None) -> SiteMetadata:
         d["base_attitude"] = tuple(float(s) for s in d.get("base_attitude", (0.0, 0.0, 0.0)))
         site = SiteMetadata(**d)
         GimbalConfiguration(site.gimbal_senses)
+    except (InputError, NotDeterminedError):
+        raise  # a described error passes through as it is (issue 29)
     except (TypeError, ValueError) as exc:
         raise InputError(f"bad site metadata: {exc}", path=source, field="site") from None
     return site
@@ -307,7 +309,7 @@ class Truth:
         """
         installed = dict(self.installed_calibration)
         known = set(PARAMETER_IDS) | set(INSTALLED_EFFECT_IDS)
-        drift_ids = set(GYRO_IDS)
+        drift_ids = set(UNINSTALLED_GYRO_IDS)
         for parameter_id, value in values.items():
             if parameter_id in drift_ids:
                 continue
@@ -370,7 +372,7 @@ class Truth:
     def to_dict(self) -> dict[str, Any]:
         """Return the truth as a JSON-ready dict (``schema_version`` 1; :meth:`from_dict` reads it back)."""
         return {
-            "schema_version": SCHEMA_VERSION,
+            "schema_version": TRUTH_SCHEMA_VERSION,
             "kind": KIND,
             "parameters": dict(self.parameters),
             "effects": dict(self.effects),
@@ -395,6 +397,8 @@ class Truth:
         site = _site(d["site"], source)
         try:
             noise = NoiseSettings.from_dict(d.get("noise", {}))
+        except (InputError, NotDeterminedError):
+            raise  # a described error passes through as it is (issue 29)
         except (TypeError, ValueError) as exc:
             raise InputError(f"bad noise settings: {exc}", path=source, field="noise") from None
         try:

@@ -221,6 +221,20 @@ WORLDS: Mapping[str, World] = MappingProxyType(
                 ),
             ),
             World(
+                "gyro-z",
+                "quartz noise, 2-arcsec angle-sensor harmonics, gyro drift 0.05 deg/h along z_p and g-sensitivity 0.001 "
+                "deg/h/g: the realistic gyro drift a system-level day carries uncompensated (along x_p, y_p it turns z_p off "
+                "the pole: compensated or refused, docs/system-calibration.md section 9)",
+                NoiseSettings.quartz(),
+                {**_ANGLE_EFFECTS, **_GYRO_EFFECTS},
+                {"z": GYRO_DRIFT},
+                sources=(
+                    _QUARTZ_SOURCE,
+                    "gyro drift 0.05 deg/h: Cai et al. 2016 (before calibration), along the platform's polar axis only; "
+                    "g-sensitivity 0.001 deg/h/g: issue 25's acceptance world",
+                ),
+            ),
+            World(
                 "quartz-gyro",
                 "quartz noise and the gyro world's gyro (drift 0.05 deg/h, g-sensitivity 0.001 deg/h/g), nothing else: the "
                 "accelerometer noise path with a platform that turns within its dwells",

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stableins.display import unit_text
 from stableins.errors import InputError
 from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
@@ -125,6 +126,7 @@ def create_app(settings: ServeSettings) -> Any:
     templates = Jinja2Templates(directory=str(PACKAGE / "templates"))
     templates.env.globals["version"] = stableins.__version__
     templates.env.filters["days"] = _days
+    templates.env.filters["unit"] = unit_text  # µg, ², °/h as the certificate prints them
 
     @app.exception_handler(InputError)
     async def _input_error(request: Request, error: InputError) -> Response:
@@ -240,7 +242,8 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
     @app.get("/units/{serial}", response_class=HTMLResponse, include_in_schema=False)
     def unit_page(request: Request, serial: str) -> Response:
         document = data.unit(serial)
-        plots = json.dumps(document["trends"]).replace("</", "<\\/")
+        shown = [{**trend, "unit": unit_text(trend["unit"])} for trend in document["trends"]]
+        plots = json.dumps(shown).replace("</", "<\\/")
         return templates.TemplateResponse(request, "unit.html", {"unit": document, "plots": plots, "page": "fleet"})
 
     @app.get("/units/{serial}/records/{sha256}", summary="A filed record, its SHA-256 verified against the index on the way out")

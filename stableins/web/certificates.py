@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 #: How deep below the run root PDFs are looked for (a run directory, or a folder of runs).
-MAX_DEPTH = 3
+MAX_CERTIFICATE_DEPTH = 3
 #: Largest PDF read [bytes].
 MAX_PDF_BYTES = 64 << 20
 _VERDICT = re.compile(r"Verdict:\s*(CONDITIONAL PASS|CONDITIONAL FAIL|NOT ASSESSED|NO STATEMENT|PASS|FAIL)")
@@ -73,11 +73,11 @@ class CertificateIndex:
 
 
 def _pdfs(root: Path) -> list[Path]:
-    """Return the ``*.pdf`` files under ``root`` down to :data:`MAX_DEPTH` levels (symbolic links not followed)."""
+    """Return the ``*.pdf`` files under ``root`` down to :data:`MAX_CERTIFICATE_DEPTH` levels (symbolic links not followed)."""
     out = []
     for folder, directories, files in os.walk(root, followlinks=False):
         depth = len(Path(folder).relative_to(root).parts)
-        if depth >= MAX_DEPTH:
+        if depth >= MAX_CERTIFICATE_DEPTH:
             directories[:] = []
         directories[:] = [d for d in directories if not d.startswith(".")]
         out += [Path(folder) / f for f in files if f.lower().endswith(".pdf") and not (Path(folder) / f).is_symlink()]

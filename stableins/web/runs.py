@@ -32,7 +32,7 @@ from stableins.errors import InputError
 JOURNAL = "journal.bin"
 PLAN = "procedure.json"
 #: How deep below the run root run directories are looked for.
-MAX_DEPTH = 3
+MAX_RUN_DEPTH = 3
 #: Passes the zero-offset iteration makes at least (the remaining time counts them).
 MIN_PASSES = 2
 
@@ -76,7 +76,7 @@ class RunWatcher:
         out = []
         for folder, directories, files in os.walk(self.root, followlinks=False):
             relative = Path(folder).relative_to(self.root)
-            if len(relative.parts) >= MAX_DEPTH:
+            if len(relative.parts) >= MAX_RUN_DEPTH:
                 directories[:] = []
             directories[:] = sorted(d for d in directories if not d.startswith("."))
             if JOURNAL in files and PLAN in files:

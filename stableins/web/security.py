@@ -77,11 +77,28 @@ class Guard:
             return
         set_cookie = self._token_from_query(scope)
         stream = scope["path"].endswith("/events")
+        head = scope["method"] == "HEAD"
+        if head and stream:  # a stream's head: its headers, without opening the stream
+            await _answer_head(send, {"content-type": "text/event-stream", "cache-control": "no-cache"})
+            return
+        if head:  # answered as GET with the body left out (RFC 9110 §9.3.2): the routes are declared for GET only
+            scope = {**scope, "method": "GET"}
         if stream:
             if self.streams >= self.limits.streams:
                 await _answer(send, 503, "too many event streams open", {"retry-after": "5"})
                 return
             self.streams += 1
+
+        guarded = self._guarded(send, set_cookie=set_cookie, head=head)
+        try:
+            await self.app(scope, receive, guarded)
+        finally:
+            if stream:
+                self.streams -= 1
+
+    def _guarded(self, send: Send, *, set_cookie: bool, head: bool) -> Send:
+        """Return ``send`` adding the security headers (and the token's cookie); for HEAD, with the body left out."""
+        ended: list[bool] = []
 
         async def guarded(message: Message) -> None:
             if message["type"] == "http.response.start":
@@ -96,13 +113,14 @@ class Guard:
                     secure = "; Secure" if self.secure_cookie else ""
                     headers.append((b"set-cookie", f"{COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/{secure}".encode()))
                 message["headers"] = headers
+            elif head and message["type"] == "http.response.body":
+                if ended:
+                    return
+                ended.append(True)
+                message = {"type": "http.response.body", "body": b"", "more_body": False}
             await send(message)
 
-        try:
-            await self.app(scope, receive, guarded)
-        finally:
-            if stream:
-                self.streams -= 1
+        return guarded
 
     def _refusal(self, scope: Scope) -> tuple[int, str, dict[str, str]] | None:
         """Return (status, message, headers) when the request is refused, else None."""
@@ -157,6 +175,12 @@ class Guard:
 
     def _token_from_query(self, scope: Scope) -> bool:
         return self.token is not None and b"token=" in scope.get("query_string", b"")
+
+
+async def _answer_head(send: Send, headers: dict[str, str]) -> None:
+    raw = [(k.encode(), v.encode()) for k, v in headers.items()]
+    await send({"type": "http.response.start", "status": 200, "headers": raw})
+    await send({"type": "http.response.body", "body": b""})
 
 
 async def _answer(send: Send, status: int, message: str, headers: dict[str, str]) -> None:

@@ -6,19 +6,19 @@ the accelerometer cross-check, :mod:`~stableins.estimators.drift.record` the rec
 """
 
 from stableins.estimators.drift.accelerometer import BiasCheck
-from stableins.estimators.drift.holds import Hold, find_holds, small_angle_vector
+from stableins.estimators.drift.holds import StillHold, find_holds, small_angle_vector
 from stableins.estimators.drift.model import DriftDetails, estimate_drift
-from stableins.estimators.drift.record import DRIFT_COLUMNS, drift_from_record, drift_stage, report
+from stableins.estimators.drift.record import DRIFT_COLUMNS, drift_from_record, drift_report, drift_stage
 
 __all__ = [
     "DRIFT_COLUMNS",
     "BiasCheck",
     "DriftDetails",
-    "Hold",
+    "StillHold",
     "drift_from_record",
     "drift_stage",
     "estimate_drift",
     "find_holds",
-    "report",
+    "drift_report",
     "small_angle_vector",
 ]

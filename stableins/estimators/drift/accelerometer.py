@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
 from stableins.errormodel import ErrorModel, TermInputs
-from stableins.estimators.drift.holds import Hold
+from stableins.estimators.drift.holds import StillHold
 
 #: Accelerometer blocks per hold for the σ of its mean.
 BIAS_BLOCKS = 10
@@ -62,7 +62,7 @@ class BiasInputs:
 
 def bias_checks(
     columns: Mapping[str, NDArray[np.float64]],
-    holds: Sequence[Hold],
+    holds: Sequence[StillHold],
     nav_to_platform: NDArray[np.float64],
     *,
     delta: NDArray[np.float64],

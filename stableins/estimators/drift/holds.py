@@ -16,7 +16,7 @@ MIN_HOLD = 60.0
 
 
 @dataclass(frozen=True)
-class Hold:
+class StillHold:
     """One still stretch of the record: sample range, times [s] and the mean platform-frame specific force [m/s²]."""
 
     first: int

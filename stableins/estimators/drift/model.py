@@ -77,7 +77,7 @@ from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
 from stableins.estimators.drift.accelerometer import BiasCheck, BiasInputs, bias_checks
-from stableins.estimators.drift.holds import MIN_HOLD, Hold, find_holds, small_angle_vector
+from stableins.estimators.drift.holds import MIN_HOLD, StillHold, find_holds, small_angle_vector
 from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GimbalPlatform
 from stableins.site import SiteMetadata
@@ -96,7 +96,7 @@ class DriftDetails(StageDetails):
 
     Attributes
     ----------
-    holds : tuple of Hold
+    holds : tuple of StillHold
     nuisance : mapping of str to (float, float)
         Fitted nuisances, value and 1σ [SI]: ``tilt_east``, ``tilt_north_sin_azimuth_cos`` (rad),
         ``Dg_zz`` (rad s/m), when determined.
@@ -109,7 +109,7 @@ class DriftDetails(StageDetails):
         Whether the base error was fitted (an index reversed its misprojection).
     """
 
-    holds: tuple[Hold, ...]
+    holds: tuple[StillHold, ...]
     nuisance: Mapping[str, tuple[float, float]]
     rank: tuple[str, ...]
     biases: tuple[BiasCheck, ...]
@@ -198,7 +198,7 @@ def estimate_drift(
         time, readings + np.asarray(offsets, dtype=float), site=site, configuration=configuration
     )
     f_model = -gravity * nav_to_platform[:, :, 2]
-    hold_list = [Hold(a, b, float(time[a]), float(time[b - 1]), _triple(f_model[a:b].mean(axis=0))) for a, b in holds]
+    hold_list = [StillHold(a, b, float(time[a]), float(time[b - 1]), _triple(f_model[a:b].mean(axis=0))) for a, b in holds]
     y, design, names = _design(time, readings + np.asarray(offsets, dtype=float), inertial, nav_to_platform, hold_list,
                                latitude=latitude, gravity=gravity, configuration=configuration)  # fmt: skip
     drift_names = ["eps_x", "eps_y", "eps_z"]
@@ -243,7 +243,7 @@ def _design(
     actual: NDArray[np.float64],
     inertial: NDArray[np.float64],
     nav_to_platform: NDArray[np.float64],
-    holds: Sequence[Hold],
+    holds: Sequence[StillHold],
     *,
     latitude: float,
     gravity: float,

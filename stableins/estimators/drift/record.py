@@ -68,7 +68,7 @@ def drift_from_record(
     )
 
 
-def report(result: FitResult) -> str:
+def drift_report(result: FitResult) -> str:
     """Text report of a drift test: the drift (°/h) with σ, the rank report, the nuisances, the accelerometer cross-check."""
     details = result.details
     assert isinstance(details, DriftDetails)
@@ -95,5 +95,5 @@ def drift_stage(record: Any, prior: Any, say: Any) -> FitResult:
     ``say`` prints a text.
     """
     fit = drift_from_record(record, prior.values(), prior_covariance=(prior.ids, prior.covariance), error_model=prior.error_model())
-    say(report(fit))
+    say(drift_report(fit))
     return fit

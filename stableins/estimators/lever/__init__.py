@@ -6,7 +6,7 @@
 """
 
 from stableins.estimators.lever.model import Flag, LeverDetails, LeverOptions, LeverSet, estimate_lever
-from stableins.estimators.lever.record import lever_from_dataset, lever_stage, report, rotating_columns
+from stableins.estimators.lever.record import lever_from_dataset, lever_report, lever_stage, rotating_columns
 
 __all__ = [
     "Flag",
@@ -16,6 +16,6 @@ __all__ = [
     "estimate_lever",
     "lever_from_dataset",
     "lever_stage",
-    "report",
+    "lever_report",
     "rotating_columns",
 ]

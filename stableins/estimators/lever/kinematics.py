@@ -10,7 +10,7 @@ kinematics (:meth:`stableins.platform.GimbalPlatform.angular_rate`),
 and ``ω̇`` by central differences of ``ω`` (so that its window mean is the change of ``ω`` across the
 window).  The specific force the platform should sense is computed from the unsmoothed readings (exact
 kinematics; their noise is white and is measured with the accelerometer noise).  A slew is a run of samples with ``|ω|`` above
-:data:`MOVING_RATE`; its segment adds :data:`MARGIN` seconds of the still platform before and after (the
+:data:`SLEW_RATE_THRESHOLD`; its segment adds :data:`STILL_MARGIN` seconds of the still platform before and after (the
 reference levels of the fit).
 """
 
@@ -26,9 +26,9 @@ from stableins.platform import GimbalPlatform
 #: Span of the Savitzky–Golay filter that smooths and differentiates the readings [s].
 SMOOTHING = 0.15
 #: A sample belongs to a slew when the platform turns faster than this [rad/s] (0.06 °/s).
-MOVING_RATE = 1e-3
+SLEW_RATE_THRESHOLD = 1e-3
 #: Still time kept before and after each slew [s] (at most half-way to the next slew): the segment's reference levels.
-MARGIN = 90.0
+STILL_MARGIN = 90.0
 #: Two runs of motion closer than this [s] are one slew.
 JOIN = 2.0
 #: Shortest slew analysed [s].
@@ -90,12 +90,12 @@ def motion(readings: NDArray[np.float64], rate: float, platform: GimbalPlatform)
 
 
 def find_segments(time: NDArray[np.float64], omega: NDArray[np.float64]) -> tuple[Segment, ...]:
-    """Return the slews (runs of ``|ω| > MOVING_RATE`` of at least :data:`MIN_SLEW`), each with its still margins.
+    """Return the slews (runs of ``|ω| > SLEW_RATE_THRESHOLD`` of at least :data:`MIN_SLEW`), each with its still margins.
 
     A segment never reaches into the next slew: its margins stop half-way between two slews.  Samples
     are consecutive on one clock (gaps are checked by the caller).
     """
-    moving = np.linalg.norm(omega, axis=1) > MOVING_RATE
+    moving = np.linalg.norm(omega, axis=1) > SLEW_RATE_THRESHOLD
     if not np.any(moving):
         return ()
     edges = np.flatnonzero(np.diff(moving.astype(np.int8)))
@@ -114,8 +114,8 @@ def find_segments(time: NDArray[np.float64], omega: NDArray[np.float64]) -> tupl
     runs = [r for r in runs if time[r[1] - 1] - time[r[0]] >= MIN_SLEW]
     segments = []
     for k, (a, b) in enumerate(runs):
-        low = time[a] - MARGIN
-        high = time[b - 1] + MARGIN
+        low = time[a] - STILL_MARGIN
+        high = time[b - 1] + STILL_MARGIN
         if k > 0:
             low = max(low, 0.5 * (time[runs[k - 1][1] - 1] + time[a]))
         if k + 1 < len(runs):

@@ -24,7 +24,7 @@ should sense, ``f^p(r) = C_n^p(r + θ_0) f^n``, and its motion ``ω``, ``ω̇``
 
 Data and noise
 --------------
-Each slew is analysed with :data:`~stableins.estimators.lever.kinematics.MARGIN` seconds of the still platform
+Each slew is analysed with :data:`~stableins.estimators.lever.kinematics.STILL_MARGIN` seconds of the still platform
 before and after it, in window means of ``window`` seconds.  The covariance of the window means is the
 project's noise model (:meth:`stableins.noise.NoiseModel.dwell_mean_covariance`): the white part measured in
 the still margins of the record itself (accelerometer white noise, quantization and the readings' noise as

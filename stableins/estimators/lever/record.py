@@ -49,7 +49,7 @@ def lever_from_dataset(dataset: Any, prior: Any, options: LeverOptions | None = 
     )  # fmt: skip
 
 
-def report(result: FitResult) -> str:
+def lever_report(result: FitResult) -> str:
     """Text report: the lever arms (mm) and ``τ`` (ms) with 1σ, the flags, the fit's χ²_ν and the measured noise."""
     details = result.details
     assert isinstance(details, LeverDetails)
@@ -72,5 +72,5 @@ def lever_stage(columns: Mapping[str, NDArray[Any]], metadata: Any, prior: Any, 
         rotating_columns(columns, "run"), metadata, prior.values(), error_model=prior.error_model(), noise_model=prior.noise_model,
         source="run",
     )  # fmt: skip
-    say(report(fit))
+    say(lever_report(fit))
     return fit

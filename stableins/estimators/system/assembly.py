@@ -74,7 +74,7 @@ def residuals_from_parameters(true: Mapping[str, float], installed: Mapping[str,
 
 def combined_terms() -> tuple[Term, ...]:
     """Return the fifteen combined coefficients as terms (x1..x5, the pitch and roll coefficients) [rad]."""
-    meaning = dict(zip(hm.STATE_NAMES, hm.STATE_MEANING, strict=True))
+    meaning = dict(zip(hm.HARMONIC_STATES, hm.STATE_MEANING, strict=True))
     terms = []
     for name in COMBINED_COEFFICIENTS:
         terms.append(

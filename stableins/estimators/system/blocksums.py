@@ -359,7 +359,7 @@ def harmonic_information(
 ) -> hm.InformationAccumulator:
     """Per-sample reference: ``Σ HᵀH``, ``Σ Hᵀz`` with ``H`` evaluated sample by sample."""
     acc = hm.InformationAccumulator(n_states=2 * order + 1)
-    acc.add(hm.observation_rows(earth_angle, latitude, order=order), z)
+    acc.add(hm.harmonic_rows(earth_angle, latitude, order=order), z)
     return acc
 
 

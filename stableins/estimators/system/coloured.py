@@ -71,9 +71,9 @@ def coloured_covariance(
     fits: ResidualFits,
     *,
     alpha: float = 0.05,
-    confidence: float = 0.95,
     prior: NoisePrior | None = None,
     remove: Callable[[LowBand], list[NDArray[np.float64]]] | None = None,
+    loop_inputs: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], ColouredNoiseFit | None]:
     """Return the unit covariances ``(2, 3, 17, 17)`` of ``(x1..x7, attitude)`` per coloured component and axis, and the amplitudes.
 
@@ -88,6 +88,11 @@ def coloured_covariance(
     ``remove(bins)``: the part of each residual channel on the low band's bins that a modelled signal explains (the
     thermal terms, :meth:`.thermal.ThermalFit.remover`), taken out before the periodograms; the caller passes ``fine_bins``
     with it taken out too.
+    ``loop_inputs`` (3,): the white variance per attitude-block sample of the loop's inputs ``(Δf_N/g, −Δf_E/g, Δf_D/g)``
+    [rad²], from the accelerometers' white noise measured in the second differences (:func:`loop_input_variances`).  Given,
+    the white levels of the pitch and roll channels are held there (``Σ_i |G_pi(f)|² v_i``) instead of fitted: one day has
+    only about 26 low-band ordinates per channel, so a fitted level scatters by ±40 % (2σ) from record to record and trades
+    with the slow amplitudes, while the second differences pin it to 0.6 % (issue 25; docs/system-calibration.md §1a).
     Each component of unit amplitude is propagated through the linear maps of the harmonic fit and of the attitude fit,
     ``J Σ_c Jᵀ`` (:func:`.spectrum.component_quadratic`, ``(n, n)`` matrices only): the stage's covariance adds
     ``Σ_c α_c J Σ_c Jᵀ``.  This carries the low-frequency noise at the harmonic frequencies themselves (a slowly drifting
@@ -98,7 +103,7 @@ def coloured_covariance(
     units = np.zeros((len(spectrum.COLOURED_KINDS), 3, 17, 17))
     if int(np.count_nonzero(filter_bins.n > 0)) < 16 or fits.attitude.block_map is None:
         return units, None
-    bins = low_band(filter_bins, site, fits)
+    bins = low_band(filter_bins, site, fits, loop_inputs=loop_inputs)
     if remove is not None:  # a signal the stage models (the thermal terms, .thermal) is not noise: out of the residuals
         bins = replace(bins, channels=[c - r for c, r in zip(bins.channels, remove(bins), strict=False)])
     harmonics = tuple(j * spectrum.EARTH_FREQUENCY for j in range(4))
@@ -109,16 +114,25 @@ def coloured_covariance(
         return units, None
     design, observed, n_ch = built
     design, observed, n_high, top = _high_band(fine_bins, site, fits.x_ls, bins.high, design=design, observed=observed, n_ch=n_ch)
+    offset = None
+    held = np.zeros(0)
+    if loop_inputs is not None and n_ch > 1:  # pitch and roll white levels held at the measured noise (coefficient 1)
+        offset = design[:, 1:n_ch].sum(axis=1)
+        held = np.array([float(np.sum(loop_inputs * weights)) for weights in bins.loads_at_blocks])
+        design = np.delete(design, np.s_[1:n_ch], axis=1)
+        n_ch = 1
     fit = whittle.fit_coloured_noise(
         design,
         observed,
         n_ch,
+        offset=offset,
         alpha=alpha,
-        confidence=confidence,
         ordinates=(int(observed.size - n_high), n_high),
         band=(_lowest_frequency(bins.time, bins.wide, harmonics), bins.high, top),
         prior=NoisePrior() if prior is None else prior,
     )
+    if held.size:
+        fit = replace(fit, white_levels=np.concatenate([fit.white_levels, held]))
     n = bins.groups.size
     a_att = attitude_bin_map(fits.attitude, bins.groups, bins.merge)
     j = np.zeros((17, 3 * n))
@@ -129,6 +143,20 @@ def coloured_covariance(
         unit = spectrum.component_quadratic(j, j, bins.mixing, kernel, per_axis=True)
         units[c] = 0.5 * (unit + unit.transpose(0, 2, 1))
     return units, fit
+
+
+def loop_input_variances(axis_variance: NDArray[np.float64], latitude: float, gravity: float, decimation: float) -> NDArray[np.float64]:
+    r"""Return the white variance per attitude-block sample of the loop's inputs ``(Δf_N/g, −Δf_E/g, Δf_D/g)`` [rad²], (3,).
+
+    From the platform axes' white variances ``σ_a²`` per sample (second differences), mapped through ``C_p^n``
+    (docs/system-calibration.md §2) and averaged over the Earth-rate angle: ``(sin²L σ_xy² + cos²L σ_z²,  σ_xy²,
+    cos²L σ_xy² + sin²L σ_z²) / (g² d)`` with ``σ_xy² = (σ_x² + σ_y²)/2`` and ``d`` samples per attitude sample (the
+    attitude blocks count decimated samples: the same per-count variance as the stage's attitude σ, :func:`.solve.white_noise`).
+    """
+    sin2, cos2 = math.sin(latitude) ** 2, math.cos(latitude) ** 2
+    var_xy = 0.5 * float(axis_variance[0] + axis_variance[1])
+    var_z = float(axis_variance[2])
+    return np.array([sin2 * var_xy + cos2 * var_z, var_xy, cos2 * var_xy + sin2 * var_z]) / (gravity**2 * decimation)
 
 
 def attitude_bin_map(att: AttitudeFit, groups: NDArray[np.int64], merge: int) -> NDArray[np.float64]:
@@ -165,14 +193,19 @@ class LowBand:
     makers: list[NDArray[np.float64]]
     weights: list[NDArray[np.float64]]
     gains: list[Any]
+    #: Per attitude channel (pitch, roll): the DC weights of the loop's three inputs (unit: none), for the held white level.
+    loads_at_blocks: tuple[NDArray[np.float64], ...] = ()
 
 
-def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits) -> LowBand:
+def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits, *, loop_inputs: NDArray[np.float64] | None = None) -> LowBand:
     """Build the low band: the z, pitch and roll residuals on the filter bins with samples, merged to at most :data:`COLOURED_BINS`.
 
     With their residual makers, weights, white-noise gains, the bin kernels of the coloured components and the loop's
-    mixing.
+    mixing.  ``loop_inputs``: the white variances of the loop's three inputs (:func:`coloured_covariance`); given, the
+    pitch and roll white gains are ``Σ_i |G_pi(f)|² v_i sinc²(f w)`` (a level of 1 is the measured noise), else
+    ``Σ_i |G_pi(f)|² sinc²(f w)`` (equal inputs, level fitted).
     """
+    inputs = np.ones(3) if loop_inputs is None else np.asarray(loop_inputs, dtype=float)
     x_ls, blocks, att, loop, latitude = fits.x_ls, fits.blocks, fits.attitude, fits.model.loop, site.latitude
     keep_bins = filter_bins.n > 0
     n_keep = int(np.count_nonzero(keep_bins))
@@ -214,10 +247,13 @@ def low_band(filter_bins: SampleBins, site: RecordSite, fits: ResidualFits) -> L
             # white accelerometer noise through the loop (three independent inputs), then averaged over the bin: the
             # bin means of a loop-filtered white noise have the spectrum Σ_i |G_pi(f)|² sinc²(f w) (no aliases: |G| ≪ 1
             # beyond the bins' Nyquist frequency)
-            gains.append(lambda f, ch=ch: float(np.sum(np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2))
+            gains.append(
+                lambda f, ch=ch: float(np.sum(inputs * np.abs(loop.frequency_response(2.0 * np.pi * f)[ch]) ** 2) * np.sinc(f * wide) ** 2)
+            )
     # low band: every Fourier frequency of the record up to `high` but the harmonics the fits absorb (one day: from 4 cycles
     # per day; longer records also between the harmonics, where the random walk's power is largest)
-    return LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains)
+    dc = np.abs(loop.frequency_response(0.0)) ** 2  # (2, 3): the loop's DC gain per input, the quasi-static attitude
+    return LowBand(groups, merge, time, wide, high, a_z, kernels, mixing, channels, makers, weights, gains, (dc[0], dc[1]))
 
 
 def _high_band(
@@ -463,6 +499,7 @@ __all__ = [
     "attitude_residual_maker",
     "coloured_covariance",
     "coloured_note",
+    "loop_input_variances",
     "measured_noise_model",
     "noise_prior",
 ]

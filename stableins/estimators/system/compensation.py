@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term, TermKind
-from stableins.errors import InputError
+from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.system.blocksums import coefficients
 
 
@@ -73,6 +73,8 @@ class AdditiveCompensation:
                 raise InputError(f"{t.id!r} is not an additive term", path=path, field=t.id)
             try:
                 t.regressor(TermInputs(np.array([[0.0, 0.0, -9.8]])))
+            except (InputError, NotDeterminedError):
+                raise  # a described error passes through as it is (issue 29)
             except ValueError as error:
                 raise InputError(
                     f"the prior's term {t.id!r} cannot be compensated from the specific force alone: {error}",

@@ -51,6 +51,9 @@ class SystemDiagnostics:
         Those rms over the expected white-noise level.
     platform_rate_ratio : float
         Rate of the platform-axis angle over the Earth rate.
+    polar_misalignment : float
+        Largest angle between ``z_p`` and the Earth's axis over the record, from the gimbal readings [rad] (NaN when
+        they are not in the record; :mod:`.polar`).
     max_velocity : float
         Largest horizontal velocity output [m/s].
     attitude_excursion : float
@@ -82,6 +85,7 @@ class SystemDiagnostics:
     attitude_residual_rms: Any
     attitude_noise_ratio: Any
     platform_rate_ratio: float
+    polar_misalignment: float
     max_velocity: float
     attitude_excursion: float
     loop: DampingLoop

@@ -149,6 +149,15 @@ class GimbalDrift:
         scaled by it when it is significantly larger).
     blocks : int
         Blocks fitted.
+    orientation : ndarray, shape (3, 3)
+        The platform's orientation in inertial space at ``t = 0``, ``C_{n_0}^{p}`` with the nuisances removed (the
+        reference the fit converged to).
+    latitude : float
+        [rad] (the Earth's axis in ``n_0``).
+    span : tuple of float
+        First and last block time [s].
+    orientation_sigma : ndarray, shape (3,)
+        1σ of the orientation's constant ``c`` per axis [rad] (platform frame).
     """
 
     values: NDArray[np.float64]
@@ -159,11 +168,24 @@ class GimbalDrift:
     residual_rms: NDArray[np.float64]
     low_frequency_ratio: float
     blocks: int
+    orientation: NDArray[np.float64]
+    latitude: float
+    span: tuple[float, float]
+    orientation_sigma: NDArray[np.float64]
 
     @property
     def sigma(self) -> NDArray[np.float64]:
         """1σ per axis [rad/s]."""
         return np.sqrt(np.diag(self.covariance))
+
+    def earth_axis(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return the Earth's axis in the platform frame at ``time`` [s] (n, 3): ``rot(−ε t) C_{n_0}^p (cos L, 0, −sin L)``.
+
+        ``(0, 0, 1)`` on a polar-aligned platform; its x, y components are the polar misalignment of z_p (docs §9).
+        """
+        axis = self.orientation @ (earth_rate_nav(self.latitude) / EARTH_RATE)
+        turn = rotation_about(-np.outer(np.atleast_1d(np.asarray(time, dtype=float)), self.values))
+        return np.asarray(turn @ axis)
 
     def describe(self) -> str:
         """One line in °/h."""
@@ -269,6 +291,10 @@ def fit_gimbal_drift(
         residual_rms=np.sqrt(np.average(residuals**2, axis=0, weights=weight)),
         low_frequency_ratio=ratio,
         blocks=int(t.size),
+        orientation=reference,
+        latitude=float(latitude),
+        span=(float(t[0]), float(t[-1])),
+        orientation_sigma=np.sqrt(np.diag(cov[0:3, 0:3]) * inflation),
     )
 
 

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import ARCSEC, DEG_PER_HOUR, GimbalConfiguration
+from stableins.conventions import ARCSEC, DEG_PER_HOUR, EARTH_RATE, GimbalConfiguration
 from stableins.estimators.system.attitude import AttitudeModel, fit_attitude
 from stableins.estimators.system.gyro_drift import DRIFT_IDS, INNER_OFFSET_SIGMA, GimbalBlocks, GimbalDrift, fit_gimbal_drift
 from stableins.estimators.system.loop import DRIFT_SCALE, DampingLoop, drift_columns
@@ -73,6 +73,9 @@ class DriftStep:
     in_likelihood : bool
         The drift is a parameter of the stage's likelihood (measured by this record).
     notes : tuple of str
+    g_sensitivity : ndarray (3, 3) or None
+        The prior's gyro g-sensitivity ``D_g`` [rad/s per m/s²] (row: gyro axis, column: specific-force axis), whose
+        Earth-rate drift's loop response is removed from pitch and roll (:func:`g_sensitivity_removed`); None without.
     """
 
     values: NDArray[np.float64]
@@ -81,10 +84,41 @@ class DriftStep:
     gimbal: GimbalDrift | None
     in_likelihood: bool
     notes: tuple[str, ...] = ()
+    g_sensitivity: NDArray[np.float64] | None = None
 
 
 def _deg_h(values: NDArray[np.float64]) -> str:
     return "(" + ", ".join(f"{v / DEG_PER_HOUR:+.2e}" for v in values) + ") deg/h"
+
+
+def measure_gimbals(
+    sums: RecordSums,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    *,
+    latitude: float,
+) -> GimbalDrift | None:
+    """Fit the gimbal readings (:func:`.gyro_drift.fit_gimbal_drift`); None without them or when too few or too short.
+
+    The prior's σ of θ20 (the inner-gimbal zero offset) is the prior of its residual in the fit (nominal 60″ without).
+    """
+    from typing import cast
+
+    blocks = sums.gimbal_blocks
+    if blocks is None:
+        return None
+    means = blocks.means()
+    if means["time"].size < MINIMUM_BLOCKS or means["time"][-1] - means["time"][0] < MINIMUM_SPAN:
+        return None
+    return fit_gimbal_drift(
+        means,
+        latitude,
+        GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses))),
+        offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
+        base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
+        inner_offset_sigma=_offset_sigma(prior_covariance),
+    )
 
 
 def drift_step(
@@ -98,24 +132,70 @@ def drift_step(
 ) -> DriftStep:
     """Measure the drift in the gimbal readings and combine it with a given one (module docstring, step 1).
 
-    The prior's σ of θ20 (the inner-gimbal zero offset) is the prior of its residual in the fit (nominal 60″ without).
+    The gimbal fit is :func:`measure_gimbals` (only with ``options.estimate_gyro_drift``); the step carries the prior's
+    ``D_g`` (:func:`prior_g_sensitivity`).
     """
-    from typing import cast
+    g_sensitivity = prior_g_sensitivity(prior)
+    step = _drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options, g_sensitivity=g_sensitivity)
+    if g_sensitivity is None:
+        return step
+    note = (
+        "the loop's response to the Earth-rate part of the record's gyro g-sensitivity D_g (its drift D_g f^p turns at the "
+        "Earth rate about z_p) is removed from pitch and roll; the constant part D_g f_z is in the measured drift"
+    )
+    return replace(step, g_sensitivity=g_sensitivity, notes=(*step.notes, note))
 
+
+def prior_g_sensitivity(prior: Mapping[str, float]) -> NDArray[np.float64] | None:
+    """Return the prior's ``D_g`` (3, 3) [rad/s per m/s²] from ``Dg_ab`` (gyro ``a``, specific force ``b``); None when all are 0."""
+    values = np.array([[float(prior.get(f"Dg_{a}{b}", 0.0)) for b in "xyz"] for a in "xyz"])
+    return values if np.any(values) else None
+
+
+def g_sensitivity_removed(
+    blocks: dict[str, NDArray[np.float64]], loop: DampingLoop, g_sensitivity: NDArray[np.float64] | None
+) -> dict[str, NDArray[np.float64]]:
+    """Return the attitude blocks with the loop's response to the Earth-rate part of the g-sensitive drift removed.
+
+    On the polar-aligned platform ``f^p = g (cos L cos S, cos L sin S, sin L)``, so the gyro error ``D_g f^p`` is the
+    constant ``g sin L D_g e_z`` (a constant drift: the gimbal readings measure it with ``ε^p``) plus
+    ``g cos L (D_g e_x cos S + D_g e_y sin S)``, a drift turning at the Earth rate in the platform frame, which drives the
+    loop like the equatorial drift (Britting's Earth-rate mode) and which the gimbal fit's harmonic nuisances absorb: its
+    response (:meth:`.loop.DampingLoop.drift_responses` with these rates) is removed here, from the record's ``D_g``
+    (0.001 °/h/g moves the pitch coefficients by about 0.6σ of one day; a D_g known to 10 % leaves 0.06σ).
+    """
+    if g_sensitivity is None:
+        return blocks
+    d = g_sensitivity
+    scale = loop.gravity * math.cos(loop.latitude)
+
+    def rates(angle: NDArray[np.float64]) -> NDArray[np.float64]:
+        return scale * (np.cos(angle)[:, None] * d[:, 0] + np.sin(angle)[:, None] * d[:, 1])
+
+    response = drift_columns(blocks, loop, rates=rates).sum(axis=2) / DRIFT_SCALE
+    out = dict(blocks)
+    out["pitch"] = blocks["pitch"] - response[:, 0]
+    out["roll"] = blocks["roll"] - response[:, 1]
+    return out
+
+
+def _drift_step(
+    sums: RecordSums,
+    metadata: SiteMetadata,
+    prior: Mapping[str, float],
+    prior_covariance: Mapping[tuple[str, str], float] | None,
+    *,
+    latitude: float,
+    options: SystemOptions,
+    g_sensitivity: NDArray[np.float64] | None,
+) -> DriftStep:
+    """:func:`drift_step` but for the prior's ``D_g`` in the step (its wobble's σ is in the gimbal measurement's)."""
     gimbal = None
     notes: list[str] = []
-    blocks = sums.gimbal_blocks
-    if options.estimate_gyro_drift and blocks is not None:
-        means = blocks.means()
-        if means["time"].size >= MINIMUM_BLOCKS and means["time"][-1] - means["time"][0] >= MINIMUM_SPAN:
-            gimbal = fit_gimbal_drift(
-                means,
-                latitude,
-                GimbalConfiguration(cast("tuple[int, int, int, int]", tuple(metadata.gimbal_senses))),
-                offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
-                base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
-                inner_offset_sigma=_offset_sigma(prior_covariance),
-            )
+    if options.estimate_gyro_drift:
+        gimbal = measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
+        if gimbal is not None:
+            gimbal = _with_wobble(gimbal, g_sensitivity, metadata.gravity)
             notes.append(_gimbal_note(gimbal))
     given = None if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
     uncertainty = options.gyro_drift_uncertainty
@@ -143,6 +223,28 @@ def drift_step(
     if gimbal is not None:
         return DriftStep(gimbal.values, gimbal.covariance, DriftSource.GIMBALS, gimbal, True, tuple(notes))
     return DriftStep(np.zeros(3), None, DriftSource.NONE, None, False, tuple(notes))
+
+
+def wobble_sigma(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> float:
+    """σ added to ``ε_x``, ``ε_y`` by the g-sensitive wobble read with a z_p drift [rad/s]: ``|ε_z| g cos L ‖D_eq‖ / ω_ie``.
+
+    The Earth-rate part of ``D_g f^p`` (:func:`g_sensitivity_removed`) tilts the platform by ``H(t)``, amplitude
+    ``A = g cos L ‖D_eq‖ / ω_ie`` (``D_eq`` the equatorial 2×2 block, ‖·‖ its largest singular value: 5e-5 rad for
+    0.001 °/h/g), with a mean offset from the record's start of up to ``A``; the z_p drift then turns the platform about
+    an axis tilted by it, which the gimbal fit (its reference the start, its nuisances base-fixed) reads as an equatorial
+    drift of up to ``ε_z A`` (measured: 0.92 ε_z A, 2.4e-6 °/h for 0.05 °/h and 0.001 °/h/g, 30× the readings' σ;
+    docs/system-calibration.md §9).  Not modelled: its size is its σ.
+    """
+    amplitude = gravity * math.cos(gimbal.latitude) * float(np.linalg.svd(g_sensitivity[:2, :2], compute_uv=False)[0]) / EARTH_RATE
+    return abs(float(gimbal.values[2])) * amplitude
+
+
+def _with_wobble(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64] | None, gravity: float | None) -> GimbalDrift:
+    """Return the gimbal measurement with :func:`wobble_sigma` added to the variance of ``ε_x``, ``ε_y``."""
+    if g_sensitivity is None or gravity is None:
+        return gimbal
+    variance = wobble_sigma(gimbal, g_sensitivity, gravity) ** 2
+    return replace(gimbal, covariance=gimbal.covariance + np.diag([variance, variance, 0.0]))
 
 
 def _offset_sigma(prior_covariance: Mapping[tuple[str, str], float] | None) -> float:
@@ -302,6 +404,10 @@ __all__ = [
     "drift_covariance_v",
     "drift_notes",
     "drift_step",
+    "g_sensitivity_removed",
+    "measure_gimbals",
+    "prior_g_sensitivity",
+    "wobble_sigma",
     "likelihood_inputs",
     "prior_drift",
 ]

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 #: The five harmonic states (Wu et al. 2018 Eqs. 21–25, signs derived in this module).
-STATE_NAMES = ("x1", "x2", "x3", "x4", "x5")
+HARMONIC_STATES = ("x1", "x2", "x3", "x4", "x5")
 STATE_MEANING = (
     "mean of the specific-force error along gravity",
     "cos S fundamental: b_x − Δβxy·sinL + Δβzy·sinL",
@@ -68,7 +68,7 @@ THIRD_HARMONIC_NAMES = ("x6", "x7")
 RESIDUAL_NAMES = ("D_x", "D_y", "D_z", "b_x", "b_y", "b_z", "beta_xy", "beta_xz", "beta_yx", "beta_yz", "beta_zx", "beta_zy")
 
 
-def observation_rows(earth_angle: ArrayLike, latitude: float, order: int = 2) -> NDArray[np.float64]:
+def harmonic_rows(earth_angle: ArrayLike, latitude: float, order: int = 2) -> NDArray[np.float64]:
     """Rows of ``H`` (Wu et al. 2018 Eq. 27) for Earth-rate angles ``S``, shape ``(n, 5)``.
 
     ``order=3`` appends the third-harmonic columns ``cos³L (cos 3S, sin 3S)`` (shape ``(n, 7)``).
@@ -206,7 +206,7 @@ def _symmetric_inverse(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
     return 0.5 * (inv + inv.T)
 
 
-def batch_least_squares(
+def regularized_least_squares(
     h: ArrayLike, z: ArrayLike, noise_variance: float, prior_mean: ArrayLike | None = None, prior_covariance: ArrayLike | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Batch (regularized) least squares by QR of the stacked, whitened system."""

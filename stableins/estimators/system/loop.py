@@ -48,7 +48,7 @@ from the modal expansion over the controllable modes only.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -199,8 +199,13 @@ class DampingLoop:
         b[0, 0] = b[1, 1] = b[2, 2] = -1.0
         return b
 
-    def drift_responses(self, time: NDArray[np.float64], earth_angle: NDArray[np.float64]) -> NDArray[np.float64]:
+    def drift_responses(
+        self, time: NDArray[np.float64], earth_angle: NDArray[np.float64], *, rates: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
         r"""Pitch and roll responses ``(n, 2, 3)`` to a unit constant gyro drift along each platform axis, from rest at ``time[0]``.
+
+        With ``rates`` (n, 3) the drift along platform axis ``j`` is ``rates[:, j]`` [rad/s] at each time instead of 1
+        (a drift that varies, e.g. the g-sensitive drift ``D_g f^p(t)``; linear between the times, as the unit drift).
 
         On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
         polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
@@ -229,11 +234,14 @@ class DampingLoop:
         # x_{k+1} = Φ x_k + d_k from rest; in the eigenbasis of Φ each mode is a first-order recursion (lfilter)
         lam, vectors = np.linalg.eig(phi)
         if not np.linalg.cond(vectors) < 1e8:  # (nearly) defective: the plain recursion
-            return self._drift_responses_stepwise(t, nav_to_platform, phi, gamma0, gamma1)
+            scaled = nav_to_platform if rates is None else nav_to_platform * rates[:, :, None]
+            return self._drift_responses_stepwise(t, scaled, phi, gamma0, gamma1)
         to_modes = np.linalg.inv(vectors)
         modal = []
         for j in range(3):
             eps_n = nav_to_platform[:, j, :]  # row j of C_n^p = C_p^n e_j
+            if rates is not None:
+                eps_n = eps_n * rates[:, j : j + 1]
             drive = step[:, None] * (eps_n[:-1] @ gamma0.T + np.diff(eps_n, axis=0) @ gamma1.T)
             modal.append(drive @ to_modes.T)
         z = modal_recursion(np.tile(lam, 3), np.concatenate(modal, axis=1))  # the three axes' modes side by side
@@ -414,8 +422,16 @@ def modal_recursion(lam: NDArray[np.complex128] | NDArray[np.float64], drive: ND
     return out_c
 
 
-def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) -> NDArray[np.float64]:
+def drift_columns(
+    blocks: Mapping[str, NDArray[np.float64]],
+    loop: DampingLoop,
+    *,
+    rates: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+) -> NDArray[np.float64]:
     """Return the drift responses ``(n_blocks, 2, 3)`` of pitch and roll on the attitude block times.
+
+    ``rates``: the drift per platform axis as a function of the Earth-rate angle on the grid [rad/s] (n, 3)
+    (:meth:`DampingLoop.drift_responses`); None: a unit constant drift.
 
     :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid of the blocks' step
     (at least :data:`DRIFT_GRID_SECONDS`) and interpolated linearly (the responses are smooth: over 60 s the Earth-rate
@@ -425,7 +441,8 @@ def drift_columns(blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop) 
     angle = np.unwrap(np.arctan2(blocks["sin"], blocks["cos"]))
     step = max(float(np.median(np.diff(t))) if t.size > 1 else 1.0, DRIFT_GRID_SECONDS)
     grid = np.arange(0.0, t[-1] + step, step)
-    responses = loop.drift_responses(grid, np.interp(grid, t, angle))
+    earth_angle = np.interp(grid, t, angle)
+    responses = loop.drift_responses(grid, earth_angle, rates=None if rates is None else rates(earth_angle))
     out = np.empty((t.size, 2, 3))
     for ch in range(2):
         for j in range(3):

@@ -36,10 +36,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stableins.estimators.system.attitude import ATTITUDE_COEFFICIENTS, attitude_combinations
-from stableins.estimators.system.harmonics import RESIDUAL_NAMES, STATE_NAMES, state_combinations
+from stableins.estimators.system.harmonics import HARMONIC_STATES, RESIDUAL_NAMES, state_combinations
 
-COMBINED_COEFFICIENTS = STATE_NAMES + ATTITUDE_COEFFICIENTS
-NUISANCE_NAMES = ("pitch_offset", "roll_offset")
+COMBINED_COEFFICIENTS = HARMONIC_STATES + ATTITUDE_COEFFICIENTS
+ATTITUDE_NUISANCES = ("pitch_offset", "roll_offset")
 #: A combination whose σ grew more than this factor over its σ without a nuisance the record cannot separate (the
 #: thermal terms under a daily cycle, docs/system-calibration.md §1b) is not called determined: the data no longer pin it,
 #: the nuisance's prior does (issue 25).
@@ -135,7 +135,7 @@ def separate(
     if transform is not None:
         t = np.asarray(transform, dtype=float)
         g, c, cov = t @ g, t @ c, t @ cov @ t.T
-    names = RESIDUAL_NAMES + NUISANCE_NAMES
+    names = RESIDUAL_NAMES + ATTITUDE_NUISANCES
     scale = np.array([float((prior_sigma or {}).get(n, 1e-4)) for n in RESIDUAL_NAMES] + [1e-4, 1e-4])
     # whiten with the coefficient covariance
     sd = np.sqrt(np.diag(cov))

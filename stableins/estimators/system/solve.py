@@ -38,10 +38,18 @@ from stableins.estimators.system.coloured import (
     ResidualFits,
     coloured_covariance,
     coloured_note,
+    loop_input_variances,
     measured_noise_model,
     noise_prior,
 )
-from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_covariance_v, drift_notes, sensor_error_removed
+from stableins.estimators.system.gyro_drift_step import (
+    DriftSource,
+    DriftStep,
+    drift_covariance_v,
+    drift_notes,
+    g_sensitivity_removed,
+    sensor_error_removed,
+)
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, GROWTH_LIMIT, Separation, separate, without_growth
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
@@ -211,6 +219,7 @@ def fit_attitude_coefficients(
     blocks = sums.attitude_blocks.means()
     if drift is not None:
         blocks = sensor_error_removed(blocks, sums.gimbal_blocks, drift.gimbal, latitude)
+        blocks = g_sensitivity_removed(blocks, loop, drift.g_sensitivity)
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
     vertical = -along * harmonic.x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)
@@ -277,12 +286,17 @@ def decide_noise(
     context: StageContext,
     given: NoiseModel | None,
     remove: tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None = None,
+    hold_attitude_white: bool = True,
 ) -> NoiseDecision:
     """Step 5: decide on the low-frequency noise and build the covariance of ``v`` under it.
 
     The joint white covariance of ``v`` (cross terms from the vertical path), the coloured noise measured in the
     residuals (:func:`.coloured.coloured_covariance`) added to it, and the noise model.  ``remove``: the fine bins and
     the low band's channels without a signal the stage models (the thermal terms, :meth:`.thermal.ThermalFit.remover`).
+    ``hold_attitude_white``: the pitch and roll white levels held at the accelerometers' measured white noise through
+    the loop (the stage's σ); ``False`` fits them, which lets a signal not yet modelled (a thermal ramp before the
+    thermal test) go into them rather than into the slow amplitudes: the thermal test's first decision
+    (:func:`.thermal.thermal_step`; docs/system-calibration.md §1a).
     """
     att = attitude.fit
     gravity, rate, path = context.site.gravity, context.site.rate, context.path
@@ -303,6 +317,9 @@ def decide_noise(
         alpha=context.options.noise_false_positive_rate,
         prior=noise_prior(given, gravity),
         remove=None if remove is None else remove[1],
+        loop_inputs=loop_input_variances(noise.axis_variance, context.site.latitude, gravity, sums.decimation)
+        if hold_attitude_white
+        else None,
     )
     # too short for the model: given amplitudes still apply (propagated on no bins: nothing), measured ones do not exist
     amplitudes = fit.amplitudes if fit is not None else np.zeros(units.shape[:2])

@@ -127,11 +127,10 @@ def inflation(frequencies: NDArray[np.float64], ratios: NDArray[np.float64], at:
 
 
 # --------------------------------------------------------------------------- coloured accelerometer noise, modulated
-#: Correlation times [s] of the Gauss-Markov sum standing for flicker (bias instability), one decade apart: the noise
-#: model's (:data:`stableins.noise.FLICKER_TIME_CONSTANTS`, 1 s to 1e5 s).  The sum has a 1/f spectrum from about
-#: ``1/(2π·1e5 s)`` (0.14 cycles/day) to ``1/(2π·1 s)``, which covers the fitted bands (3.5 to about 650 cycles/day)
-#: and reaches down to the harmonic frequencies.
-FLICKER_TIME_CONSTANTS = _noise.FLICKER_TIME_CONSTANTS
+# The Gauss-Markov sum standing for flicker (bias instability) has the noise model's correlation times, one decade
+# apart (:data:`stableins.noise.FLICKER_TIME_CONSTANTS`, 1 s to 1e5 s).  The sum has a 1/f spectrum from about
+# ``1/(2π·1e5 s)`` (0.14 cycles/day) to ``1/(2π·1 s)``, which covers the fitted bands (3.5 to about 650 cycles/day)
+# and reaches down to the harmonic frequencies.
 
 #: The coloured components: random walk and flicker, one amplitude each for the three accelerometer axes.
 COLOURED_KINDS = ("random_walk", "flicker")
@@ -158,7 +157,7 @@ def bin_process_kernel(kind: str, time: NDArray[np.float64], width: float) -> ND
 
     ``"random_walk"``: ``W(0) = 0``, ``Cov W(s)W(t) = min(s, t)`` [per s]; the mean over a bin ``[a, b]`` has
     variance ``a + (b − a)/3`` and, for disjoint bins, covariance = the earlier bin's centre.
-    ``"flicker"``: a sum of unit Gauss-Markov processes (:data:`FLICKER_TIME_CONSTANTS`), exact bin averages:
+    ``"flicker"``: a sum of unit Gauss-Markov processes (:data:`stableins.noise.FLICKER_TIME_CONSTANTS`), exact bin averages:
     ``e^{−|Δt|/τ} (sinh(x/2)/(x/2))²`` between disjoint bins and ``2(x − 1 + e^{−x})/x²`` within one, ``x = width/τ``.
 
     One ``(n, n)`` matrix for the whole record (at most ``COLOURED_BINS`` bins in the stage, 0.8 MB); the
@@ -172,7 +171,7 @@ def bin_process_kernel(kind: str, time: NDArray[np.float64], width: float) -> ND
     lag = np.abs(np.subtract.outer(t, t))
     cov = np.zeros_like(lag)
     diagonal = np.diag_indices_from(cov)
-    for tau in FLICKER_TIME_CONSTANTS:
+    for tau in _noise.FLICKER_TIME_CONSTANTS:
         x = width / tau
         # two disjoint bins: e^{−Δt/τ} (sinh(x/2)/(x/2))² = e^{−(Δt − w)/τ} ((1 − e^{−x})/x)², without overflow for x ≫ 1
         part = np.exp(-np.maximum(lag - width, 0.0) / tau) * (-math.expm1(-x) / x) ** 2
@@ -397,7 +396,7 @@ def z_bin_expectations(k: NDArray[np.int64], n: int, width: float, latitude: flo
     r"""Return the expected periodogram ordinates of the z residual on ``n`` uniform bins of ``width`` [s], per unit noise level.
 
     Columns: white (per-sample variance 1, ``samples_per_bin`` samples per bin), random walk ``(K/g)² = 1`` [1/s],
-    flicker (each Gauss-Markov process of :data:`FLICKER_TIME_CONSTANTS` of variance 1), at the Fourier
+    flicker (each Gauss-Markov process of :data:`stableins.noise.FLICKER_TIME_CONSTANTS` of variance 1), at the Fourier
     frequencies ``f_k = k/(n w)``.  With uniform weights ``P_k = 2|Σ_j r_j e^{−iθ_k j}|²/n²`` (:func:`z_bin_periodogram`)
     and ``θ_k = 2πk/n``,
 
@@ -422,7 +421,7 @@ def z_bin_expectations(k: NDArray[np.int64], n: int, width: float, latitude: flo
 
     out[:, 1] = modulated(lambda th: _dft_of_random_walk(th, n, width))
     flicker = np.zeros(theta.size)
-    for tau in FLICKER_TIME_CONSTANTS:
+    for tau in _noise.FLICKER_TIME_CONSTANTS:
         x = width / tau
         variance = 2.0 * (x - 1.0 + math.exp(-x)) / (x * x) if x > 1e-6 else 1.0 - x / 3.0
         lag_one = (-math.expm1(-x) / x) ** 2  # e^{−x} (sinh(x/2)/(x/2))², the covariance of adjacent bins

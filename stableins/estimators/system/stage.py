@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,9 +48,17 @@ from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import StageContext, check_metadata
 from stableins.estimators.system.diagnostics import SystemDiagnostics
 from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
-from stableins.estimators.system.gyro_drift_step import DriftStep, drift_covariance_v, drift_step, likelihood_inputs, prior_drift
+from stableins.estimators.system.gyro_drift_step import (
+    DriftStep,
+    drift_covariance_v,
+    drift_step,
+    likelihood_inputs,
+    measure_gimbals,
+    prior_drift,
+)
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import SystemOptions
+from stableins.estimators.system.polar import PolarAlignment, check_polar_alignment, polar_alignment
 from stableins.estimators.system.separation import Separation
 from stableins.estimators.system.thermal import THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
 from stableins.estimators.system.third_harmonic import record_note
@@ -231,6 +239,7 @@ class _Stage:
     decision: solve.NoiseDecision
     drift: DriftStep
     thermal: ThermalFit
+    polar: PolarAlignment | None
 
 
 def _run(
@@ -257,11 +266,20 @@ def _run(
     if options.run_filter:
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity=gravity, rate=rate)
     drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
+    # the polar alignment from the gimbal readings (fitted for the check alone when the drift is not estimated), docs §9
+    gimbal = drift.gimbal if drift.gimbal is not None else measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
+    polar = None if gimbal is None else polar_alignment(gimbal)
+    check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path)
+    if polar is not None:
+        drift = replace(drift, notes=(*drift.notes, polar.describe()))
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
-    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model)
+    # with a temperature column, the thermal test's first decision fits the attitude white levels (an unmodelled thermal
+    # signal goes there, not into the slow amplitudes); the thermal step decides again with them held (docs §1a, §1b)
+    held = sums.temperature_bins is None
+    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model, hold_attitude_white=held)
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
     thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
-    return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal)
+    return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal, polar)
 
 
 def record_sums(
@@ -403,6 +421,7 @@ def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnos
         attitude_residual_rms=att.residual_rms,
         attitude_noise_ratio=att.residual_noise_ratio,
         platform_rate_ratio=checks.rate_ratio,
+        polar_misalignment=float("nan") if stage.polar is None else stage.polar.angle,
         max_velocity=checks.max_velocity,
         attitude_excursion=checks.excursion,
         loop=stage.context.loop,

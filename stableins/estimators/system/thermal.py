@@ -222,7 +222,7 @@ class ThermalFit:
         }
 
 
-def prior_mean(prior: Mapping[str, float] | None) -> NDArray[np.float64]:
+def thermal_prior_mean(prior: Mapping[str, float] | None) -> NDArray[np.float64]:
     """Return the prior mean of :data:`THERMAL_TERMS`: the record's values where it has them, else 0 [SI].
 
     The values come from a device-level thermal test (``stableins calibrate thermal``, docs/thermal-calibration.md).
@@ -273,7 +273,7 @@ class ThermalInputs:
 
     ``noise`` and ``given``: what the noise decision needs when it is made again (:func:`thermal_step`).  ``prior``: the
     calibration record's values; its :data:`THERMAL_TERMS` (a device-level thermal test) are the prior mean of the
-    sensitivities (:func:`prior_mean`).
+    sensitivities (:func:`thermal_prior_mean`).
     """
 
     sums: RecordSums
@@ -312,8 +312,8 @@ def analyse_temperature(
     z_cols, _, _, jacobian = response(stage.context.site.gravity, stage.attitude, band, delta_t)
     info, gradient, info_raw = information(stage.harmonic, stage.decision, band, z_cols)
     posterior: NDArray[np.float64] = np.asarray(np.linalg.inv(np.diag(1.0 / sigma0**2) + info), dtype=np.float64)
-    estimate = posterior @ (prior_mean(stage.prior) / sigma0**2 + gradient)
-    separable, chi2, dof = separable_directions(info, info_raw, gradient)
+    estimate = posterior @ (thermal_prior_mean(stage.prior) / sigma0**2 + gradient)
+    separable, chi2, dof = separable_directions(info, info_raw, gradient, regressors=z_cols)
     data_estimate = None
     if dof:
         d = separable.T  # (6, k)
@@ -354,14 +354,17 @@ def thermal_step(
     """Return the thermal terms and the stage's fits with them taken out (:meth:`ThermalFit.apply`).
 
     A thermal term the record detects is signal, not slow noise: the noise is decided again without it
-    (:func:`.solve.decide_noise` with :meth:`ThermalFit.remover`) and the terms refitted under that noise.
+    (:func:`.solve.decide_noise` with :meth:`ThermalFit.remover`) and the terms refitted under that noise.  The test
+    itself runs under the stage's first decision, which fits the attitude white levels; the noise is decided again with
+    them held whenever the record has a temperature column (``hold_attitude_white``), and the terms refitted under it.
     """
     from stableins.estimators.system import solve
 
     thermal = analyse_temperature(inputs, options, prior_covariance)
     remove = thermal.remover(inputs)
     decision = inputs.decision
-    if remove is not None and inputs.noise is not None:
+    if inputs.noise is not None and (remove is not None or inputs.sums.temperature_bins is not None):
+        # the final decision holds the attitude white levels (the first one, made for this test, fitted them)
         decision = solve.decide_noise(
             inputs.sums, inputs.harmonic, inputs.attitude, inputs.noise, context=inputs.context, given=inputs.given, remove=remove
         )
@@ -442,7 +445,7 @@ __all__ = [
     "ThermalFit",
     "ThermalInputs",
     "analyse_temperature",
-    "prior_mean",
+    "thermal_prior_mean",
     "prior_sigma",
     "thermal_aliases",
     "thermal_step",

@@ -85,21 +85,38 @@ def information(
     return z_tilde.T @ precision @ z_tilde, z_tilde.T @ precision @ band.channels[0], z_cols.T @ np.linalg.solve(cov, z_cols)
 
 
+#: Relative singular value of the sensitivities' ``z`` regressors (scaled) below which a direction counts as not reached.
+COLLINEAR = 1e-3
+
+
 def separable_directions(
-    info: NDArray[np.float64], info_raw: NDArray[np.float64], gradient: NDArray[np.float64]
+    info: NDArray[np.float64],
+    info_raw: NDArray[np.float64],
+    gradient: NDArray[np.float64],
+    *,
+    regressors: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], float, int]:
     """Directions of the sensitivities the record separates from the harmonics, and the data-only χ² on them.
 
     Generalized eigenproblem ``F w = λ F_raw w``: ``λ`` is the share of the thermal signal along ``w`` left after the
-    harmonic fit; directions with ``λ ≥ 1/VIF_LIMIT`` are separable.
+    harmonic fit; directions with ``λ ≥ 1/VIF_LIMIT`` are separable.  ``regressors``: the sensitivities' ``z`` on the bins
+    ``(n, 6)`` (:func:`response`); given, the directions they do not reach at all are left out first, from the
+    regressors themselves (singular values below :data:`COLLINEAR` of the largest): ``k_z``, ``s_z`` and ``s_x + s_y``
+    all enter ``z`` as ``ΔT`` (the last to 1e-5 on bin means), two null directions the information matrices show only
+    to their round-off under a large random walk, where the threshold on them let them through and the data-only
+    estimate moved along them by 0.1 m/s²/K: invisible in ``z``, 1000 times the signal in pitch (issue 25).
     """
     scale = np.sqrt(np.clip(np.diag(info_raw), 1e-300, None))
-    raw = info_raw / np.outer(scale, scale)
+    basis = np.eye(info_raw.shape[0])
+    if regressors is not None:
+        _, singular, right = np.linalg.svd(regressors / np.where(scale > 0, scale, 1.0), full_matrices=False)
+        basis = right[singular > COLLINEAR * max(float(singular.max(initial=0.0)), 1e-300)].T  # (6, k): the reachable directions
+    raw = basis.T @ (info_raw / np.outer(scale, scale)) @ basis
     values, vectors = np.linalg.eigh(raw)
-    keep = values > 1e-9 * max(values.max(), 1e-300)  # exact collinearities (k_z, s_z and s_x + s_y all enter z as ΔT) are ~1e-12
+    keep = values > 1e-9 * max(values.max(initial=0.0), 1e-300)  # exact collinearities are ~1e-12
     if not keep.any():
         return np.zeros((0, 6)), 0.0, 0
-    half = vectors[:, keep] / np.sqrt(values[keep])  # raw^{-1/2} on its range
+    half = basis @ (vectors[:, keep] / np.sqrt(values[keep]))  # raw^{-1/2} on its range
     shares, w = np.linalg.eigh(half.T @ (info / np.outer(scale, scale)) @ half)
     directions = (half @ w[:, shares >= 1.0 / VIF_LIMIT]).T / scale  # in the parameters
     chi2 = 0.0
@@ -124,4 +141,4 @@ def daily_fraction(band: LowBand, delta_t: NDArray[np.float64], latitude: float)
     return 1.0 - left / total if total > 0 else 0.0
 
 
-__all__ = ["bin_temperature", "daily_fraction", "information", "response", "separable_directions"]
+__all__ = ["COLLINEAR", "bin_temperature", "daily_fraction", "information", "response", "separable_directions"]

@@ -70,9 +70,9 @@ _GRID = 720
 
 def _harmonic_design(angle: NDArray[np.float64], latitude: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Design of ``z`` (the stage's seven H columns) and of pitch/roll (mean, cos S, sin S, cos 2S, sin 2S)."""
-    from stableins.estimators.system.harmonics import observation_rows
+    from stableins.estimators.system.harmonics import harmonic_rows
 
-    h = observation_rows(angle, latitude, order=3)
+    h = harmonic_rows(angle, latitude, order=3)
     a = np.stack([np.ones_like(angle), np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)], axis=1)
     return h, a
 
@@ -150,7 +150,7 @@ def _sizes(terms: Sequence[str], size: Sequence[float], sigma: Sequence[float]) 
 
 
 #: The two parts of the third harmonic: its cosine (x6) and sine (x7) in z.
-COMPONENTS = ("x6", "x7")
+THIRD_HARMONIC_STATES = ("x6", "x7")
 
 
 @dataclass(frozen=True)
@@ -200,7 +200,7 @@ class ThirdHarmonic:
     @property
     def k2_alone(self) -> bool:
         """A residual K2 is the only accepted explanation of every significant part (then ``estimate_k2`` is the correction)."""
-        parts = [c for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig]
+        parts = [c for c, sig in zip(THIRD_HARMONIC_STATES, self.significant, strict=True) if sig]
         return bool(parts) and all(self.accepted(c) == (f"K2_{'x' if c == 'x6' else 'y'}",) for c in parts)
 
     def _k2(self) -> Hypothesis:
@@ -208,7 +208,7 @@ class ThirdHarmonic:
 
     def _parts(self) -> str:
         out = []
-        for component, sig in zip(COMPONENTS, self.significant, strict=True):
+        for component, sig in zip(THIRD_HARMONIC_STATES, self.significant, strict=True):
             if not sig:
                 continue
             accepted = self.accepted(component)
@@ -241,7 +241,7 @@ class ThirdHarmonic:
             else ""
         )
         separations = {t: sep for names in self.candidates.values() for t, sep in names.items()}
-        significant = [c for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig] or list(COMPONENTS)
+        significant = [c for c, sig in zip(THIRD_HARMONIC_STATES, self.significant, strict=True) if sig] or list(THIRD_HARMONIC_STATES)
         accepted = [t for c in significant for t in self.accepted(c)]
         separate = "; ".join(f"{t}: {separations[t]}" for t in dict.fromkeys(accepted))
         if estimate_k2:
@@ -274,7 +274,7 @@ class ThirdHarmonic:
                 f"{head}: explained by a residual K2 and by no other library effect{relative}: {k2.describe()}. It biases x2, x3 "
                 f"and the fundamentals of pitch and roll; rerun with the K2 estimation on ({parameter}) to remove it"
             )
-        several = any(len(self.accepted(c)) > 1 for c, sig in zip(COMPONENTS, self.significant, strict=True) if sig)
+        several = any(len(self.accepted(c)) > 1 for c, sig in zip(THIRD_HARMONIC_STATES, self.significant, strict=True) if sig)
         k2_text = (
             "the K2 estimation (" + parameter + ") is right only if the device-level data show the effect is K2"
             if k2.consistent
@@ -380,4 +380,12 @@ def record_note(
     return () if text is None else (text,)
 
 
-__all__ = ["COMPONENTS", "THIRD_HARMONIC_EFFECTS", "Hypothesis", "ThirdHarmonic", "explain_third_harmonic", "record_note", "signature"]
+__all__ = [
+    "THIRD_HARMONIC_EFFECTS",
+    "THIRD_HARMONIC_STATES",
+    "Hypothesis",
+    "ThirdHarmonic",
+    "explain_third_harmonic",
+    "record_note",
+    "signature",
+]

@@ -128,6 +128,10 @@ def _chi_bar_squared_sf(statistic: float, correlation: float | None) -> float:
     return 0.5 * float(gammaincc(0.5, 0.5 * statistic)) + w2 * float(gammaincc(1.0, 0.5 * statistic))
 
 
+#: Confidence of the amplitudes' profile-likelihood intervals (:attr:`ColouredNoiseFit.lower`, ``upper``).
+INTERVAL_CONFIDENCE = 0.95
+
+
 class ColouredSource(Enum):
     """Where the coloured-noise amplitudes under σ come from."""
 
@@ -229,10 +233,10 @@ def fit_coloured_noise(
     channels: int,
     *,
     alpha: float = 0.05,
-    confidence: float = 0.95,
     ordinates: tuple[int, int] = (0, 0),
     band: tuple[float, float, float] = (0.0, 0.0, 0.0),
     prior: NoisePrior = NoisePrior(),
+    offset: NDArray[np.float64] | None = None,
 ) -> ColouredNoiseFit:
     """Decide whether the residuals carry coloured noise, with a calibrated false-positive rate, and fit its amplitudes.
 
@@ -241,7 +245,7 @@ def fit_coloured_noise(
     (:func:`_chi_bar_squared_sf`, with the correlation of the amplitudes from the Fisher information at the white fit).
     Coloured noise is detected when its p-value is below ``alpha``; then the amplitudes are the maximum-likelihood ones
     (both, no further selection: dropping an amplitude that one day cannot pin leaves σ too small), otherwise 0.  The
-    interval of each amplitude is the profile-likelihood one at ``confidence``; its upper end is what the data allow.
+    interval of each amplitude is the profile-likelihood one at :data:`INTERVAL_CONFIDENCE`; its upper end is what the data allow.
     Why a decision and not always the maximum: with white noise the maximum is above 0 in about 60 % of one-day records
     and a random-walk amplitude far below detection multiplies the variance at the harmonics (docs §1a).
 
@@ -249,6 +253,9 @@ def fit_coloured_noise(
     known): the amplitudes are then the posterior mode (:func:`whittle_fit` with the penalty) when the record or the prior
     (``prior.detected``) shows coloured noise, else 0.  ``prior.given`` ``(2, 3)``: the amplitudes per axis, used as they
     are (the record's own fit and decision are still reported).
+
+    ``offset``: a known part of every expectation, ``E = design @ θ + offset`` (the pitch and roll channels' white
+    levels held at the accelerometers' measured white noise through the loop, :func:`.coloured.coloured_covariance`).
     """
     from scipy.special import gammaincinv
 
@@ -256,12 +263,13 @@ def fit_coloured_noise(
     kinds = p - channels
     white_only = np.zeros(p, dtype=bool)
     white_only[:channels] = True
-    theta0, loglik0 = whittle_fit(design, observed, white_only)
-    theta, loglik = whittle_fit(design, observed, start=theta0 + _small_amplitudes(design, theta0, channels))
+    base = np.zeros(observed.size) if offset is None else np.asarray(offset, dtype=float)
+    theta0, loglik0 = whittle_fit(design, observed, white_only, base)
+    theta, loglik = whittle_fit(design, observed, offset=base, start=theta0 + _small_amplitudes(design, theta0, channels, base))
     if loglik < loglik0:  # the nested white-only maximum is a point of the full model
         theta, loglik = theta0, loglik0
     statistic = max(0.0, 2.0 * (loglik - loglik0))
-    e0 = np.maximum(design @ theta0, 1e-12 * float(observed.mean()) + 1e-300)  # a channel without noise has E = 0
+    e0 = np.maximum(design @ theta0 + base, 1e-12 * float(observed.mean()) + 1e-300)  # a channel without noise has E = 0
     scaled = design / e0[:, None]
     scaled = scaled / np.maximum(np.linalg.norm(scaled, axis=0), 1e-300)
     covariance = np.linalg.pinv(scaled.T @ scaled)
@@ -276,7 +284,7 @@ def fit_coloured_noise(
     if prior.given is not None:
         source = ColouredSource.GIVEN
         used = np.asarray(prior.given, dtype=float).reshape(kinds, 3)
-        if given_rejected(design, observed, theta, loglik, channels, given=used.mean(axis=1), alpha=alpha):
+        if given_rejected(design, observed, theta, loglik, channels, given=used.mean(axis=1), alpha=alpha, offset=base):
             source = ColouredSource.CONTRADICTED  # the σ follow the data: the record's maximum-likelihood amplitudes
             used = np.repeat(theta[amp][:, None], 3, axis=1)
     elif prior.gaussian is not None:
@@ -285,14 +293,17 @@ def fit_coloured_noise(
             np.concatenate([np.zeros(channels), np.asarray(prior.gaussian[0], dtype=float)]),
             np.concatenate([np.full(channels, np.inf), np.asarray(prior.gaussian[1], dtype=float)]),
         )
-        best, best_loglik = whittle_fit(design, observed, start=theta, penalty=penalty)
+        best, best_loglik = whittle_fit(design, observed, offset=base, start=theta, penalty=penalty)
         used = np.repeat(best[amp][:, None], 3, axis=1) if (detected or prior.detected) else np.zeros((kinds, 3))
     else:
         used = np.repeat(theta[amp][:, None], 3, axis=1) if detected else np.zeros((kinds, 3))
+    confidence = INTERVAL_CONFIDENCE
     level = 2.0 * float(gammaincinv(0.5, confidence))  # the χ²₁ quantile
     lower, upper = np.zeros(kinds), np.zeros(kinds)
     for c in range(channels, p):
-        lower[c - channels], upper[c - channels] = _profile_interval(design, observed, best, best_loglik, c, level=level, penalty=penalty)
+        lower[c - channels], upper[c - channels] = _profile_interval(
+            design, observed, best, best_loglik, c, level=level, penalty=penalty, offset=base
+        )
     return ColouredNoiseFit(
         amplitudes=used,
         maximum_likelihood=theta[amp].copy(),
@@ -318,30 +329,35 @@ def given_rejected(
     *,
     given: NDArray[np.float64],
     alpha: float,
+    offset: NDArray[np.float64] | None = None,
 ) -> bool:
     """Whether the record rejects given amplitudes (a datasheet): a likelihood-ratio test at false-alarm rate ``alpha``.
 
     ``2(ℓ̂ − max_{θ_c = given_c ∀c} ℓ)`` (the white levels free) against the χ² quantile with as many degrees of freedom
     as amplitudes (Wilks; on the boundary, a given 0 where the maximum is 0 adds nothing, which keeps the test at or below
     ``alpha``).  A datasheet the record contradicts is not used silently (issue 25): the stage then uses the record's
-    amplitudes and says so.
+    amplitudes and says so.  ``offset``: the known part of the expectations (:func:`fit_coloured_noise`).
     """
     from stableins.estimators.distributions import chi2_ppf
 
     free = np.zeros(design.shape[1], dtype=bool)
     free[:channels] = True
-    offset = design[:, channels:] @ np.asarray(given, dtype=float)
+    held_part = design[:, channels:] @ np.asarray(given, dtype=float)
+    if offset is not None:
+        held_part = held_part + offset
     start = theta.copy()
     start[channels:] = 0.0
-    _, held = whittle_fit(design, observed, free, offset, start)
+    _, held = whittle_fit(design, observed, free, held_part, start)
     statistic = max(0.0, 2.0 * (loglik - held))
     return bool(statistic > chi2_ppf(1.0 - alpha, design.shape[1] - channels))
 
 
-def _small_amplitudes(design: NDArray[np.float64], theta0: NDArray[np.float64], channels: int) -> NDArray[np.float64]:
+def _small_amplitudes(
+    design: NDArray[np.float64], theta0: NDArray[np.float64], channels: int, offset: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Return a start for the full fit: each amplitude at 1 % of the mean ordinate of the white fit."""
     out = np.zeros(design.shape[1])
-    level = 0.01 * float((design @ theta0).mean())
+    level = 0.01 * float((design @ theta0 + offset).mean())
     out[channels:] = level / np.maximum(design[:, channels:].mean(axis=0), 1e-300)
     return out
 
@@ -355,25 +371,30 @@ def _profile_interval(
     *,
     level: float,
     penalty: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    offset: NDArray[np.float64] | None = None,
 ) -> tuple[float, float]:
-    """``{v : 2(ℓ̂ − max_{θ_c = v} ℓ) ≤ level}`` for amplitude ``column``: lower and upper end (lower 0 when 0 is inside)."""
+    """``{v : 2(ℓ̂ − max_{θ_c = v} ℓ) ≤ level}`` for amplitude ``column``: lower and upper end (lower 0 when 0 is inside).
+
+    ``offset``: the known part of the expectations (:func:`fit_coloured_noise`).
+    """
     from scipy.optimize import brentq
 
     free = np.ones(design.shape[1], dtype=bool)
     free[column] = False
+    base = np.zeros(observed.size) if offset is None else offset
     best = float(theta[column])
     prior_term = 0.0, 0.0
     if penalty is not None and np.isfinite(penalty[1][column]) and penalty[1][column] > 0:
         prior_term = float(penalty[0][column]), float(penalty[1][column])
 
     def deficit(v: float) -> float:
-        fitted, value = whittle_fit(design, observed, free, offset=v * design[:, column], start=theta, penalty=penalty)
+        fitted, value = whittle_fit(design, observed, free, offset=v * design[:, column] + base, start=theta, penalty=penalty)
         if prior_term[1] > 0:  # the fixed column's own prior term
             value -= 0.5 * ((v - prior_term[0]) / prior_term[1]) ** 2
         return 2.0 * (loglik - value) - level
 
     # a scale: the amplitude whose column adds the mean ordinate over the band
-    unit = float((design @ theta).mean()) / max(float(design[:, column].mean()), 1e-300)
+    unit = float((design @ theta + base).mean()) / max(float(design[:, column].mean()), 1e-300)
     hi = max(2.0 * best, 0.05 * unit)
     for _ in range(60):
         if deficit(hi) > 0.0:

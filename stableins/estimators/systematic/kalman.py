@@ -28,7 +28,7 @@ from stableins.estimators.systematic.observations import StepBatch
 
 
 @dataclass(frozen=True)
-class Step:
+class FilterStep:
     """One filter step: ``x_k = F x_{k−1} + w``, ``w ~ N(0, Q)``; ``z = H x_k + v``, ``v ~ N(0, R)``."""
 
     F: NDArray[np.float64]
@@ -41,7 +41,7 @@ class Step:
 
 def steps_of(
     batches: Iterable[StepBatch], layout: StateLayout, disc: Discretization, slow: tuple[NDArray[np.float64], NDArray[np.float64]]
-) -> Iterator[Step]:
+) -> Iterator[FilterStep]:
     """Yield the model's steps (:mod:`~stableins.estimators.systematic.model`) for the record's batches."""
     decay = noise_decay(layout, disc)
     for batch in batches:
@@ -50,7 +50,7 @@ def steps_of(
             rows = 3 if geometry.hold < 0 else 12
             h = observation_rows(layout, geometry, disc.step)[:rows]
             q = noise_covariance(disc, layout, batch.density_nav[k], slow)
-            yield Step(transitions[k], q, batch.observations[k, :rows], h, batch.covariances[k, :rows, :rows], float(batch.time[k]))
+            yield FilterStep(transitions[k], q, batch.observations[k, :rows], h, batch.covariances[k, :rows, :rows], float(batch.time[k]))
 
 
 @dataclass
@@ -67,7 +67,7 @@ class FilterRun:
     innovations: list[NDArray[np.float64]] = field(default_factory=list)
 
 
-def run_filter(steps: Iterable[Step], x0: NDArray[np.float64], P0: NDArray[np.float64], *, keep_history: bool = False) -> FilterRun:
+def run_filter(steps: Iterable[FilterStep], x0: NDArray[np.float64], P0: NDArray[np.float64], *, keep_history: bool = False) -> FilterRun:
     """Filterpy's :class:`~filterpy.kalman.KalmanFilter` over ``steps`` (Joseph-form update, symmetrized).
 
     With ``keep_history`` the filtered ``(x, P)`` and the step's ``(F, Q)`` are kept for :func:`rts_smooth`
@@ -77,7 +77,7 @@ def run_filter(steps: Iterable[Step], x0: NDArray[np.float64], P0: NDArray[np.fl
 
 
 def run_filters(
-    steps: Iterable[Step],
+    steps: Iterable[FilterStep],
     x0: NDArray[np.float64],
     priors: Sequence[NDArray[np.float64]],
     *,
@@ -105,7 +105,7 @@ def run_filters(
     return [run for _, run in filters]
 
 
-def _advance(kf: KalmanFilter, run: FilterRun, step: Step, *, keep_history: bool) -> None:
+def _advance(kf: KalmanFilter, run: FilterRun, step: FilterStep, *, keep_history: bool) -> None:
     """Predict and update ``kf`` by one step; accumulate the normalized innovations."""
     kf.predict(F=step.F, Q=step.Q)
     kf.dim_z = len(step.z)
@@ -165,7 +165,7 @@ def _spd_inverse(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def batch_least_squares(
-    steps: list[Step], x0: NDArray[np.float64], P0: NDArray[np.float64]
+    steps: list[FilterStep], x0: NDArray[np.float64], P0: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Solve the same linear model at once: ``(x_N, P_N)`` of the final state (tests; dense, short records).
 

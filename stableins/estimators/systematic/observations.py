@@ -26,7 +26,7 @@ from stableins.site import SiteMetadata
 from stableins.terms import CROSS_COUPLING_TERMS
 
 #: Record columns the systematic stage reads.
-COLUMNS = (
+RECORD_COLUMNS = (
     "time",
     "angle_platform",
     "angle_inner",
@@ -282,14 +282,14 @@ class StepBuilder:
     def batches(self, source: ChunkSource, rows: int) -> Iterator[StepBatch]:
         """Yield the steps of the record, chunk by chunk (a trailing partial step is dropped)."""
         tail: dict[str, NDArray[np.float64]] | None = None
-        for chunk in source.iter_chunks(list(COLUMNS), rows):
-            data = {c: np.asarray(chunk[c], dtype=float) for c in COLUMNS}
+        for chunk in source.iter_chunks(list(RECORD_COLUMNS), rows):
+            data = {c: np.asarray(chunk[c], dtype=float) for c in RECORD_COLUMNS}
             if tail is not None:
-                data = {c: np.concatenate([tail[c], data[c]]) for c in COLUMNS}
+                data = {c: np.concatenate([tail[c], data[c]]) for c in RECORD_COLUMNS}
             whole = len(data["time"]) // self.rows_step * self.rows_step
-            tail = {c: data[c][whole:] for c in COLUMNS}
+            tail = {c: data[c][whole:] for c in RECORD_COLUMNS}
             if whole:
-                yield self._batch({c: data[c][:whole] for c in COLUMNS})
+                yield self._batch({c: data[c][:whole] for c in RECORD_COLUMNS})
 
     def _batch(self, data: Mapping[str, NDArray[np.float64]]) -> StepBatch:
         s, m, r = len(data["time"]) // self.rows_step, self.substeps, self.rows_sub

@@ -8,7 +8,7 @@ import numpy as np
 
 from stableins.data.chunks import ChunkSource, source_columns, source_path
 from stableins.errors import InputError
-from stableins.estimators.systematic.observations import COLUMNS
+from stableins.estimators.systematic.observations import RECORD_COLUMNS
 from stableins.estimators.systematic.passes import Prior, SystematicOptions, run_passes
 from stableins.estimators.systematic.result import SystematicCalibration, build_result
 from stableins.noise import NoiseModel
@@ -24,7 +24,7 @@ def systematic_calibration(
     ----------
     source : ChunkSource
         A system-level record of an indexed platform (``stableins run system-indexed``): time, the three gimbal
-        readings, the INS velocities and attitude (:data:`~stableins.estimators.systematic.observations.COLUMNS`).
+        readings, the INS velocities and attitude (:data:`~stableins.estimators.systematic.observations.RECORD_COLUMNS`).
     site : SiteMetadata
         Latitude, gravity, surveyed base, gimbal senses, damping loop, sample rate.
     prior : Prior
@@ -37,7 +37,7 @@ def systematic_calibration(
     """
     options = options or SystematicOptions()
     names = source_columns(source)
-    missing = [c for c in COLUMNS if names and c not in names]
+    missing = [c for c in RECORD_COLUMNS if names and c not in names]
     if missing:
         raise InputError(f"no column {missing[0]!r}", path=source_path(source), field=missing[0], expected="a system-level record")
     if site.damping is None or "zeta" not in site.damping:
