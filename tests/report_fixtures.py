@@ -12,7 +12,8 @@ import numpy as np
 from stableins.conventions import MICRO_G
 from stableins.data.metadata import metadata_from_document
 from stableins.errormodel import GIMBAL_TERMS, ErrorModel
-from stableins.estimators.result import FitResult
+from stableins.estimators.device_settings import DeviceFitSettings, StatedSlowNoise
+from stableins.estimators.result import FitResult, Stage
 from stableins.records import Calibration, CalibrationRecord, Entry, StageRun
 
 GRAVITY = 9.8015
@@ -110,7 +111,7 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
             "theta10: a rotation about the vertical leaves every gravity reading unchanged; fixed at 0 (gauge)",
             "theta20, theta30: positions were given as platform-frame specific force, so the data carry no angle-sensor information",
         ),
-        settings={"stage": "fine", "slow_noise": None},
+        settings=DeviceFitSettings(Stage.FINE, slow_noise=StatedSlowNoise(False)),  # a record of the first schema-2 version
     )
     calibration = Calibration.new(
         "wu2018-18-position",

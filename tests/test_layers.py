@@ -44,6 +44,7 @@ LAYERS: dict[str, int] = {
     "stableins.schema": 0,
     "stableins.samples": 0,
     "stableins.identifiers": 0,
+    "stableins.documents": 0,
     "stableins.navigation": 0,
     # 1 world
     "stableins.simulator": 1,

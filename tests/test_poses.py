@@ -16,7 +16,7 @@ from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine
-from stableins.estimators.poses import calibrate_poses, six_position, start_values, summarize_holds
+from stableins.estimators.poses import PoseModel, calibrate_poses, six_position, start_values, summarize_holds
 from stableins.estimators.setting import DeviceSetting
 from stableins.procedures.definition import load_procedure
 
@@ -125,7 +125,7 @@ def test_poses_from_raw_counts_recover_the_truth_within_their_sigma(tmp_path):
     log = read_raw_log(path, layout_from_options(**LAYOUT))
     holds = detect_holds(log.time, log.specific_force, resolution=log.resolution).holds
     fit = calibrate_poses(summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds]), gravity=GRAVITY)
-    assert fit.settings["model"] == "TWELVE" and not fit.left_out
+    assert fit.settings.model is PoseModel.TWELVE and not fit.left_out
     for k in ("sf_x", "sf_y", "sf_z", "bias_x", "bias_y", "bias_z"):
         value, sigma, _ = fit[k]
         assert abs(value - TRUTH[k]) < 5 * sigma, k

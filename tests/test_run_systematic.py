@@ -120,9 +120,9 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         np.testing.assert_array_equal(data[name][:600], first[name], err_msg=name)
     record = CalibrationRecord.load(run / "record.json")
     assert record.stages_run[-1].name == "systematic"
-    orientations = record.stages_run[-1].settings["orientations"]
-    assert [round(o["polar_angle_deg"]) for o in orientations] == [0, 60]  # polar-aligned, then the index
-    assert orientations[0]["end_h"] <= 1.0 <= orientations[1]["start_h"]
+    orientations = record.stages_run[-1].settings.orientations
+    assert [round(o.polar_angle_deg) for o in orientations] == [0, 60]  # polar-aligned, then the index
+    assert orientations[0].end_h <= 1.0 <= orientations[1].start_h
     # a Bayesian update of the prior: no σ grows, no parameter of the prior loses its σ; within 4σ of the simulator's truth
     for pid in prior.ids:
         assert record[pid].status is Status.ESTIMATED and record[pid].sigma <= prior[pid].sigma * (1 + 1e-9), pid
@@ -153,9 +153,9 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         )
     assert len(document["gyro"]) == 12
     for ours, theirs in zip(orientations, document["orientations"], strict=True):
-        assert ours["start_h"] * 3600.0 == pytest.approx(theirs["start_s"]) and ours["end_h"] * 3600.0 == pytest.approx(theirs["end_s"])
-        assert ours["polar_angle_deg"] == pytest.approx(math.degrees(theirs["polar_angle_rad"]))
-        assert ours["specific_force_g"] == pytest.approx(theirs["specific_force_g"])
+        assert ours.start_h * 3600.0 == pytest.approx(theirs["start_s"]) and ours.end_h * 3600.0 == pytest.approx(theirs["end_s"])
+        assert ours.polar_angle_deg == pytest.approx(math.degrees(theirs["polar_angle_rad"]))
+        assert ours.specific_force_g == pytest.approx(theirs["specific_force_g"])
 
     # the certificates of both records show the section with these orientations
     pdf = folder / "cal2.pdf"
@@ -168,7 +168,7 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         text = _pdf_text(certificate_checks.technical_of(certificate))  # the evidence: in the technical report
         assert "Systematic stage: orientations" in text
         for k, o in enumerate(orientations, start=1):
-            assert f"{k} {o['start_h']:.2f} – {o['end_h']:.2f}" in text and f"{o['polar_angle_deg']:.1f}°" in text
+                assert f"{k} {o.start_h:.2f} – {o.end_h:.2f}" in text and f"{o.polar_angle_deg:.1f}°" in text
 
 
 class Crash(Exception):

@@ -11,6 +11,7 @@ from stableins.data.system import SystemRecordWriter
 from stableins.errormodel import CORE_TERMS
 from stableins.errors import InputError
 from stableins.estimators.result import FitResult
+from stableins.noise import NoiseSource
 from stableins.records import CalibrationRecord
 
 
@@ -68,7 +69,7 @@ def test_cli_writes_updated_record(files, capsys):
     line = next(x for x in text.splitlines() if x.startswith("bias_x "))
     assert "estimated" in line and "system (in combination" in line and "gauge" not in text.split("calibration record of")[1]
     stage = updated.stages_run[-1]
-    assert stage.sample_rate == 1.0 and stage.settings["case_rotation_period"] == 480.0 and stage.fits[0]["stage"] == "system"
+    assert stage.sample_rate == 1.0 and stage.settings.options.case_rotation_period == 480.0 and stage.fits[0]["stage"] == "system"
     # beta_zy is determined by itself: the record now holds the truth within 4 sigma
     assert abs(updated["beta_zy"].value - true["beta_zy"]) < 4 * updated["beta_zy"].sigma
     assert updated["K2_x"].value == 0.0  # not touched
@@ -115,7 +116,7 @@ def test_cli_noise_model_in_and_out(files, capsys):
     import json
     from dataclasses import replace
 
-    from stableins.noise import NoiseModel, NoiseSource
+    from stableins.noise import NoiseModel
 
     tmp, path, prior, _, _ = files
     out = tmp / "cal-noise.json"
@@ -135,7 +136,7 @@ def test_cli_noise_model_in_and_out(files, capsys):
     assert written.source is NoiseSource.DATASHEET
     np.testing.assert_array_equal(written.values("bias_instability"), sheet.values("bias_instability"))
     assert not np.allclose(written.values("white"), sheet.values("white"))  # the white noise is the record's
-    assert CalibrationRecord.load(out2).stages_run[-1].settings["noise_model"] == "datasheet"
+    assert CalibrationRecord.load(out2).stages_run[-1].settings.noise_source is NoiseSource.DATASHEET
     # datasheet flags on the command line: the same, without a record carrying them
     out3 = tmp / "cal-flags.json"
     argv = [str(path), "--prior", str(prior), "--out", str(out3), "--chunk-rows", "8192"]

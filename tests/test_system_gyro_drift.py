@@ -14,6 +14,7 @@ import pytest
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, SIDEREAL_DAY, GimbalConfiguration
 from stableins.data.chunks import ArraySource
 from stableins.estimators.system.gyro_drift import GimbalBlocks, fit_gimbal_drift
+from stableins.estimators.system.gyro_drift_step import DriftSource
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.simulator import system
@@ -94,7 +95,7 @@ def test_drift_from_one_day_with_noise_tilt_and_sensor_errors(drift_day):
     assert shift.max() < 2.0
     assert not any("gyro drift not supplied" in n for n in out.notes)
     assert any(n.startswith("gyro drift from the gimbal readings") for n in out.notes)
-    assert out.result.settings["gyro_drift_source"] == "gimbal readings"
+    assert out.result.settings.gyro_drift_source is DriftSource.GIMBALS
 
 
 def test_drift_given_without_uncertainty_is_held_and_compared(drift_day):

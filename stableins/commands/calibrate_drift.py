@@ -71,7 +71,7 @@ def run(args: Any) -> int:
         "out": str(args.out),
         "gyro_drift_deg_per_hour": _drift_document(fit),
         "rank": list(fit.details.rank) if isinstance(fit.details, DriftDetails) else [],
-        "settings": fit.settings,
+        "settings": {} if fit.settings is None else fit.settings.to_document(),
         "parameters": [
             {"id": p.id, "value": p.value, "sigma": p.sigma if p.sigma == p.sigma else None, "status": p.status.value}
             for p in updated.parameters

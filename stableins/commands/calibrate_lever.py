@@ -79,7 +79,7 @@ def run(args: Any) -> int:
         "lever": _document(fit),
         "flags": [{"name": f.name, "chi2": f.chi2, "dof": f.dof, "p_value": f.p_value, "flagged": f.flagged} for f in fit.details.flags],
         "chi2_reduced": fit.chi2_red,
-        "settings": fit.settings,
+        "settings": {} if fit.settings is None else fit.settings.to_document(),
         "parameters": [
             {"id": p.id, "value": p.value, "sigma": p.sigma if p.sigma == p.sigma else None, "status": p.status.value}
             for p in updated.parameters

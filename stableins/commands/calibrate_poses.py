@@ -103,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.data.logmap import layout_from_options
     from stableins.data.rawlog import read_raw_log
     from stableins.errors import InputError
+    from stableins.estimators.poses import PoseSettings
     from stableins.output import emit, note
 
     if args.out is None and not args.detect_only:
@@ -171,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
             "record": str(args.out),
             "holds": len(holds),
             "detection": how,
-            "model": fit.settings.get("model"),
+            "model": fit.settings.model.name if isinstance(fit.settings, PoseSettings) else None,
             "chi2_red": fit.chi2_red,
             "dof": fit.dof,
             "parameters": {

@@ -56,7 +56,7 @@ def run(args: Any) -> int:
             t.id: {"value": float(v) / s, "sigma": float(e) / s, "unit": u}
             for t, v, e, s, u in zip(fit.terms, fit.values, fit.sigma, scale, units, strict=True)
         },
-        "settings": fit.settings,
+        "settings": {} if fit.settings is None else fit.settings.to_document(),
         "notes": list(fit.notes),
     }
     text = "\n".join(

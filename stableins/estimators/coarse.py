@@ -57,6 +57,7 @@ from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, choose_gauge
 from stableins.estimators.details import CoarseDetails, UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, gauge_preference, held_terms_note, hold_and_gauge
+from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.leastsquares import dwell_forward
@@ -265,7 +266,7 @@ def calibrate_coarse(
         gravity=float(gravity),
         details=_details(gauge, design, usable, base_attitude, configuration),
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
-        settings={"stage": "coarse", "nonlinear": bool(nonlinear), "noise_model": None if noise is None else noise.to_document()},
+        settings=DeviceFitSettings(Stage.COARSE, noise, nonlinear=bool(nonlinear)),
         sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
     )
 

@@ -21,6 +21,7 @@ from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.coarse import calibrate_coarse
 from stableins.estimators.design import describe_design
+from stableins.estimators.device_settings import DeviceSessionSettings
 from stableins.estimators.dwell import DwellSummary
 from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.joint import fit_joint
@@ -65,7 +66,7 @@ class DeviceCalibration:
     fused: FitResult | None = None
     #: The options the pipeline ran with (procedures, noise model, coarse nonlinearity, missing positions): stored in
     #: the record's stage run so that a report recomputes exactly what the calibration did.
-    settings: dict = field(default_factory=dict)
+    settings: DeviceSessionSettings | None = None
     noise: NoiseModel | None = None
     floor: FitResult | None = field(default=None, repr=False)
 
@@ -624,12 +625,12 @@ def calibrate_device(
             fused = _with_note(fused, rejected_note)
         else:
             coarse = _with_note(coarse, rejected_note)
-    settings = {
-        "coarse_procedure": coarse_layout.name,
-        "fine_procedure": fine_layout.name,
-        "allow_missing": bool(allow_missing),
-        "coarse_nonlinear": bool(coarse_nonlinear),
-        "noise_model": noise_model.to_document(),
-        "effects": [t.id for t in extra_terms],  # discovered terms estimated with the standard ones
-    }
+    settings = DeviceSessionSettings(
+        coarse_procedure=coarse_layout.name,
+        fine_procedure=fine_layout.name,
+        allow_missing=bool(allow_missing),
+        coarse_nonlinear=bool(coarse_nonlinear),
+        noise_model=noise_model,
+        effects=tuple(t.id for t in extra_terms),  # discovered terms estimated with the standard ones
+    )
     return DeviceCalibration(coarse, fine, tuple(passes), fused, settings, noise_model, floor)

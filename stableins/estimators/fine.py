@@ -42,6 +42,7 @@ from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, aligned_null_space
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
 from stableins.estimators.gauss_newton import GaussNewtonSolution, convergence_warning, gauss_newton, goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood, Stage
@@ -319,5 +320,5 @@ def calibrate_fine(
         combinations=combos,
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         likelihood=Likelihood.from_weighted(model.ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-        settings={"stage": "fine", "noise_model": None if noise is None else noise.to_document()},
+        settings=DeviceFitSettings(Stage.FINE, noise),
     )

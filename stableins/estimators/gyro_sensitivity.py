@@ -82,6 +82,7 @@ from stableins.conventions import (
     earth_rate_nav,
     platform_drift_rate,
 )
+from stableins.documents import DocumentFields, JSONObject
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
@@ -447,16 +448,41 @@ def estimate_gyro_sensitivity(
         null_space=null,
         notes=(gauge,) + notes + ((warning,) if warning is not None else ()),
         likelihood=Likelihood(tuple(ids), x, information, np.zeros(len(ids))),
-        settings={
-            "skip": SLOPE_SKIP,
-            "alpha": alpha,
-            "parameters": ids,
-            "noise": "white angle noise per gimbal, pooled",
-            "dwell_mode": str(geometry.mode),
-            "nuisance": nuisance_ids,
-        },
+        settings=GyroSettings(SLOPE_SKIP, alpha, tuple(ids), geometry.mode, tuple(nuisance_ids)),
         details=details,
     )
+
+
+@dataclass(frozen=True)
+class GyroSettings:
+    """The settings of a gyro run.
+
+    The slope skip [fraction of a dwell], α of its flags, the parameters and nuisances it fitted and how the platform
+    was held; its noise is the white angle noise per gimbal, pooled (the one model it has).
+    """
+
+    skip: float
+    alpha: float
+    parameters: tuple[str, ...]
+    dwell_mode: DwellMode
+    nuisance: tuple[str, ...]
+
+    #: The noise model the stage's σ rest on, as its settings state it.
+    NOISE = "white angle noise per gimbal, pooled"
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"skip", "alpha", "parameters", "noise", "dwell_mode", "nuisance"}`` (docs/formats.md)."""
+        return {"skip": self.skip, "alpha": self.alpha, "parameters": list(self.parameters), "noise": self.NOISE,
+                "dwell_mode": self.dwell_mode.value, "nuisance": list(self.nuisance)}  # fmt: skip
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> GyroSettings:
+        """Return the settings :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        mode = fields.text("dwell_mode")
+        if mode not in {m.value for m in DwellMode}:
+            raise fields.fail("dwell_mode", f"{mode!r} is not a dwell mode", ", ".join(m.value for m in DwellMode))
+        nuisance = fields.texts("nuisance")
+        return cls(fields.number("skip"), fields.number("alpha"), fields.texts("parameters"), DwellMode(mode), nuisance)
 
 
 def gauge_statement(mode: DwellMode) -> str:

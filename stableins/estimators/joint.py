@@ -57,6 +57,7 @@ from stableins.errormodel import ErrorModel
 from stableins.estimators.coarse import CoarseProblem, coarse_model, quality_notes
 from stableins.estimators.details import UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
+from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, slow_covariance
 from stableins.estimators.fine import FineProblem, fine_model
 from stableins.estimators.gauss_newton import gauss_newton
@@ -229,10 +230,6 @@ def fit_joint(
         passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
         gravity=g,
         whitened_residuals=whitened,
-        settings={
-            "stage": stage,
-            "nonlinear": bool(nonlinear or bool(fine_dwells)),
-            "noise_model": None if noise is None else noise.to_document(),
-        },
+        settings=DeviceFitSettings(Stage(stage), noise, nonlinear=bool(nonlinear or bool(fine_dwells))),
         sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
     )

@@ -35,14 +35,16 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import ErrorModel, Term
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.details import UsedDwell
+from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, describe_left_out, summarize_dwell
 from stableins.estimators.fine import calibrate_fine, fine_model
 from stableins.estimators.layout import DwellChecks
@@ -63,6 +65,32 @@ class PoseModel(enum.Enum):
     TWELVE = "12 combinations: scale factors, biases, 3 installation-angle differences, K2 (squared amplitude)"
     NINE = "9 combinations: scale factors, biases, 3 installation-angle differences (squared amplitude, imu_tk's form)"
     SIX_POSITION = "six-position test: bias and scale factor per axis from the labelled holds (half-sum / half-difference)"
+
+
+@dataclass(frozen=True)
+class PoseSettings:
+    """The settings of a pose calibration: the model it fitted and, for the squared amplitude, the fine stage's noise model."""
+
+    model: PoseModel
+    noise_model: NoiseModel | None = None
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"stage": "poses", "noise_model" (not for the six-position test), "model": <name>}`` (docs/formats.md)."""
+        out: JSONObject = {"stage": STAGE.value}
+        if self.model is not PoseModel.SIX_POSITION:
+            out["noise_model"] = None if self.noise_model is None else self.noise_model.to_document()
+        out["model"] = self.model.name
+        return out
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> PoseSettings:
+        """Return the settings :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        name = fields.text("model")
+        if name not in PoseModel.__members__:
+            raise fields.fail("model", f"{name!r} is not a pose model", ", ".join(PoseModel.__members__))
+        noise = fields.document.get("noise_model")
+        model = None if noise is None else NoiseModel.from_document(noise, fields.path, f"{fields.where}.noise_model")
+        return cls(PoseModel[name], model)
 
 
 def summarize_holds(
@@ -189,8 +217,8 @@ def calibrate_poses(
         )
         own = tuple(_hold_wording(n) for n in fit.notes if not n.startswith("installation angles: the fine stage"))
         notes = (stated, installation, *own)
-        settings = {**fit.settings, "stage": STAGE, "model": model.name}
-        return replace(fit, stage=STAGE, notes=notes, settings=settings)
+        noise_model = fit.settings.noise_model if isinstance(fit.settings, DeviceFitSettings) else None
+        return replace(fit, stage=STAGE, notes=notes, settings=PoseSettings(model, noise_model))
     raise AssertionError("unreachable")
 
 
@@ -270,7 +298,7 @@ def six_position(dwells: Sequence[DwellSummary], labels: Sequence[str], *, gravi
         left_out=left_out,
         gravity=float(gravity),
         likelihood=Likelihood(model.ids, values.copy(), information, np.zeros(6)),
-        settings={"stage": STAGE, "model": PoseModel.SIX_POSITION.name},
+        settings=PoseSettings(PoseModel.SIX_POSITION),
     )
 
 

@@ -11,11 +11,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.documents import JSONObject
 from stableins.errormodel import Term
 from stableins.estimators.details import StageDetails, UsedDwell
 from stableins.status import STATUSES, Status
@@ -247,6 +248,20 @@ class Stage(StrEnum):
     LINEAR = "linear"
 
 
+class StageSettings(Protocol):
+    """What a stage ran with: a frozen value of the stage's own settings class that writes itself as JSON.
+
+    Each stage has its class (:class:`stableins.estimators.device_settings.DeviceFitSettings`,
+    :class:`~stableins.estimators.system.settings.SystemSettings`, :class:`~stableins.estimators.lever.model.LeverOptions`
+    ...); a record stores :meth:`to_document` and reads it back with the class's ``from_document``
+    (:func:`stableins.records.settings.settings_from_document`).
+    """
+
+    def to_document(self) -> JSONObject:
+        """Return the settings as a record stores them (docs/formats.md, "Stage settings")."""
+        ...
+
+
 @dataclass(frozen=True)
 class FitResult:
     """Outcome of one estimation stage.
@@ -308,9 +323,10 @@ class FitResult:
     likelihood : Likelihood or None
         What the stage's data say about its parameters (canonical form), for a Bayesian update of a
         prior record (:meth:`stableins.records.CalibrationRecord.updated`).
-    settings : dict
-        The options the stage ran with (JSON-ready: noise model, estimate K2, gyro drift ...), so a record
-        and a report can say, and recompute with, exactly what the calibration used.
+    settings : StageSettings or None
+        The options the stage ran with (the stage's own frozen settings: noise model, estimate K2, gyro drift ...),
+        so a record and a report can say, and recompute with, exactly what the calibration used; None: the fit
+        states none (discovery's refits).
     sensitivities : tuple of InputSensitivity
         How the stage's likelihood depends on the inputs it takes as known (angle readings, gyro drift,
         damping loop): the Type B part of a certificate's uncertainty budget.
@@ -340,7 +356,7 @@ class FitResult:
     details: StageDetails | None = None
     whitened_residuals: NDArray[np.float64] | None = None
     likelihood: Likelihood | None = None
-    settings: dict[str, Any] = field(default_factory=dict)
+    settings: StageSettings | None = None
     sensitivities: tuple[InputSensitivity, ...] = ()
 
     def __post_init__(self) -> None:
@@ -382,7 +398,7 @@ class FitResult:
         gravity: float | None = None,
         details: StageDetails | None = None,
         whitened_residuals: NDArray[np.float64] | None = None,
-        settings: dict[str, Any] | None = None,
+        settings: StageSettings | None = None,
         sensitivities: tuple[InputSensitivity, ...] = (),
     ) -> FitResult:
         """Return the result of a device fit solved by :func:`stableins.estimators.gauss_newton.gauss_newton`.
@@ -402,7 +418,7 @@ class FitResult:
             likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
             residuals=residuals, residual_sigma=residual_sigma, residual_labels=residual_labels, determined=determined, notes=notes,
             positions_used=positions_used, left_out={} if left_out is None else left_out, passes=passes, gravity=gravity,
-            details=details, whitened_residuals=whitened_residuals, settings={} if settings is None else settings,
+            details=details, whitened_residuals=whitened_residuals, settings=settings,
             sensitivities=sensitivities,
         )
 

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import AXES, MICRO_G, PPM
+from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
@@ -85,6 +86,28 @@ class ThermalDetails(StageDetails):
     chi2: NDArray[np.float64]
     dof: int
     scale: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ThermalSettings:
+    """What a thermal run's record states of it: dwells, orientations, temperature span [K], ν and the χ² scale per axis."""
+
+    dwells: int
+    orientations: int
+    temperature_span_K: float  # noqa: N815 - the record's key
+    dof: int
+    scale: tuple[float, ...]
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"dwells", "orientations", "temperature_span_K", "dof", "scale"}`` (docs/formats.md)."""
+        return {"dwells": self.dwells, "orientations": self.orientations, "temperature_span_K": self.temperature_span_K,
+                "dof": self.dof, "scale": list(self.scale)}  # fmt: skip
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> ThermalSettings:
+        """Return the settings :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        return cls(fields.count("dwells"), fields.count("orientations"), fields.number("temperature_span_K"), fields.count("dof"),
+                   fields.numbers("scale"))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -269,7 +292,7 @@ def estimate_thermal(
         details=details,
         likelihood=likelihood,
         gravity=gravity,
-        settings={"dwells": k, "orientations": p, "temperature_span_K": span, "dof": dof, "scale": scale.tolist()},
+        settings=ThermalSettings(k, p, float(span), dof, tuple(float(s) for s in scale)),
     )
 
 

@@ -14,6 +14,7 @@ from stableins.identifiers import check_serial_number, check_timestamp
 from stableins.records.content import _RecordT, check_record
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
 from stableins.records.schema import RECORD_FORMAT, RECORD_SCHEMA_VERSION, migrate_v1
+from stableins.records.settings import settings_from_document
 from stableins.records.stages import Calibration, InputFile, PriorReference, StageRun
 from stableins.status import STATUSES, Determination, Status
 
@@ -165,7 +166,7 @@ class _Reader:
             **texts,
             sample_rate=rate,
             inputs=self.inputs(s.get("inputs", []), f"{where}.inputs"),
-            settings=dict(self.mapping(s.get("settings", {}), f"{where}.settings")),
+            settings=settings_from_document(texts["name"], s.get("settings", {}), f"{where}.settings", self.path),
             entries=self.entries(s.get("entries", []), f"{where}.entries"),
             environment=dict(self.mapping(s.get("environment", {}), f"{where}.environment")),
             fits=tuple(dict(f) for f in fits),

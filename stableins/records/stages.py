@@ -17,7 +17,7 @@ from stableins.records.parameters import Entry
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stableins.estimators.result import FitResult, InputSensitivity, Likelihood
+    from stableins.estimators.result import FitResult, InputSensitivity, Likelihood, StageSettings
 
 
 def file_sha256(path: str | os.PathLike[str]) -> str:
@@ -68,7 +68,7 @@ class RunFields(TypedDict, total=False):
     entries: Iterable[Entry]
     environment: Mapping[str, Any] | None
     fits: Iterable[FitResult]
-    settings: Mapping[str, Any] | None
+    settings: StageSettings | None
     name: str | None
     created: str | None
 
@@ -97,8 +97,9 @@ class StageRun:
         Sample rate of the data [Hz].
     inputs : tuple of InputFile
         The data files with their SHA-256.
-    settings : dict
-        The options the stage ran with (JSON values): noise model, estimate K2, gyro drift ...
+    settings : StageSettings or None
+        The options the stage ran with (the stage's own settings class: noise model, estimate K2, gyro drift ...);
+        None: the record states none (a migrated record).
     entries : tuple of Entry
         What people entered during the run (procedure prompts).
     environment : dict
@@ -123,7 +124,7 @@ class StageRun:
     data_end: str = ""
     sample_rate: float | None = None
     inputs: tuple[InputFile, ...] = ()
-    settings: Mapping[str, Any] = field(default_factory=dict)
+    settings: StageSettings | None = None
     entries: tuple[Entry, ...] = ()
     environment: Mapping[str, Any] = field(default_factory=dict)
     fits: tuple[Mapping[str, Any], ...] = ()
@@ -171,7 +172,7 @@ class StageRun:
             data_end=run.get("data_end", ""),
             sample_rate=run.get("sample_rate"),
             inputs=files,
-            settings=dict(settings if settings is not None else result.settings),
+            settings=settings if settings is not None else result.settings,
             entries=tuple(run.get("entries", ())),
             environment=dict(run.get("environment") or {}),
             fits=evidence,

@@ -110,7 +110,7 @@ def _stage_document(s: StageRun) -> dict[str, Any]:
         "data_end": s.data_end,
         "sample_rate": None if s.sample_rate is None else {"value": float(s.sample_rate), "unit": "Hz"},
         "inputs": [{"path": f.path, "sha256": f.sha256} for f in s.inputs],
-        "settings": dict(s.settings),
+        "settings": {} if s.settings is None else s.settings.to_document(),
         "entries": [_entry_document(e) for e in s.entries],
         "environment": dict(s.environment),
         "fits": [dict(f) for f in s.fits],

@@ -20,9 +20,11 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR
 from stableins.errormodel import Term
-from stableins.errors import InputError, NotDeterminedError
-from stableins.estimators.result import Stage
-from stableins.records import CalibrationRecord
+from stableins.estimators.device_settings import DeviceFitSettings, DeviceSessionSettings
+from stableins.estimators.poses import PoseSettings
+from stableins.estimators.result import InputSensitivity, Stage
+from stableins.estimators.system.settings import SystemSettings
+from stableins.records import CalibrationRecord, StageRun
 from stableins.reporting.budget import (
     ANGLE_SENSOR_BOUND,
     GROUPS,
@@ -48,7 +50,7 @@ _LOOP_TEXT = "software constants of the navigation computer, taken as exact"
 _LOOP_NAMES = {"zeta": "ζ", "omega_s": "ω_s", "schuler_frequency": "ω_s", "k1": "k_1", "k2": "k_2", "k3": "k_3"}
 
 #: The stored sensitivities of the record's stages by input group: ``(stage, sensitivity)`` pairs.
-Stored = Mapping[str, Sequence[tuple[Any, Any]]]
+Stored = Mapping[str, Sequence[tuple[StageRun, InputSensitivity]]]
 
 
 @dataclass(frozen=True)
@@ -113,9 +115,9 @@ class Evaluation:
     conditions: tuple[str, ...] = ()
 
 
-def stored_sensitivities(record: CalibrationRecord) -> dict[str, list[tuple[Any, Any]]]:
+def stored_sensitivities(record: CalibrationRecord) -> dict[str, list[tuple[StageRun, InputSensitivity]]]:
     """Return the ``(stage, sensitivity)`` pairs the record's stages store, by input group."""
-    stored: dict[str, list[tuple[Any, Any]]] = {}
+    stored: dict[str, list[tuple[StageRun, InputSensitivity]]] = {}
     for stage in record.stages:
         for s in stage.sensitivities:
             stored.setdefault(s.group, []).append((stage, s))
@@ -191,15 +193,10 @@ def angle_sensors(record: CalibrationRecord, inputs: UncertaintyInputs, propagat
     return Evaluation(np.zeros(n), source)
 
 
-#: ``gyro_drift_source`` settings of a system stage that measured the drift
-#: (:class:`stableins.estimators.system.gyro_drift_step.DriftSource`).
-MEASURED_DRIFT = ("gimbal readings", "given and gimbal readings")
-
-
-def _drift_uncertainty(stage: Any, inputs: UncertaintyInputs) -> tuple[float, str]:
+def _drift_uncertainty(stage: StageRun, inputs: UncertaintyInputs) -> tuple[float, str]:
     """Return ``(u, origin)`` of the gyro drift per axis: the stage's setting, the procedure's, or the paper's bound."""
-    stated = stage.settings.get("gyro_drift_uncertainty")
-    if isinstance(stated, int | float) and math.isfinite(stated):
+    stated = stage.settings.options.gyro_drift_uncertainty if isinstance(stage.settings, SystemSettings) else None
+    if stated is not None and math.isfinite(stated):
         return float(stated), "given with the system stage"
     if inputs.gyro_drift is not None:
         return inputs.gyro_drift, f"procedure ({_name(inputs.source)})"
@@ -210,7 +207,8 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
     """Evaluate the gyro drift, the system stage's input, per platform axis (axes independent)."""
     n, covariance = propagation.n, propagation.covariance
     drift = stored.get("gyro_drift", [])
-    measured = any(s.name == Stage.SYSTEM and s.settings.get("gyro_drift_source") in MEASURED_DRIFT for s in record.stages)
+    systems = [s.settings for s in record.stages if s.name == Stage.SYSTEM]
+    measured = any(isinstance(s, SystemSettings) and s.measures_gyro_drift for s in systems)
     if not drift and measured:  # a parameter of the record (Type A), not an input: its σ is in the covariance
         source = Source("gyro_drift", "constant drift in the platform frame, measured by the system stage (gimbal readings)",
                         "—", "—", "the record (gyro_drift_x, gyro_drift_y, gyro_drift_z)",
@@ -227,7 +225,7 @@ def gyro_drift(record: CalibrationRecord, inputs: UncertaintyInputs, propagation
             vectors[s.input] = vectors.get(s.input, np.zeros(n)) + propagation.to_record(s.ids, s.gradient) * u
     per_axis = [covariance @ v for v in vectors.values()]
     contribution = np.sqrt(sum(np.abs(c) ** 2 for c in per_axis)) if per_axis else np.zeros(n)
-    given = [stage.settings.get("known_gyro_drift") for stage, _ in drift]
+    given = [stage.settings.options.known_gyro_drift if isinstance(stage.settings, SystemSettings) else None for stage, _ in drift]
     value = (
         "not given: assumed zero"
         if all(x is None for x in given)
@@ -380,22 +378,15 @@ def slow_noise(record: CalibrationRecord, propagation: Propagation, stored: Stor
     return Evaluation(contribution, source)
 
 
-def _bias_instability_limit(stage: Any) -> list[float]:
+def _bias_instability_limit(stage: StageRun) -> list[float]:
     """Return the upper limit of the bias instability [µg] the stage's measured noise model states (empty if none)."""
     from stableins.conventions import MICRO_G
-    from stableins.noise import NoiseModel
 
-    document = stage.settings.get("noise_model") if isinstance(stage.settings, Mapping) else None
-    if not isinstance(document, Mapping):
+    settings = stage.settings
+    model = settings.noise_model if isinstance(settings, DeviceFitSettings | DeviceSessionSettings | PoseSettings) else None
+    if model is None:
         return []
-    try:
-        upper = NoiseModel.from_document(document).limits("bias_instability")[1]
-    except InputError:
-        raise  # a stored noise model that does not read is an error, not a missing one
-    except NotDeterminedError:
-        raise  # a described error passes through as it is (issue 29)
-    except (KeyError, ValueError, TypeError):
-        return []
+    upper = model.limits("bias_instability")[1]
     return [float(np.max(upper)) / MICRO_G] if np.all(np.isfinite(upper)) else []
 
 

@@ -383,10 +383,12 @@ def _evidence(view: CalibrationRecord, where: str, data: Sequence[str | PathLike
     stages = stored_evidence(view, where)
     bare = [run for run in view.stages_run if not run.fits and run.name != Stage.SYSTEM]
     if bare and data:  # a migrated record: its device-level evidence is recomputed with the settings it states
+        from stableins.estimators.device_settings import DeviceSessionSettings
         from stableins.reporting.replay import device_fits
 
-        settings = bare[0].settings or ({"noise_model": view.noise_model.to_document()} if view.noise_model is not None else None)
-        fits, evidence_notes = device_fits(data, settings, effects=record_terms(view.ids))
+        stated = bare[0].settings
+        settings = stated if isinstance(stated, DeviceSessionSettings) else None
+        fits, evidence_notes = device_fits(data, settings, noise=view.noise_model, effects=record_terms(view.ids))
         stages = [stage_evidence(f, where) for f in fits] + stages
     return stages, evidence_notes
 

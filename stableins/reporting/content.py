@@ -17,7 +17,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stableins.errormodel import Term, known_terms  # noqa: F401 - known_terms is part of this module's interface (builder)
 from stableins.history import Comparison
@@ -26,6 +26,12 @@ from stableins.reporting.evidence import StageEvidence
 from stableins.reporting.rounding import COVERAGE_FACTOR, Rounded, gum, significant_digits
 from stableins.reporting.tolerances import Tolerances, Verdict, decide, limit_for
 from stableins.status import Status
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.estimators.device_settings import DeviceSessionSettings, StatedSlowNoise
+    from stableins.estimators.result import StageSettings
+    from stableins.estimators.system.settings import SystemSettings
+    from stableins.noise import NoiseModel
 
 
 #: Coverage factor of the expanded uncertainty (GUM 6.2; about 95 % for a normal distribution).
@@ -369,13 +375,11 @@ def overall_verdict(checks: Sequence[Check]) -> str:
     return "PASS"
 
 
-def noise_text(document: Mapping[str, Any]) -> str:
+def noise_text(model: NoiseModel) -> str:
     """Describe the noise model a stage ran with, in words: what was given and what was measured (no command-line syntax)."""
     import numpy as np
 
-    from stableins.noise import ENGINEERING, NoiseModel, NoiseSource
-
-    model = NoiseModel.from_document(document)
+    from stableins.noise import ENGINEERING, NoiseSource
 
     def amount(name: str) -> str:
         unit, scale = ENGINEERING[name]
@@ -405,72 +409,71 @@ def noise_text(document: Mapping[str, Any]) -> str:
     return "; ".join([white, *measured])
 
 
-def describe_settings(settings: Mapping[str, Any]) -> str:
+def describe_settings(settings: StageSettings | None) -> str:
     """Describe the settings a stage ran with, as one line for people (noise model, options that change the estimates), in plain words."""
-    from stableins.estimators.result import Stage
+    from stableins.estimators.device_settings import DeviceFitSettings, DeviceSessionSettings
+    from stableins.estimators.poses import PoseSettings
+    from stableins.estimators.system.settings import SystemSettings
     from stableins.reporting.symbols import words_for_flags
 
-    parts = _noise_settings(settings) + _device_settings(settings)
-    if settings.get("stage") == Stage.SYSTEM:
+    parts: list[str] = []
+    if isinstance(settings, DeviceFitSettings | DeviceSessionSettings) and settings.slow_noise is not None:
+        parts.append(_slow_noise_words(settings.slow_noise))
+    if isinstance(settings, DeviceFitSettings | DeviceSessionSettings | PoseSettings) and settings.noise_model is not None:
+        parts.append(noise_text(settings.noise_model))
+    if isinstance(settings, DeviceSessionSettings):
+        parts += _device_settings(settings)
+    if isinstance(settings, DeviceFitSettings) and settings.nonlinear is False:
+        parts.append("coarse stage without K₂")
+    if isinstance(settings, SystemSettings):
+        parts.append("K₂,x and K₂,y from the third harmonic" if settings.options.estimate_k2 else "K₂ not estimated")
         parts += _system_settings(settings)
     return words_for_flags("; ".join(parts)) or "defaults"
 
 
-def _noise_settings(settings: Mapping[str, Any]) -> list[str]:
-    """Return the noise model of a stage's settings in words (and the slow-noise model of the first schema-2 records)."""
+def _slow_noise_words(slow: StatedSlowNoise) -> str:
+    """Return the slow-noise model a record of the first schema-2 version states, in words."""
     from stableins.conventions import MICRO_G
 
-    parts = []
-    slow = settings.get("slow_noise")  # records of the first schema-2 version
-    if "slow_noise" in settings and slow is None:
-        parts.append("white noise only (no slow-noise model)")
-    model = settings.get("noise_model")
-    if isinstance(model, Mapping):
-        parts.append(noise_text(model))
-    if isinstance(slow, Mapping):
-        parts.append(
-            f"bias instability {float(slow.get('bias_instability', 0.0)) / MICRO_G:.2g} µg, random walk "
-            f"{float(slow.get('random_walk', 0.0)):.2g} m/s²/√s ({slow.get('source', '')})"
-        )
-    return parts
+    if not slow.modelled:
+        return "white noise only (no slow-noise model)"
+    return f"bias instability {slow.bias_instability / MICRO_G:.2g} µg, random walk {slow.random_walk:.2g} m/s²/√s ({slow.source})"
 
 
-def _device_settings(settings: Mapping[str, Any]) -> list[str]:
-    """Return the procedures and the options of a stage's settings that change its estimates, in words."""
+def _device_settings(settings: DeviceSessionSettings) -> list[str]:
+    """Return the procedures and the options of a device calibration's settings that change its estimates, in words."""
     from stableins.reporting.symbols import plain
 
     parts = []
-    procedures = [str(settings[k]) for k in ("coarse_procedure", "fine_procedure") if k in settings]
+    procedures = [p for p in (settings.coarse_procedure, settings.fine_procedure) if p is not None]
     if procedures:
         parts.append("procedures " + " and ".join(procedures))
-    if settings.get("coarse_nonlinear") is False or settings.get("nonlinear") is False:
+    if not settings.coarse_nonlinear:
         parts.append("coarse stage without K₂")
-    if settings.get("allow_missing"):
+    if settings.allow_missing:
         parts.append("missing positions allowed")
-    effects = settings.get("effects")
-    if isinstance(effects, list) and effects:
-        parts.append("discovered effects estimated: " + ", ".join(plain(str(e)) for e in effects))
-    if "estimate_k2" in settings:
-        parts.append("K₂,x and K₂,y from the third harmonic" if settings["estimate_k2"] else "K₂ not estimated")
+    if settings.effects:
+        parts.append("discovered effects estimated: " + ", ".join(plain(e) for e in settings.effects))
     return parts
 
 
-def _system_settings(settings: Mapping[str, Any]) -> list[str]:
+def _system_settings(settings: SystemSettings) -> list[str]:
     """Return the gyro-drift and damping-loop settings of a system stage, in words."""
+    from stableins.estimators.system.options import GyroDrift
+
     parts = []
-    drift = settings.get("known_gyro_drift")
-    measured = str(settings.get("gyro_drift_source", "")).endswith("gimbal readings")
-    if measured:
+    options = settings.options
+    drift = options.known_gyro_drift
+    if settings.measures_gyro_drift:
         parts.append("gyro drift measured from the gimbal readings (gyro_drift_x, _y, _z in the record)")
     if drift is not None:
         parts.append("gyro drift given: " + ", ".join(f"{math.degrees(float(d)) * 3600.0:.4g}" for d in drift) + " °/h (platform x, y, z)")
-    elif not measured:
+    elif not settings.measures_gyro_drift:
         parts.append("gyro drift not given (assumed zero)")
-    uncertainty = settings.get("gyro_drift_uncertainty")
-    if isinstance(uncertainty, int | float):
-        parts.append(f"gyro drift uncertainty given: {math.degrees(float(uncertainty)) * 3600.0:.2g} °/h per axis")
-    if settings.get("gyro_drift") not in (None, "ignore"):
-        parts.append("gyro drift fitted as a nuisance" if settings["gyro_drift"] == "fit" else "gyro drift checked")
-    if settings.get("compensate_loop") is False:
+    if options.gyro_drift_uncertainty is not None:
+        parts.append(f"gyro drift uncertainty given: {math.degrees(options.gyro_drift_uncertainty) * 3600.0:.2g} °/h per axis")
+    if options.gyro_drift is not GyroDrift.IGNORE:
+        parts.append("gyro drift fitted as a nuisance" if options.gyro_drift is GyroDrift.FIT else "gyro drift checked")
+    if not options.compensate_loop:
         parts.append("no damping-loop compensation")
     return parts

@@ -160,6 +160,7 @@ def _system(ctx: ReportContext) -> list[Flowable]:
 def _systematic(ctx: ReportContext) -> list[Flowable]:
     """Return the systematic stage's orientations and what they determined (docs/systematic-calibration.md)."""
     from stableins.estimators.result import Stage
+    from stableins.estimators.systematic.result import SystematicSettings
 
     runs = [s for s in ctx.record.stages_run if s.name == Stage.SYSTEMATIC]
     out: list[Flowable] = []
@@ -173,9 +174,10 @@ def _systematic(ctx: ReportContext) -> list[Flowable]:
             )
         )
         rows: list[list[Any]] = [["Orientation", "Hold [h]", "f<sup>p</sup>/g", "z<sub>p</sub> from the Earth's axis"]]
-        for k, hold in enumerate(run.settings.get("orientations", ())):
-            force = ", ".join(f"{v:+.3f}" for v in hold["specific_force_g"]).replace("-", MINUS)
-            rows.append([str(k + 1), f"{hold['start_h']:.2f} – {hold['end_h']:.2f}", f"({force})", f"{hold['polar_angle_deg']:.1f}°"])
+        orientations = run.settings.orientations if isinstance(run.settings, SystematicSettings) else ()
+        for k, hold in enumerate(orientations):
+            force = ", ".join(f"{v:+.3f}" for v in hold.specific_force_g).replace("-", MINUS)
+            rows.append([str(k + 1), f"{hold.start_h:.2f} – {hold.end_h:.2f}", f"({force})", f"{hold.polar_angle_deg:.1f}°"])
         if len(rows) > 1:
             out.append(document.table(rows, [0.16, 0.24, 0.36, 0.24], align_right=(), markup=True))
         out.append(paragraph("What they determine: the notes of the systematic stage (above); what they do not determine is not moved."))

@@ -10,25 +10,37 @@ says which.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from os import PathLike
-from typing import Any
+from typing import TYPE_CHECKING
 
 from stableins.errors import InputError
+from stableins.estimators.device_settings import DeviceSessionSettings
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.errormodel import Term
+    from stableins.estimators.result import FitResult
+    from stableins.noise import NoiseModel
 
 
 def device_fits(
-    paths: Sequence[str | PathLike[str]], settings: Mapping[str, Any] | None = None, *, effects: Sequence[Any] = ()
-) -> tuple[list[Any], list[str]]:
+    paths: Sequence[str | PathLike[str]],
+    settings: DeviceSessionSettings | None = None,
+    *,
+    noise: NoiseModel | None = None,
+    effects: Sequence[Term] = (),
+) -> tuple[list[FitResult], list[str]]:
     """FitResults of the coarse and fine stages (and their fusion) re-run on the device-level files among ``paths``.
 
     Parameters
     ----------
     paths : sequence of paths
         Data files given to the report.
-    settings : mapping, optional
-        The stage run's settings (``coarse_procedure``, ``fine_procedure``, ``noise_model``, ``coarse_nonlinear``,
-        ``allow_missing``); the defaults of ``stableins calibrate device`` where absent.
+    settings : DeviceSessionSettings, optional
+        The settings the record's device stage run states (procedures, noise model, coarse nonlinearity, missing
+        positions); None: the defaults of ``stableins calibrate device``.
+    noise : NoiseModel, optional
+        Without ``settings``: the record's noise model (None: the defaults measure one in the dwells).
     effects : sequence of Term
         The discovered (additive) terms of the record's model: the stages estimate them with the
         standard parameters, as ``stableins calibrate device --add`` did.
@@ -44,10 +56,8 @@ def device_fits(
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.setting import DeviceSetting
-    from stableins.noise import NoiseModel
     from stableins.procedures.definition import load_procedure
 
-    settings = dict(settings or {})
     datasets, notes = [], []
     for path in paths:
         try:
@@ -56,28 +66,28 @@ def device_fits(
             notes.append(f"{path}: not used for device-level residuals ({error.message})")
     if not datasets:
         return [], notes
-    names = {"coarse": settings.get("coarse_procedure", "device-coarse"), "fine": settings.get("fine_procedure", "device-fine")}
+    stated = settings if settings is not None else DeviceSessionSettings(noise_model=noise)
+    names = dict(zip(("coarse", "fine"), stated.procedures, strict=True))
     layouts = {stage: load_procedure(name).layout for stage, name in names.items()}
     summaries = []
     for dataset in datasets:
         setting = DeviceSetting.from_site(dataset.metadata)
         summaries += dwells_from_columns(dataset.columns, layouts=layouts, source=str(dataset.path), setting=setting)
     source = ", ".join(str(d.path) for d in datasets)
-    noise = settings.get("noise_model")
     calibration = calibrate_device(
         summaries,
         datasets[0].metadata,
         layouts=layouts,
-        allow_missing=bool(settings.get("allow_missing", False)),
-        noise=None if noise is None else NoiseModel.from_document(noise),
-        coarse_nonlinear=bool(settings.get("coarse_nonlinear", True)),
+        allow_missing=stated.allow_missing,
+        noise=stated.noise_model,
+        coarse_nonlinear=stated.coarse_nonlinear,
         extra_terms=tuple(effects),
         source=source,
     )
     fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
-    if set(settings) - {"noise_model"}:
+    if settings is not None:
         how = "with the settings the record states (procedures, noise model, coarse nonlinearity)"
-    elif settings:
+    elif noise is not None:
         how = "with the record's noise model and otherwise the defaults of 'stableins calibrate device'"
     else:
         how = "with the defaults of 'stableins calibrate device' (the record states no settings)"

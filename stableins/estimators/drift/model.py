@@ -73,6 +73,7 @@ from stableins.conventions import (
     earth_rate_nav,
     skew,
 )
+from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import GIMBAL_IDS, GYRO_DRIFT_TERMS, ErrorModel
 from stableins.errors import InputError
 from stableins.estimators.details import StageDetails
@@ -115,6 +116,25 @@ class DriftDetails(StageDetails):
     biases: tuple[BiasCheck, ...]
     residual_rms: tuple[float, float, float]
     base_separated: bool
+
+
+@dataclass(frozen=True)
+class DriftSettings:
+    """The settings of a gyro-drift run: how the base was treated, the holds used and the nuisances fitted."""
+
+    #: ``"auto"`` (the base error fitted when the holds separate it) or ``"survey"`` (held at the survey).
+    base: str
+    holds: int
+    nuisances: tuple[str, ...]
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"base", "holds", "nuisances"}`` (docs/formats.md)."""
+        return {"base": self.base, "holds": self.holds, "nuisances": list(self.nuisances)}
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> DriftSettings:
+        """Return the settings :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        return cls(fields.text("base"), fields.count("holds"), fields.texts("nuisances"))
 
 
 def _inertial_attitude(
@@ -234,7 +254,7 @@ def estimate_drift(
         details=details,
         likelihood=likelihood,
         gravity=gravity,
-        settings={"base": base, "holds": len(hold_list), "nuisances": [n for n in used if not n.startswith(("c", "eps_"))]},
+        settings=DriftSettings(base, len(hold_list), tuple(n for n in used if not n.startswith(("c", "eps_")))),
     )
 
 

@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import GimbalConfiguration, asynchrony_error
+from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import ErrorModel, Term, TermInputs
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.details import StageDetails
@@ -102,6 +103,18 @@ class LeverOptions:
     asynchrony: bool = True
     window: float = DEFAULT_WINDOW
     alpha: float = 0.01
+
+    def to_document(self) -> JSONObject:
+        """Return the options as the lever stage's settings: ``{"arms", "asynchrony", "window", "alpha"}`` (docs/formats.md)."""
+        return {"arms": self.arms.value, "asynchrony": self.asynchrony, "window": self.window, "alpha": self.alpha}
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> LeverOptions:
+        """Return the options :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        arms = fields.text("arms")
+        if arms not in {s.value for s in LeverSet}:
+            raise fields.fail("arms", f"{arms!r} is not a set of lever arms", ", ".join(s.value for s in LeverSet))
+        return cls(LeverSet(arms), fields.flag("asynchrony"), fields.number("window"), fields.number("alpha"))
 
 
 @dataclass(frozen=True)
@@ -442,7 +455,7 @@ def _solve(design: _Design, terms: tuple[Term, ...], options: LeverOptions, sour
         details=details,
         likelihood=likelihood,
         gravity=gravity,
-        settings={"arms": options.arms.value, "asynchrony": options.asynchrony, "window": options.window, "alpha": options.alpha},
+        settings=options,
     )
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,13 +22,12 @@ from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.options import ESTIMATE_K2_PARAMETER, GYRO_DRIFT_PARAMETER
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, Separation
-from stableins.noise import NoiseModel
 from stableins.status import Determination, Status
 
 if TYPE_CHECKING:
     from stableins.estimators.system.checks import RecordSite
     from stableins.estimators.system.gyro_drift_step import DriftStep
-    from stableins.estimators.system.options import SystemOptions
+    from stableins.estimators.system.settings import SystemSettings
 
 
 #: Variance-inflation factor above which a coefficient counts as not observable in a short record.
@@ -205,20 +204,6 @@ def prior_residual_covariance(
     return 0.5 * (cov + cov.T)
 
 
-def stage_settings(options: SystemOptions, noise_model: NoiseModel | None = None) -> dict[str, Any]:
-    """Return the stage's options as stage settings of a record (JSON values; gyro drift in rad/s, platform frame).
-
-    ``noise_model``: the source of the noise model the stage started from (``none`` when there was none).
-    """
-    from dataclasses import asdict
-
-    out = asdict(options)
-    out["gyro_drift"] = options.gyro_drift.value
-    if out["known_gyro_drift"] is not None:
-        out["known_gyro_drift"] = [float(x) for x in out["known_gyro_drift"]]
-    return {"stage": "system", **out, "noise_model": "none" if noise_model is None else noise_model.source.value}
-
-
 @dataclass(frozen=True)
 class SeparationFit:
     """The measurement the stage hands to the Bayesian update, and its own least-squares fit (χ², ν)."""
@@ -334,7 +319,7 @@ def fit_result(
     installed: StagePrior,
     notes: list[str],
     *,
-    settings: dict[str, Any],
+    settings: SystemSettings,
     k2: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[FitResult, dict[str, float]]:
     """Return the stage's result: the Bayesian update of the prior given to the stage (values, covariance over CORE_TERMS).
@@ -423,6 +408,5 @@ __all__ = [
     "residual_scale",
     "residuals_from_parameters",
     "separation_likelihood",
-    "stage_settings",
     "term_id",
 ]

@@ -42,7 +42,6 @@ from stableins.estimators.system.assembly import (
     prior_term_covariance,
     residual_scale,
     separation_likelihood,
-    stage_settings,
 )
 from stableins.estimators.system.attitude import AttitudeFit
 from stableins.estimators.system.checks import StageContext, check_metadata
@@ -60,6 +59,7 @@ from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import SystemOptions
 from stableins.estimators.system.polar import PolarAlignment, check_polar_alignment, polar_alignment
 from stableins.estimators.system.separation import Separation
+from stableins.estimators.system.settings import SystemSettings
 from stableins.estimators.system.thermal import THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
 from stableins.estimators.system.third_harmonic import record_note
 from stableins.estimators.system.view import SystemCalibrationView
@@ -364,7 +364,7 @@ def _assemble(
         likelihood,
         installed,
         notes,
-        settings={**stage_settings(options, noise_model), "gyro_drift_source": stage.drift.source.value},
+        settings=SystemSettings.of(options, noise_model, stage.drift.source),
         k2=(combination.k2_values, k2_covariance) if options.estimate_k2 else None,
     )
     observable = combination.observable

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, DEG_PER_HOUR_PER_G
 from stableins.display import value_sigma
+from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import MICRO_G_PER_G2, known_terms
 from stableins.estimators.details import StageDetails
 from stableins.estimators.result import FitResult, Likelihood, Stage
@@ -182,19 +183,58 @@ def build_result(result: PassResult, prior: Prior, step: float) -> SystematicCal
         notes=tuple(g.describe() for g in details.rank) + _left_out_note(left_out),
         details=details,
         likelihood=likelihood,
-        settings={"step": step, "passes": result.passes, "orientations": [_orientation(h) for h in result.holds]},
+        settings=SystematicSettings(step, result.passes, tuple(_orientation(h) for h in result.holds)),
     )
     return SystematicCalibration(fit, details)
 
 
-def _orientation(hold: HoldSummary) -> dict[str, object]:
-    """One orientation as the record stores it (JSON)."""
-    return {
-        "start_h": hold.start / 3600.0,
-        "end_h": hold.end / 3600.0,
-        "specific_force_g": list(hold.specific_force),
-        "polar_angle_deg": float(np.degrees(hold.polar_angle)),
-    }
+@dataclass(frozen=True)
+class Orientation:
+    """One orientation of a systematic run as its settings state it.
+
+    The hold [h], the mean specific force in the platform frame [g] and the angle of the platform's z axis from the
+    Earth's axis [°].
+    """
+
+    start_h: float
+    end_h: float
+    specific_force_g: tuple[float, ...]
+    polar_angle_deg: float
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"start_h", "end_h", "specific_force_g", "polar_angle_deg"}``."""
+        return {"start_h": self.start_h, "end_h": self.end_h, "specific_force_g": list(self.specific_force_g),
+                "polar_angle_deg": self.polar_angle_deg}  # fmt: skip
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> Orientation:
+        """Return the orientation :meth:`to_document` wrote."""
+        return cls(fields.number("start_h"), fields.number("end_h"), fields.numbers("specific_force_g"), fields.number("polar_angle_deg"))
+
+
+@dataclass(frozen=True)
+class SystematicSettings:
+    """The settings of a systematic run: the filter step [s], the passes and the orientations it was indexed to."""
+
+    step: float
+    passes: int
+    orientations: tuple[Orientation, ...]
+
+    def to_document(self) -> JSONObject:
+        """Return ``{"step", "passes", "orientations"}`` (docs/formats.md)."""
+        return {"step": self.step, "passes": self.passes, "orientations": [o.to_document() for o in self.orientations]}
+
+    @classmethod
+    def from_document(cls, fields: DocumentFields) -> SystematicSettings:
+        """Return the settings :meth:`to_document` wrote (:class:`InputError` naming the field)."""
+        orientations = tuple(Orientation.from_document(o) for o in fields.objects("orientations"))
+        return cls(fields.number("step"), fields.count("passes"), orientations)
+
+
+def _orientation(hold: HoldSummary) -> Orientation:
+    """One orientation as the record stores it."""
+    return Orientation(hold.start / 3600.0, hold.end / 3600.0, tuple(float(f) for f in hold.specific_force),
+                       float(np.degrees(hold.polar_angle)))  # fmt: skip
 
 
 def _left_out_note(left_out: Mapping[str, float]) -> tuple[str, ...]:
