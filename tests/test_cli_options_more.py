@@ -172,7 +172,8 @@ def test_run_link_failures_and_timeout_over_tcp(tmp_path):
             with FaultyRelay(server.port, fault=(fault, 20_000)) as relay:
                 argv = ["run", plan, "--driver", f"tcp://127.0.0.1:{relay.port}", "--out", tmp_path / name, "--yes", "--quiet", *options]
                 statuses[name] = _main(argv)[0]
-    assert statuses == {"cut1": 3, "cut2": 0, "stall": 0}  # --link-failures 1: stopped (resumable) at the first cut; 2: finished
+    assert statuses["cut1"] == 3  # --link-failures 1: stopped (resumable) at the first cut
+    assert statuses["cut2"] == 0 and statuses["stall"] == 0  # --link-failures 2: the step repeated on a new link, finished
     errors = {}
     for name in statuses:
         failed = [r for r in scan(tmp_path / name / "journal.bin").records if r.kind == "op" and r.get("error")]
