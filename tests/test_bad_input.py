@@ -405,18 +405,19 @@ def test_a_controller_that_trickles_cannot_hold_a_request():
     def trickle(connection) -> None:
         connection.sendall(b"STABLEINS-PLATFORM 1\n")
         connection.recv(100)
-        for byte in b"1 OK " + b"0" * 1000:  # one byte every 0.2 s, never a newline
+        for byte in b"1 OK " + b"0" * 1000:  # one byte every 0.1 s, never a newline
             connection.sendall(bytes([byte]))
             sent[0] += 1
-            time.sleep(0.2)
+            time.sleep(0.1)
 
     server = _Server(trickle)
     try:
-        driver = TcpDriver("127.0.0.1", server.port, timeout=1.0, reconnect_attempts=1)
+        # a silence of 2 s (20 trickle intervals) would need a thread starved that long: the reply's deadline fires first
+        driver = TcpDriver("127.0.0.1", server.port, timeout=2.0, reconnect_attempts=1)
         with pytest.raises(DriverConnectionError, match="in time"):  # the deadline of the reply, not the silence timeout
             driver.command((0.0, 0.0, 0.0))
-        # bytes the platform got out before the driver gave up: about 5 (1 s at one byte every 0.2 s), never the 1005
-        # a silence timeout would wait for (it never fires: a byte comes every 0.2 s)
+        # bytes the platform got out before the driver gave up: about 20 (2 s at one byte every 0.1 s), a few more while
+        # the driver closes under load, never the 1005 a silence timeout would wait for (a byte comes every 0.1 s)
         assert sent[0] < 500, sent
     finally:
         server.close()

@@ -172,7 +172,8 @@ def test_run_link_failures_and_timeout_over_tcp(tmp_path):
             with FaultyRelay(server.port, fault=(fault, 20_000)) as relay:
                 argv = ["run", plan, "--driver", f"tcp://127.0.0.1:{relay.port}", "--out", tmp_path / name, "--yes", "--quiet", *options]
                 statuses[name] = _main(argv)[0]
-    assert statuses == {"cut1": 3, "cut2": 0, "stall": 0}  # --link-failures 1: stopped (resumable) at the first cut; 2: finished
+    assert statuses["cut1"] == 3  # --link-failures 1: stopped (resumable) at the first cut
+    assert statuses["cut2"] == 0 and statuses["stall"] == 0  # --link-failures 2: the step repeated on a new link, finished
     errors = {}
     for name in statuses:
         failed = [r for r in scan(tmp_path / name / "journal.bin").records if r.kind == "op" and r.get("error")]
@@ -199,3 +200,23 @@ def test_run_new_calibration_starts_its_own(ws, tmp_path):
     assert new.calibration.id != prior.calibration.id  # --new-calibration: its own calibration ...
     assert new.calibration.prior is not None and new.calibration.prior.sha256 == hashlib.sha256(ws.record.read_bytes()).hexdigest()
     assert new.provenance.stages == ("fine",)  # ... of the one stage this run measured, from the prior REC
+
+
+@pytest.mark.slow
+def test_recal_link_failures_and_timeout_over_tcp(ws, tmp_path):
+    """recal over TCP: a stalled link is given up after --timeout 1 s and repeated with --link-failures 2 (the field
+    recalibration finishes); with --link-failures 1 the same stall stops it, resumable (about 15 s of CPU)."""
+    from tests.tcp_fixtures import FaultyRelay, ServerProcess
+
+    statuses, errors = {}, {}
+    with ServerProcess(seed=4, simulator=True, unit=ws.serial) as server:
+        for allowed in ("1", "2"):
+            with FaultyRelay(server.port, fault=("stall", 50_000)) as relay:
+                argv = ["recal", "field-recal-device", "--unit", ws.serial, "--prior", ws.record, "--driver", f"tcp://127.0.0.1:{relay.port}",
+                        "--out", tmp_path / allowed, "--yes", "--quiet", "--timeout", "1", "--link-failures", allowed]  # fmt: skip
+                statuses[allowed] = _main(argv)[0]
+            failed = [r for r in scan(tmp_path / allowed / "journal.bin").records if r.kind == "op" and r.get("error")]
+            errors[allowed] = [str(r["error"]) for r in failed]
+    assert statuses["1"] == 3 and not (tmp_path / "1" / "record.json").exists()  # --link-failures 1: stopped at the stall
+    assert statuses["2"] == 0 and (tmp_path / "2" / "record.json").exists()  # --link-failures 2: repeated, finished
+    assert all(len(e) == 1 and "did not answer within 1 s" in e[0] for e in errors.values()), errors  # --timeout 1

@@ -26,6 +26,9 @@ from stableins import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "options-token-of-the-lab-0123456789"
+#: Silence accepted from a server [s]: a bound against a hang only (the simulator sets itself up on its first request,
+#: which takes seconds on a loaded machine; no verdict here depends on it).
+LINK_TIMEOUT = 120.0
 
 
 def _start(*argv: str) -> tuple[subprocess.Popen, str]:
@@ -52,7 +55,7 @@ def _stop(process: subprocess.Popen) -> tuple[str, str]:
 def _get(url: str, token: str | None = None) -> tuple[int, dict[str, str], bytes]:
     request = urllib.request.Request(url, headers={"authorization": f"Bearer {token}"} if token else {})
     try:
-        with urllib.request.urlopen(request, timeout=60) as answer:
+        with urllib.request.urlopen(request, timeout=LINK_TIMEOUT) as answer:
             return answer.status, dict(answer.headers), answer.read()
     except urllib.error.HTTPError as error:
         return error.code, dict(error.headers), error.read()
@@ -128,7 +131,7 @@ def _truth_file(tmp_path: Path) -> tuple[Path, object]:
 def _pitch(port: int) -> np.ndarray:
     from stableins.drivers.tcp import TcpDriver
 
-    driver = TcpDriver("127.0.0.1", port)
+    driver = TcpDriver("127.0.0.1", port, timeout=LINK_TIMEOUT)
     try:
         columns = [c for c in driver.static_record(20.0, 10.0)]
     finally:
@@ -143,7 +146,7 @@ def test_serve_sim_options_reach_the_platform(tmp_path, ws_record):
     process, line = _start(*argv)
     try:
         assert line.startswith("listening on 127.0.0.1:")  # --port 0
-        driver = TcpDriver("127.0.0.1", int(line.rsplit(":", 1)[1]))
+        driver = TcpDriver("127.0.0.1", int(line.rsplit(":", 1)[1]), timeout=LINK_TIMEOUT)
         platform = driver.status()["platform"]
         assert (platform["seed"], platform["serial_number"]) == (23, "OPT-7")  # --seed, --unit
         assert driver.metadata.sample_rate == 5.0  # --rate
@@ -160,7 +163,7 @@ def test_serve_sim_options_reach_the_platform(tmp_path, ws_record):
     truth_path, truth = _truth_file(tmp_path)
     process, line = _start("serve-sim", "--port", "0", "--truth", str(truth_path), "--connections", "1", "--quiet")
     try:
-        driver = TcpDriver("127.0.0.1", int(line.rsplit(":", 1)[1]))
+        driver = TcpDriver("127.0.0.1", int(line.rsplit(":", 1)[1]), timeout=LINK_TIMEOUT)
         platform = driver.status()["platform"]
         assert (platform["seed"], platform["serial_number"]) == (truth.seed, truth.site.serial_number)  # --truth: its world
         driver.close()
