@@ -44,10 +44,11 @@ class _Version(argparse.Action):
 
 
 class Command(NamedTuple):
-    """A leaf command: the module implementing it and a one-line help."""
+    """A leaf command: the module implementing it, a one-line help, and whether it serves until stopped."""
 
     module: str
     help: str
+    server: bool = False  # prints its address and serves until stopped: no result (no --json), no progress bar
 
 
 class Group(NamedTuple):
@@ -78,8 +79,12 @@ COMMANDS: dict[str, Command | Group] = {
         },
     ),
     "run": Command("stableins.commands.run_command", "carry out a calibration procedure on a platform (journaled, resumable)"),
-    "serve": Command("stableins.commands.serve", "the fleet, a unit's history and the runs in a browser, read-only (docs/fleet.md)"),
-    "serve-sim": Command("stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)"),
+    "serve": Command(
+        "stableins.commands.serve", "the fleet, a unit's history and the runs in a browser, read-only (docs/fleet.md)", server=True
+    ),
+    "serve-sim": Command(
+        "stableins.commands.serve_sim", "serve the simulated platform over TCP on 127.0.0.1 (docs/protocol.md)", server=True
+    ),
     "protocol-check": Command(
         "stableins.commands.protocol_check", "conformance of a platform controller to docs/protocol.md, pass/fail per clause"
     ),
@@ -139,7 +144,7 @@ def _add(subparsers: argparse._SubParsersAction, table: Mapping[str, Command | G
         else:
             module = importlib.import_module(entry.module)
             module.configure(parser)
-            if getattr(module, "SERVER", False):  # prints its address and serves until stopped: no result, no progress bar
+            if entry.server:
                 parser.set_defaults(_run=module.run)
                 continue
             if not any(action.dest == "json" for action in parser._actions):

@@ -20,11 +20,6 @@ TOKEN_ENV = "STABLEINS_SERVE_TOKEN"
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
-#: A server: it prints its address and serves until stopped, so the CLI adds no ``--json`` (no result document) and
-#: no ``--quiet`` of progress bars (it draws none); given, they are refused as unknown options (issue 31).
-SERVER = True
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins serve`` to ``parser``."""
     from stableins.commands.arguments import input_file, integer, real

@@ -9,10 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-#: A server: it prints its address and serves until stopped, so the CLI adds no ``--json`` (no result document) and
-#: no ``--quiet`` of progress bars (it draws none); given, they are refused as unknown options (issue 31).
-SERVER = True
-
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``stableins serve-sim`` to ``parser``."""

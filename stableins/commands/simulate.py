@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
+from stableins.estimators.device_settings import DEFAULT_PROCEDURES
 
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
-DEFAULT_PROCEDURES = ("device-coarse", "device-fine")
 #: Longest record ``--duration`` accepts [s] (30 days).
 MAX_DURATION = 30 * 86400.0
 #: Above this many rows a device file defaults to HDF5 (a 10-min-per-position fine stage is 1 M rows).

@@ -13,7 +13,7 @@ import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stableins.data.device import CSV_SUFFIXES, H5_SUFFIXES, header_document
 from stableins.data.hdf5format import DEFAULT_CHUNK
@@ -23,6 +23,9 @@ from stableins.data.validation import check_finite, check_increasing
 from stableins.errors import InputError
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.site import SiteMetadata
+
+if TYPE_CHECKING:  # pragma: no cover
+    from numpy.typing import NDArray
 
 #: HDF5 system records carry an ``/overview`` of every column at this period [s] (one row per second): the system
 #: stage reads attitude, velocity and gimbal angles at 1 Hz from it (docs/formats.md).
@@ -305,7 +308,7 @@ class SystemRecord:
         """
         return ValidatingRecord(self, allow_gaps=allow_gaps, tolerance=tolerance)
 
-    def _verified_chunks(self, rows: int) -> Iterator[dict[str, Any]]:
+    def _verified_chunks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
         """Every column, chunk by chunk, each value and (HDF5) the derived datasets checked (:meth:`validate`'s reading)."""
         if self._reader is None:
             return self.iter_chunks(rows=rows)

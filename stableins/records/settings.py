@@ -39,7 +39,7 @@ READERS: dict[str, Callable[[DocumentFields], StageSettings]] = {
 
 #: The stages whose run a device calibration's settings describe (``stableins calibrate device``: the coarse stage alone,
 #: or the coarse and fine stages fused), told from a fit's own settings by their having no ``stage``.
-DEVICE_STAGES = (Stage.COARSE, Stage.FINE, Stage.DEVICE)
+DEVICE_FIT_STAGES = (Stage.COARSE, Stage.FINE, Stage.DEVICE)
 
 
 def settings_from_document(name: str, value: JSONValue, where: str, path: str | None = None) -> StageSettings | None:
@@ -65,7 +65,7 @@ def settings_from_document(name: str, value: JSONValue, where: str, path: str | 
     stated = fields.document.get("stage")
     if stated == Stage.DEVICE:  # the joint fit's own settings
         return DeviceFitSettings.from_document(fields)
-    if stated is None and name in DEVICE_STAGES:  # the device calibration's (stableins calibrate device)
+    if stated is None and name in DEVICE_FIT_STAGES:  # the device calibration's (stableins calibrate device)
         return DeviceSessionSettings.from_document(fields)
     key = stated if isinstance(stated, str) else name
     reader = READERS.get(key)
