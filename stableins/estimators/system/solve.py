@@ -296,7 +296,8 @@ def decide_noise(
     ``hold_attitude_white``: the pitch and roll white levels held at the accelerometers' measured white noise through
     the loop (the stage's σ); ``False`` fits them, which lets a signal not yet modelled (a thermal ramp before the
     thermal test) go into them rather than into the slow amplitudes: the thermal test's first decision
-    (:func:`.thermal.thermal_step`; docs/system-calibration.md §1a).
+    (:func:`.thermal.thermal_step`; docs/system-calibration.md §1a), provisional: it warns of nothing (the decision the
+    stage keeps, made again with them held, does).
     """
     att = attitude.fit
     gravity, rate, path = context.site.gravity, context.site.rate, context.path
@@ -328,7 +329,7 @@ def decide_noise(
     cov_v = cov_v + coloured
     if fit is not None:
         note = coloured_note(fit, units, white_x2, gravity)
-        if fit.source is ColouredSource.CONTRADICTED:
+        if fit.source is ColouredSource.CONTRADICTED and hold_attitude_white:  # not the thermal test's provisional decision
             warnings.warn(f"{path}: {note}", UserWarning, stacklevel=3)
     else:
         note = (
