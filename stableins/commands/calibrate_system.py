@@ -294,7 +294,7 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
         "chi2": outcome.result.chi2,
         "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
-        "notes": [flag_text(n) for n in (*outcome.notes, *outcome.result.notes)],
+        "notes": [flag_text(n) for n in dict.fromkeys((*outcome.notes, *outcome.result.notes))],  # a note both carry, once
         "noise_model": outcome.noise_model.to_document(),
         "low_frequency_noise": None
         if fit is None
