@@ -161,7 +161,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
     from stableins.output import emit, note
-    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord, PriorReference, RunInfo, data_times, file_sha256, parse_entries
 
     prior = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
@@ -180,19 +180,13 @@ def run(args: Any) -> int:
     start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
     temperature = outcome.diagnostics.temperature
     reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
-    updated = prior.updated(
-        outcome.result,
-        new_calibration=args.new_calibration,
-        prior=reference,
-        procedure=str(record.metadata.extra.get("procedure", "system-static")),
-        calibration_entries=entries,
-        site=record.metadata,
-        inputs=[args.record],
-        data_start=start,
-        data_end=end,
-        sample_rate=record.sample_rate,
-        environment={"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {},
+    procedure = str(record.metadata.extra.get("procedure", "system-static"))
+    environment = {"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {}
+    run = RunInfo(
+        procedure=procedure, inputs=[args.record], data_start=start, data_end=end, sample_rate=record.sample_rate, environment=environment
     )
+    updated = prior.updated(outcome.result, run, new_calibration=args.new_calibration, prior=reference, calibration_entries=entries,
+                            site=record.metadata)  # fmt: skip
     updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)
     if args.plot:
