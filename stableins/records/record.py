@@ -24,6 +24,7 @@ from stableins.records.writer import record_document, save_record
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
+    from stableins.documents import JSONObject
     from stableins.estimators.device import DeviceCalibration
     from stableins.estimators.result import FitResult
     from stableins.noise import NoiseModel
@@ -164,7 +165,7 @@ class CalibrationRecord(RecordContent):
         return update_by_run(self, stage, new_calibration=new_calibration, prior=prior, site=site)
 
     # ------------------------------------------------------------------ files
-    def to_document(self) -> dict[str, Any]:
+    def to_document(self) -> JSONObject:
         """Return the JSON-ready dict (non-finite numbers as ``null``; docs/formats.md)."""
         return record_document(self)
 

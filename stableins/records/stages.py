@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from stableins.documents import JSONValue
+from stableins.documents import JSONObject, JSONValue
 from stableins.errors import InputError
 from stableins.identifiers import utc_now
 from stableins.records.parameters import Entry
@@ -263,7 +263,7 @@ class Provenance:
     data_end: str = ""
 
 
-def fit_evidence(fit: FitResult) -> dict[str, Any]:
+def fit_evidence(fit: FitResult) -> JSONObject:
     """Return a fit's residual evidence as stored in a stage run: residuals, 1σ, labels and its one χ², ν, χ²_ν.
 
     χ² is :attr:`FitResult.chi2` (whitened where the noise is correlated between observations); console,
@@ -288,7 +288,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
     }
 
 
-def temperature_summary(values: Any) -> dict[str, Any]:
+def temperature_summary(values: Any) -> JSONObject:
     """Return ``{"temperature": {"mean", "min", "max", "unit": "degC"}}`` of the instrument temperature the data carry."""
     import numpy as np
 
