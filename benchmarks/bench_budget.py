@@ -87,6 +87,7 @@ def system(world) -> None:
     from stableins.conventions import DEG_PER_HOUR
     from stableins.estimators.system import sensitivity
     from stableins.estimators.system.stage import SystemOptions
+    from stableins.records import RunInfo
     from stableins.reporting.budget import MGAL
 
     prior = world[4]
@@ -118,13 +119,13 @@ def system(world) -> None:
               "of the largest component (compared against: < 1 %)")  # fmt: skip
     z = np.abs(found["gyro_drift.z"].gradient).max() / np.abs(found["gyro_drift.x"].gradient).max()
     print(f"   gyro drift along z_p against x_p: {z:.1e}   (compared against: 0, the Earth's axis)")
-    record = prior.updated(replace(base.result, sensitivities=tuple(found.values())), site=meta, procedure="system-static")
+    record = prior.updated(replace(base.result, sensitivities=tuple(found.values())), RunInfo(procedure="system-static"), site=meta)
     sigma = sigma_of(record)
     p = np.nan_to_num(np.asarray(record.covariance))
     gradient = np.array([found["gyro_drift.x"].gradient[lik.ids.index(i)] if i in lik.ids else 0.0 for i in record.ids])
     for degrees in (1e-5, 1e-3):
         moved = run(SystemOptions(known_gyro_drift=(degrees * DEG_PER_HOUR, 0.0, 0.0), estimate_gyro_drift=False))
-        remade = prior.updated(moved.result, site=meta, procedure="system-static")
+        remade = prior.updated(moved.result, RunInfo(procedure="system-static"), site=meta)
         change = np.array([remade[i].value - record[i].value for i in record.ids]) / sigma
         linear = p @ gradient * degrees * DEG_PER_HOUR / sigma
         k = int(np.argmax(np.abs(linear)))

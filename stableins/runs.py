@@ -404,42 +404,32 @@ def finish(rundir: Path, runner: Runner, metadata: SiteMetadata, start: Any, *, 
     fit = _estimate(rundir, runner, metadata, dataset, start)
     if fit is None:
         return outcome
-    from stableins.records import CalibrationRecord, PriorReference, StageRun, file_sha256
+    from stableins.records import CalibrationRecord, PriorReference, RunInfo, file_sha256
 
     columns = exported_columns(runner, dataset)
     # the calibration date: when the run took its data, by the wall clock of the journal (a simulated platform's
     # session clock runs faster than the wall clock; a real platform's follows it)
     complete = next((r for r in runner.session.journal.records if r.kind == "complete"), None)
     data_start, data_end = start.get("utc", ""), complete.get("utc", "") if complete is not None else ""
-    stage_fields = {
-        "procedure": runner.plan.name,
-        "inputs": [dataset] if dataset else [],
-        "data_start": data_start,
-        "data_end": data_end,
-        "sample_rate": float(metadata.sample_rate),
-        "entries": run_entries(runner),
-        "environment": _environment(runner, columns, fit),
-    }
+    run = RunInfo(
+        procedure=runner.plan.name,
+        inputs=[dataset] if dataset else [],
+        data_start=data_start,
+        data_end=data_end,
+        sample_rate=float(metadata.sample_rate),
+        entries=run_entries(runner),
+        environment=_environment(runner, columns, fit),
+    )
     calibration_entries = _calibration_entries(runner, start)
     prior_path = rundir / start["prior"] if start.get("prior") else None
     if prior_path is not None and runner.iteration is None:
         # the stage updates the prior record (fine, system): a Bayesian update, one new record
         prior = _load_record(prior_path)
         reference = PriorReference(file_sha256(prior_path), str(start.get("prior_path") or prior_path), prior.calibration.created)
-        record = prior.updated(
-            fit,
-            new_calibration=bool(start.get("new_calibration")),
-            prior=reference,
-            calibration_entries=calibration_entries,
-            site=metadata,
-            **stage_fields,
-        )
+        new = bool(start.get("new_calibration"))
+        record = prior.updated(fit, run, new_calibration=new, prior=reference, calibration_entries=calibration_entries, site=metadata)
     else:
-        from stableins.records import Calibration
-
-        calibration = Calibration.new(runner.plan.name, calibration_entries)
-        stage = StageRun.from_fit(fit, calibration=calibration.id, **stage_fields)
-        record = CalibrationRecord.from_fit_result(fit, site=metadata, stage=stage, calibration=calibration)
+        record = CalibrationRecord.from_fit_result(fit, run, site=metadata, calibration_entries=calibration_entries)
     outcome.record = record.save(rundir / RECORD_NAME)
     runner.console.say(f"calibration record written: {outcome.record}")
     runner.console.say(record.report())

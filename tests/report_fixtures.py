@@ -14,7 +14,7 @@ from stableins.data.metadata import metadata_from_document
 from stableins.errormodel import GIMBAL_TERMS, ErrorModel
 from stableins.estimators.device_settings import DeviceFitSettings, StatedSlowNoise
 from stableins.estimators.result import FitResult, Stage
-from stableins.records import Calibration, CalibrationRecord, Entry, StageRun
+from stableins.records import CalibrationRecord, Entry, RunInfo, StageRun
 
 GRAVITY = 9.8015
 
@@ -113,13 +113,7 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
         ),
         settings=DeviceFitSettings(Stage.FINE, slow_noise=StatedSlowNoise(False)),  # a record of the first schema-2 version
     )
-    calibration = Calibration.new(
-        "wu2018-18-position",
-        (Entry("laboratory", "Inertial Sensor Laboratory, Building 4"), Entry("customer", "Navigation Systems Division")),
-    )
-    stage = StageRun.from_fit(
-        full,
-        calibration=calibration.id,
+    run = RunInfo(
         procedure="wu2018-18-position",
         inputs=inputs,
         data_start=started,
@@ -127,15 +121,17 @@ def record(result: FitResult, *, started: str = "2026-11-20T08:00:00Z", inputs: 
         sample_rate=200.0,
         entries=(Entry("lab_temperature", 21.5, "degC", "Laboratory temperature at the start"),),
         environment={"temperature": {"mean": 24.81, "min": 24.62, "max": 25.07, "unit": "degC"}},
-        fits=(result,),
         created=started.replace("08:00", "14:35"),
     )
     rec = CalibrationRecord.from_fit_result(
         full,
+        StageRun.from_fit(full, calibration="", run=run, fits=(result,)),  # the evidence of the fit itself
         site=metadata_from_document(SITE_DOCUMENT),
         notes=["Platform warmed up for 2 h before the first position."],
-        stage=stage,
-        calibration=calibration,
+        calibration_entries=(
+            Entry("laboratory", "Inertial Sensor Laboratory, Building 4"),
+            Entry("customer", "Navigation Systems Division"),
+        ),
     )
     return rec.to_document()
 

@@ -119,4 +119,4 @@ def prior_record(truth: Truth) -> CalibrationRecord:
     prior = unit_prior(truth)
     values = np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms])
     fit = FitResult("fine", terms, values, prior.covariance, ("estimated",) * len(terms), np.zeros(0), np.zeros(0))
-    return CalibrationRecord.from_fit_result(fit, truth.site.serial_number, noise_model=prior.noise_model)
+    return CalibrationRecord.from_fit_result(fit, serial_number=truth.site.serial_number, noise_model=prior.noise_model)

@@ -30,7 +30,7 @@ from stableins.estimators.sensitivity import angle_reading_gradients  # noqa: E4
 from stableins.estimators.system import sensitivity as system_sensitivity  # noqa: E402
 from stableins.estimators.system.stage import SystemOptions  # noqa: E402
 from stableins.procedures.definition import load_procedure  # noqa: E402
-from stableins.records import CalibrationRecord  # noqa: E402
+from stableins.records import CalibrationRecord, RunInfo  # noqa: E402
 from stableins.reporting import write_report  # noqa: E402
 from stableins.reporting.budget import (  # noqa: E402
     MGAL,
@@ -100,7 +100,7 @@ def system(device):
     source, values, covariance = run.source, run.values, run.covariance
     base = run()
     found = system_sensitivity.system_sensitivities(source, meta, values, covariance, SystemOptions(estimate_gyro_drift=False), base=base)
-    record = prior.updated(replace(base.result, sensitivities=found), site=meta, procedure="system-static")
+    record = prior.updated(replace(base.result, sensitivities=found), RunInfo(procedure="system-static"), site=meta)
     return run, base, found, record, meta
 
 
@@ -144,7 +144,7 @@ def test_the_budget_of_a_record_is_the_record_re_made_with_the_input_perturbed(s
     prior = device[4]
     drift = 1e-5 * DEG_PER_HOUR
     moved = run(SystemOptions(known_gyro_drift=(drift, 0.0, 0.0), estimate_gyro_drift=False))
-    remade = prior.updated(moved.result, site=meta, procedure="system-static")
+    remade = prior.updated(moved.result, RunInfo(procedure="system-static"), site=meta)
     observed = _differences(record, remade)
     x_axis = next(s for s in found if s.input == "gyro_drift.x")
     gradient = np.array([x_axis.gradient[x_axis.ids.index(pid)] if pid in x_axis.ids else 0.0 for pid in record.ids])

@@ -25,7 +25,7 @@ from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS, ErrorModel, Term
 from stableins.estimators.result import Stage
 from stableins.history_store import HistoryStore
 from stableins.noise import NoiseModel
-from stableins.records import CalibrationRecord
+from stableins.records import CalibrationRecord, RunInfo
 
 #: to_dataframe() needs pandas (the ``pandas`` extra; the test extra installs it): only the tests that call it skip without it.
 needs_pandas = pytest.mark.skipif(importlib.util.find_spec("pandas") is None, reason="pandas (the 'pandas' extra) is not installed")
@@ -131,7 +131,7 @@ def test_record_repr_html_dataframe_with_discovery_and_noise(session):
     noise = NoiseModel.given(50 * MICRO_G, 2 * MICRO_G, provenance="datasheet").to_document()
     statuses = gimbal_statuses()
     record = dataclasses.replace(
-        CalibrationRecord.from_fit_result(make_result(statuses=statuses), site=SITE, procedure="device-coarse"),
+        CalibrationRecord.from_fit_result(make_result(statuses=statuses), RunInfo(procedure="device-coarse"), site=SITE),
         discovery=ModelHistory("coarse+fine", 0.05, steps),
         noise_model=noise,
     )

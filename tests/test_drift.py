@@ -23,7 +23,7 @@ from stableins.platform import rotation_about
 from stableins.procedures.definition import load_procedure
 from stableins.procedures.plan import Plan
 from stableins.procedures.planning import plan_from_definition
-from stableins.records import CalibrationRecord
+from stableins.records import CalibrationRecord, RunInfo
 from stableins.simulator.indexing import earth_rotation
 from stableins.simulator.noise import NoiseSettings
 from stableins.simulator.system import SystemWorld, indexed_record_chunks, simulate_system
@@ -219,7 +219,7 @@ def prior_record(truth):
         np.zeros(0),
         np.zeros(0),
     )
-    return CalibrationRecord.from_fit_result(fit_, truth.site.serial_number, procedure="device-fine")
+    return CalibrationRecord.from_fit_result(fit_, RunInfo(procedure="device-fine"), serial_number=truth.site.serial_number)
 
 
 def write(path, truth, turns, duration):

@@ -13,7 +13,7 @@ from stableins.errors import InputError
 from stableins.estimators.result import FitResult, Likelihood
 from stableins.history import compare, format_changes, format_trends, parse_date, plot_trends, trend
 from stableins.history_store import HistoryStore
-from stableins.records import Calibration, CalibrationRecord, Parameter, PriorReference, StageRun
+from stableins.records import Calibration, CalibrationRecord, Parameter, PriorReference, RunInfo, StageRun
 
 IDS = ("bias_x", "bias_y", "sf_x")
 UNITS = ("m/s^2", "m/s^2", "1")
@@ -138,7 +138,8 @@ def test_recalibration_change_significance_matches_the_independent_form_and_is_c
         x0 = TRUTH + rng.normal(0, SIGMA)
         xd = TRUTH + rng.normal(0, 0.7 * SIGMA)
         old = make_record(x0, p0, "2025-01-01T00:00:00+00:00")
-        fused = old.updated(estimate(xd, pd), new_calibration=True, prior=PriorReference("a" * 64), data_end="2025-09-01T00:00:00+00:00")
+        run = RunInfo(data_end="2025-09-01T00:00:00+00:00")
+        fused = old.updated(estimate(xd, pd), run, new_calibration=True, prior=PriorReference("a" * 64))
         comparison = compare(old, fused)
         direct = compare(old, make_record(xd, pd, "2025-09-01T00:00:00+00:00"))
         assert comparison.relation == "descendant" and direct.relation == "independent"
@@ -180,8 +181,8 @@ def test_recalibration_carries_prior_correlations_and_keeps_what_the_data_do_not
 
 def test_records_of_two_branches_cannot_be_compared():
     old = make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00")
-    a = old.updated(estimate(TRUTH, np.diag(SIGMA**2)), new_calibration=True, data_end="2025-02-01T00:00:00+00:00")
-    b = old.updated(estimate(TRUTH, np.diag(SIGMA**2), stage="system"), new_calibration=True, data_end="2025-03-01T00:00:00+00:00")
+    a = old.updated(estimate(TRUTH, np.diag(SIGMA**2)), RunInfo(data_end="2025-02-01T00:00:00+00:00"), new_calibration=True)
+    b = old.updated(estimate(TRUTH, np.diag(SIGMA**2), stage="system"), RunInfo(data_end="2025-03-01T00:00:00+00:00"), new_calibration=True)
     with pytest.raises(InputError, match="correlation of their errors is not known"):
         compare(a, b)
 

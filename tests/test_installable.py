@@ -80,7 +80,7 @@ def test_version_is_printed_and_stamped_in_records(capsys):
     assert capsys.readouterr().out.strip() == f"stableins {stableins.__version__}"
     n = len(ErrorModel.standard())
     fit = FitResult("coarse", ErrorModel.standard().terms, np.ones(n), np.eye(n) * 1e-12, ("estimated",) * n, np.zeros(3), np.ones(3))
-    assert CalibrationRecord.from_fit_result(fit, "SN1").provenance.software == f"stableins {stableins.__version__}"
+    assert CalibrationRecord.from_fit_result(fit, serial_number="SN1").provenance.software == f"stableins {stableins.__version__}"
 
 
 def test_an_installed_package_reads_its_stamp_not_git(tmp_path):

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from stableins.errormodel import CORE_TERMS, GIMBAL_TERMS
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.result import FitResult, Likelihood
-from stableins.records import CalibrationRecord, file_sha256, parse_entries
+from stableins.records import CalibrationRecord, RunInfo, file_sha256, parse_entries
 from stableins.site import SiteMetadata
 
 SITE = SiteMetadata("INS-0042", math.radians(45.0), 30.0, 9.8062, "WGS-84 normal gravity", 100.0)
@@ -43,9 +43,8 @@ def test_from_fit_result_round_trip(tmp_path):
     data = tmp_path / "session.csv"
     data.write_bytes(b"some bytes")
     result = make_result(statuses=gimbal_statuses())
-    record = CalibrationRecord.from_fit_result(
-        result, site=SITE, inputs=[data], procedure="wu2018-18pos", data_start="2026-01-01T00:00:00Z"
-    )
+    run = RunInfo(inputs=[data], procedure="wu2018-18pos", data_start="2026-01-01T00:00:00Z")
+    record = CalibrationRecord.from_fit_result(result, run, site=SITE)
     assert record.serial_number == "INS-0042"
     assert record.provenance.inputs[0].sha256 == hashlib.sha256(b"some bytes").hexdigest() == file_sha256(data)
     assert record.provenance.stages == ("coarse",) and record.provenance.software.startswith("stableins ")
@@ -75,10 +74,10 @@ def as_likelihood(result: FitResult) -> FitResult:
 
 
 def test_update_is_bayesian_and_keeps_what_the_stage_does_not_see():
-    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, procedure="device-coarse")
+    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), RunInfo(procedure="device-coarse"), site=SITE)
     fine_terms = tuple(t for t in CORE_TERMS if t.id.startswith(("sf_", "bias_", "K2_")))
     fine = as_likelihood(make_result(terms=fine_terms, stage="fine", seed=5))
-    merged = coarse.updated(fine, procedure="device-fine", entries=parse_entries(["site_temperature=21.5 degC"]))
+    merged = coarse.updated(fine, RunInfo(procedure="device-fine", entries=parse_entries(["site_temperature=21.5 degC"])))
     assert merged.ids == coarse.ids  # order kept
     fine_ids = [t.id for t in fine_terms]
     # the posterior is the Kalman update of the coarse record by the fine estimate (H selects the fine ids)
@@ -104,9 +103,9 @@ def test_update_is_bayesian_and_keeps_what_the_stage_does_not_see():
 def test_a_recalibration_starts_a_new_calibration_and_carries_the_rest_over():
     from stableins.records import PriorReference
 
-    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, procedure="device-coarse")
+    coarse = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), RunInfo(procedure="device-coarse"), site=SITE)
     fine = as_likelihood(make_result(terms=CORE_TERMS[:6], stage="fine", seed=7))
-    recal = coarse.updated(fine, new_calibration=True, prior=PriorReference("0" * 64), procedure="field-recal-device")
+    recal = coarse.updated(fine, RunInfo(procedure="field-recal-device"), new_calibration=True, prior=PriorReference("0" * 64))
     assert recal.calibration.id != coarse.calibration.id and recal.calibration.prior.sha256 == "0" * 64
     assert recal.provenance.stages == ("fine",) and recal.calibration.procedure == "field-recal-device"
     assert recal.measured_in_this_calibration("sf_x") and not recal.measured_in_this_calibration("beta_xy")
@@ -126,7 +125,7 @@ def test_a_stage_that_determines_nothing_writes_no_record():
 
 
 def test_version_1_records_are_migrated(tmp_path):
-    v2 = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), site=SITE, data_end="2026-01-02T00:00:00Z")
+    v2 = CalibrationRecord.from_fit_result(make_result(statuses=gimbal_statuses()), RunInfo(data_end="2026-01-02T00:00:00Z"), site=SITE)
     document = v2.to_document()
     v1 = {k: v for k, v in document.items() if k not in ("calibration", "stages")}
     v1["schema_version"] = 1

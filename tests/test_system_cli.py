@@ -12,7 +12,7 @@ from stableins.errormodel import CORE_TERMS
 from stableins.errors import InputError
 from stableins.estimators.result import FitResult
 from stableins.noise import NoiseSource
-from stableins.records import CalibrationRecord
+from stableins.records import CalibrationRecord, RunInfo
 
 
 def prior_record(values, serial="SYN-1"):
@@ -26,7 +26,7 @@ def prior_record(values, serial="SYN-1"):
         np.zeros(0),
         np.zeros(0),
     )
-    return CalibrationRecord.from_fit_result(fit, serial, procedure="device-fine")
+    return CalibrationRecord.from_fit_result(fit, RunInfo(procedure="device-fine"), serial_number=serial)
 
 
 def parse(argv):
@@ -180,7 +180,7 @@ def test_the_records_thermal_sensitivities_are_the_thermal_prior_not_a_compensat
         "thermal", terms, values, np.diag(sigma**2), ("estimated",) * 6, np.zeros(0), np.zeros(0), likelihood=likelihood
     )
     with_kt = tmp / "prior-kt.json"
-    CalibrationRecord.load(prior).updated(thermal, procedure="device-thermal").save(with_kt)
+    CalibrationRecord.load(prior).updated(thermal, RunInfo(procedure="device-thermal")).save(with_kt)
     out = tmp / "cal-kt.json"
     assert calibrate_system.run(parse([str(path), "--prior", str(with_kt), "--out", str(out), "--chunk-rows", "8192"])) == 0
     written = CalibrationRecord.load(out)

@@ -159,7 +159,7 @@ def test_a_record_with_the_measured_drift_is_a_simulator_installed_calibration(d
     from stableins.records import CalibrationRecord
 
     truth, _, out, _ = drift_day
-    record = CalibrationRecord.from_fit_result(out.result, truth.site.serial_number, site=truth.site)
+    record = CalibrationRecord.from_fit_result(out.result, serial_number=truth.site.serial_number, site=truth.site)
     assert np.isfinite(record["gyro_drift_x"].sigma) and record["gyro_drift_x"].unit == "rad/s"
     path = tmp_path / "cal.json"
     record.save(path)

@@ -154,7 +154,7 @@ def test_record_update_with_cross_couplings(hidden_kcc):
     terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS) + tuple(t for t in CROSS_COUPLING_TERMS if t.id == "Kcc_xxy")
     values = np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms])
     fit = FitResult("fine", terms, values, prior.covariance, ("estimated",) * len(terms), np.zeros(0), np.zeros(0))
-    record = CalibrationRecord.from_fit_result(fit, truth.site.serial_number, noise_model=prior.noise_model)
+    record = CalibrationRecord.from_fit_result(fit, serial_number=truth.site.serial_number, noise_model=prior.noise_model)
     assert record.error_model().ids[-1] == "Kcc_xxy"
     updated = record.updated(result.fit)
     before = dict(zip(record.ids, np.sqrt(np.diag(record.covariance)), strict=True))
@@ -177,7 +177,8 @@ def test_cli_cross_coupling(tmp_path, capsys):
     terms = tuple(CORE_TERMS) + tuple(GIMBAL_TERMS)
     values = np.array([float(truth.installed_calibration.get(t.id, t.reference)) for t in terms])
     fit = FitResult("fine", terms, values, prior.covariance, ("estimated",) * len(terms), np.zeros(0), np.zeros(0))
-    CalibrationRecord.from_fit_result(fit, truth.site.serial_number, noise_model=prior.noise_model).save(tmp_path / "cal.json")
+    serial = truth.site.serial_number
+    CalibrationRecord.from_fit_result(fit, serial_number=serial, noise_model=prior.noise_model).save(tmp_path / "cal.json")
     parser = argparse.ArgumentParser()
     calibrate_system.configure(parser)
     parser.add_argument("--json", action="store_true")

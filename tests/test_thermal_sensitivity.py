@@ -22,7 +22,7 @@ from stableins.estimators.result import FitResult
 from stableins.estimators.thermal_sensitivity import THERMAL_TERM_IDS, ThermalDetails, estimate_thermal
 from stableins.noise import NoiseModel
 from stableins.procedures.definition import load_procedure
-from stableins.records import CalibrationRecord
+from stableins.records import CalibrationRecord, RunInfo
 from stableins.simulator.device import simulate_dwells
 from stableins.simulator.noise import NoiseSettings, TemperatureProfile
 from stableins.simulator.truth import Truth
@@ -120,7 +120,7 @@ def _prior_record(truth):
         np.zeros(0),
         np.zeros(0),
     )
-    return CalibrationRecord.from_fit_result(fit, truth.site.serial_number, procedure="device-fine")
+    return CalibrationRecord.from_fit_result(fit, RunInfo(procedure="device-fine"), serial_number=truth.site.serial_number)
 
 
 def _parse(argv):

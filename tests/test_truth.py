@@ -22,7 +22,7 @@ from stableins.errormodel import CORE_TERMS, known_terms
 from stableins.estimators.result import FitResult
 from stableins.history_store import HistoryStore
 from stableins.procedures.definition import load_procedure
-from stableins.records import CalibrationRecord, file_sha256
+from stableins.records import CalibrationRecord, RunInfo, file_sha256
 from stableins.reporting.symbols import plain
 from stableins.site import SiteMetadata
 from stableins.status import Status
@@ -130,9 +130,8 @@ def fine_estimate(truth, site, prior: CalibrationRecord, seed: int, path: Path) 
     data = save_device(path.with_suffix(".h5"), columns, replace(site, start_time="2026-06-01T08:00:00+00:00"))
     dwells = dwells_from_columns(columns, layouts={"fine": procedure.layout}, source=str(data))
     fit = calibrate_fine(dwells, prior.values(), gravity=site.gravity, expected_positions=procedure.positions, source=str(data))
-    estimate = CalibrationRecord.from_fit_result(
-        fit, site=site, inputs=[data], procedure="device-fine", data_end="2026-06-01T12:00:00+00:00"
-    )
+    run = RunInfo(inputs=[data], procedure="device-fine", data_end="2026-06-01T12:00:00+00:00")
+    estimate = CalibrationRecord.from_fit_result(fit, run, site=site)
     return estimate.save(path)
 
 
@@ -220,7 +219,7 @@ def test_every_system_stage_parameter_keeps_or_lowers_its_sigma():
     )
     mapping = {(x, y): float(prior.covariance[i, j]) for i, x in enumerate(prior.ids) for j, y in enumerate(prior.ids)}
     outcome = run_system_stage(ArraySource(cols), meta, prior.values(), mapping)
-    updated = prior.updated(outcome.result, inputs=[], data_end="2026-01-06T00:00:00+00:00")
+    updated = prior.updated(outcome.result, RunInfo(inputs=[], data_end="2026-01-06T00:00:00+00:00"))
     ratio = {p.id: p.sigma / prior[p.id].sigma for p in updated.parameters if p.id in prior.ids}  # (the gyro drift is new)
     assert max(ratio.values()) <= 1.0 + 1e-9, ratio
     assert min(ratio.values()) < 0.9  # the day carried information

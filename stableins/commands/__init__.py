@@ -63,22 +63,15 @@ def update_prior(
     ``data`` is ``(source file, site metadata, (first, last) session time [s])`` of the stage's data; ``sample_rate``
     [Hz] defaults to the metadata's.
     """
-    from stableins.records import PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import PriorReference, RunInfo, data_times, file_sha256, parse_entries
 
     source, metadata, (first, last) = data
     start, end = data_times(metadata, float(first), float(last))
     reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
+    rate = metadata.sample_rate if sample_rate is None else sample_rate
+    run = RunInfo(procedure=procedure, inputs=[str(source)], data_start=start, data_end=end, sample_rate=rate)
     updated = prior.updated(
-        fit,
-        new_calibration=args.new_calibration,
-        prior=reference,
-        procedure=procedure,
-        calibration_entries=parse_entries(args.set),
-        site=metadata,
-        inputs=[str(source)],
-        data_start=start,
-        data_end=end,
-        sample_rate=metadata.sample_rate if sample_rate is None else sample_rate,
+        fit, run, new_calibration=args.new_calibration, prior=reference, calibration_entries=parse_entries(args.set), site=metadata
     )
     updated.save(args.out)
     return updated

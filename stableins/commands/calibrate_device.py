@@ -21,9 +21,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stableins.commands import add_entries_option
 from stableins.status import Status
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.records import RunInfo
 
 #: The gyro g-sensitivity ids (``--add Dg_ab`` goes to the gyro stage, not to the accelerometer model).
 G_SENSITIVITY_IDS = frozenset(f"Dg_{a}{b}" for a in "xyz" for b in "xyz")
@@ -169,9 +173,11 @@ def run(args: argparse.Namespace) -> int:
     record = CalibrationRecord.from_device(
         calibration,
         site,
-        inputs=[str(p) for p in args.data],
-        procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
-        **data_description(datasets),
+        replace(
+            data_description(datasets),
+            procedure=f"{coarse_procedure.name} + {fine_procedure.name}" if calibration.fine is not None else coarse_procedure.name,
+            inputs=[str(p) for p in args.data],
+        ),
         entries=parse_entries(args.set),
     )
     record, gyro = _gyro_stage(args, datasets, layouts, record, gyro_added, summaries=per_file)
@@ -271,6 +277,7 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
     from stableins.errors import InputError, NotDeterminedError
     from stableins.estimators.gyro_sensitivity import gyro_from_datasets
     from stableins.output import note
+    from stableins.records import RunInfo
 
     if args.no_gyro and not added:
         return record, None
@@ -289,14 +296,9 @@ def _gyro_stage(args: argparse.Namespace, datasets, layouts, record, added: list
         if line.startswith("warning:"):
             note(f"stableins: {fit.stage} stage: {line}")
     description = data_description(datasets)
-    updated = record.updated(
-        fit,
-        procedure=record.calibration.procedure,
-        inputs=[str(p) for p in args.data],
-        data_start=description["data_start"],
-        data_end=description["data_end"],
-        site=datasets[0].metadata,
-    )
+    inputs = [str(p) for p in args.data]
+    run = RunInfo(procedure=record.calibration.procedure, inputs=inputs, data_start=description.data_start, data_end=description.data_end)
+    updated = record.updated(fit, run, site=datasets[0].metadata)
     return updated, fit
 
 
@@ -355,17 +357,17 @@ def device_next_steps(args: argparse.Namespace, record) -> list[str]:
     ]
 
 
-def data_description(datasets) -> dict:
+def data_description(datasets) -> RunInfo:
     """Return the data start and end times (from each file's ``start_time`` and time column) and the instrument temperature they carry."""
     import numpy as np
 
-    from stableins.records import data_times, temperature_summary
+    from stableins.records import RunInfo, data_times, temperature_summary  # noqa: F811 - at run time
 
     spans = [data_times(d.metadata, float(d.columns["time"][0]), float(d.columns["time"][-1])) for d in datasets if len(d.columns["time"])]
     starts = [a for a, _ in spans if a]
     ends = [b for _, b in spans if b]
     temperature = np.concatenate([np.asarray(d.columns["temperature"], dtype=float) for d in datasets])
-    return {"data_start": min(starts, default=""), "data_end": max(ends, default=""), "environment": temperature_summary(temperature)}
+    return RunInfo(data_start=min(starts, default=""), data_end=max(ends, default=""), environment=temperature_summary(temperature))
 
 
 def _write_all_or_nothing(record, out: Path, text: str, report: Path | None) -> None:

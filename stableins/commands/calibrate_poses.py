@@ -194,7 +194,7 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
     from stableins.commands.noise import noise_from_options
     from stableins.estimators.device import noise_from_dwells
     from stableins.estimators.poses import calibrate_poses, summarize_holds
-    from stableins.records import CalibrationRecord, StageRun, temperature_summary
+    from stableins.records import CalibrationRecord, RunInfo, temperature_summary
 
     dwells = summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds])
     given, noise_text = noise_from_options(args, dwells)
@@ -208,18 +208,10 @@ def _calibrate(args: argparse.Namespace, log, holds, gravity: float, source: str
 
     fit = _with_added(refit, args.add)
     start, end = _data_times(log)
-    stage = StageRun.from_fit(
-        fit,
-        calibration="",  # set to the new calibration's id by from_fit_result
-        procedure="poses",
-        inputs=[source],
-        data_start=start,
-        data_end=end,
-        sample_rate=log.rate,
-        environment=None if log.temperature is None else temperature_summary(log.temperature),
-    )
+    environment = {} if log.temperature is None else temperature_summary(log.temperature)
+    run = RunInfo(procedure="poses", inputs=[source], data_start=start, data_end=end, sample_rate=log.rate, environment=environment)
     serial = args.serial or Path(source).name.removesuffix(".xz").removesuffix(".gz").rsplit(".", 1)[0]
-    record = CalibrationRecord.from_fit_result(fit, serial_number=serial, procedure="poses", stage=stage, noise_model=noise)
+    record = CalibrationRecord.from_fit_result(fit, run, serial_number=serial, noise_model=noise)
     return fit, record, noise_text if given is not None else noise.describe(), refit
 
 

@@ -136,24 +136,29 @@ STATIC_ONLY_OPTIONS: tuple[tuple[str, str, Any], ...] = (
 )
 
 
-def run(args: Any) -> int:
-    """Run ``stableins calibrate system``: the system-level stage on a static record; return the exit code."""
-    if getattr(args, "systematic", False):
-        from stableins.commands.calibrate_systematic import run as run_systematic
-        from stableins.errors import InputError
+def _check_mode(args: Any) -> None:
+    """Refuse the options that do not apply to the mode asked for (issue 31: they were silently ignored)."""
+    from stableins.errors import InputError
 
+    if getattr(args, "systematic", False):
         given = [option for option, name, unset in STATIC_ONLY_OPTIONS if getattr(args, name, unset) != unset]
-        if given:  # issue 31: they were silently ignored (parameters bit-identical to without them)
+        if given:  # parameters were bit-identical to without them
             raise InputError(
                 f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the static stage, not to --systematic",
                 field=given[0],
                 expected="--systematic with the prior, the noise model, --cross-coupling, --allow-gaps, --set (docs/cli.md)",
             )
-        return run_systematic(args)
-    if getattr(args, "cross_coupling", False):
-        from stableins.errors import InputError
-
+    elif getattr(args, "cross_coupling", False):
         raise InputError("--cross-coupling needs --systematic (the stage over indexed orientations)", field="--cross-coupling")
+
+
+def run(args: Any) -> int:
+    """Run ``stableins calibrate system``: the system-level stage on a static record; return the exit code."""
+    _check_mode(args)
+    if getattr(args, "systematic", False):
+        from stableins.commands.calibrate_systematic import run as run_systematic
+
+        return run_systematic(args)
     import warnings
     from dataclasses import replace
 
@@ -161,7 +166,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.discovery.library import record_terms
     from stableins.output import emit, note
-    from stableins.records import CalibrationRecord, InputFile, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord, InputFile, PriorReference, RunInfo, data_times, file_sha256, parse_entries
 
     prior = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
@@ -185,18 +190,13 @@ def run(args: Any) -> int:
     start, end = data_times(record.metadata, *outcome.diagnostics.time_span)
     temperature = outcome.diagnostics.temperature
     reference = PriorReference(file_sha256(args.prior), str(args.prior), prior.calibration.created)
+    procedure = str(record.metadata.extra.get("procedure", "system-static"))
+    environment = {"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {}
+    run = RunInfo(
+        procedure=procedure, inputs=[data_file], data_start=start, data_end=end, sample_rate=record.sample_rate, environment=environment
+    )
     updated = prior.updated(
-        outcome.result,
-        new_calibration=args.new_calibration,
-        prior=reference,
-        procedure=str(record.metadata.extra.get("procedure", "system-static")),
-        calibration_entries=entries,
-        site=record.metadata,
-        inputs=[data_file],
-        data_start=start,
-        data_end=end,
-        sample_rate=record.sample_rate,
-        environment={"temperature": {**temperature.to_dict(), "unit": "degC"}} if temperature else {},
+        outcome.result, run, new_calibration=args.new_calibration, prior=reference, calibration_entries=entries, site=record.metadata
     )
     updated = replace(updated, noise_model=outcome.noise_model)  # the model under this stage's σ
     updated.save(args.out)

@@ -21,7 +21,7 @@ def run(args: Any) -> int:
     from stableins.data.system import open_system_record
     from stableins.estimators.systematic import SystematicOptions, prior_from_record, systematic_calibration
     from stableins.output import emit
-    from stableins.records import CalibrationRecord, PriorReference, data_times, file_sha256, parse_entries
+    from stableins.records import CalibrationRecord, PriorReference, RunInfo, data_times, file_sha256, parse_entries
 
     prior_record = CalibrationRecord.load(args.prior)
     record = open_system_record(args.record)
@@ -34,17 +34,14 @@ def run(args: Any) -> int:
     outcome = systematic_calibration(record, record.metadata, prior, SystematicOptions(cross_coupling=args.cross_coupling))
     holds = outcome.details.holds
     start, end = data_times(record.metadata, holds[0].start, holds[-1].end)
+    procedure = str(record.metadata.extra.get("procedure", "system-indexed"))
     updated = prior_record.updated(
         outcome.fit,
+        RunInfo(procedure=procedure, inputs=[args.record], data_start=start, data_end=end, sample_rate=record.sample_rate),
         new_calibration=args.new_calibration,
         prior=PriorReference(file_sha256(args.prior), str(args.prior), prior_record.calibration.created),
-        procedure=str(record.metadata.extra.get("procedure", "system-indexed")),
         calibration_entries=parse_entries(args.set),
         site=record.metadata,
-        inputs=[args.record],
-        data_start=start,
-        data_end=end,
-        sample_rate=record.sample_rate,
     )
     updated.save(args.out)
     data = document(args, outcome, updated)

@@ -7,15 +7,14 @@ it never raises a σ and never moves what its data do not determine.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 from stableins.errors import InputError, NotDeterminedError
 from stableins.records.content import RecordContent, _RecordT
 from stableins.records.parameters import DeterminedBy, Entry, Parameter
-from stableins.records.stages import Calibration, InputFile, PriorReference, RunFields, StageRun
+from stableins.records.stages import UNDESCRIBED, Calibration, PriorReference, RunInfo, StageRun
 from stableins.site import SiteMetadata
 from stableins.status import Determination, Status
 
@@ -25,34 +24,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.noise import NoiseModel
 
 
-
-class DeviceFields(TypedDict, total=False):
-    """Keyword arguments of :meth:`CalibrationRecord.from_device` (what describes the stage run and the calibration)."""
-
-    inputs: Iterable[str | os.PathLike[str] | InputFile]
-    procedure: str
-    data_start: str
-    data_end: str
-    environment: Mapping[str, Any] | None
-    entries: Iterable[Entry]
-
-
-class RecordFields(TypedDict, total=False):
-    """Keyword arguments of :meth:`CalibrationRecord.from_fit_result`."""
-
-    site: SiteMetadata | None
-    inputs: Iterable[str | os.PathLike[str] | InputFile]
-    procedure: str
-    data_start: str
-    data_end: str
-    notes: Iterable[str]
-    created: str | None
-    stage: StageRun | None
-    calibration: Calibration | None
-    entries: Iterable[Entry]
-    noise_model: NoiseModel | None
-
-
 class Carried(TypedDict, total=False):
     """What a stage may replace in the record it updates: the site of its data, a noise model it measured."""
 
@@ -60,66 +31,68 @@ class Carried(TypedDict, total=False):
     noise_model: NoiseModel | None
 
 
-class UpdateFields(RunFields, total=False):
-    """Keyword arguments of :meth:`CalibrationRecord.updated`: the stage-run fields of :class:`RunFields` and these."""
-
-    stage: StageRun | None
-    new_calibration: bool
-    prior: PriorReference | None
-    calibration_entries: Iterable[Entry]
-    site: SiteMetadata | None
-    noise_model: NoiseModel | None
-
-
-#: The keys of :class:`UpdateFields` that are not stage-run fields.
-_UPDATE_ONLY = ("stage", "new_calibration", "prior", "calibration_entries", "site", "noise_model")
-
-
-def record_from_device(cls: type[_RecordT], calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> _RecordT:
+def record_from_device(
+    cls: type[_RecordT], calibration: DeviceCalibration, site: SiteMetadata, run: RunInfo = UNDESCRIBED, *, entries: Iterable[Entry] = ()
+) -> _RecordT:
     """Return the record of a device-level calibration (:meth:`CalibrationRecord.from_device`)."""
-    procedure = fields.get("procedure", "")
-    started = Calibration.new(procedure, fields.get("entries", ()))
+    started = Calibration.new(run.procedure, entries)
     fits = [calibration.coarse] + [f for f in (calibration.fine, calibration.fused) if f is not None]
+    settings = calibration.settings or calibration.final.settings
     stage = StageRun.from_fit(
-        calibration.final,
-        calibration=started.id,
-        procedure=procedure,
-        inputs=fields.get("inputs", ()),
-        data_start=fields.get("data_start", ""),
-        data_end=fields.get("data_end", ""),
-        sample_rate=site.sample_rate,
-        environment=fields.get("environment"),
-        fits=fits,
-        settings=calibration.settings or calibration.final.settings,
+        calibration.final, calibration=started.id, run=replace(run, sample_rate=site.sample_rate), fits=fits, settings=settings
     )
-    return record_from_fit(cls, calibration.final, site=site, stage=stage, calibration=started, noise_model=calibration.noise)
+    final, serial = calibration.final, site.serial_number
+    return _first_record(cls, final, stage, calibration=started, site=site, serial_number=serial, notes=(), noise_model=calibration.noise)
 
 
-def record_from_fit(cls: type[_RecordT], result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> _RecordT:
+def record_from_fit(  # noqa: PLR0913 - the record's own fields beside the run, each named at the call
+    cls: type[_RecordT],
+    result: FitResult,
+    run: RunInfo | StageRun = UNDESCRIBED,
+    *,
+    site: SiteMetadata | None = None,
+    serial_number: str | None = None,
+    notes: Iterable[str] = (),
+    calibration_entries: Iterable[Entry] = (),
+    noise_model: NoiseModel | None = None,
+) -> _RecordT:
     """Return the first record of a calibration, one data-only stage (:meth:`CalibrationRecord.from_fit_result`)."""
-    import numpy as np
-
-    site = fields.get("site")
     if serial_number is None:
         if site is None:
             raise ValueError("from_fit_result needs a serial_number or site metadata")
         serial_number = site.serial_number
-    procedure = fields.get("procedure", "")
-    calibration = fields.get("calibration") or Calibration.new(procedure, fields.get("entries", ()))
-    stage = fields.get("stage")
-    if stage is None:
-        stage = StageRun.from_fit(
-            result,
-            calibration=calibration.id,
-            procedure=procedure,
-            inputs=fields.get("inputs", ()),
-            data_start=fields.get("data_start", ""),
-            data_end=fields.get("data_end", ""),
-            sample_rate=None if site is None else site.sample_rate,
-            created=fields.get("created"),
-        )
-    elif stage.calibration != calibration.id:
-        stage = replace(stage, calibration=calibration.id)
+    _check_run(run)
+    calibration = Calibration.new(run.procedure, calibration_entries)
+    if isinstance(run, RunInfo):
+        given = run if run.sample_rate is not None or site is None else replace(run, sample_rate=site.sample_rate)
+        stage = StageRun.from_fit(result, calibration=calibration.id, run=given)
+    else:
+        stage = replace(run, calibration=calibration.id)
+    return _first_record(
+        cls, result, stage, calibration=calibration, site=site, serial_number=serial_number, notes=tuple(notes), noise_model=noise_model
+    )
+
+
+def _check_run(run: object) -> None:
+    """Refuse a ``run`` that is neither a :class:`RunInfo` nor a :class:`StageRun` (a serial number in its place)."""
+    if not isinstance(run, RunInfo | StageRun):
+        raise TypeError(f"run must be a RunInfo or a StageRun, not {type(run).__name__} (serial_number is a keyword)")
+
+
+def _first_record(  # noqa: PLR0913 - the parts of a first record, from its two builders above
+    cls: type[_RecordT],
+    result: FitResult,
+    stage: StageRun,
+    *,
+    calibration: Calibration,
+    site: SiteMetadata | None,
+    serial_number: str,
+    notes: tuple[str, ...],
+    noise_model: NoiseModel | None,
+) -> _RecordT:
+    """Return the record of ``result``'s parameters with ``stage`` its one stage run, of ``calibration``."""
+    import numpy as np
+
     covariance = np.array(result.covariance, dtype=float)
     parameters = _first_parameters(result, stage.id, covariance)
     return cls(
@@ -130,8 +103,8 @@ def record_from_fit(cls: type[_RecordT], result: FitResult, serial_number: str |
         stages=(stage,),
         site=site,
         determined=tuple(result.determined),
-        notes=tuple(result.notes) + tuple(fields.get("notes", ())),
-        noise_model=fields.get("noise_model"),
+        notes=tuple(result.notes) + notes,
+        noise_model=noise_model,
     )
 
 
@@ -164,32 +137,32 @@ def _estimable(result: FitResult) -> dict[str, bool]:
     return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
 
 
-def update_record(record: _RecordT, result: FitResult, **fields: Unpack[UpdateFields]) -> _RecordT:
+def update_record(  # noqa: PLR0913 - the update's own choices beside the run, each named at the call
+    record: _RecordT,
+    result: FitResult,
+    run: RunInfo | StageRun = UNDESCRIBED,
+    *,
+    new_calibration: bool = False,
+    prior: PriorReference | None = None,
+    calibration_entries: Iterable[Entry] = (),
+    site: SiteMetadata | None = None,
+    noise_model: NoiseModel | None = None,
+) -> _RecordT:
     """Return ``record`` updated by a later stage's likelihood (:meth:`CalibrationRecord.updated`)."""
     if result.likelihood is None:
         raise InputError(
             f"the {result.stage} stage gives no likelihood: it cannot update a record", field="stage", expected="a Bayesian stage"
         )
-    procedure = fields.get("procedure", "")
-    calibration = next_calibration(
-        record,
-        procedure,
-        fields.get("calibration_entries", ()),
-        new_calibration=fields.get("new_calibration", False),
-        prior=fields.get("prior"),
-    )
-    stage = fields.get("stage")
-    site = fields.get("site")
-    if stage is None:
-        run = cast(RunFields, {k: v for k, v in fields.items() if k not in _UPDATE_ONLY})
+    _check_run(run)
+    calibration = next_calibration(record, run.procedure, calibration_entries, new_calibration=new_calibration, prior=prior)
+    if isinstance(run, RunInfo):
         where = site or record.site
-        run.setdefault("sample_rate", None if where is None else where.sample_rate)
-        run["procedure"] = procedure
-        stage = StageRun.from_fit(result, calibration=calibration.id, **run)
+        given = run if run.sample_rate is not None or where is None else replace(run, sample_rate=where.sample_rate)
+        stage = StageRun.from_fit(result, calibration=calibration.id, run=given)
+    else:
+        stage = run
     units = {t.id: t.si_unit for t in result.terms}
-    return apply_stage(
-        record, replace(stage, likelihood=result.likelihood), calibration, units, site=site, noise_model=fields.get("noise_model")
-    )
+    return apply_stage(record, replace(stage, likelihood=result.likelihood), calibration, units, site=site, noise_model=noise_model)
 
 
 def update_by_run(

@@ -9,22 +9,25 @@ the JSON file (:mod:`stableins.records.writer`, :mod:`stableins.records.reader`)
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self, Unpack
+from typing import TYPE_CHECKING, Any, Self
 
 from stableins.data.jsonio import load_json_file
 from stableins.records import display
 from stableins.records.build import record_from_device, record_from_fit, update_by_run, update_record
 from stableins.records.content import RecordContent
+from stableins.records.parameters import Entry
 from stableins.records.reader import read_document
+from stableins.records.stages import UNDESCRIBED, PriorReference, RunInfo, StageRun
 from stableins.records.writer import record_document, save_record
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
+    from stableins.documents import JSONObject
     from stableins.estimators.device import DeviceCalibration
     from stableins.estimators.result import FitResult
-    from stableins.records.build import DeviceFields, RecordFields, UpdateFields
-    from stableins.records.stages import PriorReference, StageRun
+    from stableins.noise import NoiseModel
 
 
 class CalibrationRecord(RecordContent):
@@ -37,7 +40,9 @@ class CalibrationRecord(RecordContent):
 
     # ------------------------------------------------------------------ build
     @classmethod
-    def from_device(cls, calibration: DeviceCalibration, site: SiteMetadata, **fields: Unpack[DeviceFields]) -> Self:
+    def from_device(
+        cls, calibration: DeviceCalibration, site: SiteMetadata, run: RunInfo = UNDESCRIBED, *, entries: Iterable[Entry] = ()
+    ) -> Self:
         """Return the record of a device-level calibration: its ``final`` fit (coarse and fine fused by joint GLS, not replaced).
 
         The record's stage run (``coarse+fine``, or ``coarse``) keeps the evidence of every fit (coarse, fine alone,
@@ -50,44 +55,72 @@ class CalibrationRecord(RecordContent):
             The device-level calibration.
         site : SiteMetadata
             Site metadata of the data.
-        **fields
-            :class:`stableins.records.build.DeviceFields`: ``inputs`` (hashed), ``procedure``, ``data_start``,
-            ``data_end``, ``environment``, ``entries``.
+        run : RunInfo
+            What describes the stage run: ``inputs`` (hashed), ``procedure``, ``data_start``, ``data_end``,
+            ``environment`` (its sample rate is the site's).
+        entries : iterable of Entry
+            The calibration's own fields (laboratory, customer, operator ...).
 
         Returns
         -------
         CalibrationRecord
             The first record of a new calibration.
         """
-        return record_from_device(cls, calibration, site, **fields)
+        return record_from_device(cls, calibration, site, run, entries=entries)
 
     @classmethod
-    def from_fit_result(cls, result: FitResult, serial_number: str | None = None, **fields: Unpack[RecordFields]) -> Self:
+    def from_fit_result(  # noqa: PLR0913 - the record's own fields beside the run, each named at the call
+        cls,
+        result: FitResult,
+        run: RunInfo | StageRun = UNDESCRIBED,
+        *,
+        site: SiteMetadata | None = None,
+        serial_number: str | None = None,
+        notes: Iterable[str] = (),
+        calibration_entries: Iterable[Entry] = (),
+        noise_model: NoiseModel | None = None,
+    ) -> Self:
         """Return the first record of a calibration: one data-only stage (no prior).
 
         Parameters
         ----------
         result : FitResult
             The stage's result (its terms give ids and SI units).
+        run : RunInfo or StageRun
+            What describes the stage run (its procedure names the calibration's; the sample rate defaults to the
+            site's), or the stage run itself (:meth:`StageRun.from_fit`; it joins the new calibration).
+        site : SiteMetadata, optional
+            Site metadata of the data.
         serial_number : str, optional
             Defaults to ``site.serial_number``.
-        **fields
-            :class:`stableins.records.build.RecordFields`.  ``site`` (SiteMetadata): site metadata of the data;
-            ``inputs``, ``procedure``, ``data_start``, ``data_end``, ``created``: describe the stage run when
-            ``stage`` is not given (inputs are hashed); ``notes``: added to the result's own notes; ``stage``
-            (StageRun, :meth:`StageRun.from_fit`): the stage run, its ``calibration`` must be ``calibration.id``;
-            ``calibration``: the calibration this record starts (a new one by default); ``entries``: the
-            calibration's own fields (laboratory, customer, operator ...); ``noise_model``: the noise model the
-            stage's σ rest on (docs/noise.md).
+        notes : iterable of str
+            Added to the result's own notes.
+        calibration_entries : iterable of Entry
+            The calibration's own fields (laboratory, customer, operator ...).
+        noise_model : NoiseModel, optional
+            The noise model the stage's σ rest on (docs/noise.md).
 
         Returns
         -------
         CalibrationRecord
             The record.
         """
-        return record_from_fit(cls, result, serial_number, **fields)
+        return record_from_fit(
+            cls, result, run, site=site, serial_number=serial_number, notes=notes, calibration_entries=calibration_entries,
+            noise_model=noise_model,
+        )  # fmt: skip
 
-    def updated(self, result: FitResult, **fields: Unpack[UpdateFields]) -> Self:
+    def updated(  # noqa: PLR0913 - the update's own choices beside the run, each named at the call
+        self,
+        result: FitResult,
+        run: RunInfo | StageRun = UNDESCRIBED,
+        *,
+        new_calibration: bool = False,
+        prior: PriorReference | None = None,
+        calibration_entries: Iterable[Entry] = (),
+        site: SiteMetadata | None = None,
+        noise_model: NoiseModel | None = None,
+    ) -> Self:
         """Return this record updated by a later stage: the Bayesian update with the stage's likelihood.
 
         Parameters
@@ -95,15 +128,20 @@ class CalibrationRecord(RecordContent):
         result : FitResult
             The stage's result; its :attr:`~FitResult.likelihood` is what enters (values and covariance
             of the result are not used: the posterior is computed over every parameter of the record).
-        **fields
-            :class:`stableins.records.build.UpdateFields`.  ``stage`` (StageRun): the stage run, by default
-            :meth:`StageRun.from_fit` with ``procedure`` and the stage fields (``inputs``, ``data_start``,
-            ``data_end``, ``sample_rate``, ``entries``, ``environment`` ...); ``new_calibration`` (bool): start
-            a new calibration (a recalibration from the record in force, with ``prior`` naming it) instead of
-            continuing this record's; ``procedure``: of the stage run; ``calibration_entries``: the calibration's
-            own fields (laboratory, customer ...), a later key replaces an earlier one; ``site``: site of the new
-            data (defaults to the record's); ``noise_model``: a noise model the stage measured (by default the
-            record's is carried over unchanged).
+        run : RunInfo or StageRun
+            What describes the stage run (procedure, data files, times, sample rate, entries, environment; the
+            sample rate defaults to the site's), or the stage run itself.
+        new_calibration : bool
+            Start a new calibration (a recalibration from the record in force, with ``prior`` naming it) instead of
+            continuing this record's.
+        prior : PriorReference, optional
+            The record in force a new calibration starts from.
+        calibration_entries : iterable of Entry
+            The calibration's own fields (laboratory, customer ...); a later key replaces an earlier one.
+        site : SiteMetadata, optional
+            Site of the new data (defaults to the record's).
+        noise_model : NoiseModel, optional
+            A noise model the stage measured (by default the record's is carried over unchanged).
 
         Returns
         -------
@@ -115,7 +153,10 @@ class CalibrationRecord(RecordContent):
         InputError
             The stage has no likelihood, or its data determine no parameter of the record.
         """
-        return update_record(self, result, **fields)
+        return update_record(
+            self, result, run, new_calibration=new_calibration, prior=prior, calibration_entries=calibration_entries, site=site,
+            noise_model=noise_model,
+        )  # fmt: skip
 
     def updated_by_run(
         self, stage: StageRun, *, new_calibration: bool = False, prior: PriorReference | None = None, site: SiteMetadata | None = None
@@ -124,7 +165,7 @@ class CalibrationRecord(RecordContent):
         return update_by_run(self, stage, new_calibration=new_calibration, prior=prior, site=site)
 
     # ------------------------------------------------------------------ files
-    def to_document(self) -> dict[str, Any]:
+    def to_document(self) -> JSONObject:
         """Return the JSON-ready dict (non-finite numbers as ``null``; docs/formats.md)."""
         return record_document(self)
 

@@ -6,11 +6,12 @@ import hashlib
 import json
 import math
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any, TypedDict, Unpack
+from typing import TYPE_CHECKING, Any
 
+from stableins.documents import JSONObject, JSONValue
 from stableins.errors import InputError
 from stableins.identifiers import utc_now
 from stableins.records.parameters import Entry
@@ -51,26 +52,48 @@ class InputFile:
         return cls(str(path), file_sha256(path))
 
 
-class RunFields(TypedDict, total=False):
-    """What describes a stage run besides its result (the keyword arguments of :meth:`StageRun.from_fit`).
+@dataclass(frozen=True)
+class RunInfo:
+    """What describes a stage run besides its result: where its data came from, when, and what people entered.
 
-    ``procedure`` the data were taken with; ``inputs`` the data files (paths are hashed); ``data_start``,
-    ``data_end`` ISO 8601 UTC times of the data; ``sample_rate`` [Hz]; ``entries`` made during the run;
-    ``environment`` the data carry; ``fits`` whose evidence is kept (default: the result); ``settings``
-    (default: the result's); ``name`` (default: the result's stage); ``created`` (default: now).
+    Attributes
+    ----------
+    procedure : str
+        The procedure the data were taken with (name or file).
+    inputs : tuple of path or InputFile
+        The data files (a path is hashed when the run is made, :meth:`InputFile.of`).
+    data_start, data_end : str
+        ISO 8601 UTC times of the first and last sample ("" where the data do not say).
+    sample_rate : float or None
+        Sample rate of the data [Hz] (None: the site's, where a record update knows it).
+    entries : tuple of Entry
+        What people entered during the run (procedure prompts).
+    environment : mapping
+        What the data carry about the environment (:func:`temperature_summary`).
+    created : str or None
+        ISO 8601 UTC time of the run (None: now).
+    name : str or None
+        The run's name (None: the result's stage).
     """
 
-    procedure: str
-    inputs: Iterable[str | os.PathLike[str] | InputFile]
-    data_start: str
-    data_end: str
-    sample_rate: float | None
-    entries: Iterable[Entry]
-    environment: Mapping[str, Any] | None
-    fits: Iterable[FitResult]
-    settings: StageSettings | None
-    name: str | None
-    created: str | None
+    procedure: str = ""
+    inputs: Sequence[str | os.PathLike[str] | InputFile] = ()
+    data_start: str = ""
+    data_end: str = ""
+    sample_rate: float | None = None
+    entries: Sequence[Entry] = ()
+    environment: Mapping[str, JSONValue] = field(default_factory=dict)
+    created: str | None = None
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+        object.__setattr__(self, "entries", tuple(self.entries))
+        object.__setattr__(self, "environment", dict(self.environment))
+
+
+#: A run described by its result alone: no procedure, data files, times or entries (the defaults of :class:`RunInfo`).
+UNDESCRIBED = RunInfo()
 
 
 @dataclass(frozen=True)
@@ -134,7 +157,15 @@ class StageRun:
     sensitivities: tuple[InputSensitivity, ...] = ()
 
     @classmethod
-    def from_fit(cls, result: FitResult, *, calibration: str, **run: Unpack[RunFields]) -> StageRun:
+    def from_fit(
+        cls,
+        result: FitResult,
+        *,
+        calibration: str,
+        run: RunInfo = UNDESCRIBED,
+        fits: Sequence[FitResult] = (),
+        settings: StageSettings | None = None,
+    ) -> StageRun:
         """Return the run of the stage that produced ``result`` (its likelihood, settings, notes).
 
         Parameters
@@ -143,10 +174,12 @@ class StageRun:
             The stage's result.
         calibration : str
             Id of the calibration the run belongs to.
-        **run
-            What describes the run (:class:`RunFields`): ``procedure``, ``inputs`` (hashed), ``data_start``,
-            ``data_end``, ``sample_rate``, ``entries``, ``environment``, ``fits`` (default: ``result``),
-            ``settings`` (default: the result's), ``name`` (default: the result's stage), ``created`` (default: now).
+        run : RunInfo
+            What describes the run: procedure, data files (hashed), data times, sample rate, entries, environment.
+        fits : sequence of FitResult
+            The fits whose residual evidence the run keeps (default: ``result``).
+        settings : StageSettings, optional
+            What the stage ran with (default: the result's).
 
         Returns
         -------
@@ -155,26 +188,25 @@ class StageRun:
         """
         from stableins import __version__
 
-        files = tuple(f if isinstance(f, InputFile) else InputFile.of(f) for f in run.get("inputs", ()))
-        created = run.get("created") or utc_now()
-        name = run.get("name") or result.stage
+        files = tuple(f if isinstance(f, InputFile) else InputFile.of(f) for f in run.inputs)
+        created = run.created or utc_now()
+        name = run.name or result.stage
         digest = hashlib.sha256(json.dumps([name, created, calibration, [f.sha256 for f in files]]).encode()).hexdigest()[:8]
-        evidence = tuple(fit_evidence(f) for f in (tuple(run.get("fits", ())) or (result,)))
-        settings = run.get("settings")
+        evidence = tuple(fit_evidence(f) for f in (tuple(fits) or (result,)))
         return cls(
             id=f"{name}-{digest}",
             name=name,
             calibration=calibration,
-            procedure=run.get("procedure", ""),
+            procedure=run.procedure,
             software=f"stableins {__version__}",
             created=created,
-            data_start=run.get("data_start", ""),
-            data_end=run.get("data_end", ""),
-            sample_rate=run.get("sample_rate"),
+            data_start=run.data_start,
+            data_end=run.data_end,
+            sample_rate=run.sample_rate,
             inputs=files,
             settings=settings if settings is not None else result.settings,
-            entries=tuple(run.get("entries", ())),
-            environment=dict(run.get("environment") or {}),
+            entries=tuple(run.entries),
+            environment=dict(run.environment),
             fits=evidence,
             likelihood=result.likelihood,
             determined=tuple(result.determined),
@@ -231,7 +263,7 @@ class Provenance:
     data_end: str = ""
 
 
-def fit_evidence(fit: FitResult) -> dict[str, Any]:
+def fit_evidence(fit: FitResult) -> JSONObject:
     """Return a fit's residual evidence as stored in a stage run: residuals, 1σ, labels and its one χ², ν, χ²_ν.
 
     χ² is :attr:`FitResult.chi2` (whitened where the noise is correlated between observations); console,
@@ -256,7 +288,7 @@ def fit_evidence(fit: FitResult) -> dict[str, Any]:
     }
 
 
-def temperature_summary(values: Any) -> dict[str, Any]:
+def temperature_summary(values: Any) -> JSONObject:
     """Return ``{"temperature": {"mean", "min", "max", "unit": "degC"}}`` of the instrument temperature the data carry."""
     import numpy as np
 

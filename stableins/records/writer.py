@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stableins.data.metadata import metadata_to_document
+from stableins.documents import JSONObject
 from stableins.records.parameters import Entry
 from stableins.records.schema import RECORD_FORMAT
 from stableins.records.stages import Calibration, StageRun
@@ -17,9 +18,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.records.content import RecordContent
 
 
-def record_document(record: RecordContent) -> dict[str, Any]:
+def record_document(record: RecordContent) -> JSONObject:
     """Return the record's JSON-ready dict (non-finite numbers as ``null``; :meth:`CalibrationRecord.to_document`)."""
-    document: dict[str, Any] = {
+    document: JSONObject = {
         "format": RECORD_FORMAT,
         "schema_version": record.schema_version,
         "serial_number": record.serial_number,
@@ -79,7 +80,7 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _calibration_document(calibration: Calibration) -> dict[str, Any]:
+def _calibration_document(calibration: Calibration) -> JSONObject:
     prior = calibration.prior
     return {
         "id": calibration.id,
@@ -91,15 +92,15 @@ def _calibration_document(calibration: Calibration) -> dict[str, Any]:
     }
 
 
-def _entry_document(e: Entry) -> dict[str, Any]:
-    out: dict[str, Any] = {"key": e.key, "value": e.value, "unit": e.unit}
+def _entry_document(e: Entry) -> JSONObject:
+    out: JSONObject = {"key": e.key, "value": e.value, "unit": e.unit}
     if e.prompt:
         out["prompt"] = e.prompt
     return out
 
 
-def _stage_document(s: StageRun) -> dict[str, Any]:
-    out: dict[str, Any] = {
+def _stage_document(s: StageRun) -> JSONObject:
+    out: JSONObject = {
         "id": s.id,
         "name": s.name,
         "calibration": s.calibration,
