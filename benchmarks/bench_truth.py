@@ -143,19 +143,28 @@ def field_recalibration(root: Path) -> None:
     record = dict(found)["record.json"]
     carried = ", ".join(s.name for s in record.stages if s not in record.stages_run)
     print(f"   stages run: {', '.join(record.provenance.stages)}; carried over: {carried}")
-    text = pdf_text(out / "report.pdf")
-    rows = {m.group(1): m.group(2) for m in re.finditer(r"^(\w+)\s+estimated\s+(\S+)\s", text, re.M)}
+    from stableins.reporting.symbols import parts
+
+    text = pdf_text(out / "report-technical.pdf")  # the results table with each value's status (issue 28)
+    printed = {m.group(1): m.group(2) for m in re.finditer(r"^(\S+)\s+estimated\s+(\S+)\s", text, re.M)}
+    rows = {p.id: printed["".join(parts(p.id))] for p in record.parameters if "".join(parts(p.id)) in printed}
     terms = known_terms()
     worst = 0.0
     for p in record.parameters:
-        if p.id in rows:
-            shown = float(rows[p.id].replace("\u2212", "-"))
-            worst = max(worst, abs(shown - float(terms[p.id].to_engineering(p.value))) / float(terms[p.id].sigma_to_engineering(p.sigma)))
-    print(f"   certificate vs record: {len(rows)} values, largest |shown − record| = {worst:.3f} u (GUM rounding: ≤ 0.05 u)")
+        if p.id in rows:  # printed to the last digit of U (GUM 7.2.6): within half a unit of that digit
+            shown = rows[p.id].replace("\u2212", "-")
+            half_digit = 0.5 * 10.0 ** -(len(shown.partition(".")[2]))
+            worst = max(worst, abs(float(shown) - float(terms[p.id].to_engineering(p.value))) / half_digit)
+    verdict = "ok" if worst <= 1.0 + 1e-9 else "VIOLATED"
+    print(f"   certificate vs record: {len(rows)} values, largest |shown − record| = {worst:.3f} of half the last printed digit "
+          f"(must be ≤ 1: {verdict})")
     history = json.loads(must("history", "SN042", "--store", str(store), "--json"))
-    begin = re.search(r"^\d+\s+Change since the previous calibration", text, re.M)
-    end = re.search(r"^\d+\s+Statement of conformity", text, re.M)
-    section = text[begin.start() : end.start()]
+    technical = text  # the change table is the technical report's too
+    begin = re.search(r"^\d+\s+Change since the previous calibration", technical, re.M)
+    end = re.search(r"^\d+\s+Statement of conformity", technical, re.M)
+    if begin is None or end is None:
+        raise SystemExit(f"{out / 'report-technical.pdf'}: no 'Change since the previous calibration' section before the conformity")
+    section = technical[begin.start() : end.start()]
     certificate = sorted({m.group(1) for m in re.finditer(r"^\s*(\w+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)})
     flags = f"recal {recal['significant']}, history {history['changes'][-1]['significant']}, certificate {certificate}"
     print(f"   change flags (|z| ≥ 3): {flags}; compared: {len(recal['changes'])} parameters, not compared: {len(recal['not_compared'])}")
