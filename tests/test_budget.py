@@ -272,6 +272,7 @@ def test_calibrate_device_takes_what_load_device_returns(tmp_path):
     from stableins.data.device import load_device, save_device
     from stableins.discovery.dwells import dwells_from_dataset
     from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
     from stableins.simulator.device import simulate_dwells
     from stableins.simulator.truth import Truth
 
@@ -280,7 +281,8 @@ def test_calibrate_device_takes_what_load_device_returns(tmp_path):
     path = save_device(tmp_path / "coarse.csv", columns, replace(truth.site, sample_rate=20.0))
     dataset = load_device(path)
     from_files = calibrate_device(dataset, layouts=LAYOUTS)
-    summaries = dwells_from_columns(dataset.columns, layouts=LAYOUTS, source=str(path))
+    setting = DeviceSetting.from_site(dataset.metadata)  # the unit's setting: the turn within a dwell taken out (issue 25)
+    summaries = dwells_from_columns(dataset.columns, layouts=LAYOUTS, source=str(path), setting=setting)
     from_dwells = calibrate_device(summaries, dataset.metadata, layouts=LAYOUTS)
     np.testing.assert_array_equal(from_files.final.values, from_dwells.final.values)
     assert calibrate_device([dataset], layouts=LAYOUTS).final.values.tolist() == from_files.final.values.tolist()
