@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 OUT    ?= demo-output
 
-.PHONY: setup system-deps demo test installed-demo lint docs bench clean
+.PHONY: setup system-deps demo test installed-demo lint format docs bench clean
 
 $(BIN)/stableins: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -43,11 +43,16 @@ test: setup system-deps lint
 installed-demo: setup
 	MPLBACKEND=Agg PYTHON=$(PYTHON) .ci/installed-demo
 
-# ruff and mypy, and the allow-lists of not-yet-clean files in pyproject.toml exact (they only shrink).
+# ruff (lint and format) and mypy, and the allow-lists of not-yet-clean files in pyproject.toml exact (they only shrink).
 lint: setup
 	$(BIN)/ruff check stableins tests tools $(wildcard benchmarks/*.py)
+	$(BIN)/ruff format --check stableins tests tools benchmarks
 	$(BIN)/mypy
 	$(BIN)/python tools/lint_allowlists.py --check
+
+# Format the tree as make lint requires (ruff format; the line length is pyproject.toml's).
+format: setup
+	$(BIN)/ruff format stableins tests tools benchmarks
 
 # The API reference from the numpydoc docstrings (docs/api/_build/html/index.html): a fresh build (-E, so
 # every warning is seen again) with warnings as errors; no network.

@@ -156,8 +156,10 @@ def field_recalibration(root: Path) -> None:
             half_digit = 0.5 * 10.0 ** -(len(shown.partition(".")[2]))
             worst = max(worst, abs(float(shown) - float(terms[p.id].to_engineering(p.value))) / half_digit)
     verdict = "ok" if worst <= 1.0 + 1e-9 else "VIOLATED"
-    print(f"   certificate vs record: {len(rows)} values, largest |shown − record| = {worst:.3f} of half the last printed digit "
-          f"(must be ≤ 1: {verdict})")
+    print(
+        f"   certificate vs record: {len(rows)} values, largest |shown − record| = {worst:.3f} of half the last printed digit "
+        f"(must be ≤ 1: {verdict})"
+    )
     history = json.loads(must("history", "SN042", "--store", str(store), "--json"))
     technical = text  # the change table is the technical report's too
     begin = re.search(r"^\d+\s+Change since the previous calibration", technical, re.M)

@@ -269,9 +269,7 @@ def system_session(world_name: str, seed: int, rate: float) -> SessionResult:
     for model in (None, given):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out = run_system_stage(
-                ArraySource(cols), truth.site, prior, options=SystemOptions(estimate_k2=True), noise_model=model
-            )
+            out = run_system_stage(ArraySource(cols), truth.site, prior, options=SystemOptions(estimate_k2=True), noise_model=model)
         z = (out.combined.values - reference) / out.combined.sigma
         zs = {k: float(z[i]) for k, i in zip(names, index, strict=True)}
         for a, key in enumerate(SYSTEM_FAMILIES["gyro"]):  # the gyro drift the gimbal readings measure (docs §9)

@@ -129,9 +129,7 @@ SIDEREAL_DAY: Final = 2.0 * np.pi / EARTH_RATE  # [s]
 EARTH_RADIUS: Final = 6371000.0
 
 
-def platform_drift_rate(
-    drift: ArrayLike, g_sensitivity: ArrayLike, specific_force: ArrayLike
-) -> NDArray[np.float64]:
+def platform_drift_rate(drift: ArrayLike, g_sensitivity: ArrayLike, specific_force: ArrayLike) -> NDArray[np.float64]:
     r"""Return the inertial turn rate ``w`` [rad/s] of a stabilized platform whose gyros err.
 
     The stabilization loop nulls the gyro outputs, so a gyro output error turns the platform the

@@ -28,6 +28,7 @@ class CoreValues:
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any], *, nonlinear: bool) -> CoreValues:
         """Read the core values in ``values`` (term id → value, arrays broadcast together); ``K2`` only if ``nonlinear``."""
+
         def get(key: str, default: float) -> NDArray[np.float64]:
             return np.asarray(values.get(key, default), dtype=float)
 

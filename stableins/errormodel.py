@@ -277,5 +277,3 @@ class ErrorModel:
                 assert t.regressor is not None  # an additive term has one (checked in __post_init__)
                 total = total + value[..., None] * t.regressor(full)
         return total
-
-

@@ -284,8 +284,11 @@ NUMERIC_OPTIONS: tuple[tuple[tuple[str, ...], str, int], ...] = (
     ((*POSES[:6], "counts:4096/g", *POSES[7:]), "--zero", 1),
     (("calibrate", "lever", "{device}", "--prior", "{noisy}", "--out", "{out}/c.json"), "--window", 1),
     (("calibrate", "system", "{system}", "--prior", "{noisy}", "--systematic", "--out", "{out}/c.json"), "--bias-instability", 1),
-    (("recal", "--unit", "TEST-1", "--prior", "{in_force}", "--estimate", "{estimate}", "--out", "{out}/r", "--no-file", "--yes"),
-     "--retries", 1),
+    (
+        ("recal", "--unit", "TEST-1", "--prior", "{in_force}", "--estimate", "{estimate}", "--out", "{out}/r", "--no-file", "--yes"),
+        "--retries",
+        1,
+    ),
 )
 
 

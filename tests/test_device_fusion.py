@@ -141,9 +141,7 @@ def test_other_handedness_fine_stage_cannot_spoil_the_fused_scale_factors():
     senses = (1, -1, 1, 1)
     site = ExactPlatform(truth, senses=senses).metadata
     coarse = dwells_from_columns(device_columns(truth, COARSE, sigma=1e-3, seed=1, senses=senses), layouts=LAYOUTS)
-    fine = dwells_from_columns(
-        device_columns(truth, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses), layouts=LAYOUTS
-    )
+    fine = dwells_from_columns(device_columns(truth, FINE, sigma=1e-3, seed=7, stage="fine", dwell=60.0, senses=senses), layouts=LAYOUTS)
     result = calibrate_device(coarse + fine, site, layouts=LAYOUTS)
     expected = gauge_equivalent(truth, _config(site))
     assert result.fine["sf_y"][1] > 100 * result.coarse["sf_y"][1]  # the fine stage alone is useless for sf_y

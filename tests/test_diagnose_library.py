@@ -108,7 +108,7 @@ def test_system_document_round_trips_and_its_verdict_is_derived():
         (("spectra", "f_x", "harmonics", 0), -1, "spectra.f_x.harmonics[0]"),
         (("spectra", "f_y", "flagged"), [True], "spectra.f_y.flagged"),
         (("noise_model", "confidence"), "high", "noise_model.confidence"),
-        (("stage", ), "orbit", "stage"),
+        (("stage",), "orbit", "stage"),
         (("dof",), 2.5, "dof"),
         (("alarm",), True, "alarm"),
         (("next", 1), 7, "next[1]"),

@@ -338,8 +338,17 @@ def test_a_run_estimates_the_model_of_its_procedure_and_of_the_prior_record(tmp_
     monkeypatch.setattr("os.fsync", lambda fd: None)
     truth = draw_truth(np.random.default_rng(21)) | {"Kcc_xxy": 4 * KCC}
     effect = CATALOGUE["Kcc_xxy"]  # the simulator's definition of the effect, as an additive term of the exact platform's model
-    term = Term(effect.id, TermKind.ADDITIVE, effect.unit, effect.unit, 1.0, effect.nominal, effect.meaning, axis=effect.axis,
-                regressor=effect.regressor)
+    term = Term(
+        effect.id,
+        TermKind.ADDITIVE,
+        effect.unit,
+        effect.unit,
+        1.0,
+        effect.nominal,
+        effect.meaning,
+        axis=effect.axis,
+        regressor=effect.regressor,
+    )
     world = ErrorModel.standard(nonlinear=True, gimbals=True) + (term,)
 
     def short(name, table=""):

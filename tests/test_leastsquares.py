@@ -139,8 +139,15 @@ def test_the_problems_meet_the_declared_interface():
     assert members == {"stage", "static", "fit", "design", "candidate_columns", "whiten"}
     m = len(READINGS)
     dwells = DwellSet(
-        READINGS, np.zeros((m, 3)), np.full((m, 3), 1e-5), GRAVITY, np.arange(m, dtype=float), np.full(m, 20.0), np.zeros(m),
-        np.zeros((m, 3)), tuple(map(str, range(m))),
+        READINGS,
+        np.zeros((m, 3)),
+        np.full((m, 3), 1e-5),
+        GRAVITY,
+        np.arange(m, dtype=float),
+        np.full(m, 20.0),
+        np.zeros(m),
+        np.zeros((m, 3)),
+        tuple(map(str, range(m))),
     )
     linear = LinearProblem(np.ones(4), 0.1, {"a": np.ones(4)})
     for problem in (linear, DwellProblem(dwells)):

@@ -66,8 +66,6 @@ def test_kinematics_reduce_to_conventions_without_effects():
     np.testing.assert_allclose(platform_specific_force(r, G, base_attitude=base), expected, atol=1e-12)
 
 
-
-
 def test_kinematics_agree_with_the_platform_model():
     rng = np.random.default_rng(21)
     cfg = GimbalConfiguration((1, -1, 1, 1))
@@ -108,4 +106,3 @@ def test_coarse_problem_uses_the_platform_kinematics():
     values = {k: x[..., i, None] for i, k in enumerate(model.ids)}
     np.testing.assert_array_equal(out, model.forward(f_p, values))
     np.testing.assert_array_equal(jac[..., model.index("theta20")], (model.jacobian_specific_force(f_p, values) @ d_theta)[..., 1])
-

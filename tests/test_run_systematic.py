@@ -168,7 +168,7 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
         text = _pdf_text(certificate_checks.technical_of(certificate))  # the evidence: in the technical report
         assert "Systematic stage: orientations" in text
         for k, o in enumerate(orientations, start=1):
-                assert f"{k} {o.start_h:.2f} – {o.end_h:.2f}" in text and f"{o.polar_angle_deg:.1f}°" in text
+            assert f"{k} {o.start_h:.2f} – {o.end_h:.2f}" in text and f"{o.polar_angle_deg:.1f}°" in text
 
 
 class Crash(Exception):

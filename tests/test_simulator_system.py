@@ -1,6 +1,5 @@
 """System-level world: Earth-rate kinematics, INS error dynamics, damping, reproducibility."""
 
-
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -284,6 +283,7 @@ def test_g_sensitivity_turns_the_platform_and_drives_the_attitude_error_alike():
     start = world.nav_to_platform_0
     f_p = -truth.site.gravity * start[:, 2]
     expected_rate = -(g_matrix @ f_p)  # conventions.platform_drift_rate with ε = 0
+
     # the platform, as its readings show it: after 20 s it has turned by w t from where the drift-free one is
     def nav_to_platform(columns, k):
         readings = np.array([columns[f"angle_{g}"][k] for g in ("platform", "inner", "middle")])

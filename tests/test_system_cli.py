@@ -176,9 +176,7 @@ def test_the_records_thermal_sensitivities_are_the_thermal_prior_not_a_compensat
     from stableins.estimators.result import Likelihood
 
     likelihood = Likelihood(THERMAL_TERM_IDS, values, np.diag(sigma**-2), np.zeros(6))
-    thermal = FitResult(
-        "thermal", terms, values, np.diag(sigma**2), ("estimated",) * 6, np.zeros(0), np.zeros(0), likelihood=likelihood
-    )
+    thermal = FitResult("thermal", terms, values, np.diag(sigma**2), ("estimated",) * 6, np.zeros(0), np.zeros(0), likelihood=likelihood)
     with_kt = tmp / "prior-kt.json"
     CalibrationRecord.load(prior).updated(thermal, RunInfo(procedure="device-thermal")).save(with_kt)
     out = tmp / "cal-kt.json"

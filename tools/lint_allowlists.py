@@ -46,7 +46,10 @@ def ruff_violations(config_text: str) -> dict[str, set[str]]:
     try:
         out = subprocess.run(
             [str(BIN / "ruff"), "check", "--config", str(scratch), "--output-format", "json", "--exit-zero", *RUFF_TARGETS],
-            cwd=ROOT, capture_output=True, text=True, check=True,
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
         ).stdout
     finally:
         scratch.unlink()
@@ -78,7 +81,10 @@ def mypy_modules(config_text: str) -> list[str]:
     scratch.write_text(config_text)
     try:
         out = subprocess.run(
-            [str(BIN / "mypy"), "--config-file", str(scratch)], cwd=ROOT, capture_output=True, text=True,
+            [str(BIN / "mypy"), "--config-file", str(scratch)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
         ).stdout
     finally:
         scratch.unlink()

@@ -30,9 +30,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--all-arms", action="store_true", help="estimate all nine lever_a_b (default: Cai's three along-axis arms lever_a_a)"
     )
-    parser.add_argument(
-        "--no-asynchrony", action="store_true", help="hold the time asynchrony t_async at zero instead of estimating it"
-    )
+    parser.add_argument("--no-asynchrony", action="store_true", help="hold the time asynchrony t_async at zero instead of estimating it")
     parser.add_argument(
         "--window", type=real(0.05, 5.0, unit="seconds"), default=0.5, help="window of the means [s], 0.05 to 5 (default 0.5)"
     )

@@ -48,9 +48,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rate", type=real(0.0, 1e7, above=True, unit="Hz"), metavar="HZ", help="sample rate, when the log has no time column"
     )
-    parser.add_argument(
-        "--gravity", type=real(9.7, 9.9, unit="m/s^2"), metavar="G", help="local gravity [m/s^2] (default 9.80665, stated)"
-    )
+    parser.add_argument("--gravity", type=real(9.7, 9.9, unit="m/s^2"), metavar="G", help="local gravity [m/s^2] (default 9.80665, stated)")
     parser.add_argument("--serial", metavar="SN", help="serial number of the unit (default: the log's file name)")
     parser.add_argument(
         "--window",

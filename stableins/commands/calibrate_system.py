@@ -232,9 +232,7 @@ def _stage(record: Any, values: Any, covariance: Any, options: Any, *, terms: An
     source = record.validating(allow_gaps=allow_gaps)
     with Progress(total=record.n_samples, label="system stage: one pass over the record") as bar:
         sums = record_sums(CountedSource(source, bar), record.metadata, values, options, compensation_terms=terms)
-    outcome = run_system_stage(
-        record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums
-    )
+    outcome = run_system_stage(record, record.metadata, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums)
     return with_sensitivities(outcome, record, values, covariance, options, compensation_terms=terms, noise_model=noise, sums=sums)
 
 

@@ -40,7 +40,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=integer(1, 1024), metavar="N", help="local cluster of N worker processes (default: one per CPU)")
-    where.add_argument("--scheduler", type=scheduler_address, metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    where.add_argument(
+        "--scheduler", type=scheduler_address, metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786"
+    )
     parser.add_argument("--no-plot", action="store_true", help="do not draw summary.png")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 

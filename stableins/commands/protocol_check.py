@@ -29,9 +29,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="DEG",
         help="the gimbals move at most this far from where they are found [deg] (half of it about the inner axis, then back)",
     )
-    parser.add_argument(
-        "--timeout", type=real(0.1, 3600.0, unit="seconds"), default=10.0, help="longest silence accepted [s] (default 10)"
-    )
+    parser.add_argument("--timeout", type=real(0.1, 3600.0, unit="seconds"), default=10.0, help="longest silence accepted [s] (default 10)")
     parser.add_argument(
         "--duration", type=real(0.05, 60.0, unit="seconds"), default=0.5, help="length of the test acquisitions [s] (default 0.5)"
     )

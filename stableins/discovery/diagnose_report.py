@@ -61,6 +61,7 @@ __all__ = [
     "SystemFindings",
 ]
 
+
 class DiagnoseStage(StrEnum):
     """What the data of a diagnosis are: device dwells of one stage, or the bins of a system record."""
 

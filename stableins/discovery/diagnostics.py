@@ -75,6 +75,8 @@ class FitVerdict(StrEnum):
             "nothing is missing",
             FitVerdict.UNTESTED: "untested: no degrees of freedom",
         }[self]
+
+
 #: Above this many positions the per-position plots are drawn against time, without per-point labels.
 MAX_NAMED_POSITIONS = 80
 
@@ -401,5 +403,3 @@ def diagnose(problem: Problem | None, result: FitResult, unit: str = "µg", scal
         scale=scale,
         time=np.asarray(dwells.dwells.time, dtype=float) if dwells is not None else None,
     )
-
-

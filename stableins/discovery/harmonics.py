@@ -20,7 +20,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
 
-
 # ----------------------------------------------------------------------------- system records
 @dataclass(frozen=True)
 class HarmonicSpectrum:

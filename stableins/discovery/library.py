@@ -250,5 +250,3 @@ def custom_effect(
         aliases=aliases,
         source="user-defined",
     )
-
-

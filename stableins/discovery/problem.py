@@ -325,5 +325,3 @@ def gauge_columns(a: NDArray, cols: list[int], terms: Sequence[Term], tolerance:
     rank = {terms[c].id: _GAUGE_PREFERENCE.get(terms[c].kind, 6) for c in cols}
     held = undetermined(a[:, cols], ids, scales, rank, tolerance=tolerance, smallest_only=True)
     return [c for c in cols if terms[c].id not in held], list(held)
-
-

@@ -73,7 +73,6 @@ if TYPE_CHECKING:  # pragma: no cover
 MICRO_G_UNIT = DisplayUnit("µg", MICRO_G)
 
 
-
 def _propose(problem: DwellProblem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
     """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
     from stableins.discovery.separation import describe, separation
@@ -87,6 +86,7 @@ def _propose(problem: DwellProblem, result: FitResult, scores: list[CandidateSco
             c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
         out.append(c)
     return out
+
 
 def _chi2_red(result: FitResult) -> float:
     from stableins.discovery.problem import fit_chi2_red
@@ -615,7 +615,6 @@ def _still_significant(
         if float(stats.f.sf(delta / max((rss1 - delta) / dof, 1e-300), 1, dof)) < level:
             out.append(int(j))
     return tuple(out)
-
 
 
 def _separability(

@@ -41,7 +41,6 @@ GROUP_MARGIN = 1.959963984540054**2
 EXPLAINED_BAND = 0.95
 
 
-
 def not_named_because(chi2_red_with: float, leaves: Sequence[str], signature_p: float) -> str:
     """Return why the best identifiable candidate is not named, in words (the naming rule of :mod:`stableins.discovery.ranking`).
 
@@ -57,6 +56,7 @@ def not_named_because(chi2_red_with: float, leaves: Sequence[str], signature_p: 
             f"(p = {signature_p:.2g})"
         )
     return f"would leave χ²_ν = {chi2_red_with:.3g}, above its 95 % band"
+
 
 @dataclass(frozen=True)
 class CandidateScore:

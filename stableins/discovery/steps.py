@@ -15,7 +15,6 @@ from stableins.estimators.result import FitResult
 from stableins.status import Status
 
 if TYPE_CHECKING:  # pragma: no cover
-
     pass
 
 

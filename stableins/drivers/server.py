@@ -75,6 +75,8 @@ def turns_from_json(items: Any) -> tuple[Any, ...]:
             raise ValueError("a turn has start, angle, axis and rate")
         turns.append(PlatformTurn(float(item["start"]), float(item["angle"]), IndexAxis(item["axis"]), float(item["rate"])))
     return tuple(turns)
+
+
 #: The server binds this address only: a calibration platform is not a network service.
 LOOPBACK = "127.0.0.1"
 

@@ -227,8 +227,14 @@ def calibrate_coarse(
     model = coarse_model(nonlinear=nonlinear, extra_terms=setting.extra_terms)
     extra_ids = tuple(t.id for t in setting.extra_terms)
     usable, left_out, notes = _usable_dwells(
-        dwells, setting, base_dcm, n=len(model), expected_positions=expected_positions, allow_missing=allow_missing,
-        orientation_tolerance=orientation_tolerance, source=source,
+        dwells,
+        setting,
+        base_dcm,
+        n=len(model),
+        expected_positions=expected_positions,
+        allow_missing=allow_missing,
+        orientation_tolerance=orientation_tolerance,
+        source=source,
     )
     slow = slow_covariance(usable, noise, source)
     problem = CoarseProblem.from_dwells(

@@ -121,8 +121,9 @@ class DeviceCalibration:
         lines = [f"<DeviceCalibration: stage '{self.final.stage}' recorded, {len(self.final.terms)} parameters>", "; ".join(fits)]
         lines += parameter_lines(self.final.rows())
         return clipped(
-            lines, "(print(calibration) for every stage, calibration.final for the recorded fit, "
-            "CalibrationRecord.from_device(calibration, site) for the record)"
+            lines,
+            "(print(calibration) for every stage, calibration.final for the recorded fit, "
+            "CalibrationRecord.from_device(calibration, site) for the record)",
         )
 
     def _repr_html_(self) -> str:
@@ -414,9 +415,7 @@ def _with_note(fit: FitResult, note: str | None) -> FitResult:
     return fit if note is None else replace(fit, notes=fit.notes + (note,))
 
 
-def _dwells_and_site(
-    given: Any, site: SiteMetadata | None, layouts: Mapping[str, StageLayout]
-) -> tuple[list[DwellSummary], SiteMetadata]:
+def _dwells_and_site(given: Any, site: SiteMetadata | None, layouts: Mapping[str, StageLayout]) -> tuple[list[DwellSummary], SiteMetadata]:
     """Return the dwell summaries and the site of what :func:`calibrate_device` was given.
 
     What :func:`stableins.data.device.load_device` returns (one dataset or a list) is summarized as ``stableins

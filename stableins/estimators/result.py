@@ -412,13 +412,30 @@ class FitResult:
         ids = tuple(t.id for t in terms)
         status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauge_values else Status.ESTIMATED for k in ids)
         return cls(
-            stage=stage, terms=terms, values=solution.x[0].copy(), covariance=solution.covariance[0].copy(), status=status,
-            rank=design.rank, singular_values=design.singular_values, null_space=design.null_space,
-            held=held, gauge_values=gauge_values, iterations=solution.iterations,
+            stage=stage,
+            terms=terms,
+            values=solution.x[0].copy(),
+            covariance=solution.covariance[0].copy(),
+            status=status,
+            rank=design.rank,
+            singular_values=design.singular_values,
+            null_space=design.null_space,
+            held=held,
+            gauge_values=gauge_values,
+            iterations=solution.iterations,
             likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
-            residuals=residuals, residual_sigma=residual_sigma, residual_labels=residual_labels, determined=determined, notes=notes,
-            positions_used=positions_used, left_out={} if left_out is None else left_out, passes=passes, gravity=gravity,
-            details=details, whitened_residuals=whitened_residuals, settings=settings,
+            residuals=residuals,
+            residual_sigma=residual_sigma,
+            residual_labels=residual_labels,
+            determined=determined,
+            notes=notes,
+            positions_used=positions_used,
+            left_out={} if left_out is None else left_out,
+            passes=passes,
+            gravity=gravity,
+            details=details,
+            whitened_residuals=whitened_residuals,
+            settings=settings,
             sensitivities=sensitivities,
         )
 
@@ -554,11 +571,19 @@ class FitResult:
         for (pid, value, sigma, unit, status), t, v, s in zip(self.rows(), self.terms, self.values, self.sigma, strict=True):
             hidden = status == Status.UNIDENTIFIABLE
             nan = float("nan")
-            records.append({
-                "parameter": pid, "value": nan if hidden else value, "sigma": nan if hidden else sigma, "unit": unit,
-                "status": str(status), "value_si": nan if hidden else float(v), "sigma_si": nan if hidden else float(s),
-                "si_unit": t.si_unit, "meaning": t.meaning,
-            })
+            records.append(
+                {
+                    "parameter": pid,
+                    "value": nan if hidden else value,
+                    "sigma": nan if hidden else sigma,
+                    "unit": unit,
+                    "status": str(status),
+                    "value_si": nan if hidden else float(v),
+                    "sigma_si": nan if hidden else float(s),
+                    "si_unit": t.si_unit,
+                    "meaning": t.meaning,
+                }
+            )
         return pandas.DataFrame.from_records(records, index="parameter")
 
     def plot(self, ax: Any = None) -> Figure:

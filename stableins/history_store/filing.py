@@ -23,6 +23,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: A SHA-256 digest as the index keeps it.
 SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
 def check_serial(serial: str) -> str:
     """Return ``serial`` if it can name a unit's folder (:func:`stableins.identifiers.check_serial_number`).
 

@@ -293,9 +293,11 @@ class HistoryStore:
             return verified_bytes(path, digest)
         where = f"{self.location} {serial}/{path.name}"
         with self._database(create=False) as connection:
-            row = None if connection is None else connection.execute(
-                "SELECT data FROM files WHERE serial = ? AND name = ?", (serial, path.name)
-            ).fetchone()
+            row = (
+                None
+                if connection is None
+                else connection.execute("SELECT data FROM files WHERE serial = ? AND name = ?", (serial, path.name)).fetchone()
+            )
         if row is None:
             raise InputError(
                 "the filed record is missing", path=where, field="sha256", expected=f"the file the history index lists, SHA-256 {digest}"

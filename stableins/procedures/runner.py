@@ -320,9 +320,7 @@ class Runner:
             failures = 0
         return failures
 
-    def _wait_until_reached(
-        self, readings: NDArray[np.float64], checks: DwellChecks, keep: list[SampleBlock] | None = None
-    ) -> str | None:
+    def _wait_until_reached(self, readings: NDArray[np.float64], checks: DwellChecks, keep: list[SampleBlock] | None = None) -> str | None:
         """Record short pieces until the platform is at the commanded readings (discarded, or appended to ``keep``).
 
         Returns ``None`` on arrival, else why it did not arrive within ``checks.max_slew``.

@@ -130,4 +130,3 @@ def closing(ctx: ReportContext) -> list[Flowable]:
     out.append(document.spacer(4))
     out.append(paragraph("End of report.", "small"))
     return out
-

@@ -401,9 +401,7 @@ def noise_text(model: NoiseModel) -> str:
     where = "in a static record" if model.source is NoiseSource.STATIC_RECORD else "in the dwells"
     if model.test is not None and not model.test.detected:  # the console's words: not detected, and the upper limit the data allow
         upper = model.limits("bias_instability")[1]
-        bound = (
-            f"up to {float(np.max(upper)) / scale_of('bias_instability'):.2g} µg, in U" if np.all(np.isfinite(upper)) else "not bounded"
-        )
+        bound = f"up to {float(np.max(upper)) / scale_of('bias_instability'):.2g} µg, in U" if np.all(np.isfinite(upper)) else "not bounded"
         return f"{white}; slow noise not detected {where} (bias instability {bound}; random walk not bounded)"
     measured = [f"{names[n]} measured {where}: {amount(n)}" for n in slow]
     return "; ".join([white, *measured])

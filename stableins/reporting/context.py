@@ -169,4 +169,3 @@ def utc(text: str) -> str:
     """Return an ISO 8601 time in UTC as a table prints it (``2026-11-22 02:46:58``); other times as written."""
     match = re.fullmatch(r"(\d{4}-\d\d-\d\d)T(\d\d:\d\d:\d\d)(?:\.\d+)?(?:Z|\+00:00)?", text or "")
     return f"{match.group(1)} {match.group(2)}" if match else text
-

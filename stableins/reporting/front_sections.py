@@ -74,7 +74,6 @@ def title_block(ctx: ReportContext) -> list[Flowable]:
     ]
 
 
-
 # ---------------------------------------------------------------------- 1 method
 def method(ctx: ReportContext) -> list[Flowable]:
     """Return section 1: the procedure and method, the stages run and their settings."""
@@ -112,8 +111,7 @@ def method(ctx: ReportContext) -> list[Flowable]:
 def _method_text(record: Any) -> str:
     """Return what was done: static poses of a triad (``calibrate poses``), or the gimbals' multi-position self-calibration."""
     update = (
-        "Each stage is a Bayesian update of the record before it: no uncertainty grows, nothing moves along what its data do not "
-        "determine."
+        "Each stage is a Bayesian update of the record before it: no uncertainty grows, nothing moves along what its data do not determine."
     )
     if from_poses(record):
         return (
@@ -207,4 +205,3 @@ def inputs(ctx: ReportContext) -> list[Flowable]:
     out.append(document.table([[escape(c) if i != 3 else c for i, c in enumerate(r)] for r in rows], [0.14, 0.25, 0.41, 0.20],
                               mono=(2,), markup=True))  # fmt: skip
     return out
-

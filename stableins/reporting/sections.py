@@ -215,7 +215,6 @@ def _diagnosis(ctx: ReportContext, d: DiagnoseReport) -> list[Flowable]:
     return out
 
 
-
 #: The technical report: everything behind the certificate's numbers, section by section.
 TECHNICAL_SECTIONS = (
     title_block,

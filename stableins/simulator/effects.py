@@ -269,8 +269,7 @@ def _geometry_effects() -> list[Effect]:
             f"Dg_{a}{b}",
             "rad s/m",
             0.01 * DEG_PER_HOUR / _G,
-            f"g-sensitivity of the {a}_p gyro to f_{b} (the platform turns at -Dg f_{b} about {a}_p during a dwell) "
-            "[rad/s per m/s^2]",
+            f"g-sensitivity of the {a}_p gyro to f_{b} (the platform turns at -Dg f_{b} about {a}_p during a dwell) [rad/s per m/s^2]",
             "geometry",
             axis=i,
         )

@@ -30,7 +30,6 @@ SIMULATED_STATES = (
 SIMULATED_INPUTS = ("df_north", "df_east", "df_down", "drift_north", "drift_east", "drift_down")
 
 
-
 def error_dynamics(latitude: float, damping: dict[str, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Continuous INS error dynamics ``x' = A x + B u`` of the module docstring.
 

@@ -160,9 +160,7 @@ class SystemWorld:
         self._accelerometer = Accelerometer(values, fx.output_effects(truth.effects))
         # the INS compensates with its installed calibration: the standard terms and any installed output effects
         self._installed = dict(truth.installed_calibration)
-        self._computer = Accelerometer(
-            self._installed, fx.output_effects({k: v for k, v in self._installed.items() if k in fx.CATALOGUE})
-        )
+        self._computer = Accelerometer(self._installed, fx.output_effects({k: v for k, v in self._installed.items() if k in fx.CATALOGUE}))
         self._needs_rates = fx.needs(truth.effects, "lever_")
         self._g_sensitivity = fx.g_sensitivity(truth.effects)
         drift = truth.gyro_drift

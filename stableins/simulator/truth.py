@@ -124,9 +124,7 @@ def _check_fields(d: Any, source: str | None) -> None:
     }
     unknown = sorted(set(d) - known)
     if unknown:
-        raise InputError(
-            f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}"
-        )
+        raise InputError(f"unknown fields {unknown}", path=source, field=unknown[0], expected=f"fields among {', '.join(sorted(known))}")
 
 
 #: Keys of a truth's ``gyro_drift``: the constant drift, the gyro-case-rotation residual, the torquers' scale-factor error.

@@ -12,7 +12,6 @@ it); a page's script only draws the trend plots (Plotly, served from the install
 live updates of the runs page.
 """
 
-
 import asyncio
 import hashlib
 import json
@@ -218,7 +217,6 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
         return templates.TemplateResponse(request, "fleet.html", {"fleet": document, "filters": filters, "page": "fleet"})
 
 
-
 def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
     """Add ``/units/{serial}``, ``/api/units/{serial}`` and the verified downloads of records and documents."""
     from fastapi import Request
@@ -264,7 +262,6 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
         if inline:  # opened in the browser's PDF viewer rather than saved
             headers["content-disposition"] = headers["content-disposition"].replace("attachment", "inline", 1)
         return Response(body, media_type="application/pdf", headers=headers)
-
 
 
 def _run_routes(app: Any, data: _Data, templates: Any) -> None:

@@ -55,9 +55,7 @@ class FleetRow:
         }
 
 
-def fleet_rows(
-    units: list[UnitStatus], policy: Policy, certificates: CertificateIndex, date: datetime | None = None
-) -> list[FleetRow]:
+def fleet_rows(units: list[UnitStatus], policy: Policy, certificates: CertificateIndex, date: datetime | None = None) -> list[FleetRow]:
     """Return the units of :meth:`HistoryStore.fleet`, overdue first (most overdue first), then by due date, then by serial."""
     date = date or datetime.now(UTC)
     rows = []
@@ -72,8 +70,17 @@ def fleet_rows(
         conformity = found[0].verdict if found else ""
         rows.append(
             FleetRow(
-                unit.serial, unit.records, entry.file, entry.sha256, entry.procedure, entry.valid_from, due.isoformat(), left, left < 0,
-                conformity, unit.drifting,
+                unit.serial,
+                unit.records,
+                entry.file,
+                entry.sha256,
+                entry.procedure,
+                entry.valid_from,
+                due.isoformat(),
+                left,
+                left < 0,
+                conformity,
+                unit.drifting,
             )  # fmt: skip
         )
     return sorted(rows, key=lambda r: (not r.overdue, r.days_left if r.days_left is not None else -math.inf, r.serial))

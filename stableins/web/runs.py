@@ -257,8 +257,10 @@ def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> d
         lower_bound = any(s.get("kind") == "offset_iteration" for s in steps)
     else:
         later = sum(_step_seconds(s) for s in steps[state.step + 1 :])
-        here = max(_step_seconds(step) - state.recorded, 0.0) if kind != "offset_iteration" else max(
-            _step_seconds(step) - state.recorded, planned_here - state.dwelt, 0.0
+        here = (
+            max(_step_seconds(step) - state.recorded, 0.0)
+            if kind != "offset_iteration"
+            else max(_step_seconds(step) - state.recorded, planned_here - state.dwelt, 0.0)
         )
         remaining = later + here
         lower_bound = kind == "offset_iteration" or any(s.get("kind") == "offset_iteration" for s in steps[state.step + 1 :])

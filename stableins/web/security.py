@@ -141,9 +141,11 @@ class Guard:
         if wait > 0:
             return 429, "too many requests", {"retry-after": str(max(1, round(wait)))}
         if self.token is not None and not self._authorized(named, scope):
-            return 401, "a token is required (Authorization: Bearer TOKEN, or open a page with ?token=TOKEN)", {
-                "www-authenticate": "Bearer"
-            }
+            return (
+                401,
+                "a token is required (Authorization: Bearer TOKEN, or open a page with ?token=TOKEN)",
+                {"www-authenticate": "Bearer"},
+            )
         return None
 
     def _take(self, client: str) -> float:

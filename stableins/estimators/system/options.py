@@ -67,7 +67,6 @@ class SystemOptions:
         object.__setattr__(self, "gyro_drift", validate_options(self))
 
 
-
 _POSITIVE_INTS = ("chunk_rows", "noise_samples_per_chunk")
 _POSITIVE_FLOATS = (
     "attitude_decimation_seconds",
