@@ -513,10 +513,12 @@ def _estimate(rundir: Path, runner: Runner, metadata: SiteMetadata, dataset: Pat
         raise InputError("the fine stage starts from a coarse estimate", field="prior_file", expected=expected)
     from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.fine import calibrate_fine, fine_model
+    from stableins.estimators.setting import DeviceSetting
 
     columns = accepted_columns(runner.entries)
     source = str(dataset or rundir / JOURNAL_NAME)
-    dwells = dwells_from_columns(columns, checks=definition.checks, source=source)
+    setting = DeviceSetting.from_site(metadata)  # the measured turn within a dwell is not noise (docs/conventions.md)
+    dwells = dwells_from_columns(columns, checks=definition.checks, source=source, setting=setting)
     prior = _load_record(rundir / start["prior"])
     return calibrate_fine(
         dwells,
