@@ -55,11 +55,11 @@ def test_calibrate_system_model_options(ws, base, tmp_path):
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
     settings, before = record.stages_run[-1].settings, base.stages_run[-1].settings
-    assert (before["case_rotation_period"], settings["case_rotation_period"]) == (480.0, 600.0)  # --case-rotation-period
-    assert before["couplings"] and not settings["couplings"]  # --no-couplings
-    assert before["compensate_loop"] and not settings["compensate_loop"]  # --no-loop-compensation
-    assert settings["chunk_rows"] == 4096 != before["chunk_rows"]  # --chunk-rows
-    assert not before["estimate_k2"] and settings["estimate_k2"]  # --estimate-k2: K2_x, K2_y from the third harmonic
+    assert (before.options.case_rotation_period, settings.options.case_rotation_period) == (480.0, 600.0)  # --case-rotation-period
+    assert before.options.couplings and not settings.options.couplings  # --no-couplings
+    assert before.options.compensate_loop and not settings.options.compensate_loop  # --no-loop-compensation
+    assert settings.options.chunk_rows == 4096 != before.options.chunk_rows  # --chunk-rows
+    assert not before.options.estimate_k2 and settings.options.estimate_k2  # --estimate-k2: K2_x, K2_y from the third harmonic
     assert base["K2_x"].value == 0.0 and record["K2_x"].value != 0.0 and record["K2_x"].sigma <= base["K2_x"].sigma
     assert ("laboratory", "Lab S") in [(e.key, e.value) for e in record.calibration.entries]  # --set
     prior = CalibrationRecord.load(ws.record)
@@ -75,7 +75,7 @@ def test_calibrate_system_chunk_rows_do_not_change_the_result(ws, base, tmp_path
     status, _, err = _main(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--chunk-rows", "1024"])
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
-    assert record.stages_run[-1].settings["chunk_rows"] == 1024
+    assert record.stages_run[-1].settings.options.chunk_rows == 1024
     for p in base.parameters:
         assert abs(record[p.id].value - p.value) <= 0.01 * p.sigma, p.id
 
@@ -93,10 +93,10 @@ def test_calibrate_system_gyro_drift_and_noise_options(ws, base, tmp_path):
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
     settings = record.stages_run[-1].settings
-    assert settings["known_gyro_drift"] == pytest.approx([np.radians(0.01) / 3600, 0.0, 0.0])  # --gyro-drift [°/h] in SI
-    assert settings["gyro_drift_uncertainty"] == pytest.approx(np.radians(0.0001) / 3600)  # --gyro-drift-uncertainty
-    assert base.stages_run[-1].settings["known_gyro_drift"] is None
-    assert (base.stages_run[-1].settings["gyro_drift_source"], settings["gyro_drift_source"]) == (
+    assert settings.options.known_gyro_drift == pytest.approx([np.radians(0.01) / 3600, 0.0, 0.0])  # --gyro-drift [°/h] in SI
+    assert settings.options.gyro_drift_uncertainty == pytest.approx(np.radians(0.0001) / 3600)  # --gyro-drift-uncertainty
+    assert base.stages_run[-1].settings.options.known_gyro_drift is None
+    assert (base.stages_run[-1].settings.gyro_drift_source, settings.gyro_drift_source) == (
         "gimbal readings",
         "given and gimbal readings",
     )
