@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from stableins.errors import InputError
+from stableins.web.models import QuickLookDocument, RunProgress
 
 JOURNAL = "journal.bin"
 PLAN = "procedure.json"
@@ -98,8 +99,8 @@ class RunWatcher:
             raise InputError(f"run {name[:80]!r} leaves the run root", field="run")
         return path
 
-    def progress(self, name: str) -> dict[str, Any]:
-        """Return the progress of run ``name`` as JSON values (:meth:`directory` for the names accepted)."""
+    def progress(self, name: str) -> RunProgress:
+        """Return the progress of run ``name`` as the API's document (:meth:`directory` for the names accepted)."""
         folder = self.directory(name)
         with self._lock:
             state = self._states.get(folder)
@@ -109,10 +110,10 @@ class RunWatcher:
             self._read(folder, state, plan)
             return _describe(name, folder, state, plan)
 
-    def all(self) -> list[dict[str, Any]]:
+    def all(self) -> list[RunProgress]:
         """Return the progress of every run under the root, running ones first, then the newest."""
         runs = [self.progress(n) for n in self.names()]
-        return sorted(runs, key=lambda r: (r["state"] != "running", _negated(r["updated"])))
+        return sorted(runs, key=lambda r: (r.state != "running", _negated(r.updated)))
 
     def _plan(self, folder: Path) -> dict[str, Any]:
         if folder not in self._plans:
@@ -229,8 +230,8 @@ def _step_seconds(step: dict[str, Any]) -> float:
     return 0.0
 
 
-def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> dict[str, Any]:
-    """Return a run's progress as JSON values."""
+def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> RunProgress:
+    """Return a run's progress as the API's document (:class:`~stableins.web.models.RunProgress`)."""
     steps = [s for s in plan.get("steps", []) if isinstance(s, dict)]
     step = steps[state.step] if 0 <= state.step < len(steps) else {}
     kind = step.get("kind", "")
@@ -269,36 +270,36 @@ def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> d
     except OSError:
         updated = ""
     status = "finished" if state.finished else "stopped" if state.stopped else "complete" if state.complete else "running"
-    look = None
+    look: QuickLookDocument | None = None
     if state.quicklook:
         harmonics = state.quicklook.harmonics()
-        look = {
-            "text": state.quicklook.describe(),
-            "hours": state.static_samples / float(plan.get("sample_rate") or 1.0) / 3600.0,
-            "amplitude": None if harmonics is None or harmonics[0] is None else [float(a) for a in harmonics[0]],
-            "residual_rms": None if harmonics is None else [float(r) for r in harmonics[1]],
-        }
-    return {
-        "name": name,
-        "unit": state.unit,
-        "procedure": state.procedure or str(plan.get("name") or ""),
-        "state": status,
-        "reason": state.stopped or None,
-        "started": state.started,
-        "updated": updated,
-        "journal_records": state.records,
-        "step": state.step + 1 if state.step >= 0 else None,
-        "steps": len(steps),
-        "step_name": step.get("name"),
-        "stage": step.get("stage") or ("system" if kind == "static_record" else None),
-        "phase": state.phase or None,
-        "position": position,
-        "pass": pass_number,
-        "dwell_seconds": state.dwelt,
-        "dwell_planned": planned_here,
-        "samples": state.samples,
-        "remaining_seconds": remaining,
-        "remaining_is_lower_bound": lower_bound,
-        "quicklook": look,
-        "error": state.error or None,
-    }
+        look = QuickLookDocument(
+            text=state.quicklook.describe(),
+            hours=state.static_samples / float(plan.get("sample_rate") or 1.0) / 3600.0,
+            amplitude=None if harmonics is None or harmonics[0] is None else [float(a) for a in harmonics[0]],
+            residual_rms=None if harmonics is None else [float(r) for r in harmonics[1]],
+        )
+    return RunProgress(
+        name=name,
+        unit=state.unit,
+        procedure=state.procedure or str(plan.get("name") or ""),
+        state=status,
+        reason=state.stopped or None,
+        started=state.started,
+        updated=updated,
+        journal_records=state.records,
+        step=state.step + 1 if state.step >= 0 else None,
+        steps=len(steps),
+        step_name=step.get("name"),
+        stage=step.get("stage") or ("system" if kind == "static_record" else None),
+        phase=state.phase or None,
+        position=position,
+        pass_=pass_number,
+        dwell_seconds=state.dwelt,
+        dwell_planned=planned_here,
+        samples=state.samples,
+        remaining_seconds=remaining,
+        remaining_is_lower_bound=lower_bound,
+        quicklook=look,
+        error=state.error or None,
+    )
