@@ -113,6 +113,7 @@ def test_fleet_unit_certificate_and_runs_in_chromium(lab, chromium, images, tmp_
 
 def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chromium, images):
     """``run --driver tcp://`` against ``serve-sim --realtime 1``: the page's journal count catches up within 2 s."""
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.common.by import By
 
     from stableins.procedures.journal import scan
@@ -136,9 +137,16 @@ def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chr
         chromium.get(f"{server.url}/runs")
         wait_for(lambda: chromium.find_element(By.ID, "live").text == "live")
 
+        def row_text(css: str) -> str | None:  # the live updates replace the rows: a row found may be gone when read
+            try:
+                found = chromium.find_elements(By.CSS_SELECTOR, css)
+                return found[0].text if found else None
+            except StaleElementReferenceException:
+                return None
+
         def shown() -> int:
-            cells = chromium.find_elements(By.CSS_SELECTOR, "#runs-body tr[data-run='live'] td.records")
-            return int(cells[0].text) if cells else -1
+            text = row_text("#runs-body tr[data-run='live'] td.records")
+            return int(text) if text else -1
 
         # the page follows the journal while the run goes on: each count the journal reaches, the page shows (the wait is
         # a bound against a hang, not a measurement: no wall-clock limit decides the verdict, issue 31)
@@ -150,8 +158,8 @@ def test_a_live_run_shows_in_the_browser_within_2_s_of_its_journal(tmp_path, chr
             lags.append(time.monotonic() - seen)
             counts.append(count)
             wait_for(lambda count=count: len(scan(journal).records) > count, timeout=120)  # the run writes on
-        row = chromium.find_element(By.CSS_SELECTOR, "#runs-body tr[data-run='live']")
-        assert "running" in row.text and "coarse" in row.text and "SN-LIVE" in row.text
+        row = wait_for(lambda: row_text("#runs-body tr[data-run='live']"))
+        assert "running" in row and "coarse" in row and "SN-LIVE" in row
         assert counts == sorted(set(counts))  # three different, growing journal lengths, each shown by the page
         chromium.save_screenshot(str(images / "runs-live.png"))
         print(f"page behind the journal by {[round(x, 3) for x in lags]} s (information, not a limit)")
