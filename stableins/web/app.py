@@ -25,6 +25,7 @@ from stableins.errors import InputError
 from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
 from stableins.web.fleet import FleetRow, fleet_rows, select, unit_document
+from stableins.web.models import Fleet, RunProgress, Runs, Unit
 from stableins.web.policy import Policy
 from stableins.web.runs import RunWatcher
 from stableins.web.security import Guard, Limits
@@ -76,7 +77,7 @@ class _Data:
         self.certificates.refresh()
         return fleet_rows(self._units[2], self.settings.policy, self.certificates)
 
-    def unit(self, serial: str) -> dict[str, Any]:
+    def unit(self, serial: str) -> Unit:
         self.certificates.refresh()
         return unit_document(self.store, serial, self.settings.policy, self.certificates)
 
@@ -179,17 +180,17 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
 
     settings = data.settings
 
-    def _fleet(q: str, *, overdue: bool, drifting: bool, conformity: str) -> dict[str, Any]:
+    def _fleet(q: str, *, overdue: bool, drifting: bool, conformity: str) -> Fleet:
         rows = data.fleet()
         shown = select(rows, search=q, overdue=overdue, drifting=drifting, conformity=conformity)
-        return {
-            "store": data.store.location,
-            "units": len(rows),
-            "overdue": sum(r.overdue for r in rows),
-            "drifting": sum(bool(r.drifting) for r in rows),
-            "interval_source": settings.policy.source,
-            "shown": [r.to_json() for r in shown],
-        }
+        return Fleet(
+            store=data.store.location,
+            units=len(rows),
+            overdue=sum(r.overdue for r in rows),
+            drifting=sum(bool(r.drifting) for r in rows),
+            interval_source=settings.policy.source,
+            shown=[r.to_json() for r in shown],
+        )
 
     @app.get(
         "/api/fleet",
@@ -202,7 +203,7 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
         overdue: bool = Query(False, description="only units past their due date"),
         drifting: bool = Query(False, description="only units with a parameter drifting beyond 3σ per year"),
         conformity: str = Query("", max_length=20, description="only units whose certificate states this (PASS, FAIL, ...)"),
-    ) -> dict[str, Any]:
+    ) -> Fleet:
         """Return the units overdue first (most overdue first), then by due date.
 
         ``drifting`` gives each drifting parameter's significance z = drift / σ per year (``stableins history --fleet``).
@@ -214,7 +215,9 @@ def _fleet_routes(app: Any, data: _Data, templates: Any) -> None:
                    conformity: str = Query("", max_length=20)) -> Response:  # fmt: skip
         document = _fleet(q, overdue=overdue, drifting=drifting, conformity=conformity)
         filters = {"q": q, "overdue": overdue, "drifting": drifting, "conformity": conformity}
-        return templates.TemplateResponse(request, "fleet.html", {"fleet": document, "filters": filters, "page": "fleet"})
+        return templates.TemplateResponse(
+            request, "fleet.html", {"fleet": document.model_dump(by_alias=True), "filters": filters, "page": "fleet"}
+        )
 
 
 def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
@@ -229,7 +232,7 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
         response_model=models.Unit,
         summary="A unit's records, their certificates, the changes between them and every parameter's trend",
     )
-    def api_unit(serial: str) -> dict[str, Any]:
+    def api_unit(serial: str) -> Unit:
         """Return the unit's records (each read verified by its SHA-256), changes and trends.
 
         Changes carry z = change / σ of the change (the certificate's statistic); trends the data-only points with σ, the
@@ -240,9 +243,10 @@ def _unit_routes(app: Any, data: _Data, templates: Any) -> None:
     @app.get("/units/{serial}", response_class=HTMLResponse, include_in_schema=False)
     def unit_page(request: Request, serial: str) -> Response:
         document = data.unit(serial)
-        shown = [{**trend, "unit": unit_text(trend["unit"])} for trend in document["trends"]]
+        shown = [{**trend.model_dump(by_alias=True), "unit": unit_text(trend.unit)} for trend in document.trends]
         plots = json.dumps(shown).replace("</", "<\\/")
-        return templates.TemplateResponse(request, "unit.html", {"unit": document, "plots": plots, "page": "fleet"})
+        page = document.model_dump(by_alias=True)  # the template reads the JSON keys ("from")
+        return templates.TemplateResponse(request, "unit.html", {"unit": page, "plots": plots, "page": "fleet"})
 
     @app.get("/units/{serial}/records/{sha256}", summary="A filed record, its SHA-256 verified against the index on the way out")
     def record_file(serial: str, sha256: str) -> Response:
@@ -279,8 +283,8 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
         response_model=models.Runs,
         summary="Every run under the run root with its progress, running ones first",
     )
-    def api_runs() -> dict[str, Any]:
-        return {"run_root": str(settings.run_root) if settings.run_root else None, "runs": data.runs.all()}
+    def api_runs() -> Runs:
+        return Runs(run_root=str(settings.run_root) if settings.run_root else None, runs=data.runs.all())
 
     @app.get("/api/runs/events", summary="Server-sent events: the runs' progress, sent when it changes (text/event-stream)")
     async def run_events(request: Request) -> Response:
@@ -289,7 +293,7 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
             quiet = 0.0
             while not await request.is_disconnected():
                 runs = await run_in_threadpool(data.runs.all)
-                text = json.dumps({"runs": runs})
+                text = json.dumps({"runs": _dumped(runs)})
                 if text != last:
                     last, quiet = text, 0.0
                     yield f"event: runs\ndata: {text}\n\n"
@@ -306,15 +310,20 @@ def _run_routes(app: Any, data: _Data, templates: Any) -> None:
         response_model=models.RunProgress,
         summary="One run's progress: stage, position, dwell, samples, remaining time, quick look",
     )
-    def api_run(name: str) -> dict[str, Any]:
+    def api_run(name: str) -> RunProgress:
         return data.runs.progress(name)
 
     @app.get("/runs", response_class=HTMLResponse, include_in_schema=False)
     def runs_page(request: Request) -> Response:
-        runs = data.runs.all()
+        runs = _dumped(data.runs.all())
         initial = json.dumps({"runs": runs}).replace("</", "<\\/")
         return templates.TemplateResponse(request, "runs.html", {"runs": runs, "initial": initial, "page": "runs",
                                                                   "run_root": settings.run_root})  # fmt: skip
+
+
+def _dumped(runs: list[RunProgress]) -> list[dict[str, object]]:
+    """Return the runs' progress as the JSON values the API sends (the JSON keys: "pass"), for the pages and events."""
+    return [r.model_dump(by_alias=True) for r in runs]
 
 
 def _days(days: float) -> str:

@@ -19,6 +19,7 @@ from typing import Any
 from stableins.history import CHANGE_THRESHOLD, SECONDS_PER_YEAR
 from stableins.history_store import DRIFT_SIGMAS, HistoryStore, UnitStatus
 from stableins.web.certificates import CertificateIndex
+from stableins.web.models import Document, Drifting, FleetUnit, ParameterChange, RecordChange, RecordEntry, TrendSeries, Unit
 from stableins.web.policy import Policy
 
 
@@ -38,21 +39,21 @@ class FleetRow:
     conformity: str  # the certificate's statement of the record in force ("" when no certificate is found)
     drifting: tuple[tuple[str, float], ...]  # (parameter, z of its drift per year)
 
-    def to_json(self) -> dict[str, Any]:
-        """Return the row as JSON values."""
-        return {
-            "serial": self.serial,
-            "records": self.records,
-            "in_force": self.in_force,
-            "in_force_sha256": self.in_force_sha256,
-            "procedure": self.procedure,
-            "calibrated": self.calibrated,
-            "due": self.due,
-            "days_left": self.days_left,
-            "overdue": self.overdue,
-            "conformity": self.conformity or None,
-            "drifting": [{"id": p, "significance": z} for p, z in self.drifting],
-        }
+    def to_json(self) -> FleetUnit:
+        """Return the row as the API's document (:class:`~stableins.web.models.FleetUnit`)."""
+        return FleetUnit(
+            serial=self.serial,
+            records=self.records,
+            in_force=self.in_force,
+            in_force_sha256=self.in_force_sha256,
+            procedure=self.procedure,
+            calibrated=self.calibrated,
+            due=self.due,
+            days_left=self.days_left,
+            overdue=self.overdue,
+            conformity=self.conformity or None,
+            drifting=[Drifting(id=p, significance=z) for p, z in self.drifting],
+        )
 
 
 def fleet_rows(units: list[UnitStatus], policy: Policy, certificates: CertificateIndex, date: datetime | None = None) -> list[FleetRow]:
@@ -101,8 +102,10 @@ def select(
     ]
 
 
-def unit_document(store: HistoryStore, serial: str, policy: Policy, certificates: CertificateIndex) -> dict[str, Any]:
-    """Return a unit's page as JSON values: its records (with their certificates), changes and trends.
+def unit_document(store: HistoryStore, serial: str, policy: Policy, certificates: CertificateIndex) -> Unit:
+    """Return a unit's page as the API's document (:class:`~stableins.web.models.Unit`).
+
+    Its records (with their certificates), changes and trends.
 
     Raises
     ------
@@ -123,48 +126,48 @@ def unit_document(store: HistoryStore, serial: str, policy: Policy, certificates
     records = []
     for e in entries:
         records.append(
-            {
-                "file": e.file,
-                "sha256": e.sha256,
-                "valid_from": e.valid_from,
-                "procedure": e.procedure,
-                "stages": list(e.stages),
-                "prior": e.prior,
-                "in_force": current is not None and e.sha256 == current.sha256,
-                "documents": [
-                    {"kind": c.kind, "title": c.title, "sha256": c.sha256, "verdict": c.verdict or None, "name": c.path.name}
+            RecordEntry(
+                file=e.file,
+                sha256=e.sha256,
+                valid_from=e.valid_from,
+                procedure=e.procedure,
+                stages=list(e.stages),
+                prior=e.prior,
+                in_force=current is not None and e.sha256 == current.sha256,
+                documents=[
+                    Document(kind=c.kind, title=c.title, sha256=c.sha256, verdict=c.verdict or None, name=c.path.name)
                     for c in certificates.of_record(e.sha256)
                 ],
-            }
+            )
         )
     changes = []
     for old, new, comparison in store.changes(serial):
         changes.append(
-            {
-                "from": old.file,
-                "to": new.file,
-                "valid_from": new.valid_from,
-                "relation": comparison.relation,
-                "parameters": [_change(terms.get(c.id), c) for c in comparison.changes],
-                "significant": list(comparison.significant),
-                "not_compared": list(comparison.skipped),
-            }
+            RecordChange(
+                from_=old.file,
+                to=new.file,
+                valid_from=new.valid_from,
+                relation=comparison.relation,
+                parameters=[_change(terms.get(c.id), c) for c in comparison.changes],
+                significant=list(comparison.significant),
+                not_compared=list(comparison.skipped),
+            )
         )
     due = None
     if current is not None:
         due = (current.time + policy.interval(serial, current.procedure)).isoformat()
-    return {
-        "serial": serial,
-        "store": store.location,
-        "in_force": None if current is None else current.file,
-        "due": due,
-        "interval_source": policy.source,
-        "change_threshold": CHANGE_THRESHOLD,
-        "drift_threshold": DRIFT_SIGMAS,
-        "records": records,
-        "changes": changes,
-        "trends": [_trend(terms.get(t.id), t) for t in store.trends(serial)],
-    }
+    return Unit(
+        serial=serial,
+        store=store.location,
+        in_force=None if current is None else current.file,
+        due=due,
+        interval_source=policy.source,
+        change_threshold=CHANGE_THRESHOLD,
+        drift_threshold=DRIFT_SIGMAS,
+        records=records,
+        changes=changes,
+        trends=[_trend(terms.get(t.id), t) for t in store.trends(serial)],
+    )
 
 
 def _engineering(term: Any, value: float, *, sigma: bool = False) -> float:
@@ -177,21 +180,21 @@ def _number(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def _change(term: Any, change: Any) -> dict[str, Any]:
+def _change(term: Any, change: Any) -> ParameterChange:
     """One parameter's change between two records, in engineering units, with its significance z."""
-    return {
-        "id": change.id,
-        "unit": term.unit if term is not None else change.unit,
-        "old": _number(_engineering(term, change.old)),
-        "new": _number(_engineering(term, change.new)),
-        "difference": _number(_engineering(term, change.difference, sigma=True)),
-        "sigma_difference": _number(_engineering(term, change.sigma_difference, sigma=True)),
-        "significance": _number(change.significance),
-        "significant": change.significant,
-    }
+    return ParameterChange(
+        id=change.id,
+        unit=term.unit if term is not None else change.unit,
+        old=_number(_engineering(term, change.old)),
+        new=_number(_engineering(term, change.new)),
+        difference=_number(_engineering(term, change.difference, sigma=True)),
+        sigma_difference=_number(_engineering(term, change.sigma_difference, sigma=True)),
+        significance=_number(change.significance),
+        significant=change.significant,
+    )
 
 
-def _trend(term: Any, trend: Any) -> dict[str, Any]:
+def _trend(term: Any, trend: Any) -> TrendSeries:
     """One parameter's trend: the data-only points with σ, the records' values, the fitted line and its z."""
     line: list[float | None] = []
     if math.isfinite(trend.slope):
@@ -200,18 +203,18 @@ def _trend(term: Any, trend: Any) -> dict[str, Any]:
         mean_t = sum(w * y for w, y in zip(weights, years)) / sum(weights)
         mean_x = sum(w * x for w, x in zip(weights, trend.values)) / sum(weights)
         line = [_number(_engineering(term, mean_x + trend.slope * (y - mean_t))) for y in years]
-    return {
-        "id": trend.id,
-        "unit": term.unit if term is not None else trend.unit,
-        "times": [t.isoformat() for t in trend.times],
-        "values": [_number(_engineering(term, v)) for v in trend.values],
-        "sigmas": [_number(_engineering(term, s, sigma=True)) for s in trend.sigmas],
-        "record_values": [_number(_engineering(term, v)) for v in trend.record_values],
-        "record_sigmas": [_number(_engineering(term, s, sigma=True)) for s in trend.record_sigmas],
-        "line": line,
-        "slope_per_year": _number(_engineering(term, trend.slope, sigma=True)),
-        "slope_sigma": _number(_engineering(term, trend.slope_sigma, sigma=True)),
-        "significance": _number(trend.significance),
-        "chi2_red_constant": _number(trend.chi2_red_constant),
-        "too_short": trend.too_short,
-    }
+    return TrendSeries(
+        id=trend.id,
+        unit=term.unit if term is not None else trend.unit,
+        times=[t.isoformat() for t in trend.times],
+        values=[_number(_engineering(term, v)) for v in trend.values],
+        sigmas=[_number(_engineering(term, s, sigma=True)) for s in trend.sigmas],
+        record_values=[_number(_engineering(term, v)) for v in trend.record_values],
+        record_sigmas=[_number(_engineering(term, s, sigma=True)) for s in trend.record_sigmas],
+        line=line,
+        slope_per_year=_number(_engineering(term, trend.slope, sigma=True)),
+        slope_sigma=_number(_engineering(term, trend.slope_sigma, sigma=True)),
+        significance=_number(trend.significance),
+        chi2_red_constant=_number(trend.chi2_red_constant),
+        too_short=trend.too_short,
+    )

@@ -6,7 +6,7 @@ significances are z = difference / σ; times are ISO 8601 in UTC.
 
 from __future__ import annotations
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 
 class Drifting(BaseModel):
@@ -82,7 +82,9 @@ class ParameterChange(BaseModel):
 class RecordChange(BaseModel):
     """The changes from one record to the next."""
 
-    from_: str = Field(alias="from")
+    model_config = ConfigDict(populate_by_name=True)  # built with from_=..., serialized as "from"
+
+    from_: str = Field(validation_alias="from", serialization_alias="from")
     to: str
     valid_from: str
     relation: str = Field(description="independent, or descendant (the new record updates the old one)")
@@ -136,6 +138,8 @@ class QuickLookDocument(BaseModel):
 class RunProgress(BaseModel):
     """One run's progress, read from its journal."""
 
+    model_config = ConfigDict(populate_by_name=True)  # built with pass_=..., serialized as "pass"
+
     name: str = Field(description="the run directory, relative to the run root")
     unit: str
     procedure: str
@@ -150,7 +154,7 @@ class RunProgress(BaseModel):
     stage: str | None
     phase: str | None
     position: int | None
-    pass_: int | None = Field(alias="pass")
+    pass_: int | None = Field(validation_alias="pass", serialization_alias="pass")
     dwell_seconds: float = Field(description="seconds of samples at the position so far")
     dwell_planned: float = Field(description="settle + dwell the plan gives the position")
     samples: int

@@ -27,7 +27,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from numpy.typing import NDArray
+
 from stableins.errors import InputError
+from stableins.web.models import QuickLookDocument, RunProgress
 
 JOURNAL = "journal.bin"
 PLAN = "procedure.json"
@@ -35,6 +38,75 @@ PLAN = "procedure.json"
 MAX_RUN_DEPTH = 3
 #: Passes the zero-offset iteration makes at least (the remaining time counts them).
 MIN_PASSES = 2
+
+
+@dataclass(frozen=True)
+class _Step:
+    """What the progress reads of one step of the plan (``procedure.json``): its kind, names, positions and times."""
+
+    kind: str = ""
+    name: str | None = None
+    stage: str | None = None
+    settle: float = 0.0
+    dwell: float = 0.0
+    duration: float = 0.0  # a static record's
+    position: int | None = None  # a dwell's (None: not given or 0)
+    pass_number: int = 1  # a dwell's pass of the zero-offset iteration
+    positions: tuple[int, ...] = ()  # the zero-offset iteration's, with their settles and dwells
+    settles: tuple[float, ...] = ()
+    dwells: tuple[float, ...] = ()
+    angle_tolerance: float = math.inf  # a static record's check of the platform angles
+
+    @classmethod
+    def read(cls, step: dict[str, object]) -> _Step:
+        """Return the step of a plan's JSON object (ValueError, TypeError: a value of the wrong type)."""
+        checks = step.get("checks")
+        tolerance = checks.get("angle_tolerance", math.inf) if isinstance(checks, dict) else math.inf
+        name, stage = step.get("name"), step.get("stage")
+        return cls(
+            kind=str(step.get("kind", "")),
+            name=None if name is None else str(name),
+            stage=None if stage is None else str(stage),
+            settle=_real(step.get("settle", 0.0)),
+            dwell=_real(step.get("dwell", 0.0)),
+            duration=_real(step.get("duration", 0.0)),
+            position=int(_real(step.get("position", 0))) or None,
+            pass_number=int(_real(step.get("pass_number", 1))),
+            positions=tuple(int(_real(p)) for p in _sequence(step.get("positions"))),
+            settles=tuple(_real(v) for v in _sequence(step.get("settles"))),
+            dwells=tuple(_real(v) for v in _sequence(step.get("dwells"))),
+            angle_tolerance=_real(tolerance),
+        )
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What the progress reads of a run's plan (``procedure.json``): its name, sample rate and steps."""
+
+    name: str = ""
+    sample_rate: float = 0.0
+    steps: tuple[_Step, ...] = ()
+
+    @classmethod
+    def read(cls, document: object) -> _Plan:
+        """Return the plan of ``procedure.json``'s JSON value (an empty plan when it is not a plan's object)."""
+        if not isinstance(document, dict):
+            return cls()
+        try:
+            steps = tuple(_Step.read(s) for s in _sequence(document.get("steps")) if isinstance(s, dict))
+            return cls(str(document.get("name") or ""), _real(document.get("sample_rate") or 0.0), steps)
+        except (TypeError, ValueError):  # a value of the wrong type: read as a plan that says nothing
+            return cls()
+
+
+def _real(value: object) -> float:
+    if not isinstance(value, int | float | str):  # what float() takes of JSON values
+        raise TypeError(f"not a number: {value!r}")
+    return float(value)
+
+
+def _sequence(value: object) -> list[object]:
+    return list(value) if isinstance(value, list | tuple) else []
 
 
 @dataclass
@@ -66,7 +138,7 @@ class RunWatcher:
     def __init__(self, root: Path | None) -> None:
         self.root = root.resolve() if root is not None else None
         self._states: dict[Path, _State] = {}
-        self._plans: dict[Path, dict[str, Any]] = {}
+        self._plans: dict[Path, _Plan] = {}
         self._lock = threading.Lock()
 
     def names(self) -> list[str]:
@@ -98,8 +170,8 @@ class RunWatcher:
             raise InputError(f"run {name[:80]!r} leaves the run root", field="run")
         return path
 
-    def progress(self, name: str) -> dict[str, Any]:
-        """Return the progress of run ``name`` as JSON values (:meth:`directory` for the names accepted)."""
+    def progress(self, name: str) -> RunProgress:
+        """Return the progress of run ``name`` as the API's document (:meth:`directory` for the names accepted)."""
         folder = self.directory(name)
         with self._lock:
             state = self._states.get(folder)
@@ -109,21 +181,21 @@ class RunWatcher:
             self._read(folder, state, plan)
             return _describe(name, folder, state, plan)
 
-    def all(self) -> list[dict[str, Any]]:
+    def all(self) -> list[RunProgress]:
         """Return the progress of every run under the root, running ones first, then the newest."""
         runs = [self.progress(n) for n in self.names()]
-        return sorted(runs, key=lambda r: (r["state"] != "running", _negated(r["updated"])))
+        return sorted(runs, key=lambda r: (r.state != "running", _negated(r.updated)))
 
-    def _plan(self, folder: Path) -> dict[str, Any]:
+    def _plan(self, folder: Path) -> _Plan:
         if folder not in self._plans:
             try:
                 document = json.loads((folder / PLAN).read_text(encoding="utf-8"))
             except (OSError, ValueError):
                 document = {}
-            self._plans[folder] = document if isinstance(document, dict) else {}
+            self._plans[folder] = _Plan.read(document)
         return self._plans[folder]
 
-    def _read(self, folder: Path, state: _State, plan: dict[str, Any]) -> None:
+    def _read(self, folder: Path, state: _State, plan: _Plan) -> None:
         """Read the records appended to the run's journal since the last look."""
         from stableins.procedures.journal import follow
 
@@ -135,7 +207,7 @@ class RunWatcher:
         except OSError as error:
             state.error = f"cannot read the journal ({error.strerror})"
             return
-        rate = float(plan.get("sample_rate") or 0.0)
+        rate = plan.sample_rate
         for record in found.records:
             _apply(state, record, plan, rate)
         state.records += len(found.records)
@@ -157,13 +229,13 @@ def _negated(text: str) -> float:
         return 0.0
 
 
-def _apply(state: _State, record: Any, plan: dict[str, Any], rate: float) -> None:
+def _apply(state: _State, record: Any, plan: _Plan, rate: float) -> None:
     """Update the run's state with one journal record."""
     fields = record.fields
     if record.kind == "start":
         state.unit = str(fields.get("unit") or "")
         state.started = str(fields.get("utc") or "")
-        state.procedure = str(plan.get("name") or "")
+        state.procedure = plan.name
         return
     if record.kind in ("finished", "complete", "stop"):
         state.finished = str(fields.get("utc") or "") if record.kind == "finished" else state.finished
@@ -178,7 +250,7 @@ def _apply(state: _State, record: Any, plan: dict[str, Any], rate: float) -> Non
         _operation(state, record, plan, rate)
 
 
-def _operation(state: _State, record: Any, plan: dict[str, Any], rate: float) -> None:
+def _operation(state: _State, record: Any, plan: _Plan, rate: float) -> None:
     """Update the run's state with one journaled driver operation (a command, samples, a chunk of a static record)."""
     fields = record.fields
     state.phase = str(fields.get("phase") or state.phase)
@@ -202,14 +274,12 @@ def _operation(state: _State, record: Any, plan: dict[str, Any], rate: float) ->
         _quicklook(state, plan, chunk, rate)
 
 
-def _quicklook(state: _State, plan: dict[str, Any], chunk: dict[str, Any], rate: float) -> None:
+def _quicklook(state: _State, plan: _Plan, chunk: dict[str, NDArray[Any]], rate: float) -> None:
     """Feed a journaled chunk of a static record to the run's quick look (the runner's own)."""
     from stableins.procedures.quicklook import QuickLook
 
     if state.quicklook is None:
-        steps = plan.get("steps", [])
-        step = steps[state.step] if 0 <= state.step < len(steps) else {}
-        tolerance = float((step.get("checks") or {}).get("angle_tolerance", math.inf)) if isinstance(step, dict) else math.inf
+        tolerance = plan.steps[state.step].angle_tolerance if 0 <= state.step < len(plan.steps) else math.inf
         state.quicklook = QuickLook(rate, tolerance)
     try:
         state.quicklook.update(chunk)
@@ -217,44 +287,43 @@ def _quicklook(state: _State, plan: dict[str, Any], chunk: dict[str, Any], rate:
         state.quicklook = False
 
 
-def _step_seconds(step: dict[str, Any]) -> float:
+def _step_seconds(step: _Step) -> float:
     """Platform seconds a step of the plan takes at least (settle + dwell; a static record's settle + duration)."""
-    kind = step.get("kind")
-    if kind == "dwell":
-        return float(step.get("settle", 0.0)) + float(step.get("dwell", 0.0))
-    if kind == "static_record":
-        return float(step.get("settle", 0.0)) + float(step.get("duration", 0.0))
-    if kind == "offset_iteration":
-        return MIN_PASSES * (sum(map(float, step.get("settles", ()))) + sum(map(float, step.get("dwells", ()))))
+    if step.kind == "dwell":
+        return step.settle + step.dwell
+    if step.kind == "static_record":
+        return step.settle + step.duration
+    if step.kind == "offset_iteration":
+        return MIN_PASSES * (sum(step.settles) + sum(step.dwells))
     return 0.0
 
 
-def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> dict[str, Any]:
-    """Return a run's progress as JSON values."""
-    steps = [s for s in plan.get("steps", []) if isinstance(s, dict)]
-    step = steps[state.step] if 0 <= state.step < len(steps) else {}
-    kind = step.get("kind", "")
+def _describe(name: str, folder: Path, state: _State, plan: _Plan) -> RunProgress:
+    """Return a run's progress as the API's document (:class:`~stableins.web.models.RunProgress`)."""
+    steps = plan.steps
+    step = steps[state.step] if 0 <= state.step < len(steps) else _Step()
+    kind = step.kind
     position: int | None = None
     pass_number: int | None = None
     planned_here = 0.0
     if kind == "dwell":
-        position = int(step.get("position", 0)) or None
-        pass_number = int(step.get("pass_number", 1))
-        planned_here = float(step.get("settle", 0.0)) + float(step.get("dwell", 0.0))
-    elif kind == "offset_iteration" and step.get("positions"):
-        positions = list(step["positions"])
+        position = step.position
+        pass_number = step.pass_number
+        planned_here = step.settle + step.dwell
+    elif kind == "offset_iteration" and step.positions:
+        positions = step.positions
         k = max(state.commands_in_step - 1, 0)
-        position = int(positions[k % len(positions)])
+        position = positions[k % len(positions)]
         pass_number = k // len(positions) + 1
-        planned_here = float(step["settles"][k % len(positions)]) + float(step["dwells"][k % len(positions)])
+        planned_here = step.settles[k % len(positions)] + step.dwells[k % len(positions)]
     elif kind == "static_record":
-        planned_here = float(step.get("settle", 0.0)) + float(step.get("duration", 0.0))
+        planned_here = step.settle + step.duration
     if state.finished or state.complete:
         remaining: float | None = 0.0
         lower_bound = False
     elif state.step < 0:
         remaining = sum(_step_seconds(s) for s in steps)
-        lower_bound = any(s.get("kind") == "offset_iteration" for s in steps)
+        lower_bound = any(s.kind == "offset_iteration" for s in steps)
     else:
         later = sum(_step_seconds(s) for s in steps[state.step + 1 :])
         here = (
@@ -263,42 +332,42 @@ def _describe(name: str, folder: Path, state: _State, plan: dict[str, Any]) -> d
             else max(_step_seconds(step) - state.recorded, planned_here - state.dwelt, 0.0)
         )
         remaining = later + here
-        lower_bound = kind == "offset_iteration" or any(s.get("kind") == "offset_iteration" for s in steps[state.step + 1 :])
+        lower_bound = kind == "offset_iteration" or any(s.kind == "offset_iteration" for s in steps[state.step + 1 :])
     try:
         updated = datetime.fromtimestamp((folder / JOURNAL).stat().st_mtime, UTC).isoformat(timespec="seconds")
     except OSError:
         updated = ""
     status = "finished" if state.finished else "stopped" if state.stopped else "complete" if state.complete else "running"
-    look = None
+    look: QuickLookDocument | None = None
     if state.quicklook:
         harmonics = state.quicklook.harmonics()
-        look = {
-            "text": state.quicklook.describe(),
-            "hours": state.static_samples / float(plan.get("sample_rate") or 1.0) / 3600.0,
-            "amplitude": None if harmonics is None or harmonics[0] is None else [float(a) for a in harmonics[0]],
-            "residual_rms": None if harmonics is None else [float(r) for r in harmonics[1]],
-        }
-    return {
-        "name": name,
-        "unit": state.unit,
-        "procedure": state.procedure or str(plan.get("name") or ""),
-        "state": status,
-        "reason": state.stopped or None,
-        "started": state.started,
-        "updated": updated,
-        "journal_records": state.records,
-        "step": state.step + 1 if state.step >= 0 else None,
-        "steps": len(steps),
-        "step_name": step.get("name"),
-        "stage": step.get("stage") or ("system" if kind == "static_record" else None),
-        "phase": state.phase or None,
-        "position": position,
-        "pass": pass_number,
-        "dwell_seconds": state.dwelt,
-        "dwell_planned": planned_here,
-        "samples": state.samples,
-        "remaining_seconds": remaining,
-        "remaining_is_lower_bound": lower_bound,
-        "quicklook": look,
-        "error": state.error or None,
-    }
+        look = QuickLookDocument(
+            text=state.quicklook.describe(),
+            hours=state.static_samples / (plan.sample_rate or 1.0) / 3600.0,
+            amplitude=None if harmonics is None or harmonics[0] is None else [float(a) for a in harmonics[0]],
+            residual_rms=None if harmonics is None else [float(r) for r in harmonics[1]],
+        )
+    return RunProgress(
+        name=name,
+        unit=state.unit,
+        procedure=state.procedure or plan.name,
+        state=status,
+        reason=state.stopped or None,
+        started=state.started,
+        updated=updated,
+        journal_records=state.records,
+        step=state.step + 1 if state.step >= 0 else None,
+        steps=len(steps),
+        step_name=step.name,
+        stage=step.stage or ("system" if kind == "static_record" else None),
+        phase=state.phase or None,
+        position=position,
+        pass_=pass_number,
+        dwell_seconds=state.dwelt,
+        dwell_planned=planned_here,
+        samples=state.samples,
+        remaining_seconds=remaining,
+        remaining_is_lower_bound=lower_bound,
+        quicklook=look,
+        error=state.error or None,
+    )
