@@ -70,7 +70,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from stableins.conventions import (
     ARCSEC,
@@ -86,6 +85,7 @@ from stableins.documents import DocumentFields, JSONObject
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errormodel import GYRO_DRIFT_TERMS, GYRO_G_TERMS, Term
 from stableins.estimators.details import StageDetails
+from stableins.estimators.distributions import chi2_sf
 from stableins.estimators.gauss_newton import goodness_of_fit_warning
 from stableins.estimators.result import FitResult, Likelihood, Stage
 from stableins.platform import GIMBAL_LOCK_CONDITION, GIMBAL_NAMES, GimbalPlatform, platform_specific_force, rotation_about
@@ -525,7 +525,7 @@ def _flag_test(
         return float("nan"), float("nan"), 0
     block = covariance[np.ix_(tested, tested)]
     statistic = float(x[tested] @ np.linalg.solve(block, x[tested]))
-    return statistic, float(stats.chi2.sf(statistic, len(tested))), len(tested)
+    return statistic, chi2_sf(statistic, len(tested)), len(tested)
 
 
 def gyro_rank_report(

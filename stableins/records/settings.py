@@ -11,31 +11,41 @@ were typed read the same way; the system stage's earlier form (five gyro-drift k
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import cache
 
 from stableins.documents import DocumentFields, JSONValue
 from stableins.errors import InputError
 from stableins.estimators.device_settings import DeviceFitSettings, DeviceSessionSettings
-from stableins.estimators.drift.model import DriftSettings
-from stableins.estimators.gyro_sensitivity import GyroSettings
-from stableins.estimators.lever.model import LeverOptions
-from stableins.estimators.poses import PoseSettings
 from stableins.estimators.result import Stage, StageSettings
-from stableins.estimators.system.settings import SystemSettings
-from stableins.estimators.systematic.result import SystematicSettings
-from stableins.estimators.thermal_sensitivity import ThermalSettings
 
-#: The settings class of each stage that stores settings, by the stage's name (or the object's ``stage``).
-READERS: dict[str, Callable[[DocumentFields], StageSettings]] = {
-    Stage.COARSE: DeviceFitSettings.from_document,
-    Stage.FINE: DeviceFitSettings.from_document,
-    Stage.SYSTEM: SystemSettings.from_document,
-    Stage.POSES: PoseSettings.from_document,
-    Stage.LEVER: LeverOptions.from_document,
-    Stage.DRIFT: DriftSettings.from_document,
-    Stage.SYSTEMATIC: SystematicSettings.from_document,
-    Stage.THERMAL: ThermalSettings.from_document,
-    Stage.GYRO: GyroSettings.from_document,
-}
+
+@cache
+def readers() -> dict[str, Callable[[DocumentFields], StageSettings]]:
+    """Return the settings class's reader of each stage that stores settings, by the stage's name (or the object's ``stage``).
+
+    Imported when a record is read, not with the package: the systematic and gyro stages' modules bring filterpy and
+    scipy.stats, which a command that only reads records (``calibrate system``, ``report``) does not otherwise need.
+    """
+    from stableins.estimators.drift.model import DriftSettings
+    from stableins.estimators.gyro_sensitivity import GyroSettings
+    from stableins.estimators.lever.model import LeverOptions
+    from stableins.estimators.poses import PoseSettings
+    from stableins.estimators.system.settings import SystemSettings
+    from stableins.estimators.systematic.result import SystematicSettings
+    from stableins.estimators.thermal_sensitivity import ThermalSettings
+
+    return {
+        Stage.COARSE: DeviceFitSettings.from_document,
+        Stage.FINE: DeviceFitSettings.from_document,
+        Stage.SYSTEM: SystemSettings.from_document,
+        Stage.POSES: PoseSettings.from_document,
+        Stage.LEVER: LeverOptions.from_document,
+        Stage.DRIFT: DriftSettings.from_document,
+        Stage.SYSTEMATIC: SystematicSettings.from_document,
+        Stage.THERMAL: ThermalSettings.from_document,
+        Stage.GYRO: GyroSettings.from_document,
+    }
+
 
 #: The stages whose run a device calibration's settings describe (``stableins calibrate device``: the coarse stage alone,
 #: or the coarse and fine stages fused), told from a fit's own settings by their having no ``stage``.
@@ -68,7 +78,7 @@ def settings_from_document(name: str, value: JSONValue, where: str, path: str | 
     if stated is None and name in DEVICE_FIT_STAGES:  # the device calibration's (stableins calibrate device)
         return DeviceSessionSettings.from_document(fields)
     key = stated if isinstance(stated, str) else name
-    reader = READERS.get(key)
+    reader = readers().get(key)
     if reader is None:
         field = where if stated is None else f"{where}.stage"
         expected = "the settings of a stage of docs/formats.md"

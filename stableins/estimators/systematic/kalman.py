@@ -10,11 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
-from filterpy.kalman import KalmanFilter
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # pragma: no cover
+    from filterpy.kalman import KalmanFilter
 
 from stableins.estimators.systematic.model import (
     Discretization,
@@ -89,6 +92,8 @@ def run_filters(
     ``innovation_stride`` > 0 keeps the first filter's whitened innovations of every that many steps (bounded: the
     fit evidence of the record).
     """
+    from filterpy.kalman import KalmanFilter  # here: reading a record's systematic settings needs no filter (issue 30)
+
     filters = []
     for P0 in priors:
         kf = KalmanFilter(dim_x=len(x0), dim_z=3)
@@ -120,6 +125,8 @@ def _advance(kf: KalmanFilter, run: FilterRun, step: FilterStep, *, keep_history
 
 def rts_smooth(run: FilterRun) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Filterpy's RTS smoother over a kept history: smoothed means (N, n) and covariances (N, n, n)."""
+    from filterpy.kalman import KalmanFilter
+
     kf = KalmanFilter(dim_x=len(run.x), dim_z=3)
     xs = np.array([h[0] for h in run.history])
     ps = np.array([h[1] for h in run.history])
