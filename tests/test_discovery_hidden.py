@@ -227,9 +227,7 @@ def _one_session(truth, stages, *, rate=10.0):
             t_command = platform.command(tuple(readings))
             platform.wait(platform.slew_duration() + 6.0)
             block = platform.acquire(dwell)
-            rows.append(
-                sim_device.dwell_columns(block, stage=stage, pass_number=1, position=position, command=readings, command_time=t_command)
-            )
+            rows.append(block.device_columns(stage=stage, pass_number=1, position=position, command=readings, command_time=t_command))
         pieces[stage] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     return pieces
 

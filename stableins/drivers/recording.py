@@ -79,25 +79,10 @@ class RecordingDriver:
             block = entry.dwell
             if block is None or len(block) == 0:
                 raise RuntimeError(f"no samples were acquired at command {k + 1} ({stage})")
-            m = len(block)
-            command = np.broadcast_to(np.asarray(entry.readings), (m, 3))
-            columns = {
-                "time": block.time,
-                "stage": np.full(m, stage),
-                "pass": np.full(m, k // n + 1, dtype=np.int32),
-                "position": np.full(m, positions[k % n], dtype=np.int32),
-                "time_since_command": block.time - entry.time,
-                "command_platform": command[:, 0],
-                "command_inner": command[:, 1],
-                "command_middle": command[:, 2],
-                "angle_platform": block.angles[:, 0],
-                "angle_inner": block.angles[:, 1],
-                "angle_middle": block.angles[:, 2],
-                "f_x": block.specific_force[:, 0],
-                "f_y": block.specific_force[:, 1],
-                "f_z": block.specific_force[:, 2],
-                "temperature": block.temperature,
-            }
+            position = positions[k % n]
+            columns = block.device_columns(
+                stage=stage, pass_number=k // n + 1, position=position, command=entry.readings, command_time=entry.time
+            )
             for name, values in columns.items():
                 parts.setdefault(name, []).append(np.asarray(values))
         return {name: np.concatenate(values) for name, values in parts.items()}

@@ -376,35 +376,6 @@ class SimulatedPlatform:
             raise RuntimeError("the simulated platform is closed")
 
 
-def dwell_columns(
-    block: SampleBlock, *, stage: str, pass_number: int, position: int, command: ArrayLike, command_time: float
-) -> dict[str, NDArray]:
-    """Return one dwell's rows as device-file columns (:data:`stableins.schema.DEVICE_COLUMNS`).
-
-    ``block`` is what the platform recorded at ``position`` of ``stage``'s pass ``pass_number`` after the command
-    ``command`` (readings [rad]) given at ``command_time`` [s].
-    """
-    n = len(block)
-    r = np.asarray(command, dtype=float)
-    return {
-        "time": block.time,
-        "stage": np.full(n, stage),
-        "pass": np.full(n, pass_number, dtype=np.int32),
-        "position": np.full(n, position, dtype=np.int32),
-        "time_since_command": block.time - command_time,
-        "command_platform": np.full(n, r[0]),
-        "command_inner": np.full(n, r[1]),
-        "command_middle": np.full(n, r[2]),
-        "angle_platform": block.angles[:, 0],
-        "angle_inner": block.angles[:, 1],
-        "angle_middle": block.angles[:, 2],
-        "f_x": block.specific_force[:, 0],
-        "f_y": block.specific_force[:, 1],
-        "f_z": block.specific_force[:, 2],
-        "temperature": block.temperature,
-    }
-
-
 def simulate_dwells(
     truth: Truth,
     readings_list: Sequence[ArrayLike],
@@ -453,7 +424,7 @@ def simulate_dwells(
         t_command = platform.command(tuple(r))
         platform.wait(platform.slew_duration() + float(settles[position - 1]))
         block = platform.acquire(float(dwells[position - 1]))
-        pieces.append(dwell_columns(block, stage=stage, pass_number=pass_number, position=position, command=r, command_time=t_command))
+        pieces.append(block.device_columns(stage=stage, pass_number=pass_number, position=position, command=r, command_time=t_command))
     from stableins.schema import DEVICE_COLUMNS
 
     names = [c.name for c in DEVICE_COLUMNS]
