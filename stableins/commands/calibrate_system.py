@@ -292,7 +292,7 @@ def _document(args: Any, outcome: Any, prior: Any, updated: Any) -> dict[str, An
         "chi2": outcome.result.chi2,
         "dof": outcome.result.dof,
         "chi2_red": outcome.result.chi2_red,
-        "notes": [flag_text(n) for n in dict.fromkeys((*outcome.notes, *outcome.result.notes))],  # a note both carry, once
+        "notes": [flag_text(n) for n in outcome.result.notes],  # the record's notes: the stage's and the update's
         "noise_model": outcome.noise_model.to_document(),
         "low_frequency_noise": None
         if fit is None
