@@ -161,12 +161,11 @@ def field_recalibration(root: Path) -> None:
         f"(must be ≤ 1: {verdict})"
     )
     history = json.loads(must("history", "SN042", "--store", str(store), "--json"))
-    technical = text  # the change table is the technical report's too
-    begin = re.search(r"^\d+\s+Change since the previous calibration", technical, re.M)
-    end = re.search(r"^\d+\s+Statement of conformity", technical, re.M)
+    begin = re.search(r"^\d+\s+Change since the previous calibration", text, re.M)  # the technical report's too
+    end = re.search(r"^\d+\s+Statement of conformity", text, re.M)
     if begin is None or end is None:
         raise SystemExit(f"{out / 'report-technical.pdf'}: no 'Change since the previous calibration' section before the conformity")
-    section = technical[begin.start() : end.start()]
+    section = text[begin.start() : end.start()]
     certificate = sorted({m.group(1) for m in re.finditer(r"^\s*(\w+)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+yes\s", section, re.M)})
     flags = f"recal {recal['significant']}, history {history['changes'][-1]['significant']}, certificate {certificate}"
     print(f"   change flags (|z| ≥ 3): {flags}; compared: {len(recal['changes'])} parameters, not compared: {len(recal['not_compared'])}")
