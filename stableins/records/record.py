@@ -69,7 +69,7 @@ class CalibrationRecord(RecordContent):
         return record_from_device(cls, calibration, site, run, entries=entries)
 
     @classmethod
-    def from_fit_result(  # noqa: PLR0913 - the record's own fields beside the run, each named at the call
+    def from_fit_result(
         cls,
         result: FitResult,
         run: RunInfo | StageRun = UNDESCRIBED,
@@ -110,7 +110,7 @@ class CalibrationRecord(RecordContent):
             noise_model=noise_model,
         )  # fmt: skip
 
-    def updated(  # noqa: PLR0913 - the update's own choices beside the run, each named at the call
+    def updated(
         self,
         result: FitResult,
         run: RunInfo | StageRun = UNDESCRIBED,
