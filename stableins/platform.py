@@ -462,37 +462,13 @@ def rotation_about(axis_angle: ArrayLike) -> NDArray[np.float64]:
 
 
 def rotation_vector(dcm: ArrayLike) -> NDArray[np.float64]:
-    r"""Inverse of :func:`rotation_about`: the vector ``θ`` with ``rotation_about(θ) = dcm`` (``|θ| < π``), vectorized.
+    """Inverse of :func:`rotation_about`: the vector ``θ`` with ``rotation_about(θ) = dcm`` (``|θ| < π``), vectorized.
 
-    ``rotation_about(θ) = exp(−[θ×])``, so ``θ`` is minus the rotation vector of ``dcm`` as an active rotation.  Through
-    the unit quaternion ``(w, u)`` of ``R = dcm`` (``R = (w² − |u|²) I + 2uuᵀ + 2w[u×]``), taken from the largest of
-    ``1 + tr R`` and ``1 + 2R_ii − tr R`` (each is ``4w²`` or ``4u_i²``, so the square root is never of a small number):
-
-    .. math:: θ = −2\,\operatorname{atan2}(|u|, w)\,u/|u|\quad (w ≥ 0),\qquad θ → −2u/w 	ext{ as } |u| → 0 .
-
-    Plain numpy (issue 30: ``scipy.spatial`` cost the commands that call this about 0.03 s to import).
+    ``rotation_about(θ) = exp(−[θ×])``, so ``θ`` is minus the rotation vector of ``dcm`` as an active rotation.
     """
+    from scipy.spatial.transform import Rotation
+
     matrix = np.asarray(dcm, dtype=float)
-    r = matrix.reshape(-1, 3, 3)
-    trace = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
-    candidates = np.column_stack([1.0 + 2.0 * np.diagonal(r, axis1=1, axis2=2) - trace[:, None], 1.0 + trace])
-    pick = np.argmax(candidates, axis=1)  # 0, 1, 2: the largest is 4u_i²; 3: 4w²
-    quaternion = np.empty((r.shape[0], 4))  # u_x, u_y, u_z, w (each times 4·(the largest component))
-    antisymmetric = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1)  # 4w u
-    for i in range(3):
-        rows = pick == i
-        j, k = (i + 1) % 3, (i + 2) % 3
-        quaternion[rows, i] = candidates[rows, i]  # 4u_i²
-        quaternion[rows, j] = r[rows, j, i] + r[rows, i, j]  # 4u_i u_j
-        quaternion[rows, k] = r[rows, k, i] + r[rows, i, k]
-        quaternion[rows, 3] = antisymmetric[rows, i]  # 4w u_i
-    rows = pick == 3
-    quaternion[rows, :3] = antisymmetric[rows]
-    quaternion[rows, 3] = candidates[rows, 3]
-    quaternion /= np.linalg.norm(quaternion, axis=1, keepdims=True)
-    quaternion *= np.where(quaternion[:, 3:] < 0.0, -1.0, 1.0)  # w ≥ 0: the rotation by less than π
-    u, w = quaternion[:, :3], quaternion[:, 3]
-    norm = np.linalg.norm(u, axis=1)
-    angle = 2.0 * np.arctan2(norm, w)
-    scale = np.where(norm > 1e-8, angle / np.where(norm > 0.0, norm, 1.0), 2.0 / w)  # 2 atan2(n, w)/n → 2/w (error n²/3)
-    return (-scale[:, None] * u).reshape(matrix.shape[:-2] + (3,))
+    flat = matrix.reshape(-1, 3, 3)
+    out = -Rotation.from_matrix(flat).as_rotvec()
+    return out.reshape(matrix.shape[:-2] + (3,))
