@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shutil
 import subprocess
 import sys
@@ -55,6 +54,7 @@ FAMILIES = {
     "pitch": ("theta_1c", "theta_1s", "theta_2c", "theta_2s"),
     "roll": ("phi_1s", "phi_1c", "phi_2s", "phi_2c"),
     "gyro": ("gyro_drift_x", "gyro_drift_y", "gyro_drift_z"),
+    "x1 record": ("x1_record",),
 }
 
 WORLDS: dict[str, gen.Noise] = {
@@ -117,6 +117,7 @@ def run_record(world: str, seed: int, *, rate: float, diagnose: bool, keep: Path
         for entry in result["parameters"]:
             if entry["id"] in seen and entry.get("sigma"):
                 out.z[entry["id"]] = (entry["value"] - seen[entry["id"]]) / entry["sigma"]
+        out.z["x1_record"] = _record_x1_z(directory / "cal.json", truth)
         out.chi2_red = float(result["chi2_red"])
         out.p_value = float(chi2.sf(result["chi2"], result["dof"])) if result["dof"] > 0 else math.nan
         slow = result.get("low_frequency_noise") or {}
@@ -141,6 +142,30 @@ def run_record(world: str, seed: int, *, rate: float, diagnose: bool, keep: Path
         out.seconds = time.perf_counter() - t0
         if keep is None:
             shutil.rmtree(directory, ignore_errors=True)
+
+
+def _record_x1_z(path: Path, truth: dict) -> float:
+    """The z of x1 = −(D_x + D_y)/2 cos²L − D_z sin²L + b_z sinL in the updated record (posterior against the truth).
+
+    The stage's note says "K2_z is not observed and keeps its prior", while x1 carries ``gΔK_z sin³L``
+    (docs/system-calibration.md §8): this z shows whether the record's x1 direction is right.
+    """
+    record = json.loads(path.read_text(encoding="utf-8"))
+    lat = math.radians(truth["world"]["latitude_deg"])
+    g = truth["world"]["gravity"]
+    weights = {
+        "sf_x": -(math.cos(lat) ** 2) / 2,
+        "sf_y": -(math.cos(lat) ** 2) / 2,
+        "sf_z": -(math.sin(lat) ** 2),
+        "bias_z": math.sin(lat) / g,
+    }
+    ids = record["covariance"]["ids"]
+    cov = np.array(record["covariance"]["matrix"], dtype=float)
+    a = np.array([weights.get(i, 0.0) for i in ids])
+    values = {p["id"]: p["value"] for p in record["parameters"]}
+    true = truth["parameters_gauge_theta10"]
+    error = sum(w * (values[k] - true[k]) for k, w in weights.items())
+    return float(error / math.sqrt(a @ cov @ a))
 
 
 def rms(values: list[float]) -> float:
@@ -185,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     print(
         f"independent system generator: one sidereal day per record at {args.rate:g} Hz, seeds {args.first_seed}.."
-        f"{args.first_seed + args.seeds - 1}; calibrate system --estimate-k2, no noise flags (pid {os.getpid()})",
+        f"{args.first_seed + args.seeds - 1}; calibrate system --estimate-k2, no noise flags",
         flush=True,
     )
     if args.summarize:
