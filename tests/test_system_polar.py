@@ -165,3 +165,30 @@ def test_the_loop_predicts_the_misalignment_a_drift_builds():
     blocks = {"time": t, "cos": np.cos(angle), "sin": np.sin(angle)}
     predicted = drift_columns(blocks, loop, states=ANGLE_STATES) @ (drift / 1e-8)
     assert np.abs(predicted - phi).max() < 0.01 * np.abs(phi).max()
+
+
+def test_the_g_sensitive_drift_of_a_tilting_platform_is_taken_out_of_the_fitted_drift():
+    """0.05 °/h on x_p and y_p tilt z_p 29.5 mrad in a day, and with it f^p: D_g f^p ramps (0.001 °/h/g on the diagonal),
+    which the fit takes for part of ε_x, ε_y (6.7e-6 °/h predicted, ten times their σ); tilt_bias takes it out."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration
+    from stableins.estimators.system.gyro_drift import fit_gimbal_drift, tilt_bias
+    from stableins.simulator import system
+    from stableins.simulator.noise import NoiseSettings
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    drift = {"x": 0.05 * DEG_PER_HOUR, "y": 0.05 * DEG_PER_HOUR}
+    effects = {f"Dg_{a}{a}": 0.001 * DEG_PER_HOUR_PER_G for a in "xyz"}
+    truth = Truth.draw(3, site=SimulatedSite(sample_rate=0.1), noise=NoiseSettings(), effects=effects, gyro_drift=drift)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, 0.1, seed=3)
+    blocks = {"time": cols["time"], "count": np.ones(cols["time"].size)}
+    blocks |= {name: cols[f"angle_{name}"] for name in ("platform", "inner", "middle")}
+    site = truth.site
+    offsets = np.array([truth.parameters[k] for k in ("theta10", "theta20", "theta30")])
+    fit = fit_gimbal_drift(
+        blocks, site.latitude, GimbalConfiguration(site.gimbal_senses), offsets=offsets, base_attitude=site.base_attitude
+    )
+    sensitivity = np.diag([0.001 * DEG_PER_HOUR_PER_G] * 3)
+    true = np.array([drift["x"], drift["y"], 0.0]) + sensitivity @ np.array([0.0, 0.0, site.gravity * np.sin(site.latitude)])
+    before = (fit.values - true)[:2] / DEG_PER_HOUR
+    after = (fit.values - tilt_bias(fit, sensitivity, site.gravity) - true)[:2] / DEG_PER_HOUR
+    assert np.abs(before).max() > 5e-6 and np.abs(after).max() < 0.2 * np.abs(before).max()
