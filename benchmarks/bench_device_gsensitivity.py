@@ -2,7 +2,7 @@
 
 Run:  PYTHONPATH=. python benchmarks/bench_device_gsensitivity.py [--seeds N] [--dwell S] [--drift DEG_PER_H]
           [--g DEG_PER_H_PER_G] [--mode caged|earth_rate|inertial] [--torquer PPM] [--end-to-end N]
-          [--independent N] [--start-seed K] [--world NAME]
+          [--independent N] [--start-seed K] [--world NAME] [--angle-noise ARCSEC]
 
 ``--end-to-end`` and ``--independent`` print each session's twelve z, then the rms z per number and per family
 (``gyro_drift``, ``gyro_g_sensitivity``, its diagonal and off-diagonal), the mean z per number (a bias), the pooled
@@ -61,7 +61,7 @@ from stableins.simulator.worlds import WORLDS, apply_world
 DRIFT = 0.05  # °/h
 G = 0.001  # °/h/g
 #: The world of this run (``main`` sets them from the options).
-WORLD: dict[str, object] = {"drift": DRIFT, "mode": DwellMode.EARTH_RATE, "torquer": 0.0, "world": "default"}
+WORLD: dict[str, object] = {"drift": DRIFT, "mode": DwellMode.EARTH_RATE, "torquer": 0.0, "world": "default", "angle_noise": None}
 
 
 def session(seed: int, g_sensitivity: float, dwell: float):
@@ -82,6 +82,8 @@ def world_truth(seed: int, g_sensitivity: float) -> Truth:
     # this run's drift and D_g replace the world's (the `gyro` world's are the same figures, D_g diagonal only)
     effects = {k: v for k, v in truth.effects.items() if not k.startswith("Dg_")} | effects
     truth = truth.with_changes(effects=effects, gyro_drift=gyro)
+    if WORLD["angle_noise"] is not None:  # --angle-noise: the expectation without the noise's scatter
+        truth = truth.with_changes(noise=replace(truth.noise, angle_noise=float(WORLD["angle_noise"]) * ARCSEC))  # type: ignore[arg-type]
     return truth.with_changes(site=replace(truth.site, dwell_mode=WORLD["mode"]))
 
 
@@ -148,6 +150,10 @@ def _arguments() -> argparse.Namespace:
     parser.add_argument("--torquer", type=float, default=0.0, help="torquer scale-factor error per axis [ppm]")
     parser.add_argument("--end-to-end", type=int, default=0, help="sessions through simulate/calibrate/diagnose (CLI)")
     parser.add_argument("--start-seed", type=int, default=0, help="first seed of the --end-to-end / --independent sessions")
+    parser.add_argument(
+        "--angle-noise", type=float, default=None,
+        help="--end-to-end: the angle noise [arcsec per sample] (e.g. 0.002: the bias without the scatter; z in the 0.2-arcsec σ)",
+    )  # fmt: skip
     parser.add_argument("--independent", type=int, default=0, help="sessions of the independent generator through calibrate device")
     parser.add_argument(
         "--world", choices=list(WORLDS), default="default",
@@ -158,7 +164,7 @@ def _arguments() -> argparse.Namespace:
 
 def main() -> None:
     args = _arguments()
-    WORLD.update(drift=args.drift, mode=DwellMode(args.mode), torquer=args.torquer, world=args.world)
+    WORLD.update(drift=args.drift, mode=DwellMode(args.mode), torquer=args.torquer, world=args.world, angle_noise=args.angle_noise)
     g_true = args.g
     clean = args.seeds if args.clean_seeds is None else args.clean_seeds
     start = time.time()
@@ -278,6 +284,8 @@ def end_to_end(sessions: int, g_sensitivity: float, start: int = 0) -> None:
                 if gyro is not None:
                     value = np.array([gyro["parameters"][i]["value"] for i in ids])
                     sigma = np.array([gyro["parameters"][i]["sigma"] for i in ids])
+                    if WORLD["angle_noise"] is not None:  # the σ of the simulator's 0.2″ (σ scales with the noise)
+                        sigma = sigma * 0.2 / float(WORLD["angle_noise"])  # type: ignore[arg-type]
                     z_all.append((value - in_gauge(truth, truth_vector)) / sigma)
                     sigmas.append(sigma)
                     chi2.append(gyro["chi2_red"])

@@ -112,9 +112,10 @@ def check_metadata(metadata: SiteMetadata, path: str) -> RecordSite:
 #: alignment the harmonic model rests on (``polar_tolerance``, 1e-3 rad: a mean offset ``ε T/2`` of 1e-3 rad over one
 #: day is 0.005 °/h).  docs/system-calibration.md §9.
 _GYRO_CAUSE = (
-    "an uncompensated equatorial gyro drift does this too: it turns z_p off the Earth's axis by drift x time, 1.2 deg a "
-    "day at 0.05 deg/h; the system stage needs the INS to compensate its gyros (the device-level gyro calibration "
-    "installed) to about 0.005 deg/h or better"
+    "an uncompensated equatorial gyro drift does this too: it turns z_p off the Earth's axis by drift x time, 1.7 deg a "
+    "day at 0.05 deg/h on x_p and y_p; with the inner and middle gimbal readings the stage measures such a drift and "
+    "calibrates through it while it turns z_p by at most 30 mrad (docs/system-calibration.md section 9); without them, "
+    "compensate the gyros in the INS (the device-level gyro calibration installed)"
 )
 
 

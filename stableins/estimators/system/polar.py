@@ -55,9 +55,9 @@ RATE_TOLERANCE_UNCHECKED = 2e-3
 #: Largest turn of z_p off the pole by a measured equatorial gyro drift over the record, ``|ε_xy| T`` [rad], that the
 #: stage calibrates through (docs/system-calibration.md §9, "Across z_p").  Measured over one sidereal day with the
 #: static-base checks opened, once the second order of the attitude outputs is removed (:func:`.loop.drift_curvature_removed`):
-#: the combined coefficients stay within 0.07σ of the drift-free run at 4.2 mrad (0.01 °/h), 0.35σ at 20.9 mrad
-#: (0.05 °/h), 0.72σ at 41.8 mrad (0.1 °/h), growing about linearly; 30 mrad (0.072 °/h for a day, the ``gyro`` world's
-#: 0.05 °/h on x_p and y_p) keeps that within about half a σ.
+#: the combined coefficients stay within 0.16σ of the drift-free run at 8.4 mrad (0.02 °/h), 0.41σ at 20.9 mrad
+#: (0.05 °/h), 0.61σ at 29.2 mrad, 0.97σ at 41.8 mrad (0.1 °/h), growing about linearly; 30 mrad (0.072 °/h for a day,
+#: the ``gyro`` world's 0.05 °/h on x_p and y_p) keeps the rms within 0.16σ.
 DRIFT_TURN_LIMIT = 0.03
 
 
