@@ -154,7 +154,8 @@ def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
             + ", ".join(f"{seeds[0] + 20 * j}-{seeds[0] + 20 * j + 39} {b:.3f}" for j, b in enumerate(batches))
         )
     print("  rms z per coefficient: " + ", ".join(f"{COMBINED_COEFFICIENTS[i]} {np.sqrt(np.mean(z[:, i] ** 2)):.2f}" for i in HARMONIC))
-    expected = "false-positive rate, nominal 0.05" if noise.bias_instability == 0 else "detection power"
+    white_world = noise.bias_instability == 0 and noise.acceleration_random_walk == 0
+    expected = "false-positive rate, nominal 0.05" if white_world else "detection power"
     print(
         f"  low-frequency noise detected by the record alone in {binomial(int(np.sum(detected)), n)} of the records ({expected}; "
         f"±{math.sqrt(0.05 * 0.95 / n):.3f} at 0.05); p-value from the record's null law (Monte Carlo) in {int(np.sum(drawn))}; "
