@@ -33,7 +33,7 @@ import numpy as np
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, SIDEREAL_DAY
 from stableins.data.chunks import ArraySource
 from stableins.errors import InputError
-from stableins.estimators.system.gyro_drift_step import measure_gimbals
+from stableins.estimators.system.gyro_drift import measure_gimbals
 from stableins.estimators.system.polar import check_polar_alignment, polar_alignment
 from stableins.estimators.system.stage import SystemOptions, record_sums
 from stableins.simulator import system

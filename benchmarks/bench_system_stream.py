@@ -160,7 +160,7 @@ def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
     The parts are wrapped with timers for this run only (the module is restored afterwards); what is left of the
     total is the streaming loop's own numpy work on the 1-Hz columns and the post-processing not listed.
     """
-    from stableins.estimators.system import accumulate, blocksums, solve
+    from stableins.estimators.system import accumulate, blocks, solve
     from stableins.estimators.system.checks import StaticChecks
 
     record = open_system_record(path)
@@ -187,7 +187,7 @@ def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
 
     parts = {
         (accumulate, "block_sums"): "compiled pass (z, block moments, sampling check)",
-        (blocksums, "harmonic_sums"): "harmonic block sums",
+        (blocks, "harmonic_sums"): "harmonic block sums",
         (accumulate, "second_difference_sums"): "noise second differences",
         (StaticChecks, "slow"): "static checks on the 1-Hz columns",
         (accumulate.AttitudeBlocks, "add"): "attitude blocks",

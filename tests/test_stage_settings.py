@@ -20,7 +20,7 @@ import stableins
 from stableins.errors import InputError
 from stableins.estimators.device_settings import DeviceSessionSettings
 from stableins.estimators.gyro_sensitivity import GyroSettings
-from stableins.estimators.system.gyro_drift_step import DriftSource
+from stableins.estimators.system.gyro_drift import DriftSource
 from stableins.estimators.system.options import GyroDrift
 from stableins.estimators.system.settings import SystemSettings
 from stableins.noise import NoiseSource

@@ -13,8 +13,8 @@ import pytest
 
 from stableins.conventions import ARCSEC, DEG_PER_HOUR, SIDEREAL_DAY, GimbalConfiguration
 from stableins.data.chunks import ArraySource
-from stableins.estimators.system.gyro_drift import GimbalBlocks, fit_gimbal_drift
-from stableins.estimators.system.gyro_drift_step import DriftSource
+from stableins.estimators.system.blocks import GimbalBlocks
+from stableins.estimators.system.gyro_drift import DriftSource, fit_gimbal_drift
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.simulator import system
@@ -115,7 +115,7 @@ def test_drift_given_without_uncertainty_is_held_and_compared(drift_day):
 def test_drift_jacobian_of_the_attitude_fit_is_the_fit_of_the_drift_responses(drift_day):
     """∂(attitude values)/∂ε from the fit's own linear map equals three fits of the loop's unit-drift responses."""
     from stableins.estimators.system.attitude import AttitudeDrift, AttitudeModel, fit_attitude
-    from stableins.estimators.system.gyro_drift_step import attitude_drift_jacobian
+    from stableins.estimators.system.gyro_drift import attitude_drift_jacobian
     from stableins.estimators.system.loop import DampingLoop
 
     truth, _, out, _ = drift_day

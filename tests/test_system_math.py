@@ -12,7 +12,7 @@ from stableins.errormodel import ErrorModel
 from stableins.estimators.system import harmonics as hm
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.attitude import AttitudeDrift, AttitudeModel, attitude_combinations, fit_attitude
-from stableins.estimators.system.blocksums import BlockHarmonics, harmonic_information, observation
+from stableins.estimators.system.blocks import BlockHarmonics, harmonic_information, observation
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix, separate
 
@@ -231,7 +231,7 @@ def test_stage_compensation_equals_error_model_inverse():
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
 def test_block_sums_compiled_equal_numpy_reference(jitter):
     """The compiled per-sample pass equals its numpy reference (z, moments, block times, Σz², irregular steps)."""
-    from stableins.estimators.system.blocksums import BlockPass, block_sums, block_sums_reference
+    from stableins.estimators.system.blocks import BlockPass, block_sums, block_sums_reference
     from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(6)
@@ -272,7 +272,7 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
 
 def test_block_sums_z_equals_error_model_inverse():
     """z of the compiled pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
-    from stableins.estimators.system.blocksums import BlockPass, block_sums
+    from stableins.estimators.system.blocks import BlockPass, block_sums
     from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(5)
@@ -288,7 +288,7 @@ def test_block_sums_z_equals_error_model_inverse():
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
 def test_timed_block_information_equals_per_sample(jitter):
     """``S = S_c + ω_ie (t − t̄)`` per block (uniform grid or jittered stamps) equals the per-sample information."""
-    from stableins.estimators.system.blocksums import BlockPass, block_sums
+    from stableins.estimators.system.blocks import BlockPass, block_sums
 
     rng = np.random.default_rng(1)
     rate = 100.0
@@ -354,7 +354,7 @@ def test_attitude_fit_independent_of_row_slicing(monkeypatch):
 
 
 def test_second_difference_sums_equal_numpy_and_measure_white_noise():
-    from stableins.estimators.system.blocksums import second_difference_sums
+    from stableins.estimators.system.blocks import second_difference_sums
 
     rng = np.random.default_rng(8)
     sigma = np.array([1e-3, 2e-3, 5e-4])

@@ -72,7 +72,7 @@ def test_synthetic_day_recovers_coefficients_and_corrects(day):
     assert any("estimate_k2=True" in n for n in notes) and any("(see diagnostics, --estimate-k2)" in flag_text(n) for n in notes)
     # the drift was measured (the gimbal readings): no standing note; without it the note names the stage's parameter
     assert not any("gyro drift not supplied" in n for n in notes)
-    from stableins.estimators.system.gyro_drift_step import DriftSource, DriftStep, drift_notes
+    from stableins.estimators.system.gyro_drift import DriftSource, DriftStep, drift_notes
 
     standing = drift_notes(DriftStep(np.zeros(3), None, DriftSource.NONE, None, False))
     assert any("(known_gyro_drift, rad/s)" in n for n in standing)

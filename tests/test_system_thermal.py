@@ -238,7 +238,7 @@ def test_daily_cycle_grown_combinations_are_not_determined_and_the_device_prior_
 def test_separable_directions_leave_out_what_z_does_not_reach():
     """Issue 25: two sensitivities that enter ``z`` as the same column (``k_z`` and ``s_z``: ΔT) give a direction ``z``
     does not reach; given the regressors it is not separable, whatever round-off the information matrices carry."""
-    from stableins.estimators.system.thermal_bins import separable_directions
+    from stableins.estimators.system.thermal import separable_directions
 
     rng = np.random.default_rng(4)
     n = 144

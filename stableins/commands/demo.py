@@ -71,11 +71,16 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
 
     Its standard output goes to ``stdout`` if given, else to stderr: the demo's own standard output is its result alone
     (the final table, or with ``--json`` one JSON document), and the steps' reports are progress, on stderr like every
-    command's messages.
+    command's messages.  With the demo silenced (``--quiet`` or ``--json``) every step runs with ``--quiet``: the
+    steps share the demo's terminal, so their progress bars would reach it.
     """
     import subprocess
     import sys
 
+    from stableins.progress import silenced
+
+    if silenced():
+        argv = [*argv, "--quiet"]
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
     sys.stdout.flush()
     if stdout is None:

@@ -378,7 +378,7 @@ class FitResult:
                 getattr(self, name).setflags(write=False)
 
     @classmethod
-    def from_solution(  # noqa: PLR0913 - the stage's own FitResult fields, each typed and named at the call
+    def from_solution(
         cls,
         stage: Stage,
         terms: tuple[Term, ...],

@@ -7,8 +7,8 @@ Per chunk (docs/system-calibration.md §6):
   (:mod:`~stableins.estimators.system.harmonics`) accumulated at full rate.
   The Earth-rate angle moves by ``ω_ie/rate`` per sample, so within a block of ``B`` samples (``B/rate·ω_ie ≤ 2e-4``)
   ``cos k(S_c + δ)`` is expanded to third order in ``δ``: the trigonometric functions are evaluated once per block and
-  the per-sample work is a few multiply-adds (:class:`.blocksums.BlockHarmonics`).  The truncation (``(4δ)⁴/24 < 1e-15``) is far
-  below double-precision round-off of the sums; :func:`.blocksums.harmonic_information` is the per-sample reference it is tested
+  the per-sample work is a few multiply-adds (:class:`.blocks.BlockHarmonics`).  The truncation (``(4δ)⁴/24 < 1e-15``) is far
+  below double-precision round-off of the sums; :func:`.blocks.harmonic_information` is the per-sample reference it is tested
   against;
 * noise: per-axis sums of squared second differences of the raw outputs on the first samples of each chunk;
 * attitude, velocity and time at a decimated rate: block means of pitch and roll (:class:`.blocks.AttitudeBlocks`),
@@ -43,11 +43,19 @@ from stableins.data.validation import check_finite
 from stableins.errormodel import Term
 from stableins.errors import InputError
 from stableins.estimators.system import harmonics as hm
-from stableins.estimators.system.blocks import AttitudeBlocks
-from stableins.estimators.system.blocksums import BlockHarmonics, BlockPass, block_length, block_sums, second_difference_sums
+from stableins.estimators.system.blocks import (
+    GIMBAL_BLOCKS,
+    GIMBAL_COLUMNS,
+    AttitudeBlocks,
+    BlockHarmonics,
+    BlockPass,
+    GimbalBlocks,
+    block_length,
+    block_sums,
+    second_difference_sums,
+)
 from stableins.estimators.system.checks import StageContext, StaticChecks
 from stableins.estimators.system.compensation import AdditiveCompensation, Compensation
-from stableins.estimators.system.gyro_drift import GIMBAL_BLOCKS, GIMBAL_COLUMNS, GimbalBlocks
 from stableins.site import SiteMetadata
 
 #: Read at the full rate: the accelerometer outputs carry the information, the time stamps the sampling checks
@@ -185,7 +193,7 @@ class RecordSums:
     duration : float
         Last minus first time stamp [s].
     block : int
-        Samples per harmonic block (:func:`.blocksums.block_length`).
+        Samples per harmonic block (:func:`.blocks.block_length`).
     decimation : int
         Samples per attitude sample.
     checks : StaticChecks

@@ -26,7 +26,7 @@ from stableins.status import Determination, Status
 
 if TYPE_CHECKING:
     from stableins.estimators.system.checks import RecordSite
-    from stableins.estimators.system.gyro_drift_step import DriftStep
+    from stableins.estimators.system.gyro_drift import DriftStep
     from stableins.estimators.system.settings import SystemSettings
 
 
@@ -239,7 +239,7 @@ def separation_likelihood(
     ``x = x_0 + J q`` (``J``: the installed scale factor for ``D``, ``g`` for a bias residual, 1 for angles and K2),
     ``Λ = J⁻¹ Λ_q J⁻¹``, ``g = J⁻¹ g_q`` at the point ``x_0``.  With ``drift`` (the attitude coefficients' Jacobian
     and the drift step) the gyro drift ``gyro_drift_x/y/z`` joins ``q``, linearized at the drift removed
-    (:func:`.gyro_drift_step.augment_measurement`).
+    (:func:`.gyro_drift.augment_measurement`).
     """
     from stableins.estimators.system.separation import combination_matrix
 
@@ -262,8 +262,7 @@ def separation_likelihood(
     w = rows @ v
     cov_w = rows @ cov_v @ rows.T
     if drift is not None:
-        from stableins.estimators.system.gyro_drift import DRIFT_IDS
-        from stableins.estimators.system.gyro_drift_step import augment_measurement
+        from stableins.estimators.system.gyro_drift import DRIFT_IDS, augment_measurement
 
         h_res, h_nuisance, cov_w, w, drift_scale = augment_measurement(rows, h_res, h_nuisance, cov_w, w, jacobian=drift[0], step=drift[1])
         labels += [f"gyro drift {a} (gimbal readings)" for a in "xyz"]
@@ -304,7 +303,7 @@ class StagePrior:
     covariance : ndarray
         Their covariance over :data:`CORE_TERMS` (:func:`prior_term_covariance`).
     drift : (ndarray (3,), ndarray (3, 3)) or None
-        Values and covariance of the gyro drift when the prior states one (:func:`.gyro_drift_step.prior_drift`).
+        Values and covariance of the gyro drift when the prior states one (:func:`.gyro_drift.prior_drift`).
     """
 
     values: Mapping[str, float]

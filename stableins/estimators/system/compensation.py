@@ -1,7 +1,7 @@
 """Compensation of the raw accelerometer outputs with the installed calibration (system stage).
 
 :class:`Compensation`: Wu et al. 2018 Eq. 8 in closed form for the core terms (the compiled per-sample pass,
-:mod:`.blocksums`); :class:`AdditiveCompensation`: the prior's discovered additive terms removed first.
+:mod:`.blocks`); :class:`AdditiveCompensation`: the prior's discovered additive terms removed first.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from stableins.errormodel import ErrorModel, Term, TermKind
 from stableins.errors import InputError, NotDeterminedError
-from stableins.estimators.system.blocksums import coefficients
+from stableins.estimators.system.blocks import coefficients
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ class Compensation:
         return cls(matrix, bias, quadratic)
 
     def packed(self, gravity: float) -> NDArray[np.float64]:
-        """Return the coefficients of the compiled per-sample pass (:func:`.blocksums.coefficients`)."""
+        """Return the coefficients of the compiled per-sample pass (:func:`.blocks.coefficients`)."""
         return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
 

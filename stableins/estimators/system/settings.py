@@ -17,7 +17,7 @@ from typing import Any, cast
 from stableins.documents import DocumentFields, JSONObject, JSONValue
 from stableins.errors import InputError
 from stableins.estimators.result import Stage
-from stableins.estimators.system.gyro_drift_step import DriftSource
+from stableins.estimators.system.gyro_drift import DriftSource
 from stableins.estimators.system.options import SystemOptions
 from stableins.noise import NoiseModel, NoiseSource
 

@@ -42,7 +42,7 @@ from stableins.estimators.system.coloured import (
     measured_noise_model,
     noise_prior,
 )
-from stableins.estimators.system.gyro_drift_step import (
+from stableins.estimators.system.gyro_drift import (
     DriftSource,
     DriftStep,
     drift_covariance_v,
@@ -176,7 +176,7 @@ class AttitudeStep:
     """The Fourier fit of pitch and roll (:class:`.attitude.AttitudeFit`) and what the next steps need of it.
 
     The block means it ran on, the projection ``along`` of x1..x5 on the vertical, the notes of the step, and the
-    drift's Jacobian ``∂values/∂ε`` (10, 3) when the drift removed carries an uncertainty (:mod:`.gyro_drift_step`).
+    drift's Jacobian ``∂values/∂ε`` (10, 3) when the drift removed carries an uncertainty (:mod:`.gyro_drift`).
     """
 
     fit: AttitudeFit
@@ -213,7 +213,7 @@ def fit_attitude_coefficients(
 ) -> AttitudeStep:
     """Step 4: the loop-compensated attitude coefficients (the vertical channel from x1..x5), the gyro drift removed.
 
-    ``drift``: the drift measured or given (:func:`.gyro_drift_step.drift_step`); without it, the given
+    ``drift``: the drift measured or given (:func:`.gyro_drift.drift_step`); without it, the given
     ``options.known_gyro_drift`` (or none).
     """
     blocks = sums.attitude_blocks.means()

@@ -12,7 +12,7 @@ r"""The system-level stage over a whole record, streaming in bounded memory: a s
    (:class:`SystemDiagnostics`).
 
 On a turned or tilted base the Earth-rate angle comes from the full gimbal kinematics; the gyro drift, measured in the
-gimbal readings (:mod:`.gyro_drift_step`) or given, is removed from pitch and roll.  Checks: sampling (gaps, jitter,
+gimbal readings (:mod:`.gyro_drift`) or given, is removed from pitch and roll.  Checks: sampling (gaps, jitter,
 order), static base (velocity, attitude excursion), platform turning at the Earth rate, polar alignment, record length
 (short records keep only the combinations they determine).  Read through :mod:`stableins.data.chunks`; docs/system-calibration.md.
 """
@@ -44,10 +44,10 @@ from stableins.estimators.system.assembly import (
     separation_likelihood,
 )
 from stableins.estimators.system.attitude import AttitudeFit
+from stableins.estimators.system.blocks import GIMBAL_COLUMNS
 from stableins.estimators.system.checks import StageContext, check_metadata
 from stableins.estimators.system.diagnostics import SystemDiagnostics
-from stableins.estimators.system.gyro_drift import GIMBAL_COLUMNS
-from stableins.estimators.system.gyro_drift_step import (
+from stableins.estimators.system.gyro_drift import (
     DriftStep,
     drift_covariance_v,
     drift_step,
