@@ -40,8 +40,8 @@ and the verdict on every tested effect, :class:`stableins.discovery.history.Mode
 The package's public API is the names below (``from stableins.records import CalibrationRecord``);
 its modules, by concern: :mod:`~stableins.records.schema` (format, version, migration),
 :mod:`~stableins.records.parameters` (parameters and entries), :mod:`~stableins.records.stages`
-(stage runs, calibrations, provenance), :mod:`~stableins.records.record` (the record),
-:mod:`~stableins.records.build` (first records and Bayesian updates), :mod:`~stableins.records.writer`
+(stage runs, calibrations, provenance), :mod:`~stableins.records.record` (the record, its first records and
+Bayesian updates), :mod:`~stableins.records.writer`
 and :mod:`~stableins.records.reader` (the JSON file), :mod:`~stableins.records.check` (consistency),
 :mod:`~stableins.records.display` (tables for people).
 """

@@ -2,7 +2,7 @@
 
 :class:`RecordContent` holds the data, answers questions about them and is checked at construction
 (:func:`check_record`: ids, stages, statuses, the covariance and the σ's; run on every record built or
-read).  Building (:mod:`stableins.records.build`), the JSON file (:mod:`stableins.records.writer`,
+read).  Building (:mod:`stableins.records.record`), the JSON file (:mod:`stableins.records.writer`,
 :mod:`stableins.records.reader`) and what people see (:mod:`stableins.records.display`) take a content;
 :class:`stableins.records.record.CalibrationRecord` is the content with those as its methods.
 """
