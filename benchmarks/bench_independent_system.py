@@ -190,7 +190,7 @@ def summarize(outcomes: list[Outcome], diagnose: bool) -> str:
         row += f" | {sum(o.random_walk_zero for o in done)} |"
         if diagnose:
             ran = [o for o in done if o.diagnose]
-            row += f" {sum(o.diagnose != 'consistent' for o in ran)}/{len(ran)} |"
+            row += f" {sum(o.diagnose != 'consistent' for o in ran)}/{len(ran)} |" if ran else " — |"
         lines.append(row)
         for o in failed:
             lines.append(f"  {world} seed {o.seed}: {o.error}")
