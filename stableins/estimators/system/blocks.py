@@ -28,11 +28,13 @@ the harmonic information by a third-order expansion of :math:`\cos k(S_c + \delt
 :mod:`.stage`).  Exact time stamps are used, so jittered sampling needs no second path.
 
 The pass is numpy, a few passes per sample over sub-chunks of :data:`SUB_CHUNK` samples whose work arrays stay
-in the processor's cache (about 4-5 ns/sample on a time grid; 2-MB temporaries per chunk cost 40-50 ns/sample in
+in the processor's cache (about 5 ns/sample on a time grid; 2-MB temporaries per chunk cost 40-50 ns/sample in
 page faults).  On a time grid every full block has the same offsets :math:`\delta_j`, so the four moments of all
-blocks are one matrix product.  It was compiled with numba (about 1 ns/sample), whose import and compiled-code cache
-cost a fresh process about 0.5 s of CPU: more than the numpy pass over two weeks at 100 Hz (issue 30).  A NaN or
-±inf input propagates into :math:`\sum z^2`, which is how the stage detects one without a separate pass.
+blocks are one matrix product, taken with numpy's own loops (``einsum``): a threaded BLAS, a library user's
+default, stalled on a loaded machine (1.8 s of CPU for the pass over a day at 100 Hz instead of 0.18 s).  It was
+compiled with numba (about 1 ns/sample), whose import and compiled-code cache cost a fresh process about 0.5 s of
+CPU: more than the numpy pass over two weeks at 100 Hz (issue 30).  A NaN or ±inf input propagates into
+:math:`\sum z^2`, which is how the stage detects one without a separate pass.
 :func:`block_sums_reference` is the numpy reference it is tested against.
 """
 
@@ -323,7 +325,7 @@ def block_sums(
             z = work[4][:m]
             piece = (force[0][a : a + m], force[1][a : a + m], force[2][a : a + m])
             _observation_into(piece, p, z, (work[0][:m], work[1][:m], work[2][:m], work[3][:m]))
-            total += float(np.dot(z, z))
+            total += float(np.einsum("i,i->", z, z))  # einsum, not BLAS: a threaded BLAS stalls on a loaded machine
             full = m // block
             short = m - full * block
             for first, count, size in ((0, full, block), (full * block, int(short > 0), short)):  # the full blocks, a short last one
@@ -339,7 +341,7 @@ def block_sums(
                 if size not in moments:
                     moments[size] = _grid_moments(size, omega * float(grid[1]))
                 powers = moments[size]
-                sums[rows, 0:4] = zb @ powers
+                sums[rows, 0:4] = np.einsum("bj,jp->bp", zb, powers)  # not BLAS (above)
                 sums[rows, 4:7] = powers[:, 1:].sum(axis=0)
                 sums[rows, 7] = size
                 centres[rows] = float(grid[0]) + (a + first + np.arange(count) * size + 0.5 * (size - 1)) * float(grid[1])
@@ -422,7 +424,7 @@ def second_difference_sums(
         f = np.asarray(f[:m], dtype=float)
         second = f[2:] - 2.0 * f[1:-1]
         second += f[:-2]
-        out[axis] += float(np.dot(second, second))
+        out[axis] += float(np.einsum("i,i->", second, second))  # not BLAS (block_sums)
     return m - 2
 
 
