@@ -12,21 +12,21 @@ and prints, per world, rms z = (estimate − truth)/σ per family of the combine
 roll φ1s..φ2c, docs/system-calibration.md §10) and of the gyro drift the record sees (§9), the mean χ²_ν of the
 separation and the fraction with p < 0.05, the record's own slow-noise decision (on ``white`` its false-alarm rate) and,
 with ``--diagnose``, diagnose's verdict.  The truth is the generator's (``truth-independent-system.json``: the
-parameters in the θ10 = 0 gauge, the combined coefficients of §1–§2 to first order; ``--estimate-k2`` removes the K2
-terms of §8).
+parameters in the θ10 = 0 gauge, the combined coefficients of §1–§2 to first order, less the K2_x, K2_y terms of §8
+that ``--estimate-k2`` removes, x1 with its K2_z term ``gΔK_z sin³L``).  "x1 record" is the z of x1 in the updated
+record (the posterior parameters against the truth).
 
 Worlds (every one on the generator's unit and gyro: drift (0.001, −0.001, 0.02) °/h, D_g 0.001 °/h/g on the diagonal,
 ζ = 0.6, vertical loop 400 s, 0.2″ angle noise, N = 4.5e-4 m/s/√s):
 
-=============  ================================================================================
-``white``      N only (no flicker, no random walk, no quantization): the false-alarm world
-``quartz``     + flicker B = 2 µg (Kasdin, one day of history) + random walk K = 1e-7, LSB 1e-5 m/s
-``flicker``    + flicker B = 2 µg only (Kasdin, one day of history), LSB 1e-5 m/s
-``flicker-long``  + flicker B = 2 µg only, ten days of history (1/f down to ~0.1 cycle/day)
-``random-walk`` + random walk K = 3e-7 only, LSB 1e-5 m/s
-=============  ================================================================================
+* ``white``: N only (no flicker, no random walk, no quantization), the false-alarm world;
+* ``quartz``: + flicker B = 2 µg (Kasdin, one day of history) + random walk K = 1e-7 m/s²/√s, LSB 1e-5 m/s;
+* ``flicker``: + flicker B = 2 µg only (Kasdin, one day of history), LSB 1e-5 m/s;
+* ``flicker-long``: + flicker B = 2 µg only, ten days of history (1/f down to ~0.1 cycle/day);
+* ``random-walk``: + random walk K = 3e-7 m/s²/√s only, LSB 1e-5 m/s.
 
-Run: ``python benchmarks/bench_independent_system.py --seeds 20 [--first-seed 1] [--worlds white quartz] [--diagnose]``
+Run: ``python benchmarks/bench_independent_system.py --seeds 20 [--first-seed 1] [--worlds white quartz] [--diagnose white]``
+(``--summarize RUN.json ...`` prints the tables of earlier ``--json`` files)
 (one worker; about 15 s of CPU per record at 1 Hz, 30 s with ``--diagnose``).
 """
 
@@ -190,10 +190,18 @@ def summarize(outcomes: list[Outcome], diagnose: bool) -> str:
         row += f" | {sum(o.random_walk_zero for o in done)} |"
         if diagnose:
             ran = [o for o in done if o.diagnose]
-            row += f" {sum(o.diagnose != 'consistent' for o in ran)}/{len(ran)} |"
+            row += f" {sum(o.diagnose != 'consistent' for o in ran)}/{len(ran)} |" if ran else " — |"
         lines.append(row)
         for o in failed:
             lines.append(f"  {world} seed {o.seed}: {o.error}")
+    lines += ["", "Split by the random walk's boundary (records where slow noise is detected; docs/system-calibration.md §1a):", ""]
+    lines += ["| world | random walk estimated | records | x1 | x2-x5 | pitch | roll |", "|---|---|---|---|---|---|---|"]
+    for world in dict.fromkeys(o.world for o in outcomes):
+        for label, zero in (("0", True), ("> 0", False)):
+            part = [o for o in outcomes if o.world == world and not o.error and o.slow_detected and o.random_walk_zero == zero]
+            if part:
+                fam = [rms([o.z[k] for o in part for k in FAMILIES[f] if k in o.z]) for f in ("x1", "x2-x5", "pitch", "roll")]
+                lines.append(f"| {world} | {label} | {len(part)} | " + " | ".join(f"{v:.2f}" for v in fam) + " |")
     return "\n".join(lines)
 
 
@@ -206,17 +214,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--diagnose", nargs="*", metavar="WORLD", help="also run diagnose on each record of these worlds (none given: all)")
     parser.add_argument("--keep", type=Path, help="keep the records in this directory")
     parser.add_argument("--json", type=Path, help="write every record's outcome here (after each record)")
-    parser.add_argument("--summarize", type=Path, help="print the tables of a --json file written before, and stop")
+    parser.add_argument("--summarize", type=Path, nargs="+", help="print the tables of --json files written before, and stop")
     args = parser.parse_args(argv)
+    if args.summarize:
+        outcomes = [Outcome(**o) for path in args.summarize for o in json.loads(path.read_text(encoding="utf-8"))]
+        print(summarize([o for o in outcomes if o.world in args.worlds], any(o.diagnose for o in outcomes)))
+        return 0
     print(
         f"independent system generator: one sidereal day per record at {args.rate:g} Hz, seeds {args.first_seed}.."
         f"{args.first_seed + args.seeds - 1}; calibrate system --estimate-k2, no noise flags",
         flush=True,
     )
-    if args.summarize:
-        outcomes = [Outcome(**o) for o in json.loads(args.summarize.read_text(encoding="utf-8"))]
-        print(summarize([o for o in outcomes if o.world in args.worlds], any(o.diagnose for o in outcomes)))
-        return 0
     outcomes = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):  # seeds outermost: a run cut short is balanced
         for world in args.worlds:
