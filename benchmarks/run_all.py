@@ -145,6 +145,11 @@ QUICK: dict[str, Quick] = {
     "bench_system_bias_drift": Quick((), "the default run: the bound only (part 2, the stage's channels, is --seeds N)"),
     "bench_flicker_below_record": Quick((), "the default run (closed forms, under a second)"),
     "bench_system_polar": Quick(("--seeds", "2"), "2 seeds per case instead of 40 (the false-refusal and tilt figures)"),
+    "bench_system_equatorial": Quick(
+        ("--seeds", "1", "--first", "11", "--drifts", "0.05"),
+        "1 seed and the gyro world's drift instead of 6 seeds and 4 drifts",
+        volatile=(r"\d\s+(\d+)$", r"^(\d+) s$"),  # the seconds column of the table, the total
+    ),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
     "bench_system_thermal": Quick(
         ("--cases", "thermal", "kcc", "clean", "--seeds", "2", "--first", "100"),
