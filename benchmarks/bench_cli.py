@@ -130,7 +130,17 @@ def timed(command: list[str], *, cwd: Path) -> Timing:
 
 
 def prepare(directory: Path, *, seed: int, rate: float) -> None:
-    """Write the demo's device files, their calibration, a sidereal day at ``rate`` and its calibration (once)."""
+    """Write the demo's device files, their calibration, a sidereal day at ``rate`` and its calibration (once).
+
+    The package's bytecode is compiled first, as an installation does: with ``PYTHONDONTWRITEBYTECODE`` set (as on the
+    development machine) an editable install never caches it, and every fresh process compiled the ~100 modules a
+    command imports again (about 0.1 s of CPU quiet, 0.4 s under load), which no user pays.
+    """
+    import compileall
+
+    import stableins
+
+    compileall.compile_dir(str(Path(stableins.__file__).parent), quiet=1)
     directory.mkdir(parents=True, exist_ok=True)
     steps = [
         ("device-fine.h5", ["simulate", "device", "--seed", str(seed), "--out", "."]),

@@ -186,7 +186,7 @@ def breakdown(path: Path, rows: int) -> tuple[float, dict[str, float]]:
                 yield chunk
 
     parts = {
-        (accumulate, "block_sums"): "compiled pass (z, block moments, sampling check)",
+        (accumulate, "block_sums"): "pass over every sample (z, block moments, sampling check)",
         (blocks, "harmonic_sums"): "harmonic block sums",
         (accumulate, "second_difference_sums"): "noise second differences",
         (StaticChecks, "slow"): "static checks on the 1-Hz columns",
@@ -224,7 +224,7 @@ import sys
 def rss():  # VmHWM: this process's peak resident set (ru_maxrss would carry the parent's over fork and exec)
     with open("/proc/self/status") as status:
         return next(float(line.split()[1]) / 1024.0 for line in status if line.startswith("VmHWM:"))
-import numpy, scipy.linalg, filterpy.kalman, h5py, numba  # noqa: E401, F401
+import numpy, scipy.linalg, filterpy.kalman, h5py  # noqa: E401, F401
 imports = rss()
 from stableins.data.system import open_system_record
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
@@ -311,7 +311,7 @@ def report(m: dict, rows: int, r: int) -> None:
     )
     print(
         f"max RSS of a fresh process running the stage once on the whole record: {m['rss_stage']:.0f} MiB "
-        f"(its imports of numpy, scipy, filterpy, h5py, numba alone: {m['rss_imports']:.0f} MiB; target <= 256 MB = 244 MiB)"
+        f"(its imports of numpy, scipy, filterpy, h5py alone: {m['rss_imports']:.0f} MiB; target <= 256 MB = 244 MiB)"
     )
     print(f"max RSS of this benchmark process (includes the writer if it ran): {m['rss']:.0f} MiB")
     print("the stage reads f_x, f_y, f_z at the full rate; time, angle_platform, pitch, roll, velocity_north, velocity_east at 1 Hz")

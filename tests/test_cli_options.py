@@ -352,10 +352,8 @@ def test_hypothesis_is_derandomized_suite_wide() -> None:
 
 # --------------------------------------------------------------------------- options run here (issue 31), effect asserted
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("options"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 def _main(argv: list[str]) -> tuple[int, str]:

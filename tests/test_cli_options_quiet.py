@@ -47,10 +47,8 @@ def quiet_main(monkeypatch, argv: list, module: str) -> tuple[int, str, str, lis
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("quiet"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 def test_a_terminal_sees_the_bar_and_quiet_removes_it(monkeypatch, tmp_path):

@@ -216,7 +216,7 @@ def test_vertical_channel_from_metadata_moves_roll():
 
 
 def test_stage_compensation_equals_error_model_inverse():
-    """The closed-form z of the compiled pass (its numpy form) gives |f^p|² = |ErrorModel.inverse(f^a)|², K2 included."""
+    """The closed-form z of the per-sample pass gives |f^p|² = |ErrorModel.inverse(f^a)|², K2 included."""
     from stableins.estimators.system.compensation import Compensation
 
     rng = np.random.default_rng(4)
@@ -229,8 +229,8 @@ def test_stage_compensation_equals_error_model_inverse():
 
 
 @pytest.mark.parametrize("jitter", [0.0, 0.2])
-def test_block_sums_compiled_equal_numpy_reference(jitter):
-    """The compiled per-sample pass equals its numpy reference (z, moments, block times, Σz², irregular steps)."""
+def test_block_sums_equal_reference(jitter):
+    """The per-sample pass equals its ``reduceat`` reference (z, moments, block times, Σz², irregular steps)."""
     from stableins.estimators.system.blocks import BlockPass, block_sums, block_sums_reference
     from stableins.estimators.system.compensation import Compensation
 
@@ -270,8 +270,31 @@ def test_block_sums_compiled_equal_numpy_reference(jitter):
             assert uniform[2] == pytest.approx(expected[2], rel=1e-12) and uniform[3] == 0
 
 
+@pytest.mark.parametrize("block", [3, 100, 1 << 15])
+def test_block_sums_blocks_across_sub_chunks(block):
+    """Blocks of any length, longer or shorter than a sub-chunk and not dividing it, are summed whole (stamps and grid)."""
+    from stableins.estimators.system.blocks import SUB_CHUNK, BlockPass, block_sums, block_sums_reference
+    from stableins.estimators.system.compensation import Compensation
+
+    rng = np.random.default_rng(8)
+    n = 2 * SUB_CHUNK + 2 * block + 1
+    t = 50.0 + np.arange(n) / 100.0
+    f_a = platform_force(rng.uniform(0, 6, n)) + rng.normal(0, 1e-2, (n, 3))
+    settings = BlockPass(Compensation.from_values(random_parameters(rng)).packed(9.8), block, cv.EARTH_RATE, (0.0099, 0.0101))
+    force = [f_a[:, k].copy() for k in range(3)]
+    expected = block_sums_reference(*force, t, settings)
+    z = np.abs(observation(*force, settings.packed))
+    for got in (block_sums(*force, t, settings), block_sums(*force, None, settings, grid=(50.0, 0.01))):
+        np.testing.assert_array_equal(got[0][:, 7], expected[0][:, 7])
+        # z = (a quadratic form ≈ ½) − ½: each sample's z is known to the rounding of ½, 1.1e-16
+        tolerance = 1e-13 * np.add.reduceat(z, np.arange(0, n, block)) + 2.3e-16 * expected[0][:, 7]
+        assert np.all(np.abs(got[0][:, 0] - expected[0][:, 0]) <= tolerance)
+        np.testing.assert_allclose(got[1], expected[1], rtol=1e-15)
+        assert got[2] == pytest.approx(expected[2], rel=1e-12) and got[3] == expected[3] == 0
+
+
 def test_block_sums_z_equals_error_model_inverse():
-    """z of the compiled pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
+    """z of the per-sample pass is ½(|ErrorModel.inverse(f^a)|²/g² − 1), K2 included (one-sample blocks)."""
     from stableins.estimators.system.blocks import BlockPass, block_sums
     from stableins.estimators.system.compensation import Compensation
 

@@ -11,7 +11,6 @@ were typed read the same way; the system stage's earlier form (five gyro-drift k
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import cache
 
 from stableins.documents import DocumentFields, JSONValue
 from stableins.errors import InputError
@@ -19,32 +18,44 @@ from stableins.estimators.device_settings import DeviceFitSettings, DeviceSessio
 from stableins.estimators.result import Stage, StageSettings
 
 
-@cache
-def readers() -> dict[str, Callable[[DocumentFields], StageSettings]]:
-    """Return the settings class's reader of each stage that stores settings, by the stage's name (or the object's ``stage``).
+def reader(stage: str) -> Callable[[DocumentFields], StageSettings] | None:  # noqa: PLR0911 - one return per stage
+    """Return the reader of the settings class of the stage named ``stage`` (or the object's ``stage``); None for another name.
 
-    Imported when a record is read, not with the package: the systematic and gyro stages' modules bring filterpy and
-    scipy.stats, which a command that only reads records (``calibrate system``, ``report``) does not otherwise need.
+    Each stage's module is imported when a record holding that stage is read, and only then: the systematic, gyro, lever
+    and drift stages' modules cost a command that reads a device or system record (``calibrate system``, ``report``)
+    their imports for nothing (issue 30).
     """
-    from stableins.estimators.drift.model import DriftSettings
-    from stableins.estimators.gyro_sensitivity import GyroSettings
-    from stableins.estimators.lever.model import LeverOptions
-    from stableins.estimators.poses import PoseSettings
-    from stableins.estimators.system.settings import SystemSettings
-    from stableins.estimators.systematic.result import SystematicSettings
-    from stableins.estimators.thermal_sensitivity import ThermalSettings
+    if stage in (Stage.COARSE, Stage.FINE):
+        return DeviceFitSettings.from_document
+    if stage == Stage.SYSTEM:
+        from stableins.estimators.system.settings import SystemSettings
 
-    return {
-        Stage.COARSE: DeviceFitSettings.from_document,
-        Stage.FINE: DeviceFitSettings.from_document,
-        Stage.SYSTEM: SystemSettings.from_document,
-        Stage.POSES: PoseSettings.from_document,
-        Stage.LEVER: LeverOptions.from_document,
-        Stage.DRIFT: DriftSettings.from_document,
-        Stage.SYSTEMATIC: SystematicSettings.from_document,
-        Stage.THERMAL: ThermalSettings.from_document,
-        Stage.GYRO: GyroSettings.from_document,
-    }
+        return SystemSettings.from_document
+    if stage == Stage.POSES:
+        from stableins.estimators.poses import PoseSettings
+
+        return PoseSettings.from_document
+    if stage == Stage.LEVER:
+        from stableins.estimators.lever.model import LeverOptions
+
+        return LeverOptions.from_document
+    if stage == Stage.DRIFT:
+        from stableins.estimators.drift.model import DriftSettings
+
+        return DriftSettings.from_document
+    if stage == Stage.SYSTEMATIC:
+        from stableins.estimators.systematic.result import SystematicSettings
+
+        return SystematicSettings.from_document
+    if stage == Stage.THERMAL:
+        from stableins.estimators.thermal_sensitivity import ThermalSettings
+
+        return ThermalSettings.from_document
+    if stage == Stage.GYRO:
+        from stableins.estimators.gyro_sensitivity import GyroSettings
+
+        return GyroSettings.from_document
+    return None
 
 
 #: The stages whose run a device calibration's settings describe (``stableins calibrate device``: the coarse stage alone,
@@ -78,9 +89,9 @@ def settings_from_document(name: str, value: JSONValue, where: str, path: str | 
     if stated is None and name in DEVICE_FIT_STAGES:  # the device calibration's (stableins calibrate device)
         return DeviceSessionSettings.from_document(fields)
     key = stated if isinstance(stated, str) else name
-    reader = readers().get(key)
-    if reader is None:
+    read = reader(key)
+    if read is None:
         field = where if stated is None else f"{where}.stage"
         expected = "the settings of a stage of docs/formats.md"
         raise InputError(f"settings of a stage stableins does not know ({key!r})", path=path, field=field, expected=expected)
-    return reader(fields)
+    return read(fields)

@@ -27,11 +27,14 @@ sampling check: only a chunk with such steps is examined step by step).  The sta
 the harmonic information by a third-order expansion of :math:`\cos k(S_c + \delta)` (module docstring of
 :mod:`.stage`).  Exact time stamps are used, so jittered sampling needs no second path.
 
-The pass is compiled with numba: one loop over the samples with eight running sums, which LLVM vectorizes
-when allowed to reassociate them (:data:`FASTMATH`; NaN and inf still propagate, so a non-finite input shows
-in :math:`\sum z^2`).  A numpy pass needs about fifteen array operations per sample and cost 5-6 ns/sample;
-this one costs about 1 ns/sample (0.9 on a time grid), below the cost of reading the samples from a file
-(``benchmarks/bench_system_stream.py``).
+The pass is numpy, a few passes per sample over sub-chunks of :data:`SUB_CHUNK` samples whose work arrays stay
+in the processor's cache (about 5 ns/sample on a time grid; 2-MB temporaries per chunk cost 40-50 ns/sample in
+page faults).  On a time grid every full block has the same offsets :math:`\delta_j`, so the four moments of all
+blocks are one matrix product, taken with numpy's own loops (``einsum``): a threaded BLAS, a library user's
+default, stalled on a loaded machine (1.8 s of CPU for the pass over a day at 100 Hz instead of 0.18 s).  It was
+compiled with numba (about 1 ns/sample), whose import and compiled-code cache cost a fresh process about 0.5 s of
+CPU: more than the numpy pass over two weeks at 100 Hz (issue 30).  A NaN or ±inf input propagates into
+:math:`\sum z^2`, which is how the stage detects one without a separate pass.
 :func:`block_sums_reference` is the numpy reference it is tested against.
 """
 
@@ -39,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -165,10 +168,9 @@ class GimbalBlocks(AttitudeBlocks):
 #: Columns of the per-block sums: n0, n1, n2, n3 (Σ z δ^p), m1, m2, m3 (Σ δ^p), count.
 SUM_COLUMNS = ("n0", "n1", "n2", "n3", "m1", "m2", "m3", "count")
 
-_KERNEL: Any = None
-#: LLVM may reassociate sums (so it vectorizes them), but NaN and ±inf keep their meaning: a non-finite input
-#: makes Σz² non-finite, which is how the stage detects one without a separate pass.
-FASTMATH = {"reassoc", "nsz", "arcp", "contract", "afn"}
+#: Samples per numpy pass inside a chunk (a power of two, so a multiple of every block length up to it): the pass's
+#: five work arrays, 128 KiB each, stay in the cache and are reused, where arrays of a whole chunk cost page faults.
+SUB_CHUNK = 1 << 14
 
 
 def coefficients(
@@ -179,143 +181,74 @@ def coefficients(
     return np.array([*bias, q[0, 0], 2 * q[0, 1], 2 * q[0, 2], q[1, 1], 2 * q[1, 2], q[2, 2], *quadratic], dtype=float)
 
 
-# The compiled functions are written at module level (numba's disk cache keys on the qualified name and source)
-# and compiled on first use, so importing this module does not import numba.
-def _observation(x, y, z, p):
-    """``z = ½(wᵀQw/g² − 1)`` of one sample (Q/(2g²) and the bias, K2 packed in ``p``: :func:`coefficients`)."""
+def _observation(x, y, z, p):  # floats or arrays alike
+    """``z = ½(wᵀQw/g² − 1)`` of each sample (Q/(2g²) and the bias, K2 packed in ``p``: :func:`coefficients`)."""
     w0 = x - p[0]
     w1 = y - p[1]
     w2 = z - p[2]
-    w0 -= p[9] * w0 * w0
-    w1 -= p[10] * w1 * w1
-    w2 -= p[11] * w2 * w2
+    w0 = w0 - p[9] * w0 * w0
+    w1 = w1 - p[10] * w1 * w1
+    w2 = w2 - p[11] * w2 * w2
     return w0 * (p[3] * w0 + p[4] * w1 + p[5] * w2) + w1 * (p[6] * w1 + p[7] * w2) + p[8] * w2 * w2 - 0.5
 
 
-def _centre(t, step_low, step_high):  # slices: indices from 0 let LLVM drop the negative-index checks
-    """Mean time of a block and the number of its steps outside ``[step_low, step_high]``."""
-    m = t.size
-    s = t[0]
-    irregular = 0.0
-    for j in range(1, m):
-        s += t[j]
-        step = t[j] - t[j - 1]
-        irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
-    centre = s / m
-    return centre, irregular
+def _observation_into(
+    force: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    p: list[float],
+    out: NDArray[np.float64],
+    work: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+) -> None:
+    """:func:`_observation` of the samples ``force = (fx, fy, fz)`` into ``out``, in place with the four work arrays (no temporaries)."""
+    w0, w1, w2, tmp = work
+    for w, f, bias, k2 in ((w0, force[0], p[0], p[9]), (w1, force[1], p[1], p[10]), (w2, force[2], p[2], p[11])):
+        np.subtract(f, bias, out=w)
+        np.multiply(w, w, out=tmp)
+        tmp *= k2
+        w -= tmp
+    np.multiply(w0, p[3], out=out)
+    np.multiply(w1, p[4], out=tmp)
+    out += tmp
+    np.multiply(w2, p[5], out=tmp)
+    out += tmp
+    out *= w0  # w0 (q00 w0 + 2q01 w1 + 2q02 w2)
+    np.multiply(w1, p[6], out=tmp)
+    np.multiply(w2, p[7], out=w0)
+    tmp += w0
+    tmp *= w1  # w1 (q11 w1 + 2q12 w2)
+    out += tmp
+    np.multiply(w2, w2, out=tmp)
+    tmp *= p[8]
+    out += tmp
+    out -= 0.5
 
 
-def _moments(fx, fy, fz, t, centre, omega, angle_step, p):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
-    """Σ z δ^p, Σ δ^p, Σ z² of one block: ``δ = ω(t − t̄)``, or with no stamps (``t`` empty) ``δ_j = (j − (m−1)/2)·angle_step``."""
-    m = fx.size
-    stamped = t.size > 0
-    half = 0.5 * (m - 1)
-    n0 = n1 = n2 = n3 = m1 = m2 = m3 = zz = 0.0
-    for j in range(m):
-        d = omega * (t[j] - centre) if stamped else (j - half) * angle_step
-        z = _observation(fx[j], fy[j], fz[j], p)
-        zd = z * d
-        dd = d * d
-        n0 += z
-        n1 += zd
-        n2 += zd * d
-        n3 += zd * dd
-        m1 += d
-        m2 += dd
-        m3 += dd * d
-        zz += z * z
-    return n0, n1, n2, n3, m1, m2, m3, zz
+def _grid_moments(size: int, angle_step: float) -> NDArray[np.float64]:
+    """``(size, 4)``: ``δ_j^p`` (p = 0..3) of a block of ``size`` samples on a grid, ``δ_j = (j − (size − 1)/2)·angle_step``."""
+    d = (np.arange(size) - 0.5 * (size - 1)) * angle_step
+    return np.stack([np.ones(size), d, d * d, d * d * d], axis=1)
 
 
-def _block_pass(fx, fy, fz, t, start_time, period, omega, p, block, step_low, step_high, out, centres):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
-    n = fx.size
-    n_blocks = (n + block - 1) // block
-    total = 0.0
-    irregular = 0.0
-    uniform = period > 0.0  # t is not given: t_j = start_time + j·period
-    for b in range(n_blocks):
-        a = b * block
-        e = min(a + block, n)
-        if uniform:
-            centre = start_time + (a + 0.5 * (e - a - 1)) * period
-            times = t[:0]
-        else:
-            times = t[a:e]
-            centre, block_irregular = _centre(times, step_low, step_high)
-            irregular += block_irregular
-            if a > 0:
-                step = t[a] - t[a - 1]
-                irregular += 1.0 if (step < step_low) | (step > step_high) else 0.0
-        n0, n1, n2, n3, m1, m2, m3, zz = _moments(fx[a:e], fy[a:e], fz[a:e], times, centre, omega, omega * period, p)
-        centres[b] = centre
-        out[b, 0] = n0
-        out[b, 1] = n1
-        out[b, 2] = n2
-        out[b, 3] = n3
-        out[b, 4] = m1
-        out[b, 5] = m2
-        out[b, 6] = m3
-        out[b, 7] = e - a
-        total += zz
-    if uniform and not (step_low <= period <= step_high):
-        irregular = max(n - 1, 0)
-    return total, irregular
-
-
-def _second_differences(fx, fy, fz, m, out):
-    for j in range(2, m):
-        a = fx[j] - 2.0 * fx[j - 1] + fx[j - 2]
-        b = fy[j] - 2.0 * fy[j - 1] + fy[j - 2]
-        c = fz[j] - 2.0 * fz[j - 1] + fz[j - 2]
-        out[0] += a * a
-        out[1] += b * b
-        out[2] += c * c
-
-
-def _harmonic_pass(centre_angle, sums, order, cos_latitude, trig_sums, z_sums, h):  # noqa: PLR0913, PLR0917 - a numba kernel: njit takes no keyword-only arguments
-    nk = 2 * order + 1
-    for b in range(centre_angle.size):
-        n0, n1, n2, n3 = sums[b, 0], sums[b, 1], sums[b, 2], sums[b, 3]
-        m1, m2, m3, count = sums[b, 4], sums[b, 5], sums[b, 6], sums[b, 7]
-        c1 = np.cos(centre_angle[b])
-        s1 = np.sin(centre_angle[b])
-        ck, sk = 1.0, 0.0
-        trig_sums[0] += count
-        z_sums[0] += n0
-        h[b, 0] = count
-        weight = 1.0
-        for k in range(1, nk):
-            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1  # cos kS_c, sin kS_c by the angle-sum recurrence
-            even = count - 0.5 * k * k * m2
-            odd = k * m1 - k * k * k * m3 / 6.0
-            cos_sum = ck * even - sk * odd
-            sin_sum = sk * even + ck * odd
-            trig_sums[k] += cos_sum
-            trig_sums[nk + k] += sin_sum
-            if k <= order:
-                weight *= cos_latitude
-                h[b, 2 * k - 1] = weight * cos_sum
-                h[b, 2 * k] = weight * sin_sum
-                zeven = n0 - 0.5 * k * k * n2
-                zodd = k * n1 - k * k * k * n3 / 6.0
-                z_sums[k] += ck * zeven - sk * zodd
-                z_sums[order + 1 + k] += sk * zeven + ck * zodd
-
-
-def _kernel() -> Any:
-    """Compile once per process (numba caches the machine code on disk) and return the three passes."""
-    global _KERNEL, _observation, _centre, _moments, _block_pass, _harmonic_pass, _second_differences
-    if _KERNEL is None:
-        from numba import njit
-
-        _observation = njit(fastmath=FASTMATH, inline="always", cache=True)(_observation)
-        _centre = njit(fastmath=FASTMATH, inline="always", cache=True)(_centre)
-        _moments = njit(fastmath=FASTMATH, inline="always", cache=True)(_moments)
-        _block_pass = njit(fastmath=FASTMATH, cache=True)(_block_pass)
-        _harmonic_pass = njit(cache=True)(_harmonic_pass)
-        _second_differences = njit(cache=True)(_second_differences)
-        _KERNEL = (_block_pass, _harmonic_pass, _second_differences)
-    return _KERNEL
+def _stamped_moments(
+    z: NDArray[np.float64], times: NDArray[np.float64], omega: float, rows: NDArray[np.float64], work: tuple[NDArray[np.float64], ...]
+) -> NDArray[np.float64]:
+    """Fill ``rows`` ``(k, 8)`` with the sums of ``k`` blocks of stamped samples ``z, times (k, size)``; return their mean times."""
+    centre = times.sum(axis=1) / times.shape[1]
+    d = np.subtract(times, centre[:, None], out=work[0][: times.size].reshape(times.shape))
+    d *= omega
+    zd = np.multiply(z, d, out=work[1][: times.size].reshape(times.shape))
+    dd = np.multiply(d, d, out=work[2][: times.size].reshape(times.shape))
+    rows[:, 0] = z.sum(axis=1)
+    rows[:, 1] = zd.sum(axis=1)
+    rows[:, 4] = d.sum(axis=1)
+    rows[:, 5] = dd.sum(axis=1)
+    zd *= d
+    rows[:, 2] = zd.sum(axis=1)
+    zd *= d
+    rows[:, 3] = zd.sum(axis=1)
+    dd *= d
+    rows[:, 6] = dd.sum(axis=1)
+    rows[:, 7] = times.shape[1]
+    return centre
 
 
 @dataclass(frozen=True)
@@ -349,7 +282,7 @@ def block_sums(
     *,
     grid: tuple[float, float] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, int]:
-    """Per-block sums of one chunk (compiled pass).
+    """Per-block sums of one chunk (the pass over every sample, in sub-chunks of :data:`SUB_CHUNK`).
 
     Parameters
     ----------
@@ -373,28 +306,55 @@ def block_sums(
     irregular : int
         Number of time steps inside the chunk outside ``step_range``.
     """
-    packed, block, omega, step_range = settings.packed, settings.block, settings.omega, settings.step_range
-    n = fx.size
+    p = [float(v) for v in settings.packed]
+    block, omega = int(settings.block), float(settings.omega)
+    low, high = float(settings.step_range[0]), float(settings.step_range[1])
+    force = tuple(np.asarray(f, dtype=float) for f in (fx, fy, fz))
+    n = force[0].size
     n_blocks = -(-n // block)
     sums = np.empty((n_blocks, len(SUM_COLUMNS)))
     centres = np.empty(n_blocks)
-    start_time, period = (0.0, 0.0) if grid is None else (float(grid[0]), float(grid[1]))
-    total, irregular = _kernel()[0](
-        np.ascontiguousarray(fx, dtype=float),
-        np.ascontiguousarray(fy, dtype=float),
-        np.ascontiguousarray(fz, dtype=float),
-        np.zeros(0) if grid is not None else np.ascontiguousarray(time, dtype=float),
-        start_time,
-        period,
-        float(omega),
-        np.ascontiguousarray(packed, dtype=float),
-        int(block),
-        float(step_range[0]),
-        float(step_range[1]),
-        sums,
-        centres,
-    )
-    return sums, centres, float(total), int(irregular)
+    sub = max(1, SUB_CHUNK // block) * block  # whole blocks
+    work = tuple(np.empty(min(sub, n)) for _ in range(5))
+    stamps = None if grid is not None else np.asarray(time, dtype=float)
+    moments: dict[int, NDArray[np.float64]] = {}  # δ^p of a block on the grid, per block length
+    total = 0.0
+    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite force shows in Σz² (the caller then names its row)
+        for a in range(0, n, sub):
+            m = min(sub, n - a)
+            z = work[4][:m]
+            piece = (force[0][a : a + m], force[1][a : a + m], force[2][a : a + m])
+            _observation_into(piece, p, z, (work[0][:m], work[1][:m], work[2][:m], work[3][:m]))
+            total += float(np.einsum("i,i->", z, z))  # einsum, not BLAS: a threaded BLAS stalls on a loaded machine
+            full = m // block
+            short = m - full * block
+            for first, count, size in ((0, full, block), (full * block, int(short > 0), short)):  # the full blocks, a short last one
+                if count == 0:
+                    continue
+                rows = slice((a + first) // block, (a + first) // block + count)
+                zb = z[first : first + count * size].reshape(count, size)
+                if grid is None:
+                    assert stamps is not None
+                    times = stamps[a + first : a + first + count * size].reshape(count, size)
+                    centres[rows] = _stamped_moments(zb, times, omega, sums[rows], work)
+                    continue
+                if size not in moments:
+                    moments[size] = _grid_moments(size, omega * float(grid[1]))
+                powers = moments[size]
+                sums[rows, 0:4] = np.einsum("bj,jp->bp", zb, powers)  # not BLAS (above)
+                sums[rows, 4:7] = powers[:, 1:].sum(axis=0)
+                sums[rows, 7] = size
+                centres[rows] = float(grid[0]) + (a + first + np.arange(count) * size + 0.5 * (size - 1)) * float(grid[1])
+    if grid is not None:
+        irregular = 0 if low <= float(grid[1]) <= high else max(n - 1, 0)
+    else:
+        assert stamps is not None
+        irregular = 0
+        for a in range(0, n - 1, sub):  # the steps t[j+1] − t[j], sub-chunk by sub-chunk
+            e = min(a + sub, n - 1)
+            steps = np.subtract(stamps[a + 1 : e + 1], stamps[a:e], out=work[0][: e - a])
+            irregular += int(np.count_nonzero(steps < low)) + int(np.count_nonzero(steps > high))
+    return sums, centres, total, irregular
 
 
 def harmonic_sums(
@@ -406,7 +366,7 @@ def harmonic_sums(
     *,
     z_sums: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    r"""Trigonometric and z sums of the blocks (compiled), accumulated into ``trig_sums`` and ``z_sums`` in place.
+    r"""Trigonometric and z sums of the blocks, accumulated into ``trig_sums`` and ``z_sums`` in place.
 
     With :math:`S = S_c + \delta` in each block and :math:`\cos k\delta`, :math:`\sin k\delta` to third order in
     :math:`\delta` (:math:`(k\delta)^4/24 < 10^{-15}` for the block lengths used):
@@ -420,10 +380,32 @@ def harmonic_sums(
     :math:`ZC_0..ZC_m, ZS_0..ZS_m` (``m = order``).  Returns the per-block ``ΣH`` rows ``(n_blocks, 2m+1)``:
     ``B, a C_1, a S_1, a² C_2, ...`` with ``a = cos L`` (the filter bins).
     """
-    h = np.empty((centre_angle.size, 2 * order + 1))
-    _kernel()[1](
-        np.ascontiguousarray(centre_angle, dtype=float), np.ascontiguousarray(sums), int(order), float(cos_latitude), trig_sums, z_sums, h
-    )
+    nk = 2 * order + 1
+    n0, n1, n2, n3, m1, m2, m3, count = (np.asarray(sums[:, i], dtype=float) for i in range(len(SUM_COLUMNS)))
+    angle = np.asarray(centre_angle, dtype=float)
+    h = np.empty((angle.size, nk))
+    c1, s1 = np.cos(angle), np.sin(angle)
+    ck, sk = np.ones_like(c1), np.zeros_like(c1)
+    trig_sums[0] += count.sum()
+    z_sums[0] += n0.sum()
+    h[:, 0] = count
+    weight = 1.0
+    for k in range(1, nk):
+        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1  # cos kS_c, sin kS_c by the angle-sum recurrence
+        even = count - 0.5 * k * k * m2
+        odd = k * m1 - k * k * k * m3 / 6.0
+        cos_sum = ck * even - sk * odd
+        sin_sum = sk * even + ck * odd
+        trig_sums[k] += cos_sum.sum()
+        trig_sums[nk + k] += sin_sum.sum()
+        if k <= order:
+            weight *= cos_latitude
+            h[:, 2 * k - 1] = weight * cos_sum
+            h[:, 2 * k] = weight * sin_sum
+            zeven = n0 - 0.5 * k * k * n2
+            zodd = k * n1 - k * k * k * n3 / 6.0
+            z_sums[k] += (ck * zeven - sk * zodd).sum()
+            z_sums[order + 1 + k] += (sk * zeven + ck * zodd).sum()
     return h
 
 
@@ -438,16 +420,21 @@ def second_difference_sums(
     m = min(int(m), fx.size)
     if m < 3:
         return 0
-    _kernel()[2](fx, fy, fz, m, out)
+    for axis, f in enumerate((fx, fy, fz)):
+        f = np.asarray(f[:m], dtype=float)
+        second = f[2:] - 2.0 * f[1:-1]
+        second += f[:-2]
+        out[axis] += float(np.einsum("i,i->", second, second))  # not BLAS (block_sums)
     return m - 2
 
 
 def observation(
     fx: NDArray[np.float64], fy: NDArray[np.float64], fz: NDArray[np.float64], packed: NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """``z = ½(|f^p|²/g² − 1)`` of each sample with numpy: the formula the compiled pass inlines."""
-    formula = getattr(_observation, "py_func", _observation)  # the Python function, compiled or not
-    return formula(np.asarray(fx, dtype=float), np.asarray(fy, dtype=float), np.asarray(fz, dtype=float), np.asarray(packed, dtype=float))
+    """``z = ½(|f^p|²/g² − 1)`` of each sample: the formula of the pass (:func:`block_sums` applies it in place)."""
+    return _observation(
+        np.asarray(fx, dtype=float), np.asarray(fy, dtype=float), np.asarray(fz, dtype=float), np.asarray(packed, dtype=float)
+    )
 
 
 def block_sums_reference(

@@ -1,6 +1,6 @@
 """Compensation of the raw accelerometer outputs with the installed calibration (system stage).
 
-:class:`Compensation`: Wu et al. 2018 Eq. 8 in closed form for the core terms (the compiled per-sample pass,
+:class:`Compensation`: Wu et al. 2018 Eq. 8 in closed form for the core terms (the per-sample pass,
 :mod:`.blocks`); :class:`AdditiveCompensation`: the prior's discovered additive terms removed first.
 """
 
@@ -38,7 +38,7 @@ class Compensation:
         return cls(matrix, bias, quadratic)
 
     def packed(self, gravity: float) -> NDArray[np.float64]:
-        """Return the coefficients of the compiled per-sample pass (:func:`.blocks.coefficients`)."""
+        """Return the coefficients of the per-sample pass (:func:`.blocks.coefficients`)."""
         return coefficients(self.matrix, self.bias, self.quadratic, gravity)
 
 
@@ -46,7 +46,7 @@ class Compensation:
 class AdditiveCompensation:
     r"""The prior's discovered (additive) terms, removed from the raw outputs before the closed-form pass.
 
-    The compiled pass applies the core terms only.  With additive terms ``e(f^p)`` the installed
+    The per-sample pass applies the core terms only.  With additive terms ``e(f^p)`` the installed
     model is ``f^a = δb + u``, ``u − K u² = SF⁻¹ C f^p + e(f^p)``; the outputs of the same
     instrument without them, at the same specific force, are
 
