@@ -34,7 +34,7 @@ from stableins.conventions import ARCSEC, DEG_PER_HOUR, SIDEREAL_DAY
 from stableins.data.chunks import ArraySource
 from stableins.errors import InputError
 from stableins.estimators.system.gyro_drift import measure_gimbals
-from stableins.estimators.system.polar import check_polar_alignment, polar_alignment
+from stableins.estimators.system.polar import check_deferred, check_polar_alignment, polar_alignment
 from stableins.estimators.system.stage import SystemOptions, record_sums
 from stableins.simulator import system
 from stableins.simulator.truth import SimulatedSite, Truth
@@ -62,11 +62,12 @@ def check(truth: Truth, seed: int, options: SystemOptions) -> tuple[bool, float,
         try:
             sums = record_sums(ArraySource(cols), truth.site, truth.installed_calibration, options)
         except InputError:
-            return True, math.nan, math.nan  # refused by the pass's own checks (rate beyond 0.05, moving base)
+            return True, math.nan, math.nan  # refused by the pass's own checks (rate beyond 0.05; without gimbal readings, a moving base)
     gimbal = measure_gimbals(sums, truth.site, truth.installed_calibration, None, latitude=truth.site.latitude)
     polar = None if gimbal is None else polar_alignment(gimbal)
     rate = abs(sums.checks.rate_ratio - 1.0)
     try:
+        check_deferred(sums.checks, None, None, options)  # the pass's static-base refusals (no equatorial drift here)
         check_polar_alignment(polar, sums.checks.rate_ratio, options, "bench")
     except InputError:
         return True, math.nan if polar is None else polar.angle, rate
