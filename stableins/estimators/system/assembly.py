@@ -232,7 +232,8 @@ def separation_likelihood(
     Measurement ``w = T c`` (the combinations of the combined coefficients ``c`` the record resolves; with
     ``estimate_k2`` also the third-harmonic states ``x6 = gΔK2_x/4``, ``x7 = −gΔK2_y/4``), covariance ``R`` from
     ``cov_v``.  Model ``w = H q + e`` over the residuals ``q`` (true − installed, :data:`harmonics.RESIDUAL_NAMES`;
-    ΔK2_x, ΔK2_y with ``estimate_k2``) and the two mean nuisances (base tilt and gimbal zero offsets in the pitch and
+    ΔK2_x, ΔK2_y with ``estimate_k2``; always ΔK2_z, which enters x1 only as ``g ΔK2_z sin³L``, §8) and the two mean
+    nuisances (base tilt and gimbal zero offsets in the pitch and
     roll means).  The nuisances have no prior: they are eliminated exactly by projecting the whitened measurement
     on the complement of their columns.  With whitened ``A = R^{-1/2} H`` and ``r = R^{-1/2} w`` (at ``q = 0``,
     the installed calibration), ``Λ_q = A_pᵀ A_p``, ``g_q = A_pᵀ r_p``; in the record's parameters
@@ -259,6 +260,13 @@ def separation_likelihood(
         labels += ["x6", "x7"]
         ids += ["K2_x", "K2_y"]
         jac += [1.0, 1.0]
+    # K2_z: δ_z = g²ΔK_z u_z² with u_z = sinL puts gΔK_z sin³L into z's mean, x1 (§8); the record cannot tell it from the
+    # scale factors and b_z, but its prior σ enters x1 through this column (without it x1 took the residual K2_z)
+    k2_z = np.zeros(15)
+    k2_z[list(COMBINED_COEFFICIENTS).index("x1")] = gravity * math.sin(latitude) ** 3
+    h_res = np.hstack([h_res, np.concatenate([transform @ k2_z, np.zeros(h_res.shape[0] - transform.shape[0])])[:, None]])
+    ids += ["K2_z"]
+    jac += [1.0]
     w = rows @ v
     cov_w = rows @ cov_v @ rows.T
     if drift is not None:
@@ -359,7 +367,7 @@ def fit_result(
         "and b_z enter only through x1",
         (
             "K2_x, K2_y measured by the third harmonic of Earth rate in z (not in the paper's model) and updated with the rest; "
-            "K2_z is not observed and keeps its prior"
+            "K2_z enters only x1 (g K2_z sin^3 L), in combination with the scale factors and b_z"
             if k2 is not None
             else "K2 terms are not seen by this stage and keep their prior values and variances (nominal magnitude when the prior "
             f"has none); the third harmonic of Earth rate in z measures K2_x, K2_y (see diagnostics, {ESTIMATE_K2_PARAMETER})"
