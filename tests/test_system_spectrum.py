@@ -483,3 +483,31 @@ def test_monte_carlo_p_value_has_its_level_under_a_simple_null():
     )
     assert np.all((p_values > 0) & (p_values <= 1))
     assert abs(np.mean(p_values <= alpha) - alpha) < 3.5 * math.sqrt(alpha * (1 - alpha) / records), np.mean(p_values <= alpha)
+
+
+def test_decision_and_datasheet_test_draw_the_records_null_law_near_their_decision():
+    """Issue 25: with the record's law, a p-value near the decision is the Monte Carlo one (``null_draws`` > 0), far from
+    it the asymptotic one; a true datasheet is kept and one without slow noise is rejected on a record drawn from the law."""
+    from stableins.estimators.system import bootstrap
+
+    channels, time, kernels, mixing, band = _three_channels()
+    design, _, n_ch = spectrum.periodogram_design(channels, time, kernels, mixing, band)
+    white, coloured = spectrum.ordinate_factors(channels, time, kernels, mixing, band)
+    law = bootstrap.OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    levels = np.array([2e-8, 1e-9, 3e-9])
+    rng = np.random.default_rng(21)
+    draws = {}
+    for record in law.draw(levels, np.zeros(2), rng, 40):
+        fit = whittle.fit_coloured_noise(design, record, n_ch, law=law)
+        assert (fit.null_draws > 0) == (bootstrap.ZONE[0] <= whittle.fit_coloured_noise(design, record, n_ch).p_value <= bootstrap.ZONE[1])
+        draws[fit.null_draws > 0] = fit
+        if len(draws) == 2:
+            break
+    assert set(draws) == {True, False}  # both laws met within 40 white records
+    assert 0.0 < draws[True].p_value <= 1.0 and "draws of the record's null law" in draws[True].describe()
+    amplitudes = np.array([2e-15, 0.0])  # a random walk the record shows clearly
+    record = law.draw(levels, amplitudes, rng, 1)[0]
+    true_sheet = whittle.NoisePrior(given=np.repeat(amplitudes[:, None], 3, axis=1))
+    zero_sheet = whittle.NoisePrior(given=np.zeros((2, 3)))
+    assert whittle.fit_coloured_noise(design, record, n_ch, law=law, prior=true_sheet).source is whittle.ColouredSource.GIVEN
+    assert whittle.fit_coloured_noise(design, record, n_ch, law=law, prior=zero_sheet).source is whittle.ColouredSource.CONTRADICTED
