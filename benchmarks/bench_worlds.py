@@ -1,7 +1,10 @@
 """Issue 25: the calibration in the named worlds of the simulator — the instrument for the issue's figures.
 
 Run:  nice -n 10 .venv/bin/python benchmarks/bench_worlds.py [--seeds 10] [--worlds white flicker ...] [--workers 1]
-      [--rate 10] [--level device]
+      [--rate 10] [--level device] [--paths none true white]
+
+``--paths none`` runs the default path alone (a third of the time: the true-noise and white-datasheet calibrations
+are left out; ``none+B`` comes with ``none``).
 
 Per world (docs/simulator.md, "Worlds") and seed: a drawn instrument in that world through the session
 ``stableins simulate device`` records (the coarse zero-offset iteration, then the 18 fine dwells of 600 s, all on
@@ -98,7 +101,7 @@ def _z(fit, truth, floor=None) -> dict[str, float]:
 _REJECTED = "is rejected by the dwells"
 
 
-def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
+def device_session(world_name: str, seed: int, rate: float, paths: tuple[str, ...] = ("none", "true", "white")) -> SessionResult:
     """One device session in ``world_name`` (module docstring), calibrated on the default path and with the true noise."""
     import argparse as _argparse
 
@@ -119,9 +122,12 @@ def device_session(world_name: str, seed: int, rate: float) -> SessionResult:
     dwells = [d for _, columns in sessions for d in dwells_from_columns(columns, layouts=layouts, setting=setting)]
     default = calibrate_device(dwells, truth.site, layouts=layouts)
     n = truth.noise
-    given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
-    reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
-    white = calibrate_device(dwells, truth.site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
+    reference = white = None
+    if "true" in paths:
+        given = with_given_slow_noise(dwells, n.bias_instability, n.acceleration_random_walk, "the world's truth")
+        reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
+    if "white" in paths:
+        white = calibrate_device(dwells, truth.site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
     return _session_result(world_name, seed, default, reference, white, truth, t0)
 
 
@@ -134,19 +140,19 @@ def _session_result(world_name: str, seed: int, default: Any, reference: Any, wh
         world_name,
         seed,
         _z(fit, truth),
-        _z(reference.final, truth),
+        _z(reference.final, truth) if reference is not None else {},
         float(fit.chi2_red),
         float(chi2.sf(fit.chi2, fit.dof)) if fit.dof > 0 else math.nan,
-        float(reference.final.chi2_red),
+        float(reference.final.chi2_red) if reference is not None else math.nan,
         bool(default.noise.test is not None and default.noise.test.detected),
         time.perf_counter() - t0,
         _z(fit, truth, default.floor),
-        _z(white.final, truth),
-        any(_REJECTED in note for note in white.final.notes),
+        _z(white.final, truth) if white is not None else {},
+        white is not None and any(_REJECTED in note for note in white.final.notes),
     )
 
 
-def independent_session(world_name: str, seed: int, rate: float) -> SessionResult:
+def independent_session(world_name: str, seed: int, rate: float, paths: tuple[str, ...] = ("none", "true", "white")) -> SessionResult:
     """One device session from the independent generator (benchmarks/worlds/independent.py) with the world's noise.
 
     The generator knows white, flicker (FFT-shaped 1/f), random walk, a thermal bias term and a bias drift; the world's
@@ -196,9 +202,12 @@ def independent_session(world_name: str, seed: int, rate: float) -> SessionResul
     setting = DeviceSetting.from_site(site)
     dwells = [d for stage in ("coarse", "fine") for d in dwells_from_columns(columns[stage], layouts=layouts, setting=setting)]
     default = calibrate_device(dwells, site, layouts=layouts)
-    given = with_given_slow_noise(dwells, noise.bias_instability, noise.random_walk, "the generator's truth")
-    reference = calibrate_device(dwells, site, layouts=layouts, noise=given)
-    white = calibrate_device(dwells, site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
+    reference = white = None
+    if "true" in paths:
+        given = with_given_slow_noise(dwells, noise.bias_instability, noise.random_walk, "the generator's truth")
+        reference = calibrate_device(dwells, site, layouts=layouts, noise=given)
+    if "white" in paths:
+        white = calibrate_device(dwells, site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
 
     class _Truth:
         parameters = dict(instrument.parameters)
@@ -230,7 +239,7 @@ def _true_drift(truth: Any) -> np.ndarray:
     return true + turn * np.cross([0.0, 0.0, 1.0], true)
 
 
-def system_session(world_name: str, seed: int, rate: float) -> SessionResult:
+def system_session(world_name: str, seed: int, rate: float, paths: tuple[str, ...] = ("none", "true")) -> SessionResult:
     """One sidereal day in ``world_name`` through the system stage: default path (no noise model) and the world's noise given.
 
     The truth simulator's static record at ``rate`` (1 Hz: the stage's harmonics and its 600-s coloured-noise bins do not
@@ -294,16 +303,16 @@ def system_session(world_name: str, seed: int, rate: float) -> SessionResult:
 
 
 #: Session runners by level.
-LEVELS: dict[str, Callable[[str, int, float], SessionResult]] = {
+LEVELS: dict[str, Callable[[str, int, float, tuple[str, ...]], SessionResult]] = {
     "device": device_session,
     "independent": independent_session,
     "system": system_session,
 }
 
 
-def _job(args: tuple[str, str, int, float]) -> SessionResult:
-    level, world_name, seed, rate = args
-    return LEVELS[level](world_name, seed, rate)
+def _job(args: tuple[str, str, int, float, tuple[str, ...]]) -> SessionResult:
+    level, world_name, seed, rate, paths = args
+    return LEVELS[level](world_name, seed, rate, paths)
 
 
 def rms(values: list[float]) -> float:
@@ -376,13 +385,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--rate", type=float, default=10.0, help="sample rate of the simulated session [Hz]")
     parser.add_argument("--level", choices=sorted(LEVELS), default="device")
+    parser.add_argument(
+        "--paths", nargs="+", choices=("none", "true", "white"), default=["none", "true", "white"], help="device level: calibrations run"
+    )
     args = parser.parse_args(argv)
     from stableins.simulator.worlds import world
 
     for w in args.worlds:
         world(w, field="--worlds")
     # seeds outermost: a run stopped early has every world at the same number of seeds
-    jobs = [(args.level, w, s, args.rate) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds]
+    paths = tuple(dict.fromkeys(["none", *args.paths]))  # the default path always runs
+    jobs = [(args.level, w, s, args.rate, paths) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds]
     t0 = time.perf_counter()
     results = []
     with ProcessPoolExecutor(max(args.workers, 1)) as pool:

@@ -9,6 +9,7 @@ residuals.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from stableins.estimators.residual_noise import _Components, _restricted_loglik, _score_p
 
@@ -94,3 +95,70 @@ def test_default_path_measures_slow_noise_by_reml_and_a_rejected_datasheet_is_sa
     # the true (white) datasheet is kept
     kept = calibrate_device(dwells, truth.site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "right"))
     assert not any("rejected" in n for n in kept.final.notes)
+
+
+def test_variance_of_b_is_the_inverse_curvature_and_zero_at_the_boundary():
+    from stableins.estimators.residual_noise import _variance_of_b
+
+    def quadratic(b: float) -> float:
+        return 0.5 * (b - 3.0) ** 2 / 0.8**2
+
+    assert abs(_variance_of_b(quadratic, 3.0) - 0.8**2) < 1e-6
+    assert abs(_variance_of_b(lambda b: 0.5 * (b - 0.004) ** 2 / 0.5**2, 0.004) - 0.25) < 1e-6  # forward difference near 0
+    assert _variance_of_b(quadratic, 0.0) == 0.0
+    assert _variance_of_b(lambda b: -(b**2), 1.0) == 0.0  # not a maximum: no variance claimed
+
+
+def test_the_amplitude_the_sigma_use_is_the_second_order_correction_capped():
+    from stableins.conventions import MICRO_G
+    from stableins.estimators.residual_noise import ResidualSlowNoise
+    from stableins.noise import SlowNoiseTest
+
+    def residual(b: float, upper: float, variance: float) -> ResidualSlowNoise:
+        return ResidualSlowNoise(b * MICRO_G, 0.0, upper * MICRO_G, SlowNoiseTest(0.0, 0.5, 0.05), 0.5, 0.5, 10, 10, variance * MICRO_G**4)
+
+    # B² = 4 µg², Var(B²) = 4 µg⁴, ρ = 0.5: B_σ² = 4 + 0.5·4/4
+    assert abs(residual(2.0, 5.0, 4.0).bias_instability_for_sigma(0.5) / MICRO_G - np.sqrt(4.5)) < 1e-9
+    assert residual(2.0, 5.0, 4.0).bias_instability_for_sigma(0.0) == 2.0 * MICRO_G  # nothing carried: the estimate
+    assert abs(residual(1.0, 1.5, 9.0).bias_instability_for_sigma(1.0) / MICRO_G - 1.5) < 1e-9  # capped at the upper limit
+    assert residual(0.0, 2.0, 0.0).bias_instability_for_sigma(1.0) == 0.0  # the boundary stays white
+    assert residual(2.0, 5.0, 0.0).bias_instability_for_sigma(1.0) == 2.0 * MICRO_G  # no curvature: the estimate
+
+
+@pytest.mark.slow
+def test_the_corrected_amplitude_makes_the_precision_of_a_slow_dominated_sigma_unbiased():
+    """REML on 60 synthetic sessions with b = 2 (about 16 s of CPU): for a σ² = 1 + 2b (slow share 80 %), E[σ²(b)/σ²(b̂)] is > 1 at the
+    estimate (Jensen) and closer to 1 with the corrected amplitude (residual_noise, "The amplitude the σ use")."""
+    from stableins.estimators.residual_noise import _reml
+
+    rng = np.random.default_rng(5)
+    base = _problem(rng, rows=30, params=3)
+    plug, corrected = [], []
+    for _ in range(60):
+        c = _with_residual(base, 2.0, 0.0, rng)
+        b_hat, _, upper, variance = _reml(c, float("nan"), float("nan"), 0.95)
+        rho = 2 * b_hat / (1 + 2 * b_hat)
+        b_sigma = min(b_hat + rho * variance / b_hat, upper) if b_hat > 0 else 0.0
+        plug.append((1 + 2 * 2.0) / (1 + 2 * b_hat))
+        corrected.append((1 + 2 * 2.0) / (1 + 2 * b_sigma))
+    assert np.mean(plug) > 1.1
+    assert abs(np.mean(corrected) - 1.0) < abs(np.mean(plug) - 1.0)
+
+
+def test_the_default_path_records_the_corrected_amplitude_between_the_estimate_and_its_upper_limit():
+    """A session with strong flicker (30 µg): detected; the record's B is B̂ (its lower limit) moved up by the
+    second-order correction and not beyond the profile upper limit; the slow share ρ it used is in (0, 1]."""
+    import dataclasses
+
+    from stableins.conventions import MICRO_G
+    from stableins.estimators.device import calibrate_device
+    from stableins.simulator.noise import NoiseSettings
+
+    flicker = dataclasses.replace(NoiseSettings.quartz(), bias_instability=30 * MICRO_G, acceleration_random_walk=0.0, quantization=0.0)
+    truth, layouts, dwells = _session(flicker)
+    calibration = calibrate_device(dwells, truth.site, layouts=layouts)
+    assert calibration.noise.test is not None and calibration.noise.test.detected
+    term = calibration.noise.axes[0].bias_instability
+    assert 0.0 < term.lower < term.value <= term.upper
+    rho = float(calibration.noise.provenance.split("rho = ")[1].split()[0])
+    assert 0.0 < rho <= 1.0

@@ -9,7 +9,7 @@ by a joint generalized least squares (:mod:`stableins.estimators.joint`).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -130,6 +130,41 @@ class DeviceCalibration:
         return self.final._repr_html_()
 
 
+def slow_fraction(run: _Stages) -> float:
+    """Return the largest share of an estimated parameter's variance the bias instability carries in ``run``.
+
+    ``max_p 1 − σ_p²(B = 0)/σ_p²(B)``, the recorded fit refitted with the bias instability at 0 (the random walk kept):
+    the ``ρ`` of :meth:`stableins.estimators.residual_noise.ResidualSlowNoise.bias_instability_for_sigma`.
+    """
+    final = run.fused or run.coarse
+    white = replace(run.session, noise=run.session.noise.with_values(bias_instability=0.0))
+    if run.fused is not None:
+        without = white.fit_joint(run.used_coarse, run.used_fine, start=run.fused, stage=Stage.DEVICE)
+    else:
+        without = white.fit_joint(run.used_coarse, start=run.coarse, nonlinear=any(i.startswith("K2_") for i in run.coarse.ids))
+    shares = [
+        1.0 - (without[k][1] / final[k][1]) ** 2
+        for k, st in zip(final.ids, final.status, strict=True)
+        if st == Status.ESTIMATED and final[k][1] > 0 and k in without.ids
+    ]
+    return min(max(max(shares, default=0.0), 0.0), 1.0)
+
+
+def _measured_slow_noise(
+    white: NoiseModel, residual: ResidualSlowNoise, source: str, stages: Callable[[NoiseModel], _Stages]
+) -> tuple[NoiseModel, _Stages]:
+    """Return the measured model with the σ's amplitude (:func:`noise_from_residuals` with :func:`slow_fraction`) and its run.
+
+    The stages run under the REML estimate itself, and again under the corrected amplitude when it differs.
+    """
+    run = stages(noise_from_residuals(white, residual, source))
+    fraction = slow_fraction(run) if residual.bias_instability > 0 else 0.0
+    model = noise_from_residuals(white, residual, source, slow_fraction=fraction)
+    if residual.bias_instability_for_sigma(fraction) <= residual.bias_instability:
+        return model, run
+    return model, stages(model)
+
+
 def dwell_slow_noise(dwells: Sequence[DwellSummary], *, alpha: float = SLOW_NOISE_ALPHA, confidence: float = 0.95) -> DwellSlowNoise:
     """Return the within-dwell Allan decision of :func:`stableins.estimators.slow_noise.slow_noise_test` on the usable dwells."""
     usable = [d for d in dwells if d.usable and d.samples > 1 and d.duration > 0]
@@ -137,15 +172,19 @@ def dwell_slow_noise(dwells: Sequence[DwellSummary], *, alpha: float = SLOW_NOIS
     return slow_noise_test(ratios, alpha=alpha, confidence=confidence)
 
 
-def noise_from_residuals(white: NoiseModel, residual: ResidualSlowNoise, source: str) -> NoiseModel:
+def noise_from_residuals(white: NoiseModel, residual: ResidualSlowNoise, source: str, *, slow_fraction: float = 0.0) -> NoiseModel:
     """Return the session's noise model: white noise from ``white`` (the dwells), slow noise from the residuals' REML estimate.
 
-    Bias instability: the estimate, lower limit 0 unless the combined decision detects slow noise (then the estimate's
-    own), upper limit the profile limit; random walk: the estimate, not bounded above (a session cannot separate it
-    from bias instability well); the decision is the combined test (:mod:`stableins.estimators.residual_noise`).
+    Bias instability: the value the σ use (:meth:`ResidualSlowNoise.bias_instability_for_sigma` with
+    ``slow_fraction``: the estimate with the second-order correction of the σ it dominates, issue 25; 0: the
+    estimate), lower limit 0 unless the combined decision detects slow noise (then the estimate), upper limit the
+    profile limit; random walk: the estimate, not bounded above (a session cannot separate it from bias instability
+    well); the decision is the combined test
+    (:mod:`stableins.estimators.residual_noise`).
     """
     detected = residual.test.detected
-    b = NoiseTerm(residual.bias_instability, residual.bias_instability if detected else 0.0, residual.bias_instability_upper)
+    used = residual.bias_instability_for_sigma(slow_fraction)
+    b = NoiseTerm(used, residual.bias_instability if detected else 0.0, max(residual.bias_instability_upper, used))
     k = NoiseTerm(residual.random_walk, residual.random_walk if detected else 0.0, math.inf)
     axes = tuple(replace(a, bias_instability=b, random_walk=k) for a in white.axes)
     provenance = (
@@ -155,8 +194,9 @@ def noise_from_residuals(white: NoiseModel, residual: ResidualSlowNoise, source:
         f"Allan variance inside the dwells p = {residual.allan_p:.3g}) estimated by restricted maximum likelihood from "
         f"{residual.rows} within-position contrasts of the dwell-mean residuals and the within-dwell Allan variance: "
         f"B = {residual.bias_instability / MICRO_G:.3g} ug (upper {residual.bias_instability_upper / MICRO_G:.3g} ug), "
-        f"K = {residual.random_walk:.3g} m/s^2/sqrt(s) (not bounded above); the σ use these values, detected or not "
-        "(docs/noise.md §3)"
+        f"K = {residual.random_walk:.3g} m/s^2/sqrt(s) (not bounded above); the σ use these values, detected or not, "
+        f"B as {used / MICRO_G:.3g} ug (B^2 + rho Var(B^2)/B^2 with rho = {slow_fraction:.2f} the largest share of a σ² it "
+        "carries, capped at the upper limit: the second-order correction of the σ it dominates; docs/noise.md §3)"
     )
     return NoiseModel(axes, NoiseSource.DEVICE_DWELLS, provenance, white.confidence, residual.test)  # type: ignore[arg-type]
 
@@ -580,8 +620,7 @@ def calibrate_device(
             fit=run.fused or run.coarse,
             allan=(within.b2, within.b2_sigma, within.test.p_value),
         )
-        noise_model = noise_from_residuals(noise_model, residual, source)
-        run = stages(noise_model)
+        noise_model, run = _measured_slow_noise(noise_model, residual, source, stages)
     rejected_note = None
     if not measured and noise_model.source is not NoiseSource.NONE:
         # a given model (datasheet, another record's) the residuals reject is said, and the σ follow the data
@@ -598,14 +637,14 @@ def calibrate_device(
                 allan=(within.b2, within.b2_sigma, within.test.p_value),
             )
             given_text = noise_model.describe()
-            noise_model = noise_from_residuals(noise_from_dwells(dwells, source=source), residual, source)
+            white = noise_from_dwells(dwells, source=source)
+            noise_model, run = _measured_slow_noise(white, residual, source, stages)
             rejected_note = (
                 f"warning: the given noise model ({given_text}) is rejected by the dwells (residuals between passes and "
                 f"Allan variance inside the dwells: likelihood ratio {check.statistic:.3g}, p = {check.p_value:.2g} < {check.alpha:g}): "
                 "the σ use the noise model the data "
                 f"measure instead (B = {residual.bias_instability / MICRO_G:.3g} ug, K = {residual.random_walk:.3g} m/s^2/sqrt(s))"
             )
-            run = stages(noise_model)
     session, coarse, fine, passes, fused = run.session, run.coarse, run.fine, list(run.passes), run.fused
     used_coarse, used_fine = run.used_coarse, run.used_fine
     floor = None

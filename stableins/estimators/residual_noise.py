@@ -33,12 +33,30 @@ the Gaussian term ``−½ (b − b̂_A)²/s_A²``.  The estimate ``θ̂`` maximi
 **Where the data cannot resolve it.**  The common mode of the slow noise over a session is a bias: no contrast sees
 it, only the model's spectrum extrapolates it from the pass-to-pass scatter (docs/noise.md §3).  The σ use ``θ̂``
 whether or not it is detected; the decision only says whether the data exclude white noise.
+
+**The amplitude the σ use** (issue 25).  ``b̂`` scatters by ±50–70 % from session to session, and a σ computed from
+it is a noisy estimate of the true one: with ``z = e/σ̂`` and ``σ̂² = Φ(b̂)``, ``E z² = Φ(b) E[1/Φ(b̂)] > 1`` (Jensen;
+1/x is convex), and the σ are too small on average where the slow part dominates them (the biases, whose
+common-mode wander only the spectrum extrapolates).  To second order (delta method, ``Φ`` linear in ``b``),
+``E[1/Φ(b̂)] = (1/Φ)(1 + Φ'² Var(b̂)/Φ²)``, and a parameter whose variance the slow noise carries a share
+``ρ_p = b̂Φ'_p/Φ_p`` of has ``E z_p² = 1 + ρ_p² Var(b̂)/b̂²``.  One noise model must serve every σ, so the amplitude
+corrects the parameter the slow noise dominates most (``ρ = max_p ρ_p``; the others are then conservative by at most
+``ρ_p(ρ − ρ_p) Var(b̂)/b̂²``):
+
+.. math::
+    b_σ = \min\left(b̂ + ρ\,\frac{\mathrm{Var}(b̂)}{b̂},\; b_{up}\right), \qquad b̂ > 0
+
+with ``Var(b̂)`` the inverse of the restricted likelihood's curvature in ``b`` at the optimum (``k`` at its value: the
+observed information, Allan term included), capped at the profile upper limit ``b_up`` (the largest floor the dwells
+allow).  At the boundary ``b̂ = 0`` the estimate is not a smooth function of the data (its curvature is not its
+sampling variance; about half of the white sessions land there) and the σ stay white: ``b_σ = 0``.  ``k`` is used as
+estimated: a session does not bound it above (its curvature says little).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +90,9 @@ class ResidualSlowNoise:
         The p-values of the residual score test and of the within-dwell Allan test.
     rows, dof : int
         Contrasts (observations of the likelihood) and their degrees of freedom (the same: the contrasts estimate nothing).
+    bias_instability_variance : float
+        ``Var(B̂²)`` [(m/s²)⁴]: the inverse curvature of the restricted likelihood (Allan term included) in ``B²`` at
+        the optimum, ``K`` at its estimate (0 at the boundary ``B̂ = 0``).
     """
 
     bias_instability: float
@@ -82,6 +103,23 @@ class ResidualSlowNoise:
     allan_p: float
     rows: int
     dof: int
+    bias_instability_variance: float = 0.0
+
+    def bias_instability_for_sigma(self, slow_fraction: float) -> float:
+        r"""Return the ``B`` [m/s²] the σ use: ``B̂²`` with the second-order (Jensen) correction of the σ it dominates.
+
+        .. math:: B_σ^2 = \min\left(B̂^2 + ρ\,\mathrm{Var}(B̂^2)/B̂^2,\; B_{up}^2\right), \qquad B̂ > 0
+
+        with ``ρ = slow_fraction`` the largest share of an estimated parameter's variance that ``B̂`` carries (module
+        docstring, "The amplitude the σ use"); ``0`` at the boundary ``B̂ = 0``; the estimate when its variance is unknown.
+        """
+        b2 = self.bias_instability**2
+        if b2 <= 0.0:
+            return 0.0
+        if not (math.isfinite(self.bias_instability_variance) and self.bias_instability_variance > 0.0):
+            return self.bias_instability
+        rho = min(max(float(slow_fraction), 0.0), 1.0)
+        return math.sqrt(min(b2 + rho * self.bias_instability_variance / b2, max(self.bias_instability_upper**2, b2)))
 
 
 @dataclass(frozen=True)
@@ -220,15 +258,40 @@ def residual_slow_noise(
     is linearized to first order); ``allan`` the within-dwell evidence ``(B̂², its standard error, p)`` [(m/s²)²] of
     :func:`stableins.estimators.slow_noise.slow_noise_test` (None: residuals alone).
     """
-    from scipy.optimize import minimize
-
-    from stableins.estimators.distributions import chi2_sf, norm_ppf
+    from stableins.estimators.distributions import chi2_sf
 
     c = _components(coarse_dwells, fine_dwells, setting, fit)
     b_a = s_a = math.nan
     allan_p = 1.0
     if allan is not None and math.isfinite(allan[1]) and allan[1] > 0:
         b_a, s_a, allan_p = allan[0] / UNIT_B**2, allan[1] / UNIT_B**2, allan[2]
+    b_hat, k_hat, hi, variance = _reml(c, b_a, s_a, confidence)
+    statistic, residual_p = _score_p(c)
+    combined = chi2_sf(-2.0 * (math.log(max(residual_p, 1e-300)) + math.log(max(allan_p, 1e-300))), 4)
+    rows, params = c.design.shape
+    return ResidualSlowNoise(
+        math.sqrt(b_hat) * UNIT_B,
+        math.sqrt(k_hat) * UNIT_K,
+        math.sqrt(hi) * UNIT_B,
+        SlowNoiseTest(statistic, combined, alpha),
+        residual_p,
+        allan_p,
+        rows,
+        rows - params,
+        variance * UNIT_B**4,
+    )
+
+
+def _reml(c: _Components, b_a: float, s_a: float, confidence: float) -> tuple[float, float, float, float]:
+    """Return ``(b̂, k̂, b_up, Var(b̂))`` in the units of ``b`` and ``k`` (module docstring).
+
+    The restricted log-likelihood of ``c`` plus the Allan term ``−½ (b − b_a)²/s_a²`` (left out when ``s_a`` is NaN),
+    maximized over ``b, k ≥ 0``; ``b_up`` where the objective, ``k`` profiled, falls by ``z²/2`` (one-sided
+    ``confidence``); ``Var(b̂)`` from its curvature in ``b`` (:func:`_variance_of_b`).
+    """
+    from scipy.optimize import minimize
+
+    from stableins.estimators.distributions import norm_ppf
 
     def objective(theta: NDArray[np.float64]) -> float:
         b, k = float(theta[0]), float(theta[1])
@@ -255,19 +318,22 @@ def residual_slow_noise(
     for _ in range(30):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if profile(mid) < target else (lo, mid)
-    statistic, residual_p = _score_p(c)
-    combined = chi2_sf(-2.0 * (math.log(max(residual_p, 1e-300)) + math.log(max(allan_p, 1e-300))), 4)
-    rows, params = c.design.shape
-    return ResidualSlowNoise(
-        math.sqrt(b_hat) * UNIT_B,
-        math.sqrt(k_hat) * UNIT_K,
-        math.sqrt(hi) * UNIT_B,
-        SlowNoiseTest(statistic, combined, alpha),
-        residual_p,
-        allan_p,
-        rows,
-        rows - params,
-    )
+    return b_hat, k_hat, hi, _variance_of_b(lambda b: objective(np.array([b, k_hat])), b_hat)
+
+
+def _variance_of_b(objective: Callable[[float], float], b_hat: float) -> float:
+    """Return ``1/∂²(−ℓ)/∂b²`` at ``b̂`` (the REML curvature; module docstring), 0 at the boundary or if not positive.
+
+    Central second difference with step ``h = max(0.05 b̂, 0.01)`` [unit b], forward where ``b̂ < h``.
+    """
+    if b_hat <= 0.0:
+        return 0.0
+    h = max(0.05 * b_hat, 0.01)
+    if b_hat >= h:
+        d2 = (objective(b_hat + h) - 2.0 * objective(b_hat) + objective(b_hat - h)) / h**2
+    else:
+        d2 = (objective(b_hat + 2.0 * h) - 2.0 * objective(b_hat + h) + objective(b_hat)) / h**2
+    return 1.0 / d2 if math.isfinite(d2) and d2 > 0.0 else 0.0
 
 
 #: Level at which a given noise model (datasheet, another record's) is rejected by the residuals.
