@@ -160,7 +160,7 @@ def compare_xsens(plots: Path | None) -> dict:
         mine, mine_sigma = stableins_vector(fit)
         z = np.abs(mine - p) / mine_sigma
         print(
-            f"  {label}: {len(usable)} holds used, {len(fit.left_out)} left out; model {fit.settings.model.name}; "
+            f"  {label}: {len(usable)} holds used, {len(fit.details.left_out)} left out; model {fit.settings.model.name}; "
             f"chi2_red {fit.chi2_red:.3f} (nu {fit.dof}); independent chi2/nu {chi2 / dof:.3f}"
         )
         print(f"    {'parameter':<20} {'stableins':>16} {'sigma':>11} {'independent':>16} {'sigma':>11} {'|diff|/sigma':>12}")

@@ -30,8 +30,8 @@ from the documents alone) instead of the simulator: the worlds white, flicker, r
 simulator at ``--rate`` (use 1 Hz), calibrated with no noise model and with the world's noise as a datasheet; the
 families are the harmonic coefficients x2-x5 and those of pitch and roll, and the gyro drift ε^p the gimbal readings
 measure (:data:`SYSTEM_FAMILIES`).  The ``gyro-z`` world carries a realistic 0.05 deg/h drift along z_p, which the
-stage measures; the ``gyro`` world is refused by it (an uncompensated 0.05 deg/h equatorial drift turns z_p off the
-pole; docs/system-calibration.md §9).
+stage measures; in the ``gyro`` world an uncompensated 0.05 deg/h drift across z_p turns z_p 29.5 mrad off the pole,
+which the stage measures in the gimbal readings and calibrates through (docs/system-calibration.md §9, "Across z_p").
 """
 
 from __future__ import annotations

@@ -161,6 +161,9 @@ QUICK: dict[str, Quick] = {
     "bench_truth": Quick(("--seed", "2018"), "the default run; seed pinned"),
     "bench_two_position": Quick(("--seeds", "5"), "5 seeds per case instead of 100"),
     "bench_worlds": Quick(("--seeds", "2", "--first-seed", "1"), "2 device sessions per world instead of 10"),
+    "bench_independent_system": Quick(
+        ("--seeds", "1", "--worlds", "white", "quartz", "--diagnose", "white"), "1 record per world (white, quartz) instead of 20 in four"
+    ),
     "bench_lever_arms": Quick(("--seeds", "1", "--cai-seeds", "1", "--clean", "2"), "1 seed per case (2 clean) instead of 4, 2 and 20"),
     "bench_systematic": Quick(
         ("--seeds", "4", "--mc-hours", "4", "--hours", "8", "--speed-hours", "2"),

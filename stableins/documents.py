@@ -1,4 +1,4 @@
-"""JSON documents: the value types, and one object's fields read with their types at the boundary.
+"""JSON (and TOML) documents: the value types, and one object's fields read with their types at the boundary.
 
 A document stableins writes (a record, a stage's settings, a command's ``--json`` output) is built from
 :data:`JSONValue`; one it reads is checked field by field by :class:`DocumentFields`, every problem an
@@ -7,6 +7,7 @@ A document stableins writes (a record, a stage's settings, a command's ``--json`
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -18,6 +19,10 @@ from stableins.errors import InputError
 JSONValue: TypeAlias = "str | int | float | bool | None | list[JSONValue] | dict[str, JSONValue]"
 #: A JSON object.
 JSONObject: TypeAlias = "dict[str, JSONValue]"
+#: A value of a parsed TOML document (:mod:`tomllib`): JSON's, without null, plus dates and times.
+TOMLValue: TypeAlias = "str | int | float | bool | dt.datetime | dt.date | dt.time | list[TOMLValue] | dict[str, TOMLValue]"
+#: A TOML table: a parsed TOML file before its sections are validated (each reader checks the fields it knows).
+TOMLTable: TypeAlias = "dict[str, TOMLValue]"
 
 
 @dataclass(frozen=True)

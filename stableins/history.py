@@ -40,7 +40,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from stableins.errors import InputError
 from stableins.identifiers import parse_timestamp
@@ -64,6 +64,22 @@ MIN_DRIFT_SPAN_DAYS = 30.0
 def parse_date(text: str, field: str = "date") -> datetime:
     """ISO 8601 date or date-time; naive times are UTC (:func:`stableins.identifiers.parse_timestamp`)."""
     return parse_timestamp(text, field=field)
+
+
+class ChangeDocument(TypedDict):
+    """A :class:`Change` as JSON: its fields, then its difference, significance and flag."""
+
+    id: str
+    unit: str
+    old: float
+    new: float
+    sigma_old: float
+    sigma_new: float
+    sigma_difference: float
+    correlated: bool
+    difference: float
+    significance: float
+    significant: bool
 
 
 @dataclass(frozen=True)
@@ -96,9 +112,21 @@ class Change:
         """``|z| ≥`` :data:`CHANGE_THRESHOLD` (the flag of ``recal``, ``history`` and the certificate)."""
         return abs(self.significance) >= CHANGE_THRESHOLD
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ChangeDocument:
         """Return the change as JSON values, with its difference, significance and flag."""
-        return {**self.__dict__, "difference": self.difference, "significance": self.significance, "significant": self.significant}
+        return {
+            "id": self.id,
+            "unit": self.unit,
+            "old": self.old,
+            "new": self.new,
+            "sigma_old": self.sigma_old,
+            "sigma_new": self.sigma_new,
+            "sigma_difference": self.sigma_difference,
+            "correlated": self.correlated,
+            "difference": self.difference,
+            "significance": self.significance,
+            "significant": self.significant,
+        }
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 
@@ -27,15 +28,15 @@ def jsonable(value: Any) -> Any:
     return str(value)
 
 
-def emit(args: Any, data: dict[str, Any], text: str | None = None) -> None:
+def emit(args: Any, data: Mapping[str, object], text: str | None = None) -> None:
     """Print a command's result: ``data`` as JSON if ``args.json``, else ``text``.
 
     Parameters
     ----------
     args : argparse.Namespace
         Parsed arguments (``args.json`` set by the CLI for every command).
-    data : dict
-        Machine-readable result (SI units; keys documented by the command).
+    data : mapping
+        Machine-readable result (any values :func:`jsonable` turns into JSON) (SI units; keys documented by the command).
     text : str, optional
         Human-readable result; defaults to ``key: value`` lines of ``data``.
     """

@@ -22,6 +22,8 @@ import sys
 from collections.abc import Iterator, Sequence
 from typing import Any, TextIO
 
+from stableins.schema import Columns
+
 #: Set by :func:`silence` (the CLI's ``--json`` and ``--quiet``): no bar is drawn, whatever the stream.
 _silenced = False
 
@@ -171,7 +173,7 @@ class CountedSource:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._source, name)
 
-    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16, **options: Any) -> Iterator[dict[str, Any]]:
+    def iter_chunks(self, columns: Sequence[str] | None = None, rows: int = 1 << 16, **options: Any) -> Iterator[Columns]:
         """Yield the source's chunks, telling the progress the rows of each (its longest column)."""
         for chunk in self._source.iter_chunks(columns, rows, **options):
             yield chunk

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import stableins
+from stableins.documents import JSONObject
 from stableins.drivers.base import PlatformDriver
 from stableins.drivers.select import is_deterministic
 from stableins.errors import InputError
@@ -50,6 +51,7 @@ from stableins.procedures.rundir import (
 from stableins.procedures.runlock import RunLock
 from stableins.procedures.runner import RunConsole, Runner, RunOptions
 from stableins.procedures.session import Session
+from stableins.schema import Columns
 from stableins.site import SiteMetadata
 
 
@@ -229,7 +231,7 @@ def resume_run(
     *,
     console: RunConsole,
     driver_spec: str | None = None,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None = None,
+    driver_factory: Callable[[JSONObject], PlatformDriver] | None = None,
     timeout: float = 10.0,
     re_estimate: bool = False,
 ) -> RunOutcome:
@@ -264,7 +266,7 @@ def _resume_locked(
     *,
     console: RunConsole,
     driver_spec: str | None,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
+    driver_factory: Callable[[JSONObject], PlatformDriver] | None,
     timeout: float,
     re_estimate: bool,
 ) -> RunOutcome:
@@ -460,7 +462,7 @@ def run_entries(runner: Runner) -> tuple[Any, ...]:
     return tuple(out)
 
 
-def _environment(runner: Runner, columns: dict[str, Any] | None, fit: Any) -> dict[str, Any]:
+def _environment(runner: Runner, columns: Columns | None, fit: Any) -> JSONObject:
     """Summarize what the data carry about the environment: the instrument temperature's mean, minimum and maximum."""
     from stableins.estimators.details import SystemDetails
     from stableins.records import temperature_summary

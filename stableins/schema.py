@@ -8,6 +8,15 @@ unit.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeAlias
+
+if TYPE_CHECKING:  # pragma: no cover
+    from numpy.typing import NDArray
+
+#: Columns of a data file as a reader returns them: column name -> one array of its rows, of the column's
+#: :attr:`Column.dtype` (``float64``, ``int32`` or ``str``; hence ``NDArray[Any]``).  Every ``read``/``iter_chunks``
+#: of the data readers returns or yields this.
+Columns: TypeAlias = "dict[str, NDArray[Any]]"
 
 
 @dataclass(frozen=True)

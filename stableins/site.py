@@ -7,8 +7,8 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
 
+from stableins.documents import JSONObject
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 
 
@@ -63,7 +63,7 @@ class SiteMetadata:
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
     reference_temperature: float = 25.0
     damping: dict[str, float] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
+    extra: JSONObject = field(default_factory=dict)
     start_time: str = ""
     gravity_uncertainty: float | None = None
     dwell_mode: DwellMode = DEFAULT_DWELL_MODE
@@ -72,7 +72,7 @@ class SiteMetadata:
         if not isinstance(self.dwell_mode, DwellMode):
             object.__setattr__(self, "dwell_mode", DwellMode(self.dwell_mode))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JSONObject:
         """Return the metadata as a JSON-ready dict (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["gimbal_senses"] = list(self.gimbal_senses)

@@ -60,8 +60,8 @@ def with_value(text: str, path: tuple, token: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    return fz.Workspace(tmp_path_factory.mktemp("bad"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 # =========================================================================== JSON everywhere it is read

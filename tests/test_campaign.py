@@ -262,3 +262,39 @@ def test_resume_refuses_another_campaign_in_the_directory(tmp_path):
     with pytest.raises(InputError) as error:
         run_campaign(config, out, workers=1)
     assert error.value.field == "campaign.json"
+
+
+def test_a_tasks_diagnosis_reuses_its_calibrations_dwell_statistics_to_the_bit(tmp_path):
+    """The session's dwell statistics handed to discovery are those dwells_from_columns makes of the merged rows (issue 30)."""
+    from dataclasses import fields
+
+    from stableins.campaign.task import _session, _stage_columns
+    from stableins.data.device import DeviceDataset
+    from stableins.discovery.diagnose import DiagnoseOptions, diagnose_data
+    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.setting import DeviceSetting
+    from stableins.simulator.truth import Truth
+
+    config = load_campaign(_config(tmp_path, devices=1, diagnose=True))
+    task = config.tasks()[0]
+    spec = config.procedure(task.procedure)
+    truth = Truth.draw(task.seed, noise=config.noise(task.noise).settings)
+    stages = ["coarse", "fine"]
+    columns = {stage: _stage_columns(truth, spec, stage, task.stream_seed + k) for k, stage in enumerate(stages)}
+    layouts = {"coarse": spec.coarse.layout, "fine": spec.fine.layout}
+    setting = DeviceSetting.from_site(truth.site)
+    own = {stage: dwells_from_columns(columns[stage], layouts=layouts, setting=setting) for stage in stages}
+    merged, made = _session(columns, own, stages, layouts, setting)
+    fresh = dwells_from_columns(merged, layouts=layouts, setting=setting)
+    assert len(made) == len(fresh) == 2 * 18 + 18
+    for a, b in zip(made, fresh, strict=True):
+        for f in fields(a):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            assert np.array_equal(x, y, equal_nan=True) if isinstance(x, np.ndarray) else x == y or (x != x and y != y), f.name
+    record = type("Record", (), {"ids": (), "covariance": np.zeros((0, 0)), "noise_model": None, "values": lambda self: {}})()
+    data = [DeviceDataset(truth.site, merged)]
+    given = diagnose_data(data, record, layouts=layouts, options=DiagnoseOptions(), summaries=[made])
+    again = diagnose_data(data, record, layouts=layouts, options=DiagnoseOptions())
+    assert [(c.id, c.statistic, c.p_value, c.flagged) for c in given.ranking.candidates] == [
+        (c.id, c.statistic, c.p_value, c.flagged) for c in again.ranking.candidates
+    ]

@@ -37,6 +37,7 @@ RUN_BY: dict[str, str] = {
     "calibrate device --coarse-linear": "test_cli_options.py::test_calibrate_device_options",
     "calibrate device --alpha": "test_cli_options.py::test_calibrate_device_options",
     "calibrate device --allow-missing": "test_cli_options.py::test_calibrate_device_options",
+    "demo --quiet": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
     "demo --json": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
     "demo --hidden": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
     "demo --rate": "test_demo_cli.py::test_demo_runs_to_completion_with_every_option_and_its_verdict_holds",
@@ -282,11 +283,7 @@ RUN_BY: dict[str, str] = {
     "calibrate device --verbose": "test_device_simulator.py::test_cli_calibrates_simulated_files_and_writes_a_record",
 }
 #: Options no test runs successfully yet (only shrinks; issue 31 left 139 of 259, then 1 of 256: the servers take no --json).
-NOT_YET_RUN: frozenset[str] = frozenset(
-    {
-        "demo --quiet",
-    }
-)
+NOT_YET_RUN: frozenset[str] = frozenset()
 
 
 def _commands(table, path=()):
@@ -355,10 +352,8 @@ def test_hypothesis_is_derandomized_suite_wide() -> None:
 
 # --------------------------------------------------------------------------- options run here (issue 31), effect asserted
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("options"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 def _main(argv: list[str]) -> tuple[int, str]:

@@ -27,10 +27,8 @@ def _main(argv: list) -> tuple[int, str, str]:
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("more-options"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 # --------------------------------------------------------------------------- diagnose

@@ -47,10 +47,8 @@ def quiet_main(monkeypatch, argv: list, module: str) -> tuple[int, str, str, lis
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("quiet"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 def test_a_terminal_sees_the_bar_and_quiet_removes_it(monkeypatch, tmp_path):
@@ -106,3 +104,28 @@ def test_campaign_json_and_quiet(monkeypatch, tmp_path):
     assert (document["tasks"], document["ran"], document["workers"]) == (1, 1, 1)  # --workers 1
     assert all(Path(f).exists() for f in document["files"]) and not any(f.endswith(".png") for f in document["files"])  # --no-plot
     assert seen == [True] and not any(mark in err for mark in BAR_MARKS)
+
+
+@pytest.mark.parametrize("flags", [[], ["--quiet"], ["--json"]])
+def test_demo_quiet_reaches_every_step(monkeypatch, tmp_path, flags):
+    """demo --quiet (or --json) runs its steps with --quiet: they share the demo's terminal and would draw bars on it.
+
+    The steps are processes of their own; the first one is stood in for by a process that fails, so the demo stops
+    there (exit 3, as a failed step stops it) after showing which command line it started.
+    """
+    import subprocess
+
+    started: list[list[str]] = []
+
+    def fake_run(argv, **kwargs):
+        started.append([str(a) for a in argv])
+        return subprocess.CompletedProcess(argv, 3, stdout="")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    out, err = io.StringIO(), Terminal()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = cli.main(["demo", "--out", str(tmp_path / "demo"), *flags])
+    assert status == 3 and len(started) == 1  # the failed step's status, nothing after it
+    assert started[0][-7:-1] == ["simulate", "device", "--seed", "2018", "--out", str(tmp_path / "demo")] or flags == []
+    assert (started[0][-1] == "--quiet") == bool(flags), started[0]  # --quiet / --json: the step is silenced too
+    assert not any(mark in err.getvalue() for mark in BAR_MARKS)

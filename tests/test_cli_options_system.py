@@ -20,10 +20,8 @@ from stableins.records import CalibrationRecord
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    import fuzzing as fz
-
-    return fz.Workspace(tmp_path_factory.mktemp("system-options"))
+def ws(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,7 @@
 """``stableins demo`` run to completion in the suite, its verdict checked (issue 31).
 
-Every option of the command is given (``--out``, ``--seed``, ``--duration``, ``--hidden``, ``--rate``, ``--json``) and
+Every option of the command is given (``--out``, ``--seed``, ``--duration``, ``--hidden``, ``--rate``, ``--json``,
+``--quiet``: each step, a process of its own, runs with ``--quiet`` too) and
 its effect asserted: the directory, the seed and hidden effect of the simulated truth, the length and rate of the
 system record (one day at 1 Hz: the system stage needs a sidereal day), and the JSON document on stdout, whose verdict
 must be the ``verdict.json`` the demo writes.  The verdict itself is checked as a k·σ bound: every estimated parameter
@@ -22,13 +23,24 @@ from stableins import cli
 
 
 @pytest.mark.slow
-def test_demo_runs_to_completion_with_every_option_and_its_verdict_holds(tmp_path):
+def test_demo_runs_to_completion_with_every_option_and_its_verdict_holds(tmp_path, monkeypatch):
+    import subprocess
+
     out = tmp_path / "demo"
     stdout, stderr = io.StringIO(), io.StringIO()
+    started: list[list[str]] = []
+    original = subprocess.run
+
+    def watched(argv, **kwargs):
+        started.append([str(a) for a in argv])
+        return original(argv, **kwargs)
+
+    monkeypatch.setattr(subprocess, "run", watched)
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
         status = cli.main(["demo", "--out", str(out), "--seed", "2018", "--duration", "24h", "--rate", "1",
-                           "--hidden", "Kcc_xxy=60ug/g2", "--json"])  # fmt: skip
+                           "--hidden", "Kcc_xxy=60ug/g2", "--json", "--quiet"])  # fmt: skip
     assert status == 0, stderr.getvalue()[-2000:]
+    assert len(started) >= 7 and all(argv[-1] == "--quiet" for argv in started)  # --quiet: every step silenced too
     document = json.loads(stdout.getvalue())
     truth = json.loads((out / "truth.json").read_text())
     assert document["out"] == str(out) and truth["seed"] == 2018

@@ -30,7 +30,7 @@ def _rows(cols, mask):
 
 def test_clean_data_pass():
     fit = _calibrate(_columns())
-    assert fit.left_out == {} and fit.rank == 14
+    assert fit.details.left_out == {} and fit.rank == 14
     assert not any(n.startswith("warning:") for n in fit.notes)
 
 
@@ -50,7 +50,7 @@ def test_missing_position_is_an_error_naming_it():
         _calibrate(_rows(cols, cols["position"] != 7))
     assert "run.csv" in str(info.value)
     fit = _calibrate(_rows(cols, cols["position"] != 7), allow_missing=True)
-    assert "missing" in fit.left_out[7] and any("position 7 left out" in n for n in fit.notes)
+    assert "missing" in fit.details.left_out[7] and any("position 7 left out" in n for n in fit.notes)
 
 
 def test_duplicated_position_is_an_error():
@@ -70,7 +70,7 @@ def test_dwell_too_short_to_measure_noise_is_left_out():
     cols = _columns()
     keep = (cols["position"] != 4) | (cols["time_since_command"] < 5.1)  # 0.1 s of dwell: 10 samples
     fit = _calibrate(_rows(cols, keep))
-    assert "too short to measure noise" in fit.left_out[4]
+    assert "too short to measure noise" in fit.details.left_out[4]
     assert 4 not in fit.positions()
 
 
@@ -82,8 +82,8 @@ def test_saturated_samples_are_left_out_and_a_histogram_is_not_a_rail():
     sel2 = (cols["position"] == 2) & (cols["time_since_command"] >= 8.0) & (cols["time_since_command"] < 8.05)
     cols["f_y"][sel2] = 40.0  # beyond the range
     fit = _calibrate(cols)
-    assert 11 not in fit.left_out  # clipping is read from the range only (issue 26), never from the histogram's shape
-    assert "saturated" in fit.left_out[2]
+    assert 11 not in fit.details.left_out  # clipping is read from the range only (issue 26), never from the histogram's shape
+    assert "saturated" in fit.details.left_out[2]
 
 
 def test_slew_inside_a_dwell_is_left_out():
@@ -92,13 +92,13 @@ def test_slew_inside_a_dwell_is_left_out():
     cols["angle_inner"][sel] += np.radians(0.5)
     cols["f_x"][sel] += 0.05
     fit = _calibrate(cols)
-    assert "slew inside the dwell" in fit.left_out[13]
+    assert "slew inside the dwell" in fit.details.left_out[13]
 
 
 def test_non_finite_samples_are_left_out():
     cols = _columns()
     cols["f_z"][(cols["position"] == 5) & (cols["time_since_command"] > 10)] = np.nan
-    assert "non-finite" in _calibrate(cols).left_out[5]
+    assert "non-finite" in _calibrate(cols).details.left_out[5]
 
 
 @pytest.mark.parametrize(
@@ -128,7 +128,7 @@ def test_a_single_wrong_position_is_flagged_not_fitted():
     sel = cols["position"] == 9
     cols["f_y"][sel] *= -1.0
     fit = _calibrate(cols)
-    assert "does not match the commanded orientation" in fit.left_out[9]
+    assert "does not match the commanded orientation" in fit.details.left_out[9]
 
 
 def test_too_many_positions_left_out_is_an_error():
@@ -204,7 +204,7 @@ def test_fine_position_off_its_orientation_is_flagged_and_left_out():
 
     dwells, site = _fine_session(flip)
     result = calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
-    assert "does not match the commanded orientation" in result.fine.left_out[9]
+    assert "does not match the commanded orientation" in result.fine.details.left_out[9]
     assert 9 not in result.fine.positions() and len(result.fine.positions()) == 17
 
 
@@ -215,7 +215,7 @@ def test_fine_positions_missing_are_an_error_unless_allowed():
     with pytest.raises(InputError, match=r"fine-stage positions \[4, 14\] are missing"):
         calibrate_device(dwells, site, layouts=LAYOUTS, source="fine.csv")
     result = calibrate_device(dwells, site, layouts=LAYOUTS, allow_missing=True, source="fine.csv")
-    assert result.fine.left_out == {4: "missing from the data", 14: "missing from the data"}
+    assert result.fine.details.left_out == {4: "missing from the data", 14: "missing from the data"}
     assert result.fine.rank == 12
 
 

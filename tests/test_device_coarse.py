@@ -170,7 +170,7 @@ def test_offset_iteration_result_combines_every_pass():
         truth.update(theta20=30 * ARCSEC, theta30=-20 * ARCSEC)
         result = iterate_offsets(ExactPlatform(truth, sigma=1e-3, seed=seed), PROCEDURE, nonlinear=False)
         k = len(result.history)
-        assert k >= 2 and result.fit.passes == tuple(range(1, k + 1)) and result.last is not None
+        assert k >= 2 and result.fit.details.passes == tuple(range(1, k + 1)) and result.last is not None
         assert len(result.fit.residuals) == 3 * 18 * k  # every pass's dwells, each with its own readings
         for term in ("sf_x", "bias_z", "beta_yx", "theta20", "theta30"):
             ratios.append(result.fit[term][1] * np.sqrt(k) / result.last[term][1])

@@ -106,7 +106,7 @@ def test_fused_is_better_than_either_stage(monte_carlo):
 def test_joint_fit_of_the_passes_gains_sqrt_two(monte_carlo):
     ratios, z = [], []
     for calibration, expected in monte_carlo:
-        assert len(calibration.passes) == 2 and calibration.coarse.passes == (1, 2)
+        assert len(calibration.passes) == 2 and calibration.coarse.details.passes == (1, 2)
         one = calibration.passes[-1]
         for k in ("sf_x", "bias_y", "beta_xz", "theta20", "theta30"):
             ratios.append(calibration.coarse[k][1] / one[k][1])

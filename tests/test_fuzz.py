@@ -29,8 +29,8 @@ def fuzz_settings(examples: int):
 
 
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory):
-    return fz.Workspace(tmp_path_factory.mktemp("fuzz"))
+def workspace(fuzz_workspace):
+    return fuzz_workspace  # tests/conftest.py: built once per process
 
 
 def _check(result: fz.Result) -> None:

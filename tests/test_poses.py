@@ -125,7 +125,7 @@ def test_poses_from_raw_counts_recover_the_truth_within_their_sigma(tmp_path):
     log = read_raw_log(path, layout_from_options(**LAYOUT))
     holds = detect_holds(log.time, log.specific_force, resolution=log.resolution).holds
     fit = calibrate_poses(summarize_holds(log.time, log.specific_force, log.railed, [(h.first, h.stop) for h in holds]), gravity=GRAVITY)
-    assert fit.settings.model is PoseModel.TWELVE and not fit.left_out
+    assert fit.settings.model is PoseModel.TWELVE and not fit.details.left_out
     for k in ("sf_x", "sf_y", "sf_z", "bias_x", "bias_y", "bias_z"):
         value, sigma, _ = fit[k]
         assert abs(value - TRUTH[k]) < 5 * sigma, k

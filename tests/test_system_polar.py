@@ -5,16 +5,14 @@ pole (a base tilted under a platform aligned for a level one) from a gyro drift 
 own axis): the first is refused, the second measured, whatever the platform-axis angle's rate says.
 """
 
-import math
-
 import numpy as np
 import pytest
 
-from stableins.conventions import DEG_PER_HOUR, EARTH_RATE
+from stableins.conventions import DEG_PER_HOUR, EARTH_RATE, SIDEREAL_DAY
 from stableins.data.chunks import ArraySource
 from stableins.errors import InputError
 from stableins.estimators.system.options import SystemOptions
-from stableins.estimators.system.polar import RATE_TOLERANCE_UNCHECKED, PolarAlignment, check_polar_alignment
+from stableins.estimators.system.polar import DRIFT_TURN_LIMIT, RATE_TOLERANCE_UNCHECKED, PolarAlignment, check_polar_alignment
 from stableins.estimators.system.stage import run_system_stage
 from tests.test_system_recovery import HARMONIC, reference, simulated_day
 
@@ -31,10 +29,17 @@ def test_check_refuses_a_misalignment_names_an_equatorial_drift_and_holds_the_ra
     with pytest.raises(InputError, match="not polar aligned") as tilt:
         check_polar_alignment(_polar((1.2e-3, 0.0), (1.2e-3, 0.0)), 1.0, options, "r.h5")
     assert tilt.value.field == "angle_inner/angle_middle" and "base tilted" in str(tilt.value)
-    drift = 0.005 * DEG_PER_HOUR
-    with pytest.raises(InputError, match="equatorial gyro drift") as turning:
-        check_polar_alignment(_polar((0.0, 0.0), (0.0, drift * 86164.0), (drift, 0.0, 0.0)), 1.0, options, "r.h5")
-    assert "+0.005" in str(turning.value)
+    # a measured equatorial drift is calibrated through up to DRIFT_TURN_LIMIT (the stage removes its response) ...
+    drift = 0.05 * DEG_PER_HOUR
+    check_polar_alignment(_polar((2e-4, 0.0), (2e-4, drift * 86164.0), (drift, 0.0, 0.0)), 1.0, options, "r.h5")
+    # ... not beyond it, nor when its response is not removed (the drift not estimated), nor with z_p off at the start
+    for drift_per_hour, removed, start in ((0.15, True, 0.0), (0.005, False, 0.0), (0.05, True, 1.2e-3)):
+        drift = drift_per_hour * DEG_PER_HOUR
+        polar = _polar((start, 0.0), (start, drift * 86164.0), (drift, 0.0, 0.0))
+        with pytest.raises(InputError, match="not polar aligned") as turning:
+            check_polar_alignment(polar, 1.0, options, "r.h5", drift_removed=removed)
+        assert ("base tilted" if start else f"+{drift_per_hour:g}") in str(turning.value)
+        assert start or f"{(DRIFT_TURN_LIMIT if removed else 5e-4) * 1e3:.3g} mrad" in str(turning.value)
     # without the inner and middle readings the rate is the only sign of a tilt: 2e-3 (0.03 °/h along z_p)
     check_polar_alignment(None, 1.0 + 0.02 * DEG_PER_HOUR / EARTH_RATE, options, "r.h5")
     with pytest.raises(InputError, match="not measured") as rate:
@@ -71,35 +76,119 @@ def test_a_realistic_z_gyro_drift_is_measured_not_refused():
         run_system_stage(ArraySource(bare), truth.site, truth.installed_calibration)
 
 
-def test_an_equatorial_drift_that_turns_z_p_off_the_pole_is_refused_naming_it():
-    """0.005 °/h along x_p turns z_p 2.1 mrad off the pole in a day (the velocity stays under 1 m/s)."""
-    truth, cols = simulated_day(12, gyro_drift={"x": 0.005 * DEG_PER_HOUR})
-    with pytest.raises(InputError, match="equatorial gyro drift") as err:
-        run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
-    assert "compensate its gyros" in str(err.value)
-    assert math.isfinite(float(str(err.value).split("mrad at its end")[0].split()[-1]))
+def test_an_equatorial_drift_that_turns_z_p_off_the_pole_is_measured_not_refused():
+    """0.05 °/h along x_p (Cai et al.'s figure before calibration, uncompensated) turns z_p 20.9 mrad off the pole in a
+    day and drives the velocity error to 9.7 m/s: the readings measure it, its response (second order included) is
+    removed, and the static-base checks the pass kept are explained by it, not refused."""
+    drift = 0.05 * DEG_PER_HOUR
+    truth, cols = simulated_day(12, gyro_drift={"x": drift})
+    assert np.abs(np.hypot(cols["velocity_north"], cols["velocity_east"])).max() > 5.0  # beyond velocity_limit
+    out = run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration)
+    assert any(n.startswith("the measured equatorial gyro drift explains") for n in out.notes)
+    value, sigma, _ = out.result["gyro_drift_x"]
+    assert abs(value - drift) < 1e-4 * drift and sigma < 1e-5 * drift
+    _, ref = reference(truth)
+    assert np.abs(((out.combined.values - ref) / out.combined.sigma)[HARMONIC]).max() < 4.0
+    # with the drift not estimated its response is not removed: the velocity refusal the pass kept stands
+    with pytest.raises(InputError, match="not static"):
+        run_system_stage(ArraySource(cols), truth.site, truth.installed_calibration, options=SystemOptions(estimate_gyro_drift=False))
 
 
 @pytest.mark.slow
-def test_cli_gyro_z_world_runs_and_the_gyro_world_is_refused_naming_the_drift(tmp_path, capsys):
-    """`simulate system --world gyro-z`, `calibrate system`, `diagnose`: exit 0; the `gyro` world (0.05 °/h on every axis,
-    uncompensated): `calibrate system` exits 2 naming the gyro drift, no traceback."""
+def test_cli_gyro_z_and_gyro_worlds_run(tmp_path, capsys):
+    """`simulate system --world gyro-z` and `--world gyro` (0.05 °/h on every axis, uncompensated: z_p leaves the pole
+    by 1.2° in the day), `calibrate system`, `diagnose`: exit 0, no traceback; the gyro world's note says the measured
+    drift explains what the static-base checks saw."""
     from stableins import cli
     from stableins.data.truth import load_truth
     from tests.test_system_cli import prior_record
 
-    for name, code in (("gyro-z", 0), ("gyro", 2)):
+    for name in ("gyro-z", "gyro"):
         sim = tmp_path / name
         assert cli.main(["simulate", "system", "--world", name, "--seed", "3", "--rate", "1", "--out", str(sim)]) == 0
         prior = tmp_path / f"{name}-prior.json"
         prior_record(load_truth(sim / "truth.json").installed_calibration, serial="SIM-3").save(prior)
         out = tmp_path / f"{name}-cal.json"
         capsys.readouterr()
-        assert cli.main(["calibrate", "system", str(sim / "system.h5"), "--prior", str(prior), "--out", str(out)]) == code
+        assert cli.main(["calibrate", "system", str(sim / "system.h5"), "--prior", str(prior), "--out", str(out)]) == 0
         captured = capsys.readouterr()
         assert "Traceback" not in captured.err
-        if code:
-            assert "gyro" in captured.err and not out.exists()
-            continue
         assert "gyro drift from the gimbal readings" in captured.out
+        assert ("the measured equatorial gyro drift explains" in captured.out) is (name == "gyro")
         assert cli.main(["diagnose", str(sim / "system.h5"), "--record", str(out)]) == 0
+
+
+def _twin_days(rate: float, drift: dict[str, float], seed: int = 12) -> tuple[dict, dict]:
+    """One sidereal day with ``drift`` and without it: the same instrument, its installed calibration exact, no noise."""
+    from stableins.simulator import system
+    from stableins.simulator.noise import NoiseSettings
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    truth = Truth.draw(seed, site=SimulatedSite(sample_rate=rate), noise=NoiseSettings())
+    truth = truth.with_changes(installed_calibration=dict(truth.parameters))
+    days = [
+        system.simulate_system(truth.with_changes(gyro_drift=d), SIDEREAL_DAY, rate, seed=seed, earth_angle=0.3, include_truth=True)
+        for d in (drift, {})
+    ]
+    return days[0], days[1]
+
+
+def test_the_drift_curvature_is_the_attitude_outputs_second_order():
+    """0.05 °/h across z_p: the azimuth error φ_D reaches 0.027 rad and the pitch and roll outputs depart from the loop
+    model's (−φ_E, −φ_N) by φ_D φ_N, φ_D φ_E (5e-6, 1.7e-5 rad); the even part of the exact map leaves < 5e-7."""
+    from stableins.estimators.system.loop import drift_curvature
+
+    drifting, still = _twin_days(0.1, {"x": 0.05 * DEG_PER_HOUR})
+    phi = np.stack([drifting[f"truth_phi_{n}"] - still[f"truth_phi_{n}"] for n in ("north", "east", "down")], axis=1)
+    assert np.abs(phi[:, 2]).max() > 0.02
+    linear = np.stack([-phi[:, 1], -phi[:, 0]], axis=1)
+    output = np.stack([drifting["pitch"] - still["pitch"], drifting["roll"] - still["roll"]], axis=1)
+    curvature = drift_curvature(phi, 0.0)
+    assert np.abs(output - linear).max() > 4e-6
+    assert np.abs(output - linear - curvature).max() < 5e-7
+    assert np.abs(drift_curvature(-phi, 0.0) - curvature).max() < 1e-15  # even in φ
+
+
+def test_the_loop_predicts_the_misalignment_a_drift_builds():
+    """The loop model's angle responses (what :func:`.loop.drift_curvature_removed` takes the curvature of) against the
+    simulator's error states: φ_N, φ_E, φ_D of 0.05 °/h along x_p and y_p to 1 % of the largest."""
+    from stableins.estimators.system.loop import ANGLE_STATES, DampingLoop, drift_columns
+    from stableins.simulator.truth import Truth
+
+    drift = np.array([0.03, -0.04, 0.0]) * DEG_PER_HOUR
+    drifting, still = _twin_days(0.1, {"x": drift[0], "y": drift[1]})
+    phi = np.stack([drifting[f"truth_phi_{n}"] - still[f"truth_phi_{n}"] for n in ("north", "east", "down")], axis=1)
+    site = Truth.draw(12).site
+    loop = DampingLoop.from_metadata(site.damping, site.latitude, site.gravity)  # as the stage builds it from the metadata
+    t = drifting["time"]
+    angle = 0.3 + EARTH_RATE * t
+    blocks = {"time": t, "cos": np.cos(angle), "sin": np.sin(angle)}
+    predicted = drift_columns(blocks, loop, states=ANGLE_STATES) @ (drift / 1e-8)
+    assert np.abs(predicted - phi).max() < 0.01 * np.abs(phi).max()
+
+
+def test_the_g_sensitive_drift_of_a_tilting_platform_is_taken_out_of_the_fitted_drift():
+    """0.05 °/h on x_p and y_p tilt z_p 29.5 mrad in a day, and with it f^p: D_g f^p ramps (0.001 °/h/g on the diagonal),
+    which the fit takes for part of ε_x, ε_y (6.7e-6 °/h predicted, ten times their σ); tilt_bias takes it out."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration
+    from stableins.estimators.system.gyro_drift import fit_gimbal_drift, tilt_bias
+    from stableins.simulator import system
+    from stableins.simulator.noise import NoiseSettings
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    drift = {"x": 0.05 * DEG_PER_HOUR, "y": 0.05 * DEG_PER_HOUR}
+    effects = {f"Dg_{a}{a}": 0.001 * DEG_PER_HOUR_PER_G for a in "xyz"}
+    truth = Truth.draw(3, site=SimulatedSite(sample_rate=0.1), noise=NoiseSettings(), effects=effects, gyro_drift=drift)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, 0.1, seed=3)
+    blocks = {"time": cols["time"], "count": np.ones(cols["time"].size)}
+    blocks |= {name: cols[f"angle_{name}"] for name in ("platform", "inner", "middle")}
+    site = truth.site
+    offsets = np.array([truth.parameters[k] for k in ("theta10", "theta20", "theta30")])
+    fit = fit_gimbal_drift(
+        blocks, site.latitude, GimbalConfiguration(site.gimbal_senses), offsets=offsets, base_attitude=site.base_attitude
+    )
+    sensitivity = np.diag([0.001 * DEG_PER_HOUR_PER_G] * 3)
+    true = np.array([drift["x"], drift["y"], 0.0]) + sensitivity @ np.array([0.0, 0.0, site.gravity * np.sin(site.latitude)])
+    before = (fit.values - true)[:2] / DEG_PER_HOUR
+    after = (fit.values - tilt_bias(fit, sensitivity, site.gravity) - true)[:2] / DEG_PER_HOUR
+    assert np.abs(before).max() > 5e-6 and np.abs(after).max() < 0.2 * np.abs(before).max()

@@ -416,3 +416,70 @@ def test_loop_input_variances_of_isotropic_white_noise():
     np.testing.assert_allclose(v, np.full(3, 4e-8 / 9.8**2 / 10.0), rtol=1e-12)
     w = loop_input_variances(np.array([1.0, 3.0, 0.0]), 0.0, 1.0, 1.0)  # at the equator: N sees z, E and D see x, y
     np.testing.assert_allclose(w, [0.0, 2.0, 2.0], atol=1e-15)
+
+
+def _three_channels(n=144):
+    """z (loadings), pitch and roll (through the loop) on ``n`` bins: residual makers, white gains, kernels and mixing."""
+    time, c, s = bins(n)
+    count = np.full(n, 600.0)
+    kernels = [spectrum.bin_process_kernel(kind, time, WIDTH) for kind in spectrum.COLOURED_KINDS]
+    loads = [spectrum.axis_loadings(ch, c, s, LATITUDE) for ch in ("z", "pitch", "roll")]
+    mixing = [[loads[0][:, a] for a in range(3)]] + spectrum.loop_bin_mixing(
+        loop()._controllable_modes(), time, WIDTH, [loads[1], loads[2], -loads[0]]
+    )
+    maker = harmonic_maker(c, s, count)
+    gain = [None, lambda f: 1.0 / (1.0 + f / 1e-4), lambda f: 0.5]
+    channels = spectrum.ResidualChannels([np.zeros(n)] * 3, [maker] * 3, [count] * 3, gain)
+    band = (3.5 * spectrum.EARTH_FREQUENCY, 30 * spectrum.EARTH_FREQUENCY)
+    return channels, time, kernels, mixing, band
+
+
+def test_ordinate_factors_carry_the_design_expectations_and_the_law_draws_them():
+    """Issue 25: the Gaussian factors of the low band's projections give exactly the design's expectation per column
+    (white per channel with its gain; each coloured kind summed over the axes), and the law's draws average to it."""
+    from stableins.estimators.system.bootstrap import OrdinateLaw
+
+    channels, time, kernels, mixing, band = _three_channels()
+    design, _, n_ch = spectrum.periodogram_design(channels, time, kernels, mixing, band)
+    white, coloured = spectrum.ordinate_factors(channels, time, kernels, mixing, band)
+    m = design.shape[0] // n_ch
+
+    def ordinates(factors):
+        var = sum(np.einsum("kn,kn->k", f, f) for f in factors).reshape(n_ch, 2, m)
+        return 0.5 * (var[:, 0] + var[:, 1]).ravel()
+
+    for p in range(n_ch):
+        np.testing.assert_allclose(ordinates([white[p]]), design[:, p], rtol=1e-10, atol=1e-14 * design[:, p].max())
+    for c in range(len(kernels)):
+        np.testing.assert_allclose(ordinates(coloured[c]), design[:, n_ch + c], rtol=1e-8)
+    law = OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    levels, amplitudes = np.array([2e-8, 1e-9, 3e-9]), np.array([1e-16, 4e-14])
+    drawn = law.draw(levels, amplitudes, np.random.default_rng(4), 4000).mean(axis=0)
+    expected = design @ np.concatenate([levels, amplitudes])
+    # 4000 near-exponential ordinates per frequency: 1.6 % standard error each
+    assert abs(np.mean(drawn / expected) - 1.0) < 0.01 and np.abs(drawn / expected - 1.0).max() < 0.08
+
+
+def test_monte_carlo_p_value_has_its_level_under_a_simple_null():
+    """Issue 25: records drawn from the law itself, a statistic recomputed on the law's draws: p ≤ α in α of the records."""
+    from stableins.estimators.system import bootstrap
+
+    channels, time, kernels, mixing, band = _three_channels(72)
+    white, coloured = spectrum.ordinate_factors(channels, time, kernels, mixing, band)
+    law = bootstrap.OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    levels, amplitudes = np.array([2e-8, 1e-9, 3e-9]), np.array([3e-16, 0.0])
+    m = white[0].shape[0] // 6
+
+    def statistic(ordinates):  # the low third of the z band against the rest: sensitive to the random walk's leakage
+        return float(ordinates[: m // 3].sum() / ordinates[:m].sum())
+
+    rng = np.random.default_rng(12)
+    records, alpha = 300, 0.1
+    p_values = np.array(
+        [
+            bootstrap.monte_carlo_p_value(statistic, statistic(o), law, levels, amplitudes, record=o)[0]
+            for o in law.draw(levels, amplitudes, rng, records)
+        ]
+    )
+    assert np.all((p_values > 0) & (p_values <= 1))
+    assert abs(np.mean(p_values <= alpha) - alpha) < 3.5 * math.sqrt(alpha * (1 - alpha) / records), np.mean(p_values <= alpha)

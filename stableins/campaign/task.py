@@ -12,13 +12,18 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.campaign.config import CalibrationNoise, CampaignConfig, ProcedureSpec, Task
 from stableins.noise import NoiseModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.estimators.dwell import DwellSummary
+    from stableins.estimators.layout import StageLayout
+    from stableins.estimators.setting import DeviceSetting
 
 #: Columns of the results table, in order (docs/campaigns.md).
 COLUMNS = (
@@ -99,14 +104,41 @@ class _RecordInForce:
         return dict(self.estimates)
 
 
-def _diagnose(columns: Mapping[str, Any], truth: Any, final: Any, noise: NoiseModel | None, layouts: Any) -> dict[str, Any]:
+def _session(
+    columns: Mapping[str, Mapping[str, NDArray[Any]]],
+    summaries: Mapping[str, list[DwellSummary]],
+    stages: list[str],
+    layouts: Mapping[str, StageLayout],
+    setting: DeviceSetting,
+) -> tuple[dict[str, NDArray[Any]], list[DwellSummary]]:
+    """Return the task's stages as one session and its dwell statistics (what ``dwells_from_columns`` makes of it).
+
+    Stage ``k`` goes ``1e6·k`` s later on one clock (one session: the hysteresis states carry over).  Its dwell
+    statistics are those of each stage's own rows: the first stage's clock is unchanged, so its calibration's
+    statistics are taken as they are; a later stage's moved clock changes its start times and their rounding, so those
+    are made again from the moved rows.
+    """
+    from stableins.estimators.dwell import dwells_from_columns
+
+    merged: dict[str, NDArray[Any]] = {name: np.concatenate([columns[s][name] for s in stages]) for name in columns[stages[0]]}
+    merged["time"] = np.concatenate([columns[s]["time"] + 1e6 * k for k, s in enumerate(stages)])
+    made = list(summaries[stages[0]])
+    for k, stage in enumerate(stages[1:], start=1):
+        moved = {**columns[stage], "time": columns[stage]["time"] + 1e6 * k}
+        made += dwells_from_columns(moved, layouts=layouts, setting=setting)
+    return merged, made
+
+
+def _diagnose(
+    columns: Mapping[str, Any], truth: Any, final: Any, noise: NoiseModel | None, layouts: Any, *, summaries: list[DwellSummary]
+) -> dict[str, Any]:
     """Model discovery on the task's data against its own calibration: flagged candidates, the best one."""
     from stableins.data.device import DeviceDataset
     from stableins.discovery.diagnose import DiagnoseOptions, diagnose_data
 
     record = _RecordInForce(final.ids, final.covariance, noise, final.as_dict())
     data = [DeviceDataset(truth.site, columns)]
-    result = diagnose_data(data, record, layouts=layouts, options=DiagnoseOptions(noise=noise))
+    result = diagnose_data(data, record, layouts=layouts, options=DiagnoseOptions(noise=noise), summaries=[summaries])
     flagged = [c.id for c in result.ranking.flagged]
     best = result.ranking.flagged[0] if flagged else None
     return {"flagged": flagged, "best": None if best is None else (best.id, tuple(best.confused_with))}
@@ -132,16 +164,16 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     layouts = {"coarse": spec.coarse.layout, "fine": (spec.fine or load_procedure("device-fine")).layout}
     t1 = time.perf_counter()
     setting = DeviceSetting.from_site(truth.site)
-    dwells = [d for stage in stages for d in dwells_from_columns(columns[stage], layouts=layouts, setting=setting)]
+    summaries = {stage: dwells_from_columns(columns[stage], layouts=layouts, setting=setting) for stage in stages}
+    dwells = [d for stage in stages for d in summaries[stage]]
     noise = calibration_noise(noise_spec.settings, noise_spec.calibrate)
     calibration = calibrate_device(dwells, truth.site, layouts=layouts, noise=noise)
     final = calibration.fused or calibration.coarse
     t2 = time.perf_counter()
     found: dict[str, Any] = {"flagged": [], "best": None}
     if config.diagnose:
-        merged = {name: np.concatenate([columns[s][name] for s in stages]) for name in columns["coarse"]}
-        merged["time"] = np.concatenate([columns[s]["time"] + 1e6 * k for k, s in enumerate(stages)])
-        found = _diagnose(merged, truth, final, calibration.noise, layouts)
+        merged, made = _session(columns, summaries, stages, layouts, setting)
+        found = _diagnose(merged, truth, final, calibration.noise, layouts, summaries=made)
     t3 = time.perf_counter()
     truth_values = gauge_equivalent(truth.parameters, truth.configuration)
     detected = ""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 from stableins.commands.arguments import input_file, output_file, real
@@ -81,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     budget = record_navigation_budget(
         record, duration=args.duration, latitude=latitude, zeta=args.damping, drift_sigma=drift, path=args.record
     )
+    data: Mapping[str, object]
     if args.compare is not None:
         other_record = CalibrationRecord.load(args.compare)
         other = record_navigation_budget(
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
 
         with atomic_path(args.plot) as temporary:
             budget.plot(str(temporary), file_format=args.plot.suffix.lower().lstrip("."))
-        data["plot"] = str(args.plot)
+        data = {**data, "plot": str(args.plot)}
         text += f"\nplot: {args.plot}"
     emit(args, data, text)
     return 0

@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     from stableins.data.logmap import layout_from_options
     from stableins.data.rawlog import read_raw_log
     from stableins.errors import InputError
+    from stableins.estimators.details import DeviceDetails
     from stableins.estimators.poses import PoseSettings
     from stableins.output import emit, note
 
@@ -177,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
                 t.id: {"value": float(v), "sigma": float(s), "status": str(st)}
                 for t, v, s, st in zip(fit.terms, fit.values, fit.sigma, fit.status, strict=True)
             },
-            "left_out": {str(k): v for k, v in fit.left_out.items()},
+            "left_out": {str(k): v for k, v in fit.details.left_out.items()} if isinstance(fit.details, DeviceDetails) else {},
             "notes": list(fit.notes),
             "diagnose": None if scan is None else {"flagged": scan.flagged, "report": scan.report()},
             "next": [line.strip() for line in steps if line.startswith("  ")],

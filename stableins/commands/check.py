@@ -28,7 +28,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, NotRequired, TypeAlias, TypedDict
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stableins.documents import JSONObject
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +49,167 @@ PDF_MAGIC, PNG_MAGIC, HDF5_MAGIC, SQLITE_MAGIC = b"%PDF-", b"\x89PNG\r\n\x1a\n",
 MAX_WHOLE_FILE = 256 << 20
 
 
-def describe_file(path: str, *, allow_gaps: bool = False, trust: tuple[str, ...] = ()) -> dict[str, Any]:
+class _Summary(TypedDict):
+    """What every file's summary says: the file and its kind, and any warnings (the console prints the other fields as ``key value``)."""
+
+    file: str
+    kind: str
+    warnings: NotRequired[list[str]]
+
+
+class DeviceSummary(_Summary):
+    """Device data: the unit, its rows, stages, dwells and (stage, pass) pairs."""
+
+    serial_number: str
+    rows: int
+    stages: list[str]
+    dwells: int
+    passes: list[tuple[str, int]]
+
+
+class SystemSummary(_Summary):
+    """A system record: as ``SystemRecord.validate`` found it, with the sampling warnings it gave."""
+
+    serial_number: str
+    samples: int
+    sample_rate_hz: float
+    mean_rate_hz: float
+    duration_s: float
+    gaps: int
+    jitter_steps: int
+    overview_step: int
+    time_grid_segments: int
+
+
+class TruthSummary(_Summary):
+    """A simulator truth file."""
+
+    serial_number: str
+    seed: int
+    parameters: int
+    hidden_effects: list[str]
+
+
+class PlanSummary(_Summary):
+    """A procedure plan (``procedure.json``)."""
+
+    name: str
+    level: str
+    steps: int
+
+
+class DiagnosisSummary(_Summary):
+    """The output of ``stableins diagnose --json``."""
+
+    stage: str
+    steps: int
+    flagged: list[str]
+
+
+class RecordSummary(_Summary):
+    """A calibration record: its stages and parameters by status."""
+
+    serial_number: str
+    schema_version: int
+    stages: list[str]
+    stages_carried_over: list[str]
+    parameters: int
+    statuses: dict[str, int]
+
+
+class VerdictSummary(_Summary):
+    """The demo's ``verdict.json``."""
+
+    parameters: int
+    largest_abs_z: float
+
+
+class ProcedureSummary(_Summary):
+    """A procedure definition (``.toml``)."""
+
+    name: str
+    stage: str
+    positions: int
+    tolerances: bool
+
+
+class JournalSummary(_Summary):
+    """A run journal; ``warnings`` when its last record is torn."""
+
+    procedure: str
+    unit: str | None
+    records: int
+    state: str
+    records_by_kind: dict[str, int]
+
+
+class StoreSummary(_Summary):
+    """A history store index, verified."""
+
+    units: int
+    records: int
+
+
+#: The inputs a certificate names, compared with the files beside it (``not beside it``: those absent); empty when it
+#: names none.
+NamedInputs = TypedDict("NamedInputs", {"inputs": str, "not beside it": NotRequired[str]}, total=False)
+#: A PDF: pages, a stableins report's title and subject, the inputs it names (:data:`NamedInputs`), its signature.
+PdfSummary = TypedDict(
+    "PdfSummary",
+    {
+        "file": str,
+        "kind": str,
+        "warnings": NotRequired[list[str]],
+        "pages": int,
+        "title": NotRequired[str],
+        "subject": NotRequired[str],
+        "inputs": NotRequired[str],
+        "not beside it": NotRequired[str],
+        "signature": NotRequired[str],
+    },
+)
+
+
+class HoldsSummary(_Summary):
+    """A holds table (``calibrate poses --write-holds``)."""
+
+    holds: int
+    labelled: int
+
+
+class PngSummary(_Summary):
+    """A PNG plot."""
+
+    width: int
+    height: int
+
+
+class TextSummary(_Summary):
+    """A text file (report, SVG plot)."""
+
+    lines: int
+
+
+#: What ``check`` says of one file: one summary per kind of file.
+FileSummary: TypeAlias = (
+    DeviceSummary
+    | SystemSummary
+    | TruthSummary
+    | PlanSummary
+    | DiagnosisSummary
+    | RecordSummary
+    | VerdictSummary
+    | ProcedureSummary
+    | JournalSummary
+    | StoreSummary
+    | PdfSummary
+    | HoldsSummary
+    | PngSummary
+    | TextSummary
+)
+
+
+def describe_file(path: str, *, allow_gaps: bool = False, trust: tuple[str, ...] = ()) -> FileSummary:
     """Recognize and validate one file and describe it (raises InputError naming the file, the field and what was expected)."""
     from stableins.procedures.journal import FILE_MAGIC
 
@@ -95,7 +258,7 @@ def _head(file: Path) -> bytes:
     return head
 
 
-def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
+def _data(path: str, *, allow_gaps: bool) -> DeviceSummary | SystemSummary | HoldsSummary:
     """Check device data or a system record (or a holds table: a CSV file too)."""
     import warnings
 
@@ -147,7 +310,7 @@ def _data(path: str, *, allow_gaps: bool) -> dict[str, Any]:
     raise InputError(f"unknown format {tag!r}", path=path, field="format", expected="'stableins-device' or 'stableins-system'")
 
 
-def _json(path: str) -> dict[str, Any]:
+def _json(path: str) -> RecordSummary | TruthSummary | PlanSummary | DiagnosisSummary | VerdictSummary:
     from stableins.data.jsonio import load_json_file
     from stableins.errors import InputError
     from stableins.records import RECORD_FORMAT
@@ -187,7 +350,7 @@ def _json(path: str) -> dict[str, Any]:
     )
 
 
-def _record(path: str) -> dict[str, Any]:
+def _record(path: str) -> RecordSummary:
     from stableins.records import CalibrationRecord
 
     record = CalibrationRecord.load(path)
@@ -207,7 +370,7 @@ def _record(path: str) -> dict[str, Any]:
 _VERDICT_FIELDS = {"id": str, "unit": str, "truth": float, "estimate": float, "sigma": float, "error": float, "z": float}
 
 
-def _verdict(path: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
+def _verdict(path: str, rows: list[JSONObject]) -> VerdictSummary:
     from stableins.data.jsonio import expect_number
     from stableins.errors import InputError
 
@@ -220,11 +383,11 @@ def _verdict(path: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
                 raise InputError(f"{row[key]!r} is not a string", path=path, field=where, expected="a string")
             if kind is float and not (key == "z" and row[key] is None):
                 expect_number(row[key], path, where)
-    worst = max((abs(r["z"]) for r in rows if r["z"] is not None), default=float("nan"))
+    worst = max((abs(z) for r in rows if isinstance(z := r["z"], int | float)), default=float("nan"))  # a number or null, checked above
     return {"file": path, "kind": "demo verdict", "parameters": len(rows), "largest_abs_z": worst}
 
 
-def _procedure(path: str) -> dict[str, Any]:
+def _procedure(path: str) -> ProcedureSummary:
     from stableins.procedures.definition import load_procedure
 
     definition = load_procedure(path)
@@ -238,7 +401,7 @@ def _procedure(path: str) -> dict[str, Any]:
     }
 
 
-def _journal(path: str) -> dict[str, Any]:
+def _journal(path: str) -> JournalSummary:
     from collections import Counter
 
     from stableins.errors import InputError
@@ -252,7 +415,7 @@ def _journal(path: str) -> dict[str, Any]:
     plan = Plan.from_dict(start["plan"], f"{path}, start record, plan")
     kinds = Counter(r.kind for r in result.records)
     state = "finished" if kinds["complete"] else ("stopped" if kinds["stop"] else "interrupted or running")
-    summary = {
+    summary: JournalSummary = {
         "file": path,
         "kind": "run journal",
         "procedure": plan.name,
@@ -266,7 +429,7 @@ def _journal(path: str) -> dict[str, Any]:
     return summary
 
 
-def _store(path: str) -> dict[str, Any]:
+def _store(path: str) -> StoreSummary:
     from stableins.errors import InputError
     from stableins.history_store import STORE_NAME, HistoryStore
 
@@ -286,7 +449,7 @@ def _store(path: str) -> dict[str, Any]:
     }
 
 
-def _pdf(path: str, trust: tuple[str, ...] = ()) -> dict[str, Any]:
+def _pdf(path: str, trust: tuple[str, ...] = ()) -> PdfSummary:
     import re
 
     from stableins.data.jsonio import read_input_bytes
@@ -302,13 +465,17 @@ def _pdf(path: str, trust: tuple[str, ...] = ()) -> dict[str, Any]:
         match = re.search(rb"/" + key.encode() + rb" \(((?:[^()\\]|\\.)*)\)", data)
         return match.group(1).decode("latin-1").replace("\\(", "(").replace("\\)", ")") if match else ""
 
-    summary: dict[str, Any] = {"file": path, "kind": "PDF document", "pages": pages}
+    summary = PdfSummary(file=path, kind="PDF document", pages=pages)
     if info("Author") == "stableins" and info("Title"):
         kind = "technical report (PDF)" if info("Title").startswith("Technical report") else "calibration certificate (PDF)"
-        summary.update(kind=kind, title=info("Title"), subject=info("Subject"))
+        summary["kind"], summary["title"], summary["subject"] = kind, info("Title"), info("Subject")
     if pages == 0:
         raise InputError("the PDF has no pages", path=path, field="pages", expected="a PDF with at least one page")
-    summary.update(_named_inputs(path, data))
+    named = _named_inputs(path, data)
+    if "inputs" in named:
+        summary["inputs"] = named["inputs"]
+    if "not beside it" in named:
+        summary["not beside it"] = named["not beside it"]
     from stableins.reporting import signing
 
     if signing.is_signed(data):
@@ -319,7 +486,7 @@ def _pdf(path: str, trust: tuple[str, ...] = ()) -> dict[str, Any]:
     return summary
 
 
-def _holds(path: str) -> dict[str, Any]:
+def _holds(path: str) -> HoldsSummary:
     """Check a holds table (``calibrate poses --write-holds``) as ``--holds`` reads it."""
     from stableins.data.holds import read_holds_table
 
@@ -327,7 +494,7 @@ def _holds(path: str) -> dict[str, Any]:
     return {"file": path, "kind": "holds table", "holds": len(rows), "labelled": sum(1 for *_, o in rows if o)}
 
 
-def _named_inputs(path: str, data: bytes) -> dict[str, Any]:
+def _named_inputs(path: str, data: bytes) -> NamedInputs:
     """Compare the SHA-256 of every input a certificate names with the file of that name beside it (a mismatch is an error)."""
     from stableins.errors import InputError
     from stableins.records import file_sha256
@@ -357,13 +524,13 @@ def _named_inputs(path: str, data: bytes) -> dict[str, Any]:
             )
         verified += len(matching)
         absent += [f"{name} ({r['role']}, another file of that name)" for r in named if r["sha256"] != actual]
-    out: dict[str, Any] = {"inputs": f"{verified} of {len(rows)} verified by SHA-256"}
+    out = NamedInputs(inputs=f"{verified} of {len(rows)} verified by SHA-256")
     if absent:
         out["not beside it"] = ", ".join(sorted(set(absent)))
     return out
 
 
-def _png(path: str, head: bytes) -> dict[str, Any]:
+def _png(path: str, head: bytes) -> PngSummary:
     import struct
 
     from stableins.errors import InputError
@@ -378,7 +545,7 @@ def _png(path: str, head: bytes) -> dict[str, Any]:
     return {"file": path, "kind": "plot (PNG)", "width": width, "height": height}
 
 
-def _text(path: str, kind: str) -> dict[str, Any]:
+def _text(path: str, kind: str) -> TextSummary:
     from stableins.data.jsonio import read_input_bytes
     from stableins.errors import InputError
 

@@ -28,7 +28,7 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any, cast
+from typing import TypedDict, cast
 
 from stableins.status import Status
 
@@ -71,11 +71,16 @@ def _step(title: str, argv: list[str], stdout: Path | None = None) -> None:
 
     Its standard output goes to ``stdout`` if given, else to stderr: the demo's own standard output is its result alone
     (the final table, or with ``--json`` one JSON document), and the steps' reports are progress, on stderr like every
-    command's messages.
+    command's messages.  With the demo silenced (``--quiet`` or ``--json``) every step runs with ``--quiet``: the
+    steps share the demo's terminal, so their progress bars would reach it.
     """
     import subprocess
     import sys
 
+    from stableins.progress import silenced
+
+    if silenced():
+        argv = [*argv, "--quiet"]
     print(f"\n== {title}: stableins {' '.join(argv)}", file=sys.stderr, flush=True)
     sys.stdout.flush()
     if stdout is None:
@@ -98,7 +103,19 @@ def _datasheet(truth_path: Path) -> list[str]:
     return ["--bias-instability", f"{noise.bias_instability / MICRO_G:.6g}", "--random-walk", f"{noise.acceleration_random_walk:.6g}"]
 
 
-def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
+class VerdictRow(TypedDict):
+    """One estimated parameter of the demo's ``verdict.json``: truth, estimate, 1σ and error in engineering units, z = error/σ."""
+
+    id: str
+    unit: str
+    truth: float
+    estimate: float
+    sigma: float
+    error: float
+    z: float
+
+
+def verdict(record_path: Path, truth_path: Path) -> list[VerdictRow]:
     """Compare the final record with the truth: error and error/σ of every estimated parameter.
 
     The truth is first put in the record's gauge (θ10 = 0, exactly equivalent
@@ -118,7 +135,7 @@ def verdict(record_path: Path, truth_path: Path) -> list[dict[str, Any]]:
     reference = gauge_equivalent(dict(truth.parameters), configuration)
     reference.update({i: float(truth.effects.get(i, 0.0)) for i in record.ids if i in LIBRARY})
     terms = all_terms()
-    rows = []
+    rows: list[VerdictRow] = []
     for parameter in record.parameters:
         if parameter.status != Status.ESTIMATED or parameter.id not in reference or parameter.id not in terms:
             continue
@@ -255,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _verdict_row(row: dict) -> str:
+def _verdict_row(row: VerdictRow) -> str:
     """One line of the demo's final table: three decimals, or enough for two significant digits of a tiny 1σ."""
     sigma = abs(float(row["sigma"]))
     decimals = 3 if not math.isfinite(sigma) or sigma <= 0 or sigma >= 0.01 else min(9, 1 - math.floor(math.log10(sigma)))

@@ -18,13 +18,50 @@ index holds.
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 if TYPE_CHECKING:
     from datetime import datetime
 
-    from stableins.history import Trend
+    from stableins.history import ChangeDocument, Trend
     from stableins.history_store import HistoryStore
+
+#: The changes between two consecutive records of a unit (``stableins history SERIAL --json``, ``changes``).
+RecordChanges = TypedDict(
+    "RecordChanges",
+    {
+        "from": str,
+        "to": str,
+        "relation": str,
+        "parameters": "list[ChangeDocument]",
+        "significant": list[str],
+        "not_compared": list[str],
+    },
+)
+
+
+class TrendDocument(TypedDict):
+    """The drift per year of one parameter (``trends``)."""
+
+    id: str
+    unit: str
+    records: int
+    slope_per_year: float
+    sigma: float
+    significance: float
+
+
+class UnitHistory(TypedDict):
+    """The document of ``stableins history SERIAL --json``: the records, the one in force, changes, drift, the plot."""
+
+    serial_number: str
+    entries: list[dict[str, object]]
+    in_force: NotRequired[str]
+    stale: NotRequired[str | None]
+    changes: NotRequired[list[RecordChanges]]
+    trends: NotRequired[list[TrendDocument]]
+    plot: NotRequired[str]
+
 
 #: Formats of the drift plot, by suffix.
 PLOT_FORMATS = ("png", "pdf", "svg")
@@ -184,7 +221,7 @@ def _unit(args: argparse.Namespace) -> int:
     lines.append(f"{'valid from':<26} {'stages':<22} {'procedure':<20} file")
     for e in entries:
         lines.append(f"{e.valid_from:<26} {','.join(e.stages):<22} {e.procedure:<20} {e.file}")
-    data: dict = {"serial_number": args.serial, "entries": [e.__dict__ for e in entries]}
+    data: UnitHistory = {"serial_number": args.serial, "entries": [e.__dict__ for e in entries]}
     _in_force(args, store, date, lines, data)
     _changes(args, store, lines, data)
     trends = _trends(args, store, lines, data)
@@ -209,7 +246,7 @@ def _file_records(args: argparse.Namespace, store: HistoryStore) -> None:
         note(f"filed {path} as {entry.file} (valid from {entry.valid_from})")
 
 
-def _in_force(args: argparse.Namespace, store: HistoryStore, date: datetime | None, lines: list[str], data: dict[str, Any]) -> None:
+def _in_force(args: argparse.Namespace, store: HistoryStore, date: datetime | None, lines: list[str], data: UnitHistory) -> None:
     """Add the record in force (at ``--at``, or now) and its staleness to the text and the JSON document."""
     from datetime import timedelta
 
@@ -231,7 +268,7 @@ def _in_force(args: argparse.Namespace, store: HistoryStore, date: datetime | No
         data["stale"] = warning
 
 
-def _changes(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: dict[str, Any]) -> None:
+def _changes(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: UnitHistory) -> None:
     """Add the changes between consecutive records to the text and the JSON document."""
     from stableins.history import CHANGE_THRESHOLD, format_changes
 
@@ -254,7 +291,7 @@ def _changes(args: argparse.Namespace, store: HistoryStore, lines: list[str], da
     ]
 
 
-def _trends(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: dict[str, Any]) -> list[Trend]:
+def _trends(args: argparse.Namespace, store: HistoryStore, lines: list[str], data: UnitHistory) -> list[Trend]:
     """Add the drift per year of every parameter to the text and the JSON document; return the trends."""
     from stableins.history import format_trends
 
@@ -275,7 +312,7 @@ def _trends(args: argparse.Namespace, store: HistoryStore, lines: list[str], dat
     return trends
 
 
-def _plot(args: argparse.Namespace, trends: list[Trend], data: dict[str, Any]) -> None:
+def _plot(args: argparse.Namespace, trends: list[Trend], data: UnitHistory) -> None:
     """Draw the drift plot of ``--plot`` (atomically)."""
     from stableins.data.atomic import atomic_path
     from stableins.errors import InputError

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from stableins.console import Console
+    from stableins.documents import JSONObject
     from stableins.procedures.rundir import RunOutcome
 
 #: Exit status of a run that stopped and can be resumed (2 is bad input, 4 data that do not determine what was asked:
@@ -154,8 +155,11 @@ def load_plan(procedure: str, retries: int | None, chunk: float | None) -> tuple
             from stableins.reporting.budget import UncertaintyInputs
 
             UncertaintyInputs.from_mapping(definition.uncertainty, source=str(definition_file))
-    changes: dict[str, Any] = {k: v for k, v in (("retries", retries), ("chunk", chunk)) if v is not None}
-    return (dataclasses.replace(plan, **changes) if changes else plan), definition_file
+    if retries is not None:
+        plan = dataclasses.replace(plan, retries=retries)
+    if chunk is not None:
+        plan = dataclasses.replace(plan, chunk=chunk)
+    return plan, definition_file
 
 
 def simulated_truth(args: argparse.Namespace, sample_rate: float | None) -> Any:
@@ -219,7 +223,7 @@ def _resumable(rundir: str | None) -> bool:
     return rundir is not None and has_start(Path(rundir) / JOURNAL_NAME)
 
 
-def recal_settings(rundir: str | os.PathLike[str]) -> dict[str, Any] | None:
+def recal_settings(rundir: str | os.PathLike[str]) -> JSONObject | None:
     """Return the field-recalibration settings the run in RUNDIR was started with (``stableins recal``), or None."""
     from stableins.procedures.journal import JOURNAL_NAME, start_record
 

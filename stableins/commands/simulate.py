@@ -20,10 +20,11 @@ import argparse
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from stableins.errors import InputError
 from stableins.estimators.device_settings import DEFAULT_PROCEDURES
+from stableins.schema import Columns
 
 #: Suffixes accepted by ``--duration`` and their length in seconds.
 DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
@@ -51,13 +52,43 @@ def parse_duration(text: str) -> float:
     return value
 
 
-def effect_rows() -> list[dict[str, Any]]:
+class EffectRow(TypedDict):
+    """One effect the simulator can hide (``simulate --list-effects``): its nominal size in SI and in engineering units."""
+
+    id: str
+    unit: str
+    nominal: float
+    engineering_unit: str
+    nominal_engineering: float
+    meaning: str
+
+
+class WrittenFile(TypedDict):
+    """A device data file ``simulate device`` wrote: its rows, procedure, stage and coarse passes."""
+
+    path: str
+    rows: int
+    procedure: str
+    stage: str
+    passes: int
+
+
+class SystemFile(TypedDict):
+    """The system record ``simulate system`` wrote."""
+
+    path: str
+    rows: int
+    duration_s: float
+    rate_hz: float
+
+
+def effect_rows() -> list[EffectRow]:
     """Return the simulator's effects with their nominal size in SI (``unit``, ``nominal``) and in engineering units."""
     from stableins.discovery.library import all_terms
     from stableins.simulator.effects import catalogue_table
 
     terms = all_terms()
-    rows = []
+    rows: list[EffectRow] = []
     for effect_id, unit, nominal, meaning in catalogue_table():
         term = terms[effect_id]
         rows.append(
@@ -297,7 +328,7 @@ def _device_procedures(args: argparse.Namespace) -> list[Any]:
     return [_with_timing(load_procedure(name), args.dwell, args.settle) for name in args.procedure or DEFAULT_PROCEDURES]
 
 
-def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, procedures: list[Any]) -> list[dict[str, Any]]:
+def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, procedures: list[Any]) -> list[WrittenFile]:
     """One file per procedure: ``<procedure name>.<format>`` (e.g. ``device-coarse.csv``).
 
     By default the session is what the device-level procedure does on a real platform,
@@ -317,7 +348,7 @@ def simulate_device(truth: Any, out: Path, seed: int, args: argparse.Namespace, 
         sessions = _single_passes(truth, procedures, rate, seed)
     else:
         sessions = _iterated_session(truth, procedures, rate, seed)
-    files = []
+    files: list[WrittenFile] = []
     # dated so that the system day 'simulate system' writes next (ending now) starts after them, as on a real
     # platform: the device calibration first, then the day that compensates with it (DEVICE_LEAD before now)
     span = max(float(c["time"][-1]) for _, c in sessions if len(c["time"])) if sessions else 0.0
@@ -346,7 +377,7 @@ def _with_timing(procedure: Any, dwell: float | None, settle: float | None) -> A
     return replace(procedure, steps=steps)
 
 
-def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
+def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, Columns]]:
     from stableins.simulator.device import simulate_dwells
 
     sessions = []
@@ -366,7 +397,7 @@ def _single_passes(truth: Any, procedures: list[Any], rate: float, seed: int) ->
     return sessions
 
 
-def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, dict[str, Any]]]:
+def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int) -> list[tuple[Any, Columns]]:
     """Coarse zero-offset iteration, then fine dwells, on one simulated platform session."""
     from stableins.drivers.recording import RecordingDriver
     from stableins.procedures.iteration import OffsetIterationError, iterate_offsets, measure_pass
@@ -394,7 +425,7 @@ def _iterated_session(truth: Any, procedures: list[Any], rate: float, seed: int)
     return sessions
 
 
-def simulate_system_file(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+def simulate_system_file(truth: Any, out: Path, seed: int, args: argparse.Namespace) -> SystemFile:
     """``system.<format>``, streamed chunk by chunk."""
     from dataclasses import replace
 

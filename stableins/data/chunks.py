@@ -18,13 +18,14 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.validation import check_finite
 from stableins.errors import InputError
+from stableins.schema import Columns
 
 #: Rows per chunk when the caller does not say.
 DEFAULT_ROWS = 1 << 16
@@ -48,7 +49,7 @@ class ChunkSource(Protocol):
         step: int = 1,
         reuse: bool = False,
         unchecked: Sequence[str] = (),
-    ) -> Iterator[dict[str, Any]]:
+    ) -> Iterator[Columns]:
         """Yield the record's chunks ``{column: ndarray}``, consecutive and in order (see the class docstring).
 
         Parameters
@@ -131,7 +132,7 @@ class ArraySource:
         step: int = 1,
         reuse: bool = False,
         unchecked: Sequence[str] = (),
-    ) -> Iterator[dict[str, Any]]:
+    ) -> Iterator[Columns]:
         """Yield chunks as :meth:`stableins.data.system.SystemRecord.iter_chunks` does (``reuse``, ``unchecked`` have no effect)."""
         names = list(self.columns if columns is None else columns)
         for name in names:

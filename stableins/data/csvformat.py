@@ -28,7 +28,7 @@ from typing import IO, Any
 
 from stableins.data.validation import check_finite, check_header_document, match_columns, parse_header
 from stableins.errors import InputError
-from stableins.schema import Column
+from stableins.schema import Column, Columns
 
 BEGIN = "# BEGIN HEADER"
 END = "# END HEADER"
@@ -217,7 +217,7 @@ class CsvReader:
         return read_line(self._handle, self.path, self.line_number)
 
     # ------------------------------------------------------------------ rows
-    def iter_chunks(self, rows: int = 65536) -> Iterator[dict[str, Any]]:
+    def iter_chunks(self, rows: int = 65536) -> Iterator[Columns]:
         """Yield dicts of column arrays of up to ``rows`` rows (and :data:`MAX_CHUNK_TEXT` characters) each, in file order."""
         while True:
             lines, full = self._data_lines(rows)
@@ -286,7 +286,7 @@ class CsvReader:
                 expected=f"{self.trailer_rows} rows",
             )
 
-    def _parse(self, lines: list[tuple[int, str]]) -> dict[str, Any]:
+    def _parse(self, lines: list[tuple[int, str]]) -> Columns:
         """Return the columns of a block of data lines.
 
         Read by numpy's C parser, or, on any problem, by a line-by-line pass that names the row and field.
@@ -308,7 +308,7 @@ class CsvReader:
             except ValueError:
                 pass
             else:
-                out: dict[str, Any] = {}
+                out: Columns = {}
                 for j, c in enumerate(numeric):
                     out[c.name] = self._typed(c, values[:, j], None, self.rows_read + 1)
                 for c in self.schema:
@@ -325,7 +325,7 @@ class CsvReader:
         check_finite(c.name, values, self.path, first_row=first_row)
         return values
 
-    def _parse_slowly(self, lines: list[tuple[int, str]]) -> dict[str, Any]:
+    def _parse_slowly(self, lines: list[tuple[int, str]]) -> Columns:
         import numpy as np
 
         first_row = self.rows_read + 1
@@ -341,7 +341,7 @@ class CsvReader:
                 )
             split.append(fields)
         table = list(zip(*split))
-        out: dict[str, Any] = {}
+        out: Columns = {}
         for c in self.schema:
             raw = table[self.positions[c.name]]
             if c.dtype == "str":
@@ -360,7 +360,7 @@ class CsvReader:
             out[c.name] = self._typed(c, values, raw, first_row)
         return out
 
-    def read_all(self) -> dict[str, Any]:
+    def read_all(self) -> Columns:
         """All rows at once (small files)."""
         import numpy as np
 

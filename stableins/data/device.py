@@ -16,8 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 from stableins.data.metadata import metadata_from_document, metadata_to_document
 from stableins.data.validation import check_finite, check_increasing
+from stableins.documents import JSONObject
 from stableins.errors import InputError
-from stableins.schema import DEVICE_COLUMNS, SCHEMA_VERSION
+from stableins.schema import DEVICE_COLUMNS, SCHEMA_VERSION, Columns
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -241,7 +242,7 @@ def _kind_of(path: Path) -> str:
     raise InputError(f"unknown file type {suffix!r}", path=path, expected="a .csv or .h5 file")
 
 
-def header_document(kind: str, metadata: SiteMetadata) -> dict[str, Any]:
+def header_document(kind: str, metadata: SiteMetadata) -> JSONObject:
     """Return the JSON header of a device file of ``kind`` (format tag, schema version, site metadata)."""
     from stableins.data.validation import FORMAT_TAGS
 
@@ -276,11 +277,11 @@ def load_device(path: str | os.PathLike[str]) -> DeviceDataset:
     return DeviceDataset(metadata, columns, str(path))
 
 
-def _read_h5_checked(reader: Any, path: str) -> dict[str, Any]:
+def _read_h5_checked(reader: Any, path: str) -> Columns:
     """All rows of a device HDF5 file, each piece checked as it is read (memory grows only with rows that pass)."""
     import numpy as np
 
-    parts: list[dict[str, Any]] = []
+    parts: list[Columns] = []
     first, previous = 1, None
     for chunk in reader.iter_chunks():
         check_device_rows(chunk, path, first_row=first, previous_time=previous)

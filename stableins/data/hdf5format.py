@@ -31,7 +31,7 @@ from typing import Any
 
 from stableins.data.validation import FORMAT_TAGS
 from stableins.errors import InputError, NotDeterminedError
-from stableins.schema import Column
+from stableins.schema import Column, Columns
 
 GROUP = "columns"
 OVERVIEW = "overview"
@@ -153,7 +153,7 @@ class H5Writer:
         n = self._buffered if final else self._buffered - self._buffered % self.chunk_samples
         if n == 0:
             return
-        rest: dict[str, Any] = {}
+        rest: Columns = {}
         for c in self.schema:
             parts = [np.asarray(ch[c.name]) for ch in self._buffer]
             values = parts[0] if len(parts) == 1 else np.concatenate(parts)

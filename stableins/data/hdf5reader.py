@@ -24,7 +24,7 @@ from stableins.data.hdf5format import (
 )
 from stableins.data.validation import check_finite, check_header_document, match_columns
 from stableins.errors import InputError, NotDeterminedError
-from stableins.schema import Column
+from stableins.schema import Column, Columns
 
 
 def _check_storage(d: Any, rows: int, path: str, name: str) -> None:
@@ -193,7 +193,7 @@ class H5Reader:
             pass
         return self.overview_step, 0 if self.time_grid is None else len(self.time_grid)
 
-    def iter_verified(self, rows: int = 1 << 18) -> Iterator[dict[str, Any]]:
+    def iter_verified(self, rows: int = 1 << 18) -> Iterator[Columns]:
         """Yield every column, chunk by chunk: the one validating pass over a file.
 
         Each value is checked (finite numbers, whole numbers where integers are due), and the derived datasets are
@@ -218,7 +218,7 @@ class H5Reader:
                 for k in range(0, self.rows, rows):
                     stop = min(k + rows, self.rows)
                     n = stop - k
-                    full: dict[str, Any] = {}
+                    full: Columns = {}
                     for c in self.schema:
                         if c.dtype == "str":
                             full[c.name] = self._read(f, [c.name], k, stop, datasets)[c.name]
@@ -296,19 +296,19 @@ class H5Reader:
         """
         return open_h5(self.path, chunk_cache=chunk_cache)
 
-    def read(self, names: Sequence[str] | None = None, start: int = 0, stop: int | None = None) -> dict[str, Any]:
+    def read(self, names: Sequence[str] | None = None, start: int = 0, stop: int | None = None) -> Columns:
         """Rows ``start:stop`` of the named columns, validated (finite floats)."""
         with self._open() as f:
             return self._read(f, names, start, stop)
 
     def _read(
         self, f: Any, names: Sequence[str] | None, start: int, stop: int | None, datasets: Mapping[str, Any] | None = None
-    ) -> dict[str, Any]:
+    ) -> Columns:
         """Rows ``start:stop`` of the named columns, checked; ``datasets``: the columns' datasets looked up already."""
         import numpy as np
 
         stop = self.rows if stop is None else min(stop, self.rows)
-        out: dict[str, Any] = {}
+        out: Columns = {}
         for c in self._columns(names):
             try:
                 values = (f[GROUP][c.name] if datasets is None else datasets[c.name])[start:stop]
@@ -346,7 +346,7 @@ class H5Reader:
         step: int = 1,
         reuse: bool = False,
         unchecked: Sequence[str] = (),
-    ) -> Iterator[dict[str, Any]]:
+    ) -> Iterator[Columns]:
         """Yield validated dicts of ``rows`` rows at a time (bounded memory).
 
         Parameters
@@ -379,10 +379,10 @@ class H5Reader:
             group = f[GROUP]
             gathers = self._gathers(f, [c for c in columns if c.name in thin_set], from_overview=from_overview)
             datasets = {c.name: group[c.name] for c in columns if reuse and c.dtype != "str" and c.name not in gathers}  # looked up once
-            buffers: dict[str, Any] = {}
+            buffers: Columns = {}
             for k in range(start, stop, rows):
                 end = min(k + rows, stop)
-                out: dict[str, Any] = {}
+                out: Columns = {}
                 for c in columns:
                     if c.name in gathers:
                         first = k + (-k) % step

@@ -32,6 +32,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from stableins.documents import JSONObject, JSONValue
 from stableins.errors import InputError
 
 #: Largest JSON document read from a file [bytes] (a record of 1000 parameters is ~25 MB).
@@ -56,8 +57,8 @@ class _Pairs(dict):
     duplicate: str = ""
 
 
-def _pairs(items: list[tuple[str, Any]]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
+def _pairs(items: list[tuple[str, JSONValue]]) -> JSONObject:
+    out: JSONObject = {}
     for key, value in items:
         if key in out:
             bad = _Pairs(out)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from stableins.documents import JSONObject
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.site import SiteMetadata
 
@@ -39,34 +40,31 @@ BASE_ATTITUDE_ORDER = ("yaw", "pitch", "roll")
 _REQUIRED = ("serial_number", "latitude", "height", "gravity", "gravity_source", "sample_rate")
 
 
-def metadata_to_document(metadata: SiteMetadata) -> dict[str, Any]:
+def metadata_to_document(metadata: SiteMetadata) -> JSONObject:
     """JSON-ready document with every physical quantity as ``{"value": ..., "unit": ...}``.
 
     Angles are written in degrees (people read files), everything else in SI.
     """
     deg = ANGLE_UNITS["deg"]
-    return (
-        {
-            "serial_number": metadata.serial_number,
-            "latitude": {"value": metadata.latitude / deg, "unit": "deg"},
-            "height": {"value": metadata.height, "unit": "m"},
-            "gravity": {"value": metadata.gravity, "unit": "m/s^2"},
-            "gravity_source": metadata.gravity_source,
-            "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
-            "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
-            "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
-            "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
-            "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
-            "extra": dict(metadata.extra),
-            "dwell_mode": str(metadata.dwell_mode),
-        }
-        | ({"start_time": metadata.start_time} if metadata.start_time else {})
-        | (
-            {}
-            if metadata.gravity_uncertainty is None
-            else {"gravity_uncertainty": {"value": metadata.gravity_uncertainty, "unit": "m/s^2"}}
-        )
-    )
+    document: JSONObject = {
+        "serial_number": metadata.serial_number,
+        "latitude": {"value": metadata.latitude / deg, "unit": "deg"},
+        "height": {"value": metadata.height, "unit": "m"},
+        "gravity": {"value": metadata.gravity, "unit": "m/s^2"},
+        "gravity_source": metadata.gravity_source,
+        "sample_rate": {"value": metadata.sample_rate, "unit": "Hz"},
+        "gimbal_senses": [int(s) for s in metadata.gimbal_senses],
+        "base_attitude": {"value": [a / deg for a in metadata.base_attitude], "unit": "deg", "order": list(BASE_ATTITUDE_ORDER)},
+        "reference_temperature": {"value": metadata.reference_temperature, "unit": "degC"},
+        "damping": {k: {"value": v, "unit": DAMPING_UNITS.get(k, "SI")} for k, v in metadata.damping.items()},
+        "extra": dict(metadata.extra),
+        "dwell_mode": str(metadata.dwell_mode),
+    }
+    if metadata.start_time:
+        document["start_time"] = metadata.start_time
+    if metadata.gravity_uncertainty is not None:
+        document["gravity_uncertainty"] = {"value": metadata.gravity_uncertainty, "unit": "m/s^2"}
+    return document
 
 
 class _Reader:

@@ -21,7 +21,7 @@ from stableins.data.metadata import metadata_from_document
 from stableins.data.sampling import SamplingChecker, SamplingReport, SamplingWarning
 from stableins.data.validation import check_finite, check_increasing
 from stableins.errors import InputError
-from stableins.schema import SYSTEM_COLUMNS
+from stableins.schema import SYSTEM_COLUMNS, Columns
 from stableins.site import SiteMetadata
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -212,7 +212,7 @@ class SystemRecord:
         step: int = 1,
         reuse: bool = False,
         unchecked: Sequence[str] = (),
-    ) -> Iterator[dict[str, Any]]:
+    ) -> Iterator[Columns]:
         """Yield dicts ``{column: ndarray}`` of up to ``rows`` rows, in order, each checked for NaN/inf.
 
         Memory is bounded by ``rows`` × number of columns, whatever the record length.
@@ -251,7 +251,7 @@ class SystemRecord:
         else:
             yield from self._reader.iter_chunks(names, rows, thin=thin, step=step, reuse=reuse, unchecked=unchecked)
 
-    def read(self, columns: Sequence[str] | None = None) -> dict[str, Any]:
+    def read(self, columns: Sequence[str] | None = None) -> Columns:
         """Whole columns at once (for short records or a few columns)."""
         import numpy as np
 
@@ -404,7 +404,7 @@ class ValidatingRecord:
         step: int = 1,
         reuse: bool = False,
         unchecked: Sequence[str] = (),
-    ) -> Iterator[dict[str, Any]]:
+    ) -> Iterator[Columns]:
         """Yield ``{column: ndarray}`` chunks of ``rows`` rows as :meth:`SystemRecord.iter_chunks` does, validating all.
 
         The full-rate arrays are the reader's buffers (valid until the next chunk is asked for, as with ``reuse``);

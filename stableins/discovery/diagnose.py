@@ -65,6 +65,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from stableins.discovery.ranking import Ranking
     from stableins.discovery.system import SystemDiagnosis
     from stableins.errormodel import ErrorModel, Term
+    from stableins.estimators.dwell import DwellSummary
     from stableins.estimators.layout import StageLayout
 
 
@@ -252,6 +253,7 @@ def diagnose_data(
     options: DiagnoseOptions | None = None,
     layouts: Mapping[str, StageLayout] | None = None,
     record_name: str = "the calibration record",
+    summaries: Sequence[Sequence[DwellSummary]] | None = None,
 ) -> DiagnoseResult:
     """Diagnose device data or a system record against the calibration record in force (module docstring).
 
@@ -269,6 +271,9 @@ def diagnose_data(
         (:func:`stableins.procedures.definition.device_layouts`); needed for device data.
     record_name : str
         How messages name the record (e.g. its file).
+    summaries : sequence of sequence of DwellSummary, optional
+        Device data: each dataset's dwell statistics (:func:`stableins.estimators.dwell.dwells_from_columns` of its
+        columns with ``layouts`` and its setting) when the caller has them (the same numbers); None: made here.
 
     Returns
     -------
@@ -288,7 +293,7 @@ def diagnose_data(
         return _system(data, record, model, options)
     if layouts is None:
         raise TypeError("diagnose_data: device data need the stage layouts (procedures.definition.device_layouts())")
-    return _device(list(data), record, model, options, layouts)
+    return _device(list(data), record, model, options, layouts, summaries=summaries)
 
 
 def _model_in_force(record: RecordInForce, add: Sequence[str], record_name: str) -> ErrorModel:
@@ -337,7 +342,11 @@ def _start(record: RecordInForce, model: ErrorModel) -> dict[str, float]:
 
 # ----------------------------------------------------------------------------- device dwells
 def _device_noise(
-    datasets: Sequence[DeviceDataset], given: NoiseModel | SlowNoiseGiven | None, default: NoiseModel | None, layouts: Mapping[str, Any]
+    datasets: Sequence[DeviceDataset],
+    given: NoiseModel | SlowNoiseGiven | None,
+    default: NoiseModel | None,
+    layouts: Mapping[str, Any],
+    made: Sequence[Sequence[DwellSummary]] | None,
 ) -> tuple[NoiseModel, NoiseOrigin]:
     """Return the device stages' noise model: ``given``, a datasheet's slow noise, the record's, or measured in the dwells."""
     from stableins.estimators.device import noise_from_dwells, with_given_slow_noise
@@ -348,27 +357,34 @@ def _device_noise(
         return given, NoiseOrigin.GIVEN
     if given is None and default is not None:
         return default, NoiseOrigin.RECORD
-    summaries = [
-        s
-        for ds in datasets
-        for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
-    ]
+    if made is None:
+        made = [
+            dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
+            for ds in datasets
+        ]
+    summaries = [s for per_dataset in made for s in per_dataset]
     if isinstance(given, SlowNoiseGiven):
         return with_given_slow_noise(summaries, given.bias_instability, given.random_walk, given.provenance), NoiseOrigin.DATASHEET
     return noise_from_dwells(summaries, source=", ".join(str(ds.path) for ds in datasets)), NoiseOrigin.MEASURED
 
 
-def _device(
-    datasets: list[DeviceDataset], record: RecordInForce, model: ErrorModel, options: DiagnoseOptions, layouts: Mapping[str, StageLayout]
+def _device(  # noqa: PLR0913 - the data (and their dwell statistics when made), the record, its model, how, the layouts
+    datasets: list[DeviceDataset],
+    record: RecordInForce,
+    model: ErrorModel,
+    options: DiagnoseOptions,
+    layouts: Mapping[str, StageLayout],
+    *,
+    summaries: Sequence[Sequence[DwellSummary]] | None,
 ) -> DiagnoseResult:
     """Discovery on the dwell means of device data (module docstring)."""
     from stableins.discovery.dwells import dwells_from_dataset
     from stableins.discovery.history import Discovery
     from stableins.discovery.problem import DwellProblem
 
-    noise, origin = _device_noise(datasets, options.noise, record.noise_model, layouts)
+    noise, origin = _device_noise(datasets, options.noise, record.noise_model, layouts, summaries)
     stage = None if options.stage is None else str(options.stage)
-    dwells = dwells_from_dataset(datasets, layouts=layouts, stage=stage, noise=noise)
+    dwells = dwells_from_dataset(datasets, layouts=layouts, stage=stage, noise=noise, summaries=summaries)
     problem = DwellProblem(dwells, stage=Stage.FINE_DWELLS if dwells.noise["stage"] == Stage.FINE else Stage.COARSE_DWELLS)
     session = Discovery(problem, model, alpha=options.alpha, start=_start(record, model))
     for effect in options.add:

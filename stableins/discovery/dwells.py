@@ -14,6 +14,7 @@ from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.estimators.layout import StageLayout
 
 if TYPE_CHECKING:  # pragma: no cover
+    from stableins.estimators.dwell import DwellSummary
     from stableins.noise import NoiseModel
     from stableins.samples import SampleBlock
     from stableins.site import SiteMetadata
@@ -173,6 +174,7 @@ def dwells_from_dataset(
     stage: str | None = None,
     initial_readings: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
     noise: NoiseModel | None = None,
+    summaries: Sequence[Sequence[DwellSummary]] | None = None,
 ) -> DwellSet:
     """Dwell means of device datasets (``stableins.data.device.DeviceDataset``) for discovery.
 
@@ -191,6 +193,11 @@ def dwells_from_dataset(
     ``initial_readings`` on: the dwells the checks leave out, and those of an earlier stage in the data (give the
     coarse file with the fine one: a fine stage starts in the state the coarse stage left).  Files whose clocks
     overlap are separate sessions, each starting at ``initial_readings``.
+
+    ``summaries``, one sequence per dataset, are the dwell statistics
+    :func:`~stableins.estimators.dwell.dwells_from_columns` makes of that dataset's columns with ``layouts`` and the
+    dataset's setting, when the caller has them already (a campaign's task has them from its calibration): the same
+    numbers, not computed again.  None: computed here.
     """
     from stableins.errors import InputError
     from stableins.estimators.dwell import dwells_from_columns
@@ -201,12 +208,16 @@ def dwells_from_dataset(
     site = datasets[0].metadata
     # the device stage's one path from samples to dwell statistics, per file; paired with the raw dwells by
     # (file, stage, pass, position), which a file holds once each (dwells_from_columns refuses repeats)
+    if summaries is not None and len(summaries) != len(datasets):
+        raise ValueError(f"dwells_from_dataset: {len(summaries)} lists of dwell summaries for {len(datasets)} datasets")
     pairs = []
-    for ds in datasets:
-        statistics = {
-            (s.stage, s.pass_number, s.position): s
-            for s in dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
-        }
+    for k, ds in enumerate(datasets):
+        made = (
+            summaries[k]
+            if summaries is not None
+            else dwells_from_columns(ds.columns, layouts=layouts, source=str(ds.path), setting=DeviceSetting.from_site(ds.metadata))
+        )
+        statistics = {(s.stage, s.pass_number, s.position): s for s in made}
         pairs += [(d, statistics[(d.stage, d.pass_number, d.position)]) for d in ds.dwells()]
     if stage is None:
         stage = "fine" if any(d.stage == "fine" for d, _ in pairs) else "coarse"
@@ -220,10 +231,10 @@ def dwells_from_dataset(
     visited = _visited_states(pairs, site, initial_readings)  # every dwell the platform visited, left-out ones included
     pairs, visited = ours, [v for p, v in zip(pairs, visited, strict=True) if p[0].stage == stage]
     raw = [d for d, _ in pairs]
-    summaries = [s for _, s in pairs]
-    keep = [k for k, sm in enumerate(summaries) if sm.usable]
+    stats = [s for _, s in pairs]
+    keep = [k for k, sm in enumerate(stats) if sm.usable]
     left_out = [
-        f"{stage} pass {summaries[k].pass_number} position {summaries[k].position}: {'; '.join(summaries[k].flags)}"
+        f"{stage} pass {stats[k].pass_number} position {stats[k].position}: {'; '.join(stats[k].flags)}"
         for k in range(len(raw))
         if k not in keep
     ]
@@ -244,10 +255,10 @@ def dwells_from_dataset(
             )
         )
     return _dwell_set(
-        [summaries[k] for k in keep],
+        [stats[k] for k in keep],
         extras,
         site=site,
-        labels=tuple(f"{stage[0]}{summaries[k].pass_number}/{summaries[k].position}" for k in keep),
+        labels=tuple(f"{stage[0]}{stats[k].pass_number}/{stats[k].position}" for k in keep),
         initial_readings=initial_readings,
         noise=noise,
         info={"left_out": left_out, "stage": stage},

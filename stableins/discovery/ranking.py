@@ -75,15 +75,22 @@ MICRO_G_UNIT = DisplayUnit("µg", MICRO_G)
 
 def _propose(problem: DwellProblem, result: FitResult, scores: list[CandidateScore], by_id: dict[str, Term]) -> list[CandidateScore]:
     """Add numerically tested separating procedures to the advice of unseparable or confused candidates."""
-    from stableins.discovery.separation import describe, separation
+    from stableins.discovery.separation import describe, separations
 
+    wanted = [c for c in scores if c.excited and (not c.identifiable or c.confused_with)]
+    tested = dict(
+        zip(
+            (c.id for c in wanted),
+            separations(problem, result, [(c.term, [by_id[i] for i in c.confused_with]) for c in wanted]),
+            strict=True,
+        )
+    )
     out = []
     for c in scores:
-        if c.excited and (not c.identifiable or c.confused_with):
-            tested = separation(problem, result, c.term, [by_id[i] for i in c.confused_with])
+        if c.id in tested:
             text = c.advice.removeprefix("confirm with ")
             head = f"to tell it from {', '.join(c.confused_with)}: " if c.confused_with else ""
-            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested)}"})
+            c = CandidateScore(**{**c.__dict__, "advice": f"{head}{text}; tested on these positions: {describe(tested[c.id])}"})
         out.append(c)
     return out
 

@@ -104,6 +104,10 @@ def separation(
 ) -> list[ProposalSeparation]:
     """Separability of ``candidate`` (and its correlation with ``partners``) with each proposal added.
 
+    With ``X`` the whitened design extended by a proposal's dwells and ``z`` the candidates' whitened columns over the
+    same dwells, ``z⊥ = z − Q Qᵀ z`` (``X = QR``); the separability is ``‖z⊥_0‖/‖z_0‖`` and the correlation with a
+    partner ``z⊥_0ᵀ z⊥_k / (‖z⊥_0‖ ‖z⊥_k‖)`` (:mod:`stableins.discovery.ranking`).
+
     Parameters
     ----------
     problem : DwellProblem
@@ -117,22 +121,43 @@ def separation(
     proposals : sequence of str
         Names from :data:`PROPOSALS`.
     """
-    terms = [candidate, *partners]
+    return separations(problem, result, [(candidate, partners)], proposals)[0]
+
+
+def separations(
+    problem: DwellProblem, result: FitResult, tested: Sequence[tuple[Term, Sequence[Term]]], proposals: Sequence[str] = PROPOSALS
+) -> list[list[ProposalSeparation]]:
+    """:func:`separation` of several candidates (each with its partners) against one fit, with the shared work done once.
+
+    The proposals' dwells, the extended designs and their QR factors do not depend on the candidate, and a term's
+    column does not depend on the other terms evaluated with it (to rounding: a separability that is zero comes out as
+    another 1e-16): each is computed once for all ``tested``.
+    """
+    if not tested:
+        return []
+    union = list({t.id: t for candidate, partners in tested for t in (candidate, *partners)}.values())
+    column = {t.id: k for k, t in enumerate(union)}
     x0 = whiten(problem, result, problem.design(result))
-    z0 = whiten(problem, result, problem.candidate_columns(terms, result))
-    out = []
+    z0 = whiten(problem, result, problem.candidate_columns(union, result))
+    bases = []
     for name in proposals:
         extra = DwellProblem(_proposal(problem.dwells, name).following(problem.dwells))  # visited after the data
-        x = np.vstack([x0, extra.whiten(extra.design(result))])
-        z = np.vstack([z0, extra.whiten(extra.candidate_columns(terms, result))])
-        q, _ = np.linalg.qr(x)
-        perp = z - q @ (q.T @ z)
-        norms = np.linalg.norm(perp, axis=0)
-        sep = float(norms[0] / max(np.linalg.norm(z[:, 0]), 1e-300))
-        corr = {}
-        for k, t in enumerate(partners, start=1):
-            corr[t.id] = float(perp[:, 0] @ perp[:, k] / max(norms[0] * norms[k], 1e-300))
-        out.append(ProposalSeparation(name, sep, corr, float(norms[0] * abs(candidate.nominal))))
+        q, _ = np.linalg.qr(np.vstack([x0, extra.whiten(extra.design(result))]))
+        bases.append((name, q, np.vstack([z0, extra.whiten(extra.candidate_columns(union, result))])))
+    out = []
+    for candidate, partners in tested:
+        pick = [column[t.id] for t in (candidate, *partners)]
+        found = []
+        for name, q, everything in bases:
+            z = everything[:, pick]
+            perp = z - q @ (q.T @ z)
+            norms = np.linalg.norm(perp, axis=0)
+            sep = float(norms[0] / max(np.linalg.norm(z[:, 0]), 1e-300))
+            corr = {}
+            for k, t in enumerate(partners, start=1):
+                corr[t.id] = float(perp[:, 0] @ perp[:, k] / max(norms[0] * norms[k], 1e-300))
+            found.append(ProposalSeparation(name, sep, corr, float(norms[0] * abs(candidate.nominal))))
+        out.append(found)
     return out
 
 

@@ -10,7 +10,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from os import PathLike
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from stableins.discovery.fields import Reader, finite, join
 
@@ -23,6 +23,77 @@ OBSERVATION_UNIT = "SI unit of the observation (m/s^2 for dwell means, rad/s for
 
 
 # ----------------------------------------------------------------------------- parts of the document
+class PredictedDocument(TypedDict):
+    """What adding a candidate predicts: its estimate and 1σ in its unit, and the largest change of the outputs."""
+
+    estimate: float | None
+    sigma: float | None
+    unit: str
+    max_output_change: float | None
+    max_output_change_unit: str
+
+
+class AliasDocument(TypedDict):
+    """A parameter a candidate aliases with: the shift of its estimate per unit of the candidate."""
+
+    id: str
+    shift_per_unit: float | None
+
+
+class CandidateDocument(TypedDict):
+    """A ranked candidate in a diagnosis (:meth:`CandidateSummary.to_json`); NaN written as null."""
+
+    id: str
+    statistic: float | None
+    p_value: float | None
+    delta_bic: float | None
+    predicted: PredictedDocument
+    identifiable: bool
+    excited: bool
+    separability: float | None
+    aliases: list[AliasDocument]
+    confused_with: list[str]
+    refit: bool
+    flagged: bool
+    chi2_red_with: float | None
+    explains: bool
+    leaves: list[str]
+    signature_p: float | None
+    advice: str
+
+
+class DriftEstimateDocument(TypedDict):
+    """An estimated drift term (:meth:`DriftEstimate.to_json`)."""
+
+    id: str
+    value: float | None
+    sigma: float | None
+    unit: str
+
+
+class DriftDocument(TypedDict):
+    """The ``drift`` section of a diagnosis (:meth:`DriftSummary.to_json`)."""
+
+    chi2_red: float | None
+    dof: int
+    candidates: list[CandidateDocument]
+    left_out: list[str]
+    model: list[DriftEstimateDocument]
+
+
+class SpectrumDocument(TypedDict):
+    """One output's entry of a diagnosis's ``spectra`` (:meth:`SpectrumSummary.to_json`)."""
+
+    harmonics: list[int]
+    amplitude: list[float | None]
+    sigma: list[float | None]
+    chi2: list[float | None]
+    dof: list[float | None] | None
+    p_value: list[float | None]
+    flagged: list[bool]
+    unit: str
+
+
 @dataclass(frozen=True)
 class CandidateSummary:
     """One candidate effect's standing against the model in force (:class:`stableins.discovery.ranking.CandidateScore` as data).
@@ -93,7 +164,7 @@ class CandidateSummary:
         """Every candidate of a ranking, best first, as :meth:`stableins.discovery.ranking.Ranking.to_json` writes them."""
         return tuple(cls.from_json(item, where=f"candidates[{k}]") for k, item in enumerate(ranking.to_json()))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> CandidateDocument:
         """Return the candidate as :meth:`stableins.discovery.ranking.CandidateScore.to_json` writes it."""
         return {
             "id": self.id,
@@ -191,7 +262,7 @@ class DriftSummary:
     left_out: tuple[str, ...] = ()
     model: tuple[DriftEstimate, ...] = ()
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DriftDocument:
         """Return the ``drift`` section of the document."""
         return {
             "chi2_red": finite(self.chi2_red),
@@ -249,7 +320,7 @@ class DriftEstimate:
             if t.kind in kinds
         )
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DriftEstimateDocument:
         """Return the JSON form."""
         return {"id": self.id, "value": finite(self.value), "sigma": finite(self.sigma), "unit": self.unit}
 
@@ -320,7 +391,7 @@ class SpectrumSummary:
             flagged=tuple(bool(f) for f in flagged),
         )
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> SpectrumDocument:
         """Return the output's entry of the document's ``spectra``."""
         return {
             "harmonics": list(self.harmonics),

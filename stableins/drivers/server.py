@@ -16,8 +16,9 @@ import socket
 import threading
 import time
 import zlib
-from collections.abc import Callable
-from typing import Any, TextIO
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any, TextIO, TypedDict
 
 import numpy as np
 
@@ -58,7 +59,24 @@ def greeting(capabilities: tuple[str, ...]) -> str:
     return " ".join((PROTOCOL_NAME, str(PROTOCOL_VERSION), *capabilities))
 
 
-def turns_to_json(turns: Any) -> list[dict[str, Any]]:
+class TurnDocument(TypedDict):
+    """One indexing turn in a ``REC`` request: start [s], angle [rad], axis, rate [rad/s]."""
+
+    start: float
+    angle: float
+    axis: str
+    rate: float
+
+
+@dataclass
+class _RecordInProgress:
+    """The static record a platform is streaming (``REC``, then ``NAV`` chunk by chunk); the server keeps it across connections."""
+
+    chunks: Iterator[Mapping[str, Any]] | None = None
+    sent: int = 0
+
+
+def turns_to_json(turns: Any) -> list[TurnDocument]:
     """Return the indexing turns of a static record as the JSON of a ``REC`` request."""
     return [{"start": t.start, "angle": t.angle, "axis": t.axis.value, "rate": t.rate} for t in turns]
 
@@ -119,7 +137,7 @@ class _Session:
         log: Callable[[str], None],
         realtime: float = 0.0,
         *,
-        record: dict[str, Any] | None = None,
+        record: _RecordInProgress | None = None,
     ) -> None:
         self.driver = driver
         self.reader = reader
@@ -127,7 +145,7 @@ class _Session:
         self.log = log
         self.realtime = realtime
         #: the static record in progress (its chunk iterator), kept by the server across connections
-        self.record: dict[str, Any] = record if record is not None else {}
+        self.record = record if record is not None else _RecordInProgress()
 
     def send(self, text: str) -> None:
         self.writer.write(text)
@@ -226,22 +244,21 @@ class _Session:
         turns = turns_from_json(request["turns"])
         recorder = self.driver.static_record  # type: ignore[attr-defined]
         chunks = recorder(duration, chunk, turns=turns) if turns else recorder(duration, chunk)
-        self.record.clear()
-        self.record.update(chunks=iter(chunks), sent=0)
+        self.record.chunks, self.record.sent = iter(chunks), 0
         self.send(f"{request_id} OK\n")
         return True
 
     def _navigation(self, request_id: str, arguments: list[str]) -> bool:
         """``NAV``: the next chunk of the record in progress, ``N`` lines of the INS's outputs (time, angles, f, v, attitude, T)."""
-        chunks = self.record.get("chunks")
+        chunks = self.record.chunks
         if chunks is None:
             raise RuntimeError("no record in progress (send REC first)")
         piece = next(chunks, None)
         if piece is None:
-            raise RuntimeError(f"the record is complete ({self.record['sent']} samples sent)")
+            raise RuntimeError(f"the record is complete ({self.record.sent} samples sent)")
         columns = [np.asarray(piece[name], dtype=float) for name in NAV_FIELDS]
         lines = ["N " + " ".join(format_float(c[k]) for c in columns) + "\n" for k in range(len(columns[0]))]
-        self.record["sent"] += len(lines)
+        self.record.sent += len(lines)
         self.send(f"{request_id} OK {len(lines)}\n")
         try:
             self._stream(columns[0], lines)
@@ -327,8 +344,8 @@ def serve(
         Stream samples paced at ``realtime`` × real time (1: like hardware); 0: as fast as possible.
     """
     platform = threading.Lock()  # one session talks to the driver at a time
-    state: dict[str, Any] = {"current": None}
-    record: dict[str, Any] = {}  # the static record in progress: the platform's, it survives a reconnection
+    state: dict[str, socket.socket | None] = {"current": None}
+    record = _RecordInProgress()  # the static record in progress: the platform's, it survives a reconnection
     sessions: list[threading.Thread] = []
 
     def session(connection: socket.socket, peer: tuple[str, int]) -> None:
@@ -366,7 +383,7 @@ def _serve_connection(
     *,
     log: Callable[[str], None],
     realtime: float,
-    record: dict[str, Any] | None = None,
+    record: _RecordInProgress | None = None,
 ) -> None:
     """Run one client's session on ``connection`` and log how it ended."""
     connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

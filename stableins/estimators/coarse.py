@@ -260,17 +260,22 @@ def calibrate_coarse(
         model.terms,
         solution,
         design,
-        held={h: start_values[h] for h in held},
-        gauge_values={g: 0.0 for g in standard_gauge},
+        details=_details(
+            gauge,
+            design,
+            usable,
+            base_attitude,
+            configuration,
+            held={h: start_values[h] for h in held},
+            gauge_values={g: 0.0 for g in standard_gauge},
+            left_out={int(k): v for k, v in sorted(left_out.items())},
+        ),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
         determined=gauge.describe() + tuple(f"{g} = 0 by gauge" for g in standard_gauge),
         notes=tuple(notes),
-        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
-        left_out={int(k): v for k, v in sorted(left_out.items())},
         gravity=float(gravity),
-        details=_details(gauge, design, usable, base_attitude, configuration),
         whitened_residuals=None if problem.slow_covariance is None else solution.weighted_residuals[0].copy(),
         settings=DeviceFitSettings(Stage.COARSE, noise, nonlinear=bool(nonlinear)),
         sensitivities=(angle_reading_sensitivity(problem, solution.x[0], model.ids),),
@@ -310,10 +315,22 @@ def _usable_dwells(
 
 
 def _details(
-    gauge: Gauge, design: DesignAnalysis, usable: Sequence[DwellSummary], base_attitude: Sequence[float], configuration: GimbalConfiguration
+    gauge: Gauge,
+    design: DesignAnalysis,
+    usable: Sequence[DwellSummary],
+    base_attitude: Sequence[float],
+    configuration: GimbalConfiguration,
+    *,
+    held: Mapping[str, float],
+    gauge_values: Mapping[str, float],
+    left_out: Mapping[int, str],
 ) -> CoarseDetails:
-    """Return what the coarse fit worked with beyond its parameters."""
+    """Return what the coarse fit worked with beyond its parameters: the dwells it used and left out, what it held and gauged."""
     return CoarseDetails(
+        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
+        left_out=left_out,
+        gauge_values=gauge_values,
+        held=held,
         gauge_coefficients=gauge.coefficients,
         base_attitude=tuple(float(a) for a in base_attitude),
         gimbal_senses=tuple(configuration.senses),

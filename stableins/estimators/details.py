@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -23,9 +23,43 @@ class StageDetails:
     """Base of the stage-specific, typed details a :class:`FitResult` carries in :attr:`FitResult.details`."""
 
 
-@dataclass(frozen=True, eq=False)
-class CoarseDetails(StageDetails):
-    """What the coarse (18-position) fit worked with, beyond the parameters.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class DeviceDetails(StageDetails):
+    """What a device-level fit (coarse, fine, joint, poses) did with its dwells, and what it fixed.
+
+    Attributes
+    ----------
+    positions_used : tuple of UsedDwell
+        The dwells the fit used (sequence, pass, position).
+    left_out : mapping of int to str
+        Positions left out, with the reason.
+    gauge_values : mapping of str to float
+        Parameters fixed by the gauge, with the value they were fixed at [SI].
+    held : mapping of str to float
+        Parameters the data do not determine, held at their starting value [SI].
+    passes : tuple of int
+        Joint device fit: the coarse passes it combined.
+    """
+
+    positions_used: tuple[UsedDwell, ...] = ()
+    left_out: Mapping[int, str] = field(default_factory=dict)
+    gauge_values: Mapping[str, float] = field(default_factory=dict)
+    held: Mapping[str, float] = field(default_factory=dict)
+    passes: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("left_out", "gauge_values", "held"):
+            object.__setattr__(self, name, dict(getattr(self, name)))
+        object.__setattr__(self, "positions_used", tuple(UsedDwell(*u) for u in self.positions_used))
+
+    def positions(self, stage: str | None = None) -> frozenset[int]:
+        """Positions of the dwells the fit used (of one ``stage``, ``"coarse"`` or ``"fine"``, when given)."""
+        return frozenset(u.position for u in self.positions_used if stage is None or u.stage == stage)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class CoarseDetails(DeviceDetails):
+    """What the coarse (18-position) fit worked with, beyond the parameters and the dwells (:class:`DeviceDetails`).
 
     Attributes
     ----------

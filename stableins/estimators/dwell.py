@@ -186,7 +186,7 @@ def _dwell_flags(t: NDArray[np.float64], f: NDArray[np.float64], a: NDArray[np.f
     return flags
 
 
-def summarize_dwell(  # noqa: PLR0913 - the dwell's samples, where it was commanded, and the unit's setting
+def summarize_dwell(
     time: ArrayLike,
     specific_force: ArrayLike,
     angles: ArrayLike,

@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from stableins.errormodel import BETA_IDS, CORE_IDS, ErrorModel, Term
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.design import DesignAnalysis, Gauge, aligned_null_space
-from stableins.estimators.details import UsedDwell
+from stableins.estimators.details import DeviceDetails, UsedDwell
 from stableins.estimators.device_gauge import final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, describe_left_out, screen_dwells, slow_covariance
@@ -311,10 +311,12 @@ def calibrate_fine(
         null_space=aligned_null_space(design, gauge),
         determined=tuple(determined),
         notes=tuple(notes),
-        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
-        left_out={int(k): v for k, v in sorted(left_out.items())},
-        gauge_values={gid: float(start[gid]) for gid in gauge.fixed},
-        held={h: float(start[h]) for h in held},
+        details=DeviceDetails(
+            positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in usable),
+            left_out={int(k): v for k, v in sorted(left_out.items())},
+            gauge_values={gid: float(start[gid]) for gid in gauge.fixed},
+            held={h: float(start[h]) for h in held},
+        ),
         iterations=solution.iterations,
         gravity=g,
         combinations=combos,

@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 from stableins.conventions import dcm_nav_to_body
 from stableins.errormodel import ErrorModel
 from stableins.estimators.coarse import CoarseProblem, coarse_model, quality_notes
-from stableins.estimators.details import UsedDwell
+from stableins.estimators.details import DeviceDetails, UsedDwell
 from stableins.estimators.device_gauge import GAUGE_PREFERENCE, final_design, held_terms_note, hold_and_gauge
 from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, slow_covariance
@@ -219,15 +219,17 @@ def fit_joint(
         model.terms,
         solution,
         design,
-        held={k: float(x0[0, model.index(k)]) for k in held},
-        gauge_values={k: 0.0 for k in fixed},
+        details=DeviceDetails(
+            positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in (*coarse_dwells, *fine_dwells)),
+            gauge_values={k: 0.0 for k in fixed},
+            held={k: float(x0[0, model.index(k)]) for k in held},
+            passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
+        ),
         residuals=residuals,
         residual_sigma=residual_sigma,
         residual_labels=labels,
         determined=tuple(gauge.describe()) + tuple(f"{k} = 0 by gauge" for k in fixed),
         notes=tuple(out_notes),
-        positions_used=tuple(UsedDwell(d.stage, d.pass_number, d.position) for d in (*coarse_dwells, *fine_dwells)),
-        passes=tuple(sorted({d.pass_number for d in coarse_dwells})),
         gravity=g,
         whitened_residuals=whitened,
         settings=DeviceFitSettings(Stage(stage), noise, nonlinear=bool(nonlinear or bool(fine_dwells))),

@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 from stableins.documents import DocumentFields, JSONObject
 from stableins.errormodel import ErrorModel, Term
 from stableins.errors import InputError, NotDeterminedError
-from stableins.estimators.details import UsedDwell
+from stableins.estimators.details import DeviceDetails, UsedDwell
 from stableins.estimators.device_settings import DeviceFitSettings
 from stableins.estimators.dwell import DwellSummary, describe_left_out, summarize_dwell
 from stableins.estimators.fine import calibrate_fine, fine_model
@@ -294,8 +294,7 @@ def six_position(dwells: Sequence[DwellSummary], labels: Sequence[str], *, gravi
         singular_values=np.sqrt(np.linalg.eigvalsh(information))[::-1],
         null_space=np.zeros((6, 0)),
         notes=tuple(notes),
-        positions_used=used,
-        left_out=left_out,
+        details=DeviceDetails(positions_used=used, left_out=left_out),
         gravity=float(gravity),
         likelihood=Likelihood(model.ids, values.copy(), information, np.zeros(6)),
         settings=PoseSettings(PoseModel.SIX_POSITION),

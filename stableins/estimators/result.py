@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from stableins.documents import JSONObject
 from stableins.errormodel import Term
-from stableins.estimators.details import StageDetails, UsedDwell
+from stableins.estimators.details import DeviceDetails, StageDetails
 from stableins.status import STATUSES, Status
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -206,9 +206,9 @@ class InputSensitivity:
         """The budget column the input belongs to (``gyro_drift``, ``damping_loop`` ...)."""
         return self.input.partition(".")[0]
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> JSONObject:
         """Return the JSON form stored in a calibration record (arrays as lists)."""
-        out: dict[str, Any] = {"input": self.input, "unit": self.unit, "ids": list(self.ids), "value": float(self.value)}
+        out: JSONObject = {"input": self.input, "unit": self.unit, "ids": list(self.ids), "value": float(self.value)}
         if self.gradient is not None:
             out["gradient"] = self.gradient.tolist()
         if self.covariance is not None:
@@ -295,16 +295,6 @@ class FitResult:
         Human-readable combinations that the data do determine (when rank-deficient).
     notes : tuple of str
         Gauges applied, positions left out and why, warnings.
-    positions_used : tuple of UsedDwell
-        Device fits: the dwells the fit used (stage, pass, position).
-    left_out : mapping of int to str
-        Device fits: positions left out, with the reason.
-    gauge_values : mapping of str to float
-        Parameters fixed by the gauge, with the value they were fixed at [SI].
-    held : mapping of str to float
-        Parameters the data do not determine, held at their starting value [SI].
-    passes : tuple of int
-        Joint device fit: the coarse passes it combined.
     iterations : int
         Gauss–Newton iterations the fit took (0: linear or not iterated).
     gravity : float or None
@@ -313,8 +303,9 @@ class FitResult:
         Value and 1σ of combinations the data determine when their terms are not all determined (the fine
         stage's installation-angle combinations) [SI].
     details : StageDetails or None
-        Stage-specific typed details (:class:`CoarseDetails`, :class:`SystemDetails`, :class:`CombinedDetails`, or the
-        discovery problem's own).
+        Stage-specific typed details: a device fit's :class:`DeviceDetails` (the dwells it used and left out, what it
+        held and gauged; :class:`CoarseDetails` for the coarse stage), :class:`SystemDetails`, :class:`CombinedDetails`,
+        or the other stages' and the discovery problem's own.
     whitened_residuals : ndarray (m,) or None
         ``L⁻¹ (observed − model)`` with ``L Lᵀ`` the full covariance of the observations,
         when it is not diagonal (correlated noise).  Then :attr:`chi2` is the exact
@@ -345,11 +336,6 @@ class FitResult:
     null_space: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
     determined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
-    positions_used: tuple[UsedDwell, ...] = ()
-    left_out: Mapping[int, str] = field(default_factory=dict)
-    gauge_values: Mapping[str, float] = field(default_factory=dict)
-    held: Mapping[str, float] = field(default_factory=dict)
-    passes: tuple[int, ...] = ()
     iterations: int = 0
     gravity: float | None = None
     combinations: Mapping[str, tuple[float, float]] = field(default_factory=dict)
@@ -368,9 +354,7 @@ class FitResult:
             raise ValueError(f"FitResult: unknown status {sorted(bad)}")
         object.__setattr__(self, "stage", Stage(self.stage))
         object.__setattr__(self, "status", tuple(Status(s) for s in self.status))
-        for name in ("left_out", "gauge_values", "held", "combinations"):
-            object.__setattr__(self, name, dict(getattr(self, name)))
-        object.__setattr__(self, "positions_used", tuple(UsedDwell(*u) for u in self.positions_used))
+        object.__setattr__(self, "combinations", dict(self.combinations))
         if self.whitened_residuals is not None and self.whitened_residuals.shape != self.residuals.shape:
             raise ValueError("FitResult: whitened_residuals must match residuals")
         for name in ("values", "covariance", "residuals", "residual_sigma", "singular_values", "null_space", "whitened_residuals"):
@@ -378,25 +362,20 @@ class FitResult:
                 getattr(self, name).setflags(write=False)
 
     @classmethod
-    def from_solution(  # noqa: PLR0913 - the stage's own FitResult fields, each typed and named at the call
+    def from_solution(
         cls,
         stage: Stage,
         terms: tuple[Term, ...],
         solution: GaussNewtonSolution,
         design: DesignAnalysis,
         *,
-        held: Mapping[str, float],
-        gauge_values: Mapping[str, float],
+        details: DeviceDetails,
         residuals: NDArray[np.float64],
         residual_sigma: NDArray[np.float64],
         residual_labels: tuple[str, ...] = (),
         determined: tuple[str, ...] = (),
         notes: tuple[str, ...] = (),
-        positions_used: tuple[UsedDwell, ...] = (),
-        left_out: Mapping[int, str] | None = None,
-        passes: tuple[int, ...] = (),
         gravity: float | None = None,
-        details: StageDetails | None = None,
         whitened_residuals: NDArray[np.float64] | None = None,
         settings: StageSettings | None = None,
         sensitivities: tuple[InputSensitivity, ...] = (),
@@ -404,13 +383,14 @@ class FitResult:
         """Return the result of a device fit solved by :func:`stableins.estimators.gauss_newton.gauss_newton`.
 
         Values, covariance, iterations and the likelihood come from the first batch member of ``solution``;
-        rank, singular values and null space from ``design``.  A parameter in ``held`` has status
-        ``unidentifiable``, one in ``gauge_values`` ``gauge``, every other ``estimated``.  The keyword arguments
+        rank, singular values and null space from ``design``.  A parameter in ``details.held`` has status
+        ``unidentifiable``, one in ``details.gauge_values`` ``gauge``, every other ``estimated``.  The keyword arguments
         after them are the stage's own fields of :class:`FitResult` (residuals, labels, notes, settings ...),
         each as the class documents it.
         """
         ids = tuple(t.id for t in terms)
-        status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauge_values else Status.ESTIMATED for k in ids)
+        held, gauged = details.held, details.gauge_values
+        status = tuple(Status.UNIDENTIFIABLE if k in held else Status.GAUGE if k in gauged else Status.ESTIMATED for k in ids)
         return cls(
             stage=stage,
             terms=terms,
@@ -420,8 +400,6 @@ class FitResult:
             rank=design.rank,
             singular_values=design.singular_values,
             null_space=design.null_space,
-            held=held,
-            gauge_values=gauge_values,
             iterations=solution.iterations,
             likelihood=Likelihood.from_weighted(ids, solution.x[0], solution.weighted_jacobian[0], solution.weighted_residuals[0]),
             residuals=residuals,
@@ -429,9 +407,6 @@ class FitResult:
             residual_labels=residual_labels,
             determined=determined,
             notes=notes,
-            positions_used=positions_used,
-            left_out={} if left_out is None else left_out,
-            passes=passes,
             gravity=gravity,
             details=details,
             whitened_residuals=whitened_residuals,
@@ -446,8 +421,11 @@ class FitResult:
         return tuple(t.id for t in self.terms)
 
     def positions(self, stage: str | None = None) -> frozenset[int]:
-        """Positions of the dwells the fit used (of one ``stage``, ``"coarse"`` or ``"fine"``, when given)."""
-        return frozenset(u.position for u in self.positions_used if stage is None or u.stage == stage)
+        """Positions of the dwells a device fit used (of one ``stage``, ``"coarse"`` or ``"fine"``, when given); none for other fits.
+
+        Read from the fit's :class:`DeviceDetails`.
+        """
+        return self.details.positions(stage) if isinstance(self.details, DeviceDetails) else frozenset()
 
     @property
     def sigma(self) -> NDArray[np.float64]:

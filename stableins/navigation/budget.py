@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,6 +48,7 @@ from stableins.navigation.summary import (
     BudgetDriftSource,
     ErrorSummary,
     Quantity,
+    QuantityDocument,
     TermBudget,
     magnitudes,
     magnitudes_covariance,
@@ -135,7 +136,7 @@ class NavigationBudget:
             f"total peak position {self.total.position.peak:.4g} m, heading {self.total.heading.peak / ARCSEC:.4g}″; print() for the table>"
         )
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> BudgetDocument:
         """Return the JSON document of ``stableins budget --json`` (engineering units: m, m/s, arcsec; σ in the term's unit)."""
         return _budget_document(self)
 
@@ -169,7 +170,7 @@ class BudgetComparison:
     def __str__(self) -> str:
         return self.report()
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> ComparisonDocument:
         """Return both budgets and the differences (JSON of ``--compare``)."""
         return _comparison_document(self)
 
@@ -507,7 +508,67 @@ def _budget_text(budget: NavigationBudget, *, rows: int | None = None) -> str:
     return "\n".join(lines)
 
 
-def _scenario_document(budget: NavigationBudget) -> dict[str, Any]:
+class ScenarioDocument(TypedDict):
+    """The scenario of a budget in JSON (``stableins budget --json``, ``scenario``)."""
+
+    latitude_deg: float
+    gravity: float
+    zeta: float
+    radius: float
+    vertical_loop: bool
+    earth_angle_deg: float
+    duration_s: float
+    step_s: float
+
+
+class TermDocument(TypedDict):
+    """One term of a budget in JSON: its 1σ in its unit and the errors it alone makes (:class:`QuantityDocument` each)."""
+
+    id: str
+    kind: str
+    sigma: float
+    unit: str
+    errors: dict[str, QuantityDocument]
+
+
+class LeftOutDocument(TypedDict):
+    """A term not propagated, and why."""
+
+    id: str
+    reason: str
+
+
+class BudgetDocument(TypedDict):
+    """The JSON document of ``stableins budget --json`` (engineering units: m, m/s, arcsec)."""
+
+    serial_number: str
+    scenario: ScenarioDocument
+    drift: str
+    terms: list[TermDocument]
+    rss: dict[str, QuantityDocument]
+    total: dict[str, QuantityDocument]
+    left_out: list[LeftOutDocument]
+    notes: list[str]
+
+
+class DifferenceDocument(TypedDict):
+    """``other − base`` of every term, of the RSS and of the total."""
+
+    terms: dict[str, dict[str, QuantityDocument]]
+    rss: dict[str, QuantityDocument]
+    total: dict[str, QuantityDocument]
+
+
+class ComparisonDocument(TypedDict):
+    """The JSON of ``stableins budget A.json --compare B.json``: both budgets and the differences."""
+
+    labels: list[str]
+    base: BudgetDocument
+    other: BudgetDocument
+    difference: DifferenceDocument
+
+
+def _scenario_document(budget: NavigationBudget) -> ScenarioDocument:
     s = budget.scenario
     return {
         "latitude_deg": math.degrees(s.latitude),
@@ -534,7 +595,7 @@ def _budget_html(budget: NavigationBudget) -> str:
     return html_result(_scenario_text(budget), [units], [table], [("notes", list(budget.notes))])
 
 
-def _budget_document(budget: NavigationBudget) -> dict[str, Any]:
+def _budget_document(budget: NavigationBudget) -> BudgetDocument:
     """Return the JSON document (engineering units)."""
     return {
         "serial_number": budget.serial_number,
@@ -633,17 +694,17 @@ def _comparison_text(comparison: BudgetComparison) -> str:
     )
 
 
-def _comparison_document(comparison: BudgetComparison) -> dict[str, Any]:
+def _comparison_document(comparison: BudgetComparison) -> ComparisonDocument:
     """JSON of a comparison: both budgets and the differences (other − base) of every peak and final."""
     base, other = comparison.base, comparison.other
 
-    def difference(a: ErrorSummary | None, b: ErrorSummary | None) -> dict[str, dict[str, float | None]]:
-        out: dict[str, dict[str, float | None]] = {}
+    def difference(a: ErrorSummary | None, b: ErrorSummary | None) -> dict[str, QuantityDocument]:
+        out: dict[str, QuantityDocument] = {}
         for q in Quantity:
             if a is None or b is None:
-                out[q.value] = {"peak": None, "final": None, "unit": q.unit}  # type: ignore[dict-item]
+                out[q.value] = {"peak": None, "final": None, "unit": q.unit}
             else:
-                out[q.value] = {"peak": (b[q].peak - a[q].peak) / q.scale, "final": (b[q].final - a[q].final) / q.scale, "unit": q.unit}  # type: ignore[dict-item]
+                out[q.value] = {"peak": (b[q].peak - a[q].peak) / q.scale, "final": (b[q].final - a[q].final) / q.scale, "unit": q.unit}
         return out
 
     ids = list(dict.fromkeys([t.id for t in base.terms] + [t.id for t in other.terms]))

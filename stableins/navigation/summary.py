@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from enum import StrEnum
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,6 +68,14 @@ class BudgetDriftSource(StrEnum):
     NONE = "none"
 
 
+class QuantityDocument(TypedDict):
+    """One quantity of an error summary in JSON: peak and final in engineering units (null: no value), and the unit."""
+
+    peak: float | None
+    final: float | None
+    unit: str
+
+
 @dataclass(frozen=True)
 class PeakFinal:
     """Largest magnitude over the navigation time and magnitude at its end [SI]."""
@@ -100,9 +109,9 @@ class ErrorSummary:
         values = {q.value: PeakFinal(float(np.max(series[:, i])), float(series[-1, i])) for i, q in enumerate(Quantity)}
         return cls(**values)
 
-    def to_dict(self) -> dict[str, dict[str, float]]:
+    def to_dict(self) -> dict[str, QuantityDocument]:
         """``{quantity: {"peak", "final", "unit"}}`` in engineering units."""
-        out = {}
+        out: dict[str, QuantityDocument] = {}
         for f in fields(self):
             q = Quantity(f.name)
             pf = getattr(self, f.name)

@@ -16,9 +16,10 @@ import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from stableins.conventions import ARCSEC
+from stableins.documents import TOMLTable, TOMLValue
 from stableins.dwell_mode import DEFAULT_DWELL_MODE, DwellMode
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks, StageLayout
@@ -26,6 +27,7 @@ from stableins.procedures import sections
 from stableins.procedures.sections import (
     MAX_RATE,
     MAX_SECONDS,
+    NumberLimits,
     PersonAction,
     RunnerSettings,
     StaticRecord,
@@ -98,9 +100,9 @@ class ProcedureDefinition:
     #: ``[model] add``: discovered effects (library ids) the stage estimates with the standard terms.
     model_add: tuple[str, ...] = ()
     #: the ``[tolerances]`` table as written (validated by :mod:`stableins.reporting.tolerances`), None if absent
-    tolerances: dict[str, Any] | None = None
+    tolerances: TOMLValue | None = None
     #: the ``[uncertainty]`` table as written (Type B inputs, validated by :mod:`stableins.reporting.budget`), None if absent
-    uncertainty: dict[str, Any] | None = None
+    uncertainty: TOMLValue | None = None
     #: ``[procedure] dwell_mode``: how the platform is held during the dwells (docs/conventions.md, "The platform during a dwell")
     dwell_mode: DwellMode = DEFAULT_DWELL_MODE
 
@@ -181,36 +183,36 @@ def load_procedure(name_or_path: str | Path) -> ProcedureDefinition:
     path = resolve(name_or_path)
     spath = str(path)
     shipped = ", ".join(shipped_procedures())
-    data = read_toml(path, what=f"a procedure definition (a TOML file, or the name of a shipped definition: {shipped})")
+    data: TOMLTable = read_toml(path, what=f"a procedure definition (a TOML file, or the name of a shipped definition: {shipped})")
     unknown = set(data) - _SECTIONS
     if unknown:
         raise InputError(f"unknown sections {sorted(unknown)}", path=spath, expected=f"{sorted(_SECTIONS)}")
-    head, handedness = _head(data, spath)
+    head = _head(data, spath)
     base = _timing_defaults(data, spath)
     acceptance = _acceptance(data, spath)
     offset_iteration = _offset_iteration(data, spath)
-    if head["stage"] not in STAGES:
-        raise InputError(f"unknown stage {head['stage']!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
-    steps = _steps(data, head["stage"], base, spath)
-    if head["stage"] == "rotating":
+    if head.stage not in STAGES:
+        raise InputError(f"unknown stage {head.stage!r}", path=spath, field="procedure.stage", expected=" or ".join(map(repr, STAGES)))
+    steps = _steps(data, head.stage, base, spath)
+    if head.stage == "rotating":
         _check_rotations(steps, spath)
     return ProcedureDefinition(
-        name=head["name"],
-        stage=head["stage"],
-        source=str(head.get("source", "")),
-        handedness=handedness,
-        repoint=bool(head.get("repoint", False)),
+        name=head.name,
+        stage=head.stage,
+        source=head.source,
+        handedness=head.handedness,
+        repoint=head.repoint,
         steps=steps,
         checks=DwellChecks(**acceptance, **sections.runner_checks(data.get("runner", {}), spath)),
         offset_iteration=offset_iteration,
         path=spath,
         runner=sections.runner_settings(data.get("runner", {}), spath),
         people=sections.people(data.get("person", []), spath, len(steps)),
-        record=sections.static_record(data.get("record"), head["stage"], spath),
-        model_add=sections.model_add(data.get("model", {}), head["stage"], spath),
-        tolerances=None if data.get("tolerances") is None else data["tolerances"],
-        uncertainty=None if data.get("uncertainty") is None else data["uncertainty"],
-        dwell_mode=_dwell_mode(head, spath),
+        record=sections.static_record(data.get("record"), head.stage, spath),
+        model_add=sections.model_add(data.get("model", {}), head.stage, spath),
+        tolerances=data.get("tolerances"),
+        uncertainty=data.get("uncertainty"),
+        dwell_mode=_dwell_mode(head.table, spath),
     )
 
 
@@ -226,7 +228,7 @@ def _check_rotations(steps: tuple[Step, ...], spath: str) -> None:
         )  # fmt: skip
 
 
-def _dwell_mode(head: dict[str, Any], spath: str) -> DwellMode:
+def _dwell_mode(head: TOMLTable, spath: str) -> DwellMode:
     """Return ``[procedure] dwell_mode`` (the default when absent)."""
     value = head.get("dwell_mode", str(DEFAULT_DWELL_MODE))
     if not isinstance(value, str) or value not in {m.value for m in DwellMode}:
@@ -235,13 +237,27 @@ def _dwell_mode(head: dict[str, Any], spath: str) -> DwellMode:
     return DwellMode(value)
 
 
-def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
-    """Return the ``[procedure]`` table, validated, and its handedness."""
+@dataclass(frozen=True)
+class _Head:
+    """The ``[procedure]`` table, validated."""
+
+    name: str
+    stage: str
+    source: str
+    handedness: int
+    repoint: bool
+    #: the table as written (``dwell_mode`` is read from it last, after the other sections)
+    table: TOMLTable
+
+
+def _head(data: TOMLTable, spath: str) -> _Head:
+    """Return the ``[procedure]`` table, validated."""
     head = data.get("procedure")
     if not isinstance(head, dict):
         raise InputError("missing [procedure] table", path=spath, field="procedure")
-    for key in ("name", "stage"):
-        if not isinstance(head.get(key), str):
+    name, stage = head.get("name"), head.get("stage")
+    for key, value in (("name", name), ("stage", stage)):
+        if not isinstance(value, str):
             raise InputError("missing or not a string", path=spath, field=f"procedure.{key}")
     if head.get("angle_unit", "deg") != "deg":
         raise InputError("commands must be written in degrees", path=spath, field="procedure.angle_unit", expected='"deg"')
@@ -250,12 +266,14 @@ def _head(data: dict[str, Any], spath: str) -> tuple[dict[str, Any], int]:
         raise InputError("must be +1 or -1", path=spath, field="procedure.handedness")
     if "source" in head and not isinstance(head["source"], str):
         raise InputError("not a string", path=spath, field="procedure.source")
-    if "repoint" in head and not isinstance(head["repoint"], bool):
-        raise InputError(f"{head['repoint']!r} is not true or false", path=spath, field="procedure.repoint", expected="true or false")
-    return head, int(handedness)
+    repoint = head.get("repoint", False)
+    if not isinstance(repoint, bool):
+        raise InputError(f"{repoint!r} is not true or false", path=spath, field="procedure.repoint", expected="true or false")
+    assert isinstance(name, str) and isinstance(stage, str)  # checked above
+    return _Head(name, stage, str(head.get("source", "")), 1 if handedness == 1 else -1, repoint, head)
 
 
-def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
+def _timing_defaults(data: TOMLTable, spath: str) -> dict[str, float]:
     """``[defaults]``: settle (0 when absent), dwell and sample rate for every step."""
     defaults = toml_table(data.get("defaults", {}), spath, "defaults")
     unknown = set(defaults) - set(_TIMING_LIMITS)
@@ -270,7 +288,17 @@ def _timing_defaults(data: dict[str, Any], spath: str) -> dict[str, float]:
     return base
 
 
-def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
+class _Acceptance(TypedDict, total=False):
+    """``[acceptance]`` in SI: the fields of :class:`DwellChecks` it may set."""
+
+    min_samples: int
+    noise_blocks: int
+    saturation: float
+    max_angle_span: float
+    orientation_tolerance: float
+
+
+def _acceptance(data: TOMLTable, spath: str) -> _Acceptance:
     """Return ``[acceptance]`` in SI: the estimators' dwell checks of :class:`DwellChecks`."""
     acc_table = toml_table(data.get("acceptance", {}), spath, "acceptance")
     acc_fields = set(_ACCEPTANCE_LIMITS)
@@ -278,35 +306,42 @@ def _acceptance(data: dict[str, Any], spath: str) -> dict[str, Any]:
         raise InputError(
             f"unknown keys {sorted(set(acc_table) - acc_fields)}", path=spath, field="acceptance", expected=f"{sorted(acc_fields)}"
         )
-    acc_values: dict[str, Any] = {k: toml_number(acc_table, k, spath, "acceptance", **_ACCEPTANCE_LIMITS[k]) for k in acc_table}
-    for k in ("min_samples", "noise_blocks"):
-        if k in acc_values:
-            acc_values[k] = int(acc_values[k])
-    if "max_angle_span" in acc_values:
-        acc_values["max_angle_span"] *= ARCSEC
-    return acc_values
+    numbers = {k: toml_number(acc_table, k, spath, "acceptance", **_ACCEPTANCE_LIMITS[k]) for k in acc_table}  # in file order
+    acceptance: _Acceptance = {}
+    if "min_samples" in numbers:
+        acceptance["min_samples"] = int(numbers["min_samples"])
+    if "noise_blocks" in numbers:
+        acceptance["noise_blocks"] = int(numbers["noise_blocks"])
+    if "saturation" in numbers:
+        acceptance["saturation"] = numbers["saturation"]
+    if "max_angle_span" in numbers:
+        acceptance["max_angle_span"] = numbers["max_angle_span"] * ARCSEC
+    if "orientation_tolerance" in numbers:
+        acceptance["orientation_tolerance"] = numbers["orientation_tolerance"]
+    return acceptance
 
 
-def _offset_iteration(data: dict[str, Any], spath: str) -> OffsetIteration:
+def _offset_iteration(data: TOMLTable, spath: str) -> OffsetIteration:
     """``[offset_iteration]``: threshold (arcsec in the file), max passes, noise sigmas."""
     it_table = toml_table(data.get("offset_iteration", {}), spath, "offset_iteration")
     it_fields = {"threshold", "max_passes", "noise_sigmas"}
     if set(it_table) - it_fields:
         raise InputError(f"unknown keys {sorted(set(it_table) - it_fields)}", path=spath, field="offset_iteration")
-    it_limits: dict[str, dict[str, Any]] = {
+    it_limits: dict[str, NumberLimits] = {
         "threshold": {"minimum": 0.0, "maximum": 3600.0},
         "max_passes": {"minimum": 1.0, "maximum": 100.0, "whole": True},
         "noise_sigmas": {"minimum": 0.0, "maximum": 100.0},
     }
-    it_values: dict[str, Any] = {k: toml_number(it_table, k, spath, "offset_iteration", **it_limits[k]) for k in it_table}
-    if "threshold" in it_values:
-        it_values["threshold"] *= ARCSEC
-    if "max_passes" in it_values:
-        it_values["max_passes"] = int(it_values["max_passes"])
-    return OffsetIteration(**it_values)
+    numbers = {k: toml_number(it_table, k, spath, "offset_iteration", **it_limits[k]) for k in it_table}  # in file order
+    default = OffsetIteration()
+    return OffsetIteration(
+        threshold=numbers["threshold"] * ARCSEC if "threshold" in numbers else default.threshold,
+        max_passes=int(numbers["max_passes"]) if "max_passes" in numbers else default.max_passes,
+        noise_sigmas=numbers.get("noise_sigmas", default.noise_sigmas),
+    )
 
 
-def _steps(data: dict[str, Any], stage: str, base: dict[str, float], spath: str) -> tuple[Step, ...]:
+def _steps(data: TOMLTable, stage: str, base: dict[str, float], spath: str) -> tuple[Step, ...]:
     """Return the ``[[step]]`` tables, validated; positions must run 1, 2, ... in order."""
     steps_raw = data.get("step")
     if stage == "system" and steps_raw is None:
@@ -348,7 +383,7 @@ def _step(raw: Any, where: str, base: dict[str, float], spath: str) -> Step:
     return Step(position, angles, timing["settle"], timing["dwell"], timing["sample_rate"], str(expect))
 
 
-def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, float, float]:
+def _step_angles(raw: TOMLTable, where: str, spath: str) -> tuple[float, float, float]:
     """Return the commanded readings of a ``[[step]]`` table [rad] (the file gives degrees)."""
     angles = []
     for key in ("platform", "inner", "middle"):
@@ -362,7 +397,7 @@ def _step_angles(raw: dict[str, Any], where: str, spath: str) -> tuple[float, fl
     return angles[0], angles[1], angles[2]
 
 
-def _step_timing(raw: dict[str, Any], where: str, base: dict[str, float], spath: str) -> dict[str, float]:
+def _step_timing(raw: TOMLTable, where: str, base: dict[str, float], spath: str) -> dict[str, float]:
     """Return the settle, dwell and sample rate of a ``[[step]]`` table, the procedure's defaults where it gives none."""
     timing = dict(base)
     for key in ("settle", "dwell", "sample_rate"):
@@ -402,13 +437,13 @@ def read_toml(path: str | Path, *, what: str) -> dict[str, Any]:
 
 
 #: Ranges of the timing keys of [defaults] and [[step]].
-_TIMING_LIMITS: dict[str, dict[str, Any]] = {
+_TIMING_LIMITS: dict[str, NumberLimits] = {
     "settle": {"minimum": 0.0, "maximum": MAX_SECONDS},
     "dwell": {"positive": True, "maximum": MAX_SECONDS},
     "sample_rate": {"positive": True, "maximum": MAX_RATE},
 }
 #: Ranges of the [acceptance] keys (file units: samples, blocks, m/s², arcsec, m/s²).
-_ACCEPTANCE_LIMITS: dict[str, dict[str, Any]] = {
+_ACCEPTANCE_LIMITS: dict[str, NumberLimits] = {
     "min_samples": {"minimum": 2.0, "maximum": 1e8, "whole": True},
     "noise_blocks": {"minimum": 2.0, "maximum": 1000.0, "whole": True},
     "saturation": {"positive": True, "maximum": 1e4},

@@ -5,6 +5,7 @@ Also which journal records a resumed run replays (:func:`resume_script`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -17,21 +18,26 @@ from stableins.samples import SampleBlock
 from stableins.schema import DEVICE_COLUMNS
 
 
+@dataclass(frozen=True, eq=False)
+class AcceptedDwell:
+    """One accepted dwell of a run: its stage, pass and position, the commanded readings [rad], when [s], its sample blocks."""
+
+    stage: str
+    pass_number: int
+    position: int
+    command: NDArray[np.float64]
+    command_time: float
+    blocks: list[SampleBlock]
+
+
 def dwell_entry(
     stage: str, pass_number: int, position: int, *, command: Any, command_time: float, blocks: list[SampleBlock]
-) -> dict[str, Any]:
+) -> AcceptedDwell:
     """Return one dwell of a run: where it was commanded, when, and its sample blocks."""
-    return {
-        "stage": stage,
-        "pass": pass_number,
-        "position": position,
-        "command": np.asarray(command, dtype=float),
-        "command_time": command_time,
-        "blocks": blocks,
-    }
+    return AcceptedDwell(stage, pass_number, position, np.asarray(command, dtype=float), command_time, blocks)
 
 
-def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> list[dict[str, Any]]:
+def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> list[AcceptedDwell]:
     """Dwells of a zero-offset iteration from its operations.
 
     Per position the iteration commands, lets time pass until arrival and settling (acquisitions
@@ -48,7 +54,7 @@ def iteration_entries(step: OffsetIterationStep, operations: list[Record]) -> li
             groups.append((record, []))
         elif record["operation"] == "acquire" and groups:
             groups[-1][1].append(record)
-    entries = []
+    entries: list[AcceptedDwell] = []
     for k, (command, acquisitions) in enumerate(groups):
         if not acquisitions:
             continue
@@ -110,19 +116,19 @@ def resume_script(records: list[Record], *, deterministic: bool) -> tuple[list[R
     return script[:cut], (script[cut].seq, script[-1].seq)
 
 
-def accepted_columns(entries: list[dict[str, Any]]) -> dict[str, NDArray[Any]]:
+def accepted_columns(entries: list[AcceptedDwell]) -> dict[str, NDArray[Any]]:
     """Return the accepted dwells as device-level columns (:data:`stableins.schema.DEVICE_COLUMNS`), in recording order."""
     parts: dict[str, list[Any]] = {k: [] for k in _DEVICE_NAMES}
     for entry in entries:
-        block = SampleBlock.concatenate(entry["blocks"])
+        block = SampleBlock.concatenate(entry.blocks)
         n = len(block)
         parts["time"].append(block.time)
-        parts["stage"].append(np.full(n, entry["stage"], dtype=object))
-        parts["pass"].append(np.full(n, entry["pass"], dtype=np.int32))
-        parts["position"].append(np.full(n, entry["position"], dtype=np.int32))
-        parts["time_since_command"].append(block.time - entry["command_time"])
+        parts["stage"].append(np.full(n, entry.stage, dtype=object))
+        parts["pass"].append(np.full(n, entry.pass_number, dtype=np.int32))
+        parts["position"].append(np.full(n, entry.position, dtype=np.int32))
+        parts["time_since_command"].append(block.time - entry.command_time)
         for k, name in enumerate(("platform", "inner", "middle")):
-            parts[f"command_{name}"].append(np.full(n, entry["command"][k]))
+            parts[f"command_{name}"].append(np.full(n, entry.command[k]))
             parts[f"angle_{name}"].append(block.angles[:, k])
         for k, axis in enumerate("xyz"):
             parts[f"f_{axis}"].append(block.specific_force[:, k])
@@ -138,7 +144,7 @@ def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
     """
     plan = Plan.from_dict(records[0]["plan"])
     operations = live_operations(records)
-    entries: list[tuple[float, dict[str, Any]]] = []
+    entries: list[tuple[float, AcceptedDwell]] = []
     done: set[int] = set()
     for record in records:
         if not ((record.kind == "verdict" and record["accepted"]) or record.kind == "iteration"):
@@ -164,7 +170,7 @@ def journal_columns(records: list[Record]) -> dict[str, NDArray[Any]]:
                     blocks=blocks,
                 )
             ]
-        entries += [(e["command_time"], e) for e in new]
+        entries += [(e.command_time, e) for e in new]
     return accepted_columns([e for _, e in sorted(entries, key=lambda pair: pair[0])])
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.data.atomic import fsync_directory
+from stableins.documents import JSONObject
 from stableins.errors import InputError, NotDeterminedError
 from stableins.samples import SampleBlock
 from stableins.site import SiteMetadata
@@ -97,7 +98,7 @@ class Record:
 
     seq: int
     kind: str
-    fields: dict[str, Any]
+    fields: JSONObject
     offset: int = 0
     path: str | None = None
     loaded: dict[str, NDArray[Any]] | None = field(default=None, repr=False, compare=False)

@@ -13,6 +13,7 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from enum import StrEnum
 from typing import Any
 
+from stableins.documents import JSONObject
 from stableins.errors import InputError, NotDeterminedError
 from stableins.estimators.layout import DwellChecks
 from stableins.turns import IndexAxis, PlatformTurn, check_turns
@@ -208,7 +209,7 @@ class Plan:
             if isinstance(step, PersonStep) and step.action not in ("confirm", "enter"):
                 raise InputError(f"step {step.name!r}: action {step.action!r}", field="action", expected="'confirm' or 'enter'")
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JSONObject:
         """Return the plan document (``procedure.json``) that :meth:`from_dict` reads back."""
         return {
             "name": self.name,
@@ -255,7 +256,7 @@ class _Validator:
     def fail(self, message: str, where: str, expected: str) -> InputError:
         return InputError(message, path=self.path, field=where or None, expected=expected)
 
-    def mapping(self, value: Any, where: str, allowed: set[str], required: set[str]) -> dict[str, Any]:
+    def mapping(self, value: Any, where: str, allowed: set[str], required: set[str]) -> JSONObject:
         if not isinstance(value, dict):
             raise self.fail(f"{str(value)[:40]!r} is not an object", where, "a JSON object")
         unknown = sorted(set(value) - allowed)
@@ -308,13 +309,28 @@ class _Validator:
 
     def checks(self, value: Any, where: str) -> DwellChecks:
         d = self.mapping(value, where, set(DwellChecks.__dataclass_fields__), set())
-        values: dict[str, Any] = {}
-        for key, item in d.items():
+        whole: dict[str, int] = {}
+        numbers: dict[str, float] = {}
+        for key, item in d.items():  # in the document's order: the first bad field is the one named
             if key in _WHOLE_CHECKS:
-                values[key] = self.integer(item, f"{where}.{key}", *_WHOLE_CHECKS[key])
+                whole[key] = self.integer(item, f"{where}.{key}", *_WHOLE_CHECKS[key])
             else:
-                values[key] = self.number(item, f"{where}.{key}", *_CHECK_RANGES[key], above=True)
-        return DwellChecks(**values)
+                numbers[key] = self.number(item, f"{where}.{key}", *_CHECK_RANGES[key], above=True)
+        default = DwellChecks()
+        return DwellChecks(
+            min_samples=whole.get("min_samples", default.min_samples),
+            noise_blocks=whole.get("noise_blocks", default.noise_blocks),
+            saturation=numbers.get("saturation", default.saturation),
+            max_angle_span=numbers.get("max_angle_span", default.max_angle_span),
+            orientation_tolerance=numbers.get("orientation_tolerance", default.orientation_tolerance),
+            angle_tolerance=numbers.get("angle_tolerance", default.angle_tolerance),
+            scatter_max=numbers.get("scatter_max", default.scatter_max),
+            slope_max=numbers.get("slope_max", default.slope_max),
+            min_fraction=numbers.get("min_fraction", default.min_fraction),
+            max_slew=numbers.get("max_slew", default.max_slew),
+            noise_floor=numbers.get("noise_floor", default.noise_floor),
+            correlation_quantile=numbers.get("correlation_quantile", default.correlation_quantile),
+        )
 
     def turns(self, value: Any, where: str, duration: float) -> tuple[PlatformTurn, ...]:
         """Check the turns of a static-record step (SI) and return them in time order within ``duration``."""
@@ -346,80 +362,99 @@ class _Validator:
         step_type = _STEP_TYPES[kind]
         names = {spec.name for spec in fields(step_type)}
         required = {spec.name for spec in fields(step_type) if spec.default is spec.default_factory is MISSING}
-        d = dict(self.mapping(value, where, names, required | {"kind"}))
-        d["name"] = self.text(d["name"], f"{where}.name")
-        for key in ("why", "prompt", "key", "unit"):
-            if key in d:
-                d[key] = self.text(d[key], f"{where}.{key}")
-        readers = {
-            "dwell": self._dwell_fields,
-            "static_record": self._static_record_fields,
-            "offset_iteration": self._offset_iteration_fields,
-            "person": self._person_fields,
-        }
-        readers[kind](d, where)
-        return step_type(**d)
+        d = self.mapping(value, where, names, required | {"kind"})
+        name = self.text(d["name"], f"{where}.name")
+        texts: dict[str, str] = {key: self.text(d[key], f"{where}.{key}") for key in ("why", "prompt", "key", "unit") if key in d}
+        if kind == "dwell":
+            return self._dwell_step(d, where, name, texts)
+        if kind == "static_record":
+            return self._static_record_step(d, where, name, texts)
+        if kind == "offset_iteration":
+            return self._offset_iteration_step(d, where, name, texts)
+        return self._person_step(d, where, name, texts)
 
-    def _dwell_fields(self, d: dict[str, Any], where: str) -> None:
-        """Check the fields of a dwell step in place."""
-        d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse", "fine", "rotating"))
-        d["pass_number"] = self.integer(d["pass_number"], f"{where}.pass_number", 1, 10**6)
-        d["position"] = self.integer(d["position"], f"{where}.position", 1, 10**6)
-        d["readings"] = self.readings(d["readings"], f"{where}.readings")
-        d["settle"] = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
-        d["dwell"] = self.number(d["dwell"], f"{where}.dwell", 0.0, MAX_STEP_SECONDS, above=True)
-        if "checks" in d:
-            d["checks"] = self.checks(d["checks"], f"{where}.checks")
-        for key in ("offset_corrected", "keep_slew"):
-            if key in d:
-                d[key] = self.flag(d[key], f"{where}.{key}")
+    def _dwell_step(self, d: JSONObject, where: str, name: str, texts: dict[str, str]) -> DwellStep:
+        """Return a dwell step, its fields checked (``texts``: its ``why``, checked already)."""
+        stage = self.choice(d["stage"], f"{where}.stage", ("coarse", "fine", "rotating"))
+        pass_number = self.integer(d["pass_number"], f"{where}.pass_number", 1, 10**6)
+        position = self.integer(d["position"], f"{where}.position", 1, 10**6)
+        readings = self.readings(d["readings"], f"{where}.readings")
+        settle = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
+        dwell = self.number(d["dwell"], f"{where}.dwell", 0.0, MAX_STEP_SECONDS, above=True)
+        checks = self.checks(d["checks"], f"{where}.checks") if "checks" in d else DwellChecks()
+        flags = {key: self.flag(d[key], f"{where}.{key}") for key in ("offset_corrected", "keep_slew") if key in d}
+        return DwellStep(
+            name,
+            stage,
+            pass_number,
+            position,
+            readings,
+            settle,
+            dwell,
+            checks,
+            why=texts.get("why", DwellStep.why),
+            offset_corrected=flags.get("offset_corrected", DwellStep.offset_corrected),
+            keep_slew=flags.get("keep_slew", DwellStep.keep_slew),
+        )
 
-    def _static_record_fields(self, d: dict[str, Any], where: str) -> None:
-        """Check the fields of a static-record step in place."""
-        d["readings"] = self.readings(d["readings"], f"{where}.readings")
-        d["settle"] = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
-        d["duration"] = self.number(d["duration"], f"{where}.duration", 0.0, MAX_RECORD_SECONDS, above=True)
-        if "checks" in d:
-            d["checks"] = self.checks(d["checks"], f"{where}.checks")
-        if "turns" in d:
-            d["turns"] = self.turns(d["turns"], f"{where}.turns", d["duration"])
-        indexed = bool(d.get("turns"))
+    def _static_record_step(self, d: JSONObject, where: str, name: str, texts: dict[str, str]) -> StaticRecordStep:
+        """Return a static-record step, its fields checked (``texts``: its ``why``, checked already)."""
+        readings = self.readings(d["readings"], f"{where}.readings")
+        settle = self.number(d["settle"], f"{where}.settle", 0.0, MAX_STEP_SECONDS)
+        duration = self.number(d["duration"], f"{where}.duration", 0.0, MAX_RECORD_SECONDS, above=True)
+        checks = self.checks(d["checks"], f"{where}.checks") if "checks" in d else DwellChecks()
+        turns = self.turns(d["turns"], f"{where}.turns", duration) if "turns" in d else ()
+        indexed = bool(turns)
         if "estimation" in d:
             options = tuple(e.value for e in SystemEstimation)
-            d["estimation"] = SystemEstimation(self.choice(d["estimation"], f"{where}.estimation", options))
+            estimation = SystemEstimation(self.choice(d["estimation"], f"{where}.estimation", options))
         else:  # a plan written before the field: what its record ended with then
-            d["estimation"] = SystemEstimation.default(indexed=indexed)
-        problem = d["estimation"].problem(indexed=indexed)
+            estimation = SystemEstimation.default(indexed=indexed)
+        problem = estimation.problem(indexed=indexed)
         if problem:
             raise self.fail(problem, f"{where}.estimation", "'system' for a record without turns, 'drift' or 'systematic' with turns")
+        why = texts.get("why", StaticRecordStep.why)
+        return StaticRecordStep(name, readings, settle, duration, checks, why=why, turns=turns, estimation=estimation)
 
-    def _offset_iteration_fields(self, d: dict[str, Any], where: str) -> None:
-        """Check the fields of a zero-offset iteration step in place."""
+    def _offset_iteration_step(self, d: JSONObject, where: str, name: str, texts: dict[str, str]) -> OffsetIterationStep:
+        """Return a zero-offset iteration step, its fields checked (``texts``: its ``why``, checked already)."""
         at = f"{where}.positions"
         positions = self.list(d.get("positions", []), at, 1, 10**4)
-        d["positions"] = tuple(self.integer(p, f"{at}[{k}]", 1, 10**6) for k, p in enumerate(positions))
         n = len(positions)
-        d["settles"] = tuple(
-            self.number(x, f"{where}.settles[{k}]", 0.0, MAX_STEP_SECONDS)
-            for k, x in enumerate(self.list(d.get("settles", []), f"{where}.settles", n, n))
+        return OffsetIterationStep(
+            name,
+            positions=tuple(self.integer(p, f"{at}[{k}]", 1, 10**6) for k, p in enumerate(positions)),
+            settles=tuple(
+                self.number(x, f"{where}.settles[{k}]", 0.0, MAX_STEP_SECONDS)
+                for k, x in enumerate(self.list(d.get("settles", []), f"{where}.settles", n, n))
+            ),
+            dwells=tuple(
+                self.number(x, f"{where}.dwells[{k}]", 0.0, MAX_STEP_SECONDS, above=True)
+                for k, x in enumerate(self.list(d.get("dwells", []), f"{where}.dwells", n, n))
+            ),
+            stage=self.choice(d["stage"], f"{where}.stage", ("coarse",)) if "stage" in d else OffsetIterationStep.stage,
+            why=texts.get("why", OffsetIterationStep.why),
         )
-        d["dwells"] = tuple(
-            self.number(x, f"{where}.dwells[{k}]", 0.0, MAX_STEP_SECONDS, above=True)
-            for k, x in enumerate(self.list(d.get("dwells", []), f"{where}.dwells", n, n))
-        )
-        if "stage" in d:
-            d["stage"] = self.choice(d["stage"], f"{where}.stage", ("coarse",))
 
-    def _person_fields(self, d: dict[str, Any], where: str) -> None:
-        """Check the fields of a person step in place."""
-        d["action"] = self.choice(d["action"], f"{where}.action", ("confirm", "enter"))
-        for key in ("minimum", "maximum"):
-            if key in d:
-                d[key] = self.optional_number(d[key], f"{where}.{key}")
+    def _person_step(self, d: JSONObject, where: str, name: str, texts: dict[str, str]) -> PersonStep:
+        """Return a person step, its fields checked (``texts``: its ``prompt``, ``key`` and ``unit``, checked already)."""
+        action = self.choice(d["action"], f"{where}.action", ("confirm", "enter"))
+        bounds = {key: self.optional_number(d[key], f"{where}.{key}") for key in ("minimum", "maximum") if key in d}
         default = d.get("default")
         if isinstance(default, bool) or not (default is None or isinstance(default, str | int | float)):
             raise self.fail(f"default {str(default)[:40]!r}", f"{where}.default", "a number, a text or null")
-        check_person_default(d.get("minimum"), d.get("maximum"), default, self.path, f"{where}.default")
+        minimum, maximum = bounds.get("minimum"), bounds.get("maximum")
+        check_person_default(minimum, maximum, default, self.path, f"{where}.default")
+        return PersonStep(
+            name,
+            action,
+            texts["prompt"],
+            key=texts.get("key", PersonStep.key),
+            unit=texts.get("unit", PersonStep.unit),
+            minimum=minimum,
+            maximum=maximum,
+            default=default,
+        )
 
 
 def check_person_default(minimum: float | None, maximum: float | None, default: Any, path: Any, where: str) -> None:

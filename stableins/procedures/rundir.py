@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stableins.documents import JSONObject
 from stableins.drivers.base import PlatformDriver
 from stableins.errors import InputError
 from stableins.identifiers import utc_now
@@ -33,6 +34,7 @@ from stableins.procedures.journal import Journal, metadata_from_start
 from stableins.procedures.plan import Plan
 from stableins.procedures.replay import open_run_driver
 from stableins.procedures.runner import RunConsole, Runner
+from stableins.schema import Columns
 from stableins.site import SiteMetadata
 
 DATASET_NAME = "device.h5"
@@ -146,7 +148,7 @@ def journal_finished(journal: Journal, outcome: RunOutcome) -> None:
     journal.append(FINISHED, {"utc": utc_now(), "files": [Path(p).name for p in files]})
 
 
-def exported_columns(runner: Runner, dataset: Path | None) -> dict[str, Any] | None:
+def exported_columns(runner: Runner, dataset: Path | None) -> Columns | None:
     """Return the accepted dwells as device-level columns, or None for a system-level run or an empty data set."""
     if runner.static_chunks or dataset is None:
         return None
@@ -244,7 +246,7 @@ def resume_driver(
     plan: Plan,
     *,
     re_estimate: bool,
-    driver_factory: Callable[[dict[str, Any]], PlatformDriver] | None,
+    driver_factory: Callable[[JSONObject], PlatformDriver] | None,
     timeout: float,
     truth: Any = None,
 ) -> PlatformDriver:

@@ -34,16 +34,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import ARCSEC
+from stableins.documents import JSONObject
 from stableins.drivers.errors import DriverConnectionError, DriverError, DriverProtocolError
 from stableins.errors import InputError
 from stableins.estimators.layout import DwellChecks
-from stableins.procedures.entries import dwell_entry, iteration_entries
+from stableins.procedures.entries import AcceptedDwell, dwell_entry, iteration_entries
 from stableins.procedures.journal import Record
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, Plan, StaticRecordStep
 from stableins.procedures.quicklook import QuickLook
 from stableins.procedures.session import Session, SessionDriver
 from stableins.procedures.verdict import CheckResult, estimator_verdict, evaluate_dwell
 from stableins.samples import SampleBlock
+from stableins.schema import Columns
 
 #: A static record prints its quick look (:class:`~stableins.procedures.quicklook.QuickLook`) this many times (and at
 #: least a chunk apart): a day-long record every 3 h, the 21-min drift test every 2.6 min.
@@ -125,9 +127,9 @@ class Runner:
         self.definition = definition
         self.rate = float(session.driver.metadata.sample_rate)
         self.offsets = np.asarray(offsets, dtype=float)
-        self.inputs: dict[str, Any] = {}
+        self.inputs: dict[str, float | str] = {}
         #: accepted dwells in the order they were recorded (see :func:`accepted_columns`)
-        self.entries: list[dict[str, Any]] = []
+        self.entries: list[AcceptedDwell] = []
         #: result of the zero-offset iteration, if the plan has one
         self.iteration: Any = None
         #: journal records of the system-level static record, in order (if the plan has one)
@@ -277,7 +279,7 @@ class Runner:
         chunks = recorder(step.duration, self.plan.chunk, turns=step.turns) if step.turns else recorder(step.duration, self.plan.chunk)
         total = int(round(step.duration * self.rate))
         done = 0
-        context = {"step": index, "attempt": 1, "phase": "static"}
+        context: JSONObject = {"step": index, "attempt": 1, "phase": "static"}
         self.static_chunks = []
         self.session.static_clock = (-math.inf, False)  # the record's own time base starts with it
         look = QuickLook(self.rate, step.checks.angle_tolerance, step.turns)  # what the operator sees during a long record
@@ -415,7 +417,7 @@ class Runner:
             accepted = iteration_entries(step, trace)
             self.entries += accepted
             for entry in accepted:
-                self.session.accept(entry["blocks"])
+                self.session.accept(entry.blocks)
             seconds = ", ".join(f"{o / ARCSEC:+.2f}" for o in self.offsets)
             self.console.say(f"  converged after {len(result.history)} passes: zero offsets ({seconds}) arcsec", replay=replayed)
             return
@@ -461,7 +463,7 @@ class _IterationConsole:
         self.console.verdict(result, replay=self.session.last_replayed, rejected="left out of this pass's fit", indent="    ")
 
 
-def _next_chunk(chunks: Any, done: int, total: int) -> dict[str, Any]:
+def _next_chunk(chunks: Any, done: int, total: int) -> Columns:
     try:
         return next(chunks)
     except StopIteration:

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 from stableins.conventions import ARCSEC, MICRO_G
+from stableins.documents import TOMLTable
 from stableins.errors import InputError, NotDeterminedError
 from stableins.procedures.plan import DEFAULT_CHUNK_SECONDS, MAX_RECORD_SECONDS, SystemEstimation
 from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
@@ -18,6 +19,15 @@ from stableins.turns import INDEX_RATE, IndexAxis, PlatformTurn, check_turns
 #: Longest settle or dwell of a step and longest static record [s]; fastest sample rate [Hz].
 MAX_SECONDS = 86400.0
 MAX_RATE = 1e4
+
+
+class NumberLimits(TypedDict, total=False):
+    """The bounds :func:`toml_number` checks a number against (each optional)."""
+
+    positive: bool
+    minimum: float
+    maximum: float
+    whole: bool
 
 
 def toml_number(
@@ -47,7 +57,7 @@ def toml_number(
     return float(value)
 
 
-def toml_table(value: Any, path: str, name: str) -> dict[str, Any]:
+def toml_table(value: object, path: str, name: str) -> TOMLTable:
     """Return ``value`` if it is a TOML table; InputError naming ``[name]`` otherwise."""
     if not isinstance(value, dict):
         raise InputError(f"[{name}] must be a table", path=path, field=name, expected=f"a [{name}] table")
@@ -117,7 +127,16 @@ _RECORD_KEYS = {"platform", "inner", "middle", "settle", "duration", "sample_rat
 _INDEX_KEYS = {"at", "axis", "angle", "rate"}
 
 
-def _runner_values(table: Any, path: str) -> dict[str, Any]:
+class RunnerChecks(TypedDict, total=False):
+    """The dwell checks ``[runner]`` gives, in SI (the fields of :class:`~stableins.estimators.layout.DwellChecks` it may set)."""
+
+    angle_tolerance: float
+    scatter_max: float
+    slope_max: float
+    max_slew: float
+
+
+def _runner_values(table: Any, path: str) -> dict[str, float]:
     """Return the ``[runner]`` table in SI, validated (file units: arcsec, µg, µg/s, s)."""
     if not isinstance(table, dict):
         raise InputError("[runner] must be a table", path=path, field="runner")
@@ -126,7 +145,7 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
         raise InputError(f"unknown keys {sorted(unknown)}", path=path, field="runner", expected=f"{sorted(_RUNNER_KEYS)}")
     from stableins.procedures.plan import CHUNK_RANGE, RETRIES_RANGE
 
-    limits: dict[str, dict[str, Any]] = {
+    limits: dict[str, NumberLimits] = {
         "retries": {"minimum": RETRIES_RANGE[0], "maximum": RETRIES_RANGE[1], "whole": True},
         "chunk": {"minimum": CHUNK_RANGE[0], "maximum": CHUNK_RANGE[1]},
         "angle_tolerance": {"positive": True, "maximum": 648000.0},
@@ -134,7 +153,7 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
         "slope_max": {"positive": True, "maximum": 1e8},
         "max_slew": {"positive": True, "maximum": MAX_SECONDS},
     }
-    values: dict[str, Any] = {}
+    values: dict[str, float] = {}
     for key, factor in _RUNNER_KEYS.items():
         if key in table:
             values[key] = toml_number(table, key, path, "runner", **limits[key]) * factor
@@ -146,12 +165,22 @@ def _runner_values(table: Any, path: str) -> dict[str, Any]:
 def runner_settings(table: Any, path: str) -> RunnerSettings:
     """Return the run settings of ``[runner]`` (retries, chunk)."""
     values = _runner_values(table, path)
-    return RunnerSettings(**{k: v for k, v in values.items() if k in ("retries", "chunk")})
+    return RunnerSettings(int(values.get("retries", RunnerSettings.retries)), values.get("chunk", RunnerSettings.chunk))
 
 
-def runner_checks(table: Any, path: str) -> dict[str, Any]:
+def runner_checks(table: Any, path: str) -> RunnerChecks:
     """Return the dwell checks of ``[runner]`` (arrival, stillness, slew time), in SI."""
-    return {k: v for k, v in _runner_values(table, path).items() if k not in ("retries", "chunk")}
+    values = _runner_values(table, path)
+    checks: RunnerChecks = {}
+    if "angle_tolerance" in values:
+        checks["angle_tolerance"] = values["angle_tolerance"]
+    if "scatter_max" in values:
+        checks["scatter_max"] = values["scatter_max"]
+    if "slope_max" in values:
+        checks["slope_max"] = values["slope_max"]
+    if "max_slew" in values:
+        checks["max_slew"] = values["max_slew"]
+    return checks
 
 
 def people(entries: Any, path: str, steps: int) -> tuple[PersonAction, ...]:

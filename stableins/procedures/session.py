@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.documents import JSONObject
 from stableins.drivers.base import PlatformDriver
 from stableins.drivers.errors import AcquisitionInterrupted, DriverConnectionError, DriverError, DriverProtocolError
 from stableins.procedures.journal import Journal, Record, block_from_record
@@ -54,7 +55,7 @@ class Session:
         self.script = deque(script)
         self.driver = driver
         self.forward = forward
-        self.context: dict[str, Any] = {}
+        self.context: JSONObject = {}
         self.replayed = 0
         #: when a list, every operation record (replayed or new) is also appended to it
         self.trace: list[Record] | None = None
@@ -153,8 +154,8 @@ class Session:
                 {**self.context, "operation": operation, "arguments": arguments, "error": str(error), "error_type": type(error).__name__},
             )
             raise
-        fields: dict[str, Any] = {**self.context, "operation": operation, "arguments": arguments}
-        arrays: dict[str, Any] = {}
+        fields: JSONObject = {**self.context, "operation": operation, "arguments": [*arguments]}
+        arrays: dict[str, NDArray[Any]] = {}
         if operation == "command":
             fields["result"] = float(result)
         elif operation == "read_angles":
@@ -180,7 +181,7 @@ class Session:
                 self.floor = max(self.floor, float(block.time[-1]))
 
     # ------------------------------------------------------------------ decisions
-    def decide(self, kind: str, fields: dict[str, Any]) -> tuple[Record, bool]:
+    def decide(self, kind: str, fields: JSONObject) -> tuple[Record, bool]:
         """Journal a decision, or consume it from the journal when replaying.  Returns (record, replayed)."""
         if self.script:
             record = self._next(kind, f"a {kind} decision")

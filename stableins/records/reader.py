@@ -6,9 +6,10 @@ Every problem is an :class:`stableins.errors.InputError` naming the file and the
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from stableins.data.metadata import metadata_from_document
+from stableins.documents import JSONObject
 from stableins.errors import InputError, NotDeterminedError
 from stableins.identifiers import check_serial_number, check_timestamp
 from stableins.records.content import _RecordT, check_record
@@ -19,7 +20,9 @@ from stableins.records.stages import Calibration, InputFile, PriorReference, Sta
 from stableins.status import STATUSES, Determination, Status
 
 if TYPE_CHECKING:  # pragma: no cover
+    from stableins.discovery.history import ModelHistory
     from stableins.estimators.result import InputSensitivity, Likelihood
+    from stableins.noise import NoiseModel
 
 #: What a parameter object holds (errors show it).
 _PARAMETER_KEYS = '{"id", "value", "unit", "sigma", "status", "determined_by"}'
@@ -30,6 +33,13 @@ def read_document(cls: type[_RecordT], document: Any, path: str | None = None) -
     if isinstance(document, dict) and document.get("format") == RECORD_FORMAT and document.get("schema_version") == 1:
         document = migrate_v1(document, path)
     return _Reader(path).record(cls, document)
+
+
+class _OptionalSections(TypedDict, total=False):
+    """The optional sections of a record, read: its noise model and its discovery history."""
+
+    noise_model: NoiseModel
+    discovery: ModelHistory
 
 
 class _Reader:
@@ -55,7 +65,7 @@ class _Reader:
             raise self.fail(f"{value!r} is not a list of strings", key, "a list of strings")
         return tuple(value)
 
-    def mapping(self, value: Any, key: str) -> dict[str, Any]:
+    def mapping(self, value: Any, key: str) -> JSONObject:
         if not isinstance(value, dict):
             raise self.fail("not an object", key, "a JSON object")
         return value
@@ -155,7 +165,8 @@ class _Reader:
         fits = s.get("fits", [])
         if not isinstance(fits, list) or not all(isinstance(f, dict) for f in fits):
             raise self.fail("not a list of objects", f"{where}.fits", "fit evidence objects")
-        for j, fit in enumerate(fits):
+        objects = [f for f in fits if isinstance(f, dict)]  # all of them
+        for j, fit in enumerate(objects):
             self.fit(fit, f"{where}.fits[{j}]")
         texts = {name: self.text(s[name], f"{where}.{name}") for name in ("id", "name", "calibration")}
         for name in ("procedure", "software"):
@@ -169,14 +180,14 @@ class _Reader:
             settings=settings_from_document(texts["name"], s.get("settings", {}), f"{where}.settings", self.path),
             entries=self.entries(s.get("entries", []), f"{where}.entries"),
             environment=dict(self.mapping(s.get("environment", {}), f"{where}.environment")),
-            fits=tuple(dict(f) for f in fits),
+            fits=tuple(dict(f) for f in objects),
             likelihood=self.likelihood(s.get("likelihood"), f"{where}.likelihood"),
             determined=self.texts(s.get("determined", []), f"{where}.determined"),
             notes=self.texts(s.get("notes", []), f"{where}.notes"),
             sensitivities=self.sensitivities(s.get("sensitivities", []), f"{where}.sensitivities"),
         )
 
-    def fit(self, fit: dict[str, Any], where: str) -> None:
+    def fit(self, fit: JSONObject, where: str) -> None:
         """Check the fields of one fit's residual evidence (:func:`stableins.records.stages.fit_evidence`) that are present."""
         checks = {
             "stage": self.text, "residual_unit": self.text, "parameter_ids": self.texts, "residual_labels": self.texts,
@@ -258,13 +269,14 @@ class _Reader:
         c = self.mapping(value, "calibration")
         if "id" not in c:
             raise self.fail("missing key", "calibration.id", "the keys of docs/formats.md")
-        prior = c.get("prior")
-        if prior is not None:
-            prior = self.mapping(prior, "calibration.prior")
+        given = c.get("prior")
+        prior = None
+        if given is not None:
+            written = self.mapping(given, "calibration.prior")
             prior = PriorReference(
-                self.text(prior.get("sha256", ""), "calibration.prior.sha256"),
-                self.text(prior.get("path", ""), "calibration.prior.path"),
-                self.timestamp(prior.get("created", ""), "calibration.prior.created", optional=True),
+                self.text(written.get("sha256", ""), "calibration.prior.sha256"),
+                self.text(written.get("path", ""), "calibration.prior.path"),
+                self.timestamp(written.get("created", ""), "calibration.prior.created", optional=True),
             )
         return Calibration(
             id=self.text(c["id"], "calibration.id"),
@@ -276,7 +288,7 @@ class _Reader:
         )
 
     # ------------------------------------------------------------------ the record
-    def header(self, document: Any) -> dict[str, Any]:
+    def header(self, document: Any) -> JSONObject:
         if not isinstance(document, dict):
             raise self.fail("not a JSON object", expected="a calibration record (docs/formats.md)")
         if document.get("format") != RECORD_FORMAT:
@@ -313,9 +325,9 @@ class _Reader:
             raise self.fail(f"ids {value['ids']!r} do not follow the parameters {ids}", "covariance.ids", "the parameter ids in order")
         return self.matrix(value["matrix"], len(ids), "covariance.matrix", nulls=True)
 
-    def optional(self, document: dict[str, Any]) -> dict[str, Any]:
+    def optional(self, document: JSONObject) -> _OptionalSections:
         """Return the optional sections present (``noise_model``, ``discovery``), read."""
-        optional: dict[str, Any] = {}
+        optional: _OptionalSections = {}
         if document.get("noise_model") is not None:
             from stableins.noise import NoiseModel
 

@@ -79,7 +79,7 @@ class CalibrationRecord(RecordContent):
         return record_from_device(cls, calibration, site, run, entries=entries)
 
     @classmethod
-    def from_fit_result(  # noqa: PLR0913 - the record's own fields beside the run, each named at the call
+    def from_fit_result(
         cls,
         result: FitResult,
         run: RunInfo | StageRun = UNDESCRIBED,
@@ -120,7 +120,7 @@ class CalibrationRecord(RecordContent):
             noise_model=noise_model,
         )  # fmt: skip
 
-    def updated(  # noqa: PLR0913 - the update's own choices beside the run, each named at the call
+    def updated(
         self,
         result: FitResult,
         run: RunInfo | StageRun = UNDESCRIBED,
@@ -254,7 +254,7 @@ def record_from_device(
     return _first_record(cls, final, stage, calibration=started, site=site, serial_number=serial, notes=(), noise_model=calibration.noise)
 
 
-def record_from_fit(  # noqa: PLR0913 - the record's own fields beside the run, each named at the call
+def record_from_fit(
     cls: type[_RecordT],
     result: FitResult,
     run: RunInfo | StageRun = UNDESCRIBED,
@@ -288,7 +288,7 @@ def _check_run(run: object) -> None:
         raise TypeError(f"run must be a RunInfo or a StageRun, not {type(run).__name__} (serial_number is a keyword)")
 
 
-def _first_record(  # noqa: PLR0913 - the parts of a first record, from its two builders above
+def _first_record(
     cls: type[_RecordT],
     result: FitResult,
     stage: StageRun,
@@ -346,7 +346,7 @@ def _estimable(result: FitResult) -> dict[str, bool]:
     return dict(zip(lik.ids, map(bool, lik.estimable()), strict=True))
 
 
-def update_record(  # noqa: PLR0913 - the update's own choices beside the run, each named at the call
+def update_record(
     record: _RecordT,
     result: FitResult,
     run: RunInfo | StageRun = UNDESCRIBED,

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Any
 
+from stableins.documents import JSONObject, JSONValue
 from stableins.errors import InputError
 from stableins.status import Status
 
@@ -21,7 +21,7 @@ SYMMETRY_TOLERANCE = 1e-9
 CALIBRATION_FIELDS = ("laboratory", "customer", "operator", "location")
 
 
-def migrate_v1(document: dict[str, Any], path: str | None = None) -> dict[str, Any]:
+def migrate_v1(document: JSONObject, path: str | None = None) -> JSONObject:
     """Return a schema-version-1 document as version 2.
 
     Version 1 had one ``provenance`` (procedure, stage names, inputs, times) and no stage runs:
@@ -49,7 +49,8 @@ def migrate_v1(document: dict[str, Any], path: str | None = None) -> dict[str, A
     if not isinstance(prov, dict):
         raise InputError("malformed", path=path, field="provenance", expected="an object with software, procedure, stages, inputs, created")
     stages = prov.get("stages", [])
-    name = "+".join(stages) if isinstance(stages, list) and all(isinstance(s, str) for s in stages) and stages else "calibration"
+    names = [s for s in stages if isinstance(s, str)] if isinstance(stages, list) else []
+    name = "+".join(names) if isinstance(stages, list) and len(names) == len(stages) and stages else "calibration"
     created = prov.get("created", "") if isinstance(prov.get("created", ""), str) else ""
     calibration_id = f"cal-v1-{hashlib.sha256(json.dumps([document.get('serial_number'), created]).encode()).hexdigest()[:8]}"
     stage_id = f"{name}-v1{calibration_id[-6:]}"
@@ -64,17 +65,20 @@ def migrate_v1(document: dict[str, Any], path: str | None = None) -> dict[str, A
         "prior": None,
         "entries": [],
     }
-    out["stages"] = [_v1_stage(document, stage_id=stage_id, name=name, calibration_id=calibration_id)]
-    out["notes"] = list(document.get("notes", [])) if isinstance(document.get("notes", []), list) else document.get("notes")
-    if isinstance(out["notes"], list):
-        out["notes"].append("record migrated from schema version 1 (docs/formats.md)")
+    out["stages"] = [_v1_stage(document, prov, stage_id=stage_id, name=name, calibration_id=calibration_id)]
+    notes = document.get("notes", [])
+    if isinstance(notes, list):
+        out["notes"] = [*notes, "record migrated from schema version 1 (docs/formats.md)"]
+    else:
+        out["notes"] = notes
     return out
 
 
-def _v1_parameters(document: dict[str, Any], stage_id: str) -> list[Any]:
+def _v1_parameters(document: JSONObject, stage_id: str) -> list[JSONValue]:
     """Return the parameters of a version-1 document, every estimated one determined (alone) by the migrated stage."""
     parameters = []
-    for item in document.get("parameters", []) if isinstance(document.get("parameters"), list) else []:
+    given = document.get("parameters")
+    for item in given if isinstance(given, list) else []:
         if isinstance(item, dict):
             item = dict(item)
             item["determined_by"] = [{"stage": stage_id, "how": "alone"}] if item.get("status") == Status.ESTIMATED else []
@@ -82,9 +86,8 @@ def _v1_parameters(document: dict[str, Any], stage_id: str) -> list[Any]:
     return parameters
 
 
-def _v1_stage(document: dict[str, Any], *, stage_id: str, name: str, calibration_id: str) -> dict[str, Any]:
-    """Return the one stage run of a migrated record, from the version-1 provenance."""
-    prov = document["provenance"]
+def _v1_stage(document: JSONObject, prov: JSONObject, *, stage_id: str, name: str, calibration_id: str) -> JSONObject:
+    """Return the one stage run of a migrated record, from the version-1 provenance ``prov``."""
     created = prov.get("created", "") if isinstance(prov.get("created", ""), str) else ""
     site = document.get("site")
     sample_rate = None

@@ -224,7 +224,7 @@ WORLDS: Mapping[str, World] = MappingProxyType(
                 "gyro-z",
                 "quartz noise, 2-arcsec angle-sensor harmonics, gyro drift 0.05 deg/h along z_p and g-sensitivity 0.001 "
                 "deg/h/g: the realistic gyro drift a system-level day carries uncompensated (along x_p, y_p it turns z_p off "
-                "the pole: compensated or refused, docs/system-calibration.md section 9)",
+                "the pole, as in the 'gyro' world: calibrated through up to 30 mrad of turn, docs/system-calibration.md section 9)",
                 NoiseSettings.quartz(),
                 {**_ANGLE_EFFECTS, **_GYRO_EFFECTS},
                 {"z": GYRO_DRIFT},

@@ -209,6 +209,10 @@ class RecordSums:
         Sums of the temperature column over the filter bins (the thermal model, :mod:`.thermal`; None without one).
     fine_temperature_bins : TemperatureBins or None
         The same over the fine bins (the thermal terms taken out of the high band before the noise decision).
+    level_yaw : float or None
+        The surveyed heading [rad] of a level base, whose pitch and roll are Euler angles turned to the north-pointing
+        pair (their second order in a large misalignment is :func:`.loop.drift_curvature`); None for a tilted base (the
+        pair from the antisymmetric part of the output DCM, odd in the misalignment).
     """
 
     information: hm.InformationAccumulator
@@ -227,6 +231,7 @@ class RecordSums:
     gimbal_blocks: GimbalBlocks | None = None
     temperature_bins: TemperatureBins | None = None
     fine_temperature_bins: TemperatureBins | None = None
+    level_yaw: float | None = 0.0
 
 
 @dataclass(frozen=True)
@@ -315,7 +320,7 @@ class StageAccumulator:
         self.temperature_bins = TemperatureBins(self.filter_samples)  # the thermal model's ΔT on the filter bins
         self.fine_bins = SampleBins(max(block, int(round(FINE_BIN_SECONDS * rate / block)) * block), cap=FINE_BINS)
         self.fine_temperature = TemperatureBins(self.fine_bins.samples)  # merged like the fine bins at the end
-        self.checks = StaticChecks(options, rate, path)
+        self.checks = StaticChecks(options, rate, path, defer_to_gimbals=has_gimbals)  # the gimbal fit decides (polar.check_deferred)
         self.checks.latitude = latitude
         self.seen = 0
         self.first_time: float | None = None
@@ -474,6 +479,7 @@ class StageAccumulator:
             gimbal_blocks=self.gimbal_blocks,
             temperature_bins=self.temperature_bins if t[3] else None,
             fine_temperature_bins=self.fine_temperature.merged(self.fine_bins.samples) if t[3] else None,
+            level_yaw=None if self.tilted else self.yaw,
         )
 
 

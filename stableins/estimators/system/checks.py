@@ -121,7 +121,7 @@ _GYRO_CAUSE = (
 class StaticChecks:
     """Sampling, static-base and platform-rate checks on the streamed record."""
 
-    def __init__(self, options: SystemOptions, rate: float, path: str) -> None:
+    def __init__(self, options: SystemOptions, rate: float, path: str, *, defer_to_gimbals: bool = False) -> None:
         self.options = options
         self.rate = rate
         self.path = path
@@ -142,7 +142,13 @@ class StaticChecks:
         self.rate_ratio = float("nan")
         self.duration = 0.0
         self.polar_sums = np.zeros(2)
+        self.polar_error = 0.0  # mean angle of gravity with the platform's x-y plane minus the latitude [rad]
         self.latitude = 0.0
+        #: With the inner and middle gimbal readings the static-base and polar refusals wait for the gimbal fit, which
+        #: tells an uncompensated equatorial gyro drift (measured, its response predicted) from a moving or misaligned
+        #: base (:func:`.polar.check_deferred`, docs/system-calibration.md §9); they are kept here, not raised.
+        self.defer_to_gimbals = defer_to_gimbals
+        self.deferred: list[InputError] = []
 
     def time(self, t: NDArray[np.float64] | None, span: tuple[float, float], seen: int, irregular: int) -> None:
         """Check the sampling of one chunk; ``irregular`` counts its steps off the nominal period by more than 1 %.
@@ -206,6 +212,12 @@ class StaticChecks:
         norm = np.sqrt(fx * fx + fy * fy + fz * fz)
         self.polar_sums += [fz.size, float(np.sum(fz / norm))]
 
+    def _refuse(self, error: InputError) -> None:
+        """Raise a static-base or polar refusal, or keep it for the gimbal fit (:attr:`defer_to_gimbals`)."""
+        if not self.defer_to_gimbals:
+            raise error
+        self.deferred.append(error)
+
     def finish(self, seen: int, notes: list[str]) -> None:
         """Record-level checks once every chunk is in: raise on a moving, tilted, misaligned or turning base; notes for gaps and jitter."""
         self.duration = (self.last_time or 0.0) - (self.first_time or 0.0)
@@ -217,7 +229,7 @@ class StaticChecks:
         excursion = max(self.pitch_range[1] - self.pitch_range[0], self.roll_range[1] - self.roll_range[0])
         self.excursion = excursion
         if self.moving_at is not None:
-            raise InputError(
+            self._refuse(InputError(
                 f"the base is not static: horizontal velocity output reaches {self.max_velocity:.3g} m/s "
                 f"(first beyond {self.options.velocity_limit:g} m/s at t = {self.moving_at:.1f} s)",
                 path=self.path,
@@ -226,25 +238,25 @@ class StaticChecks:
                     "a static base (velocity outputs are then navigation errors: Schuler transients of Δf/ω_s, a few m/s at most) "
                     f"and compensated gyros ({_GYRO_CAUSE})"
                 ),
-            )
+            ))  # fmt: skip
         if excursion > self.options.attitude_limit:
-            raise InputError(
+            self._refuse(InputError(
                 f"the base is not static or not level: pitch/roll vary by {excursion:.3g} rad over the record",
                 path=self.path,
                 field="pitch/roll",
                 expected=f"attitude errors varying by less than {self.options.attitude_limit:g} rad on a static base ({_GYRO_CAUSE})",
-            )
+            ))  # fmt: skip
         if self.polar_sums[0] > 0:
             mean_uz = self.polar_sums[1] / self.polar_sums[0]
-            polar_error = math.asin(max(-1.0, min(1.0, mean_uz))) - self.latitude
-            if abs(polar_error) > self.options.polar_tolerance:
-                raise InputError(
+            self.polar_error = math.asin(max(-1.0, min(1.0, mean_uz))) - self.latitude
+            if abs(self.polar_error) > self.options.polar_tolerance:
+                self._refuse(InputError(
                     f"the platform is not polar aligned: gravity makes {math.degrees(math.asin(max(-1.0, min(1.0, mean_uz)))):.3f}° "
                     f"with the platform's x-y plane, the latitude is {math.degrees(self.latitude):.3f}°",
                     path=self.path,
                     field="f_z",
                     expected=f"z_p on the Earth's spin axis (f_z/g = sin L), as the system-level method requires ({_GYRO_CAUSE})",
-                )
+                ))  # fmt: skip
         if np.isfinite(self.rate_ratio) and abs(self.rate_ratio - 1.0) > self.options.rate_tolerance:
             raise InputError(
                 f"the platform-axis angle turns at {self.rate_ratio:.4f} x the Earth rate",

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stableins.conventions import MICRO_G
-from stableins.estimators.system import spectrum, whittle
+from stableins.estimators.system import bootstrap, spectrum, whittle
 from stableins.estimators.system.accumulate import SampleBins
 from stableins.estimators.system.attitude import AttitudeFit, AttitudeModel
 from stableins.estimators.system.checks import RecordSite
@@ -118,6 +118,12 @@ def coloured_covariance(
     held = np.zeros(0)
     if loop_inputs is not None and n_ch > 1:  # pitch and roll white levels held at the measured noise
         held = bins.quasi_static @ np.asarray(loop_inputs, dtype=float)
+    factors = spectrum.ordinate_factors(channels, bins.time, bins.kernels, mixing, (0.0, bins.high), exclude=harmonics)
+    law = None
+    if factors is not None:  # the ordinates' own law, for the tests' p-values near their decision (.bootstrap)
+        high_rows = design[design.shape[0] - n_high :][:, [0, *range(n_ch, design.shape[1])]]
+        law = bootstrap.OrdinateLaw(tuple(factors[0]), tuple(tuple(f) for f in factors[1]), high_rows, held)
+    if held.size:
         offset = design[:, 1:n_ch] @ held
         design = np.delete(design, np.s_[1:n_ch], axis=1)
         n_ch = 1
@@ -127,12 +133,15 @@ def coloured_covariance(
         n_ch,
         offset=offset,
         alpha=alpha,
+        prior=NoisePrior() if prior is None else prior,
+        law=law,
+    )
+    fit = replace(
+        fit,
         ordinates=(int(observed.size - n_high), n_high),
         band=(_lowest_frequency(bins.time, bins.wide, harmonics), bins.high, top),
-        prior=NoisePrior() if prior is None else prior,
+        white_levels=np.concatenate([fit.white_levels, held]),
     )
-    if held.size:
-        fit = replace(fit, white_levels=np.concatenate([fit.white_levels, held]))
     n = bins.groups.size
     a_att = attitude_bin_map(fits.attitude, bins.groups, bins.merge)
     j = np.zeros((17, 3 * n))

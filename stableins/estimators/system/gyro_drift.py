@@ -549,26 +549,47 @@ def _drift_step(
     return DriftStep(np.zeros(3), None, DriftSource.NONE, None, False, tuple(notes))
 
 
-def wobble_sigma(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> float:
-    """σ added to ``ε_x``, ``ε_y`` by the g-sensitive wobble read with a z_p drift [rad/s]: ``|ε_z| g cos L ‖D_eq‖ / ω_ie``.
+def wobble_sigma(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
+    """σ added to ``ε_x``, ``ε_y``, ``ε_z`` by the g-sensitive wobble read with the drift [rad/s] (3,): ``A |ε_z|``, ``A |ε_xy|``.
 
     The Earth-rate part of ``D_g f^p`` (:func:`g_sensitivity_removed`) tilts the platform by ``H(t)``, amplitude
     ``A = g cos L ‖D_eq‖ / ω_ie`` (``D_eq`` the equatorial 2×2 block, ‖·‖ its largest singular value: 5e-5 rad for
-    0.001 °/h/g), with a mean offset from the record's start of up to ``A``; the z_p drift then turns the platform about
-    an axis tilted by it, which the gimbal fit (its reference the start, its nuisances base-fixed) reads as an equatorial
-    drift of up to ``ε_z A`` (measured: 0.92 ε_z A, 2.4e-6 °/h for 0.05 °/h and 0.001 °/h/g, 30× the readings' σ;
-    docs/system-calibration.md §9).  Not modelled: its size is its σ.
+    0.001 °/h/g), with a mean offset from the record's start of up to ``A``; the drift then turns the platform about
+    an axis tilted by it, which the gimbal fit (its reference the start, its nuisances base-fixed) reads as a drift of
+    up to ``A × ε`` across it: a z_p drift into ``ε_x``, ``ε_y`` (measured: 0.92 ε_z A, 2.4e-6 °/h for 0.05 °/h and
+    0.001 °/h/g, 30× the readings' σ), an equatorial drift into ``ε_z`` (measured: 1.3e-6 °/h for 0.05 °/h on x_p and
+    y_p, ``A |ε_xy|`` = 3.5e-6; docs/system-calibration.md §9).  Not modelled: its size is its σ.
     """
     amplitude = gravity * math.cos(gimbal.latitude) * float(np.linalg.svd(g_sensitivity[:2, :2], compute_uv=False)[0]) / EARTH_RATE
-    return abs(float(gimbal.values[2])) * amplitude
+    values = np.asarray(gimbal.values, dtype=float)
+    across = amplitude * abs(float(values[2]))
+    return np.array([across, across, amplitude * float(np.hypot(values[0], values[1]))])
+
+
+def tilt_bias(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
+    r"""Return the part of the fitted drift [rad/s] (3,) that the g-sensitive drift of the tilting platform puts there.
+
+    A drift across z_p tilts the platform by ``−ε t`` (first order), so ``f^p`` leaves the reference's by
+    ``Δf^p = t g sin L (ε_y, −ε_x, 0)`` along x_p, y_p (the constant ``f_z = g sin L`` turned; its Earth-rate parts turned
+    give Earth-rate terms times ``t``, which the fit's harmonic nuisances take), and the gyros read ``D_g Δf^p`` more:
+    a drift that ramps, whose turn is quadratic in ``t``.  A line fitted to ``k t²/2`` over ``[0, T]`` has the slope
+    ``k T/2``, so the fit's ``ε`` is off by ``(T/2) g sin L D_g (ε_y, −ε_x, 0)``: 6.7e-6 °/h for 0.05 °/h on x_p and
+    y_p and 0.001 °/h/g on the diagonal over a day (the simulator's noise-free readings: 5.8e-6 and −7.7e-6, without a
+    z_p drift; ten times the readings' σ).  ``T`` the span of the gimbal blocks; the drift's own estimate in the formula
+    (its error is 1e-6 of itself).  docs/system-calibration.md §9, "Across z_p".
+    """
+    values = np.asarray(gimbal.values, dtype=float)
+    span = gimbal.span[1] - gimbal.span[0]
+    tilt = np.array([values[1], -values[0], 0.0])
+    return 0.5 * span * gravity * math.sin(gimbal.latitude) * (np.asarray(g_sensitivity, dtype=float) @ tilt)
 
 
 def _with_wobble(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64] | None, gravity: float | None) -> GimbalDrift:
-    """Return the gimbal measurement with :func:`wobble_sigma` added to the variance of ``ε_x``, ``ε_y``."""
+    """Return the gimbal measurement less :func:`tilt_bias`, with :func:`wobble_sigma` added to the variance of ``ε``."""
     if g_sensitivity is None or gravity is None:
         return gimbal
-    variance = wobble_sigma(gimbal, g_sensitivity, gravity) ** 2
-    return replace(gimbal, covariance=gimbal.covariance + np.diag([variance, variance, 0.0]))
+    values = np.asarray(gimbal.values, dtype=float) - tilt_bias(gimbal, g_sensitivity, gravity)
+    return replace(gimbal, values=values, covariance=gimbal.covariance + np.diag(wobble_sigma(gimbal, g_sensitivity, gravity) ** 2))
 
 
 def _offset_sigma(prior_covariance: Mapping[tuple[str, str], float] | None) -> float:
@@ -738,4 +759,5 @@ __all__ = [
     "prior_drift",
     "prior_g_sensitivity",
     "wobble_sigma",
+    "tilt_bias",
 ]

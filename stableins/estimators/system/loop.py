@@ -48,14 +48,14 @@ from the modal expansion over the controllable modes only.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stableins.conventions import EARTH_RADIUS, EARTH_RATE
+from stableins.conventions import EARTH_RADIUS, EARTH_RATE, attitude_error_from_misalignment, heading_to_north_pointing
 from stableins.errors import InputError
 
 #: Names of the loop states, in order.
@@ -70,6 +70,10 @@ LOOP_STATES = (
     "velocity_down",
     "vertical_integrator",
 )
+
+#: The misalignment states ``φ_N, φ_E, φ_D`` and the horizontal velocity errors, as indices into :data:`LOOP_STATES`.
+ANGLE_STATES = (0, 1, 2)
+VELOCITY_STATES = (3, 4)
 
 
 @dataclass(frozen=True)
@@ -200,12 +204,20 @@ class DampingLoop:
         return b
 
     def drift_responses(
-        self, time: NDArray[np.float64], earth_angle: NDArray[np.float64], *, rates: NDArray[np.float64] | None = None
+        self,
+        time: NDArray[np.float64],
+        earth_angle: NDArray[np.float64],
+        *,
+        rates: NDArray[np.float64] | None = None,
+        states: Sequence[int] = (),
     ) -> NDArray[np.float64]:
         r"""Pitch and roll responses ``(n, 2, 3)`` to a unit constant gyro drift along each platform axis, from rest at ``time[0]``.
 
         With ``rates`` (n, 3) the drift along platform axis ``j`` is ``rates[:, j]`` [rad/s] at each time instead of 1
         (a drift that varies, e.g. the g-sensitive drift ``D_g f^p(t)``; linear between the times, as the unit drift).
+        With ``states`` (indices into :data:`LOOP_STATES`) the responses ``(n, len(states), 3)`` of those states instead:
+        ``(0, 1, 2)`` the misalignment ``φ_N, φ_E, φ_D`` (the azimuth error ``φ_D`` is not an output of the loop model;
+        :func:`drift_curvature` needs it), ``(3, 4)`` the velocity errors.
 
         On the polar-aligned platform ``ε^n(t) = C_p^n(t) ε^p`` with ``C_p^n = (R3(−S) R2(π/2 + L))ᵀ``: the
         polar component is constant, the equatorial ones turn at the Earth rate and drive the undamped
@@ -220,14 +232,15 @@ class DampingLoop:
         t = np.asarray(time, dtype=float)
         dt = float(np.median(np.diff(t)))
         nav_to_platform = dcm_body_to_platform(-np.asarray(earth_angle, dtype=float), 0.0, np.pi / 2 + self.latitude)
-        a, b, c = self.state_matrix(), self.drift_input_matrix(), self.output_matrix()
+        a, b = self.state_matrix(), self.drift_input_matrix()
+        c = np.eye(self.n_states)[list(states)] if states else self.output_matrix()
         n = a.shape[0]
         big = np.zeros((n + 6, n + 6))
         big[:n, :n], big[:n, n : n + 3] = a * dt, b * dt
         big[n : n + 3, n + 3 :] = np.eye(3)
         e = expm(big)
         phi, gamma0, gamma1 = e[:n, :n], e[:n, n : n + 3], e[:n, n + 3 :]
-        out = np.zeros((t.size, 2, 3))
+        out = np.zeros((t.size, c.shape[0], 3))
         if t.size < 2:
             return out
         step = np.diff(t) / dt
@@ -235,7 +248,7 @@ class DampingLoop:
         lam, vectors = np.linalg.eig(phi)
         if not np.linalg.cond(vectors) < 1e8:  # (nearly) defective: the plain recursion
             scaled = nav_to_platform if rates is None else nav_to_platform * rates[:, :, None]
-            return self._drift_responses_stepwise(t, scaled, phi, gamma0, gamma1)
+            return self._drift_responses_stepwise(t, scaled, phi, gamma0, gamma1, outputs=c)
         to_modes = np.linalg.inv(vectors)
         modal = []
         for j in range(3):
@@ -256,11 +269,13 @@ class DampingLoop:
         phi: NDArray[np.float64],
         gamma0: NDArray[np.float64],
         gamma1: NDArray[np.float64],
+        *,
+        outputs: NDArray[np.float64] | None = None,
     ) -> NDArray[np.float64]:
         """:meth:`drift_responses` by the plain state recursion (reference; used when Φ is nearly defective)."""
-        c = self.output_matrix()
+        c = self.output_matrix() if outputs is None else outputs
         dt = float(np.median(np.diff(t)))
-        out = np.zeros((t.size, 2, 3))
+        out = np.zeros((t.size, c.shape[0], 3))
         for j in range(3):
             eps_n = nav_to_platform[:, j, :]
             x = np.zeros(phi.shape[0])
@@ -427,11 +442,13 @@ def drift_columns(
     loop: DampingLoop,
     *,
     rates: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+    states: Sequence[int] = (),
 ) -> NDArray[np.float64]:
     """Return the drift responses ``(n_blocks, 2, 3)`` of pitch and roll on the attitude block times.
 
     ``rates``: the drift per platform axis as a function of the Earth-rate angle on the grid [rad/s] (n, 3)
-    (:meth:`DampingLoop.drift_responses`); None: a unit constant drift.
+    (:meth:`DampingLoop.drift_responses`); None: a unit constant drift.  ``states``: the responses ``(n_blocks, k, 3)``
+    of those loop states instead (:meth:`DampingLoop.drift_responses`).
 
     :meth:`DampingLoop.drift_responses` in units of :data:`DRIFT_SCALE`, simulated on a uniform grid of the blocks' step
     (at least :data:`DRIFT_GRID_SECONDS`) and interpolated linearly (the responses are smooth: over 60 s the Earth-rate
@@ -442,12 +459,49 @@ def drift_columns(
     step = max(float(np.median(np.diff(t))) if t.size > 1 else 1.0, DRIFT_GRID_SECONDS)
     grid = np.arange(0.0, t[-1] + step, step)
     earth_angle = np.interp(grid, t, angle)
-    responses = loop.drift_responses(grid, earth_angle, rates=None if rates is None else rates(earth_angle))
-    out = np.empty((t.size, 2, 3))
-    for ch in range(2):
+    responses = loop.drift_responses(grid, earth_angle, rates=None if rates is None else rates(earth_angle), states=states)
+    out = np.empty((t.size, responses.shape[1], 3))
+    for ch in range(responses.shape[1]):
         for j in range(3):
             out[:, ch, j] = np.interp(t, grid, responses[:, ch, j])
     return out * DRIFT_SCALE  # columns of the order of the others
+
+
+def drift_curvature(phi: NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
+    r"""Return the second-order part ``(n, 2)`` of the north-pointing pitch and roll errors a misalignment ``φ`` causes.
+
+    The navigation computer's attitude is the exact rotation ``C_n^{b'} = C_n^b \exp([φ×])``, and a level base's
+    outputs are its Euler angles (:func:`stableins.conventions.attitude_error_from_misalignment`, rotated to the
+    north-pointing pair by :func:`stableins.conventions.heading_to_north_pointing`): ``(−φ_E, −φ_N)`` to first order
+    (the loop model's outputs, :meth:`DampingLoop.output_matrix`) plus products such as ``φ_D φ_N`` and ``φ_D φ_E``.
+    Those are the even part of the map, ``½ (e(φ) + e(−φ))``, returned here (to fourth order).  They matter when a gyro
+    drift across z_p turns the azimuth error ``φ_D`` far (0.027 rad in a day at 0.05 °/h: products of 5e-6 rad in
+    pitch and roll at twice the Earth rate, several σ of a day's attitude coefficients; docs/system-calibration.md §9).
+    A tilted base's outputs are the antisymmetric part of the relative DCM (:func:`stableins.conventions.misalignment_pitch_roll`),
+    odd in ``φ``: no second order there.
+    """
+    angles = np.asarray(phi, dtype=float)
+    even = 0.5 * (attitude_error_from_misalignment(angles, yaw) + attitude_error_from_misalignment(-angles, yaw))
+    pitch, roll = heading_to_north_pointing(even[:, 1], even[:, 2], yaw)
+    return np.stack([pitch, roll], axis=1)
+
+
+def drift_curvature_removed(
+    blocks: Mapping[str, NDArray[np.float64]], loop: DampingLoop, drift: NDArray[np.float64], *, yaw: float
+) -> dict[str, NDArray[np.float64]]:
+    """Return the attitude blocks of a level base with the second order of the drift's response taken out of pitch and roll.
+
+    The loop's linear response to the drift ``ε_0`` (``drift`` [rad/s], platform frame) is removed by the attitude fit
+    (its drift columns); what the linear model leaves is :func:`drift_curvature` of the misalignment that response
+    builds (:func:`drift_columns` of :data:`ANGLE_STATES`), removed here.  ``ε_0`` is known to 1e-6 of itself from the gimbal
+    readings, so the term's uncertainty (twice its size times that) is left out.  ``yaw``: the base's heading [rad].
+    """
+    phi = drift_columns(blocks, loop, states=ANGLE_STATES) @ (np.asarray(drift, dtype=float) / DRIFT_SCALE)
+    curvature = drift_curvature(phi, yaw)
+    out = dict(blocks)
+    out["pitch"] = blocks["pitch"] - curvature[:, 0]
+    out["roll"] = blocks["roll"] - curvature[:, 1]
+    return out
 
 
 #: Smallest step of the grid the drift responses are computed on [s] (:func:`drift_columns`).

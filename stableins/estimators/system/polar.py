@@ -40,7 +40,9 @@ from stableins.conventions import DEG_PER_HOUR, EARTH_RATE
 from stableins.errors import InputError
 
 if TYPE_CHECKING:
+    from stableins.estimators.system.checks import StaticChecks
     from stableins.estimators.system.gyro_drift import GimbalDrift
+    from stableins.estimators.system.loop import DampingLoop
     from stableins.estimators.system.options import SystemOptions
 
 #: Platform-rate tolerance when the polar alignment is not measured (no inner and middle readings): a base tilted under a
@@ -48,6 +50,15 @@ if TYPE_CHECKING:
 #: misalignment's Earth-rate modulation of the platform-axis angle, correlated −0.78 with the ramp), which nothing else
 #: then refuses.  A z_p gyro drift up to 0.03 °/h is measured under it.
 RATE_TOLERANCE_UNCHECKED = 2e-3
+
+
+#: Largest turn of z_p off the pole by a measured equatorial gyro drift over the record, ``|ε_xy| T`` [rad], that the
+#: stage calibrates through (docs/system-calibration.md §9, "Across z_p").  Measured over one sidereal day with the
+#: static-base checks opened, once the second order of the attitude outputs is removed (:func:`.loop.drift_curvature_removed`):
+#: the combined coefficients stay within 0.07σ of the drift-free run at 4.2 mrad (0.01 °/h), 0.35σ at 20.9 mrad
+#: (0.05 °/h), 0.72σ at 41.8 mrad (0.1 °/h), growing about linearly; 30 mrad (0.072 °/h for a day, the ``gyro`` world's
+#: 0.05 °/h on x_p and y_p) keeps that within about half a σ.
+DRIFT_TURN_LIMIT = 0.03
 
 
 @dataclass(frozen=True)
@@ -102,13 +113,16 @@ def polar_alignment(gimbal: GimbalDrift) -> PolarAlignment:
     return PolarAlignment(axis[0, :2], axis[1, :2], sigma, float(last - first), np.asarray(gimbal.values, dtype=float))
 
 
-def check_polar_alignment(polar: PolarAlignment | None, rate_ratio: float, options: SystemOptions, path: str) -> None:
+def check_polar_alignment(
+    polar: PolarAlignment | None, rate_ratio: float, options: SystemOptions, path: str, *, drift_removed: bool = True
+) -> None:
     """Refuse a platform that is not polar aligned (gimbal readings), or without them a platform rate beyond 2e-3.
 
     With the polar alignment measured, the platform-rate check keeps ``options.rate_tolerance`` (a wrong sense, a caged
     platform, a turning base; :class:`.checks.StaticChecks`) and a z_p gyro drift within it is measured.  Without it
     (no inner and middle readings, or a record too short for the gimbal fit) the rate is the only sign of a tilted base:
-    :data:`RATE_TOLERANCE_UNCHECKED`.
+    :data:`RATE_TOLERANCE_UNCHECKED`.  A measured equatorial drift (``drift_removed``: the stage removes its response) may
+    turn z_p by up to :data:`DRIFT_TURN_LIMIT`; the misalignment at the record's start is held to ``polar_tolerance``.
     """
     if polar is None:
         if math.isfinite(rate_ratio) and abs(rate_ratio - 1.0) > min(RATE_TOLERANCE_UNCHECKED, options.rate_tolerance):
@@ -125,18 +139,25 @@ def check_polar_alignment(polar: PolarAlignment | None, rate_ratio: float, optio
                 ),
             )
         return
-    if polar.angle > options.polar_tolerance:
+    drifting = drift_removed and polar.drift_turn > 0.5 * options.polar_tolerance
+    # a measured equatorial drift is calibrated through up to DRIFT_TURN_LIMIT; the misalignment it did not cause (at the
+    # record's start) is held to the tolerance as before
+    misaligned = float(np.hypot(*polar.start)) if drifting else polar.angle
+    limit = DRIFT_TURN_LIMIT if drift_removed else 0.5 * options.polar_tolerance
+    if misaligned > options.polar_tolerance or (polar.drift_turn > limit and polar.angle > options.polar_tolerance):
         drift = polar.drift / DEG_PER_HOUR
         cause = (
             "a base tilted or turned under a platform aligned for another base (the surveyed base attitude of the metadata), "
             "or a zero-offset error of the inner or middle gimbal"
         )
-        if polar.drift_turn > 0.5 * options.polar_tolerance:
+        if polar.drift_turn > limit:
             cause = (
                 f"an uncompensated equatorial gyro drift: the readings measure ({drift[0]:+.3g}, {drift[1]:+.3g}) deg/h along "
-                f"x_p, y_p, which turns z_p off the pole by {polar.drift_turn * 1e3:.2f} mrad over the record; the system stage "
-                "needs the INS to compensate its gyros (the device-level gyro calibration installed) to about "
-                f"{options.polar_tolerance / max(polar.span, 1.0) / DEG_PER_HOUR:.2g} deg/h along x_p and y_p"
+                f"x_p, y_p, which turns z_p off the pole by {polar.drift_turn * 1e3:.2f} mrad over the record, beyond the "
+                f"{limit * 1e3:.3g} mrad the stage calibrates through (about {limit / max(polar.span, 1.0) / DEG_PER_HOUR:.2g} "
+                "deg/h along x_p and y_p over this record"
+                + ("" if drift_removed else "; with the gyro drift not estimated its response is not removed")
+                + "); compensate the gyros in the INS (the device-level gyro calibration installed) or record a shorter span"
             )
         raise InputError(
             f"the platform is not polar aligned: z_p is {np.hypot(*polar.start) * 1e3:.2f} mrad from the Earth's axis at the "
@@ -144,10 +165,78 @@ def check_polar_alignment(polar: PolarAlignment | None, rate_ratio: float, optio
             path=path,
             field="angle_inner/angle_middle",
             expected=(
-                f"z_p within {options.polar_tolerance:g} rad of the Earth's axis over the record (polar_tolerance: the "
-                "harmonic model's rows are off by the misalignment times the residuals)"
+                f"z_p within {options.polar_tolerance:g} rad of the Earth's axis at the record's start (polar_tolerance: the "
+                "harmonic model's rows are off by the misalignment times the residuals), and a measured equatorial gyro "
+                f"drift turning it by at most {DRIFT_TURN_LIMIT:g} rad over the record"
             ),
         )
 
 
-__all__ = ["RATE_TOLERANCE_UNCHECKED", "PolarAlignment", "check_polar_alignment", "polar_alignment"]
+@dataclass(frozen=True)
+class DriftPrediction:
+    """What the loop's response to the measured drift does to the static-base checks' quantities (:func:`drift_prediction`).
+
+    Attributes
+    ----------
+    speed : float
+        Largest horizontal velocity error of the response over the record [m/s].
+    excursion : float
+        Largest range of its pitch or roll error over the record [rad].
+    """
+
+    speed: float
+    excursion: float
+
+
+def drift_prediction(blocks: dict[str, NDArray[np.float64]], loop: DampingLoop, drift: NDArray[np.float64]) -> DriftPrediction:
+    """Return the velocity and attitude excursions the loop's response to ``drift`` [rad/s] builds (at the attitude blocks)."""
+    from stableins.estimators.system.loop import DRIFT_SCALE, VELOCITY_STATES, drift_columns
+
+    scale = np.asarray(drift, dtype=float) / DRIFT_SCALE
+    velocity = drift_columns(blocks, loop, states=VELOCITY_STATES) @ scale
+    attitude = drift_columns(blocks, loop) @ scale
+    span = attitude.max(axis=0) - attitude.min(axis=0)
+    return DriftPrediction(float(np.hypot(velocity[:, 0], velocity[:, 1]).max()), float(span.max()))
+
+
+def check_deferred(
+    checks: StaticChecks, polar: PolarAlignment | None, predicted: DriftPrediction | None, options: SystemOptions
+) -> str | None:
+    """Raise the static-base and polar refusals the pass kept (:attr:`.checks.StaticChecks.deferred`) unless the drift explains them.
+
+    An uncompensated equatorial gyro drift (the gimbal readings measure it: ``|ε_xy| T`` beyond half the tolerance)
+    builds navigation errors of its own: the velocity error passes 5 m/s (9.7 m/s in a day at 0.05 °/h), pitch and roll
+    swing, and the mean of ``f_z/|f|`` leaves ``sin L`` by a part of the turn.  Each kept refusal stands unless its
+    quantity is within its limit plus what the drift's predicted response (``predicted``) or turn accounts for; a base
+    that moves or is misaligned beyond that is still refused.  Returns a note when the drift explained them.
+    """
+    if not checks.deferred:
+        return None
+    if polar is None or predicted is None or polar.drift_turn <= 0.5 * options.polar_tolerance:
+        raise checks.deferred[0]
+    for error in checks.deferred:
+        beyond = {
+            "velocity_north/velocity_east": checks.max_velocity > options.velocity_limit + predicted.speed,
+            "pitch/roll": checks.excursion > options.attitude_limit + predicted.excursion,
+            "f_z": abs(checks.polar_error) > options.polar_tolerance + polar.drift_turn,
+        }.get(error.field or "", True)
+        if beyond:
+            raise error
+    return (
+        f"the measured equatorial gyro drift explains the navigation errors the static-base checks saw (horizontal velocity "
+        f"up to {checks.max_velocity:.3g} m/s, its predicted response {predicted.speed:.3g} m/s; pitch/roll range "
+        f"{checks.excursion:.3g} rad, predicted {predicted.excursion:.3g} rad; z_p turned {polar.drift_turn * 1e3:.2f} mrad "
+        "off the pole): calibrated through it, its response removed from pitch and roll to second order (docs §9)"
+    )
+
+
+__all__ = [
+    "DRIFT_TURN_LIMIT",
+    "RATE_TOLERANCE_UNCHECKED",
+    "DriftPrediction",
+    "PolarAlignment",
+    "check_deferred",
+    "check_polar_alignment",
+    "drift_prediction",
+    "polar_alignment",
+]

@@ -50,7 +50,7 @@ from stableins.estimators.system.gyro_drift import (
     g_sensitivity_removed,
     sensor_error_removed,
 )
-from stableins.estimators.system.loop import DampingLoop
+from stableins.estimators.system.loop import DampingLoop, drift_curvature_removed
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, GROWTH_LIMIT, Separation, separate, without_growth
 from stableins.estimators.system.third_harmonic import explain_third_harmonic
 from stableins.estimators.system.whittle import ColouredNoiseFit, ColouredSource
@@ -214,12 +214,15 @@ def fit_attitude_coefficients(
     """Step 4: the loop-compensated attitude coefficients (the vertical channel from x1..x5), the gyro drift removed.
 
     ``drift``: the drift measured or given (:func:`.gyro_drift.drift_step`); without it, the given
-    ``options.known_gyro_drift`` (or none).
+    ``options.known_gyro_drift`` (or none).  On a level base the second order of the drift's response is removed from
+    pitch and roll too (:func:`.loop.drift_curvature_removed`).
     """
     blocks = sums.attitude_blocks.means()
     if drift is not None:
         blocks = sensor_error_removed(blocks, sums.gimbal_blocks, drift.gimbal, latitude)
         blocks = g_sensitivity_removed(blocks, loop, drift.g_sensitivity)
+        if drift.source is not DriftSource.NONE and sums.level_yaw is not None:
+            blocks = drift_curvature_removed(blocks, loop, drift.values, yaw=sums.level_yaw)
     cos_l = math.cos(latitude)
     along = np.array([1.0, cos_l, cos_l, cos_l**2, cos_l**2])
     vertical = -along * harmonic.x_hat[:5]  # Δf_D/g = −u·δ = −H x: (mean, cos S, sin S, cos 2S, sin 2S)

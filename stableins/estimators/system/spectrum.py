@@ -328,21 +328,13 @@ def periodogram_design(
     """
     residuals, residual_makers, weights, white_gains = channels.residuals, channels.residual_makers, channels.weights, channels.white_gains
     n_ch = len(residuals)
-    n_bins = time.size
-    span = float(time[-1] - time[0]) + (float(np.median(np.diff(time))) if n_bins > 1 else 0.0)
-    ks = np.arange(max(1, int(np.ceil(band[0] * span))), int(np.floor(band[1] * span)) + 1)
-    for f in exclude:  # frequencies the fits absorb (the harmonics): no ordinate within half a Fourier spacing
-        ks = ks[np.abs(ks - f * span) >= 0.5]
-    if ks.size < 4 or n_bins < 8:
+    frequencies = _band_frequencies(time, band, exclude)
+    if frequencies is None:
         return None
-    m = ks.size
-    t = time - time[0]
-    arg = 2.0 * np.pi * np.outer(ks / span, t)
+    m = frequencies.size
     blocks, observed = [], []
     for p in range(n_ch):
-        w = weights[p] / weights[p].sum()
-        vectors = np.concatenate([2.0 * w * np.cos(arg), 2.0 * w * np.sin(arg)])  # (2m, n)
-        proj = np.einsum("kn,nm->km", vectors, residual_makers[p])  # einsum, not BLAS (docs §6)
+        vectors, proj = _projections(time, frequencies, weights[p], residual_makers[p])
         a = np.einsum("kn,n->k", vectors, residuals[p])
         observed.append(0.5 * (a[:m] ** 2 + a[m:] ** 2))
         block = np.zeros((m, n_ch + len(kernels)))
@@ -355,9 +347,79 @@ def periodogram_design(
                 e += np.einsum("km,km->k", np.einsum("kn,nm->km", pa, kernel), pa)
             block[:, n_ch + c] = 0.5 * (e[:m] + e[m:])
         if white_gains is not None and white_gains[p] is not None:
-            block[:, p] *= np.array([white_gains[p](f) for f in ks / span])
+            block[:, p] *= np.array([white_gains[p](f) for f in frequencies])
         blocks.append(block)
     return np.concatenate(blocks), np.concatenate(observed), n_ch
+
+
+def _band_frequencies(time: NDArray[np.float64], band: tuple[float, float], exclude: tuple[float, ...]) -> NDArray[np.float64] | None:
+    """Return the Fourier frequencies [Hz] of :func:`periodogram_design`'s band (None: fewer than four, or fewer than eight bins)."""
+    n_bins = time.size
+    span = float(time[-1] - time[0]) + (float(np.median(np.diff(time))) if n_bins > 1 else 0.0)
+    ks = np.arange(max(1, int(np.ceil(band[0] * span))), int(np.floor(band[1] * span)) + 1)
+    for f in exclude:  # frequencies the fits absorb (the harmonics): no ordinate within half a Fourier spacing
+        ks = ks[np.abs(ks - f * span) >= 0.5]
+    if ks.size < 4 or n_bins < 8:
+        return None
+    return ks / span
+
+
+def _projections(
+    time: NDArray[np.float64], frequencies: NDArray[np.float64], weights: NDArray[np.float64], residual_maker: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return the weighted cosine and sine vectors ``V`` ``(2m, n)`` of a channel and ``V R`` (its projections of the bin noise)."""
+    w = weights / weights.sum()
+    arg = 2.0 * np.pi * np.outer(frequencies, time - time[0])
+    vectors = np.concatenate([2.0 * w * np.cos(arg), 2.0 * w * np.sin(arg)])  # (2m, n)
+    return vectors, np.einsum("kn,nm->km", vectors, residual_maker)  # einsum, not BLAS (docs §6)
+
+
+def ordinate_factors(
+    channels: ResidualChannels,
+    time: NDArray[np.float64],
+    kernels: list[NDArray[np.float64]],
+    mixing: list[list[NDArray[np.float64]]],
+    band: tuple[float, float],
+    *,
+    exclude: tuple[float, ...] = (),
+) -> tuple[list[NDArray[np.float64]], list[list[NDArray[np.float64]]]] | None:
+    r"""Return the Gaussian law of the projections ``(a_k, b_k)`` behind :func:`periodogram_design`'s ordinates as factors.
+
+    The channels' projections stacked (channel by channel, each its ``m`` cosines then its ``m`` sines; ordinate ``k`` of
+    channel ``p`` is ``½(a² + b²)`` of rows ``2mp + k`` and ``2mp + m + k``) are ``Σ_p √w_p F_p ξ_p + Σ_c √α_c Σ_a F_ca η_ca``
+    with independent standard normal ``ξ_p, η_ca`` ``(n,)``:
+
+    * white, channel ``p``: ``F_p = diag(|G_p(f_k)|) V_p R_p diag(1/√n_i)`` on the channel's rows (the bins' white means,
+      per-sample variance 1; a loop's gain on each projection, as in the expectations);
+    * coloured component ``c`` and axis ``a``: ``F_ca = [V_p R_p M_pa]_p L_c`` with ``L_c L_cᵀ = C_c`` (the bin kernel,
+      :func:`bin_process_kernel`; eigen-factor, clipped at 0): the same axis' noise in every channel, so the channels'
+      projections are jointly Gaussian with exactly the covariance whose diagonal :func:`periodogram_design` sums.
+
+    So ``E ½(a² + b²)`` of these draws is the design's expectation, and the correlations the Whittle likelihood leaves
+    out (the residual maker's, a random walk's leakage along the record, one axis' noise in three channels) are in.
+    Returns ``(white, coloured)``: ``white[p]`` ``(2mP, n)``, ``coloured[c][a]`` ``(2mP, n)``; None as for the design.
+    """
+    frequencies = _band_frequencies(time, band, exclude)
+    if frequencies is None:
+        return None
+    n_ch, n, m = len(channels.residuals), time.size, frequencies.size
+    roots = []
+    for kernel in kernels:
+        values, vectors = np.linalg.eigh(0.5 * (kernel + kernel.T))
+        roots.append(vectors * np.sqrt(np.maximum(values, 0.0)))
+    white = [np.zeros((2 * m * n_ch, n)) for _ in range(n_ch)]
+    coloured = [[np.zeros((2 * m * n_ch, n)) for _ in range(3)] for _ in kernels]
+    for p in range(n_ch):
+        rows = slice(2 * m * p, 2 * m * (p + 1))
+        _, proj = _projections(time, frequencies, channels.weights[p], channels.residual_makers[p])
+        gain = np.ones(m)
+        if channels.white_gains is not None and channels.white_gains[p] is not None:
+            gain = np.sqrt(np.array([channels.white_gains[p](f) for f in frequencies]))
+        white[p][rows] = np.concatenate([gain, gain])[:, None] * proj / np.sqrt(channels.weights[p])[None, :]
+        for c, root in enumerate(roots):
+            for axis in range(3):
+                coloured[c][axis][rows] = np.einsum("kn,nm->km", _mix(proj, mixing[p][axis]), root)
+    return white, coloured
 
 
 # --------------------------------------------------------------------------- the z channel above the low band

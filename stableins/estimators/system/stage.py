@@ -57,7 +57,7 @@ from stableins.estimators.system.gyro_drift import (
 )
 from stableins.estimators.system.loop import DampingLoop
 from stableins.estimators.system.options import SystemOptions
-from stableins.estimators.system.polar import PolarAlignment, check_polar_alignment, polar_alignment
+from stableins.estimators.system.polar import PolarAlignment, check_deferred, check_polar_alignment, drift_prediction, polar_alignment
 from stableins.estimators.system.separation import Separation
 from stableins.estimators.system.settings import SystemSettings
 from stableins.estimators.system.thermal import THERMAL_TERMS, ThermalFit, ThermalInputs, thermal_step
@@ -269,9 +269,13 @@ def _run(
     # the polar alignment from the gimbal readings (fitted for the check alone when the drift is not estimated), docs §9
     gimbal = drift.gimbal if drift.gimbal is not None else measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
     polar = None if gimbal is None else polar_alignment(gimbal)
-    check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path)
+    # the static-base and polar refusals the pass kept: an equatorial drift the readings measure explains its own (docs §9)
+    removed = drift.gimbal is not None
+    predicted = drift_prediction(sums.attitude_blocks.means(), loop, drift.values) if removed and sums.checks.deferred else None
+    explained = check_deferred(sums.checks, polar if removed else None, predicted, options)
+    check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path, drift_removed=removed)
     if polar is not None:
-        drift = replace(drift, notes=(*drift.notes, polar.describe()))
+        drift = replace(drift, notes=(*drift.notes, polar.describe(), *((explained,) if explained else ())))
     attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
     # with a temperature column, the thermal test's first decision fits the attitude white levels (an unmodelled thermal
     # signal goes there, not into the slow amplitudes); the thermal step decides again with them held (docs §1a, §1b)

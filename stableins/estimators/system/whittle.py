@@ -16,6 +16,8 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
+from stableins.estimators.system.bootstrap import ZONE, OrdinateLaw, monte_carlo_p_value
+
 
 # --------------------------------------------------------------------------- Whittle likelihood
 def whittle_fit(
@@ -161,7 +163,8 @@ class ColouredNoiseFit:
         Profile-likelihood interval of each amplitude at ``confidence`` (with the prior when there is one); ``upper`` is
         the largest amplitude the data allow.
     statistic, p_value : float
-        ``2(ℓ_coloured − ℓ_white)`` of the record alone and its p-value under white noise (χ̄², :func:`_chi_bar_squared_sf`).
+        ``2(ℓ_coloured − ℓ_white)`` of the record alone and its p-value under white noise: from the record's own null law
+        (:mod:`.bootstrap`, ``null_draws`` draws) near the decision, else the asymptotic χ̄² (:func:`_chi_bar_squared_sf`).
     alpha : float
         False-positive rate of the decision: coloured noise is detected when ``p_value < alpha``.
     source : ColouredSource
@@ -186,6 +189,8 @@ class ColouredNoiseFit:
     white_levels: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     ordinates: tuple[int, int] = (0, 0)
     band: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Draws of the Monte Carlo null law behind :attr:`p_value` (0: the asymptotic χ̄² law).
+    null_draws: int = 0
 
     @property
     def detected(self) -> bool:
@@ -200,10 +205,11 @@ class ColouredNoiseFit:
     def describe(self) -> str:
         """Say in one line what the decision found (likelihood ratio, p-value, false-positive rate, ordinates)."""
         verdict = "detected" if self.data_detected else "not detected"
+        law = f"{self.null_draws} draws of the record's null law" if self.null_draws else "asymptotic law"
         return (
             f"low-frequency noise {verdict} in the record: likelihood ratio {self.statistic:.2f} against white noise, "
-            f"p = {self.p_value:.3g} (false-positive rate {self.alpha:g}; {self.ordinates[0]} + {self.ordinates[1]} periodogram "
-            "ordinates)"
+            f"p = {self.p_value:.3g} ({law}; false-positive rate {self.alpha:g}; {self.ordinates[0]} + {self.ordinates[1]} "
+            "periodogram ordinates)"
         )
 
 
@@ -233,10 +239,9 @@ def fit_coloured_noise(
     channels: int,
     *,
     alpha: float = 0.05,
-    ordinates: tuple[int, int] = (0, 0),
-    band: tuple[float, float, float] = (0.0, 0.0, 0.0),
     prior: NoisePrior = NoisePrior(),
     offset: NDArray[np.float64] | None = None,
+    law: OrdinateLaw | None = None,
 ) -> ColouredNoiseFit:
     """Decide whether the residuals carry coloured noise, with a calibrated false-positive rate, and fit its amplitudes.
 
@@ -256,18 +261,18 @@ def fit_coloured_noise(
 
     ``offset``: a known part of every expectation, ``E = design @ θ + offset`` (the pitch and roll channels' white
     levels held at the accelerometers' measured white noise through the loop, :func:`.coloured.coloured_covariance`).
+
+    ``law``: the record's ordinates' own law (:class:`.bootstrap.OrdinateLaw`).  Given, a p-value within
+    :data:`.bootstrap.ZONE` is the Monte Carlo one under the white fit (the asymptotic χ̄² assumes independent exponential
+    ordinates, which the low band's are not: 6 % false alarms on white one-day records, docs §10); the same for the test
+    of a given datasheet (:func:`given_rejected`).
     """
     from scipy.special import gammaincinv
 
     p = design.shape[1]
     kinds = p - channels
-    white_only = np.zeros(p, dtype=bool)
-    white_only[:channels] = True
     base = np.zeros(observed.size) if offset is None else np.asarray(offset, dtype=float)
-    theta0, loglik0 = whittle_fit(design, observed, white_only, base)
-    theta, loglik = whittle_fit(design, observed, offset=base, start=theta0 + _small_amplitudes(design, theta0, channels, base))
-    if loglik < loglik0:  # the nested white-only maximum is a point of the full model
-        theta, loglik = theta0, loglik0
+    theta0, loglik0, theta, loglik = _white_and_coloured(design, observed, channels, base)
     statistic = max(0.0, 2.0 * (loglik - loglik0))
     e0 = np.maximum(design @ theta0 + base, 1e-12 * float(observed.mean()) + 1e-300)  # a channel without noise has E = 0
     scaled = design / e0[:, None]
@@ -277,6 +282,14 @@ def fit_coloured_noise(
     block = covariance[amp, amp]
     correlation = None if block.shape[0] < 2 else float(block[0, 1] / math.sqrt(max(block[0, 0] * block[1, 1], 1e-300)))
     p_value = _chi_bar_squared_sf(statistic, correlation)
+    null_draws = 0
+    if law is not None and ZONE[0] <= p_value <= ZONE[1]:  # near the decision: the record's own null law
+
+        def again(ordinates: NDArray[np.float64]) -> float:
+            _, white, _, coloured = _white_and_coloured(design, ordinates, channels, base)
+            return 2.0 * (coloured - white)
+
+        p_value, null_draws = monte_carlo_p_value(again, statistic, law, law.levels(theta0[:channels]), np.zeros(kinds), record=observed)
     detected = p_value < alpha
     penalty = None
     best, best_loglik = theta, loglik
@@ -284,7 +297,7 @@ def fit_coloured_noise(
     if prior.given is not None:
         source = ColouredSource.GIVEN
         used = np.asarray(prior.given, dtype=float).reshape(kinds, 3)
-        if given_rejected(design, observed, theta, loglik, channels, given=used.mean(axis=1), alpha=alpha, offset=base):
+        if given_rejected(design, observed, (theta, loglik), channels, given=used.mean(axis=1), alpha=alpha, offset=base, law=law):
             source = ColouredSource.CONTRADICTED  # the σ follow the data: the record's maximum-likelihood amplitudes
             used = np.repeat(theta[amp][:, None], 3, axis=1)
     elif prior.gaussian is not None:
@@ -315,23 +328,37 @@ def fit_coloured_noise(
         confidence=confidence,
         source=source,
         white_levels=theta[:channels].copy(),
-        ordinates=ordinates,
-        band=band,
+        null_draws=null_draws,
     )
+
+
+def _white_and_coloured(
+    design: NDArray[np.float64], observed: NDArray[np.float64], channels: int, base: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64], float]:
+    """Return the white-only fit and the full fit of :func:`fit_coloured_noise`: ``(θ₀, ℓ₀, θ, ℓ)`` with ``ℓ ≥ ℓ₀``."""
+    white_only = np.zeros(design.shape[1], dtype=bool)
+    white_only[:channels] = True
+    theta0, loglik0 = whittle_fit(design, observed, white_only, base)
+    theta, loglik = whittle_fit(design, observed, offset=base, start=theta0 + _small_amplitudes(design, theta0, channels, base))
+    if loglik < loglik0:  # the nested white-only maximum is a point of the full model
+        theta, loglik = theta0, loglik0
+    return theta0, loglik0, theta, loglik
 
 
 def given_rejected(
     design: NDArray[np.float64],
     observed: NDArray[np.float64],
-    theta: NDArray[np.float64],
-    loglik: float,
+    best: tuple[NDArray[np.float64], float],
     channels: int,
     *,
     given: NDArray[np.float64],
     alpha: float,
     offset: NDArray[np.float64] | None = None,
+    law: OrdinateLaw | None = None,
 ) -> bool:
     """Whether the record rejects given amplitudes (a datasheet): a likelihood-ratio test at false-alarm rate ``alpha``.
+
+    ``best = (θ̂, ℓ̂)``: the maximum of the record's likelihood (:func:`fit_coloured_noise`).
 
     ``2(ℓ̂ − max_{θ_c = given_c ∀c} ℓ)`` (the white levels free) against the χ² quantile with as many degrees of freedom
     as amplitudes (Wilks; on the boundary, a given 0 where the maximum is 0 adds nothing, which keeps the test at or below
@@ -340,21 +367,60 @@ def given_rejected(
     levels, :func:`fit_coloured_noise`): in this test its scale is a free white level like the others, so that the test
     asks about the amplitudes alone.  Held instead, a small misfit of the held levels moved into the amplitudes and the
     true datasheet of quartz days was rejected on 10 of 100 (with it free: 1 of 40 before the levels were held; issue 25).
-    """
-    from stableins.estimators.distributions import chi2_ppf
 
+    That χ² law assumes independent exponential ordinates; with ``law`` (:class:`.bootstrap.OrdinateLaw`) a p-value within
+    :data:`.bootstrap.ZONE` is the Monte Carlo one under the given amplitudes and the white levels fitted with them: the
+    record's own law, with the correlations that left the χ² test at about 10 % false rejections of the true datasheet
+    on one-day quartz records (docs/system-calibration.md §10).
+    """
+    from scipy.special import gammaincc  # χ²_k survival function: Q(k/2, x/2)
+
+    theta, loglik = best
+    given = np.asarray(given, dtype=float)
+    scaled = offset is not None
     if offset is not None:  # the held part's scale free: one more white level
         design = np.column_stack([offset, design])
         channels += 1
-        theta, loglik = whittle_fit(design, observed, start=np.concatenate([[1.0], theta]))
+        theta = np.concatenate([[1.0], theta])
+    statistic, null = _given_statistic(design, observed, channels, given, theta, refit=scaled, loglik=loglik)
+    kinds = design.shape[1] - channels
+    p_value = float(gammaincc(0.5 * kinds, 0.5 * statistic))
+    if law is not None and ZONE[0] <= p_value <= ZONE[1]:
+        levels = law.levels(null[1:channels], scale=float(null[0])) if scaled else law.levels(null[:channels])
+        p_value, _ = monte_carlo_p_value(
+            lambda ordinates: _given_statistic(design, ordinates, channels, given, theta, refit=True)[0],
+            statistic,
+            law,
+            levels,
+            given,
+            record=observed,
+        )
+    return p_value < alpha
+
+
+def _given_statistic(
+    design: NDArray[np.float64],
+    observed: NDArray[np.float64],
+    channels: int,
+    given: NDArray[np.float64],
+    start: NDArray[np.float64],
+    *,
+    refit: bool,
+    loglik: float = 0.0,
+) -> tuple[float, NDArray[np.float64]]:
+    """Return ``2(ℓ̂ − max_{θ_c = given_c} ℓ)`` of :func:`given_rejected` and the white levels' fit under the given amplitudes.
+
+    ``refit``: the unconstrained maximum ``ℓ̂`` is fitted here (from ``start``), else it is ``loglik``.
+    """
+    if refit:
+        start, loglik = whittle_fit(design, observed, start=start)
     free = np.zeros(design.shape[1], dtype=bool)
     free[:channels] = True
-    held_part = design[:, channels:] @ np.asarray(given, dtype=float)
-    start = theta.copy()
-    start[channels:] = 0.0
-    _, held = whittle_fit(design, observed, free, held_part, start)
-    statistic = max(0.0, 2.0 * (loglik - held))
-    return bool(statistic > chi2_ppf(1.0 - alpha, design.shape[1] - channels))
+    held_part = design[:, channels:] @ given
+    begin = np.asarray(start, dtype=float).copy()
+    begin[channels:] = 0.0
+    null, held = whittle_fit(design, observed, free, held_part, begin)
+    return max(0.0, 2.0 * (loglik - held)), null
 
 
 def _small_amplitudes(
