@@ -223,9 +223,9 @@ def _observation_into(
 
 
 def _grid_moments(size: int, angle_step: float) -> NDArray[np.float64]:
-    """``(size, 4)``: ``δ_j^p`` (p = 0..3) of a block of ``size`` samples on a grid, ``δ_j = (j − (size − 1)/2)·angle_step``."""
+    """``(4, size)``: ``δ_j^p`` (p = 0..3) of a block of ``size`` samples on a grid, ``δ_j = (j − (size − 1)/2)·angle_step``."""
     d = (np.arange(size) - 0.5 * (size - 1)) * angle_step
-    return np.stack([np.ones(size), d, d * d, d * d * d], axis=1)
+    return np.stack([np.ones(size), d, d * d, d * d * d])
 
 
 def _stamped_moments(
@@ -341,8 +341,8 @@ def block_sums(
                 if size not in moments:
                     moments[size] = _grid_moments(size, omega * float(grid[1]))
                 powers = moments[size]
-                sums[rows, 0:4] = np.einsum("bj,jp->bp", zb, powers)  # not BLAS (above)
-                sums[rows, 4:7] = powers[:, 1:].sum(axis=0)
+                sums[rows, 0:4] = np.einsum("bj,pj->bp", zb, powers)  # not BLAS (above); both operands contiguous in j
+                sums[rows, 4:7] = powers[1:].sum(axis=1)
                 sums[rows, 7] = size
                 centres[rows] = float(grid[0]) + (a + first + np.arange(count) * size + 0.5 * (size - 1)) * float(grid[1])
     if grid is not None:
