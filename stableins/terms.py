@@ -93,6 +93,11 @@ class TermInputs:
         Sign (+1/−1/0) of the last slew seen by each sensitive axis' input (hysteresis).
     angular_rate, angular_acceleration : ndarray (..., 3), optional
         Platform angular rate [rad/s] and acceleration [rad/s²] in the p-frame.
+    platform_jacobian : ndarray (..., 3, k), optional
+        ``∂f^p/∂q`` of the gimbal-kinematic effects ``q`` (the columns their regressors are), with
+        ``platform_jacobian_ids`` the ids of ``q`` in column order.
+    platform_jacobian_ids : tuple of str
+        The ids of :attr:`platform_jacobian`'s columns (empty without it).
     extra : mapping, optional
         Further named arrays for user-defined regressors.
     """
@@ -103,6 +108,8 @@ class TermInputs:
     slew_direction: NDArray[np.float64] | None = None
     angular_rate: NDArray[np.float64] | None = None
     angular_acceleration: NDArray[np.float64] | None = None
+    platform_jacobian: NDArray[np.float64] | None = None
+    platform_jacobian_ids: tuple[str, ...] = ()
     extra: Mapping[str, NDArray[np.float64]] = field(default_factory=lambda: MappingProxyType({}))
 
     def require(self, name: str, term_id: str) -> NDArray[np.float64]:

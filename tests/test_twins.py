@@ -79,7 +79,7 @@ def test_kinematic_effects_give_the_library_signal_to_first_order(seed):
     f_p = nominal.specific_force_platform(readings, G)
     j_fp = model.jacobian_specific_force(f_p, values)
     _, columns = specific_force_and_jacobian(readings, G, zero_offsets=offsets, base_attitude=base, ids=KINEMATIC_IDS)
-    inputs = TermInputs(f_p, extra={"platform_jacobian": columns, "platform_jacobian_ids": KINEMATIC_IDS})
+    inputs = TermInputs(f_p, platform_jacobian=columns, platform_jacobian_ids=tuple(KINEMATIC_IDS))
     value = 1e-5  # rad: the second-order remainder is ~1e-5 of the signal
     for tid in KINEMATIC_IDS:
         turned = GimbalPlatform(

@@ -126,11 +126,10 @@ def _drift(axis: int, term_id: str) -> Callable[[TermInputs], NDArray]:
 
 def _kinematic(term_id: str) -> Callable[[TermInputs], NDArray]:
     def regressor(inputs: TermInputs) -> NDArray:
-        columns = inputs.extra.get("platform_jacobian")
-        names = inputs.extra.get("platform_jacobian_ids")
-        if columns is None or names is None or term_id not in tuple(names):
+        columns, names = inputs.platform_jacobian, inputs.platform_jacobian_ids
+        if columns is None or term_id not in names:
             raise ValueError(f"term {term_id!r} acts through the gimbal kinematics; these data carry no angle readings for it")
-        return np.asarray(columns, dtype=float)[..., tuple(names).index(term_id)]
+        return np.asarray(columns, dtype=float)[..., names.index(term_id)]
 
     return regressor
 

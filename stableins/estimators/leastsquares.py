@@ -154,8 +154,8 @@ def dwell_forward(
         specific_force=f_p,
         angular_rate=np.zeros_like(f_p),
         angular_acceleration=np.zeros_like(f_p),
-        # named arrays (TermInputs.extra): the columns of ∂f^p/∂q and, as an array of strings, the ids they belong to
-        extra={**given.extra, "platform_jacobian": d_fp, "platform_jacobian_ids": np.asarray(ids)},
+        platform_jacobian=d_fp,
+        platform_jacobian_ids=tuple(ids),
     )
     dynamic = {k: v for k, v in values.items() if k not in effects}  # the kinematic effects are already in f^p
     output = model.forward(f_p, dynamic, inputs)
