@@ -452,7 +452,7 @@ def test_ordinate_factors_carry_the_design_expectations_and_the_law_draws_them()
         np.testing.assert_allclose(ordinates([white[p]]), design[:, p], rtol=1e-10, atol=1e-14 * design[:, p].max())
     for c in range(len(kernels)):
         np.testing.assert_allclose(ordinates(coloured[c]), design[:, n_ch + c], rtol=1e-8)
-    law = OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    law = OrdinateLaw(lambda: (white, coloured), np.zeros((0, 3)), np.zeros(0))
     levels, amplitudes = np.array([2e-8, 1e-9, 3e-9]), np.array([1e-16, 4e-14])
     drawn = law.draw(levels, amplitudes, np.random.default_rng(4), 4000).mean(axis=0)
     expected = design @ np.concatenate([levels, amplitudes])
@@ -466,7 +466,7 @@ def test_monte_carlo_p_value_has_its_level_under_a_simple_null():
 
     channels, time, kernels, mixing, band = _three_channels(72)
     white, coloured = spectrum.ordinate_factors(channels, time, kernels, mixing, band)
-    law = bootstrap.OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    law = bootstrap.OrdinateLaw(lambda: (white, coloured), np.zeros((0, 3)), np.zeros(0))
     levels, amplitudes = np.array([2e-8, 1e-9, 3e-9]), np.array([3e-16, 0.0])
     m = white[0].shape[0] // 6
 
@@ -493,7 +493,7 @@ def test_decision_and_datasheet_test_draw_the_records_null_law_near_their_decisi
     channels, time, kernels, mixing, band = _three_channels()
     design, _, n_ch = spectrum.periodogram_design(channels, time, kernels, mixing, band)
     white, coloured = spectrum.ordinate_factors(channels, time, kernels, mixing, band)
-    law = bootstrap.OrdinateLaw(tuple(white), tuple(tuple(f) for f in coloured), np.zeros((0, 3)), np.zeros(0))
+    law = bootstrap.OrdinateLaw(lambda: (white, coloured), np.zeros((0, 3)), np.zeros(0))
     levels = np.array([2e-8, 1e-9, 3e-9])
     rng = np.random.default_rng(21)
     draws = {}

@@ -20,8 +20,9 @@ scale) are plugged in at their fit under the null, a parametric bootstrap.
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,21 +48,36 @@ class OrdinateLaw:
 
     Attributes
     ----------
-    white : tuple of ndarray (R, n)
-        Per low-band channel (z, pitch, roll): the factor of its white noise per unit per-sample level
-        (:func:`.spectrum.ordinate_factors`); ``R = 2 m P`` projection rows (``m`` frequencies, ``P`` channels).
-    coloured : tuple of tuple of ndarray (R, n)
-        Per coloured kind (:data:`.spectrum.COLOURED_KINDS`) and accelerometer axis: the factor per unit amplitude.
+    factors : callable
+        Returns ``(white, coloured)`` (:func:`.spectrum.ordinate_factors`), made on first use: only a p-value near the
+        decision (:data:`ZONE`) draws from the law, so most records never pay for its factors.
     high : ndarray (h, 1 + kinds)
         The high band's expectations per unit z white level and per unit amplitude (its ordinates exponential).
     held : ndarray
         The pitch and roll white levels held at the measured noise (the fit's ``offset``), else empty.
     """
 
-    white: tuple[NDArray[np.float64], ...]
-    coloured: tuple[tuple[NDArray[np.float64], ...], ...]
+    factors: Callable[[], tuple[Sequence[NDArray[np.float64]], Sequence[Sequence[NDArray[np.float64]]]]]
     high: NDArray[np.float64]
     held: NDArray[np.float64]
+
+    @cached_property
+    def _made(self) -> tuple[tuple[NDArray[np.float64], ...], tuple[tuple[NDArray[np.float64], ...], ...]]:
+        white, coloured = self.factors()
+        return tuple(white), tuple(tuple(per_axis) for per_axis in coloured)
+
+    @property
+    def white(self) -> tuple[NDArray[np.float64], ...]:
+        """Per low-band channel (z, pitch, roll): the factor ``(R, n)`` of its white noise per unit per-sample level.
+
+        ``R = 2 m P`` projection rows (``m`` frequencies, ``P`` channels).
+        """
+        return self._made[0]
+
+    @property
+    def coloured(self) -> tuple[tuple[NDArray[np.float64], ...], ...]:
+        """Per coloured kind (:data:`.spectrum.COLOURED_KINDS`) and accelerometer axis: the factor ``(R, n)`` per unit amplitude."""
+        return self._made[1]
 
     def levels(self, fitted: NDArray[np.float64], scale: float = 1.0) -> NDArray[np.float64]:
         """Return the white level of every low-band channel: the fitted ones, then the held ones times ``scale``."""

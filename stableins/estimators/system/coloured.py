@@ -118,11 +118,15 @@ def coloured_covariance(
     held = np.zeros(0)
     if loop_inputs is not None and n_ch > 1:  # pitch and roll white levels held at the measured noise
         held = bins.quasi_static @ np.asarray(loop_inputs, dtype=float)
-    factors = spectrum.ordinate_factors(channels, bins.time, bins.kernels, mixing, (0.0, bins.high), exclude=harmonics)
-    law = None
-    if factors is not None:  # the ordinates' own law, for the tests' p-values near their decision (.bootstrap)
-        high_rows = design[design.shape[0] - n_high :][:, [0, *range(n_ch, design.shape[1])]]
-        law = bootstrap.OrdinateLaw(tuple(factors[0]), tuple(tuple(f) for f in factors[1]), high_rows, held)
+
+    def factors() -> tuple[list[NDArray[np.float64]], list[list[NDArray[np.float64]]]]:
+        made = spectrum.ordinate_factors(channels, bins.time, bins.kernels, mixing, (0.0, bins.high), exclude=harmonics)
+        assert made is not None  # the same band as the design's, which exists
+        return made
+
+    # the ordinates' own law, for the tests' p-values near their decision (.bootstrap); its factors made on first use
+    high_rows = design[design.shape[0] - n_high :][:, [0, *range(n_ch, design.shape[1])]]
+    law = bootstrap.OrdinateLaw(factors, high_rows, held)
     if held.size:
         offset = design[:, 1:n_ch] @ held
         design = np.delete(design, np.s_[1:n_ch], axis=1)
