@@ -133,6 +133,17 @@ def test_system_sensitivities_are_linear_in_the_step_and_the_polar_drift_is_invi
     assert np.abs(by_input["gyro_drift.z"].gradient).max() < 1e-6 * np.abs(by_input["gyro_drift.x"].gradient).max()
 
 
+def test_system_sensitivities_reusing_the_stage_are_those_of_whole_re_runs(system):
+    """The re-runs take the loop-independent steps from the stage's run (the drift step made again for a drift input)."""
+    run, base, found, _, meta = system
+    whole = system_sensitivity.system_sensitivities(
+        run.source, meta, run.values, run.covariance, SystemOptions(estimate_gyro_drift=False), base=base, rerun=True
+    )
+    assert [s.input for s in found] == [s.input for s in whole]
+    for a, b in zip(found, whole, strict=True):
+        np.testing.assert_allclose(a.gradient, b.gradient, rtol=0, atol=1e-9 * np.abs(b.gradient).max(), err_msg=a.input)
+
+
 def test_the_budget_of_a_record_is_the_record_re_made_with_the_input_perturbed(system, device):
     """c_q = P Σ ∂η_k/∂q through the Bayesian update: against the whole record re-made with a known drift.
 

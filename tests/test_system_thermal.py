@@ -257,3 +257,30 @@ def test_separable_directions_leave_out_what_z_does_not_reach():
     assert np.linalg.norm(directions.T @ coef - null) > 0.1  # the unreached direction is not in their span
     _, _, dof_without = separable_directions(info, info, gradient)
     assert dof_without == 6  # what the information matrices alone let through
+
+
+@pytest.mark.parametrize("case", ["daily", "ramp"])
+def test_type_b_re_runs_that_reuse_the_stage_equal_whole_re_runs(case):
+    """The Type B re-runs take the loop-independent steps from the stage's run and, when its thermal test removed nothing
+    (a daily cycle: nothing separable), hold that outcome: their sensitivities are those of whole re-runs of the stage."""
+    from stableins.estimators.system.sensitivity import system_sensitivities
+
+    if case == "daily":
+        cols, meta, _, installed = _thermal_record([5 * MICRO_G] * 3, _daily)
+        options = SystemOptions(run_filter=False)
+    else:
+        cols, meta, _, installed = _thermal_record(
+            [0.0, 0.0, 40 * MICRO_G], lambda t: 4.0 * t / 86164.0 + 1.0 * np.sin(2 * np.pi * t / (7 * 3600.0)), seed=7
+        )
+        options = SystemOptions(run_filter=False, thermal_prior=(1e-3, 1e-3))
+    source = ArraySource(cols)
+    base = _run(cols, meta, installed, **{k: getattr(options, k) for k in ("thermal_prior",)})
+    assert base.held is not None and base.held.thermal_removed is (case == "ramp")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reused = system_sensitivities(source, meta, installed, None, options, base=base)
+        whole = system_sensitivities(source, meta, installed, None, options, base=base, rerun=True)
+    assert [s.input for s in reused] == [s.input for s in whole] and any(s.input.startswith("damping_loop") for s in reused)
+    for a, b in zip(reused, whole, strict=True):
+        assert np.abs(b.gradient).max() > 0
+        np.testing.assert_allclose(a.gradient, b.gradient, rtol=0, atol=1e-9 * np.abs(b.gradient).max(), err_msg=a.input)

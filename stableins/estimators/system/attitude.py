@@ -221,6 +221,7 @@ def fit_attitude(
     drift: AttitudeDrift = AttitudeDrift(),
     scale_low_frequency: bool = True,
     map_bin_seconds: float = 600.0,
+    spectral_ratio: bool = True,
 ) -> AttitudeFit:
     """Fit mean, fundamental and second harmonic of pitch and roll with nuisance terms.
 
@@ -246,6 +247,10 @@ def fit_attitude(
     map_bin_seconds : float
         Width of the time bins (from the record start) over which ``block_map``, the linear map from
         the block means to the coefficients, is summed (memory: 10 × 2 × bins, not × blocks).
+    spectral_ratio : bool
+        Measure the residuals' spectral ratio (``residual_noise_ratio``, the low-frequency notes).  ``False`` (only with
+        ``scale_low_frequency=False``, which does not use it) leaves it NaN: the Type B re-runs of the system stage
+        (:mod:`.sensitivity`), which read the coefficients alone.
 
     Returns
     -------
@@ -268,7 +273,10 @@ def fit_attitude(
     order = np.array([0, 1, 2, 3, 4, 5, 7, 6, 9, 8])
     values, jac_vertical, observed_out = qs[order], jac_vertical[order], observed[order]
     nuisance = {f"{ch}_{n}": float(beta[j, i]) for j, n in enumerate(names) if j >= 5 for i, ch in enumerate(("pitch", "roll"))}
-    ratio, factors, low_notes = _low_frequency(blocks, residuals, noise_sigma, loop)
+    if spectral_ratio or scale_low_frequency:
+        ratio, factors, low_notes = _low_frequency(blocks, residuals, noise_sigma, loop)
+    else:
+        ratio, factors, low_notes = np.full(2, np.nan), np.ones(10), []
     notes += low_notes
     if not scale_low_frequency:
         factors = np.ones(10)

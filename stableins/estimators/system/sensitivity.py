@@ -13,7 +13,14 @@ installed calibration, so only :math:`g` moves).  Each input :math:`q` is pertur
 
 The pass over the record (:func:`~stableins.estimators.system.stage.record_sums`) does not depend on either input, so
 it is made once and every re-run starts from its sums (issue 30: the pass is most of the stage's time on a long
-record); the Kalman filter's convergence curve, which does not enter the likelihood, is not re-run either.
+record); the Kalman filter's convergence curve, which does not enter the likelihood, is not re-run either.  Nor are
+the steps that depend on neither input (issue 30; :class:`~stableins.estimators.system.stage.HeldSteps`, the stage's
+:attr:`~stableins.estimators.system.stage.SystemCalibration.held`): the white noise, the harmonic fit, the drift step
+and the polar alignment from the gimbal readings (the drift step is made again for a drift input), nor the attitude
+fit's spectral diagnostic; and when the stage's thermal test removed nothing, a re-run holds that outcome (a discrete
+choice, as a derivative holds it) and does not make the test's provisional noise decision.  Every step the inputs
+reach is re-run: the sensitivities equal those of whole re-runs (``rerun=True``; ``tests/test_budget.py``,
+``tests/test_system_thermal.py``) to the last bits, at about half their cost.
 
 The steps are small against the inputs' uncertainty (1e-6 °/h for the drift, 1e-4 relative for the
 loop), where the stage is linear: the coloured-noise model it re-fits to the residuals moves by
@@ -57,6 +64,7 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
     noise_model: Any = None,
     base: Any = None,
     sums: Any = None,
+    rerun: bool = False,
 ) -> tuple[InputSensitivity, ...]:
     """:class:`InputSensitivity` of the stage's likelihood to the gyro drift (x, y, z) and the damping-loop parameters.
 
@@ -64,7 +72,8 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
     result with the inputs as given (run here when not given); ``noise_model`` is the noise model the stage was
     given (docs/system-calibration.md §1a), the same in every re-run; ``sums`` is the stage's pass over ``source``
     (:func:`~stableins.estimators.system.stage.record_sums`, made here when not given).  Each input costs one more
-    run of the stage's solve steps on those sums.
+    run of the stage's solve steps on those sums, less the steps it does not reach (module docstring); ``rerun`` re-runs
+    every step (the reference the tests compare with).
     """
     from stableins.estimators.system.stage import record_sums, run_system_stage
 
@@ -73,7 +82,7 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
         if sums is None:
             sums = record_sums(source, metadata, prior, options, compensation_terms=compensation_terms)
 
-    def run(opts: Any, meta: SiteMetadata, *, curve: bool = False) -> Any:
+    def run(opts: Any, meta: SiteMetadata, *, curve: bool = False, held: Any = None) -> Any:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return run_system_stage(
@@ -85,12 +94,14 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
                 compensation_terms=compensation_terms,
                 noise_model=noise_model,
                 sums=sums,
+                held=held,
             )
 
     base = base if base is not None else run(options, metadata, curve=True)
     likelihood = base.result.likelihood
     if likelihood is None:
         return ()
+    held = None if rerun else (base.held if base.held is not None else run(options, metadata).held)
 
     def gradient(outcome: Any) -> np.ndarray:
         other = outcome.result.likelihood
@@ -106,7 +117,7 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
             continue
         moved = drift.copy()
         moved[axis] += DRIFT_STEP
-        outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata)
+        outcome = run(replace(options, known_gyro_drift=tuple(float(x) for x in moved)), metadata, held=held and replace(held, drift=None))
         out.append(InputSensitivity(f"gyro_drift.{name}", "rad/s", likelihood.ids, float(drift[axis]), gradient(outcome) / DRIFT_STEP,
                                     step=DRIFT_STEP))  # fmt: skip
     damping = dict(metadata.damping or {})
@@ -115,7 +126,7 @@ def system_sensitivities(  # noqa: PLR0913 - run_system_stage's inputs, its resu
         if f"damping_loop.{key}" not in inputs or not isinstance(value, int | float):
             continue
         step = LOOP_STEP * abs(float(value))
-        outcome = run(options, replace(metadata, damping={**damping, key: float(value) + step}))
+        outcome = run(options, replace(metadata, damping={**damping, key: float(value) + step}), held=held)
         out.append(
             InputSensitivity(
                 f"damping_loop.{key}", _LOOP_UNITS.get(key, "SI"), likelihood.ids, float(value), gradient(outcome) / step, step=step

@@ -210,12 +210,14 @@ def fit_attitude_coefficients(
     rate: float,
     options: SystemOptions,
     drift: DriftStep | None = None,
+    spectral_ratio: bool = True,
 ) -> AttitudeStep:
     """Step 4: the loop-compensated attitude coefficients (the vertical channel from x1..x5), the gyro drift removed.
 
     ``drift``: the drift measured or given (:func:`.gyro_drift.drift_step`); without it, the given
     ``options.known_gyro_drift`` (or none).  On a level base the second order of the drift's response is removed from
-    pitch and roll too (:func:`.loop.drift_curvature_removed`).
+    pitch and roll too (:func:`.loop.drift_curvature_removed`).  ``spectral_ratio``: measure the residuals' spectral
+    ratio, a diagnostic (:func:`.attitude.fit_attitude`; the Type B re-runs leave it out).
     """
     blocks = sums.attitude_blocks.means()
     if drift is not None:
@@ -237,6 +239,7 @@ def fit_attitude_coefficients(
         drift=AttitudeDrift(options.gyro_drift, known, jacobian=drift is not None and drift.covariance is not None),
         scale_low_frequency=False,
         map_bin_seconds=sums.filter_bins.samples / rate,
+        spectral_ratio=spectral_ratio,
     )
     notes = list(att.notes)
     if drift is not None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -101,6 +101,8 @@ class SystemCalibration(SystemCalibrationView):
         What the stage measured about the record besides its coefficients (noise, checks, sampling, temperature).
     drift : DriftStep or None
         The drift removed from pitch and roll, its source and the gimbal readings' measurement ``drift.gimbal`` (docs §9).
+    held : HeldSteps or None
+        The steps a Type B re-run holds (:mod:`.sensitivity`); None in such a re-run's own result.
     """
 
     result: FitResult
@@ -116,6 +118,37 @@ class SystemCalibration(SystemCalibrationView):
     noise_model: NoiseModel | None = None
     drift: DriftStep | None = None
     thermal: ThermalFit | None = None
+    held: HeldSteps | None = field(default=None, compare=False)
+
+
+@dataclass(frozen=True)
+class HeldSteps:
+    """What a re-run of the solve steps for a Type B sensitivity takes from the stage's run (:mod:`.sensitivity`).
+
+    Attributes
+    ----------
+    noise, harmonic : solve.WhiteNoise, solve.HarmonicFit
+        The white noise and the harmonic fit (before the thermal terms): they depend on neither the damping loop nor a
+        known gyro drift.
+    decision : solve.NoiseDecision
+        The stage's noise decision, handed unread to the thermal step of a re-run that does not test
+        (:func:`.thermal.thermal_step` with ``test=False``, which decides the noise again).
+    drift : DriftStep or None
+        The drift step, which does not depend on the loop (None: made again, the known drift being the input).
+    polar : PolarAlignment or None
+        The polar alignment from the gimbal readings.
+    thermal_removed : bool
+        Whether the stage's thermal test removed terms from the noise decision's residuals (:attr:`.thermal.ThermalFit.removed`).
+        When it did not, a re-run holds that outcome, a discrete choice, as a derivative does: the test's first decision
+        and analysis are not made again.
+    """
+
+    noise: solve.WhiteNoise
+    harmonic: solve.HarmonicFit
+    decision: solve.NoiseDecision
+    drift: DriftStep | None
+    polar: PolarAlignment | None
+    thermal_removed: bool
 
 
 @dataclass(frozen=True)
@@ -150,6 +183,7 @@ def run_system_stage(
     compensation_terms: Sequence[Term] = (),
     noise_model: NoiseModel | None = None,
     sums: RecordSums | None = None,
+    held: HeldSteps | None = None,
 ) -> SystemCalibration:
     """Run the system-level stage on a static, polar-aligned record.
 
@@ -178,6 +212,11 @@ def run_system_stage(
         The stage's pass over this record (:func:`record_sums` with the same source, prior, compensation terms and
         options), when already made: the pass is then not repeated.  The known gyro drift and the damping loop do not
         enter it, so the Type B sensitivities (:mod:`stableins.estimators.system.sensitivity`) re-run only the solve steps on it.
+    held : HeldSteps, optional
+        A Type B re-run (:mod:`stableins.estimators.system.sensitivity`): the steps of the stage's run (its
+        :attr:`SystemCalibration.held`) that do not depend on the perturbed input are taken from it, the thermal test's
+        outcome is held when it removed nothing, and the attitude fit's spectral diagnostic and the drift step's checks
+        and notes are not made again: the likelihood is that of a whole run (tested against one).
 
     Returns
     -------
@@ -186,7 +225,15 @@ def run_system_stage(
         ``static record``), or with a datasheet model its slow terms as given and the record's white noise.
     """
     stage = _run(
-        source, metadata, prior, prior_covariance, options, compensation_terms=compensation_terms, noise_model=noise_model, sums=sums
+        source,
+        metadata,
+        prior,
+        prior_covariance,
+        options,
+        compensation_terms=compensation_terms,
+        noise_model=noise_model,
+        sums=sums,
+        held=held,
     )
     harmonic, attitude, decision = stage.harmonic, stage.attitude, stage.decision
     combination = solve.combine(
@@ -199,7 +246,8 @@ def run_system_stage(
         drift=stage.drift,
         thermal=solve.ThermalPart(stage.thermal.aliases, stage.thermal.covariance_v),
     )
-    return _assemble(stage, combination, prior, prior_covariance, options, noise_model=noise_model)
+    outcome = _assemble(stage, combination, prior, prior_covariance, options, noise_model=noise_model)
+    return outcome if held is not None else replace(outcome, held=stage.held)
 
 
 def measure_noise_model(
@@ -240,6 +288,7 @@ class _Stage:
     drift: DriftStep
     thermal: ThermalFit
     polar: PolarAlignment | None
+    held: HeldSteps
 
 
 def _run(
@@ -252,38 +301,62 @@ def _run(
     compensation_terms: Sequence[Term],
     noise_model: NoiseModel | None,
     sums: RecordSums | None = None,
+    held: HeldSteps | None = None,
 ) -> _Stage:
-    """Run the pass over the record (:class:`.accumulate.StageAccumulator`; ``sums`` when given) and the solve steps 1-5 (:mod:`.solve`)."""
+    """Run the pass over the record (:class:`.accumulate.StageAccumulator`; ``sums`` when given) and the solve steps 1-5 (:mod:`.solve`).
+
+    ``held``: a Type B re-run (:func:`run_system_stage`), which takes the steps that do not depend on its input from it.
+    """
     context, compensation_terms = _context(source, metadata, options, compensation_terms)
     latitude, gravity, rate = context.site.latitude, context.site.gravity, context.site.rate
     loop = context.loop
     if sums is None:
         sums = _accumulate(source, metadata, prior, context, compensation_terms)
-    noise = solve.white_noise(sums, latitude, gravity)
-    harmonic = solve.fit_harmonics(sums, noise, gravity)
+    if held is None:
+        noise = solve.white_noise(sums, latitude, gravity)
+        harmonic = solve.fit_harmonics(sums, noise, gravity)
+    else:
+        noise, harmonic = held.noise, held.harmonic
     prior_res_cov = prior_residual_covariance(prior, prior_covariance, gravity)
     curve = solve.FilterCurve(None, np.zeros(0))
     if options.run_filter:
         curve = solve.filter_curve(sums, harmonic, prior_res_cov, fixed_variance(prior_covariance), latitude, gravity=gravity, rate=rate)
-    drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
-    # the polar alignment from the gimbal readings (fitted for the check alone when the drift is not estimated), docs §9
-    gimbal = drift.gimbal if drift.gimbal is not None else measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
-    polar = None if gimbal is None else polar_alignment(gimbal)
-    # the static-base and polar refusals the pass kept: an equatorial drift the readings measure explains its own (docs §9)
-    removed = drift.gimbal is not None
-    predicted = drift_prediction(sums.attitude_blocks.means(), loop, drift.values) if removed and sums.checks.deferred else None
-    explained = check_deferred(sums.checks, polar if removed else None, predicted, options)
-    check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path, drift_removed=removed)
-    if polar is not None:
-        drift = replace(drift, notes=(*drift.notes, polar.describe(), *((explained,) if explained else ())))
-    attitude = solve.fit_attitude_coefficients(sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift)
+    if held is not None:  # a Type B re-run: the drift (made again when a known drift is the input), the polar alignment held
+        polar = held.polar  # the gimbal readings' (a known drift does not enter their fit)
+        drift = (
+            held.drift
+            if held.drift is not None
+            else drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
+        )
+    else:
+        drift = drift_step(sums, metadata, prior, prior_covariance, latitude=latitude, options=options)
+        # the polar alignment from the gimbal readings (fitted for the check alone when the drift is not estimated), docs §9
+        gimbal = drift.gimbal if drift.gimbal is not None else measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
+        polar = None if gimbal is None else polar_alignment(gimbal)
+        # the static-base and polar refusals the pass kept: an equatorial drift the readings measure explains its own (docs §9)
+        removed = drift.gimbal is not None
+        predicted = drift_prediction(sums.attitude_blocks.means(), loop, drift.values) if removed and sums.checks.deferred else None
+        explained = check_deferred(sums.checks, polar if removed else None, predicted, options)
+        check_polar_alignment(polar, sums.checks.rate_ratio, options, context.path, drift_removed=removed)
+        if polar is not None:
+            drift = replace(drift, notes=(*drift.notes, polar.describe(), *((explained,) if explained else ())))
+    attitude = solve.fit_attitude_coefficients(
+        sums, harmonic, noise, loop, latitude, rate=rate, options=options, drift=drift, spectral_ratio=held is None
+    )
     # with a temperature column, the thermal test's first decision fits the attitude white levels (an unmodelled thermal
-    # signal goes there, not into the slow amplitudes); the thermal step decides again with them held (docs §1a, §1b)
-    held = sums.temperature_bins is None
-    decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model, hold_attitude_white=held)
+    # signal goes there, not into the slow amplitudes); the thermal step decides again with them held (docs §1a, §1b).
+    # A Type B re-run holds the test's outcome when it removed nothing: that first decision is then not made
+    held_white = sums.temperature_bins is None
+    test = held is None or held.thermal_removed
+    if test or held_white:
+        decision = solve.decide_noise(sums, harmonic, attitude, noise, context=context, given=noise_model, hold_attitude_white=held_white)
+    else:
+        assert held is not None
+        decision = held.decision  # not read: the thermal step decides again (thermal_step, test=False)
     inputs = ThermalInputs(sums, harmonic, attitude, decision, context, noise, noise_model, prior)
-    thermal, harmonic, attitude, decision = thermal_step(inputs, options, prior_covariance)  # docs §1b
-    return _Stage(context, sums, noise, harmonic, prior_res_cov, curve, attitude, decision, drift, thermal, polar)
+    thermal, fitted, attitude, decision = thermal_step(inputs, options, prior_covariance, test=test)  # docs §1b
+    kept = held if held is not None else HeldSteps(noise, harmonic, decision, drift, polar, thermal.removed)
+    return _Stage(context, sums, noise, fitted, prior_res_cov, curve, attitude, decision, drift, thermal, polar, kept)
 
 
 def record_sums(
@@ -436,6 +509,7 @@ def _diagnostics(stage: _Stage, combination: solve.Combination) -> SystemDiagnos
 
 
 __all__ = [
+    "HeldSteps",
     "SystemCalibration",
     "SystemDiagnostics",
     "SystemNoise",

@@ -114,6 +114,9 @@ class ThermalFit:
         The record's mean temperature [°C], from which ``ΔT`` is counted (the bias at it is the bias).
     data_estimate : ndarray (6,) or None
         The data-only estimate on the separable directions (what :meth:`remover` takes out of the residuals).
+    removed : bool
+        Whether the thermal test (under the stage's first, provisional noise decision) detected terms that were taken out
+        of the residuals of the decision the stage keeps (:func:`thermal_step`).
     """
 
     terms: tuple[str, ...]
@@ -134,6 +137,7 @@ class ThermalFit:
     note: str
     mean_temperature: float = 0.0
     data_estimate: NDArray[np.float64] | None = None
+    removed: bool = False
 
     def remover(self, stage: ThermalInputs) -> tuple[SampleBins, Callable[[LowBand], list[NDArray[np.float64]]]] | None:
         """Return the fine bins and the low band's residual channels without the detected thermal terms (None when none is detected).
@@ -358,7 +362,7 @@ def analyse_temperature(
 
 
 def thermal_step(
-    inputs: ThermalInputs, options: SystemOptions, prior_covariance: Mapping[tuple[str, str], float] | None
+    inputs: ThermalInputs, options: SystemOptions, prior_covariance: Mapping[tuple[str, str], float] | None, *, test: bool = True
 ) -> tuple[ThermalFit, HarmonicFit, AttitudeStep, NoiseDecision]:
     """Return the thermal terms and the stage's fits with them taken out (:meth:`ThermalFit.apply`).
 
@@ -366,18 +370,23 @@ def thermal_step(
     (:func:`.solve.decide_noise` with :meth:`ThermalFit.remover`) and the terms refitted under that noise.  The test
     itself runs under the stage's first decision, which fits the attitude white levels; the noise is decided again with
     them held whenever the record has a temperature column (``hold_attitude_white``), and the terms refitted under it.
+    ``test=False`` holds the test's outcome "nothing to remove" (its first decision and analysis are not made;
+    ``inputs.decision`` is then unused when the record has a temperature column): a Type B re-run of a stage whose test
+    removed nothing (:attr:`ThermalFit.removed`; :mod:`.sensitivity`), a discrete choice a derivative holds.
     """
     from stableins.estimators.system import solve
 
-    thermal = analyse_temperature(inputs, options, prior_covariance)
-    remove = thermal.remover(inputs)
+    thermal = analyse_temperature(inputs, options, prior_covariance) if test else None
+    remove = None if thermal is None else thermal.remover(inputs)
     decision = inputs.decision
     if inputs.noise is not None and (remove is not None or inputs.sums.temperature_bins is not None):
         # the final decision holds the attitude white levels (the first one, made for this test, fitted them)
         decision = solve.decide_noise(
             inputs.sums, inputs.harmonic, inputs.attitude, inputs.noise, context=inputs.context, given=inputs.given, remove=remove
         )
-        thermal = analyse_temperature(replace(inputs, decision=decision), options, prior_covariance)
+        thermal = replace(analyse_temperature(replace(inputs, decision=decision), options, prior_covariance), removed=remove is not None)
+    elif thermal is None:
+        thermal = analyse_temperature(inputs, options, prior_covariance)
     harmonic, attitude, decision = thermal.apply(inputs.harmonic, inputs.attitude, decision)
     return thermal, harmonic, attitude, decision
 
