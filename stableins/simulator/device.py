@@ -344,7 +344,7 @@ class SimulatedPlatform:
         :func:`stableins.platform.rotation_about`; a position near gimbal lock is held to the base (:attr:`_Command.held`).
         """
         readings, rates, segment, settle_time = self._path(index, shift)
-        dcm = self.platform.dcm_nav_to_platform(readings)
+        dcm = self._dcm_nav_to_platform(readings)
         held = np.array([c.held for c in self._commands], dtype=bool)
         drifting = (settle_time > 0) & (segment >= 0)
         if np.any(drifting):
@@ -367,6 +367,23 @@ class SimulatedPlatform:
         readings = readings.copy()
         readings[drifting] = self.platform.readings_from_dcm_nav_to_platform(dcm[drifting], readings[drifting])
         return readings, rates, dcm, segment, settle_time
+
+    def _dcm_nav_to_platform(self, readings: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return ``C_n^p`` of each row of ``readings`` (:meth:`stableins.platform.GimbalPlatform.dcm_nav_to_platform`).
+
+        It is computed once per run of equal consecutive rows: once the settling transient has decayed below the
+        readings' last bit (about 50 s into a dwell of the shipped settling) the noise-free readings repeat to the bit,
+        and equal readings give equal matrices, so the result is the same as row by row.
+        """
+        if len(readings) < 2:
+            return self.platform.dcm_nav_to_platform(readings)
+        new = np.empty(len(readings), dtype=bool)
+        new[0] = True
+        np.any(readings[1:] != readings[:-1], axis=1, out=new[1:])
+        if new.all():
+            return self.platform.dcm_nav_to_platform(readings)
+        first = np.flatnonzero(new)
+        return self.platform.dcm_nav_to_platform(readings[first])[np.cumsum(new) - 1]
 
     def _nominal_readings(self, sample: int) -> NDArray[np.float64]:
         """Return the readings on the slew path at ``sample`` without the settling transient (start of a new slew)."""
