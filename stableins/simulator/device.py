@@ -307,7 +307,11 @@ class SimulatedPlatform:
             rows = segment == j
             tau = (index[rows] - c.sample) / self.rate + shift
             delta = c.target - c.start
-            if c.duration > 0:
+            if c.duration > 0 and tau.min() >= c.duration:  # the slew is over (x = 1): the same values, computed once
+                x = np.ones(1)
+                r = np.broadcast_to(c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None], (len(tau), 3)).copy()
+                rd = np.broadcast_to(delta * 0.0, (len(tau), 3)).copy()
+            elif c.duration > 0:
                 x = np.clip(tau / c.duration, 0.0, 1.0)
                 moving = (tau > 0) & (tau < c.duration)
                 r = c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None]
@@ -318,15 +322,13 @@ class SimulatedPlatform:
             after = tau - c.duration
             settled = after > 0
             if np.any(settled) and self._gain:
-                a = after[settled]
+                sel = slice(None) if settled.all() else settled  # a recorded dwell: every row, no gather and scatter
+                a = after[sel]
                 envelope = np.exp(-self._zeta * self._omega * a)
-                r[settled] += self._gain * delta * (envelope * np.sin(self._omega_d * a))[:, None]
-                rd[settled] += (
-                    self._gain
-                    * delta
-                    * (envelope * (self._omega_d * np.cos(self._omega_d * a) - self._zeta * self._omega * np.sin(self._omega_d * a)))[
-                        :, None
-                    ]
+                sine = np.sin(self._omega_d * a)
+                r[sel] += self._gain * delta * (envelope * sine)[:, None]
+                rd[sel] += (
+                    self._gain * delta * (envelope * (self._omega_d * np.cos(self._omega_d * a) - self._zeta * self._omega * sine))[:, None]
                 )
             readings[rows] = r
             rates[rows] = rd
