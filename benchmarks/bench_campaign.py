@@ -13,6 +13,10 @@ C. ``--scaling N``: N devices with 1 worker, then with 2 workers (fresh director
 
 ``--diagnose`` makes part A's tasks simulate → calibrate → diagnose (issue 30's campaign); the line of part A gives the
 CPU time of the run (workers and cluster included), tasks per CPU-second and tasks per second per worker.
+``--in-process N`` (issue 30) runs N diagnosed tasks of the paper procedure (seeds ``--first-seed`` … after one warm-up
+task of the seed before) in this one process, one BLAS thread, and prints the CPU seconds per task, tasks per
+CPU-second, the projected wall time of 1,000 tasks on 2 idle workers and the SHA-256 of the tasks' rows without their
+timing columns (the same on any commit that changes no output).  CPU time, not wall: the machine may be shared.
 ``--sample-rate`` (default 10 Hz) simulates every dwell at that rate: the white noise of a dwell mean is N/√T at any
 rate, so the σ do not depend on it; the simulation time does (the coarse procedure's 100 Hz is 10× the samples).
 Campaign directories are kept (``--out``): the same command resumes an interrupted run.
@@ -21,18 +25,26 @@ Campaign directories are kept (``--out``): the same command resumes an interrupt
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import math
+import os
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from stableins.campaign.config import load_campaign
-from stableins.campaign.execution import run_campaign
-from stableins.campaign.summary import write_outputs
-from stableins.procedures.definition import load_procedure
-from stableins.procedures.designed import device_plan
+from stableins.cli import single_threaded_blas
+
+if "--in-process" in sys.argv:  # before numpy loads: part D's tasks with one BLAS thread, as a campaign's workers run them
+    single_threaded_blas()
+
+from stableins.campaign.config import load_campaign  # noqa: E402
+from stableins.campaign.execution import run_campaign  # noqa: E402
+from stableins.campaign.summary import write_outputs  # noqa: E402
+from stableins.procedures.definition import load_procedure  # noqa: E402
+from stableins.procedures.designed import device_plan  # noqa: E402
 
 TARGET_SIGMA = 0.05
 TARGET_MINUTES = 10.0
@@ -166,6 +178,39 @@ def part_c(args) -> bool:
     return speedup >= TARGET_SPEEDUP
 
 
+def part_d(args) -> None:
+    """Diagnosed tasks in this process: CPU per task, tasks per CPU-second, the rows' digest (see the module docstring)."""
+    from stableins.campaign.task import TaskData, run_task
+
+    config = load_campaign(
+        _config(
+            args.out,
+            "in-process",
+            "device-coarse",
+            "device-fine",
+            args.in_process + 1,
+            args.sample_rate,
+            args.first_seed - 1,
+            diagnose=True,
+        )
+    )
+    tasks = config.tasks()
+    data = TaskData(config)
+    run_task(tasks[0], data)  # warm-up: imports, procedure caches
+    rows = []
+    c0 = time.process_time()
+    for task in tasks[1:]:
+        rows += [{k: v for k, v in row.items() if not k.endswith("_s")} for row in run_task(task, data)]
+    cpu = (time.process_time() - c0) / args.in_process
+    digest = hashlib.sha256(json.dumps(rows, sort_keys=True, default=repr).encode()).hexdigest()
+    print(
+        f"D. {args.in_process} diagnosed tasks in one process (seeds {args.first_seed}..{args.first_seed + args.in_process - 1}, "
+        f"{os.environ.get('OPENBLAS_NUM_THREADS', '?')} BLAS thread): {cpu:.3f} s of CPU per task, {1 / cpu:.2f} tasks per CPU-second; "
+        f"1,000 tasks on 2 idle workers: {1000 * cpu / 2 / 60:.1f} min (target 1.5 min: ≤ 0.18 s per task); rows sha256 {digest[:16]}; "
+        f"{_uptime()}"
+    )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", type=int, default=1000)
@@ -177,7 +222,12 @@ def main() -> int:
     parser.add_argument("--sample-rate", type=float, default=10.0)
     parser.add_argument("--diagnose", action="store_true", help="part A's tasks also diagnose (simulate → calibrate → diagnose, issue 30)")
     parser.add_argument("--skip-paper", action="store_true", help="part C only")
+    parser.add_argument("--in-process", type=int, default=0, help="part D only: N diagnosed tasks in this process (issue 30)")
+    parser.add_argument("--first-seed", type=int, default=2, help="part D's first seed (the one before is its warm-up)")
     args = parser.parse_args()
+    if args.in_process:
+        part_d(args)
+        return 0
     ok = True
     paper: dict = {}
     if not args.skip_paper:

@@ -265,10 +265,13 @@ def test_resume_refuses_another_campaign_in_the_directory(tmp_path):
 
 
 def test_a_tasks_diagnosis_reuses_its_calibrations_dwell_statistics_to_the_bit(tmp_path):
-    """The session's dwell statistics handed to discovery are those dwells_from_columns makes of the merged rows (issue 30)."""
+    """The session's dwell statistics handed to discovery are those dwells_from_columns makes of the merged rows (issue 30).
+
+    The calibration's own statistics are those of each stage's rows; the clock-free ones are made once for both clocks.
+    """
     from dataclasses import fields
 
-    from stableins.campaign.task import _session, _stage_columns
+    from stableins.campaign.task import _session, _stage_columns, _statistics
     from stableins.data.device import DeviceDataset
     from stableins.discovery.diagnose import DiagnoseOptions, diagnose_data
     from stableins.estimators.dwell import dwells_from_columns
@@ -283,11 +286,13 @@ def test_a_tasks_diagnosis_reuses_its_calibrations_dwell_statistics_to_the_bit(t
     columns = {stage: _stage_columns(truth, spec, stage, task.stream_seed + k) for k, stage in enumerate(stages)}
     layouts = {"coarse": spec.coarse.layout, "fine": spec.fine.layout}
     setting = DeviceSetting.from_site(truth.site)
-    own = {stage: dwells_from_columns(columns[stage], layouts=layouts, setting=setting) for stage in stages}
-    merged, made = _session(columns, own, stages, layouts, setting)
+    own, made = _statistics(columns, stages, layouts, setting, session=True)
+    merged = _session(columns, stages)
     fresh = dwells_from_columns(merged, layouts=layouts, setting=setting)
     assert len(made) == len(fresh) == 2 * 18 + 18
-    for a, b in zip(made, fresh, strict=True):
+    alone = [d for stage in stages for d in dwells_from_columns(columns[stage], layouts=layouts, setting=setting)]
+    assert [d.start for d in made[36:]] != [d.start for d in alone[36:]]  # the fine stage is on another clock
+    for a, b in [*zip(made, fresh, strict=True), *zip([d for stage in stages for d in own[stage]], alone, strict=True)]:
         for f in fields(a):
             x, y = getattr(a, f.name), getattr(b, f.name)
             assert np.array_equal(x, y, equal_nan=True) if isinstance(x, np.ndarray) else x == y or (x != x and y != y), f.name

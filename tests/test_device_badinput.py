@@ -379,3 +379,24 @@ def test_cli_report_failure_leaves_no_record(tmp_path, capsys):
     # and with a writable report both are written
     assert main(["calibrate", "device", str(path), "--out", str(out), "--report", str(tmp_path / "ok.txt")]) == 0
     assert out.exists() and "coarse stage" in (tmp_path / "ok.txt").read_text()
+
+
+def test_clipped_without_sorting_answers_as_the_levels_do():
+    """Issue 30: the range test that skips the sort gives the answer of the levels and counts, near the rail too."""
+    from stableins.estimators.dwell import _clipped
+
+    def by_levels(x, full_scale):
+        levels, counts = np.unique(x[np.isfinite(x)], return_counts=True)
+        step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
+        return any(c >= 3 and abs(e) >= full_scale - step for e, c in ((levels[-1], counts[-1]), (levels[0], counts[0])))
+
+    rng = np.random.default_rng(30)
+    answers = set()
+    for _ in range(400):
+        step = 10.0 ** rng.uniform(-5, -1)
+        x = np.round(rng.normal(rng.uniform(-10, 10), rng.uniform(0.2, 3) * step, int(rng.integers(3, 200))) / step) * step
+        for full_scale in (float(np.max(np.abs(x))) + k * step for k in (-1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 40.0)):
+            expected = by_levels(x, full_scale)
+            assert _clipped(x, full_scale) == expected
+            answers.add(expected)
+    assert answers == {True, False}

@@ -33,3 +33,18 @@ def test_waiting_gives_the_outputs_recording_gives(quantization):
     assert t_waited == t_recorded
     np.testing.assert_array_equal(waited, recorded)
     assert np.std(waited[:, 1]) > 0  # noise and motion are in it
+
+
+@pytest.mark.parametrize("world_effects", [{}, {"tilt_north": 2e-5, "ang1_inner_c": 3e-6}])
+def test_platform_matrices_per_run_of_equal_readings_are_those_row_by_row(world_effects):
+    """Issue 30: ``C_n^p`` is made once per run of equal noise-free readings (a settled dwell), equal to the bit."""
+    truth = Truth.draw(5, effects=world_effects)
+    platform = SimulatedPlatform(truth, rate=10, seed=3)
+    platform.command((0.0, 0.7853981633974483, 0.0))
+    index = np.arange(0, int(round((platform.slew_duration() + 200.0) * 10)))
+    readings, *_ = platform._path(index)
+    repeated = np.all(readings[1:] == readings[:-1], axis=1)
+    assert 0 < repeated.sum() < len(repeated)  # the slew and the transient differ, the settled readings repeat
+    fast = platform._dcm_nav_to_platform(readings)
+    slow = np.stack([platform.platform.dcm_nav_to_platform(r) for r in readings])
+    np.testing.assert_array_equal(fast, slow)

@@ -104,29 +104,36 @@ class _RecordInForce:
         return dict(self.estimates)
 
 
-def _session(
+def _statistics(
     columns: Mapping[str, Mapping[str, NDArray[Any]]],
-    summaries: Mapping[str, list[DwellSummary]],
     stages: list[str],
     layouts: Mapping[str, StageLayout],
     setting: DeviceSetting,
-) -> tuple[dict[str, NDArray[Any]], list[DwellSummary]]:
-    """Return the task's stages as one session and its dwell statistics (what ``dwells_from_columns`` makes of it).
+    *,
+    session: bool,
+) -> tuple[dict[str, list[DwellSummary]], list[DwellSummary]]:
+    """Return each stage's dwell statistics on its own clock (the calibration's) and, with ``session``, on the session's.
 
-    Stage ``k`` goes ``1e6·k`` s later on one clock (one session: the hysteresis states carry over).  Its dwell
-    statistics are those of each stage's own rows: the first stage's clock is unchanged, so its calibration's
-    statistics are taken as they are; a later stage's moved clock changes its start times and their rounding, so those
-    are made again from the moved rows.
+    On the session's clock (:func:`_session`) stage ``k`` starts ``1e6·k`` s later: its start times and their rounding
+    change, so its statistics are those of its moved rows (``dwells_from_columns`` of them, to the bit); the
+    statistics that do not depend on the clock are made once for both (:func:`stableins.estimators.dwell.dwells_on_clocks`).
     """
-    from stableins.estimators.dwell import dwells_from_columns
+    from stableins.estimators.dwell import dwells_on_clocks
 
+    own: dict[str, list[DwellSummary]] = {}
+    on_session: list[DwellSummary] = []
+    for k, stage in enumerate(stages):
+        made = dwells_on_clocks(columns[stage], (0.0, 1e6 * k) if session and k else (0.0,), layouts=layouts, setting=setting)
+        own[stage] = made[0]
+        on_session += made[-1]
+    return own, on_session
+
+
+def _session(columns: Mapping[str, Mapping[str, NDArray[Any]]], stages: list[str]) -> dict[str, NDArray[Any]]:
+    """Return the task's stages as one session: stage ``k`` goes ``1e6·k`` s later on one clock (the hysteresis states carry over)."""
     merged: dict[str, NDArray[Any]] = {name: np.concatenate([columns[s][name] for s in stages]) for name in columns[stages[0]]}
     merged["time"] = np.concatenate([columns[s]["time"] + 1e6 * k for k, s in enumerate(stages)])
-    made = list(summaries[stages[0]])
-    for k, stage in enumerate(stages[1:], start=1):
-        moved = {**columns[stage], "time": columns[stage]["time"] + 1e6 * k}
-        made += dwells_from_columns(moved, layouts=layouts, setting=setting)
-    return merged, made
+    return merged
 
 
 def _diagnose(
@@ -148,7 +155,6 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     """Simulate, calibrate (and diagnose) one task; one row per parameter of the record (columns :data:`COLUMNS`)."""
     from stableins.estimators.device import calibrate_device
     from stableins.estimators.device_gauge import gauge_equivalent
-    from stableins.estimators.dwell import dwells_from_columns
     from stableins.estimators.setting import DeviceSetting
     from stableins.procedures.definition import load_procedure
     from stableins.simulator.truth import Truth
@@ -164,7 +170,7 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     layouts = {"coarse": spec.coarse.layout, "fine": (spec.fine or load_procedure("device-fine")).layout}
     t1 = time.perf_counter()
     setting = DeviceSetting.from_site(truth.site)
-    summaries = {stage: dwells_from_columns(columns[stage], layouts=layouts, setting=setting) for stage in stages}
+    summaries, on_session = _statistics(columns, stages, layouts, setting, session=config.diagnose)
     dwells = [d for stage in stages for d in summaries[stage]]
     noise = calibration_noise(noise_spec.settings, noise_spec.calibrate)
     calibration = calibrate_device(dwells, truth.site, layouts=layouts, noise=noise)
@@ -172,8 +178,7 @@ def run_task(task: Task, data: TaskData) -> list[dict[str, Any]]:
     t2 = time.perf_counter()
     found: dict[str, Any] = {"flagged": [], "best": None}
     if config.diagnose:
-        merged, made = _session(columns, summaries, stages, layouts, setting)
-        found = _diagnose(merged, truth, final, calibration.noise, layouts, summaries=made)
+        found = _diagnose(_session(columns, stages), truth, final, calibration.noise, layouts, summaries=on_session)
     t3 = time.perf_counter()
     truth_values = gauge_equivalent(truth.parameters, truth.configuration)
     detected = ""

@@ -84,6 +84,7 @@ class DwellProblem:
         self.stage = stage
         self.static = static
         self._inverse_factor = None
+        self._last: tuple[tuple[Any, ...], DwellForward] | None = None  # the last evaluation (evaluate)
         if dwells.slow_covariance is not None:
             c = np.asarray(dwells.slow_covariance, dtype=float)
             self._inverse_factor = np.stack([np.linalg.inv(np.linalg.cholesky(c[a] + np.diag(dwells.sigma[:, a] ** 2))) for a in range(3)])
@@ -130,10 +131,16 @@ class DwellProblem:
         Zero offsets and kinematic (test-equipment) effects act through the exact kinematics: ``f^p`` is computed with
         their values and their columns are ``(∂f^a/∂f^p)(∂f^p/∂p)``; every other term goes through
         :meth:`ErrorModel.forward` / :meth:`ErrorModel.jacobian`.
+
+        The last evaluation is kept: a fit evaluates its solution again, and its design and candidate columns are
+        evaluated there too (issue 30); the same terms at the same values return it (its arrays are read-only).
         """
         d = self.dwells
         full = ErrorModel(model.terms + tuple(extra_terms)) if extra_terms else model
-        return dwell_forward(
+        key = (full.terms, tuple((k, float(v)) for k, v in values.items()))
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        forward = dwell_forward(
             full,
             values,
             d.readings,
@@ -148,6 +155,10 @@ class DwellProblem:
                 extra={"time_since_command": d.time_since_command},
             ),
         )
+        for array in (forward.output, forward.jacobian, forward.specific_force):
+            array.flags.writeable = False
+        self._last = (key, forward)
+        return forward
 
     # ------------------------------------------------------------------ fit
     def fit(self, model: ErrorModel, start: Mapping[str, float] | None = None, iterations: int = 8) -> FitResult:

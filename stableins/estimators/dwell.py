@@ -119,7 +119,15 @@ def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
     """
     if not np.isfinite(full_scale):
         return False
-    levels, counts = np.unique(x[np.isfinite(x)], return_counts=True)
+    finite = x[np.isfinite(x)]
+    if finite.size == 0:
+        return False
+    low, high = float(finite.min()), float(finite.max())
+    if max(abs(low), abs(high)) < full_scale - (high - low):
+        # the step between levels is at most the range (rounding is monotone), so no extreme is within a step of
+        # the converter's range: the answer without sorting the samples (issue 30: 3 sorts per dwell)
+        return False
+    levels, counts = np.unique(finite, return_counts=True)
     if levels.size == 0:
         return False
     step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
@@ -163,8 +171,8 @@ def turn_explained_outputs(angles: ArrayLike, setting: DeviceSetting) -> NDArray
     return np.asarray(f_p - f_p.mean(axis=0), dtype=np.float64)
 
 
-def _dwell_flags(t: NDArray[np.float64], f: NDArray[np.float64], a: NDArray[np.float64], checks: DwellChecks) -> list[str]:
-    """Why a dwell must be left out: non-finite, too few or saturated/clipped samples, a slew inside it (module docstring)."""
+def _dwell_flags(f: NDArray[np.float64], a: NDArray[np.float64], checks: DwellChecks) -> list[str]:
+    """Why a dwell must be left out whatever its clock: non-finite, too few or saturated/clipped samples (module docstring)."""
     n = f.shape[0]
     flags: list[str] = []
     if not (np.all(np.isfinite(f)) and np.all(np.isfinite(a))):
@@ -176,14 +184,58 @@ def _dwell_flags(t: NDArray[np.float64], f: NDArray[np.float64], a: NDArray[np.f
     elif n >= checks.min_samples and any(_clipped(f[:, i], checks.saturation) for i in range(3)):
         axes = [ax for i, ax in enumerate("xyz") if _clipped(f[:, i], checks.saturation)]
         flags.append(f"clipped samples on axis {', '.join(axes)}: output pinned at its extreme value")
+    return flags
+
+
+def _slew_flags(t: NDArray[np.float64], a: NDArray[np.float64], checks: DwellChecks) -> list[str]:
+    """Return the flag of a slew inside the dwell: an angle reading departs from a steady trend in time (module docstring)."""
     span = steady_trend_departure(t, a)
     if np.any(span > checks.max_angle_span):
         gimbal = ("platform", "inner", "middle")[int(np.argmax(span))]
-        flags.append(
+        return [
             f"slew inside the dwell: {gimbal} angle reading departs from a steady trend by {span.max() / ARCSEC:.1f} arcsec "
             f"peak to peak (limit {checks.max_angle_span / ARCSEC:.1f})"
-        )
-    return flags
+        ]
+    return []
+
+
+@dataclass(frozen=True)
+class _Scatter:
+    """What a dwell's samples say of their noise, whatever their clock: mean, scatter, 1σ of the mean, the noise samples."""
+
+    mean: NDArray[np.float64]
+    noise: NDArray[np.float64]
+    sem: NDArray[np.float64]  # before the noise floor
+    notes: tuple[str, ...]
+    samples: NDArray[np.float64]  # the outputs less the measured turn's share (the Allan ratios' input)
+
+
+def _scatter(
+    f: NDArray[np.float64], a: NDArray[np.float64], *, usable: bool, checks: DwellChecks, setting: DeviceSetting | None
+) -> _Scatter:
+    """Mean, scatter and honest 1σ of a dwell's outputs (module docstring); the measured turn taken out when ``usable``."""
+    from stableins.estimators.distributions import chi2_ppf
+
+    n = f.shape[0]
+    notes: list[str] = []
+    with np.errstate(invalid="ignore"):
+        mean = f.mean(axis=0)
+        if setting is not None and usable:
+            f = f - turn_explained_outputs(a, setting)  # the scatter about the measured turn (the mean is unchanged)
+        noise = f.std(axis=0, ddof=1) if n > 1 else np.full(3, np.nan)
+    sem = noise / np.sqrt(n)
+    if n >= 2 * checks.noise_blocks:
+        b = checks.noise_blocks
+        m = n // b
+        block_means = f[: m * b].reshape(b, m, 3).mean(axis=1)
+        sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = (sem_block / np.maximum(sem, checks.noise_floor)) ** 2
+        limit = chi2_ppf(checks.correlation_quantile, b - 1) / (b - 1)
+        if np.any(ratio > limit):
+            notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
+            sem = np.where(ratio > limit, sem_block, sem)
+    return _Scatter(mean, noise, sem, tuple(notes), f)
 
 
 def summarize_dwell(
@@ -215,62 +267,74 @@ def summarize_dwell(
         explains (:func:`turn_explained_outputs`) is taken out before the noise (standard deviation, block means,
         Allan ratios) is measured.  None: the samples as recorded.
     """
-    from stableins.estimators.distributions import chi2_ppf
+    times = [np.asarray(time, dtype=float)]
+    return _summaries_on_clocks(
+        times, specific_force, angles, command, position=position, stage=stage, pass_number=pass_number, checks=checks, setting=setting
+    )[0]
 
-    t = np.asarray(time, dtype=float)
+
+def _summaries_on_clocks(
+    times: Sequence[NDArray[np.float64]],
+    specific_force: ArrayLike,
+    angles: ArrayLike,
+    command: ArrayLike,
+    *,
+    position: int,
+    stage: str,
+    pass_number: int,
+    checks: DwellChecks,
+    setting: DeviceSetting | None,
+) -> list[DwellSummary]:
+    """:func:`summarize_dwell` of the same samples on several clocks ``times``, the clock-free statistics made once.
+
+    A clock enters the slew check (a steady trend in time), the duration, the Allan ratios (at the rate it gives) and
+    the start time; the flags of the samples, their mean, scatter, block means and measured turn do not depend on it.
+    """
     f = np.asarray(specific_force, dtype=float).reshape(-1, 3)
     a = np.asarray(angles, dtype=float).reshape(-1, 3)
     n = f.shape[0]
-    notes: list[str] = []
     nan3 = np.full(3, np.nan)
     if n == 0:
-        return DwellSummary(
+        empty = DwellSummary(
             position, stage, pass_number, np.asarray(command, float), nan3, nan3, nan3, nan3, 0, 0.0, ("no samples after settling",)
         )
-    duration = float(t[-1] - t[0]) if n > 1 else 0.0
-    flags = _dwell_flags(t, f, a, checks)
-    with np.errstate(invalid="ignore"):
-        mean = f.mean(axis=0)
-        if setting is not None and not flags:
-            f = f - turn_explained_outputs(a, setting)  # the scatter about the measured turn (the mean is unchanged)
-        noise = f.std(axis=0, ddof=1) if n > 1 else np.full(3, np.nan)
-    sem = noise / np.sqrt(n)
-    if n >= 2 * checks.noise_blocks:
-        b = checks.noise_blocks
-        m = n // b
-        block_means = f[: m * b].reshape(b, m, 3).mean(axis=1)
-        sem_block = block_means.std(axis=0, ddof=1) / np.sqrt(b)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = (sem_block / np.maximum(sem, checks.noise_floor)) ** 2
-        limit = chi2_ppf(checks.correlation_quantile, b - 1) / (b - 1)
-        if np.any(ratio > limit):
-            notes.append(f"correlated noise (block/white variance ratio {np.nanmax(ratio):.1f} > {limit:.2f}): 1σ from {b} block means")
-            sem = np.where(ratio > limit, sem_block, sem)
-    white_sem = sem.copy()
-    ratios = None
-    if not flags and duration > 0:
-        # Allan variance over its white-noise value at n/4 ... n/32: the slow-noise decision of the stage
-        from stableins.estimators.slow_noise import dwell_allan_ratios
+        return [empty for _ in times]
+    samples_flags = _dwell_flags(f, a, checks)
+    scatter: dict[bool, _Scatter] = {}
+    out = []
+    for t in times:
+        duration = float(t[-1] - t[0]) if n > 1 else 0.0
+        flags = samples_flags + _slew_flags(t, a, checks)
+        usable = not flags
+        if usable not in scatter:
+            scatter[usable] = _scatter(f, a, usable=usable, checks=checks, setting=setting)
+        made = scatter[usable]
+        ratios = None
+        if usable and duration > 0:
+            # Allan variance over its white-noise value at n/4 ... n/32: the slow-noise decision of the stage
+            from stableins.estimators.slow_noise import dwell_allan_ratios
 
-        ratios = dwell_allan_ratios(f, (n - 1) / duration)[1]
-    sem = np.maximum(sem, checks.noise_floor)
-    return DwellSummary(
-        position,
-        stage,
-        pass_number,
-        np.asarray(command, dtype=float),
-        a.mean(axis=0),
-        mean,
-        sem,
-        noise,
-        n,
-        duration,
-        tuple(flags),
-        tuple(notes),
-        white_sem,
-        ratios,
-        float(t[0]),
-    )
+            ratios = dwell_allan_ratios(made.samples, (n - 1) / duration)[1]
+        out.append(
+            DwellSummary(
+                position,
+                stage,
+                pass_number,
+                np.asarray(command, dtype=float),
+                a.mean(axis=0),
+                made.mean.copy(),
+                np.maximum(made.sem, checks.noise_floor),
+                made.noise.copy(),
+                n,
+                duration,
+                tuple(flags),
+                made.notes,
+                made.sem.copy(),
+                ratios,
+                float(t[0]),
+            )
+        )
+    return out
 
 
 def slow_covariance(dwells: Sequence[DwellSummary], noise: NoiseModel | None, source: str = "data") -> NDArray[np.float64] | None:
@@ -311,6 +375,50 @@ def dwells_from_columns(
     :class:`~stableins.estimators.setting.DeviceSetting`, e.g. ``DeviceSetting.from_site(dataset.metadata)``) the
     outputs' change that the measured turn within each dwell explains is left out of its noise (:func:`summarize_dwell`).
     """
+    return dwells_on_clocks(columns, (0.0,), settle=settle, checks=checks, layouts=layouts, source=source, setting=setting)[0]
+
+
+def _dwell_keys(
+    stage: NDArray[np.str_], pass_: NDArray[np.int64], position: NDArray[np.int64], source: str
+) -> tuple[list[tuple[str, int, int]], NDArray[np.int64]]:
+    """Return the (stage, pass, position) of each run of rows and the run's first row; a key run twice raises InputError."""
+    keys = np.rec.fromarrays([stage, pass_, position])
+    order: list[tuple[str, int, int]] = []
+    seen: set[tuple[str, int, int]] = set()
+    starts = np.flatnonzero(np.r_[True, (stage[1:] != stage[:-1]) | (pass_[1:] != pass_[:-1]) | (position[1:] != position[:-1])])
+    for s in starts:
+        key = (str(keys[s][0]), int(keys[s][1]), int(keys[s][2]))
+        if key in seen:
+            raise InputError(
+                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
+                path=source,
+                field="position",
+                row=int(s) + 1,
+                expected="each position once per stage and pass",
+            )
+        seen.add(key)
+        order.append(key)
+    return order, starts
+
+
+def dwells_on_clocks(
+    columns: Mapping[str, ArrayLike],
+    offsets: Sequence[float],
+    *,
+    settle: float = 0.0,
+    checks: DwellChecks = _DEFAULT_CHECKS,
+    layouts: Mapping[str, StageLayout] | None = None,
+    source: str = "data",
+    setting: DeviceSetting | None = None,
+) -> list[list[DwellSummary]]:
+    """Return :func:`dwells_from_columns` of ``columns`` with their time moved by each of ``offsets`` [s].
+
+    The summaries are those that :func:`dwells_from_columns` makes of the moved columns (``time + offset``), to the bit;
+    what does not depend on the clock (the flags of the samples, their mean, scatter, block means and measured turn) is
+    made once for all the offsets (issue 30: a campaign task's discovery sees its stages on one session clock).
+
+    The other parameters are those of :func:`dwells_from_columns`; one list of summaries per offset.
+    """
     required = ("stage", "pass", "position", "time", "time_since_command", "f_x", "f_y", "f_z")
     for name in required:
         if name not in columns:
@@ -330,23 +438,9 @@ def dwells_from_columns(
 
     angles = three("angle")
     commands = three("command")
-    keys = np.rec.fromarrays([stage, pass_, position])
-    order: list[tuple[str, int, int]] = []
-    seen: set[tuple[str, int, int]] = set()
-    starts = np.flatnonzero(np.r_[True, (stage[1:] != stage[:-1]) | (pass_[1:] != pass_[:-1]) | (position[1:] != position[:-1])])
-    for s in starts:
-        key = (str(keys[s][0]), int(keys[s][1]), int(keys[s][2]))
-        if key in seen:
-            raise InputError(
-                f"position {key[2]} appears twice in {key[0]} pass {key[1]}",
-                path=source,
-                field="position",
-                row=int(s) + 1,
-                expected="each position once per stage and pass",
-            )
-        seen.add(key)
-        order.append(key)
-    out = []
+    order, starts = _dwell_keys(stage, pass_, position, source)
+    clocks = [time if offset == 0.0 else time + offset for offset in offsets]
+    out: list[list[DwellSummary]] = [[] for _ in offsets]
     ends = np.r_[starts[1:], stage.size]
     for key, first, end in zip(order, starts, ends, strict=True):
         rows = np.arange(first, end)  # a key is one run of rows: a second run of it raised above
@@ -363,19 +457,19 @@ def dwells_from_columns(
         if layout is not None and key[2] in layout.positions:
             step_settle, step_checks = layout.settle(key[2]), layout.checks
         use = rows[since[rows] >= step_settle]
-        out.append(
-            summarize_dwell(
-                time[use],
-                f[use],
-                angles[use],
-                commands[rows[0]],
-                position=key[2],
-                stage=key[0],
-                pass_number=key[1],
-                checks=step_checks,
-                setting=setting,
-            )
+        made = _summaries_on_clocks(
+            [clock[use] for clock in clocks],
+            f[use],
+            angles[use],
+            commands[rows[0]],
+            position=key[2],
+            stage=key[0],
+            pass_number=key[1],
+            checks=step_checks,
+            setting=setting,
         )
+        for per_clock, summary in zip(out, made, strict=True):
+            per_clock.append(summary)
     return out
 
 

@@ -307,7 +307,11 @@ class SimulatedPlatform:
             rows = segment == j
             tau = (index[rows] - c.sample) / self.rate + shift
             delta = c.target - c.start
-            if c.duration > 0:
+            if c.duration > 0 and tau.min() >= c.duration:  # the slew is over (x = 1): the same values, computed once
+                x = np.ones(1)
+                r = np.broadcast_to(c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None], (len(tau), 3)).copy()
+                rd = np.broadcast_to(delta * 0.0, (len(tau), 3)).copy()
+            elif c.duration > 0:
                 x = np.clip(tau / c.duration, 0.0, 1.0)
                 moving = (tau > 0) & (tau < c.duration)
                 r = c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None]
@@ -318,15 +322,13 @@ class SimulatedPlatform:
             after = tau - c.duration
             settled = after > 0
             if np.any(settled) and self._gain:
-                a = after[settled]
+                sel = slice(None) if settled.all() else settled  # a recorded dwell: every row, no gather and scatter
+                a = after[sel]
                 envelope = np.exp(-self._zeta * self._omega * a)
-                r[settled] += self._gain * delta * (envelope * np.sin(self._omega_d * a))[:, None]
-                rd[settled] += (
-                    self._gain
-                    * delta
-                    * (envelope * (self._omega_d * np.cos(self._omega_d * a) - self._zeta * self._omega * np.sin(self._omega_d * a)))[
-                        :, None
-                    ]
+                sine = np.sin(self._omega_d * a)
+                r[sel] += self._gain * delta * (envelope * sine)[:, None]
+                rd[sel] += (
+                    self._gain * delta * (envelope * (self._omega_d * np.cos(self._omega_d * a) - self._zeta * self._omega * sine))[:, None]
                 )
             readings[rows] = r
             rates[rows] = rd
@@ -344,7 +346,7 @@ class SimulatedPlatform:
         :func:`stableins.platform.rotation_about`; a position near gimbal lock is held to the base (:attr:`_Command.held`).
         """
         readings, rates, segment, settle_time = self._path(index, shift)
-        dcm = self.platform.dcm_nav_to_platform(readings)
+        dcm = self._dcm_nav_to_platform(readings)
         held = np.array([c.held for c in self._commands], dtype=bool)
         drifting = (settle_time > 0) & (segment >= 0)
         if np.any(drifting):
@@ -367,6 +369,23 @@ class SimulatedPlatform:
         readings = readings.copy()
         readings[drifting] = self.platform.readings_from_dcm_nav_to_platform(dcm[drifting], readings[drifting])
         return readings, rates, dcm, segment, settle_time
+
+    def _dcm_nav_to_platform(self, readings: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return ``C_n^p`` of each row of ``readings`` (:meth:`stableins.platform.GimbalPlatform.dcm_nav_to_platform`).
+
+        It is computed once per run of equal consecutive rows: once the settling transient has decayed below the
+        readings' last bit (about 50 s into a dwell of the shipped settling) the noise-free readings repeat to the bit,
+        and equal readings give equal matrices, so the result is the same as row by row.
+        """
+        if len(readings) < 2:
+            return self.platform.dcm_nav_to_platform(readings)
+        new = np.empty(len(readings), dtype=bool)
+        new[0] = True
+        np.any(readings[1:] != readings[:-1], axis=1, out=new[1:])
+        if new.all():
+            return self.platform.dcm_nav_to_platform(readings)
+        first = np.flatnonzero(new)
+        return self.platform.dcm_nav_to_platform(readings[first])[np.cumsum(new) - 1]
 
     def _nominal_readings(self, sample: int) -> NDArray[np.float64]:
         """Return the readings on the slew path at ``sample`` without the settling transient (start of a new slew)."""
