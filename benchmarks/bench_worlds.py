@@ -26,6 +26,15 @@ noise given (the world's N, B, K: a datasheet that is right).  Printed per world
   dwells reject it (``rej``: on ``white`` it is the true model, so its false rejection rate, designed 1 %) and the
   rms z that result (the σ follow the data when it is rejected).
 
+``--exact`` (device level) also prints, per world and family, the rms z the σ *predict* under the world's exact
+dwell-mean covariance (:func:`exact_dwell_covariance`: the simulator's white noise ``N²/T``, its Gauss-Markov sum or
+single Gauss-Markov process, its random walk and quantization, on the session's clock), linearized at the fused
+estimate: ``E z_p² = (P Hᵀ R⁻¹ R_w R⁻¹ H P)_pp / P_pp`` (:func:`predicted_z2`, the "sandwich"; ``R`` the covariance the
+fit used, ``R_w`` the world's).  It has no Monte Carlo scatter from the error draw (only from the session's noise
+model), so a family whose measured rms z is off by more than its scatter is told apart as the σ's (predicted ≠ 1)
+or the draw's (predicted ≈ 1).  Only the simulator's noise is in ``R_w`` (not the angle-sensor noise, nor the
+``lab`` world's deterministic effects).
+
 ``--level independent`` draws the sessions with the independent generator (benchmarks/worlds/independent.py, written
 from the documents alone) instead of the simulator: the worlds white, flicker, random-walk, quartz, thermal, drift.
 
@@ -83,6 +92,10 @@ class SessionResult:
     white_rejected: bool = False
     #: System level only: slow noise detected and the random walk's maximum-likelihood amplitude exactly 0 (the boundary).
     random_walk_zero: bool = False
+    #: ``--exact`` only: E z² per parameter predicted under the world's exact dwell-mean covariance (:func:`predicted_z2`),
+    #: default path and true-noise path.
+    predicted_default: dict[str, float] = field(default_factory=dict)
+    predicted_given: dict[str, float] = field(default_factory=dict)
 
 
 def _z(fit, truth, floor=None) -> dict[str, float]:
@@ -101,8 +114,89 @@ def _z(fit, truth, floor=None) -> dict[str, float]:
 _REJECTED = "is rejected by the dwells"
 
 
-def device_session(world_name: str, seed: int, rate: float, paths: tuple[str, ...] = ("none", "true", "white")) -> SessionResult:
-    """One device session in ``world_name`` (module docstring), calibrated on the default path and with the true noise."""
+def exact_dwell_covariance(noise: Any, dwells: Any) -> np.ndarray:
+    """The world's covariance of the dwell means, ``(3, m, m)`` [(m/s²)²], the three axes alike (no Monte Carlo).
+
+    ``noise`` is the simulator's :class:`~stableins.simulator.noise.NoiseSettings`, ``dwells`` the dwell summaries in the
+    fit's order (one time base: the session's clock).  Per axis, with the closed forms of :mod:`stableins.noise.windows`
+    (docs/noise.md §1, "Dwell means"): white ``N²/T`` on the diagonal; each Gauss-Markov process of the simulator's sum
+    (its own time constants: the flicker sum of 10 s … 1e5 s, or the ``gauss-markov`` world's single 300 s), variance
+    ``B² ln10/π`` each (docs/simulator.md, "Noise"); the random walk ``K²`` from the first dwell's start; quantization
+    ``2Q²/T²`` with ``Q = LSB/√12`` on the diagonal.
+    """
+    from stableins.noise import FLICKER_VARIANCE_PER_B2
+    from stableins.noise.windows import gauss_markov_window_covariance, random_walk_window_covariance
+
+    start = np.array([d.start for d in dwells], dtype=float)
+    length = np.array([d.duration for d in dwells], dtype=float)
+    cov = np.zeros((start.size, start.size))
+    if noise.bias_instability > 0:
+        for tc in noise.bias_instability_time_constants:
+            cov += FLICKER_VARIANCE_PER_B2 * noise.bias_instability**2 * gauss_markov_window_covariance(start, length, tc)
+    if noise.acceleration_random_walk > 0:
+        cov += noise.acceleration_random_walk**2 * random_walk_window_covariance(start, length)
+    cov[np.diag_indices(start.size)] += noise.velocity_random_walk**2 / length + 2.0 * (noise.quantization**2 / 12.0) / length**2
+    return np.repeat(cov[None], 3, axis=0)
+
+
+def predicted_z2(calibration: Any, dwells: Any, site: Any, noise: Any) -> dict[str, float]:
+    r"""E z² per estimated parameter of the recorded (fused) fit under the world's exact dwell-mean covariance.
+
+    The fit is the GLS ``x̂ = argmin rᵀR⁻¹r`` with ``P = (HᵀR⁻¹H)⁻¹`` (:mod:`stableins.estimators.joint`, ``R`` from
+    the noise model the calibration used).  Linearized at ``x̂``, its error under the world's covariance ``R_w`` of the
+    observations (:func:`exact_dwell_covariance` through the same map ``M`` from dwell means to rows) has covariance
+    ``P HᵀR⁻¹ R_w R⁻¹H P`` (the sandwich), so
+
+    .. math:: E z_p^2 = (P H^T R^{-1} R_w R^{-1} H P)_{pp} / P_{pp}
+
+    which is 1 for every parameter when ``R = R_w``.  The problem is rebuilt from the fit's own dwells (in its order) and
+    noise model; its ``P`` reproduces the recorded σ (checked: an ``AssertionError`` otherwise).
+    """
+    import dataclasses as _dc
+
+    from stableins.conventions import GimbalConfiguration
+    from stableins.estimators.coarse import coarse_model
+    from stableins.estimators.joint import joint_problem
+    from stableins.estimators.setting import DeviceSetting
+
+    fit = calibration.final
+    by_key = {(d.stage, d.pass_number, d.position): d for d in dwells}
+    used = [by_key[(u.stage, u.pass_number, u.position)] for u in fit.details.positions_used]
+    coarse = [d for d in used if d.stage == "coarse"]
+    fine = [d for d in used if d.stage == "fine"]
+    setting = DeviceSetting(site.gravity, site.base_attitude, GimbalConfiguration((*site.gimbal_senses,)), calibration.noise, ())
+    model = coarse_model(nonlinear=True)
+    problem = joint_problem(coarse, fine, setting=setting, model=model)
+    values = fit.as_dict()
+    x = model.vector({k: values.get(k, model[k].reference) for k in model.ids})[None]
+    _, jacobian, cov = problem.raw(x)
+    # the world's: the exact slow covariance and white N²/T in place of the dwells' measured s²/n (slow part carries
+    # the diagonal too, so the rows' white σ are set to 0)
+    world = _dc.replace(
+        problem,
+        slow=exact_dwell_covariance(noise, [*coarse, *fine]),
+        coarse=_dc.replace(problem.coarse, sigma=np.zeros_like(problem.coarse.sigma)),
+        fine=_dc.replace(problem.fine, sigma=np.zeros_like(problem.fine.sigma)) if problem.fine is not None else None,
+    )
+    _, _, cov_world = world.raw(x)
+    free = [i for i, k in enumerate(model.ids) if k in fit.ids and fit[k][2] == "estimated"]
+    h = jacobian[0][:, free]
+    r_inv_h = np.linalg.solve(cov[0], h)
+    p = np.linalg.inv(h.T @ r_inv_h)
+    sandwich = p @ (r_inv_h.T @ cov_world[0] @ r_inv_h) @ p
+    sigma = np.sqrt(np.diag(p))
+    recorded = np.array([fit[model.ids[i]][1] for i in free])
+    assert np.allclose(sigma, recorded, rtol=1e-4), "the rebuilt problem does not reproduce the recorded σ"
+    return {model.ids[i]: float(sandwich[j, j] / p[j, j]) for j, i in enumerate(free)}
+
+
+def device_session(
+    world_name: str, seed: int, rate: float, paths: tuple[str, ...] = ("none", "true", "white"), *, exact: bool = False
+) -> SessionResult:
+    """One device session in ``world_name`` (module docstring), calibrated on the default path and with the true noise.
+
+    ``exact``: also E z² predicted under the world's exact dwell-mean covariance (:func:`predicted_z2`).
+    """
     import argparse as _argparse
 
     from stableins.commands.simulate import _device_procedures, _iterated_session
@@ -128,7 +222,14 @@ def device_session(world_name: str, seed: int, rate: float, paths: tuple[str, ..
         reference = calibrate_device(dwells, truth.site, layouts=layouts, noise=given)
     if "white" in paths:
         white = calibrate_device(dwells, truth.site, layouts=layouts, noise=with_given_slow_noise(dwells, 0.0, 0.0, "white datasheet"))
-    return _session_result(world_name, seed, default, reference, white, truth, t0)
+    out = _session_result(world_name, seed, default, reference, white, truth, t0)
+    if not exact:
+        return out
+    return dataclasses.replace(
+        out,
+        predicted_default=predicted_z2(default, dwells, truth.site, n),
+        predicted_given=predicted_z2(reference, dwells, truth.site, n) if reference is not None else {},
+    )
 
 
 def _session_result(world_name: str, seed: int, default: Any, reference: Any, white: Any, truth: Any, t0: float) -> SessionResult:
@@ -310,8 +411,10 @@ LEVELS: dict[str, Callable[[str, int, float, tuple[str, ...]], SessionResult]] =
 }
 
 
-def _job(args: tuple[str, str, int, float, tuple[str, ...]]) -> SessionResult:
-    level, world_name, seed, rate, paths = args
+def _job(args: tuple[str, str, int, float, tuple[str, ...], bool]) -> SessionResult:
+    level, world_name, seed, rate, paths, exact = args
+    if exact:
+        return device_session(world_name, seed, rate, paths, exact=True)
     return LEVELS[level](world_name, seed, rate, paths)
 
 
@@ -360,6 +463,19 @@ def table(results: list[SessionResult], worlds: list[str], families: dict[str, t
     return lines
 
 
+def predicted_table(results: list[SessionResult], worlds: list[str], families: dict[str, tuple[str, ...]] = FAMILIES) -> list[str]:
+    """``--exact``: per world and path, √(mean E z²) per family predicted under the world's exact covariance (:func:`predicted_z2`)."""
+    lines = [f"{'world':<13} {'path':<6} " + " ".join(f"{f:>6}" for f in families) + f" {'n':>3}"]
+    for w in worlds:
+        rows = [r for r in results if r.world == w]
+        for path, key in (("none", "predicted_default"), ("true", "predicted_given")):
+            zs = [getattr(r, key) for r in rows if getattr(r, key)]
+            if zs:
+                fam = " ".join(f"{math.sqrt(float(np.mean([z[k] for z in zs for k in ids if k in z]))):>6.3f}" for ids in families.values())
+                lines.append(f"{w:<13} {path:<6} {fam} {len(zs):>3}")
+    return lines
+
+
 def boundary_table(results: list[SessionResult], worlds: list[str]) -> list[str]:
     """System level, default path: rms z per family on the records whose random walk is estimated exactly 0, and the rest.
 
@@ -388,14 +504,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--paths", nargs="+", choices=("none", "true", "white"), default=["none", "true", "white"], help="device level: calibrations run"
     )
+    parser.add_argument(
+        "--exact", action="store_true", help="device level: also the rms z predicted under the world's exact dwell-mean covariance"
+    )
     args = parser.parse_args(argv)
+    if args.exact and args.level != "device":
+        parser.error("--exact is for --level device (the simulator's worlds)")
     from stableins.simulator.worlds import world
 
     for w in args.worlds:
         world(w, field="--worlds")
     # seeds outermost: a run stopped early has every world at the same number of seeds
     paths = tuple(dict.fromkeys(["none", *args.paths]))  # the default path always runs
-    jobs = [(args.level, w, s, args.rate, paths) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds]
+    jobs = [
+        (args.level, w, s, args.rate, paths, args.exact) for s in range(args.first_seed, args.first_seed + args.seeds) for w in args.worlds
+    ]
     t0 = time.perf_counter()
     results = []
     with ProcessPoolExecutor(max(args.workers, 1)) as pool:
@@ -429,6 +552,12 @@ def main(argv: list[str] | None = None) -> int:
         "U cov: share of parameters within U (k = 2, nominal 95.4 %); rej: white datasheet rejected by the dwells"
     )
     print("\n".join(table(results, args.worlds)))
+    if args.exact:
+        print(
+            "predicted under the world's exact dwell-mean covariance (linearized sandwich, no error draw): "
+            "sqrt(mean E z^2) per family; 1 where the noise model's covariance is the world's"
+        )
+        print("\n".join(predicted_table(results, args.worlds)))
     return 0
 
 
