@@ -59,3 +59,18 @@ def test_static_noise_model_recovers_the_simulators_noise():
     k = noise.acceleration_random_walk
     assert np.all(low <= k) and np.all(k <= high)
     assert model.source.value == "static record"
+
+
+def test_null_law_benchmark_shows_the_held_levels_move_the_rate_and_the_z_level_does_not():
+    """benchmarks/bench_system_null_law.py on one white day, 300 draws: the held levels' error moves the false-alarm rate."""
+    spec = importlib.util.spec_from_file_location("bench_system_null_law", PATH.parent / "bench_system_null_law.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules["bench_system_null_law"] = bench
+    spec.loader.exec_module(bench)
+    design, observed, channels, kwargs = bench.decision_inputs(7001)
+    assert kwargs["offset"] is not None and np.count_nonzero(kwargs["offset"]) > 0  # pitch and roll held
+    text = bench.level_shifts(design, observed, channels, kwargs, 300, [1.05])
+    rates = dict(part.rsplit(" ", 1) for part in text.split("; ")[1:])
+    assert abs(float(rates["z level x1.05"]) - 0.05) < 0.02  # common draws: the z level hardly moves the rate
+    assert float(rates["held levels x1.05"]) > float(rates["z level x1.05"]) + 0.02
