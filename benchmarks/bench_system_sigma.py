@@ -44,10 +44,12 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -136,6 +138,37 @@ def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0, static_da
     p = residuals_from_parameters(truth.parameters, truth.installed_calibration, truth.site.gravity)
     ref = combination_matrix(truth.site.latitude) @ np.r_[p, 0.0, 0.0]
     return out, (out.combined.values - ref) / out.combined.sigma
+
+
+@contextlib.contextmanager
+def without_flicker():
+    """Diagnostic (``--without-flicker``): the stage's slow-noise fit with the flicker amplitude left out (random walk only).
+
+    Wraps :func:`stableins.estimators.system.whittle.fit_coloured_noise` as the stage calls it: the design's flicker column
+    is dropped (the decision's p-value then from the χ̄² law, not the record's null law), and the fit returned with a flicker
+    amplitude of 0.  Not a way to calibrate: it measures how much of the random-walk world's σ error comes from estimating
+    a flicker amplitude whose truth is 0, on its boundary (docs/system-calibration.md §10).
+    """
+    from stableins.estimators.system import coloured
+
+    original = coloured.whittle.fit_coloured_noise
+    flicker = COLOURED_KINDS.index("flicker")
+
+    def pad(a: np.ndarray) -> np.ndarray:
+        return np.insert(a, flicker, 0.0, axis=0)
+
+    def fit(design, observed, channels, **kwargs):
+        kwargs.pop("law", None)
+        out = original(np.delete(design, channels + flicker, axis=1), observed, channels, **kwargs)
+        return replace(
+            out, amplitudes=pad(out.amplitudes), maximum_likelihood=pad(out.maximum_likelihood), lower=pad(out.lower), upper=pad(out.upper)
+        )
+
+    coloured.whittle.fit_coloured_noise = fit
+    try:
+        yield
+    finally:
+        coloured.whittle.fit_coloured_noise = original
 
 
 def binomial(k: int, n: int) -> str:
@@ -348,6 +381,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--days", type=float, default=1.0, help="record length [sidereal days] (default 1)")
     parser.add_argument("--memory", action="store_true", help="also print the memory table")
     parser.add_argument("--static-days", type=float, default=STATIC_DAYS, help="mode static: the static record's length [days]")
+    parser.add_argument(
+        "--without-flicker",
+        action="store_true",
+        help="diagnostic: the slow-noise fit with the flicker amplitude left out (random walk only)",
+    )
     parser.add_argument("--json", help="write per record p-values, decisions and z here (to pool runs: --pool)")
     parser.add_argument("--pool", nargs="+", help="print the white records' slow-noise test over these --json files, pooled")
     args = parser.parse_args(argv)
@@ -356,9 +394,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     seeds = range(args.first, args.first + args.seeds)
     dump: list[dict] = []
-    for mode in args.modes:
-        for world in args.worlds:
-            campaign(world, mode, seeds, args.days, dump, args.static_days)
+    with without_flicker() if args.without_flicker else contextlib.nullcontext():
+        for mode in args.modes:
+            for world in args.worlds:
+                campaign(world, mode, seeds, args.days, dump, args.static_days)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(dump, f)

@@ -74,3 +74,13 @@ def test_null_law_benchmark_shows_the_held_levels_move_the_rate_and_the_z_level_
     rates = dict(part.rsplit(" ", 1) for part in text.split("; ")[1:])
     assert abs(float(rates["z level x1.05"]) - 0.05) < 0.02  # common draws: the z level hardly moves the rate
     assert float(rates["held levels x1.05"]) > float(rates["z level x1.05"]) + 0.02
+
+
+def test_without_flicker_wraps_the_stage_fit_and_restores_it():
+    bench = _module()
+    from stableins.estimators.system import coloured
+
+    original = coloured.whittle.fit_coloured_noise
+    with bench.without_flicker():
+        assert coloured.whittle.fit_coloured_noise is not original
+    assert coloured.whittle.fit_coloured_noise is original
