@@ -16,6 +16,9 @@ and two ways of running the stage:
 * ``default``: nothing known about the noise (the record alone: the decision on low-frequency noise with its
   false-positive rate, then the maximum-likelihood amplitudes);
 * ``datasheet``: the instrument's noise model given (the simulator's own settings as a datasheet ``NoiseModel``);
+* ``static``: the instrument's noise model measured on a long static record (``--static-days``, default 7; the
+  simulator's noise of the same world, another seed) with an Allan fit as ``stableins noise`` does, in force as the
+  record's model (a prior with its intervals);
 * ``prior``: the noise model the stage measured on an earlier day of the same instrument (another record of the
   same world, seed + 5000) as the prior, the way ``calibrate system`` uses the model in the calibration record.
 
@@ -34,15 +37,19 @@ chunks), and of ``_coloured_covariance`` alone (peak above its start).
 Usage::
 
     python benchmarks/bench_system_sigma.py [--seeds 40] [--first 100] [--worlds quartz white white-5e-3]
-                                            [--modes default datasheet prior] [--days 1] [--memory]
+                                            [--modes default datasheet prior static] [--days 1] [--memory]
+                                            [--static-days 7] [--json FILE] [--pool FILE ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import math
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -51,6 +58,7 @@ from stableins.data.chunks import ArraySource
 from stableins.estimators.system import solve, stage
 from stableins.estimators.system.assembly import residuals_from_parameters
 from stableins.estimators.system.separation import COMBINED_COEFFICIENTS, combination_matrix
+from stableins.estimators.system.spectrum import COLOURED_KINDS
 from stableins.estimators.system.stage import SystemOptions, run_system_stage
 from stableins.estimators.system.whittle import ColouredSource
 from stableins.noise import NoiseModel
@@ -91,13 +99,35 @@ def datasheet(noise: NoiseSettings) -> NoiseModel:
     )
 
 
-def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0) -> stage.SystemCalibration:
+#: Length of the long static record of mode ``static`` [sidereal days] (``--static-days``).
+STATIC_DAYS = 7.0
+
+
+def static_noise_model(noise: NoiseSettings, seed: int, days: float) -> NoiseModel:
+    """The instrument's noise model measured on a long static record, as ``stableins noise`` does (Allan fit, 95 % intervals).
+
+    The record is the simulator's accelerometer noise alone at 1 Hz (another seed than the calibration day's): on a static
+    record ``stableins noise`` removes the slowly turning gravity signal first, which leaves this noise.
+    """
+    from stableins.estimators.allan import allan_points, fit_allan
+    from stableins.noise import NoiseSource
+    from stableins.simulator.noise import NoiseGenerator
+
+    samples = NoiseGenerator(noise, 1.0, seed).accelerometer(0, int(days * SIDEREAL_DAY))
+    points = allan_points([samples], 1.0, max_fraction=8)
+    model, _ = fit_allan(points, source=NoiseSource.STATIC_RECORD, provenance=f"{days:g}-day static record (simulated)")
+    return model
+
+
+def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0, static_days: float = STATIC_DAYS) -> stage.SystemCalibration:
     model = datasheet(noise) if mode == "datasheet" else None
     if mode == "zero-datasheet":  # `--bias-instability 0 --random-walk 0`: a datasheet a slow-noise record contradicts
         model = NoiseModel.given(noise.velocity_random_walk, 0.0, 0.0, provenance="datasheet without slow noise")
     if mode == "prior":
         earlier, _ = run(seed + 5000, noise, "default", days)
         model = earlier.noise_model
+    if mode == "static":
+        model = static_noise_model(noise, seed + 9000, static_days)
     truth = Truth.draw(seed, site=SimulatedSite(sample_rate=1.0), noise=noise)
     cols = system.simulate_system(truth, days * SIDEREAL_DAY, 1.0, seed=seed)
     with warnings.catch_warnings():
@@ -110,6 +140,37 @@ def run(seed: int, noise: NoiseSettings, mode: str, days: float = 1.0) -> stage.
     return out, (out.combined.values - ref) / out.combined.sigma
 
 
+@contextlib.contextmanager
+def without_flicker():
+    """Diagnostic (``--without-flicker``): the stage's slow-noise fit with the flicker amplitude left out (random walk only).
+
+    Wraps :func:`stableins.estimators.system.whittle.fit_coloured_noise` as the stage calls it: the design's flicker column
+    is dropped (the decision's p-value then from the χ̄² law, not the record's null law), and the fit returned with a flicker
+    amplitude of 0.  Not a way to calibrate: it measures how much of the random-walk world's σ error comes from estimating
+    a flicker amplitude whose truth is 0, on its boundary (docs/system-calibration.md §10).
+    """
+    from stableins.estimators.system import coloured
+
+    original = coloured.whittle.fit_coloured_noise
+    flicker = COLOURED_KINDS.index("flicker")
+
+    def pad(a: np.ndarray) -> np.ndarray:
+        return np.insert(a, flicker, 0.0, axis=0)
+
+    def fit(design, observed, channels, **kwargs):
+        kwargs.pop("law", None)
+        out = original(np.delete(design, channels + flicker, axis=1), observed, channels, **kwargs)
+        return replace(
+            out, amplitudes=pad(out.amplitudes), maximum_likelihood=pad(out.maximum_likelihood), lower=pad(out.lower), upper=pad(out.upper)
+        )
+
+    coloured.whittle.fit_coloured_noise = fit
+    try:
+        yield
+    finally:
+        coloured.whittle.fit_coloured_noise = original
+
+
 def binomial(k: int, n: int) -> str:
     """``k of n (rate, 95 % Clopper-Pearson interval)``."""
     from scipy.stats import beta
@@ -119,19 +180,61 @@ def binomial(k: int, n: int) -> str:
     return f"{k} of {n} ({k / n:.3f}; 95 % interval {low:.3f}-{high:.3f})"
 
 
-def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
+def p_value_levels(p_values: np.ndarray, levels: tuple[float, ...] = (0.01, 0.05, 0.1, 0.2, 0.3)) -> str:
+    """The slow-noise test's p-values on white records against their null law (uniform): the fraction below each level.
+
+    A test whose level is right has ``P(p < a) = a`` at every ``a`` below the null law's atom at ``p = 1`` (records whose
+    maximum is white noise); the fractions at several levels see a liberal or conservative test with more power than the
+    count at 5 % alone.
+    """
+    n = p_values.size
+    parts = [f"p < {a:g}: {binomial(int(np.sum(p_values < a)), n)}" for a in levels]
+    return "p-values of the slow-noise test (uniform under its null law below its atom at 1): " + "; ".join(parts)
+
+
+def random_walk_plug_in(used: np.ndarray, random_walk: float, z: np.ndarray, gravity: float = 9.80665) -> str:
+    """The random walk's amplitude under σ against the truth, and the rms z a plug-in amplitude gives by itself.
+
+    With ``σ̂² = W + α̂ U`` and the error independent of ``α̂``, ``E z² = E[σ²/σ̂²]``; where the random walk carries nearly
+    all of a coefficient's variance (the ``random-walk`` world: x2 ≈ 300× its white value), ``E z² ≈ E[α/α̂]``: the rms z
+    that the one-day estimate's scatter and bias alone give, ``√mean(α/α̂)`` over the records with ``α̂ > 0``.
+    """
+    truth = (random_walk / gravity) ** 2
+    ratio = used / truth
+    positive = ratio > 0
+    zz = z[:, HARMONIC]
+    low = positive & (ratio < np.median(ratio[positive])) if positive.any() else positive
+    text = f"random walk under sigma / truth (amplitude (K/g)^2): median {np.median(ratio):.2f}, zero in {np.mean(~positive):.2f}"
+    if positive.any():
+        plug_in = np.sqrt(np.mean(1.0 / ratio[positive]))
+        spread = np.percentile(ratio[positive], [5, 95])
+        below = np.sqrt(np.mean(zz[low] ** 2)) if low.any() else float("nan")
+        above = np.sqrt(np.mean(zz[positive & ~low] ** 2)) if (positive & ~low).any() else float("nan")
+        text += (
+            f"; sqrt(mean(truth/used)) over the {int(positive.sum())} records with it > 0: {plug_in:.3f} "
+            f"(5-95 % of used/truth {spread[0]:.2f}-{spread[1]:.2f}); rms z of the records below the median {below:.3f}, "
+            f"above it {above:.3f}"
+        )
+    return text
+
+
+def campaign(
+    world: str, mode: str, seeds: range, days: float = 1.0, dump: list[dict] | None = None, static_days: float = STATIC_DAYS
+) -> None:
     noise = WORLDS[world]
     start = time.perf_counter()
-    z, detected, statistic, factor, models, rejected, drawn = [], [], [], [], [], [], []
+    z, detected, statistic, factor, models, rejected, drawn, p_values, used_rw = [], [], [], [], [], [], [], [], []
     for seed in seeds:
-        out, normalized = run(seed, noise, mode, days)
+        out, normalized = run(seed, noise, mode, days, static_days)
         z.append(normalized)
         fit = out.coloured_noise
+        p_values.append(fit.p_value)
         detected.append(fit.data_detected)
         statistic.append(fit.statistic)
         factor.append(out.diagnostics.z_low_frequency_ratio)
         models.append(out.noise_model)
         rejected.append(fit.source is ColouredSource.CONTRADICTED)
+        used_rw.append(float(fit.amplitudes[COLOURED_KINDS.index("random_walk"), 0]))
         drawn.append(fit.null_draws > 0)
     z = np.array(z)
     n = len(seeds)
@@ -161,6 +264,22 @@ def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
         f"±{math.sqrt(0.05 * 0.95 / n):.3f} at 0.05); p-value from the record's null law (Monte Carlo) in {int(np.sum(drawn))}; "
         "likelihood ratio quantiles 5/50/95 %: " + "/".join(f"{q:.1f}" for q in np.percentile(statistic, [5, 50, 95]))
     )
+    if white_world:
+        print("  " + p_value_levels(np.array(p_values)))
+    if noise.acceleration_random_walk > 0:
+        print("  " + random_walk_plug_in(np.array(used_rw), noise.acceleration_random_walk, z))
+    if dump is not None:
+        dump.append(
+            {
+                "world": world,
+                "mode": mode,
+                "seeds": [seeds[0], seeds[-1]],
+                "p_values": [float(p) for p in p_values],
+                "detected": [bool(d) for d in detected],
+                "rejected": [bool(r) for r in rejected],
+                "z": z[:, HARMONIC].tolist(),
+            }
+        )
     if mode in ("datasheet", "zero-datasheet"):
         what = "false rejections of the true datasheet (target ≤ 0.05)" if mode == "datasheet" else "the contradicted datasheet rejected"
         print(f"  given datasheet rejected by the record in {binomial(int(np.sum(rejected)), n)} of the records ({what})")
@@ -188,6 +307,25 @@ def campaign(world: str, mode: str, seeds: range, days: float = 1.0) -> None:
                 f"of the records; 95 % interval covers the simulator's value in {np.mean((lo <= true) & (true <= hi)):.2f}, "
                 f"median upper limit {np.median(hi) / scale:.3g}"
             )
+
+
+def pool(paths: list[str]) -> None:
+    """Pool the --json files of several runs per world and mode: decisions, rejections and the p-values against uniform."""
+    runs: dict[tuple[str, str], list[dict]] = {}
+    for path in paths:
+        with open(path) as f:
+            for run_ in json.load(f):
+                runs.setdefault((run_["world"], run_["mode"]), []).append(run_)
+    for (world, mode), parts in runs.items():
+        seeds = ", ".join(f"{r['seeds'][0]}-{r['seeds'][1]}" for r in parts)
+        p_values = np.concatenate([r["p_values"] for r in parts])
+        detected = int(sum(sum(r["detected"]) for r in parts))
+        zz = np.concatenate([np.array(r["z"]) for r in parts])
+        print(f"{world}, {mode}: seeds {seeds} ({p_values.size} records); overall rms z {np.sqrt(np.mean(zz**2)):.3f}")
+        print(f"  slow noise detected in {binomial(detected, p_values.size)}")
+        if mode in ("datasheet", "zero-datasheet"):
+            print(f"  given datasheet rejected in {binomial(int(sum(sum(r['rejected']) for r in parts)), p_values.size)}")
+        print("  " + p_value_levels(p_values))
 
 
 def memory(days_list: tuple[int, ...] = (1, 2, 4, 7)) -> None:
@@ -235,15 +373,34 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first", type=int, default=100)
     parser.add_argument("--worlds", nargs="+", choices=sorted(WORLDS), default=["quartz", "white", "white-5e-3"])
     parser.add_argument(
-        "--modes", nargs="+", choices=("default", "datasheet", "zero-datasheet", "prior"), default=["default", "datasheet", "prior"]
+        "--modes",
+        nargs="+",
+        choices=("default", "datasheet", "zero-datasheet", "prior", "static"),
+        default=["default", "datasheet", "prior"],
     )
     parser.add_argument("--days", type=float, default=1.0, help="record length [sidereal days] (default 1)")
     parser.add_argument("--memory", action="store_true", help="also print the memory table")
+    parser.add_argument("--static-days", type=float, default=STATIC_DAYS, help="mode static: the static record's length [days]")
+    parser.add_argument(
+        "--without-flicker",
+        action="store_true",
+        help="diagnostic: the slow-noise fit with the flicker amplitude left out (random walk only)",
+    )
+    parser.add_argument("--json", help="write per record p-values, decisions and z here (to pool runs: --pool)")
+    parser.add_argument("--pool", nargs="+", help="print the white records' slow-noise test over these --json files, pooled")
     args = parser.parse_args(argv)
+    if args.pool:
+        pool(args.pool)
+        return 0
     seeds = range(args.first, args.first + args.seeds)
-    for mode in args.modes:
-        for world in args.worlds:
-            campaign(world, mode, seeds, args.days)
+    dump: list[dict] = []
+    with without_flicker() if args.without_flicker else contextlib.nullcontext():
+        for mode in args.modes:
+            for world in args.worlds:
+                campaign(world, mode, seeds, args.days, dump, args.static_days)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(dump, f)
     if args.memory:
         memory()
     return 0

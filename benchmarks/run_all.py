@@ -150,6 +150,10 @@ QUICK: dict[str, Quick] = {
         "1 seed and the gyro world's drift instead of 6 seeds and 4 drifts",
         volatile=(r"\d\s+(\d+)$", r"^(\d+) s$"),  # the seconds column of the table, the total
     ),
+    "bench_system_null_law": Quick(
+        ("--seeds", "2", "--first", "7001", "--law-records", "1", "--draws", "200"),
+        "2 white records instead of 60, one record's law drawn 200 times instead of two records' 2000 (issue 25)",
+    ),
     "bench_system_sigma": Quick(("--seeds", "2", "--first", "100"), "2 seeds per world and mode instead of 40 (all worlds and modes)"),
     "bench_system_thermal": Quick(
         ("--cases", "thermal", "kcc", "clean", "--seeds", "2", "--first", "100"),
