@@ -468,7 +468,10 @@ def simulate(unit: Unit, world: World, seed: int) -> tuple[dict[str, np.ndarray]
         "temperature": 25.0 + world.noise.temperature * rng.standard_normal(n),
     }
     gauged = gauge_theta10(unit.true, senses=senses)
-    seen = eps + dg @ np.array([0.0, 0.0, g * math.sin(lat)])  # §9: ε^p + D_g (0, 0, g sinL)
+    # §9: ε^p + D_g f̄^p, f̄^p the specific force along the Earth's axis in the platform frame at the start ((0, 0, g sinL)
+    # on a polar-aligned platform; here z_p is off the pole by the installed offsets' residuals)
+    axis = c_np[0] @ np.array([math.cos(lat), 0.0, -math.sin(lat)])
+    seen = eps + dg @ (float(axis @ f_p[0]) * axis)
     seen_gauge = r3(-senses[0] * Unit.value(unit.true, "theta10")) @ seen  # in the θ10 = 0 frame (conventions.md)
     truth: dict[str, object] = {
         "generator": "benchmarks/worlds/independent_system.py",
