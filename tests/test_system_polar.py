@@ -198,3 +198,36 @@ def test_the_g_sensitive_turn_is_composed_out_of_the_gimbal_readings():
     seen = np.array([drift["x"], drift["y"], 0.0]) + sensitivity @ ((axis @ start[:, 2]) * -site.gravity * axis)
     assert np.abs(plain.values - seen).max() / DEG_PER_HOUR > 5e-5  # measured 5.1e-5, −7.2e-5 °/h
     assert np.abs(fit.values - seen).max() / DEG_PER_HOUR < 1e-9  # measured 2e-11 °/h (no angle noise; σ 1.3e-8 °/h)
+
+
+def test_an_error_of_the_records_g_sensitivity_is_in_the_drifts_sigma():
+    """An error of the record's ``D_g`` that wobbles against the base-fixed nuisance (``Dg_xx − Dg_yy``) leaks into
+    ``ε_x``, ``ε_y``; the record's σ of ``Dg_ax``, ``Dg_ay`` as the prior of nuisance columns puts it in σ(ε)."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration, earth_rate_nav
+    from stableins.estimators.system.gyro_drift import fit_gimbal_drift
+    from stableins.simulator import system
+    from stableins.simulator.noise import NoiseSettings
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    drift = {"z": 0.05 * DEG_PER_HOUR}
+    sensitivity = np.eye(3) * 0.001 * DEG_PER_HOUR_PER_G
+    effects = {f"Dg_{a}{a}": sensitivity[0, 0] for a in "xyz"}
+    truth = Truth.draw(4, site=SimulatedSite(sample_rate=0.1), noise=NoiseSettings.quartz(), effects=effects, gyro_drift=drift)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, 0.1, seed=4)
+    blocks = {"time": cols["time"], "count": np.ones(cols["time"].size)}
+    blocks |= {name: cols[f"angle_{name}"] for name in ("platform", "inner", "middle")}
+    site = truth.site
+    offsets = np.array([truth.parameters[k] for k in ("theta10", "theta20", "theta30")])
+    sigma = np.full((3, 3), 1e-4 * DEG_PER_HOUR_PER_G)
+    recorded = sensitivity + np.diag([1.0, -1.0, 0.0]) * sigma  # 1σ each way: the wobble's counter-rotating part
+    config = GimbalConfiguration(site.gimbal_senses)
+    common = {"offsets": offsets, "base_attitude": site.base_attitude, "g_sensitivity": recorded, "gravity": site.gravity}
+    without = fit_gimbal_drift(blocks, site.latitude, config, **common)
+    with_sigma = fit_gimbal_drift(blocks, site.latitude, config, **common, g_sensitivity_sigma=sigma)
+    start = system.SystemWorld(truth, 0.1).nav_to_platform_0
+    axis = start @ (earth_rate_nav(site.latitude) / EARTH_RATE)
+    axial = (axis @ start[:, 2]) * -site.gravity * axis
+    seen = np.array([0.0, 0.0, drift["z"]]) + sensitivity @ axial
+    assert np.abs((without.values - seen) / without.sigma).max() > 5  # measured 10.3 (4.5e-5 °/h on ε_x)
+    assert np.all(np.abs((with_sigma.values - seen) / with_sigma.sigma) < 3)  # measured −1.8, 0.07, 0.8
+    assert with_sigma.sigma.max() / DEG_PER_HOUR < 1e-6  # the data measure the wobble too: 2.3e-7 °/h (no σ: 4.4e-6)

@@ -26,7 +26,10 @@ The nuisances (each a physical effect of a real platform, all in the truth simul
   about ``z_p``; its polar component is a constant (the same as ``c_z``), so two equatorial components are fitted;
 * the once-per-revolution error of the platform-axis angle sensor, ``c_1 \cos r_1 + s_1 \sin r_1`` (the reading
   sweeps a turn per sidereal day): a rotation about ``z_p`` on the left, ``e_z += h_c \cos r_1 + h_s \sin r_1``.  The
-  inner and middle readings stand still, so their sensor errors are constant offsets (part of ``ω_b``).
+  inner and middle readings stand still, so their sensor errors are constant offsets (part of ``ω_b``);
+* with the record's g-sensitivity ``D_g``, the platform's turn by ``−D_g f^p`` (a wobble at the Earth rate and a
+  constant rate): composed out of the readings exactly (:func:`g_sensitive_turn`), the errors of ``D_g`` as nuisances
+  with the record's σ (:func:`g_sensitive_columns`); the drift returned is the one the record sees, ``ε^p + D_g f̄^p``.
 
 Model, per block mean of the readings (10-s attitude blocks, at the attitude decimation):
 ``e(t_k) = c + C_b^p(t_k) P ω + (h_c \cos r_{1k} + h_s \sin r_{1k}) e_z − ε^p t_k + n_k`` (``P``: two body vectors
