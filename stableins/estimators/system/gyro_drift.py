@@ -334,6 +334,13 @@ def _start_force(time: NDArray[np.float64], latitude: float, reference: NDArray[
 TURN_STEP = 60.0
 
 
+def _turn_grid(time: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """Return the :data:`TURN_STEP` grid from 0 with the times in it (sorted, unique) and the times' indices in it."""
+    end = float(np.max(time)) if time.size else 0.0
+    grid, where = np.unique(np.r_[0.0, np.arange(TURN_STEP, end, TURN_STEP), time], return_inverse=True)
+    return grid, where[where.size - time.size :]
+
+
 def g_sensitive_turn(
     time: NDArray[np.float64],
     latitude: float,
@@ -356,8 +363,7 @@ def g_sensitive_turn(
     Earth's axis for 0.001 °/h/g, is in it) with the trapezoid rule on a :data:`TURN_STEP` grid (and the times).
     ``time`` [s] since the record start (``Z(0) = I``); ``drift``: ``ε^p`` [rad/s] without the g-sensitive part.
     """
-    end = float(np.max(time)) if time.size else 0.0
-    grid, where = np.unique(np.r_[0.0, np.arange(TURN_STEP, end, TURN_STEP), time], return_inverse=True)
+    grid, where = _turn_grid(time)
     turn = rotation_about(-np.outer(grid, drift))
     force = _start_force(grid, latitude, reference, gravity)
     angle = np.zeros((grid.size, 3))
@@ -367,7 +373,7 @@ def g_sensitive_turn(
         steps = 0.5 * np.diff(grid)[:, None] * (rate[1:] + rate[:-1])
         first = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
         angle = np.vstack([np.zeros(3), np.cumsum(steps + 0.5 * np.cross(first[:-1], steps), axis=0)])
-    return rotation_about(angle[where[-time.size :]])
+    return rotation_about(angle[where])
 
 
 def g_sensitive_columns(
@@ -392,8 +398,7 @@ def g_sensitive_columns(
     k = skew(earth_rate_nav(latitude) / EARTH_RATE)
     down = np.array([0.0, 0.0, -gravity])
     b, c = reference @ k @ down, reference @ k @ k @ down  # f_0 = f̄ + sin(Ωt) b − cos(Ωt) c (earth_turn)
-    end = float(np.max(time)) if time.size else 0.0
-    grid, where = np.unique(np.r_[0.0, np.arange(TURN_STEP, end, TURN_STEP), time], return_inverse=True)
+    grid, where = _turn_grid(time)
     angle = EARTH_RATE * grid
     turn = rotation_about(-np.outer(grid, drift))
     force = np.einsum("nij,nj->ni", turn, np.outer(np.sin(angle), b) - np.outer(np.cos(angle), c))  # R f_0^rot
@@ -403,7 +408,7 @@ def g_sensitive_columns(
     rate = np.stack([-turn[:, a, :] * force[:, j : j + 1] for a, j in pairs], axis=2)  # −Rᵀ e_a (R f_rot)_b
     steps = 0.5 * np.diff(grid)[:, None, None] * (rate[1:] + rate[:-1])
     columns = np.concatenate([np.zeros((1, 3, len(pairs))), np.cumsum(steps, axis=0)])
-    return columns[where[-time.size :]], np.array([sigma[a, j] for a, j in pairs])
+    return columns[where], np.array([sigma[a, j] for a, j in pairs])
 
 
 def _design(
