@@ -25,7 +25,8 @@ Worlds (every one on the generator's unit and gyro: drift (0.001, −0.001, 0.02
 * ``flicker-long``: + flicker B = 2 µg only, ten days of history (1/f down to ~0.1 cycle/day);
 * ``random-walk``: + random walk K = 3e-7 m/s²/√s only, LSB 1e-5 m/s.
 
-Run: ``python benchmarks/bench_independent_system.py --seeds 20 [--first-seed 1] [--worlds white quartz] [--diagnose white]``
+Run: ``python benchmarks/bench_independent_system.py --seeds 20 [--first-seed 1] [--worlds white quartz] [--diagnose white]
+[--gyro-drift X Y Z] [--dg-drawn]``
 (``--summarize RUN.json ...`` prints the tables of earlier ``--json`` files)
 (one worker; about 15 s of CPU per record at 1 Hz, 30 s with ``--diagnose``).
 """
@@ -88,7 +89,16 @@ def stableins() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "stableins"]
 
 
-def run_record(world: str, seed: int, *, rate: float, diagnose: bool, keep: Path | None) -> Outcome:
+def run_record(
+    world: str,
+    seed: int,
+    *,
+    rate: float,
+    diagnose: bool,
+    keep: Path | None,
+    gyro_drift: tuple[float, float, float] = gen.World.gyro_drift_dph,
+    g_sensitivity_drawn: bool = False,
+) -> Outcome:
     """Generate, check, calibrate (and diagnose) one record; z against the generator's truth."""
     from scipy.stats import chi2
 
@@ -96,7 +106,9 @@ def run_record(world: str, seed: int, *, rate: float, diagnose: bool, keep: Path
     out = Outcome(world, seed)
     directory = Path(tempfile.mkdtemp(prefix=f"indep-sys-{world}-{seed}-")) if keep is None else keep / f"{world}-{seed}"
     try:
-        paths = gen.generate(seed, directory, gen.World(rate=rate, noise=WORLDS[world]))
+        paths = gen.generate(
+            seed, directory, gen.World(rate=rate, noise=WORLDS[world], gyro_drift_dph=gyro_drift, g_sensitivity_drawn=g_sensitivity_drawn)
+        )
         cli = stableins()
         for command in (
             [*cli, "check", str(paths["record"])],
@@ -213,6 +225,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=1.0)
     parser.add_argument("--diagnose", nargs="*", metavar="WORLD", help="also run diagnose on each record of these worlds (none given: all)")
     parser.add_argument("--keep", type=Path, help="keep the records in this directory")
+    parser.add_argument(
+        "--gyro-drift", type=float, nargs=3, default=gen.World.gyro_drift_dph, metavar=("X", "Y", "Z"), help="ε^p [deg/h] (platform axes)"
+    )
+    parser.add_argument(
+        "--dg-drawn", action="store_true", help="the installed record's D_g drawn about the truth with its σ (1e-5 deg/h/g)"
+    )
     parser.add_argument("--json", type=Path, help="write every record's outcome here (after each record)")
     parser.add_argument("--summarize", type=Path, nargs="+", help="print the tables of --json files written before, and stop")
     args = parser.parse_args(argv)
@@ -222,14 +240,23 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(
         f"independent system generator: one sidereal day per record at {args.rate:g} Hz, seeds {args.first_seed}.."
-        f"{args.first_seed + args.seeds - 1}; calibrate system --estimate-k2, no noise flags",
+        f"{args.first_seed + args.seeds - 1}; gyro drift {tuple(args.gyro_drift)} deg/h"
+        f"{', installed D_g drawn about the truth' if args.dg_drawn else ''}; calibrate system --estimate-k2, no noise flags",
         flush=True,
     )
     outcomes = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):  # seeds outermost: a run cut short is balanced
         for world in args.worlds:
             diagnose = args.diagnose is not None and (not args.diagnose or world in args.diagnose)
-            o = run_record(world, seed, rate=args.rate, diagnose=diagnose, keep=args.keep)
+            o = run_record(
+                world,
+                seed,
+                rate=args.rate,
+                diagnose=diagnose,
+                keep=args.keep,
+                gyro_drift=tuple(args.gyro_drift),
+                g_sensitivity_drawn=args.dg_drawn,
+            )
             outcomes.append(o)
             zs = " ".join(f"{k}={v:+.2f}" for k, v in o.z.items())
             print(

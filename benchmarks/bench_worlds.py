@@ -330,12 +330,19 @@ SYSTEM_FAMILIES = {
 def _true_drift(truth: Any) -> np.ndarray:
     """The constant gyro drift a static record sees, in the record's platform frame [rad/s] (docs/system-calibration.md §9).
 
-    ``ε^p`` plus the g-sensitive drift of the constant ``f_z = g sin L`` (``Dg_az``: along ``z_p`` a constant drift; the
-    Earth-rate parts of ``Dg_ax f_x``, ``Dg_ay f_y`` fall on the gimbal fit's harmonic nuisances), x_p and y_p turned by
-    the installed θ10's residual as the stage reads them.
+    ``ε^p`` plus the g-sensitive drift of the specific force along the Earth's axis, ``D_g f̄^p`` (``(0, 0, g sin L)`` on a
+    polar-aligned platform; the base tilt and the offsets' residuals turn it by some 1e-5 rad, which is 0.1–1σ of
+    ``ε_x``, ``ε_y``; the Earth-rate part of ``D_g f^p`` the gimbal fit composes out), x_p and y_p turned by the
+    installed θ10's residual as the stage reads them.
     """
-    f_z = truth.site.gravity * math.sin(truth.site.latitude)
-    true = np.array([truth.gyro_drift.get(a, 0.0) + truth.effects.get(f"Dg_{a}z", 0.0) * f_z for a in "xyz"])
+    from stableins.conventions import EARTH_RATE, earth_rate_nav
+    from stableins.simulator.system import SystemWorld
+
+    start = SystemWorld(truth, 1.0).nav_to_platform_0  # f̄^p: the specific force along the Earth's axis at the start
+    axis = start @ (earth_rate_nav(truth.site.latitude) / EARTH_RATE)
+    axial = float(axis @ start[:, 2]) * -truth.site.gravity * axis
+    sensitivity = np.array([[truth.effects.get(f"Dg_{a}{b}", 0.0) for b in "xyz"] for a in "xyz"])
+    true = np.array([truth.gyro_drift.get(a, 0.0) for a in "xyz"]) + sensitivity @ axial
     turn = truth.parameters["theta10"] - truth.installed_calibration["theta10"]
     return true + turn * np.cross([0.0, 0.0, 1.0], true)
 

@@ -145,6 +145,7 @@ QUICK: dict[str, Quick] = {
     "bench_system_bias_drift": Quick((), "the default run: the bound only (part 2, the stage's channels, is --seeds N)"),
     "bench_flicker_below_record": Quick((), "the default run (closed forms, under a second)"),
     "bench_system_polar": Quick(("--seeds", "2"), "2 seeds per case instead of 40 (the false-refusal and tilt figures)"),
+    "bench_system_platform": Quick((), "the default run (two ODE integrations of a day, about 2 s)", volatile=(r"^\((\d+) s\)$",)),
     "bench_system_equatorial": Quick(
         ("--seeds", "1", "--first", "11", "--drifts", "0.05"),
         "1 seed and the gyro world's drift instead of 6 seeds and 4 drifts",

@@ -167,28 +167,67 @@ def test_the_loop_predicts_the_misalignment_a_drift_builds():
     assert np.abs(predicted - phi).max() < 0.01 * np.abs(phi).max()
 
 
-def test_the_g_sensitive_drift_of_a_tilting_platform_is_taken_out_of_the_fitted_drift():
-    """0.05 °/h on x_p and y_p tilt z_p 29.5 mrad in a day, and with it f^p: D_g f^p ramps (0.001 °/h/g on the diagonal),
-    which the fit takes for part of ε_x, ε_y (6.7e-6 °/h predicted, ten times their σ); tilt_bias takes it out."""
-    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration
-    from stableins.estimators.system.gyro_drift import fit_gimbal_drift, tilt_bias
+def test_the_g_sensitive_turn_is_composed_out_of_the_gimbal_readings():
+    """0.05 °/h on x_p and y_p tilt z_p 29.5 mrad in a day; an anisotropic D_g (its Earth-rate wobble turns partly the other
+    way than the base-fixed nuisance ω_b, and the tilt ramps D_g f^p) puts 1e-4 °/h into ε_x, ε_y of a fit that ignores
+    it; with the record's D_g composed out (``g_sensitive_turn``) the fit returns the drift the record sees,
+    ``ε^p + D_g f̄^p`` (f̄^p the specific force along the Earth's axis), to the model's accuracy."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration, earth_rate_nav
+    from stableins.estimators.system.gyro_drift import fit_gimbal_drift
     from stableins.simulator import system
     from stableins.simulator.noise import NoiseSettings
     from stableins.simulator.truth import SimulatedSite, Truth
 
     drift = {"x": 0.05 * DEG_PER_HOUR, "y": 0.05 * DEG_PER_HOUR}
-    effects = {f"Dg_{a}{a}": 0.001 * DEG_PER_HOUR_PER_G for a in "xyz"}
+    per_g = {"Dg_xx": 0.001, "Dg_yy": 0.0005, "Dg_xy": 0.0003, "Dg_zx": 0.0002, "Dg_zz": 0.001}
+    effects = {k: v * DEG_PER_HOUR_PER_G for k, v in per_g.items()}
     truth = Truth.draw(3, site=SimulatedSite(sample_rate=0.1), noise=NoiseSettings(), effects=effects, gyro_drift=drift)
     cols = system.simulate_system(truth, SIDEREAL_DAY, 0.1, seed=3)
     blocks = {"time": cols["time"], "count": np.ones(cols["time"].size)}
     blocks |= {name: cols[f"angle_{name}"] for name in ("platform", "inner", "middle")}
     site = truth.site
     offsets = np.array([truth.parameters[k] for k in ("theta10", "theta20", "theta30")])
+    sensitivity = np.array([[effects.get(f"Dg_{a}{b}", 0.0) for b in "xyz"] for a in "xyz"])
+    config = GimbalConfiguration(site.gimbal_senses)
+    plain = fit_gimbal_drift(blocks, site.latitude, config, offsets=offsets, base_attitude=site.base_attitude)
     fit = fit_gimbal_drift(
-        blocks, site.latitude, GimbalConfiguration(site.gimbal_senses), offsets=offsets, base_attitude=site.base_attitude
+        blocks, site.latitude, config, offsets=offsets, base_attitude=site.base_attitude, g_sensitivity=sensitivity, gravity=site.gravity
     )
-    sensitivity = np.diag([0.001 * DEG_PER_HOUR_PER_G] * 3)
-    true = np.array([drift["x"], drift["y"], 0.0]) + sensitivity @ np.array([0.0, 0.0, site.gravity * np.sin(site.latitude)])
-    before = (fit.values - true)[:2] / DEG_PER_HOUR
-    after = (fit.values - tilt_bias(fit, sensitivity, site.gravity) - true)[:2] / DEG_PER_HOUR
-    assert np.abs(before).max() > 5e-6 and np.abs(after).max() < 0.2 * np.abs(before).max()
+    start = system.SystemWorld(truth, 0.1).nav_to_platform_0  # the specific force along the Earth's axis, platform frame
+    axis = start @ (earth_rate_nav(site.latitude) / EARTH_RATE)
+    seen = np.array([drift["x"], drift["y"], 0.0]) + sensitivity @ ((axis @ start[:, 2]) * -site.gravity * axis)
+    assert np.abs(plain.values - seen).max() / DEG_PER_HOUR > 5e-5  # measured 5.1e-5, −7.2e-5 °/h
+    assert np.abs(fit.values - seen).max() / DEG_PER_HOUR < 1e-9  # measured 2e-11 °/h (no angle noise; σ 1.3e-8 °/h)
+
+
+def test_an_error_of_the_records_g_sensitivity_is_in_the_drifts_sigma():
+    """An error of the record's ``D_g`` that wobbles against the base-fixed nuisance (``Dg_xx − Dg_yy``) leaks into
+    ``ε_x``, ``ε_y``; the record's σ of ``Dg_ax``, ``Dg_ay`` as the prior of nuisance columns puts it in σ(ε)."""
+    from stableins.conventions import DEG_PER_HOUR_PER_G, GimbalConfiguration, earth_rate_nav
+    from stableins.estimators.system.gyro_drift import fit_gimbal_drift
+    from stableins.simulator import system
+    from stableins.simulator.noise import NoiseSettings
+    from stableins.simulator.truth import SimulatedSite, Truth
+
+    drift = {"z": 0.05 * DEG_PER_HOUR}
+    sensitivity = np.eye(3) * 0.001 * DEG_PER_HOUR_PER_G
+    effects = {f"Dg_{a}{a}": sensitivity[0, 0] for a in "xyz"}
+    truth = Truth.draw(4, site=SimulatedSite(sample_rate=0.1), noise=NoiseSettings.quartz(), effects=effects, gyro_drift=drift)
+    cols = system.simulate_system(truth, SIDEREAL_DAY, 0.1, seed=4)
+    blocks = {"time": cols["time"], "count": np.ones(cols["time"].size)}
+    blocks |= {name: cols[f"angle_{name}"] for name in ("platform", "inner", "middle")}
+    site = truth.site
+    offsets = np.array([truth.parameters[k] for k in ("theta10", "theta20", "theta30")])
+    sigma = np.full((3, 3), 1e-4 * DEG_PER_HOUR_PER_G)
+    recorded = sensitivity + np.diag([1.0, -1.0, 0.0]) * sigma  # 1σ each way: the wobble's counter-rotating part
+    config = GimbalConfiguration(site.gimbal_senses)
+    common = {"offsets": offsets, "base_attitude": site.base_attitude, "g_sensitivity": recorded, "gravity": site.gravity}
+    without = fit_gimbal_drift(blocks, site.latitude, config, **common)
+    with_sigma = fit_gimbal_drift(blocks, site.latitude, config, **common, g_sensitivity_sigma=sigma)
+    start = system.SystemWorld(truth, 0.1).nav_to_platform_0
+    axis = start @ (earth_rate_nav(site.latitude) / EARTH_RATE)
+    axial = (axis @ start[:, 2]) * -site.gravity * axis
+    seen = np.array([0.0, 0.0, drift["z"]]) + sensitivity @ axial
+    assert np.abs((without.values - seen) / without.sigma).max() > 5  # measured 10.3 (4.5e-5 °/h on ε_x)
+    assert np.all(np.abs((with_sigma.values - seen) / with_sigma.sigma) < 3)  # measured 0.84, 0.03, 1.10
+    assert with_sigma.sigma.max() / DEG_PER_HOUR < 1e-6  # the data measure the wobble too: 2.3e-7 °/h (no σ: 4.4e-6)

@@ -282,6 +282,7 @@ class World:
     start_angle_deg: float = 30.0  # St0
     gyro_drift_dph: tuple[float, float, float] = (0.001, -0.001, 0.02)
     g_sensitivity_dphg: float = 0.001  # D_g = d·I [°/h/g] (invariant under the θ10 gauge turn)
+    g_sensitivity_drawn: bool = False  # the installed D_g drawn about the truth with its σ (else the truth itself)
     noise: Noise = field(default_factory=Noise)
 
     @property
@@ -468,7 +469,10 @@ def simulate(unit: Unit, world: World, seed: int) -> tuple[dict[str, np.ndarray]
         "temperature": 25.0 + world.noise.temperature * rng.standard_normal(n),
     }
     gauged = gauge_theta10(unit.true, senses=senses)
-    seen = eps + dg @ np.array([0.0, 0.0, g * math.sin(lat)])  # §9: ε^p + D_g (0, 0, g sinL)
+    # §9: ε^p + D_g f̄^p, f̄^p the specific force along the Earth's axis in the platform frame at the start ((0, 0, g sinL)
+    # on a polar-aligned platform; here z_p is off the pole by the installed offsets' residuals)
+    axis = c_np[0] @ np.array([math.cos(lat), 0.0, -math.sin(lat)])
+    seen = eps + dg @ (float(axis @ f_p[0]) * axis)
     seen_gauge = r3(-senses[0] * Unit.value(unit.true, "theta10")) @ seen  # in the θ10 = 0 frame (conventions.md)
     truth: dict[str, object] = {
         "generator": "benchmarks/worlds/independent_system.py",
@@ -558,11 +562,12 @@ def write_record(path: Path, columns: Mapping[str, np.ndarray], metadata: Mappin
     return path
 
 
-def calibration_record(unit: Unit, world: World, serial: str) -> dict[str, object]:
+def calibration_record(unit: Unit, world: World, serial: str, seed: int = 0) -> dict[str, object]:
     """The installed calibration as a ``stableins-calibration-record`` (docs/formats.md "Calibration records").
 
     Values in the θ10 = 0 gauge (θ10 status ``gauge``); σ the residual's (diagonal covariance); plus ``Dg_ab`` (the
-    device-level gyro stage's, here the truth, σ 1e-5 °/h/g).
+    device-level gyro stage's, σ 1e-5 °/h/g: the truth, or with ``world.g_sensitivity_drawn`` the truth plus that σ times
+    a normal draw, seeded by ``seed``).
     """
     created = "2026-02-28T12:00:00+00:00"
     stage = "device-independent"
@@ -571,9 +576,10 @@ def calibration_record(unit: Unit, world: World, serial: str) -> dict[str, objec
     for k in CORE_IDS:
         entries.append((k, unit.installed[k], unit.installed_sigma[k], UNITS[_kind(k)]))
     dg_sigma = 1e-5 * DEG_PER_HOUR / G0
-    for a in "xyz":
-        for b in "xyz":
-            entries.append((f"Dg_{a}{b}", dg if a == b else 0.0, dg_sigma, UNITS["Dg"]))
+    dg_error = np.random.default_rng([seed, 25, 9]).standard_normal((3, 3)) * dg_sigma if world.g_sensitivity_drawn else np.zeros((3, 3))
+    for i, a in enumerate("xyz"):
+        for j, b in enumerate("xyz"):
+            entries.append((f"Dg_{a}{b}", (dg if a == b else 0.0) + float(dg_error[i, j]), dg_sigma, UNITS["Dg"]))
     parameters = []
     for k, value, sigma, unit_text in entries:
         gauge = k == "theta10"
@@ -640,7 +646,7 @@ def generate(seed: int, out: Path, world: World) -> dict[str, Path]:
         "installed": out / "installed.json",
         "truth": out / "truth-independent-system.json",
     }
-    paths["installed"].write_text(json.dumps(calibration_record(unit, world, serial), indent=1), encoding="utf-8")
+    paths["installed"].write_text(json.dumps(calibration_record(unit, world, serial, seed), indent=1), encoding="utf-8")
     paths["truth"].write_text(json.dumps(truth, indent=1), encoding="utf-8")
     return paths
 

@@ -59,6 +59,53 @@ def earth_rotation(axis: NDArray[np.float64], time: NDArray[np.float64]) -> NDAr
     return np.eye(3) + np.sin(theta)[:, None, None] * axis + (1.0 - np.cos(theta))[:, None, None] * (axis @ axis)
 
 
+def in_frame(rotation: NDArray[np.float64], vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``Rᵀ v`` for each sample (n, 3): vectors of the platform frame in the frame before the rotations ``R`` (n, 3, 3)."""
+    return np.einsum("nji,nj->ni", rotation, vectors)
+
+
+class DriftIntegral:
+    r"""The rotation vector ``θ`` of ``X`` with ``\dot X = -[r\times] X``, ``X(0) = I``, sample by sample, carried across chunks.
+
+    ``\dot\theta = r + \tfrac12\, \theta \times r`` (Bortz 1971, second order; the term left out is
+    ``\tfrac1{12}\, \theta \times (\theta \times r)``), the trapezoid rule on the sample clock; the sums run
+    sequentially from the carried state, so the samples do not depend on the chunking.  :meth:`angle` evaluates the
+    next samples from the state (callable again, e.g. a corrector's second pass); :meth:`advance` commits the last
+    evaluation.
+
+    Parameters
+    ----------
+    rate : float
+        Sample rate [Hz].
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.dt = 1.0 / float(rate)
+        self._integral = np.zeros(3)  # θ up to the last committed sample (Bortz, second order)
+        self._first_order = np.zeros(3)  # ∫ r dt up to the last committed sample
+        self._last_integrand: NDArray[np.float64] | None = None
+        self._pending: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+
+    def angle(self, integrand: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``θ`` (n, 3) at the next samples, for the rate ``r`` (n, 3) [rad/s] at them (the first call's first sample is ``t = 0``)."""
+        previous = integrand[0] if self._last_integrand is None else self._last_integrand
+        steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)
+        if self._last_integrand is None:
+            steps[0] = 0.0  # the first sample of the record is t = 0
+        first = np.cumsum(np.vstack([self._first_order[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
+        before = np.vstack([self._first_order[None, :], first[:-1]])
+        # Bortz: θ' = r + ½ θ × r, so that the drift rotations compose (second order) when r turns
+        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps + 0.5 * np.cross(before, steps)]), axis=0)[1:]
+        self._pending = (cumulative[-1].copy(), first[-1].copy(), integrand[-1].copy())
+        return cumulative
+
+    def advance(self) -> None:
+        """Commit the last :meth:`angle` evaluation: the next call continues after its samples."""
+        assert self._pending is not None
+        self._integral, self._first_order, self._last_integrand = self._pending
+        self._pending = None
+
+
 class IndexedMotion:
     """Orientation of a platform started at a commanded orientation and indexed by the given turns.
 
@@ -98,9 +145,7 @@ class IndexedMotion:
         self.alternate_branch = bool(np.cos(platform.configuration.senses[1] * initial_actual[1]) < 0.0)
         self.axes = self._resolve_axes()
         self._previous_actual = np.asarray(initial_actual, dtype=float).copy()
-        self._integral = np.zeros(3)  # the rotation vector θ of X up to the last sample (Bortz, second order)
-        self._first_order = np.zeros(3)  # ∫ Tᵀ w dt up to the last sample
-        self._last_integrand: NDArray[np.float64] | None = None
+        self._drift = DriftIntegral(rate)
 
     # ------------------------------------------------------------------ commanded rotation
     def _resolve_axes(self) -> tuple[NDArray[np.float64], ...]:
@@ -142,30 +187,12 @@ class IndexedMotion:
         commanded = self.commanded(time)
         tail = self.nav_to_platform_0 @ earth_rotation(self.earth_axis, time)
         free = commanded @ tail
-        cumulative, first, integrand = self._drift_angle(commanded, platform_drift_rate(drift, g_sensitivity, -gravity * free[:, :, 2]))
+        cumulative = self._drift.angle(in_frame(commanded, platform_drift_rate(drift, g_sensitivity, -gravity * free[:, :, 2])))
         if np.any(g_sensitivity):
             predicted = commanded @ rotation_about(cumulative) @ tail
-            cumulative, first, integrand = self._drift_angle(
-                commanded, platform_drift_rate(drift, g_sensitivity, -gravity * predicted[:, :, 2])
-            )
-        self._integral, self._last_integrand = cumulative[-1].copy(), integrand[-1].copy()
-        self._first_order = first[-1].copy()
+            cumulative = self._drift.angle(in_frame(commanded, platform_drift_rate(drift, g_sensitivity, -gravity * predicted[:, :, 2])))
+        self._drift.advance()
         return commanded @ rotation_about(cumulative) @ tail
-
-    def _drift_angle(
-        self, commanded: NDArray[np.float64], rate: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """``θ`` of ``X`` at the samples (Bortz, second order), ``∫ Tᵀ w`` and the integrand ``Tᵀ w``, from the carried state."""
-        integrand = np.einsum("nji,nj->ni", commanded, rate)
-        previous = integrand[0] if self._last_integrand is None else self._last_integrand
-        steps = 0.5 * self.dt * (np.vstack([previous[None, :], integrand[:-1]]) + integrand)
-        if self._last_integrand is None:
-            steps[0] = 0.0  # the first sample of the record is t = 0
-        first = np.cumsum(np.vstack([self._first_order[None, :], steps]), axis=0)[1:]  # sequential sums: chunking-proof
-        before = np.vstack([self._first_order[None, :], first[:-1]])
-        # Bortz: θ' = Tᵀw + ½ θ × Tᵀw, so that the drift rotations compose (second order) when Tᵀw turns
-        cumulative = np.cumsum(np.vstack([self._integral[None, :], steps + 0.5 * np.cross(before, steps)]), axis=0)[1:]
-        return cumulative, first, integrand
 
     # ------------------------------------------------------------------ readings
     def _actual(self, body_to_platform: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -93,7 +93,7 @@ from stableins.platform import rotation_about
 from stableins.schema import SYSTEM_COLUMNS
 from stableins.simulator import effects as fx
 from stableins.simulator.error_dynamics import ModalRecursion, error_dynamics
-from stableins.simulator.indexing import IndexedMotion
+from stableins.simulator.indexing import DriftIntegral, IndexedMotion, in_frame
 from stableins.simulator.noise import NoiseGenerator, Quantizer
 from stableins.simulator.physics import GIMBAL_IDS, Accelerometer, SensorInputs
 from stableins.simulator.truth import Truth
@@ -175,7 +175,7 @@ class SystemWorld:
         x0 = np.zeros(9)
         x0[3:6] = np.asarray(initial_misalignment, dtype=float)
         self._z: NDArray[np.inexact[Any]] = self.recursion.to_modes @ x0
-        self._g_drift_angle = np.zeros(3)  # integral of -D_g f^p up to the next sample
+        self._g_drift = DriftIntegral(self.rate)  # the g-sensitive drift's rotation Z, composed on the drift's
         self._next = 0
         self._indexed = None  # a commanded start or indexing: the general kinematics of stableins.simulator.indexing
         if initial_readings is not None or turns:
@@ -204,17 +204,38 @@ class SystemWorld:
             angle[:, 1] += amplitude / omega * (np.cos(omega * time + phase) - np.cos(phase))
         return angle
 
-    def platform_orientation(self, time: NDArray[np.float64], extra_angle: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held, drifting platform."""
+    def _held(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``C_{n0}^{p0} exp(ω_ie t [u×])`` (n, 3, 3): the platform held in inertial space, the local frame turning."""
         theta = EARTH_RATE * time
         s, c = np.sin(theta), np.cos(theta)
-        dcm = self.nav_to_platform_0 + s[:, None, None] * self._ck + (1.0 - c)[:, None, None] * self._ck2
-        angle = self._drift_angle(time) if (np.any(self._drift) or self._case[0]) else None
-        if extra_angle is not None:
-            angle = extra_angle if angle is None else angle + extra_angle
-        if angle is not None:
-            dcm = rotation_about(angle) @ dcm
+        return self.nav_to_platform_0 + s[:, None, None] * self._ck + (1.0 - c)[:, None, None] * self._ck2
+
+    def platform_orientation(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return the true ``C_n^p(t)`` (n, 3, 3) of the inertially held platform turned by ``ε^p`` (no ``D_g``)."""
+        dcm = self._held(time)
+        if np.any(self._drift) or self._case[0]:
+            dcm = rotation_about(self._drift_angle(time)) @ dcm
         return dcm
+
+    def _g_sensitive_orientation(self, time: NDArray[np.float64]) -> NDArray[np.float64]:
+        r"""Return ``C_n^p`` (n, 3, 3) with the g-sensitive drift ``−D_g f^p`` composed on the drift's rotation.
+
+        With ``R = rot(−∫ε^p dt)`` (:meth:`_drift_angle`; exact for a constant drift) and ``C_n^p = R Z C_{n0}^{p0} E(t)``,
+        the platform's kinematics ``\dot C = −[w×] C``, ``w = −(ε^p + D_g f^p)``, leave ``\dot Z = −[(Rᵀ w_g)×] Z`` with
+        ``w_g = −D_g f^p``, ``f^p`` of the true (drifted) orientation.  ``Z`` is integrated by
+        :class:`stableins.simulator.indexing.DriftIntegral` (second order; its angle is the wobble's ``g cosL |D_g|/Ω``,
+        5e-5 rad for 0.001 °/h/g, so the third-order term is ~1e-17 rad/s) with a predictor (``f^p`` of ``R C_{n0}^{p0} E``)
+        and a corrector (``f^p`` of the predicted ``Z``).  docs/simulator.md, "System level".
+        """
+        held = self._held(time)
+        rotation = rotation_about(self._drift_angle(time))
+        drifted = rotation @ held
+        zeros = np.zeros(3)
+        angle = self._g_drift.angle(in_frame(rotation, platform_drift_rate(zeros, self._g_sensitivity, -self.gravity * drifted[:, :, 2])))
+        predicted = rotation @ rotation_about(angle) @ held
+        angle = self._g_drift.angle(in_frame(rotation, platform_drift_rate(zeros, self._g_sensitivity, -self.gravity * predicted[:, :, 2])))
+        self._g_drift.advance()
+        return rotation @ rotation_about(angle) @ held
 
     def readings(self, nav_to_platform: NDArray[np.float64], time: NDArray[np.float64]) -> NDArray[np.float64]:
         """Angle-sensor readings (noise-free, continuous) of orientations ``C_n^p``."""
@@ -232,19 +253,11 @@ class SystemWorld:
         index = np.arange(start, start + count)
         time = index / self.rate
         truth = self.truth
-        extra = None
         if self._indexed is not None:
             dcm = self._indexed.orientation(time, self.gyro_drift(time), g_sensitivity=self._g_sensitivity, gravity=self.gravity)
             readings = self._indexed.readings(dcm)
-        elif np.any(self._g_sensitivity):
-            # Dg: platform turns at -D_g f^p; f^p of the drift-free orientation, integrated by sequential sums
-            f_free = -self.gravity * self.platform_orientation(time)[:, :, 2]
-            rate = platform_drift_rate(np.zeros(3), self._g_sensitivity, f_free)
-            steps = np.vstack([self._g_drift_angle[None, :], rate / self.rate])
-            cumulative = np.cumsum(steps, axis=0)
-            extra, self._g_drift_angle = cumulative[:-1], cumulative[-1].copy()
-        if self._indexed is None:
-            dcm = self.platform_orientation(time, extra)
+        else:
+            dcm = self._g_sensitive_orientation(time) if np.any(self._g_sensitivity) else self.platform_orientation(time)
             readings = self.readings(dcm, time)
         f_p = -self.gravity * dcm[:, :, 2]
         temperature = truth.noise.temperature(time)

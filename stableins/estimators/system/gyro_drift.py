@@ -26,7 +26,10 @@ The nuisances (each a physical effect of a real platform, all in the truth simul
   about ``z_p``; its polar component is a constant (the same as ``c_z``), so two equatorial components are fitted;
 * the once-per-revolution error of the platform-axis angle sensor, ``c_1 \cos r_1 + s_1 \sin r_1`` (the reading
   sweeps a turn per sidereal day): a rotation about ``z_p`` on the left, ``e_z += h_c \cos r_1 + h_s \sin r_1``.  The
-  inner and middle readings stand still, so their sensor errors are constant offsets (part of ``ω_b``).
+  inner and middle readings stand still, so their sensor errors are constant offsets (part of ``ω_b``);
+* with the record's g-sensitivity ``D_g``, the platform's turn by ``−D_g f^p`` (a wobble at the Earth rate and a
+  constant rate): composed out of the readings exactly (:func:`g_sensitive_turn`), the errors of ``D_g`` as nuisances
+  with the record's σ (:func:`g_sensitive_columns`); the drift returned is the one the record sees, ``ε^p + D_g f̄^p``.
 
 Model, per block mean of the readings (10-s attitude blocks, at the attitude decimation):
 ``e(t_k) = c + C_b^p(t_k) P ω + (h_c \cos r_{1k} + h_s \sin r_{1k}) e_z − ε^p t_k + n_k`` (``P``: two body vectors
@@ -197,6 +200,9 @@ def fit_gimbal_drift(
     offsets: NDArray[np.float64] | tuple[float, float, float] = (0.0, 0.0, 0.0),
     base_attitude: tuple[float, float, float] = (0.0, 0.0, 0.0),
     inner_offset_sigma: float = INNER_OFFSET_SIGMA,
+    g_sensitivity: NDArray[np.float64] | None = None,
+    g_sensitivity_sigma: NDArray[np.float64] | None = None,
+    gravity: float = 0.0,
 ) -> GimbalDrift:
     """Fit ``ε^p`` and the nuisances to the block means of the gimbal readings (module docstring).
 
@@ -214,6 +220,13 @@ def fit_gimbal_drift(
         Surveyed base attitude [rad].
     inner_offset_sigma : float
         Prior σ of the inner-gimbal zero offset's residual ``d_2`` [rad] (the record's σ of θ20).
+    g_sensitivity, g_sensitivity_sigma : ndarray (3, 3), optional
+        The record's ``D_g`` and its σ [rad/s per m/s²]: the platform's turn by the g-sensitive drift is composed out of
+        the readings (:func:`g_sensitive_turn`) and the σ of its equatorial columns are the prior of nuisances
+        (:func:`g_sensitive_columns`); the drift returned is the one the record sees, ``ε^p + D_g f̄^p``
+        (``f̄^p`` the specific force along the Earth's axis).
+    gravity : float
+        [m/s²] (with ``g_sensitivity``).
     """
     t = np.asarray(blocks["time"], dtype=float)
     weight = np.asarray(blocks["count"], dtype=float)
@@ -234,9 +247,18 @@ def fit_gimbal_drift(
     inner_reference = inner_body.mean(axis=0)
     # the inner and middle angles move a little (the drift tilts the platform): a sensor error's local slope scales that
     moved = angles[:, 1:] - angles[:, 1:].mean(axis=0)
-    prior = np.diag(np.r_[np.zeros(10), 1.0 / inner_offset_sigma**2, np.full(2, 1.0 / SLOPE_SIGMA**2)])
+    with_columns = g_sensitivity is not None and g_sensitivity_sigma is not None
+    columns, column_sigma = np.zeros((t.size, 3, 0)), np.zeros(0)
+    if with_columns:
+        assert g_sensitivity_sigma is not None
+        columns, column_sigma = g_sensitive_columns(
+            t, latitude, reference=reference, gravity=gravity, sigma=g_sensitivity_sigma, drift=np.zeros(3)
+        )
+    extra = column_sigma.size
+    prior = np.diag(np.r_[np.zeros(10), 1.0 / inner_offset_sigma**2, np.full(2, 1.0 / SLOPE_SIGMA**2), 1.0 / column_sigma**2])
     sigma = np.ones(3)
     fit = None
+    drift = np.zeros(3)
     for _ in range(PASSES):
         # remove the fitted nuisances exactly: the inner offset inside the chain, base-fixed ω_b on the right, the z_p
         # sensor error on the left
@@ -245,7 +267,14 @@ def fit_gimbal_drift(
         c_true = dcm_body_to_platform(angles[:, 0], inner_angle, middle_angle, 0.0, configuration) @ rotation_about(omega_b).T
         z_turn = rotation_about(np.outer(sensor[0] * cos_r + sensor[1] * sin_r, [0.0, 0.0, 1.0]))
         q = z_turn.swapaxes(1, 2) @ c_true @ dcm_nav_to_body(*base_attitude) @ earth_turn(t, latitude).swapaxes(1, 2)
-        e = rotation_vector(q @ reference.T)
+        if g_sensitivity is None:
+            e = rotation_vector(q @ reference.T)
+        else:  # X = rot(−ε t) Z: the g-sensitive turn Z composed out on the right (in the frame of the start)
+            turn = g_sensitive_turn(t, latitude, reference=reference, gravity=gravity, g_sensitivity=g_sensitivity, drift=drift)
+            e = rotation_vector(q @ reference.T @ turn.swapaxes(1, 2))
+            if with_columns:
+                assert g_sensitivity_sigma is not None
+                columns = g_sensitive_columns(t, latitude, reference=reference, gravity=gravity, sigma=g_sensitivity_sigma, drift=drift)[0]
         # an inner offset d moves e by −s2 d a_p(t) (a_p = C_b^p b_inner, the axis in the platform frame); taken with the
         # base rotation s2 d b_ref that cancels it to first order, its column is the small s2 C_b^p (b_ref − b_inner(t))
         # an error k·(α − ᾱ) of the inner (middle) angle turns the platform by −s k (α − ᾱ) about that gimbal's axis
@@ -257,9 +286,10 @@ def fit_gimbal_drift(
             ],
             axis=2,
         )
-        design = _design(t, c_true, basis, cos_r, sin_r, chain=chain)
-        fit = _solve(design, e, weight, sigma, prior=prior, current=np.r_[np.zeros(10), inner, slopes])
+        design = np.concatenate([_design(t, c_true, basis, cos_r, sin_r, chain=chain), columns], axis=2)
+        fit = _solve(design, e, weight, sigma, prior=prior, current=np.r_[np.zeros(10), inner, slopes, np.zeros(extra)])
         beta, sigma = fit[0], fit[2]
+        drift = beta[3:6]
         reference = rotation_about(beta[:3]) @ reference
         omega_b = omega_b + basis @ beta[6:8] + s2 * beta[10] * inner_reference
         sensor = sensor + beta[8:10]
@@ -270,6 +300,8 @@ def fit_gimbal_drift(
     ratio = _low_frequency_ratio(t, residuals, weight, sigma)
     inflation = ratio if ratio > 1.0 + 3.0 * math.sqrt(2.0 / max(_bins(t), 1)) else 1.0
     values = beta[3:6]
+    if g_sensitivity is not None:  # the drift the record sees: the turn's constant part back (docstring)
+        values = values + g_sensitivity @ _earth_axis_force(latitude, reference, gravity)
     return GimbalDrift(
         values=values,
         covariance=cov[3:6, 3:6] * inflation,
@@ -284,6 +316,99 @@ def fit_gimbal_drift(
         span=(float(t[0]), float(t[-1])),
         orientation_sigma=np.sqrt(np.diag(cov[0:3, 0:3]) * inflation),
     )
+
+
+def _earth_axis_force(latitude: float, reference: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
+    """``f̄^p``: the specific force's component along the Earth's axis in the platform frame at the start [m/s²] (3,)."""
+    axis = reference @ (earth_rate_nav(latitude) / EARTH_RATE)
+    return float(axis @ (reference @ np.array([0.0, 0.0, -gravity]))) * axis
+
+
+def _start_force(time: NDArray[np.float64], latitude: float, reference: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
+    """``f^p`` of the platform held at its start orientation ``C_{n_0}^{p_0}`` (reference): ``C_{n_0}^{p_0} E(t) (0, 0, −g)`` (n, 3)."""
+    return np.einsum("ij,njk,k->ni", reference, earth_turn(time, latitude), np.array([0.0, 0.0, -gravity]))
+
+
+#: Step of the grid on which :func:`g_sensitive_turn` integrates the g-sensitive drift [s] (the Earth turns 4.4e-3 rad
+#: a step: the trapezoid rule's relative error ``(Ω h)²/12`` is 1.6e-6 of the turn, 8e-11 rad for 0.001 °/h/g).
+TURN_STEP = 60.0
+
+
+def _turn_grid(time: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """Return the :data:`TURN_STEP` grid from 0 with the times in it (sorted, unique) and the times' indices in it."""
+    end = float(np.max(time)) if time.size else 0.0
+    grid, where = np.unique(np.r_[0.0, np.arange(TURN_STEP, end, TURN_STEP), time], return_inverse=True)
+    return grid, where[where.size - time.size :]
+
+
+def g_sensitive_turn(
+    time: NDArray[np.float64],
+    latitude: float,
+    *,
+    reference: NDArray[np.float64],
+    gravity: float,
+    g_sensitivity: NDArray[np.float64],
+    drift: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    r"""Return ``Z(t)`` (n, 3, 3): the platform's turn by its g-sensitive drift, in the frame of its start orientation.
+
+    The platform turns at ``w = −(ε^p + D_g f^p)`` in its own frame (:func:`stableins.conventions.platform_drift_rate`).
+    With ``R = rot(−ε^p t)`` (exact for the constant drift) its turn from the start is ``X = R Z``, and
+    ``\dot X = −[w×] X`` leaves ``\dot Z = −[(R^T w_g)×] Z``, ``w_g = −D_g f^p``, ``f^p = R Z f_0(t)`` with
+    ``f_0(t) = C_{n_0}^{p_0} E(t) (0, 0, −g)`` the specific force of the platform held at its start: the rate is
+    ``r = −R^T D_g R Z f_0(t)``, ``Z f_0`` from a predictor with ``f_0`` (``Z``'s angle is the wobble
+    ``A = g cosL |D_g|/Ω``, 5e-5 rad for 0.001 °/h/g, and ``D_g (Z − I) f_0`` has a constant part of up to ``|D_g g| A``,
+    2.4e-13 rad/s or 5e-8 °/h, the readings' σ; the corrector leaves ``|D_g g| A²``), integrated by the rotation vector's
+    second-order equation ``θ' = r + ½ θ × r`` (Bortz 1971: the wobble's coning, ``½ A² Ω`` ≈ 1e-13 rad/s about the
+    Earth's axis for 0.001 °/h/g, is in it) with the trapezoid rule on a :data:`TURN_STEP` grid (and the times).
+    ``time`` [s] since the record start (``Z(0) = I``); ``drift``: ``ε^p`` [rad/s] without the g-sensitive part.
+    """
+    grid, where = _turn_grid(time)
+    turn = rotation_about(-np.outer(grid, drift))
+    force = _start_force(grid, latitude, reference, gravity)
+    angle = np.zeros((grid.size, 3))
+    for _ in range(2):  # predictor with f_0, corrector with Z f_0 (f^p of the turned platform)
+        held = np.einsum("nij,nj->ni", rotation_about(angle), force)
+        rate = -np.einsum("nji,jk,nkl,nl->ni", turn, g_sensitivity, turn, held)
+        steps = 0.5 * np.diff(grid)[:, None] * (rate[1:] + rate[:-1])
+        first = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+        angle = np.vstack([np.zeros(3), np.cumsum(steps + 0.5 * np.cross(first[:-1], steps), axis=0)])
+    return rotation_about(angle[where])
+
+
+def g_sensitive_columns(
+    time: NDArray[np.float64],
+    latitude: float,
+    *,
+    reference: NDArray[np.float64],
+    gravity: float,
+    sigma: NDArray[np.float64],
+    drift: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Return the fit's columns (n, 3, k) and prior σ (k,) of the errors of ``Dg_ab``, ``b`` = x, y, whose σ is not 0.
+
+    An error ``δD_ab`` of the record's ``D_g`` turns the platform by ``−∫_0^t R^T e_a (R f_0^{rot})_b dτ`` more (first
+    order in it; :func:`g_sensitive_turn`, ``R = rot(−ε^p τ)``), ``f_0^{rot}`` the Earth-rate part of the held
+    platform's specific force (its constant part along the Earth's axis is a constant drift: in the drift the record
+    sees).  The part that turns with the Earth like ``ω_b`` is that nuisance's; the part turning the other way
+    (``D_xx − D_yy``, ``D_xy + D_yx``) and the polar row (``D_zx``, ``D_zy``, the platform-axis sensor's pattern) are
+    not, and they correlate with the ramp: their prior is the record's σ.  ``R`` matters: 0.05 °/h along z_p turns the
+    wobble by 0.018 rad in a day, 1 % of an error's leak (4e-7 °/h for an error of 1e-4 °/h/g).
+    """
+    k = skew(earth_rate_nav(latitude) / EARTH_RATE)
+    down = np.array([0.0, 0.0, -gravity])
+    b, c = reference @ k @ down, reference @ k @ k @ down  # f_0 = f̄ + sin(Ωt) b − cos(Ωt) c (earth_turn)
+    grid, where = _turn_grid(time)
+    angle = EARTH_RATE * grid
+    turn = rotation_about(-np.outer(grid, drift))
+    force = np.einsum("nij,nj->ni", turn, np.outer(np.sin(angle), b) - np.outer(np.cos(angle), c))  # R f_0^rot
+    pairs = [(a, j) for a in range(3) for j in range(2) if sigma[a, j] > 0]
+    if not pairs:
+        return np.zeros((time.size, 3, 0)), np.zeros(0)
+    rate = np.stack([-turn[:, a, :] * force[:, j : j + 1] for a, j in pairs], axis=2)  # −Rᵀ e_a (R f_rot)_b
+    steps = 0.5 * np.diff(grid)[:, None, None] * (rate[1:] + rate[:-1])
+    columns = np.concatenate([np.zeros((1, 3, len(pairs))), np.cumsum(steps, axis=0)])
+    return columns[where], np.array([sigma[a, j] for a, j in pairs])
 
 
 def _design(
@@ -442,7 +567,21 @@ def measure_gimbals(
         offsets=np.array([float(prior.get(k, 0.0)) for k in ("theta10", "theta20", "theta30")]),
         base_attitude=cast("tuple[float, float, float]", tuple(float(a) for a in (metadata.base_attitude or (0.0, 0.0, 0.0)))),
         inner_offset_sigma=_offset_sigma(prior_covariance),
+        g_sensitivity=prior_g_sensitivity(prior),
+        g_sensitivity_sigma=_g_sensitivity_sigma(prior_covariance),
+        gravity=metadata.gravity,
     )
+
+
+def _g_sensitivity_sigma(prior_covariance: Mapping[tuple[str, str], float] | None) -> NDArray[np.float64]:
+    """Return the prior σ of ``Dg_ab`` (3, 3) [rad/s per m/s²] (0 where the record holds none)."""
+    out = np.zeros((3, 3))
+    for i, a in enumerate("xyz"):
+        for j, b in enumerate("xyz"):
+            variance = None if prior_covariance is None else prior_covariance.get((f"Dg_{a}{b}", f"Dg_{a}{b}"))
+            if variance is not None and math.isfinite(variance) and variance > 0:
+                out[i, j] = math.sqrt(variance)
+    return out
 
 
 def drift_step(
@@ -513,13 +652,12 @@ def _drift_step(
     options: SystemOptions,
     g_sensitivity: NDArray[np.float64] | None,
 ) -> DriftStep:
-    """:func:`drift_step` but for the prior's ``D_g`` in the step (its wobble's σ is in the gimbal measurement's)."""
+    """:func:`drift_step` but for the prior's ``D_g`` in the step (the gimbal fit composes its turn out, :func:`measure_gimbals`)."""
     gimbal = None
     notes: list[str] = []
     if options.estimate_gyro_drift:
         gimbal = measure_gimbals(sums, metadata, prior, prior_covariance, latitude=latitude)
         if gimbal is not None:
-            gimbal = _with_wobble(gimbal, g_sensitivity, metadata.gravity)
             notes.append(_gimbal_note(gimbal))
     given = None if options.known_gyro_drift is None else np.asarray(options.known_gyro_drift, dtype=float)
     uncertainty = options.gyro_drift_uncertainty
@@ -547,49 +685,6 @@ def _drift_step(
     if gimbal is not None:
         return DriftStep(gimbal.values, gimbal.covariance, DriftSource.GIMBALS, gimbal, True, tuple(notes))
     return DriftStep(np.zeros(3), None, DriftSource.NONE, None, False, tuple(notes))
-
-
-def wobble_sigma(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
-    """σ added to ``ε_x``, ``ε_y``, ``ε_z`` by the g-sensitive wobble read with the drift [rad/s] (3,): ``A |ε_z|``, ``A |ε_xy|``.
-
-    The Earth-rate part of ``D_g f^p`` (:func:`g_sensitivity_removed`) tilts the platform by ``H(t)``, amplitude
-    ``A = g cos L ‖D_eq‖ / ω_ie`` (``D_eq`` the equatorial 2×2 block, ‖·‖ its largest singular value: 5e-5 rad for
-    0.001 °/h/g), with a mean offset from the record's start of up to ``A``; the drift then turns the platform about
-    an axis tilted by it, which the gimbal fit (its reference the start, its nuisances base-fixed) reads as a drift of
-    up to ``A × ε`` across it: a z_p drift into ``ε_x``, ``ε_y`` (measured: 0.92 ε_z A, 2.4e-6 °/h for 0.05 °/h and
-    0.001 °/h/g, 30× the readings' σ), an equatorial drift into ``ε_z`` (measured: 1.3e-6 °/h for 0.05 °/h on x_p and
-    y_p, ``A |ε_xy|`` = 3.5e-6; docs/system-calibration.md §9).  Not modelled: its size is its σ.
-    """
-    amplitude = gravity * math.cos(gimbal.latitude) * float(np.linalg.svd(g_sensitivity[:2, :2], compute_uv=False)[0]) / EARTH_RATE
-    values = np.asarray(gimbal.values, dtype=float)
-    across = amplitude * abs(float(values[2]))
-    return np.array([across, across, amplitude * float(np.hypot(values[0], values[1]))])
-
-
-def tilt_bias(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64], gravity: float) -> NDArray[np.float64]:
-    r"""Return the part of the fitted drift [rad/s] (3,) that the g-sensitive drift of the tilting platform puts there.
-
-    A drift across z_p tilts the platform by ``−ε t`` (first order), so ``f^p`` leaves the reference's by
-    ``Δf^p = t g sin L (ε_y, −ε_x, 0)`` along x_p, y_p (the constant ``f_z = g sin L`` turned; its Earth-rate parts turned
-    give Earth-rate terms times ``t``, which the fit's harmonic nuisances take), and the gyros read ``D_g Δf^p`` more:
-    a drift that ramps, whose turn is quadratic in ``t``.  A line fitted to ``k t²/2`` over ``[0, T]`` has the slope
-    ``k T/2``, so the fit's ``ε`` is off by ``(T/2) g sin L D_g (ε_y, −ε_x, 0)``: 6.7e-6 °/h for 0.05 °/h on x_p and
-    y_p and 0.001 °/h/g on the diagonal over a day (the simulator's noise-free readings: 5.8e-6 and −7.7e-6, without a
-    z_p drift; ten times the readings' σ).  ``T`` the span of the gimbal blocks; the drift's own estimate in the formula
-    (its error is 1e-6 of itself).  docs/system-calibration.md §9, "Across z_p".
-    """
-    values = np.asarray(gimbal.values, dtype=float)
-    span = gimbal.span[1] - gimbal.span[0]
-    tilt = np.array([values[1], -values[0], 0.0])
-    return 0.5 * span * gravity * math.sin(gimbal.latitude) * (np.asarray(g_sensitivity, dtype=float) @ tilt)
-
-
-def _with_wobble(gimbal: GimbalDrift, g_sensitivity: NDArray[np.float64] | None, gravity: float | None) -> GimbalDrift:
-    """Return the gimbal measurement less :func:`tilt_bias`, with :func:`wobble_sigma` added to the variance of ``ε``."""
-    if g_sensitivity is None or gravity is None:
-        return gimbal
-    values = np.asarray(gimbal.values, dtype=float) - tilt_bias(gimbal, g_sensitivity, gravity)
-    return replace(gimbal, values=values, covariance=gimbal.covariance + np.diag(wobble_sigma(gimbal, g_sensitivity, gravity) ** 2))
 
 
 def _offset_sigma(prior_covariance: Mapping[tuple[str, str], float] | None) -> float:
@@ -753,11 +848,11 @@ __all__ = [
     "drift_step",
     "earth_turn",
     "fit_gimbal_drift",
+    "g_sensitive_columns",
+    "g_sensitive_turn",
     "g_sensitivity_removed",
     "likelihood_inputs",
     "measure_gimbals",
     "prior_drift",
     "prior_g_sensitivity",
-    "wobble_sigma",
-    "tilt_bias",
 ]
