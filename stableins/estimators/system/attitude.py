@@ -250,7 +250,7 @@ def fit_attitude(
     spectral_ratio : bool
         Measure the residuals' spectral ratio (``residual_noise_ratio``, the low-frequency notes).  ``False`` (only with
         ``scale_low_frequency=False``, which does not use it) leaves it NaN: the Type B re-runs of the system stage
-        (:mod:`.sensitivity`), which read the coefficients alone.
+        (:mod:`stableins.estimators.system.sensitivity`), which read the coefficients alone.
 
     Returns
     -------

@@ -102,7 +102,7 @@ class SystemCalibration(SystemCalibrationView):
     drift : DriftStep or None
         The drift removed from pitch and roll, its source and the gimbal readings' measurement ``drift.gimbal`` (docs §9).
     held : HeldSteps or None
-        The steps a Type B re-run holds (:mod:`.sensitivity`); None in such a re-run's own result.
+        The steps a Type B re-run holds (:mod:`stableins.estimators.system.sensitivity`); None in such a re-run's own result.
     """
 
     result: FitResult
@@ -123,7 +123,7 @@ class SystemCalibration(SystemCalibrationView):
 
 @dataclass(frozen=True)
 class HeldSteps:
-    """What a re-run of the solve steps for a Type B sensitivity takes from the stage's run (:mod:`.sensitivity`).
+    """What a re-run of the solve steps for a Type B sensitivity takes from the stage's run (:mod:`stableins.estimators.system.sensitivity`).
 
     Attributes
     ----------

@@ -372,7 +372,7 @@ def thermal_step(
     them held whenever the record has a temperature column (``hold_attitude_white``), and the terms refitted under it.
     ``test=False`` holds the test's outcome "nothing to remove" (its first decision and analysis are not made;
     ``inputs.decision`` is then unused when the record has a temperature column): a Type B re-run of a stage whose test
-    removed nothing (:attr:`ThermalFit.removed`; :mod:`.sensitivity`), a discrete choice a derivative holds.
+    removed nothing (:attr:`ThermalFit.removed`; :mod:`stableins.estimators.system.sensitivity`), a discrete choice a derivative holds.
     """
     from stableins.estimators.system import solve
 
