@@ -11,6 +11,7 @@ import textwrap
 from pathlib import Path
 
 import h5py
+import inprocess
 import numpy as np
 import pytest
 
@@ -52,9 +53,9 @@ def test_help_and_version_import_nothing_heavy():
 
 
 def test_help_lists_commands_and_version_answers():
-    done = run_cli("--help")
+    done = inprocess.run_cli(["--help"])
     assert done.returncode == 0 and "check" in done.stdout and "COMMAND" in done.stdout
-    done = run_cli("--version")
+    done = inprocess.run_cli(["--version"])
     assert done.returncode == 0 and done.stdout.strip() == f"stableins {__version__}"
 
 
