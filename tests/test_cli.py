@@ -11,6 +11,7 @@ import textwrap
 from pathlib import Path
 
 import h5py
+import inprocess
 import numpy as np
 import pytest
 
@@ -52,10 +53,19 @@ def test_help_and_version_import_nothing_heavy():
 
 
 def test_help_lists_commands_and_version_answers():
-    done = run_cli("--help")
+    done = inprocess.run_cli(["--help"])
     assert done.returncode == 0 and "check" in done.stdout and "COMMAND" in done.stdout
-    done = run_cli("--version")
+    done = inprocess.run_cli(["--version"])
     assert done.returncode == 0 and done.stdout.strip() == f"stableins {__version__}"
+
+
+def test_one_blas_thread_unless_the_user_set_one(monkeypatch):
+    """cli.single_threaded_blas (also what tests/conftest.py gives the suite): 1 where unset, a set value kept."""
+    for name in cli.BLAS_THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    cli.single_threaded_blas()
+    assert [os.environ[name] for name in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")] == ["1", "3", "1"]
 
 
 def test_no_command_prints_help_and_exits_2(capsys):

@@ -18,6 +18,7 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+from inprocess import run_cli
 
 from stableins import cli
 
@@ -356,35 +357,25 @@ def ws(fuzz_workspace):
     return fuzz_workspace  # tests/conftest.py: built once per process
 
 
-def _main(argv: list[str]) -> tuple[int, str]:
-    import contextlib
-    import io
-
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
-        status = cli.main([str(a) for a in argv])
-    return status, out.getvalue()
-
-
 def test_report_identification_statement_and_technical_options(ws, tmp_path):
     technical = tmp_path / "evidence.pdf"
     argv = ["report", ws.record, "--laboratory", "Lab L", "--customer", "Customer C", "--operator", "Operator O", "--report-id", "R-31",
             "--no-statement", "--technical", technical, "--out", tmp_path / "r.pdf", "--json"]  # fmt: skip
-    status, out = _main(argv)
+    status, out, _ = run_cli(argv)
     assert status == 0
     document = json.loads(out)  # --json: the summary on stdout
     assert document["report_id"] == "R-31"  # --report-id
     assert document["verdict"] == "NO STATEMENT"  # --no-statement
     assert document["technical_report"]["path"] == str(technical) and technical.stat().st_size > 10_000  # --technical
     assert document["draft"] == []  # --laboratory, --customer, --operator: all three given, not a draft
-    status, out = _main(["report", ws.record, "--out", tmp_path / "d.pdf", "--json"])
+    status, out, _ = run_cli(["report", ws.record, "--out", tmp_path / "d.pdf", "--json"])
     assert status == 0 and json.loads(out)["draft"] and json.loads(out)["report_id"] != "R-31"
 
 
 def test_noise_confidence_sets_the_interval(ws):
     widths = {}
     for confidence in ("0.7", "0.99"):
-        status, out = _main(["noise", ws.system_h5, "--confidence", confidence, "--json"])
+        status, out, _ = run_cli(["noise", ws.system_h5, "--confidence", confidence, "--json"])
         assert status == 0
         model = json.loads(out)["noise_model"]
         assert model["confidence"] == float(confidence)
@@ -395,14 +386,14 @@ def test_noise_confidence_sets_the_interval(ws):
 
 def test_history_verify_finds_a_changed_record(ws, tmp_path):
     store = tmp_path / "store"
-    status, _ = _main(["history", ws.serial, "--store", store, "--add", ws.record])
+    status, _, _ = run_cli(["history", ws.serial, "--store", store, "--add", ws.record])
     assert status == 0
-    status, _ = _main(["history", ws.serial, "--store", store, "--verify"])
+    status, _, _ = run_cli(["history", ws.serial, "--store", store, "--verify"])
     assert status == 0  # every filed record matches its SHA-256
     filed = [p for p in store.rglob("*.json") if p.is_file() and ws.serial in str(p)]
     assert filed
     filed[0].write_text(filed[0].read_text().replace("stableins test", "stableins TEST"))
-    status, _ = _main(["history", ws.serial, "--store", store, "--verify"])
+    status, _, _ = run_cli(["history", ws.serial, "--store", store, "--verify"])
     assert status != 0
 
 
@@ -410,7 +401,7 @@ def test_calibrate_device_options(ws, tmp_path):
     first, second = tmp_path / "a.json", tmp_path / "b.json"
     argv = ["calibrate", "device", ws.device_csv, "--coarse-procedure", "device-coarse", "--coarse-linear", "--set", "laboratory=Lab L",
             "--add", "Kcc_xxy", "--keep-unsupported", "--alpha", "0.01", "--out", first, "--json"]  # fmt: skip
-    status, out = _main(argv)
+    status, out, _ = run_cli(argv)
     assert status == 0
     record = json.loads(first.read_text())
     settings = record["stages"][-1]["settings"]
@@ -418,7 +409,7 @@ def test_calibrate_device_options(ws, tmp_path):
     assert {"key": "laboratory", "value": "Lab L", "unit": ""} in record["calibration"]["entries"]  # --set
     assert "Kcc_xxy" in [p["id"] for p in record["parameters"]]  # --add, kept by --keep-unsupported whatever its test says
     assert json.loads(out)["discovery"]["alpha"] == 0.01  # --alpha
-    status, _ = _main(["calibrate", "device", ws.device_csv, "--noise", first, "--allow-missing", "--out", second])
+    status, _, _ = run_cli(["calibrate", "device", ws.device_csv, "--noise", first, "--allow-missing", "--out", second])
     assert status == 0
     again = json.loads(second.read_text())["stages"][-1]["settings"]
     assert again["allow_missing"] is True and again["coarse_nonlinear"] is True  # --allow-missing; the default nonlinear coarse stage

@@ -6,24 +6,15 @@ every run to a second or two.  tests/test_cli_options.py maps the options to the
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from inprocess import run_cli
 
-from stableins import cli
 from stableins.procedures.journal import scan
-
-
-def _main(argv: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = cli.main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -38,9 +29,9 @@ def test_diagnose_alpha_top_and_noise(ws, tmp_path):
 
     from stableins.noise import NoiseModel
 
-    status, default, err = _main(["diagnose", ws.device_csv, "--record", ws.record])
+    status, default, err = run_cli(["diagnose", ws.device_csv, "--record", ws.record])
     assert status == 0, err[-1000:]
-    status, text, err = _main(["diagnose", ws.device_csv, "--record", ws.record, "--alpha", "0.2", "--top", "3"])
+    status, text, err = run_cli(["diagnose", ws.device_csv, "--record", ws.record, "--alpha", "0.2", "--top", "3"])
     assert status == 0, err[-1000:]
     assert "flag level α = 0.025 family-wise" in default and "flag level α = 0.2 family-wise" in text  # --alpha
 
@@ -51,11 +42,11 @@ def test_diagnose_alpha_top_and_noise(ws, tmp_path):
     model = NoiseModel.given(2e-3, 1e-4, 1e-6, provenance="noise record for the diagnose options test")
     noisy = tmp_path / "noise.json"
     replace(_record(ws.serial), noise_model=model).save(noisy)
-    status, out, err = _main(["diagnose", ws.device_csv, "--record", ws.record, "--noise", noisy, "--json"])
+    status, out, err = run_cli(["diagnose", ws.device_csv, "--record", ws.record, "--noise", noisy, "--json"])
     assert status == 0, err[-1000:]
     document = json.loads(out)
     assert "noise record for the diagnose options test" in document["noise_model"]["provenance"]  # --noise: that model
-    status, out, _ = _main(["diagnose", ws.device_csv, "--record", ws.record, "--json"])
+    status, out, _ = run_cli(["diagnose", ws.device_csv, "--record", ws.record, "--json"])
     assert document["chi2_red"] < 0.8 * json.loads(out)["chi2_red"]  # its slow noise under the σ: χ²_ν falls
 
 
@@ -66,13 +57,13 @@ def test_simulate_format_and_installed(ws, tmp_path):
     from stableins.records import CalibrationRecord
 
     base = ["simulate", "device", "--procedure", "device-coarse", "--dwell", "2", "--rate", "5", "--no-iteration", "--seed", "1"]
-    assert _main([*base, "--out", tmp_path / "csv"])[0] == 0
-    assert _main([*base, "--out", tmp_path / "h5", "--format", "h5"])[0] == 0
+    assert run_cli([*base, "--out", tmp_path / "csv"])[0] == 0
+    assert run_cli([*base, "--out", tmp_path / "h5", "--format", "h5"])[0] == 0
     assert [p.suffix for p in (tmp_path / "csv").glob("device*")] == [".csv"]
     assert [p.suffix for p in (tmp_path / "h5").glob("device*")] == [".h5"]  # --format h5
     system = ["simulate", "system", "--duration", "600", "--rate", "1", "--seed", "2"]
-    assert _main([*system, "--out", tmp_path / "own"])[0] == 0
-    status, _, err = _main([*system, "--out", tmp_path / "installed", "--installed", ws.record])
+    assert run_cli([*system, "--out", tmp_path / "own"])[0] == 0
+    status, _, err = run_cli([*system, "--out", tmp_path / "installed", "--installed", ws.record])
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(ws.record)
     own, installed = (load_truth(tmp_path / d / "truth.json").installed_calibration for d in ("own", "installed"))
@@ -105,20 +96,20 @@ def test_run_chunk_retries_timeout_and_store(ws, tmp_path):
     --timeout is for a network platform and refused with the simulated one (it would be ignored)."""
     plan = _plan(tmp_path / "plan.json")
     common = ["run", plan, "--driver", "sim", "--seed", "8", "--unit", ws.serial, "--yes", "--quiet"]
-    assert _main([*common, "--out", tmp_path / "default"])[0] == 0
-    status, _, err = _main([*common, "--out", tmp_path / "chunked", "--chunk", "0.2", "--retries", "4"])
+    assert run_cli([*common, "--out", tmp_path / "default"])[0] == 0
+    status, _, err = run_cli([*common, "--out", tmp_path / "chunked", "--chunk", "0.2", "--retries", "4"])
     assert status == 0, err[-1000:]
     executed = json.loads((tmp_path / "chunked" / "procedure.json").read_text(encoding="utf-8"))
     assert (executed["chunk"], executed["retries"]) == (0.2, 4)  # --chunk, --retries: the plan the run keeps and resumes
     assert max(_piece_spans(tmp_path / "chunked")) <= 0.2 < max(_piece_spans(tmp_path / "default")) <= 0.5  # sample time stamps
     assert len(_piece_spans(tmp_path / "chunked")) > len(_piece_spans(tmp_path / "default"))
     store = tmp_path / "store"
-    assert _main(["history", ws.serial, "--store", store, "--add", ws.record])[0] == 0
-    status, _, err = _main([*common, "--out", tmp_path / "stored", "--store", store])
+    assert run_cli(["history", ws.serial, "--store", store, "--add", ws.record])[0] == 0
+    status, _, err = run_cli([*common, "--out", tmp_path / "stored", "--store", store])
     assert status == 0, err[-1000:]
     assert (tmp_path / "stored" / "prior.json").read_bytes() == ws.record.read_bytes()  # --store: the record in force is the prior
     assert not (tmp_path / "default" / "prior.json").exists()
-    status, _, err = _main([*common, "--out", tmp_path / "timeout", "--timeout", "5"])
+    status, _, err = run_cli([*common, "--out", tmp_path / "timeout", "--timeout", "5"])
     assert status == 2 and "--timeout" in err and "tcp://HOST:PORT" in err and not (tmp_path / "timeout").exists()
 
 
@@ -137,7 +128,7 @@ def test_recal_options(ws, tmp_path):
     argv = ["recal", "field-recal-device", "--unit", ws.serial, "--prior", ws.record, "--driver", "sim", "--out", out, "--yes", "--quiet",
             "--truth", tmp_path / "truth.json", "--hidden", "K3_x=100ug/g3", "--chunk", "0.5", "--retries", "3", "--new-calibration",
             "--json"]  # fmt: skip
-    status, stdout, err = _main(argv)
+    status, stdout, err = run_cli(argv)
     assert status == 0, err[-1000:]
     assert json.loads(stdout)["prior"] == str(ws.record)
     assert (out / "prior.json").read_bytes() == ws.record.read_bytes()  # --prior: the record it starts from
@@ -150,10 +141,10 @@ def test_recal_options(ws, tmp_path):
     assert record.calibration.id != prior.calibration.id and record.calibration.prior is not None  # --new-calibration
     before = record.values()
     (out / "record.json").unlink()
-    status, stdout, err = _main(["recal", "--resume", out, "--re-estimate", "--json"])
+    status, stdout, err = run_cli(["recal", "--resume", out, "--re-estimate", "--json"])
     assert status == 0 and "again from its journal" in err, err[-1000:]  # --re-estimate: from the journal alone
     assert CalibrationRecord.load(out / "record.json").values() == pytest.approx(before, rel=0, abs=1e-15)
-    status, _, err = _main([*argv[:9], tmp_path / "no", "--yes", "--timeout", "5"])
+    status, _, err = run_cli([*argv[:9], tmp_path / "no", "--yes", "--timeout", "5"])
     assert status == 2 and "--timeout" in err and not (tmp_path / "no").exists()  # --timeout: for a network platform only
 
 
@@ -169,7 +160,7 @@ def test_run_link_failures_and_timeout_over_tcp(tmp_path):
                                      ("stall", "stall", ["--link-failures", "2", "--timeout", "1"])):  # fmt: skip
             with FaultyRelay(server.port, fault=(fault, 20_000)) as relay:
                 argv = ["run", plan, "--driver", f"tcp://127.0.0.1:{relay.port}", "--out", tmp_path / name, "--yes", "--quiet", *options]
-                statuses[name] = _main(argv)[0]
+                statuses[name] = run_cli(argv)[0]
     assert statuses["cut1"] == 3  # --link-failures 1: stopped (resumable) at the first cut
     assert statuses["cut2"] == 0 and statuses["stall"] == 0  # --link-failures 2: the step repeated on a new link, finished
     errors = {}
@@ -192,7 +183,7 @@ def test_run_new_calibration_starts_its_own(ws, tmp_path):
     from stableins.records import CalibrationRecord
 
     argv = ["run", "field-recal-device", "--driver", "sim", "--seed", "4", "--unit", ws.serial, "--prior", ws.record, "--yes", "--quiet"]
-    status, _, err = _main([*argv, "--out", tmp_path / "new", "--new-calibration"])
+    status, _, err = run_cli([*argv, "--out", tmp_path / "new", "--new-calibration"])
     assert status == 0, err[-1000:]
     prior, new = CalibrationRecord.load(ws.record), CalibrationRecord.load(tmp_path / "new" / "record.json")
     assert new.calibration.id != prior.calibration.id  # --new-calibration: its own calibration ...
@@ -212,7 +203,7 @@ def test_recal_link_failures_and_timeout_over_tcp(ws, tmp_path):
             with FaultyRelay(server.port, fault=("stall", 50_000)) as relay:
                 argv = ["recal", "field-recal-device", "--unit", ws.serial, "--prior", ws.record, "--driver", f"tcp://127.0.0.1:{relay.port}",
                         "--out", tmp_path / allowed, "--yes", "--quiet", "--timeout", "1", "--link-failures", allowed]  # fmt: skip
-                statuses[allowed] = _main(argv)[0]
+                statuses[allowed] = run_cli(argv)[0]
             failed = [r for r in scan(tmp_path / allowed / "journal.bin").records if r.kind == "op" and r.get("error")]
             errors[allowed] = [str(r["error"]) for r in failed]
     assert statuses["1"] == 3 and not (tmp_path / "1" / "record.json").exists()  # --link-failures 1: stopped at the stall

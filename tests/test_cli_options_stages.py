@@ -8,23 +8,14 @@ tests/test_cli_options.py maps the options to these tests.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 import pytest
+from inprocess import run_cli
 from test_cli_options_quiet import quiet_main
 
-from stableins import cli
 from stableins.records import CalibrationRecord
-
-
-def _main(argv: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = cli.main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 def _shared_record_options(prior: Path, base: Path, out: Path) -> None:
@@ -50,25 +41,25 @@ def drift_run(tmp_path_factory):
     prior_record(truth).save(root / "cal.json")
     argv = ["run", "drift-two-position", "--driver", "sim", "--truth", root / "truth.json", "--prior", root / "cal.json",
             "--out", root / "run", "--yes", "--quiet"]  # fmt: skip
-    assert _main(argv)[0] == 0
+    assert run_cli(argv)[0] == 0
     return root
 
 
 def test_calibrate_drift_options(drift_run, tmp_path, monkeypatch):
     """--json, --one-position (the base held at its survey), --new-calibration, --set, --quiet."""
     run, prior = drift_run / "run", drift_run / "cal.json"
-    status, out, err = _main(["calibrate", "drift", run, "--prior", prior, "--out", tmp_path / "base.json", "--json"])
+    status, out, err = run_cli(["calibrate", "drift", run, "--prior", prior, "--out", tmp_path / "base.json", "--json"])
     assert status == 0, err[-1000:]
     base = json.loads(out)  # --json: one document, the record's numbers in °/h
     assert base["out"] == str(tmp_path / "base.json") and set(base["gyro_drift_deg_per_hour"]) == {f"gyro_drift_{a}" for a in "xyz"}
     argv = ["calibrate", "drift", run, "--prior", prior, "--out", tmp_path / "one.json", "--one-position", "--json"]
-    status, out, err = _main(argv)
+    status, out, err = run_cli(argv)
     assert status == 0, err[-1000:]
     one = json.loads(out)
     assert (base["settings"]["base"], one["settings"]["base"]) == ("auto", "survey")  # --one-position
     assert "tilt_east" in base["settings"]["nuisances"] and "tilt_east" not in one["settings"]["nuisances"]
     argv = ["calibrate", "drift", run, "--prior", prior, "--out", tmp_path / "new.json", "--new-calibration", "--set", "laboratory=Lab O"]
-    assert _main(argv)[0] == 0
+    assert run_cli(argv)[0] == 0
     _shared_record_options(prior, tmp_path / "base.json", tmp_path / "new.json")
     argv = ["calibrate", "drift", run, "--prior", prior, "--out", tmp_path / "quiet.json", "--quiet"]
     status, _, err, seen = quiet_main(monkeypatch, argv, "stableins.commands.calibrate_drift")
@@ -96,7 +87,7 @@ def test_calibrate_thermal_options(thermal_session, tmp_path, monkeypatch):
     from stableins.estimators.thermal_sensitivity import THERMAL_TERM_IDS
 
     prior = thermal_session / "prior.json"
-    status, out, err = _main(["calibrate", "thermal", thermal_session, "--prior", prior, "--out", tmp_path / "base.json", "--json"])
+    status, out, err = run_cli(["calibrate", "thermal", thermal_session, "--prior", prior, "--out", tmp_path / "base.json", "--json"])
     assert status == 0, err[-1000:]
     document = json.loads(out)  # --json: the document, the same numbers as the record
     record = CalibrationRecord.load(tmp_path / "base.json")
@@ -108,7 +99,7 @@ def test_calibrate_thermal_options(thermal_session, tmp_path, monkeypatch):
         )
     argv = ["calibrate", "thermal", thermal_session, "--prior", prior, "--out", tmp_path / "new.json", "--new-calibration",
             "--set", "laboratory=Lab O"]  # fmt: skip
-    assert _main(argv)[0] == 0
+    assert run_cli(argv)[0] == 0
     _shared_record_options(prior, tmp_path / "base.json", tmp_path / "new.json")
     argv = ["calibrate", "thermal", thermal_session, "--prior", prior, "--out", tmp_path / "quiet.json", "--quiet"]
     status, _, err, seen = quiet_main(monkeypatch, argv, "stableins.commands.calibrate_thermal")

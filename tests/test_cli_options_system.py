@@ -7,15 +7,13 @@ option is checked where it lands.  tests/test_cli_options.py maps the options to
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from inprocess import run_cli
 
-from stableins import cli
 from stableins.records import CalibrationRecord
 
 
@@ -28,15 +26,8 @@ def ws(fuzz_workspace):
 def base(ws, tmp_path_factory):
     """The calibration without options: the record the option runs are compared with."""
     out = tmp_path_factory.mktemp("system-base") / "base.json"
-    assert _main(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out])[0] == 0
+    assert run_cli(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out])[0] == 0
     return CalibrationRecord.load(out)
-
-
-def _main(argv: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = cli.main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 def _values(record: CalibrationRecord) -> dict[str, float]:
@@ -49,7 +40,7 @@ def test_calibrate_system_model_options(ws, base, tmp_path):
     argv = ["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--case-rotation-period", "600", "--no-couplings",
             "--no-loop-compensation", "--estimate-k2", "--chunk-rows", "4096", "--set", "laboratory=Lab S",
             "--new-calibration"]  # fmt: skip
-    status, _, err = _main(argv)
+    status, _, err = run_cli(argv)
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
     settings, before = record.stages_run[-1].settings, base.stages_run[-1].settings
@@ -70,7 +61,7 @@ def test_calibrate_system_model_options(ws, base, tmp_path):
 def test_calibrate_system_chunk_rows_do_not_change_the_result(ws, base, tmp_path):
     """--chunk-rows: the record is streamed in chunks of that many rows; the estimates agree within 1 % of their σ."""
     out = tmp_path / "chunked.json"
-    status, _, err = _main(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--chunk-rows", "1024"])
+    status, _, err = run_cli(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--chunk-rows", "1024"])
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
     assert record.stages_run[-1].settings.options.chunk_rows == 1024
@@ -87,7 +78,7 @@ def test_calibrate_system_gyro_drift_and_noise_options(ws, base, tmp_path):
     out = tmp_path / "drift.json"
     argv = ["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--gyro-drift", "0.01", "0", "0",
             "--gyro-drift-uncertainty", "0.0001", "--json"]  # fmt: skip
-    status, stdout, err = _main(argv)
+    status, stdout, err = run_cli(argv)
     assert status == 0, err[-1000:]
     record = CalibrationRecord.load(out)
     settings = record.stages_run[-1].settings
@@ -109,7 +100,7 @@ def test_calibrate_system_gyro_drift_and_noise_options(ws, base, tmp_path):
     noisy = tmp_path / "noise.json"
     replace(_record(ws.serial), noise_model=model).save(noisy)
     out = tmp_path / "noise-out.json"
-    status, _, err = _main(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--noise", noisy])
+    status, _, err = run_cli(["calibrate", "system", ws.system_h5, "--prior", ws.record, "--out", out, "--noise", noisy])
     assert status == 0, err[-1000:]
     written = CalibrationRecord.load(out).noise_model
     assert "noise record for the options test" in written.provenance  # --noise: the model of that record
@@ -136,18 +127,18 @@ def gapped(tmp_path_factory):
 
 def test_allow_gaps_lets_check_calibrate_and_diagnose_read_a_gapped_record(ws, gapped, tmp_path):
     """Without --allow-gaps the gap is refused (exit 2, naming the row); with it each command reads the record, warned."""
-    status, _, err = _main(["check", gapped])
+    status, _, err = run_cli(["check", gapped])
     assert status == 2 and "gap" in err
-    status, stdout, err = _main(["check", gapped, "--allow-gaps", "--json"])
+    status, stdout, err = run_cli(["check", gapped, "--allow-gaps", "--json"])
     assert status == 0, err[-1000:]
     found = json.loads(stdout)["files"][0]
     assert found["gaps"] == 1 and found["samples"] == 86064  # --allow-gaps: accepted, the one gap of 100 samples reported
     out = tmp_path / "gapped.json"
-    assert _main(["calibrate", "system", gapped, "--prior", ws.record, "--out", out])[0] == 2 and not out.exists()
-    status, _, err = _main(["calibrate", "system", gapped, "--prior", ws.record, "--out", out, "--allow-gaps"])
+    assert run_cli(["calibrate", "system", gapped, "--prior", ws.record, "--out", out])[0] == 2 and not out.exists()
+    status, _, err = run_cli(["calibrate", "system", gapped, "--prior", ws.record, "--out", out, "--allow-gaps"])
     assert status == 0 and "gap" in err and out.exists()  # --allow-gaps: calibrated from the samples present, warned
-    assert _main(["diagnose", gapped, "--record", ws.record])[0] == 2
-    status, stdout, err = _main(["diagnose", gapped, "--record", ws.record, "--allow-gaps", "--json"])
+    assert run_cli(["diagnose", gapped, "--record", ws.record])[0] == 2
+    status, stdout, err = run_cli(["diagnose", gapped, "--record", ws.record, "--allow-gaps", "--json"])
     assert status == 0, err[-1000:]
     document = json.loads(stdout)  # --allow-gaps: the diagnosis of the gapped record, its 23.93 h without the gap
     assert document["stage"] == "system" and "gapped.h5: 23.93 h" in document["noise_model"]["provenance"] and "gap" in err

@@ -7,6 +7,7 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pytest
+from inprocess import run_cli
 
 from stableins.errormodel import known_terms
 from stableins.errors import InputError
@@ -234,20 +235,6 @@ def test_two_records_a_minute_apart_state_no_drift(tmp_path, capsys):
     assert all(math.isfinite(t.slope) for t in store.trends("INS-7"))
 
 
-def _cli(*argv, answers=None):
-    import os
-    import subprocess
-    import sys
-
-    from tests.tcp_fixtures import ROOT
-
-    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
-    stdin = {"input": answers} if answers is not None else {"stdin": subprocess.DEVNULL}
-    return subprocess.run(
-        [sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60, **stdin
-    )
-
-
 def test_recal_asks_for_the_operator_laboratory_and_customer(tmp_path):
     import json
     from dataclasses import replace
@@ -257,22 +244,22 @@ def test_recal_asks_for_the_operator_laboratory_and_customer(tmp_path):
     store, rng = tmp_path / "store", np.random.default_rng(4)
     first = make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00")
     first.with_entries(parse_entries(["customer=Navy Yard"])).save(tmp_path / "first.json")
-    assert _cli("history", "INS-7", "--store", str(store), "--add", str(tmp_path / "first.json")).returncode == 0
+    assert run_cli(["history", "INS-7", "--store", str(store), "--add", str(tmp_path / "first.json")]).returncode == 0
     other = make_record(TRUTH + rng.normal(0, 0.5 * SIGMA), np.diag((0.5 * SIGMA) ** 2), "2026-01-02T00:00:00+00:00")
     run = replace(other.stages[0], likelihood=estimate([p.value for p in other.parameters], other.covariance).likelihood)
     (tmp_path / "estimate.json").write_text(json.dumps(replace(other, stages=(run,)).to_document()))
     argv = ["recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"), "--no-file"]
     # asked at the terminal: the operator, then the laboratory; the customer is the record in force's
-    result = _cli(*argv, "--out", str(tmp_path / "a"), answers="A. Tester\nPTB\n")
+    result = run_cli([*argv, "--out", str(tmp_path / "a")], stdin="A. Tester\nPTB\n")
     assert result.returncode == 0, result.stderr
     assert "Operator (the person performing this recalibration) [Enter: not stated]:" in result.stderr
     assert "Customer: Navy Yard (the record in force's)" in result.stderr and "DRAFT" not in result.stderr
     record = CalibrationRecord.load(tmp_path / "a" / "record.json")
     assert {e.key: e.text() for e in record.calibration.entries} == {"operator": "A. Tester", "laboratory": "PTB", "customer": "Navy Yard"}
     # Enter states none: the certificate is a DRAFT and says which flag gives it; the flags answer without a prompt
-    result = _cli(*argv, "--out", str(tmp_path / "b"), answers="\n\n")
+    result = run_cli([*argv, "--out", str(tmp_path / "b")], stdin="\n\n")
     assert result.returncode == 0 and "the certificate is a DRAFT: laboratory, operator not stated" in result.stderr, result.stderr
-    result = _cli(*argv, "--out", str(tmp_path / "c"), "--operator", "B", "--laboratory", "L", answers="")
+    result = run_cli([*argv, "--out", str(tmp_path / "c"), "--operator", "B", "--laboratory", "L"], stdin="")
     assert result.returncode == 0 and "[Enter: not stated]" not in result.stderr and "DRAFT" not in result.stderr, result.stderr
 
 
@@ -283,7 +270,7 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     store = tmp_path / "store"
     first = tmp_path / "first.json"
     make_record(TRUTH + rng.normal(0, SIGMA), np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00").save(first)
-    result = _cli("history", "INS-7", "--store", str(store), "--add", str(first), "--at", "2026-01-01", "--max-age", "180")
+    result = run_cli(["history", "INS-7", "--store", str(store), "--add", str(first), "--at", "2026-01-01", "--max-age", "180"])
     assert result.returncode == 0, result.stderr
     assert "WARNING: the record in force is 365 days old" in result.stdout
     # a field recalibration whose data show a real 10σ change of bias_x: a calibration of new data made elsewhere
@@ -293,9 +280,9 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
 
     run = replace(other.stages[0], likelihood=estimate([p.value for p in other.parameters], other.covariance).likelihood)
     (tmp_path / "estimate.json").write_text(json.dumps(replace(other, stages=(run,)).to_document()))
-    result = _cli(
+    result = run_cli([
         "recal", "--unit", "INS-7", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"), "--out", str(tmp_path / "recal"),
-        "--json",
+        "--json"]
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     document = json.loads(result.stdout)
@@ -308,7 +295,7 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     entries = HistoryStore(store).entries("INS-7")
     in_force = HistoryStore(store).in_force("INS-7")
     assert len(entries) == 2 and (store / "INS-7" / in_force.file).read_bytes() == (tmp_path / "recal" / "record.json").read_bytes()
-    result = _cli("history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"), "--json")
+    result = run_cli(["history", "INS-7", "--store", str(store), "--plot", str(tmp_path / "drift.png"), "--json"])
     assert result.returncode == 0, result.stderr
     history = json.loads(result.stdout)
     assert history["changes"][0]["relation"] == "descendant" and history["changes"][0]["significant"] == ["bias_x"]
@@ -316,7 +303,7 @@ def test_cli_history_and_recal_with_an_estimate(tmp_path):
     # bad input: another unit's record, an unknown unit
     other_unit = tmp_path / "other.json"
     make_record(TRUTH, np.diag(SIGMA**2), "2025-01-01T00:00:00+00:00", serial="INS-8").save(other_unit)
-    result = _cli("history", "INS-7", "--store", str(store), "--add", str(other_unit))
+    result = run_cli(["history", "INS-7", "--store", str(store), "--add", str(other_unit)])
     assert result.returncode == 2 and "INS-8" in result.stderr and "Traceback" not in result.stderr
-    result = _cli("recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(tmp_path / "estimate.json"))
+    result = run_cli(["recal", "--unit", "NOPE", "--store", str(store), "--estimate", str(tmp_path / "estimate.json")])
     assert result.returncode == 2 and "no calibration records for unit 'NOPE'" in result.stderr

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from inprocess import run_cli
 from systematic_world import prior_record
 
 from stableins.console import Console
@@ -68,7 +69,8 @@ prompt = "The INS navigates on a static base"
 POPPLER = shutil.which("pdftotext") and shutil.which("pdftoppm")
 
 
-def _cli(*argv: str) -> subprocess.CompletedProcess[str]:
+def _process(*argv: str) -> subprocess.CompletedProcess[str]:
+    """``stableins ARGV`` in a fresh interpreter: a resume after the crash of the process that started the run."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     return subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
 
@@ -99,7 +101,7 @@ def reference(inputs):
     folder, _ = inputs
     run = folder / "run"
     args = ("run", str(folder / "short.toml"), "--driver", "sim", "--seed", str(SEED), "--unit", UNIT)
-    result = _cli(*args, "--prior", str(folder / "cal.json"), "--out", str(run), "--yes")
+    result = run_cli([*args, "--prior", str(folder / "cal.json"), "--out", str(run), "--yes"])
     assert result.returncode == 0, result.stderr
     return run, result.stderr + result.stdout
 
@@ -132,8 +134,8 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
 
     # the same record through 'calibrate system --systematic --json': the same numbers and orientations
     out = folder / "cal2.json"
-    result = _cli(
-        "calibrate", "system", str(run / "system.h5"), "--prior", str(folder / "cal.json"), "--systematic", "--out", str(out), "--json"
+    result = run_cli(
+        ["calibrate", "system", str(run / "system.h5"), "--prior", str(folder / "cal.json"), "--systematic", "--out", str(out), "--json"]
     )
     assert result.returncode == 0, result.stderr
     document = json.loads(result.stdout)
@@ -159,7 +161,7 @@ def test_run_ends_with_the_systematic_stage_and_the_record_json_and_certificate_
 
     # the certificates of both records show the section with these orientations
     pdf = folder / "cal2.pdf"
-    result = _cli("report", str(out), "--out", str(pdf))
+    result = run_cli(["report", str(out), "--out", str(pdf)])
     assert result.returncode == 0, result.stderr
     if not POPPLER:
         pytest.skip("pdftotext/pdftoppm (Debian package poppler-utils) are not installed: the certificates are written, not read back")
@@ -202,7 +204,7 @@ def test_a_run_killed_in_the_record_resumes_to_the_same_record(inputs, reference
             driver=driver,
             setup=setup,
         )
-    result = _cli("run", "--resume", str(tmp_path / "run"))
+    result = _process("run", "--resume", str(tmp_path / "run"))
     assert result.returncode == 0, result.stderr
     resumed, first = open_system_record(tmp_path / "run" / "system.h5").read(), open_system_record(run / "system.h5").read()
     for name in first:
@@ -234,7 +236,9 @@ def test_a_definition_the_platform_cannot_carry_out_is_refused_before_it_moves(t
     path.write_text(text)
     out = tmp_path / "run"
     prior = str(folder / "cal.json")
-    result = _cli("run", str(path), "--driver", "sim", "--seed", str(SEED), "--unit", UNIT, "--prior", prior, "--out", str(out), "--yes")
+    result = run_cli(
+        ["run", str(path), "--driver", "sim", "--seed", str(SEED), "--unit", UNIT, "--prior", prior, "--out", str(out), "--yes"]
+    )
     assert result.returncode == 2, result.stderr
     assert "Traceback" not in result.stderr and str(path) in result.stderr and f"field '{field}'" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
 
 import pytest
+from inprocess import run_cli
 
 from stableins.errors import InputError
 from stableins.procedures.definition import PROCEDURE_DIRECTORY, load_procedure
 from stableins.procedures.plan import DwellStep, OffsetIterationStep, PersonStep, StaticRecordStep
 from stableins.procedures.planning import plan_from_definition
-from tests.tcp_fixtures import ROOT
 
 SHIPPED = sorted(p.stem for p in PROCEDURE_DIRECTORY.glob("*.toml"))
 
@@ -144,33 +141,28 @@ def test_bad_system_and_syntax(tmp_path, text, message):
         load_procedure(path)
 
 
-def _cli(*argv):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "stableins.cli", *argv], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
-
-
 def test_cli_bad_procedure_is_exit_2_with_the_file_and_no_run(tmp_path):
     path = tmp_path / "bad.toml"
     path.write_text(MINIMAL_FINE + '[[person]]\nbefore = 1\naction = "dance"\nprompt = "x"\n')
-    result = _cli("run", str(path), "--driver", "sim", "--out", str(tmp_path / "run"), "--yes")
+    result = run_cli(["run", str(path), "--driver", "sim", "--out", str(tmp_path / "run"), "--yes"])
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert str(path) in result.stderr and "person.action" in result.stderr
     assert not (tmp_path / "run" / "journal.bin").exists()
     plan = tmp_path / "plan.json"
     plan.write_text('{"name": "x"}')
-    result = _cli("run", str(plan), "--driver", "sim", "--out", str(tmp_path / "run2"))
+    result = run_cli(["run", str(plan), "--driver", "sim", "--out", str(tmp_path / "run2")])
     assert result.returncode == 2 and "missing key 'level'" in result.stderr and "Traceback" not in result.stderr
-    result = _cli("run", "device-fine", "--out", str(tmp_path / "run3"))
+    result = run_cli(["run", "device-fine", "--out", str(tmp_path / "run3")])
     assert result.returncode == 2 and "--driver" in result.stderr
-    result = _cli("run", "--resume", str(tmp_path / "nothing-here"))
+    result = run_cli(["run", "--resume", str(tmp_path / "nothing-here")])
     assert result.returncode == 2 and "no run journal" in result.stderr
 
 
 def test_fine_stage_without_a_prior_is_refused_before_anything_runs(tmp_path):
     path = tmp_path / "p.toml"
     path.write_text(MINIMAL_FINE)
-    result = _cli("run", str(path), "--driver", "sim", "--out", str(tmp_path / "run"), "--yes")
+    result = run_cli(["run", str(path), "--driver", "sim", "--out", str(tmp_path / "run"), "--yes"])
     assert result.returncode == 2 and "--prior" in result.stderr
     assert not (tmp_path / "run" / "journal.bin").exists()
 
@@ -178,7 +170,7 @@ def test_fine_stage_without_a_prior_is_refused_before_anything_runs(tmp_path):
 def test_a_stopped_run_says_how_to_resume(tmp_path):
     path = tmp_path / "p.toml"
     path.write_text(MINIMAL_FINE.replace('"fine"', '"coarse"') + "[runner]\nretries = 0\nscatter_max = 1.0\n")  # 1 µg: noise fails it
-    result = _cli("run", str(path), "--driver", "sim", "--seed", "1", "--out", str(tmp_path / "run"), "--yes")
+    result = run_cli(["run", str(path), "--driver", "sim", "--seed", "1", "--out", str(tmp_path / "run"), "--yes"])
     assert result.returncode == 3, result.stderr
     assert "rejected 1 times (retries = 0)" in result.stderr and f"stableins run --resume {tmp_path / 'run'}" in result.stderr
     assert "Traceback" not in result.stderr
