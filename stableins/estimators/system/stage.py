@@ -123,7 +123,9 @@ class SystemCalibration(SystemCalibrationView):
 
 @dataclass(frozen=True)
 class HeldSteps:
-    """What a re-run of the solve steps for a Type B sensitivity takes from the stage's run (:mod:`stableins.estimators.system.sensitivity`).
+    """What a re-run of the solve steps for a Type B sensitivity takes from the stage's run.
+
+    The re-runs are :mod:`stableins.estimators.system.sensitivity`'s.
 
     Attributes
     ----------
