@@ -128,8 +128,6 @@ def _clipped(x: NDArray[np.float64], full_scale: float = np.inf) -> bool:
         # the converter's range: the answer without sorting the samples (issue 30: 3 sorts per dwell)
         return False
     levels, counts = np.unique(finite, return_counts=True)
-    if levels.size == 0:
-        return False
     step = float(np.min(np.diff(levels))) if levels.size > 1 else 0.0
     return any(count >= 3 and abs(extreme) >= full_scale - step for extreme, count in ((levels[-1], counts[-1]), (levels[0], counts[0])))
 

@@ -307,10 +307,9 @@ class SimulatedPlatform:
             rows = segment == j
             tau = (index[rows] - c.sample) / self.rate + shift
             delta = c.target - c.start
-            if c.duration > 0 and tau.min() >= c.duration:  # the slew is over (x = 1): the same values, computed once
-                x = np.ones(1)
-                r = np.broadcast_to(c.start + delta * (0.5 * (1.0 - np.cos(np.pi * x)))[:, None], (len(tau), 3)).copy()
-                rd = np.broadcast_to(delta * 0.0, (len(tau), 3)).copy()
+            if c.duration > 0 and tau.min() >= c.duration:  # the slew is over: the next branch's values at x = 1, made once
+                r = np.tile(c.start + delta, (len(tau), 1))  # its 0.5 (1 − cos π) is exactly 1
+                rd = np.tile(delta * 0.0, (len(tau), 1))  # its zero rate, signed as delta · 0
             elif c.duration > 0:
                 x = np.clip(tau / c.duration, 0.0, 1.0)
                 moving = (tau > 0) & (tau < c.duration)

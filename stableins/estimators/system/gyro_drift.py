@@ -247,19 +247,18 @@ def fit_gimbal_drift(
     inner_reference = inner_body.mean(axis=0)
     # the inner and middle angles move a little (the drift tilts the platform): a sensor error's local slope scales that
     moved = angles[:, 1:] - angles[:, 1:].mean(axis=0)
-    with_columns = g_sensitivity is not None and g_sensitivity_sigma is not None
+    column_prior = g_sensitivity_sigma if g_sensitivity is not None else None  # the D_g errors' σ when its turn is composed out
     columns, column_sigma = np.zeros((t.size, 3, 0)), np.zeros(0)
-    if with_columns:
-        assert g_sensitivity_sigma is not None
+    if column_prior is not None:  # the first pass's columns (its drift 0, its reference the start's)
         columns, column_sigma = g_sensitive_columns(
-            t, latitude, reference=reference, gravity=gravity, sigma=g_sensitivity_sigma, drift=np.zeros(3)
+            t, latitude, reference=reference, gravity=gravity, sigma=column_prior, drift=np.zeros(3)
         )
     extra = column_sigma.size
     prior = np.diag(np.r_[np.zeros(10), 1.0 / inner_offset_sigma**2, np.full(2, 1.0 / SLOPE_SIGMA**2), 1.0 / column_sigma**2])
     sigma = np.ones(3)
     fit = None
     drift = np.zeros(3)
-    for _ in range(PASSES):
+    for iteration in range(PASSES):
         # remove the fitted nuisances exactly: the inner offset inside the chain, base-fixed ω_b on the right, the z_p
         # sensor error on the left
         inner_angle = angles[:, 1] + inner + slopes[0] * moved[:, 0]
@@ -272,9 +271,8 @@ def fit_gimbal_drift(
         else:  # X = rot(−ε t) Z: the g-sensitive turn Z composed out on the right (in the frame of the start)
             turn = g_sensitive_turn(t, latitude, reference=reference, gravity=gravity, g_sensitivity=g_sensitivity, drift=drift)
             e = rotation_vector(q @ reference.T @ turn.swapaxes(1, 2))
-            if with_columns:
-                assert g_sensitivity_sigma is not None
-                columns = g_sensitive_columns(t, latitude, reference=reference, gravity=gravity, sigma=g_sensitivity_sigma, drift=drift)[0]
+            if column_prior is not None and iteration > 0:  # later passes: the fitted drift and reference
+                columns = g_sensitive_columns(t, latitude, reference=reference, gravity=gravity, sigma=column_prior, drift=drift)[0]
         # an inner offset d moves e by −s2 d a_p(t) (a_p = C_b^p b_inner, the axis in the platform frame); taken with the
         # base rotation s2 d b_ref that cancels it to first order, its column is the small s2 C_b^p (b_ref − b_inner(t))
         # an error k·(α − ᾱ) of the inner (middle) angle turns the platform by −s k (α − ᾱ) about that gimbal's axis
